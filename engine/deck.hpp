@@ -1,0 +1,117 @@
+// Decks: TOML (toml++) with variables and expressions in numeric fields (muparser),
+// command-line overrides (`--set key=value`) and strict checking: every error is one line
+// naming the file and line (or the --set that supplied the value), the dotted key and what
+// was expected, and is thrown as InputError (exit 2).
+//
+//   [variables]                 # numbers or expressions over earlier-resolved variables
+//   eps = 1e-3
+//   [integrator]
+//   h = "eps/100"               # any numeric field may be an expression string
+#pragma once
+
+#include <Eigen/Core>
+#include <map>
+#include <memory>
+#include <optional>
+#include <set>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+namespace toml {
+inline namespace v3 {
+class node;
+class table;
+}  // namespace v3
+}  // namespace toml
+
+namespace stiffmd {
+
+class Deck;
+
+// A view of one TOML table that remembers which keys were read, so that finish() can
+// reject the keys nobody asked for (typos, keys of another style).
+class DeckTable {
+ public:
+  DeckTable(const Deck* deck, const toml::table* table, std::string path);
+
+  bool has(std::string_view key) const;
+
+  double number(std::string_view key);
+  double number(std::string_view key, double fallback);
+  std::optional<double> maybe_number(std::string_view key);
+  long integer(std::string_view key);
+  long integer(std::string_view key, long fallback);
+  std::optional<long> maybe_integer(std::string_view key);
+  std::string string(std::string_view key);
+  std::string string(std::string_view key, std::string fallback);
+  bool boolean(std::string_view key, bool fallback);
+  Eigen::Vector3d vector3(std::string_view key);
+  Eigen::Vector3d vector3(std::string_view key, const Eigen::Vector3d& fallback);
+  // Three booleans, or one boolean meaning all three axes.
+  Eigen::Vector3i bool3(std::string_view key, bool fallback);
+  // A list of integers (e.g. a bond's two particle indices).
+  std::vector<long> integers(std::string_view key);
+  std::vector<std::string> strings(std::string_view key);
+
+  std::optional<DeckTable> table(std::string_view key);
+  // Every entry of this table must itself be a table: [types.A], [types.B], …
+  std::vector<std::pair<std::string, DeckTable>> named_tables();
+  // An array of tables ([[particles]]); empty when the key is absent.
+  std::vector<DeckTable> array_of_tables(std::string_view key);
+
+  // Errors at a key (its file:line) or at this table.
+  [[noreturn]] void fail(std::string_view key, const std::string& what) const;
+  [[noreturn]] void fail_here(const std::string& what) const;
+  // Check that a number read from `key` satisfies a condition.
+  void require(bool ok, std::string_view key, const std::string& what) const {
+    if (!ok) fail(key, what);
+  }
+
+  // Rejects every key that was never asked for, listing the ones this table accepts.
+  void finish() const;
+
+  const std::string& path() const { return path_; }
+  std::string key_path(std::string_view key) const;
+
+ private:
+  const toml::node* get(std::string_view key);
+  double to_number(const toml::node& n, const std::string& key_path) const;
+
+  const Deck* deck_;
+  const toml::table* table_;
+  std::string path_;
+  std::set<std::string, std::less<>> used_;
+  std::set<std::string, std::less<>> known_;
+};
+
+class Deck {
+ public:
+  // Parses the file and applies the overrides ("a.b.c=value"; the value is read as TOML, or
+  // as a string when it is not valid TOML: --set integrator.method=impulse works unquoted).
+  Deck(std::string path, const std::vector<std::string>& overrides);
+  ~Deck();
+  Deck(const Deck&) = delete;
+  Deck& operator=(const Deck&) = delete;
+
+  DeckTable root() const;
+  const std::string& path() const { return path_; }
+  const std::map<std::string, double>& variables() const { return variables_; }
+
+  // "file:line" for a node, or "--set a.b" when the value came from the command line.
+  std::string location(const toml::node* n, const std::string& key_path) const;
+  // Evaluates a muparser expression over the deck's variables; throws InputError on failure.
+  double evaluate(const std::string& expr, const std::string& where) const;
+
+ private:
+  void apply_override(const std::string& assignment);
+  void resolve_variables();
+
+  std::string path_;
+  std::unique_ptr<toml::table> table_;
+  std::set<std::string> overridden_;
+  std::map<std::string, double> variables_;
+};
+
+}  // namespace stiffmd

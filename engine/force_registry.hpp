@@ -1,0 +1,33 @@
+// The one table of force-term styles a deck may name (style.md §6). Each row reads a
+// [forces.NAME] table into the term's validated parameters; the term itself (forcefields/)
+// knows nothing about decks. To add a force term: write forcefields/<term>.{hpp,cpp}, then
+// add one row to force_styles() in force_registry.cpp (see ARCHITECTURE.md).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/deck.hpp"
+#include "engine/topology.hpp"
+#include "forcefields/force_term.hpp"
+
+namespace stiffmd {
+
+// What a style's reader may see of the scene being assembled.
+struct TermContext {
+  const Topology& topology;
+  const Eigen::VectorXd& inv_mass;
+  std::vector<std::string>& bond_type_owner;  // per bond type: the term that defines it ("" = none yet)
+};
+
+struct ForceStyle {
+  const char* name;
+  Level default_level;
+  const char* summary;
+  std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);
+};
+
+const std::vector<ForceStyle>& force_styles();
+
+}  // namespace stiffmd

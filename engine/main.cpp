@@ -1,0 +1,71 @@
+// The stiffmd command line (design.md §7):
+//   stiffmd run DECK [-o DIR] [--set key=value]...   exit 0 ok, 2 bad input, 3 numerical failure
+//   stiffmd check DECK [--set key=value]...          validate and describe the scene
+#include <CLI/CLI.hpp>
+#include <filesystem>
+#include <iostream>
+
+#include "engine/deck.hpp"
+#include "engine/errors.hpp"
+#include "engine/scene.hpp"
+#include "engine/simulation.hpp"
+
+namespace {
+
+constexpr int kExitBadInput = 2;
+constexpr int kExitNumerical = 3;
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"stiffmd " STIFFMD_VERSION
+               " - molecular dynamics with stiff bonds: impulse, mollified and projected impulse,\n"
+               "RATTLE, velocity Verlet and the effective (eps -> 0) dynamics"};
+  app.set_version_flag("--version", "stiffmd " STIFFMD_VERSION);
+  app.require_subcommand(1);
+
+  std::string deck_path, out_dir;
+  std::vector<std::string> overrides;
+  bool no_progress = false;
+
+  CLI::App* run = app.add_subcommand("run", "run a deck");
+  run->add_option("deck", deck_path, "deck file (TOML)")->required();
+  run->add_option("-o,--output", out_dir, "output directory (default: out/<deck name>)");
+  run->add_option("--set", overrides, "override a deck key, e.g. --set variables.eps=1e-4 --set integrator.h=0.01")
+      ->take_all();
+  run->add_flag("--no-progress", no_progress, "no progress bar on stderr");
+
+  CLI::App* check = app.add_subcommand("check", "validate a deck and print what the scene contains");
+  check->add_option("deck", deck_path, "deck file (TOML)")->required();
+  check->add_option("--set", overrides, "override a deck key")->take_all();
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : kExitBadInput;
+  }
+
+  try {
+    const stiffmd::Deck deck(deck_path, overrides);
+    stiffmd::Scene scene = stiffmd::load_scene(deck);
+    if (check->parsed()) {
+      std::cout << stiffmd::describe(scene) << "deck is valid\n";
+      return 0;
+    }
+    if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
+    std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
+    const auto summary = stiffmd::run_simulation(scene, {out_dir, !no_progress}, std::cerr);
+    std::cout << stiffmd::format_summary(summary);
+    return 0;
+  } catch (const stiffmd::InputError& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return kExitBadInput;
+  } catch (const stiffmd::NumericalError& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return kExitNumerical;
+  } catch (const std::exception& e) {
+    std::cerr << "internal error: " << e.what() << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,281 @@
+#include "engine/scene.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <set>
+#include <sstream>
+
+#include "engine/errors.hpp"
+#include "engine/force_registry.hpp"
+
+namespace stiffmd {
+namespace {
+
+// Chemical symbols: trajectories name species by element so that ASE and OVITO read them.
+bool is_element(const std::string& s) {
+  static const std::set<std::string> elements = {
+      "H",  "He", "Li", "Be", "B",  "C",  "N",  "O",  "F",  "Ne", "Na", "Mg", "Al", "Si", "P",  "S",  "Cl", "Ar",
+      "K",  "Ca", "Sc", "Ti", "V",  "Cr", "Mn", "Fe", "Co", "Ni", "Cu", "Zn", "Ga", "Ge", "As", "Se", "Br", "Kr",
+      "Rb", "Sr", "Y",  "Zr", "Nb", "Mo", "Tc", "Ru", "Rh", "Pd", "Ag", "Cd", "In", "Sn", "Sb", "Te", "I",  "Xe",
+      "Cs", "Ba", "La", "Ce", "Pr", "Nd", "Pm", "Sm", "Eu", "Gd", "Tb", "Dy", "Ho", "Er", "Tm", "Yb", "Lu", "Hf",
+      "Ta", "W",  "Re", "Os", "Ir", "Pt", "Au", "Hg", "Tl", "Pb", "Bi", "Po", "At", "Rn", "Fr", "Ra", "Ac", "Th",
+      "Pa", "U",  "Np", "Pu", "Am", "Cm", "Bk", "Cf", "Es", "Fm", "Md", "No", "Lr", "Rf", "Db", "Sg", "Bh", "Hs",
+      "Mt", "Ds", "Rg", "Cn", "Nh", "Fl", "Mc", "Lv", "Ts", "Og"};
+  return elements.count(s) > 0;
+}
+
+// Distinct default elements for bead types that do not name one.
+const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H", "Fe", "Si"};
+
+void read_box(DeckTable& root, Scene& sc) {
+  auto t = root.table("box");
+  if (!t) return;  // open space
+  sc.box.periodic = t->bool3("periodic", false);
+  sc.box.origin = t->vector3("origin", Eigen::Vector3d::Zero());
+  if (sc.box.any_periodic() || t->has("lengths")) {
+    sc.box.lengths = t->vector3("lengths");
+    for (int a = 0; a < 3; ++a)
+      if (sc.box.periodic[a]) t->require(sc.box.lengths[a] > 0.0, "lengths", "expected box lengths > 0 on periodic axes");
+  }
+  t->finish();
+}
+
+void read_types(DeckTable& root, Scene& sc) {
+  auto t = root.table("types");
+  if (!t) root.fail_here("missing required table [types.NAME] (mass, element)");
+  size_t unnamed = 0;
+  for (auto& [name, tt] : t->named_tables()) {
+    ParticleType pt;
+    pt.name = name;
+    pt.mass = tt.number("mass");
+    tt.require(pt.mass > 0.0, "mass", "expected a mass > 0 (use fixed = true on a particle to pin it)");
+    const std::string fallback = is_element(name) ? name : kDefaultElements[unnamed++ % kDefaultElements.size()];
+    pt.element = tt.string("element", fallback);
+    if (!is_element(pt.element)) tt.fail("element", "expected a chemical element symbol such as \"C\", got \"" + pt.element + "\"");
+    tt.finish();
+    sc.types.push_back(pt);
+  }
+  if (sc.types.empty()) t->fail_here("expected at least one particle type [types.NAME]");
+}
+
+void read_particles(DeckTable& root, Scene& sc) {
+  auto rows = root.array_of_tables("particles");
+  if (rows.empty()) root.fail_here("missing required [[particles]] (type, position, velocity, fixed)");
+  const int n = static_cast<int>(rows.size());
+  State& s = sc.state;
+  s.x.resize(3, n);
+  s.v.resize(3, n);
+  s.inv_mass.resize(n);
+  sc.particle_type.resize(n);
+  for (int i = 0; i < n; ++i) {
+    DeckTable& p = rows[i];
+    std::string type_name = p.string("type", sc.types.size() == 1 ? sc.types[0].name : "");
+    if (type_name.empty()) p.fail_here("missing required key 'type' (the deck defines several [types])");
+    auto it = std::find_if(sc.types.begin(), sc.types.end(), [&](const ParticleType& t) { return t.name == type_name; });
+    if (it == sc.types.end()) p.fail("type", "unknown particle type '" + type_name + "' (define it as [types." + type_name + "])");
+    sc.particle_type[i] = static_cast<int>(it - sc.types.begin());
+    double mass = p.number("mass", it->mass);
+    p.require(mass > 0.0, "mass", "expected a mass > 0");
+    const bool fixed = p.boolean("fixed", false);
+    s.x.col(i) = p.vector3("position");
+    s.v.col(i) = p.vector3("velocity", Eigen::Vector3d::Zero());
+    if (fixed && !s.v.col(i).isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
+    s.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
+    p.finish();
+  }
+}
+
+void read_bonds(DeckTable& root, Scene& sc) {
+  const int n = sc.state.size();
+  std::set<std::pair<int, int>> seen;
+  for (DeckTable& b : root.array_of_tables("bonds")) {
+    const std::vector<long> ij = b.integers("particles");
+    if (ij.size() != 2) b.fail("particles", "expected two particle indices [i, j]");
+    for (long k : ij)
+      if (k < 0 || k >= n) b.fail("particles", "particle " + std::to_string(k) + " does not exist (particles are 0.." + std::to_string(n - 1) + ")");
+    if (ij[0] == ij[1]) b.fail("particles", "a bond must join two different particles");
+    const std::pair<int, int> key{static_cast<int>(std::min(ij[0], ij[1])), static_cast<int>(std::max(ij[0], ij[1]))};
+    if (!seen.insert(key).second) b.fail("particles", "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
+    const std::string type = b.string("type");
+    int t = sc.topology.bond_type_index(type);
+    if (t < 0) {
+      t = static_cast<int>(sc.topology.bond_types.size());
+      sc.topology.bond_types.push_back(type);
+    }
+    if ((sc.state.x.col(ij[0]) - sc.state.x.col(ij[1])).norm() == 0.0)
+      b.fail("particles", "the two particles of this bond sit at the same position (zero-length bond)");
+    b.finish();
+    sc.topology.bonds.push_back({static_cast<int>(ij[0]), static_cast<int>(ij[1]), t});
+  }
+}
+
+void read_forces(DeckTable& root, Scene& sc) {
+  sc.forces = std::make_unique<ForceField>(sc.box, sc.state.size());
+  std::vector<std::string> owner(sc.topology.bond_types.size());
+  TermContext ctx{sc.topology, sc.state.inv_mass, owner};
+  auto forces = root.table("forces");
+  if (forces) {
+    std::string stiff_term;
+    for (auto& [name, t] : forces->named_tables()) {
+      const std::string style = t.string("style");
+      const auto& styles = force_styles();
+      auto it = std::find_if(styles.begin(), styles.end(), [&](const ForceStyle& s) { return style == s.name; });
+      if (it == styles.end()) {
+        std::string known;
+        for (const auto& s : styles) known += (known.empty() ? "" : ", ") + std::string(s.name);
+        t.fail("style", "unknown force style '" + style + "' (known: " + known + ")");
+      }
+      const std::string level_name_str = t.string("level", std::string(level_name(it->default_level)));
+      const auto level = parse_level(level_name_str);
+      if (!level) t.fail("level", "expected \"fast\" or \"slow\", got \"" + level_name_str + "\"");
+      std::unique_ptr<ForceTerm> term;
+      try {
+        term = it->read(name, *level, t, ctx);
+      } catch (const std::invalid_argument& e) {
+        t.fail_here(e.what());
+      }
+      if (term->stiff_bonds()) {
+        if (!stiff_term.empty()) t.fail("style", "only one constraint-defining (stiff-harmonic) term is allowed; [forces." + stiff_term + "] is one");
+        stiff_term = name;
+      }
+      t.finish();
+      sc.forces->add(std::move(term));
+    }
+  }
+  // Every bonded interaction must have its parameters somewhere.
+  auto bond_rows = root.array_of_tables("bonds");
+  for (size_t k = 0; k < sc.topology.bonds.size(); ++k) {
+    const int t = sc.topology.bonds[k].type;
+    if (owner[t].empty())
+      bond_rows[k].fail("type", "bond type '" + sc.topology.bond_types[t] +
+                                    "' is not defined by any force term (add [forces.NAME.bond_types." +
+                                    sc.topology.bond_types[t] + "])");
+  }
+}
+
+void read_integrator(DeckTable& root, Scene& sc) {
+  auto t = root.table("integrator");
+  if (!t) root.fail_here("missing required table [integrator] (method, h)");
+  IntegratorSettings& in = sc.integrator;
+  in.method = t->string("method");
+  const auto& methods = integrator_methods();
+  if (std::find(methods.begin(), methods.end(), in.method) == methods.end()) {
+    std::string known;
+    for (const auto& m : methods) known += (known.empty() ? "" : ", ") + m;
+    t->fail("method", "unknown method '" + in.method + "' (known: " + known + ")");
+  }
+  in.h = t->number("h");
+  t->require(in.h > 0.0, "h", "expected a macro step h > 0");
+  const auto micro_dt = t->maybe_number("micro_dt");
+  const auto micro_steps = t->maybe_integer("micro_steps");
+  if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
+  if (micro_dt) {
+    t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h (" + std::to_string(in.h) + ")");
+    // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt.
+    in.micro_steps = static_cast<int>(std::ceil(in.h / *micro_dt - 1e-9));
+  } else if (micro_steps) {
+    t->require(*micro_steps >= 1 && *micro_steps <= 100000000, "micro_steps", "expected an integer in 1..1e8");
+    in.micro_steps = static_cast<int>(*micro_steps);
+  }
+  t->finish();
+}
+
+void read_run(DeckTable& root, Scene& sc) {
+  auto t = root.table("run");
+  if (!t) root.fail_here("missing required table [run] (t_end)");
+  sc.run.t_end = t->number("t_end");
+  t->require(sc.run.t_end > 0.0, "t_end", "expected an end time > 0");
+  t->finish();
+  const double steps = sc.run.t_end / sc.integrator.h;
+  if (steps > 1e12) root.fail_here("run.t_end / integrator.h = " + std::to_string(steps) + " steps: too many");
+}
+
+void read_output(DeckTable& root, Scene& sc) {
+  OutputSettings& o = sc.output;
+  const double default_interval = sc.run.t_end / 100;
+  auto t = root.table("output");
+  if (!t) {
+    o = {"trajectory.xyz", default_interval, false, "thermo.csv", default_interval};
+    return;
+  }
+  o.xyz = t->string("xyz", "trajectory.xyz");
+  o.xyz_interval = t->number("xyz_interval", default_interval);
+  t->require(o.xyz_interval > 0.0, "xyz_interval", "expected a time interval > 0");
+  o.xyz_velocities = t->boolean("xyz_velocities", false);
+  o.thermo = t->string("thermo", "thermo.csv");
+  o.thermo_interval = t->number("thermo_interval", default_interval);
+  t->require(o.thermo_interval > 0.0, "thermo_interval", "expected a time interval > 0");
+  for (const char* k : {"xyz", "thermo"}) {
+    const std::string& f = std::string(k) == "xyz" ? o.xyz : o.thermo;
+    if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
+  }
+  t->finish();
+}
+
+}  // namespace
+
+std::int64_t Scene::num_steps() const {
+  // Round to the nearest whole step when t_end/h is an integer up to rounding, else up.
+  const double r = run.t_end / integrator.h;
+  const double nearest = std::round(r);
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
+}
+
+Scene load_scene(const Deck& deck) {
+  Scene sc;
+  sc.deck_path = deck.path();
+  DeckTable root = deck.root();
+  root.table("variables");  // resolved by Deck; mark as read
+  read_box(root, sc);
+  read_types(root, sc);
+  read_particles(root, sc);
+  read_bonds(root, sc);
+  read_forces(root, sc);
+  read_integrator(root, sc);
+  read_run(root, sc);
+  read_output(root, sc);
+  root.finish();
+  return sc;
+}
+
+std::string describe(const Scene& sc) {
+  std::ostringstream s;
+  const State& st = sc.state;
+  int fixed = 0;
+  for (int i = 0; i < st.size(); ++i) fixed += st.inv_mass[i] == 0.0;
+  s << "deck:        " << sc.deck_path << "\n";
+  s << "particles:   " << st.size() << " (" << fixed << " fixed)\n";
+  for (size_t k = 0; k < sc.types.size(); ++k) {
+    const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k));
+    s << "  type " << sc.types[k].name << ": " << count << " particles, mass " << sc.types[k].mass << ", element "
+      << sc.types[k].element << "\n";
+  }
+  s << "box:         ";
+  if (!sc.box.any_periodic())
+    s << "open\n";
+  else
+    s << "periodic (" << sc.box.periodic.transpose() << "), lengths " << sc.box.lengths.transpose() << "\n";
+  s << "bonds:       " << sc.topology.bonds.size() << "\n";
+  for (size_t k = 0; k < sc.topology.bond_types.size(); ++k) {
+    const auto count = std::count_if(sc.topology.bonds.begin(), sc.topology.bonds.end(),
+                                     [&](const Bond& b) { return b.type == static_cast<int>(k); });
+    s << "  type " << sc.topology.bond_types[k] << ": " << count << "\n";
+  }
+  s << "force terms: " << sc.forces->terms().size() << "\n";
+  for (const auto& t : sc.forces->terms())
+    s << "  " << t->name() << " [" << t->style() << ", " << level_name(t->level()) << "]: " << t->describe() << "\n";
+  s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
+  if (sc.integrator.micro_steps > 1)
+    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps << ")";
+  s << "\n";
+  s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
+  s << "outputs:     ";
+  if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";
+  if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval;
+  s << "\n";
+  return s.str();
+}
+
+}  // namespace stiffmd

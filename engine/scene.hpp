@@ -1,0 +1,57 @@
+// A Scene is everything a run needs, assembled from a deck: particles, topology, box, the
+// force terms the deck names (and only those: design.md §1), and the run's settings.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/box.hpp"
+#include "engine/deck.hpp"
+#include "engine/state.hpp"
+#include "engine/topology.hpp"
+#include "forcefields/force_field.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+struct ParticleType {
+  std::string name;
+  double mass = 1.0;
+  std::string element;  // chemical symbol written as the species in trajectories (ASE, OVITO)
+};
+
+struct RunSettings {
+  double t_end = 0.0;
+};
+
+struct OutputSettings {
+  std::string xyz;             // extended XYZ trajectory file name ("" = none)
+  double xyz_interval = 0.0;   // time between frames
+  bool xyz_velocities = false;
+  std::string thermo;          // thermo CSV file name ("" = none)
+  double thermo_interval = 0.0;
+};
+
+struct Scene {
+  std::string deck_path;
+  State state;
+  Box box;
+  Topology topology;
+  std::vector<ParticleType> types;
+  std::vector<int> particle_type;  // index into types, per particle
+  std::unique_ptr<ForceField> forces;
+  IntegratorSettings integrator;
+  RunSettings run;
+  OutputSettings output;
+
+  std::int64_t num_steps() const;  // macro steps to reach run.t_end
+};
+
+// Reads and validates the whole deck; throws InputError naming file, line and key.
+Scene load_scene(const Deck& deck);
+
+// Human-readable inventory of a scene (for `stiffmd check`).
+std::string describe(const Scene& scene);
+
+}  // namespace stiffmd

@@ -1,0 +1,52 @@
+// The force-term interface (style.md §1–3). A term knows its energy and forces and the
+// level it is integrated on; it knows nothing about decks or integrators.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <optional>
+#include <string>
+#include <string_view>
+
+#include "engine/box.hpp"
+#include "forcefields/stiff_bond.hpp"
+
+namespace stiffmd {
+
+// Time-scale levels of the splitting H = T + U + ε⁻²V (design.md §1): the fast level is
+// integrated with micro steps, the slow level with macro-step kicks.
+enum class Level { fast = 0, slow = 1 };
+inline constexpr int kNumLevels = 2;
+inline constexpr std::array<Level, kNumLevels> kAllLevels = {Level::fast, Level::slow};
+
+inline std::string_view level_name(Level l) { return l == Level::fast ? "fast" : "slow"; }
+inline std::optional<Level> parse_level(std::string_view s) {
+  if (s == "fast") return Level::fast;
+  if (s == "slow") return Level::slow;
+  return std::nullopt;
+}
+
+class ForceTerm {
+ public:
+  ForceTerm(std::string name, Level level) : name_(std::move(name)), level_(level) {}
+  virtual ~ForceTerm() = default;
+
+  // Adds this term's force −∇E(x) into f (3×N) and returns its energy E(x).
+  virtual double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const = 0;
+
+  // The deck's style name and a one-line description of the instance (for `stiffmd check`).
+  virtual std::string_view style() const = 0;
+  virtual std::string describe() const = 0;
+
+  // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.
+  virtual const StiffBonds* stiff_bonds() const { return nullptr; }
+
+  const std::string& name() const { return name_; }
+  Level level() const { return level_; }
+
+ private:
+  std::string name_;
+  Level level_;
+};
+
+}  // namespace stiffmd

@@ -1,0 +1,25 @@
+// Uniform external field (gravity): E = −Σ_i m_i g·x_i, F_i = m_i g. Fixed particles
+// (inverse mass 0) feel no field: they are held in place and carry no energy.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+
+#include "forcefields/force_term.hpp"
+
+namespace stiffmd {
+
+class Gravity final : public ForceTerm {
+ public:
+  Gravity(std::string name, Level level, Eigen::Vector3d g, Eigen::VectorXd inv_mass);
+
+  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  std::string_view style() const override { return "gravity"; }
+  std::string describe() const override;
+
+ private:
+  Eigen::Vector3d g_;
+  Eigen::VectorXd mass_;  // m_i, 0 for fixed particles
+};
+
+}  // namespace stiffmd

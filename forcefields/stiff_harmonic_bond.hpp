@@ -1,0 +1,40 @@
+// Stiff harmonic bond, the constraint-defining fast part ε⁻²V (design.md §1):
+//   E_b = ½ (α_b/ε)² (|x_i − x_j| − ℓ_b)².
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "forcefields/bond_loop.hpp"
+#include "forcefields/force_term.hpp"
+
+namespace stiffmd {
+
+class StiffHarmonicBond final : public ForceTerm {
+ public:
+  // Validating constructor: ε > 0, every ℓ_b > 0, every α_b > 0, i ≠ j.
+  StiffHarmonicBond(std::string name, Level level, StiffBonds bonds);
+
+  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  std::string_view style() const override { return "stiff-harmonic"; }
+  std::string describe() const override;
+  const StiffBonds* stiff_bonds() const override { return &bonds_; }
+
+  struct Params {
+    double length;
+    double k;  // (α/ε)²
+  };
+  struct Kernel {
+    static void eval(double r, const Params& p, double& e, double& de_dr) {
+      const double g = r - p.length;
+      e = 0.5 * p.k * g * g;
+      de_dr = p.k * g;
+    }
+  };
+
+ private:
+  StiffBonds bonds_;
+  std::vector<BondInstance<Params>> instances_;
+};
+
+}  // namespace stiffmd

@@ -1,0 +1,79 @@
+// The constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3).
+//
+// Built from the stiff bonds of a scene. Every operation uses the sparse SPD matrix
+//   S(x) = G M⁻¹ Gᵀ,  G = g′(x) (one row per bond: +u_b at i, −u_b at j),
+// which is block-diagonal over connected constraint clusters; each cluster is solved on
+// its own (O(bonds) for chains), clusters are independent. Particles with inverse mass
+// 0 (fixed) contribute nothing to S.
+//
+// Nothing here allocates after construction: scratch space is sized once.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <memory>
+#include <vector>
+
+#include "forcefields/stiff_bond.hpp"
+
+namespace stiffmd {
+
+// A connected set of stiff bonds (a molecule, a chain, the double pendulum).
+struct ConstraintCluster {
+  std::vector<int> bonds;      // indices into the bond list, in ascending order
+  std::vector<int> particles;  // particles touched by these bonds, ascending
+};
+
+// Splits bonds into connected clusters (particles with inv_mass 0 do NOT connect
+// clusters: two bonds meeting only at a fixed particle are still coupled through
+// nothing, since S_bc = ±(u_b·u_c)/m_shared = 0 there).
+std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds,
+                                             const Eigen::VectorXd& inv_mass);
+
+// Slow force evaluated at a configuration: out = f(x) (f = −∇U), overwriting out.
+using ForceFunction = std::function<void(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out)>;
+
+class ConstraintToolbox {
+ public:
+  ConstraintToolbox(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass);
+  ~ConstraintToolbox();
+  ConstraintToolbox(ConstraintToolbox&&) noexcept;
+  ConstraintToolbox& operator=(ConstraintToolbox&&) noexcept;
+
+  const std::vector<StiffBond>& bonds() const;
+  const std::vector<ConstraintCluster>& clusters() const;
+  int num_bonds() const;
+
+  // g_b(x) = |x_i − x_j| − ℓ_b for every bond, into g (size m).
+  void constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const;
+  // max_b |g_b(x)|
+  double max_violation(const Eigen::Matrix3Xd& x) const;
+
+  // Force projection, in place:  f ← P(x) f = f − Gᵀλ,  S λ = G M⁻¹ f   (paper eq. (proj)).
+  // Afterwards G M⁻¹ f = 0.
+  void project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f);
+
+  // RATTLE velocity projection, in place:  v ← v − M⁻¹Gᵀμ,  S μ = G v.  Afterwards G v = 0.
+  void project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
+
+  // SHAKE position projection, in place: y ← y + M⁻¹ G(x_ref)ᵀ λ with g(y) = 0, by Newton on
+  // λ (J = G(y) M⁻¹ G(x_ref)ᵀ, per cluster). With x_ref = y this is the mollifier α(x) of
+  // paper eq. (ProMol). Converged when max_b |g_b| ≤ tol. Throws NumericalError naming the
+  // cluster, the worst bond and the iteration count when it does not converge in max_iter.
+  // lambda (size m) receives the multipliers if non-null.
+  void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr,
+             double tol = 1e-12, int max_iter = 50);
+
+  // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)) (design.md §2, steps 1–4):
+  //   X = α(x), f = f_slow(X); solve Jᵀμ = G(x) M⁻¹ f, J = G(X) M⁻¹ G(x)ᵀ;
+  //   r = f − G(X)ᵀμ;  F̄ = r + H_λ M⁻¹ r,  H_λ = Σ_b λ_b ∇²g_b(x).
+  // X receives α(x); out receives F̄. f_slow is called exactly once.
+  void mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow,
+                       Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& out, double tol = 1e-12);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace stiffmd

@@ -1,0 +1,67 @@
+// Multiple time stepping as data (design.md §3, style.md §4; r-RESPA, Tuckerman, Berne &
+// Martyna 1992): a list of stages, outermost first. Stage k kicks with the forces of its
+// levels for half its step, runs `substeps` steps of stage k+1 (the innermost stage drifts
+// instead), then kicks again:
+//
+//     kick(½Δ_k) ∘ [stage k+1]^{n_{k+1}} ∘ kick(½Δ_k),   Δ_{k+1} = Δ_k / n_{k+1}.
+//
+// velocity Verlet = one stage {fast, slow}; the impulse method = {slow} ×1, {fast} ×n.
+// The closing kick's force of every stage is cached and reused by the next opening kick,
+// so the outer (slow) force is evaluated once per macro step. How the outermost stage turns
+// raw forces into its kick (plain, projected P(x)f, mollified α′(x)ᵀf(α(x))) is a strategy,
+// not a copy of the step.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+struct Stage {
+  std::vector<Level> levels;
+  int substeps = 1;  // steps of this stage per step of the enclosing stage
+};
+
+// Forms the outermost stage's kick force K(x) from the force field.
+class KickForce {
+ public:
+  virtual ~KickForce() = default;
+  virtual void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
+                        Eigen::Matrix3Xd& out) = 0;
+};
+
+// K(x) = f(x): the plain impulse / r-RESPA kick.
+class PlainKick final : public KickForce {
+ public:
+  void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
+                Eigen::Matrix3Xd& out) override {
+    forces.compute(x, levels, out);
+  }
+};
+
+class MultipleTimeStepping final : public Integrator {
+ public:
+  MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
+                       std::unique_ptr<KickForce> outer_kick = std::make_unique<PlainKick>());
+
+  void step(State& s, double h) override { advance(s, 0, h); }
+  void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
+  std::string_view method() const override { return method_; }
+
+ private:
+  void advance(State& s, size_t k, double dt);
+  void refresh(size_t k, const Eigen::Matrix3Xd& x);
+
+  std::string method_;
+  ForceField& forces_;
+  std::vector<Stage> stages_;
+  std::unique_ptr<KickForce> outer_kick_;
+  std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
+  std::vector<bool> valid_;
+};
+
+}  // namespace stiffmd
