@@ -183,9 +183,8 @@ void Deck::resolve_variables() {
     }
     if (!progress) {
       const auto& [name, v] = *pending.begin();
-      evaluate(*v->value<std::string>(), location(v, "variables." + name) + ": variables." + name);
-      throw InputError(location(v, "variables." + name) + ": variables." + name +
-                       ": refers to itself through other variables");
+      throw InputError(location(v, "variables." + name) + ": variables." + name + ": cannot resolve \"" +
+                       *v->value<std::string>() + "\": it refers to an undefined variable or, through others, to itself");
     }
   }
 }
@@ -278,7 +277,8 @@ Eigen::Vector3d DeckTable::vector3(std::string_view key) {
   const toml::node* n = get(key);
   if (!n) fail_here("missing required key '" + std::string(key) + "'");
   const toml::array* a = n->as_array();
-  if (!a || a->size() != 3) fail(key, "expected an array of 3 numbers, got " + shown(*n));
+  if (!a) fail(key, "expected an array of 3 numbers, got " + shown(*n));
+  if (a->size() != 3) fail(key, "expected an array of 3 numbers, got " + std::to_string(a->size()));
   Eigen::Vector3d v;
   for (int k = 0; k < 3; ++k) v[k] = to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]");
   return v;

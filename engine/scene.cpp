@@ -25,6 +25,12 @@ bool is_element(const std::string& s) {
   return elements.count(s) > 0;
 }
 
+std::string fmt_number(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
 // Distinct default elements for bead types that do not name one.
 const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H", "Fe", "Si"};
 
@@ -172,7 +178,7 @@ void read_integrator(DeckTable& root, Scene& sc) {
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
   if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
-    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h (" + std::to_string(in.h) + ")");
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + fmt_number(in.h));
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt.
     in.micro_steps = static_cast<int>(std::ceil(in.h / *micro_dt - 1e-9));
   } else if (micro_steps) {
