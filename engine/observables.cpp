@@ -1,6 +1,7 @@
 #include "engine/observables.hpp"
 
 #include <cmath>
+#include <sstream>
 
 namespace stiffmd {
 
@@ -20,27 +21,77 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const
   return worst;
 }
 
-Thermo::Thermo(const ForceField& forces)
+Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings)
     : forces_(forces),
       columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff", "total", "energy_drift", "max_violation"} {
+  const StiffBonds* stiff = forces.stiff_bonds();
+  if (settings.actions && stiff) {
+    modes_ = std::make_unique<StiffModes>(stiff->bonds, inv_mass, stiff->epsilon, settings.max_cluster_bonds);
+    if (modes_->num_skipped_clusters() > 0)
+      notes_.push_back("note: actions and frequencies skipped for " + std::to_string(modes_->num_skipped_clusters()) +
+                       " constraint cluster(s) with more than observables.max_cluster_bonds = " +
+                       std::to_string(settings.max_cluster_bonds) + " bonds");
+    const int m = modes_->num_modes();
+    omega_.resize(m);
+    actions_.resize(m);
+    sqrt_eps_ = std::sqrt(stiff->epsilon);
+    for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
+    for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
+    columns_.push_back("min_gap");
+    columns_.push_back("min_resonance");
+  }
   values_.resize(columns_.size());
 }
 
-const std::vector<double>& Thermo::sample(const State& s) {
-  const Energies e = energies(s, forces_);
+int Thermo::column(const std::string& name) const {
+  for (size_t k = 0; k < columns_.size(); ++k)
+    if (columns_[k] == name) return static_cast<int>(k);
+  return -1;
+}
+
+const std::vector<double>& Thermo::sample(const State& s, double model_potential) {
+  Energies e = energies(s, forces_);
+  e.stiff += model_potential;
   if (!have_e0_) {
     e0_ = e.total();
     have_e0_ = true;
   }
-  values_ = {s.t,
-             static_cast<double>(s.step),
-             e.kinetic,
-             e.slow,
-             e.stiff,
-             e.total(),
-             e.total() - e0_,
-             max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds())};
+  values_.clear();
+  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
+                                 e.total() - e0_, max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds())});
+  if (modes_) {
+    modes_->frequencies(s.x, omega_);
+    modes_->actions(s.x, s.v, actions_);
+    const StiffModes::Validity v = modes_->validity(s.x);
+    values_.insert(values_.end(), omega_.begin(), omega_.end());
+    values_.insert(values_.end(), actions_.begin(), actions_.end());
+    values_.push_back(std::isfinite(v.min_gap) ? v.min_gap : -1.0);
+    values_.push_back(std::isfinite(v.min_resonance) ? v.min_resonance : -1.0);
+    // Validity of the effective dynamics (paper eqs. (separated), (nonresonant)): below √ε the
+    // slow motion is no longer determined by the actions (Takens chaos).
+    auto warn = [&](bool& warned, double value, const char* what) {
+      if (warned || !(value < sqrt_eps_)) return;
+      warned = true;
+      std::ostringstream m;
+      m << "warning: " << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step " << s.step
+        << " (t = " << s.t << "): the actions need not stay adiabatic invariants and the effective dynamics "
+        << "loses validity here";
+      notes_.push_back(m.str());
+    };
+    warn(warned_gap_, v.min_gap, "frequency gap min|w_j - w_k| =");
+    warn(warned_resonance_, v.min_resonance, "resonance min|w_j +- w_k +- w_l| =");
+  }
   return values_;
+}
+
+ProjectedMomenta::ProjectedMomenta(const StiffBonds& stiff, const Eigen::VectorXd& inv_mass)
+    : toolbox_(stiff.bonds, inv_mass) {}
+
+const Eigen::Matrix3Xd& ProjectedMomenta::operator()(const State& s) {
+  p_ = s.v;
+  toolbox_.project_velocity(s.x, p_);
+  for (int i = 0; i < s.size(); ++i) p_.col(i) *= s.inv_mass[i] > 0.0 ? 1.0 / s.inv_mass[i] : 0.0;
+  return p_;
 }
 
 }  // namespace stiffmd

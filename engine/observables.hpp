@@ -1,11 +1,17 @@
-// Observables computed from a state: the thermo row (design.md §3; issue 2's columns).
+// Observables computed from a state: the thermo row (time, energies, constraint violation
+// and, when asked for, frequencies ω_k and actions I_k, design.md §3) and the projected
+// momenta P(x)p (paper eq. (proj)).
 #pragma once
 
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "engine/state.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/constraints.hpp"
+#include "integrators/modes.hpp"
 
 namespace stiffmd {
 
@@ -21,21 +27,49 @@ Energies energies(const State& s, const ForceField& forces);
 // max_b |g_b(x)| = max_b | |x_i − x_j| − ℓ_b | over the constraint-defining bonds (0 if none).
 double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const StiffBonds* stiff);
 
+struct ObservableSettings {
+  bool actions = false;        // ω_k, I_k and the validity monitor in the thermo output
+  int max_cluster_bonds = 64;  // clusters with more bonds are skipped (said in the log)
+};
+
 // One row of thermo output: named columns, fixed for a run.
 class Thermo {
  public:
-  Thermo(const ForceField& forces);
+  Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings);
   const std::vector<std::string>& columns() const { return columns_; }
   // Values for the current state; energy_drift is relative to the first call's total energy.
-  const std::vector<double>& sample(const State& s);
+  // model_potential (W of the effective dynamics) is counted in potential_stiff.
+  const std::vector<double>& sample(const State& s, double model_potential = 0.0);
   double initial_energy() const { return e0_; }
+  int column(const std::string& name) const;
+  // The modes, when actions were asked for (nullptr otherwise).
+  const StiffModes* modes() const { return modes_.get(); }
+  // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
+  // √ε, said once each, with step and time). Taken (cleared) by the caller.
+  std::vector<std::string> take_notes() { return std::move(notes_); }
 
  private:
   const ForceField& forces_;
+  std::unique_ptr<StiffModes> modes_;
+  Eigen::VectorXd omega_, actions_;
+  double sqrt_eps_ = 0.0;
+  bool warned_gap_ = false, warned_resonance_ = false;
   std::vector<std::string> columns_;
   std::vector<double> values_;
+  std::vector<std::string> notes_;
   bool have_e0_ = false;
   double e0_ = 0.0;
+};
+
+// P(x)p as velocities-times-mass: p ↦ M (v − M⁻¹Gᵀμ), S μ = G v (the tangential momenta).
+class ProjectedMomenta {
+ public:
+  ProjectedMomenta(const StiffBonds& stiff, const Eigen::VectorXd& inv_mass);
+  const Eigen::Matrix3Xd& operator()(const State& s);
+
+ private:
+  ConstraintToolbox toolbox_;
+  Eigen::Matrix3Xd p_;
 };
 
 }  // namespace stiffmd

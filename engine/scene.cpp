@@ -171,12 +171,19 @@ void read_integrator(DeckTable& root, Scene& sc) {
     for (const auto& m : methods) known += (known.empty() ? "" : ", ") + m;
     t->fail("method", "unknown method '" + in.method + "' (known: " + known + ")");
   }
+  if (method_needs_stiff_bonds(in.method) && !sc.forces->stiff_bonds())
+    t->fail("method", "method '" + in.method + "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
   in.h = t->number("h");
   t->require(in.h > 0.0, "h", "expected a macro step h > 0");
   const auto micro_dt = t->maybe_number("micro_dt");
   const auto micro_steps = t->maybe_integer("micro_steps");
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
-  if (micro_dt) {
+  // Micro steps belong to the impulse family; other methods ignore them, so that one deck
+  // serves every method (design.md §7).
+  const bool impulse_family = in.method.find("impulse") != std::string::npos;
+  if (!impulse_family) {
+    in.micro_steps = 1;
+  } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
     t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + fmt_number(in.h));
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt.
@@ -198,12 +205,25 @@ void read_run(DeckTable& root, Scene& sc) {
   if (steps > 1e12) root.fail_here("run.t_end / integrator.h = " + std::to_string(steps) + " steps: too many");
 }
 
+void read_observables(DeckTable& root, Scene& sc) {
+  auto t = root.table("observables");
+  if (!t) return;
+  sc.observables.actions = t->boolean("actions", false);
+  const long m = t->integer("max_cluster_bonds", sc.observables.max_cluster_bonds);
+  t->require(m >= 1 && m <= 4096, "max_cluster_bonds", "expected an integer in 1..4096");
+  sc.observables.max_cluster_bonds = static_cast<int>(m);
+  sc.integrator.max_cluster_bonds = static_cast<int>(m);
+  if (sc.observables.actions && !sc.forces->stiff_bonds())
+    t->fail("actions", "actions need constraint-defining stiff bonds (a stiff-harmonic term)");
+  t->finish();
+}
+
 void read_output(DeckTable& root, Scene& sc) {
   OutputSettings& o = sc.output;
   const double default_interval = sc.run.t_end / 100;
   auto t = root.table("output");
   if (!t) {
-    o = {"trajectory.xyz", default_interval, false, "thermo.csv", default_interval};
+    o = {"trajectory.xyz", default_interval, false, "thermo.csv", default_interval, "", default_interval};
     return;
   }
   o.xyz = t->string("xyz", "trajectory.xyz");
@@ -213,8 +233,13 @@ void read_output(DeckTable& root, Scene& sc) {
   o.thermo = t->string("thermo", "thermo.csv");
   o.thermo_interval = t->number("thermo_interval", default_interval);
   t->require(o.thermo_interval > 0.0, "thermo_interval", "expected a time interval > 0");
-  for (const char* k : {"xyz", "thermo"}) {
-    const std::string& f = std::string(k) == "xyz" ? o.xyz : o.thermo;
+  o.state = t->string("state", "");
+  o.state_interval = t->number("state_interval", default_interval);
+  t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
+  if (!o.state.empty() && !sc.forces->stiff_bonds())
+    t->fail("state", "the state output holds projected momenta P(x)p: it needs stiff bonds");
+  for (const char* k : {"xyz", "thermo", "state"}) {
+    const std::string& f = std::string(k) == "xyz" ? o.xyz : std::string(k) == "thermo" ? o.thermo : o.state;
     if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
   }
   t->finish();
@@ -241,6 +266,7 @@ Scene load_scene(const Deck& deck) {
   read_forces(root, sc);
   read_integrator(root, sc);
   read_run(root, sc);
+  read_observables(root, sc);
   read_output(root, sc);
   root.finish();
   return sc;

@@ -8,6 +8,7 @@
 
 #include "engine/box.hpp"
 #include "engine/deck.hpp"
+#include "engine/observables.hpp"
 #include "engine/state.hpp"
 #include "engine/topology.hpp"
 #include "forcefields/force_field.hpp"
@@ -31,6 +32,8 @@ struct OutputSettings {
   bool xyz_velocities = false;
   std::string thermo;          // thermo CSV file name ("" = none)
   double thermo_interval = 0.0;
+  std::string state;           // CSV of x and P(x)p per particle, for error measurements ("" = none)
+  double state_interval = 0.0;
 };
 
 struct Scene {
@@ -44,6 +47,7 @@ struct Scene {
   IntegratorSettings integrator;
   RunSettings run;
   OutputSettings output;
+  ObservableSettings observables;
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
 };

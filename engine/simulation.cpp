@@ -3,7 +3,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <sstream>
 
@@ -36,6 +38,25 @@ std::string prepare_output(const fs::path& dir, const std::string& name, std::os
   return p.string();
 }
 
+std::vector<std::string> state_columns(int n) {
+  std::vector<std::string> c = {"time"};
+  for (const char* what : {"", "p"})
+    for (int i = 0; i < n; ++i)
+      for (const char* a : {"x", "y", "z"}) c.push_back(std::string(what) + a + "_" + std::to_string(i));
+  return c;
+}
+
+// Writes the file whole or not at all: a temporary file renamed into place.
+void write_atomically(const fs::path& p, const std::string& text) {
+  const fs::path tmp = p.string() + ".tmp";
+  {
+    std::ofstream out(tmp);
+    out << text;
+    if (!out) throw InputError(tmp.string() + ": write failed");
+  }
+  fs::rename(tmp, p);
+}
+
 }  // namespace
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
@@ -44,32 +65,44 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.h = sc.integrator.h;
   summary.micro_steps = sc.integrator.micro_steps;
   summary.t_end = sc.run.t_end;
+  if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary.epsilon = sb->epsilon;
 
   const fs::path dir(opt.out_dir);
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir)) throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
-
-  std::vector<std::string> species;
-  for (int t : sc.particle_type) species.push_back(sc.types[t].element);
-  std::unique_ptr<XyzWriter> xyz;
-  std::unique_ptr<CsvWriter> csv;
-  if (!sc.output.xyz.empty())
-    xyz = std::make_unique<XyzWriter>(prepare_output(dir, sc.output.xyz, log, summary), species, sc.box,
-                                      sc.output.xyz_velocities);
-  Thermo thermo(*sc.forces);
-  if (!sc.output.thermo.empty())
-    csv = std::make_unique<CsvWriter>(prepare_output(dir, sc.output.thermo, log, summary), thermo.columns());
-  IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval);
+  fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
 
   std::unique_ptr<Integrator> integrator;
   try {
-    integrator = make_integrator(sc.integrator, *sc.forces);
+    integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   } catch (const std::invalid_argument& e) {
     throw InputError(sc.deck_path + ": integrator.method: " + e.what());
   }
-
   State& s = sc.state;
+  integrator->prepare(s, log);
+
+  std::vector<std::string> species;
+  for (int t : sc.particle_type) species.push_back(sc.types[t].element);
+  Thermo thermo(*sc.forces, s.inv_mass, sc.observables);
+  std::unique_ptr<XyzWriter> xyz;
+  std::unique_ptr<CsvWriter> csv, state_csv;
+  std::unique_ptr<ProjectedMomenta> projected;
+  if (!sc.output.xyz.empty())
+    xyz = std::make_unique<XyzWriter>(prepare_output(dir, sc.output.xyz, log, summary), species, sc.box,
+                                      sc.output.xyz_velocities);
+  if (!sc.output.thermo.empty())
+    csv = std::make_unique<CsvWriter>(prepare_output(dir, sc.output.thermo, log, summary), thermo.columns());
+  if (!sc.output.state.empty()) {
+    state_csv = std::make_unique<CsvWriter>(prepare_output(dir, sc.output.state, log, summary), state_columns(s.size()));
+    projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
+  }
+  IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval),
+      state_due(sc.output.state_interval);
+  std::vector<double> state_row(1 + 6 * s.size());
+  const int first_action = thermo.column("action_1");
+  const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
+
   const std::int64_t n = sc.num_steps();
   const double h = sc.integrator.h;
   const double t0 = s.t;
@@ -77,41 +110,74 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   sc.forces->reset_counters();
 
   double max_err = 0.0;
+  auto flush_notes = [&]() {
+    for (const auto& note : thermo.take_notes()) log << note << "\n";
+  };
+  auto write_thermo = [&]() {
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x));
+    max_err = std::max(max_err, std::abs(row[6]));
+    if (csv) csv->write(row);
+    flush_notes();
+    return row;
+  };
+  auto write_state = [&]() {
+    const Eigen::Matrix3Xd& pp = (*projected)(s);
+    state_row[0] = s.t;
+    for (int i = 0; i < s.size(); ++i)
+      for (int a = 0; a < 3; ++a) {
+        state_row[1 + 3 * i + a] = s.x(a, i);
+        state_row[1 + 3 * s.size() + 3 * i + a] = pp(a, i);
+      }
+    state_csv->write(state_row);
+  };
   auto observe = [&]() {
-    if (thermo_due.due(s.t)) {
-      const auto& row = thermo.sample(s);
-      max_err = std::max(max_err, std::abs(row[6]));
-      if (csv) csv->write(row);
-    }
+    if (thermo_due.due(s.t)) write_thermo();
     if (xyz && xyz_due.due(s.t)) xyz->write(s);
+    if (state_csv && state_due.due(s.t)) write_state();
   };
 
   check_finite(s);
+  {
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x));  // E(0) and the initial actions
+    if (first_action >= 0) summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+  }
   observe();
   summary.initial_energy = thermo.initial_energy();
   Progress progress(opt.progress, n);
   const auto start = std::chrono::steady_clock::now();
+  const std::clock_t cpu_start = std::clock();
   for (std::int64_t k = 1; k <= n; ++k) {
-    integrator->step(s, h);
+    try {
+      integrator->step(s, h);
+    } catch (const NumericalError& e) {
+      std::ostringstream m;
+      m.precision(10);
+      m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+      throw NumericalError(m.str());
+    }
     s.step = step0 + k;
     s.t = t0 + static_cast<double>(k) * h;  // no accumulated round-off in t
     check_finite(s);
     if (k < n) observe();
     progress.update(k);
   }
+  summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
   summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.finish();
   // The final state is always written, exactly once, whatever the intervals.
-  const auto& row = thermo.sample(s);
-  max_err = std::max(max_err, std::abs(row[6]));
-  if (csv) csv->write(row);
+  const std::vector<double> row = write_thermo();
   if (xyz) xyz->write(s);
+  if (state_csv) write_state();
 
   summary.steps = n;
   summary.final_energy = row[5];
+  summary.final_max_violation = row[7];
+  if (first_action >= 0) summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   summary.max_energy_error = max_err;
   summary.slow_evaluations = sc.forces->evaluations(Level::slow);
   summary.fast_evaluations = sc.forces->evaluations(Level::fast);
+  summary.outputs.push_back((dir / "summary.json").string());
+  write_atomically(dir / "summary.json", summary_json(summary));
   return summary;
 }
 
@@ -126,9 +192,37 @@ std::string format_summary(const RunSummary& s) {
   const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
   o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy << ", max |E - E(0)| = "
     << s.max_energy_error << " (relative " << rel << ")\n";
+  if (!s.final_actions.empty()) {
+    o << "actions:       ";
+    for (size_t k = 0; k < s.final_actions.size(); ++k)
+      o << (k ? ", " : "") << "I_" << k + 1 << " " << s.initial_actions[k] << " -> " << s.final_actions[k];
+    o << "\n";
+  }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
   o << "\n";
+  return o.str();
+}
+
+std::string summary_json(const RunSummary& s) {
+  std::ostringstream o;
+  o.precision(17);
+  auto list = [&](const std::vector<double>& v) {
+    o << "[";
+    for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
+    o << "]";
+  };
+  o << "{\n  \"method\": \"" << s.method << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
+    << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
+    << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
+    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
+    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
+    << ",\n  \"initial_actions\": ";
+  list(s.initial_actions);
+  o << ",\n  \"final_actions\": ";
+  list(s.final_actions);
+  o << "\n}\n";
   return o.str();
 }
 

@@ -23,11 +23,15 @@ struct RunSummary {
   int micro_steps = 1;
   double t_end = 0.0;
   double wall_seconds = 0.0;
+  double cpu_seconds = 0.0;       // process CPU time of the step loop
+  double epsilon = 0.0;           // of the stiff bonds (0 if none)
   double initial_energy = 0.0;
   double final_energy = 0.0;
   double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
   std::int64_t slow_evaluations = 0;
   std::int64_t fast_evaluations = 0;
+  double final_max_violation = 0.0;
+  std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
 };
 
@@ -36,5 +40,7 @@ struct RunSummary {
 RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
 
 std::string format_summary(const RunSummary& s);
+// The summary as JSON (written to DIR/summary.json at the end of a successful run only).
+std::string summary_json(const RunSummary& s);
 
 }  // namespace stiffmd

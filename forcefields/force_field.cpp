@@ -14,6 +14,15 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
   return energy;
 }
 
+double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
+  out.setZero(3, x.cols());
+  double energy = 0.0;
+  for (const auto& term : terms_)
+    if (!term->stiff_bonds()) energy += term->add_forces(x, box_, out);
+  ++evaluations_[static_cast<int>(Level::slow)];
+  return energy;
+}
+
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
   scratch_.setZero(3, x.cols());
   double energy = 0.0;

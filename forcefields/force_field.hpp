@@ -29,6 +29,11 @@ class ForceField {
     return compute(x, std::span<const Level>(levels.begin(), levels.size()), out);
   }
 
+  // out = forces of every term that is not constraint-defining, on all levels: the force
+  // of the constrained dynamics (RATTLE, effective), where the stiff bonds become g(x) = 0.
+  // Counts as one slow evaluation.
+  double compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out);
+
   // Energy of one level at x (for observables; does not count as a force evaluation).
   double energy(const Eigen::Matrix3Xd& x, Level level) const;
 

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <memory>
+#include <ostream>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -14,24 +15,35 @@ namespace stiffmd {
 
 struct IntegratorSettings {
   std::string method = "velocity-verlet";
-  double h = 0.0;       // macro step
-  int micro_steps = 1;  // n micro steps δ = h/n per macro step (impulse family)
+  double h = 0.0;               // macro step
+  int micro_steps = 1;          // n micro steps δ = h/n per macro step (impulse family)
+  int max_cluster_bonds = 64;   // largest cluster whose modes are computed (effective dynamics)
 };
 
 class Integrator {
  public:
   virtual ~Integrator() = default;
+  // Once, before the first step of a fresh run: methods that live on the constraint
+  // manifold project the initial data onto it (paper eq. ACIV) and say so in the log.
+  virtual void prepare(State&, std::ostream&) {}
   virtual void step(State& s, double h) = 0;
   // Forget cached forces: call when the state was changed other than by step().
   virtual void reset() {}
   virtual std::string_view method() const = 0;
+  // Potential energy the integrator's model adds to the force field's at x: W(I, x) =
+  // Σ I_k ω_k(x) for the effective dynamics (the averaged energy of the bond vibrations, so
+  // that kinetic + U + W is the conserved H_eff of paper eq. (CH)); 0 for the others.
+  virtual double model_potential(const Eigen::Matrix3Xd&) { return 0.0; }
 };
 
 // The method names the deck and CLI accept (design.md §7).
 const std::vector<std::string>& integrator_methods();
+// Whether a method needs constraint-defining (stiff) bonds in the scene.
+bool method_needs_stiff_bonds(const std::string& method);
 
 // Builds the integrator named by settings.method; throws std::invalid_argument for an
 // unknown name or a method the scene cannot run.
-std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings, ForceField& forces);
+std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings, ForceField& forces,
+                                            const Eigen::VectorXd& inv_mass);
 
 }  // namespace stiffmd

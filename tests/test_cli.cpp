@@ -113,10 +113,11 @@ TEST(Cli, CheckDescribesTheScene) {
 TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
   const fs::path dir = scratch_dir("run");
   const CliResult r = cli("run " + test::source_path("inputs/double_pendulum.toml") +
-                          " --set run.t_end=0.5 --set output.xyz_interval=0.1 --set output.thermo_interval=0.05 -o " +
+                          " --set run.t_end=0.5 --set integrator.h=0.0125 --set output.xyz_interval=0.1 --set output.thermo_interval=0.05 -o " +
                           dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.out.find("velocity-verlet"), std::string::npos);
+  EXPECT_NE(r.out.find("projected-impulse"), std::string::npos);
+  EXPECT_NE(r.out.find("actions:"), std::string::npos);
   EXPECT_NE(r.out.find("max |E - E(0)|"), std::string::npos);
 
   // XYZ: frames at t = 0, 0.1, …, 0.5, each "3", a comment with time=, 3 particle lines.
@@ -147,7 +148,9 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
   std::ifstream csv(dir / "thermo.csv");
   std::string header;
   std::getline(csv, header);
-  EXPECT_EQ(header, "time,step,kinetic,potential_slow,potential_stiff,total,energy_drift,max_violation");
+  EXPECT_EQ(header,
+            "time,step,kinetic,potential_slow,potential_stiff,total,energy_drift,max_violation,"
+            "omega_1,omega_2,action_1,action_2,min_gap,min_resonance");
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_EQ(rows, 11);
@@ -174,7 +177,8 @@ TEST(Cli, NumericalBlowUpGivesExitThreeAndKeepsOutputsReadable) {
   const fs::path dir = scratch_dir("blowup");
   // h far beyond the stability limit of velocity Verlet (h ω/ε < 2).
   const CliResult r = cli("run " + test::source_path("inputs/double_pendulum.toml") +
-                          " --set integrator.h=0.01 --set output.xyz_interval=0.01 -o " + dir.string());
+                          " --set integrator.method=velocity-verlet --set integrator.h=0.01 --set output.xyz_interval=0.01 -o " +
+                          dir.string());
   EXPECT_EQ(r.code, 3) << r.err;
   EXPECT_NE(r.err.find("step"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("t = "), std::string::npos) << r.err;

@@ -1,6 +1,7 @@
 // Shared test helpers: load bundled decks with overrides, run a scene in-process.
 #pragma once
 
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -18,10 +19,17 @@ inline Scene load(const std::string& rel_deck, const std::vector<std::string>& o
 }
 
 // The seed pendulum (inputs/double_pendulum.toml) at a given ε, method and step.
+// Full precision: std::to_string would print 2.5e-6 as 0.000003.
+inline std::string exact(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
 inline Scene pendulum(double eps, const std::string& method, double h, double t_end,
                       std::vector<std::string> extra = {}) {
-  std::vector<std::string> o = {"variables.eps=" + std::to_string(eps), "integrator.method=" + method,
-                                "integrator.h=" + std::to_string(h), "run.t_end=" + std::to_string(t_end)};
+  std::vector<std::string> o = {"variables.eps=" + exact(eps), "integrator.method=" + method,
+                                "integrator.h=" + exact(h), "run.t_end=" + exact(t_end)};
   o.insert(o.end(), extra.begin(), extra.end());
   return load("inputs/double_pendulum.toml", o);
 }
@@ -35,8 +43,51 @@ inline void advance(Scene& sc, std::int64_t n, Integrator& integ) {
 }
 
 inline void advance(Scene& sc, std::int64_t n) {
-  auto integ = make_integrator(sc.integrator, *sc.forces);
+  auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   advance(sc, n, *integ);
+}
+
+}  // namespace stiffmd::test
+
+#include <sstream>
+
+#include "engine/observables.hpp"
+
+namespace stiffmd::test {
+
+// Positions and projected momenta P(x)p at every macro step (index 0 = after prepare()).
+struct Trajectory {
+  std::vector<Eigen::Matrix3Xd> x, pp;
+  std::string log;
+};
+
+// Prepares (ACIV projection for rattle/effective) and runs n macro steps of the scene's own
+// integrator, recording every `every` steps.
+inline Trajectory record(Scene& sc, std::int64_t n, std::int64_t every = 1) {
+  auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  std::ostringstream log;
+  integ->prepare(sc.state, log);
+  ProjectedMomenta pp(*sc.forces->stiff_bonds(), sc.state.inv_mass);
+  Trajectory tr;
+  tr.log = log.str();
+  for (std::int64_t k = 0; k <= n; ++k) {
+    if (k > 0) integ->step(sc.state, sc.integrator.h);
+    if (k % every == 0) {
+      tr.x.push_back(sc.state.x);
+      tr.pp.push_back(pp(sc.state));
+    }
+  }
+  return tr;
+}
+
+// max over the common times of |a − b|∞; b is recorded `ratio` times more often than a.
+inline std::pair<double, double> max_errors(const Trajectory& a, const Trajectory& b, std::int64_t ratio) {
+  double ex = 0.0, ep = 0.0;
+  for (size_t k = 0; k < a.x.size(); ++k) {
+    ex = std::max(ex, (a.x[k] - b.x[k * ratio]).cwiseAbs().maxCoeff());
+    ep = std::max(ep, (a.pp[k] - b.pp[k * ratio]).cwiseAbs().maxCoeff());
+  }
+  return {ex, ep};
 }
 
 }  // namespace stiffmd::test

@@ -16,7 +16,7 @@ using test::pendulum;
 TEST(VelocityVerlet, IsTimeReversible) {
   Scene sc = pendulum(0.1, "velocity-verlet", 1e-3, 1.0);
   const Eigen::Matrix3Xd x0 = sc.state.x, v0 = sc.state.v;
-  auto integ = make_integrator(sc.integrator, *sc.forces);
+  auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   advance(sc, 1000, *integ);
   ASSERT_GT((sc.state.x - x0).norm(), 0.1);  // it really moved
   sc.state.v = -sc.state.v;
@@ -50,7 +50,7 @@ TEST(VelocityVerlet, ConvergesWithOrderTwo) {
 // max |E(t) − E(0)| / |E(0)| over the first and the second half of t ∈ [0, 10], every step.
 std::pair<double, double> relative_energy_error(double h) {
   Scene sc = pendulum(0.1, "velocity-verlet", h, 10.0);
-  auto integ = make_integrator(sc.integrator, *sc.forces);
+  auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   const double e0 = energies(sc.state, *sc.forces).total();
   const long n = std::lround(10.0 / h);
   double first = 0.0, second = 0.0;

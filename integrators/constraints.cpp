@@ -1,0 +1,608 @@
+// The constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3).
+//
+// Every operation reduces to solves with K(a, b) = G(a) M⁻¹ G(b)ᵀ on one cluster:
+//   S(x) = K(x, x)        (SPD)  force and velocity projections;
+//   J    = K(y, x_ref)           Newton matrix of SHAKE / the mollifier α;
+//   Jᵀ   = K(x, X)               step 2 of the mollified force.
+// K has the sparsity of S, so one pattern per cluster (the "couplings") serves all three; a
+// non-symmetric K is simply assembled with its arguments swapped instead of solving with Kᵀ.
+//
+// Three back ends, chosen once per cluster in the constructor:
+//   open chains          tridiagonal LU with partial pivoting (LAPACK gttrf), O(bonds);
+//   small other clusters dense LLT (S) / PartialPivLU (J), pre-sized, no heap traffic;
+//   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
+#include "integrators/constraints.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
+#include <Eigen/SparseLU>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "engine/errors.hpp"
+
+namespace stiffmd {
+namespace {
+
+// Clusters that are not open chains and have more bonds than this use sparse factorizations.
+// Measured on rings (mollified force, -O2): dense wins below ~40 bonds, sparse above, and
+// only the dense path is allocation-free.
+constexpr int kMaxDenseBonds = 40;
+
+// A pivot this small relative to the largest entry of K means G is (numerically) rank
+// deficient on the cluster, e.g. a collinear triangle; the solve would return garbage.
+constexpr double kSingularPivot = 1e-13;
+
+// SHAKE iterations allowed inside mollified_force, whose API has no max_iter.
+constexpr int kMollifierMaxIter = 50;
+
+// One term of K(a, b) = G(a) M⁻¹ G(b)ᵀ on a cluster:
+//   K(row, col) += sign · m_p⁻¹ · u_row(a)·u_col(b),
+// for each mobile particle p shared by local bonds row and col (row == col: the diagonal,
+// S_bb = 1/m_i + 1/m_j). sign = ±1 from G's rows: +u_b at i, −u_b at j.
+struct Coupling {
+  int row;
+  int col;
+  int particle;
+  double sign;
+};
+
+// Unit vectors and lengths of all bonds at one configuration: the rows of G are ±u_b.
+struct BondFrame {
+  Eigen::Matrix3Xd u;
+  Eigen::VectorXd length;
+};
+
+// Factorizes and solves with K on one cluster. K is handed over entrywise in coupling order:
+// K(couplings[k].row, couplings[k].col) += values[k].
+class ClusterSolver {
+ public:
+  virtual ~ClusterSolver() = default;
+  // symmetric promises K = S (SPD). Returns false when K is numerically singular.
+  virtual bool factorize(const Eigen::VectorXd& values, bool symmetric) = 0;
+  // sol = K⁻¹ rhs (sol and rhs pre-sized, distinct).
+  virtual void solve(const Eigen::VectorXd& rhs, Eigen::VectorXd& sol) = 0;
+};
+
+// Templated on the expression so that checking the pivots never materializes a temporary.
+template <typename Pivots>
+bool pivots_regular(const Eigen::MatrixBase<Pivots>& pivots, double scale) {
+  return pivots.allFinite() && pivots.cwiseAbs().minCoeff() > kSingularPivot * scale;
+}
+
+// Open chains in chain order: K is tridiagonal (design.md §2). S itself never needs a row
+// swap (each Schur complement is ≥ the next sub-diagonal entry, 1/m_shared), but J far from
+// the manifold (SHAKE from a distant start, the mollifier of a badly stretched state) does.
+class TridiagonalSolver final : public ClusterSolver {
+ public:
+  TridiagonalSolver(int n, const std::vector<Coupling>& couplings)
+      : n_(n), bands_(3 * n - 2), du2_(std::max(n - 2, 0)), swapped_(n) {
+    for (const Coupling& c : couplings) slot_.push_back(slot_of(c));
+  }
+
+  bool factorize(const Eigen::VectorXd& values, bool /*symmetric*/) override {
+    bands_.setZero();
+    for (size_t k = 0; k < slot_.size(); ++k) bands_[slot_[k]] += values[k];
+    const double scale = bands_.cwiseAbs().maxCoeff();
+    double* dl = sub();
+    double* d = diagonal();
+    double* du = super();
+    du2_.setZero();
+    // Gaussian elimination with partial pivoting; a row swap fills the second super-diagonal.
+    for (int i = 0; i < n_ - 1; ++i) {
+      swapped_[i] = std::abs(d[i]) < std::abs(dl[i]);
+      if (!swapped_[i]) {
+        if (d[i] != 0.0) {
+          dl[i] /= d[i];
+          d[i + 1] -= dl[i] * du[i];
+        }
+      } else {
+        const double factor = d[i] / dl[i];
+        d[i] = dl[i];
+        dl[i] = factor;
+        const double upper = du[i];
+        du[i] = d[i + 1];
+        d[i + 1] = upper - factor * d[i + 1];
+        if (i < n_ - 2) {
+          du2_[i] = du[i + 1];
+          du[i + 1] = -factor * du[i + 1];
+        }
+      }
+    }
+    return pivots_regular(Eigen::Map<const Eigen::VectorXd>(d, n_), scale);
+  }
+
+  void solve(const Eigen::VectorXd& rhs, Eigen::VectorXd& sol) override {
+    const double* dl = sub();
+    const double* d = diagonal();
+    const double* du = super();
+    sol = rhs;
+    for (int i = 0; i < n_ - 1; ++i) {  // L (with the row swaps)
+      if (swapped_[i]) std::swap(sol[i], sol[i + 1]);
+      sol[i + 1] -= dl[i] * sol[i];
+    }
+    for (int i = n_ - 1; i >= 0; --i) {  // U
+      double s = sol[i];
+      if (i + 1 < n_) s -= du[i] * sol[i + 1];
+      if (i + 2 < n_) s -= du2_[i] * sol[i + 2];
+      sol[i] = s / d[i];
+    }
+  }
+
+ private:
+  // bands_ = [sub (n−1) | diagonal (n) | super (n−1)], the LAPACK gttrf layout.
+  int slot_of(const Coupling& c) const {
+    if (c.col == c.row - 1) return c.col;
+    if (c.col == c.row) return n_ - 1 + c.row;
+    if (c.col == c.row + 1) return 2 * n_ - 1 + c.row;
+    throw std::logic_error("chain cluster is not tridiagonal");
+  }
+  double* sub() { return bands_.data(); }
+  double* diagonal() { return bands_.data() + n_ - 1; }
+  double* super() { return bands_.data() + 2 * n_ - 1; }
+
+  int n_;
+  Eigen::VectorXd bands_;
+  Eigen::VectorXd du2_;
+  std::vector<bool> swapped_;
+  std::vector<int> slot_;  // index into bands_ for each coupling
+};
+
+// Small clusters of any shape (rings, stars, the pendulum when not a chain ...). Every object
+// is sized here, so compute() and solve() reuse the storage.
+class DenseSolver final : public ClusterSolver {
+ public:
+  DenseSolver(int n, const std::vector<Coupling>& couplings) : k_(n, n), llt_(n), lu_(n), couplings_(couplings) {}
+
+  bool factorize(const Eigen::VectorXd& values, bool symmetric) override {
+    k_.setZero();
+    for (size_t k = 0; k < couplings_.size(); ++k) k_(couplings_[k].row, couplings_[k].col) += values[k];
+    const double scale = k_.cwiseAbs().maxCoeff();
+    symmetric_ = symmetric;
+    if (symmetric_) {
+      llt_.compute(k_);
+      // LLT pivots are L_ii²; a tiny one means S is singular even if LLT "succeeded".
+      return llt_.info() == Eigen::Success && pivots_regular(llt_.matrixLLT().diagonal().cwiseAbs2(), scale);
+    }
+    lu_.compute(k_);
+    return pivots_regular(lu_.matrixLU().diagonal(), scale);
+  }
+
+  void solve(const Eigen::VectorXd& rhs, Eigen::VectorXd& sol) override {
+    if (symmetric_) {
+      sol = rhs;
+      llt_.solveInPlace(sol);
+    } else {
+      sol = lu_.solve(rhs);  // into a distinct vector: in-place would allocate a permutation mask
+    }
+  }
+
+ private:
+  Eigen::MatrixXd k_;
+  Eigen::LLT<Eigen::MatrixXd> llt_;
+  Eigen::PartialPivLU<Eigen::MatrixXd> lu_;
+  std::vector<Coupling> couplings_;
+  bool symmetric_ = true;
+};
+
+// Large clusters that are not chains (big rings, branched polymers): fill-reducing sparse
+// factorizations with the symbolic analysis done once. These may allocate inside factorize().
+class SparseSolver final : public ClusterSolver {
+ public:
+  SparseSolver(int n, const std::vector<Coupling>& couplings) : k_(n, n) {
+    std::vector<Eigen::Triplet<double>> pattern;
+    for (const Coupling& c : couplings) pattern.emplace_back(c.row, c.col, 1.0);
+    k_.setFromTriplets(pattern.begin(), pattern.end());
+    k_.makeCompressed();
+    for (const Coupling& c : couplings) slot_.push_back(&k_.coeffRef(c.row, c.col) - k_.valuePtr());
+    ldlt_.analyzePattern(k_);
+    lu_.analyzePattern(k_);
+  }
+
+  bool factorize(const Eigen::VectorXd& values, bool symmetric) override {
+    std::fill(k_.valuePtr(), k_.valuePtr() + k_.nonZeros(), 0.0);
+    for (size_t k = 0; k < slot_.size(); ++k) k_.valuePtr()[slot_[k]] += values[k];
+    const double scale = Eigen::Map<const Eigen::VectorXd>(k_.valuePtr(), k_.nonZeros()).cwiseAbs().maxCoeff();
+    symmetric_ = symmetric;
+    if (symmetric_) {
+      ldlt_.factorize(k_);
+      return ldlt_.info() == Eigen::Success && pivots_regular(ldlt_.vectorD(), scale);
+    }
+    lu_.factorize(k_);
+    return lu_.info() == Eigen::Success;
+  }
+
+  void solve(const Eigen::VectorXd& rhs, Eigen::VectorXd& sol) override {
+    if (symmetric_)
+      sol = ldlt_.solve(rhs);
+    else
+      sol = lu_.solve(rhs);
+  }
+
+ private:
+  Eigen::SparseMatrix<double> k_;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt_;
+  Eigen::SparseLU<Eigen::SparseMatrix<double>> lu_;
+  std::vector<std::ptrdiff_t> slot_;  // index into k_'s values for each coupling
+  bool symmetric_ = true;
+};
+
+// For each mobile particle of a cluster, the (position in `order`, sign in G) of its bonds.
+// Fixed particles are left out: m⁻¹ = 0 there, so they couple nothing.
+std::map<int, std::vector<std::pair<int, double>>> bonds_at_mobile_particles(const std::vector<int>& order,
+                                                                             const std::vector<StiffBond>& bonds,
+                                                                             const Eigen::VectorXd& inv_mass) {
+  std::map<int, std::vector<std::pair<int, double>>> at;
+  for (int r = 0; r < static_cast<int>(order.size()); ++r) {
+    const StiffBond& b = bonds[order[r]];
+    if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(r, +1.0);
+    if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(r, -1.0);
+  }
+  return at;
+}
+
+// The bonds of a cluster in chain order if it is an open chain (no mobile particle in more
+// than two bonds, no ring), so that K is tridiagonal; empty otherwise.
+std::vector<int> chain_order(const std::vector<int>& cluster_bonds, const std::vector<StiffBond>& bonds,
+                             const Eigen::VectorXd& inv_mass) {
+  const int n = static_cast<int>(cluster_bonds.size());
+  std::vector<std::vector<int>> neighbours(n);  // by position in cluster_bonds
+  for (const auto& [particle, list] : bonds_at_mobile_particles(cluster_bonds, bonds, inv_mass)) {
+    if (list.size() > 2) return {};  // a branch point
+    if (list.size() == 2) {
+      neighbours[list[0].first].push_back(list[1].first);
+      neighbours[list[1].first].push_back(list[0].first);
+    }
+  }
+  const auto end = std::find_if(neighbours.begin(), neighbours.end(), [](const auto& nb) { return nb.size() <= 1; });
+  if (end == neighbours.end()) return {};  // a ring
+  std::vector<int> order;
+  for (int previous = -1, current = static_cast<int>(end - neighbours.begin()); current >= 0;) {
+    order.push_back(cluster_bonds[current]);
+    int next = -1;
+    for (int nb : neighbours[current])
+      if (nb != previous) next = nb;
+    previous = current;
+    current = next;
+  }
+  if (static_cast<int>(order.size()) != n) return {};
+  return order;
+}
+
+std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
+                                   const Eigen::VectorXd& inv_mass) {
+  std::vector<Coupling> couplings;
+  for (const auto& [particle, list] : bonds_at_mobile_particles(order, bonds, inv_mass))
+    for (const auto& [row, row_sign] : list)
+      for (const auto& [col, col_sign] : list) couplings.push_back({row, col, particle, row_sign * col_sign});
+  return couplings;
+}
+
+std::string describe_bond(int b, const StiffBond& bond) {
+  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
+}
+
+std::string format_g(double value) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.1e", value);
+  return buffer;
+}
+
+void validate(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
+  const int n = static_cast<int>(inv_mass.size());
+  for (int p = 0; p < n; ++p)
+    if (!std::isfinite(inv_mass[p]) || inv_mass[p] < 0.0)
+      throw InputError("particle " + std::to_string(p) + ": inverse mass must be finite and >= 0");
+  std::vector<std::pair<int, int>> pairs;
+  for (int b = 0; b < static_cast<int>(bonds.size()); ++b) {
+    const StiffBond& bond = bonds[b];
+    if (bond.i < 0 || bond.i >= n || bond.j < 0 || bond.j >= n)
+      throw InputError("stiff " + describe_bond(b, bond) + ": particle index out of range [0, " + std::to_string(n) +
+                       ")");
+    if (bond.i == bond.j) throw InputError("stiff " + describe_bond(b, bond) + " joins a particle to itself");
+    if (!(bond.length > 0.0) || !std::isfinite(bond.length))
+      throw InputError("stiff " + describe_bond(b, bond) + ": length must be finite and > 0");
+    // S_bb = 1/m_i + 1/m_j = 0 and duplicated rows of G both make S singular.
+    if (inv_mass[bond.i] == 0.0 && inv_mass[bond.j] == 0.0)
+      throw InputError("stiff " + describe_bond(b, bond) + " joins two fixed particles and constrains nothing");
+    pairs.emplace_back(std::min(bond.i, bond.j), std::max(bond.i, bond.j));
+  }
+  std::sort(pairs.begin(), pairs.end());
+  const auto twice = std::adjacent_find(pairs.begin(), pairs.end());
+  if (twice != pairs.end())
+    throw InputError("stiff bonds: particles " + std::to_string(twice->first) + "–" + std::to_string(twice->second) +
+                     " are joined by more than one stiff bond");
+}
+
+void require_columns(const Eigen::Matrix3Xd& a, Eigen::Index n, const char* what) {
+  if (a.cols() != n)
+    throw std::invalid_argument(std::string(what) + ": expected " + std::to_string(n) + " particles, got " +
+                                std::to_string(a.cols()));
+}
+
+// Per-cluster data: the solve order of its bonds, the pattern of K, the solver and scratch.
+struct ClusterData {
+  std::vector<int> bonds;           // position in K → bond index (chain order for chains)
+  std::vector<Coupling> couplings;  // the pattern of K, shared by S, J and Jᵀ
+  std::unique_ptr<ClusterSolver> solver;
+  Eigen::VectorXd values;  // K entries, one per coupling
+  Eigen::VectorXd rhs, sol;
+  Eigen::VectorXd lambda;  // SHAKE multipliers, accumulated over Newton steps
+};
+
+}  // namespace
+
+struct ConstraintToolbox::Impl {
+  Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in);
+
+  int num_particles() const { return static_cast<int>(inv_mass.size()); }
+
+  void measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1);
+  void factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric, const char* what);
+  Eigen::Vector3d inv_mass_difference(int b, const Eigen::Matrix3Xd& w) const;
+  void add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
+                            Eigen::Matrix3Xd& f) const;
+  void add_constraint_displacement(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
+                                   Eigen::Matrix3Xd& y) const;
+
+  void project_force_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f);
+  void project_velocity_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
+  void shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  void mollify_cluster(int c, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f);
+
+  std::vector<StiffBond> bonds;
+  Eigen::VectorXd inv_mass;
+  std::vector<ConstraintCluster> clusters;
+  std::vector<ClusterData> data;  // parallel to clusters
+  BondFrame at_ref;               // G at x (or x_ref)
+  BondFrame at_cur;               // G at y (or X = α(x))
+  Eigen::Matrix3Xd curvature;     // per bond: λ_b A_b ((M⁻¹r)_i − (M⁻¹r)_j), mollified force step 4
+};
+
+ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in)
+    : bonds(std::move(bonds_in)), inv_mass(std::move(inv_mass_in)) {
+  validate(bonds, inv_mass);
+  clusters = find_clusters(bonds, inv_mass);
+  const int m = static_cast<int>(bonds.size());
+  at_ref = {Eigen::Matrix3Xd::Zero(3, m), Eigen::VectorXd::Zero(m)};
+  at_cur = at_ref;
+  curvature = Eigen::Matrix3Xd::Zero(3, m);
+  for (const ConstraintCluster& cluster : clusters) {
+    ClusterData d;
+    d.bonds = chain_order(cluster.bonds, bonds, inv_mass);
+    const bool chain = !d.bonds.empty();
+    if (!chain) d.bonds = cluster.bonds;
+    d.couplings = couplings_of(d.bonds, bonds, inv_mass);
+    const int n = static_cast<int>(d.bonds.size());
+    if (chain)
+      d.solver = std::make_unique<TridiagonalSolver>(n, d.couplings);
+    else if (n <= kMaxDenseBonds)
+      d.solver = std::make_unique<DenseSolver>(n, d.couplings);
+    else
+      d.solver = std::make_unique<SparseSolver>(n, d.couplings);
+    d.values = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(d.couplings.size()));
+    d.rhs = d.sol = d.lambda = Eigen::VectorXd::Zero(n);
+    data.push_back(std::move(d));
+  }
+}
+
+// Unit vectors u_b and lengths of cluster c's bonds at x. G(x) does not exist where a bond
+// has zero length, so that is an error, as is any non-finite coordinate.
+void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what,
+                                      int iteration) {
+  for (int b : data[c].bonds) {
+    const Eigen::Vector3d d = x.col(bonds[b].i) - x.col(bonds[b].j);
+    const double length = d.norm();
+    if (length > 0.0 && std::isfinite(length)) {
+      frame.u.col(b) = d / length;
+      frame.length[b] = length;
+      continue;
+    }
+    std::string where = std::string(what) + " failed in cluster " + std::to_string(c);
+    if (iteration >= 0) where += " at iteration " + std::to_string(iteration);
+    throw NumericalError(where + ": " + describe_bond(b, bonds[b]) +
+                         (length == 0.0 ? " has zero length" : " has a non-finite length"));
+  }
+}
+
+// Factorizes K = G(rows) M⁻¹ G(cols)ᵀ on cluster c (see Coupling).
+void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric,
+                                        const char* what) {
+  ClusterData& d = data[c];
+  for (size_t k = 0; k < d.couplings.size(); ++k) {
+    const Coupling& cp = d.couplings[k];
+    d.values[static_cast<Eigen::Index>(k)] =
+        cp.sign * inv_mass[cp.particle] * rows.u.col(d.bonds[cp.row]).dot(cols.u.col(d.bonds[cp.col]));
+  }
+  if (!d.solver->factorize(d.values, symmetric))
+    throw NumericalError(std::string(what) + " failed in cluster " + std::to_string(c) +
+                         ": constraint matrix is singular (the stiff-bond directions are linearly dependent)");
+}
+
+// (M⁻¹w)_i − (M⁻¹w)_j for bond b: with u_b this is row b of G M⁻¹ w.
+Eigen::Vector3d ConstraintToolbox::Impl::inv_mass_difference(int b, const Eigen::Matrix3Xd& w) const {
+  return inv_mass[bonds[b].i] * w.col(bonds[b].i) - inv_mass[bonds[b].j] * w.col(bonds[b].j);
+}
+
+// f += sign · Gᵀ coef. Fixed particles receive their share too: it is the reaction force there,
+// and keeping the full Gᵀ makes P an exact projection.
+void ConstraintToolbox::Impl::add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef,
+                                                   double sign, Eigen::Matrix3Xd& f) const {
+  const ClusterData& d = data[c];
+  for (int k = 0; k < static_cast<int>(d.bonds.size()); ++k) {
+    const int b = d.bonds[k];
+    const Eigen::Vector3d force = sign * coef[k] * frame.u.col(b);
+    f.col(bonds[b].i) += force;
+    f.col(bonds[b].j) -= force;
+  }
+}
+
+// y += sign · M⁻¹ Gᵀ coef: the motion the constraint force causes (none at fixed particles).
+void ConstraintToolbox::Impl::add_constraint_displacement(int c, const BondFrame& frame, const Eigen::VectorXd& coef,
+                                                          double sign, Eigen::Matrix3Xd& y) const {
+  const ClusterData& d = data[c];
+  for (int k = 0; k < static_cast<int>(d.bonds.size()); ++k) {
+    const int b = d.bonds[k];
+    const Eigen::Vector3d step = sign * coef[k] * frame.u.col(b);
+    y.col(bonds[b].i) += inv_mass[bonds[b].i] * step;
+    y.col(bonds[b].j) -= inv_mass[bonds[b].j] * step;
+  }
+}
+
+// P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)).
+void ConstraintToolbox::Impl::project_force_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
+  ClusterData& d = data[c];
+  measure(c, x, at_ref, "force projection");
+  factorize(c, at_ref, at_ref, true, "force projection");
+  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
+  d.solver->solve(d.rhs, d.sol);
+  add_constraint_force(c, at_ref, d.sol, -1.0, f);
+}
+
+// RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0.
+void ConstraintToolbox::Impl::project_velocity_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+  ClusterData& d = data[c];
+  measure(c, x, at_ref, "velocity projection");
+  factorize(c, at_ref, at_ref, true, "velocity projection");
+  for (int k = 0; k < d.rhs.size(); ++k) {
+    const StiffBond& bond = bonds[d.bonds[k]];
+    d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
+  }
+  d.solver->solve(d.rhs, d.sol);
+  add_constraint_displacement(c, at_ref, d.sol, -1.0, v);
+}
+
+// Newton's method for y = y0 + M⁻¹G(x_ref)ᵀλ, g(y) = 0 (paper eq. (ProMol) when y0 = x_ref):
+// g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Full Newton rather than
+// SHAKE's S(x_ref) quasi-Newton: quadratic convergence, and λ is accurate enough for the
+// mollified force's H_λ.
+void ConstraintToolbox::Impl::shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol,
+                                            int max_iter) {
+  ClusterData& d = data[c];
+  measure(c, x_ref, at_ref, "SHAKE (reference configuration)");
+  d.lambda.setZero();
+  for (int iteration = 0;; ++iteration) {
+    measure(c, y, at_cur, "SHAKE", iteration);
+    int worst = 0;
+    for (int k = 0; k < d.rhs.size(); ++k) {
+      d.rhs[k] = bonds[d.bonds[k]].length - at_cur.length[d.bonds[k]];  // −g_b(y)
+      if (std::abs(d.rhs[k]) > std::abs(d.rhs[worst])) worst = k;
+    }
+    if (std::abs(d.rhs[worst]) <= tol) return;
+    if (iteration == max_iter) {
+      const int b = d.bonds[worst];
+      throw NumericalError("SHAKE did not converge in cluster " + std::to_string(c) + " after " +
+                           std::to_string(max_iter) + " iterations: worst " + describe_bond(b, bonds[b]) +
+                           ", |g| = " + format_g(std::abs(d.rhs[worst])));
+    }
+    factorize(c, at_cur, at_ref, false, "SHAKE");
+    d.solver->solve(d.rhs, d.sol);
+    d.lambda += d.sol;
+    add_constraint_displacement(c, at_ref, d.sol, +1.0, y);
+  }
+}
+
+// Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
+// which follows by differentiating X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and
+// data[c].lambda holds the multipliers of X = α(x).
+void ConstraintToolbox::Impl::mollify_cluster(int c, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& X,
+                                              Eigen::Matrix3Xd& f) {
+  ClusterData& d = data[c];
+  measure(c, x, at_ref, "mollified force");
+  measure(c, X, at_cur, "mollified force");
+  // Step 2: Jᵀμ = G(x) M⁻¹ f, Jᵀ = G(x) M⁻¹ G(X)ᵀ.
+  factorize(c, at_ref, at_cur, false, "mollified force");
+  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
+  d.solver->solve(d.rhs, d.sol);
+  // Step 3: r = f − G(X)ᵀμ.
+  add_constraint_force(c, at_cur, d.sol, -1.0, f);
+  // Step 4: F̄ = r + H_λ M⁻¹ r. ∇²g_b acts on (x_i, x_j) as [[A, −A], [−A, A]],
+  // A = (I − u uᵀ)/|x_i − x_j| at x (the derivative of u_b(x)). All of r is needed before
+  // any of it is overwritten, hence the per-bond buffer.
+  for (int k = 0; k < d.rhs.size(); ++k) {
+    const int b = d.bonds[k];
+    const Eigen::Vector3d w = inv_mass_difference(b, f);
+    const Eigen::Vector3d u = at_ref.u.col(b);
+    curvature.col(b) = d.lambda[k] * (w - u * u.dot(w)) / at_ref.length[b];
+  }
+  for (int b : d.bonds) {
+    f.col(bonds[b].i) += curvature.col(b);
+    f.col(bonds[b].j) -= curvature.col(b);
+  }
+}
+
+ConstraintToolbox::ConstraintToolbox(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass)
+    : impl_(std::make_unique<Impl>(std::move(bonds), std::move(inv_mass))) {}
+ConstraintToolbox::~ConstraintToolbox() = default;
+ConstraintToolbox::ConstraintToolbox(ConstraintToolbox&&) noexcept = default;
+ConstraintToolbox& ConstraintToolbox::operator=(ConstraintToolbox&&) noexcept = default;
+
+const std::vector<StiffBond>& ConstraintToolbox::bonds() const {
+  return impl_->bonds;
+}
+const std::vector<ConstraintCluster>& ConstraintToolbox::clusters() const {
+  return impl_->clusters;
+}
+int ConstraintToolbox::num_bonds() const {
+  return static_cast<int>(impl_->bonds.size());
+}
+
+void ConstraintToolbox::constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const {
+  require_columns(x, impl_->num_particles(), "constraint_values");
+  for (int b = 0; b < num_bonds(); ++b) {
+    const StiffBond& bond = impl_->bonds[b];
+    g[b] = (x.col(bond.i) - x.col(bond.j)).norm() - bond.length;
+  }
+}
+
+double ConstraintToolbox::max_violation(const Eigen::Matrix3Xd& x) const {
+  require_columns(x, impl_->num_particles(), "max_violation");
+  double worst = 0.0;
+  for (const StiffBond& bond : impl_->bonds)
+    worst = std::max(worst, std::abs((x.col(bond.i) - x.col(bond.j)).norm() - bond.length));
+  return worst;
+}
+
+void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
+  require_columns(x, impl_->num_particles(), "project_force");
+  require_columns(f, impl_->num_particles(), "project_force");
+  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->project_force_cluster(c, x, f);
+}
+
+void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+  require_columns(x, impl_->num_particles(), "project_velocity");
+  require_columns(v, impl_->num_particles(), "project_velocity");
+  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->project_velocity_cluster(c, x, v);
+}
+
+void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
+                              int max_iter) {
+  require_columns(x_ref, impl_->num_particles(), "shake");
+  require_columns(y, impl_->num_particles(), "shake");
+  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->shake_cluster(c, x_ref, y, tol, max_iter);
+  if (lambda == nullptr) return;
+  lambda->resize(num_bonds());  // a no-op when the caller keeps the vector
+  for (const ClusterData& d : impl_->data)
+    for (int k = 0; k < d.lambda.size(); ++k) (*lambda)[d.bonds[k]] = d.lambda[k];
+}
+
+void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow, Eigen::Matrix3Xd& X,
+                                        Eigen::Matrix3Xd& out, double tol) {
+  require_columns(x, impl_->num_particles(), "mollified_force");
+  // Step 1: X = α(x), the M-orthogonal projection of x onto g = 0 (paper eq. (ProMol)).
+  X = x;
+  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->shake_cluster(c, x, X, tol, kMollifierMaxIter);
+  out.resize(3, x.cols());
+  f_slow(X, out);
+  require_columns(out, impl_->num_particles(), "mollified_force (f_slow output)");
+  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->mollify_cluster(c, x, X, out);
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,41 @@
+// The outer kick forces of the impulse family (design.md §3; Lubich & Weiss §2.2–2.3):
+//   projected impulse:  K(x) = P(x) f(x)                       (the projected kick)
+//   mollified impulse:  K(x) = α′(x)ᵀ f(α(x))                   (projection mollifier, eq. ProMol)
+// P(x) removes the M-orthogonal (bond-normal) part of the slow force, which is what pumps
+// energy into the bond vibrations and destroys the actions' adiabatic invariance under the
+// plain impulse method.
+#pragma once
+
+#include "integrators/constraints.hpp"
+#include "integrators/multiple_time_stepping.hpp"
+
+namespace stiffmd {
+
+class ProjectedKick final : public KickForce {
+ public:
+  explicit ProjectedKick(ConstraintToolbox toolbox) : toolbox_(std::move(toolbox)) {}
+  void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
+                Eigen::Matrix3Xd& out) override {
+    forces.compute(x, levels, out);
+    toolbox_.project_force(x, out);
+  }
+
+ private:
+  ConstraintToolbox toolbox_;
+};
+
+class MollifiedKick final : public KickForce {
+ public:
+  MollifiedKick(ConstraintToolbox toolbox, int num_particles) : toolbox_(std::move(toolbox)), X_(3, num_particles) {}
+  void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
+                Eigen::Matrix3Xd& out) override {
+    toolbox_.mollified_force(
+        x, [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f) { forces.compute(X, levels, f); }, X_, out);
+  }
+
+ private:
+  ConstraintToolbox toolbox_;
+  Eigen::Matrix3Xd X_;  // α(x), scratch
+};
+
+}  // namespace stiffmd

@@ -1,0 +1,541 @@
+// Tests of the constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3, Lemma "alpha").
+//
+// The references here are written independently of integrators/constraints.cpp: G(x) as an
+// explicit dense m × 3N matrix, S = G M⁻¹ Gᵀ inverted densely, and finite differences of
+// U(α(x)) for the mollified force.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "engine/errors.hpp"
+#include "integrators/constraints.hpp"
+
+namespace stiffmd {
+namespace {
+
+struct Scene {
+  std::string name;
+  std::vector<StiffBond> bonds;
+  Eigen::VectorXd inv_mass;
+  Eigen::Matrix3Xd x;  // slightly off the constraint manifold
+};
+
+void PrintTo(const Scene& scene, std::ostream* os) {
+  *os << scene.name;
+}
+
+// The seed experiment (design.md §4): pivot 0 fixed at the origin, unit masses, l = α = 1,
+// x(0) = (√½, −√½), (√2, 5ε): bond 1 is exact, bond 2 is stretched by O(ε).
+Scene pendulum(double eps) {
+  Scene s{"pendulum", {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}}, Eigen::Vector3d(0.0, 1.0, 1.0), Eigen::Matrix3Xd(3, 3)};
+  s.x.col(0) << 0.0, 0.0, 0.0;
+  s.x.col(1) << std::sqrt(0.5), -std::sqrt(0.5), 0.0;
+  s.x.col(2) << std::sqrt(2.0), 5.0 * eps, 0.0;
+  return s;
+}
+
+// Built from raw mt19937 output, which the standard fixes (the <random> distributions are
+// library-specific), so that every standard library builds the same scenes.
+double uniform(std::mt19937& rng, double lo, double hi) {
+  return lo + (hi - lo) * (static_cast<double>(rng()) / 4294967296.0);
+}
+
+Eigen::Vector3d random_unit(std::mt19937& rng) {
+  for (;;) {
+    const Eigen::Vector3d d(uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0));
+    if (d.squaredNorm() > 1e-2 && d.squaredNorm() <= 1.0) return d.normalized();
+  }
+}
+
+Eigen::Matrix3Xd random_matrix(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  Eigen::Matrix3Xd a(3, n);
+  for (int k = 0; k < n; ++k) a.col(k) << uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0);
+  return a;
+}
+
+// A random open chain on the manifold (random masses in [0.5, 3], lengths in [0.8, 1.2]),
+// then displaced by `off` times a fixed random pattern.
+Scene random_chain(int beads, unsigned seed, double off) {
+  std::mt19937 rng(seed);
+  Scene s{"chain" + std::to_string(beads), {}, Eigen::VectorXd(beads), Eigen::Matrix3Xd::Zero(3, beads)};
+  for (int k = 0; k < beads; ++k) s.inv_mass[k] = 1.0 / uniform(rng, 0.5, 3.0);
+  for (int k = 0; k + 1 < beads; ++k) {
+    s.bonds.push_back({k, k + 1, uniform(rng, 0.8, 1.2), 1.0});
+    s.x.col(k + 1) = s.x.col(k) + s.bonds.back().length * random_unit(rng);
+  }
+  s.x += off * random_matrix(beads, seed + 1);
+  return s;
+}
+
+// A puckered ring (a cycle of bonds: S is not tridiagonal) with random masses.
+Scene ring(int beads, unsigned seed, double off) {
+  std::mt19937 rng(seed);
+  Scene s{"ring" + std::to_string(beads), {}, Eigen::VectorXd(beads), Eigen::Matrix3Xd(3, beads)};
+  const double radius = beads / (2.0 * std::numbers::pi);
+  for (int k = 0; k < beads; ++k) {
+    const double phi = 2.0 * std::numbers::pi * k / beads;
+    s.x.col(k) << radius * std::cos(phi), radius * std::sin(phi), 0.3 * ((k % 2) - 0.5);
+    s.inv_mass[k] = 1.0 / uniform(rng, 0.5, 3.0);
+  }
+  for (int k = 0; k < beads; ++k) {
+    const int next = (k + 1) % beads;
+    s.bonds.push_back({k, next, (s.x.col(k) - s.x.col(next)).norm(), 1.0});
+  }
+  s.x += off * random_matrix(beads, seed + 1);
+  return s;
+}
+
+// A branched molecule: a centre bead with `arms` arms of two bonds each.
+Scene star(int arms, unsigned seed, double off) {
+  std::mt19937 rng(seed);
+  const int beads = 1 + 2 * arms;
+  Scene s{"star" + std::to_string(arms), {}, Eigen::VectorXd::Constant(beads, 0.7), Eigen::Matrix3Xd::Zero(3, beads)};
+  for (int a = 0; a < arms; ++a) {
+    const int first = 1 + 2 * a;
+    s.x.col(first) = random_unit(rng);
+    s.x.col(first + 1) = s.x.col(first) + 1.5 * random_unit(rng);
+    s.bonds.push_back({0, first, 1.0, 1.0});
+    s.bonds.push_back({first, first + 1, 1.5, 1.0});
+  }
+  s.x += off * random_matrix(beads, seed + 1);
+  return s;
+}
+
+// Two molecules: a 4-bead chain and a triangle far away; two clusters.
+Scene two_molecules(double off) {
+  Scene chain = random_chain(4, 11, 0.0);
+  Scene triangle = ring(3, 12, 0.0);
+  Scene s{"two_molecules", chain.bonds, Eigen::VectorXd(7), Eigen::Matrix3Xd(3, 7)};
+  s.inv_mass << chain.inv_mass, triangle.inv_mass;
+  s.x << chain.x, (triangle.x.colwise() + Eigen::Vector3d(10.0, 0.0, 0.0));
+  for (StiffBond b : triangle.bonds) {
+    b.i += 4;
+    b.j += 4;
+    s.bonds.push_back(b);
+  }
+  s.x += off * random_matrix(7, 13);
+  return s;
+}
+
+// Chain 0–1–2–3–4 with bead 2 fixed: two bonds meet only at a fixed particle.
+Scene chain_through_fixed_bead(double off) {
+  Scene s = random_chain(5, 21, off);
+  s.name = "chain_through_fixed_bead";
+  s.inv_mass[2] = 0.0;
+  return s;
+}
+
+// Every back end: tridiagonal (chains, pendulum), dense (rings, stars, triangle),
+// sparse (the 100-bond ring), plus fixed particles.
+std::vector<Scene> all_scenes() {
+  const double off = 1e-2;
+  std::vector<Scene> scenes = {
+      pendulum(1e-2),     random_chain(10, 1, off),      ring(6, 2, off),           star(4, 3, off),
+      two_molecules(off), chain_through_fixed_bead(off), random_chain(101, 4, off), ring(100, 5, off)};
+  scenes[6].name = "long_chain";
+  scenes[7].name = "long_ring";
+  return scenes;
+}
+
+// ---- independent dense references ---------------------------------------------------------
+
+Eigen::VectorXd flat(const Eigen::Matrix3Xd& a) {
+  return Eigen::Map<const Eigen::VectorXd>(a.data(), a.size());
+}
+
+Eigen::Matrix3Xd unflat(const Eigen::VectorXd& a) {
+  return Eigen::Map<const Eigen::Matrix3Xd>(a.data(), 3, a.size() / 3);
+}
+
+// G(x) = g′(x): row b has +u_b in the columns of particle i and −u_b in those of j.
+Eigen::MatrixXd jacobian(const Scene& s, const Eigen::Matrix3Xd& x) {
+  Eigen::MatrixXd G = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(s.bonds.size()), x.size());
+  for (int b = 0; b < static_cast<int>(s.bonds.size()); ++b) {
+    const Eigen::Vector3d u = (x.col(s.bonds[b].i) - x.col(s.bonds[b].j)).normalized();
+    G.block<1, 3>(b, 3 * s.bonds[b].i) = u.transpose();
+    G.block<1, 3>(b, 3 * s.bonds[b].j) = -u.transpose();
+  }
+  return G;
+}
+
+Eigen::VectorXd inv_mass_diagonal(const Scene& s) {
+  Eigen::VectorXd w(3 * s.inv_mass.size());
+  for (int k = 0; k < s.inv_mass.size(); ++k) w.segment<3>(3 * k).setConstant(s.inv_mass[k]);
+  return w;
+}
+
+// P f = f − Gᵀ S⁻¹ G M⁻¹ f, with S inverted densely.
+Eigen::Matrix3Xd reference_projected_force(const Scene& s, const Eigen::Matrix3Xd& f) {
+  const Eigen::MatrixXd G = jacobian(s, s.x);
+  const Eigen::MatrixXd GW = G * inv_mass_diagonal(s).asDiagonal();
+  const Eigen::VectorXd lambda = (GW * G.transpose()).inverse() * (GW * flat(f));
+  return unflat(flat(f) - G.transpose() * lambda);
+}
+
+// v − M⁻¹ Gᵀ S⁻¹ G v.
+Eigen::Matrix3Xd reference_projected_velocity(const Scene& s, const Eigen::Matrix3Xd& v) {
+  const Eigen::MatrixXd G = jacobian(s, s.x);
+  const Eigen::MatrixXd WGt = inv_mass_diagonal(s).asDiagonal() * G.transpose();
+  const Eigen::VectorXd mu = (G * WGt).inverse() * (G * flat(v));
+  return unflat(flat(v) - WGt * mu);
+}
+
+// A random velocity-like field that leaves fixed particles at rest.
+Eigen::Matrix3Xd random_motion(const Scene& s, unsigned seed) {
+  Eigen::Matrix3Xd v = random_matrix(static_cast<int>(s.x.cols()), seed);
+  for (int k = 0; k < s.inv_mass.size(); ++k)
+    if (s.inv_mass[k] == 0.0) v.col(k).setZero();
+  return v;
+}
+
+double relative(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
+  return (a - b).lpNorm<Eigen::Infinity>() / b.lpNorm<Eigen::Infinity>();
+}
+
+// ---- clusters -------------------------------------------------------------------------------
+
+TEST(Clusters, PendulumIsOneCluster) {
+  const Scene s = pendulum(1e-2);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  ASSERT_EQ(toolbox.clusters().size(), 1u);
+  EXPECT_EQ(toolbox.clusters()[0].bonds, (std::vector<int>{0, 1}));
+  EXPECT_EQ(toolbox.clusters()[0].particles, (std::vector<int>{0, 1, 2}));
+}
+
+TEST(Clusters, SeparateMoleculesAreSeparateClusters) {
+  const Scene s = two_molecules(0.0);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  ASSERT_EQ(toolbox.clusters().size(), 2u);
+  EXPECT_EQ(toolbox.clusters()[0].bonds, (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(toolbox.clusters()[1].bonds, (std::vector<int>{3, 4, 5}));
+}
+
+TEST(Clusters, FixedBeadDoesNotCoupleItsBonds) {
+  const Scene s = chain_through_fixed_bead(0.0);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  EXPECT_EQ(toolbox.clusters().size(), 2u);
+}
+
+TEST(Toolbox, RejectsBondsThatMakeSSingular) {
+  const Eigen::VectorXd inv_mass = Eigen::Vector3d(0.0, 0.0, 1.0);
+  EXPECT_THROW(ConstraintToolbox({{0, 1, 1.0, 1.0}}, inv_mass), InputError);                    // both ends fixed
+  EXPECT_THROW(ConstraintToolbox({{1, 2, 1.0, 1.0}, {2, 1, 1.0, 1.0}}, inv_mass), InputError);  // duplicate
+  EXPECT_THROW(ConstraintToolbox({{2, 2, 1.0, 1.0}}, inv_mass), InputError);                    // self
+  EXPECT_THROW(ConstraintToolbox({{1, 3, 1.0, 1.0}}, inv_mass), InputError);                    // out of range
+}
+
+// ---- projections on every scene ---------------------------------------------------------------
+
+class OnEveryScene : public testing::TestWithParam<Scene> {};
+
+INSTANTIATE_TEST_SUITE_P(Constraints, OnEveryScene, testing::ValuesIn(all_scenes()),
+                         [](const testing::TestParamInfo<Scene>& info) { return info.param.name; });
+
+TEST_P(OnEveryScene, ProjectForceMatchesDenseFormula) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd f = random_matrix(static_cast<int>(s.x.cols()), 7);
+  const Eigen::Matrix3Xd expected = reference_projected_force(s, f);
+  toolbox.project_force(s.x, f);
+  EXPECT_LT(relative(f, expected), 1e-10);
+}
+
+TEST_P(OnEveryScene, ProjectForceIsAProjection) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const Eigen::Matrix3Xd f = random_matrix(static_cast<int>(s.x.cols()), 8);
+  Eigen::Matrix3Xd once = f;
+  toolbox.project_force(s.x, once);
+  Eigen::Matrix3Xd twice = once;
+  toolbox.project_force(s.x, twice);
+  EXPECT_LT(relative(twice, once), 1e-12);  // P² = P
+  // G M⁻¹ P f = 0: the projected force accelerates nothing along the bond normals.
+  const Eigen::MatrixXd GW = jacobian(s, s.x) * inv_mass_diagonal(s).asDiagonal();
+  EXPECT_LT((GW * flat(once)).lpNorm<Eigen::Infinity>(), 1e-12 * (GW * flat(f)).lpNorm<Eigen::Infinity>());
+}
+
+TEST_P(OnEveryScene, ProjectForceLeavesTangentForceAlone) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  // f = M t with G t = 0 (t tangent, zero at fixed particles), so G M⁻¹ f = 0 already.
+  const Eigen::Matrix3Xd t = reference_projected_velocity(s, random_motion(s, 9));
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, s.x.cols());
+  for (int k = 0; k < s.inv_mass.size(); ++k)
+    if (s.inv_mass[k] > 0.0) f.col(k) = t.col(k) / s.inv_mass[k];
+  const Eigen::Matrix3Xd tangent = f;
+  toolbox.project_force(s.x, f);
+  EXPECT_LT(relative(f, tangent), 1e-12);
+}
+
+TEST_P(OnEveryScene, ProjectVelocityRemovesBondStretching) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd v = random_motion(s, 10);
+  const Eigen::Matrix3Xd expected = reference_projected_velocity(s, v);
+  const double scale = (jacobian(s, s.x) * flat(v)).lpNorm<Eigen::Infinity>();
+  toolbox.project_velocity(s.x, v);
+  EXPECT_LT((jacobian(s, s.x) * flat(v)).lpNorm<Eigen::Infinity>(), 1e-12 * scale);  // G v = 0
+  EXPECT_LT(relative(v, expected), 1e-10);  // and it is the M-orthogonal projection
+  Eigen::Matrix3Xd again = v;
+  toolbox.project_velocity(s.x, again);
+  EXPECT_LT(relative(again, v), 1e-12);
+}
+
+// A flat triangle: its three bond directions are parallel, G has rank 2 and S is singular.
+// That must be an error naming the cluster, not NaN forces.
+TEST(ProjectForce, CollinearTriangleThrowsInsteadOfReturningNaN) {
+  Scene s = ring(3, 2, 0.0);
+  s.x << 0.0, 1.0, 2.5,  //
+      0.0, 0.0, 0.0,     //
+      0.0, 0.0, 0.0;
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd f = random_matrix(3, 15);
+  try {
+    toolbox.project_force(s.x, f);
+    FAIL() << "no NumericalError";
+  } catch (const NumericalError& e) {
+    EXPECT_NE(std::string(e.what()).find("cluster 0"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("singular"), std::string::npos) << e.what();
+  }
+}
+
+// ---- SHAKE / the mollifier α ------------------------------------------------------------------
+
+TEST_P(OnEveryScene, ShakeProjectsOntoTheManifoldAlongMinvGT) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  ASSERT_GT(toolbox.max_violation(s.x), 1e-4);
+  Eigen::Matrix3Xd X = s.x;
+  Eigen::VectorXd lambda;
+  toolbox.shake(s.x, X, &lambda);
+  EXPECT_LE(toolbox.max_violation(X), 1e-12);  // g(α(x)) = 0
+  // α(x) − x = M⁻¹ G(x)ᵀ λ (paper eq. (ProMol)); fixed particles have zero rows of M⁻¹.
+  const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * jacobian(s, s.x).transpose() * lambda;
+  EXPECT_LT((flat(X) - flat(s.x) - step).lpNorm<Eigen::Infinity>(), 1e-12);
+  EXPECT_GT(step.lpNorm<Eigen::Infinity>(), 1e-4);
+  // α(α(x)) = α(x).
+  Eigen::Matrix3Xd XX = X;
+  toolbox.shake(X, XX, &lambda);
+  EXPECT_LT((XX - X).lpNorm<Eigen::Infinity>(), 1e-12);
+  EXPECT_LT(lambda.lpNorm<Eigen::Infinity>(), 1e-12);
+}
+
+// RATTLE's use: y0 ≠ x_ref. The correction is along G(x_ref)ᵀ, not G(y0)ᵀ.
+TEST_P(OnEveryScene, ShakeCorrectsAlongTheReferenceConfiguration) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const Eigen::Matrix3Xd y0 = s.x + 0.05 * random_motion(s, 14);
+  Eigen::Matrix3Xd y = y0;
+  Eigen::VectorXd lambda;
+  toolbox.shake(s.x, y, &lambda);
+  EXPECT_LE(toolbox.max_violation(y), 1e-12);
+  const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * jacobian(s, s.x).transpose() * lambda;
+  EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
+}
+
+// Far from x_ref, J = G(y) M⁻¹ G(x_ref)ᵀ is far from S and the chain solver swaps rows on the
+// way; exact Newton needs 5 iterations from this start, a broken row swap needs more.
+TEST(Shake, ConvergesQuadraticallyFarFromTheReference) {
+  const Scene s = random_chain(10, 8, 0.0);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const Eigen::Matrix3Xd y0 = s.x + 0.3 * random_matrix(10, 108);
+  Eigen::Matrix3Xd y = y0;
+  Eigen::VectorXd lambda;
+  ASSERT_NO_THROW(toolbox.shake(s.x, y, &lambda, 1e-12, 5));
+  EXPECT_LE(toolbox.max_violation(y), 1e-12);
+  const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * jacobian(s, s.x).transpose() * lambda;
+  EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
+}
+
+TEST(Shake, ZeroLengthBondThrowsNamingTheCluster) {
+  Scene s = two_molecules(0.0);
+  s.x.col(5) = s.x.col(4);  // collapse bond (4, 5) of the triangle, cluster 1
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd y = s.x;
+  try {
+    toolbox.shake(s.x, y);
+    FAIL() << "no NumericalError";
+  } catch (const NumericalError& e) {
+    EXPECT_NE(std::string(e.what()).find("cluster 1"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("zero length"), std::string::npos) << e.what();
+  }
+}
+
+// A U-shaped chain 0–1–2–3 (unit masses) whose middle bond is pulled to three times its
+// length 1, the arms (length 0.9) perpendicular to it. Along X = x + M⁻¹G(x)ᵀλ the middle
+// bond's x-extent is 3 + 2λ₁, while the arms keep |λ₁| ≤ 0.9: |3 + 2λ₁| = 1 is out of reach.
+TEST(Shake, ChainWithABondStretchedThreefoldThrows) {
+  const Eigen::VectorXd inv_mass = Eigen::Vector4d::Ones();
+  const std::vector<StiffBond> bonds = {{0, 1, 0.9, 1.0}, {1, 2, 1.0, 1.0}, {2, 3, 0.9, 1.0}};
+  Eigen::Matrix3Xd x(3, 4);
+  x << 0.0, 0.0, 3.0, 3.0,  //
+      0.9, 0.0, 0.0, 0.9,   //
+      0.0, 0.0, 0.0, 0.0;
+  ConstraintToolbox toolbox(bonds, inv_mass);
+  Eigen::Matrix3Xd y = x;
+  try {
+    toolbox.shake(x, y);
+    FAIL() << "no NumericalError";
+  } catch (const NumericalError& e) {
+    EXPECT_NE(std::string(e.what()).find("cluster 0"), std::string::npos) << e.what();
+  }
+}
+
+// Pivots 0 and 3 fixed 9 apart, three unit bonds between them: the manifold is empty, so
+// Newton cannot converge and must say so instead of returning NaN.
+TEST(Shake, OverstretchedAnchoredChainThrows) {
+  const Eigen::VectorXd inv_mass = Eigen::Vector4d(0.0, 1.0, 1.0, 0.0);
+  const std::vector<StiffBond> bonds = {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {2, 3, 1.0, 1.0}};
+  Eigen::Matrix3Xd x(3, 4);
+  x << 0.0, 3.0, 6.0, 9.0,  //
+      0.0, 0.5, -0.5, 0.0,  //
+      0.0, 0.0, 0.0, 0.0;
+  ConstraintToolbox toolbox(bonds, inv_mass);
+  Eigen::Matrix3Xd y = x;
+  try {
+    toolbox.shake(x, y);
+    FAIL() << "no NumericalError";
+  } catch (const NumericalError& e) {
+    EXPECT_NE(std::string(e.what()).find("cluster 0"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Shake, NonConvergenceNamesClusterWorstBondAndIterations) {
+  Scene s = two_molecules(0.0);
+  s.x.col(6) += Eigen::Vector3d(0.3, 0.2, 0.0);  // disturb the triangle only, cluster 1
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd y = s.x;
+  try {
+    toolbox.shake(s.x, y, nullptr, 1e-12, 1);
+    FAIL() << "no NumericalError";
+  } catch (const NumericalError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("cluster 1 after 1 iterations"), std::string::npos) << message;
+    EXPECT_NE(message.find("worst bond"), std::string::npos) << message;
+  }
+}
+
+// ---- the mollified force ------------------------------------------------------------------
+
+// U = Σ_k X_k,y (gravity along −y, unit weights) + ½|X_t − c|² (a tether on particle t).
+struct SlowPotential {
+  int tethered;
+  Eigen::Vector3d anchor{0.3, -0.7, 0.4};
+  double energy(const Eigen::Matrix3Xd& x) const {
+    return x.row(1).sum() + 0.5 * (x.col(tethered) - anchor).squaredNorm();
+  }
+  void force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) const {
+    f.setZero();
+    f.row(1).setConstant(-1.0);
+    f.col(tethered) -= x.col(tethered) - anchor;
+  }
+};
+
+class MollifiedForce : public testing::TestWithParam<Scene> {};
+
+// The sparse back end (SparseLU for Jᵀ).
+Scene long_ring() {
+  Scene s = ring(100, 5, 1e-2);
+  s.name = "long_ring";
+  return s;
+}
+
+// far_chain is bonds stretched by up to 0.44 of their length: there Jᵀ is far enough from S
+// that the chain solver swaps rows, which the near-manifold scenes never make it do.
+Scene far_chain() {
+  Scene s = random_chain(10, 186, 0.3);
+  s.name = "far_chain";
+  return s;
+}
+
+INSTANTIATE_TEST_SUITE_P(Constraints, MollifiedForce,
+                         testing::Values(pendulum(1e-2), random_chain(10, 1, 1e-2), ring(6, 2, 1e-2), star(3, 3, 1e-2),
+                                         two_molecules(1e-2), chain_through_fixed_bead(1e-2), far_chain(), long_ring()),
+                         [](const testing::TestParamInfo<Scene>& info) { return info.param.name; });
+
+// F̄(x) = −∇_x U(α(x)), checked against central differences (every coordinate, fixed ones too:
+// α depends on them through the bonds).
+TEST_P(MollifiedForce, IsTheGradientOfTheMollifiedPotential) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const SlowPotential U{static_cast<int>(s.x.cols()) - 1};
+  const double tol = 1e-14;
+  auto mollified_energy = [&](const Eigen::Matrix3Xd& x) {
+    Eigen::Matrix3Xd X = x;
+    toolbox.shake(x, X, nullptr, tol);
+    return U.energy(X);
+  };
+  int calls = 0;
+  const ForceFunction f_slow = [&](const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
+    ++calls;
+    U.force(x, out);
+  };
+  Eigen::Matrix3Xd X(3, s.x.cols()), force(3, s.x.cols());
+  toolbox.mollified_force(s.x, f_slow, X, force, tol);
+  EXPECT_EQ(calls, 1);
+  EXPECT_LE(toolbox.max_violation(X), tol);
+
+  // Fourth-order central differences: far from the manifold α is strongly curved, and the
+  // second-order stencil's truncation error would blur a real discrepancy.
+  const double h = 1e-5;
+  Eigen::Matrix3Xd numeric(3, s.x.cols());
+  for (int k = 0; k < s.x.cols(); ++k)
+    for (int a = 0; a < 3; ++a) {
+      auto shifted = [&](double t) {
+        Eigen::Matrix3Xd y = s.x;
+        y(a, k) += t;
+        return mollified_energy(y);
+      };
+      numeric(a, k) = -(8.0 * (shifted(h) - shifted(-h)) - (shifted(2 * h) - shifted(-2 * h))) / (12.0 * h);
+    }
+  EXPECT_LT(relative(force, numeric), 1e-7) << "analytic\n" << force << "\nnumeric\n" << numeric;
+}
+
+// On the manifold α(x) = x and λ = 0, so J = S and α′(x)ᵀ = P(x) exactly.
+TEST(MollifiedForceOnManifold, EqualsTheProjectedForce) {
+  Scene s = random_chain(10, 1, 0.0);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const SlowPotential U{3};
+  const ForceFunction f_slow = [&](const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) { U.force(x, out); };
+  Eigen::Matrix3Xd X(3, s.x.cols()), mollified(3, s.x.cols()), projected(3, s.x.cols());
+  toolbox.mollified_force(s.x, f_slow, X, mollified);
+  U.force(s.x, projected);
+  toolbox.project_force(s.x, projected);
+  EXPECT_LT(relative(mollified, projected), 1e-12);
+}
+
+// ‖α′(x)ᵀ f − P(x) f‖ for gravity f (so f(α(x)) = f(x)) at a state with g(x) = O(ε).
+double mollified_minus_projected(const Scene& s) {
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  const ForceFunction gravity = [](const Eigen::Matrix3Xd&, Eigen::Matrix3Xd& out) {
+    out.setZero();
+    out.row(1).setConstant(-1.0);
+  };
+  Eigen::Matrix3Xd X(3, s.x.cols()), mollified(3, s.x.cols()), projected(3, s.x.cols());
+  toolbox.mollified_force(s.x, gravity, X, mollified);
+  gravity(s.x, projected);
+  toolbox.project_force(s.x, projected);
+  return (mollified - projected).norm();
+}
+
+// Paper Lemma (alpha): α′(x)ᵀ = P(x) + O(ε). Ten times smaller ε, ten times smaller gap.
+TEST(MollifiedForceLemma, DiffersFromProjectedForceByOrderEpsilon) {
+  const double pendulum_ratio = mollified_minus_projected(pendulum(1e-2)) / mollified_minus_projected(pendulum(1e-3));
+  const double chain_ratio =
+      mollified_minus_projected(random_chain(10, 1, 1e-2)) / mollified_minus_projected(random_chain(10, 1, 1e-3));
+  std::printf("O(eps) ratios (eps = 1e-2 over eps = 1e-3): pendulum %.3f, chain %.3f\n", pendulum_ratio, chain_ratio);
+  EXPECT_GT(pendulum_ratio, 5.0);
+  EXPECT_LT(pendulum_ratio, 20.0);
+  EXPECT_GT(chain_ratio, 5.0);
+  EXPECT_LT(chain_ratio, 20.0);
+}
+
+}  // namespace
+}  // namespace stiffmd
