@@ -24,7 +24,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", "stiffmd " STIFFMD_VERSION);
   app.require_subcommand(1);
 
-  std::string deck_path, out_dir;
+  std::string deck_path, out_dir, restart;
   std::vector<std::string> overrides;
   bool no_progress = false;
 
@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   run->add_option("-o,--output", out_dir, "output directory (default: out/<deck name>)");
   run->add_option("--set", overrides, "override a deck key, e.g. --set variables.eps=1e-4 --set integrator.h=0.01")
       ->take_all();
+  run->add_option("--restart", restart, "continue from a checkpoint (appends to the run's outputs)");
   run->add_flag("--no-progress", no_progress, "no progress bar on stderr");
 
   CLI::App* check = app.add_subcommand("check", "validate a deck and print what the scene contains");
@@ -55,7 +56,13 @@ int main(int argc, char** argv) {
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
-    const auto summary = stiffmd::run_simulation(scene, {out_dir, !no_progress}, std::cerr);
+    const auto summary = stiffmd::run_simulation(scene, {out_dir, !no_progress, restart}, std::cerr);
+    if (summary.stopped_by_signal) {
+      std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps
+                << "; outputs flushed, checkpoint " << summary.checkpoint << "; continue with: stiffmd run "
+                << deck_path << " -o " << out_dir << " --restart " << summary.checkpoint << " (and the same --set)\n";
+      return 128 + summary.stopped_by_signal;
+    }
     std::cout << stiffmd::format_summary(summary);
     return 0;
   } catch (const stiffmd::InputError& e) {

@@ -41,6 +41,8 @@ class Thermo {
   // model_potential (W of the effective dynamics) is counted in potential_stiff.
   const std::vector<double>& sample(const State& s, double model_potential = 0.0);
   double initial_energy() const { return e0_; }
+  // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
+  void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }
   int column(const std::string& name) const;
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }

@@ -223,7 +223,9 @@ void read_output(DeckTable& root, Scene& sc) {
   const double default_interval = sc.run.t_end / 100;
   auto t = root.table("output");
   if (!t) {
-    o = {"trajectory.xyz", default_interval, false, "thermo.csv", default_interval, "", default_interval};
+    o.xyz = "trajectory.xyz";
+    o.thermo = "thermo.csv";
+    o.xyz_interval = o.thermo_interval = o.state_interval = default_interval;
     return;
   }
   o.xyz = t->string("xyz", "trajectory.xyz");
@@ -238,8 +240,13 @@ void read_output(DeckTable& root, Scene& sc) {
   t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
   if (!o.state.empty() && !sc.forces->stiff_bonds())
     t->fail("state", "the state output holds projected momenta P(x)p: it needs stiff bonds");
-  for (const char* k : {"xyz", "thermo", "state"}) {
-    const std::string& f = std::string(k) == "xyz" ? o.xyz : std::string(k) == "thermo" ? o.thermo : o.state;
+  o.checkpoint = t->string("checkpoint", o.checkpoint);
+  if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
+  o.checkpoint_every = t->integer("checkpoint_every", 0);
+  t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
+  for (const char* k : {"xyz", "thermo", "state", "checkpoint"}) {
+    const std::string key(k);
+    const std::string& f = key == "xyz" ? o.xyz : key == "thermo" ? o.thermo : key == "state" ? o.state : o.checkpoint;
     if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
   }
   t->finish();

@@ -34,6 +34,8 @@ struct OutputSettings {
   double thermo_interval = 0.0;
   std::string state;           // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
+  std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
+  long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };
 
 struct Scene {

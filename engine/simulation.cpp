@@ -9,9 +9,11 @@
 #include <memory>
 #include <sstream>
 
+#include "engine/checkpoint.hpp"
 #include "engine/errors.hpp"
 #include "engine/observables.hpp"
 #include "engine/progress.hpp"
+#include "engine/signals.hpp"
 #include "engine/writers.hpp"
 
 namespace stiffmd {
@@ -29,13 +31,6 @@ void check_finite(const State& s) {
   m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
     << " (t = " << s.t << "); reduce integrator.h or micro_dt";
   throw NumericalError(m.str());
-}
-
-std::string prepare_output(const fs::path& dir, const std::string& name, std::ostream& log, RunSummary& summary) {
-  const fs::path p = dir / name;
-  if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
-  summary.outputs.push_back(p.string());
-  return p.string();
 }
 
 std::vector<std::string> state_columns(int n) {
@@ -57,6 +52,30 @@ void write_atomically(const fs::path& p, const std::string& text) {
   fs::rename(tmp, p);
 }
 
+// Restores a checkpoint into the scene's state; the deck supplies everything else.
+Checkpoint restore(Scene& sc, Integrator& integrator, const std::string& path, std::ostream& log) {
+  Checkpoint c = read_checkpoint(path);
+  if (c.state.size() != sc.state.size())
+    throw InputError(path + ": checkpoint holds " + std::to_string(c.state.size()) + " particles, the deck " +
+                     std::to_string(sc.state.size()));
+  if (c.state.inv_mass != sc.state.inv_mass)
+    throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
+  if (c.method != sc.integrator.method || c.h != sc.integrator.h)
+    log << "note: " << path << " was written by " << c.method << " with h = " << c.h << "; continuing with "
+        << sc.integrator.method << ", h = " << sc.integrator.h << " (not bit-identical to an uninterrupted run)\n";
+  try {
+    integrator.load_state(c.integrator_state);
+  } catch (const std::invalid_argument& e) {
+    throw InputError(path + ": " + e.what());
+  }
+  sc.state = c.state;
+  if (sc.state.t >= sc.run.t_end * (1 - 1e-12))
+    throw InputError(path + ": checkpoint is at t = " + std::to_string(sc.state.t) + ", not before run.t_end = " +
+                     std::to_string(sc.run.t_end) + " (raise it with --set run.t_end=...)");
+  log << "restart from " << path << " at step " << sc.state.step << " (t = " << sc.state.t << ")\n";
+  return c;
+}
+
 }  // namespace
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
@@ -69,6 +88,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   const fs::path dir(opt.out_dir);
   std::error_code ec;
+  if (fs::exists(dir) && !fs::is_directory(dir)) throw InputError(opt.out_dir + ": output path exists and is not a directory");
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir)) throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
@@ -80,44 +100,71 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     throw InputError(sc.deck_path + ": integrator.method: " + e.what());
   }
   State& s = sc.state;
-  integrator->prepare(s, log);
+  const bool restarting = !opt.restart.empty();
+  Checkpoint resumed;
+  if (restarting)
+    resumed = restore(sc, *integrator, opt.restart, log);
+  else
+    integrator->prepare(s, log);
 
+  // Outputs: fresh files, or on restart the same files cut back to the step before the
+  // checkpoint, t_{k−1}; the schedules resume from there, and the frame at t_k is written again
+  // below if the uninterrupted run would have written one. So the files end up exactly as an
+  // uninterrupted run's (without the interrupted run's off-grid final frame).
+  const double tol = 1e-9 * sc.integrator.h;
+  const double cut = static_cast<double>(s.step - 1) * sc.integrator.h;
+  Thermo thermo(*sc.forces, s.inv_mass, sc.observables);
+  auto open_output = [&](const std::string& name, auto truncate) {
+    const fs::path p = dir / name;
+    summary.outputs.push_back(p.string());
+    if (restarting) return truncate(p.string());  // true: continue (append)
+    if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
+    return false;
+  };
   std::vector<std::string> species;
   for (int t : sc.particle_type) species.push_back(sc.types[t].element);
-  Thermo thermo(*sc.forces, s.inv_mass, sc.observables);
   std::unique_ptr<XyzWriter> xyz;
   std::unique_ptr<CsvWriter> csv, state_csv;
   std::unique_ptr<ProjectedMomenta> projected;
-  if (!sc.output.xyz.empty())
-    xyz = std::make_unique<XyzWriter>(prepare_output(dir, sc.output.xyz, log, summary), species, sc.box,
-                                      sc.output.xyz_velocities);
-  if (!sc.output.thermo.empty())
-    csv = std::make_unique<CsvWriter>(prepare_output(dir, sc.output.thermo, log, summary), thermo.columns());
+  if (!sc.output.xyz.empty()) {
+    const bool append = open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
+    xyz = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append);
+  }
+  if (!sc.output.thermo.empty()) {
+    const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
+      return truncate_csv_after(p, cut, tol, thermo.columns());
+    });
+    csv = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
+  }
+  const auto scols = state_columns(s.size());
   if (!sc.output.state.empty()) {
-    state_csv = std::make_unique<CsvWriter>(prepare_output(dir, sc.output.state, log, summary), state_columns(s.size()));
+    const bool append = open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
+    state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
     projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
   }
+  const std::string checkpoint_path = (dir / sc.output.checkpoint).string();
+  summary.outputs.push_back(checkpoint_path);
   IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval),
       state_due(sc.output.state_interval);
+  if (restarting) {
+    xyz_due.served_until(cut);
+    thermo_due.served_until(cut);
+    state_due.served_until(cut);
+  }
   std::vector<double> state_row(1 + 6 * s.size());
   const int first_action = thermo.column("action_1");
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
   const std::int64_t n = sc.num_steps();
   const double h = sc.integrator.h;
-  const double t0 = s.t;
-  const std::int64_t step0 = s.step;
   sc.forces->reset_counters();
 
   double max_err = 0.0;
-  auto flush_notes = [&]() {
-    for (const auto& note : thermo.take_notes()) log << note << "\n";
-  };
   auto write_thermo = [&]() {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x));
     max_err = std::max(max_err, std::abs(row[6]));
     if (csv) csv->write(row);
-    flush_notes();
+    for (const auto& note : thermo.take_notes()) log << note << "\n";
     return row;
   };
   auto write_state = [&]() {
@@ -135,18 +182,35 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     if (xyz && xyz_due.due(s.t)) xyz->write(s);
     if (state_csv && state_due.due(s.t)) write_state();
   };
+  auto checkpoint = [&]() {
+    Checkpoint c;
+    c.state = s;
+    c.method = sc.integrator.method;
+    c.h = h;
+    c.integrator_state = integrator->save_state();
+    c.initial_energy = thermo.initial_energy();
+    write_checkpoint(checkpoint_path, c);
+    summary.checkpoint = checkpoint_path;
+  };
 
   check_finite(s);
   {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x));  // E(0) and the initial actions
     if (first_action >= 0) summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+    thermo.take_notes();
   }
+  if (restarting) thermo.set_initial_energy(resumed.initial_energy);
   observe();
   summary.initial_energy = thermo.initial_energy();
-  Progress progress(opt.progress, n);
+
+  // Steps are numbered from the start of the run (k = step), so a restart continues the same
+  // sequence of times t_k = k h exactly.
+  const std::int64_t first = s.step + 1;
+  Progress progress(opt.progress, n - s.step);
+  install_stop_handlers();
   const auto start = std::chrono::steady_clock::now();
   const std::clock_t cpu_start = std::clock();
-  for (std::int64_t k = 1; k <= n; ++k) {
+  for (std::int64_t k = first; k <= n; ++k) {
     try {
       integrator->step(s, h);
     } catch (const NumericalError& e) {
@@ -155,15 +219,26 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
       throw NumericalError(m.str());
     }
-    s.step = step0 + k;
-    s.t = t0 + static_cast<double>(k) * h;  // no accumulated round-off in t
+    s.step = k;
+    s.t = static_cast<double>(k) * h;  // no accumulated round-off in t
     check_finite(s);
-    if (k < n) observe();
-    progress.update(k);
+    if (k == n) break;
+    observe();
+    if (const int sig = stop_requested()) {
+      summary.stopped_by_signal = sig;
+      break;
+    }
+    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint();
+    progress.update(k - first + 1);
   }
   summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
   summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.finish();
+  checkpoint();
+  if (summary.stopped_by_signal) {
+    summary.steps = s.step;
+    return summary;  // outputs are flushed frame by frame; no summary.json: the run is not finished
+  }
   // The final state is always written, exactly once, whatever the intervals.
   const std::vector<double> row = write_thermo();
   if (xyz) xyz->write(s);

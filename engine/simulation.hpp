@@ -14,6 +14,7 @@ namespace stiffmd {
 struct RunOptions {
   std::string out_dir;   // created if missing
   bool progress = false; // progress bar with ETA on stderr
+  std::string restart;   // checkpoint to continue from ("" = a fresh run)
 };
 
 struct RunSummary {
@@ -33,6 +34,8 @@ struct RunSummary {
   double final_max_violation = 0.0;
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
+  int stopped_by_signal = 0;      // SIGINT/SIGTERM: stopped early after writing a checkpoint
+  std::string checkpoint;         // the last checkpoint written
 };
 
 // Runs the scene. Throws NumericalError (exit 3) on NaN/Inf, with the step and time; the

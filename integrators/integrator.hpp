@@ -4,6 +4,7 @@
 
 #include <memory>
 #include <ostream>
+#include <stdexcept>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -34,6 +35,12 @@ class Integrator {
   // Σ I_k ω_k(x) for the effective dynamics (the averaged energy of the bond vibrations, so
   // that kinetic + U + W is the conserved H_eff of paper eq. (CH)); 0 for the others.
   virtual double model_potential(const Eigen::Matrix3Xd&) { return 0.0; }
+  // State the integrator carries beyond (x, v) — the effective dynamics' actions — for
+  // checkpoints; restoring it (and skipping prepare()) continues a run bit for bit.
+  virtual std::vector<double> save_state() const { return {}; }
+  virtual void load_state(const std::vector<double>& s) {
+    if (!s.empty()) throw std::invalid_argument("this integrator carries no state, the checkpoint has some");
+  }
 };
 
 // The method names the deck and CLI accept (design.md §7).

@@ -8,6 +8,7 @@
 #include <regex>
 #include <sstream>
 
+#include "cli_support.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -15,33 +16,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CliResult {
-  int code;
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-fs::path scratch_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("stiffmd_test_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-
-CliResult cli(const std::string& args) {
-  const fs::path d = scratch_dir("cli_capture");
-  const std::string cmd = std::string(STIFFMD_EXE) + " " + args + " >" + (d / "out").string() + " 2>" + (d / "err").string();
-  const int status = std::system(cmd.c_str());
-  CliResult r{WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(d / "out"), slurp(d / "err")};
-  fs::remove_all(d);
-  return r;
-}
+using test::cli;
+using test::CliResult;
+using test::scratch_dir;
+using test::slurp;
 
 int count_lines(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
 

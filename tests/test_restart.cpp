@@ -1,0 +1,160 @@
+// Checkpoints and restart (issue: runs that survive interruption): a run of 2n steps and a run
+// of n steps continued from its checkpoint for n more end in the same state bit for bit, for
+// every integrator, and their outputs are the same files; signals stop cleanly; a checkpoint
+// is never half-written; bad output paths are clear errors.
+#include <gtest/gtest.h>
+
+#include <csignal>
+#include <thread>
+
+#include "cli_support.hpp"
+#include "engine/checkpoint.hpp"
+#include "test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+using test::cli;
+using test::slurp;
+
+std::string deck() { return test::source_path("inputs/double_pendulum.toml"); }
+
+class RestartEquivalence : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(RestartEquivalence, TwoHalvesEqualTheWholeBitForBit) {
+  const std::string method = GetParam();
+  const std::string h = method == "velocity-verlet" ? "1e-5" : "0.015625";
+  const std::string common = " --no-progress --set integrator.method=" + method + " --set integrator.h=" + h +
+                             " --set output.xyz_interval=0.01 --set output.thermo_interval=0.01"
+                             " --set output.xyz_velocities=true";
+  const fs::path d = test::scratch_dir("restart_" + method);
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "whole").string() + common + " --set run.t_end=0.25").code, 0);
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "parts").string() + common + " --set run.t_end=0.125").code, 0);
+  const auto r = cli("run " + deck() + " -o " + (d / "parts").string() + common + " --set run.t_end=0.25 --restart " +
+                     (d / "parts" / "checkpoint.bin").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("restart from"), std::string::npos);
+
+  const Checkpoint a = read_checkpoint((d / "whole" / "checkpoint.bin").string());
+  const Checkpoint b = read_checkpoint((d / "parts" / "checkpoint.bin").string());
+  EXPECT_EQ(a.state.step, b.state.step);
+  EXPECT_EQ(a.state.t, b.state.t);
+  EXPECT_TRUE((a.state.x.array() == b.state.x.array()).all()) << "positions differ";
+  EXPECT_TRUE((a.state.v.array() == b.state.v.array()).all()) << "velocities differ";
+  EXPECT_EQ(a.integrator_state, b.integrator_state);
+  // The continued trajectory and thermo files are the uninterrupted run's, byte for byte.
+  EXPECT_EQ(slurp(d / "whole" / "trajectory.xyz"), slurp(d / "parts" / "trajectory.xyz"));
+  EXPECT_EQ(slurp(d / "whole" / "thermo.csv"), slurp(d / "parts" / "thermo.csv"));
+  fs::remove_all(d);
+}
+
+INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence,
+                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle",
+                                           "effective"),
+                         [](const auto& info) {
+                           std::string n = info.param;
+                           std::replace(n.begin(), n.end(), '-', '_');
+                           return n;
+                         });
+
+TEST(Restart, DropsFramesWrittenAfterTheCheckpointAndContinuesGzipTrajectories) {
+  const fs::path d = test::scratch_dir("restart_gz");
+  const std::string common = " --no-progress --set output.xyz=traj.xyz.gz --set output.xyz_interval=0.03125 --set output.thermo_interval=0.03125";
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "whole").string() + common + " --set run.t_end=0.5").code, 0);
+  // A run to t = 0.25 (step 16); keep its checkpoint; continue it to 0.375, as if it had gone on
+  // after that checkpoint and then died; restart from the kept checkpoint: the frames after
+  // step 16 must be cut away before the run goes on.
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "parts").string() + common + " --set run.t_end=0.25").code, 0);
+  fs::copy_file(d / "parts" / "checkpoint.bin", d / "step16.bin");
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "parts").string() + common + " --set run.t_end=0.375 --restart " +
+                (d / "step16.bin").string())
+                .code,
+            0);
+  const auto r = cli("run " + deck() + " -o " + (d / "parts").string() + common + " --set run.t_end=0.5 --restart " +
+                     (d / "step16.bin").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(slurp(d / "whole" / "thermo.csv"), slurp(d / "parts" / "thermo.csv"));
+  // Compare the decompressed trajectories with zcat.
+  const auto unz = [&](const fs::path& p) {
+    std::system(("zcat " + p.string() + " > " + p.string() + ".txt").c_str());
+    return slurp(p.string() + ".txt");
+  };
+  const std::string whole = unz(d / "whole" / "traj.xyz.gz"), parts = unz(d / "parts" / "traj.xyz.gz");
+  EXPECT_FALSE(whole.empty());
+  EXPECT_EQ(whole, parts);
+  fs::remove_all(d);
+}
+
+TEST(Restart, RejectsACheckpointOfAnotherScene) {
+  const fs::path d = test::scratch_dir("restart_bad");
+  std::ofstream(d / "junk.bin") << "not a checkpoint";
+  auto r = cli("run " + deck() + " -o " + d.string() + " --restart " + (d / "junk.bin").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("junk.bin: not a stiffmd checkpoint"), std::string::npos) << r.err;
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "a").string() + " --set run.t_end=0.1").code, 0);
+  r = cli("run " + deck() + " -o " + (d / "a").string() + " --set types.bob.mass=2 --set types.pivot.mass=2 --restart " + (d / "a" / "checkpoint.bin").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("masses differ"), std::string::npos) << r.err;
+  r = cli("run " + deck() + " -o " + (d / "a").string() + " --restart " + (d / "a" / "checkpoint.bin").string() + " --set run.t_end=0.05");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("not before run.t_end"), std::string::npos) << r.err;
+  fs::remove_all(d);
+}
+
+TEST(Signals, SigintFinishesTheStepWritesACheckpointAndTheRunContinuesExactly) {
+  const fs::path d = test::scratch_dir("sigint");
+  const std::string common = " --no-progress --set variables.eps=1e-4 --set run.t_end=20";
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "whole").string() + common).code, 0);
+  // The same run, interrupted: about 1 s of work, SIGINT after 0.3 s.
+  const auto r = cli("run " + deck() + " -o " + (d / "parts").string() + common, "timeout --preserve-status -s INT 0.3 ");
+  ASSERT_EQ(r.code, 128 + SIGINT) << r.err;
+  EXPECT_NE(r.err.find("stopped by signal 2"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(d / "parts" / "summary.json")) << "an interrupted run must not look finished";
+  const Checkpoint mid = read_checkpoint((d / "parts" / "checkpoint.bin").string());
+  EXPECT_GT(mid.state.step, 0);
+  const auto r2 = cli("run " + deck() + " -o " + (d / "parts").string() + common + " --restart " +
+                      (d / "parts" / "checkpoint.bin").string());
+  ASSERT_EQ(r2.code, 0) << r2.err;
+  EXPECT_EQ(slurp(d / "whole" / "checkpoint.bin"), slurp(d / "parts" / "checkpoint.bin"));
+  EXPECT_EQ(slurp(d / "whole" / "thermo.csv"), slurp(d / "parts" / "thermo.csv"));
+  fs::remove_all(d);
+}
+
+TEST(Checkpoint, IsNeverHalfWrittenWhenKilled) {
+  const fs::path d = test::scratch_dir("kill9");
+  for (const char* after : {"0.15", "0.25", "0.35"}) {
+    // A checkpoint after every step: SIGKILL lands in the middle of writing one, sooner or later.
+    const auto r = cli("run " + deck() + " -o " + d.string() +
+                           " --no-progress --set variables.eps=1e-4 --set output.checkpoint_every=1 --set run.t_end=5",
+                       std::string("timeout -s KILL ") + after + " ");
+    ASSERT_EQ(r.code, 128 + SIGKILL);
+    ASSERT_TRUE(fs::exists(d / "checkpoint.bin"));
+    EXPECT_NO_THROW(read_checkpoint((d / "checkpoint.bin").string()));
+    // Every trajectory frame on disk is whole (5 lines per frame for 3 particles).
+    const std::string xyz = slurp(d / "trajectory.xyz");
+    EXPECT_EQ(std::count(xyz.begin(), xyz.end(), '\n') % 5, 0);
+  }
+  fs::remove_all(d);
+}
+
+TEST(Outputs, BadPathsAreClearErrors) {
+  const fs::path d = test::scratch_dir("badpaths");
+  std::ofstream(d / "a_file") << "x";
+  auto r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "a_file").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("a_file: output path exists and is not a directory"), std::string::npos) << r.err;
+  r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "a_file" / "sub").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("cannot create output directory"), std::string::npos) << r.err;
+  // A full disk: the thermo file is /dev/full, where every write fails with ENOSPC.
+  fs::create_directories(d / "full");
+  fs::create_symlink("/dev/full", d / "full" / "thermo.csv");
+  r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "full").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("thermo.csv: write failed: No space left on device"), std::string::npos) << r.err;
+  fs::remove_all(d);
+}
+
+}  // namespace
+}  // namespace stiffmd
