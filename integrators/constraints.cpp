@@ -423,7 +423,9 @@ void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const Bond
   }
   if (!d.solver->factorize(d.values, symmetric))
     throw NumericalError(std::string(what) + " failed in cluster " + std::to_string(c) +
-                         ": constraint matrix is singular (the stiff-bond directions are linearly dependent)");
+                         (symmetric
+                              ? ": S = G M⁻¹ Gᵀ is singular (the bond directions are linearly dependent)"
+                              : ": the Newton matrix G(y) M⁻¹ G(x_ref)ᵀ is singular (too far from the reference)"));
 }
 
 // (M⁻¹w)_i − (M⁻¹w)_j for bond b: with u_b this is row b of G M⁻¹ w.

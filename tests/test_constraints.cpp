@@ -201,7 +201,7 @@ double relative(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
 
 // ---- clusters -------------------------------------------------------------------------------
 
-TEST(Clusters, PendulumIsOneCluster) {
+TEST(ConstraintClusters, PendulumIsOneCluster) {
   const Scene s = pendulum(1e-2);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   ASSERT_EQ(toolbox.clusters().size(), 1u);
@@ -209,7 +209,7 @@ TEST(Clusters, PendulumIsOneCluster) {
   EXPECT_EQ(toolbox.clusters()[0].particles, (std::vector<int>{0, 1, 2}));
 }
 
-TEST(Clusters, SeparateMoleculesAreSeparateClusters) {
+TEST(ConstraintClusters, SeparateMoleculesAreSeparateClusters) {
   const Scene s = two_molecules(0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   ASSERT_EQ(toolbox.clusters().size(), 2u);
@@ -217,13 +217,13 @@ TEST(Clusters, SeparateMoleculesAreSeparateClusters) {
   EXPECT_EQ(toolbox.clusters()[1].bonds, (std::vector<int>{3, 4, 5}));
 }
 
-TEST(Clusters, FixedBeadDoesNotCoupleItsBonds) {
+TEST(ConstraintClusters, FixedBeadDoesNotCoupleItsBonds) {
   const Scene s = chain_through_fixed_bead(0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   EXPECT_EQ(toolbox.clusters().size(), 2u);
 }
 
-TEST(Toolbox, RejectsBondsThatMakeSSingular) {
+TEST(ConstraintInput, RejectsBondsThatMakeSSingular) {
   const Eigen::VectorXd inv_mass = Eigen::Vector3d(0.0, 0.0, 1.0);
   EXPECT_THROW(ConstraintToolbox({{0, 1, 1.0, 1.0}}, inv_mass), InputError);                    // both ends fixed
   EXPECT_THROW(ConstraintToolbox({{1, 2, 1.0, 1.0}, {2, 1, 1.0, 1.0}}, inv_mass), InputError);  // duplicate
@@ -290,7 +290,7 @@ TEST_P(OnEveryScene, ProjectVelocityRemovesBondStretching) {
 
 // A flat triangle: its three bond directions are parallel, G has rank 2 and S is singular.
 // That must be an error naming the cluster, not NaN forces.
-TEST(ProjectForce, CollinearTriangleThrowsInsteadOfReturningNaN) {
+TEST(ConstraintProjectForce, CollinearTriangleThrowsInsteadOfReturningNaN) {
   Scene s = ring(3, 2, 0.0);
   s.x << 0.0, 1.0, 2.5,  //
       0.0, 0.0, 0.0,     //
@@ -327,6 +327,17 @@ TEST_P(OnEveryScene, ShakeProjectsOntoTheManifoldAlongMinvGT) {
   EXPECT_LT(lambda.lpNorm<Eigen::Infinity>(), 1e-12);
 }
 
+// shake(x, x): the reference and the iterate are the same matrix (RATTLE's start-up does this).
+TEST_P(OnEveryScene, ShakeMayProjectItsOwnReferenceInPlace) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd X = s.x;
+  toolbox.shake(s.x, X);
+  Eigen::Matrix3Xd x = s.x;
+  toolbox.shake(x, x);
+  EXPECT_EQ((x - X).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
 // RATTLE's use: y0 ≠ x_ref. The correction is along G(x_ref)ᵀ, not G(y0)ᵀ.
 TEST_P(OnEveryScene, ShakeCorrectsAlongTheReferenceConfiguration) {
   const Scene& s = GetParam();
@@ -342,7 +353,7 @@ TEST_P(OnEveryScene, ShakeCorrectsAlongTheReferenceConfiguration) {
 
 // Far from x_ref, J = G(y) M⁻¹ G(x_ref)ᵀ is far from S and the chain solver swaps rows on the
 // way; exact Newton needs 5 iterations from this start, a broken row swap needs more.
-TEST(Shake, ConvergesQuadraticallyFarFromTheReference) {
+TEST(ConstraintShake, ConvergesQuadraticallyFarFromTheReference) {
   const Scene s = random_chain(10, 8, 0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   const Eigen::Matrix3Xd y0 = s.x + 0.3 * random_matrix(10, 108);
@@ -354,7 +365,7 @@ TEST(Shake, ConvergesQuadraticallyFarFromTheReference) {
   EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
 }
 
-TEST(Shake, ZeroLengthBondThrowsNamingTheCluster) {
+TEST(ConstraintShake, ZeroLengthBondThrowsNamingTheCluster) {
   Scene s = two_molecules(0.0);
   s.x.col(5) = s.x.col(4);  // collapse bond (4, 5) of the triangle, cluster 1
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
@@ -371,7 +382,7 @@ TEST(Shake, ZeroLengthBondThrowsNamingTheCluster) {
 // A U-shaped chain 0–1–2–3 (unit masses) whose middle bond is pulled to three times its
 // length 1, the arms (length 0.9) perpendicular to it. Along X = x + M⁻¹G(x)ᵀλ the middle
 // bond's x-extent is 3 + 2λ₁, while the arms keep |λ₁| ≤ 0.9: |3 + 2λ₁| = 1 is out of reach.
-TEST(Shake, ChainWithABondStretchedThreefoldThrows) {
+TEST(ConstraintShake, ChainWithABondStretchedThreefoldThrows) {
   const Eigen::VectorXd inv_mass = Eigen::Vector4d::Ones();
   const std::vector<StiffBond> bonds = {{0, 1, 0.9, 1.0}, {1, 2, 1.0, 1.0}, {2, 3, 0.9, 1.0}};
   Eigen::Matrix3Xd x(3, 4);
@@ -390,7 +401,7 @@ TEST(Shake, ChainWithABondStretchedThreefoldThrows) {
 
 // Pivots 0 and 3 fixed 9 apart, three unit bonds between them: the manifold is empty, so
 // Newton cannot converge and must say so instead of returning NaN.
-TEST(Shake, OverstretchedAnchoredChainThrows) {
+TEST(ConstraintShake, OverstretchedAnchoredChainThrows) {
   const Eigen::VectorXd inv_mass = Eigen::Vector4d(0.0, 1.0, 1.0, 0.0);
   const std::vector<StiffBond> bonds = {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {2, 3, 1.0, 1.0}};
   Eigen::Matrix3Xd x(3, 4);
@@ -407,7 +418,7 @@ TEST(Shake, OverstretchedAnchoredChainThrows) {
   }
 }
 
-TEST(Shake, NonConvergenceNamesClusterWorstBondAndIterations) {
+TEST(ConstraintShake, NonConvergenceNamesClusterWorstBondAndIterations) {
   Scene s = two_molecules(0.0);
   s.x.col(6) += Eigen::Vector3d(0.3, 0.2, 0.0);  // disturb the triangle only, cluster 1
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
@@ -499,7 +510,7 @@ TEST_P(MollifiedForce, IsTheGradientOfTheMollifiedPotential) {
 }
 
 // On the manifold α(x) = x and λ = 0, so J = S and α′(x)ᵀ = P(x) exactly.
-TEST(MollifiedForceOnManifold, EqualsTheProjectedForce) {
+TEST(ConstraintMollifiedForce, EqualsTheProjectedForce) {
   Scene s = random_chain(10, 1, 0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   const SlowPotential U{3};
@@ -526,7 +537,7 @@ double mollified_minus_projected(const Scene& s) {
 }
 
 // Paper Lemma (alpha): α′(x)ᵀ = P(x) + O(ε). Ten times smaller ε, ten times smaller gap.
-TEST(MollifiedForceLemma, DiffersFromProjectedForceByOrderEpsilon) {
+TEST(ConstraintMollifiedForce, DiffersFromProjectedForceByOrderEpsilon) {
   const double pendulum_ratio = mollified_minus_projected(pendulum(1e-2)) / mollified_minus_projected(pendulum(1e-3));
   const double chain_ratio =
       mollified_minus_projected(random_chain(10, 1, 1e-2)) / mollified_minus_projected(random_chain(10, 1, 1e-3));
