@@ -316,6 +316,16 @@ std::vector<long> DeckTable::integers(std::string_view key) {
   return out;
 }
 
+std::vector<double> DeckTable::numbers(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of numbers, got " + shown(*n));
+  std::vector<double> out;
+  for (size_t k = 0; k < a->size(); ++k) out.push_back(to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]"));
+  return out;
+}
+
 std::vector<std::string> DeckTable::strings(std::string_view key) {
   const toml::node* n = get(key);
   if (!n) return {};
@@ -325,6 +335,19 @@ std::vector<std::string> DeckTable::strings(std::string_view key) {
   for (size_t k = 0; k < a->size(); ++k) {
     if (!a->get(k)->is_string()) fail(key, "expected an array of strings, element " + std::to_string(k) + " is " + type_word(*a->get(k)));
     out.push_back(*a->get(k)->value<std::string>());
+  }
+  return out;
+}
+
+std::vector<std::pair<std::string, std::string>> DeckTable::string_map(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::table* t = n->as_table();
+  if (!t) fail(key, "expected a table of names, e.g. { \"1\" = \"bead\" }, got " + type_word(*n));
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& [k, v] : *t) {
+    if (!v.is_string()) fail(key, "expected a name (string) for '" + std::string(k.str()) + "', got " + type_word(v));
+    out.emplace_back(std::string(k.str()), *v.value<std::string>());
   }
   return out;
 }

@@ -54,6 +54,10 @@ class DeckTable {
   // A list of integers (e.g. a bond's two particle indices).
   std::vector<long> integers(std::string_view key);
   std::vector<std::string> strings(std::string_view key);
+  // A list of numbers or expressions; empty when absent.
+  std::vector<double> numbers(std::string_view key);
+  // A table of string values, e.g. atom_types = { "1" = "bead" }; empty when absent.
+  std::vector<std::pair<std::string, std::string>> string_map(std::string_view key);
 
   std::optional<DeckTable> table(std::string_view key);
   // Every entry of this table must itself be a table: [types.A], [types.B], …

@@ -1,48 +1,228 @@
 #include "engine/force_registry.hpp"
 
+#include <cmath>
 #include <stdexcept>
 
+#include "forcefields/angle_terms.hpp"
+#include "forcefields/external_terms.hpp"
+#include "forcefields/fene_bond.hpp"
 #include "forcefields/gravity.hpp"
+#include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 
 namespace stiffmd {
 namespace {
 
-// [forces.NAME] style = "stiff-harmonic", epsilon = "eps",
-// [forces.NAME.bond_types.TYPE] length = ℓ, alpha = α — one sub-table per bond type it claims.
+// Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
+// Returns, per type of the scene, the index of its coefficients in `coeffs` (−1: not claimed
+// by this term). A type claimed by two terms, or a table that is missing, is an error.
+template <class Coeffs, class Read>
+std::vector<int> claim_types(DeckTable& t, const char* key, const std::vector<std::string>& names,
+                             std::vector<std::string>& owner, const std::string& term, Read read,
+                             std::vector<Coeffs>& coeffs) {
+  auto types = t.table(key);
+  if (!types) t.fail_here(std::string("missing required table [") + t.key_path(key) + ".TYPE]");
+  std::vector<int> index(names.size(), -1);
+  for (auto& [type_name, tt] : types->named_tables()) {
+    Coeffs c = read(tt);
+    tt.finish();
+    const int k = Topology::index_of(names, type_name);
+    if (k < 0) continue;  // a type with nothing of it in this scene is allowed
+    if (!owner[k].empty())
+      types->fail(type_name, "type '" + type_name + "' is already defined by [forces." + owner[k] + "]");
+    owner[k] = term;
+    index[k] = static_cast<int>(coeffs.size());
+    coeffs.push_back(c);
+  }
+  types->finish();
+  return index;
+}
+
+// The bonds (or angles) of the claimed types, their type renumbered into `coeffs`.
+template <class Item>
+std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>& index) {
+  std::vector<Item> out;
+  for (Item it : items)
+    if (index[it.type] >= 0) {
+      it.type = index[it.type];
+      out.push_back(it);
+    }
+  return out;
+}
+
+// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}.
 std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   StiffBonds sb;
   sb.epsilon = t.number("epsilon");
   t.require(sb.epsilon > 0.0, "epsilon", "expected a number > 0");
-  auto types = t.table("bond_types");
-  if (!types) t.fail_here("missing required table [" + t.key_path("bond_types") + ".NAME] (length, alpha)");
-  std::vector<int> claimed(ctx.topology.bond_types.size(), -1);
-  std::vector<double> length, alpha;
-  for (auto& [type_name, bt] : types->named_tables()) {
-    const double l = bt.number("length");
-    bt.require(l > 0.0, "length", "expected a bond length > 0");
-    const double a = bt.number("alpha");
-    bt.require(a > 0.0, "alpha", "expected a stiffness alpha > 0");
-    bt.finish();
-    const int k = ctx.topology.bond_type_index(type_name);
-    if (k < 0) continue;  // a type with no bonds in this scene is allowed
-    if (!ctx.bond_type_owner[k].empty())
-      types->fail(type_name, "bond type '" + type_name + "' is already defined by [forces." +
-                                 ctx.bond_type_owner[k] + "]");
-    ctx.bond_type_owner[k] = name;
-    claimed[k] = static_cast<int>(length.size());
-    length.push_back(l);
-    alpha.push_back(a);
-  }
-  types->finish();
-  for (const Bond& b : ctx.topology.bonds)
-    if (claimed[b.type] >= 0) sb.bonds.push_back({b.i, b.j, length[claimed[b.type]], alpha[claimed[b.type]]});
+  std::vector<StiffBond> coeffs;
+  const auto index = claim_types(
+      t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
+      [](DeckTable& bt) {
+        StiffBond c;
+        c.length = bt.number("length");
+        bt.require(c.length > 0.0, "length", "expected a bond length > 0");
+        c.alpha = bt.number("alpha");
+        bt.require(c.alpha > 0.0, "alpha", "expected a stiffness alpha > 0");
+        return c;
+      },
+      coeffs);
+  for (const Bond& b : claimed(ctx.scene.topology.bonds, index))
+    sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }
 
-// [forces.NAME] style = "gravity", g = [gx, gy, gz]
+// fene: bond_types.TYPE = {K, R0, epsilon = 0, sigma = 1} (LAMMPS bond_style fene).
+std::unique_ptr<ForceTerm> read_fene(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<FeneCoeffs> coeffs;
+  const auto index = claim_types(
+      t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
+      [](DeckTable& bt) {
+        FeneCoeffs c;
+        c.K = bt.number("K");
+        c.R0 = bt.number("R0");
+        c.epsilon = bt.number("epsilon", 0.0);
+        c.sigma = bt.number("sigma", 1.0);
+        return c;
+      },
+      coeffs);
+  return std::make_unique<FeneBond>(name, level, claimed(ctx.scene.topology.bonds, index), coeffs);
+}
+
+// harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
+template <class Term>
+std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<AngleCoeffs> coeffs;
+  const auto index = claim_types(
+      t, "angle_types", ctx.scene.topology.angle_types, ctx.angle_type_owner, name,
+      [](DeckTable& at) {
+        AngleCoeffs c;
+        c.k = at.number("k");
+        const double deg = at.number("theta0", 180.0);
+        at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
+        c.theta0 = deg * M_PI / 180.0;
+        return c;
+      },
+      coeffs);
+  return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
+std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
+  std::vector<int> out;
+  if (t.has("particles") && t.has("type")) t.fail("type", "give either particles or type, not both");
+  if (t.has("particles")) {
+    for (long i : t.integers("particles")) {
+      if (i < 0 || i >= sc.state.size()) t.fail("particles", "particle " + std::to_string(i) + " does not exist");
+      out.push_back(static_cast<int>(i));
+    }
+  } else if (t.has("type")) {
+    const std::string type = t.string("type");
+    int k = -1;
+    for (size_t m = 0; m < sc.types.size(); ++m)
+      if (sc.types[m].name == type) k = static_cast<int>(m);
+    if (k < 0) t.fail("type", "unknown particle type '" + type + "'");
+    for (int i = 0; i < sc.state.size(); ++i)
+      if (sc.particle_type[i] == k) out.push_back(i);
+  } else {
+    for (int i = 0; i < sc.state.size(); ++i) out.push_back(i);
+  }
+  if (out.empty()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
+  return out;
+}
+
+// harmonic-tether: k, center = [x, y, z], particles or type.
+std::unique_ptr<ForceTerm> read_tether(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  const double k = t.number("k");
+  const Eigen::Vector3d c = t.vector3("center");
+  return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k);
+}
+
+// lj93-wall: axis = "x"|"y"|"z", position, side = 1 | -1, epsilon, sigma, cutoff, particles or type.
+std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  LJ93WallParams p;
+  const std::string axis = t.string("axis");
+  if (axis != "x" && axis != "y" && axis != "z") t.fail("axis", "expected \"x\", \"y\" or \"z\"");
+  p.axis = axis[0] - 'x';
+  if (ctx.scene.box.periodic[p.axis]) t.fail("axis", "the box is periodic along " + axis + ": a wall there has no meaning");
+  p.position = t.number("position");
+  p.side = static_cast<int>(t.integer("side", 1));
+  t.require(p.side == 1 || p.side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");
+  p.epsilon = t.number("epsilon", p.epsilon);
+  p.sigma = t.number("sigma", p.sigma);
+  p.cutoff = t.number("cutoff", p.cutoff);
+  return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
+}
+
+// Pair styles: parameters for every type pair from the term's table, overridden per pair by
+// [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
+template <class Kernel, class ReadCoeffs>
+std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
+                                     ReadCoeffs read) {
+  const Scene& sc = ctx.scene;
+  const int ntypes = static_cast<int>(sc.types.size());
+  TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
+  const typename Kernel::Coeffs global = read(t, typename Kernel::Coeffs{});
+  for (int a = 0; a < ntypes; ++a)
+    for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  for (DeckTable& p : t.array_of_tables("pair")) {
+    const auto names = p.strings("types");
+    if (names.size() != 2) p.fail("types", "expected two particle type names [\"A\", \"B\"]");
+    int ab[2];
+    for (int m = 0; m < 2; ++m) {
+      ab[m] = -1;
+      for (int k = 0; k < ntypes; ++k)
+        if (sc.types[k].name == names[m]) ab[m] = k;
+      if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
+    }
+    coeffs.set(ab[0], ab[1], read(p, global));
+    p.finish();
+  }
+  // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
+  // neighbours do not interact, 1-3 pairs do).
+  SpecialWeights w;
+  if (t.has("special_bonds")) {
+    const auto sb = t.numbers("special_bonds");
+    if (sb.size() != 2 || sb[0] < 0 || sb[0] > 1 || sb[1] < 0 || sb[1] > 1)
+      t.fail("special_bonds", "expected [w12, w13], two weights in 0..1");
+    w.w12 = sb[0];
+    w.w13 = sb[1];
+  }
+  const double skin = t.number("skin", 0.3);
+  t.require(skin >= 0, "skin", "expected a neighbour-list skin >= 0");
+  std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
+  return std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), std::move(coeffs), sc.topology.bonds, w,
+                                            sc.box, skin);
+}
+
+std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<LennardJones>(name, level, t, ctx, [](DeckTable& d, LennardJones::Coeffs c) {
+    c.epsilon = d.number("epsilon", c.epsilon == 0.0 ? 1.0 : c.epsilon);
+    c.sigma = d.number("sigma", c.sigma);
+    c.rc = d.number("cutoff", c.rc);
+    return c;
+  });
+}
+
+std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<WeeksChandlerAndersen>(name, level, t, ctx, [](DeckTable& d, WeeksChandlerAndersen::Coeffs c) {
+    c.epsilon = d.number("epsilon", c.epsilon);
+    c.sigma = d.number("sigma", c.sigma);
+    return c;
+  });
+}
+
+std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<SoftCosine>(name, level, t, ctx, [](DeckTable& d, SoftCosine::Coeffs c) {
+    c.A = d.number("A", c.A);
+    c.rc = d.number("cutoff", c.rc);
+    return c;
+  });
+}
+
+// gravity: g = [gx, gy, gz].
 std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  return std::make_unique<Gravity>(name, level, t.vector3("g"), ctx.inv_mass);
+  return std::make_unique<Gravity>(name, level, t.vector3("g"), ctx.scene.state.inv_mass);
 }
 
 }  // namespace
@@ -50,7 +230,15 @@ std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, De
 const std::vector<ForceStyle>& force_styles() {
   static const std::vector<ForceStyle> styles = {
       {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
+      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_fene},
+      {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
+      {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
+      {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
+      {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
       {"gravity", Level::slow, "uniform external field, F = m g", read_gravity},
+      {"harmonic-tether", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
+      {"lj93-wall", Level::slow, "flat LJ 9-3 wall", read_wall},
   };
   return styles;
 }

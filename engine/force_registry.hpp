@@ -9,16 +9,16 @@
 #include <vector>
 
 #include "engine/deck.hpp"
-#include "engine/topology.hpp"
+#include "engine/scene.hpp"
 #include "forcefields/force_term.hpp"
 
 namespace stiffmd {
 
 // What a style's reader may see of the scene being assembled.
 struct TermContext {
-  const Topology& topology;
-  const Eigen::VectorXd& inv_mass;
-  std::vector<std::string>& bond_type_owner;  // per bond type: the term that defines it ("" = none yet)
+  const Scene& scene;                          // particles, types, topology and box so far
+  std::vector<std::string>& bond_type_owner;   // per bond type: the term that defines it ("" = none yet)
+  std::vector<std::string>& angle_type_owner;  // likewise per angle type
 };
 
 struct ForceStyle {

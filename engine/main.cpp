@@ -50,6 +50,7 @@ int main(int argc, char** argv) {
   try {
     const stiffmd::Deck deck(deck_path, overrides);
     stiffmd::Scene scene = stiffmd::load_scene(deck);
+    for (const auto& note : scene.notes) std::cerr << note << "\n";
     if (check->parsed()) {
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       return 0;

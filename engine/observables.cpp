@@ -21,9 +21,35 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const
   return worst;
 }
 
-Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings)
+Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
+               const Topology* topology)
     : forces_(forces),
-      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff", "total", "energy_drift", "max_violation"} {
+      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff", "total", "energy_drift", "max_violation",
+               "temperature"} {
+  // Total momentum is conserved when no external field acts (gravity, tethers, walls).
+  bool external = false;
+  for (const auto& t : forces.terms()) {
+    const std::string_view st = t->style();
+    external |= st == "gravity" || st == "harmonic-tether" || st == "lj93-wall";
+  }
+  State probe;
+  probe.inv_mass = inv_mass;
+  probe.x.resize(3, inv_mass.size());
+  dof_ = degrees_of_freedom(probe, !external, settings.rigid_constraints);
+  const Box& box = forces.box();
+  if (box.periodic.all()) {
+    volume_ = box.lengths.prod();
+    columns_.push_back("pressure");
+  }
+  if (topology) {
+    Eigen::VectorXd mass = inv_mass;
+    for (Eigen::Index i = 0; i < mass.size(); ++i) mass[i] = inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
+    molecules_ = std::make_unique<Molecules>(*topology, inv_mass, mass);
+    if (molecules_->empty())
+      molecules_.reset();
+    else
+      columns_.insert(columns_.end(), {"rg", "end_to_end"});
+  }
   const StiffBonds* stiff = forces.stiff_bonds();
   if (settings.actions && stiff) {
     modes_ = std::make_unique<StiffModes>(stiff->bonds, inv_mass, stiff->epsilon, settings.max_cluster_bonds);
@@ -58,7 +84,14 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   }
   values_.clear();
   values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
-                                 e.total() - e0_, max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds())});
+                                 e.total() - e0_, max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds()),
+                                 temperature(s, dof_)});
+  if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_));
+  if (molecules_) {
+    double rg = 0.0, ree = 0.0;
+    molecules_->measure(s.x, rg, ree);
+    values_.insert(values_.end(), {rg, ree});
+  }
   if (modes_) {
     modes_->frequencies(s.x, omega_);
     modes_->actions(s.x, s.v, actions_);

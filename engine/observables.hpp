@@ -8,7 +8,9 @@
 #include <string>
 #include <vector>
 
+#include "engine/polymer_observables.hpp"
 #include "engine/state.hpp"
+#include "engine/topology.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/modes.hpp"
@@ -30,12 +32,16 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const
 struct ObservableSettings {
   bool actions = false;        // ω_k, I_k and the validity monitor in the thermo output
   int max_cluster_bonds = 64;  // clusters with more bonds are skipped (said in the log)
+  int rigid_constraints = 0;   // degrees of freedom removed by rigid constraints (RATTLE, effective)
+  bool histograms = true;      // bond-length and angle histograms at the end (when there are bonds)
 };
 
 // One row of thermo output: named columns, fixed for a run.
 class Thermo {
  public:
-  Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings);
+  // topology may be null (no molecules, no polymer columns).
+  Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
+         const Topology* topology = nullptr);
   const std::vector<std::string>& columns() const { return columns_; }
   // Values for the current state; energy_drift is relative to the first call's total energy.
   // model_potential (W of the effective dynamics) is counted in potential_stiff.
@@ -52,6 +58,9 @@ class Thermo {
 
  private:
   const ForceField& forces_;
+  int dof_ = 0;
+  double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
+  std::unique_ptr<Molecules> molecules_;
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;
   double sqrt_eps_ = 0.0;

@@ -3,11 +3,13 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <filesystem>
 #include <set>
 #include <sstream>
 
 #include "engine/errors.hpp"
 #include "engine/force_registry.hpp"
+#include "engine/scene_sources.hpp"
 
 namespace stiffmd {
 namespace {
@@ -36,7 +38,7 @@ const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H
 
 void read_box(DeckTable& root, Scene& sc) {
   auto t = root.table("box");
-  if (!t) return;  // open space
+  if (!t) return;  // open space, or set by a builder's density or an imported file
   sc.box.periodic = t->bool3("periodic", false);
   sc.box.origin = t->vector3("origin", Eigen::Vector3d::Zero());
   if (sc.box.any_periodic() || t->has("lengths")) {
@@ -66,28 +68,18 @@ void read_types(DeckTable& root, Scene& sc) {
 }
 
 void read_particles(DeckTable& root, Scene& sc) {
-  auto rows = root.array_of_tables("particles");
-  if (rows.empty()) root.fail_here("missing required [[particles]] (type, position, velocity, fixed)");
-  const int n = static_cast<int>(rows.size());
-  State& s = sc.state;
-  s.x.resize(3, n);
-  s.v.resize(3, n);
-  s.inv_mass.resize(n);
-  sc.particle_type.resize(n);
-  for (int i = 0; i < n; ++i) {
-    DeckTable& p = rows[i];
+  for (DeckTable& p : root.array_of_tables("particles")) {
     std::string type_name = p.string("type", sc.types.size() == 1 ? sc.types[0].name : "");
     if (type_name.empty()) p.fail_here("missing required key 'type' (the deck defines several [types])");
-    auto it = std::find_if(sc.types.begin(), sc.types.end(), [&](const ParticleType& t) { return t.name == type_name; });
-    if (it == sc.types.end()) p.fail("type", "unknown particle type '" + type_name + "' (define it as [types." + type_name + "])");
-    sc.particle_type[i] = static_cast<int>(it - sc.types.begin());
-    double mass = p.number("mass", it->mass);
+    const int type = particle_type_index(sc, p, "type", type_name);
+    const double mass = p.number("mass", sc.types[type].mass);
     p.require(mass > 0.0, "mass", "expected a mass > 0");
     const bool fixed = p.boolean("fixed", false);
-    s.x.col(i) = p.vector3("position");
-    s.v.col(i) = p.vector3("velocity", Eigen::Vector3d::Zero());
-    if (fixed && !s.v.col(i).isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
-    s.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
+    const Eigen::Matrix3Xd x = p.vector3("position");
+    const Eigen::Matrix3Xd v = p.vector3("velocity", Eigen::Vector3d::Zero());
+    if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
+    const int i = append_particles(sc, x, v, {type}, {});
+    sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
     p.finish();
   }
 }
@@ -95,6 +87,7 @@ void read_particles(DeckTable& root, Scene& sc) {
 void read_bonds(DeckTable& root, Scene& sc) {
   const int n = sc.state.size();
   std::set<std::pair<int, int>> seen;
+  for (const Bond& b : sc.topology.bonds) seen.insert({std::min(b.i, b.j), std::max(b.i, b.j)});
   for (DeckTable& b : root.array_of_tables("bonds")) {
     const std::vector<long> ij = b.integers("particles");
     if (ij.size() != 2) b.fail("particles", "expected two particle indices [i, j]");
@@ -104,11 +97,7 @@ void read_bonds(DeckTable& root, Scene& sc) {
     const std::pair<int, int> key{static_cast<int>(std::min(ij[0], ij[1])), static_cast<int>(std::max(ij[0], ij[1]))};
     if (!seen.insert(key).second) b.fail("particles", "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
     const std::string type = b.string("type");
-    int t = sc.topology.bond_type_index(type);
-    if (t < 0) {
-      t = static_cast<int>(sc.topology.bond_types.size());
-      sc.topology.bond_types.push_back(type);
-    }
+    const int t = Topology::intern(sc.topology.bond_types, type);
     if ((sc.state.x.col(ij[0]) - sc.state.x.col(ij[1])).norm() == 0.0)
       b.fail("particles", "the two particles of this bond sit at the same position (zero-length bond)");
     b.finish();
@@ -118,8 +107,8 @@ void read_bonds(DeckTable& root, Scene& sc) {
 
 void read_forces(DeckTable& root, Scene& sc) {
   sc.forces = std::make_unique<ForceField>(sc.box, sc.state.size());
-  std::vector<std::string> owner(sc.topology.bond_types.size());
-  TermContext ctx{sc.topology, sc.state.inv_mass, owner};
+  std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size());
+  TermContext ctx{sc, owner, angle_owner};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -149,15 +138,23 @@ void read_forces(DeckTable& root, Scene& sc) {
       sc.forces->add(std::move(term));
     }
   }
-  // Every bonded interaction must have its parameters somewhere.
+  // Every bonded interaction must have its parameters somewhere: name the deck row of an
+  // explicit bond, or the type for builder/imported bonds (which precede the explicit ones).
   auto bond_rows = root.array_of_tables("bonds");
+  const size_t first_explicit = sc.topology.bonds.size() - bond_rows.size();
   for (size_t k = 0; k < sc.topology.bonds.size(); ++k) {
     const int t = sc.topology.bonds[k].type;
-    if (owner[t].empty())
-      bond_rows[k].fail("type", "bond type '" + sc.topology.bond_types[t] +
-                                    "' is not defined by any force term (add [forces.NAME.bond_types." +
-                                    sc.topology.bond_types[t] + "])");
+    if (!owner[t].empty()) continue;
+    const std::string what = "bond type '" + sc.topology.bond_types[t] +
+                             "' is not defined by any force term (add [forces.NAME.bond_types." +
+                             sc.topology.bond_types[t] + "])";
+    if (k >= first_explicit) bond_rows[k - first_explicit].fail("type", what);
+    root.fail_here(what);
   }
+  for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
+    if (angle_owner[t].empty())
+      root.fail_here("angle type '" + sc.topology.angle_types[t] +
+                     "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] + "])");
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
@@ -209,6 +206,7 @@ void read_observables(DeckTable& root, Scene& sc) {
   auto t = root.table("observables");
   if (!t) return;
   sc.observables.actions = t->boolean("actions", false);
+  sc.observables.histograms = t->boolean("histograms", true);
   const long m = t->integer("max_cluster_bonds", sc.observables.max_cluster_bonds);
   t->require(m >= 1 && m <= 4096, "max_cluster_bonds", "expected an integer in 1..4096");
   sc.observables.max_cluster_bonds = static_cast<int>(m);
@@ -240,19 +238,66 @@ void read_output(DeckTable& root, Scene& sc) {
   t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
   if (!o.state.empty() && !sc.forces->stiff_bonds())
     t->fail("state", "the state output holds projected momenta P(x)p: it needs stiff bonds");
+  o.h5md = t->string("h5md", "");
+  o.h5md_interval = t->number("h5md_interval", o.xyz_interval);
+  t->require(o.h5md_interval > 0.0, "h5md_interval", "expected a time interval > 0");
+  o.h5md_velocity = t->boolean("h5md_velocity", false);
+  o.h5md_force = t->boolean("h5md_force", false);
+  const long gz = t->integer("h5md_gzip", 0);
+  t->require(gz >= 0 && gz <= 9, "h5md_gzip", "expected a deflate level 0..9 (0: no compression)");
+  o.h5md_gzip = static_cast<int>(gz);
+  o.author = t->string("author", "");
   o.checkpoint = t->string("checkpoint", o.checkpoint);
   if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
   o.checkpoint_every = t->integer("checkpoint_every", 0);
   t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
-  for (const char* k : {"xyz", "thermo", "state", "checkpoint"}) {
+  for (const char* k : {"xyz", "thermo", "state", "checkpoint", "h5md"}) {
     const std::string key(k);
-    const std::string& f = key == "xyz" ? o.xyz : key == "thermo" ? o.thermo : key == "state" ? o.state : o.checkpoint;
+    const std::string& f = key == "xyz"     ? o.xyz
+                           : key == "thermo" ? o.thermo
+                           : key == "state"  ? o.state
+                           : key == "h5md"   ? o.h5md
+                                             : o.checkpoint;
     if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
   }
   t->finish();
 }
 
 }  // namespace
+
+int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name) {
+  for (size_t k = 0; k < sc.types.size(); ++k)
+    if (sc.types[k].name == name) return static_cast<int>(k);
+  t.fail(key, "unknown particle type '" + name + "' (define it as [types." + name + "])");
+}
+
+int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, const std::vector<int>& type,
+                     const std::vector<int>& molecule) {
+  State& s = sc.state;
+  const int first = s.size(), n = static_cast<int>(x.cols());
+  s.x.conservativeResize(3, first + n);
+  s.v.conservativeResize(3, first + n);
+  s.inv_mass.conservativeResize(first + n);
+  s.x.rightCols(n) = x;
+  s.v.rightCols(n) = v;
+  for (int k = 0; k < n; ++k) s.inv_mass[first + k] = 1.0 / sc.types[type[k]].mass;
+  sc.particle_type.insert(sc.particle_type.end(), type.begin(), type.end());
+  // Molecule ids: particles without one get their own; a source's ids are offset past the
+  // ids already used.
+  auto& mol = sc.topology.molecule;
+  int next = 0;
+  for (int m : mol) next = std::max(next, m + 1);
+  if (molecule.empty()) {
+    for (int k = 0; k < n; ++k) mol.push_back(next + k);
+  } else {
+    // Dense ids: the source's ids (LAMMPS's start at 1, may have gaps) in sorted order.
+    std::vector<int> ids(molecule.begin(), molecule.end());
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    for (int m : molecule) mol.push_back(next + static_cast<int>(std::lower_bound(ids.begin(), ids.end(), m) - ids.begin()));
+  }
+  return first;
+}
 
 std::int64_t Scene::num_steps() const {
   // Round to the nearest whole step when t_end/h is an integer up to rounding, else up.
@@ -269,8 +314,14 @@ Scene load_scene(const Deck& deck) {
   read_box(root, sc);
   read_types(root, sc);
   read_particles(root, sc);
+  read_builders(root, sc);
+  read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string());
+  if (sc.state.size() == 0)
+    root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
   read_bonds(root, sc);
+  read_velocities(root, sc);
   read_forces(root, sc);
+  read_prepare(root, sc);
   read_integrator(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
@@ -302,6 +353,17 @@ std::string describe(const Scene& sc) {
                                      [&](const Bond& b) { return b.type == static_cast<int>(k); });
     s << "  type " << sc.topology.bond_types[k] << ": " << count << "\n";
   }
+  if (!sc.topology.angles.empty()) {
+    s << "angles:      " << sc.topology.angles.size() << "\n";
+    for (size_t k = 0; k < sc.topology.angle_types.size(); ++k) {
+      const auto count = std::count_if(sc.topology.angles.begin(), sc.topology.angles.end(),
+                                       [&](const Angle& a) { return a.type == static_cast<int>(k); });
+      s << "  type " << sc.topology.angle_types[k] << ": " << count << "\n";
+    }
+  }
+  int molecules = 0;
+  for (int m : sc.topology.molecule) molecules = std::max(molecules, m + 1);
+  if (molecules < st.size()) s << "molecules:   " << molecules << "\n";
   s << "force terms: " << sc.forces->terms().size() << "\n";
   for (const auto& t : sc.forces->terms())
     s << "  " << t->name() << " [" << t->style() << ", " << level_name(t->level()) << "]: " << t->describe() << "\n";

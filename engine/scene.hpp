@@ -34,6 +34,11 @@ struct OutputSettings {
   double thermo_interval = 0.0;
   std::string state;           // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
+  std::string h5md;            // H5MD 1.1 trajectory file name ("" = none)
+  double h5md_interval = 0.0;
+  bool h5md_velocity = false, h5md_force = false;
+  int h5md_gzip = 0;           // deflate level 0..9
+  std::string author;          // H5MD author (default: the user name)
   std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
   long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };
@@ -50,6 +55,8 @@ struct Scene {
   RunSettings run;
   OutputSettings output;
   ObservableSettings observables;
+  bool box_from_source = false;    // a builder's density or an imported file set the box
+  std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
 };

@@ -11,6 +11,7 @@
 
 #include "engine/checkpoint.hpp"
 #include "engine/errors.hpp"
+#include "engine/h5md_writer.hpp"
 #include "engine/observables.hpp"
 #include "engine/progress.hpp"
 #include "engine/signals.hpp"
@@ -113,7 +114,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   // uninterrupted run's (without the interrupted run's off-grid final frame).
   const double tol = 1e-9 * sc.integrator.h;
   const double cut = static_cast<double>(s.step - 1) * sc.integrator.h;
-  Thermo thermo(*sc.forces, s.inv_mass, sc.observables);
+  ObservableSettings observables = sc.observables;
+  if (sc.integrator.method == "rattle" || sc.integrator.method == "effective")
+    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  Thermo thermo(*sc.forces, s.inv_mass, observables, &sc.topology);
   auto open_output = [&](const std::string& name, auto truncate) {
     const fs::path p = dir / name;
     summary.outputs.push_back(p.string());
@@ -142,14 +146,38 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
     projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
   }
+  std::unique_ptr<H5mdWriter> h5md;
+  Eigen::Matrix3Xd h5md_force;
+  if (!sc.output.h5md.empty()) {
+    H5mdSetup setup;
+    setup.num_particles = s.size();
+    setup.species = species;
+    setup.mass.resize(s.size());
+    for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
+    setup.box = sc.box;
+    for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
+    setup.author = sc.output.author;
+    setup.creator_version = STIFFMD_VERSION;
+    setup.velocity = sc.output.h5md_velocity;
+    setup.force = sc.output.h5md_force;
+    setup.gzip = sc.output.h5md_gzip;
+    // Observables on the frame grid: every thermo column but time and step.
+    setup.observables.assign(thermo.columns().begin() + 2, thermo.columns().end());
+    const std::string path = (dir / sc.output.h5md).string();
+    summary.outputs.push_back(path);
+    const bool append = restarting && fs::exists(path);
+    if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
+    h5md = std::make_unique<H5mdWriter>(path, setup, append, s.step);
+  }
   const std::string checkpoint_path = (dir / sc.output.checkpoint).string();
   summary.outputs.push_back(checkpoint_path);
   IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval),
-      state_due(sc.output.state_interval);
+      state_due(sc.output.state_interval), h5md_due(sc.output.h5md_interval);
   if (restarting) {
     xyz_due.served_until(cut);
     thermo_due.served_until(cut);
     state_due.served_until(cut);
+    h5md_due.served_until(cut);
   }
   std::vector<double> state_row(1 + 6 * s.size());
   const int first_action = thermo.column("action_1");
@@ -177,10 +205,17 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       }
     state_csv->write(state_row);
   };
+  auto write_h5md = [&]() {
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x));
+    if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
+    h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
+                      std::vector<double>(row.begin() + 2, row.end()));
+  };
   auto observe = [&]() {
     if (thermo_due.due(s.t)) write_thermo();
     if (xyz && xyz_due.due(s.t)) xyz->write(s);
     if (state_csv && state_due.due(s.t)) write_state();
+    if (h5md && h5md_due.due(s.t)) write_h5md();
   };
   auto checkpoint = [&]() {
     Checkpoint c;
@@ -243,7 +278,12 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const std::vector<double> row = write_thermo();
   if (xyz) xyz->write(s);
   if (state_csv) write_state();
+  if (h5md) write_h5md();
 
+  if (sc.observables.histograms && !sc.topology.bonds.empty()) {
+    write_histograms((dir / "histograms.csv").string(), s.x, sc.box, sc.topology);
+    summary.outputs.push_back((dir / "histograms.csv").string());
+  }
   summary.steps = n;
   summary.final_energy = row[5];
   summary.final_max_violation = row[7];

@@ -1,8 +1,10 @@
-// Bonded topology: which particles are bonded, and with which named bond type. The
-// parameters of a bond type (rest length, stiffness, …) belong to the force term that
-// claims that type (forcefields/), as LAMMPS's bond_coeff belongs to its bond_style.
+// Bonded topology: which particles are bonded (and bent), with which named type, and which
+// molecule each particle belongs to. The parameters of a bond or angle type (rest length,
+// stiffness, …) belong to the force term that claims that type (forcefields/), as LAMMPS's
+// bond_coeff belongs to its bond_style.
 #pragma once
 
+#include <array>
 #include <string>
 #include <vector>
 
@@ -14,14 +16,31 @@ struct Bond {
   int type = 0;  // index into Topology::bond_types
 };
 
+struct Angle {
+  int i = 0, j = 0, k = 0;  // j is the vertex
+  int type = 0;             // index into Topology::angle_types
+};
+
 struct Topology {
   std::vector<Bond> bonds;
   std::vector<std::string> bond_types;  // names from the deck
+  std::vector<Angle> angles;
+  std::vector<std::string> angle_types;
+  std::vector<int> molecule;  // per particle, 0-based; empty when the scene has no molecules
 
-  int bond_type_index(const std::string& name) const {
-    for (size_t k = 0; k < bond_types.size(); ++k)
-      if (bond_types[k] == name) return static_cast<int>(k);
+  static int index_of(const std::vector<std::string>& names, const std::string& name) {
+    for (size_t k = 0; k < names.size(); ++k)
+      if (names[k] == name) return static_cast<int>(k);
     return -1;
+  }
+  int bond_type_index(const std::string& name) const { return index_of(bond_types, name); }
+  int angle_type_index(const std::string& name) const { return index_of(angle_types, name); }
+  // The index of `name`, added if new.
+  static int intern(std::vector<std::string>& names, const std::string& name) {
+    const int k = index_of(names, name);
+    if (k >= 0) return k;
+    names.push_back(name);
+    return static_cast<int>(names.size()) - 1;
   }
 };
 

@@ -37,4 +37,17 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
   return energy;
 }
 
+// Σ_b r_ij · f_ij over the bonds (f_ij = −dE/dr · r_ij/r, so each term is −r dE/dr).
+template <class Kernel, class Params>
+double accumulate_bond_virial(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box) {
+  double w = 0.0;
+  for (const auto& b : bonds) {
+    const double r = box.min_image(x.col(b.i) - x.col(b.j)).norm();
+    double e = 0.0, de_dr = 0.0;
+    Kernel::eval(r, b.params, e, de_dr);
+    w -= r * de_dr;
+  }
+  return w;
+}
+
 }  // namespace stiffmd

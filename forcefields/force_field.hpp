@@ -34,6 +34,12 @@ class ForceField {
   // Counts as one slow evaluation.
   double compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out);
 
+  // Total force of every term at x, for output (not counted as an evaluation).
+  void total_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const {
+    out.setZero(3, x.cols());
+    for (const auto& term : terms_) term->add_forces(x, box_, out);
+  }
+
   // Energy of one level at x (for observables; does not count as a force evaluation).
   double energy(const Eigen::Matrix3Xd& x, Level level) const;
 

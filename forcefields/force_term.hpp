@@ -34,6 +34,14 @@ class ForceTerm {
   // Adds this term's force −∇E(x) into f (3×N) and returns its energy E(x).
   virtual double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const = 0;
 
+  // Σ over interacting pairs of r_ij · f_ij (the pair virial, for the pressure; design note:
+  // computed only at output times, so it may repeat work add_forces does). Terms whose forces
+  // are not pairwise (external fields) return 0.
+  virtual double virial(const Eigen::Matrix3Xd& x, const Box& box) const {
+    (void)x, (void)box;
+    return 0.0;
+  }
+
   // The deck's style name and a one-line description of the instance (for `stiffmd check`).
   virtual std::string_view style() const = 0;
   virtual std::string describe() const = 0;

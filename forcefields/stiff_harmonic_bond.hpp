@@ -16,6 +16,9 @@ class StiffHarmonicBond final : public ForceTerm {
   StiffHarmonicBond(std::string name, Level level, StiffBonds bonds);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
+    return accumulate_bond_virial<Kernel>(instances_, x, box);
+  }
   std::string_view style() const override { return "stiff-harmonic"; }
   std::string describe() const override;
   const StiffBonds* stiff_bonds() const override { return &bonds_; }

@@ -1,0 +1,700 @@
+// Polymer builders and Maxwell–Boltzmann velocities (see builders.hpp for the contract).
+#include "engine/builders.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+namespace stiffmd {
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Plain 3-vectors with scalar arithmetic in a fixed order: Eigen may vectorise a dot product
+// differently on different instruction sets, and the builders' accept/reject decisions must not
+// depend on that.
+struct V3 {
+  double x = 0.0, y = 0.0, z = 0.0;
+};
+V3 operator+(const V3& a, const V3& b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+V3 operator-(const V3& a, const V3& b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+V3 operator*(double s, const V3& a) { return {s * a.x, s * a.y, s * a.z}; }
+double dot(const V3& a, const V3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+V3 cross(const V3& a, const V3& b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+double& at(V3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
+double at(const V3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
+
+// Two unit vectors e1, e2 completing the unit vector n to an orthonormal basis.
+void perpendicular_basis(const V3& n, V3& e1, V3& e2) {
+  // Cross with the coordinate axis least aligned with n, so that the cross product is never small.
+  const double ax = std::fabs(n.x), ay = std::fabs(n.y), az = std::fabs(n.z);
+  const V3 axis = (ax <= ay && ax <= az) ? V3{1, 0, 0} : (ay <= az ? V3{0, 1, 0} : V3{0, 0, 1});
+  e1 = cross(n, axis);
+  e1 = (1.0 / std::sqrt(dot(e1, e1))) * e1;
+  e2 = cross(n, e1);
+}
+
+// ---------------------------------------------------------------------------------------------
+// log, exp and cbrt from + − × ÷ (and the exact frexp/ldexp/nearbyint) only: libm's versions
+// may differ in the last bit between platforms, and the same seed must give the same numbers
+// everywhere. Accuracy is a few ulp, plenty for sampling.
+constexpr double kLn2Hi = 6.93147180369123816490e-01;  // fdlibm's split of ln 2: k·kLn2Hi is exact
+constexpr double kLn2Lo = 1.90821492927058770002e-10;  // for |k| < 2^11
+
+double portable_log(double x) {  // x > 0, finite
+  int e = 0;
+  double m = std::frexp(x, &e);  // x = m·2^e, m ∈ [½, 1)
+  if (m < 0.70710678118654752440) {
+    m *= 2.0;
+    --e;
+  }  // m ∈ [√½, √2): |s| ≤ 0.1716 below
+  // ln m = 2 atanh s = 2 (s + s³/3 + s⁵/5 + …), s = (m − 1)/(m + 1); 13 terms reach s²⁵ < 1e-19.
+  const double s = (m - 1.0) / (m + 1.0), s2 = s * s;
+  double term = s, sum = s;
+  for (int k = 1; k <= 12; ++k) {
+    term *= s2;
+    sum += term / (2 * k + 1);
+  }
+  return e * kLn2Hi + (e * kLn2Lo + 2.0 * sum);
+}
+
+double portable_exp(double x) {  // x finite
+  if (x < -745.0) return 0.0;
+  if (x > 709.0) return std::numeric_limits<double>::infinity();
+  // e^x = 2^k e^r with |r| ≤ ½ ln 2; Taylor to r¹³ (error < 1e-17) by Horner.
+  const double k = std::nearbyint(x * 1.44269504088896338700);
+  const double r = (x - k * kLn2Hi) - k * kLn2Lo;
+  double p = 1.0;
+  for (int n = 13; n >= 1; --n) p = 1.0 + p * r / n;
+  return std::ldexp(p, static_cast<int>(k));
+}
+
+double portable_cbrt(double v) {  // v > 0, finite
+  int e = 0;
+  double m = std::frexp(v, &e);
+  const int r = ((e % 3) + 3) % 3;  // make the exponent a multiple of 3: m ∈ [½, 4)
+  m = std::ldexp(m, r);
+  e -= r;
+  double y = 1.0;  // Newton from 1 converges monotonically after one step; 12 steps is ample
+  for (int i = 0; i < 12; ++i) y -= (y * y * y - m) / (3.0 * y * y);
+  return std::ldexp(y, e / 3);
+}
+
+// Sums with Neumaier's compensation: the total momentum must vanish to ~1e-15 of its terms.
+struct CompensatedSum {
+  double sum = 0.0, c = 0.0;
+  void add(double v) {
+    const double t = sum + v;
+    c += std::fabs(sum) >= std::fabs(v) ? (sum - t) + v : (v - t) + sum;
+    sum = t;
+  }
+  double value() const { return sum + c; }
+};
+
+// ---------------------------------------------------------------------------------------------
+// Random numbers with a platform-independent output: std::mt19937_64's sequence is fixed by the
+// standard; everything on top of it is ours.
+class Rng {
+ public:
+  explicit Rng(std::uint64_t seed) : g_(seed) {}
+
+  // Uniform in [0, 1) on the 2⁻⁵³ grid: the top 53 bits, converted exactly.
+  double uniform() { return static_cast<double>(g_() >> 11) * 0x1.0p-53; }
+  // Uniform in [−1, 1), still exact (2u − 1 on the 2⁻⁵² grid).
+  double symmetric() { return 2.0 * uniform() - 1.0; }
+
+  // Standard normal by Marsaglia's polar method (only log and sqrt; sqrt is exactly rounded
+  // by IEEE 754); the second normal of each pair is kept for the next call.
+  double normal() {
+    if (has_spare_) {
+      has_spare_ = false;
+      return spare_;
+    }
+    for (;;) {
+      const double u = symmetric(), v = symmetric(), s = u * u + v * v;
+      if (s >= 1.0 || s == 0.0) continue;
+      const double f = std::sqrt(-2.0 * portable_log(s) / s);
+      spare_ = v * f;
+      has_spare_ = true;
+      return u * f;
+    }
+  }
+
+  // Uniform on the unit sphere (Marsaglia 1972): no trigonometry.
+  V3 unit_vector() {
+    for (;;) {
+      const double a = symmetric(), b = symmetric(), s = a * a + b * b;
+      if (s >= 1.0) continue;
+      const double q = 2.0 * std::sqrt(1.0 - s);
+      return {a * q, b * q, 1.0 - 2.0 * s};
+    }
+  }
+
+  // Uniform on the unit circle, by rejection from the square.
+  void unit_circle(double& c, double& s) {
+    for (;;) {
+      const double a = symmetric(), b = symmetric(), r2 = a * a + b * b;
+      if (r2 > 1.0 || r2 < 1e-12) continue;  // tiny r2: avoid amplifying the grid of a, b
+      const double inv = 1.0 / std::sqrt(r2);
+      c = a * inv;
+      s = b * inv;
+      return;
+    }
+  }
+
+ private:
+  std::mt19937_64 g_;
+  bool has_spare_ = false;
+  double spare_ = 0.0;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Cell list over the beads placed so far, in wrapped coordinates (periodic axes: measured from
+// the box origin, in [0, L)). Cells are at least `reach` wide (with a 1e-9 margin
+// against rounding at cell faces), so every bead within `reach` of a point lies in the 3×3×3
+// block around the point's cell. On an open axis the cell index is taken modulo the cell
+// count: far-away beads may share a cell (looked at and dismissed by distance, harmless), while
+// any two beads within `reach` still have cell indices at most 1 apart. Which beads are
+// accepted never depends on the cell layout.
+class CellGrid {
+ public:
+  CellGrid(const Box& box, const V3& start_lo, const V3& start_span, double extent, double reach, int n_beads)
+      : cell_of_(static_cast<size_t>(n_beads), -1) {
+    const double c_min = reach * (1.0 + 1e-9);
+    const double max_cells = std::max(27.0, 4.0 * n_beads);  // memory ~ beads even for a tiny reach
+    double prod = 1.0;
+    for (int a = 0; a < 3; ++a) {
+      periodic_[a] = box.periodic[a] != 0;
+      lo_[a] = periodic_[a] ? 0.0 : at(start_lo, a) - extent;
+      span_[a] = periodic_[a] ? box.lengths[a] : at(start_span, a) + 2.0 * extent;
+      n_[a] = static_cast<int>(std::clamp(std::floor(span_[a] / c_min), 1.0, 1024.0));
+      prod *= n_[a];
+    }
+    if (prod > max_cells) {  // coarser cells, still at least c_min wide
+      const double f = std::cbrt(prod / max_cells);
+      for (int a = 0; a < 3; ++a) n_[a] = std::max(1, static_cast<int>(n_[a] / f));
+    }
+    for (int a = 0; a < 3; ++a) cell_[a] = std::max(span_[a] / n_[a], periodic_[a] ? 0.0 : c_min);
+    cells_.resize(static_cast<size_t>(n_[0]) * n_[1] * n_[2]);
+  }
+
+  void insert(int i, const V3& p) {
+    const int c = flat(index(0, p.x), index(1, p.y), index(2, p.z));
+    cells_[c].push_back(i);
+    cell_of_[i] = c;
+  }
+
+  void erase(int i) {
+    std::vector<int>& cell = cells_[cell_of_[i]];
+    auto it = std::find(cell.begin(), cell.end(), i);
+    *it = cell.back();  // order within a cell does not matter
+    cell.pop_back();
+    cell_of_[i] = -1;
+  }
+
+  // Calls f(j) for the beads j in the block of cells around p (at least those within `reach`)
+  // until f returns false; returns whether it ran to the end.
+  template <class F>
+  bool for_each_near(const V3& p, F&& f) const {
+    int idx[3][3], cnt[3];
+    for (int a = 0; a < 3; ++a) {
+      const int k = index(a, at(p, a)), n = n_[a];
+      if (n >= 3) {
+        idx[a][0] = (k + n - 1) % n;
+        idx[a][1] = k;
+        idx[a][2] = (k + 1) % n;
+        cnt[a] = 3;
+      } else {  // one or two cells: visit each once
+        for (int m = 0; m < n; ++m) idx[a][m] = m;
+        cnt[a] = n;
+      }
+    }
+    for (int ia = 0; ia < cnt[0]; ++ia)
+      for (int ib = 0; ib < cnt[1]; ++ib)
+        for (int ic = 0; ic < cnt[2]; ++ic)
+          for (int j : cells_[flat(idx[0][ia], idx[1][ib], idx[2][ic])])
+            if (!f(j)) return false;
+    return true;
+  }
+
+ private:
+  int index(int a, double x) const {
+    if (periodic_[a]) return std::clamp(static_cast<int>(x / cell_[a]), 0, n_[a] - 1);
+    const double w = x - lo_[a];
+    const double k = std::floor(w / cell_[a]);
+    const double n = n_[a];
+    return static_cast<int>(k - n * std::floor(k / n));  // k mod n in [0, n)
+  }
+  int flat(int i, int j, int k) const { return (i * n_[1] + j) * n_[2] + k; }
+
+  bool periodic_[3] = {false, false, false};
+  double lo_[3] = {0, 0, 0}, span_[3] = {0, 0, 0}, cell_[3] = {1, 1, 1};
+  int n_[3] = {1, 1, 1};
+  std::vector<std::vector<int>> cells_;
+  std::vector<int> cell_of_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Growth plans: a molecule is a sequence of steps, each placing one bead bonded to an earlier
+// one, so that backing off k beads is dropping the last k steps.
+enum class StepKind {
+  Start,   // the first bead: anywhere in the start region
+  Walk,    // at bond_length from parent, uniform direction
+  Bridge,  // at bond_length from parent, biased towards anchor, which it must reach in `remaining` bonds
+  Close,   // at bond_length from both parent and partner (a ring's last bead)
+};
+
+struct Step {
+  StepKind kind = StepKind::Start;
+  int bead = 0;
+  int parent = -1;
+  int partner = -1;   // Close: the ring's first bead
+  int anchor = -1;    // Bridge: the ring's first bead
+  int remaining = 0;  // Bridge: bonds from this bead back to anchor
+};
+
+struct Plan {
+  int first = 0, end = 0;  // the molecule's beads are [first, end)
+  std::vector<Step> steps;
+};
+
+// The effort per bead: up to kTrials random positions, of which the first kCandidates
+// admissible ones compete (below). Start beads get more trials: a whole box to search.
+constexpr int kTrials = 100;
+constexpr int kStartTrials = 2000;
+constexpr int kCandidates = 32;
+// Contacts with other molecules are counted out to this multiple of min_distance.
+constexpr double kContactRange = 1.3;
+// Failed steps allowed per attempt at a molecule before it starts again elsewhere, and
+// attempts before giving up.
+constexpr int kMaxAttempts = 4;
+int failures_per_attempt(size_t steps) { return 200 + 4 * static_cast<int>(steps); }
+
+// Grows the molecules of a builder. Which admissible candidate wins: the one with the most
+// contact with *other* molecules, Σ (1 − r²/r_c²) over their beads within r_c = 1.3·min_distance.
+// Taking the first admissible position instead leaves the box riddled with holes too small for
+// a bead but too many to ignore, and at density 0.85 the last chains find no way through above
+// min_distance ≈ 0.8; packing snugly against the neighbours keeps the free volume in one piece
+// and reaches 0.9 (measured: see tests). Contacts within the own molecule are not counted, so
+// chains do not fold onto themselves; the price is a mild stretching (in the 0.85 melt
+// ⟨R²⟩/(Nℓ²) ≈ 2.2 and ⟨cos θ⟩ ≈ 0.3 between successive bonds, against ≈ 1.5 and 0.2 for an
+// unbiased walk with the same excluded volume), which equilibration removes. A lone molecule
+// has no contacts: its walk is unbiased.
+class Grower {
+ public:
+  Grower(const char* who, const char* unit, const ChainSpec& spec, const Box& box, int n_beads, int beads_per_molecule)
+      : who_(who), unit_(unit), box_(box), bond_(spec.bond_length), sigma_(spec.min_distance),
+        sigma2_(spec.min_distance * spec.min_distance),
+        contact2_(kContactRange * kContactRange * spec.min_distance * spec.min_distance), rng_(spec.seed),
+        pos_(static_cast<size_t>(n_beads)), wrapped_(static_cast<size_t>(n_beads)),
+        grid_(box, start_lo(box), start_span(box),
+              // open axes: a random walk of n bonds rarely strays beyond 3√n bonds (only a cost if it does)
+              3.0 * std::sqrt(static_cast<double>(beads_per_molecule)) * spec.bond_length + spec.min_distance,
+              kContactRange * spec.min_distance, n_beads) {}
+
+  // Grows every plan, all molecules together (one step each per round); returns the positions.
+  std::vector<V3> run(const std::vector<Plan>& plans) {
+    const size_t nm = plans.size();
+    std::vector<size_t> done(nm, 0), best(nm, 0);
+    std::vector<int> stuck(nm, 0), failures(nm, 0), attempts(nm, 1);
+    size_t incomplete = nm;
+    while (incomplete > 0) {
+      for (size_t m = 0; m < nm; ++m) {
+        const std::vector<Step>& steps = plans[m].steps;
+        if (done[m] == steps.size()) continue;
+        own_first_ = plans[m].first;
+        own_end_ = plans[m].end;
+        if (try_step(steps[done[m]])) {
+          if (++done[m] > best[m]) {  // new ground: forget how stuck we were
+            best[m] = done[m];
+            stuck[m] = 0;
+          }
+          if (done[m] == steps.size()) --incomplete;
+          continue;
+        }
+        // A dead end: back off one bead, then further the longer this spot resists.
+        ++stuck[m];
+        size_t back = std::min(static_cast<size_t>(stuck[m]), done[m]);
+        if (++failures[m] > failures_per_attempt(steps.size())) {  // start this molecule afresh
+          if (++attempts[m] > kMaxAttempts) fail(m, nm);
+          back = done[m];
+          best[m] = 0;
+          stuck[m] = 0;
+          failures[m] = 0;
+        }
+        for (; back > 0; --back) grid_.erase(steps[--done[m]].bead);
+      }
+    }
+    return pos_;
+  }
+
+ private:
+  static V3 start_lo(const Box& box) {
+    V3 lo;
+    for (int a = 0; a < 3; ++a) at(lo, a) = box.periodic[a] ? box.origin[a] : box.origin[a] - 0.5 * box.lengths[a];
+    return lo;
+  }
+  static V3 start_span(const Box& box) { return {box.lengths[0], box.lengths[1], box.lengths[2]}; }
+
+  [[noreturn]] void fail(size_t m, size_t nm) const {
+    std::ostringstream msg;
+    msg << who_ << ": could not place " << unit_ << ' ' << m << " (0-based, of " << nm << ") in " << kMaxAttempts
+        << " attempts: too crowded for min_distance = " << sigma_ << " with bond_length = " << bond_
+        << "; lower the density or min_distance (a soft-pair push-off can relax closer contacts afterwards)";
+    throw std::runtime_error(msg.str());
+  }
+
+  // Periodic axes: the coordinate measured from the origin, wrapped into [0, L); open axes: as is.
+  V3 wrap(V3 p) const {
+    for (int a = 0; a < 3; ++a)
+      if (box_.periodic[a]) {
+        const double L = box_.lengths[a];
+        double w = at(p, a) - box_.origin[a];
+        w -= L * std::floor(w / L);
+        at(p, a) = w < L ? w : 0.0;  // a tiny negative w rounds to L
+      }
+    return p;
+  }
+
+  // Minimum image of the difference of two wrapped positions: one shift at most, by comparison
+  // (cheaper than rounding d/L in the innermost loop).
+  V3 min_image_wrapped(V3 d) const {
+    for (int a = 0; a < 3; ++a)
+      if (box_.periodic[a]) {
+        const double L = box_.lengths[a];
+        double& x = at(d, a);
+        if (x > 0.5 * L) x -= L;
+        else if (x < -0.5 * L) x += L;
+      }
+    return d;
+  }
+
+  // Is p (wrapped: pw) at least min_distance from every placed bead other than its bonded ones
+  // (skip1, skip2)? If so, `contact` is its contact with other molecules (see the class comment).
+  bool admissible(const V3& pw, int skip1, int skip2, double& contact) const {
+    contact = 0.0;
+    if (sigma2_ == 0.0) return true;
+    return grid_.for_each_near(pw, [&](int j) {
+      if (j == skip1 || j == skip2) return true;
+      const V3 d = min_image_wrapped(pw - wrapped_[j]);
+      const double r2 = dot(d, d);
+      if (r2 < sigma2_) return false;
+      if (r2 < contact2_ && (j < own_first_ || j >= own_end_)) contact += 1.0 - r2 / contact2_;
+      return true;
+    });
+  }
+
+  // Draws up to `trials` positions from `candidate`; of the first kCandidates admissible ones
+  // places the one with the most contact (the first of equals). False if none was admissible.
+  template <class Candidate>
+  bool place_best(const Step& s, int skip2, int trials, Candidate&& candidate) {
+    double best = -1.0;
+    V3 best_p, best_w;
+    int admitted = 0;
+    for (int t = 0; t < trials && admitted < kCandidates; ++t) {
+      const V3 p = candidate(), pw = wrap(p);
+      double contact = 0.0;
+      if (!admissible(pw, s.parent, skip2, contact)) continue;
+      ++admitted;
+      if (contact > best) {
+        best = contact;
+        best_p = p;
+        best_w = pw;
+      }
+    }
+    if (admitted == 0) return false;
+    pos_[s.bead] = best_p;
+    wrapped_[s.bead] = best_w;
+    grid_.insert(s.bead, best_w);
+    return true;
+  }
+
+  bool try_step(const Step& s) {
+    switch (s.kind) {
+      case StepKind::Start:
+        return place_best(s, -1, kStartTrials, [&] {
+          V3 p;
+          for (int a = 0; a < 3; ++a) {
+            const double u = rng_.uniform();
+            at(p, a) = box_.periodic[a] ? box_.origin[a] + box_.lengths[a] * u
+                                        : box_.origin[a] + box_.lengths[a] * (u - 0.5);
+          }
+          return p;
+        });
+      case StepKind::Walk:
+        return place_best(s, -1, kTrials, [&] { return pos_[s.parent] + bond_ * rng_.unit_vector(); });
+      case StepKind::Bridge:
+        return bridge_step(s);
+      case StepKind::Close:
+        return close_step(s);
+    }
+    return false;
+  }
+
+  // The next bead of a ring, at bond_length from its parent. The remaining m bonds must still
+  // reach the first bead: |x_new − x_anchor| ≤ m·ℓ, i.e. u·d̂ ≥ c with d = x_anchor − x_parent.
+  // Within that cap the direction follows the Gaussian bridge of a freely jointed chain,
+  // p(u) ∝ exp(−3|d − ℓu|²/(2mℓ²)) ∝ exp(κ u·d̂), κ = 3|d|/(mℓ): a von Mises–Fisher law
+  // whose cosine w = u·d̂ is sampled exactly by inverting its CDF on [c, 1].
+  bool bridge_step(const Step& s) {
+    const V3 origin = pos_[s.parent];
+    const V3 d = pos_[s.anchor] - origin;
+    const double dist = std::sqrt(dot(d, d)), reach = s.remaining * bond_;
+    V3 axis{0, 0, 1}, e1{1, 0, 0}, e2{0, 1, 0};
+    double c = -1.0, kappa = 0.0;
+    if (dist > 0.0) {  // the parent is the anchor itself for the ring's second bead: no bias
+      axis = (1.0 / dist) * d;
+      perpendicular_basis(axis, e1, e2);
+      c = std::clamp((bond_ * bond_ + dist * dist - reach * reach) / (2.0 * bond_ * dist), -1.0, 1.0);
+      kappa = 3.0 * dist / reach;
+    }
+    const double tail = portable_exp(-kappa * (1.0 - c));  // e^{κ(c−1)}: the CDF's lower end
+    return place_best(s, -1, kTrials, [&] {
+      const double xi = 1.0 - rng_.uniform();  // (0, 1]
+      double w = kappa * (1.0 - c) < 1e-12 ? c + (1.0 - c) * xi : 1.0 + portable_log(xi + (1.0 - xi) * tail) / kappa;
+      w = std::clamp(w, c, 1.0);
+      double cs = 0.0, sn = 0.0;
+      rng_.unit_circle(cs, sn);
+      const double r = std::sqrt(std::max(0.0, 1.0 - w * w));
+      return origin + bond_ * (w * axis + (r * cs) * e1 + (r * sn) * e2);
+    });
+  }
+
+  // A ring's last bead: on the circle of points at bond_length from both neighbours (they are
+  // at most 2ℓ apart by the bridge constraint), at a uniform random angle.
+  bool close_step(const Step& s) {
+    const V3 a = pos_[s.parent], b = pos_[s.partner];
+    const V3 d = b - a;
+    const double dist = std::sqrt(dot(d, d));
+    if (!(dist > 0.0)) return false;  // neighbours on top of each other (only possible with min_distance 0)
+    const V3 mid = a + 0.5 * d;
+    const double radius = std::sqrt(std::max(0.0, bond_ * bond_ - 0.25 * dist * dist));
+    V3 e1, e2;
+    perpendicular_basis((1.0 / dist) * d, e1, e2);
+    return place_best(s, s.partner, kTrials, [&] {
+      double cs = 0.0, sn = 0.0;
+      rng_.unit_circle(cs, sn);
+      return mid + (radius * cs) * e1 + (radius * sn) * e2;
+    });
+  }
+
+  const char* who_;
+  const char* unit_;
+  Box box_;
+  double bond_, sigma_, sigma2_, contact2_;
+  Rng rng_;
+  std::vector<V3> pos_;      // unwrapped positions (the output)
+  std::vector<V3> wrapped_;  // the same, wrapped (see wrap): what the distance checks use
+  CellGrid grid_;
+  int own_first_ = 0, own_end_ = 0;  // the growing molecule's beads
+};
+
+// ---------------------------------------------------------------------------------------------
+// Validation shared by the builders.
+[[noreturn]] void invalid(const char* who, const std::string& what) {
+  throw std::invalid_argument(std::string(who) + ": " + what);
+}
+
+std::string num(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+void validate(const char* who, const ChainSpec& spec, int min_beads, const Box& box, long long total_beads) {
+  if (spec.chains < 1) invalid(who, "chains = " + std::to_string(spec.chains) + ": expected at least 1");
+  if (spec.beads < min_beads)
+    invalid(who, "beads = " + std::to_string(spec.beads) + ": expected at least " + std::to_string(min_beads));
+  if (!(spec.bond_length > 0.0) || !std::isfinite(spec.bond_length))
+    invalid(who, "bond_length = " + num(spec.bond_length) + ": expected a finite length > 0");
+  if (!(spec.min_distance >= 0.0) || !(spec.min_distance < 2.0 * spec.bond_length))
+    invalid(who, "min_distance = " + num(spec.min_distance) + ": expected 0 <= min_distance < 2*bond_length = " +
+                     num(2.0 * spec.bond_length) + " (beads two bonds apart are at most 2*bond_length apart)");
+  if (total_beads > std::numeric_limits<int>::max())
+    invalid(who, "too many beads (" + std::to_string(total_beads) + ")");
+  bool point_region = true;
+  for (int a = 0; a < 3; ++a) {
+    const char axis = static_cast<char>('x' + a);
+    if (!std::isfinite(box.origin[a])) invalid(who, std::string("box origin is not finite on axis ") + axis);
+    if (!std::isfinite(box.lengths[a]) || box.lengths[a] < 0.0)
+      invalid(who, std::string("box length on axis ") + axis + " = " + num(box.lengths[a]) + ": expected >= 0");
+    if (box.periodic[a] && !(box.lengths[a] > 2.0 * spec.bond_length))
+      invalid(who, std::string("periodic box length on axis ") + axis + " = " + num(box.lengths[a]) +
+                       ": expected more than 2*bond_length = " + num(2.0 * spec.bond_length) +
+                       " (so that the minimum image of a bond is the bond)");
+    if (box.lengths[a] > 0.0) point_region = false;
+  }
+  if (point_region && spec.chains > 1 && spec.min_distance > 0.0)
+    invalid(who, std::to_string(spec.chains) +
+                     " molecules but the start region is a single point (open box with zero lengths): give the box "
+                     "lengths (a region around the origin) or a density");
+}
+
+// Every (i, j, k) with i–j and j–k bonded, each pair of j's neighbours once, by vertex j; the
+// neighbours in the order the bonds list them: (j−1, j, j+1) along a chain, (1, 0, n−1) at a
+// ring's first bead, arms in order at a star's core.
+std::vector<std::array<int, 3>> angles_from_bonds(int n, const std::vector<std::pair<int, int>>& bonds) {
+  std::vector<std::vector<int>> nb(static_cast<size_t>(n));
+  for (const auto& [i, j] : bonds) {
+    nb[i].push_back(j);
+    nb[j].push_back(i);
+  }
+  std::vector<std::array<int, 3>> angles;
+  for (int j = 0; j < n; ++j)
+    for (size_t p = 0; p < nb[j].size(); ++p)
+      for (size_t q = p + 1; q < nb[j].size(); ++q) angles.push_back({nb[j][p], j, nb[j][q]});
+  return angles;
+}
+
+Polymer assemble(const std::vector<V3>& pos, std::vector<std::pair<int, int>> bonds, std::vector<int> molecule) {
+  Polymer p;
+  const int n = static_cast<int>(pos.size());
+  p.x.resize(3, n);
+  for (int i = 0; i < n; ++i) p.x.col(i) << pos[i].x, pos[i].y, pos[i].z;
+  p.angles = angles_from_bonds(n, bonds);
+  p.bonds = std::move(bonds);
+  p.molecule = std::move(molecule);
+  return p;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+Polymer build_linear_chains(const ChainSpec& spec, const Box& box) {
+  const char* who = "build_linear_chains";
+  const long long total = static_cast<long long>(spec.chains) * spec.beads;
+  validate(who, spec, 2, box, total);
+  const int n = spec.beads;
+  std::vector<Plan> plans(static_cast<size_t>(spec.chains));
+  std::vector<std::pair<int, int>> bonds;
+  std::vector<int> molecule;
+  for (int c = 0; c < spec.chains; ++c) {
+    const int first = c * n;
+    std::vector<Step>& steps = plans[c].steps;
+    plans[c].first = first;
+    plans[c].end = first + n;
+    steps.push_back({StepKind::Start, first});
+    for (int k = 1; k < n; ++k) {
+      steps.push_back({StepKind::Walk, first + k, first + k - 1});
+      bonds.emplace_back(first + k - 1, first + k);
+    }
+    molecule.insert(molecule.end(), static_cast<size_t>(n), c);
+  }
+  Grower grower(who, "chain", spec, box, static_cast<int>(total), n);
+  return assemble(grower.run(plans), std::move(bonds), std::move(molecule));
+}
+
+Polymer build_rings(const ChainSpec& spec, const Box& box) {
+  const char* who = "build_rings";
+  const long long total = static_cast<long long>(spec.chains) * spec.beads;
+  validate(who, spec, 3, box, total);
+  const int n = spec.beads;
+  std::vector<Plan> plans(static_cast<size_t>(spec.chains));
+  std::vector<std::pair<int, int>> bonds;
+  std::vector<int> molecule;
+  for (int c = 0; c < spec.chains; ++c) {
+    const int first = c * n;
+    std::vector<Step>& steps = plans[c].steps;
+    plans[c].first = first;
+    plans[c].end = first + n;
+    steps.push_back({StepKind::Start, first});
+    for (int k = 1; k < n - 1; ++k) steps.push_back({StepKind::Bridge, first + k, first + k - 1, -1, first, n - k});
+    steps.push_back({StepKind::Close, first + n - 1, first + n - 2, first});
+    for (int k = 1; k < n; ++k) bonds.emplace_back(first + k - 1, first + k);
+    bonds.emplace_back(first + n - 1, first);
+    molecule.insert(molecule.end(), static_cast<size_t>(n), c);
+  }
+  Grower grower(who, "ring", spec, box, static_cast<int>(total), n);
+  return assemble(grower.run(plans), std::move(bonds), std::move(molecule));
+}
+
+Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
+  const char* who = "build_stars";
+  if (arms < 1) invalid(who, "arms = " + std::to_string(arms) + ": expected at least 1");
+  const long long per_star = 1 + static_cast<long long>(arms) * spec.beads;
+  const long long total = spec.chains * per_star;
+  validate(who, spec, 1, box, total);
+  const int b = spec.beads, size = static_cast<int>(per_star);
+  std::vector<Plan> plans(static_cast<size_t>(spec.chains));
+  std::vector<std::pair<int, int>> bonds;
+  std::vector<int> molecule;
+  for (int c = 0; c < spec.chains; ++c) {
+    const int core = c * size;
+    auto bead = [&](int arm, int k) { return core + 1 + arm * b + k; };
+    std::vector<Step>& steps = plans[c].steps;
+    plans[c].first = core;
+    plans[c].end = core + size;
+    steps.push_back({StepKind::Start, core});
+    for (int k = 0; k < b; ++k)  // arms in turn, one bead each
+      for (int a = 0; a < arms; ++a) steps.push_back({StepKind::Walk, bead(a, k), k == 0 ? core : bead(a, k - 1)});
+    for (int a = 0; a < arms; ++a)
+      for (int k = 0; k < b; ++k) bonds.emplace_back(k == 0 ? core : bead(a, k - 1), bead(a, k));
+    molecule.insert(molecule.end(), static_cast<size_t>(size), c);
+  }
+  Grower grower(who, "star", spec, box, static_cast<int>(total), b);
+  return assemble(grower.run(plans), std::move(bonds), std::move(molecule));
+}
+
+Box box_for_density(int total_beads, double density) {
+  if (total_beads < 1)
+    throw std::invalid_argument("box_for_density: total_beads = " + std::to_string(total_beads) + ": expected at least 1");
+  if (!(density > 0.0) || !std::isfinite(density))
+    throw std::invalid_argument("box_for_density: density = " + num(density) + ": expected a finite number density > 0");
+  const double volume = total_beads / density;
+  if (!std::isfinite(volume)) throw std::invalid_argument("box_for_density: density = " + num(density) + " is too small");
+  Box box;
+  box.lengths.setConstant(portable_cbrt(volume));
+  box.periodic.setOnes();
+  return box;
+}
+
+Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed) {
+  if (!(temperature >= 0.0) || !std::isfinite(temperature))
+    throw std::invalid_argument("maxwell_boltzmann: temperature = " + num(temperature) + ": expected a finite T >= 0");
+  const Eigen::Index n = inv_mass.size();
+  int mobile = 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (!(inv_mass[i] >= 0.0) || !std::isfinite(inv_mass[i]))
+      throw std::invalid_argument("maxwell_boltzmann: inverse mass of particle " + std::to_string(i) + " = " +
+                                  num(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
+    if (inv_mass[i] > 0.0) ++mobile;
+  }
+  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
+  const int dof = 3 * mobile - 3;
+  if (dof <= 0 || temperature == 0.0) return v;  // nothing can move once the momentum is removed
+
+  Rng rng(seed);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (inv_mass[i] == 0.0) continue;  // fixed particles draw no numbers: at rest
+    const double s = std::sqrt(temperature * inv_mass[i]);
+    for (int a = 0; a < 3; ++a) v(a, i) = s * rng.normal();
+  }
+  // Remove the centre-of-mass velocity of the mobile particles; a second pass removes what
+  // rounding left from the first, so that Σ m v vanishes to ~1e-16 of Σ m|v|.
+  for (int pass = 0; pass < 2; ++pass) {
+    CompensatedSum mass, p[3];
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (inv_mass[i] == 0.0) continue;
+      const double m = 1.0 / inv_mass[i];
+      mass.add(m);
+      for (int a = 0; a < 3; ++a) p[a].add(m * v(a, i));
+    }
+    const double vcm[3] = {p[0].value() / mass.value(), p[1].value() / mass.value(), p[2].value() / mass.value()};
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (inv_mass[i] > 0.0)
+        for (int a = 0; a < 3; ++a) v(a, i) -= vcm[a];
+  }
+  // Rescale to the exact kinetic temperature: Σ m v² = dof·T (a common factor keeps Σ m v = 0).
+  CompensatedSum twice_kinetic;
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (inv_mass[i] > 0.0)
+      for (int a = 0; a < 3; ++a) twice_kinetic.add(v(a, i) * v(a, i) / inv_mass[i]);
+  if (twice_kinetic.value() > 0.0) v *= std::sqrt(dof * temperature / twice_kinetic.value());
+  return v;
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,225 @@
+// Particles from the polymer builders and imported files, thermal velocities, and the
+// preparation of a stiff state (issue: polymer scenes).
+#include "engine/scene_sources.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+#include "engine/builders.hpp"
+#include "engine/errors.hpp"
+#include "engine/lammps_data.hpp"
+#include "engine/xyz_bonds.hpp"
+#include "integrators/constraints.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+void set_box(DeckTable& t, std::string_view key, Scene& sc, const Box& box) {
+  if (sc.box.any_periodic() && !sc.box_from_source)
+    t.fail(key, "the box is given twice: by [box] and here (remove one)");
+  if (sc.box_from_source) t.fail(key, "the box is given twice: by an earlier [[build]] or [import] and here");
+  sc.box = box;
+  sc.box_from_source = true;
+}
+
+void add_topology(Scene& sc, int first, const std::vector<std::pair<int, int>>& bonds, const std::string& bond_type,
+                  const std::vector<std::array<int, 3>>& angles, const std::string& angle_type) {
+  if (!bonds.empty()) {
+    const int bt = Topology::intern(sc.topology.bond_types, bond_type);
+    for (const auto& [i, j] : bonds) sc.topology.bonds.push_back({first + i, first + j, bt});
+  }
+  if (!angles.empty() && !angle_type.empty()) {
+    const int at = Topology::intern(sc.topology.angle_types, angle_type);
+    for (const auto& a : angles) sc.topology.angles.push_back({first + a[0], first + a[1], first + a[2], at});
+  }
+}
+
+}  // namespace
+
+// [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
+// bond_type, angle_type (optional), density (optional: sets a periodic cubic box), min_distance, seed.
+void read_builders(DeckTable& root, Scene& sc) {
+  for (DeckTable& b : root.array_of_tables("build")) {
+    const std::string style = b.string("style");
+    if (style != "linear-chains" && style != "rings" && style != "stars")
+      b.fail("style", "unknown builder '" + style + "' (known: linear-chains, rings, stars)");
+    const int type = particle_type_index(sc, b, "type", b.string("type", sc.types[0].name));
+    ChainSpec spec;
+    spec.chains = static_cast<int>(b.integer("chains", 1));
+    spec.beads = static_cast<int>(b.integer("beads"));
+    const int arms = style == "stars" ? static_cast<int>(b.integer("arms")) : 0;
+    spec.bond_length = b.number("bond_length", spec.bond_length);
+    spec.min_distance = b.number("min_distance", spec.min_distance);
+    spec.seed = static_cast<std::uint64_t>(b.integer("seed", 1));
+    b.require(spec.chains >= 1, "chains", "expected at least 1 chain");
+    b.require(spec.beads >= (style == "rings" ? 3 : 2), "beads", style == "rings" ? "a ring needs at least 3 beads" : "expected at least 2 beads");
+    b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
+    const std::string bond_type = b.string("bond_type");
+    const std::string angle_type = b.string("angle_type", "");
+    if (auto density = b.maybe_number("density")) {
+      b.require(*density > 0, "density", "expected a number density > 0");
+      const long total = style == "stars" ? spec.chains * (1L + static_cast<long>(arms) * spec.beads) : static_cast<long>(spec.chains) * spec.beads;
+      set_box(b, "density", sc, box_for_density(static_cast<int>(total), *density));
+    }
+    Polymer p;
+    try {
+      if (style == "linear-chains") p = build_linear_chains(spec, sc.box);
+      else if (style == "rings") p = build_rings(spec, sc.box);
+      else p = build_stars(spec, arms, sc.box);
+    } catch (const std::exception& e) {  // invalid parameters or a builder that could not place a chain
+      b.fail_here(e.what());
+    }
+    b.finish();
+    const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
+                                       std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
+    add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type);
+  }
+}
+
+// [import] lammps_data = PATH (atom_style, atom_types = {"1" = "bead"}, bond_types = {...},
+// angle_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
+void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
+  auto t = root.table("import");
+  if (!t) return;
+  auto resolve = [&](const std::string& p) { return fs::path(p).is_absolute() || deck_dir.empty() ? p : (fs::path(deck_dir) / p).string(); };
+  const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
+  if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
+  ImportedSystem in;
+  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map;
+  std::string single_type, single_bond_type;
+  if (lammps) {
+    const std::string path = resolve(t->string("lammps_data"));
+    in = read_lammps_data(path, t->string("atom_style", "auto"));
+    atom_map = t->string_map("atom_types");
+    bond_map = t->string_map("bond_types");
+    angle_map = t->string_map("angle_types");
+  } else {
+    in = read_xyz_with_bonds(resolve(t->string("xyz")), resolve(t->string("bonds")));
+    single_type = t->string("type", sc.types[0].name);
+    single_bond_type = t->string("bond_type", "bond");
+  }
+  const bool use_velocities = t->boolean("velocities", true);
+  // Particle types: a LAMMPS type maps to a deck type; masses must agree.
+  auto lookup = [&](const std::vector<std::pair<std::string, std::string>>& map, int lammps_type, const char* key) {
+    for (const auto& [k, v] : map)
+      if (k == std::to_string(lammps_type)) return v;
+    t->fail(key, "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" + std::to_string(lammps_type) +
+                     "\" = \"NAME\" to " + key + ")");
+  };
+  const int n = static_cast<int>(in.x.cols());
+  std::vector<int> type(n);
+  for (int i = 0; i < n; ++i) {
+    const std::string name = lammps ? lookup(atom_map, in.type[i], "atom_types") : single_type;
+    type[i] = particle_type_index(sc, *t, lammps ? "atom_types" : "type", name);
+    if (lammps && in.type_mass.count(in.type[i]) && in.type_mass.at(in.type[i]) != sc.types[type[i]].mass)
+      t->fail("atom_types", "types." + name + ".mass = " + std::to_string(sc.types[type[i]].mass) +
+                                " but the data file's Masses give " + std::to_string(in.type_mass.at(in.type[i])) +
+                                " for LAMMPS type " + std::to_string(in.type[i]));
+  }
+  t->finish();
+  if (lammps) {
+    Box box;
+    box.origin = in.lo;
+    box.lengths = in.hi - in.lo;
+    box.periodic = Eigen::Vector3i::Ones();  // LAMMPS's default boundary p p p
+    set_box(*t, "lammps_data", sc, box);
+  }
+  const Eigen::Matrix3Xd v = use_velocities ? in.v : Eigen::Matrix3Xd::Zero(3, n);
+  const int first = append_particles(sc, in.x, v, type, in.molecule);
+  for (const auto& b : in.bonds) {
+    const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
+    sc.topology.bonds.push_back({first + b.i, first + b.j, Topology::intern(sc.topology.bond_types, name)});
+  }
+  for (const auto& a : in.angles) {
+    const std::string name = lookup(angle_map, a.type, "angle_types");
+    sc.topology.angles.push_back({first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+  }
+}
+
+// [velocities] temperature, seed: Maxwell–Boltzmann velocities for every mobile particle,
+// zero total momentum, kinetic temperature exactly T (replacing any velocities given so far).
+void read_velocities(DeckTable& root, Scene& sc) {
+  auto t = root.table("velocities");
+  if (!t) return;
+  const double temperature = t->number("temperature");
+  t->require(temperature >= 0, "temperature", "expected a temperature >= 0");
+  const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  t->finish();
+  sc.state.v = maxwell_boltzmann(sc.state.inv_mass, temperature, seed);
+}
+
+// [prepare] project = true: positions onto the constraint manifold g = 0 (SHAKE, M-orthogonal)
+// and velocities onto its tangent space; vibrational_temperature = T: then give every stiff
+// bond thermal vibrational energy — bond-length deviations g_b ~ N(0, T ε²/α_b²) (the stiff
+// potential ½ε⁻²α_b² g_b² is diagonal in g) and normal velocities u − P u with u thermal at T
+// (so that ġ = G u ~ N(0, T S): equipartition in the bonds' normal modes, linearised).
+void read_prepare(DeckTable& root, Scene& sc) {
+  auto t = root.table("prepare");
+  if (!t) return;
+  const bool project = t->boolean("project", true);
+  const double tv = t->number("vibrational_temperature", 0.0);
+  t->require(tv >= 0, "vibrational_temperature", "expected a temperature >= 0");
+  const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  const long relax_steps = t->integer("relax_steps", 0);
+  t->require(relax_steps >= 0, "relax_steps", "expected a number of steps >= 0");
+  const double max_move = t->number("relax_max_displacement", 0.02);
+  t->require(max_move > 0, "relax_max_displacement", "expected a length > 0");
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
+  if (!stiff) t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  t->finish();
+  State& s = sc.state;
+  std::ostringstream note;
+  note.precision(4);
+  try {
+    ConstraintToolbox toolbox(stiff->bonds, s.inv_mass);
+    const double g0 = toolbox.max_violation(s.x);
+    if (project) {
+      toolbox.shake(s.x, s.x, nullptr, 1e-12, 200);
+      toolbox.project_velocity(s.x, s.v);
+      note << "prepare: projected onto the constraint manifold (max |g| " << g0 << " -> " << toolbox.max_violation(s.x)
+           << ") and the velocities onto its tangent space";
+    }
+    if (relax_steps > 0) {
+      // Overlaps left by a builder: steepest descent on every non-stiff term, each step moving
+      // no particle more than max_move, then SHAKE back onto the bonds (g = 0).
+      Eigen::Matrix3Xd f, x_old;
+      const double e_before = sc.forces->compute_unconstrained(s.x, f);
+      double e = e_before;
+      for (long k = 0; k < relax_steps; ++k) {
+        Eigen::Matrix3Xd step = f * s.inv_mass.asDiagonal();
+        const double largest = step.colwise().norm().maxCoeff();
+        if (largest == 0.0) break;
+        x_old = s.x;
+        s.x += (max_move / largest) * step;
+        toolbox.shake(x_old, s.x, nullptr, 1e-10, 200);
+        e = sc.forces->compute_unconstrained(s.x, f);
+      }
+      toolbox.project_velocity(s.x, s.v);  // the velocities stay, tangent at the new positions
+      note << (project ? "; " : "prepare: ") << "relaxed " << relax_steps << " steps: non-stiff potential energy "
+           << e_before << " -> " << e;
+    }
+    if (tv > 0) {
+      // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
+      const Eigen::Matrix3Xd normal = maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, seed + 1);
+      std::vector<StiffBond> shifted = stiff->bonds;
+      for (size_t b = 0; b < shifted.size(); ++b)
+        shifted[b].length += std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
+      ConstraintToolbox(shifted, s.inv_mass).shake(s.x, s.x, nullptr, 1e-12, 200);
+      Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, seed), pu = u;
+      toolbox.project_velocity(s.x, pu);
+      s.v += u - pu;
+      note << (project ? "; " : "prepare: ") << "bond vibrations thermalised at T = " << tv
+           << " (max |g| = " << toolbox.max_violation(s.x) << ")";
+    }
+  } catch (const NumericalError& e) {
+    root.fail_here(std::string("[prepare] could not project the initial state: ") + e.what());
+  } catch (const InputError& e) {
+    root.fail_here(std::string("[prepare]: ") + e.what());
+  }
+  sc.notes.push_back(note.str());
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,89 @@
+#include "forcefields/angle_terms.hpp"
+
+#include <cmath>
+#include <numbers>
+#include <sstream>
+#include <stdexcept>
+
+namespace stiffmd {
+namespace {
+
+// Shared validation of the two angle styles: coefficients per type, then each angle's indices.
+std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, const std::string& name,
+                                                        const std::vector<Angle>& angles,
+                                                        const std::vector<AngleCoeffs>& types) {
+  auto fail = [&](const std::string& what) {
+    throw std::invalid_argument(std::string(style) + " '" + name + "': " + what);
+  };
+  for (size_t t = 0; t < types.size(); ++t) {
+    const AngleCoeffs& c = types[t];
+    std::ostringstream m;
+    m << "angle type " << t << ": ";
+    if (!(c.k >= 0.0) || !std::isfinite(c.k))
+      m << "k must be finite and >= 0, got " << c.k;
+    else if (!(c.theta0 >= 0.0 && c.theta0 <= std::numbers::pi))
+      m << "theta0 must be in [0, pi] radians, got " << c.theta0;
+    else
+      continue;
+    fail(m.str());
+  }
+  std::vector<AngleInstance<AngleCoeffs>> out;
+  out.reserve(angles.size());
+  for (const Angle& a : angles) {
+    const std::string which =
+        "angle (" + std::to_string(a.i) + ", " + std::to_string(a.j) + ", " + std::to_string(a.k) + ")";
+    if (a.i < 0 || a.j < 0 || a.k < 0) fail(which + ": particle indices must be >= 0");
+    if (a.i == a.j || a.j == a.k || a.i == a.k) fail(which + ": the three particles must be distinct");
+    if (a.type < 0 || static_cast<size_t>(a.type) >= types.size())
+      fail(which + ": angle type " + std::to_string(a.type) + " is not defined (" + std::to_string(types.size()) +
+           " types)");
+    out.push_back({a.i, a.j, a.k, types[a.type]});
+  }
+  return out;
+}
+
+std::string describe_angles(std::string_view what, size_t n, const std::vector<AngleCoeffs>& types) {
+  std::ostringstream s;
+  s << n << " " << what << " angles";
+  for (size_t t = 0; t < types.size(); ++t)
+    s << (t == 0 ? "; " : ", ") << "type " << t << ": k = " << types[t].k << ", theta0 = " << types[t].theta0;
+  return s.str();
+}
+
+}  // namespace
+
+HarmonicAngle::HarmonicAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
+    : ForceTerm(std::move(name), level),
+      types_(std::move(types)),
+      instances_(angle_instances("harmonic-angle", this->name(), angles, types_)) {}
+
+double HarmonicAngle::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+  return accumulate_angle_forces<Kernel>(instances_, x, box, f);
+}
+
+double HarmonicAngle::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
+  return accumulate_angle_virial<Kernel>(instances_, x, box);
+}
+
+std::string HarmonicAngle::describe() const {
+  return describe_angles("harmonic", instances_.size(), types_);
+}
+
+CosineAngle::CosineAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
+    : ForceTerm(std::move(name), level),
+      types_(std::move(types)),
+      instances_(angle_instances("cosine-angle", this->name(), angles, types_)) {}
+
+double CosineAngle::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+  return accumulate_angle_forces<Kernel>(instances_, x, box, f);
+}
+
+double CosineAngle::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
+  return accumulate_angle_virial<Kernel>(instances_, x, box);
+}
+
+std::string CosineAngle::describe() const {
+  return describe_angles("cosine", instances_.size(), types_);
+}
+
+}  // namespace stiffmd

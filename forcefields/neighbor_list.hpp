@@ -1,0 +1,139 @@
+// Neighbour search for short-range pair styles: cell lists and a half Verlet list with a skin
+// (Allen & Tildesley, "Computer Simulation of Liquids", 2nd ed., §5.3), and the special-bond
+// weights of bonded neighbours (LAMMPS `special_bonds lj w12 w13`).
+//
+// The list holds every pair i < j whose minimum-image distance was < cutoff + skin when it was
+// built. It stays valid — every pair now closer than the cutoff is in it — as long as no particle
+// has moved more than skin/2 since: two particles can then have approached each other by at
+// most skin. `update` checks that and rebuilds only when needed.
+#pragma once
+
+#include <Eigen/Core>
+#include <cmath>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "engine/box.hpp"
+#include "engine/topology.hpp"
+
+namespace stiffmd {
+
+// Minimum image for unwrapped coordinates, without a branch on periodicity: on a periodic axis
+// d − L·round(d/L); an open axis has L = 1/L = 0, which leaves d unchanged. The rounding is a
+// truncating conversion of d/L ± ½ — inlined by the compiler, where std::nearbyint is a libm
+// call without SSE4.1 — and works for any image count that fits 63 bits. Ties (|d| = L/2) may
+// round either way, as std::nearbyint's may: both images are at the same distance, ≥ the cutoff.
+struct MinimumImage {
+  double length[3] = {0.0, 0.0, 0.0};
+  double inv_length[3] = {0.0, 0.0, 0.0};
+
+  MinimumImage() = default;
+  explicit MinimumImage(const Box& box) {
+    for (int a = 0; a < 3; ++a)
+      if (box.periodic[a]) {
+        length[a] = box.lengths[a];
+        inv_length[a] = 1.0 / box.lengths[a];
+      }
+  }
+
+  static double wrap(double d, double len, double inv_len) {
+    const double s = d * inv_len;
+    return d - len * static_cast<double>(static_cast<std::int64_t>(s + std::copysign(0.5, s)));
+  }
+  void apply(double& dx, double& dy, double& dz) const {
+    dx = wrap(dx, length[0], inv_length[0]);
+    dy = wrap(dy, length[1], inv_length[1]);
+    dz = wrap(dz, length[2], inv_length[2]);
+  }
+};
+
+// Throws std::invalid_argument when a periodic axis is shorter than 2 × (cutoff + skin): the
+// minimum image is then not the only image within the list radius, and a pair could interact
+// through two images at once.
+void check_box_for_cutoff(const Box& box, double cutoff, double skin);
+
+// LAMMPS `special_bonds lj w12 w13`: the pair interaction of particles one bond apart (1-2) is
+// scaled by w12, two bonds apart (1-3) by w13. A weight of 0 removes the pair from the neighbour
+// list; 1 leaves it an ordinary pair. Default: bonded neighbours do not interact, 1-3 fully
+// (the Kremer–Grest bead-spring convention, LAMMPS `special_bonds fene`).
+struct SpecialWeights {
+  double w12 = 0.0;
+  double w13 = 1.0;
+};
+
+struct SpecialPair {
+  int i;  // i < j
+  int j;
+  double weight;
+};
+
+// Every pair whose special weight is not 1, sorted by (i, j), each once. A pair that is both
+// 1-2 and 1-3 (a three-membered ring) takes the 1-2 weight, as in LAMMPS. Throws
+// std::invalid_argument for a bond to a particle outside [0, num_particles) or to itself.
+std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond>& bonds, SpecialWeights w);
+
+// Half Verlet list in CSR form: the neighbours of particle i are
+//   neighbors()[offsets()[i]] … neighbors()[offsets()[i+1] − 1],   all j > i,
+// so each pair appears once. Pairs set as excluded never appear. All arrays are members reused
+// from one build to the next: once their capacity is reached, a rebuild allocates nothing.
+class NeighborList {
+ public:
+  // cutoff: the largest interaction range; skin ≥ 0: the extra shell that lets the list be
+  // reused while particles move less than skin/2. Throws std::invalid_argument otherwise.
+  NeighborList(double cutoff, double skin);
+
+  // Pairs left out of every build (special weight ≠ 1: excluded or handled separately), for
+  // particles 0 … num_particles − 1. Forces the next update to rebuild.
+  void set_exclusions(int num_particles, std::span<const SpecialPair> pairs);
+
+  // Rebuilds the list if it is stale (never built, another particle count or box, or some
+  // particle moved more than skin/2 since the last build); returns whether it rebuilt.
+  // Throws std::invalid_argument if the box is too small (check_box_for_cutoff).
+  bool update(const Eigen::Matrix3Xd& x, const Box& box);
+  bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
+  void build(const Eigen::Matrix3Xd& x, const Box& box);
+
+  std::span<const std::int64_t> offsets() const { return offsets_; }
+  std::span<const int> neighbors() const { return neighbors_; }
+  int num_particles() const { return static_cast<int>(offsets_.empty() ? 0 : offsets_.size() - 1); }
+  std::size_t num_pairs() const { return neighbors_.size(); }
+
+  double cutoff() const { return cutoff_; }
+  double skin() const { return skin_; }
+  long rebuilds() const { return rebuilds_; }           // builds so far, the first included
+  const Eigen::Vector3i& cells_per_axis() const { return ncell_; }  // of the last build
+
+ private:
+  void bin(const Eigen::Matrix3Xd& x, const Box& box);
+  bool excluded(int i, int j) const;
+
+  double cutoff_;
+  double skin_;
+  long rebuilds_ = 0;
+  bool built_ = false;
+
+  // The list (CSR) and the state it was built for.
+  std::vector<std::int64_t> offsets_;
+  std::vector<int> neighbors_;
+  Eigen::Matrix3Xd x_at_build_;
+  Box box_at_build_;
+
+  // Exclusions, CSR by particle (both directions), each row sorted: looked up only while building.
+  int excl_particles_ = 0;
+  std::vector<int> excl_offsets_;
+  std::vector<int> excl_;
+
+  // Cell list of the last build: particles of cell c are cell_particles_[cell_start_[c] …
+  // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order).
+  Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
+  std::vector<int> cell_of_;         // flattened cell index per particle
+  std::vector<int> cell_start_;
+  std::vector<int> cell_particles_;
+  // Per axis, for each cell coordinate c: the distinct neighbouring coordinates (c − 1, c, c + 1,
+  // wrapped on periodic axes; fewer when the axis has < 3 cells or at an open edge).
+  std::vector<int> stencil_[3];        // 3 slots per cell coordinate
+  std::vector<int> stencil_count_[3];  // slots used
+};
+
+}  // namespace stiffmd

@@ -1,0 +1,180 @@
+// The loop over non-bonded pairs, written once and shared by every pair style (style.md §1,
+// after HOOMD's PotentialPair and miniMD's force_lj): a style supplies only a kernel (see
+// pair_potentials.hpp)
+//     static void eval(double r2, const Params& p, double& energy, double& fpair);
+// with fpair = −(dE/dr)/r. For the pair d = x_i − x_j (minimum image) the force on i is
+// fpair·d and, by Newton's third law, −fpair·d on j; the pair's virial r_ij·f_ij is fpair·r².
+//
+// What a call accumulates (forces, virial) and whether the box is periodic are template
+// parameters, so the inner loop carries no run-time branch for them. The loop reads only its
+// arguments — no hidden state — and works on a range of rows, so that an OpenMP version can
+// give fixed row blocks to threads with private force buffers and reduce them in a fixed order
+// (deterministic, bit for bit).
+#pragma once
+
+#include <Eigen/Core>
+#include <span>
+#include <sstream>
+#include <stdexcept>
+#include <type_traits>
+#include <vector>
+
+#include "engine/box.hpp"
+#include "forcefields/neighbor_list.hpp"
+
+namespace stiffmd {
+
+// A symmetric matrix indexed by particle type: per-type-pair coefficients (LAMMPS pair_coeff).
+// Row-major and contiguous, so the loop hoists the row of particle i and indexes it by type j.
+template <class T>
+class TypePairMatrix {
+ public:
+  TypePairMatrix() = default;
+  explicit TypePairMatrix(int num_types)
+      : n_(num_types), value_(static_cast<std::size_t>(num_types) * num_types), given_(value_.size(), 0) {
+    if (num_types < 1) throw std::invalid_argument("a type-pair matrix needs at least one particle type");
+  }
+
+  int num_types() const { return n_; }
+
+  // Sets (a, b) and (b, a).
+  void set(int a, int b, const T& value) {
+    check(a, b);
+    value_[index(a, b)] = value_[index(b, a)] = value;
+    given_[index(a, b)] = given_[index(b, a)] = 1;
+  }
+  bool is_set(int a, int b) const {
+    check(a, b);
+    return given_[index(a, b)] != 0;
+  }
+  const T& operator()(int a, int b) const {
+    check(a, b);
+    return value_[index(a, b)];
+  }
+  // Row a: row(a)[b] is (a, b). Unchecked, for the inner loop.
+  const T* row(int a) const { return value_.data() + static_cast<std::size_t>(a) * n_; }
+
+  // The matrix of f(value) over the entries that are set.
+  template <class F>
+  auto transform(F f) const -> TypePairMatrix<std::invoke_result_t<F, const T&>> {
+    TypePairMatrix<std::invoke_result_t<F, const T&>> out(n_);
+    for (int a = 0; a < n_; ++a)
+      for (int b = a; b < n_; ++b)
+        if (is_set(a, b)) out.set(a, b, f((*this)(a, b)));
+    return out;
+  }
+
+ private:
+  std::size_t index(int a, int b) const { return static_cast<std::size_t>(a) * n_ + b; }
+  void check(int a, int b) const {
+    if (a < 0 || b < 0 || a >= n_ || b >= n_) {
+      std::ostringstream s;
+      s << "type pair (" << a << ", " << b << ") outside 0 … " << n_ - 1;
+      throw std::out_of_range(s.str());
+    }
+  }
+
+  int n_ = 0;
+  std::vector<T> value_;
+  std::vector<char> given_;
+};
+
+struct PairSums {
+  double energy = 0.0;  // Σ E over the pairs
+  double virial = 0.0;  // Σ r_ij · f_ij over the pairs
+};
+
+// Rows first … last − 1 of the half list. f (3×N, column-major: f[3j + a]) may be null when
+// kForces is false. type[i] indexes params.
+template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
+PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
+                              const TypePairMatrix<typename Kernel::Params>& params, const int* type,
+                              const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
+  using Params = typename Kernel::Params;
+  const double* xp = x.data();
+  const std::int64_t* offset = list.offsets().data();
+  const int* nbr = list.neighbors().data();
+  PairSums sums;
+  for (int i = first; i < last; ++i) {
+    const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
+    const Params* prow = params.row(type[i]);
+    double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i summed in registers, stored once per row
+    for (std::int64_t k = offset[i]; k < offset[i + 1]; ++k) {
+      const int j = nbr[k];
+      double dx = xi - xp[3 * j], dy = yi - xp[3 * j + 1], dz = zi - xp[3 * j + 2];
+      if constexpr (kPeriodic) mi.apply(dx, dy, dz);
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      const Params& p = prow[type[j]];
+      if (!(r2 < p.rc2)) continue;  // listed within cutoff + skin, interacting within cutoff
+      double e = 0.0, fpair = 0.0;
+      Kernel::eval(r2, p, e, fpair);
+      sums.energy += e;
+      if constexpr (kVirial) sums.virial += fpair * r2;
+      if constexpr (kForces) {
+        const double fx = fpair * dx, fy = fpair * dy, fz = fpair * dz;
+        fxi += fx;
+        fyi += fy;
+        fzi += fz;
+        f[3 * j] -= fx;
+        f[3 * j + 1] -= fy;
+        f[3 * j + 2] -= fz;
+      }
+    }
+    if constexpr (kForces) {
+      f[3 * i] += fxi;
+      f[3 * i + 1] += fyi;
+      f[3 * i + 2] += fzi;
+    }
+  }
+  return sums;
+}
+
+// The special pairs with 0 < w < 1 (special_bonds): the same kernel, energy and force scaled
+// by w. They are kept out of the Verlet list, so they are looked at every call — a short list
+// (at most a few per particle), and the common case w12 = 0, w13 = 1 has none.
+template <class Kernel, bool kForces, bool kVirial>
+PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs, const TypePairMatrix<typename Kernel::Params>& params,
+                                 const int* type, const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
+  using Params = typename Kernel::Params;
+  const double* xp = x.data();
+  PairSums sums;
+  for (const SpecialPair& sp : pairs) {
+    const int i = sp.i, j = sp.j;
+    double dx = xp[3 * i] - xp[3 * j], dy = xp[3 * i + 1] - xp[3 * j + 1], dz = xp[3 * i + 2] - xp[3 * j + 2];
+    mi.apply(dx, dy, dz);
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    const Params& p = params.row(type[i])[type[j]];
+    if (!(r2 < p.rc2)) continue;
+    double e = 0.0, fpair = 0.0;
+    Kernel::eval(r2, p, e, fpair);
+    sums.energy += sp.weight * e;
+    fpair *= sp.weight;
+    if constexpr (kVirial) sums.virial += fpair * r2;
+    if constexpr (kForces) {
+      f[3 * i] += fpair * dx;
+      f[3 * i + 1] += fpair * dy;
+      f[3 * i + 2] += fpair * dz;
+      f[3 * j] -= fpair * dx;
+      f[3 * j + 1] -= fpair * dy;
+      f[3 * j + 2] -= fpair * dz;
+    }
+  }
+  return sums;
+}
+
+// The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
+// Σ E and Σ r_ij·f_ij (if kVirial). The list must be up to date for x and box.
+template <class Kernel, bool kForces, bool kVirial>
+PairSums accumulate_pairs(const NeighborList& list, std::span<const SpecialPair> scaled,
+                          const TypePairMatrix<typename Kernel::Params>& params, const int* type,
+                          const Eigen::Matrix3Xd& x, const Box& box, double* f) {
+  const MinimumImage mi(box);
+  const int n = list.num_particles();
+  const PairSums listed = box.any_periodic()
+                              ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, x, mi, f)
+                              : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, x, mi, f);
+  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, mi, f);
+  return {listed.energy + special.energy, listed.virial + special.virial};
+}
+
+}  // namespace stiffmd

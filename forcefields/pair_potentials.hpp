@@ -1,0 +1,137 @@
+// Pair-potential kernels for the pair loop (pair_loop.hpp), after HOOMD's EvaluatorPair*: a
+// kernel is a small value type, the loop over pairs is written once. Each kernel supplies
+//   Coeffs                        the per-type-pair coefficients a user gives (with units);
+//   Params                        constants derived from them for the inner loop; `rc2` is the
+//                                 squared cutoff, read by the loop before calling eval;
+//   kStyle                        the style name (as in a deck);
+//   validate(c)                   throws std::invalid_argument naming the bad coefficient;
+//   cutoff(c), params(c)          the interaction range and the derived constants;
+//   eval(r², p, e, fpair)         for r² < rc²: the energy e and fpair = −(dE/dr)/r, so that the
+//                                 force on i is fpair · (x_i − x_j) and the pair virial
+//                                 r_ij · f_ij is fpair · r².
+// Working in r² spares the square root for the Lennard-Jones family.
+#pragma once
+
+#include <cmath>
+#include <numbers>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+
+namespace stiffmd {
+
+namespace pair_detail {
+inline void require(bool ok, const char* what, double got) {
+  if (ok) return;
+  std::ostringstream s;
+  s << what << " (got " << got << ")";
+  throw std::invalid_argument(s.str());
+}
+}  // namespace pair_detail
+
+// Lennard-Jones constants shared by `lj` and `wca`: with s6 = σ⁶/r⁶,
+//   E = 4ε (s6² − s6) − E_shift,   −(dE/dr)/r = 24ε (2 s6² − s6) / r².
+struct LennardJonesParams {
+  double rc2 = 0.0;
+  double lj1 = 0.0;  // 48 ε σ¹²
+  double lj2 = 0.0;  // 24 ε σ⁶
+  double lj3 = 0.0;  // 4 ε σ¹²
+  double lj4 = 0.0;  // 4 ε σ⁶
+  double shift = 0.0;  // E_LJ(rc): subtracted so that E(rc) = 0 (cut and shifted)
+
+  static LennardJonesParams make(double epsilon, double sigma, double rc) {
+    LennardJonesParams p;
+    const double s6 = std::pow(sigma, 6);
+    p.rc2 = rc * rc;
+    p.lj1 = 48.0 * epsilon * s6 * s6;
+    p.lj2 = 24.0 * epsilon * s6;
+    p.lj3 = 4.0 * epsilon * s6 * s6;
+    p.lj4 = 4.0 * epsilon * s6;
+    const double rc6inv = 1.0 / (p.rc2 * p.rc2 * p.rc2);
+    p.shift = rc6inv * (p.lj3 * rc6inv - p.lj4);
+    return p;
+  }
+
+  static void eval(double r2, const LennardJonesParams& p, double& e, double& fpair) {
+    const double r2inv = 1.0 / r2;
+    const double r6inv = r2inv * r2inv * r2inv;
+    e = r6inv * (p.lj3 * r6inv - p.lj4) - p.shift;
+    fpair = r6inv * (p.lj1 * r6inv - p.lj2) * r2inv;
+  }
+};
+
+// `lj`: E = 4ε[(σ/r)¹² − (σ/r)⁶] − E(rc) for r < rc, 0 beyond (LAMMPS lj/cut with
+// pair_modify shift yes). The force is not shifted: it jumps by F(rc) at the cutoff.
+struct LennardJones {
+  struct Coeffs {
+    double epsilon = 0.0;  // well depth, energy
+    double sigma = 1.0;    // length
+    double rc = 2.5;       // cutoff, length
+  };
+  using Params = LennardJonesParams;
+  static constexpr std::string_view kStyle = "lj";
+
+  static void validate(const Coeffs& c) {
+    pair_detail::require(c.epsilon >= 0.0 && std::isfinite(c.epsilon), "epsilon must be finite and >= 0", c.epsilon);
+    pair_detail::require(c.sigma > 0.0 && std::isfinite(c.sigma), "sigma must be finite and > 0", c.sigma);
+    pair_detail::require(c.rc > 0.0 && std::isfinite(c.rc), "cutoff rc must be finite and > 0", c.rc);
+  }
+  static double cutoff(const Coeffs& c) { return c.rc; }
+  static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, c.rc); }
+  static void eval(double r2, const Params& p, double& e, double& fpair) { Params::eval(r2, p, e, fpair); }
+};
+
+// `wca` (Weeks, Chandler & Andersen 1971): the Lennard-Jones potential cut at its minimum
+// rc = 2^{1/6} σ and shifted up by ε, E = 4ε[(σ/r)¹² − (σ/r)⁶] + ε — purely repulsive, with E
+// and F both continuous (zero) at rc. The excluded-volume part of the Kremer–Grest model.
+struct WeeksChandlerAndersen {
+  struct Coeffs {
+    double epsilon = 1.0;  // energy
+    double sigma = 1.0;    // length
+  };
+  using Params = LennardJonesParams;
+  static constexpr std::string_view kStyle = "wca";
+  static constexpr double kMinimumOverSigma = 1.122462048309373;  // 2^{1/6}
+
+  static void validate(const Coeffs& c) {
+    pair_detail::require(c.epsilon >= 0.0 && std::isfinite(c.epsilon), "epsilon must be finite and >= 0", c.epsilon);
+    pair_detail::require(c.sigma > 0.0 && std::isfinite(c.sigma), "sigma must be finite and > 0", c.sigma);
+  }
+  static double cutoff(const Coeffs& c) { return kMinimumOverSigma * c.sigma; }
+  static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, cutoff(c)); }
+  static void eval(double r2, const Params& p, double& e, double& fpair) { Params::eval(r2, p, e, fpair); }
+};
+
+// `soft` (LAMMPS pair_style soft): E = A [1 + cos(π r / rc)] for r < rc. Finite at r = 0
+// (E = 2A), so it pushes overlapping beads apart without the r⁻¹² blow-up; E and F are zero at rc.
+struct SoftCosine {
+  struct Coeffs {
+    double A = 1.0;   // prefactor, energy
+    double rc = 1.0;  // cutoff, length
+  };
+  struct Params {
+    double rc2 = 0.0;
+    double A = 0.0;
+    double pi_over_rc = 0.0;
+  };
+  static constexpr std::string_view kStyle = "soft";
+
+  static void validate(const Coeffs& c) {
+    pair_detail::require(c.A >= 0.0 && std::isfinite(c.A), "prefactor A must be finite and >= 0", c.A);
+    pair_detail::require(c.rc > 0.0 && std::isfinite(c.rc), "cutoff rc must be finite and > 0", c.rc);
+  }
+  static double cutoff(const Coeffs& c) { return c.rc; }
+  static Params params(const Coeffs& c) { return {c.rc * c.rc, c.A, std::numbers::pi / c.rc}; }
+
+  static void eval(double r2, const Params& p, double& e, double& fpair) {
+    const double r = std::sqrt(r2);
+    const double arg = p.pi_over_rc * r;
+    e = p.A * (1.0 + std::cos(arg));
+    // −dE/dr = A (π/rc) sin(π r/rc); at r = 0 the direction is undefined and the force is 0
+    // (LAMMPS does the same).
+    fpair = r > 0.0 ? p.A * p.pi_over_rc * std::sin(arg) / r : 0.0;
+  }
+};
+
+}  // namespace stiffmd
