@@ -232,7 +232,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x));  // E(0) and the initial actions
     if (first_action >= 0) summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
-    thermo.take_notes();
+    for (const auto& note : thermo.take_notes()) log << note << "\n";
   }
   if (restarting) thermo.set_initial_energy(resumed.initial_energy);
   observe();

@@ -1,0 +1,118 @@
+// Polymer scenes end to end (issue: polymer scenes): every integrator runs a melt, the bundled
+// decks are valid, the imported LAMMPS benchmark has the right size, the pressure of a dilute
+// gas is N k T / V, and the validity monitor speaks up on a long chain.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli_support.hpp"
+#include "engine/simulation.hpp"
+#include "test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+using test::cli;
+
+class EveryMethodOnAMelt : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(EveryMethodOnAMelt, RunsWithoutConstraintSolverFailure) {
+  const std::string method = GetParam();
+  const std::string h = method == "velocity-verlet" ? "2e-4" : "0.005";
+  Scene sc = test::load("tests/decks/small_melt.toml", {"integrator.method=" + method, "integrator.h=" + h});
+  const fs::path d = test::scratch_dir("melt_" + method);
+  std::ostringstream log;
+  const RunSummary s = run_simulation(sc, {d.string(), false, ""}, log);
+  EXPECT_EQ(s.steps, method == "velocity-verlet" ? 250 : 10);
+  EXPECT_LT(s.max_energy_error, 0.01 * std::abs(s.initial_energy)) << log.str();
+  EXPECT_TRUE(fs::exists(d / "histograms.csv"));
+  fs::remove_all(d);
+}
+
+INSTANTIATE_TEST_SUITE_P(SmallMelt, EveryMethodOnAMelt,
+                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle",
+                                           "effective"),
+                         [](const auto& info) {
+                           std::string n = info.param;
+                           std::replace(n.begin(), n.end(), '-', '_');
+                           return n;
+                         });
+
+TEST(PolymerDecks, EveryBundledDeckIsValid) {
+  int n = 0;
+  for (const auto& e : fs::directory_iterator(test::source_path("inputs"))) {
+    if (e.path().extension() != ".toml") continue;
+    const auto r = cli("check " + e.path().string());
+    EXPECT_EQ(r.code, 0) << e.path() << "\n" << r.err;
+    ++n;
+  }
+  EXPECT_GE(n, 5);
+}
+
+TEST(PolymerDecks, TheLammpsChainBenchmarkImportsAndRuns) {
+  const Scene sc = test::load("inputs/lammps_chain.toml", {"prepare.vibrational_temperature=0"});
+  EXPECT_EQ(sc.state.size(), 32000);
+  EXPECT_EQ(sc.topology.bonds.size(), 31680u);
+  EXPECT_NEAR(sc.box.lengths[0], 2 * 16.796, 1e-12);
+  EXPECT_TRUE(sc.box.periodic.all());
+  int molecules = 0;
+  for (int m : sc.topology.molecule) molecules = std::max(molecules, m + 1);
+  EXPECT_EQ(molecules, 320);
+  // Projected onto the stiff bonds by [prepare]: every bond at ℓ = 0.97.
+  ASSERT_NE(sc.forces->stiff_bonds(), nullptr);
+  EXPECT_LT(max_constraint_violation(sc.state.x, sc.box, sc.forces->stiff_bonds()), 1e-10);
+  const auto r = cli("run " + test::source_path("inputs/lammps_chain.toml") + " --no-progress --set run.t_end=0.01 -o " +
+                     test::scratch_dir("chain").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+}
+
+// N free-ish particles on a lattice (no overlaps) in a big periodic box with WCA: P ≈ ρ T.
+TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
+  std::ostringstream deck;
+  deck << "[box]\nperiodic = true\nlengths = [40, 40, 40]\n[types.atom]\nmass = 1.0\n";
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j)
+      for (int k = 0; k < 5; ++k) deck << "[[particles]]\nposition = [" << 8 * i + 1 << ", " << 8 * j + 1 << ", " << 8 * k + 1 << "]\n";
+  deck << "[velocities]\ntemperature = 1.5\nseed = 3\n[forces.wca]\nstyle = \"wca\"\n"
+          "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.005\n[run]\nt_end = 20\n[output]\nxyz = \"\"\nthermo_interval = 0.5\n";
+  const fs::path d = test::scratch_dir("gas");
+  std::ofstream(d / "gas.toml") << deck.str();
+  const Deck dk((d / "gas.toml").string(), {});
+  Scene sc = load_scene(dk);
+  std::ostringstream log;
+  run_simulation(sc, {(d / "out").string(), false, ""}, log);
+  std::ifstream csv(d / "out" / "thermo.csv");
+  std::string header, line;
+  std::getline(csv, header);
+  ASSERT_NE(header.find("temperature,pressure"), std::string::npos) << header;
+  double ratio = 0.0;
+  int rows = 0;
+  while (std::getline(csv, line)) {
+    std::vector<double> v;
+    std::stringstream ls(line);
+    for (std::string cell; std::getline(ls, cell, ',');) v.push_back(std::stod(cell));
+    const double t = v[8], p = v[9];
+    ratio += p / (125.0 / (40.0 * 40.0 * 40.0) * t);
+    ++rows;
+  }
+  ratio /= rows;
+  RecordProperty("P_over_rhoT", std::to_string(ratio));
+  // Second virial coefficient of WCA at T = 1.5 is ≈ 2σ³: P/(ρT) ≈ 1 + 2ρ ≈ 1.004, and
+  // (3N − 3)/(3N) = 0.992 from the conserved momentum.
+  EXPECT_NEAR(ratio, 1.0, 0.02);
+  fs::remove_all(d);
+}
+
+TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
+  const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") + " --no-progress --set run.t_end=0.05 -o " +
+                     test::scratch_dir("hanging").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: frequency gap"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("at step 0 (t = 0)"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace stiffmd
