@@ -208,7 +208,8 @@ struct Series {
 // Chunks along the frame axis (unlimited, so frames can be appended).
 //
 // Uncompressed: about 64 KiB, at least one frame and at most 1024 (each flush rewrites the partly
-// filled last chunk in place, so scalar series keep small chunks). Frames of more than 2^20
+// filled last chunk in place, so scalar series keep small chunks; a chunk's space is allocated
+// whole, so a short run's file holds up to 64 KiB per element). Frames of more than 2^20
 // particles are split along the particle axis to keep a chunk below 24 MiB.
 //
 // Compressed: one frame per chunk. A compressed chunk that is rewritten with more frames grows and

@@ -34,6 +34,9 @@
 // convert_units=True without units). tools/h5md_to_xyz.py converts to extended XYZ.
 // While a run writes the file, HDF5's file lock keeps other programs from opening it (set
 // HDF5_USE_FILE_LOCKING=FALSE in the reader's environment to peek, at the reader's risk).
+// After a kill, the complete frames are the first len(position/step); other series may hold one
+// frame more, which may be unreadable if the kill fell inside a flush (MDAnalysis iterates exactly
+// the complete frames, though len(u.trajectory) may count one more). Appending repairs the file.
 #pragma once
 
 #include <Eigen/Core>

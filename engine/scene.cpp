@@ -247,17 +247,19 @@ void read_output(DeckTable& root, Scene& sc) {
   t->require(gz >= 0 && gz <= 9, "h5md_gzip", "expected a deflate level 0..9 (0: no compression)");
   o.h5md_gzip = static_cast<int>(gz);
   o.author = t->string("author", "");
+  o.lammps_data = t->string("lammps_data", "");
   o.checkpoint = t->string("checkpoint", o.checkpoint);
   if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
   o.checkpoint_every = t->integer("checkpoint_every", 0);
   t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
-  for (const char* k : {"xyz", "thermo", "state", "checkpoint", "h5md"}) {
+  for (const char* k : {"xyz", "thermo", "state", "checkpoint", "h5md", "lammps_data"}) {
     const std::string key(k);
-    const std::string& f = key == "xyz"     ? o.xyz
-                           : key == "thermo" ? o.thermo
-                           : key == "state"  ? o.state
-                           : key == "h5md"   ? o.h5md
-                                             : o.checkpoint;
+    const std::string& f = key == "xyz"          ? o.xyz
+                           : key == "thermo"      ? o.thermo
+                           : key == "state"       ? o.state
+                           : key == "h5md"        ? o.h5md
+                           : key == "lammps_data" ? o.lammps_data
+                                                  : o.checkpoint;
     if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
   }
   t->finish();

@@ -39,6 +39,7 @@ struct OutputSettings {
   bool h5md_velocity = false, h5md_force = false;
   int h5md_gzip = 0;           // deflate level 0..9
   std::string author;          // H5MD author (default: the user name)
+  std::string lammps_data;     // the final state as a LAMMPS data file ("" = none)
   std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
   long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };

@@ -12,6 +12,7 @@
 #include "engine/checkpoint.hpp"
 #include "engine/errors.hpp"
 #include "engine/h5md_writer.hpp"
+#include "engine/lammps_data.hpp"
 #include "engine/observables.hpp"
 #include "engine/progress.hpp"
 #include "engine/signals.hpp"
@@ -75,6 +76,34 @@ Checkpoint restore(Scene& sc, Integrator& integrator, const std::string& path, s
                      std::to_string(sc.run.t_end) + " (raise it with --set run.t_end=...)");
   log << "restart from " << path << " at step " << sc.state.step << " (t = " << sc.state.t << ")\n";
   return c;
+}
+
+// The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
+// LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
+ImportedSystem to_lammps(const Scene& sc) {
+  ImportedSystem out;
+  const State& s = sc.state;
+  out.x = s.x;
+  out.v = s.v;
+  for (int i = 0; i < s.size(); ++i) {
+    out.type.push_back(sc.particle_type[i] + 1);
+    out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
+    out.id.push_back(i + 1);
+  }
+  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
+  for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
+  for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
+  out.num_atom_types = static_cast<int>(sc.types.size());
+  out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
+  out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
+  if (sc.box.periodic.all()) {
+    out.lo = sc.box.origin;
+    out.hi = sc.box.origin + sc.box.lengths;
+  } else {
+    out.lo = s.x.rowwise().minCoeff().array() - 1.0;
+    out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
+  }
+  return out;
 }
 
 }  // namespace
@@ -280,6 +309,11 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   if (state_csv) write_state();
   if (h5md) write_h5md();
 
+  if (!sc.output.lammps_data.empty()) {
+    write_lammps_data((dir / sc.output.lammps_data).string(), to_lammps(sc), sc.topology.angles.empty() ? "bond" : "angle",
+                      "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
+    summary.outputs.push_back((dir / sc.output.lammps_data).string());
+  }
   if (sc.observables.histograms && !sc.topology.bonds.empty()) {
     write_histograms((dir / "histograms.csv").string(), s.x, sc.box, sc.topology);
     summary.outputs.push_back((dir / "histograms.csv").string());

@@ -174,12 +174,18 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   double inv_len[3];
   for (int a = 0; a < 3; ++a) inv_len[a] = len[a] > 0.0 ? 1.0 / len[a] : 0.0;
   cell_of_.resize(n);
+  wrapped_x_.resize(3, n);
   cell_start_.assign(static_cast<std::size_t>(ncells) + 1, 0);
   for (int i = 0; i < n; ++i) {
     int c[3];
     for (int a = 0; a < 3; ++a) {
       double s = (x(a, i) - lo[a]) * inv_len[a];
-      if (box.periodic[a]) s -= std::floor(s);  // wrap: positions are unwrapped
+      if (box.periodic[a]) {
+        s -= std::floor(s);  // positions are unwrapped: bin the image inside the box
+        wrapped_x_(a, i) = lo[a] + s * len[a];
+      } else {
+        wrapped_x_(a, i) = x(a, i);
+      }
       c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
     }
     const int cell = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
@@ -188,32 +194,88 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   }
   for (int c = 0; c < ncells; ++c) cell_start_[c + 1] += cell_start_[c];
   cell_particles_.resize(n);
-  // Counting sort in increasing i keeps each cell's particles in increasing index. cell_of_
-  // is reused afterwards, so fill through a moving cursor held in cell_start_ and shift back.
-  for (int i = 0; i < n; ++i) cell_particles_[cell_start_[cell_of_[i]]++] = i;
+  cell_x_.resize(3, n);
+  // Counting sort in increasing i keeps each cell's particles in increasing index: fill
+  // through a cursor held in cell_start_, then shift the starts back.
+  for (int i = 0; i < n; ++i) {
+    const int k = cell_start_[cell_of_[i]]++;
+    cell_particles_[k] = i;
+    cell_x_.col(k) = wrapped_x_.col(i);
+  }
   for (int c = ncells; c > 0; --c) cell_start_[c] = cell_start_[c - 1];
   cell_start_[0] = 0;
 
+  needs_rounding_ = false;
   for (int a = 0; a < 3; ++a) {
     const int m = ncell_[a];
+    if (box.periodic[a] && m < 3) needs_rounding_ = true;
     stencil_[a].resize(3 * static_cast<std::size_t>(m));
+    stencil_shift_[a].resize(3 * static_cast<std::size_t>(m));
     stencil_count_[a].resize(m);
     for (int c = 0; c < m; ++c) {
       int* slot = &stencil_[a][3 * c];
+      double* shift = &stencil_shift_[a][3 * c];
       int k = 0;
       for (int o = -1; o <= 1; ++o) {
         int cc = c + o;
+        double sh = 0.0;
         if (box.periodic[a]) {
+          if (cc < 0) sh = -len[a];  // cell m − 1 seen from cell 0: its image below the box
+          if (cc >= m) sh = len[a];
           cc = (cc + m) % m;
         } else if (cc < 0 || cc >= m) {
           continue;
         }
         // With fewer than 3 cells a periodic axis wraps onto itself: visit each cell once,
         // or pairs would be listed twice.
-        if (std::find(slot, slot + k, cc) == slot + k) slot[k++] = cc;
+        if (std::find(slot, slot + k, cc) == slot + k) {
+          slot[k] = cc;
+          shift[k++] = sh;
+        }
       }
       stencil_count_[a][c] = k;
     }
+  }
+}
+
+template <bool kRound>
+void NeighborList::search(int n, const MinimumImage& mi, bool have_exclusions) {
+  const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
+  const double* xw = wrapped_x_.data();
+  const double* xc = cell_x_.data();
+  const int* cp = cell_particles_.data();
+  const int* cs = cell_start_.data();
+  const int ny = ncell_[1], nz = ncell_[2];
+  offsets_.resize(static_cast<std::size_t>(n) + 1);
+  offsets_[0] = 0;
+  neighbors_.clear();  // keeps its capacity
+  for (int i = 0; i < n; ++i) {
+    const int cell = cell_of_[i];
+    const int cx = cell / (ny * nz), cy = (cell / nz) % ny, cz = cell % nz;
+    const bool may_exclude = have_exclusions && excl_offsets_[i + 1] > excl_offsets_[i];
+    for (int sx = 0; sx < stencil_count_[0][cx]; ++sx) {
+      const int gx = stencil_[0][3 * cx + sx];
+      const double xi = xw[3 * i] - stencil_shift_[0][3 * cx + sx];  // d = x_i − (x_j + shift)
+      for (int sy = 0; sy < stencil_count_[1][cy]; ++sy) {
+        const int gy = stencil_[1][3 * cy + sy];
+        const double yi = xw[3 * i + 1] - stencil_shift_[1][3 * cy + sy];
+        for (int sz = 0; sz < stencil_count_[2][cz]; ++sz) {
+          const int c = (gx * ny + gy) * nz + stencil_[2][3 * cz + sz];
+          const double zi = xw[3 * i + 2] - stencil_shift_[2][3 * cz + sz];
+          // Half list, j > i only (the pair is found again from j's side otherwise): a cell's
+          // particles are in increasing index, so those are a suffix of its range.
+          for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
+            const int j = cp[k];
+            double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
+            if constexpr (kRound) mi.apply(dx, dy, dz);
+            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, j))) neighbors_.push_back(j);
+          }
+        }
+      }
+    }
+    // Ascending j within a row: the force loop then walks x and f forward in memory.
+    std::sort(neighbors_.begin() + offsets_[i], neighbors_.end());
+    offsets_[i + 1] = static_cast<std::int64_t>(neighbors_.size());
   }
 }
 
@@ -227,35 +289,10 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
     throw std::invalid_argument(s.str());
   }
   bin(x, box);
-
-  const MinimumImage mi(box);
-  const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
-  const double* xp = x.data();
-  const int ny = ncell_[1], nz = ncell_[2];
-  offsets_.resize(static_cast<std::size_t>(n) + 1);
-  offsets_[0] = 0;
-  neighbors_.clear();  // keeps its capacity
-  for (int i = 0; i < n; ++i) {
-    const int cell = cell_of_[i];
-    const int cx = cell / (ny * nz), cy = (cell / nz) % ny, cz = cell % nz;
-    const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
-    const bool may_exclude = have_exclusions && excl_offsets_[i + 1] > excl_offsets_[i];
-    for (int sx = 0; sx < stencil_count_[0][cx]; ++sx)
-      for (int sy = 0; sy < stencil_count_[1][cy]; ++sy)
-        for (int sz = 0; sz < stencil_count_[2][cz]; ++sz) {
-          const int c = (stencil_[0][3 * cx + sx] * ny + stencil_[1][3 * cy + sy]) * nz + stencil_[2][3 * cz + sz];
-          for (int k = cell_start_[c]; k < cell_start_[c + 1]; ++k) {
-            const int j = cell_particles_[k];
-            if (j <= i) continue;  // half list: the pair is found again from j's side otherwise
-            double dx = xi - xp[3 * j], dy = yi - xp[3 * j + 1], dz = zi - xp[3 * j + 2];
-            mi.apply(dx, dy, dz);
-            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, j))) neighbors_.push_back(j);
-          }
-        }
-    // Ascending j within a row: the force loop then walks x and f forward in memory.
-    std::sort(neighbors_.begin() + offsets_[i], neighbors_.end());
-    offsets_[i + 1] = static_cast<std::int64_t>(neighbors_.size());
-  }
+  if (needs_rounding_)
+    search<true>(n, MinimumImage(box), have_exclusions);
+  else
+    search<false>(n, MinimumImage(box), have_exclusions);
 
   x_at_build_ = x;  // same size after the first build: Eigen reuses the storage
   box_at_build_ = box;

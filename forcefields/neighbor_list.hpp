@@ -125,15 +125,27 @@ class NeighborList {
   std::vector<int> excl_;
 
   // Cell list of the last build: particles of cell c are cell_particles_[cell_start_[c] …
-  // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order).
+  // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order), and their
+  // positions, wrapped into the box on periodic axes, are cell_x_ in the same order, so the
+  // search reads neighbouring particles from contiguous memory.
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
   std::vector<int> cell_of_;         // flattened cell index per particle
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
+  Eigen::Matrix3Xd wrapped_x_;       // per particle, index order
+  Eigen::Matrix3Xd cell_x_;          // per particle, cell order
   // Per axis, for each cell coordinate c: the distinct neighbouring coordinates (c − 1, c, c + 1,
-  // wrapped on periodic axes; fewer when the axis has < 3 cells or at an open edge).
-  std::vector<int> stencil_[3];        // 3 slots per cell coordinate
-  std::vector<int> stencil_count_[3];  // slots used
+  // wrapped on periodic axes; fewer when the axis has < 3 cells or at an open edge) and the
+  // shift (0 or ±L) that brings a wrapped position in that cell next to cell c.
+  std::vector<int> stencil_[3];         // 3 slots per cell coordinate
+  std::vector<double> stencil_shift_[3];
+  std::vector<int> stencil_count_[3];   // slots used
+  // A periodic axis with fewer than 3 cells wraps onto itself: its neighbour cell is both
+  // c − 1 and c + 1, so no single shift is right and the search rounds to the minimum image.
+  bool needs_rounding_ = false;
+
+  template <bool kRound>
+  void search(int n, const MinimumImage& mi, bool have_exclusions);
 };
 
 }  // namespace stiffmd

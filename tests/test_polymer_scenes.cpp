@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "cli_support.hpp"
+#include "engine/checkpoint.hpp"
 #include "engine/simulation.hpp"
 #include "test_support.hpp"
 
@@ -112,6 +113,36 @@ TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("warning: frequency gap"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("at step 0 (t = 0)"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace stiffmd
+
+namespace stiffmd {
+namespace {
+
+// The final state exported as a LAMMPS data file imports back exactly (positions, velocities,
+// bonds), so the same state can be run in LAMMPS.
+TEST(LammpsExport, FinalStateRoundTripsThroughImport) {
+  const fs::path d = test::scratch_dir("export");
+  const auto r = cli("run " + test::source_path("tests/decks/small_melt.toml") + " --no-progress --set output.lammps_data=final.data -o " +
+                     (d / "out").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Checkpoint end = read_checkpoint((d / "out" / "checkpoint.bin").string());
+  std::ofstream(d / "import.toml") << "[types.bead]\nmass = 1.0\n[import]\nlammps_data = \"out/final.data\"\n"
+                                      "atom_types = { \"1\" = \"bead\" }\nbond_types = { \"1\" = \"backbone\" }\n"
+                                      "angle_types = { \"1\" = \"bend\" }\n"
+                                      "[forces.bonds]\nstyle = \"fene\"\nbond_types.backbone = { K = 30, R0 = 1.5 }\n"
+                                      "[forces.bend]\nstyle = \"cosine-angle\"\nangle_types.bend = { k = 1 }\n"
+                                      "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  const Deck deck((d / "import.toml").string(), {});
+  const Scene sc = load_scene(deck);
+  ASSERT_EQ(sc.state.size(), end.state.size());
+  EXPECT_TRUE((sc.state.x.array() == end.state.x.array()).all()) << "positions differ";
+  EXPECT_TRUE((sc.state.v.array() == end.state.v.array()).all()) << "velocities differ";
+  EXPECT_EQ(sc.topology.bonds.size(), 180u);
+  EXPECT_EQ(sc.topology.angles.size(), 168u);
+  fs::remove_all(d);
 }
 
 }  // namespace
