@@ -251,9 +251,9 @@ struct Step {
   StepKind kind = StepKind::Start;
   int bead = 0;
   int parent = -1;
-  int partner = -1;   // Close: the ring's first bead
-  int anchor = -1;    // Bridge: the ring's first bead
-  int remaining = 0;  // Bridge: bonds from this bead back to anchor
+  int partner = -1;   // Close: the other tip of the ring
+  int anchor = -1;    // Bridge: the other tip of the ring
+  int remaining = 0;  // Bridge: bonds from this bead to anchor through the beads still to place
 };
 
 struct Plan {
@@ -268,17 +268,22 @@ constexpr int kStartTrials = 2000;
 constexpr int kCandidates = 32;
 // Contacts with other molecules are counted out to this multiple of min_distance.
 constexpr double kContactRange = 1.3;
-// Failed steps allowed per attempt at a molecule before it starts again elsewhere, and
-// attempts before giving up.
+// Failed steps allowed per attempt at a molecule before it starts again elsewhere, attempts
+// before giving up, and failed steps in all before giving up, which bounds the time to fail
+// (a few seconds for 10⁴ beads). Measured on 100 molecules at density 0.85, the most a success
+// needed in 8 seeds, per bead: chains 0.04 at min_distance 0.85 and 0.06 at 0.9; rings
+// (100 beads) 0.2 at 0.85; stars (4 arms of 25) 0.15 at 0.85 and 0.55 at 0.9.
 constexpr int kMaxAttempts = 4;
 int failures_per_attempt(size_t steps) { return 200 + 4 * static_cast<int>(steps); }
+long long total_failure_budget(int n_beads) { return std::max(2000LL, static_cast<long long>(n_beads)); }
 
 // Grows the molecules of a builder. Which admissible candidate wins: the one with the most
 // contact with *other* molecules, Σ (1 − r²/r_c²) over their beads within r_c = 1.3·min_distance.
 // Taking the first admissible position instead leaves the box riddled with holes too small for
 // a bead but too many to ignore, and at density 0.85 the last chains find no way through above
-// min_distance ≈ 0.8; packing snugly against the neighbours keeps the free volume in one piece
-// and reaches 0.9 (measured: see tests). Contacts within the own molecule are not counted, so
+// min_distance ≈ 0.8; packing snugly against the neighbours keeps the free volume in one piece:
+// 100 chains of 100 at density 0.85 then build every time (20 seeds each) up to min_distance
+// 0.93, in under 1.5 s. Contacts within the own molecule are not counted, so
 // chains do not fold onto themselves; the price is a mild stretching (in the 0.85 melt
 // ⟨R²⟩/(Nℓ²) ≈ 2.2 and ⟨cos θ⟩ ≈ 0.3 between successive bonds, against ≈ 1.5 and 0.2 for an
 // unbiased walk with the same excluded volume), which equilibration removes. A lone molecule
@@ -300,6 +305,8 @@ class Grower {
     const size_t nm = plans.size();
     std::vector<size_t> done(nm, 0), best(nm, 0);
     std::vector<int> stuck(nm, 0), failures(nm, 0), attempts(nm, 1);
+    const long long budget = total_failure_budget(static_cast<int>(pos_.size()));
+    long long total_failures = 0;
     size_t incomplete = nm;
     while (incomplete > 0) {
       for (size_t m = 0; m < nm; ++m) {
@@ -316,10 +323,11 @@ class Grower {
           continue;
         }
         // A dead end: back off one bead, then further the longer this spot resists.
+        if (++total_failures > budget) fail(m, nm, total_failures);
         ++stuck[m];
         size_t back = std::min(static_cast<size_t>(stuck[m]), done[m]);
         if (++failures[m] > failures_per_attempt(steps.size())) {  // start this molecule afresh
-          if (++attempts[m] > kMaxAttempts) fail(m, nm);
+          if (++attempts[m] > kMaxAttempts) fail(m, nm, total_failures);
           back = done[m];
           best[m] = 0;
           stuck[m] = 0;
@@ -339,10 +347,10 @@ class Grower {
   }
   static V3 start_span(const Box& box) { return {box.lengths[0], box.lengths[1], box.lengths[2]}; }
 
-  [[noreturn]] void fail(size_t m, size_t nm) const {
+  [[noreturn]] void fail(size_t m, size_t nm, long long failures) const {
     std::ostringstream msg;
-    msg << who_ << ": could not place " << unit_ << ' ' << m << " (0-based, of " << nm << ") in " << kMaxAttempts
-        << " attempts: too crowded for min_distance = " << sigma_ << " with bond_length = " << bond_
+    msg << who_ << ": could not place " << unit_ << ' ' << m << " (0-based, of " << nm << "; gave up after "
+        << failures << " dead ends in all): too crowded for min_distance = " << sigma_ << " with bond_length = " << bond_
         << "; lower the density or min_distance (a soft-pair push-off can relax closer contacts afterwards)";
     throw std::runtime_error(msg.str());
   }
@@ -434,11 +442,16 @@ class Grower {
     return false;
   }
 
-  // The next bead of a ring, at bond_length from its parent. The remaining m bonds must still
-  // reach the first bead: |x_new − x_anchor| ≤ m·ℓ, i.e. u·d̂ ≥ c with d = x_anchor − x_parent.
-  // Within that cap the direction follows the Gaussian bridge of a freely jointed chain,
-  // p(u) ∝ exp(−3|d − ℓu|²/(2mℓ²)) ∝ exp(κ u·d̂), κ = 3|d|/(mℓ): a von Mises–Fisher law
-  // whose cosine w = u·d̂ is sampled exactly by inverting its CDF on [c, 1].
+  // The next bead of a ring, at bond_length from its parent (one tip). The m bonds left must
+  // still span the gap to the other tip, the anchor: |x_new − x_anchor| ≤ m·ℓ, i.e. u·d̂ ≥ c
+  // with d = x_anchor − x_parent.
+  // Within that cap the direction follows a Gaussian bridge, p(u) ∝ exp(κ u·d̂): a von
+  // Mises–Fisher law whose cosine w = u·d̂ is sampled exactly by inverting its CDF on [c, 1].
+  // A freely jointed chain's bridge has κ = 3|d|/(mℓ) (from exp(−3|d − ℓu|²/(2mℓ²))); we pull
+  // twice as hard: in a 0.85 melt the contact rule stretches rings (⟨R_g²⟩ ≈ 0.18 Nℓ² either
+  // way against ≈ 0.09 for free rings), and the tighter pull halves the dead ends and the time
+  // (measured: 100 rings of 100 at min_distance 0.85 in ~1 s instead of ~2–3 s); in dilute
+  // systems it makes rings ~15% smaller in R_g² than free ones.
   bool bridge_step(const Step& s) {
     const V3 origin = pos_[s.parent];
     const V3 d = pos_[s.anchor] - origin;
@@ -449,7 +462,7 @@ class Grower {
       axis = (1.0 / dist) * d;
       perpendicular_basis(axis, e1, e2);
       c = std::clamp((bond_ * bond_ + dist * dist - reach * reach) / (2.0 * bond_ * dist), -1.0, 1.0);
-      kappa = 3.0 * dist / reach;
+      kappa = 2.0 * 3.0 * dist / reach;
     }
     const double tail = portable_exp(-kappa * (1.0 - c));  // e^{κ(c−1)}: the CDF's lower end
     return place_best(s, -1, kTrials, [&] {
@@ -463,8 +476,8 @@ class Grower {
     });
   }
 
-  // A ring's last bead: on the circle of points at bond_length from both neighbours (they are
-  // at most 2ℓ apart by the bridge constraint), at a uniform random angle.
+  // A ring's last bead: on the circle of points at bond_length from both tips (they are at
+  // most 2ℓ apart by the bridge constraint), at a uniform random angle.
   bool close_step(const Step& s) {
     const V3 a = pos_[s.parent], b = pos_[s.partner];
     const V3 d = b - a;
@@ -601,9 +614,21 @@ Polymer build_rings(const ChainSpec& spec, const Box& box) {
     std::vector<Step>& steps = plans[c].steps;
     plans[c].first = first;
     plans[c].end = first + n;
+    // Two tips grow from bead 0 in turn, 1, n−1, 2, n−2, …, each bridged to the other tip, and
+    // the last bead closes the gap between them wherever they meet: a closure tied to bead 0's
+    // neighbourhood, which the other molecules fill meanwhile, fails far more often in a melt.
     steps.push_back({StepKind::Start, first});
-    for (int k = 1; k < n - 1; ++k) steps.push_back({StepKind::Bridge, first + k, first + k - 1, -1, first, n - k});
-    steps.push_back({StepKind::Close, first + n - 1, first + n - 2, first});
+    int up = 0, down = n, gap = n - 1;  // tips (down ≡ 0 mod n) and beads not yet placed
+    for (bool rising = true; gap > 1; rising = !rising, --gap) {
+      if (rising) {
+        ++up;
+        steps.push_back({StepKind::Bridge, first + up, first + up - 1, -1, first + down % n, gap});
+      } else {
+        --down;
+        steps.push_back({StepKind::Bridge, first + down, first + (down + 1) % n, -1, first + up, gap});
+      }
+    }
+    steps.push_back({StepKind::Close, first + up + 1, first + up, first + (up + 2) % n});
     for (int k = 1; k < n; ++k) bonds.emplace_back(first + k - 1, first + k);
     bonds.emplace_back(first + n - 1, first);
     molecule.insert(molecule.end(), static_cast<size_t>(n), c);

@@ -54,18 +54,25 @@ struct ChainSpec {
 // number of tries throws std::runtime_error naming the molecule.
 //
 // Algorithm: all molecules grow together, one bead each per round (so the box fills evenly and
-// no late molecule must thread through an already-full box). A bead is placed at bond_length
-// from its bonded parent in a random direction and kept if no placed non-bonded bead (found
-// through a cell list) is closer than min_distance; after several failed directions the
-// molecule backs off one bead, then more while it stays stuck, and after too many failures it
-// starts again elsewhere.
+// no late molecule must thread through an already-full box). For each bead, random positions at
+// bond_length from its bonded parent are drawn; a position is admissible if no placed
+// non-bonded bead (found through a cell list) is closer than min_distance, and of up to 32
+// admissible ones the bead takes the one in closest contact with other molecules — packing
+// snugly keeps the free volume in one piece, which is what lets dense melts finish (details
+// and measurements in builders.cpp). When no direction works the molecule backs off one bead,
+// then more while it stays stuck; after too many failures it starts again elsewhere, and the
+// builder gives up after a bounded number of failures in all.
+//
+// Reach, 100 molecules at density 0.85, bond_length 0.97 (measured, 8–20 seeds each):
+// linear chains of 100 build every time up to min_distance 0.93 (0.3–1.4 s), rings of 100 up
+// to 0.85 (~1 s), stars of 4 × 25 up to 0.9 (~2 s).
 Polymer build_linear_chains(const ChainSpec& spec, const Box& box);
 
-// Closed rings grown as random walks bridged back to their first bead: each step is drawn from
-// the Gaussian-bridge bias exp(κ u·d̂) towards the first bead (κ = 3|d|/(m·ℓ), m bonds left),
-// restricted to the directions from which the ring can still close; the last bead lies on the
-// circle at bond_length from both its neighbours. All bonds, including the closing one, are
-// bond_length to rounding.
+// Closed rings (bead n−1 bonded to bead 0): two tips grow from bead 0 in turn (beads 1, n−1,
+// 2, n−2, …), each step drawn from a Gaussian-bridge bias exp(κ u·d̂) towards the other tip
+// (κ = 6|d|/(m·ℓ) with m bonds still to place between them) and restricted to the directions
+// from which the gap can still close; the last bead lies on the circle at bond_length from both
+// tips. All bonds, the closing ones included, are bond_length to rounding.
 Polymer build_rings(const ChainSpec& spec, const Box& box);
 
 // `chains` stars, each a core bead with `arms` arms of `spec.beads` beads (1 + arms·beads beads

@@ -35,8 +35,9 @@
 // While a run writes the file, HDF5's file lock keeps other programs from opening it (set
 // HDF5_USE_FILE_LOCKING=FALSE in the reader's environment to peek, at the reader's risk).
 // After a kill, the complete frames are the first len(position/step); other series may hold one
-// frame more, which may be unreadable if the kill fell inside a flush (MDAnalysis iterates exactly
-// the complete frames, though len(u.trajectory) may count one more). Appending repairs the file.
+// frame more (MDAnalysis iterates exactly the complete frames, though len(u.trajectory) may count
+// one more). Appending (a restart) drops the extra frame; see the .cpp for the one rare case where
+// a kill inside a flush leaves the file unreadable in places until appending repairs it.
 #pragma once
 
 #include <Eigen/Core>

@@ -215,6 +215,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const std::int64_t n = sc.num_steps();
   const double h = sc.integrator.h;
   sc.forces->reset_counters();
+  long rebuilds_before = 0;  // the list is built once before the run (relaxation, first force)
+  for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
 
   double max_err = 0.0;
   auto write_thermo = [&]() {
@@ -323,6 +325,13 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.final_max_violation = row[7];
   if (first_action >= 0) summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   summary.max_energy_error = max_err;
+  bool has_pairs = false;
+  long rebuilds_after = 0;
+  for (const auto& term : sc.forces->terms()) {
+    has_pairs |= term->style() == "lj" || term->style() == "wca" || term->style() == "soft";
+    rebuilds_after += term->neighbor_list_rebuilds();
+  }
+  if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
   summary.slow_evaluations = sc.forces->evaluations(Level::slow);
   summary.fast_evaluations = sc.forces->evaluations(Level::fast);
   summary.outputs.push_back((dir / "summary.json").string());
@@ -337,7 +346,9 @@ std::string format_summary(const RunSummary& s) {
   if (s.micro_steps > 1) o << ", " << s.micro_steps << " micro steps of " << s.h / s.micro_steps;
   o << ")\n";
   o << "steps:         " << s.steps << " to t = " << s.t_end << " in " << s.wall_seconds << " s wall\n";
-  o << "force evals:   " << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast\n";
+  o << "force evals:   " << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast";
+  if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
+  o << "\n";
   const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
   o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy << ", max |E - E(0)| = "
     << s.max_energy_error << " (relative " << rel << ")\n";
@@ -364,7 +375,7 @@ std::string summary_json(const RunSummary& s) {
   o << "{\n  \"method\": \"" << s.method << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
     << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
     << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
-    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
     << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
     << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
     << ",\n  \"initial_actions\": ";

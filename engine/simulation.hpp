@@ -31,6 +31,7 @@ struct RunSummary {
   double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
   std::int64_t slow_evaluations = 0;
   std::int64_t fast_evaluations = 0;
+  long neighbor_rebuilds = -1;    // over the run; −1 when the scene has no pair term
   double final_max_violation = 0.0;
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;

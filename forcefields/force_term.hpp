@@ -42,6 +42,9 @@ class ForceTerm {
     return 0.0;
   }
 
+  // Neighbour-list rebuilds so far (pair terms; 0 for the others).
+  virtual long neighbor_list_rebuilds() const { return 0; }
+
   // The deck's style name and a one-line description of the instance (for `stiffmd check`).
   virtual std::string_view style() const = 0;
   virtual std::string describe() const = 0;

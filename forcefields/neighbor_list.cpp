@@ -132,6 +132,13 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   return false;
 }
 
+const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
+  if (x.cols() != image_.cols()) throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
+  wrapped_now_.resize(3, x.cols());  // no allocation once sized
+  wrapped_now_ = x - image_;
+  return wrapped_now_;
+}
+
 bool NeighborList::update(const Eigen::Matrix3Xd& x, const Box& box) {
   if (!needs_rebuild(x, box)) return false;
   build(x, box);
@@ -174,18 +181,21 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   double inv_len[3];
   for (int a = 0; a < 3; ++a) inv_len[a] = len[a] > 0.0 ? 1.0 / len[a] : 0.0;
   cell_of_.resize(n);
+  image_.resize(3, n);
   wrapped_x_.resize(3, n);
   cell_start_.assign(static_cast<std::size_t>(ncells) + 1, 0);
   for (int i = 0; i < n; ++i) {
     int c[3];
     for (int a = 0; a < 3; ++a) {
       double s = (x(a, i) - lo[a]) * inv_len[a];
-      if (box.periodic[a]) {
-        s -= std::floor(s);  // positions are unwrapped: bin the image inside the box
-        wrapped_x_(a, i) = lo[a] + s * len[a];
-      } else {
-        wrapped_x_(a, i) = x(a, i);
+      double image = 0.0;
+      if (box.periodic[a]) {  // positions are unwrapped: bin their image inside the box
+        const double whole = std::floor(s);
+        s -= whole;
+        image = whole * len[a];
       }
+      image_(a, i) = image;
+      wrapped_x_(a, i) = x(a, i) - image;
       c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
     }
     const int cell = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
@@ -205,17 +215,13 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   for (int c = ncells; c > 0; --c) cell_start_[c] = cell_start_[c - 1];
   cell_start_[0] = 0;
 
-  needs_rounding_ = false;
+  small_box_ = false;
   for (int a = 0; a < 3; ++a) {
     const int m = ncell_[a];
-    if (box.periodic[a] && m < 3) needs_rounding_ = true;
-    stencil_[a].resize(3 * static_cast<std::size_t>(m));
-    stencil_shift_[a].resize(3 * static_cast<std::size_t>(m));
-    stencil_count_[a].resize(m);
-    for (int c = 0; c < m; ++c) {
-      int* slot = &stencil_[a][3 * c];
-      double* shift = &stencil_shift_[a][3 * c];
-      int k = 0;
+    if (box.periodic[a] && m < 3) small_box_ = true;
+    adjacent_[a].resize(3 * static_cast<std::size_t>(m));
+    adjacent_shift_[a].resize(3 * static_cast<std::size_t>(m));
+    for (int c = 0; c < m; ++c)
       for (int o = -1; o <= 1; ++o) {
         int cc = c + o;
         double sh = 0.0;
@@ -224,56 +230,122 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
           if (cc >= m) sh = len[a];
           cc = (cc + m) % m;
         } else if (cc < 0 || cc >= m) {
-          continue;
+          cc = -1;  // past an open edge: no cell
         }
-        // With fewer than 3 cells a periodic axis wraps onto itself: visit each cell once,
-        // or pairs would be listed twice.
-        if (std::find(slot, slot + k, cc) == slot + k) {
-          slot[k] = cc;
-          shift[k++] = sh;
-        }
+        adjacent_[a][3 * c + o + 1] = cc;
+        adjacent_shift_[a][3 * c + o + 1] = sh;
       }
-      stencil_count_[a][c] = k;
-    }
   }
 }
 
-template <bool kRound>
-void NeighborList::search(int n, const MinimumImage& mi, bool have_exclusions) {
+// Each pair of cells once (a cell with itself, and with the 13 of its 26 neighbours that lie
+// "forward"), each pair of particles once: half the candidates of a full stencil, and no test
+// on the particle indices. Needs ≥ 3 cells on every periodic axis, so that the 27 neighbours
+// of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index.
+void NeighborList::search_half_stencil(int n, bool have_exclusions) {
+  static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1},  {1, -1, -1},
+                                          {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0},  {1, 0, 1},
+                                          {1, 1, -1}, {1, 1, 0},  {1, 1, 1}};
+  const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
+  const double* xc = cell_x_.data();
+  const int* cp = cell_particles_.data();
+  const int* cs = cell_start_.data();
+  const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
+  pair_i_.clear();  // both keep their capacity
+  pair_j_.clear();
+  auto record = [&](int i, int j) {
+    if (i > j) std::swap(i, j);
+    if (have_exclusions && excluded(i, j)) return;
+    pair_i_.push_back(i);
+    pair_j_.push_back(j);
+  };
+  for (int cx = 0; cx < nx; ++cx)
+    for (int cy = 0; cy < ny; ++cy)
+      for (int cz = 0; cz < nz; ++cz) {
+        const int c = (cx * ny + cy) * nz + cz;
+        if (cs[c] == cs[c + 1]) continue;
+        // The forward neighbour cells of c and the shifts that bring their wrapped positions
+        // next to c: d = x_i − (x_j + shift).
+        int other[13];
+        double shift[13][3];
+        int count = 0;
+        for (const auto& o : kForward) {
+          const int gx = adjacent_[0][3 * cx + o[0] + 1], gy = adjacent_[1][3 * cy + o[1] + 1],
+                    gz = adjacent_[2][3 * cz + o[2] + 1];
+          if (gx < 0 || gy < 0 || gz < 0) continue;
+          other[count] = (gx * ny + gy) * nz + gz;
+          shift[count][0] = adjacent_shift_[0][3 * cx + o[0] + 1];
+          shift[count][1] = adjacent_shift_[1][3 * cy + o[1] + 1];
+          shift[count][2] = adjacent_shift_[2][3 * cz + o[2] + 1];
+          ++count;
+        }
+        for (int k1 = cs[c]; k1 < cs[c + 1]; ++k1) {
+          const int i = cp[k1];
+          const double xi = xc[3 * k1], yi = xc[3 * k1 + 1], zi = xc[3 * k1 + 2];
+          for (int k2 = k1 + 1; k2 < cs[c + 1]; ++k2) {
+            const double dx = xi - xc[3 * k2], dy = yi - xc[3 * k2 + 1], dz = zi - xc[3 * k2 + 2];
+            if (dx * dx + dy * dy + dz * dz < rlist2) record(i, cp[k2]);
+          }
+          for (int q = 0; q < count; ++q) {
+            const double xs = xi - shift[q][0], ys = yi - shift[q][1], zs = zi - shift[q][2];
+            for (int k2 = cs[other[q]]; k2 < cs[other[q] + 1]; ++k2) {
+              const double dx = xs - xc[3 * k2], dy = ys - xc[3 * k2 + 1], dz = zs - xc[3 * k2 + 2];
+              if (dx * dx + dy * dy + dz * dz < rlist2) record(i, cp[k2]);
+            }
+          }
+        }
+      }
+
+  // Counting sort of the pairs into CSR rows by i.
+  offsets_.assign(static_cast<std::size_t>(n) + 1, 0);
+  for (const int i : pair_i_) ++offsets_[i + 1];
+  for (int i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
+  cursor_.assign(offsets_.begin(), offsets_.end() - 1);
+  neighbors_.resize(pair_j_.size());
+  for (std::size_t p = 0; p < pair_i_.size(); ++p) neighbors_[cursor_[pair_i_[p]]++] = pair_j_[p];
+  // Ascending j within a row: the force loop then walks x and f forward in memory.
+  for (int i = 0; i < n; ++i) std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + offsets_[i + 1]);
+}
+
+// Boxes with fewer than 3 cells on a periodic axis (a few cutoffs wide): the neighbour cells
+// c − 1 and c + 1 coincide, so visit each distinct neighbour cell once from every particle,
+// keep j > i, and round every separation to the minimum image.
+void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exclusions) {
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
   const double* xw = wrapped_x_.data();
   const double* xc = cell_x_.data();
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int ny = ncell_[1], nz = ncell_[2];
+  // Per axis and cell coordinate, the distinct neighbour coordinates.
+  int distinct[3][3], count[3];
   offsets_.resize(static_cast<std::size_t>(n) + 1);
   offsets_[0] = 0;
   neighbors_.clear();  // keeps its capacity
   for (int i = 0; i < n; ++i) {
     const int cell = cell_of_[i];
-    const int cx = cell / (ny * nz), cy = (cell / nz) % ny, cz = cell % nz;
-    const bool may_exclude = have_exclusions && excl_offsets_[i + 1] > excl_offsets_[i];
-    for (int sx = 0; sx < stencil_count_[0][cx]; ++sx) {
-      const int gx = stencil_[0][3 * cx + sx];
-      const double xi = xw[3 * i] - stencil_shift_[0][3 * cx + sx];  // d = x_i − (x_j + shift)
-      for (int sy = 0; sy < stencil_count_[1][cy]; ++sy) {
-        const int gy = stencil_[1][3 * cy + sy];
-        const double yi = xw[3 * i + 1] - stencil_shift_[1][3 * cy + sy];
-        for (int sz = 0; sz < stencil_count_[2][cz]; ++sz) {
-          const int c = (gx * ny + gy) * nz + stencil_[2][3 * cz + sz];
-          const double zi = xw[3 * i + 2] - stencil_shift_[2][3 * cz + sz];
-          // Half list, j > i only (the pair is found again from j's side otherwise): a cell's
-          // particles are in increasing index, so those are a suffix of its range.
-          for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
-            const int j = cp[k];
-            double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
-            if constexpr (kRound) mi.apply(dx, dy, dz);
-            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, j))) neighbors_.push_back(j);
-          }
-        }
+    const int ci[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
+    for (int a = 0; a < 3; ++a) {
+      count[a] = 0;
+      for (int o = 0; o < 3; ++o) {
+        const int cc = adjacent_[a][3 * ci[a] + o];
+        if (cc >= 0 && std::find(distinct[a], distinct[a] + count[a], cc) == distinct[a] + count[a])
+          distinct[a][count[a]++] = cc;
       }
     }
-    // Ascending j within a row: the force loop then walks x and f forward in memory.
+    const bool may_exclude = have_exclusions && excl_offsets_[i + 1] > excl_offsets_[i];
+    const double xi = xw[3 * i], yi = xw[3 * i + 1], zi = xw[3 * i + 2];
+    for (int sx = 0; sx < count[0]; ++sx)
+      for (int sy = 0; sy < count[1]; ++sy)
+        for (int sz = 0; sz < count[2]; ++sz) {
+          const int c = (distinct[0][sx] * ny + distinct[1][sy]) * nz + distinct[2][sz];
+          // j > i only: a cell's particles are in increasing index, so those are a suffix.
+          for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
+            double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
+            mi.apply(dx, dy, dz);
+            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k]))) neighbors_.push_back(cp[k]);
+          }
+        }
     std::sort(neighbors_.begin() + offsets_[i], neighbors_.end());
     offsets_[i + 1] = static_cast<std::int64_t>(neighbors_.size());
   }
@@ -289,10 +361,10 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
     throw std::invalid_argument(s.str());
   }
   bin(x, box);
-  if (needs_rounding_)
-    search<true>(n, MinimumImage(box), have_exclusions);
+  if (small_box_)
+    search_small_box(n, MinimumImage(box), have_exclusions);
   else
-    search<false>(n, MinimumImage(box), have_exclusions);
+    search_half_stencil(n, have_exclusions);
 
   x_at_build_ = x;  // same size after the first build: Eigen reuses the storage
   box_at_build_ = box;

@@ -48,6 +48,34 @@ struct MinimumImage {
   }
 };
 
+// Minimum image of a separation between two positions from NeighborList::wrapped_positions,
+// each within skin/2 of the box while the list is valid: then |d| < L + skin ≤ 1.5 L (the box
+// is at least 2 (cutoff + skin) long), so one fold by ±L gives the minimum image. Pairs across
+// a face are a few per cent of all, so the branches are well predicted — cheaper than rounding
+// d/L. Open axes never fold (half = ∞).
+struct NearestImage {
+  double length[3] = {0.0, 0.0, 0.0};
+  double half[3] = {INFINITY, INFINITY, INFINITY};
+
+  explicit NearestImage(const Box& box) {
+    for (int a = 0; a < 3; ++a)
+      if (box.periodic[a]) {
+        length[a] = box.lengths[a];
+        half[a] = 0.5 * box.lengths[a];
+      }
+  }
+  static double fold(double d, double len, double h) {
+    if (d > h) return d - len;
+    if (d < -h) return d + len;
+    return d;
+  }
+  void apply(double& dx, double& dy, double& dz) const {
+    dx = fold(dx, length[0], half[0]);
+    dy = fold(dy, length[1], half[1]);
+    dz = fold(dz, length[2], half[2]);
+  }
+};
+
 // Throws std::invalid_argument when a periodic axis is shorter than 2 × (cutoff + skin): the
 // minimum image is then not the only image within the list radius, and a pair could interact
 // through two images at once.
@@ -94,6 +122,12 @@ class NeighborList {
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   void build(const Eigen::Matrix3Xd& x, const Box& box);
 
+  // x less each particle's periodic image at the last build, L·floor((x − origin)/L) per
+  // periodic axis: the positions the list was built from, moved on. While the list is valid they
+  // lie within skin/2 of the box, so NearestImage gives their minimum image. Call after update
+  // with the same x; the result is a member, overwritten by the next call.
+  const Eigen::Matrix3Xd& wrapped_positions(const Eigen::Matrix3Xd& x);
+
   std::span<const std::int64_t> offsets() const { return offsets_; }
   std::span<const int> neighbors() const { return neighbors_; }
   int num_particles() const { return static_cast<int>(offsets_.empty() ? 0 : offsets_.size() - 1); }
@@ -132,20 +166,24 @@ class NeighborList {
   std::vector<int> cell_of_;         // flattened cell index per particle
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
-  Eigen::Matrix3Xd wrapped_x_;       // per particle, index order
+  Eigen::Matrix3Xd image_;           // per particle, index order: L·floor((x − origin)/L) at build
+  Eigen::Matrix3Xd wrapped_x_;       // per particle, index order: x − image_ at build
+  Eigen::Matrix3Xd wrapped_now_;     // x − image_ for the latest wrapped_positions(x)
   Eigen::Matrix3Xd cell_x_;          // per particle, cell order
-  // Per axis, for each cell coordinate c: the distinct neighbouring coordinates (c − 1, c, c + 1,
-  // wrapped on periodic axes; fewer when the axis has < 3 cells or at an open edge) and the
-  // shift (0 or ±L) that brings a wrapped position in that cell next to cell c.
-  std::vector<int> stencil_[3];         // 3 slots per cell coordinate
-  std::vector<double> stencil_shift_[3];
-  std::vector<int> stencil_count_[3];   // slots used
+  // Per axis, for each cell coordinate c and offset o = −1, 0, 1 (slot 3c + o + 1): the
+  // neighbouring cell coordinate (wrapped on periodic axes, −1 past an open edge) and the shift
+  // (0 or ±L) that brings a wrapped position in that cell next to cell c.
+  std::vector<int> adjacent_[3];
+  std::vector<double> adjacent_shift_[3];
   // A periodic axis with fewer than 3 cells wraps onto itself: its neighbour cell is both
   // c − 1 and c + 1, so no single shift is right and the search rounds to the minimum image.
-  bool needs_rounding_ = false;
+  bool small_box_ = false;
+  // Scratch of the half-stencil search: the pairs found, before they are sorted into rows.
+  std::vector<int> pair_i_, pair_j_;
+  std::vector<std::int64_t> cursor_;
 
-  template <bool kRound>
-  void search(int n, const MinimumImage& mi, bool have_exclusions);
+  void search_half_stencil(int n, bool have_exclusions);
+  void search_small_box(int n, const MinimumImage& mi, bool have_exclusions);
 };
 
 }  // namespace stiffmd

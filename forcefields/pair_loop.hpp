@@ -84,14 +84,15 @@ struct PairSums {
   double virial = 0.0;  // Σ r_ij · f_ij over the pairs
 };
 
-// Rows first … last − 1 of the half list. f (3×N, column-major: f[3j + a]) may be null when
-// kForces is false. type[i] indexes params.
+// Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),
+// whose minimum image is one fold away (NearestImage). f (3×N, column-major: f[3j + a]) may be
+// null when kForces is false. type[i] indexes params.
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
 PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
                               const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                              const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
+                              const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f) {
   using Params = typename Kernel::Params;
-  const double* xp = x.data();
+  const double* xp = xw.data();
   const std::int64_t* offset = list.offsets().data();
   const int* nbr = list.neighbors().data();
   PairSums sums;
@@ -102,11 +103,12 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
     for (std::int64_t k = offset[i]; k < offset[i + 1]; ++k) {
       const int j = nbr[k];
       double dx = xi - xp[3 * j], dy = yi - xp[3 * j + 1], dz = zi - xp[3 * j + 2];
-      if constexpr (kPeriodic) mi.apply(dx, dy, dz);
+      if constexpr (kPeriodic) near.apply(dx, dy, dz);
       const double r2 = dx * dx + dy * dy + dz * dz;
       const Params& p = prow[type[j]];
-      // Listed within cutoff + skin, interacting within the cutoff: about half the listed
-      // pairs, in no predictable order, so mask the result instead of branching around eval.
+      // Listed within cutoff + skin, interacting within the cutoff: a third to a half of the
+      // listed pairs (WCA, skin 0.3σ), in no predictable order, so mask the result rather than
+      // branch around eval — measured ~1.5× faster on a dense liquid.
       const double inside = r2 < p.rc2 ? 1.0 : 0.0;
       double e = 0.0, fpair = 0.0;
       Kernel::eval(r2, p, e, fpair);
@@ -167,17 +169,22 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs, const TypeP
 }
 
 // The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
-// Σ E and Σ r_ij·f_ij (if kVirial). The list must be up to date for x and box.
+// Σ E and Σ r_ij·f_ij (if kVirial). The list must be up to date for x and box (update).
 template <class Kernel, bool kForces, bool kVirial>
-PairSums accumulate_pairs(const NeighborList& list, std::span<const SpecialPair> scaled,
+PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                           const Eigen::Matrix3Xd& x, const Box& box, double* f) {
-  const MinimumImage mi(box);
   const int n = list.num_particles();
-  const PairSums listed = box.any_periodic()
-                              ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, x, mi, f)
-                              : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, x, mi, f);
-  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, mi, f);
+  PairSums listed;
+  if (box.any_periodic()) {
+    const Eigen::Matrix3Xd& xw = list.wrapped_positions(x);
+    listed = accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xw, NearestImage(box), f);
+  } else {
+    listed = accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, x, NearestImage(box), f);
+  }
+  // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to
+  // the list's frame.
+  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, MinimumImage(box), f);
   return {listed.energy + special.energy, listed.virial + special.virial};
 }
 

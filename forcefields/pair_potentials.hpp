@@ -6,9 +6,11 @@
 //   kStyle                        the style name (as in a deck);
 //   validate(c)                   throws std::invalid_argument naming the bad coefficient;
 //   cutoff(c), params(c)          the interaction range and the derived constants;
-//   eval(r², p, e, fpair)         for r² < rc²: the energy e and fpair = −(dE/dr)/r, so that the
-//                                 force on i is fpair · (x_i − x_j) and the pair virial
-//                                 r_ij · f_ij is fpair · r².
+//   eval(r², p, e, fpair)         the energy e and fpair = −(dE/dr)/r, so that the force on i
+//                                 is fpair · (x_i − x_j) and the pair virial r_ij · f_ij is
+//                                 fpair · r². Valid for r² < rc²; the pair loop also calls it
+//                                 for listed pairs a little beyond rc and masks the result
+//                                 (no branch), so it must stay finite for every r² > 0.
 // Working in r² spares the square root for the Lennard-Jones family.
 #pragma once
 

@@ -87,24 +87,25 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
 }
 
 template <class Kernel>
-void PairTerm<Kernel>::check_positions(const Eigen::Matrix3Xd& x) const {
-  if (x.cols() != static_cast<Eigen::Index>(types_.size())) {
+void PairTerm<Kernel>::check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const {
+  if (x.cols() != static_cast<Eigen::Index>(types_.size()) || (f && f->cols() != x.cols())) {
     std::ostringstream s;
-    s << "positions of " << x.cols() << " particles, but types were given for " << types_.size();
+    s << "positions of " << x.cols() << " particles" << (f ? ", forces of " + std::to_string(f->cols()) : "")
+      << ", but types were given for " << types_.size();
     fail(name(), Kernel::kStyle, s.str());
   }
 }
 
 template <class Kernel>
 double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  check_positions(x);
+  check_positions(x, &f);
   list_.update(x, box);
   return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data()).energy;
 }
 
 template <class Kernel>
 double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  check_positions(x);
+  check_positions(x, nullptr);
   list_.update(x, box);
   return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr).virial;
 }

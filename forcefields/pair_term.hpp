@@ -38,6 +38,7 @@ class PairTerm final : public ForceTerm {
   std::string describe() const override;
 
   long rebuilds() const { return list_.rebuilds(); }
+  long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   double cutoff() const { return cutoff_; }  // the largest over type pairs
   double skin() const { return list_.skin(); }
   const TypePairMatrix<Coeffs>& coeffs() const { return coeffs_; }
@@ -47,7 +48,7 @@ class PairTerm final : public ForceTerm {
   const NeighborList& neighbor_list() const { return list_; }  // as of the last call
 
  private:
-  void check_positions(const Eigen::Matrix3Xd& x) const;
+  void check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const;
 
   std::vector<int> types_;
   TypePairMatrix<Coeffs> coeffs_;

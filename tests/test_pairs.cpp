@@ -799,9 +799,23 @@ TEST(PairTermValidation, DescribeNamesStyleCutoffSkinAndRebuilds) {
   const std::string d = term.describe();
   for (const char* fragment : {"wca", "cutoff 1.12246", "skin 0.4", "1 neighbour-list rebuilds"})
     EXPECT_NE(d.find(fragment), std::string::npos) << d;
-  // The wrong number of particles is an error, not a silent out-of-bounds read.
+  // The wrong number of particles is an error, not a silent out-of-bounds read or write.
   Eigen::Matrix3Xd x3 = Eigen::Matrix3Xd::Zero(3, 3), f3 = x3;
   EXPECT_THROW(term.add_forces(x3, box, f3), std::invalid_argument);
+  EXPECT_THROW(term.add_forces(x, box, f3), std::invalid_argument);
+}
+
+TEST(PairTermValidation, NoParticlesAndOneParticle) {
+  TypePairMatrix<LennardJones::Coeffs> c(1);
+  c.set(0, 0, {1.0, 1.0, 2.5});
+  for (const Box& box : {Box{}, periodic_box(Eigen::Vector3d::Constant(6.0))})
+    for (const int n : {0, 1}) {
+      const LennardJonesPair term("lj", Level::slow, std::vector<int>(n, 0), c, {}, {}, box);
+      Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Constant(3, n, 0.5), f = Eigen::Matrix3Xd::Zero(3, n);
+      EXPECT_EQ(term.add_forces(x, box, f), 0.0);
+      EXPECT_EQ(term.virial(x, box), 0.0);
+      EXPECT_EQ(term.neighbor_list().num_pairs(), 0u);
+    }
 }
 
 }  // namespace
