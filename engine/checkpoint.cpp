@@ -149,8 +149,8 @@ Checkpoint read_checkpoint(const std::string& path) {
   const auto x = r.doubles(), v = r.doubles(), im = r.doubles();
   c.integrator_state = r.doubles();
   const auto length = r.get<std::uint64_t>();
-  if (n < 0 || x.size() != 3 * static_cast<size_t>(n) || v.size() != x.size() ||
-      im.size() != static_cast<size_t>(n) || !r.at_end() || length != r.size())
+  if (n < 0 || x.size() != 3 * static_cast<size_t>(n) || v.size() != x.size() || im.size() != static_cast<size_t>(n) ||
+      !r.at_end() || length != r.size())
     r.bad();
   c.state.x = Eigen::Map<const Eigen::Matrix3Xd>(x.data(), 3, n);
   c.state.v = Eigen::Map<const Eigen::Matrix3Xd>(v.data(), 3, n);

@@ -12,11 +12,11 @@
 namespace stiffmd {
 
 struct Checkpoint {
-  State state;                          // x, v, inverse masses, t, step
-  std::string method;                   // integrator that wrote it
+  State state;         // x, v, inverse masses, t, step
+  std::string method;  // integrator that wrote it
   double h = 0.0;
-  std::vector<double> integrator_state; // Integrator::save_state()
-  double initial_energy = 0.0;          // E(0) of the run, for the energy_drift column
+  std::vector<double> integrator_state;  // Integrator::save_state()
+  double initial_energy = 0.0;           // E(0) of the run, for the energy_drift column
 };
 
 // Throws InputError naming the path on any I/O failure.

@@ -2,10 +2,10 @@
 
 #include <muParser.h>
 
+#include <toml++/toml.h>
 #include <cmath>
 #include <fstream>
 #include <sstream>
-#include <toml++/toml.h>
 
 #include "engine/errors.hpp"
 
@@ -14,13 +14,20 @@ namespace {
 
 std::string type_word(const toml::node& n) {
   switch (n.type()) {
-    case toml::node_type::table: return "a table";
-    case toml::node_type::array: return "an array";
-    case toml::node_type::string: return "a string";
-    case toml::node_type::integer: return "an integer";
-    case toml::node_type::floating_point: return "a number";
-    case toml::node_type::boolean: return "a boolean";
-    default: return "a date/time";
+    case toml::node_type::table:
+      return "a table";
+    case toml::node_type::array:
+      return "an array";
+    case toml::node_type::string:
+      return "a string";
+    case toml::node_type::integer:
+      return "an integer";
+    case toml::node_type::floating_point:
+      return "a number";
+    case toml::node_type::boolean:
+      return "a boolean";
+    default:
+      return "a date/time";
   }
 }
 
@@ -57,8 +64,8 @@ Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(
   try {
     table_ = std::make_unique<toml::table>(toml::parse(buf.str(), path_));
   } catch (const toml::parse_error& e) {
-    throw InputError(path_ + ":" + std::to_string(e.source().begin.line) + ": TOML syntax error: " +
-                     std::string(e.description()));
+    throw InputError(path_ + ":" + std::to_string(e.source().begin.line) +
+                     ": TOML syntax error: " + std::string(e.description()));
   }
   for (const std::string& o : overrides) apply_override(o);
   resolve_variables();
@@ -66,13 +73,14 @@ Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(
 
 Deck::~Deck() = default;
 
-DeckTable Deck::root() const { return DeckTable(this, table_.get(), ""); }
+DeckTable Deck::root() const {
+  return DeckTable(this, table_.get(), "");
+}
 
 std::string Deck::location(const toml::node* n, const std::string& key_path) const {
   // A value given with --set names the override; so does anything below an overridden key.
   for (const std::string& o : overridden_)
-    if (key_path == o || key_path.rfind(o + ".", 0) == 0 || key_path.rfind(o + "[", 0) == 0)
-      return "--set " + o;
+    if (key_path == o || key_path.rfind(o + ".", 0) == 0 || key_path.rfind(o + "[", 0) == 0) return "--set " + o;
   if (n && n->source().begin.line > 0) return path_ + ":" + std::to_string(n->source().begin.line);
   return path_;
 }
@@ -124,8 +132,7 @@ void Deck::apply_override(const std::string& assignment) {
       else
         cur = a->get(static_cast<size_t>(idx));
     } else {
-      throw InputError("--set " + assignment + ": '" + sofar.substr(0, sofar.rfind('.')) +
-                       "' is a value, not a table");
+      throw InputError("--set " + assignment + ": '" + sofar.substr(0, sofar.rfind('.')) + "' is a value, not a table");
     }
   }
   overridden_.insert(key);
@@ -184,7 +191,8 @@ void Deck::resolve_variables() {
     if (!progress) {
       const auto& [name, v] = *pending.begin();
       throw InputError(location(v, "variables." + name) + ": variables." + name + ": cannot resolve \"" +
-                       *v->value<std::string>() + "\": it refers to an undefined variable or, through others, to itself");
+                       *v->value<std::string>() +
+                       "\": it refers to an undefined variable or, through others, to itself");
     }
   }
 }
@@ -199,7 +207,9 @@ std::string DeckTable::key_path(std::string_view key) const {
   return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
 }
 
-bool DeckTable::has(std::string_view key) const { return table_->contains(key); }
+bool DeckTable::has(std::string_view key) const {
+  return table_->contains(key);
+}
 
 const toml::node* DeckTable::get(std::string_view key) {
   known_.emplace(key);
@@ -239,7 +249,9 @@ double DeckTable::number(std::string_view key) {
   fail_here("missing required key '" + std::string(key) + "'");
 }
 
-double DeckTable::number(std::string_view key, double fallback) { return maybe_number(key).value_or(fallback); }
+double DeckTable::number(std::string_view key, double fallback) {
+  return maybe_number(key).value_or(fallback);
+}
 
 std::optional<long> DeckTable::maybe_integer(std::string_view key) {
   auto v = maybe_number(key);
@@ -253,7 +265,9 @@ long DeckTable::integer(std::string_view key) {
   fail_here("missing required key '" + std::string(key) + "'");
 }
 
-long DeckTable::integer(std::string_view key, long fallback) { return maybe_integer(key).value_or(fallback); }
+long DeckTable::integer(std::string_view key, long fallback) {
+  return maybe_integer(key).value_or(fallback);
+}
 
 std::string DeckTable::string(std::string_view key) {
   const toml::node* n = get(key);
@@ -310,7 +324,8 @@ std::vector<long> DeckTable::integers(std::string_view key) {
   std::vector<long> out;
   for (size_t k = 0; k < a->size(); ++k) {
     const toml::node* e = a->get(k);
-    if (!e->is_integer()) fail(key, "expected an array of integers, element " + std::to_string(k) + " is " + type_word(*e));
+    if (!e->is_integer())
+      fail(key, "expected an array of integers, element " + std::to_string(k) + " is " + type_word(*e));
     out.push_back(static_cast<long>(*e->value<int64_t>()));
   }
   return out;
@@ -322,7 +337,8 @@ std::vector<double> DeckTable::numbers(std::string_view key) {
   const toml::array* a = n->as_array();
   if (!a) fail(key, "expected an array of numbers, got " + shown(*n));
   std::vector<double> out;
-  for (size_t k = 0; k < a->size(); ++k) out.push_back(to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]"));
+  for (size_t k = 0; k < a->size(); ++k)
+    out.push_back(to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]"));
   return out;
 }
 
@@ -333,7 +349,8 @@ std::vector<std::string> DeckTable::strings(std::string_view key) {
   if (!a) fail(key, "expected an array of strings, got " + shown(*n));
   std::vector<std::string> out;
   for (size_t k = 0; k < a->size(); ++k) {
-    if (!a->get(k)->is_string()) fail(key, "expected an array of strings, element " + std::to_string(k) + " is " + type_word(*a->get(k)));
+    if (!a->get(k)->is_string())
+      fail(key, "expected an array of strings, element " + std::to_string(k) + " is " + type_word(*a->get(k)));
     out.push_back(*a->get(k)->value<std::string>());
   }
   return out;
@@ -379,7 +396,8 @@ std::vector<DeckTable> DeckTable::array_of_tables(std::string_view key) {
   for (size_t k = 0; k < a->size(); ++k) {
     const toml::node* e = a->get(k);
     const std::string kp = key_path(key) + "[" + std::to_string(k) + "]";
-    if (!e->is_table()) throw InputError(deck_->location(e, kp) + ": " + kp + ": expected a table, got " + type_word(*e));
+    if (!e->is_table())
+      throw InputError(deck_->location(e, kp) + ": " + kp + ": expected a table, got " + type_word(*e));
     out.emplace_back(deck_, e->as_table(), kp);
   }
   return out;
@@ -391,8 +409,9 @@ void DeckTable::finish() const {
     std::string expected;
     for (const auto& name : known_) expected += (expected.empty() ? "" : ", ") + name;
     const std::string kp = key_path(k.str());
-    throw InputError(deck_->location(&v, kp) + ": " + kp + ": unknown key" +
-                     (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
+    throw InputError(
+        deck_->location(&v, kp) + ": " + kp + ": unknown key" +
+        (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
   }
 }
 

@@ -144,7 +144,8 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   const std::string axis = t.string("axis");
   if (axis != "x" && axis != "y" && axis != "z") t.fail("axis", "expected \"x\", \"y\" or \"z\"");
   p.axis = axis[0] - 'x';
-  if (ctx.scene.box.periodic[p.axis]) t.fail("axis", "the box is periodic along " + axis + ": a wall there has no meaning");
+  if (ctx.scene.box.periodic[p.axis])
+    t.fail("axis", "the box is periodic along " + axis + ": a wall there has no meaning");
   p.position = t.number("position");
   p.side = static_cast<int>(t.integer("side", 1));
   t.require(p.side == 1 || p.side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");

@@ -108,7 +108,8 @@ class Handle {
 };
 
 Handle create_group(hid_t parent, const std::string& name) {
-  return {H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose, "cannot create group " + name};
+  return {H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose,
+          "cannot create group " + name};
 }
 
 Handle open_group(hid_t parent, const std::string& name) {
@@ -248,9 +249,9 @@ Series create_series(hid_t group, const std::string& name, hid_t file_type, hid_
     ok(H5Pset_deflate(dcpl, static_cast<unsigned>(gzip)), "cannot set gzip on " + name);
   }
   Series s;
-  s.dataset = Handle(H5Dcreate2(group, name.c_str(), file_type, simple_space(dims, &maxdims), H5P_DEFAULT, dcpl,
-                                H5P_DEFAULT),
-                     H5Dclose, "cannot create dataset " + name);
+  s.dataset =
+      Handle(H5Dcreate2(group, name.c_str(), file_type, simple_space(dims, &maxdims), H5P_DEFAULT, dcpl, H5P_DEFAULT),
+             H5Dclose, "cannot create dataset " + name);
   s.memory_type = memory_type;
   s.item = item;
   s.name = name;
@@ -387,7 +388,8 @@ void H5mdWriter::Impl::create() {
   std::error_code ec;
   if (fs::is_directory(path, ec)) throw Failure("is a directory, not an output file");
   const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty() && !fs::is_directory(parent, ec)) throw Failure("directory " + parent.string() + " does not exist");
+  if (!parent.empty() && !fs::is_directory(parent, ec))
+    throw Failure("directory " + parent.string() + " does not exist");
   file = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, file_access()), H5Fclose,
                 "cannot create the HDF5 file");
   write_metadata();
@@ -524,7 +526,8 @@ void H5mdWriter::Impl::append(std::int64_t first_step) {
   if (fs::is_directory(path, ec)) throw Failure("is a directory, not an H5MD file");
   if (!fs::exists(path, ec)) throw Failure("cannot append: the file does not exist");
   if (H5Fis_hdf5(path.c_str()) <= 0) throw Failure("cannot append: not an HDF5 file");
-  file = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access()), H5Fclose, "cannot open the HDF5 file for appending");
+  file =
+      Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access()), H5Fclose, "cannot open the HDF5 file for appending");
   if (H5Lexists(file, "h5md", H5P_DEFAULT) <= 0 || H5Lexists(file, "h5md/creator", H5P_DEFAULT) <= 0 ||
       read_string_attribute(open_group(file, "h5md/creator"), "name") != "stiffmd")
     throw Failure("cannot append: not an H5MD file written by stiffmd");
@@ -606,7 +609,8 @@ void H5mdWriter::Impl::check_observables() const {
     ok(H5Gget_info(group, &info), "cannot list /observables");
     for (hsize_t k = 0; k < info.nlinks; ++k) {
       char name[1024] = {};
-      ok(static_cast<herr_t>(H5Lget_name_by_idx(group, ".", H5_INDEX_NAME, H5_ITER_INC, k, name, sizeof name, H5P_DEFAULT)),
+      ok(static_cast<herr_t>(
+             H5Lget_name_by_idx(group, ".", H5_INDEX_NAME, H5_ITER_INC, k, name, sizeof name, H5P_DEFAULT)),
          "cannot list /observables");
       in_file.emplace_back(name);
     }
@@ -692,6 +696,8 @@ void H5mdWriter::write_frame(std::int64_t step, double time, const Eigen::Matrix
   }
 }
 
-std::int64_t H5mdWriter::frames() const { return impl_->frames; }
+std::int64_t H5mdWriter::frames() const {
+  return impl_->frames;
+}
 
 }  // namespace stiffmd

@@ -53,15 +53,15 @@ namespace stiffmd {
 
 struct H5mdSetup {
   int num_particles = 0;
-  std::vector<std::string> species;       // element symbol per particle (e.g. "C", "Fe")
-  Eigen::VectorXd mass;                   // per particle (a fixed particle: its type's mass)
-  Box box;                                // open box when no axis is periodic
-  std::vector<std::pair<int, int>> bonds; // 0-based particle indices
-  std::string author;                     // empty: $USER, else the login name
-  std::string creator_version;            // stiffmd version string
-  bool velocity = false, force = false;   // optional time-dependent elements
-  int gzip = 0;                           // 0 = no compression, 1..9 deflate level (always chunked)
-  std::vector<std::string> observables;   // scalar observable names (no '/')
+  std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
+  Eigen::VectorXd mass;                    // per particle (a fixed particle: its type's mass)
+  Box box;                                 // open box when no axis is periodic
+  std::vector<std::pair<int, int>> bonds;  // 0-based particle indices
+  std::string author;                      // empty: $USER, else the login name
+  std::string creator_version;             // stiffmd version string
+  bool velocity = false, force = false;    // optional time-dependent elements
+  int gzip = 0;                            // 0 = no compression, 1..9 deflate level (always chunked)
+  std::vector<std::string> observables;    // scalar observable names (no '/')
 };
 
 class H5mdWriter {

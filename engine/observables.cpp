@@ -23,9 +23,8 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const
 
 Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
                const Topology* topology)
-    : forces_(forces),
-      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff", "total", "energy_drift", "max_violation",
-               "temperature"} {
+    : forces_(forces), columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
+                                "total", "energy_drift", "max_violation", "temperature"} {
   // Total momentum is conserved when no external field acts (gravity, tethers, walls).
   bool external = false;
   for (const auto& t : forces.terms()) {
@@ -83,9 +82,9 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
     have_e0_ = true;
   }
   values_.clear();
-  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
-                                 e.total() - e0_, max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds()),
-                                 temperature(s, dof_)});
+  values_.insert(values_.end(),
+                 {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
+                  max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds()), temperature(s, dof_)});
   if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_));
   if (molecules_) {
     double rg = 0.0, ree = 0.0;

@@ -12,7 +12,9 @@
 namespace stiffmd {
 
 // Kinetic temperature 2K / dof (k_B = 1).
-inline double temperature(const State& s, int dof) { return dof > 0 ? 2.0 * s.kinetic_energy() / dof : 0.0; }
+inline double temperature(const State& s, int dof) {
+  return dof > 0 ? 2.0 * s.kinetic_energy() / dof : 0.0;
+}
 
 // Degrees of freedom: 3 per mobile particle, less 3 for the conserved total momentum when no
 // particle is fixed and no external field acts, less one per rigid constraint.

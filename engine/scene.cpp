@@ -17,13 +17,13 @@ namespace {
 // Chemical symbols: trajectories name species by element so that ASE and OVITO read them.
 bool is_element(const std::string& s) {
   static const std::set<std::string> elements = {
-      "H",  "He", "Li", "Be", "B",  "C",  "N",  "O",  "F",  "Ne", "Na", "Mg", "Al", "Si", "P",  "S",  "Cl", "Ar",
-      "K",  "Ca", "Sc", "Ti", "V",  "Cr", "Mn", "Fe", "Co", "Ni", "Cu", "Zn", "Ga", "Ge", "As", "Se", "Br", "Kr",
-      "Rb", "Sr", "Y",  "Zr", "Nb", "Mo", "Tc", "Ru", "Rh", "Pd", "Ag", "Cd", "In", "Sn", "Sb", "Te", "I",  "Xe",
-      "Cs", "Ba", "La", "Ce", "Pr", "Nd", "Pm", "Sm", "Eu", "Gd", "Tb", "Dy", "Ho", "Er", "Tm", "Yb", "Lu", "Hf",
-      "Ta", "W",  "Re", "Os", "Ir", "Pt", "Au", "Hg", "Tl", "Pb", "Bi", "Po", "At", "Rn", "Fr", "Ra", "Ac", "Th",
-      "Pa", "U",  "Np", "Pu", "Am", "Cm", "Bk", "Cf", "Es", "Fm", "Md", "No", "Lr", "Rf", "Db", "Sg", "Bh", "Hs",
-      "Mt", "Ds", "Rg", "Cn", "Nh", "Fl", "Mc", "Lv", "Ts", "Og"};
+      "H",  "He", "Li", "Be", "B",  "C",  "N",  "O",  "F",  "Ne", "Na", "Mg", "Al", "Si", "P",  "S",  "Cl",
+      "Ar", "K",  "Ca", "Sc", "Ti", "V",  "Cr", "Mn", "Fe", "Co", "Ni", "Cu", "Zn", "Ga", "Ge", "As", "Se",
+      "Br", "Kr", "Rb", "Sr", "Y",  "Zr", "Nb", "Mo", "Tc", "Ru", "Rh", "Pd", "Ag", "Cd", "In", "Sn", "Sb",
+      "Te", "I",  "Xe", "Cs", "Ba", "La", "Ce", "Pr", "Nd", "Pm", "Sm", "Eu", "Gd", "Tb", "Dy", "Ho", "Er",
+      "Tm", "Yb", "Lu", "Hf", "Ta", "W",  "Re", "Os", "Ir", "Pt", "Au", "Hg", "Tl", "Pb", "Bi", "Po", "At",
+      "Rn", "Fr", "Ra", "Ac", "Th", "Pa", "U",  "Np", "Pu", "Am", "Cm", "Bk", "Cf", "Es", "Fm", "Md", "No",
+      "Lr", "Rf", "Db", "Sg", "Bh", "Hs", "Mt", "Ds", "Rg", "Cn", "Nh", "Fl", "Mc", "Lv", "Ts", "Og"};
   return elements.count(s) > 0;
 }
 
@@ -44,7 +44,8 @@ void read_box(DeckTable& root, Scene& sc) {
   if (sc.box.any_periodic() || t->has("lengths")) {
     sc.box.lengths = t->vector3("lengths");
     for (int a = 0; a < 3; ++a)
-      if (sc.box.periodic[a]) t->require(sc.box.lengths[a] > 0.0, "lengths", "expected box lengths > 0 on periodic axes");
+      if (sc.box.periodic[a])
+        t->require(sc.box.lengths[a] > 0.0, "lengths", "expected box lengths > 0 on periodic axes");
   }
   t->finish();
 }
@@ -60,7 +61,8 @@ void read_types(DeckTable& root, Scene& sc) {
     tt.require(pt.mass > 0.0, "mass", "expected a mass > 0 (use fixed = true on a particle to pin it)");
     const std::string fallback = is_element(name) ? name : kDefaultElements[unnamed++ % kDefaultElements.size()];
     pt.element = tt.string("element", fallback);
-    if (!is_element(pt.element)) tt.fail("element", "expected a chemical element symbol such as \"C\", got \"" + pt.element + "\"");
+    if (!is_element(pt.element))
+      tt.fail("element", "expected a chemical element symbol such as \"C\", got \"" + pt.element + "\"");
     tt.finish();
     sc.types.push_back(pt);
   }
@@ -92,10 +94,14 @@ void read_bonds(DeckTable& root, Scene& sc) {
     const std::vector<long> ij = b.integers("particles");
     if (ij.size() != 2) b.fail("particles", "expected two particle indices [i, j]");
     for (long k : ij)
-      if (k < 0 || k >= n) b.fail("particles", "particle " + std::to_string(k) + " does not exist (particles are 0.." + std::to_string(n - 1) + ")");
+      if (k < 0 || k >= n)
+        b.fail("particles",
+               "particle " + std::to_string(k) + " does not exist (particles are 0.." + std::to_string(n - 1) + ")");
     if (ij[0] == ij[1]) b.fail("particles", "a bond must join two different particles");
     const std::pair<int, int> key{static_cast<int>(std::min(ij[0], ij[1])), static_cast<int>(std::max(ij[0], ij[1]))};
-    if (!seen.insert(key).second) b.fail("particles", "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
+    if (!seen.insert(key).second)
+      b.fail("particles",
+             "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
     const std::string type = b.string("type");
     const int t = Topology::intern(sc.topology.bond_types, type);
     if ((sc.state.x.col(ij[0]) - sc.state.x.col(ij[1])).norm() == 0.0)
@@ -131,7 +137,9 @@ void read_forces(DeckTable& root, Scene& sc) {
         t.fail_here(e.what());
       }
       if (term->stiff_bonds()) {
-        if (!stiff_term.empty()) t.fail("style", "only one constraint-defining (stiff-harmonic) term is allowed; [forces." + stiff_term + "] is one");
+        if (!stiff_term.empty())
+          t.fail("style",
+                 "only one constraint-defining (stiff-harmonic) term is allowed; [forces." + stiff_term + "] is one");
         stiff_term = name;
       }
       t.finish();
@@ -154,7 +162,8 @@ void read_forces(DeckTable& root, Scene& sc) {
   for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
     if (angle_owner[t].empty())
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
-                     "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] + "])");
+                     "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] +
+                     "])");
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
@@ -169,7 +178,8 @@ void read_integrator(DeckTable& root, Scene& sc) {
     t->fail("method", "unknown method '" + in.method + "' (known: " + known + ")");
   }
   if (method_needs_stiff_bonds(in.method) && !sc.forces->stiff_bonds())
-    t->fail("method", "method '" + in.method + "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
+    t->fail("method", "method '" + in.method +
+                          "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
   in.h = t->number("h");
   t->require(in.h > 0.0, "h", "expected a macro step h > 0");
   const auto micro_dt = t->maybe_number("micro_dt");
@@ -254,7 +264,7 @@ void read_output(DeckTable& root, Scene& sc) {
   t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
   for (const char* k : {"xyz", "thermo", "state", "checkpoint", "h5md", "lammps_data"}) {
     const std::string key(k);
-    const std::string& f = key == "xyz"          ? o.xyz
+    const std::string& f = key == "xyz"           ? o.xyz
                            : key == "thermo"      ? o.thermo
                            : key == "state"       ? o.state
                            : key == "h5md"        ? o.h5md
@@ -296,7 +306,8 @@ int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3X
     std::vector<int> ids(molecule.begin(), molecule.end());
     std::sort(ids.begin(), ids.end());
     ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
-    for (int m : molecule) mol.push_back(next + static_cast<int>(std::lower_bound(ids.begin(), ids.end(), m) - ids.begin()));
+    for (int m : molecule)
+      mol.push_back(next + static_cast<int>(std::lower_bound(ids.begin(), ids.end(), m) - ids.begin()));
   }
   return first;
 }
@@ -371,7 +382,8 @@ std::string describe(const Scene& sc) {
     s << "  " << t->name() << " [" << t->style() << ", " << level_name(t->level()) << "]: " << t->describe() << "\n";
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
   if (sc.integrator.micro_steps > 1)
-    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps << ")";
+    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
+      << ")";
   s << "\n";
   s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";

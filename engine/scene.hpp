@@ -27,19 +27,19 @@ struct RunSettings {
 };
 
 struct OutputSettings {
-  std::string xyz;             // extended XYZ trajectory file name ("" = none)
-  double xyz_interval = 0.0;   // time between frames
+  std::string xyz;            // extended XYZ trajectory file name ("" = none)
+  double xyz_interval = 0.0;  // time between frames
   bool xyz_velocities = false;
-  std::string thermo;          // thermo CSV file name ("" = none)
+  std::string thermo;  // thermo CSV file name ("" = none)
   double thermo_interval = 0.0;
-  std::string state;           // CSV of x and P(x)p per particle, for error measurements ("" = none)
+  std::string state;  // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
-  std::string h5md;            // H5MD 1.1 trajectory file name ("" = none)
+  std::string h5md;  // H5MD 1.1 trajectory file name ("" = none)
   double h5md_interval = 0.0;
   bool h5md_velocity = false, h5md_force = false;
-  int h5md_gzip = 0;           // deflate level 0..9
-  std::string author;          // H5MD author (default: the user name)
-  std::string lammps_data;     // the final state as a LAMMPS data file ("" = none)
+  int h5md_gzip = 0;                          // deflate level 0..9
+  std::string author;                         // H5MD author (default: the user name)
+  std::string lammps_data;                    // the final state as a LAMMPS data file ("" = none)
   std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
   long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };

@@ -55,20 +55,25 @@ void read_builders(DeckTable& root, Scene& sc) {
     spec.min_distance = b.number("min_distance", spec.min_distance);
     spec.seed = static_cast<std::uint64_t>(b.integer("seed", 1));
     b.require(spec.chains >= 1, "chains", "expected at least 1 chain");
-    b.require(spec.beads >= (style == "rings" ? 3 : 2), "beads", style == "rings" ? "a ring needs at least 3 beads" : "expected at least 2 beads");
+    b.require(spec.beads >= (style == "rings" ? 3 : 2), "beads",
+              style == "rings" ? "a ring needs at least 3 beads" : "expected at least 2 beads");
     b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
     const std::string bond_type = b.string("bond_type");
     const std::string angle_type = b.string("angle_type", "");
     if (auto density = b.maybe_number("density")) {
       b.require(*density > 0, "density", "expected a number density > 0");
-      const long total = style == "stars" ? spec.chains * (1L + static_cast<long>(arms) * spec.beads) : static_cast<long>(spec.chains) * spec.beads;
+      const long total = style == "stars" ? spec.chains * (1L + static_cast<long>(arms) * spec.beads)
+                                          : static_cast<long>(spec.chains) * spec.beads;
       set_box(b, "density", sc, box_for_density(static_cast<int>(total), *density));
     }
     Polymer p;
     try {
-      if (style == "linear-chains") p = build_linear_chains(spec, sc.box);
-      else if (style == "rings") p = build_rings(spec, sc.box);
-      else p = build_stars(spec, arms, sc.box);
+      if (style == "linear-chains")
+        p = build_linear_chains(spec, sc.box);
+      else if (style == "rings")
+        p = build_rings(spec, sc.box);
+      else
+        p = build_stars(spec, arms, sc.box);
     } catch (const std::exception& e) {  // invalid parameters or a builder that could not place a chain
       b.fail_here(e.what());
     }
@@ -84,7 +89,9 @@ void read_builders(DeckTable& root, Scene& sc) {
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   auto t = root.table("import");
   if (!t) return;
-  auto resolve = [&](const std::string& p) { return fs::path(p).is_absolute() || deck_dir.empty() ? p : (fs::path(deck_dir) / p).string(); };
+  auto resolve = [&](const std::string& p) {
+    return fs::path(p).is_absolute() || deck_dir.empty() ? p : (fs::path(deck_dir) / p).string();
+  };
   const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
   if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
   ImportedSystem in;
@@ -135,7 +142,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   }
   for (const auto& a : in.angles) {
     const std::string name = lookup(angle_map, a.type, "angle_types");
-    sc.topology.angles.push_back({first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+    sc.topology.angles.push_back(
+        {first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
   }
 }
 
@@ -203,10 +211,12 @@ void read_prepare(DeckTable& root, Scene& sc) {
     }
     if (tv > 0) {
       // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
-      const Eigen::Matrix3Xd normal = maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, seed + 1);
+      const Eigen::Matrix3Xd normal =
+          maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, seed + 1);
       std::vector<StiffBond> shifted = stiff->bonds;
       for (size_t b = 0; b < shifted.size(); ++b)
-        shifted[b].length += std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
+        shifted[b].length +=
+            std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
       ConstraintToolbox(shifted, s.inv_mass).shake(s.x, s.x, nullptr, 1e-12, 200);
       Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, seed), pu = u;
       toolbox.project_velocity(s.x, pu);

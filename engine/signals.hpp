@@ -14,6 +14,8 @@ inline void install_stop_handlers() {
   std::signal(SIGTERM, handler);
 }
 
-inline int stop_requested() { return g_stop_signal; }
+inline int stop_requested() {
+  return g_stop_signal;
+}
 
 }  // namespace stiffmd

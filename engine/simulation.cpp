@@ -118,7 +118,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   const fs::path dir(opt.out_dir);
   std::error_code ec;
-  if (fs::exists(dir) && !fs::is_directory(dir)) throw InputError(opt.out_dir + ": output path exists and is not a directory");
+  if (fs::exists(dir) && !fs::is_directory(dir))
+    throw InputError(opt.out_dir + ": output path exists and is not a directory");
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir)) throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
@@ -160,18 +161,20 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   std::unique_ptr<CsvWriter> csv, state_csv;
   std::unique_ptr<ProjectedMomenta> projected;
   if (!sc.output.xyz.empty()) {
-    const bool append = open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
-    xyz = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append);
+    const bool append =
+        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
+    xyz =
+        std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append);
   }
   if (!sc.output.thermo.empty()) {
-    const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
-      return truncate_csv_after(p, cut, tol, thermo.columns());
-    });
+    const bool append = open_output(
+        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
     csv = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
   }
   const auto scols = state_columns(s.size());
   if (!sc.output.state.empty()) {
-    const bool append = open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
+    const bool append =
+        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
     state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
     projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
   }
@@ -262,7 +265,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   check_finite(s);
   {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x));  // E(0) and the initial actions
-    if (first_action >= 0) summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+    if (first_action >= 0)
+      summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
     for (const auto& note : thermo.take_notes()) log << note << "\n";
   }
   if (restarting) thermo.set_initial_energy(resumed.initial_energy);
@@ -312,7 +316,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   if (h5md) write_h5md();
 
   if (!sc.output.lammps_data.empty()) {
-    write_lammps_data((dir / sc.output.lammps_data).string(), to_lammps(sc), sc.topology.angles.empty() ? "bond" : "angle",
+    write_lammps_data((dir / sc.output.lammps_data).string(), to_lammps(sc),
+                      sc.topology.angles.empty() ? "bond" : "angle",
                       "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
     summary.outputs.push_back((dir / sc.output.lammps_data).string());
   }
@@ -323,7 +328,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.steps = n;
   summary.final_energy = row[5];
   summary.final_max_violation = row[7];
-  if (first_action >= 0) summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+  if (first_action >= 0)
+    summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   summary.max_energy_error = max_err;
   bool has_pairs = false;
   long rebuilds_after = 0;
@@ -350,8 +356,8 @@ std::string format_summary(const RunSummary& s) {
   if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
   o << "\n";
   const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
-  o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy << ", max |E - E(0)| = "
-    << s.max_energy_error << " (relative " << rel << ")\n";
+  o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
+    << ", max |E - E(0)| = " << s.max_energy_error << " (relative " << rel << ")\n";
   if (!s.final_actions.empty()) {
     o << "actions:       ";
     for (size_t k = 0; k < s.final_actions.size(); ++k)
@@ -375,10 +381,10 @@ std::string summary_json(const RunSummary& s) {
   o << "{\n  \"method\": \"" << s.method << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
     << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
     << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
-    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
-    << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
-    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
-    << ",\n  \"initial_actions\": ";
+    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations
+    << ",\n  \"fast_evaluations\": " << s.fast_evaluations << ",\n  \"initial_energy\": " << s.initial_energy
+    << ",\n  \"final_energy\": " << s.final_energy << ",\n  \"max_energy_error\": " << s.max_energy_error
+    << ",\n  \"final_max_violation\": " << s.final_max_violation << ",\n  \"initial_actions\": ";
   list(s.initial_actions);
   o << ",\n  \"final_actions\": ";
   list(s.final_actions);

@@ -12,9 +12,9 @@
 namespace stiffmd {
 
 struct RunOptions {
-  std::string out_dir;   // created if missing
-  bool progress = false; // progress bar with ETA on stderr
-  std::string restart;   // checkpoint to continue from ("" = a fresh run)
+  std::string out_dir;    // created if missing
+  bool progress = false;  // progress bar with ETA on stderr
+  std::string restart;    // checkpoint to continue from ("" = a fresh run)
 };
 
 struct RunSummary {
@@ -24,19 +24,19 @@ struct RunSummary {
   int micro_steps = 1;
   double t_end = 0.0;
   double wall_seconds = 0.0;
-  double cpu_seconds = 0.0;       // process CPU time of the step loop
-  double epsilon = 0.0;           // of the stiff bonds (0 if none)
+  double cpu_seconds = 0.0;  // process CPU time of the step loop
+  double epsilon = 0.0;      // of the stiff bonds (0 if none)
   double initial_energy = 0.0;
   double final_energy = 0.0;
   double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
   std::int64_t slow_evaluations = 0;
   std::int64_t fast_evaluations = 0;
-  long neighbor_rebuilds = -1;    // over the run; −1 when the scene has no pair term
+  long neighbor_rebuilds = -1;  // over the run; −1 when the scene has no pair term
   double final_max_violation = 0.0;
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
-  int stopped_by_signal = 0;      // SIGINT/SIGTERM: stopped early after writing a checkpoint
-  std::string checkpoint;         // the last checkpoint written
+  int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
+  std::string checkpoint;     // the last checkpoint written
 };
 
 // Runs the scene. Throws NumericalError (exit 3) on NaN/Inf, with the step and time; the

@@ -7,11 +7,11 @@
 namespace stiffmd {
 
 struct State {
-  Eigen::Matrix3Xd x;         // positions
-  Eigen::Matrix3Xd v;         // velocities (p = M v)
-  Eigen::VectorXd inv_mass;   // 1/m_i; 0 marks a fixed particle (e.g. the pendulum's pivot)
-  double t = 0.0;             // time
-  std::int64_t step = 0;      // macro steps taken
+  Eigen::Matrix3Xd x;        // positions
+  Eigen::Matrix3Xd v;        // velocities (p = M v)
+  Eigen::VectorXd inv_mass;  // 1/m_i; 0 marks a fixed particle (e.g. the pendulum's pivot)
+  double t = 0.0;            // time
+  std::int64_t step = 0;     // macro steps taken
 
   int size() const { return static_cast<int>(x.cols()); }
 

@@ -14,7 +14,9 @@
 namespace stiffmd {
 namespace {
 
-bool is_gzip_name(const std::string& path) { return path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0; }
+bool is_gzip_name(const std::string& path) {
+  return path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0;
+}
 
 // The whole (decompressed) text of a plain or gzip file.
 std::string read_all(const std::string& path) {
@@ -145,7 +147,8 @@ void XyzWriter::write(const State& s) {
   std::snprintf(line, sizeof line, " time=%.12g step=%lld\n", s.t, static_cast<long long>(s.step));
   buffer_ += line;
   for (int i = 0; i < s.size(); ++i) {
-    int k = std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), s.x(0, i), s.x(1, i), s.x(2, i));
+    int k =
+        std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), s.x(0, i), s.x(1, i), s.x(2, i));
     if (velocities_)
       k += std::snprintf(line + k, sizeof line - k, " %.12g %.12g %.12g", s.v(0, i), s.v(1, i), s.v(2, i));
     buffer_.append(line, static_cast<size_t>(k));

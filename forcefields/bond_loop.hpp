@@ -19,8 +19,8 @@ struct BondInstance {
 
 // Adds −∇E into f for every bond and returns Σ E. Minimum image on periodic axes.
 template <class Kernel, class Params>
-double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x,
-                              const Box& box, Eigen::Matrix3Xd& f) {
+double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
+                              Eigen::Matrix3Xd& f) {
   double energy = 0.0;
   const bool periodic = box.any_periodic();
   for (const auto& b : bonds) {
@@ -39,7 +39,8 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
 
 // Σ_b r_ij · f_ij over the bonds (f_ij = −dE/dr · r_ij/r, so each term is −r dE/dr).
 template <class Kernel, class Params>
-double accumulate_bond_virial(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box) {
+double accumulate_bond_virial(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x,
+                              const Box& box) {
   double w = 0.0;
   for (const auto& b : bonds) {
     const double r = box.min_image(x.col(b.i) - x.col(b.j)).norm();

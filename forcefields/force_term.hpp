@@ -19,7 +19,9 @@ enum class Level { fast = 0, slow = 1 };
 inline constexpr int kNumLevels = 2;
 inline constexpr std::array<Level, kNumLevels> kAllLevels = {Level::fast, Level::slow};
 
-inline std::string_view level_name(Level l) { return l == Level::fast ? "fast" : "slow"; }
+inline std::string_view level_name(Level l) {
+  return l == Level::fast ? "fast" : "slow";
+}
 inline std::optional<Level> parse_level(std::string_view s) {
   if (s == "fast") return Level::fast;
   if (s == "slow") return Level::slow;

@@ -32,8 +32,8 @@ void check_box_for_cutoff(const Box& box, double cutoff, double skin) {
     const double len = box.lengths[a];
     if (!(len >= need) || !std::isfinite(len)) {
       std::ostringstream s;
-      s << "periodic box length L = " << len << " on axis " << kAxis[a] << ": box length L < 2 × (cutoff + skin) = 2 × ("
-        << cutoff << " + " << skin << ") = " << need
+      s << "periodic box length L = " << len << " on axis " << kAxis[a]
+        << ": box length L < 2 × (cutoff + skin) = 2 × (" << cutoff << " + " << skin << ") = " << need
         << ", so the minimum image is ambiguous; enlarge the box or reduce the cutoff or skin";
       throw std::invalid_argument(s.str());
     }
@@ -50,7 +50,9 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
       s << "bond (" << b.i << ", " << b.j << ") refers to a particle outside 0 … " << num_particles - 1;
       throw std::invalid_argument(s.str());
     }
-    if (b.i == b.j) throw std::invalid_argument("bond (" + std::to_string(b.i) + ", " + std::to_string(b.j) + ") joins a particle to itself");
+    if (b.i == b.j)
+      throw std::invalid_argument("bond (" + std::to_string(b.i) + ", " + std::to_string(b.j) +
+                                  ") joins a particle to itself");
     ++deg[b.i + 1];
     ++deg[b.j + 1];
   }
@@ -86,8 +88,10 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
 }
 
 NeighborList::NeighborList(double cutoff, double skin) : cutoff_(cutoff), skin_(skin) {
-  if (!(cutoff > 0.0) || !std::isfinite(cutoff)) throw std::invalid_argument("neighbour list: cutoff must be finite and > 0");
-  if (!(skin >= 0.0) || !std::isfinite(skin)) throw std::invalid_argument("neighbour list: skin must be finite and >= 0");
+  if (!(cutoff > 0.0) || !std::isfinite(cutoff))
+    throw std::invalid_argument("neighbour list: cutoff must be finite and > 0");
+  if (!(skin >= 0.0) || !std::isfinite(skin))
+    throw std::invalid_argument("neighbour list: skin must be finite and >= 0");
 }
 
 void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair> pairs) {
@@ -106,7 +110,8 @@ void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair
     excl_[fill[p.i]++] = p.j;
     excl_[fill[p.j]++] = p.i;
   }
-  for (int i = 0; i < num_particles; ++i) std::sort(excl_.begin() + excl_offsets_[i], excl_.begin() + excl_offsets_[i + 1]);
+  for (int i = 0; i < num_particles; ++i)
+    std::sort(excl_.begin() + excl_offsets_[i], excl_.begin() + excl_offsets_[i + 1]);
   built_ = false;
 }
 
@@ -133,7 +138,8 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
 }
 
 const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
-  if (x.cols() != image_.cols()) throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
+  if (x.cols() != image_.cols())
+    throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
   wrapped_now_.resize(3, x.cols());  // no allocation once sized
   wrapped_now_ = x - image_;
   return wrapped_now_;
@@ -243,8 +249,8 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // on the particle indices. Needs ≥ 3 cells on every periodic axis, so that the 27 neighbours
 // of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index.
 void NeighborList::search_half_stencil(int n, bool have_exclusions) {
-  static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1},  {1, -1, -1},
-                                          {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0},  {1, 0, 1},
+  static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1}, {1, -1, -1},
+                                          {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0}, {1, 0, 1},
                                           {1, 1, -1}, {1, 1, 0},  {1, 1, 1}};
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
   const double* xc = cell_x_.data();
@@ -343,7 +349,8 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
           for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
             double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
             mi.apply(dx, dy, dz);
-            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k]))) neighbors_.push_back(cp[k]);
+            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])))
+              neighbors_.push_back(cp[k]);
           }
         }
     std::sort(neighbors_.begin() + offsets_[i], neighbors_.end());

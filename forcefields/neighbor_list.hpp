@@ -135,7 +135,7 @@ class NeighborList {
 
   double cutoff() const { return cutoff_; }
   double skin() const { return skin_; }
-  long rebuilds() const { return rebuilds_; }           // builds so far, the first included
+  long rebuilds() const { return rebuilds_; }                       // builds so far, the first included
   const Eigen::Vector3i& cells_per_axis() const { return ncell_; }  // of the last build
 
  private:
@@ -163,13 +163,13 @@ class NeighborList {
   // positions, wrapped into the box on periodic axes, are cell_x_ in the same order, so the
   // search reads neighbouring particles from contiguous memory.
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
-  std::vector<int> cell_of_;         // flattened cell index per particle
+  std::vector<int> cell_of_;  // flattened cell index per particle
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
-  Eigen::Matrix3Xd image_;           // per particle, index order: L·floor((x − origin)/L) at build
-  Eigen::Matrix3Xd wrapped_x_;       // per particle, index order: x − image_ at build
-  Eigen::Matrix3Xd wrapped_now_;     // x − image_ for the latest wrapped_positions(x)
-  Eigen::Matrix3Xd cell_x_;          // per particle, cell order
+  Eigen::Matrix3Xd image_;        // per particle, index order: L·floor((x − origin)/L) at build
+  Eigen::Matrix3Xd wrapped_x_;    // per particle, index order: x − image_ at build
+  Eigen::Matrix3Xd wrapped_now_;  // x − image_ for the latest wrapped_positions(x)
+  Eigen::Matrix3Xd cell_x_;       // per particle, cell order
   // Per axis, for each cell coordinate c and offset o = −1, 0, 1 (slot 3c + o + 1): the
   // neighbouring cell coordinate (wrapped on periodic axes, −1 past an open edge) and the shift
   // (0 or ±L) that brings a wrapped position in that cell next to cell c.

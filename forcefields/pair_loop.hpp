@@ -139,8 +139,9 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
 // by w. They are kept out of the Verlet list, so they are looked at every call — a short list
 // (at most a few per particle), and the common case w12 = 0, w13 = 1 has none.
 template <class Kernel, bool kForces, bool kVirial>
-PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs, const TypePairMatrix<typename Kernel::Params>& params,
-                                 const int* type, const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
+PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
+                                 const TypePairMatrix<typename Kernel::Params>& params, const int* type,
+                                 const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
   using Params = typename Kernel::Params;
   const double* xp = x.data();
   PairSums sums;
@@ -184,7 +185,8 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   }
   // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to
   // the list's frame.
-  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, MinimumImage(box), f);
+  const PairSums special =
+      accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, MinimumImage(box), f);
   return {listed.energy + special.energy, listed.virial + special.virial};
 }
 

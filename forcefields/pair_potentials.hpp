@@ -36,10 +36,10 @@ inline void require(bool ok, const char* what, double got) {
 //   E = 4ε (s6² − s6) − E_shift,   −(dE/dr)/r = 24ε (2 s6² − s6) / r².
 struct LennardJonesParams {
   double rc2 = 0.0;
-  double lj1 = 0.0;  // 48 ε σ¹²
-  double lj2 = 0.0;  // 24 ε σ⁶
-  double lj3 = 0.0;  // 4 ε σ¹²
-  double lj4 = 0.0;  // 4 ε σ⁶
+  double lj1 = 0.0;    // 48 ε σ¹²
+  double lj2 = 0.0;    // 24 ε σ⁶
+  double lj3 = 0.0;    // 4 ε σ¹²
+  double lj4 = 0.0;    // 4 ε σ⁶
   double shift = 0.0;  // E_LJ(rc): subtracted so that E(rc) = 0 (cut and shifted)
 
   static LennardJonesParams make(double epsilon, double sigma, double rc) {

@@ -43,9 +43,9 @@ class PairTerm final : public ForceTerm {
   double skin() const { return list_.skin(); }
   const TypePairMatrix<Coeffs>& coeffs() const { return coeffs_; }
   SpecialWeights weights() const { return weights_; }
-  std::size_t excluded_pairs() const { return excluded_; }     // weight 0: never listed
+  std::size_t excluded_pairs() const { return excluded_; }               // weight 0: never listed
   std::span<const SpecialPair> scaled_pairs() const { return scaled_; }  // 0 < weight < 1
-  const NeighborList& neighbor_list() const { return list_; }  // as of the last call
+  const NeighborList& neighbor_list() const { return list_; }            // as of the last call
 
  private:
   void check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const;

@@ -9,10 +9,10 @@
 namespace stiffmd {
 
 struct StiffBond {
-  int i = 0;             // particle indices
+  int i = 0;  // particle indices
   int j = 0;
-  double length = 1.0;   // ℓ_b, rest length
-  double alpha = 1.0;    // α_b, stiffness in units of 1/ε
+  double length = 1.0;  // ℓ_b, rest length
+  double alpha = 1.0;   // α_b, stiffness in units of 1/ε
 };
 
 // All constraint-defining bonds of a scene and their common ε.

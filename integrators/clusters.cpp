@@ -6,8 +6,7 @@
 
 namespace stiffmd {
 
-std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds,
-                                             const Eigen::VectorXd& inv_mass) {
+std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
   // Union–find over bonds: two bonds are coupled iff they share a mobile particle.
   const int m = static_cast<int>(bonds.size());
   std::vector<int> parent(m);

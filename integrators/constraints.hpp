@@ -27,8 +27,7 @@ struct ConstraintCluster {
 // Splits bonds into connected clusters (particles with inv_mass 0 do NOT connect
 // clusters: two bonds meeting only at a fixed particle are still coupled through
 // nothing, since S_bc = ±(u_b·u_c)/m_shared = 0 there).
-std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds,
-                                             const Eigen::VectorXd& inv_mass);
+std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass);
 
 // Slow force evaluated at a configuration: out = f(x) (f = −∇U), overwriting out.
 using ForceFunction = std::function<void(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out)>;
@@ -61,15 +60,15 @@ class ConstraintToolbox {
   // paper eq. (ProMol). Converged when max_b |g_b| ≤ tol. Throws NumericalError naming the
   // cluster, the worst bond and the iteration count when it does not converge in max_iter.
   // lambda (size m) receives the multipliers if non-null.
-  void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr,
-             double tol = 1e-12, int max_iter = 50);
+  void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr, double tol = 1e-12,
+             int max_iter = 50);
 
   // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)) (design.md §2, steps 1–4):
   //   X = α(x), f = f_slow(X); solve Jᵀμ = G(x) M⁻¹ f, J = G(X) M⁻¹ G(x)ᵀ;
   //   r = f − G(X)ᵀμ;  F̄ = r + H_λ M⁻¹ r,  H_λ = Σ_b λ_b ∇²g_b(x).
   // X receives α(x); out receives F̄. f_slow is called exactly once.
-  void mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow,
-                       Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& out, double tol = 1e-12);
+  void mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow, Eigen::Matrix3Xd& X,
+                       Eigen::Matrix3Xd& out, double tol = 1e-12);
 
  private:
   struct Impl;

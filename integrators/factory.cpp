@@ -16,8 +16,7 @@ const std::vector<std::string>& integrator_methods() {
 }
 
 bool method_needs_stiff_bonds(const std::string& method) {
-  return method == "mollified-impulse" || method == "projected-impulse" || method == "rattle" ||
-         method == "effective";
+  return method == "mollified-impulse" || method == "projected-impulse" || method == "rattle" || method == "effective";
 }
 
 std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceField& forces,
@@ -27,7 +26,8 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
     throw std::invalid_argument("unknown integrator method '" + s.method + "'");
   const StiffBonds* stiff = forces.stiff_bonds();
   if (method_needs_stiff_bonds(s.method) && !stiff)
-    throw std::invalid_argument("method '" + s.method + "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
+    throw std::invalid_argument("method '" + s.method +
+                                "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
 
   // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h.
   const std::vector<Stage> impulse_stages = {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
@@ -47,10 +47,10 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
   // effective
   auto modes = std::make_unique<StiffModes>(stiff->bonds, inv_mass, stiff->epsilon, s.max_cluster_bonds);
   if (modes->num_skipped_clusters() > 0)
-    throw std::invalid_argument("the effective dynamics needs the modes of every constraint cluster, but " +
-                                std::to_string(modes->num_skipped_clusters()) +
-                                " cluster(s) have more than max_cluster_bonds = " + std::to_string(s.max_cluster_bonds) +
-                                " bonds");
+    throw std::invalid_argument(
+        "the effective dynamics needs the modes of every constraint cluster, but " +
+        std::to_string(modes->num_skipped_clusters()) +
+        " cluster(s) have more than max_cluster_bonds = " + std::to_string(s.max_cluster_bonds) + " bonds");
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff->bonds, inv_mass), std::move(modes));
 }
 

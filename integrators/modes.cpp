@@ -2,13 +2,13 @@
 // (design.md §3; Lubich & Weiss eqs. (CH), (actions), (separated), (nonresonant)).
 #include "integrators/eigen_dense.hpp"  // first: see the header
 
-#include "integrators/modes.hpp"
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
 #include <string>
 #include <utility>
+#include "integrators/modes.hpp"
 
 #include "engine/errors.hpp"
 #include "integrators/constraints.hpp"
@@ -18,10 +18,9 @@ namespace stiffmd {
 namespace {
 
 // Compile-time maximum size: keeps every Eigen temporary of the eigen-solver off the heap.
-using DenseMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor,
-                                  StiffModes::kMaxDenseBonds, StiffModes::kMaxDenseBonds>;
-using DenseVector =
-    Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, StiffModes::kMaxDenseBonds, 1>;
+using DenseMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, StiffModes::kMaxDenseBonds,
+                                  StiffModes::kMaxDenseBonds>;
+using DenseVector = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, StiffModes::kMaxDenseBonds, 1>;
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
@@ -50,8 +49,8 @@ struct StiffModes::Impl {
   int num_skipped = 0;
 
   // Shared scratch, sized in the constructor for the largest included cluster.
-  Eigen::Matrix3Xd u;   // unit bond vectors u_b = (x_i − x_j)/r_b
-  Eigen::VectorXd r;    // bond lengths r_b = |x_i − x_j|
+  Eigen::Matrix3Xd u;  // unit bond vectors u_b = (x_i − x_j)/r_b
+  Eigen::VectorXd r;   // bond lengths r_b = |x_i − x_j|
   DenseMatrix A;
   Eigen::SelfAdjointEigenSolver<DenseMatrix> solver;
   DenseVector z, zdot, w, wdot;
@@ -59,8 +58,8 @@ struct StiffModes::Impl {
 
   void check_positions(const Eigen::Matrix3Xd& x) const {
     if (x.cols() != inv_mass.size())
-      throw std::invalid_argument("StiffModes: x has " + std::to_string(x.cols()) +
-                                  " particles, expected " + std::to_string(inv_mass.size()));
+      throw std::invalid_argument("StiffModes: x has " + std::to_string(x.cols()) + " particles, expected " +
+                                  std::to_string(inv_mass.size()));
   }
 
   // Bond geometry and A = K^{1/2} S K^{1/2} of cluster c at x, then its eigen-decomposition
@@ -74,9 +73,8 @@ struct StiffModes::Impl {
       const double rb = d.norm();
       if (!(rb > 0.0) || !std::isfinite(rb))
         throw NumericalError("StiffModes: bond " + std::to_string(c.bonds[b]) + " (particles " +
-                             std::to_string(bond.i) + ", " + std::to_string(bond.j) +
-                             ") of cluster " + std::to_string(c.index) +
-                             " has length " + std::to_string(rb) + ": no bond direction");
+                             std::to_string(bond.i) + ", " + std::to_string(bond.j) + ") of cluster " +
+                             std::to_string(c.index) + " has length " + std::to_string(rb) + ": no bond direction");
       r[b] = rb;
       u.col(b) = d / rb;
     }
@@ -98,8 +96,8 @@ struct StiffModes::Impl {
     }
     solver.compute(A, vectors ? Eigen::ComputeEigenvectors : Eigen::EigenvaluesOnly);
     if (solver.info() != Eigen::Success)
-      throw NumericalError("StiffModes: eigen-decomposition of cluster " + std::to_string(c.index) +
-                           " (" + std::to_string(nb) + " bonds) did not converge");
+      throw NumericalError("StiffModes: eigen-decomposition of cluster " + std::to_string(c.index) + " (" +
+                           std::to_string(nb) + " bonds) did not converge");
   }
 
   // λ_k of the last decomposition, after the check that 1/λ_k is meaningful.
@@ -107,36 +105,35 @@ struct StiffModes::Impl {
     const auto& lam = solver.eigenvalues();
     const double lk = lam[k];
     if (!(lk > kZeroEigenvalue * lam[lam.size() - 1]))
-      throw NumericalError("StiffModes: mode " + std::to_string(k) + " of cluster " +
-                           std::to_string(c.index) + " has eigenvalue " + std::to_string(lk) +
+      throw NumericalError("StiffModes: mode " + std::to_string(k) + " of cluster " + std::to_string(c.index) +
+                           " has eigenvalue " + std::to_string(lk) +
                            " (zero frequency): its constraints are (nearly) redundant here");
     return lk;
   }
 };
 
-StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon,
-                       int max_cluster_bonds)
+StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds)
     : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
   if (!(epsilon > 0.0) || !std::isfinite(epsilon))
     throw InputError("StiffModes: epsilon must be positive and finite, got " + std::to_string(epsilon));
   if (max_cluster_bonds < 1 || max_cluster_bonds > kMaxDenseBonds)
-    throw InputError("StiffModes: max_cluster_bonds must be in [1, " + std::to_string(kMaxDenseBonds) +
-                     "], got " + std::to_string(max_cluster_bonds));
+    throw InputError("StiffModes: max_cluster_bonds must be in [1, " + std::to_string(kMaxDenseBonds) + "], got " +
+                     std::to_string(max_cluster_bonds));
   const int n = static_cast<int>(inv_mass.size());
   for (int p = 0; p < n; ++p)
     if (!(inv_mass[p] >= 0.0) || !std::isfinite(inv_mass[p]))
-      throw InputError("StiffModes: inverse mass of particle " + std::to_string(p) +
-                       " must be finite and >= 0, got " + std::to_string(inv_mass[p]));
+      throw InputError("StiffModes: inverse mass of particle " + std::to_string(p) + " must be finite and >= 0, got " +
+                       std::to_string(inv_mass[p]));
   for (size_t b = 0; b < bonds.size(); ++b) {
     const StiffBond& s = bonds[b];
     if (s.i < 0 || s.j < 0 || s.i >= n || s.j >= n || s.i == s.j)
-      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " joins particles " +
-                       std::to_string(s.i) + " and " + std::to_string(s.j) + " (need two distinct indices in [0, " +
-                       std::to_string(n) + "))");
+      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " joins particles " + std::to_string(s.i) +
+                       " and " + std::to_string(s.j) + " (need two distinct indices in [0, " + std::to_string(n) +
+                       "))");
     if (!(s.alpha > 0.0) || !std::isfinite(s.alpha))
-      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " has alpha " +
-                       std::to_string(s.alpha) + ", expected > 0");
+      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " has alpha " + std::to_string(s.alpha) +
+                       ", expected > 0");
     if (inv_mass[s.i] == 0.0 && inv_mass[s.j] == 0.0)
       throw InputError("StiffModes: stiff bond " + std::to_string(b) + " joins two fixed particles (" +
                        std::to_string(s.i) + ", " + std::to_string(s.j) + "): it has no vibrational mode");
@@ -162,8 +159,7 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
     c.particles = fc.particles;
     for (int p : c.particles) c.im.push_back(d.inv_mass[p]);
     auto local = [&](int p) {
-      return static_cast<int>(std::lower_bound(c.particles.begin(), c.particles.end(), p) -
-                              c.particles.begin());
+      return static_cast<int>(std::lower_bound(c.particles.begin(), c.particles.end(), p) - c.particles.begin());
     };
     for (int b : c.bonds) {
       c.li.push_back(local(d.bonds[b].i));
@@ -189,9 +185,15 @@ StiffModes::~StiffModes() = default;
 StiffModes::StiffModes(StiffModes&&) noexcept = default;
 StiffModes& StiffModes::operator=(StiffModes&&) noexcept = default;
 
-int StiffModes::num_modes() const { return impl_->num_modes; }
-int StiffModes::num_skipped_clusters() const { return impl_->num_skipped; }
-double StiffModes::epsilon() const { return impl_->epsilon; }
+int StiffModes::num_modes() const {
+  return impl_->num_modes;
+}
+int StiffModes::num_skipped_clusters() const {
+  return impl_->num_skipped;
+}
+double StiffModes::epsilon() const {
+  return impl_->epsilon;
+}
 
 void StiffModes::frequencies(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> omega) {
   Impl& d = *impl_;
@@ -207,16 +209,15 @@ void StiffModes::frequencies(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::Vector
   }
 }
 
-void StiffModes::actions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
-                         Eigen::Ref<Eigen::VectorXd> I) {
+void StiffModes::actions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, Eigen::Ref<Eigen::VectorXd> I) {
   Impl& d = *impl_;
   d.check_positions(x);
   if (v.cols() != x.cols())
-    throw std::invalid_argument("StiffModes::actions: v has " + std::to_string(v.cols()) +
-                                " particles, expected " + std::to_string(x.cols()));
+    throw std::invalid_argument("StiffModes::actions: v has " + std::to_string(v.cols()) + " particles, expected " +
+                                std::to_string(x.cols()));
   if (I.size() != d.num_modes)
-    throw std::invalid_argument("StiffModes::actions: I has size " + std::to_string(I.size()) +
-                                ", expected " + std::to_string(d.num_modes));
+    throw std::invalid_argument("StiffModes::actions: I has size " + std::to_string(I.size()) + ", expected " +
+                                std::to_string(d.num_modes));
   const double inv_eps2 = 1.0 / (d.epsilon * d.epsilon);
   for (const Impl::Cluster& c : d.clusters) {
     d.decompose(c, x, true);
@@ -243,13 +244,12 @@ void StiffModes::actions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
   }
 }
 
-double StiffModes::correction_force(const Eigen::VectorXd& I, const Eigen::Matrix3Xd& x,
-                                    Eigen::Matrix3Xd& f) {
+double StiffModes::correction_force(const Eigen::VectorXd& I, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
   Impl& d = *impl_;
   d.check_positions(x);
   if (I.size() != d.num_modes)
-    throw std::invalid_argument("StiffModes::correction_force: I has size " + std::to_string(I.size()) +
-                                ", expected " + std::to_string(d.num_modes));
+    throw std::invalid_argument("StiffModes::correction_force: I has size " + std::to_string(I.size()) + ", expected " +
+                                std::to_string(d.num_modes));
   if (f.cols() != x.cols()) f.resize(3, x.cols());
   f.setZero();
   double W = 0.0;

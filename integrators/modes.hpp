@@ -43,8 +43,7 @@ class StiffModes {
   // index out of range or joining a particle to itself, α ≤ 0, a bond whose two ends are
   // both fixed (it has no vibrational mode), or max_cluster_bonds outside
   // [1, kMaxDenseBonds].
-  StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon,
-             int max_cluster_bonds = 64);
+  StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds = 64);
   ~StiffModes();
   StiffModes(StiffModes&&) noexcept;
   StiffModes& operator=(StiffModes&&) noexcept;

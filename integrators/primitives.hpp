@@ -13,6 +13,8 @@ inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eig
 }
 
 // x ← x + dt v
-inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) { x.noalias() += dt * v; }
+inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
+  x.noalias() += dt * v;
+}
 
 }  // namespace stiffmd

@@ -21,12 +21,12 @@ void Rattle::prepare(State& s, std::ostream& log) {
   if (modes_) modes_->actions(s.x, s.v, actions_);
   const Eigen::Matrix3Xd x0 = s.x, v0 = s.v;
   const double g0 = toolbox_.max_violation(s.x);
-  toolbox_.shake(s.x, s.x);               // X0 = x0 + M⁻¹G(x0)ᵀλ, g(X0) = 0
-  toolbox_.project_velocity(s.x, s.v);    // Y0 = P(X0) y0
+  toolbox_.shake(s.x, s.x);             // X0 = x0 + M⁻¹G(x0)ᵀλ, g(X0) = 0
+  toolbox_.project_velocity(s.x, s.v);  // Y0 = P(X0) y0
   valid_ = false;
   std::ostringstream m;
-  m << method_ << ": initial data projected onto the constraint manifold (paper eq. ACIV): max |g| "
-    << g0 << " -> " << toolbox_.max_violation(s.x) << ", max |dx| = " << (s.x - x0).cwiseAbs().maxCoeff()
+  m << method_ << ": initial data projected onto the constraint manifold (paper eq. ACIV): max |g| " << g0 << " -> "
+    << toolbox_.max_violation(s.x) << ", max |dx| = " << (s.x - x0).cwiseAbs().maxCoeff()
     << ", max |dv| = " << (s.v - v0).cwiseAbs().maxCoeff();
   if (modes_) {
     m << "; actions I =";
@@ -49,11 +49,11 @@ void Rattle::step(State& s, double h) {
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   x_old_ = s.x;
   drift(s.x, s.v, h);
-  toolbox_.shake(x_old_, s.x);         // x' = x + h v½ + M⁻¹G(x)ᵀλ with g(x') = 0
-  s.v = (s.x - x_old_) / h;            // v½ including the constraint impulse
+  toolbox_.shake(x_old_, s.x);  // x' = x + h v½ + M⁻¹G(x)ᵀλ with g(x') = 0
+  s.v = (s.x - x_old_) / h;     // v½ including the constraint impulse
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  toolbox_.project_velocity(s.x, s.v); // G(x') v' = 0
+  toolbox_.project_velocity(s.x, s.v);  // G(x') v' = 0
 }
 
 }  // namespace stiffmd

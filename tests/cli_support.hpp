@@ -35,8 +35,8 @@ inline std::filesystem::path scratch_dir(const std::string& name) {
 inline CliResult cli(const std::string& args, const std::string& prefix = "") {
   static int counter = 0;
   const auto d = scratch_dir("cli_capture_" + std::to_string(counter++));
-  const std::string cmd = prefix + std::string(STIFFMD_EXE) + " " + args + " >" + (d / "out").string() + " 2>" +
-                          (d / "err").string();
+  const std::string cmd =
+      prefix + std::string(STIFFMD_EXE) + " " + args + " >" + (d / "out").string() + " 2>" + (d / "err").string();
   const int status = std::system(cmd.c_str());
   CliResult r{WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status), slurp(d / "out"), slurp(d / "err")};
   std::filesystem::remove_all(d);

@@ -21,7 +21,9 @@ using test::CliResult;
 using test::scratch_dir;
 using test::slurp;
 
-int count_lines(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
+int count_lines(const std::string& s) {
+  return static_cast<int>(std::count(s.begin(), s.end(), '\n'));
+}
 
 // Every malformed deck in tests/bad_decks/ gives exit 2 and one line naming the file, the
 // line, and the key(s) listed in its "# expect:" header.
@@ -91,7 +93,8 @@ TEST(Cli, CheckDescribesTheScene) {
 TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
   const fs::path dir = scratch_dir("run");
   const CliResult r = cli("run " + test::source_path("inputs/double_pendulum.toml") +
-                          " --set run.t_end=0.5 --set integrator.h=0.0125 --set output.xyz_interval=0.1 --set output.thermo_interval=0.05 -o " +
+                          " --set run.t_end=0.5 --set integrator.h=0.0125 --set output.xyz_interval=0.1 --set "
+                          "output.thermo_interval=0.05 -o " +
                           dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("projected-impulse"), std::string::npos);
@@ -134,7 +137,8 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
   EXPECT_EQ(rows, 11);
 
   // A second run into the same directory says that it overwrites.
-  const CliResult again = cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.01 -o " + dir.string());
+  const CliResult again =
+      cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.01 -o " + dir.string());
   EXPECT_EQ(again.code, 0);
   EXPECT_NE(again.err.find("overwriting"), std::string::npos);
   fs::remove_all(dir);
@@ -143,8 +147,9 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
 TEST(Cli, OutputIntervalIsInTimeUnitsIndependentOfTheStep) {
   const fs::path dir = scratch_dir("interval");
   for (const char* h : {"1e-4", "2.5e-5"}) {
-    const CliResult r = cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.2 --set integrator.h=" + h +
-                            " --set output.thermo_interval=0.02 -o " + dir.string());
+    const CliResult r =
+        cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.2 --set integrator.h=" + h +
+            " --set output.thermo_interval=0.02 -o " + dir.string());
     ASSERT_EQ(r.code, 0) << r.err;
     EXPECT_EQ(count_lines(slurp(dir / "thermo.csv")), 1 + 11) << "h = " << h;
   }
@@ -154,9 +159,10 @@ TEST(Cli, OutputIntervalIsInTimeUnitsIndependentOfTheStep) {
 TEST(Cli, NumericalBlowUpGivesExitThreeAndKeepsOutputsReadable) {
   const fs::path dir = scratch_dir("blowup");
   // h far beyond the stability limit of velocity Verlet (h ω/ε < 2).
-  const CliResult r = cli("run " + test::source_path("inputs/double_pendulum.toml") +
-                          " --set integrator.method=velocity-verlet --set integrator.h=0.01 --set output.xyz_interval=0.01 -o " +
-                          dir.string());
+  const CliResult r =
+      cli("run " + test::source_path("inputs/double_pendulum.toml") +
+          " --set integrator.method=velocity-verlet --set integrator.h=0.01 --set output.xyz_interval=0.01 -o " +
+          dir.string());
   EXPECT_EQ(r.code, 3) << r.err;
   EXPECT_NE(r.err.find("step"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("t = "), std::string::npos) << r.err;

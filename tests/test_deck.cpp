@@ -94,7 +94,8 @@ TEST(Deck, ErrorsNameTheFileLineAndKey) {
     load_scene(deck);
     FAIL() << "no error";
   } catch (const InputError& e) {
-    EXPECT_EQ(std::string(e.what()), "--set types.bead.mass: types.bead.mass: expected a mass > 0 (use fixed = true on a particle to pin it)");
+    EXPECT_EQ(std::string(e.what()),
+              "--set types.bead.mass: types.bead.mass: expected a mass > 0 (use fixed = true on a particle to pin it)");
   }
   std::string text = kMinimal;
   text.replace(text.find("h = \"b/100\""), 11, "h = \"b/0\"");

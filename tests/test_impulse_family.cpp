@@ -16,7 +16,9 @@ using test::max_errors;
 using test::pendulum;
 using test::record;
 
-std::vector<std::string> micro(const std::string& dt) { return {"integrator.micro_dt=" + dt}; }
+std::vector<std::string> micro(const std::string& dt) {
+  return {"integrator.micro_dt=" + dt};
+}
 
 TEST(ProjectedImpulse, IsTimeReversible) {
   Scene sc = pendulum(1e-2, "projected-impulse", 0.05, 1.0, micro("eps/50"));

@@ -6,13 +6,13 @@
 
 #include <gtest/gtest.h>
 
-#include "integrators/modes.hpp"
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
 #include <stdexcept>
 #include <vector>
+#include "integrators/modes.hpp"
 
 #include "engine/errors.hpp"
 
@@ -399,8 +399,8 @@ TEST(StiffModes, ValidityMonitorOnPendulumAndChain) {
   StiffModes modes(s.bonds, s.inv_mass, 1e-3);
   const VectorXd om = freqs(modes, s.x);
   const StiffModes::Validity val = modes.validity(s.x);
-  std::printf("[ measure  ] pendulum: omega = %.6f %.6f, min_gap %.6f, min_resonance %.6f\n", om[0], om[1],
-              val.min_gap, val.min_resonance);
+  std::printf("[ measure  ] pendulum: omega = %.6f %.6f, min_gap %.6f, min_resonance %.6f\n", om[0], om[1], val.min_gap,
+              val.min_resonance);
   EXPECT_LT(om[0], om[1]);
   EXPECT_NEAR(val.min_gap, std::abs(om[1] - om[0]), 1e-14);
   EXPECT_NEAR(val.min_resonance, brute_resonance(om), 1e-14);
@@ -431,9 +431,9 @@ TEST(StiffModes, ValidityMonitorOnPendulumAndChain) {
 TEST(StiffModes, LargeClustersAreSkippedAndCounted) {
   // Clusters in bond order: a 4-bond chain (0..4), a single bond (5,6), a 2-bond chain
   // (7,8,9), and two bonds meeting only at the fixed particle 10 (two 1-bond clusters).
-  std::vector<StiffBond> bonds = {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {2, 3, 1.0, 1.0}, {3, 4, 1.0, 1.0},
-                                  {5, 6, 1.0, 2.0}, {7, 8, 1.0, 1.0}, {8, 9, 1.0, 1.0},
-                                  {10, 11, 1.0, 3.0}, {10, 12, 1.0, 0.5}};
+  std::vector<StiffBond> bonds = {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0},   {2, 3, 1.0, 1.0},
+                                  {3, 4, 1.0, 1.0}, {5, 6, 1.0, 2.0},   {7, 8, 1.0, 1.0},
+                                  {8, 9, 1.0, 1.0}, {10, 11, 1.0, 3.0}, {10, 12, 1.0, 0.5}};
   VectorXd im = VectorXd::Ones(13);
   im[6] = 0.25;
   im[10] = 0.0;

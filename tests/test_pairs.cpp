@@ -178,7 +178,9 @@ double fd_mismatch(const ForceTerm& term, const Eigen::Matrix3Xd& x, const Box& 
   return worst / std::max(1.0, f.cwiseAbs().maxCoeff());
 }
 
-double max_abs(const Eigen::Matrix3Xd& m) { return m.cwiseAbs().maxCoeff(); }
+double max_abs(const Eigen::Matrix3Xd& m) {
+  return m.cwiseAbs().maxCoeff();
+}
 
 template <class Kernel>
 double kernel_energy(double r, const typename Kernel::Params& p) {
@@ -205,8 +207,11 @@ TEST(PairKernels, ForceIsMinusDerivativeOfEnergy) {
     const double fd_lj = -(kernel_energy<LennardJones>(r + h, lj) - kernel_energy<LennardJones>(r - h, lj)) / (2 * h);
     EXPECT_NEAR(kernel_force<LennardJones>(r, lj), fd_lj, 1e-6 * std::max(1.0, std::abs(fd_lj))) << "lj r = " << r;
     if (r + h < std::sqrt(wca.rc2)) {
-      const double fd = -(kernel_energy<WeeksChandlerAndersen>(r + h, wca) - kernel_energy<WeeksChandlerAndersen>(r - h, wca)) / (2 * h);
-      EXPECT_NEAR(kernel_force<WeeksChandlerAndersen>(r, wca), fd, 1e-6 * std::max(1.0, std::abs(fd))) << "wca r = " << r;
+      const double fd =
+          -(kernel_energy<WeeksChandlerAndersen>(r + h, wca) - kernel_energy<WeeksChandlerAndersen>(r - h, wca)) /
+          (2 * h);
+      EXPECT_NEAR(kernel_force<WeeksChandlerAndersen>(r, wca), fd, 1e-6 * std::max(1.0, std::abs(fd)))
+          << "wca r = " << r;
     }
   }
   for (double r = 0.001; r + h < 1.2; r += 0.0113) {
@@ -448,7 +453,9 @@ struct ListCase {
   bool chains;
 };
 
-void PrintTo(const ListCase& c, std::ostream* os) { *os << c.name; }
+void PrintTo(const ListCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class NeighborListVsAllPairs : public ::testing::TestWithParam<ListCase> {};
 
@@ -490,17 +497,20 @@ TEST_P(NeighborListVsAllPairs, SamePairsAsBruteForce) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Configurations, NeighborListVsAllPairs,
-                         ::testing::Values(ListCase{"liquid_3_cutoffs", 3, false}, ListCase{"liquid_4_cutoffs", 4, false},
-                                           ListCase{"liquid_6_cutoffs", 6, false}, ListCase{"chains_3_cutoffs", 3, true},
-                                           ListCase{"chains_4_cutoffs", 4, true}, ListCase{"chains_6_cutoffs", 6, true},
-                                           ListCase{"liquid_open", 0, false}, ListCase{"chains_open", 0, true}),
+                         ::testing::Values(ListCase{"liquid_3_cutoffs", 3, false},
+                                           ListCase{"liquid_4_cutoffs", 4, false},
+                                           ListCase{"liquid_6_cutoffs", 6, false},
+                                           ListCase{"chains_3_cutoffs", 3, true}, ListCase{"chains_4_cutoffs", 4, true},
+                                           ListCase{"chains_6_cutoffs", 6, true}, ListCase{"liquid_open", 0, false},
+                                           ListCase{"chains_open", 0, true}),
                          [](const auto& info) { return std::string(info.param.name); });
 
 TEST(NeighborList, FewerThanThreeCellsPerAxisAndMixedPeriodicity) {
   // 2 cells on the periodic x and y axes (the −1 and +1 neighbours are the same cell), z open:
   // every pair must still appear exactly once.
   const double cutoff = 1.2, skin = 0.3, w = cutoff + skin;
-  const Box box = periodic_box(Eigen::Vector3d(2.05 * w, 2.9 * w, 5.0), Eigen::Vector3d(-1, -1, -1), Eigen::Vector3i(1, 1, 0));
+  const Box box =
+      periodic_box(Eigen::Vector3d(2.05 * w, 2.9 * w, 5.0), Eigen::Vector3d(-1, -1, -1), Eigen::Vector3i(1, 1, 0));
   const Box sampling = periodic_box(box.lengths, box.origin, Eigen::Vector3i::Zero());
   const Eigen::Matrix3Xd x = random_in_box(200, sampling, 31);
   NeighborList nl(cutoff, skin);
@@ -571,7 +581,9 @@ struct DriftCase {
   SpecialWeights weights;
 };
 
-void PrintTo(const DriftCase& c, std::ostream* os) { *os << c.name; }
+void PrintTo(const DriftCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class ListForcesVsAllPairs : public ::testing::TestWithParam<DriftCase> {};
 
@@ -642,7 +654,7 @@ TEST(SpecialBonds, W12ZeroRemovesBondedPairs) {
   const double e = term.add_forces(x, open, f);
   const auto p = WeeksChandlerAndersen::params({1.0, 1.0});
   EXPECT_NEAR(e, kernel_energy<WeeksChandlerAndersen>(1.05, p), 1e-12);  // the 1-3 pair only
-  EXPECT_EQ(f(0, 1), 0.0);  // the middle bead feels nothing
+  EXPECT_EQ(f(0, 1), 0.0);                                               // the middle bead feels nothing
   EXPECT_EQ(f(1, 1), 0.0);
   EXPECT_EQ(term.excluded_pairs(), 2u);
   EXPECT_EQ(listed_pairs(term.neighbor_list()), (PairSet{{0, 2}}));
@@ -687,7 +699,7 @@ TEST(SpecialBonds, PairsFromBondsWithOneTwoPrecedence) {
   }
   const std::map<std::pair<int, int>, double> expected = {
       {{0, 1}, 0.0}, {{1, 2}, 0.0}, {{0, 2}, 0.0}, {{2, 3}, 0.0}, {{1, 4}, 0.0},  // 1-2
-      {{0, 3}, 0.5}, {{1, 3}, 0.5}, {{0, 4}, 0.5}, {{2, 4}, 0.5}};                 // 1-3
+      {{0, 3}, 0.5}, {{1, 3}, 0.5}, {{0, 4}, 0.5}, {{2, 4}, 0.5}};                // 1-3
   EXPECT_EQ(got, expected);
   // w12 = 1 leaves bonded pairs ordinary even where they are also 1-3 (the triangle).
   const auto sp1 = special_pairs(6, bonds, {1.0, 0.0});
@@ -735,8 +747,8 @@ void expect_invalid(F make, const std::string& fragment) {
 
 TEST(PairTermValidation, RejectsBadCoefficientsWeightsTypesAndBonds) {
   const Box open;
-  auto lj = [&](LennardJones::Coeffs c, std::vector<int> types = {0, 0}, SpecialWeights w = {}, std::vector<Bond> b = {},
-                double skin = 0.3) {
+  auto lj = [&](LennardJones::Coeffs c, std::vector<int> types = {0, 0}, SpecialWeights w = {},
+                std::vector<Bond> b = {}, double skin = 0.3) {
     TypePairMatrix<LennardJones::Coeffs> m(1);
     m.set(0, 0, c);
     return LennardJonesPair("lj-term", Level::slow, types, m, b, w, open, skin);
@@ -758,7 +770,11 @@ TEST(PairTermValidation, RejectsBadCoefficientsWeightsTypesAndBonds) {
   TypePairMatrix<WeeksChandlerAndersen::Coeffs> partial(2);
   partial.set(0, 0, {1.0, 1.0});
   partial.set(1, 1, {1.0, 1.0});
-  expect_invalid([&] { WcaPair("w", Level::slow, {0, 1}, partial, {}, {}, open); }, "types (0, 1): pair coefficients not given");
+  expect_invalid(
+      [&] {
+        WcaPair("w", Level::slow, {0, 1}, partial, {}, {}, open);
+      },
+      "types (0, 1): pair coefficients not given");
   TypePairMatrix<WeeksChandlerAndersen::Coeffs> bad_sigma(1);
   bad_sigma.set(0, 0, {1.0, -1.0});
   expect_invalid([&] { WcaPair("w", Level::slow, {0}, bad_sigma, {}, {}, open); }, "sigma");
@@ -771,8 +787,11 @@ TEST(PairTermValidation, BoxTooSmallThrows) {
   TypePairMatrix<LennardJones::Coeffs> c(1);
   c.set(0, 0, {1.0, 1.0, 2.5});
   const Box small = periodic_box(Eigen::Vector3d(5.5, 8.0, 8.0));  // < 2 × (2.5 + 0.3) = 5.6
-  expect_invalid([&] { LennardJonesPair("lj", Level::slow, {0, 0}, c, {}, {}, small); },
-                 "box length L < 2 × (cutoff + skin)");
+  expect_invalid(
+      [&] {
+        LennardJonesPair("lj", Level::slow, {0, 0}, c, {}, {}, small);
+      },
+      "box length L < 2 × (cutoff + skin)");
   // A smaller skin fits the same box.
   EXPECT_NO_THROW(LennardJonesPair("lj", Level::slow, {0, 0}, c, {}, {}, small, 0.2));
   // A box that shrinks later is caught when the forces are asked for.

@@ -34,8 +34,8 @@ TEST_P(EveryMethodOnAMelt, RunsWithoutConstraintSolverFailure) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SmallMelt, EveryMethodOnAMelt,
-                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle",
-                                           "effective"),
+                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse",
+                                           "rattle", "effective"),
                          [](const auto& info) {
                            std::string n = info.param;
                            std::replace(n.begin(), n.end(), '-', '_');
@@ -65,8 +65,8 @@ TEST(PolymerDecks, TheLammpsChainBenchmarkImportsAndRuns) {
   // Projected onto the stiff bonds by [prepare]: every bond at ℓ = 0.97.
   ASSERT_NE(sc.forces->stiff_bonds(), nullptr);
   EXPECT_LT(max_constraint_violation(sc.state.x, sc.box, sc.forces->stiff_bonds()), 1e-10);
-  const auto r = cli("run " + test::source_path("inputs/lammps_chain.toml") + " --no-progress --set run.t_end=0.01 -o " +
-                     test::scratch_dir("chain").string());
+  const auto r = cli("run " + test::source_path("inputs/lammps_chain.toml") +
+                     " --no-progress --set run.t_end=0.01 -o " + test::scratch_dir("chain").string());
   EXPECT_EQ(r.code, 0) << r.err;
 }
 
@@ -76,9 +76,11 @@ TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
   deck << "[box]\nperiodic = true\nlengths = [40, 40, 40]\n[types.atom]\nmass = 1.0\n";
   for (int i = 0; i < 5; ++i)
     for (int j = 0; j < 5; ++j)
-      for (int k = 0; k < 5; ++k) deck << "[[particles]]\nposition = [" << 8 * i + 1 << ", " << 8 * j + 1 << ", " << 8 * k + 1 << "]\n";
+      for (int k = 0; k < 5; ++k)
+        deck << "[[particles]]\nposition = [" << 8 * i + 1 << ", " << 8 * j + 1 << ", " << 8 * k + 1 << "]\n";
   deck << "[velocities]\ntemperature = 1.5\nseed = 3\n[forces.wca]\nstyle = \"wca\"\n"
-          "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.005\n[run]\nt_end = 20\n[output]\nxyz = \"\"\nthermo_interval = 0.5\n";
+          "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.005\n[run]\nt_end = 20\n[output]\nxyz = "
+          "\"\"\nthermo_interval = 0.5\n";
   const fs::path d = test::scratch_dir("gas");
   std::ofstream(d / "gas.toml") << deck.str();
   const Deck dk((d / "gas.toml").string(), {});
@@ -108,8 +110,8 @@ TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
 }
 
 TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
-  const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") + " --no-progress --set run.t_end=0.05 -o " +
-                     test::scratch_dir("hanging").string());
+  const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") +
+                     " --no-progress --set run.t_end=0.05 -o " + test::scratch_dir("hanging").string());
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("warning: frequency gap"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("at step 0 (t = 0)"), std::string::npos) << r.err;
@@ -125,8 +127,8 @@ namespace {
 // bonds), so the same state can be run in LAMMPS.
 TEST(LammpsExport, FinalStateRoundTripsThroughImport) {
   const fs::path d = test::scratch_dir("export");
-  const auto r = cli("run " + test::source_path("tests/decks/small_melt.toml") + " --no-progress --set output.lammps_data=final.data -o " +
-                     (d / "out").string());
+  const auto r = cli("run " + test::source_path("tests/decks/small_melt.toml") +
+                     " --no-progress --set output.lammps_data=final.data -o " + (d / "out").string());
   ASSERT_EQ(r.code, 0) << r.err;
   const Checkpoint end = read_checkpoint((d / "out" / "checkpoint.bin").string());
   std::ofstream(d / "import.toml") << "[types.bead]\nmass = 1.0\n[import]\nlammps_data = \"out/final.data\"\n"

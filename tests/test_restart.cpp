@@ -18,7 +18,9 @@ namespace fs = std::filesystem;
 using test::cli;
 using test::slurp;
 
-std::string deck() { return test::source_path("inputs/double_pendulum.toml"); }
+std::string deck() {
+  return test::source_path("inputs/double_pendulum.toml");
+}
 
 class RestartEquivalence : public ::testing::TestWithParam<std::string> {};
 
@@ -50,8 +52,8 @@ TEST_P(RestartEquivalence, TwoHalvesEqualTheWholeBitForBit) {
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence,
-                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle",
-                                           "effective"),
+                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse",
+                                           "rattle", "effective"),
                          [](const auto& info) {
                            std::string n = info.param;
                            std::replace(n.begin(), n.end(), '-', '_');
@@ -60,7 +62,9 @@ INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence,
 
 TEST(Restart, DropsFramesWrittenAfterTheCheckpointAndContinuesGzipTrajectories) {
   const fs::path d = test::scratch_dir("restart_gz");
-  const std::string common = " --no-progress --set output.xyz=traj.xyz.gz --set output.xyz_interval=0.03125 --set output.thermo_interval=0.03125";
+  const std::string common =
+      " --no-progress --set output.xyz=traj.xyz.gz --set output.xyz_interval=0.03125 --set "
+      "output.thermo_interval=0.03125";
   ASSERT_EQ(cli("run " + deck() + " -o " + (d / "whole").string() + common + " --set run.t_end=0.5").code, 0);
   // A run to t = 0.25 (step 16); keep its checkpoint; continue it to 0.375, as if it had gone on
   // after that checkpoint and then died; restart from the kept checkpoint: the frames after
@@ -93,10 +97,12 @@ TEST(Restart, RejectsACheckpointOfAnotherScene) {
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("junk.bin: not a stiffmd checkpoint"), std::string::npos) << r.err;
   ASSERT_EQ(cli("run " + deck() + " -o " + (d / "a").string() + " --set run.t_end=0.1").code, 0);
-  r = cli("run " + deck() + " -o " + (d / "a").string() + " --set types.bob.mass=2 --set types.pivot.mass=2 --restart " + (d / "a" / "checkpoint.bin").string());
+  r = cli("run " + deck() + " -o " + (d / "a").string() +
+          " --set types.bob.mass=2 --set types.pivot.mass=2 --restart " + (d / "a" / "checkpoint.bin").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("masses differ"), std::string::npos) << r.err;
-  r = cli("run " + deck() + " -o " + (d / "a").string() + " --restart " + (d / "a" / "checkpoint.bin").string() + " --set run.t_end=0.05");
+  r = cli("run " + deck() + " -o " + (d / "a").string() + " --restart " + (d / "a" / "checkpoint.bin").string() +
+          " --set run.t_end=0.05");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("not before run.t_end"), std::string::npos) << r.err;
   fs::remove_all(d);
@@ -107,7 +113,8 @@ TEST(Signals, SigintFinishesTheStepWritesACheckpointAndTheRunContinuesExactly) {
   const std::string common = " --no-progress --set variables.eps=1e-4 --set run.t_end=20";
   ASSERT_EQ(cli("run " + deck() + " -o " + (d / "whole").string() + common).code, 0);
   // The same run, interrupted: about 1 s of work, SIGINT after 0.3 s.
-  const auto r = cli("run " + deck() + " -o " + (d / "parts").string() + common, "timeout --preserve-status -s INT 0.3 ");
+  const auto r =
+      cli("run " + deck() + " -o " + (d / "parts").string() + common, "timeout --preserve-status -s INT 0.3 ");
   ASSERT_EQ(r.code, 128 + SIGINT) << r.err;
   EXPECT_NE(r.err.find("stopped by signal 2"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(d / "parts" / "summary.json")) << "an interrupted run must not look finished";

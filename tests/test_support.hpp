@@ -11,7 +11,9 @@
 
 namespace stiffmd::test {
 
-inline std::string source_path(const std::string& rel) { return std::string(STIFFMD_SOURCE_DIR) + "/" + rel; }
+inline std::string source_path(const std::string& rel) {
+  return std::string(STIFFMD_SOURCE_DIR) + "/" + rel;
+}
 
 inline Scene load(const std::string& rel_deck, const std::vector<std::string>& overrides = {}) {
   const Deck deck(source_path(rel_deck), overrides);
