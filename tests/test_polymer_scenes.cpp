@@ -34,13 +34,7 @@ TEST_P(EveryMethodOnAMelt, RunsWithoutConstraintSolverFailure) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SmallMelt, EveryMethodOnAMelt,
-                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse",
-                                           "rattle", "effective"),
-                         [](const auto& info) {
-                           std::string n = info.param;
-                           std::replace(n.begin(), n.end(), '-', '_');
-                           return n;
-                         });
+                         ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
 TEST(PolymerDecks, EveryBundledDeckIsValid) {
   int n = 0;

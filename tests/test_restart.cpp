@@ -52,13 +52,7 @@ TEST_P(RestartEquivalence, TwoHalvesEqualTheWholeBitForBit) {
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence,
-                         ::testing::Values("velocity-verlet", "impulse", "projected-impulse", "mollified-impulse",
-                                           "rattle", "effective"),
-                         [](const auto& info) {
-                           std::string n = info.param;
-                           std::replace(n.begin(), n.end(), '-', '_');
-                           return n;
-                         });
+                         ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
 TEST(Restart, DropsFramesWrittenAfterTheCheckpointAndContinuesGzipTrajectories) {
   const fs::path d = test::scratch_dir("restart_gz");

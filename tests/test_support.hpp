@@ -1,6 +1,9 @@
 // Shared test helpers: load bundled decks with overrides, run a scene in-process.
 #pragma once
 
+#include <gtest/gtest.h>
+
+#include <algorithm>
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -10,6 +13,15 @@
 #include "integrators/integrator.hpp"
 
 namespace stiffmd::test {
+
+// Every integrator method, for tests parameterised over them; test names may not hold '-'.
+inline const std::vector<std::string> kAllMethods = {"velocity-verlet", "impulse", "projected-impulse",
+                                                     "mollified-impulse", "rattle", "effective"};
+inline std::string method_test_name(const ::testing::TestParamInfo<std::string>& info) {
+  std::string n = info.param;
+  std::replace(n.begin(), n.end(), '-', '_');
+  return n;
+}
 
 inline std::string source_path(const std::string& rel) {
   return std::string(STIFFMD_SOURCE_DIR) + "/" + rel;
