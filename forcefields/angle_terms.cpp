@@ -52,38 +52,19 @@ std::string describe_angles(std::string_view what, size_t n, const std::vector<A
 
 }  // namespace
 
-HarmonicAngle::HarmonicAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
+template <class K>
+AngleTerm<K>::AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
     : ForceTerm(std::move(name), level),
       types_(std::move(types)),
-      instances_(angle_instances("harmonic-angle", this->name(), angles, types_)) {}
+      instances_(angle_instances(K::kStyle, this->name(), angles, types_)) {}
 
-double HarmonicAngle::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  return accumulate_angle_forces<Kernel>(instances_, x, box, f);
+template <class K>
+std::string AngleTerm<K>::describe() const {
+  std::string_view what = K::kStyle;
+  return describe_angles(what.substr(0, what.find('-')), instances_.size(), types_);
 }
 
-double HarmonicAngle::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  return accumulate_angle_virial<Kernel>(instances_, x, box);
-}
-
-std::string HarmonicAngle::describe() const {
-  return describe_angles("harmonic", instances_.size(), types_);
-}
-
-CosineAngle::CosineAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
-    : ForceTerm(std::move(name), level),
-      types_(std::move(types)),
-      instances_(angle_instances("cosine-angle", this->name(), angles, types_)) {}
-
-double CosineAngle::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  return accumulate_angle_forces<Kernel>(instances_, x, box, f);
-}
-
-double CosineAngle::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  return accumulate_angle_virial<Kernel>(instances_, x, box);
-}
-
-std::string CosineAngle::describe() const {
-  return describe_angles("cosine", instances_.size(), types_);
-}
+template class AngleTerm<HarmonicAngleKernel>;
+template class AngleTerm<CosineAngleKernel>;
 
 }  // namespace stiffmd

@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/topology.hpp"
@@ -24,56 +25,56 @@ struct AngleCoeffs {
   double theta0 = 0.0;
 };
 
-class HarmonicAngle final : public ForceTerm {
+// The angle kernels: energy and dE/dθ of one angle.
+struct HarmonicAngleKernel {
+  static constexpr std::string_view kStyle = "harmonic-angle";
+  static void eval(double theta, const AngleCoeffs& p, double& e, double& de_dtheta) {
+    const double g = theta - p.theta0;
+    e = 0.5 * p.k * g * g;
+    de_dtheta = p.k * g;
+  }
+};
+
+struct CosineAngleKernel {
+  static constexpr std::string_view kStyle = "cosine-angle";
+  static void eval(double theta, const AngleCoeffs& p, double& e, double& de_dtheta) {
+    const double g = theta - p.theta0;
+    // 1 − cos g = 2 sin²(g/2): no cancellation near θ₀, where the energy is O(g²).
+    const double s = std::sin(0.5 * g);
+    e = 2.0 * p.k * s * s;
+    de_dtheta = p.k * std::sin(g);
+  }
+};
+
+// An angle term over a kernel (as PairTerm is over a pair kernel).
+template <class K>
+class AngleTerm final : public ForceTerm {
  public:
+  using Params = AngleCoeffs;
+  using Kernel = K;
+
   // Validating constructor: every k ≥ 0 and finite, θ₀ in [0, π], i, j, k ≥ 0 and distinct,
   // 0 ≤ type < types.size(). Angle (engine/topology.hpp) is i–j–k, j the vertex; its type
   // indexes `types` (the reader maps the deck's angle types onto this list).
-  HarmonicAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types);
+  AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types);
 
-  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
-  double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
-  std::string_view style() const override { return "harmonic-angle"; }
+  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
+    return accumulate_angle_forces<Kernel>(instances_, x, box, f);
+  }
+  double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
+    return accumulate_angle_virial<Kernel>(instances_, x, box);
+  }
+  std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;
-
-  using Params = AngleCoeffs;
-  struct Kernel {
-    static void eval(double theta, const Params& p, double& e, double& de_dtheta) {
-      const double g = theta - p.theta0;
-      e = 0.5 * p.k * g * g;
-      de_dtheta = p.k * g;
-    }
-  };
 
  private:
   std::vector<AngleCoeffs> types_;
   std::vector<AngleInstance<Params>> instances_;
 };
 
-class CosineAngle final : public ForceTerm {
- public:
-  // Validating constructor: as HarmonicAngle's.
-  CosineAngle(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types);
-
-  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
-  double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
-  std::string_view style() const override { return "cosine-angle"; }
-  std::string describe() const override;
-
-  using Params = AngleCoeffs;
-  struct Kernel {
-    static void eval(double theta, const Params& p, double& e, double& de_dtheta) {
-      const double g = theta - p.theta0;
-      // 1 − cos g = 2 sin²(g/2): no cancellation near θ₀, where the energy is O(g²).
-      const double s = std::sin(0.5 * g);
-      e = 2.0 * p.k * s * s;
-      de_dtheta = p.k * std::sin(g);
-    }
-  };
-
- private:
-  std::vector<AngleCoeffs> types_;
-  std::vector<AngleInstance<Params>> instances_;
-};
+extern template class AngleTerm<HarmonicAngleKernel>;
+extern template class AngleTerm<CosineAngleKernel>;
+using HarmonicAngle = AngleTerm<HarmonicAngleKernel>;
+using CosineAngle = AngleTerm<CosineAngleKernel>;
 
 }  // namespace stiffmd

@@ -33,8 +33,7 @@ TEST_P(EveryMethodOnAMelt, RunsWithoutConstraintSolverFailure) {
   fs::remove_all(d);
 }
 
-INSTANTIATE_TEST_SUITE_P(SmallMelt, EveryMethodOnAMelt,
-                         ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+INSTANTIATE_TEST_SUITE_P(SmallMelt, EveryMethodOnAMelt, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
 TEST(PolymerDecks, EveryBundledDeckIsValid) {
   int n = 0;

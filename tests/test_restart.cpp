@@ -51,8 +51,8 @@ TEST_P(RestartEquivalence, TwoHalvesEqualTheWholeBitForBit) {
   fs::remove_all(d);
 }
 
-INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence,
-                         ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartEquivalence, ::testing::ValuesIn(test::kAllMethods),
+                         test::method_test_name);
 
 TEST(Restart, DropsFramesWrittenAfterTheCheckpointAndContinuesGzipTrajectories) {
   const fs::path d = test::scratch_dir("restart_gz");

@@ -15,8 +15,8 @@
 namespace stiffmd::test {
 
 // Every integrator method, for tests parameterised over them; test names may not hold '-'.
-inline const std::vector<std::string> kAllMethods = {"velocity-verlet", "impulse", "projected-impulse",
-                                                     "mollified-impulse", "rattle", "effective"};
+inline const std::vector<std::string> kAllMethods = {"velocity-verlet",   "impulse", "projected-impulse",
+                                                     "mollified-impulse", "rattle",  "effective"};
 inline std::string method_test_name(const ::testing::TestParamInfo<std::string>& info) {
   std::string n = info.param;
   std::replace(n.begin(), n.end(), '-', '_');
