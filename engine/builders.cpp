@@ -9,6 +9,13 @@
 #include <stdexcept>
 #include <string>
 
+// No fused multiply-adds: contracting a*b+c changes the last bit, which can flip an accept/
+// reject decision and so the whole configuration between machines. GCC in ISO mode (-std=c++20,
+// as CMake builds us) does not contract; clang does by default.
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+
 namespace stiffmd {
 namespace {
 
@@ -174,7 +181,7 @@ class CellGrid {
       prod *= n_[a];
     }
     if (prod > max_cells) {  // coarser cells, still at least c_min wide
-      const double f = std::cbrt(prod / max_cells);
+      const double f = portable_cbrt(prod / max_cells);
       for (int a = 0; a < 3; ++a) n_[a] = std::max(1, static_cast<int>(n_[a] / f));
     }
     for (int a = 0; a < 3; ++a) cell_[a] = std::max(span_[a] / n_[a], periodic_[a] ? 0.0 : c_min);
@@ -257,37 +264,45 @@ struct Step {
 };
 
 struct Plan {
-  int first = 0, end = 0;  // the molecule's beads are [first, end)
+  int first = 0, end = 0;          // the molecule's beads are [first, end)
+  int ring = 0;                    // a ring's size (positions are cyclic), else 0
+  std::vector<int> arm, position;  // per bead (index bead − first): its branch (−1: a star's
+                                   // core, on every branch) and its place along the branch
   std::vector<Step> steps;
 };
 
 // The effort per bead: up to kTrials random positions, of which the first kCandidates
-// admissible ones compete (below). Start beads get more trials: a whole box to search.
+// admissible ones compete (below). A molecule's first bead takes the first admissible of up to
+// kStartTrials points: it has the whole start region to search.
 constexpr int kTrials = 100;
-constexpr int kStartTrials = 2000;
+constexpr int kStartTrials = 500;
 constexpr int kCandidates = 32;
-// Contacts with other molecules are counted out to this multiple of min_distance.
+// Contacts are counted out to this multiple of min_distance, and within the own molecule only
+// with beads at least this many bonds away along the same branch (or on another arm).
 constexpr double kContactRange = 1.3;
+constexpr int kSelfContactGap = 5;
 // Failed steps allowed per attempt at a molecule before it starts again elsewhere, attempts
 // before giving up, and failed steps in all before giving up, which bounds the time to fail
-// (a few seconds for 10⁴ beads). Measured on 100 molecules at density 0.85, the most a success
-// needed in 8 seeds, per bead: chains 0.04 at min_distance 0.85 and 0.06 at 0.9; rings
-// (100 beads) 0.2 at 0.85; stars (4 arms of 25) 0.15 at 0.85 and 0.55 at 0.9.
+// (a few seconds for 10⁴ beads). The most a success needed, per bead, for 100 molecules at
+// density 0.85 (8 seeds): chains of 100 0.03 at min_distance 0.85 and 0.13 at 0.94; rings of
+// 100 0.18 at 0.85 and 0.36 at 0.88; stars of 4 × 25 0.15 at 0.9.
 constexpr int kMaxAttempts = 4;
 int failures_per_attempt(size_t steps) { return 200 + 4 * static_cast<int>(steps); }
-long long total_failure_budget(int n_beads) { return std::max(2000LL, static_cast<long long>(n_beads)); }
+long long total_failure_budget(int n_beads) { return std::max(1000LL, static_cast<long long>(n_beads)); }
 
 // Grows the molecules of a builder. Which admissible candidate wins: the one with the most
-// contact with *other* molecules, Σ (1 − r²/r_c²) over their beads within r_c = 1.3·min_distance.
-// Taking the first admissible position instead leaves the box riddled with holes too small for
-// a bead but too many to ignore, and at density 0.85 the last chains find no way through above
-// min_distance ≈ 0.8; packing snugly against the neighbours keeps the free volume in one piece:
-// 100 chains of 100 at density 0.85 then build every time (20 seeds each) up to min_distance
-// 0.93, in under 1.5 s. Contacts within the own molecule are not counted, so
-// chains do not fold onto themselves; the price is a mild stretching (in the 0.85 melt
-// ⟨R²⟩/(Nℓ²) ≈ 2.2 and ⟨cos θ⟩ ≈ 0.3 between successive bonds, against ≈ 1.5 and 0.2 for an
-// unbiased walk with the same excluded volume), which equilibration removes. A lone molecule
-// has no contacts: its walk is unbiased.
+// contact, Σ (1 − r²/r_c²) over the beads within r_c = 1.3·min_distance. Taking the first
+// admissible position instead leaves the box riddled with holes too small for a bead but too
+// many to ignore, and at density 0.85 the last chains find no way through above min_distance
+// ≈ 0.8; packing snugly keeps the free volume in one piece (measurements in builders.hpp).
+// Beads fewer than kSelfContactGap bonds away along the same chain or arm do not count: the
+// chain would otherwise curl up locally (counting every own bead made ⟨R²⟩/(Nℓ²) ≈ 0.9 in the
+// 0.85 melt; counting none let one long chain never fill a box, and stars of 12 arms not pack
+// their cores). What remains, in the 0.85 melt at min_distance 0.9, is a mild local
+// stiffening, ⟨cos θ⟩ ≈ 0.32 between successive bonds against ≈ 0.2 for an unbiased walk with
+// the same excluded volume, ⟨R²⟩/(Nℓ²) ≈ 1.8 for chains of 100 and ⟨R_g²⟩/(Nℓ²) ≈ 0.15 for
+// rings of 100 — near the ideal values; equilibration refines them. A molecule with nothing
+// near it (dilute, open space) walks unbiased.
 class Grower {
  public:
   Grower(const char* who, const char* unit, const ChainSpec& spec, const Box& box, int n_beads, int beads_per_molecule)
@@ -314,6 +329,12 @@ class Grower {
         if (done[m] == steps.size()) continue;
         own_first_ = plans[m].first;
         own_end_ = plans[m].end;
+        ring_ = plans[m].ring;
+        arm_ = plans[m].arm.data();
+        position_ = plans[m].position.data();
+        const int bead = steps[done[m]].bead - own_first_;
+        cur_arm_ = arm_[bead];
+        cur_position_ = position_[bead];
         if (try_step(steps[done[m]])) {
           if (++done[m] > best[m]) {  // new ground: forget how stuck we were
             best[m] = done[m];
@@ -380,6 +401,15 @@ class Grower {
     return d;
   }
 
+  // Does a bead of the growing molecule (index within it) count as a contact for the bead being
+  // placed: on another arm of a star, or at least kSelfContactGap bonds away along the branch?
+  bool far_along_own(int k) const {
+    if (arm_[k] >= 0 && cur_arm_ >= 0 && arm_[k] != cur_arm_) return true;
+    int gap = std::abs(position_[k] - cur_position_);
+    if (ring_ > 0) gap = std::min(gap, ring_ - gap);
+    return gap >= kSelfContactGap;
+  }
+
   // Is p (wrapped: pw) at least min_distance from every placed bead other than its bonded ones
   // (skip1, skip2)? If so, `contact` is its contact with other molecules (see the class comment).
   bool admissible(const V3& pw, int skip1, int skip2, double& contact) const {
@@ -390,19 +420,20 @@ class Grower {
       const V3 d = min_image_wrapped(pw - wrapped_[j]);
       const double r2 = dot(d, d);
       if (r2 < sigma2_) return false;
-      if (r2 < contact2_ && (j < own_first_ || j >= own_end_)) contact += 1.0 - r2 / contact2_;
+      if (r2 < contact2_ && (j < own_first_ || j >= own_end_ || far_along_own(j - own_first_)))
+        contact += 1.0 - r2 / contact2_;
       return true;
     });
   }
 
-  // Draws up to `trials` positions from `candidate`; of the first kCandidates admissible ones
+  // Draws up to `trials` positions from `candidate`; of the first `candidates` admissible ones
   // places the one with the most contact (the first of equals). False if none was admissible.
   template <class Candidate>
-  bool place_best(const Step& s, int skip2, int trials, Candidate&& candidate) {
+  bool place_best(const Step& s, int skip2, int trials, int candidates, Candidate&& candidate) {
     double best = -1.0;
     V3 best_p, best_w;
     int admitted = 0;
-    for (int t = 0; t < trials && admitted < kCandidates; ++t) {
+    for (int t = 0; t < trials && admitted < candidates; ++t) {
       const V3 p = candidate(), pw = wrap(p);
       double contact = 0.0;
       if (!admissible(pw, s.parent, skip2, contact)) continue;
@@ -422,8 +453,8 @@ class Grower {
 
   bool try_step(const Step& s) {
     switch (s.kind) {
-      case StepKind::Start:
-        return place_best(s, -1, kStartTrials, [&] {
+      case StepKind::Start:  // the first admissible point: starts spread evenly, not in clumps
+        return place_best(s, -1, kStartTrials, 1, [&] {
           V3 p;
           for (int a = 0; a < 3; ++a) {
             const double u = rng_.uniform();
@@ -433,7 +464,7 @@ class Grower {
           return p;
         });
       case StepKind::Walk:
-        return place_best(s, -1, kTrials, [&] { return pos_[s.parent] + bond_ * rng_.unit_vector(); });
+        return place_best(s, -1, kTrials, kCandidates, [&] { return pos_[s.parent] + bond_ * rng_.unit_vector(); });
       case StepKind::Bridge:
         return bridge_step(s);
       case StepKind::Close:
@@ -445,13 +476,11 @@ class Grower {
   // The next bead of a ring, at bond_length from its parent (one tip). The m bonds left must
   // still span the gap to the other tip, the anchor: |x_new − x_anchor| ≤ m·ℓ, i.e. u·d̂ ≥ c
   // with d = x_anchor − x_parent.
-  // Within that cap the direction follows a Gaussian bridge, p(u) ∝ exp(κ u·d̂): a von
-  // Mises–Fisher law whose cosine w = u·d̂ is sampled exactly by inverting its CDF on [c, 1].
-  // A freely jointed chain's bridge has κ = 3|d|/(mℓ) (from exp(−3|d − ℓu|²/(2mℓ²))); we pull
-  // twice as hard: in a 0.85 melt the contact rule stretches rings (⟨R_g²⟩ ≈ 0.18 Nℓ² either
-  // way against ≈ 0.09 for free rings), and the tighter pull halves the dead ends and the time
-  // (measured: 100 rings of 100 at min_distance 0.85 in ~1 s instead of ~2–3 s); in dilute
-  // systems it makes rings ~15% smaller in R_g² than free ones.
+  // Within that cap the direction follows the Gaussian bridge of a freely jointed chain,
+  // p(u) ∝ exp(−3|d − ℓu|²/(2mℓ²)) ∝ exp(κ u·d̂), κ = 3|d|/(mℓ): a von Mises–Fisher law
+  // whose cosine w = u·d̂ is sampled exactly by inverting its CDF on [c, 1]. (Pulling twice as
+  // hard lets rings of 100 reach min_distance 0.9 in the 0.85 melt, at ~10% smaller R_g²; we
+  // keep the free bridge.)
   bool bridge_step(const Step& s) {
     const V3 origin = pos_[s.parent];
     const V3 d = pos_[s.anchor] - origin;
@@ -462,10 +491,10 @@ class Grower {
       axis = (1.0 / dist) * d;
       perpendicular_basis(axis, e1, e2);
       c = std::clamp((bond_ * bond_ + dist * dist - reach * reach) / (2.0 * bond_ * dist), -1.0, 1.0);
-      kappa = 2.0 * 3.0 * dist / reach;
+      kappa = 3.0 * dist / reach;
     }
     const double tail = portable_exp(-kappa * (1.0 - c));  // e^{κ(c−1)}: the CDF's lower end
-    return place_best(s, -1, kTrials, [&] {
+    return place_best(s, -1, kTrials, kCandidates, [&] {
       const double xi = 1.0 - rng_.uniform();  // (0, 1]
       double w = kappa * (1.0 - c) < 1e-12 ? c + (1.0 - c) * xi : 1.0 + portable_log(xi + (1.0 - xi) * tail) / kappa;
       w = std::clamp(w, c, 1.0);
@@ -487,7 +516,7 @@ class Grower {
     const double radius = std::sqrt(std::max(0.0, bond_ * bond_ - 0.25 * dist * dist));
     V3 e1, e2;
     perpendicular_basis((1.0 / dist) * d, e1, e2);
-    return place_best(s, s.partner, kTrials, [&] {
+    return place_best(s, s.partner, kTrials, kCandidates, [&] {
       double cs = 0.0, sn = 0.0;
       rng_.unit_circle(cs, sn);
       return mid + (radius * cs) * e1 + (radius * sn) * e2;
@@ -502,7 +531,10 @@ class Grower {
   std::vector<V3> pos_;      // unwrapped positions (the output)
   std::vector<V3> wrapped_;  // the same, wrapped (see wrap): what the distance checks use
   CellGrid grid_;
-  int own_first_ = 0, own_end_ = 0;  // the growing molecule's beads
+  // The growing molecule and bead, for far_along_own.
+  int own_first_ = 0, own_end_ = 0, ring_ = 0, cur_arm_ = 0, cur_position_ = 0;
+  const int* arm_ = nullptr;
+  const int* position_ = nullptr;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -590,6 +622,8 @@ Polymer build_linear_chains(const ChainSpec& spec, const Box& box) {
     std::vector<Step>& steps = plans[c].steps;
     plans[c].first = first;
     plans[c].end = first + n;
+    plans[c].arm.assign(static_cast<size_t>(n), 0);
+    for (int k = 0; k < n; ++k) plans[c].position.push_back(k);
     steps.push_back({StepKind::Start, first});
     for (int k = 1; k < n; ++k) {
       steps.push_back({StepKind::Walk, first + k, first + k - 1});
@@ -614,6 +648,9 @@ Polymer build_rings(const ChainSpec& spec, const Box& box) {
     std::vector<Step>& steps = plans[c].steps;
     plans[c].first = first;
     plans[c].end = first + n;
+    plans[c].ring = n;
+    plans[c].arm.assign(static_cast<size_t>(n), 0);
+    for (int k = 0; k < n; ++k) plans[c].position.push_back(k);
     // Two tips grow from bead 0 in turn, 1, n−1, 2, n−2, …, each bridged to the other tip, and
     // the last bead closes the gap between them wherever they meet: a closure tied to bead 0's
     // neighbourhood, which the other molecules fill meanwhile, fails far more often in a melt.
@@ -653,6 +690,13 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
     std::vector<Step>& steps = plans[c].steps;
     plans[c].first = core;
     plans[c].end = core + size;
+    plans[c].arm.push_back(-1);  // the core: position 0 on every arm
+    plans[c].position.push_back(0);
+    for (int a = 0; a < arms; ++a)
+      for (int k = 0; k < b; ++k) {
+        plans[c].arm.push_back(a);
+        plans[c].position.push_back(k + 1);
+      }
     steps.push_back({StepKind::Start, core});
     for (int k = 0; k < b; ++k)  // arms in turn, one bead each
       for (int a = 0; a < arms; ++a) steps.push_back({StepKind::Walk, bead(a, k), k == 0 ? core : bead(a, k - 1)});

@@ -57,22 +57,26 @@ struct ChainSpec {
 // no late molecule must thread through an already-full box). For each bead, random positions at
 // bond_length from its bonded parent are drawn; a position is admissible if no placed
 // non-bonded bead (found through a cell list) is closer than min_distance, and of up to 32
-// admissible ones the bead takes the one in closest contact with other molecules — packing
-// snugly keeps the free volume in one piece, which is what lets dense melts finish (details
-// and measurements in builders.cpp). When no direction works the molecule backs off one bead,
+// admissible ones the bead takes the one in closest contact with its surroundings (other
+// molecules, and own beads at least 5 bonds away along the chain) — packing snugly keeps the
+// free volume in one piece, which is what lets dense melts finish (details and the price in
+// conformations in builders.cpp). When no direction works the molecule backs off one bead,
 // then more while it stays stuck; after too many failures it starts again elsewhere, and the
 // builder gives up after a bounded number of failures in all.
 //
-// Reach, 100 molecules at density 0.85, bond_length 0.97 (measured, 8–20 seeds each):
-// linear chains of 100 build every time up to min_distance 0.93 (0.3–1.4 s), rings of 100 up
-// to 0.85 (~1 s), stars of 4 × 25 up to 0.9 (~2 s).
+// Reach, 100 molecules at density 0.85, bond_length 0.97, one core (measured, 20 seeds each):
+// linear chains of 100 build every time up to min_distance 0.94 (≤ 0.8 s; 0.9 in ~0.35 s;
+// 17 of 20 at 0.95), rings of 100 up to 0.85 (≤ 1 s; 0.88: 10 of 10 in ≤ 2.3 s; 0.9: 3 of 10),
+// stars of 4 arms × 25 up to 0.9 (≤ 0.9 s; 0.92: 10 of 10 in ≤ 2.2 s). A single chain of 10⁵
+// beads fills a 0.85 box at min_distance 0.9 in ~3 s.
 Polymer build_linear_chains(const ChainSpec& spec, const Box& box);
 
 // Closed rings (bead n−1 bonded to bead 0): two tips grow from bead 0 in turn (beads 1, n−1,
 // 2, n−2, …), each step drawn from a Gaussian-bridge bias exp(κ u·d̂) towards the other tip
-// (κ = 6|d|/(m·ℓ) with m bonds still to place between them) and restricted to the directions
-// from which the gap can still close; the last bead lies on the circle at bond_length from both
-// tips. All bonds, the closing ones included, are bond_length to rounding.
+// (κ = 3|d|/(m·ℓ) with m bonds still to place between them, as for a freely jointed chain)
+// and restricted to the directions from which the gap can still close; the last bead lies on
+// the circle at bond_length from both tips. All bonds, the closing ones included, are
+// bond_length to rounding.
 Polymer build_rings(const ChainSpec& spec, const Box& box);
 
 // `chains` stars, each a core bead with `arms` arms of `spec.beads` beads (1 + arms·beads beads
