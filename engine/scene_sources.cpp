@@ -211,6 +211,9 @@ void read_prepare(DeckTable& root, Scene& sc) {
     }
     if (tv > 0) {
       // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
+      // The unit normals are one component of a Maxwell–Boltzmann draw at T = 1 for unit masses
+      // (the builders' portable generator); its exact rescaling and zero-mean correction are
+      // O(1/m) departures from independent N(0, 1), harmless for thermalising many bonds.
       const Eigen::Matrix3Xd normal =
           maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, seed + 1);
       std::vector<StiffBond> shifted = stiff->bonds;
