@@ -26,13 +26,27 @@ namespace {
 struct V3 {
   double x = 0.0, y = 0.0, z = 0.0;
 };
-V3 operator+(const V3& a, const V3& b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-V3 operator-(const V3& a, const V3& b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-V3 operator*(double s, const V3& a) { return {s * a.x, s * a.y, s * a.z}; }
-double dot(const V3& a, const V3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-V3 cross(const V3& a, const V3& b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-double& at(V3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
-double at(const V3& v, int a) { return a == 0 ? v.x : (a == 1 ? v.y : v.z); }
+V3 operator+(const V3& a, const V3& b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+V3 operator-(const V3& a, const V3& b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+V3 operator*(double s, const V3& a) {
+  return {s * a.x, s * a.y, s * a.z};
+}
+double dot(const V3& a, const V3& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+V3 cross(const V3& a, const V3& b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+double& at(V3& v, int a) {
+  return a == 0 ? v.x : (a == 1 ? v.y : v.z);
+}
+double at(const V3& v, int a) {
+  return a == 0 ? v.x : (a == 1 ? v.y : v.z);
+}
 
 // Two unit vectors e1, e2 completing the unit vector n to an orthonormal basis.
 void perpendicular_basis(const V3& n, V3& e1, V3& e2) {
@@ -287,8 +301,12 @@ constexpr int kSelfContactGap = 5;
 // density 0.85 (8 seeds): chains of 100 0.03 at min_distance 0.85 and 0.13 at 0.94; rings of
 // 100 0.18 at 0.85 and 0.36 at 0.88; stars of 4 × 25 0.15 at 0.9.
 constexpr int kMaxAttempts = 4;
-int failures_per_attempt(size_t steps) { return 200 + 4 * static_cast<int>(steps); }
-long long total_failure_budget(int n_beads) { return std::max(1000LL, static_cast<long long>(n_beads)); }
+int failures_per_attempt(size_t steps) {
+  return 200 + 4 * static_cast<int>(steps);
+}
+long long total_failure_budget(int n_beads) {
+  return std::max(1000LL, static_cast<long long>(n_beads));
+}
 
 // Grows the molecules of a builder. Which admissible candidate wins: the one with the most
 // contact, Σ (1 − r²/r_c²) over the beads within r_c = 1.3·min_distance. Taking the first
@@ -306,10 +324,16 @@ long long total_failure_budget(int n_beads) { return std::max(1000LL, static_cas
 class Grower {
  public:
   Grower(const char* who, const char* unit, const ChainSpec& spec, const Box& box, int n_beads, int beads_per_molecule)
-      : who_(who), unit_(unit), box_(box), bond_(spec.bond_length), sigma_(spec.min_distance),
+      : who_(who),
+        unit_(unit),
+        box_(box),
+        bond_(spec.bond_length),
+        sigma_(spec.min_distance),
         sigma2_(spec.min_distance * spec.min_distance),
-        contact2_(kContactRange * kContactRange * spec.min_distance * spec.min_distance), rng_(spec.seed),
-        pos_(static_cast<size_t>(n_beads)), wrapped_(static_cast<size_t>(n_beads)),
+        contact2_(kContactRange * kContactRange * spec.min_distance * spec.min_distance),
+        rng_(spec.seed),
+        pos_(static_cast<size_t>(n_beads)),
+        wrapped_(static_cast<size_t>(n_beads)),
         grid_(box, start_lo(box), start_span(box),
               // open axes: a random walk of n bonds rarely strays beyond 3√n bonds (only a cost if it does)
               3.0 * std::sqrt(static_cast<double>(beads_per_molecule)) * spec.bond_length + spec.min_distance,
@@ -370,8 +394,8 @@ class Grower {
 
   [[noreturn]] void fail(size_t m, size_t nm, long long failures) const {
     std::ostringstream msg;
-    msg << who_ << ": could not place " << unit_ << ' ' << m << " (0-based, of " << nm << "; gave up after "
-        << failures << " dead ends in all): too crowded for min_distance = " << sigma_ << " with bond_length = " << bond_
+    msg << who_ << ": could not place " << unit_ << ' ' << m << " (0-based, of " << nm << "; gave up after " << failures
+        << " dead ends in all): too crowded for min_distance = " << sigma_ << " with bond_length = " << bond_
         << "; lower the density or min_distance (a soft-pair push-off can relax closer contacts afterwards)";
     throw std::runtime_error(msg.str());
   }
@@ -395,8 +419,10 @@ class Grower {
       if (box_.periodic[a]) {
         const double L = box_.lengths[a];
         double& x = at(d, a);
-        if (x > 0.5 * L) x -= L;
-        else if (x < -0.5 * L) x += L;
+        if (x > 0.5 * L)
+          x -= L;
+        else if (x < -0.5 * L)
+          x += L;
       }
     return d;
   }
@@ -411,7 +437,7 @@ class Grower {
   }
 
   // Is p (wrapped: pw) at least min_distance from every placed bead other than its bonded ones
-  // (skip1, skip2)? If so, `contact` is its contact with other molecules (see the class comment).
+  // (skip1, skip2)? If so, `contact` is its contact with its surroundings (class comment).
   bool admissible(const V3& pw, int skip1, int skip2, double& contact) const {
     contact = 0.0;
     if (sigma2_ == 0.0) return true;
@@ -458,8 +484,8 @@ class Grower {
           V3 p;
           for (int a = 0; a < 3; ++a) {
             const double u = rng_.uniform();
-            at(p, a) = box_.periodic[a] ? box_.origin[a] + box_.lengths[a] * u
-                                        : box_.origin[a] + box_.lengths[a] * (u - 0.5);
+            at(p, a) =
+                box_.periodic[a] ? box_.origin[a] + box_.lengths[a] * u : box_.origin[a] + box_.lengths[a] * (u - 0.5);
           }
           return p;
         });
@@ -710,11 +736,14 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
 
 Box box_for_density(int total_beads, double density) {
   if (total_beads < 1)
-    throw std::invalid_argument("box_for_density: total_beads = " + std::to_string(total_beads) + ": expected at least 1");
+    throw std::invalid_argument("box_for_density: total_beads = " + std::to_string(total_beads) +
+                                ": expected at least 1");
   if (!(density > 0.0) || !std::isfinite(density))
-    throw std::invalid_argument("box_for_density: density = " + num(density) + ": expected a finite number density > 0");
+    throw std::invalid_argument("box_for_density: density = " + num(density) +
+                                ": expected a finite number density > 0");
   const double volume = total_beads / density;
-  if (!std::isfinite(volume)) throw std::invalid_argument("box_for_density: density = " + num(density) + " is too small");
+  if (!std::isfinite(volume))
+    throw std::invalid_argument("box_for_density: density = " + num(density) + " is too small");
   Box box;
   box.lengths.setConstant(portable_cbrt(volume));
   box.periodic.setOnes();

@@ -24,19 +24,19 @@ namespace stiffmd {
 // one end (ring: bead 0 is bonded to bead n−1); a star as its core, then arm 0 from the core
 // outwards, arm 1, …
 struct Polymer {
-  Eigen::Matrix3Xd x;                       // positions, unwrapped: bonded beads are exactly
-                                            // bond_length apart without any minimum image
-  std::vector<std::pair<int, int>> bonds;   // in growth order: (i, i+1); a ring's closing bond is (last, first)
-  std::vector<std::array<int, 3>> angles;   // every (i, j, k) with i–j and j–k bonded, i ≠ k, each once:
-                                            // consecutive triplets along each backbone, and at a star's
-                                            // core one triplet per pair of arms
-  std::vector<int> molecule;                // 0-based molecule index per bead
+  Eigen::Matrix3Xd x;                      // positions, unwrapped: bonded beads are exactly
+                                           // bond_length apart without any minimum image
+  std::vector<std::pair<int, int>> bonds;  // in growth order: (i, i+1); a ring's closing bond is (last, first)
+  std::vector<std::array<int, 3>> angles;  // every (i, j, k) with i–j and j–k bonded, i ≠ k, each once:
+                                           // consecutive triplets along each backbone, and at a star's
+                                           // core one triplet per pair of arms
+  std::vector<int> molecule;               // 0-based molecule index per bead
 };
 
 struct ChainSpec {
   int chains = 1, beads = 10;  // molecules; beads per chain or ring (per arm for stars, not counting the core)
   double bond_length = 0.97;
-  double min_distance = 0.8;   // no two non-bonded beads closer than this (minimum image); 0 = no check
+  double min_distance = 0.8;  // no two non-bonded beads closer than this (minimum image); 0 = no check
   std::uint64_t seed = 1;
 };
 

@@ -74,7 +74,7 @@ int Thermo::column(const std::string& name) const {
   return -1;
 }
 
-const std::vector<double>& Thermo::sample(const State& s, double model_potential) {
+const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial) {
   Energies e = energies(s, forces_);
   e.stiff += model_potential;
   if (!have_e0_) {
@@ -85,7 +85,7 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   values_.insert(values_.end(),
                  {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
                   max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds()), temperature(s, dof_)});
-  if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_));
+  if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_) + constraint_virial / (3.0 * volume_));
   if (molecules_) {
     double rg = 0.0, ree = 0.0;
     molecules_->measure(s.x, rg, ree);

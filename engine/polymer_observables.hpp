@@ -20,8 +20,8 @@ inline double temperature(const State& s, int dof) {
 // particle is fixed and no external field acts, less one per rigid constraint.
 int degrees_of_freedom(const State& s, bool momentum_conserved, int constraints);
 
-// P = (2K + W) / (3V) with W = Σ r_ij·f_ij over every term (virial theorem). Contributions of
-// rigid-constraint forces (RATTLE, effective) are not included.
+// P = (2K + W) / (3V) with W = Σ r_ij·f_ij over every term (virial theorem); the caller adds the
+// rigid-constraint forces' virial for RATTLE and the effective dynamics (Thermo::sample).
 double pressure(const State& s, const ForceField& forces, double volume);
 
 // Molecules with at least two particles: particle lists in index order.

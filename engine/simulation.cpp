@@ -223,7 +223,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   double max_err = 0.0;
   auto write_thermo = [&]() {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x));
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
     max_err = std::max(max_err, std::abs(row[6]));
     if (csv) csv->write(row);
     for (const auto& note : thermo.take_notes()) log << note << "\n";
@@ -240,7 +240,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     state_csv->write(state_row);
   };
   auto write_h5md = [&]() {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x));
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
     if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
     h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
                       std::vector<double>(row.begin() + 2, row.end()));
@@ -264,7 +264,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   check_finite(s);
   {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x));  // E(0) and the initial actions
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x),
+                                    integrator->constraint_virial(s));  // E(0) and the initial actions
     if (first_action >= 0)
       summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
     for (const auto& note : thermo.take_notes()) log << note << "\n";

@@ -35,6 +35,9 @@ class Integrator {
   // Σ I_k ω_k(x) for the effective dynamics (the averaged energy of the bond vibrations, so
   // that kinetic + U + W is the conserved H_eff of paper eq. (CH)); 0 for the others.
   virtual double model_potential(const Eigen::Matrix3Xd&) { return 0.0; }
+  // Σ_i x_i·F_c,i of the rigid-constraint forces at the current state (RATTLE, effective), for
+  // the pressure; 0 for methods without rigid constraints.
+  virtual double constraint_virial(const State&) const { return 0.0; }
   // State the integrator carries beyond (x, v) — the effective dynamics' actions — for
   // checkpoints; restoring it (and skipping prepare()) continues a run bit for bit.
   virtual std::vector<double> save_state() const { return {}; }

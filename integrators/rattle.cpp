@@ -13,7 +13,9 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       modes_(std::move(modes)),
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
-      x_old_(f_) {
+      x_old_(f_),
+      v_unprojected_(f_),
+      constraint_force_(f_) {
   if (modes_) actions_ = Eigen::VectorXd::Zero(modes_->num_modes());
 }
 
@@ -53,7 +55,13 @@ void Rattle::step(State& s, double h) {
   s.v = (s.x - x_old_) / h;     // v½ including the constraint impulse
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
+  v_unprojected_ = s.v;
   toolbox_.project_velocity(s.x, s.v);  // G(x') v' = 0
+  // F_c = M Δv / (h/2); fixed particles (inverse mass 0) have Δv = 0 and get no force.
+  for (int i = 0; i < s.size(); ++i)
+    constraint_force_.col(i) = s.inv_mass[i] > 0.0
+                                   ? ((s.v.col(i) - v_unprojected_.col(i)) * (2.0 / (h * s.inv_mass[i]))).eval()
+                                   : Eigen::Vector3d::Zero().eval();
 }
 
 }  // namespace stiffmd

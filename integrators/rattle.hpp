@@ -31,6 +31,10 @@ class Rattle final : public Integrator {
   void step(State& s, double h) override;
   void reset() override { valid_ = false; }
   std::string_view method() const override { return method_; }
+  // The constraint force at the end of the last step is the velocity projection's impulse over
+  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2). Molecules are whole (unwrapped
+  // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
+  double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
   double model_potential(const Eigen::Matrix3Xd& x) override {
     return modes_ ? modes_->correction_force(actions_, x, correction_) : 0.0;
   }
@@ -56,7 +60,7 @@ class Rattle final : public Integrator {
   ConstraintToolbox toolbox_;
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd actions_;
-  Eigen::Matrix3Xd f_, correction_, x_old_;
+  Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
   bool valid_ = false;
 };
 

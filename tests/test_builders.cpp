@@ -193,6 +193,26 @@ TEST(LinearChains, OpenSpace) {
     for (int a = 0; a < 3; ++a) EXPECT_LE(std::abs(q.x(a, c * 40) - region.origin[a]), 10.0);
 }
 
+TEST(LinearChains, SlabPeriodicInXYOpenInZ) {
+  Box slab;
+  slab.origin = Vector3d(0.0, 0.0, 3.0);
+  slab.lengths = Vector3d(10.0, 10.0, 4.0);
+  slab.periodic = Eigen::Vector3i(1, 1, 0);
+  ChainSpec spec;
+  spec.chains = 20;
+  spec.beads = 30;
+  spec.min_distance = 0.9;
+  spec.seed = 4;
+  const Polymer p = build_linear_chains(spec, slab);
+  expect_exact_bonds(p, slab, spec.bond_length);
+  expect_no_overlap(p, slab, spec.min_distance);
+  for (int c = 0; c < 20; ++c) {
+    EXPECT_GE(p.x(0, c * 30), 0.0);
+    EXPECT_LT(p.x(0, c * 30), 10.0);
+    EXPECT_LE(std::abs(p.x(2, c * 30) - 3.0), 2.0);  // open axis: centred on the origin
+  }
+}
+
 TEST(LinearChains, ZeroMinDistanceIsAPlainRandomWalk) {
   ChainSpec spec;
   spec.chains = 3;
@@ -226,6 +246,21 @@ TEST(Rings, ClosedExactAndSelfAvoiding) {
   expect_no_overlap(p, box, spec.min_distance);
   expect_angles_match_bonds(p);
   EXPECT_EQ(p.angles.size(), 2000u);
+}
+
+// Small rings leave the bridge little slack: without the reach restriction the tips would often
+// end up more than two bonds apart, and the closing bead could not bond to both.
+TEST(Rings, ManySmallRingsCloseExactly) {
+  for (int n = 4; n <= 10; ++n) {
+    ChainSpec spec;
+    spec.chains = 300;
+    spec.beads = n;
+    spec.min_distance = 0.8;
+    spec.seed = static_cast<std::uint64_t>(n);
+    const Box box = box_for_density(300 * n, 0.3);
+    const Polymer p = build_rings(spec, box);
+    expect_exact_bonds(p, box, spec.bond_length);
+  }
 }
 
 TEST(Rings, SmallestRingIsAnEquilateralTriangle) {
@@ -321,10 +356,10 @@ TEST(Builders, PlatformIndependentStream) {
   chain.beads = 4;
   chain.seed = 2024;
   const Polymer p = build_linear_chains(chain, open_box());
-  const double want_chain[3][4] = {  // rows x, y, z; columns beads
-      {0, 0.21659971105940723, 0.68725962829573695, 1.2587184752490663},
-      {0, -0.86398507471000741, -1.5964870248930501, -1.0975957728194283},
-      {0, 0.38407597665998866, 0.81165068976300991, 0.20713244781891027}};
+  const double want_chain[3][4] = {// rows x, y, z; columns beads
+                                   {0, 0.21659971105940723, 0.68725962829573695, 1.2587184752490663},
+                                   {0, -0.86398507471000741, -1.5964870248930501, -1.0975957728194283},
+                                   {0, 0.38407597665998866, 0.81165068976300991, 0.20713244781891027}};
   for (int i = 0; i < 4; ++i)
     for (int a = 0; a < 3; ++a) EXPECT_NEAR(p.x(a, i), want_chain[a][i], 1e-13) << a << ',' << i;
 
@@ -351,10 +386,9 @@ TEST(Builders, PlatformIndependentStream) {
   EXPECT_NEAR(d.x(2, 199), 5.1587811132553556, 1e-12);
 
   const Matrix3Xd v = maxwell_boltzmann(VectorXd::Constant(3, 1.0), 1.5, 2024);
-  const double want_v[3][3] = {
-      {1.3970205562159184, -0.26439698386306126, -1.1326235723528568},
-      {0.67413660990449098, -0.030470600964577734, -0.64366600893991321},
-      {-1.5800307655830603, 0.05477689899863615, 1.5252538665844244}};
+  const double want_v[3][3] = {{1.3970205562159184, -0.26439698386306126, -1.1326235723528568},
+                               {0.67413660990449098, -0.030470600964577734, -0.64366600893991321},
+                               {-1.5800307655830603, 0.05477689899863615, 1.5252538665844244}};
   for (int i = 0; i < 3; ++i)
     for (int a = 0; a < 3; ++a) EXPECT_NEAR(v(a, i), want_v[a][i], 1e-13) << a << ',' << i;
 }
@@ -370,7 +404,7 @@ TEST(Builders, MeltOf100ChainsOf100AtDensity085) {
     const auto t0 = std::chrono::steady_clock::now();
     const Polymer p = build_linear_chains(spec, box);
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    EXPECT_LT(seconds, 4.0) << "seed " << seed;  // ~0.4 s optimised on one core
+    // Speed is reported, not asserted (benchmarks measure speed; a loaded CI machine must not fail).
     std::printf("[ melt     ] seed %d: built in %.2f s\n", static_cast<int>(seed), seconds);
     expect_exact_bonds(p, box, spec.bond_length);
     expect_no_overlap(p, box, spec.min_distance);

@@ -142,3 +142,39 @@ TEST(LammpsExport, FinalStateRoundTripsThroughImport) {
 
 }  // namespace
 }  // namespace stiffmd
+
+namespace stiffmd {
+namespace {
+
+// A dilute gas of rigid dimers under RATTLE: without the constraint forces' virial the atomic
+// pressure would be 2K/(3V) ≈ (5/3) N_d T/V; with it, P V = N_d T (an ideal gas of molecules).
+TEST(Pressure, RigidDimerGasIncludesTheConstraintVirial) {
+  Scene sc =
+      test::load("tests/decks/small_melt.toml", {"build.0.chains=200", "build.0.beads=2", "build.0.density=0.01",
+                                                 "build.0.angle_type=", "forces.bending.angle_types.bend.k=0",
+                                                 "integrator.method=rattle", "integrator.h=0.01", "run.t_end=20",
+                                                 "output.thermo_interval=0.5", "prepare.vibrational_temperature=0"});
+  const fs::path d = test::scratch_dir("dimers");
+  std::ostringstream log;
+  run_simulation(sc, {d.string(), false, ""}, log);
+  std::ifstream csv(d / "thermo.csv");
+  std::string header, line;
+  std::getline(csv, header);
+  const double volume = sc.box.lengths.prod();
+  double ratio = 0.0;
+  int rows = 0;
+  while (std::getline(csv, line)) {
+    std::vector<double> v;
+    std::stringstream ls(line);
+    for (std::string cell; std::getline(ls, cell, ',');) v.push_back(std::stod(cell));
+    if (rows++ == 0) continue;  // t = 0: no constraint force known yet
+    ratio += v[9] * volume / (200.0 * v[8]);
+  }
+  ratio /= rows - 1;
+  RecordProperty("PV_over_NdT", std::to_string(ratio));
+  EXPECT_NEAR(ratio, 1.0, 0.05);
+  fs::remove_all(d);
+}
+
+}  // namespace
+}  // namespace stiffmd
