@@ -80,18 +80,12 @@ TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
   Scene sc = load_scene(dk);
   std::ostringstream log;
   run_simulation(sc, {(d / "out").string(), false, ""}, log);
-  std::ifstream csv(d / "out" / "thermo.csv");
-  std::string header, line;
-  std::getline(csv, header);
-  ASSERT_NE(header.find("temperature,pressure"), std::string::npos) << header;
+  const test::CsvTable thermo = test::read_csv((d / "out" / "thermo.csv").string());
+  const size_t temperature = thermo.col("temperature"), pressure = thermo.col("pressure");
   double ratio = 0.0;
   int rows = 0;
-  while (std::getline(csv, line)) {
-    std::vector<double> v;
-    std::stringstream ls(line);
-    for (std::string cell; std::getline(ls, cell, ',');) v.push_back(std::stod(cell));
-    const double t = v[8], p = v[9];
-    ratio += p / (125.0 / (40.0 * 40.0 * 40.0) * t);
+  for (const auto& v : thermo.rows) {
+    ratio += v[pressure] / (125.0 / (40.0 * 40.0 * 40.0) * v[temperature]);
     ++rows;
   }
   ratio /= rows;
@@ -157,18 +151,14 @@ TEST(Pressure, RigidDimerGasIncludesTheConstraintVirial) {
   const fs::path d = test::scratch_dir("dimers");
   std::ostringstream log;
   run_simulation(sc, {d.string(), false, ""}, log);
-  std::ifstream csv(d / "thermo.csv");
-  std::string header, line;
-  std::getline(csv, header);
+  const test::CsvTable thermo = test::read_csv((d / "thermo.csv").string());
+  const size_t temperature = thermo.col("temperature"), pressure = thermo.col("pressure");
   const double volume = sc.box.lengths.prod();
   double ratio = 0.0;
   int rows = 0;
-  while (std::getline(csv, line)) {
-    std::vector<double> v;
-    std::stringstream ls(line);
-    for (std::string cell; std::getline(ls, cell, ',');) v.push_back(std::stod(cell));
+  for (const auto& v : thermo.rows) {
     if (rows++ == 0) continue;  // t = 0: no constraint force known yet
-    ratio += v[9] * volume / (200.0 * v[8]);
+    ratio += v[pressure] * volume / (200.0 * v[temperature]);
   }
   ratio /= rows - 1;
   RecordProperty("PV_over_NdT", std::to_string(ratio));

@@ -63,11 +63,39 @@ inline void advance(Scene& sc, std::int64_t n) {
 
 }  // namespace stiffmd::test
 
+#include <fstream>
 #include <sstream>
+#include <stdexcept>
 
 #include "engine/observables.hpp"
 
 namespace stiffmd::test {
+
+// A numeric CSV file (thermo.csv, state.csv): its header and rows; col(name) finds a column.
+struct CsvTable {
+  std::vector<std::string> header;
+  std::vector<std::vector<double>> rows;
+  size_t col(const std::string& name) const {
+    const auto it = std::find(header.begin(), header.end(), name);
+    if (it == header.end()) throw std::runtime_error("no column " + name);
+    return static_cast<size_t>(it - header.begin());
+  }
+};
+
+inline CsvTable read_csv(const std::string& path) {
+  std::ifstream in(path);
+  CsvTable t;
+  std::string line;
+  std::getline(in, line);
+  std::stringstream hs(line);
+  for (std::string cell; std::getline(hs, cell, ',');) t.header.push_back(cell);
+  while (std::getline(in, line)) {
+    std::stringstream ls(line);
+    t.rows.emplace_back();
+    for (std::string cell; std::getline(ls, cell, ',');) t.rows.back().push_back(std::stod(cell));
+  }
+  return t;
+}
 
 // Positions and projected momenta P(x)p at every macro step (index 0 = after prepare()).
 struct Trajectory {
