@@ -285,6 +285,18 @@ struct Plan {
   std::vector<Step> steps;
 };
 
+// The plan of an unbranched molecule (chain or ring) of n beads from `first`: one branch, beads
+// placed in index order along it. Its steps are added by the builder.
+Plan unbranched_plan(int first, int n, int ring) {
+  Plan p;
+  p.first = first;
+  p.end = first + n;
+  p.ring = ring;
+  p.arm.assign(static_cast<size_t>(n), 0);
+  for (int k = 0; k < n; ++k) p.position.push_back(k);
+  return p;
+}
+
 // The effort per bead: up to kTrials random positions, of which the first kCandidates
 // admissible ones compete (below). A molecule's first bead takes the first admissible of up to
 // kStartTrials points: it has the whole start region to search.
@@ -645,11 +657,8 @@ Polymer build_linear_chains(const ChainSpec& spec, const Box& box) {
   std::vector<int> molecule;
   for (int c = 0; c < spec.chains; ++c) {
     const int first = c * n;
+    plans[c] = unbranched_plan(first, n, 0);
     std::vector<Step>& steps = plans[c].steps;
-    plans[c].first = first;
-    plans[c].end = first + n;
-    plans[c].arm.assign(static_cast<size_t>(n), 0);
-    for (int k = 0; k < n; ++k) plans[c].position.push_back(k);
     steps.push_back({StepKind::Start, first});
     for (int k = 1; k < n; ++k) {
       steps.push_back({StepKind::Walk, first + k, first + k - 1});
@@ -671,12 +680,8 @@ Polymer build_rings(const ChainSpec& spec, const Box& box) {
   std::vector<int> molecule;
   for (int c = 0; c < spec.chains; ++c) {
     const int first = c * n;
+    plans[c] = unbranched_plan(first, n, n);
     std::vector<Step>& steps = plans[c].steps;
-    plans[c].first = first;
-    plans[c].end = first + n;
-    plans[c].ring = n;
-    plans[c].arm.assign(static_cast<size_t>(n), 0);
-    for (int k = 0; k < n; ++k) plans[c].position.push_back(k);
     // Two tips grow from bead 0 in turn, 1, n−1, 2, n−2, …, each bridged to the other tip, and
     // the last bead closes the gap between them wherever they meet: a closure tied to bead 0's
     // neighbourhood, which the other molecules fill meanwhile, fails far more often in a melt.
