@@ -222,10 +222,12 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
 
   double max_err = 0.0;
-  auto write_thermo = [&]() {
+  // One sample of the observables serves the thermo row and the H5MD frame of the same step.
+  std::vector<double> last_row;
+  auto sample = [&]() -> const std::vector<double>& {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
+    last_row = row;
     max_err = std::max(max_err, std::abs(row[6]));
-    if (csv) csv->write(row);
     for (const auto& note : thermo.take_notes()) log << note << "\n";
     return row;
   };
@@ -239,17 +241,21 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       }
     state_csv->write(state_row);
   };
-  auto write_h5md = [&]() {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
+  auto write_h5md = [&](const std::vector<double>& row) {
     if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
     h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
                       std::vector<double>(row.begin() + 2, row.end()));
   };
-  auto observe = [&]() {
-    if (thermo_due.due(s.t)) write_thermo();
-    if (xyz && xyz_due.due(s.t)) xyz->write(s);
-    if (state_csv && state_due.due(s.t)) write_state();
-    if (h5md && h5md_due.due(s.t)) write_h5md();
+  // Outputs due at this step; `final` writes everything (the last state, whatever the grids).
+  auto observe = [&](bool final = false) {
+    const bool thermo_now = thermo_due.due(s.t) || final, h5md_now = h5md && (h5md_due.due(s.t) || final);
+    if (thermo_now || h5md_now) {
+      const std::vector<double>& row = sample();
+      if (thermo_now && csv) csv->write(row);
+      if (h5md_now) write_h5md(row);
+    }
+    if (xyz && (xyz_due.due(s.t) || final)) xyz->write(s);
+    if (state_csv && (state_due.due(s.t) || final)) write_state();
   };
   auto checkpoint = [&]() {
     Checkpoint c;
@@ -311,10 +317,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     return summary;  // outputs are flushed frame by frame; no summary.json: the run is not finished
   }
   // The final state is always written, exactly once, whatever the intervals.
-  const std::vector<double> row = write_thermo();
-  if (xyz) xyz->write(s);
-  if (state_csv) write_state();
-  if (h5md) write_h5md();
+  observe(true);
+  const std::vector<double>& row = last_row;
 
   if (!sc.output.lammps_data.empty()) {
     write_lammps_data((dir / sc.output.lammps_data).string(), to_lammps(sc),
