@@ -1,6 +1,8 @@
 // The stiffmd command line (design.md §7):
 //   stiffmd run DECK [-o DIR] [--set key=value]...   exit 0 ok, 2 bad input, 3 numerical failure
-//   stiffmd check DECK [--set key=value]...          validate and describe the scene
+//   stiffmd check DECK [--set key=value]... [--write-data FILE]
+//                                                    validate and describe the scene; write its
+//                                                    prepared initial state as LAMMPS data
 #include <CLI/CLI.hpp>
 #include <filesystem>
 #include <iostream>
@@ -39,6 +41,9 @@ int main(int argc, char** argv) {
   CLI::App* check = app.add_subcommand("check", "validate a deck and print what the scene contains");
   check->add_option("deck", deck_path, "deck file (TOML)")->required();
   check->add_option("--set", overrides, "override a deck key")->take_all();
+  std::string data_path;
+  check->add_option("--write-data", data_path,
+                    "write the prepared initial state (after [prepare]) as a LAMMPS data file");
 
   try {
     app.parse(argc, argv);
@@ -53,6 +58,10 @@ int main(int argc, char** argv) {
     for (const auto& note : scene.notes) std::cerr << note << "\n";
     if (check->parsed()) {
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
+      if (!data_path.empty()) {
+        stiffmd::write_scene_lammps_data(scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
+        std::cout << "initial state written to " << data_path << "\n";
+      }
       return 0;
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();

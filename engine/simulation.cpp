@@ -108,6 +108,10 @@ ImportedSystem to_lammps(const Scene& sc) {
 
 }  // namespace
 
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
+  write_lammps_data(path, to_lammps(scene), scene.topology.angles.empty() ? "bond" : "angle", title);
+}
+
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   RunSummary summary;
   summary.method = sc.integrator.method;
@@ -321,9 +325,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const std::vector<double>& row = last_row;
 
   if (!sc.output.lammps_data.empty()) {
-    write_lammps_data((dir / sc.output.lammps_data).string(), to_lammps(sc),
-                      sc.topology.angles.empty() ? "bond" : "angle",
-                      "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
+    write_scene_lammps_data(sc, (dir / sc.output.lammps_data).string(),
+                            "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
     summary.outputs.push_back((dir / sc.output.lammps_data).string());
   }
   if (sc.observables.histograms && !sc.topology.bonds.empty()) {
