@@ -1,12 +1,24 @@
 // The loop over two-body bonds, written once and shared by every bond style (style.md §1,
 // after HOOMD's EvaluatorBond*): a style supplies only a kernel
 //     static void eval(double r, const Params& p, double& energy, double& dE_dr);
+//
+// Threads (parallel.hpp): owner computes. Thread t owns a contiguous range of particles and
+// evaluates every bond with an end it owns, adding the force only to the ends it owns; a bond
+// whose ends have different owners is evaluated by both. No two threads write one particle, so
+// there is no race and no per-thread force copy, and the sums are in a fixed order for a given
+// thread count. In chains numbered along the backbone only the bonds at the range boundaries
+// are evaluated twice.
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include "engine/box.hpp"
+#include "forcefields/neighbor_list.hpp"
+#include "forcefields/parallel.hpp"
 
 namespace stiffmd {
 
@@ -17,24 +29,138 @@ struct BondInstance {
   Params params;
 };
 
-// Adds −∇E into f for every bond and returns Σ E. Minimum image on periodic axes.
+// Which bonds each thread evaluates, and for which ends (owner computes, see above).
+class BondPartition {
+ public:
+  struct Work {
+    int bond;
+    bool add_i;  // this thread owns particle i: add f_i, and count the bond's energy
+    bool add_j;  // this thread owns particle j: add f_j
+  };
+
+  // Rebuilds for `threads` owners if the thread count or the bonds changed. The particle ranges
+  // are split so that each owns about the same number of bond ends.
+  template <class Params>
+  void prepare(const std::vector<BondInstance<Params>>& bonds, int threads) {
+    if (threads == threads_ && bonds.size() == num_bonds_) return;
+    threads_ = threads;
+    num_bonds_ = bonds.size();
+    start_.assign(threads + 1, 0);
+    work_.clear();
+    if (threads == 1) return;
+    int n = 0;
+    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
+    std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
+    for (const auto& b : bonds) {
+      ++ends[b.i + 1];
+      ++ends[b.j + 1];
+    }
+    for (int p = 0; p < n; ++p) ends[p + 1] += ends[p];
+    std::vector<int> first(threads + 1, n);  // owner t: particles first[t] … first[t+1] − 1
+    for (int t = 0; t < threads; ++t)
+      first[t] = static_cast<int>(std::lower_bound(ends.begin(), ends.end(), ends[n] * t / threads) - ends.begin());
+    first[0] = 0;
+    auto owner = [&](int p) {
+      return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
+    };
+    std::vector<std::vector<Work>> per(threads);
+    for (std::size_t k = 0; k < bonds.size(); ++k) {
+      const int oi = owner(bonds[k].i), oj = owner(bonds[k].j);
+      if (oi == oj) {
+        per[oi].push_back({static_cast<int>(k), true, true});
+      } else {
+        per[oi].push_back({static_cast<int>(k), true, false});
+        per[oj].push_back({static_cast<int>(k), false, true});
+      }
+    }
+    for (int t = 0; t < threads; ++t) {
+      start_[t + 1] = start_[t] + static_cast<std::int64_t>(per[t].size());
+      work_.insert(work_.end(), per[t].begin(), per[t].end());
+    }
+  }
+
+  int threads() const { return threads_; }
+  const Work* begin(int t) const { return work_.data() + start_[t]; }
+  const Work* end(int t) const { return work_.data() + start_[t + 1]; }
+  double* energy_slots() { return energy_.data(); }  // one per owner
+
+ private:
+  int threads_ = 0;
+  std::size_t num_bonds_ = 0;
+  std::vector<std::int64_t> start_;
+  std::vector<Work> work_;
+  std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
+};
+
+namespace detail {
+
+// −∂E/∂x_i of one bond (x_j's is its negative) and the bond's energy.
+template <class Kernel, class Params>
+inline double bond_force(const BondInstance<Params>& b, const double* xp, const MinimumImage& mi, double& fx,
+                         double& fy, double& fz) {
+  double dx = xp[3 * b.i] - xp[3 * b.j], dy = xp[3 * b.i + 1] - xp[3 * b.j + 1], dz = xp[3 * b.i + 2] - xp[3 * b.j + 2];
+  mi.apply(dx, dy, dz);
+  const double r = std::sqrt(dx * dx + dy * dy + dz * dz);
+  double e = 0.0, de_dr = 0.0;
+  Kernel::eval(r, b.params, e, de_dr);
+  const double s = -de_dr / r;
+  fx = s * dx;
+  fy = s * dy;
+  fz = s * dz;
+  return e;
+}
+
+}  // namespace detail
+
+// Adds −∇E into f for every bond and returns Σ E. Minimum image on periodic axes. `partition`
+// is the per-term thread plan (rebuilt when the thread count changes).
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
-                              Eigen::Matrix3Xd& f) {
-  double energy = 0.0;
-  const bool periodic = box.any_periodic();
-  for (const auto& b : bonds) {
-    Eigen::Vector3d d = x.col(b.i) - x.col(b.j);
-    if (periodic) d = box.min_image(d);
-    const double r = d.norm();
-    double e = 0.0, de_dr = 0.0;
-    Kernel::eval(r, b.params, e, de_dr);
-    energy += e;
-    const Eigen::Vector3d fi = (-de_dr / r) * d;  // −∂E/∂x_i; Newton's third law gives x_j's
-    f.col(b.i) += fi;
-    f.col(b.j) -= fi;
+                              Eigen::Matrix3Xd& f, BondPartition& partition) {
+  const MinimumImage mi(box);
+  const double* xp = x.data();
+  double* fp = f.data();
+  const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
+  if (threads == 1) {
+    double energy = 0.0;
+    for (const auto& b : bonds) {
+      double fx, fy, fz;
+      energy += detail::bond_force<Kernel>(b, xp, mi, fx, fy, fz);
+      fp[3 * b.i] += fx;
+      fp[3 * b.i + 1] += fy;
+      fp[3 * b.i + 2] += fz;
+      fp[3 * b.j] -= fx;
+      fp[3 * b.j + 1] -= fy;
+      fp[3 * b.j + 2] -= fz;
+    }
+    return energy;
   }
-  return energy;
+  partition.prepare(bonds, threads);
+  double* energy = partition.energy_slots();
+  auto run_owner = [&](int t) {  // owner t's bonds; returns the energy of the bonds it counts
+    double e_t = 0.0;
+    for (const BondPartition::Work* w = partition.begin(t); w != partition.end(t); ++w) {
+      const auto& b = bonds[w->bond];
+      double fx, fy, fz;
+      const double e = detail::bond_force<Kernel>(b, xp, mi, fx, fy, fz);
+      if (w->add_i) {
+        e_t += e;
+        fp[3 * b.i] += fx;
+        fp[3 * b.i + 1] += fy;
+        fp[3 * b.i + 2] += fz;
+      }
+      if (w->add_j) {
+        fp[3 * b.j] -= fx;
+        fp[3 * b.j + 1] -= fy;
+        fp[3 * b.j + 2] -= fz;
+      }
+    }
+    energy[t] = e_t;
+  };
+  run_parts(threads, run_owner);
+  double sum = 0.0;
+  for (int t = 0; t < threads; ++t) sum += energy[t];
+  return sum;
 }
 
 // Σ_b r_ij · f_ij over the bonds (f_ij = −dE/dr · r_ij/r, so each term is −r dE/dr).

@@ -75,7 +75,7 @@ void FeneBond::throw_out_of_range(const Eigen::Matrix3Xd& x, const Box& box) con
 
 double FeneBond::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
   try {
-    return accumulate_bond_forces<Kernel>(instances_, x, box, f);
+    return accumulate_bond_forces<Kernel>(instances_, x, box, f, partition_);
   } catch (const NumericalError&) {
     throw_out_of_range(x, box);  // f holds the bonds before the failing one: the run is over anyway
   }

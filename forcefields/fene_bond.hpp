@@ -74,6 +74,7 @@ class FeneBond final : public ForceTerm {
 
   std::vector<FeneCoeffs> types_;
   std::vector<BondInstance<Params>> instances_;
+  mutable BondPartition partition_;  // thread plan of the bond loop
 };
 
 }  // namespace stiffmd

@@ -7,12 +7,14 @@
 //
 // What a call accumulates (forces, virial) and whether the box is periodic are template
 // parameters, so the inner loop carries no run-time branch for them. The loop reads only its
-// arguments — no hidden state — and works on a range of rows, so that an OpenMP version can
-// give fixed row blocks to threads with private force buffers and reduce them in a fixed order
-// (deterministic, bit for bit).
+// arguments — no hidden state — and works on a range of rows, so that the OpenMP version gives
+// fixed row blocks to threads with private force buffers and reduces them in a fixed order
+// (deterministic, bit for bit, for a given thread count).
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <array>
 #include <span>
 #include <sstream>
 #include <stdexcept>
@@ -21,6 +23,7 @@
 
 #include "engine/box.hpp"
 #include "forcefields/neighbor_list.hpp"
+#include "forcefields/parallel.hpp"
 
 namespace stiffmd {
 
@@ -169,19 +172,78 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
   return sums;
 }
 
+// Per-thread force buffers of the parallel pair loop, reused from call to call.
+struct PairScratch {
+  std::vector<Eigen::Matrix3Xd> force;  // one per part
+  std::array<PairSums, kMaxParts> sums;
+  std::array<int, kMaxParts + 1> first_row;
+};
+
+// The listed pairs on `parts` threads (parallel.hpp): part u takes a contiguous block of rows
+// holding about 1/parts of the pairs and writes f_i and f_j into its own buffer (a neighbour j
+// may belong to any block); then each thread adds, for a block of particles, the buffers in part
+// order. Fixed blocks and a fixed order: the same sums for a given thread count.
+template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
+PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
+                                       const TypePairMatrix<typename Kernel::Params>& params, const int* type,
+                                       const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f,
+                                       PairScratch& scratch) {
+  const int n = list.num_particles();
+  const std::span<const std::int64_t> offset = list.offsets();
+  const std::int64_t pairs = offset[n];
+  for (int u = 0; u <= parts; ++u)  // row block u: the rows whose pairs start in [u, u+1)·pairs/parts
+    scratch.first_row[u] =
+        u == parts ? n
+                   : static_cast<int>(std::lower_bound(offset.begin(), offset.end(), block_begin(pairs, parts, u)) -
+                                      offset.begin());
+  scratch.first_row[0] = 0;
+  if (kForces && static_cast<int>(scratch.force.size()) < parts) scratch.force.resize(parts);
+  run_parts(parts, [&](int u) {
+    double* fu = nullptr;
+    if constexpr (kForces) {
+      scratch.force[u].setZero(3, n);  // allocates only the first time
+      fu = scratch.force[u].data();
+    }
+    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial>(
+        list, scratch.first_row[u], std::max(scratch.first_row[u], scratch.first_row[u + 1]), params, type, xw, near,
+        fu);
+  });
+  if constexpr (kForces)
+    parallel_blocks(n, parts, [&](std::int64_t begin, std::int64_t end) {
+      for (int u = 0; u < parts; ++u) {
+        const double* fu = scratch.force[u].data();
+        for (std::int64_t k = 3 * begin; k < 3 * end; ++k) f[k] += fu[k];
+      }
+    });
+  PairSums total;
+  for (int u = 0; u < parts; ++u) {
+    total.energy += scratch.sums[u].energy;
+    total.virial += scratch.sums[u].virial;
+  }
+  return total;
+}
+
 // The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
 // Σ E and Σ r_ij·f_ij (if kVirial). The list must be up to date for x and box (update).
 template <class Kernel, bool kForces, bool kVirial>
 PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                          const Eigen::Matrix3Xd& x, const Box& box, double* f) {
+                          const Eigen::Matrix3Xd& x, const Box& box, double* f, PairScratch& scratch) {
   const int n = list.num_particles();
+  const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
+  const bool periodic = box.any_periodic();
+  const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
   PairSums listed;
-  if (box.any_periodic()) {
-    const Eigen::Matrix3Xd& xw = list.wrapped_positions(x);
-    listed = accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xw, NearestImage(box), f);
+  if (parts > 1) {
+    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial>(list, parts, params, type, xl,
+                                                                                      NearestImage(box), f, scratch)
+                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial>(list, parts, params, type, xl,
+                                                                                       NearestImage(box), f, scratch);
   } else {
-    listed = accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, x, NearestImage(box), f);
+    listed =
+        periodic
+            ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xl, NearestImage(box), f)
+            : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, xl, NearestImage(box), f);
   }
   // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to
   // the list's frame.

@@ -100,14 +100,16 @@ template <class Kernel>
 double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
   check_positions(x, &f);
   list_.update(x, box);
-  return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data()).energy;
+  return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_)
+      .energy;
 }
 
 template <class Kernel>
 double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
   check_positions(x, nullptr);
   list_.update(x, box);
-  return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr).virial;
+  return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_)
+      .virial;
 }
 
 template <class Kernel>

@@ -60,6 +60,7 @@ class PairTerm final : public ForceTerm {
   // A cache of the positions, not part of the term's value: rebuilt on demand by the const
   // add_forces/virial when particles have moved more than skin/2, hence mutable.
   mutable NeighborList list_;
+  mutable PairScratch scratch_;  // per-thread force buffers of the pair loop
 };
 
 extern template class PairTerm<LennardJones>;

@@ -19,7 +19,7 @@ StiffHarmonicBond::StiffHarmonicBond(std::string name, Level level, StiffBonds b
 }
 
 double StiffHarmonicBond::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  return accumulate_bond_forces<Kernel>(instances_, x, box, f);
+  return accumulate_bond_forces<Kernel>(instances_, x, box, f, partition_);
 }
 
 std::string StiffHarmonicBond::describe() const {

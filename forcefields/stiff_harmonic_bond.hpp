@@ -38,6 +38,7 @@ class StiffHarmonicBond final : public ForceTerm {
  private:
   StiffBonds bonds_;
   std::vector<BondInstance<Params>> instances_;
+  mutable BondPartition partition_;  // thread plan of the bond loop
 };
 
 }  // namespace stiffmd

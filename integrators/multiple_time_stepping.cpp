@@ -29,10 +29,10 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
 
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
   if (!valid_[k]) refresh(k, s.x);
-  kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
   if (k + 1 == stages_.size()) {
-    drift(s.x, s.v, dt);
+    kick_drift(s.x, s.v, s.inv_mass, force_[k], 0.5 * dt, dt);  // the innermost stage: one pass
   } else {
+    kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
     const int n = stages_[k + 1].substeps;
     const double sub = dt / n;
     for (int i = 0; i < n; ++i) advance(s, k + 1, sub);

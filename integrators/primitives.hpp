@@ -1,20 +1,46 @@
 // The named primitives every integrator is written from (style.md §5, after JAX-MD):
 // kick (momentum step) and drift (position step). Fixed particles have inverse mass 0,
-// so a kick leaves their velocity at zero and a drift leaves them in place.
+// so a kick leaves their velocity at zero and a drift leaves them in place. Large systems
+// update in contiguous particle blocks on the OpenMP threads (parallel.hpp): each particle
+// is touched by one thread, so the result is the serial one.
 #pragma once
 
 #include <Eigen/Core>
+
+#include "forcefields/parallel.hpp"
 
 namespace stiffmd {
 
 // v ← v + dt M⁻¹ f
 inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt) {
-  v.noalias() += f * (dt * inv_mass).asDiagonal();
+  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    v.middleCols(b, e - b).noalias() += f.middleCols(b, e - b) * (dt * inv_mass.segment(b, e - b)).asDiagonal();
+  });
 }
 
 // x ← x + dt v
 inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
-  x.noalias() += dt * v;
+  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    x.middleCols(b, e - b).noalias() += dt * v.middleCols(b, e - b);
+  });
+}
+
+// kick(v, f, dt_kick) then drift(x, v, dt_drift), in one pass over the particles.
+inline void kick_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
+                       const Eigen::Matrix3Xd& f, double dt_kick, double dt_drift) {
+  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    const double* fp = f.data();
+    const double* w = inv_mass.data();
+    double* vp = v.data();
+    double* xp = x.data();
+    for (std::int64_t i = b; i < e; ++i) {
+      const double s = dt_kick * w[i];
+      for (int a = 0; a < 3; ++a) {
+        vp[3 * i + a] += s * fp[3 * i + a];
+        xp[3 * i + a] += dt_drift * vp[3 * i + a];
+      }
+    }
+  });
 }
 
 }  // namespace stiffmd

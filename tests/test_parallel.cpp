@@ -1,0 +1,142 @@
+// The OpenMP paths (forcefields/parallel.hpp): bond forces (owner computes), pair forces
+// (per-thread buffers), the fused kick–drift. For a system above kParallelMin they must give
+// the serial forces to rounding for any thread count, the same bits on every call with a given
+// count, and an exception from a kernel must surface as the kernel's exception, not terminate().
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+
+#include "engine/errors.hpp"
+#include "forcefields/fene_bond.hpp"
+#include "forcefields/pair_term.hpp"
+#include "forcefields/parallel.hpp"
+#include "forcefields/stiff_harmonic_bond.hpp"
+#include "integrators/primitives.hpp"
+
+namespace stiffmd {
+namespace {
+
+// 20³ particles on a jittered cubic lattice (spacing 1.06) in a periodic box; chains are the
+// lattice rows along x (19 bonds each, 7600 in all). With `shuffle`, particle indices are a
+// random permutation, so bonds join particles far apart in index (many thread-boundary bonds).
+struct Melt {
+  Eigen::Matrix3Xd x;
+  std::vector<Bond> bonds;
+  Box box;
+};
+
+Melt melt(bool shuffle) {
+  const int n = 20;
+  const double a = 1.06;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> jitter(-0.04, 0.04);
+  std::vector<int> index(n * n * n);
+  std::iota(index.begin(), index.end(), 0);
+  if (shuffle) std::shuffle(index.begin(), index.end(), rng);
+  Melt m;
+  m.x.resize(3, n * n * n);
+  for (int iz = 0; iz < n; ++iz)
+    for (int iy = 0; iy < n; ++iy)
+      for (int ix = 0; ix < n; ++ix) {
+        const int site = ix + n * (iy + n * iz);
+        m.x.col(index[site]) = Eigen::Vector3d(ix * a + jitter(rng), iy * a + jitter(rng), iz * a + jitter(rng));
+        if (ix > 0) m.bonds.push_back({index[site - 1], index[site], 0});
+      }
+  m.box.lengths = Eigen::Vector3d::Constant(n * a);
+  m.box.periodic = Eigen::Vector3i::Ones();
+  return m;
+}
+
+struct Forces {
+  Eigen::Matrix3Xd f;
+  double energy;
+};
+
+Forces evaluate(const ForceTerm& term, const Melt& m, int threads) {
+  set_max_threads(threads);
+  Forces out{Eigen::Matrix3Xd::Zero(3, m.x.cols()), 0.0};
+  out.energy = term.add_forces(m.x, m.box, out.f);
+  return out;
+}
+
+void expect_thread_independent(const ForceTerm& term, const Melt& m) {
+  const int restore = max_threads();
+  const Forces serial = evaluate(term, m, 1);
+  const double scale = serial.f.cwiseAbs().maxCoeff();
+  ASSERT_GT(scale, 0.0);
+  for (int threads : {2, 3, 4}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    const Forces a = evaluate(term, m, threads), b = evaluate(term, m, threads);
+    EXPECT_EQ(a.f, b.f);  // bit for bit, call to call
+    EXPECT_EQ(a.energy, b.energy);
+    EXPECT_LE((a.f - serial.f).cwiseAbs().maxCoeff(), 1e-13 * scale);
+    EXPECT_NEAR(a.energy, serial.energy, 1e-12 * std::abs(serial.energy));
+  }
+  set_max_threads(restore);
+}
+
+TEST(Parallel, SystemIsAboveTheSerialThreshold) {
+  const Melt m = melt(false);
+  EXPECT_GE(static_cast<std::int64_t>(m.bonds.size()), kParallelMin);
+  EXPECT_GE(m.x.cols(), kParallelMin);
+}
+
+StiffBonds stiff(const std::vector<Bond>& bonds) {
+  StiffBonds s;
+  s.epsilon = 0.05;
+  for (const Bond& b : bonds) s.bonds.push_back({b.i, b.j, 1.0, 1.0});
+  return s;
+}
+
+TEST(Parallel, StiffBondForcesDoNotDependOnTheThreadCount) {
+  for (bool shuffle : {false, true}) {
+    SCOPED_TRACE(shuffle ? "shuffled indices" : "chains in index order");
+    const Melt m = melt(shuffle);
+    expect_thread_independent(StiffHarmonicBond("bonds", Level::fast, stiff(m.bonds)), m);
+  }
+}
+
+TEST(Parallel, WcaForcesDoNotDependOnTheThreadCount) {
+  for (bool shuffle : {false, true}) {
+    const Melt m = melt(shuffle);
+    TypePairMatrix<WeeksChandlerAndersen::Coeffs> c(1);
+    c.set(0, 0, {1.0, 1.0});
+    const WcaPair wca("wca", Level::slow, std::vector<int>(m.x.cols(), 0), c, m.bonds, {0.0, 1.0}, m.box, 0.3);
+    Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, m.x.cols());
+    wca.add_forces(m.x, m.box, f);
+    ASSERT_GE(static_cast<std::int64_t>(wca.neighbor_list().num_pairs()), kParallelMin);
+    expect_thread_independent(wca, m);
+  }
+}
+
+TEST(Parallel, FeneForcesDoNotDependOnTheThreadCountAndOverstretchStillThrows) {
+  Melt m = melt(true);
+  const FeneBond fene("fene", Level::slow, m.bonds, {{30.0, 1.5, 1.0, 1.0}});
+  expect_thread_independent(fene, m);
+  m.x.col(m.bonds.back().j) += Eigen::Vector3d(0.0, 0.0, 3.0);  // r ≥ R0: FENE is undefined
+  const int restore = max_threads();
+  set_max_threads(2);
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, m.x.cols());
+  EXPECT_THROW(fene.add_forces(m.x, m.box, f), NumericalError);
+  set_max_threads(restore);
+}
+
+TEST(Parallel, KickDriftIsTheSerialUpdate) {
+  const Melt m = melt(false);
+  const Eigen::Index n = m.x.cols();
+  const Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Random(3, n), v0 = Eigen::Matrix3Xd::Random(3, n);
+  const Eigen::VectorXd inv_mass = Eigen::VectorXd::Random(n).cwiseAbs();
+  Eigen::Matrix3Xd x = m.x, v = v0;
+  const int restore = max_threads();
+  set_max_threads(2);
+  kick_drift(x, v, inv_mass, f, 0.25, 0.5);
+  set_max_threads(restore);
+  const Eigen::Matrix3Xd v_expected = v0 + 0.25 * f * inv_mass.asDiagonal();
+  EXPECT_EQ(v, v_expected);
+  EXPECT_LE((x - (m.x + 0.5 * v_expected)).cwiseAbs().maxCoeff(), 1e-15 * m.x.cwiseAbs().maxCoeff());
+}
+
+}  // namespace
+}  // namespace stiffmd

@@ -1,0 +1,364 @@
+// Google Benchmark timings of the engine's kernels, so that a regression shows as a number:
+//
+//   BM_PairForces/<scene>           the slow level (WCA) at a fixed x, neighbour list already built
+//   BM_BondForces/<scene>           the fast level (the stiff bonds)
+//   BM_ForceProjection/<scene>      P(x) f (ConstraintToolbox::project_force)
+//   BM_Mollifier/<scene>            α(x) and α′(x)ᵀ f(α(x)) (ConstraintToolbox::mollified_force),
+//                                   without the slow force itself (f(α(x)) is precomputed)
+//   BM_MacroStep/<method>/<scene>   one macro step of the factory's integrator: the impulse family at
+//                                   h = 0.005 with 20 micro steps (as in the decks), velocity Verlet
+//                                   at h = 0.00025
+//
+// Scenes: Melt — inputs/lammps_chain.toml, LAMMPS's data.chain (32 000 beads, Debian package
+// lammps-examples; the Melt benchmarks skip with an error when it is missing); Synthetic — a built
+// melt of 16 chains × 64 beads from a deck embedded below, which needs no data file. Each scene is
+// loaded and prepared once per process, on first use. Items are particles (bonds for the bond
+// force) per iteration; items_per_second is the number to watch. Times are wall-clock (UseRealTime):
+// the force loops and constraint solves may run on OpenMP threads, whose work the main thread's
+// CPU time would not count; OMP_NUM_THREADS is printed in the context header.
+//
+//   build/tools/benchmarks/stiffmd_bench --benchmark_min_time=0.2
+//   build/tools/benchmarks/stiffmd_bench --benchmark_filter=Synthetic --benchmark_min_time=0.01
+#include <benchmark/benchmark.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "engine/deck.hpp"
+#include "engine/scene.hpp"
+#include "forcefields/pair_term.hpp"
+#include "integrators/constraints.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The file inputs/lammps_chain.toml imports; the environment variable STIFFMD_CHAIN_DATA names
+// another copy (e.g. examples/COUPLE/multiple/data.chain of a LAMMPS source tree).
+constexpr const char* kChainData = "/usr/share/lammps/examples/COUPLE/multiple/data.chain";
+
+// A path as a TOML basic string, for a --set override.
+std::string toml_string(const std::string& s) {
+  std::string out = "\"";
+  for (const char c : s) {
+    if (c == '"' || c == '\\') out += '\\';
+    out += c;
+  }
+  return out + "\"";
+}
+
+// A built melt (density 0.85, stiff bonds of ε = 0.01 and WCA, as inputs/polymer_melt.toml but
+// 1 024 beads and a short relaxation), for machines without lammps-examples.
+constexpr const char* kSyntheticDeck = R"toml(
+[variables]
+eps = 0.01
+
+[types.bead]
+mass = 1.0
+
+[[build]]
+style = "linear-chains"
+type = "bead"
+chains = 16
+beads = 64
+bond_length = 0.97
+bond_type = "backbone"
+density = 0.85
+min_distance = 0.8
+seed = 11
+
+[velocities]
+temperature = 1.0
+seed = 12
+
+[forces.bonds]
+style = "stiff-harmonic"
+level = "fast"
+epsilon = "eps"
+bond_types.backbone = { length = 0.97, alpha = 1.0 }
+
+[forces.excluded_volume]
+style = "wca"
+level = "slow"
+epsilon = 1.0
+sigma = 1.0
+special_bonds = [0.0, 1.0]
+
+[prepare]
+project = true
+relax_steps = 200
+relax_max_displacement = 0.02
+vibrational_temperature = 1.0
+seed = 13
+
+[integrator]
+method = "projected-impulse"
+h = 0.005
+micro_steps = 20
+
+[run]
+t_end = 0.05
+
+[output]
+xyz = ""
+)toml";
+
+// A loaded, prepared scene and its initial state, which every benchmark starts from.
+struct Fixture {
+  std::string error;  // non-empty: the scene could not be loaded, the benchmarks skip with this
+  Scene scene;
+  State initial;
+
+  bool ok() const { return error.empty(); }
+  ForceField& forces() { return *scene.forces; }
+  int particles() const { return initial.size(); }
+};
+
+Fixture load_fixture(const std::string& label, const std::string& deck_path,
+                     const std::vector<std::string>& overrides = {}) {
+  Fixture fx;
+  const auto start = std::chrono::steady_clock::now();
+  try {
+    fx.scene = load_scene(Deck(deck_path, overrides));
+    fx.initial = fx.scene.state;
+    if (!fx.scene.forces->stiff_bonds()) fx.error = label + ": the scene has no stiff bonds";
+  } catch (const std::exception& e) {
+    fx.error = label + ": could not load " + deck_path + ": " + e.what();
+  }
+  if (fx.ok()) {
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::fprintf(stderr, "stiffmd_bench: %s: %d particles, %zu stiff bonds, loaded and prepared in %.2f s\n",
+                 label.c_str(), fx.particles(), fx.scene.forces->stiff_bonds()->bonds.size(), seconds);
+  }
+  return fx;
+}
+
+Fixture& melt() {
+  static Fixture fx = [] {
+    const char* env = std::getenv("STIFFMD_CHAIN_DATA");
+    const std::string data = env && *env ? env : kChainData;
+    if (!fs::exists(data)) {
+      Fixture missing;
+      missing.error = "Melt: " + data +
+                      " is missing (Debian package lammps-examples, which bash tools/setup.sh installs; or set "
+                      "STIFFMD_CHAIN_DATA to a copy of LAMMPS's data.chain)";
+      return missing;
+    }
+    return load_fixture("Melt", std::string(STIFFMD_SOURCE_DIR) + "/inputs/lammps_chain.toml",
+                        {"import.lammps_data=" + toml_string(data)});
+  }();
+  return fx;
+}
+
+Fixture& synthetic() {
+  static Fixture fx = [] {
+    const fs::path path =
+        fs::temp_directory_path() / ("stiffmd_bench_synthetic_" + std::to_string(::getpid()) + ".toml");
+    {
+      std::ofstream out(path);
+      out << kSyntheticDeck;
+      if (!out) {
+        Fixture failed;
+        failed.error = "Synthetic: cannot write the deck to " + path.string();
+        return failed;
+      }
+    }
+    Fixture loaded = load_fixture("Synthetic", path.string());
+    std::error_code ec;
+    fs::remove(path, ec);
+    return loaded;
+  }();
+  return fx;
+}
+
+using FixtureGetter = Fixture& (*)();
+
+// The fixture, or nullptr after marking the benchmark skipped.
+Fixture* fixture_or_skip(benchmark::State& st, FixtureGetter get) {
+  Fixture& fx = get();
+  if (fx.ok()) return &fx;
+  st.SkipWithError(fx.error.c_str());
+  return nullptr;
+}
+
+const WcaPair* find_wca(const ForceField& ff) {
+  for (const auto& term : ff.terms())
+    if (const auto* wca = dynamic_cast<const WcaPair*>(term.get())) return wca;
+  return nullptr;
+}
+
+long neighbor_rebuilds(const ForceField& ff) {
+  long n = 0;
+  for (const auto& term : ff.terms()) n += term->neighbor_list_rebuilds();
+  return n;
+}
+
+void BM_PairForces(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  Eigen::Matrix3Xd f(3, x.cols());
+  ff.compute(x, {Level::slow}, f);  // builds the neighbour list at x: the loop times the pair loop alone
+  const long rebuilds = neighbor_rebuilds(ff);
+  for (auto _ : st) {
+    benchmark::DoNotOptimize(ff.compute(x, {Level::slow}, f));
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * fx->particles());
+  st.counters["particles"] = fx->particles();
+  if (const WcaPair* wca = find_wca(ff)) {
+    const auto pairs = static_cast<double>(wca->neighbor_list().num_pairs());
+    st.counters["listed_pairs"] = pairs;  // within cutoff + skin
+    st.counters["pairs_per_second"] = benchmark::Counter(pairs, benchmark::Counter::kIsIterationInvariantRate);
+  }
+  st.counters["rebuilds"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds);  // 0: x is fixed
+}
+
+void BM_BondForces(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  const auto bonds = static_cast<std::int64_t>(ff.stiff_bonds()->bonds.size());
+  Eigen::Matrix3Xd f(3, x.cols());
+  for (auto _ : st) {
+    benchmark::DoNotOptimize(ff.compute(x, {Level::fast}, f));
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * bonds);
+  st.counters["bonds"] = static_cast<double>(bonds);
+}
+
+void BM_ForceProjection(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const State& s = fx->initial;
+  ConstraintToolbox toolbox(ff.stiff_bonds()->bonds, s.inv_mass);
+  Eigen::Matrix3Xd f(3, s.size());
+  ff.compute(s.x, {Level::slow}, f);
+  // P(x) is a projection, so projecting the same f again costs the same (one S λ = G M⁻¹ f solve
+  // per cluster) and leaves it unchanged: no copy of the force inside the loop.
+  for (auto _ : st) {
+    toolbox.project_force(s.x, f);
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * s.size());
+  st.counters["particles"] = s.size();
+  st.counters["bonds"] = toolbox.num_bonds();
+  st.counters["clusters"] = static_cast<double>(toolbox.clusters().size());
+}
+
+void BM_Mollifier(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const State& s = fx->initial;
+  ConstraintToolbox toolbox(ff.stiff_bonds()->bonds, s.inv_mass);
+  Eigen::Matrix3Xd X(3, s.size()), out(3, s.size()), f_at_X(3, s.size());
+  // Once with the real slow force, to get f(α(x)); x is fixed, so α(x) is too, and the timed calls
+  // get f(α(x)) as a copy: the loop times SHAKE for α(x), the Jᵀμ solves and H_λ M⁻¹ r, not WCA.
+  toolbox.mollified_force(
+      s.x, [&](const Eigen::Matrix3Xd& y, Eigen::Matrix3Xd& f) { ff.compute(y, {Level::slow}, f); }, X, out);
+  ff.compute(X, {Level::slow}, f_at_X);
+  const ForceFunction cached = [&](const Eigen::Matrix3Xd&, Eigen::Matrix3Xd& f) { f = f_at_X; };
+  for (auto _ : st) {
+    toolbox.mollified_force(s.x, cached, X, out);
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * s.size());
+  st.counters["particles"] = s.size();
+  st.counters["max_violation_x"] = toolbox.max_violation(s.x);  // how far α has to move x
+}
+
+struct MacroStepCase {
+  const char* method;
+  double h;
+  int micro_steps;
+};
+
+constexpr MacroStepCase kMacroSteps[] = {
+    {"impulse", 0.005, 20},
+    {"projected-impulse", 0.005, 20},
+    {"mollified-impulse", 0.005, 20},
+    {"velocity-verlet", 0.00025, 1},
+};
+
+void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  // A fresh copy of the initial state per run; the iterations keep stepping it (a physical
+  // trajectory, t = iterations × h).
+  State s = fx->initial;
+  IntegratorSettings settings = fx->scene.integrator;
+  settings.method = c.method;
+  settings.h = c.h;
+  settings.micro_steps = c.micro_steps;
+  std::unique_ptr<Integrator> integrator;
+  try {
+    integrator = make_integrator(settings, ff, s.inv_mass);
+    std::ostringstream log;
+    integrator->prepare(s, log);
+  } catch (const std::exception& e) {
+    st.SkipWithError((std::string(c.method) + ": " + e.what()).c_str());
+    return;
+  }
+  integrator->step(s, c.h);  // untimed: fills the cached forces and rebuilds the neighbour list
+  const std::int64_t slow0 = ff.evaluations(Level::slow), fast0 = ff.evaluations(Level::fast);
+  const long rebuilds0 = neighbor_rebuilds(ff);
+  for (auto _ : st) {
+    integrator->step(s, c.h);
+    benchmark::ClobberMemory();
+  }
+  if (!s.x.allFinite() || !s.v.allFinite()) {
+    st.SkipWithError((std::string(c.method) + ": the state became non-finite").c_str());
+    return;
+  }
+  const auto steps = static_cast<double>(st.iterations());
+  st.SetItemsProcessed(st.iterations() * s.size());
+  st.counters["particles"] = s.size();
+  st.counters["h"] = c.h;
+  st.counters["slow_evals_per_step"] = static_cast<double>(ff.evaluations(Level::slow) - slow0) / steps;
+  st.counters["fast_evals_per_step"] = static_cast<double>(ff.evaluations(Level::fast) - fast0) / steps;
+  st.counters["rebuilds_per_step"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds0) / steps;
+}
+
+bool register_benchmarks() {
+  const char* omp_threads = std::getenv("OMP_NUM_THREADS");
+  benchmark::AddCustomContext("OMP_NUM_THREADS", omp_threads ? omp_threads : "(unset)");
+  struct SceneCase {
+    const char* name;
+    FixtureGetter get;
+    benchmark::TimeUnit unit;
+  };
+  for (const SceneCase sc : {SceneCase{"Synthetic", &synthetic, benchmark::kMicrosecond},
+                             SceneCase{"Melt", &melt, benchmark::kMillisecond}}) {
+    const std::string suffix = std::string("/") + sc.name;
+    auto add = [&](const std::string& name, auto fn, auto... args) {
+      benchmark::RegisterBenchmark((name + suffix).c_str(), fn, sc.get, args...)->Unit(sc.unit)->UseRealTime();
+    };
+    add("BM_PairForces", BM_PairForces);
+    add("BM_BondForces", BM_BondForces);
+    add("BM_ForceProjection", BM_ForceProjection);
+    add("BM_Mollifier", BM_Mollifier);
+    for (const MacroStepCase& c : kMacroSteps) add("BM_MacroStep/" + std::string(c.method), BM_MacroStep, c);
+  }
+  return true;
+}
+
+[[maybe_unused]] const bool registered = register_benchmarks();
+
+}  // namespace
+}  // namespace stiffmd
