@@ -11,6 +11,7 @@
 //   open chains          tridiagonal LU with partial pivoting (LAPACK gttrf), O(bonds);
 //   small other clusters dense LLT (S) / PartialPivLU (J), pre-sized, no heap traffic;
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
+// Clusters are solved in parallel on the OpenMP threads (Impl::for_each_cluster).
 #include "integrators/constraints.hpp"
 
 #include <Eigen/Cholesky>
@@ -27,6 +28,7 @@
 #include <utility>
 
 #include "engine/errors.hpp"
+#include "forcefields/parallel.hpp"
 
 namespace stiffmd {
 namespace {
@@ -357,13 +359,39 @@ struct ConstraintToolbox::Impl {
   void shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter);
   void mollify_cluster(int c, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f);
 
+  // Runs f(c) for every cluster c. Clusters are independent solves touching their own bonds'
+  // scratch and their own particles, so they run on the OpenMP threads in contiguous blocks of
+  // about equal bond count (parallel.hpp) — unless a fixed particle is shared by two clusters:
+  // both add its reaction force, and that sum must stay in cluster order. A NumericalError is
+  // rethrown for the first failing cluster in cluster order, as in a serial loop.
+  template <class F>
+  void for_each_cluster(F&& f) {
+    const int nc = static_cast<int>(data.size());
+    const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
+    if (parts <= 1) {
+      for (int c = 0; c < nc; ++c) f(c);
+      return;
+    }
+    run_parts(parts, [&](int u) {
+      auto first = [&](int v) {  // the first cluster of block v
+        return static_cast<int>(
+            std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
+            bonds_before.begin());
+      };
+      const int end = u + 1 == parts ? nc : first(u + 1);
+      for (int c = first(u); c < end; ++c) f(c);
+    });
+  }
+
   std::vector<StiffBond> bonds;
   Eigen::VectorXd inv_mass;
   std::vector<ConstraintCluster> clusters;
-  std::vector<ClusterData> data;  // parallel to clusters
-  BondFrame at_ref;               // G at x (or x_ref)
-  BondFrame at_cur;               // G at y (or X = α(x))
-  Eigen::Matrix3Xd curvature;     // per bond: λ_b A_b ((M⁻¹r)_i − (M⁻¹r)_j), mollified force step 4
+  std::vector<ClusterData> data;           // parallel to clusters
+  std::vector<std::int64_t> bonds_before;  // bonds in clusters 0 … c − 1; size clusters + 1
+  bool clusters_share_particles = false;   // through a fixed particle
+  BondFrame at_ref;                        // G at x (or x_ref)
+  BondFrame at_cur;                        // G at y (or X = α(x))
+  Eigen::Matrix3Xd curvature;              // per bond: λ_b A_b ((M⁻¹r)_i − (M⁻¹r)_j), mollified force step 4
 };
 
 ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in)
@@ -390,6 +418,15 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
     d.values = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(d.couplings.size()));
     d.rhs = d.sol = d.lambda = Eigen::VectorXd::Zero(n);
     data.push_back(std::move(d));
+  }
+  bonds_before.assign(1, 0);
+  std::vector<int> owner(inv_mass.size(), -1);
+  for (int c = 0; c < static_cast<int>(clusters.size()); ++c) {
+    bonds_before.push_back(bonds_before.back() + static_cast<std::int64_t>(clusters[c].bonds.size()));
+    for (int p : clusters[c].particles) {
+      if (owner[p] >= 0 && owner[p] != c) clusters_share_particles = true;
+      owner[p] = c;
+    }
   }
 }
 
@@ -575,20 +612,20 @@ double ConstraintToolbox::max_violation(const Eigen::Matrix3Xd& x) const {
 void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
   require_columns(x, impl_->num_particles(), "project_force");
   require_columns(f, impl_->num_particles(), "project_force");
-  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->project_force_cluster(c, x, f);
+  impl_->for_each_cluster([&](int c) { impl_->project_force_cluster(c, x, f); });
 }
 
 void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
   require_columns(x, impl_->num_particles(), "project_velocity");
   require_columns(v, impl_->num_particles(), "project_velocity");
-  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->project_velocity_cluster(c, x, v);
+  impl_->for_each_cluster([&](int c) { impl_->project_velocity_cluster(c, x, v); });
 }
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
                               int max_iter) {
   require_columns(x_ref, impl_->num_particles(), "shake");
   require_columns(y, impl_->num_particles(), "shake");
-  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->shake_cluster(c, x_ref, y, tol, max_iter);
+  impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, x_ref, y, tol, max_iter); });
   if (lambda == nullptr) return;
   lambda->resize(num_bonds());  // a no-op when the caller keeps the vector
   for (const ClusterData& d : impl_->data)
@@ -600,11 +637,11 @@ void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFu
   require_columns(x, impl_->num_particles(), "mollified_force");
   // Step 1: X = α(x), the M-orthogonal projection of x onto g = 0 (paper eq. (ProMol)).
   X = x;
-  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->shake_cluster(c, x, X, tol, kMollifierMaxIter);
+  impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, x, X, tol, kMollifierMaxIter); });
   out.resize(3, x.cols());
   f_slow(X, out);
   require_columns(out, impl_->num_particles(), "mollified_force (f_slow output)");
-  for (int c = 0; c < static_cast<int>(impl_->data.size()); ++c) impl_->mollify_cluster(c, x, X, out);
+  impl_->for_each_cluster([&](int c) { impl_->mollify_cluster(c, x, X, out); });
 }
 
 }  // namespace stiffmd

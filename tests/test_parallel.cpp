@@ -13,6 +13,7 @@
 #include "forcefields/pair_term.hpp"
 #include "forcefields/parallel.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
+#include "integrators/constraints.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {
@@ -136,6 +137,44 @@ TEST(Parallel, KickDriftIsTheSerialUpdate) {
   const Eigen::Matrix3Xd v_expected = v0 + 0.25 * f * inv_mass.asDiagonal();
   EXPECT_EQ(v, v_expected);
   EXPECT_LE((x - (m.x + 0.5 * v_expected)).cwiseAbs().maxCoeff(), 1e-15 * m.x.cwiseAbs().maxCoeff());
+}
+
+// Clusters are solved independently, so any thread count gives the serial bits.
+TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
+  const Melt m = melt(true);
+  StiffBonds sb = stiff(m.bonds);
+  std::mt19937 rng(5);  // off the manifold by ±1 % per bond (a uniform shrink of these straight chains
+  std::uniform_real_distribution<double> off(-0.01, 0.01);  // would need a large tension: SHAKE diverges)
+  for (StiffBond& b : sb.bonds) b.length = (m.x.col(b.i) - m.x.col(b.j)).norm() * (1.0 + off(rng));
+  ConstraintToolbox toolbox(sb.bonds, Eigen::VectorXd::Ones(m.x.cols()));
+  ASSERT_GT(toolbox.clusters().size(), 100u);
+  const Eigen::Matrix3Xd f0 = Eigen::Matrix3Xd::Random(3, m.x.cols());
+  auto slow = [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& out) { out = f0 + 0.1 * X; };
+  struct Result {
+    Eigen::Matrix3Xd projected, shaken, mollified, alpha;
+  };
+  auto run = [&](int threads) {
+    set_max_threads(threads);
+    Result r{f0, m.x, Eigen::Matrix3Xd(), Eigen::Matrix3Xd()};
+    toolbox.project_force(m.x, r.projected);
+    toolbox.shake(m.x, r.shaken);
+    toolbox.mollified_force(m.x, slow, r.alpha, r.mollified);
+    return r;
+  };
+  const int restore = max_threads();
+  const Result serial = run(1);
+  for (int threads : {2, 3}) {
+    const Result r = run(threads);
+    EXPECT_EQ(r.projected, serial.projected);
+    EXPECT_EQ(r.shaken, serial.shaken);
+    EXPECT_EQ(r.alpha, serial.alpha);
+    EXPECT_EQ(r.mollified, serial.mollified);
+  }
+  set_max_threads(restore);
+  Eigen::Matrix3Xd twice = serial.projected;  // and it is a projection: P² = P
+  toolbox.project_force(m.x, twice);
+  EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
 }
 
 }  // namespace
