@@ -55,6 +55,7 @@ class MultipleTimeStepping final : public Integrator {
  private:
   void advance(State& s, size_t k, double dt);
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
+  void run_innermost(State& s, size_t k, double dt, int n);
 
   std::string method_;
   ForceField& forces_;
