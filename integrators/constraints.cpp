@@ -54,6 +54,8 @@ struct Coupling {
   int col;
   int particle;
   double sign;
+  int row_bond = 0;  // the bond indices of row and col (cluster order → bond list)
+  int col_bond = 0;
 };
 
 // Unit vectors and lengths of all bonds at one configuration: the rows of G are ±u_b.
@@ -85,13 +87,24 @@ bool pivots_regular(const Eigen::MatrixBase<Pivots>& pivots, double scale) {
 class TridiagonalSolver final : public ClusterSolver {
  public:
   TridiagonalSolver(int n, const std::vector<Coupling>& couplings)
-      : n_(n), bands_(3 * n - 2), du2_(std::max(n - 2, 0)), swapped_(n) {
+      : n_(n), bands_(3 * n - 2), du2_(std::max(n - 2, 0)), inv_pivot_(n), swapped_(n) {
     for (const Coupling& c : couplings) slot_.push_back(slot_of(c));
   }
 
   bool factorize(const Eigen::VectorXd& values, bool /*symmetric*/) override {
     bands_.setZero();
-    for (size_t k = 0; k < slot_.size(); ++k) bands_[slot_[k]] += values[k];
+    const int* slot = slot_.data();
+    for (std::size_t k = 0, m = slot_.size(); k < m; ++k) bands_[slot[k]] += values[k];
+    return factorize_bands();
+  }
+
+  // The three bands of K, to be filled by the caller before factorize_bands(): sub[k] =
+  // K(k+1, k), diagonal[k] = K(k, k), super[k] = K(k, k+1).
+  double* sub() { return bands_.data(); }
+  double* diagonal() { return bands_.data() + n_ - 1; }
+  double* super() { return bands_.data() + 2 * n_ - 1; }
+
+  bool factorize_bands() {
     const double scale = bands_.cwiseAbs().maxCoeff();
     double* dl = sub();
     double* d = diagonal();
@@ -118,12 +131,13 @@ class TridiagonalSolver final : public ClusterSolver {
         }
       }
     }
-    return pivots_regular(Eigen::Map<const Eigen::VectorXd>(d, n_), scale);
+    if (!pivots_regular(Eigen::Map<const Eigen::VectorXd>(d, n_), scale)) return false;
+    inv_pivot_ = Eigen::Map<const Eigen::VectorXd>(d, n_).cwiseInverse();  // solve multiplies
+    return true;
   }
 
   void solve(const Eigen::VectorXd& rhs, Eigen::VectorXd& sol) override {
     const double* dl = sub();
-    const double* d = diagonal();
     const double* du = super();
     sol = rhs;
     for (int i = 0; i < n_ - 1; ++i) {  // L (with the row swaps)
@@ -134,7 +148,7 @@ class TridiagonalSolver final : public ClusterSolver {
       double s = sol[i];
       if (i + 1 < n_) s -= du[i] * sol[i + 1];
       if (i + 2 < n_) s -= du2_[i] * sol[i + 2];
-      sol[i] = s / d[i];
+      sol[i] = s * inv_pivot_[i];
     }
   }
 
@@ -146,14 +160,11 @@ class TridiagonalSolver final : public ClusterSolver {
     if (c.col == c.row + 1) return 2 * n_ - 1 + c.row;
     throw std::logic_error("chain cluster is not tridiagonal");
   }
-  double* sub() { return bands_.data(); }
-  double* diagonal() { return bands_.data() + n_ - 1; }
-  double* super() { return bands_.data() + 2 * n_ - 1; }
-
   int n_;
   Eigen::VectorXd bands_;
   Eigen::VectorXd du2_;
-  std::vector<bool> swapped_;
+  Eigen::VectorXd inv_pivot_;  // 1 / U's diagonal
+  std::vector<char> swapped_;
   std::vector<int> slot_;  // index into bands_ for each coupling
 };
 
@@ -283,7 +294,8 @@ std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vec
   std::vector<Coupling> couplings;
   for (const auto& [particle, list] : bonds_at_mobile_particles(order, bonds, inv_mass))
     for (const auto& [row, row_sign] : list)
-      for (const auto& [col, col_sign] : list) couplings.push_back({row, col, particle, row_sign * col_sign});
+      for (const auto& [col, col_sign] : list)
+        couplings.push_back({row, col, particle, row_sign * col_sign, order[row], order[col]});
   return couplings;
 }
 
@@ -335,6 +347,10 @@ struct ClusterData {
   std::vector<Coupling> couplings;  // the pattern of K, shared by S, J and Jᵀ
   std::unique_ptr<ClusterSolver> solver;
   Eigen::VectorXd values;  // K entries, one per coupling
+  // Open chains assemble K's bands directly: K(k,k) = diag_w[k] u_k(a)·u_k(b) and
+  // K(k,k+1), K(k+1,k) = off_w[k] u_k(a)·u_{k+1}(b), u_{k+1}(a)·u_k(b) (the couplings summed).
+  TridiagonalSolver* chain = nullptr;  // = solver, for chains
+  Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
   Eigen::VectorXd lambda;  // SHAKE multipliers, accumulated over Newton steps
 };
@@ -348,6 +364,7 @@ struct ConstraintToolbox::Impl {
 
   void measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1);
   void factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric, const char* what);
+  [[noreturn]] void singular(int c, bool symmetric, const char* what) const;
   Eigen::Vector3d inv_mass_difference(int b, const Eigen::Matrix3Xd& w) const;
   void add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
                             Eigen::Matrix3Xd& f) const;
@@ -357,7 +374,7 @@ struct ConstraintToolbox::Impl {
   void project_force_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f);
   void project_velocity_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
   void shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter);
-  void mollify_cluster(int c, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f);
+  void mollify_cluster(int c, Eigen::Matrix3Xd& f);
 
   // Runs f(c) for every cluster c. Clusters are independent solves touching their own bonds'
   // scratch and their own particles, so they run on the OpenMP threads in contiguous blocks of
@@ -409,9 +426,17 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
     if (!chain) d.bonds = cluster.bonds;
     d.couplings = couplings_of(d.bonds, bonds, inv_mass);
     const int n = static_cast<int>(d.bonds.size());
-    if (chain)
-      d.solver = std::make_unique<TridiagonalSolver>(n, d.couplings);
-    else if (n <= kMaxDenseBonds)
+    if (chain) {
+      auto tri = std::make_unique<TridiagonalSolver>(n, d.couplings);
+      d.chain = tri.get();
+      d.solver = std::move(tri);
+      d.diag_w = Eigen::VectorXd::Zero(n);
+      d.off_w = Eigen::VectorXd::Zero(std::max(n - 1, 0));
+      for (const Coupling& cp : d.couplings) {
+        if (cp.row == cp.col) d.diag_w[cp.row] += cp.sign * inv_mass[cp.particle];
+        if (cp.col == cp.row + 1) d.off_w[cp.row] += cp.sign * inv_mass[cp.particle];
+      }
+    } else if (n <= kMaxDenseBonds)
       d.solver = std::make_unique<DenseSolver>(n, d.couplings);
     else
       d.solver = std::make_unique<SparseSolver>(n, d.couplings);
@@ -453,16 +478,42 @@ void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFram
 void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric,
                                         const char* what) {
   ClusterData& d = data[c];
-  for (size_t k = 0; k < d.couplings.size(); ++k) {
-    const Coupling& cp = d.couplings[k];
-    d.values[static_cast<Eigen::Index>(k)] =
-        cp.sign * inv_mass[cp.particle] * rows.u.col(d.bonds[cp.row]).dot(cols.u.col(d.bonds[cp.col]));
+  const double* ur = rows.u.data();
+  const double* uc = cols.u.data();
+  auto dot = [&](int a, int b) {
+    const double* p = ur + 3 * a;
+    const double* q = uc + 3 * b;
+    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+  };
+  if (d.chain) {
+    const int n = static_cast<int>(d.bonds.size());
+    const int* bond = d.bonds.data();
+    double* sub = d.chain->sub();
+    double* diagonal = d.chain->diagonal();
+    double* super = d.chain->super();
+    for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
+    for (int k = 0; k + 1 < n; ++k) {
+      super[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
+      sub[k] = d.off_w[k] * dot(bond[k + 1], bond[k]);
+    }
+    if (!d.chain->factorize_bands()) singular(c, symmetric, what);
+    return;
   }
-  if (!d.solver->factorize(d.values, symmetric))
-    throw NumericalError(std::string(what) + " failed in cluster " + std::to_string(c) +
-                         (symmetric
-                              ? ": S = G M⁻¹ Gᵀ is singular (the bond directions are linearly dependent)"
-                              : ": the Newton matrix G(y) M⁻¹ G(x_ref)ᵀ is singular (too far from the reference)"));
+  const double* w = inv_mass.data();
+  double* values = d.values.data();
+  const Coupling* cp = d.couplings.data();
+  for (std::size_t k = 0, n = d.couplings.size(); k < n; ++k) {
+    const double* a = ur + 3 * cp[k].row_bond;
+    const double* b = uc + 3 * cp[k].col_bond;
+    values[k] = cp[k].sign * w[cp[k].particle] * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
+  }
+  if (!d.solver->factorize(d.values, symmetric)) singular(c, symmetric, what);
+}
+
+void ConstraintToolbox::Impl::singular(int c, bool symmetric, const char* what) const {
+  throw NumericalError(std::string(what) + " failed in cluster " + std::to_string(c) +
+                       (symmetric ? ": S = G M⁻¹ Gᵀ is singular (the bond directions are linearly dependent)"
+                                  : ": the Newton matrix G(y) M⁻¹ G(x_ref)ᵀ is singular (too far from the reference)"));
 }
 
 // (M⁻¹w)_i − (M⁻¹w)_j for bond b: with u_b this is row b of G M⁻¹ w.
@@ -551,11 +602,11 @@ void ConstraintToolbox::Impl::shake_cluster(int c, const Eigen::Matrix3Xd& x_ref
 // Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
 // which follows by differentiating X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and
 // data[c].lambda holds the multipliers of X = α(x).
-void ConstraintToolbox::Impl::mollify_cluster(int c, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& X,
-                                              Eigen::Matrix3Xd& f) {
+void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
-  measure(c, x, at_ref, "mollified force");
-  measure(c, X, at_cur, "mollified force");
+  // G(x) and G(X) are in at_ref and at_cur: shake_cluster measured x as its reference and
+  // X = α(x) in its last, converged iteration (mollified_force calls the two in turn, and
+  // f_slow does not touch the toolbox).
   // Step 2: Jᵀμ = G(x) M⁻¹ f, Jᵀ = G(x) M⁻¹ G(X)ᵀ.
   factorize(c, at_ref, at_cur, false, "mollified force");
   for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
@@ -641,7 +692,7 @@ void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFu
   out.resize(3, x.cols());
   f_slow(X, out);
   require_columns(out, impl_->num_particles(), "mollified_force (f_slow output)");
-  impl_->for_each_cluster([&](int c) { impl_->mollify_cluster(c, x, X, out); });
+  impl_->for_each_cluster([&](int c) { impl_->mollify_cluster(c, out); });
 }
 
 }  // namespace stiffmd
