@@ -1,5 +1,7 @@
 #include "forcefields/neighbor_list.hpp"
 
+#include "forcefields/parallel.hpp"
+
 #include <algorithm>
 #include <compare>
 #include <sstream>
@@ -248,6 +250,9 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // "forward"), each pair of particles once: half the candidates of a full stencil, and no test
 // on the particle indices. Needs ≥ 3 cells on every periodic axis, so that the 27 neighbours
 // of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index.
+// Threads (parallel.hpp) search slabs of cells along x into their own pair buffers; the rows
+// are filled from the buffers in slab order and sorted, so the list does not depend on the
+// thread count.
 void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1}, {1, -1, -1},
                                           {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0}, {1, 0, 1},
@@ -257,60 +262,78 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
-  pair_i_.clear();  // both keep their capacity
-  pair_j_.clear();
-  auto record = [&](int i, int j) {
-    if (i > j) std::swap(i, j);
-    if (have_exclusions && excluded(i, j)) return;
-    pair_i_.push_back(i);
-    pair_j_.push_back(j);
-  };
-  for (int cx = 0; cx < nx; ++cx)
-    for (int cy = 0; cy < ny; ++cy)
-      for (int cz = 0; cz < nz; ++cz) {
-        const int c = (cx * ny + cy) * nz + cz;
-        if (cs[c] == cs[c + 1]) continue;
-        // The forward neighbour cells of c and the shifts that bring their wrapped positions
-        // next to c: d = x_i − (x_j + shift).
-        int other[13];
-        double shift[13][3];
-        int count = 0;
-        for (const auto& o : kForward) {
-          const int gx = adjacent_[0][3 * cx + o[0] + 1], gy = adjacent_[1][3 * cy + o[1] + 1],
-                    gz = adjacent_[2][3 * cz + o[2] + 1];
-          if (gx < 0 || gy < 0 || gz < 0) continue;
-          other[count] = (gx * ny + gy) * nz + gz;
-          shift[count][0] = adjacent_shift_[0][3 * cx + o[0] + 1];
-          shift[count][1] = adjacent_shift_[1][3 * cy + o[1] + 1];
-          shift[count][2] = adjacent_shift_[2][3 * cz + o[2] + 1];
-          ++count;
-        }
-        for (int k1 = cs[c]; k1 < cs[c + 1]; ++k1) {
-          const int i = cp[k1];
-          const double xi = xc[3 * k1], yi = xc[3 * k1 + 1], zi = xc[3 * k1 + 2];
-          for (int k2 = k1 + 1; k2 < cs[c + 1]; ++k2) {
-            const double dx = xi - xc[3 * k2], dy = yi - xc[3 * k2 + 1], dz = zi - xc[3 * k2 + 2];
-            if (dx * dx + dy * dy + dz * dz < rlist2) record(i, cp[k2]);
+  const int parts = std::max(1, std::min(threads_for(n), nx));
+  if (static_cast<int>(pair_i_.size()) < parts) {
+    pair_i_.resize(parts);
+    pair_j_.resize(parts);
+  }
+  run_parts(parts, [&](int u) {
+    std::vector<int>& pi = pair_i_[u];
+    std::vector<int>& pj = pair_j_[u];
+    pi.clear();  // both keep their capacity
+    pj.clear();
+    auto record = [&](int i, int j) {
+      if (i > j) std::swap(i, j);
+      if (have_exclusions && excluded(i, j)) return;
+      pi.push_back(i);
+      pj.push_back(j);
+    };
+    const int cx_end = static_cast<int>(block_begin(nx, parts, u + 1));
+    for (int cx = static_cast<int>(block_begin(nx, parts, u)); cx < cx_end; ++cx)
+      for (int cy = 0; cy < ny; ++cy)
+        for (int cz = 0; cz < nz; ++cz) {
+          const int c = (cx * ny + cy) * nz + cz;
+          if (cs[c] == cs[c + 1]) continue;
+          // The forward neighbour cells of c and the shifts that bring their wrapped positions
+          // next to c: d = x_i − (x_j + shift).
+          int other[13];
+          double shift[13][3];
+          int count = 0;
+          for (const auto& o : kForward) {
+            const int gx = adjacent_[0][3 * cx + o[0] + 1], gy = adjacent_[1][3 * cy + o[1] + 1],
+                      gz = adjacent_[2][3 * cz + o[2] + 1];
+            if (gx < 0 || gy < 0 || gz < 0) continue;
+            other[count] = (gx * ny + gy) * nz + gz;
+            shift[count][0] = adjacent_shift_[0][3 * cx + o[0] + 1];
+            shift[count][1] = adjacent_shift_[1][3 * cy + o[1] + 1];
+            shift[count][2] = adjacent_shift_[2][3 * cz + o[2] + 1];
+            ++count;
           }
-          for (int q = 0; q < count; ++q) {
-            const double xs = xi - shift[q][0], ys = yi - shift[q][1], zs = zi - shift[q][2];
-            for (int k2 = cs[other[q]]; k2 < cs[other[q] + 1]; ++k2) {
-              const double dx = xs - xc[3 * k2], dy = ys - xc[3 * k2 + 1], dz = zs - xc[3 * k2 + 2];
+          for (int k1 = cs[c]; k1 < cs[c + 1]; ++k1) {
+            const int i = cp[k1];
+            const double xi = xc[3 * k1], yi = xc[3 * k1 + 1], zi = xc[3 * k1 + 2];
+            for (int k2 = k1 + 1; k2 < cs[c + 1]; ++k2) {
+              const double dx = xi - xc[3 * k2], dy = yi - xc[3 * k2 + 1], dz = zi - xc[3 * k2 + 2];
               if (dx * dx + dy * dy + dz * dz < rlist2) record(i, cp[k2]);
+            }
+            for (int q = 0; q < count; ++q) {
+              const double xs = xi - shift[q][0], ys = yi - shift[q][1], zs = zi - shift[q][2];
+              for (int k2 = cs[other[q]]; k2 < cs[other[q] + 1]; ++k2) {
+                const double dx = xs - xc[3 * k2], dy = ys - xc[3 * k2 + 1], dz = zs - xc[3 * k2 + 2];
+                if (dx * dx + dy * dy + dz * dz < rlist2) record(i, cp[k2]);
+              }
             }
           }
         }
-      }
+  });
 
-  // Counting sort of the pairs into CSR rows by i.
+  // Counting sort of the pairs into CSR rows by i, the slabs in order.
   offsets_.assign(static_cast<std::size_t>(n) + 1, 0);
-  for (const int i : pair_i_) ++offsets_[i + 1];
+  std::size_t total = 0;
+  for (int u = 0; u < parts; ++u) {
+    for (const int i : pair_i_[u]) ++offsets_[i + 1];
+    total += pair_i_[u].size();
+  }
   for (int i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
   cursor_.assign(offsets_.begin(), offsets_.end() - 1);
-  neighbors_.resize(pair_j_.size());
-  for (std::size_t p = 0; p < pair_i_.size(); ++p) neighbors_[cursor_[pair_i_[p]]++] = pair_j_[p];
+  neighbors_.resize(total);
+  for (int u = 0; u < parts; ++u)
+    for (std::size_t p = 0; p < pair_i_[u].size(); ++p) neighbors_[cursor_[pair_i_[u][p]]++] = pair_j_[u][p];
   // Ascending j within a row: the force loop then walks x and f forward in memory.
-  for (int i = 0; i < n; ++i) std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + offsets_[i + 1]);
+  parallel_blocks(n, parts, [&](std::int64_t first, std::int64_t last) {
+    for (std::int64_t i = first; i < last; ++i)
+      std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + offsets_[i + 1]);
+  });
 }
 
 // Boxes with fewer than 3 cells on a periodic axis (a few cutoffs wide): the neighbour cells

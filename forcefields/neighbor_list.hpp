@@ -179,7 +179,7 @@ class NeighborList {
   // c − 1 and c + 1, so no single shift is right and the search rounds to the minimum image.
   bool small_box_ = false;
   // Scratch of the half-stencil search: the pairs found, before they are sorted into rows.
-  std::vector<int> pair_i_, pair_j_;
+  std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (slab of cells)
   std::vector<std::int64_t> cursor_;
 
   void search_half_stencil(int n, bool have_exclusions);

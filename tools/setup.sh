@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what stiffmd needs from Debian packages, only what is missing.
+# Installs what stiffmd needs from Debian packages, only what is missing (--bench: and LAMMPS).
 # Non-interactive, works as root on a machine where `apt-get update` never ran, and takes
 # well under a second when everything is present.
 set -euo pipefail
@@ -11,6 +11,9 @@ packages=(
   zlib1g-dev lammps-examples
   python3-numpy python3-matplotlib python3-h5py python3-mdanalysis python3-ase
 )
+# `setup.sh --bench`: also LAMMPS, the peer tools/bench_lammps.py and tools/work_precision_melt.py
+# measure against (never a dependency of the engine or of the tests).
+[[ "${1:-}" == "--bench" ]] && packages+=(lammps)
 
 missing=()
 for p in "${packages[@]}"; do

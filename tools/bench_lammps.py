@@ -1,0 +1,464 @@
+#!/usr/bin/python3
+"""Benchmark stiffmd against LAMMPS r-RESPA on the same stiff-bond polymer melt; print a table.
+
+Rerun (the defaults; a few minutes on two cores):
+
+    /usr/bin/python3 tools/bench_lammps.py                # ε = 0.01 and 0.003, 200 steps, 3 repeats
+    /usr/bin/python3 tools/bench_lammps.py --eps 0.01 --repeats 1 --steps 100
+
+For every ε:
+
+1. `stiffmd check inputs/lammps_chain.toml --set variables.eps=ε --write-data` prepares the state
+   (LAMMPS's data.chain, 32 000 beads in 320 chains; stiff harmonic bonds ℓ = 0.97, α = 1, energy
+   ½ α²/ε² (r − ℓ)²; projected onto the bonds; T = 1 velocities and thermal bond vibrations) and
+   writes it as a LAMMPS data file with velocities.
+2. Both codes start from that file with the same potentials: LAMMPS `bond_style harmonic` with
+   K = α²/(2ε²) (LAMMPS's harmonic is K(r − r0)²) and `lj/cut` at 2^(1/6) with `pair_modify shift
+   yes` (WCA), special_bonds lj 0 1 1, skin 0.3.
+3. Timed runs, each --repeats times, interleaved (the median is reported): LAMMPS `run_style respa
+   2 n bond 1 pair 2` (serial), and stiffmd impulse, projected-impulse and mollified-impulse
+   (macro step h, n micro steps) and velocity-verlet at the micro step h/n, each for every thread
+   count in --threads (OMP_NUM_THREADS).
+
+Time per macro step: LAMMPS's "Loop time" / steps, stiffmd's summary.json wall_seconds (the step
+loop) / macro steps; for velocity Verlet the time of the n steps that cover one macro step h.
+Peak memory is each process's own max RSS (os.wait4). Energy drift: |E(end) − E(0)| and
+max_t |E(t) − E(0)| over the thermo rows, per atom (LJ units) and relative to |E(0)|.
+
+Outputs in --out (default sweeps/bench): bench_eps<ε>.md (the table), bench.csv (every repeat),
+work/ (the prepared states, decks, LAMMPS inputs and each run's log and thermo output).
+"""
+import argparse
+import csv
+import json
+import os
+import platform
+import shlex
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
+BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
+ALPHA = 1.0
+WCA_CUTOFF = 2.0 ** (1.0 / 6.0)
+STIFFMD_METHODS = ["impulse", "projected-impulse", "mollified-impulse", "velocity-verlet"]
+ALL_METHODS = ["lammps-respa"] + STIFFMD_METHODS
+CSV_FIELDS = ["eps", "code", "method", "threads", "h", "n", "steps", "repeat", "natoms", "loop_seconds",
+              "ms_per_macro_step", "cpu_percent", "cpu_ms_per_macro_step", "process_seconds", "max_rss_mib",
+              "e0", "e_end", "drift_end_per_atom", "drift_max_per_atom", "drift_end_rel", "drift_max_rel"]
+
+
+class RunFailed(Exception):
+    pass
+
+
+# ---------------------------------------------------------------------------------------- helpers
+
+def fmt(x):
+    """A float as the shortest text that reads back exactly (for decks, --set and LAMMPS inputs)."""
+    return repr(float(x))
+
+
+def split_list(values):
+    """['0.01 0.003'] or ['0.01,0.003'] or ['0.01', '0.003'] -> ['0.01', '0.003']."""
+    return [v for item in values for v in item.replace(",", " ").split()]
+
+
+def machine_description():
+    model = "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{model}, nproc {len(os.sched_getaffinity(0))}, {platform.node()}, {platform.platform()}"
+
+
+def git_revision():
+    try:
+        rev = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True).stdout.strip()
+        return rev + (" (with uncommitted changes)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def binary_date(path):
+    try:
+        return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(os.path.getmtime(path)))
+    except OSError:
+        return "missing"
+
+
+def tail(path, lines=15):
+    try:
+        with open(path, errors="replace") as f:
+            return "".join(f.readlines()[-lines:])
+    except OSError:
+        return ""
+
+
+def run_measured(cmd, run_dir, threads):
+    """Runs cmd in run_dir (stdout/stderr to files there) with OMP_NUM_THREADS = threads.
+
+    Returns (exit code, seconds, max RSS of that process in MiB). os.wait4 gives the rusage of
+    exactly this child (and of children it waited for, none here)."""
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+    with open(os.path.join(run_dir, "stdout.txt"), "w") as out, open(os.path.join(run_dir, "stderr.txt"), "w") as err:
+        start = time.monotonic()
+        proc = subprocess.Popen(cmd, cwd=run_dir, stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        seconds = time.monotonic() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: tell Popen
+    return proc.returncode, seconds, usage.ru_maxrss / 1024.0
+
+
+def check_exit(code, cmd, run_dir, log="stdout.txt"):
+    """A failed run: one line naming it, then the tail of its stderr (or of its log when stderr is empty)."""
+    if code != 0:
+        text = tail(os.path.join(run_dir, "stderr.txt")) or tail(os.path.join(run_dir, log))
+        raise RunFailed(f"run failed (exit {code}): {shlex.join(cmd)}\n--- tail of its output ({run_dir}) ---\n{text}")
+
+
+def energy_drift(energies, natoms):
+    e0 = energies[0]
+    d_end = abs(energies[-1] - e0)
+    d_max = max(abs(e - e0) for e in energies)
+    return {"e0": e0, "e_end": energies[-1], "drift_end_per_atom": d_end / natoms,
+            "drift_max_per_atom": d_max / natoms, "drift_end_rel": d_end / abs(e0), "drift_max_rel": d_max / abs(e0)}
+
+
+# ------------------------------------------------------------------------------------ preparation
+
+def prepare_state(stiffmd, eps, work):
+    """The prepared t = 0 state of inputs/lammps_chain.toml at this ε, as a LAMMPS data file."""
+    data = os.path.join(work, f"state_eps{eps}.data")
+    cmd = [stiffmd, "check", SOURCE_DECK, "--set", f"variables.eps={eps}", "--write-data", data]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RunFailed(f"state preparation failed (exit {p.returncode}): {shlex.join(cmd)}\n"
+                        f"--- stderr tail ---\n{p.stderr[-3000:]}")
+    return data
+
+
+def count_atoms(data):
+    with open(data) as f:
+        for line in f:
+            if line.strip().endswith("atoms"):
+                return int(line.split()[0])
+    raise RunFailed(f"{data}: no 'N atoms' line")
+
+
+def write_stiffmd_deck(path, data, eps, args, thermo_every):
+    """The timing deck: the prepared state with its velocities, no [velocities]/[prepare], no
+    trajectory or histogram output (thermo.csv, summary.json and the final checkpoint remain)."""
+    with open(path, "w") as f:
+        f.write(f"""# Written by tools/bench_lammps.py: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
+[types.bead]
+mass = 1.0
+
+[import]
+lammps_data = "{data}"
+atom_types = {{ "1" = "bead" }}
+bond_types = {{ "1" = "backbone" }}
+velocities = true
+
+[forces.bonds]
+style = "stiff-harmonic"
+level = "fast"
+epsilon = {fmt(eps)}
+bond_types.backbone = {{ length = {fmt(BOND_LENGTH)}, alpha = {fmt(ALPHA)} }}
+
+[forces.excluded_volume]
+style = "wca"
+level = "slow"
+epsilon = 1.0
+sigma = 1.0
+special_bonds = [0.0, 1.0]
+skin = 0.3
+
+[integrator]
+method = "impulse"
+h = {fmt(args.h)}
+micro_steps = {args.micro_steps}
+
+[run]
+t_end = {fmt(args.steps * args.h)}
+
+[output]
+xyz = ""
+thermo_interval = {fmt(thermo_every * args.h)}
+
+[observables]
+histograms = false
+""")
+
+
+def write_lammps_input(path, data, eps, args, thermo_every):
+    """The same state, potentials, h and n in LAMMPS: r-RESPA with the bonds inner, WCA outer."""
+    k_lammps = ALPHA ** 2 / (2.0 * float(eps) ** 2)  # LAMMPS harmonic: K (r - r0)^2, stiffmd ½ k (r - ℓ)^2
+    with open(path, "w") as f:
+        f.write(f"""# Written by tools/bench_lammps.py: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
+units           lj
+atom_style      bond
+boundary        p p p
+special_bonds   lj 0.0 1.0 1.0
+read_data       {data}
+
+bond_style      harmonic
+bond_coeff      1 {k_lammps:.17g} {fmt(BOND_LENGTH)}
+pair_style      lj/cut {WCA_CUTOFF:.17g}
+pair_modify     shift yes
+pair_coeff      1 1 1.0 1.0 {WCA_CUTOFF:.17g}
+
+neighbor        0.3 bin
+neigh_modify    every 1 delay 0 check yes
+
+timestep        {fmt(args.h)}
+run_style       respa 2 {args.micro_steps} bond 1 pair 2
+fix             1 all nve
+
+thermo          {thermo_every}
+thermo_style    custom step temp pe ke etotal
+thermo_modify   norm no format float %.15g
+run             {args.steps}
+""")
+
+
+# ------------------------------------------------------------------------------------------- runs
+
+def run_stiffmd(stiffmd, deck, method, threads, args, run_dir, natoms):
+    h = args.h / args.micro_steps if method == "velocity-verlet" else args.h
+    cmd = [stiffmd, "run", deck, "-o", run_dir, "--no-progress", "--set", f"integrator.method={method}",
+           "--set", f"integrator.h={fmt(h)}"]
+    code, seconds, rss = run_measured(cmd, run_dir, threads)
+    check_exit(code, cmd, run_dir)
+    with open(os.path.join(run_dir, "summary.json")) as f:
+        summary = json.load(f)
+    expected_steps = args.steps * (args.micro_steps if method == "velocity-verlet" else 1)
+    if summary["steps"] != expected_steps:
+        raise RunFailed(f"stiffmd ran {summary['steps']} steps, expected {expected_steps}: {shlex.join(cmd)}")
+    with open(os.path.join(run_dir, "thermo.csv")) as f:
+        energies = [float(row["total"]) for row in csv.DictReader(f)]
+    energies[0] = summary["initial_energy"]  # the same E(0), with all 17 digits
+    checkpoint = os.path.join(run_dir, "checkpoint.bin")  # always written; not needed here
+    if os.path.exists(checkpoint):
+        os.remove(checkpoint)
+    return {"code": "stiffmd", "method": method, "threads": threads, "h": h,
+            "n": 1 if method == "velocity-verlet" else args.micro_steps, "steps": summary["steps"],
+            "loop_seconds": summary["wall_seconds"], "ms_per_macro_step": 1e3 * summary["wall_seconds"] / args.steps,
+            "cpu_percent": 100.0 * summary["cpu_seconds"] / summary["wall_seconds"],
+            "process_seconds": seconds, "max_rss_mib": rss, **energy_drift(energies, natoms)}
+
+
+def parse_lammps_log(path):
+    """(loop seconds, steps, CPU use %, total energies of the thermo rows, warnings, version) from a LAMMPS log."""
+    loop, cpu_percent = None, float("nan")
+    energies, warnings, version = [], [], "LAMMPS"
+    columns = None
+    with open(path, errors="replace") as f:
+        for line in f:
+            words = line.split()
+            if line.startswith("LAMMPS ("):
+                version = line.strip()
+            elif line.startswith("WARNING"):
+                warnings.append(line.strip())
+            elif words[:1] == ["Step"]:
+                columns = words
+            elif line.startswith("Loop time of"):
+                loop = (float(words[3]), int(words[8]))
+                columns = None
+            elif "% CPU use with" in line:
+                cpu_percent = float(words[0].rstrip("%"))
+            elif columns and len(words) == len(columns):
+                try:
+                    energies.append(float(words[columns.index("TotEng")]))
+                except ValueError:
+                    columns = None
+    if loop is None or not energies:
+        raise RunFailed(f"{path}: no 'Loop time' line or no thermo rows")
+    return loop[0], loop[1], cpu_percent, energies, warnings, version
+
+
+def run_lammps(lmp, lammps_input, args, run_dir, natoms):
+    log = os.path.join(run_dir, "log.lammps")
+    cmd = [lmp, "-in", lammps_input, "-log", log, "-screen", "none", "-echo", "none", "-nocite"]
+    code, seconds, rss = run_measured(cmd, run_dir, 1)
+    check_exit(code, cmd, run_dir, log="log.lammps")
+    loop_seconds, steps, cpu_percent, energies, warnings, version = parse_lammps_log(log)
+    if steps != args.steps:
+        raise RunFailed(f"LAMMPS ran {steps} steps, expected {args.steps}: {log}")
+    return {"code": "lammps", "method": "respa", "threads": 1, "h": args.h, "n": args.micro_steps, "steps": steps,
+            "loop_seconds": loop_seconds, "ms_per_macro_step": 1e3 * loop_seconds / steps, "cpu_percent": cpu_percent,
+            "process_seconds": seconds, "max_rss_mib": rss, "warnings": warnings, "version": version,
+            **energy_drift(energies, natoms)}
+
+
+def benchmark_eps(eps, args, lmp, work, raw_writer):
+    """All runs for one ε; returns (one summary row per configuration, LAMMPS warnings/version)."""
+    os.makedirs(work, exist_ok=True)
+    data = prepare_state(args.stiffmd, eps, work)
+    natoms = count_atoms(data)
+    thermo_every = args.thermo_every or max(1, args.steps // 10)
+    deck = os.path.join(work, f"bench_eps{eps}.toml")
+    write_stiffmd_deck(deck, data, eps, args, thermo_every)
+    lammps_input = os.path.join(work, f"in.bench_eps{eps}")
+    write_lammps_input(lammps_input, data, eps, args, thermo_every)
+
+    configs = []
+    if lmp and "lammps-respa" in args.methods:
+        configs.append(("lammps-respa", 1))
+    configs += [(m, t) for m in STIFFMD_METHODS if m in args.methods for t in args.threads]
+    runs = {c: [] for c in configs}
+    lammps_info = {"warnings": [], "version": None}
+    for repeat in range(args.repeats):  # interleaved, so that slow drifts of the machine's load hit all alike
+        for method, threads in configs:
+            run_dir = os.path.join(work, "runs", f"{method}_t{threads}_r{repeat}")
+            os.makedirs(run_dir, exist_ok=True)
+            print(f"  eps {eps}: {method}, {threads} thread(s), repeat {repeat + 1}/{args.repeats}", file=sys.stderr,
+                  flush=True)
+            if method == "lammps-respa":
+                r = run_lammps(lmp, lammps_input, args, run_dir, natoms)
+                lammps_info["warnings"] = sorted(set(lammps_info["warnings"]) | set(r.pop("warnings")))
+                lammps_info["version"] = r.pop("version")
+            else:
+                r = run_stiffmd(args.stiffmd, deck, method, threads, args, run_dir, natoms)
+            r.update(eps=eps, repeat=repeat, natoms=natoms,
+                     cpu_ms_per_macro_step=r["ms_per_macro_step"] * r["cpu_percent"] / 100)
+            raw_writer.writerow({k: r[k] for k in CSV_FIELDS})
+            runs[(method, threads)].append(r)
+
+    rows = []
+    for (method, threads), rs in runs.items():
+        first = rs[0]  # energies: from the first repeat (every repeat is in bench.csv)
+        rows.append({**first, "label": method if method == "lammps-respa" else f"stiffmd {method}",
+                     "method_key": method, "ms": statistics.median(r["ms_per_macro_step"] for r in rs),
+                     "rss": max(r["max_rss_mib"] for r in rs),
+                     "cpu": statistics.median(r["cpu_percent"] for r in rs)})
+    return rows, lammps_info
+
+
+# ------------------------------------------------------------------------------------------ table
+
+def ratio(a, b):
+    return f"{a / b:.2f}" if b else "n/a"
+
+
+def markdown_table(eps, rows, args, lammps_info):
+    def time_of(method, threads):
+        return next((r["ms"] for r in rows if r["method_key"] == method and r["threads"] == threads), None)
+
+    t_lammps = time_of("lammps-respa", 1)
+    out = [f"## ε = {eps}: {rows[0]['natoms']} atoms, {args.steps} macro steps of h = {fmt(args.h)}, "
+           f"n = {args.micro_steps} micro steps, median of {args.repeats} repeat(s)", ""]
+    out.append("| code/method | threads | h | n | ms / macro step | ÷ LAMMPS respa | ÷ stiffmd impulse "
+               "| CPU use | peak RSS (MiB) | drift/atom end | drift/atom max | max \\|ΔE\\|/\\|E(0)\\| |")
+    out.append("|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
+    for r in rows:
+        t_impulse = time_of("impulse", r["threads"])
+        out.append(f"| {r['label']} | {r['threads']} | {r['h']:.6g} | {r['n']} | {r['ms']:.2f} "
+                   f"| {ratio(r['ms'], t_lammps)} | {ratio(r['ms'], t_impulse)} | {r['cpu']:.0f}% | {r['rss']:.0f} "
+                   f"| {r['drift_end_per_atom']:.2e} | {r['drift_max_per_atom']:.2e} | {r['drift_max_rel']:.2e} |")
+    out.append("")
+    out.append("ms / macro step: LAMMPS 'Loop time' or stiffmd's step-loop wall time, divided by the macro steps "
+               "(velocity Verlet: the n steps of h/n that make one macro step h); ratios are time ÷ time, "
+               "> 1 is slower. CPU use: CPU time ÷ wall time of the step loop (below 100% × threads: the machine "
+               "was busy with other work, and the times are inflated; OpenMP threads suffer most, waiting at "
+               "barriers for a thread that is not running). Drift: |E(end) − E(0)| and "
+               "max_t |E(t) − E(0)| over the thermo rows, per atom (LJ units), from the first repeat.")
+    e0 = {r["method_key"]: r["e0"] / r["natoms"] for r in rows}
+    if "lammps-respa" in e0:
+        others = [(m, e) for m, e in e0.items() if m != "lammps-respa"]
+        worst = max((abs(e - e0["lammps-respa"]) / abs(e0["lammps-respa"]) for _, e in others), default=0.0)
+        out.append("")
+        out.append(f"E(0) per atom: LAMMPS {e0['lammps-respa']:.12g}, stiffmd "
+                   + ", ".join(sorted({f'{e:.12g}' for _, e in others}))
+                   + f"; largest relative difference {worst:.1e}"
+                   + ("" if worst <= 1e-6 else " — MORE THAN 1e-6: the states or potentials differ"))
+    else:
+        out += ["", "LAMMPS not run: ratio columns n/a."]
+    if lammps_info["version"]:
+        out.append("")
+        out.append(f"{lammps_info['version']}, warnings: {len(lammps_info['warnings']) or 'none'}")
+        out += [f"- {w}" for w in lammps_info["warnings"]]
+        if any("Communication cutoff" in w for w in lammps_info["warnings"]):
+            out.append("  (harmless here: LAMMPS estimates 1.5 r0 + skin; the stiff bonds stay within a few % of "
+                       "ℓ = 0.97, well inside the ghost cutoff 2^(1/6) + skin, and a missing bond atom would be "
+                       "an error, not a warning)")
+    return "\n".join(out) + "\n"
+
+
+# ------------------------------------------------------------------------------------------- main
+
+def parse_args():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--eps", nargs="+", default=["0.01 0.003"], help="ε values (space or comma separated)")
+    ap.add_argument("--steps", type=int, default=200, help="macro steps per run (default 200)")
+    ap.add_argument("--h", type=float, default=0.005, help="macro step (default 0.005)")
+    ap.add_argument("--micro-steps", type=int, default=20, help="micro steps per macro step, n (default 20)")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each configuration; the median is shown")
+    ap.add_argument("--threads", nargs="+", default=["1 2"], help="stiffmd thread counts (OMP_NUM_THREADS)")
+    ap.add_argument("--methods", nargs="+", default=[" ".join(ALL_METHODS)],
+                    help="subset of: " + " ".join(ALL_METHODS))
+    ap.add_argument("--thermo-every", type=int, default=0, help="thermo every K macro steps (default steps/10)")
+    ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"), help="the engine binary")
+    ap.add_argument("--lmp", default="lmp", help="the LAMMPS binary")
+    ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "bench"), help="output directory")
+    args = ap.parse_args()
+    args.eps = split_list(args.eps)
+    args.threads = [int(t) for t in split_list(args.threads)]
+    args.methods = split_list(args.methods)
+    bad = [m for m in args.methods if m not in ALL_METHODS]
+    try:
+        [float(e) for e in args.eps]
+    except ValueError:
+        bad.append("--eps " + " ".join(args.eps))
+    if bad or args.steps < 1 or args.micro_steps < 1 or args.repeats < 1 or args.h <= 0 or min(args.threads) < 1:
+        ap.error("bad value(s): " + (", ".join(bad) or "steps, micro-steps, repeats, threads must be >= 1, h > 0"))
+    return args
+
+
+def main():
+    args = parse_args()
+    header = [f"command: {shlex.join([sys.executable] + sys.argv)}  (in {os.getcwd()})",
+              f"machine: {machine_description()}",
+              f"stiffmd: {args.stiffmd} (built {binary_date(args.stiffmd)}), git {git_revision()}"]
+    print("\n".join(header), flush=True)
+    if not os.access(args.stiffmd, os.X_OK):
+        print(f"bench_lammps: no stiffmd binary at {args.stiffmd} (cmake --build build -j2 --target stiffmd)",
+              file=sys.stderr)
+        return 2
+    lmp = shutil.which(args.lmp)
+    if lmp is None and "lammps-respa" in args.methods:
+        print(f"bench_lammps: LAMMPS ('{args.lmp}') not found: running the stiffmd part only (ratio columns n/a)",
+              flush=True)
+    os.makedirs(args.out, exist_ok=True)
+    try:
+        with open(os.path.join(args.out, "bench.csv"), "w", newline="") as f:
+            raw = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+            raw.writeheader()
+            for eps in args.eps:
+                rows, lammps_info = benchmark_eps(eps, args, lmp, os.path.join(args.out, "work"), raw)
+                f.flush()
+                table = markdown_table(eps, rows, args, lammps_info)
+                with open(os.path.join(args.out, f"bench_eps{eps}.md"), "w") as md:
+                    md.write("".join(f"    {line}\n" for line in header) + "\n" + table)
+                print("\n" + table, flush=True)
+    except RunFailed as e:
+        print(f"bench_lammps: {e}", file=sys.stderr)
+        return 2
+    print(f"tables and raw numbers: {args.out}/bench_eps<ε>.md, {args.out}/bench.csv")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
