@@ -2,10 +2,22 @@
 
 #include <algorithm>
 
+#include "forcefields/parallel.hpp"
+
 namespace stiffmd {
+namespace {
+
+// out = 0, in particle blocks on the threads (a 32 000-particle memset, 20 times per macro step
+// of the impulse method, was a serial 1.4 % of it).
+void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
+  out.resize(3, n);
+  parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) { out.middleCols(b, e - b).setZero(); });
+}
+
+}  // namespace
 
 double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out) {
-  out.setZero(3, x.cols());
+  zero(out, x.cols());
   double energy = 0.0;
   for (const auto& term : terms_)
     if (std::find(levels.begin(), levels.end(), term->level()) != levels.end())
@@ -15,7 +27,7 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
 }
 
 double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
-  out.setZero(3, x.cols());
+  zero(out, x.cols());
   double energy = 0.0;
   for (const auto& term : terms_)
     if (!term->stiff_bonds()) energy += term->add_forces(x, box_, out);

@@ -3,6 +3,7 @@
 #include "forcefields/parallel.hpp"
 
 #include <algorithm>
+#include <array>
 #include <compare>
 #include <sstream>
 #include <stdexcept>
@@ -132,18 +133,26 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   const double* xp = x.data();
   const double* x0 = x_at_build_.data();
   const Eigen::Index n = x.cols();
-  for (Eigen::Index i = 0; i < n; ++i) {
-    const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-    if (dx * dx + dy * dy + dz * dz > limit2) return true;
-  }
-  return false;
+  const int parts = threads_for(n);
+  std::array<char, kMaxParts> moved{};  // per block: some particle moved more than skin/2
+  run_parts(parts, [&](int u) {
+    double worst = 0.0;  // no early exit: a branch-free loop over the block is faster
+    for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
+      const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
+      worst = std::max(worst, dx * dx + dy * dy + dz * dz);
+    }
+    moved[u] = worst > limit2;
+  });
+  return std::any_of(moved.begin(), moved.begin() + parts, [](char m) { return m != 0; });
 }
 
 const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
   if (x.cols() != image_.cols())
     throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
   wrapped_now_.resize(3, x.cols());  // no allocation once sized
-  wrapped_now_ = x - image_;
+  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    wrapped_now_.middleCols(b, e - b) = x.middleCols(b, e - b) - image_.middleCols(b, e - b);
+  });
   return wrapped_now_;
 }
 
