@@ -65,6 +65,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     columns_.push_back("min_gap");
     columns_.push_back("min_resonance");
   }
+  columns_.push_back("alerts");  // filled in by the run's Monitor (engine/monitor.hpp)
   values_.resize(columns_.size());
 }
 
@@ -113,6 +114,7 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
     warn(warned_gap_, v.min_gap, "frequency gap min|w_j - w_k| =");
     warn(warned_resonance_, v.min_resonance, "resonance min|w_j +- w_k +- w_l| =");
   }
+  values_.push_back(0.0);  // alerts
   return values_;
 }
 

@@ -36,7 +36,8 @@ struct ObservableSettings {
   bool histograms = true;      // bond-length and angle histograms at the end (when there are bonds)
 };
 
-// One row of thermo output: named columns, fixed for a run.
+// One row of thermo output: named columns, fixed for a run. The last column, alerts, is 0 here;
+// the run loop's Monitor fills it in (engine/monitor.hpp).
 class Thermo {
  public:
   // topology may be null (no molecules, no polymer columns).

@@ -338,6 +338,7 @@ Scene load_scene(const Deck& deck) {
   read_integrator(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
+  sc.monitor = read_monitor(root);
   read_output(root, sc);
   root.finish();
   return sc;

@@ -8,6 +8,7 @@
 
 #include "engine/box.hpp"
 #include "engine/deck.hpp"
+#include "engine/monitor.hpp"
 #include "engine/observables.hpp"
 #include "engine/state.hpp"
 #include "engine/topology.hpp"
@@ -56,6 +57,7 @@ struct Scene {
   RunSettings run;
   OutputSettings output;
   ObservableSettings observables;
+  MonitorSettings monitor;  // [monitor]
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 

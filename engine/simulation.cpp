@@ -13,6 +13,7 @@
 #include "engine/errors.hpp"
 #include "engine/h5md_writer.hpp"
 #include "engine/lammps_data.hpp"
+#include "engine/monitor.hpp"
 #include "engine/observables.hpp"
 #include "engine/progress.hpp"
 #include "engine/signals.hpp"
@@ -226,14 +227,19 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
 
   double max_err = 0.0;
+  Monitor monitor(sc.monitor, thermo, summary.epsilon);
+  State last_good;  // with on_alert = "stop": the state of the last sample without alerts
+  int alerts = 0;   // of the last sample
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
   std::vector<double> last_row;
   auto sample = [&]() -> const std::vector<double>& {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
-    last_row = row;
-    max_err = std::max(max_err, std::abs(row[6]));
+    last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
+    max_err = std::max(max_err, std::abs(last_row[6]));
     for (const auto& note : thermo.take_notes()) log << note << "\n";
-    return row;
+    alerts = monitor.check(last_row, thermo.initial_energy(), log);
+    last_row.back() = alerts;
+    if (alerts == 0 && monitor.stops()) last_good = s;
+    return last_row;
   };
   auto write_state = [&]() {
     const Eigen::Matrix3Xd& pp = (*projected)(s);
@@ -250,6 +256,16 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
                       std::vector<double>(row.begin() + 2, row.end()));
   };
+  auto checkpoint = [&](const State& at) {
+    Checkpoint c;
+    c.state = at;
+    c.method = sc.integrator.method;
+    c.h = h;
+    c.integrator_state = integrator->save_state();
+    c.initial_energy = thermo.initial_energy();
+    write_checkpoint(checkpoint_path, c);
+    summary.checkpoint = checkpoint_path;
+  };
   // Outputs due at this step; `final` writes everything (the last state, whatever the grids).
   auto observe = [&](bool final = false) {
     const bool thermo_now = thermo_due.due(s.t) || final, h5md_now = h5md && (h5md_due.due(s.t) || final);
@@ -260,16 +276,15 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     }
     if (xyz && (xyz_due.due(s.t) || final)) xyz->write(s);
     if (state_csv && (state_due.due(s.t) || final)) write_state();
-  };
-  auto checkpoint = [&]() {
-    Checkpoint c;
-    c.state = s;
-    c.method = sc.integrator.method;
-    c.h = h;
-    c.integrator_state = integrator->save_state();
-    c.initial_energy = thermo.initial_energy();
-    write_checkpoint(checkpoint_path, c);
-    summary.checkpoint = checkpoint_path;
+    if ((thermo_now || h5md_now) && alerts > 0 && monitor.stops()) {
+      // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
+      checkpoint(last_good);
+      std::ostringstream m;
+      m.precision(10);
+      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), the last state within the "
+        << "thresholds (step " << last_good.step << ", t = " << last_good.t << ") is in " << checkpoint_path;
+      throw NumericalError(m.str());
+    }
   };
 
   check_finite(s);
@@ -309,13 +324,13 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       summary.stopped_by_signal = sig;
       break;
     }
-    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint();
+    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint(s);
     progress.update(k - first + 1);
   }
   summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
   summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   progress.finish();
-  checkpoint();
+  checkpoint(s);
   if (summary.stopped_by_signal) {
     summary.steps = s.step;
     return summary;  // outputs are flushed frame by frame; no summary.json: the run is not finished

@@ -1,0 +1,143 @@
+#include "engine/monitor.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "engine/deck.hpp"
+#include "engine/observables.hpp"
+
+namespace stiffmd {
+
+constexpr double kViolationFloor = 1e-8;  // length units
+
+bool MonitorSettings::active() const {
+  return energy_error < kOff || violation < kOff || violation_growth < kOff || action_drift < kOff || validity;
+}
+
+MonitorSettings read_monitor(DeckTable& root) {
+  MonitorSettings m;
+  auto t = root.table("monitor");
+  if (!t) return m;
+  auto threshold = [&](const char* key, double& into) {
+    if (const auto v = t->maybe_number(key)) {
+      t->require(std::isfinite(*v) && *v > 0.0, key, "expected a threshold > 0");
+      into = *v;
+    }
+  };
+  threshold("energy_error", m.energy_error);
+  threshold("violation", m.violation);
+  threshold("violation_growth", m.violation_growth);
+  threshold("action_drift", m.action_drift);
+  m.validity = t->boolean("validity", true);
+  const std::string on = t->string("on_alert", "warn");
+  t->require(on == "warn" || on == "stop", "on_alert", "expected \"warn\" or \"stop\"");
+  m.stop = on == "stop";
+  t->finish();
+  return m;
+}
+
+Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon)
+    : settings_(settings),
+      col_step_(thermo.column("step")),
+      col_time_(thermo.column("time")),
+      col_total_(thermo.column("total")),
+      col_violation_(thermo.column("max_violation")),
+      col_gap_(thermo.column("min_gap")),
+      col_resonance_(thermo.column("min_resonance")),
+      sqrt_eps_(epsilon > 0.0 ? std::sqrt(epsilon) : 0.0),
+      warned_(5, 0) {
+  for (int k = 1; thermo.column("action_" + std::to_string(k)) >= 0; ++k)
+    col_actions_.push_back(thermo.column("action_" + std::to_string(k)));
+}
+
+int Monitor::check(const std::vector<double>& row, double initial_energy, std::ostream& log) {
+  if (!have_reference_) {
+    violation0_ = row[col_violation_];
+    for (int c : col_actions_) actions0_.push_back(row[c]);
+    have_reference_ = true;
+  }
+  last_alert_.clear();
+  int alerts = 0;
+  auto alert = [&](int kind, const std::string& what) {
+    ++alerts;
+    std::ostringstream m;
+    m.precision(6);
+    m << "monitor: " << what << " at step " << static_cast<long long>(row[col_step_]) << " (t = " << row[col_time_]
+      << ")";
+    if (last_alert_.empty()) last_alert_ = m.str();
+    if (!warned_[kind]) {
+      warned_[kind] = 1;
+      log << "warning: " << m.str() << (settings_.stop ? "" : " (further alerts of this kind: thermo column alerts)")
+          << "\n";
+    }
+  };
+  auto over = [](double value, double limit) { return !(value <= limit); };  // NaN counts as over
+  std::ostringstream w;
+  w.precision(6);
+
+  const double e = row[col_total_];
+  const double rel =
+      initial_energy != 0.0 ? std::abs(e - initial_energy) / std::abs(initial_energy) : std::abs(e - initial_energy);
+  if (settings_.energy_error < MonitorSettings::kOff && over(rel, settings_.energy_error)) {
+    w << "relative energy error " << rel << " > [monitor] energy_error = " << settings_.energy_error;
+    alert(0, w.str());
+    w.str("");
+  }
+  const double g = row[col_violation_];
+  if (settings_.violation < MonitorSettings::kOff && over(g, settings_.violation)) {
+    w << "constraint violation max|g| = " << g << " > [monitor] violation = " << settings_.violation;
+    alert(1, w.str());
+    w.str("");
+  }
+  // Growth over the initial violation, floored at kViolationFloor: a state projected onto the
+  // constraints (RATTLE, effective) starts at round-off, which may grow tenfold harmlessly.
+  const double g0 = std::max(violation0_, kViolationFloor);
+  if (settings_.violation_growth < MonitorSettings::kOff && over(g / g0, settings_.violation_growth)) {
+    w << "constraint violation grew " << g / g0 << "-fold (max|g| " << violation0_ << " -> " << g
+      << ") > [monitor] violation_growth = " << settings_.violation_growth;
+    alert(2, w.str());
+    w.str("");
+  }
+  if (settings_.action_drift < MonitorSettings::kOff) {
+    // Relative to the largest initial action: a mode that starts (nearly) unexcited has I_k(0) ≈ 0,
+    // and its own relative change says nothing.
+    double scale = 0.0;
+    for (const double i0 : actions0_) scale = std::max(scale, std::abs(i0));
+    if (scale == 0.0) scale = 1.0;
+    double worst = 0.0;
+    int worst_k = 0;
+    for (std::size_t k = 0; k < col_actions_.size(); ++k) {
+      const double d = std::abs(row[col_actions_[k]] - actions0_[k]) / scale;
+      if (!(d <= worst)) {
+        worst = d;
+        worst_k = static_cast<int>(k);
+      }
+    }
+    if (!col_actions_.empty() && over(worst, settings_.action_drift)) {
+      w << "action I_" << worst_k + 1 << " drifted by " << worst
+        << " (relative to max_k I_k(0)) > [monitor] action_drift = " << settings_.action_drift;
+      alert(3, w.str());
+      w.str("");
+    }
+  }
+  if (settings_.validity && sqrt_eps_ > 0.0 && col_gap_ >= 0) {
+    // −1 in the thermo columns: no pair (triple) of modes to compare.
+    const double gap = row[col_gap_], res = row[col_resonance_];
+    const bool near_gap = gap >= 0.0 && gap < sqrt_eps_, near_res = res >= 0.0 && res < sqrt_eps_;
+    if (near_gap || near_res) {
+      w << (near_gap ? "frequency gap " : "resonance ") << (near_gap ? gap : res) << " < sqrt(eps) = " << sqrt_eps_
+        << ": the effective dynamics is not valid here";
+      ++alerts;  // Thermo has said it in the log already; count it, and stop if asked to
+      if (last_alert_.empty()) {
+        std::ostringstream m;
+        m << "monitor: " << w.str() << " at step " << static_cast<long long>(row[col_step_])
+          << " (t = " << row[col_time_] << ")";
+        last_alert_ = m.str();
+      }
+    }
+  }
+  return alerts;
+}
+
+}  // namespace stiffmd
