@@ -3,11 +3,13 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <system_error>
 
 #include "engine/errors.hpp"
 
@@ -20,24 +22,51 @@ constexpr char kMagic[8] = {'S', 'T', 'F', 'M', 'D', 'C', 'K', '1'};
 // machine, not for archiving (the trajectory formats are for that).
 class Writer {
  public:
+  // Writes through a 64 KiB buffer to fd (the whole image is never held in memory: a checkpoint
+  // of a large system would otherwise double the run's peak memory at its end).
+  Writer(int fd, std::string path) : fd_(fd), path_(std::move(path)) { buf_.reserve(kBuffer); }
   template <class T>
   void put(const T& v) {
-    const char* p = reinterpret_cast<const char*>(&v);
-    buf_.insert(buf_.end(), p, p + sizeof(T));
+    append(reinterpret_cast<const char*>(&v), sizeof(T));
   }
   void put(const std::string& s) {
     put<std::uint64_t>(s.size());
-    buf_.insert(buf_.end(), s.begin(), s.end());
+    append(s.data(), s.size());
   }
   void put(const double* d, size_t n) {
     put<std::uint64_t>(n);
-    const char* p = reinterpret_cast<const char*>(d);
-    buf_.insert(buf_.end(), p, p + n * sizeof(double));
+    append(reinterpret_cast<const char*>(d), n * sizeof(double));
   }
-  const std::vector<char>& bytes() const { return buf_; }
+  std::uint64_t written() const { return total_; }  // bytes put so far
+  void flush() {
+    size_t done = 0;
+    while (done < buf_.size()) {
+      const ssize_t k = ::write(fd_, buf_.data() + done, buf_.size() - done);
+      if (k < 0) {
+        if (errno == EINTR) continue;
+        throw std::system_error(errno, std::generic_category(), "write");
+      }
+      done += static_cast<size_t>(k);
+    }
+    buf_.clear();
+  }
 
  private:
+  static constexpr size_t kBuffer = 1 << 16;
+  void append(const char* p, size_t n) {
+    total_ += n;
+    while (n > 0) {
+      const size_t k = std::min(n, kBuffer - buf_.size());
+      buf_.insert(buf_.end(), p, p + k);
+      p += k;
+      n -= k;
+      if (buf_.size() == kBuffer) flush();
+    }
+  }
+  int fd_;
+  std::string path_;
   std::vector<char> buf_;
+  std::uint64_t total_ = 0;
 };
 
 class Reader {
@@ -87,37 +116,35 @@ void fail_io(const std::string& path, const char* what) {
 }  // namespace
 
 void write_checkpoint(const std::string& path, const Checkpoint& c) {
-  Writer w;
-  for (char ch : kMagic) w.put(ch);
-  w.put<std::int64_t>(c.state.size());
-  w.put<std::int64_t>(c.state.step);
-  w.put<double>(c.state.t);
-  w.put(c.method);
-  w.put<double>(c.h);
-  w.put<double>(c.initial_energy);
-  w.put(c.state.x.data(), static_cast<size_t>(c.state.x.size()));
-  w.put(c.state.v.data(), static_cast<size_t>(c.state.v.size()));
-  w.put(c.state.inv_mass.data(), static_cast<size_t>(c.state.inv_mass.size()));
-  w.put(c.integrator_state.data(), c.integrator_state.size());
-  w.put<std::uint64_t>(w.bytes().size() + sizeof(std::uint64_t));  // length trailer: detects truncation
+  write_checkpoint(path, c.state, c.method, c.h, c.integrator_state, c.initial_energy);
+}
 
+void write_checkpoint(const std::string& path, const State& state, const std::string& method, double h,
+                      const std::vector<double>& integrator_state, double initial_energy) {
   // Temporary file in the same directory, fsync, rename over the old one, fsync the directory.
   const std::string tmp = path + ".tmp";
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
   if (fd < 0) fail_io(path, "create");
-  const auto& bytes = w.bytes();
-  size_t done = 0;
-  while (done < bytes.size()) {
-    const ssize_t k = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (k < 0) {
-      if (errno == EINTR) continue;
-      const int e = errno;
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      errno = e;
-      fail_io(path, "write");
-    }
-    done += static_cast<size_t>(k);
+  try {
+    Writer w(fd, path);
+    for (char ch : kMagic) w.put(ch);
+    w.put<std::int64_t>(state.size());
+    w.put<std::int64_t>(state.step);
+    w.put<double>(state.t);
+    w.put(method);
+    w.put<double>(h);
+    w.put<double>(initial_energy);
+    w.put(state.x.data(), static_cast<size_t>(state.x.size()));
+    w.put(state.v.data(), static_cast<size_t>(state.v.size()));
+    w.put(state.inv_mass.data(), static_cast<size_t>(state.inv_mass.size()));
+    w.put(integrator_state.data(), integrator_state.size());
+    w.put<std::uint64_t>(w.written() + sizeof(std::uint64_t));  // length trailer: detects truncation
+    w.flush();
+  } catch (const std::system_error& e) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    errno = e.code().value();
+    fail_io(path, "write");
   }
   if (::fsync(fd) != 0 || ::close(fd) != 0) {
     ::unlink(tmp.c_str());

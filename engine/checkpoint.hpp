@@ -21,6 +21,9 @@ struct Checkpoint {
 
 // Throws InputError naming the path on any I/O failure.
 void write_checkpoint(const std::string& path, const Checkpoint& c);
+// The same from its parts, without copying the state.
+void write_checkpoint(const std::string& path, const State& state, const std::string& method, double h,
+                      const std::vector<double>& integrator_state, double initial_energy);
 // Throws InputError naming the path if the file is missing, truncated or not a checkpoint.
 Checkpoint read_checkpoint(const std::string& path);
 

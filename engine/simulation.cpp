@@ -176,8 +176,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
         sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
     csv = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
   }
-  const auto scols = state_columns(s.size());
   if (!sc.output.state.empty()) {
+    const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
     const bool append =
         open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
     state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
@@ -257,13 +257,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
                       std::vector<double>(row.begin() + 2, row.end()));
   };
   auto checkpoint = [&](const State& at) {
-    Checkpoint c;
-    c.state = at;
-    c.method = sc.integrator.method;
-    c.h = h;
-    c.integrator_state = integrator->save_state();
-    c.initial_energy = thermo.initial_energy();
-    write_checkpoint(checkpoint_path, c);
+    write_checkpoint(checkpoint_path, at, sc.integrator.method, h, integrator->save_state(), thermo.initial_energy());
     summary.checkpoint = checkpoint_path;
   };
   // Outputs due at this step; `final` writes everything (the last state, whatever the grids).

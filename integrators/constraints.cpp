@@ -436,6 +436,7 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
         if (cp.row == cp.col) d.diag_w[cp.row] += cp.sign * inv_mass[cp.particle];
         if (cp.col == cp.row + 1) d.off_w[cp.row] += cp.sign * inv_mass[cp.particle];
       }
+      d.couplings = {};  // chains assemble from diag_w, off_w: 160 bytes per bond less to keep
     } else if (n <= kMaxDenseBonds)
       d.solver = std::make_unique<DenseSolver>(n, d.couplings);
     else

@@ -131,7 +131,7 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
   std::getline(csv, header);
   EXPECT_EQ(header,
             "time,step,kinetic,potential_slow,potential_stiff,total,energy_drift,max_violation,temperature,"
-            "omega_1,omega_2,action_1,action_2,min_gap,min_resonance");
+            "omega_1,omega_2,action_1,action_2,min_gap,min_resonance,alerts");
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_EQ(rows, 11);
