@@ -37,7 +37,7 @@ MonitorSettings read_monitor(DeckTable& root) {
   return m;
 }
 
-Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon)
+Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon, bool effective)
     : settings_(settings),
       col_step_(thermo.column("step")),
       col_time_(thermo.column("time")),
@@ -45,7 +45,7 @@ Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double e
       col_violation_(thermo.column("max_violation")),
       col_gap_(thermo.column("min_gap")),
       col_resonance_(thermo.column("min_resonance")),
-      sqrt_eps_(epsilon > 0.0 ? std::sqrt(epsilon) : 0.0),
+      sqrt_eps_(epsilon > 0.0 && effective ? std::sqrt(epsilon) : 0.0),
       warned_(5, 0) {
   for (int k = 1; thermo.column("action_" + std::to_string(k)) >= 0; ++k)
     col_actions_.push_back(thermo.column("action_" + std::to_string(k)));

@@ -23,7 +23,7 @@ struct MonitorSettings {
   double violation = kOff;         // max_b |g_b(x)|, in length units
   double violation_growth = kOff;  // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
   double action_drift = kOff;      // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
-  bool validity = true;            // min frequency gap or resonance < √ε (observables.actions)
+  bool validity = true;            // effective: min frequency gap or resonance < √ε (observables.actions)
   bool stop = false;               // on_alert = "stop" (else "warn")
 
   bool active() const;  // any check configured
@@ -34,8 +34,9 @@ MonitorSettings read_monitor(DeckTable& root);
 
 class Monitor {
  public:
-  // epsilon: of the stiff bonds (0: no validity check).
-  Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon);
+  // epsilon: of the stiff bonds (0: no validity check). The validity check applies to the
+  // effective dynamics only (effective = true): the other methods do not rely on it.
+  Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon, bool effective);
 
   // Checks one thermo row (Thermo::sample's columns); returns the number of alerts. Logs each
   // kind of alert the first time it occurs. The first row is the reference (t = 0, or the

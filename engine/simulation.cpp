@@ -227,7 +227,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
 
   double max_err = 0.0;
-  Monitor monitor(sc.monitor, thermo, summary.epsilon);
+  Monitor monitor(sc.monitor, thermo, summary.epsilon, sc.integrator.method == "effective");
   State last_good;  // with on_alert = "stop": the state of the last sample without alerts
   int alerts = 0;   // of the last sample
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
