@@ -441,6 +441,7 @@ def main():
     if lmp is None and "lammps-respa" in args.methods:
         print(f"bench_lammps: LAMMPS ('{args.lmp}') not found: running the stiffmd part only (ratio columns n/a)",
               flush=True)
+    args.out = os.path.abspath(args.out)  # runs execute in their own directories
     os.makedirs(args.out, exist_ok=True)
     try:
         with open(os.path.join(args.out, "bench.csv"), "w", newline="") as f:

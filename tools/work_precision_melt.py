@@ -902,6 +902,9 @@ def parse_args(argv=None):
 
 def main(argv=None):
     args = parse_args(argv)
+    args.out = os.path.abspath(args.out)  # decks name their data files relative to their own directory
+    if getattr(args, "figures", None):
+        args.figures = os.path.abspath(args.figures)
     os.makedirs(args.out, exist_ok=True)
     data = {}
     started = time.monotonic()
