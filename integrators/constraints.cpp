@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <stdexcept>
 #include <string>
@@ -460,14 +461,28 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
 // has zero length, so that is an error, as is any non-finite coordinate.
 void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what,
                                       int iteration) {
-  for (int b : data[c].bonds) {
-    const Eigen::Vector3d d = x.col(bonds[b].i) - x.col(bonds[b].j);
-    const double length = d.norm();
-    if (length > 0.0 && std::isfinite(length)) {
-      frame.u.col(b) = d / length;
-      frame.length[b] = length;
-      continue;
-    }
+  // One pass without branches (u = d / |d| for every bond), then the check: called several
+  // times per macro step by SHAKE and the mollifier, so it is kept tight.
+  const double* xp = x.data();
+  double* u = frame.u.data();
+  double* len = frame.length.data();
+  const StiffBond* bond = bonds.data();
+  bool ok = true;
+  for (const int b : data[c].bonds) {
+    const int i = bond[b].i, j = bond[b].j;
+    const double dx = xp[3 * i] - xp[3 * j], dy = xp[3 * i + 1] - xp[3 * j + 1], dz = xp[3 * i + 2] - xp[3 * j + 2];
+    const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
+    const double inv = 1.0 / length;
+    u[3 * b] = dx * inv;
+    u[3 * b + 1] = dy * inv;
+    u[3 * b + 2] = dz * inv;
+    len[b] = length;
+    ok &= length > 0.0 && length <= std::numeric_limits<double>::max();  // false for 0, ∞, NaN
+  }
+  if (ok) return;
+  for (const int b : data[c].bonds) {
+    const double length = len[b];
+    if (length > 0.0 && std::isfinite(length)) continue;
     std::string where = std::string(what) + " failed in cluster " + std::to_string(c);
     if (iteration >= 0) where += " at iteration " + std::to_string(iteration);
     throw NumericalError(where + ": " + describe_bond(b, bonds[b]) +
