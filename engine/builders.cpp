@@ -707,10 +707,23 @@ Polymer build_rings(const ChainSpec& spec, const Box& box) {
 
 Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
   const char* who = "build_stars";
-  if (arms < 1) invalid(who, "arms = " + std::to_string(arms) + ": expected at least 1");
+  if (arms < 1 || arms > kMaxStarArms)
+    invalid(who, "arms = " + std::to_string(arms) + ": expected 1 .. " + std::to_string(kMaxStarArms) +
+                     " (a core with n arms has n(n - 1)/2 angles)");
   const long long per_star = 1 + static_cast<long long>(arms) * spec.beads;
   const long long total = spec.chains * per_star;
   validate(who, spec, 1, box, total);
+  // The first beads of the arms lie on the sphere of radius bond_length around the core, at least
+  // min_distance apart: disjoint caps of angular radius asin(min_distance / (2 bond_length))
+  // around them bound their number by 2 / (1 − cos of that angle). Past the bound the star can
+  // never be placed; say so now instead of exhausting the growth's failure budget.
+  if (spec.min_distance > 0.0) {
+    const double most = 2.0 / (1.0 - std::cos(std::asin(spec.min_distance / (2.0 * spec.bond_length))));
+    if (arms > most)
+      invalid(who, "arms = " + std::to_string(arms) + ": at most " + num(std::floor(most)) +
+                       " arms fit around a core with bond_length = " + num(spec.bond_length) + " and min_distance = " +
+                       num(spec.min_distance) + "; expected fewer arms or a smaller min_distance");
+  }
   const int b = spec.beads, size = static_cast<int>(per_star);
   std::vector<Plan> plans(static_cast<size_t>(spec.chains));
   std::vector<std::pair<int, int>> bonds;

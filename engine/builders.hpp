@@ -49,9 +49,10 @@ struct ChainSpec {
 // the bond itself. A start region that is a single point is refused for more than one molecule.
 //
 // Validation (std::invalid_argument): chains ≥ 1; beads ≥ 2 (rings ≥ 3, star arms ≥ 1);
-// arms ≥ 1; bond_length > 0; 0 ≤ min_distance < 2·bond_length (beads two bonds apart can be at
-// most 2·bond_length apart); finite box. A configuration that cannot be grown within the bounded
-// number of tries throws std::runtime_error naming the molecule.
+// 1 ≤ arms ≤ kMaxStarArms (a core has arms·(arms − 1)/2 angles), and no more arms than fit
+// around the core at min_distance; bond_length > 0; 0 ≤ min_distance < 2·bond_length (beads two
+// bonds apart can be at most 2·bond_length apart); finite box. A configuration that cannot be
+// grown within the bounded number of tries throws std::runtime_error naming the molecule.
 //
 // Algorithm: all molecules grow together, one bead each per round (so the box fills evenly and
 // no late molecule must thread through an already-full box). For each bead, random positions at
@@ -81,6 +82,7 @@ Polymer build_rings(const ChainSpec& spec, const Box& box);
 
 // `chains` stars, each a core bead with `arms` arms of `spec.beads` beads (1 + arms·beads beads
 // per star); the arms grow in turn, one bead each, so that no arm walls in the core.
+constexpr int kMaxStarArms = 1000;
 Polymer build_stars(const ChainSpec& spec, int arms, const Box& box);
 
 // A cube of side (total_beads / density)^(1/3) with its corner at the origin, periodic on all

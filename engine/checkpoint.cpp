@@ -92,7 +92,7 @@ class Reader {
     if (n > buf_.size()) bad();
     need(n * sizeof(double));
     std::vector<double> v(n);
-    std::memcpy(v.data(), buf_.data() + pos_, n * sizeof(double));
+    if (n > 0) std::memcpy(v.data(), buf_.data() + pos_, n * sizeof(double));  // no null pointer to memcpy
     pos_ += n * sizeof(double);
     return v;
   }
@@ -102,7 +102,7 @@ class Reader {
 
  private:
   void need(size_t n) const {
-    if (pos_ + n > buf_.size()) bad();
+    if (n > buf_.size() - pos_) bad();  // pos_ <= size; pos_ + n could wrap for a corrupt length
   }
   std::vector<char> buf_;
   std::string path_;

@@ -4,6 +4,7 @@
 
 #include <toml++/toml.h>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -57,12 +58,25 @@ bool valid_identifier(const std::string& s) {
 // Deck
 
 Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(std::move(path)) {
-  std::ifstream in(path_);
+  std::error_code ec;
+  if (std::filesystem::is_directory(path_, ec))
+    throw InputError(path_ + ": is a directory, expected a deck file (TOML)");
+  std::ifstream in(path_, std::ios::binary);
   if (!in) throw InputError(path_ + ": cannot open deck file");
-  std::stringstream buf;
-  buf << in.rdbuf();
+  // Read at most kMaxDeckBytes: a deck may come through a pipe (process substitution), but
+  // /dev/zero or an endless pipe must not be read forever.
+  constexpr std::size_t kMaxDeckBytes = 64 << 20;
+  std::string text;
+  char chunk[1 << 16];
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
+    text.append(chunk, static_cast<std::size_t>(in.gcount()));
+    if (text.size() > kMaxDeckBytes)
+      throw InputError(path_ + ": larger than " + std::to_string(kMaxDeckBytes >> 20) +
+                       " MiB; expected a deck file (TOML)");
+  }
+  if (in.bad()) throw InputError(path_ + ": cannot read deck file");
   try {
-    table_ = std::make_unique<toml::table>(toml::parse(buf.str(), path_));
+    table_ = std::make_unique<toml::table>(toml::parse(text, path_));
   } catch (const toml::parse_error& e) {
     throw InputError(path_ + ":" + std::to_string(e.source().begin.line) +
                      ": TOML syntax error: " + std::string(e.description()));
@@ -78,9 +92,17 @@ DeckTable Deck::root() const {
 }
 
 std::string Deck::location(const toml::node* n, const std::string& key_path) const {
-  // A value given with --set names the override; so does anything below an overridden key.
+  // A value given with --set names the override; so does anything below an overridden key. Array
+  // elements are "particles[1].position" in key paths but "particles.1.position" in overrides.
+  std::string dotted;
+  for (const char c : key_path)
+    if (c == '[')
+      dotted += '.';
+    else if (c != ']')
+      dotted += c;
   for (const std::string& o : overridden_)
-    if (key_path == o || key_path.rfind(o + ".", 0) == 0 || key_path.rfind(o + "[", 0) == 0) return "--set " + o;
+    for (const std::string& kp : {key_path, dotted})
+      if (kp == o || kp.rfind(o + ".", 0) == 0 || kp.rfind(o + "[", 0) == 0) return "--set " + o;
   if (n && n->source().begin.line > 0) return path_ + ":" + std::to_string(n->source().begin.line);
   return path_;
 }
@@ -145,10 +167,31 @@ double Deck::evaluate(const std::string& expr, const std::string& where) const {
     for (const auto& [name, v] : variables_) p.DefineConst(name, v);
     p.SetExpr(expr);
     const double v = p.Eval();
+    if (std::isnan(v))
+      throw InputError(where + ": expression \"" + expr +
+                       "\" evaluates to nan (0/0, or sqrt or log of a negative number?); expected a finite number");
     if (!std::isfinite(v))
-      throw InputError(where + ": expression \"" + expr + "\" evaluates to " + std::to_string(v) +
-                       " (division by zero?)");
+      throw InputError(where + ": expression \"" + expr + "\" evaluates to " + (v > 0 ? "inf" : "-inf") +
+                       " (division by zero or overflow?); expected a finite number");
     return v;
+  } catch (const mu::Parser::exception_type& e) {
+    // Most often a name that is not a variable: say which (a syntax error is reported as such).
+    for (const std::string& used : referenced_names(expr, where))
+      if (!variables_.count(used))
+        throw InputError(where + ": expression \"" + expr + "\" refers to '" + used +
+                         "', which is not a variable (define it under [variables])");
+    throw InputError(where + ": cannot evaluate expression \"" + expr + "\": " + e.GetMsg());
+  }
+}
+
+std::set<std::string> Deck::referenced_names(const std::string& expr, const std::string& where) const {
+  try {
+    mu::Parser p;
+    p.DefineConst("pi", M_PI);
+    p.SetExpr(expr);
+    std::set<std::string> out;
+    for (const auto& [name, ptr] : p.GetUsedVar()) out.insert(name);  // undefined ones included
+    return out;
   } catch (const mu::Parser::exception_type& e) {
     throw InputError(where + ": cannot evaluate expression \"" + expr + "\": " + e.GetMsg());
   }
@@ -189,10 +232,24 @@ void Deck::resolve_variables() {
       }
     }
     if (!progress) {
+      // Say why: an undefined name, an expression that fails on its own (1/0, a syntax error),
+      // or else a cycle through the pending variables.
+      for (const auto& [name, v] : pending) {
+        const std::string expr = *v->value<std::string>();
+        const std::string where = location(v, "variables." + name) + ": variables." + name;
+        bool waits = false;
+        for (const std::string& used : referenced_names(expr, where)) {
+          if (variables_.count(used)) continue;
+          if (!pending.count(used))
+            throw InputError(where + ": expression \"" + expr + "\" refers to '" + used +
+                             "', which is not a variable (define it under [variables])");
+          waits = true;
+        }
+        if (!waits) evaluate(expr, where);  // throws the expression's own error
+      }
       const auto& [name, v] = *pending.begin();
       throw InputError(location(v, "variables." + name) + ": variables." + name + ": cannot resolve \"" +
-                       *v->value<std::string>() +
-                       "\": it refers to an undefined variable or, through others, to itself");
+                       *v->value<std::string>() + "\": it refers, through other variables, to itself");
     }
   }
 }

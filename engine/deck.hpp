@@ -111,6 +111,8 @@ class Deck {
  private:
   void apply_override(const std::string& assignment);
   void resolve_variables();
+  // The variable names an expression refers to, defined or not (throws InputError on a syntax error).
+  std::set<std::string> referenced_names(const std::string& expr, const std::string& where) const;
 
   std::string path_;
   std::unique_ptr<toml::table> table_;

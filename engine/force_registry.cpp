@@ -1,8 +1,11 @@
 #include "engine/force_registry.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <sstream>
 #include <stdexcept>
 
+#include "engine/errors.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/fene_bond.hpp"
@@ -86,7 +89,16 @@ std::unique_ptr<ForceTerm> read_fene(const std::string& name, Level level, DeckT
         return c;
       },
       coeffs);
-  return std::make_unique<FeneBond>(name, level, claimed(ctx.scene.topology.bonds, index), coeffs);
+  auto term = std::make_unique<FeneBond>(name, level, claimed(ctx.scene.topology.bonds, index), coeffs);
+  // FENE is defined only for 0 < r < R0: a bond that starts outside would fail at the first force
+  // evaluation (exit 3); it is the deck's fault, so say so now, naming the bond.
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, ctx.scene.state.size());
+  try {
+    term->add_forces(ctx.scene.state.x, ctx.scene.box, f);
+  } catch (const NumericalError& e) {
+    t.fail("bond_types", std::string(e.what()) + " in the initial state");
+  }
+  return term;
 }
 
 // harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
@@ -147,19 +159,89 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   if (ctx.scene.box.periodic[p.axis])
     t.fail("axis", "the box is periodic along " + axis + ": a wall there has no meaning");
   p.position = t.number("position");
-  p.side = static_cast<int>(t.integer("side", 1));
-  t.require(p.side == 1 || p.side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");
+  const long side = t.integer("side", 1);  // checked before the conversion to int
+  t.require(side == 1 || side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");
+  p.side = static_cast<int>(side);
   p.epsilon = t.number("epsilon", p.epsilon);
   p.sigma = t.number("sigma", p.sigma);
   p.cutoff = t.number("cutoff", p.cutoff);
   return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
 }
 
+std::string fmt(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+// The neighbour list needs every periodic box length >= 2 (cutoff + skin) (check_box_for_cutoff):
+// an error at the key that sets the range (`range_key`: cutoff, or sigma for wca), naming the box.
+template <class Kernel>
+void check_box_for_pairs(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, double skin,
+                         const Scene& sc, const char* range_key) {
+  double rc = 0.0;
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) {
+      try {
+        Kernel::validate(coeffs(a, b));
+      } catch (const std::invalid_argument&) {
+        return;  // the term's constructor names the bad coefficient
+      }
+      rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
+    }
+  const double need = 2.0 * (rc + skin);
+  for (int a = 0; a < 3; ++a)
+    if (sc.box.periodic[a] && !(sc.box.lengths[a] >= need)) {
+      const char axis = static_cast<char>('x' + a);
+      const std::string what =
+          std::string("cutoff ") + fmt(rc) + " + skin " + fmt(skin) + ": the periodic box is " +
+          fmt(sc.box.lengths[a]) + " long on " + axis + " (" +
+          (sc.box_from_source ? "set by a [[build]] density or the [import]" : "box.lengths") +
+          "), but the neighbour list needs every periodic length >= 2 × (cutoff + skin) = " + fmt(need) +
+          "; enlarge the box or reduce " + t.key_path(range_key) + " or " + t.key_path("skin");
+      if (t.has(range_key)) t.fail(range_key, what);
+      if (t.has("skin")) t.fail("skin", what);
+      t.fail_here(what);
+    }
+}
+
+// Two particles closer than this fraction of the pair cutoff (in practice: at the same position)
+// make a pair force singular — for `soft` too, whose force has no direction at r = 0.
+constexpr double kOverlapFraction = 1e-6;
+
+// Overlapping particles at the start, with every pair the term acts on (special weight ≠ 0)
+// considered: an error naming the first two, found through a neighbour list of that tiny range.
+template <class Kernel>
+void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
+                    const Scene& sc) {
+  double rc = 0.0;
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
+  const double threshold = kOverlapFraction * rc;
+  const int n = sc.state.size();
+  std::vector<SpecialPair> excluded;
+  for (const SpecialPair& sp : special_pairs(n, sc.topology.bonds, w))
+    if (sp.weight == 0.0) excluded.push_back(sp);
+  NeighborList list(threshold, 0.0);
+  list.set_exclusions(n, excluded);
+  list.build(sc.state.x, sc.box);
+  if (list.num_pairs() == 0) return;
+  const auto offsets = list.offsets();
+  int i = 0;
+  while (offsets[i + 1] == offsets[i]) ++i;
+  const int j = list.neighbors()[offsets[i]];
+  Eigen::Vector3d d = sc.state.x.col(i) - sc.state.x.col(j);
+  MinimumImage(sc.box).apply(d[0], d[1], d[2]);
+  t.fail_here("particles " + std::to_string(i) + " and " + std::to_string(j) + " overlap at the start (distance " +
+              fmt(d.norm()) + " < " + fmt(kOverlapFraction) + " × cutoff " + fmt(rc) +
+              "): the pair force between them is singular; move one of them apart");
+}
+
 // Pair styles: parameters for every type pair from the term's table, overridden per pair by
 // [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
 template <class Kernel, class ReadCoeffs>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
-                                     ReadCoeffs read) {
+                                     ReadCoeffs read, const char* range_key) {
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
   TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
@@ -191,34 +273,55 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   }
   const double skin = t.number("skin", 0.3);
   t.require(skin >= 0, "skin", "expected a neighbour-list skin >= 0");
+  check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
+  // Special bonds list the 1-3 pairs through every particle: deg·(deg − 1)/2 of them. A hub with
+  // a million bonds (a few megabytes of data file) would ask for terabytes; refuse it up front.
+  constexpr int kMaxBondsPerParticle = 1000;
+  std::vector<int> degree(static_cast<size_t>(sc.state.size()), 0);
+  for (const Bond& b : sc.topology.bonds)
+    for (const int i : {b.i, b.j})
+      if (++degree[static_cast<size_t>(i)] > kMaxBondsPerParticle)
+        t.fail_here("particle " + std::to_string(i) + " has more than " + std::to_string(kMaxBondsPerParticle) +
+                    " bonds; a pair term's special bonds (its 1-3 pairs) allow at most that many per particle");
   std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
-  return std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), std::move(coeffs), sc.topology.bonds, w,
-                                            sc.box, skin);
+  auto term =
+      std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
+  check_overlaps<Kernel>(t, coeffs, w, sc);  // the coefficients are valid: the term accepted them
+  return term;
 }
 
 std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  return read_pair<LennardJones>(name, level, t, ctx, [](DeckTable& d, LennardJones::Coeffs c) {
-    c.epsilon = d.number("epsilon", c.epsilon == 0.0 ? 1.0 : c.epsilon);
-    c.sigma = d.number("sigma", c.sigma);
-    c.rc = d.number("cutoff", c.rc);
-    return c;
-  });
+  return read_pair<LennardJones>(
+      name, level, t, ctx,
+      [](DeckTable& d, LennardJones::Coeffs c) {
+        c.epsilon = d.number("epsilon", c.epsilon == 0.0 ? 1.0 : c.epsilon);
+        c.sigma = d.number("sigma", c.sigma);
+        c.rc = d.number("cutoff", c.rc);
+        return c;
+      },
+      "cutoff");
 }
 
 std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  return read_pair<WeeksChandlerAndersen>(name, level, t, ctx, [](DeckTable& d, WeeksChandlerAndersen::Coeffs c) {
-    c.epsilon = d.number("epsilon", c.epsilon);
-    c.sigma = d.number("sigma", c.sigma);
-    return c;
-  });
+  return read_pair<WeeksChandlerAndersen>(
+      name, level, t, ctx,
+      [](DeckTable& d, WeeksChandlerAndersen::Coeffs c) {
+        c.epsilon = d.number("epsilon", c.epsilon);
+        c.sigma = d.number("sigma", c.sigma);
+        return c;
+      },
+      "sigma");
 }
 
 std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  return read_pair<SoftCosine>(name, level, t, ctx, [](DeckTable& d, SoftCosine::Coeffs c) {
-    c.A = d.number("A", c.A);
-    c.rc = d.number("cutoff", c.rc);
-    return c;
-  });
+  return read_pair<SoftCosine>(
+      name, level, t, ctx,
+      [](DeckTable& d, SoftCosine::Coeffs c) {
+        c.A = d.number("A", c.A);
+        c.rc = d.number("cutoff", c.rc);
+        return c;
+      },
+      "cutoff");
 }
 
 // gravity: g = [gx, gy, gz].

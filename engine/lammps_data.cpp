@@ -21,7 +21,16 @@ namespace detail {
 
 std::string read_text_file(const std::string& path) {
   std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) throw InputError(path + ": is a directory, expected a file");
+  const auto status = std::filesystem::status(path, ec);
+  if (std::filesystem::is_directory(status)) throw InputError(path + ": is a directory, expected a file");
+  // A device or FIFO (/dev/zero, a pipe) could be read forever: only regular files are read.
+  if (std::filesystem::exists(status) && !std::filesystem::is_regular_file(status))
+    throw InputError(path + ": is not a regular file (a device or pipe?), expected a file");
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+  // A fuzzing build reads small files only, so that a deck naming a big one stays fast.
+  if (const auto size = std::filesystem::file_size(path, ec); !ec && size > (256u << 10))
+    throw InputError(path + ": larger than a fuzzing build reads");
+#endif
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path + ": cannot open file (missing or unreadable)");
   std::ostringstream buf;

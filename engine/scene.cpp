@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <set>
 #include <sstream>
 
@@ -83,6 +84,26 @@ void read_particles(DeckTable& root, Scene& sc) {
     const int i = append_particles(sc, x, v, {type}, {});
     sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
     p.finish();
+  }
+}
+
+// Positions are unwrapped; on a periodic axis the minimum image rounds d/L to an integer and
+// LAMMPS keeps image flags in 21 bits. A particle more than 2^20 box lengths away from the box is
+// a mistake (units, a forgotten box), not a configuration, and would overflow that rounding.
+void check_positions_near_box(DeckTable& root, const Scene& sc) {
+  constexpr double kMaxImages = 1 << 20;
+  auto particles = root.array_of_tables("particles");  // the first particles of the scene
+  for (int a = 0; a < 3; ++a) {
+    if (!sc.box.periodic[a]) continue;
+    for (int i = 0; i < sc.state.size(); ++i) {
+      const double images = (sc.state.x(a, i) - sc.box.origin[a]) / sc.box.lengths[a];
+      if (std::abs(images) <= kMaxImages) continue;
+      const std::string what = "particle " + std::to_string(i) + " is at " + static_cast<char>('x' + a) + " = " +
+                               fmt_number(sc.state.x(a, i)) + ", more than 2^20 box lengths (" +
+                               fmt_number(sc.box.lengths[a]) + ") from the periodic box; expected a position near it";
+      if (static_cast<size_t>(i) < particles.size()) particles[static_cast<size_t>(i)].fail("position", what);
+      root.fail_here(what);
+    }
   }
 }
 
@@ -193,8 +214,13 @@ void read_integrator(DeckTable& root, Scene& sc) {
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
     t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + fmt_number(in.h));
-    // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt.
-    in.micro_steps = static_cast<int>(std::ceil(in.h / *micro_dt - 1e-9));
+    // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
+    // micro_steps is (and before the conversion to int).
+    const double n = std::ceil(in.h / *micro_dt - 1e-9);
+    t->require(n <= 1e8, "micro_dt",
+               "h / micro_dt = " + fmt_number(in.h) + " / " + fmt_number(*micro_dt) + " = " + fmt_number(n) +
+                   " micro steps per macro step; expected at most 1e8");
+    in.micro_steps = static_cast<int>(n);
   } else if (micro_steps) {
     t->require(*micro_steps >= 1 && *micro_steps <= 100000000, "micro_steps", "expected an integer in 1..1e8");
     in.micro_steps = static_cast<int>(*micro_steps);
@@ -207,9 +233,11 @@ void read_run(DeckTable& root, Scene& sc) {
   if (!t) root.fail_here("missing required table [run] (t_end)");
   sc.run.t_end = t->number("t_end");
   t->require(sc.run.t_end > 0.0, "t_end", "expected an end time > 0");
-  t->finish();
   const double steps = sc.run.t_end / sc.integrator.h;
-  if (steps > 1e12) root.fail_here("run.t_end / integrator.h = " + std::to_string(steps) + " steps: too many");
+  if (!(steps <= 1e12))
+    t->fail("t_end", "t_end / integrator.h = " + fmt_number(sc.run.t_end) + " / " + fmt_number(sc.integrator.h) +
+                         " = " + fmt_number(steps) + " steps; expected at most 1e12 steps");
+  t->finish();
 }
 
 void read_observables(DeckTable& root, Scene& sc) {
@@ -262,20 +290,62 @@ void read_output(DeckTable& root, Scene& sc) {
   if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
   o.checkpoint_every = t->integer("checkpoint_every", 0);
   t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
-  for (const char* k : {"xyz", "thermo", "state", "checkpoint", "h5md", "lammps_data"}) {
-    const std::string key(k);
-    const std::string& f = key == "xyz"           ? o.xyz
-                           : key == "thermo"      ? o.thermo
-                           : key == "state"       ? o.state
-                           : key == "h5md"        ? o.h5md
-                           : key == "lammps_data" ? o.lammps_data
-                                                  : o.checkpoint;
-    if (f.find('/') != std::string::npos) t->fail(k, "expected a plain file name (the directory comes from -o)");
+  std::vector<std::pair<std::string, std::string>> seen;  // what writes it, file name
+  for (const auto& [k, f] : output_files(sc)) {
+    const std::string what = k.empty() ? "the run's " + f : "output." + k;
+    if (!k.empty()) {
+      if (f.find('/') != std::string::npos || f == "." || f == "..")
+        t->fail(k, "expected a plain file name (the directory comes from -o), got \"" + f + "\"");
+      if (std::any_of(f.begin(), f.end(), [](char c) { return static_cast<unsigned char>(c) < 0x20; }))
+        t->fail(k, "expected a plain file name without control characters");
+      for (const auto& [other, name] : seen)
+        if (name == f) t->fail(k, "\"" + f + "\" is also " + other + "; expected a file of its own");
+    }
+    seen.emplace_back(what, f);
   }
   t->finish();
 }
 
 }  // namespace
+
+std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
+  const OutputSettings& o = sc.output;
+  std::vector<std::pair<std::string, std::string>> out;
+  // Fixed names first, so that a deck key that takes one of them is the one named.
+  if (sc.observables.histograms && !sc.topology.bonds.empty()) out.emplace_back("", "histograms.csv");
+  out.emplace_back("", "summary.json");
+  for (const auto& [key, name] : {std::pair<const char*, const std::string*>{"xyz", &o.xyz},
+                                  {"thermo", &o.thermo},
+                                  {"state", &o.state},
+                                  {"h5md", &o.h5md},
+                                  {"lammps_data", &o.lammps_data},
+                                  {"checkpoint", &o.checkpoint}})
+    if (!name->empty()) out.emplace_back(key, *name);
+  return out;
+}
+
+void check_output_paths(const Scene& sc, const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  for (const auto& [key, name] : output_files(sc)) {
+    // The files themselves and the temporaries that atomic writers rename into place.
+    for (const std::string& f : {name, name + ".tmp"}) {
+      const fs::path p = fs::path(dir) / f;
+      // Through symbolic links: what a writer would open (a link to /dev/null is fine).
+      if (fs::is_directory(fs::status(p, ec)))
+        throw InputError(p.string() + ": output file (" + (key.empty() ? name : "output." + key) +
+                         ") exists as a directory; remove it or choose another name");
+    }
+  }
+  // A directory we may not write into (permissions, read-only file system) fails here, before
+  // any step, rather than at the first frame or the final checkpoint.
+  const fs::path probe = fs::path(dir) / ".stiffmd_write_test";
+  {
+    std::ofstream out(probe);
+    if (!out) throw InputError(dir + ": output directory is not writable");
+  }
+  fs::remove(probe, ec);
+}
 
 int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name) {
   for (size_t k = 0; k < sc.types.size(); ++k)
@@ -331,6 +401,7 @@ Scene load_scene(const Deck& deck) {
   read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string());
   if (sc.state.size() == 0)
     root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
+  check_positions_near_box(root, sc);
   read_bonds(root, sc);
   read_velocities(root, sc);
   read_forces(root, sc);

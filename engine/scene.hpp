@@ -4,6 +4,7 @@
 
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "engine/box.hpp"
@@ -57,7 +58,7 @@ struct Scene {
   RunSettings run;
   OutputSettings output;
   ObservableSettings observables;
-  MonitorSettings monitor;  // [monitor]
+  MonitorSettings monitor;         // [monitor]
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 
@@ -66,6 +67,15 @@ struct Scene {
 
 // Reads and validates the whole deck; throws InputError naming file, line and key.
 Scene load_scene(const Deck& deck);
+
+// The files a run of the scene writes into its output directory, with the deck key that names
+// each under [output] ("xyz", "thermo", …; "" for histograms.csv and summary.json, fixed names).
+std::vector<std::pair<std::string, std::string>> output_files(const Scene& scene);
+
+// Before the first step: throws InputError when an output file of the scene (or the temporary
+// file an atomic writer renames into place) exists in `dir` as a directory, or `dir` is not
+// writable.
+void check_output_paths(const Scene& scene, const std::string& dir);
 
 // Human-readable inventory of a scene (for `stiffmd check`).
 std::string describe(const Scene& scene);

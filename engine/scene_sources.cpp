@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <sstream>
 
 #include "engine/builders.hpp"
@@ -16,6 +17,21 @@ namespace stiffmd {
 namespace {
 
 namespace fs = std::filesystem;
+
+// Bounds on what a deck may ask for, checked before anything is allocated or run: a builder's
+// beads (10^7 take minutes and gigabytes to grow) and [prepare]'s relaxation steps. A fuzzing
+// build (libFuzzer's convention) keeps them small, so that an input runs in milliseconds.
+// Imported files are bounded by their size (the readers check header counts against it); a
+// fuzzing build refuses big ones too.
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+constexpr long kMaxBuiltBeads = 500;
+constexpr long kMaxRelaxSteps = 20;
+constexpr long kMaxImportedAtoms = 500;
+#else
+constexpr long kMaxBuiltBeads = 10'000'000;
+constexpr long kMaxRelaxSteps = 10'000'000;
+constexpr long kMaxImportedAtoms = std::numeric_limits<int>::max();
+#endif
 
 void set_box(DeckTable& t, std::string_view key, Scene& sc, const Box& box) {
   if (sc.box.any_periodic() && !sc.box_from_source)
@@ -47,24 +63,47 @@ void read_builders(DeckTable& root, Scene& sc) {
     if (style != "linear-chains" && style != "rings" && style != "stars")
       b.fail("style", "unknown builder '" + style + "' (known: linear-chains, rings, stars)");
     const int type = particle_type_index(sc, b, "type", b.string("type", sc.types[0].name));
+    // Counts are checked as read, before the narrowing to int and before anything is built.
+    const long chains = b.integer("chains", 1);
+    b.require(chains >= 1 && chains <= kMaxBuiltBeads, "chains",
+              "expected 1 .. " + std::to_string(kMaxBuiltBeads) + " molecules");
+    const long beads = b.integer("beads");
+    const long min_beads = style == "rings" ? 3 : style == "stars" ? 1 : 2;
+    b.require(beads >= min_beads && beads <= kMaxBuiltBeads, "beads",
+              (style == "rings"   ? std::string("a ring needs 3 .. ")
+               : style == "stars" ? std::string("expected 1 .. ")
+                                  : std::string("expected 2 .. ")) +
+                  std::to_string(kMaxBuiltBeads) + " beads" + (style == "stars" ? " per arm" : ""));
+    const long arms = style == "stars" ? b.integer("arms") : 0;
+    if (style == "stars")
+      b.require(arms >= 1 && arms <= kMaxStarArms, "arms",
+                "expected 1 .. " + std::to_string(kMaxStarArms) + " arms (a core with n arms has n(n - 1)/2 angles)");
+    // Each factor is at most 10^7 here: per molecule at most 10^14 + 1, and the product is only
+    // formed once that is at most 10^7.
+    const long per_molecule = style == "stars" ? 1 + arms * beads : beads;
+    if (per_molecule > kMaxBuiltBeads || chains * per_molecule > kMaxBuiltBeads)
+      b.fail(style == "stars" ? "arms" : "beads",
+             std::to_string(chains) + " molecules of " + std::to_string(per_molecule) + " beads" +
+                 (per_molecule > kMaxBuiltBeads ? std::string()
+                                                : " = " + std::to_string(chains * per_molecule) + " beads") +
+                 "; expected at most " + std::to_string(kMaxBuiltBeads) + " beads per [[build]]");
+    const long total = chains * per_molecule;
     ChainSpec spec;
-    spec.chains = static_cast<int>(b.integer("chains", 1));
-    spec.beads = static_cast<int>(b.integer("beads"));
-    const int arms = style == "stars" ? static_cast<int>(b.integer("arms")) : 0;
+    spec.chains = static_cast<int>(chains);
+    spec.beads = static_cast<int>(beads);
     spec.bond_length = b.number("bond_length", spec.bond_length);
     spec.min_distance = b.number("min_distance", spec.min_distance);
     spec.seed = static_cast<std::uint64_t>(b.integer("seed", 1));
-    b.require(spec.chains >= 1, "chains", "expected at least 1 chain");
-    b.require(spec.beads >= (style == "rings" ? 3 : 2), "beads",
-              style == "rings" ? "a ring needs at least 3 beads" : "expected at least 2 beads");
     b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
     const std::string bond_type = b.string("bond_type");
     const std::string angle_type = b.string("angle_type", "");
     if (auto density = b.maybe_number("density")) {
       b.require(*density > 0, "density", "expected a number density > 0");
-      const long total = style == "stars" ? spec.chains * (1L + static_cast<long>(arms) * spec.beads)
-                                          : static_cast<long>(spec.chains) * spec.beads;
-      set_box(b, "density", sc, box_for_density(static_cast<int>(total), *density));
+      try {
+        set_box(b, "density", sc, box_for_density(static_cast<int>(total), *density));
+      } catch (const std::invalid_argument& e) {
+        b.fail("density", e.what());
+      }
     }
     Polymer p;
     try {
@@ -73,7 +112,7 @@ void read_builders(DeckTable& root, Scene& sc) {
       else if (style == "rings")
         p = build_rings(spec, sc.box);
       else
-        p = build_stars(spec, arms, sc.box);
+        p = build_stars(spec, static_cast<int>(arms), sc.box);
     } catch (const std::exception& e) {  // invalid parameters or a builder that could not place a chain
       b.fail_here(e.what());
     }
@@ -97,24 +136,50 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   ImportedSystem in;
   std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map;
   std::string single_type, single_bond_type;
+  // The reader's one-line error (file, line, section) behind the deck key that named the file.
+  const char* file_key = lammps ? "lammps_data" : "xyz";
   if (lammps) {
     const std::string path = resolve(t->string("lammps_data"));
-    in = read_lammps_data(path, t->string("atom_style", "auto"));
+    const std::string style = t->string("atom_style", "auto");
+    try {
+      in = read_lammps_data(path, style);
+    } catch (const InputError& e) {
+      t->fail("lammps_data", e.what());
+    }
     atom_map = t->string_map("atom_types");
     bond_map = t->string_map("bond_types");
     angle_map = t->string_map("angle_types");
   } else {
-    in = read_xyz_with_bonds(resolve(t->string("xyz")), resolve(t->string("bonds")));
+    const std::string xyz_path = resolve(t->string("xyz")), bonds_path = resolve(t->string("bonds"));
+    try {
+      in = read_xyz_with_bonds(xyz_path, bonds_path);
+    } catch (const InputError& e) {
+      t->fail(std::string(e.what()).rfind(bonds_path + ":", 0) == 0 ? "bonds" : "xyz", e.what());
+    }
     single_type = t->string("type", sc.types[0].name);
     single_bond_type = t->string("bond_type", "bond");
   }
+  if (in.x.cols() > kMaxImportedAtoms)
+    t->fail(file_key, std::to_string(in.x.cols()) + " atoms; expected at most " + std::to_string(kMaxImportedAtoms));
+  // A bond between two atoms at the same position has no direction: its force and its
+  // constraint gradient are 0/0.
+  for (const auto& b : in.bonds)
+    if ((in.x.col(b.i) - in.x.col(b.j)).norm() == 0.0)
+      t->fail(file_key, (lammps ? "bond between atom ids " + std::to_string(in.id[static_cast<size_t>(b.i)]) + " and " +
+                                      std::to_string(in.id[static_cast<size_t>(b.j)])
+                                : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
+                                      " (0-based, as in the bonds file)") +
+                            ": both atoms sit at the same position (zero-length bond)");
   const bool use_velocities = t->boolean("velocities", true);
+  t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
   // Particle types: a LAMMPS type maps to a deck type; masses must agree.
   auto lookup = [&](const std::vector<std::pair<std::string, std::string>>& map, int lammps_type, const char* key) {
     for (const auto& [k, v] : map)
       if (k == std::to_string(lammps_type)) return v;
-    t->fail(key, "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" + std::to_string(lammps_type) +
-                     "\" = \"NAME\" to " + key + ")");
+    const std::string what = "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" +
+                             std::to_string(lammps_type) + "\" = \"NAME\" to " + key + ")";
+    if (t->has(key)) t->fail(key, what);
+    t->fail_here(std::string(key) + ": " + what);
   };
   const int n = static_cast<int>(in.x.cols());
   std::vector<int> type(n);
@@ -126,7 +191,6 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
                                 " but the data file's Masses give " + std::to_string(in.type_mass.at(in.type[i])) +
                                 " for LAMMPS type " + std::to_string(in.type[i]));
   }
-  t->finish();
   if (lammps) {
     Box box;
     box.origin = in.lo;
@@ -172,7 +236,8 @@ void read_prepare(DeckTable& root, Scene& sc) {
   t->require(tv >= 0, "vibrational_temperature", "expected a temperature >= 0");
   const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
   const long relax_steps = t->integer("relax_steps", 0);
-  t->require(relax_steps >= 0, "relax_steps", "expected a number of steps >= 0");
+  t->require(relax_steps >= 0 && relax_steps <= kMaxRelaxSteps, "relax_steps",
+             "expected a number of steps 0 .. " + std::to_string(kMaxRelaxSteps));
   const double max_move = t->number("relax_max_displacement", 0.02);
   t->require(max_move > 0, "relax_max_displacement", "expected a length > 0");
   const StiffBonds* stiff = sc.forces->stiff_bonds();

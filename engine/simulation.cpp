@@ -123,10 +123,12 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   const fs::path dir(opt.out_dir);
   std::error_code ec;
-  if (fs::exists(dir) && !fs::is_directory(dir))
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
     throw InputError(opt.out_dir + ": output path exists and is not a directory");
   fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir)) throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
+  if (ec || !fs::is_directory(dir, ec))
+    throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
+  check_output_paths(sc, opt.out_dir);   // before any step: an output that cannot be written fails now
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
 
   std::unique_ptr<Integrator> integrator;

@@ -3,10 +3,15 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <regex>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "cli_support.hpp"
 #include "test_support.hpp"
@@ -25,30 +30,133 @@ int count_lines(const std::string& s) {
   return static_cast<int>(std::count(s.begin(), s.end(), '\n'));
 }
 
-// Every malformed deck in tests/bad_decks/ gives exit 2 and one line naming the file, the
-// line, and the key(s) listed in its "# expect:" header.
-TEST(Cli, MalformedDecksGiveExitTwoAndOneLineNamingTheKey) {
-  int n = 0;
+// The malformed-input corpus: tests/bad_decks/*.toml, one deck per case, each headed by
+//   # What is wrong: …        what the deck gets wrong (for the reader)
+//   # expect: TEXT            one or more: text the error line must contain (key, section, file, …)
+//   # args: ARGS              optional: `stiffmd run` arguments instead of -o OUT; {deck} is the deck's path
+//   # mkdir: NAME             optional: a directory NAME made in the output directory beforehand
+//                             (the message then names that output file instead of the deck)
+//   # line: none              optional: the error is about no line of the deck (an output path)
+// `stiffmd run DECK -o OUT` must exit 2 — no crash (signal), no hang (a timeout kills it
+// after 60 s) — with exactly one line on stderr, "error: …", naming the deck and (unless "line:
+// none") a line of it, and containing every expected text; it must write no summary.json and,
+// unless the case is about the output directory, not even create OUT. `stiffmd check DECK` must
+// fail the same way — or succeed, for decks with args or mkdir: those are valid until run.
+struct BadDeck {
+  std::string path;
+  std::vector<std::string> expect;
+  std::string args, mkdir;
+  bool names_line = true;
+};
+
+std::vector<BadDeck> bad_decks() {
+  std::vector<BadDeck> out;
   for (const auto& entry : fs::directory_iterator(test::source_path("tests/bad_decks"))) {
-    const std::string path = entry.path().string();
-    const std::string text = slurp(path);
-    std::vector<std::string> expect;
-    std::istringstream lines(text);
-    for (std::string line; std::getline(lines, line);)
-      if (line.rfind("# expect: ", 0) == 0) expect.push_back(line.substr(10));
-    ASSERT_FALSE(expect.empty()) << path << " has no '# expect:' line";
-    const CliResult r = cli("check " + path);
-    SCOPED_TRACE(path + "\n" + r.err);
-    EXPECT_EQ(r.code, 2);
-    EXPECT_EQ(count_lines(r.err), 1);
-    EXPECT_NE(r.err.find(path), std::string::npos) << "message must name the file";
-    EXPECT_NE(r.err.find(path + ":"), std::string::npos) << "message must name the line";
-    EXPECT_TRUE(std::isdigit(static_cast<unsigned char>(r.err[r.err.find(path) + path.size() + 1])))
-        << "message must name the line";
-    for (const auto& e : expect) EXPECT_NE(r.err.find(e), std::string::npos) << "missing '" << e << "'";
-    ++n;
+    if (entry.path().extension() != ".toml") continue;
+    BadDeck d{entry.path().string(), {}, "", "", true};
+    std::istringstream lines(slurp(d.path));
+    for (std::string line; std::getline(lines, line);) {
+      const auto value = [&](const char* prefix) {
+        return line.rfind(prefix, 0) == 0 ? std::optional<std::string>(line.substr(std::strlen(prefix))) : std::nullopt;
+      };
+      if (auto v = value("# expect: ")) d.expect.push_back(*v);
+      if (auto v = value("# args: ")) {
+        d.args = *v;
+        for (size_t at; (at = d.args.find("{deck}")) != std::string::npos;) d.args.replace(at, 6, d.path);
+      }
+      if (auto v = value("# mkdir: ")) d.mkdir = *v;
+      if (value("# line: none")) d.names_line = false;
+    }
+    out.push_back(std::move(d));
   }
-  EXPECT_GE(n, 30);
+  std::sort(out.begin(), out.end(), [](const BadDeck& a, const BadDeck& b) { return a.path < b.path; });
+  return out;
+}
+
+void PrintTo(const BadDeck& d, std::ostream* os) {
+  *os << d.path;
+}
+
+class MalformedDeck : public ::testing::TestWithParam<BadDeck> {};
+
+// `file`: what the message must name, the deck or (for an obstacle in the output directory) the
+// output file.
+void expect_one_line_naming(const CliResult& r, const BadDeck& d, const std::string& file) {
+  EXPECT_EQ(r.code, 2) << "expected exit 2 (bad input)";
+  EXPECT_EQ(count_lines(r.err), 1) << "expected exactly one line on stderr";
+  EXPECT_EQ(r.err.rfind("error: ", 0), 0u);
+  const size_t at = r.err.find(file);
+  ASSERT_NE(at, std::string::npos) << "message must name the file " << file;
+  if (d.names_line) {
+    EXPECT_EQ(r.err[at + file.size()], ':') << "message must name the line";
+    EXPECT_TRUE(std::isdigit(static_cast<unsigned char>(r.err[at + file.size() + 1]))) << "message must name the line";
+  }
+  for (const auto& e : d.expect) EXPECT_NE(r.err.find(e), std::string::npos) << "missing '" << e << "'";
+}
+
+TEST_P(MalformedDeck, RunExitsTwoWithOneLineNamingFileLineAndKey) {
+  const BadDeck& d = GetParam();
+  ASSERT_FALSE(d.expect.empty()) << d.path << " has no '# expect:' line";
+  ASSERT_EQ(slurp(d.path).rfind("# What is wrong: ", 0), 0u) << d.path << " must start with '# What is wrong: '";
+  const fs::path dir = scratch_dir("bad_deck_" + fs::path(d.path).stem().string());
+  const fs::path out = dir / "out";
+  if (!d.mkdir.empty()) fs::create_directories(out / d.mkdir);
+  const CliResult r =
+      cli("run " + d.path + " --no-progress " + (d.args.empty() ? "-o " + out.string() : d.args), "timeout 60 ");
+  SCOPED_TRACE(d.path + "\n" + r.err);
+  expect_one_line_naming(r, d, d.mkdir.empty() ? d.path : (out / d.mkdir).string());
+  EXPECT_FALSE(fs::exists(out / "summary.json")) << "a failed run must not look finished";
+  if (d.args.empty() && d.mkdir.empty()) {
+    EXPECT_FALSE(fs::exists(out)) << "refused before any output";
+  }
+  if (!d.mkdir.empty()) {
+    // Refused before the first step: nothing was written next to the obstacle.
+    for (const auto& e : fs::directory_iterator(out))
+      EXPECT_EQ(e.path().filename().string(), d.mkdir) << "written before the error: " << e.path();
+  }
+  fs::remove_all(dir);
+}
+
+TEST_P(MalformedDeck, CheckExitsTwoWithTheSameLine) {
+  const BadDeck& d = GetParam();
+  const CliResult r = cli("check " + d.path, "timeout 60 ");
+  SCOPED_TRACE(d.path + "\n" + r.err);
+  if (!d.args.empty() || !d.mkdir.empty()) {
+    // The case is about the output directory: the deck itself is valid.
+    EXPECT_EQ(r.code, 0) << "the deck itself must be valid; only its outputs are not";
+    return;
+  }
+  expect_one_line_naming(r, d, d.path);
+}
+
+INSTANTIATE_TEST_SUITE_P(Corpus, MalformedDeck, ::testing::ValuesIn(bad_decks()),
+                         [](const ::testing::TestParamInfo<BadDeck>& info) {
+                           std::string name = fs::path(info.param.path).stem().string();
+                           for (char& c : name)
+                             if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+                           return name;
+                         });
+
+TEST(Cli, TheMalformedDeckCorpusCoversTheCases) {
+  // One deck per case; the list in the brief of what must be refused, at least.
+  EXPECT_GE(bad_decks().size(), 90u);
+}
+
+TEST(Cli, MissingDirectoryAndEndlessDecksGiveExitTwo) {
+  const fs::path dir = scratch_dir("missing_deck");
+  const std::pair<std::string, std::string> cases[] = {
+      {(dir / "no_such_deck.toml").string(), "cannot open deck file"},
+      {dir.string(), "is a directory"},
+      {"/dev/zero", "larger than 64 MiB"},  // read no further than a deck can be
+  };
+  for (const auto& [path, expected] : cases) {
+    const CliResult r = cli("run " + path + " --no-progress -o " + (dir / "out").string(), "timeout 60 ");
+    EXPECT_EQ(r.code, 2) << r.err;
+    EXPECT_EQ(count_lines(r.err), 1) << r.err;
+    EXPECT_EQ(r.err.find("error: " + path + ": " + expected), 0u) << r.err;
+    EXPECT_FALSE(fs::exists(dir / "out"));
+  }
+  fs::remove_all(dir);
 }
 
 TEST(Cli, BadOverridesAndArgumentsGiveExitTwo) {
@@ -59,6 +167,10 @@ TEST(Cli, BadOverridesAndArgumentsGiveExitTwo) {
   r = cli("check " + deck + " --set integrator.hh=1");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("integrator.hh: unknown key"), std::string::npos) << r.err;
+  // An override of an array element is named as given, not as the deck file without a line.
+  r = cli("check " + deck + " --set 'particles.1.position=[\"sqrt(-1)\", 0, 0]'");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err.find("error: --set particles.1.position: particles[1].position[0]: expression"), 0u) << r.err;
   r = cli("check " + deck + " --set noequals");
   EXPECT_EQ(r.code, 2);
   r = cli("check /nonexistent/deck.toml");

@@ -1,8 +1,10 @@
 // LAMMPS data and XYZ+bonds import/export: a real benchmark file, exact round trips, and every
 // malformed input refused with one line naming the file, the line (or section) and the expectation.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -464,6 +466,8 @@ const BadCase kBadData[] = {
     {"bad_section_not_declared.data", "line 30: Angles", "expected a 'N angles' header line"},
     {"bad_missing_bonds_section.data", "no Bonds section", "declares 3 bonds on line 4"},
     {"bad_empty.data", "file is empty", "expected a LAMMPS data file"},
+    {"bad_fewer_bonds.data", "line 27: Bonds", "file ends after 2 of the 3 entries"},
+    {"bad_more_atoms.data", "line 22: Atoms", "more entries than the 3 declared in the header"},
 };
 
 TEST(MalformedData, EachNamesFileLineAndExpectation) {
@@ -582,16 +586,27 @@ TEST(XyzWithBonds, ExportsToLammpsOnceGivenABoxAndMasses) {
   EXPECT_EQ(s.type, back.type);
 }
 
+// Malformed XYZ files (read with small.bonds) and bond lists (read with two.xyz): the message
+// after "PATH: ".
+const std::pair<const char*, const char*> kBadXyz[] = {
+    {"bad_truncated.xyz", "line 4: file ends after 2 of the 3 atom lines declared on line 1"},
+    {"bad_count.xyz", "line 1: expected the atom count (a non-negative integer), found 'three'"},
+    {"bad_non_numeric.xyz", "line 3: z is 'zero'; expected a finite number"},
+    {"bad_columns.xyz", "line 3: expected 4 columns 'species x y z', found 5 columns"},
+    {"bad_no_pos.xyz", "line 2: Properties has no pos:R:3"},
+    {"bad_lattice.xyz", "line 2: Lattice: tilted cells are not supported; expected a diagonal"},
+};
+const std::pair<const char*, const char*> kBadBonds[] = {
+    {"bad_range.bonds", "line 1: bond: atom index 2 is out of range 0..1"},
+    {"bad_self.bonds", "line 1: bond: atom 1 is bonded to itself"},
+    {"bad_duplicate.bonds", "line 2: bond: duplicate bond between atoms 0 and 1"},
+    {"bad_non_integer.bonds", "line 1: bond: 'one' is not an integer; expected a 0-based atom index"},
+    {"bad_type.bonds", "line 1: bond: type '0' is not an integer >= 1"},
+    {"bad_columns.bonds", "line 1: bond: expected 'i j [type]', found 4 columns"},
+};
+
 TEST(XyzWithBonds, MalformedXyz) {
-  const std::pair<const char*, const char*> cases[] = {
-      {"bad_truncated.xyz", "line 4: file ends after 2 of the 3 atom lines declared on line 1"},
-      {"bad_count.xyz", "line 1: expected the atom count (a non-negative integer), found 'three'"},
-      {"bad_non_numeric.xyz", "line 3: z is 'zero'; expected a finite number"},
-      {"bad_columns.xyz", "line 3: expected 4 columns 'species x y z', found 5 columns"},
-      {"bad_no_pos.xyz", "line 2: Properties has no pos:R:3"},
-      {"bad_lattice.xyz", "line 2: Lattice: tilted cells are not supported; expected a diagonal"},
-  };
-  for (const auto& [file, expected] : cases) {
+  for (const auto& [file, expected] : kBadXyz) {
     const std::string path = data(file);
     const std::string e = input_error([&] { read_xyz_with_bonds(path, data("small.bonds")); });
     EXPECT_EQ(e.rfind(path + ": " + expected, 0), 0u) << e;
@@ -613,15 +628,7 @@ TEST(XyzWithBonds, MalformedXyz) {
 }
 
 TEST(XyzWithBonds, MalformedBonds) {
-  const std::pair<const char*, const char*> cases[] = {
-      {"bad_range.bonds", "line 1: bond: atom index 2 is out of range 0..1"},
-      {"bad_self.bonds", "line 1: bond: atom 1 is bonded to itself"},
-      {"bad_duplicate.bonds", "line 2: bond: duplicate bond between atoms 0 and 1"},
-      {"bad_non_integer.bonds", "line 1: bond: 'one' is not an integer; expected a 0-based atom index"},
-      {"bad_type.bonds", "line 1: bond: type '0' is not an integer >= 1"},
-      {"bad_columns.bonds", "line 1: bond: expected 'i j [type]', found 4 columns"},
-  };
-  for (const auto& [file, expected] : cases) {
+  for (const auto& [file, expected] : kBadBonds) {
     const std::string path = data(file);
     const std::string e = input_error([&] { read_xyz_with_bonds(data("two.xyz"), path); });
     EXPECT_EQ(e.rfind(path + ": " + expected, 0), 0u) << e;
@@ -630,6 +637,88 @@ TEST(XyzWithBonds, MalformedBonds) {
               read_xyz_with_bonds(data("two.xyz"), data("nope.bonds"));
             }).find("nope.bonds: cannot open file"),
             std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The same malformed files through the real command line: a deck that imports each one, run by
+// `stiffmd run`, must exit 2 (no crash, no hang) with exactly one line on stderr that names the
+// deck line of the import key, the data file and its line (or section) and the expectation —
+// and must write nothing to the output directory.
+
+struct CliRun {
+  int code;
+  std::string err;
+  bool wrote_output;
+};
+
+CliRun run_import_deck(const std::string& import_lines, const std::string& name) {
+  const std::string deck = scratch(name + ".toml");
+  spit(deck,
+       "[types.bead]\nmass = 1.0\n\n[types.heavy]\nmass = 2.5\n\n[import]\n" + import_lines +
+           "\n[forces.springs]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\n"
+           "bond_types.b = { length = 1.0, alpha = 1.0 }\n\n[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n\n"
+           "[run]\nt_end = 0.01\n");
+  const std::string out = scratch(name + "_out"), err = scratch(name + ".err");
+  const std::string cmd =
+      "timeout 60 " + std::string(STIFFMD_EXE) + " run " + deck + " --no-progress -o " + out + " > /dev/null 2> " + err;
+  const int status = std::system(cmd.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status), slurp(err), fs::exists(out)};
+}
+
+::testing::AssertionResult one_line_naming(const CliRun& r, const std::string& deck, const std::string& file,
+                                           const std::vector<std::string>& texts) {
+  if (r.code != 2) return ::testing::AssertionFailure() << "exit " << r.code << ": " << r.err;
+  if (std::count(r.err.begin(), r.err.end(), '\n') != 1)
+    return ::testing::AssertionFailure() << "not one line: " << r.err;
+  if (r.wrote_output) return ::testing::AssertionFailure() << "the output directory was created";
+  if (r.err.find(deck + ":") == std::string::npos) return ::testing::AssertionFailure() << "no deck line: " << r.err;
+  if (r.err.find(file + ": ") == std::string::npos) return ::testing::AssertionFailure() << "no file: " << r.err;
+  for (const auto& t : texts)
+    if (r.err.find(t) == std::string::npos) return ::testing::AssertionFailure() << "no '" << t << "': " << r.err;
+  return ::testing::AssertionSuccess();
+}
+
+TEST(MalformedDataCli, EachLammpsFileThroughADeck) {
+  for (const BadCase& c : kBadData) {
+    const std::string path = data(c.file), name = fs::path(c.file).stem().string();
+    const CliRun r = run_import_deck("lammps_data = \"" + path +
+                                         "\"\natom_types = { \"1\" = \"bead\", \"2\" = \"heavy\" }\n"
+                                         "bond_types = { \"1\" = \"b\" }\n",
+                                     name);
+    EXPECT_TRUE(one_line_naming(r, scratch(name + ".toml"), path, {"import.lammps_data", c.where, c.expected}))
+        << c.file;
+  }
+}
+
+TEST(MalformedDataCli, EachXyzAndBondsFileThroughADeck) {
+  for (const auto& [file, expected] : kBadXyz) {
+    const std::string path = data(file), name = fs::path(file).stem().string() + "_xyz";
+    const CliRun r = run_import_deck("xyz = \"" + path + "\"\nbonds = \"" + data("small.bonds") + "\"\n", name);
+    EXPECT_TRUE(one_line_naming(r, scratch(name + ".toml"), path, {"import.xyz", expected})) << file;
+  }
+  for (const auto& [file, expected] : kBadBonds) {
+    const std::string path = data(file), name = fs::path(file).stem().string() + "_bonds";
+    const CliRun r = run_import_deck("xyz = \"" + data("two.xyz") + "\"\nbonds = \"" + path + "\"\n", name);
+    EXPECT_TRUE(one_line_naming(r, scratch(name + ".toml"), path, {"import.bonds", expected})) << file;
+  }
+}
+
+// Every malformed file in tests/data is in one of the tables above, so all of them go through the
+// command line (the scene_*.data files, readable but refused by a deck, have decks in
+// tests/bad_decks).
+TEST(MalformedDataCli, EveryBadFileIsCovered) {
+  std::set<std::string> listed;
+  for (const BadCase& c : kBadData) listed.insert(c.file);
+  for (const auto& [file, expected] : kBadXyz) listed.insert(file);
+  for (const auto& [file, expected] : kBadBonds) listed.insert(file);
+  int bad = 0;
+  for (const auto& e : fs::directory_iterator(data(""))) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("bad_", 0) != 0) continue;
+    ++bad;
+    EXPECT_TRUE(listed.count(name)) << name << " is not run through the command line";
+  }
+  EXPECT_EQ(bad, static_cast<int>(listed.size()));
 }
 
 }  // namespace

@@ -1,0 +1,97 @@
+// libFuzzer target: the bytes as a LAMMPS data file (read_lammps_data), as an XYZ file with an
+// empty bond list, and as a bond list for a fixed four-atom XYZ file (read_xyz_with_bonds).
+// stiffmd::InputError is the expected outcome of a bad file; any other exception, a crash, a
+// hang, an allocation beyond -malloc_limit_mb or a sanitizer report is a finding.
+//
+// A data file that reads must also survive the documented round trip: write_lammps_data (in a
+// style that can hold what was read) and read_lammps_data give back the same positions,
+// velocities, types and bonds, bit for bit.
+//
+//   build-fuzz/fuzz_lammps_data -dict=tests/fuzz/lammps_data.dict CORPUS_DIR   (see tools/fuzz.sh)
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <string>
+
+#include "engine/errors.hpp"
+#include "engine/lammps_data.hpp"
+#include "engine/xyz_bonds.hpp"
+#include "fuzz_support.hpp"
+
+namespace {
+
+using stiffmd::ImportedSystem;
+
+bool same_bits(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
+  return a.cols() == b.cols() &&
+         (a.size() == 0 || std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<std::size_t>(a.size())) == 0);
+}
+
+// A style that can hold everything the reader returned.
+std::string style_for(const ImportedSystem& s) {
+  if (!s.charge.empty()) return "full";
+  if (!s.angles.empty()) return "angle";
+  if (!s.bonds.empty() || s.atom_style == "bond") return "bond";
+  if (s.atom_style == "angle" || s.atom_style == "molecular") return s.atom_style;
+  return "atomic";
+}
+
+void round_trip(const ImportedSystem& s, const std::string& path) {
+  const std::string style = style_for(s);
+  try {
+    stiffmd::write_lammps_data(path, s, style, "fuzz round trip");
+  } catch (const stiffmd::InputError&) {
+    return;  // e.g. a type without a mass: readable here, not by LAMMPS
+  }
+  ImportedSystem back;
+  try {
+    back = stiffmd::read_lammps_data(path, style);
+  } catch (const std::exception& e) {
+    stiffmd::fuzz::finding("write_lammps_data wrote a file that read_lammps_data refuses", &e);
+  }
+  if (!same_bits(s.x, back.x)) stiffmd::fuzz::finding("round trip changed the positions");
+  if (!same_bits(s.v, back.v)) stiffmd::fuzz::finding("round trip changed the velocities");
+  if (s.type != back.type || s.id != back.id) stiffmd::fuzz::finding("round trip changed the types or ids");
+  if (s.bonds.size() != back.bonds.size() || s.angles.size() != back.angles.size())
+    stiffmd::fuzz::finding("round trip changed the bonds or angles");
+  for (std::size_t k = 0; k < s.bonds.size(); ++k)
+    if (s.bonds[k].i != back.bonds[k].i || s.bonds[k].j != back.bonds[k].j || s.bonds[k].type != back.bonds[k].type)
+      stiffmd::fuzz::finding("round trip changed a bond");
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  using namespace stiffmd;
+  static const fuzz::ScratchFile input("input"), written("written.data"), empty_bonds("empty.bonds"),
+      four_atoms("four.xyz");
+  static const bool fixed_files = [] {
+    empty_bonds.write("", 0);
+    const std::string xyz = "4\nfour atoms\nC 0 0 0\nC 1 0 0\nO 1 1 0\nH 0 1 0\n";
+    four_atoms.write(xyz.data(), xyz.size());
+    return true;
+  }();
+  (void)fixed_files;
+  input.write(data, size);
+
+  try {
+    const ImportedSystem s = read_lammps_data(input.path);
+    round_trip(s, written.path);
+  } catch (const InputError&) {
+  } catch (const std::exception& e) {
+    fuzz::finding("read_lammps_data threw something other than InputError", &e);
+  }
+  try {
+    (void)read_xyz_with_bonds(input.path, empty_bonds.path);
+  } catch (const InputError&) {
+  } catch (const std::exception& e) {
+    fuzz::finding("read_xyz_with_bonds (input as XYZ) threw something other than InputError", &e);
+  }
+  try {
+    (void)read_xyz_with_bonds(four_atoms.path, input.path);
+  } catch (const InputError&) {
+  } catch (const std::exception& e) {
+    fuzz::finding("read_xyz_with_bonds (input as bonds) threw something other than InputError", &e);
+  }
+  return 0;
+}
