@@ -40,11 +40,9 @@ import subprocess
 import sys
 import time
 
+from chain_melt import RunFailed, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
-BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
-ALPHA = 1.0
-WCA_CUTOFF = 2.0 ** (1.0 / 6.0)
 STIFFMD_METHODS = ["impulse", "projected-impulse", "mollified-impulse", "velocity-verlet"]
 ALL_METHODS = ["lammps-respa"] + STIFFMD_METHODS
 CSV_FIELDS = ["eps", "code", "method", "threads", "h", "n", "steps", "repeat", "natoms", "loop_seconds",
@@ -52,16 +50,7 @@ CSV_FIELDS = ["eps", "code", "method", "threads", "h", "n", "steps", "repeat", "
               "e0", "e_end", "drift_end_per_atom", "drift_max_per_atom", "drift_end_rel", "drift_max_rel"]
 
 
-class RunFailed(Exception):
-    pass
-
-
 # ---------------------------------------------------------------------------------------- helpers
-
-def fmt(x):
-    """A float as the shortest text that reads back exactly (for decks, --set and LAMMPS inputs)."""
-    return repr(float(x))
-
 
 def split_list(values):
     """['0.01 0.003'] or ['0.01,0.003'] or ['0.01', '0.003'] -> ['0.01', '0.003']."""
@@ -139,101 +128,6 @@ def energy_drift(energies, natoms):
 
 # ------------------------------------------------------------------------------------ preparation
 
-def prepare_state(stiffmd, eps, work):
-    """The prepared t = 0 state of inputs/lammps_chain.toml at this ε, as a LAMMPS data file."""
-    data = os.path.join(work, f"state_eps{eps}.data")
-    cmd = [stiffmd, "check", SOURCE_DECK, "--set", f"variables.eps={eps}", "--write-data", data]
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    if p.returncode != 0:
-        raise RunFailed(f"state preparation failed (exit {p.returncode}): {shlex.join(cmd)}\n"
-                        f"--- stderr tail ---\n{p.stderr[-3000:]}")
-    return data
-
-
-def count_atoms(data):
-    with open(data) as f:
-        for line in f:
-            if line.strip().endswith("atoms"):
-                return int(line.split()[0])
-    raise RunFailed(f"{data}: no 'N atoms' line")
-
-
-def write_stiffmd_deck(path, data, eps, args, thermo_every):
-    """The timing deck: the prepared state with its velocities, no [velocities]/[prepare], no
-    trajectory or histogram output (thermo.csv, summary.json and the final checkpoint remain)."""
-    with open(path, "w") as f:
-        f.write(f"""# Written by tools/bench_lammps.py: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
-[types.bead]
-mass = 1.0
-
-[import]
-lammps_data = "{data}"
-atom_types = {{ "1" = "bead" }}
-bond_types = {{ "1" = "backbone" }}
-velocities = true
-
-[forces.bonds]
-style = "stiff-harmonic"
-level = "fast"
-epsilon = {fmt(eps)}
-bond_types.backbone = {{ length = {fmt(BOND_LENGTH)}, alpha = {fmt(ALPHA)} }}
-
-[forces.excluded_volume]
-style = "wca"
-level = "slow"
-epsilon = 1.0
-sigma = 1.0
-special_bonds = [0.0, 1.0]
-skin = 0.3
-
-[integrator]
-method = "impulse"
-h = {fmt(args.h)}
-micro_steps = {args.micro_steps}
-
-[run]
-t_end = {fmt(args.steps * args.h)}
-
-[output]
-xyz = ""
-thermo_interval = {fmt(thermo_every * args.h)}
-
-[observables]
-histograms = false
-""")
-
-
-def write_lammps_input(path, data, eps, args, thermo_every):
-    """The same state, potentials, h and n in LAMMPS: r-RESPA with the bonds inner, WCA outer."""
-    k_lammps = ALPHA ** 2 / (2.0 * float(eps) ** 2)  # LAMMPS harmonic: K (r - r0)^2, stiffmd ½ k (r - ℓ)^2
-    with open(path, "w") as f:
-        f.write(f"""# Written by tools/bench_lammps.py: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
-units           lj
-atom_style      bond
-boundary        p p p
-special_bonds   lj 0.0 1.0 1.0
-read_data       {data}
-
-bond_style      harmonic
-bond_coeff      1 {k_lammps:.17g} {fmt(BOND_LENGTH)}
-pair_style      lj/cut {WCA_CUTOFF:.17g}
-pair_modify     shift yes
-pair_coeff      1 1 1.0 1.0 {WCA_CUTOFF:.17g}
-
-neighbor        0.3 bin
-neigh_modify    every 1 delay 0 check yes
-
-timestep        {fmt(args.h)}
-run_style       respa 2 {args.micro_steps} bond 1 pair 2
-fix             1 all nve
-
-thermo          {thermo_every}
-thermo_style    custom step temp pe ke etotal
-thermo_modify   norm no format float %.15g
-run             {args.steps}
-""")
-
-
 # ------------------------------------------------------------------------------------------- runs
 
 def run_stiffmd(stiffmd, deck, method, threads, args, run_dir, natoms):
@@ -306,13 +200,15 @@ def run_lammps(lmp, lammps_input, args, run_dir, natoms):
 def benchmark_eps(eps, args, lmp, work, raw_writer):
     """All runs for one ε; returns (one summary row per configuration, LAMMPS warnings/version)."""
     os.makedirs(work, exist_ok=True)
-    data = prepare_state(args.stiffmd, eps, work)
+    data = prepare_state(args.stiffmd, eps, os.path.join(work, f"state_eps{eps}.data"))
     natoms = count_atoms(data)
     thermo_every = args.thermo_every or max(1, args.steps // 10)
     deck = os.path.join(work, f"bench_eps{eps}.toml")
-    write_stiffmd_deck(deck, data, eps, args, thermo_every)
+    write_deck(deck, data, eps, "tools/bench_lammps.py", "impulse", args.h, args.micro_steps, args.steps * args.h,
+               thermo_every * args.h)
     lammps_input = os.path.join(work, f"in.bench_eps{eps}")
-    write_lammps_input(lammps_input, data, eps, args, thermo_every)
+    write_lammps_input(lammps_input, data, eps, args.h, args.micro_steps, args.steps, thermo_every,
+                       "tools/bench_lammps.py")
 
     configs = []
     if lmp and "lammps-respa" in args.methods:

@@ -20,7 +20,6 @@ import argparse
 import csv
 import json
 import os
-import shutil
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor

@@ -79,11 +79,9 @@ from fractions import Fraction
 
 import numpy as np
 
+from chain_melt import ALPHA, RunFailed, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
-BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
-ALPHA = 1.0
-WCA_CUTOFF = 2.0 ** (1.0 / 6.0)
 IMPULSE_METHODS = ["impulse", "mollified-impulse", "projected-impulse"]
 # rattle: rigid bonds, no bond vibrations and so no resonance — where it fails too, the macro step is
 # past the slow (WCA) force's own stability limit.
@@ -104,16 +102,7 @@ SCAN_FIELDS = ["eps", "code", "method", "h", "h_over_tmin", "n", "micro_dt", "st
                "note"]
 
 
-class RunFailed(Exception):
-    """A run failed for a reason other than a numerical blow-up (bad input, missing binary...)."""
-
-
 # ---------------------------------------------------------------------------------------- helpers
-
-def fnum(x):
-    """A float as the shortest text that reads back exactly (for --set and LAMMPS inputs)."""
-    return repr(float(x))
-
 
 def split_list(text):
     """'0.01 0.003' or '0.01,0.003' (or a list of such) -> ['0.01', '0.003']."""
@@ -226,100 +215,6 @@ def drift_stats(energies, e0, natoms):
 
 # ------------------------------------------------------------------------------------ preparation
 
-def prepare_state(stiffmd, eps, work):
-    """The prepared t = 0 state of inputs/lammps_chain.toml at this ε, as a LAMMPS data file."""
-    os.makedirs(work, exist_ok=True)
-    data = os.path.join(work, "state.data")
-    cmd = [stiffmd, "check", SOURCE_DECK, "--set", f"variables.eps={eps}", "--write-data", data]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=run_env())
-    if p.returncode != 0:
-        raise RunFailed(f"state preparation failed (exit {p.returncode}): {shlex.join(cmd)}\n"
-                        f"{tail_text(p.stdout + p.stderr)}")
-    return data
-
-
-def count_atoms(data):
-    with open(data) as f:
-        for line in f:
-            if line.strip().endswith(" atoms"):
-                return int(line.split()[0])
-    raise RunFailed(f"{data}: no 'N atoms' line")
-
-
-def write_deck(path, data, eps):
-    """The run deck: the prepared state with its velocities; no [velocities], no [prepare]."""
-    with open(path, "w") as f:
-        f.write(f"""# Written by tools/work_precision_melt.py: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
-[types.bead]
-mass = 1.0
-
-[import]
-lammps_data = "{data}"
-atom_types = {{ "1" = "bead" }}
-bond_types = {{ "1" = "backbone" }}
-velocities = true
-
-[forces.bonds]
-style = "stiff-harmonic"
-level = "fast"
-epsilon = {fnum(eps)}
-bond_types.backbone = {{ length = {fnum(BOND_LENGTH)}, alpha = {fnum(ALPHA)} }}
-
-[forces.excluded_volume]
-style = "wca"
-level = "slow"
-epsilon = 1.0
-sigma = 1.0
-special_bonds = [0.0, 1.0]
-skin = 0.3
-
-[integrator]
-method = "velocity-verlet"
-h = {fnum(eps / 40)}
-
-[run]
-t_end = {fnum(eps)}
-
-[output]
-xyz = ""
-thermo_interval = {fnum(eps)}
-
-[observables]
-histograms = false
-""")
-
-
-def write_lammps_input(path, data, eps, h, n, steps, thermo_every):
-    """The same state and potentials in LAMMPS: r-RESPA with the bonds inner, WCA outer."""
-    k_lammps = ALPHA ** 2 / (2.0 * eps ** 2)  # LAMMPS harmonic: K (r - r0)^2; stiffmd ½ (α/ε)² (r - ℓ)²
-    with open(path, "w") as f:
-        f.write(f"""# Written by tools/work_precision_melt.py (resonance scan), eps = {eps}, h = {h}, n = {n}.
-units           lj
-atom_style      bond
-boundary        p p p
-special_bonds   lj 0.0 1.0 1.0
-read_data       {data}
-
-bond_style      harmonic
-bond_coeff      1 {k_lammps:.17g} {fnum(BOND_LENGTH)}
-pair_style      lj/cut {WCA_CUTOFF:.17g}
-pair_modify     shift yes
-pair_coeff      1 1 1.0 1.0 {WCA_CUTOFF:.17g}
-
-neighbor        0.3 bin
-neigh_modify    every 1 delay 0 check yes
-
-timestep        {fnum(h)}
-run_style       respa 2 {n} bond 1 pair 2
-fix             1 all nve
-
-thermo          {thermo_every}
-thermo_style    custom step temp pe ke etotal
-thermo_modify   norm no format float %.15g
-run             {steps}
-""")
-
-
 # ------------------------------------------------------------------------------------------- runs
 
 def read_thermo_csv(path):
@@ -342,8 +237,8 @@ def run_stiffmd(args, deck, run_dir, method, h, n, t_end, thermo_interval, natom
     """One stiffmd run in a fresh run_dir. Returns a dict with status 'ok' or 'unstable', cpu/wall
     seconds, drift statistics, final temperature; 'final' = the final-state data path (if asked)."""
     fresh_dir(run_dir)
-    sets = [f"integrator.method={method}", f"integrator.h={fnum(h)}", f"run.t_end={fnum(t_end)}",
-            f"output.thermo_interval={fnum(thermo_interval)}"]
+    sets = [f"integrator.method={method}", f"integrator.h={fmt(h)}", f"run.t_end={fmt(t_end)}",
+            f"output.thermo_interval={fmt(thermo_interval)}"]
     if method in IMPULSE_METHODS:
         sets.append(f"integrator.micro_steps={n}")
     if final_data:
@@ -418,7 +313,7 @@ def parse_lammps_log(path):
 def run_lammps(args, data, eps, h, n, steps, thermo_every, run_dir, natoms):
     fresh_dir(run_dir)
     inp = os.path.join(run_dir, "in.respa")
-    write_lammps_input(inp, data, eps, h, n, steps, thermo_every)
+    write_lammps_input(inp, data, eps, h, n, steps, thermo_every, "tools/work_precision_melt.py (resonance scan)")
     logf = os.path.join(run_dir, "log.lammps")
     cmd = [args.lmp, "-in", inp, "-log", logf, "-screen", "none", "-echo", "none", "-nocite"]
     start = time.monotonic()
@@ -927,10 +822,10 @@ def main(argv=None):
                 continue
             work = os.path.join(args.out, "work", f"eps{eps_text}")
             t0 = time.monotonic()
-            state = prepare_state(args.stiffmd, eps_text, work)
+            state = prepare_state(args.stiffmd, eps_text, os.path.join(work, "state.data"), env=run_env())
             natoms = count_atoms(state)
             deck = os.path.join(work, "deck.toml")
-            write_deck(deck, state, eps)
+            write_deck(deck, state, eps, "tools/work_precision_melt.py", "velocity-verlet", eps / 40, 1, eps, eps)
             d = {"short": [], "long": [], "scan": []}
             phases = [("short", SHORT_FIELDS, lambda: short_phase(args, eps_text, eps, deck, work, natoms)),
                       ("long", LONG_FIELDS, lambda: long_phase(args, eps_text, eps, deck, work, natoms)),

@@ -1,0 +1,121 @@
+"""The LAMMPS chain melt shared by tools/bench_lammps.py and tools/work_precision_melt.py.
+
+inputs/lammps_chain.toml at a given ε, prepared once by stiffmd (`check --write-data`: projected
+onto the bonds, T = 1 velocities, thermal bond vibrations) and written as a LAMMPS data file; the
+stiffmd deck and the LAMMPS input that run that same state with the same potentials: stiff harmonic
+bonds ℓ = 0.97, α = 1 (stiffmd ½(α/ε)²(r − ℓ)², LAMMPS `harmonic` K(r − r0)² with K = α²/(2ε²)) and
+WCA between non-bonded pairs (`special_bonds lj 0 1 1`, skin 0.3).
+"""
+import os
+import shlex
+import subprocess
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
+BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
+ALPHA = 1.0
+WCA_CUTOFF = 2.0 ** (1.0 / 6.0)
+
+
+class RunFailed(Exception):
+    """A run failed for a reason other than a numerical blow-up (bad input, missing binary...)."""
+
+
+def fmt(x):
+    """A float as the shortest text that reads back exactly (for decks, --set and LAMMPS inputs)."""
+    return repr(float(x))
+
+
+def prepare_state(stiffmd, eps, data, env=None):
+    """Writes the prepared t = 0 state at this ε to the LAMMPS data file `data`; returns its path."""
+    os.makedirs(os.path.dirname(os.path.abspath(data)), exist_ok=True)
+    cmd = [stiffmd, "check", SOURCE_DECK, "--set", f"variables.eps={eps}", "--write-data", data]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        raise RunFailed(f"state preparation failed (exit {p.returncode}): {shlex.join(cmd)}\n"
+                        f"--- output tail ---\n{(p.stdout + p.stderr)[-3000:]}")
+    return data
+
+
+def count_atoms(data):
+    with open(data) as f:
+        for line in f:
+            if line.strip().endswith(" atoms"):
+                return int(line.split()[0])
+    raise RunFailed(f"{data}: no 'N atoms' line")
+
+
+def write_deck(path, data, eps, writer, method, h, micro_steps, t_end, thermo_interval):
+    """A stiffmd deck running the prepared state (with its velocities; no [velocities], no [prepare],
+    no trajectory or histogram output)."""
+    with open(path, "w") as f:
+        f.write(f"""# Written by {writer}: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
+[types.bead]
+mass = 1.0
+
+[import]
+lammps_data = "{data}"
+atom_types = {{ "1" = "bead" }}
+bond_types = {{ "1" = "backbone" }}
+velocities = true
+
+[forces.bonds]
+style = "stiff-harmonic"
+level = "fast"
+epsilon = {fmt(eps)}
+bond_types.backbone = {{ length = {fmt(BOND_LENGTH)}, alpha = {fmt(ALPHA)} }}
+
+[forces.excluded_volume]
+style = "wca"
+level = "slow"
+epsilon = 1.0
+sigma = 1.0
+special_bonds = [0.0, 1.0]
+skin = 0.3
+
+[integrator]
+method = "{method}"
+h = {fmt(h)}
+micro_steps = {micro_steps}
+
+[run]
+t_end = {fmt(t_end)}
+
+[output]
+xyz = ""
+thermo_interval = {fmt(thermo_interval)}
+
+[observables]
+histograms = false
+""")
+
+
+def write_lammps_input(path, data, eps, h, n, steps, thermo_every, writer):
+    """The same state, potentials, h and n in LAMMPS: r-RESPA with the bonds inner, WCA outer."""
+    k_lammps = ALPHA ** 2 / (2.0 * float(eps) ** 2)  # LAMMPS harmonic: K (r - r0)^2, stiffmd ½ k (r - ℓ)^2
+    with open(path, "w") as f:
+        f.write(f"""# Written by {writer}: the prepared state of inputs/lammps_chain.toml at eps = {eps}, h = {h}, n = {n}.
+units           lj
+atom_style      bond
+boundary        p p p
+special_bonds   lj 0.0 1.0 1.0
+read_data       {data}
+
+bond_style      harmonic
+bond_coeff      1 {k_lammps:.17g} {fmt(BOND_LENGTH)}
+pair_style      lj/cut {WCA_CUTOFF:.17g}
+pair_modify     shift yes
+pair_coeff      1 1 1.0 1.0 {WCA_CUTOFF:.17g}
+
+neighbor        0.3 bin
+neigh_modify    every 1 delay 0 check yes
+
+timestep        {fmt(h)}
+run_style       respa 2 {n} bond 1 pair 2
+fix             1 all nve
+
+thermo          {thermo_every}
+thermo_style    custom step temp pe ke etotal
+thermo_modify   norm no format float %.15g
+run             {steps}
+""")
