@@ -17,7 +17,9 @@ much per run (the micro step is ε/40). Cheaper variants:
     /usr/bin/python3 tools/work_precision_melt.py --quick --eps 0.01 --out /tmp/wp --figures /tmp/wp  # smoke, ≈ 15 s
     /usr/bin/python3 tools/work_precision_melt.py --plot-only      # figures + summary from the CSVs in --out
 
-The figures in docs/figures were made by the ≈ 10 min run above, then (≈ 6 min)
+The figures in docs/figures were made by the ≈ 10 min run above, then (≈ 8 min)
+    /usr/bin/python3 tools/work_precision_melt.py --eps 0.003 --skip-scan --t-long 2
+and (≈ 6 min)
     /usr/bin/python3 tools/work_precision_melt.py --eps 0.003 --skip-short --skip-long --t-scan 0.5 \
         --scan "0.45 0.5 0.55 0.75 0.95 1.0 1.05 1.45 1.5 1.95 2.0 2.5"
 and --plot-only; each CSV's command is in the .command.txt beside it and in summary.md.
