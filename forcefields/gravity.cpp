@@ -13,7 +13,8 @@ Gravity::Gravity(std::string name, Level level, Eigen::Vector3d g, Eigen::Vector
 
 double Gravity::add_forces(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) const {
   f.noalias() += g_ * mass_.transpose();
-  return -(g_.transpose() * x * mass_).value();
+  const Eigen::Vector3d first_moment = x * mass_;  // Σ m_i x_i, fixed size: no heap temporary
+  return -g_.dot(first_moment);
 }
 
 std::string Gravity::describe() const {
