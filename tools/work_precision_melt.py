@@ -19,6 +19,8 @@ much per run (the micro step is ε/40). Cheaper variants:
 
 The figures in docs/figures were made by the ≈ 10 min run above, then (≈ 8 min)
     /usr/bin/python3 tools/work_precision_melt.py --eps 0.003 --skip-scan --t-long 2
+and (≈ 4 min; its CPU times with both cores busy)
+    /usr/bin/python3 tools/work_precision_melt.py --eps 0.01 --skip-short --skip-scan --t-long 10 --jobs 2
 and (≈ 6 min)
     /usr/bin/python3 tools/work_precision_melt.py --eps 0.003 --skip-short --skip-long --t-scan 0.5 \
         --scan "0.45 0.5 0.55 0.75 0.95 1.0 1.05 1.45 1.5 1.95 2.0 2.5"
