@@ -3,9 +3,18 @@
 
 #include <Eigen/Core>
 #include <cmath>
-#include <cstdint>
 
 namespace stiffmd {
+
+// s rounded to the nearest integer (ties to even) as (s + 1.5·2⁵²) − 1.5·2⁵²: exact for |s| < 2⁵¹
+// (positions stay within 2²⁰ box lengths, checked at load), NaN stays NaN. The minimum-image
+// convention's one rounding: no libm call (std::nearbyint is one on baseline x86-64) and no
+// conversion to an integer type, so loops over it vectorise. Needs IEEE arithmetic as written
+// (no -ffast-math, which would fold the two additions away).
+inline double round_nearest(double s) {
+  constexpr double k = 6755399441055744.0;  // 1.5 · 2⁵²
+  return (s + k) - k;
+}
 
 struct Box {
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
@@ -14,15 +23,10 @@ struct Box {
 
   bool any_periodic() const { return periodic.any(); }
 
-  // Minimum-image separation vector (identity on open axes): d − L·round(d/L) per periodic
-  // axis. The rounding is a truncating conversion of d/L ± ½, which the compiler inlines (where
-  // std::nearbyint is a libm call on baseline x86-64); ties |d| = L/2 may go either way.
+  // Minimum-image separation vector (identity on open axes): d − L·round(d/L) per periodic axis.
   Eigen::Vector3d min_image(Eigen::Vector3d d) const {
     for (int a = 0; a < 3; ++a)
-      if (periodic[a]) {
-        const double s = d[a] / lengths[a];
-        d[a] -= lengths[a] * static_cast<double>(static_cast<std::int64_t>(s + std::copysign(0.5, s)));
-      }
+      if (periodic[a]) d[a] -= lengths[a] * round_nearest(d[a] / lengths[a]);
     return d;
   }
 };

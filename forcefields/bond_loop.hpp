@@ -108,15 +108,7 @@ template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
   constexpr int kBlock = 64;
-  // Minimum image d − L·round(d/L) with round(s) = (s + 1.5·2⁵²) − 1.5·2⁵² (round to nearest,
-  // exact for |s| < 2⁵¹, NaN stays NaN): unlike a conversion to an integer, it vectorises.
-  // Open axes have L = 1/L = 0.
-  constexpr double kRound = 6755399441055744.0;
-  double len[3], inv_len[3];
-  for (int a = 0; a < 3; ++a) {
-    len[a] = box.periodic[a] ? box.lengths[a] : 0.0;
-    inv_len[a] = box.periodic[a] ? 1.0 / box.lengths[a] : 0.0;
-  }
+  const MinimumImage mi(box);  // open axes: L = 1/L = 0; round_nearest vectorises
   const double* xp = x.data();
   double* fp = f.data();
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
@@ -135,10 +127,7 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
         counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
       }
       for (int k = 0; k < nb; ++k) {
-        for (int a = 0; a < 3; ++a) {
-          const double s = d[a][k] * inv_len[a];
-          d[a][k] -= len[a] * ((s + kRound) - kRound);
-        }
+        for (int a = 0; a < 3; ++a) d[a][k] = MinimumImage::wrap(d[a][k], mi.length[a], mi.inv_length[a]);
         const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
         double e = 0.0, de_dr = 0.0;
         Kernel::eval(r, p[k], e, de_dr);

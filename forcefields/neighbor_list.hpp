@@ -20,10 +20,9 @@
 namespace stiffmd {
 
 // Minimum image for unwrapped coordinates, without a branch on periodicity: on a periodic axis
-// d − L·round(d/L); an open axis has L = 1/L = 0, which leaves d unchanged. The rounding is a
-// truncating conversion of d/L ± ½ — inlined by the compiler, where std::nearbyint is a libm
-// call without SSE4.1 — and works for any image count that fits 63 bits. Ties (|d| = L/2) may
-// round either way, as std::nearbyint's may: both images are at the same distance, ≥ the cutoff.
+// d − L·round(d/L); an open axis has L = 1/L = 0, which leaves d unchanged. The rounding is
+// round_nearest (engine/box.hpp), shared with Box::min_image. Ties (|d| = L/2) round to even:
+// both images are at the same distance, ≥ the cutoff.
 struct MinimumImage {
   double length[3] = {0.0, 0.0, 0.0};
   double inv_length[3] = {0.0, 0.0, 0.0};
@@ -37,10 +36,7 @@ struct MinimumImage {
       }
   }
 
-  static double wrap(double d, double len, double inv_len) {
-    const double s = d * inv_len;
-    return d - len * static_cast<double>(static_cast<std::int64_t>(s + std::copysign(0.5, s)));
-  }
+  static double wrap(double d, double len, double inv_len) { return d - len * round_nearest(d * inv_len); }
   void apply(double& dx, double& dy, double& dz) const {
     dx = wrap(dx, length[0], inv_length[0]);
     dy = wrap(dy, length[1], inv_length[1]);
