@@ -284,6 +284,10 @@ void DeckTable::fail_here(const std::string& what) const {
   throw InputError(deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_) + ": " + what);
 }
 
+std::string DeckTable::where() const {
+  return deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_);
+}
+
 double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
   const std::string where = deck_->location(&n, kp) + ": " + kp;
   if (n.is_integer() || n.is_floating_point()) {

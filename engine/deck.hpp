@@ -68,6 +68,8 @@ class DeckTable {
   // Errors at a key (its file:line) or at this table.
   [[noreturn]] void fail(std::string_view key, const std::string& what) const;
   [[noreturn]] void fail_here(const std::string& what) const;
+  // "file:line: path" of this table, for errors raised after reading (e.g. by [prepare]).
+  std::string where() const;
   // Check that a number read from `key` satisfies a condition.
   void require(bool ok, std::string_view key, const std::string& what) const {
     if (!ok) fail(key, what);

@@ -56,6 +56,7 @@ int main(int argc, char** argv) {
     const stiffmd::Deck deck(deck_path, overrides);
     stiffmd::Scene scene = stiffmd::load_scene(deck);
     for (const auto& note : scene.notes) std::cerr << note << "\n";
+    if (restart.empty()) stiffmd::prepare_scene(scene, std::cerr);  // a restart's state is the checkpoint's
     if (check->parsed()) {
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       if (!data_path.empty()) {

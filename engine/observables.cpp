@@ -27,10 +27,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
                                 "total", "energy_drift", "max_violation", "temperature"} {
   // Total momentum is conserved when no external field acts (gravity, tethers, walls).
   bool external = false;
-  for (const auto& t : forces.terms()) {
-    const std::string_view st = t->style();
-    external |= st == "gravity" || st == "harmonic-tether" || st == "lj93-wall";
-  }
+  for (const auto& t : forces.terms()) external |= !t->conserves_momentum();
   State probe;
   probe.inv_mass = inv_mass;
   probe.x.resize(3, inv_mass.size());

@@ -11,6 +11,7 @@
 #include "engine/errors.hpp"
 #include "engine/force_registry.hpp"
 #include "engine/scene_sources.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd {
 namespace {
@@ -192,13 +193,9 @@ void read_integrator(DeckTable& root, Scene& sc) {
   if (!t) root.fail_here("missing required table [integrator] (method, h)");
   IntegratorSettings& in = sc.integrator;
   in.method = t->string("method");
-  const auto& methods = integrator_methods();
-  if (std::find(methods.begin(), methods.end(), in.method) == methods.end()) {
-    std::string known;
-    for (const auto& m : methods) known += (known.empty() ? "" : ", ") + m;
-    t->fail("method", "unknown method '" + in.method + "' (known: " + known + ")");
-  }
-  if (method_needs_stiff_bonds(in.method) && !sc.forces->stiff_bonds())
+  const MethodInfo* method = find_method(in.method);
+  if (!method) t->fail("method", "unknown method '" + in.method + "' (known: " + method_names() + ")");
+  if (method->needs_stiff_bonds && !sc.forces->stiff_bonds())
     t->fail("method", "method '" + in.method +
                           "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
   in.h = t->number("h");
@@ -208,8 +205,7 @@ void read_integrator(DeckTable& root, Scene& sc) {
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
   // Micro steps belong to the impulse family; other methods ignore them, so that one deck
   // serves every method (design.md §7).
-  const bool impulse_family = in.method.find("impulse") != std::string::npos;
-  if (!impulse_family) {
+  if (!method->micro_steps) {
     in.micro_steps = 1;
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");

@@ -2,7 +2,9 @@
 // force terms the deck names (and only those: design.md §1), and the run's settings.
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <ostream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -46,6 +48,17 @@ struct OutputSettings {
   long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };
 
+// [prepare]: how the initial state is made ready for a stiff run (prepare_scene).
+struct PrepareSettings {
+  bool requested = false;     // the deck has a [prepare] table
+  std::string where;          // "file:line" of that table, for errors
+  bool project = true;        // positions onto g = 0 (SHAKE), velocities onto the tangent space
+  long relax_steps = 0;       // capped steepest descent on the non-stiff terms, rigid bonds
+  double relax_max_displacement = 0.02;
+  double vibrational_temperature = 0.0;  // thermal bond vibrations
+  std::uint64_t seed = 1;
+};
+
 struct Scene {
   std::string deck_path;
   State state;
@@ -59,14 +72,21 @@ struct Scene {
   OutputSettings output;
   ObservableSettings observables;
   MonitorSettings monitor;         // [monitor]
+  PrepareSettings prepare;         // [prepare], applied by prepare_scene
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
 };
 
-// Reads and validates the whole deck; throws InputError naming file, line and key.
+// Reads and validates the whole deck; throws InputError naming file, line and key. Does not
+// change the deck's initial state: [prepare] is applied by prepare_scene.
 Scene load_scene(const Deck& deck);
+
+// Applies [prepare] (projection, relaxation, thermal bond vibrations) to the scene's state and
+// says what it did on `log`. Called for `check` and for a fresh run; a restart takes its state
+// from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
+void prepare_scene(Scene& scene, std::ostream& log);
 
 // The files a run of the scene writes into its output directory, with the deck key that names
 // each under [output] ("xyz", "thermo", …; "" for histograms.csv and summary.json, fixed names).

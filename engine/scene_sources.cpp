@@ -231,73 +231,82 @@ void read_velocities(DeckTable& root, Scene& sc) {
 void read_prepare(DeckTable& root, Scene& sc) {
   auto t = root.table("prepare");
   if (!t) return;
-  const bool project = t->boolean("project", true);
-  const double tv = t->number("vibrational_temperature", 0.0);
-  t->require(tv >= 0, "vibrational_temperature", "expected a temperature >= 0");
-  const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
-  const long relax_steps = t->integer("relax_steps", 0);
-  t->require(relax_steps >= 0 && relax_steps <= kMaxRelaxSteps, "relax_steps",
+  PrepareSettings& p = sc.prepare;
+  p.requested = true;
+  p.where = t->where();
+  p.project = t->boolean("project", true);
+  p.vibrational_temperature = t->number("vibrational_temperature", 0.0);
+  t->require(p.vibrational_temperature >= 0, "vibrational_temperature", "expected a temperature >= 0");
+  p.seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  p.relax_steps = t->integer("relax_steps", 0);
+  t->require(p.relax_steps >= 0 && p.relax_steps <= kMaxRelaxSteps, "relax_steps",
              "expected a number of steps 0 .. " + std::to_string(kMaxRelaxSteps));
-  const double max_move = t->number("relax_max_displacement", 0.02);
-  t->require(max_move > 0, "relax_max_displacement", "expected a length > 0");
-  const StiffBonds* stiff = sc.forces->stiff_bonds();
-  if (!stiff) t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  p.relax_max_displacement = t->number("relax_max_displacement", 0.02);
+  t->require(p.relax_max_displacement > 0, "relax_max_displacement", "expected a length > 0");
+  if (!sc.forces->stiff_bonds()) t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
   t->finish();
+}
+
+void prepare_scene(Scene& sc, std::ostream& log) {
+  const PrepareSettings& p = sc.prepare;
+  if (!p.requested) return;
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
   State& s = sc.state;
   std::ostringstream note;
   note.precision(4);
   try {
     ConstraintToolbox toolbox(stiff->bonds, s.inv_mass);
     const double g0 = toolbox.max_violation(s.x);
-    if (project) {
+    if (p.project) {
       toolbox.shake(s.x, s.x, nullptr, 1e-12, 200);
       toolbox.project_velocity(s.x, s.v);
       note << "prepare: projected onto the constraint manifold (max |g| " << g0 << " -> " << toolbox.max_violation(s.x)
            << ") and the velocities onto its tangent space";
     }
-    if (relax_steps > 0) {
+    if (p.relax_steps > 0) {
       // Overlaps left by a builder: steepest descent on every non-stiff term, each step moving
       // no particle more than max_move, then SHAKE back onto the bonds (g = 0).
       Eigen::Matrix3Xd f, x_old;
       const double e_before = sc.forces->compute_unconstrained(s.x, f);
       double e = e_before;
-      for (long k = 0; k < relax_steps; ++k) {
+      for (long k = 0; k < p.relax_steps; ++k) {
         Eigen::Matrix3Xd step = f * s.inv_mass.asDiagonal();
         const double largest = step.colwise().norm().maxCoeff();
         if (largest == 0.0) break;
         x_old = s.x;
-        s.x += (max_move / largest) * step;
+        s.x += (p.relax_max_displacement / largest) * step;
         toolbox.shake(x_old, s.x, nullptr, 1e-10, 200);
         e = sc.forces->compute_unconstrained(s.x, f);
       }
       toolbox.project_velocity(s.x, s.v);  // the velocities stay, tangent at the new positions
-      note << (project ? "; " : "prepare: ") << "relaxed " << relax_steps << " steps: non-stiff potential energy "
+      note << (p.project ? "; " : "prepare: ") << "relaxed " << p.relax_steps << " steps: non-stiff potential energy "
            << e_before << " -> " << e;
     }
+    const double tv = p.vibrational_temperature;
     if (tv > 0) {
       // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
       // The unit normals are one component of a Maxwell–Boltzmann draw at T = 1 for unit masses
       // (the builders' portable generator); its exact rescaling and zero-mean correction are
       // O(1/m) departures from independent N(0, 1), harmless for thermalising many bonds.
       const Eigen::Matrix3Xd normal =
-          maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, seed + 1);
+          maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, p.seed + 1);
       std::vector<StiffBond> shifted = stiff->bonds;
       for (size_t b = 0; b < shifted.size(); ++b)
         shifted[b].length +=
             std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
       ConstraintToolbox(shifted, s.inv_mass).shake(s.x, s.x, nullptr, 1e-12, 200);
-      Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, seed), pu = u;
+      Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, p.seed), pu = u;
       toolbox.project_velocity(s.x, pu);
       s.v += u - pu;
-      note << (project ? "; " : "prepare: ") << "bond vibrations thermalised at T = " << tv
+      note << (p.project || p.relax_steps > 0 ? "; " : "prepare: ") << "bond vibrations thermalised at T = " << tv
            << " (max |g| = " << toolbox.max_violation(s.x) << ")";
     }
   } catch (const NumericalError& e) {
-    root.fail_here(std::string("[prepare] could not project the initial state: ") + e.what());
+    throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
   } catch (const InputError& e) {
-    root.fail_here(std::string("[prepare]: ") + e.what());
+    throw InputError(p.where + ": prepare: " + e.what());
   }
-  sc.notes.push_back(note.str());
+  log << note.str() << "\n";
 }
 
 }  // namespace stiffmd

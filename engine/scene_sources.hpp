@@ -20,6 +20,6 @@ int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, con
 void read_builders(DeckTable& root, Scene& sc);
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
 void read_velocities(DeckTable& root, Scene& sc);
-void read_prepare(DeckTable& root, Scene& sc);
+void read_prepare(DeckTable& root, Scene& sc);  // reads the settings; prepare_scene (scene.hpp) acts
 
 }  // namespace stiffmd

@@ -18,6 +18,7 @@
 #include "engine/progress.hpp"
 #include "engine/signals.hpp"
 #include "engine/writers.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd {
 namespace fs = std::filesystem;
@@ -152,7 +153,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const double tol = 1e-9 * sc.integrator.h;
   const double cut = static_cast<double>(s.step - 1) * sc.integrator.h;
   ObservableSettings observables = sc.observables;
-  if (sc.integrator.method == "rattle" || sc.integrator.method == "effective")
+  const MethodInfo& method = *find_method(sc.integrator.method);  // load_scene checked the name
+  if (method.rigid_constraints)
     observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
   Thermo thermo(*sc.forces, s.inv_mass, observables, &sc.topology);
   auto open_output = [&](const std::string& name, auto truncate) {
@@ -229,7 +231,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
 
   double max_err = 0.0;
-  Monitor monitor(sc.monitor, thermo, summary.epsilon, sc.integrator.method == "effective");
+  Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
   State last_good;  // with on_alert = "stop": the state of the last sample without alerts
   int alerts = 0;   // of the last sample
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
@@ -353,7 +355,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   bool has_pairs = false;
   long rebuilds_after = 0;
   for (const auto& term : sc.forces->terms()) {
-    has_pairs |= term->style() == "lj" || term->style() == "wca" || term->style() == "soft";
+    has_pairs |= term->uses_neighbor_list();
     rebuilds_after += term->neighbor_list_rebuilds();
   }
   if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;

@@ -26,6 +26,7 @@ namespace stiffmd {
 
 class HarmonicTether final : public ForceTerm {
  public:
+  bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: particles non-empty, each index ≥ 0 and listed once; center finite;
   // k finite and ≥ 0 (energy/length²).
   HarmonicTether(std::string name, Level level, std::vector<int> particles, Eigen::Vector3d center, double k);
@@ -51,6 +52,7 @@ struct LJ93WallParams {
 
 class LJ93Wall final : public ForceTerm {
  public:
+  bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: axis in {0, 1, 2}, side ±1, position finite, epsilon finite and ≥ 0,
   // sigma and cutoff finite and > 0; particles non-empty, each index ≥ 0 and listed once.
   LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles);

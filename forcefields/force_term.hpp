@@ -44,6 +44,16 @@ class ForceTerm {
     return 0.0;
   }
 
+  // Capabilities (style.md: facts on the term, not lists of style names elsewhere).
+  // Whether the term finds its pairs through a neighbour list (pair styles).
+  virtual bool uses_neighbor_list() const { return false; }
+  // Whether its forces sum to zero (internal forces: bonds, angles, pairs). External fields
+  // (gravity, tethers, walls) do not conserve total momentum, so the thermo's degrees of
+  // freedom keep the centre-of-mass motion.
+  virtual bool conserves_momentum() const { return true; }
+  // Whether it defines the constraint manifold g(x) = 0 (stiff bonds: see stiff_bonds()).
+  bool is_constraint_defining() const { return stiff_bonds() != nullptr; }
+
   // Neighbour-list rebuilds so far (pair terms; 0 for the others).
   virtual long neighbor_list_rebuilds() const { return 0; }
 

@@ -11,6 +11,7 @@ namespace stiffmd {
 
 class Gravity final : public ForceTerm {
  public:
+  bool conserves_momentum() const override { return false; }  // an external field
   Gravity(std::string name, Level level, Eigen::Vector3d g, Eigen::VectorXd inv_mass);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;

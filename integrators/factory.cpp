@@ -1,57 +1,96 @@
-// The one table of integrator methods (design.md §3, §7).
+// The one table of integrator methods (integrators/methods.hpp; design.md §3, §7).
 #include <algorithm>
+#include <array>
 #include <stdexcept>
 
 #include "integrators/integrator.hpp"
 #include "integrators/kick_forces.hpp"
+#include "integrators/methods.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 #include "integrators/rattle.hpp"
 
 namespace stiffmd {
+namespace {
 
-const std::vector<std::string>& integrator_methods() {
-  static const std::vector<std::string> names = {"velocity-verlet",   "impulse", "mollified-impulse",
-                                                 "projected-impulse", "rattle",  "effective"};
-  return names;
+using Ptr = std::unique_ptr<Integrator>;
+
+const StiffBonds& stiff_bonds_of(const ForceField& forces) { return *forces.stiff_bonds(); }
+
+// The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h.
+std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
+  return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
 }
 
-bool method_needs_stiff_bonds(const std::string& method) {
-  return method == "mollified-impulse" || method == "projected-impulse" || method == "rattle" || method == "effective";
+Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd&) {
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{{Level::fast, Level::slow}, 1}});
 }
-
-std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceField& forces,
-                                            const Eigen::VectorXd& inv_mass) {
-  const auto& names = integrator_methods();
-  if (std::find(names.begin(), names.end(), s.method) == names.end())
-    throw std::invalid_argument("unknown integrator method '" + s.method + "'");
-  const StiffBonds* stiff = forces.stiff_bonds();
-  if (method_needs_stiff_bonds(s.method) && !stiff)
-    throw std::invalid_argument("method '" + s.method +
-                                "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
-
-  // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h.
-  const std::vector<Stage> impulse_stages = {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
-  if (s.method == "velocity-verlet")
-    return std::make_unique<MultipleTimeStepping>(s.method, forces,
-                                                  std::vector<Stage>{{{Level::fast, Level::slow}, 1}});
-  if (s.method == "impulse") return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages);
-  if (s.method == "projected-impulse")
-    return std::make_unique<MultipleTimeStepping>(
-        s.method, forces, impulse_stages, std::make_unique<ProjectedKick>(ConstraintToolbox(stiff->bonds, inv_mass)));
-  if (s.method == "mollified-impulse")
-    return std::make_unique<MultipleTimeStepping>(
-        s.method, forces, impulse_stages,
-        std::make_unique<MollifiedKick>(ConstraintToolbox(stiff->bonds, inv_mass), forces.num_particles()));
-  if (s.method == "rattle")
-    return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff->bonds, inv_mass), nullptr);
-  // effective
-  auto modes = std::make_unique<StiffModes>(stiff->bonds, inv_mass, stiff->epsilon, s.max_cluster_bonds);
+Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd&) {
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s));
+}
+Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  return std::make_unique<MultipleTimeStepping>(
+      s.method, forces, impulse_stages(s),
+      std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)));
+}
+Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  return std::make_unique<MultipleTimeStepping>(
+      s.method, forces, impulse_stages(s),
+      std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
+                                      forces.num_particles()));
+}
+Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
+                                  nullptr);
+}
+Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  const StiffBonds& stiff = stiff_bonds_of(forces);
+  auto modes = std::make_unique<StiffModes>(stiff.bonds, inv_mass, stiff.epsilon, s.max_cluster_bonds);
   if (modes->num_skipped_clusters() > 0)
     throw std::invalid_argument(
         "the effective dynamics needs the modes of every constraint cluster, but " +
         std::to_string(modes->num_skipped_clusters()) +
         " cluster(s) have more than max_cluster_bonds = " + std::to_string(s.max_cluster_bonds) + " bonds");
-  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff->bonds, inv_mass), std::move(modes));
+  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass), std::move(modes));
+}
+
+//                     name               summary                                                        stiff  micro  rigid  eff.
+constexpr std::array<MethodInfo, 6> kMethods = {{
+    {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false,
+     make_velocity_verlet},
+    {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false,
+     make_impulse},
+    {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, make_mollified},
+    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, make_projected},
+    {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false,
+     make_rattle},
+    {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true,
+     make_effective},
+}};
+
+}  // namespace
+
+std::span<const MethodInfo> methods() { return kMethods; }
+
+const MethodInfo* find_method(std::string_view name) {
+  for (const MethodInfo& m : kMethods)
+    if (m.name == name) return &m;
+  return nullptr;
+}
+
+std::string method_names() {
+  std::string out;
+  for (const MethodInfo& m : kMethods) (out += out.empty() ? "" : ", ") += m.name;
+  return out;
+}
+
+std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceField& forces,
+                                            const Eigen::VectorXd& inv_mass) {
+  const MethodInfo* m = find_method(s.method);
+  if (!m) throw std::invalid_argument("unknown integrator method '" + s.method + "' (known: " + method_names() + ")");
+  if (m->needs_stiff_bonds && !forces.stiff_bonds())
+    throw std::invalid_argument("method '" + s.method +
+                                "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  return m->make(s, forces, inv_mass);
 }
 
 }  // namespace stiffmd

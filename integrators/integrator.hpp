@@ -46,12 +46,7 @@ class Integrator {
   }
 };
 
-// The method names the deck and CLI accept (design.md §7).
-const std::vector<std::string>& integrator_methods();
-// Whether a method needs constraint-defining (stiff) bonds in the scene.
-bool method_needs_stiff_bonds(const std::string& method);
-
-// Builds the integrator named by settings.method; throws std::invalid_argument for an
+// Builds the integrator named by settings.method (the table in integrators/methods.hpp); throws std::invalid_argument for an
 // unknown name or a method the scene cannot run.
 std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings, ForceField& forces,
                                             const Eigen::VectorXd& inv_mass);

@@ -79,6 +79,7 @@ TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
   const Deck dk((d / "gas.toml").string(), {});
   Scene sc = load_scene(dk);
   std::ostringstream log;
+  prepare_scene(sc, log);
   run_simulation(sc, {(d / "out").string(), false, ""}, log);
   const test::CsvTable thermo = test::read_csv((d / "out" / "thermo.csv").string());
   const size_t temperature = thermo.col("temperature"), pressure = thermo.col("pressure");

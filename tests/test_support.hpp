@@ -11,12 +11,19 @@
 #include "engine/deck.hpp"
 #include "engine/scene.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd::test {
 
-// Every integrator method, for tests parameterised over them; test names may not hold '-'.
-inline const std::vector<std::string> kAllMethods = {"velocity-verlet",   "impulse", "projected-impulse",
-                                                     "mollified-impulse", "rattle",  "effective"};
+// Every integrator method of the method table (integrators/methods.hpp), for tests
+// parameterised over them: a method added to the table is tested by every such suite.
+inline std::vector<std::string> all_methods() {
+  std::vector<std::string> names;
+  for (const MethodInfo& m : methods()) names.emplace_back(m.name);
+  return names;
+}
+inline const std::vector<std::string> kAllMethods = all_methods();
+// Test names may not hold '-'.
 inline std::string method_test_name(const ::testing::TestParamInfo<std::string>& info) {
   std::string n = info.param;
   std::replace(n.begin(), n.end(), '-', '_');
@@ -29,7 +36,10 @@ inline std::string source_path(const std::string& rel) {
 
 inline Scene load(const std::string& rel_deck, const std::vector<std::string>& overrides = {}) {
   const Deck deck(source_path(rel_deck), overrides);
-  return load_scene(deck);
+  Scene sc = load_scene(deck);
+  std::ostringstream log;
+  prepare_scene(sc, log);
+  return sc;
 }
 
 // The seed pendulum (inputs/double_pendulum.toml) at a given ε, method and step.

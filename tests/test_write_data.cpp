@@ -1,5 +1,6 @@
 // `stiffmd check DECK --write-data FILE`: the prepared initial state (after [prepare]) as a LAMMPS
 // data file — what tools/bench_lammps.py hands to LAMMPS so that both codes start from one state.
+#include <sstream>
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -24,7 +25,9 @@ TEST(WriteData, CheckWritesThePreparedInitialState) {
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("initial state written to"), std::string::npos) << r.out;
 
-  const Scene scene = load_scene(Deck(deck, {}));
+  Scene scene = load_scene(Deck(deck, {}));
+  std::ostringstream log;
+  prepare_scene(scene, log);
   const ImportedSystem data = read_lammps_data(out.string());
   ASSERT_EQ(data.x.cols(), scene.state.x.cols());
   EXPECT_EQ(data.bonds.size(), scene.topology.bonds.size());

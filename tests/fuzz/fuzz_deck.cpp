@@ -7,6 +7,7 @@
 // overrides, so that the override path is fuzzed too.
 //
 //   build-fuzz/fuzz_deck -dict=tests/fuzz/deck.dict CORPUS_DIR   (see tools/fuzz.sh)
+#include <sstream>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -37,6 +38,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   try {
     const Deck deck(deck_file.path, overrides);
     scene = load_scene(deck);
+    std::ostringstream log;
+    prepare_scene(scene, log);
   } catch (const InputError&) {
     return 0;  // the expected outcome of a bad deck
   } catch (const std::exception& e) {

@@ -130,6 +130,8 @@ Fixture load_fixture(const std::string& label, const std::string& deck_path,
   const auto start = std::chrono::steady_clock::now();
   try {
     fx.scene = load_scene(Deck(deck_path, overrides));
+    std::ostringstream log;
+    prepare_scene(fx.scene, log);
     fx.initial = fx.scene.state;
     if (!fx.scene.forces->stiff_bonds()) fx.error = label + ": the scene has no stiff bonds";
   } catch (const std::exception& e) {
