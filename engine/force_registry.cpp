@@ -7,14 +7,29 @@
 
 #include "engine/errors.hpp"
 #include "forcefields/angle_terms.hpp"
+#include "forcefields/bond_term.hpp"
+#include "forcefields/coefficients.hpp"
 #include "forcefields/external_terms.hpp"
-#include "forcefields/fene_bond.hpp"
 #include "forcefields/gravity.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 
 namespace stiffmd {
 namespace {
+
+// A style parameter read from a deck key and checked against the range of its kind (a length
+// > 0, an energy >= 0, …: forcefields/coefficients.hpp). A bad value fails at that key: its
+// file:line, or the --set that supplied it.
+double read(DeckTable& t, std::string_view key, const Quantity& q) {
+  const double v = t.number(key);
+  t.require(q.admits(v), key, "expected " + q.expected(v));
+  return v;
+}
+double read(DeckTable& t, std::string_view key, const Quantity& q, double fallback) {
+  const double v = t.number(key, fallback);
+  t.require(q.admits(v), key, "expected " + q.expected(v));
+  return v;
+}
 
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
 // Returns, per type of the scene, the index of its coefficients in `coeffs` (−1: not claimed
@@ -56,17 +71,14 @@ std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>
 // stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}.
 std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   StiffBonds sb;
-  sb.epsilon = t.number("epsilon");
-  t.require(sb.epsilon > 0.0, "epsilon", "expected a number > 0");
+  sb.epsilon = read(t, "epsilon", kPositive);
   std::vector<StiffBond> coeffs;
   const auto index = claim_types(
       t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
       [](DeckTable& bt) {
         StiffBond c;
-        c.length = bt.number("length");
-        bt.require(c.length > 0.0, "length", "expected a bond length > 0");
-        c.alpha = bt.number("alpha");
-        bt.require(c.alpha > 0.0, "alpha", "expected a stiffness alpha > 0");
+        c.length = read(bt, "length", kLength);
+        c.alpha = read(bt, "alpha", kPositive);
         return c;
       },
       coeffs);
@@ -75,23 +87,16 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }
 
-// fene: bond_types.TYPE = {K, R0, epsilon = 0, sigma = 1} (LAMMPS bond_style fene).
-std::unique_ptr<ForceTerm> read_fene(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  std::vector<FeneCoeffs> coeffs;
-  const auto index = claim_types(
-      t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
-      [](DeckTable& bt) {
-        FeneCoeffs c;
-        c.K = bt.number("K");
-        c.R0 = bt.number("R0");
-        c.epsilon = bt.number("epsilon", 0.0);
-        c.sigma = bt.number("sigma", 1.0);
-        return c;
-      },
-      coeffs);
-  auto term = std::make_unique<FeneBond>(name, level, claimed(ctx.scene.topology.bonds, index), coeffs);
-  // FENE is defined only for 0 < r < R0: a bond that starts outside would fail at the first force
-  // evaluation (exit 3); it is the deck's fault, so say so now, naming the bond.
+// Bond styles (BondTerm over a kernel of forcefields/bond_potentials.hpp): bond_types.TYPE =
+// {coefficients}, each read by `coeffs` from its table.
+template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
+std::unique_ptr<ForceTerm> read_bond(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<typename Kernel::Coeffs> types;
+  const auto index =
+      claim_types(t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name, coeffs, types);
+  auto term = std::make_unique<BondTerm<Kernel>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
+  // A kernel defined on part of r > 0 (FENE: r < R0) would fail at the first force evaluation
+  // (exit 3) for a bond that starts outside; that is the deck's fault, so say so now.
   Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, ctx.scene.state.size());
   try {
     term->add_forces(ctx.scene.state.x, ctx.scene.box, f);
@@ -99,6 +104,12 @@ std::unique_ptr<ForceTerm> read_fene(const std::string& name, Level level, DeckT
     t.fail("bond_types", std::string(e.what()) + " in the initial state");
   }
   return term;
+}
+
+// fene: {K, R0, epsilon = 0, sigma = 1} (LAMMPS bond_style fene).
+Fene::Coeffs fene_coeffs(DeckTable& d) {
+  return {read(d, "K", kStiffness), read(d, "R0", kLength), read(d, "epsilon", kEnergy, 0.0),
+          read(d, "sigma", kLength, 1.0)};
 }
 
 // harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
@@ -109,7 +120,7 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
       t, "angle_types", ctx.scene.topology.angle_types, ctx.angle_type_owner, name,
       [](DeckTable& at) {
         AngleCoeffs c;
-        c.k = at.number("k");
+        c.k = read(at, "k", kStiffness);
         const double deg = at.number("theta0", 180.0);
         at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
         c.theta0 = deg * M_PI / 180.0;
@@ -145,7 +156,7 @@ std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
 
 // harmonic-tether: k, center = [x, y, z], particles or type.
 std::unique_ptr<ForceTerm> read_tether(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
-  const double k = t.number("k");
+  const double k = read(t, "k", kStiffness);
   const Eigen::Vector3d c = t.vector3("center");
   return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k);
 }
@@ -162,9 +173,9 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   const long side = t.integer("side", 1);  // checked before the conversion to int
   t.require(side == 1 || side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");
   p.side = static_cast<int>(side);
-  p.epsilon = t.number("epsilon", p.epsilon);
-  p.sigma = t.number("sigma", p.sigma);
-  p.cutoff = t.number("cutoff", p.cutoff);
+  p.epsilon = read(t, "epsilon", kEnergy, p.epsilon);
+  p.sigma = read(t, "sigma", kLength, p.sigma);
+  p.cutoff = read(t, "cutoff", kLength, p.cutoff);
   return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
 }
 
@@ -241,11 +252,11 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
 // [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
 template <class Kernel, class ReadCoeffs>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
-                                     ReadCoeffs read, const char* range_key) {
+                                     ReadCoeffs read_coeffs, const char* range_key) {
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
   TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
-  const typename Kernel::Coeffs global = read(t, typename Kernel::Coeffs{});
+  const typename Kernel::Coeffs global = read_coeffs(t, typename Kernel::Coeffs{});
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
   for (DeckTable& p : t.array_of_tables("pair")) {
@@ -258,7 +269,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
         if (sc.types[k].name == names[m]) ab[m] = k;
       if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
     }
-    coeffs.set(ab[0], ab[1], read(p, global));
+    coeffs.set(ab[0], ab[1], read_coeffs(p, global));
     p.finish();
   }
   // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
@@ -271,8 +282,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     w.w12 = sb[0];
     w.w13 = sb[1];
   }
-  const double skin = t.number("skin", 0.3);
-  t.require(skin >= 0, "skin", "expected a neighbour-list skin >= 0");
+  const double skin = read(t, "skin", kSkin, 0.3);
   check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
   // Special bonds list the 1-3 pairs through every particle: deg·(deg − 1)/2 of them. A hub with
   // a million bonds (a few megabytes of data file) would ask for terabytes; refuse it up front.
@@ -294,9 +304,9 @@ std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTab
   return read_pair<LennardJones>(
       name, level, t, ctx,
       [](DeckTable& d, LennardJones::Coeffs c) {
-        c.epsilon = d.number("epsilon", c.epsilon == 0.0 ? 1.0 : c.epsilon);
-        c.sigma = d.number("sigma", c.sigma);
-        c.rc = d.number("cutoff", c.rc);
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon == 0.0 ? 1.0 : c.epsilon);
+        c.sigma = read(d, "sigma", kLength, c.sigma);
+        c.rc = read(d, "cutoff", kLength, c.rc);
         return c;
       },
       "cutoff");
@@ -306,8 +316,8 @@ std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTa
   return read_pair<WeeksChandlerAndersen>(
       name, level, t, ctx,
       [](DeckTable& d, WeeksChandlerAndersen::Coeffs c) {
-        c.epsilon = d.number("epsilon", c.epsilon);
-        c.sigma = d.number("sigma", c.sigma);
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);
+        c.sigma = read(d, "sigma", kLength, c.sigma);
         return c;
       },
       "sigma");
@@ -317,8 +327,8 @@ std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckT
   return read_pair<SoftCosine>(
       name, level, t, ctx,
       [](DeckTable& d, SoftCosine::Coeffs c) {
-        c.A = d.number("A", c.A);
-        c.rc = d.number("cutoff", c.rc);
+        c.A = read(d, "A", kEnergy, c.A);
+        c.rc = read(d, "cutoff", kLength, c.rc);
         return c;
       },
       "cutoff");
@@ -334,7 +344,7 @@ std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, De
 const std::vector<ForceStyle>& force_styles() {
   static const std::vector<ForceStyle> styles = {
       {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
-      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_fene},
+      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
       {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
       {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
       {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},

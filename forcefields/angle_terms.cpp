@@ -5,10 +5,8 @@
 #include <sstream>
 #include <stdexcept>
 
-namespace stiffmd {
-namespace {
+namespace stiffmd::angle_detail {
 
-// Shared validation of the two angle styles: coefficients per type, then each angle's indices.
 std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, const std::string& name,
                                                         const std::vector<Angle>& angles,
                                                         const std::vector<AngleCoeffs>& types) {
@@ -19,8 +17,8 @@ std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, 
     const AngleCoeffs& c = types[t];
     std::ostringstream m;
     m << "angle type " << t << ": ";
-    if (!(c.k >= 0.0) || !std::isfinite(c.k))
-      m << "k must be finite and >= 0, got " << c.k;
+    if (!kStiffness.admits(c.k))
+      m << "k: expected " << kStiffness.expected(c.k);
     else if (!(c.theta0 >= 0.0 && c.theta0 <= std::numbers::pi))
       m << "theta0 must be in [0, pi] radians, got " << c.theta0;
     else
@@ -42,29 +40,12 @@ std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, 
   return out;
 }
 
-std::string describe_angles(std::string_view what, size_t n, const std::vector<AngleCoeffs>& types) {
+std::string describe_angles(std::string_view style, size_t n, const std::vector<AngleCoeffs>& types) {
   std::ostringstream s;
-  s << n << " " << what << " angles";
+  s << n << " " << style.substr(0, style.find('-')) << " angles";
   for (size_t t = 0; t < types.size(); ++t)
     s << (t == 0 ? "; " : ", ") << "type " << t << ": k = " << types[t].k << ", theta0 = " << types[t].theta0;
   return s.str();
 }
 
-}  // namespace
-
-template <class K>
-AngleTerm<K>::AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
-    : ForceTerm(std::move(name), level),
-      types_(std::move(types)),
-      instances_(angle_instances(K::kStyle, this->name(), angles, types_)) {}
-
-template <class K>
-std::string AngleTerm<K>::describe() const {
-  std::string_view what = K::kStyle;
-  return describe_angles(what.substr(0, what.find('-')), instances_.size(), types_);
-}
-
-template class AngleTerm<HarmonicAngleKernel>;
-template class AngleTerm<CosineAngleKernel>;
-
-}  // namespace stiffmd
+}  // namespace stiffmd::angle_detail

@@ -14,6 +14,7 @@
 
 #include "engine/topology.hpp"
 #include "forcefields/angle_loop.hpp"
+#include "forcefields/coefficients.hpp"
 #include "forcefields/force_term.hpp"
 
 namespace stiffmd {
@@ -72,9 +73,29 @@ class AngleTerm final : public ForceTerm {
   std::vector<AngleInstance<Params>> instances_;
 };
 
-extern template class AngleTerm<HarmonicAngleKernel>;
-extern template class AngleTerm<CosineAngleKernel>;
 using HarmonicAngle = AngleTerm<HarmonicAngleKernel>;
 using CosineAngle = AngleTerm<CosineAngleKernel>;
+
+// The members, in the header so that a new kernel needs no explicit instantiation; what does
+// not depend on the kernel is in angle_terms.cpp.
+namespace angle_detail {
+// Checks the coefficients (k ≥ 0, θ₀ in [0, π]) and each angle's indices and type; throws
+// std::invalid_argument naming the term.
+std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, const std::string& name,
+                                                        const std::vector<Angle>& angles,
+                                                        const std::vector<AngleCoeffs>& types);
+std::string describe_angles(std::string_view style, std::size_t n, const std::vector<AngleCoeffs>& types);
+}  // namespace angle_detail
+
+template <class K>
+AngleTerm<K>::AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
+    : ForceTerm(std::move(name), level),
+      types_(std::move(types)),
+      instances_(angle_detail::angle_instances(K::kStyle, this->name(), angles, types_)) {}
+
+template <class K>
+std::string AngleTerm<K>::describe() const {
+  return angle_detail::describe_angles(K::kStyle, instances_.size(), types_);
+}
 
 }  // namespace stiffmd

@@ -4,7 +4,8 @@
 //   Params                        constants derived from them for the inner loop; `rc2` is the
 //                                 squared cutoff, read by the loop before calling eval;
 //   kStyle                        the style name (as in a deck);
-//   validate(c)                   throws std::invalid_argument naming the bad coefficient;
+//   validate(c)                   throws std::invalid_argument naming the bad coefficient
+//                                 (coefficients.hpp);
 //   cutoff(c), params(c)          the interaction range and the derived constants;
 //   eval(r², p, e, fpair)         the energy e and fpair = −(dE/dr)/r, so that the force on i
 //                                 is fpair · (x_i − x_j) and the pair virial r_ij · f_ij is
@@ -21,16 +22,9 @@
 #include <string>
 #include <string_view>
 
-namespace stiffmd {
+#include "forcefields/coefficients.hpp"
 
-namespace pair_detail {
-inline void require(bool ok, const char* what, double got) {
-  if (ok) return;
-  std::ostringstream s;
-  s << what << " (got " << got << ")";
-  throw std::invalid_argument(s.str());
-}
-}  // namespace pair_detail
+namespace stiffmd {
 
 // Lennard-Jones constants shared by `lj` and `wca`: with s6 = σ⁶/r⁶,
 //   E = 4ε (s6² − s6) − E_shift,   −(dE/dr)/r = 24ε (2 s6² − s6) / r².
@@ -75,9 +69,9 @@ struct LennardJones {
   static constexpr std::string_view kStyle = "lj";
 
   static void validate(const Coeffs& c) {
-    pair_detail::require(c.epsilon >= 0.0 && std::isfinite(c.epsilon), "epsilon must be finite and >= 0", c.epsilon);
-    pair_detail::require(c.sigma > 0.0 && std::isfinite(c.sigma), "sigma must be finite and > 0", c.sigma);
-    pair_detail::require(c.rc > 0.0 && std::isfinite(c.rc), "cutoff rc must be finite and > 0", c.rc);
+    require(c.epsilon, kEnergy, "epsilon");
+    require(c.sigma, kLength, "sigma");
+    require(c.rc, kLength, "cutoff rc");
   }
   static double cutoff(const Coeffs& c) { return c.rc; }
   static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, c.rc); }
@@ -97,8 +91,8 @@ struct WeeksChandlerAndersen {
   static constexpr double kMinimumOverSigma = 1.122462048309373;  // 2^{1/6}
 
   static void validate(const Coeffs& c) {
-    pair_detail::require(c.epsilon >= 0.0 && std::isfinite(c.epsilon), "epsilon must be finite and >= 0", c.epsilon);
-    pair_detail::require(c.sigma > 0.0 && std::isfinite(c.sigma), "sigma must be finite and > 0", c.sigma);
+    require(c.epsilon, kEnergy, "epsilon");
+    require(c.sigma, kLength, "sigma");
   }
   static double cutoff(const Coeffs& c) { return kMinimumOverSigma * c.sigma; }
   static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, cutoff(c)); }
@@ -120,8 +114,8 @@ struct SoftCosine {
   static constexpr std::string_view kStyle = "soft";
 
   static void validate(const Coeffs& c) {
-    pair_detail::require(c.A >= 0.0 && std::isfinite(c.A), "prefactor A must be finite and >= 0", c.A);
-    pair_detail::require(c.rc > 0.0 && std::isfinite(c.rc), "cutoff rc must be finite and > 0", c.rc);
+    require(c.A, kEnergy, "prefactor A");
+    require(c.rc, kLength, "cutoff rc");
   }
   static double cutoff(const Coeffs& c) { return c.rc; }
   static Params params(const Coeffs& c) { return {c.rc * c.rc, c.A, std::numbers::pi / c.rc}; }

@@ -1,128 +1,67 @@
 #include "forcefields/pair_term.hpp"
 
-#include <algorithm>
 #include <sstream>
 #include <stdexcept>
 
-namespace stiffmd {
-namespace {
+namespace stiffmd::pair_detail {
 
-[[noreturn]] void fail(const std::string& name, std::string_view style, const std::string& what) {
+void fail(const std::string& name, std::string_view style, const std::string& what) {
   throw std::invalid_argument("pair term '" + name + "' (" + std::string(style) + "): " + what);
 }
 
-// Checks every input of the constructor; returns the largest cutoff over type pairs, which
-// sets the list radius.
-template <class Kernel>
-double validated_cutoff(const std::string& name, const std::vector<int>& types,
-                        const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights weights, const Box& box,
-                        double skin) {
-  const int ntypes = coeffs.num_types();
-  if (ntypes < 1) fail(name, Kernel::kStyle, "no particle types given pair coefficients");
-  double rc = 0.0;
-  for (int a = 0; a < ntypes; ++a)
-    for (int b = a; b < ntypes; ++b) {
-      std::ostringstream where;
-      where << "types (" << a << ", " << b << "): ";
-      if (!coeffs.is_set(a, b)) fail(name, Kernel::kStyle, where.str() + "pair coefficients not given");
-      try {
-        Kernel::validate(coeffs(a, b));
-      } catch (const std::invalid_argument& e) {
-        fail(name, Kernel::kStyle, where.str() + e.what());
-      }
-      rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
-    }
+void check_pair_inputs(const std::string& name, std::string_view style, const std::vector<int>& types, int ntypes,
+                       SpecialWeights weights, const Box& box, double rc, double skin) {
   for (std::size_t i = 0; i < types.size(); ++i)
     if (types[i] < 0 || types[i] >= ntypes) {
       std::ostringstream s;
       s << "particle " << i << " has type " << types[i] << ", outside 0 … " << ntypes - 1
         << " (the types given pair coefficients)";
-      fail(name, Kernel::kStyle, s.str());
+      fail(name, style, s.str());
     }
   for (const auto& [what, w] : {std::pair{"w12", weights.w12}, std::pair{"w13", weights.w13}})
     if (!(w >= 0.0 && w <= 1.0)) {
       std::ostringstream s;
       s << "special-bond weight " << what << " must be in [0, 1] (got " << w << ")";
-      fail(name, Kernel::kStyle, s.str());
+      fail(name, style, s.str());
     }
   if (!(skin >= 0.0) || !std::isfinite(skin)) {
     std::ostringstream s;
     s << "neighbour skin must be finite and >= 0 (got " << skin << ")";
-    fail(name, Kernel::kStyle, s.str());
+    fail(name, style, s.str());
   }
   try {
     check_box_for_cutoff(box, rc, skin);
   } catch (const std::invalid_argument& e) {
-    fail(name, Kernel::kStyle, e.what());
+    fail(name, style, e.what());
   }
-  return rc;
 }
 
-}  // namespace
-
-template <class Kernel>
-PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types, TypePairMatrix<Coeffs> coeffs,
-                           const std::vector<Bond>& bonds, SpecialWeights weights, const Box& box, double skin)
-    : ForceTerm(std::move(name), level),
-      types_(std::move(types)),
-      coeffs_(std::move(coeffs)),
-      cutoff_(validated_cutoff<Kernel>(this->name(), types_, coeffs_, weights, box, skin)),
-      params_(coeffs_.transform([](const Coeffs& c) { return Kernel::params(c); })),
-      weights_(weights),
-      list_(cutoff_, skin) {
-  const int n = static_cast<int>(types_.size());
-  std::vector<SpecialPair> special;
+std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_view style, int n,
+                                          const std::vector<Bond>& bonds, SpecialWeights weights) {
   try {
-    special = special_pairs(n, bonds, weights);
+    return special_pairs(n, bonds, weights);
   } catch (const std::invalid_argument& e) {
-    fail(this->name(), Kernel::kStyle, e.what());
+    fail(name, style, e.what());
   }
-  for (const SpecialPair& sp : special) {
-    if (sp.weight > 0.0)
-      scaled_.push_back(sp);
-    else
-      ++excluded_;
-  }
-  list_.set_exclusions(n, special);  // every pair with w ≠ 1; the scaled ones go through scaled_
 }
 
-template <class Kernel>
-void PairTerm<Kernel>::check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const {
-  if (x.cols() != static_cast<Eigen::Index>(types_.size()) || (f && f->cols() != x.cols())) {
+void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x,
+                 const Eigen::Matrix3Xd* f, std::size_t num_types) {
+  if (x.cols() != static_cast<Eigen::Index>(num_types) || (f && f->cols() != x.cols())) {
     std::ostringstream s;
     s << "positions of " << x.cols() << " particles" << (f ? ", forces of " + std::to_string(f->cols()) : "")
-      << ", but types were given for " << types_.size();
-    fail(name(), Kernel::kStyle, s.str());
+      << ", but types were given for " << num_types;
+    fail(name, style, s.str());
   }
 }
 
-template <class Kernel>
-double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  check_positions(x, &f);
-  list_.update(x, box);
-  return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_)
-      .energy;
-}
-
-template <class Kernel>
-double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  check_positions(x, nullptr);
-  list_.update(x, box);
-  return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_)
-      .virial;
-}
-
-template <class Kernel>
-std::string PairTerm<Kernel>::describe() const {
+std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                           SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
   std::ostringstream s;
-  s << Kernel::kStyle << " pairs, " << coeffs_.num_types() << " particle type(s), cutoff " << cutoff_ << ", skin "
-    << list_.skin() << ", special bonds w12 = " << weights_.w12 << ", w13 = " << weights_.w13 << " (" << excluded_
-    << " pairs excluded, " << scaled_.size() << " scaled), " << list_.rebuilds() << " neighbour-list rebuilds so far";
+  s << style << " pairs, " << num_types << " particle type(s), cutoff " << cutoff << ", skin " << list.skin()
+    << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13 << " (" << excluded << " pairs excluded, "
+    << scaled << " scaled), " << list.rebuilds() << " neighbour-list rebuilds so far";
   return s.str();
 }
 
-template class PairTerm<LennardJones>;
-template class PairTerm<WeeksChandlerAndersen>;
-template class PairTerm<SoftCosine>;
-
-}  // namespace stiffmd
+}  // namespace stiffmd::pair_detail

@@ -1,10 +1,12 @@
-// Short-range pair styles as force terms: `lj`, `wca`, `soft` (pair_potentials.hpp), each a
-// PairTerm over its kernel. Energy E = Σ_{i<j} w_ij E_ab(|x_i − x_j|) with a, b the particle
+// Short-range pair styles as force terms: PairTerm over a kernel of pair_potentials.hpp (`lj`,
+// `wca`, `soft`, …). Energy E = Σ_{i<j} w_ij E_ab(|x_i − x_j|) with a, b the particle
 // types, w_ij the special-bond weight (1 unless i, j are 1-2 or 1-3 bonded neighbours), minimum
 // image on periodic axes. Pairs are found through a Verlet list with a skin (neighbor_list.hpp).
 #pragma once
 
+#include <algorithm>
 #include <span>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -64,12 +66,98 @@ class PairTerm final : public ForceTerm {
   mutable PairScratch scratch_;  // per-thread force buffers of the pair loop
 };
 
-extern template class PairTerm<LennardJones>;
-extern template class PairTerm<WeeksChandlerAndersen>;
-extern template class PairTerm<SoftCosine>;
-
 using LennardJonesPair = PairTerm<LennardJones>;
 using WcaPair = PairTerm<WeeksChandlerAndersen>;
 using SoftPair = PairTerm<SoftCosine>;
+
+// ---------------------------------------------------------------------------------------
+// The members, in the header so that a new kernel needs no explicit instantiation. What does
+// not depend on the kernel is in pair_term.cpp.
+
+namespace pair_detail {
+[[noreturn]] void fail(const std::string& name, std::string_view style, const std::string& what);
+// The checks that do not depend on the kernel: particle types in 0 … ntypes − 1, weights in
+// [0, 1], skin ≥ 0, a box of at least 2 × (rc + skin) on periodic axes.
+void check_pair_inputs(const std::string& name, std::string_view style, const std::vector<int>& types, int ntypes,
+                       SpecialWeights weights, const Box& box, double rc, double skin);
+std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_view style, int n,
+                                          const std::vector<Bond>& bonds, SpecialWeights weights);
+void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x,
+                 const Eigen::Matrix3Xd* f, std::size_t num_types);
+std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                           SpecialWeights weights, std::size_t excluded, std::size_t scaled);
+
+// Checks every input of the constructor; returns the largest cutoff over type pairs, which
+// sets the list radius.
+template <class Kernel>
+double validated_cutoff(const std::string& name, const std::vector<int>& types,
+                        const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights weights, const Box& box,
+                        double skin) {
+  const int ntypes = coeffs.num_types();
+  if (ntypes < 1) fail(name, Kernel::kStyle, "no particle types given pair coefficients");
+  double rc = 0.0;
+  for (int a = 0; a < ntypes; ++a)
+    for (int b = a; b < ntypes; ++b) {
+      const std::string where = "types (" + std::to_string(a) + ", " + std::to_string(b) + "): ";
+      if (!coeffs.is_set(a, b)) fail(name, Kernel::kStyle, where + "pair coefficients not given");
+      try {
+        Kernel::validate(coeffs(a, b));
+      } catch (const std::invalid_argument& e) {
+        fail(name, Kernel::kStyle, where + e.what());
+      }
+      rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
+    }
+  check_pair_inputs(name, Kernel::kStyle, types, ntypes, weights, box, rc, skin);
+  return rc;
+}
+}  // namespace pair_detail
+
+template <class Kernel>
+PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types, TypePairMatrix<Coeffs> coeffs,
+                           const std::vector<Bond>& bonds, SpecialWeights weights, const Box& box, double skin)
+    : ForceTerm(std::move(name), level),
+      types_(std::move(types)),
+      coeffs_(std::move(coeffs)),
+      cutoff_(pair_detail::validated_cutoff<Kernel>(this->name(), types_, coeffs_, weights, box, skin)),
+      params_(coeffs_.transform([](const Coeffs& c) { return Kernel::params(c); })),
+      weights_(weights),
+      list_(cutoff_, skin) {
+  const int n = static_cast<int>(types_.size());
+  const std::vector<SpecialPair> special = pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
+  for (const SpecialPair& sp : special) {
+    if (sp.weight > 0.0)
+      scaled_.push_back(sp);
+    else
+      ++excluded_;
+  }
+  list_.set_exclusions(n, special);  // every pair with w ≠ 1; the scaled ones go through scaled_
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const {
+  pair_detail::check_sizes(name(), Kernel::kStyle, x, f, types_.size());
+}
+
+template <class Kernel>
+double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+  check_positions(x, &f);
+  list_.update(x, box);
+  return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_)
+      .energy;
+}
+
+template <class Kernel>
+double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
+  check_positions(x, nullptr);
+  list_.update(x, box);
+  return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_)
+      .virial;
+}
+
+template <class Kernel>
+std::string PairTerm<Kernel>::describe() const {
+  return pair_detail::describe_pairs(Kernel::kStyle, coeffs_.num_types(), cutoff_, list_, weights_, excluded_,
+                                     scaled_.size());
+}
 
 }  // namespace stiffmd

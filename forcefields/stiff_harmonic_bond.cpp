@@ -3,17 +3,19 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "forcefields/coefficients.hpp"
+
 namespace stiffmd {
 
 StiffHarmonicBond::StiffHarmonicBond(std::string name, Level level, StiffBonds bonds)
     : ForceTerm(std::move(name), level), bonds_(std::move(bonds)) {
-  if (!(bonds_.epsilon > 0.0)) throw std::invalid_argument("epsilon must be > 0");
+  require(bonds_.epsilon, kPositive, "epsilon");
   const double inv_eps2 = 1.0 / (bonds_.epsilon * bonds_.epsilon);
   instances_.reserve(bonds_.bonds.size());
   for (const StiffBond& b : bonds_.bonds) {
     if (b.i == b.j) throw std::invalid_argument("a bond joins a particle to itself");
-    if (!(b.length > 0.0)) throw std::invalid_argument("bond length must be > 0");
-    if (!(b.alpha > 0.0)) throw std::invalid_argument("bond alpha must be > 0");
+    require(b.length, kLength, "bond length");
+    require(b.alpha, kPositive, "bond alpha");
     instances_.push_back({b.i, b.j, {b.length, b.alpha * b.alpha * inv_eps2}});
   }
 }

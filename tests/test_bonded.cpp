@@ -13,7 +13,7 @@
 #include "engine/errors.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/external_terms.hpp"
-#include "forcefields/fene_bond.hpp"
+#include "forcefields/bond_term.hpp"
 
 namespace stiffmd {
 namespace {

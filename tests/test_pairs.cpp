@@ -12,6 +12,7 @@
 #include <set>
 #include <utility>
 
+#include "force_term_checks.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/pair_term.hpp"
 
@@ -424,6 +425,50 @@ TYPED_TEST(PairStyle, VirialIsMinusDerivativeOfEnergyUnderUniformScaling) {
   const double w = term.virial(x, box);
   ASSERT_GT(std::abs(w), 0.1);
   EXPECT_NEAR(w, w_fd, 1e-6 * std::max(1.0, std::abs(w)));
+}
+
+// The kernel alone: fpair·r = −dE/dr by central differences, for every type pair, from the
+// case's closest distance to the cutoff.
+TYPED_TEST(PairStyle, KernelForceIsMinusDerivativeOfEnergy) {
+  using Kernel = typename TestFixture::Kernel;
+  const auto coeffs = TypeParam::coeffs();
+  const double h = 1e-6;
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) {
+      const auto p = Kernel::params(coeffs(a, b));
+      const double rc = Kernel::cutoff(coeffs(a, b));
+      for (double r = std::max(TypeParam::kMinDistance, 0.01); r + h < rc; r += 0.0137) {
+        const double fd = -(kernel_energy<Kernel>(r + h, p) - kernel_energy<Kernel>(r - h, p)) / (2 * h);
+        EXPECT_NEAR(kernel_force<Kernel>(r, p), fd, 1e-6 * std::max(1.0, std::abs(fd)))
+            << "types (" << a << ", " << b << "), r = " << r;
+      }
+    }
+}
+
+// Every pair style is cut and shifted: E → 0 as r → rc from below, so that a pair crossing
+// the cutoff does not change the energy.
+TYPED_TEST(PairStyle, EnergyVanishesAtTheCutoff) {
+  using Kernel = typename TestFixture::Kernel;
+  const auto coeffs = TypeParam::coeffs();
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) {
+      const auto p = Kernel::params(coeffs(a, b));
+      const double rc = Kernel::cutoff(coeffs(a, b));
+      EXPECT_NEAR(kernel_energy<Kernel>(rc, p), 0.0, 1e-14) << "types (" << a << ", " << b << ")";
+      EXPECT_NEAR(kernel_energy<Kernel>(rc * (1 - 1e-9), p), 0.0, 1e-7) << "types (" << a << ", " << b << ")";
+    }
+}
+
+// In open space the virial's definition Σ r_ij · f_ij is Σ_i x_i · f_i (Σ f = 0).
+TYPED_TEST(PairStyle, OpenSpaceVirialIsSumOfPositionDotForce) {
+  using Term = typename TestFixture::Term;
+  const int n = 40;
+  Box sampling = periodic_box(Eigen::Vector3d::Constant(4.0), Eigen::Vector3d::Zero(), Eigen::Vector3i::Zero());
+  const Eigen::Matrix3Xd x = random_in_box(n, sampling, 16, TypeParam::kMinDistance);
+  const Term term("pairs", Level::slow, TestFixture::alternating_types(n), TypeParam::coeffs(), {}, {}, Box{});
+  const double w = term.virial(x, Box{});
+  ASSERT_GT(std::abs(w), 0.1);
+  EXPECT_NEAR(w, test::position_virial(term, x), 1e-12 * std::max(1.0, std::abs(w)));
 }
 
 TYPED_TEST(PairStyle, UnwrappedPositionsGiveTheSameForces) {

@@ -9,7 +9,7 @@
 #include <random>
 
 #include "engine/errors.hpp"
-#include "forcefields/fene_bond.hpp"
+#include "forcefields/bond_term.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/parallel.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"

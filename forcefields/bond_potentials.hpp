@@ -1,0 +1,94 @@
+// Bond-potential kernels for BondTerm (bond_term.hpp), as pair_potentials.hpp is for PairTerm:
+// a kernel is a small value type, the loop over bonds (bond_loop.hpp) is written once. Each
+// kernel supplies
+//   Coeffs                  the per-bond-type coefficients a user gives (with units);
+//   Params                  constants derived from them for the inner loop;
+//   kStyle                  the style name (as in a deck);
+//   validate(c)             throws std::invalid_argument naming the bad coefficient
+//                           (coefficients.hpp);
+//   params(c)               the derived constants;
+//   eval(r, p, e, dE_dr)    the energy and its derivative at bond length r > 0. A kernel defined
+//                           only on part of r > 0 (FENE) throws NumericalError outside it; the
+//                           term then names the bond;
+//   describe(s, c)          the coefficients, for `stiffmd check`.
+#pragma once
+
+#include <cmath>
+#include <ostream>
+#include <sstream>
+#include <string_view>
+
+#include "engine/errors.hpp"
+#include "forcefields/coefficients.hpp"
+
+namespace stiffmd {
+
+// `fene` (LAMMPS bond_style fene: same K, R0, epsilon, sigma, no factor differences):
+//   E(r) = −½ K R₀² ln(1 − (r/R₀)²)                        (finite extensibility, r < R₀)
+//        + 4ε[(σ/r)¹² − (σ/r)⁶] + ε   for r < 2^{1/6} σ     (WCA repulsion; ε = 0 disables it)
+// A bond with r ≥ R₀ has no energy: a numerical failure (NumericalError naming the bond), where
+// LAMMPS warns "FENE bond too long" and clamps the log argument — a silent change of the
+// potential that we prefer to refuse. So is r = 0 (the force direction is undefined).
+struct Fene {
+  struct Coeffs {
+    double K = 0.0;        // stiffness, energy/length²
+    double R0 = 0.0;       // maximum extension, length
+    double epsilon = 0.0;  // WCA core depth, energy (0: no core)
+    double sigma = 1.0;    // WCA core diameter, length
+  };
+  // Precomputed so that the kernel does no divisions by parameters.
+  struct Params {
+    double K;
+    double R0;
+    double inv_R0_sq;     // 1/R₀²
+    double half_K_R0_sq;  // ½ K R₀²
+    double epsilon;
+    double sigma_sq;    // σ²
+    double wca_cut_sq;  // (2^{1/6} σ)², 0 when ε = 0
+  };
+  static constexpr std::string_view kStyle = "fene";
+
+  static void validate(const Coeffs& c) {
+    require(c.K, kStiffness, "K");
+    require(c.R0, kLength, "R0");
+    require(c.epsilon, kEnergy, "epsilon");
+    if (c.epsilon > 0.0) require(c.sigma, kLength, "sigma (with epsilon > 0)");
+  }
+  static Params params(const Coeffs& c) {
+    // WCA cutoff r_c = 2^{1/6} σ, where 4ε[(σ/r)¹² − (σ/r)⁶] has its minimum −ε: the +ε shift
+    // makes the core purely repulsive and continuous (with its derivative) at r_c.
+    const double wca_cut_sq = c.epsilon > 0.0 ? std::cbrt(2.0) * c.sigma * c.sigma : 0.0;
+    return {c.K, c.R0, 1.0 / (c.R0 * c.R0), 0.5 * c.K * c.R0 * c.R0, c.epsilon, c.sigma * c.sigma, wca_cut_sq};
+  }
+  static void eval(double r, const Params& p, double& e, double& de_dr) {
+    const double r_sq = r * r;
+    const double stretch = r_sq * p.inv_R0_sq;  // (r/R₀)²
+    if (!(r > 0.0 && stretch < 1.0)) out_of_range(r, p.R0);
+    // log1p keeps ln(1 − (r/R₀)²) accurate for short bonds, where it is ≈ −(r/R₀)².
+    e = -p.half_K_R0_sq * std::log1p(-stretch);
+    de_dr = p.K * r / (1.0 - stretch);
+    if (r_sq < p.wca_cut_sq) {
+      const double s2 = p.sigma_sq / r_sq;
+      const double s6 = s2 * s2 * s2;  // (σ/r)⁶
+      e += 4.0 * p.epsilon * (s6 * s6 - s6) + p.epsilon;
+      de_dr -= 24.0 * p.epsilon * (2.0 * s6 * s6 - s6) / r;
+    }
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    s << "K = " << c.K << ", R0 = " << c.R0 << ", epsilon = " << c.epsilon << ", sigma = " << c.sigma;
+  }
+
+  [[noreturn]] static void out_of_range(double r, double R0) {
+    std::ostringstream m;
+    m.precision(10);
+    if (r > 0.0)
+      m << "stretched to r = " << r << " >= R0 = " << R0 << " (FENE is defined only for r < R0)";
+    else if (r == 0.0)
+      m << "the particles coincide (r = 0, the force direction is undefined)";
+    else
+      m << "a non-finite length r = " << r;
+    throw NumericalError(m.str());
+  }
+};
+
+}  // namespace stiffmd

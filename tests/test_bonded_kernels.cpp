@@ -1,0 +1,279 @@
+// Typed suites for the bond kernels (BondTerm, bond_potentials.hpp) and the angle kernels
+// (AngleTerm, angle_terms.hpp): every kernel gets the same checks — the kernel's derivative
+// against finite differences of its energy, the term's forces against −∇E in open and periodic
+// boxes, Newton's third law and zero torque, the virial against Σ r·f — and a new kernel joins
+// by one case line (its example coefficients) and one entry in the type list. Hand-computed
+// values per style are in test_bonded.cpp.
+#include <gtest/gtest.h>
+
+#include <numbers>
+
+#include "engine/errors.hpp"
+#include "force_term_checks.hpp"
+#include "forcefields/angle_terms.hpp"
+#include "forcefields/bond_term.hpp"
+
+namespace stiffmd {
+namespace {
+
+using Eigen::Matrix3Xd;
+using Eigen::Vector3d;
+using test::dilation_virial;
+using test::energy_of;
+using test::fd_error;
+using test::forces_of;
+using test::position_virial;
+using test::random_walk;
+using test::wrapped;
+constexpr double kPi = std::numbers::pi;
+
+const Box kCell = test::periodic_box(Vector3d(3.0, 3.5, 4.0), Vector3d(-1.5, -1.75, -2.0));
+
+// Counts coordinates that moved by a whole box length, so a test can assert it really straddles.
+int straddling(const Matrix3Xd& x, const Matrix3Xd& xw) {
+  return ((x - xw).cwiseAbs().array() > 1.0).count();
+}
+
+Vector3d net(const Matrix3Xd& f) {
+  return f.rowwise().sum();
+}
+Vector3d torque(const Matrix3Xd& x, const Matrix3Xd& f) {
+  Vector3d t = Vector3d::Zero();
+  for (int i = 0; i < x.cols(); ++i) t += Vector3d(x.col(i)).cross(Vector3d(f.col(i)));
+  return t;
+}
+
+// =========================================================================================
+// Bonds. A case: the kernel, two bond types' example coefficients and a range of bond lengths
+// [kMin, kMax] inside the kernel's domain where the forces are not small (kMax < 1.5, half the
+// periodic test cell, so that every bond is its own minimum image).
+
+template <class K, double kMinLength, double kMaxLength>
+struct BondCase {
+  using Kernel = K;
+  static constexpr double kMin = kMinLength, kMax = kMaxLength;
+};
+struct FeneCase : BondCase<Fene, 0.8, 1.35> {
+  static std::vector<Fene::Coeffs> types() { return {{30.0, 1.5, 1.0, 1.0}, {20.0, 1.6, 0.5, 0.9}}; }
+};
+using BondKernels = ::testing::Types<FeneCase>;
+
+template <class Case>
+class BondKernel : public ::testing::Test {
+ protected:
+  using Kernel = typename Case::Kernel;
+  using Term = BondTerm<Kernel>;
+  // A chain of n beads, bond types alternating, bond lengths in the case's range.
+  static std::vector<Bond> chain(int n) {
+    std::vector<Bond> b;
+    for (int i = 0; i + 1 < n; ++i) b.push_back({i, i + 1, i % 2});
+    return b;
+  }
+  static Term term(int n) { return Term("bonds", Level::slow, chain(n), Case::types()); }
+  static Matrix3Xd configuration(int n, unsigned seed, const Vector3d& start = Vector3d::Zero()) {
+    return random_walk(n, Case::kMin, Case::kMax, seed, start);
+  }
+};
+TYPED_TEST_SUITE(BondKernel, BondKernels);
+
+TYPED_TEST(BondKernel, KernelDerivativeIsTheDerivativeOfItsEnergy) {
+  using Kernel = typename TestFixture::Kernel;
+  const double h = 1e-6;
+  for (const auto& c : TypeParam::types()) {
+    const auto p = Kernel::params(c);
+    auto energy = [&](double r) {
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, p, e, de_dr);
+      return e;
+    };
+    for (double r = TypeParam::kMin; r <= TypeParam::kMax; r += 0.0173) {
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, p, e, de_dr);
+      const double fd = (energy(r + h) - energy(r - h)) / (2 * h);
+      EXPECT_NEAR(de_dr, fd, 1e-6 * std::max(1.0, std::abs(fd))) << "r = " << r;
+    }
+  }
+}
+
+TYPED_TEST(BondKernel, ForceIsMinusGradientInOpenSpace) {
+  const auto term = TestFixture::term(10);
+  for (unsigned seed = 1; seed <= 3; ++seed) {
+    const Matrix3Xd x = TestFixture::configuration(10, seed);
+    ASSERT_GT(forces_of(term, x, Box{}).cwiseAbs().maxCoeff(), 0.1) << "the configuration must be strained";
+    EXPECT_LT(fd_error(term, x, Box{}), 1e-6) << "seed " << seed;
+  }
+}
+
+TYPED_TEST(BondKernel, PeriodicBoxUsesMinimumImage) {
+  const auto term = TestFixture::term(12);
+  for (unsigned seed = 11; seed <= 13; ++seed) {
+    const Matrix3Xd x = TestFixture::configuration(12, seed, Vector3d(1.2, 1.5, 1.8));
+    const Matrix3Xd xw = wrapped(x, kCell);
+    ASSERT_GT(straddling(x, xw), 0);
+    EXPECT_LT(fd_error(term, xw, kCell), 1e-6);
+    // Folding into the cell changes neither energy nor forces: each bond is its minimum image.
+    EXPECT_NEAR(energy_of(term, xw, kCell), energy_of(term, x, Box{}), 1e-10);
+    EXPECT_LT((forces_of(term, xw, kCell) - forces_of(term, x, Box{})).cwiseAbs().maxCoeff(), 1e-9);
+  }
+}
+
+TYPED_TEST(BondKernel, NewtonsThirdLawAndNoTorque) {
+  const auto term = TestFixture::term(10);
+  const Matrix3Xd x = TestFixture::configuration(10, 7);
+  const Matrix3Xd f = forces_of(term, x, Box{});
+  const double scale = f.cwiseAbs().maxCoeff();
+  ASSERT_GT(scale, 0.1);
+  EXPECT_LT(net(f).cwiseAbs().maxCoeff(), 1e-12 * scale);
+  EXPECT_LT(torque(x, f).cwiseAbs().maxCoeff(), 1e-12 * scale * x.cwiseAbs().maxCoeff());  // central forces
+}
+
+// W = Σ_b r_ij · f_ij: in open space it is Σ x_i · f_i; in a periodic box, with every bond by
+// minimum image, −dE(λx, λL)/dλ.
+TYPED_TEST(BondKernel, VirialIsSumOfSeparationDotForce) {
+  const auto term = TestFixture::term(12);
+  const Matrix3Xd x = TestFixture::configuration(12, 21, Vector3d(1.2, 1.5, 1.8));
+  const double w_open = term.virial(x, Box{});
+  ASSERT_GT(std::abs(w_open), 0.1);
+  EXPECT_NEAR(w_open, position_virial(term, x), 1e-12 * std::max(1.0, std::abs(w_open)));
+  const Matrix3Xd xw = wrapped(x, kCell);
+  const double w = term.virial(xw, kCell);
+  EXPECT_NEAR(w, w_open, 1e-10 * std::abs(w_open));
+  EXPECT_NEAR(w, dilation_virial(term, xw, kCell), 1e-6 * std::max(1.0, std::abs(w)));
+}
+
+TYPED_TEST(BondKernel, RejectsBadBondsNamingTheTerm) {
+  using Term = typename TestFixture::Term;
+  const auto types = TypeParam::types();
+  for (const Bond bad : {Bond{1, 1, 0}, Bond{-1, 1, 0}, Bond{0, 1, 2}, Bond{0, 1, -1}}) {
+    try {
+      Term("named", Level::slow, {bad}, types);
+      ADD_FAILURE() << "bond (" << bad.i << ", " << bad.j << ") of type " << bad.type << " accepted";
+    } catch (const std::invalid_argument& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(std::string(Term::Kernel::kStyle) + " 'named'"), std::string::npos) << msg;
+    }
+  }
+}
+
+TYPED_TEST(BondKernel, DescribeNamesStyleCountAndCoefficients) {
+  const auto term = TestFixture::term(5);
+  const std::string d = term.describe();
+  EXPECT_EQ(term.style(), TypeParam::Kernel::kStyle);
+  EXPECT_NE(d.find("4 " + std::string(TypeParam::Kernel::kStyle) + " bonds"), std::string::npos) << d;
+  EXPECT_NE(d.find("type 1: "), std::string::npos) << d;
+}
+
+// =========================================================================================
+// Angles. A case: the kernel and two angle types' example coefficients (the second with
+// θ₀ = π, the straight chain).
+
+template <class K>
+struct AngleCase {
+  using Kernel = K;
+  static std::vector<AngleCoeffs> types() { return {{2.0, 1.9}, {5.0, kPi}}; }
+};
+using AngleKernels = ::testing::Types<AngleCase<HarmonicAngleKernel>, AngleCase<CosineAngleKernel>>;
+
+template <class Case>
+class AngleKernel : public ::testing::Test {
+ protected:
+  using Kernel = typename Case::Kernel;
+  using Term = AngleTerm<Kernel>;
+  // The angles of a chain of n beads, types alternating, and (in open space) a branch at bead
+  // 3, whose long arm would not be its own minimum image in the periodic test cell.
+  static std::vector<Angle> angles(int n, bool branch) {
+    std::vector<Angle> a;
+    for (int i = 0; i + 2 < n; ++i) a.push_back({i, i + 1, i + 2, i % 2});
+    if (branch) a.push_back({n - 1, 3, 0, 1});
+    return a;
+  }
+  static Term term(int n, bool branch = true) { return Term("angles", Level::slow, angles(n, branch), Case::types()); }
+};
+TYPED_TEST_SUITE(AngleKernel, AngleKernels);
+
+TYPED_TEST(AngleKernel, KernelDerivativeIsTheDerivativeOfItsEnergy) {
+  using Kernel = typename TestFixture::Kernel;
+  const double h = 1e-6;
+  for (const AngleCoeffs& c : TypeParam::types())
+    for (double theta = 0.01; theta < kPi - 0.01; theta += 0.0371) {
+      double e = 0.0, de = 0.0, ep = 0.0, em = 0.0, unused = 0.0;
+      Kernel::eval(theta, c, e, de);
+      Kernel::eval(theta + h, c, ep, unused);
+      Kernel::eval(theta - h, c, em, unused);
+      EXPECT_NEAR(de, (ep - em) / (2 * h), 1e-7 * std::max(1.0, std::abs(de))) << "theta = " << theta;
+    }
+}
+
+TYPED_TEST(AngleKernel, ForceIsMinusGradientInOpenSpace) {
+  const auto term = TestFixture::term(9);
+  for (unsigned seed = 1; seed <= 3; ++seed) {
+    const Matrix3Xd x = random_walk(9, 0.7, 1.3, seed);
+    ASSERT_GT(forces_of(term, x, Box{}).cwiseAbs().maxCoeff(), 0.1);
+    EXPECT_LT(fd_error(term, x, Box{}), 1e-6) << "seed " << seed;
+  }
+}
+
+TYPED_TEST(AngleKernel, PeriodicBoxUsesMinimumImage) {
+  const auto term = TestFixture::term(12, false);
+  for (unsigned seed = 31; seed <= 33; ++seed) {
+    const Matrix3Xd x = random_walk(12, 0.7, 1.3, seed, Vector3d(1.2, 1.5, 1.8));
+    const Matrix3Xd xw = wrapped(x, kCell);
+    ASSERT_GT(straddling(x, xw), 0);
+    EXPECT_LT(fd_error(term, xw, kCell), 1e-6);
+    EXPECT_NEAR(energy_of(term, xw, kCell), energy_of(term, x, Box{}), 1e-10);
+    EXPECT_LT((forces_of(term, xw, kCell) - forces_of(term, x, Box{})).cwiseAbs().maxCoeff(), 1e-9);
+  }
+}
+
+TYPED_TEST(AngleKernel, NewtonsThirdLawAndNoTorque) {
+  const auto term = TestFixture::term(9);
+  const Matrix3Xd x = random_walk(9, 0.7, 1.3, 5);
+  const Matrix3Xd f = forces_of(term, x, Box{});
+  const double scale = f.cwiseAbs().maxCoeff();
+  ASSERT_GT(scale, 0.1);
+  EXPECT_LT(net(f).cwiseAbs().maxCoeff(), 1e-12 * scale);
+  // E depends on θ alone, which is rotation invariant: Σ x × f = 0 as well.
+  EXPECT_LT(torque(x, f).cwiseAbs().maxCoeff(), 1e-12 * scale * x.cwiseAbs().maxCoeff());
+}
+
+// θ is invariant under x → λx, so the angle virial vanishes (Euler, degree 0): in open space
+// Σ x_i · f_i, in a periodic box −dE(λx, λL)/dλ, and virial() must all be zero to round-off,
+// measured against the size of the individual terms |x_i||f_i|.
+TYPED_TEST(AngleKernel, VirialIsSumOfSeparationDotForce) {
+  const auto term = TestFixture::term(12, false);
+  const Matrix3Xd x = random_walk(12, 0.7, 1.3, 41, Vector3d(1.2, 1.5, 1.8));
+  const Matrix3Xd f = forces_of(term, x, Box{});
+  const double scale = (x.colwise().norm().array() * f.colwise().norm().array()).sum();
+  ASSERT_GT(scale, 1.0);
+  EXPECT_NEAR(term.virial(x, Box{}), position_virial(term, x), 1e-13 * scale);
+  EXPECT_NEAR(term.virial(x, Box{}), 0.0, 1e-13 * scale);
+  const Matrix3Xd xw = wrapped(x, kCell);
+  EXPECT_NEAR(term.virial(xw, kCell), 0.0, 1e-13 * scale);
+  EXPECT_NEAR(dilation_virial(term, xw, kCell), 0.0, 1e-7 * scale);
+}
+
+// A straight chain, θ = π exactly: finite forces, zero for the θ₀ = π type (a minimum).
+TYPED_TEST(AngleKernel, StraightChainGivesFiniteForces) {
+  using Term = typename TestFixture::Term;
+  Matrix3Xd x = Matrix3Xd::Zero(3, 3);
+  x(0, 0) = 1.1;
+  x(0, 2) = -0.9;
+  for (const AngleCoeffs& c : TypeParam::types()) {
+    const Term term("a", Level::slow, {{0, 1, 2, 0}}, {c});
+    const Matrix3Xd f = forces_of(term, x, Box{});
+    EXPECT_TRUE(f.allFinite());
+    EXPECT_EQ(f.cwiseAbs().maxCoeff(), 0.0);
+    EXPECT_LT(fd_error(term, x, Box{}), 1e-9);
+  }
+}
+
+TYPED_TEST(AngleKernel, RejectsBadAnglesAndCoefficients) {
+  using Term = typename TestFixture::Term;
+  for (const Angle bad : {Angle{0, 0, 2, 0}, Angle{2, 1, 2, 0}, Angle{-1, 1, 2, 0}, Angle{0, 1, 2, 2}})
+    EXPECT_THROW(Term("a", Level::slow, {bad}, TypeParam::types()), std::invalid_argument);
+  for (const AngleCoeffs bad : {AngleCoeffs{-1.0, 2.0}, AngleCoeffs{1.0, 3.2}, AngleCoeffs{NAN, 2.0}})
+    EXPECT_THROW(Term("a", Level::slow, {{0, 1, 2, 0}}, {bad}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace stiffmd

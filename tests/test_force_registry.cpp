@@ -1,0 +1,117 @@
+// The force-style readers (engine/force_registry.cpp): every style parameter's range is checked
+// by the kind of quantity it is (forcefields/coefficients.hpp), and a bad value is reported at
+// its deck key — its file:line, or the --set that supplied it.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+#include <string>
+#include <vector>
+
+#include "engine/deck.hpp"
+#include "engine/errors.hpp"
+#include "engine/scene.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Two bonded beads 1.0 apart in a periodic box of 10, then the deck's [forces] text.
+std::string deck_with(const std::string& forces) {
+  return "[box]\nperiodic = true\nlengths = [10, 10, 10]\n[types.bead]\nmass = 1.0\n"
+         "[[particles]]\ntype = \"bead\"\nposition = [1, 1, 1]\n"
+         "[[particles]]\ntype = \"bead\"\nposition = [2, 1, 1]\n"
+         "[[particles]]\ntype = \"bead\"\nposition = [2, 2, 1]\n"
+         "[[bonds]]\nparticles = [0, 1]\ntype = \"b\"\n[[bonds]]\nparticles = [1, 2]\ntype = \"b\"\n" +
+         forces + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+}
+
+// Loads `text` (written to a scratch file) with `overrides`; returns the InputError's message,
+// or "" when the deck loads.
+std::string load_error(const std::string& text, const std::vector<std::string>& overrides = {}) {
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_registry_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << text;
+  try {
+    const Deck deck(p.string(), overrides);
+    load_scene(deck);
+  } catch (const InputError& e) {
+    fs::remove(p);
+    return e.what();
+  }
+  fs::remove(p);
+  return "";
+}
+
+const std::string kFene = "[forces.chain]\nstyle = \"fene\"\nbond_types.b = { K = 30, R0 = 1.5 }\n";
+const std::string kWca = "[forces.pair]\nstyle = \"wca\"\n";
+
+TEST(ForceRegistry, GoodDeckLoads) {
+  EXPECT_EQ(load_error(deck_with(kFene + kWca)), "");
+}
+
+// One bad value per kind of quantity, through the readers of several styles: the message names
+// the deck key and the range of its kind.
+TEST(ForceRegistry, RangeChecksNameTheKeyAndTheKind) {
+  struct Case {
+    std::string forces, key, expected;
+  };
+  const std::vector<Case> cases = {
+      {"[forces.chain]\nstyle = \"fene\"\nbond_types.b = { K = 30, R0 = -1.5 }\n", "forces.chain.bond_types.b.R0",
+       "expected a length > 0, got -1.5"},
+      {"[forces.chain]\nstyle = \"fene\"\nbond_types.b = { K = -3, R0 = 1.5 }\n", "forces.chain.bond_types.b.K",
+       "expected a stiffness >= 0, got -3"},
+      {"[forces.chain]\nstyle = \"fene\"\nbond_types.b = { K = 3, R0 = 1.5, epsilon = -1 }\n",
+       "forces.chain.bond_types.b.epsilon", "expected an energy >= 0, got -1"},
+      {"[forces.s]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\nbond_types.b = { length = 1, alpha = 0 }\n",
+       "forces.s.bond_types.b.alpha", "expected a number > 0, got 0"},
+      {"[forces.s]\nstyle = \"stiff-harmonic\"\nepsilon = 0\nbond_types.b = { length = 1, alpha = 1 }\n",
+       "forces.s.epsilon", "expected a number > 0, got 0"},
+      {kFene + "[forces.p]\nstyle = \"lj\"\nsigma = 0\n", "forces.p.sigma", "expected a length > 0, got 0"},
+      {kFene + "[forces.p]\nstyle = \"lj\"\n[[forces.p.pair]]\ntypes = [\"bead\", \"bead\"]\ncutoff = -2\n",
+       "forces.p.pair[0].cutoff", "expected a length > 0, got -2"},
+      {kFene + "[forces.p]\nstyle = \"soft\"\nA = -1\n", "forces.p.A", "expected an energy >= 0, got -1"},
+      {kFene + "[forces.p]\nstyle = \"wca\"\nskin = -0.1\n", "forces.p.skin", "expected a length >= 0, got -0.1"},
+      {kFene + "[forces.t]\nstyle = \"harmonic-tether\"\nk = -1\ncenter = [0, 0, 0]\n", "forces.t.k",
+       "expected a stiffness >= 0, got -1"},
+  };
+  for (const Case& c : cases) {
+    const std::string err = load_error(deck_with(c.forces));
+    EXPECT_NE(err.find(".toml:"), std::string::npos) << err;  // file:line
+    EXPECT_NE(err.find(": " + c.key + ": " + c.expected), std::string::npos) << err;
+  }
+}
+
+TEST(ForceRegistry, AngleStiffnessIsCheckedAtItsKey) {
+  const std::string text =
+      "[types.bead]\nmass = 1.0\n[[build]]\nstyle = \"linear-chains\"\nchains = 1\nbeads = 4\n"
+      "bond_length = 1.0\nbond_type = \"b\"\nangle_type = \"a\"\nseed = 1\n" +
+      kFene + "[forces.bend]\nstyle = \"harmonic-angle\"\nangle_types.a = { k = -2 }\n" +
+      "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  const std::string err = load_error(text);
+  EXPECT_NE(err.find("forces.bend.angle_types.a.k: expected a stiffness >= 0, got -2"), std::string::npos) << err;
+}
+
+// A value from the command line is reported as the --set that gave it, not as the file's line.
+TEST(ForceRegistry, ValuesFromSetAreReportedAsTheSet) {
+  const std::string err = load_error(deck_with(kFene), {"forces.chain.bond_types.b.R0=-2"});
+  EXPECT_EQ(err.rfind("--set forces.chain.bond_types.b.R0: forces.chain.bond_types.b.R0: expected a length > 0", 0),
+            0u)
+      << err;
+  const std::string skin = load_error(deck_with(kFene + kWca), {"forces.pair.skin=-1"});
+  EXPECT_EQ(skin.rfind("--set forces.pair.skin: forces.pair.skin: expected a length >= 0, got -1", 0), 0u) << skin;
+}
+
+// A bond outside its kernel's domain at the start (FENE beyond R0) is the deck's fault: an
+// InputError at bond_types naming the bond, not a numerical failure at step 1.
+TEST(ForceRegistry, BondOutsideTheKernelsDomainAtTheStart) {
+  const std::string err = load_error(deck_with(kFene), {"forces.chain.bond_types.b.R0=0.9"});
+  EXPECT_NE(err.find("forces.chain.bond_types: fene 'chain': bond between particles 0 and 1: stretched to r = 1"),
+            std::string::npos)
+      << err;
+  EXPECT_NE(err.find("in the initial state"), std::string::npos) << err;
+}
+
+}  // namespace
+}  // namespace stiffmd
