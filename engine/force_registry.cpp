@@ -112,6 +112,11 @@ Fene::Coeffs fene_coeffs(DeckTable& d) {
           read(d, "sigma", kLength, 1.0)};
 }
 
+// morse: {D0, alpha, r0} (LAMMPS bond_style morse).
+Morse::Coeffs morse_coeffs(DeckTable& d) {
+  return {read(d, "D0", kEnergy), read(d, "alpha", kInverseLength), read(d, "r0", kLength)};
+}
+
 // harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
 template <class Term>
 std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -345,6 +350,7 @@ const std::vector<ForceStyle>& force_styles() {
   static const std::vector<ForceStyle> styles = {
       {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
       {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
+      {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
       {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
       {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
       {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},

@@ -91,4 +91,34 @@ struct Fene {
   }
 };
 
+// `morse` (LAMMPS bond_style morse: same D0, alpha, r0): E(r) = D₀ [1 − e^{−α(r − r₀)}]².
+// An anharmonic bond that dissociates: E → D₀ as r → ∞; near r₀ it is harmonic with the
+// curvature E″(r₀) = 2 D₀ α² (LAMMPS bond_style harmonic K = D₀ α²).
+struct Morse {
+  struct Coeffs {
+    double D0 = 0.0;     // well depth (dissociation energy), energy
+    double alpha = 0.0;  // width, inverse length
+    double r0 = 0.0;     // equilibrium length
+  };
+  using Params = Coeffs;
+  static constexpr std::string_view kStyle = "morse";
+
+  static void validate(const Coeffs& c) {
+    require(c.D0, kEnergy, "D0");
+    require(c.alpha, kInverseLength, "alpha");
+    require(c.r0, kLength, "r0");
+  }
+  static Params params(const Coeffs& c) { return c; }
+  static void eval(double r, const Params& p, double& e, double& de_dr) {
+    // 1 − e^{−α(r−r₀)} by expm1: no cancellation near r₀, where E is O((r − r₀)²).
+    const double one_minus = -std::expm1(-p.alpha * (r - p.r0));
+    const double decay = 1.0 - one_minus;  // e^{−α(r−r₀)}
+    e = p.D0 * one_minus * one_minus;
+    de_dr = 2.0 * p.D0 * p.alpha * decay * one_minus;
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    s << "D0 = " << c.D0 << ", alpha = " << c.alpha << ", r0 = " << c.r0;
+  }
+};
+
 }  // namespace stiffmd

@@ -3,7 +3,7 @@
 // against finite differences of its energy, the term's forces against −∇E in open and periodic
 // boxes, Newton's third law and zero torque, the virial against Σ r·f — and a new kernel joins
 // by one case line (its example coefficients) and one entry in the type list. Hand-computed
-// values per style are in test_bonded.cpp.
+// values per style are in test_bonded.cpp; the LAMMPS formulas for Morse are checked here.
 #include <gtest/gtest.h>
 
 #include <numbers>
@@ -56,7 +56,10 @@ struct BondCase {
 struct FeneCase : BondCase<Fene, 0.8, 1.35> {
   static std::vector<Fene::Coeffs> types() { return {{30.0, 1.5, 1.0, 1.0}, {20.0, 1.6, 0.5, 0.9}}; }
 };
-using BondKernels = ::testing::Types<FeneCase>;
+struct MorseCase : BondCase<Morse, 0.6, 1.45> {
+  static std::vector<Morse::Coeffs> types() { return {{2.5, 1.7, 1.1}, {0.8, 3.0, 0.9}}; }
+};
+using BondKernels = ::testing::Types<FeneCase, MorseCase>;
 
 template <class Case>
 class BondKernel : public ::testing::Test {
@@ -161,6 +164,56 @@ TYPED_TEST(BondKernel, DescribeNamesStyleCountAndCoefficients) {
   EXPECT_EQ(term.style(), TypeParam::Kernel::kStyle);
   EXPECT_NE(d.find("4 " + std::string(TypeParam::Kernel::kStyle) + " bonds"), std::string::npos) << d;
   EXPECT_NE(d.find("type 1: "), std::string::npos) << d;
+}
+
+// Morse against LAMMPS's bond_morse.cpp, term by term: dr = r − r0, ralpha = exp(−alpha dr),
+// E = d0 (1 − ralpha)², fbond = −2 d0 alpha (1 − ralpha) ralpha / r (the force on i is
+// fbond·(x_i − x_j), so −dE/dr = fbond·r) — and against 30-digit values (mpmath) at four lengths.
+TEST(MorseBond, MatchesLammpsFormula) {
+  const double d0 = 2.5, alpha = 1.7, r0 = 1.1;
+  const BondTerm<Morse> term("m", Level::slow, {{0, 1, 0}}, {{d0, alpha, r0}});
+  const struct {
+    double r, energy, force;  // force: −dE/dr (mpmath)
+  } golden[] = {{0.8, 1.1065309351813132499, 9.4171803366564986711},
+                {1.1, 0.0, 0.0},
+                {1.4, 0.39900945637136603171, -2.0391554284330949784},
+                {3.0, 2.3061244953339917947, -0.32293797616303874125}};
+  for (const auto& g : golden) {
+    Matrix3Xd x = Matrix3Xd::Zero(3, 2);
+    x(0, 0) = g.r;  // x_i − x_j = r x̂
+    Matrix3Xd f = Matrix3Xd::Zero(3, 2);
+    const double e = term.add_forces(x, Box{}, f);
+    const double ralpha = std::exp(-alpha * (g.r - r0));
+    const double fbond = -2.0 * d0 * alpha * (1 - ralpha) * ralpha / g.r;
+    EXPECT_NEAR(e, d0 * (1 - ralpha) * (1 - ralpha), 1e-14) << g.r;
+    EXPECT_NEAR(f(0, 0), fbond * g.r, 1e-13) << g.r;
+    EXPECT_NEAR(e, g.energy, 1e-14) << g.r;
+    EXPECT_NEAR(f(0, 0), g.force, 1e-13) << g.r;
+    EXPECT_EQ(f(0, 1), -f(0, 0));
+  }
+  // Dissociation: E → D0 far out, the curvature at r0 is 2 D0 α².
+  Matrix3Xd far = Matrix3Xd::Zero(3, 2);
+  far(0, 0) = 40.0;
+  EXPECT_NEAR(energy_of(term, far, Box{}), d0, 1e-12);
+  double e = 0.0, dm = 0.0, dp = 0.0;
+  Morse::eval(r0 - 1e-5, Morse::params({d0, alpha, r0}), e, dm);
+  Morse::eval(r0 + 1e-5, Morse::params({d0, alpha, r0}), e, dp);
+  EXPECT_NEAR((dp - dm) / 2e-5, 2 * d0 * alpha * alpha, 1e-6);
+}
+
+TEST(MorseBond, RejectsCoefficientsOutsideTheirRanges) {
+  const std::vector<Bond> one = {{0, 1, 0}};
+  for (const auto& [bad, key] : {std::pair{Morse::Coeffs{-1.0, 1.0, 1.0}, "D0"}, std::pair{Morse::Coeffs{1.0, -1.0, 1.0}, "alpha"},
+                                 std::pair{Morse::Coeffs{1.0, 1.0, 0.0}, "r0"}}) {
+    try {
+      BondTerm<Morse>("m", Level::slow, one, {bad});
+      ADD_FAILURE() << key;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string("bond type 0: ") + key + ": expected"), std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_NO_THROW(BondTerm<Morse>("m", Level::slow, one, {{0.0, 0.0, 1.0}}));  // D0 = 0, α = 0: no force
 }
 
 // =========================================================================================
