@@ -339,6 +339,19 @@ std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckT
       "cutoff");
 }
 
+// yukawa: A, kappa, cutoff (LAMMPS pair_style yukawa kappa cutoff, pair_coeff A; shifted).
+std::unique_ptr<ForceTerm> read_yukawa(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<Yukawa>(
+      name, level, t, ctx,
+      [](DeckTable& d, Yukawa::Coeffs c) {
+        c.A = d.number("A", c.A);  // any sign: A < 0 attracts
+        c.kappa = read(d, "kappa", kInverseLength, c.kappa);
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        return c;
+      },
+      "cutoff");
+}
+
 // gravity: g = [gx, gy, gz].
 std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   return std::make_unique<Gravity>(name, level, t.vector3("g"), ctx.scene.state.inv_mass);
@@ -356,6 +369,7 @@ const std::vector<ForceStyle>& force_styles() {
       {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
       {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
       {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
+      {"yukawa", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
       {"gravity", Level::slow, "uniform external field, F = m g", read_gravity},
       {"harmonic-tether", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
       {"lj93-wall", Level::slow, "flat LJ 9-3 wall", read_wall},

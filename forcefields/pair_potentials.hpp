@@ -130,4 +130,39 @@ struct SoftCosine {
   }
 };
 
+// `yukawa` (LAMMPS pair_style yukawa kappa cutoff with pair_modify shift yes): the screened
+// Coulomb (Debye–Hückel) interaction E = A e^{−κr}/r − A e^{−κ r_c}/r_c for r < r_c, shifted so
+// that E(r_c) = 0 like `lj`; the force is not shifted. A > 0 repels (like charges); κ = 0 is the
+// cut and shifted Coulomb interaction.
+struct Yukawa {
+  struct Coeffs {
+    double A = 1.0;      // prefactor, energy × length; any sign
+    double kappa = 1.0;  // inverse screening length
+    double rc = 2.5;     // cutoff, length
+  };
+  struct Params {
+    double rc2 = 0.0;
+    double A = 0.0;
+    double kappa = 0.0;
+    double shift = 0.0;  // A e^{−κ r_c}/r_c (LAMMPS's offset)
+  };
+  static constexpr std::string_view kStyle = "yukawa";
+
+  static void validate(const Coeffs& c) {
+    if (!std::isfinite(c.A)) throw std::invalid_argument("prefactor A must be finite");
+    require(c.kappa, kInverseLength, "kappa");
+    require(c.rc, kLength, "cutoff rc");
+  }
+  static double cutoff(const Coeffs& c) { return c.rc; }
+  static Params params(const Coeffs& c) { return {c.rc * c.rc, c.A, c.kappa, c.A * std::exp(-c.kappa * c.rc) / c.rc}; }
+
+  static void eval(double r2, const Params& p, double& e, double& fpair) {
+    const double r = std::sqrt(r2);
+    const double r_inv = 1.0 / r;
+    const double screened = p.A * std::exp(-p.kappa * r) * r_inv;  // A e^{−κr}/r
+    e = screened - p.shift;
+    fpair = screened * (p.kappa + r_inv) * r_inv;  // −(dE/dr)/r = A e^{−κr}(κ + 1/r)/r²
+  }
+};
+
 }  // namespace stiffmd

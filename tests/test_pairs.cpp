@@ -329,6 +329,18 @@ struct SoftCase {
   }
   static constexpr double kMinDistance = 0.0;  // soft cores may overlap
 };
+struct YukawaCase {
+  using Term = PairTerm<Yukawa>;
+  using Kernel = Yukawa;
+  static TypePairMatrix<Kernel::Coeffs> coeffs() {
+    TypePairMatrix<Kernel::Coeffs> c(2);
+    c.set(0, 0, {2.0, 1.0, 2.5});
+    c.set(0, 1, {-1.0, 1.5, 2.0});  // A < 0: attraction
+    c.set(1, 1, {3.0, 0.5, 2.2});
+    return c;
+  }
+  static constexpr double kMinDistance = 0.6;
+};
 
 template <class Case>
 class PairStyle : public ::testing::Test {
@@ -350,7 +362,7 @@ class PairStyle : public ::testing::Test {
   }
 };
 
-using Styles = ::testing::Types<LjCase, WcaCase, SoftCase>;
+using Styles = ::testing::Types<LjCase, WcaCase, SoftCase, YukawaCase>;
 TYPED_TEST_SUITE(PairStyle, Styles);
 
 TYPED_TEST(PairStyle, ForceIsMinusGradientOfEnergyInOpenSpace) {
@@ -487,6 +499,45 @@ TYPED_TEST(PairStyle, UnwrappedPositionsGiveTheSameForces) {
   const double e1 = term.add_forces(shifted, box, f1);
   EXPECT_NEAR(e0, e1, 1e-10 * std::max(1.0, std::abs(e0)));
   EXPECT_LT(max_abs(f0 - f1), 1e-9 * std::max(1.0, max_abs(f0)));
+}
+
+// Yukawa against LAMMPS's pair_yukawa.cpp, term by term: screening = exp(−kappa r),
+// forceyukawa = a screening (kappa + 1/r), fpair = forceyukawa / r², evdwl = a screening / r −
+// offset with offset = a exp(−kappa rc) / rc (pair_modify shift yes) — and against 30-digit
+// values (mpmath) at four distances.
+TEST(PairKernels, YukawaMatchesLammpsFormula) {
+  const double a = 3.0, kappa = 1.5, rc = 2.5;
+  const auto p = Yukawa::params({a, kappa, rc});
+  const struct {
+    double r, energy, force;  // force: −dE/dr (mpmath)
+  } golden[] = {{0.5, 2.8059780214188773129, 9.9196976075613088499},
+                {1.0, 0.64116918541807855692, 1.673476201113223717},
+                {2.0, 0.046459307524584984586, 0.14936120510359182894},
+                {2.49, 0.00054156168212284258272, 0.054695633140038318324}};
+  const double offset = a * std::exp(-kappa * rc) / rc;
+  for (const auto& g : golden) {
+    double e = 0.0, fpair = 0.0;
+    Yukawa::eval(g.r * g.r, p, e, fpair);
+    const double screening = std::exp(-kappa * g.r);
+    EXPECT_NEAR(e, a * screening / g.r - offset, 1e-14) << g.r;
+    EXPECT_NEAR(fpair, a * screening * (kappa + 1 / g.r) / (g.r * g.r), 1e-13) << g.r;
+    EXPECT_NEAR(e, g.energy, 1e-14) << g.r;
+    EXPECT_NEAR(fpair * g.r, g.force, 1e-13) << g.r;
+  }
+  // Through the term: two particles at r = 1 across a periodic face, 1-2 bonded pair excluded.
+  TypePairMatrix<Yukawa::Coeffs> c(1);
+  c.set(0, 0, {a, kappa, rc});
+  const Box box = periodic_box(Eigen::Vector3d::Constant(6.0));
+  Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Zero(3, 3), f = x;
+  x(0, 0) = 0.4;
+  x(0, 1) = 5.4;  // 1.0 from particle 0 by minimum image
+  x(1, 2) = 3.0;  // 3.0 from both: beyond the cutoff
+  const PairTerm<Yukawa> term("y", Level::slow, {0, 0, 0}, c, {}, {}, box);
+  EXPECT_NEAR(term.add_forces(x, box, f), golden[1].energy, 1e-14);
+  EXPECT_NEAR(f(0, 0), golden[1].force, 1e-13);
+  EXPECT_EQ(term.style(), "yukawa");
+  const PairTerm<Yukawa> bonded("y", Level::slow, {0, 0, 0}, c, {{0, 1, 0}}, {0.0, 1.0}, box);
+  EXPECT_EQ(bonded.add_forces(x, box, f), 0.0);
 }
 
 // ---------------------------------------------------------------------------------------
