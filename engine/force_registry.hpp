@@ -1,7 +1,7 @@
 // The one table of force-term styles a deck may name (style.md §6). Each row reads a
 // [forces.NAME] table into the term's validated parameters; the term itself (forcefields/)
-// knows nothing about decks. To add a force term: write forcefields/<term>.{hpp,cpp}, then
-// add one row to force_styles() in force_registry.cpp (see ARCHITECTURE.md).
+// knows nothing about decks. A bond or pair style is a kernel (forcefields/bond_potentials.hpp,
+// pair_potentials.hpp) plus one row in force_styles() (see ARCHITECTURE.md).
 #pragma once
 
 #include <memory>

@@ -5,9 +5,10 @@
 
 #include <filesystem>
 #include <fstream>
-#include <unistd.h>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "engine/deck.hpp"
 #include "engine/errors.hpp"
