@@ -76,6 +76,10 @@ bool parse_long(std::string_view s, long long& out);
 std::string quote(std::string_view s);
 // Whitespace-separated tokens of `s`.
 std::vector<std::string_view> split_ws(std::string_view s);
+// The same into `out` (cleared first), reusing its storage: the data reader splits every line.
+void split_ws_into(std::string_view s, std::vector<std::string_view>& out);
+// The whitespace split_ws splits on.
+bool is_space(char c);
 }  // namespace detail
 
 }  // namespace stiffmd
