@@ -113,12 +113,48 @@ double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const
 }
 
 template <class Kernel>
-std::string PairTerm<Kernel>::describe() const {
+std::string PairTerm<Kernel>::definition() const {
   std::ostringstream s;
   s << Kernel::kStyle << " pairs, " << coeffs_.num_types() << " particle type(s), cutoff " << cutoff_ << ", skin "
     << list_.skin() << ", special bonds w12 = " << weights_.w12 << ", w13 = " << weights_.w13 << " (" << excluded_
-    << " pairs excluded, " << scaled_.size() << " scaled), " << list_.rebuilds() << " neighbour-list rebuilds so far";
+    << " pairs excluded, " << scaled_.size() << " scaled)";
   return s.str();
+}
+
+template <class Kernel>
+std::string PairTerm<Kernel>::describe() const {
+  return definition() + ", " + std::to_string(list_.rebuilds()) + " neighbour-list rebuilds so far";
+}
+
+// Words: rebuilds, periodic x y z (0/1), origin (3), lengths (3), then x_at_build column-major.
+template <class Kernel>
+std::vector<double> PairTerm<Kernel>::save_state() const {
+  if (!list_.built()) return {};
+  const Box& b = list_.box_at_build();
+  const Eigen::Matrix3Xd& x = list_.positions_at_build();
+  std::vector<double> w = {static_cast<double>(list_.rebuilds())};
+  for (int a = 0; a < 3; ++a) w.push_back(b.periodic[a] ? 1.0 : 0.0);
+  for (int a = 0; a < 3; ++a) w.push_back(b.origin[a]);
+  for (int a = 0; a < 3; ++a) w.push_back(b.lengths[a]);
+  w.insert(w.end(), x.data(), x.data() + x.size());
+  return w;
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::load_state(std::span<const double> w) {
+  if (w.empty()) return;  // saved before the first build: the next evaluation builds
+  const std::size_t n = types_.size();
+  if (w.size() != 10 + 3 * n)
+    fail(name(), Kernel::kStyle,
+         "neighbour-list state of " + std::to_string(w.size()) + " words, expected " + std::to_string(10 + 3 * n));
+  Box b;
+  for (int a = 0; a < 3; ++a) {
+    b.periodic[a] = w[1 + a] != 0.0;
+    b.origin[a] = w[4 + a];
+    b.lengths[a] = w[7 + a];
+  }
+  const Eigen::Map<const Eigen::Matrix3Xd> x(w.data() + 10, 3, static_cast<Eigen::Index>(n));
+  list_.restore(x, b, static_cast<long>(w[0]));
 }
 
 template class PairTerm<LennardJones>;

@@ -35,7 +35,12 @@ class PairTerm final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
 
   std::string_view style() const override { return Kernel::kStyle; }
-  std::string describe() const override;
+  std::string describe() const override;  // definition() and the rebuilds so far
+  std::string definition() const override;
+  // The neighbour list's state (NeighborList::restore): empty before the first build, else the
+  // rebuild count, the box and the 3N positions of the last build.
+  std::vector<double> save_state() const override;
+  void load_state(std::span<const double> words) override;
 
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
