@@ -45,6 +45,9 @@ class Monitor {
   // The message of the first alert of the last check (for a stop).
   const std::string& last_alert() const { return last_alert_; }
   bool stops() const { return settings_.stop; }
+  // For checkpoints: the reference (first) sample and which alerts were logged already.
+  std::vector<double> save_state() const;
+  bool load_state(const std::vector<double>& w);  // false: not a state of this monitor
 
  private:
   MonitorSettings settings_;
