@@ -319,13 +319,17 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     if (state_csv && (state_due.due(s.t) || final)) write_state();
     if ((thermo_now || h5md_now) && alerts > 0 && monitor.stops()) {
       // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
-      write_checkpoint(checkpoint_path, last_good);
-      summary.checkpoint = checkpoint_path;
       std::ostringstream m;
       m.precision(10);
-      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), the last state within the "
-        << "thresholds (step " << last_good.state.step << ", t = " << last_good.state.t << ") is in "
-        << checkpoint_path;
+      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), ";
+      if (last_good.method.empty()) {  // the first sample alerted: there is no state to keep
+        m << "no sampled state was within the thresholds, no checkpoint written";
+      } else {
+        write_checkpoint(checkpoint_path, last_good);
+        summary.checkpoint = checkpoint_path;
+        m << "the last state within the thresholds (step " << last_good.state.step << ", t = " << last_good.state.t
+          << ") is in " << checkpoint_path;
+      }
       throw NumericalError(m.str());
     }
   };

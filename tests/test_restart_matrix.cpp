@@ -187,6 +187,27 @@ TEST(RestartMatrixExternalSignal, SigtermAtARandomStepContinuesBitForBit) {
   fs::remove_all(d);
 }
 
+// [monitor] on_alert = "stop" keeps the last sample within the thresholds as a whole checkpoint
+// (a snapshot of everything, not the state at the alert with the integrator's state of later):
+// continued with on_alert = "warn", the run is the uninterrupted "warn" run.
+TEST(RestartMatrixMonitorStop, TheLastGoodStateContinuesBitForBit) {
+  const fs::path d = test::scratch_dir("restart_monitor_stop");
+  const std::string args = " --no-progress --set integrator.method=rattle --set monitor.energy_error=2e-4";
+  auto r = cli("run " + melt() + " -o " + (d / "whole").string() + args);
+  ASSERT_EQ(r.code, 0) << r.err;
+  ASSERT_NE(r.err.find("warning: monitor: relative energy error"), std::string::npos) << r.err;
+  r = cli("run " + melt() + " -o " + (d / "parts").string() + args + " --set monitor.on_alert=\\\"stop\\\"");
+  ASSERT_EQ(r.code, 3) << r.err;
+  const std::string ck = (d / "parts" / "checkpoint.bin").string();
+  const Checkpoint c = read_checkpoint(ck);
+  EXPECT_GT(c.state.step, 0);
+  EXPECT_NE(r.err.find("(step " + std::to_string(c.state.step) + ","), std::string::npos) << r.err;
+  r = cli("run " + melt() + " -o " + (d / "parts").string() + args + " --restart " + ck);
+  ASSERT_EQ(r.code, 0) << r.err;
+  expect_same_outputs(d / "whole", d / "parts", "restart from the monitor's checkpoint");
+  fs::remove_all(d);
+}
+
 // ---- checkpoints that must be refused ----
 
 // Every file of a directory with its contents.
