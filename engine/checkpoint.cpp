@@ -325,6 +325,7 @@ Checkpoint read_checkpoint(const std::string& path) {
   if (terms > b.size()) r.bad("term count");
   for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
   if (!r.at_end()) r.bad("bytes after the last block");
+  if (c.run_state.size() < 4) r.bad("run statistics");
   if (n < 0 || x.size() != 3 * static_cast<size_t>(n) || v.size() != x.size() || im.size() != static_cast<size_t>(n))
     r.bad("array sizes disagree with the particle count");
   if (c.state.step < 0 || !std::isfinite(c.state.t) || !(c.h > 0.0) || c.state.t != static_cast<double>(c.state.step) * c.h)

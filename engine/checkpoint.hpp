@@ -39,7 +39,7 @@ struct Checkpoint {
   std::vector<std::vector<double>> force_term_states;  // ForceTerm::save_state(), in the field's order
   std::vector<double> thermo_state;                    // Thermo::save_state(): E(0), warnings given
   std::vector<double> monitor_state;                   // Monitor::save_state()
-  std::vector<double> run_state;                       // statistics for the summary (simulation.cpp)
+  std::vector<double> run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
 };
 
 // A hash of what defines the scene — particle count, inverse masses, particle types, topology,

@@ -142,9 +142,9 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   long rebuilds_in_run = 0;
   if (restarting) {
     if (!thermo.load_state(resumed.thermo_state)) refuse("thermo state does not fit this scene's observables");
-    if (!monitor.load_state(resumed.monitor_state)) refuse("monitor state does not fit this scene's [monitor]");
-    const std::vector<double>& r = resumed.run_state;
-    if (r.size() < 4) refuse("run statistics missing");
+    if (!monitor.load_state(resumed.monitor_state))  // [observables] actions changed with --set
+      log << "note: " << opt.restart << ": the monitor's reference is taken afresh (the actions observed changed)\n";
+    const std::vector<double>& r = resumed.run_state;  // read_checkpoint checked its size
     max_err = r[0];
     slow_before = static_cast<std::int64_t>(r[1]);
     fast_before = static_cast<std::int64_t>(r[2]);
