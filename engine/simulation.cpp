@@ -68,6 +68,13 @@ void restore(Scene& sc, Integrator& integrator, const Checkpoint& c, const std::
   log << "restart from " << path << " at step " << sc.state.step << " (t = " << sc.state.t << ")\n";
 }
 
+// Macro steps of size h to cover a time span, rounded as Scene::num_steps: to the nearest whole
+// step when span/h is an integer up to rounding, else up.
+std::int64_t steps_to(double span, double h) {
+  const double r = span / h, nearest = std::round(r);
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
+}
+
 // The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
 // LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
 ImportedSystem to_lammps(const Scene& sc) {
@@ -173,7 +180,14 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   // below if the uninterrupted run would have written one. So the files end up exactly as an
   // uninterrupted run's (without the interrupted run's off-grid final frame).
   const double tol = 1e-9 * sc.integrator.h;
-  const double cut = static_cast<double>(s.step - 1) * sc.integrator.h;
+  // Step k is at t_k = t0 + (k − k0) h. From the start, and on a restart whose checkpoint is at
+  // t = k h (the same h throughout), t0 = k0 = 0: t_k = k h exactly, the uninterrupted run's times.
+  // After a change of h the run continues from the checkpoint's time (k0 = its step) instead of
+  // jumping to k0 h.
+  const bool new_h = restarting && s.t != static_cast<double>(s.step) * sc.integrator.h;
+  const double t0 = new_h ? s.t : 0.0;
+  const std::int64_t k0 = new_h ? s.step : 0;
+  const double cut = new_h ? s.t - resumed.h : static_cast<double>(s.step - 1) * sc.integrator.h;
   auto open_output = [&](const std::string& name, auto truncate) {
     const fs::path p = dir / name;
     summary.outputs.push_back(p.string());
@@ -241,7 +255,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const int first_action = thermo.column("action_1");
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
-  const std::int64_t n = sc.num_steps();
+  const std::int64_t n = k0 + steps_to(sc.run.t_end - t0, sc.integrator.h);
   const double h = sc.integrator.h;
   sc.forces->reset_counters();
   // The list is built before the run (relaxation, first force); on restart its count comes from
@@ -348,7 +362,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.initial_energy = thermo.initial_energy();
 
   // Steps are numbered from the start of the run (k = step), so a restart continues the same
-  // sequence of times t_k = k h exactly.
+  // sequence of times t_k = k h exactly (t0 + (k − k0) h after a change of h).
   const std::int64_t first = s.step + 1;
   Progress progress(opt.progress, n - s.step);
   install_stop_handlers();
@@ -365,7 +379,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       throw NumericalError(m.str());
     }
     s.step = k;
-    s.t = static_cast<double>(k) * h;  // no accumulated round-off in t
+    s.t = new_h ? t0 + static_cast<double>(k - k0) * h : static_cast<double>(k) * h;  // no accumulated round-off
     check_finite(s);
     if (k == n) break;
     observe();

@@ -214,6 +214,34 @@ TEST(RestartMatrixMonitorStop, TheLastGoodStateContinuesBitForBit) {
   fs::remove_all(d);
 }
 
+// A restart with another h continues from the checkpoint's time (t = t_k + (j − k) h'), not
+// from k h' (which went back in time when h shrank); a second restart with h' goes on from there.
+TEST(RestartWithAnotherStep, ContinuesFromTheCheckpointsTime) {
+  const fs::path d = test::scratch_dir("restart_new_h");
+  const std::string out = " -o " + d.string() + " --no-progress --set integrator.method=rattle";
+  ASSERT_EQ(cli("run " + melt() + out + " --set run.t_end=0.3").code, 0);  // 60 steps of 0.005
+  const std::string ck = " --restart " + (d / "checkpoint.bin").string();
+  auto r = cli("run " + melt() + out + " --set run.t_end=0.45 --set integrator.h=0.0025" + ck);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("not bit-identical"), std::string::npos) << r.err;
+  r = cli("run " + melt() + out + " --set run.t_end=0.6 --set integrator.h=0.0025" + ck);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.find("not bit-identical"), std::string::npos) << "the same h as the checkpoint's:\n" << r.err;
+  EXPECT_NE(r.out.find("steps:         180 to t = 0.6"), std::string::npos) << r.out;  // 60 + 120
+  const test::CsvTable t = test::read_csv((d / "thermo.csv").string());
+  const size_t time = t.col("time"), step = t.col("step");
+  for (size_t k = 1; k < t.rows.size(); ++k) {
+    EXPECT_GT(t.rows[k][time], t.rows[k - 1][time]) << "row " << k;
+    EXPECT_GT(t.rows[k][step], t.rows[k - 1][step]) << "row " << k;
+  }
+  EXPECT_NEAR(t.rows.back()[time], 0.6, 1e-12);
+  EXPECT_EQ(t.rows.back()[step], 180.0);
+  const Checkpoint c = read_checkpoint((d / "checkpoint.bin").string());
+  EXPECT_EQ(c.state.step, 180);
+  EXPECT_NEAR(c.state.t, 0.6, 1e-12);
+  fs::remove_all(d);
+}
+
 // ---- checkpoints that must be refused ----
 
 // Every file of a directory with its contents.
