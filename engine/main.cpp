@@ -6,7 +6,9 @@
 #include <CLI/CLI.hpp>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 
+#include "engine/checkpoint.hpp"
 #include "engine/deck.hpp"
 #include "engine/errors.hpp"
 #include "engine/scene.hpp"
@@ -55,6 +57,10 @@ int main(int argc, char** argv) {
   try {
     const stiffmd::Deck deck(deck_path, overrides);
     stiffmd::Scene scene = stiffmd::load_scene(deck);
+    // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
+    // printed or written: a damaged or foreign one is one line and exit 2.
+    std::optional<stiffmd::Checkpoint> checkpoint;
+    if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(scene, restart);
     for (const auto& note : scene.notes) std::cerr << note << "\n";
     if (restart.empty()) stiffmd::prepare_scene(scene, std::cerr);  // a restart's state is the checkpoint's
     if (check->parsed()) {
@@ -67,7 +73,8 @@ int main(int argc, char** argv) {
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
-    const auto summary = stiffmd::run_simulation(scene, {out_dir, !no_progress, restart}, std::cerr);
+    const auto summary = stiffmd::run_simulation(
+        scene, {out_dir, !no_progress, restart, checkpoint ? &*checkpoint : nullptr}, std::cerr);
     if (summary.stopped_by_signal) {
       std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps
                 << "; outputs flushed, checkpoint " << summary.checkpoint << "; continue with: stiffmd run "

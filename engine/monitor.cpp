@@ -140,4 +140,23 @@ int Monitor::check(const std::vector<double>& row, double initial_energy, std::o
   return alerts;
 }
 
+// Words: have_reference, violation0, the warned flags, then actions0.
+std::vector<double> Monitor::save_state() const {
+  std::vector<double> w = {have_reference_ ? 1.0 : 0.0, violation0_};
+  for (const char c : warned_) w.push_back(c);
+  w.insert(w.end(), actions0_.begin(), actions0_.end());
+  return w;
+}
+
+bool Monitor::load_state(const std::vector<double>& w) {
+  const size_t fixed = 2 + warned_.size();
+  const bool have = w.size() > 0 && w[0] != 0.0;
+  if (w.size() < fixed || w.size() != fixed + (have ? col_actions_.size() : 0)) return false;
+  have_reference_ = have;
+  violation0_ = w[1];
+  for (size_t k = 0; k < warned_.size(); ++k) warned_[k] = w[2 + k] != 0.0;
+  actions0_.assign(w.begin() + static_cast<std::ptrdiff_t>(fixed), w.end());
+  return true;
+}
+
 }  // namespace stiffmd

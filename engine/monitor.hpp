@@ -39,12 +39,15 @@ class Monitor {
   Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon, bool effective);
 
   // Checks one thermo row (Thermo::sample's columns); returns the number of alerts. Logs each
-  // kind of alert the first time it occurs. The first row is the reference (t = 0, or the
-  // restart's first sample for the violation and actions).
+  // kind of alert the first time it occurs. The first row is the reference (t = 0; a restart
+  // takes it from the checkpoint, load_state).
   int check(const std::vector<double>& row, double initial_energy, std::ostream& log);
   // The message of the first alert of the last check (for a stop).
   const std::string& last_alert() const { return last_alert_; }
   bool stops() const { return settings_.stop; }
+  // For checkpoints: the reference (first) sample and which alerts were logged already.
+  std::vector<double> save_state() const;
+  bool load_state(const std::vector<double>& w);  // false: not a state of this monitor
 
  private:
   MonitorSettings settings_;

@@ -51,6 +51,15 @@ class Thermo {
   double initial_energy() const { return e0_; }
   // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
   void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }
+  // For checkpoints: E(0) and which validity warnings were given (each is said once per run).
+  std::vector<double> save_state() const {
+    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0};
+  }
+  bool load_state(const std::vector<double>& w) {  // false: not a Thermo state
+    if (w.size() != 4) return false;
+    have_e0_ = w[0] != 0.0, e0_ = w[1], warned_gap_ = w[2] != 0.0, warned_resonance_ = w[3] != 0.0;
+    return true;
+  }
   int column(const std::string& name) const;
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }

@@ -22,9 +22,10 @@ class Progress {
     draw(done, now);
   }
 
-  void finish() {
+  // The bar as it ends: `done` of the total steps (fewer when a signal stopped the run).
+  void finish(std::int64_t done) {
     if (!enabled_) return;
-    draw(total_, clock::now());
+    draw(done, clock::now());
     std::fputc('\n', stderr);
   }
 

@@ -56,28 +56,23 @@ void write_atomically(const fs::path& p, const std::string& text) {
   fs::rename(tmp, p);
 }
 
-// Restores a checkpoint into the scene's state; the deck supplies everything else.
-Checkpoint restore(Scene& sc, Integrator& integrator, const std::string& path, std::ostream& log) {
-  Checkpoint c = read_checkpoint(path);
-  if (c.state.size() != sc.state.size())
-    throw InputError(path + ": checkpoint holds " + std::to_string(c.state.size()) + " particles, the deck " +
-                     std::to_string(sc.state.size()));
-  if (c.state.inv_mass != sc.state.inv_mass)
-    throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
+// Restores a checkpoint (read and checked against the scene by read_checkpoint_for, which also
+// loaded the force terms' states) into the scene's state and the integrator; the deck supplies
+// everything else. With another method the integrator starts afresh from the checkpoint's state.
+void restore(Scene& sc, Integrator& integrator, const Checkpoint& c, const std::string& path, std::ostream& log) {
+  sc.state = c.state;
   if (c.method != sc.integrator.method || c.h != sc.integrator.h)
     log << "note: " << path << " was written by " << c.method << " with h = " << c.h << "; continuing with "
         << sc.integrator.method << ", h = " << sc.integrator.h << " (not bit-identical to an uninterrupted run)\n";
-  try {
-    integrator.load_state(c.integrator_state);
-  } catch (const std::invalid_argument& e) {
-    throw InputError(path + ": " + e.what());
-  }
-  sc.state = c.state;
-  if (sc.state.t >= sc.run.t_end * (1 - 1e-12))
-    throw InputError(path + ": checkpoint is at t = " + std::to_string(sc.state.t) + ", not before run.t_end = " +
-                     std::to_string(sc.run.t_end) + " (raise it with --set run.t_end=...)");
+  if (c.method != sc.integrator.method) integrator.prepare(sc.state, log);  // else: its state is loaded
   log << "restart from " << path << " at step " << sc.state.step << " (t = " << sc.state.t << ")\n";
-  return c;
+}
+
+// Macro steps of size h to cover a time span, rounded as Scene::num_steps: to the nearest whole
+// step when span/h is an integer up to rounding, else up.
+std::int64_t steps_to(double span, double h) {
+  const double r = span / h, nearest = std::round(r);
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
 }
 
 // The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
@@ -122,6 +117,48 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.t_end = sc.run.t_end;
   if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary.epsilon = sb->epsilon;
 
+  // A restart's checkpoint is read, checked and loaded first: a damaged or foreign one is refused
+  // before any output is touched.
+  const bool restarting = !opt.restart.empty();
+  Checkpoint resumed;
+  if (restarting) resumed = opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
+  auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };
+  std::unique_ptr<Integrator> integrator;
+  try {
+    integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  } catch (const std::invalid_argument& e) {
+    throw InputError(sc.deck_path + ": integrator.method: " + e.what());
+  }
+  if (restarting && resumed.method == sc.integrator.method) {
+    try {
+      integrator->load_state(resumed.integrator_state);
+    } catch (const std::invalid_argument& e) {
+      refuse(e.what());
+    }
+  }
+  ObservableSettings observables = sc.observables;
+  const MethodInfo& method = *find_method(sc.integrator.method);  // load_scene checked the name
+  if (method.rigid_constraints)
+    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  Thermo thermo(*sc.forces, sc.state.inv_mass, observables, &sc.topology);
+  Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
+  // Run statistics carried by checkpoints, so that a restarted run's summary is the whole run's:
+  // max |E − E(0)|, force evaluations and neighbour-list rebuilds so far, the initial actions.
+  double max_err = 0.0;
+  std::int64_t slow_before = 0, fast_before = 0;
+  long rebuilds_in_run = 0;
+  if (restarting) {
+    if (!thermo.load_state(resumed.thermo_state)) refuse("thermo state does not fit this scene's observables");
+    if (!monitor.load_state(resumed.monitor_state))  // [observables] actions changed with --set
+      log << "note: " << opt.restart << ": the monitor's reference is taken afresh (the actions observed changed)\n";
+    const std::vector<double>& r = resumed.run_state;  // read_checkpoint checked its size
+    max_err = r[0];
+    slow_before = static_cast<std::int64_t>(r[1]);
+    fast_before = static_cast<std::int64_t>(r[2]);
+    rebuilds_in_run = static_cast<long>(r[3]);
+    summary.initial_actions.assign(r.begin() + 4, r.end());
+  }
+
   const fs::path dir(opt.out_dir);
   std::error_code ec;
   if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
@@ -132,17 +169,9 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   check_output_paths(sc, opt.out_dir);   // before any step: an output that cannot be written fails now
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
 
-  std::unique_ptr<Integrator> integrator;
-  try {
-    integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
-  } catch (const std::invalid_argument& e) {
-    throw InputError(sc.deck_path + ": integrator.method: " + e.what());
-  }
   State& s = sc.state;
-  const bool restarting = !opt.restart.empty();
-  Checkpoint resumed;
   if (restarting)
-    resumed = restore(sc, *integrator, opt.restart, log);
+    restore(sc, *integrator, resumed, opt.restart, log);
   else
     integrator->prepare(s, log);
 
@@ -151,12 +180,14 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   // below if the uninterrupted run would have written one. So the files end up exactly as an
   // uninterrupted run's (without the interrupted run's off-grid final frame).
   const double tol = 1e-9 * sc.integrator.h;
-  const double cut = static_cast<double>(s.step - 1) * sc.integrator.h;
-  ObservableSettings observables = sc.observables;
-  const MethodInfo& method = *find_method(sc.integrator.method);  // load_scene checked the name
-  if (method.rigid_constraints)
-    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
-  Thermo thermo(*sc.forces, s.inv_mass, observables, &sc.topology);
+  // Step k is at t_k = t0 + (k − k0) h. From the start, and on a restart whose checkpoint is at
+  // t = k h (the same h throughout), t0 = k0 = 0: t_k = k h exactly, the uninterrupted run's times.
+  // After a change of h the run continues from the checkpoint's time (k0 = its step) instead of
+  // jumping to k0 h.
+  const bool new_h = restarting && s.t != static_cast<double>(s.step) * sc.integrator.h;
+  const double t0 = new_h ? s.t : 0.0;
+  const std::int64_t k0 = new_h ? s.step : 0;
+  const double cut = new_h ? s.t - resumed.h : static_cast<double>(s.step - 1) * sc.integrator.h;
   auto open_output = [&](const std::string& name, auto truncate) {
     const fs::path p = dir / name;
     summary.outputs.push_back(p.string());
@@ -224,15 +255,36 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const int first_action = thermo.column("action_1");
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
-  const std::int64_t n = sc.num_steps();
+  const std::int64_t n = k0 + steps_to(sc.run.t_end - t0, sc.integrator.h);
   const double h = sc.integrator.h;
   sc.forces->reset_counters();
-  long rebuilds_before = 0;  // the list is built once before the run (relaxation, first force)
+  // The list is built before the run (relaxation, first force); on restart its count comes from
+  // the checkpoint, of which rebuilds_in_run happened in the run so far.
+  long rebuilds_before = -rebuilds_in_run;
   for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
+  auto rebuilds_now = [&] {
+    long r = 0;
+    for (const auto& term : sc.forces->terms()) r += term->neighbor_list_rebuilds();
+    return r - rebuilds_before;
+  };
 
-  double max_err = 0.0;
-  Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
-  State last_good;  // with on_alert = "stop": the state of the last sample without alerts
+  const std::uint64_t fingerprint = scene_fingerprint(sc);
+  // Everything but the state that a restart needs (checkpoint.hpp), as of now.
+  auto snapshot = [&](Checkpoint& c) {
+    c.method = sc.integrator.method;
+    c.h = h;
+    c.scene_fingerprint = fingerprint;
+    c.integrator_state = integrator->save_state();
+    c.force_term_states.clear();
+    for (const auto& term : sc.forces->terms()) c.force_term_states.push_back(term->save_state());
+    c.thermo_state = thermo.save_state();
+    c.monitor_state = monitor.save_state();
+    c.run_state = {max_err, static_cast<double>(slow_before + sc.forces->evaluations(Level::slow)),
+                   static_cast<double>(fast_before + sc.forces->evaluations(Level::fast)),
+                   static_cast<double>(rebuilds_now())};
+    c.run_state.insert(c.run_state.end(), summary.initial_actions.begin(), summary.initial_actions.end());
+  };
+  Checkpoint last_good;  // with on_alert = "stop": the run as of the last sample without alerts
   int alerts = 0;   // of the last sample
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
   std::vector<double> last_row;
@@ -242,7 +294,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     for (const auto& note : thermo.take_notes()) log << note << "\n";
     alerts = monitor.check(last_row, thermo.initial_energy(), log);
     last_row.back() = alerts;
-    if (alerts == 0 && monitor.stops()) last_good = s;
+    if (alerts == 0 && monitor.stops()) {
+      last_good.state = s;
+      snapshot(last_good);
+    }
     return last_row;
   };
   auto write_state = [&]() {
@@ -260,8 +315,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
                       std::vector<double>(row.begin() + 2, row.end()));
   };
-  auto checkpoint = [&](const State& at) {
-    write_checkpoint(checkpoint_path, at, sc.integrator.method, h, integrator->save_state(), thermo.initial_energy());
+  Checkpoint now;  // snapshot() of the current step, written with s (no copy of the state)
+  auto checkpoint = [&] {
+    snapshot(now);
+    write_checkpoint(checkpoint_path, s, now);
     summary.checkpoint = checkpoint_path;
   };
   // Outputs due at this step; `final` writes everything (the last state, whatever the grids).
@@ -276,32 +333,40 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     if (state_csv && (state_due.due(s.t) || final)) write_state();
     if ((thermo_now || h5md_now) && alerts > 0 && monitor.stops()) {
       // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
-      checkpoint(last_good);
       std::ostringstream m;
       m.precision(10);
-      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), the last state within the "
-        << "thresholds (step " << last_good.step << ", t = " << last_good.t << ") is in " << checkpoint_path;
+      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), ";
+      if (last_good.method.empty()) {  // the first sample alerted: there is no state to keep
+        m << "no sampled state was within the thresholds, no checkpoint written";
+      } else {
+        write_checkpoint(checkpoint_path, last_good);
+        summary.checkpoint = checkpoint_path;
+        m << "the last state within the thresholds (step " << last_good.state.step << ", t = " << last_good.state.t
+          << ") is in " << checkpoint_path;
+      }
       throw NumericalError(m.str());
     }
   };
 
   check_finite(s);
-  {
+  if (!restarting) {
     const auto& row = thermo.sample(s, integrator->model_potential(s.x),
                                     integrator->constraint_virial(s));  // E(0) and the initial actions
     if (first_action >= 0)
       summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
-    for (const auto& note : thermo.take_notes()) log << note << "\n";
   }
-  if (restarting) thermo.set_initial_energy(resumed.initial_energy);
+  // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
+  // an extra evaluation would move the neighbour list on where the interrupted run did not.
+  for (const auto& note : thermo.take_notes()) log << note << "\n";
   observe();
   summary.initial_energy = thermo.initial_energy();
 
   // Steps are numbered from the start of the run (k = step), so a restart continues the same
-  // sequence of times t_k = k h exactly.
+  // sequence of times t_k = k h exactly (t0 + (k − k0) h after a change of h).
   const std::int64_t first = s.step + 1;
   Progress progress(opt.progress, n - s.step);
   install_stop_handlers();
+  const SignalAtStep signal_at = SignalAtStep::from_environment();  // tests: a signal at an exact step
   const auto start = std::chrono::steady_clock::now();
   const std::clock_t cpu_start = std::clock();
   for (std::int64_t k = first; k <= n; ++k) {
@@ -314,21 +379,22 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       throw NumericalError(m.str());
     }
     s.step = k;
-    s.t = static_cast<double>(k) * h;  // no accumulated round-off in t
+    s.t = new_h ? t0 + static_cast<double>(k - k0) * h : static_cast<double>(k) * h;  // no accumulated round-off
     check_finite(s);
     if (k == n) break;
     observe();
+    signal_at.at(k);
     if (const int sig = stop_requested()) {
       summary.stopped_by_signal = sig;
       break;
     }
-    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint(s);
+    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint();
     progress.update(k - first + 1);
   }
   summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
   summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  progress.finish();
-  checkpoint(s);
+  progress.finish(s.step - first + 1);  // where it stopped: a signal leaves the bar short of 100 %
+  checkpoint();
   if (summary.stopped_by_signal) {
     summary.steps = s.step;
     return summary;  // outputs are flushed frame by frame; no summary.json: the run is not finished
@@ -359,8 +425,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     rebuilds_after += term->neighbor_list_rebuilds();
   }
   if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
-  summary.slow_evaluations = sc.forces->evaluations(Level::slow);
-  summary.fast_evaluations = sc.forces->evaluations(Level::fast);
+  summary.slow_evaluations = slow_before + sc.forces->evaluations(Level::slow);
+  summary.fast_evaluations = fast_before + sc.forces->evaluations(Level::fast);
   summary.outputs.push_back((dir / "summary.json").string());
   write_atomically(dir / "summary.json", summary_json(summary));
   return summary;

@@ -11,10 +11,15 @@
 
 namespace stiffmd {
 
+struct Checkpoint;
+
 struct RunOptions {
   std::string out_dir;    // created if missing
   bool progress = false;  // progress bar with ETA on stderr
   std::string restart;    // checkpoint to continue from ("" = a fresh run)
+  // The restart's checkpoint already read by read_checkpoint_for (which loads the force terms'
+  // states into the scene); null: run_simulation reads `restart` itself, before any output.
+  const Checkpoint* checkpoint = nullptr;
 };
 
 struct RunSummary {

@@ -66,6 +66,24 @@ std::string HarmonicTether::describe() const {
   return s.str();
 }
 
+namespace {
+
+// The particles a term acts on, after a description whose numbers are printed in full.
+std::string exact_definition(std::ostringstream& s, const std::vector<int>& particles) {
+  s << "; particles";
+  for (const int i : particles) s << ' ' << i;
+  return s.str();
+}
+
+}  // namespace
+
+std::string HarmonicTether::definition() const {
+  std::ostringstream s;
+  s.precision(17);
+  s << "tether to (" << center_.x() << ", " << center_.y() << ", " << center_.z() << "), k = " << k_;
+  return exact_definition(s, particles_);
+}
+
 LJ93Wall::LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles)
     : ForceTerm(std::move(name), level), p_(params), particles_(std::move(particles)), shift_(0.0) {
   const std::string what = "lj93-wall '" + this->name() + "'";
@@ -122,6 +140,14 @@ std::string LJ93Wall::describe() const {
     << " particles on its " << (p_.side > 0 ? "+" : "-") << " side, epsilon = " << p_.epsilon
     << ", sigma = " << p_.sigma << ", cutoff = " << p_.cutoff;
   return s.str();
+}
+
+std::string LJ93Wall::definition() const {
+  std::ostringstream s;
+  s.precision(17);
+  s << "wall on axis " << p_.axis << " at " << p_.position << ", side " << p_.side << ", epsilon = " << p_.epsilon
+    << ", sigma = " << p_.sigma << ", cutoff = " << p_.cutoff;
+  return exact_definition(s, particles_);
 }
 
 }  // namespace stiffmd

@@ -5,8 +5,11 @@
 #include <Eigen/Core>
 #include <array>
 #include <optional>
+#include <span>
+#include <stdexcept>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "engine/box.hpp"
 #include "forcefields/stiff_bond.hpp"
@@ -60,6 +63,20 @@ class ForceTerm {
   // The deck's style name and a one-line description of the instance (for `stiffmd check`).
   virtual std::string_view style() const = 0;
   virtual std::string describe() const = 0;
+
+  // What defines the term — style parameters, no run-time counters — for the scene fingerprint
+  // of checkpoints (engine/checkpoint.hpp): a checkpoint is refused by a scene whose terms differ.
+  virtual std::string definition() const { return describe(); }
+
+  // State the term carries from one evaluation to the next that its forces depend on (a pair
+  // term's neighbour list: which pairs, in which order, with which periodic images), for
+  // checkpoints: after load_state(save_state()) on a term of the same scene, every later
+  // evaluation is bit-identical to the saved term's. Default: none. load_state throws
+  // std::invalid_argument for words it cannot take.
+  virtual std::vector<double> save_state() const { return {}; }
+  virtual void load_state(std::span<const double> words) {
+    if (!words.empty()) throw std::invalid_argument("force term '" + name_ + "' carries no state, the checkpoint has some");
+  }
 
   // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.
   virtual const StiffBonds* stiff_bonds() const { return nullptr; }

@@ -411,4 +411,9 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
   ++rebuilds_;
 }
 
+void NeighborList::restore(const Eigen::Matrix3Xd& x_at_build, const Box& box, long rebuilds) {
+  build(x_at_build, box);
+  rebuilds_ = rebuilds;
+}
+
 }  // namespace stiffmd

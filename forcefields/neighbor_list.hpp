@@ -134,6 +134,16 @@ class NeighborList {
   long rebuilds() const { return rebuilds_; }                       // builds so far, the first included
   const Eigen::Vector3i& cells_per_axis() const { return ncell_; }  // of the last build
 
+  // For checkpoints: the list is a function of the positions and box of its last build (bin and
+  // search read nothing else, and neither depends on the thread count), so those positions are
+  // its whole state. restore(x_at_build, box, rebuilds) rebuilds the same pairs in the same
+  // order with the same periodic images, and the same staleness reference; nothing to restore
+  // when built() was false.
+  bool built() const { return built_; }
+  const Eigen::Matrix3Xd& positions_at_build() const { return x_at_build_; }
+  const Box& box_at_build() const { return box_at_build_; }
+  void restore(const Eigen::Matrix3Xd& x_at_build, const Box& box, long rebuilds);
+
  private:
   void bin(const Eigen::Matrix3Xd& x, const Box& box);
   bool excluded(int i, int j) const;

@@ -55,13 +55,42 @@ void check_sizes(const std::string& name, std::string_view style, const Eigen::M
   }
 }
 
-std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
-                           SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
+std::string define_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                         SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
   std::ostringstream s;
   s << style << " pairs, " << num_types << " particle type(s), cutoff " << cutoff << ", skin " << list.skin()
     << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13 << " (" << excluded << " pairs excluded, "
-    << scaled << " scaled), " << list.rebuilds() << " neighbour-list rebuilds so far";
+    << scaled << " scaled)";
   return s.str();
+}
+
+// Words: rebuilds, periodic x y z (0/1), origin (3), lengths (3), then x_at_build column-major.
+std::vector<double> save_list_state(const NeighborList& list) {
+  if (!list.built()) return {};
+  const Box& b = list.box_at_build();
+  const Eigen::Matrix3Xd& x = list.positions_at_build();
+  std::vector<double> w = {static_cast<double>(list.rebuilds())};
+  for (int a = 0; a < 3; ++a) w.push_back(b.periodic[a] ? 1.0 : 0.0);
+  for (int a = 0; a < 3; ++a) w.push_back(b.origin[a]);
+  for (int a = 0; a < 3; ++a) w.push_back(b.lengths[a]);
+  w.insert(w.end(), x.data(), x.data() + x.size());
+  return w;
+}
+
+void load_list_state(const std::string& name, std::string_view style, NeighborList& list, std::span<const double> w,
+                     std::size_t n) {
+  if (w.empty()) return;  // saved before the first build: the next evaluation builds
+  if (w.size() != 10 + 3 * n)
+    fail(name, style,
+         "neighbour-list state of " + std::to_string(w.size()) + " words, expected " + std::to_string(10 + 3 * n));
+  Box b;
+  for (int a = 0; a < 3; ++a) {
+    b.periodic[a] = w[1 + a] != 0.0;
+    b.origin[a] = w[4 + a];
+    b.lengths[a] = w[7 + a];
+  }
+  const Eigen::Map<const Eigen::Matrix3Xd> x(w.data() + 10, 3, static_cast<Eigen::Index>(n));
+  list.restore(x, b, static_cast<long>(w[0]));
 }
 
 }  // namespace stiffmd::pair_detail

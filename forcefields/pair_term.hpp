@@ -37,7 +37,12 @@ class PairTerm final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
 
   std::string_view style() const override { return Kernel::kStyle; }
-  std::string describe() const override;
+  std::string describe() const override;  // definition() and the rebuilds so far
+  std::string definition() const override;
+  // The neighbour list's state (NeighborList::restore): empty before the first build, else the
+  // rebuild count, the box and the 3N positions of the last build.
+  std::vector<double> save_state() const override;
+  void load_state(std::span<const double> words) override;
 
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
@@ -84,8 +89,13 @@ std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_v
                                           const std::vector<Bond>& bonds, SpecialWeights weights);
 void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x,
                  const Eigen::Matrix3Xd* f, std::size_t num_types);
-std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
-                           SpecialWeights weights, std::size_t excluded, std::size_t scaled);
+std::string define_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                         SpecialWeights weights, std::size_t excluded, std::size_t scaled);
+// The neighbour list's state for checkpoints: its positions, box and rebuild count at the last
+// build, from which restore() rebuilds the same list (same pairs, order and images).
+std::vector<double> save_list_state(const NeighborList& list);
+void load_list_state(const std::string& name, std::string_view style, NeighborList& list, std::span<const double> w,
+                     std::size_t n);
 
 // Checks every input of the constructor; returns the largest cutoff over type pairs, which
 // sets the list radius.
@@ -155,9 +165,24 @@ double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const
 }
 
 template <class Kernel>
+std::string PairTerm<Kernel>::definition() const {
+  return pair_detail::define_pairs(Kernel::kStyle, coeffs_.num_types(), cutoff_, list_, weights_, excluded_,
+                                   scaled_.size());
+}
+
+template <class Kernel>
 std::string PairTerm<Kernel>::describe() const {
-  return pair_detail::describe_pairs(Kernel::kStyle, coeffs_.num_types(), cutoff_, list_, weights_, excluded_,
-                                     scaled_.size());
+  return definition() + ", " + std::to_string(list_.rebuilds()) + " neighbour-list rebuilds so far";
+}
+
+template <class Kernel>
+std::vector<double> PairTerm<Kernel>::save_state() const {
+  return pair_detail::save_list_state(list_);
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::load_state(std::span<const double> words) {
+  pair_detail::load_list_state(name(), Kernel::kStyle, list_, words, types_.size());
 }
 
 }  // namespace stiffmd

@@ -38,8 +38,9 @@ class Integrator {
   // Σ_i x_i·F_c,i of the rigid-constraint forces at the current state (RATTLE, effective), for
   // the pressure; 0 for methods without rigid constraints.
   virtual double constraint_virial(const State&) const { return 0.0; }
-  // State the integrator carries beyond (x, v) — the effective dynamics' actions — for
-  // checkpoints; restoring it (and skipping prepare()) continues a run bit for bit.
+  // State the integrator carries beyond (x, v) — cached forces, the constraint force, the
+  // effective dynamics' actions — for checkpoints: restoring it (and skipping prepare())
+  // continues a run bit for bit. Everything a later step or observable reads must be in it.
   virtual std::vector<double> save_state() const { return {}; }
   virtual void load_state(const std::vector<double>& s) {
     if (!s.empty()) throw std::invalid_argument("this integrator carries no state, the checkpoint has some");

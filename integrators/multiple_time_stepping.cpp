@@ -56,4 +56,26 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
 }
 
+std::vector<double> MultipleTimeStepping::save_state() const {
+  std::vector<double> w;
+  for (size_t k = 0; k < stages_.size(); ++k) {
+    w.push_back(valid_[k] ? 1.0 : 0.0);
+    w.insert(w.end(), force_[k].data(), force_[k].data() + force_[k].size());
+  }
+  return w;
+}
+
+void MultipleTimeStepping::load_state(const std::vector<double>& w) {
+  const size_t per_stage = 1 + 3 * static_cast<size_t>(forces_.num_particles());
+  if (w.size() != stages_.size() * per_stage)
+    throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
+                                " state, expected " + std::to_string(stages_.size() * per_stage) + " (" +
+                                std::to_string(stages_.size()) + " stages)");
+  for (size_t k = 0; k < stages_.size(); ++k) {
+    const double* p = w.data() + k * per_stage;
+    valid_[k] = p[0] != 0.0;
+    force_[k] = Eigen::Map<const Eigen::Matrix3Xd>(p + 1, 3, forces_.num_particles());
+  }
+}
+
 }  // namespace stiffmd

@@ -51,6 +51,11 @@ class MultipleTimeStepping final : public Integrator {
   void step(State& s, double h) override { advance(s, 0, h); }
   void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
   std::string_view method() const override { return method_; }
+  // The cached kick force of every stage with its validity (per stage: 1 word, then 3N): a
+  // recomputation after a restart could differ in the last bit (the neighbour list may have been
+  // moved on by an observation since the force was computed), so the cache itself is saved.
+  std::vector<double> save_state() const override;
+  void load_state(const std::vector<double>& s) override;
 
  private:
   void advance(State& s, size_t k, double dt);

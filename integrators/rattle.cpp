@@ -64,4 +64,24 @@ void Rattle::step(State& s, double h) {
                                    : Eigen::Vector3d::Zero().eval();
 }
 
+std::vector<double> Rattle::save_state() const {
+  std::vector<double> w(actions_.data(), actions_.data() + actions_.size());
+  w.push_back(valid_ ? 1.0 : 0.0);
+  w.insert(w.end(), f_.data(), f_.data() + f_.size());
+  w.insert(w.end(), constraint_force_.data(), constraint_force_.data() + constraint_force_.size());
+  return w;
+}
+
+void Rattle::load_state(const std::vector<double>& w) {
+  const Eigen::Index m = actions_.size(), n3 = f_.size();
+  if (static_cast<Eigen::Index>(w.size()) != m + 1 + 2 * n3)
+    throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
+                                " state, this scene needs " + std::to_string(m + 1 + 2 * n3) + " (" +
+                                std::to_string(m) + " actions, forces of " + std::to_string(n3 / 3) + " particles)");
+  actions_ = Eigen::Map<const Eigen::VectorXd>(w.data(), m);
+  valid_ = w[m] != 0.0;
+  f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
+  constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
+}
+
 }  // namespace stiffmd

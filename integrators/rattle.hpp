@@ -39,14 +39,10 @@ class Rattle final : public Integrator {
     return modes_ ? modes_->correction_force(actions_, x, correction_) : 0.0;
   }
 
-  std::vector<double> save_state() const override { return {actions_.data(), actions_.data() + actions_.size()}; }
-  void load_state(const std::vector<double>& s) override {
-    if (static_cast<Eigen::Index>(s.size()) != actions_.size())
-      throw std::invalid_argument("the checkpoint holds " + std::to_string(s.size()) + " actions, this scene has " +
-                                  std::to_string(actions_.size()) + " modes");
-    actions_ = Eigen::Map<const Eigen::VectorXd>(s.data(), actions_.size());
-    valid_ = false;
-  }
+  // The actions, the cached force f(x) with its validity and the constraint force of the last
+  // step (for the pressure of the first sample after a restart): m + 1 + 6N words.
+  std::vector<double> save_state() const override;
+  void load_state(const std::vector<double>& s) override;
 
   // The actions of the effective dynamics (empty for plain RATTLE).
   const Eigen::VectorXd& actions() const { return actions_; }
