@@ -16,6 +16,12 @@
 namespace stiffmd {
 namespace {
 
+std::string fmt_short(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
 // Returns, per type of the scene, the index of its coefficients in `coeffs` (−1: not claimed
 // by this term). A type claimed by two terms, or a table that is missing, is an error.
@@ -61,12 +67,18 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   std::vector<StiffBond> coeffs;
   const auto index = claim_types(
       t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
-      [](DeckTable& bt) {
+      [&sb](DeckTable& bt) {
         StiffBond c;
         c.length = bt.number("length");
         bt.require(c.length > 0.0, "length", "expected a bond length > 0");
         c.alpha = bt.number("alpha");
         bt.require(c.alpha > 0.0, "alpha", "expected a stiffness alpha > 0");
+        // The spring constant (α/ε)² and the energy ½(α/ε)²ℓ² of a bond stretched by its length
+        // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
+        const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
+        bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
+                   "the spring constant (alpha/epsilon)^2 = (" + fmt_short(c.alpha) + "/" + fmt_short(sb.epsilon) +
+                       ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
         return c;
       },
       coeffs);
@@ -239,13 +251,16 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
 
 // Pair styles: parameters for every type pair from the term's table, overridden per pair by
 // [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
+// `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
+// term's values (its global epsilon, sigma, …), not from the defaults.
 template <class Kernel, class ReadCoeffs>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
-                                     ReadCoeffs read, const char* range_key) {
+                                     ReadCoeffs read, const char* range_key,
+                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{}) {
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
   TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
-  const typename Kernel::Coeffs global = read(t, typename Kernel::Coeffs{});
+  const typename Kernel::Coeffs global = read(t, defaults);
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
   for (DeckTable& p : t.array_of_tables("pair")) {
@@ -294,12 +309,12 @@ std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTab
   return read_pair<LennardJones>(
       name, level, t, ctx,
       [](DeckTable& d, LennardJones::Coeffs c) {
-        c.epsilon = d.number("epsilon", c.epsilon == 0.0 ? 1.0 : c.epsilon);
+        c.epsilon = d.number("epsilon", c.epsilon);  // a per-pair override inherits the term's values
         c.sigma = d.number("sigma", c.sigma);
         c.rc = d.number("cutoff", c.rc);
         return c;
       },
-      "cutoff");
+      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5});
 }
 
 std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
