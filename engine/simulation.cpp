@@ -132,12 +132,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   check_output_paths(sc, opt.out_dir);   // before any step: an output that cannot be written fails now
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
 
-  std::unique_ptr<Integrator> integrator;
-  try {
-    integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
-  } catch (const std::invalid_argument& e) {
-    throw InputError(sc.deck_path + ": integrator.method: " + e.what());
-  }
+  // load_scene built it once already (check_integrator): what it refuses was refused there.
+  std::unique_ptr<Integrator> integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   State& s = sc.state;
   const bool restarting = !opt.restart.empty();
   Checkpoint resumed;

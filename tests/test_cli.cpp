@@ -250,7 +250,7 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
 
   // A second run into the same directory says that it overwrites.
   const CliResult again =
-      cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.01 -o " + dir.string());
+      cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.015625 -o " + dir.string());
   EXPECT_EQ(again.code, 0);
   EXPECT_NE(again.err.find("overwriting"), std::string::npos);
   fs::remove_all(dir);
