@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -263,6 +264,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   const typename Kernel::Coeffs global = read(t, defaults);
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  std::set<std::pair<int, int>> overridden;  // a pair given twice would silently keep the last
   for (DeckTable& p : t.array_of_tables("pair")) {
     const auto names = p.strings("types");
     if (names.size() != 2) p.fail("types", "expected two particle type names [\"A\", \"B\"]");
@@ -273,6 +275,8 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
         if (sc.types[k].name == names[m]) ab[m] = k;
       if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
     }
+    if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
+      p.fail("types", "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
     coeffs.set(ab[0], ab[1], read(p, global));
     p.finish();
   }

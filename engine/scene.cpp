@@ -346,6 +346,22 @@ void check_integrator(DeckTable& root, Scene& sc) {
   } catch (const NumericalError& e) {
     fail(e.what());
   }
+  // Likewise the observers run_simulation builds: the thermo row (with the modes when actions are
+  // observed) and the projected momenta of the state output.
+  auto refused_at = [&](const char* table, const char* key, const std::string& what) {
+    if (auto t = root.table(table)) t->fail(key, "the scene cannot provide it: " + what);
+    root.fail_here(std::string(table) + "." + key + ": the scene cannot provide it: " + what);
+  };
+  try {
+    Thermo(*sc.forces, sc.state.inv_mass, sc.observables, &sc.topology);
+  } catch (const std::exception& e) {
+    refused_at("observables", "actions", e.what());
+  }
+  if (!sc.output.state.empty()) try {
+      ProjectedMomenta(*sc.forces->stiff_bonds(), sc.state.inv_mass);
+    } catch (const std::exception& e) {
+      refused_at("output", "state", e.what());
+    }
 }
 
 }  // namespace
