@@ -4,6 +4,7 @@
 
 #include <toml++/toml.h>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -45,6 +46,48 @@ std::string shown(const toml::node& n) {
   return s.str();
 }
 
+// A TOML number as a double. toml++ gives no value<double>() for an integer that has no exact
+// double (beyond 2^53): convert it ourselves, rounding, rather than dereference an empty optional.
+double as_double(const toml::node& n) {
+  if (n.is_integer()) return static_cast<double>(*n.value<int64_t>());
+  return *n.value<double>();
+}
+
+// A number as written in a message: shortest round-trip form, "1e+20" rather than 20 digits.
+std::string fmt(double v) {
+  std::ostringstream s;
+  s.precision(17);
+  s << v;
+  std::ostringstream shorter;
+  shorter << v;
+  return std::strtod(shorter.str().c_str(), nullptr) == v ? shorter.str() : s.str();
+}
+
+// Every string and every key of the deck (and of --set values): toml++ accepts "\u0000", which
+// would cut a path or a name short where it reaches the C library (open a shorter file name) and
+// print as nothing in messages. Throws InputError at the first one.
+void refuse_nul(const Deck& deck, const toml::node& n, const std::string& kp) {
+  const auto shown_key = [](std::string_view k) {
+    std::string out;
+    for (char c : k) out += c == '\0' ? std::string("\\u0000") : std::string(1, c);
+    return out;
+  };
+  if (const auto* t = n.as_table()) {
+    for (const auto& [k, v] : *t) {
+      const std::string child = kp.empty() ? shown_key(k.str()) : kp + "." + shown_key(k.str());
+      if (k.str().find('\0') != std::string_view::npos)
+        throw InputError(deck.location(&v, child) + ": " + child +
+                         ": the key contains a NUL character (\\u0000); expected a name without one");
+      refuse_nul(deck, v, child);
+    }
+  } else if (const auto* a = n.as_array()) {
+    for (size_t k = 0; k < a->size(); ++k) refuse_nul(deck, *a->get(k), kp + "[" + std::to_string(k) + "]");
+  } else if (const auto v = n.value<std::string>(); v && v->find('\0') != std::string::npos) {
+    throw InputError(deck.location(&n, kp) + ": " + kp +
+                     ": the string contains a NUL character (\\u0000); expected text without one");
+  }
+}
+
 bool valid_identifier(const std::string& s) {
   if (s.empty() || std::isdigit(static_cast<unsigned char>(s[0]))) return false;
   for (char c : s)
@@ -82,6 +125,7 @@ Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(
                      ": TOML syntax error: " + std::string(e.description()));
   }
   for (const std::string& o : overrides) apply_override(o);
+  refuse_nul(*this, *table_, "");
   resolve_variables();
 }
 
@@ -210,7 +254,7 @@ void Deck::resolve_variables() {
     if (!valid_identifier(name) || name == "pi")
       throw InputError(where + ": a variable name must be an identifier (letters, digits, _) other than pi");
     if (v.is_integer() || v.is_floating_point()) {
-      const double x = *v.value<double>();
+      const double x = as_double(v);
       if (!std::isfinite(x)) throw InputError(where + ": expected a finite number, got " + shown(v));
       variables_[name] = x;
     } else if (v.is_string()) {
@@ -290,13 +334,23 @@ std::string DeckTable::where() const {
 
 double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
   const std::string where = deck_->location(&n, kp) + ": " + kp;
+  double x;
   if (n.is_integer() || n.is_floating_point()) {
-    const double x = *n.value<double>();
+    x = as_double(n);
     if (!std::isfinite(x)) throw InputError(where + ": expected a finite number, got " + shown(n));
-    return x;
+  } else if (n.is_string()) {
+    x = deck_->evaluate(*n.value<std::string>(), where);
+  } else {
+    throw InputError(where + ": expected a number or an expression string, got " + type_word(n));
   }
-  if (n.is_string()) return deck_->evaluate(*n.value<std::string>(), where);
-  throw InputError(where + ": expected a number or an expression string, got " + type_word(n));
+  // The window every deck number must lie in: the kernels multiply a few of them (α²/ε², m g·x,
+  // r² …), and a value near the largest double, or a subnormal one, overflows there only later —
+  // at step 1, with no key to name. Reduced units have no business outside it.
+  const double a = std::abs(x);
+  if (a > kLargestDeckNumber || (a != 0.0 && a < kSmallestDeckNumber))
+    throw InputError(where + ": " + fmt(x) + " is outside the range of deck numbers (0, or " + fmt(kSmallestDeckNumber) +
+                     " .. " + fmt(kLargestDeckNumber) + " in magnitude); expected a value in reduced units");
+  return x;
 }
 
 std::optional<double> DeckTable::maybe_number(std::string_view key) {
@@ -317,7 +371,8 @@ double DeckTable::number(std::string_view key, double fallback) {
 std::optional<long> DeckTable::maybe_integer(std::string_view key) {
   auto v = maybe_number(key);
   if (!v) return std::nullopt;
-  if (*v != std::floor(*v) || std::abs(*v) > 9.0e15) fail(key, "expected an integer, got " + std::to_string(*v));
+  if (*v != std::floor(*v)) fail(key, "expected an integer, got " + fmt(*v));
+  if (std::abs(*v) > 9.0e15) fail(key, "expected an integer of magnitude at most 9e15, got " + fmt(*v));
   return static_cast<long>(*v);
 }
 
@@ -442,6 +497,7 @@ std::vector<std::pair<std::string, DeckTable>> DeckTable::named_tables() {
   for (const auto& [k, v] : *table_) {
     const std::string name(k.str());
     used_.insert(name);
+    if (name.empty()) fail(name, "expected a name, got an empty one: [" + key_path("\"\"") + "]");
     if (!v.is_table()) fail(name, "expected a table [" + key_path(name) + "], got " + type_word(v));
     out.emplace_back(name, DeckTable(deck_, v.as_table(), key_path(name)));
   }

@@ -30,6 +30,12 @@ namespace stiffmd {
 
 class Deck;
 
+// Every number a deck gives (after its expression is evaluated) is 0 or lies in this window of
+// magnitudes: far beyond any scene in reduced units, far inside the doubles, so that the products
+// the force kernels form of a few of them (α²/ε², m g·x, r²) neither overflow nor underflow.
+inline constexpr double kLargestDeckNumber = 1e100;
+inline constexpr double kSmallestDeckNumber = 1e-100;
+
 // A view of one TOML table that remembers which keys were read, so that finish() can
 // reject the keys nobody asked for (typos, keys of another style).
 class DeckTable {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -29,6 +30,12 @@ double read(DeckTable& t, std::string_view key, const Quantity& q, double fallba
   const double v = t.number(key, fallback);
   t.require(q.admits(v), key, "expected " + q.expected(v));
   return v;
+}
+
+std::string fmt_short(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
 }
 
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
@@ -75,10 +82,16 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   std::vector<StiffBond> coeffs;
   const auto index = claim_types(
       t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
-      [](DeckTable& bt) {
+      [&sb](DeckTable& bt) {
         StiffBond c;
         c.length = read(bt, "length", kLength);
         c.alpha = read(bt, "alpha", kPositive);
+        // The spring constant (α/ε)² and the energy ½(α/ε)²ℓ² of a bond stretched by its length
+        // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
+        const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
+        bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
+                   "the spring constant (alpha/epsilon)^2 = (" + fmt_short(c.alpha) + "/" + fmt_short(sb.epsilon) +
+                       ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
         return c;
       },
       coeffs);
@@ -255,15 +268,19 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
 
 // Pair styles: parameters for every type pair from the term's table, overridden per pair by
 // [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
+// `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
+// term's values (its global epsilon, sigma, …), not from the defaults.
 template <class Kernel, class ReadCoeffs>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
-                                     ReadCoeffs read_coeffs, const char* range_key) {
+                                     ReadCoeffs read_coeffs, const char* range_key,
+                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{}) {
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
   TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
-  const typename Kernel::Coeffs global = read_coeffs(t, typename Kernel::Coeffs{});
+  const typename Kernel::Coeffs global = read_coeffs(t, defaults);
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  std::set<std::pair<int, int>> overridden;  // a pair given twice would silently keep the last
   for (DeckTable& p : t.array_of_tables("pair")) {
     const auto names = p.strings("types");
     if (names.size() != 2) p.fail("types", "expected two particle type names [\"A\", \"B\"]");
@@ -274,6 +291,8 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
         if (sc.types[k].name == names[m]) ab[m] = k;
       if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
     }
+    if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
+      p.fail("types", "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
     coeffs.set(ab[0], ab[1], read_coeffs(p, global));
     p.finish();
   }
@@ -309,12 +328,12 @@ std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTab
   return read_pair<LennardJones>(
       name, level, t, ctx,
       [](DeckTable& d, LennardJones::Coeffs c) {
-        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon == 0.0 ? 1.0 : c.epsilon);
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);  // a per-pair override inherits the term's values
         c.sigma = read(d, "sigma", kLength, c.sigma);
         c.rc = read(d, "cutoff", kLength, c.rc);
         return c;
       },
-      "cutoff");
+      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5});
 }
 
 std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {

@@ -353,7 +353,7 @@ class DataReader {
     if (spec.name == "Velocities") return velocities(b, e);
     if (spec.name == "Bonds") return bonds(b, e);
     if (spec.name == "Angles") return angles(b, e);
-    if (spec.name == "Dihedrals" || spec.name == "Impropers") return skip_quads(spec, b, e);
+    if (spec.name == "Dihedrals" || spec.name == "Impropers") return refuse_quads(spec, b, e);
     skip_coeffs(spec, b, e);
   }
 
@@ -516,7 +516,9 @@ class DataReader {
   void bonds(size_t b, size_t e) { tuples(b, e, "Bonds", "id type atom1 atom2", 2, kBondTypes, bonds_); }
   void angles(size_t b, size_t e) { tuples(b, e, "Angles", "id type atom1 atom2 atom3", 3, kAngleTypes, angles_); }
 
-  void skip_quads(const SectionSpec& spec, size_t b, size_t e) {
+  // Dihedrals and impropers: stiffmd has no such terms yet, and nothing read may be dropped
+  // silently. The rows are checked first (a malformed file is named as such), then refused.
+  void refuse_quads(const SectionSpec& spec, size_t b, size_t e) {
     const Count types = spec.name == "Dihedrals" ? kDihedralTypes : kImproperTypes;
     std::vector<std::string_view> tok;
     const std::string why = type_range(types);
@@ -527,6 +529,11 @@ class DataReader {
       r.integer(1, "type", 1, count_[types], why);
       for (size_t c = 2; c < 6; ++c) r.integer(c, "atom id", 1, std::numeric_limits<long long>::max());
     }
+    const std::string what = spec.name == "Dihedrals" ? "dihedral" : "improper";
+    fail(lines_[b - 1].number, std::string(spec.name) + ": " + std::to_string(e - b) + " " + what +
+                                   "(s), but stiffmd has no " + what +
+                                   " terms: they would be lost; remove the section (and set '0 " + what +
+                                   "s' in the header) to run without them");
   }
 
   void skip_coeffs(const SectionSpec& spec, size_t b, size_t e) {

@@ -15,21 +15,29 @@ bool MonitorSettings::active() const {
   return energy_error < kOff || violation < kOff || violation_growth < kOff || action_drift < kOff || validity;
 }
 
-MonitorSettings read_monitor(DeckTable& root) {
+MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   MonitorSettings m;
   auto t = root.table("monitor");
   if (!t) return m;
-  auto threshold = [&](const char* key, double& into) {
+  // `needs`: why the check could never fire in this scene ("" = it always can).
+  auto threshold = [&](const char* key, double& into, const char* needs) {
     if (const auto v = t->maybe_number(key)) {
       t->require(std::isfinite(*v) && *v > 0.0, key, "expected a threshold > 0");
+      if (*needs) t->fail(key, std::string("this check could never fire: it needs ") + needs);
       into = *v;
     }
   };
-  threshold("energy_error", m.energy_error);
-  threshold("violation", m.violation);
-  threshold("violation_growth", m.violation_growth);
-  threshold("action_drift", m.action_drift);
+  const char* no_bonds = scene.stiff_bonds ? "" : "constraint-defining stiff bonds (a stiff-harmonic term)";
+  const char* no_actions = scene.actions ? "" : "the actions observed ([observables] actions = true)";
+  threshold("energy_error", m.energy_error, "");
+  threshold("violation", m.violation, no_bonds);
+  threshold("violation_growth", m.violation_growth, no_bonds);
+  threshold("action_drift", m.action_drift, no_actions);
+  // validity defaults to true and then applies when it can; asked for explicitly, it must be able to.
+  const bool validity_given = t->has("validity");
   m.validity = t->boolean("validity", true);
+  if (validity_given && m.validity && *no_actions)
+    t->fail("validity", std::string("this check could never fire: it needs ") + no_actions);
   const std::string on = t->string("on_alert", "warn");
   t->require(on == "warn" || on == "stop", "on_alert", "expected \"warn\" or \"stop\"");
   m.stop = on == "stop";

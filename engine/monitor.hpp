@@ -29,8 +29,15 @@ struct MonitorSettings {
   bool active() const;  // any check configured
 };
 
-// Reads [monitor] (absent: the defaults, validity only).
-MonitorSettings read_monitor(DeckTable& root);
+// What the scene observes, so that a check that could never fire is refused rather than silent.
+struct MonitorContext {
+  bool stiff_bonds = false;  // a constraint-defining term: violation, violation_growth
+  bool actions = false;      // [observables] actions = true: action_drift, validity
+};
+
+// Reads [monitor] (absent: the defaults, validity only). Throws InputError at the key of a check
+// the scene cannot evaluate (action_drift without observed actions, violation without stiff bonds).
+MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene);
 
 class Monitor {
  public:

@@ -12,6 +12,7 @@
 #include "engine/force_registry.hpp"
 #include "engine/scene_sources.hpp"
 #include "integrators/methods.hpp"
+#include "integrators/modes.hpp"
 
 namespace stiffmd {
 namespace {
@@ -34,6 +35,9 @@ std::string fmt_number(double v) {
   s << v;
   return s.str();
 }
+
+// Scene::num_steps and read_run: t_end / h within this relative distance of an integer n is n steps.
+constexpr double kWholeStepTolerance = 1e-9;
 
 // Distinct default elements for bead types that do not name one.
 const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H", "Fe", "Si"};
@@ -158,6 +162,12 @@ void read_forces(DeckTable& root, Scene& sc) {
       } catch (const std::invalid_argument& e) {
         t.fail_here(e.what());
       }
+      // The constraint-defining term is what the impulse methods' micro steps resolve and what the
+      // constrained methods replace by rigid constraints (design.md §3): on a slower level the impulse
+      // methods would kick it with the macro step and blow up (energy 5.57 -> 263 210 on the pendulum).
+      if (term->is_constraint_defining() && term->level() != Level::fast)
+        t.fail("level", "a constraint-defining term (" + style + ") must sit on the fastest level, \"fast\"; got \"" +
+                            level_name_str + "\"");
       if (term->stiff_bonds()) {
         if (!stiff_term.empty())
           t.fail("style",
@@ -224,15 +234,31 @@ void read_integrator(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
+// A run is a whole number of macro steps: t_end = n h to a relative 1e-9 (Scene::num_steps rounds
+// to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
+// refused, naming the nearest valid end times.
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
   if (!t) root.fail_here("missing required table [run] (t_end)");
   sc.run.t_end = t->number("t_end");
   t->require(sc.run.t_end > 0.0, "t_end", "expected an end time > 0");
-  const double steps = sc.run.t_end / sc.integrator.h;
+  const double h = sc.integrator.h;
+  const double steps = sc.run.t_end / h;
   if (!(steps <= 1e12))
-    t->fail("t_end", "t_end / integrator.h = " + fmt_number(sc.run.t_end) + " / " + fmt_number(sc.integrator.h) +
-                         " = " + fmt_number(steps) + " steps; expected at most 1e12 steps");
+    t->fail("t_end", "t_end / integrator.h = " + fmt_number(sc.run.t_end) + " / " + fmt_number(h) + " = " +
+                         fmt_number(steps) + " steps; expected at most 1e12 steps");
+  const double n = std::round(steps);
+  if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
+    std::ostringstream m;
+    m.precision(12);
+    m << "t_end = " << sc.run.t_end << " is " << steps << " macro steps of integrator.h = " << h
+      << "; expected a whole number of steps: t_end = ";
+    const double below = std::floor(steps), above = std::ceil(steps);
+    const auto steps_word = [](double k) { return k == 1 ? " step)" : " steps)"; };
+    if (below >= 1) m << below * h << " (" << below << steps_word(below) << " or ";
+    m << above * h << " (" << above << steps_word(above) << ", or an h that divides t_end";
+    t->fail("t_end", m.str());
+  }
   t->finish();
 }
 
@@ -241,10 +267,11 @@ void read_observables(DeckTable& root, Scene& sc) {
   if (!t) return;
   sc.observables.actions = t->boolean("actions", false);
   sc.observables.histograms = t->boolean("histograms", true);
+  // The range StiffModes accepts (its dense eigen-decompositions have a fixed maximum size).
   const long m = t->integer("max_cluster_bonds", sc.observables.max_cluster_bonds);
-  t->require(m >= 1 && m <= 4096, "max_cluster_bonds", "expected an integer in 1..4096");
+  t->require(m >= 1 && m <= StiffModes::kMaxDenseBonds, "max_cluster_bonds",
+             "expected an integer in 1.." + std::to_string(StiffModes::kMaxDenseBonds) + ", got " + std::to_string(m));
   sc.observables.max_cluster_bonds = static_cast<int>(m);
-  sc.integrator.max_cluster_bonds = static_cast<int>(m);
   if (sc.observables.actions && !sc.forces->stiff_bonds())
     t->fail("actions", "actions need constraint-defining stiff bonds (a stiff-harmonic term)");
   t->finish();
@@ -300,6 +327,41 @@ void read_output(DeckTable& root, Scene& sc) {
     seen.emplace_back(what, f);
   }
   t->finish();
+}
+
+// What run_simulation will ask of the scene, asked now: the integrator is built once here and
+// discarded, so that whatever its constructor refuses (the effective dynamics' cluster limit,
+// constraints it cannot solve) is refused by `check` too, at integrator.method, before [prepare].
+void check_integrator(DeckTable& root, Scene& sc) {
+  auto t = root.table("integrator");
+  const auto fail = [&](const std::string& what) {
+    t->fail("method", "the scene cannot run method '" + sc.integrator.method + "': " + what);
+  };
+  try {
+    make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  } catch (const std::invalid_argument& e) {
+    fail(e.what());
+  } catch (const InputError& e) {
+    fail(e.what());
+  } catch (const NumericalError& e) {
+    fail(e.what());
+  }
+  // Likewise the observers run_simulation builds: the thermo row (with the modes when actions are
+  // observed) and the projected momenta of the state output.
+  auto refused_at = [&](const char* table, const char* key, const std::string& what) {
+    if (auto t = root.table(table)) t->fail(key, "the scene cannot provide it: " + what);
+    root.fail_here(std::string(table) + "." + key + ": the scene cannot provide it: " + what);
+  };
+  try {
+    Thermo(*sc.forces, sc.state.inv_mass, sc.observables, &sc.topology);
+  } catch (const std::exception& e) {
+    refused_at("observables", "actions", e.what());
+  }
+  if (!sc.output.state.empty()) try {
+      ProjectedMomenta(*sc.forces->stiff_bonds(), sc.state.inv_mass);
+    } catch (const std::exception& e) {
+      refused_at("output", "state", e.what());
+    }
 }
 
 }  // namespace
@@ -382,7 +444,8 @@ std::int64_t Scene::num_steps() const {
   // Round to the nearest whole step when t_end/h is an integer up to rounding, else up.
   const double r = run.t_end / integrator.h;
   const double nearest = std::round(r);
-  return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= kWholeStepTolerance * std::max(1.0, r) ? nearest
+                                                                                                : std::ceil(r));
 }
 
 Scene load_scene(const Deck& deck) {
@@ -405,9 +468,10 @@ Scene load_scene(const Deck& deck) {
   read_integrator(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
-  sc.monitor = read_monitor(root);
+  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions});
   read_output(root, sc);
   root.finish();
+  check_integrator(root, sc);
   return sc;
 }
 

@@ -170,6 +170,13 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
                                 : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
                                       " (0-based, as in the bonds file)") +
                             ": both atoms sit at the same position (zero-length bond)");
+  // Charges (atom_style full) would be read and then dropped: stiffmd has no Coulomb term yet.
+  for (size_t k = 0; k < in.charge.size(); ++k)
+    if (in.charge[k] != 0.0)
+      t->fail(file_key, t->string(file_key) + ": atom id " + std::to_string(in.id[k]) + " has charge " +
+                            (std::ostringstream() << in.charge[k]).str() +
+                            ", but stiffmd has no Coulomb interactions: the charges would be lost; set the q column "
+                            "to 0 (or use atom_style molecular) to run without them");
   const bool use_velocities = t->boolean("velocities", true);
   t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
   // Particle types: a LAMMPS type maps to a deck type; masses must agree.
@@ -219,6 +226,13 @@ void read_velocities(DeckTable& root, Scene& sc) {
   const double temperature = t->number("temperature");
   t->require(temperature >= 0, "temperature", "expected a temperature >= 0");
   const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  // 3 N_mobile − 3 degrees of freedom once the total momentum is removed: none, and T > 0 cannot
+  // be given (every particle fixed, or one free particle), so say so rather than start at rest.
+  const auto mobile = (sc.state.inv_mass.array() > 0.0).count();
+  if (temperature > 0 && 3 * mobile - 3 <= 0)
+    t->fail("temperature", "the scene has no degree of freedom to thermalise (" + std::to_string(mobile) +
+                               " mobile particle(s), total momentum removed); expected temperature = 0 or more "
+                               "mobile particles");
   t->finish();
   sc.state.v = maxwell_boltzmann(sc.state.inv_mass, temperature, seed);
 }

@@ -123,12 +123,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   Checkpoint resumed;
   if (restarting) resumed = opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
   auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };
-  std::unique_ptr<Integrator> integrator;
-  try {
-    integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
-  } catch (const std::invalid_argument& e) {
-    throw InputError(sc.deck_path + ": integrator.method: " + e.what());
-  }
+  // load_scene built it once already (check_integrator): what it refuses was refused there.
+  std::unique_ptr<Integrator> integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   if (restarting && resumed.method == sc.integrator.method) {
     try {
       integrator->load_state(resumed.integrator_state);

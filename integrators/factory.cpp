@@ -44,12 +44,14 @@ Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::Ve
 }
 Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   const StiffBonds& stiff = stiff_bonds_of(forces);
-  auto modes = std::make_unique<StiffModes>(stiff.bonds, inv_mass, stiff.epsilon, s.max_cluster_bonds);
+  // Every cluster the dense mode computation can take: the limit is StiffModes', not an observables
+  // setting (the thermo output's max_cluster_bonds only bounds what is observed).
+  auto modes = std::make_unique<StiffModes>(stiff.bonds, inv_mass, stiff.epsilon, StiffModes::kMaxDenseBonds);
   if (modes->num_skipped_clusters() > 0)
-    throw std::invalid_argument(
-        "the effective dynamics needs the modes of every constraint cluster, but " +
-        std::to_string(modes->num_skipped_clusters()) +
-        " cluster(s) have more than max_cluster_bonds = " + std::to_string(s.max_cluster_bonds) + " bonds");
+    throw std::invalid_argument("the effective dynamics needs the modes of every constraint cluster, but " +
+                                std::to_string(modes->num_skipped_clusters()) + " cluster(s) have more than " +
+                                std::to_string(StiffModes::kMaxDenseBonds) +
+                                " bonds (the limit of the dense mode computation); use another method");
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass), std::move(modes));
 }
 

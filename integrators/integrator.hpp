@@ -18,7 +18,6 @@ struct IntegratorSettings {
   std::string method = "velocity-verlet";
   double h = 0.0;              // macro step
   int micro_steps = 1;         // n micro steps δ = h/n per macro step (impulse family)
-  int max_cluster_bonds = 64;  // largest cluster whose modes are computed (effective dynamics)
 };
 
 class Integrator {

@@ -150,7 +150,7 @@ TEST(SceneFingerprint, CoversTheSceneNotTheRunSettings) {
                            "build.0.seed=12"})  // the builder's seed: another initial state, the same scene
     EXPECT_EQ(scene_fingerprint(test::load(deck, {same})), f) << same;
   for (const char* other : {"variables.eps=0.02", "forces.excluded_volume.skin=0.25", "forces.bending.angle_types.bend.k=2",
-                            "forces.anchor.particles=[0, 28]", "forces.bonds.level=\"slow\"", "types.bead.mass=2",
+                            "forces.anchor.particles=[0, 28]", "forces.bending.level=\"fast\"", "types.bead.mass=2",
                             "build.0.density=0.69"})
     EXPECT_NE(scene_fingerprint(test::load(deck, {other})), f) << other;
 }

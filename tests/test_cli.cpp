@@ -182,6 +182,16 @@ TEST(Cli, BadOverridesAndArgumentsGiveExitTwo) {
   EXPECT_EQ(r.code, 2);
 }
 
+// The effective dynamics takes every constraint cluster the dense mode computation can (up to
+// StiffModes::kMaxDenseBonds = 128 bonds), whatever observables.max_cluster_bonds says: data.chain's
+// 99-bond chains once needed that observables setting raised. `check` builds the integrator, so
+// exit 0 here means `run` builds it too.
+TEST(Cli, EffectiveDynamicsDoesNotDependOnAnObservablesSetting) {
+  const CliResult r = cli("check " + test::source_path("inputs/lammps_chain.toml") +
+                          " --set integrator.method=effective --set observables.max_cluster_bonds=8");
+  EXPECT_EQ(r.code, 0) << r.err;
+}
+
 TEST(Cli, HelpAndVersion) {
   CliResult r = cli("--help");
   EXPECT_EQ(r.code, 0);
@@ -250,7 +260,7 @@ TEST(Cli, RunsTheBundledDeckAndWritesParsableOutputs) {
 
   // A second run into the same directory says that it overwrites.
   const CliResult again =
-      cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.01 -o " + dir.string());
+      cli("run " + test::source_path("inputs/double_pendulum.toml") + " --set run.t_end=0.015625 -o " + dir.string());
   EXPECT_EQ(again.code, 0);
   EXPECT_NE(again.err.find("overwriting"), std::string::npos);
   fs::remove_all(dir);

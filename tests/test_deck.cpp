@@ -1,6 +1,7 @@
 // Deck loading (design.md §7): variables and expressions, --set overrides, strictness.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -106,6 +107,43 @@ TEST(Deck, ErrorsNameTheFileLineAndKey) {
   } catch (const InputError& e) {
     const std::string m = e.what();
     EXPECT_NE(m.find(".toml:12: integrator.h: expression \"b/0\" evaluates to inf"), std::string::npos) << m;
+  }
+}
+
+// A per-pair override ([[forces.NAME.pair]]) inherits what it does not set from the term: a zero
+// global epsilon stays zero when the override sets only sigma (it used to become 1).
+TEST(Deck, PairOverrideInheritsTheTermsParameters) {
+  for (const double eps : {0.0, 2.0}) {
+    const std::string text = R"(
+[types.A]
+mass = 1
+[types.B]
+mass = 1
+[[particles]]
+type = "A"
+position = [0, 0, 0]
+[[particles]]
+type = "B"
+position = [1.1, 0, 0]
+[forces.pairs]
+style = "lj"
+epsilon = )" + std::to_string(eps) + R"(
+sigma = 1.0
+cutoff = 2.5
+[[forces.pairs.pair]]
+types = ["A", "B"]
+sigma = 1.2
+[integrator]
+method = "velocity-verlet"
+h = 0.01
+[run]
+t_end = 0.1
+)";
+    const Deck deck(write_deck("pair_override", text), {});
+    const Scene sc = load_scene(deck);
+    // 4ε[(σ/r)¹² − (σ/r)⁶] cut and shifted at rc, with ε the term's and σ the override's.
+    const auto lj = [&](double r) { return 4 * eps * (std::pow(1.2 / r, 12) - std::pow(1.2 / r, 6)); };
+    EXPECT_NEAR(sc.forces->energy(sc.state.x, Level::slow), lj(1.1) - lj(2.5), 1e-12) << "epsilon = " << eps;
   }
 }
 

@@ -90,13 +90,13 @@ TEST(Restart, RejectsACheckpointOfAnotherScene) {
   auto r = cli("run " + deck() + " -o " + d.string() + " --restart " + (d / "junk.bin").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("junk.bin: not a stiffmd checkpoint"), std::string::npos) << r.err;
-  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "a").string() + " --set run.t_end=0.1").code, 0);
+  ASSERT_EQ(cli("run " + deck() + " -o " + (d / "a").string() + " --set run.t_end=0.125").code, 0);
   r = cli("run " + deck() + " -o " + (d / "a").string() +
           " --set types.bob.mass=2 --set types.pivot.mass=2 --restart " + (d / "a" / "checkpoint.bin").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("masses differ"), std::string::npos) << r.err;
   r = cli("run " + deck() + " -o " + (d / "a").string() + " --restart " + (d / "a" / "checkpoint.bin").string() +
-          " --set run.t_end=0.05");
+          " --set run.t_end=0.0625");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("not before run.t_end"), std::string::npos) << r.err;
   fs::remove_all(d);
@@ -142,16 +142,16 @@ TEST(Checkpoint, IsNeverHalfWrittenWhenKilled) {
 TEST(Outputs, BadPathsAreClearErrors) {
   const fs::path d = test::scratch_dir("badpaths");
   std::ofstream(d / "a_file") << "x";
-  auto r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "a_file").string());
+  auto r = cli("run " + deck() + " --set run.t_end=0.125 -o " + (d / "a_file").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("a_file: output path exists and is not a directory"), std::string::npos) << r.err;
-  r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "a_file" / "sub").string());
+  r = cli("run " + deck() + " --set run.t_end=0.125 -o " + (d / "a_file" / "sub").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("cannot create output directory"), std::string::npos) << r.err;
   // A full disk: the thermo file is /dev/full, where every write fails with ENOSPC.
   fs::create_directories(d / "full");
   fs::create_symlink("/dev/full", d / "full" / "thermo.csv");
-  r = cli("run " + deck() + " --set run.t_end=0.1 -o " + (d / "full").string());
+  r = cli("run " + deck() + " --set run.t_end=0.125 -o " + (d / "full").string());
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("thermo.csv: write failed: No space left on device"), std::string::npos) << r.err;
   fs::remove_all(d);

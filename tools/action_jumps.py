@@ -47,6 +47,11 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+def whole_steps_t_end(t_end, h):
+    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
+    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
+
+
 def eval_eps(expr, eps):
     """'eps/100' or '1e-5' -> a float, with eps bound (and pi, sqrt)."""
     return float(eval(expr, {"__builtins__": {}}, {"eps": eps, "pi": math.pi, "sqrt": math.sqrt}))
@@ -247,7 +252,8 @@ def main():
         eps = float(eps_text)
         d = os.path.join(a.out, "runs", f"{a.method}_eps{eps_text}")
         sets = [f"variables.eps={eps_text}", f"integrator.method={a.method}",
-                f"integrator.h={eval_eps(a.step, eps)!r}", f"run.t_end={a.t_end!r}", "observables.actions=true",
+                f"integrator.h={eval_eps(a.step, eps)!r}",
+                f"run.t_end={whole_steps_t_end(a.t_end, eval_eps(a.step, eps))}", "observables.actions=true",
                 "output.xyz=", "output.h5md=", "output.thermo=thermo.csv", f"output.thermo_interval={a.sample!r}"]
         if "impulse" in a.method:
             sets.append(f"integrator.micro_dt={eval_eps(a.micro_dt, eps)!r}")

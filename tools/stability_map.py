@@ -89,9 +89,14 @@ def read_thermo(path):
     return {n: data[:, k] for k, n in enumerate(header)} if data.size else {n: np.array([]) for n in header}
 
 
+def whole_steps_t_end(t_end, h):
+    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
+    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
+
+
 def run_one(a, deck, eps, method, h, out_dir):
-    sets = [f"integrator.method={method}", f"integrator.h={h!r}", f"run.t_end={a.t_end!r}", "output.xyz=",
-            "output.h5md=", "output.thermo=thermo.csv", f"output.thermo_interval={a.sample or a.t_end / 200!r}"]
+    sets = [f"integrator.method={method}", f"integrator.h={h!r}", f"run.t_end={whole_steps_t_end(a.t_end, h)}",
+            "output.xyz=", "output.h5md=", "output.thermo=thermo.csv", f"output.thermo_interval={a.sample or a.t_end / 200!r}"]
     if eps is not None:
         sets.append(f"variables.eps={eps!r}")
     if a.actions:

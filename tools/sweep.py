@@ -19,6 +19,7 @@ Example (the paper's experiment, see tools/paper_experiment.sh):
 import argparse
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -29,6 +30,11 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ALL_METHODS = ["impulse", "mollified-impulse", "projected-impulse", "rattle", "effective", "velocity-verlet"]
+
+
+def whole_steps_t_end(t_end, h):
+    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
+    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
 
 
 def halvings(spec):
@@ -107,7 +113,8 @@ def main():
             div = a.ref_divisor or int(np.ceil(float(h_min) / (eps / 200)))
         ref_dir = os.path.join(a.out, "runs", f"reference_{a.reference}_eps{eps_text}")
         code, err = run_stiffmd(a.stiffmd, a.deck, ref_dir,
-                                common + [f"integrator.method={a.reference}", f"integrator.h={float(h_min / div)!r}"])
+                                common + [f"integrator.method={a.reference}", f"integrator.h={float(h_min / div)!r}",
+                                          f"run.t_end={whole_steps_t_end(a.t_end, h_min / div)}"])
         if code != 0:
             sys.exit(f"sweep: the reference run failed:\n{err}")
         rt, rx, rp = read_state(os.path.join(ref_dir, "state.csv"))
@@ -125,6 +132,7 @@ def main():
             # States at the macro times n h; velocity Verlet's tiny steps are sampled on the
             # grid of the smallest macro step, like the reference.
             sets = common + [f"integrator.method={m}", f"integrator.h={float(h)!r}",
+                             f"run.t_end={whole_steps_t_end(a.t_end, h)}",
                              f"output.state_interval={float(max(h, h_min))!r}"]
             micro = None
             if m in ("impulse", "mollified-impulse", "projected-impulse"):
