@@ -399,6 +399,7 @@ Scene load_scene(const Deck& deck) {
     root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
   check_positions_near_box(root, sc);
   read_bonds(root, sc);
+  make_scene_molecules_whole(root, sc);
   read_velocities(root, sc);
   read_forces(root, sc);
   read_prepare(root, sc);

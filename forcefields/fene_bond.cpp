@@ -56,8 +56,9 @@ void FeneBond::Kernel::out_of_range(double r, double R0) {
 // Only reached on failure, so the second pass over the bonds costs nothing in a normal step. The
 // test is the kernel's own, term for term, so the bond it refused is found.
 void FeneBond::throw_out_of_range(const Eigen::Matrix3Xd& x, const Box& box) const {
+  (void)box;  // the bond vector needs no box: molecules are whole (engine/state.hpp)
   for (const auto& b : instances_) {
-    const double r = box.min_image(x.col(b.i) - x.col(b.j)).norm();
+    const double r = bond_vector(x, b.i, b.j).norm();
     if (r > 0.0 && r * r * b.params.inv_R0_sq < 1.0) continue;
     std::ostringstream m;
     m.precision(10);

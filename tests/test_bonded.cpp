@@ -11,6 +11,7 @@
 #include <string>
 
 #include "engine/errors.hpp"
+#include "engine/whole_molecules.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/fene_bond.hpp"
@@ -125,6 +126,12 @@ Matrix3Xd angle_geometry(double theta, double la = 1.0, double lb = 1.3) {
 
 // ---------------------------------------------------------------------------------------- FENE
 
+std::vector<std::pair<int, int>> pairs(const std::vector<Bond>& bonds) {
+  std::vector<std::pair<int, int>> p;
+  for (const Bond& b : bonds) p.emplace_back(b.i, b.j);
+  return p;
+}
+
 TEST(FeneBond, EnergyAndForceAtHandComputedLengths) {
   const FeneBond term("fene", Level::slow, {{0, 1, 0}}, {{30.0, 1.5, 1.0, 1.0}});
   // r = 0.97 < 2^{1/6}: FENE plus the WCA core. 20.24159000794699744 is the same sum in 30-digit
@@ -163,15 +170,17 @@ TEST(FeneBond, ForceIsMinusGradientOfEnergyOnRandomChains) {
   for (unsigned seed = 1; seed <= 5; ++seed) EXPECT_LT(fd_error(term, random_chain(10, 0.8, 1.35, seed), Box{}), 1e-6);
 }
 
-TEST(FeneBond, PeriodicBoundaryUsesMinimumImage) {
+// Positions reach a force term whole (engine/state.hpp): a chain folded into the cell is made whole
+// again (by whole box vectors) and then gives the open-box energy and forces.
+TEST(FeneBond, WrappedChainMadeWholeGivesTheOpenBoxEnergy) {
   const Box box = periodic_box();
   const FeneBond term("fene", Level::slow, chain_bond_list(12, 2), kFeneTypes);
   for (unsigned seed = 11; seed <= 13; ++seed) {
     const Matrix3Xd x = random_chain(12, 0.8, 1.35, seed, Vector3d(1.2, 1.5, 1.8));
-    const Matrix3Xd xw = wrapped(x, box);
+    Matrix3Xd xw = wrapped(x, box);
     ASSERT_GT(straddling(x, xw), 0);
+    ASSERT_FALSE(make_molecules_whole(xw, pairs(chain_bond_list(12, 2)), box));
     EXPECT_LT(fd_error(term, xw, box), 1e-6);
-    // Folding into the cell changes neither energy nor forces: each bond is its minimum image.
     EXPECT_NEAR(energy(term, xw, box), energy(term, x, Box{}), 1e-10);
     EXPECT_LT((forces(term, xw, box) - forces(term, x, Box{})).cwiseAbs().maxCoeff(), 1e-9);
   }
@@ -188,12 +197,13 @@ TEST(FeneBond, VirialMatchesBruteForce) {
   const std::vector<Bond> bonds = chain_bond_list(12, 2);
   const FeneBond term("fene", Level::slow, bonds, kFeneTypes);
   const Matrix3Xd x = random_chain(12, 0.8, 1.35, 21, Vector3d(1.2, 1.5, 1.8));
-  const Matrix3Xd xw = wrapped(x, box);
-  // Definition: Σ_b r_ij · f_i^(b), r_ij = x_i − x_j by minimum image, f^(b) from that bond alone.
+  Matrix3Xd xw = wrapped(x, box);
+  ASSERT_FALSE(make_molecules_whole(xw, pairs(bonds), box));
+  // Definition: Σ_b r_ij · f_i^(b), r_ij = x_i − x_j (the bond vector), f^(b) from that bond alone.
   double w = 0.0;
   for (const Bond& b : bonds) {
     const FeneBond one("one", Level::slow, {{b.i, b.j, b.type}}, kFeneTypes);
-    w += box.min_image(xw.col(b.i) - xw.col(b.j)).dot(forces(one, xw, box).col(b.i));
+    w += bond_vector(xw, b.i, b.j).dot(forces(one, xw, box).col(b.i));
   }
   EXPECT_NEAR(term.virial(xw, box), w, 1e-10 * std::abs(w));
   // And the virial theorem's form: W = −dE(λx)/dλ at λ = 1 (open box, unwrapped chain).
@@ -221,13 +231,19 @@ TEST(FeneBond, OverstretchedBondThrowsNumericalErrorNamingTheBond) {
   EXPECT_THROW(energy(term, x, Box{}), NumericalError);
   x(0, 3) = 1.94;  // coincident particles: no direction for the force
   EXPECT_THROW(energy(term, x, Box{}), NumericalError);
-  // Across a periodic face: 1.49 by minimum image is fine, the same pair at 1.51 is not.
+  // Across a periodic face, once made whole: 1.49 is fine, the same pair at 1.51 is not.
   Box box;
   box.periodic = Eigen::Vector3i(1, 0, 0);
   box.lengths = Vector3d(10.0, 0.0, 0.0);
   const FeneBond pair("pair", Level::slow, {{0, 1, 0}}, {{30.0, 1.5, 0.0, 1.0}});
-  EXPECT_NO_THROW(energy(pair, two_particles(10.0 - 1.49), box));
-  EXPECT_THROW(energy(pair, two_particles(10.0 - 1.51), box), NumericalError);
+  for (const auto& [gap, ok] : {std::pair{1.49, true}, std::pair{1.51, false}}) {
+    Matrix3Xd p = two_particles(10.0 - gap);
+    ASSERT_FALSE(make_molecules_whole(p, {{0, 1}}, box));
+    if (ok)
+      EXPECT_NO_THROW(energy(pair, p, box));
+    else
+      EXPECT_THROW(energy(pair, p, box), NumericalError);
+  }
 }
 
 TEST(FeneBond, RejectsInvalidParameters) {
