@@ -407,6 +407,9 @@ Scene load_scene(const Deck& deck) {
   read_run(root, sc);
   read_observables(root, sc);
   sc.monitor = read_monitor(root);
+  // The default energy check applies to energy-conserving (NVE) runs only; a thermostat's run
+  // passes false here.
+  apply_energy_default(sc.monitor, /*conserves_energy=*/true);
   read_output(root, sc);
   root.finish();
   return sc;
