@@ -310,6 +310,7 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
   // Fixed names first, so that a deck key that takes one of them is the one named.
   if (sc.observables.histograms && !sc.topology.bonds.empty()) out.emplace_back("", "histograms.csv");
   out.emplace_back("", "summary.json");
+  if (!o.xyz.empty() || !o.h5md.empty()) out.emplace_back("", kTopologyFile);
   for (const auto& [key, name] : {std::pair<const char*, const std::string*>{"xyz", &o.xyz},
                                   {"thermo", &o.thermo},
                                   {"state", &o.state},
