@@ -69,6 +69,20 @@ std::vector<std::pair<int, int>> bond_pairs(const std::vector<ImportedSystem::Bo
   return pairs;
 }
 
+// An XYZ file has no molecule ids: the molecules are the connected components of its bonds.
+std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>& bonds) {
+  std::vector<int> parent(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) parent[p] = p;
+  auto root = [&](int p) {
+    while (parent[p] != p) p = parent[p] = parent[parent[p]];
+    return p;
+  };
+  for (const auto& b : bonds) parent[root(b.i)] = root(b.j);
+  std::vector<int> molecule(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) molecule[p] = root(p);
+  return molecule;
+}
+
 // Imported molecules made whole (engine/state.hpp): unwrapped along their bonds, or, when the
 // LAMMPS file has image flags, checked to be whole as the flags unwrap them. A failure names the
 // file (through the deck key that gave it) and the atoms as the file numbers them.
@@ -211,6 +225,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   if (in.x.cols() > kMaxImportedAtoms)
     t->fail(file_key, std::to_string(in.x.cols()) + " atoms; expected at most " + std::to_string(kMaxImportedAtoms));
   make_imported_molecules_whole(*t, file_key, in, lammps ? box_of(in) : sc.box);
+  if (!lammps) in.molecule = bond_components(static_cast<int>(in.x.cols()), in.bonds);
   // A bond between two atoms at the same position has no direction: its force and its
   // constraint gradient are 0/0.
   for (const auto& b : in.bonds)

@@ -110,22 +110,29 @@ TEST(WholeMolecules, RefusesWhatCannotBeMadeWholeAndLeavesThePositions) {
 // Without [prepare], the wrapped file runs with max |g| at round-off and a sane end-to-end
 // distance (before: max |g| 8.2 at the crossing bonds, or an end-to-end distance of a box).
 TEST(WholeMolecules, WrappedImportRunsWholeWithoutPrepare) {
-  const fs::path dir = scratch_dir("wrapped_import");
-  std::ofstream(dir / "deck.toml") << "[types.bead]\nmass = 1.0\n[import]\nlammps_data = \""
-                                   << source_path("tests/data/wrapped_chains.data")
-                                   << "\"\natom_types = { \"1\" = \"bead\" }\nbond_types = { \"1\" = \"b\" }\n"
-                                      "[forces.springs]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\n"
-                                      "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
-                                      "[integrator]\nmethod = \"projected-impulse\"\nh = 0.01\nmicro_steps = 10\n"
-                                      "[run]\nt_end = 0.1\n[output]\nxyz = \"\"\n";
-  const CliResult r = cli("run " + (dir / "deck.toml").string() + " -o " + (dir / "out").string() + " --no-progress");
-  ASSERT_EQ(r.code, 0) << r.err;
-  const CsvTable t = read_csv((dir / "out" / "thermo.csv").string());
-  for (const auto& row : t.rows) {
-    EXPECT_LT(row[t.col("max_violation")], 1e-12);
-    EXPECT_LT(row[t.col("end_to_end")], 7.0);  // 7 unit bonds
-    EXPECT_GT(row[t.col("end_to_end")], 1.0);
-    EXPECT_LT(row[t.col("rg")], 3.0);
+  const std::string lammps = "[import]\nlammps_data = \"" + source_path("tests/data/wrapped_chains.data") +
+                             "\"\natom_types = { \"1\" = \"bead\" }\nbond_types = { \"1\" = \"b\" }\n";
+  // The XYZ + bonds import takes its box from the deck; its molecules are the bonded components.
+  const std::string xyz = "[box]\nperiodic = true\nlengths = [6, 6, 6]\n[import]\nxyz = \"" +
+                          source_path("tests/data/wrapped_chains.xyz") + "\"\nbonds = \"" +
+                          source_path("tests/data/wrapped_chains.bonds") + "\"\nbond_type = \"b\"\n";
+  for (const auto& [name, import] : {std::pair{"lammps", lammps}, std::pair{"xyz", xyz}}) {
+    const fs::path dir = scratch_dir(std::string("wrapped_import_") + name);
+    std::ofstream(dir / "deck.toml") << "[types.bead]\nmass = 1.0\n" << import
+                                     << "[forces.springs]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\n"
+                                        "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
+                                        "[integrator]\nmethod = \"projected-impulse\"\nh = 0.01\nmicro_steps = 10\n"
+                                        "[run]\nt_end = 0.1\n[output]\nxyz = \"\"\n";
+    const CliResult r =
+        cli("run " + (dir / "deck.toml").string() + " -o " + (dir / "out").string() + " --no-progress");
+    ASSERT_EQ(r.code, 0) << name << ": " << r.err;
+    const CsvTable t = read_csv((dir / "out" / "thermo.csv").string());
+    for (const auto& row : t.rows) {
+      EXPECT_LT(row[t.col("max_violation")], 1e-12) << name;
+      EXPECT_LT(row[t.col("end_to_end")], 7.0) << name;  // 7 unit bonds
+      EXPECT_GT(row[t.col("end_to_end")], 1.0) << name;
+      EXPECT_LT(row[t.col("rg")], 3.0) << name;
+    }
   }
 }
 
