@@ -95,8 +95,18 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
         return c;
       },
       coeffs);
-  for (const Bond& b : claimed(ctx.scene.topology.bonds, index))
+  std::vector<int> type_of;  // the scene's bond type of each stiff bond, for the message
+  for (const Bond& b : claimed(ctx.scene.topology.bonds, index)) {
     sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
+    type_of.push_back(static_cast<int>(std::find(index.begin(), index.end(), b.type) - index.begin()));
+  }
+  // The rules the constraint toolbox and the stiff modes will enforce (forcefields/stiff_bond.hpp),
+  // checked now with the masses, so that a deck no run could use is refused at load.
+  if (const auto problem = find_stiff_bond_problem(sb.bonds, &ctx.scene.state.inv_mass)) {
+    const std::string type =
+        problem->bond >= 0 ? " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')" : "";
+    t.fail("bond_types", problem->what + type);
+  }
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }
 

@@ -594,6 +594,7 @@ class DataReader {
     s.type.resize(n);
     s.molecule.resize(n);
     if (style_ && style_->charge) s.charge.resize(n);
+    s.image_flags = images_;
     for (size_t k = 0; k < n; ++k) {
       const size_t p = order[k];
       s.id[k] = static_cast<long>(a_id_[p]);

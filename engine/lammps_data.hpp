@@ -29,6 +29,7 @@ namespace stiffmd {
 
 struct ImportedSystem {
   Eigen::Matrix3Xd x;               // positions, unwrapped with the image flags when the file has them
+  bool image_flags = false;         // the Atoms section had image flags (x is then unwrapped)
   Eigen::Matrix3Xd v;               // velocities (zero when the file has none)
   std::vector<int> type;            // 1-based atom type as read
   std::vector<int> molecule;        // molecule id (0 when the atom style has none)

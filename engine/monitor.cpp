@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <sstream>
 
 #include "engine/deck.hpp"
+#include "engine/errors.hpp"
 #include "engine/observables.hpp"
 
 namespace stiffmd {
@@ -29,7 +31,22 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   };
   const char* no_bonds = scene.stiff_bonds ? "" : "constraint-defining stiff bonds (a stiff-harmonic term)";
   const char* no_actions = scene.actions ? "" : "the actions observed ([observables] actions = true)";
-  threshold("energy_error", m.energy_error, "");
+  if (t->has("energy_error")) {
+    // A number (0 switches the check off) or a boolean (false: off; true: the default).
+    m.energy_error_given = true;
+    std::optional<bool> flag;
+    try {
+      flag = t->boolean("energy_error", true);
+    } catch (const InputError&) {  // not a boolean: a number
+    }
+    if (flag) {
+      m.energy_error = *flag ? MonitorSettings::kDefaultEnergyError : MonitorSettings::kOff;
+    } else {
+      const double v = t->number("energy_error");
+      t->require(std::isfinite(v) && v >= 0.0, "energy_error", "expected a threshold >= 0 (0 or false: off)");
+      m.energy_error = v > 0.0 ? v : MonitorSettings::kOff;
+    }
+  }
   threshold("violation", m.violation, no_bonds);
   threshold("violation_growth", m.violation_growth, no_bonds);
   threshold("action_drift", m.action_drift, no_actions);
@@ -45,11 +62,16 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   return m;
 }
 
+void apply_energy_default(MonitorSettings& m, bool conserves_energy) {
+  if (!m.energy_error_given && conserves_energy) m.energy_error = MonitorSettings::kDefaultEnergyError;
+}
+
 Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon, bool effective)
     : settings_(settings),
       col_step_(thermo.column("step")),
       col_time_(thermo.column("time")),
       col_total_(thermo.column("total")),
+      col_kinetic_(thermo.column("kinetic")),
       col_violation_(thermo.column("max_violation")),
       col_gap_(thermo.column("min_gap")),
       col_resonance_(thermo.column("min_resonance")),
@@ -62,6 +84,7 @@ Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double e
 int Monitor::check(const std::vector<double>& row, double initial_energy, std::ostream& log) {
   if (!have_reference_) {
     violation0_ = row[col_violation_];
+    kinetic0_ = row[col_kinetic_];
     for (int c : col_actions_) actions0_.push_back(row[c]);
     have_reference_ = true;
   }
@@ -85,8 +108,9 @@ int Monitor::check(const std::vector<double>& row, double initial_energy, std::o
   w.precision(6);
 
   const double e = row[col_total_];
-  const double rel =
-      initial_energy != 0.0 ? std::abs(e - initial_energy) / std::abs(initial_energy) : std::abs(e - initial_energy);
+  // Relative to max(|E(0)|, K(0)) (see MonitorSettings::kDefaultEnergyError); absolute when both are 0.
+  const double scale = std::max(std::abs(initial_energy), kinetic0_);
+  const double rel = scale > 0.0 ? std::abs(e - initial_energy) / scale : std::abs(e - initial_energy);
   if (settings_.energy_error < MonitorSettings::kOff && over(rel, settings_.energy_error)) {
     w << "relative energy error " << rel << " > [monitor] energy_error = " << settings_.energy_error;
     alert(0, w.str());

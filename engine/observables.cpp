@@ -13,12 +13,8 @@ Energies energies(const State& s, const ForceField& forces) {
   return e;
 }
 
-double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const StiffBonds* stiff) {
-  if (!stiff) return 0.0;
-  double worst = 0.0;
-  for (const StiffBond& b : stiff->bonds)
-    worst = std::max(worst, std::abs(box.min_image(x.col(b.i) - x.col(b.j)).norm() - b.length));
-  return worst;
+double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* stiff) {
+  return stiff ? max_violation(stiff->bonds, x) : 0.0;
 }
 
 Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
@@ -82,7 +78,7 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   values_.clear();
   values_.insert(values_.end(),
                  {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
-                  max_constraint_violation(s.x, forces_.box(), forces_.stiff_bonds()), temperature(s, dof_)});
+                  max_constraint_violation(s.x, forces_.stiff_bonds()), temperature(s, dof_)});
   if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_) + constraint_virial / (3.0 * volume_));
   if (molecules_) {
     double rg = 0.0, ree = 0.0;

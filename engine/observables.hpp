@@ -26,8 +26,9 @@ struct Energies {
 
 Energies energies(const State& s, const ForceField& forces);
 
-// max_b |g_b(x)| = max_b | |x_i − x_j| − ℓ_b | over the constraint-defining bonds (0 if none).
-double max_constraint_violation(const Eigen::Matrix3Xd& x, const Box& box, const StiffBonds* stiff);
+// max_b |g_b(x)| = max_b | |x_i − x_j| − ℓ_b | over the constraint-defining bonds (0 if none):
+// max_violation (forcefields/stiff_bond.hpp), the toolbox's own.
+double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* stiff);
 
 struct ObservableSettings {
   bool actions = false;        // ω_k, I_k and the validity monitor in the thermo output

@@ -65,9 +65,10 @@ void histogram(std::FILE* f, const char* name, std::vector<double> values, int b
 void write_histograms(const std::string& path, const Eigen::Matrix3Xd& x, const Box& box, const Topology& topology,
                       int bins) {
   std::vector<double> lengths, angles;
-  for (const Bond& b : topology.bonds) lengths.push_back(box.min_image(x.col(b.i) - x.col(b.j)).norm());
+  (void)box;  // molecules are whole: the raw differences are the bond vectors (engine/state.hpp)
+  for (const Bond& b : topology.bonds) lengths.push_back(bond_vector(x, b.i, b.j).norm());
   auto angle = [&](int i, int j, int k) {
-    const Eigen::Vector3d a = box.min_image(x.col(i) - x.col(j)), c = box.min_image(x.col(k) - x.col(j));
+    const Eigen::Vector3d a = bond_vector(x, i, j), c = bond_vector(x, k, j);
     return std::atan2(a.cross(c).norm(), a.dot(c)) * 180.0 / M_PI;
   };
   if (!topology.angles.empty()) {

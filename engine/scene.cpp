@@ -372,6 +372,7 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
   // Fixed names first, so that a deck key that takes one of them is the one named.
   if (sc.observables.histograms && !sc.topology.bonds.empty()) out.emplace_back("", "histograms.csv");
   out.emplace_back("", "summary.json");
+  if (!o.xyz.empty() || !o.h5md.empty()) out.emplace_back("", kTopologyFile);
   for (const auto& [key, name] : {std::pair<const char*, const std::string*>{"xyz", &o.xyz},
                                   {"thermo", &o.thermo},
                                   {"state", &o.state},
@@ -462,6 +463,7 @@ Scene load_scene(const Deck& deck) {
     root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
   check_positions_near_box(root, sc);
   read_bonds(root, sc);
+  make_scene_molecules_whole(root, sc);
   read_velocities(root, sc);
   read_forces(root, sc);
   read_prepare(root, sc);
@@ -469,6 +471,9 @@ Scene load_scene(const Deck& deck) {
   read_run(root, sc);
   read_observables(root, sc);
   sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions});
+  // The default energy check applies to energy-conserving (NVE) runs only; a thermostat's run
+  // passes false here.
+  apply_energy_default(sc.monitor, /*conserves_energy=*/true);
   read_output(root, sc);
   root.finish();
   check_integrator(root, sc);

@@ -90,6 +90,9 @@ void prepare_scene(Scene& scene, std::ostream& log);
 
 // The files a run of the scene writes into its output directory, with the deck key that names
 // each under [output] ("xyz", "thermo", …; "" for histograms.csv and summary.json, fixed names).
+// Written at the start of every run with a trajectory (xyz or h5md): bonds, masses and molecule
+// ids as a LAMMPS data file, for MDAnalysis, VMD and OVITO (engine/simulation.cpp).
+inline constexpr const char* kTopologyFile = "topology.data";
 std::vector<std::pair<std::string, std::string>> output_files(const Scene& scene);
 
 // Before the first step: throws InputError when an output file of the scene (or the temporary

@@ -10,6 +10,7 @@
 #include "engine/builders.hpp"
 #include "engine/errors.hpp"
 #include "engine/lammps_data.hpp"
+#include "engine/whole_molecules.hpp"
 #include "engine/xyz_bonds.hpp"
 #include "integrators/constraints.hpp"
 
@@ -53,7 +54,69 @@ void add_topology(Scene& sc, int first, const std::vector<std::pair<int, int>>& 
   }
 }
 
+// A LAMMPS data file's box: periodic on every axis, LAMMPS's default boundary p p p.
+Box box_of(const ImportedSystem& in) {
+  Box box;
+  box.origin = in.lo;
+  box.lengths = in.hi - in.lo;
+  box.periodic = Eigen::Vector3i::Ones();
+  return box;
+}
+
+std::vector<std::pair<int, int>> bond_pairs(const std::vector<ImportedSystem::Bond>& bonds) {
+  std::vector<std::pair<int, int>> pairs;
+  for (const auto& b : bonds) pairs.emplace_back(b.i, b.j);
+  return pairs;
+}
+
+// An XYZ file has no molecule ids: the molecules are the connected components of its bonds.
+std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>& bonds) {
+  std::vector<int> parent(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) parent[p] = p;
+  auto root = [&](int p) {
+    while (parent[p] != p) p = parent[p] = parent[parent[p]];
+    return p;
+  };
+  for (const auto& b : bonds) parent[root(b.i)] = root(b.j);
+  std::vector<int> molecule(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) molecule[p] = root(p);
+  return molecule;
+}
+
+// Imported molecules made whole (engine/state.hpp): unwrapped along their bonds, or, when the
+// LAMMPS file has image flags, checked to be whole as the flags unwrap them. A failure names the
+// file (through the deck key that gave it) and the atoms as the file numbers them.
+void make_imported_molecules_whole(DeckTable& t, const char* file_key, ImportedSystem& in, const Box& box) {
+  const auto problem = make_molecules_whole(in.x, bond_pairs(in.bonds), box, in.image_flags);
+  if (!problem) return;
+  const auto& b = in.bonds[static_cast<size_t>(problem->bond)];
+  const bool lammps = std::string(file_key) == "lammps_data";
+  t.fail(file_key, (lammps ? "bond between atom ids " + std::to_string(in.id[static_cast<size_t>(b.i)]) + " and " +
+                                 std::to_string(in.id[static_cast<size_t>(b.j)])
+                           : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
+                                 " (0-based, as in the bonds file)") +
+                       " " + problem->what);
+}
+
 }  // namespace
+
+// Every molecule of the scene made whole (engine/state.hpp): builders and imports already are,
+// explicit [[bonds]] between [[particles]] (or joining sources) are unwrapped here. A failure
+// names the [[bonds]] row when an explicit bond is the one that cannot be made whole.
+void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
+  std::vector<std::pair<int, int>> pairs;
+  for (const Bond& b : sc.topology.bonds) pairs.emplace_back(b.i, b.j);
+  const auto problem = make_molecules_whole(sc.state.x, pairs, sc.box);
+  if (!problem) return;
+  const Bond& b = sc.topology.bonds[static_cast<size_t>(problem->bond)];
+  const std::string what =
+      "bond between particles " + std::to_string(b.i) + " and " + std::to_string(b.j) + " " + problem->what;
+  auto rows = root.array_of_tables("bonds");
+  const size_t first_explicit = sc.topology.bonds.size() - rows.size();
+  if (static_cast<size_t>(problem->bond) >= first_explicit)
+    rows[static_cast<size_t>(problem->bond) - first_explicit].fail("particles", what);
+  root.fail_here(what);
+}
 
 // [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
 // bond_type, angle_type (optional), density (optional: sets a periodic cubic box), min_distance, seed.
@@ -161,6 +224,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   }
   if (in.x.cols() > kMaxImportedAtoms)
     t->fail(file_key, std::to_string(in.x.cols()) + " atoms; expected at most " + std::to_string(kMaxImportedAtoms));
+  make_imported_molecules_whole(*t, file_key, in, lammps ? box_of(in) : sc.box);
+  if (!lammps) in.molecule = bond_components(static_cast<int>(in.x.cols()), in.bonds);
   // A bond between two atoms at the same position has no direction: its force and its
   // constraint gradient are 0/0.
   for (const auto& b : in.bonds)
@@ -198,13 +263,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
                                 " but the data file's Masses give " + std::to_string(in.type_mass.at(in.type[i])) +
                                 " for LAMMPS type " + std::to_string(in.type[i]));
   }
-  if (lammps) {
-    Box box;
-    box.origin = in.lo;
-    box.lengths = in.hi - in.lo;
-    box.periodic = Eigen::Vector3i::Ones();  // LAMMPS's default boundary p p p
-    set_box(*t, "lammps_data", sc, box);
-  }
+  if (lammps) set_box(*t, "lammps_data", sc, box_of(in));
   const Eigen::Matrix3Xd v = use_velocities ? in.v : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
   for (const auto& b : in.bonds) {

@@ -192,7 +192,16 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     return false;
   };
   std::vector<std::string> species;
-  for (int t : sc.particle_type) species.push_back(sc.types[t].element);
+  std::vector<double> masses;
+  for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
+  // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
+  // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
+  if (!sc.output.xyz.empty() || !sc.output.h5md.empty()) {
+    const fs::path p = dir / kTopologyFile;
+    if (!restarting)
+      write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
+    summary.outputs.push_back(p.string());
+  }
   std::unique_ptr<XyzWriter> xyz;
   std::unique_ptr<CsvWriter> csv, state_csv;
   std::unique_ptr<ProjectedMomenta> projected;
@@ -200,7 +209,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     const bool append =
         open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
     xyz =
-        std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append);
+        std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append,
+                                    masses);
   }
   if (!sc.output.thermo.empty()) {
     const bool append = open_output(

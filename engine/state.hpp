@@ -1,4 +1,13 @@
 // The dynamical state: contiguous 3×N storage, one column per particle (style.md §7).
+//
+// What a scene guarantees about x (engine/scene_sources.cpp, make_molecules_whole): positions are
+// unwrapped and every molecule is whole. Every source — [[particles]] with [[bonds]], [[build]],
+// [import] of LAMMPS data (with or without image flags) or XYZ + bonds — is made whole at load by a
+// traversal of each molecule's bond graph that applies the minimum image per bond; what cannot be
+// made whole consistently (a bond longer than half a periodic box length, a ring that closes only
+// across a box length) is refused as bad input. No step ever wraps a position. Hence on every
+// periodic axis each bond's raw difference x_i − x_j is its own minimum image, and it is THE bond
+// vector everywhere (bond_vector below): force terms, constraint toolbox, stiff modes, observables.
 #pragma once
 
 #include <Eigen/Core>
@@ -23,5 +32,11 @@ struct State {
     return e;
   }
 };
+
+// The bond vector of bond (i, j): the raw difference of unwrapped positions (see above). For whole
+// molecules this equals the minimum image bit for bit (round_nearest(d/L) = 0, so d − 0·L = d).
+inline Eigen::Vector3d bond_vector(const Eigen::Matrix3Xd& x, int i, int j) {
+  return x.col(i) - x.col(j);
+}
 
 }  // namespace stiffmd

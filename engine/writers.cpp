@@ -123,10 +123,10 @@ bool truncate_csv_after(const std::string& path, double t, double tolerance, con
 }
 
 XyzWriter::XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
-                     bool append)
-    : file_(path, append ? "a" : "w"), species_(std::move(species)), velocities_(velocities) {
+                     bool append, std::vector<double> masses)
+    : file_(path, append ? "a" : "w"), species_(std::move(species)), masses_(std::move(masses)), velocities_(velocities) {
   std::ostringstream h;
-  h << "Properties=species:S:1:pos:R:3" << (velocities ? ":velo:R:3" : "");
+  h << "Properties=species:S:1:pos:R:3" << (masses_.empty() ? "" : ":masses:R:1") << (velocities ? ":velo:R:3" : "");
   h << " pbc=\"" << (box.periodic[0] ? 'T' : 'F') << ' ' << (box.periodic[1] ? 'T' : 'F') << ' '
     << (box.periodic[2] ? 'T' : 'F') << '"';
   if (box.any_periodic()) {
@@ -149,6 +149,7 @@ void XyzWriter::write(const State& s) {
   for (int i = 0; i < s.size(); ++i) {
     int k =
         std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), s.x(0, i), s.x(1, i), s.x(2, i));
+    if (!masses_.empty()) k += std::snprintf(line + k, sizeof line - k, " %.12g", masses_[static_cast<size_t>(i)]);
     if (velocities_)
       k += std::snprintf(line + k, sizeof line - k, " %.12g %.12g %.12g", s.v(0, i), s.v(1, i), s.v(2, i));
     buffer_.append(line, static_cast<size_t>(k));

@@ -40,13 +40,17 @@ bool truncate_csv_after(const std::string& path, double t, double tolerance, con
 // then one line per particle. Species are element symbols.
 class XyzWriter {
  public:
+  // masses (one per particle, or empty): a masses:R:1 column, so that ASE takes the beads' masses
+  // from the file instead of the element's (N: 14.007). Named "masses", ASE's own name for the
+  // array, because ASE 3.22 maps a column called "mass" to nothing (it stays arrays["mass"]).
   XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
-            bool append = false);
+            bool append = false, std::vector<double> masses = {});
   void write(const State& s);
 
  private:
   TextFile file_;
   std::vector<std::string> species_;
+  std::vector<double> masses_;
   std::string header_;  // the invariant part of the comment line
   bool velocities_;
   std::string buffer_;

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "engine/box.hpp"
+#include "engine/state.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/parallel.hpp"
 
@@ -96,8 +97,10 @@ class BondPartition {
   std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
 };
 
-// Adds −∇E into f for every bond and returns Σ E. Minimum image on periodic axes. `partition`
-// is the per-term thread plan (rebuilt when the thread count changes).
+// Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
+// positions (bond_vector, engine/state.hpp): molecules are whole, so it is the minimum image
+// without computing one, and `box` is not needed. `partition` is the per-term thread plan
+// (rebuilt when the thread count changes).
 //
 // Each owner works in blocks of kBlock bonds: gather the separations, compute every force of
 // the block in a loop without branches or memory dependences (which the compiler vectorises:
@@ -107,9 +110,8 @@ class BondPartition {
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
+  (void)box;
   constexpr int kBlock = 64;
-  const MinimumImage mi(box);  // open axes: L = 1/L = 0; round_nearest vectorises
-  const double* xp = x.data();
   double* fp = f.data();
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
   partition.prepare(bonds, threads);
@@ -122,12 +124,12 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
       const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBlock, partition.end(t) - w));
       for (int k = 0; k < nb; ++k) {
         const auto& b = bonds[w[k].bond];
-        for (int a = 0; a < 3; ++a) d[a][k] = xp[3 * b.i + a] - xp[3 * b.j + a];
+        const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
+        for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
         p[k] = b.params;
         counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
       }
       for (int k = 0; k < nb; ++k) {
-        for (int a = 0; a < 3; ++a) d[a][k] = MinimumImage::wrap(d[a][k], mi.length[a], mi.inv_length[a]);
         const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
         double e = 0.0, de_dr = 0.0;
         Kernel::eval(r, p[k], e, de_dr);
@@ -155,9 +157,10 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
 template <class Kernel, class Params>
 double accumulate_bond_virial(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x,
                               const Box& box) {
+  (void)box;
   double w = 0.0;
   for (const auto& b : bonds) {
-    const double r = box.min_image(x.col(b.i) - x.col(b.j)).norm();
+    const double r = bond_vector(x, b.i, b.j).norm();
     double e = 0.0, de_dr = 0.0;
     Kernel::eval(r, b.params, e, de_dr);
     w -= r * de_dr;

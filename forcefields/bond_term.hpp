@@ -94,7 +94,8 @@ class BondTerm final : public ForceTerm {
   // test, bond by bond; only reached on failure) and throw NumericalError naming it.
   [[noreturn]] void throw_outside_domain(const Eigen::Matrix3Xd& x, const Box& box) const {
     for (const auto& b : instances_) {
-      const double r = box.min_image(x.col(b.i) - x.col(b.j)).norm();
+      (void)box;  // the bond vector needs no box: molecules are whole (engine/state.hpp)
+      const double r = bond_vector(x, b.i, b.j).norm();
       double e = 0.0, de_dr = 0.0;
       try {
         K::eval(r, b.params, e, de_dr);

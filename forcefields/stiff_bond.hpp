@@ -2,9 +2,20 @@
 //   V_b = ½ α_b² g_b(x)²,   g_b(x) = |x_i − x_j| − ℓ_b,   energy ε⁻² V_b.
 // The set of these bonds defines the constraint manifold g(x) = 0 used by the
 // constraint toolbox (integrators/constraints.hpp).
+//
+// The rules a set of stiff bonds obeys are checked once, here (find_stiff_bond_problem), for the
+// stiff-harmonic force term, the constraint toolbox and the stiff modes alike; g_b and max |g|
+// are defined once, here, on the one bond vector (engine/state.hpp).
 #pragma once
 
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <string>
 #include <vector>
+
+#include "engine/state.hpp"
 
 namespace stiffmd {
 
@@ -20,5 +31,34 @@ struct StiffBonds {
   std::vector<StiffBond> bonds;
   double epsilon = 1.0;
 };
+
+// g_b(x) = |x_i − x_j| − ℓ_b.
+inline double constraint_value(const StiffBond& b, const Eigen::Matrix3Xd& x) {
+  return bond_vector(x, b.i, b.j).norm() - b.length;
+}
+
+// max_b |g_b(x)| (0 without bonds): the constraint violation reported everywhere.
+inline double max_violation(const std::vector<StiffBond>& bonds, const Eigen::Matrix3Xd& x) {
+  double worst = 0.0;
+  for (const StiffBond& b : bonds) worst = std::max(worst, std::abs(constraint_value(b, x)));
+  return worst;
+}
+
+// The first broken rule, if any: `bond` is the index of the offending bond (−1 for a particle's
+// inverse mass), `what` a sentence naming the bond by its particles.
+struct StiffBondProblem {
+  int bond = -1;
+  std::string what;
+};
+
+// Rules: particle indices ≥ 0 (and < inv_mass->size()), two distinct particles, ℓ_b finite and
+// > 0, α_b finite and > 0, at most one stiff bond per particle pair; with the inverse masses
+// (inv_mass not null): each finite and ≥ 0, and no bond joining two fixed particles (S_bb = 0:
+// it constrains nothing and has no vibrational mode). Lengths must be realisable: around every
+// cycle of the bond graph each length is shorter than the sum of the others (the polygon
+// inequality, i.e. ℓ_e < the shortest path between e's ends avoiding e); equality leaves only
+// collinear configurations, where G is rank deficient and S singular, so it is refused too.
+std::optional<StiffBondProblem> find_stiff_bond_problem(const std::vector<StiffBond>& bonds,
+                                                        const Eigen::VectorXd* inv_mass);
 
 }  // namespace stiffmd

@@ -12,12 +12,10 @@ StiffHarmonicBond::StiffHarmonicBond(std::string name, Level level, StiffBonds b
   require(bonds_.epsilon, kPositive, "epsilon");
   const double inv_eps2 = 1.0 / (bonds_.epsilon * bonds_.epsilon);
   instances_.reserve(bonds_.bonds.size());
-  for (const StiffBond& b : bonds_.bonds) {
-    if (b.i == b.j) throw std::invalid_argument("a bond joins a particle to itself");
-    require(b.length, kLength, "bond length");
-    require(b.alpha, kPositive, "bond alpha");
-    instances_.push_back({b.i, b.j, {b.length, b.alpha * b.alpha * inv_eps2}});
-  }
+  // The masses are not known here: the rules that need them are checked by the deck reader
+  // (engine/force_registry.cpp) and the constraint toolbox, with the same function.
+  if (const auto problem = find_stiff_bond_problem(bonds_.bonds, nullptr)) throw std::invalid_argument(problem->what);
+  for (const StiffBond& b : bonds_.bonds) instances_.push_back({b.i, b.j, {b.length, b.alpha * b.alpha * inv_eps2}});
 }
 
 double StiffHarmonicBond::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {

@@ -12,7 +12,8 @@ namespace stiffmd {
 
 class StiffHarmonicBond final : public ForceTerm {
  public:
-  // Validating constructor: ε > 0, every ℓ_b > 0, every α_b > 0, i ≠ j.
+  // Validating constructor: ε > 0 and the rules of find_stiff_bond_problem (stiff_bond.hpp) that
+  // need no masses (i ≠ j, ℓ_b > 0, α_b > 0, one bond per pair, realisable lengths).
   StiffHarmonicBond(std::string name, Level level, StiffBonds bonds);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;

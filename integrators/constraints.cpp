@@ -310,30 +310,10 @@ std::string format_g(double value) {
   return buffer;
 }
 
+// The shared rules (forcefields/stiff_bond.hpp): the toolbox needs every one of them, S being
+// singular otherwise (a bond between fixed particles, a duplicated row, unrealisable lengths).
 void validate(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
-  const int n = static_cast<int>(inv_mass.size());
-  for (int p = 0; p < n; ++p)
-    if (!std::isfinite(inv_mass[p]) || inv_mass[p] < 0.0)
-      throw InputError("particle " + std::to_string(p) + ": inverse mass must be finite and >= 0");
-  std::vector<std::pair<int, int>> pairs;
-  for (int b = 0; b < static_cast<int>(bonds.size()); ++b) {
-    const StiffBond& bond = bonds[b];
-    if (bond.i < 0 || bond.i >= n || bond.j < 0 || bond.j >= n)
-      throw InputError("stiff " + describe_bond(b, bond) + ": particle index out of range [0, " + std::to_string(n) +
-                       ")");
-    if (bond.i == bond.j) throw InputError("stiff " + describe_bond(b, bond) + " joins a particle to itself");
-    if (!(bond.length > 0.0) || !std::isfinite(bond.length))
-      throw InputError("stiff " + describe_bond(b, bond) + ": length must be finite and > 0");
-    // S_bb = 1/m_i + 1/m_j = 0 and duplicated rows of G both make S singular.
-    if (inv_mass[bond.i] == 0.0 && inv_mass[bond.j] == 0.0)
-      throw InputError("stiff " + describe_bond(b, bond) + " joins two fixed particles and constrains nothing");
-    pairs.emplace_back(std::min(bond.i, bond.j), std::max(bond.i, bond.j));
-  }
-  std::sort(pairs.begin(), pairs.end());
-  const auto twice = std::adjacent_find(pairs.begin(), pairs.end());
-  if (twice != pairs.end())
-    throw InputError("stiff bonds: particles " + std::to_string(twice->first) + "–" + std::to_string(twice->second) +
-                     " are joined by more than one stiff bond");
+  if (const auto problem = find_stiff_bond_problem(bonds, &inv_mass)) throw InputError(problem->what);
 }
 
 void require_columns(const Eigen::Matrix3Xd& a, Eigen::Index n, const char* what) {
@@ -463,14 +443,13 @@ void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFram
                                       int iteration) {
   // One pass without branches (u = d / |d| for every bond), then the check: called several
   // times per macro step by SHAKE and the mollifier, so it is kept tight.
-  const double* xp = x.data();
   double* u = frame.u.data();
   double* len = frame.length.data();
   const StiffBond* bond = bonds.data();
   bool ok = true;
   for (const int b : data[c].bonds) {
-    const int i = bond[b].i, j = bond[b].j;
-    const double dx = xp[3 * i] - xp[3 * j], dy = xp[3 * i + 1] - xp[3 * j + 1], dz = xp[3 * i + 2] - xp[3 * j + 2];
+    const Eigen::Vector3d d = bond_vector(x, bond[b].i, bond[b].j);
+    const double dx = d[0], dy = d[1], dz = d[2];
     const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
     const double inv = 1.0 / length;
     u[3 * b] = dx * inv;
@@ -662,18 +641,12 @@ int ConstraintToolbox::num_bonds() const {
 
 void ConstraintToolbox::constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const {
   require_columns(x, impl_->num_particles(), "constraint_values");
-  for (int b = 0; b < num_bonds(); ++b) {
-    const StiffBond& bond = impl_->bonds[b];
-    g[b] = (x.col(bond.i) - x.col(bond.j)).norm() - bond.length;
-  }
+  for (int b = 0; b < num_bonds(); ++b) g[b] = constraint_value(impl_->bonds[b], x);
 }
 
 double ConstraintToolbox::max_violation(const Eigen::Matrix3Xd& x) const {
   require_columns(x, impl_->num_particles(), "max_violation");
-  double worst = 0.0;
-  for (const StiffBond& bond : impl_->bonds)
-    worst = std::max(worst, std::abs((x.col(bond.i) - x.col(bond.j)).norm() - bond.length));
-  return worst;
+  return stiffmd::max_violation(impl_->bonds, x);
 }
 
 void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {

@@ -69,7 +69,7 @@ struct StiffModes::Impl {
     const int nb = static_cast<int>(c.bonds.size());
     for (int b = 0; b < nb; ++b) {
       const StiffBond& bond = bonds[c.bonds[b]];
-      const Eigen::Vector3d d = x.col(bond.i) - x.col(bond.j);
+      const Eigen::Vector3d d = bond_vector(x, bond.i, bond.j);
       const double rb = d.norm();
       if (!(rb > 0.0) || !std::isfinite(rb))
         throw NumericalError("StiffModes: bond " + std::to_string(c.bonds[b]) + " (particles " +
@@ -120,24 +120,9 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
   if (max_cluster_bonds < 1 || max_cluster_bonds > kMaxDenseBonds)
     throw InputError("StiffModes: max_cluster_bonds must be in [1, " + std::to_string(kMaxDenseBonds) + "], got " +
                      std::to_string(max_cluster_bonds));
-  const int n = static_cast<int>(inv_mass.size());
-  for (int p = 0; p < n; ++p)
-    if (!(inv_mass[p] >= 0.0) || !std::isfinite(inv_mass[p]))
-      throw InputError("StiffModes: inverse mass of particle " + std::to_string(p) + " must be finite and >= 0, got " +
-                       std::to_string(inv_mass[p]));
-  for (size_t b = 0; b < bonds.size(); ++b) {
-    const StiffBond& s = bonds[b];
-    if (s.i < 0 || s.j < 0 || s.i >= n || s.j >= n || s.i == s.j)
-      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " joins particles " + std::to_string(s.i) +
-                       " and " + std::to_string(s.j) + " (need two distinct indices in [0, " + std::to_string(n) +
-                       "))");
-    if (!(s.alpha > 0.0) || !std::isfinite(s.alpha))
-      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " has alpha " + std::to_string(s.alpha) +
-                       ", expected > 0");
-    if (inv_mass[s.i] == 0.0 && inv_mass[s.j] == 0.0)
-      throw InputError("StiffModes: stiff bond " + std::to_string(b) + " joins two fixed particles (" +
-                       std::to_string(s.i) + ", " + std::to_string(s.j) + "): it has no vibrational mode");
-  }
+  // The shared rules (forcefields/stiff_bond.hpp); among them, a bond between two fixed
+  // particles has no vibrational mode.
+  if (const auto problem = find_stiff_bond_problem(bonds, &inv_mass)) throw InputError("StiffModes: " + problem->what);
 
   d.bonds = std::move(bonds);
   d.inv_mass = std::move(inv_mass);

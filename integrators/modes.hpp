@@ -39,10 +39,9 @@ class StiffModes {
   static constexpr int kMaxDenseBonds = 128;
 
   // bonds, inverse masses (0 = fixed), ε. Clusters with more than max_cluster_bonds bonds
-  // are skipped and counted. Throws InputError for ε ≤ 0, a negative inverse mass, a bond
-  // index out of range or joining a particle to itself, α ≤ 0, a bond whose two ends are
-  // both fixed (it has no vibrational mode), or max_cluster_bonds outside
-  // [1, kMaxDenseBonds].
+  // are skipped and counted. Throws InputError for ε ≤ 0, bonds that break the rules of
+  // find_stiff_bond_problem (forcefields/stiff_bond.hpp; among them a bond whose two ends are
+  // both fixed: it has no vibrational mode), or max_cluster_bonds outside [1, kMaxDenseBonds].
   StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds = 64);
   ~StiffModes();
   StiffModes(StiffModes&&) noexcept;

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "engine/errors.hpp"
+#include "engine/whole_molecules.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/bond_term.hpp"
@@ -121,6 +122,12 @@ Matrix3Xd angle_geometry(double theta, double la = 1.0, double lb = 1.3) {
 
 // ---------------------------------------------------------------------------------------- FENE
 
+std::vector<std::pair<int, int>> pairs(const std::vector<Bond>& bonds) {
+  std::vector<std::pair<int, int>> p;
+  for (const Bond& b : bonds) p.emplace_back(b.i, b.j);
+  return p;
+}
+
 TEST(FeneBond, EnergyAndForceAtHandComputedLengths) {
   const FeneBond term("fene", Level::slow, {{0, 1, 0}}, {{30.0, 1.5, 1.0, 1.0}});
   // r = 0.97 < 2^{1/6}: FENE plus the WCA core. 20.24159000794699744 is the same sum in 30-digit
@@ -159,12 +166,13 @@ TEST(FeneBond, VirialMatchesBruteForce) {
   const std::vector<Bond> bonds = chain_bond_list(12, 2);
   const FeneBond term("fene", Level::slow, bonds, kFeneTypes);
   const Matrix3Xd x = random_chain(12, 0.8, 1.35, 21, Vector3d(1.2, 1.5, 1.8));
-  const Matrix3Xd xw = wrapped(x, box);
-  // Definition: Σ_b r_ij · f_i^(b), r_ij = x_i − x_j by minimum image, f^(b) from that bond alone.
+  Matrix3Xd xw = wrapped(x, box);
+  ASSERT_FALSE(make_molecules_whole(xw, pairs(bonds), box));
+  // Definition: Σ_b r_ij · f_i^(b), r_ij = x_i − x_j (the bond vector), f^(b) from that bond alone.
   double w = 0.0;
   for (const Bond& b : bonds) {
     const FeneBond one("one", Level::slow, {{b.i, b.j, b.type}}, kFeneTypes);
-    w += box.min_image(xw.col(b.i) - xw.col(b.j)).dot(forces(one, xw, box).col(b.i));
+    w += bond_vector(xw, b.i, b.j).dot(forces(one, xw, box).col(b.i));
   }
   EXPECT_NEAR(term.virial(xw, box), w, 1e-10 * std::abs(w));
   // And the virial theorem's form: W = −dE(λx)/dλ at λ = 1 (open box, unwrapped chain).
@@ -192,13 +200,19 @@ TEST(FeneBond, OverstretchedBondThrowsNumericalErrorNamingTheBond) {
   EXPECT_THROW(energy(term, x, Box{}), NumericalError);
   x(0, 3) = 1.94;  // coincident particles: no direction for the force
   EXPECT_THROW(energy(term, x, Box{}), NumericalError);
-  // Across a periodic face: 1.49 by minimum image is fine, the same pair at 1.51 is not.
+  // Across a periodic face, once made whole: 1.49 is fine, the same pair at 1.51 is not.
   Box box;
   box.periodic = Eigen::Vector3i(1, 0, 0);
   box.lengths = Vector3d(10.0, 0.0, 0.0);
   const FeneBond pair("pair", Level::slow, {{0, 1, 0}}, {{30.0, 1.5, 0.0, 1.0}});
-  EXPECT_NO_THROW(energy(pair, two_particles(10.0 - 1.49), box));
-  EXPECT_THROW(energy(pair, two_particles(10.0 - 1.51), box), NumericalError);
+  for (const auto& [gap, ok] : {std::pair{1.49, true}, std::pair{1.51, false}}) {
+    Matrix3Xd p = two_particles(10.0 - gap);
+    ASSERT_FALSE(make_molecules_whole(p, {{0, 1}}, box));
+    if (ok)
+      EXPECT_NO_THROW(energy(pair, p, box));
+    else
+      EXPECT_THROW(energy(pair, p, box), NumericalError);
+  }
 }
 
 TEST(FeneBond, RejectsInvalidParameters) {

@@ -2,6 +2,8 @@
 // law (style.md §8a).
 #include <gtest/gtest.h>
 
+#include "engine/whole_molecules.hpp"
+
 #include <random>
 
 #include "forcefields/force_field.hpp"
@@ -49,17 +51,25 @@ TEST(StiffHarmonicBond, ForceIsMinusGradientOfEnergy) {
   EXPECT_LT(fd_mismatch(term, random_positions(6, 1.0, 1), Box{}), 1e-6);
 }
 
+// Positions reach a force term whole (engine/state.hpp): a chain wrapped across the x face is made
+// whole first, and then a translation of the whole chain by box vectors changes nothing.
 TEST(StiffHarmonicBond, ForceIsMinusGradientAcrossPeriodicBoundary) {
   Box box;
   box.periodic = Eigen::Vector3i::Ones();
   box.lengths = Eigen::Vector3d(3.0, 3.5, 4.0);
   Eigen::Matrix3Xd x = random_positions(6, 1.0, 2);
-  x(0, 1) += 3.0;  // bond 0–1 and 1–2 cross the x boundary: minimum image must be used
+  const Eigen::Matrix3Xd whole = x;
+  x(0, 1) += 3.0;  // bonds 0–1 and 1–2 jump across the x boundary
+  std::vector<std::pair<int, int>> pairs;
+  for (int i = 0; i + 1 < 6; ++i) pairs.emplace_back(i, i + 1);
+  ASSERT_FALSE(make_molecules_whole(x, pairs, box));
+  EXPECT_LT((x - whole).cwiseAbs().maxCoeff(), 1e-14) << "particle 1 moved back by one box length";
   const StiffHarmonicBond term("b", Level::fast, chain_bonds(6, 0.1));
   EXPECT_LT(fd_mismatch(term, x, box), 1e-6);
   Eigen::Matrix3Xd f0 = Eigen::Matrix3Xd::Zero(3, 6), f1 = f0;
   const double e0 = term.add_forces(x, box, f0);
-  x(0, 1) -= 3.0;
+  x.row(0).array() += 3.0;
+  x.row(2).array() -= 8.0;
   const double e1 = term.add_forces(x, box, f1);
   EXPECT_NEAR(e0, e1, 1e-9 * std::abs(e1));
   EXPECT_LT((f0 - f1).cwiseAbs().maxCoeff(), 1e-9);

@@ -487,9 +487,11 @@ TEST(StiffModes, BadInputAndDegenerateGeometryAreReported) {
   EXPECT_THROW(modes.frequencies(x, wrong), std::invalid_argument);
   EXPECT_THROW(modes.frequencies(Matrix3Xd::Zero(3, 2), om), std::invalid_argument);
 
-  // A collinear triangle has a redundant constraint: one frequency is zero, so its action
-  // is undefined.
-  StiffModes tri({{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {0, 2, 2.0, 1.0}}, im, 1e-3);
+  // Rest lengths 1, 1, 2 are refused: only collinear triangles satisfy them (stiff_bond.hpp).
+  EXPECT_THROW(StiffModes({{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {0, 2, 2.0, 1.0}}, im, 1e-3), InputError);
+  // A collinear configuration of a realisable triangle has a redundant constraint: one frequency
+  // is zero, so its action is undefined.
+  StiffModes tri({{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {0, 2, 1.9, 1.0}}, im, 1e-3);
   Matrix3Xd xt = Matrix3Xd::Zero(3, 3);
   xt(0, 1) = 1.0;
   xt(0, 2) = 2.0;

@@ -78,6 +78,28 @@ TEST(Monitor, StopExitsThreeKeepingTheLastGoodStateAndReadableOutputs) {
   EXPECT_TRUE(c.state.x.allFinite());
 }
 
+// Without a [monitor] table an energy-conserving run still checks its energy
+// (MonitorSettings::kDefaultEnergyError): the drifting impulse run warns, the projected one does
+// not, and energy_error = false (or 0) switches the check off.
+TEST(Monitor, EnergyCheckIsOnByDefault) {
+  const fs::path dir = scratch_dir("monitor_default");
+  const fs::path deck = dir / "deck.toml";
+  std::ofstream(deck) << slurp(fs::path(STIFFMD_SOURCE_DIR) / "inputs/double_pendulum.toml");
+  const CliResult drifting = cli(run_args(deck, "impulse", dir / "impulse"));
+  ASSERT_EQ(drifting.code, 0) << drifting.err;
+  EXPECT_NE(drifting.err.find("warning: monitor: relative energy error"), std::string::npos) << drifting.err;
+  EXPECT_NE(drifting.err.find("> [monitor] energy_error = 0.01 at step"), std::string::npos) << drifting.err;
+  const CliResult clean = cli(run_args(deck, "projected-impulse", dir / "projected"));
+  ASSERT_EQ(clean.code, 0) << clean.err;
+  EXPECT_EQ(clean.err.find("monitor"), std::string::npos) << clean.err;
+  for (const std::string off : {"false", "0"}) {
+    const fs::path quiet = deck_with_monitor("monitor_off", "energy_error = " + off + "\n");
+    const CliResult r = cli(run_args(quiet, "impulse", quiet.parent_path() / "impulse"));
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err.find("energy error"), std::string::npos) << off << ": " << r.err;
+  }
+}
+
 TEST(Monitor, BadSettingsAreInputErrors) {
   for (const std::string& bad : {std::string("on_alert = \"maybe\"\n"), std::string("energy_error = -1\n"),
                                  std::string("energy_eror = 0.1\n")}) {
