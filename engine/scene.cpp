@@ -11,6 +11,7 @@
 #include "engine/errors.hpp"
 #include "engine/force_registry.hpp"
 #include "engine/scene_sources.hpp"
+#include "engine/thermostat_deck.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {
@@ -405,6 +406,7 @@ Scene load_scene(const Deck& deck) {
   read_integrator(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
+  read_thermostat(root, sc);
   sc.monitor = read_monitor(root);
   read_output(root, sc);
   root.finish();
@@ -453,6 +455,13 @@ std::string describe(const Scene& sc) {
     s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
       << ")";
   s << "\n";
+  if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
+    s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
+    if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
+    if (th.friction.size() > 0)
+      s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    s << ", seed " << th.seed << "\n";
+  }
   s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";
   if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";

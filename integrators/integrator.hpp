@@ -11,6 +11,7 @@
 
 #include "engine/state.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
@@ -19,6 +20,7 @@ struct IntegratorSettings {
   double h = 0.0;              // macro step
   int micro_steps = 1;         // n micro steps δ = h/n per macro step (impulse family)
   int max_cluster_bonds = 64;  // largest cluster whose modes are computed (effective dynamics)
+  ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
 };
 
 class Integrator {

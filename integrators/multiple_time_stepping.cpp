@@ -7,13 +7,15 @@
 namespace stiffmd {
 
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
-                                           std::unique_ptr<KickForce> outer_kick)
+                                           std::unique_ptr<KickForce> outer_kick,
+                                           std::unique_ptr<LangevinNoise> langevin)
     : method_(std::move(method)),
       forces_(forces),
       stages_(std::move(stages)),
       outer_kick_(std::move(outer_kick)),
       force_(stages_.size(), Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
-      valid_(stages_.size(), false) {
+      valid_(stages_.size(), false),
+      langevin_(std::move(langevin)) {
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
@@ -30,7 +32,7 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
   if (!valid_[k]) refresh(k, s.x);
   if (k + 1 == stages_.size()) {
-    kick_drift(s.x, s.v, s.inv_mass, force_[k], 0.5 * dt, dt);  // the innermost stage: one pass
+    kick_drift_langevin(s, force_[k], 0.5 * dt, dt);  // the innermost stage
   } else {
     kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
     const int n = stages_[k + 1].substeps;
@@ -50,10 +52,22 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   if (!valid_[k]) refresh(k, s.x);
   for (int i = 0; i < n; ++i) {
-    kick_drift(s.x, s.v, s.inv_mass, force_[k], i == 0 ? 0.5 * dt : dt, dt);
+    kick_drift_langevin(s, force_[k], i == 0 ? 0.5 * dt : dt, dt);
     refresh(k, s.x);
   }
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+}
+
+// kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin
+// A(½dt) O(dt) A(½dt), the O step's noise counted by (step, innermost step in this step).
+void MultipleTimeStepping::kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt) {
+  if (!langevin_) {
+    kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, dt);
+    return;
+  }
+  kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, 0.5 * dt);
+  langevin_->apply(s.v, dt, s.step, substep_++);
+  drift(s.x, s.v, 0.5 * dt);
 }
 
 }  // namespace stiffmd
