@@ -65,8 +65,20 @@ Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen:
                                   std::make_unique<EffectiveCorrection>(std::move(modes)), langevin_of(s, inv_mass));
 }
 
+// The thermal stiff limit (design.md §8): RATTLE on U + U_F at the thermostat's kT.
+Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  if (!s.thermostat.on())
+    throw std::invalid_argument("fixman needs a thermostat: U_F = (kT/2) log det(K^1/2 G M^-1 G^T K^1/2) is a free "
+                                "energy at the thermostat's kT");
+  const StiffBonds& stiff = stiff_bonds_of(forces);
+  return std::make_unique<Rattle>(
+      s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
+      std::make_unique<FixmanCorrection>(FixmanPotential(stiff.bonds, inv_mass), s.thermostat.temperature),
+      langevin_of(s, inv_mass));
+}
+
 //                     name               summary                                                        stiff  micro  rigid  eff.  kT
-constexpr std::array<MethodInfo, 6> kMethods = {{
+constexpr std::array<MethodInfo, 7> kMethods = {{
     {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false,
      make_velocity_verlet},
     {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false, false,
@@ -79,6 +91,8 @@ constexpr std::array<MethodInfo, 6> kMethods = {{
      make_rattle},
     {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true, false,
      make_effective},
+    {"fixman", "RATTLE on U + U_F (Fixman) with a thermostat: the thermal eps -> 0 limit", true, false, true, false,
+     true, make_fixman},
 }};
 
 }  // namespace

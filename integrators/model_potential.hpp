@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "engine/state.hpp"
+#include "integrators/fixman.hpp"
 #include "integrators/modes.hpp"
 
 namespace stiffmd {
@@ -57,6 +58,19 @@ class EffectiveCorrection final : public ModelPotential {
  private:
   StiffModes modes_;
   Eigen::VectorXd actions_;
+};
+
+// Fixman's potential U_F(x) = (kT/2) log det(K^{1/2} G M⁻¹ Gᵀ K^{1/2}) (design.md §8): with it
+// and a thermostat at kT, RATTLE's rigid-bond ensemble becomes the stiff-spring one,
+// ρ_stiff = ρ_rigid exp(−β U_F). It carries no state: kT is the thermostat's.
+class FixmanCorrection final : public ModelPotential {
+ public:
+  FixmanCorrection(FixmanPotential potential, double kT) : potential_(std::move(potential)), kT_(kT) {}
+  double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) override { return potential_.force(x, kT_, f); }
+
+ private:
+  FixmanPotential potential_;
+  double kT_;
 };
 
 }  // namespace stiffmd

@@ -18,6 +18,7 @@
 #include <sstream>
 
 #include "cli_support.hpp"
+#include "engine/errors.hpp"
 #include "engine/observables.hpp"
 #include "forcefields/parallel.hpp"
 #include "integrators/thermostat.hpp"
@@ -316,7 +317,7 @@ TEST_P(TrimerLaw, BondAngleFollowsItsCanonicalLaw) {
   const double p_cm = ks_normal_p_value(r.cm_velocity);
   RecordProperty("ks_p_cm", std::to_string(p_cm));
   EXPECT_GT(p_cm, 1e-3);
-  if (c.stiff_law) {  // without constraints each bead's velocity is Maxwell at kT/m
+  if (!find_method(c.method)->rigid_constraints) {  // unconstrained: each bead's velocity is Maxwell at kT/m
     const double p = ks_normal_p_value(r.atom_velocity);
     RecordProperty("ks_p_atoms", std::to_string(p));
     EXPECT_GT(p, 1e-3);
@@ -327,7 +328,8 @@ INSTANTIATE_TEST_SUITE_P(Methods, TrimerLaw,
                          ::testing::Values(LawCase{"velocity-verlet", 0.005, 1, true},
                                            LawCase{"projected-impulse", 0.05, 10, true},
                                            LawCase{"mollified-impulse", 0.05, 20, true, 0.05},
-                                           LawCase{"rattle", 0.02, 1, false}),
+                                           LawCase{"rattle", 0.02, 1, false},
+                                           LawCase{"fixman", 0.02, 1, true}),
                          [](const auto& info) {
                            std::string n = info.param.method;
                            std::replace(n.begin(), n.end(), '-', '_');
@@ -358,6 +360,25 @@ TEST_P(NvtTemperature, KineticTemperatureIsT) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllMethods, NvtTemperature, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+
+// RATTLE plus Fixman's potential, with equal masses too (design.md §8's trimer): uniform in c.
+TEST(TrimerLaw, FixmanWithEqualMassesGivesTheStiffValue) {
+  const TrimerRun r = run_trimers("fixman", 0.02, 1, 1.0, 100);
+  const Estimate e = block_estimate(r.c2);
+  RecordProperty("cos2", std::to_string(e.mean) + " +- " + std::to_string(e.se));
+  EXPECT_NEAR(e.mean, kStiffC2, 4 * e.se);
+}
+
+TEST(ThermostatDeck, FixmanWithoutAThermostatIsRefusedAtTheMethodKey) {
+  std::string deck = trimer_deck(2, "");
+  try {
+    load_text(deck, {"integrator.method=fixman"});
+    ADD_FAILURE() << "fixman without [thermostat] accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("integrator.method"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("[thermostat]"), std::string::npos) << e.what();
+  }
+}
 
 // ---- determinism and restarts ---------------------------------------------------------------------
 
