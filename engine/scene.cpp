@@ -460,7 +460,11 @@ std::string describe(const Scene& sc) {
     if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
     if (th.friction.size() > 0)
       s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
-    s << ", seed " << th.seed << "\n";
+    const MethodInfo& m = *find_method(sc.integrator.method);
+    const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
+    s << ", seed " << th.seed << "; temperature over "
+      << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
+      << " degrees of freedom\n";
   }
   s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";

@@ -49,17 +49,33 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
 // n steps of the innermost stage k: kick(½δ) drift(δ) [force] kick(½δ), n times. The closing
 // kick of one step and the opening kick of the next use the same force, so they are one kick
 // by δ: one pass over the particles per micro step fewer.
+//
+// With Langevin, one O step over the whole span nδ sits in the middle of the n steps: inside the
+// drift of the middle step when n is odd, between the two half kicks at the middle when n is even
+// (see the header for why there and not in every micro step).
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   if (!valid_[k]) refresh(k, s.x);
+  const double span = dt * n;
   for (int i = 0; i < n; ++i) {
-    kick_drift_langevin(s, force_[k], i == 0 ? 0.5 * dt : dt, dt);
+    const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;
+    if (langevin_ && n % 2 == 1 && i == n / 2) {
+      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
+      langevin_->apply(s.v, span, s.step, substep_++);
+      drift(s.x, s.v, 0.5 * dt);
+    } else {
+      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+    }
     refresh(k, s.x);
+    if (langevin_ && n % 2 == 0 && i == n / 2 - 1) {
+      kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+      langevin_->apply(s.v, span, s.step, substep_++);
+    }
   }
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
 }
 
 // kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin
-// A(½dt) O(dt) A(½dt), the O step's noise counted by (step, innermost step in this step).
+// (velocity Verlet: the innermost stage is the only one) A(½dt) O(dt) A(½dt), i.e. BAOAB.
 void MultipleTimeStepping::kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt) {
   if (!langevin_) {
     kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, dt);
