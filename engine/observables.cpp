@@ -21,13 +21,12 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
                const Topology* topology)
     : forces_(forces), columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
                                 "total", "energy_drift", "max_violation", "temperature"} {
-  // Total momentum is conserved when no external field acts (gravity, tethers, walls).
-  bool external = false;
-  for (const auto& t : forces.terms()) external |= !t->conserves_momentum();
-  State probe;
-  probe.inv_mass = inv_mass;
-  probe.x.resize(3, inv_mass.size());
-  dof_ = degrees_of_freedom(probe, !external, settings.rigid_constraints);
+  // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
+  // counts as conserved only without fixed particles, external fields and Langevin noise.
+  ThermostatSettings thermostat;
+  thermostat.style = settings.thermostat;
+  dof_ = stiffmd::degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, thermostat),
+                                     settings.rigid_constraints);
   const Box& box = forces.box();
   if (box.periodic.all()) {
     volume_ = box.lengths.prod();

@@ -14,6 +14,7 @@
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/modes.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
@@ -34,6 +35,8 @@ struct ObservableSettings {
   bool actions = false;        // ω_k, I_k and the validity monitor in the thermo output
   int max_cluster_bonds = 64;  // clusters with more bonds are skipped (said in the log)
   int rigid_constraints = 0;   // degrees of freedom removed by rigid constraints (RATTLE, effective)
+  // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
+  ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;      // bond-length and angle histograms at the end (when there are bonds)
 };
 
@@ -62,6 +65,8 @@ class Thermo {
     return true;
   }
   int column(const std::string& name) const;
+  // Degrees of freedom of the temperature column, T = 2K/dof.
+  int degrees_of_freedom() const { return dof_; }
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below

@@ -8,13 +8,12 @@
 #include <Eigen/Geometry>
 
 #include "engine/errors.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
 int degrees_of_freedom(const State& s, bool momentum_conserved, int constraints) {
-  int mobile = 0;
-  for (int i = 0; i < s.size(); ++i) mobile += s.inv_mass[i] > 0.0;
-  return 3 * mobile - (momentum_conserved && mobile == s.size() ? 3 : 0) - constraints;
+  return degrees_of_freedom(s.inv_mass, momentum_conserved, constraints);  // integrators/thermostat.hpp
 }
 
 double pressure(const State& s, const ForceField& forces, double volume) {

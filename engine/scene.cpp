@@ -11,6 +11,7 @@
 #include "engine/errors.hpp"
 #include "engine/force_registry.hpp"
 #include "engine/scene_sources.hpp"
+#include "engine/thermostat_deck.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/modes.hpp"
 
@@ -470,10 +471,11 @@ Scene load_scene(const Deck& deck) {
   read_integrator(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
+  read_thermostat(root, sc);
   sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions});
-  // The default energy check applies to energy-conserving (NVE) runs only; a thermostat's run
-  // passes false here.
-  apply_energy_default(sc.monitor, /*conserves_energy=*/true);
+  // The default energy check applies to energy-conserving (NVE) runs only: a thermostat exchanges
+  // energy with its bath by design.
+  apply_energy_default(sc.monitor, /*conserves_energy=*/!sc.thermostatted());
   read_output(root, sc);
   root.finish();
   check_integrator(root, sc);
@@ -522,6 +524,17 @@ std::string describe(const Scene& sc) {
     s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
       << ")";
   s << "\n";
+  if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
+    s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
+    if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
+    if (th.friction.size() > 0)
+      s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    const MethodInfo& m = *find_method(sc.integrator.method);
+    const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
+    s << ", seed " << th.seed << "; temperature over "
+      << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
+      << " degrees of freedom\n";
+  }
   s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";
   if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";

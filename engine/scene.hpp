@@ -77,6 +77,8 @@ struct Scene {
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
+  // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
+  bool thermostatted() const { return integrator.thermostat.on(); }
 };
 
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not

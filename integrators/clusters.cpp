@@ -1,6 +1,7 @@
 // Connected constraint clusters (design.md §2): S = G M⁻¹ Gᵀ is block-diagonal over them.
 #include <algorithm>
 #include <numeric>
+#include <utility>
 
 #include "integrators/constraints.hpp"
 
@@ -41,6 +42,53 @@ std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds
     c.particles.erase(std::unique(c.particles.begin(), c.particles.end()), c.particles.end());
   }
   return clusters;
+}
+
+}  // namespace stiffmd
+
+namespace stiffmd {
+
+ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<StiffBond>& bonds,
+                         const Eigen::VectorXd& inv_mass) {
+  const int n = static_cast<int>(cluster.bonds.size());
+  ClusterPath path{ClusterShape::other, cluster.bonds};
+  // Neighbours of each bond (by position in cluster.bonds) through its mobile ends: a mobile
+  // particle in more than two bonds couples them all (a branch point), never a path.
+  std::vector<std::vector<int>> neighbours(n);
+  std::vector<int> first_bond_at(static_cast<size_t>(inv_mass.size()), -1), bonds_at(first_bond_at.size(), 0);
+  for (int k = 0; k < n; ++k)
+    for (int p : {bonds[cluster.bonds[k]].i, bonds[cluster.bonds[k]].j}) {
+      if (inv_mass[p] == 0.0) continue;
+      if (++bonds_at[p] > 2) return path;
+      if (first_bond_at[p] < 0) {
+        first_bond_at[p] = k;
+      } else {
+        neighbours[k].push_back(first_bond_at[p]);
+        neighbours[first_bond_at[p]].push_back(k);
+      }
+    }
+  // A path starts at a bond with at most one neighbour; a cycle has none.
+  int start = 0;
+  bool ring = true;
+  for (int k = 0; k < n; ++k)
+    if (neighbours[k].size() <= 1) {
+      start = k;
+      ring = false;
+      break;
+    }
+  std::vector<int> order;
+  for (int previous = -1, current = start; current >= 0 && static_cast<int>(order.size()) < n;) {
+    order.push_back(cluster.bonds[current]);
+    int next = -1;
+    for (int nb : neighbours[current])
+      if (nb != previous && nb != start) next = nb;
+    previous = current;
+    current = next;
+  }
+  if (static_cast<int>(order.size()) != n) return path;  // not connected as a path (cannot happen for a cluster)
+  path.shape = ring ? ClusterShape::ring : ClusterShape::chain;
+  path.bonds = std::move(order);
+  return path;
 }
 
 }  // namespace stiffmd

@@ -29,6 +29,18 @@ struct ConstraintCluster {
 // nothing, since S_bc = ±(u_b·u_c)/m_shared = 0 there).
 std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass);
 
+// The shape of a cluster's coupling graph (bonds joined when they share a mobile particle), which
+// fixes the sparsity of S on it: a path (open chain: S tridiagonal), a cycle (ring: S cyclic
+// tridiagonal), or anything else (stars, branched polymers).
+enum class ClusterShape { chain, ring, other };
+struct ClusterPath {
+  ClusterShape shape = ClusterShape::other;
+  std::vector<int> bonds;  // chain, ring: the bonds in path order (consecutive ones share a
+                           // mobile particle, and for a ring the last and the first); other: as given
+};
+ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<StiffBond>& bonds,
+                         const Eigen::VectorXd& inv_mass);
+
 // Slow force evaluated at a configuration: out = f(x) (f = −∇U), overwriting out.
 using ForceFunction = std::function<void(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out)>;
 

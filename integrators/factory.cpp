@@ -16,57 +16,85 @@ using Ptr = std::unique_ptr<Integrator>;
 
 const StiffBonds& stiff_bonds_of(const ForceField& forces) { return *forces.stiff_bonds(); }
 
+// The O step of Langevin dynamics, when the deck asks for it (each method places it: BAOAB,
+// BAOAB-RESPA, constrained BAOAB).
+std::unique_ptr<LangevinNoise> langevin_of(const IntegratorSettings& s, const Eigen::VectorXd& inv_mass) {
+  if (s.thermostat.style != ThermostatSettings::Style::langevin) return nullptr;
+  return std::make_unique<LangevinNoise>(s.thermostat, inv_mass);
+}
+
 // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h.
 std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
   return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
 }
 
-Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd&) {
-  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{{Level::fast, Level::slow}, 1}});
+Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{{Level::fast, Level::slow}, 1}},
+                                                std::make_unique<PlainKick>(), langevin_of(s, inv_mass));
 }
-Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd&) {
-  return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s));
+Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s), std::make_unique<PlainKick>(),
+                                                langevin_of(s, inv_mass));
 }
 Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
-      std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)));
+      std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)),
+      langevin_of(s, inv_mass));
 }
 Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
-                                      forces.num_particles()));
+                                      forces.num_particles()),
+      langevin_of(s, inv_mass));
 }
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
-                                  nullptr);
+                                  nullptr, langevin_of(s, inv_mass));
 }
 Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   const StiffBonds& stiff = stiff_bonds_of(forces);
   // Every cluster the dense mode computation can take: the limit is StiffModes', not an observables
   // setting (the thermo output's max_cluster_bonds only bounds what is observed).
-  auto modes = std::make_unique<StiffModes>(stiff.bonds, inv_mass, stiff.epsilon, StiffModes::kMaxDenseBonds);
-  if (modes->num_skipped_clusters() > 0)
+  StiffModes modes(stiff.bonds, inv_mass, stiff.epsilon, StiffModes::kMaxDenseBonds);
+  if (modes.num_skipped_clusters() > 0)
     throw std::invalid_argument("the effective dynamics needs the modes of every constraint cluster, but " +
-                                std::to_string(modes->num_skipped_clusters()) + " cluster(s) have more than " +
+                                std::to_string(modes.num_skipped_clusters()) + " cluster(s) have more than " +
                                 std::to_string(StiffModes::kMaxDenseBonds) +
                                 " bonds (the limit of the dense mode computation); use another method");
-  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass), std::move(modes));
+  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
+                                  std::make_unique<EffectiveCorrection>(std::move(modes)), langevin_of(s, inv_mass));
 }
 
-//                     name               summary                                                        stiff  micro  rigid  eff.
-constexpr std::array<MethodInfo, 6> kMethods = {{
-    {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false,
+// The thermal stiff limit (design.md §8): RATTLE on U + U_F at the thermostat's kT.
+Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  if (!s.thermostat.on())
+    throw std::invalid_argument("fixman needs a thermostat: U_F = (kT/2) log det(K^1/2 G M^-1 G^T K^1/2) is a free "
+                                "energy at the thermostat's kT");
+  const StiffBonds& stiff = stiff_bonds_of(forces);
+  return std::make_unique<Rattle>(
+      s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
+      std::make_unique<FixmanCorrection>(FixmanPotential(stiff.bonds, inv_mass), s.thermostat.temperature),
+      langevin_of(s, inv_mass));
+}
+
+//                     name               summary                                                        stiff  micro  rigid  eff.  kT
+constexpr std::array<MethodInfo, 7> kMethods = {{
+    {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false,
      make_velocity_verlet},
-    {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false,
+    {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false, false,
      make_impulse},
-    {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, make_mollified},
-    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, make_projected},
-    {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false,
+    {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, false,
+     make_mollified},
+    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, false,
+     make_projected},
+    {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false, false,
      make_rattle},
-    {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true,
+    {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true, false,
      make_effective},
+    {"fixman", "RATTLE on U + U_F (Fixman) with a thermostat: the thermal eps -> 0 limit", true, false, true, false,
+     true, make_fixman},
 }};
 
 }  // namespace
@@ -92,7 +120,11 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
   if (m->needs_stiff_bonds && !forces.stiff_bonds())
     throw std::invalid_argument("method '" + s.method +
                                 "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
-  return m->make(s, forces, inv_mass);
+  std::unique_ptr<Integrator> integrator = m->make(s, forces, inv_mass);
+  if (s.thermostat.style != ThermostatSettings::Style::csvr) return integrator;
+  const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
+  return with_velocity_rescaling(std::move(integrator), s.thermostat,
+                                 degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid));
 }
 
 }  // namespace stiffmd

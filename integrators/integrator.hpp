@@ -11,6 +11,7 @@
 
 #include "engine/state.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
@@ -18,6 +19,7 @@ struct IntegratorSettings {
   std::string method = "velocity-verlet";
   double h = 0.0;              // macro step
   int micro_steps = 1;         // n micro steps δ = h/n per macro step (impulse family)
+  ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
 };
 
 class Integrator {

@@ -7,13 +7,15 @@
 namespace stiffmd {
 
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
-                                           std::unique_ptr<KickForce> outer_kick)
+                                           std::unique_ptr<KickForce> outer_kick,
+                                           std::unique_ptr<LangevinNoise> langevin)
     : method_(std::move(method)),
       forces_(forces),
       stages_(std::move(stages)),
       outer_kick_(std::move(outer_kick)),
       force_(stages_.size(), Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
-      valid_(stages_.size(), false) {
+      valid_(stages_.size(), false),
+      langevin_(std::move(langevin)) {
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
@@ -30,7 +32,7 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
   if (!valid_[k]) refresh(k, s.x);
   if (k + 1 == stages_.size()) {
-    kick_drift(s.x, s.v, s.inv_mass, force_[k], 0.5 * dt, dt);  // the innermost stage: one pass
+    kick_drift_langevin(s, force_[k], 0.5 * dt, dt);  // the innermost stage
   } else {
     kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
     const int n = stages_[k + 1].substeps;
@@ -47,11 +49,27 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
 // n steps of the innermost stage k: kick(½δ) drift(δ) [force] kick(½δ), n times. The closing
 // kick of one step and the opening kick of the next use the same force, so they are one kick
 // by δ: one pass over the particles per micro step fewer.
+//
+// With Langevin, one O step over the whole span nδ sits in the middle of the n steps: inside the
+// drift of the middle step when n is odd, between the two half kicks at the middle when n is even
+// (see the header for why there and not in every micro step).
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   if (!valid_[k]) refresh(k, s.x);
+  const double span = dt * n;
   for (int i = 0; i < n; ++i) {
-    kick_drift(s.x, s.v, s.inv_mass, force_[k], i == 0 ? 0.5 * dt : dt, dt);
+    const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;
+    if (langevin_ && n % 2 == 1 && i == n / 2) {
+      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
+      langevin_->apply(s.v, span, s.step, substep_++);
+      drift(s.x, s.v, 0.5 * dt);
+    } else {
+      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+    }
     refresh(k, s.x);
+    if (langevin_ && n % 2 == 0 && i == n / 2 - 1) {
+      kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+      langevin_->apply(s.v, span, s.step, substep_++);
+    }
   }
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
 }
@@ -76,6 +94,18 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
     valid_[k] = p[0] != 0.0;
     force_[k] = Eigen::Map<const Eigen::Matrix3Xd>(p + 1, 3, forces_.num_particles());
   }
+}
+
+// kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin
+// (velocity Verlet: the innermost stage is the only one) A(½dt) O(dt) A(½dt), i.e. BAOAB.
+void MultipleTimeStepping::kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt) {
+  if (!langevin_) {
+    kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, dt);
+    return;
+  }
+  kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, 0.5 * dt);
+  langevin_->apply(s.v, dt, s.step, substep_++);
+  drift(s.x, s.v, 0.5 * dt);
 }
 
 }  // namespace stiffmd

@@ -6,21 +6,21 @@
 
 namespace stiffmd {
 
-Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<StiffModes> modes)
+Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox,
+               std::unique_ptr<ModelPotential> model, std::unique_ptr<LangevinNoise> langevin)
     : method_(std::move(method)),
       forces_(forces),
       toolbox_(std::move(toolbox)),
-      modes_(std::move(modes)),
+      model_(std::move(model)),
+      langevin_(std::move(langevin)),
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
       v_unprojected_(f_),
-      constraint_force_(f_) {
-  if (modes_) actions_ = Eigen::VectorXd::Zero(modes_->num_modes());
-}
+      constraint_force_(f_) {}
 
 void Rattle::prepare(State& s, std::ostream& log) {
-  if (modes_) modes_->actions(s.x, s.v, actions_);
+  if (model_) model_->prepare(s, log);
   const Eigen::Matrix3Xd x0 = s.x, v0 = s.v;
   const double g0 = toolbox_.max_violation(s.x);
   toolbox_.shake(s.x, s.x);             // X0 = x0 + M⁻¹G(x0)ᵀλ, g(X0) = 0
@@ -30,29 +30,41 @@ void Rattle::prepare(State& s, std::ostream& log) {
   m << method_ << ": initial data projected onto the constraint manifold (paper eq. ACIV): max |g| " << g0 << " -> "
     << toolbox_.max_violation(s.x) << ", max |dx| = " << (s.x - x0).cwiseAbs().maxCoeff()
     << ", max |dv| = " << (s.v - v0).cwiseAbs().maxCoeff();
-  if (modes_) {
-    m << "; actions I =";
-    for (Eigen::Index k = 0; k < actions_.size(); ++k) m << ' ' << actions_[k];
-  }
   log << m.str() << "\n";
 }
 
 void Rattle::refresh(const Eigen::Matrix3Xd& x) {
   forces_.compute_unconstrained(x, f_);
-  if (modes_) {
-    modes_->correction_force(actions_, x, correction_);  // −∇W(I, x)
+  if (model_) {
+    model_->force(x, correction_);  // −∇W(I, x) or −∇U_F(x)
     f_ += correction_;
   }
   valid_ = true;
 }
 
+// x' = x + dt v + M⁻¹G(x)ᵀλ with g(x') = 0 (SHAKE), v ← (x' − x)/dt: the velocity including the
+// constraint impulse.
+void Rattle::rattle_drift(State& s, double dt) {
+  x_old_ = s.x;
+  drift(s.x, s.v, dt);
+  toolbox_.shake(x_old_, s.x);
+  s.v = (s.x - x_old_) / dt;
+}
+
 void Rattle::step(State& s, double h) {
   if (!valid_) refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  x_old_ = s.x;
-  drift(s.x, s.v, h);
-  toolbox_.shake(x_old_, s.x);  // x' = x + h v½ + M⁻¹G(x)ᵀλ with g(x') = 0
-  s.v = (s.x - x_old_) / h;     // v½ including the constraint impulse
+  if (!langevin_) {
+    rattle_drift(s, h);
+  } else {
+    // Constrained BAOAB: A(½h), O(h) then the velocity projection (friction and noise on the
+    // tangent space; P is linear, so projecting once after O equals projecting before and after),
+    // A(½h).
+    rattle_drift(s, 0.5 * h);
+    langevin_->apply(s.v, h, s.step, 0);
+    toolbox_.project_velocity(s.x, s.v);
+    rattle_drift(s, 0.5 * h);
+  }
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   v_unprojected_ = s.v;
@@ -64,8 +76,9 @@ void Rattle::step(State& s, double h) {
                                    : Eigen::Vector3d::Zero().eval();
 }
 
+// [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]
 std::vector<double> Rattle::save_state() const {
-  std::vector<double> w(actions_.data(), actions_.data() + actions_.size());
+  std::vector<double> w = model_ ? model_->save_state() : std::vector<double>{};
   w.push_back(valid_ ? 1.0 : 0.0);
   w.insert(w.end(), f_.data(), f_.data() + f_.size());
   w.insert(w.end(), constraint_force_.data(), constraint_force_.data() + constraint_force_.size());
@@ -73,12 +86,17 @@ std::vector<double> Rattle::save_state() const {
 }
 
 void Rattle::load_state(const std::vector<double>& w) {
-  const Eigen::Index m = actions_.size(), n3 = f_.size();
-  if (static_cast<Eigen::Index>(w.size()) != m + 1 + 2 * n3)
+  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3;
+  if (w.size() < own)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
-                                " state, this scene needs " + std::to_string(m + 1 + 2 * n3) + " (" +
-                                std::to_string(m) + " actions, forces of " + std::to_string(n3 / 3) + " particles)");
-  actions_ = Eigen::Map<const Eigen::VectorXd>(w.data(), m);
+                                " state, this scene needs at least " + std::to_string(own) + " (forces of " +
+                                std::to_string(n3 / 3) + " particles)");
+  const size_t m = w.size() - own;  // the model potential's words
+  const std::vector<double> model_words(w.begin(), w.begin() + static_cast<std::ptrdiff_t>(m));
+  if (model_)
+    model_->load_state(model_words);
+  else
+    Integrator::load_state(model_words);
   valid_ = w[m] != 0.0;
   f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
   constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());

@@ -4,11 +4,16 @@
 //   v½ = v + ½h M⁻¹(f(x) − G(x)ᵀλ),  x' = x + h v½,  g(x') = 0          (SHAKE)
 //   v' = v½ + ½h M⁻¹(f(x') − G(x')ᵀμ),  G(x') v' = 0                    (velocity projection)
 //
-// With a StiffModes object it integrates the effective dynamics instead (paper eq. EHS):
-// the same scheme on U + W(I, X), W = Σ_k I_k ω_k(X), with the actions I taken from the
-// initial state — the ε → 0 limit of the stiff system (Rubin–Ungar, Takens, Bornemann).
-// Plain RATTLE (W dropped) is the "rigid" limit most engines use, which differs by O(1)
-// when the bonds carry vibrational energy.
+// A ModelPotential (integrators/model_potential.hpp) adds its force to f: W(I, x) = Σ_k I_k ω_k
+// makes this the effective dynamics (paper eq. EHS) — the ε → 0 limit of the stiff system
+// (Rubin–Ungar, Takens, Bornemann); Fixman's U_F with a thermostat makes it the thermal stiff
+// limit (design.md §8). Plain RATTLE (no model potential) is the "rigid" limit most engines
+// use, which differs by O(1) when the bonds carry vibrational energy.
+//
+// Langevin dynamics: constrained BAOAB (Leimkuhler & Matthews, Proc. R. Soc. A 472, 20160138
+// (2016)): B(½h) A(½h) O(h) A(½h) B(½h), every A a RATTLE position step (SHAKE, then the
+// velocity projection) and the O step followed by the velocity projection, so that friction
+// and noise act on the tangent space {G v = 0} only.
 #pragma once
 
 #include <memory>
@@ -16,17 +21,19 @@
 
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
-#include "integrators/modes.hpp"
+#include "integrators/model_potential.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
 class Rattle final : public Integrator {
  public:
-  // modes == nullptr: plain RATTLE; otherwise the effective dynamics.
-  Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<StiffModes> modes);
+  // model == nullptr: plain RATTLE; langevin == nullptr: Hamiltonian dynamics.
+  Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
+         std::unique_ptr<LangevinNoise> langevin = nullptr);
 
-  // Projects (x, v) M-orthogonally onto {g = 0, G v = 0} (paper eq. ACIV); for the
-  // effective dynamics the actions are taken from the state before projection.
+  // Projects (x, v) M-orthogonally onto {g = 0, G v = 0} (paper eq. ACIV); the model potential
+  // is prepared from the state before projection (the actions of the effective dynamics).
   void prepare(State& s, std::ostream& log) override;
   void step(State& s, double h) override;
   void reset() override { valid_ = false; }
@@ -35,27 +42,22 @@ class Rattle final : public Integrator {
   // the closing half step: F_c = M (v' − v'_unprojected) / (h/2). Molecules are whole (unwrapped
   // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
-  double model_potential(const Eigen::Matrix3Xd& x) override {
-    return modes_ ? modes_->correction_force(actions_, x, correction_) : 0.0;
-  }
+  double model_potential(const Eigen::Matrix3Xd& x) override { return model_ ? model_->force(x, correction_) : 0.0; }
 
-  // The actions, the cached force f(x) with its validity and the constraint force of the last
-  // step (for the pressure of the first sample after a restart): m + 1 + 6N words.
+  // The model potential's state (actions), the cached force f(x) with its validity and the
+  // constraint force of the last step (for the pressure of the first sample after a restart).
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& s) override;
 
-  // The actions of the effective dynamics (empty for plain RATTLE).
-  const Eigen::VectorXd& actions() const { return actions_; }
-  void set_actions(const Eigen::VectorXd& I) { actions_ = I, valid_ = false; }
-
  private:
   void refresh(const Eigen::Matrix3Xd& x);
+  void rattle_drift(State& s, double dt);  // x ← x + dt v on g = 0; v ← the tangential chord velocity
 
   std::string method_;
   ForceField& forces_;
   ConstraintToolbox toolbox_;
-  std::unique_ptr<StiffModes> modes_;
-  Eigen::VectorXd actions_;
+  std::unique_ptr<ModelPotential> model_;
+  std::unique_ptr<LangevinNoise> langevin_;
   Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
   bool valid_ = false;
 };

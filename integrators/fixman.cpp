@@ -1,0 +1,350 @@
+// Fixman's potential U_F = (kT/2) log det A and its force (design.md §8).
+//
+// log det A = log det S + Σ_b log α_b², so the gradient needs only S = G M⁻¹ Gᵀ:
+//   ∂U_F/∂x = (kT/2) tr(S⁻¹ ∂S/∂x).
+// S_bb = 1/m_i + 1/m_j does not depend on x; an off-diagonal entry of a pair of bonds b, c
+// sharing a mobile particle p is S_bc = w_bc u_b·u_c with w_bc = s_b(p) s_c(p)/m_p (s_b(i) = +1,
+// s_b(j) = −1: G's rows carry +u_b at i, −u_b at j). With ∂u_b/∂x_i = −∂u_b/∂x_j = P_b/r_b,
+// P_b = I − u_b u_bᵀ, the force on bond b's ends is
+//   f_i = −h_b, f_j = +h_b,  h_b = P_b t_b / r_b,  t_b = kT Σ_c Z_bc w_bc u_c,  Z = S⁻¹,
+// summed over the bonds c coupled to b: only Z on the pattern of S is needed.
+#include "integrators/eigen_dense.hpp"  // first: see the header
+
+#include "integrators/fixman.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "engine/errors.hpp"
+#include "forcefields/parallel.hpp"
+#include "integrators/constraints.hpp"
+
+namespace stiffmd {
+namespace {
+
+// A pivot this small relative to the largest diagonal entry of S means the bond directions are
+// (numerically) linearly dependent: log det S → −∞ and the force blows up.
+constexpr double kSingularPivot = 1e-13;
+
+// Two bonds k < l (local indices) coupled through a shared mobile particle: S_kl = weight u_k·u_l.
+struct Pair {
+  int k;
+  int l;
+  double weight;
+};
+
+std::string describe_bond(int b, const StiffBond& bond) {
+  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
+}
+
+void validate(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
+  const int n = static_cast<int>(inv_mass.size());
+  for (int p = 0; p < n; ++p)
+    if (!std::isfinite(inv_mass[p]) || inv_mass[p] < 0.0)
+      throw std::invalid_argument("FixmanPotential: particle " + std::to_string(p) +
+                                  ": inverse mass must be finite and >= 0");
+  std::vector<std::pair<int, int>> pairs;
+  for (int b = 0; b < static_cast<int>(bonds.size()); ++b) {
+    const StiffBond& bond = bonds[b];
+    const std::string what = "FixmanPotential: stiff " + describe_bond(b, bond);
+    if (bond.i < 0 || bond.i >= n || bond.j < 0 || bond.j >= n)
+      throw std::invalid_argument(what + ": particle index out of range [0, " + std::to_string(n) + ")");
+    if (bond.i == bond.j) throw std::invalid_argument(what + " joins a particle to itself");
+    if (!(bond.length > 0.0) || !std::isfinite(bond.length))
+      throw std::invalid_argument(what + ": length must be finite and > 0");
+    if (!(bond.alpha > 0.0) || !std::isfinite(bond.alpha))
+      throw std::invalid_argument(what + ": alpha must be finite and > 0");
+    if (inv_mass[bond.i] == 0.0 && inv_mass[bond.j] == 0.0)
+      throw std::invalid_argument(what + " joins two fixed particles and constrains nothing");
+    pairs.emplace_back(std::min(bond.i, bond.j), std::max(bond.i, bond.j));
+  }
+  std::sort(pairs.begin(), pairs.end());
+  const auto twice = std::adjacent_find(pairs.begin(), pairs.end());
+  if (twice != pairs.end())
+    throw std::invalid_argument("FixmanPotential: particles " + std::to_string(twice->first) + "–" +
+                                std::to_string(twice->second) + " are joined by more than one stiff bond");
+}
+
+// Band of the inverse of an SPD tridiagonal matrix (diagonal d[0..n), off-diagonal e[0..n−1)) by
+// its LDLᵀ factorization: D_0 = d_0, l_k = e_k/D_k, D_{k+1} = d_{k+1} − l_k e_k. Since Lᵀ Z =
+// D⁻¹ L⁻¹ is lower triangular with diagonal D⁻¹, its (k, k+1) and (k, k) entries give the backward
+// recurrences Z_{k,k+1} = −l_k Z_{k+1,k+1}, Z_kk = 1/D_k − l_k Z_{k,k+1} (all terms of Z_kk ≥ 0:
+// no cancellation). Writes D into pivot, l into factor, Z_kk into z_diag, Z_{k,k+1} into z_off.
+// Returns false if a pivot is ≤ kSingularPivot·scale.
+bool tridiagonal_inverse_band(int n, const double* d, const double* e, double scale, double* pivot, double* factor,
+                              double* z_diag, double* z_off) {
+  pivot[0] = d[0];
+  for (int k = 0; k + 1 < n; ++k) {
+    if (!(pivot[k] > kSingularPivot * scale)) return false;
+    factor[k] = e[k] / pivot[k];
+    pivot[k + 1] = d[k + 1] - factor[k] * e[k];
+  }
+  if (!(pivot[n - 1] > kSingularPivot * scale)) return false;
+  z_diag[n - 1] = 1.0 / pivot[n - 1];
+  for (int k = n - 2; k >= 0; --k) {
+    z_off[k] = -factor[k] * z_diag[k + 1];
+    z_diag[k] = 1.0 / pivot[k] - factor[k] * z_off[k];
+  }
+  return true;
+}
+
+struct Cluster {
+  int index = 0;            // position in find_clusters order, for messages
+  ClusterShape shape = ClusterShape::other;
+  std::vector<int> bonds;   // local → global bond index (path order for chains and rings)
+  std::vector<Pair> pairs;  // chain: pair k = (k, k+1); ring: the same, then (0, n−1); other: any order
+  double log_alpha2 = 0.0;  // Σ_b log α_b², the constant that turns log det S into log det A
+  double log_det = 0.0;     // log det S at the last evaluation
+  // Scratch, sized in the constructor.
+  Eigen::VectorXd diag;     // S_kk = 1/m_i + 1/m_j
+  Eigen::VectorXd value;    // S on each pair
+  Eigen::VectorXd z_pair;   // Z = S⁻¹ on each pair
+  Eigen::VectorXd pivot, factor, z_diag, z_off, border, y;  // chains and rings
+  Eigen::MatrixXd S, Z;     // other shapes (and Path::dense)
+  Eigen::LLT<Eigen::MatrixXd> llt;
+  Eigen::VectorXd column;
+};
+
+}  // namespace
+
+struct FixmanPotential::Impl {
+  std::vector<StiffBond> bonds;
+  Eigen::VectorXd inv_mass;
+  std::vector<Cluster> clusters;
+  std::vector<std::int64_t> bonds_before;  // bonds in clusters 0 … c − 1; size clusters + 1
+  bool clusters_share_particles = false;   // through a fixed particle: scatter serially
+  Eigen::Matrix3Xd u;                      // u_b, by global bond index
+  Eigen::VectorXd r;                       // r_b = |x_i − x_j|
+  Eigen::Matrix3Xd h;                      // h_b = P_b t_b / r_b: force −h_b on i, +h_b on j
+
+  Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in, Path path);
+  void measure(const Cluster& c, const Eigen::Matrix3Xd& x);
+  void inverse_on_pattern(Cluster& c) const;
+  void gradient(Cluster& c, double kT);
+  void scatter(const Cluster& c, Eigen::Matrix3Xd& f) const;
+
+  // Runs f(c) for every cluster, in contiguous blocks of about equal bond count on the OpenMP
+  // threads (as the constraint toolbox does); each cluster writes only its own bonds' scratch.
+  template <class F>
+  void for_each_cluster(F&& f) {
+    const int nc = static_cast<int>(clusters.size());
+    const int parts = std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
+    if (parts <= 1) {
+      for (int c = 0; c < nc; ++c) f(c);
+      return;
+    }
+    run_parts(parts, [&](int part) {
+      auto first = [&](int v) {
+        return static_cast<int>(
+            std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
+            bonds_before.begin());
+      };
+      const int end = part + 1 == parts ? nc : first(part + 1);
+      for (int c = first(part); c < end; ++c) f(c);
+    });
+  }
+};
+
+FixmanPotential::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in, Path path)
+    : bonds(std::move(bonds_in)), inv_mass(std::move(inv_mass_in)) {
+  validate(bonds, inv_mass);
+  const int m = static_cast<int>(bonds.size());
+  u = Eigen::Matrix3Xd::Zero(3, m);
+  r = Eigen::VectorXd::Zero(m);
+  h = Eigen::Matrix3Xd::Zero(3, m);
+  const std::vector<ConstraintCluster> found = find_clusters(bonds, inv_mass);
+  bonds_before.assign(1, 0);
+  std::vector<int> owner(inv_mass.size(), -1);
+  for (int ci = 0; ci < static_cast<int>(found.size()); ++ci) {
+    Cluster c;
+    c.index = ci;
+    ClusterPath cp = cluster_path(found[ci], bonds, inv_mass);
+    if (path == Path::dense) cp = {ClusterShape::other, found[ci].bonds};
+    c.shape = cp.shape;
+    c.bonds = std::move(cp.bonds);
+    const int n = static_cast<int>(c.bonds.size());
+    // The couplings: for each mobile particle, every pair of its bonds.
+    std::map<int, std::vector<std::pair<int, double>>> at;  // particle → (local bond, sign)
+    for (int k = 0; k < n; ++k) {
+      const StiffBond& b = bonds[c.bonds[k]];
+      if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(k, +1.0);
+      if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(k, -1.0);
+    }
+    std::map<std::pair<int, int>, double> weight;
+    for (const auto& [p, list] : at)
+      for (size_t a = 0; a < list.size(); ++a)
+        for (size_t b = a + 1; b < list.size(); ++b) {
+          const auto [k, sk] = list[a];
+          const auto [l, sl] = list[b];
+          weight[{std::min(k, l), std::max(k, l)}] += sk * sl * inv_mass[p];
+        }
+    c.pairs.resize(weight.size());
+    int next = 0;
+    for (const auto& [kl, w] : weight) {
+      int slot = next++;
+      if (c.shape != ClusterShape::other) slot = kl.second == kl.first + 1 ? kl.first : n - 1;  // ring corner last
+      c.pairs[slot] = {kl.first, kl.second, w};
+    }
+    c.diag.resize(n);
+    for (int k = 0; k < n; ++k) {
+      const StiffBond& b = bonds[c.bonds[k]];
+      c.diag[k] = inv_mass[b.i] + inv_mass[b.j];
+      c.log_alpha2 += 2.0 * std::log(b.alpha);
+    }
+    const int np = static_cast<int>(c.pairs.size());
+    c.value = c.z_pair = Eigen::VectorXd::Zero(np);
+    if (c.shape == ClusterShape::other) {
+      c.S = c.Z = Eigen::MatrixXd::Zero(n, n);
+      c.llt = Eigen::LLT<Eigen::MatrixXd>(n);
+      c.column = Eigen::VectorXd::Zero(n);
+    } else {
+      c.pivot = c.factor = c.z_diag = c.z_off = c.border = c.y = Eigen::VectorXd::Zero(n);
+    }
+    bonds_before.push_back(bonds_before.back() + n);
+    for (int p : found[ci].particles) {
+      if (owner[p] >= 0 && owner[p] != ci) clusters_share_particles = true;
+      owner[p] = ci;
+    }
+    clusters.push_back(std::move(c));
+  }
+}
+
+// u_b and r_b of the cluster's bonds; G does not exist where a bond has no direction.
+void FixmanPotential::Impl::measure(const Cluster& c, const Eigen::Matrix3Xd& x) {
+  for (int b : c.bonds) {
+    const Eigen::Vector3d d = x.col(bonds[b].i) - x.col(bonds[b].j);
+    const double rb = d.norm();
+    if (!(rb > 0.0) || !std::isfinite(rb))
+      throw NumericalError("Fixman potential: cluster " + std::to_string(c.index) + ", " + describe_bond(b, bonds[b]) +
+                           (rb == 0.0 ? " has zero length" : " has a non-finite length"));
+    r[b] = rb;
+    u.col(b) = d / rb;
+  }
+}
+
+// log det S and Z = S⁻¹ on the pairs of cluster c, from c.value.
+void FixmanPotential::Impl::inverse_on_pattern(Cluster& c) const {
+  const int n = static_cast<int>(c.bonds.size());
+  const double scale = c.diag.maxCoeff();
+  auto singular = [&]() {
+    throw NumericalError("Fixman potential: cluster " + std::to_string(c.index) +
+                         ": S = G M⁻¹ Gᵀ is singular (the bond directions are linearly dependent)");
+  };
+  if (c.shape == ClusterShape::chain) {
+    if (!tridiagonal_inverse_band(n, c.diag.data(), c.value.data(), scale, c.pivot.data(), c.factor.data(),
+                                  c.z_diag.data(), c.z_off.data()))
+      singular();
+    c.log_det = 0.0;
+    for (int k = 0; k < n; ++k) c.log_det += std::log(c.pivot[k]);
+    for (int k = 0; k + 1 < n; ++k) c.z_pair[k] = c.z_off[k];
+    return;
+  }
+  if (c.shape == ClusterShape::ring) {
+    // Bordered solve: S = [[T, b], [bᵀ, d]] with T the tridiagonal leading (n−1)-block and
+    // b = S_{0,n−1} e_0 + S_{n−2,n−1} e_{n−2}. With y = T⁻¹ b and the Schur complement
+    // s = d − bᵀy > 0: S⁻¹ = [[T⁻¹ + y yᵀ/s, −y/s], [−yᵀ/s, 1/s]], det S = det T · s.
+    const int t = n - 1;
+    if (!tridiagonal_inverse_band(t, c.diag.data(), c.value.data(), scale, c.pivot.data(), c.factor.data(),
+                                  c.z_diag.data(), c.z_off.data()))
+      singular();
+    double* b = c.border.data();
+    double* y = c.y.data();
+    std::fill(b, b + t, 0.0);
+    b[0] += c.value[n - 1];
+    b[t - 1] += c.value[n - 2];
+    y[0] = b[0];  // L z = b, D w = z, Lᵀ y = w
+    for (int k = 0; k + 1 < t; ++k) y[k + 1] = b[k + 1] - c.factor[k] * y[k];
+    for (int k = 0; k < t; ++k) y[k] /= c.pivot[k];
+    for (int k = t - 2; k >= 0; --k) y[k] -= c.factor[k] * y[k + 1];
+    double s = c.diag[n - 1];
+    for (int k = 0; k < t; ++k) s -= b[k] * y[k];
+    if (!(s > kSingularPivot * scale)) singular();
+    c.log_det = std::log(s);
+    for (int k = 0; k < t; ++k) c.log_det += std::log(c.pivot[k]);
+    for (int k = 0; k + 1 < t; ++k) c.z_pair[k] = c.z_off[k] + y[k] * y[k + 1] / s;
+    c.z_pair[n - 2] = -y[t - 1] / s;
+    c.z_pair[n - 1] = -y[0] / s;
+    return;
+  }
+  // Any other shape: dense Cholesky and the full inverse, column by column.
+  c.S.setZero();
+  c.S.diagonal() = c.diag;
+  for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) {
+    c.S(c.pairs[p].k, c.pairs[p].l) = c.value[p];
+    c.S(c.pairs[p].l, c.pairs[p].k) = c.value[p];
+  }
+  c.llt.compute(c.S);
+  if (c.llt.info() != Eigen::Success) singular();
+  c.log_det = 0.0;
+  for (int k = 0; k < n; ++k) {
+    const double lkk = c.llt.matrixLLT()(k, k);
+    if (!(lkk * lkk > kSingularPivot * scale)) singular();
+    c.log_det += 2.0 * std::log(lkk);
+  }
+  for (int k = 0; k < n; ++k) {
+    c.column.setZero();
+    c.column[k] = 1.0;
+    c.llt.solveInPlace(c.column);
+    c.Z.col(k) = c.column;
+  }
+  for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) c.z_pair[p] = c.Z(c.pairs[p].k, c.pairs[p].l);
+}
+
+// h_b = P_b t_b / r_b, t_b = kT Σ_c Z_bc w_bc u_c (the header comment), into h.
+void FixmanPotential::Impl::gradient(Cluster& c, double kT) {
+  for (int b : c.bonds) h.col(b).setZero();
+  for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) {
+    const int bk = c.bonds[c.pairs[p].k], bl = c.bonds[c.pairs[p].l];
+    const double gamma = kT * c.z_pair[p] * c.pairs[p].weight;
+    h.col(bk) += gamma * u.col(bl);  // t_b, projected below
+    h.col(bl) += gamma * u.col(bk);
+  }
+  for (int b : c.bonds) {
+    const Eigen::Vector3d t = h.col(b);
+    h.col(b) = (t - u.col(b) * u.col(b).dot(t)) / r[b];
+  }
+}
+
+void FixmanPotential::Impl::scatter(const Cluster& c, Eigen::Matrix3Xd& f) const {
+  for (int b : c.bonds) {
+    f.col(bonds[b].i) -= h.col(b);
+    f.col(bonds[b].j) += h.col(b);
+  }
+}
+
+FixmanPotential::FixmanPotential(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, Path path)
+    : impl_(std::make_unique<Impl>(std::move(bonds), std::move(inv_mass), path)) {}
+FixmanPotential::~FixmanPotential() = default;
+FixmanPotential::FixmanPotential(FixmanPotential&&) noexcept = default;
+FixmanPotential& FixmanPotential::operator=(FixmanPotential&&) noexcept = default;
+
+double FixmanPotential::force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
+  Impl& d = *impl_;
+  if (x.cols() != d.inv_mass.size())
+    throw std::invalid_argument("FixmanPotential::force: x has " + std::to_string(x.cols()) +
+                                " particles, expected " + std::to_string(d.inv_mass.size()));
+  if (f.cols() != x.cols()) f.resize(3, x.cols());
+  f.setZero();
+  d.for_each_cluster([&](int ci) {
+    Cluster& c = d.clusters[ci];
+    d.measure(c, x);
+    for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
+      c.value[p] = c.pairs[p].weight * d.u.col(c.bonds[c.pairs[p].k]).dot(d.u.col(c.bonds[c.pairs[p].l]));
+    d.inverse_on_pattern(c);
+    d.gradient(c, kT);
+    if (!d.clusters_share_particles) d.scatter(c, f);  // each cluster owns its particles
+  });
+  double log_det = 0.0;
+  for (const Cluster& c : d.clusters) {
+    if (d.clusters_share_particles) d.scatter(c, f);  // a shared fixed particle: in cluster order
+    log_det += c.log_det + c.log_alpha2;
+  }
+  return 0.5 * kT * log_det;
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,143 @@
+#include "integrators/thermostat.hpp"
+
+#include <stdexcept>
+#include <string>
+
+#include "forcefields/force_field.hpp"
+#include "forcefields/parallel.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+std::string_view thermostat_style_name(ThermostatSettings::Style style) {
+  switch (style) {
+    case ThermostatSettings::Style::langevin: return "langevin";
+    case ThermostatSettings::Style::csvr: return "csvr";
+    default: return "none";
+  }
+}
+
+int degrees_of_freedom(const Eigen::VectorXd& inv_mass, bool momentum_conserved, int rigid_constraints) {
+  int mobile = 0;
+  for (Eigen::Index i = 0; i < inv_mass.size(); ++i) mobile += inv_mass[i] > 0.0;
+  return 3 * mobile - (momentum_conserved && mobile == inv_mass.size() ? 3 : 0) - rigid_constraints;
+}
+
+bool momentum_conserved(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ThermostatSettings& t) {
+  if (t.style == ThermostatSettings::Style::langevin) return false;
+  for (Eigen::Index i = 0; i < inv_mass.size(); ++i)
+    if (inv_mass[i] == 0.0) return false;
+  for (const auto& term : forces.terms())
+    if (!term->conserves_momentum()) return false;
+  return true;
+}
+
+LangevinNoise::LangevinNoise(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
+    : kT_(settings.temperature),
+      seed_(settings.seed),
+      friction_(settings.friction),
+      inv_mass_(inv_mass),
+      c_(inv_mass.size()),
+      sigma_(inv_mass.size()) {
+  if (friction_.size() != inv_mass.size())
+    throw std::invalid_argument("Langevin thermostat: " + std::to_string(friction_.size()) + " frictions for " +
+                                std::to_string(inv_mass.size()) + " particles");
+  if (!(kT_ >= 0.0) || !std::isfinite(kT_)) throw std::invalid_argument("Langevin thermostat: expected kT >= 0");
+}
+
+void LangevinNoise::coefficients(double dt) {
+  for (Eigen::Index i = 0; i < c_.size(); ++i) {
+    c_[i] = std::exp(-friction_[i] * dt);
+    // 1 − c² by expm1, accurate when γ dt is small (the micro steps of the impulse family).
+    sigma_[i] = std::sqrt(-std::expm1(-2.0 * friction_[i] * dt) * kT_ * inv_mass_[i]);
+  }
+  dt_ = dt;
+}
+
+void LangevinNoise::apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+  if (dt != dt_) coefficients(dt);
+  const std::uint64_t key = noise_key(seed_, step, substep);
+  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) {
+      if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
+      v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, i);
+    }
+  });
+}
+
+namespace {
+
+// The rescaling step's own stream, apart from any Langevin sub-step.
+constexpr std::uint64_t kRescalingSubstep = 0xc5f2000000000000ULL;
+
+// Σ_{j<n} R_j² for n independent standard normals: pairs by −2 log u (= z₀² + z₁² of Box–Muller),
+// one more square when n is odd. Words 1… of the stream (word 0 gives R₁).
+double sum_of_squared_normals(std::uint64_t key, int n) {
+  constexpr double kScale = 1.0 / 4294967296.0;
+  double sum = 0.0;
+  std::uint64_t j = 1;
+  for (int k = 0; k + 1 < n; k += 2) {
+    const std::uint64_t w = noise_word(key, j++);
+    sum += -2.0 * std::log((static_cast<double>(w >> 32) + 0.5) * kScale);
+  }
+  if (n % 2 == 1) {
+    double z0, z1;
+    normal_pair(noise_word(key, j), z0, z1);
+    sum += z0 * z0;
+  }
+  return sum;
+}
+
+class VelocityRescaled final : public Integrator {
+ public:
+  VelocityRescaled(std::unique_ptr<Integrator> inner, const ThermostatSettings& t, int dof)
+      : inner_(std::move(inner)), kT_(t.temperature), tau_(t.tau), seed_(t.seed), dof_(dof) {
+    if (dof_ < 1) throw std::invalid_argument("velocity rescaling needs at least one degree of freedom");
+  }
+  void prepare(State& s, std::ostream& log) override { inner_->prepare(s, log); }
+  void step(State& s, double h) override {
+    inner_->step(s, h);
+    const double kinetic = s.kinetic_energy();
+    if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
+    const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
+    double r1 = 0.0;
+    const double a2 = rescaling_factor_squared(kinetic, 0.5 * dof_ * kT_, dof_, c, seed_, s.step, &r1);
+    // The sign of α (Bussi et al., Appendix): negative only when the noise overshoots, which
+    // needs a tiny K or a very short τ; it keeps the K process exact.
+    const double sign = r1 + std::sqrt(c * dof_ * kinetic / ((1.0 - c) * 0.5 * dof_ * kT_)) < 0.0 ? -1.0 : 1.0;
+    s.v *= sign * std::sqrt(a2);
+  }
+  void reset() override { inner_->reset(); }
+  std::string_view method() const override { return inner_->method(); }
+  double model_potential(const Eigen::Matrix3Xd& x) override { return inner_->model_potential(x); }
+  double constraint_virial(const State& s) const override { return inner_->constraint_virial(s); }
+  std::vector<double> save_state() const override { return inner_->save_state(); }
+  void load_state(const std::vector<double>& s) override { inner_->load_state(s); }
+
+ private:
+  std::unique_ptr<Integrator> inner_;
+  double kT_, tau_;
+  std::uint64_t seed_;
+  int dof_;
+};
+
+}  // namespace
+
+double rescaling_factor_squared(double kinetic, double target_kinetic, int dof, double c, std::uint64_t seed,
+                                std::int64_t step, double* r1_out) {
+  const std::uint64_t key = noise_key(seed, step, kRescalingSubstep);
+  double r1, unused;
+  normal_pair(noise_word(key, 0), r1, unused);
+  if (r1_out) *r1_out = r1;
+  const double ratio = target_kinetic / (dof * kinetic);
+  // Bussi et al. (A7): α² = c + (1−c)(R₁² + Σ_{i=2}^{N_f} R_i²) K̄/(N_f K) + 2 R₁ √(c(1−c) K̄/(N_f K)).
+  return c + (1.0 - c) * (r1 * r1 + sum_of_squared_normals(key, dof - 1)) * ratio +
+         2.0 * r1 * std::sqrt(c * (1.0 - c) * ratio);
+}
+
+std::unique_ptr<Integrator> with_velocity_rescaling(std::unique_ptr<Integrator> inner,
+                                                    const ThermostatSettings& settings, int dof) {
+  return std::make_unique<VelocityRescaled>(std::move(inner), settings, dof);
+}
+
+}  // namespace stiffmd

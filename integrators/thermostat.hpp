@@ -1,0 +1,112 @@
+// The canonical ensemble (design.md §8): Langevin dynamics inside every method, and the
+// stochastic velocity rescaling thermostat of Bussi, Donadio & Parrinello (J. Chem. Phys. 126,
+// 014101 (2007)) around any of them.
+//
+// Noise is counter-based: the Gaussian for (seed, step, substep, particle, component) is a hash
+// of those integers (splitmix64) turned into normals by Box–Muller. It does not depend on the
+// thread partition or on any generator state, so a run is bit-for-bit reproducible for a seed
+// and a thread count, and a restart from a checkpoint continues the same noise: the only state
+// is State::step, which the checkpoint holds and the run loop advances.
+#pragma once
+
+#include <Eigen/Core>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <string_view>
+
+#include "engine/state.hpp"
+
+namespace stiffmd {
+
+class ForceField;
+class Integrator;
+
+struct ThermostatSettings {
+  enum class Style { none, langevin, csvr };
+  Style style = Style::none;
+  double temperature = 0.0;  // kT (k_B = 1)
+  // Langevin: friction γ_i per particle (1/time; LAMMPS's damp = 1/γ, scaled per type).
+  Eigen::VectorXd friction;
+  double tau = 0.0;  // csvr: relaxation time of the kinetic energy
+  std::uint64_t seed = 1;
+  bool on() const { return style != Style::none; }
+};
+
+std::string_view thermostat_style_name(ThermostatSettings::Style style);
+
+// Degrees of freedom of the kinetic energy (k_B T = 2K/dof): 3 per mobile particle, less 3 when
+// the total momentum is conserved (no fixed particle, every term conserves it, and no Langevin
+// noise: its random forces do not sum to zero), less one per rigid constraint.
+int degrees_of_freedom(const Eigen::VectorXd& inv_mass, bool momentum_conserved, int rigid_constraints);
+bool momentum_conserved(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ThermostatSettings& t);
+
+// Counter-based noise: splitmix64's finaliser (Steele, Lea & Flood 2014) applied to a key made
+// of the counters. Consecutive inputs give independent-looking outputs (BigCrush-clean).
+inline std::uint64_t mix64(std::uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ULL;
+
+// The key of one (seed, step, substep): the start of a splitmix64 stream whose j-th value is
+// mix64(key + (j+1)·golden).
+inline std::uint64_t noise_key(std::uint64_t seed, std::int64_t step, std::uint64_t substep) {
+  return mix64(mix64(mix64(seed + kGolden) + static_cast<std::uint64_t>(step) * kGolden) + substep * kGolden);
+}
+inline std::uint64_t noise_word(std::uint64_t key, std::uint64_t j) { return mix64(key + (j + 1) * kGolden); }
+
+// Two independent standard normals from one 64-bit word (two 32-bit uniforms, Box–Muller). The
+// uniforms are (k + ½)/2³², never 0, so the tails stop at √(−2 log 2⁻³³) ≈ 6.8σ.
+inline void normal_pair(std::uint64_t word, double& z0, double& z1) {
+  constexpr double kScale = 1.0 / 4294967296.0;
+  const double u1 = (static_cast<double>(word >> 32) + 0.5) * kScale;
+  const double u2 = (static_cast<double>(word & 0xffffffffULL) + 0.5) * kScale;
+  const double r = std::sqrt(-2.0 * std::log(u1)), phi = 6.283185307179586 * u2;
+  z0 = r * std::cos(phi);
+  z1 = r * std::sin(phi);
+}
+
+// The three normals of particle i for (seed, step, substep): words 2i and 2i+1 of the stream.
+inline Eigen::Vector3d particle_noise(std::uint64_t key, std::int64_t i) {
+  double a, b, c, d;
+  normal_pair(noise_word(key, 2 * static_cast<std::uint64_t>(i)), a, b);
+  normal_pair(noise_word(key, 2 * static_cast<std::uint64_t>(i) + 1), c, d);
+  return {a, b, c};
+}
+
+// The Ornstein–Uhlenbeck part "O" of a Langevin splitting, solved exactly over dt:
+//   v_i ← c_i v_i + √((1 − c_i²) kT / m_i) ξ_i,   c_i = exp(−γ_i dt),   ξ_i ~ N(0, I₃).
+// Fixed particles (inverse mass 0) stay at rest. Parallel over particle blocks; the noise of a
+// particle does not depend on the block it falls in.
+class LangevinNoise {
+ public:
+  LangevinNoise(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass);
+  // O step of length dt at macro step `step`, sub-step `substep` of that step.
+  void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
+  double temperature() const { return kT_; }
+
+ private:
+  void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)
+  double kT_;
+  std::uint64_t seed_;
+  Eigen::VectorXd friction_, inv_mass_, c_, sigma_;
+  double dt_ = -1.0;
+};
+
+// Builds the stochastic velocity rescaling wrapper around `inner` (Bussi et al. 2007, eq. (A7)):
+// after each macro step the kinetic energy K is replaced by K' drawn from the exact solution of
+//   dK = (K̄ − K) dt/τ + 2 √(K K̄ / N_f) dW/√τ,   K̄ = N_f kT / 2,
+// over dt = h, by rescaling every velocity by one factor α = √(K'/K). A global thermostat: it
+// changes each velocity only by a common factor per step and leaves the dynamics between steps
+// untouched, the least disturbance of the dynamics for a canonical K distribution. N_f = dof.
+std::unique_ptr<Integrator> with_velocity_rescaling(std::unique_ptr<Integrator> inner,
+                                                    const ThermostatSettings& settings, int dof);
+
+// The factor α² = K'/K of one rescaling step (Bussi et al., eq. (A7)), from the noise of
+// (seed, step): exposed for the test of its distribution.
+double rescaling_factor_squared(double kinetic, double target_kinetic, int dof, double c, std::uint64_t seed,
+                                std::int64_t step, double* r1 = nullptr);
+
+}  // namespace stiffmd

@@ -1,0 +1,432 @@
+// The canonical ensemble (design.md §8, issue 13): counter-based noise, Langevin dynamics inside
+// every method, stochastic velocity rescaling, degrees of freedom, and the freely jointed trimer's
+// known bond-angle laws.
+//
+// Statistical tolerances. Every ensemble average is a time series of per-sample means over many
+// independent molecules, cut into 20 blocks each much longer than the correlation time (1/γ = 1
+// and the rotational time ~1 at kT = 1); the standard error is the spread of the block means over
+// √20. An average passes when it lies within 4 standard errors of the exact value (a Student t
+// with 19 degrees of freedom exceeds 4 with probability 8e-4). Where two laws are to be told
+// apart the test also asserts that 8 standard errors are below their difference, so the band
+// around the right law excludes the wrong one by another 4 standard errors: the test has the
+// power to fail. The runs are deterministic (counter-based noise), so a pass is reproducible.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli_support.hpp"
+#include "engine/errors.hpp"
+#include "engine/observables.hpp"
+#include "forcefields/parallel.hpp"
+#include "integrators/thermostat.hpp"
+#include "test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Estimate {
+  double mean = 0.0, se = 0.0;
+};
+
+Estimate block_estimate(const std::vector<double>& series, int blocks = 20) {
+  const size_t per = series.size() / blocks;
+  std::vector<double> means(blocks, 0.0);
+  for (int b = 0; b < blocks; ++b) {
+    for (size_t k = 0; k < per; ++k) means[b] += series[b * per + k];
+    means[b] /= static_cast<double>(per);
+  }
+  Estimate e;
+  for (double m : means) e.mean += m / blocks;
+  double var = 0.0;
+  for (double m : means) var += (m - e.mean) * (m - e.mean) / (blocks - 1);
+  e.se = std::sqrt(var / blocks);
+  return e;
+}
+
+// ⟨c²⟩ for a density ∝ w(c) on [−1, 1], by Simpson's rule.
+template <class W>
+double mean_c2(W w) {
+  const int n = 20000;
+  double num = 0.0, den = 0.0;
+  for (int k = 0; k <= n; ++k) {
+    const double c = -1.0 + 2.0 * k / n, weight = (k == 0 || k == n) ? 1.0 : (k % 2 ? 4.0 : 2.0);
+    num += weight * c * c * w(c);
+    den += weight * w(c);
+  }
+  return num / den;
+}
+
+// Kolmogorov–Smirnov test of standard-normal samples: the p-value (asymptotic distribution with
+// Stephens' small-sample correction).
+double ks_normal_p_value(std::vector<double> z) {
+  std::sort(z.begin(), z.end());
+  const double n = static_cast<double>(z.size());
+  double d = 0.0;
+  for (size_t k = 0; k < z.size(); ++k) {
+    const double f = 0.5 * std::erfc(-z[k] / std::sqrt(2.0));
+    d = std::max({d, f - k / n, (k + 1) / n - f});
+  }
+  const double lambda = (std::sqrt(n) + 0.12 + 0.11 / std::sqrt(n)) * d;
+  double p = 0.0;
+  for (int j = 1; j <= 100; ++j) p += 2.0 * (j % 2 ? 1.0 : -1.0) * std::exp(-2.0 * j * j * lambda * lambda);
+  return std::clamp(p, 0.0, 1.0);
+}
+
+// A gas of `trimers` freely jointed trimers (beads 3t, 3t+1, 3t+2; two stiff springs of length 1,
+// α = 1, ε = 0.1), no other forces, and a thermostat at kT = 1.
+std::string trimer_deck(int trimers, const std::string& thermostat, double eps = 0.1) {
+  std::ostringstream d;
+  d << "[box]\nlengths = [60, 60, 60]\n[types.bead]\nmass = 1.0\n"
+    << "[[build]]\nstyle = \"linear-chains\"\ntype = \"bead\"\nchains = " << trimers
+    << "\nbeads = 3\nbond_length = 1.0\nbond_type = \"b\"\nmin_distance = 0.0\nseed = 3\n"
+    << "[velocities]\ntemperature = 1.0\nseed = 4\n"
+    << "[forces.bonds]\nstyle = \"stiff-harmonic\"\nlevel = \"fast\"\nepsilon = " << eps << "\n"
+    << "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
+    << thermostat << "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.01\n[run]\nt_end = 1\n";
+  return d.str();
+}
+
+const std::string kLangevin = "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.0\ndamp = 1.0\nseed = 5\n";
+
+Scene load_text(const std::string& text, const std::vector<std::string>& overrides) {
+  static int counter = 0;
+  const fs::path d = test::scratch_dir("thermostat_" + std::to_string(counter++));
+  std::ofstream(d / "deck.toml") << text;
+  const Deck deck((d / "deck.toml").string(), overrides);
+  Scene sc = load_scene(deck);
+  fs::remove_all(d);
+  return sc;
+}
+
+struct TrimerRun {
+  std::vector<double> c2;           // per sample: mean over trimers of cos²θ
+  std::vector<double> temperature;  // per sample: the thermo column
+  std::vector<double> cm_velocity;  // centre-of-mass velocity components / √(kT/M), every 5th sample
+  std::vector<double> atom_velocity;  // bead velocity components / √(kT/m), every 5th sample
+  int dof = 0;
+};
+
+// Runs `method` with the given step (and micro step) on the trimer gas, end beads of mass m_end
+// and middle beads of mass 1: 10 time units to equilibrate, then `t_run` sampled every 0.5.
+TrimerRun run_trimers(const std::string& method, double h, int micro_steps, double m_end, double t_run,
+                      const std::string& thermostat = kLangevin, int trimers = 200, double eps = 0.1) {
+  std::vector<std::string> o = {"integrator.method=" + method, "integrator.h=" + test::exact(h)};
+  if (micro_steps > 1) o.push_back("integrator.micro_steps=" + std::to_string(micro_steps));
+  Scene sc = load_text(trimer_deck(trimers, thermostat, eps), o);
+  State& s = sc.state;
+  for (int t = 0; t < trimers; ++t) s.inv_mass[3 * t] = s.inv_mass[3 * t + 2] = 1.0 / m_end;
+  auto integ = make_integrator(sc.integrator, *sc.forces, s.inv_mass);
+  std::ostringstream log;
+  integ->prepare(s, log);
+  ObservableSettings obs;
+  obs.thermostat = sc.integrator.thermostat.style;
+  if (find_method(method)->rigid_constraints) obs.rigid_constraints = 2 * trimers;
+  Thermo thermo(*sc.forces, s.inv_mass, obs);
+  const int temperature = thermo.column("temperature");
+  TrimerRun r;
+  r.dof = thermo.degrees_of_freedom();
+  const auto every = static_cast<std::int64_t>(std::llround(0.5 / h));
+  const auto burn_in = static_cast<std::int64_t>(std::llround(10.0 / h));
+  const auto total = burn_in + static_cast<std::int64_t>(std::llround(t_run / h));
+  const double kT = sc.integrator.thermostat.temperature;
+  for (std::int64_t k = 1; k <= total; ++k) {
+    integ->step(s, h);
+    s.step = k;
+    if (k <= burn_in || (k - burn_in) % every != 0) continue;
+    double c2 = 0.0;
+    for (int t = 0; t < trimers; ++t) {
+      const Eigen::Vector3d a = s.x.col(3 * t) - s.x.col(3 * t + 1), b = s.x.col(3 * t + 2) - s.x.col(3 * t + 1);
+      const double c = a.dot(b) / (a.norm() * b.norm());
+      c2 += c * c / trimers;
+    }
+    r.c2.push_back(c2);
+    r.temperature.push_back(thermo.sample(s, integ->model_potential(s.x))[temperature]);
+    if (r.c2.size() % 5 != 0) continue;  // velocities: samples 2.5 time units (2.5/γ) apart
+    for (int t = 0; t < trimers; ++t) {
+      const double mass = 2 * m_end + 1;
+      const Eigen::Vector3d p = m_end * (s.v.col(3 * t) + s.v.col(3 * t + 2)) + s.v.col(3 * t + 1);
+      for (int a = 0; a < 3; ++a) r.cm_velocity.push_back(p[a] / std::sqrt(kT * mass));
+      for (int i = 3 * t; i < 3 * t + 3; ++i)
+        for (int a = 0; a < 3; ++a) r.atom_velocity.push_back(s.v(a, i) * std::sqrt(1.0 / (s.inv_mass[i] * kT)));
+    }
+  }
+  return r;
+}
+
+// The two laws of the bond angle c = cos θ (design.md §8) for end masses m_end, middle mass 1:
+// stiff springs uniform in c (any masses, any ε), rigid bonds ∝ √det S(c) with
+// S = [[1/m_end + 1, c], [c, 1 + 1/m_end]].
+const double kStiffC2 = 1.0 / 3.0;
+double rigid_c2(double m_end) {
+  const double d = 1.0 / m_end + 1.0;
+  return mean_c2([&](double c) { return std::sqrt(d * d - c * c); });
+}
+
+void expect_law(const std::string& what, const Estimate& e, double expected, double other) {
+  ::testing::Test::RecordProperty(what, std::to_string(e.mean) + " +- " + std::to_string(e.se));
+  EXPECT_NEAR(e.mean, expected, 4 * e.se) << what << ": <cos^2> = " << e.mean << " +- " << e.se;
+  EXPECT_LT(8 * e.se, std::abs(expected - other)) << what << ": the run cannot tell the two laws apart";
+}
+
+void expect_temperature(const std::string& what, const TrimerRun& r) {
+  const Estimate t = block_estimate(r.temperature);
+  ::testing::Test::RecordProperty(what + "_T", std::to_string(t.mean) + " +- " + std::to_string(t.se));
+  EXPECT_NEAR(t.mean, 1.0, 4 * t.se) << what << ": T = " << t.mean << " +- " << t.se << " (dof " << r.dof << ")";
+}
+
+// ---- counter-based noise ----------------------------------------------------------------------
+
+TEST(CounterNoise, IsStandardNormalAndIndependentOfNeighbouringCounters) {
+  // Normals of consecutive particles, steps and sub-steps: mean 0, variance 1, no correlation
+  // between neighbours in any counter, and a Kolmogorov–Smirnov p-value above 1e-3.
+  std::vector<double> z;
+  double lag_particle = 0.0, lag_step = 0.0;
+  const int n = 20000;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d a = particle_noise(noise_key(7, 3, 0), i), b = particle_noise(noise_key(7, 3, 0), i + 1);
+    const Eigen::Vector3d c = particle_noise(noise_key(7, 4, 0), i);
+    z.insert(z.end(), {a[0], a[1], a[2]});
+    lag_particle += a.dot(b) / (3.0 * n);
+    lag_step += a.dot(c) / (3.0 * n);
+  }
+  double mean = 0.0, var = 0.0;
+  for (double v : z) mean += v / z.size();
+  for (double v : z) var += (v - mean) * (v - mean) / (z.size() - 1);
+  const double se = 1.0 / std::sqrt(static_cast<double>(z.size()));
+  EXPECT_NEAR(mean, 0.0, 4 * se);
+  EXPECT_NEAR(var, 1.0, 4 * std::sqrt(2.0) * se);
+  EXPECT_NEAR(lag_particle, 0.0, 4 / std::sqrt(3.0 * n));
+  EXPECT_NEAR(lag_step, 0.0, 4 / std::sqrt(3.0 * n));
+  const double p = ks_normal_p_value(z);
+  RecordProperty("ks_p", std::to_string(p));
+  EXPECT_GT(p, 1e-3);
+  EXPECT_NE(noise_key(7, 3, 0), noise_key(8, 3, 0));
+  EXPECT_NE(noise_key(7, 3, 1), noise_key(7, 4, 0));
+}
+
+TEST(CounterNoise, LangevinStepDoesNotDependOnTheThreadCount) {
+  const int n = 3 * 4096;
+  ThermostatSettings t;
+  t.style = ThermostatSettings::Style::langevin;
+  t.temperature = 1.5;
+  t.friction = Eigen::VectorXd::LinSpaced(n, 0.5, 2.0);
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 0.5);
+  inv_mass[17] = 0.0;  // fixed: stays at rest
+  const Eigen::Matrix3Xd v0 = Eigen::Matrix3Xd::Random(3, n);
+  auto run = [&](int threads) {
+    set_max_threads(threads);
+    LangevinNoise o(t, inv_mass);
+    Eigen::Matrix3Xd v = v0;
+    v.col(17).setZero();
+    for (int k = 0; k < 3; ++k) o.apply(v, 0.01, 42 + k, 0);
+    return v;
+  };
+  const int restore = max_threads();
+  const Eigen::Matrix3Xd serial = run(1), two = run(2), three = run(3);
+  set_max_threads(restore);
+  EXPECT_EQ(serial, two);  // bit for bit
+  EXPECT_EQ(serial, three);
+  EXPECT_TRUE(serial.col(17).isZero());
+}
+
+// The O step alone is an exact Ornstein–Uhlenbeck update: from v = 0, after time t the velocity
+// variance is (1 − e^{−2γt}) kT/m, whatever the step it is taken in.
+TEST(CounterNoise, OrnsteinUhlenbeckStepIsExactForAnyStep) {
+  const int n = 20000;
+  ThermostatSettings t;
+  t.style = ThermostatSettings::Style::langevin;
+  t.temperature = 2.0;
+  t.friction = Eigen::VectorXd::Constant(n, 0.7);
+  const Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 0.25);
+  for (int steps : {1, 10}) {
+    LangevinNoise o(t, inv_mass);
+    Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
+    for (int k = 0; k < steps; ++k) o.apply(v, 1.0 / steps, k, 0);
+    const double var = v.squaredNorm() / (3.0 * n), expected = -std::expm1(-2 * 0.7) * 2.0 * 0.25;
+    EXPECT_NEAR(var, expected, 4 * std::sqrt(2.0 / (3.0 * n)) * expected) << steps << " steps";
+  }
+}
+
+// ---- stochastic velocity rescaling --------------------------------------------------------------
+
+// With τ = 0 (c = 0) one rescaling draws K' = K̄ χ²_{N_f}/N_f, whatever K was: mean K̄, variance
+// 2K̄²/N_f (Bussi et al. 2007, eq. (A7)).
+TEST(VelocityRescaling, FactorDrawsTheCanonicalKineticEnergy) {
+  const int dof = 7, n = 40000;
+  const double target = 0.5 * dof * 1.3, kinetic = 5.0;
+  double mean = 0.0, sq = 0.0;
+  for (int k = 0; k < n; ++k) {
+    const double kp = kinetic * rescaling_factor_squared(kinetic, target, dof, 0.0, 9, k);
+    mean += kp / n;
+    sq += kp * kp / n;
+  }
+  const double var = sq - mean * mean, expected_var = 2 * target * target / dof;
+  EXPECT_NEAR(mean, target, 4 * std::sqrt(expected_var / n));
+  EXPECT_NEAR(var, expected_var, 0.05 * expected_var);
+  // c → 1 (τ ≫ h): the kinetic energy barely moves.
+  EXPECT_NEAR(rescaling_factor_squared(kinetic, target, dof, 1.0 - 1e-12, 9, 3), 1.0, 1e-5);
+}
+
+// Rigid trimers without forces keep their kinetic energy between rescalings, so the rescaling
+// chain alone sets K: ⟨T⟩ = 1 only if N_f is right — 3N − 3 (momentum conserved) − 2 per trimer.
+// Ten trimers make the count matter: N_f = 67, and 70 (momentum not removed) would read T = 0.957.
+TEST(VelocityRescaling, RigidTrimersReachTheTemperatureWithTheirDegreesOfFreedom) {
+  const std::string csvr = "[thermostat]\nstyle = \"csvr\"\ntemperature = 1.0\ntau = 0.1\nseed = 6\n";
+  const TrimerRun r = run_trimers("rattle", 0.02, 1, 1.0, 1000, csvr, 10);
+  EXPECT_EQ(r.dof, 3 * 30 - 3 - 20);
+  const Estimate t = block_estimate(r.temperature);
+  RecordProperty("T", std::to_string(t.mean) + " +- " + std::to_string(t.se));
+  EXPECT_NEAR(t.mean, 1.0, 4 * t.se);
+  EXPECT_LT(8 * t.se, 1.0 - 67.0 / 70.0);
+  // Canonical fluctuations of K: var(T) = 2T²/N_f.
+  double var = 0.0;
+  for (double v : r.temperature) var += (v - t.mean) * (v - t.mean) / (r.temperature.size() - 1);
+  EXPECT_NEAR(var, 2.0 / r.dof, 0.25 * 2.0 / r.dof);
+}
+
+// ---- the freely jointed trimer: every method's law -----------------------------------------------
+
+struct LawCase {
+  std::string method;
+  double h;
+  int micro_steps;
+  bool stiff_law;  // else the rigid law
+  double eps = 0.1;
+};
+
+class TrimerLaw : public ::testing::TestWithParam<LawCase> {};
+
+// End masses 4, middle 1: the rigid law ∝ √(1.5625 − c²) has ⟨c²⟩ = 0.2947, far enough from the
+// stiff law's 1/3 for a short run to tell them apart. Velocity Verlet at h = 0.005 resolves the
+// bond vibrations (hω ≤ 0.08); the impulse methods take micro steps of 0.005 (hω ≤ 0.08), an odd
+// and an even number of them (the O step sits inside the middle drift or between two kicks). The
+// mollifier α(x) is an O(ε) construction: at ε = 0.1 the thermal bond stretches (0.1 rms, 0.4 in
+// the tails) are too large for its SHAKE projection to converge in every configuration, so the
+// mollified method runs at ε = 0.05 (the stiff law holds at every ε).
+TEST_P(TrimerLaw, BondAngleFollowsItsCanonicalLaw) {
+  const LawCase& c = GetParam();
+  const TrimerRun r = run_trimers(c.method, c.h, c.micro_steps, 4.0, 100, kLangevin, 200, c.eps);
+  const double stiff = kStiffC2, rigid = rigid_c2(4.0);
+  expect_law("cos2", block_estimate(r.c2), c.stiff_law ? stiff : rigid, c.stiff_law ? rigid : stiff);
+  expect_temperature(c.method, r);
+  // The centre of mass moves freely under every method: Maxwell at kT/M.
+  const double p_cm = ks_normal_p_value(r.cm_velocity);
+  RecordProperty("ks_p_cm", std::to_string(p_cm));
+  EXPECT_GT(p_cm, 1e-3);
+  if (!find_method(c.method)->rigid_constraints) {  // unconstrained: each bead's velocity is Maxwell at kT/m
+    const double p = ks_normal_p_value(r.atom_velocity);
+    RecordProperty("ks_p_atoms", std::to_string(p));
+    EXPECT_GT(p, 1e-3);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Methods, TrimerLaw,
+                         ::testing::Values(LawCase{"velocity-verlet", 0.005, 1, true},
+                                           LawCase{"projected-impulse", 0.045, 9, true},  // odd n: O inside the middle drift
+                                           LawCase{"mollified-impulse", 0.05, 20, true, 0.05},
+                                           LawCase{"rattle", 0.02, 1, false},
+                                           LawCase{"fixman", 0.02, 1, true}),
+                         [](const auto& info) {
+                           std::string n = info.param.method;
+                           std::replace(n.begin(), n.end(), '-', '_');
+                           return n;
+                         });
+
+// Equal masses: RATTLE's law ∝ √(1 − c²/4), ⟨c²⟩ = 0.3210 (design.md §8). The laws differ by only
+// 0.012 here, so this run checks the value, not the power (4 standard errors ≈ 0.006).
+TEST(TrimerLaw, RattleWithEqualMassesGivesTheRigidValue) {
+  const TrimerRun r = run_trimers("rattle", 0.02, 1, 1.0, 100);
+  const Estimate e = block_estimate(r.c2);
+  RecordProperty("cos2", std::to_string(e.mean) + " +- " + std::to_string(e.se));
+  EXPECT_NEAR(rigid_c2(1.0), 0.3210, 5e-5);
+  EXPECT_NEAR(e.mean, rigid_c2(1.0), 4 * e.se);
+}
+
+// Every method of the table holds kT with its own degrees of freedom (3N with stiff springs,
+// 3N − bonds with rigid ones; Langevin noise does not conserve momentum).
+class NvtTemperature : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(NvtTemperature, KineticTemperatureIsT) {
+  const std::string& method = GetParam();
+  const MethodInfo& m = *find_method(method);
+  const TrimerRun r = m.micro_steps ? run_trimers(method, 0.05, 10, 1.0, 30)
+                                    : run_trimers(method, m.rigid_constraints ? 0.02 : 0.005, 1, 1.0, 30);
+  EXPECT_EQ(r.dof, 3 * 600 - (m.rigid_constraints ? 400 : 0));
+  expect_temperature(method, r);
+}
+
+INSTANTIATE_TEST_SUITE_P(AllMethods, NvtTemperature, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+
+// RATTLE plus Fixman's potential, with equal masses too (design.md §8's trimer): uniform in c.
+TEST(TrimerLaw, FixmanWithEqualMassesGivesTheStiffValue) {
+  const TrimerRun r = run_trimers("fixman", 0.02, 1, 1.0, 100);
+  const Estimate e = block_estimate(r.c2);
+  RecordProperty("cos2", std::to_string(e.mean) + " +- " + std::to_string(e.se));
+  EXPECT_NEAR(e.mean, kStiffC2, 4 * e.se);
+}
+
+TEST(ThermostatDeck, FixmanWithoutAThermostatIsRefusedAtTheMethodKey) {
+  std::string deck = trimer_deck(2, "");
+  try {
+    load_text(deck, {"integrator.method=fixman"});
+    ADD_FAILURE() << "fixman without [thermostat] accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("integrator.method"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("[thermostat]"), std::string::npos) << e.what();
+  }
+}
+
+// ---- determinism and restarts ---------------------------------------------------------------------
+
+// Two runs of n steps from the same state, one interrupted after n/2 steps and continued by a
+// fresh integrator with the saved state (as `run --restart` does): bit for bit the same.
+class NvtRestart : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(NvtRestart, ContinuesBitForBit) {
+  for (const char* style : {"langevin", "csvr"}) {
+    SCOPED_TRACE(style);
+    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + style +
+                                   "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") +
+                                   "seed = 5\n";
+    Scene sc = load_text(trimer_deck(20, thermostat), {"integrator.method=" + GetParam(), "integrator.h=0.01",
+                                                       "integrator.micro_steps=3"});
+    auto first = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+    std::ostringstream log;
+    State a = sc.state, b = sc.state;
+    first->prepare(a, log);
+    for (std::int64_t k = 1; k <= 40; ++k) first->step(a, 0.01), a.step = k;
+    auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+    integ->prepare(b, log);
+    for (std::int64_t k = 1; k <= 20; ++k) integ->step(b, 0.01), b.step = k;
+    auto resumed = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+    resumed->load_state(integ->save_state());
+    for (std::int64_t k = 21; k <= 40; ++k) resumed->step(b, 0.01), b.step = k;
+    EXPECT_EQ(a.x, b.x);
+    EXPECT_EQ(a.v, b.v);
+    EXPECT_NE(a.v, sc.state.v);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(AllMethods, NvtRestart, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+
+// ---- the deck -------------------------------------------------------------------------------------
+
+TEST(ThermostatDeck, DampIsOneOverFrictionAndScalesPerType) {
+  std::string deck = trimer_deck(2, "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.5\ndamp = 4.0\nseed = 5\n"
+                                    "[thermostat.scale]\nbead = 2.0\n");
+  const Scene sc = load_text(deck, {});
+  ASSERT_TRUE(sc.thermostatted());
+  EXPECT_EQ(sc.integrator.thermostat.style, ThermostatSettings::Style::langevin);
+  EXPECT_EQ(sc.integrator.thermostat.temperature, 1.5);
+  ASSERT_EQ(sc.integrator.thermostat.friction.size(), 6);
+  EXPECT_EQ(sc.integrator.thermostat.friction[3], 0.5);  // 2 / 4
+  EXPECT_FALSE(load_text(trimer_deck(2, ""), {}).thermostatted());
+}
+
+}  // namespace
+}  // namespace stiffmd
