@@ -11,7 +11,13 @@
 #include "integrators/modes.hpp"
 
 #include "engine/errors.hpp"
+#include "forcefields/parallel.hpp"
 #include "integrators/constraints.hpp"
+
+// LAPACK: the eigenvalues of a symmetric tridiagonal matrix, ascending, by the Pal–Walker–Kahan
+// root-free QR (O(n²), no eigenvectors). On 99-bond chains this plus the O(n)-per-vector twisted
+// factorizations below beat MRRR (dstemr) with vectors, which spends most of its time refining.
+extern "C" void dsterf_(const int* n, double* d, double* e, int* info);
 
 namespace stiffmd {
 
@@ -39,6 +45,21 @@ struct StiffModes::Impl {
     std::vector<int> particles;  // global particle index of each local particle
     std::vector<double> im;      // inverse mass of each local particle
     std::vector<int> li, lj;     // local particle index of each bond's ends
+    // Open chains: bonds in chain order, A tridiagonal with A(b, b+1) = off_w[b] α_b α_{b+1} u_b·u_{b+1},
+    // off_w[b] = s_b(p) s_{b+1}(p)/m_p for the mobile particle p the two bonds share.
+    bool chain = false;
+    std::vector<double> off_w;
+  };
+
+  // Scratch of one thread for the chain path, sized for the longest chain.
+  struct ChainWorkspace {
+    Eigen::Matrix3Xd u;
+    Eigen::VectorXd r, diag, off, lambda, scratch, z, zdot, w, wdot, coef;
+    Eigen::VectorXd q;  // the eigenvectors, n × n column-major in the first n² entries
+    // Pivots of T − λ_k I from the top (forward) and the bottom (backward), stored as 1/D at
+    // [b·n + k] so that the recurrences run over all k at once (independent, vectorisable).
+    Eigen::VectorXd inv_forward, inv_backward, twist;
+    std::vector<int> twist_index;
   };
 
   std::vector<StiffBond> bonds;
@@ -56,6 +77,16 @@ struct StiffModes::Impl {
   DenseVector z, zdot, w, wdot;
   Eigen::Matrix3Xd wk;  // w_k = M⁻¹ Gᵀ K^{1/2} q_k on the cluster's local particles
 
+  // The chain path: chain clusters (indices into clusters) split over the threads in blocks of
+  // about equal bond count, one workspace per thread; per-bond and per-cluster results are
+  // combined afterwards in cluster order, so nothing depends on the thread count.
+  std::vector<int> chains;
+  std::vector<std::int64_t> chain_bonds_before;  // bonds in chains 0 … k − 1
+  std::vector<ChainWorkspace> workspaces;
+  Eigen::Matrix3Xd h;              // per bond: ∂W/∂x_i (= −∂W/∂x_j) from its cluster's chain path
+  std::vector<double> cluster_W;   // W of each cluster (chain path)
+  std::vector<Validity> cluster_validity;
+
   void check_positions(const Eigen::Matrix3Xd& x) const {
     if (x.cols() != inv_mass.size())
       throw std::invalid_argument("StiffModes: x has " + std::to_string(x.cols()) + " particles, expected " +
@@ -65,7 +96,8 @@ struct StiffModes::Impl {
   // Bond geometry and A = K^{1/2} S K^{1/2} of cluster c at x, then its eigen-decomposition
   // (design.md §3). S_bc = Σ_p m_p⁻¹ (s_b(p) u_b)·(s_c(p) u_c) over the particles p the two
   // bonds share, s_b(i) = +1, s_b(j) = −1: the rows of G carry +u_b at i and −u_b at j.
-  void decompose(const Cluster& c, const Eigen::Matrix3Xd& x, bool vectors) {
+  // u_b, r_b of every bond of cluster c at x, by local bond index.
+  void measure(const Cluster& c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& u, Eigen::VectorXd& r) const {
     const int nb = static_cast<int>(c.bonds.size());
     for (int b = 0; b < nb; ++b) {
       const StiffBond& bond = bonds[c.bonds[b]];
@@ -78,6 +110,11 @@ struct StiffModes::Impl {
       r[b] = rb;
       u.col(b) = d / rb;
     }
+  }
+
+  void decompose(const Cluster& c, const Eigen::Matrix3Xd& x, bool vectors) {
+    const int nb = static_cast<int>(c.bonds.size());
+    measure(c, x, u, r);
     A.resize(nb, nb);
     for (int b = 0; b < nb; ++b) {
       const double ab = bonds[c.bonds[b]].alpha;
@@ -102,7 +139,9 @@ struct StiffModes::Impl {
 
   // λ_k of the last decomposition, after the check that 1/λ_k is meaningful.
   double positive_eigenvalue(const Cluster& c, int k) const {
-    const auto& lam = solver.eigenvalues();
+    return positive_eigenvalue(c, k, solver.eigenvalues());
+  }
+  double positive_eigenvalue(const Cluster& c, int k, const Eigen::Ref<const Eigen::VectorXd>& lam) const {
     const double lk = lam[k];
     if (!(lk > kZeroEigenvalue * lam[lam.size() - 1]))
       throw NumericalError("StiffModes: mode " + std::to_string(k) + " of cluster " + std::to_string(c.index) +
@@ -110,9 +149,123 @@ struct StiffModes::Impl {
                            " (zero frequency): its constraints are (nearly) redundant here");
     return lk;
   }
+
+  // The tridiagonal A of chain c at x (design.md §3; A_bb = α_b² (1/m_i + 1/m_j) since u_b·u_b = 1),
+  // then its eigenvalues (ascending, in ws.lambda) and, if asked, its eigenvectors (ws.q).
+  void decompose_chain(const Cluster& c, const Eigen::Matrix3Xd& x, bool vectors, ChainWorkspace& ws) const {
+    int n = static_cast<int>(c.bonds.size());
+    measure(c, x, ws.u, ws.r);
+    for (int b = 0; b < n; ++b) {
+      const double ab = bonds[c.bonds[b]].alpha;
+      ws.diag[b] = ab * ab * (c.im[c.li[b]] + c.im[c.lj[b]]);
+      if (b + 1 < n) ws.off[b] = ab * bonds[c.bonds[b + 1]].alpha * c.off_w[b] * ws.u.col(b).dot(ws.u.col(b + 1));
+    }
+    ws.lambda.head(n) = ws.diag.head(n);
+    ws.scratch.head(n) = ws.off.head(n);
+    int info = 0;
+    dsterf_(&n, ws.lambda.data(), ws.scratch.data(), &info);
+    if (info != 0)
+      throw NumericalError("StiffModes: eigenvalues of chain cluster " + std::to_string(c.index) + " (" +
+                           std::to_string(n) + " bonds) did not converge (LAPACK dsterf info " +
+                           std::to_string(info) + ")");
+    if (vectors) chain_eigenvectors(n, ws);
+  }
+
+  // Eigenvectors of the tridiagonal T (diagonal ws.diag, off-diagonal ws.off) for its eigenvalues
+  // ws.lambda by twisted factorizations (Parlett & Dhillon; the core of MRRR, LAPACK dlar1v):
+  // with the pivots D⁺_b of T − λ = L D⁺ Lᵀ from the top, D⁻_b of U D⁻ Uᵀ from the bottom and
+  // γ_b = D⁺_b + D⁻_b − (T_bb − λ), the twist index r = argmin |γ_b| gives q_r = 1,
+  // q_b = −(e_b/D⁺_b) q_{b+1} above r and q_{b+1} = −(e_b/D⁻_{b+1}) q_b below; O(n) per vector.
+  // Accurate to O(nε/relative gap), as the dense solver; orthogonal to the same order.
+  static void chain_eigenvectors(int n, ChainWorkspace& ws) {
+    const double* d = ws.diag.data();
+    const double* e = ws.off.data();
+    const double* lam = ws.lambda.data();
+    double* fw = ws.inv_forward.data();
+    double* bw = ws.inv_backward.data();
+    double* twist = ws.twist.data();
+    // A zero pivot (λ exactly at an eigenvalue of a leading block) is replaced by a tiny one of
+    // either sign, as LAPACK's pivmin: the twisted vector stays finite and exact to rounding.
+    double emax = 0.0;
+    for (int b = 0; b + 1 < n; ++b) emax = std::max(emax, std::abs(e[b]));
+    const double pivmin = std::numeric_limits<double>::min() * std::max(1.0, emax * emax);
+    auto safe = [pivmin](double D) { return std::abs(D) < pivmin ? -pivmin : D; };
+#pragma omp simd
+    for (int k = 0; k < n; ++k) fw[k] = 1.0 / safe(d[0] - lam[k]);
+    for (int b = 1; b < n; ++b) {
+      const double e2 = e[b - 1] * e[b - 1];
+      const double* prev = fw + (b - 1) * n;
+      double* cur = fw + b * n;
+#pragma omp simd
+      for (int k = 0; k < n; ++k) cur[k] = 1.0 / safe(d[b] - lam[k] - e2 * prev[k]);
+    }
+#pragma omp simd
+    for (int k = 0; k < n; ++k) bw[(n - 1) * n + k] = 1.0 / safe(d[n - 1] - lam[k]);
+    for (int b = n - 2; b >= 0; --b) {
+      const double e2 = e[b] * e[b];
+      const double* next = bw + (b + 1) * n;
+      double* cur = bw + b * n;
+#pragma omp simd
+      for (int k = 0; k < n; ++k) cur[k] = 1.0 / safe(d[b] - lam[k] - e2 * next[k]);
+    }
+    // γ_b = D⁺_b + D⁻_b − (T_bb − λ) = (T_bb − λ) − e_{b−1}²/D⁺_{b−1} − e_b²/D⁻_{b+1}.
+    int* r = ws.twist_index.data();
+    for (int k = 0; k < n; ++k) {
+      twist[k] = std::numeric_limits<double>::infinity();
+      r[k] = 0;
+    }
+    for (int b = 0; b < n; ++b) {
+      const double up = b > 0 ? e[b - 1] * e[b - 1] : 0.0, down = b + 1 < n ? e[b] * e[b] : 0.0;
+      const double* above = fw + (b > 0 ? b - 1 : 0) * n;
+      const double* below = bw + (b + 1 < n ? b + 1 : b) * n;
+      for (int k = 0; k < n; ++k) {
+        const double g = std::abs(d[b] - lam[k] - up * above[k] - down * below[k]);
+        if (g < twist[k]) {
+          twist[k] = g;
+          r[k] = b;
+        }
+      }
+    }
+    for (int k = 0; k < n; ++k) {
+      double* q = ws.q.data() + static_cast<std::ptrdiff_t>(k) * n;
+      q[r[k]] = 1.0;
+      double norm2 = 1.0;
+      for (int b = r[k] - 1; b >= 0; --b) {
+        q[b] = -e[b] * fw[b * n + k] * q[b + 1];
+        norm2 += q[b] * q[b];
+      }
+      for (int b = r[k]; b + 1 < n; ++b) {
+        q[b + 1] = -e[b] * bw[(b + 1) * n + k] * q[b];
+        norm2 += q[b + 1] * q[b + 1];
+      }
+      const double scale = 1.0 / std::sqrt(norm2);
+      for (int b = 0; b < n; ++b) q[b] *= scale;
+    }
+  }
+
+  // Runs f(c, workspace) for every chain cluster c on the threads (see `chains`).
+  template <class F>
+  void for_each_chain(F&& f) {
+    const int nc = static_cast<int>(chains.size());
+    const int parts = std::min({threads_for(chain_bonds_before.back()), nc, static_cast<int>(workspaces.size())});
+    if (parts <= 1) {
+      for (int k = 0; k < nc; ++k) f(clusters[chains[k]], workspaces[0]);
+      return;
+    }
+    run_parts(parts, [&](int part) {
+      auto first = [&](int v) {
+        return static_cast<int>(std::lower_bound(chain_bonds_before.begin(), chain_bonds_before.end() - 1,
+                                                 block_begin(chain_bonds_before.back(), parts, v)) -
+                                chain_bonds_before.begin());
+      };
+      const int end = part + 1 == parts ? nc : first(part + 1);
+      for (int k = first(part); k < end; ++k) f(clusters[chains[k]], workspaces[part]);
+    });
+  }
 };
 
-StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds)
+StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds,
+                       Solver solver)
     : impl_(std::make_unique<Impl>()) {
   Impl& d = *impl_;
   if (!(epsilon > 0.0) || !std::isfinite(epsilon))
@@ -129,7 +282,7 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
   d.epsilon = epsilon;
 
   const std::vector<ConstraintCluster> found = find_clusters(d.bonds, d.inv_mass);
-  int max_nb = 0, max_np = 0;
+  int max_nb = 0, max_np = 0, max_chain = 0;
   for (size_t ci = 0; ci < found.size(); ++ci) {
     const ConstraintCluster& fc = found[ci];
     const int nb = static_cast<int>(fc.bonds.size());
@@ -141,6 +294,11 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
     c.index = static_cast<int>(ci);
     c.first_mode = d.num_modes;
     c.bonds = fc.bonds;
+    if (solver == Solver::fast) {
+      ClusterPath path = cluster_path(fc, d.bonds, d.inv_mass);
+      c.chain = path.shape == ClusterShape::chain;
+      if (c.chain) c.bonds = std::move(path.bonds);
+    }
     c.particles = fc.particles;
     for (int p : c.particles) c.im.push_back(d.inv_mass[p]);
     auto local = [&](int p) {
@@ -149,6 +307,18 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
     for (int b : c.bonds) {
       c.li.push_back(local(d.bonds[b].i));
       c.lj.push_back(local(d.bonds[b].j));
+    }
+    for (int b = 0; c.chain && b + 1 < nb; ++b) {  // the one mobile particle bonds b and b+1 share
+      double w = 0.0;
+      if (c.li[b] == c.li[b + 1]) w += c.im[c.li[b]];
+      if (c.li[b] == c.lj[b + 1]) w -= c.im[c.li[b]];
+      if (c.lj[b] == c.li[b + 1]) w -= c.im[c.lj[b]];
+      if (c.lj[b] == c.lj[b + 1]) w += c.im[c.lj[b]];
+      c.off_w.push_back(w);
+    }
+    if (c.chain) {
+      d.chains.push_back(static_cast<int>(d.clusters.size()));
+      max_chain = std::max(max_chain, nb);
     }
     d.num_modes += nb;
     max_nb = std::max(max_nb, nb);
@@ -164,6 +334,23 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
   d.w.resize(max_nb);
   d.wdot.resize(max_nb);
   d.wk.resize(3, max_np);
+
+  d.chain_bonds_before.assign(1, 0);
+  for (int k : d.chains)
+    d.chain_bonds_before.push_back(d.chain_bonds_before.back() + static_cast<std::int64_t>(d.clusters[k].bonds.size()));
+  // One workspace per thread (at most kMaxParts); more threads later simply share the parts.
+  d.workspaces.resize(d.chains.empty() ? 0 : static_cast<size_t>(std::clamp(max_threads(), 1, kMaxParts)));
+  for (Impl::ChainWorkspace& ws : d.workspaces) {
+    const int n = max_chain;
+    ws.u.resize(3, n);
+    ws.r = ws.diag = ws.off = ws.lambda = ws.scratch = ws.z = ws.zdot = ws.w = ws.wdot = ws.coef = ws.twist =
+        Eigen::VectorXd::Zero(n);
+    ws.q = ws.inv_forward = ws.inv_backward = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n) * n);
+    ws.twist_index.assign(static_cast<size_t>(n), 0);
+  }
+  d.h = Eigen::Matrix3Xd::Zero(3, static_cast<Eigen::Index>(d.bonds.size()));
+  d.cluster_W.assign(found.size(), 0.0);
+  d.cluster_validity.assign(found.size(), Validity{kInf, kInf});
 }
 
 StiffModes::~StiffModes() = default;
@@ -186,10 +373,16 @@ void StiffModes::frequencies(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::Vector
   if (omega.size() != d.num_modes)
     throw std::invalid_argument("StiffModes::frequencies: omega has size " + std::to_string(omega.size()) +
                                 ", expected " + std::to_string(d.num_modes));
+  // A is SPD only up to rounding where constraints are redundant; report ω = 0 there.
+  d.for_each_chain([&](const Impl::Cluster& c, Impl::ChainWorkspace& ws) {
+    d.decompose_chain(c, x, false, ws);
+    for (int k = 0; k < static_cast<int>(c.bonds.size()); ++k)
+      omega[c.first_mode + k] = std::sqrt(std::max(ws.lambda[k], 0.0));
+  });
   for (const Impl::Cluster& c : d.clusters) {
+    if (c.chain) continue;
     d.decompose(c, x, false);
     const auto& lam = d.solver.eigenvalues();
-    // A is SPD only up to rounding where constraints are redundant; report ω = 0 there.
     for (int k = 0; k < lam.size(); ++k) omega[c.first_mode + k] = std::sqrt(std::max(lam[k], 0.0));
   }
 }
@@ -204,7 +397,26 @@ void StiffModes::actions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, E
     throw std::invalid_argument("StiffModes::actions: I has size " + std::to_string(I.size()) + ", expected " +
                                 std::to_string(d.num_modes));
   const double inv_eps2 = 1.0 / (d.epsilon * d.epsilon);
+  // The chain path: the same formulas as below with the tridiagonal decomposition.
+  d.for_each_chain([&](const Impl::Cluster& c, Impl::ChainWorkspace& ws) {
+    d.decompose_chain(c, x, true, ws);
+    const int nb = static_cast<int>(c.bonds.size());
+    for (int b = 0; b < nb; ++b) {
+      const StiffBond& bond = d.bonds[c.bonds[b]];
+      ws.z[b] = bond.alpha * (ws.r[b] - bond.length);
+      ws.zdot[b] = bond.alpha * ws.u.col(b).dot(v.col(bond.i) - v.col(bond.j));
+    }
+    const Eigen::Map<const Eigen::MatrixXd> Q(ws.q.data(), nb, nb);
+    ws.w.head(nb).noalias() = Q.transpose() * ws.z.head(nb);
+    ws.wdot.head(nb).noalias() = Q.transpose() * ws.zdot.head(nb);
+    for (int k = 0; k < nb; ++k) {
+      const double lk = d.positive_eigenvalue(c, k, ws.lambda.head(nb));
+      const double energy = 0.5 * ws.wdot[k] * ws.wdot[k] / lk + 0.5 * inv_eps2 * ws.w[k] * ws.w[k];
+      I[c.first_mode + k] = energy / std::sqrt(lk);
+    }
+  });
   for (const Impl::Cluster& c : d.clusters) {
+    if (c.chain) continue;
     d.decompose(c, x, true);
     const int nb = static_cast<int>(c.bonds.size());
     // Linearised normal motion (design.md §3): ζ = g(x) obeys ζ̈ ≈ G ẍ = −ε⁻² S K ζ, so
@@ -237,8 +449,49 @@ double StiffModes::correction_force(const Eigen::VectorXd& I, const Eigen::Matri
                                 std::to_string(d.num_modes));
   if (f.cols() != x.cols()) f.resize(3, x.cols());
   f.setZero();
+  // The chain path. A_bb is constant, so ∂λ_k = q_kᵀ ∂A q_k = 2 Σ_b q_kb q_k,b+1 ∂A_{b,b+1} touches
+  // only A's off-diagonal, A_{b,b+1} = α_b α_{b+1} w_b u_b·u_{b+1} (w_b = off_w). Summed over the
+  // modes first, ∇W = Σ_k (I_k/2ω_k) ∇λ_k = Σ_b γ_b ∇(u_b·u_{b+1}) with
+  //   γ_b = α_b α_{b+1} w_b Σ_k (I_k/ω_k) q_kb q_k,b+1,
+  // and ∂(u_b·u_c)/∂x_i(b) = P_b u_c / r_b, P_b = I − u_b u_bᵀ: O(bonds²) per chain for the
+  // coefficients, O(bonds) for the force, instead of O(bonds) per mode.
+  d.for_each_chain([&](const Impl::Cluster& c, Impl::ChainWorkspace& ws) {
+    d.decompose_chain(c, x, true, ws);
+    const int nb = static_cast<int>(c.bonds.size());
+    const Eigen::Map<const Eigen::MatrixXd> Q(ws.q.data(), nb, nb);
+    double W_c = 0.0;
+    ws.coef.head(nb).setZero();
+    for (int k = 0; k < nb; ++k) {
+      const double Ik = I[c.first_mode + k];
+      if (Ik == 0.0) continue;  // a zero action contributes nothing, even at ω_k = 0
+      const double omega = std::sqrt(d.positive_eigenvalue(c, k, ws.lambda.head(nb)));
+      W_c += Ik * omega;
+      const double s = Ik / omega;
+      const double* q = Q.col(k).data();
+      for (int b = 0; b + 1 < nb; ++b) ws.coef[b] += s * q[b] * q[b + 1];
+    }
+    d.cluster_W[c.index] = W_c;
+    for (int b = 0; b < nb; ++b) d.h.col(c.bonds[b]).setZero();  // t_b = Σ_c γ_bc u_c, then P_b t_b / r_b
+    for (int b = 0; b + 1 < nb; ++b) {
+      const double gamma = ws.coef[b] * d.bonds[c.bonds[b]].alpha * d.bonds[c.bonds[b + 1]].alpha * c.off_w[b];
+      d.h.col(c.bonds[b]) += gamma * ws.u.col(b + 1);
+      d.h.col(c.bonds[b + 1]) += gamma * ws.u.col(b);
+    }
+    for (int b = 0; b < nb; ++b) {
+      const Eigen::Vector3d t = d.h.col(c.bonds[b]);
+      d.h.col(c.bonds[b]) = (t - ws.u.col(b) * ws.u.col(b).dot(t)) / ws.r[b];
+    }
+  });
   double W = 0.0;
   for (const Impl::Cluster& c : d.clusters) {
+    if (c.chain) {  // in cluster order: a fixed particle may be shared with another cluster
+      W += d.cluster_W[c.index];
+      for (int b : c.bonds) {
+        f.col(d.bonds[b].i) -= d.h.col(b);
+        f.col(d.bonds[b].j) += d.h.col(b);
+      }
+      continue;
+    }
     d.decompose(c, x, true);
     const int nb = static_cast<int>(c.bonds.size());
     const int np = static_cast<int>(c.particles.size());
@@ -275,31 +528,51 @@ double StiffModes::correction_force(const Eigen::VectorXd& I, const Eigen::Matri
   return W;
 }
 
+namespace {
+
+// Gaps and resonances of one cluster's ascending frequencies om[0..nb), folded into out.
+void scan_validity(const double* om, int nb, StiffModes::Validity& out) {
+  // ω is ascending (the solvers sort λ), so the smallest gap is between neighbours and
+  // the nearest ω_l to a target is found by bisection.
+  for (int k = 1; k < nb; ++k) out.min_gap = std::min(out.min_gap, om[k] - om[k - 1]);
+  // Up to an overall sign every |ω_j ± ω_k ± ω_l| is either ω_j + ω_k + ω_l (≥ 3 ω_min)
+  // or |ω_a + ω_b − ω_c| for some (a ≤ b, c); the latter with c = a gives ω_b ≥ ω_min,
+  // which the scan below includes, so the scan alone attains the minimum.
+  for (int a = 0; a < nb; ++a) {
+    for (int b = a; b < nb; ++b) {
+      const double target = om[a] + om[b];
+      const double* it = std::lower_bound(om, om + nb, target);
+      if (it != om + nb) out.min_resonance = std::min(out.min_resonance, *it - target);
+      if (it != om) out.min_resonance = std::min(out.min_resonance, target - *(it - 1));
+    }
+  }
+}
+
+}  // namespace
+
 StiffModes::Validity StiffModes::validity(const Eigen::Matrix3Xd& x) {
   Impl& d = *impl_;
   d.check_positions(x);
   Validity out{kInf, kInf};
+  d.for_each_chain([&](const Impl::Cluster& c, Impl::ChainWorkspace& ws) {
+    d.decompose_chain(c, x, false, ws);
+    const int nb = static_cast<int>(c.bonds.size());
+    for (int k = 0; k < nb; ++k) ws.z[k] = std::sqrt(std::max(ws.lambda[k], 0.0));
+    d.cluster_validity[c.index] = Validity{kInf, kInf};
+    scan_validity(ws.z.data(), nb, d.cluster_validity[c.index]);
+  });
   for (const Impl::Cluster& c : d.clusters) {
+    if (c.chain) {
+      out.min_gap = std::min(out.min_gap, d.cluster_validity[c.index].min_gap);
+      out.min_resonance = std::min(out.min_resonance, d.cluster_validity[c.index].min_resonance);
+      continue;
+    }
     d.decompose(c, x, false);
     const auto& lam = d.solver.eigenvalues();
     const int nb = static_cast<int>(lam.size());
-    // ω is ascending (the solver sorts λ), so the smallest gap is between neighbours and
-    // the nearest ω_l to a target is found by bisection. d.z holds ω here as scratch.
-    d.z.resize(nb);
+    d.z.resize(nb);  // ω, as scratch
     for (int k = 0; k < nb; ++k) d.z[k] = std::sqrt(std::max(lam[k], 0.0));
-    const double* om = d.z.data();
-    for (int k = 1; k < nb; ++k) out.min_gap = std::min(out.min_gap, om[k] - om[k - 1]);
-    // Up to an overall sign every |ω_j ± ω_k ± ω_l| is either ω_j + ω_k + ω_l (≥ 3 ω_min)
-    // or |ω_a + ω_b − ω_c| for some (a ≤ b, c); the latter with c = a gives ω_b ≥ ω_min,
-    // which the scan below includes, so the scan alone attains the minimum.
-    for (int a = 0; a < nb; ++a) {
-      for (int b = a; b < nb; ++b) {
-        const double target = om[a] + om[b];
-        const double* it = std::lower_bound(om, om + nb, target);
-        if (it != om + nb) out.min_resonance = std::min(out.min_resonance, *it - target);
-        if (it != om) out.min_resonance = std::min(out.min_resonance, target - *(it - 1));
-      }
-    }
+    scan_validity(d.z.data(), nb, out);
   }
   return out;
 }

@@ -10,7 +10,8 @@
 // manifold named in paper eq. (CH), since there ∇²V = Gᵀ K G.
 //
 // S is block-diagonal over constraint clusters (find_clusters), so everything here is
-// done per cluster with a dense eigen-decomposition; clusters larger than a limit are
+// done per cluster with an eigen-decomposition (tridiagonal for open chains, dense for other
+// shapes); clusters larger than a limit are
 // skipped (their modes are simply absent from every output).
 //
 // Mode order in every output vector: clusters in the order of find_clusters (ordered by
@@ -42,7 +43,14 @@ class StiffModes {
   // are skipped and counted. Throws InputError for ε ≤ 0, bonds that break the rules of
   // find_stiff_bond_problem (forcefields/stiff_bond.hpp; among them a bond whose two ends are
   // both fixed: it has no vibrational mode), or max_cluster_bonds outside [1, kMaxDenseBonds].
-  StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds = 64);
+  //
+  // Open chains (S tridiagonal in chain order) are decomposed on the tridiagonal A itself
+  // (eigenvalues by LAPACK dsterf, eigenvectors by twisted factorizations), O(bonds²) per chain
+  // and in parallel over chains; every other cluster by a dense eigen-solver. Solver::dense
+  // forces the dense path everywhere (the tests' reference).
+  enum class Solver { fast, dense };
+  StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds = 64,
+             Solver solver = Solver::fast);
   ~StiffModes();
   StiffModes(StiffModes&&) noexcept;
   StiffModes& operator=(StiffModes&&) noexcept;

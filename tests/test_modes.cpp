@@ -15,6 +15,7 @@
 #include "integrators/modes.hpp"
 
 #include "engine/errors.hpp"
+#include "forcefields/parallel.hpp"
 
 namespace stiffmd {
 namespace {
@@ -463,6 +464,91 @@ TEST(StiffModes, LargeClustersAreSkippedAndCounted) {
   StiffModes none(bonds, im, 1e-3, 1);
   EXPECT_EQ(none.num_skipped_clusters(), 2);
   EXPECT_EQ(none.num_modes(), 3);
+}
+
+// The chain path (tridiagonal eigenvalues + twisted-factorization eigenvectors, the pair formula
+// for −∇W) against the dense path, which shares none of that code: to round-off on random chains,
+// free or hanging from a fixed particle, also one split into two chains at a fixed bead.
+TEST(StiffModes, ChainPathAgreesWithDensePath) {
+  std::mt19937 rng(31);
+  std::normal_distribution<double> nd(0.0, 1.0);
+  std::uniform_real_distribution<double> act(0.2, 2.0);
+  for (int trial = 0; trial < 8; ++trial) {
+    const int beads = std::vector<int>{2, 3, 5, 12, 30, 60, 100, 41}[trial];
+    System s = random_chain(rng, beads, 0.05);
+    if (trial == 3) s.inv_mass[0] = 0.0;          // a pendulum
+    if (trial == 7) s.inv_mass[beads / 2] = 0.0;  // two chains sharing a fixed bead
+    Matrix3Xd v(3, beads);
+    for (int p = 0; p < beads; ++p) v.col(p) << nd(rng), nd(rng), nd(rng);
+    StiffModes fast(s.bonds, s.inv_mass, 1e-2, StiffModes::kMaxDenseBonds, StiffModes::Solver::fast);
+    StiffModes dense(s.bonds, s.inv_mass, 1e-2, StiffModes::kMaxDenseBonds, StiffModes::Solver::dense);
+    const VectorXd om_f = freqs(fast, s.x), om_d = freqs(dense, s.x);
+    EXPECT_LT((om_f - om_d).cwiseAbs().maxCoeff(), 1e-14 * om_d.maxCoeff()) << beads << " beads";
+    const VectorXd I_f = acts(fast, s.x, v), I_d = acts(dense, s.x, v);
+    EXPECT_LT((I_f - I_d).cwiseAbs().maxCoeff(), 1e-10 * I_d.maxCoeff()) << beads << " beads";
+    VectorXd I(om_d.size());
+    for (int k = 0; k < I.size(); ++k) I[k] = act(rng);
+    Matrix3Xd f_f, f_d;
+    const double W_f = fast.correction_force(I, s.x, f_f), W_d = dense.correction_force(I, s.x, f_d);
+    EXPECT_NEAR(W_f, W_d, 1e-14 * W_d) << beads << " beads";
+    // Relative to the force, plus W's round-off (a lone bond has no correction force at all).
+    const double f_scale = f_d.cwiseAbs().maxCoeff() + 1e-4 * W_d;
+    EXPECT_LT((f_f - f_d).cwiseAbs().maxCoeff(), 1e-10 * f_scale) << beads << " beads";
+    std::printf("[ measure  ] %d beads: chain vs dense path: omega %.1e, I %.1e, W %.1e, force %.1e (relative)\n", beads,
+                (om_f - om_d).cwiseAbs().maxCoeff() / om_d.maxCoeff(), (I_f - I_d).cwiseAbs().maxCoeff() / I_d.maxCoeff(),
+                std::abs(W_f - W_d) / W_d, (f_f - f_d).cwiseAbs().maxCoeff() / f_scale);
+    const StiffModes::Validity val_f = fast.validity(s.x), val_d = dense.validity(s.x);
+    if (std::isinf(val_d.min_gap))
+      EXPECT_TRUE(std::isinf(val_f.min_gap));
+    else
+      EXPECT_NEAR(val_f.min_gap, val_d.min_gap, 1e-13 * om_d.maxCoeff());
+    EXPECT_NEAR(val_f.min_resonance, val_d.min_resonance, 1e-13 * om_d.maxCoeff());
+  }
+}
+
+TEST(StiffModes, ChainPathForceMatchesFiniteDifferenceOnLongChain) {
+  std::mt19937 rng(77);
+  System s = random_chain(rng, 25, 0.05);
+  StiffModes modes(s.bonds, s.inv_mass, 1e-3);
+  ASSERT_GT(modes.validity(s.x).min_gap, 1e-3);  // W smooth here
+  std::uniform_real_distribution<double> act(0.2, 2.0);
+  VectorXd I(modes.num_modes());
+  for (int k = 0; k < I.size(); ++k) I[k] = act(rng);
+  const double err = fd_error(modes, I, s.x);
+  std::printf("[ measure  ] random 25-bead chain, chain path: relative FD error of -grad W = %.2e\n", err);
+  EXPECT_LT(err, 1e-6);
+}
+
+// Above the serial threshold the chains are decomposed on the threads: bit-identical results.
+TEST(StiffModes, ChainPathDoesNotDependOnTheThreadCount) {
+  std::mt19937 rng(5);
+  System all;
+  all.inv_mass = VectorXd(0);
+  for (int c = 0; c < 45; ++c) {
+    const System s = random_chain(rng, 101, 0.03);
+    const int offset = static_cast<int>(all.inv_mass.size());
+    all.inv_mass.conservativeResize(offset + 101);
+    all.inv_mass.tail(101) = s.inv_mass;
+    all.x.conservativeResize(3, offset + 101);
+    all.x.rightCols(101) = s.x;
+    for (StiffBond b : s.bonds) all.bonds.push_back({b.i + offset, b.j + offset, b.length, b.alpha});
+  }
+  const int restore = max_threads();
+  set_max_threads(2);  // the workspaces are made for the thread count at construction
+  StiffModes modes(all.bonds, all.inv_mass, 1e-2, StiffModes::kMaxDenseBonds);
+  const VectorXd I = VectorXd::LinSpaced(modes.num_modes(), 0.5, 1.5);
+  Matrix3Xd f1, f2;
+  VectorXd om1(modes.num_modes()), om2(modes.num_modes());
+  set_max_threads(1);
+  const double W1 = modes.correction_force(I, all.x, f1);
+  modes.frequencies(all.x, om1);
+  set_max_threads(2);
+  const double W2 = modes.correction_force(I, all.x, f2);
+  modes.frequencies(all.x, om2);
+  set_max_threads(restore);
+  EXPECT_EQ(W1, W2);
+  EXPECT_TRUE(f1 == f2);
+  EXPECT_TRUE(om1 == om2);
 }
 
 TEST(StiffModes, BadInputAndDegenerateGeometryAreReported) {

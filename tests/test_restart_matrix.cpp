@@ -19,6 +19,7 @@
 
 #include "cli_support.hpp"
 #include "engine/checkpoint.hpp"
+#include "integrators/methods.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -94,8 +95,13 @@ struct MethodRun {
 MethodRun method_run(const std::string& method) {
   const bool vv = method == "velocity-verlet";
   const std::int64_t steps = vv ? 1200 : 120;
+  // A method whose model potential is a free energy at kT (fixman) runs under a Langevin thermostat.
+  const std::string thermostat = find_method(method)->needs_temperature
+                                     ? " --set thermostat.style=langevin --set thermostat.temperature=1"
+                                       " --set thermostat.friction=1 --set thermostat.seed=5"
+                                     : "";
   return {method, steps,
-          " --no-progress --set integrator.method=" + method + (vv ? " --set integrator.h=0.0005" : "") +
+          " --no-progress --set integrator.method=" + method + (vv ? " --set integrator.h=0.0005" : "") + thermostat +
               " --set output.checkpoint_every=" + std::to_string(steps / 3)};
 }
 

@@ -115,7 +115,9 @@ struct TrimerRun {
 // and middle beads of mass 1: 10 time units to equilibrate, then `t_run` sampled every 0.5.
 TrimerRun run_trimers(const std::string& method, double h, int micro_steps, double m_end, double t_run,
                       const std::string& thermostat = kLangevin, int trimers = 200, double eps = 0.1) {
-  std::vector<std::string> o = {"integrator.method=" + method, "integrator.h=" + test::exact(h)};
+  // run.t_end only has to be a whole number of steps: this loop steps the integrator itself.
+  std::vector<std::string> o = {"integrator.method=" + method, "integrator.h=" + test::exact(h),
+                                "run.t_end=" + test::exact(100 * h)};
   if (micro_steps > 1) o.push_back("integrator.micro_steps=" + std::to_string(micro_steps));
   Scene sc = load_text(trimer_deck(trimers, thermostat, eps), o);
   State& s = sc.state;

@@ -7,7 +7,7 @@ set -euo pipefail
 packages=(
   g++ cmake make pkg-config
   libeigen3-dev libhdf5-dev libtomlplusplus-dev libmuparser-dev libcli11-dev
-  libgtest-dev libgmock-dev libbenchmark-dev
+  libgtest-dev libgmock-dev libbenchmark-dev liblapack-dev
   zlib1g-dev lammps-examples
   python3-numpy python3-matplotlib python3-h5py python3-mdanalysis python3-ase
 )
