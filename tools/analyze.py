@@ -4,7 +4,7 @@ numpy, matplotlib; ASE for the extended XYZ).
 
     /usr/bin/python3 tools/analyze.py RUN_DIR [-o OUT_DIR] [--topology FILE] [--trajectory FILE]
                                       [--atom-style STYLE] [--start T] [--every K] [--middle K]
-                                      [--rdf-bins B] [--rdf-rmax R]
+                                      [--rdf-bins B] [--rdf-rmax R] [--rdf-frames M]
 
 Inputs. The topology is a LAMMPS data file with masses, bonds and molecule ids: RUN_DIR/topology.data
 when present, else the one *.data file there (`[output] lammps_data = "final.data"` writes one);
@@ -26,9 +26,12 @@ Outputs (OUT_DIR, default RUN_DIR/analysis), each a CSV and a PNG, and a summary
                         g1_middle over the --middle central beads of each linear chain (if given),
                         g3(t) = <|R_cm(t0+t) - R_cm(t0)|^2> over chains (mass-weighted centres)
   ree_autocorrelation   C(t) = <R(t0+t).R(t0)> / <R^2>: linear chains the end-to-end vector, rings the
-                        diameter vectors r_{i+N/2} - r_i (every i), branched chains none
+                        diameter vectors r_{i+N/2} - r_i (every i), branched chains none; <R^2> is over
+                        every frame, so C may exceed 1 slightly where few origins remain
   rdf                   g(r) of all pairs (total) and of pairs on different molecules (intermolecular),
-                        MDAnalysis InterRDF, periodic boxes only, r up to half the shortest edge
+                        MDAnalysis InterRDF, periodic boxes only, r up to half the shortest edge or
+                        5 mean spacings rho^(-1/3), whichever is shorter (--rdf-rmax to choose), from
+                        at most --rdf-frames (10) frames evenly spread
   angles, dihedrals     histograms (degrees) of the bond angle i-j-k (180 = straight) and of the
                         torsion i-j-k-l (180 = trans) over all bonded triples/quadruples (guessed from
                         the bonds, not from the data file's angle list), time-averaged
@@ -415,13 +418,16 @@ def time_correlations(run, chains, out, middle, summary):
               + (" (rings: diameter vectors)" if any(c.kind == "ring" for c in sized) else ""))
 
 
-def pair_distribution(run, chains, out, bins, rmax):
+def pair_distribution(run, chains, out, bins, rmax, max_frames):
     if run.box is None:
         print("rdf: skipped (needs a box periodic on every axis)")
         return
-    rmax = rmax or 0.5 * run.box.min() * (1 - 1e-9)
+    if not rmax:  # half the shortest edge, at most 5 mean spacings rho^(-1/3) (pair counts stay small)
+        rho = run.u.atoms.n_atoms / np.prod(run.box[0])
+        rmax = min(0.5 * run.box.min() * (1 - 1e-9), 5 * rho ** (-1 / 3))
     u = run.u
-    total = InterRDF(u.atoms, u.atoms, nbins=bins, range=(0.0, rmax), exclusion_block=(1, 1)).run()
+    step = -(-len(run.t) // max_frames)  # every step-th frame: at most max_frames of them
+    total = InterRDF(u.atoms, u.atoms, nbins=bins, range=(0.0, rmax), exclusion_block=(1, 1)).run(step=step)
     columns, header = [total.results.bins, total.results.rdf], ["r", "g_total"]
     curves = [("total", total.results.rdf)]
     # Intermolecular: InterRDF excludes diagonal blocks of equal size, so it needs every molecule
@@ -433,7 +439,7 @@ def pair_distribution(run, chains, out, bins, rmax):
         sizes, contiguous = {1}, True
     if len(sizes) == 1 and contiguous and (in_chains == u.atoms.n_atoms or not chains):
         n = sizes.pop()
-        inter = InterRDF(u.atoms, u.atoms, nbins=bins, range=(0.0, rmax), exclusion_block=(n, n)).run()
+        inter = InterRDF(u.atoms, u.atoms, nbins=bins, range=(0.0, rmax), exclusion_block=(n, n)).run(step=step)
         columns.append(inter.results.rdf)
         header.append("g_inter")
         curves.append(("intermolecular", inter.results.rdf))
@@ -442,7 +448,7 @@ def pair_distribution(run, chains, out, bins, rmax):
     write_csv(os.path.join(out, "rdf.csv"), header, columns)
     plot(os.path.join(out, "rdf.png"), total.results.bins, curves, "r", "g(r)")
     tail = total.results.bins > 0.5 * rmax
-    print(f"rdf: r up to {rmax:.4g}, {len(run.t)} frames; mean g_total over r > {0.5 * rmax:.3g}: "
+    print(f"rdf: r up to {rmax:.4g}, {len(range(0, len(run.t), step))} frames; mean g_total over r > {0.5 * rmax:.3g}: "
           f"{total.results.rdf[tail].mean():.4f}")
 
 
@@ -483,7 +489,7 @@ def bonded_geometry(run, out, summary, max_frames=200):
               f"histogram peak at {centres[np.argmax(p)]:.1f} deg")
 
 
-def analyze(run, out, middle=0, rdf_bins=100, rdf_rmax=None):
+def analyze(run, out, middle=0, rdf_bins=100, rdf_rmax=None, rdf_frames=10):
     """Runs every analysis; returns the summary numbers (a dict) for tests."""
     os.makedirs(out, exist_ok=True)
     chains = find_chains(run.u)
@@ -495,7 +501,7 @@ def analyze(run, out, middle=0, rdf_bins=100, rdf_rmax=None):
     if chains:
         chain_sizes(run, chains, out, summary)
     time_correlations(run, chains, out, middle, summary)
-    pair_distribution(run, chains, out, rdf_bins, rdf_rmax)
+    pair_distribution(run, chains, out, rdf_bins, rdf_rmax, rdf_frames)
     bonded_geometry(run, out, summary)
     print(f"wrote {out}/")
     return summary
@@ -514,13 +520,14 @@ def main(argv=None):
     ap.add_argument("--every", type=int, default=1, help="keep every K-th frame")
     ap.add_argument("--middle", type=int, default=0, help="also g1 over the K central beads of each linear chain")
     ap.add_argument("--rdf-bins", type=int, default=100)
-    ap.add_argument("--rdf-rmax", type=float, help="default: half the shortest box edge")
+    ap.add_argument("--rdf-frames", type=int, default=10, help="g(r) from at most this many frames, evenly spread")
+    ap.add_argument("--rdf-rmax", type=float, help="default: half the shortest box edge, at most 5 rho^(-1/3)")
     args = ap.parse_args(argv)
     try:
         if not os.path.isdir(args.run_dir):
             raise UsageError(f"{args.run_dir}: not a directory")
-        if args.every < 1 or args.middle < 0 or args.rdf_bins < 1:
-            raise UsageError("--every and --rdf-bins must be >= 1, --middle >= 0")
+        if args.every < 1 or args.middle < 0 or args.rdf_bins < 1 or args.rdf_frames < 1:
+            raise UsageError("--every, --rdf-bins and --rdf-frames must be >= 1, --middle >= 0")
         topology = args.topology or find_topology(args.run_dir)
         trajectory = args.trajectory or find_trajectory(args.run_dir)
         for p in (topology, trajectory):
@@ -528,7 +535,7 @@ def main(argv=None):
                 raise UsageError(f"{p}: no such file")
         run = Run(topology, trajectory, args.atom_style, args.start, args.every)
         analyze(run, args.output or os.path.join(args.run_dir, "analysis"), args.middle, args.rdf_bins,
-                args.rdf_rmax)
+                args.rdf_rmax, args.rdf_frames)
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
