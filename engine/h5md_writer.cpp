@@ -121,8 +121,10 @@ Handle simple_space(const std::vector<hsize_t>& dims, const std::vector<hsize_t>
           "cannot create a dataspace"};
 }
 
-// ---- attributes (§H5MD metadata: strings are variable-length, scalar or rank 1) ----
+// ---- attributes (§H5MD metadata, §Simulation box: strings are fixed-length, scalar or rank 1) ----
 
+// A string type: variable-length (what reading an older file's attribute needs) or `fixed_size`
+// bytes, null-terminated.
 Handle string_type(bool variable_length, std::size_t fixed_size = 0) {
   Handle t(H5Tcopy(H5T_C_S1), H5Tclose, "cannot create a string type");
   ok(H5Tset_size(t, variable_length ? H5T_VARIABLE : fixed_size), "cannot size a string type");
@@ -136,15 +138,33 @@ void write_attribute(hid_t object, const std::string& name, hid_t type, hid_t sp
   ok(H5Awrite(a, type, data), "cannot write attribute " + name);
 }
 
+// §H5MD metadata and §Simulation box ask for fixed-length strings (author, creator, boundary; we
+// keep to it for our own `elements` too): one type of the longest value's length plus its
+// terminating zero (as C and h5dump expect), shorter values zero-padded; ASCII unless a value
+// needs UTF-8 (an author's name may). `scalar`: one value in a scalar dataspace, else rank 1.
+void write_fixed_strings_attribute(hid_t object, const std::string& name, const std::vector<std::string>& values,
+                                   bool scalar) {
+  std::size_t size = 1;
+  bool ascii = true;
+  for (const auto& v : values) {
+    size = std::max(size, v.size() + 1);
+    for (unsigned char c : v) ascii = ascii && c < 0x80;
+  }
+  std::vector<char> packed(size * values.size(), '\0');
+  for (std::size_t k = 0; k < values.size(); ++k) std::memcpy(&packed[k * size], values[k].data(), values[k].size());
+  Handle type = string_type(false, size);
+  ok(H5Tset_strpad(type, H5T_STR_NULLTERM), "cannot set a string padding");
+  if (ascii) ok(H5Tset_cset(type, H5T_CSET_ASCII), "cannot set a string character set");
+  Handle space = scalar ? Handle(H5Screate(H5S_SCALAR), H5Sclose, "dataspace") : simple_space({values.size()});
+  write_attribute(object, name, type, space, packed.data());
+}
+
 void write_string_attribute(hid_t object, const std::string& name, const std::string& value) {
-  const char* p = value.c_str();
-  write_attribute(object, name, string_type(true), Handle(H5Screate(H5S_SCALAR), H5Sclose, "dataspace"), &p);
+  write_fixed_strings_attribute(object, name, {value}, true);
 }
 
 void write_strings_attribute(hid_t object, const std::string& name, const std::vector<std::string>& values) {
-  std::vector<const char*> p;
-  for (const auto& s : values) p.push_back(s.c_str());
-  write_attribute(object, name, string_type(true), simple_space({values.size()}), p.data());
+  write_fixed_strings_attribute(object, name, values, false);
 }
 
 void write_int_attribute(hid_t object, const std::string& name, const std::vector<int>& values, bool scalar) {
@@ -154,15 +174,23 @@ void write_int_attribute(hid_t object, const std::string& name, const std::vecto
   ok(H5Awrite(a, H5T_NATIVE_INT, values.data()), "cannot write attribute " + name);
 }
 
-// A scalar variable-length string attribute; empty when absent or of another type.
+// A scalar string attribute, fixed-length or variable-length (earlier stiffmd builds wrote the
+// latter, and a restart may append to such a file); empty when absent or not a string.
 std::string read_string_attribute(hid_t object, const std::string& name) {
   if (H5Aexists(object, name.c_str()) <= 0) return {};
   Handle a(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose, "cannot open attribute " + name);
-  char* s = nullptr;
-  if (H5Aread(a, string_type(true), &s) < 0 || !s) return {};
-  std::string value(s);
-  H5free_memory(s);
-  return value;
+  Handle type(H5Aget_type(a), H5Tclose, "cannot read the type of attribute " + name);
+  if (H5Tget_class(type) != H5T_STRING) return {};
+  if (H5Tis_variable_str(type) > 0) {
+    char* s = nullptr;
+    if (H5Aread(a, string_type(true), &s) < 0 || !s) return {};
+    std::string value(s);
+    H5free_memory(s);
+    return value;
+  }
+  std::vector<char> buffer(H5Tget_size(type) + 1, '\0');  // + 1: a zero even when the file has none
+  if (H5Aread(a, type, buffer.data()) < 0) return {};
+  return buffer.data();
 }
 
 // ---- time-independent datasets (§Time-independent data) ----

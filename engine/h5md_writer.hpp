@@ -4,16 +4,18 @@
 // a group with step int64[F], time float64[F], value[F][...], H5MD §"Time-dependent data"):
 //
 //   /h5md                       +version int32[2] = {1, 1}
-//     author                    +name VL string
-//     creator                   +name "stiffmd", +version VL string
+//     author                    +name string
+//     creator                   +name "stiffmd", +version string
+//                               (every string attribute here: fixed-length, null-terminated, ASCII
+//                               unless the value needs UTF-8, as §H5MD metadata asks)
 //   /particles/all
 //     position                  time-dependent, value float64[F][N][3]; periodic axes wrapped into
 //                               [origin, origin + L), open axes as the engine keeps them
 //     image                     (any axis periodic) value int32[F][N][3]: unwrapped = position + image*L
 //     velocity, force           (optional) value float64[F][N][3]
-//     species int32[N]          index into the element table, attribute `elements` (VL string[S])
+//     species int32[N]          index into the element table, attribute `elements` (string[S])
 //     mass float64[N], id int64[N] (0..N-1)       time-independent datasets
-//     box                       +dimension int32 = 3, +boundary VL string[3] ("periodic"/"none")
+//     box                       +dimension int32 = 3, +boundary string[3] ("periodic"/"none")
 //       edges                   (any axis periodic) value float64[F][3][3] = diag(L), rows the edge vectors
 //       offset float64[3]       (any axis periodic) the box origin, low corner of the wrapping cell
 //   /connectivity/bonds int32[m][2]   0-based indices, +particles_group object reference -> /particles/all

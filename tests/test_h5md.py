@@ -24,6 +24,7 @@ import warnings
 
 import h5py
 import numpy as np
+from h5md_spec import h5md_problems
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONVERTER = os.path.join(ROOT, "tools", "h5md_to_xyz.py")
@@ -124,10 +125,13 @@ def series_lengths(f):
 # ---------------------------------------------------------------- shared checks
 
 def check_metadata(f):
+    """The whole layout against the specification (tests/h5md_spec.py), then our values."""
+    problems = h5md_problems(f)
+    assert not problems, "\n".join(problems)
     v = f["h5md"].attrs["version"]
     assert v.dtype == np.int32 and list(v) == [1, 1], v
     assert f["h5md/author"].attrs["name"], "empty author"
-    assert f["h5md/creator"].attrs["name"] == "stiffmd"
+    assert string_list([f["h5md/creator"].attrs["name"]]) == ["stiffmd"]
     assert f["h5md/creator"].attrs["version"]
 
 
@@ -225,7 +229,7 @@ def test_open_box_layout(work):
     run = produce("open", work)
     with h5py.File(run.h5, "r") as f:
         check_metadata(f)
-        assert f["h5md/author"].attrs["name"] == (os.environ.get("USER") or pwd.getpwuid(os.getuid()).pw_name)
+        assert string_list([f["h5md/author"].attrs["name"]])[0] == (os.environ.get("USER") or pwd.getpwuid(os.getuid()).pw_name)
         ref = check_time_series(f, run)
         check_observables(f, run)
         p = f[P]
@@ -289,6 +293,7 @@ def test_slab_box(work):
     """Periodic in x and y only: z is stored as is with image 0 (a placeholder)."""
     run = produce("slab", work)
     with h5py.File(run.h5, "r") as f:
+        check_metadata(f)
         ref = check_time_series(f, run)
         p = f[P]
         assert string_list(p["box"].attrs["boundary"]) == ["periodic", "periodic", "none"]
@@ -321,11 +326,63 @@ def test_append_drops_frames_from_first_step(work):
     continuation (shifted by 100), which goes on to step 70."""
     run = produce("append", work)
     with h5py.File(run.h5, "r") as f:
+        check_metadata(f)
         ref = check_time_series(f, run)
         assert list(f[P + "/position/step"][()]) == [0, 10, 20, 30, 40, 50, 60, 70]
         assert len(set(series_lengths(f).values())) == 1, series_lengths(f)
         check_observables(f, run)
         check_unwrapped(f, ref)  # the record's frames from step 30 on are the continuation's
+
+
+def test_spec_checker_catches_departures(work):
+    """tests/h5md_spec.py is not a rubber stamp: each departure from H5MD 1.1 made to a good file
+    (variable-length strings, a wrong boundary, missing edges, an unlinked time grid, a bad
+    connectivity reference, mismatched lengths) is reported."""
+    import shutil
+    good = produce("periodic", work).h5
+    with h5py.File(good, "r") as f:
+        assert h5md_problems(f) == []
+
+    def vl_author(f):
+        f["h5md/author"].attrs["name"] = "Someone"  # h5py writes a Python str as variable-length
+
+    def vl_boundary(f):
+        f[P + "/box"].attrs["boundary"] = ["periodic"] * 3
+
+    def wrong_boundary(f):
+        f[P + "/box"].attrs["boundary"] = np.array([b"periodic", b"closed", b"none"], dtype="S9")
+
+    def no_edges(f):
+        del f[P + "/box/edges"]
+
+    def unlinked_edges_time(f):
+        t = f[P + "/box/edges/time"][()]
+        del f[P + "/box/edges/time"]
+        f[P + "/box/edges"].create_dataset("time", data=t)
+
+    def bond_reference_to_root(f):
+        f["connectivity/bonds"].attrs["particles_group"] = f["/"].ref
+
+    def short_step(f):
+        step = f[P + "/velocity/step"][()]
+        del f[P + "/velocity/step"]
+        f[P + "/velocity"].create_dataset("step", data=step[:-1])
+
+    def float_species(f):
+        del f[P + "/species"]
+        f[P].create_dataset("species", data=np.zeros(20))
+
+    for damage, expected in ((vl_author, "variable-length"), (vl_boundary, "variable-length"),
+                             (wrong_boundary, "periodic or none"), (no_edges, "edges may be omitted"),
+                             (unlinked_edges_time, "hard link"), (bond_reference_to_root, "/particles"),
+                             (short_step, "value's first dimension"), (float_species, "Enumeration or Integer")):
+        bad = os.path.join(work, damage.__name__ + ".h5")
+        shutil.copy(good, bad)
+        with h5py.File(bad, "r+") as f:
+            damage(f)
+        with h5py.File(bad, "r") as f:
+            problems = h5md_problems(f)
+        assert any(expected in p for p in problems), (damage.__name__, problems)
 
 
 def test_error_messages(work):
@@ -491,7 +548,7 @@ def test_h5md_to_xyz(work):
 
 
 TESTS = [test_open_box_layout, test_periodic_layout_and_images, test_slab_box, test_mdanalysis_reads_every_frame,
-         test_append_drops_frames_from_first_step, test_error_messages, test_kill_between_frames,
+         test_append_drops_frames_from_first_step, test_spec_checker_catches_departures, test_error_messages, test_kill_between_frames,
          test_kill_mid_frame, test_h5md_to_xyz]
 
 

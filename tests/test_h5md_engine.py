@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """H5MD output of real `stiffmd run`s (run by ctest on Debian's python3 with h5py, MDAnalysis):
-the H5MD 1.1 layout, values equal to what the XYZ trajectory says, MDAnalysis reads every frame,
-a file killed with SIGKILL still opens with the frames written, and restart appends exactly."""
+the H5MD 1.1 layout (tests/h5md_spec.py, written from the specification), values equal to what the
+XYZ trajectory says, MDAnalysis reads every frame (positions, box, time), a file killed with SIGKILL
+still opens with the frames written, and restart appends exactly (also to a file of an earlier
+build, whose string attributes were variable-length)."""
 import os
 import signal
 import subprocess
@@ -12,6 +14,7 @@ import warnings
 
 import h5py
 import numpy as np
+from h5md_spec import h5md_problems
 
 warnings.filterwarnings("ignore")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -51,6 +54,11 @@ def read_xyz(path):
     return np.array(frames), np.array(times)
 
 
+def assert_spec(f):
+    problems = h5md_problems(f)
+    assert not problems, "; ".join(problems)
+
+
 def universe(top, h5):
     import MDAnalysis as mda
     return mda.Universe(top, h5, format="H5MD", convert_units=False)
@@ -63,6 +71,7 @@ def periodic_layout_values_and_mdanalysis():
         h5, xyz = os.path.join(d, "traj.h5md"), os.path.join(d, "traj.xyz")
         x_xyz, t_xyz = read_xyz(xyz)
         with h5py.File(h5, "r") as f:
+            assert_spec(f)
             assert list(f["h5md"].attrs["version"]) == [1, 1]
             assert f["h5md/author"].attrs["name"] in ("Tester", b"Tester")
             assert f["h5md/creator"].attrs["name"] in ("stiffmd", b"stiffmd")
@@ -102,6 +111,7 @@ def pendulum_bonds_and_particles_group():
     with tempfile.TemporaryDirectory() as d:
         run("inputs/double_pendulum.toml", d, "output.h5md=traj.h5md", "run.t_end=0.5")
         with h5py.File(os.path.join(d, "traj.h5md"), "r") as f:
+            assert_spec(f)
             bonds = f["connectivity/bonds"]
             assert bonds[:].tolist() == [[0, 1], [1, 2]]
             assert f[bonds.attrs["particles_group"]].name == "/" + P
@@ -138,12 +148,61 @@ def restart_appends_exactly():
                "--restart", os.path.join(d, "parts", "checkpoint.bin")] + sum((["--set", s] for s in sets + ["run.t_end=0.5"]), [])
         subprocess.run(cmd, check=True, capture_output=True)
         with h5py.File(os.path.join(d, "whole", "traj.h5md"), "r") as a, h5py.File(os.path.join(d, "parts", "traj.h5md"), "r") as b:
+            assert_spec(b)
             for key in ("position/value", "position/time", "position/step"):
                 assert np.array_equal(a[P + "/" + key][:], b[P + "/" + key][:]), key
             assert np.array_equal(a["observables/total/value"][:], b["observables/total/value"][:])
 
 
-for t in (periodic_layout_values_and_mdanalysis, pendulum_bonds_and_particles_group, killed_run_keeps_its_frames,
+def cubic_box_mdanalysis_positions_box_time():
+    """A fully periodic melt: MDAnalysis reads every frame's box as [L, L, L, 90, 90, 90], the time
+    as step·h (both from the file, checked against the deck), and positions equal to the XYZ
+    trajectory's wrapped into [0, L)."""
+    with tempfile.TemporaryDirectory() as d:
+        run("tests/decks/small_melt.toml", d, "output.h5md=traj.h5md", "output.h5md_interval=0.05",
+            "output.xyz=trajectory.xyz", "output.xyz_interval=0.05", "run.t_end=0.3")
+        h5 = os.path.join(d, "traj.h5md")
+        x_xyz, t_xyz = read_xyz(os.path.join(d, "trajectory.xyz"))
+        with h5py.File(h5, "r") as f:
+            assert_spec(f)
+            box = f[P + "/box"]
+            assert [b.decode() for b in box.attrs["boundary"]] == ["periodic"] * 3
+            L = np.diag(box["edges/value"][0])
+            assert box["edges/value"].shape == (len(t_xyz), 3, 3) and np.allclose(L, L[0])
+            step, time_ = f[P + "/position/step"][:], f[P + "/position/time"][:]
+        assert np.allclose(time_, t_xyz, atol=1e-12)
+        assert np.allclose(time_, step * 0.005, rtol=1e-12, atol=1e-14), (time_, step)  # the deck's h
+        u = universe(os.path.join(d, "trajectory.xyz"), h5)
+        assert len(u.trajectory) == len(t_xyz)
+        for ts in u.trajectory:
+            assert np.allclose(ts.dimensions, [L[0], L[1], L[2], 90, 90, 90], rtol=1e-6), ts.dimensions
+            assert abs(ts.time - t_xyz[ts.frame]) < 1e-12
+            wrapped = x_xyz[ts.frame] - L * np.floor(x_xyz[ts.frame] / L)
+            assert np.allclose(ts.positions, wrapped, atol=1e-4), ts.frame
+
+
+def restart_appends_to_variable_length_strings():
+    """A file whose string attributes are variable-length (as earlier builds wrote them) is still
+    recognised as stiffmd's and appended to on restart."""
+    with tempfile.TemporaryDirectory() as d:
+        sets = ["output.h5md=traj.h5md", "output.h5md_interval=0.03125"]
+        run("inputs/double_pendulum.toml", d, *sets, "run.t_end=0.25")
+        h5 = os.path.join(d, "traj.h5md")
+        with h5py.File(h5, "r+") as f:
+            for group, name in (("h5md/creator", "name"), ("h5md/creator", "version"), ("h5md/author", "name")):
+                value = f[group].attrs[name].decode()
+                f[group].attrs[name] = value  # h5py: a Python str becomes a variable-length string
+            assert h5py.check_string_dtype(f["h5md/creator"].attrs.get_id("name").dtype).length is None
+            frames = f[P + "/position/step"].shape[0]
+        cmd = [EXE, "run", os.path.join(ROOT, "inputs/double_pendulum.toml"), "-o", d, "--no-progress",
+               "--restart", os.path.join(d, "checkpoint.bin")] + sum((["--set", s] for s in sets + ["run.t_end=0.5"]), [])
+        subprocess.run(cmd, check=True, capture_output=True)
+        with h5py.File(h5, "r") as f:
+            assert f[P + "/position/step"].shape[0] == 2 * frames - 1, (f[P + "/position/step"].shape, frames)
+
+
+for t in (periodic_layout_values_and_mdanalysis, cubic_box_mdanalysis_positions_box_time,
+          restart_appends_to_variable_length_strings, pendulum_bonds_and_particles_group, killed_run_keeps_its_frames,
           restart_appends_exactly):
     test(t)
 failed = sum(1 for _, e in results if e)
