@@ -18,7 +18,7 @@ if(STIFFMD_FUZZ)
   foreach(t IN LISTS _stiffmd_fuzz_instrumented)
     target_compile_options(${t} PRIVATE ${_stiffmd_fuzz_flags})
     target_link_options(${t} PRIVATE -fsanitize=address,undefined)
-    # libFuzzer's convention: bounds that keep one input fast (engine/scene_sources.cpp).
+    # libFuzzer's convention: bounds that keep one input fast (engine/scene/scene_sources.cpp).
     target_compile_definitions(${t} PRIVATE FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION)
   endforeach()
   foreach(name fuzz_deck fuzz_lammps_data)

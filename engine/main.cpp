@@ -8,11 +8,11 @@
 #include <iostream>
 #include <optional>
 
-#include "engine/checkpoint.hpp"
-#include "engine/deck.hpp"
-#include "engine/errors.hpp"
-#include "engine/scene.hpp"
-#include "engine/simulation.hpp"
+#include "engine/run/checkpoint.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/scene/scene.hpp"
+#include "engine/run/simulation.hpp"
 
 namespace {
 

@@ -27,8 +27,8 @@
 #include <sstream>
 #include <vector>
 
-#include "engine/box.hpp"
-#include "engine/errors.hpp"
+#include "engine/core/box.hpp"
+#include "engine/core/errors.hpp"
 
 namespace stiffmd {
 

@@ -16,10 +16,10 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/box.hpp"
-#include "engine/state.hpp"
+#include "engine/core/box.hpp"
+#include "engine/core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 
@@ -98,7 +98,7 @@ class BondPartition {
 };
 
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
-// positions (bond_vector, engine/state.hpp): molecules are whole, so it is the minimum image
+// positions (bond_vector, engine/core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
 // (rebuilt when the thread count changes).
 //

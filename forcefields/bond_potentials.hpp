@@ -18,7 +18,7 @@
 #include <sstream>
 #include <string_view>
 
-#include "engine/errors.hpp"
+#include "engine/core/errors.hpp"
 #include "forcefields/coefficients.hpp"
 
 namespace stiffmd {

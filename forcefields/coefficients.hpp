@@ -1,6 +1,6 @@
 // The kinds of coefficient a force kernel takes and the range each allows, written once: the
 // kernels' validate() (bond_potentials.hpp, pair_potentials.hpp) and the deck readers
-// (engine/force_registry.cpp) check through them, so a constructor argument and a deck key are
+// (engine/scene/force_registry.cpp) check through them, so a constructor argument and a deck key are
 // refused by the same rule, in the same words.
 #pragma once
 

@@ -5,7 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/errors.hpp"
+#include "engine/core/errors.hpp"
 
 namespace stiffmd {
 namespace {

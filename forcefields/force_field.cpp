@@ -2,7 +2,7 @@
 
 #include <algorithm>
 
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 namespace {

@@ -10,7 +10,7 @@
 #include <span>
 #include <vector>
 
-#include "engine/box.hpp"
+#include "engine/core/box.hpp"
 #include "forcefields/force_term.hpp"
 
 namespace stiffmd {

@@ -11,7 +11,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/box.hpp"
+#include "engine/core/box.hpp"
 #include "forcefields/stiff_bond.hpp"
 
 namespace stiffmd {
@@ -65,7 +65,7 @@ class ForceTerm {
   virtual std::string describe() const = 0;
 
   // What defines the term — style parameters, no run-time counters — for the scene fingerprint
-  // of checkpoints (engine/checkpoint.hpp): a checkpoint is refused by a scene whose terms differ.
+  // of checkpoints (engine/run/checkpoint.hpp): a checkpoint is refused by a scene whose terms differ.
   virtual std::string definition() const { return describe(); }
 
   // State the term carries from one evaluation to the next that its forces depend on (a pair

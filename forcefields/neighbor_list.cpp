@@ -1,6 +1,6 @@
 #include "forcefields/neighbor_list.hpp"
 
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 
 #include <algorithm>
 #include <array>

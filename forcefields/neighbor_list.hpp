@@ -14,14 +14,14 @@
 #include <span>
 #include <vector>
 
-#include "engine/box.hpp"
-#include "engine/topology.hpp"
+#include "engine/core/box.hpp"
+#include "engine/core/topology.hpp"
 
 namespace stiffmd {
 
 // Minimum image for unwrapped coordinates, without a branch on periodicity: on a periodic axis
 // d − L·round(d/L); an open axis has L = 1/L = 0, which leaves d unchanged. The rounding is
-// round_nearest (engine/box.hpp), shared with Box::min_image. Ties (|d| = L/2) round to even:
+// round_nearest (engine/core/box.hpp), shared with Box::min_image. Ties (|d| = L/2) round to even:
 // both images are at the same distance, ≥ the cutoff.
 struct MinimumImage {
   double length[3] = {0.0, 0.0, 0.0};

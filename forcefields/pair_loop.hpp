@@ -21,9 +21,9 @@
 #include <type_traits>
 #include <vector>
 
-#include "engine/box.hpp"
+#include "engine/core/box.hpp"
 #include "forcefields/neighbor_list.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/topology.hpp"
+#include "engine/core/topology.hpp"
 #include "forcefields/force_term.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/pair_loop.hpp"

@@ -5,7 +5,7 @@
 //
 // The rules a set of stiff bonds obeys are checked once, here (find_stiff_bond_problem), for the
 // stiff-harmonic force term, the constraint toolbox and the stiff modes alike; g_b and max |g|
-// are defined once, here, on the one bond vector (engine/state.hpp).
+// are defined once, here, on the one bond vector (engine/core/state.hpp).
 #pragma once
 
 #include <Eigen/Core>
@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/state.hpp"
+#include "engine/core/state.hpp"
 
 namespace stiffmd {
 

@@ -13,7 +13,7 @@ StiffHarmonicBond::StiffHarmonicBond(std::string name, Level level, StiffBonds b
   const double inv_eps2 = 1.0 / (bonds_.epsilon * bonds_.epsilon);
   instances_.reserve(bonds_.bonds.size());
   // The masses are not known here: the rules that need them are checked by the deck reader
-  // (engine/force_registry.cpp) and the constraint toolbox, with the same function.
+  // (engine/scene/force_registry.cpp) and the constraint toolbox, with the same function.
   if (const auto problem = find_stiff_bond_problem(bonds_.bonds, nullptr)) throw std::invalid_argument(problem->what);
   for (const StiffBond& b : bonds_.bonds) instances_.push_back({b.i, b.j, {b.length, b.alpha * b.alpha * inv_eps2}});
 }

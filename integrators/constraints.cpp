@@ -28,8 +28,8 @@
 #include <string>
 #include <utility>
 
-#include "engine/errors.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 namespace {

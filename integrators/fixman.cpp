@@ -20,8 +20,8 @@
 #include <string>
 #include <utility>
 
-#include "engine/errors.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

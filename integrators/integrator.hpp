@@ -9,7 +9,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/state.hpp"
+#include "engine/core/state.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/thermostat.hpp"
 

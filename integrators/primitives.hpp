@@ -7,7 +7,7 @@
 
 #include <Eigen/Core>
 
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 

@@ -4,7 +4,7 @@
 #include <string>
 
 #include "forcefields/force_field.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 #include "integrators/integrator.hpp"
 
 namespace stiffmd {

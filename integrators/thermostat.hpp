@@ -15,7 +15,7 @@
 #include <memory>
 #include <string_view>
 
-#include "engine/state.hpp"
+#include "engine/core/state.hpp"
 
 namespace stiffmd {
 

@@ -14,7 +14,7 @@
 //   h5md_driver errors DIR              the error cases, one "case<TAB>message" line each
 //
 // Build: g++ -std=c++20 -O2 -Wall -Wextra -I. -I/usr/include/eigen3 -I/usr/include/hdf5/serial
-//        engine/h5md_writer.cpp tests/h5md_driver.cpp -L/usr/lib/x86_64-linux-gnu/hdf5/serial -lhdf5
+//        engine/io/h5md_writer.cpp tests/h5md_driver.cpp -L/usr/lib/x86_64-linux-gnu/hdf5/serial -lhdf5
 #include <hdf5.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -29,8 +29,8 @@
 #include <thread>
 #include <vector>
 
-#include "engine/errors.hpp"
-#include "engine/h5md_writer.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/h5md_writer.hpp"
 
 namespace {
 

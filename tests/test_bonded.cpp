@@ -11,8 +11,8 @@
 #include <random>
 #include <string>
 
-#include "engine/errors.hpp"
-#include "engine/whole_molecules.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/scene/whole_molecules.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/bond_term.hpp"

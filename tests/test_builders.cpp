@@ -1,4 +1,4 @@
-// Polymer builders and Maxwell–Boltzmann velocities (engine/builders.hpp): geometry checked by
+// Polymer builders and Maxwell–Boltzmann velocities (engine/scene/builders.hpp): geometry checked by
 // brute force against Box::min_image, topology against the bonds, statistics of the velocities.
 #include <gtest/gtest.h>
 
@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/builders.hpp"
+#include "engine/scene/builders.hpp"
 
 namespace stiffmd {
 namespace {

@@ -6,7 +6,7 @@
 
 #include <random>
 
-#include "engine/checkpoint.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "forcefields/pair_term.hpp"
 #include "integrators/methods.hpp"
 #include "test_support.hpp"

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/errors.hpp"
+#include "engine/core/errors.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/errors.hpp"
+#include "engine/core/errors.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {

@@ -10,8 +10,8 @@
 #include <stdexcept>
 #include <vector>
 
-#include "engine/errors.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/fixman.hpp"
 

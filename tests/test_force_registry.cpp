@@ -1,4 +1,4 @@
-// The force-style readers (engine/force_registry.cpp): every style parameter's range is checked
+// The force-style readers (engine/scene/force_registry.cpp): every style parameter's range is checked
 // by the kind of quantity it is (forcefields/coefficients.hpp), and a bad value is reported at
 // its deck key — its file:line, or the --set that supplied it.
 #include <gtest/gtest.h>
@@ -10,9 +10,9 @@
 
 #include <unistd.h>
 
-#include "engine/deck.hpp"
-#include "engine/errors.hpp"
-#include "engine/scene.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/scene/scene.hpp"
 
 namespace stiffmd {
 namespace {

@@ -250,7 +250,7 @@ def test_open_box_layout(work):
         vmd = f["parameters/vmd_structure"]
         assert list(vmd["bond_from"][()]) == [1, 2] and list(vmd["bond_to"][()]) == [2, 3]
         assert [s.decode() for s in vmd["name"][()]] == elements and list(vmd["indexOfSpecies"][()]) == [0, 1]
-        # No unit attributes anywhere (reduced units; see engine/h5md_writer.cpp).
+        # No unit attributes anywhere (reduced units; see engine/io/h5md_writer.cpp).
         units = []
         f.visititems(lambda name, obj: units.append(name) if "unit" in obj.attrs else None)
         assert not units, units

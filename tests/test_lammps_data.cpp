@@ -17,9 +17,9 @@
 #include <sstream>
 #include <string>
 
-#include "engine/errors.hpp"
-#include "engine/lammps_data.hpp"
-#include "engine/xyz_bonds.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/io/xyz_bonds.hpp"
 
 namespace stiffmd {
 namespace {

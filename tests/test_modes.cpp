@@ -14,8 +14,8 @@
 #include <vector>
 #include "integrators/modes.hpp"
 
-#include "engine/errors.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 namespace {

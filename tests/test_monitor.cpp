@@ -1,4 +1,4 @@
-// Self-monitoring ([monitor], engine/monitor.hpp) end to end through the CLI, on the paper's
+// Self-monitoring ([monitor], engine/observe/monitor.hpp) end to end through the CLI, on the paper's
 // double pendulum: the impulse method at h = 1/4 loses the actions' adiabatic invariance and
 // drifts in energy (Lubich & Weiss §5), the projected impulse method does not.
 #include <gtest/gtest.h>
@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/checkpoint.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "tests/cli_support.hpp"
 #include "tests/test_support.hpp"
 

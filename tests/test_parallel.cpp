@@ -1,4 +1,4 @@
-// The OpenMP paths (forcefields/parallel.hpp): bond forces (owner computes), pair forces
+// The OpenMP paths (engine/core/parallel.hpp): bond forces (owner computes), pair forces
 // (per-thread buffers), the fused kick–drift. For a system above kParallelMin they must give
 // the serial forces to rounding for any thread count, the same bits on every call with a given
 // count, and an exception from a kernel must surface as the kernel's exception, not terminate().
@@ -8,10 +8,10 @@
 #include <numeric>
 #include <random>
 
-#include "engine/errors.hpp"
+#include "engine/core/errors.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/pair_term.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/parallel.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/primitives.hpp"

@@ -8,8 +8,8 @@
 #include <sstream>
 
 #include "cli_support.hpp"
-#include "engine/checkpoint.hpp"
-#include "engine/simulation.hpp"
+#include "engine/run/checkpoint.hpp"
+#include "engine/run/simulation.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {

@@ -8,7 +8,7 @@
 #include <thread>
 
 #include "cli_support.hpp"
-#include "engine/checkpoint.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {

@@ -18,7 +18,7 @@
 #include <random>
 
 #include "cli_support.hpp"
-#include "engine/checkpoint.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "integrators/methods.hpp"
 #include "test_support.hpp"
 

@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/deck.hpp"
-#include "engine/scene.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/methods.hpp"
 
@@ -77,7 +77,7 @@ inline void advance(Scene& sc, std::int64_t n) {
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/observables.hpp"
+#include "engine/observe/observables.hpp"
 
 namespace stiffmd::test {
 

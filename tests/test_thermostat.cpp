@@ -18,9 +18,9 @@
 #include <sstream>
 
 #include "cli_support.hpp"
-#include "engine/errors.hpp"
-#include "engine/observables.hpp"
-#include "forcefields/parallel.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/core/parallel.hpp"
 #include "integrators/thermostat.hpp"
 #include "test_support.hpp"
 

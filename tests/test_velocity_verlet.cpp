@@ -4,7 +4,7 @@
 
 #include <cmath>
 
-#include "engine/observables.hpp"
+#include "engine/observe/observables.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {

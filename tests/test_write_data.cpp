@@ -5,9 +5,9 @@
 
 #include <filesystem>
 
-#include "engine/deck.hpp"
-#include "engine/lammps_data.hpp"
-#include "engine/scene.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/scene/scene.hpp"
 #include "tests/cli_support.hpp"
 
 namespace stiffmd {

@@ -14,11 +14,11 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/deck.hpp"
-#include "engine/errors.hpp"
-#include "engine/lammps_data.hpp"
-#include "engine/scene.hpp"
-#include "engine/simulation.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/scene/scene.hpp"
+#include "engine/run/simulation.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

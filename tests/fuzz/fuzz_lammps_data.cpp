@@ -13,9 +13,9 @@
 #include <cstring>
 #include <string>
 
-#include "engine/errors.hpp"
-#include "engine/lammps_data.hpp"
-#include "engine/xyz_bonds.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/io/xyz_bonds.hpp"
 #include "fuzz_support.hpp"
 
 namespace {

@@ -32,8 +32,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/deck.hpp"
-#include "engine/scene.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/scene/scene.hpp"
 #include "forcefields/pair_term.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"

@@ -1,0 +1,535 @@
+#include "engine/deck/deck.hpp"
+
+#include <muParser.h>
+
+#include <toml++/toml.h>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "engine/core/errors.hpp"
+
+namespace stiffmd {
+namespace {
+
+std::string type_word(const toml::node& n) {
+  switch (n.type()) {
+    case toml::node_type::table:
+      return "a table";
+    case toml::node_type::array:
+      return "an array";
+    case toml::node_type::string:
+      return "a string";
+    case toml::node_type::integer:
+      return "an integer";
+    case toml::node_type::floating_point:
+      return "a number";
+    case toml::node_type::boolean:
+      return "a boolean";
+    default:
+      return "a date/time";
+  }
+}
+
+std::string shown(const toml::node& n) {
+  std::ostringstream s;
+  if (auto v = n.value<std::string>())
+    s << '"' << *v << '"';
+  else if (n.is_table())
+    s << "a table";
+  else if (n.is_array())
+    s << "an array";
+  else
+    n.visit([&](const auto& x) { s << x; });
+  return s.str();
+}
+
+// A TOML number as a double. toml++ gives no value<double>() for an integer that has no exact
+// double (beyond 2^53): convert it ourselves, rounding, rather than dereference an empty optional.
+double as_double(const toml::node& n) {
+  if (n.is_integer()) return static_cast<double>(*n.value<int64_t>());
+  return *n.value<double>();
+}
+
+// A number as written in a message: shortest round-trip form, "1e+20" rather than 20 digits.
+std::string fmt(double v) {
+  std::ostringstream s;
+  s.precision(17);
+  s << v;
+  std::ostringstream shorter;
+  shorter << v;
+  return std::strtod(shorter.str().c_str(), nullptr) == v ? shorter.str() : s.str();
+}
+
+// Every string and every key of the deck (and of --set values): toml++ accepts "\u0000", which
+// would cut a path or a name short where it reaches the C library (open a shorter file name) and
+// print as nothing in messages. Throws InputError at the first one.
+void refuse_nul(const Deck& deck, const toml::node& n, const std::string& kp) {
+  const auto shown_key = [](std::string_view k) {
+    std::string out;
+    for (char c : k) out += c == '\0' ? std::string("\\u0000") : std::string(1, c);
+    return out;
+  };
+  if (const auto* t = n.as_table()) {
+    for (const auto& [k, v] : *t) {
+      const std::string child = kp.empty() ? shown_key(k.str()) : kp + "." + shown_key(k.str());
+      if (k.str().find('\0') != std::string_view::npos)
+        throw InputError(deck.location(&v, child) + ": " + child +
+                         ": the key contains a NUL character (\\u0000); expected a name without one");
+      refuse_nul(deck, v, child);
+    }
+  } else if (const auto* a = n.as_array()) {
+    for (size_t k = 0; k < a->size(); ++k) refuse_nul(deck, *a->get(k), kp + "[" + std::to_string(k) + "]");
+  } else if (const auto v = n.value<std::string>(); v && v->find('\0') != std::string::npos) {
+    throw InputError(deck.location(&n, kp) + ": " + kp +
+                     ": the string contains a NUL character (\\u0000); expected text without one");
+  }
+}
+
+bool valid_identifier(const std::string& s) {
+  if (s.empty() || std::isdigit(static_cast<unsigned char>(s[0]))) return false;
+  for (char c : s)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') return false;
+  return true;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+// Deck
+
+Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(std::move(path)) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path_, ec))
+    throw InputError(path_ + ": is a directory, expected a deck file (TOML)");
+  std::ifstream in(path_, std::ios::binary);
+  if (!in) throw InputError(path_ + ": cannot open deck file");
+  // Read at most kMaxDeckBytes: a deck may come through a pipe (process substitution), but
+  // /dev/zero or an endless pipe must not be read forever.
+  constexpr std::size_t kMaxDeckBytes = 64 << 20;
+  std::string text;
+  char chunk[1 << 16];
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
+    text.append(chunk, static_cast<std::size_t>(in.gcount()));
+    if (text.size() > kMaxDeckBytes)
+      throw InputError(path_ + ": larger than " + std::to_string(kMaxDeckBytes >> 20) +
+                       " MiB; expected a deck file (TOML)");
+  }
+  if (in.bad()) throw InputError(path_ + ": cannot read deck file");
+  try {
+    table_ = std::make_unique<toml::table>(toml::parse(text, path_));
+  } catch (const toml::parse_error& e) {
+    throw InputError(path_ + ":" + std::to_string(e.source().begin.line) +
+                     ": TOML syntax error: " + std::string(e.description()));
+  }
+  for (const std::string& o : overrides) apply_override(o);
+  refuse_nul(*this, *table_, "");
+  resolve_variables();
+}
+
+Deck::~Deck() = default;
+
+DeckTable Deck::root() const {
+  return DeckTable(this, table_.get(), "");
+}
+
+std::string Deck::location(const toml::node* n, const std::string& key_path) const {
+  // A value given with --set names the override; so does anything below an overridden key. Array
+  // elements are "particles[1].position" in key paths but "particles.1.position" in overrides.
+  std::string dotted;
+  for (const char c : key_path)
+    if (c == '[')
+      dotted += '.';
+    else if (c != ']')
+      dotted += c;
+  for (const std::string& o : overridden_)
+    for (const std::string& kp : {key_path, dotted})
+      if (kp == o || kp.rfind(o + ".", 0) == 0 || kp.rfind(o + "[", 0) == 0) return "--set " + o;
+  if (n && n->source().begin.line > 0) return path_ + ":" + std::to_string(n->source().begin.line);
+  return path_;
+}
+
+void Deck::apply_override(const std::string& assignment) {
+  const auto eq = assignment.find('=');
+  if (eq == std::string::npos || eq == 0)
+    throw InputError("--set " + assignment + ": expected key=value (e.g. --set integrator.h=0.01)");
+  const std::string key = assignment.substr(0, eq);
+  const std::string text = assignment.substr(eq + 1);
+
+  // The value as TOML if it parses, else as a bare string.
+  toml::table parsed;
+  try {
+    parsed = toml::parse("v = " + text);
+  } catch (const toml::parse_error&) {
+    parsed = toml::table{};
+    parsed.insert("v", text);
+  }
+  toml::node* value = parsed.get("v");
+
+  std::vector<std::string> parts;
+  std::stringstream ks(key);
+  for (std::string part; std::getline(ks, part, '.');) {
+    if (part.empty()) throw InputError("--set " + assignment + ": empty key segment in '" + key + "'");
+    parts.push_back(part);
+  }
+  toml::node* cur = table_.get();
+  std::string sofar;
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const std::string& p = parts[k];
+    const bool last = k + 1 == parts.size();
+    sofar += (sofar.empty() ? "" : ".") + p;
+    if (auto* t = cur->as_table()) {
+      if (last) {
+        value->visit([&](auto& v) { t->insert_or_assign(p, v); });
+      } else {
+        if (!t->contains(p)) t->insert(p, toml::table{});
+        cur = t->get(p);
+      }
+    } else if (auto* a = cur->as_array()) {
+      char* end = nullptr;
+      const long idx = std::strtol(p.c_str(), &end, 10);
+      if (*end != '\0' || idx < 0 || idx >= static_cast<long>(a->size()))
+        throw InputError("--set " + assignment + ": '" + sofar + "' is not an element of the array (0.." +
+                         std::to_string(a->size()) + ")");
+      if (last)
+        value->visit([&](auto& v) { a->replace(a->cbegin() + idx, v); });
+      else
+        cur = a->get(static_cast<size_t>(idx));
+    } else {
+      throw InputError("--set " + assignment + ": '" + sofar.substr(0, sofar.rfind('.')) + "' is a value, not a table");
+    }
+  }
+  overridden_.insert(key);
+}
+
+double Deck::evaluate(const std::string& expr, const std::string& where) const {
+  try {
+    mu::Parser p;
+    p.DefineConst("pi", M_PI);
+    for (const auto& [name, v] : variables_) p.DefineConst(name, v);
+    p.SetExpr(expr);
+    const double v = p.Eval();
+    if (std::isnan(v))
+      throw InputError(where + ": expression \"" + expr +
+                       "\" evaluates to nan (0/0, or sqrt or log of a negative number?); expected a finite number");
+    if (!std::isfinite(v))
+      throw InputError(where + ": expression \"" + expr + "\" evaluates to " + (v > 0 ? "inf" : "-inf") +
+                       " (division by zero or overflow?); expected a finite number");
+    return v;
+  } catch (const mu::Parser::exception_type& e) {
+    // Most often a name that is not a variable: say which (a syntax error is reported as such).
+    for (const std::string& used : referenced_names(expr, where))
+      if (!variables_.count(used))
+        throw InputError(where + ": expression \"" + expr + "\" refers to '" + used +
+                         "', which is not a variable (define it under [variables])");
+    throw InputError(where + ": cannot evaluate expression \"" + expr + "\": " + e.GetMsg());
+  }
+}
+
+std::set<std::string> Deck::referenced_names(const std::string& expr, const std::string& where) const {
+  try {
+    mu::Parser p;
+    p.DefineConst("pi", M_PI);
+    p.SetExpr(expr);
+    std::set<std::string> out;
+    for (const auto& [name, ptr] : p.GetUsedVar()) out.insert(name);  // undefined ones included
+    return out;
+  } catch (const mu::Parser::exception_type& e) {
+    throw InputError(where + ": cannot evaluate expression \"" + expr + "\": " + e.GetMsg());
+  }
+}
+
+void Deck::resolve_variables() {
+  const toml::node* node = table_->get("variables");
+  if (!node) return;
+  const toml::table* vars = node->as_table();
+  if (!vars) throw InputError(location(node, "variables") + ": variables: expected a table of name = value");
+  // Variables may refer to each other in any order: resolve in passes until no progress.
+  std::map<std::string, const toml::node*> pending;
+  for (const auto& [k, v] : *vars) {
+    const std::string name(k.str());
+    const std::string where = location(&v, "variables." + name) + ": variables." + name;
+    if (!valid_identifier(name) || name == "pi")
+      throw InputError(where + ": a variable name must be an identifier (letters, digits, _) other than pi");
+    if (v.is_integer() || v.is_floating_point()) {
+      const double x = as_double(v);
+      if (!std::isfinite(x)) throw InputError(where + ": expected a finite number, got " + shown(v));
+      variables_[name] = x;
+    } else if (v.is_string()) {
+      pending[name] = &v;
+    } else {
+      throw InputError(where + ": expected a number or an expression string, got " + type_word(v));
+    }
+  }
+  while (!pending.empty()) {
+    bool progress = false;
+    for (auto it = pending.begin(); it != pending.end();) {
+      try {
+        const double x = evaluate(*it->second->value<std::string>(), "");
+        variables_[it->first] = x;
+        it = pending.erase(it);
+        progress = true;
+      } catch (const InputError&) {
+        ++it;
+      }
+    }
+    if (!progress) {
+      // Say why: an undefined name, an expression that fails on its own (1/0, a syntax error),
+      // or else a cycle through the pending variables.
+      for (const auto& [name, v] : pending) {
+        const std::string expr = *v->value<std::string>();
+        const std::string where = location(v, "variables." + name) + ": variables." + name;
+        bool waits = false;
+        for (const std::string& used : referenced_names(expr, where)) {
+          if (variables_.count(used)) continue;
+          if (!pending.count(used))
+            throw InputError(where + ": expression \"" + expr + "\" refers to '" + used +
+                             "', which is not a variable (define it under [variables])");
+          waits = true;
+        }
+        if (!waits) evaluate(expr, where);  // throws the expression's own error
+      }
+      const auto& [name, v] = *pending.begin();
+      throw InputError(location(v, "variables." + name) + ": variables." + name + ": cannot resolve \"" +
+                       *v->value<std::string>() + "\": it refers, through other variables, to itself");
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// DeckTable
+
+DeckTable::DeckTable(const Deck* deck, const toml::table* table, std::string path)
+    : deck_(deck), table_(table), path_(std::move(path)) {}
+
+std::string DeckTable::key_path(std::string_view key) const {
+  return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
+}
+
+bool DeckTable::has(std::string_view key) const {
+  return table_->contains(key);
+}
+
+const toml::node* DeckTable::get(std::string_view key) {
+  known_.emplace(key);
+  const toml::node* n = table_->get(key);
+  if (n) used_.emplace(key);
+  return n;
+}
+
+void DeckTable::fail(std::string_view key, const std::string& what) const {
+  const std::string kp = key_path(key);
+  throw InputError(deck_->location(table_->get(key), kp) + ": " + kp + ": " + what);
+}
+
+void DeckTable::fail_here(const std::string& what) const {
+  throw InputError(deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_) + ": " + what);
+}
+
+std::string DeckTable::where() const {
+  return deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_);
+}
+
+double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
+  const std::string where = deck_->location(&n, kp) + ": " + kp;
+  double x;
+  if (n.is_integer() || n.is_floating_point()) {
+    x = as_double(n);
+    if (!std::isfinite(x)) throw InputError(where + ": expected a finite number, got " + shown(n));
+  } else if (n.is_string()) {
+    x = deck_->evaluate(*n.value<std::string>(), where);
+  } else {
+    throw InputError(where + ": expected a number or an expression string, got " + type_word(n));
+  }
+  // The window every deck number must lie in: the kernels multiply a few of them (α²/ε², m g·x,
+  // r² …), and a value near the largest double, or a subnormal one, overflows there only later —
+  // at step 1, with no key to name. Reduced units have no business outside it.
+  const double a = std::abs(x);
+  if (a > kLargestDeckNumber || (a != 0.0 && a < kSmallestDeckNumber))
+    throw InputError(where + ": " + fmt(x) + " is outside the range of deck numbers (0, or " + fmt(kSmallestDeckNumber) +
+                     " .. " + fmt(kLargestDeckNumber) + " in magnitude); expected a value in reduced units");
+  return x;
+}
+
+std::optional<double> DeckTable::maybe_number(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return std::nullopt;
+  return to_number(*n, key_path(key));
+}
+
+double DeckTable::number(std::string_view key) {
+  if (auto v = maybe_number(key)) return *v;
+  fail_here("missing required key '" + std::string(key) + "'");
+}
+
+double DeckTable::number(std::string_view key, double fallback) {
+  return maybe_number(key).value_or(fallback);
+}
+
+std::optional<long> DeckTable::maybe_integer(std::string_view key) {
+  auto v = maybe_number(key);
+  if (!v) return std::nullopt;
+  if (*v != std::floor(*v)) fail(key, "expected an integer, got " + fmt(*v));
+  if (std::abs(*v) > 9.0e15) fail(key, "expected an integer of magnitude at most 9e15, got " + fmt(*v));
+  return static_cast<long>(*v);
+}
+
+long DeckTable::integer(std::string_view key) {
+  if (auto v = maybe_integer(key)) return *v;
+  fail_here("missing required key '" + std::string(key) + "'");
+}
+
+long DeckTable::integer(std::string_view key, long fallback) {
+  return maybe_integer(key).value_or(fallback);
+}
+
+std::string DeckTable::string(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  if (!n->is_string()) fail(key, "expected a string, got " + type_word(*n));
+  return *n->value<std::string>();
+}
+
+std::string DeckTable::string(std::string_view key, std::string fallback) {
+  return has(key) ? string(key) : (known_.emplace(key), std::move(fallback));
+}
+
+bool DeckTable::boolean(std::string_view key, bool fallback) {
+  const toml::node* n = get(key);
+  if (!n) return fallback;
+  if (!n->is_boolean()) fail(key, "expected true or false, got " + shown(*n));
+  return *n->value<bool>();
+}
+
+Eigen::Vector3d DeckTable::vector3(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of 3 numbers, got " + shown(*n));
+  if (a->size() != 3) fail(key, "expected an array of 3 numbers, got " + std::to_string(a->size()));
+  Eigen::Vector3d v;
+  for (int k = 0; k < 3; ++k) v[k] = to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]");
+  return v;
+}
+
+Eigen::Vector3d DeckTable::vector3(std::string_view key, const Eigen::Vector3d& fallback) {
+  return has(key) ? vector3(key) : (known_.emplace(key), fallback);
+}
+
+Eigen::Vector3i DeckTable::bool3(std::string_view key, bool fallback) {
+  const toml::node* n = get(key);
+  if (!n) return Eigen::Vector3i::Constant(fallback ? 1 : 0);
+  if (n->is_boolean()) return Eigen::Vector3i::Constant(*n->value<bool>() ? 1 : 0);
+  const toml::array* a = n->as_array();
+  if (!a || a->size() != 3) fail(key, "expected true/false or an array of 3 booleans, got " + shown(*n));
+  Eigen::Vector3i v;
+  for (int k = 0; k < 3; ++k) {
+    if (!a->get(k)->is_boolean()) fail(key, "expected an array of 3 booleans, got " + shown(*a->get(k)));
+    v[k] = *a->get(k)->value<bool>() ? 1 : 0;
+  }
+  return v;
+}
+
+std::vector<long> DeckTable::integers(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of integers, got " + shown(*n));
+  std::vector<long> out;
+  for (size_t k = 0; k < a->size(); ++k) {
+    const toml::node* e = a->get(k);
+    if (!e->is_integer())
+      fail(key, "expected an array of integers, element " + std::to_string(k) + " is " + type_word(*e));
+    out.push_back(static_cast<long>(*e->value<int64_t>()));
+  }
+  return out;
+}
+
+std::vector<double> DeckTable::numbers(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of numbers, got " + shown(*n));
+  std::vector<double> out;
+  for (size_t k = 0; k < a->size(); ++k)
+    out.push_back(to_number(*a->get(k), key_path(key) + "[" + std::to_string(k) + "]"));
+  return out;
+}
+
+std::vector<std::string> DeckTable::strings(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of strings, got " + shown(*n));
+  std::vector<std::string> out;
+  for (size_t k = 0; k < a->size(); ++k) {
+    if (!a->get(k)->is_string())
+      fail(key, "expected an array of strings, element " + std::to_string(k) + " is " + type_word(*a->get(k)));
+    out.push_back(*a->get(k)->value<std::string>());
+  }
+  return out;
+}
+
+std::vector<std::pair<std::string, std::string>> DeckTable::string_map(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::table* t = n->as_table();
+  if (!t) fail(key, "expected a table of names, e.g. { \"1\" = \"bead\" }, got " + type_word(*n));
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& [k, v] : *t) {
+    if (!v.is_string()) fail(key, "expected a name (string) for '" + std::string(k.str()) + "', got " + type_word(v));
+    out.emplace_back(std::string(k.str()), *v.value<std::string>());
+  }
+  return out;
+}
+
+std::optional<DeckTable> DeckTable::table(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return std::nullopt;
+  if (!n->is_table()) fail(key, "expected a table, got " + type_word(*n));
+  return DeckTable(deck_, n->as_table(), key_path(key));
+}
+
+std::vector<std::pair<std::string, DeckTable>> DeckTable::named_tables() {
+  std::vector<std::pair<std::string, DeckTable>> out;
+  for (const auto& [k, v] : *table_) {
+    const std::string name(k.str());
+    used_.insert(name);
+    if (name.empty()) fail(name, "expected a name, got an empty one: [" + key_path("\"\"") + "]");
+    if (!v.is_table()) fail(name, "expected a table [" + key_path(name) + "], got " + type_word(v));
+    out.emplace_back(name, DeckTable(deck_, v.as_table(), key_path(name)));
+  }
+  return out;
+}
+
+std::vector<DeckTable> DeckTable::array_of_tables(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  const toml::array* a = n->as_array();
+  if (!a) fail(key, "expected an array of tables [[" + key_path(key) + "]], got " + type_word(*n));
+  std::vector<DeckTable> out;
+  for (size_t k = 0; k < a->size(); ++k) {
+    const toml::node* e = a->get(k);
+    const std::string kp = key_path(key) + "[" + std::to_string(k) + "]";
+    if (!e->is_table())
+      throw InputError(deck_->location(e, kp) + ": " + kp + ": expected a table, got " + type_word(*e));
+    out.emplace_back(deck_, e->as_table(), kp);
+  }
+  return out;
+}
+
+void DeckTable::finish() const {
+  for (const auto& [k, v] : *table_) {
+    if (used_.count(k.str())) continue;
+    std::string expected;
+    for (const auto& name : known_) expected += (expected.empty() ? "" : ", ") + name;
+    const std::string kp = key_path(k.str());
+    throw InputError(
+        deck_->location(&v, kp) + ": " + kp + ": unknown key" +
+        (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
+  }
+}
+
+}  // namespace stiffmd

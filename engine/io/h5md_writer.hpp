@@ -1,0 +1,95 @@
+// H5MD 1.1 trajectory writer (https://nongnu.org/h5md/h5md.html) on the HDF5 C API.
+//
+// Layout written (N particles, F frames, S distinct species, m bonds; "time-dependent element" =
+// a group with step int64[F], time float64[F], value[F][...], H5MD §"Time-dependent data"):
+//
+//   /h5md                       +version int32[2] = {1, 1}
+//     author                    +name string
+//     creator                   +name "stiffmd", +version string
+//                               (every string attribute here: fixed-length, null-terminated, ASCII
+//                               unless the value needs UTF-8, as §H5MD metadata asks)
+//   /particles/all
+//     position                  time-dependent, value float64[F][N][3]; periodic axes wrapped into
+//                               [origin, origin + L), open axes as the engine keeps them
+//     image                     (any axis periodic) value int32[F][N][3]: unwrapped = position + image*L
+//     velocity, force           (optional) value float64[F][N][3]
+//     species int32[N]          index into the element table, attribute `elements` (string[S])
+//     mass float64[N], id int64[N] (0..N-1)       time-independent datasets
+//     box                       +dimension int32 = 3, +boundary string[3] ("periodic"/"none")
+//       edges                   (any axis periodic) value float64[F][3][3] = diag(L), rows the edge vectors
+//       offset float64[3]       (any axis periodic) the box origin, low corner of the wrapping cell
+//   /connectivity/bonds int32[m][2]   0-based indices, +particles_group object reference -> /particles/all
+//   /observables/<name>         time-dependent scalar, value float64[F], one per H5mdSetup::observables
+//   /parameters/vmd_structure   indexOfSpecies int32[S], name/type char[16][S] (the symbols),
+//                               bond_from/bond_to int32[m] (1-based): what VMD's H5MD plugin reads
+//
+// Every step/time except position's is a hard link to position/step and position/time: all elements
+// share one time grid (H5MD requires this for image and box/edges; it is allowed for the others).
+// Time series are chunked along an unlimited frame axis; gzip (with byte shuffle) applies to the
+// per-particle elements only. No `unit` attributes: stiffmd works in reduced units.
+//
+// Reading it: h5py directly; MDAnalysis 2.4.2 as
+//   mda.Universe(topology, "traj.h5", format="H5MD", convert_units=False)
+// with any topology holding the atoms (e.g. the run's extended XYZ), or
+//   u = mda.Universe.empty(N); u.load_new("traj.h5", format="H5MD", convert_units=False)
+// (MDAnalysis cannot build a topology from H5MD, does not know the .h5 suffix, and refuses
+// convert_units=True without units). tools/h5md_to_xyz.py converts to extended XYZ.
+// While a run writes the file, HDF5's file lock keeps other programs from opening it (set
+// HDF5_USE_FILE_LOCKING=FALSE in the reader's environment to peek, at the reader's risk).
+// After a kill, the complete frames are the first len(position/step); other series may hold one
+// frame more (MDAnalysis iterates exactly the complete frames, though len(u.trajectory) may count
+// one more). Appending (a restart) drops the extra frame; see the .cpp for the one rare case where
+// a kill inside a flush leaves the file unreadable in places until appending repairs it.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "engine/core/box.hpp"
+
+namespace stiffmd {
+
+struct H5mdSetup {
+  int num_particles = 0;
+  std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
+  Eigen::VectorXd mass;                    // per particle (a fixed particle: its type's mass)
+  Box box;                                 // open box when no axis is periodic
+  std::vector<std::pair<int, int>> bonds;  // 0-based particle indices
+  std::string author;                      // empty: $USER, else the login name
+  std::string creator_version;             // stiffmd version string
+  bool velocity = false, force = false;    // optional time-dependent elements
+  int gzip = 0;                            // 0 = no compression, 1..9 deflate level (always chunked)
+  std::vector<std::string> observables;    // scalar observable names (no '/')
+};
+
+class H5mdWriter {
+ public:
+  // Name of the one particle group (H5MD §"Particles group": the name is free).
+  static constexpr const char* kParticleGroup = "all";
+
+  // append=false: creates (truncates) the file. append=true: reopens a file this writer made and
+  // continues its series after dropping the frames with step >= first_step (a restart from a
+  // checkpoint older than the last frame then does not duplicate frames). Throws InputError
+  // naming the path when the file cannot be created/opened or does not match the setup.
+  H5mdWriter(const std::string& path, const H5mdSetup& setup, bool append = false, std::int64_t first_step = 0);
+  ~H5mdWriter();
+  H5mdWriter(const H5mdWriter&) = delete;
+  H5mdWriter& operator=(const H5mdWriter&) = delete;
+
+  // One frame; x holds unwrapped coordinates, v and f may be null (ignored unless enabled in the
+  // setup, required when enabled), observables in the order of setup.observables. The file is
+  // flushed before returning, so a kill after this call leaves every frame so far readable.
+  void write_frame(std::int64_t step, double time, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
+                   const Eigen::Matrix3Xd* f, const std::vector<double>& observables);
+  std::int64_t frames() const;
+
+ private:
+  struct Impl;  // keeps <hdf5.h> out of this header
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace stiffmd

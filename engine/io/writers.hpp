@@ -1,0 +1,89 @@
+// Run outputs: extended XYZ trajectory (plain or gzip) and CSV tables. Each frame/row is
+// written whole and flushed, so a run stopped by a numerical failure (exit 3), a signal or
+// a kill leaves files that hold every frame written before it. On restart the files are
+// continued: anything written after the checkpoint's time is dropped first, then appended.
+#pragma once
+
+#include <cmath>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/core/box.hpp"
+#include "engine/core/state.hpp"
+
+namespace stiffmd {
+
+// A text file that is plain or gzip-compressed by its name (".gz").
+class TextFile {
+ public:
+  // mode "w" (truncate) or "a" (append).
+  TextFile(const std::string& path, const char* mode);
+  ~TextFile();
+  TextFile(const TextFile&) = delete;
+  TextFile& operator=(const TextFile&) = delete;
+  void write(const std::string& text);  // whole, then flushed; throws InputError on failure
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Continuing files on restart: keeps the leading part of `path` that was written up to
+// time `t` (a frame or row whose time is ≤ t + tolerance), drops the rest. Returns false if
+// the file does not exist (the caller then starts it afresh).
+bool truncate_xyz_after(const std::string& path, double t, double tolerance);
+bool truncate_csv_after(const std::string& path, double t, double tolerance, const std::vector<std::string>& columns);
+
+// Extended XYZ (read by ASE, OVITO): per frame "N", a comment line with
+//   Properties=species:S:1:pos:R:3[:velo:R:3] time=<t> step=<n> pbc="F F F" [Lattice="..."]
+// then one line per particle. Species are element symbols.
+class XyzWriter {
+ public:
+  // masses (one per particle, or empty): a masses:R:1 column, so that ASE takes the beads' masses
+  // from the file instead of the element's (N: 14.007). Named "masses", ASE's own name for the
+  // array, because ASE 3.22 maps a column called "mass" to nothing (it stays arrays["mass"]).
+  XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
+            bool append = false, std::vector<double> masses = {});
+  void write(const State& s);
+
+ private:
+  TextFile file_;
+  std::vector<std::string> species_;
+  std::vector<double> masses_;
+  std::string header_;  // the invariant part of the comment line
+  bool velocities_;
+  std::string buffer_;
+};
+
+class CsvWriter {
+ public:
+  CsvWriter(const std::string& path, const std::vector<std::string>& columns, bool append = false);
+  void write(const std::vector<double>& row);
+
+ private:
+  TextFile file_;
+  std::string buffer_;
+};
+
+// Output at a fixed time interval, independent of the step: due(t) is true once per
+// interval boundary crossed (every step when the interval is shorter than the step).
+class IntervalSchedule {
+ public:
+  explicit IntervalSchedule(double interval) : interval_(interval) {}
+  bool due(double t) {
+    const long long k = index(t);
+    if (k <= last_) return false;
+    last_ = k;
+    return true;
+  }
+  // On restart: the boundary at or before t has been served by the interrupted run.
+  void served_until(double t) { last_ = index(t); }
+
+ private:
+  long long index(double t) const { return static_cast<long long>(std::floor(t / interval_ * (1.0 + 1e-12) + 1e-9)); }
+  double interval_;
+  long long last_ = -1;
+};
+
+}  // namespace stiffmd

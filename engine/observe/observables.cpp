@@ -1,0 +1,123 @@
+#include "engine/observe/observables.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace stiffmd {
+
+Energies energies(const State& s, const ForceField& forces) {
+  Energies e;
+  e.kinetic = s.kinetic_energy();
+  e.slow = forces.energy(s.x, Level::slow);
+  e.stiff = forces.energy(s.x, Level::fast);
+  return e;
+}
+
+double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* stiff) {
+  return stiff ? max_violation(stiff->bonds, x) : 0.0;
+}
+
+Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
+               const Topology* topology)
+    : forces_(forces), columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
+                                "total", "energy_drift", "max_violation", "temperature"} {
+  // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
+  // counts as conserved only without fixed particles, external fields and Langevin noise.
+  ThermostatSettings thermostat;
+  thermostat.style = settings.thermostat;
+  dof_ = stiffmd::degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, thermostat),
+                                     settings.rigid_constraints);
+  const Box& box = forces.box();
+  if (box.periodic.all()) {
+    volume_ = box.lengths.prod();
+    columns_.push_back("pressure");
+  }
+  if (topology) {
+    Eigen::VectorXd mass = inv_mass;
+    for (Eigen::Index i = 0; i < mass.size(); ++i) mass[i] = inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
+    molecules_ = std::make_unique<Molecules>(*topology, inv_mass, mass);
+    if (molecules_->empty())
+      molecules_.reset();
+    else
+      columns_.insert(columns_.end(), {"rg", "end_to_end"});
+  }
+  const StiffBonds* stiff = forces.stiff_bonds();
+  if (settings.actions && stiff) {
+    modes_ = std::make_unique<StiffModes>(stiff->bonds, inv_mass, stiff->epsilon, settings.max_cluster_bonds);
+    if (modes_->num_skipped_clusters() > 0)
+      notes_.push_back("note: actions and frequencies skipped for " + std::to_string(modes_->num_skipped_clusters()) +
+                       " constraint cluster(s) with more than observables.max_cluster_bonds = " +
+                       std::to_string(settings.max_cluster_bonds) + " bonds");
+    const int m = modes_->num_modes();
+    omega_.resize(m);
+    actions_.resize(m);
+    sqrt_eps_ = std::sqrt(stiff->epsilon);
+    for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
+    for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
+    columns_.push_back("min_gap");
+    columns_.push_back("min_resonance");
+  }
+  columns_.push_back("alerts");  // filled in by the run's Monitor (engine/observe/monitor.hpp)
+  values_.resize(columns_.size());
+}
+
+int Thermo::column(const std::string& name) const {
+  for (size_t k = 0; k < columns_.size(); ++k)
+    if (columns_[k] == name) return static_cast<int>(k);
+  return -1;
+}
+
+const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial) {
+  Energies e = energies(s, forces_);
+  e.stiff += model_potential;
+  if (!have_e0_) {
+    e0_ = e.total();
+    have_e0_ = true;
+  }
+  values_.clear();
+  values_.insert(values_.end(),
+                 {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
+                  max_constraint_violation(s.x, forces_.stiff_bonds()), temperature(s, dof_)});
+  if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_) + constraint_virial / (3.0 * volume_));
+  if (molecules_) {
+    double rg = 0.0, ree = 0.0;
+    molecules_->measure(s.x, rg, ree);
+    values_.insert(values_.end(), {rg, ree});
+  }
+  if (modes_) {
+    modes_->frequencies(s.x, omega_);
+    modes_->actions(s.x, s.v, actions_);
+    const StiffModes::Validity v = modes_->validity(s.x);
+    values_.insert(values_.end(), omega_.begin(), omega_.end());
+    values_.insert(values_.end(), actions_.begin(), actions_.end());
+    values_.push_back(std::isfinite(v.min_gap) ? v.min_gap : -1.0);
+    values_.push_back(std::isfinite(v.min_resonance) ? v.min_resonance : -1.0);
+    // Validity of the effective dynamics (paper eqs. (separated), (nonresonant)): below √ε the
+    // slow motion is no longer determined by the actions (Takens chaos).
+    auto warn = [&](bool& warned, double value, const char* what) {
+      if (warned || !(value < sqrt_eps_)) return;
+      warned = true;
+      std::ostringstream m;
+      m << "warning: " << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step " << s.step
+        << " (t = " << s.t << "): the actions need not stay adiabatic invariants and the effective dynamics "
+        << "loses validity here";
+      notes_.push_back(m.str());
+    };
+    warn(warned_gap_, v.min_gap, "frequency gap min|w_j - w_k| =");
+    warn(warned_resonance_, v.min_resonance, "resonance min|w_j +- w_k +- w_l| =");
+  }
+  values_.push_back(0.0);  // alerts
+  return values_;
+}
+
+ProjectedMomenta::ProjectedMomenta(const StiffBonds& stiff, const Eigen::VectorXd& inv_mass)
+    : toolbox_(stiff.bonds, inv_mass) {}
+
+const Eigen::Matrix3Xd& ProjectedMomenta::operator()(const State& s) {
+  p_ = s.v;
+  toolbox_.project_velocity(s.x, p_);
+  for (int i = 0; i < s.size(); ++i) p_.col(i) *= s.inv_mass[i] > 0.0 ? 1.0 / s.inv_mass[i] : 0.0;
+  return p_;
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,103 @@
+// Observables computed from a state: the thermo row (time, energies, constraint violation
+// and, when asked for, frequencies ω_k and actions I_k, design.md §3) and the projected
+// momenta P(x)p (paper eq. (proj)).
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/observe/polymer_observables.hpp"
+#include "engine/core/state.hpp"
+#include "engine/core/topology.hpp"
+#include "forcefields/force_field.hpp"
+#include "integrators/constraints.hpp"
+#include "integrators/modes.hpp"
+#include "integrators/thermostat.hpp"
+
+namespace stiffmd {
+
+struct Energies {
+  double kinetic = 0.0;
+  double slow = 0.0;   // U(x): every slow-level term
+  double stiff = 0.0;  // ε⁻²V(x) and anything else integrated on the fast level
+  double total() const { return kinetic + slow + stiff; }
+};
+
+Energies energies(const State& s, const ForceField& forces);
+
+// max_b |g_b(x)| = max_b | |x_i − x_j| − ℓ_b | over the constraint-defining bonds (0 if none):
+// max_violation (forcefields/stiff_bond.hpp), the toolbox's own.
+double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* stiff);
+
+struct ObservableSettings {
+  bool actions = false;        // ω_k, I_k and the validity monitor in the thermo output
+  int max_cluster_bonds = 64;  // clusters with more bonds are skipped (said in the log)
+  int rigid_constraints = 0;   // degrees of freedom removed by rigid constraints (RATTLE, effective)
+  // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
+  ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
+  bool histograms = true;      // bond-length and angle histograms at the end (when there are bonds)
+};
+
+// One row of thermo output: named columns, fixed for a run. The last column, alerts, is 0 here;
+// the run loop's Monitor fills it in (engine/observe/monitor.hpp).
+class Thermo {
+ public:
+  // topology may be null (no molecules, no polymer columns).
+  Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
+         const Topology* topology = nullptr);
+  const std::vector<std::string>& columns() const { return columns_; }
+  // Values for the current state; energy_drift is relative to the first call's total energy.
+  // model_potential (W of the effective dynamics) is counted in potential_stiff.
+  // constraint_virial (Σ x·F_c of rigid constraints) is added to the pressure's virial.
+  const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0);
+  double initial_energy() const { return e0_; }
+  // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
+  void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }
+  // For checkpoints: E(0) and which validity warnings were given (each is said once per run).
+  std::vector<double> save_state() const {
+    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0};
+  }
+  bool load_state(const std::vector<double>& w) {  // false: not a Thermo state
+    if (w.size() != 4) return false;
+    have_e0_ = w[0] != 0.0, e0_ = w[1], warned_gap_ = w[2] != 0.0, warned_resonance_ = w[3] != 0.0;
+    return true;
+  }
+  int column(const std::string& name) const;
+  // Degrees of freedom of the temperature column, T = 2K/dof.
+  int degrees_of_freedom() const { return dof_; }
+  // The modes, when actions were asked for (nullptr otherwise).
+  const StiffModes* modes() const { return modes_.get(); }
+  // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
+  // √ε, said once each, with step and time). Taken (cleared) by the caller.
+  std::vector<std::string> take_notes() { return std::move(notes_); }
+
+ private:
+  const ForceField& forces_;
+  int dof_ = 0;
+  double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
+  std::unique_ptr<Molecules> molecules_;
+  std::unique_ptr<StiffModes> modes_;
+  Eigen::VectorXd omega_, actions_;
+  double sqrt_eps_ = 0.0;
+  bool warned_gap_ = false, warned_resonance_ = false;
+  std::vector<std::string> columns_;
+  std::vector<double> values_;
+  std::vector<std::string> notes_;
+  bool have_e0_ = false;
+  double e0_ = 0.0;
+};
+
+// P(x)p as velocities-times-mass: p ↦ M (v − M⁻¹Gᵀμ), S μ = G v (the tangential momenta).
+class ProjectedMomenta {
+ public:
+  ProjectedMomenta(const StiffBonds& stiff, const Eigen::VectorXd& inv_mass);
+  const Eigen::Matrix3Xd& operator()(const State& s);
+
+ private:
+  ConstraintToolbox toolbox_;
+  Eigen::Matrix3Xd p_;
+};
+
+}  // namespace stiffmd

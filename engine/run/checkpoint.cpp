@@ -1,0 +1,370 @@
+#include "engine/run/checkpoint.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <system_error>
+
+#include "engine/core/errors.hpp"
+#include "engine/scene/scene.hpp"
+
+namespace stiffmd {
+namespace {
+
+constexpr char kMagic[8] = {'S', 'T', 'F', 'M', 'D', 'C', 'K', 'P'};
+constexpr char kMagicVersion1[8] = {'S', 'T', 'F', 'M', 'D', 'C', 'K', '1'};  // stiffmd before format versions
+constexpr std::uint32_t kByteOrderMark = 0x01020304;
+constexpr std::size_t kHeader = 40;   // magic … fingerprint: fixed offsets, see checkpoint.hpp
+constexpr std::size_t kCrcFrom = 12;  // the crc32 covers bytes 12 … end
+
+std::uint32_t crc32_of(std::uint32_t crc, const char* p, std::size_t n) {
+  while (n > 0) {  // zlib takes uInt lengths
+    const uInt k = static_cast<uInt>(std::min<std::size_t>(n, 1u << 30));
+    crc = static_cast<std::uint32_t>(::crc32(crc, reinterpret_cast<const Bytef*>(p), k));
+    p += k;
+    n -= k;
+  }
+  return crc;
+}
+
+// A host-byte-order binary image; checkpoints are for restarting on a machine of the same byte
+// order and double format (checked when read), not for archiving (the trajectory formats are).
+class Writer {
+ public:
+  // Writes through a 64 KiB buffer to fd (the whole image is never held in memory: a checkpoint
+  // of a large system would otherwise double the run's peak memory at its end).
+  Writer(int fd, std::string path) : fd_(fd), path_(std::move(path)) { buf_.reserve(kBuffer); }
+  template <class T>
+  void put(const T& v) {
+    append(reinterpret_cast<const char*>(&v), sizeof(T));
+  }
+  void put(const std::string& s) {
+    put<std::uint64_t>(s.size());
+    append(s.data(), s.size());
+  }
+  void put(const double* d, size_t n) {
+    put<std::uint64_t>(n);
+    append(reinterpret_cast<const char*>(d), n * sizeof(double));
+  }
+  std::uint64_t written() const { return total_; }  // bytes put so far
+  std::uint32_t crc() const { return crc_; }        // of the bytes flushed so far
+  void flush() {
+    crc_ = crc32_of(crc_, buf_.data(), buf_.size());
+    size_t done = 0;
+    while (done < buf_.size()) {
+      const ssize_t k = ::write(fd_, buf_.data() + done, buf_.size() - done);
+      if (k < 0) {
+        if (errno == EINTR) continue;
+        throw std::system_error(errno, std::generic_category(), "write");
+      }
+      done += static_cast<size_t>(k);
+    }
+    buf_.clear();
+  }
+
+ private:
+  static constexpr size_t kBuffer = 1 << 16;
+  void append(const char* p, size_t n) {
+    total_ += n;
+    while (n > 0) {
+      const size_t k = std::min(n, kBuffer - buf_.size());
+      buf_.insert(buf_.end(), p, p + k);
+      p += k;
+      n -= k;
+      if (buf_.size() == kBuffer) flush();
+    }
+  }
+  int fd_;
+  std::string path_;
+  std::vector<char> buf_;
+  std::uint64_t total_ = 0;
+  std::uint32_t crc_ = 0;
+};
+
+class Reader {
+ public:
+  Reader(const std::vector<char>& b, std::size_t pos, std::string path) : buf_(b), path_(std::move(path)), pos_(pos) {}
+  template <class T>
+  T get() {
+    need(sizeof(T));
+    T v;
+    std::memcpy(&v, buf_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  std::string string() {
+    const auto n = get<std::uint64_t>();
+    need(n);
+    std::string s(buf_.data() + pos_, n);
+    pos_ += n;
+    return s;
+  }
+  std::vector<double> doubles() {
+    const auto n = get<std::uint64_t>();
+    if (n > buf_.size()) bad("a block longer than the file");
+    need(n * sizeof(double));
+    std::vector<double> v(n);
+    if (n > 0) std::memcpy(v.data(), buf_.data() + pos_, n * sizeof(double));  // no null pointer to memcpy
+    pos_ += n * sizeof(double);
+    return v;
+  }
+  bool at_end() const { return pos_ == buf_.size(); }
+  // Past the checksum, a malformed body means a writer bug or a forged file: still one line.
+  [[noreturn]] void bad(const std::string& what) const {
+    throw InputError(path_ + ": malformed checkpoint (" + what + ")");
+  }
+
+ private:
+  void need(std::uint64_t n) const {
+    if (n > buf_.size() - pos_) bad("a field runs past the end");  // pos_ <= size; no wrap
+  }
+  const std::vector<char>& buf_;
+  std::string path_;
+  std::size_t pos_;
+};
+
+void fail_io(const std::string& path, const char* what) {
+  throw InputError(path + ": cannot " + what + " checkpoint: " + std::strerror(errno));
+}
+
+template <class T>
+void put_raw(std::array<char, kHeader>& h, std::size_t at, T v) {
+  std::memcpy(h.data() + at, &v, sizeof(T));
+}
+template <class T>
+T get_raw(const std::vector<char>& b, std::size_t at) {
+  T v;
+  std::memcpy(&v, b.data() + at, sizeof(T));
+  return v;
+}
+
+// FNV-1a, 64 bit: a fingerprint, not a defence against forgery.
+class Fingerprint {
+ public:
+  void bytes(const void* p, std::size_t n) {
+    const auto* c = static_cast<const unsigned char*>(p);
+    for (std::size_t k = 0; k < n; ++k) h_ = (h_ ^ c[k]) * 0x100000001b3ull;
+  }
+  template <class T>
+  void add(const T& v) {
+    bytes(&v, sizeof(T));
+  }
+  void add(const std::string& s) {
+    add<std::uint64_t>(s.size());
+    bytes(s.data(), s.size());
+  }
+  std::uint64_t value() const { return h_; }
+
+ private:
+  std::uint64_t h_ = 0xcbf29ce484222325ull;
+};
+
+}  // namespace
+
+std::uint64_t scene_fingerprint(const Scene& sc) {
+  Fingerprint f;
+  const std::int64_t n = sc.state.size();
+  f.add(n);
+  f.bytes(sc.state.inv_mass.data(), sizeof(double) * static_cast<std::size_t>(sc.state.inv_mass.size()));
+  f.add<std::uint64_t>(sc.particle_type.size());
+  for (const int t : sc.particle_type) f.add(t);
+  f.add<std::uint64_t>(sc.types.size());
+  for (const ParticleType& t : sc.types) {
+    f.add(t.name);
+    f.add(t.mass);
+  }
+  const Topology& top = sc.topology;
+  f.add<std::uint64_t>(top.bonds.size());
+  for (const Bond& b : top.bonds) f.add(std::array<int, 3>{b.i, b.j, b.type});
+  f.add<std::uint64_t>(top.angles.size());
+  for (const Angle& a : top.angles) f.add(std::array<int, 4>{a.i, a.j, a.k, a.type});
+  f.add<std::uint64_t>(top.molecule.size());
+  for (const int m : top.molecule) f.add(m);
+  for (int a = 0; a < 3; ++a) {
+    f.add(sc.box.periodic[a]);
+    f.add(sc.box.origin[a]);
+    f.add(sc.box.lengths[a]);
+  }
+  f.add<std::uint64_t>(sc.forces->terms().size());
+  for (const auto& term : sc.forces->terms()) {
+    f.add(term->name());
+    f.add(std::string(term->style()));
+    f.add(static_cast<int>(term->level()));
+    f.add(term->definition());
+  }
+  if (const StiffBonds* sb = sc.forces->stiff_bonds()) {  // exactly: definition() rounds ε
+    f.add(sb->epsilon);
+    for (const StiffBond& b : sb->bonds) {
+      f.add(std::array<int, 2>{b.i, b.j});
+      f.add(std::array<double, 2>{b.length, b.alpha});
+    }
+  }
+  return f.value();
+}
+
+void write_checkpoint(const std::string& path, const State& state, const Checkpoint& c) {
+  // Temporary file in the same directory, fsync, rename over the old one, fsync the directory.
+  // The body streams through the writer (computing its crc32) after a placeholder header; the
+  // header, which holds the length and the crc32 of everything after its first 12 bytes, is
+  // written last.
+  const std::string tmp = path + ".tmp";
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  if (fd < 0) fail_io(path, "create");
+  try {
+    if (::lseek(fd, static_cast<off_t>(kHeader), SEEK_SET) < 0)
+      throw std::system_error(errno, std::generic_category(), "seek");
+    Writer w(fd, path);
+    w.put<std::int64_t>(state.size());
+    w.put<std::int64_t>(state.step);
+    w.put<double>(state.t);
+    w.put<double>(c.h);
+    w.put(c.method);
+    w.put(state.x.data(), static_cast<size_t>(state.x.size()));
+    w.put(state.v.data(), static_cast<size_t>(state.v.size()));
+    w.put(state.inv_mass.data(), static_cast<size_t>(state.inv_mass.size()));
+    for (const std::vector<double>* block : {&c.integrator_state, &c.thermo_state, &c.monitor_state, &c.run_state})
+      w.put(block->data(), block->size());
+    w.put<std::uint64_t>(c.force_term_states.size());
+    for (const std::vector<double>& block : c.force_term_states) w.put(block.data(), block.size());
+    w.flush();
+
+    std::array<char, kHeader> head{};
+    std::memcpy(head.data(), kMagic, sizeof kMagic);
+    put_raw<std::uint32_t>(head, 12, kCheckpointVersion);
+    put_raw<std::uint32_t>(head, 16, kByteOrderMark);
+    put_raw<std::uint32_t>(head, 20, sizeof(double));
+    put_raw<std::uint64_t>(head, 24, kHeader + w.written());
+    put_raw<std::uint64_t>(head, 32, c.scene_fingerprint);
+    const std::uint32_t head_crc = crc32_of(0, head.data() + kCrcFrom, kHeader - kCrcFrom);
+    put_raw<std::uint32_t>(
+        head, 8, static_cast<std::uint32_t>(::crc32_combine(head_crc, w.crc(), static_cast<z_off_t>(w.written()))));
+    for (size_t done = 0; done < head.size();) {
+      const ssize_t k = ::pwrite(fd, head.data() + done, head.size() - done, static_cast<off_t>(done));
+      if (k < 0) {
+        if (errno == EINTR) continue;
+        throw std::system_error(errno, std::generic_category(), "write");
+      }
+      done += static_cast<size_t>(k);
+    }
+  } catch (const std::system_error& e) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    errno = e.code().value();
+    fail_io(path, "write");
+  }
+  if (::fsync(fd) != 0 || ::close(fd) != 0) {
+    ::unlink(tmp.c_str());
+    fail_io(path, "sync");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) fail_io(path, "rename");
+  const std::string dir = std::filesystem::path(path).parent_path().string();
+  const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+Checkpoint read_checkpoint(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open checkpoint: " + std::strerror(errno));
+  const std::vector<char> b((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto fail = [&](const std::string& what) -> void { throw InputError(path + ": " + what); };
+  if (b.size() >= 8 && std::memcmp(b.data(), kMagicVersion1, 8) == 0)
+    fail("checkpoint of format version 1 (an older stiffmd), which lacks the integrator and neighbour-list state "
+         "needed to continue a run exactly; start the run afresh");
+  if (b.size() < kHeader || std::memcmp(b.data(), kMagic, 8) != 0)
+    fail(b.size() >= 8 && std::memcmp(b.data(), kMagic, 8) == 0
+             ? "truncated checkpoint (" + std::to_string(b.size()) + " bytes, shorter than its header)"
+             : "not a stiffmd checkpoint");
+  const auto bom = get_raw<std::uint32_t>(b, 16);
+  if (bom == __builtin_bswap32(kByteOrderMark))
+    fail("checkpoint written on a machine of the other byte order; checkpoints are not portable across byte orders");
+  const auto length = get_raw<std::uint64_t>(b, 24);
+  const auto stored_crc = get_raw<std::uint32_t>(b, 8);
+  const std::uint32_t crc = crc32_of(0, b.data() + kCrcFrom, b.size() - kCrcFrom);
+  if (crc != stored_crc) {
+    std::ostringstream m;
+    if (bom == kByteOrderMark && length > b.size())
+      m << "truncated checkpoint (" << b.size() << " of " << length << " bytes)";
+    else
+      m << "damaged checkpoint (crc32 " << std::hex << crc << ", recorded " << stored_crc << ")";
+    fail(m.str());
+  }
+  const auto version = get_raw<std::uint32_t>(b, 12);
+  if (version != kCheckpointVersion)
+    fail("checkpoint of format version " + std::to_string(version) + (version > kCheckpointVersion ? " (a newer" : " (an unknown") +
+         " stiffmd); this stiffmd reads version " + std::to_string(kCheckpointVersion));
+  if (bom != kByteOrderMark || get_raw<std::uint32_t>(b, 20) != sizeof(double) || length != b.size())
+    fail("malformed checkpoint header (byte order, double size or length)");
+
+  Checkpoint c;
+  c.scene_fingerprint = get_raw<std::uint64_t>(b, 32);
+  Reader r(b, kHeader, path);
+  const auto n = r.get<std::int64_t>();
+  c.state.step = r.get<std::int64_t>();
+  c.state.t = r.get<double>();
+  c.h = r.get<double>();
+  c.method = r.string();
+  const auto x = r.doubles(), v = r.doubles(), im = r.doubles();
+  c.integrator_state = r.doubles();
+  c.thermo_state = r.doubles();
+  c.monitor_state = r.doubles();
+  c.run_state = r.doubles();
+  const auto terms = r.get<std::uint64_t>();
+  if (terms > b.size()) r.bad("term count");
+  for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
+  if (!r.at_end()) r.bad("bytes after the last block");
+  if (c.run_state.size() < 4) r.bad("run statistics");
+  if (n < 0 || x.size() != 3 * static_cast<size_t>(n) || v.size() != x.size() || im.size() != static_cast<size_t>(n))
+    r.bad("array sizes disagree with the particle count");
+  if (c.state.step < 0 || !(c.state.t >= 0.0) || !std::isfinite(c.state.t) || !(c.h > 0.0) || !std::isfinite(c.h))
+    r.bad("step " + std::to_string(c.state.step) + ", t or h out of range");
+  c.state.x = Eigen::Map<const Eigen::Matrix3Xd>(x.data(), 3, n);
+  c.state.v = Eigen::Map<const Eigen::Matrix3Xd>(v.data(), 3, n);
+  c.state.inv_mass = Eigen::Map<const Eigen::VectorXd>(im.data(), n);
+  return c;
+}
+
+Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
+  Checkpoint c = read_checkpoint(path);
+  if (c.state.size() != sc.state.size())
+    throw InputError(path + ": checkpoint holds " + std::to_string(c.state.size()) + " particles, the deck " +
+                     std::to_string(sc.state.size()) + ": not a checkpoint of this scene");
+  if (c.state.inv_mass != sc.state.inv_mass)
+    throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
+  if (c.scene_fingerprint != scene_fingerprint(sc))
+    throw InputError(path + ": checkpoint of another scene (particle types, topology, box, force terms or their "
+                            "parameters differ from the deck's)");
+  const auto& terms = sc.forces->terms();
+  if (c.force_term_states.size() != terms.size())
+    throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +
+                     " force terms, the deck has " + std::to_string(terms.size()));
+  if (c.state.t >= sc.run.t_end * (1 - 1e-12)) {
+    std::ostringstream m;
+    m.precision(10);
+    m << path << ": checkpoint is at t = " << c.state.t << ", not before run.t_end = " << sc.run.t_end
+      << " (raise it with --set run.t_end=...)";
+    throw InputError(m.str());
+  }
+  for (size_t k = 0; k < terms.size(); ++k) {
+    try {
+      terms[k]->load_state(c.force_term_states[k]);
+    } catch (const std::invalid_argument& e) {
+      throw InputError(path + ": " + e.what());
+    }
+  }
+  return c;
+}
+
+}  // namespace stiffmd

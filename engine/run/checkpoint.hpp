@@ -1,0 +1,64 @@
+// Checkpoints: the complete dynamical state of a run, so that a restart continues it bit for bit
+// — positions, velocities, step and time; the integrator's own state (cached kick forces, the
+// constraint force, the effective dynamics' actions: Integrator::save_state); every force term's
+// state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
+// warnings were given, the monitor's reference sample); and the run's statistics for the summary.
+//
+// Format (version 2), in the byte order and double format of the writing machine:
+//   bytes  0–7   magic "STFMDCKP"
+//          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
+//         12–15  format version (u32)
+//         16–19  byte-order mark 0x01020304 (u32)
+//         20–23  sizeof(double) = 8 (u32)
+//         24–31  length of the file in bytes (u64)
+//         32–39  scene fingerprint (u64, scene_fingerprint)
+//         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), then blocks
+//                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
+//                monitor, run statistics, then a u64 count of force terms and one block each.
+// Written atomically — to a temporary file, fsync, rename — so a checkpoint on disk is whole.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "engine/core/state.hpp"
+
+namespace stiffmd {
+
+struct Scene;
+
+inline constexpr std::uint32_t kCheckpointVersion = 2;
+
+struct Checkpoint {
+  State state;  // x, v, inverse masses, t, step
+  std::string method;  // integrator that wrote it
+  double h = 0.0;
+  std::uint64_t scene_fingerprint = 0;
+  std::vector<double> integrator_state;               // Integrator::save_state()
+  std::vector<std::vector<double>> force_term_states;  // ForceTerm::save_state(), in the field's order
+  std::vector<double> thermo_state;                    // Thermo::save_state(): E(0), warnings given
+  std::vector<double> monitor_state;                   // Monitor::save_state()
+  std::vector<double> run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
+};
+
+// A hash of what defines the scene — particle count, inverse masses, particle types, topology,
+// box, every force term's name, style, level and definition(), the stiff bonds and ε — but not
+// the integrator, run or output settings, which a restart may change with --set.
+std::uint64_t scene_fingerprint(const Scene& scene);
+
+// Writes `state` and everything of `rest` but rest.state. Throws InputError naming the path on
+// any I/O failure.
+void write_checkpoint(const std::string& path, const State& state, const Checkpoint& rest);
+inline void write_checkpoint(const std::string& path, const Checkpoint& c) { write_checkpoint(path, c.state, c); }
+
+// Throws InputError with one line naming the path and what is wrong: missing, not a checkpoint,
+// damaged (checksum), truncated, of another byte order, or of another format version.
+Checkpoint read_checkpoint(const std::string& path);
+
+// read_checkpoint, then checked against the scene it is to continue: particle count, masses,
+// fingerprint, one state per force term, a step before run.t_end. Loads the force terms' states
+// into the scene (nothing else of the scene changes). Throws InputError naming the path.
+Checkpoint read_checkpoint_for(Scene& scene, const std::string& path);
+
+}  // namespace stiffmd

@@ -1,0 +1,488 @@
+#include "engine/run/simulation.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <sstream>
+
+#include "engine/run/checkpoint.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/h5md_writer.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/observe/monitor.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/run/progress.hpp"
+#include "engine/run/signals.hpp"
+#include "engine/io/writers.hpp"
+#include "integrators/methods.hpp"
+
+namespace stiffmd {
+namespace fs = std::filesystem;
+
+namespace {
+
+// Locates the first non-finite coordinate, to say where a blow-up happened.
+void check_finite(const State& s) {
+  if (s.x.allFinite() && s.v.allFinite()) return;
+  int bad = 0;
+  while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
+  std::ostringstream m;
+  m.precision(10);
+  m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
+    << " (t = " << s.t << "); reduce integrator.h or micro_dt";
+  throw NumericalError(m.str());
+}
+
+std::vector<std::string> state_columns(int n) {
+  std::vector<std::string> c = {"time"};
+  for (const char* what : {"", "p"})
+    for (int i = 0; i < n; ++i)
+      for (const char* a : {"x", "y", "z"}) c.push_back(std::string(what) + a + "_" + std::to_string(i));
+  return c;
+}
+
+// Writes the file whole or not at all: a temporary file renamed into place.
+void write_atomically(const fs::path& p, const std::string& text) {
+  const fs::path tmp = p.string() + ".tmp";
+  {
+    std::ofstream out(tmp);
+    out << text;
+    if (!out) throw InputError(tmp.string() + ": write failed");
+  }
+  fs::rename(tmp, p);
+}
+
+// Restores a checkpoint (read and checked against the scene by read_checkpoint_for, which also
+// loaded the force terms' states) into the scene's state and the integrator; the deck supplies
+// everything else. With another method the integrator starts afresh from the checkpoint's state.
+void restore(Scene& sc, Integrator& integrator, const Checkpoint& c, const std::string& path, std::ostream& log) {
+  sc.state = c.state;
+  if (c.method != sc.integrator.method || c.h != sc.integrator.h)
+    log << "note: " << path << " was written by " << c.method << " with h = " << c.h << "; continuing with "
+        << sc.integrator.method << ", h = " << sc.integrator.h << " (not bit-identical to an uninterrupted run)\n";
+  if (c.method != sc.integrator.method) integrator.prepare(sc.state, log);  // else: its state is loaded
+  log << "restart from " << path << " at step " << sc.state.step << " (t = " << sc.state.t << ")\n";
+}
+
+// Macro steps of size h to cover a time span, rounded as Scene::num_steps: to the nearest whole
+// step when span/h is an integer up to rounding, else up.
+std::int64_t steps_to(double span, double h) {
+  const double r = span / h, nearest = std::round(r);
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
+}
+
+// The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
+// LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
+ImportedSystem to_lammps(const Scene& sc) {
+  ImportedSystem out;
+  const State& s = sc.state;
+  out.x = s.x;
+  out.v = s.v;
+  for (int i = 0; i < s.size(); ++i) {
+    out.type.push_back(sc.particle_type[i] + 1);
+    out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
+    out.id.push_back(i + 1);
+  }
+  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
+  for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
+  for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
+  out.num_atom_types = static_cast<int>(sc.types.size());
+  out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
+  out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
+  if (sc.box.periodic.all()) {
+    out.lo = sc.box.origin;
+    out.hi = sc.box.origin + sc.box.lengths;
+  } else {
+    out.lo = s.x.rowwise().minCoeff().array() - 1.0;
+    out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
+  }
+  return out;
+}
+
+}  // namespace
+
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
+  write_lammps_data(path, to_lammps(scene), scene.topology.angles.empty() ? "bond" : "angle", title);
+}
+
+RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
+  RunSummary summary;
+  summary.method = sc.integrator.method;
+  summary.h = sc.integrator.h;
+  summary.micro_steps = sc.integrator.micro_steps;
+  summary.t_end = sc.run.t_end;
+  if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary.epsilon = sb->epsilon;
+
+  // A restart's checkpoint is read, checked and loaded first: a damaged or foreign one is refused
+  // before any output is touched.
+  const bool restarting = !opt.restart.empty();
+  Checkpoint resumed;
+  if (restarting) resumed = opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
+  auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };
+  // load_scene built it once already (check_integrator): what it refuses was refused there.
+  std::unique_ptr<Integrator> integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  if (restarting && resumed.method == sc.integrator.method) {
+    try {
+      integrator->load_state(resumed.integrator_state);
+    } catch (const std::invalid_argument& e) {
+      refuse(e.what());
+    }
+  }
+  ObservableSettings observables = sc.observables;
+  const MethodInfo& method = *find_method(sc.integrator.method);  // load_scene checked the name
+  if (method.rigid_constraints)
+    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  Thermo thermo(*sc.forces, sc.state.inv_mass, observables, &sc.topology);
+  Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
+  // Run statistics carried by checkpoints, so that a restarted run's summary is the whole run's:
+  // max |E − E(0)|, force evaluations and neighbour-list rebuilds so far, the initial actions.
+  double max_err = 0.0;
+  std::int64_t slow_before = 0, fast_before = 0;
+  long rebuilds_in_run = 0;
+  if (restarting) {
+    if (!thermo.load_state(resumed.thermo_state)) refuse("thermo state does not fit this scene's observables");
+    if (!monitor.load_state(resumed.monitor_state))  // [observables] actions changed with --set
+      log << "note: " << opt.restart << ": the monitor's reference is taken afresh (the actions observed changed)\n";
+    const std::vector<double>& r = resumed.run_state;  // read_checkpoint checked its size
+    max_err = r[0];
+    slow_before = static_cast<std::int64_t>(r[1]);
+    fast_before = static_cast<std::int64_t>(r[2]);
+    rebuilds_in_run = static_cast<long>(r[3]);
+    summary.initial_actions.assign(r.begin() + 4, r.end());
+  }
+
+  const fs::path dir(opt.out_dir);
+  std::error_code ec;
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
+    throw InputError(opt.out_dir + ": output path exists and is not a directory");
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir, ec))
+    throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
+  check_output_paths(sc, opt.out_dir);   // before any step: an output that cannot be written fails now
+  fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
+
+  State& s = sc.state;
+  if (restarting)
+    restore(sc, *integrator, resumed, opt.restart, log);
+  else
+    integrator->prepare(s, log);
+
+  // Outputs: fresh files, or on restart the same files cut back to the step before the
+  // checkpoint, t_{k−1}; the schedules resume from there, and the frame at t_k is written again
+  // below if the uninterrupted run would have written one. So the files end up exactly as an
+  // uninterrupted run's (without the interrupted run's off-grid final frame).
+  const double tol = 1e-9 * sc.integrator.h;
+  // Step k is at t_k = t0 + (k − k0) h. From the start, and on a restart whose checkpoint is at
+  // t = k h (the same h throughout), t0 = k0 = 0: t_k = k h exactly, the uninterrupted run's times.
+  // After a change of h the run continues from the checkpoint's time (k0 = its step) instead of
+  // jumping to k0 h.
+  const bool new_h = restarting && s.t != static_cast<double>(s.step) * sc.integrator.h;
+  const double t0 = new_h ? s.t : 0.0;
+  const std::int64_t k0 = new_h ? s.step : 0;
+  const double cut = new_h ? s.t - resumed.h : static_cast<double>(s.step - 1) * sc.integrator.h;
+  auto open_output = [&](const std::string& name, auto truncate) {
+    const fs::path p = dir / name;
+    summary.outputs.push_back(p.string());
+    if (restarting) return truncate(p.string());  // true: continue (append)
+    if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
+    return false;
+  };
+  std::vector<std::string> species;
+  std::vector<double> masses;
+  for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
+  // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
+  // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
+  if (!sc.output.xyz.empty() || !sc.output.h5md.empty()) {
+    const fs::path p = dir / kTopologyFile;
+    if (!restarting)
+      write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
+    summary.outputs.push_back(p.string());
+  }
+  std::unique_ptr<XyzWriter> xyz;
+  std::unique_ptr<CsvWriter> csv, state_csv;
+  std::unique_ptr<ProjectedMomenta> projected;
+  if (!sc.output.xyz.empty()) {
+    const bool append =
+        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
+    xyz =
+        std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append,
+                                    masses);
+  }
+  if (!sc.output.thermo.empty()) {
+    const bool append = open_output(
+        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
+    csv = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
+  }
+  if (!sc.output.state.empty()) {
+    const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
+    const bool append =
+        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
+    state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
+    projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
+  }
+  std::unique_ptr<H5mdWriter> h5md;
+  Eigen::Matrix3Xd h5md_force;
+  if (!sc.output.h5md.empty()) {
+    H5mdSetup setup;
+    setup.num_particles = s.size();
+    setup.species = species;
+    setup.mass.resize(s.size());
+    for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
+    setup.box = sc.box;
+    for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
+    setup.author = sc.output.author;
+    setup.creator_version = STIFFMD_VERSION;
+    setup.velocity = sc.output.h5md_velocity;
+    setup.force = sc.output.h5md_force;
+    setup.gzip = sc.output.h5md_gzip;
+    // Observables on the frame grid: every thermo column but time and step.
+    setup.observables.assign(thermo.columns().begin() + 2, thermo.columns().end());
+    const std::string path = (dir / sc.output.h5md).string();
+    summary.outputs.push_back(path);
+    const bool append = restarting && fs::exists(path);
+    if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
+    h5md = std::make_unique<H5mdWriter>(path, setup, append, s.step);
+  }
+  const std::string checkpoint_path = (dir / sc.output.checkpoint).string();
+  summary.outputs.push_back(checkpoint_path);
+  IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval),
+      state_due(sc.output.state_interval), h5md_due(sc.output.h5md_interval);
+  if (restarting) {
+    xyz_due.served_until(cut);
+    thermo_due.served_until(cut);
+    state_due.served_until(cut);
+    h5md_due.served_until(cut);
+  }
+  std::vector<double> state_row(1 + 6 * s.size());
+  const int first_action = thermo.column("action_1");
+  const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
+
+  const std::int64_t n = k0 + steps_to(sc.run.t_end - t0, sc.integrator.h);
+  const double h = sc.integrator.h;
+  sc.forces->reset_counters();
+  // The list is built before the run (relaxation, first force); on restart its count comes from
+  // the checkpoint, of which rebuilds_in_run happened in the run so far.
+  long rebuilds_before = -rebuilds_in_run;
+  for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
+  auto rebuilds_now = [&] {
+    long r = 0;
+    for (const auto& term : sc.forces->terms()) r += term->neighbor_list_rebuilds();
+    return r - rebuilds_before;
+  };
+
+  const std::uint64_t fingerprint = scene_fingerprint(sc);
+  // Everything but the state that a restart needs (checkpoint.hpp), as of now.
+  auto snapshot = [&](Checkpoint& c) {
+    c.method = sc.integrator.method;
+    c.h = h;
+    c.scene_fingerprint = fingerprint;
+    c.integrator_state = integrator->save_state();
+    c.force_term_states.clear();
+    for (const auto& term : sc.forces->terms()) c.force_term_states.push_back(term->save_state());
+    c.thermo_state = thermo.save_state();
+    c.monitor_state = monitor.save_state();
+    c.run_state = {max_err, static_cast<double>(slow_before + sc.forces->evaluations(Level::slow)),
+                   static_cast<double>(fast_before + sc.forces->evaluations(Level::fast)),
+                   static_cast<double>(rebuilds_now())};
+    c.run_state.insert(c.run_state.end(), summary.initial_actions.begin(), summary.initial_actions.end());
+  };
+  Checkpoint last_good;  // with on_alert = "stop": the run as of the last sample without alerts
+  int alerts = 0;   // of the last sample
+  // One sample of the observables serves the thermo row and the H5MD frame of the same step.
+  std::vector<double> last_row;
+  auto sample = [&]() -> const std::vector<double>& {
+    last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
+    max_err = std::max(max_err, std::abs(last_row[6]));
+    for (const auto& note : thermo.take_notes()) log << note << "\n";
+    alerts = monitor.check(last_row, thermo.initial_energy(), log);
+    last_row.back() = alerts;
+    if (alerts == 0 && monitor.stops()) {
+      last_good.state = s;
+      snapshot(last_good);
+    }
+    return last_row;
+  };
+  auto write_state = [&]() {
+    const Eigen::Matrix3Xd& pp = (*projected)(s);
+    state_row[0] = s.t;
+    for (int i = 0; i < s.size(); ++i)
+      for (int a = 0; a < 3; ++a) {
+        state_row[1 + 3 * i + a] = s.x(a, i);
+        state_row[1 + 3 * s.size() + 3 * i + a] = pp(a, i);
+      }
+    state_csv->write(state_row);
+  };
+  auto write_h5md = [&](const std::vector<double>& row) {
+    if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
+    h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
+                      std::vector<double>(row.begin() + 2, row.end()));
+  };
+  Checkpoint now;  // snapshot() of the current step, written with s (no copy of the state)
+  auto checkpoint = [&] {
+    snapshot(now);
+    write_checkpoint(checkpoint_path, s, now);
+    summary.checkpoint = checkpoint_path;
+  };
+  // Outputs due at this step; `final` writes everything (the last state, whatever the grids).
+  auto observe = [&](bool final = false) {
+    const bool thermo_now = thermo_due.due(s.t) || final, h5md_now = h5md && (h5md_due.due(s.t) || final);
+    if (thermo_now || h5md_now) {
+      const std::vector<double>& row = sample();
+      if (thermo_now && csv) csv->write(row);
+      if (h5md_now) write_h5md(row);
+    }
+    if (xyz && (xyz_due.due(s.t) || final)) xyz->write(s);
+    if (state_csv && (state_due.due(s.t) || final)) write_state();
+    if ((thermo_now || h5md_now) && alerts > 0 && monitor.stops()) {
+      // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
+      std::ostringstream m;
+      m.precision(10);
+      m << monitor.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), ";
+      if (last_good.method.empty()) {  // the first sample alerted: there is no state to keep
+        m << "no sampled state was within the thresholds, no checkpoint written";
+      } else {
+        write_checkpoint(checkpoint_path, last_good);
+        summary.checkpoint = checkpoint_path;
+        m << "the last state within the thresholds (step " << last_good.state.step << ", t = " << last_good.state.t
+          << ") is in " << checkpoint_path;
+      }
+      throw NumericalError(m.str());
+    }
+  };
+
+  check_finite(s);
+  if (!restarting) {
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x),
+                                    integrator->constraint_virial(s));  // E(0) and the initial actions
+    if (first_action >= 0)
+      summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+  }
+  // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
+  // an extra evaluation would move the neighbour list on where the interrupted run did not.
+  for (const auto& note : thermo.take_notes()) log << note << "\n";
+  observe();
+  summary.initial_energy = thermo.initial_energy();
+
+  // Steps are numbered from the start of the run (k = step), so a restart continues the same
+  // sequence of times t_k = k h exactly (t0 + (k − k0) h after a change of h).
+  const std::int64_t first = s.step + 1;
+  Progress progress(opt.progress, n - s.step);
+  install_stop_handlers();
+  const SignalAtStep signal_at = SignalAtStep::from_environment();  // tests: a signal at an exact step
+  const auto start = std::chrono::steady_clock::now();
+  const std::clock_t cpu_start = std::clock();
+  for (std::int64_t k = first; k <= n; ++k) {
+    try {
+      integrator->step(s, h);
+    } catch (const NumericalError& e) {
+      std::ostringstream m;
+      m.precision(10);
+      m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+      throw NumericalError(m.str());
+    }
+    s.step = k;
+    s.t = new_h ? t0 + static_cast<double>(k - k0) * h : static_cast<double>(k) * h;  // no accumulated round-off
+    check_finite(s);
+    if (k == n) break;
+    observe();
+    signal_at.at(k);
+    if (const int sig = stop_requested()) {
+      summary.stopped_by_signal = sig;
+      break;
+    }
+    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint();
+    progress.update(k - first + 1);
+  }
+  summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
+  summary.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  progress.finish(s.step - first + 1);  // where it stopped: a signal leaves the bar short of 100 %
+  checkpoint();
+  if (summary.stopped_by_signal) {
+    summary.steps = s.step;
+    return summary;  // outputs are flushed frame by frame; no summary.json: the run is not finished
+  }
+  // The final state is always written, exactly once, whatever the intervals.
+  observe(true);
+  const std::vector<double>& row = last_row;
+
+  if (!sc.output.lammps_data.empty()) {
+    write_scene_lammps_data(sc, (dir / sc.output.lammps_data).string(),
+                            "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
+    summary.outputs.push_back((dir / sc.output.lammps_data).string());
+  }
+  if (sc.observables.histograms && !sc.topology.bonds.empty()) {
+    write_histograms((dir / "histograms.csv").string(), s.x, sc.box, sc.topology);
+    summary.outputs.push_back((dir / "histograms.csv").string());
+  }
+  summary.steps = n;
+  summary.final_energy = row[5];
+  summary.final_max_violation = row[7];
+  if (first_action >= 0)
+    summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+  summary.max_energy_error = max_err;
+  bool has_pairs = false;
+  long rebuilds_after = 0;
+  for (const auto& term : sc.forces->terms()) {
+    has_pairs |= term->uses_neighbor_list();
+    rebuilds_after += term->neighbor_list_rebuilds();
+  }
+  if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
+  summary.slow_evaluations = slow_before + sc.forces->evaluations(Level::slow);
+  summary.fast_evaluations = fast_before + sc.forces->evaluations(Level::fast);
+  summary.outputs.push_back((dir / "summary.json").string());
+  write_atomically(dir / "summary.json", summary_json(summary));
+  return summary;
+}
+
+std::string format_summary(const RunSummary& s) {
+  std::ostringstream o;
+  o.precision(6);
+  o << "method:        " << s.method << " (h = " << s.h;
+  if (s.micro_steps > 1) o << ", " << s.micro_steps << " micro steps of " << s.h / s.micro_steps;
+  o << ")\n";
+  o << "steps:         " << s.steps << " to t = " << s.t_end << " in " << s.wall_seconds << " s wall\n";
+  o << "force evals:   " << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast";
+  if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
+  o << "\n";
+  const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
+  o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
+    << ", max |E - E(0)| = " << s.max_energy_error << " (relative " << rel << ")\n";
+  if (!s.final_actions.empty()) {
+    o << "actions:       ";
+    for (size_t k = 0; k < s.final_actions.size(); ++k)
+      o << (k ? ", " : "") << "I_" << k + 1 << " " << s.initial_actions[k] << " -> " << s.final_actions[k];
+    o << "\n";
+  }
+  o << "outputs:       ";
+  for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
+  o << "\n";
+  return o.str();
+}
+
+std::string summary_json(const RunSummary& s) {
+  std::ostringstream o;
+  o.precision(17);
+  auto list = [&](const std::vector<double>& v) {
+    o << "[";
+    for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
+    o << "]";
+  };
+  o << "{\n  \"method\": \"" << s.method << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
+    << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
+    << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
+    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations
+    << ",\n  \"fast_evaluations\": " << s.fast_evaluations << ",\n  \"initial_energy\": " << s.initial_energy
+    << ",\n  \"final_energy\": " << s.final_energy << ",\n  \"max_energy_error\": " << s.max_energy_error
+    << ",\n  \"final_max_violation\": " << s.final_max_violation << ",\n  \"initial_actions\": ";
+  list(s.initial_actions);
+  o << ",\n  \"final_actions\": ";
+  list(s.final_actions);
+  o << "\n}\n";
+  return o.str();
+}
+
+}  // namespace stiffmd

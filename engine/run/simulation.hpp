@@ -1,0 +1,59 @@
+// The simulation loop (design.md §6): step the integrator to t_end, watch for numerical
+// failure, write outputs on their time grids, and summarise.
+#pragma once
+
+#include <cstdint>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "engine/scene/scene.hpp"
+
+namespace stiffmd {
+
+struct Checkpoint;
+
+struct RunOptions {
+  std::string out_dir;    // created if missing
+  bool progress = false;  // progress bar with ETA on stderr
+  std::string restart;    // checkpoint to continue from ("" = a fresh run)
+  // The restart's checkpoint already read by read_checkpoint_for (which loads the force terms'
+  // states into the scene); null: run_simulation reads `restart` itself, before any output.
+  const Checkpoint* checkpoint = nullptr;
+};
+
+struct RunSummary {
+  std::string method;
+  std::int64_t steps = 0;
+  double h = 0.0;
+  int micro_steps = 1;
+  double t_end = 0.0;
+  double wall_seconds = 0.0;
+  double cpu_seconds = 0.0;  // process CPU time of the step loop
+  double epsilon = 0.0;      // of the stiff bonds (0 if none)
+  double initial_energy = 0.0;
+  double final_energy = 0.0;
+  double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
+  std::int64_t slow_evaluations = 0;
+  std::int64_t fast_evaluations = 0;
+  long neighbor_rebuilds = -1;  // over the run; −1 when the scene has no pair term
+  double final_max_violation = 0.0;
+  std::vector<double> initial_actions, final_actions;  // when actions are observed
+  std::vector<std::string> outputs;
+  int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
+  std::string checkpoint;     // the last checkpoint written
+};
+
+// Runs the scene. Throws NumericalError (exit 3) on NaN/Inf, with the step and time; the
+// outputs written up to the last good frame stay readable.
+RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
+
+// Writes the scene's current state (after [prepare], before any step when called on a freshly
+// loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
+
+std::string format_summary(const RunSummary& s);
+// The summary as JSON (written to DIR/summary.json at the end of a successful run only).
+std::string summary_json(const RunSummary& s);
+
+}  // namespace stiffmd

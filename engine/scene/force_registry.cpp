@@ -1,0 +1,409 @@
+#include "engine/scene/force_registry.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include "engine/core/errors.hpp"
+#include "forcefields/angle_terms.hpp"
+#include "forcefields/bond_term.hpp"
+#include "forcefields/coefficients.hpp"
+#include "forcefields/external_terms.hpp"
+#include "forcefields/gravity.hpp"
+#include "forcefields/pair_term.hpp"
+#include "forcefields/stiff_harmonic_bond.hpp"
+
+namespace stiffmd {
+namespace {
+
+// A style parameter read from a deck key and checked against the range of its kind (a length
+// > 0, an energy >= 0, …: forcefields/coefficients.hpp). A bad value fails at that key: its
+// file:line, or the --set that supplied it.
+double read(DeckTable& t, std::string_view key, const Quantity& q) {
+  const double v = t.number(key);
+  t.require(q.admits(v), key, "expected " + q.expected(v));
+  return v;
+}
+double read(DeckTable& t, std::string_view key, const Quantity& q, double fallback) {
+  const double v = t.number(key, fallback);
+  t.require(q.admits(v), key, "expected " + q.expected(v));
+  return v;
+}
+
+std::string fmt_short(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+// Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
+// Returns, per type of the scene, the index of its coefficients in `coeffs` (−1: not claimed
+// by this term). A type claimed by two terms, or a table that is missing, is an error.
+template <class Coeffs, class Read>
+std::vector<int> claim_types(DeckTable& t, const char* key, const std::vector<std::string>& names,
+                             std::vector<std::string>& owner, const std::string& term, Read read,
+                             std::vector<Coeffs>& coeffs) {
+  auto types = t.table(key);
+  if (!types) t.fail_here(std::string("missing required table [") + t.key_path(key) + ".TYPE]");
+  std::vector<int> index(names.size(), -1);
+  for (auto& [type_name, tt] : types->named_tables()) {
+    Coeffs c = read(tt);
+    tt.finish();
+    const int k = Topology::index_of(names, type_name);
+    if (k < 0) continue;  // a type with nothing of it in this scene is allowed
+    if (!owner[k].empty())
+      types->fail(type_name, "type '" + type_name + "' is already defined by [forces." + owner[k] + "]");
+    owner[k] = term;
+    index[k] = static_cast<int>(coeffs.size());
+    coeffs.push_back(c);
+  }
+  types->finish();
+  return index;
+}
+
+// The bonds (or angles) of the claimed types, their type renumbered into `coeffs`.
+template <class Item>
+std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>& index) {
+  std::vector<Item> out;
+  for (Item it : items)
+    if (index[it.type] >= 0) {
+      it.type = index[it.type];
+      out.push_back(it);
+    }
+  return out;
+}
+
+// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}.
+std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  StiffBonds sb;
+  sb.epsilon = read(t, "epsilon", kPositive);
+  std::vector<StiffBond> coeffs;
+  const auto index = claim_types(
+      t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
+      [&sb](DeckTable& bt) {
+        StiffBond c;
+        c.length = read(bt, "length", kLength);
+        c.alpha = read(bt, "alpha", kPositive);
+        // The spring constant (α/ε)² and the energy ½(α/ε)²ℓ² of a bond stretched by its length
+        // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
+        const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
+        bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
+                   "the spring constant (alpha/epsilon)^2 = (" + fmt_short(c.alpha) + "/" + fmt_short(sb.epsilon) +
+                       ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
+        return c;
+      },
+      coeffs);
+  std::vector<int> type_of;  // the scene's bond type of each stiff bond, for the message
+  for (const Bond& b : claimed(ctx.scene.topology.bonds, index)) {
+    sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
+    type_of.push_back(static_cast<int>(std::find(index.begin(), index.end(), b.type) - index.begin()));
+  }
+  // The rules the constraint toolbox and the stiff modes will enforce (forcefields/stiff_bond.hpp),
+  // checked now with the masses, so that a deck no run could use is refused at load.
+  if (const auto problem = find_stiff_bond_problem(sb.bonds, &ctx.scene.state.inv_mass)) {
+    const std::string type =
+        problem->bond >= 0 ? " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')" : "";
+    t.fail("bond_types", problem->what + type);
+  }
+  return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
+}
+
+// Bond styles (BondTerm over a kernel of forcefields/bond_potentials.hpp): bond_types.TYPE =
+// {coefficients}, each read by `coeffs` from its table.
+template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
+std::unique_ptr<ForceTerm> read_bond(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<typename Kernel::Coeffs> types;
+  const auto index =
+      claim_types(t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name, coeffs, types);
+  auto term = std::make_unique<BondTerm<Kernel>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
+  // A kernel defined on part of r > 0 (FENE: r < R0) would fail at the first force evaluation
+  // (exit 3) for a bond that starts outside; that is the deck's fault, so say so now.
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, ctx.scene.state.size());
+  try {
+    term->add_forces(ctx.scene.state.x, ctx.scene.box, f);
+  } catch (const NumericalError& e) {
+    t.fail("bond_types", std::string(e.what()) + " in the initial state");
+  }
+  return term;
+}
+
+// fene: {K, R0, epsilon = 0, sigma = 1} (LAMMPS bond_style fene).
+Fene::Coeffs fene_coeffs(DeckTable& d) {
+  return {read(d, "K", kStiffness), read(d, "R0", kLength), read(d, "epsilon", kEnergy, 0.0),
+          read(d, "sigma", kLength, 1.0)};
+}
+
+// morse: {D0, alpha, r0} (LAMMPS bond_style morse).
+Morse::Coeffs morse_coeffs(DeckTable& d) {
+  return {read(d, "D0", kEnergy), read(d, "alpha", kInverseLength), read(d, "r0", kLength)};
+}
+
+// harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
+template <class Term>
+std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<AngleCoeffs> coeffs;
+  const auto index = claim_types(
+      t, "angle_types", ctx.scene.topology.angle_types, ctx.angle_type_owner, name,
+      [](DeckTable& at) {
+        AngleCoeffs c;
+        c.k = read(at, "k", kStiffness);
+        const double deg = at.number("theta0", 180.0);
+        at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
+        c.theta0 = deg * M_PI / 180.0;
+        return c;
+      },
+      coeffs);
+  return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
+std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
+  std::vector<int> out;
+  if (t.has("particles") && t.has("type")) t.fail("type", "give either particles or type, not both");
+  if (t.has("particles")) {
+    for (long i : t.integers("particles")) {
+      if (i < 0 || i >= sc.state.size()) t.fail("particles", "particle " + std::to_string(i) + " does not exist");
+      out.push_back(static_cast<int>(i));
+    }
+  } else if (t.has("type")) {
+    const std::string type = t.string("type");
+    int k = -1;
+    for (size_t m = 0; m < sc.types.size(); ++m)
+      if (sc.types[m].name == type) k = static_cast<int>(m);
+    if (k < 0) t.fail("type", "unknown particle type '" + type + "'");
+    for (int i = 0; i < sc.state.size(); ++i)
+      if (sc.particle_type[i] == k) out.push_back(i);
+  } else {
+    for (int i = 0; i < sc.state.size(); ++i) out.push_back(i);
+  }
+  if (out.empty()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
+  return out;
+}
+
+// harmonic-tether: k, center = [x, y, z], particles or type.
+std::unique_ptr<ForceTerm> read_tether(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  const double k = read(t, "k", kStiffness);
+  const Eigen::Vector3d c = t.vector3("center");
+  return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k);
+}
+
+// lj93-wall: axis = "x"|"y"|"z", position, side = 1 | -1, epsilon, sigma, cutoff, particles or type.
+std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  LJ93WallParams p;
+  const std::string axis = t.string("axis");
+  if (axis != "x" && axis != "y" && axis != "z") t.fail("axis", "expected \"x\", \"y\" or \"z\"");
+  p.axis = axis[0] - 'x';
+  if (ctx.scene.box.periodic[p.axis])
+    t.fail("axis", "the box is periodic along " + axis + ": a wall there has no meaning");
+  p.position = t.number("position");
+  const long side = t.integer("side", 1);  // checked before the conversion to int
+  t.require(side == 1 || side == -1, "side", "expected 1 (particles above the wall) or -1 (below)");
+  p.side = static_cast<int>(side);
+  p.epsilon = read(t, "epsilon", kEnergy, p.epsilon);
+  p.sigma = read(t, "sigma", kLength, p.sigma);
+  p.cutoff = read(t, "cutoff", kLength, p.cutoff);
+  return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
+}
+
+std::string fmt(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+// The neighbour list needs every periodic box length >= 2 (cutoff + skin) (check_box_for_cutoff):
+// an error at the key that sets the range (`range_key`: cutoff, or sigma for wca), naming the box.
+template <class Kernel>
+void check_box_for_pairs(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, double skin,
+                         const Scene& sc, const char* range_key) {
+  double rc = 0.0;
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) {
+      try {
+        Kernel::validate(coeffs(a, b));
+      } catch (const std::invalid_argument&) {
+        return;  // the term's constructor names the bad coefficient
+      }
+      rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
+    }
+  const double need = 2.0 * (rc + skin);
+  for (int a = 0; a < 3; ++a)
+    if (sc.box.periodic[a] && !(sc.box.lengths[a] >= need)) {
+      const char axis = static_cast<char>('x' + a);
+      const std::string what =
+          std::string("cutoff ") + fmt(rc) + " + skin " + fmt(skin) + ": the periodic box is " +
+          fmt(sc.box.lengths[a]) + " long on " + axis + " (" +
+          (sc.box_from_source ? "set by a [[build]] density or the [import]" : "box.lengths") +
+          "), but the neighbour list needs every periodic length >= 2 × (cutoff + skin) = " + fmt(need) +
+          "; enlarge the box or reduce " + t.key_path(range_key) + " or " + t.key_path("skin");
+      if (t.has(range_key)) t.fail(range_key, what);
+      if (t.has("skin")) t.fail("skin", what);
+      t.fail_here(what);
+    }
+}
+
+// Two particles closer than this fraction of the pair cutoff (in practice: at the same position)
+// make a pair force singular — for `soft` too, whose force has no direction at r = 0.
+constexpr double kOverlapFraction = 1e-6;
+
+// Overlapping particles at the start, with every pair the term acts on (special weight ≠ 0)
+// considered: an error naming the first two, found through a neighbour list of that tiny range.
+template <class Kernel>
+void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
+                    const Scene& sc) {
+  double rc = 0.0;
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = a; b < coeffs.num_types(); ++b) rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
+  const double threshold = kOverlapFraction * rc;
+  const int n = sc.state.size();
+  std::vector<SpecialPair> excluded;
+  for (const SpecialPair& sp : special_pairs(n, sc.topology.bonds, w))
+    if (sp.weight == 0.0) excluded.push_back(sp);
+  NeighborList list(threshold, 0.0);
+  list.set_exclusions(n, excluded);
+  list.build(sc.state.x, sc.box);
+  if (list.num_pairs() == 0) return;
+  const auto offsets = list.offsets();
+  int i = 0;
+  while (offsets[i + 1] == offsets[i]) ++i;
+  const int j = list.neighbors()[offsets[i]];
+  Eigen::Vector3d d = sc.state.x.col(i) - sc.state.x.col(j);
+  MinimumImage(sc.box).apply(d[0], d[1], d[2]);
+  t.fail_here("particles " + std::to_string(i) + " and " + std::to_string(j) + " overlap at the start (distance " +
+              fmt(d.norm()) + " < " + fmt(kOverlapFraction) + " × cutoff " + fmt(rc) +
+              "): the pair force between them is singular; move one of them apart");
+}
+
+// Pair styles: parameters for every type pair from the term's table, overridden per pair by
+// [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
+// `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
+// term's values (its global epsilon, sigma, …), not from the defaults.
+template <class Kernel, class ReadCoeffs>
+std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
+                                     ReadCoeffs read_coeffs, const char* range_key,
+                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{}) {
+  const Scene& sc = ctx.scene;
+  const int ntypes = static_cast<int>(sc.types.size());
+  TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
+  const typename Kernel::Coeffs global = read_coeffs(t, defaults);
+  for (int a = 0; a < ntypes; ++a)
+    for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  std::set<std::pair<int, int>> overridden;  // a pair given twice would silently keep the last
+  for (DeckTable& p : t.array_of_tables("pair")) {
+    const auto names = p.strings("types");
+    if (names.size() != 2) p.fail("types", "expected two particle type names [\"A\", \"B\"]");
+    int ab[2];
+    for (int m = 0; m < 2; ++m) {
+      ab[m] = -1;
+      for (int k = 0; k < ntypes; ++k)
+        if (sc.types[k].name == names[m]) ab[m] = k;
+      if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
+    }
+    if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
+      p.fail("types", "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
+    coeffs.set(ab[0], ab[1], read_coeffs(p, global));
+    p.finish();
+  }
+  // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
+  // neighbours do not interact, 1-3 pairs do).
+  SpecialWeights w;
+  if (t.has("special_bonds")) {
+    const auto sb = t.numbers("special_bonds");
+    if (sb.size() != 2 || sb[0] < 0 || sb[0] > 1 || sb[1] < 0 || sb[1] > 1)
+      t.fail("special_bonds", "expected [w12, w13], two weights in 0..1");
+    w.w12 = sb[0];
+    w.w13 = sb[1];
+  }
+  const double skin = read(t, "skin", kSkin, 0.3);
+  check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
+  // Special bonds list the 1-3 pairs through every particle: deg·(deg − 1)/2 of them. A hub with
+  // a million bonds (a few megabytes of data file) would ask for terabytes; refuse it up front.
+  constexpr int kMaxBondsPerParticle = 1000;
+  std::vector<int> degree(static_cast<size_t>(sc.state.size()), 0);
+  for (const Bond& b : sc.topology.bonds)
+    for (const int i : {b.i, b.j})
+      if (++degree[static_cast<size_t>(i)] > kMaxBondsPerParticle)
+        t.fail_here("particle " + std::to_string(i) + " has more than " + std::to_string(kMaxBondsPerParticle) +
+                    " bonds; a pair term's special bonds (its 1-3 pairs) allow at most that many per particle");
+  std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
+  auto term =
+      std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
+  check_overlaps<Kernel>(t, coeffs, w, sc);  // the coefficients are valid: the term accepted them
+  return term;
+}
+
+std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<LennardJones>(
+      name, level, t, ctx,
+      [](DeckTable& d, LennardJones::Coeffs c) {
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);  // a per-pair override inherits the term's values
+        c.sigma = read(d, "sigma", kLength, c.sigma);
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        return c;
+      },
+      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5});
+}
+
+std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<WeeksChandlerAndersen>(
+      name, level, t, ctx,
+      [](DeckTable& d, WeeksChandlerAndersen::Coeffs c) {
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);
+        c.sigma = read(d, "sigma", kLength, c.sigma);
+        return c;
+      },
+      "sigma");
+}
+
+std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<SoftCosine>(
+      name, level, t, ctx,
+      [](DeckTable& d, SoftCosine::Coeffs c) {
+        c.A = read(d, "A", kEnergy, c.A);
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        return c;
+      },
+      "cutoff");
+}
+
+// yukawa: A, kappa, cutoff (LAMMPS pair_style yukawa kappa cutoff, pair_coeff A; shifted).
+std::unique_ptr<ForceTerm> read_yukawa(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<Yukawa>(
+      name, level, t, ctx,
+      [](DeckTable& d, Yukawa::Coeffs c) {
+        c.A = d.number("A", c.A);  // any sign: A < 0 attracts
+        c.kappa = read(d, "kappa", kInverseLength, c.kappa);
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        return c;
+      },
+      "cutoff");
+}
+
+// gravity: g = [gx, gy, gz].
+std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return std::make_unique<Gravity>(name, level, t.vector3("g"), ctx.scene.state.inv_mass);
+}
+
+}  // namespace
+
+const std::vector<ForceStyle>& force_styles() {
+  static const std::vector<ForceStyle> styles = {
+      {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
+      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
+      {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
+      {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
+      {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
+      {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
+      {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
+      {"yukawa", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
+      {"gravity", Level::slow, "uniform external field, F = m g", read_gravity},
+      {"harmonic-tether", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
+      {"lj93-wall", Level::slow, "flat LJ 9-3 wall", read_wall},
+  };
+  return styles;
+}
+
+}  // namespace stiffmd

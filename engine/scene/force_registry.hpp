@@ -1,0 +1,33 @@
+// The one table of force-term styles a deck may name (style.md §6). Each row reads a
+// [forces.NAME] table into the term's validated parameters; the term itself (forcefields/)
+// knows nothing about decks. A bond or pair style is a kernel (forcefields/bond_potentials.hpp,
+// pair_potentials.hpp) plus one row in force_styles() (see ARCHITECTURE.md).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/deck/deck.hpp"
+#include "engine/scene/scene.hpp"
+#include "forcefields/force_term.hpp"
+
+namespace stiffmd {
+
+// What a style's reader may see of the scene being assembled.
+struct TermContext {
+  const Scene& scene;                          // particles, types, topology and box so far
+  std::vector<std::string>& bond_type_owner;   // per bond type: the term that defines it ("" = none yet)
+  std::vector<std::string>& angle_type_owner;  // likewise per angle type
+};
+
+struct ForceStyle {
+  const char* name;
+  Level default_level;
+  const char* summary;
+  std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);
+};
+
+const std::vector<ForceStyle>& force_styles();
+
+}  // namespace stiffmd

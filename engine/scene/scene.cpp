@@ -1,0 +1,546 @@
+#include "engine/scene/scene.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "engine/core/errors.hpp"
+#include "engine/scene/force_registry.hpp"
+#include "engine/scene/scene_sources.hpp"
+#include "engine/scene/thermostat_deck.hpp"
+#include "integrators/methods.hpp"
+#include "integrators/modes.hpp"
+
+namespace stiffmd {
+namespace {
+
+// Chemical symbols: trajectories name species by element so that ASE and OVITO read them.
+bool is_element(const std::string& s) {
+  static const std::set<std::string> elements = {
+      "H",  "He", "Li", "Be", "B",  "C",  "N",  "O",  "F",  "Ne", "Na", "Mg", "Al", "Si", "P",  "S",  "Cl",
+      "Ar", "K",  "Ca", "Sc", "Ti", "V",  "Cr", "Mn", "Fe", "Co", "Ni", "Cu", "Zn", "Ga", "Ge", "As", "Se",
+      "Br", "Kr", "Rb", "Sr", "Y",  "Zr", "Nb", "Mo", "Tc", "Ru", "Rh", "Pd", "Ag", "Cd", "In", "Sn", "Sb",
+      "Te", "I",  "Xe", "Cs", "Ba", "La", "Ce", "Pr", "Nd", "Pm", "Sm", "Eu", "Gd", "Tb", "Dy", "Ho", "Er",
+      "Tm", "Yb", "Lu", "Hf", "Ta", "W",  "Re", "Os", "Ir", "Pt", "Au", "Hg", "Tl", "Pb", "Bi", "Po", "At",
+      "Rn", "Fr", "Ra", "Ac", "Th", "Pa", "U",  "Np", "Pu", "Am", "Cm", "Bk", "Cf", "Es", "Fm", "Md", "No",
+      "Lr", "Rf", "Db", "Sg", "Bh", "Hs", "Mt", "Ds", "Rg", "Cn", "Nh", "Fl", "Mc", "Lv", "Ts", "Og"};
+  return elements.count(s) > 0;
+}
+
+std::string fmt_number(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+// Scene::num_steps and read_run: t_end / h within this relative distance of an integer n is n steps.
+constexpr double kWholeStepTolerance = 1e-9;
+
+// Distinct default elements for bead types that do not name one.
+const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H", "Fe", "Si"};
+
+void read_box(DeckTable& root, Scene& sc) {
+  auto t = root.table("box");
+  if (!t) return;  // open space, or set by a builder's density or an imported file
+  sc.box.periodic = t->bool3("periodic", false);
+  sc.box.origin = t->vector3("origin", Eigen::Vector3d::Zero());
+  if (sc.box.any_periodic() || t->has("lengths")) {
+    sc.box.lengths = t->vector3("lengths");
+    for (int a = 0; a < 3; ++a)
+      if (sc.box.periodic[a])
+        t->require(sc.box.lengths[a] > 0.0, "lengths", "expected box lengths > 0 on periodic axes");
+  }
+  t->finish();
+}
+
+void read_types(DeckTable& root, Scene& sc) {
+  auto t = root.table("types");
+  if (!t) root.fail_here("missing required table [types.NAME] (mass, element)");
+  size_t unnamed = 0;
+  for (auto& [name, tt] : t->named_tables()) {
+    ParticleType pt;
+    pt.name = name;
+    pt.mass = tt.number("mass");
+    tt.require(pt.mass > 0.0, "mass", "expected a mass > 0 (use fixed = true on a particle to pin it)");
+    const std::string fallback = is_element(name) ? name : kDefaultElements[unnamed++ % kDefaultElements.size()];
+    pt.element = tt.string("element", fallback);
+    if (!is_element(pt.element))
+      tt.fail("element", "expected a chemical element symbol such as \"C\", got \"" + pt.element + "\"");
+    tt.finish();
+    sc.types.push_back(pt);
+  }
+  if (sc.types.empty()) t->fail_here("expected at least one particle type [types.NAME]");
+}
+
+void read_particles(DeckTable& root, Scene& sc) {
+  for (DeckTable& p : root.array_of_tables("particles")) {
+    std::string type_name = p.string("type", sc.types.size() == 1 ? sc.types[0].name : "");
+    if (type_name.empty()) p.fail_here("missing required key 'type' (the deck defines several [types])");
+    const int type = particle_type_index(sc, p, "type", type_name);
+    const double mass = p.number("mass", sc.types[type].mass);
+    p.require(mass > 0.0, "mass", "expected a mass > 0");
+    const bool fixed = p.boolean("fixed", false);
+    const Eigen::Matrix3Xd x = p.vector3("position");
+    const Eigen::Matrix3Xd v = p.vector3("velocity", Eigen::Vector3d::Zero());
+    if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
+    const int i = append_particles(sc, x, v, {type}, {});
+    sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
+    p.finish();
+  }
+}
+
+// Positions are unwrapped; on a periodic axis the minimum image rounds d/L to an integer and
+// LAMMPS keeps image flags in 21 bits. A particle more than 2^20 box lengths away from the box is
+// a mistake (units, a forgotten box), not a configuration, and would overflow that rounding.
+void check_positions_near_box(DeckTable& root, const Scene& sc) {
+  constexpr double kMaxImages = 1 << 20;
+  auto particles = root.array_of_tables("particles");  // the first particles of the scene
+  for (int a = 0; a < 3; ++a) {
+    if (!sc.box.periodic[a]) continue;
+    for (int i = 0; i < sc.state.size(); ++i) {
+      const double images = (sc.state.x(a, i) - sc.box.origin[a]) / sc.box.lengths[a];
+      if (std::abs(images) <= kMaxImages) continue;
+      const std::string what = "particle " + std::to_string(i) + " is at " + static_cast<char>('x' + a) + " = " +
+                               fmt_number(sc.state.x(a, i)) + ", more than 2^20 box lengths (" +
+                               fmt_number(sc.box.lengths[a]) + ") from the periodic box; expected a position near it";
+      if (static_cast<size_t>(i) < particles.size()) particles[static_cast<size_t>(i)].fail("position", what);
+      root.fail_here(what);
+    }
+  }
+}
+
+void read_bonds(DeckTable& root, Scene& sc) {
+  const int n = sc.state.size();
+  std::set<std::pair<int, int>> seen;
+  for (const Bond& b : sc.topology.bonds) seen.insert({std::min(b.i, b.j), std::max(b.i, b.j)});
+  for (DeckTable& b : root.array_of_tables("bonds")) {
+    const std::vector<long> ij = b.integers("particles");
+    if (ij.size() != 2) b.fail("particles", "expected two particle indices [i, j]");
+    for (long k : ij)
+      if (k < 0 || k >= n)
+        b.fail("particles",
+               "particle " + std::to_string(k) + " does not exist (particles are 0.." + std::to_string(n - 1) + ")");
+    if (ij[0] == ij[1]) b.fail("particles", "a bond must join two different particles");
+    const std::pair<int, int> key{static_cast<int>(std::min(ij[0], ij[1])), static_cast<int>(std::max(ij[0], ij[1]))};
+    if (!seen.insert(key).second)
+      b.fail("particles",
+             "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
+    const std::string type = b.string("type");
+    const int t = Topology::intern(sc.topology.bond_types, type);
+    if ((sc.state.x.col(ij[0]) - sc.state.x.col(ij[1])).norm() == 0.0)
+      b.fail("particles", "the two particles of this bond sit at the same position (zero-length bond)");
+    b.finish();
+    sc.topology.bonds.push_back({static_cast<int>(ij[0]), static_cast<int>(ij[1]), t});
+  }
+}
+
+void read_forces(DeckTable& root, Scene& sc) {
+  sc.forces = std::make_unique<ForceField>(sc.box, sc.state.size());
+  std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size());
+  TermContext ctx{sc, owner, angle_owner};
+  auto forces = root.table("forces");
+  if (forces) {
+    std::string stiff_term;
+    for (auto& [name, t] : forces->named_tables()) {
+      const std::string style = t.string("style");
+      const auto& styles = force_styles();
+      auto it = std::find_if(styles.begin(), styles.end(), [&](const ForceStyle& s) { return style == s.name; });
+      if (it == styles.end()) {
+        std::string known;
+        for (const auto& s : styles) known += (known.empty() ? "" : ", ") + std::string(s.name);
+        t.fail("style", "unknown force style '" + style + "' (known: " + known + ")");
+      }
+      const std::string level_name_str = t.string("level", std::string(level_name(it->default_level)));
+      const auto level = parse_level(level_name_str);
+      if (!level) t.fail("level", "expected \"fast\" or \"slow\", got \"" + level_name_str + "\"");
+      std::unique_ptr<ForceTerm> term;
+      try {
+        term = it->read(name, *level, t, ctx);
+      } catch (const std::invalid_argument& e) {
+        t.fail_here(e.what());
+      }
+      // The constraint-defining term is what the impulse methods' micro steps resolve and what the
+      // constrained methods replace by rigid constraints (design.md §3): on a slower level the impulse
+      // methods would kick it with the macro step and blow up (energy 5.57 -> 263 210 on the pendulum).
+      if (term->is_constraint_defining() && term->level() != Level::fast)
+        t.fail("level", "a constraint-defining term (" + style + ") must sit on the fastest level, \"fast\"; got \"" +
+                            level_name_str + "\"");
+      if (term->stiff_bonds()) {
+        if (!stiff_term.empty())
+          t.fail("style",
+                 "only one constraint-defining (stiff-harmonic) term is allowed; [forces." + stiff_term + "] is one");
+        stiff_term = name;
+      }
+      t.finish();
+      sc.forces->add(std::move(term));
+    }
+  }
+  // Every bonded interaction must have its parameters somewhere: name the deck row of an
+  // explicit bond, or the type for builder/imported bonds (which precede the explicit ones).
+  auto bond_rows = root.array_of_tables("bonds");
+  const size_t first_explicit = sc.topology.bonds.size() - bond_rows.size();
+  for (size_t k = 0; k < sc.topology.bonds.size(); ++k) {
+    const int t = sc.topology.bonds[k].type;
+    if (!owner[t].empty()) continue;
+    const std::string what = "bond type '" + sc.topology.bond_types[t] +
+                             "' is not defined by any force term (add [forces.NAME.bond_types." +
+                             sc.topology.bond_types[t] + "])";
+    if (k >= first_explicit) bond_rows[k - first_explicit].fail("type", what);
+    root.fail_here(what);
+  }
+  for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
+    if (angle_owner[t].empty())
+      root.fail_here("angle type '" + sc.topology.angle_types[t] +
+                     "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] +
+                     "])");
+}
+
+void read_integrator(DeckTable& root, Scene& sc) {
+  auto t = root.table("integrator");
+  if (!t) root.fail_here("missing required table [integrator] (method, h)");
+  IntegratorSettings& in = sc.integrator;
+  in.method = t->string("method");
+  const MethodInfo* method = find_method(in.method);
+  if (!method) t->fail("method", "unknown method '" + in.method + "' (known: " + method_names() + ")");
+  if (method->needs_stiff_bonds && !sc.forces->stiff_bonds())
+    t->fail("method", "method '" + in.method +
+                          "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
+  in.h = t->number("h");
+  t->require(in.h > 0.0, "h", "expected a macro step h > 0");
+  const auto micro_dt = t->maybe_number("micro_dt");
+  const auto micro_steps = t->maybe_integer("micro_steps");
+  if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
+  // Micro steps belong to the impulse family; other methods ignore them, so that one deck
+  // serves every method (design.md §7).
+  if (!method->micro_steps) {
+    in.micro_steps = 1;
+  } else if (micro_dt) {
+    t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + fmt_number(in.h));
+    // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
+    // micro_steps is (and before the conversion to int).
+    const double n = std::ceil(in.h / *micro_dt - 1e-9);
+    t->require(n <= 1e8, "micro_dt",
+               "h / micro_dt = " + fmt_number(in.h) + " / " + fmt_number(*micro_dt) + " = " + fmt_number(n) +
+                   " micro steps per macro step; expected at most 1e8");
+    in.micro_steps = static_cast<int>(n);
+  } else if (micro_steps) {
+    t->require(*micro_steps >= 1 && *micro_steps <= 100000000, "micro_steps", "expected an integer in 1..1e8");
+    in.micro_steps = static_cast<int>(*micro_steps);
+  }
+  t->finish();
+}
+
+// A run is a whole number of macro steps: t_end = n h to a relative 1e-9 (Scene::num_steps rounds
+// to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
+// refused, naming the nearest valid end times.
+void read_run(DeckTable& root, Scene& sc) {
+  auto t = root.table("run");
+  if (!t) root.fail_here("missing required table [run] (t_end)");
+  sc.run.t_end = t->number("t_end");
+  t->require(sc.run.t_end > 0.0, "t_end", "expected an end time > 0");
+  const double h = sc.integrator.h;
+  const double steps = sc.run.t_end / h;
+  if (!(steps <= 1e12))
+    t->fail("t_end", "t_end / integrator.h = " + fmt_number(sc.run.t_end) + " / " + fmt_number(h) + " = " +
+                         fmt_number(steps) + " steps; expected at most 1e12 steps");
+  const double n = std::round(steps);
+  if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
+    std::ostringstream m;
+    m.precision(12);
+    m << "t_end = " << sc.run.t_end << " is " << steps << " macro steps of integrator.h = " << h
+      << "; expected a whole number of steps: t_end = ";
+    const double below = std::floor(steps), above = std::ceil(steps);
+    const auto steps_word = [](double k) { return k == 1 ? " step)" : " steps)"; };
+    if (below >= 1) m << below * h << " (" << below << steps_word(below) << " or ";
+    m << above * h << " (" << above << steps_word(above) << ", or an h that divides t_end";
+    t->fail("t_end", m.str());
+  }
+  t->finish();
+}
+
+void read_observables(DeckTable& root, Scene& sc) {
+  auto t = root.table("observables");
+  if (!t) return;
+  sc.observables.actions = t->boolean("actions", false);
+  sc.observables.histograms = t->boolean("histograms", true);
+  // The range StiffModes accepts (its dense eigen-decompositions have a fixed maximum size).
+  const long m = t->integer("max_cluster_bonds", sc.observables.max_cluster_bonds);
+  t->require(m >= 1 && m <= StiffModes::kMaxDenseBonds, "max_cluster_bonds",
+             "expected an integer in 1.." + std::to_string(StiffModes::kMaxDenseBonds) + ", got " + std::to_string(m));
+  sc.observables.max_cluster_bonds = static_cast<int>(m);
+  if (sc.observables.actions && !sc.forces->stiff_bonds())
+    t->fail("actions", "actions need constraint-defining stiff bonds (a stiff-harmonic term)");
+  t->finish();
+}
+
+void read_output(DeckTable& root, Scene& sc) {
+  OutputSettings& o = sc.output;
+  const double default_interval = sc.run.t_end / 100;
+  auto t = root.table("output");
+  if (!t) {
+    o.xyz = "trajectory.xyz";
+    o.thermo = "thermo.csv";
+    o.xyz_interval = o.thermo_interval = o.state_interval = default_interval;
+    return;
+  }
+  o.xyz = t->string("xyz", "trajectory.xyz");
+  o.xyz_interval = t->number("xyz_interval", default_interval);
+  t->require(o.xyz_interval > 0.0, "xyz_interval", "expected a time interval > 0");
+  o.xyz_velocities = t->boolean("xyz_velocities", false);
+  o.thermo = t->string("thermo", "thermo.csv");
+  o.thermo_interval = t->number("thermo_interval", default_interval);
+  t->require(o.thermo_interval > 0.0, "thermo_interval", "expected a time interval > 0");
+  o.state = t->string("state", "");
+  o.state_interval = t->number("state_interval", default_interval);
+  t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
+  if (!o.state.empty() && !sc.forces->stiff_bonds())
+    t->fail("state", "the state output holds projected momenta P(x)p: it needs stiff bonds");
+  o.h5md = t->string("h5md", "");
+  o.h5md_interval = t->number("h5md_interval", o.xyz_interval);
+  t->require(o.h5md_interval > 0.0, "h5md_interval", "expected a time interval > 0");
+  o.h5md_velocity = t->boolean("h5md_velocity", false);
+  o.h5md_force = t->boolean("h5md_force", false);
+  const long gz = t->integer("h5md_gzip", 0);
+  t->require(gz >= 0 && gz <= 9, "h5md_gzip", "expected a deflate level 0..9 (0: no compression)");
+  o.h5md_gzip = static_cast<int>(gz);
+  o.author = t->string("author", "");
+  o.lammps_data = t->string("lammps_data", "");
+  o.checkpoint = t->string("checkpoint", o.checkpoint);
+  if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
+  o.checkpoint_every = t->integer("checkpoint_every", 0);
+  t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
+  std::vector<std::pair<std::string, std::string>> seen;  // what writes it, file name
+  for (const auto& [k, f] : output_files(sc)) {
+    const std::string what = k.empty() ? "the run's " + f : "output." + k;
+    if (!k.empty()) {
+      if (f.find('/') != std::string::npos || f == "." || f == "..")
+        t->fail(k, "expected a plain file name (the directory comes from -o), got \"" + f + "\"");
+      if (std::any_of(f.begin(), f.end(), [](char c) { return static_cast<unsigned char>(c) < 0x20; }))
+        t->fail(k, "expected a plain file name without control characters");
+      for (const auto& [other, name] : seen)
+        if (name == f) t->fail(k, "\"" + f + "\" is also " + other + "; expected a file of its own");
+    }
+    seen.emplace_back(what, f);
+  }
+  t->finish();
+}
+
+// What run_simulation will ask of the scene, asked now: the integrator is built once here and
+// discarded, so that whatever its constructor refuses (the effective dynamics' cluster limit,
+// constraints it cannot solve) is refused by `check` too, at integrator.method, before [prepare].
+void check_integrator(DeckTable& root, Scene& sc) {
+  auto t = root.table("integrator");
+  const auto fail = [&](const std::string& what) {
+    t->fail("method", "the scene cannot run method '" + sc.integrator.method + "': " + what);
+  };
+  try {
+    make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  } catch (const std::invalid_argument& e) {
+    fail(e.what());
+  } catch (const InputError& e) {
+    fail(e.what());
+  } catch (const NumericalError& e) {
+    fail(e.what());
+  }
+  // Likewise the observers run_simulation builds: the thermo row (with the modes when actions are
+  // observed) and the projected momenta of the state output.
+  auto refused_at = [&](const char* table, const char* key, const std::string& what) {
+    if (auto t = root.table(table)) t->fail(key, "the scene cannot provide it: " + what);
+    root.fail_here(std::string(table) + "." + key + ": the scene cannot provide it: " + what);
+  };
+  try {
+    Thermo(*sc.forces, sc.state.inv_mass, sc.observables, &sc.topology);
+  } catch (const std::exception& e) {
+    refused_at("observables", "actions", e.what());
+  }
+  if (!sc.output.state.empty()) try {
+      ProjectedMomenta(*sc.forces->stiff_bonds(), sc.state.inv_mass);
+    } catch (const std::exception& e) {
+      refused_at("output", "state", e.what());
+    }
+}
+
+}  // namespace
+
+std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
+  const OutputSettings& o = sc.output;
+  std::vector<std::pair<std::string, std::string>> out;
+  // Fixed names first, so that a deck key that takes one of them is the one named.
+  if (sc.observables.histograms && !sc.topology.bonds.empty()) out.emplace_back("", "histograms.csv");
+  out.emplace_back("", "summary.json");
+  if (!o.xyz.empty() || !o.h5md.empty()) out.emplace_back("", kTopologyFile);
+  for (const auto& [key, name] : {std::pair<const char*, const std::string*>{"xyz", &o.xyz},
+                                  {"thermo", &o.thermo},
+                                  {"state", &o.state},
+                                  {"h5md", &o.h5md},
+                                  {"lammps_data", &o.lammps_data},
+                                  {"checkpoint", &o.checkpoint}})
+    if (!name->empty()) out.emplace_back(key, *name);
+  return out;
+}
+
+void check_output_paths(const Scene& sc, const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  for (const auto& [key, name] : output_files(sc)) {
+    // The files themselves and the temporaries that atomic writers rename into place.
+    for (const std::string& f : {name, name + ".tmp"}) {
+      const fs::path p = fs::path(dir) / f;
+      // Through symbolic links: what a writer would open (a link to /dev/null is fine).
+      if (fs::is_directory(fs::status(p, ec)))
+        throw InputError(p.string() + ": output file (" + (key.empty() ? name : "output." + key) +
+                         ") exists as a directory; remove it or choose another name");
+    }
+  }
+  // A directory we may not write into (permissions, read-only file system) fails here, before
+  // any step, rather than at the first frame or the final checkpoint.
+  const fs::path probe = fs::path(dir) / ".stiffmd_write_test";
+  {
+    std::ofstream out(probe);
+    if (!out) throw InputError(dir + ": output directory is not writable");
+  }
+  fs::remove(probe, ec);
+}
+
+int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name) {
+  for (size_t k = 0; k < sc.types.size(); ++k)
+    if (sc.types[k].name == name) return static_cast<int>(k);
+  t.fail(key, "unknown particle type '" + name + "' (define it as [types." + name + "])");
+}
+
+int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, const std::vector<int>& type,
+                     const std::vector<int>& molecule) {
+  State& s = sc.state;
+  const int first = s.size(), n = static_cast<int>(x.cols());
+  s.x.conservativeResize(3, first + n);
+  s.v.conservativeResize(3, first + n);
+  s.inv_mass.conservativeResize(first + n);
+  s.x.rightCols(n) = x;
+  s.v.rightCols(n) = v;
+  for (int k = 0; k < n; ++k) s.inv_mass[first + k] = 1.0 / sc.types[type[k]].mass;
+  sc.particle_type.insert(sc.particle_type.end(), type.begin(), type.end());
+  // Molecule ids: particles without one get their own; a source's ids are offset past the
+  // ids already used.
+  auto& mol = sc.topology.molecule;
+  int next = 0;
+  for (int m : mol) next = std::max(next, m + 1);
+  if (molecule.empty()) {
+    for (int k = 0; k < n; ++k) mol.push_back(next + k);
+  } else {
+    // Dense ids: the source's ids (LAMMPS's start at 1, may have gaps) in sorted order.
+    std::vector<int> ids(molecule.begin(), molecule.end());
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    for (int m : molecule)
+      mol.push_back(next + static_cast<int>(std::lower_bound(ids.begin(), ids.end(), m) - ids.begin()));
+  }
+  return first;
+}
+
+std::int64_t Scene::num_steps() const {
+  // Round to the nearest whole step when t_end/h is an integer up to rounding, else up.
+  const double r = run.t_end / integrator.h;
+  const double nearest = std::round(r);
+  return static_cast<std::int64_t>(std::abs(r - nearest) <= kWholeStepTolerance * std::max(1.0, r) ? nearest
+                                                                                                : std::ceil(r));
+}
+
+Scene load_scene(const Deck& deck) {
+  Scene sc;
+  sc.deck_path = deck.path();
+  DeckTable root = deck.root();
+  root.table("variables");  // resolved by Deck; mark as read
+  read_box(root, sc);
+  read_types(root, sc);
+  read_particles(root, sc);
+  read_builders(root, sc);
+  read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string());
+  if (sc.state.size() == 0)
+    root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
+  check_positions_near_box(root, sc);
+  read_bonds(root, sc);
+  make_scene_molecules_whole(root, sc);
+  read_velocities(root, sc);
+  read_forces(root, sc);
+  read_prepare(root, sc);
+  read_integrator(root, sc);
+  read_run(root, sc);
+  read_observables(root, sc);
+  read_thermostat(root, sc);
+  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions});
+  // The default energy check applies to energy-conserving (NVE) runs only: a thermostat exchanges
+  // energy with its bath by design.
+  apply_energy_default(sc.monitor, /*conserves_energy=*/!sc.thermostatted());
+  read_output(root, sc);
+  root.finish();
+  check_integrator(root, sc);
+  return sc;
+}
+
+std::string describe(const Scene& sc) {
+  std::ostringstream s;
+  const State& st = sc.state;
+  int fixed = 0;
+  for (int i = 0; i < st.size(); ++i) fixed += st.inv_mass[i] == 0.0;
+  s << "deck:        " << sc.deck_path << "\n";
+  s << "particles:   " << st.size() << " (" << fixed << " fixed)\n";
+  for (size_t k = 0; k < sc.types.size(); ++k) {
+    const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k));
+    s << "  type " << sc.types[k].name << ": " << count << " particles, mass " << sc.types[k].mass << ", element "
+      << sc.types[k].element << "\n";
+  }
+  s << "box:         ";
+  if (!sc.box.any_periodic())
+    s << "open\n";
+  else
+    s << "periodic (" << sc.box.periodic.transpose() << "), lengths " << sc.box.lengths.transpose() << "\n";
+  s << "bonds:       " << sc.topology.bonds.size() << "\n";
+  for (size_t k = 0; k < sc.topology.bond_types.size(); ++k) {
+    const auto count = std::count_if(sc.topology.bonds.begin(), sc.topology.bonds.end(),
+                                     [&](const Bond& b) { return b.type == static_cast<int>(k); });
+    s << "  type " << sc.topology.bond_types[k] << ": " << count << "\n";
+  }
+  if (!sc.topology.angles.empty()) {
+    s << "angles:      " << sc.topology.angles.size() << "\n";
+    for (size_t k = 0; k < sc.topology.angle_types.size(); ++k) {
+      const auto count = std::count_if(sc.topology.angles.begin(), sc.topology.angles.end(),
+                                       [&](const Angle& a) { return a.type == static_cast<int>(k); });
+      s << "  type " << sc.topology.angle_types[k] << ": " << count << "\n";
+    }
+  }
+  int molecules = 0;
+  for (int m : sc.topology.molecule) molecules = std::max(molecules, m + 1);
+  if (molecules < st.size()) s << "molecules:   " << molecules << "\n";
+  s << "force terms: " << sc.forces->terms().size() << "\n";
+  for (const auto& t : sc.forces->terms())
+    s << "  " << t->name() << " [" << t->style() << ", " << level_name(t->level()) << "]: " << t->describe() << "\n";
+  s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
+  if (sc.integrator.micro_steps > 1)
+    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
+      << ")";
+  s << "\n";
+  if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
+    s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
+    if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
+    if (th.friction.size() > 0)
+      s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    const MethodInfo& m = *find_method(sc.integrator.method);
+    const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
+    s << ", seed " << th.seed << "; temperature over "
+      << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
+      << " degrees of freedom\n";
+  }
+  s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
+  s << "outputs:     ";
+  if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";
+  if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval;
+  s << "\n";
+  return s.str();
+}
+
+}  // namespace stiffmd

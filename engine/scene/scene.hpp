@@ -1,0 +1,108 @@
+// A Scene is everything a run needs, assembled from a deck: particles, topology, box, the
+// force terms the deck names (and only those: design.md §1), and the run's settings.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <ostream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "engine/core/box.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/observe/monitor.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/core/state.hpp"
+#include "engine/core/topology.hpp"
+#include "forcefields/force_field.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+struct ParticleType {
+  std::string name;
+  double mass = 1.0;
+  std::string element;  // chemical symbol written as the species in trajectories (ASE, OVITO)
+};
+
+struct RunSettings {
+  double t_end = 0.0;
+};
+
+struct OutputSettings {
+  std::string xyz;            // extended XYZ trajectory file name ("" = none)
+  double xyz_interval = 0.0;  // time between frames
+  bool xyz_velocities = false;
+  std::string thermo;  // thermo CSV file name ("" = none)
+  double thermo_interval = 0.0;
+  std::string state;  // CSV of x and P(x)p per particle, for error measurements ("" = none)
+  double state_interval = 0.0;
+  std::string h5md;  // H5MD 1.1 trajectory file name ("" = none)
+  double h5md_interval = 0.0;
+  bool h5md_velocity = false, h5md_force = false;
+  int h5md_gzip = 0;                          // deflate level 0..9
+  std::string author;                         // H5MD author (default: the user name)
+  std::string lammps_data;                    // the final state as a LAMMPS data file ("" = none)
+  std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
+  long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
+};
+
+// [prepare]: how the initial state is made ready for a stiff run (prepare_scene).
+struct PrepareSettings {
+  bool requested = false;     // the deck has a [prepare] table
+  std::string where;          // "file:line" of that table, for errors
+  bool project = true;        // positions onto g = 0 (SHAKE), velocities onto the tangent space
+  long relax_steps = 0;       // capped steepest descent on the non-stiff terms, rigid bonds
+  double relax_max_displacement = 0.02;
+  double vibrational_temperature = 0.0;  // thermal bond vibrations
+  std::uint64_t seed = 1;
+};
+
+struct Scene {
+  std::string deck_path;
+  State state;
+  Box box;
+  Topology topology;
+  std::vector<ParticleType> types;
+  std::vector<int> particle_type;  // index into types, per particle
+  std::unique_ptr<ForceField> forces;
+  IntegratorSettings integrator;
+  RunSettings run;
+  OutputSettings output;
+  ObservableSettings observables;
+  MonitorSettings monitor;         // [monitor]
+  PrepareSettings prepare;         // [prepare], applied by prepare_scene
+  bool box_from_source = false;    // a builder's density or an imported file set the box
+  std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
+
+  std::int64_t num_steps() const;  // macro steps to reach run.t_end
+  // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
+  bool thermostatted() const { return integrator.thermostat.on(); }
+};
+
+// Reads and validates the whole deck; throws InputError naming file, line and key. Does not
+// change the deck's initial state: [prepare] is applied by prepare_scene.
+Scene load_scene(const Deck& deck);
+
+// Applies [prepare] (projection, relaxation, thermal bond vibrations) to the scene's state and
+// says what it did on `log`. Called for `check` and for a fresh run; a restart takes its state
+// from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
+void prepare_scene(Scene& scene, std::ostream& log);
+
+// The files a run of the scene writes into its output directory, with the deck key that names
+// each under [output] ("xyz", "thermo", …; "" for histograms.csv and summary.json, fixed names).
+// Written at the start of every run with a trajectory (xyz or h5md): bonds, masses and molecule
+// ids as a LAMMPS data file, for MDAnalysis, VMD and OVITO (engine/run/simulation.cpp).
+inline constexpr const char* kTopologyFile = "topology.data";
+std::vector<std::pair<std::string, std::string>> output_files(const Scene& scene);
+
+// Before the first step: throws InputError when an output file of the scene (or the temporary
+// file an atomic writer renames into place) exists in `dir` as a directory, or `dir` is not
+// writable.
+void check_output_paths(const Scene& scene, const std::string& dir);
+
+// Human-readable inventory of a scene (for `stiffmd check`).
+std::string describe(const Scene& scene);
+
+}  // namespace stiffmd

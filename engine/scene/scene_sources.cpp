@@ -1,0 +1,385 @@
+// Particles from the polymer builders and imported files, thermal velocities, and the
+// preparation of a stiff state (issue: polymer scenes).
+#include "engine/scene/scene_sources.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <sstream>
+
+#include "engine/scene/builders.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/scene/whole_molecules.hpp"
+#include "engine/io/xyz_bonds.hpp"
+#include "integrators/constraints.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Bounds on what a deck may ask for, checked before anything is allocated or run: a builder's
+// beads (10^7 take minutes and gigabytes to grow) and [prepare]'s relaxation steps. A fuzzing
+// build (libFuzzer's convention) keeps them small, so that an input runs in milliseconds.
+// Imported files are bounded by their size (the readers check header counts against it); a
+// fuzzing build refuses big ones too.
+#ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
+constexpr long kMaxBuiltBeads = 500;
+constexpr long kMaxRelaxSteps = 20;
+constexpr long kMaxImportedAtoms = 500;
+#else
+constexpr long kMaxBuiltBeads = 10'000'000;
+constexpr long kMaxRelaxSteps = 10'000'000;
+constexpr long kMaxImportedAtoms = std::numeric_limits<int>::max();
+#endif
+
+void set_box(DeckTable& t, std::string_view key, Scene& sc, const Box& box) {
+  if (sc.box.any_periodic() && !sc.box_from_source)
+    t.fail(key, "the box is given twice: by [box] and here (remove one)");
+  if (sc.box_from_source) t.fail(key, "the box is given twice: by an earlier [[build]] or [import] and here");
+  sc.box = box;
+  sc.box_from_source = true;
+}
+
+void add_topology(Scene& sc, int first, const std::vector<std::pair<int, int>>& bonds, const std::string& bond_type,
+                  const std::vector<std::array<int, 3>>& angles, const std::string& angle_type) {
+  if (!bonds.empty()) {
+    const int bt = Topology::intern(sc.topology.bond_types, bond_type);
+    for (const auto& [i, j] : bonds) sc.topology.bonds.push_back({first + i, first + j, bt});
+  }
+  if (!angles.empty() && !angle_type.empty()) {
+    const int at = Topology::intern(sc.topology.angle_types, angle_type);
+    for (const auto& a : angles) sc.topology.angles.push_back({first + a[0], first + a[1], first + a[2], at});
+  }
+}
+
+// A LAMMPS data file's box: periodic on every axis, LAMMPS's default boundary p p p.
+Box box_of(const ImportedSystem& in) {
+  Box box;
+  box.origin = in.lo;
+  box.lengths = in.hi - in.lo;
+  box.periodic = Eigen::Vector3i::Ones();
+  return box;
+}
+
+std::vector<std::pair<int, int>> bond_pairs(const std::vector<ImportedSystem::Bond>& bonds) {
+  std::vector<std::pair<int, int>> pairs;
+  for (const auto& b : bonds) pairs.emplace_back(b.i, b.j);
+  return pairs;
+}
+
+// An XYZ file has no molecule ids: the molecules are the connected components of its bonds.
+std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>& bonds) {
+  std::vector<int> parent(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) parent[p] = p;
+  auto root = [&](int p) {
+    while (parent[p] != p) p = parent[p] = parent[parent[p]];
+    return p;
+  };
+  for (const auto& b : bonds) parent[root(b.i)] = root(b.j);
+  std::vector<int> molecule(static_cast<size_t>(n));
+  for (int p = 0; p < n; ++p) molecule[p] = root(p);
+  return molecule;
+}
+
+// Imported molecules made whole (engine/core/state.hpp): unwrapped along their bonds, or, when the
+// LAMMPS file has image flags, checked to be whole as the flags unwrap them. A failure names the
+// file (through the deck key that gave it) and the atoms as the file numbers them.
+void make_imported_molecules_whole(DeckTable& t, const char* file_key, ImportedSystem& in, const Box& box) {
+  const auto problem = make_molecules_whole(in.x, bond_pairs(in.bonds), box, in.image_flags);
+  if (!problem) return;
+  const auto& b = in.bonds[static_cast<size_t>(problem->bond)];
+  const bool lammps = std::string(file_key) == "lammps_data";
+  t.fail(file_key, (lammps ? "bond between atom ids " + std::to_string(in.id[static_cast<size_t>(b.i)]) + " and " +
+                                 std::to_string(in.id[static_cast<size_t>(b.j)])
+                           : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
+                                 " (0-based, as in the bonds file)") +
+                       " " + problem->what);
+}
+
+}  // namespace
+
+// Every molecule of the scene made whole (engine/core/state.hpp): builders and imports already are,
+// explicit [[bonds]] between [[particles]] (or joining sources) are unwrapped here. A failure
+// names the [[bonds]] row when an explicit bond is the one that cannot be made whole.
+void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
+  std::vector<std::pair<int, int>> pairs;
+  for (const Bond& b : sc.topology.bonds) pairs.emplace_back(b.i, b.j);
+  const auto problem = make_molecules_whole(sc.state.x, pairs, sc.box);
+  if (!problem) return;
+  const Bond& b = sc.topology.bonds[static_cast<size_t>(problem->bond)];
+  const std::string what =
+      "bond between particles " + std::to_string(b.i) + " and " + std::to_string(b.j) + " " + problem->what;
+  auto rows = root.array_of_tables("bonds");
+  const size_t first_explicit = sc.topology.bonds.size() - rows.size();
+  if (static_cast<size_t>(problem->bond) >= first_explicit)
+    rows[static_cast<size_t>(problem->bond) - first_explicit].fail("particles", what);
+  root.fail_here(what);
+}
+
+// [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
+// bond_type, angle_type (optional), density (optional: sets a periodic cubic box), min_distance, seed.
+void read_builders(DeckTable& root, Scene& sc) {
+  for (DeckTable& b : root.array_of_tables("build")) {
+    const std::string style = b.string("style");
+    if (style != "linear-chains" && style != "rings" && style != "stars")
+      b.fail("style", "unknown builder '" + style + "' (known: linear-chains, rings, stars)");
+    const int type = particle_type_index(sc, b, "type", b.string("type", sc.types[0].name));
+    // Counts are checked as read, before the narrowing to int and before anything is built.
+    const long chains = b.integer("chains", 1);
+    b.require(chains >= 1 && chains <= kMaxBuiltBeads, "chains",
+              "expected 1 .. " + std::to_string(kMaxBuiltBeads) + " molecules");
+    const long beads = b.integer("beads");
+    const long min_beads = style == "rings" ? 3 : style == "stars" ? 1 : 2;
+    b.require(beads >= min_beads && beads <= kMaxBuiltBeads, "beads",
+              (style == "rings"   ? std::string("a ring needs 3 .. ")
+               : style == "stars" ? std::string("expected 1 .. ")
+                                  : std::string("expected 2 .. ")) +
+                  std::to_string(kMaxBuiltBeads) + " beads" + (style == "stars" ? " per arm" : ""));
+    const long arms = style == "stars" ? b.integer("arms") : 0;
+    if (style == "stars")
+      b.require(arms >= 1 && arms <= kMaxStarArms, "arms",
+                "expected 1 .. " + std::to_string(kMaxStarArms) + " arms (a core with n arms has n(n - 1)/2 angles)");
+    // Each factor is at most 10^7 here: per molecule at most 10^14 + 1, and the product is only
+    // formed once that is at most 10^7.
+    const long per_molecule = style == "stars" ? 1 + arms * beads : beads;
+    if (per_molecule > kMaxBuiltBeads || chains * per_molecule > kMaxBuiltBeads)
+      b.fail(style == "stars" ? "arms" : "beads",
+             std::to_string(chains) + " molecules of " + std::to_string(per_molecule) + " beads" +
+                 (per_molecule > kMaxBuiltBeads ? std::string()
+                                                : " = " + std::to_string(chains * per_molecule) + " beads") +
+                 "; expected at most " + std::to_string(kMaxBuiltBeads) + " beads per [[build]]");
+    const long total = chains * per_molecule;
+    ChainSpec spec;
+    spec.chains = static_cast<int>(chains);
+    spec.beads = static_cast<int>(beads);
+    spec.bond_length = b.number("bond_length", spec.bond_length);
+    spec.min_distance = b.number("min_distance", spec.min_distance);
+    spec.seed = static_cast<std::uint64_t>(b.integer("seed", 1));
+    b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
+    const std::string bond_type = b.string("bond_type");
+    const std::string angle_type = b.string("angle_type", "");
+    if (auto density = b.maybe_number("density")) {
+      b.require(*density > 0, "density", "expected a number density > 0");
+      try {
+        set_box(b, "density", sc, box_for_density(static_cast<int>(total), *density));
+      } catch (const std::invalid_argument& e) {
+        b.fail("density", e.what());
+      }
+    }
+    Polymer p;
+    try {
+      if (style == "linear-chains")
+        p = build_linear_chains(spec, sc.box);
+      else if (style == "rings")
+        p = build_rings(spec, sc.box);
+      else
+        p = build_stars(spec, static_cast<int>(arms), sc.box);
+    } catch (const std::exception& e) {  // invalid parameters or a builder that could not place a chain
+      b.fail_here(e.what());
+    }
+    b.finish();
+    const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
+                                       std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
+    add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type);
+  }
+}
+
+// [import] lammps_data = PATH (atom_style, atom_types = {"1" = "bead"}, bond_types = {...},
+// angle_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
+void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
+  auto t = root.table("import");
+  if (!t) return;
+  auto resolve = [&](const std::string& p) {
+    return fs::path(p).is_absolute() || deck_dir.empty() ? p : (fs::path(deck_dir) / p).string();
+  };
+  const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
+  if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
+  ImportedSystem in;
+  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map;
+  std::string single_type, single_bond_type;
+  // The reader's one-line error (file, line, section) behind the deck key that named the file.
+  const char* file_key = lammps ? "lammps_data" : "xyz";
+  if (lammps) {
+    const std::string path = resolve(t->string("lammps_data"));
+    const std::string style = t->string("atom_style", "auto");
+    try {
+      in = read_lammps_data(path, style);
+    } catch (const InputError& e) {
+      t->fail("lammps_data", e.what());
+    }
+    atom_map = t->string_map("atom_types");
+    bond_map = t->string_map("bond_types");
+    angle_map = t->string_map("angle_types");
+  } else {
+    const std::string xyz_path = resolve(t->string("xyz")), bonds_path = resolve(t->string("bonds"));
+    try {
+      in = read_xyz_with_bonds(xyz_path, bonds_path);
+    } catch (const InputError& e) {
+      t->fail(std::string(e.what()).rfind(bonds_path + ":", 0) == 0 ? "bonds" : "xyz", e.what());
+    }
+    single_type = t->string("type", sc.types[0].name);
+    single_bond_type = t->string("bond_type", "bond");
+  }
+  if (in.x.cols() > kMaxImportedAtoms)
+    t->fail(file_key, std::to_string(in.x.cols()) + " atoms; expected at most " + std::to_string(kMaxImportedAtoms));
+  make_imported_molecules_whole(*t, file_key, in, lammps ? box_of(in) : sc.box);
+  if (!lammps) in.molecule = bond_components(static_cast<int>(in.x.cols()), in.bonds);
+  // A bond between two atoms at the same position has no direction: its force and its
+  // constraint gradient are 0/0.
+  for (const auto& b : in.bonds)
+    if ((in.x.col(b.i) - in.x.col(b.j)).norm() == 0.0)
+      t->fail(file_key, (lammps ? "bond between atom ids " + std::to_string(in.id[static_cast<size_t>(b.i)]) + " and " +
+                                      std::to_string(in.id[static_cast<size_t>(b.j)])
+                                : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
+                                      " (0-based, as in the bonds file)") +
+                            ": both atoms sit at the same position (zero-length bond)");
+  // Charges (atom_style full) would be read and then dropped: stiffmd has no Coulomb term yet.
+  for (size_t k = 0; k < in.charge.size(); ++k)
+    if (in.charge[k] != 0.0)
+      t->fail(file_key, t->string(file_key) + ": atom id " + std::to_string(in.id[k]) + " has charge " +
+                            (std::ostringstream() << in.charge[k]).str() +
+                            ", but stiffmd has no Coulomb interactions: the charges would be lost; set the q column "
+                            "to 0 (or use atom_style molecular) to run without them");
+  const bool use_velocities = t->boolean("velocities", true);
+  t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
+  // Particle types: a LAMMPS type maps to a deck type; masses must agree.
+  auto lookup = [&](const std::vector<std::pair<std::string, std::string>>& map, int lammps_type, const char* key) {
+    for (const auto& [k, v] : map)
+      if (k == std::to_string(lammps_type)) return v;
+    const std::string what = "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" +
+                             std::to_string(lammps_type) + "\" = \"NAME\" to " + key + ")";
+    if (t->has(key)) t->fail(key, what);
+    t->fail_here(std::string(key) + ": " + what);
+  };
+  const int n = static_cast<int>(in.x.cols());
+  std::vector<int> type(n);
+  for (int i = 0; i < n; ++i) {
+    const std::string name = lammps ? lookup(atom_map, in.type[i], "atom_types") : single_type;
+    type[i] = particle_type_index(sc, *t, lammps ? "atom_types" : "type", name);
+    if (lammps && in.type_mass.count(in.type[i]) && in.type_mass.at(in.type[i]) != sc.types[type[i]].mass)
+      t->fail("atom_types", "types." + name + ".mass = " + std::to_string(sc.types[type[i]].mass) +
+                                " but the data file's Masses give " + std::to_string(in.type_mass.at(in.type[i])) +
+                                " for LAMMPS type " + std::to_string(in.type[i]));
+  }
+  if (lammps) set_box(*t, "lammps_data", sc, box_of(in));
+  const Eigen::Matrix3Xd v = use_velocities ? in.v : Eigen::Matrix3Xd::Zero(3, n);
+  const int first = append_particles(sc, in.x, v, type, in.molecule);
+  for (const auto& b : in.bonds) {
+    const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
+    sc.topology.bonds.push_back({first + b.i, first + b.j, Topology::intern(sc.topology.bond_types, name)});
+  }
+  for (const auto& a : in.angles) {
+    const std::string name = lookup(angle_map, a.type, "angle_types");
+    sc.topology.angles.push_back(
+        {first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+  }
+}
+
+// [velocities] temperature, seed: Maxwell–Boltzmann velocities for every mobile particle,
+// zero total momentum, kinetic temperature exactly T (replacing any velocities given so far).
+void read_velocities(DeckTable& root, Scene& sc) {
+  auto t = root.table("velocities");
+  if (!t) return;
+  const double temperature = t->number("temperature");
+  t->require(temperature >= 0, "temperature", "expected a temperature >= 0");
+  const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  // 3 N_mobile − 3 degrees of freedom once the total momentum is removed: none, and T > 0 cannot
+  // be given (every particle fixed, or one free particle), so say so rather than start at rest.
+  const auto mobile = (sc.state.inv_mass.array() > 0.0).count();
+  if (temperature > 0 && 3 * mobile - 3 <= 0)
+    t->fail("temperature", "the scene has no degree of freedom to thermalise (" + std::to_string(mobile) +
+                               " mobile particle(s), total momentum removed); expected temperature = 0 or more "
+                               "mobile particles");
+  t->finish();
+  sc.state.v = maxwell_boltzmann(sc.state.inv_mass, temperature, seed);
+}
+
+// [prepare] project = true: positions onto the constraint manifold g = 0 (SHAKE, M-orthogonal)
+// and velocities onto its tangent space; vibrational_temperature = T: then give every stiff
+// bond thermal vibrational energy — bond-length deviations g_b ~ N(0, T ε²/α_b²) (the stiff
+// potential ½ε⁻²α_b² g_b² is diagonal in g) and normal velocities u − P u with u thermal at T
+// (so that ġ = G u ~ N(0, T S): equipartition in the bonds' normal modes, linearised).
+void read_prepare(DeckTable& root, Scene& sc) {
+  auto t = root.table("prepare");
+  if (!t) return;
+  PrepareSettings& p = sc.prepare;
+  p.requested = true;
+  p.where = t->where();
+  p.project = t->boolean("project", true);
+  p.vibrational_temperature = t->number("vibrational_temperature", 0.0);
+  t->require(p.vibrational_temperature >= 0, "vibrational_temperature", "expected a temperature >= 0");
+  p.seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  p.relax_steps = t->integer("relax_steps", 0);
+  t->require(p.relax_steps >= 0 && p.relax_steps <= kMaxRelaxSteps, "relax_steps",
+             "expected a number of steps 0 .. " + std::to_string(kMaxRelaxSteps));
+  p.relax_max_displacement = t->number("relax_max_displacement", 0.02);
+  t->require(p.relax_max_displacement > 0, "relax_max_displacement", "expected a length > 0");
+  if (!sc.forces->stiff_bonds()) t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  t->finish();
+}
+
+void prepare_scene(Scene& sc, std::ostream& log) {
+  const PrepareSettings& p = sc.prepare;
+  if (!p.requested) return;
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
+  State& s = sc.state;
+  std::ostringstream note;
+  note.precision(4);
+  try {
+    ConstraintToolbox toolbox(stiff->bonds, s.inv_mass);
+    const double g0 = toolbox.max_violation(s.x);
+    if (p.project) {
+      toolbox.shake(s.x, s.x, nullptr, 1e-12, 200);
+      toolbox.project_velocity(s.x, s.v);
+      note << "prepare: projected onto the constraint manifold (max |g| " << g0 << " -> " << toolbox.max_violation(s.x)
+           << ") and the velocities onto its tangent space";
+    }
+    if (p.relax_steps > 0) {
+      // Overlaps left by a builder: steepest descent on every non-stiff term, each step moving
+      // no particle more than max_move, then SHAKE back onto the bonds (g = 0).
+      Eigen::Matrix3Xd f, x_old;
+      const double e_before = sc.forces->compute_unconstrained(s.x, f);
+      double e = e_before;
+      for (long k = 0; k < p.relax_steps; ++k) {
+        Eigen::Matrix3Xd step = f * s.inv_mass.asDiagonal();
+        const double largest = step.colwise().norm().maxCoeff();
+        if (largest == 0.0) break;
+        x_old = s.x;
+        s.x += (p.relax_max_displacement / largest) * step;
+        toolbox.shake(x_old, s.x, nullptr, 1e-10, 200);
+        e = sc.forces->compute_unconstrained(s.x, f);
+      }
+      toolbox.project_velocity(s.x, s.v);  // the velocities stay, tangent at the new positions
+      note << (p.project ? "; " : "prepare: ") << "relaxed " << p.relax_steps << " steps: non-stiff potential energy "
+           << e_before << " -> " << e;
+    }
+    const double tv = p.vibrational_temperature;
+    if (tv > 0) {
+      // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
+      // The unit normals are one component of a Maxwell–Boltzmann draw at T = 1 for unit masses
+      // (the builders' portable generator); its exact rescaling and zero-mean correction are
+      // O(1/m) departures from independent N(0, 1), harmless for thermalising many bonds.
+      const Eigen::Matrix3Xd normal =
+          maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, p.seed + 1);
+      std::vector<StiffBond> shifted = stiff->bonds;
+      for (size_t b = 0; b < shifted.size(); ++b)
+        shifted[b].length +=
+            std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
+      ConstraintToolbox(shifted, s.inv_mass).shake(s.x, s.x, nullptr, 1e-12, 200);
+      Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, p.seed), pu = u;
+      toolbox.project_velocity(s.x, pu);
+      s.v += u - pu;
+      note << (p.project || p.relax_steps > 0 ? "; " : "prepare: ") << "bond vibrations thermalised at T = " << tv
+           << " (max |g| = " << toolbox.max_violation(s.x) << ")";
+    }
+  } catch (const NumericalError& e) {
+    throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
+  } catch (const InputError& e) {
+    throw InputError(p.where + ": prepare: " + e.what());
+  }
+  log << note.str() << "\n";
+}
+
+}  // namespace stiffmd

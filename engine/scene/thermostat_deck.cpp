@@ -1,0 +1,72 @@
+#include "engine/scene/thermostat_deck.hpp"
+
+#include <cmath>
+
+#include "integrators/methods.hpp"
+
+namespace stiffmd {
+
+// [thermostat]
+//   style       = "langevin" | "csvr"
+//   temperature = kT (k_B = 1)
+//   damp        = 1/γ in time units, as LAMMPS's fix langevin, or friction = γ: exactly one (langevin)
+//   [thermostat.scale] TYPE = r: γ of that type multiplied by r (LAMMPS's `scale TYPE r`, which
+//                      divides damp by r)
+//   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
+//   seed        = integer >= 0: the noise is a function of (seed, step, particle) only
+void read_thermostat(DeckTable& root, Scene& sc) {
+  const MethodInfo& method = *find_method(sc.integrator.method);  // read_integrator checked it
+  auto t = root.table("thermostat");
+  if (!t) {
+    if (method.needs_temperature)
+      root.table("integrator")
+          ->fail("method", "method '" + sc.integrator.method +
+                               "' needs a temperature: Fixman's potential U_F = (kT/2) log det(K^1/2 G M^-1 G^T K^1/2) "
+                               "is a free energy at kT; add a [thermostat] table (style, temperature, ...)");
+    return;
+  }
+  ThermostatSettings& th = sc.integrator.thermostat;
+  const std::string style = t->string("style");
+  if (style == "langevin")
+    th.style = ThermostatSettings::Style::langevin;
+  else if (style == "csvr")
+    th.style = ThermostatSettings::Style::csvr;
+  else
+    t->fail("style", "expected \"langevin\" or \"csvr\" (stochastic velocity rescaling), got \"" + style + "\"");
+  th.temperature = t->number("temperature");
+  t->require(th.temperature >= 0.0 && std::isfinite(th.temperature), "temperature",
+             "expected a temperature kT >= 0 (k_B = 1)");
+  const long seed = t->integer("seed");
+  t->require(seed >= 0, "seed", "expected an integer seed >= 0");
+  th.seed = static_cast<std::uint64_t>(seed);
+  if (th.style == ThermostatSettings::Style::langevin) {
+    const auto damp = t->maybe_number("damp");
+    const auto friction = t->maybe_number("friction");
+    if (damp && friction) t->fail("friction", "give either damp (= 1/friction) or friction, not both");
+    if (!damp && !friction) t->fail_here("missing damp (time units, LAMMPS's fix langevin) or friction (= 1/damp)");
+    if (damp) t->require(*damp > 0.0 && std::isfinite(*damp), "damp", "expected a damping time > 0");
+    if (friction) t->require(*friction >= 0.0 && std::isfinite(*friction), "friction", "expected a friction >= 0");
+    const double gamma = damp ? 1.0 / *damp : *friction;
+    std::vector<double> type_scale(sc.types.size(), 1.0);
+    if (auto scale = t->table("scale")) {
+      // One key per particle type; finish() names the types when a key is none of them.
+      for (size_t k = 0; k < sc.types.size(); ++k)
+        if (const auto r = scale->maybe_number(sc.types[k].name)) {
+          scale->require(*r >= 0.0 && std::isfinite(*r), sc.types[k].name,
+                         "expected a friction ratio >= 0 for type " + sc.types[k].name);
+          type_scale[k] = *r;
+        }
+      scale->finish();
+    }
+    th.friction.resize(sc.state.size());
+    for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
+  } else {
+    th.tau = t->number("tau");
+    t->require(th.tau >= 0.0 && std::isfinite(th.tau), "tau",
+               "expected a relaxation time tau >= 0 (0: the kinetic energy redrawn every step)");
+  }
+  t->finish();
+  sc.observables.thermostat = th.style;
+}
+
+}  // namespace stiffmd
