@@ -8,6 +8,7 @@ module's build directory on PYTHONPATH:
     small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow);
   - setting positions and velocities, then stepping, is bit for bit a deck that starts there (for
     RATTLE after sim.prepare(), which projects as the deck's start does);
+  - the README's example runs as written;
   - bad input: a misspelt override raises ValueError naming the key, a TOML error names the line,
     a wrong shape is refused, a blow-up raises stiffmd.NumericalError (a RuntimeError).
 Usage: test_python_module.py STIFFMD_EXE"""
@@ -252,6 +253,23 @@ def a_blow_up_raises_numerical_error():
     except stiffmd.NumericalError as e:
         assert isinstance(e, RuntimeError) and "non-finite" in str(e), e
         assert 0 < sim.step < 640
+
+
+@test
+def readme_example_runs():
+    with open(os.path.join(ROOT, "README.md")) as f:
+        section = f.read().split("\n## Python\n")[1].split("\n## ")[0]
+    code = section.split("```python\n")[1].split("```")[0]
+    cwd = os.getcwd()
+    os.chdir(ROOT)  # the example's paths are relative to the repository
+    try:
+        namespace = {}
+        exec(compile(code, "README.md (Python)", "exec"), namespace)  # noqa: S102 - our own README
+    finally:
+        os.chdir(cwd)
+    sim, eff = namespace["sim"], namespace["eff"]
+    assert sim.method == "rattle" and sim.time == 2.0 and sim.step == 128
+    assert eff.method == "effective"
 
 
 failed = [name for name, e in results if e is not None]
