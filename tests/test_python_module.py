@@ -3,7 +3,8 @@
 module's build directory on PYTHONPATH:
   - the double pendulum stepped from Python ends exactly where `stiffmd run` ends (bit for bit: the
     final H5MD frame's positions and velocities, summary.json's energies), for several methods, from
-    the file and from the same deck as TOML text;
+    the file and from the same deck as TOML text; so does a deck with pairs on a neighbour list,
+    with thermo() or forces() called after every step;
   - forces by level sum to the total and are −∇ of the level's energy (central differences) on a
     small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow);
   - setting positions and velocities, then stepping, is bit for bit a deck that starts there (for
@@ -74,6 +75,34 @@ def pendulum_equals_the_command_line_bit_for_bit():
             assert row["potential_slow"] == sim.energy("slow"), method
             if method != "effective":  # its potential_stiff is W(I, x), the model potential
                 assert row["potential_stiff"] == sim.energy("fast"), method
+
+
+@test
+def pair_deck_equals_the_command_line_whatever_is_evaluated_between_steps():
+    # WCA pairs on a neighbour list (about 100 rebuilds in 500 steps) under impulse. A method that
+    # evaluates the forces at the positions that end its step (all but mollified-impulse, README)
+    # has shown the list those positions: evaluations between steps (the CLI's thermo samples,
+    # the calls below) rebuild nothing the run would not.
+    deck = os.path.join(ROOT, "inputs", "morse_dimers.toml")
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [EXE, "run", deck, "-o", out, "--no-progress", "--set", "output.h5md=t.h5md",
+               "--set", "output.h5md_velocity=true"]
+        subprocess.run(cmd, capture_output=True, text=True, check=True)
+        with h5py.File(os.path.join(out, "t.h5md"), "r") as f:
+            v = f["particles/all/velocity/value"][-1]
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+    assert summary["neighbor_rebuilds"] > 50, summary["neighbor_rebuilds"]
+    for probe in (None, "thermo", "forces"):
+        sim = stiffmd.Simulation(deck)
+        while sim.step < summary["steps"]:
+            sim.run(1 if probe else summary["steps"])
+            if probe == "thermo":
+                sim.thermo()
+            elif probe == "forces":
+                sim.forces("slow"), sim.energy()
+        assert np.array_equal(sim.velocities, v), (probe, np.abs(sim.velocities - v).max())
+        assert sim.thermo()["total"] == summary["final_energy"], probe  # the positions, to the bit
 
 
 @test
