@@ -191,9 +191,8 @@ class Simulation {
 
  private:
   const std::vector<double>& sample() {
-    const std::vector<double>& row =
-        thermo_->sample(scene_.state, integrator_->model_potential(scene_.state.x),
-                        integrator_->constraint_virial(scene_.state));
+    const std::vector<double>& row = thermo_->sample(scene_.state, integrator_->model_potential(scene_.state.x),
+                                                     integrator_->constraint_virial(scene_.state));
     for (const auto& note : thermo_->take_notes()) log_ << note << "\n";
     return row;
   }
@@ -271,17 +270,20 @@ PYBIND11_MODULE(stiffmd, m) {
       .def("forces", &Simulation::forces, py::arg("level") = py::none(),
            "Forces (N×3) of a level (\"fast\", \"slow\") or of all (None) at the current positions.")
       .def("thermo", &Simulation::thermo, "The thermo row {column: value} at the current state.")
-      .def_property("positions", [](const Simulation& s) { return to_numpy(s.scene().state.x); },
-                    &Simulation::set_positions, "Positions, N×3 (a copy; assign an N×3 array to set).")
-      .def_property("velocities", [](const Simulation& s) { return to_numpy(s.scene().state.v); },
-                    &Simulation::set_velocities, "Velocities, N×3 (a copy; assign an N×3 array to set).")
+      .def_property(
+          "positions", [](const Simulation& s) { return to_numpy(s.scene().state.x); }, &Simulation::set_positions,
+          "Positions, N×3 (a copy; assign an N×3 array to set).")
+      .def_property(
+          "velocities", [](const Simulation& s) { return to_numpy(s.scene().state.v); }, &Simulation::set_velocities,
+          "Velocities, N×3 (a copy; assign an N×3 array to set).")
       .def_property_readonly(
           "masses",
           [](const Simulation& s) {
             const Eigen::VectorXd& w = s.scene().state.inv_mass;
             py::array_t<double> a(w.size());
             auto r = a.mutable_unchecked<1>();
-            for (Eigen::Index i = 0; i < w.size(); ++i) r(i) = w[i] > 0.0 ? 1.0 / w[i] : std::numeric_limits<double>::infinity();
+            for (Eigen::Index i = 0; i < w.size(); ++i)
+              r(i) = w[i] > 0.0 ? 1.0 / w[i] : std::numeric_limits<double>::infinity();
             return a;
           },
           "Masses (inf for a fixed particle).")
@@ -290,15 +292,14 @@ PYBIND11_MODULE(stiffmd, m) {
       .def_property_readonly("h", [](const Simulation& s) { return s.scene().integrator.h; })
       .def_property_readonly("micro_steps", [](const Simulation& s) { return s.scene().integrator.micro_steps; })
       .def_property_readonly("method", [](const Simulation& s) { return s.scene().integrator.method; })
-      .def_property_readonly("t_end", [](const Simulation& s) { return s.scene().run.t_end; },
-                             "The deck's run.t_end.")
+      .def_property_readonly(
+          "t_end", [](const Simulation& s) { return s.scene().run.t_end; }, "The deck's run.t_end.")
       .def_property_readonly("num_particles", [](const Simulation& s) { return s.scene().state.size(); })
       .def_property_readonly("log", &Simulation::log, "What preparation said (the CLI prints it on stderr).")
       .def("__repr__", [](const Simulation& s) {
         std::ostringstream o;
         o << "<stiffmd.Simulation " << s.scene().deck_path << ": " << s.scene().state.size() << " particles, "
-          << s.scene().integrator.method << ", h = " << s.scene().integrator.h << ", t = " << s.scene().state.t
-          << ">";
+          << s.scene().integrator.method << ", h = " << s.scene().integrator.h << ", t = " << s.scene().state.t << ">";
         return o.str();
       });
 }
