@@ -4,7 +4,7 @@ one of a higher layer, and the include graph has no cycles.
 
 Layers, bottom to top (a file may include its own layer and those below):
   engine/core  <  forcefields  <  integrators  <  engine/deck  <  engine/io  <  engine/observe
-  <  engine/scene  <  engine/run  <  engine/main.cpp (the command line)
+  <  engine/scene  <  engine/run  <  engine/main.cpp (the command line)  <  python (the module)
 
 Usage: check_layers.py [REPO]   (exit 0 clean, 1 with one line per violation)
 """
@@ -13,7 +13,7 @@ import re
 import sys
 
 LAYERS = ["engine/core", "forcefields", "integrators", "engine/deck", "engine/io", "engine/observe",
-          "engine/scene", "engine/run", "engine/main.cpp"]
+          "engine/scene", "engine/run", "engine/main.cpp", "python"]
 
 
 def layer(path):
@@ -27,7 +27,7 @@ def main():
     repo = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), ".."))
     include = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
     graph, problems = {}, []
-    for top in ("engine", "forcefields", "integrators"):
+    for top in ("engine", "forcefields", "integrators", "python"):
         for root, _, names in os.walk(os.path.join(repo, top)):
             for name in names:
                 if not name.endswith((".hpp", ".cpp", ".h")):

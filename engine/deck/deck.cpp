@@ -118,6 +118,14 @@ Deck::Deck(std::string path, const std::vector<std::string>& overrides) : path_(
                        " MiB; expected a deck file (TOML)");
   }
   if (in.bad()) throw InputError(path_ + ": cannot read deck file");
+  parse(text, overrides);
+}
+
+Deck::Deck(const Text& deck, const std::vector<std::string>& overrides) : path_(deck.name) {
+  parse(deck.toml, overrides);
+}
+
+void Deck::parse(const std::string& text, const std::vector<std::string>& overrides) {
   try {
     table_ = std::make_unique<toml::table>(toml::parse(text, path_));
   } catch (const toml::parse_error& e) {

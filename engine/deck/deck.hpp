@@ -103,6 +103,12 @@ class Deck {
   // Parses the file and applies the overrides ("a.b.c=value"; the value is read as TOML, or
   // as a string when it is not valid TOML: --set integrator.method=impulse works unquoted).
   Deck(std::string path, const std::vector<std::string>& overrides);
+  // A deck given as TOML text (the Python module): `name` stands for the file in error
+  // messages, and relative paths ([import]) are taken from the working directory.
+  struct Text {
+    std::string name, toml;
+  };
+  Deck(const Text& deck, const std::vector<std::string>& overrides);
   ~Deck();
   Deck(const Deck&) = delete;
   Deck& operator=(const Deck&) = delete;
@@ -117,6 +123,7 @@ class Deck {
   double evaluate(const std::string& expr, const std::string& where) const;
 
  private:
+  void parse(const std::string& text, const std::vector<std::string>& overrides);
   void apply_override(const std::string& assignment);
   void resolve_variables();
   // The variable names an expression refers to, defined or not (throws InputError on a syntax error).

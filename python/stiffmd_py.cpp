@@ -1,0 +1,305 @@
+// The Python module `stiffmd` (pybind11): a simulation made from a deck, stepped from Python.
+//
+// It sits above the engine and uses only its pieces, as the run loop does
+// (engine/run/simulation.cpp): Deck → load_scene → prepare_scene → make_integrator →
+// Integrator::prepare, then step(state, h) with t_k = k h from the start (no accumulated
+// round-off), so that n steps here are the CLI's n steps bit for bit. No outputs are written:
+// positions, velocities, energies, forces and the thermo row are read back as numpy arrays.
+//
+// Errors: InputError (bad deck, bad --set) → ValueError with its one line; NumericalError
+// (non-finite state, a constraint solve that fails) → stiffmd.NumericalError (a RuntimeError).
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "engine/core/errors.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/scene/scene.hpp"
+#include "integrators/methods.hpp"
+
+namespace py = pybind11;
+using namespace stiffmd;
+
+namespace {
+
+// A Python value as the right-hand side of a --set override (TOML text; a str goes as it is,
+// which the deck reads as TOML or else as a string, like the command line).
+std::string toml_value(const py::handle& v) {
+  if (py::isinstance<py::str>(v)) return v.cast<std::string>();
+  if (py::isinstance<py::bool_>(v)) return v.cast<bool>() ? "true" : "false";
+  if (py::isinstance<py::int_>(v)) return py::str(v).cast<std::string>();
+  if (py::isinstance<py::float_>(v)) return py::repr(v).cast<std::string>();  // shortest round trip
+  if (py::isinstance<py::list>(v) || py::isinstance<py::tuple>(v)) {
+    std::string s = "[";
+    bool first = true;
+    for (const py::handle& e : v) {
+      s += (first ? "" : ", ") + (py::isinstance<py::str>(e) ? py::repr(e).cast<std::string>() : toml_value(e));
+      first = false;
+    }
+    return s + "]";
+  }
+  throw py::type_error("set: expected str, bool, int, float or a list of them, got " +
+                       py::str(py::type::of(v)).cast<std::string>());
+}
+
+std::vector<std::string> overrides(const py::dict& set) {
+  std::vector<std::string> out;
+  for (const auto& [key, value] : set) out.push_back(py::str(key).cast<std::string>() + "=" + toml_value(value));
+  return out;
+}
+
+// 3×N (the engine's column per particle) → N×3 numpy array, a copy.
+py::array_t<double> to_numpy(const Eigen::Matrix3Xd& m) {
+  py::array_t<double> a({static_cast<py::ssize_t>(m.cols()), py::ssize_t{3}});
+  auto r = a.mutable_unchecked<2>();
+  for (Eigen::Index i = 0; i < m.cols(); ++i)
+    for (int k = 0; k < 3; ++k) r(i, k) = m(k, i);
+  return a;
+}
+
+// N×3 array-like → 3×N, refusing another shape or a non-finite entry (ValueError).
+void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, const char* what) {
+  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(obj);
+  if (!a) throw py::value_error(std::string(what) + ": expected an array of numbers");
+  if (a.ndim() != 2 || a.shape(0) != m.cols() || a.shape(1) != 3)
+    throw py::value_error(std::string(what) + ": expected shape (" + std::to_string(m.cols()) + ", 3)");
+  auto r = a.unchecked<2>();
+  for (Eigen::Index i = 0; i < m.cols(); ++i)
+    for (int k = 0; k < 3; ++k)
+      if (!std::isfinite(r(i, k)))
+        throw py::value_error(std::string(what) + ": non-finite value for particle " + std::to_string(i));
+  for (Eigen::Index i = 0; i < m.cols(); ++i)
+    for (int k = 0; k < 3; ++k) m(k, i) = r(i, k);
+}
+
+Level parse_level_or_throw(const std::string& name) {
+  if (auto l = parse_level(name)) return *l;
+  throw py::value_error("level: expected \"fast\" or \"slow\" (or None for all), got \"" + name + "\"");
+}
+
+class Simulation {
+ public:
+  explicit Simulation(std::unique_ptr<Deck> deck) : deck_(std::move(deck)), scene_(load_scene(*deck_)) {
+    for (const auto& note : scene_.notes) log_ << note << "\n";
+    prepare_scene(scene_, log_);
+    integrator_ = make_integrator(scene_.integrator, *scene_.forces, scene_.state.inv_mass);
+    ObservableSettings observables = scene_.observables;
+    if (find_method(scene_.integrator.method)->rigid_constraints)  // as the run loop counts them
+      observables.rigid_constraints = static_cast<int>(scene_.forces->stiff_bonds()->bonds.size());
+    thermo_ = std::make_unique<Thermo>(*scene_.forces, scene_.state.inv_mass, observables, &scene_.topology);
+    integrator_->prepare(scene_.state, log_);
+    check_finite();
+    sample();  // E(0), the reference of energy_drift, as the run loop's first sample
+  }
+
+  // Macro steps: step k ends at t = k h exactly (engine/run/simulation.cpp).
+  void run(std::int64_t steps) {
+    if (steps < 0) throw py::value_error("steps: expected a number >= 0");
+    State& s = scene_.state;
+    const double h = scene_.integrator.h;
+    const std::int64_t last = s.step + steps;
+    py::gil_scoped_release free;
+    for (std::int64_t k = s.step + 1; k <= last; ++k) {
+      try {
+        integrator_->step(s, h);
+      } catch (const NumericalError& e) {
+        std::ostringstream m;
+        m.precision(10);
+        m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+        throw NumericalError(m.str());
+      }
+      s.step = k;
+      s.t = static_cast<double>(k) * h;
+      check_finite();
+      if (k % 1024 == 0) {  // Ctrl-C: stop between steps, the state consistent
+        py::gil_scoped_acquire held;
+        if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+      }
+    }
+  }
+
+  // To the first step at or after t (t a whole number of steps to 1e-9 relative, as t_end).
+  void run_to(double t) {
+    const double h = scene_.integrator.h, r = t / h, nearest = std::round(r);
+    const double n = std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r);
+    if (!std::isfinite(t) || n < static_cast<double>(scene_.state.step)) {
+      std::ostringstream m;
+      m.precision(17);
+      m << "run_to: t = " << t << " is before the current time " << scene_.state.t;
+      throw py::value_error(m.str());
+    }
+    run(static_cast<std::int64_t>(n) - scene_.state.step);
+  }
+
+  // A state set from outside: the integrator's cached forces are stale, and energy_drift is
+  // measured from the new state's energy on.
+  void set_positions(const py::handle& a) {
+    from_numpy(a, scene_.state.x, "positions");
+    restarted();
+  }
+  void set_velocities(const py::handle& a) {
+    from_numpy(a, scene_.state.v, "velocities");
+    restarted();
+  }
+  // The method's preparation of the current state again (projection onto g = 0 for RATTLE and
+  // the effective dynamics, the actions of the latter), as at the start of a run.
+  void prepare() {
+    integrator_->prepare(scene_.state, log_);
+    restarted();
+  }
+
+  double energy(const std::optional<std::string>& level) const {
+    const Eigen::Matrix3Xd& x = scene_.state.x;
+    if (level) return scene_.forces->energy(x, parse_level_or_throw(*level));
+    return scene_.forces->energy(x, Level::fast) + scene_.forces->energy(x, Level::slow);
+  }
+  py::array_t<double> forces(const std::optional<std::string>& level) {
+    Eigen::Matrix3Xd f;
+    if (level) {
+      const Level l = parse_level_or_throw(*level);
+      scene_.forces->compute(scene_.state.x, {l}, f);
+    } else {
+      scene_.forces->compute(scene_.state.x, kAllLevels, f);
+    }
+    return to_numpy(f);
+  }
+
+  // The thermo row {column: value} at the current state (the CLI's thermo.csv columns but
+  // alerts: no [monitor] runs here).
+  py::dict thermo() {
+    const std::vector<double>& row = sample();
+    py::dict d;
+    const auto& columns = thermo_->columns();
+    for (size_t k = 0; k < columns.size(); ++k)
+      if (columns[k] != "alerts") d[py::str(columns[k])] = row[k];
+    return d;
+  }
+
+  const Scene& scene() const { return scene_; }
+  std::string log() const { return log_.str(); }
+
+ private:
+  const std::vector<double>& sample() {
+    const std::vector<double>& row = thermo_->sample(scene_.state, integrator_->model_potential(scene_.state.x),
+                                                     integrator_->constraint_virial(scene_.state));
+    for (const auto& note : thermo_->take_notes()) log_ << note << "\n";
+    return row;
+  }
+
+  void restarted() {
+    integrator_->reset();
+    thermo_->set_initial_energy(sample()[thermo_->column("total")]);
+  }
+
+  void check_finite() const {
+    const State& s = scene_.state;
+    if (s.x.allFinite() && s.v.allFinite()) return;
+    int bad = 0;
+    while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
+    std::ostringstream m;
+    m.precision(10);
+    m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
+      << " (t = " << s.t << "); reduce integrator.h or micro_dt";
+    throw NumericalError(m.str());
+  }
+
+  std::unique_ptr<Deck> deck_;
+  Scene scene_;
+  std::unique_ptr<Integrator> integrator_;
+  std::unique_ptr<Thermo> thermo_;
+  std::ostringstream log_;
+};
+
+}  // namespace
+
+PYBIND11_MODULE(stiffmd, m) {
+  m.doc() = "stiffmd: molecular dynamics with stiff bonds, stepped from Python";
+  static py::exception<NumericalError> numerical_error(m, "NumericalError", PyExc_RuntimeError);
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const InputError& e) {
+      PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const NumericalError& e) {
+      numerical_error(e.what());
+    } catch (const std::invalid_argument& e) {  // make_integrator: a method the scene cannot run
+      PyErr_SetString(PyExc_ValueError, e.what());
+    }
+  });
+
+  m.def(
+      "methods",
+      [] {
+        std::vector<std::string> names;
+        for (const MethodInfo& info : stiffmd::methods()) names.emplace_back(info.name);
+        return names;
+      },
+      "The integrator methods (integrator.method), in the order of README.");
+
+  py::class_<Simulation>(m, "Simulation",
+                         "A scene from a deck with its integrator, prepared as `stiffmd run` prepares it.")
+      .def(py::init([](const std::string& path, const py::dict& set) {
+             return std::make_unique<Simulation>(std::make_unique<Deck>(path, overrides(set)));
+           }),
+           py::arg("deck"), py::arg("set") = py::dict(),
+           "From a deck file; `set` overrides keys like --set: {\"integrator.method\": \"rattle\"}.")
+      .def_static(
+          "from_toml",
+          [](const std::string& text, const py::dict& set, const std::string& name) {
+            return std::make_unique<Simulation>(std::make_unique<Deck>(Deck::Text{name, text}, overrides(set)));
+          },
+          py::arg("text"), py::arg("set") = py::dict(), py::arg("name") = "<toml>",
+          "From TOML text; `name` stands for the file in error messages.")
+      .def("run", &Simulation::run, py::arg("steps"), "Take `steps` macro steps of size h.")
+      .def("run_to", &Simulation::run_to, py::arg("t"), "Step to time t (the first step at or after t).")
+      .def("prepare", &Simulation::prepare,
+           "Apply the method's preparation to the current state again (projection onto the constraints, actions).")
+      .def("energy", &Simulation::energy, py::arg("level") = py::none(),
+           "Potential energy of a level (\"fast\", \"slow\") or of all (None) at the current positions.")
+      .def("forces", &Simulation::forces, py::arg("level") = py::none(),
+           "Forces (N×3) of a level (\"fast\", \"slow\") or of all (None) at the current positions.")
+      .def("thermo", &Simulation::thermo, "The thermo row {column: value} at the current state.")
+      .def_property(
+          "positions", [](const Simulation& s) { return to_numpy(s.scene().state.x); }, &Simulation::set_positions,
+          "Positions, N×3 (a copy; assign an N×3 array to set).")
+      .def_property(
+          "velocities", [](const Simulation& s) { return to_numpy(s.scene().state.v); }, &Simulation::set_velocities,
+          "Velocities, N×3 (a copy; assign an N×3 array to set).")
+      .def_property_readonly(
+          "masses",
+          [](const Simulation& s) {
+            const Eigen::VectorXd& w = s.scene().state.inv_mass;
+            py::array_t<double> a(w.size());
+            auto r = a.mutable_unchecked<1>();
+            for (Eigen::Index i = 0; i < w.size(); ++i)
+              r(i) = w[i] > 0.0 ? 1.0 / w[i] : std::numeric_limits<double>::infinity();
+            return a;
+          },
+          "Masses (inf for a fixed particle).")
+      .def_property_readonly("time", [](const Simulation& s) { return s.scene().state.t; })
+      .def_property_readonly("step", [](const Simulation& s) { return s.scene().state.step; })
+      .def_property_readonly("h", [](const Simulation& s) { return s.scene().integrator.h; })
+      .def_property_readonly("micro_steps", [](const Simulation& s) { return s.scene().integrator.micro_steps; })
+      .def_property_readonly("method", [](const Simulation& s) { return s.scene().integrator.method; })
+      .def_property_readonly(
+          "t_end", [](const Simulation& s) { return s.scene().run.t_end; }, "The deck's run.t_end.")
+      .def_property_readonly("num_particles", [](const Simulation& s) { return s.scene().state.size(); })
+      .def_property_readonly("log", &Simulation::log, "What preparation said (the CLI prints it on stderr).")
+      .def("__repr__", [](const Simulation& s) {
+        std::ostringstream o;
+        o << "<stiffmd.Simulation " << s.scene().deck_path << ": " << s.scene().state.size() << " particles, "
+          << s.scene().integrator.method << ", h = " << s.scene().integrator.h << ", t = " << s.scene().state.t << ">";
+        return o.str();
+      });
+}

@@ -1,0 +1,306 @@
+#!/usr/bin/python3
+"""The Python module `stiffmd` (python/stiffmd_py.cpp), run by ctest on Debian's python3 with the
+module's build directory on PYTHONPATH:
+  - the double pendulum stepped from Python ends exactly where `stiffmd run` ends (bit for bit: the
+    final H5MD frame's positions and velocities, summary.json's energies), for several methods, from
+    the file and from the same deck as TOML text; so does a deck with pairs on a neighbour list,
+    with thermo() or forces() called after every step;
+  - forces by level sum to the total and are −∇ of the level's energy (central differences) on a
+    small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow);
+  - setting positions and velocities, then stepping, is bit for bit a deck that starts there (for
+    RATTLE after sim.prepare(), which projects as the deck's start does);
+  - the README's example runs as written;
+  - bad input: a misspelt override raises ValueError naming the key, a TOML error names the line,
+    a wrong shape is refused, a blow-up raises stiffmd.NumericalError (a RuntimeError).
+Usage: test_python_module.py STIFFMD_EXE"""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import h5py
+import numpy as np
+import stiffmd
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXE = sys.argv[1]
+PENDULUM = os.path.join(ROOT, "inputs", "double_pendulum.toml")
+results = []
+
+
+def test(fn):
+    try:
+        fn()
+        results.append((fn.__name__, None))
+        print(f"ok   {fn.__name__}")
+    except Exception as e:  # noqa: BLE001 - report every failure, keep going
+        results.append((fn.__name__, e))
+        print(f"FAIL {fn.__name__}: {type(e).__name__}: {e}")
+
+
+def cli_final_state(deck, out, sets):
+    """`stiffmd run` with the overrides; the final frame (positions, velocities) and summary.json."""
+    cmd = [EXE, "run", deck, "-o", out, "--no-progress", "--set", "output.h5md_velocity=true"]
+    for key, value in sets.items():
+        cmd += ["--set", f"{key}={value}"]
+    subprocess.run(cmd, capture_output=True, text=True, check=True)
+    with h5py.File(os.path.join(out, "trajectory.h5md"), "r") as f:
+        x = f["particles/all/position/value"][-1]
+        v = f["particles/all/velocity/value"][-1]
+        step = f["particles/all/position/step"][-1]
+    with open(os.path.join(out, "summary.json")) as f:
+        return x, v, int(step), json.load(f)
+
+
+@test
+def pendulum_equals_the_command_line_bit_for_bit():
+    for method in ("projected-impulse", "impulse", "rattle", "effective", "velocity-verlet"):
+        sets = {"integrator.method": method, "run.t_end": 1.0}
+        if method == "velocity-verlet":  # the full stiff system: a step that resolves ε
+            sets.update({"variables.eps": 0.01, "integrator.h": 1e-4})
+        with tempfile.TemporaryDirectory() as out:
+            x, v, step, summary = cli_final_state(PENDULUM, out, sets)
+        with open(PENDULUM) as f:
+            text = f.read()
+        for sim in (stiffmd.Simulation(PENDULUM, set=sets), stiffmd.Simulation.from_toml(text, set=sets)):
+            assert sim.method == method
+            sim.run_to(sim.t_end)
+            assert sim.step == step == summary["steps"], (method, sim.step, step)
+            assert np.array_equal(sim.positions, x), (method, np.abs(sim.positions - x).max())
+            assert np.array_equal(sim.velocities, v), (method, np.abs(sim.velocities - v).max())
+            row = sim.thermo()
+            assert row["total"] == summary["final_energy"], (method, row["total"], summary["final_energy"])
+            assert row["max_violation"] == summary["final_max_violation"], method
+            assert row["potential_slow"] == sim.energy("slow"), method
+            if method != "effective":  # its potential_stiff is W(I, x), the model potential
+                assert row["potential_stiff"] == sim.energy("fast"), method
+
+
+@test
+def pair_deck_equals_the_command_line_whatever_is_evaluated_between_steps():
+    # WCA pairs on a neighbour list (about 100 rebuilds in 500 steps) under impulse. A method that
+    # evaluates the forces at the positions that end its step (all but mollified-impulse, README)
+    # has shown the list those positions: evaluations between steps (the CLI's thermo samples,
+    # the calls below) rebuild nothing the run would not.
+    deck = os.path.join(ROOT, "inputs", "morse_dimers.toml")
+    with tempfile.TemporaryDirectory() as out:
+        cmd = [EXE, "run", deck, "-o", out, "--no-progress", "--set", "output.h5md=t.h5md",
+               "--set", "output.h5md_velocity=true"]
+        subprocess.run(cmd, capture_output=True, text=True, check=True)
+        with h5py.File(os.path.join(out, "t.h5md"), "r") as f:
+            v = f["particles/all/velocity/value"][-1]
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+    assert summary["neighbor_rebuilds"] > 50, summary["neighbor_rebuilds"]
+    for probe in (None, "thermo", "forces"):
+        sim = stiffmd.Simulation(deck)
+        while sim.step < summary["steps"]:
+            sim.run(1 if probe else summary["steps"])
+            if probe == "thermo":
+                sim.thermo()
+            elif probe == "forces":
+                sim.forces("slow"), sim.energy()
+        assert np.array_equal(sim.velocities, v), (probe, np.abs(sim.velocities - v).max())
+        assert sim.thermo()["total"] == summary["final_energy"], probe  # the positions, to the bit
+
+
+@test
+def steps_and_times():
+    sim = stiffmd.Simulation(PENDULUM)
+    h = sim.h
+    assert h == 1 / 64 and sim.step == 0 and sim.time == 0.0
+    sim.run(3)
+    assert sim.step == 3 and sim.time == 3 * h
+    sim.run_to(0.5)  # 32 steps
+    assert sim.step == 32 and sim.time == 0.5
+    sim.run_to(0.5)  # already there: no step
+    assert sim.step == 32
+    sim.run(0)
+    assert sim.step == 32
+    coarse = stiffmd.Simulation(PENDULUM, set={"integrator.h": 0.1})
+    for _ in range(10):
+        coarse.run(1)
+    assert coarse.time == 10 * 0.1 == 1.0  # t_k = k h, not a sum of h (0.9999999999999999)
+    try:
+        sim.run_to(0.25)
+        raise AssertionError("run_to into the past was accepted")
+    except ValueError as e:
+        assert "before the current time" in str(e), e
+    assert "projected-impulse" in stiffmd.methods() and "rattle" in stiffmd.methods()
+    m = sim.masses
+    assert m[0] == np.inf and m[1] == 1.0 and m[2] == 1.0 and sim.num_particles == 3
+    # Copies: changing the returned array does not change the simulation.
+    x = sim.positions
+    x[1, 0] += 1.0
+    assert not np.array_equal(sim.positions, x)
+
+
+SMALL = """
+[box]
+lengths = [8, 8, 8]
+[types.bead]
+mass = 1.5
+[[build]]
+style = "linear-chains"
+type = "bead"
+chains = 3
+beads = 4
+bond_length = 1.0
+bond_type = "b"
+angle_type = "a"
+min_distance = 0.9
+seed = 7
+[velocities]
+temperature = 1.0
+seed = 2
+[forces.bonds]
+style = "stiff-harmonic"
+level = "fast"
+epsilon = 0.1
+bond_types.b = { length = 1.0, alpha = 1.0 }
+[forces.bend]
+style = "harmonic-angle"
+angle_types.a = { k = 3.0, theta0 = 110 }
+[forces.pairs]
+style = "lj"
+cutoff = 2.5
+special_bonds = [0.0, 0.5]
+[integrator]
+method = "impulse"
+h = 0.005
+micro_steps = 5
+[run]
+t_end = 0.05
+"""
+
+
+@test
+def forces_by_level_are_minus_the_gradient_of_their_energy():
+    sim = stiffmd.Simulation.from_toml(SMALL)
+    rng = np.random.default_rng(1)
+    x0 = sim.positions + rng.uniform(-0.05, 0.05, sim.positions.shape)  # stretch the stiff bonds
+    sim.positions = x0
+    fast, slow, total = sim.forces("fast"), sim.forces("slow"), sim.forces()
+    assert np.abs(fast).max() > 1.0 and np.abs(slow).max() > 0.1  # both levels act
+    assert np.allclose(fast + slow, total, rtol=1e-13, atol=1e-13 * np.abs(total).max())
+    assert sim.energy() == sim.energy("fast") + sim.energy("slow")
+    d = 1e-5
+    for level, f in (("fast", fast), ("slow", slow)):
+        grad = np.zeros_like(x0)
+        for i in range(x0.shape[0]):
+            for a in range(3):
+                for sign in (1, -1):
+                    x = x0.copy()
+                    x[i, a] += sign * d
+                    sim.positions = x
+                    grad[i, a] += sign * sim.energy(level) / (2 * d)
+        err = np.abs(f + grad).max()
+        assert err < 1e-6 * max(1.0, np.abs(f).max()), (level, err)
+    try:
+        sim.energy("medium")
+        raise AssertionError("an unknown level was accepted")
+    except ValueError as e:
+        assert "fast" in str(e)
+
+
+def deck_starting_at(x, v):
+    """Three chains of four beads with stiff bonds and LJ pairs, starting at x, v (given at full
+    precision: repr round-trips)."""
+    text = "[box]\nlengths = [8, 8, 8]\n[types.bead]\nmass = 1.5\n"
+    for xi, vi in zip(x, v):
+        text += (f"[[particles]]\ntype = \"bead\"\nposition = [{', '.join(map(repr, map(float, xi)))}]\n"
+                 f"velocity = [{', '.join(map(repr, map(float, vi)))}]\n")
+    for c in range(3):
+        for b in range(3):
+            text += f"[[bonds]]\nparticles = [{4 * c + b}, {4 * c + b + 1}]\ntype = \"b\"\n"
+    return text + SMALL.split("[forces.bend]")[0].split("seed = 2\n")[1] + "[forces.pairs]" + SMALL.split(
+        "[forces.pairs]")[1]
+
+
+@test
+def setting_the_state_then_stepping_is_a_deck_that_starts_there():
+    for method in ("impulse", "projected-impulse", "rattle"):
+        sets = {"integrator.method": method}
+        built = stiffmd.Simulation.from_toml(SMALL)
+        sim = stiffmd.Simulation.from_toml(deck_starting_at(built.positions, built.velocities), set=sets)
+        sim.run(4)
+        rng = np.random.default_rng(3)
+        x = sim.positions + rng.uniform(-0.02, 0.02, sim.positions.shape)
+        v = sim.velocities * 0.5
+        sim.positions, sim.velocities = x, v
+        assert np.array_equal(sim.positions, x) and np.array_equal(sim.velocities, v)
+        sim.prepare()  # what a fresh run does first (RATTLE projects; the impulse family: nothing)
+        fresh = stiffmd.Simulation.from_toml(deck_starting_at(x, v), set=sets)
+        assert np.array_equal(fresh.positions, sim.positions), method
+        assert np.array_equal(fresh.velocities, sim.velocities), method
+        sim.run(6)
+        fresh.run(6)
+        assert np.array_equal(fresh.positions, sim.positions), (method, np.abs(fresh.positions - sim.positions).max())
+        assert np.array_equal(fresh.velocities, sim.velocities), method
+        assert fresh.thermo()["energy_drift"] == sim.thermo()["energy_drift"], method  # E(0) from the set state
+
+
+@test
+def bad_input_raises_value_error_naming_the_key():
+    try:
+        stiffmd.Simulation(PENDULUM, set={"integrator.metod": "rattle"})
+        raise AssertionError("a misspelt key was accepted")
+    except ValueError as e:
+        assert "integrator.metod" in str(e) and "\n" not in str(e), e
+    try:
+        stiffmd.Simulation(PENDULUM, set={"integrator.h": -1})
+        raise AssertionError("h < 0 was accepted")
+    except ValueError as e:
+        assert "integrator.h" in str(e), e
+    try:
+        stiffmd.Simulation.from_toml("[run]\nt_end = 1\n[integrator\n", name="mine.toml")
+        raise AssertionError("a TOML syntax error was accepted")
+    except ValueError as e:
+        assert str(e).startswith("mine.toml:3:"), e
+    try:
+        stiffmd.Simulation(os.path.join(ROOT, "inputs", "no_such_deck.toml"))
+        raise AssertionError("a missing deck was accepted")
+    except ValueError as e:
+        assert "no_such_deck.toml" in str(e), e
+    sim = stiffmd.Simulation(PENDULUM)
+    for bad in (np.zeros((2, 3)), np.zeros((3, 2)), [[0, 0, np.nan]] * 3):
+        try:
+            sim.positions = bad
+            raise AssertionError(f"positions {bad} accepted")
+        except ValueError:
+            pass
+
+
+@test
+def a_blow_up_raises_numerical_error():
+    # Velocity Verlet with h = 1/64 ≫ ε on the stiff springs is unstable: the state overflows.
+    sim = stiffmd.Simulation(PENDULUM, set={"integrator.method": "velocity-verlet"})
+    try:
+        sim.run_to(sim.t_end)
+        raise AssertionError("the blow-up went unnoticed")
+    except stiffmd.NumericalError as e:
+        assert isinstance(e, RuntimeError) and "non-finite" in str(e), e
+        assert 0 < sim.step < 640
+
+
+@test
+def readme_example_runs():
+    with open(os.path.join(ROOT, "README.md")) as f:
+        section = f.read().split("\n## Python\n")[1].split("\n## ")[0]
+    code = section.split("```python\n")[1].split("```")[0]
+    cwd = os.getcwd()
+    os.chdir(ROOT)  # the example's paths are relative to the repository
+    try:
+        namespace = {}
+        exec(compile(code, "README.md (Python)", "exec"), namespace)  # noqa: S102 - our own README
+    finally:
+        os.chdir(cwd)
+    sim, eff = namespace["sim"], namespace["eff"]
+    assert sim.method == "rattle" and sim.time == 2.0 and sim.step == 128
+    assert eff.method == "effective"
+
+
+failed = [name for name, e in results if e is not None]
+print(f"{len(results) - len(failed)}/{len(results)} passed")
+sys.exit(1 if failed else 0)
