@@ -63,6 +63,7 @@ void Rattle::step(State& s, double h) {
     rattle_drift(s, 0.5 * h);
     langevin_->apply(s.v, h, s.step, 0);
     toolbox_.project_velocity(s.x, s.v);
+    o_step_kinetic_ = s.kinetic_energy();
     rattle_drift(s, 0.5 * h);
   }
   refresh(s.x);
@@ -77,16 +78,18 @@ void Rattle::step(State& s, double h) {
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]
+// [Langevin: the kinetic energy at the last O step]
 std::vector<double> Rattle::save_state() const {
   std::vector<double> w = model_ ? model_->save_state() : std::vector<double>{};
   w.push_back(valid_ ? 1.0 : 0.0);
   w.insert(w.end(), f_.data(), f_.data() + f_.size());
   w.insert(w.end(), constraint_force_.data(), constraint_force_.data() + constraint_force_.size());
+  if (langevin_) w.push_back(o_step_kinetic_);
   return w;
 }
 
 void Rattle::load_state(const std::vector<double>& w) {
-  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3;
+  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3 + (langevin_ ? 1 : 0);
   if (w.size() < own)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, this scene needs at least " + std::to_string(own) + " (forces of " +
@@ -100,6 +103,7 @@ void Rattle::load_state(const std::vector<double>& w) {
   valid_ = w[m] != 0.0;
   f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
   constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
+  if (langevin_) o_step_kinetic_ = w.back();
 }
 
 }  // namespace stiffmd
