@@ -40,7 +40,8 @@ class Rattle final : public Integrator {
   void reset() override { valid_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
-  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2). Molecules are whole (unwrapped
+  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2) (with Langevin, the last half
+  // drift's centrifugal share is projected apart, over h/4: rattle.cpp). Molecules are whole (unwrapped
   // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
   double model_potential(const Eigen::Matrix3Xd& x) override { return model_ ? model_->force(x, correction_) : 0.0; }
@@ -57,6 +58,7 @@ class Rattle final : public Integrator {
  private:
   void refresh(const Eigen::Matrix3Xd& x);
   void rattle_drift(State& s, double dt);  // x ← x + dt v on g = 0; v ← the tangential chord velocity
+  void add_constraint_force(const State& s, double dt, bool first);  // M (v − v_unprojected)/dt
 
   std::string method_;
   ForceField& forces_;
