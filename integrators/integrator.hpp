@@ -39,6 +39,12 @@ class Integrator {
   // Σ_i x_i·F_c,i of the rigid-constraint forces at the current state (RATTLE, effective), for
   // the pressure; 0 for methods without rigid constraints.
   virtual double constraint_virial(const State&) const { return 0.0; }
+  // The kinetic energy the temperature and the pressure's kinetic term read. Under Langevin
+  // dynamics it is that of the velocities just after the last O step (BAOAB's mid-step
+  // velocities): BAOAB's on-step velocities of a vibration of frequency ω read kT(1 − (hω)²/4),
+  // those at the O step read kT exactly for harmonic forces (Leimkuhler & Matthews 2013, 2016).
+  // Otherwise, and before the first step, the state's ½vᵀMv.
+  virtual double kinetic_energy_estimate(const State& s) const { return s.kinetic_energy(); }
   // State the integrator carries beyond (x, v) — cached forces, the constraint force, the
   // effective dynamics' actions — for checkpoints: restoring it (and skipping prepare())
   // continues a run bit for bit. Everything a later step or observable reads must be in it.

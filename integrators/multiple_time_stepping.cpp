@@ -60,7 +60,7 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
     const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;
     if (langevin_ && n % 2 == 1 && i == n / 2) {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
-      langevin_->apply(s.v, span, s.step, substep_++);
+      o_step(s, span);
       drift(s.x, s.v, 0.5 * dt);
     } else {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
@@ -68,7 +68,7 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
     refresh(k, s.x);
     if (langevin_ && n % 2 == 0 && i == n / 2 - 1) {
       kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
-      langevin_->apply(s.v, span, s.step, substep_++);
+      o_step(s, span);
     }
   }
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
@@ -80,20 +80,23 @@ std::vector<double> MultipleTimeStepping::save_state() const {
     w.push_back(valid_[k] ? 1.0 : 0.0);
     w.insert(w.end(), force_[k].data(), force_[k].data() + force_[k].size());
   }
+  if (langevin_) w.push_back(o_step_kinetic_);
   return w;
 }
 
 void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const size_t per_stage = 1 + 3 * static_cast<size_t>(forces_.num_particles());
-  if (w.size() != stages_.size() * per_stage)
+  const size_t expected = stages_.size() * per_stage + (langevin_ ? 1 : 0);
+  if (w.size() != expected)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
-                                " state, expected " + std::to_string(stages_.size() * per_stage) + " (" +
-                                std::to_string(stages_.size()) + " stages)");
+                                " state, expected " + std::to_string(expected) + " (" +
+                                std::to_string(stages_.size()) + " stages" + (langevin_ ? ", Langevin)" : ")"));
   for (size_t k = 0; k < stages_.size(); ++k) {
     const double* p = w.data() + k * per_stage;
     valid_[k] = p[0] != 0.0;
     force_[k] = Eigen::Map<const Eigen::Matrix3Xd>(p + 1, 3, forces_.num_particles());
   }
+  if (langevin_) o_step_kinetic_ = w.back();
 }
 
 // kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin
@@ -104,8 +107,14 @@ void MultipleTimeStepping::kick_drift_langevin(State& s, const Eigen::Matrix3Xd&
     return;
   }
   kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, 0.5 * dt);
-  langevin_->apply(s.v, dt, s.step, substep_++);
+  o_step(s, dt);
   drift(s.x, s.v, 0.5 * dt);
+}
+
+// One O step per macro step (see the header), so o_step_kinetic_ is that macro step's.
+void MultipleTimeStepping::o_step(State& s, double dt) {
+  langevin_->apply(s.v, dt, s.step, substep_++);
+  o_step_kinetic_ = s.kinetic_energy();
 }
 
 }  // namespace stiffmd

@@ -63,30 +63,54 @@ void Rattle::step(State& s, double h) {
     rattle_drift(s, 0.5 * h);
     langevin_->apply(s.v, h, s.step, 0);
     toolbox_.project_velocity(s.x, s.v);
+    o_step_kinetic_ = s.kinetic_energy();
     rattle_drift(s, 0.5 * h);
+    // The chord velocity of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along each
+    // bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
+    // τ = h/2 that is twice the factor of the closing kick's share (below): taken apart here, else
+    // the pressure would miss half the centrifugal force (kT per bond in the virial).
+    v_unprojected_ = s.v;
+    toolbox_.project_velocity(s.x, s.v);
   }
+  if (langevin_)
+    add_constraint_force(s, 0.25 * h, true);
+  else
+    constraint_force_.setZero();
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   v_unprojected_ = s.v;
   toolbox_.project_velocity(s.x, s.v);  // G(x') v' = 0
-  // F_c = M Δv / (h/2); fixed particles (inverse mass 0) have Δv = 0 and get no force.
-  for (int i = 0; i < s.size(); ++i)
-    constraint_force_.col(i) = s.inv_mass[i] > 0.0
-                                   ? ((s.v.col(i) - v_unprojected_.col(i)) * (2.0 / (h * s.inv_mass[i]))).eval()
-                                   : Eigen::Vector3d::Zero().eval();
+  // Without Langevin the chord over h and the kick over h/2 share the factor: F_c = M Δv / (h/2).
+  add_constraint_force(s, 0.5 * h, false);
+}
+
+// constraint_force_ (+)= M (v − v_unprojected) / dt; fixed particles (inverse mass 0) have Δv = 0
+// and get no force.
+void Rattle::add_constraint_force(const State& s, double dt, bool first) {
+  for (int i = 0; i < s.size(); ++i) {
+    const Eigen::Vector3d f = s.inv_mass[i] > 0.0
+                                  ? ((s.v.col(i) - v_unprojected_.col(i)) * (1.0 / (dt * s.inv_mass[i]))).eval()
+                                  : Eigen::Vector3d::Zero().eval();
+    if (first)
+      constraint_force_.col(i) = f;
+    else
+      constraint_force_.col(i) += f;
+  }
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]
+// [Langevin: the kinetic energy at the last O step]
 std::vector<double> Rattle::save_state() const {
   std::vector<double> w = model_ ? model_->save_state() : std::vector<double>{};
   w.push_back(valid_ ? 1.0 : 0.0);
   w.insert(w.end(), f_.data(), f_.data() + f_.size());
   w.insert(w.end(), constraint_force_.data(), constraint_force_.data() + constraint_force_.size());
+  if (langevin_) w.push_back(o_step_kinetic_);
   return w;
 }
 
 void Rattle::load_state(const std::vector<double>& w) {
-  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3;
+  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3 + (langevin_ ? 1 : 0);
   if (w.size() < own)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, this scene needs at least " + std::to_string(own) + " (forces of " +
@@ -100,6 +124,7 @@ void Rattle::load_state(const std::vector<double>& w) {
   valid_ = w[m] != 0.0;
   f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
   constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
+  if (langevin_) o_step_kinetic_ = w.back();
 }
 
 }  // namespace stiffmd

@@ -13,7 +13,8 @@
 // Langevin dynamics: constrained BAOAB (Leimkuhler & Matthews, Proc. R. Soc. A 472, 20160138
 // (2016)): B(½h) A(½h) O(h) A(½h) B(½h), every A a RATTLE position step (SHAKE, then the
 // velocity projection) and the O step followed by the velocity projection, so that friction
-// and noise act on the tangent space {G v = 0} only.
+// and noise act on the tangent space {G v = 0} only. The temperature reads the velocities just
+// after the projected O step (kinetic_energy_estimate, integrators/integrator.hpp).
 #pragma once
 
 #include <memory>
@@ -39,19 +40,25 @@ class Rattle final : public Integrator {
   void reset() override { valid_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
-  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2). Molecules are whole (unwrapped
+  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2) (with Langevin, the last half
+  // drift's centrifugal share is projected apart, over h/4: rattle.cpp). Molecules are whole (unwrapped
   // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
   double model_potential(const Eigen::Matrix3Xd& x) override { return model_ ? model_->force(x, correction_) : 0.0; }
+  double kinetic_energy_estimate(const State& s) const override {
+    return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
+  }
 
   // The model potential's state (actions), the cached force f(x) with its validity and the
-  // constraint force of the last step (for the pressure of the first sample after a restart).
+  // constraint force of the last step (for the pressure of the first sample after a restart);
+  // with Langevin, the kinetic energy at the last O step.
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& s) override;
 
  private:
   void refresh(const Eigen::Matrix3Xd& x);
   void rattle_drift(State& s, double dt);  // x ← x + dt v on g = 0; v ← the tangential chord velocity
+  void add_constraint_force(const State& s, double dt, bool first);  // M (v − v_unprojected)/dt
 
   std::string method_;
   ForceField& forces_;
@@ -60,6 +67,7 @@ class Rattle final : public Integrator {
   std::unique_ptr<LangevinNoise> langevin_;
   Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
   bool valid_ = false;
+  double o_step_kinetic_ = -1.0;  // ½vᵀMv just after the last (projected) O step; −1: none yet
 };
 
 }  // namespace stiffmd

@@ -20,6 +20,7 @@ noise (momentum is not conserved); LAMMPS's is rescaled by (3N - 3)/(3N) here.
     /usr/bin/python3 tools/kremer_grest_lammps.py --steps 10000 --discard 2000 --out out/kg_lammps
 """
 import argparse
+import concurrent.futures
 import json
 import math
 import os
@@ -185,6 +186,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "kremer_grest_lammps"))
     ap.add_argument("--h", type=float, default=H, help="time step of both codes (in.chain: 0.012)")
     args = ap.parse_args()
+    args.out = os.path.abspath(args.out)  # LAMMPS runs in its own folder
     globals()["H"] = args.h
     lmp = shutil.which(args.lmp)
     if lmp is None:
@@ -192,8 +194,11 @@ def main():
     args.lmp = lmp
     if not os.path.exists(DATA):
         sys.exit(f"{DATA} not found: bash tools/setup.sh")
-    s = run_stiffmd(args, os.path.join(args.out, "stiffmd"))
-    l = run_lammps(args, os.path.join(args.out, "lammps"))
+    # The two codes run at once, one core each (both single-threaded).
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        fs = pool.submit(run_stiffmd, args, os.path.join(args.out, "stiffmd"))
+        fl = pool.submit(run_lammps, args, os.path.join(args.out, "lammps"))
+        s, l = fs.result(), fl.result()
     result = {"h": H, "steps": args.steps, "discard": args.discard, "quantities": {}}
     print(f"{'quantity':<12} {'stiffmd':>22} {'LAMMPS':>22} {'diff/sigma':>10}")
     for q in ("temperature", "pressure", "bond_length", "rg"):

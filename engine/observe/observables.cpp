@@ -67,8 +67,10 @@ int Thermo::column(const std::string& name) const {
   return -1;
 }
 
-const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial) {
+const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial,
+                                          double kinetic_estimate) {
   Energies e = energies(s, forces_);
+  const double thermal_kinetic = kinetic_estimate >= 0.0 ? kinetic_estimate : e.kinetic;
   e.stiff += model_potential;
   if (!have_e0_) {
     e0_ = e.total();
@@ -77,8 +79,10 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   values_.clear();
   values_.insert(values_.end(),
                  {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
-                  max_constraint_violation(s.x, forces_.stiff_bonds()), temperature(s, dof_)});
-  if (volume_ > 0) values_.push_back(pressure(s, forces_, volume_) + constraint_virial / (3.0 * volume_));
+                  max_constraint_violation(s.x, forces_.stiff_bonds()),
+                  dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  if (volume_ > 0)
+    values_.push_back(pressure(s, forces_, volume_, thermal_kinetic) + constraint_virial / (3.0 * volume_));
   if (molecules_) {
     double rg = 0.0, ree = 0.0;
     molecules_->measure(s.x, rg, ree);

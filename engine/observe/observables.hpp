@@ -51,7 +51,11 @@ class Thermo {
   // Values for the current state; energy_drift is relative to the first call's total energy.
   // model_potential (W of the effective dynamics) is counted in potential_stiff.
   // constraint_virial (Σ x·F_c of rigid constraints) is added to the pressure's virial.
-  const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0);
+  // kinetic_estimate (Integrator::kinetic_energy_estimate; < 0: the state's ½vᵀMv) is the kinetic
+  // energy of the temperature and of the pressure's kinetic term: under Langevin, that of the
+  // velocities at the O step. The kinetic, total and energy_drift columns stay the state's.
+  const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0,
+                                    double kinetic_estimate = -1.0);
   double initial_energy() const { return e0_; }
   // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
   void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }

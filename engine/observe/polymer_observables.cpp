@@ -16,10 +16,10 @@ int degrees_of_freedom(const State& s, bool momentum_conserved, int constraints)
   return degrees_of_freedom(s.inv_mass, momentum_conserved, constraints);  // integrators/thermostat.hpp
 }
 
-double pressure(const State& s, const ForceField& forces, double volume) {
+double pressure(const State& s, const ForceField& forces, double volume, double kinetic) {
   double w = 0.0;
   for (const auto& term : forces.terms()) w += term->virial(s.x, forces.box());
-  return (2.0 * s.kinetic_energy() + w) / (3.0 * volume);
+  return (2.0 * (kinetic >= 0.0 ? kinetic : s.kinetic_energy()) + w) / (3.0 * volume);
 }
 
 Molecules::Molecules(const Topology& topology, const Eigen::VectorXd& inv_mass, const Eigen::VectorXd& mass)

@@ -22,7 +22,8 @@ int degrees_of_freedom(const State& s, bool momentum_conserved, int constraints)
 
 // P = (2K + W) / (3V) with W = Σ r_ij·f_ij over every term (virial theorem); the caller adds the
 // rigid-constraint forces' virial for RATTLE and the effective dynamics (Thermo::sample).
-double pressure(const State& s, const ForceField& forces, double volume);
+// kinetic: the K of the kinetic term (Thermo: the integrator's estimate); < 0: the state's.
+double pressure(const State& s, const ForceField& forces, double volume, double kinetic = -1.0);
 
 // Molecules with at least two particles: particle lists in index order.
 class Molecules {

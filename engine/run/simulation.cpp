@@ -295,7 +295,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
   std::vector<double> last_row;
   auto sample = [&]() -> const std::vector<double>& {
-    last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
+    last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s),
+                             integrator->kinetic_energy_estimate(s));
     max_err = std::max(max_err, std::abs(last_row[6]));
     for (const auto& note : thermo.take_notes()) log << note << "\n";
     alerts = monitor.check(last_row, thermo.initial_energy(), log);
@@ -356,8 +357,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   check_finite(s);
   if (!restarting) {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x),
-                                    integrator->constraint_virial(s));  // E(0) and the initial actions
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s),
+                                    integrator->kinetic_energy_estimate(s));  // E(0) and the initial actions
     if (first_action >= 0)
       summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   }
