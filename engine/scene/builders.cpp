@@ -619,49 +619,4 @@ Box box_for_density(int total_beads, double density) {
   return box;
 }
 
-Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed) {
-  if (!(temperature >= 0.0) || !std::isfinite(temperature))
-    throw std::invalid_argument("maxwell_boltzmann: temperature = " + num(temperature) + ": expected a finite T >= 0");
-  const Eigen::Index n = inv_mass.size();
-  int mobile = 0;
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (!(inv_mass[i] >= 0.0) || !std::isfinite(inv_mass[i]))
-      throw std::invalid_argument("maxwell_boltzmann: inverse mass of particle " + std::to_string(i) + " = " +
-                                  num(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
-    if (inv_mass[i] > 0.0) ++mobile;
-  }
-  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
-  const int dof = 3 * mobile - 3;
-  if (dof <= 0 || temperature == 0.0) return v;  // nothing can move once the momentum is removed
-
-  Rng rng(seed);
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (inv_mass[i] == 0.0) continue;  // fixed particles draw no numbers: at rest
-    const double s = std::sqrt(temperature * inv_mass[i]);
-    for (int a = 0; a < 3; ++a) v(a, i) = s * rng.normal();
-  }
-  // Remove the centre-of-mass velocity of the mobile particles; a second pass removes what
-  // rounding left from the first, so that Σ m v vanishes to ~1e-16 of Σ m|v|.
-  for (int pass = 0; pass < 2; ++pass) {
-    CompensatedSum mass, p[3];
-    for (Eigen::Index i = 0; i < n; ++i) {
-      if (inv_mass[i] == 0.0) continue;
-      const double m = 1.0 / inv_mass[i];
-      mass.add(m);
-      for (int a = 0; a < 3; ++a) p[a].add(m * v(a, i));
-    }
-    const double vcm[3] = {p[0].value() / mass.value(), p[1].value() / mass.value(), p[2].value() / mass.value()};
-    for (Eigen::Index i = 0; i < n; ++i)
-      if (inv_mass[i] > 0.0)
-        for (int a = 0; a < 3; ++a) v(a, i) -= vcm[a];
-  }
-  // Rescale to the exact kinetic temperature: Σ m v² = dof·T (a common factor keeps Σ m v = 0).
-  CompensatedSum twice_kinetic;
-  for (Eigen::Index i = 0; i < n; ++i)
-    if (inv_mass[i] > 0.0)
-      for (int a = 0; a < 3; ++a) twice_kinetic.add(v(a, i) * v(a, i) / inv_mass[i]);
-  if (twice_kinetic.value() > 0.0) v *= std::sqrt(dof * temperature / twice_kinetic.value());
-  return v;
-}
-
 }  // namespace stiffmd
