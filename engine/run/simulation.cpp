@@ -226,6 +226,11 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   }
   std::unique_ptr<H5mdWriter> h5md;
   Eigen::Matrix3Xd h5md_force;
+  std::vector<int> h5md_columns;  // every thermo column but time and step
+  std::vector<double> h5md_values;
+  for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
+    if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns.push_back(c);
+  h5md_values.resize(h5md_columns.size());
   if (!sc.output.h5md.empty()) {
     H5mdSetup setup;
     setup.num_particles = s.size();
@@ -240,7 +245,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     setup.force = sc.output.h5md_force;
     setup.gzip = sc.output.h5md_gzip;
     // Observables on the frame grid: every thermo column but time and step.
-    setup.observables.assign(thermo.columns().begin() + 2, thermo.columns().end());
+    for (int c : h5md_columns) setup.observables.push_back(thermo.columns()[c]);
     const std::string path = (dir / sc.output.h5md).string();
     summary.outputs.push_back(path);
     const bool append = restarting && fs::exists(path);
@@ -258,6 +263,9 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     h5md_due.served_until(cut);
   }
   std::vector<double> state_row(1 + 6 * s.size());
+  // Thermo columns by name (Thermo::columns), looked up once.
+  const int col_total = thermo.column("total"), col_drift = thermo.column("energy_drift"),
+            col_violation = thermo.column("max_violation"), col_alerts = thermo.column("alerts");
   const int first_action = thermo.column("action_1");
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
@@ -296,10 +304,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   std::vector<double> last_row;
   auto sample = [&]() -> const std::vector<double>& {
     last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s));
-    max_err = std::max(max_err, std::abs(last_row[6]));
+    max_err = std::max(max_err, std::abs(last_row[col_drift]));
     for (const auto& note : thermo.take_notes()) log << note << "\n";
     alerts = monitor.check(last_row, thermo.initial_energy(), log);
-    last_row.back() = alerts;
+    last_row[col_alerts] = alerts;
     if (alerts == 0 && monitor.stops()) {
       last_good.state = s;
       snapshot(last_good);
@@ -318,8 +326,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   };
   auto write_h5md = [&](const std::vector<double>& row) {
     if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
-    h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
-                      std::vector<double>(row.begin() + 2, row.end()));
+    for (size_t k = 0; k < h5md_columns.size(); ++k) h5md_values[k] = row[h5md_columns[k]];
+    h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr, h5md_values);
   };
   Checkpoint now;  // snapshot() of the current step, written with s (no copy of the state)
   auto checkpoint = [&] {
@@ -419,8 +427,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     summary.outputs.push_back((dir / "histograms.csv").string());
   }
   summary.steps = n;
-  summary.final_energy = row[5];
-  summary.final_max_violation = row[7];
+  summary.final_energy = row[col_total];
+  summary.final_max_violation = row[col_violation];
   if (first_action >= 0)
     summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   summary.max_energy_error = max_err;
