@@ -10,9 +10,10 @@
 #include <cstdint>
 #include <limits>
 #include <random>
-#include <sstream>
 #include <stdexcept>
 #include <string>
+
+#include "engine/core/format.hpp"
 
 // No fused multiply-adds (see builders.cpp): GCC in ISO mode does not contract; clang does.
 #if defined(__clang__)
@@ -178,14 +179,6 @@ class Rng {
 
 namespace stiffmd {
 
-namespace detail {
-inline std::string format_number(double v) {  // as `os << v`, for the messages below
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
-}  // namespace detail
-
 // Velocities at temperature T (k_B = 1) for the given inverse masses, one column per particle:
 // v ~ N(0, T/m) per component for mobile particles (inv_mass > 0), exactly 0 for fixed ones
 // (inv_mass = 0); then the centre-of-mass velocity of the mobile particles is subtracted, and
@@ -198,14 +191,14 @@ inline std::string format_number(double v) {  // as `os << v`, for the messages 
 // Used by [velocities] (builders' scenes) and [prepare]'s bond vibrations (integrators/prepare.cpp).
 inline Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed) {
   if (!(temperature >= 0.0) || !std::isfinite(temperature))
-    throw std::invalid_argument("maxwell_boltzmann: temperature = " + detail::format_number(temperature) +
+    throw std::invalid_argument("maxwell_boltzmann: temperature = " + format_number(temperature) +
                                 ": expected a finite T >= 0");
   const Eigen::Index n = inv_mass.size();
   int mobile = 0;
   for (Eigen::Index i = 0; i < n; ++i) {
     if (!(inv_mass[i] >= 0.0) || !std::isfinite(inv_mass[i]))
       throw std::invalid_argument("maxwell_boltzmann: inverse mass of particle " + std::to_string(i) + " = " +
-                                  detail::format_number(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
+                                  format_number(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
     if (inv_mass[i] > 0.0) ++mobile;
   }
   Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
