@@ -14,8 +14,7 @@ namespace stiffmd {
 namespace {
 
 std::string name(int b, const StiffBond& bond) {
-  return "stiff bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) +
-         ")";
+  return "stiff " + describe_bond(b, bond);
 }
 
 // The polygon inequality on every cycle (see the header): for each bond e = (u, v), a Dijkstra

@@ -259,10 +259,6 @@ std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vec
   return couplings;
 }
 
-std::string describe_bond(int b, const StiffBond& bond) {
-  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
-}
-
 std::string format_g(double value) {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%.1e", value);

@@ -38,10 +38,6 @@ struct Pair {
   double weight;
 };
 
-std::string describe_bond(int b, const StiffBond& bond) {
-  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
-}
-
 // The shared rules of a set of stiff bonds (forcefields/stiff_bond.hpp).
 void validate(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
   if (const auto problem = find_stiff_bond_problem(bonds, &inv_mass))
