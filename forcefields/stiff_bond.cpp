@@ -8,19 +8,13 @@
 #include <sstream>
 #include <utility>
 
+#include "engine/core/format.hpp"
+
 namespace stiffmd {
 namespace {
 
 std::string name(int b, const StiffBond& bond) {
-  return "stiff bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) +
-         ")";
-}
-
-std::string number(double v) {
-  std::ostringstream s;
-  s.precision(10);
-  s << v;
-  return s.str();
+  return "stiff " + describe_bond(b, bond);
 }
 
 // The polygon inequality on every cycle (see the header): for each bond e = (u, v), a Dijkstra
@@ -72,9 +66,9 @@ std::optional<StiffBondProblem> unrealisable_cycle(const std::vector<StiffBond>&
     touched.clear();
     queue = {};
     if (found <= limit)
-      return StiffBondProblem{e, name(e, be) + " has length " + number(be.length) +
+      return StiffBondProblem{e, name(e, be) + " has length " + format_number(be.length, 10) +
                                      ", but the other stiff bonds join its particles by a path of total length " +
-                                     number(found) +
+                                     format_number(found, 10) +
                                      ": no configuration satisfies these rigid lengths (a bond of a cycle must be "
                                      "shorter than the sum of the others)"};
   }
@@ -89,7 +83,7 @@ std::optional<StiffBondProblem> find_stiff_bond_problem(const std::vector<StiffB
     for (Eigen::Index p = 0; p < inv_mass->size(); ++p)
       if (!std::isfinite((*inv_mass)[p]) || (*inv_mass)[p] < 0.0)
         return StiffBondProblem{-1, "particle " + std::to_string(p) + ": inverse mass must be finite and >= 0, got " +
-                                        number((*inv_mass)[p])};
+                                        format_number((*inv_mass)[p], 10)};
   const long n = inv_mass ? static_cast<long>(inv_mass->size()) : std::numeric_limits<int>::max();
   std::set<std::pair<int, int>> pairs;
   for (int b = 0; b < static_cast<int>(bonds.size()); ++b) {
@@ -99,9 +93,9 @@ std::optional<StiffBondProblem> find_stiff_bond_problem(const std::vector<StiffB
                                      (inv_mass ? " [0, " + std::to_string(n) + ")" : std::string(" (negative)"))};
     if (bond.i == bond.j) return StiffBondProblem{b, name(b, bond) + " joins a particle to itself"};
     if (!(bond.length > 0.0) || !std::isfinite(bond.length))
-      return StiffBondProblem{b, name(b, bond) + ": length must be finite and > 0, got " + number(bond.length)};
+      return StiffBondProblem{b, name(b, bond) + ": length must be finite and > 0, got " + format_number(bond.length, 10)};
     if (!(bond.alpha > 0.0) || !std::isfinite(bond.alpha))
-      return StiffBondProblem{b, name(b, bond) + ": alpha must be finite and > 0, got " + number(bond.alpha)};
+      return StiffBondProblem{b, name(b, bond) + ": alpha must be finite and > 0, got " + format_number(bond.alpha, 10)};
     if (inv_mass && (*inv_mass)[bond.i] == 0.0 && (*inv_mass)[bond.j] == 0.0)
       return StiffBondProblem{b, name(b, bond) + " joins two fixed particles: it constrains nothing"};
     if (!pairs.insert({std::min(bond.i, bond.j), std::max(bond.i, bond.j)}).second)

@@ -32,6 +32,11 @@ struct StiffBonds {
   double epsilon = 1.0;
 };
 
+// "bond b (particles i–j)", for messages.
+inline std::string describe_bond(int b, const StiffBond& bond) {
+  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
+}
+
 // g_b(x) = |x_i − x_j| − ℓ_b.
 inline double constraint_value(const StiffBond& b, const Eigen::Matrix3Xd& x) {
   return bond_vector(x, b.i, b.j).norm() - b.length;

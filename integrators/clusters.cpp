@@ -54,17 +54,21 @@ ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<Sti
   ClusterPath path{ClusterShape::other, cluster.bonds};
   // Neighbours of each bond (by position in cluster.bonds) through its mobile ends: a mobile
   // particle in more than two bonds couples them all (a branch point), never a path.
+  // Particles are numbered within the cluster (its sorted particle list), so that the work is
+  // O(bonds log bonds) per cluster, not O(all particles).
   std::vector<std::vector<int>> neighbours(n);
-  std::vector<int> first_bond_at(static_cast<size_t>(inv_mass.size()), -1), bonds_at(first_bond_at.size(), 0);
+  const std::vector<int>& particles = cluster.particles;
+  std::vector<int> first_bond_at(particles.size(), -1), bonds_at(particles.size(), 0);
   for (int k = 0; k < n; ++k)
     for (int p : {bonds[cluster.bonds[k]].i, bonds[cluster.bonds[k]].j}) {
       if (inv_mass[p] == 0.0) continue;
-      if (++bonds_at[p] > 2) return path;
-      if (first_bond_at[p] < 0) {
-        first_bond_at[p] = k;
+      const auto q = static_cast<size_t>(std::lower_bound(particles.begin(), particles.end(), p) - particles.begin());
+      if (++bonds_at[q] > 2) return path;
+      if (first_bond_at[q] < 0) {
+        first_bond_at[q] = k;
       } else {
-        neighbours[k].push_back(first_bond_at[p]);
-        neighbours[first_bond_at[p]].push_back(k);
+        neighbours[k].push_back(first_bond_at[q]);
+        neighbours[first_bond_at[q]].push_back(k);
       }
     }
   // A path starts at a bond with at most one neighbour; a cycle has none.

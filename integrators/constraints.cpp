@@ -248,47 +248,6 @@ class SparseSolver final : public ClusterSolver {
   bool symmetric_ = true;
 };
 
-// For each mobile particle of a cluster, the (position in `order`, sign in G) of its bonds.
-// Fixed particles are left out: m⁻¹ = 0 there, so they couple nothing.
-std::map<int, std::vector<std::pair<int, double>>> bonds_at_mobile_particles(const std::vector<int>& order,
-                                                                             const std::vector<StiffBond>& bonds,
-                                                                             const Eigen::VectorXd& inv_mass) {
-  std::map<int, std::vector<std::pair<int, double>>> at;
-  for (int r = 0; r < static_cast<int>(order.size()); ++r) {
-    const StiffBond& b = bonds[order[r]];
-    if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(r, +1.0);
-    if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(r, -1.0);
-  }
-  return at;
-}
-
-// The bonds of a cluster in chain order if it is an open chain (no mobile particle in more
-// than two bonds, no ring), so that K is tridiagonal; empty otherwise.
-std::vector<int> chain_order(const std::vector<int>& cluster_bonds, const std::vector<StiffBond>& bonds,
-                             const Eigen::VectorXd& inv_mass) {
-  const int n = static_cast<int>(cluster_bonds.size());
-  std::vector<std::vector<int>> neighbours(n);  // by position in cluster_bonds
-  for (const auto& [particle, list] : bonds_at_mobile_particles(cluster_bonds, bonds, inv_mass)) {
-    if (list.size() > 2) return {};  // a branch point
-    if (list.size() == 2) {
-      neighbours[list[0].first].push_back(list[1].first);
-      neighbours[list[1].first].push_back(list[0].first);
-    }
-  }
-  const auto end = std::find_if(neighbours.begin(), neighbours.end(), [](const auto& nb) { return nb.size() <= 1; });
-  if (end == neighbours.end()) return {};  // a ring
-  std::vector<int> order;
-  for (int previous = -1, current = static_cast<int>(end - neighbours.begin()); current >= 0;) {
-    order.push_back(cluster_bonds[current]);
-    int next = -1;
-    for (int nb : neighbours[current])
-      if (nb != previous) next = nb;
-    previous = current;
-    current = next;
-  }
-  if (static_cast<int>(order.size()) != n) return {};
-  return order;
-}
 
 std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
                                    const Eigen::VectorXd& inv_mass) {
@@ -298,10 +257,6 @@ std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vec
       for (const auto& [col, col_sign] : list)
         couplings.push_back({row, col, particle, row_sign * col_sign, order[row], order[col]});
   return couplings;
-}
-
-std::string describe_bond(int b, const StiffBond& bond) {
-  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
 }
 
 std::string format_g(double value) {
@@ -402,9 +357,10 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
   curvature = Eigen::Matrix3Xd::Zero(3, m);
   for (const ConstraintCluster& cluster : clusters) {
     ClusterData d;
-    d.bonds = chain_order(cluster.bonds, bonds, inv_mass);
-    const bool chain = !d.bonds.empty();
-    if (!chain) d.bonds = cluster.bonds;
+    // Open chains in path order, so that K is tridiagonal; any other cluster as found.
+    ClusterPath path = cluster_path(cluster, bonds, inv_mass);
+    const bool chain = path.shape == ClusterShape::chain;
+    d.bonds = chain ? std::move(path.bonds) : cluster.bonds;
     d.couplings = couplings_of(d.bonds, bonds, inv_mass);
     const int n = static_cast<int>(d.bonds.size());
     if (chain) {
@@ -682,6 +638,17 @@ void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFu
   f_slow(X, out);
   require_columns(out, impl_->num_particles(), "mollified_force (f_slow output)");
   impl_->for_each_cluster([&](int c) { impl_->mollify_cluster(c, out); });
+}
+
+BondsAtParticles bonds_at_mobile_particles(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
+                                           const Eigen::VectorXd& inv_mass) {
+  BondsAtParticles at;
+  for (int r = 0; r < static_cast<int>(order.size()); ++r) {
+    const StiffBond& b = bonds[order[r]];
+    if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(r, +1.0);
+    if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(r, -1.0);
+  }
+  return at;
 }
 
 }  // namespace stiffmd

@@ -11,7 +11,9 @@
 
 #include <Eigen/Core>
 #include <functional>
+#include <map>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "forcefields/stiff_bond.hpp"
@@ -40,6 +42,13 @@ struct ClusterPath {
 };
 ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<StiffBond>& bonds,
                          const Eigen::VectorXd& inv_mass);
+
+// For each mobile particle of a cluster, the (position in `order`, sign in G: +1 at i, −1 at j)
+// of its bonds, particles ascending. Fixed particles are left out: m⁻¹ = 0 there, so they
+// couple nothing. The couplings of S = G M⁻¹ Gᵀ are every pair of bonds at one particle.
+using BondsAtParticles = std::map<int, std::vector<std::pair<int, double>>>;
+BondsAtParticles bonds_at_mobile_particles(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
+                                           const Eigen::VectorXd& inv_mass);
 
 // Slow force evaluated at a configuration: out = f(x) (f = −∇U), overwriting out.
 using ForceFunction = std::function<void(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out)>;

@@ -38,36 +38,10 @@ struct Pair {
   double weight;
 };
 
-std::string describe_bond(int b, const StiffBond& bond) {
-  return "bond " + std::to_string(b) + " (particles " + std::to_string(bond.i) + "–" + std::to_string(bond.j) + ")";
-}
-
+// The shared rules of a set of stiff bonds (forcefields/stiff_bond.hpp).
 void validate(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
-  const int n = static_cast<int>(inv_mass.size());
-  for (int p = 0; p < n; ++p)
-    if (!std::isfinite(inv_mass[p]) || inv_mass[p] < 0.0)
-      throw std::invalid_argument("FixmanPotential: particle " + std::to_string(p) +
-                                  ": inverse mass must be finite and >= 0");
-  std::vector<std::pair<int, int>> pairs;
-  for (int b = 0; b < static_cast<int>(bonds.size()); ++b) {
-    const StiffBond& bond = bonds[b];
-    const std::string what = "FixmanPotential: stiff " + describe_bond(b, bond);
-    if (bond.i < 0 || bond.i >= n || bond.j < 0 || bond.j >= n)
-      throw std::invalid_argument(what + ": particle index out of range [0, " + std::to_string(n) + ")");
-    if (bond.i == bond.j) throw std::invalid_argument(what + " joins a particle to itself");
-    if (!(bond.length > 0.0) || !std::isfinite(bond.length))
-      throw std::invalid_argument(what + ": length must be finite and > 0");
-    if (!(bond.alpha > 0.0) || !std::isfinite(bond.alpha))
-      throw std::invalid_argument(what + ": alpha must be finite and > 0");
-    if (inv_mass[bond.i] == 0.0 && inv_mass[bond.j] == 0.0)
-      throw std::invalid_argument(what + " joins two fixed particles and constrains nothing");
-    pairs.emplace_back(std::min(bond.i, bond.j), std::max(bond.i, bond.j));
-  }
-  std::sort(pairs.begin(), pairs.end());
-  const auto twice = std::adjacent_find(pairs.begin(), pairs.end());
-  if (twice != pairs.end())
-    throw std::invalid_argument("FixmanPotential: particles " + std::to_string(twice->first) + "–" +
-                                std::to_string(twice->second) + " are joined by more than one stiff bond");
+  if (const auto problem = find_stiff_bond_problem(bonds, &inv_mass))
+    throw std::invalid_argument("FixmanPotential: " + problem->what);
 }
 
 // Band of the inverse of an SPD tridiagonal matrix (diagonal d[0..n), off-diagonal e[0..n−1)) by
@@ -169,12 +143,7 @@ FixmanPotential::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv
     c.bonds = std::move(cp.bonds);
     const int n = static_cast<int>(c.bonds.size());
     // The couplings: for each mobile particle, every pair of its bonds.
-    std::map<int, std::vector<std::pair<int, double>>> at;  // particle → (local bond, sign)
-    for (int k = 0; k < n; ++k) {
-      const StiffBond& b = bonds[c.bonds[k]];
-      if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(k, +1.0);
-      if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(k, -1.0);
-    }
+    const BondsAtParticles at = bonds_at_mobile_particles(c.bonds, bonds, inv_mass);  // (local bond, sign)
     std::map<std::pair<int, int>, double> weight;
     for (const auto& [p, list] : at)
       for (size_t a = 0; a < list.size(); ++a)

@@ -1,13 +1,19 @@
-// Platform-independent arithmetic and random numbers for the builders (builders.cpp): the same
+// Platform-independent arithmetic and random numbers for the builders (builders.cpp) and
+// Maxwell–Boltzmann velocities (maxwell_boltzmann, at the end): the same
 // seed must give the same configuration and velocities, bit for bit, on every machine. Hence
 // plain 3-vectors summed in a fixed order, log/exp/cbrt from + − × ÷ only, and our own
 // distributions on top of std::mt19937_64 (whose sequence the standard fixes).
 #pragma once
 
+#include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <random>
+#include <stdexcept>
+#include <string>
+
+#include "engine/core/format.hpp"
 
 // No fused multiply-adds (see builders.cpp): GCC in ISO mode does not contract; clang does.
 #if defined(__clang__)
@@ -170,3 +176,63 @@ class Rng {
 };
 
 }  // namespace stiffmd::portable
+
+namespace stiffmd {
+
+// Velocities at temperature T (k_B = 1) for the given inverse masses, one column per particle:
+// v ~ N(0, T/m) per component for mobile particles (inv_mass > 0), exactly 0 for fixed ones
+// (inv_mass = 0); then the centre-of-mass velocity of the mobile particles is subtracted, and
+// all velocities are scaled so that the kinetic temperature
+//     T_kin = Σ m v² / (3·N_mobile − 3)
+// equals T exactly: 3 degrees of freedom are taken away for the removed total momentum
+// (whether or not fixed particles are present). With N_mobile ≤ 1 (no degree of freedom left)
+// or T = 0 every velocity is zero. T < 0 or non-finite, or an inverse mass that is negative or
+// non-finite: std::invalid_argument.
+// Used by [velocities] (builders' scenes) and [prepare]'s bond vibrations (integrators/prepare.cpp).
+inline Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed) {
+  if (!(temperature >= 0.0) || !std::isfinite(temperature))
+    throw std::invalid_argument("maxwell_boltzmann: temperature = " + format_number(temperature) +
+                                ": expected a finite T >= 0");
+  const Eigen::Index n = inv_mass.size();
+  int mobile = 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (!(inv_mass[i] >= 0.0) || !std::isfinite(inv_mass[i]))
+      throw std::invalid_argument("maxwell_boltzmann: inverse mass of particle " + std::to_string(i) + " = " +
+                                  format_number(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
+    if (inv_mass[i] > 0.0) ++mobile;
+  }
+  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
+  const int dof = 3 * mobile - 3;
+  if (dof <= 0 || temperature == 0.0) return v;  // nothing can move once the momentum is removed
+
+  portable::Rng rng(seed);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (inv_mass[i] == 0.0) continue;  // fixed particles draw no numbers: at rest
+    const double s = std::sqrt(temperature * inv_mass[i]);
+    for (int a = 0; a < 3; ++a) v(a, i) = s * rng.normal();
+  }
+  // Remove the centre-of-mass velocity of the mobile particles; a second pass removes what
+  // rounding left from the first, so that Σ m v vanishes to ~1e-16 of Σ m|v|.
+  for (int pass = 0; pass < 2; ++pass) {
+    portable::CompensatedSum mass, p[3];
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (inv_mass[i] == 0.0) continue;
+      const double m = 1.0 / inv_mass[i];
+      mass.add(m);
+      for (int a = 0; a < 3; ++a) p[a].add(m * v(a, i));
+    }
+    const double vcm[3] = {p[0].value() / mass.value(), p[1].value() / mass.value(), p[2].value() / mass.value()};
+    for (Eigen::Index i = 0; i < n; ++i)
+      if (inv_mass[i] > 0.0)
+        for (int a = 0; a < 3; ++a) v(a, i) -= vcm[a];
+  }
+  // Rescale to the exact kinetic temperature: Σ m v² = dof·T (a common factor keeps Σ m v = 0).
+  portable::CompensatedSum twice_kinetic;
+  for (Eigen::Index i = 0; i < n; ++i)
+    if (inv_mass[i] > 0.0)
+      for (int a = 0; a < 3; ++a) twice_kinetic.add(v(a, i) * v(a, i) / inv_mass[i]);
+  if (twice_kinetic.value() > 0.0) v *= std::sqrt(dof * temperature / twice_kinetic.value());
+  return v;
+}
+
+}  // namespace stiffmd

@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/format.hpp"
 
 namespace stiffmd {
 namespace {
@@ -51,16 +52,6 @@ std::string shown(const toml::node& n) {
 double as_double(const toml::node& n) {
   if (n.is_integer()) return static_cast<double>(*n.value<int64_t>());
   return *n.value<double>();
-}
-
-// A number as written in a message: shortest round-trip form, "1e+20" rather than 20 digits.
-std::string fmt(double v) {
-  std::ostringstream s;
-  s.precision(17);
-  s << v;
-  std::ostringstream shorter;
-  shorter << v;
-  return std::strtod(shorter.str().c_str(), nullptr) == v ? shorter.str() : s.str();
 }
 
 // Every string and every key of the deck (and of --set values): toml++ accepts "\u0000", which
@@ -356,8 +347,8 @@ double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
   // at step 1, with no key to name. Reduced units have no business outside it.
   const double a = std::abs(x);
   if (a > kLargestDeckNumber || (a != 0.0 && a < kSmallestDeckNumber))
-    throw InputError(where + ": " + fmt(x) + " is outside the range of deck numbers (0, or " + fmt(kSmallestDeckNumber) +
-                     " .. " + fmt(kLargestDeckNumber) + " in magnitude); expected a value in reduced units");
+    throw InputError(where + ": " + format_exact(x) + " is outside the range of deck numbers (0, or " + format_exact(kSmallestDeckNumber) +
+                     " .. " + format_exact(kLargestDeckNumber) + " in magnitude); expected a value in reduced units");
   return x;
 }
 
@@ -379,8 +370,8 @@ double DeckTable::number(std::string_view key, double fallback) {
 std::optional<long> DeckTable::maybe_integer(std::string_view key) {
   auto v = maybe_number(key);
   if (!v) return std::nullopt;
-  if (*v != std::floor(*v)) fail(key, "expected an integer, got " + fmt(*v));
-  if (std::abs(*v) > 9.0e15) fail(key, "expected an integer of magnitude at most 9e15, got " + fmt(*v));
+  if (*v != std::floor(*v)) fail(key, "expected an integer, got " + format_exact(*v));
+  if (std::abs(*v) > 9.0e15) fail(key, "expected an integer of magnitude at most 9e15, got " + format_exact(*v));
   return static_cast<long>(*v);
 }
 

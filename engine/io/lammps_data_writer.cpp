@@ -9,6 +9,7 @@
 #include <string>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/format.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/lammps_data_format.hpp"
 
@@ -18,11 +19,9 @@ namespace {
 using detail::quote;
 using namespace lammps_format;
 
-// Output helpers: shortest text that reads back as the same double (to_chars' guarantee).
+// Output helpers: shortest text that reads back as the same double (engine/core/format.hpp).
 void put(std::string& out, double v) {
-  char buf[32];
-  const auto r = std::to_chars(buf, buf + sizeof buf, v);
-  out.append(buf, r.ptr);
+  append_shortest(out, v);
 }
 void put(std::string& out, long long v) {
   char buf[24];

@@ -11,13 +11,11 @@
 
 #include "engine/run/checkpoint.hpp"
 #include "engine/core/errors.hpp"
-#include "engine/io/h5md_writer.hpp"
-#include "engine/io/lammps_data.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
+#include "engine/run/outputs.hpp"
 #include "engine/run/progress.hpp"
 #include "engine/run/signals.hpp"
-#include "engine/io/writers.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {
@@ -35,14 +33,6 @@ void check_finite(const State& s) {
   m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
     << " (t = " << s.t << "); reduce integrator.h or micro_dt";
   throw NumericalError(m.str());
-}
-
-std::vector<std::string> state_columns(int n) {
-  std::vector<std::string> c = {"time"};
-  for (const char* what : {"", "p"})
-    for (int i = 0; i < n; ++i)
-      for (const char* a : {"x", "y", "z"}) c.push_back(std::string(what) + a + "_" + std::to_string(i));
-  return c;
 }
 
 // Writes the file whole or not at all: a temporary file renamed into place.
@@ -75,39 +65,7 @@ std::int64_t steps_to(double span, double h) {
   return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
 }
 
-// The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
-// LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
-ImportedSystem to_lammps(const Scene& sc) {
-  ImportedSystem out;
-  const State& s = sc.state;
-  out.x = s.x;
-  out.v = s.v;
-  for (int i = 0; i < s.size(); ++i) {
-    out.type.push_back(sc.particle_type[i] + 1);
-    out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
-    out.id.push_back(i + 1);
-  }
-  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
-  for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
-  for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
-  out.num_atom_types = static_cast<int>(sc.types.size());
-  out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
-  out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
-  if (sc.box.periodic.all()) {
-    out.lo = sc.box.origin;
-    out.hi = sc.box.origin + sc.box.lengths;
-  } else {
-    out.lo = s.x.rowwise().minCoeff().array() - 1.0;
-    out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
-  }
-  return out;
-}
-
 }  // namespace
-
-void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
-  write_lammps_data(path, to_lammps(scene), scene.topology.angles.empty() ? "bond" : "angle", title);
-}
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   RunSummary summary;
@@ -155,15 +113,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     summary.initial_actions.assign(r.begin() + 4, r.end());
   }
 
-  const fs::path dir(opt.out_dir);
-  std::error_code ec;
-  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
-    throw InputError(opt.out_dir + ": output path exists and is not a directory");
-  fs::create_directories(dir, ec);
-  if (ec || !fs::is_directory(dir, ec))
-    throw InputError(opt.out_dir + ": cannot create output directory: " + ec.message());
-  check_output_paths(sc, opt.out_dir);   // before any step: an output that cannot be written fails now
-  fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
+  prepare_output_directory(sc, opt.out_dir);
 
   State& s = sc.state;
   if (restarting)
@@ -171,11 +121,6 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   else
     integrator->prepare(s, log);
 
-  // Outputs: fresh files, or on restart the same files cut back to the step before the
-  // checkpoint, t_{k−1}; the schedules resume from there, and the frame at t_k is written again
-  // below if the uninterrupted run would have written one. So the files end up exactly as an
-  // uninterrupted run's (without the interrupted run's off-grid final frame).
-  const double tol = 1e-9 * sc.integrator.h;
   // Step k is at t_k = t0 + (k − k0) h. From the start, and on a restart whose checkpoint is at
   // t = k h (the same h throughout), t0 = k0 = 0: t_k = k h exactly, the uninterrupted run's times.
   // After a change of h the run continues from the checkpoint's time (k0 = its step) instead of
@@ -183,81 +128,16 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const bool new_h = restarting && s.t != static_cast<double>(s.step) * sc.integrator.h;
   const double t0 = new_h ? s.t : 0.0;
   const std::int64_t k0 = new_h ? s.step : 0;
+  // Outputs: fresh files, or on restart the same files cut back to the step before the
+  // checkpoint, t_{k−1}; the frame at t_k is written again below if the uninterrupted run would
+  // have written one. So the files end up exactly as an uninterrupted run's (without the
+  // interrupted run's off-grid final frame).
   const double cut = new_h ? s.t - resumed.h : static_cast<double>(s.step - 1) * sc.integrator.h;
-  auto open_output = [&](const std::string& name, auto truncate) {
-    const fs::path p = dir / name;
-    summary.outputs.push_back(p.string());
-    if (restarting) return truncate(p.string());  // true: continue (append)
-    if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
-    return false;
-  };
-  std::vector<std::string> species;
-  std::vector<double> masses;
-  for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
-  // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
-  // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
-  if (!sc.output.xyz.empty() || !sc.output.h5md.empty()) {
-    const fs::path p = dir / kTopologyFile;
-    if (!restarting)
-      write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
-    summary.outputs.push_back(p.string());
-  }
-  std::unique_ptr<XyzWriter> xyz;
-  std::unique_ptr<CsvWriter> csv, state_csv;
-  std::unique_ptr<ProjectedMomenta> projected;
-  if (!sc.output.xyz.empty()) {
-    const bool append =
-        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
-    xyz =
-        std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities, append,
-                                    masses);
-  }
-  if (!sc.output.thermo.empty()) {
-    const bool append = open_output(
-        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
-    csv = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
-  }
-  if (!sc.output.state.empty()) {
-    const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
-    const bool append =
-        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
-    state_csv = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
-    projected = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
-  }
-  std::unique_ptr<H5mdWriter> h5md;
-  Eigen::Matrix3Xd h5md_force;
-  if (!sc.output.h5md.empty()) {
-    H5mdSetup setup;
-    setup.num_particles = s.size();
-    setup.species = species;
-    setup.mass.resize(s.size());
-    for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
-    setup.box = sc.box;
-    for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
-    setup.author = sc.output.author;
-    setup.creator_version = STIFFMD_VERSION;
-    setup.velocity = sc.output.h5md_velocity;
-    setup.force = sc.output.h5md_force;
-    setup.gzip = sc.output.h5md_gzip;
-    // Observables on the frame grid: every thermo column but time and step.
-    setup.observables.assign(thermo.columns().begin() + 2, thermo.columns().end());
-    const std::string path = (dir / sc.output.h5md).string();
-    summary.outputs.push_back(path);
-    const bool append = restarting && fs::exists(path);
-    if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
-    h5md = std::make_unique<H5mdWriter>(path, setup, append, s.step);
-  }
-  const std::string checkpoint_path = (dir / sc.output.checkpoint).string();
-  summary.outputs.push_back(checkpoint_path);
-  IntervalSchedule xyz_due(sc.output.xyz_interval), thermo_due(sc.output.thermo_interval),
-      state_due(sc.output.state_interval), h5md_due(sc.output.h5md_interval);
-  if (restarting) {
-    xyz_due.served_until(cut);
-    thermo_due.served_until(cut);
-    state_due.served_until(cut);
-    h5md_due.served_until(cut);
-  }
-  std::vector<double> state_row(1 + 6 * s.size());
+  RunOutputs outputs(sc, opt.out_dir, thermo, restarting ? &cut : nullptr, summary.outputs, log);
+  const std::string& checkpoint_path = outputs.checkpoint_path();
+  // Thermo columns by name (Thermo::columns), looked up once.
+  const int col_total = thermo.column("total"), col_drift = thermo.column("energy_drift"),
+            col_violation = thermo.column("max_violation"), col_alerts = thermo.column("alerts");
   const int first_action = thermo.column("action_1");
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
@@ -297,31 +177,17 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   auto sample = [&]() -> const std::vector<double>& {
     last_row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s),
                              integrator->kinetic_energy_estimate(s));
-    max_err = std::max(max_err, std::abs(last_row[6]));
+    max_err = std::max(max_err, std::abs(last_row[col_drift]));
     for (const auto& note : thermo.take_notes()) log << note << "\n";
     alerts = monitor.check(last_row, thermo.initial_energy(), log);
-    last_row.back() = alerts;
+    last_row[col_alerts] = alerts;
     if (alerts == 0 && monitor.stops()) {
       last_good.state = s;
       snapshot(last_good);
     }
     return last_row;
   };
-  auto write_state = [&]() {
-    const Eigen::Matrix3Xd& pp = (*projected)(s);
-    state_row[0] = s.t;
-    for (int i = 0; i < s.size(); ++i)
-      for (int a = 0; a < 3; ++a) {
-        state_row[1 + 3 * i + a] = s.x(a, i);
-        state_row[1 + 3 * s.size() + 3 * i + a] = pp(a, i);
-      }
-    state_csv->write(state_row);
-  };
-  auto write_h5md = [&](const std::vector<double>& row) {
-    if (sc.output.h5md_force) sc.forces->total_force(s.x, h5md_force);
-    h5md->write_frame(s.step, s.t, s.x, &s.v, sc.output.h5md_force ? &h5md_force : nullptr,
-                      std::vector<double>(row.begin() + 2, row.end()));
-  };
+
   Checkpoint now;  // snapshot() of the current step, written with s (no copy of the state)
   auto checkpoint = [&] {
     snapshot(now);
@@ -330,15 +196,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   };
   // Outputs due at this step; `final` writes everything (the last state, whatever the grids).
   auto observe = [&](bool final = false) {
-    const bool thermo_now = thermo_due.due(s.t) || final, h5md_now = h5md && (h5md_due.due(s.t) || final);
-    if (thermo_now || h5md_now) {
-      const std::vector<double>& row = sample();
-      if (thermo_now && csv) csv->write(row);
-      if (h5md_now) write_h5md(row);
-    }
-    if (xyz && (xyz_due.due(s.t) || final)) xyz->write(s);
-    if (state_csv && (state_due.due(s.t) || final)) write_state();
-    if ((thermo_now || h5md_now) && alerts > 0 && monitor.stops()) {
+    const bool sampled = outputs.due(s.t, final);
+    if (sampled) sample();
+    outputs.write(s, last_row);
+    if (sampled && alerts > 0 && monitor.stops()) {
       // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
       std::ostringstream m;
       m.precision(10);
@@ -410,18 +271,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   observe(true);
   const std::vector<double>& row = last_row;
 
-  if (!sc.output.lammps_data.empty()) {
-    write_scene_lammps_data(sc, (dir / sc.output.lammps_data).string(),
-                            "stiffmd " STIFFMD_VERSION " final state of " + sc.deck_path);
-    summary.outputs.push_back((dir / sc.output.lammps_data).string());
-  }
-  if (sc.observables.histograms && !sc.topology.bonds.empty()) {
-    write_histograms((dir / "histograms.csv").string(), s.x, sc.box, sc.topology);
-    summary.outputs.push_back((dir / "histograms.csv").string());
-  }
+  outputs.write_final(summary.outputs);
   summary.steps = n;
-  summary.final_energy = row[5];
-  summary.final_max_violation = row[7];
+  summary.final_energy = row[col_total];
+  summary.final_max_violation = row[col_violation];
   if (first_action >= 0)
     summary.final_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
   summary.max_energy_error = max_err;
@@ -434,8 +287,9 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
   summary.slow_evaluations = slow_before + sc.forces->evaluations(Level::slow);
   summary.fast_evaluations = fast_before + sc.forces->evaluations(Level::fast);
-  summary.outputs.push_back((dir / "summary.json").string());
-  write_atomically(dir / "summary.json", summary_json(summary));
+  const fs::path summary_path = fs::path(opt.out_dir) / "summary.json";
+  summary.outputs.push_back(summary_path.string());
+  write_atomically(summary_path, summary_json(summary));
   return summary;
 }
 

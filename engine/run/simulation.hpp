@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/run/outputs.hpp"  // write_scene_lammps_data
 #include "engine/scene/scene.hpp"
 
 namespace stiffmd {
@@ -47,10 +48,6 @@ struct RunSummary {
 // Runs the scene. Throws NumericalError (exit 3) on NaN/Inf, with the step and time; the
 // outputs written up to the last good frame stay readable.
 RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
-
-// Writes the scene's current state (after [prepare], before any step when called on a freshly
-// loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
-void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
 
 std::string format_summary(const RunSummary& s);
 // The summary as JSON (written to DIR/summary.json at the end of a successful run only).

@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "engine/core/format.hpp"
 #include "engine/core/portable_random.hpp"
 
 // No fused multiply-adds: contracting a*b+c changes the last bit, which can flip an accept/
@@ -432,21 +433,15 @@ class Grower {
   throw std::invalid_argument(std::string(who) + ": " + what);
 }
 
-std::string num(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
-
 void validate(const char* who, const ChainSpec& spec, int min_beads, const Box& box, long long total_beads) {
   if (spec.chains < 1) invalid(who, "chains = " + std::to_string(spec.chains) + ": expected at least 1");
   if (spec.beads < min_beads)
     invalid(who, "beads = " + std::to_string(spec.beads) + ": expected at least " + std::to_string(min_beads));
   if (!(spec.bond_length > 0.0) || !std::isfinite(spec.bond_length))
-    invalid(who, "bond_length = " + num(spec.bond_length) + ": expected a finite length > 0");
+    invalid(who, "bond_length = " + format_number(spec.bond_length) + ": expected a finite length > 0");
   if (!(spec.min_distance >= 0.0) || !(spec.min_distance < 2.0 * spec.bond_length))
-    invalid(who, "min_distance = " + num(spec.min_distance) + ": expected 0 <= min_distance < 2*bond_length = " +
-                     num(2.0 * spec.bond_length) + " (beads two bonds apart are at most 2*bond_length apart)");
+    invalid(who, "min_distance = " + format_number(spec.min_distance) + ": expected 0 <= min_distance < 2*bond_length = " +
+                     format_number(2.0 * spec.bond_length) + " (beads two bonds apart are at most 2*bond_length apart)");
   if (total_beads > std::numeric_limits<int>::max())
     invalid(who, "too many beads (" + std::to_string(total_beads) + ")");
   bool point_region = true;
@@ -454,10 +449,10 @@ void validate(const char* who, const ChainSpec& spec, int min_beads, const Box& 
     const char axis = static_cast<char>('x' + a);
     if (!std::isfinite(box.origin[a])) invalid(who, std::string("box origin is not finite on axis ") + axis);
     if (!std::isfinite(box.lengths[a]) || box.lengths[a] < 0.0)
-      invalid(who, std::string("box length on axis ") + axis + " = " + num(box.lengths[a]) + ": expected >= 0");
+      invalid(who, std::string("box length on axis ") + axis + " = " + format_number(box.lengths[a]) + ": expected >= 0");
     if (box.periodic[a] && !(box.lengths[a] > 2.0 * spec.bond_length))
-      invalid(who, std::string("periodic box length on axis ") + axis + " = " + num(box.lengths[a]) +
-                       ": expected more than 2*bond_length = " + num(2.0 * spec.bond_length) +
+      invalid(who, std::string("periodic box length on axis ") + axis + " = " + format_number(box.lengths[a]) +
+                       ": expected more than 2*bond_length = " + format_number(2.0 * spec.bond_length) +
                        " (so that the minimum image of a bond is the bond)");
     if (box.lengths[a] > 0.0) point_region = false;
   }
@@ -571,9 +566,9 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
   if (spec.min_distance > 0.0) {
     const double most = 2.0 / (1.0 - std::cos(std::asin(spec.min_distance / (2.0 * spec.bond_length))));
     if (arms > most)
-      invalid(who, "arms = " + std::to_string(arms) + ": at most " + num(std::floor(most)) +
-                       " arms fit around a core with bond_length = " + num(spec.bond_length) + " and min_distance = " +
-                       num(spec.min_distance) + "; expected fewer arms or a smaller min_distance");
+      invalid(who, "arms = " + std::to_string(arms) + ": at most " + format_number(std::floor(most)) +
+                       " arms fit around a core with bond_length = " + format_number(spec.bond_length) + " and min_distance = " +
+                       format_number(spec.min_distance) + "; expected fewer arms or a smaller min_distance");
   }
   const int b = spec.beads, size = static_cast<int>(per_star);
   std::vector<Plan> plans(static_cast<size_t>(spec.chains));
@@ -608,60 +603,15 @@ Box box_for_density(int total_beads, double density) {
     throw std::invalid_argument("box_for_density: total_beads = " + std::to_string(total_beads) +
                                 ": expected at least 1");
   if (!(density > 0.0) || !std::isfinite(density))
-    throw std::invalid_argument("box_for_density: density = " + num(density) +
+    throw std::invalid_argument("box_for_density: density = " + format_number(density) +
                                 ": expected a finite number density > 0");
   const double volume = total_beads / density;
   if (!std::isfinite(volume))
-    throw std::invalid_argument("box_for_density: density = " + num(density) + " is too small");
+    throw std::invalid_argument("box_for_density: density = " + format_number(density) + " is too small");
   Box box;
   box.lengths.setConstant(portable_cbrt(volume));
   box.periodic.setOnes();
   return box;
-}
-
-Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed) {
-  if (!(temperature >= 0.0) || !std::isfinite(temperature))
-    throw std::invalid_argument("maxwell_boltzmann: temperature = " + num(temperature) + ": expected a finite T >= 0");
-  const Eigen::Index n = inv_mass.size();
-  int mobile = 0;
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (!(inv_mass[i] >= 0.0) || !std::isfinite(inv_mass[i]))
-      throw std::invalid_argument("maxwell_boltzmann: inverse mass of particle " + std::to_string(i) + " = " +
-                                  num(inv_mass[i]) + ": expected a finite value >= 0 (0 = fixed)");
-    if (inv_mass[i] > 0.0) ++mobile;
-  }
-  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n);
-  const int dof = 3 * mobile - 3;
-  if (dof <= 0 || temperature == 0.0) return v;  // nothing can move once the momentum is removed
-
-  Rng rng(seed);
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (inv_mass[i] == 0.0) continue;  // fixed particles draw no numbers: at rest
-    const double s = std::sqrt(temperature * inv_mass[i]);
-    for (int a = 0; a < 3; ++a) v(a, i) = s * rng.normal();
-  }
-  // Remove the centre-of-mass velocity of the mobile particles; a second pass removes what
-  // rounding left from the first, so that Σ m v vanishes to ~1e-16 of Σ m|v|.
-  for (int pass = 0; pass < 2; ++pass) {
-    CompensatedSum mass, p[3];
-    for (Eigen::Index i = 0; i < n; ++i) {
-      if (inv_mass[i] == 0.0) continue;
-      const double m = 1.0 / inv_mass[i];
-      mass.add(m);
-      for (int a = 0; a < 3; ++a) p[a].add(m * v(a, i));
-    }
-    const double vcm[3] = {p[0].value() / mass.value(), p[1].value() / mass.value(), p[2].value() / mass.value()};
-    for (Eigen::Index i = 0; i < n; ++i)
-      if (inv_mass[i] > 0.0)
-        for (int a = 0; a < 3; ++a) v(a, i) -= vcm[a];
-  }
-  // Rescale to the exact kinetic temperature: Σ m v² = dof·T (a common factor keeps Σ m v = 0).
-  CompensatedSum twice_kinetic;
-  for (Eigen::Index i = 0; i < n; ++i)
-    if (inv_mass[i] > 0.0)
-      for (int a = 0; a < 3; ++a) twice_kinetic.add(v(a, i) * v(a, i) / inv_mass[i]);
-  if (twice_kinetic.value() > 0.0) v *= std::sqrt(dof * temperature / twice_kinetic.value());
-  return v;
 }
 
 }  // namespace stiffmd

@@ -1,6 +1,6 @@
 // Initial configurations for polymer scenes: linear chains, rings and stars grown as
-// self-avoiding random walks with exact bond lengths, a cubic box for a number density, and
-// Maxwell–Boltzmann velocities.
+// self-avoiding random walks with exact bond lengths, and a cubic box for a number density
+// (Maxwell–Boltzmann velocities: maxwell_boltzmann in engine/core/portable_random.hpp).
 //
 // Reproducibility: every random number comes from std::mt19937_64 (whose output the standard
 // fixes) through our own uniform-from-bits, Marsaglia-polar normals and a logarithm/exponential
@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/portable_random.hpp"  // maxwell_boltzmann, for the builders' users
 
 namespace stiffmd {
 
@@ -89,15 +90,5 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box);
 // axes. total_beads ≥ 1 and density > 0 (finite), else std::invalid_argument.
 Box box_for_density(int total_beads, double density);
 
-// Velocities at temperature T (k_B = 1) for the given inverse masses, one column per particle:
-// v ~ N(0, T/m) per component for mobile particles (inv_mass > 0), exactly 0 for fixed ones
-// (inv_mass = 0); then the centre-of-mass velocity of the mobile particles is subtracted, and
-// all velocities are scaled so that the kinetic temperature
-//     T_kin = Σ m v² / (3·N_mobile − 3)
-// equals T exactly: 3 degrees of freedom are taken away for the removed total momentum
-// (whether or not fixed particles are present). With N_mobile ≤ 1 (no degree of freedom left)
-// or T = 0 every velocity is zero. T < 0 or non-finite, or an inverse mass that is negative or
-// non-finite: std::invalid_argument.
-Eigen::Matrix3Xd maxwell_boltzmann(const Eigen::VectorXd& inv_mass, double temperature, std::uint64_t seed);
 
 }  // namespace stiffmd

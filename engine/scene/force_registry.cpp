@@ -6,6 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "engine/core/format.hpp"
 #include "engine/core/errors.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
@@ -30,12 +31,6 @@ double read(DeckTable& t, std::string_view key, const Quantity& q, double fallba
   const double v = t.number(key, fallback);
   t.require(q.admits(v), key, "expected " + q.expected(v));
   return v;
-}
-
-std::string fmt_short(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
 }
 
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
@@ -90,7 +85,7 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
         // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
         const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
         bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
-                   "the spring constant (alpha/epsilon)^2 = (" + fmt_short(c.alpha) + "/" + fmt_short(sb.epsilon) +
+                   "the spring constant (alpha/epsilon)^2 = (" + format_number(c.alpha) + "/" + format_number(sb.epsilon) +
                        ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
         return c;
       },
@@ -207,12 +202,6 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
 }
 
-std::string fmt(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
-
 // The neighbour list needs every periodic box length >= 2 (cutoff + skin) (check_box_for_cutoff):
 // an error at the key that sets the range (`range_key`: cutoff, or sigma for wca), naming the box.
 template <class Kernel>
@@ -233,10 +222,10 @@ void check_box_for_pairs(DeckTable& t, const TypePairMatrix<typename Kernel::Coe
     if (sc.box.periodic[a] && !(sc.box.lengths[a] >= need)) {
       const char axis = static_cast<char>('x' + a);
       const std::string what =
-          std::string("cutoff ") + fmt(rc) + " + skin " + fmt(skin) + ": the periodic box is " +
-          fmt(sc.box.lengths[a]) + " long on " + axis + " (" +
+          std::string("cutoff ") + format_number(rc) + " + skin " + format_number(skin) + ": the periodic box is " +
+          format_number(sc.box.lengths[a]) + " long on " + axis + " (" +
           (sc.box_from_source ? "set by a [[build]] density or the [import]" : "box.lengths") +
-          "), but the neighbour list needs every periodic length >= 2 × (cutoff + skin) = " + fmt(need) +
+          "), but the neighbour list needs every periodic length >= 2 × (cutoff + skin) = " + format_number(need) +
           "; enlarge the box or reduce " + t.key_path(range_key) + " or " + t.key_path("skin");
       if (t.has(range_key)) t.fail(range_key, what);
       if (t.has("skin")) t.fail("skin", what);
@@ -272,7 +261,7 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
   Eigen::Vector3d d = sc.state.x.col(i) - sc.state.x.col(j);
   MinimumImage(sc.box).apply(d[0], d[1], d[2]);
   t.fail_here("particles " + std::to_string(i) + " and " + std::to_string(j) + " overlap at the start (distance " +
-              fmt(d.norm()) + " < " + fmt(kOverlapFraction) + " × cutoff " + fmt(rc) +
+              format_number(d.norm()) + " < " + format_number(kOverlapFraction) + " × cutoff " + format_number(rc) +
               "): the pair force between them is singular; move one of them apart");
 }
 

@@ -8,6 +8,7 @@
 #include <set>
 #include <sstream>
 
+#include "engine/core/format.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
@@ -29,12 +30,6 @@ bool is_element(const std::string& s) {
       "Rn", "Fr", "Ra", "Ac", "Th", "Pa", "U",  "Np", "Pu", "Am", "Cm", "Bk", "Cf", "Es", "Fm", "Md", "No",
       "Lr", "Rf", "Db", "Sg", "Bh", "Hs", "Mt", "Ds", "Rg", "Cn", "Nh", "Fl", "Mc", "Lv", "Ts", "Og"};
   return elements.count(s) > 0;
-}
-
-std::string fmt_number(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
 }
 
 // Scene::num_steps and read_run: t_end / h within this relative distance of an integer n is n steps.
@@ -105,8 +100,8 @@ void check_positions_near_box(DeckTable& root, const Scene& sc) {
       const double images = (sc.state.x(a, i) - sc.box.origin[a]) / sc.box.lengths[a];
       if (std::abs(images) <= kMaxImages) continue;
       const std::string what = "particle " + std::to_string(i) + " is at " + static_cast<char>('x' + a) + " = " +
-                               fmt_number(sc.state.x(a, i)) + ", more than 2^20 box lengths (" +
-                               fmt_number(sc.box.lengths[a]) + ") from the periodic box; expected a position near it";
+                               format_number(sc.state.x(a, i)) + ", more than 2^20 box lengths (" +
+                               format_number(sc.box.lengths[a]) + ") from the periodic box; expected a position near it";
       if (static_cast<size_t>(i) < particles.size()) particles[static_cast<size_t>(i)].fail("position", what);
       root.fail_here(what);
     }
@@ -220,12 +215,12 @@ void read_integrator(DeckTable& root, Scene& sc) {
     in.micro_steps = 1;
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
-    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + fmt_number(in.h));
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + format_number(in.h));
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
     // micro_steps is (and before the conversion to int).
     const double n = std::ceil(in.h / *micro_dt - 1e-9);
     t->require(n <= 1e8, "micro_dt",
-               "h / micro_dt = " + fmt_number(in.h) + " / " + fmt_number(*micro_dt) + " = " + fmt_number(n) +
+               "h / micro_dt = " + format_number(in.h) + " / " + format_number(*micro_dt) + " = " + format_number(n) +
                    " micro steps per macro step; expected at most 1e8");
     in.micro_steps = static_cast<int>(n);
   } else if (micro_steps) {
@@ -246,8 +241,8 @@ void read_run(DeckTable& root, Scene& sc) {
   const double h = sc.integrator.h;
   const double steps = sc.run.t_end / h;
   if (!(steps <= 1e12))
-    t->fail("t_end", "t_end / integrator.h = " + fmt_number(sc.run.t_end) + " / " + fmt_number(h) + " = " +
-                         fmt_number(steps) + " steps; expected at most 1e12 steps");
+    t->fail("t_end", "t_end / integrator.h = " + format_number(sc.run.t_end) + " / " + format_number(h) + " = " +
+                         format_number(steps) + " steps; expected at most 1e12 steps");
   const double n = std::round(steps);
   if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
     std::ostringstream m;

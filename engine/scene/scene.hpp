@@ -17,6 +17,7 @@
 #include "engine/core/topology.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/prepare.hpp"
 
 namespace stiffmd {
 
@@ -48,15 +49,11 @@ struct OutputSettings {
   long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
 };
 
-// [prepare]: how the initial state is made ready for a stiff run (prepare_scene).
-struct PrepareSettings {
-  bool requested = false;     // the deck has a [prepare] table
-  std::string where;          // "file:line" of that table, for errors
-  bool project = true;        // positions onto g = 0 (SHAKE), velocities onto the tangent space
-  long relax_steps = 0;       // capped steepest descent on the non-stiff terms, rigid bonds
-  double relax_max_displacement = 0.02;
-  double vibrational_temperature = 0.0;  // thermal bond vibrations
-  std::uint64_t seed = 1;
+// [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
+// prepare_state in integrators/prepare.hpp with these settings).
+struct PrepareTable : PrepareSettings {
+  bool requested = false;  // the deck has a [prepare] table
+  std::string where;       // "file:line" of that table, for errors
 };
 
 struct Scene {
@@ -72,7 +69,7 @@ struct Scene {
   OutputSettings output;
   ObservableSettings observables;
   MonitorSettings monitor;         // [monitor]
-  PrepareSettings prepare;         // [prepare], applied by prepare_scene
+  PrepareTable prepare;            // [prepare], applied by prepare_scene
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
 

@@ -12,7 +12,7 @@
 #include "engine/io/lammps_data.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "engine/io/xyz_bonds.hpp"
-#include "integrators/constraints.hpp"
+#include "integrators/prepare.hpp"
 
 namespace stiffmd {
 namespace {
@@ -296,15 +296,12 @@ void read_velocities(DeckTable& root, Scene& sc) {
   sc.state.v = maxwell_boltzmann(sc.state.inv_mass, temperature, seed);
 }
 
-// [prepare] project = true: positions onto the constraint manifold g = 0 (SHAKE, M-orthogonal)
-// and velocities onto its tangent space; vibrational_temperature = T: then give every stiff
-// bond thermal vibrational energy — bond-length deviations g_b ~ N(0, T ε²/α_b²) (the stiff
-// potential ½ε⁻²α_b² g_b² is diagonal in g) and normal velocities u − P u with u thermal at T
-// (so that ġ = G u ~ N(0, T S): equipartition in the bonds' normal modes, linearised).
+// [prepare]: the settings of prepare_state (integrators/prepare.*, where the physics is) and
+// the table's file:line for its errors.
 void read_prepare(DeckTable& root, Scene& sc) {
   auto t = root.table("prepare");
   if (!t) return;
-  PrepareSettings& p = sc.prepare;
+  PrepareTable& p = sc.prepare;
   p.requested = true;
   p.where = t->where();
   p.project = t->boolean("project", true);
@@ -321,65 +318,17 @@ void read_prepare(DeckTable& root, Scene& sc) {
 }
 
 void prepare_scene(Scene& sc, std::ostream& log) {
-  const PrepareSettings& p = sc.prepare;
+  const PrepareTable& p = sc.prepare;
   if (!p.requested) return;
-  const StiffBonds* stiff = sc.forces->stiff_bonds();
-  State& s = sc.state;
-  std::ostringstream note;
-  note.precision(4);
+  std::string note;
   try {
-    ConstraintToolbox toolbox(stiff->bonds, s.inv_mass);
-    const double g0 = toolbox.max_violation(s.x);
-    if (p.project) {
-      toolbox.shake(s.x, s.x, nullptr, 1e-12, 200);
-      toolbox.project_velocity(s.x, s.v);
-      note << "prepare: projected onto the constraint manifold (max |g| " << g0 << " -> " << toolbox.max_violation(s.x)
-           << ") and the velocities onto its tangent space";
-    }
-    if (p.relax_steps > 0) {
-      // Overlaps left by a builder: steepest descent on every non-stiff term, each step moving
-      // no particle more than max_move, then SHAKE back onto the bonds (g = 0).
-      Eigen::Matrix3Xd f, x_old;
-      const double e_before = sc.forces->compute_unconstrained(s.x, f);
-      double e = e_before;
-      for (long k = 0; k < p.relax_steps; ++k) {
-        Eigen::Matrix3Xd step = f * s.inv_mass.asDiagonal();
-        const double largest = step.colwise().norm().maxCoeff();
-        if (largest == 0.0) break;
-        x_old = s.x;
-        s.x += (p.relax_max_displacement / largest) * step;
-        toolbox.shake(x_old, s.x, nullptr, 1e-10, 200);
-        e = sc.forces->compute_unconstrained(s.x, f);
-      }
-      toolbox.project_velocity(s.x, s.v);  // the velocities stay, tangent at the new positions
-      note << (p.project ? "; " : "prepare: ") << "relaxed " << p.relax_steps << " steps: non-stiff potential energy "
-           << e_before << " -> " << e;
-    }
-    const double tv = p.vibrational_temperature;
-    if (tv > 0) {
-      // Target bond lengths ℓ_b + g_b, reached by SHAKE along M⁻¹Gᵀ with the shifted lengths.
-      // The unit normals are one component of a Maxwell–Boltzmann draw at T = 1 for unit masses
-      // (the builders' portable generator); its exact rescaling and zero-mean correction are
-      // O(1/m) departures from independent N(0, 1), harmless for thermalising many bonds.
-      const Eigen::Matrix3Xd normal =
-          maxwell_boltzmann(Eigen::VectorXd::Ones(static_cast<Eigen::Index>(stiff->bonds.size())), 1.0, p.seed + 1);
-      std::vector<StiffBond> shifted = stiff->bonds;
-      for (size_t b = 0; b < shifted.size(); ++b)
-        shifted[b].length +=
-            std::sqrt(tv) * stiff->epsilon / shifted[b].alpha * normal(0, static_cast<Eigen::Index>(b));
-      ConstraintToolbox(shifted, s.inv_mass).shake(s.x, s.x, nullptr, 1e-12, 200);
-      Eigen::Matrix3Xd u = maxwell_boltzmann(s.inv_mass, tv, p.seed), pu = u;
-      toolbox.project_velocity(s.x, pu);
-      s.v += u - pu;
-      note << (p.project || p.relax_steps > 0 ? "; " : "prepare: ") << "bond vibrations thermalised at T = " << tv
-           << " (max |g| = " << toolbox.max_violation(s.x) << ")";
-    }
+    note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, p);
   } catch (const NumericalError& e) {
     throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
   } catch (const InputError& e) {
     throw InputError(p.where + ": prepare: " + e.what());
   }
-  log << note.str() << "\n";
+  log << note << "\n";
 }
 
 }  // namespace stiffmd

@@ -3,17 +3,9 @@
 #include <cmath>
 #include <sstream>
 
+#include "engine/core/format.hpp"
+
 namespace stiffmd {
-namespace {
-
-std::string number(double v) {
-  std::ostringstream s;
-  s.precision(10);
-  s << v;
-  return s.str();
-}
-
-}  // namespace
 
 std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
                                                           const std::vector<std::pair<int, int>>& bonds,
@@ -63,8 +55,8 @@ std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
       const double d = y(a, i) - y(a, j), half = 0.5 * box.lengths[a];
       if (std::abs(d) < half) continue;
       const std::string axis(1, static_cast<char>('x' + a));
-      const std::string span = "spans " + number(std::abs(d)) + " along " + axis + ", ";
-      const std::string box_length = "the periodic box length " + number(box.lengths[a]);
+      const std::string span = "spans " + format_number(std::abs(d), 10) + " along " + axis + ", ";
+      const std::string box_length = "the periodic box length " + format_number(box.lengths[a], 10);
       if (keep_images)
         return WholeMoleculesProblem{b, span + "at least half " + box_length +
                                             " (a bond must be its own minimum image; if the image flags are not "
@@ -72,7 +64,7 @@ std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
       if (tree[b])
         return WholeMoleculesProblem{b, span + "exactly half " + box_length + ": which image it joins is ambiguous"};
       return WholeMoleculesProblem{b, "closes a ring only across a jump of a box length along " + axis + " (" +
-                                          box_length + "; the bond spans " + number(std::abs(d)) +
+                                          box_length + "; the bond spans " + format_number(std::abs(d), 10) +
                                           " once the rest of its molecule is whole): the molecule cannot be made whole"};
     }
   }

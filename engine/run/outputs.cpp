@@ -1,0 +1,196 @@
+#include "engine/run/outputs.hpp"
+
+#include <filesystem>
+#include <system_error>
+
+#include "engine/core/errors.hpp"
+#include "engine/io/lammps_data.hpp"
+#include "engine/observe/polymer_observables.hpp"
+
+namespace stiffmd {
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<std::string> state_columns(int n) {
+  std::vector<std::string> c = {"time"};
+  for (const char* what : {"", "p"})
+    for (int i = 0; i < n; ++i)
+      for (const char* a : {"x", "y", "z"}) c.push_back(std::string(what) + a + "_" + std::to_string(i));
+  return c;
+}
+
+// The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
+// LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
+ImportedSystem to_lammps(const Scene& sc) {
+  ImportedSystem out;
+  const State& s = sc.state;
+  out.x = s.x;
+  out.v = s.v;
+  for (int i = 0; i < s.size(); ++i) {
+    out.type.push_back(sc.particle_type[i] + 1);
+    out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
+    out.id.push_back(i + 1);
+  }
+  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
+  for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
+  for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
+  out.num_atom_types = static_cast<int>(sc.types.size());
+  out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
+  out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
+  if (sc.box.periodic.all()) {
+    out.lo = sc.box.origin;
+    out.hi = sc.box.origin + sc.box.lengths;
+  } else {
+    out.lo = s.x.rowwise().minCoeff().array() - 1.0;
+    out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
+  }
+  return out;
+}
+
+}  // namespace
+
+void prepare_output_directory(const Scene& sc, const std::string& out_dir) {
+  const fs::path dir(out_dir);
+  std::error_code ec;
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
+    throw InputError(out_dir + ": output path exists and is not a directory");
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir, ec)) throw InputError(out_dir + ": cannot create output directory: " + ec.message());
+  check_output_paths(sc, out_dir);       // before any step: an output that cannot be written fails now
+  fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
+}
+
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
+  write_lammps_data(path, to_lammps(scene), scene.topology.angles.empty() ? "bond" : "angle", title);
+}
+
+RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& thermo, const double* restart_cut,
+                       std::vector<std::string>& files, std::ostream& log)
+    : sc_(sc),
+      dir_(out_dir),
+      xyz_due_(sc.output.xyz_interval),
+      thermo_due_(sc.output.thermo_interval),
+      state_due_(sc.output.state_interval),
+      h5md_due_(sc.output.h5md_interval) {
+  const fs::path dir(out_dir);
+  const State& s = sc.state;
+  const bool restarting = restart_cut != nullptr;
+  const double cut = restarting ? *restart_cut : 0.0;
+  const double tol = 1e-9 * sc.integrator.h;
+  auto open_output = [&](const std::string& name, auto truncate) {
+    const fs::path p = dir / name;
+    files.push_back(p.string());
+    if (restarting) return truncate(p.string());  // true: continue (append)
+    if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
+    return false;
+  };
+  std::vector<std::string> species;
+  std::vector<double> masses;
+  for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
+  // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
+  // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
+  if (!sc.output.xyz.empty() || !sc.output.h5md.empty()) {
+    const fs::path p = dir / kTopologyFile;
+    if (!restarting)
+      write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
+    files.push_back(p.string());
+  }
+  if (!sc.output.xyz.empty()) {
+    const bool append =
+        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
+    xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
+                                       append, masses);
+  }
+  if (!sc.output.thermo.empty()) {
+    const bool append = open_output(
+        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
+    thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
+  }
+  if (!sc.output.state.empty()) {
+    const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
+    const bool append =
+        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
+    state_ = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
+    projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
+  }
+  for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
+    if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns_.push_back(c);
+  h5md_values_.resize(h5md_columns_.size());
+  if (!sc.output.h5md.empty()) {
+    H5mdSetup setup;
+    setup.num_particles = s.size();
+    setup.species = species;
+    setup.mass.resize(s.size());
+    for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
+    setup.box = sc.box;
+    for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
+    setup.author = sc.output.author;
+    setup.creator_version = STIFFMD_VERSION;
+    setup.velocity = sc.output.h5md_velocity;
+    setup.force = sc.output.h5md_force;
+    setup.gzip = sc.output.h5md_gzip;
+    // Observables on the frame grid: every thermo column but time and step.
+    for (int c : h5md_columns_) setup.observables.push_back(thermo.columns()[c]);
+    const std::string path = (dir / sc.output.h5md).string();
+    files.push_back(path);
+    const bool append = restarting && fs::exists(path);
+    if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
+    h5md_ = std::make_unique<H5mdWriter>(path, setup, append, s.step);
+  }
+  checkpoint_path_ = (dir / sc.output.checkpoint).string();
+  files.push_back(checkpoint_path_);
+  if (restarting) {
+    xyz_due_.served_until(cut);
+    thermo_due_.served_until(cut);
+    state_due_.served_until(cut);
+    h5md_due_.served_until(cut);
+  }
+  state_row_.resize(1 + 6 * s.size());
+}
+
+bool RunOutputs::due(double t, bool final) {
+  // The thermo grid drives the samples (and so the [monitor] checks) even without a thermo file.
+  thermo_now_ = thermo_due_.due(t) || final;
+  h5md_now_ = h5md_ && (h5md_due_.due(t) || final);
+  xyz_now_ = xyz_ && (xyz_due_.due(t) || final);
+  state_now_ = state_ && (state_due_.due(t) || final);
+  return thermo_now_ || h5md_now_;
+}
+
+void RunOutputs::write(const State& s, const std::vector<double>& row) {
+  if (thermo_now_ && thermo_) thermo_->write(row);
+  if (h5md_now_) {
+    if (sc_.output.h5md_force) sc_.forces->total_force(s.x, h5md_force_);
+    for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = row[h5md_columns_[k]];
+    h5md_->write_frame(s.step, s.t, s.x, &s.v, sc_.output.h5md_force ? &h5md_force_ : nullptr, h5md_values_);
+  }
+  if (xyz_now_) xyz_->write(s);
+  if (state_now_) write_state(s);
+}
+
+void RunOutputs::write_state(const State& s) {
+  const Eigen::Matrix3Xd& pp = (*projected_)(s);
+  state_row_[0] = s.t;
+  for (int i = 0; i < s.size(); ++i)
+    for (int a = 0; a < 3; ++a) {
+      state_row_[1 + 3 * i + a] = s.x(a, i);
+      state_row_[1 + 3 * s.size() + 3 * i + a] = pp(a, i);
+    }
+  state_->write(state_row_);
+}
+
+void RunOutputs::write_final(std::vector<std::string>& files) {
+  const fs::path dir(dir_);
+  if (!sc_.output.lammps_data.empty()) {
+    write_scene_lammps_data(sc_, (dir / sc_.output.lammps_data).string(),
+                            "stiffmd " STIFFMD_VERSION " final state of " + sc_.deck_path);
+    files.push_back((dir / sc_.output.lammps_data).string());
+  }
+  if (sc_.observables.histograms && !sc_.topology.bonds.empty()) {
+    write_histograms((dir / "histograms.csv").string(), sc_.state.x, sc_.box, sc_.topology);
+    files.push_back((dir / "histograms.csv").string());
+  }
+}
+
+}  // namespace stiffmd

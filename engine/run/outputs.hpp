@@ -1,0 +1,67 @@
+// The files of a run (the deck's [output]): the trajectories (XYZ, H5MD, with topology.data),
+// the thermo and state CSV files on their time grids, the checkpoint's path, and at the end the
+// LAMMPS data file and the histograms. RunOutputs opens them — fresh, or on a restart cut back
+// to the step before the checkpoint and appended to — and decides which are due at each step.
+#pragma once
+
+#include <memory>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "engine/io/h5md_writer.hpp"
+#include "engine/io/writers.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/scene/scene.hpp"
+
+namespace stiffmd {
+
+// Creates the output directory (or refuses a path that is not one), checks that every output of
+// the scene can be written there, and removes a previous summary.json (a summary only ever
+// describes a finished run). Throws InputError.
+void prepare_output_directory(const Scene& scene, const std::string& dir);
+
+// Writes the scene's current state (after [prepare], before any step when called on a freshly
+// loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
+
+class RunOutputs {
+ public:
+  // Opens the outputs for the scene's current state. `restart_cut`: null for a fresh run (files
+  // are created, an existing one noted on `log`); on a restart the time of the step before the
+  // checkpoint, t_{k−1}: every file is cut back to it and appended to, and the schedules resume
+  // from there, so that the files end up exactly as an uninterrupted run's. Lists every file it
+  // owns in `files`, in the order of the summary (topology.data, XYZ, thermo, state, H5MD,
+  // checkpoint).
+  RunOutputs(Scene& scene, const std::string& dir, const Thermo& thermo, const double* restart_cut,
+             std::vector<std::string>& files, std::ostream& log);
+
+  // Advances the time grids to t and returns whether a thermo sample is due (for the thermo CSV
+  // or an H5MD frame); `final`: every output is due (the last state, whatever the grids).
+  bool due(double t, bool final);
+  // Writes what the last due() found due; `row` is the thermo sample when one was due.
+  void write(const State& s, const std::vector<double>& row);
+  // After the last step: the LAMMPS data file and the histograms, when asked for.
+  void write_final(std::vector<std::string>& files);
+
+  const std::string& checkpoint_path() const { return checkpoint_path_; }
+
+ private:
+  void write_state(const State& s);
+
+  Scene& sc_;
+  std::string dir_;
+  std::unique_ptr<XyzWriter> xyz_;
+  std::unique_ptr<CsvWriter> thermo_, state_;
+  std::unique_ptr<ProjectedMomenta> projected_;
+  std::unique_ptr<H5mdWriter> h5md_;
+  IntervalSchedule xyz_due_, thermo_due_, state_due_, h5md_due_;
+  bool xyz_now_ = false, thermo_now_ = false, state_now_ = false, h5md_now_ = false;
+  std::vector<double> state_row_;
+  std::vector<int> h5md_columns_;  // every thermo column but time and step
+  std::vector<double> h5md_values_;
+  Eigen::Matrix3Xd h5md_force_;
+  std::string checkpoint_path_;
+};
+
+}  // namespace stiffmd
