@@ -45,8 +45,15 @@ struct StiffModes::Impl {
     std::vector<int> particles;  // global particle index of each local particle
     std::vector<double> im;      // inverse mass of each local particle
     std::vector<int> li, lj;     // local particle index of each bond's ends
+    // The couplings of S on this cluster, the toolbox's (bonds_at_mobile_particles: every pair of
+    // bonds at one mobile particle p): S_be = w u_b·u_e, w = s_b(p) s_e(p)/m_p, local b > e.
+    struct Coupling {
+      int b, e;
+      double w;
+    };
+    std::vector<Coupling> couplings;
     // Open chains: bonds in chain order, A tridiagonal with A(b, b+1) = off_w[b] α_b α_{b+1} u_b·u_{b+1},
-    // off_w[b] = s_b(p) s_{b+1}(p)/m_p for the mobile particle p the two bonds share.
+    // off_w[b] the coupling of bonds b and b+1 (the one mobile particle they share).
     bool chain = false;
     std::vector<double> off_w;
   };
@@ -115,21 +122,16 @@ struct StiffModes::Impl {
   void decompose(const Cluster& c, const Eigen::Matrix3Xd& x, bool vectors) {
     const int nb = static_cast<int>(c.bonds.size());
     measure(c, x, u, r);
-    A.resize(nb, nb);
+    A.setZero(nb, nb);
     for (int b = 0; b < nb; ++b) {
       const double ab = bonds[c.bonds[b]].alpha;
       // u_b·u_b = 1 exactly; using it avoids a rounding asymmetry on the diagonal.
       A(b, b) = ab * ab * (c.im[c.li[b]] + c.im[c.lj[b]]);
-      for (int e = 0; e < b; ++e) {
-        double s = 0.0;
-        if (c.li[b] == c.li[e]) s += c.im[c.li[b]];
-        if (c.li[b] == c.lj[e]) s -= c.im[c.li[b]];
-        if (c.lj[b] == c.li[e]) s -= c.im[c.lj[b]];
-        if (c.lj[b] == c.lj[e]) s += c.im[c.lj[b]];
-        const double v = (s == 0.0) ? 0.0 : ab * bonds[c.bonds[e]].alpha * s * u.col(b).dot(u.col(e));
-        A(b, e) = v;
-        A(e, b) = v;
-      }
+    }
+    for (const Cluster::Coupling& k : c.couplings) {
+      const double v = bonds[c.bonds[k.b]].alpha * bonds[c.bonds[k.e]].alpha * k.w * u.col(k.b).dot(u.col(k.e));
+      A(k.b, k.e) = v;
+      A(k.e, k.b) = v;
     }
     solver.compute(A, vectors ? Eigen::ComputeEigenvectors : Eigen::EigenvaluesOnly);
     if (solver.info() != Eigen::Success)
@@ -308,13 +310,16 @@ StiffModes::StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, d
       c.li.push_back(local(d.bonds[b].i));
       c.lj.push_back(local(d.bonds[b].j));
     }
-    for (int b = 0; c.chain && b + 1 < nb; ++b) {  // the one mobile particle bonds b and b+1 share
-      double w = 0.0;
-      if (c.li[b] == c.li[b + 1]) w += c.im[c.li[b]];
-      if (c.li[b] == c.lj[b + 1]) w -= c.im[c.li[b]];
-      if (c.lj[b] == c.li[b + 1]) w -= c.im[c.lj[b]];
-      if (c.lj[b] == c.lj[b + 1]) w += c.im[c.lj[b]];
-      c.off_w.push_back(w);
+    for (const auto& [p, at] : bonds_at_mobile_particles(c.bonds, d.bonds, d.inv_mass))
+      for (size_t k = 0; k < at.size(); ++k)
+        for (size_t l = 0; l < k; ++l) {
+          const int b = std::max(at[k].first, at[l].first), e = std::min(at[k].first, at[l].first);
+          c.couplings.push_back({b, e, at[k].second * at[l].second * d.inv_mass[p]});
+        }
+    if (c.chain) {  // chain order: bond b+1 is coupled to b, through the one mobile particle they share
+      c.off_w.assign(nb > 0 ? nb - 1 : 0, 0.0);
+      for (const Impl::Cluster::Coupling& k : c.couplings)
+        if (k.b == k.e + 1) c.off_w[k.e] = k.w;
     }
     if (c.chain) {
       d.chains.push_back(static_cast<int>(d.clusters.size()));
