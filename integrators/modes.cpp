@@ -90,8 +90,8 @@ struct StiffModes::Impl {
   std::vector<int> chains;
   std::vector<std::int64_t> chain_bonds_before;  // bonds in chains 0 … k − 1
   std::vector<ChainWorkspace> workspaces;
-  Eigen::Matrix3Xd h;              // per bond: ∂W/∂x_i (= −∂W/∂x_j) from its cluster's chain path
-  std::vector<double> cluster_W;   // W of each cluster (chain path)
+  Eigen::Matrix3Xd h;             // per bond: ∂W/∂x_i (= −∂W/∂x_j) from its cluster's chain path
+  std::vector<double> cluster_W;  // W of each cluster (chain path)
   std::vector<Validity> cluster_validity;
 
   void check_positions(const Eigen::Matrix3Xd& x) const {
@@ -140,9 +140,7 @@ struct StiffModes::Impl {
   }
 
   // λ_k of the last decomposition, after the check that 1/λ_k is meaningful.
-  double positive_eigenvalue(const Cluster& c, int k) const {
-    return positive_eigenvalue(c, k, solver.eigenvalues());
-  }
+  double positive_eigenvalue(const Cluster& c, int k) const { return positive_eigenvalue(c, k, solver.eigenvalues()); }
   double positive_eigenvalue(const Cluster& c, int k, const Eigen::Ref<const Eigen::VectorXd>& lam) const {
     const double lk = lam[k];
     if (!(lk > kZeroEigenvalue * lam[lam.size() - 1]))
@@ -168,8 +166,8 @@ struct StiffModes::Impl {
     dsterf_(&n, ws.lambda.data(), ws.scratch.data(), &info);
     if (info != 0)
       throw NumericalError("StiffModes: eigenvalues of chain cluster " + std::to_string(c.index) + " (" +
-                           std::to_string(n) + " bonds) did not converge (LAPACK dsterf info " +
-                           std::to_string(info) + ")");
+                           std::to_string(n) + " bonds) did not converge (LAPACK dsterf info " + std::to_string(info) +
+                           ")");
     if (vectors) chain_eigenvectors(n, ws);
   }
 

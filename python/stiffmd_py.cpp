@@ -25,6 +25,7 @@
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
+#include "engine/run/simulation.hpp"  // take_step, check_finite
 #include "engine/scene/scene.hpp"
 #include "integrators/methods.hpp"
 
@@ -99,7 +100,7 @@ class Simulation {
       observables.rigid_constraints = static_cast<int>(scene_.forces->stiff_bonds()->bonds.size());
     thermo_ = std::make_unique<Thermo>(*scene_.forces, scene_.state.inv_mass, observables, &scene_.topology);
     integrator_->prepare(scene_.state, log_);
-    check_finite();
+    check_finite(scene_.state);
     sample();  // E(0), the reference of energy_drift, as the run loop's first sample
   }
 
@@ -111,17 +112,7 @@ class Simulation {
     const std::int64_t last = s.step + steps;
     py::gil_scoped_release free;
     for (std::int64_t k = s.step + 1; k <= last; ++k) {
-      try {
-        integrator_->step(s, h);
-      } catch (const NumericalError& e) {
-        std::ostringstream m;
-        m.precision(10);
-        m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
-        throw NumericalError(m.str());
-      }
-      s.step = k;
-      s.t = static_cast<double>(k) * h;
-      check_finite();
+      take_step(*integrator_, s, h, k, static_cast<double>(k) * h);
       if (k % 1024 == 0) {  // Ctrl-C: stop between steps, the state consistent
         py::gil_scoped_acquire held;
         if (PyErr_CheckSignals() != 0) throw py::error_already_set();
@@ -200,18 +191,6 @@ class Simulation {
   void restarted() {
     integrator_->reset();
     thermo_->set_initial_energy(sample()[thermo_->column("total")]);
-  }
-
-  void check_finite() const {
-    const State& s = scene_.state;
-    if (s.x.allFinite() && s.v.allFinite()) return;
-    int bad = 0;
-    while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
-    std::ostringstream m;
-    m.precision(10);
-    m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
-      << " (t = " << s.t << "); reduce integrator.h or micro_dt";
-    throw NumericalError(m.str());
   }
 
   std::unique_ptr<Deck> deck_;

@@ -347,8 +347,9 @@ double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
   // at step 1, with no key to name. Reduced units have no business outside it.
   const double a = std::abs(x);
   if (a > kLargestDeckNumber || (a != 0.0 && a < kSmallestDeckNumber))
-    throw InputError(where + ": " + format_exact(x) + " is outside the range of deck numbers (0, or " + format_exact(kSmallestDeckNumber) +
-                     " .. " + format_exact(kLargestDeckNumber) + " in magnitude); expected a value in reduced units");
+    throw InputError(where + ": " + format_exact(x) + " is outside the range of deck numbers (0, or " +
+                     format_exact(kSmallestDeckNumber) + " .. " + format_exact(kLargestDeckNumber) +
+                     " in magnitude); expected a value in reduced units");
   return x;
 }
 

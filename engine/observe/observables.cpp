@@ -79,8 +79,7 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   values_.clear();
   values_.insert(values_.end(),
                  {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
-                  max_constraint_violation(s.x, forces_.stiff_bonds()),
-                  dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+                  max_constraint_violation(s.x, forces_.stiff_bonds()), dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
   if (volume_ > 0)
     values_.push_back(pressure(s, forces_, volume_, thermal_kinetic) + constraint_virial / (3.0 * volume_));
   if (molecules_) {

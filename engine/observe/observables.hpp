@@ -8,9 +8,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/observe/polymer_observables.hpp"
 #include "engine/core/state.hpp"
 #include "engine/core/topology.hpp"
+#include "engine/observe/polymer_observables.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/modes.hpp"
@@ -37,7 +37,7 @@ struct ObservableSettings {
   int rigid_constraints = 0;   // degrees of freedom removed by rigid constraints (RATTLE, effective)
   // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
-  bool histograms = true;      // bond-length and angle histograms at the end (when there are bonds)
+  bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
 };
 
 // One row of thermo output: named columns, fixed for a run. The last column, alerts, is 0 here;

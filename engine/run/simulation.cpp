@@ -9,10 +9,10 @@
 #include <memory>
 #include <sstream>
 
-#include "engine/run/checkpoint.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "engine/run/outputs.hpp"
 #include "engine/run/progress.hpp"
 #include "engine/run/signals.hpp"
@@ -22,18 +22,6 @@ namespace stiffmd {
 namespace fs = std::filesystem;
 
 namespace {
-
-// Locates the first non-finite coordinate, to say where a blow-up happened.
-void check_finite(const State& s) {
-  if (s.x.allFinite() && s.v.allFinite()) return;
-  int bad = 0;
-  while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
-  std::ostringstream m;
-  m.precision(10);
-  m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
-    << " (t = " << s.t << "); reduce integrator.h or micro_dt";
-  throw NumericalError(m.str());
-}
 
 // Writes the file whole or not at all: a temporary file renamed into place.
 void write_atomically(const fs::path& p, const std::string& text) {
@@ -66,6 +54,31 @@ std::int64_t steps_to(double span, double h) {
 }
 
 }  // namespace
+
+void check_finite(const State& s) {
+  if (s.x.allFinite() && s.v.allFinite()) return;
+  int bad = 0;
+  while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
+  std::ostringstream m;
+  m.precision(10);
+  m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
+    << " (t = " << s.t << "); reduce integrator.h or micro_dt";
+  throw NumericalError(m.str());
+}
+
+void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k) {
+  try {
+    integrator.step(s, h);
+  } catch (const NumericalError& e) {
+    std::ostringstream m;
+    m.precision(10);
+    m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+    throw NumericalError(m.str());
+  }
+  s.step = k;
+  s.t = t_k;
+  check_finite(s);
+}
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   RunSummary summary;
@@ -171,7 +184,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     c.run_state.insert(c.run_state.end(), summary.initial_actions.begin(), summary.initial_actions.end());
   };
   Checkpoint last_good;  // with on_alert = "stop": the run as of the last sample without alerts
-  int alerts = 0;   // of the last sample
+  int alerts = 0;        // of the last sample
   // One sample of the observables serves the thermo row and the H5MD frame of the same step.
   std::vector<double> last_row;
   auto sample = [&]() -> const std::vector<double>& {
@@ -238,17 +251,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const auto start = std::chrono::steady_clock::now();
   const std::clock_t cpu_start = std::clock();
   for (std::int64_t k = first; k <= n; ++k) {
-    try {
-      integrator->step(s, h);
-    } catch (const NumericalError& e) {
-      std::ostringstream m;
-      m.precision(10);
-      m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
-      throw NumericalError(m.str());
-    }
-    s.step = k;
-    s.t = new_h ? t0 + static_cast<double>(k - k0) * h : static_cast<double>(k) * h;  // no accumulated round-off
-    check_finite(s);
+    take_step(*integrator, s, h, k, new_h ? t0 + static_cast<double>(k - k0) * h : static_cast<double>(k) * h);
     if (k == n) break;
     observe();
     signal_at.at(k);

@@ -49,6 +49,14 @@ struct RunSummary {
 // outputs written up to the last good frame stay readable.
 RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
 
+// Throws NumericalError naming the first particle with a non-finite position or velocity, and
+// the step and time, if there is one.
+void check_finite(const State& s);
+// Macro step k of a run (the state is at step k − 1): integrator.step(s, h), then s.step = k and
+// s.t = t_k (given, so that time has no accumulated round-off: t_k = k h from the start), then
+// check_finite. A NumericalError from the step is re-thrown naming k and the time.
+void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k);
+
 std::string format_summary(const RunSummary& s);
 // The summary as JSON (written to DIR/summary.json at the end of a successful run only).
 std::string summary_json(const RunSummary& s);

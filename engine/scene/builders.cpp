@@ -440,8 +440,9 @@ void validate(const char* who, const ChainSpec& spec, int min_beads, const Box& 
   if (!(spec.bond_length > 0.0) || !std::isfinite(spec.bond_length))
     invalid(who, "bond_length = " + format_number(spec.bond_length) + ": expected a finite length > 0");
   if (!(spec.min_distance >= 0.0) || !(spec.min_distance < 2.0 * spec.bond_length))
-    invalid(who, "min_distance = " + format_number(spec.min_distance) + ": expected 0 <= min_distance < 2*bond_length = " +
-                     format_number(2.0 * spec.bond_length) + " (beads two bonds apart are at most 2*bond_length apart)");
+    invalid(who, "min_distance = " + format_number(spec.min_distance) +
+                     ": expected 0 <= min_distance < 2*bond_length = " + format_number(2.0 * spec.bond_length) +
+                     " (beads two bonds apart are at most 2*bond_length apart)");
   if (total_beads > std::numeric_limits<int>::max())
     invalid(who, "too many beads (" + std::to_string(total_beads) + ")");
   bool point_region = true;
@@ -449,7 +450,8 @@ void validate(const char* who, const ChainSpec& spec, int min_beads, const Box& 
     const char axis = static_cast<char>('x' + a);
     if (!std::isfinite(box.origin[a])) invalid(who, std::string("box origin is not finite on axis ") + axis);
     if (!std::isfinite(box.lengths[a]) || box.lengths[a] < 0.0)
-      invalid(who, std::string("box length on axis ") + axis + " = " + format_number(box.lengths[a]) + ": expected >= 0");
+      invalid(who,
+              std::string("box length on axis ") + axis + " = " + format_number(box.lengths[a]) + ": expected >= 0");
     if (box.periodic[a] && !(box.lengths[a] > 2.0 * spec.bond_length))
       invalid(who, std::string("periodic box length on axis ") + axis + " = " + format_number(box.lengths[a]) +
                        ": expected more than 2*bond_length = " + format_number(2.0 * spec.bond_length) +
@@ -567,8 +569,9 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box) {
     const double most = 2.0 / (1.0 - std::cos(std::asin(spec.min_distance / (2.0 * spec.bond_length))));
     if (arms > most)
       invalid(who, "arms = " + std::to_string(arms) + ": at most " + format_number(std::floor(most)) +
-                       " arms fit around a core with bond_length = " + format_number(spec.bond_length) + " and min_distance = " +
-                       format_number(spec.min_distance) + "; expected fewer arms or a smaller min_distance");
+                       " arms fit around a core with bond_length = " + format_number(spec.bond_length) +
+                       " and min_distance = " + format_number(spec.min_distance) +
+                       "; expected fewer arms or a smaller min_distance");
   }
   const int b = spec.beads, size = static_cast<int>(per_star);
   std::vector<Plan> plans(static_cast<size_t>(spec.chains));

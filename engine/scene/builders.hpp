@@ -90,5 +90,4 @@ Polymer build_stars(const ChainSpec& spec, int arms, const Box& box);
 // axes. total_beads ≥ 1 and density > 0 (finite), else std::invalid_argument.
 Box box_for_density(int total_beads, double density);
 
-
 }  // namespace stiffmd

@@ -6,8 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/core/format.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/format.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/coefficients.hpp"
@@ -85,8 +85,8 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
         // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
         const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
         bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
-                   "the spring constant (alpha/epsilon)^2 = (" + format_number(c.alpha) + "/" + format_number(sb.epsilon) +
-                       ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
+                   "the spring constant (alpha/epsilon)^2 = (" + format_number(c.alpha) + "/" +
+                       format_number(sb.epsilon) + ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
         return c;
       },
       coeffs);
@@ -291,7 +291,8 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
       if (ab[m] < 0) p.fail("types", "unknown particle type '" + names[m] + "'");
     }
     if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
-      p.fail("types", "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
+      p.fail("types",
+             "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
     coeffs.set(ab[0], ab[1], read_coeffs(p, global));
     p.finish();
   }

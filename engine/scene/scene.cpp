@@ -8,8 +8,8 @@
 #include <set>
 #include <sstream>
 
-#include "engine/core/format.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/format.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
 #include "engine/scene/thermostat_deck.hpp"
@@ -101,7 +101,8 @@ void check_positions_near_box(DeckTable& root, const Scene& sc) {
       if (std::abs(images) <= kMaxImages) continue;
       const std::string what = "particle " + std::to_string(i) + " is at " + static_cast<char>('x' + a) + " = " +
                                format_number(sc.state.x(a, i)) + ", more than 2^20 box lengths (" +
-                               format_number(sc.box.lengths[a]) + ") from the periodic box; expected a position near it";
+                               format_number(sc.box.lengths[a]) +
+                               ") from the periodic box; expected a position near it";
       if (static_cast<size_t>(i) < particles.size()) particles[static_cast<size_t>(i)].fail("position", what);
       root.fail_here(what);
     }
@@ -442,7 +443,7 @@ std::int64_t Scene::num_steps() const {
   const double r = run.t_end / integrator.h;
   const double nearest = std::round(r);
   return static_cast<std::int64_t>(std::abs(r - nearest) <= kWholeStepTolerance * std::max(1.0, r) ? nearest
-                                                                                                : std::ceil(r));
+                                                                                                   : std::ceil(r));
 }
 
 Scene load_scene(const Deck& deck) {
@@ -522,8 +523,7 @@ std::string describe(const Scene& sc) {
   if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
     s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
     if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
-    if (th.friction.size() > 0)
-      s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    if (th.friction.size() > 0) s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
     const MethodInfo& m = *find_method(sc.integrator.method);
     const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
     s << ", seed " << th.seed << "; temperature over "
