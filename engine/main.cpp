@@ -8,11 +8,11 @@
 #include <iostream>
 #include <optional>
 
-#include "engine/run/checkpoint.hpp"
-#include "engine/deck/deck.hpp"
 #include "engine/core/errors.hpp"
-#include "engine/scene/scene.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "engine/run/simulation.hpp"
+#include "engine/scene/scene.hpp"
 
 namespace {
 

@@ -17,9 +17,9 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/parallel.hpp"
 #include "engine/core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
-#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 

@@ -75,7 +75,8 @@ class ForceTerm {
   // std::invalid_argument for words it cannot take.
   virtual std::vector<double> save_state() const { return {}; }
   virtual void load_state(std::span<const double> words) {
-    if (!words.empty()) throw std::invalid_argument("force term '" + name_ + "' carries no state, the checkpoint has some");
+    if (!words.empty())
+      throw std::invalid_argument("force term '" + name_ + "' carries no state, the checkpoint has some");
   }
 
   // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.

@@ -22,8 +22,8 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
-#include "forcefields/neighbor_list.hpp"
 #include "engine/core/parallel.hpp"
+#include "forcefields/neighbor_list.hpp"
 
 namespace stiffmd {
 

@@ -45,8 +45,8 @@ std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_v
   }
 }
 
-void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x,
-                 const Eigen::Matrix3Xd* f, std::size_t num_types) {
+void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f,
+                 std::size_t num_types) {
   if (x.cols() != static_cast<Eigen::Index>(num_types) || (f && f->cols() != x.cols())) {
     std::ostringstream s;
     s << "positions of " << x.cols() << " particles" << (f ? ", forces of " + std::to_string(f->cols()) : "")

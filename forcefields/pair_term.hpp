@@ -87,8 +87,8 @@ void check_pair_inputs(const std::string& name, std::string_view style, const st
                        SpecialWeights weights, const Box& box, double rc, double skin);
 std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_view style, int n,
                                           const std::vector<Bond>& bonds, SpecialWeights weights);
-void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x,
-                 const Eigen::Matrix3Xd* f, std::size_t num_types);
+void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f,
+                 std::size_t num_types);
 std::string define_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
                          SpecialWeights weights, std::size_t excluded, std::size_t scaled);
 // The neighbour list's state for checkpoints: its positions, box and rebuild count at the last
@@ -133,7 +133,8 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
       weights_(weights),
       list_(cutoff_, skin) {
   const int n = static_cast<int>(types_.size());
-  const std::vector<SpecialPair> special = pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
+  const std::vector<SpecialPair> special =
+      pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
   for (const SpecialPair& sp : special) {
     if (sp.weight > 0.0)
       scaled_.push_back(sp);

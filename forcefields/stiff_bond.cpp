@@ -93,9 +93,11 @@ std::optional<StiffBondProblem> find_stiff_bond_problem(const std::vector<StiffB
                                      (inv_mass ? " [0, " + std::to_string(n) + ")" : std::string(" (negative)"))};
     if (bond.i == bond.j) return StiffBondProblem{b, name(b, bond) + " joins a particle to itself"};
     if (!(bond.length > 0.0) || !std::isfinite(bond.length))
-      return StiffBondProblem{b, name(b, bond) + ": length must be finite and > 0, got " + format_number(bond.length, 10)};
+      return StiffBondProblem{b,
+                              name(b, bond) + ": length must be finite and > 0, got " + format_number(bond.length, 10)};
     if (!(bond.alpha > 0.0) || !std::isfinite(bond.alpha))
-      return StiffBondProblem{b, name(b, bond) + ": alpha must be finite and > 0, got " + format_number(bond.alpha, 10)};
+      return StiffBondProblem{b,
+                              name(b, bond) + ": alpha must be finite and > 0, got " + format_number(bond.alpha, 10)};
     if (inv_mass && (*inv_mass)[bond.i] == 0.0 && (*inv_mass)[bond.j] == 0.0)
       return StiffBondProblem{b, name(b, bond) + " joins two fixed particles: it constrains nothing"};
     if (!pairs.insert({std::min(bond.i, bond.j), std::max(bond.i, bond.j)}).second)

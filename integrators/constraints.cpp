@@ -248,7 +248,6 @@ class SparseSolver final : public ClusterSolver {
   bool symmetric_ = true;
 };
 
-
 std::vector<Coupling> couplings_of(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
                                    const Eigen::VectorXd& inv_mass) {
   std::vector<Coupling> couplings;

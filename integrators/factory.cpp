@@ -14,7 +14,9 @@ namespace {
 
 using Ptr = std::unique_ptr<Integrator>;
 
-const StiffBonds& stiff_bonds_of(const ForceField& forces) { return *forces.stiff_bonds(); }
+const StiffBonds& stiff_bonds_of(const ForceField& forces) {
+  return *forces.stiff_bonds();
+}
 
 // The O step of Langevin dynamics, when the deck asks for it (each method places it: BAOAB,
 // BAOAB-RESPA, constrained BAOAB).
@@ -50,8 +52,8 @@ Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen:
       langevin_of(s, inv_mass));
 }
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
-  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
-                                  nullptr, langevin_of(s, inv_mass));
+  return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass), nullptr,
+                                  langevin_of(s, inv_mass));
 }
 Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   const StiffBonds& stiff = stiff_bonds_of(forces);
@@ -70,8 +72,9 @@ Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen:
 // The thermal stiff limit (design.md §8): RATTLE on U + U_F at the thermostat's kT.
 Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   if (!s.thermostat.on())
-    throw std::invalid_argument("fixman needs a thermostat: U_F = (kT/2) log det(K^1/2 G M^-1 G^T K^1/2) is a free "
-                                "energy at the thermostat's kT");
+    throw std::invalid_argument(
+        "fixman needs a thermostat: U_F = (kT/2) log det(K^1/2 G M^-1 G^T K^1/2) is a free "
+        "energy at the thermostat's kT");
   const StiffBonds& stiff = stiff_bonds_of(forces);
   return std::make_unique<Rattle>(
       s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
@@ -79,27 +82,29 @@ Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::Ve
       langevin_of(s, inv_mass));
 }
 
-//                     name               summary                                                        stiff  micro  rigid  eff.  kT
+//                     name               summary                                                        stiff  micro
+//                     rigid  eff.  kT
 constexpr std::array<MethodInfo, 7> kMethods = {{
     {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false,
      make_velocity_verlet},
-    {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false, false,
-     make_impulse},
+    {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false,
+     false, make_impulse},
     {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, false,
      make_mollified},
-    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, false,
-     make_projected},
+    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, false, make_projected},
     {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false, false,
      make_rattle},
-    {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true, false,
-     make_effective},
+    {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true,
+     false, make_effective},
     {"fixman", "RATTLE on U + U_F (Fixman) with a thermostat: the thermal eps -> 0 limit", true, false, true, false,
      true, make_fixman},
 }};
 
 }  // namespace
 
-std::span<const MethodInfo> methods() { return kMethods; }
+std::span<const MethodInfo> methods() {
+  return kMethods;
+}
 
 const MethodInfo* find_method(std::string_view name) {
   for (const MethodInfo& m : kMethods)
@@ -123,8 +128,9 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
   std::unique_ptr<Integrator> integrator = m->make(s, forces, inv_mass);
   if (s.thermostat.style != ThermostatSettings::Style::csvr) return integrator;
   const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
-  return with_velocity_rescaling(std::move(integrator), s.thermostat,
-                                 degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid));
+  return with_velocity_rescaling(
+      std::move(integrator), s.thermostat,
+      degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid));
 }
 
 }  // namespace stiffmd

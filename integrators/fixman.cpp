@@ -68,18 +68,18 @@ bool tridiagonal_inverse_band(int n, const double* d, const double* e, double sc
 }
 
 struct Cluster {
-  int index = 0;            // position in find_clusters order, for messages
+  int index = 0;  // position in find_clusters order, for messages
   ClusterShape shape = ClusterShape::other;
   std::vector<int> bonds;   // local → global bond index (path order for chains and rings)
   std::vector<Pair> pairs;  // chain: pair k = (k, k+1); ring: the same, then (0, n−1); other: any order
   double log_alpha2 = 0.0;  // Σ_b log α_b², the constant that turns log det S into log det A
   double log_det = 0.0;     // log det S at the last evaluation
   // Scratch, sized in the constructor.
-  Eigen::VectorXd diag;     // S_kk = 1/m_i + 1/m_j
-  Eigen::VectorXd value;    // S on each pair
-  Eigen::VectorXd z_pair;   // Z = S⁻¹ on each pair
+  Eigen::VectorXd diag;                                     // S_kk = 1/m_i + 1/m_j
+  Eigen::VectorXd value;                                    // S on each pair
+  Eigen::VectorXd z_pair;                                   // Z = S⁻¹ on each pair
   Eigen::VectorXd pivot, factor, z_diag, z_off, border, y;  // chains and rings
-  Eigen::MatrixXd S, Z;     // other shapes (and Path::dense)
+  Eigen::MatrixXd S, Z;                                     // other shapes (and Path::dense)
   Eigen::LLT<Eigen::MatrixXd> llt;
   Eigen::VectorXd column;
 };
@@ -295,8 +295,8 @@ FixmanPotential& FixmanPotential::operator=(FixmanPotential&&) noexcept = defaul
 double FixmanPotential::force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
   Impl& d = *impl_;
   if (x.cols() != d.inv_mass.size())
-    throw std::invalid_argument("FixmanPotential::force: x has " + std::to_string(x.cols()) +
-                                " particles, expected " + std::to_string(d.inv_mass.size()));
+    throw std::invalid_argument("FixmanPotential::force: x has " + std::to_string(x.cols()) + " particles, expected " +
+                                std::to_string(d.inv_mass.size()));
   if (f.cols() != x.cols()) f.resize(3, x.cols());
   f.setZero();
   d.for_each_cluster([&](int ci) {

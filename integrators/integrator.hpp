@@ -17,8 +17,8 @@ namespace stiffmd {
 
 struct IntegratorSettings {
   std::string method = "velocity-verlet";
-  double h = 0.0;              // macro step
-  int micro_steps = 1;         // n micro steps δ = h/n per macro step (impulse family)
+  double h = 0.0;                 // macro step
+  int micro_steps = 1;            // n micro steps δ = h/n per macro step (impulse family)
   ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
 };
 
@@ -54,8 +54,8 @@ class Integrator {
   }
 };
 
-// Builds the integrator named by settings.method (the table in integrators/methods.hpp); throws std::invalid_argument for an
-// unknown name or a method the scene cannot run.
+// Builds the integrator named by settings.method (the table in integrators/methods.hpp); throws std::invalid_argument
+// for an unknown name or a method the scene cannot run.
 std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings, ForceField& forces,
                                             const Eigen::VectorXd& inv_mass);
 

@@ -14,13 +14,13 @@
 namespace stiffmd {
 
 struct MethodInfo {
-  std::string_view name;        // as in the deck: integrator.method
-  std::string_view summary;     // one line, for --help, `check` and README
-  bool needs_stiff_bonds;       // refuses a scene without a constraint-defining term
-  bool micro_steps;             // takes micro_dt / micro_steps (the impulse family)
-  bool rigid_constraints;       // integrates on g(x) = 0: removes one degree of freedom per bond
-  bool effective;               // carries actions I and the correction potential W(I, x)
-  bool needs_temperature;       // its model potential is a free energy at kT: refuses a run without a thermostat
+  std::string_view name;     // as in the deck: integrator.method
+  std::string_view summary;  // one line, for --help, `check` and README
+  bool needs_stiff_bonds;    // refuses a scene without a constraint-defining term
+  bool micro_steps;          // takes micro_dt / micro_steps (the impulse family)
+  bool rigid_constraints;    // integrates on g(x) = 0: removes one degree of freedom per bond
+  bool effective;            // carries actions I and the correction potential W(I, x)
+  bool needs_temperature;    // its model potential is a free energy at kT: refuses a run without a thermostat
   // Builds the integrator for a scene whose force field and inverse masses are given; throws
   // std::invalid_argument when the scene cannot run it.
   std::unique_ptr<Integrator> (*make)(const IntegratorSettings&, ForceField&, const Eigen::VectorXd& inv_mass);

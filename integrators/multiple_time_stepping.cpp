@@ -89,8 +89,8 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const size_t expected = stages_.size() * per_stage + (langevin_ ? 1 : 0);
   if (w.size() != expected)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
-                                " state, expected " + std::to_string(expected) + " (" +
-                                std::to_string(stages_.size()) + " stages" + (langevin_ ? ", Langevin)" : ")"));
+                                " state, expected " + std::to_string(expected) + " (" + std::to_string(stages_.size()) +
+                                " stages" + (langevin_ ? ", Langevin)" : ")"));
   for (size_t k = 0; k < stages_.size(); ++k) {
     const double* p = w.data() + k * per_stage;
     valid_[k] = p[0] != 0.0;

@@ -6,8 +6,8 @@
 
 namespace stiffmd {
 
-Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox,
-               std::unique_ptr<ModelPotential> model, std::unique_ptr<LangevinNoise> langevin)
+Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
+               std::unique_ptr<LangevinNoise> langevin)
     : method_(std::move(method)),
       forces_(forces),
       toolbox_(std::move(toolbox)),

@@ -3,17 +3,20 @@
 #include <stdexcept>
 #include <string>
 
-#include "forcefields/force_field.hpp"
 #include "engine/core/parallel.hpp"
+#include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
 
 namespace stiffmd {
 
 std::string_view thermostat_style_name(ThermostatSettings::Style style) {
   switch (style) {
-    case ThermostatSettings::Style::langevin: return "langevin";
-    case ThermostatSettings::Style::csvr: return "csvr";
-    default: return "none";
+    case ThermostatSettings::Style::langevin:
+      return "langevin";
+    case ThermostatSettings::Style::csvr:
+      return "csvr";
+    default:
+      return "none";
   }
 }
 

@@ -55,7 +55,9 @@ constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ULL;
 inline std::uint64_t noise_key(std::uint64_t seed, std::int64_t step, std::uint64_t substep) {
   return mix64(mix64(mix64(seed + kGolden) + static_cast<std::uint64_t>(step) * kGolden) + substep * kGolden);
 }
-inline std::uint64_t noise_word(std::uint64_t key, std::uint64_t j) { return mix64(key + (j + 1) * kGolden); }
+inline std::uint64_t noise_word(std::uint64_t key, std::uint64_t j) {
+  return mix64(key + (j + 1) * kGolden);
+}
 
 // Two independent standard normals from one 64-bit word (two 32-bit uniforms, Box–Muller). The
 // uniforms are (k + ½)/2³², never 0, so the tails stop at √(−2 log 2⁻³³) ≈ 6.8σ.

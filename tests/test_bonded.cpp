@@ -14,8 +14,8 @@
 #include "engine/core/errors.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "forcefields/angle_terms.hpp"
-#include "forcefields/external_terms.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/external_terms.hpp"
 
 namespace stiffmd {
 namespace {

@@ -212,8 +212,9 @@ TEST(MorseBond, MatchesLammpsFormula) {
 
 TEST(MorseBond, RejectsCoefficientsOutsideTheirRanges) {
   const std::vector<Bond> one = {{0, 1, 0}};
-  for (const auto& [bad, key] : {std::pair{Morse::Coeffs{-1.0, 1.0, 1.0}, "D0"}, std::pair{Morse::Coeffs{1.0, -1.0, 1.0}, "alpha"},
-                                 std::pair{Morse::Coeffs{1.0, 1.0, 0.0}, "r0"}}) {
+  for (const auto& [bad, key] :
+       {std::pair{Morse::Coeffs{-1.0, 1.0, 1.0}, "D0"}, std::pair{Morse::Coeffs{1.0, -1.0, 1.0}, "alpha"},
+        std::pair{Morse::Coeffs{1.0, 1.0, 0.0}, "r0"}}) {
     try {
       BondTerm<Morse>("m", Level::slow, one, {bad});
       ADD_FAILURE() << key;

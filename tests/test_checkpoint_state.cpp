@@ -26,7 +26,9 @@ struct ListCase {
   Box box;
 };
 
-void PrintTo(const ListCase& c, std::ostream* os) { *os << c.name; }
+void PrintTo(const ListCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class NeighborListState : public ::testing::TestWithParam<ListCase> {};
 
@@ -93,8 +95,7 @@ TEST_P(NeighborListState, RestoredFromItsLastBuildItIsTheSameListFromThenOn) {
 
 INSTANTIATE_TEST_SUITE_P(Boxes, NeighborListState,
                          ::testing::Values(ListCase{"periodic", cube(8.0)},
-                                           ListCase{"periodic_fewer_than_3_cells", cube(2.6)},
-                                           ListCase{"open", Box{}}),
+                                           ListCase{"periodic_fewer_than_3_cells", cube(2.6)}, ListCase{"open", Box{}}),
                          [](const auto& info) { return std::string(info.param.name); });
 
 TEST(NeighborListState, NothingToSaveBeforeTheFirstBuild) {
@@ -116,7 +117,7 @@ TEST_P(IntegratorState, AFreshIntegratorLoadedWithTheStateContinuesBitForBit) {
                                 method == "velocity-verlet" ? "integrator.h=0.0005" : "integrator.h=0.005"};
   if (find_method(method)->needs_temperature)  // fixman: U_F is a free energy at the thermostat's kT
     o.insert(o.end(), {"thermostat.style=\"langevin\"", "thermostat.temperature=1", "thermostat.friction=1",
-                    "thermostat.seed=5"});
+                       "thermostat.seed=5"});
   Scene a = test::load("tests/decks/restart_melt.toml", o);
   auto ia = make_integrator(a.integrator, *a.forces, a.state.inv_mass);
   std::ostringstream log;
@@ -139,8 +140,7 @@ TEST_P(IntegratorState, AFreshIntegratorLoadedWithTheStateContinuesBitForBit) {
   EXPECT_EQ(ib->save_state(), ia->save_state());
 }
 
-INSTANTIATE_TEST_SUITE_P(EveryMethod, IntegratorState, ::testing::ValuesIn(test::kAllMethods),
-                         test::method_test_name);
+INSTANTIATE_TEST_SUITE_P(EveryMethod, IntegratorState, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
 TEST(SceneFingerprint, CoversTheSceneNotTheRunSettings) {
   const std::string deck = "tests/decks/restart_melt.toml";
@@ -148,14 +148,14 @@ TEST(SceneFingerprint, CoversTheSceneNotTheRunSettings) {
   Scene unprepared = load_scene(d);
   const std::uint64_t f = scene_fingerprint(unprepared);
   EXPECT_EQ(scene_fingerprint(test::load(deck)), f) << "[prepare] (which rebuilds the list) changed it";
-  for (const char* same : {"integrator.method=rattle", "integrator.h=0.004", "integrator.micro_steps=7",
-                           "run.t_end=3", "output.xyz_interval=0.05", "output.checkpoint_every=3",
-                           "monitor.energy_error=0.1", "velocities.seed=99", "prepare.relax_steps=5",
-                           "build.0.seed=12"})  // the builder's seed: another initial state, the same scene
+  for (const char* same :
+       {"integrator.method=rattle", "integrator.h=0.004", "integrator.micro_steps=7", "run.t_end=3",
+        "output.xyz_interval=0.05", "output.checkpoint_every=3", "monitor.energy_error=0.1", "velocities.seed=99",
+        "prepare.relax_steps=5", "build.0.seed=12"})  // the builder's seed: another initial state, the same scene
     EXPECT_EQ(scene_fingerprint(test::load(deck, {same})), f) << same;
-  for (const char* other : {"variables.eps=0.02", "forces.excluded_volume.skin=0.25", "forces.bending.angle_types.bend.k=2",
-                            "forces.anchor.particles=[0, 28]", "forces.bending.level=\"fast\"", "types.bead.mass=2",
-                            "build.0.density=0.69"})
+  for (const char* other : {"variables.eps=0.02", "forces.excluded_volume.skin=0.25",
+                            "forces.bending.angle_types.bend.k=2", "forces.anchor.particles=[0, 28]",
+                            "forces.bending.level=\"fast\"", "types.bead.mass=2", "build.0.density=0.69"})
     EXPECT_NE(scene_fingerprint(test::load(deck, {other})), f) << other;
 }
 

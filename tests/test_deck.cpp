@@ -127,7 +127,8 @@ type = "B"
 position = [1.1, 0, 0]
 [forces.pairs]
 style = "lj"
-epsilon = )" + std::to_string(eps) + R"(
+epsilon = )" + std::to_string(eps) +
+                             R"(
 sigma = 1.0
 cutoff = 2.5
 [[forces.pairs.pair]]

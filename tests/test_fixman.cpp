@@ -144,8 +144,8 @@ double reference_energy(const System& s, double kT) {
 }
 
 std::vector<System> shapes(std::mt19937& rng) {
-  return {chain(rng, 12),       chain(rng, 9, 4),   ring(rng, 3),       ring(rng, 11),
-          star(rng, 4, 2),      star(rng, 3, 3, true), branched(rng, 6, 2), chain(rng, 3)};
+  return {chain(rng, 12),  chain(rng, 9, 4),      ring(rng, 3),        ring(rng, 11),
+          star(rng, 4, 2), star(rng, 3, 3, true), branched(rng, 6, 2), chain(rng, 3)};
 }
 
 TEST(FixmanPotential, EnergyIsHalfKTLogDetA) {

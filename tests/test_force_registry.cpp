@@ -10,8 +10,8 @@
 
 #include <unistd.h>
 
-#include "engine/deck/deck.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 
 namespace stiffmd {
@@ -97,8 +97,7 @@ TEST(ForceRegistry, AngleStiffnessIsCheckedAtItsKey) {
 // A value from the command line is reported as the --set that gave it, not as the file's line.
 TEST(ForceRegistry, ValuesFromSetAreReportedAsTheSet) {
   const std::string err = load_error(deck_with(kFene), {"forces.chain.bond_types.b.R0=-2"});
-  EXPECT_EQ(err.rfind("--set forces.chain.bond_types.b.R0: forces.chain.bond_types.b.R0: expected a length > 0", 0),
-            0u)
+  EXPECT_EQ(err.rfind("--set forces.chain.bond_types.b.R0: forces.chain.bond_types.b.R0: expected a length > 0", 0), 0u)
       << err;
   const std::string skin = load_error(deck_with(kFene + kWca), {"forces.pair.skin=-1"});
   EXPECT_EQ(skin.rfind("--set forces.pair.skin: forces.pair.skin: expected a length >= 0, got -1", 0), 0u) << skin;

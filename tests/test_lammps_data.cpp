@@ -469,8 +469,10 @@ const BadCase kBadData[] = {
     {"bad_fewer_bonds.data", "line 27: Bonds", "file ends after 2 of the 3 entries"},
     {"bad_more_atoms.data", "line 22: Atoms", "more entries than the 3 declared in the header"},
     // Read but not representable: refused rather than dropped.
-    {"bad_dihedrals.data", "line 31: Dihedrals", "stiffmd has no dihedral terms: they would be lost; remove the section"},
-    {"bad_impropers.data", "line 31: Impropers", "stiffmd has no improper terms: they would be lost; remove the section"},
+    {"bad_dihedrals.data", "line 31: Dihedrals",
+     "stiffmd has no dihedral terms: they would be lost; remove the section"},
+    {"bad_impropers.data", "line 31: Impropers",
+     "stiffmd has no improper terms: they would be lost; remove the section"},
 };
 
 TEST(MalformedData, EachNamesFileLineAndExpectation) {

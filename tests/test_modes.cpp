@@ -494,9 +494,10 @@ TEST(StiffModes, ChainPathAgreesWithDensePath) {
     // Relative to the force, plus W's round-off (a lone bond has no correction force at all).
     const double f_scale = f_d.cwiseAbs().maxCoeff() + 1e-4 * W_d;
     EXPECT_LT((f_f - f_d).cwiseAbs().maxCoeff(), 1e-10 * f_scale) << beads << " beads";
-    std::printf("[ measure  ] %d beads: chain vs dense path: omega %.1e, I %.1e, W %.1e, force %.1e (relative)\n", beads,
-                (om_f - om_d).cwiseAbs().maxCoeff() / om_d.maxCoeff(), (I_f - I_d).cwiseAbs().maxCoeff() / I_d.maxCoeff(),
-                std::abs(W_f - W_d) / W_d, (f_f - f_d).cwiseAbs().maxCoeff() / f_scale);
+    std::printf("[ measure  ] %d beads: chain vs dense path: omega %.1e, I %.1e, W %.1e, force %.1e (relative)\n",
+                beads, (om_f - om_d).cwiseAbs().maxCoeff() / om_d.maxCoeff(),
+                (I_f - I_d).cwiseAbs().maxCoeff() / I_d.maxCoeff(), std::abs(W_f - W_d) / W_d,
+                (f_f - f_d).cwiseAbs().maxCoeff() / f_scale);
     const StiffModes::Validity val_f = fast.validity(s.x), val_d = dense.validity(s.x);
     if (std::isinf(val_d.min_gap))
       EXPECT_TRUE(std::isinf(val_f.min_gap));

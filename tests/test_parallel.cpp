@@ -9,9 +9,9 @@
 #include <random>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/pair_term.hpp"
-#include "engine/core/parallel.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/primitives.hpp"

@@ -41,8 +41,7 @@ TEST_P(RestartEquivalence, TwoHalvesEqualTheWholeBitForBit) {
   ASSERT_EQ(
       cli("run " + deck() + " -o " + (d / "parts").string() + common + thermostat + " --set run.t_end=0.125").code, 0);
   const auto r = cli("run " + deck() + " -o " + (d / "parts").string() + common + thermostat +
-                     " --set run.t_end=0.25 --restart " +
-                     (d / "parts" / "checkpoint.bin").string());
+                     " --set run.t_end=0.25 --restart " + (d / "parts" / "checkpoint.bin").string());
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("restart from"), std::string::npos);
 

@@ -29,7 +29,9 @@ namespace fs = std::filesystem;
 using test::cli;
 using test::slurp;
 
-std::string melt() { return test::source_path("tests/decks/restart_melt.toml"); }
+std::string melt() {
+  return test::source_path("tests/decks/restart_melt.toml");
+}
 
 // Every dataset of an HDF5 file by path: its shape and values (fixed-size data as the bytes of
 // its native type, variable-length strings as the strings), so that two files of different
@@ -110,8 +112,7 @@ test::CliResult run(const MethodRun& m, const fs::path& dir, std::int64_t signal
                     const std::string& restart = "") {
   const std::string env =
       sig > 0 ? "STIFFMD_SIGNAL_AT_STEP=" + std::to_string(signal_step) + ":" + std::to_string(sig) + " " : "";
-  return cli("run " + melt() + " -o " + dir.string() + m.args + (restart.empty() ? "" : " --restart " + restart),
-             env);
+  return cli("run " + melt() + " -o " + dir.string() + m.args + (restart.empty() ? "" : " --restart " + restart), env);
 }
 
 void expect_same_outputs(const fs::path& whole, const fs::path& parts, const std::string& what) {
@@ -183,11 +184,10 @@ TEST(RestartMatrixExternalSignal, SigtermAtARandomStepContinuesBitForBit) {
   auto r = cli("run " + melt() + " -o " + (d / "whole").string() + args);
   ASSERT_EQ(r.code, 0) << r.err;
   const fs::path parts = d / "parts", err = d / "parts.err";
-  const std::string script = std::string(STIFFMD_EXE) + " run " + melt() + " -o " + parts.string() + args +
-                             " >/dev/null 2>" + err.string() + " & pid=$!; for i in $(seq 1000); do " +
-                             "[ $(cat " + (parts / "thermo.csv").string() +
-                             " 2>/dev/null | wc -l) -ge 5 ] && break; sleep 0.005; done; " +
-                             "kill -TERM $pid; wait $pid; exit $?";
+  const std::string script =
+      std::string(STIFFMD_EXE) + " run " + melt() + " -o " + parts.string() + args + " >/dev/null 2>" + err.string() +
+      " & pid=$!; for i in $(seq 1000); do " + "[ $(cat " + (parts / "thermo.csv").string() +
+      " 2>/dev/null | wc -l) -ge 5 ] && break; sleep 0.005; done; " + "kill -TERM $pid; wait $pid; exit $?";
   const int status = std::system(("sh -c '" + script + "'").c_str());
   const std::string log = slurp(err);
   if (log.find("stopped by signal 15") == std::string::npos)
@@ -274,9 +274,8 @@ class BadCheckpoint : public ::testing::Test {
   static void expect_refused(const std::string& bytes, const std::string& what, const std::string& extra = "") {
     const fs::path p = dir_ / "bad.bin";
     std::ofstream(p, std::ios::binary) << bytes;
-    const auto r =
-        cli("run " + melt() + " -o " + (dir_ / "out").string() + " --no-progress --set run.t_end=0.1" + extra +
-            " --restart " + p.string());
+    const auto r = cli("run " + melt() + " -o " + (dir_ / "out").string() + " --no-progress --set run.t_end=0.1" +
+                       extra + " --restart " + p.string());
     EXPECT_EQ(r.code, 2) << r.err;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
     EXPECT_EQ(r.err.rfind("error: " + p.string() + ": ", 0), 0u) << r.err;
@@ -346,15 +345,16 @@ TEST_F(BadCheckpoint, ANewerOrOlderFormatIsRefused) {
 TEST_F(BadCheckpoint, ACheckpointOfAnotherSceneIsRefused) {
   // The same particles and masses, another ε, another WCA skin, another tether, another box.
   for (const char* set : {" --set variables.eps=0.02", " --set forces.excluded_volume.skin=0.25",
-                                 " --set forces.anchor.k=0.6", " --set build.0.density=0.69"})
+                          " --set forces.anchor.k=0.6", " --set build.0.density=0.69"})
     expect_refused(good_, "checkpoint of another scene", set);
   expect_refused(good_, "checkpoint holds 64 particles, the deck 72", " --set build.0.beads=9");
   // Settings a restart may change are not the scene: another method continues (not bit for bit).
   fs::copy(dir_ / "out", dir_ / "copy");
-  const auto r = cli("run " + melt() + " -o " + (dir_ / "copy").string() +
-                     " --no-progress --set run.t_end=0.1 --set integrator.method=rattle --set output.thermo_interval=0.01"
-                     " --restart " +
-                     (dir_ / "copy" / "checkpoint.bin").string());
+  const auto r =
+      cli("run " + melt() + " -o " + (dir_ / "copy").string() +
+          " --no-progress --set run.t_end=0.1 --set integrator.method=rattle --set output.thermo_interval=0.01"
+          " --restart " +
+          (dir_ / "copy" / "checkpoint.bin").string());
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("not bit-identical"), std::string::npos) << r.err;
   fs::remove_all(dir_ / "copy");
@@ -365,7 +365,8 @@ TEST(Progress, ASignalLeavesTheBarWhereTheRunStopped) {
   const fs::path d = test::scratch_dir("progress_sigint");
   // script(1) gives the run a terminal, so that the bar is drawn.
   const std::string cmd = "STIFFMD_SIGNAL_AT_STEP=300:2 script -qec \"" + std::string(STIFFMD_EXE) + " run " + melt() +
-                          " -o " + d.string() + " --set integrator.method=velocity-verlet --set integrator.h=0.0005\" " +
+                          " -o " + d.string() +
+                          " --set integrator.method=velocity-verlet --set integrator.h=0.0005\" " +
                           (d / "typescript").string() + " > /dev/null 2>&1";
   std::system(cmd.c_str());
   const std::string tty = slurp(d / "typescript");

@@ -19,8 +19,8 @@
 
 #include "cli_support.hpp"
 #include "engine/core/errors.hpp"
-#include "engine/observe/observables.hpp"
 #include "engine/core/parallel.hpp"
+#include "engine/observe/observables.hpp"
 #include "integrators/thermostat.hpp"
 #include "test_support.hpp"
 
@@ -104,12 +104,12 @@ Scene load_text(const std::string& text, const std::vector<std::string>& overrid
 }
 
 struct TrimerRun {
-  std::vector<double> c2;           // per sample: mean over trimers of cos²θ
-  std::vector<double> temperature;  // per sample: the thermo column (the integrator's kinetic estimate)
+  std::vector<double> c2;                   // per sample: mean over trimers of cos²θ
+  std::vector<double> temperature;          // per sample: the thermo column (the integrator's kinetic estimate)
   std::vector<double> on_step_temperature;  // per sample: 2K/dof of the state's (on-step) velocities
-  std::vector<double> pressure;     // per sample: the thermo column
+  std::vector<double> pressure;             // per sample: the thermo column
   double volume = 0.0;
-  std::vector<double> cm_velocity;  // centre-of-mass velocity components / √(kT/M), every 5th sample
+  std::vector<double> cm_velocity;    // centre-of-mass velocity components / √(kT/M), every 5th sample
   std::vector<double> atom_velocity;  // bead velocity components / √(kT/m), every 5th sample
   int dof = 0;
 };
@@ -152,8 +152,8 @@ TrimerRun run_trimers(const std::string& method, double h, int micro_steps, doub
       c2 += c * c / trimers;
     }
     r.c2.push_back(c2);
-    const auto& row = thermo.sample(s, integ->model_potential(s.x), integ->constraint_virial(s),
-                                    integ->kinetic_energy_estimate(s));
+    const auto& row =
+        thermo.sample(s, integ->model_potential(s.x), integ->constraint_virial(s), integ->kinetic_energy_estimate(s));
     r.temperature.push_back(row[temperature]);
     r.pressure.push_back(row[pressure]);
     r.on_step_temperature.push_back(2.0 * s.kinetic_energy() / r.dof);
@@ -338,10 +338,10 @@ TEST_P(TrimerLaw, BondAngleFollowsItsCanonicalLaw) {
 
 INSTANTIATE_TEST_SUITE_P(Methods, TrimerLaw,
                          ::testing::Values(LawCase{"velocity-verlet", 0.005, 1, true},
-                                           LawCase{"projected-impulse", 0.045, 9, true},  // odd n: O inside the middle drift
+                                           LawCase{"projected-impulse", 0.045, 9,
+                                                   true},  // odd n: O inside the middle drift
                                            LawCase{"mollified-impulse", 0.05, 20, true, 0.05},
-                                           LawCase{"rattle", 0.02, 1, false},
-                                           LawCase{"fixman", 0.02, 1, true}),
+                                           LawCase{"rattle", 0.02, 1, false}, LawCase{"fixman", 0.02, 1, true}),
                          [](const auto& info) {
                            std::string n = info.param.method;
                            std::replace(n.begin(), n.end(), '-', '_');
@@ -421,11 +421,10 @@ class NvtRestart : public ::testing::TestWithParam<std::string> {};
 TEST_P(NvtRestart, ContinuesBitForBit) {
   for (const char* style : {"langevin", "csvr"}) {
     SCOPED_TRACE(style);
-    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + style +
-                                   "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") +
-                                   "seed = 5\n";
-    Scene sc = load_text(trimer_deck(20, thermostat), {"integrator.method=" + GetParam(), "integrator.h=0.01",
-                                                       "integrator.micro_steps=3"});
+    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + style + "\"\ntemperature = 1.0\n" +
+                                   (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") + "seed = 5\n";
+    Scene sc = load_text(trimer_deck(20, thermostat),
+                         {"integrator.method=" + GetParam(), "integrator.h=0.01", "integrator.micro_steps=3"});
     auto first = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
     std::ostringstream log;
     State a = sc.state, b = sc.state;
@@ -453,8 +452,9 @@ INSTANTIATE_TEST_SUITE_P(AllMethods, NvtRestart, ::testing::ValuesIn(test::kAllM
 // ---- the deck -------------------------------------------------------------------------------------
 
 TEST(ThermostatDeck, DampIsOneOverFrictionAndScalesPerType) {
-  std::string deck = trimer_deck(2, "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.5\ndamp = 4.0\nseed = 5\n"
-                                    "[thermostat.scale]\nbead = 2.0\n");
+  std::string deck = trimer_deck(2,
+                                 "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.5\ndamp = 4.0\nseed = 5\n"
+                                 "[thermostat.scale]\nbead = 2.0\n");
   const Scene sc = load_text(deck, {});
   ASSERT_TRUE(sc.thermostatted());
   EXPECT_EQ(sc.integrator.thermostat.style, ThermostatSettings::Style::langevin);

@@ -118,13 +118,13 @@ TEST(WholeMolecules, WrappedImportRunsWholeWithoutPrepare) {
                           source_path("tests/data/wrapped_chains.bonds") + "\"\nbond_type = \"b\"\n";
   for (const auto& [name, import] : {std::pair{"lammps", lammps}, std::pair{"xyz", xyz}}) {
     const fs::path dir = scratch_dir(std::string("wrapped_import_") + name);
-    std::ofstream(dir / "deck.toml") << "[types.bead]\nmass = 1.0\n" << import
+    std::ofstream(dir / "deck.toml") << "[types.bead]\nmass = 1.0\n"
+                                     << import
                                      << "[forces.springs]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\n"
                                         "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
                                         "[integrator]\nmethod = \"projected-impulse\"\nh = 0.01\nmicro_steps = 10\n"
                                         "[run]\nt_end = 0.1\n[output]\nxyz = \"\"\n";
-    const CliResult r =
-        cli("run " + (dir / "deck.toml").string() + " -o " + (dir / "out").string() + " --no-progress");
+    const CliResult r = cli("run " + (dir / "deck.toml").string() + " -o " + (dir / "out").string() + " --no-progress");
     ASSERT_EQ(r.code, 0) << name << ": " << r.err;
     const CsvTable t = read_csv((dir / "out" / "thermo.csv").string());
     for (const auto& row : t.rows) {
@@ -138,9 +138,7 @@ TEST(WholeMolecules, WrappedImportRunsWholeWithoutPrepare) {
 
 TEST(StiffBondRules, OneValidationForTermToolboxAndModes) {
   const Eigen::VectorXd free3 = Eigen::VectorXd::Ones(3);
-  auto triangle = [](double c) {
-    return std::vector<StiffBond>{{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {2, 0, c, 1.0}};
-  };
+  auto triangle = [](double c) { return std::vector<StiffBond>{{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}, {2, 0, c, 1.0}}; };
   EXPECT_FALSE(find_stiff_bond_problem(triangle(1.9), &free3));
   for (double c : {2.0, 3.0, 0.1 + 0.2 + 1.7}) {  // 2: only collinear; 3: none at all
     const auto p = find_stiff_bond_problem(triangle(c), &free3);

@@ -1,7 +1,7 @@
 // `stiffmd check DECK --write-data FILE`: the prepared initial state (after [prepare]) as a LAMMPS
 // data file — what tools/bench_lammps.py hands to LAMMPS so that both codes start from one state.
-#include <sstream>
 #include <gtest/gtest.h>
+#include <sstream>
 
 #include <filesystem>
 

@@ -124,7 +124,10 @@ bool truncate_csv_after(const std::string& path, double t, double tolerance, con
 
 XyzWriter::XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
                      bool append, std::vector<double> masses)
-    : file_(path, append ? "a" : "w"), species_(std::move(species)), masses_(std::move(masses)), velocities_(velocities) {
+    : file_(path, append ? "a" : "w"),
+      species_(std::move(species)),
+      masses_(std::move(masses)),
+      velocities_(velocities) {
   std::ostringstream h;
   h << "Properties=species:S:1:pos:R:3" << (masses_.empty() ? "" : ":masses:R:1") << (velocities ? ":velo:R:3" : "");
   h << " pbc=\"" << (box.periodic[0] ? 'T' : 'F') << ' ' << (box.periodic[1] ? 'T' : 'F') << ' '

@@ -5,8 +5,8 @@
 #include <optional>
 #include <sstream>
 
-#include "engine/deck/deck.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
 
 namespace stiffmd {

@@ -27,13 +27,13 @@ struct MonitorSettings {
   // bond-thermalisation transient) apart from the hanging chain's documented breakdown; the failures
   // of the issue reach 3 % (lammps_chain to t = 10) and 11 % (the melt at projected impulse, t = 40).
   static constexpr double kDefaultEnergyError = 0.01;
-  double energy_error = kOff;      // see kDefaultEnergyError; kOff: no energy check
+  double energy_error = kOff;       // see kDefaultEnergyError; kOff: no energy check
   bool energy_error_given = false;  // the deck set energy_error (a number, 0 or false = off)
-  double violation = kOff;         // max_b |g_b(x)|, in length units
-  double violation_growth = kOff;  // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
-  double action_drift = kOff;      // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
-  bool validity = true;            // effective: min frequency gap or resonance < √ε (observables.actions)
-  bool stop = false;               // on_alert = "stop" (else "warn")
+  double violation = kOff;          // max_b |g_b(x)|, in length units
+  double violation_growth = kOff;   // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
+  double action_drift = kOff;       // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
+  bool validity = true;             // effective: min frequency gap or resonance < √ε (observables.actions)
+  bool stop = false;                // on_alert = "stop" (else "warn")
 
   bool active() const;  // any check configured
 };

@@ -281,8 +281,9 @@ Checkpoint read_checkpoint(const std::string& path) {
   const std::vector<char> b((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   auto fail = [&](const std::string& what) -> void { throw InputError(path + ": " + what); };
   if (b.size() >= 8 && std::memcmp(b.data(), kMagicVersion1, 8) == 0)
-    fail("checkpoint of format version 1 (an older stiffmd), which lacks the integrator and neighbour-list state "
-         "needed to continue a run exactly; start the run afresh");
+    fail(
+        "checkpoint of format version 1 (an older stiffmd), which lacks the integrator and neighbour-list state "
+        "needed to continue a run exactly; start the run afresh");
   if (b.size() < kHeader || std::memcmp(b.data(), kMagic, 8) != 0)
     fail(b.size() >= 8 && std::memcmp(b.data(), kMagic, 8) == 0
              ? "truncated checkpoint (" + std::to_string(b.size()) + " bytes, shorter than its header)"
@@ -303,8 +304,9 @@ Checkpoint read_checkpoint(const std::string& path) {
   }
   const auto version = get_raw<std::uint32_t>(b, 12);
   if (version != kCheckpointVersion)
-    fail("checkpoint of format version " + std::to_string(version) + (version > kCheckpointVersion ? " (a newer" : " (an unknown") +
-         " stiffmd); this stiffmd reads version " + std::to_string(kCheckpointVersion));
+    fail("checkpoint of format version " + std::to_string(version) +
+         (version > kCheckpointVersion ? " (a newer" : " (an unknown") + " stiffmd); this stiffmd reads version " +
+         std::to_string(kCheckpointVersion));
   if (bom != kByteOrderMark || get_raw<std::uint32_t>(b, 20) != sizeof(double) || length != b.size())
     fail("malformed checkpoint header (byte order, double size or length)");
 
@@ -344,8 +346,9 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
   if (c.state.inv_mass != sc.state.inv_mass)
     throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
   if (c.scene_fingerprint != scene_fingerprint(sc))
-    throw InputError(path + ": checkpoint of another scene (particle types, topology, box, force terms or their "
-                            "parameters differ from the deck's)");
+    throw InputError(path +
+                     ": checkpoint of another scene (particle types, topology, box, force terms or their "
+                     "parameters differ from the deck's)");
   const auto& terms = sc.forces->terms();
   if (c.force_term_states.size() != terms.size())
     throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +

@@ -31,15 +31,16 @@ struct Scene;
 inline constexpr std::uint32_t kCheckpointVersion = 2;
 
 struct Checkpoint {
-  State state;  // x, v, inverse masses, t, step
+  State state;         // x, v, inverse masses, t, step
   std::string method;  // integrator that wrote it
   double h = 0.0;
   std::uint64_t scene_fingerprint = 0;
-  std::vector<double> integrator_state;               // Integrator::save_state()
+  std::vector<double> integrator_state;                // Integrator::save_state()
   std::vector<std::vector<double>> force_term_states;  // ForceTerm::save_state(), in the field's order
   std::vector<double> thermo_state;                    // Thermo::save_state(): E(0), warnings given
   std::vector<double> monitor_state;                   // Monitor::save_state()
-  std::vector<double> run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
+  std::vector<double>
+      run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
 };
 
 // A hash of what defines the scene — particle count, inverse masses, particle types, topology,
@@ -50,7 +51,9 @@ std::uint64_t scene_fingerprint(const Scene& scene);
 // Writes `state` and everything of `rest` but rest.state. Throws InputError naming the path on
 // any I/O failure.
 void write_checkpoint(const std::string& path, const State& state, const Checkpoint& rest);
-inline void write_checkpoint(const std::string& path, const Checkpoint& c) { write_checkpoint(path, c.state, c); }
+inline void write_checkpoint(const std::string& path, const Checkpoint& c) {
+  write_checkpoint(path, c.state, c);
+}
 
 // Throws InputError with one line naming the path and what is wrong: missing, not a checkpoint,
 // damaged (checksum), truncated, of another byte order, or of another format version.

@@ -9,8 +9,8 @@
 
 #include <csignal>
 #include <cstdint>
-#include <cstdlib>
 #include <cstdio>
+#include <cstdlib>
 
 namespace stiffmd {
 

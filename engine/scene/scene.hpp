@@ -10,11 +10,11 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/state.hpp"
+#include "engine/core/topology.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
-#include "engine/core/state.hpp"
-#include "engine/core/topology.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/prepare.hpp"

@@ -7,11 +7,11 @@
 #include <limits>
 #include <sstream>
 
-#include "engine/scene/builders.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
-#include "engine/scene/whole_molecules.hpp"
 #include "engine/io/xyz_bonds.hpp"
+#include "engine/scene/builders.hpp"
+#include "engine/scene/whole_molecules.hpp"
 #include "integrators/prepare.hpp"
 
 namespace stiffmd {
@@ -313,7 +313,8 @@ void read_prepare(DeckTable& root, Scene& sc) {
              "expected a number of steps 0 .. " + std::to_string(kMaxRelaxSteps));
   p.relax_max_displacement = t->number("relax_max_displacement", 0.02);
   t->require(p.relax_max_displacement > 0, "relax_max_displacement", "expected a length > 0");
-  if (!sc.forces->stiff_bonds()) t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  if (!sc.forces->stiff_bonds())
+    t->fail_here("[prepare] needs constraint-defining stiff bonds (a stiff-harmonic term)");
   t->finish();
 }
 

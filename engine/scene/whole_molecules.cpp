@@ -8,8 +8,8 @@
 namespace stiffmd {
 
 std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
-                                                          const std::vector<std::pair<int, int>>& bonds,
-                                                          const Box& box, bool keep_images) {
+                                                          const std::vector<std::pair<int, int>>& bonds, const Box& box,
+                                                          bool keep_images) {
   if (!box.any_periodic() || bonds.empty()) return std::nullopt;
   const int n = static_cast<int>(x.cols());
   // Adjacency (CSR) of the bond graph.
@@ -58,20 +58,23 @@ std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
       const std::string span = "spans " + format_number(std::abs(d), 10) + " along " + axis + ", ";
       const std::string box_length = "the periodic box length " + format_number(box.lengths[a], 10);
       if (keep_images)
-        return WholeMoleculesProblem{b, span + "at least half " + box_length +
-                                            " (a bond must be its own minimum image; if the image flags are not "
-                                            "meaningful, remove them and the molecules are unwrapped along their bonds)"};
+        return WholeMoleculesProblem{b,
+                                     span + "at least half " + box_length +
+                                         " (a bond must be its own minimum image; if the image flags are not "
+                                         "meaningful, remove them and the molecules are unwrapped along their bonds)"};
       if (tree[b])
         return WholeMoleculesProblem{b, span + "exactly half " + box_length + ": which image it joins is ambiguous"};
-      return WholeMoleculesProblem{b, "closes a ring only across a jump of a box length along " + axis + " (" +
-                                          box_length + "; the bond spans " + format_number(std::abs(d), 10) +
-                                          " once the rest of its molecule is whole): the molecule cannot be made whole"};
+      return WholeMoleculesProblem{
+          b, "closes a ring only across a jump of a box length along " + axis + " (" + box_length +
+                 "; the bond spans " + format_number(std::abs(d), 10) +
+                 " once the rest of its molecule is whole): the molecule cannot be made whole"};
     }
   }
   for (int b = 0; b < static_cast<int>(bonds.size()); ++b)
     if ((y.col(bonds[b].first) - y.col(bonds[b].second)).isZero(0.0))
-      return WholeMoleculesProblem{b, "has zero length once its molecule is whole: its two particles are the same "
-                                      "point of the periodic box (zero-length bond)"};
+      return WholeMoleculesProblem{b,
+                                   "has zero length once its molecule is whole: its two particles are the same "
+                                   "point of the periodic box (zero-length bond)"};
   x = y;
   return std::nullopt;
 }

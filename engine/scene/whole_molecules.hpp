@@ -30,7 +30,7 @@ struct WholeMoleculesProblem {
 // once whole (two particles one box length apart). x is modified only by
 // whole multiples of the box lengths, and left as it was when a problem is returned.
 std::optional<WholeMoleculesProblem> make_molecules_whole(Eigen::Matrix3Xd& x,
-                                                          const std::vector<std::pair<int, int>>& bonds,
-                                                          const Box& box, bool keep_images = false);
+                                                          const std::vector<std::pair<int, int>>& bonds, const Box& box,
+                                                          bool keep_images = false);
 
 }  // namespace stiffmd

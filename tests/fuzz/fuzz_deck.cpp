@@ -7,18 +7,18 @@
 // overrides, so that the override path is fuzzed too.
 //
 //   build-fuzz/fuzz_deck -dict=tests/fuzz/deck.dict CORPUS_DIR   (see tools/fuzz.sh)
-#include <sstream>
 #include <cstddef>
 #include <cstdint>
+#include <sstream>
 #include <string>
 #include <string_view>
 #include <vector>
 
-#include "engine/deck/deck.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/deck/deck.hpp"
 #include "engine/io/lammps_data.hpp"
-#include "engine/scene/scene.hpp"
 #include "engine/run/simulation.hpp"
+#include "engine/scene/scene.hpp"
 #include "fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
