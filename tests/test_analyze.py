@@ -21,23 +21,13 @@ from contextlib import redirect_stdout
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from checklist import finish, test  # noqa: E402  (tests/ is the script's directory)
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 import analyze  # noqa: E402
 from ase import Atoms  # noqa: E402
 from ase.io import write as ase_write  # noqa: E402
 
 EXE = sys.argv[1] if len(sys.argv) > 1 else None
-results = []
-
-
-def test(fn):
-    try:
-        fn()
-        results.append((fn.__name__, None))
-        print(f"ok   {fn.__name__}")
-    except Exception as e:  # noqa: BLE001 - report every failure, keep going
-        results.append((fn.__name__, e))
-        print(f"FAIL {fn.__name__}: {type(e).__name__}: {e}")
 
 
 # ---------------------------------------------------------------- synthetic runs
@@ -296,6 +286,4 @@ def bad_inputs_exit_2():
 for t in (ideal_chain_statistics, rotating_rods, ring_polygons, angle_and_torsion_peaks, ideal_gas_rdf,
           ballistic_stiffmd_run, bad_inputs_exit_2):
     test(t)
-failed = sum(1 for _, e in results if e)
-print(f"{len(results) - failed} passed, {failed} failed")
-sys.exit(1 if failed else 0)
+finish()

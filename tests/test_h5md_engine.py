@@ -18,19 +18,9 @@ from h5md_spec import h5md_problems
 
 warnings.filterwarnings("ignore")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from checklist import finish, test  # noqa: E402  (tests/ is the script's directory)
 EXE = sys.argv[1]
 P = "particles/all"
-results = []
-
-
-def test(fn):
-    try:
-        fn()
-        results.append((fn.__name__, None))
-        print(f"ok   {fn.__name__}")
-    except Exception as e:  # noqa: BLE001 - report every failure, keep going
-        results.append((fn.__name__, e))
-        print(f"FAIL {fn.__name__}: {type(e).__name__}: {e}")
 
 
 def run(deck, out, *sets, check=True):
@@ -205,6 +195,4 @@ for t in (periodic_layout_values_and_mdanalysis, cubic_box_mdanalysis_positions_
           restart_appends_to_variable_length_strings, pendulum_bonds_and_particles_group, killed_run_keeps_its_frames,
           restart_appends_exactly):
     test(t)
-failed = sum(1 for _, e in results if e)
-print(f"{len(results) - failed} passed, {failed} failed")
-sys.exit(1 if failed else 0)
+finish()

@@ -24,19 +24,9 @@ import numpy as np
 import stiffmd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from checklist import finish, test  # noqa: E402  (tests/ is the script's directory)
 EXE = sys.argv[1]
 PENDULUM = os.path.join(ROOT, "inputs", "double_pendulum.toml")
-results = []
-
-
-def test(fn):
-    try:
-        fn()
-        results.append((fn.__name__, None))
-        print(f"ok   {fn.__name__}")
-    except Exception as e:  # noqa: BLE001 - report every failure, keep going
-        results.append((fn.__name__, e))
-        print(f"FAIL {fn.__name__}: {type(e).__name__}: {e}")
 
 
 def cli_final_state(deck, out, sets):
@@ -301,6 +291,4 @@ def readme_example_runs():
     assert eff.method == "effective"
 
 
-failed = [name for name, e in results if e is not None]
-print(f"{len(results) - len(failed)}/{len(results)} passed")
-sys.exit(1 if failed else 0)
+finish()
