@@ -5,7 +5,11 @@ onto the bonds, T = 1 velocities, thermal bond vibrations) and written as a LAMM
 stiffmd deck and the LAMMPS input that run that same state with the same potentials: stiff harmonic
 bonds ℓ = 0.97, α = 1 (stiffmd ½(α/ε)²(r − ℓ)², LAMMPS `harmonic` K(r − r0)² with K = α²/(2ε²)) and
 WCA between non-bonded pairs (`special_bonds lj 0 1 1`, skin 0.3).
+
+Also the readers and the block average the melt tools share (tools/kremer_grest_lammps.py,
+tools/stiff_melt_nvt.py): the bonds of a LAMMPS data file, the frames of an extended XYZ file.
 """
+import math
 import os
 import shlex
 import subprocess
@@ -15,6 +19,46 @@ SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
 BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
 ALPHA = 1.0
 WCA_CUTOFF = 2.0 ** (1.0 / 6.0)
+
+
+def read_bonds(path):
+    """The Bonds section of a LAMMPS data file as 0-based (i, j) pairs (a list)."""
+    bonds, section = [], None
+    with open(path) as f:
+        for line in f:
+            s = line.split("#")[0].strip()
+            if not s:
+                continue
+            if s.split()[0] in ("Atoms", "Velocities", "Bonds", "Masses", "Angles", "Dihedrals", "Impropers"):
+                section = s.split()[0]
+                continue
+            if section == "Bonds" and len(s.split()) == 4:
+                w = s.split()
+                bonds.append((int(w[2]) - 1, int(w[3]) - 1))
+    return bonds
+
+
+def xyz_frames(path):
+    """(time, positions N × 3 as a numpy array) of every frame of an extended XYZ file."""
+    import numpy as np
+    with open(path) as f:
+        while True:
+            head = f.readline()
+            if not head:
+                return
+            n = int(head)
+            comment = f.readline()
+            t = float(comment.split("time=")[1].split()[0])
+            yield t, np.loadtxt([f.readline() for _ in range(n)], usecols=(1, 2, 3), ndmin=2)
+
+
+def block_mean(series, nblocks):
+    """Mean and its standard error from nblocks block averages (series: samples along axis 0)."""
+    import numpy as np
+    series = np.asarray(series, dtype=float)
+    per = len(series) // nblocks
+    means = series[: per * nblocks].reshape(nblocks, per, *series.shape[1:]).mean(axis=1)
+    return means.mean(axis=0), means.std(axis=0, ddof=1) / math.sqrt(nblocks)
 
 
 class RunFailed(Exception):

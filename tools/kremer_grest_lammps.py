@@ -29,6 +29,10 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
+
+from chain_melt import block_mean, read_bonds, xyz_frames  # tools/ is the script's directory
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "kremer_grest.toml")
 DATA = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"
@@ -62,52 +66,20 @@ run             {steps}
 
 
 def block(series, blocks=20):
-    per = len(series) // blocks
-    means = [sum(series[b * per:(b + 1) * per]) / per for b in range(blocks)]
-    m = sum(means) / blocks
-    var = sum((x - m) ** 2 for x in means) / (blocks - 1)
-    return m, math.sqrt(var / blocks)
-
-
-def read_bonds(path):
-    bonds, section = [], None
-    with open(path) as f:
-        for line in f:
-            s = line.split("#")[0].strip()
-            if not s:
-                continue
-            if s in ("Atoms", "Velocities", "Bonds", "Masses"):
-                section = s
-                continue
-            if section == "Bonds":
-                w = s.split()
-                bonds.append((int(w[2]) - 1, int(w[3]) - 1))
-    return bonds
+    m, se = block_mean(series, blocks)
+    return float(m), float(se)
 
 
 def xyz_bond_lengths(path, bonds, box, first_time):
     """Mean bond length per frame at t >= first_time (minimum image)."""
+    i, j = (np.array(c) for c in zip(*bonds))
     out = []
-    with open(path) as f:
-        while True:
-            head = f.readline()
-            if not head:
-                break
-            n = int(head)
-            comment = f.readline()
-            t = float(re.search(r"time=([-0-9.eE+]+)", comment).group(1))
-            xs = [f.readline().split()[1:4] for _ in range(n)]
-            if t < first_time - 1e-9:
-                continue
-            total = 0.0
-            for i, j in bonds:
-                d2 = 0.0
-                for a in range(3):
-                    d = float(xs[i][a]) - float(xs[j][a])
-                    d -= box * round(d / box)
-                    d2 += d * d
-                total += math.sqrt(d2)
-            out.append(total / len(bonds))
+    for t, x in xyz_frames(path):
+        if t < first_time - 1e-9:
+            continue
+        d = x[i] - x[j]
+        d -= box * np.round(d / box)
+        out.append(float(np.linalg.norm(d, axis=1).mean()))
     return out
 
 

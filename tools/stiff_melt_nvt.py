@@ -29,6 +29,8 @@ import sys
 
 import numpy as np
 
+from chain_melt import block_mean, read_bonds, xyz_frames  # tools/ is the script's directory
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
 LABEL = {"velocity-verlet": "velocity Verlet (stiff springs)", "rattle": "rattle (rigid bonds)",
@@ -54,22 +56,6 @@ def run(args, method, h):
     return method
 
 
-def read_bonds(path):
-    bonds, section = [], None
-    with open(path) as f:
-        for line in f:
-            s = line.split("#")[0].strip()
-            if not s:
-                continue
-            if s.split()[0] in ("Atoms", "Velocities", "Bonds", "Masses", "Angles"):
-                section = s.split()[0]
-                continue
-            if section == "Bonds" and len(s.split()) == 4:
-                w = s.split()
-                bonds.append((int(w[2]) - 1, int(w[3]) - 1))
-    return np.array(bonds)
-
-
 def angle_triples(bonds, n):
     neighbours = [[] for _ in range(n)]
     for i, j in bonds:
@@ -78,34 +64,13 @@ def angle_triples(bonds, n):
     return np.array([(nb[0], j, nb[1]) for j, nb in enumerate(neighbours) if len(nb) == 2])
 
 
-def frames(path):
-    """(time, positions 3 x N) of every frame of an extended XYZ file."""
-    with open(path) as f:
-        while True:
-            head = f.readline()
-            if not head:
-                return
-            n = int(head)
-            comment = f.readline()
-            t = float(comment.split("time=")[1].split()[0])
-            x = np.loadtxt([f.readline() for _ in range(n)], usecols=(1, 2, 3))
-            yield t, x
-
-
-def blocks(series, nblocks):
-    series = np.asarray(series)
-    per = len(series) // nblocks
-    means = series[: per * nblocks].reshape(nblocks, per, *series.shape[1:]).mean(axis=1)
-    return means.mean(axis=0), means.std(axis=0, ddof=1) / math.sqrt(nblocks)
-
-
 def analyse(args, method, bins):
     out = os.path.join(args.out, method)
     box = 33.592
-    bonds = read_bonds(os.path.join(out, "topology.data"))
+    bonds = np.array(read_bonds(os.path.join(out, "topology.data")))
     triples = None
     cos1, cos2, hist = [], [], []
-    for t, x in frames(os.path.join(out, "frames.xyz")):
+    for t, x in xyz_frames(os.path.join(out, "frames.xyz")):
         if t < args.discard - 1e-9:
             continue
         if triples is None:
@@ -127,9 +92,9 @@ def analyse(args, method, bins):
     with open(os.path.join(out, "summary.json")) as f:
         summary = json.load(f)
     nb = args.blocks
-    r = {"frames": len(cos1), "cos": blocks(cos1, nb), "cos2": blocks(cos2, nb),
-         "hist": blocks(hist, nb), "rg": blocks(keep[:, col["rg"]], nb),
-         "pressure": blocks(keep[:, col["pressure"]], nb), "temperature": blocks(keep[:, col["temperature"]], nb),
+    r = {"frames": len(cos1), "cos": block_mean(cos1, nb), "cos2": block_mean(cos2, nb),
+         "hist": block_mean(hist, nb), "rg": block_mean(keep[:, col["rg"]], nb),
+         "pressure": block_mean(keep[:, col["pressure"]], nb), "temperature": block_mean(keep[:, col["temperature"]], nb),
          "wall_per_time": summary["wall_seconds"] / summary["t_end"],
          "cpu_per_time": summary["cpu_seconds"] / summary["t_end"], "h": summary["h"]}
     return r
