@@ -22,7 +22,7 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
   for (const auto& term : terms_)
     if (std::find(levels.begin(), levels.end(), term->level()) != levels.end())
       energy += term->add_forces(x, box_, out);
-  for (Level l : levels) ++evaluations_[static_cast<int>(l)];
+  for (Level l : levels) ++evaluations_[l.index];
   return energy;
 }
 
@@ -31,7 +31,7 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
   double energy = 0.0;
   for (const auto& term : terms_)
     if (!term->stiff_bonds()) energy += term->add_forces(x, box_, out);
-  ++evaluations_[static_cast<int>(Level::slow)];
+  ++evaluations_[outermost().index];
   return energy;
 }
 
@@ -45,6 +45,18 @@ double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
 
 bool ForceField::has_level(Level l) const {
   return std::any_of(terms_.begin(), terms_.end(), [l](const auto& t) { return t->level() == l; });
+}
+
+std::optional<Level> ForceField::find_level(std::string_view name) const {
+  for (int k = 0; k < num_levels(); ++k)
+    if (level_names_[k] == name) return Level{k};
+  return std::nullopt;
+}
+
+std::vector<Level> ForceField::all_levels() const {
+  std::vector<Level> out;
+  for (int k = 0; k < num_levels(); ++k) out.push_back(Level{k});
+  return out;
 }
 
 const StiffBonds* ForceField::stiff_bonds() const {

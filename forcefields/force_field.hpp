@@ -3,11 +3,14 @@
 #pragma once
 
 #include <Eigen/Core>
-#include <array>
+#include <algorithm>
 #include <cstdint>
 #include <initializer_list>
 #include <memory>
+#include <optional>
 #include <span>
+#include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/core/box.hpp"
@@ -17,8 +20,13 @@ namespace stiffmd {
 
 class ForceField {
  public:
-  ForceField() = default;
-  ForceField(Box box, int num_particles) : box_(box), num_particles_(num_particles) {}
+  ForceField() : ForceField(Box{}, 0) {}
+  // The levels, innermost first (force_term.hpp): by default "fast" and "slow".
+  ForceField(Box box, int num_particles, std::vector<std::string> level_names = {"fast", "slow"})
+      : box_(box),
+        num_particles_(num_particles),
+        level_names_(std::move(level_names)),
+        evaluations_(level_names_.size(), 0) {}
 
   void add(std::unique_ptr<ForceTerm> term) { terms_.push_back(std::move(term)); }
 
@@ -31,7 +39,7 @@ class ForceField {
 
   // out = forces of every term that is not constraint-defining, on all levels: the force
   // of the constrained dynamics (RATTLE, effective), where the stiff bonds become g(x) = 0.
-  // Counts as one slow evaluation.
+  // Counts as one evaluation of the outermost level.
   double compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out);
 
   // Total force of every term at x, for output (not counted as an evaluation).
@@ -48,8 +56,16 @@ class ForceField {
   // The constraint-defining bonds, if a term has them (at most one term may).
   const StiffBonds* stiff_bonds() const;
 
-  std::int64_t evaluations(Level l) const { return evaluations_[static_cast<int>(l)]; }
-  void reset_counters() { evaluations_.fill(0); }
+  int num_levels() const { return static_cast<int>(level_names_.size()); }
+  Level innermost() const { return Level{0}; }
+  Level outermost() const { return Level{num_levels() - 1}; }
+  const std::string& level_name(Level l) const { return level_names_[l.index]; }
+  std::optional<Level> find_level(std::string_view name) const;
+  // Every level, innermost first (for evaluating all of them through compute()).
+  std::vector<Level> all_levels() const;
+
+  std::int64_t evaluations(Level l) const { return evaluations_[l.index]; }
+  void reset_counters() { std::fill(evaluations_.begin(), evaluations_.end(), 0); }
   const Box& box() const { return box_; }
   int num_particles() const { return num_particles_; }
 
@@ -57,7 +73,8 @@ class ForceField {
   std::vector<std::unique_ptr<ForceTerm>> terms_;
   Box box_;
   int num_particles_ = 0;
-  std::array<std::int64_t, kNumLevels> evaluations_{};
+  std::vector<std::string> level_names_;
+  std::vector<std::int64_t> evaluations_;
   mutable Eigen::Matrix3Xd scratch_;
 };
 

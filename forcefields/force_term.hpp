@@ -3,8 +3,6 @@
 #pragma once
 
 #include <Eigen/Core>
-#include <array>
-#include <optional>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -16,20 +14,20 @@
 
 namespace stiffmd {
 
-// Time-scale levels of the splitting H = T + U + ε⁻²V (design.md §1): the fast level is
-// integrated with micro steps, the slow level with macro-step kicks.
-enum class Level { fast = 0, slow = 1 };
-inline constexpr int kNumLevels = 2;
-inline constexpr std::array<Level, kNumLevels> kAllLevels = {Level::fast, Level::slow};
-
-inline std::string_view level_name(Level l) {
-  return l == Level::fast ? "fast" : "slow";
-}
-inline std::optional<Level> parse_level(std::string_view s) {
-  if (s == "fast") return Level::fast;
-  if (s == "slow") return Level::slow;
-  return std::nullopt;
-}
+// Time-scale levels of the splitting H = T + U + ε⁻²V (design.md §1, §3): an index into the
+// scene's levels, innermost (fastest) first, as LAMMPS numbers its r-RESPA levels. A scene
+// without [[integrator.levels]] has two, "fast" (index 0, the micro steps) and "slow" (index 1,
+// the macro-step kicks); Level::fast and Level::slow name those, and in the force-style
+// registry they are a style's default role: the innermost level or the outermost one
+// (engine/scene/scene.cpp resolves them for decks with named levels).
+struct Level {
+  int index = 0;
+  static const Level fast;
+  static const Level slow;
+  friend constexpr bool operator==(Level, Level) = default;
+};
+inline constexpr Level Level::fast{0};
+inline constexpr Level Level::slow{1};
 
 class ForceTerm {
  public:

@@ -25,13 +25,20 @@ std::unique_ptr<LangevinNoise> langevin_of(const IntegratorSettings& s, const Ei
   return std::make_unique<LangevinNoise>(s.thermostat, inv_mass);
 }
 
-// The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h.
+// The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h; with the deck's
+// levels (innermost first, LAMMPS's loop factors) one stage per level, outermost first, each
+// taking the loop factor of the level enclosing it as its substeps (design.md §3).
 std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
-  return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
+  if (s.levels.empty()) return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
+  const int n = static_cast<int>(s.levels.size());
+  std::vector<Stage> stages;
+  for (int k = n - 1; k >= 0; --k) stages.push_back({{Level{k}}, k + 1 < n ? s.levels[k + 1].substeps : 1});
+  return stages;
 }
 
+// Velocity Verlet: every level in one stage (the levels' substeps do not apply).
 Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
-  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{{Level::fast, Level::slow}, 1}},
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{forces.all_levels(), 1}},
                                                 std::make_unique<PlainKick>(), langevin_of(s, inv_mass));
 }
 Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
@@ -122,6 +129,13 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
                                             const Eigen::VectorXd& inv_mass) {
   const MethodInfo* m = find_method(s.method);
   if (!m) throw std::invalid_argument("unknown integrator method '" + s.method + "' (known: " + method_names() + ")");
+  if (s.levels.empty() ? forces.num_levels() != 2 : forces.num_levels() != static_cast<int>(s.levels.size()))
+    throw std::invalid_argument("the force field has " + std::to_string(forces.num_levels()) +
+                                " levels, the integrator settings " +
+                                std::to_string(s.levels.empty() ? 2 : s.levels.size()));
+  for (size_t k = 0; k < s.levels.size(); ++k)
+    if (s.levels[k].substeps < 1 || (k == 0 && s.levels[k].substeps != 1))
+      throw std::invalid_argument("level '" + s.levels[k].name + "': substeps must be >= 1 (1 on the innermost)");
   if (m->needs_stiff_bonds && !forces.stiff_bonds())
     throw std::invalid_argument("method '" + s.method +
                                 "' needs constraint-defining stiff bonds (a stiff-harmonic term)");

@@ -15,10 +15,22 @@
 
 namespace stiffmd {
 
+// One r-RESPA level of the deck's [[integrator.levels]], innermost first (LAMMPS's numbering):
+// substeps is LAMMPS's loop factor, the steps of the next inner level per step of this one
+// (1 on the innermost level, which has none).
+struct LevelSettings {
+  std::string name;
+  int substeps = 1;
+};
+
 struct IntegratorSettings {
   std::string method = "velocity-verlet";
   double h = 0.0;                 // macro step
   int micro_steps = 1;            // n micro steps δ = h/n per macro step (impulse family)
+  // Empty: the two levels fast and slow, micro_steps fast steps per slow one. Otherwise the
+  // force field's levels (the same names, the same order), and micro_steps is the product of
+  // their substeps for the impulse family.
+  std::vector<LevelSettings> levels;
   ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
 };
 

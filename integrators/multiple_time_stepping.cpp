@@ -22,8 +22,9 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
-  if (k == 0)
-    outer_kick_->evaluate(x, forces_, stages_[0].levels, force_[0]);
+  // Every stage slower than the innermost kicks through the method's strategy (see the header).
+  if (k + 1 < stages_.size())
+    outer_kick_->evaluate(x, forces_, stages_[k].levels, force_[k]);
   else
     forces_.compute(x, stages_[k].levels, force_[k]);
   valid_[k] = true;

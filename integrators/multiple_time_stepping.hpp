@@ -5,11 +5,20 @@
 //
 //     kick(½Δ_k) ∘ [stage k+1]^{n_{k+1}} ∘ kick(½Δ_k),   Δ_{k+1} = Δ_k / n_{k+1}.
 //
-// velocity Verlet = one stage {fast, slow}; the impulse method = {slow} ×1, {fast} ×n.
+// velocity Verlet = one stage {fast, slow}; the impulse method = {slow} ×1, {fast} ×n; N-level
+// r-RESPA = one stage per level of the deck's [[integrator.levels]] (integrators/factory.cpp).
 // The closing kick's force of every stage is cached and reused by the next opening kick,
-// so the outer (slow) force is evaluated once per macro step. How the outermost stage turns
-// raw forces into its kick (plain, projected P(x)f, mollified α′(x)ᵀf(α(x))) is a strategy,
-// not a copy of the step.
+// so the outer (slow) force is evaluated once per macro step. How a stage turns raw forces
+// into its kick (plain, projected P(x)f, mollified α′(x)ᵀf(α(x))) is a strategy, not a copy of
+// the step: the method's kick is that of every stage but the innermost, which holds the stiff
+// bonds and is always plain. Why every slower stage and not only the outermost: a kick of step
+// Δ_k ≫ ε/ω by a force with a component along the stiff directions is an impulse the stiff
+// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (design.md §3, §5; the
+// seed paper's argument for the projected and mollified kicks does not use which level the kick
+// belongs to, only that its step does not resolve the stiff period). Only a stage whose kicks
+// resolve the stiff period may kick plainly, and in a deck that is the innermost one. Test:
+// tests/test_respa_levels.cpp (a medium-level angle term: actions kept by this rule, lost by
+// the plain kick and by projecting the outermost kick alone).
 //
 // Langevin dynamics. Velocity Verlet (one stage) becomes BAOAB (Leimkuhler & Matthews 2013):
 // its drift becomes A(½h) O(h) A(½h). The impulse family becomes BAOAB-RESPA with the fast flow
@@ -18,7 +27,9 @@
 //     B_slow(½h)  Φ_fast(½h)  O(h)  Φ_fast(½h)  B_slow(½h),    Φ_fast(½h) = n/2 micro steps,
 //
 // one O step over the whole macro step, in the middle of the micro steps (generally: once per
-// step of the stage enclosing the innermost, over that step's span). The kicks (plain, projected,
+// step of the stage enclosing the innermost, over that step's span; with N levels that is
+// n_{N−1}···n_2 O steps per macro step, each in the middle of its run of innermost steps, and
+// together they cover the macro step once). The kicks (plain, projected,
 // mollified) are those of the deterministic method. Why not an O step in every micro step (as
 // OpenMM's MTSLangevinIntegrator does): a Gaussian per particle component costs more than the
 // stiff bond forces of a micro step — measured on data.chain (32 000 beads, n = 20), noise in
@@ -44,7 +55,7 @@ struct Stage {
   int substeps = 1;  // steps of this stage per step of the enclosing stage
 };
 
-// Forms the outermost stage's kick force K(x) from the force field.
+// Forms a stage's kick force K(x) from the force field (every stage but the innermost).
 class KickForce {
  public:
   virtual ~KickForce() = default;

@@ -84,9 +84,12 @@ void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, const char* what) {
     for (int k = 0; k < 3; ++k) m(k, i) = r(i, k);
 }
 
-Level parse_level_or_throw(const std::string& name) {
-  if (auto l = parse_level(name)) return *l;
-  throw py::value_error("level: expected \"fast\" or \"slow\" (or None for all), got \"" + name + "\"");
+// A level by its name in the scene ("fast", "slow", or the deck's [[integrator.levels]]).
+Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
+  if (auto l = forces.find_level(name)) return *l;
+  std::string known;
+  for (int k = 0; k < forces.num_levels(); ++k) known += (k ? ", \"" : "\"") + forces.level_name(Level{k}) + "\"";
+  throw py::value_error("level: expected one of " + known + " (or None for all), got \"" + name + "\"");
 }
 
 class Simulation {
@@ -152,16 +155,18 @@ class Simulation {
 
   double energy(const std::optional<std::string>& level) const {
     const Eigen::Matrix3Xd& x = scene_.state.x;
-    if (level) return scene_.forces->energy(x, parse_level_or_throw(*level));
-    return scene_.forces->energy(x, Level::fast) + scene_.forces->energy(x, Level::slow);
+    if (level) return scene_.forces->energy(x, parse_level_or_throw(*scene_.forces, *level));
+    double u = scene_.forces->energy(x, Level{0});
+    for (int k = 1; k < scene_.forces->num_levels(); ++k) u += scene_.forces->energy(x, Level{k});
+    return u;
   }
   py::array_t<double> forces(const std::optional<std::string>& level) {
     Eigen::Matrix3Xd f;
     if (level) {
-      const Level l = parse_level_or_throw(*level);
+      const Level l = parse_level_or_throw(*scene_.forces, *level);
       scene_.forces->compute(scene_.state.x, {l}, f);
     } else {
-      scene_.forces->compute(scene_.state.x, kAllLevels, f);
+      scene_.forces->compute(scene_.state.x, scene_.forces->all_levels(), f);
     }
     return to_numpy(f);
   }
@@ -245,9 +250,11 @@ PYBIND11_MODULE(stiffmd, m) {
       .def("prepare", &Simulation::prepare,
            "Apply the method's preparation to the current state again (projection onto the constraints, actions).")
       .def("energy", &Simulation::energy, py::arg("level") = py::none(),
-           "Potential energy of a level (\"fast\", \"slow\") or of all (None) at the current positions.")
+           "Potential energy of a level (\"fast\", \"slow\", or a name of the deck's [[integrator.levels]]) or of all "
+           "(None) at the current positions.")
       .def("forces", &Simulation::forces, py::arg("level") = py::none(),
-           "Forces (N×3) of a level (\"fast\", \"slow\") or of all (None) at the current positions.")
+           "Forces (N×3) of a level (\"fast\", \"slow\", or a name of the deck's [[integrator.levels]]) or of all "
+           "(None) at the current positions.")
       .def("thermo", &Simulation::thermo, "The thermo row {column: value} at the current state.")
       .def_property(
           "positions", [](const Simulation& s) { return to_numpy(s.scene().state.x); }, &Simulation::set_positions,
@@ -271,6 +278,14 @@ PYBIND11_MODULE(stiffmd, m) {
       .def_property_readonly("h", [](const Simulation& s) { return s.scene().integrator.h; })
       .def_property_readonly("micro_steps", [](const Simulation& s) { return s.scene().integrator.micro_steps; })
       .def_property_readonly("method", [](const Simulation& s) { return s.scene().integrator.method; })
+      .def_property_readonly(
+          "levels",
+          [](const Simulation& s) {
+            std::vector<std::string> names;
+            for (int k = 0; k < s.scene().forces->num_levels(); ++k) names.push_back(s.scene().forces->level_name(Level{k}));
+            return names;
+          },
+          "The force levels' names, innermost first.")
       .def_property_readonly(
           "t_end", [](const Simulation& s) { return s.scene().run.t_end; }, "The deck's run.t_end.")
       .def_property_readonly("num_particles", [](const Simulation& s) { return s.scene().state.size(); })

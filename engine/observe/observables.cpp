@@ -1,5 +1,6 @@
 #include "engine/observe/observables.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -8,8 +9,16 @@ namespace stiffmd {
 Energies energies(const State& s, const ForceField& forces) {
   Energies e;
   e.kinetic = s.kinetic_energy();
-  e.slow = forces.energy(s.x, Level::slow);
-  e.stiff = forces.energy(s.x, Level::fast);
+  // By level, innermost first: the innermost is the stiff one, the others are U (design.md §1).
+  for (int k = forces.num_levels() - 1; k >= 0; --k) {
+    const double u = forces.energy(s.x, Level{k});
+    e.by_level.push_back(u);
+    if (k > 0)
+      e.slow += u;
+    else
+      e.stiff = u;
+  }
+  std::reverse(e.by_level.begin(), e.by_level.end());
   return e;
 }
 
@@ -19,7 +28,10 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* sti
 
 Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
                const Topology* topology)
-    : forces_(forces), columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
+    : forces_(forces),
+      level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
+                       forces.level_name(Level::slow) == "slow")),
+      columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
                                 "total", "energy_drift", "max_violation", "temperature"} {
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
@@ -27,6 +39,9 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
   thermostat.style = settings.thermostat;
   dof_ = stiffmd::degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, thermostat),
                                      settings.rigid_constraints);
+  // Named r-RESPA levels (other than the default fast and slow): one column each.
+  if (level_columns_)
+    for (int k = 0; k < forces.num_levels(); ++k) columns_.push_back("potential_" + forces.level_name(Level{k}));
   const Box& box = forces.box();
   if (box.periodic.all()) {
     volume_ = box.lengths.prod();
@@ -80,6 +95,7 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   values_.insert(values_.end(),
                  {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
                   max_constraint_violation(s.x, forces_.stiff_bonds()), dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
   if (volume_ > 0)
     values_.push_back(pressure(s, forces_, volume_, thermal_kinetic) + constraint_virial / (3.0 * volume_));
   if (molecules_) {

@@ -20,8 +20,9 @@ namespace stiffmd {
 
 struct Energies {
   double kinetic = 0.0;
-  double slow = 0.0;   // U(x): every slow-level term
-  double stiff = 0.0;  // ε⁻²V(x) and anything else integrated on the fast level
+  double slow = 0.0;   // U(x): every term on a level outside the innermost
+  double stiff = 0.0;  // ε⁻²V(x) and anything else integrated on the fast (innermost) level
+  std::vector<double> by_level;  // each level's potential energy, innermost first
   double total() const { return kinetic + slow + stiff; }
 };
 
@@ -79,6 +80,7 @@ class Thermo {
 
  private:
   const ForceField& forces_;
+  bool level_columns_;  // a potential_<level> column per named level
   int dof_ = 0;
   double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
   std::unique_ptr<Molecules> molecules_;

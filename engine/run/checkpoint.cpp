@@ -195,11 +195,12 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
     f.add(sc.box.origin[a]);
     f.add(sc.box.lengths[a]);
   }
+  for (const LevelSettings& l : sc.integrator.levels) f.add(l.name);  // none without [[integrator.levels]]
   f.add<std::uint64_t>(sc.forces->terms().size());
   for (const auto& term : sc.forces->terms()) {
     f.add(term->name());
     f.add(std::string(term->style()));
-    f.add(static_cast<int>(term->level()));
+    f.add(term->level().index);
     f.add(term->definition());
   }
   if (const StiffBonds* sb = sc.forces->stiff_bonds()) {  // exactly: definition() rounds ε

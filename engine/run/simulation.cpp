@@ -178,8 +178,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     for (const auto& term : sc.forces->terms()) c.force_term_states.push_back(term->save_state());
     c.thermo_state = thermo.save_state();
     c.monitor_state = monitor.save_state();
-    c.run_state = {max_err, static_cast<double>(slow_before + sc.forces->evaluations(Level::slow)),
-                   static_cast<double>(fast_before + sc.forces->evaluations(Level::fast)),
+    c.run_state = {max_err, static_cast<double>(slow_before + sc.forces->evaluations(sc.forces->outermost())),
+                   static_cast<double>(fast_before + sc.forces->evaluations(sc.forces->innermost())),
                    static_cast<double>(rebuilds_now())};
     c.run_state.insert(c.run_state.end(), summary.initial_actions.begin(), summary.initial_actions.end());
   };
@@ -288,8 +288,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     rebuilds_after += term->neighbor_list_rebuilds();
   }
   if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
-  summary.slow_evaluations = slow_before + sc.forces->evaluations(Level::slow);
-  summary.fast_evaluations = fast_before + sc.forces->evaluations(Level::fast);
+  summary.slow_evaluations = slow_before + sc.forces->evaluations(sc.forces->outermost());
+  summary.fast_evaluations = fast_before + sc.forces->evaluations(sc.forces->innermost());
   const fs::path summary_path = fs::path(opt.out_dir) / "summary.json";
   summary.outputs.push_back(summary_path.string());
   write_atomically(summary_path, summary_json(summary));

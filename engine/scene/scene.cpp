@@ -134,8 +134,59 @@ void read_bonds(DeckTable& root, Scene& sc) {
   }
 }
 
+// [[integrator.levels]]: the r-RESPA levels (design.md §3), innermost first as LAMMPS numbers
+// them, each with LAMMPS's loop factor `substeps` (steps of the level inside it per step of this
+// one). Read before [forces], whose terms name them; without it the levels are fast and slow.
+void read_levels(DeckTable& root, Scene& sc) {
+  auto t = root.table("integrator");
+  if (!t || !t->has("levels")) return;  // read_integrator reports a missing [integrator]
+  auto rows = t->array_of_tables("levels");
+  if (rows.empty()) t->fail("levels", "expected at least one [[integrator.levels]] (name, substeps)");
+  double product = 1.0;
+  for (size_t k = 0; k < rows.size(); ++k) {
+    DeckTable& r = rows[k];
+    LevelSettings level{r.string("name"), 1};
+    r.require(!level.name.empty(), "name", "expected a non-empty level name");
+    for (const LevelSettings& l : sc.integrator.levels)
+      r.require(l.name != level.name, "name", "level \"" + level.name + "\" is given twice");
+    if (k == 0) {
+      if (r.has("substeps"))
+        r.fail("substeps",
+               "the first level is the innermost: it has no inner level to split its step into (give substeps "
+               "on the levels outside it: the steps of the level before per step of this one)");
+    } else {
+      const long n = r.integer("substeps", 1);
+      r.require(n >= 1 && n <= 100000000, "substeps",
+                "expected an integer in 1..1e8 (steps of level \"" + sc.integrator.levels.back().name +
+                    "\" per step of this one)");
+      level.substeps = static_cast<int>(n);
+      product *= static_cast<double>(n);
+      r.require(product <= 1e8, "substeps", "expected at most 1e8 innermost steps per macro step in all");
+    }
+    r.finish();
+    sc.integrator.levels.push_back(level);
+  }
+}
+
+// Every named level must hold a term: an empty one would be a kick by zero, most likely a typo.
+void check_levels_used(DeckTable& root, const Scene& sc) {
+  if (sc.integrator.levels.empty()) return;
+  auto rows = root.table("integrator")->array_of_tables("levels");
+  for (size_t k = 0; k < rows.size(); ++k) {
+    const Level l{static_cast<int>(k)};
+    const auto& terms = sc.forces->terms();
+    if (std::none_of(terms.begin(), terms.end(), [&](const auto& t) { return t->level() == l; }))
+      rows[k].fail("name", "level \"" + sc.integrator.levels[k].name +
+                               "\" has no force term (give a [forces.NAME] level = \"" +
+                               sc.integrator.levels[k].name + "\", or remove the level)");
+  }
+}
+
 void read_forces(DeckTable& root, Scene& sc) {
-  sc.forces = std::make_unique<ForceField>(sc.box, sc.state.size());
+  std::vector<std::string> level_names;
+  for (const LevelSettings& l : sc.integrator.levels) level_names.push_back(l.name);
+  sc.forces = level_names.empty() ? std::make_unique<ForceField>(sc.box, sc.state.size())
+                                  : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size());
   TermContext ctx{sc, owner, angle_owner};
   auto forces = root.table("forces");
@@ -150,9 +201,17 @@ void read_forces(DeckTable& root, Scene& sc) {
         for (const auto& s : styles) known += (known.empty() ? "" : ", ") + std::string(s.name);
         t.fail("style", "unknown force style '" + style + "' (known: " + known + ")");
       }
-      const std::string level_name_str = t.string("level", std::string(level_name(it->default_level)));
-      const auto level = parse_level(level_name_str);
-      if (!level) t.fail("level", "expected \"fast\" or \"slow\", got \"" + level_name_str + "\"");
+      // A style's default level is a role: the innermost level (Level::fast) or the outermost.
+      const ForceField& ff = *sc.forces;
+      const Level fallback = it->default_level == Level::fast ? ff.innermost() : ff.outermost();
+      const std::string level_name_str = t.string("level", ff.level_name(fallback));
+      const auto level = ff.find_level(level_name_str);
+      if (!level) {
+        std::string known;
+        for (int k = 0; k < ff.num_levels(); ++k) known += (k ? ", \"" : "\"") + ff.level_name(Level{k}) + "\"";
+        t.fail("level", "unknown level \"" + level_name_str + "\" (expected one of " + known +
+                            (sc.integrator.levels.empty() ? "" : ", the [[integrator.levels]]") + ")");
+      }
       std::unique_ptr<ForceTerm> term;
       try {
         term = it->read(name, *level, t, ctx);
@@ -162,9 +221,9 @@ void read_forces(DeckTable& root, Scene& sc) {
       // The constraint-defining term is what the impulse methods' micro steps resolve and what the
       // constrained methods replace by rigid constraints (design.md §3): on a slower level the impulse
       // methods would kick it with the macro step and blow up (energy 5.57 -> 263 210 on the pendulum).
-      if (term->is_constraint_defining() && term->level() != Level::fast)
-        t.fail("level", "a constraint-defining term (" + style + ") must sit on the fastest level, \"fast\"; got \"" +
-                            level_name_str + "\"");
+      if (term->is_constraint_defining() && term->level() != ff.innermost())
+        t.fail("level", "a constraint-defining term (" + style + ") must sit on the fastest level, \"" +
+                            ff.level_name(ff.innermost()) + "\" (the innermost); got \"" + level_name_str + "\"");
       if (term->stiff_bonds()) {
         if (!stiff_term.empty())
           t.fail("style",
@@ -210,6 +269,18 @@ void read_integrator(DeckTable& root, Scene& sc) {
   const auto micro_dt = t->maybe_number("micro_dt");
   const auto micro_steps = t->maybe_integer("micro_steps");
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
+  t->array_of_tables("levels");  // read by read_levels
+  if (!in.levels.empty()) {
+    if (micro_dt || micro_steps)
+      t->fail(micro_dt ? "micro_dt" : "micro_steps",
+              "with [[integrator.levels]] the levels' substeps set the micro steps; remove this key");
+    // The innermost steps per macro step: the product of the loop factors (the impulse family).
+    in.micro_steps = 1;
+    if (method->micro_steps)
+      for (const LevelSettings& l : in.levels) in.micro_steps *= l.substeps;
+    t->finish();
+    return;
+  }
   // Micro steps belong to the impulse family; other methods ignore them, so that one deck
   // serves every method (design.md §7).
   if (!method->micro_steps) {
@@ -462,7 +533,9 @@ Scene load_scene(const Deck& deck) {
   read_bonds(root, sc);
   make_scene_molecules_whole(root, sc);
   read_velocities(root, sc);
+  read_levels(root, sc);
   read_forces(root, sc);
+  check_levels_used(root, sc);
   read_prepare(root, sc);
   read_integrator(root, sc);
   read_run(root, sc);
@@ -514,12 +587,29 @@ std::string describe(const Scene& sc) {
   if (molecules < st.size()) s << "molecules:   " << molecules << "\n";
   s << "force terms: " << sc.forces->terms().size() << "\n";
   for (const auto& t : sc.forces->terms())
-    s << "  " << t->name() << " [" << t->style() << ", " << level_name(t->level()) << "]: " << t->describe() << "\n";
+    s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level())
+      << "]: " << t->describe() << "\n";
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
   if (sc.integrator.micro_steps > 1)
     s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
       << ")";
   s << "\n";
+  if (const auto& levels = sc.integrator.levels; !levels.empty()) {
+    // Outermost first, as the step nests: each level's step, its loop factor and its terms.
+    const bool nested = find_method(sc.integrator.method)->micro_steps;
+    s << "levels:      " << levels.size() << ", innermost first in the deck"
+      << (nested ? "; r-RESPA, outermost step h:\n" : " (grouping only: this method steps all levels with h):\n");
+    double step = sc.integrator.h;
+    for (int k = static_cast<int>(levels.size()) - 1; k >= 0; --k) {
+      s << "  " << levels[k].name << ": step " << (nested ? step : sc.integrator.h);
+      if (nested && k > 0) s << ", " << levels[k].substeps << " steps of " << levels[k - 1].name << " each";
+      s << "; terms:";
+      for (const auto& t : sc.forces->terms())
+        if (t->level() == Level{k}) s << " " << t->name();
+      s << "\n";
+      step /= levels[k].substeps;
+    }
+  }
   if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
     s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
     if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
