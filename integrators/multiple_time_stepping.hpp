@@ -13,7 +13,7 @@
 // the step: the method's kick is that of every stage but the innermost, which holds the stiff
 // bonds and is always plain. Why every slower stage and not only the outermost: a kick of step
 // Δ_k ≫ ε/ω by a force with a component along the stiff directions is an impulse the stiff
-// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (design.md §3, §5; the
+// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (design.md §3; the
 // seed paper's argument for the projected and mollified kicks does not use which level the kick
 // belongs to, only that its step does not resolve the stiff period). Only a stage whose kicks
 // resolve the stiff period may kick plainly, and in a deck that is the innermost one. Test:

@@ -6,7 +6,8 @@ module's build directory on PYTHONPATH:
     the file and from the same deck as TOML text; so does a deck with pairs on a neighbour list,
     with thermo() or forces() called after every step;
   - forces by level sum to the total and are −∇ of the level's energy (central differences) on a
-    small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow);
+    small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow); named r-RESPA levels
+    ([[integrator.levels]]) are addressed by their names;
   - setting positions and velocities, then stepping, is bit for bit a deck that starts there (for
     RATTLE after sim.prepare(), which projects as the deck's start does);
   - the README's example runs as written;
@@ -192,6 +193,28 @@ def forces_by_level_are_minus_the_gradient_of_their_energy():
         raise AssertionError("an unknown level was accepted")
     except ValueError as e:
         assert "fast" in str(e)
+
+
+@test
+def named_levels_give_energies_and_forces_by_name():
+    """inputs/respa_chains.toml: three named r-RESPA levels, innermost first."""
+    sim = stiffmd.Simulation(os.path.join(ROOT, "inputs", "respa_chains.toml"), set={"prepare.relax_steps": 0})
+    assert sim.levels == ["bonds", "angles", "pair"], sim.levels
+    energies = [sim.energy(name) for name in sim.levels]
+    assert sim.energy() == (energies[0] + energies[1]) + energies[2]
+    row = sim.thermo()
+    for name, u in zip(sim.levels, energies):
+        assert row["potential_" + name] == u, name
+    assert row["potential_stiff"] == energies[0]
+    forces = [sim.forces(name) for name in sim.levels]
+    assert all(np.abs(f).max() > 0 for f in forces)
+    total = sim.forces()
+    assert np.allclose(sum(forces), total, rtol=1e-12, atol=1e-12 * np.abs(total).max())
+    try:
+        sim.energy("slow")
+        raise AssertionError("a level the deck does not name was accepted")
+    except ValueError as e:
+        assert '"angles"' in str(e), str(e)
 
 
 def deck_starting_at(x, v):

@@ -597,8 +597,12 @@ std::string describe(const Scene& sc) {
   if (const auto& levels = sc.integrator.levels; !levels.empty()) {
     // Outermost first, as the step nests: each level's step, its loop factor and its terms.
     const bool nested = find_method(sc.integrator.method)->micro_steps;
-    s << "levels:      " << levels.size() << ", innermost first in the deck"
-      << (nested ? "; r-RESPA, outermost step h:\n" : " (grouping only: this method steps all levels with h):\n");
+    s << "levels:      " << levels.size() << ", innermost first in the deck";
+    if (!nested)
+      s << " (grouping only: " << sc.integrator.method << " steps all levels with h):\n";
+    else
+      s << "; r-RESPA, outermost first, " << sc.integrator.method
+        << (levels.size() > 1 ? "'s kick on every level but the innermost:\n" : ":\n");
     double step = sc.integrator.h;
     for (int k = static_cast<int>(levels.size()) - 1; k >= 0; --k) {
       s << "  " << levels[k].name << ": step " << (nested ? step : sc.integrator.h);
