@@ -282,7 +282,8 @@ PYBIND11_MODULE(stiffmd, m) {
           "levels",
           [](const Simulation& s) {
             std::vector<std::string> names;
-            for (int k = 0; k < s.scene().forces->num_levels(); ++k) names.push_back(s.scene().forces->level_name(Level{k}));
+            for (int k = 0; k < s.scene().forces->num_levels(); ++k)
+              names.push_back(s.scene().forces->level_name(Level{k}));
             return names;
           },
           "The force levels' names, innermost first.")

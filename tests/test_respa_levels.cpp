@@ -55,7 +55,8 @@ Scene load_trimer(const Trimer& t) {
     << "\"\nparticles = [0]\ncenter = [0, 0, 0]\nk = 1.0\n"
     << "[forces.gravity]\nstyle = \"gravity\"\nlevel = \"" << t.rest << "\"\ng = [0, 0, -1]\n"
     << "[prepare]\nproject = true\nvibrational_temperature = 0.5\n"
-    << "[run]\nt_end = 10\n" << t.extra << "\n"
+    << "[run]\nt_end = 10\n"
+    << t.extra << "\n"
     << "[integrator]\nmethod = \"" << t.method << "\"\nh = " << test::exact(t.h) << "\n"
     << t.levels;
   const Deck deck(Deck::Text{"trimer.toml", d.str()}, {});
@@ -104,14 +105,11 @@ TEST_P(TwoLevels, AreTheImpulseMethodBitForBit) {
   for (const std::string thermostat :
        {std::string(), std::string("[thermostat]\nstyle = \"langevin\"\ntemperature = 0.3\ndamp = 0.5\nseed = 3\n")}) {
     Trimer old_way{GetParam(), 1e-3, 0.02, "micro_steps = 250\n", "fast", "slow", "slow", thermostat};
-    Trimer new_way{GetParam(),
-                   1e-3,
-                   0.02,
-                   "[[integrator.levels]]\nname = \"stiff\"\n[[integrator.levels]]\nname = \"rest\"\nsubsteps = 250\n",
-                   "stiff",
-                   "rest",
-                   "rest",
-                   thermostat};
+    Trimer new_way{
+        GetParam(), 1e-3,
+        0.02,       "[[integrator.levels]]\nname = \"stiff\"\n[[integrator.levels]]\nname = \"rest\"\nsubsteps = 250\n",
+        "stiff",    "rest",
+        "rest",     thermostat};
     Scene a = load_trimer(old_way), b = load_trimer(new_way);
     EXPECT_EQ(a.integrator.micro_steps, b.integrator.micro_steps);
     const Eigen::Matrix3Xd x0 = a.state.x;
@@ -266,8 +264,8 @@ TEST(RespaLevels, ARestartContinuesBitForBit) {
   const fs::path d = test::scratch_dir("respa_restart");
   ASSERT_EQ(test::cli("run " + deck + " -o " + (d / "whole").string() + common + " --set run.t_end=0.1").code, 0);
   ASSERT_EQ(test::cli("run " + deck + " -o " + (d / "parts").string() + common + " --set run.t_end=0.05").code, 0);
-  const auto r = test::cli("run " + deck + " -o " + (d / "parts").string() + common + " --set run.t_end=0.1 --restart " +
-                           (d / "parts" / "checkpoint.bin").string());
+  const auto r = test::cli("run " + deck + " -o " + (d / "parts").string() + common +
+                           " --set run.t_end=0.1 --restart " + (d / "parts" / "checkpoint.bin").string());
   ASSERT_EQ(r.code, 0) << r.err;
   const Checkpoint a = read_checkpoint((d / "whole" / "checkpoint.bin").string());
   const Checkpoint b = read_checkpoint((d / "parts" / "checkpoint.bin").string());

@@ -32,7 +32,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
       level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
                        forces.level_name(Level::slow) == "slow")),
       columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
-                                "total", "energy_drift", "max_violation", "temperature"} {
+               "total", "energy_drift", "max_violation", "temperature"} {
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
   ThermostatSettings thermostat;

@@ -20,8 +20,8 @@ namespace stiffmd {
 
 struct Energies {
   double kinetic = 0.0;
-  double slow = 0.0;   // U(x): every term on a level outside the innermost
-  double stiff = 0.0;  // ε⁻²V(x) and anything else integrated on the fast (innermost) level
+  double slow = 0.0;             // U(x): every term on a level outside the innermost
+  double stiff = 0.0;            // ε⁻²V(x) and anything else integrated on the fast (innermost) level
   std::vector<double> by_level;  // each level's potential energy, innermost first
   double total() const { return kinetic + slow + stiff; }
 };

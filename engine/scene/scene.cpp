@@ -177,8 +177,8 @@ void check_levels_used(DeckTable& root, const Scene& sc) {
     const auto& terms = sc.forces->terms();
     if (std::none_of(terms.begin(), terms.end(), [&](const auto& t) { return t->level() == l; }))
       rows[k].fail("name", "level \"" + sc.integrator.levels[k].name +
-                               "\" has no force term (give a [forces.NAME] level = \"" +
-                               sc.integrator.levels[k].name + "\", or remove the level)");
+                               "\" has no force term (give a [forces.NAME] level = \"" + sc.integrator.levels[k].name +
+                               "\", or remove the level)");
   }
 }
 
@@ -587,8 +587,8 @@ std::string describe(const Scene& sc) {
   if (molecules < st.size()) s << "molecules:   " << molecules << "\n";
   s << "force terms: " << sc.forces->terms().size() << "\n";
   for (const auto& t : sc.forces->terms())
-    s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level())
-      << "]: " << t->describe() << "\n";
+    s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level()) << "]: " << t->describe()
+      << "\n";
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
   if (sc.integrator.micro_steps > 1)
     s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
