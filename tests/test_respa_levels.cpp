@@ -255,6 +255,18 @@ TEST(RespaLevels, LangevinOStepsSpanTheMacroStepOnce) {
   EXPECT_LT((sc.state.v - expected).cwiseAbs().maxCoeff(), 1e-13);
 }
 
+// `stiffmd check` prints the levels outermost first: each one's step, loop factor and terms.
+TEST(RespaLevels, CheckPrintsTheLevelStructure) {
+  const auto r = test::cli("check " + test::source_path("inputs/respa_chains.toml"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* line : {"levels:      3, innermost first in the deck; r-RESPA, outermost first, mollified-impulse's "
+                           "kick on every level but the innermost:\n",
+                           "  pair: step 0.01, 2 steps of angles each; terms: excluded_volume\n",
+                           "  angles: step 0.005, 25 steps of bonds each; terms: bending\n",
+                           "  bonds: step 0.0002; terms: bonds\n", "50 micro steps (micro_dt = 0.0002)"})
+    EXPECT_NE(r.out.find(line), std::string::npos) << line << "\n" << r.out;
+}
+
 // inputs/respa_chains.toml (three levels, mollified kicks, Langevin): 10 steps in one run and
 // 5 + 5 across a restart end in the same state, cached kick forces and thermo file, bit for bit.
 TEST(RespaLevels, ARestartContinuesBitForBit) {
