@@ -102,7 +102,7 @@ class TwoLevels : public ::testing::TestWithParam<std::string> {};
 // (two named levels, the outer one with substeps): the same trajectory to the last bit, also
 // under Langevin (the O step in the middle of the micro steps).
 TEST_P(TwoLevels, AreTheImpulseMethodBitForBit) {
-  for (const std::string thermostat :
+  for (const std::string& thermostat :
        {std::string(), std::string("[thermostat]\nstyle = \"langevin\"\ntemperature = 0.3\ndamp = 0.5\nseed = 3\n")}) {
     Trimer old_way{GetParam(), 1e-3, 0.02, "micro_steps = 250\n", "fast", "slow", "slow", thermostat};
     Trimer new_way{
