@@ -94,6 +94,42 @@ TEST(ForceRegistry, AngleStiffnessIsCheckedAtItsKey) {
   EXPECT_NE(err.find("forces.bend.angle_types.a.k: expected a stiffness >= 0, got -2"), std::string::npos) << err;
 }
 
+// Dihedral styles: a builder's dihedral type is claimed by dihedral_types.TYPE, read by kind at its
+// key; an unclaimed dihedral type and LAMMPS's forbidden d are refused where they are.
+TEST(ForceRegistry, DihedralCoefficientsAreCheckedAtTheirKeys) {
+  const std::string head =
+      "[types.bead]\nmass = 1.0\n[[build]]\nstyle = \"linear-chains\"\nchains = 1\nbeads = 5\n"
+      "bond_length = 1.0\nbond_type = \"b\"\ndihedral_type = \"t\"\nseed = 1\n" +
+      kFene;
+  const std::string tail = "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  struct Case {
+    std::string forces, expected;
+  };
+  const std::vector<Case> cases = {
+      {"[forces.tor]\nstyle = \"harmonic-dihedral\"\ndihedral_types.t = { K = 1, d = 2, n = 3 }\n",
+       "forces.tor.dihedral_types.t.d: expected +1 or -1"},
+      {"[forces.tor]\nstyle = \"harmonic-dihedral\"\ndihedral_types.t = { K = 1, d = 1, n = -3 }\n",
+       "forces.tor.dihedral_types.t.n: expected a multiplicity 0 .. 12"},
+      {"[forces.tor]\nstyle = \"opls-dihedral\"\ndihedral_types.t = { K1 = 1, K5 = 3 }\n", "K5"},
+      {"[forces.tor]\nstyle = \"multi-harmonic-dihedral\"\ndihedral_types.t = { A1 = inf }\n",
+       "forces.tor.dihedral_types.t.A1: expected a finite"},
+      {"", "dihedral type 't' is not defined by any force term (add [forces.NAME.dihedral_types.t])"},
+  };
+  for (const Case& c : cases) {
+    const std::string err = load_error(head + c.forces + tail);
+    EXPECT_NE(err.find(c.expected), std::string::npos) << err;
+  }
+  // Negative torsion amplitudes are LAMMPS's too, and the five-bead chain has two dihedrals.
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_dihedrals_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << head + "[forces.tor]\nstyle = \"opls-dihedral\"\ndihedral_types.t = { K1 = -1.5, K3 = 2 }\n" +
+                          tail;
+  const Scene sc = load_scene(Deck(p.string(), {}));
+  fs::remove(p);
+  EXPECT_EQ(sc.topology.dihedrals.size(), 2u);
+  EXPECT_EQ(sc.topology.dihedrals[1].i, 1);
+  EXPECT_EQ(sc.topology.dihedrals[1].l, 4);
+}
+
 // A value from the command line is reported as the --set that gave it, not as the file's line.
 TEST(ForceRegistry, ValuesFromSetAreReportedAsTheSet) {
   const std::string err = load_error(deck_with(kFene), {"forces.chain.bond_types.b.R0=-2"});

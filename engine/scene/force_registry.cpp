@@ -10,6 +10,7 @@
 #include "engine/core/format.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/dihedral_terms.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/gravity.hpp"
@@ -151,6 +152,43 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
       },
       coeffs);
   return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// Dihedral styles (DihedralTerm over a kernel of forcefields/dihedral_terms.hpp):
+// dihedral_types.TYPE = {coefficients}, each read by `coeffs` from its table.
+template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
+std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<typename Kernel::Coeffs> types;
+  const auto index = claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name,
+                                 coeffs, types);
+  return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
+}
+
+// harmonic-dihedral: {K, d = +1|-1, n >= 0} (LAMMPS dihedral_style harmonic).
+HarmonicDihedralKernel::Coeffs harmonic_dihedral_coeffs(DeckTable& d) {
+  HarmonicDihedralKernel::Coeffs c;
+  c.K = read(d, "K", kTorsionEnergy);
+  const long sign = d.integer("d");
+  d.require(sign == 1 || sign == -1, "d", "expected +1 or -1");
+  c.d = static_cast<int>(sign);
+  const long n = d.integer("n");
+  d.require(n >= 0 && n <= 12, "n", "expected a multiplicity 0 .. 12");
+  c.n = static_cast<int>(n);
+  return c;
+}
+
+// multi-harmonic-dihedral: {A1, …, A5} (LAMMPS dihedral_style multi/harmonic), each default 0.
+MultiHarmonicDihedralKernel::Coeffs multi_harmonic_dihedral_coeffs(DeckTable& d) {
+  MultiHarmonicDihedralKernel::Coeffs c;
+  for (int n = 0; n < 5; ++n) c.A[n] = read(d, "A" + std::to_string(n + 1), kTorsionEnergy, 0.0);
+  return c;
+}
+
+// opls-dihedral: {K1, …, K4} (LAMMPS dihedral_style opls), each default 0.
+OplsDihedralKernel::Coeffs opls_dihedral_coeffs(DeckTable& d) {
+  OplsDihedralKernel::Coeffs c;
+  for (int n = 0; n < 4; ++n) c.K[n] = read(d, "K" + std::to_string(n + 1), kTorsionEnergy, 0.0);
+  return c;
 }
 
 // Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
@@ -385,6 +423,12 @@ const std::vector<ForceStyle>& force_styles() {
       {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
       {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
       {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"harmonic-dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
+       read_dihedral<HarmonicDihedralKernel, harmonic_dihedral_coeffs>},
+      {"multi-harmonic-dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
+       read_dihedral<MultiHarmonicDihedralKernel, multi_harmonic_dihedral_coeffs>},
+      {"opls-dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
+       read_dihedral<OplsDihedralKernel, opls_dihedral_coeffs>},
       {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
       {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
       {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
