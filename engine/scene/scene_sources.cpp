@@ -194,7 +194,7 @@ void read_builders(DeckTable& root, Scene& sc) {
 }
 
 // [import] lammps_data = PATH (atom_style, atom_types = {"1" = "bead"}, bond_types = {...},
-// angle_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
+// angle_types = {...}, dihedral_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   auto t = root.table("import");
   if (!t) return;
@@ -204,7 +204,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
   if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
   ImportedSystem in;
-  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map;
+  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map, dihedral_map;
   std::string single_type, single_bond_type;
   // The reader's one-line error (file, line, section) behind the deck key that named the file.
   const char* file_key = lammps ? "lammps_data" : "xyz";
@@ -219,6 +219,13 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     atom_map = t->string_map("atom_types");
     bond_map = t->string_map("bond_types");
     angle_map = t->string_map("angle_types");
+    dihedral_map = t->string_map("dihedral_types");
+    // Impropers are read and kept by the reader (an export writes them back), but no improper
+    // style exists to run them: refused rather than dropped.
+    if (!in.impropers.empty())
+      t->fail("lammps_data", t->string("lammps_data") + ": " + std::to_string(in.impropers.size()) +
+                                 " impropers, but stiffmd has no improper terms: they would be lost; remove the "
+                                 "Impropers section (and set '0 impropers' in the header) to run without them");
   } else {
     const std::string xyz_path = resolve(t->string("xyz")), bonds_path = resolve(t->string("bonds"));
     try {
@@ -281,6 +288,11 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     const std::string name = lookup(angle_map, a.type, "angle_types");
     sc.topology.angles.push_back(
         {first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+  }
+  for (const auto& d : in.dihedrals) {
+    const std::string name = lookup(dihedral_map, d.type, "dihedral_types");
+    sc.topology.dihedrals.push_back({first + d.i, first + d.j, first + d.k, first + d.l,
+                                     Topology::intern(sc.topology.dihedral_types, name)});
   }
 }
 
