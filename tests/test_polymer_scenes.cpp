@@ -212,7 +212,8 @@ std::map<std::string, double> imported_butane_energies(const std::string& pair) 
 }
 
 // LAMMPS (29 Sep 2021) on the same file, `run 0`, thermo ebond eangle edihed evdwl with norm no
-// and %.17g: the numbers and the input are printed by tools/lammps_butane_reference.py.
+// and %.17g: the numbers and the input are printed by tools/lammps_butane_reference.py. The 1-2
+// pair is given explicitly here (LAMMPS mixes it geometrically).
 TEST(ImportedButanes, SameEnergiesAsLammps) {
   const auto e = imported_butane_energies(
       "epsilon = 1.2\nsigma = 1.05\n"
@@ -222,6 +223,15 @@ TEST(ImportedButanes, SameEnergiesAsLammps) {
   EXPECT_NEAR(e.at("angle"), 1.7334938269372535, 1e-12);
   EXPECT_NEAR(e.at("dihedral"), 7.2235282112952071, 1e-12);
   EXPECT_NEAR(e.at("pair"), -1.1438791838745168, 1e-12);
+}
+
+// The same with per-type LJ coefficients and LAMMPS's mixing rules (pair_coeff i i only; LAMMPS
+// mixes the 1-2 pair with pair_modify mix geometric, then arithmetic).
+TEST(ImportedButanes, MixingRulesAsLammps) {
+  const std::string per_type =
+      "types.CH3 = { epsilon = 1.2, sigma = 1.05 }\ntypes.CH2 = { epsilon = 0.9, sigma = 0.95 }\n";
+  EXPECT_NEAR(imported_butane_energies("mix = \"geometric\"\n" + per_type).at("pair"), -1.1438791838745168, 1e-12);
+  EXPECT_NEAR(imported_butane_energies("mix = \"arithmetic\"\n" + per_type).at("pair"), -1.1476104065693902, 1e-12);
 }
 
 }  // namespace

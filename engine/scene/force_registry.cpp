@@ -1,6 +1,8 @@
 #include "engine/scene/force_registry.hpp"
 
 #include <algorithm>
+#include <optional>
+#include <type_traits>
 #include <cmath>
 #include <set>
 #include <sstream>
@@ -303,20 +305,66 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
               "): the pair force between them is singular; move one of them apart");
 }
 
-// Pair styles: parameters for every type pair from the term's table, overridden per pair by
-// [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
-// term's values (its global epsilon, sigma, …), not from the defaults.
-template <class Kernel, class ReadCoeffs>
+// pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults.
+// Mixing rules (LAMMPS pair_modify mix): the coefficients of an unlike pair from those of its two
+// types. Both rules take ε_ab = √(ε_a ε_b); a length (σ, and the cutoff, as LAMMPS's lj/cut
+// init_one mixes cut[i][i] and cut[j][j] with mix_distance) is √(σ_a σ_b) under "geometric"
+// (LAMMPS's default) and (σ_a + σ_b)/2 under "arithmetic" (Lorentz–Berthelot). Checked with lmp
+// (29 Sep 2021): per-type cutoffs 2 and 3, a 1-2 pair at r = 2.47 interacts under arithmetic
+// (cut 2.5) and not under geometric (cut √6).
+enum class Mix { geometric, arithmetic };
+double mix_energy(double a, double b) {
+  return std::sqrt(a * b);
+}
+double mix_length(double a, double b, Mix m) {
+  return m == Mix::geometric ? std::sqrt(a * b) : 0.5 * (a + b);
+}
+// A style without mixing rules: the reader refuses per-type tables for it.
+struct NoMixing {};
+
+// Pair styles: parameters for every type pair from the term's table — or, with per-type tables
+// types.NAME = {…} (a style with a `mix` function), from every type's coefficients by the mixing
+// rule `mix` = "geometric" | "arithmetic" — overridden per pair by [[forces.NAME.pair]] types =
+// ["A", "B"] (which then starts from the pair's mixed values); special_bonds = [w12, w13]; skin.
+template <class Kernel, class ReadCoeffs, class MixCoeffs = NoMixing>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
                                      ReadCoeffs read_coeffs, const char* range_key,
-                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{}) {
+                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{},
+                                     MixCoeffs mix_coeffs = {}) {
+  using Coeffs = typename Kernel::Coeffs;
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
-  TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
-  const typename Kernel::Coeffs global = read_coeffs(t, defaults);
+  TypePairMatrix<Coeffs> coeffs(ntypes);
+  const Coeffs global = read_coeffs(t, defaults);
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  if constexpr (std::is_same_v<MixCoeffs, NoMixing>) {
+    (void)mix_coeffs;
+  } else if (auto per_type = t.table("types")) {
+    const std::string rule = t.string("mix", "geometric");
+    if (rule != "geometric" && rule != "arithmetic")
+      t.fail("mix", "expected \"geometric\" or \"arithmetic\" (LAMMPS pair_modify mix), got \"" + rule + "\"");
+    const Mix m = rule == "geometric" ? Mix::geometric : Mix::arithmetic;
+    std::vector<std::optional<Coeffs>> own(static_cast<size_t>(ntypes));
+    for (auto& [type_name, tt] : per_type->named_tables()) {
+      int k = -1;
+      for (int q = 0; q < ntypes; ++q)
+        if (sc.types[q].name == type_name) k = q;
+      if (k < 0) per_type->fail(type_name, "unknown particle type '" + type_name + "'");
+      own[static_cast<size_t>(k)] = read_coeffs(tt, global);  // a key it does not give: the term's value
+      tt.finish();
+    }
+    for (int a = 0; a < ntypes; ++a)
+      if (!own[static_cast<size_t>(a)])
+        t.fail("types", "no coefficients for particle type '" + sc.types[a].name + "'; with per-type tables every "
+                        "type needs one (" + t.key_path("types") + "." + sc.types[a].name + " = {…})");
+    per_type->finish();
+    for (int a = 0; a < ntypes; ++a)
+      for (int b = a; b < ntypes; ++b) coeffs.set(a, b, mix_coeffs(*own[a], *own[b], m));
+  } else if (t.has("mix")) {
+    t.fail("mix", "a mixing rule needs per-type coefficients " + t.key_path("types") + ".NAME = {…}");
+  }
   std::set<std::pair<int, int>> overridden;  // a pair given twice would silently keep the last
   for (DeckTable& p : t.array_of_tables("pair")) {
     const auto names = p.strings("types");
@@ -331,7 +379,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
       p.fail("types",
              "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
-    coeffs.set(ab[0], ab[1], read_coeffs(p, global));
+    coeffs.set(ab[0], ab[1], read_coeffs(p, coeffs(ab[0], ab[1])));
     p.finish();
   }
   // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
@@ -371,7 +419,11 @@ std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTab
         c.rc = read(d, "cutoff", kLength, c.rc);
         return c;
       },
-      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5});
+      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5},
+      [](const LennardJones::Coeffs& a, const LennardJones::Coeffs& b, Mix m) {
+        return LennardJones::Coeffs{mix_energy(a.epsilon, b.epsilon), mix_length(a.sigma, b.sigma, m),
+                                    mix_length(a.rc, b.rc, m)};
+      });
 }
 
 std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -382,7 +434,10 @@ std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTa
         c.sigma = read(d, "sigma", kLength, c.sigma);
         return c;
       },
-      "sigma");
+      "sigma", WeeksChandlerAndersen::Coeffs{},
+      [](const WeeksChandlerAndersen::Coeffs& a, const WeeksChandlerAndersen::Coeffs& b, Mix m) {
+        return WeeksChandlerAndersen::Coeffs{mix_energy(a.epsilon, b.epsilon), mix_length(a.sigma, b.sigma, m)};
+      });
 }
 
 std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
