@@ -186,7 +186,8 @@ namespace {
 // (α/ε)² = 2K; harmonic-angle k = 2K; opls-dihedral = opls; lj cut and shifted = lj/cut with
 // pair_modify shift yes; special_bonds [0, 0] (1-4 pairs interact) = special_bonds lj 0 0 1.
 // `pair` is the deck text of the LJ type pairs.
-std::map<std::string, double> imported_butane_energies(const std::string& pair) {
+std::map<std::string, double> imported_butane_energies(const std::string& pair,
+                                                       const std::string& special_bonds = "[0.0, 0.0]") {
   const std::string deck =
       "[types.CH3]\nmass = 15.0\n[types.CH2]\nmass = 14.0\n"
       "[import]\nlammps_data = \"" +
@@ -198,7 +199,7 @@ std::map<std::string, double> imported_butane_energies(const std::string& pair) 
       "bond_types.mid = { length = 1.05, alpha = \"0.05 * sqrt(2 * 150)\" }\n"
       "[forces.angle]\nstyle = \"harmonic-angle\"\nangle_types.ccc = { k = 60, theta0 = 114 }\n"
       "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = 0.1 }\n"
-      "[forces.pair]\nstyle = \"lj\"\ncutoff = 2.5\nspecial_bonds = [0.0, 0.0]\n" +
+      "[forces.pair]\nstyle = \"lj\"\ncutoff = 2.5\nspecial_bonds = " + special_bonds + "\n" +
       pair + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
   const fs::path d = test::scratch_dir("butanes");
   std::ofstream(d / "butanes.toml") << deck;
@@ -232,6 +233,16 @@ TEST(ImportedButanes, MixingRulesAsLammps) {
       "types.CH3 = { epsilon = 1.2, sigma = 1.05 }\ntypes.CH2 = { epsilon = 0.9, sigma = 0.95 }\n";
   EXPECT_NEAR(imported_butane_energies("mix = \"geometric\"\n" + per_type).at("pair"), -1.1438791838745168, 1e-12);
   EXPECT_NEAR(imported_butane_energies("mix = \"arithmetic\"\n" + per_type).at("pair"), -1.1476104065693902, 1e-12);
+}
+
+// 1-4 pairs at half weight: LAMMPS special_bonds lj 0.0 0.0 0.5 (else as in SameEnergiesAsLammps,
+// mix geometric) gives evdwl = -0.97592348627987502.
+TEST(ImportedButanes, OneFourWeightAsLammps) {
+  const std::string per_type =
+      "types.CH3 = { epsilon = 1.2, sigma = 1.05 }\ntypes.CH2 = { epsilon = 0.9, sigma = 0.95 }\n";
+  std::string deck_pair = "mix = \"geometric\"\n" + per_type;
+  const auto e = imported_butane_energies(deck_pair, "[0.0, 0.0, 0.5]");
+  EXPECT_NEAR(e.at("pair"), -0.97592348627987502, 1e-12);
 }
 
 }  // namespace

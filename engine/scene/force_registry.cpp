@@ -326,7 +326,7 @@ struct NoMixing {};
 // Pair styles: parameters for every type pair from the term's table — or, with per-type tables
 // types.NAME = {…} (a style with a `mix` function), from every type's coefficients by the mixing
 // rule `mix` = "geometric" | "arithmetic" — overridden per pair by [[forces.NAME.pair]] types =
-// ["A", "B"] (which then starts from the pair's mixed values); special_bonds = [w12, w13]; skin.
+// ["A", "B"] (which then starts from the pair's mixed values); special_bonds = [w12, w13(, w14)]; skin.
 template <class Kernel, class ReadCoeffs, class MixCoeffs = NoMixing>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
                                      ReadCoeffs read_coeffs, const char* range_key,
@@ -382,15 +382,17 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     coeffs.set(ab[0], ab[1], read_coeffs(p, coeffs(ab[0], ab[1])));
     p.finish();
   }
-  // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
-  // neighbours do not interact, 1-3 pairs do).
+  // LAMMPS special_bonds lj w12 w13 w14: the weight of 1-2, 1-3 and 1-4 bonded pairs (default:
+  // bonded neighbours do not interact, 1-3 and 1-4 pairs do).
   SpecialWeights w;
   if (t.has("special_bonds")) {
     const auto sb = t.numbers("special_bonds");
-    if (sb.size() != 2 || sb[0] < 0 || sb[0] > 1 || sb[1] < 0 || sb[1] > 1)
-      t.fail("special_bonds", "expected [w12, w13], two weights in 0..1");
+    const bool in_range = std::all_of(sb.begin(), sb.end(), [](double x) { return x >= 0 && x <= 1; });
+    if ((sb.size() != 2 && sb.size() != 3) || !in_range)
+      t.fail("special_bonds", "expected [w12, w13] or [w12, w13, w14], weights in 0..1");
     w.w12 = sb[0];
     w.w13 = sb[1];
+    if (sb.size() == 3) w.w14 = sb[2];
   }
   const double skin = read(t, "skin", kSkin, 0.3);
   check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
