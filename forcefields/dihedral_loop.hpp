@@ -46,8 +46,8 @@ struct Geometry {
 
 [[noreturn]] inline void throw_degenerate(int i, int j, int k, int l) {
   std::ostringstream m;
-  m << "dihedral (" << i << ", " << j << ", " << k << ", " << l << ") is undefined: its central bond " << j << "-"
-    << k << " has length 0";
+  m << "dihedral (" << i << ", " << j << ", " << k << ", " << l << ") is undefined: its central bond " << j << "-" << k
+    << " has length 0";
   throw NumericalError(m.str());
 }
 

@@ -42,7 +42,9 @@ struct HarmonicDihedralKernel {
     e = c.K * (1.0 + c.d * std::cos(c.n * phi));
     de_dphi = -c.K * c.d * c.n * std::sin(c.n * phi);
   }
-  static void describe(std::ostream& s, const Coeffs& c) { s << "K = " << format_exact(c.K) << ", d = " << c.d << ", n = " << c.n; }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    s << "K = " << format_exact(c.K) << ", d = " << c.d << ", n = " << c.n;
+  }
 };
 
 struct MultiHarmonicDihedralKernel {
@@ -76,8 +78,8 @@ struct OplsDihedralKernel {
   static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
     e = 0.5 * (c.K[0] * (1.0 + std::cos(phi)) + c.K[1] * (1.0 - std::cos(2.0 * phi)) +
                c.K[2] * (1.0 + std::cos(3.0 * phi)) + c.K[3] * (1.0 - std::cos(4.0 * phi)));
-    de_dphi = 0.5 * (-c.K[0] * std::sin(phi) + 2.0 * c.K[1] * std::sin(2.0 * phi) -
-                     3.0 * c.K[2] * std::sin(3.0 * phi) + 4.0 * c.K[3] * std::sin(4.0 * phi));
+    de_dphi = 0.5 * (-c.K[0] * std::sin(phi) + 2.0 * c.K[1] * std::sin(2.0 * phi) - 3.0 * c.K[2] * std::sin(3.0 * phi) +
+                     4.0 * c.K[3] * std::sin(4.0 * phi));
   }
   static void describe(std::ostream& s, const Coeffs& c) {
     for (int n = 0; n < 4; ++n) s << (n ? ", " : "") << "K" << n + 1 << " = " << format_exact(c.K[n]);
@@ -111,8 +113,8 @@ class DihedralTerm final : public ForceTerm {
       if (d.i == d.j || d.i == d.k || d.i == d.l || d.j == d.k || d.j == d.l || d.k == d.l)
         fail(which + ": the four particles must be distinct");
       if (d.type < 0 || static_cast<size_t>(d.type) >= types_.size())
-        fail(which + ": dihedral type " + std::to_string(d.type) + " is not defined (" +
-             std::to_string(types_.size()) + " types)");
+        fail(which + ": dihedral type " + std::to_string(d.type) + " is not defined (" + std::to_string(types_.size()) +
+             " types)");
       instances_.push_back({d.i, d.j, d.k, d.l, types_[d.type]});
     }
   }

@@ -62,8 +62,7 @@ std::string define_pairs(std::string_view style, int num_types, double cutoff, c
   s << style << " pairs, " << num_types << " particle type(s), cutoff " << cutoff << ", skin " << list.skin()
     << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13;
   if (weights.w14 != 1.0) s << ", w14 = " << weights.w14;
-  s << " (" << excluded << " pairs excluded, "
-    << scaled << " scaled)";
+  s << " (" << excluded << " pairs excluded, " << scaled << " scaled)";
   return s.str();
 }
 

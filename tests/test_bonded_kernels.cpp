@@ -376,6 +376,7 @@ class DihedralKernel : public ::testing::Test {
   static Term term(int n, bool branch = true) {
     return Term("dihedrals", Level::slow, dihedrals(n, branch), Case::types());
   }
+
  public:
   // Four beads with bond lengths 1.0, 1.1, 0.9, bond angles 110° and 100°, at torsion φ.
   static Matrix3Xd quadruple(double phi) {
@@ -478,8 +479,8 @@ TYPED_TEST(DihedralKernel, VirialIsSumOfSeparationDotForce) {
 
 TYPED_TEST(DihedralKernel, RejectsBadDihedrals) {
   using Term = typename TestFixture::Term;
-  for (const Dihedral bad : {Dihedral{0, 1, 2, 0, 0}, Dihedral{0, 1, 1, 3, 0}, Dihedral{-1, 1, 2, 3, 0},
-                             Dihedral{0, 1, 2, 3, 2}})
+  for (const Dihedral bad :
+       {Dihedral{0, 1, 2, 0, 0}, Dihedral{0, 1, 1, 3, 0}, Dihedral{-1, 1, 2, 3, 0}, Dihedral{0, 1, 2, 3, 2}})
     EXPECT_THROW(Term("d", Level::slow, {bad}, TypeParam::types()), std::invalid_argument);
   // A zero-length central bond leaves φ undefined: a numerical error naming the dihedral.
   Matrix3Xd x = TestFixture::quadruple(1.0);
@@ -508,8 +509,7 @@ TEST(DihedralStyles, MatchLammpsEnergies) {
   check(HarmonicDihedral("d", Level::slow, one, {{1.5, 1, 3}}),
         {2.4324149524059964, 0.15486237549877985, 2.9402554299755486, 0.016843383095936471, 1.5809331308439738});
   check(HarmonicDihedral("d", Level::slow, one, {{-0.8, -1, 2}}),
-        {-0.13973150807225743, -1.3899149724329962, -1.3229148966908895, -0.0039966677775793436,
-         -0.42518666295969842});
+        {-0.13973150807225743, -1.3899149724329962, -1.3229148966908895, -0.0039966677775793436, -0.42518666295969842});
   check(MultiHarmonicDihedral("d", Level::slow, one, {{{1.0, -0.5, 0.8, 1.2, -0.3}}}),
         {2.048863074065987, 0.97578593612613485, 1.2511376974281729, 0.80336711711166031, 1.0990972022998311});
   check(OplsDihedral("d", Level::slow, one, {{{1.4, -0.3, 0.9, 0.2}}}),

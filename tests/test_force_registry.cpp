@@ -154,7 +154,8 @@ double lj_cut_shifted(double eps, double sigma, double rc, double r) {
 
 TEST(ForceRegistry, MixingRulesFillTheTypePairsAsLammps) {
   const std::string per_type =
-      "types.A = { epsilon = 1.2, sigma = 1.05, cutoff = 2.5 }\ntypes.B = { epsilon = 0.9, sigma = 0.95, cutoff = 3.0 }\n";
+      "types.A = { epsilon = 1.2, sigma = 1.05, cutoff = 2.5 }\ntypes.B = { epsilon = 0.9, sigma = 0.95, cutoff = 3.0 "
+      "}\n";
   const double eps = std::sqrt(1.2 * 0.9);
   // geometric (LAMMPS's default): σ and the cutoff are geometric means too.
   EXPECT_NEAR(lj_energy(two_types(per_type)), lj_cut_shifted(eps, std::sqrt(1.05 * 0.95), std::sqrt(2.5 * 3.0), 1.2),

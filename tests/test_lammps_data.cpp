@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -13,7 +14,6 @@
 #include <fstream>
 #include <limits>
 #include <random>
-#include <array>
 #include <set>
 #include <sstream>
 #include <string>
@@ -554,8 +554,9 @@ TEST(LammpsDataTopology, RoundTripKeepsAnglesDihedralsImpropersAndCoefficients) 
   }
   // An angle-style file cannot hold dihedrals: refused, not dropped.
   const ImportedSystem s = read_lammps_data(data("butanes.data"));
-  EXPECT_NE(input_error([&] { write_lammps_data(scratch("angle.data"), s, "angle"); })
-                .find("atom_style angle cannot hold dihedrals or impropers"),
+  EXPECT_NE(input_error([&] {
+              write_lammps_data(scratch("angle.data"), s, "angle");
+            }).find("atom_style angle cannot hold dihedrals or impropers"),
             std::string::npos);
 }
 

@@ -816,8 +816,8 @@ TEST(SpecialBonds, OneFourPairsTakeTheirWeight) {
   std::map<std::pair<int, int>, double> got;
   for (const SpecialPair& p : special_pairs(9, bonds, {0.0, 0.0, 0.5})) got[{p.i, p.j}] = p.weight;
   const std::map<std::pair<int, int>, double> expected = {
-      {{0, 1}, 0.0}, {{1, 2}, 0.0}, {{2, 3}, 0.0}, {{3, 4}, 0.0}, {{0, 2}, 0.0}, {{1, 3}, 0.0}, {{2, 4}, 0.0},
-      {{0, 3}, 0.5}, {{1, 4}, 0.5},                                                  // 1-4 along the chain
+      {{0, 1}, 0.0}, {{1, 2}, 0.0}, {{2, 3}, 0.0}, {{3, 4}, 0.0}, {{0, 2}, 0.0}, {{1, 3}, 0.0},
+      {{2, 4}, 0.0}, {{0, 3}, 0.5}, {{1, 4}, 0.5},                                                // 1-4 along the chain
       {{5, 6}, 0.0}, {{6, 7}, 0.0}, {{7, 8}, 0.0}, {{5, 8}, 0.0}, {{5, 7}, 0.0}, {{6, 8}, 0.0}};  // the ring
   EXPECT_EQ(got, expected);
   // w14 = 1 (the default) lists no 1-4 pair: the result is the two-weight one.

@@ -198,9 +198,10 @@ std::map<std::string, double> imported_butane_energies(const std::string& pair,
       "bond_types.end = { length = 1.0, alpha = \"0.05 * sqrt(2 * 200)\" }\n"
       "bond_types.mid = { length = 1.05, alpha = \"0.05 * sqrt(2 * 150)\" }\n"
       "[forces.angle]\nstyle = \"harmonic-angle\"\nangle_types.ccc = { k = 60, theta0 = 114 }\n"
-      "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = 0.1 }\n"
-      "[forces.pair]\nstyle = \"lj\"\ncutoff = 2.5\nspecial_bonds = " + special_bonds + "\n" +
-      pair + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+      "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = "
+      "0.1 }\n"
+      "[forces.pair]\nstyle = \"lj\"\ncutoff = 2.5\nspecial_bonds = " +
+      special_bonds + "\n" + pair + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
   const fs::path d = test::scratch_dir("butanes");
   std::ofstream(d / "butanes.toml") << deck;
   const Scene sc = load_scene(Deck((d / "butanes.toml").string(), {}));
@@ -219,7 +220,8 @@ TEST(ImportedButanes, SameEnergiesAsLammps) {
   const auto e = imported_butane_energies(
       "epsilon = 1.2\nsigma = 1.05\n"
       "[[forces.pair.pair]]\ntypes = [\"CH2\", \"CH2\"]\nepsilon = 0.9\nsigma = 0.95\n"
-      "[[forces.pair.pair]]\ntypes = [\"CH3\", \"CH2\"]\nepsilon = \"sqrt(1.2 * 0.9)\"\nsigma = \"sqrt(1.05 * 0.95)\"\n");
+      "[[forces.pair.pair]]\ntypes = [\"CH3\", \"CH2\"]\nepsilon = \"sqrt(1.2 * 0.9)\"\nsigma = \"sqrt(1.05 * "
+      "0.95)\"\n");
   EXPECT_NEAR(e.at("bond"), 4.6419945562564111, 1e-12);
   EXPECT_NEAR(e.at("angle"), 1.7334938269372535, 1e-12);
   EXPECT_NEAR(e.at("dihedral"), 7.2235282112952071, 1e-12);

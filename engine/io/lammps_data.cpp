@@ -10,8 +10,8 @@
 #include <fstream>
 #include <limits>
 #include <numeric>
-#include <sstream>
 #include <set>
+#include <sstream>
 #include <tuple>
 #include <unordered_set>
 
@@ -643,8 +643,8 @@ class DataReader {
     s.angles.reserve(angles_.size());
     for (const Tuple& t : angles_)
       s.angles.push_back({t.type, resolve(t, 0, "Angles"), resolve(t, 1, "Angles"), resolve(t, 2, "Angles")});
-    for (auto [tuples, out, name] : {std::tuple{&dihedrals_, &s.dihedrals, "Dihedrals"},
-                                     std::tuple{&impropers_, &s.impropers, "Impropers"}}) {
+    for (auto [tuples, out, name] :
+         {std::tuple{&dihedrals_, &s.dihedrals, "Dihedrals"}, std::tuple{&impropers_, &s.impropers, "Impropers"}}) {
       out->reserve(tuples->size());
       for (const Tuple& t : *tuples)
         out->push_back({t.type, resolve(t, 0, name), resolve(t, 1, name), resolve(t, 2, name), resolve(t, 3, name)});

@@ -146,25 +146,25 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
     nat = std::max(nat, a.type);
   }
   int ndt = s.num_dihedral_types, nit = s.num_improper_types;
-  for (auto [quads, what, ntypes_q] : {std::tuple{&s.dihedrals, "dihedral", &ndt}, std::tuple{&s.impropers, "improper", &nit}})
+  for (auto [quads, what, ntypes_q] :
+       {std::tuple{&s.dihedrals, "dihedral", &ndt}, std::tuple{&s.impropers, "improper", &nit}})
     for (size_t k = 0; k < quads->size(); ++k) {
       const auto& q = (*quads)[k];
       for (int i : {q.i, q.j, q.k, q.l}) check_atom(i, what, k);
       if (q.i == q.j || q.i == q.k || q.i == q.l || q.j == q.k || q.j == q.l || q.k == q.l)
         fail(std::string(what) + " " + std::to_string(k) + " repeats an atom");
-      if (q.type < 1) fail(std::string(what) + " " + std::to_string(k) + " has type " + std::to_string(q.type) + "; expected >= 1");
+      if (q.type < 1)
+        fail(std::string(what) + " " + std::to_string(k) + " has type " + std::to_string(q.type) + "; expected >= 1");
       *ntypes_q = std::max(*ntypes_q, q.type);
     }
   // Coefficient sections are written back as read; each needs its kind of type declared.
   for (const auto& c : s.coeffs) {
     const int declared = c.name == "Pair Coeffs" || c.name == "PairIJ Coeffs" ? ntypes
-                         : c.name == "Bond Coeffs"                             ? nbt
-                         : c.name == "Angle Coeffs" || c.name == "BondBond Coeffs" || c.name == "BondAngle Coeffs"
-                             ? nat
-                         : c.name == "Improper Coeffs" || c.name == "AngleAngle Coeffs" ? nit
-                                                                                         : ndt;
-    if (declared == 0)
-      fail(c.name + ": a coefficient section without any type of its kind");
+                         : c.name == "Bond Coeffs"                            ? nbt
+                         : c.name == "Angle Coeffs" || c.name == "BondBond Coeffs" || c.name == "BondAngle Coeffs" ? nat
+                         : c.name == "Improper Coeffs" || c.name == "AngleAngle Coeffs"                            ? nit
+                                                                                        : ndt;
+    if (declared == 0) fail(c.name + ": a coefficient section without any type of its kind");
     for (const auto& r : c.rows)
       if (r.empty() || r.find_first_of("\n#") != std::string::npos)
         fail(c.name + ": row " + quote(r) + " is not one line of data");
@@ -315,7 +315,8 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
     }
   }
 
-  for (auto [quads, section] : {std::pair{&s.dihedrals, "\nDihedrals\n\n"}, std::pair{&s.impropers, "\nImpropers\n\n"}}) {
+  for (auto [quads, section] :
+       {std::pair{&s.dihedrals, "\nDihedrals\n\n"}, std::pair{&s.impropers, "\nImpropers\n\n"}}) {
     if (quads->empty()) continue;
     out += section;
     long long k = 0;

@@ -65,7 +65,10 @@ void prepare_output_directory(const Scene& sc, const std::string& out_dir) {
 
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
   const Topology& t = scene.topology;
-  write_lammps_data(path, to_lammps(scene), !t.dihedrals.empty() ? "molecular" : t.angles.empty() ? "bond" : "angle",
+  write_lammps_data(path, to_lammps(scene),
+                    !t.dihedrals.empty() ? "molecular"
+                    : t.angles.empty()   ? "bond"
+                                         : "angle",
                     title);
 }
 

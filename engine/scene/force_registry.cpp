@@ -1,19 +1,19 @@
 #include "engine/scene/force_registry.hpp"
 
 #include <algorithm>
-#include <optional>
-#include <type_traits>
 #include <cmath>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
-#include "forcefields/dihedral_terms.hpp"
 #include "forcefields/coefficients.hpp"
+#include "forcefields/dihedral_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/gravity.hpp"
 #include "forcefields/pair_term.hpp"
@@ -161,8 +161,8 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
 template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
 std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   std::vector<typename Kernel::Coeffs> types;
-  const auto index = claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name,
-                                 coeffs, types);
+  const auto index =
+      claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name, coeffs, types);
   return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
 }
 
@@ -357,8 +357,10 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     }
     for (int a = 0; a < ntypes; ++a)
       if (!own[static_cast<size_t>(a)])
-        t.fail("types", "no coefficients for particle type '" + sc.types[a].name + "'; with per-type tables every "
-                        "type needs one (" + t.key_path("types") + "." + sc.types[a].name + " = {…})");
+        t.fail("types", "no coefficients for particle type '" + sc.types[a].name +
+                            "'; with per-type tables every "
+                            "type needs one (" +
+                            t.key_path("types") + "." + sc.types[a].name + " = {…})");
     per_type->finish();
     for (int a = 0; a < ntypes; ++a)
       for (int b = a; b < ntypes; ++b) coeffs.set(a, b, mix_coeffs(*own[a], *own[b], m));

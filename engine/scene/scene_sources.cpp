@@ -125,7 +125,8 @@ void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
 }
 
 // [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
-// bond_type, angle_type and dihedral_type (optional), density (optional: sets a periodic cubic box), min_distance, seed.
+// bond_type, angle_type and dihedral_type (optional), density (optional: sets a periodic cubic box), min_distance,
+// seed.
 void read_builders(DeckTable& root, Scene& sc) {
   for (DeckTable& b : root.array_of_tables("build")) {
     const std::string style = b.string("style");
@@ -291,8 +292,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   }
   for (const auto& d : in.dihedrals) {
     const std::string name = lookup(dihedral_map, d.type, "dihedral_types");
-    sc.topology.dihedrals.push_back({first + d.i, first + d.j, first + d.k, first + d.l,
-                                     Topology::intern(sc.topology.dihedral_types, name)});
+    sc.topology.dihedrals.push_back(
+        {first + d.i, first + d.j, first + d.k, first + d.l, Topology::intern(sc.topology.dihedral_types, name)});
   }
 }
 
