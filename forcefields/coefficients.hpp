@@ -15,12 +15,17 @@ namespace stiffmd {
 struct Quantity {
   std::string_view noun;  // "a length"
   bool zero_allowed;      // ≥ 0 (0 switches the interaction off) rather than > 0
+  bool any_sign = false;  // any finite value (torsion amplitudes: negative is a different minimum)
 
-  bool admits(double v) const { return std::isfinite(v) && (zero_allowed ? v >= 0.0 : v > 0.0); }
+  bool admits(double v) const { return std::isfinite(v) && (any_sign || (zero_allowed ? v >= 0.0 : v > 0.0)); }
   // "a length > 0, got -1"
   std::string expected(double got) const {
     std::ostringstream s;
-    s << noun << (zero_allowed ? " >= 0" : " > 0") << ", got " << got;
+    s << (any_sign ? "a finite " : "") << (any_sign ? noun.substr(noun.find(' ') + 1) : noun)
+      << (any_sign       ? ""
+          : zero_allowed ? " >= 0"
+                         : " > 0")
+      << ", got " << got;
     return s.str();
   }
 };
@@ -30,6 +35,7 @@ inline constexpr Quantity kSkin{"a length", true};                    // the Ver
 inline constexpr Quantity kEnergy{"an energy", true};                 // ε, D₀, A of `soft`
 inline constexpr Quantity kStiffness{"a stiffness", true};            // spring constants K, k
 inline constexpr Quantity kInverseLength{"an inverse length", true};  // Morse α, Yukawa κ
+inline constexpr Quantity kTorsionEnergy{"an energy", true, true};    // dihedral K, A_n, K_n: any sign
 inline constexpr Quantity kPositive{"a number", false};               // the stiffness scale ε, α_b
 
 // Throws std::invalid_argument "<name>: expected <q>, got <v>" unless q admits v.

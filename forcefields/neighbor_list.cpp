@@ -66,8 +66,9 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
     partner[fill[b.j]++] = b.i;
   }
 
-  // Every 1-2 and 1-3 relation, tagged with its distance along the bonds; after sorting, the
-  // first entry of a pair is its closest relation (1-2 before 1-3), whose weight it takes.
+  // Every 1-2, 1-3 (and, when w14 ≠ 1, 1-4) relation, tagged with its distance along the bonds;
+  // after sorting, the first entry of a pair is its closest relation (1-2 before 1-3 before 1-4),
+  // whose weight it takes.
   struct Relation {
     int i, j, bonds_apart;
     auto operator<=>(const Relation&) const = default;
@@ -79,12 +80,19 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
       for (int q = p + 1; q < deg[k + 1]; ++q)  // both bonded to k: 1-3 through k
         if (partner[p] != partner[q])
           rel.push_back({std::min(partner[p], partner[q]), std::max(partner[p], partner[q]), 2});
+  if (w.w14 != 1.0)  // 1-4 about each bond j–k: a partner of j (not k) and a partner of k (not j)
+    for (const Bond& b : bonds)
+      for (int p = deg[b.i]; p < deg[b.i + 1]; ++p)
+        for (int q = deg[b.j]; q < deg[b.j + 1]; ++q) {
+          const int a = partner[p], c = partner[q];
+          if (a != b.j && c != b.i && a != c) rel.push_back({std::min(a, c), std::max(a, c), 3});
+        }
   std::sort(rel.begin(), rel.end());
 
   std::vector<SpecialPair> out;
   for (std::size_t r = 0; r < rel.size(); ++r) {
     if (r > 0 && rel[r].i == rel[r - 1].i && rel[r].j == rel[r - 1].j) continue;
-    const double weight = rel[r].bonds_apart == 1 ? w.w12 : w.w13;
+    const double weight = rel[r].bonds_apart == 1 ? w.w12 : rel[r].bonds_apart == 2 ? w.w13 : w.w14;
     if (weight != 1.0) out.push_back({rel[r].i, rel[r].j, weight});  // weight 1: an ordinary pair
   }
   return out;

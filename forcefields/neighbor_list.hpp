@@ -1,6 +1,6 @@
 // Neighbour search for short-range pair styles: cell lists and a half Verlet list with a skin
 // (Allen & Tildesley, "Computer Simulation of Liquids", 2nd ed., §5.3), and the special-bond
-// weights of bonded neighbours (LAMMPS `special_bonds lj w12 w13`).
+// weights of bonded neighbours (LAMMPS `special_bonds lj w12 w13 w14`).
 //
 // The list holds every pair i < j whose minimum-image distance was < cutoff + skin when it was
 // built. It stays valid — every pair now closer than the cutoff is in it — as long as no particle
@@ -77,13 +77,15 @@ struct NearestImage {
 // through two images at once.
 void check_box_for_cutoff(const Box& box, double cutoff, double skin);
 
-// LAMMPS `special_bonds lj w12 w13`: the pair interaction of particles one bond apart (1-2) is
-// scaled by w12, two bonds apart (1-3) by w13. A weight of 0 removes the pair from the neighbour
-// list; 1 leaves it an ordinary pair. Default: bonded neighbours do not interact, 1-3 fully
-// (the Kremer–Grest bead-spring convention, LAMMPS `special_bonds fene`).
+// LAMMPS `special_bonds lj w12 w13 w14`: the pair interaction of particles one bond apart (1-2) is
+// scaled by w12, two bonds apart (1-3) by w13, three (1-4, the ends of a dihedral) by w14. A
+// weight of 0 removes the pair from the neighbour list; 1 leaves it an ordinary pair. Default:
+// bonded neighbours do not interact, 1-3 and 1-4 fully (the Kremer–Grest bead-spring convention,
+// LAMMPS `special_bonds fene`).
 struct SpecialWeights {
   double w12 = 0.0;
   double w13 = 1.0;
+  double w14 = 1.0;
 };
 
 struct SpecialPair {

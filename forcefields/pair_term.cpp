@@ -18,7 +18,8 @@ void check_pair_inputs(const std::string& name, std::string_view style, const st
         << " (the types given pair coefficients)";
       fail(name, style, s.str());
     }
-  for (const auto& [what, w] : {std::pair{"w12", weights.w12}, std::pair{"w13", weights.w13}})
+  for (const auto& [what, w] :
+       {std::pair{"w12", weights.w12}, std::pair{"w13", weights.w13}, std::pair{"w14", weights.w14}})
     if (!(w >= 0.0 && w <= 1.0)) {
       std::ostringstream s;
       s << "special-bond weight " << what << " must be in [0, 1] (got " << w << ")";
@@ -59,8 +60,9 @@ std::string define_pairs(std::string_view style, int num_types, double cutoff, c
                          SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
   std::ostringstream s;
   s << style << " pairs, " << num_types << " particle type(s), cutoff " << cutoff << ", skin " << list.skin()
-    << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13 << " (" << excluded << " pairs excluded, "
-    << scaled << " scaled)";
+    << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13;
+  if (weights.w14 != 1.0) s << ", w14 = " << weights.w14;
+  s << " (" << excluded << " pairs excluded, " << scaled << " scaled)";
   return s.str();
 }
 

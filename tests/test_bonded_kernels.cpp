@@ -13,6 +13,7 @@
 #include "force_term_checks.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/dihedral_terms.hpp"
 
 namespace stiffmd {
 namespace {
@@ -336,6 +337,192 @@ TYPED_TEST(AngleKernel, RejectsBadAnglesAndCoefficients) {
     EXPECT_THROW(Term("a", Level::slow, {bad}, TypeParam::types()), std::invalid_argument);
   for (const AngleCoeffs bad : {AngleCoeffs{-1.0, 2.0}, AngleCoeffs{1.0, 3.2}, AngleCoeffs{NAN, 2.0}})
     EXPECT_THROW(Term("a", Level::slow, {{0, 1, 2, 0}}, {bad}), std::invalid_argument);
+}
+
+// =========================================================================================
+// Dihedrals. A case: the kernel and two dihedral types' example coefficients, with forces that
+// are not small at generic torsions.
+
+template <class K>
+struct DihedralCase {
+  using Kernel = K;
+};
+struct HarmonicDihedralCase : DihedralCase<HarmonicDihedralKernel> {
+  static std::vector<HarmonicDihedralKernel::Coeffs> types() { return {{1.5, 1, 3}, {-0.8, -1, 2}}; }
+};
+struct MultiHarmonicDihedralCase : DihedralCase<MultiHarmonicDihedralKernel> {
+  static std::vector<MultiHarmonicDihedralKernel::Coeffs> types() {
+    return {{{1.0, -0.5, 0.8, 1.2, -0.3}}, {{0.2, 1.1, -0.6, 0.0, 0.9}}};
+  }
+};
+struct OplsDihedralCase : DihedralCase<OplsDihedralKernel> {
+  static std::vector<OplsDihedralKernel::Coeffs> types() { return {{{1.4, -0.3, 0.9, 0.2}}, {{-0.5, 0.7, 0.1, -0.4}}}; }
+};
+using DihedralKernels = ::testing::Types<HarmonicDihedralCase, MultiHarmonicDihedralCase, OplsDihedralCase>;
+
+template <class Case>
+class DihedralKernel : public ::testing::Test {
+ protected:
+  using Kernel = typename Case::Kernel;
+  using Term = DihedralTerm<Kernel>;
+  // The dihedrals of a chain of n beads, types alternating, and (in open space) one about a
+  // bond in the middle to a distant bead, whose arm would not be its own minimum image.
+  static std::vector<Dihedral> dihedrals(int n, bool branch) {
+    std::vector<Dihedral> d;
+    for (int i = 0; i + 3 < n; ++i) d.push_back({i, i + 1, i + 2, i + 3, i % 2});
+    if (branch) d.push_back({n - 1, 3, 4, 0, 1});
+    return d;
+  }
+  static Term term(int n, bool branch = true) {
+    return Term("dihedrals", Level::slow, dihedrals(n, branch), Case::types());
+  }
+
+ public:
+  // Four beads with bond lengths 1.0, 1.1, 0.9, bond angles 110° and 100°, at torsion φ.
+  static Matrix3Xd quadruple(double phi) {
+    const double t1 = 110.0 * kPi / 180.0, t2 = 100.0 * kPi / 180.0;
+    Matrix3Xd x(3, 4);
+    x.col(1) = Vector3d::Zero();
+    x.col(2) = Vector3d(1.1, 0.0, 0.0);
+    x.col(0) = Vector3d(std::cos(t1), std::sin(t1), 0.0);  // on +y
+    // l: at angle t2 at k, rotated by φ about the x axis from the cis position (φ = 0: same side
+    // as i); φ > 0 turns it towards +z, clockwise seen along j → k: IUPAC's positive sense.
+    const Vector3d arm(-std::cos(t2), std::sin(t2) * std::cos(phi), std::sin(t2) * std::sin(phi));
+    x.col(3) = x.col(2) + 0.9 * arm;
+    return x;
+  }
+};
+TYPED_TEST_SUITE(DihedralKernel, DihedralKernels);
+
+TYPED_TEST(DihedralKernel, KernelDerivativeIsTheDerivativeOfItsEnergy) {
+  using Kernel = typename TestFixture::Kernel;
+  const double h = 1e-6;
+  for (const auto& c : TypeParam::types())
+    for (double phi = -kPi + 0.01; phi < kPi; phi += 0.0371) {
+      double e = 0.0, de = 0.0, ep = 0.0, em = 0.0, unused = 0.0;
+      Kernel::eval(phi, c, e, de);
+      Kernel::eval(phi + h, c, ep, unused);
+      Kernel::eval(phi - h, c, em, unused);
+      EXPECT_NEAR(de, (ep - em) / (2 * h), 1e-7 * std::max(1.0, std::abs(de))) << "phi = " << phi;
+    }
+}
+
+// The geometry's φ: the quadruple built at torsion φ reads back as φ (trans = ±π, cis = 0, IUPAC's
+// sign), and
+// the energy is even in φ (every LAMMPS style here is).
+TYPED_TEST(DihedralKernel, TorsionAngleFollowsTheIupacConvention) {
+  for (double phi : {0.0, 0.3, 1.2, 2.0, 3.0, kPi, -0.7, -2.9}) {
+    const Matrix3Xd x = TestFixture::quadruple(phi);
+    const auto g = dihedral_detail::geometry(0, 1, 2, 3, x, Box{}, false);
+    EXPECT_NEAR(std::remainder(g.phi - phi, 2 * kPi), 0.0, 1e-13) << "phi = " << phi;
+    const typename TestFixture::Term one("d", Level::slow, {{0, 1, 2, 3, 0}}, TypeParam::types());
+    EXPECT_NEAR(energy_of(one, x, Box{}), energy_of(one, TestFixture::quadruple(-phi), Box{}), 1e-13);
+  }
+}
+
+TYPED_TEST(DihedralKernel, ForceIsMinusGradientInOpenSpace) {
+  const auto term = TestFixture::term(9);
+  for (unsigned seed = 1; seed <= 3; ++seed) {
+    const Matrix3Xd x = random_walk(9, 0.7, 1.3, seed);
+    ASSERT_GT(forces_of(term, x, Box{}).cwiseAbs().maxCoeff(), 0.1);
+    EXPECT_LT(fd_error(term, x, Box{}), 1e-6) << "seed " << seed;
+  }
+}
+
+// Near cis and trans (φ = 0, π ± 10⁻⁹ and exactly), where a cos φ route divides by sin φ ≈ 0:
+// finite forces equal to −∇E.
+TYPED_TEST(DihedralKernel, ForceIsMinusGradientNearCisAndTrans) {
+  const typename TestFixture::Term one("d", Level::slow, {{0, 1, 2, 3, 0}, {3, 2, 1, 0, 1}}, TypeParam::types());
+  for (double phi : {0.0, 1e-9, -1e-9, kPi, kPi - 1e-9, -kPi + 1e-9, 1e-4, kPi - 1e-4}) {
+    const Matrix3Xd x = TestFixture::quadruple(phi);
+    const Matrix3Xd f = forces_of(one, x, Box{});
+    EXPECT_TRUE(f.allFinite());
+    EXPECT_LT(fd_error(one, x, Box{}), 1e-6) << "phi = " << phi;
+  }
+}
+
+TYPED_TEST(DihedralKernel, PeriodicBoxUsesMinimumImage) {
+  const auto term = TestFixture::term(12, false);
+  for (unsigned seed = 31; seed <= 33; ++seed) {
+    const Matrix3Xd x = random_walk(12, 0.7, 1.3, seed, Vector3d(1.2, 1.5, 1.8));
+    const Matrix3Xd xw = wrapped(x, kCell);
+    ASSERT_GT(straddling(x, xw), 0);
+    EXPECT_LT(fd_error(term, xw, kCell), 1e-6);
+    EXPECT_NEAR(energy_of(term, xw, kCell), energy_of(term, x, Box{}), 1e-10);
+    EXPECT_LT((forces_of(term, xw, kCell) - forces_of(term, x, Box{})).cwiseAbs().maxCoeff(), 1e-9);
+  }
+}
+
+TYPED_TEST(DihedralKernel, NewtonsThirdLawAndNoTorque) {
+  const auto term = TestFixture::term(9);
+  const Matrix3Xd x = random_walk(9, 0.7, 1.3, 5);
+  const Matrix3Xd f = forces_of(term, x, Box{});
+  const double scale = f.cwiseAbs().maxCoeff();
+  ASSERT_GT(scale, 0.1);
+  EXPECT_LT(net(f).cwiseAbs().maxCoeff(), 1e-12 * scale);
+  EXPECT_LT(torque(x, f).cwiseAbs().maxCoeff(), 1e-12 * scale * x.cwiseAbs().maxCoeff());
+}
+
+// φ is invariant under x → λx: the virial vanishes (Euler, degree 0), computed three ways.
+TYPED_TEST(DihedralKernel, VirialIsSumOfSeparationDotForce) {
+  const auto term = TestFixture::term(12, false);
+  const Matrix3Xd x = random_walk(12, 0.7, 1.3, 41, Vector3d(1.2, 1.5, 1.8));
+  const Matrix3Xd f = forces_of(term, x, Box{});
+  const double scale = (x.colwise().norm().array() * f.colwise().norm().array()).sum();
+  ASSERT_GT(scale, 1.0);
+  EXPECT_NEAR(term.virial(x, Box{}), position_virial(term, x), 1e-13 * scale);
+  EXPECT_NEAR(term.virial(x, Box{}), 0.0, 1e-13 * scale);
+  const Matrix3Xd xw = wrapped(x, kCell);
+  EXPECT_NEAR(term.virial(xw, kCell), 0.0, 1e-13 * scale);
+  EXPECT_NEAR(dilation_virial(term, xw, kCell), 0.0, 1e-7 * scale);
+}
+
+TYPED_TEST(DihedralKernel, RejectsBadDihedrals) {
+  using Term = typename TestFixture::Term;
+  for (const Dihedral bad :
+       {Dihedral{0, 1, 2, 0, 0}, Dihedral{0, 1, 1, 3, 0}, Dihedral{-1, 1, 2, 3, 0}, Dihedral{0, 1, 2, 3, 2}})
+    EXPECT_THROW(Term("d", Level::slow, {bad}, TypeParam::types()), std::invalid_argument);
+  // A zero-length central bond leaves φ undefined: a numerical error naming the dihedral.
+  Matrix3Xd x = TestFixture::quadruple(1.0);
+  x.col(2) = x.col(1);
+  const Term one("d", Level::slow, {{0, 1, 2, 3, 0}}, TypeParam::types());
+  EXPECT_THROW(forces_of(one, x, Box{}), NumericalError);
+}
+
+// LAMMPS's energies (dihedral_style harmonic, multi/harmonic, opls; `run 0`, thermo edihed with
+// norm no, %.17g) on the quadruples of DihedralKernel::quadruple at five torsions, computed by
+// tools/lammps_dihedral_reference.py (LAMMPS 29 Sep 2021, update 2) with, per style and torsion, the input
+//     units lj / atom_style molecular / boundary f f f / read_data q.data (the 4 atoms, 1 dihedral 1 2 3 4)
+//     dihedral_style STYLE / dihedral_coeff 1 COEFFS / pair_style zero 1.0 / pair_coeff * *
+//     thermo_style custom step edihed / thermo_modify norm no format float %.17g / run 0
+// Same coefficients, same energies: the styles match LAMMPS's formulas and its φ convention.
+TEST(DihedralStyles, MatchLammpsEnergies) {
+  const std::vector<double> phis = {0.3, 1.2, 2.0, kPi - 0.05, -2.6};
+  auto check = [&](const ForceTerm& term, const std::vector<double>& lammps) {
+    for (size_t m = 0; m < phis.size(); ++m) {
+      const Matrix3Xd x = DihedralKernel<HarmonicDihedralCase>::quadruple(phis[m]);
+      EXPECT_NEAR(energy_of(term, x, Box{}), lammps[m], 1e-13 * std::max(1.0, std::abs(lammps[m])))
+          << term.style() << " at phi = " << phis[m];
+    }
+  };
+  const std::vector<Dihedral> one = {{0, 1, 2, 3, 0}};
+  check(HarmonicDihedral("d", Level::slow, one, {{1.5, 1, 3}}),
+        {2.4324149524059964, 0.15486237549877985, 2.9402554299755486, 0.016843383095936471, 1.5809331308439738});
+  check(HarmonicDihedral("d", Level::slow, one, {{-0.8, -1, 2}}),
+        {-0.13973150807225743, -1.3899149724329962, -1.3229148966908895, -0.0039966677775793436, -0.42518666295969842});
+  check(MultiHarmonicDihedral("d", Level::slow, one, {{{1.0, -0.5, 0.8, 1.2, -0.3}}}),
+        {2.048863074065987, 0.97578593612613485, 1.2511376974281729, 0.80336711711166031, 1.0990972022998311});
+  check(OplsDihedral("d", Level::slow, one, {{{1.4, -0.3, 0.9, 0.2}}}),
+        {2.1360245948985082, 0.830750185108174, 1.1572773036609845, 0.0071717996598833541, 0.65083373833270786});
+}
+
+TEST(DihedralCoefficients, RefuseWhatLammpsRefuses) {
+  using H = HarmonicDihedralKernel;
+  for (const H::Coeffs bad : {H::Coeffs{1.0, 0, 1}, H::Coeffs{1.0, 2, 1}, H::Coeffs{1.0, 1, -1}, H::Coeffs{NAN, 1, 1}})
+    EXPECT_THROW(HarmonicDihedral("d", Level::slow, {}, {bad}), std::invalid_argument);
+  EXPECT_NO_THROW(HarmonicDihedral("d", Level::slow, {}, {{-2.0, -1, 0}}));  // K < 0 and n = 0 are allowed
+  EXPECT_THROW(MultiHarmonicDihedral("d", Level::slow, {}, {{{1, 2, INFINITY, 0, 0}}}), std::invalid_argument);
+  EXPECT_THROW(OplsDihedral("d", Level::slow, {}, {{{NAN, 0, 0, 0}}}), std::invalid_argument);
 }
 
 }  // namespace

@@ -3,6 +3,7 @@
 // its deck key — its file:line, or the --set that supplied it.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -92,6 +93,100 @@ TEST(ForceRegistry, AngleStiffnessIsCheckedAtItsKey) {
       "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
   const std::string err = load_error(text);
   EXPECT_NE(err.find("forces.bend.angle_types.a.k: expected a stiffness >= 0, got -2"), std::string::npos) << err;
+}
+
+// Dihedral styles: a builder's dihedral type is claimed by dihedral_types.TYPE, read by kind at its
+// key; an unclaimed dihedral type and LAMMPS's forbidden d are refused where they are.
+TEST(ForceRegistry, DihedralCoefficientsAreCheckedAtTheirKeys) {
+  const std::string head =
+      "[types.bead]\nmass = 1.0\n[[build]]\nstyle = \"linear-chains\"\nchains = 1\nbeads = 5\n"
+      "bond_length = 1.0\nbond_type = \"b\"\ndihedral_type = \"t\"\nseed = 1\n" +
+      kFene;
+  const std::string tail = "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  struct Case {
+    std::string forces, expected;
+  };
+  const std::vector<Case> cases = {
+      {"[forces.tor]\nstyle = \"harmonic-dihedral\"\ndihedral_types.t = { K = 1, d = 2, n = 3 }\n",
+       "forces.tor.dihedral_types.t.d: expected +1 or -1"},
+      {"[forces.tor]\nstyle = \"harmonic-dihedral\"\ndihedral_types.t = { K = 1, d = 1, n = -3 }\n",
+       "forces.tor.dihedral_types.t.n: expected a multiplicity 0 .. 12"},
+      {"[forces.tor]\nstyle = \"opls-dihedral\"\ndihedral_types.t = { K1 = 1, K5 = 3 }\n", "K5"},
+      {"[forces.tor]\nstyle = \"multi-harmonic-dihedral\"\ndihedral_types.t = { A1 = inf }\n",
+       "forces.tor.dihedral_types.t.A1: expected a finite"},
+      {"", "dihedral type 't' is not defined by any force term (add [forces.NAME.dihedral_types.t])"},
+  };
+  for (const Case& c : cases) {
+    const std::string err = load_error(head + c.forces + tail);
+    EXPECT_NE(err.find(c.expected), std::string::npos) << err;
+  }
+  // Negative torsion amplitudes are LAMMPS's too, and the five-bead chain has two dihedrals.
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_dihedrals_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << head + "[forces.tor]\nstyle = \"opls-dihedral\"\ndihedral_types.t = { K1 = -1.5, K3 = 2 }\n" +
+                          tail;
+  const Scene sc = load_scene(Deck(p.string(), {}));
+  fs::remove(p);
+  EXPECT_EQ(sc.topology.dihedrals.size(), 2u);
+  EXPECT_EQ(sc.topology.dihedrals[1].i, 1);
+  EXPECT_EQ(sc.topology.dihedrals[1].l, 4);
+}
+
+// Mixing rules: per-type LJ coefficients mixed as LAMMPS's pair_modify mix does it, checked on one
+// A–B pair at r = 1.2 against the formula with hand-mixed coefficients.
+std::string two_types(const std::string& lj) {
+  return "[box]\nperiodic = true\nlengths = [10, 10, 10]\n[types.A]\nmass = 1.0\n[types.B]\nmass = 2.0\n"
+         "[[particles]]\ntype = \"A\"\nposition = [1, 1, 1]\n[[particles]]\ntype = \"B\"\nposition = [2.2, 1, 1]\n"
+         "[forces.lj]\nstyle = \"lj\"\n" +
+         lj + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+}
+double lj_energy(const std::string& text) {
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_mix_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << text;
+  const Scene sc = load_scene(Deck(p.string(), {}));
+  fs::remove(p);
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, 2);
+  return sc.forces->terms().at(0)->add_forces(sc.state.x, sc.box, f);
+}
+double lj_cut_shifted(double eps, double sigma, double rc, double r) {
+  auto e = [&](double x) { return 4 * eps * (std::pow(sigma / x, 12) - std::pow(sigma / x, 6)); };
+  return r < rc ? e(r) - e(rc) : 0.0;
+}
+
+TEST(ForceRegistry, MixingRulesFillTheTypePairsAsLammps) {
+  const std::string per_type =
+      "types.A = { epsilon = 1.2, sigma = 1.05, cutoff = 2.5 }\ntypes.B = { epsilon = 0.9, sigma = 0.95, cutoff = 3.0 "
+      "}\n";
+  const double eps = std::sqrt(1.2 * 0.9);
+  // geometric (LAMMPS's default): σ and the cutoff are geometric means too.
+  EXPECT_NEAR(lj_energy(two_types(per_type)), lj_cut_shifted(eps, std::sqrt(1.05 * 0.95), std::sqrt(2.5 * 3.0), 1.2),
+              1e-14);
+  EXPECT_NEAR(lj_energy(two_types("mix = \"geometric\"\n" + per_type)),
+              lj_cut_shifted(eps, std::sqrt(1.05 * 0.95), std::sqrt(7.5), 1.2), 1e-14);
+  // arithmetic (Lorentz–Berthelot): arithmetic means of σ and of the cutoffs, ε still geometric.
+  EXPECT_NEAR(lj_energy(two_types("mix = \"arithmetic\"\n" + per_type)), lj_cut_shifted(eps, 1.0, 2.75, 1.2), 1e-14);
+  // An explicit pair overrides the mixed value, key by key: σ given, ε and the cutoff stay mixed.
+  EXPECT_NEAR(lj_energy(two_types("mix = \"arithmetic\"\n" + per_type +
+                                  "[[forces.lj.pair]]\ntypes = [\"A\", \"B\"]\nsigma = 1.1\n")),
+              lj_cut_shifted(eps, 1.1, 2.75, 1.2), 1e-14);
+  // A per-type table without a cutoff takes the term's.
+  EXPECT_NEAR(lj_energy(two_types("cutoff = 2.0\ntypes.A = { epsilon = 1.2, sigma = 1.05 }\n"
+                                  "types.B = { epsilon = 0.9, sigma = 0.95 }\n")),
+              lj_cut_shifted(eps, std::sqrt(1.05 * 0.95), 2.0, 1.2), 1e-14);
+  // Refusals, at their keys.
+  struct Case {
+    std::string lj, expected;
+  };
+  for (const Case& c : std::vector<Case>{
+           {"mix = \"sixthpower\"\n" + per_type, "forces.lj.mix: expected \"geometric\" or \"arithmetic\""},
+           {"mix = \"geometric\"\n", "forces.lj.mix: a mixing rule needs per-type coefficients forces.lj.types.NAME"},
+           {"types.A = { epsilon = 1.2, sigma = 1.05 }\n", "forces.lj.types: no coefficients for particle type 'B'"},
+           {per_type + "types.C = { epsilon = 1 }\n", "forces.lj.types.C: unknown particle type 'C'"},
+           {"types.A = { epsilon = 1.2, sigma = -1 }\ntypes.B = { epsilon = 1 }\n",
+            "forces.lj.types.A.sigma: expected a length > 0, got -1"},
+       }) {
+    const std::string err = load_error(two_types(c.lj));
+    EXPECT_NE(err.find(c.expected), std::string::npos) << err;
+  }
 }
 
 // A value from the command line is reported as the --set that gave it, not as the file's line.

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -468,11 +469,11 @@ const BadCase kBadData[] = {
     {"bad_empty.data", "file is empty", "expected a LAMMPS data file"},
     {"bad_fewer_bonds.data", "line 27: Bonds", "file ends after 2 of the 3 entries"},
     {"bad_more_atoms.data", "line 22: Atoms", "more entries than the 3 declared in the header"},
-    // Read but not representable: refused rather than dropped.
-    {"bad_dihedrals.data", "line 31: Dihedrals",
-     "stiffmd has no dihedral terms: they would be lost; remove the section"},
-    {"bad_impropers.data", "line 31: Impropers",
-     "stiffmd has no improper terms: they would be lost; remove the section"},
+    {"bad_dihedral_atom.data", "line 33: Dihedrals", "atom id 9 (column 6) is not in the Atoms section"},
+    {"bad_improper_repeat.data", "line 33: Impropers", "atom id 2 appears twice; expected 4 distinct atoms"},
+    {"bad_coeffs_range.data", "line 20: Dihedral Coeffs",
+     "type 2 is out of range 1..1 (the header declares 1 dihedral types on line 8)"},
+    {"bad_coeffs_twice.data", "line 21: Dihedral Coeffs", "type 1 given twice; expected one row per type"},
 };
 
 TEST(MalformedData, EachNamesFileLineAndExpectation) {
@@ -485,6 +486,78 @@ TEST(MalformedData, EachNamesFileLineAndExpectation) {
     EXPECT_NE(e.find(c.expected), std::string::npos) << e;
     EXPECT_EQ(e.find('\n'), std::string::npos) << "one line: " << e;
   }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Angles, dihedrals, impropers and the "… Coeffs" sections: read, kept, written back.
+
+void expect_same_topology_and_coeffs(const ImportedSystem& a, const ImportedSystem& b) {
+  ASSERT_EQ(a.bonds.size(), b.bonds.size());
+  for (size_t k = 0; k < a.bonds.size(); ++k)
+    EXPECT_TRUE(a.bonds[k].type == b.bonds[k].type && a.bonds[k].i == b.bonds[k].i && a.bonds[k].j == b.bonds[k].j);
+  ASSERT_EQ(a.angles.size(), b.angles.size());
+  for (size_t k = 0; k < a.angles.size(); ++k) {
+    const auto &p = a.angles[k], &q = b.angles[k];
+    EXPECT_TRUE(p.type == q.type && p.i == q.i && p.j == q.j && p.k == q.k) << "angle " << k;
+  }
+  for (auto [qa, qb] : {std::pair{&a.dihedrals, &b.dihedrals}, std::pair{&a.impropers, &b.impropers}}) {
+    ASSERT_EQ(qa->size(), qb->size());
+    for (size_t k = 0; k < qa->size(); ++k) {
+      const auto &p = (*qa)[k], &q = (*qb)[k];
+      EXPECT_TRUE(p.type == q.type && p.i == q.i && p.j == q.j && p.k == q.k && p.l == q.l) << k;
+    }
+  }
+  EXPECT_EQ(a.num_angle_types, b.num_angle_types);
+  EXPECT_EQ(a.num_dihedral_types, b.num_dihedral_types);
+  EXPECT_EQ(a.num_improper_types, b.num_improper_types);
+  ASSERT_EQ(a.coeffs.size(), b.coeffs.size());
+  for (size_t k = 0; k < a.coeffs.size(); ++k) {
+    EXPECT_EQ(a.coeffs[k].name, b.coeffs[k].name);
+    EXPECT_EQ(a.coeffs[k].style, b.coeffs[k].style);
+    EXPECT_EQ(a.coeffs[k].rows, b.coeffs[k].rows);
+  }
+  EXPECT_EQ(a.x, b.x);
+  EXPECT_EQ(a.type, b.type);
+  EXPECT_EQ(a.type_mass, b.type_mass);
+}
+
+TEST(LammpsDataTopology, ReadsDihedralsImpropersAndCoefficientSections) {
+  const ImportedSystem s = read_lammps_data(data("quads_full.data"));
+  ASSERT_EQ(s.dihedrals.size(), 1u);
+  EXPECT_EQ(s.dihedrals[0].type, 2);
+  EXPECT_EQ((std::array{s.dihedrals[0].i, s.dihedrals[0].j, s.dihedrals[0].k, s.dihedrals[0].l}),
+            (std::array{1, 0, 2, 3}));  // 0-based indices of atom ids 2 1 3 4
+  ASSERT_EQ(s.impropers.size(), 1u);
+  EXPECT_EQ(s.impropers[0].l, 3);
+  EXPECT_EQ(s.num_dihedral_types, 2);
+  EXPECT_EQ(s.num_improper_types, 1);
+  ASSERT_EQ(s.coeffs.size(), 5u);
+  EXPECT_EQ(s.coeffs[0].name, "PairIJ Coeffs");
+  EXPECT_EQ(s.coeffs[0].style, "lj/cut");
+  EXPECT_EQ(s.coeffs[0].rows, (std::vector<std::string>{"1 1 0.1 3.4", "1 2 0.05 3.0 8.0", "2 2 0.02 2.5"}));
+  EXPECT_EQ(s.coeffs[3].name, "Dihedral Coeffs");
+  EXPECT_EQ(s.coeffs[3].rows[1], "2 1.0 1.5 -0.5 0.2 0.125");
+}
+
+// Read, write, read: the same topology (bonds, angles, dihedrals, impropers with their types)
+// and the same coefficient sections; and the written file, written again, is the same text.
+TEST(LammpsDataTopology, RoundTripKeepsAnglesDihedralsImpropersAndCoefficients) {
+  for (const char* name : {"quads_full.data", "butanes.data"}) {
+    SCOPED_TRACE(name);
+    const ImportedSystem a = read_lammps_data(data(name));
+    const std::string once = scratch("once.data"), twice = scratch("twice.data");
+    write_lammps_data(once, a, a.atom_style);
+    const ImportedSystem b = read_lammps_data(once);
+    expect_same_topology_and_coeffs(a, b);
+    write_lammps_data(twice, b, b.atom_style);
+    EXPECT_EQ(slurp(once), slurp(twice));
+  }
+  // An angle-style file cannot hold dihedrals: refused, not dropped.
+  const ImportedSystem s = read_lammps_data(data("butanes.data"));
+  EXPECT_NE(input_error([&] {
+              write_lammps_data(scratch("angle.data"), s, "angle");
+            }).find("atom_style angle cannot hold dihedrals or impropers"),
+            std::string::npos);
 }
 
 TEST(MalformedData, MissingFileDirectoryAndGzip) {

@@ -808,6 +808,22 @@ TEST(SpecialBonds, PairsFromBondsWithOneTwoPrecedence) {
   EXPECT_THROW(special_pairs(3, {{1, 1, 0}}, {}), std::invalid_argument);
 }
 
+// 1-4 pairs (the ends of each dihedral) take w14 unless they are also closer: a chain 0–1–2–3–4
+// and a 4-ring 5–6–7–8–5, where every 1-4 relation is also 1-2 (the closing bond).
+TEST(SpecialBonds, OneFourPairsTakeTheirWeight) {
+  const std::vector<Bond> bonds = {{0, 1, 0}, {1, 2, 0}, {2, 3, 0}, {3, 4, 0},
+                                   {5, 6, 0}, {6, 7, 0}, {7, 8, 0}, {8, 5, 0}};
+  std::map<std::pair<int, int>, double> got;
+  for (const SpecialPair& p : special_pairs(9, bonds, {0.0, 0.0, 0.5})) got[{p.i, p.j}] = p.weight;
+  const std::map<std::pair<int, int>, double> expected = {
+      {{0, 1}, 0.0}, {{1, 2}, 0.0}, {{2, 3}, 0.0}, {{3, 4}, 0.0}, {{0, 2}, 0.0}, {{1, 3}, 0.0},
+      {{2, 4}, 0.0}, {{0, 3}, 0.5}, {{1, 4}, 0.5},                                                // 1-4 along the chain
+      {{5, 6}, 0.0}, {{6, 7}, 0.0}, {{7, 8}, 0.0}, {{5, 8}, 0.0}, {{5, 7}, 0.0}, {{6, 8}, 0.0}};  // the ring
+  EXPECT_EQ(got, expected);
+  // w14 = 1 (the default) lists no 1-4 pair: the result is the two-weight one.
+  EXPECT_EQ(special_pairs(9, bonds, {0.0, 0.5, 1.0}).size(), special_pairs(9, bonds, {0.0, 0.5}).size());
+}
+
 TEST(SpecialBonds, ChainsInAPeriodicBoxMatchAllPairs) {
   const int chains = 8, beads = 25, n = chains * beads;
   const Box box = periodic_box(Eigen::Vector3d::Constant(std::cbrt(n / 0.6)));

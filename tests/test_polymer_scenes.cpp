@@ -5,6 +5,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 #include "cli_support.hpp"
@@ -171,6 +172,79 @@ TEST(Pressure, RigidDimerGasIncludesTheConstraintVirial) {
   RecordProperty("PV_over_NdT", std::to_string(ratio));
   EXPECT_NEAR(ratio, 1.0, 0.05);
   fs::remove_all(d);
+}
+
+}  // namespace
+}  // namespace stiffmd
+
+namespace stiffmd {
+namespace {
+
+// tests/data/butanes.data (three butane-like chains, 2 atom types, bonds, angles, dihedrals)
+// imported with the deck's force terms equal to the LAMMPS styles of
+// tools/lammps_butane_reference.py: stiff-harmonic ½(α/ε)²(r−ℓ)² = bond harmonic K(r−r₀)² with
+// (α/ε)² = 2K; harmonic-angle k = 2K; opls-dihedral = opls; lj cut and shifted = lj/cut with
+// pair_modify shift yes; special_bonds [0, 0] (1-4 pairs interact) = special_bonds lj 0 0 1.
+// `pair` is the deck text of the LJ type pairs.
+std::map<std::string, double> imported_butane_energies(const std::string& pair,
+                                                       const std::string& special_bonds = "[0.0, 0.0]") {
+  const std::string deck =
+      "[types.CH3]\nmass = 15.0\n[types.CH2]\nmass = 14.0\n"
+      "[import]\nlammps_data = \"" +
+      test::source_path("tests/data/butanes.data") +
+      "\"\natom_types = { \"1\" = \"CH3\", \"2\" = \"CH2\" }\nbond_types = { \"1\" = \"end\", \"2\" = \"mid\" }\n"
+      "angle_types = { \"1\" = \"ccc\" }\ndihedral_types = { \"1\" = \"butane\" }\n"
+      "[forces.bond]\nstyle = \"stiff-harmonic\"\nepsilon = 0.05\n"
+      "bond_types.end = { length = 1.0, alpha = \"0.05 * sqrt(2 * 200)\" }\n"
+      "bond_types.mid = { length = 1.05, alpha = \"0.05 * sqrt(2 * 150)\" }\n"
+      "[forces.angle]\nstyle = \"harmonic-angle\"\nangle_types.ccc = { k = 60, theta0 = 114 }\n"
+      "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = "
+      "0.1 }\n"
+      "[forces.pair]\nstyle = \"lj\"\ncutoff = 2.5\nspecial_bonds = " +
+      special_bonds + "\n" + pair + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  const fs::path d = test::scratch_dir("butanes");
+  std::ofstream(d / "butanes.toml") << deck;
+  const Scene sc = load_scene(Deck((d / "butanes.toml").string(), {}));
+  std::map<std::string, double> e;
+  for (const auto& t : sc.forces->terms()) {
+    Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
+    e[t->name()] = t->add_forces(sc.state.x, sc.box, f);
+  }
+  return e;
+}
+
+// LAMMPS (29 Sep 2021) on the same file, `run 0`, thermo ebond eangle edihed evdwl with norm no
+// and %.17g: the numbers and the input are printed by tools/lammps_butane_reference.py. The 1-2
+// pair is given explicitly here (LAMMPS mixes it geometrically).
+TEST(ImportedButanes, SameEnergiesAsLammps) {
+  const auto e = imported_butane_energies(
+      "epsilon = 1.2\nsigma = 1.05\n"
+      "[[forces.pair.pair]]\ntypes = [\"CH2\", \"CH2\"]\nepsilon = 0.9\nsigma = 0.95\n"
+      "[[forces.pair.pair]]\ntypes = [\"CH3\", \"CH2\"]\nepsilon = \"sqrt(1.2 * 0.9)\"\nsigma = \"sqrt(1.05 * "
+      "0.95)\"\n");
+  EXPECT_NEAR(e.at("bond"), 4.6419945562564111, 1e-12);
+  EXPECT_NEAR(e.at("angle"), 1.7334938269372535, 1e-12);
+  EXPECT_NEAR(e.at("dihedral"), 7.2235282112952071, 1e-12);
+  EXPECT_NEAR(e.at("pair"), -1.1438791838745168, 1e-12);
+}
+
+// The same with per-type LJ coefficients and LAMMPS's mixing rules (pair_coeff i i only; LAMMPS
+// mixes the 1-2 pair with pair_modify mix geometric, then arithmetic).
+TEST(ImportedButanes, MixingRulesAsLammps) {
+  const std::string per_type =
+      "types.CH3 = { epsilon = 1.2, sigma = 1.05 }\ntypes.CH2 = { epsilon = 0.9, sigma = 0.95 }\n";
+  EXPECT_NEAR(imported_butane_energies("mix = \"geometric\"\n" + per_type).at("pair"), -1.1438791838745168, 1e-12);
+  EXPECT_NEAR(imported_butane_energies("mix = \"arithmetic\"\n" + per_type).at("pair"), -1.1476104065693902, 1e-12);
+}
+
+// 1-4 pairs at half weight: LAMMPS special_bonds lj 0.0 0.0 0.5 (else as in SameEnergiesAsLammps,
+// mix geometric) gives evdwl = -0.97592348627987502.
+TEST(ImportedButanes, OneFourWeightAsLammps) {
+  const std::string per_type =
+      "types.CH3 = { epsilon = 1.2, sigma = 1.05 }\ntypes.CH2 = { epsilon = 0.9, sigma = 0.95 }\n";
+  std::string deck_pair = "mix = \"geometric\"\n" + per_type;
+  const auto e = imported_butane_energies(deck_pair, "[0.0, 0.0, 0.5]");
+  EXPECT_NEAR(e.at("pair"), -0.97592348627987502, 1e-12);
 }
 
 }  // namespace

@@ -1,4 +1,4 @@
-// Bonded topology: which particles are bonded (and bent), with which named type, and which
+// Bonded topology: which particles are bonded (bent and twisted), with which named type, and which
 // molecule each particle belongs to. The parameters of a bond or angle type (rest length,
 // stiffness, …) belong to the force term that claims that type (forcefields/), as LAMMPS's
 // bond_coeff belongs to its bond_style.
@@ -21,11 +21,19 @@ struct Angle {
   int type = 0;             // index into Topology::angle_types
 };
 
+// A proper dihedral (torsion) i–j–k–l about the j–k bond; φ = 180° is trans (IUPAC, as LAMMPS).
+struct Dihedral {
+  int i = 0, j = 0, k = 0, l = 0;
+  int type = 0;  // index into Topology::dihedral_types
+};
+
 struct Topology {
   std::vector<Bond> bonds;
   std::vector<std::string> bond_types;  // names from the deck
   std::vector<Angle> angles;
   std::vector<std::string> angle_types;
+  std::vector<Dihedral> dihedrals;
+  std::vector<std::string> dihedral_types;
   std::vector<int> molecule;  // per particle, 0-based; empty when the scene has no molecules
 
   static int index_of(const std::vector<std::string>& names, const std::string& name) {
@@ -35,6 +43,7 @@ struct Topology {
   }
   int bond_type_index(const std::string& name) const { return index_of(bond_types, name); }
   int angle_type_index(const std::string& name) const { return index_of(angle_types, name); }
+  int dihedral_type_index(const std::string& name) const { return index_of(dihedral_types, name); }
   // The index of `name`, added if new.
   static int intern(std::vector<std::string>& names, const std::string& name) {
     const int k = index_of(names, name);

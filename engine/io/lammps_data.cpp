@@ -10,7 +10,9 @@
 #include <fstream>
 #include <limits>
 #include <numeric>
+#include <set>
 #include <sstream>
+#include <tuple>
 #include <unordered_set>
 
 #include "engine/core/errors.hpp"
@@ -353,8 +355,11 @@ class DataReader {
     if (spec.name == "Velocities") return velocities(b, e);
     if (spec.name == "Bonds") return bonds(b, e);
     if (spec.name == "Angles") return angles(b, e);
-    if (spec.name == "Dihedrals" || spec.name == "Impropers") return refuse_quads(spec, b, e);
-    skip_coeffs(spec, b, e);
+    if (spec.name == "Dihedrals")
+      return tuples(b, e, "Dihedrals", "id type atom1 atom2 atom3 atom4", 4, kDihedralTypes, dihedrals_);
+    if (spec.name == "Impropers")
+      return tuples(b, e, "Impropers", "id type atom1 atom2 atom3 atom4", 4, kImproperTypes, impropers_);
+    coeffs(spec, keyword, b, e);
   }
 
   std::string type_range(Count c) const { return "the header declares " + declared(c); }
@@ -485,7 +490,7 @@ class DataReader {
   struct Tuple {
     int type;
     int line;
-    std::array<long long, 3> ids;
+    std::array<long long, 4> ids;
   };
 
   void tuples(size_t b, size_t e, std::string_view section, std::string_view layout, size_t natoms, Count types,
@@ -493,7 +498,7 @@ class DataReader {
     std::vector<std::string_view> tok;
     out.reserve(e - b);
     const std::string why = type_range(types);
-    static constexpr std::string_view kCol[] = {"atom1", "atom2", "atom3"};
+    static constexpr std::string_view kCol[] = {"atom1", "atom2", "atom3", "atom4"};
     for (size_t k = b; k < e; ++k) {
       detail::split_ws_into(lines_[k].data, tok);
       const Row r{path_, lines_[k], section, layout, tok};
@@ -516,34 +521,29 @@ class DataReader {
   void bonds(size_t b, size_t e) { tuples(b, e, "Bonds", "id type atom1 atom2", 2, kBondTypes, bonds_); }
   void angles(size_t b, size_t e) { tuples(b, e, "Angles", "id type atom1 atom2 atom3", 3, kAngleTypes, angles_); }
 
-  // Dihedrals and impropers: stiffmd has no such terms yet, and nothing read may be dropped
-  // silently. The rows are checked first (a malformed file is named as such), then refused.
-  void refuse_quads(const SectionSpec& spec, size_t b, size_t e) {
-    const Count types = spec.name == "Dihedrals" ? kDihedralTypes : kImproperTypes;
+  // A "… Coeffs" section: each row starts with its type (two for PairIJ Coeffs), in range and
+  // given once; the rest is the style's coefficients, kept as text (LAMMPS's own check of them
+  // needs the style, which the file does not always name).
+  void coeffs(const SectionSpec& spec, const Line& keyword, size_t b, size_t e) {
     std::vector<std::string_view> tok;
+    const Count types = spec.count == kPairIJ ? kAtomTypes : spec.count;
+    const size_t ntype_cols = spec.count == kPairIJ ? 2 : 1;
     const std::string why = type_range(types);
+    const std::string layout = ntype_cols == 2 ? "type1 type2 coefficients…" : "type coefficients…";
+    ImportedSystem::CoeffSection sec{std::string(spec.name), std::string(keyword.comment), {}};
+    std::set<std::pair<long long, long long>> seen;
     for (size_t k = b; k < e; ++k) {
       detail::split_ws_into(lines_[k].data, tok);
-      const Row r{path_, lines_[k], spec.name, "id type atom1 atom2 atom3 atom4", tok};
-      r.expect_columns(6);
-      r.integer(1, "type", 1, count_[types], why);
-      for (size_t c = 2; c < 6; ++c) r.integer(c, "atom id", 1, std::numeric_limits<long long>::max());
+      const Row r{path_, lines_[k], spec.name, layout, tok};
+      if (tok.size() < ntype_cols + 1) r.fail("expected '" + layout + "', found " + quote(lines_[k].data));
+      const long long t1 = r.integer(0, "type", 1, count_[types], why);
+      const long long t2 = ntype_cols == 2 ? r.integer(1, "type", t1, count_[types], why + ", type2 >= type1") : 0;
+      if (!seen.insert({t1, t2}).second)
+        r.fail("type " + std::to_string(t1) + (ntype_cols == 2 ? " " + std::to_string(t2) : std::string()) +
+               " given twice; expected one row per type");
+      sec.rows.emplace_back(lines_[k].data);
     }
-    const std::string what = spec.name == "Dihedrals" ? "dihedral" : "improper";
-    fail(lines_[b - 1].number, std::string(spec.name) + ": " + std::to_string(e - b) + " " + what +
-                                   "(s), but stiffmd has no " + what +
-                                   " terms: they would be lost; remove the section (and set '0 " + what +
-                                   "s' in the header) to run without them");
-  }
-
-  void skip_coeffs(const SectionSpec& spec, size_t b, size_t e) {
-    std::vector<std::string_view> tok;
-    const long long ntypes = spec.count == kPairIJ ? count_[kAtomTypes] : count_[spec.count];
-    for (size_t k = b; k < e; ++k) {
-      detail::split_ws_into(lines_[k].data, tok);
-      const Row r{path_, lines_[k], spec.name, "type coefficients…", tok};
-      r.integer(0, "type", 1, ntypes);
-    }
+    sys_.coeffs.push_back(std::move(sec));
   }
 
   int index_of(long long id) const {
@@ -588,6 +588,8 @@ class DataReader {
     s.num_atom_types = static_cast<int>(count_[kAtomTypes]);
     s.num_bond_types = static_cast<int>(count_[kBondTypes]);
     s.num_angle_types = static_cast<int>(count_[kAngleTypes]);
+    s.num_dihedral_types = static_cast<int>(count_[kDihedralTypes]);
+    s.num_improper_types = static_cast<int>(count_[kImproperTypes]);
     s.x.resize(3, static_cast<Eigen::Index>(n));
     s.v = Eigen::Matrix3Xd::Zero(3, static_cast<Eigen::Index>(n));
     s.id.resize(n);
@@ -641,6 +643,12 @@ class DataReader {
     s.angles.reserve(angles_.size());
     for (const Tuple& t : angles_)
       s.angles.push_back({t.type, resolve(t, 0, "Angles"), resolve(t, 1, "Angles"), resolve(t, 2, "Angles")});
+    for (auto [tuples, out, name] :
+         {std::tuple{&dihedrals_, &s.dihedrals, "Dihedrals"}, std::tuple{&impropers_, &s.impropers, "Impropers"}}) {
+      out->reserve(tuples->size());
+      for (const Tuple& t : *tuples)
+        out->push_back({t.type, resolve(t, 0, name), resolve(t, 1, name), resolve(t, 2, name), resolve(t, 3, name)});
+    }
     return std::move(sys_);
   }
 
@@ -666,7 +674,7 @@ class DataReader {
   std::vector<long long> v_id_;
   std::vector<int> v_line_;
   std::vector<double> v_;
-  std::vector<Tuple> bonds_, angles_;
+  std::vector<Tuple> bonds_, angles_, dihedrals_, impropers_;
 
   ImportedSystem sys_;
 };

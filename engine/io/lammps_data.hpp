@@ -46,8 +46,23 @@ struct ImportedSystem {
     int i, j, k;  // j is the vertex
   };
   std::vector<Angle> angles;
+  struct Quad {
+    int type;
+    int i, j, k, l;  // a dihedral about j–k; an improper as LAMMPS lists it (i the centre for most styles)
+  };
+  std::vector<Quad> dihedrals, impropers;
+  // The force-field sections ("Pair Coeffs", "Bond Coeffs", "Dihedral Coeffs", …) as read, in file
+  // order: the style hint after '#' and each row's data (type and coefficients, comment dropped).
+  // Kept so that an export writes them back; which of them a deck maps to force terms is the
+  // import's business (engine/scene/scene_sources.cpp).
+  struct CoeffSection {
+    std::string name;   // "Dihedral Coeffs"
+    std::string style;  // "opls" from "Dihedral Coeffs # opls"; "" when there is no hint
+    std::vector<std::string> rows;
+  };
+  std::vector<CoeffSection> coeffs;
   Eigen::Vector3d lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();  // orthorhombic box
-  int num_atom_types = 0, num_bond_types = 0, num_angle_types = 0;
+  int num_atom_types = 0, num_bond_types = 0, num_angle_types = 0, num_dihedral_types = 0, num_improper_types = 0;
   // Beyond the minimal interface: what the readers learnt that would otherwise be lost.
   std::string atom_style;               // the LAMMPS style the Atoms section was read as ("" for XYZ)
   std::vector<std::string> type_names;  // XYZ species of type k+1; empty for LAMMPS files
@@ -55,11 +70,12 @@ struct ImportedSystem {
 
 // atom_style: "auto" (the "Atoms # style" hint LAMMPS writes, else the column count), or one of
 // "atomic", "bond", "angle", "molecular", "full". An explicit style wins over the hint, as in LAMMPS.
-// Dihedrals, Impropers and the force-field "… Coeffs" sections are checked for shape and skipped:
-// coefficients belong to the deck's force terms, and the engine has no dihedrals.
+// Dihedrals and Impropers are read like Angles; the force-field "… Coeffs" sections are checked
+// (types in range, each once) and kept as text in `coeffs`.
 ImportedSystem read_lammps_data(const std::string& path, const std::string& atom_style = "auto");
 
-// atom_style: "atomic" (no bonds), "bond" (no angles), "angle", "molecular" or "full". Image flags
+// atom_style: "atomic" (no bonds), "bond" (no angles), "angle" (no dihedrals or impropers), "molecular"
+// or "full". The "… Coeffs" sections of s.coeffs are written back as they are. Image flags
 // are always written; Velocities only when s.v has one column per atom. Throws InputError when s
 // cannot be represented (sizes disagree, a type without a mass, an empty box, …).
 void write_lammps_data(const std::string& path, const ImportedSystem& s, const std::string& atom_style = "bond",

@@ -7,6 +7,8 @@
 #include <limits>
 #include <numeric>
 #include <string>
+#include <tuple>
+#include <utility>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
@@ -69,7 +71,8 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
   const auto fail = [&](const std::string& what) { throw InputError(path + ": cannot write LAMMPS data: " + what); };
   const Style* st = find_style(atom_style);
   if (!st) fail("atom_style " + quote(atom_style) + " is not supported; expected " + std::string(kSupportedStyles));
-  const bool has_bonds = st->molecule, has_angles = st->molecule && st->name != "bond";
+  const bool has_bonds = st->molecule, has_angles = st->molecule && st->name != "bond",
+             has_quads = has_angles && st->name != "angle";
   const auto n = static_cast<size_t>(s.x.cols());
   const auto N = std::to_string(n);
   if (s.type.size() != n)
@@ -86,6 +89,8 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
     fail("atom_style " + std::string(st->name) + " cannot hold bonds; expected bond, angle, molecular or full");
   if (!has_angles && !s.angles.empty())
     fail("atom_style " + std::string(st->name) + " cannot hold angles; expected angle, molecular or full");
+  if (!has_quads && (!s.dihedrals.empty() || !s.impropers.empty()))
+    fail("atom_style " + std::string(st->name) + " cannot hold dihedrals or impropers; expected molecular or full");
   for (int d = 0; d < 3; ++d)
     if (!(std::isfinite(s.lo[d]) && std::isfinite(s.hi[d]) && s.lo[d] < s.hi[d]))
       fail("box axis " + std::to_string(d) + " has lo = " + std::to_string(s.lo[d]) +
@@ -140,6 +145,30 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
     if (a.type < 1) fail("angle " + std::to_string(k) + " has type " + std::to_string(a.type) + "; expected >= 1");
     nat = std::max(nat, a.type);
   }
+  int ndt = s.num_dihedral_types, nit = s.num_improper_types;
+  for (auto [quads, what, ntypes_q] :
+       {std::tuple{&s.dihedrals, "dihedral", &ndt}, std::tuple{&s.impropers, "improper", &nit}})
+    for (size_t k = 0; k < quads->size(); ++k) {
+      const auto& q = (*quads)[k];
+      for (int i : {q.i, q.j, q.k, q.l}) check_atom(i, what, k);
+      if (q.i == q.j || q.i == q.k || q.i == q.l || q.j == q.k || q.j == q.l || q.k == q.l)
+        fail(std::string(what) + " " + std::to_string(k) + " repeats an atom");
+      if (q.type < 1)
+        fail(std::string(what) + " " + std::to_string(k) + " has type " + std::to_string(q.type) + "; expected >= 1");
+      *ntypes_q = std::max(*ntypes_q, q.type);
+    }
+  // Coefficient sections are written back as read; each needs its kind of type declared.
+  for (const auto& c : s.coeffs) {
+    const int declared = c.name == "Pair Coeffs" || c.name == "PairIJ Coeffs" ? ntypes
+                         : c.name == "Bond Coeffs"                            ? nbt
+                         : c.name == "Angle Coeffs" || c.name == "BondBond Coeffs" || c.name == "BondAngle Coeffs" ? nat
+                         : c.name == "Improper Coeffs" || c.name == "AngleAngle Coeffs"                            ? nit
+                                                                                        : ndt;
+    if (declared == 0) fail(c.name + ": a coefficient section without any type of its kind");
+    for (const auto& r : c.rows)
+      if (r.empty() || r.find_first_of("\n#") != std::string::npos)
+        fail(c.name + ": row " + quote(r) + " is not one line of data");
+  }
   for (size_t k = 0; k < n; ++k)
     for (int d = 0; d < 3; ++d) {
       const auto c = static_cast<Eigen::Index>(k);
@@ -165,6 +194,17 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
     put(out, static_cast<long long>(s.angles.size()));
     out += " angles\n";
   }
+  // Dihedral and improper lines only when there is something of the kind: files without them
+  // stay as they were.
+  const bool dihedral_lines = has_quads && ndt > 0, improper_lines = has_quads && nit > 0;
+  if (dihedral_lines) {
+    put(out, static_cast<long long>(s.dihedrals.size()));
+    out += " dihedrals\n";
+  }
+  if (improper_lines) {
+    put(out, static_cast<long long>(s.impropers.size()));
+    out += " impropers\n";
+  }
   put(out, ntypes);
   out += " atom types\n";
   if (has_bonds) {
@@ -174,6 +214,14 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
   if (has_angles) {
     put(out, nat);
     out += " angle types\n";
+  }
+  if (dihedral_lines) {
+    put(out, ndt);
+    out += " dihedral types\n";
+  }
+  if (improper_lines) {
+    put(out, nit);
+    out += " improper types\n";
   }
   out += "\n";
   static constexpr const char* kAxes[] = {" xlo xhi\n", " ylo yhi\n", " zlo zhi\n"};
@@ -191,6 +239,10 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
       put(out, mass);
       out += '\n';
     }
+  }
+  for (const auto& c : s.coeffs) {
+    out += "\n" + c.name + (c.style.empty() ? std::string() : " # " + c.style) + "\n\n";
+    for (const auto& r : c.rows) out += r + "\n";
   }
   if (n > 0) {
     out += "\nAtoms # ";
@@ -256,6 +308,23 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
       out += ' ';
       put(out, a.type);
       for (int i : {a.i, a.j, a.k}) {
+        out += ' ';
+        put(out, id_of(static_cast<size_t>(i)));
+      }
+      out += '\n';
+    }
+  }
+
+  for (auto [quads, section] :
+       {std::pair{&s.dihedrals, "\nDihedrals\n\n"}, std::pair{&s.impropers, "\nImpropers\n\n"}}) {
+    if (quads->empty()) continue;
+    out += section;
+    long long k = 0;
+    for (const auto& q : *quads) {
+      put(out, ++k);
+      out += ' ';
+      put(out, q.type);
+      for (int i : {q.i, q.j, q.k, q.l}) {
         out += ' ';
         put(out, id_of(static_cast<size_t>(i)));
       }

@@ -35,9 +35,11 @@ ImportedSystem to_lammps(const Scene& sc) {
   for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
   for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
   for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
+  for (const Dihedral& d : sc.topology.dihedrals) out.dihedrals.push_back({d.type + 1, d.i, d.j, d.k, d.l});
   out.num_atom_types = static_cast<int>(sc.types.size());
   out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
   out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
+  out.num_dihedral_types = static_cast<int>(sc.topology.dihedral_types.size());
   if (sc.box.periodic.all()) {
     out.lo = sc.box.origin;
     out.hi = sc.box.origin + sc.box.lengths;
@@ -62,7 +64,12 @@ void prepare_output_directory(const Scene& sc, const std::string& out_dir) {
 }
 
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
-  write_lammps_data(path, to_lammps(scene), scene.topology.angles.empty() ? "bond" : "angle", title);
+  const Topology& t = scene.topology;
+  write_lammps_data(path, to_lammps(scene),
+                    !t.dihedrals.empty() ? "molecular"
+                    : t.angles.empty()   ? "bond"
+                                         : "angle",
+                    title);
 }
 
 RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& thermo, const double* restart_cut,

@@ -480,12 +480,29 @@ std::vector<std::array<int, 3>> angles_from_bonds(int n, const std::vector<std::
   return angles;
 }
 
+// Every (i, j, k, l) about each bond j–k (in bond order), i a neighbour of j other than k, l a
+// neighbour of k other than j and i (a 3-ring has none).
+std::vector<std::array<int, 4>> dihedrals_from_bonds(int n, const std::vector<std::pair<int, int>>& bonds) {
+  std::vector<std::vector<int>> nb(static_cast<size_t>(n));
+  for (const auto& [i, j] : bonds) {
+    nb[i].push_back(j);
+    nb[j].push_back(i);
+  }
+  std::vector<std::array<int, 4>> out;
+  for (const auto& [j, k] : bonds)
+    for (const int i : nb[j])
+      for (const int l : nb[k])
+        if (i != k && l != j && i != l) out.push_back({i, j, k, l});
+  return out;
+}
+
 Polymer assemble(const std::vector<V3>& pos, std::vector<std::pair<int, int>> bonds, std::vector<int> molecule) {
   Polymer p;
   const int n = static_cast<int>(pos.size());
   p.x.resize(3, n);
   for (int i = 0; i < n; ++i) p.x.col(i) << pos[i].x, pos[i].y, pos[i].z;
   p.angles = angles_from_bonds(n, bonds);
+  p.dihedrals = dihedrals_from_bonds(n, bonds);
   p.bonds = std::move(bonds);
   p.molecule = std::move(molecule);
   return p;

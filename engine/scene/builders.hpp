@@ -31,6 +31,9 @@ struct Polymer {
   std::vector<std::array<int, 3>> angles;  // every (i, j, k) with i–j and j–k bonded, i ≠ k, each once:
                                            // consecutive triplets along each backbone, and at a star's
                                            // core one triplet per pair of arms
+  std::vector<std::array<int, 4>> dihedrals;  // every (i, j, k, l) with i–j, j–k, k–l bonded and
+                                              // i ≠ l, by central bond j–k in bond order (LAMMPS's
+                                              // definition of the proper dihedrals of a bond graph)
   std::vector<int> molecule;               // 0-based molecule index per bead
 };
 

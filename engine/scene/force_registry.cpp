@@ -2,15 +2,18 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/coefficients.hpp"
+#include "forcefields/dihedral_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/gravity.hpp"
 #include "forcefields/pair_term.hpp"
@@ -153,6 +156,43 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
   return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
 }
 
+// Dihedral styles (DihedralTerm over a kernel of forcefields/dihedral_terms.hpp):
+// dihedral_types.TYPE = {coefficients}, each read by `coeffs` from its table.
+template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
+std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<typename Kernel::Coeffs> types;
+  const auto index =
+      claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name, coeffs, types);
+  return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
+}
+
+// harmonic-dihedral: {K, d = +1|-1, n >= 0} (LAMMPS dihedral_style harmonic).
+HarmonicDihedralKernel::Coeffs harmonic_dihedral_coeffs(DeckTable& d) {
+  HarmonicDihedralKernel::Coeffs c;
+  c.K = read(d, "K", kTorsionEnergy);
+  const long sign = d.integer("d");
+  d.require(sign == 1 || sign == -1, "d", "expected +1 or -1");
+  c.d = static_cast<int>(sign);
+  const long n = d.integer("n");
+  d.require(n >= 0 && n <= 12, "n", "expected a multiplicity 0 .. 12");
+  c.n = static_cast<int>(n);
+  return c;
+}
+
+// multi-harmonic-dihedral: {A1, …, A5} (LAMMPS dihedral_style multi/harmonic), each default 0.
+MultiHarmonicDihedralKernel::Coeffs multi_harmonic_dihedral_coeffs(DeckTable& d) {
+  MultiHarmonicDihedralKernel::Coeffs c;
+  for (int n = 0; n < 5; ++n) c.A[n] = read(d, "A" + std::to_string(n + 1), kTorsionEnergy, 0.0);
+  return c;
+}
+
+// opls-dihedral: {K1, …, K4} (LAMMPS dihedral_style opls), each default 0.
+OplsDihedralKernel::Coeffs opls_dihedral_coeffs(DeckTable& d) {
+  OplsDihedralKernel::Coeffs c;
+  for (int n = 0; n < 4; ++n) c.K[n] = read(d, "K" + std::to_string(n + 1), kTorsionEnergy, 0.0);
+  return c;
+}
+
 // Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
 std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
   std::vector<int> out;
@@ -265,20 +305,68 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
               "): the pair force between them is singular; move one of them apart");
 }
 
-// Pair styles: parameters for every type pair from the term's table, overridden per pair by
-// [[forces.NAME.pair]] types = ["A", "B"]; special_bonds = [w12, w13]; skin.
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
-// term's values (its global epsilon, sigma, …), not from the defaults.
-template <class Kernel, class ReadCoeffs>
+// pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults.
+// Mixing rules (LAMMPS pair_modify mix): the coefficients of an unlike pair from those of its two
+// types. Both rules take ε_ab = √(ε_a ε_b); a length (σ, and the cutoff, as LAMMPS's lj/cut
+// init_one mixes cut[i][i] and cut[j][j] with mix_distance) is √(σ_a σ_b) under "geometric"
+// (LAMMPS's default) and (σ_a + σ_b)/2 under "arithmetic" (Lorentz–Berthelot). Checked with lmp
+// (29 Sep 2021): per-type cutoffs 2 and 3, a 1-2 pair at r = 2.47 interacts under arithmetic
+// (cut 2.5) and not under geometric (cut √6).
+enum class Mix { geometric, arithmetic };
+double mix_energy(double a, double b) {
+  return std::sqrt(a * b);
+}
+double mix_length(double a, double b, Mix m) {
+  return m == Mix::geometric ? std::sqrt(a * b) : 0.5 * (a + b);
+}
+// A style without mixing rules: the reader refuses per-type tables for it.
+struct NoMixing {};
+
+// Pair styles: parameters for every type pair from the term's table — or, with per-type tables
+// types.NAME = {…} (a style with a `mix` function), from every type's coefficients by the mixing
+// rule `mix` = "geometric" | "arithmetic" — overridden per pair by [[forces.NAME.pair]] types =
+// ["A", "B"] (which then starts from the pair's mixed values); special_bonds = [w12, w13(, w14)]; skin.
+template <class Kernel, class ReadCoeffs, class MixCoeffs = NoMixing>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
                                      ReadCoeffs read_coeffs, const char* range_key,
-                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{}) {
+                                     typename Kernel::Coeffs defaults = typename Kernel::Coeffs{},
+                                     MixCoeffs mix_coeffs = {}) {
+  using Coeffs = typename Kernel::Coeffs;
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
-  TypePairMatrix<typename Kernel::Coeffs> coeffs(ntypes);
-  const typename Kernel::Coeffs global = read_coeffs(t, defaults);
+  TypePairMatrix<Coeffs> coeffs(ntypes);
+  const Coeffs global = read_coeffs(t, defaults);
   for (int a = 0; a < ntypes; ++a)
     for (int b = a; b < ntypes; ++b) coeffs.set(a, b, global);
+  if constexpr (std::is_same_v<MixCoeffs, NoMixing>) {
+    (void)mix_coeffs;
+  } else if (auto per_type = t.table("types")) {
+    const std::string rule = t.string("mix", "geometric");
+    if (rule != "geometric" && rule != "arithmetic")
+      t.fail("mix", "expected \"geometric\" or \"arithmetic\" (LAMMPS pair_modify mix), got \"" + rule + "\"");
+    const Mix m = rule == "geometric" ? Mix::geometric : Mix::arithmetic;
+    std::vector<std::optional<Coeffs>> own(static_cast<size_t>(ntypes));
+    for (auto& [type_name, tt] : per_type->named_tables()) {
+      int k = -1;
+      for (int q = 0; q < ntypes; ++q)
+        if (sc.types[q].name == type_name) k = q;
+      if (k < 0) per_type->fail(type_name, "unknown particle type '" + type_name + "'");
+      own[static_cast<size_t>(k)] = read_coeffs(tt, global);  // a key it does not give: the term's value
+      tt.finish();
+    }
+    for (int a = 0; a < ntypes; ++a)
+      if (!own[static_cast<size_t>(a)])
+        t.fail("types", "no coefficients for particle type '" + sc.types[a].name +
+                            "'; with per-type tables every "
+                            "type needs one (" +
+                            t.key_path("types") + "." + sc.types[a].name + " = {…})");
+    per_type->finish();
+    for (int a = 0; a < ntypes; ++a)
+      for (int b = a; b < ntypes; ++b) coeffs.set(a, b, mix_coeffs(*own[a], *own[b], m));
+  } else if (t.has("mix")) {
+    t.fail("mix", "a mixing rule needs per-type coefficients " + t.key_path("types") + ".NAME = {…}");
+  }
   std::set<std::pair<int, int>> overridden;  // a pair given twice would silently keep the last
   for (DeckTable& p : t.array_of_tables("pair")) {
     const auto names = p.strings("types");
@@ -293,18 +381,20 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     if (!overridden.insert({std::min(ab[0], ab[1]), std::max(ab[0], ab[1])}).second)
       p.fail("types",
              "the pair [\"" + names[0] + "\", \"" + names[1] + "\"] is overridden twice; expected one entry per pair");
-    coeffs.set(ab[0], ab[1], read_coeffs(p, global));
+    coeffs.set(ab[0], ab[1], read_coeffs(p, coeffs(ab[0], ab[1])));
     p.finish();
   }
-  // LAMMPS special_bonds lj w12 w13: the weight of 1-2 and 1-3 bonded pairs (default: bonded
-  // neighbours do not interact, 1-3 pairs do).
+  // LAMMPS special_bonds lj w12 w13 w14: the weight of 1-2, 1-3 and 1-4 bonded pairs (default:
+  // bonded neighbours do not interact, 1-3 and 1-4 pairs do).
   SpecialWeights w;
   if (t.has("special_bonds")) {
     const auto sb = t.numbers("special_bonds");
-    if (sb.size() != 2 || sb[0] < 0 || sb[0] > 1 || sb[1] < 0 || sb[1] > 1)
-      t.fail("special_bonds", "expected [w12, w13], two weights in 0..1");
+    const bool in_range = std::all_of(sb.begin(), sb.end(), [](double x) { return x >= 0 && x <= 1; });
+    if ((sb.size() != 2 && sb.size() != 3) || !in_range)
+      t.fail("special_bonds", "expected [w12, w13] or [w12, w13, w14], weights in 0..1");
     w.w12 = sb[0];
     w.w13 = sb[1];
+    if (sb.size() == 3) w.w14 = sb[2];
   }
   const double skin = read(t, "skin", kSkin, 0.3);
   check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
@@ -333,7 +423,11 @@ std::unique_ptr<ForceTerm> read_lj(const std::string& name, Level level, DeckTab
         c.rc = read(d, "cutoff", kLength, c.rc);
         return c;
       },
-      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5});
+      "cutoff", LennardJones::Coeffs{1.0, 1.0, 2.5},
+      [](const LennardJones::Coeffs& a, const LennardJones::Coeffs& b, Mix m) {
+        return LennardJones::Coeffs{mix_energy(a.epsilon, b.epsilon), mix_length(a.sigma, b.sigma, m),
+                                    mix_length(a.rc, b.rc, m)};
+      });
 }
 
 std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -344,7 +438,10 @@ std::unique_ptr<ForceTerm> read_wca(const std::string& name, Level level, DeckTa
         c.sigma = read(d, "sigma", kLength, c.sigma);
         return c;
       },
-      "sigma");
+      "sigma", WeeksChandlerAndersen::Coeffs{},
+      [](const WeeksChandlerAndersen::Coeffs& a, const WeeksChandlerAndersen::Coeffs& b, Mix m) {
+        return WeeksChandlerAndersen::Coeffs{mix_energy(a.epsilon, b.epsilon), mix_length(a.sigma, b.sigma, m)};
+      });
 }
 
 std::unique_ptr<ForceTerm> read_soft(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -385,6 +482,12 @@ const std::vector<ForceStyle>& force_styles() {
       {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
       {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
       {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"harmonic-dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
+       read_dihedral<HarmonicDihedralKernel, harmonic_dihedral_coeffs>},
+      {"multi-harmonic-dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
+       read_dihedral<MultiHarmonicDihedralKernel, multi_harmonic_dihedral_coeffs>},
+      {"opls-dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
+       read_dihedral<OplsDihedralKernel, opls_dihedral_coeffs>},
       {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
       {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
       {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},

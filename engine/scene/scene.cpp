@@ -187,8 +187,9 @@ void read_forces(DeckTable& root, Scene& sc) {
   for (const LevelSettings& l : sc.integrator.levels) level_names.push_back(l.name);
   sc.forces = level_names.empty() ? std::make_unique<ForceField>(sc.box, sc.state.size())
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
-  std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size());
-  TermContext ctx{sc, owner, angle_owner};
+  std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
+      dihedral_owner(sc.topology.dihedral_types.size());
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -252,6 +253,11 @@ void read_forces(DeckTable& root, Scene& sc) {
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
                      "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] +
                      "])");
+  for (size_t t = 0; t < sc.topology.dihedral_types.size(); ++t)
+    if (dihedral_owner[t].empty())
+      root.fail_here("dihedral type '" + sc.topology.dihedral_types[t] +
+                     "' is not defined by any force term (add [forces.NAME.dihedral_types." +
+                     sc.topology.dihedral_types[t] + "])");
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
@@ -580,6 +586,14 @@ std::string describe(const Scene& sc) {
       const auto count = std::count_if(sc.topology.angles.begin(), sc.topology.angles.end(),
                                        [&](const Angle& a) { return a.type == static_cast<int>(k); });
       s << "  type " << sc.topology.angle_types[k] << ": " << count << "\n";
+    }
+  }
+  if (!sc.topology.dihedrals.empty()) {
+    s << "dihedrals:   " << sc.topology.dihedrals.size() << "\n";
+    for (size_t k = 0; k < sc.topology.dihedral_types.size(); ++k) {
+      const auto count = std::count_if(sc.topology.dihedrals.begin(), sc.topology.dihedrals.end(),
+                                       [&](const Dihedral& d) { return d.type == static_cast<int>(k); });
+      s << "  type " << sc.topology.dihedral_types[k] << ": " << count << "\n";
     }
   }
   int molecules = 0;

@@ -43,7 +43,8 @@ void set_box(DeckTable& t, std::string_view key, Scene& sc, const Box& box) {
 }
 
 void add_topology(Scene& sc, int first, const std::vector<std::pair<int, int>>& bonds, const std::string& bond_type,
-                  const std::vector<std::array<int, 3>>& angles, const std::string& angle_type) {
+                  const std::vector<std::array<int, 3>>& angles, const std::string& angle_type,
+                  const std::vector<std::array<int, 4>>& dihedrals = {}, const std::string& dihedral_type = "") {
   if (!bonds.empty()) {
     const int bt = Topology::intern(sc.topology.bond_types, bond_type);
     for (const auto& [i, j] : bonds) sc.topology.bonds.push_back({first + i, first + j, bt});
@@ -51,6 +52,11 @@ void add_topology(Scene& sc, int first, const std::vector<std::pair<int, int>>& 
   if (!angles.empty() && !angle_type.empty()) {
     const int at = Topology::intern(sc.topology.angle_types, angle_type);
     for (const auto& a : angles) sc.topology.angles.push_back({first + a[0], first + a[1], first + a[2], at});
+  }
+  if (!dihedrals.empty() && !dihedral_type.empty()) {
+    const int dt = Topology::intern(sc.topology.dihedral_types, dihedral_type);
+    for (const auto& d : dihedrals)
+      sc.topology.dihedrals.push_back({first + d[0], first + d[1], first + d[2], first + d[3], dt});
   }
 }
 
@@ -119,7 +125,8 @@ void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
 }
 
 // [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
-// bond_type, angle_type (optional), density (optional: sets a periodic cubic box), min_distance, seed.
+// bond_type, angle_type and dihedral_type (optional), density (optional: sets a periodic cubic box), min_distance,
+// seed.
 void read_builders(DeckTable& root, Scene& sc) {
   for (DeckTable& b : root.array_of_tables("build")) {
     const std::string style = b.string("style");
@@ -160,6 +167,7 @@ void read_builders(DeckTable& root, Scene& sc) {
     b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
     const std::string bond_type = b.string("bond_type");
     const std::string angle_type = b.string("angle_type", "");
+    const std::string dihedral_type = b.string("dihedral_type", "");
     if (auto density = b.maybe_number("density")) {
       b.require(*density > 0, "density", "expected a number density > 0");
       try {
@@ -182,12 +190,12 @@ void read_builders(DeckTable& root, Scene& sc) {
     b.finish();
     const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
                                        std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
-    add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type);
+    add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type, p.dihedrals, dihedral_type);
   }
 }
 
 // [import] lammps_data = PATH (atom_style, atom_types = {"1" = "bead"}, bond_types = {...},
-// angle_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
+// angle_types = {...}, dihedral_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   auto t = root.table("import");
   if (!t) return;
@@ -197,7 +205,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
   if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
   ImportedSystem in;
-  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map;
+  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map, dihedral_map;
   std::string single_type, single_bond_type;
   // The reader's one-line error (file, line, section) behind the deck key that named the file.
   const char* file_key = lammps ? "lammps_data" : "xyz";
@@ -212,6 +220,13 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     atom_map = t->string_map("atom_types");
     bond_map = t->string_map("bond_types");
     angle_map = t->string_map("angle_types");
+    dihedral_map = t->string_map("dihedral_types");
+    // Impropers are read and kept by the reader (an export writes them back), but no improper
+    // style exists to run them: refused rather than dropped.
+    if (!in.impropers.empty())
+      t->fail("lammps_data", t->string("lammps_data") + ": " + std::to_string(in.impropers.size()) +
+                                 " impropers, but stiffmd has no improper terms: they would be lost; remove the "
+                                 "Impropers section (and set '0 impropers' in the header) to run without them");
   } else {
     const std::string xyz_path = resolve(t->string("xyz")), bonds_path = resolve(t->string("bonds"));
     try {
@@ -274,6 +289,11 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     const std::string name = lookup(angle_map, a.type, "angle_types");
     sc.topology.angles.push_back(
         {first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+  }
+  for (const auto& d : in.dihedrals) {
+    const std::string name = lookup(dihedral_map, d.type, "dihedral_types");
+    sc.topology.dihedrals.push_back(
+        {first + d.i, first + d.j, first + d.k, first + d.l, Topology::intern(sc.topology.dihedral_types, name)});
   }
 }
 

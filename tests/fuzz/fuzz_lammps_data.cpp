@@ -30,6 +30,7 @@ bool same_bits(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
 // A style that can hold everything the reader returned.
 std::string style_for(const ImportedSystem& s) {
   if (!s.charge.empty()) return "full";
+  if (!s.dihedrals.empty() || !s.impropers.empty()) return "molecular";
   if (!s.angles.empty()) return "angle";
   if (!s.bonds.empty() || s.atom_style == "bond") return "bond";
   if (s.atom_style == "angle" || s.atom_style == "molecular") return s.atom_style;
@@ -52,8 +53,12 @@ void round_trip(const ImportedSystem& s, const std::string& path) {
   if (!same_bits(s.x, back.x)) stiffmd::fuzz::finding("round trip changed the positions");
   if (!same_bits(s.v, back.v)) stiffmd::fuzz::finding("round trip changed the velocities");
   if (s.type != back.type || s.id != back.id) stiffmd::fuzz::finding("round trip changed the types or ids");
-  if (s.bonds.size() != back.bonds.size() || s.angles.size() != back.angles.size())
-    stiffmd::fuzz::finding("round trip changed the bonds or angles");
+  if (s.bonds.size() != back.bonds.size() || s.angles.size() != back.angles.size() ||
+      s.dihedrals.size() != back.dihedrals.size() || s.impropers.size() != back.impropers.size())
+    stiffmd::fuzz::finding("round trip changed the bonds, angles, dihedrals or impropers");
+  if (s.coeffs.size() != back.coeffs.size()) stiffmd::fuzz::finding("round trip changed the coefficient sections");
+  for (std::size_t k = 0; k < s.coeffs.size() && k < back.coeffs.size(); ++k)
+    if (s.coeffs[k].rows != back.coeffs[k].rows) stiffmd::fuzz::finding("round trip changed a coefficient row");
   for (std::size_t k = 0; k < s.bonds.size(); ++k)
     if (s.bonds[k].i != back.bonds[k].i || s.bonds[k].j != back.bonds[k].j || s.bonds[k].type != back.bonds[k].type)
       stiffmd::fuzz::finding("round trip changed a bond");

@@ -1,0 +1,125 @@
+// The loop over proper dihedrals (i, j, k, l) about the bond j–k, written once and shared by every
+// dihedral style (as angle_loop.hpp is for angles): a style supplies only a kernel
+//     static void eval(double phi, const Params& p, double& energy, double& dE_dphi);
+//
+// Geometry (Blondel & Karplus, J. Comput. Chem. 17, 1132 (1996); Bekker's form, as in GROMACS).
+// With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (each by minimum image on periodic
+// axes, as LAMMPS does) and the plane normals m = r_ij × r_kj, n = r_kj × r_kl,
+//     φ = atan2(|r_kj| r_ij·n, m·n)                      (m × n = r_kj (r_ij·n))
+// in (−π, π]: φ = ±π is trans (the IUPAC/polymer convention, LAMMPS's), φ = 0 cis. The gradients
+//     ∂φ/∂x_i = +|r_kj|/|m|² m,     ∂φ/∂x_l = −|r_kj|/|n|² n,
+//     ∂φ/∂x_j = (p − 1) ∂φ/∂x_i − q ∂φ/∂x_l,   ∂φ/∂x_k = (q − 1) ∂φ/∂x_l − p ∂φ/∂x_i,
+// with p = r_ij·r_kj/|r_kj|², q = r_kl·r_kj/|r_kj|², never divide by sin φ (the textbook route
+// through cos φ does, and φ = 0 and π, cis and trans, are where chains sit). atan2 keeps φ
+// accurate there too. The gradients sum to zero (translation invariance) by construction.
+//
+// Degenerate geometry: a central bond of length 0 leaves the dihedral undefined
+// (NumericalError). Three collinear atoms (|m| = 0 or |n| = 0) leave the plane, hence φ,
+// undefined; the force is set to 0 there (the symmetric choice; the bending terms keep chains
+// away from it, as in LAMMPS, which only warns).
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cmath>
+#include <sstream>
+#include <vector>
+
+#include "engine/core/box.hpp"
+#include "engine/core/errors.hpp"
+
+namespace stiffmd {
+
+template <class Params>
+struct DihedralInstance {
+  int i, j, k, l;
+  Params params;
+};
+
+namespace dihedral_detail {
+
+struct Geometry {
+  Eigen::Vector3d r_ij, r_kj, r_kl;
+  double phi = 0.0;
+  Eigen::Vector3d dphi_di, dphi_dj, dphi_dk, dphi_dl;
+};
+
+[[noreturn]] inline void throw_degenerate(int i, int j, int k, int l) {
+  std::ostringstream m;
+  m << "dihedral (" << i << ", " << j << ", " << k << ", " << l << ") is undefined: its central bond " << j << "-" << k
+    << " has length 0";
+  throw NumericalError(m.str());
+}
+
+inline Geometry geometry(int i, int j, int k, int l, const Eigen::Matrix3Xd& x, const Box& box, bool periodic) {
+  Geometry g;
+  g.r_ij = x.col(i) - x.col(j);
+  g.r_kj = x.col(k) - x.col(j);
+  g.r_kl = x.col(k) - x.col(l);
+  if (periodic) {
+    g.r_ij = box.min_image(g.r_ij);
+    g.r_kj = box.min_image(g.r_kj);
+    g.r_kl = box.min_image(g.r_kl);
+  }
+  const double kj2 = g.r_kj.squaredNorm();
+  if (!(kj2 > 0.0)) throw_degenerate(i, j, k, l);
+  const double kj = std::sqrt(kj2);
+  const Eigen::Vector3d m = g.r_ij.cross(g.r_kj), n = g.r_kj.cross(g.r_kl);
+  const double m2 = m.squaredNorm(), n2 = n.squaredNorm();
+  g.phi = std::atan2(kj * g.r_ij.dot(n), m.dot(n));
+  if (m2 > 0.0 && n2 > 0.0) {
+    g.dphi_di = (kj / m2) * m;
+    g.dphi_dl = -(kj / n2) * n;
+    const double p = g.r_ij.dot(g.r_kj) / kj2, q = g.r_kl.dot(g.r_kj) / kj2;
+    g.dphi_dj = (p - 1.0) * g.dphi_di - q * g.dphi_dl;
+    g.dphi_dk = (q - 1.0) * g.dphi_dl - p * g.dphi_di;
+  } else {  // collinear: see the header comment
+    g.dphi_di.setZero();
+    g.dphi_dj.setZero();
+    g.dphi_dk.setZero();
+    g.dphi_dl.setZero();
+  }
+  return g;
+}
+
+}  // namespace dihedral_detail
+
+// Adds −∇E into f for every dihedral and returns Σ E: F_a = −E'(φ) ∂φ/∂x_a. Serial, in the
+// order of the list (as the angle loop): the result does not depend on the thread count.
+template <class Kernel, class Params>
+double accumulate_dihedral_forces(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
+                                  const Box& box, Eigen::Matrix3Xd& f) {
+  double energy = 0.0;
+  const bool periodic = box.any_periodic();
+  for (const auto& t : dihedrals) {
+    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x, box, periodic);
+    double e = 0.0, de_dphi = 0.0;
+    Kernel::eval(g.phi, t.params, e, de_dphi);
+    energy += e;
+    f.col(t.i) -= de_dphi * g.dphi_di;
+    f.col(t.j) -= de_dphi * g.dphi_dj;
+    f.col(t.k) -= de_dphi * g.dphi_dk;
+    f.col(t.l) -= de_dphi * g.dphi_dl;
+  }
+  return energy;
+}
+
+// The dihedral virial Σ r_a · F_a with positions relative to x_j (r_i = r_ij, r_k = r_kj,
+// r_l = r_kj − r_kl, by minimum image: independent of the periodic image, as LAMMPS's). φ is
+// invariant under x → λx, so this vanishes analytically (Euler, degree 0); what is returned is
+// the sum as computed, zero to round-off.
+template <class Kernel, class Params>
+double accumulate_dihedral_virial(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
+                                  const Box& box) {
+  double w = 0.0;
+  const bool periodic = box.any_periodic();
+  for (const auto& t : dihedrals) {
+    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x, box, periodic);
+    double e = 0.0, de_dphi = 0.0;
+    Kernel::eval(g.phi, t.params, e, de_dphi);
+    w -= de_dphi * (g.r_ij.dot(g.dphi_di) + g.r_kj.dot(g.dphi_dk) + (g.r_kj - g.r_kl).dot(g.dphi_dl));
+  }
+  return w;
+}
+
+}  // namespace stiffmd

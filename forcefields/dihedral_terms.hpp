@@ -1,0 +1,148 @@
+// Dihedral (torsion) terms on quadruples (i, j, k, l) about the bond j–k, through the shared
+// loop in dihedral_loop.hpp. φ in radians, φ = ±π trans (IUPAC/polymer convention, LAMMPS's);
+// every kernel below is even in φ, so the sign of φ does not matter. Coefficients per dihedral
+// type. Each kernel is LAMMPS's dihedral style of the same name, coefficient for coefficient
+// (LAMMPS doc/src/dihedral_harmonic.rst, dihedral_multi_harmonic.rst, dihedral_opls.rst):
+//   HarmonicDihedral       E = K [1 + d cos(nφ)],                 d = ±1, n ≥ 0 an integer
+//   MultiHarmonicDihedral  E = Σ_{n=1..5} A_n cos^{n−1}(φ)
+//   OplsDihedral           E = ½K₁(1 + cos φ) + ½K₂(1 − cos 2φ) + ½K₃(1 + cos 3φ) + ½K₄(1 − cos 4φ)
+// A kernel: Coeffs, kStyle, validate(c) (throws std::invalid_argument naming the coefficient),
+// eval(φ, c, E, dE/dφ) and describe(os, c).
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "engine/core/format.hpp"
+#include "engine/core/topology.hpp"
+#include "forcefields/coefficients.hpp"
+#include "forcefields/dihedral_loop.hpp"
+#include "forcefields/force_term.hpp"
+
+namespace stiffmd {
+
+struct HarmonicDihedralKernel {
+  static constexpr std::string_view kStyle = "harmonic-dihedral";
+  struct Coeffs {
+    double K = 0.0;  // energy, any sign (LAMMPS allows it)
+    int d = 1;       // +1 or −1
+    int n = 1;       // multiplicity ≥ 0
+  };
+  static void validate(const Coeffs& c) {
+    require(c.K, kTorsionEnergy, "K");
+    if (c.d != 1 && c.d != -1) throw std::invalid_argument("d: expected +1 or -1, got " + std::to_string(c.d));
+    if (c.n < 0) throw std::invalid_argument("n: expected an integer >= 0, got " + std::to_string(c.n));
+  }
+  static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
+    e = c.K * (1.0 + c.d * std::cos(c.n * phi));
+    de_dphi = -c.K * c.d * c.n * std::sin(c.n * phi);
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    s << "K = " << format_exact(c.K) << ", d = " << c.d << ", n = " << c.n;
+  }
+};
+
+struct MultiHarmonicDihedralKernel {
+  static constexpr std::string_view kStyle = "multi-harmonic-dihedral";
+  struct Coeffs {
+    std::array<double, 5> A{};  // A_1 … A_5, energies of any sign
+  };
+  static void validate(const Coeffs& c) {
+    for (int n = 0; n < 5; ++n) require(c.A[n], kTorsionEnergy, "A" + std::to_string(n + 1));
+  }
+  static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
+    // Horner in c = cos φ: E = A1 + c(A2 + c(A3 + c(A4 + c A5))), dE/dc likewise; dE/dφ = −sin φ dE/dc.
+    const double x = std::cos(phi);
+    e = c.A[0] + x * (c.A[1] + x * (c.A[2] + x * (c.A[3] + x * c.A[4])));
+    const double de_dc = c.A[1] + x * (2.0 * c.A[2] + x * (3.0 * c.A[3] + x * 4.0 * c.A[4]));
+    de_dphi = -std::sin(phi) * de_dc;
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    for (int n = 0; n < 5; ++n) s << (n ? ", " : "") << "A" << n + 1 << " = " << format_exact(c.A[n]);
+  }
+};
+
+struct OplsDihedralKernel {
+  static constexpr std::string_view kStyle = "opls-dihedral";
+  struct Coeffs {
+    std::array<double, 4> K{};  // K_1 … K_4, energies of any sign
+  };
+  static void validate(const Coeffs& c) {
+    for (int n = 0; n < 4; ++n) require(c.K[n], kTorsionEnergy, "K" + std::to_string(n + 1));
+  }
+  static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
+    e = 0.5 * (c.K[0] * (1.0 + std::cos(phi)) + c.K[1] * (1.0 - std::cos(2.0 * phi)) +
+               c.K[2] * (1.0 + std::cos(3.0 * phi)) + c.K[3] * (1.0 - std::cos(4.0 * phi)));
+    de_dphi = 0.5 * (-c.K[0] * std::sin(phi) + 2.0 * c.K[1] * std::sin(2.0 * phi) - 3.0 * c.K[2] * std::sin(3.0 * phi) +
+                     4.0 * c.K[3] * std::sin(4.0 * phi));
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    for (int n = 0; n < 4; ++n) s << (n ? ", " : "") << "K" << n + 1 << " = " << format_exact(c.K[n]);
+  }
+};
+
+// A dihedral term over a kernel (as AngleTerm is over an angle kernel).
+template <class K>
+class DihedralTerm final : public ForceTerm {
+ public:
+  using Kernel = K;
+  using Coeffs = typename K::Coeffs;
+
+  // Validating constructor: every type's coefficients (Kernel::validate), i, j, k, l ≥ 0 and
+  // distinct, 0 ≤ type < types.size(); throws std::invalid_argument naming the term.
+  DihedralTerm(std::string name, Level level, const std::vector<Dihedral>& dihedrals, std::vector<Coeffs> types)
+      : ForceTerm(std::move(name), level), types_(std::move(types)) {
+    auto fail = [&](const std::string& what) {
+      throw std::invalid_argument(std::string(K::kStyle) + " '" + this->name() + "': " + what);
+    };
+    for (size_t t = 0; t < types_.size(); ++t) try {
+        K::validate(types_[t]);
+      } catch (const std::invalid_argument& e) {
+        fail("dihedral type " + std::to_string(t) + ": " + e.what());
+      }
+    instances_.reserve(dihedrals.size());
+    for (const Dihedral& d : dihedrals) {
+      const std::string which = "dihedral (" + std::to_string(d.i) + ", " + std::to_string(d.j) + ", " +
+                                std::to_string(d.k) + ", " + std::to_string(d.l) + ")";
+      if (d.i < 0 || d.j < 0 || d.k < 0 || d.l < 0) fail(which + ": particle indices must be >= 0");
+      if (d.i == d.j || d.i == d.k || d.i == d.l || d.j == d.k || d.j == d.l || d.k == d.l)
+        fail(which + ": the four particles must be distinct");
+      if (d.type < 0 || static_cast<size_t>(d.type) >= types_.size())
+        fail(which + ": dihedral type " + std::to_string(d.type) + " is not defined (" + std::to_string(types_.size()) +
+             " types)");
+      instances_.push_back({d.i, d.j, d.k, d.l, types_[d.type]});
+    }
+  }
+
+  double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
+    return accumulate_dihedral_forces<Kernel>(instances_, x, box, f);
+  }
+  double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
+    return accumulate_dihedral_virial<Kernel>(instances_, x, box);
+  }
+  std::string_view style() const override { return Kernel::kStyle; }
+  std::string describe() const override {
+    std::ostringstream s;
+    s << instances_.size() << " " << K::kStyle.substr(0, K::kStyle.rfind('-')) << " dihedrals";
+    for (size_t t = 0; t < types_.size(); ++t) {
+      s << "; type " << t << ": ";  // exact values: describe() is the checkpoint fingerprint too
+      K::describe(s, types_[t]);
+    }
+    return s.str();
+  }
+
+ private:
+  std::vector<Coeffs> types_;
+  std::vector<DihedralInstance<Coeffs>> instances_;
+};
+
+using HarmonicDihedral = DihedralTerm<HarmonicDihedralKernel>;
+using MultiHarmonicDihedral = DihedralTerm<MultiHarmonicDihedralKernel>;
+using OplsDihedral = DihedralTerm<OplsDihedralKernel>;
+
+}  // namespace stiffmd
