@@ -192,14 +192,46 @@ def micro_steps(args, eps, h, method):
 
 
 def run_one(args, eps, method, h, t_end, state, chains, work):
-    """One run of the ladder (or the reference); returns its row of ladder.csv."""
-    n = micro_steps(args, eps, h, method)
+    """One run of the ladder (or the reference) at about the step h (rounded to divide t_end); returns its
+    row of ladder.csv. Its row is kept in the run's directory (row.json) and reused by a rerun with the
+    same settings, as are the outputs of a finished run that was not analysed."""
     tag = f"eps{eps:g}_{method}_h{h:.6g}" + ("_ref" if t_end == args.t_ref and method == "velocity-verlet" else "")
+    steps = round(t_end / h)
+    h = t_end / steps  # a whole number of steps
+    n = micro_steps(args, eps, h, method)
     run_dir = os.path.join(work, "runs", tag)
     os.makedirs(run_dir, exist_ok=True)
     row = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "status": "ok"}
     seed = zlib.crc32(tag.encode()) % 2 ** 30 + 1  # every run its own noise: the runs are independent samples
-    steps = round(t_end / h)
+    key = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "seed": seed, "discard": args.discard,
+           "blocks": args.blocks, "frame_every": args.frame_every, "thermo_every": args.thermo_every,
+           "state": os.path.abspath(state)}
+    cached = os.path.join(run_dir, "row.json")
+    if os.path.exists(cached):
+        with open(cached) as f:
+            kept = json.load(f)
+        if kept["key"] == key:
+            return dict(kept["row"], rg_chains=np.array(kept["row"]["rg_chains"])) if "rg_chains" in kept["row"] \
+                else kept["row"]
+    row = measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_dir, row)
+    with open(cached, "w") as f:
+        json.dump({"key": key, "row": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in row.items()}},
+                  f)
+    return row
+
+
+def finished_earlier(run_dir, h, steps):
+    """A stiffmd run in run_dir that finished with this h and these steps and was not analysed."""
+    try:
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            s = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return s["steps"] == steps and math.isclose(s["h"], h, rel_tol=1e-12) and \
+        os.path.exists(os.path.join(run_dir, "frames.xyz"))
+
+
+def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_dir, row):
     if method == "lammps-respa":
         lmp_in = os.path.join(run_dir, "in.run")
         every = max(1, round(args.frame_every / h))
@@ -227,7 +259,7 @@ def run_one(args, eps, method, h, t_end, state, chains, work):
                "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
                "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={fmt(args.frame_every)}",
                "--set", "output.checkpoint_every=0"]
-        code, _, _ = run_measured(cmd, run_dir, 1)
+        code = 0 if finished_earlier(run_dir, h, steps) else run_measured(cmd, run_dir, 1)[0]
         if code != 0:
             row["status"] = f"failed (exit {code})"
             return row
@@ -458,6 +490,7 @@ def parse_args():
     ap.add_argument("--figure", default=os.path.join(ROOT, "docs", "figures", "cost_vs_eps.png"))
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--timing-only", action="store_true", help="the timed runs at the steps of OUT/ladder.csv")
+    ap.add_argument("--no-timing", action="store_true", help="the ladders only (OUT/ladder.csv)")
     args = ap.parse_args()
     if args.quick:
         args.eps = "1e-2,3e-3" if args.eps == ap.get_default("eps") else args.eps
@@ -533,6 +566,8 @@ def main():
                     w.writeheader()
                     w.writerows(ladder_rows)
             ladder_rows = read_csv(os.path.join(args.out, "ladder.csv"))
+            if args.no_timing:
+                return 0
             chosen = summarise(ladder_rows, [], args)
 
             cost_rows = []
