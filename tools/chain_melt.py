@@ -70,10 +70,11 @@ def fmt(x):
     return repr(float(x))
 
 
-def prepare_state(stiffmd, eps, data, env=None):
-    """Writes the prepared t = 0 state at this ε to the LAMMPS data file `data`; returns its path."""
+def prepare_state(stiffmd, eps, data, env=None, deck=SOURCE_DECK):
+    """Writes the prepared t = 0 state at this ε to the LAMMPS data file `data`; returns its path.
+    `deck`: a deck with a `variables.eps` whose [prepare] makes the state (default the data.chain melt)."""
     os.makedirs(os.path.dirname(os.path.abspath(data)), exist_ok=True)
-    cmd = [stiffmd, "check", SOURCE_DECK, "--set", f"variables.eps={eps}", "--write-data", data]
+    cmd = [stiffmd, "check", deck, "--set", f"variables.eps={eps}", "--write-data", data]
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if p.returncode != 0:
         raise RunFailed(f"state preparation failed (exit {p.returncode}): {shlex.join(cmd)}\n"
@@ -134,8 +135,15 @@ histograms = false
 """)
 
 
-def write_lammps_input(path, data, eps, h, n, steps, thermo_every, writer):
-    """The same state, potentials, h and n in LAMMPS: r-RESPA with the bonds inner, WCA outer."""
+def write_lammps_input(path, data, eps, h, n, steps, thermo_every, writer, langevin=None, dump=None):
+    """The same state, potentials, h and n in LAMMPS: r-RESPA with the bonds inner, WCA outer.
+    langevin = (kT, damp, seed) adds `fix langevin` (applied at the outer level) and the pressure to
+    the thermo; dump = (every, file) writes id, mol and unwrapped positions, sorted by id."""
+    extra_fix = "" if langevin is None else \
+        f"fix             2 all langevin {fmt(langevin[0])} {fmt(langevin[0])} {fmt(langevin[1])} {int(langevin[2])}\n"
+    extra_dump = "" if dump is None else \
+        f"dump            1 all custom {int(dump[0])} {dump[1]} id mol xu yu zu\ndump_modify     1 sort id format float %.10g\n"
+    columns = "step temp pe ke etotal" + ("" if langevin is None else " press")
     k_lammps = ALPHA ** 2 / (2.0 * float(eps) ** 2)  # LAMMPS harmonic: K (r - r0)^2, stiffmd ½ k (r - ℓ)^2
     with open(path, "w") as f:
         f.write(f"""# Written by {writer}: the prepared state of inputs/lammps_chain.toml at eps = {eps}, h = {h}, n = {n}.
@@ -157,9 +165,9 @@ neigh_modify    every 1 delay 0 check yes
 timestep        {fmt(h)}
 run_style       respa 2 {n} bond 1 pair 2
 fix             1 all nve
-
+{extra_fix}{extra_dump}
 thermo          {thermo_every}
-thermo_style    custom step temp pe ke etotal
+thermo_style    custom {columns}
 thermo_modify   norm no format float %.15g
 run             {steps}
 """)

@@ -1,0 +1,626 @@
+#!/usr/bin/python3
+"""Cost against ε on the stiff melt in NVT (issue 14's headline, design.md §9): every method at its
+largest step that keeps the equilibrium observables of the stiff springs.
+
+    /usr/bin/python3 tools/cost_vs_eps.py                  # the README figure (≈ 20–30 min of CPU, 2 jobs)
+    /usr/bin/python3 tools/cost_vs_eps.py --eps 1e-2,1e-3  # a subset of ε
+    /usr/bin/python3 tools/cost_vs_eps.py --quick --out /tmp/c --figure /tmp/c/c.png   # CI size, ≈ 30 s
+    /usr/bin/python3 tools/cost_vs_eps.py --plot-only      # figure and tables from OUT/ladder.csv, cost.csv
+
+Methods: velocity-verlet (BAOAB), impulse, projected-impulse, mollified-impulse (micro step δ = ε/10:
+n = ceil(h/δ) micro steps per macro step h), rattle, fixman (RATTLE on U + Fixman's U_F, the thermal
+stiff limit of design.md §8), and LAMMPS `run_style respa 2 n bond 1 pair 2` with `fix langevin`
+(same δ). Langevin kT = 1, damp = 1 everywhere; stiff harmonic bonds ℓ = 0.97, α = 1, WCA.
+
+Two systems, because the statistics and the cost need different sizes (computational budget):
+
+1. The largest step, on a small melt of the same density (0.85) and chains (100 beads, ℓ = 0.97):
+   --chains (30) chains built by the engine (inputs/polymer_melt.toml's builder and relaxation), then
+   equilibrated by fixman under Langevin for --t-equil; at every ε that state is prepared (projected,
+   T = 1 velocities, thermal bond vibrations) and every run starts from it. The reference is velocity
+   Verlet at h = --ref-h × ε (0.2: h ω_max = 0.4) for --t-ref; every other run lasts --t-run. After
+   --discard, measured: ⟨cos θ⟩ and ⟨cos²θ⟩ of the bond angles (the first two moments of their law;
+   frames every --frame-every), the mean radius of gyration of the chains (from the same frames,
+   the thermo's definition) and the pressure (thermo rows). Errors: standard errors of --blocks block
+   means. A run PASSES when ⟨cos θ⟩, ⟨cos²θ⟩ and the pressure have |q − q_ref| < --sigma × √(σ² + σ_ref²)
+   (3 σ), Rg's paired difference (below) is within --sigma of its standard error, and the run finished (an exit 3, a LAMMPS error or a non-finite number fails). Each method climbs its
+   ladder of steps (--vv-ladder × ε for velocity Verlet, --ladder for the others, --micro-ladder for
+   the micro-step methods) from the smallest and stops at the first failing step; its largest step is
+   the last passing one (velocity Verlet's first step is the reference itself, passing by definition).
+   A method whose first step fails is marked FAILS and its cost is shown at that first step.
+   Rg: all runs start from one configuration and the chains (Rouse time ~10⁴) barely move in a few
+   time units, so its block errors (a slow drift) would be dishonest and it is tested paired: the
+   mean over chains of (each chain's time-averaged Rg − the reference's) against std/√chains — it
+   compares the runs' drift from the common start, not equilibrium values.
+2. The cost, on LAMMPS's data.chain (32 000 beads; inputs/lammps_chain.toml prepared at each ε) at
+   the step found in 1: short timed runs (--timed-steps = 150 steps; micro-step methods max(10,
+   --timed-micro / n) macro steps, --timed-micro = 1500), one thread, --repeats interleaved repeats, median. CPU seconds of
+   the step loop (stiffmd summary.json; LAMMPS Loop time × CPU %) per unit of simulated time, and
+   wall seconds the same way.
+
+Outputs in --out (default sweeps/cost_vs_eps): ladder.csv (every run of 1: observables, errors, Δ/σ,
+pass), cost.csv (every timed run), cost_vs_eps.md (the table), work/ (states, decks, runs).
+Figure: --figure (default docs/figures/cost_vs_eps.png).
+"""
+import argparse
+import concurrent.futures
+import csv
+import json
+import math
+import os
+import shlex
+import shutil
+import statistics
+import subprocess
+import sys
+import threading
+import zlib
+
+import numpy as np
+
+from bench_lammps import parse_lammps_log, run_measured  # tools/ is the script's directory
+from chain_melt import RunFailed, block_mean, fmt, prepare_state, read_bonds, write_deck, write_lammps_input, \
+    xyz_frames
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "lammps-respa"]
+MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
+OBSERVABLES = ["cos", "cos2", "rg", "pressure"]
+WRITER = "tools/cost_vs_eps.py"
+KT, DAMP = 1.0, 1.0
+LADDER_FIELDS = ["eps", "method", "h", "n", "t_end", "status", "passed"] + \
+    [f"{q}{s}" for q in OBSERVABLES for s in ("", "_err", "_z")] + ["frames", "cpu_seconds"]
+COST_FIELDS = ["eps", "method", "h", "n", "steps", "repeat", "natoms", "cpu_per_time", "wall_per_time"]
+
+
+def split_floats(text):
+    return [float(v) for v in text.replace(",", " ").split()]
+
+
+# ------------------------------------------------------------------------- the small melt's state
+
+def equilibrated_melt(args, work):
+    """Builds --chains chains of --beads with inputs/polymer_melt.toml's builder, equilibrates them by
+    fixman under Langevin for --t-equil and writes the final state; returns its data file."""
+    data = os.path.join(work, "equilibrated.data")
+    if os.path.exists(data):
+        return data
+    with open(os.path.join(ROOT, "inputs", "polymer_melt.toml")) as f:
+        deck = f.read().replace("chains = 100", f"chains = {args.chains}").replace("beads = 100",
+                                                                                   f"beads = {args.beads}")
+    build = os.path.join(work, "build.toml")
+    with open(build, "w") as f:
+        f.write(f"# Written by {WRITER}: inputs/polymer_melt.toml with {args.chains} chains of {args.beads}.\n" + deck)
+    run_dir = os.path.join(work, "equilibrate")
+    cmd = [args.stiffmd, "run", build, "--no-progress", "-o", run_dir, "--set", 'integrator.method="fixman"',
+           "--set", "integrator.h=0.005", "--set", f"run.t_end={fmt(args.t_equil)}",
+           "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+           "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=5", "--set", 'output.xyz=""',
+           "--set", 'output.h5md=""', "--set", "output.checkpoint_every=0",
+           "--set", f"output.thermo_interval={fmt(args.t_equil)}", "--set", 'output.lammps_data="final.data"']
+    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    if p.returncode != 0:
+        raise RunFailed(f"equilibration failed (exit {p.returncode}): {shlex.join(cmd)}\n{p.stderr[-2000:]}")
+    os.replace(os.path.join(run_dir, "final.data"), data)
+    return data
+
+
+def source_deck(path, data):
+    """A deck that prepares `data` at ε = variables.eps (as inputs/lammps_chain.toml prepares data.chain)."""
+    with open(os.path.join(ROOT, "inputs", "lammps_chain.toml")) as f:
+        text = f.read()
+    start = text.index("[variables]")
+    text = text[start:].replace("/usr/share/lammps/examples/COUPLE/multiple/data.chain", data)
+    with open(path, "w") as f:
+        f.write(f"# Written by {WRITER}: inputs/lammps_chain.toml on the equilibrated small melt.\n" + text)
+    return path
+
+
+# ------------------------------------------------------------------------------- one run of ladder
+
+class Chains:
+    """The chains of a state (consecutive atoms bonded i–i+1), its bond-angle triples and its box."""
+
+    def __init__(self, data):
+        bonds = read_bonds(data)
+        with open(data) as f:
+            lines = f.read().split("\n")
+        self.box = float(next(line for line in lines if line.endswith("xlo xhi")).split()[1])
+        self.natoms = next(int(line.split()[0]) for line in lines if line.strip().endswith(" atoms"))
+        bonded = np.zeros(self.natoms - 1, dtype=bool)
+        for i, j in bonds:
+            i, j = min(i, j), max(i, j)
+            if j != i + 1:
+                raise RunFailed(f"{data}: bond {i + 1}-{j + 1} does not join consecutive atoms")
+            bonded[i] = True
+        self.bonded = bonded
+        self.starts = np.concatenate(([0], np.nonzero(~bonded)[0] + 1))
+        middle = np.nonzero(bonded[:-1] & bonded[1:])[0] + 1  # atoms with a bond on both sides
+        self.triples = np.stack((middle - 1, middle, middle + 1), axis=1)
+
+    def measure(self, x):
+        """(<cos θ>, <cos²θ>, Rg of every chain) of one frame; θ: the angle i-j-k, 180° = straight."""
+        d = x[1:] - x[:-1]
+        wrapped = d - self.box * np.round(d / self.box)
+        d = np.where(self.bonded[:, None], wrapped, d)  # raw across chain ends: each chain restarts at its atom
+        u = np.vstack((x[:1], x[:1] + np.cumsum(d, axis=0)))
+        a = -wrapped[self.triples[:, 0]]  # x_i - x_j
+        b = wrapped[self.triples[:, 1]]  # x_k - x_j
+        c = np.einsum("ij,ij->i", a, b) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        counts = np.diff(np.append(self.starts, self.natoms))
+        mean = np.add.reduceat(u, self.starts, axis=0) / counts[:, None]
+        sq = np.add.reduceat((u * u).sum(axis=1), self.starts) / counts
+        rg = np.sqrt(np.maximum(sq - (mean * mean).sum(axis=1), 0.0))
+        return c.mean(), (c * c).mean(), rg
+
+
+def lammps_frames(path):
+    """(step, positions sorted by id) of every frame of a LAMMPS `dump custom id mol xu yu zu`."""
+    with open(path) as f:
+        while True:
+            line = f.readline()
+            if not line:
+                return
+            step = int(f.readline())
+            f.readline()
+            n = int(f.readline())
+            for _ in range(5):  # ITEM: BOX BOUNDS, its 3 lines, ITEM: ATOMS
+                f.readline()
+            yield step, np.loadtxt([f.readline() for _ in range(n)], usecols=(2, 3, 4), ndmin=2)
+
+
+def lammps_pressure(log):
+    """(step, pressure) rows of the thermo of a LAMMPS log."""
+    rows, columns = [], None
+    with open(log, errors="replace") as f:
+        for line in f:
+            words = line.split()
+            if words[:1] == ["Step"]:
+                columns = words
+            elif line.startswith("Loop time"):
+                columns = None
+            elif columns and len(words) == len(columns):
+                try:
+                    rows.append((int(words[0]), float(words[columns.index("Press")])))
+                except ValueError:
+                    columns = None
+    return rows
+
+
+def micro_steps(args, eps, h, method):
+    return math.ceil(h / (eps / args.micro_per_eps) * (1 - 1e-9)) if method in MICRO else 1
+
+
+def run_one(args, eps, method, h, t_end, state, chains, work):
+    """One run of the ladder (or the reference) at about the step h (rounded to divide t_end); returns its
+    row of ladder.csv. Its row is kept in the run's directory (row.json) and reused by a rerun with the
+    same settings, as are the outputs of a finished run that was not analysed."""
+    tag = f"eps{eps:g}_{method}_h{h:.6g}" + ("_ref" if t_end == args.t_ref and method == "velocity-verlet" else "")
+    steps = round(t_end / h)
+    h = t_end / steps  # a whole number of steps
+    n = micro_steps(args, eps, h, method)
+    run_dir = os.path.join(work, "runs", tag)
+    os.makedirs(run_dir, exist_ok=True)
+    row = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "status": "ok"}
+    seed = zlib.crc32(tag.encode()) % 2 ** 30 + 1  # every run its own noise: the runs are independent samples
+    if method == "lammps-respa" and seed > 900000000:  # LAMMPS's Marsaglia generator takes at most 9e8
+        seed -= 900000000
+    key = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "seed": seed, "discard": args.discard,
+           "blocks": args.blocks, "frame_every": args.frame_every, "thermo_every": args.thermo_every,
+           "state": os.path.abspath(state)}
+    cached = os.path.join(run_dir, "row.json")
+    if os.path.exists(cached):
+        with open(cached) as f:
+            kept = json.load(f)
+        if kept["key"] == key:
+            return dict(kept["row"], rg_chains=np.array(kept["row"]["rg_chains"])) if "rg_chains" in kept["row"] \
+                else kept["row"]
+    row = measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_dir, row)
+    with open(cached, "w") as f:
+        json.dump({"key": key, "row": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in row.items()}},
+                  f)
+    return row
+
+
+def finished_earlier(run_dir, h, steps):
+    """A stiffmd run in run_dir that finished with this h and these steps and was not analysed."""
+    try:
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            s = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return s["steps"] == steps and math.isclose(s["h"], h, rel_tol=1e-12) and \
+        os.path.exists(os.path.join(run_dir, "frames.xyz"))
+
+
+def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_dir, row):
+    if method == "lammps-respa":
+        lmp_in = os.path.join(run_dir, "in.run")
+        every = max(1, round(args.frame_every / h))
+        write_lammps_input(lmp_in, state, eps, h, n, steps, max(1, round(args.thermo_every / h)), WRITER,
+                           langevin=(KT, DAMP, seed), dump=(every, "frames.dump"))
+        cmd = [args.lmp, "-in", lmp_in, "-log", "log.lammps", "-screen", "none", "-echo", "none", "-nocite"]
+        code, _, _ = run_measured(cmd, run_dir, 1)
+        log = os.path.join(run_dir, "log.lammps")
+        try:
+            loop, done, cpu_percent, _, _, _ = parse_lammps_log(log)
+        except (RunFailed, OSError):
+            loop, done, cpu_percent = None, 0, float("nan")
+        if code != 0 or done != steps:
+            row["status"] = f"failed (exit {code})"
+            return row
+        row["cpu_seconds"] = loop * cpu_percent / 100.0
+        frames = [(s * h, x) for s, x in lammps_frames(os.path.join(run_dir, "frames.dump"))]
+        pressure = [(s * h, p) for s, p in lammps_pressure(log)]
+        os.remove(os.path.join(run_dir, "frames.dump"))
+    else:
+        deck = os.path.join(run_dir, "run.toml")
+        write_deck(deck, state, eps, WRITER, method, h, n, t_end, args.thermo_every)
+        cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
+               "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+               "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
+               "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={fmt(args.frame_every)}",
+               "--set", "output.checkpoint_every=0"]
+        code = 0 if finished_earlier(run_dir, h, steps) else run_measured(cmd, run_dir, 1)[0]
+        if code != 0:
+            row["status"] = f"failed (exit {code})"
+            return row
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            row["cpu_seconds"] = json.load(f)["cpu_seconds"]
+        frames = list(xyz_frames(os.path.join(run_dir, "frames.xyz")))
+        with open(os.path.join(run_dir, "thermo.csv")) as f:
+            pressure = [(float(r["time"]), float(r["pressure"])) for r in csv.DictReader(f)]
+        for name in ("frames.xyz", "checkpoint.bin"):
+            if os.path.exists(os.path.join(run_dir, name)):
+                os.remove(os.path.join(run_dir, name))
+    frames = [chains.measure(x) for t, x in frames if t > args.discard + 1e-9]
+    pressure = [p for t, p in pressure if t > args.discard + 1e-9]
+    row["frames"] = len(frames)
+    if len(frames) < args.blocks or len(pressure) < args.blocks:
+        raise RunFailed(f"{run_dir}: {len(frames)} frames, {len(pressure)} thermo rows after t = {args.discard}: "
+                        f"fewer than --blocks {args.blocks}")
+    series = {"cos": [f[0] for f in frames], "cos2": [f[1] for f in frames], "rg": [f[2].mean() for f in frames],
+              "pressure": pressure}
+    row["rg_chains"] = np.mean([f[2] for f in frames], axis=0)  # each chain's time average, for the paired test
+    for q in OBSERVABLES:
+        mean, err = block_mean(series[q], args.blocks)
+        row[q], row[q + "_err"] = float(mean), float(err)
+    if not all(math.isfinite(row[q]) for q in OBSERVABLES):
+        row["status"] = "failed (non-finite)"
+    return row
+
+
+def judge(row, ref, sigma):
+    """The criterion: every observable within sigma × the combined block error of the reference's; Rg
+    paired over chains (both runs start from one configuration): the mean over chains of the difference
+    of each chain's time-averaged Rg, against the standard error of that mean over the chains."""
+    if row["status"] != "ok":
+        row["passed"] = False
+        return row
+    ok = True
+    for q in OBSERVABLES:
+        if q == "rg":
+            d = row["rg_chains"] - ref["rg_chains"]
+            z = d.mean() / (d.std(ddof=1) / math.sqrt(len(d)))
+        else:
+            z = (row[q] - ref[q]) / math.hypot(row[q + "_err"], ref[q + "_err"])
+        row[q + "_z"] = z
+        ok &= abs(z) < sigma
+    row["passed"] = ok
+    return row
+
+
+def ladder_of(args, eps, method):
+    if method == "velocity-verlet":
+        return [r * eps for r in args.vv_ladder]
+    return args.micro_ladder if method in MICRO else args.ladder
+
+
+def climb(args, eps, method, ref, state, chains, work, log):
+    """Runs the method up its ladder until the first failing step; returns the rows."""
+    rows = []
+    if method == "velocity-verlet":  # the reference is the first step
+        rows.append(dict(ref, passed=True, **{q + "_z": 0.0 for q in OBSERVABLES}))
+    for h in ladder_of(args, eps, method):
+        row = judge(run_one(args, eps, method, h, args.t_run, state, chains, work), ref, args.sigma)
+        rows.append(row)
+        log(f"eps {eps:g} {method:18s} h {h:.4g} n {row['n']}: {row['status']}, "
+            + ("PASS" if row["passed"] else "fail")
+            + "".join(f" {q} {row.get(q + '_z', float('nan')):+.1f}σ" for q in OBSERVABLES))
+        if not row["passed"]:
+            break
+    return rows
+
+
+def largest_step(rows):
+    """(h, n, passed) of the largest passing step before the first failure, else the first step tried."""
+    best = None
+    for r in rows:
+        if not r["passed"]:
+            break
+        best = r
+    if best is None:
+        return rows[0]["h"], rows[0]["n"], False
+    return best["h"], best["n"], True
+
+
+# ------------------------------------------------------------------------------------------ cost
+
+def timed_run(args, eps, method, h, n, state, work, repeat):
+    """One timed run; its row is kept in its directory (timed.json) and reused by a rerun with the same
+    settings (so that ε subsets can be timed apart and assembled by the full command)."""
+    steps = max(10, math.ceil(args.timed_micro / n)) if method in MICRO else args.timed_steps
+    run_dir = os.path.join(work, "timed", f"eps{eps:g}_{method}_r{repeat}")
+    os.makedirs(run_dir, exist_ok=True)
+    key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
+    cached = os.path.join(run_dir, "timed.json")
+    if os.path.exists(cached):
+        with open(cached) as f:
+            kept = json.load(f)
+        if kept["key"] == key:
+            return kept["row"]
+    row = timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat)
+    with open(cached, "w") as f:
+        json.dump({"key": key, "row": row}, f)
+    return row
+
+
+def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
+    if method == "lammps-respa":
+        lmp_in = os.path.join(run_dir, "in.run")
+        write_lammps_input(lmp_in, state, eps, h, n, steps, steps, WRITER, langevin=(KT, DAMP, 4711))
+        cmd = [args.lmp, "-in", lmp_in, "-log", "log.lammps", "-screen", "none", "-echo", "none", "-nocite"]
+        code, _, _ = run_measured(cmd, run_dir, 1)
+        if code != 0:
+            raise RunFailed(f"timed LAMMPS run failed (exit {code}) in {run_dir}")
+        loop, done, cpu_percent, _, _, _ = parse_lammps_log(os.path.join(run_dir, "log.lammps"))
+        wall, cpu = loop, loop * cpu_percent / 100.0
+    else:
+        deck = os.path.join(run_dir, "run.toml")
+        write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
+        cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
+               "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+               "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=4711",
+               "--set", "output.checkpoint_every=0"]
+        code, _, _ = run_measured(cmd, run_dir, 1)
+        if code != 0:
+            raise RunFailed(f"timed run failed (exit {code}): {shlex.join(cmd)}")
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            s = json.load(f)
+        wall, cpu, done = s["wall_seconds"], s["cpu_seconds"], s["steps"]
+        if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
+            os.remove(os.path.join(run_dir, "checkpoint.bin"))
+    return {"eps": eps, "method": method, "h": h, "n": n, "steps": done, "repeat": repeat,
+            "cpu_per_time": cpu / (done * h), "wall_per_time": wall / (done * h)}
+
+
+# ----------------------------------------------------------------------------------- the outputs
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def summarise(ladder_rows, cost_rows, args):
+    """One row per (ε, method): largest step, pass/fail and the median cost."""
+    out = []
+    for eps in sorted({float(r["eps"]) for r in ladder_rows}, reverse=True):
+        for m in METHODS:
+            rows = [r for r in ladder_rows if float(r["eps"]) == eps and r["method"] == m]
+            if not rows:
+                continue
+            rows = [dict(r, passed=str(r["passed"]) == "True", h=float(r["h"]), n=int(r["n"])) for r in rows]
+            h, n, ok = largest_step(rows)
+            costs = [r for r in cost_rows if float(r["eps"]) == eps and r["method"] == m]
+            cpu = statistics.median(float(r["cpu_per_time"]) for r in costs) if costs else float("nan")
+            wall = statistics.median(float(r["wall_per_time"]) for r in costs) if costs else float("nan")
+            first_fail = next((r for r in rows if not r["passed"]), None)
+            out.append({"eps": eps, "method": m, "h": h, "n": n, "passed": ok, "cpu": cpu, "wall": wall,
+                        "natoms": int(costs[0]["natoms"]) if costs else 0,
+                        "stopped": "" if first_fail is None else
+                        f"{first_fail['h']:.4g}: " + (first_fail["status"] if first_fail["status"] != "ok" else ", ".join(
+                            f"{q} {float(first_fail[q + '_z']):+.1f}σ" for q in OBSERVABLES
+                            if abs(float(first_fail[q + "_z"])) >= args.sigma))})
+    return out
+
+
+def markdown(summary, args):
+    lines = [f"Largest step: on a melt of {args.chains} chains × {args.beads} beads, runs of {args.t_run} "
+             f"(reference {args.t_ref}) time units after discarding {args.discard}, {args.blocks} blocks, "
+             f"pass = every observable within {args.sigma:g} σ_combined of velocity Verlet at h = {args.ref_h:g} ε. "
+             f"Cost: CPU (wall) s per unit time, one thread, median of {args.repeats}, on "
+             f"{summary[0]['natoms'] if summary else '?'} beads.", "",
+             "| ε | method | largest step h (n) | observables | CPU s / time unit | wall s / time unit | "
+             "÷ velocity Verlet (CPU) | first failing step |",
+             "|---|---|--:|---|--:|--:|--:|---|"]
+    for s in summary:
+        vv = next((t["cpu"] for t in summary if t["eps"] == s["eps"] and t["method"] == "velocity-verlet"), None)
+        n = f" ({s['n']})" if s["method"] in MICRO else ""
+        lines.append(f"| {s['eps']:g} | {s['method']} | {s['h']:.4g}{n} | {'kept' if s['passed'] else '**FAILS**'} "
+                     f"| {s['cpu']:.3g} | {s['wall']:.3g} | {vv / s['cpu'] if vv else float('nan'):.2f} | "
+                     f"{s['stopped'] or '–'} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(summary, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    style = {"velocity-verlet": ("k", "o"), "impulse": ("tab:orange", "v"), "projected-impulse": ("tab:green", "^"),
+             "mollified-impulse": ("tab:olive", "D"), "rattle": ("tab:red", "s"), "fixman": ("tab:blue", "*"),
+             "lammps-respa": ("tab:purple", "P")}
+    fig, ax = plt.subplots(figsize=(7.0, 5.0))
+    for m in METHODS:
+        pts = [s for s in summary if s["method"] == m and math.isfinite(s["cpu"])]
+        if not pts:
+            continue
+        colour, marker = style[m]
+        ax.plot([s["eps"] for s in pts], [s["cpu"] for s in pts], color=colour, ls="-" if all(
+            s["passed"] for s in pts) else ":", lw=1.2, label=m + ("" if all(s["passed"] for s in pts) else " (× fails)"))
+        for s in pts:
+            ax.plot(s["eps"], s["cpu"], marker=marker if s["passed"] else "x", color=colour, ms=8 if s["passed"] else 9,
+                    mfc=colour if s["passed"] else "none", ls="")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("ε (stiff bonds, ω_max = 2α/ε)")
+    ax.set_ylabel("CPU seconds per unit simulated time (one thread)")
+    ax.set_title("stiff melt in NVT: each method at its largest step keeping the observables\n"
+                 "(step found on a 3000-bead melt, cost measured on data.chain, 32 000 beads)", fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path, dpi=120)
+
+
+# ------------------------------------------------------------------------------------------ main
+
+def parse_args():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--eps", default="1e-2,3e-3,1e-3,3e-4,1e-4")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--chains", type=int, default=30)
+    ap.add_argument("--beads", type=int, default=100)
+    ap.add_argument("--t-equil", type=float, default=10.0)
+    ap.add_argument("--t-run", type=float, default=4.0)
+    ap.add_argument("--t-ref", type=float, default=6.0)
+    ap.add_argument("--discard", type=float, default=0.5)
+    ap.add_argument("--blocks", type=int, default=10)
+    ap.add_argument("--sigma", type=float, default=3.0)
+    ap.add_argument("--frame-every", type=float, default=0.05)
+    ap.add_argument("--thermo-every", type=float, default=0.01)
+    ap.add_argument("--micro-per-eps", type=float, default=10.0, help="micro step δ = ε / this")
+    ap.add_argument("--ref-h", type=float, default=0.2, help="the reference's h / ε")
+    ap.add_argument("--vv-ladder", default="0.283,0.4,0.566,0.8", help="velocity Verlet's steps / ε")
+    ap.add_argument("--ladder", default="0.0025,0.0035,0.005,0.007,0.01,0.014,0.02,0.028",
+                    help="rattle's and fixman's steps")
+    ap.add_argument("--micro-ladder", default="0.0025,0.005,0.01,0.02", help="the micro-step methods' macro steps")
+    ap.add_argument("--timing", choices=["data.chain", "small"], default="data.chain",
+                    help="the system the cost is measured on")
+    ap.add_argument("--timed-steps", type=int, default=150)
+    ap.add_argument("--timed-micro", type=int, default=1500)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--jobs", type=int, default=2, help="ladder runs at once (the timed runs are serial)")
+    ap.add_argument("--quick", action="store_true",
+                    help="CI size: 8 chains of 20, ε 1e-2 and 3e-3, short runs, cost on the small melt")
+    ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
+    ap.add_argument("--lmp", default="lmp")
+    ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "cost_vs_eps"))
+    ap.add_argument("--figure", default=os.path.join(ROOT, "docs", "figures", "cost_vs_eps.png"))
+    ap.add_argument("--plot-only", action="store_true")
+    ap.add_argument("--timing-only", action="store_true", help="the timed runs at the steps of OUT/ladder.csv")
+    ap.add_argument("--no-timing", action="store_true", help="the ladders only (OUT/ladder.csv)")
+    args = ap.parse_args()
+    if args.quick:
+        args.eps = "1e-2,3e-3" if args.eps == ap.get_default("eps") else args.eps
+        args.chains, args.beads, args.t_equil, args.t_run, args.t_ref, args.discard = 8, 20, 0.5, 0.3, 0.3, 0.05
+        args.blocks, args.frame_every, args.thermo_every, args.timing = 5, 0.025, 0.01, "small"
+        args.ladder, args.micro_ladder, args.vv_ladder = "0.005,0.01", "0.005,0.01", "0.4"
+        args.timed_steps, args.timed_micro, args.repeats = 20, 100, 1
+    args.eps = split_floats(args.eps)
+    args.methods = [m for m in args.methods.replace(",", " ").split()]
+    args.vv_ladder, args.ladder, args.micro_ladder = (split_floats(v) for v in (args.vv_ladder, args.ladder,
+                                                                                 args.micro_ladder))
+    bad = [m for m in args.methods if m not in METHODS]
+    if bad:
+        ap.error(f"unknown method(s) {bad}; expected some of {METHODS}")
+    if "velocity-verlet" not in args.methods:
+        args.methods.insert(0, "velocity-verlet")  # the reference of every criterion
+    for name in ("vv_ladder", "ladder", "micro_ladder"):
+        v = getattr(args, name)
+        if not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0:
+            ap.error(f"--{name.replace('_', '-')}: expected increasing positive steps, got {v}")
+    if args.vv_ladder[0] <= args.ref_h:
+        ap.error("--vv-ladder must start above --ref-h (the reference is velocity Verlet's first step)")
+    return args
+
+
+def main():
+    args = parse_args()
+    args.out = os.path.abspath(args.out)
+    args.stiffmd = os.path.abspath(args.stiffmd)  # runs execute in their own directories
+    work = os.path.join(args.out, "work")
+    os.makedirs(work, exist_ok=True)
+    lock = threading.Lock()
+
+    def log(text):
+        with lock:
+            print(text, flush=True)
+
+    if not args.plot_only:
+        if not os.access(args.stiffmd, os.X_OK):
+            print(f"cost_vs_eps: no stiffmd binary at {args.stiffmd}", file=sys.stderr)
+            return 2
+        lmp = shutil.which(args.lmp)
+        if lmp is None and "lammps-respa" in args.methods:
+            log(f"cost_vs_eps: LAMMPS ('{args.lmp}') not found: no lammps-respa line")
+            args.methods.remove("lammps-respa")
+        args.lmp = lmp
+        with open(os.path.join(args.out, "command.txt"), "w") as f:
+            f.write(shlex.join([sys.executable] + sys.argv) + "\n")
+        try:
+            equilibrated = equilibrated_melt(args, work)
+            src = source_deck(os.path.join(work, "small_source.toml"), equilibrated)
+            states = {e: prepare_state(args.stiffmd, e, os.path.join(work, f"small_eps{e:g}.data"), deck=src)
+                      for e in args.eps}
+            chains = Chains(states[args.eps[0]])
+            log(f"small melt: {chains.natoms} beads, {len(chains.starts)} chains, box {chains.box:.4g}")
+            if not args.timing_only:  # else: the ladder.csv of an earlier run
+                ladder_rows = []
+                with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
+                    refs = {e: pool.submit(run_one, args, e, "velocity-verlet", args.ref_h * e, args.t_ref, states[e],
+                                           chains, work) for e in sorted(args.eps)}
+
+                    def task(e, m):
+                        ref = refs[e].result()
+                        if ref["status"] != "ok":
+                            raise RunFailed(f"the reference at eps {e:g} failed: {ref['status']}")
+                        return climb(args, e, m, ref, states[e], chains, work, log)
+
+                    ladders = [pool.submit(task, e, m) for e in sorted(args.eps, reverse=True) for m in args.methods]
+                    for f in ladders:
+                        ladder_rows += f.result()
+                with open(os.path.join(args.out, "ladder.csv"), "w", newline="") as f:
+                    w = csv.DictWriter(f, fieldnames=LADDER_FIELDS, extrasaction="ignore")
+                    w.writeheader()
+                    w.writerows(ladder_rows)
+            ladder_rows = read_csv(os.path.join(args.out, "ladder.csv"))
+            if args.no_timing:
+                return 0
+            chosen = summarise(ladder_rows, [], args)
+
+            cost_rows = []
+            timing_states = {}
+            for e in args.eps:
+                if args.timing == "small":
+                    timing_states[e] = states[e]
+                else:
+                    timing_states[e] = prepare_state(args.stiffmd, e, os.path.join(work, f"datachain_eps{e:g}.data"))
+            for repeat in range(args.repeats):  # interleaved: slow drifts of the machine's load hit all alike
+                for s in chosen:
+                    e = s["eps"]
+                    r = timed_run(args, e, s["method"], s["h"], s["n"], timing_states[e], work, repeat)
+                    r["natoms"] = chains.natoms if args.timing == "small" else 32000
+                    log(f"timed eps {e:g} {s['method']:18s} h {s['h']:.4g} n {s['n']}: "
+                        f"{r['cpu_per_time']:.3g} CPU s / time unit ({r['wall_per_time']:.3g} wall)")
+                    cost_rows.append(r)
+            with open(os.path.join(args.out, "cost.csv"), "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=COST_FIELDS)
+                w.writeheader()
+                w.writerows(cost_rows)
+        except RunFailed as e:
+            print(f"cost_vs_eps: {e}", file=sys.stderr)
+            return 2
+    summary = summarise(read_csv(os.path.join(args.out, "ladder.csv")), read_csv(os.path.join(args.out, "cost.csv")),
+                        args)
+    table = markdown(summary, args)
+    with open(os.path.join(args.out, "cost_vs_eps.md"), "w") as f:
+        f.write(table)
+    print(table)
+    figure(summary, args.figure)
+    print("figure:", args.figure)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
