@@ -30,6 +30,9 @@ struct BondInstance {
   Params params;
 };
 
+// Work items per block of the bond loop (bond_block below).
+inline constexpr int kBondBlock = 64;
+
 // Which bonds each thread evaluates, and for which ends (owner computes, see above).
 class BondPartition {
  public:
@@ -48,13 +51,18 @@ class BondPartition {
     num_bonds_ = bonds.size();
     start_.assign(threads + 1, 0);
     work_.clear();
+    halo_.clear();
+    halo_start_.assign(threads + 1, 0);
+    int n = 0;
+    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
+    first_.assign(threads + 1, n);
+    first_[0] = 0;
     if (threads == 1) {  // every bond, both ends, in order
       for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
       start_[1] = static_cast<std::int64_t>(work_.size());
+      find_reach(bonds);
       return;
     }
-    int n = 0;
-    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
     for (const auto& b : bonds) {
       ++ends[b.i + 1];
@@ -69,6 +77,7 @@ class BondPartition {
       return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
     };
     std::vector<std::vector<Work>> per(threads);
+    std::vector<std::vector<int>> halo(threads);
     for (std::size_t k = 0; k < bonds.size(); ++k) {
       const int oi = owner(bonds[k].i), oj = owner(bonds[k].j);
       if (oi == oj) {
@@ -76,74 +85,120 @@ class BondPartition {
       } else {
         per[oi].push_back({static_cast<int>(k), true, false});
         per[oj].push_back({static_cast<int>(k), false, true});
+        halo[oi].push_back(bonds[k].i);
+        halo[oj].push_back(bonds[k].j);
       }
     }
     for (int t = 0; t < threads; ++t) {
       start_[t + 1] = start_[t] + static_cast<std::int64_t>(per[t].size());
       work_.insert(work_.end(), per[t].begin(), per[t].end());
+      std::sort(halo[t].begin(), halo[t].end());
+      halo[t].erase(std::unique(halo[t].begin(), halo[t].end()), halo[t].end());
+      halo_start_[t + 1] = halo_start_[t] + static_cast<std::int64_t>(halo[t].size());
+      halo_.insert(halo_.end(), halo[t].begin(), halo[t].end());
     }
+    for (int t = 1; t < threads; ++t) first_[t] = first[t];
+    find_reach(bonds);
   }
 
   int threads() const { return threads_; }
   const Work* begin(int t) const { return work_.data() + start_[t]; }
   const Work* end(int t) const { return work_.data() + start_[t + 1]; }
   double* energy_slots() { return energy_.data(); }  // one per owner
+  // Owner t's particles are first(t) … first(t + 1) − 1 (the last owner's range ends at the last
+  // bonded particle: the fused micro step gives it the unbonded rest too).
+  int first(int t) const { return first_[t]; }
+  // The particles of owner t that are an end of a bond with an end of another owner (sorted):
+  // the only particles another thread reads.
+  const int* halo_begin(int t) const { return halo_.data() + halo_start_[t]; }
+  const int* halo_end(int t) const { return halo_.data() + halo_start_[t + 1]; }
+  // One past the highest of owner t's particles that its work block b (items begin(t) + b·kBondBlock
+  // …) reads: the fused micro step drifts that far before the block.
+  int reach(int t, std::int64_t b) const { return reach_[reach_start_[t] + b]; }
 
  private:
   int threads_ = 0;
   std::size_t num_bonds_ = 0;
   std::vector<std::int64_t> start_;
   std::vector<Work> work_;
+  std::vector<int> first_;
+  std::vector<int> halo_;
+  std::vector<std::int64_t> halo_start_;
+  std::vector<int> reach_;
+  std::vector<std::int64_t> reach_start_;
+
+  template <class Params>
+  void find_reach(const std::vector<BondInstance<Params>>& bonds) {
+    reach_.clear();
+    reach_start_.assign(threads_ + 1, 0);
+    for (int t = 0; t < threads_; ++t) {
+      int reach = first_[t];
+      for (std::int64_t q = start_[t]; q < start_[t + 1]; q += kBondBlock) {
+        for (std::int64_t k = q; k < std::min(q + kBondBlock, start_[t + 1]); ++k) {
+          const auto& b = bonds[work_[k].bond];
+          if (work_[k].add_i) reach = std::max(reach, b.i + 1);
+          if (work_[k].add_j) reach = std::max(reach, b.j + 1);
+        }
+        reach_.push_back(reach);
+      }
+      reach_start_[t + 1] = static_cast<std::int64_t>(reach_.size());
+    }
+  }
   std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
 };
+
+// One block of nb ≤ kBondBlock work items of an owner: gather the separations, compute every
+// force of the block in a loop without branches or memory dependences (which the compiler
+// vectorises: two square roots and divisions per instruction), then add the forces into f (the
+// owner's ends only). Adds the block's energy (bonds counted by the owner of i) to e_t. Adding
+// each force as soon as it is known was measured at the latency of sqrt + div per bond: in a
+// chain, bond k + 1 adds into the particle bond k has just written.
+template <class Kernel, class Params>
+inline void bond_block(const std::vector<BondInstance<Params>>& bonds, const BondPartition::Work* w, int nb,
+                       const Eigen::Matrix3Xd& x, double* fp, double& e_t) {
+  alignas(64) double d[3][kBondBlock], counted[kBondBlock];
+  Params p[kBondBlock];
+  for (int k = 0; k < nb; ++k) {
+    const auto& b = bonds[w[k].bond];
+    const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
+    for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
+    p[k] = b.params;
+    counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
+  }
+  for (int k = 0; k < nb; ++k) {
+    const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
+    double e = 0.0, de_dr = 0.0;
+    Kernel::eval(r, p[k], e, de_dr);
+    e_t += counted[k] * e;
+    const double scale = -de_dr / r;  // −∂E/∂x_i = scale · d; x_j gets its negative
+    for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+  }
+  for (int k = 0; k < nb; ++k) {
+    const auto& b = bonds[w[k].bond];
+    if (w[k].add_i)
+      for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a][k];
+    if (w[k].add_j)
+      for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a][k];
+  }
+}
 
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
 // positions (bond_vector, engine/core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
-// (rebuilt when the thread count changes).
-//
-// Each owner works in blocks of kBlock bonds: gather the separations, compute every force of
-// the block in a loop without branches or memory dependences (which the compiler vectorises:
-// two square roots and divisions per instruction), then add the forces into f. Adding each
-// force as soon as it is known was measured at the latency of sqrt + div per bond: in a chain,
-// bond k + 1 adds into the particle bond k has just written.
+// (rebuilt when the thread count changes). Each owner works in blocks (bond_block).
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
   (void)box;
-  constexpr int kBlock = 64;
   double* fp = f.data();
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
   partition.prepare(bonds, threads);
   double* energy = partition.energy_slots();
   auto run_owner = [&](int t) {
     double e_t = 0.0;
-    alignas(64) double d[3][kBlock], counted[kBlock];
-    Params p[kBlock];
-    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBlock) {
-      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBlock, partition.end(t) - w));
-      for (int k = 0; k < nb; ++k) {
-        const auto& b = bonds[w[k].bond];
-        const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
-        for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
-        p[k] = b.params;
-        counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
-      }
-      for (int k = 0; k < nb; ++k) {
-        const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
-        double e = 0.0, de_dr = 0.0;
-        Kernel::eval(r, p[k], e, de_dr);
-        e_t += counted[k] * e;
-        const double scale = -de_dr / r;  // −∂E/∂x_i = scale · d; x_j gets its negative
-        for (int a = 0; a < 3; ++a) d[a][k] *= scale;
-      }
-      for (int k = 0; k < nb; ++k) {
-        const auto& b = bonds[w[k].bond];
-        if (w[k].add_i)
-          for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a][k];
-        if (w[k].add_j)
-          for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a][k];
-      }
+    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBondBlock) {
+      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBondBlock, partition.end(t) - w));
+      bond_block<Kernel>(bonds, w, nb, x, fp, e_t);
     }
     energy[t] = e_t;
   };
@@ -151,6 +206,64 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
   double sum = 0.0;
   for (int t = 0; t < threads; ++t) sum += energy[t];
   return sum;
+}
+
+// The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
+// particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
+// forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
+// f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same
+// bits (the bond forces into each particle are added in the same work order, starting from 0).
+//
+// Owner t streams its particles in index order and evaluates its work in the same blocks as
+// accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
+// along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
+// touched while in cache. Particles another owner reads (the halo: ends of bonds between owners)
+// are advanced first, serially: their x is then final before any owner reads it, and no two
+// threads write one particle.
+template <class Kernel, class Params>
+void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
+                                  Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                                  double dt_kick, double dt, BondPartition& partition) {
+  const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
+  partition.prepare(bonds, threads);
+  const std::int64_t n = x.cols();
+  double* xp = x.data();
+  double* vp = v.data();
+  double* fp = f.data();
+  const double* w_inv = inv_mass.data();
+  auto advance = [&](std::int64_t i) {  // as kick_drift, then the slot cleared for the new force
+    const double s = dt_kick * w_inv[i];
+    for (int a = 0; a < 3; ++a) {
+      vp[3 * i + a] += s * fp[3 * i + a];
+      xp[3 * i + a] += dt * vp[3 * i + a];
+      fp[3 * i + a] = 0.0;
+    }
+  };
+  for (int t = 0; t < threads; ++t)
+    for (const int* h = partition.halo_begin(t); h < partition.halo_end(t); ++h) advance(*h);
+  run_parts(threads, [&](int t) {
+    const int* halo = partition.halo_begin(t);
+    const int* const halo_end = partition.halo_end(t);
+    std::int64_t next = partition.first(t);  // the first of t's particles not yet advanced
+    auto advance_to = [&](std::int64_t end) {
+      while (next < end) {
+        const std::int64_t stop = halo != halo_end ? std::min<std::int64_t>(end, *halo) : end;
+        for (; next < stop; ++next) advance(next);
+        if (next < end) {  // a halo particle, advanced before the parallel part
+          ++halo;
+          ++next;
+        }
+      }
+    };
+    double e_t = 0.0;  // not needed by a micro step
+    std::int64_t block = 0;
+    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBondBlock, ++block) {
+      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBondBlock, partition.end(t) - w));
+      advance_to(partition.reach(t, block));
+      bond_block<Kernel>(bonds, w, nb, x, fp, e_t);
+    }
+    advance_to(t + 1 == threads ? n : partition.first(t + 1));
+  });
 }
 
 // Σ_b r_ij · f_ij over the bonds (f_ij = −dE/dr · r_ij/r, so each term is −r dE/dr).
