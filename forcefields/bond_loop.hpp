@@ -60,7 +60,7 @@ class BondPartition {
     if (threads == 1) {  // every bond, both ends, in order
       for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
       start_[1] = static_cast<std::int64_t>(work_.size());
-      find_reach(bonds);
+      find_segments(bonds);
       return;
     }
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
@@ -98,7 +98,7 @@ class BondPartition {
       halo_.insert(halo_.end(), halo[t].begin(), halo[t].end());
     }
     for (int t = 1; t < threads; ++t) first_[t] = first[t];
-    find_reach(bonds);
+    find_segments(bonds);
   }
 
   int threads() const { return threads_; }
@@ -112,9 +112,16 @@ class BondPartition {
   // the only particles another thread reads.
   const int* halo_begin(int t) const { return halo_.data() + halo_start_[t]; }
   const int* halo_end(int t) const { return halo_.data() + halo_start_[t + 1]; }
-  // One past the highest of owner t's particles that its work block b (items begin(t) + b·kBondBlock
-  // …) reads: the fused micro step drifts that far before the block.
-  int reach(int t, std::int64_t b) const { return reach_[reach_start_[t] + b]; }
+  // Owner t's work split for the fused micro step into segments, in work order: chain runs —
+  // consecutive items that are bonds k, k + 1, … joining particles p, p + 1, p + 2, … with both
+  // ends owned — and the other items.
+  struct Segment {
+    std::int64_t begin, end;  // work items
+    bool chain;
+  };
+  const Segment* segments_begin(int t) const { return segments_.data() + segment_start_[t]; }
+  const Segment* segments_end(int t) const { return segments_.data() + segment_start_[t + 1]; }
+  const Work* work() const { return work_.data(); }
 
  private:
   int threads_ = 0;
@@ -124,24 +131,31 @@ class BondPartition {
   std::vector<int> first_;
   std::vector<int> halo_;
   std::vector<std::int64_t> halo_start_;
-  std::vector<int> reach_;
-  std::vector<std::int64_t> reach_start_;
+  std::vector<Segment> segments_;
+  std::vector<std::int64_t> segment_start_;
 
   template <class Params>
-  void find_reach(const std::vector<BondInstance<Params>>& bonds) {
-    reach_.clear();
-    reach_start_.assign(threads_ + 1, 0);
+  void find_segments(const std::vector<BondInstance<Params>>& bonds) {
+    segments_.clear();
+    segment_start_.assign(threads_ + 1, 0);
+    auto links = [&](std::int64_t k) {  // item k + 1 continues item k's chain
+      const Work &a = work_[k], &b = work_[k + 1];
+      const auto &ba = bonds[a.bond], &bb = bonds[b.bond];
+      return a.add_i && a.add_j && b.add_i && b.add_j && b.bond == a.bond + 1 && ba.j == ba.i + 1 &&
+             bb.i == ba.j && bb.j == bb.i + 1;
+    };
     for (int t = 0; t < threads_; ++t) {
-      int reach = first_[t];
-      for (std::int64_t q = start_[t]; q < start_[t + 1]; q += kBondBlock) {
-        for (std::int64_t k = q; k < std::min(q + kBondBlock, start_[t + 1]); ++k) {
-          const auto& b = bonds[work_[k].bond];
-          if (work_[k].add_i) reach = std::max(reach, b.i + 1);
-          if (work_[k].add_j) reach = std::max(reach, b.j + 1);
-        }
-        reach_.push_back(reach);
+      std::int64_t k = start_[t];
+      while (k < start_[t + 1]) {
+        std::int64_t e = k + 1;
+        while (e < start_[t + 1] && links(e - 1)) ++e;
+        const bool chain = e - k >= 2;
+        if (!chain)  // extend the other items up to the next chain run
+          while (e < start_[t + 1] && !(e + 1 < start_[t + 1] && links(e))) ++e;
+        segments_.push_back({k, e, chain});
+        k = e;
       }
-      reach_start_[t + 1] = static_cast<std::int64_t>(reach_.size());
+      segment_start_[t + 1] = static_cast<std::int64_t>(segments_.size());
     }
   }
   std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
@@ -208,16 +222,54 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
   return sum;
 }
 
+// Bonds first … first + m − 1 of a chain run (BondPartition::Segment): bond q joins particles
+// p + q and p + q + 1, both owned. The operations of bond_block on each particle in the same order
+// — the particle p + q gets −f of bond q − 1, then +f of bond q — without the work list's
+// indirections: the separations are read along x, and each particle's force is written once,
+// f = (f − f_{q−1}) + f_q (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). In blocks of
+// kBondBlock bonds; advance_to(end) drifts the particles up to end − 1 before a block reads them.
+template <class Kernel, class Params, class Advance>
+void chain_run(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, const Eigen::Matrix3Xd& x,
+               double* fp, Advance& advance_to) {
+  alignas(64) double d[3][kBondBlock];
+  const double* xp = x.data();
+  const std::int64_t p = bonds[first].i;
+  double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
+  for (std::int64_t q0 = 0; q0 < m; q0 += kBondBlock) {
+    const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, m - q0));
+    advance_to(p + q0 + nb + 1);
+    const double* xq = xp + 3 * (p + q0);
+    for (int k = 0; k < nb; ++k)
+      for (int a = 0; a < 3; ++a) d[a][k] = xq[3 * k + a] - xq[3 * k + 3 + a];
+    const BondInstance<Params>* b = bonds.data() + first + q0;
+    for (int k = 0; k < nb; ++k) {
+      const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b[k].params, e, de_dr);
+      const double scale = -de_dr / r;
+      for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+    }
+    double* fq = fp + 3 * (p + q0);
+    for (int k = 0; k < nb; ++k)
+      for (int a = 0; a < 3; ++a) {
+        fq[3 * k + a] = (fq[3 * k + a] - carry[a]) + d[a][k];
+        carry[a] = d[a][k];
+      }
+  }
+  double* f_last = fp + 3 * (p + m);
+  for (int a = 0; a < 3; ++a) f_last[a] -= carry[a];
+}
+
 // The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
 // particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
 // forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
 // f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same
 // bits (the bond forces into each particle are added in the same work order, starting from 0).
 //
-// Owner t streams its particles in index order and evaluates its work in the same blocks as
+// Owner t streams its particles in index order and evaluates its work in the same order as
 // accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
 // along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
-// touched while in cache. Particles another owner reads (the halo: ends of bonds between owners)
+// touched while in cache; chain runs go through chain_run, without the work list. Particles another owner reads (the halo: ends of bonds between owners)
 // are advanced first, serially: their x is then final before any owner reads it, and no two
 // threads write one particle.
 template <class Kernel, class Params>
@@ -256,11 +308,23 @@ void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
       }
     };
     double e_t = 0.0;  // not needed by a micro step
-    std::int64_t block = 0;
-    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBondBlock, ++block) {
-      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBondBlock, partition.end(t) - w));
-      advance_to(partition.reach(t, block));
-      bond_block<Kernel>(bonds, w, nb, x, fp, e_t);
+    const BondPartition::Work* work = partition.work();
+    for (const auto* seg = partition.segments_begin(t); seg < partition.segments_end(t); ++seg) {
+      if (seg->chain) {
+        chain_run<Kernel>(bonds, work[seg->begin].bond, seg->end - seg->begin, x, fp, advance_to);
+        continue;
+      }
+      for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
+        const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg->end - q));
+        std::int64_t end = next;  // one past the highest of t's particles the block reads
+        for (int k = 0; k < nb; ++k) {
+          const auto& b = bonds[work[q + k].bond];
+          if (work[q + k].add_i) end = std::max<std::int64_t>(end, b.i + 1);
+          if (work[q + k].add_j) end = std::max<std::int64_t>(end, b.j + 1);
+        }
+        advance_to(end);
+        bond_block<Kernel>(bonds, work + q, nb, x, fp, e_t);
+      }
     }
     advance_to(t + 1 == threads ? n : partition.first(t + 1));
   });
