@@ -7,7 +7,8 @@
 //                                   without the slow force itself (f(α(x)) is precomputed)
 //   BM_MacroStep/<method>/<scene>   one macro step of the factory's integrator: the impulse family at
 //                                   h = 0.005 with 20 micro steps (as in the decks), velocity Verlet
-//                                   at h = 0.00025, rattle at h = 0.005
+//                                   at h = 0.00025, rattle at h = 0.005; impulse-unfused: the plain
+//                                   micro steps (kick_drift, then the force field's fast level)
 //   BM_MicroStepVsFloor/<scene>     one micro step fused and plain against the memory floor (one pass
 //                                   reading x, v, f and writing x, v), interleaved, CPU time
 //   BM_BondKernelPerBond/<scene>    ns per bond of the stiff harmonic bond force (vs LAMMPS:
@@ -44,6 +45,7 @@
 #include "forcefields/pair_term.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/multiple_time_stepping.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {
@@ -296,10 +298,12 @@ struct MacroStepCase {
   const char* method;
   double h;
   int micro_steps;
+  bool fused = true;  // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
 };
 
 constexpr MacroStepCase kMacroSteps[] = {
     {"impulse", 0.005, 20},
+    {"impulse", 0.005, 20, false},
     {"projected-impulse", 0.005, 20},
     {"mollified-impulse", 0.005, 20},
     {"velocity-verlet", 0.00025, 1},
@@ -320,6 +324,7 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
   std::unique_ptr<Integrator> integrator;
   try {
     integrator = make_integrator(settings, ff, s.inv_mass);
+    if (auto* mts = dynamic_cast<MultipleTimeStepping*>(integrator.get())) mts->use_fused_micro_step(c.fused);
     std::ostringstream log;
     integrator->prepare(s, log);
   } catch (const std::exception& e) {
@@ -556,7 +561,8 @@ bool register_benchmarks() {
     add("BM_BondForces", BM_BondForces);
     add("BM_ForceProjection", BM_ForceProjection);
     add("BM_Mollifier", BM_Mollifier);
-    for (const MacroStepCase& c : kMacroSteps) add("BM_MacroStep/" + std::string(c.method), BM_MacroStep, c);
+    for (const MacroStepCase& c : kMacroSteps)
+      add("BM_MacroStep/" + std::string(c.method) + (c.fused ? "" : "-unfused"), BM_MacroStep, c);
     add("BM_MicroStepVsFloor", BM_MicroStepVsFloor);
     add("BM_BondKernelPerBond", BM_BondKernelPerBond);
   }
