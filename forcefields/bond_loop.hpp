@@ -167,9 +167,34 @@ class BondPartition {
 // owner's ends only). Adds the block's energy (bonds counted by the owner of i) to e_t. Adding
 // each force as soon as it is known was measured at the latency of sqrt + div per bond: in a
 // chain, bond k + 1 adds into the particle bond k has just written.
+//
+// A block of at most kFewBonds items (a small molecule, a pendulum, an owner's last items) is
+// done bond by bond: the same operations in the same order, so the same bits, without the
+// gathered block — whose vector loads of just-stored scalars stall store-to-load forwarding, which
+// a handful of bonds does not amortise.
+inline constexpr int kFewBonds = 4;
+
 template <class Kernel, class Params>
 inline void bond_block(const std::vector<BondInstance<Params>>& bonds, const BondPartition::Work* w, int nb,
                        const Eigen::Matrix3Xd& x, double* fp, double& e_t) {
+  if (nb <= kFewBonds) {
+    for (int k = 0; k < nb; ++k) {
+      const auto& b = bonds[w[k].bond];
+      const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
+      double d[3] = {r_ij[0], r_ij[1], r_ij[2]};
+      const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b.params, e, de_dr);
+      e_t += (w[k].add_i ? 1.0 : 0.0) * e;
+      const double scale = -de_dr / r;
+      for (int a = 0; a < 3; ++a) d[a] *= scale;
+      if (w[k].add_i)
+        for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a];
+      if (w[k].add_j)
+        for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a];
+    }
+    return;
+  }
   alignas(64) double d[3][kBondBlock], counted[kBondBlock];
   Params p[kBondBlock];
   for (int k = 0; k < nb; ++k) {

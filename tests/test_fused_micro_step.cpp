@@ -5,7 +5,8 @@
 // particle are the same expressions, and the bond forces into a particle are added, starting from
 // 0, in the owner's work order of the bond loop, which the fused pass keeps (it only interleaves
 // the drift of other particles between the blocks). With threads, the owner-computes plan is the
-// bond loop's, so the claim holds per thread count.
+// bond loop's, so the claim holds per thread count. Also: the bond loop's few-bond path gives the
+// bits of its gathered blocks.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -88,6 +89,34 @@ TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
       EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);  // the bonds are stretched: a real force
     }
   }
+}
+
+// The bond loop does a block of at most kFewBonds bond by bond and a larger one gathered
+// (bond_loop.hpp); both must give the same bits. A 3-bond chain alone (one block of 3) against 30
+// copies of it at the same coordinates (90 bonds: blocks of 64 and 26): each copy's forces equal
+// the lone chain's bit for bit.
+TEST(BondLoop, FewBondsGiveTheBitsOfAGatheredBlock) {
+  static_assert(kFewBonds >= 3 && 26 > kFewBonds);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  Eigen::Matrix3Xd one(3, 4);
+  for (int p = 0; p < 4; ++p) one.col(p) = Eigen::Vector3d(0.9 * p + u(rng), u(rng), u(rng));
+  const int copies = 30;
+  Eigen::Matrix3Xd many(3, 4 * copies);
+  StiffBonds b1, bn;
+  b1.epsilon = bn.epsilon = 0.1;
+  for (int q = 0; q < 3; ++q) b1.bonds.push_back({q, q + 1, 0.97 + 0.01 * q, 1.0 + 0.1 * q});
+  for (int c = 0; c < copies; ++c) {
+    many.middleCols(4 * c, 4) = one;
+    for (const StiffBond& b : b1.bonds) bn.bonds.push_back({b.i + 4 * c, b.j + 4 * c, b.length, b.alpha});
+  }
+  const ThreadCount tc(1);
+  const StiffHarmonicBond t1("one", Level::fast, b1), tn("many", Level::fast, bn);
+  Eigen::Matrix3Xd f1 = Eigen::Matrix3Xd::Zero(3, 4), fn = Eigen::Matrix3Xd::Zero(3, 4 * copies);
+  t1.add_forces(one, Box{}, f1);
+  tn.add_forces(many, Box{}, fn);
+  ASSERT_GT(f1.cwiseAbs().maxCoeff(), 0.1);
+  for (int c = 0; c < copies; ++c) EXPECT_EQ(Eigen::Matrix3Xd(fn.middleCols(4 * c, 4)), f1) << "copy " << c;
 }
 
 MultipleTimeStepping& mts(Integrator& integ) {
