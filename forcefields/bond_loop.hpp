@@ -141,8 +141,8 @@ class BondPartition {
     auto links = [&](std::int64_t k) {  // item k + 1 continues item k's chain
       const Work &a = work_[k], &b = work_[k + 1];
       const auto &ba = bonds[a.bond], &bb = bonds[b.bond];
-      return a.add_i && a.add_j && b.add_i && b.add_j && b.bond == a.bond + 1 && ba.j == ba.i + 1 &&
-             bb.i == ba.j && bb.j == bb.i + 1;
+      return a.add_i && a.add_j && b.add_i && b.add_j && b.bond == a.bond + 1 && ba.j == ba.i + 1 && bb.i == ba.j &&
+             bb.j == bb.i + 1;
     };
     for (int t = 0; t < threads_; ++t) {
       std::int64_t k = start_[t];
@@ -294,9 +294,9 @@ void chain_run(const std::vector<BondInstance<Params>>& bonds, int first, std::i
 // Owner t streams its particles in index order and evaluates its work in the same order as
 // accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
 // along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
-// touched while in cache; chain runs go through chain_run, without the work list. Particles another owner reads (the halo: ends of bonds between owners)
-// are advanced first, serially: their x is then final before any owner reads it, and no two
-// threads write one particle.
+// touched while in cache; chain runs go through chain_run, without the work list. Particles
+// another owner reads (the halo: ends of bonds between owners) are advanced first, serially: their
+// x is then final before any owner reads it, and no two threads write one particle.
 template <class Kernel, class Params>
 void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
                                   Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,

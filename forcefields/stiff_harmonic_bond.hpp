@@ -24,8 +24,8 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   std::string describe() const override;
   const StiffBonds* stiff_bonds() const override { return &bonds_; }
   const FusedMicroStep* fused_micro_step() const override { return this; }
-  void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
-                        Eigen::Matrix3Xd& f, double dt_kick, double dt) const override {
+  void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                        double dt_kick, double dt) const override {
     fused_kick_drift_bond_forces<Kernel>(instances_, x, v, inv_mass, f, dt_kick, dt, partition_);
   }
 

@@ -131,10 +131,10 @@ MultipleTimeStepping& mts(Integrator& integ) {
 class FusedImpulseFamily : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(FusedImpulseFamily, TrajectoryIsBitIdenticalToThePlainPath) {
-  const Scene base = test::load("tests/decks/small_melt.toml",
-                                {"build.0.chains=64", "build.0.beads=72", "prepare.relax_steps=20",
-                                 "integrator.method=\"" + GetParam() + "\"", "integrator.h=0.005",
-                                 "integrator.micro_steps=7"});
+  const Scene base =
+      test::load("tests/decks/small_melt.toml",
+                 {"build.0.chains=64", "build.0.beads=72", "prepare.relax_steps=20",
+                  "integrator.method=\"" + GetParam() + "\"", "integrator.h=0.005", "integrator.micro_steps=7"});
   ASSERT_GE(base.state.size(), kParallelMin);
   for (int threads : {1, 2}) {
     SCOPED_TRACE(testing::Message() << threads << " threads");
@@ -171,11 +171,11 @@ TEST(FusedMicroStep, IsUsedOnlyWhereItIsTheSamePass) {
   sc.integrator.method = "velocity-verlet";
   EXPECT_FALSE(mts(*make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)).fused_micro_step());
   Scene lv = test::load("tests/decks/small_melt.toml",
-                        {"integrator.method=\"impulse\"", "thermostat.style=\"langevin\"",
-                         "thermostat.temperature=1.0", "thermostat.damp=1.0", "thermostat.seed=1"});
+                        {"integrator.method=\"impulse\"", "thermostat.style=\"langevin\"", "thermostat.temperature=1.0",
+                         "thermostat.damp=1.0", "thermostat.seed=1"});
   EXPECT_FALSE(mts(*make_integrator(lv.integrator, *lv.forces, lv.state.inv_mass)).fused_micro_step());
-  Scene two = test::load("tests/decks/small_melt.toml",
-                         {"integrator.method=\"impulse\"", "forces.bending.level=\"fast\""});
+  Scene two =
+      test::load("tests/decks/small_melt.toml", {"integrator.method=\"impulse\"", "forces.bending.level=\"fast\""});
   EXPECT_FALSE(mts(*make_integrator(two.integrator, *two.forces, two.state.inv_mass)).fused_micro_step());
 }
 

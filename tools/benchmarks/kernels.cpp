@@ -302,12 +302,8 @@ struct MacroStepCase {
 };
 
 constexpr MacroStepCase kMacroSteps[] = {
-    {"impulse", 0.005, 20},
-    {"impulse", 0.005, 20, false},
-    {"projected-impulse", 0.005, 20},
-    {"mollified-impulse", 0.005, 20},
-    {"velocity-verlet", 0.00025, 1},
-    {"rattle", 0.005, 1},
+    {"impulse", 0.005, 20},           {"impulse", 0.005, 20, false},   {"projected-impulse", 0.005, 20},
+    {"mollified-impulse", 0.005, 20}, {"velocity-verlet", 0.00025, 1}, {"rattle", 0.005, 1},
 };
 
 void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
