@@ -30,6 +30,9 @@ struct BondInstance {
   Params params;
 };
 
+// Work items per block of the bond loop (bond_block below).
+inline constexpr int kBondBlock = 64;
+
 // Which bonds each thread evaluates, and for which ends (owner computes, see above).
 class BondPartition {
  public:
@@ -48,13 +51,18 @@ class BondPartition {
     num_bonds_ = bonds.size();
     start_.assign(threads + 1, 0);
     work_.clear();
+    halo_.clear();
+    halo_start_.assign(threads + 1, 0);
+    int n = 0;
+    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
+    first_.assign(threads + 1, n);
+    first_[0] = 0;
     if (threads == 1) {  // every bond, both ends, in order
       for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
       start_[1] = static_cast<std::int64_t>(work_.size());
+      find_segments(bonds);
       return;
     }
-    int n = 0;
-    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
     for (const auto& b : bonds) {
       ++ends[b.i + 1];
@@ -69,6 +77,7 @@ class BondPartition {
       return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
     };
     std::vector<std::vector<Work>> per(threads);
+    std::vector<std::vector<int>> halo(threads);
     for (std::size_t k = 0; k < bonds.size(); ++k) {
       const int oi = owner(bonds[k].i), oj = owner(bonds[k].j);
       if (oi == oj) {
@@ -76,74 +85,159 @@ class BondPartition {
       } else {
         per[oi].push_back({static_cast<int>(k), true, false});
         per[oj].push_back({static_cast<int>(k), false, true});
+        halo[oi].push_back(bonds[k].i);
+        halo[oj].push_back(bonds[k].j);
       }
     }
     for (int t = 0; t < threads; ++t) {
       start_[t + 1] = start_[t] + static_cast<std::int64_t>(per[t].size());
       work_.insert(work_.end(), per[t].begin(), per[t].end());
+      std::sort(halo[t].begin(), halo[t].end());
+      halo[t].erase(std::unique(halo[t].begin(), halo[t].end()), halo[t].end());
+      halo_start_[t + 1] = halo_start_[t] + static_cast<std::int64_t>(halo[t].size());
+      halo_.insert(halo_.end(), halo[t].begin(), halo[t].end());
     }
+    for (int t = 1; t < threads; ++t) first_[t] = first[t];
+    find_segments(bonds);
   }
 
   int threads() const { return threads_; }
   const Work* begin(int t) const { return work_.data() + start_[t]; }
   const Work* end(int t) const { return work_.data() + start_[t + 1]; }
   double* energy_slots() { return energy_.data(); }  // one per owner
+  // Owner t's particles are first(t) … first(t + 1) − 1 (the last owner's range ends at the last
+  // bonded particle: the fused micro step gives it the unbonded rest too).
+  int first(int t) const { return first_[t]; }
+  // The particles of owner t that are an end of a bond with an end of another owner (sorted):
+  // the only particles another thread reads.
+  const int* halo_begin(int t) const { return halo_.data() + halo_start_[t]; }
+  const int* halo_end(int t) const { return halo_.data() + halo_start_[t + 1]; }
+  // Owner t's work split for the fused micro step into segments, in work order: chain runs —
+  // consecutive items that are bonds k, k + 1, … joining particles p, p + 1, p + 2, … with both
+  // ends owned — and the other items.
+  struct Segment {
+    std::int64_t begin, end;  // work items
+    bool chain;
+  };
+  const Segment* segments_begin(int t) const { return segments_.data() + segment_start_[t]; }
+  const Segment* segments_end(int t) const { return segments_.data() + segment_start_[t + 1]; }
+  const Work* work() const { return work_.data(); }
 
  private:
   int threads_ = 0;
   std::size_t num_bonds_ = 0;
   std::vector<std::int64_t> start_;
   std::vector<Work> work_;
+  std::vector<int> first_;
+  std::vector<int> halo_;
+  std::vector<std::int64_t> halo_start_;
+  std::vector<Segment> segments_;
+  std::vector<std::int64_t> segment_start_;
+
+  template <class Params>
+  void find_segments(const std::vector<BondInstance<Params>>& bonds) {
+    segments_.clear();
+    segment_start_.assign(threads_ + 1, 0);
+    auto links = [&](std::int64_t k) {  // item k + 1 continues item k's chain
+      const Work &a = work_[k], &b = work_[k + 1];
+      const auto &ba = bonds[a.bond], &bb = bonds[b.bond];
+      return a.add_i && a.add_j && b.add_i && b.add_j && b.bond == a.bond + 1 && ba.j == ba.i + 1 && bb.i == ba.j &&
+             bb.j == bb.i + 1;
+    };
+    for (int t = 0; t < threads_; ++t) {
+      std::int64_t k = start_[t];
+      while (k < start_[t + 1]) {
+        std::int64_t e = k + 1;
+        while (e < start_[t + 1] && links(e - 1)) ++e;
+        const bool chain = e - k >= 2;
+        if (!chain)  // extend the other items up to the next chain run
+          while (e < start_[t + 1] && !(e + 1 < start_[t + 1] && links(e))) ++e;
+        segments_.push_back({k, e, chain});
+        k = e;
+      }
+      segment_start_[t + 1] = static_cast<std::int64_t>(segments_.size());
+    }
+  }
   std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
 };
+
+// One block of nb ≤ kBondBlock work items of an owner: gather the separations, compute every
+// force of the block in a loop without branches or memory dependences (which the compiler
+// vectorises: two square roots and divisions per instruction), then add the forces into f (the
+// owner's ends only). Adds the block's energy (bonds counted by the owner of i) to e_t. Adding
+// each force as soon as it is known was measured at the latency of sqrt + div per bond: in a
+// chain, bond k + 1 adds into the particle bond k has just written.
+//
+// A block of at most kFewBonds items (a small molecule, a pendulum, an owner's last items) is
+// done bond by bond: the same operations in the same order, so the same bits, without the
+// gathered block — whose vector loads of just-stored scalars stall store-to-load forwarding, which
+// a handful of bonds does not amortise.
+inline constexpr int kFewBonds = 4;
+
+template <class Kernel, class Params>
+inline void bond_block(const std::vector<BondInstance<Params>>& bonds, const BondPartition::Work* w, int nb,
+                       const Eigen::Matrix3Xd& x, double* fp, double& e_t) {
+  if (nb <= kFewBonds) {
+    for (int k = 0; k < nb; ++k) {
+      const auto& b = bonds[w[k].bond];
+      const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
+      double d[3] = {r_ij[0], r_ij[1], r_ij[2]};
+      const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b.params, e, de_dr);
+      e_t += (w[k].add_i ? 1.0 : 0.0) * e;
+      const double scale = -de_dr / r;
+      for (int a = 0; a < 3; ++a) d[a] *= scale;
+      if (w[k].add_i)
+        for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a];
+      if (w[k].add_j)
+        for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a];
+    }
+    return;
+  }
+  alignas(64) double d[3][kBondBlock], counted[kBondBlock];
+  Params p[kBondBlock];
+  for (int k = 0; k < nb; ++k) {
+    const auto& b = bonds[w[k].bond];
+    const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
+    for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
+    p[k] = b.params;
+    counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
+  }
+  for (int k = 0; k < nb; ++k) {
+    const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
+    double e = 0.0, de_dr = 0.0;
+    Kernel::eval(r, p[k], e, de_dr);
+    e_t += counted[k] * e;
+    const double scale = -de_dr / r;  // −∂E/∂x_i = scale · d; x_j gets its negative
+    for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+  }
+  for (int k = 0; k < nb; ++k) {
+    const auto& b = bonds[w[k].bond];
+    if (w[k].add_i)
+      for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a][k];
+    if (w[k].add_j)
+      for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a][k];
+  }
+}
 
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
 // positions (bond_vector, engine/core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
-// (rebuilt when the thread count changes).
-//
-// Each owner works in blocks of kBlock bonds: gather the separations, compute every force of
-// the block in a loop without branches or memory dependences (which the compiler vectorises:
-// two square roots and divisions per instruction), then add the forces into f. Adding each
-// force as soon as it is known was measured at the latency of sqrt + div per bond: in a chain,
-// bond k + 1 adds into the particle bond k has just written.
+// (rebuilt when the thread count changes). Each owner works in blocks (bond_block).
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
   (void)box;
-  constexpr int kBlock = 64;
   double* fp = f.data();
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
   partition.prepare(bonds, threads);
   double* energy = partition.energy_slots();
   auto run_owner = [&](int t) {
     double e_t = 0.0;
-    alignas(64) double d[3][kBlock], counted[kBlock];
-    Params p[kBlock];
-    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBlock) {
-      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBlock, partition.end(t) - w));
-      for (int k = 0; k < nb; ++k) {
-        const auto& b = bonds[w[k].bond];
-        const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
-        for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
-        p[k] = b.params;
-        counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
-      }
-      for (int k = 0; k < nb; ++k) {
-        const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
-        double e = 0.0, de_dr = 0.0;
-        Kernel::eval(r, p[k], e, de_dr);
-        e_t += counted[k] * e;
-        const double scale = -de_dr / r;  // −∂E/∂x_i = scale · d; x_j gets its negative
-        for (int a = 0; a < 3; ++a) d[a][k] *= scale;
-      }
-      for (int k = 0; k < nb; ++k) {
-        const auto& b = bonds[w[k].bond];
-        if (w[k].add_i)
-          for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a][k];
-        if (w[k].add_j)
-          for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a][k];
-      }
+    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBondBlock) {
+      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBondBlock, partition.end(t) - w));
+      bond_block<Kernel>(bonds, w, nb, x, fp, e_t);
     }
     energy[t] = e_t;
   };
@@ -151,6 +245,122 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
   double sum = 0.0;
   for (int t = 0; t < threads; ++t) sum += energy[t];
   return sum;
+}
+
+// Bonds first … first + m − 1 of a chain run (BondPartition::Segment): bond q joins particles
+// p + q and p + q + 1, both owned. The operations of bond_block on each particle in the same order
+// — the particle p + q gets −f of bond q − 1, then +f of bond q — without the work list's
+// indirections: the separations are read along x, and each particle's force is written once,
+// f = (f − f_{q−1}) + f_q (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). In blocks of
+// kBondBlock bonds; advance_to(end) drifts the particles up to end − 1 before a block reads them.
+template <class Kernel, class Params, class Advance>
+void chain_run(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, const Eigen::Matrix3Xd& x,
+               double* fp, Advance& advance_to) {
+  alignas(64) double d[3][kBondBlock];
+  const double* xp = x.data();
+  const std::int64_t p = bonds[first].i;
+  double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
+  for (std::int64_t q0 = 0; q0 < m; q0 += kBondBlock) {
+    const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, m - q0));
+    advance_to(p + q0 + nb + 1);
+    const double* xq = xp + 3 * (p + q0);
+    for (int k = 0; k < nb; ++k)
+      for (int a = 0; a < 3; ++a) d[a][k] = xq[3 * k + a] - xq[3 * k + 3 + a];
+    const BondInstance<Params>* b = bonds.data() + first + q0;
+    for (int k = 0; k < nb; ++k) {
+      const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b[k].params, e, de_dr);
+      const double scale = -de_dr / r;
+      for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+    }
+    double* fq = fp + 3 * (p + q0);
+    for (int k = 0; k < nb; ++k)
+      for (int a = 0; a < 3; ++a) {
+        fq[3 * k + a] = (fq[3 * k + a] - carry[a]) + d[a][k];
+        carry[a] = d[a][k];
+      }
+  }
+  double* f_last = fp + 3 * (p + m);
+  for (int a = 0; a < 3; ++a) f_last[a] -= carry[a];
+}
+
+// The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
+// particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
+// forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
+// f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same
+// bits (the bond forces into each particle are added in the same work order, starting from 0).
+//
+// Owner t streams its particles in index order and evaluates its work in the same order as
+// accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
+// along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
+// touched while in cache; chain runs go through chain_run, without the work list. Particles
+// another owner reads (the halo: ends of bonds between owners) are advanced first, serially: their
+// x is then final before any owner reads it, and no two threads write one particle.
+template <class Kernel, class Params>
+void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
+                                  Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                                  double dt_kick, double dt, BondPartition& partition) {
+  const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
+  partition.prepare(bonds, threads);
+  const std::int64_t n = x.cols();
+  double* xp = x.data();
+  double* vp = v.data();
+  double* fp = f.data();
+  const double* w_inv = inv_mass.data();
+  // Particles [b, e) as kick_drift, then their force slots cleared for the new force. x, v, f
+  // are distinct matrices: restrict lets the compiler vectorise the loop.
+  auto advance = [=](std::int64_t b, std::int64_t e) {
+    double* __restrict xr = xp;
+    double* __restrict vr = vp;
+    double* __restrict fr = fp;
+    for (std::int64_t i = b; i < e; ++i) {
+      const double s = dt_kick * w_inv[i];
+      for (int a = 0; a < 3; ++a) {
+        vr[3 * i + a] += s * fr[3 * i + a];
+        xr[3 * i + a] += dt * vr[3 * i + a];
+        fr[3 * i + a] = 0.0;
+      }
+    }
+  };
+  for (int t = 0; t < threads; ++t)
+    for (const int* h = partition.halo_begin(t); h < partition.halo_end(t); ++h) advance(*h, *h + 1);
+  run_parts(threads, [&](int t) {
+    const int* halo = partition.halo_begin(t);
+    const int* const halo_end = partition.halo_end(t);
+    std::int64_t next = partition.first(t);  // the first of t's particles not yet advanced
+    auto advance_to = [&](std::int64_t end) {
+      while (next < end) {
+        const std::int64_t stop = halo != halo_end ? std::min<std::int64_t>(end, *halo) : end;
+        advance(next, stop);
+        next = stop;
+        if (next < end) {  // a halo particle, advanced before the parallel part
+          ++halo;
+          ++next;
+        }
+      }
+    };
+    double e_t = 0.0;  // not needed by a micro step
+    const BondPartition::Work* work = partition.work();
+    for (const auto* seg = partition.segments_begin(t); seg < partition.segments_end(t); ++seg) {
+      if (seg->chain) {
+        chain_run<Kernel>(bonds, work[seg->begin].bond, seg->end - seg->begin, x, fp, advance_to);
+        continue;
+      }
+      for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
+        const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg->end - q));
+        std::int64_t end = next;  // one past the highest of t's particles the block reads
+        for (int k = 0; k < nb; ++k) {
+          const auto& b = bonds[work[q + k].bond];
+          if (work[q + k].add_i) end = std::max<std::int64_t>(end, b.i + 1);
+          if (work[q + k].add_j) end = std::max<std::int64_t>(end, b.j + 1);
+        }
+        advance_to(end);
+        bond_block<Kernel>(bonds, work + q, nb, x, fp, e_t);
+      }
+    }
+    advance_to(t + 1 == threads ? n : partition.first(t + 1));
+  });
 }
 
 // Σ_b r_ij · f_ij over the bonds (f_ij = −dE/dr · r_ij/r, so each term is −r dE/dr).

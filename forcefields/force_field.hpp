@@ -65,6 +65,10 @@ class ForceField {
   std::vector<Level> all_levels() const;
 
   std::int64_t evaluations(Level l) const { return evaluations_[l.index]; }
+  // Counts one evaluation of each level done outside compute (the fused micro step).
+  void count_evaluations(std::span<const Level> levels) {
+    for (Level l : levels) ++evaluations_[l.index];
+  }
   void reset_counters() { std::fill(evaluations_.begin(), evaluations_.end(), 0); }
   const Box& box() const { return box_; }
   int num_particles() const { return num_particles_; }

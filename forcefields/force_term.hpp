@@ -29,6 +29,19 @@ struct Level {
 inline constexpr Level Level::fast{0};
 inline constexpr Level Level::slow{1};
 
+// A capability of a fast term (design.md §3): the innermost micro step of multiple time stepping
+// in one pass over the particles. kick_drift_force does v += dt_kick M⁻¹f, x += dt v, and then
+// replaces f by the term's force at the new x — the same bits as kick_drift, f = 0, add_forces
+// (MultipleTimeStepping::run_innermost uses it when the term is alone on the innermost level).
+class FusedMicroStep {
+ public:
+  virtual void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
+                                Eigen::Matrix3Xd& f, double dt_kick, double dt) const = 0;
+
+ protected:
+  ~FusedMicroStep() = default;
+};
+
 class ForceTerm {
  public:
   ForceTerm(std::string name, Level level) : name_(std::move(name)), level_(level) {}
@@ -79,6 +92,8 @@ class ForceTerm {
 
   // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.
   virtual const StiffBonds* stiff_bonds() const { return nullptr; }
+  // The fused micro step, for terms that offer it (stiff harmonic bonds); null: the plain path.
+  virtual const FusedMicroStep* fused_micro_step() const { return nullptr; }
 
   const std::string& name() const { return name_; }
   Level level() const { return level_; }

@@ -10,7 +10,7 @@
 
 namespace stiffmd {
 
-class StiffHarmonicBond final : public ForceTerm {
+class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
  public:
   // Validating constructor: ε > 0 and the rules of find_stiff_bond_problem (stiff_bond.hpp) that
   // need no masses (i ≠ j, ℓ_b > 0, α_b > 0, one bond per pair, realisable lengths).
@@ -23,6 +23,11 @@ class StiffHarmonicBond final : public ForceTerm {
   std::string_view style() const override { return "stiff-harmonic"; }
   std::string describe() const override;
   const StiffBonds* stiff_bonds() const override { return &bonds_; }
+  const FusedMicroStep* fused_micro_step() const override { return this; }
+  void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                        double dt_kick, double dt) const override {
+    fused_kick_drift_bond_forces<Kernel>(instances_, x, v, inv_mass, f, dt_kick, dt, partition_);
+  }
 
   struct Params {
     double length;

@@ -1,5 +1,6 @@
 #include "integrators/multiple_time_stepping.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "integrators/primitives.hpp"
@@ -19,6 +20,14 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
+  if (stages_.size() >= 2 && !langevin_) {
+    const std::vector<Level>& inner = stages_.back().levels;
+    std::vector<const ForceTerm*> terms;
+    for (const auto& term : forces_.terms())
+      if (std::find(inner.begin(), inner.end(), term->level()) != inner.end()) terms.push_back(term.get());
+    if (terms.size() == 1) fused_available_ = terms.front()->fused_micro_step();
+  }
+  fused_ = fused_available_;
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -54,8 +63,19 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
 // With Langevin, one O step over the whole span nδ sits in the middle of the n steps: inside the
 // drift of the middle step when n is odd, between the two half kicks at the middle when n is even
 // (see the header for why there and not in every micro step).
+//
+// Fused (fused_micro_step()): kick, drift and the new force in one pass per micro step, the
+// same bits (FusedMicroStep); only without an O step inside the micro steps.
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   if (!valid_[k]) refresh(k, s.x);
+  if (fused_) {
+    for (int i = 0; i < n; ++i) {
+      fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], i == 0 ? 0.5 * dt : dt, dt);
+      forces_.count_evaluations(stages_[k].levels);
+    }
+    kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+    return;
+  }
   const double span = dt * n;
   for (int i = 0; i < n; ++i) {
     const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;

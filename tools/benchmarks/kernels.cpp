@@ -7,7 +7,14 @@
 //                                   without the slow force itself (f(α(x)) is precomputed)
 //   BM_MacroStep/<method>/<scene>   one macro step of the factory's integrator: the impulse family at
 //                                   h = 0.005 with 20 micro steps (as in the decks), velocity Verlet
-//                                   at h = 0.00025
+//                                   at h = 0.00025, rattle at h = 0.005; impulse-unfused: the plain
+//                                   micro steps (kick_drift, then the force field's fast level)
+//   BM_MicroStepVsFloor/<scene>     one micro step fused and plain against the memory floor (one pass
+//                                   reading x, v, f and writing x, v), interleaved, CPU time
+//   BM_BondKernelPerBond/<scene>    ns per bond of the stiff harmonic bond force (vs LAMMPS:
+//                                   tools/benchmarks/lammps_bond_harmonic.in)
+//   BM_PendulumVsHandWritten        velocity Verlet on the double pendulum through the engine vs a
+//                                   hand-written loop of the same physics, interleaved, CPU time
 //
 // Scenes: Melt — inputs/lammps_chain.toml, LAMMPS's data.chain (32 000 beads, Debian package
 // lammps-examples; the Melt benchmarks skip with an error when it is missing); Synthetic — a built
@@ -20,6 +27,7 @@
 //   build/tools/benchmarks/stiffmd_bench --benchmark_min_time=0.2
 //   build/tools/benchmarks/stiffmd_bench --benchmark_filter=Synthetic --benchmark_min_time=0.01
 #include <benchmark/benchmark.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -37,6 +45,8 @@
 #include "forcefields/pair_term.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/multiple_time_stepping.hpp"
+#include "integrators/primitives.hpp"
 
 namespace stiffmd {
 namespace {
@@ -288,13 +298,12 @@ struct MacroStepCase {
   const char* method;
   double h;
   int micro_steps;
+  bool fused = true;  // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
 };
 
 constexpr MacroStepCase kMacroSteps[] = {
-    {"impulse", 0.005, 20},
-    {"projected-impulse", 0.005, 20},
-    {"mollified-impulse", 0.005, 20},
-    {"velocity-verlet", 0.00025, 1},
+    {"impulse", 0.005, 20},           {"impulse", 0.005, 20, false},   {"projected-impulse", 0.005, 20},
+    {"mollified-impulse", 0.005, 20}, {"velocity-verlet", 0.00025, 1}, {"rattle", 0.005, 1},
 };
 
 void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
@@ -311,6 +320,7 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
   std::unique_ptr<Integrator> integrator;
   try {
     integrator = make_integrator(settings, ff, s.inv_mass);
+    if (auto* mts = dynamic_cast<MultipleTimeStepping*>(integrator.get())) mts->use_fused_micro_step(c.fused);
     std::ostringstream log;
     integrator->prepare(s, log);
   } catch (const std::exception& e) {
@@ -337,6 +347,213 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
   st.counters["rebuilds_per_step"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds0) / steps;
 }
 
+// CPU seconds of the process (all its threads): on a machine shared with other jobs, wall time
+// includes the time the process waited for a core; CPU time does not (OMP_WAIT_POLICY=passive:
+// idle OpenMP threads sleep instead of spinning).
+double cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+// The micro step at the memory limit (issue 14). Per iteration, interleaved so that the machine's
+// load hits all three alike: the floor — one pass that reads x, v, f and writes x, v (a kick and a
+// drift written as one loop over the 3N numbers, on the same threads) — then one fused micro step
+// (FusedMicroStep: kick, drift and the stiff-bond force in one pass), then one plain micro step
+// (kick_drift, then the force field's fast level: f = 0 and the bond loop). Counters: each one's
+// mean CPU µs and the ratios to the floor (target: fused ≤ 2 × floor). x, v evolve (a physical
+// trajectory of the bond vibrations at δ = h / micro_steps of the deck); the plain and fused
+// steps run on separate copies of the state.
+void BM_MicroStepVsFloor(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const FusedMicroStep* fused = nullptr;
+  for (const auto& term : ff.terms())
+    if (term->level() == Level::fast) fused = term->fused_micro_step();
+  if (!fused) {
+    st.SkipWithError("the fast level has no fused micro step");
+    return;
+  }
+  const IntegratorSettings& is = fx->scene.integrator;
+  const double delta = is.micro_steps > 0 ? is.h / is.micro_steps : 0.00025;
+  State a = fx->initial, b = fx->initial, c = fx->initial;
+  Eigen::Matrix3Xd fa(3, a.size()), fb(3, b.size()), fc(3, c.size());
+  ff.compute(a.x, {Level::fast}, fa);
+  fb = fa;
+  fc = fa;
+  const std::int64_t n3 = 3 * static_cast<std::int64_t>(c.size());
+  const int threads = threads_for(c.size());
+  double t_floor = 0.0, t_fused = 0.0, t_plain = 0.0;
+  for (auto _ : st) {
+    const double t0 = cpu_seconds();
+    parallel_blocks(n3, threads, [&](std::int64_t lo, std::int64_t hi) {
+      double* xp = c.x.data();
+      double* vp = c.v.data();
+      const double* fp = fc.data();
+      for (std::int64_t i = lo; i < hi; ++i) {
+        vp[i] += delta * fp[i];
+        xp[i] += delta * vp[i];
+      }
+    });
+    benchmark::ClobberMemory();
+    const double t1 = cpu_seconds();
+    fused->kick_drift_force(a.x, a.v, a.inv_mass, fa, delta, delta);
+    benchmark::ClobberMemory();
+    const double t2 = cpu_seconds();
+    kick_drift(b.x, b.v, b.inv_mass, fb, delta, delta);
+    ff.compute(b.x, {Level::fast}, fb);
+    benchmark::ClobberMemory();
+    const double t3 = cpu_seconds();
+    t_floor += t1 - t0;
+    t_fused += t2 - t1;
+    t_plain += t3 - t2;
+  }
+  if (a.x != b.x || a.v != b.v || fa != fb) {
+    st.SkipWithError("the fused and plain micro steps gave different bits");
+    return;
+  }
+  const double it = static_cast<double>(st.iterations());
+  st.SetItemsProcessed(st.iterations() * a.size());
+  st.counters["particles"] = a.size();
+  st.counters["floor_us"] = 1e6 * t_floor / it;
+  st.counters["fused_us"] = 1e6 * t_fused / it;
+  st.counters["plain_us"] = 1e6 * t_plain / it;
+  st.counters["fused_over_floor"] = t_fused / t_floor;
+  st.counters["plain_over_floor"] = t_plain / t_floor;
+}
+
+// Per-bond time of the stiff harmonic bond force, to compare with LAMMPS's `bond_style harmonic`
+// (tools/benchmarks/lammps_bond_harmonic.in: the "Bond" row of its timing breakdown × its %CPU ÷
+// (steps × bonds), with `timer full`). Like LAMMPS's bond compute, the timed call adds the forces
+// into f (ForceTerm::add_forces; f is not cleared, which LAMMPS does outside its Bond row); unlike
+// it, every call also sums the energy. Counters ns_per_bond (wall), cpu_ns_per_bond, and
+// with_clear_cpu_ns_per_bond: the force field's fast level (f = 0, then the bonds), as a micro step
+// of the plain path evaluates it.
+void BM_BondKernelPerBond(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  ForceField& ff = fx->forces();
+  const ForceTerm* stiff = nullptr;
+  for (const auto& term : ff.terms())
+    if (term->stiff_bonds()) stiff = term.get();
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  const auto bonds = static_cast<double>(ff.stiff_bonds()->bonds.size());
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, x.cols());
+  const auto t0 = std::chrono::steady_clock::now();
+  const double c0 = cpu_seconds();
+  for (auto _ : st) {
+    benchmark::DoNotOptimize(stiff->add_forces(x, ff.box(), f));
+    benchmark::ClobberMemory();
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double cpu = cpu_seconds() - c0;
+  const double evaluations = static_cast<double>(st.iterations()) * bonds;
+  const int clears = std::max<int>(10, static_cast<int>(st.iterations()));
+  const double c1 = cpu_seconds();
+  for (int k = 0; k < clears; ++k) {
+    benchmark::DoNotOptimize(ff.compute(x, {Level::fast}, f));
+    benchmark::ClobberMemory();
+  }
+  const double cpu_clear = cpu_seconds() - c1;
+  st.counters["bonds"] = bonds;
+  st.counters["ns_per_bond"] = 1e9 * seconds / evaluations;
+  st.counters["cpu_ns_per_bond"] = 1e9 * cpu / evaluations;
+  st.counters["with_clear_cpu_ns_per_bond"] = 1e9 * cpu_clear / (clears * bonds);
+}
+
+// Small systems (issue 14): velocity Verlet on the double pendulum (inputs/double_pendulum.toml,
+// 3 particles, the pivot fixed, two stiff springs at ε = 1e-3 and gravity) through the engine's
+// integrator, against a hand-written loop of the same physics: kick ½h, drift h, the spring forces
+// and gravity, kick ½h. Per iteration both run kBatch steps from the same state, interleaved;
+// counters: CPU ns per step of each, their ratio (target ≤ 1.5), and the largest difference of the
+// positions after the batch (round-off: the same operations up to the order of the force sums).
+// The engine's time is Integrator::step alone (no observers, as in a run between outputs).
+constexpr int kPendulumBatch = 10000;
+
+void BM_PendulumVsHandWritten(benchmark::State& st) {
+  static Fixture fx = load_fixture("Pendulum", std::string(STIFFMD_SOURCE_DIR) + "/inputs/double_pendulum.toml",
+                                   {"integrator.method=\"velocity-verlet\"", "integrator.h=1e-4"});
+  if (!fx.ok()) {
+    st.SkipWithError(fx.error.c_str());
+    return;
+  }
+  const double h = 1e-4;
+  State s = fx.initial;
+  std::unique_ptr<Integrator> integrator = make_integrator(fx.scene.integrator, fx.forces(), s.inv_mass);
+  std::ostringstream log;
+  integrator->prepare(s, log);
+  // The hand-written physics, with the deck's values (checked against the scene below).
+  const StiffBonds& sb = *fx.forces().stiff_bonds();
+  if (s.size() != 3 || sb.bonds.size() != 2) {
+    st.SkipWithError("the pendulum deck is not 3 particles and 2 bonds");
+    return;
+  }
+  const double k0 = sb.bonds[0].alpha * sb.bonds[0].alpha / (sb.epsilon * sb.epsilon);
+  const double k1 = sb.bonds[1].alpha * sb.bonds[1].alpha / (sb.epsilon * sb.epsilon);
+  const double l0 = sb.bonds[0].length, l1 = sb.bonds[1].length;
+  double x[3][3], v[3][3], f[3][3], w[3], m[3];
+  auto hand_forces = [&] {
+    for (int p = 0; p < 3; ++p) {
+      f[p][0] = 0.0;
+      f[p][1] = -m[p];  // gravity g = (0, −1, 0)
+      f[p][2] = 0.0;
+    }
+    const int bi[2] = {sb.bonds[0].i, sb.bonds[1].i}, bj[2] = {sb.bonds[0].j, sb.bonds[1].j};
+    const double kk[2] = {k0, k1}, ll[2] = {l0, l1};
+    for (int b = 0; b < 2; ++b) {
+      double d[3];
+      for (int a = 0; a < 3; ++a) d[a] = x[bi[b]][a] - x[bj[b]][a];
+      const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      const double sc = -kk[b] * (r - ll[b]) / r;
+      for (int a = 0; a < 3; ++a) {
+        f[bi[b]][a] += sc * d[a];
+        f[bj[b]][a] -= sc * d[a];
+      }
+    }
+  };
+  auto load_hand = [&](const State& from) {
+    for (int p = 0; p < 3; ++p) {
+      for (int a = 0; a < 3; ++a) x[p][a] = from.x(a, p), v[p][a] = from.v(a, p);
+      w[p] = from.inv_mass[p];
+      m[p] = w[p] > 0.0 ? 1.0 / w[p] : 0.0;
+    }
+    hand_forces();
+  };
+  integrator->step(s, h);  // fills the integrator's cached force
+  load_hand(s);
+  double t_engine = 0.0, t_hand = 0.0, max_diff = 0.0;
+  for (auto _ : st) {
+    const double t0 = cpu_seconds();
+    for (int i = 0; i < kPendulumBatch; ++i) integrator->step(s, h);
+    benchmark::ClobberMemory();
+    const double t1 = cpu_seconds();
+    for (int i = 0; i < kPendulumBatch; ++i) {
+      for (int p = 0; p < 3; ++p)
+        for (int a = 0; a < 3; ++a) {
+          v[p][a] += 0.5 * h * w[p] * f[p][a];
+          x[p][a] += h * v[p][a];
+        }
+      hand_forces();
+      for (int p = 0; p < 3; ++p)
+        for (int a = 0; a < 3; ++a) v[p][a] += 0.5 * h * w[p] * f[p][a];
+      benchmark::DoNotOptimize(x);
+    }
+    benchmark::ClobberMemory();
+    const double t2 = cpu_seconds();
+    t_engine += t1 - t0;
+    t_hand += t2 - t1;
+    for (int p = 0; p < 3; ++p)
+      for (int a = 0; a < 3; ++a) max_diff = std::max(max_diff, std::abs(x[p][a] - s.x(a, p)));
+    load_hand(s);  // restart the hand loop from the engine's state: the batches follow one trajectory
+  }
+  const double steps = static_cast<double>(st.iterations()) * kPendulumBatch;
+  st.counters["engine_ns_per_step"] = 1e9 * t_engine / steps;
+  st.counters["hand_ns_per_step"] = 1e9 * t_hand / steps;
+  st.counters["engine_over_hand"] = t_engine / t_hand;
+  st.counters["max_position_difference"] = max_diff;
+}
+
 bool register_benchmarks() {
   const char* omp_threads = std::getenv("OMP_NUM_THREADS");
   benchmark::AddCustomContext("OMP_NUM_THREADS", omp_threads ? omp_threads : "(unset)");
@@ -355,8 +572,14 @@ bool register_benchmarks() {
     add("BM_BondForces", BM_BondForces);
     add("BM_ForceProjection", BM_ForceProjection);
     add("BM_Mollifier", BM_Mollifier);
-    for (const MacroStepCase& c : kMacroSteps) add("BM_MacroStep/" + std::string(c.method), BM_MacroStep, c);
+    for (const MacroStepCase& c : kMacroSteps)
+      add("BM_MacroStep/" + std::string(c.method) + (c.fused ? "" : "-unfused"), BM_MacroStep, c);
+    add("BM_MicroStepVsFloor", BM_MicroStepVsFloor);
+    add("BM_BondKernelPerBond", BM_BondKernelPerBond);
   }
+  benchmark::RegisterBenchmark("BM_PendulumVsHandWritten", BM_PendulumVsHandWritten)
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
   return true;
 }
 

@@ -1,0 +1,183 @@
+// The fused micro step (FusedMicroStep, forcefields/force_term.hpp; run_innermost in
+// integrators/multiple_time_stepping.cpp) must give the same bits as the plain path: kick_drift,
+// f = 0, the bond forces. Bit-identical, not only to round-off, because it performs the same
+// floating-point operations on each particle in the same order: the kick and drift of one
+// particle are the same expressions, and the bond forces into a particle are added, starting from
+// 0, in the owner's work order of the bond loop, which the fused pass keeps (it only interleaves
+// the drift of other particles between the blocks). With threads, the owner-computes plan is the
+// bond loop's, so the claim holds per thread count. Also: the bond loop's few-bond path gives the
+// bits of its gathered blocks.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+
+#include "engine/core/parallel.hpp"
+#include "forcefields/stiff_harmonic_bond.hpp"
+#include "integrators/multiple_time_stepping.hpp"
+#include "integrators/primitives.hpp"
+#include "test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+struct ThreadCount {
+  explicit ThreadCount(int n) : restore(max_threads()) { set_max_threads(n); }
+  ~ThreadCount() { set_max_threads(restore); }
+  int restore;
+};
+
+// 6 000 beads in 60 chains of 100 beads along x on a jittered lattice (above kParallelMin, so two
+// threads split the bonds); with `shuffle`, the particle indices are a random permutation, so
+// most bonds join particles of different owners (the halo path) and the pass cannot stream.
+struct Chains {
+  Eigen::Matrix3Xd x;
+  StiffBonds bonds;
+};
+
+Chains chains(bool shuffle) {
+  const int n_chains = 60, beads = 100;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
+  std::vector<int> index(n_chains * beads);
+  std::iota(index.begin(), index.end(), 0);
+  if (shuffle) std::shuffle(index.begin(), index.end(), rng);
+  Chains c;
+  c.x.resize(3, n_chains * beads);
+  c.bonds.epsilon = 0.01;
+  for (int ch = 0; ch < n_chains; ++ch)
+    for (int b = 0; b < beads; ++b) {
+      const int p = index[ch * beads + b];
+      c.x.col(p) = Eigen::Vector3d(0.97 * b + jitter(rng), 1.1 * (ch % 8) + jitter(rng), 1.1 * (ch / 8) + jitter(rng));
+      if (b > 0) c.bonds.bonds.push_back({index[ch * beads + b - 1], p, 0.97, 1.0});
+    }
+  return c;
+}
+
+// One micro step both ways on the term directly, for 1–4 threads, chain-ordered and shuffled,
+// with a fixed particle (inverse mass 0) and unbonded particles at the end.
+TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
+  for (bool shuffle : {false, true}) {
+    Chains c = chains(shuffle);
+    const Eigen::Index bonded = c.x.cols();
+    c.x.conservativeResize(3, bonded + 7);  // unbonded particles: kicked and drifted, force 0
+    c.x.rightCols(7).setRandom();
+    const Eigen::Index n = c.x.cols();
+    const StiffHarmonicBond term("bonds", Level::fast, c.bonds);
+    ASSERT_NE(term.fused_micro_step(), nullptr);
+    std::mt19937 rng(5);
+    std::normal_distribution<double> g;
+    Eigen::Matrix3Xd v0(3, n), f0(3, n);
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
+    Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
+    inv_mass(17) = 0.0;
+    inv_mass(42) = 0.5;
+    for (int threads : {1, 2, 3, 4}) {
+      SCOPED_TRACE(testing::Message() << "shuffle " << shuffle << ", " << threads << " threads");
+      const ThreadCount tc(threads);
+      Eigen::Matrix3Xd x1 = c.x, v1 = v0, f1 = f0;
+      kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
+      f1.setZero();
+      term.add_forces(x1, Box{}, f1);
+      Eigen::Matrix3Xd x2 = c.x, v2 = v0, f2 = f0;
+      term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
+      EXPECT_EQ(x1, x2);
+      EXPECT_EQ(v1, v2);
+      EXPECT_EQ(f1, f2);
+      EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);  // the bonds are stretched: a real force
+    }
+  }
+}
+
+// The bond loop does a block of at most kFewBonds bond by bond and a larger one gathered
+// (bond_loop.hpp); both must give the same bits. A 3-bond chain alone (one block of 3) against 30
+// copies of it at the same coordinates (90 bonds: blocks of 64 and 26): each copy's forces equal
+// the lone chain's bit for bit.
+TEST(BondLoop, FewBondsGiveTheBitsOfAGatheredBlock) {
+  static_assert(kFewBonds >= 3 && 26 > kFewBonds);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  Eigen::Matrix3Xd one(3, 4);
+  for (int p = 0; p < 4; ++p) one.col(p) = Eigen::Vector3d(0.9 * p + u(rng), u(rng), u(rng));
+  const int copies = 30;
+  Eigen::Matrix3Xd many(3, 4 * copies);
+  StiffBonds b1, bn;
+  b1.epsilon = bn.epsilon = 0.1;
+  for (int q = 0; q < 3; ++q) b1.bonds.push_back({q, q + 1, 0.97 + 0.01 * q, 1.0 + 0.1 * q});
+  for (int c = 0; c < copies; ++c) {
+    many.middleCols(4 * c, 4) = one;
+    for (const StiffBond& b : b1.bonds) bn.bonds.push_back({b.i + 4 * c, b.j + 4 * c, b.length, b.alpha});
+  }
+  const ThreadCount tc(1);
+  const StiffHarmonicBond t1("one", Level::fast, b1), tn("many", Level::fast, bn);
+  Eigen::Matrix3Xd f1 = Eigen::Matrix3Xd::Zero(3, 4), fn = Eigen::Matrix3Xd::Zero(3, 4 * copies);
+  t1.add_forces(one, Box{}, f1);
+  tn.add_forces(many, Box{}, fn);
+  ASSERT_GT(f1.cwiseAbs().maxCoeff(), 0.1);
+  for (int c = 0; c < copies; ++c) EXPECT_EQ(Eigen::Matrix3Xd(fn.middleCols(4 * c, 4)), f1) << "copy " << c;
+}
+
+MultipleTimeStepping& mts(Integrator& integ) {
+  auto* m = dynamic_cast<MultipleTimeStepping*>(&integ);
+  if (!m) throw std::logic_error("not a MultipleTimeStepping integrator");
+  return *m;
+}
+
+// Whole trajectories of the impulse family on a melt of 64 chains × 72 beads (4 608 beads, WCA
+// and bending on the slow level), fused against plain, for 1 and 2 threads: every macro step
+// the same bits of x, v and the integrator's cached forces.
+class FusedImpulseFamily : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(FusedImpulseFamily, TrajectoryIsBitIdenticalToThePlainPath) {
+  const Scene base =
+      test::load("tests/decks/small_melt.toml",
+                 {"build.0.chains=64", "build.0.beads=72", "prepare.relax_steps=20",
+                  "integrator.method=\"" + GetParam() + "\"", "integrator.h=0.005", "integrator.micro_steps=7"});
+  ASSERT_GE(base.state.size(), kParallelMin);
+  for (int threads : {1, 2}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    const ThreadCount tc(threads);
+    State a = base.state, b = base.state;
+    auto fused = make_integrator(base.integrator, *base.forces, a.inv_mass);
+    auto plain = make_integrator(base.integrator, *base.forces, b.inv_mass);
+    ASSERT_TRUE(mts(*fused).fused_micro_step());
+    mts(*plain).use_fused_micro_step(false);
+    ASSERT_FALSE(mts(*plain).fused_micro_step());
+    std::ostringstream log;
+    fused->prepare(a, log);
+    plain->prepare(b, log);
+    for (int step = 0; step < 4; ++step) {
+      fused->step(a, base.integrator.h);
+      plain->step(b, base.integrator.h);
+      ASSERT_EQ(a.x, b.x) << "step " << step;
+      ASSERT_EQ(a.v, b.v) << "step " << step;
+      ASSERT_EQ(fused->save_state(), plain->save_state()) << "step " << step;
+    }
+    EXPECT_GT((a.x - base.state.x).cwiseAbs().maxCoeff(), 1e-3);  // it moved
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(SmallMelt, FusedImpulseFamily,
+                         ::testing::Values("impulse", "projected-impulse", "mollified-impulse"),
+                         test::method_test_name);
+
+// Where the fused step does not apply, the plain path runs: velocity Verlet (one stage holds both
+// levels), an O step inside the micro steps (Langevin), a second term on the innermost level.
+TEST(FusedMicroStep, IsUsedOnlyWhereItIsTheSamePass) {
+  Scene sc = test::load("tests/decks/small_melt.toml", {"integrator.method=\"impulse\""});
+  EXPECT_TRUE(mts(*make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)).fused_micro_step());
+  sc.integrator.method = "velocity-verlet";
+  EXPECT_FALSE(mts(*make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)).fused_micro_step());
+  Scene lv = test::load("tests/decks/small_melt.toml",
+                        {"integrator.method=\"impulse\"", "thermostat.style=\"langevin\"", "thermostat.temperature=1.0",
+                         "thermostat.damp=1.0", "thermostat.seed=1"});
+  EXPECT_FALSE(mts(*make_integrator(lv.integrator, *lv.forces, lv.state.inv_mass)).fused_micro_step());
+  Scene two =
+      test::load("tests/decks/small_melt.toml", {"integrator.method=\"impulse\"", "forces.bending.level=\"fast\""});
+  EXPECT_FALSE(mts(*make_integrator(two.integrator, *two.forces, two.state.inv_mass)).fused_micro_step());
+}
+
+}  // namespace
+}  // namespace stiffmd
