@@ -546,6 +546,8 @@ std::string describe(const Scene& sc) {
   s << "outputs:     ";
   if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";
   if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval;
+  if (sc.output.thermo_norm) s << " (energies per particle)";
+  if (sc.output.screen_interval > 0) s << "  a thermo line every " << sc.output.screen_interval;
   s << "\n";
   return s.str();
 }
