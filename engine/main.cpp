@@ -78,7 +78,8 @@ int main(int argc, char** argv) {
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
     const auto summary = stiffmd::run_simulation(
-        scene, {out_dir, !no_progress && !quiet, restart, checkpoint ? &*checkpoint : nullptr, quiet ? nullptr : stdout},
+        scene,
+        {out_dir, !no_progress && !quiet, restart, checkpoint ? &*checkpoint : nullptr, quiet ? nullptr : stdout},
         std::cerr);
     if (summary.stopped_by_signal) {
       std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps

@@ -33,7 +33,9 @@ using test::scratch_dir;
 using test::slurp;
 
 // 8 chains × 8 beads, periodic (pressure), stiff bonds (two levels), thermo every 0.015, H5MD.
-std::string melt() { return test::source_path("tests/decks/restart_melt.toml"); }
+std::string melt() {
+  return test::source_path("tests/decks/restart_melt.toml");
+}
 constexpr int kMeltParticles = 64;
 
 // The thermo lines of a run's stdout: the header's labels and each line's cells as printed.
@@ -64,10 +66,14 @@ ScreenLines screen_lines(const std::string& out) {
 }
 
 // The thermo column each screen label shows.
-const std::map<std::string, std::string> kColumnOf = {
-    {"Time", "time"},          {"Temp", "temperature"},           {"KinEng", "kinetic"},
-    {"PotSlow", "potential_slow"}, {"PotStiff", "potential_stiff"}, {"PotEng", "potential_slow"},
-    {"TotEng", "total"},       {"Press", "pressure"}};
+const std::map<std::string, std::string> kColumnOf = {{"Time", "time"},
+                                                      {"Temp", "temperature"},
+                                                      {"KinEng", "kinetic"},
+                                                      {"PotSlow", "potential_slow"},
+                                                      {"PotStiff", "potential_stiff"},
+                                                      {"PotEng", "potential_slow"},
+                                                      {"TotEng", "total"},
+                                                      {"Press", "pressure"}};
 
 // Every screen line is the thermo file's row of its step.
 void expect_lines_are_csv_rows(const ScreenLines& s, const test::CsvTable& csv, const std::string& suffix = "") {
@@ -102,7 +108,8 @@ std::vector<double> h5_observable(const fs::path& file, const std::string& name)
   const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) return v;
   const std::string group = "/observables/" + name;
-  const hid_t d = H5Lexists(f, group.c_str(), H5P_DEFAULT) > 0 ? H5Dopen2(f, (group + "/value").c_str(), H5P_DEFAULT) : -1;
+  const hid_t d =
+      H5Lexists(f, group.c_str(), H5P_DEFAULT) > 0 ? H5Dopen2(f, (group + "/value").c_str(), H5P_DEFAULT) : -1;
   if (d >= 0) {
     const hid_t space = H5Dget_space(d);
     v.resize(static_cast<size_t>(H5Sget_simple_extent_npoints(space)));
@@ -116,8 +123,8 @@ std::vector<double> h5_observable(const fs::path& file, const std::string& name)
 
 TEST(Terminal, ThermoLinesAreTheThermoRowsAtTheScreenInterval) {
   const fs::path dir = scratch_dir("screen");
-  const CliResult r = cli("run " + melt() + " --no-progress --set run.t_end=0.3 --set output.screen_interval=0.075 -o " +
-                          dir.string());
+  const CliResult r =
+      cli("run " + melt() + " --no-progress --set run.t_end=0.3 --set output.screen_interval=0.075 -o " + dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
   const ScreenLines s = screen_lines(r.out);
   ASSERT_EQ(s.labels, (std::vector<std::string>{"Step", "Time", "Temp", "KinEng", "PotSlow", "PotStiff", "TotEng",
@@ -198,7 +205,8 @@ TEST(Terminal, PrepareSaysWhatItDoesWhileItDoesIt) {
   EXPECT_LT(step100, vibrate);
   EXPECT_LT(vibrate, done);
   size_t relax_lines = 0;
-  for (size_t p = r.err.find("prepare: relax step"); p != std::string::npos; p = r.err.find("prepare: relax step", p + 1))
+  for (size_t p = r.err.find("prepare: relax step"); p != std::string::npos;
+       p = r.err.find("prepare: relax step", p + 1))
     ++relax_lines;
   EXPECT_EQ(relax_lines, 10u) << r.err;
   fs::remove_all(dir);
@@ -252,8 +260,8 @@ TEST(Terminal, ARestartedRunContinuesItsLines) {
   const CliResult first = cli("run " + melt() + args + " --set run.t_end=0.3 -o " + (d / "parts").string());
   ASSERT_EQ(whole.code, 0) << whole.err;
   ASSERT_EQ(first.code, 0) << first.err;
-  const CliResult second =
-      cli("run " + melt() + args + " -o " + (d / "parts").string() + " --restart " + (d / "parts" / "checkpoint.bin").string());
+  const CliResult second = cli("run " + melt() + args + " -o " + (d / "parts").string() + " --restart " +
+                               (d / "parts" / "checkpoint.bin").string());
   ASSERT_EQ(second.code, 0) << second.err;
   // The restart goes on from the checkpoint at t = 0.3 with the uninterrupted run's lines (the
   // one at the checkpoint again, as its files write that frame again), S/CPU aside.

@@ -123,7 +123,9 @@ ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm)
       }
 }
 
-int ThermoOutput::column(const std::string& thermo_name) const { return thermo_.column(thermo_name); }
+int ThermoOutput::column(const std::string& thermo_name) const {
+  return thermo_.column(thermo_name);
+}
 
 const std::vector<double>& ThermoOutput::operator()(const std::vector<double>& row) {
   row_ = row;  // same size every call: no allocation after the first

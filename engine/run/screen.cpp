@@ -7,8 +7,8 @@ namespace stiffmd {
 ThermoScreen::ThermoScreen(const ThermoOutput& table, double interval, std::FILE* out, bool levels)
     : on_(out != nullptr && interval > 0), out_(out), due_(interval > 0 ? interval : 1.0) {
   // Thermo's column, the screen's label (LAMMPS's where there is one); "/N" when normalised.
-  std::vector<std::pair<const char*, const char*>> shown = {{"time", "Time"}, {"temperature", "Temp"},
-                                                            {"kinetic", "KinEng"}};
+  std::vector<std::pair<const char*, const char*>> shown = {
+      {"time", "Time"}, {"temperature", "Temp"}, {"kinetic", "KinEng"}};
   if (levels)
     shown.insert(shown.end(), {{"potential_slow", "PotSlow"}, {"potential_stiff", "PotStiff"}});
   else

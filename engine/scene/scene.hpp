@@ -37,7 +37,7 @@ struct OutputSettings {
   bool xyz_velocities = false;
   std::string thermo;  // thermo CSV file name ("" = none)
   double thermo_interval = 0.0;
-  bool thermo_norm = false;     // extensive columns per particle (ThermoOutput, engine/observe/observables.hpp)
+  bool thermo_norm = false;      // extensive columns per particle (ThermoOutput, engine/observe/observables.hpp)
   double screen_interval = 0.0;  // time between thermo lines on stdout (at thermo samples; 0 = none)
   std::string state;  // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
