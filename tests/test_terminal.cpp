@@ -224,8 +224,10 @@ TEST(Terminal, ThermoNormDividesTheEnergiesByNInTheCsvTheH5mdAndTheLine) {
   ASSERT_EQ(a.rows.size(), b.rows.size());
   ASSERT_EQ(a.header.size(), b.header.size());
   const std::vector<std::string> extensive = {"kinetic", "potential_slow", "potential_stiff", "total", "energy_drift"};
+  size_t num_divided = 0;
   for (size_t c = 0; c < a.header.size(); ++c) {
     const bool divided = std::find(extensive.begin(), extensive.end(), a.header[c]) != extensive.end();
+    num_divided += divided;
     EXPECT_EQ(b.header[c], divided ? a.header[c] + "_per_atom" : a.header[c]);
     // The CSV's 12 significant digits (%.12g) of the same numbers: equal within its rounding.
     for (size_t k = 0; k < a.rows.size(); ++k) {
@@ -233,6 +235,7 @@ TEST(Terminal, ThermoNormDividesTheEnergiesByNInTheCsvTheH5mdAndTheLine) {
       EXPECT_NEAR(b.rows[k][c], want, 1e-11 * std::abs(want)) << a.header[c] << " row " << k;
     }
   }
+  EXPECT_EQ(num_divided, extensive.size());
   // H5MD holds the doubles themselves: exactly total / N, the same names.
   for (const std::string& name : {std::string("total"), std::string("kinetic"), std::string("pressure")}) {
     const bool divided = name != "pressure";

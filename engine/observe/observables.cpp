@@ -116,11 +116,13 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
 ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm)
     : thermo_(thermo), n_(num_particles), columns_(thermo.columns()), divide_(columns_.size(), 0) {
   if (norm && num_particles > 0)
-    for (const char* name : {"kinetic", "potential_slow", "potential_stiff", "total", "energy_drift"})
-      if (const int c = thermo.column(name); c >= 0) {
+    for (size_t c = 0; c < columns_.size(); ++c) {
+      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift
+      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift") {
         divide_[c] = 1;
         columns_[c] += "_per_atom";
       }
+    }
 }
 
 int ThermoOutput::column(const std::string& thermo_name) const {

@@ -96,8 +96,8 @@ class Thermo {
 // The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line): the one
 // place where the written columns are formed from Thermo's. With norm (the deck's [output]
 // thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the energies kinetic,
-// potential_slow, potential_stiff, total and energy_drift — are divided by the number of particles N
-// and named with the suffix "_per_atom"; intensive ones (temperature, pressure, rg, …) stay.
+// potential_slow, potential_stiff (every potential_* column), total and energy_drift — are divided by the number of
+// particles N and named with the suffix "_per_atom"; intensive ones (temperature, pressure, rg, …) stay.
 class ThermoOutput {
  public:
   ThermoOutput(const Thermo& thermo, int num_particles, bool norm);
