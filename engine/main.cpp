@@ -30,7 +30,7 @@ int main(int argc, char** argv) {
 
   std::string deck_path, out_dir, restart;
   std::vector<std::string> overrides;
-  bool no_progress = false;
+  bool no_progress = false, quiet = false;
 
   CLI::App* run = app.add_subcommand("run", "run a deck");
   run->add_option("deck", deck_path, "deck file (TOML)")->required();
@@ -39,6 +39,9 @@ int main(int argc, char** argv) {
       ->take_all();
   run->add_option("--restart", restart, "continue from a checkpoint (appends to the run's outputs)");
   run->add_flag("--no-progress", no_progress, "no progress bar on stderr");
+  run->add_flag("-q,--quiet", quiet,
+                "no thermo lines on stdout, no progress bar or [prepare] progress on stderr: stdout holds only "
+                "the first line and the summary, stderr only notes, warnings and errors");
 
   CLI::App* check = app.add_subcommand("check", "validate a deck and print what the scene contains");
   check->add_option("deck", deck_path, "deck file (TOML)")->required();
@@ -62,7 +65,8 @@ int main(int argc, char** argv) {
     std::optional<stiffmd::Checkpoint> checkpoint;
     if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(scene, restart);
     for (const auto& note : scene.notes) std::cerr << note << "\n";
-    if (restart.empty()) stiffmd::prepare_scene(scene, std::cerr);  // a restart's state is the checkpoint's
+    if (restart.empty())  // a restart's state is the checkpoint's
+      stiffmd::prepare_scene(scene, std::cerr, quiet || !run->parsed() ? nullptr : &std::cerr);
     if (check->parsed()) {
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       if (!data_path.empty()) {
@@ -74,7 +78,9 @@ int main(int argc, char** argv) {
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
     const auto summary = stiffmd::run_simulation(
-        scene, {out_dir, !no_progress, restart, checkpoint ? &*checkpoint : nullptr}, std::cerr);
+        scene,
+        {out_dir, !no_progress && !quiet, restart, checkpoint ? &*checkpoint : nullptr, quiet ? nullptr : stdout},
+        std::cerr);
     if (summary.stopped_by_signal) {
       std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps
                 << "; outputs flushed, checkpoint " << summary.checkpoint << "; continue with: stiffmd run "

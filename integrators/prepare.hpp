@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <ostream>
 #include <string>
 
 #include "engine/core/state.hpp"
@@ -24,6 +25,9 @@ struct PrepareSettings {
 // one line ("prepare: projected …; relaxed …; bond vibrations …"; empty if nothing was asked).
 // `forces` gives the non-stiff terms for the relaxation (compute_unconstrained). Throws
 // NumericalError when SHAKE does not converge, InputError for stiff bonds the toolbox refuses.
-std::string prepare_state(ForceField& forces, const StiffBonds& stiff, State& s, const PrepareSettings& p);
+// `progress` (null: silent) gets a line as each stage starts and, while relaxing, the energy and
+// the largest force about every tenth of the steps: a large system's preparation takes a while.
+std::string prepare_state(ForceField& forces, const StiffBonds& stiff, State& s, const PrepareSettings& p,
+                          std::ostream* progress = nullptr);
 
 }  // namespace stiffmd

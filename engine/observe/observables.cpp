@@ -129,6 +129,29 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   return values_;
 }
 
+ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm)
+    : thermo_(thermo), n_(num_particles), columns_(thermo.columns()), divide_(columns_.size(), 0) {
+  if (norm && num_particles > 0)
+    for (size_t c = 0; c < columns_.size(); ++c) {
+      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift
+      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift") {
+        divide_[c] = 1;
+        columns_[c] += "_per_atom";
+      }
+    }
+}
+
+int ThermoOutput::column(const std::string& thermo_name) const {
+  return thermo_.column(thermo_name);
+}
+
+const std::vector<double>& ThermoOutput::operator()(const std::vector<double>& row) {
+  row_ = row;  // same size every call: no allocation after the first
+  for (size_t c = 0; c < row_.size(); ++c)
+    if (divide_[c]) row_[c] /= n_;  // a division, so that the value is exactly total / N
+  return row_;
+}
+
 ProjectedMomenta::ProjectedMomenta(const StiffBonds& stiff, const Eigen::VectorXd& inv_mass)
     : toolbox_(stiff.bonds, inv_mass) {}
 

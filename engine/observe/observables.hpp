@@ -95,6 +95,28 @@ class Thermo {
   double e0_ = 0.0;
 };
 
+// The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line): the one
+// place where the written columns are formed from Thermo's. With norm (the deck's [output]
+// thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the energies kinetic,
+// potential_slow, potential_stiff (every potential_* column), total and energy_drift — are divided by the number of
+// particles N and named with the suffix "_per_atom"; intensive ones (temperature, pressure, rg, …) stay.
+class ThermoOutput {
+ public:
+  ThermoOutput(const Thermo& thermo, int num_particles, bool norm);
+  const std::vector<std::string>& columns() const { return columns_; }
+  int column(const std::string& thermo_name) const;  // index of Thermo's column `thermo_name`, −1 if none
+  bool normalised(int column) const { return divide_[column]; }
+  // The written row for one of Thermo's rows (valid until the next call).
+  const std::vector<double>& operator()(const std::vector<double>& row);
+
+ private:
+  const Thermo& thermo_;
+  double n_;
+  std::vector<std::string> columns_;
+  std::vector<char> divide_;
+  std::vector<double> row_;
+};
+
 // P(x)p as velocities-times-mass: p ↦ M (v − M⁻¹Gᵀμ), S μ = G v (the tangential momenta).
 class ProjectedMomenta {
  public:

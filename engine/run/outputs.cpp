@@ -79,7 +79,8 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
       xyz_due_(sc.output.xyz_interval),
       thermo_due_(sc.output.thermo_interval),
       state_due_(sc.output.state_interval),
-      h5md_due_(sc.output.h5md_interval) {
+      h5md_due_(sc.output.h5md_interval),
+      table_(thermo, sc.state.size(), sc.output.thermo_norm) {
   const fs::path dir(out_dir);
   const State& s = sc.state;
   const bool restarting = restart_cut != nullptr;
@@ -111,8 +112,8 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   }
   if (!sc.output.thermo.empty()) {
     const bool append = open_output(
-        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, thermo.columns()); });
-    thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), thermo.columns(), append);
+        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, table_.columns()); });
+    thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
   }
   if (!sc.output.state.empty()) {
     const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
@@ -138,7 +139,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     setup.force = sc.output.h5md_force;
     setup.gzip = sc.output.h5md_gzip;
     // Observables on the frame grid: every thermo column but time and step.
-    for (int c : h5md_columns_) setup.observables.push_back(thermo.columns()[c]);
+    for (int c : h5md_columns_) setup.observables.push_back(table_.columns()[c]);
     const std::string path = (dir / sc.output.h5md).string();
     files.push_back(path);
     const bool append = restarting && fs::exists(path);
@@ -166,10 +167,11 @@ bool RunOutputs::due(double t, bool final) {
 }
 
 void RunOutputs::write(const State& s, const std::vector<double>& row) {
-  if (thermo_now_ && thermo_) thermo_->write(row);
+  if (thermo_now_ || h5md_now_) written_ = table_(row);
+  if (thermo_now_ && thermo_) thermo_->write(written_);
   if (h5md_now_) {
     if (sc_.output.h5md_force) sc_.forces->total_force(s.x, h5md_force_);
-    for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = row[h5md_columns_[k]];
+    for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = written_[h5md_columns_[k]];
     h5md_->write_frame(s.step, s.t, s.x, &s.v, sc_.output.h5md_force ? &h5md_force_ : nullptr, h5md_values_);
   }
   if (xyz_now_) xyz_->write(s);

@@ -41,6 +41,12 @@ class RunOutputs {
   bool due(double t, bool final);
   // Writes what the last due() found due; `row` is the thermo sample when one was due.
   void write(const State& s, const std::vector<double>& row);
+  // Whether the last due() was a sample of the thermo grid (or the final state): the rows the
+  // thermo file gets, and the terminal's line may show.
+  bool thermo_sampled() const { return thermo_now_; }
+  // The thermo columns as written (normalised with [output] thermo_norm), and the last row written.
+  const ThermoOutput& thermo_table() const { return table_; }
+  const std::vector<double>& thermo_row() const { return written_; }
   // After the last step: the LAMMPS data file and the histograms, when asked for.
   void write_final(std::vector<std::string>& files);
 
@@ -56,6 +62,8 @@ class RunOutputs {
   std::unique_ptr<ProjectedMomenta> projected_;
   std::unique_ptr<H5mdWriter> h5md_;
   IntervalSchedule xyz_due_, thermo_due_, state_due_, h5md_due_;
+  ThermoOutput table_;
+  std::vector<double> written_;
   bool xyz_now_ = false, thermo_now_ = false, state_now_ = false, h5md_now_ = false;
   std::vector<double> state_row_;
   std::vector<int> h5md_columns_;  // every thermo column but time and step

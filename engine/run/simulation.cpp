@@ -15,6 +15,7 @@
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/outputs.hpp"
 #include "engine/run/progress.hpp"
+#include "engine/run/screen.hpp"
 #include "engine/run/signals.hpp"
 #include "integrators/methods.hpp"
 
@@ -148,6 +149,11 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const double cut = new_h ? s.t - resumed.h : static_cast<double>(s.step - 1) * sc.integrator.h;
   RunOutputs outputs(sc, opt.out_dir, thermo, restarting ? &cut : nullptr, summary.outputs, log);
   const std::string& checkpoint_path = outputs.checkpoint_path();
+  // The terminal: the thermo lines (from the rows the thermo file gets) and the progress bar.
+  bool levels = false;
+  for (const auto& term : sc.forces->terms()) levels |= term->level() == Level::fast;
+  ThermoScreen screen(outputs.thermo_table(), sc.output.screen_interval, opt.screen, levels);
+  if (restarting) screen.served_until(cut);
   // Thermo columns by name (Thermo::columns), looked up once.
   const int col_total = thermo.column("total"), col_drift = thermo.column("energy_drift"),
             col_violation = thermo.column("max_violation"), col_alerts = thermo.column("alerts");
@@ -155,6 +161,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
   const std::int64_t n = k0 + steps_to(sc.run.t_end - t0, sc.integrator.h);
+  const std::int64_t first = s.step + 1;
+  Progress progress(opt.progress, n - s.step);
   const double h = sc.integrator.h;
   sc.forces->reset_counters();
   // The list is built before the run (relaxation, first force); on restart its count comes from
@@ -212,6 +220,10 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     const bool sampled = outputs.due(s.t, final);
     if (sampled) sample();
     outputs.write(s, last_row);
+    if (outputs.thermo_sampled() && screen.due(s.t, final)) {
+      progress.clear();  // a line of its own, not after the bar (when both are on one terminal)
+      screen.print(outputs.thermo_row(), s.step);
+    }
     if (sampled && alerts > 0 && monitor.stops()) {
       // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
       std::ostringstream m;
@@ -244,8 +256,6 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
 
   // Steps are numbered from the start of the run (k = step), so a restart continues the same
   // sequence of times t_k = k h exactly (t0 + (k − k0) h after a change of h).
-  const std::int64_t first = s.step + 1;
-  Progress progress(opt.progress, n - s.step);
   install_stop_handlers();
   const SignalAtStep signal_at = SignalAtStep::from_environment();  // tests: a signal at an exact step
   const auto start = std::chrono::steady_clock::now();

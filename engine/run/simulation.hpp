@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <ostream>
 #include <string>
 #include <vector>
@@ -21,6 +22,9 @@ struct RunOptions {
   // The restart's checkpoint already read by read_checkpoint_for (which loads the force terms'
   // states into the scene); null: run_simulation reads `restart` itself, before any output.
   const Checkpoint* checkpoint = nullptr;
+  // Where the thermo lines go ([output] screen_interval; engine/run/screen.hpp): stdout for the
+  // CLI, null (no lines) for `--quiet` and for callers that want no terminal output.
+  std::FILE* screen = nullptr;
 };
 
 struct RunSummary {

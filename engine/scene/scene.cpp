@@ -351,6 +351,14 @@ void read_observables(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
+// The terminal's thermo lines by default: about ten per run, on the thermo grid (a whole number of
+// thermo intervals, so that every line is a row of the thermo file). Ten lines show a short run's
+// course at a glance and stay a screenful however long the run; the progress bar tells the wall
+// time in between. (LAMMPS prints at its thermo interval; ours defaults to t_end/100, a page.)
+double default_screen_interval(double t_end, double thermo_interval) {
+  return thermo_interval * std::max(1.0, std::round(t_end / 10 / thermo_interval));
+}
+
 void read_output(DeckTable& root, Scene& sc) {
   OutputSettings& o = sc.output;
   const double default_interval = sc.run.t_end / 100;
@@ -359,6 +367,7 @@ void read_output(DeckTable& root, Scene& sc) {
     o.xyz = "trajectory.xyz";
     o.thermo = "thermo.csv";
     o.xyz_interval = o.thermo_interval = o.state_interval = default_interval;
+    o.screen_interval = default_screen_interval(sc.run.t_end, o.thermo_interval);
     return;
   }
   o.xyz = t->string("xyz", "trajectory.xyz");
@@ -368,6 +377,9 @@ void read_output(DeckTable& root, Scene& sc) {
   o.thermo = t->string("thermo", "thermo.csv");
   o.thermo_interval = t->number("thermo_interval", default_interval);
   t->require(o.thermo_interval > 0.0, "thermo_interval", "expected a time interval > 0");
+  o.thermo_norm = t->boolean("thermo_norm", false);
+  o.screen_interval = t->number("screen_interval", default_screen_interval(sc.run.t_end, o.thermo_interval));
+  t->require(o.screen_interval >= 0.0, "screen_interval", "expected a time interval >= 0 (0: no thermo lines)");
   o.state = t->string("state", "");
   o.state_interval = t->number("state_interval", default_interval);
   t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
@@ -642,6 +654,8 @@ std::string describe(const Scene& sc) {
   s << "outputs:     ";
   if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";
   if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval;
+  if (sc.output.thermo_norm) s << " (energies per particle)";
+  if (sc.output.screen_interval > 0) s << "  a thermo line every " << sc.output.screen_interval;
   s << "\n";
   return s.str();
 }

@@ -37,6 +37,8 @@ struct OutputSettings {
   bool xyz_velocities = false;
   std::string thermo;  // thermo CSV file name ("" = none)
   double thermo_interval = 0.0;
+  bool thermo_norm = false;      // extensive columns per particle (ThermoOutput, engine/observe/observables.hpp)
+  double screen_interval = 0.0;  // time between thermo lines on stdout (at thermo samples; 0 = none)
   std::string state;  // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
   std::string h5md;  // H5MD 1.1 trajectory file name ("" = none)
@@ -85,7 +87,8 @@ Scene load_scene(const Deck& deck);
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) to the scene's state and
 // says what it did on `log`. Called for `check` and for a fresh run; a restart takes its state
 // from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
-void prepare_scene(Scene& scene, std::ostream& log);
+// `progress` (null: silent) gets what it is doing while it does it (prepare_state).
+void prepare_scene(Scene& scene, std::ostream& log, std::ostream* progress = nullptr);
 
 // The files a run of the scene writes into its output directory, with the deck key that names
 // each under [output] ("xyz", "thermo", …; "" for histograms.csv and summary.json, fixed names).

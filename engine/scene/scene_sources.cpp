@@ -338,12 +338,12 @@ void read_prepare(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
-void prepare_scene(Scene& sc, std::ostream& log) {
+void prepare_scene(Scene& sc, std::ostream& log, std::ostream* progress) {
   const PrepareTable& p = sc.prepare;
   if (!p.requested) return;
   std::string note;
   try {
-    note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, p);
+    note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, p, progress);
   } catch (const NumericalError& e) {
     throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
   } catch (const InputError& e) {
