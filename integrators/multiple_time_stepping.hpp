@@ -27,6 +27,13 @@
 // Maxwell velocities). Noise counter: (State::step, the O steps taken in this macro step).
 // The temperature reads the velocities just after the O step (kinetic_energy_estimate): in BAOAB
 // those are exact in law for harmonic forces at any stable h, the on-step ones low by (hω)²/4.
+//
+// Langevin as a force (splitting = "lammps", LangevinForce): no O step; the friction and noise
+// force of the velocities at the moment the outermost kick force is computed is added to it (as
+// LAMMPS's fix langevin does in post_force, on the outermost r-RESPA level), so it serves the
+// closing half kick of this step and the opening one of the next and is cached and checkpointed
+// with it. The temperature reads the on-step velocities: for harmonic forces this scheme's on-step
+// velocities are exact in law, its positions are not (⟨x²⟩ = kT/k · (1 + O((hω)², γh))).
 #pragma once
 
 #include <functional>
@@ -65,7 +72,8 @@ class MultipleTimeStepping final : public Integrator {
  public:
   MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                        std::unique_ptr<KickForce> outer_kick = std::make_unique<PlainKick>(),
-                       std::unique_ptr<LangevinNoise> langevin = nullptr);
+                       std::unique_ptr<LangevinNoise> langevin = nullptr,
+                       std::unique_ptr<LangevinForce> langevin_force = nullptr);
 
   void step(State& s, double h) override {
     substep_ = 0;
@@ -89,6 +97,7 @@ class MultipleTimeStepping final : public Integrator {
   void run_innermost(State& s, size_t k, double dt, int n);
   void kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
+  void refresh_outer(State& s, double dt, std::uint64_t substep);  // refresh(0) + the Langevin force
 
   std::string method_;
   ForceField& forces_;
@@ -96,7 +105,8 @@ class MultipleTimeStepping final : public Integrator {
   std::unique_ptr<KickForce> outer_kick_;
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
-  std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics
+  std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics (or Langevin as a force)
+  std::unique_ptr<LangevinForce> langevin_force_;  // Langevin inside the outermost kick force, or null
   std::uint64_t substep_ = 0;                // innermost steps taken in this macro step (noise counter)
   double o_step_kinetic_ = -1.0;             // ½vᵀMv just after the last O step (−1: no step yet)
 };

@@ -14,6 +14,9 @@ namespace stiffmd {
 //                      divides damp by r)
 //   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
 //   seed        = integer >= 0: the noise is a function of (seed, step, particle) only
+//   splitting   = "baoab" (default) | "lammps": Langevin as an exact O step (BAOAB, BAOAB-RESPA,
+//                 constrained BAOAB) or as a friction and noise force in the outermost kick force
+//                 (LAMMPS's fix nve + fix langevin; velocity-verlet and the impulse family only)
 void read_thermostat(DeckTable& root, Scene& sc) {
   const MethodInfo& method = *find_method(sc.integrator.method);  // read_integrator checked it
   auto t = root.table("thermostat");
@@ -57,6 +60,17 @@ void read_thermostat(DeckTable& root, Scene& sc) {
           type_scale[k] = *r;
         }
       scale->finish();
+    }
+    const std::string splitting = t->string("splitting", "baoab");
+    if (splitting == "lammps") {
+      th.splitting = ThermostatSettings::Splitting::lammps;
+      if (method.rigid_constraints)
+        t->fail("splitting", "the \"lammps\" splitting (a friction and noise force inside velocity Verlet) is "
+                             "for velocity-verlet and the impulse family; method '" +
+                                 sc.integrator.method + "' takes \"baoab\" (constrained BAOAB)");
+    } else if (splitting != "baoab") {
+      t->fail("splitting", "expected \"baoab\" (an exact O step) or \"lammps\" (LAMMPS's fix langevin force), got \"" +
+                               splitting + "\"");
     }
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
