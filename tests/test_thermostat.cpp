@@ -621,7 +621,8 @@ TEST(ThermostatDeck, DampIsOneOverFrictionAndScalesPerType) {
   EXPECT_EQ(sc.integrator.thermostat.style, ThermostatSettings::Style::langevin);
   EXPECT_EQ(sc.integrator.thermostat.temperature, 1.5);
   ASSERT_EQ(sc.integrator.thermostat.friction.size(), 6);
-  EXPECT_EQ(sc.integrator.thermostat.friction[3], 0.5);  // 2 / 4
+  // LAMMPS's scale TYPE 2.0: that type's damp doubled (4 -> 8), its friction halved.
+  EXPECT_EQ(sc.integrator.thermostat.friction[3], 0.125);
   EXPECT_FALSE(load_text(trimer_deck(2, ""), {}).thermostatted());
   EXPECT_EQ(sc.integrator.thermostat.splitting, ThermostatSettings::Splitting::baoab) << "the default";
 }

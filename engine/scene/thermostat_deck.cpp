@@ -10,8 +10,8 @@ namespace stiffmd {
 //   style       = "langevin" | "csvr"
 //   temperature = kT (k_B = 1)
 //   damp        = 1/γ in time units, as LAMMPS's fix langevin, or friction = γ: exactly one (langevin)
-//   [thermostat.scale] TYPE = r: γ of that type multiplied by r (LAMMPS's `scale TYPE r`, which
-//                      divides damp by r)
+//   [thermostat.scale] TYPE = r > 0: damp of that type multiplied by r, γ divided by r (LAMMPS's
+//                      `scale TYPE r`: fix_langevin.cpp multiplies its friction factor by 1/ratio)
 //   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
 //   seed        = integer >= 0: the noise is a function of (seed, step, particle) only
 //   splitting   = "baoab" (default) | "lammps": Langevin as an exact O step (BAOAB, BAOAB-RESPA,
@@ -55,9 +55,9 @@ void read_thermostat(DeckTable& root, Scene& sc) {
       // One key per particle type; finish() names the types when a key is none of them.
       for (size_t k = 0; k < sc.types.size(); ++k)
         if (const auto r = scale->maybe_number(sc.types[k].name)) {
-          scale->require(*r >= 0.0 && std::isfinite(*r), sc.types[k].name,
-                         "expected a friction ratio >= 0 for type " + sc.types[k].name);
-          type_scale[k] = *r;
+          scale->require(*r > 0.0 && std::isfinite(*r), sc.types[k].name,
+                         "expected a damping ratio > 0 for type " + sc.types[k].name + " (damp x ratio)");
+          type_scale[k] = 1.0 / *r;
         }
       scale->finish();
     }
