@@ -97,7 +97,8 @@ class MultipleTimeStepping final : public Integrator {
   void run_innermost(State& s, size_t k, double dt, int n);
   void kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
-  void refresh_outer(State& s, double dt, std::uint64_t substep);  // refresh(0) + the Langevin force
+  // refresh(0), plus the Langevin force when Langevin is a force
+  void refresh_outer(State& s, double dt, std::uint64_t substep);
 
   std::string method_;
   ForceField& forces_;
@@ -106,9 +107,10 @@ class MultipleTimeStepping final : public Integrator {
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
   std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics (or Langevin as a force)
-  std::unique_ptr<LangevinForce> langevin_force_;  // Langevin inside the outermost kick force, or null
   std::uint64_t substep_ = 0;                // innermost steps taken in this macro step (noise counter)
   double o_step_kinetic_ = -1.0;             // ½vᵀMv just after the last O step (−1: no step yet)
+  // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
+  std::unique_ptr<LangevinForce> langevin_force_;
 };
 
 }  // namespace stiffmd

@@ -425,10 +425,10 @@ TEST_P(NvtRestart, ContinuesBitForBit) {
   for (const char* style : {"langevin", "csvr", "langevin-force"}) {
     if (style == std::string("langevin-force") && !force_form) continue;
     SCOPED_TRACE(style);
-    const std::string thermostat =
-        std::string("[thermostat]\nstyle = \"") + (style[0] == 'l' ? "langevin" : style) +
-        "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") + "seed = 5\n" +
-        (style == std::string("langevin-force") ? "splitting = \"lammps\"\n" : "");
+    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + (style[0] == 'l' ? "langevin" : style) +
+                                   "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") +
+                                   "seed = 5\n" +
+                                   (style == std::string("langevin-force") ? "splitting = \"lammps\"\n" : "");
     Scene sc = load_text(trimer_deck(20, thermostat),
                          {"integrator.method=" + GetParam(), "integrator.h=0.01", "integrator.micro_steps=3"});
     auto first = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);

@@ -65,9 +65,10 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     if (splitting == "lammps") {
       th.splitting = ThermostatSettings::Splitting::lammps;
       if (method.rigid_constraints)
-        t->fail("splitting", "the \"lammps\" splitting (a friction and noise force inside velocity Verlet) is "
-                             "for velocity-verlet and the impulse family; method '" +
-                                 sc.integrator.method + "' takes \"baoab\" (constrained BAOAB)");
+        t->fail("splitting",
+                "the \"lammps\" splitting (a friction and noise force inside velocity Verlet) is "
+                "for velocity-verlet and the impulse family; method '" +
+                    sc.integrator.method + "' takes \"baoab\" (constrained BAOAB)");
     } else if (splitting != "baoab") {
       t->fail("splitting", "expected \"baoab\" (an exact O step) or \"lammps\" (LAMMPS's fix langevin force), got \"" +
                                splitting + "\"");
