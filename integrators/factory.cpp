@@ -20,9 +20,24 @@ const StiffBonds& stiff_bonds_of(const ForceField& forces) {
 
 // The O step of Langevin dynamics, when the deck asks for it (each method places it: BAOAB,
 // BAOAB-RESPA, constrained BAOAB).
+bool langevin_force(const IntegratorSettings& s) {
+  return s.thermostat.style == ThermostatSettings::Style::langevin &&
+         s.thermostat.splitting == ThermostatSettings::Splitting::lammps;
+}
 std::unique_ptr<LangevinNoise> langevin_of(const IntegratorSettings& s, const Eigen::VectorXd& inv_mass) {
   if (s.thermostat.style != ThermostatSettings::Style::langevin) return nullptr;
+  if (langevin_force(s))
+    throw std::invalid_argument("method '" + s.method +
+                                "' has no Langevin splitting \"lammps\" (velocity-verlet and the impulse family do)");
   return std::make_unique<LangevinNoise>(s.thermostat, inv_mass);
+}
+// Langevin as a force on the outermost kick (splitting = "lammps"): velocity Verlet and the
+// impulse family. Either this or langevin_of, never both.
+std::unique_ptr<LangevinNoise> o_step_of(const IntegratorSettings& s, const Eigen::VectorXd& inv_mass) {
+  return langevin_force(s) ? nullptr : langevin_of(s, inv_mass);
+}
+std::unique_ptr<LangevinForce> langevin_force_of(const IntegratorSettings& s, const Eigen::VectorXd& inv_mass) {
+  return langevin_force(s) ? std::make_unique<LangevinForce>(s.thermostat, inv_mass) : nullptr;
 }
 
 // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h; with the deck's
@@ -39,24 +54,25 @@ std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
 // Velocity Verlet: every level in one stage (the levels' substeps do not apply).
 Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{forces.all_levels(), 1}},
-                                                std::make_unique<PlainKick>(), langevin_of(s, inv_mass));
+                                                std::make_unique<PlainKick>(), o_step_of(s, inv_mass),
+                                                langevin_force_of(s, inv_mass));
 }
 Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s), std::make_unique<PlainKick>(),
-                                                langevin_of(s, inv_mass));
+                                                o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
 }
 Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)),
-      langevin_of(s, inv_mass));
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
 }
 Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
                                       forces.num_particles()),
-      langevin_of(s, inv_mass));
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
 }
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass), nullptr,

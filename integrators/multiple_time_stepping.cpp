@@ -9,14 +9,17 @@ namespace stiffmd {
 
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                                            std::unique_ptr<KickForce> outer_kick,
-                                           std::unique_ptr<LangevinNoise> langevin)
+                                           std::unique_ptr<LangevinNoise> langevin,
+                                           std::unique_ptr<LangevinForce> langevin_force)
     : method_(std::move(method)),
       forces_(forces),
       stages_(std::move(stages)),
       outer_kick_(std::move(outer_kick)),
       force_(stages_.size(), Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       valid_(stages_.size(), false),
-      langevin_(std::move(langevin)) {
+      langevin_(std::move(langevin)),
+      langevin_force_(std::move(langevin_force)) {
+  if (langevin_ && langevin_force_) throw std::invalid_argument("Langevin either as an O step or as a force, not both");
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
@@ -39,8 +42,22 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
   valid_[k] = true;
 }
 
+// Noise counters of the Langevin force: the closing force of a macro step, and the opening one
+// when there is no cached force (first step, after reset()) — LAMMPS's fix langevin setup().
+constexpr std::uint64_t kClosingForce = 0x1a3e000000000000ULL, kOpeningForce = kClosingForce + 1;
+
+void MultipleTimeStepping::refresh_outer(State& s, double dt, std::uint64_t substep) {
+  refresh(0, s.x);
+  if (langevin_force_) langevin_force_->add(s.v, dt, s.step, substep, force_[0]);
+}
+
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
-  if (!valid_[k]) refresh(k, s.x);
+  if (!valid_[k]) {
+    if (k == 0)
+      refresh_outer(s, dt, kOpeningForce);
+    else
+      refresh(k, s.x);
+  }
   if (k + 1 == stages_.size()) {
     kick_drift_langevin(s, force_[k], 0.5 * dt, dt);  // the innermost stage
   } else {
@@ -52,7 +69,11 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
     else
       for (int i = 0; i < n; ++i) advance(s, k + 1, sub);
   }
-  refresh(k, s.x);  // x moved: the closing force, reused by the next opening kick
+  // x moved: the closing force, reused by the next opening kick
+  if (k == 0)
+    refresh_outer(s, dt, kClosingForce);
+  else
+    refresh(k, s.x);
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
 }
 

@@ -38,6 +38,13 @@
 // Maxwell velocities). Noise counter: (State::step, the O steps taken in this macro step).
 // The temperature reads the velocities just after the O step (kinetic_energy_estimate): in BAOAB
 // those are exact in law for harmonic forces at any stable h, the on-step ones low by (hω)²/4.
+//
+// Langevin as a force (splitting = "lammps", LangevinForce): no O step; the friction and noise
+// force of the velocities at the moment the outermost kick force is computed is added to it (as
+// LAMMPS's fix langevin does in post_force, on the outermost r-RESPA level), so it serves the
+// closing half kick of this step and the opening one of the next and is cached and checkpointed
+// with it. The temperature reads the on-step velocities: for harmonic forces this scheme's on-step
+// velocities are exact in law, its positions are not (⟨x²⟩ = kT/k · (1 + O((hω)², γh))).
 #pragma once
 
 #include <functional>
@@ -76,7 +83,8 @@ class MultipleTimeStepping final : public Integrator {
  public:
   MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                        std::unique_ptr<KickForce> outer_kick = std::make_unique<PlainKick>(),
-                       std::unique_ptr<LangevinNoise> langevin = nullptr);
+                       std::unique_ptr<LangevinNoise> langevin = nullptr,
+                       std::unique_ptr<LangevinForce> langevin_force = nullptr);
 
   void step(State& s, double h) override {
     substep_ = 0;
@@ -106,6 +114,8 @@ class MultipleTimeStepping final : public Integrator {
   void run_innermost(State& s, size_t k, double dt, int n);
   void kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
+  // refresh(0), plus the Langevin force when Langevin is a force
+  void refresh_outer(State& s, double dt, std::uint64_t substep);
 
   std::string method_;
   ForceField& forces_;
@@ -113,11 +123,13 @@ class MultipleTimeStepping final : public Integrator {
   std::unique_ptr<KickForce> outer_kick_;
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
-  std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics
+  std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics (or Langevin as a force)
   std::uint64_t substep_ = 0;                // innermost steps taken in this macro step (noise counter)
   double o_step_kinetic_ = -1.0;             // ½vᵀMv just after the last O step (−1: no step yet)
   const FusedMicroStep* fused_available_ = nullptr;  // the innermost term's fused micro step, if any
   const FusedMicroStep* fused_ = nullptr;            // the one in use (null: kick_drift, then refresh)
+  // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
+  std::unique_ptr<LangevinForce> langevin_force_;
 };
 
 }  // namespace stiffmd

@@ -68,6 +68,33 @@ void LangevinNoise::apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std
   });
 }
 
+LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
+    : kT_(settings.temperature), seed_(settings.seed), friction_(settings.friction), inv_mass_(inv_mass) {
+  if (friction_.size() != inv_mass.size())
+    throw std::invalid_argument("Langevin force: " + std::to_string(friction_.size()) + " frictions for " +
+                                std::to_string(inv_mass.size()) + " particles");
+  if (!(kT_ >= 0.0) || !std::isfinite(kT_)) throw std::invalid_argument("Langevin force: expected kT >= 0");
+}
+
+void LangevinForce::add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep,
+                        Eigen::Matrix3Xd& f) const {
+  constexpr double kScale = 1.0 / 4294967296.0;
+  // (k + ½)/2³² − ½ for the 32-bit halves k of a word: uniform on (−½, ½), variance 1/12.
+  const auto centred = [](std::uint64_t k) { return (static_cast<double>(k) + 0.5) * kScale - 0.5; };
+  const std::uint64_t key = noise_key(seed_, step, substep);
+  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) {
+      if (inv_mass_[i] == 0.0) continue;  // fixed
+      const double m = 1.0 / inv_mass_[i], g = friction_[i];
+      const double amplitude = std::sqrt(24.0 * g * m * kT_ / h);
+      const std::uint64_t w0 = noise_word(key, 2 * static_cast<std::uint64_t>(i));
+      const std::uint64_t w1 = noise_word(key, 2 * static_cast<std::uint64_t>(i) + 1);
+      const Eigen::Vector3d u(centred(w0 >> 32), centred(w0 & 0xffffffffULL), centred(w1 >> 32));
+      f.col(i) += -g * m * v.col(i) + amplitude * u;
+    }
+  });
+}
+
 namespace {
 
 // The rescaling step's own stream, apart from any Langevin sub-step.

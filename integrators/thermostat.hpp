@@ -24,7 +24,12 @@ class Integrator;
 
 struct ThermostatSettings {
   enum class Style { none, langevin, csvr };
+  // Where Langevin's friction and noise enter the step: baoab (an exact O step between the drifts),
+  // or lammps (a friction and noise force added to the outermost kick force, as LAMMPS's fix nve +
+  // fix langevin do inside velocity Verlet; LangevinForce below).
+  enum class Splitting { baoab, lammps };
   Style style = Style::none;
+  Splitting splitting = Splitting::baoab;
   double temperature = 0.0;  // kT (k_B = 1)
   // Langevin: friction γ_i per particle (1/time; LAMMPS's damp = 1/γ, scaled per type).
   Eigen::VectorXd friction;
@@ -95,6 +100,27 @@ class LangevinNoise {
   std::uint64_t seed_;
   Eigen::VectorXd friction_, inv_mass_, c_, sigma_;
   double dt_ = -1.0;
+};
+
+// Langevin dynamics as a force (LAMMPS's fix langevin, Schneider & Stoll, Phys. Rev. B 17, 1302
+// (1978)), added to the outermost kick force where that force is computed, i.e. after the half kick
+// and the drift of velocity Verlet (after the micro steps for the impulse family):
+//   f_i += −γ_i m_i v_i + √(24 γ_i m_i kT / h) (u_i − ½),   u_i uniform on (0, 1)³ per component,
+// v_i the velocities at that moment. The uniform noise has the variance 2γ m kT / h of the
+// Gaussian one (LAMMPS's choice: cheaper, and the sum over the steps of a relaxation time is
+// Gaussian anyway). The force serves the closing half kick of this step and the opening one of
+// the next, so it is part of the cached kick force (and of the checkpoint). Fixed particles
+// (inverse mass 0) get nothing. Noise from (seed, step, substep, particle) as LangevinNoise's.
+class LangevinForce {
+ public:
+  LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass);
+  // Adds the friction and noise force for velocities v over a step h to f.
+  void add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep, Eigen::Matrix3Xd& f) const;
+
+ private:
+  double kT_;
+  std::uint64_t seed_;
+  Eigen::VectorXd friction_, inv_mass_;
 };
 
 // Builds the stochastic velocity rescaling wrapper around `inner` (Bussi et al. 2007, eq. (A7)):

@@ -134,12 +134,9 @@ void expect_same_outputs(const fs::path& whole, const fs::path& parts, const std
   EXPECT_EQ(summary_without_timings(whole / "summary.json"), summary_without_timings(parts / "summary.json"));
 }
 
-class RestartMatrix : public ::testing::TestWithParam<std::string> {};
-
-TEST_P(RestartMatrix, EveryInterruptionContinuesBitForBit) {
-  const MethodRun m = method_run(GetParam());
+void expect_every_interruption_continues_bit_for_bit(const MethodRun& m, const std::string& name) {
   const std::int64_t n = m.steps, every = n / 3;
-  const fs::path d = test::scratch_dir("restart_matrix_" + m.method);
+  const fs::path d = test::scratch_dir("restart_matrix_" + name);
   auto r = run(m, d / "whole");
   ASSERT_EQ(r.code, 0) << r.err;
   ASSERT_NE(r.err.find("warning: monitor"), std::string::npos) << "the deck should make the monitor warn";
@@ -172,6 +169,22 @@ TEST_P(RestartMatrix, EveryInterruptionContinuesBitForBit) {
   ASSERT_EQ(r.code, 0) << r.err;
   expect_same_outputs(d / "whole", d / "kill", "SIGINT at step 1, SIGKILL at step " + std::to_string(k3));
   fs::remove_all(d);
+}
+
+class RestartMatrix : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(RestartMatrix, EveryInterruptionContinuesBitForBit) {
+  expect_every_interruption_continues_bit_for_bit(method_run(GetParam()), GetParam());
+}
+
+// Langevin as a force (splitting = "lammps"): the friction and noise force of the last step lives
+// in the impulse method's cached slow kick force, which the checkpoint must carry.
+TEST(RestartMatrix, LangevinForceSplittingContinuesBitForBit) {
+  MethodRun m = method_run("impulse");
+  m.args +=
+      " --set thermostat.style=langevin --set thermostat.temperature=1 --set thermostat.friction=1"
+      " --set thermostat.seed=5 --set thermostat.splitting=lammps";
+  expect_every_interruption_continues_bit_for_bit(m, "impulse_langevin_force");
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartMatrix, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);

@@ -21,6 +21,7 @@
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/observe/observables.hpp"
+#include "forcefields/external_terms.hpp"
 #include "integrators/thermostat.hpp"
 #include "test_support.hpp"
 
@@ -419,10 +420,15 @@ TEST(ThermostatDeck, FixmanWithoutAThermostatIsRefusedAtTheMethodKey) {
 class NvtRestart : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(NvtRestart, ContinuesBitForBit) {
-  for (const char* style : {"langevin", "csvr"}) {
+  // The force form of Langevin (splitting "lammps") carries its force in the cached kick force.
+  const bool force_form = !find_method(GetParam())->rigid_constraints;
+  for (const char* style : {"langevin", "csvr", "langevin-force"}) {
+    if (style == std::string("langevin-force") && !force_form) continue;
     SCOPED_TRACE(style);
-    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + style + "\"\ntemperature = 1.0\n" +
-                                   (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") + "seed = 5\n";
+    const std::string thermostat = std::string("[thermostat]\nstyle = \"") + (style[0] == 'l' ? "langevin" : style) +
+                                   "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") +
+                                   "seed = 5\n" +
+                                   (style == std::string("langevin-force") ? "splitting = \"lammps\"\n" : "");
     Scene sc = load_text(trimer_deck(20, thermostat),
                          {"integrator.method=" + GetParam(), "integrator.h=0.01", "integrator.micro_steps=3"});
     auto first = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
@@ -449,6 +455,161 @@ TEST_P(NvtRestart, ContinuesBitForBit) {
 
 INSTANTIATE_TEST_SUITE_P(AllMethods, NvtRestart, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
+// ---- the Langevin splittings on harmonic oscillators -----------------------------------------------
+
+// Any linear splitting of Langevin dynamics for a harmonic force f = −k x is a linear map of its
+// state z plus noise, z' = A z + b ξ, so its stationary covariance solves the discrete Lyapunov
+// equation Σ = A Σ Aᵀ + b bᵀ exactly at any h (solved here by iterating it: A is a contraction).
+// The map is composed from the sub-steps, each a matrix on the state extended by the step's ξ.
+// Mass m, spring k, friction γ, step h, kT; returns (⟨x²⟩ k/kT, ⟨v²⟩ m/kT) on step.
+struct Oscillator {
+  double m, k, gamma, h, kT;
+};
+
+template <int N>
+Eigen::Vector2d stationary_variances(const Eigen::Matrix<double, N + 1, N + 1>& one_step, const Oscillator& o) {
+  const Eigen::Matrix<double, N, N> A = one_step.template topLeftCorner<N, N>();
+  const Eigen::Matrix<double, N, 1> b = one_step.template topRightCorner<N, 1>();
+  Eigen::Matrix<double, N, N> sigma = Eigen::Matrix<double, N, N>::Zero();
+  for (int it = 0; it < 100000; ++it) {
+    const Eigen::Matrix<double, N, N> next = A * sigma * A.transpose() + b * b.transpose();
+    const bool converged = (next - sigma).cwiseAbs().maxCoeff() < 1e-15;
+    sigma = next;
+    if (converged) break;
+  }
+  return {sigma(0, 0) * o.k / o.kT, sigma(1, 1) * o.m / o.kT};
+}
+
+// BAOAB on (x, v | ξ): B(½h) A(½h) O(h) A(½h) B(½h), O: v ← c v + √((1 − c²) kT/m) ξ.
+Eigen::Vector2d baoab_variances(const Oscillator& o) {
+  using M3 = Eigen::Matrix3d;
+  const double c = std::exp(-o.gamma * o.h);
+  M3 B = M3::Identity(), A = M3::Identity(), O = M3::Identity();
+  B(1, 0) = -0.5 * o.h * o.k / o.m;
+  A(0, 1) = 0.5 * o.h;
+  O(1, 1) = c;
+  O(1, 2) = std::sqrt((1.0 - c * c) * o.kT / o.m);
+  return stationary_variances<2>(B * A * O * A * B, o);
+}
+
+// The Langevin force inside velocity Verlet (LAMMPS's fix nve + fix langevin) on (x, v, F | ξ):
+// v += ½h F/m; x += h v; F = −k x − γ m v + √(2γ m kT/h) ξ; v += ½h F/m. Only ξ's variance enters
+// (uniform or Gaussian alike).
+Eigen::Vector2d force_form_variances(const Oscillator& o) {
+  using M4 = Eigen::Matrix4d;
+  M4 half_kick = M4::Identity(), drift = M4::Identity(), force = M4::Identity();
+  half_kick(1, 2) = 0.5 * o.h / o.m;
+  drift(0, 1) = o.h;
+  force.row(2) << -o.k, -o.gamma * o.m, 0.0, std::sqrt(2.0 * o.gamma * o.m * o.kT / o.h);
+  return stationary_variances<3>(half_kick * force * drift * half_kick, o);
+}
+
+// 1000 particles of mass 2, each tied by a harmonic tether (k = 50: ω = 5) to its own point — 3000
+// independent oscillators —, Langevin γ = 1, kT = 1, h = 0.1 (hω = 0.5, γh = 0.1). The averages of
+// x² and v² over the oscillators, sampled every step over 100 time units after 20, are compared
+// with the exact finite-h values of the splitting the engine runs. At this step BAOAB's ⟨x²⟩ is
+// kT/k (exactly, for any h) and its on-step ⟨v²⟩ kT/m (1 − (hω)²/4) = 0.9375, while the force
+// form's ⟨v²⟩ is kT/m and its ⟨x²⟩ is ≈ 1.1 kT/k: the test also asserts that both differences are
+// above 8 standard errors, so each splitting's run excludes the other's exact values.
+class LangevinSplitting : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(LangevinSplitting, HarmonicOscillatorsSampleTheirExactFiniteStepVariances) {
+  const Oscillator o{2.0, 50.0, 1.0, 0.1, 1.0};
+  const int n = 1000;
+  Box box;  // open: the tethers' separations are plain differences
+  ForceField forces(box, n);
+  std::vector<int> all(n);
+  for (int i = 0; i < n; ++i) all[i] = i;
+  forces.add(std::make_unique<HarmonicTether>("tether", Level::slow, all, Eigen::Vector3d::Zero(), o.k));
+  State s;
+  s.x = Eigen::Matrix3Xd::Zero(3, n);
+  s.v = Eigen::Matrix3Xd::Zero(3, n);
+  s.inv_mass = Eigen::VectorXd::Constant(n, 1.0 / o.m);
+  IntegratorSettings settings;
+  settings.h = o.h;
+  settings.thermostat.style = ThermostatSettings::Style::langevin;
+  settings.thermostat.temperature = o.kT;
+  settings.thermostat.friction = Eigen::VectorXd::Constant(n, o.gamma);
+  settings.thermostat.seed = 17;
+  const bool lammps = GetParam() == "lammps";
+  settings.thermostat.splitting = lammps ? ThermostatSettings::Splitting::lammps : ThermostatSettings::Splitting::baoab;
+  auto integ = make_integrator(settings, forces, s.inv_mass);
+  std::vector<double> x2, v2;
+  for (std::int64_t k = 1; k <= 1200; ++k) {
+    integ->step(s, o.h);
+    s.step = k;
+    if (k <= 200) continue;
+    x2.push_back(s.x.squaredNorm() * o.k / (3.0 * n * o.kT));
+    v2.push_back(s.v.squaredNorm() * o.m / (3.0 * n * o.kT));
+    // The thermo's temperature reads the on-step velocities in the force form (no O step).
+    if (lammps) {
+      ASSERT_EQ(integ->kinetic_energy_estimate(s), s.kinetic_energy());
+    }
+  }
+  const Estimate ex = block_estimate(x2), ev = block_estimate(v2);
+  const Eigen::Vector2d baoab = baoab_variances(o), force = force_form_variances(o);
+  const Eigen::Vector2d exact = lammps ? force : baoab;
+  EXPECT_NEAR(baoab[0], 1.0, 1e-12) << "BAOAB samples x exactly for harmonic forces";
+  EXPECT_NEAR(baoab[1], 1.0 - 0.25 * o.h * o.h * o.k / o.m, 1e-12);
+  RecordProperty("x2", std::to_string(ex.mean) + " +- " + std::to_string(ex.se) + " exact " + std::to_string(exact[0]));
+  RecordProperty("v2", std::to_string(ev.mean) + " +- " + std::to_string(ev.se) + " exact " + std::to_string(exact[1]));
+  EXPECT_NEAR(ex.mean, exact[0], 4 * ex.se) << "k<x^2>/kT = " << ex.mean << " +- " << ex.se;
+  EXPECT_NEAR(ev.mean, exact[1], 4 * ev.se) << "m<v^2>/kT = " << ev.mean << " +- " << ev.se;
+  EXPECT_LT(8 * ex.se, std::abs(force[0] - baoab[0])) << "the run cannot tell the splittings' <x^2> apart";
+  EXPECT_LT(8 * ev.se, std::abs(force[1] - baoab[1])) << "the run cannot tell the splittings' <v^2> apart";
+}
+
+INSTANTIATE_TEST_SUITE_P(Splittings, LangevinSplitting, ::testing::Values("baoab", "lammps"));
+
+const std::string kLangevinForce =
+    "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.0\ndamp = 1.0\nseed = 5\nsplitting = \"lammps\"\n";
+
+// The force form holds T (on-step velocities) on the trimer gas, with velocity Verlet and with the
+// impulse family (the force on the slow kick, as LAMMPS's on the outermost r-RESPA level), and
+// velocity Verlet at a small step samples the stiff law of the bond angle.
+TEST(LangevinSplitting, ForceFormHoldsTheTemperatureAndTheStiffLaw) {
+  const TrimerRun vv = run_trimers("velocity-verlet", 0.005, 1, 4.0, 100, kLangevinForce);
+  expect_temperature("velocity-verlet_lammps", vv);
+  expect_law("velocity-verlet_lammps", block_estimate(vv.c2), kStiffC2, rigid_c2(4.0));
+  for (const char* method : {"impulse", "projected-impulse"}) {
+    SCOPED_TRACE(method);
+    expect_temperature(std::string(method) + "_lammps", run_trimers(method, 0.05, 10, 1.0, 30, kLangevinForce));
+  }
+}
+
+// A small Kremer–Grest melt (20 chains of 20, density 0.85, FENE + WCA as in.chain) at in.chain's
+// step under the force form: the thermo's temperature (on-step velocities, 3N) is T.
+TEST(LangevinSplitting, ForceFormHoldsTheTemperatureOfAKremerGrestMelt) {
+  const std::string deck =
+      "[types.bead]\nmass = 1.0\n"
+      "[[build]]\nstyle = \"linear-chains\"\ntype = \"bead\"\nchains = 20\nbeads = 20\nbond_length = 0.97\n"
+      "bond_type = \"fene\"\ndensity = 0.85\nmin_distance = 0.9\nseed = 3\n"
+      "[velocities]\ntemperature = 1.0\nseed = 4\n"
+      "[forces.fene]\nstyle = \"fene\"\nbond_types.fene = { K = 30.0, R0 = 1.5, epsilon = 1.0, sigma = 1.0 }\n"
+      "[forces.lj]\nstyle = \"lj\"\nepsilon = 1.0\nsigma = 1.0\ncutoff = 1.12\nspecial_bonds = [0.0, 1.0]\n"
+      "skin = 0.4\n" +
+      kLangevinForce + "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.012\n[run]\nt_end = 1.2\n";
+  Scene sc = load_text(deck, {});
+  State& s = sc.state;
+  auto integ = make_integrator(sc.integrator, *sc.forces, s.inv_mass);
+  ObservableSettings obs;
+  obs.thermostat = sc.integrator.thermostat.style;
+  Thermo thermo(*sc.forces, s.inv_mass, obs);
+  const int temperature = thermo.column("temperature");
+  EXPECT_EQ(thermo.degrees_of_freedom(), 3 * 400);
+  std::vector<double> t;
+  for (std::int64_t k = 1; k <= 6000; ++k) {  // 12 time units (12/γ) to equilibrate, then 60 sampled
+    integ->step(s, 0.012);
+    s.step = k;
+    if (k <= 1000 || k % 10 != 0) continue;
+    t.push_back(thermo.sample(s, 0.0, 0.0, integ->kinetic_energy_estimate(s))[temperature]);
+  }
+  const Estimate e = block_estimate(t);
+  RecordProperty("T", std::to_string(e.mean) + " +- " + std::to_string(e.se));
+  EXPECT_NEAR(e.mean, 1.0, 4 * e.se) << "T = " << e.mean << " +- " << e.se;
+  EXPECT_LT(e.se, 0.01);
+}
+
 // ---- the deck -------------------------------------------------------------------------------------
 
 TEST(ThermostatDeck, DampIsOneOverFrictionAndScalesPerType) {
@@ -460,8 +621,33 @@ TEST(ThermostatDeck, DampIsOneOverFrictionAndScalesPerType) {
   EXPECT_EQ(sc.integrator.thermostat.style, ThermostatSettings::Style::langevin);
   EXPECT_EQ(sc.integrator.thermostat.temperature, 1.5);
   ASSERT_EQ(sc.integrator.thermostat.friction.size(), 6);
-  EXPECT_EQ(sc.integrator.thermostat.friction[3], 0.5);  // 2 / 4
+  // LAMMPS's scale TYPE 2.0: that type's damp doubled (4 -> 8), its friction halved.
+  EXPECT_EQ(sc.integrator.thermostat.friction[3], 0.125);
   EXPECT_FALSE(load_text(trimer_deck(2, ""), {}).thermostatted());
+  EXPECT_EQ(sc.integrator.thermostat.splitting, ThermostatSettings::Splitting::baoab) << "the default";
+}
+
+TEST(ThermostatDeck, LammpsSplittingIsReadAndRefusedForTheConstrainedMethods) {
+  const std::string deck = trimer_deck(2, kLangevinForce);
+  EXPECT_EQ(load_text(deck, {}).integrator.thermostat.splitting, ThermostatSettings::Splitting::lammps);
+  EXPECT_EQ(load_text(deck, {"integrator.method=impulse"}).integrator.thermostat.splitting,
+            ThermostatSettings::Splitting::lammps);
+  for (const std::string& method : test::kAllMethods) {
+    if (!find_method(method)->rigid_constraints) continue;
+    SCOPED_TRACE(method);
+    try {
+      load_text(deck, {"integrator.method=" + method});
+      ADD_FAILURE() << "splitting = \"lammps\" accepted for " << method;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("thermostat.splitting"), std::string::npos) << e.what();
+    }
+  }
+  try {
+    load_text(trimer_deck(2, kLangevin + "splitting = \"obabo\"\n"), {});
+    ADD_FAILURE() << "an unknown splitting accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("thermostat.splitting"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

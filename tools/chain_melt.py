@@ -171,3 +171,96 @@ thermo_style    custom {columns}
 thermo_modify   norm no format float %.15g
 run             {steps}
 """)
+
+
+def lammps_dump_frames(path):
+    """(timestep, positions N × 3 sorted by atom id) of every frame of a LAMMPS `dump custom` file
+    with columns id x y z (any order of the rows)."""
+    import numpy as np
+    with open(path) as f:
+        while True:
+            line = f.readline()
+            if not line:
+                return
+            if not line.startswith("ITEM: TIMESTEP"):
+                continue
+            step = int(f.readline())
+            f.readline()  # ITEM: NUMBER OF ATOMS
+            n = int(f.readline())
+            for _ in range(4):  # ITEM: BOX BOUNDS and its three lines
+                f.readline()
+            columns = f.readline().split()[2:]
+            rows = np.loadtxt([f.readline() for _ in range(n)], ndmin=2)
+            ids = rows[:, columns.index("id")].astype(int)
+            x = np.empty((n, 3))
+            x[ids - 1] = rows[:, [columns.index(c) for c in ("x", "y", "z")]]
+            yield step, x
+
+
+def read_box(path):
+    """The edge lengths (xhi − xlo, ...) of a LAMMPS data file's box."""
+    lengths = {}
+    with open(path) as f:
+        for line in f:
+            w = line.split()
+            if len(w) == 4 and w[2] in ("xlo", "ylo", "zlo"):
+                lengths[w[2][0]] = float(w[1]) - float(w[0])
+            if len(lengths) == 3:
+                break
+    return [lengths["x"], lengths["y"], lengths["z"]]
+
+
+def linear_chains(bonds, n):
+    """The linear chains of a bond list (0-based pairs) as lists of atom indices from one end to the
+    other (atoms without bonds are left out)."""
+    neighbours = [[] for _ in range(n)]
+    for i, j in bonds:
+        neighbours[i].append(j)
+        neighbours[j].append(i)
+    seen, chains = [False] * n, []
+    for start in range(n):
+        if seen[start] or len(neighbours[start]) != 1:
+            continue
+        chain, prev, cur = [start], -1, start
+        seen[start] = True
+        while True:
+            nxt = [k for k in neighbours[cur] if k != prev]
+            if not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            seen[cur] = True
+            chain.append(cur)
+        chains.append(chain)
+    return chains
+
+
+def chain_shapes(x, chains, box):
+    """Mean bond length, mean Rg² and mean end-to-end R² over the chains of one frame, each chain
+    made whole by minimum-image bond vectors (wrapped or unwrapped positions alike)."""
+    import numpy as np
+    box = np.asarray(box)
+    idx = np.array(chains)  # equal-length chains: (chains, beads)
+    d = x[idx[:, 1:]] - x[idx[:, :-1]]
+    d -= box * np.round(d / box)
+    whole = np.concatenate([np.zeros((len(chains), 1, 3)), np.cumsum(d, axis=1)], axis=1)
+    centred = whole - whole.mean(axis=1, keepdims=True)
+    rg2 = (centred ** 2).sum(axis=2).mean(axis=1)
+    r2 = (whole[:, -1] ** 2).sum(axis=1)
+    return float(np.linalg.norm(d, axis=2).mean()), float(rg2.mean()), float(r2.mean())
+
+
+def autocorrelation_time(series):
+    """Integrated autocorrelation time in samples (Sokal's window: the sum stops at the first lag
+    M ≥ 5 τ(M)); 0.5 for uncorrelated samples."""
+    import numpy as np
+    y = np.asarray(series, dtype=float) - np.mean(series)
+    n = len(y)
+    var = y.var()
+    if n < 4 or var == 0.0:
+        return 0.5
+    tau = 0.5
+    for lag in range(1, n // 2):
+        tau += np.dot(y[:-lag], y[lag:]) / ((n - lag) * var)
+        if lag >= 5 * tau:
+            break
+    return float(tau)

@@ -1,23 +1,36 @@
 #!/usr/bin/python3
-"""stiffmd against LAMMPS on LAMMPS's own chain benchmark in.chain (inputs/kremer_grest.toml).
+"""stiffmd against LAMMPS on Kremer–Grest melts (inputs/kremer_grest.toml = LAMMPS's in.chain).
 
-Runs the deck and the equivalent LAMMPS input (data.chain, FENE 30/1.5, LJ cut 1.12 shifted,
-special_bonds fene, fix nve + fix langevin 1.0 1.0 10.0 904297, timestep 0.012) for the same number
-of steps from the same state, and compares ensemble averages after a discarded equilibration —
-temperature, pressure, mean bond length, mean radius of gyration per chain — each with its block
-standard error (20 blocks), and the loop time per step of both codes on one core.
+Runs the deck and the equivalent LAMMPS input (FENE 30/1.5, LJ cut 1.12 shifted, special_bonds fene,
+fix nve + fix langevin 1.0 1.0 10.0, timestep 0.012) for the same number of steps from the same
+state, and compares ensemble averages after a discarded equilibration — temperature, pressure (thermo
+rows), and from frames of both codes read the same way: the mean bond length, ⟨Rg²⟩ and the
+end-to-end ⟨R²⟩ per chain —, each with its block standard error, and the loop time per step.
 
-The trajectories differ from the first step (different random streams and Langevin splittings:
-see the deck's header), so only averages compare; "agree" means |difference| < 4 combined standard
-errors. The radius of gyration of chains of 100 relaxes over ~10^3-10^4 time units, far longer than a
-short run: both codes start from the same state, so its averages compare, but they are not
-equilibrium values.
+Two melts:
+  --melt chain   LAMMPS's data.chain: 320 chains of 100 at density 0.85, its own positions and
+                 velocities (in.chain itself). Rg of chains of 100 relaxes over ~10^4 time units,
+                 far longer than a run of minutes: its averages are not equilibrium values.
+  --melt short   100 chains of 20 at density 0.85 built by stiffmd (`check --write-data`), then
+                 pre-equilibrated by LAMMPS (--equilibrate steps, write_data): both codes start
+                 from that state. Rg relaxes within a few hundred time units here.
+
+stiffmd runs with each Langevin splitting of --splittings: "lammps" (the friction and noise force
+inside velocity Verlet, LAMMPS's own scheme: equal discretisation) and/or "baoab" (the default).
+The trajectories differ from the first step (different random streams), so only averages compare.
+
+Errors: temperature and pressure over 20 blocks. The frame quantities over blocks at least 10
+integrated autocorrelation times long (Sokal's window estimate on each run's series; the largest
+τ_int of all runs sets the blocks, at most 20, at least 4 — fewer than 10 τ_int per block is
+reported), so that the block means are independent. "σ" is the combined error of a difference.
 
 LAMMPS's temperature counts 3N - 3 degrees of freedom (compute temp), stiffmd's 3N under Langevin
 noise (momentum is not conserved); LAMMPS's is rescaled by (3N - 3)/(3N) here.
 
     bash tools/setup.sh --bench            # Debian's lammps
-    /usr/bin/python3 tools/kremer_grest_lammps.py --steps 10000 --discard 2000 --out out/kg_lammps
+    /usr/bin/python3 tools/kremer_grest_lammps.py --steps 30000 --discard 2000 --splittings lammps
+    /usr/bin/python3 tools/kremer_grest_lammps.py --melt short --steps 300000 --discard 20000 \\
+        --frame-every 100 --out out/kg_short
 """
 import argparse
 import concurrent.futures
@@ -31,15 +44,17 @@ import sys
 
 import numpy as np
 
-from chain_melt import block_mean, read_bonds, xyz_frames  # tools/ is the script's directory
+# tools/ is the script's directory
+from chain_melt import (autocorrelation_time, block_mean, chain_shapes, count_atoms, lammps_dump_frames,
+                        linear_chains, read_bonds, read_box, xyz_frames)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "kremer_grest.toml")
-DATA = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"
+CHAIN_DATA = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"
 H = 0.012  # in.chain's timestep; --h changes both codes' step
 
-LAMMPS_INPUT = """# in.chain (LAMMPS bench) with observables for tools/kremer_grest_lammps.py
-units           lj
+# The potentials and the thermostat of in.chain (LAMMPS bench); {run} is the run's own part.
+LAMMPS_SETUP = """units           lj
 atom_style      bond
 special_bonds   fene
 read_data       {data}
@@ -51,47 +66,105 @@ pair_style      lj/cut 1.12
 pair_modify     shift yes
 pair_coeff      1 1 1.0 1.0 1.12
 fix             1 all nve
-fix             2 all langevin 1.0 1.0 10.0 904297
-compute         chains all chunk/atom molecule
-compute         rgm all gyration/chunk chains
-variable        rg equal ave(c_rgm)
-compute         bl all bond/local dist
-compute         blave all reduce ave c_bl
-thermo_style    custom step temp press v_rg c_blave
+fix             2 all langevin 1.0 1.0 10.0 {seed}
+timestep        {h}
+"""
+
+LAMMPS_RUN = """thermo_style    custom step temp press
 thermo_modify   norm no
 thermo          {every}
-timestep        {h}
+dump            frames all custom {frame_every} frames.lammpstrj id x y z
+dump_modify     frames sort id format float %.10g
 run             {steps}
 """
 
+# The short-chain melt as a stiffmd build deck (the potentials are the run deck's, kremer_grest.toml).
+SHORT_BUILD = """# Written by tools/kremer_grest_lammps.py: the start of the short-chain Kremer-Grest melt.
+[types.bead]
+mass = 1.0
+[[build]]
+style = "linear-chains"
+type = "bead"
+chains = {chains}
+beads = {beads}
+bond_length = 0.97
+bond_type = "fene"
+density = 0.85
+min_distance = 0.9
+seed = 21
+[velocities]
+temperature = 1.0
+seed = 22
+[forces.fene]
+style = "fene"
+bond_types.fene = {{ K = 30.0, R0 = 1.5, epsilon = 1.0, sigma = 1.0 }}
+[forces.lj]
+style = "lj"
+epsilon = 1.0
+sigma = 1.0
+cutoff = 1.12
+special_bonds = [0.0, 1.0]
+skin = 0.4
+[integrator]
+method = "velocity-verlet"
+h = 0.012
+[run]
+t_end = 1.2
+"""
 
-def block(series, blocks=20):
-    m, se = block_mean(series, blocks)
-    return float(m), float(se)
+
+def lammps(args, folder, text, log_name):
+    """Runs LAMMPS on `text` in `folder` (one core); returns the log's path."""
+    os.makedirs(folder, exist_ok=True)
+    inp = os.path.join(folder, log_name + ".in")
+    with open(inp, "w") as f:
+        f.write(text)
+    log = os.path.join(folder, log_name + ".log")
+    cmd = [args.lmp, "-in", inp, "-log", log, "-screen", "none", "-echo", "none", "-nocite"]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"), cwd=folder)
+    if p.returncode != 0:
+        sys.exit(f"LAMMPS failed ({p.returncode}): {p.stderr[-2000:]}")
+    return log
 
 
-def xyz_bond_lengths(path, bonds, box, first_time):
-    """Mean bond length per frame at t >= first_time (minimum image)."""
-    i, j = (np.array(c) for c in zip(*bonds))
-    out = []
-    for t, x in xyz_frames(path):
-        if t < first_time - 1e-9:
+def short_melt_start(args):
+    """The short-chain melt: built by stiffmd, pre-equilibrated by LAMMPS; returns its data file."""
+    folder = os.path.join(args.out, "start")
+    os.makedirs(folder, exist_ok=True)
+    deck = os.path.join(folder, "build.toml")
+    with open(deck, "w") as f:
+        f.write(SHORT_BUILD.format(chains=args.chains, beads=args.beads))
+    built = os.path.join(folder, "built.data")
+    p = subprocess.run([args.stiffmd, "check", deck, "--write-data", built], capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"stiffmd check failed ({p.returncode}): {p.stderr[-2000:]}")
+    equilibrated = os.path.join(folder, "equilibrated.data")
+    lammps(args, folder, LAMMPS_SETUP.format(data=built, seed=1234, h=H) +
+           f"thermo 1000\nrun {args.equilibrate}\nwrite_data {equilibrated} nocoeff\n", "equilibrate")
+    return equilibrated
+
+
+def frame_quantities(frames, chains, box, first):
+    """Mean bond length, ⟨Rg²⟩, ⟨R²⟩ per frame at time index >= first."""
+    out = {"bond_length": [], "rg2": [], "r2": []}
+    for t, x in frames:
+        if t < first - 1e-9:
             continue
-        d = x[i] - x[j]
-        d -= box * np.round(d / box)
-        out.append(float(np.linalg.norm(d, axis=1).mean()))
+        b, rg2, r2 = chain_shapes(x, chains, box)
+        out["bond_length"].append(b)
+        out["rg2"].append(rg2)
+        out["r2"].append(r2)
     return out
 
 
-def run_stiffmd(args, out):
+def run_stiffmd(args, data, splitting, out):
     t_end = args.steps * H
-    every = args.every * H
-    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out, "--set", f"run.t_end={t_end!r}",
-           "--set", f"integrator.h={H!r}",
-           "--set", f"output.thermo_interval={every!r}", "--set", 'output.xyz="frames.xyz"',
+    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out, "--set", f"import.lammps_data={json.dumps(data)}",
+           "--set", f"thermostat.splitting={json.dumps(splitting)}",
+           "--set", f"run.t_end={t_end!r}", "--set", f"integrator.h={H!r}",
+           "--set", f"output.thermo_interval={args.every * H!r}", "--set", 'output.xyz="frames.xyz"',
            "--set", f"output.xyz_interval={args.frame_every * H!r}"]
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
     if p.returncode != 0:
         sys.exit(f"stiffmd failed ({p.returncode}): {p.stderr[-2000:]}")
     with open(os.path.join(out, "thermo.csv")) as f:
@@ -101,26 +174,18 @@ def run_stiffmd(args, out):
     keep = [r for r in rows if r[col["step"]] > args.discard]
     with open(os.path.join(out, "summary.json")) as f:
         summary = json.load(f)
-    bonds = read_bonds(DATA)
-    box = 33.592
-    bl = xyz_bond_lengths(os.path.join(out, "frames.xyz"), bonds, box, args.discard * H)
-    return {"temperature": [r[col["temperature"]] for r in keep], "pressure": [r[col["pressure"]] for r in keep],
-            "rg": [r[col["rg"]] for r in keep], "bond_length": bl,
-            "ms_per_step": 1e3 * summary["wall_seconds"] / summary["steps"],
-            "cpu_ms_per_step": 1e3 * summary["cpu_seconds"] / summary["steps"]}
+    result = {"temperature": [r[col["temperature"]] for r in keep], "pressure": [r[col["pressure"]] for r in keep],
+              "ms_per_step": 1e3 * summary["wall_seconds"] / summary["steps"],
+              "cpu_ms_per_step": 1e3 * summary["cpu_seconds"] / summary["steps"]}
+    chains = linear_chains(read_bonds(data), count_atoms(data))
+    result.update(frame_quantities(((round(t / H), x) for t, x in xyz_frames(os.path.join(out, "frames.xyz"))),
+                                   chains, read_box(data), args.discard + 1))
+    return result
 
 
-def run_lammps(args, out):
-    os.makedirs(out, exist_ok=True)
-    inp = os.path.join(out, "in.chain")
-    with open(inp, "w") as f:
-        f.write(LAMMPS_INPUT.format(data=DATA, every=args.every, h=H, steps=args.steps))
-    log = os.path.join(out, "log.lammps")
-    cmd = [args.lmp, "-in", inp, "-log", log, "-screen", "none", "-echo", "none", "-nocite"]
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=out)
-    if p.returncode != 0:
-        sys.exit(f"LAMMPS failed ({p.returncode}): {p.stderr[-2000:]}")
+def run_lammps(args, data, out):
+    log = lammps(args, out, LAMMPS_SETUP.format(data=data, seed=904297, h=H) +
+                 LAMMPS_RUN.format(every=args.every, frame_every=args.frame_every, steps=args.steps), "in.chain")
     rows, loop, natoms, in_thermo, cpu_percent = [], None, None, False, 100.0
     with open(log) as f:
         for line in f:
@@ -141,20 +206,27 @@ def run_lammps(args, out):
                 rows.append(list(map(float, w)))
     keep = [r for r in rows if r[0] > args.discard]
     dof_ratio = (3 * natoms - 3) / (3 * natoms)
-    bl_frames = [r[4] for r in keep if int(r[0]) % args.frame_every == 0]
-    return {"temperature": [r[1] * dof_ratio for r in keep], "pressure": [r[2] for r in keep],
-            "rg": [r[3] for r in keep], "bond_length": bl_frames, "ms_per_step": 1e3 * loop[0] / loop[1],
-            "cpu_ms_per_step": 1e3 * loop[0] / loop[1] * cpu_percent / 100}
+    result = {"temperature": [r[1] * dof_ratio for r in keep], "pressure": [r[2] for r in keep],
+              "ms_per_step": 1e3 * loop[0] / loop[1], "cpu_ms_per_step": 1e3 * loop[0] / loop[1] * cpu_percent / 100}
+    chains = linear_chains(read_bonds(data), natoms)
+    result.update(frame_quantities(lammps_dump_frames(os.path.join(out, "frames.lammpstrj")), chains,
+                                   read_box(data), args.discard + 1))
+    return result
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
     ap.add_argument("--lmp", default="lmp")
+    ap.add_argument("--melt", choices=("chain", "short"), default="chain")
+    ap.add_argument("--chains", type=int, default=100, help="short melt: number of chains")
+    ap.add_argument("--beads", type=int, default=20, help="short melt: beads per chain")
+    ap.add_argument("--equilibrate", type=int, default=40000, help="short melt: LAMMPS steps before the common start")
+    ap.add_argument("--splittings", default="lammps,baoab", help="stiffmd's Langevin splittings, comma-separated")
     ap.add_argument("--steps", type=int, default=10000)
     ap.add_argument("--discard", type=int, default=2000, help="steps of equilibration left out")
     ap.add_argument("--every", type=int, default=50, help="thermo sample every this many steps")
-    ap.add_argument("--frame-every", type=int, default=500, help="stiffmd frames (bond lengths) every N steps")
+    ap.add_argument("--frame-every", type=int, default=500, help="frames (bonds, Rg, R) every this many steps")
     ap.add_argument("--out", default=os.path.join(ROOT, "out", "kremer_grest_lammps"))
     ap.add_argument("--h", type=float, default=H, help="time step of both codes (in.chain: 0.012)")
     args = ap.parse_args()
@@ -164,26 +236,48 @@ def main():
     if lmp is None:
         sys.exit(f"LAMMPS ('{args.lmp}') not found: bash tools/setup.sh --bench")
     args.lmp = lmp
-    if not os.path.exists(DATA):
-        sys.exit(f"{DATA} not found: bash tools/setup.sh")
-    # The two codes run at once, one core each (both single-threaded).
-    with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        fs = pool.submit(run_stiffmd, args, os.path.join(args.out, "stiffmd"))
-        fl = pool.submit(run_lammps, args, os.path.join(args.out, "lammps"))
-        s, l = fs.result(), fl.result()
-    result = {"h": H, "steps": args.steps, "discard": args.discard, "quantities": {}}
-    print(f"{'quantity':<12} {'stiffmd':>22} {'LAMMPS':>22} {'diff/sigma':>10}")
-    for q in ("temperature", "pressure", "bond_length", "rg"):
-        blocks = 20 if min(len(s[q]), len(l[q])) >= 40 else 4
-        (ms, es), (ml, el) = block(s[q], blocks), block(l[q], blocks)
-        z = (ms - ml) / math.sqrt(es * es + el * el) if es + el > 0 else float("inf")
-        result["quantities"][q] = {"stiffmd": [ms, es], "lammps": [ml, el], "z": z}
-        print(f"{q:<12} {ms:>12.5f} ± {es:<8.5f} {ml:>12.5f} ± {el:<8.5f} {z:>10.2f}")
-    result["ms_per_step"] = {"stiffmd": s["ms_per_step"], "lammps": l["ms_per_step"]}
-    result["cpu_ms_per_step"] = {"stiffmd": s["cpu_ms_per_step"], "lammps": l["cpu_ms_per_step"]}
+    splittings = [s for s in args.splittings.split(",") if s]
+    if args.melt == "chain":
+        if not os.path.exists(CHAIN_DATA):
+            sys.exit(f"{CHAIN_DATA} not found: bash tools/setup.sh")
+        data = CHAIN_DATA
+    else:
+        data = short_melt_start(args)
+    # All runs at once, one core each (all single-threaded).
+    with concurrent.futures.ThreadPoolExecutor(len(splittings) + 1) as pool:
+        futures = {f"stiffmd {s}": pool.submit(run_stiffmd, args, data, s, os.path.join(args.out, "stiffmd_" + s))
+                   for s in splittings}
+        futures["LAMMPS"] = pool.submit(run_lammps, args, data, os.path.join(args.out, "lammps"))
+        runs = {name: f.result() for name, f in futures.items()}
+    names = list(runs)
+    result = {"melt": args.melt, "data": data, "h": H, "steps": args.steps, "discard": args.discard,
+              "quantities": {}, "blocks": {}}
+    frame_dt = args.frame_every * H
+    print(f"{args.melt} melt, h = {H}, {args.steps} steps, averages after step {args.discard}")
+    print(f"{'quantity':<12}" + "".join(f"{n:>26}" for n in names) + "".join(
+        f"{'(' + n + ' - LAMMPS)/σ':>24}" for n in names[:-1]))
+    for q in ("temperature", "pressure", "bond_length", "rg2", "r2"):
+        if q in ("temperature", "pressure"):
+            blocks, note = 20, "20 blocks"
+        else:
+            tau = max(autocorrelation_time(runs[n][q]) for n in names)  # in frames
+            samples = min(len(runs[n][q]) for n in names)
+            blocks = int(max(4, min(20, samples // math.ceil(10 * tau))))
+            per_block = samples // blocks
+            note = (f"tau_int = {tau * frame_dt:.3g} time units; {blocks} blocks of {per_block * frame_dt:.3g}"
+                    f" = {per_block / tau:.0f} tau_int")
+        est = {n: [float(v) for v in block_mean(runs[n][q], blocks)] for n in names}
+        ml, el = est["LAMMPS"]
+        z = {n: (est[n][0] - ml) / math.sqrt(est[n][1] ** 2 + el ** 2) for n in names[:-1]}
+        result["quantities"][q] = {"estimates": est, "z": z}
+        result["blocks"][q] = note
+        print(f"{q:<12}" + "".join(f"{est[n][0]:>15.5f} ± {est[n][1]:<8.5f}" for n in names) +
+              "".join(f"{z[n]:>24.2f}" for n in names[:-1]) + f"   ({note})")
+    result["ms_per_step"] = {n: runs[n]["ms_per_step"] for n in names}
+    result["cpu_ms_per_step"] = {n: runs[n]["cpu_ms_per_step"] for n in names}
     # Wall time suffers from other processes on a shared machine; CPU time per step less so.
-    print(f"time per step (1 core): stiffmd {s['ms_per_step']:.2f} ms wall, {s['cpu_ms_per_step']:.2f} ms CPU; "
-          f"LAMMPS {l['ms_per_step']:.2f} ms wall, {l['cpu_ms_per_step']:.2f} ms CPU")
+    print("time per step (1 core each, all at once): " + "; ".join(
+        f"{n} {runs[n]['ms_per_step']:.3f} ms wall, {runs[n]['cpu_ms_per_step']:.3f} ms CPU" for n in names))
     with open(os.path.join(args.out, "comparison.json"), "w") as f:
         json.dump(result, f, indent=2)
 

@@ -644,6 +644,9 @@ std::string describe(const Scene& sc) {
     s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
     if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
     if (th.friction.size() > 0) s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    if (th.style == ThermostatSettings::Style::langevin)
+      s << (th.splitting == ThermostatSettings::Splitting::lammps ? ", as a force in the kick (lammps)"
+                                                                  : ", as an O step (baoab)");
     const MethodInfo& m = *find_method(sc.integrator.method);
     const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
     s << ", seed " << th.seed << "; temperature over "

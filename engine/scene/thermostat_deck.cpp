@@ -10,10 +10,13 @@ namespace stiffmd {
 //   style       = "langevin" | "csvr"
 //   temperature = kT (k_B = 1)
 //   damp        = 1/γ in time units, as LAMMPS's fix langevin, or friction = γ: exactly one (langevin)
-//   [thermostat.scale] TYPE = r: γ of that type multiplied by r (LAMMPS's `scale TYPE r`, which
-//                      divides damp by r)
+//   [thermostat.scale] TYPE = r > 0: damp of that type multiplied by r, γ divided by r (LAMMPS's
+//                      `scale TYPE r`: fix_langevin.cpp multiplies its friction factor by 1/ratio)
 //   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
 //   seed        = integer >= 0: the noise is a function of (seed, step, particle) only
+//   splitting   = "baoab" (default) | "lammps": Langevin as an exact O step (BAOAB, BAOAB-RESPA,
+//                 constrained BAOAB) or as a friction and noise force in the outermost kick force
+//                 (LAMMPS's fix nve + fix langevin; velocity-verlet and the impulse family only)
 void read_thermostat(DeckTable& root, Scene& sc) {
   const MethodInfo& method = *find_method(sc.integrator.method);  // read_integrator checked it
   auto t = root.table("thermostat");
@@ -52,11 +55,23 @@ void read_thermostat(DeckTable& root, Scene& sc) {
       // One key per particle type; finish() names the types when a key is none of them.
       for (size_t k = 0; k < sc.types.size(); ++k)
         if (const auto r = scale->maybe_number(sc.types[k].name)) {
-          scale->require(*r >= 0.0 && std::isfinite(*r), sc.types[k].name,
-                         "expected a friction ratio >= 0 for type " + sc.types[k].name);
-          type_scale[k] = *r;
+          scale->require(*r > 0.0 && std::isfinite(*r), sc.types[k].name,
+                         "expected a damping ratio > 0 for type " + sc.types[k].name + " (damp x ratio)");
+          type_scale[k] = 1.0 / *r;
         }
       scale->finish();
+    }
+    const std::string splitting = t->string("splitting", "baoab");
+    if (splitting == "lammps") {
+      th.splitting = ThermostatSettings::Splitting::lammps;
+      if (method.rigid_constraints)
+        t->fail("splitting",
+                "the \"lammps\" splitting (a friction and noise force inside velocity Verlet) is "
+                "for velocity-verlet and the impulse family; method '" +
+                    sc.integrator.method + "' takes \"baoab\" (constrained BAOAB)");
+    } else if (splitting != "baoab") {
+      t->fail("splitting", "expected \"baoab\" (an exact O step) or \"lammps\" (LAMMPS's fix langevin force), got \"" +
+                               splitting + "\"");
     }
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
