@@ -8,6 +8,11 @@
 // convert_units=False, and a known one such as "nm" would make it rescale our reduced lengths by
 // default. Without units it reads the file when opened with convert_units=False (with the default
 // convert_units=True it raises ValueError: "H5MD file must have readable units").
+// In real units (`units = "real"`, engine/core/units.hpp) position/value, position/time (shared by
+// every element through hard links), velocity/value, force/value, box/edges/value and the
+// observables carry `unit` (Angstrom, fs, "Angstrom ps-1", "kcal mol-1 Angstrom-1", …), strings
+// MDAnalysis 2.4.2 knows; as variable-length strings, because h5py hands fixed-length ones to it
+// as bytes, which its unit table does not match.
 //
 // Crash safety (a SIGKILL at any moment leaves a file h5py and MDAnalysis read up to a complete
 // frame; tests/test_h5md.py kills writers mid-frame to check it). Three choices make it so:
@@ -165,6 +170,15 @@ void write_string_attribute(hid_t object, const std::string& name, const std::st
 
 void write_strings_attribute(hid_t object, const std::string& name, const std::vector<std::string>& values) {
   write_fixed_strings_attribute(object, name, values, false);
+}
+
+// §Units: a `unit` attribute, variable-length (see the top of this file); nothing for "".
+void write_unit(hid_t object, const std::string& unit) {
+  if (unit.empty()) return;
+  const char* value = unit.c_str();
+  Handle type = string_type(true);
+  ok(H5Tset_cset(type, H5T_CSET_ASCII), "cannot set a string character set");
+  write_attribute(object, "unit", type, Handle(H5Screate(H5S_SCALAR), H5Sclose, "dataspace"), &value);
 }
 
 void write_int_attribute(hid_t object, const std::string& name, const std::vector<int>& values, bool scalar) {
@@ -448,6 +462,8 @@ void H5mdWriter::Impl::create_particles() {
   step = create_series(pos, "step", H5T_STD_I64LE, H5T_NATIVE_INT64, {}, 0);
   time = create_series(pos, "time", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {}, 0);
   position = create_series(pos, "value", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, vectors, setup.gzip);
+  write_unit(time.dataset, setup.time_unit);
+  write_unit(position.dataset, setup.length_unit);
 
   auto element = [&](const char* name, hid_t file_type, hid_t memory_type) {
     Handle g = create_group(particles, name);
@@ -457,6 +473,8 @@ void H5mdWriter::Impl::create_particles() {
   if (setup.box.any_periodic()) image = element("image", H5T_STD_I32LE, H5T_NATIVE_INT32);
   if (setup.velocity) velocity = element("velocity", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE);
   if (setup.force) force = element("force", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE);
+  if (setup.velocity) write_unit(velocity.dataset, setup.velocity_unit);
+  if (setup.force) write_unit(force.dataset, setup.force_unit);
 
   // species: an index into the element table stored as the `elements` attribute (H5MD leaves the
   // meaning of species values to the application; symbols are what trajectory viewers need).
@@ -491,6 +509,7 @@ void H5mdWriter::Impl::create_box(hid_t particles, hid_t position_group) {
   Handle g = create_group(box, "edges");
   link_time_grid(position_group, g);
   edges = create_series(g, "value", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {3, 3}, 0);
+  write_unit(edges.dataset, setup.length_unit);
   write_dataset(box, "offset", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {3}, setup.box.origin.data());
 }
 
@@ -498,10 +517,11 @@ void H5mdWriter::Impl::create_box(hid_t particles, hid_t position_group) {
 void H5mdWriter::Impl::create_observables(hid_t position_group) {
   if (setup.observables.empty()) return;
   Handle group = create_group(file, "observables");
-  for (const auto& name : setup.observables) {
-    Handle g = create_group(group, name);
+  for (std::size_t k = 0; k < setup.observables.size(); ++k) {
+    Handle g = create_group(group, setup.observables[k]);
     link_time_grid(position_group, g);
     observables.push_back(create_series(g, "value", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {}, 0));
+    if (k < setup.observable_units.size()) write_unit(observables.back().dataset, setup.observable_units[k]);
   }
 }
 

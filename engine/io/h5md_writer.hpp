@@ -26,7 +26,8 @@
 // Every step/time except position's is a hard link to position/step and position/time: all elements
 // share one time grid (H5MD requires this for image and box/edges; it is allowed for the others).
 // Time series are chunked along an unlimited frame axis; gzip (with byte shuffle) applies to the
-// per-particle elements only. No `unit` attributes: stiffmd works in reduced units.
+// per-particle elements only. `unit` attributes (variable-length strings) only in real units
+// (H5mdSetup::length_unit, …): reduced units carry none.
 //
 // Reading it: h5py directly; MDAnalysis 2.4.2 as
 //   mda.Universe(topology, "traj.h5", format="H5MD", convert_units=False)
@@ -64,6 +65,10 @@ struct H5mdSetup {
   bool velocity = false, force = false;    // optional time-dependent elements
   int gzip = 0;                            // 0 = no compression, 1..9 deflate level (always chunked)
   std::vector<std::string> observables;    // scalar observable names (no '/')
+  // §Units: the `unit` attribute of position (and box edges), time, velocity, force and of each
+  // observable ("" or an empty list: none, as in reduced units).
+  std::string length_unit, time_unit, velocity_unit, force_unit;
+  std::vector<std::string> observable_units;  // empty, or one per observable
 };
 
 class H5mdWriter {

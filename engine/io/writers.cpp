@@ -147,14 +147,15 @@ void XyzWriter::write(const State& s) {
   std::snprintf(line, sizeof line, "%d\n", s.size());
   buffer_ += line;
   buffer_ += header_;
-  std::snprintf(line, sizeof line, " time=%.12g step=%lld\n", s.t, static_cast<long long>(s.step));
+  std::snprintf(line, sizeof line, " time=%.12g step=%lld\n", s.t * time_scale_, static_cast<long long>(s.step));
   buffer_ += line;
   for (int i = 0; i < s.size(); ++i) {
     int k =
         std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), s.x(0, i), s.x(1, i), s.x(2, i));
     if (!masses_.empty()) k += std::snprintf(line + k, sizeof line - k, " %.12g", masses_[static_cast<size_t>(i)]);
     if (velocities_)
-      k += std::snprintf(line + k, sizeof line - k, " %.12g %.12g %.12g", s.v(0, i), s.v(1, i), s.v(2, i));
+      k += std::snprintf(line + k, sizeof line - k, " %.12g %.12g %.12g", s.v(0, i) * velocity_scale_,
+                         s.v(1, i) * velocity_scale_, s.v(2, i) * velocity_scale_);
     buffer_.append(line, static_cast<size_t>(k));
     buffer_ += '\n';
   }

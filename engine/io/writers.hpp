@@ -45,10 +45,14 @@ class XyzWriter {
   // array, because ASE 3.22 maps a column called "mass" to nothing (it stays arrays["mass"]).
   XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
             bool append = false, std::vector<double> masses = {});
+  // Times and velocities written in other units than the engine's: t·time_scale, v·velocity_scale
+  // (engine/core/units.hpp; positions need none).
+  void set_units(double time_scale, double velocity_scale) { time_scale_ = time_scale, velocity_scale_ = velocity_scale; }
   void write(const State& s);
 
  private:
   TextFile file_;
+  double time_scale_ = 1.0, velocity_scale_ = 1.0;
   std::vector<std::string> species_;
   std::vector<double> masses_;
   std::string header_;  // the invariant part of the comment line

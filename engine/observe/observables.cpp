@@ -22,6 +22,18 @@ Energies energies(const State& s, const ForceField& forces) {
   return e;
 }
 
+Dimension thermo_column_dimension(const std::string& c) {
+  const auto starts = [&](const char* prefix) { return c.rfind(prefix, 0) == 0; };
+  if (c == "time") return Dimension::time;
+  if (c == "kinetic" || c == "total" || c == "energy_drift" || starts("potential_")) return Dimension::energy;
+  if (c == "max_violation" || c == "rg" || c == "end_to_end") return Dimension::length;
+  if (c == "temperature") return Dimension::temperature;
+  if (c == "pressure") return Dimension::pressure;
+  if (starts("omega_") || c == "min_gap" || c == "min_resonance") return Dimension::frequency;
+  if (starts("action_")) return Dimension::action;
+  return Dimension::none;  // step, alerts
+}
+
 double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* stiff) {
   return stiff ? max_violation(stiff->bonds, x) : 0.0;
 }

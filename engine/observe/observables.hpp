@@ -10,6 +10,7 @@
 
 #include "engine/core/state.hpp"
 #include "engine/core/topology.hpp"
+#include "engine/core/units.hpp"
 #include "engine/observe/polymer_observables.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
@@ -40,6 +41,9 @@ struct ObservableSettings {
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
 };
+
+// What a thermo column measures (time, energy, temperature, …), for the units it is written in.
+Dimension thermo_column_dimension(const std::string& column);
 
 // One row of thermo output: named columns, fixed for a run. The last column, alerts, is 0 here;
 // the run loop's Monitor fills it in (engine/observe/monitor.hpp).

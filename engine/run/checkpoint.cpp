@@ -196,6 +196,9 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
     f.add(sc.box.lengths[a]);
   }
   for (const LevelSettings& l : sc.integrator.levels) f.add(l.name);  // none without [[integrator.levels]]
+  // The units give the deck's times and temperatures their meaning (added only when not the
+  // default, so that checkpoints of reduced-unit runs keep their fingerprints).
+  if (!sc.units.reduced()) f.add(sc.units.name);
   f.add<std::uint64_t>(sc.forces->terms().size());
   for (const auto& term : sc.forces->terms()) {
     f.add(term->name());

@@ -26,7 +26,7 @@ ImportedSystem to_lammps(const Scene& sc) {
   ImportedSystem out;
   const State& s = sc.state;
   out.x = s.x;
-  out.v = s.v;
+  out.v = s.v * sc.units.out(Dimension::velocity);  // LAMMPS's velocity unit (real: Å/fs)
   for (int i = 0; i < s.size(); ++i) {
     out.type.push_back(sc.particle_type[i] + 1);
     out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
@@ -86,6 +86,11 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   const bool restarting = restart_cut != nullptr;
   const double cut = restarting ? *restart_cut : 0.0;
   const double tol = 1e-9 * sc.integrator.h;
+  // The files hold times in the deck's units (real: fs), the engine's grids in its own.
+  const double time_out = sc.units.out(Dimension::time);
+  const double file_cut = cut * time_out, file_tol = tol * time_out;
+  for (const std::string& c : thermo.columns()) thermo_scale_.push_back(sc.units.out(thermo_column_dimension(c)));
+  velocity_scale_ = sc.units.out(Dimension::velocity);
   auto open_output = [&](const std::string& name, auto truncate) {
     const fs::path p = dir / name;
     files.push_back(p.string());
@@ -106,19 +111,20 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   }
   if (!sc.output.xyz.empty()) {
     const bool append =
-        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, cut, tol); });
+        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
     xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
                                        append, masses);
+    xyz_->set_units(time_out, velocity_scale_);
   }
   if (!sc.output.thermo.empty()) {
     const bool append = open_output(
-        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, table_.columns()); });
+        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, table_.columns()); });
     thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
   }
   if (!sc.output.state.empty()) {
     const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
     const bool append =
-        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, cut, tol, scols); });
+        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
     state_ = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
     projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
   }
@@ -140,6 +146,13 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     setup.gzip = sc.output.h5md_gzip;
     // Observables on the frame grid: every thermo column but time and step.
     for (int c : h5md_columns_) setup.observables.push_back(table_.columns()[c]);
+    const Units& u = sc.units;
+    setup.length_unit = u.h5md_unit(Dimension::length);
+    setup.time_unit = u.h5md_unit(Dimension::time);
+    setup.velocity_unit = u.h5md_unit(Dimension::velocity);
+    setup.force_unit = u.h5md_unit(Dimension::force);
+    if (!u.reduced())
+      for (int c : h5md_columns_) setup.observable_units.push_back(u.h5md_unit(thermo_column_dimension(thermo.columns()[c])));
     const std::string path = (dir / sc.output.h5md).string();
     files.push_back(path);
     const bool append = restarting && fs::exists(path);
@@ -167,12 +180,23 @@ bool RunOutputs::due(double t, bool final) {
 }
 
 void RunOutputs::write(const State& s, const std::vector<double>& row) {
-  if (thermo_now_ || h5md_now_) written_ = table_(row);
+  if (thermo_now_ || h5md_now_) {
+    written_ = table_(row);
+    // The row in the output's units (README "Units"), for the files and the terminal alike.
+    if (!sc_.units.reduced())
+      for (size_t k = 0; k < written_.size(); ++k) written_[k] *= thermo_scale_[k];
+  }
   if (thermo_now_ && thermo_) thermo_->write(written_);
   if (h5md_now_) {
     if (sc_.output.h5md_force) sc_.forces->total_force(s.x, h5md_force_);
     for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = written_[h5md_columns_[k]];
-    h5md_->write_frame(s.step, s.t, s.x, &s.v, sc_.output.h5md_force ? &h5md_force_ : nullptr, h5md_values_);
+    const Eigen::Matrix3Xd* v = &s.v;
+    if (const double scale = sc_.units.h5md_scale(Dimension::velocity); scale != 1.0 && sc_.output.h5md_velocity) {
+      h5md_velocity_ = s.v * scale;
+      v = &h5md_velocity_;
+    }
+    h5md_->write_frame(s.step, s.t * sc_.units.out(Dimension::time), s.x, v,
+                       sc_.output.h5md_force ? &h5md_force_ : nullptr, h5md_values_);
   }
   if (xyz_now_) xyz_->write(s);
   if (state_now_) write_state(s);
@@ -180,11 +204,12 @@ void RunOutputs::write(const State& s, const std::vector<double>& row) {
 
 void RunOutputs::write_state(const State& s) {
   const Eigen::Matrix3Xd& pp = (*projected_)(s);
-  state_row_[0] = s.t;
+  // Time and momenta (mass × velocity) in the output's units.
+  state_row_[0] = s.t * sc_.units.out(Dimension::time);
   for (int i = 0; i < s.size(); ++i)
     for (int a = 0; a < 3; ++a) {
       state_row_[1 + 3 * i + a] = s.x(a, i);
-      state_row_[1 + 3 * s.size() + 3 * i + a] = pp(a, i);
+      state_row_[1 + 3 * s.size() + 3 * i + a] = pp(a, i) * velocity_scale_;
     }
   state_->write(state_row_);
 }

@@ -66,6 +66,9 @@ class RunOutputs {
   std::vector<double> written_;
   bool xyz_now_ = false, thermo_now_ = false, state_now_ = false, h5md_now_ = false;
   std::vector<double> state_row_;
+  std::vector<double> thermo_scale_;  // per thermo column: engine value → output unit
+  double velocity_scale_ = 1.0;
+  Eigen::Matrix3Xd h5md_velocity_;
   std::vector<int> h5md_columns_;  // every thermo column but time and step
   std::vector<double> h5md_values_;
   Eigen::Matrix3Xd h5md_force_;

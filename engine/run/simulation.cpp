@@ -84,9 +84,10 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   RunSummary summary;
   summary.method = sc.integrator.method;
-  summary.h = sc.integrator.h;
+  summary.units = sc.units.name;
+  summary.h = sc.integrator.h * sc.units.out(Dimension::time);
   summary.micro_steps = sc.integrator.micro_steps;
-  summary.t_end = sc.run.t_end;
+  summary.t_end = sc.run.t_end * sc.units.out(Dimension::time);
   if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary.epsilon = sb->epsilon;
 
   // A restart's checkpoint is read, checked and loaded first: a damaged or foreign one is refused
@@ -339,7 +340,7 @@ std::string summary_json(const RunSummary& s) {
     for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
     o << "]";
   };
-  o << "{\n  \"method\": \"" << s.method << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
+  o << "{\n  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
     << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
     << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
     << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations

@@ -29,6 +29,7 @@ struct RunOptions {
 
 struct RunSummary {
   std::string method;
+  std::string units = "lj";  // the deck's: h and t_end are in its time unit (real: fs)
   std::int64_t steps = 0;
   double h = 0.0;
   int micro_steps = 1;

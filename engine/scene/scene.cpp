@@ -38,6 +38,15 @@ constexpr double kWholeStepTolerance = 1e-9;
 // Distinct default elements for bead types that do not name one.
 const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H", "Fe", "Si"};
 
+// units = "lj" (reduced, the default) or "real" (LAMMPS's: Å, fs, kcal/mol, g/mol, K, atm). Read
+// first: every later key of time, temperature or velocity is converted with it.
+void read_units(DeckTable& root, Scene& sc) {
+  const std::string name = root.string("units", "lj");
+  const auto u = Units::named(name);
+  if (!u) root.fail("units", "expected \"lj\" (reduced units) or \"real\" (LAMMPS real: A, fs, kcal/mol, g/mol, K), got \"" + name + "\"");
+  sc.units = *u;
+}
+
 void read_box(DeckTable& root, Scene& sc) {
   auto t = root.table("box");
   if (!t) return;  // open space, or set by a builder's density or an imported file
@@ -80,7 +89,7 @@ void read_particles(DeckTable& root, Scene& sc) {
     p.require(mass > 0.0, "mass", "expected a mass > 0");
     const bool fixed = p.boolean("fixed", false);
     const Eigen::Matrix3Xd x = p.vector3("position");
-    const Eigen::Matrix3Xd v = p.vector3("velocity", Eigen::Vector3d::Zero());
+    const Eigen::Matrix3Xd v = sc.units.velocity_in(1.0) * p.vector3("velocity", Eigen::Vector3d::Zero());
     if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
     const int i = append_particles(sc, x, v, {type}, {});
     sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
@@ -270,9 +279,10 @@ void read_integrator(DeckTable& root, Scene& sc) {
   if (method->needs_stiff_bonds && !sc.forces->stiff_bonds())
     t->fail("method", "method '" + in.method +
                           "' needs constraint-defining stiff bonds (a [forces.NAME] of style stiff-harmonic)");
-  in.h = t->number("h");
+  in.h = sc.units.time_in(t->number("h"));
   t->require(in.h > 0.0, "h", "expected a macro step h > 0");
-  const auto micro_dt = t->maybe_number("micro_dt");
+  auto micro_dt = t->maybe_number("micro_dt");
+  if (micro_dt) *micro_dt = sc.units.time_in(*micro_dt);
   const auto micro_steps = t->maybe_integer("micro_steps");
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
   t->array_of_tables("levels");  // read by read_levels
@@ -293,12 +303,13 @@ void read_integrator(DeckTable& root, Scene& sc) {
     in.micro_steps = 1;
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
-    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + format_number(in.h));
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + format_number(in.h / sc.units.time));
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
     // micro_steps is (and before the conversion to int).
     const double n = std::ceil(in.h / *micro_dt - 1e-9);
     t->require(n <= 1e8, "micro_dt",
-               "h / micro_dt = " + format_number(in.h) + " / " + format_number(*micro_dt) + " = " + format_number(n) +
+               "h / micro_dt = " + format_number(in.h / sc.units.time) + " / " +
+                   format_number(*micro_dt / sc.units.time) + " = " + format_number(n) +
                    " micro steps per macro step; expected at most 1e8");
     in.micro_steps = static_cast<int>(n);
   } else if (micro_steps) {
@@ -314,18 +325,19 @@ void read_integrator(DeckTable& root, Scene& sc) {
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
   if (!t) root.fail_here("missing required table [run] (t_end)");
-  sc.run.t_end = t->number("t_end");
-  t->require(sc.run.t_end > 0.0, "t_end", "expected an end time > 0");
-  const double h = sc.integrator.h;
-  const double steps = sc.run.t_end / h;
+  // In the deck's units here (the messages quote them), in the engine's from the end on.
+  const double t_end = t->number("t_end");
+  t->require(t_end > 0.0, "t_end", "expected an end time > 0");
+  const double h = sc.integrator.h / sc.units.time;
+  const double steps = t_end / h;
   if (!(steps <= 1e12))
-    t->fail("t_end", "t_end / integrator.h = " + format_number(sc.run.t_end) + " / " + format_number(h) + " = " +
+    t->fail("t_end", "t_end / integrator.h = " + format_number(t_end) + " / " + format_number(h) + " = " +
                          format_number(steps) + " steps; expected at most 1e12 steps");
   const double n = std::round(steps);
   if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
     std::ostringstream m;
     m.precision(12);
-    m << "t_end = " << sc.run.t_end << " is " << steps << " macro steps of integrator.h = " << h
+    m << "t_end = " << t_end << " is " << steps << " macro steps of integrator.h = " << h
       << "; expected a whole number of steps: t_end = ";
     const double below = std::floor(steps), above = std::ceil(steps);
     const auto steps_word = [](double k) { return k == 1 ? " step)" : " steps)"; };
@@ -333,6 +345,7 @@ void read_run(DeckTable& root, Scene& sc) {
     m << above * h << " (" << above << steps_word(above) << ", or an h that divides t_end";
     t->fail("t_end", m.str());
   }
+  sc.run.t_end = sc.units.time_in(t_end);
   t->finish();
 }
 
@@ -361,7 +374,7 @@ double default_screen_interval(double t_end, double thermo_interval) {
 
 void read_output(DeckTable& root, Scene& sc) {
   OutputSettings& o = sc.output;
-  const double default_interval = sc.run.t_end / 100;
+  const double default_interval = sc.run.t_end / 100;  // engine units; the keys are in the deck's
   auto t = root.table("output");
   if (!t) {
     o.xyz = "trajectory.xyz";
@@ -370,24 +383,26 @@ void read_output(DeckTable& root, Scene& sc) {
     o.screen_interval = default_screen_interval(sc.run.t_end, o.thermo_interval);
     return;
   }
+  const auto interval = [&](const char* key, double fallback) {
+    const double v = t->has(key) ? sc.units.time_in(t->number(key)) : fallback;
+    t->require(v > 0.0, key, "expected a time interval > 0");
+    return v;
+  };
   o.xyz = t->string("xyz", "trajectory.xyz");
-  o.xyz_interval = t->number("xyz_interval", default_interval);
-  t->require(o.xyz_interval > 0.0, "xyz_interval", "expected a time interval > 0");
+  o.xyz_interval = interval("xyz_interval", default_interval);
   o.xyz_velocities = t->boolean("xyz_velocities", false);
   o.thermo = t->string("thermo", "thermo.csv");
-  o.thermo_interval = t->number("thermo_interval", default_interval);
-  t->require(o.thermo_interval > 0.0, "thermo_interval", "expected a time interval > 0");
+  o.thermo_interval = interval("thermo_interval", default_interval);
   o.thermo_norm = t->boolean("thermo_norm", false);
-  o.screen_interval = t->number("screen_interval", default_screen_interval(sc.run.t_end, o.thermo_interval));
+  o.screen_interval = t->has("screen_interval") ? sc.units.time_in(t->number("screen_interval"))
+                                                : default_screen_interval(sc.run.t_end, o.thermo_interval);
   t->require(o.screen_interval >= 0.0, "screen_interval", "expected a time interval >= 0 (0: no thermo lines)");
   o.state = t->string("state", "");
-  o.state_interval = t->number("state_interval", default_interval);
-  t->require(o.state_interval > 0.0, "state_interval", "expected a time interval > 0");
+  o.state_interval = interval("state_interval", default_interval);
   if (!o.state.empty() && !sc.forces->stiff_bonds())
     t->fail("state", "the state output holds projected momenta P(x)p: it needs stiff bonds");
   o.h5md = t->string("h5md", "");
-  o.h5md_interval = t->number("h5md_interval", o.xyz_interval);
-  t->require(o.h5md_interval > 0.0, "h5md_interval", "expected a time interval > 0");
+  o.h5md_interval = interval("h5md_interval", o.xyz_interval);
   o.h5md_velocity = t->boolean("h5md_velocity", false);
   o.h5md_force = t->boolean("h5md_force", false);
   const long gz = t->integer("h5md_gzip", 0);
@@ -540,6 +555,7 @@ Scene load_scene(const Deck& deck) {
   sc.deck_path = deck.path();
   DeckTable root = deck.root();
   root.table("variables");  // resolved by Deck; mark as read
+  read_units(root, sc);
   read_box(root, sc);
   read_types(root, sc);
   read_particles(root, sc);
@@ -575,6 +591,10 @@ std::string describe(const Scene& sc) {
   int fixed = 0;
   for (int i = 0; i < st.size(); ++i) fixed += st.inv_mass[i] == 0.0;
   s << "deck:        " << sc.deck_path << "\n";
+  const double time_out = sc.units.out(Dimension::time);  // times and temperatures in the deck's units
+  if (!sc.units.reduced())
+    s << "units:       " << sc.units.name << " (A, fs, kcal/mol, g/mol, K; internal time unit "
+      << Units::kRealTimeFs << " fs)\n";
   s << "particles:   " << st.size() << " (" << fixed << " fixed)\n";
   for (size_t k = 0; k < sc.types.size(); ++k) {
     const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k));
@@ -615,9 +635,10 @@ std::string describe(const Scene& sc) {
   for (const auto& t : sc.forces->terms())
     s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level()) << "]: " << t->describe()
       << "\n";
-  s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h;
+  s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h * time_out;
   if (sc.integrator.micro_steps > 1)
-    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = " << sc.integrator.h / sc.integrator.micro_steps
+    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = "
+      << sc.integrator.h * time_out / sc.integrator.micro_steps
       << ")";
   s << "\n";
   if (const auto& levels = sc.integrator.levels; !levels.empty()) {
@@ -641,9 +662,14 @@ std::string describe(const Scene& sc) {
     }
   }
   if (const ThermostatSettings& th = sc.integrator.thermostat; th.on()) {
-    s << "thermostat:  " << thermostat_style_name(th.style) << ", kT = " << th.temperature;
-    if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau;
-    if (th.friction.size() > 0) s << ", friction " << th.friction.minCoeff() << ".." << th.friction.maxCoeff();
+    s << "thermostat:  " << thermostat_style_name(th.style);
+    if (sc.units.reduced())
+      s << ", kT = " << th.temperature;
+    else
+      s << ", T = " << th.temperature * sc.units.out(Dimension::temperature);
+    if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau * time_out;
+    if (th.friction.size() > 0)
+      s << ", friction " << th.friction.minCoeff() / time_out << ".." << th.friction.maxCoeff() / time_out;
     if (th.style == ThermostatSettings::Style::langevin)
       s << (th.splitting == ThermostatSettings::Splitting::lammps ? ", as a force in the kick (lammps)"
                                                                   : ", as an O step (baoab)");
@@ -653,12 +679,12 @@ std::string describe(const Scene& sc) {
       << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
       << " degrees of freedom\n";
   }
-  s << "run:         t_end = " << sc.run.t_end << " (" << sc.num_steps() << " steps)\n";
+  s << "run:         t_end = " << sc.run.t_end * time_out << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";
-  if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval << "  ";
-  if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval;
+  if (!sc.output.xyz.empty()) s << sc.output.xyz << " every " << sc.output.xyz_interval * time_out << "  ";
+  if (!sc.output.thermo.empty()) s << sc.output.thermo << " every " << sc.output.thermo_interval * time_out;
   if (sc.output.thermo_norm) s << " (energies per particle)";
-  if (sc.output.screen_interval > 0) s << "  a thermo line every " << sc.output.screen_interval;
+  if (sc.output.screen_interval > 0) s << "  a thermo line every " << sc.output.screen_interval * time_out;
   s << "\n";
   return s.str();
 }

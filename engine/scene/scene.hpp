@@ -12,6 +12,7 @@
 #include "engine/core/box.hpp"
 #include "engine/core/state.hpp"
 #include "engine/core/topology.hpp"
+#include "engine/core/units.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -60,6 +61,7 @@ struct PrepareTable : PrepareSettings {
 
 struct Scene {
   std::string deck_path;
+  Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (engine/core/units.hpp)
   State state;
   Box box;
   Topology topology;

@@ -279,7 +279,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
                                 " for LAMMPS type " + std::to_string(in.type[i]));
   }
   if (lammps) set_box(*t, "lammps_data", sc, box_of(in));
-  const Eigen::Matrix3Xd v = use_velocities ? in.v : Eigen::Matrix3Xd::Zero(3, n);
+  // LAMMPS data velocities are in its units' (real: Å/fs), as the deck's.
+  const Eigen::Matrix3Xd v = use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
   for (const auto& b : in.bonds) {
     const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
@@ -313,7 +314,7 @@ void read_velocities(DeckTable& root, Scene& sc) {
                                " mobile particle(s), total momentum removed); expected temperature = 0 or more "
                                "mobile particles");
   t->finish();
-  sc.state.v = maxwell_boltzmann(sc.state.inv_mass, temperature, seed);
+  sc.state.v = maxwell_boltzmann(sc.state.inv_mass, sc.units.kT(temperature), seed);
 }
 
 // [prepare]: the settings of prepare_state (integrators/prepare.*, where the physics is) and
@@ -327,6 +328,7 @@ void read_prepare(DeckTable& root, Scene& sc) {
   p.project = t->boolean("project", true);
   p.vibrational_temperature = t->number("vibrational_temperature", 0.0);
   t->require(p.vibrational_temperature >= 0, "vibrational_temperature", "expected a temperature >= 0");
+  p.vibrational_temperature = sc.units.kT(p.vibrational_temperature);
   p.seed = static_cast<std::uint64_t>(t->integer("seed", 1));
   p.relax_steps = t->integer("relax_steps", 0);
   t->require(p.relax_steps >= 0 && p.relax_steps <= kMaxRelaxSteps, "relax_steps",

@@ -8,8 +8,9 @@ namespace stiffmd {
 
 // [thermostat]
 //   style       = "langevin" | "csvr"
-//   temperature = kT (k_B = 1)
-//   damp        = 1/γ in time units, as LAMMPS's fix langevin, or friction = γ: exactly one (langevin)
+//   temperature = kT (k_B = 1) in lj units, T in K in real units (kT = k_B T inside)
+//   damp        = 1/γ in time units (fs in real), as LAMMPS's fix langevin, or friction = γ: exactly one
+//                 (langevin)
 //   [thermostat.scale] TYPE = r > 0: damp of that type multiplied by r, γ divided by r (LAMMPS's
 //                      `scale TYPE r`: fix_langevin.cpp multiplies its friction factor by 1/ratio)
 //   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
@@ -36,9 +37,10 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     th.style = ThermostatSettings::Style::csvr;
   else
     t->fail("style", "expected \"langevin\" or \"csvr\" (stochastic velocity rescaling), got \"" + style + "\"");
-  th.temperature = t->number("temperature");
-  t->require(th.temperature >= 0.0 && std::isfinite(th.temperature), "temperature",
-             "expected a temperature kT >= 0 (k_B = 1)");
+  const double temperature = t->number("temperature");
+  t->require(temperature >= 0.0 && std::isfinite(temperature), "temperature",
+             sc.units.reduced() ? "expected a temperature kT >= 0 (k_B = 1)" : "expected a temperature >= 0 (K)");
+  th.temperature = sc.units.kT(temperature);
   const long seed = t->integer("seed");
   t->require(seed >= 0, "seed", "expected an integer seed >= 0");
   th.seed = static_cast<std::uint64_t>(seed);
@@ -49,7 +51,7 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     if (!damp && !friction) t->fail_here("missing damp (time units, LAMMPS's fix langevin) or friction (= 1/damp)");
     if (damp) t->require(*damp > 0.0 && std::isfinite(*damp), "damp", "expected a damping time > 0");
     if (friction) t->require(*friction >= 0.0 && std::isfinite(*friction), "friction", "expected a friction >= 0");
-    const double gamma = damp ? 1.0 / *damp : *friction;
+    const double gamma = sc.units.rate_in(damp ? 1.0 / *damp : *friction);
     std::vector<double> type_scale(sc.types.size(), 1.0);
     if (auto scale = t->table("scale")) {
       // One key per particle type; finish() names the types when a key is none of them.
@@ -76,9 +78,10 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
   } else {
-    th.tau = t->number("tau");
-    t->require(th.tau >= 0.0 && std::isfinite(th.tau), "tau",
+    const double tau = t->number("tau");
+    t->require(tau >= 0.0 && std::isfinite(tau), "tau",
                "expected a relaxation time tau >= 0 (0: the kinetic energy redrawn every step)");
+    th.tau = sc.units.time_in(tau);
   }
   t->finish();
   sc.observables.thermostat = th.style;
