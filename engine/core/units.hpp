@@ -52,13 +52,20 @@ struct Units {
   // An engine value of the given dimension in the output's units (time in fs, T in K, p in atm, …).
   double out(Dimension d) const {
     switch (d) {
-      case Dimension::time: return 1.0 / time;
-      case Dimension::velocity: return time;
-      case Dimension::temperature: return 1.0 / boltzmann;
-      case Dimension::pressure: return pressure;
-      case Dimension::frequency: return time;
-      case Dimension::action: return 1.0 / time;
-      default: return 1.0;
+      case Dimension::time:
+        return 1.0 / time;
+      case Dimension::velocity:
+        return time;
+      case Dimension::temperature:
+        return 1.0 / boltzmann;
+      case Dimension::pressure:
+        return pressure;
+      case Dimension::frequency:
+        return time;
+      case Dimension::action:
+        return 1.0 / time;
+      default:
+        return 1.0;
     }
   }
 
@@ -72,16 +79,26 @@ struct Units {
   std::string h5md_unit(Dimension d) const {
     if (reduced()) return "";
     switch (d) {
-      case Dimension::length: return "Angstrom";
-      case Dimension::time: return "fs";
-      case Dimension::velocity: return "Angstrom ps-1";
-      case Dimension::force: return "kcal mol-1 Angstrom-1";
-      case Dimension::energy: return "kcal mol-1";
-      case Dimension::temperature: return "K";
-      case Dimension::pressure: return "atm";
-      case Dimension::frequency: return "fs-1";
-      case Dimension::action: return "kcal mol-1 fs";
-      default: return "";
+      case Dimension::length:
+        return "Angstrom";
+      case Dimension::time:
+        return "fs";
+      case Dimension::velocity:
+        return "Angstrom ps-1";
+      case Dimension::force:
+        return "kcal mol-1 Angstrom-1";
+      case Dimension::energy:
+        return "kcal mol-1";
+      case Dimension::temperature:
+        return "K";
+      case Dimension::pressure:
+        return "atm";
+      case Dimension::frequency:
+        return "fs-1";
+      case Dimension::action:
+        return "kcal mol-1 fs";
+      default:
+        return "";
     }
   }
 };

@@ -47,7 +47,9 @@ class XyzWriter {
             bool append = false, std::vector<double> masses = {});
   // Times and velocities written in other units than the engine's: t·time_scale, v·velocity_scale
   // (engine/core/units.hpp; positions need none).
-  void set_units(double time_scale, double velocity_scale) { time_scale_ = time_scale, velocity_scale_ = velocity_scale; }
+  void set_units(double time_scale, double velocity_scale) {
+    time_scale_ = time_scale, velocity_scale_ = velocity_scale;
+  }
   void write(const State& s);
 
  private:

@@ -340,13 +340,14 @@ std::string summary_json(const RunSummary& s) {
     for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
     o << "]";
   };
-  o << "{\n  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h << ",\n  \"micro_steps\": " << s.micro_steps
-    << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps << ",\n  \"t_end\": " << s.t_end
-    << ",\n  \"wall_seconds\": " << s.wall_seconds << ",\n  \"cpu_seconds\": " << s.cpu_seconds
-    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"slow_evaluations\": " << s.slow_evaluations
-    << ",\n  \"fast_evaluations\": " << s.fast_evaluations << ",\n  \"initial_energy\": " << s.initial_energy
-    << ",\n  \"final_energy\": " << s.final_energy << ",\n  \"max_energy_error\": " << s.max_energy_error
-    << ",\n  \"final_max_violation\": " << s.final_max_violation << ",\n  \"initial_actions\": ";
+  o << "{\n  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
+    << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
+    << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
+    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds
+    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
+    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
+    << ",\n  \"initial_actions\": ";
   list(s.initial_actions);
   o << ",\n  \"final_actions\": ";
   list(s.final_actions);

@@ -43,7 +43,9 @@ const std::array<const char*, 8> kDefaultElements = {"C", "O", "N", "S", "P", "H
 void read_units(DeckTable& root, Scene& sc) {
   const std::string name = root.string("units", "lj");
   const auto u = Units::named(name);
-  if (!u) root.fail("units", "expected \"lj\" (reduced units) or \"real\" (LAMMPS real: A, fs, kcal/mol, g/mol, K), got \"" + name + "\"");
+  if (!u)
+    root.fail("units", "expected \"lj\" (reduced units) or \"real\" (LAMMPS real: A, fs, kcal/mol, g/mol, K), got \"" +
+                           name + "\"");
   sc.units = *u;
 }
 
@@ -303,7 +305,8 @@ void read_integrator(DeckTable& root, Scene& sc) {
     in.micro_steps = 1;
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
-    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt", "expected micro_dt <= h = " + format_number(in.h / sc.units.time));
+    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt",
+               "expected micro_dt <= h = " + format_number(in.h / sc.units.time));
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
     // micro_steps is (and before the conversion to int).
     const double n = std::ceil(in.h / *micro_dt - 1e-9);
@@ -593,8 +596,8 @@ std::string describe(const Scene& sc) {
   s << "deck:        " << sc.deck_path << "\n";
   const double time_out = sc.units.out(Dimension::time);  // times and temperatures in the deck's units
   if (!sc.units.reduced())
-    s << "units:       " << sc.units.name << " (A, fs, kcal/mol, g/mol, K; internal time unit "
-      << Units::kRealTimeFs << " fs)\n";
+    s << "units:       " << sc.units.name << " (A, fs, kcal/mol, g/mol, K; internal time unit " << Units::kRealTimeFs
+      << " fs)\n";
   s << "particles:   " << st.size() << " (" << fixed << " fixed)\n";
   for (size_t k = 0; k < sc.types.size(); ++k) {
     const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k));
@@ -637,9 +640,8 @@ std::string describe(const Scene& sc) {
       << "\n";
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h * time_out;
   if (sc.integrator.micro_steps > 1)
-    s << ", " << sc.integrator.micro_steps << " micro steps (micro_dt = "
-      << sc.integrator.h * time_out / sc.integrator.micro_steps
-      << ")";
+    s << ", " << sc.integrator.micro_steps
+      << " micro steps (micro_dt = " << sc.integrator.h * time_out / sc.integrator.micro_steps << ")";
   s << "\n";
   if (const auto& levels = sc.integrator.levels; !levels.empty()) {
     // Outermost first, as the step nests: each level's step, its loop factor and its terms.

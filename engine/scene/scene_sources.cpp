@@ -280,7 +280,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   }
   if (lammps) set_box(*t, "lammps_data", sc, box_of(in));
   // LAMMPS data velocities are in its units' (real: Å/fs), as the deck's.
-  const Eigen::Matrix3Xd v = use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
+  const Eigen::Matrix3Xd v =
+      use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
   for (const auto& b : in.bonds) {
     const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
