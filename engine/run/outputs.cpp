@@ -117,14 +117,15 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     xyz_->set_units(time_out, velocity_scale_);
   }
   if (!sc.output.thermo.empty()) {
-    const bool append = open_output(
-        sc.output.thermo, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, table_.columns()); });
+    const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
+      return truncate_csv_after(p, file_cut, file_tol, table_.columns());
+    });
     thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
   }
   if (!sc.output.state.empty()) {
     const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
-    const bool append =
-        open_output(sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
+    const bool append = open_output(
+        sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
     state_ = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
     projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
   }
@@ -152,7 +153,8 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     setup.velocity_unit = u.h5md_unit(Dimension::velocity);
     setup.force_unit = u.h5md_unit(Dimension::force);
     if (!u.reduced())
-      for (int c : h5md_columns_) setup.observable_units.push_back(u.h5md_unit(thermo_column_dimension(thermo.columns()[c])));
+      for (int c : h5md_columns_)
+        setup.observable_units.push_back(u.h5md_unit(thermo_column_dimension(thermo.columns()[c])));
     const std::string path = (dir / sc.output.h5md).string();
     files.push_back(path);
     const bool append = restarting && fs::exists(path);
