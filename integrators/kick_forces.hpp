@@ -17,11 +17,16 @@ class ProjectedKick final : public KickForce {
   void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                 Eigen::Matrix3Xd& out) override {
     forces.compute(x, levels, out);
+    raw_ = out;  // same size after the first call: no allocation in the step loop
     toolbox_.project_force(x, out);
+    removed_virial_ = (x.array() * (raw_ - out).array()).sum();
   }
+  double removed_virial() const override { return removed_virial_; }
 
  private:
   ConstraintToolbox toolbox_;
+  Eigen::Matrix3Xd raw_;  // f(x) before the projection, scratch
+  double removed_virial_ = 0.0;
 };
 
 class MollifiedKick final : public KickForce {

@@ -17,6 +17,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
       outer_kick_(std::move(outer_kick)),
       force_(stages_.size(), Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       valid_(stages_.size(), false),
+      removed_virial_(stages_.size(), 0.0),
       langevin_(std::move(langevin)),
       langevin_force_(std::move(langevin_force)) {
   if (langevin_ && langevin_force_) throw std::invalid_argument("Langevin either as an O step or as a force, not both");
@@ -35,9 +36,10 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
   // Every stage slower than the innermost kicks through the method's strategy (see the header).
-  if (k + 1 < stages_.size())
+  if (k + 1 < stages_.size()) {
     outer_kick_->evaluate(x, forces_, stages_[k].levels, force_[k]);
-  else
+    removed_virial_[k] = outer_kick_->removed_virial();
+  } else
     forces_.compute(x, stages_[k].levels, force_[k]);
   valid_[k] = true;
 }
@@ -123,12 +125,13 @@ std::vector<double> MultipleTimeStepping::save_state() const {
     w.insert(w.end(), force_[k].data(), force_[k].data() + force_[k].size());
   }
   if (langevin_) w.push_back(o_step_kinetic_);
+  w.insert(w.end(), removed_virial_.begin(), removed_virial_.end());
   return w;
 }
 
 void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const size_t per_stage = 1 + 3 * static_cast<size_t>(forces_.num_particles());
-  const size_t expected = stages_.size() * per_stage + (langevin_ ? 1 : 0);
+  const size_t expected = stages_.size() * (per_stage + 1) + (langevin_ ? 1 : 0);
   if (w.size() != expected)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, expected " + std::to_string(expected) + " (" + std::to_string(stages_.size()) +
@@ -138,7 +141,9 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
     valid_[k] = p[0] != 0.0;
     force_[k] = Eigen::Map<const Eigen::Matrix3Xd>(p + 1, 3, forces_.num_particles());
   }
-  if (langevin_) o_step_kinetic_ = w.back();
+  const double* tail = w.data() + stages_.size() * per_stage;
+  if (langevin_) o_step_kinetic_ = *tail++;
+  removed_virial_.assign(tail, tail + stages_.size());
 }
 
 // kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin

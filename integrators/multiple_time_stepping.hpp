@@ -68,6 +68,9 @@ class KickForce {
   virtual ~KickForce() = default;
   virtual void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                         Eigen::Matrix3Xd& out) = 0;
+  // Σ x·(f(x) − K(x)) of the last evaluate: the virial of the force the kick left out (the
+  // bond-normal part a projection removes), 0 when it removes none.
+  virtual double removed_virial() const { return 0.0; }
 };
 
 // K(x) = f(x): the plain impulse / r-RESPA kick.
@@ -101,10 +104,21 @@ class MultipleTimeStepping final : public Integrator {
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
+  // The projected kick leaves out the bond-normal part f − P(x)f of every slower level's force.
+  // In the stiff system the bonds stretch until their tension cancels that part on average, so
+  // the tension belongs in the pressure although no spring in this dynamics carries it: the
+  // virial of −(f − Pf), as RATTLE's constraint force enters its pressure (design.md §3, §8).
+  // The cached kick forces are at the current x after a step, so these virials are too.
+  double constraint_virial(const State&) const override {
+    double w = 0.0;
+    for (size_t k = 0; k + 1 < stages_.size(); ++k) w -= removed_virial_[k];
+    return w;
+  }
   // The cached kick force of every stage with its validity (per stage: 1 word, then 3N): a
   // recomputation after a restart could differ in the last bit (the neighbour list may have been
   // moved on by an observation since the force was computed), so the cache itself is saved.
-  // With Langevin, one more word: the kinetic energy at the last O step (−1: none yet).
+  // With Langevin, one more word: the kinetic energy at the last O step (−1: none yet); then one
+  // word per stage, the kick's removed virial (constraint_virial).
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& s) override;
 
@@ -123,6 +137,7 @@ class MultipleTimeStepping final : public Integrator {
   std::unique_ptr<KickForce> outer_kick_;
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
+  std::vector<double> removed_virial_;  // per stage: the kick's removed_virial() at its last refresh
   std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics (or Langevin as a force)
   std::uint64_t substep_ = 0;                // innermost steps taken in this macro step (noise counter)
   double o_step_kinetic_ = -1.0;             // ½vᵀMv just after the last O step (−1: no step yet)

@@ -652,9 +652,9 @@ std::string describe(const Scene& sc) {
     else
       s << "; r-RESPA, outermost first, " << sc.integrator.method
         << (levels.size() > 1 ? "'s kick on every level but the innermost:\n" : ":\n");
-    double step = sc.integrator.h;
+    double step = sc.integrator.h * time_out;
     for (int k = static_cast<int>(levels.size()) - 1; k >= 0; --k) {
-      s << "  " << levels[k].name << ": step " << (nested ? step : sc.integrator.h);
+      s << "  " << levels[k].name << ": step " << (nested ? step : sc.integrator.h * time_out);
       if (nested && k > 0) s << ", " << levels[k].substeps << " steps of " << levels[k - 1].name << " each";
       s << "; terms:";
       for (const auto& t : sc.forces->terms())

@@ -1,0 +1,527 @@
+#!/usr/bin/env python3
+"""A TraPPE-UA polyethylene melt (n-alkane chains, CH3 ends, CH2 inside) in LAMMPS real units.
+
+  trappe_pe.py build OUT [--chains 40 --carbons 24 --density 0.72 --equilibrate-ps 20]
+      grows the chains (bonds 1.54 Å, angles 114°, torsions trans/gauche) into a periodic box at the
+      density, writes OUT/raw.data, then lets LAMMPS push the overlaps apart (soft pairs), switch on
+      the force field and thermalise at 450 K (Langevin): OUT/trappe_pe.data (with velocities, Å/fs)
+      is the state both codes start from; OUT/in.equilibrate is the LAMMPS input that made it.
+
+  trappe_pe.py compare DATA OUT [--ps 10 --lammps 1,2,3,4,5,6 --stiffmd METHOD=h1,h2,... --quick]
+      NVT at 450 K (Langevin, damp 100 fs) from DATA with both codes, each for --ps picoseconds:
+      a small-step reference (LAMMPS velocity Verlet, 1 fs), LAMMPS `run_style respa 3 2 2 bond 1
+      angle 2 dihedral 2 pair 3` at a ladder of outer steps, and stiffmd's methods on
+      inputs/trappe_pe.toml at theirs. Per run: the non-bonded-plus-bending-plus-torsion energy per
+      site, the pressure, the trans fraction of the torsions (|φ| > 120°), ⟨R²⟩ (end to end) and
+      ⟨Rg²⟩, as block averages with their standard errors; a run "keeps the statistics" when every
+      one is within 3 combined standard errors of the reference. Writes OUT/results.json and
+      OUT/table.md, and with --figure PATH the figure.
+
+Why a Python builder and LAMMPS rather than an engine [[build]]: the chains need their bond angles
+and torsions from the start (a bead-spring random walk would start far up the angle potential), the
+packing at a melt density needs a soft push-off, and the comparison wants one state, written once,
+that both codes read.
+
+The force field (Martin & Siepmann, J. Phys. Chem. B 102, 2569 (1998); the torsion from Jorgensen,
+Madura & Swenson, JACS 106, 6638 (1984)), as FF below:
+  LJ      ε/k_B = 98 K (CH3), 46 K (CH2); σ = 3.75, 3.95 Å; Lorentz–Berthelot mixing; between sites
+          more than three bonds apart (special_bonds lj 0 0 0); cut at 10 Å and shifted (TraPPE uses
+          14 Å with tail corrections: 10 Å keeps this comparison cheap; both codes use the same)
+  bond    1.54 Å (TraPPE keeps it fixed); here a stiff harmonic bond with LAMMPS K = 268 kcal/(mol Å²),
+          E = K(r − r0)², i.e. k = 536 kcal/(mol Å²): the OPLS-AA CT–CT stretch (Jorgensen, Maxwell &
+          Tirado-Rives, JACS 118, 11225 (1996)); period 2π√(μ/k) ≈ 35 fs for CH2–CH2
+  angle   θ0 = 114°, E = ½ k_θ (θ − θ0)², k_θ/k_B = 62 500 K/rad² (LAMMPS harmonic K = k_θ/2)
+  torsion c1 (1 + cos φ) + c2 (1 − cos 2φ) + c3 (1 + cos 3φ), c1/k_B = 355.03 K, c2 = −68.19 K,
+          c3 = 791.32 K, trans at φ = 180° (LAMMPS opls K_n = 2 c_n)
+  masses  CH3 15.035, CH2 14.027 g/mol
+The density: 0.72 g/cm³, the range the literature gives for molten C24 near 450 K (≈ 0.70–0.73); it
+only fixes the NVT state both codes run, and was not tuned to TraPPE's own equation of state.
+"""
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+
+KB = 0.0019872067  # kcal/(mol K), LAMMPS real
+AVOGADRO = 6.02214076e23
+FF = {
+    "mass": {"CH3": 15.035, "CH2": 14.027},
+    "epsilon": {"CH3": 98.0 * KB, "CH2": 46.0 * KB},  # kcal/mol
+    "sigma": {"CH3": 3.75, "CH2": 3.95},  # Å
+    "cutoff": 10.0,
+    "bond_length": 1.54,
+    "bond_K": 268.0,  # LAMMPS harmonic: E = K (r − r0)²
+    "theta0": 114.0,
+    "angle_k": 62500.0 * KB,  # E = ½ k (θ − θ0)²; LAMMPS K = k/2
+    "c": (355.03 * KB, -68.19 * KB, 791.32 * KB),  # TraPPE c1, c2, c3 in kcal/mol
+}
+TYPES = ("CH3", "CH2")  # LAMMPS atom types 1, 2
+
+
+def lb_mix(a, b):
+    """Lorentz–Berthelot: σ arithmetic, ε geometric (LAMMPS pair_modify mix arithmetic)."""
+    return math.sqrt(FF["epsilon"][a] * FF["epsilon"][b]), 0.5 * (FF["sigma"][a] + FF["sigma"][b])
+
+
+def box_length(chains, carbons, density):
+    """The cube side (Å) holding `chains` C_n chains at `density` g/cm³."""
+    grams = chains * ((carbons - 2) * FF["mass"]["CH2"] + 2 * FF["mass"]["CH3"]) / AVOGADRO
+    return (grams / density * 1e24) ** (1.0 / 3.0)
+
+
+def grow_chains(chains, carbons, length, seed, min_distance=2.5, tries=200):
+    """Chains grown site by site with the bond length and angle, torsions drawn from
+    trans (60 %) and gauche± (20 % each), each new site at least min_distance (minimum image) from
+    every site of other chains and every site of its own chain more than three bonds back."""
+    rng = np.random.default_rng(seed)
+    b, theta = FF["bond_length"], math.radians(FF["theta0"])
+    placed = np.zeros((0, 3))
+    chain_list = []
+
+    def clear(p, own, k):
+        others = placed if len(own) == 0 else np.vstack([placed] + ([np.array(own[:max(k - 3, 0)])] if k > 3 else []))
+        if len(others) == 0:
+            return True
+        d = others - p
+        d -= length * np.round(d / length)
+        return np.min(np.einsum("ij,ij->i", d, d)) >= min_distance**2
+
+    def next_site(a, bb, c, phi):
+        """The site d with |cd| = b, angle bcd = θ and dihedral abcd = φ (trans: φ = 180°)."""
+        bc = c - bb
+        bc /= np.linalg.norm(bc)
+        n = np.cross(bb - a, bc)
+        n /= np.linalg.norm(n)
+        m = np.cross(n, bc)
+        d2 = np.array([-b * math.cos(theta), b * math.sin(theta) * math.cos(phi), b * math.sin(theta) * math.sin(phi)])
+        return c + d2[0] * bc + d2[1] * m + d2[2] * n
+
+    for _ in range(chains):
+        for attempt in range(tries):
+            own = [rng.uniform(0, length, 3)]
+            if not clear(own[0], [], 0):
+                continue
+            u = rng.normal(size=3)
+            u /= np.linalg.norm(u)
+            own.append(own[0] + b * u)
+            # Third site: any direction at the bond angle.
+            w = np.cross(u, rng.normal(size=3))
+            w /= np.linalg.norm(w)
+            own.append(own[1] - b * math.cos(theta) * u + b * math.sin(theta) * w)
+            ok = True
+            for k in range(3, carbons):
+                for _ in range(tries):
+                    phi = math.pi if rng.random() < 0.6 else math.pi + rng.choice((-1, 1)) * math.radians(120)
+                    phi += rng.normal(0, math.radians(10))
+                    p = next_site(own[k - 3], own[k - 2], own[k - 1], phi)
+                    if clear(p, own, k):
+                        own.append(p)
+                        break
+                else:
+                    ok = False
+                    break
+            if ok:
+                break
+        else:
+            sys.exit(f"could not place chain {len(chain_list) + 1}: lower the density or min_distance")
+        chain_list.append(np.array(own))
+        placed = np.vstack([placed, own])
+    return chain_list
+
+
+def topology(chains, carbons):
+    """Types (1 = CH3, 2 = CH2), molecule ids, bonds, angles and dihedrals, 1-based atom ids."""
+    types, mol, bonds, angles, dihedrals = [], [], [], [], []
+    for c in range(chains):
+        first = c * carbons + 1
+        for k in range(carbons):
+            types.append(1 if k in (0, carbons - 1) else 2)
+            mol.append(c + 1)
+        ids = list(range(first, first + carbons))
+        bonds += [(ids[k], ids[k + 1]) for k in range(carbons - 1)]
+        angles += [(ids[k], ids[k + 1], ids[k + 2]) for k in range(carbons - 2)]
+        dihedrals += [tuple(ids[k:k + 4]) for k in range(carbons - 3)]
+    return types, mol, bonds, angles, dihedrals
+
+
+def write_data(path, x, length, chains, carbons, title):
+    types, mol, bonds, angles, dihedrals = topology(chains, carbons)
+    with open(path, "w") as f:
+        f.write(f"{title}\n\n{len(x)} atoms\n{len(bonds)} bonds\n{len(angles)} angles\n{len(dihedrals)} dihedrals\n\n")
+        f.write("2 atom types\n1 bond types\n1 angle types\n1 dihedral types\n\n")
+        for a in "xyz":
+            f.write(f"0 {length:.10f} {a}lo {a}hi\n")
+        f.write(f"\nMasses\n\n1 {FF['mass']['CH3']}  # CH3\n2 {FF['mass']['CH2']}  # CH2\n\nAtoms # molecular\n\n")
+        for i, p in enumerate(x):
+            f.write(f"{i + 1} {mol[i]} {types[i]} {p[0]:.10f} {p[1]:.10f} {p[2]:.10f}\n")
+        for name, items in (("Bonds", bonds), ("Angles", angles), ("Dihedrals", dihedrals)):
+            f.write(f"\n{name}\n\n")
+            for k, ids in enumerate(items):
+                f.write(f"{k + 1} 1 " + " ".join(map(str, ids)) + "\n")
+
+
+def lammps_force_field(pair=True):
+    """The LAMMPS lines of the force field (after read_data)."""
+    K1, K2, K3 = (2 * c for c in FF["c"])
+    lines = ["special_bonds lj 0.0 0.0 0.0",
+             "bond_style harmonic", f"bond_coeff 1 {FF['bond_K']} {FF['bond_length']}",
+             "angle_style harmonic", f"angle_coeff 1 {FF['angle_k'] / 2:.10g} {FF['theta0']}",
+             "dihedral_style opls", f"dihedral_coeff 1 {K1:.10g} {K2:.10g} {K3:.10g} 0.0"]
+    if pair:
+        lines += [f"pair_style lj/cut {FF['cutoff']}", "pair_modify mix arithmetic shift yes"]
+        for t, name in enumerate(TYPES, 1):
+            lines.append(f"pair_coeff {t} {t} {FF['epsilon'][name]:.10g} {FF['sigma'][name]}")
+    return "\n".join(lines) + "\n"
+
+
+def build(args):
+    os.makedirs(args.out, exist_ok=True)
+    length = box_length(args.chains, args.carbons, args.density)
+    chains = grow_chains(args.chains, args.carbons, length, args.seed)
+    x = np.vstack(chains)
+    title = f"TraPPE-UA C{args.carbons} melt: {args.chains} chains, {args.density} g/cm3 (tools/trappe_pe.py)"
+    write_data(os.path.join(args.out, "raw.data"), x, length, args.chains, args.carbons, title + ", as grown")
+    steps = int(round(args.equilibrate_ps * 1000))
+    with open(os.path.join(args.out, "in.equilibrate"), "w") as f:
+        f.write(f"""# tools/trappe_pe.py build: push the grown chains apart, then thermalise at {args.temperature} K
+units real
+atom_style molecular
+boundary p p p
+read_data raw.data
+{lammps_force_field(pair=False)}pair_style soft {FF['cutoff'] / 3:.4g}
+pair_coeff * * 0.0
+variable A equal ramp(0.0,30.0)
+fix push all adapt 1 pair soft a * * v_A
+neighbor 2.0 bin
+fix limit all nve/limit 0.05
+fix bath all langevin {args.temperature} {args.temperature} 100.0 {args.seed}
+timestep 1.0
+thermo 1000
+run 4000
+unfix push
+{lammps_force_field()}run 4000
+unfix limit
+fix nve all nve
+velocity all create {args.temperature} {args.seed + 1} dist gaussian
+run {steps}
+write_data trappe_pe.data nocoeff
+""")
+    lmp = shutil.which(args.lmp) or sys.exit(f"{args.lmp}: not found")
+    r = subprocess.run([lmp, "-in", "in.equilibrate", "-log", "log.equilibrate", "-screen", "none"], cwd=args.out)
+    if r.returncode != 0:
+        sys.exit(f"LAMMPS failed: see {args.out}/log.equilibrate")
+    print(f"{args.out}/trappe_pe.data: {len(x)} sites, box {length:.4f} A, equilibrated {args.equilibrate_ps} ps "
+          f"at {args.temperature} K")
+
+
+# ---- the comparison ----
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DECK = os.path.join(ROOT, "inputs", "trappe_pe.toml")
+TEMPERATURE, DAMP = 450.0, 100.0  # K, fs
+FRAME_FS, THERMO_FS = 250.0, 50.0  # trajectory frames and thermo rows every ...
+OBSERVABLES = ("energy", "pressure", "trans", "r2", "rg2")
+LABELS = {"energy": "E_ang+dih+LJ / site (kcal/mol)", "pressure": "p (atm)", "trans": "trans fraction",
+          "r2": "<R^2> (A^2)", "rg2": "<Rg^2> (A^2)"}
+
+
+def read_data_topology(path):
+    """Molecule id per atom (0-based order of ids) and the dihedrals (0-based quadruples)."""
+    mol, dihedrals, section = {}, [], None
+    with open(path) as f:
+        for line in f:
+            s = line.split("#")[0].strip()
+            if not s:
+                continue
+            w = s.split()
+            if not w[0].lstrip("-").replace(".", "").isdigit():
+                section = s
+                continue
+            if section == "Atoms":
+                mol[int(w[0])] = int(w[1])
+            elif section == "Dihedrals":
+                dihedrals.append([int(v) - 1 for v in w[2:6]])
+    ids = sorted(mol)
+    return np.array([mol[i] for i in ids]), np.array(dihedrals)
+
+
+def chain_observables(x, mol, dihedrals):
+    """trans fraction, <R^2>, <Rg^2> of one frame of unwrapped positions x (N × 3)."""
+    b1 = x[dihedrals[:, 1]] - x[dihedrals[:, 0]]
+    b2 = x[dihedrals[:, 2]] - x[dihedrals[:, 1]]
+    b3 = x[dihedrals[:, 3]] - x[dihedrals[:, 2]]
+    n1, n2 = np.cross(b1, b2), np.cross(b2, b3)
+    m = np.cross(n1, b2 / np.linalg.norm(b2, axis=1)[:, None])
+    phi = np.degrees(np.arctan2(np.einsum("ij,ij->i", m, n2), np.einsum("ij,ij->i", n1, n2)))
+    trans = np.mean(np.abs(phi) > 120.0)
+    r2, rg2 = [], []
+    for c in np.unique(mol):
+        xc = x[mol == c]
+        r2.append(np.sum((xc[-1] - xc[0]) ** 2))
+        rg2.append(np.mean(np.sum((xc - xc.mean(axis=0)) ** 2, axis=1)))
+    return trans, float(np.mean(r2)), float(np.mean(rg2))
+
+
+def block_mean(series, nblocks=5):
+    """Mean and its standard error from block averages (fewer blocks for short series)."""
+    series = np.asarray(series, dtype=float)
+    nblocks = max(2, min(nblocks, len(series)))
+    per = len(series) // nblocks
+    means = series[: per * nblocks].reshape(nblocks, per).mean(axis=1)
+    return float(means.mean()), float(means.std(ddof=1) / math.sqrt(nblocks))
+
+
+def summarise(energy, pressure, frames, mol, dihedrals, sites, cpu_seconds):
+    per_frame = np.array([chain_observables(x, mol, dihedrals) for x in frames])
+    out = {"energy": block_mean(np.asarray(energy) / sites), "pressure": block_mean(pressure),
+           "trans": block_mean(per_frame[:, 0]), "r2": block_mean(per_frame[:, 1]),
+           "rg2": block_mean(per_frame[:, 2]), "cpu_seconds": cpu_seconds}
+    return out
+
+
+def run_lammps(args, out, h, respa):
+    os.makedirs(out, exist_ok=True)
+    steps = int(round(args.ps * 1000 / h))
+    style = "run_style respa 3 2 2 bond 1 angle 2 dihedral 2 pair 3" if respa else "run_style verlet"
+    with open(os.path.join(out, "in.run"), "w") as f:
+        f.write(f"""units real
+atom_style molecular
+boundary p p p
+read_data {os.path.abspath(args.data)}
+{lammps_force_field()}neighbor 2.0 bin
+neigh_modify delay 0 every 1 check yes
+fix nve all nve
+fix bath all langevin {TEMPERATURE} {TEMPERATURE} {DAMP} {args.seed}
+{style}
+timestep {h!r}
+thermo_style custom step time temp press pe ebond
+thermo_modify format float %.10g norm no
+thermo {int(round(THERMO_FS / h))}
+dump frames all custom {int(round(FRAME_FS / h))} frames.dump id xu yu zu
+dump_modify frames sort id format float %.8g
+run {steps}
+""")
+    p = subprocess.run([args.lmp, "-in", "in.run", "-log", "log.lammps", "-screen", "none", "-nocite"], cwd=out,
+                       capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    rows, cpu, cpu_percent = [], None, 100.0
+    with open(os.path.join(out, "log.lammps")) as f:
+        on = False
+        for line in f:
+            w = line.split()
+            if line.strip().endswith("% CPU use with 1 MPI tasks x 1 OpenMP threads"):
+                cpu_percent = float(w[0].rstrip("%"))
+            if w[:2] == ["Step", "Time"]:
+                on = True
+                continue
+            if line.startswith("Loop time"):
+                cpu = float(w[3])
+                on = False
+            if on and len(w) == 6:
+                try:
+                    rows.append([float(v) for v in w])
+                except ValueError:
+                    on = False
+    if p.returncode != 0 or cpu is None or not rows or not all(map(math.isfinite, np.ravel(rows))):
+        return None  # LAMMPS stopped (lost atoms, a bond too long) or produced NaN: unstable
+    rows = np.array(rows)
+    keep = rows[:, 1] >= args.skip_ps * 1000
+    frames = []
+    with open(os.path.join(out, "frames.dump")) as f:
+        lines = f.read().splitlines()
+    k = 0
+    while k < len(lines):
+        t = int(lines[k + 1]) * h
+        n = int(lines[k + 3])
+        if t >= args.skip_ps * 1000:
+            frames.append(np.array([[float(v) for v in line.split()[1:4]] for line in lines[k + 9:k + 9 + n]]))
+        k += 9 + n
+    mol, dih = read_data_topology(args.data)
+    r = summarise(rows[keep, 4] - rows[keep, 5], rows[keep, 3], frames, mol, dih, len(mol), cpu * cpu_percent / 100)
+    r["temperature"] = float(rows[keep, 2].mean())
+    return r
+
+
+def run_stiffmd(args, out, method, h, extra=()):
+    os.makedirs(out, exist_ok=True)
+    t_end = args.ps * 1000
+    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out,
+           "--set", f'integrator.method="{method}"', "--set", f"integrator.h={h!r}",
+           "--set", f"run.t_end={t_end!r}", "--set", f"output.thermo_interval={THERMO_FS!r}",
+           "--set", f"output.xyz_interval={FRAME_FS!r}", "--set", f"import.lammps_data=\"{os.path.abspath(args.data)}\""]
+    for e in extra:
+        cmd += ["--set", e]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    if p.returncode == 3:
+        return None  # numerical blow-up
+    if p.returncode != 0:
+        sys.exit(f"stiffmd failed ({p.returncode}): {p.stderr[-2000:]}")
+    with open(os.path.join(out, "thermo.csv")) as f:
+        header = f.readline().strip().split(",")
+        rows = np.array([[float(v) for v in line.split(",")] for line in f if line.strip()])
+    col = {k: i for i, k in enumerate(header)}
+    keep = rows[:, col["time"]] >= args.skip_ps * 1000
+    # The potential without the C–C bonds: every column but the constraint-defining level's.
+    energy = sum(rows[keep, col[c]] for c in header if c.startswith("potential_") and c != "potential_stiff")
+    frames = []
+    with open(os.path.join(out, "trajectory.xyz")) as f:
+        lines = f.read().splitlines()
+    k = 0
+    while k < len(lines):
+        n = int(lines[k])
+        t = float(lines[k + 1].split("time=")[1].split()[0])
+        if t >= args.skip_ps * 1000:
+            frames.append(np.array([[float(v) for v in line.split()[1:4]] for line in lines[k + 2:k + 2 + n]]))
+        k += 2 + n
+    with open(os.path.join(out, "summary.json")) as f:
+        cpu = json.load(f)["cpu_seconds"]
+    mol, dih = read_data_topology(args.data)
+    r = summarise(energy, rows[keep, col["pressure"]], frames, mol, dih, len(mol), cpu)
+    r["temperature"] = float(rows[keep, col["temperature"]].mean())
+    return r
+
+
+def cached(args, name, run):
+    """A run's result, from OUT/NAME/result.json when an earlier compare with the same settings made it
+    (so that a ladder can be extended run by run); `run(directory)` otherwise."""
+    d = os.path.join(args.out, name)
+    path = os.path.join(d, "result.json")
+    key = {"ps": args.ps, "skip_ps": args.skip_ps, "data": os.path.abspath(args.data), "seed": args.seed,
+           "set": args.set}
+    if os.path.exists(path):
+        with open(path) as f:
+            stored = json.load(f)
+        if stored.get("key") == key:
+            return stored["result"]
+    r = run(d)
+    os.makedirs(d, exist_ok=True)
+    with open(path, "w") as f:
+        json.dump({"key": key, "result": r}, f)
+    return r
+
+
+def keeps_statistics(r, ref, sigmas=3.0):
+    if r is None:
+        return False
+    return all(abs(r[o][0] - ref[o][0]) <= sigmas * math.hypot(r[o][1], ref[o][1]) for o in OBSERVABLES)
+
+
+def compare(args):
+    os.makedirs(args.out, exist_ok=True)
+    args.lmp = shutil.which(args.lmp) or sys.exit(f"{args.lmp}: not found")
+    results = {"settings": {"ps": args.ps, "skip_ps": args.skip_ps, "temperature": TEMPERATURE, "damp_fs": DAMP,
+                            "data": os.path.abspath(args.data)}, "runs": []}
+    path = os.path.join(args.out, "results.json")
+    ref = cached(args, "lammps_verlet_1fs", lambda d: run_lammps(args, d, 1.0, respa=False))
+    if ref is None:
+        sys.exit("the reference run failed")
+    results["reference"] = ref
+    runs = [("lammps respa 3 2 2", h, None) for h in args.lammps]
+    for spec in args.methods:
+        method, hs = spec.split("=")
+        runs += [(method, float(h), method) for h in hs.split(",")]
+    for label, h, method in runs:
+        name = label.replace(" ", "_") + f"_{h:g}fs"
+        print(f"{label} h = {h:g} fs ...", flush=True)
+        r = cached(args, name, lambda d: run_lammps(args, d, h, respa=True) if method is None else
+                   run_stiffmd(args, d, method, h, args.set))
+        results["runs"].append({"code": "LAMMPS" if method is None else "stiffmd", "method": label, "h": h,
+                                "result": r, "keeps": keeps_statistics(r, ref)})
+        with open(path, "w") as f:
+            json.dump(results, f, indent=1)
+    write_table(results, os.path.join(args.out, "table.md"))
+    if args.figure:
+        plot(results, args.figure)
+    print(open(os.path.join(args.out, "table.md")).read())
+
+
+def write_table(results, path):
+    ref = results["reference"]
+    fmt = {"energy": "{:.4f}±{:.4f}", "pressure": "{:.0f}±{:.0f}", "trans": "{:.4f}±{:.4f}", "r2": "{:.1f}±{:.1f}",
+           "rg2": "{:.2f}±{:.2f}"}
+    lines = ["| code | method | h (fs) | " + " | ".join(LABELS[o] for o in OBSERVABLES) + " | T (K) | CPU s | keeps |",
+             "|---|---|---|" + "---|" * (len(OBSERVABLES) + 3)]
+    row = lambda code, m, h, r, keeps: (f"| {code} | {m} | {h:g} | " + (
+        " | ".join(fmt[o].format(*r[o]) for o in OBSERVABLES) + f" | {r['temperature']:.1f} | {r['cpu_seconds']:.0f} | "
+        if r else "unstable | " * len(OBSERVABLES) + "– | – | ") + ("yes" if keeps else "no") + " |")
+    lines.append(row("LAMMPS", "verlet (reference)", 1.0, ref, True))
+    for run in results["runs"]:
+        lines.append(row(run["code"], run["method"], run["h"], run["result"], run["keeps"]))
+    largest = {}
+    for run in results["runs"]:
+        key = (run["code"], run["method"])
+        largest.setdefault(key, None)
+        if run["keeps"] and (largest[key] is None or run["h"] > largest[key]):
+            largest[key] = run["h"]
+    lines += ["", "Largest outer step that keeps every statistic within 3 combined standard errors:", ""]
+    for (code, m), h in largest.items():
+        lines.append(f"- {code} {m}: " + (f"{h:g} fs" if h else "none of the steps tried"))
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+def plot(results, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ref = results["reference"]
+    methods = []
+    for run in results["runs"]:
+        if (run["code"], run["method"]) not in methods:
+            methods.append((run["code"], run["method"]))
+    fig, axes = plt.subplots(1, len(OBSERVABLES), figsize=(4 * len(OBSERVABLES), 3.6))
+    for ax, o in zip(axes, OBSERVABLES):
+        ax.axhspan(ref[o][0] - 3 * ref[o][1], ref[o][0] + 3 * ref[o][1], color="0.85", label="reference ±3σ")
+        for k, (code, m) in enumerate(methods):
+            pts = [(r["h"], r["result"][o]) for r in results["runs"]
+                   if (r["code"], r["method"]) == (code, m) and r["result"]]
+            if pts:
+                h = np.array([p[0] for p in pts]) * (1 + 0.02 * (k - len(methods) / 2))
+                ax.errorbar(h, [p[1][0] for p in pts], [p[1][1] for p in pts], marker="os^vDx<>"[k % 8],
+                            ls="-", capsize=2, label=f"{code} {m}")
+        ax.set_xlabel("outer step h (fs)")
+        ax.set_title(LABELS[o], fontsize=9)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"TraPPE-UA C24 melt, 450 K, NVT (Langevin): {results['settings']['ps']} ps per run")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("build")
+    b.add_argument("out")
+    b.add_argument("--chains", type=int, default=40)
+    b.add_argument("--carbons", type=int, default=24)
+    b.add_argument("--density", type=float, default=0.72, help="g/cm^3")
+    b.add_argument("--temperature", type=float, default=450.0)
+    b.add_argument("--equilibrate-ps", type=float, default=20.0)
+    b.add_argument("--seed", type=int, default=2026)
+    b.add_argument("--lmp", default="lmp")
+    c = sub.add_parser("compare")
+    c.add_argument("data", help="the start state (trappe_pe.py build's trappe_pe.data)")
+    c.add_argument("out")
+    c.add_argument("--ps", type=float, default=10.0, help="length of each run (ps)")
+    c.add_argument("--skip-ps", type=float, default=1.0, help="left out of the averages (ps)")
+    c.add_argument("--lammps", type=lambda v: [float(h) for h in v.split(",")], default=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+                   help="LAMMPS r-RESPA outer steps (fs)")
+    c.add_argument("--stiffmd", dest="methods", action="append", default=[], help="METHOD=h1,h2,... (fs)")
+    c.add_argument("--set", action="append", default=[], help="a --set for every stiffmd run")
+    c.add_argument("--figure")
+    c.add_argument("--seed", type=int, default=4242)
+    c.add_argument("--lmp", default="lmp")
+    c.add_argument("--stiffmd-binary", dest="stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
+    args = ap.parse_args()
+    if args.command == "build":
+        build(args)
+    else:
+        compare(args)
+
+
+if __name__ == "__main__":
+    main()
