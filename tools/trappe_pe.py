@@ -365,8 +365,9 @@ def run_stiffmd(args, out, method, h, extra=()):
         rows = np.array([[float(v) for v in line.split(",")] for line in f if line.strip()])
     col = {k: i for i, k in enumerate(header)}
     keep = rows[:, col["time"]] >= args.skip_ps * 1000
-    # The potential without the C–C bonds: every column but the constraint-defining level's.
-    energy = sum(rows[keep, col[c]] for c in header if c.startswith("potential_") and c != "potential_stiff")
+    # The potential without the C–C bonds: potential_slow, the sum of every level but the innermost
+    # (the per-level columns potential_<name> of [[integrator.levels]] add up to the same).
+    energy = rows[keep, col["potential_slow"]]
     frames = []
     with open(os.path.join(out, "trajectory.xyz")) as f:
         lines = f.read().splitlines()
