@@ -53,7 +53,7 @@ struct MultiHarmonicDihedralKernel {
     std::array<double, 5> A{};  // A_1 … A_5, energies of any sign
   };
   static void validate(const Coeffs& c) {
-    for (int n = 0; n < 5; ++n) require(c.A[n], kTorsionEnergy, "A" + std::to_string(n + 1));
+    for (int n = 0; n < 5; ++n) require(c.A[n], kTorsionEnergy, std::array<const char*, 5>{"A1", "A2", "A3", "A4", "A5"}[n]);
   }
   static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
     // Horner in c = cos φ: E = A1 + c(A2 + c(A3 + c(A4 + c A5))), dE/dc likewise; dE/dφ = −sin φ dE/dc.
@@ -73,7 +73,7 @@ struct OplsDihedralKernel {
     std::array<double, 4> K{};  // K_1 … K_4, energies of any sign
   };
   static void validate(const Coeffs& c) {
-    for (int n = 0; n < 4; ++n) require(c.K[n], kTorsionEnergy, "K" + std::to_string(n + 1));
+    for (int n = 0; n < 4; ++n) require(c.K[n], kTorsionEnergy, std::array<const char*, 4>{"K1", "K2", "K3", "K4"}[n]);
   }
   static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
     e = 0.5 * (c.K[0] * (1.0 + std::cos(phi)) + c.K[1] * (1.0 - std::cos(2.0 * phi)) +
