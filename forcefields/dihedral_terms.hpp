@@ -53,7 +53,8 @@ struct MultiHarmonicDihedralKernel {
     std::array<double, 5> A{};  // A_1 … A_5, energies of any sign
   };
   static void validate(const Coeffs& c) {
-    for (int n = 0; n < 5; ++n) require(c.A[n], kTorsionEnergy, std::array<const char*, 5>{"A1", "A2", "A3", "A4", "A5"}[n]);
+    for (int n = 0; n < 5; ++n)
+      require(c.A[n], kTorsionEnergy, std::array<const char*, 5>{"A1", "A2", "A3", "A4", "A5"}[n]);
   }
   static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
     // Horner in c = cos φ: E = A1 + c(A2 + c(A3 + c(A4 + c A5))), dE/dc likewise; dE/dφ = −sin φ dE/dc.

@@ -137,10 +137,10 @@ class MultipleTimeStepping final : public Integrator {
   std::unique_ptr<KickForce> outer_kick_;
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
-  std::vector<double> removed_virial_;  // per stage: the kick's removed_virial() at its last refresh
-  std::unique_ptr<LangevinNoise> langevin_;  // null: Hamiltonian dynamics (or Langevin as a force)
-  std::uint64_t substep_ = 0;                // innermost steps taken in this macro step (noise counter)
-  double o_step_kinetic_ = -1.0;             // ½vᵀMv just after the last O step (−1: no step yet)
+  std::vector<double> removed_virial_;               // per stage: the kick's removed_virial() at its last refresh
+  std::unique_ptr<LangevinNoise> langevin_;          // null: Hamiltonian dynamics (or Langevin as a force)
+  std::uint64_t substep_ = 0;                        // innermost steps taken in this macro step (noise counter)
+  double o_step_kinetic_ = -1.0;                     // ½vᵀMv just after the last O step (−1: no step yet)
   const FusedMicroStep* fused_available_ = nullptr;  // the innermost term's fused micro step, if any
   const FusedMicroStep* fused_ = nullptr;            // the one in use (null: kick_drift, then refresh)
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.

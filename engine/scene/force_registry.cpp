@@ -182,14 +182,16 @@ HarmonicDihedralKernel::Coeffs harmonic_dihedral_coeffs(DeckTable& d) {
 // multi-harmonic-dihedral: {A1, …, A5} (LAMMPS dihedral_style multi/harmonic), each default 0.
 MultiHarmonicDihedralKernel::Coeffs multi_harmonic_dihedral_coeffs(DeckTable& d) {
   MultiHarmonicDihedralKernel::Coeffs c;
-  for (int n = 0; n < 5; ++n) c.A[n] = read(d, std::array<const char*, 5>{"A1", "A2", "A3", "A4", "A5"}[n], kTorsionEnergy, 0.0);
+  for (int n = 0; n < 5; ++n)
+    c.A[n] = read(d, std::array<const char*, 5>{"A1", "A2", "A3", "A4", "A5"}[n], kTorsionEnergy, 0.0);
   return c;
 }
 
 // opls-dihedral: {K1, …, K4} (LAMMPS dihedral_style opls), each default 0.
 OplsDihedralKernel::Coeffs opls_dihedral_coeffs(DeckTable& d) {
   OplsDihedralKernel::Coeffs c;
-  for (int n = 0; n < 4; ++n) c.K[n] = read(d, std::array<const char*, 4>{"K1", "K2", "K3", "K4"}[n], kTorsionEnergy, 0.0);
+  for (int n = 0; n < 4; ++n)
+    c.K[n] = read(d, std::array<const char*, 4>{"K1", "K2", "K3", "K4"}[n], kTorsionEnergy, 0.0);
   return c;
 }
 
