@@ -374,7 +374,9 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
         if code != 0:
             raise RunFailed(f"timed LAMMPS run failed (exit {code}) in {run_dir}")
         loop, done, cpu_percent, _, _, _ = parse_lammps_log(os.path.join(run_dir, "log.lammps"))
-        wall, cpu = loop, loop * cpu_percent / 100.0
+        # LAMMPS prints its CPU use with one decimal; a loop too short for its clock reads 0.0 %
+        # (the --quick runs): then the loop's wall time stands for its CPU time.
+        wall, cpu = loop, (loop * cpu_percent / 100.0 if cpu_percent > 0 else loop)
     else:
         deck = os.path.join(run_dir, "run.toml")
         write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
