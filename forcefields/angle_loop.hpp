@@ -2,8 +2,8 @@
 // style (as bond_loop.hpp is for bonds): a style supplies only a kernel
 //     static void eval(double theta, const Params& p, double& energy, double& dE_dtheta);
 //
-// Geometry. With the arms a = x_i − x_j and b = x_k − x_j (each by minimum image on periodic
-// axes, as LAMMPS does) and the normal n = a × b,
+// Geometry. With the arms a = x_i − x_j and b = x_k − x_j (raw differences of unwrapped positions:
+// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the normal n = a × b,
 //     θ = atan2(|n|, a·b),
 //     ∂θ/∂x_i = −(n̂ × a)/|a|²,   ∂θ/∂x_k = (n̂ × b)/|b|²,   ∂θ/∂x_j = −∂θ/∂x_i − ∂θ/∂x_k,
 // (equal to the textbook (â cos θ − b̂)/(|a| sin θ), without dividing by sin θ).
@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/state.hpp"
 #include "engine/core/errors.hpp"
 
 namespace stiffmd {
@@ -43,7 +44,7 @@ struct AngleInstance {
 namespace angle_detail {
 
 struct Geometry {
-  Eigen::Vector3d a, b;  // arms x_i − x_j and x_k − x_j (minimum image)
+  Eigen::Vector3d a, b;  // arms x_i − x_j and x_k − x_j (raw differences: molecules are whole, ARCHITECTURE.md)
   double theta = 0.0;
   Eigen::Vector3d dtheta_da, dtheta_db;  // ∂θ/∂x_i and ∂θ/∂x_k
 };
@@ -56,14 +57,10 @@ struct Geometry {
   throw NumericalError(m.str());
 }
 
-inline Geometry geometry(int i, int j, int k, const Eigen::Matrix3Xd& x, const Box& box, bool periodic) {
+inline Geometry geometry(int i, int j, int k, const Eigen::Matrix3Xd& x) {
   Geometry g;
-  g.a = x.col(i) - x.col(j);
-  g.b = x.col(k) - x.col(j);
-  if (periodic) {
-    g.a = box.min_image(g.a);
-    g.b = box.min_image(g.b);
-  }
+  g.a = bond_vector(x, i, j);
+  g.b = bond_vector(x, k, j);
   const double aa = g.a.squaredNorm(), bb = g.b.squaredNorm();
   if (!(aa > 0.0) || !(bb > 0.0)) throw_degenerate(i, j, k, std::sqrt(aa), std::sqrt(bb));
   const Eigen::Vector3d n = g.a.cross(g.b);
@@ -88,9 +85,9 @@ template <class Kernel, class Params>
 double accumulate_angle_forces(const std::vector<AngleInstance<Params>>& angles, const Eigen::Matrix3Xd& x,
                                const Box& box, Eigen::Matrix3Xd& f) {
   double energy = 0.0;
-  const bool periodic = box.any_periodic();
+  (void)box;  // bond vectors are raw differences of whole molecules
   for (const auto& t : angles) {
-    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x, box, periodic);
+    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
     double e = 0.0, de_dtheta = 0.0;
     Kernel::eval(g.theta, t.params, e, de_dtheta);
     energy += e;
@@ -104,7 +101,7 @@ double accumulate_angle_forces(const std::vector<AngleInstance<Params>>& angles,
 }
 
 // The angle virial Σ_angles Σ_{a∈{i,j,k}} r_a · F_a with positions taken relative to the vertex
-// (r_j = 0, r_i = a, r_k = b, by minimum image), i.e. Σ (a · F_i + b · F_k) — the form that is
+// (r_j = 0, r_i = a, r_k = b), i.e. Σ (a · F_i + b · F_k) — the form that is
 // independent of the periodic image, as LAMMPS's angle virial is. Since θ depends only on the
 // directions of a and b, ∂θ/∂x_i ⊥ a and ∂θ/∂x_k ⊥ b, so every term vanishes analytically
 // (E(λx) = E(x): Euler's theorem at degree 0); what is returned is that sum as computed, zero to
@@ -113,9 +110,9 @@ template <class Kernel, class Params>
 double accumulate_angle_virial(const std::vector<AngleInstance<Params>>& angles, const Eigen::Matrix3Xd& x,
                                const Box& box) {
   double w = 0.0;
-  const bool periodic = box.any_periodic();
+  (void)box;  // bond vectors are raw differences of whole molecules
   for (const auto& t : angles) {
-    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x, box, periodic);
+    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
     double e = 0.0, de_dtheta = 0.0;
     Kernel::eval(g.theta, t.params, e, de_dtheta);
     w -= de_dtheta * (g.a.dot(g.dtheta_da) + g.b.dot(g.dtheta_db));

@@ -3,8 +3,8 @@
 //     static void eval(double phi, const Params& p, double& energy, double& dE_dphi);
 //
 // Geometry (Blondel & Karplus, J. Comput. Chem. 17, 1132 (1996); Bekker's form, as in GROMACS).
-// With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (each by minimum image on periodic
-// axes, as LAMMPS does) and the plane normals m = r_ij × r_kj, n = r_kj × r_kl,
+// With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (raw differences of unwrapped positions:
+// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the plane normals m = r_ij × r_kj, n = r_kj × r_kl,
 //     φ = atan2(|r_kj| r_ij·n, m·n)                      (m × n = r_kj (r_ij·n))
 // in (−π, π]: φ = ±π is trans (the IUPAC/polymer convention, LAMMPS's), φ = 0 cis. The gradients
 //     ∂φ/∂x_i = +|r_kj|/|m|² m,     ∂φ/∂x_l = −|r_kj|/|n|² n,
@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/state.hpp"
 #include "engine/core/errors.hpp"
 
 namespace stiffmd {
@@ -51,16 +52,11 @@ struct Geometry {
   throw NumericalError(m.str());
 }
 
-inline Geometry geometry(int i, int j, int k, int l, const Eigen::Matrix3Xd& x, const Box& box, bool periodic) {
+inline Geometry geometry(int i, int j, int k, int l, const Eigen::Matrix3Xd& x) {
   Geometry g;
-  g.r_ij = x.col(i) - x.col(j);
-  g.r_kj = x.col(k) - x.col(j);
-  g.r_kl = x.col(k) - x.col(l);
-  if (periodic) {
-    g.r_ij = box.min_image(g.r_ij);
-    g.r_kj = box.min_image(g.r_kj);
-    g.r_kl = box.min_image(g.r_kl);
-  }
+  g.r_ij = bond_vector(x, i, j);  // raw differences: molecules are whole (ARCHITECTURE.md)
+  g.r_kj = bond_vector(x, k, j);
+  g.r_kl = bond_vector(x, k, l);
   const double kj2 = g.r_kj.squaredNorm();
   if (!(kj2 > 0.0)) throw_degenerate(i, j, k, l);
   const double kj = std::sqrt(kj2);
@@ -90,9 +86,9 @@ template <class Kernel, class Params>
 double accumulate_dihedral_forces(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
                                   const Box& box, Eigen::Matrix3Xd& f) {
   double energy = 0.0;
-  const bool periodic = box.any_periodic();
+  (void)box;  // bond vectors are raw differences of whole molecules
   for (const auto& t : dihedrals) {
-    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x, box, periodic);
+    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
     double e = 0.0, de_dphi = 0.0;
     Kernel::eval(g.phi, t.params, e, de_dphi);
     energy += e;
@@ -105,16 +101,16 @@ double accumulate_dihedral_forces(const std::vector<DihedralInstance<Params>>& d
 }
 
 // The dihedral virial Σ r_a · F_a with positions relative to x_j (r_i = r_ij, r_k = r_kj,
-// r_l = r_kj − r_kl, by minimum image: independent of the periodic image, as LAMMPS's). φ is
+// r_l = r_kj − r_kl, raw differences: independent of the periodic image, as LAMMPS's). φ is
 // invariant under x → λx, so this vanishes analytically (Euler, degree 0); what is returned is
 // the sum as computed, zero to round-off.
 template <class Kernel, class Params>
 double accumulate_dihedral_virial(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
                                   const Box& box) {
   double w = 0.0;
-  const bool periodic = box.any_periodic();
+  (void)box;  // bond vectors are raw differences of whole molecules
   for (const auto& t : dihedrals) {
-    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x, box, periodic);
+    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
     double e = 0.0, de_dphi = 0.0;
     Kernel::eval(g.phi, t.params, e, de_dphi);
     w -= de_dphi * (g.r_ij.dot(g.dphi_di) + g.r_kj.dot(g.dphi_dk) + (g.r_kj - g.r_kl).dot(g.dphi_dl));

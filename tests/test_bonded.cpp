@@ -350,15 +350,17 @@ TEST(AngleTerms, VirialMatchesBruteForce) {
   const HarmonicAngle h("h", Level::slow, angles, types);
   const CosineAngle c("c", Level::slow, angles, types);
   const Matrix3Xd x = random_chain(12, 0.7, 1.3, 41, Vector3d(1.2, 1.5, 1.8));
-  const Matrix3Xd xw = wrapped(x, box);
-  // Definition: per angle, Σ_a r_a · f_a over its three atoms with r relative to the vertex by
-  // minimum image (r_j = 0), f from that angle alone. Each is 0 analytically (E(λx) = E(x)), so
+  // The chain reaches the term whole (unwrapped, ARCHITECTURE.md), reaching past the cell.
+  const Matrix3Xd xw = x;
+  ASSERT_GT((wrapped(x, box) - x).cwiseAbs().maxCoeff(), 0.0);
+  // Definition: per angle, Σ_a r_a · f_a over its three atoms with r relative to the vertex
+  // (r_j = 0), f from that angle alone. Each is 0 analytically (E(λx) = E(x)), so
   // compare with the scale of the individual terms |r_a||f_a|.
   double w = 0.0, scale = 0.0;
   for (const Angle& a : angles) {
     const HarmonicAngle one("one", Level::slow, {a}, types);
     const Matrix3Xd f = forces(one, xw, box);
-    const Vector3d ra = box.min_image(xw.col(a.i) - xw.col(a.j)), rb = box.min_image(xw.col(a.k) - xw.col(a.j));
+    const Vector3d ra = xw.col(a.i) - xw.col(a.j), rb = xw.col(a.k) - xw.col(a.j);
     w += ra.dot(f.col(a.i)) + rb.dot(f.col(a.k));
     scale += ra.norm() * f.col(a.i).norm() + rb.norm() * f.col(a.k).norm();
   }
