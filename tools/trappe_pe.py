@@ -7,15 +7,29 @@
       the force field and thermalise at 450 K (Langevin): OUT/trappe_pe.data (with velocities, Å/fs)
       is the state both codes start from; OUT/in.equilibrate is the LAMMPS input that made it.
 
-  trappe_pe.py compare DATA OUT [--ps 10 --lammps 1,2,3,4,5,6 --stiffmd METHOD=h1,h2,... --quick]
-      NVT at 450 K (Langevin, damp 100 fs) from DATA with both codes, each for --ps picoseconds:
-      a small-step reference (LAMMPS velocity Verlet, 1 fs), LAMMPS `run_style respa 3 2 2 bond 1
-      angle 2 dihedral 2 pair 3` at a ladder of outer steps, and stiffmd's methods on
-      inputs/trappe_pe.toml at theirs. Per run: the non-bonded-plus-bending-plus-torsion energy per
-      site, the pressure, the trans fraction of the torsions (|φ| > 120°), ⟨R²⟩ (end to end) and
-      ⟨Rg²⟩, as block averages with their standard errors; a run "keeps the statistics" when every
-      one is within 3 combined standard errors of the reference. Writes OUT/results.json and
-      OUT/table.md, and with --figure PATH the figure.
+  trappe_pe.py compare DATA OUT [--ps 20 --seeds 4 --reference-seeds 8 --lammps 1,2,3,4,5,6
+                                 --stiffmd METHOD=h1,h2,... --reference lammps|stiffmd --figure PNG]
+      NVT at 450 K (Langevin, damp 100 fs) from DATA with both codes, each run --ps picoseconds:
+      a small-step reference (LAMMPS velocity Verlet at 1 fs, or with --reference stiffmd stiffmd's
+      velocity Verlet at 1 fs, which needs no LAMMPS), LAMMPS `run_style respa 3 2 2 bond 1 angle 2
+      dihedral 2 pair 3` at a ladder of outer steps, and stiffmd's methods on inputs/trappe_pe.toml
+      at theirs. Observables of a run (time averages after --skip-ps): the non-bonded-plus-bending-
+      plus-torsion energy per site, the pressure, the trans fraction of the torsions (|φ| > 120°),
+      ⟨R²⟩ (end to end) and ⟨Rg²⟩.
+
+      The criterion: every setting runs from the same start with --seeds independent thermostat
+      seeds (the reference with --reference-seeds), and the statistic of a setting is the mean over
+      its seeds with the seed-to-seed spread as its error. That error is honest whatever the
+      observable's relaxation time: a run's average of ⟨R²⟩ over 20 ps from a common start is one
+      draw of a random variable whose law any correct sampler of the same dynamics reproduces, so
+      its spread over seeds is what a difference must be measured against (block errors within one
+      run are not: ⟨R²⟩ of C24 relaxes over hundreds of ps). A setting "keeps the statistics" when
+      every observable's mean is within 3 pooled standard errors of the reference's,
+      |Δ| ≤ 3 s_p √(1/K + 1/K_ref) with s_p² the pooled seed variance (K + K_ref − 2 degrees of
+      freedom; with 4 and 8 seeds a correct method fails one observable by chance with probability
+      ≈ 1.3 %, one of five ≈ 6 %). What it compares is the law of 20-ps trajectories from this start,
+      not ⟨R²⟩'s equilibrium value. Writes OUT/results.json (per-seed values too) and OUT/table.md,
+      and with --figure PATH the figure.
 
 Why a Python builder and LAMMPS rather than an engine [[build]]: the chains need their bond angles
 and torsions from the start (a bead-spring random walk would start far up the angle potential), the
@@ -224,7 +238,7 @@ write_data trappe_pe.data nocoeff
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "trappe_pe.toml")
 TEMPERATURE, DAMP = 450.0, 100.0  # K, fs
-FRAME_FS, THERMO_FS = 250.0, 50.0  # trajectory frames and thermo rows every ...
+THERMO_FS = 50.0  # thermo rows every ... (frames every --frame-fs)
 OBSERVABLES = ("energy", "pressure", "trans", "r2", "rg2")
 LABELS = {"energy": "E_ang+dih+LJ / site (kcal/mol)", "pressure": "p (atm)", "trans": "trans fraction",
           "r2": "<R^2> (A^2)", "rg2": "<Rg^2> (A^2)"}
@@ -267,24 +281,17 @@ def chain_observables(x, mol, dihedrals):
     return trans, float(np.mean(r2)), float(np.mean(rg2))
 
 
-def block_mean(series, nblocks=5):
-    """Mean and its standard error from block averages (fewer blocks for short series)."""
-    series = np.asarray(series, dtype=float)
-    nblocks = max(2, min(nblocks, len(series)))
-    per = len(series) // nblocks
-    means = series[: per * nblocks].reshape(nblocks, per).mean(axis=1)
-    return float(means.mean()), float(means.std(ddof=1) / math.sqrt(nblocks))
-
-
 def summarise(energy, pressure, frames, mol, dihedrals, sites, cpu_seconds):
+    """One run's time averages (its error comes from the spread over seeds, see `ensemble`)."""
+    if len(frames) == 0 or len(energy) == 0:
+        sys.exit("a run left no frame or thermo row after --skip-ps: lengthen --ps or shorten --frame-fs")
     per_frame = np.array([chain_observables(x, mol, dihedrals) for x in frames])
-    out = {"energy": block_mean(np.asarray(energy) / sites), "pressure": block_mean(pressure),
-           "trans": block_mean(per_frame[:, 0]), "r2": block_mean(per_frame[:, 1]),
-           "rg2": block_mean(per_frame[:, 2]), "cpu_seconds": cpu_seconds}
-    return out
+    return {"energy": float(np.mean(energy) / sites), "pressure": float(np.mean(pressure)),
+            "trans": float(per_frame[:, 0].mean()), "r2": float(per_frame[:, 1].mean()),
+            "rg2": float(per_frame[:, 2].mean()), "frames": len(frames), "cpu_seconds": cpu_seconds}
 
 
-def run_lammps(args, out, h, respa):
+def run_lammps(args, out, h, respa, seed):
     os.makedirs(out, exist_ok=True)
     steps = int(round(args.ps * 1000 / h))
     style = "run_style respa 3 2 2 bond 1 angle 2 dihedral 2 pair 3" if respa else "run_style verlet"
@@ -296,13 +303,13 @@ read_data {os.path.abspath(args.data)}
 {lammps_force_field()}neighbor 2.0 bin
 neigh_modify delay 0 every 1 check yes
 fix nve all nve
-fix bath all langevin {TEMPERATURE} {TEMPERATURE} {DAMP} {args.seed}
+fix bath all langevin {TEMPERATURE} {TEMPERATURE} {DAMP} {seed}
 {style}
 timestep {h!r}
 thermo_style custom step time temp press pe ebond
 thermo_modify format float %.10g norm no
 thermo {int(round(THERMO_FS / h))}
-dump frames all custom {int(round(FRAME_FS / h))} frames.dump id xu yu zu
+dump frames all custom {int(round(args.frame_fs / h))} frames.dump id xu yu zu
 dump_modify frames sort id format float %.8g
 run {steps}
 """)
@@ -346,13 +353,14 @@ run {steps}
     return r
 
 
-def run_stiffmd(args, out, method, h, extra=()):
+def run_stiffmd(args, out, method, h, seed, extra=()):
     os.makedirs(out, exist_ok=True)
     t_end = args.ps * 1000
     cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out,
            "--set", f'integrator.method="{method}"', "--set", f"integrator.h={h!r}",
            "--set", f"run.t_end={t_end!r}", "--set", f"output.thermo_interval={THERMO_FS!r}",
-           "--set", f"output.xyz_interval={FRAME_FS!r}", "--set", f"import.lammps_data=\"{os.path.abspath(args.data)}\""]
+           "--set", f"output.xyz_interval={args.frame_fs!r}", "--set", f"import.lammps_data=\"{os.path.abspath(args.data)}\""]
+    cmd += ["--set", f"thermostat.seed={seed}"]
     for e in extra:
         cmd += ["--set", e]
     p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
@@ -386,13 +394,13 @@ def run_stiffmd(args, out, method, h, extra=()):
     return r
 
 
-def cached(args, name, run):
+def cached(args, name, seed, run):
     """A run's result, from OUT/NAME/result.json when an earlier compare with the same settings made it
     (so that a ladder can be extended run by run); `run(directory)` otherwise."""
     d = os.path.join(args.out, name)
     path = os.path.join(d, "result.json")
-    key = {"ps": args.ps, "skip_ps": args.skip_ps, "data": os.path.abspath(args.data), "seed": args.seed,
-           "set": args.set}
+    key = {"ps": args.ps, "skip_ps": args.skip_ps, "data": os.path.abspath(args.data), "seed": seed,
+           "set": args.set, "frame_fs": args.frame_fs}
     if os.path.exists(path):
         with open(path) as f:
             stored = json.load(f)
@@ -405,19 +413,62 @@ def cached(args, name, run):
     return r
 
 
+def ensemble(per_seed):
+    """A setting's statistics from its runs with independent seeds: per observable the mean over
+    seeds and its standard error s/√K, and the per-seed values; None when any seed blew up."""
+    if any(r is None for r in per_seed):
+        return None
+    k = len(per_seed)
+    out = {"seeds": k, "per_seed": {o: [r[o] for r in per_seed] for o in OBSERVABLES},
+           "temperature": float(np.mean([r["temperature"] for r in per_seed])),
+           "cpu_seconds": float(np.mean([r["cpu_seconds"] for r in per_seed]))}
+    for o in OBSERVABLES:
+        v = np.array(out["per_seed"][o])
+        out[o] = [float(v.mean()), float(v.std(ddof=1) / math.sqrt(k)) if k > 1 else float("nan")]
+    return out
+
+
+def pooled_z(r, ref, o):
+    """(mean − reference mean) / its pooled standard error, s_p² = ((K−1)s² + (K_ref−1)s_ref²)/(K+K_ref−2)."""
+    a, b = np.array(r["per_seed"][o]), np.array(ref["per_seed"][o])
+    k, kr = len(a), len(b)
+    sp2 = ((k - 1) * a.var(ddof=1) + (kr - 1) * b.var(ddof=1)) / (k + kr - 2)
+    se = math.sqrt(sp2 * (1.0 / k + 1.0 / kr))
+    d = a.mean() - b.mean()
+    return d / se if se > 0 else (0.0 if d == 0 else math.inf)
+
+
 def keeps_statistics(r, ref, sigmas=3.0):
     if r is None:
         return False
-    return all(abs(r[o][0] - ref[o][0]) <= sigmas * math.hypot(r[o][1], ref[o][1]) for o in OBSERVABLES)
+    return all(abs(pooled_z(r, ref, o)) <= sigmas for o in OBSERVABLES)
+
+
+def seeded(args, name, seeds, run):
+    """A setting run with `seeds` thermostat seeds (args.seed + k), each cached in OUT/NAME/seedK;
+    `run(directory, seed)` makes one. The ensemble of their results."""
+    return ensemble([cached(args, os.path.join(name, f"seed{k}"), args.seed + k,
+                            lambda d, s=args.seed + k: run(d, s)) for k in range(seeds)])
 
 
 def compare(args):
     os.makedirs(args.out, exist_ok=True)
-    args.lmp = shutil.which(args.lmp) or sys.exit(f"{args.lmp}: not found")
+    if args.reference == "lammps" or args.lammps:
+        args.lmp = shutil.which(args.lmp) or sys.exit(f"{args.lmp}: not found (--reference stiffmd and no --lammps "
+                                                      "run without LAMMPS)")
+    if args.seeds < 2 or args.reference_seeds < 2:
+        sys.exit("--seeds and --reference-seeds must be at least 2 (the error is their spread)")
     results = {"settings": {"ps": args.ps, "skip_ps": args.skip_ps, "temperature": TEMPERATURE, "damp_fs": DAMP,
-                            "data": os.path.abspath(args.data)}, "runs": []}
+                            "data": os.path.abspath(args.data), "seeds": args.seeds,
+                            "reference_seeds": args.reference_seeds, "first_seed": args.seed,
+                            "reference": args.reference}, "runs": []}
     path = os.path.join(args.out, "results.json")
-    ref = cached(args, "lammps_verlet_1fs", lambda d: run_lammps(args, d, 1.0, respa=False))
+    print(f"reference ({args.reference} velocity Verlet, 1 fs) ...", flush=True)
+    if args.reference == "lammps":
+        ref = seeded(args, "lammps_verlet_1fs", args.reference_seeds, lambda d, s: run_lammps(args, d, 1.0, False, s))
+    else:
+        ref = seeded(args, "stiffmd_verlet_1fs", args.reference_seeds,
+                     lambda d, s: run_stiffmd(args, d, "velocity-verlet", 1.0, s, args.set))
     if ref is None:
         sys.exit("the reference run failed")
     results["reference"] = ref
@@ -428,10 +479,11 @@ def compare(args):
     for label, h, method in runs:
         name = label.replace(" ", "_") + f"_{h:g}fs"
         print(f"{label} h = {h:g} fs ...", flush=True)
-        r = cached(args, name, lambda d: run_lammps(args, d, h, respa=True) if method is None else
-                   run_stiffmd(args, d, method, h, args.set))
+        r = seeded(args, name, args.seeds, lambda d, s: run_lammps(args, d, h, True, s) if method is None else
+                   run_stiffmd(args, d, method, h, s, args.set))
         results["runs"].append({"code": "LAMMPS" if method is None else "stiffmd", "method": label, "h": h,
-                                "result": r, "keeps": keeps_statistics(r, ref)})
+                                "result": r, "keeps": keeps_statistics(r, ref),
+                                "z": {o: pooled_z(r, ref, o) for o in OBSERVABLES} if r else None})
         with open(path, "w") as f:
             json.dump(results, f, indent=1)
     write_table(results, os.path.join(args.out, "table.md"))
@@ -449,7 +501,8 @@ def write_table(results, path):
     row = lambda code, m, h, r, keeps: (f"| {code} | {m} | {h:g} | " + (
         " | ".join(fmt[o].format(*r[o]) for o in OBSERVABLES) + f" | {r['temperature']:.1f} | {r['cpu_seconds']:.0f} | "
         if r else "unstable | " * len(OBSERVABLES) + "– | – | ") + ("yes" if keeps else "no") + " |")
-    lines.append(row("LAMMPS", "verlet (reference)", 1.0, ref, True))
+    ref_code = "LAMMPS" if results["settings"]["reference"] == "lammps" else "stiffmd"
+    lines.append(row(ref_code, "velocity verlet (reference)", 1.0, ref, True))
     for run in results["runs"]:
         lines.append(row(run["code"], run["method"], run["h"], run["result"], run["keeps"]))
     largest = {}
@@ -458,7 +511,17 @@ def write_table(results, path):
         largest.setdefault(key, None)
         if run["keeps"] and (largest[key] is None or run["h"] > largest[key]):
             largest[key] = run["h"]
-    lines += ["", "Largest outer step that keeps every statistic within 3 combined standard errors:", ""]
+    st = results["settings"]
+    lines = [f"{st['ps']:g} ps per run ({st['skip_ps']:g} ps left out), {st['seeds']} thermostat seeds per setting, "
+             f"{st['reference_seeds']} for the reference; mean over seeds ± its standard error. CPU s: per run.", ""] + lines
+    lines += ["", "Failing observables (pooled z = Δ / s_p√(1/K + 1/K_ref), |z| > 3):", ""]
+    for run in results["runs"]:
+        if run["result"] is None:
+            lines.append(f"- {run['code']} {run['method']} {run['h']:g} fs: unstable")
+        elif not run["keeps"]:
+            bad = [f"{o} {run['z'][o]:+.1f}" for o in OBSERVABLES if abs(run["z"][o]) > 3]
+            lines.append(f"- {run['code']} {run['method']} {run['h']:g} fs: " + ", ".join(bad))
+    lines += ["", "Largest outer step that keeps every statistic within 3 pooled standard errors:", ""]
     for (code, m), h in largest.items():
         lines.append(f"- {code} {m}: " + (f"{h:g} fs" if h else "none of the steps tried"))
     with open(path, "w") as f:
@@ -476,7 +539,7 @@ def plot(results, path):
             methods.append((run["code"], run["method"]))
     fig, axes = plt.subplots(1, len(OBSERVABLES), figsize=(4 * len(OBSERVABLES), 3.6))
     for ax, o in zip(axes, OBSERVABLES):
-        ax.axhspan(ref[o][0] - 3 * ref[o][1], ref[o][0] + 3 * ref[o][1], color="0.85", label="reference ±3σ")
+        ax.axhspan(ref[o][0] - 3 * ref[o][1], ref[o][0] + 3 * ref[o][1], color="0.85", label="reference ±3 s.e.")
         for k, (code, m) in enumerate(methods):
             pts = [(r["h"], r["result"][o]) for r in results["runs"]
                    if (r["code"], r["method"]) == (code, m) and r["result"]]
@@ -487,7 +550,9 @@ def plot(results, path):
         ax.set_xlabel("outer step h (fs)")
         ax.set_title(LABELS[o], fontsize=9)
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"TraPPE-UA C24 melt, 450 K, NVT (Langevin): {results['settings']['ps']} ps per run")
+    st = results["settings"]
+    fig.suptitle(f"TraPPE-UA C24 melt, 450 K, NVT (Langevin): {st['ps']:g} ps per run, mean ± s.e. over "
+                 f"{st['seeds']} seeds ({st['reference_seeds']} for the reference)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -507,10 +572,15 @@ def main():
     c = sub.add_parser("compare")
     c.add_argument("data", help="the start state (trappe_pe.py build's trappe_pe.data)")
     c.add_argument("out")
-    c.add_argument("--ps", type=float, default=10.0, help="length of each run (ps)")
+    c.add_argument("--ps", type=float, default=20.0, help="length of each run (ps)")
+    c.add_argument("--frame-fs", type=float, default=250.0, help="chain observables every ... fs")
+    c.add_argument("--seeds", type=int, default=4, help="thermostat seeds per setting")
+    c.add_argument("--reference-seeds", type=int, default=8, help="thermostat seeds of the reference")
+    c.add_argument("--reference", choices=("lammps", "stiffmd"), default="lammps",
+                   help="the small-step reference: LAMMPS's or stiffmd's velocity Verlet at 1 fs")
     c.add_argument("--skip-ps", type=float, default=1.0, help="left out of the averages (ps)")
-    c.add_argument("--lammps", type=lambda v: [float(h) for h in v.split(",")], default=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
-                   help="LAMMPS r-RESPA outer steps (fs)")
+    c.add_argument("--lammps", type=lambda v: [float(h) for h in v.split(",") if h], default=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+                   help="LAMMPS r-RESPA outer steps (fs); '' for none")
     c.add_argument("--stiffmd", dest="methods", action="append", default=[], help="METHOD=h1,h2,... (fs)")
     c.add_argument("--set", action="append", default=[], help="a --set for every stiffmd run")
     c.add_argument("--figure")
