@@ -287,6 +287,11 @@ TEST(RespaLevels, ARestartContinuesBitForBit) {
   EXPECT_TRUE((a.state.v.array() == b.state.v.array()).all()) << "velocities differ";
   EXPECT_EQ(a.integrator_state, b.integrator_state);
   EXPECT_EQ(test::slurp(d / "whole" / "thermo.csv"), test::slurp(d / "parts" / "thermo.csv"));
+  // Every level's force evaluations, counted across the restart as in one run: the first force,
+  // then one per step of the level (10 pair steps of 2 angle steps of 25 bond steps).
+  const std::string counts = "\"level_evaluations\": {\"bonds\": 501, \"angles\": 21, \"pair\": 11}";
+  EXPECT_NE(test::slurp(d / "whole" / "summary.json").find(counts), std::string::npos);
+  EXPECT_NE(test::slurp(d / "parts" / "summary.json").find(counts), std::string::npos);
   fs::remove_all(d);
 }
 

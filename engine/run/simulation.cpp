@@ -112,9 +112,14 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   Thermo thermo(*sc.forces, sc.state.inv_mass, observables, &sc.topology);
   Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
   // Run statistics carried by checkpoints, so that a restarted run's summary is the whole run's:
-  // max |E − E(0)|, force evaluations and neighbour-list rebuilds so far, the initial actions.
+  // max |E − E(0)|, force evaluations of the outermost and innermost level and neighbour-list
+  // rebuilds so far, then those of the levels in between (innermost first; none with two levels),
+  // then the initial actions.
   double max_err = 0.0;
-  std::int64_t slow_before = 0, fast_before = 0;
+  const int levels_between = std::max(0, sc.forces->num_levels() - 2);
+  std::vector<std::int64_t> before(sc.forces->num_levels(), 0);  // evaluations per level so far
+  std::int64_t& slow_before = before.back();
+  std::int64_t& fast_before = before.front();
   long rebuilds_in_run = 0;
   if (restarting) {
     if (!thermo.load_state(resumed.thermo_state)) refuse("thermo state does not fit this scene's observables");
@@ -125,7 +130,9 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     slow_before = static_cast<std::int64_t>(r[1]);
     fast_before = static_cast<std::int64_t>(r[2]);
     rebuilds_in_run = static_cast<long>(r[3]);
-    summary.initial_actions.assign(r.begin() + 4, r.end());
+    if (r.size() < 4u + static_cast<size_t>(levels_between)) refuse("run statistics do not fit this scene's levels");
+    for (int k = 0; k < levels_between; ++k) before[k + 1] = static_cast<std::int64_t>(r[4 + k]);
+    summary.initial_actions.assign(r.begin() + 4 + levels_between, r.end());
   }
 
   prepare_output_directory(sc, opt.out_dir);
@@ -190,6 +197,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     c.run_state = {max_err, static_cast<double>(slow_before + sc.forces->evaluations(sc.forces->outermost())),
                    static_cast<double>(fast_before + sc.forces->evaluations(sc.forces->innermost())),
                    static_cast<double>(rebuilds_now())};
+    for (int k = 0; k < levels_between; ++k)
+      c.run_state.push_back(static_cast<double>(before[k + 1] + sc.forces->evaluations(Level{k + 1})));
     c.run_state.insert(c.run_state.end(), summary.initial_actions.begin(), summary.initial_actions.end());
   };
   Checkpoint last_good;  // with on_alert = "stop": the run as of the last sample without alerts
@@ -301,6 +310,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   if (has_pairs) summary.neighbor_rebuilds = rebuilds_after - rebuilds_before;
   summary.slow_evaluations = slow_before + sc.forces->evaluations(sc.forces->outermost());
   summary.fast_evaluations = fast_before + sc.forces->evaluations(sc.forces->innermost());
+  for (int k = 0; k < sc.forces->num_levels(); ++k)
+    summary.level_evaluations.emplace_back(sc.forces->level_name(Level{k}), before[k] + sc.forces->evaluations(Level{k}));
   const fs::path summary_path = fs::path(opt.out_dir) / "summary.json";
   summary.outputs.push_back(summary_path.string());
   write_atomically(summary_path, summary_json(summary));
@@ -314,7 +325,13 @@ std::string format_summary(const RunSummary& s) {
   if (s.micro_steps > 1) o << ", " << s.micro_steps << " micro steps of " << s.h / s.micro_steps;
   o << ")\n";
   o << "steps:         " << s.steps << " to t = " << s.t_end << " in " << s.wall_seconds << " s wall\n";
-  o << "force evals:   " << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast";
+  o << "force evals:   ";
+  if (s.level_evaluations.size() > 2) {
+    for (size_t k = s.level_evaluations.size(); k-- > 0;)
+      o << s.level_evaluations[k].second << " " << s.level_evaluations[k].first << (k ? ", " : "");
+  } else {
+    o << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast";
+  }
   if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
   o << "\n";
   const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
@@ -345,6 +362,10 @@ std::string summary_json(const RunSummary& s) {
     << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
     << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds
     << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"level_evaluations\": {";
+  for (size_t k = 0; k < s.level_evaluations.size(); ++k)
+    o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
+  o << "}"
     << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
     << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
     << ",\n  \"initial_actions\": ";

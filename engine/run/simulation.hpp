@@ -40,8 +40,10 @@ struct RunSummary {
   double initial_energy = 0.0;
   double final_energy = 0.0;
   double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
-  std::int64_t slow_evaluations = 0;
-  std::int64_t fast_evaluations = 0;
+  std::int64_t slow_evaluations = 0;  // of the outermost level
+  std::int64_t fast_evaluations = 0;  // of the innermost level
+  // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
+  std::vector<std::pair<std::string, std::int64_t>> level_evaluations;
   long neighbor_rebuilds = -1;  // over the run; −1 when the scene has no pair term
   double final_max_violation = 0.0;
   std::vector<double> initial_actions, final_actions;  // when actions are observed
