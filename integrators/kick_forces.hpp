@@ -31,16 +31,31 @@ class ProjectedKick final : public KickForce {
 
 class MollifiedKick final : public KickForce {
  public:
-  MollifiedKick(ConstraintToolbox toolbox, int num_particles) : toolbox_(std::move(toolbox)), X_(3, num_particles) {}
+  MollifiedKick(ConstraintToolbox toolbox, int num_particles)
+      : toolbox_(std::move(toolbox)), X_(3, num_particles), f_at_X_(3, num_particles) {}
   void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                 Eigen::Matrix3Xd& out) override {
     toolbox_.mollified_force(
-        x, [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f) { forces.compute(X, levels, f); }, X_, out);
+        x,
+        [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f) {
+          forces.compute(X, levels, f);
+          f_at_X_ = f;  // same size after the first call: no allocation in the step loop
+        },
+        X_, out);
+    // The part of f(α(x)) the mollifier leaves out, f(α) − α′(x)ᵀf(α): the bond-normal part, as
+    // the projected kick's f − P(x)f (α′(x) = P(x) on the manifold). It sums to zero over each
+    // cluster (α commutes with translations), so its virial Σ x·(…) does not depend on which
+    // periodic image a molecule is in. The stiff system's bonds carry it as tension: it belongs
+    // in the pressure (MultipleTimeStepping::constraint_virial).
+    removed_virial_ = (x.array() * (f_at_X_ - out).array()).sum();
   }
+  double removed_virial() const override { return removed_virial_; }
 
  private:
   ConstraintToolbox toolbox_;
-  Eigen::Matrix3Xd X_;  // α(x), scratch
+  Eigen::Matrix3Xd X_;       // α(x), scratch
+  Eigen::Matrix3Xd f_at_X_;  // f(α(x)) before α′(x)ᵀ, scratch
+  double removed_virial_ = 0.0;
 };
 
 }  // namespace stiffmd
