@@ -462,6 +462,15 @@ def compare(args):
                             "data": os.path.abspath(args.data), "seeds": args.seeds,
                             "reference_seeds": args.reference_seeds, "first_seed": args.seed,
                             "reference": args.reference}, "runs": []}
+    runs = [("lammps respa 3 2 2", h, None) for h in args.lammps]
+    for spec in args.methods:
+        method, hs = spec.split("=")
+        runs += [(method, float(h), method) for h in hs.split(",")]
+    t_fs = args.ps * 1000
+    uneven = [f"{label} {h:g} fs" for label, h, _ in runs + [("reference", 1.0, None)]
+              if abs(t_fs / h - round(t_fs / h)) > 1e-9 * t_fs / h]
+    if uneven:  # refused before any run, not after an hour of them
+        sys.exit(f"--ps {args.ps:g} is not a whole number of steps for: " + ", ".join(uneven))
     path = os.path.join(args.out, "results.json")
     print(f"reference ({args.reference} velocity Verlet, 1 fs) ...", flush=True)
     if args.reference == "lammps":
@@ -472,10 +481,6 @@ def compare(args):
     if ref is None:
         sys.exit("the reference run failed")
     results["reference"] = ref
-    runs = [("lammps respa 3 2 2", h, None) for h in args.lammps]
-    for spec in args.methods:
-        method, hs = spec.split("=")
-        runs += [(method, float(h), method) for h in hs.split(",")]
     for label, h, method in runs:
         name = label.replace(" ", "_") + f"_{h:g}fs"
         print(f"{label} h = {h:g} fs ...", flush=True)
