@@ -8,12 +8,15 @@
       is the state both codes start from; OUT/in.equilibrate is the LAMMPS input that made it.
 
   trappe_pe.py compare DATA OUT [--ps 20 --seeds 4 --reference-seeds 8 --lammps 1,2,3,4,5,6
-                                 --stiffmd METHOD=h1,h2,... --reference lammps|stiffmd --figure PNG]
+                                 --respa "3 4 2" --stiffmd METHOD=h1,h2,... --reference lammps|stiffmd
+                                 --figure PNG]
       NVT at 450 K (Langevin, damp 100 fs) from DATA with both codes, each run --ps picoseconds:
       a small-step reference (LAMMPS velocity Verlet at 1 fs, or with --reference stiffmd stiffmd's
-      velocity Verlet at 1 fs, which needs no LAMMPS), LAMMPS `run_style respa 3 2 2 bond 1 angle 2
-      dihedral 2 pair 3` at a ladder of outer steps, and stiffmd's methods on inputs/trappe_pe.toml
-      at theirs. Observables of a run (time averages after --skip-ps): the non-bonded-plus-bending-
+      velocity Verlet at 1 fs, which needs no LAMMPS), LAMMPS `run_style respa N n1 n2 bond 1 angle
+      2 dihedral 2 pair 3` at a ladder of outer steps for each --respa "N n1 n2" (default "3 4 2", the
+      loop factors of inputs/trappe_pe.toml's levels: bonds every h/8, angles and torsions every h/2;
+      "3 2 2" is the common LAMMPS choice, bonds every h/4), and stiffmd's methods on
+      inputs/trappe_pe.toml at theirs. Observables of a run (time averages after --skip-ps): the non-bonded-plus-bending-
       plus-torsion energy per site, the pressure, the trans fraction of the torsions (|φ| > 120°),
       ⟨R²⟩ (end to end) and ⟨Rg²⟩.
 
@@ -292,9 +295,10 @@ def summarise(energy, pressure, frames, mol, dihedrals, sites, cpu_seconds):
 
 
 def run_lammps(args, out, h, respa, seed):
+    """respa: None (velocity Verlet) or the loop factors "N n1 n2" of run_style respa."""
     os.makedirs(out, exist_ok=True)
     steps = int(round(args.ps * 1000 / h))
-    style = "run_style respa 3 2 2 bond 1 angle 2 dihedral 2 pair 3" if respa else "run_style verlet"
+    style = f"run_style respa {respa} bond 1 angle 2 dihedral 2 pair 3" if respa else "run_style verlet"
     with open(os.path.join(out, "in.run"), "w") as f:
         f.write(f"""units real
 atom_style molecular
@@ -462,7 +466,7 @@ def compare(args):
                             "data": os.path.abspath(args.data), "seeds": args.seeds,
                             "reference_seeds": args.reference_seeds, "first_seed": args.seed,
                             "reference": args.reference}, "runs": []}
-    runs = [("lammps respa 3 2 2", h, None) for h in args.lammps]
+    runs = [(f"lammps respa {loops}", h, loops) for loops in (args.respa or ["3 4 2"]) for h in args.lammps]
     for spec in args.methods:
         method, hs = spec.split("=")
         runs += [(method, float(h), method) for h in hs.split(",")]
@@ -474,7 +478,7 @@ def compare(args):
     path = os.path.join(args.out, "results.json")
     print(f"reference ({args.reference} velocity Verlet, 1 fs) ...", flush=True)
     if args.reference == "lammps":
-        ref = seeded(args, "lammps_verlet_1fs", args.reference_seeds, lambda d, s: run_lammps(args, d, 1.0, False, s))
+        ref = seeded(args, "lammps_verlet_1fs", args.reference_seeds, lambda d, s: run_lammps(args, d, 1.0, None, s))
     else:
         ref = seeded(args, "stiffmd_verlet_1fs", args.reference_seeds,
                      lambda d, s: run_stiffmd(args, d, "velocity-verlet", 1.0, s, args.set))
@@ -484,9 +488,10 @@ def compare(args):
     for label, h, method in runs:
         name = label.replace(" ", "_") + f"_{h:g}fs"
         print(f"{label} h = {h:g} fs ...", flush=True)
-        r = seeded(args, name, args.seeds, lambda d, s: run_lammps(args, d, h, True, s) if method is None else
+        lammps = label.startswith("lammps respa")
+        r = seeded(args, name, args.seeds, lambda d, s: run_lammps(args, d, h, method, s) if lammps else
                    run_stiffmd(args, d, method, h, s, args.set))
-        results["runs"].append({"code": "LAMMPS" if method is None else "stiffmd", "method": label, "h": h,
+        results["runs"].append({"code": "LAMMPS" if lammps else "stiffmd", "method": label, "h": h,
                                 "result": r, "keeps": keeps_statistics(r, ref),
                                 "z": {o: pooled_z(r, ref, o) for o in OBSERVABLES} if r else None})
         with open(path, "w") as f:
@@ -586,6 +591,7 @@ def main():
     c.add_argument("--skip-ps", type=float, default=1.0, help="left out of the averages (ps)")
     c.add_argument("--lammps", type=lambda v: [float(h) for h in v.split(",") if h], default=[1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
                    help="LAMMPS r-RESPA outer steps (fs); '' for none")
+    c.add_argument("--respa", action="append", help='LAMMPS run_style respa loop factors, e.g. "3 4 2" (repeatable)')
     c.add_argument("--stiffmd", dest="methods", action="append", default=[], help="METHOD=h1,h2,... (fs)")
     c.add_argument("--set", action="append", default=[], help="a --set for every stiffmd run")
     c.add_argument("--figure")
