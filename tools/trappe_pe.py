@@ -471,8 +471,9 @@ def compare(args):
         method, hs = spec.split("=")
         runs += [(method, float(h), method) for h in hs.split(",")]
     t_fs = args.ps * 1000
-    uneven = [f"{label} {h:g} fs" for label, h, _ in runs + [("reference", 1.0, None)]
-              if abs(t_fs / h - round(t_fs / h)) > 1e-9 * t_fs / h]
+    # stiffmd refuses a t_end that is not a whole number of steps (LAMMPS runs round(t/h) steps)
+    uneven = [f"{label} {h:g} fs" for label, h, _ in runs + [("velocity-verlet", 1.0, None)]
+              if not label.startswith("lammps") and abs(t_fs / h - round(t_fs / h)) > 1e-9 * t_fs / h]
     if uneven:  # refused before any run, not after an hour of them
         sys.exit(f"--ps {args.ps:g} is not a whole number of steps for: " + ", ".join(uneven))
     path = os.path.join(args.out, "results.json")
