@@ -25,7 +25,7 @@ void Rattle::prepare(State& s, std::ostream& log) {
   const double g0 = toolbox_.max_violation(s.x);
   toolbox_.shake(s.x, s.x);             // X0 = x0 + M⁻¹G(x0)ᵀλ, g(X0) = 0
   toolbox_.project_velocity(s.x, s.v);  // Y0 = P(X0) y0
-  valid_ = false;
+  valid_ = model_value_current_ = false;
   std::ostringstream m;
   m << method_ << ": initial data projected onto the constraint manifold (paper eq. ACIV): max |g| " << g0 << " -> "
     << toolbox_.max_violation(s.x) << ", max |dx| = " << (s.x - x0).cwiseAbs().maxCoeff()
@@ -36,7 +36,8 @@ void Rattle::prepare(State& s, std::ostream& log) {
 void Rattle::refresh(const Eigen::Matrix3Xd& x) {
   forces_.compute_unconstrained(x, f_);
   if (model_) {
-    model_->force(x, correction_);  // −∇W(I, x) or −∇U_F(x)
+    model_value_ = model_->force(x, correction_);  // −∇W(I, x) or −∇U_F(x)
+    model_value_current_ = true;
     f_ += correction_;
   }
   valid_ = true;
@@ -53,6 +54,7 @@ void Rattle::rattle_drift(State& s, double dt) {
 
 void Rattle::step(State& s, double h) {
   if (!valid_) refresh(s.x);
+  model_value_current_ = false;  // x moves below; the closing refresh makes it current again
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   if (!langevin_) {
     rattle_drift(s, h);
@@ -122,6 +124,7 @@ void Rattle::load_state(const std::vector<double>& w) {
   else
     Integrator::load_state(model_words);
   valid_ = w[m] != 0.0;
+  model_value_current_ = false;  // recomputed at the first sample: the same bits
   f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
   constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
   if (langevin_) o_step_kinetic_ = w.back();

@@ -37,14 +37,20 @@ class Rattle final : public Integrator {
   // is prepared from the state before projection (the actions of the effective dynamics).
   void prepare(State& s, std::ostream& log) override;
   void step(State& s, double h) override;
-  void reset() override { valid_ = false; }
+  void reset() override { valid_ = model_value_current_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
   // the closing half step: F_c = M (v' − v'_unprojected) / (h/2) (with Langevin, the last half
   // drift's centrifugal share is projected apart, over h/4: rattle.cpp). Molecules are whole (unwrapped
   // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
-  double model_potential(const Eigen::Matrix3Xd& x) override { return model_ ? model_->force(x, correction_) : 0.0; }
+  // W (or U_F) at x: the value the step's closing force evaluation computed when x is the state it
+  // left (one decomposition per step, shared with the thermo row); computed afresh otherwise (before
+  // the first step, after a restart: the same computation at the same x, so the same bits).
+  double model_potential(const Eigen::Matrix3Xd& x) override {
+    if (!model_) return 0.0;
+    return model_value_current_ ? model_value_ : model_->force(x, correction_);
+  }
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
@@ -67,6 +73,8 @@ class Rattle final : public Integrator {
   std::unique_ptr<LangevinNoise> langevin_;
   Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
   bool valid_ = false;
+  double model_value_ = 0.0;           // the model potential at the x of the last refresh
+  bool model_value_current_ = false;   // … and x has not moved since
   double o_step_kinetic_ = -1.0;  // ½vᵀMv just after the last (projected) O step; −1: none yet
 };
 

@@ -7,6 +7,8 @@
 #include <cmath>
 
 #include "integrators/constraints.hpp"
+#include "integrators/model_potential.hpp"
+#include "integrators/rattle.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -154,6 +156,43 @@ TEST(Effective, ProjectsTheInitialDataAndReportsTheActions) {
   EXPECT_NE(tr.log.find("actions I ="), std::string::npos) << tr.log;
   ConstraintToolbox toolbox(sc.forces->stiff_bonds()->bonds, sc.state.inv_mass);
   EXPECT_LT(toolbox.max_violation(tr.x[0]), 1e-11);
+}
+
+
+// A model potential that counts its evaluations: W = ½ c |x|² (any smooth W will do).
+class CountingPotential final : public ModelPotential {
+ public:
+  explicit CountingPotential(int* calls) : calls_(calls) {}
+  double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) override {
+    ++*calls_;
+    f = -kC * x;
+    return 0.5 * kC * x.squaredNorm();
+  }
+  static constexpr double kC = 0.1;
+
+ private:
+  int* calls_;
+};
+
+// The model potential (W of the effective dynamics, U_F of fixman) is evaluated once per step, by
+// the closing force, and the thermo row reads that value at the state the step left; before the
+// first step and after reset() it is computed afresh.
+TEST(Rattle, TheThermoRowReusesTheStepsModelPotential) {
+  Scene sc = pendulum(1e-3, "rattle", 0.01, 0.1);
+  int calls = 0;
+  Rattle r("effective", *sc.forces, ConstraintToolbox(sc.forces->stiff_bonds()->bonds, sc.state.inv_mass),
+           std::make_unique<CountingPotential>(&calls));
+  std::ostringstream log;
+  r.prepare(sc.state, log);
+  EXPECT_EQ(r.model_potential(sc.state.x), 0.5 * CountingPotential::kC * sc.state.x.squaredNorm());
+  EXPECT_EQ(calls, 1);
+  for (int k = 0; k < 3; ++k) r.step(sc.state, 0.01);
+  EXPECT_EQ(calls, 1 + 1 + 3);  // the first step's opening force, then one closing force per step
+  EXPECT_EQ(r.model_potential(sc.state.x), 0.5 * CountingPotential::kC * sc.state.x.squaredNorm());
+  EXPECT_EQ(calls, 5) << "the thermo row must reuse the step's value";
+  r.reset();
+  r.model_potential(sc.state.x);
+  EXPECT_EQ(calls, 6);
 }
 
 }  // namespace
