@@ -160,6 +160,10 @@ struct StiffModes::Impl {
       ws.diag[b] = ab * ab * (c.im[c.li[b]] + c.im[c.lj[b]]);
       if (b + 1 < n) ws.off[b] = ab * bonds[c.bonds[b + 1]].alpha * c.off_w[b] * ws.u.col(b).dot(ws.u.col(b + 1));
     }
+    if (n <= 2) {  // molecules of one or two bonds: closed forms, no LAPACK call
+      small_chain(n, ws);
+      return;
+    }
     ws.lambda.head(n) = ws.diag.head(n);
     ws.scratch.head(n) = ws.off.head(n);
     int info = 0;
@@ -169,6 +173,40 @@ struct StiffModes::Impl {
                            std::to_string(n) + " bonds) did not converge (LAPACK dsterf info " + std::to_string(info) +
                            ")");
     if (vectors) chain_eigenvectors(n, ws);
+  }
+
+  // Eigenpairs of a chain of one or two bonds in closed form (eigenvectors always: they are free).
+  // 2 × 2: λ± = (a + b)/2 ± √(((a − b)/2)² + e²), the smaller one as det/λ₊ (no cancellation, as
+  // LAPACK dlae2); the eigenvector of λ₊ from whichever row of A − λ₊ is the better conditioned.
+  static void small_chain(int n, ChainWorkspace& ws) {
+    if (n == 1) {
+      ws.lambda[0] = ws.diag[0];
+      ws.q[0] = 1.0;
+      return;
+    }
+    const double a = ws.diag[0], b = ws.diag[1], e = ws.off[0];
+    // sqrt rather than std::hypot (whose overflow guards cost more than the rest of the 2 × 2):
+    // the entries are α²/m-sized, nowhere near overflow.
+    const double half = 0.5 * (a - b), hyp = std::sqrt(half * half + e * e), big = 0.5 * (a + b) + hyp;  // a, b > 0
+    ws.lambda[0] = (a / big) * b - (e / big) * e;
+    ws.lambda[1] = big;
+    double v0 = e, v1 = big - a;             // (A − λ₊) v = 0 from the first row …
+    if (std::abs(big - b) > std::abs(v1)) {  // … or from the second
+      v0 = big - b;
+      v1 = e;
+    }
+    const double norm = std::sqrt(v0 * v0 + v1 * v1);
+    if (norm == 0.0) {  // e = 0 and a = b: any orthonormal basis
+      v0 = 0.0;
+      v1 = 1.0;
+    } else {
+      v0 /= norm;
+      v1 /= norm;
+    }
+    ws.q[0] = -v1;  // column 0: the eigenvector of λ₋, orthogonal to that of λ₊ (column 1)
+    ws.q[1] = v0;
+    ws.q[2] = v0;
+    ws.q[3] = v1;
   }
 
   // Eigenvectors of the tridiagonal T (diagonal ws.diag, off-diagonal ws.off) for its eigenvalues

@@ -45,8 +45,9 @@ class StiffModes {
   // both fixed: it has no vibrational mode), or max_cluster_bonds outside [1, kMaxDenseBonds].
   //
   // Open chains (S tridiagonal in chain order) are decomposed on the tridiagonal A itself
-  // (eigenvalues by LAPACK dsterf, eigenvectors by twisted factorizations), O(bonds²) per chain
-  // and in parallel over chains; every other cluster by a dense eigen-solver. Solver::dense
+  // (eigenvalues by LAPACK dsterf, eigenvectors by twisted factorizations; molecules of one or two
+  // bonds in closed form), O(bonds²) per chain and in parallel over chains; every other cluster by
+  // a dense eigen-solver. Solver::dense
   // forces the dense path everywhere (the tests' reference).
   enum class Solver { fast, dense };
   StiffModes(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, double epsilon, int max_cluster_bonds = 64,

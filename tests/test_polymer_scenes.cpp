@@ -11,6 +11,7 @@
 #include "cli_support.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/simulation.hpp"
+#include "integrators/modes.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -51,6 +52,32 @@ TEST(PolymerDecks, EveryBundledDeckIsValid) {
     ++n;
   }
   EXPECT_GE(n, 5);
+}
+
+// inputs/trimer_fluid.toml (300 of its trimers): on its prepared state the closed-form 2 × 2 modes
+// give the dense path's W and −∇W to round-off, and the effective dynamics runs its 100 steps
+// conserving K + U + W.
+TEST(PolymerDecks, TheTrimerFluidTakesTheEffectiveDynamicsInClosedForm) {
+  Scene sc = test::load("inputs/trimer_fluid.toml", {"build.0.chains=300"});
+  const StiffBonds& stiff = *sc.forces->stiff_bonds();
+  ASSERT_EQ(stiff.bonds.size(), 600u);
+  StiffModes fast(stiff.bonds, sc.state.inv_mass, stiff.epsilon, 2, StiffModes::Solver::fast);
+  StiffModes dense(stiff.bonds, sc.state.inv_mass, stiff.epsilon, 2, StiffModes::Solver::dense);
+  Eigen::VectorXd I(fast.num_modes()), I_dense(dense.num_modes());
+  fast.actions(sc.state.x, sc.state.v, I);
+  dense.actions(sc.state.x, sc.state.v, I_dense);
+  EXPECT_LT((I - I_dense).cwiseAbs().maxCoeff(), 1e-10 * I.cwiseAbs().maxCoeff());
+  Eigen::Matrix3Xd f, f_dense;
+  const double W = fast.correction_force(I, sc.state.x, f), W_dense = dense.correction_force(I, sc.state.x, f_dense);
+  EXPECT_NEAR(W, W_dense, 1e-13 * std::abs(W_dense));
+  EXPECT_LT((f - f_dense).cwiseAbs().maxCoeff(), 1e-11 * f_dense.cwiseAbs().maxCoeff());
+  const fs::path d = test::scratch_dir("trimer_fluid");
+  std::ostringstream log;
+  const RunSummary s = run_simulation(sc, {d.string(), false, ""}, log);
+  EXPECT_EQ(s.method, "effective");
+  EXPECT_EQ(s.steps, 100);
+  EXPECT_LT(s.max_energy_error, 1e-3 * std::abs(s.initial_energy)) << log.str();
+  fs::remove_all(d);
 }
 
 TEST(PolymerDecks, TheLammpsChainBenchmarkImportsAndRuns) {
