@@ -28,8 +28,8 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
-#include "engine/core/state.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/state.hpp"
 
 namespace stiffmd {
 

@@ -4,7 +4,8 @@
 //
 // Geometry (Blondel & Karplus, J. Comput. Chem. 17, 1132 (1996); Bekker's form, as in GROMACS).
 // With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (raw differences of unwrapped positions:
-// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the plane normals m = r_ij × r_kj, n = r_kj × r_kl,
+// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the plane normals m =
+// r_ij × r_kj, n = r_kj × r_kl,
 //     φ = atan2(|r_kj| r_ij·n, m·n)                      (m × n = r_kj (r_ij·n))
 // in (−π, π]: φ = ±π is trans (the IUPAC/polymer convention, LAMMPS's), φ = 0 cis. The gradients
 //     ∂φ/∂x_i = +|r_kj|/|m|² m,     ∂φ/∂x_l = −|r_kj|/|n|² n,
@@ -26,8 +27,8 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
-#include "engine/core/state.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/state.hpp"
 
 namespace stiffmd {
 

@@ -73,9 +73,9 @@ class Rattle final : public Integrator {
   std::unique_ptr<LangevinNoise> langevin_;
   Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
   bool valid_ = false;
-  double model_value_ = 0.0;           // the model potential at the x of the last refresh
-  bool model_value_current_ = false;   // … and x has not moved since
-  double o_step_kinetic_ = -1.0;  // ½vᵀMv just after the last (projected) O step; −1: none yet
+  double model_value_ = 0.0;          // the model potential at the x of the last refresh
+  bool model_value_current_ = false;  // … and x has not moved since
+  double o_step_kinetic_ = -1.0;      // ½vᵀMv just after the last (projected) O step; −1: none yet
 };
 
 }  // namespace stiffmd

@@ -158,7 +158,6 @@ TEST(Effective, ProjectsTheInitialDataAndReportsTheActions) {
   EXPECT_LT(toolbox.max_violation(tr.x[0]), 1e-11);
 }
 
-
 // A model potential that counts its evaluations: W = ½ c |x|² (any smooth W will do).
 class CountingPotential final : public ModelPotential {
  public:

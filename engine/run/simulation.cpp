@@ -311,7 +311,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   summary.slow_evaluations = slow_before + sc.forces->evaluations(sc.forces->outermost());
   summary.fast_evaluations = fast_before + sc.forces->evaluations(sc.forces->innermost());
   for (int k = 0; k < sc.forces->num_levels(); ++k)
-    summary.level_evaluations.emplace_back(sc.forces->level_name(Level{k}), before[k] + sc.forces->evaluations(Level{k}));
+    summary.level_evaluations.emplace_back(sc.forces->level_name(Level{k}),
+                                           before[k] + sc.forces->evaluations(Level{k}));
   const fs::path summary_path = fs::path(opt.out_dir) / "summary.json";
   summary.outputs.push_back(summary_path.string());
   write_atomically(summary_path, summary_json(summary));

@@ -39,7 +39,7 @@ struct RunSummary {
   double epsilon = 0.0;      // of the stiff bonds (0 if none)
   double initial_energy = 0.0;
   double final_energy = 0.0;
-  double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
+  double max_energy_error = 0.0;      // max |E(t) − E(0)| over the thermo samples
   std::int64_t slow_evaluations = 0;  // of the outermost level
   std::int64_t fast_evaluations = 0;  // of the innermost level
   // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
