@@ -2,8 +2,9 @@
 // style (as bond_loop.hpp is for bonds): a style supplies only a kernel
 //     static void eval(double theta, const Params& p, double& energy, double& dE_dtheta);
 //
-// Geometry. With the arms a = x_i − x_j and b = x_k − x_j (raw differences of unwrapped positions:
-// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the normal n = a × b,
+// Geometry. With the arms a = x_i − x_j and b = x_k − x_j (raw differences of unwrapped
+// positions: molecules are whole, ARCHITECTURE.md — LAMMPS's minimum image for any molecule
+// shorter than half the box) and the normal n = a × b,
 //     θ = atan2(|n|, a·b),
 //     ∂θ/∂x_i = −(n̂ × a)/|a|²,   ∂θ/∂x_k = (n̂ × b)/|b|²,   ∂θ/∂x_j = −∂θ/∂x_i − ∂θ/∂x_k,
 // (equal to the textbook (â cos θ − b̂)/(|a| sin θ), without dividing by sin θ).
@@ -44,7 +45,7 @@ struct AngleInstance {
 namespace angle_detail {
 
 struct Geometry {
-  Eigen::Vector3d a, b;  // arms x_i − x_j and x_k − x_j (raw differences: molecules are whole, ARCHITECTURE.md)
+  Eigen::Vector3d a, b;  // arms x_i − x_j and x_k − x_j (raw differences of whole molecules)
   double theta = 0.0;
   Eigen::Vector3d dtheta_da, dtheta_db;  // ∂θ/∂x_i and ∂θ/∂x_k
 };

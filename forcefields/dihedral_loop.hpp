@@ -3,9 +3,9 @@
 //     static void eval(double phi, const Params& p, double& energy, double& dE_dphi);
 //
 // Geometry (Blondel & Karplus, J. Comput. Chem. 17, 1132 (1996); Bekker's form, as in GROMACS).
-// With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (raw differences of unwrapped positions:
-// molecules are whole, ARCHITECTURE.md — equal to LAMMPS's minimum image for any molecule) and the plane normals m =
-// r_ij × r_kj, n = r_kj × r_kl,
+// With r_ij = x_i − x_j, r_kj = x_k − x_j, r_kl = x_k − x_l (raw differences of unwrapped
+// positions: molecules are whole, ARCHITECTURE.md — LAMMPS's minimum image for any molecule
+// shorter than half the box) and the plane normals m = r_ij × r_kj, n = r_kj × r_kl,
 //     φ = atan2(|r_kj| r_ij·n, m·n)                      (m × n = r_kj (r_ij·n))
 // in (−π, π]: φ = ±π is trans (the IUPAC/polymer convention, LAMMPS's), φ = 0 cis. The gradients
 //     ∂φ/∂x_i = +|r_kj|/|m|² m,     ∂φ/∂x_l = −|r_kj|/|n|² n,
