@@ -8,10 +8,18 @@
 // non-symmetric K is simply assembled with its arguments swapped instead of solving with Kᵀ.
 //
 // Three back ends, chosen once per cluster in the constructor:
-//   open chains          tridiagonal LU with partial pivoting (LAPACK gttrf), O(bonds);
+//   open chains          S: tridiagonal L D Lᵀ without pivoting (SPD); J: tridiagonal LU with
+//                        partial pivoting (LAPACK gttrf); O(bonds) each;
 //   small other clusters dense LLT (S) / PartialPivLU (J), pre-sized, no heap traffic;
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
 // Clusters are solved in parallel on the OpenMP threads (Impl::for_each_cluster).
+//
+// S(x) is measured and factored once per configuration (issue 14: a constrained BAOAB step asks
+// for it up to five times at three positions). The toolbox keeps the last configuration it was
+// handed, bit for bit, with G there and S's factors; an operation at the same x reuses them. What
+// is kept is a function of x alone, so a run restarted without the cache computes the same bits.
+// SHAKE near its reference iterates with that S(x_ref) (the chord, SHAKE's own quasi-Newton, no
+// factorization) and falls back to full Newton on J when it contracts too slowly.
 #include "integrators/constraints.hpp"
 
 #include <Eigen/Cholesky>
@@ -22,6 +30,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <map>
 #include <stdexcept>
@@ -45,6 +54,13 @@ constexpr double kSingularPivot = 1e-13;
 
 // SHAKE iterations allowed inside mollified_force, whose API has no max_iter.
 constexpr int kMollifierMaxIter = 50;
+
+// SHAKE starts with chord iterations on S(x_ref) when every |g_b(y)| ≤ this × ℓ_b (a drift of
+// one step: |g| ~ (h|v|)²/ℓ, 1e-4 ℓ on the stiff melt), and switches to Newton on J = G(y) M⁻¹
+// G(x_ref)ᵀ as soon as an iteration reduces max |g| by less than kChordContraction. The chord's
+// rate is about |G(y) − G(x_ref)| (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step.
+constexpr double kChordStart = 1e-2;
+constexpr double kChordContraction = 0.25;
 
 // One term of K(a, b) = G(a) M⁻¹ G(b)ᵀ on a cluster:
 //   K(row, col) += sign · m_p⁻¹ · u_row(a)·u_col(b),
@@ -169,6 +185,71 @@ class TridiagonalSolver final : public ClusterSolver {
   std::vector<int> slot_;  // index into bands_ for each coupling
 };
 
+// S = G M⁻¹ Gᵀ of an open chain, SPD and tridiagonal, as L D Lᵀ without pivoting (no row swap
+// is ever needed: each Schur complement exceeds the next sub-diagonal entry, see above):
+//   D_0 = S_00,  l_k = S_{k+1,k} / D_k,  D_{k+1} = S_{k+1,k+1} − l_k S_{k+1,k}.
+// Branch-free, one division per bond; the solve multiplies by 1/D_k.
+class ChainLdlt {
+ public:
+  explicit ChainLdlt(int n) : n_(n), diagonal_(n), off_(std::max(n - 1, 0)), inv_pivot_(n) {}
+
+  // The bands of S, to be filled before factorize(): diagonal[k] = S_kk, off[k] = S_{k,k+1}.
+  double* diagonal() { return diagonal_.data(); }
+  double* off() { return off_.data(); }
+
+  // In place; false when a pivot is ≤ kSingularPivot × the largest diagonal entry.
+  bool factorize() {
+    double* d = diagonal_.data();
+    double* e = off_.data();
+    const double scale = diagonal_.cwiseAbs().maxCoeff();
+    bool regular = true;
+    double pivot = d[0];
+    for (int k = 0; k + 1 < n_; ++k) {
+      regular &= pivot > kSingularPivot * scale;
+      const double inv = 1.0 / pivot;
+      inv_pivot_[k] = inv;
+      const double l = e[k] * inv;
+      pivot = d[k + 1] - l * e[k];
+      e[k] = l;
+    }
+    regular &= pivot > kSingularPivot * scale;  // false for NaN too
+    inv_pivot_[n_ - 1] = 1.0 / pivot;
+    return regular;
+  }
+
+  // sol = S⁻¹ rhs (sol may alias rhs).
+  void solve(const double* rhs, double* sol) const {
+    solve(rhs, sol, [](int, double) {});
+  }
+  // The same, calling each(k, sol[k]) as the backward sweep finds sol[k] (k descending), so that
+  // a caller can apply the solution in the same pass.
+  template <class Each>
+  void solve(const double* rhs, double* sol, Each&& each) const {
+    const double* l = off_.data();
+    const double* inv = inv_pivot_.data();
+    double y = rhs[0];
+    sol[0] = y;
+    for (int k = 0; k + 1 < n_; ++k) {  // L z = rhs
+      y = rhs[k + 1] - l[k] * y;
+      sol[k + 1] = y;
+    }
+    double s = sol[n_ - 1] * inv[n_ - 1];  // D Lᵀ sol = z
+    sol[n_ - 1] = s;
+    each(n_ - 1, s);
+    for (int k = n_ - 2; k >= 0; --k) {
+      s = sol[k] * inv[k] - l[k] * s;
+      sol[k] = s;
+      each(k, s);
+    }
+  }
+
+ private:
+  int n_;
+  Eigen::VectorXd diagonal_;   // S_kk, then D_k (unused after factorize)
+  Eigen::VectorXd off_;        // S_{k,k+1}, then l_k
+  Eigen::VectorXd inv_pivot_;  // 1 / D_k
+};
+
 // Small clusters of any shape (rings, stars, the pendulum when not a chain ...). Every object
 // is sized here, so compute() and solve() reuse the storage.
 class DenseSolver final : public ClusterSolver {
@@ -284,10 +365,16 @@ struct ClusterData {
   Eigen::VectorXd values;  // K entries, one per coupling
   // Open chains assemble K's bands directly: K(k,k) = diag_w[k] u_k(a)·u_k(b) and
   // K(k,k+1), K(k+1,k) = off_w[k] u_k(a)·u_{k+1}(b), u_{k+1}(a)·u_k(b) (the couplings summed).
-  TridiagonalSolver* chain = nullptr;  // = solver, for chains
+  TridiagonalSolver* chain = nullptr;  // = solver, for chains (J)
+  std::unique_ptr<ChainLdlt> spd;      // chains: S
   Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
   Eigen::VectorXd lambda;  // SHAKE multipliers, accumulated over Newton steps
+  // What is known at the toolbox's kept configuration (Impl::keep): G there (in at_kept) and
+  // S's factors (spd for chains, else solver until SHAKE's Newton factors J in it).
+  bool frame_kept = false;
+  bool s_factored = false;
+  std::int64_t factorizations = 0;  // of S and of SHAKE's and the mollifier's J, for tests
 };
 
 }  // namespace
@@ -297,8 +384,17 @@ struct ConstraintToolbox::Impl {
 
   int num_particles() const { return static_cast<int>(inv_mass.size()); }
 
-  void measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1);
+  // minus_g (size of the cluster, local order), if given, receives −g_b(x); returns max_b |g_b(x)| then.
+  double measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1,
+                 double* minus_g = nullptr);
   void factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric, const char* what);
+  // Makes x the kept configuration (a copy), forgetting G and S of the last one unless x is it, bit
+  // for bit. Serial; before the clusters' loop.
+  void keep(const Eigen::Matrix3Xd& x);
+  // G and the factors of S at the kept configuration on cluster c, computed if not known yet.
+  void factor_kept_s(int c, const char* what);
+  // sol = S⁻¹ rhs at the kept configuration (after factor_kept_s).
+  void solve_kept_s(int c);
   [[noreturn]] void singular(int c, bool symmetric, const char* what) const;
   Eigen::Vector3d inv_mass_difference(int b, const Eigen::Matrix3Xd& w) const;
   void add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
@@ -306,9 +402,9 @@ struct ConstraintToolbox::Impl {
   void add_constraint_displacement(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
                                    Eigen::Matrix3Xd& y) const;
 
-  void project_force_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f);
-  void project_velocity_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
-  void shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  void project_force_cluster(int c, Eigen::Matrix3Xd& f);
+  void project_velocity_cluster(int c, Eigen::Matrix3Xd& v);
+  void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter);
   void mollify_cluster(int c, Eigen::Matrix3Xd& f);
 
   // Runs f(c) for every cluster c. Clusters are independent solves touching their own bonds'
@@ -341,9 +437,11 @@ struct ConstraintToolbox::Impl {
   std::vector<ClusterData> data;           // parallel to clusters
   std::vector<std::int64_t> bonds_before;  // bonds in clusters 0 … c − 1; size clusters + 1
   bool clusters_share_particles = false;   // through a fixed particle
-  BondFrame at_ref;                        // G at x (or x_ref)
-  BondFrame at_cur;                        // G at y (or X = α(x))
-  Eigen::Matrix3Xd curvature;              // per bond: λ_b A_b ((M⁻¹r)_i − (M⁻¹r)_j), mollified force step 4
+  Eigen::Matrix3Xd kept_x;                 // the kept configuration (x_ref of SHAKE, x of P(x))
+  bool kept = false;
+  BondFrame at_kept;           // G at kept_x, for the clusters with frame_kept
+  BondFrame at_cur;            // G at y (or X = α(x))
+  Eigen::Matrix3Xd curvature;  // per bond: λ_b A_b ((M⁻¹r)_i − (M⁻¹r)_j), mollified force step 4
 };
 
 ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in)
@@ -351,8 +449,8 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
   validate(bonds, inv_mass);
   clusters = find_clusters(bonds, inv_mass);
   const int m = static_cast<int>(bonds.size());
-  at_ref = {Eigen::Matrix3Xd::Zero(3, m), Eigen::VectorXd::Zero(m)};
-  at_cur = at_ref;
+  at_kept = {Eigen::Matrix3Xd::Zero(3, m), Eigen::VectorXd::Zero(m)};
+  at_cur = at_kept;
   curvature = Eigen::Matrix3Xd::Zero(3, m);
   for (const ConstraintCluster& cluster : clusters) {
     ClusterData d;
@@ -366,6 +464,7 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
       auto tri = std::make_unique<TridiagonalSolver>(n, d.couplings);
       d.chain = tri.get();
       d.solver = std::move(tri);
+      d.spd = std::make_unique<ChainLdlt>(n);
       d.diag_w = Eigen::VectorXd::Zero(n);
       d.off_w = Eigen::VectorXd::Zero(std::max(n - 1, 0));
       for (const Coupling& cp : d.couplings) {
@@ -394,15 +493,20 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
 
 // Unit vectors u_b and lengths of cluster c's bonds at x. G(x) does not exist where a bond
 // has zero length, so that is an error, as is any non-finite coordinate.
-void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what,
-                                      int iteration) {
-  // One pass without branches (u = d / |d| for every bond), then the check: called several
-  // times per macro step by SHAKE and the mollifier, so it is kept tight.
+double ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what,
+                                        int iteration, double* minus_g) {
+  // One pass without branches (u = d / |d| for every bond; SHAKE's residual in the same pass),
+  // then the check: called several times per macro step by SHAKE and the mollifier, so it is
+  // kept tight.
   double* u = frame.u.data();
   double* len = frame.length.data();
   const StiffBond* bond = bonds.data();
+  const std::vector<int>& order = data[c].bonds;
+  const int n = static_cast<int>(order.size());
   bool ok = true;
-  for (const int b : data[c].bonds) {
+  double worst = 0.0;
+  for (int k = 0; k < n; ++k) {
+    const int b = order[k];
     const Eigen::Vector3d d = bond_vector(x, bond[b].i, bond[b].j);
     const double dx = d[0], dy = d[1], dz = d[2];
     const double length = std::sqrt(dx * dx + dy * dy + dz * dz);
@@ -412,8 +516,12 @@ void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFram
     u[3 * b + 2] = dz * inv;
     len[b] = length;
     ok &= length > 0.0 && length <= std::numeric_limits<double>::max();  // false for 0, ∞, NaN
+    if (minus_g != nullptr) {                                            // loop-invariant: the compiler splits the loop
+      minus_g[k] = bond[b].length - length;
+      worst = std::max(worst, std::abs(minus_g[k]));
+    }
   }
-  if (ok) return;
+  if (ok) return worst;
   for (const int b : data[c].bonds) {
     const double length = len[b];
     if (length > 0.0 && std::isfinite(length)) continue;
@@ -422,6 +530,7 @@ void ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFram
     throw NumericalError(where + ": " + describe_bond(b, bonds[b]) +
                          (length == 0.0 ? " has zero length" : " has a non-finite length"));
   }
+  return worst;
 }
 
 // Factorizes K = G(rows) M⁻¹ G(cols)ᵀ on cluster c (see Coupling).
@@ -458,6 +567,51 @@ void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const Bond
     values[k] = cp[k].sign * w[cp[k].particle] * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
   }
   if (!d.solver->factorize(d.values, symmetric)) singular(c, symmetric, what);
+}
+
+void ConstraintToolbox::Impl::keep(const Eigen::Matrix3Xd& x) {
+  if (kept && kept_x.cols() == x.cols() &&
+      std::memcmp(kept_x.data(), x.data(), sizeof(double) * static_cast<std::size_t>(x.size())) == 0)
+    return;
+  kept_x = x;  // no allocation once sized
+  kept = true;
+  for (ClusterData& d : data) d.frame_kept = d.s_factored = false;
+}
+
+void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
+  ClusterData& d = data[c];
+  if (!d.frame_kept) {
+    measure(c, kept_x, at_kept, what);
+    d.frame_kept = true;
+  }
+  if (d.s_factored) return;
+  if (d.spd) {
+    const double* u = at_kept.u.data();
+    auto dot = [&](int a, int b) {
+      const double* p = u + 3 * a;
+      const double* q = u + 3 * b;
+      return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+    };
+    const int n = static_cast<int>(d.bonds.size());
+    const int* bond = d.bonds.data();
+    double* diagonal = d.spd->diagonal();
+    double* off = d.spd->off();
+    for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
+    for (int k = 0; k + 1 < n; ++k) off[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
+    if (!d.spd->factorize()) singular(c, true, what);
+  } else {
+    factorize(c, at_kept, at_kept, true, what);
+  }
+  d.s_factored = true;
+  ++d.factorizations;
+}
+
+void ConstraintToolbox::Impl::solve_kept_s(int c) {
+  ClusterData& d = data[c];
+  if (d.spd)
+    d.spd->solve(d.rhs.data(), d.sol.data());
+  else
+    d.solver->solve(d.rhs, d.sol);
 }
 
 void ConstraintToolbox::Impl::singular(int c, bool symmetric, const char* what) const {
@@ -497,55 +651,83 @@ void ConstraintToolbox::Impl::add_constraint_displacement(int c, const BondFrame
 }
 
 // P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)).
-void ConstraintToolbox::Impl::project_force_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
+void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
-  measure(c, x, at_ref, "force projection");
-  factorize(c, at_ref, at_ref, true, "force projection");
-  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
-  d.solver->solve(d.rhs, d.sol);
-  add_constraint_force(c, at_ref, d.sol, -1.0, f);
+  factor_kept_s(c, "force projection");
+  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
+  solve_kept_s(c);
+  add_constraint_force(c, at_kept, d.sol, -1.0, f);
 }
 
 // RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0.
-void ConstraintToolbox::Impl::project_velocity_cluster(int c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v) {
   ClusterData& d = data[c];
-  measure(c, x, at_ref, "velocity projection");
-  factorize(c, at_ref, at_ref, true, "velocity projection");
+  factor_kept_s(c, "velocity projection");
   for (int k = 0; k < d.rhs.size(); ++k) {
     const StiffBond& bond = bonds[d.bonds[k]];
-    d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
+    d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
   }
-  d.solver->solve(d.rhs, d.sol);
-  add_constraint_displacement(c, at_ref, d.sol, -1.0, v);
+  solve_kept_s(c);
+  add_constraint_displacement(c, at_kept, d.sol, -1.0, v);
 }
 
-// Newton's method for y = y0 + M⁻¹G(x_ref)ᵀλ, g(y) = 0 (paper eq. (ProMol) when y0 = x_ref):
-// g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Full Newton rather than
-// SHAKE's S(x_ref) quasi-Newton: quadratic convergence, and λ is accurate enough for the
-// mollified force's H_λ.
-void ConstraintToolbox::Impl::shake_cluster(int c, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol,
-                                            int max_iter) {
+// y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
+// configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
+// x_ref take chord steps S(x_ref) δ = −g(y) (SHAKE's quasi-Newton: S is J at y = x_ref, and its
+// factors are usually kept from the velocity projection that ended the last step); otherwise, or
+// as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
+// enough for the mollified force's H_λ).
+void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
   ClusterData& d = data[c];
-  measure(c, x_ref, at_ref, "SHAKE (reference configuration)");
+  if (!d.frame_kept) {
+    measure(c, kept_x, at_kept, "SHAKE (reference configuration)");
+    d.frame_kept = true;
+  }
+  bool chord = d.spd != nullptr;
+  double previous = std::numeric_limits<double>::infinity();
+  const int n = static_cast<int>(d.bonds.size());
+  const int* bond = d.bonds.data();
   d.lambda.setZero();
   for (int iteration = 0;; ++iteration) {
-    measure(c, y, at_cur, "SHAKE", iteration);
-    int worst = 0;
-    for (int k = 0; k < d.rhs.size(); ++k) {
-      d.rhs[k] = bonds[d.bonds[k]].length - at_cur.length[d.bonds[k]];  // −g_b(y)
-      if (std::abs(d.rhs[k]) > std::abs(d.rhs[worst])) worst = k;
-    }
-    if (std::abs(d.rhs[worst]) <= tol) return;
+    const double residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());  // rhs = −g(y)
+    if (residual <= tol) return;
     if (iteration == max_iter) {
-      const int b = d.bonds[worst];
+      int worst = 0;
+      d.rhs.cwiseAbs().maxCoeff(&worst);
+      const int b = bond[worst];
       throw NumericalError("SHAKE did not converge in cluster " + std::to_string(c) + " after " +
                            std::to_string(max_iter) + " iterations: worst " + describe_bond(b, bonds[b]) +
-                           ", |g| = " + format_g(std::abs(d.rhs[worst])));
+                           ", |g| = " + format_g(residual));
     }
-    factorize(c, at_cur, at_ref, false, "SHAKE");
-    d.solver->solve(d.rhs, d.sol);
-    d.lambda += d.sol;
-    add_constraint_displacement(c, at_ref, d.sol, +1.0, y);
+    if (iteration == 0 && chord)
+      for (int k = 0; k < n; ++k) chord &= std::abs(d.rhs[k]) <= kChordStart * bonds[bond[k]].length;
+    chord &= !(residual > kChordContraction * previous);  // false for NaN too
+    previous = residual;
+    if (chord) {
+      // S(x_ref) δ = −g(y), applied as the backward sweep finds δ: λ += δ, y += M⁻¹G(x_ref)ᵀδ.
+      factor_kept_s(c, "SHAKE (reference configuration)");
+      const double* u = at_kept.u.data();
+      const double* w = inv_mass.data();
+      double* yp = y.data();
+      double* lambda = d.lambda.data();
+      d.spd->solve(d.rhs.data(), d.sol.data(), [&](int k, double delta) {
+        lambda[k] += delta;
+        const StiffBond& sb = bonds[bond[k]];
+        const double* ub = u + 3 * bond[k];
+        const double si = w[sb.i] * delta, sj = w[sb.j] * delta;
+        for (int a = 0; a < 3; ++a) {
+          yp[3 * sb.i + a] += si * ub[a];
+          yp[3 * sb.j + a] -= sj * ub[a];
+        }
+      });
+    } else {
+      factorize(c, at_cur, at_kept, false, "SHAKE");
+      ++d.factorizations;
+      if (!d.spd) d.s_factored = false;  // J took S's place in the solver
+      d.solver->solve(d.rhs, d.sol);
+      d.lambda += d.sol;
+      add_constraint_displacement(c, at_kept, d.sol, +1.0, y);
+    }
   }
 }
 
@@ -554,12 +736,14 @@ void ConstraintToolbox::Impl::shake_cluster(int c, const Eigen::Matrix3Xd& x_ref
 // data[c].lambda holds the multipliers of X = α(x).
 void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
-  // G(x) and G(X) are in at_ref and at_cur: shake_cluster measured x as its reference and
+  // G(x) and G(X) are in at_kept and at_cur: shake_cluster measured x as its reference and
   // X = α(x) in its last, converged iteration (mollified_force calls the two in turn, and
   // f_slow does not touch the toolbox).
   // Step 2: Jᵀμ = G(x) M⁻¹ f, Jᵀ = G(x) M⁻¹ G(X)ᵀ.
-  factorize(c, at_ref, at_cur, false, "mollified force");
-  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_ref.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
+  factorize(c, at_kept, at_cur, false, "mollified force");
+  ++d.factorizations;
+  if (!d.spd) d.s_factored = false;  // Jᵀ took S's place in the solver
+  for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
   d.solver->solve(d.rhs, d.sol);
   // Step 3: r = f − G(X)ᵀμ.
   add_constraint_force(c, at_cur, d.sol, -1.0, f);
@@ -569,8 +753,8 @@ void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {
   for (int k = 0; k < d.rhs.size(); ++k) {
     const int b = d.bonds[k];
     const Eigen::Vector3d w = inv_mass_difference(b, f);
-    const Eigen::Vector3d u = at_ref.u.col(b);
-    curvature.col(b) = d.lambda[k] * (w - u * u.dot(w)) / at_ref.length[b];
+    const Eigen::Vector3d u = at_kept.u.col(b);
+    curvature.col(b) = d.lambda[k] * (w - u * u.dot(w)) / at_kept.length[b];
   }
   for (int b : d.bonds) {
     f.col(bonds[b].i) += curvature.col(b);
@@ -593,6 +777,11 @@ const std::vector<ConstraintCluster>& ConstraintToolbox::clusters() const {
 int ConstraintToolbox::num_bonds() const {
   return static_cast<int>(impl_->bonds.size());
 }
+std::int64_t ConstraintToolbox::factorizations() const {
+  std::int64_t total = 0;
+  for (const ClusterData& d : impl_->data) total += d.factorizations;
+  return total;
+}
 
 void ConstraintToolbox::constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const {
   require_columns(x, impl_->num_particles(), "constraint_values");
@@ -607,20 +796,32 @@ double ConstraintToolbox::max_violation(const Eigen::Matrix3Xd& x) const {
 void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
   require_columns(x, impl_->num_particles(), "project_force");
   require_columns(f, impl_->num_particles(), "project_force");
-  impl_->for_each_cluster([&](int c) { impl_->project_force_cluster(c, x, f); });
+  impl_->keep(x);
+  impl_->for_each_cluster([&](int c) { impl_->project_force_cluster(c, f); });
 }
 
 void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
   require_columns(x, impl_->num_particles(), "project_velocity");
   require_columns(v, impl_->num_particles(), "project_velocity");
-  impl_->for_each_cluster([&](int c) { impl_->project_velocity_cluster(c, x, v); });
+  impl_->keep(x);
+  impl_->for_each_cluster([&](int c) { impl_->project_velocity_cluster(c, v); });
 }
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
                               int max_iter) {
   require_columns(x_ref, impl_->num_particles(), "shake");
   require_columns(y, impl_->num_particles(), "shake");
-  impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, x_ref, y, tol, max_iter); });
+  Impl& d = *impl_;
+  d.keep(x_ref);  // a copy: y may be x_ref itself
+  d.for_each_cluster([&](int c) { d.shake_cluster(c, y, tol, max_iter); });
+  // Every cluster's last measure was of the converged y: keep y with G there, for the velocity
+  // projection that follows in RATTLE (S at y is factored when first asked for).
+  d.kept_x = y;
+  std::swap(d.at_kept, d.at_cur);
+  for (ClusterData& c : d.data) {
+    c.frame_kept = true;
+    c.s_factored = false;
+  }
   if (lambda == nullptr) return;
   lambda->resize(num_bonds());  // a no-op when the caller keeps the vector
   for (const ClusterData& d : impl_->data)
@@ -631,8 +832,9 @@ void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFu
                                         Eigen::Matrix3Xd& out, double tol) {
   require_columns(x, impl_->num_particles(), "mollified_force");
   // Step 1: X = α(x), the M-orthogonal projection of x onto g = 0 (paper eq. (ProMol)).
+  impl_->keep(x);
   X = x;
-  impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, x, X, tol, kMollifierMaxIter); });
+  impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, X, tol, kMollifierMaxIter); });
   out.resize(3, x.cols());
   f_slow(X, out);
   require_columns(out, impl_->num_particles(), "mollified_force (f_slow output)");

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <functional>
 #include <map>
 #include <memory>
@@ -63,6 +64,10 @@ class ConstraintToolbox {
   const std::vector<StiffBond>& bonds() const;
   const std::vector<ConstraintCluster>& clusters() const;
   int num_bonds() const;
+  // Cluster matrices factored so far (S, and the Newton matrices of SHAKE and the mollifier). S(x)
+  // is measured and factored once per configuration: the toolbox keeps the last x it was handed
+  // (compared bit for bit) with G(x) and S(x)'s factors, and SHAKE leaves its converged y kept.
+  std::int64_t factorizations() const;
 
   // g_b(x) = |x_i − x_j| − ℓ_b for every bond, into g (size m).
   void constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const;
@@ -77,7 +82,8 @@ class ConstraintToolbox {
   void project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
 
   // SHAKE position projection, in place: y ← y + M⁻¹ G(x_ref)ᵀ λ with g(y) = 0, by Newton on
-  // λ (J = G(y) M⁻¹ G(x_ref)ᵀ, per cluster). With x_ref = y this is the mollifier α(x) of
+  // λ (J = G(y) M⁻¹ G(x_ref)ᵀ, per cluster; open chains near x_ref first by chord steps on
+  // S(x_ref), falling back to Newton when they contract slowly). With x_ref = y this is the mollifier α(x) of
   // paper eq. (ProMol). Converged when max_b |g_b| ≤ tol. Throws NumericalError naming the
   // cluster, the worst bond and the iteration count when it does not converge in max_iter.
   // lambda (size m) receives the multipliers if non-null.

@@ -433,6 +433,72 @@ TEST(ConstraintShake, NonConvergenceNamesClusterWorstBondAndIterations) {
   }
 }
 
+// ---- one configuration, measured and factored once (issue 14) -------------------------------
+
+// RATTLE's drift: x_ref on the manifold, v tangent there, y0 = x_ref + τv, so |g(y0)| ~ τ²|v|².
+// Open chains then take SHAKE's chord steps on the kept S(x_ref) and need no factorization; the
+// result satisfies Newton's identities, and it has the bits of a toolbox that never saw x_ref
+// (what a restarted run computes).
+TEST_P(OnEveryScene, ShakeOfADriftIsTheConstrainedStepAlongTheReference) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd x = s.x;
+  toolbox.shake(x, x);
+  Eigen::Matrix3Xd v = random_motion(s, 21);
+  toolbox.project_velocity(x, v);
+  for (const double tau : {1e-3, 1e-2, 3e-2}) {
+    const Eigen::Matrix3Xd y0 = x + tau * v;
+    ASSERT_GT(toolbox.max_violation(y0), 1e-9);
+    Eigen::Matrix3Xd y = y0;
+    Eigen::VectorXd lambda;
+    const std::int64_t before = toolbox.factorizations();
+    toolbox.shake(x, y, &lambda);
+    if (s.name == "chain10" || s.name == "long_chain") {  // open chains: chord steps on S(x)
+      EXPECT_EQ(toolbox.factorizations(), before) << "tau " << tau;
+    }
+    EXPECT_LE(toolbox.max_violation(y), 1e-12);
+    const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * jacobian(s, x).transpose() * lambda;
+    EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
+    ConstraintToolbox fresh(s.bonds, s.inv_mass);
+    Eigen::Matrix3Xd y_fresh = y0;
+    fresh.shake(x, y_fresh);
+    EXPECT_EQ((y - y_fresh).lpNorm<Eigen::Infinity>(), 0.0) << "tau " << tau;
+    toolbox.project_velocity(x, v);  // x kept again for the next τ
+  }
+}
+
+// A constrained BAOAB step asks for S at one position up to three times (velocity projections,
+// the force projection, the next step's SHAKE): one factorization. A configuration changed in
+// place, by however little, is measured and factored afresh.
+TEST_P(OnEveryScene, FactorsSOncePerConfiguration) {
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd x = s.x;
+  toolbox.shake(x, x);
+  Eigen::Matrix3Xd v = random_motion(s, 22), f = random_motion(s, 23);
+  const std::int64_t before = toolbox.factorizations();
+  toolbox.project_velocity(x, v);
+  Eigen::Matrix3Xd v2 = random_motion(s, 24);
+  toolbox.project_velocity(x, v2);
+  toolbox.project_force(x, f);
+  EXPECT_EQ(toolbox.factorizations() - before, static_cast<std::int64_t>(toolbox.clusters().size()));
+  ConstraintToolbox fresh(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd v2_fresh = random_motion(s, 24), f_fresh = random_motion(s, 23);
+  fresh.project_velocity(x, v2_fresh);
+  fresh.project_force(x, f_fresh);
+  EXPECT_EQ((v2 - v2_fresh).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((f - f_fresh).lpNorm<Eigen::Infinity>(), 0.0);
+
+  const int moved = s.bonds.back().j;
+  x(1, moved) = std::nextafter(x(1, moved), 2.0);  // one bit of one coordinate
+  Eigen::Matrix3Xd v3 = random_motion(s, 25), v3_fresh = v3;
+  const std::int64_t middle = toolbox.factorizations();
+  toolbox.project_velocity(x, v3);
+  EXPECT_EQ(toolbox.factorizations() - middle, static_cast<std::int64_t>(toolbox.clusters().size()));
+  ConstraintToolbox(s.bonds, s.inv_mass).project_velocity(x, v3_fresh);
+  EXPECT_EQ((v3 - v3_fresh).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
 // ---- the mollified force ------------------------------------------------------------------
 
 // U = Σ_k X_k,y (gravity along −y, unit weights) + ½|X_t − c|² (a tether on particle t).
