@@ -1,14 +1,18 @@
 #!/usr/bin/python3
-"""End to end: tools/cost_vs_eps.py --quick (8 chains of 20 beads, ε = 1e-2 and 3e-3, ≈ 10 s).
+"""End to end: tools/cost_vs_eps.py --quick (8 chains of 20 beads, ε = 1e-2 and 3e-3, 3 seeds per
+setting and 3 for the reference, ≈ 5 s).
 
 Usage: test_cost_vs_eps_tool.py [STIFFMD]   (default build/stiffmd)
 
 Checks that the ladder, the cost table, the markdown table and the figure are written, that every
 method's ladder climbs (steps increasing, velocity Verlet's first step the reference at 0.2 ε, the
-micro-step methods' n = ceil(h / (ε/10))) and stops at its first failing step, that the pass/fail of
-every run is the criterion the tool states (|Δ| < 3 σ_combined recomputed here from the CSV's means
-and block errors; Rg's paired z within 3), and that each (ε, method) was timed at its largest passing
-step, or at its first step when none passed. The LAMMPS rows are checked when `lmp` is on PATH.
+micro-step methods' n = ceil(h / (ε/10))) and stops at its first failing step, that every setting ran
+its seeds (distinct thermostat seeds within LAMMPS's 9e8, one value per seed and observable, the mean
+the mean over them), that the pass/fail of every run is the criterion the tool states, recomputed here
+from the CSV's per-seed values alone (pooled seed standard error s_p √(1/K + 1/K_ref), |z| within the
+Student-t quantile of 3σ's two-sided 0.0027 with K + K_ref − 2 degrees of freedom), and that each
+(ε, method) was timed at its largest passing step, or at its first step when none passed. The LAMMPS
+rows are checked when `lmp` is on PATH. A rerun of the ladders reuses every seed's cached run.
 """
 import csv
 import math
@@ -17,6 +21,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 
 from checklist import finish, test
 
@@ -27,6 +32,10 @@ METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse
 MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
 if shutil.which("lmp"):
     METHODS.append("lammps-respa")
+SEEDS, REF_SEEDS = 3, 3  # --quick's
+# The limit on |z|: Student's t with SEEDS + REF_SEEDS − 2 = 4 degrees of freedom at the two-sided
+# tail probability of a 3σ normal test, erfc(3/√2) = 0.0026998 (scipy.stats.t.isf(0.0013499, 4)).
+LIMIT = 6.620205978448
 
 exe = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "build", "stiffmd")
 tmp = tempfile.TemporaryDirectory()
@@ -45,6 +54,22 @@ def ladders():
     for r in rows("ladder.csv"):
         table.setdefault((float(r["eps"]), r["method"]), []).append(r)
     return table
+
+
+def per_seed(r, q):
+    return [float(v) for v in r[q + "_seeds"].split(";")] if r[q + "_seeds"] else []
+
+
+def mean(v):
+    return sum(v) / len(v)
+
+
+def pooled(a, b):
+    """(z, se) of mean(a) − mean(b) with the pooled variance, computed here from scratch."""
+    ma, mb = mean(a), mean(b)
+    sp2 = (sum((x - ma) ** 2 for x in a) + sum((x - mb) ** 2 for x in b)) / (len(a) + len(b) - 2)
+    se = math.sqrt(sp2 * (1 / len(a) + 1 / len(b)))
+    return (ma - mb) / se, se
 
 
 @test
@@ -70,10 +95,38 @@ def every_method_climbs_its_ladder_and_stops_at_the_first_failure():
             assert int(r["n"]) == n_expected, r
         passed = [r["passed"] == "True" for r in rs]
         assert all(passed[:-1]), (eps, method, passed)  # only the last step may fail: the climb stops there
+        if passed[-1]:  # and it stops only there: a ladder without a failure is climbed to its top
+            assert len(rs) == 2, (eps, method, hs)  # --quick's ladders: two steps (velocity Verlet: ref, 0.4 ε)
 
 
 @test
-def pass_is_three_sigma_combined_against_the_reference():
+def every_setting_ran_its_seeds():
+    table = ladders()
+    seen = set()
+    for (eps, method), rs in table.items():
+        for k, r in enumerate(rs):
+            reference = method == "velocity-verlet" and k == 0
+            want = REF_SEEDS if reference else SEEDS
+            seeds = [int(v) for v in r["thermostat_seeds"].split(";")]
+            assert all(1 <= v <= 900000000 for v in seeds), seeds  # LAMMPS's limit
+            assert not seen & set(seeds), (eps, method, r["h"], seeds)  # every run its own noise
+            seen |= set(seeds)
+            if r["status"] != "ok":
+                continue
+            assert int(r["seeds"]) == want == len(seeds), (eps, method, r["h"], r["seeds"], seeds)
+            for q in ("cos", "cos2", "rg", "pressure"):
+                v = per_seed(r, q)
+                assert len(v) == want and len(set(v)) == want, (eps, method, q, v)  # the seeds differ
+                assert math.isclose(float(r[q]), mean(v), rel_tol=1e-12, abs_tol=1e-12), (q, r[q], v)
+
+
+@test
+def pass_is_the_pooled_seed_criterion_against_the_reference():
+    try:
+        from scipy.stats import t
+        assert math.isclose(t.isf(math.erfc(3 / math.sqrt(2)) / 2, SEEDS + REF_SEEDS - 2), LIMIT, rel_tol=1e-8)
+    except ImportError:
+        pass
     table = ladders()
     for (eps, method), rs in table.items():
         ref = table[(eps, "velocity-verlet")][0]
@@ -83,13 +136,14 @@ def pass_is_three_sigma_combined_against_the_reference():
             if r["status"] != "ok":
                 assert r["passed"] == "False", r
                 continue
-            z = {}
-            for q in ("cos", "cos2", "pressure"):
-                z[q] = (float(r[q]) - float(ref[q])) / math.hypot(float(r[q + "_err"]), float(ref[q + "_err"]))
-                assert math.isclose(z[q], float(r[q + "_z"]), rel_tol=1e-6, abs_tol=1e-9), (q, z[q], r)
-            z["rg"] = float(r["rg_z"])
-            assert math.isfinite(z["rg"]), r
-            assert (r["passed"] == "True") == all(abs(v) < 3.0 for v in z.values()), (z, r)
+            assert math.isclose(float(r["limit"]), LIMIT, rel_tol=1e-8), r["limit"]  # scipy's isf: ≈ 2e-9
+            verdict = True
+            for q in ("cos", "cos2", "rg", "pressure"):
+                z, se = pooled(per_seed(r, q), per_seed(ref, q))
+                assert math.isclose(z, float(r[q + "_z"]), rel_tol=1e-6, abs_tol=1e-9), (q, z, r)
+                assert math.isclose(se, float(r[q + "_err"]), rel_tol=1e-6), (q, se, r)
+                verdict = verdict and abs(z) <= LIMIT
+            assert (r["passed"] == "True") == verdict, (eps, method, r["h"], r["passed"], verdict)
 
 
 @test
@@ -104,6 +158,22 @@ def each_method_is_timed_at_its_largest_passing_step():
         assert math.isclose(float(c["h"]), float(expected["h"])) and int(c["n"]) == int(expected["n"]), (c, expected)
         for k in ("cpu_per_time", "wall_per_time"):
             assert math.isfinite(float(c[k])) and float(c[k]) > 0, c
+
+
+@test
+def a_rerun_reuses_every_seeds_run():
+    before = rows("ladder.csv")
+    runs = os.path.join(out, "work", "runs")
+    kept = [os.path.join(runs, d, s, "row.json") for d in os.listdir(runs) for s in os.listdir(os.path.join(runs, d))]
+    assert len(kept) >= len(before) * SEEDS, (len(kept), len(before))
+    stamps = {k: os.stat(k).st_mtime_ns for k in kept}
+    time.sleep(0.05)
+    p = subprocess.run(["/usr/bin/python3", TOOL, "--quick", "--stiffmd", exe, "--out", out, "--figure", fig,
+                        "--jobs", "1", "--no-timing"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert rows("ladder.csv") == before
+    rerun = [k for k in kept if os.stat(k).st_mtime_ns != stamps[k]]
+    assert not rerun, f"cached seeds ran again: {rerun[:3]}"
 
 
 @test

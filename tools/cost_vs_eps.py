@@ -2,9 +2,9 @@
 """Cost against ε on the stiff melt in NVT (issue 14's headline, design.md §9): every method at its
 largest step that keeps the equilibrium observables of the stiff springs.
 
-    /usr/bin/python3 tools/cost_vs_eps.py                  # the README figure (≈ 20–30 min of CPU, 2 jobs)
+    /usr/bin/python3 tools/cost_vs_eps.py                  # the README figure (≈ 30 min CPU, ≈ 20 wall, 2 jobs)
     /usr/bin/python3 tools/cost_vs_eps.py --eps 1e-2,1e-3  # a subset of ε
-    /usr/bin/python3 tools/cost_vs_eps.py --quick --out /tmp/c --figure /tmp/c/c.png   # CI size, ≈ 30 s
+    /usr/bin/python3 tools/cost_vs_eps.py --quick --out /tmp/c --figure /tmp/c/c.png   # CI size, ≈ 5 s
     /usr/bin/python3 tools/cost_vs_eps.py --plot-only      # figure and tables from OUT/ladder.csv, cost.csv
 
 Methods: velocity-verlet (BAOAB), impulse, projected-impulse, mollified-impulse (micro step δ = ε/10:
@@ -17,29 +17,77 @@ Two systems, because the statistics and the cost need different sizes (computati
 1. The largest step, on a small melt of the same density (0.85) and chains (100 beads, ℓ = 0.97):
    --chains (30) chains built by the engine (inputs/polymer_melt.toml's builder and relaxation), then
    equilibrated by fixman under Langevin for --t-equil; at every ε that state is prepared (projected,
-   T = 1 velocities, thermal bond vibrations) and every run starts from it. The reference is velocity
-   Verlet at h = --ref-h × ε (0.2: h ω_max = 0.4) for --t-ref; every other run lasts --t-run. After
-   --discard, measured: ⟨cos θ⟩ and ⟨cos²θ⟩ of the bond angles (the first two moments of their law;
-   frames every --frame-every), the mean radius of gyration of the chains (from the same frames,
-   the thermo's definition) and the pressure (thermo rows). Errors: standard errors of --blocks block
-   means. A run PASSES when ⟨cos θ⟩, ⟨cos²θ⟩ and the pressure have |q − q_ref| < --sigma × √(σ² + σ_ref²)
-   (3 σ), Rg's paired difference (below) is within --sigma of its standard error, and the run finished (an exit 3, a LAMMPS error or a non-finite number fails). Each method climbs its
-   ladder of steps (--vv-ladder × ε for velocity Verlet, --ladder for the others, --micro-ladder for
-   the micro-step methods) from the smallest and stops at the first failing step; its largest step is
-   the last passing one (velocity Verlet's first step is the reference itself, passing by definition).
-   A method whose first step fails is marked FAILS and its cost is shown at that first step.
-   Rg: all runs start from one configuration and the chains (Rouse time ~10⁴) barely move in a few
-   time units, so its block errors (a slow drift) would be dishonest and it is tested paired: the
-   mean over chains of (each chain's time-averaged Rg − the reference's) against std/√chains — it
-   compares the runs' drift from the common start, not equilibrium values.
+   T = 1 velocities, thermal bond vibrations) and every run starts from it.
+
+   Settings and seeds. A setting is a method at a step; the reference is velocity Verlet at h =
+   --ref-h × ε (0.2: h ω_max = 0.4). Every setting runs --seeds (4) independent Langevin seeds from
+   that one prepared state, the reference --ref-seeds (8), every run (the reference's too) for the
+   same --t-run (2) time units. Seed k of a setting is crc32("TAG/seedk") mod 9e8 + 1, TAG naming ε,
+   method and step (and "_ref"): deterministic, distinct, within LAMMPS's limit of 9e8; lammps-respa
+   rows are seeded the same way. A run's value of an observable is its time average after --discard
+   (0.5): ⟨cos θ⟩ and ⟨cos²θ⟩ of the bond angles (the first two moments of their law; frames every
+   --frame-every), the radius of gyration averaged over the chains (from the same frames, the
+   thermo's definition) and the pressure (thermo rows every --thermo-every).
+
+   The criterion (tools/seed_statistics.py, as tools/trappe_pe.py's). A setting's value is the mean
+   over its K seeds; per observable z = (mean − reference mean) / (s_p √(1/K + 1/K_ref)), s_p² =
+   ((K−1) s² + (K_ref−1) s_ref²) / (K + K_ref − 2) the pooled seed-to-seed variance. Why seeds: the
+   common start is equilibrated only --t-equil and the chains (Rouse time ~10⁴) barely move in a run,
+   so the observables drift over a run. A run's average over the fixed window (--discard, --t-run]
+   from that start is one draw of a random variable whose law any correct sampler of the same
+   dynamics reproduces (up to its discretisation error), and its spread over independent seeds is the
+   honest error of that draw; block errors within one run understate the spread of a drifting series,
+   and windows of different lengths (the former 6-unit reference against 4-unit runs) compare
+   different quantities — velocity Verlet failed against itself. What is compared is thus the law of
+   --t-run windows from this start, not equilibrium values. Rg is tested like the others: each seed's
+   chain-averaged Rg is one such draw. The former paired test (per-chain Rg differences, their mean
+   against std/√chains) is dropped: it took the 30 chains of one run as independent samples, which
+   the chains sharing one box and one start are not exactly, whereas seeds are independent by
+   construction, and one rule for all four observables gives the false-alarm rate stated below.
+   The limit: z is Student's t with K + K_ref − 2 degrees of freedom (10 by default), heavier-tailed
+   than the normal, so a setting PASSES when every seed finished (an exit 3, a LAMMPS error or a
+   non-finite average fails it; the seeds after a failing one are not run) and every |z| ≤ the t
+   quantile at the two-sided tail probability of a --sigma normal test, erfc(σ/√2) = 0.0027 at 3σ
+   (seed_statistics.sigma_threshold: 3.96 with 4 + 8 seeds, 6.62 with --quick's 3 + 3). A correct
+   method (one whose discretisation error is below resolution) then fails an observable by chance
+   with probability 0.27 %, a step (4 observables) with at most 1.1 %, and a whole ladder with at
+   most 4.3 % (4 steps) or 8.6 % (8 steps): union bounds, valid whatever the correlations — ⟨cos θ⟩
+   and ⟨cos²θ⟩ are strongly correlated and every step shares the reference's seeds, so the true
+   rates are lower. (The former criterion: ≈ 5–10 % per step.) This assumes the per-seed averages
+   normal (averages over 3 000 beads and 1.5 time units) with one variance for the method and the
+   reference: with K < K_ref the pooled test raises more false alarms than stated for a method whose
+   seed spread is larger than the reference's, fewer for a smaller one.
+
+   Ladders. Each method climbs its ladder of steps (--vv-ladder × ε for velocity Verlet, --ladder for
+   the others, --micro-ladder for the micro-step methods) from the smallest and stops at the first
+   failing step; its largest step is the last passing one (velocity Verlet's first step is the
+   reference itself, passing by definition). A method whose first step fails is marked FAILS and its
+   cost is shown at that first step. Every seed's run is cached (work/runs/TAG/seedK/row.json, keyed
+   by its settings): a rerun after an interruption reuses the finished seeds.
+
+   CPU of the ladders with the defaults, estimated from the step-loop seconds of the ladders measured
+   on 2026-11-24 (docs/figures/cost_vs_eps_ladder.csv: 145 s for the 6-unit references, 485 s for
+   the 4-unit ladder runs, 630 s in all, ≈ 12 min with the start-up and analysis of every run): a
+   run's cost is proportional to its length, so the references now cost 8 × 2/6 × 145 ≈ 390 s, and
+   the ladder steps 4 × 2/4 × 485 ≈ 970 s if the ladders stop where they did (1 360 s in all,
+   23 min, 2.2×) or at most ≈ 1 340 s if every ladder climbed to its top (cost per unit time a + b/h
+   fitted per method; fewer chance failures of correct methods let some ladders climb further:
+   1 730 s in all, 29 min, 2.7×); plus ≈ 0.07 s of start-up and analysis per run (≈ 480–760 runs,
+   < 1 min; measured at ε = 1e-2). The timed runs of 2 (≈ 4 min) are unchanged.
+   Velocity Verlet at the smallest ε dominates (steps of 0.2–0.8 ε): at ε = 1e-4 its reference is
+   8 × 2 × 16 s ≈ 260 s and its ladder ≤ 4 × 2 × 30 s ≈ 240 s.
 2. The cost, on LAMMPS's data.chain (32 000 beads; inputs/lammps_chain.toml prepared at each ε) at
    the step found in 1: short timed runs (--timed-steps = 150 steps; micro-step methods max(10,
    --timed-micro / n) macro steps, --timed-micro = 1500), one thread, --repeats interleaved repeats, median. CPU seconds of
    the step loop (stiffmd summary.json; LAMMPS Loop time × CPU %) per unit of simulated time, and
    wall seconds the same way.
 
-Outputs in --out (default sweeps/cost_vs_eps): ladder.csv (every run of 1: observables, errors, Δ/σ,
-pass), cost.csv (every timed run), cost_vs_eps.md (the table), work/ (states, decks, runs).
+Outputs in --out (default sweeps/cost_vs_eps): ladder.csv (a row per setting of 1: the number of
+seeds, status, pass, the limit on |z|; per observable the mean over seeds, the pooled standard error
+(on the reference's row its own s/√K_ref), z (0 on the reference's row) and the per-seed values
+joined by ';' (q_seeds, enough to recompute the criterion); the thermostat seeds, frames per run and
+the CPU seconds summed over the seeds), cost.csv (every timed run), cost_vs_eps.md (the table),
+work/ (states, decks, runs).
 Figure: --figure (default docs/figures/cost_vs_eps.png).
 """
 import argparse
@@ -59,8 +107,8 @@ import zlib
 import numpy as np
 
 from bench_lammps import parse_lammps_log, run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed, block_mean, fmt, prepare_state, read_bonds, write_deck, write_lammps_input, \
-    xyz_frames
+from chain_melt import RunFailed, fmt, prepare_state, read_bonds, write_deck, write_lammps_input, xyz_frames
+import seed_statistics
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "lammps-respa"]
@@ -68,8 +116,9 @@ MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
 OBSERVABLES = ["cos", "cos2", "rg", "pressure"]
 WRITER = "tools/cost_vs_eps.py"
 KT, DAMP = 1.0, 1.0
-LADDER_FIELDS = ["eps", "method", "h", "n", "t_end", "status", "passed"] + \
-    [f"{q}{s}" for q in OBSERVABLES for s in ("", "_err", "_z")] + ["frames", "cpu_seconds"]
+LADDER_FIELDS = ["eps", "method", "h", "n", "t_end", "seeds", "status", "passed", "limit"] + \
+    [f"{q}{s}" for q in OBSERVABLES for s in ("", "_err", "_z", "_seeds")] + ["thermostat_seeds", "frames",
+                                                                             "cpu_seconds"]
 COST_FIELDS = ["eps", "method", "h", "n", "steps", "repeat", "natoms", "cpu_per_time", "wall_per_time"]
 
 
@@ -191,34 +240,42 @@ def micro_steps(args, eps, h, method):
     return math.ceil(h / (eps / args.micro_per_eps) * (1 - 1e-9)) if method in MICRO else 1
 
 
-def run_one(args, eps, method, h, t_end, state, chains, work):
-    """One run of the ladder (or the reference) at about the step h (rounded to divide t_end); returns its
-    row of ladder.csv. Its row is kept in the run's directory (row.json) and reused by a rerun with the
-    same settings, as are the outputs of a finished run that was not analysed."""
-    tag = f"eps{eps:g}_{method}_h{h:.6g}" + ("_ref" if t_end == args.t_ref and method == "velocity-verlet" else "")
+def run_tag(eps, method, h, reference=False):
+    """The name of a setting (its runs are in work/runs/TAG/seedK)."""
+    return f"eps{eps:g}_{method}_h{h:.6g}" + ("_ref" if reference else "")
+
+
+def thermostat_seed(tag, k):
+    """Seed k of a setting: from the tag and k (crc32), in 1 … 9e8 (LAMMPS's Marsaglia generator takes
+    at most 9e8; stiffmd takes the same): every run its own noise, the same at a rerun."""
+    return zlib.crc32(f"{tag}/seed{k}".encode()) % 900000000 + 1
+
+
+def run_one(args, eps, method, h, state, chains, work, k, reference=False):
+    """Seed k of a setting (the reference when `reference`) at about the step h (rounded to divide
+    --t-run); returns its time averages after --discard. Its row is kept in the run's directory
+    (row.json) and reused by a rerun with the same settings, as are the outputs of a finished run that
+    was not analysed: an interrupted ladder resumes at its first unfinished seed."""
+    tag = run_tag(eps, method, h, reference)
+    t_end = args.t_run
     steps = round(t_end / h)
     h = t_end / steps  # a whole number of steps
     n = micro_steps(args, eps, h, method)
-    run_dir = os.path.join(work, "runs", tag)
+    run_dir = os.path.join(work, "runs", tag, f"seed{k}")
     os.makedirs(run_dir, exist_ok=True)
-    row = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "status": "ok"}
-    seed = zlib.crc32(tag.encode()) % 2 ** 30 + 1  # every run its own noise: the runs are independent samples
-    if method == "lammps-respa" and seed > 900000000:  # LAMMPS's Marsaglia generator takes at most 9e8
-        seed -= 900000000
+    seed = thermostat_seed(tag, k)
+    row = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "seed": seed, "status": "ok"}
     key = {"eps": eps, "method": method, "h": h, "n": n, "t_end": t_end, "seed": seed, "discard": args.discard,
-           "blocks": args.blocks, "frame_every": args.frame_every, "thermo_every": args.thermo_every,
-           "state": os.path.abspath(state)}
+           "frame_every": args.frame_every, "thermo_every": args.thermo_every, "state": os.path.abspath(state)}
     cached = os.path.join(run_dir, "row.json")
     if os.path.exists(cached):
         with open(cached) as f:
             kept = json.load(f)
         if kept["key"] == key:
-            return dict(kept["row"], rg_chains=np.array(kept["row"]["rg_chains"])) if "rg_chains" in kept["row"] \
-                else kept["row"]
+            return kept["row"]
     row = measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_dir, row)
     with open(cached, "w") as f:
-        json.dump({"key": key, "row": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in row.items()}},
-                  f)
+        json.dump({"key": key, "row": row}, f)
     return row
 
 
@@ -276,37 +333,56 @@ def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_
     frames = [chains.measure(x) for t, x in frames if t > args.discard + 1e-9]
     pressure = [p for t, p in pressure if t > args.discard + 1e-9]
     row["frames"] = len(frames)
-    if len(frames) < args.blocks or len(pressure) < args.blocks:
+    if len(frames) < 2 or len(pressure) < 2:
         raise RunFailed(f"{run_dir}: {len(frames)} frames, {len(pressure)} thermo rows after t = {args.discard}: "
-                        f"fewer than --blocks {args.blocks}")
-    series = {"cos": [f[0] for f in frames], "cos2": [f[1] for f in frames], "rg": [f[2].mean() for f in frames],
-              "pressure": pressure}
-    row["rg_chains"] = np.mean([f[2] for f in frames], axis=0)  # each chain's time average, for the paired test
-    for q in OBSERVABLES:
-        mean, err = block_mean(series[q], args.blocks)
-        row[q], row[q + "_err"] = float(mean), float(err)
+                        "lengthen --t-run or shorten --discard, --frame-every, --thermo-every")
+    # The run's time averages: one draw each of the random variables the criterion compares.
+    row["cos"] = float(np.mean([f[0] for f in frames]))
+    row["cos2"] = float(np.mean([f[1] for f in frames]))
+    row["rg"] = float(np.mean([f[2].mean() for f in frames]))  # the mean over chains, averaged over the frames
+    row["pressure"] = float(np.mean(pressure))
     if not all(math.isfinite(row[q]) for q in OBSERVABLES):
         row["status"] = "failed (non-finite)"
     return row
 
 
-def judge(row, ref, sigma):
-    """The criterion: every observable within sigma × the combined block error of the reference's; Rg
-    paired over chains (both runs start from one configuration): the mean over chains of the difference
-    of each chain's time-averaged Rg, against the standard error of that mean over the chains."""
+def setting(args, eps, method, h, seeds, state, chains, work, reference=False):
+    """A setting run with `seeds` seeds (stopping at the first failing seed); its row of ladder.csv
+    before the judgement: the per-seed values, their mean and s/√K, the status."""
+    runs = []
+    for k in range(seeds):
+        r = run_one(args, eps, method, h, state, chains, work, k, reference)
+        runs.append(r)
+        if r["status"] != "ok":
+            break
+    first = runs[0]
+    row = {"eps": eps, "method": method, "h": first["h"], "n": first["n"], "t_end": first["t_end"],
+           "seeds": len(runs), "status": "ok", "thermostat_seeds": ";".join(str(r["seed"]) for r in runs),
+           "frames": min(r.get("frames", 0) for r in runs), "cpu_seconds": sum(r.get("cpu_seconds", 0.0) for r in runs)}
+    bad = next((k for k, r in enumerate(runs) if r["status"] != "ok"), None)
+    if bad is not None:
+        row["status"] = f"{runs[bad]['status']} at seed {bad}"
+    ok = [r for r in runs if r["status"] == "ok"]
+    stats = seed_statistics.ensemble(ok, OBSERVABLES) if len(ok) > 1 else None
+    for q in OBSERVABLES:
+        row[q + "_per_seed"] = [r[q] for r in ok]
+        row[q + "_seeds"] = ";".join(repr(r[q]) for r in ok)
+        row[q], row[q + "_err"] = stats[q] if stats else (float("nan"), float("nan"))
+    return row
+
+
+def judge(row, ref, args):
+    """The criterion: per observable z = (mean − reference mean) / the pooled seed standard error
+    s_p √(1/K + 1/K_ref); the setting passes when it finished and every |z| ≤ the Student-t limit of
+    --sigma with K + K_ref − 2 degrees of freedom (seed_statistics.sigma_threshold)."""
+    row["limit"] = seed_statistics.sigma_threshold(args.sigma, row["seeds"] + ref["seeds"] - 2)
     if row["status"] != "ok":
         row["passed"] = False
         return row
-    ok = True
     for q in OBSERVABLES:
-        if q == "rg":
-            d = row["rg_chains"] - ref["rg_chains"]
-            z = d.mean() / (d.std(ddof=1) / math.sqrt(len(d)))
-        else:
-            z = (row[q] - ref[q]) / math.hypot(row[q + "_err"], ref[q + "_err"])
-        row[q + "_z"] = z
-        ok &= abs(z) < sigma
-    row["passed"] = ok
+        row[q + "_err"] = seed_statistics.pooled_se(row[q + "_per_seed"], ref[q + "_per_seed"])
+        row[q + "_z"] = seed_statistics.pooled_z(row[q + "_per_seed"], ref[q + "_per_seed"])
+    row["passed"] = seed_statistics.within([row[q + "_z"] for q in OBSERVABLES], row["limit"])
     return row
 
 
@@ -320,13 +396,14 @@ def climb(args, eps, method, ref, state, chains, work, log):
     """Runs the method up its ladder until the first failing step; returns the rows."""
     rows = []
     if method == "velocity-verlet":  # the reference is the first step
-        rows.append(dict(ref, passed=True, **{q + "_z": 0.0 for q in OBSERVABLES}))
+        rows.append(dict(ref, passed=True, limit="", **{q + "_z": 0.0 for q in OBSERVABLES}))
     for h in ladder_of(args, eps, method):
-        row = judge(run_one(args, eps, method, h, args.t_run, state, chains, work), ref, args.sigma)
+        row = judge(setting(args, eps, method, h, args.seeds, state, chains, work), ref, args)
         rows.append(row)
         log(f"eps {eps:g} {method:18s} h {h:.4g} n {row['n']}: {row['status']}, "
             + ("PASS" if row["passed"] else "fail")
-            + "".join(f" {q} {row.get(q + '_z', float('nan')):+.1f}σ" for q in OBSERVABLES))
+            + "".join(f" {q} {row.get(q + '_z', float('nan')):+.1f}" for q in OBSERVABLES)
+            + f" (|z| ≤ {row['limit']:.2f}, {row['seeds']}+{ref['seeds']} seeds)")
         if not row["passed"]:
             break
     return rows
@@ -419,17 +496,27 @@ def summarise(ladder_rows, cost_rows, args):
             first_fail = next((r for r in rows if not r["passed"]), None)
             out.append({"eps": eps, "method": m, "h": h, "n": n, "passed": ok, "cpu": cpu, "wall": wall,
                         "natoms": int(costs[0]["natoms"]) if costs else 0,
-                        "stopped": "" if first_fail is None else
-                        f"{first_fail['h']:.4g}: " + (first_fail["status"] if first_fail["status"] != "ok" else ", ".join(
-                            f"{q} {float(first_fail[q + '_z']):+.1f}σ" for q in OBSERVABLES
-                            if abs(float(first_fail[q + "_z"])) >= args.sigma))})
+                        "stopped": "" if first_fail is None else f"{first_fail['h']:.4g}: " + failing(first_fail, args.sigma)})
     return out
 
 
+def failing(row, sigma):
+    """What failed a ladder step: its status, or its observables beyond the limit (z, the limit; a
+    ladder.csv written before the limit column had its limit at --sigma)."""
+    if row["status"] != "ok":
+        return row["status"]
+    limit = float(row.get("limit") or sigma)
+    return ", ".join(f"{q} {float(row[q + '_z']):+.1f}" for q in OBSERVABLES
+                     if not abs(float(row[q + "_z"])) <= limit) + f" (|z| > {limit:.2f})"
+
+
 def markdown(summary, args):
-    lines = [f"Largest step: on a melt of {args.chains} chains × {args.beads} beads, runs of {args.t_run} "
-             f"(reference {args.t_ref}) time units after discarding {args.discard}, {args.blocks} blocks, "
-             f"pass = every observable within {args.sigma:g} σ_combined of velocity Verlet at h = {args.ref_h:g} ε. "
+    lines = [f"Largest step: on a melt of {args.chains} chains × {args.beads} beads, every setting {args.seeds} "
+             f"independent thermostat seeds ({args.ref_seeds} for the reference, velocity Verlet at h = "
+             f"{args.ref_h:g} ε) from one start, each run {args.t_run:g} time units averaged after {args.discard:g}; "
+             f"pass = every observable's z = Δ / (pooled seed standard error) within the Student-t limit of "
+             f"{args.sigma:g} σ ({math.erfc(args.sigma / math.sqrt(2)):.2g} two-sided) with K + K_ref − 2 degrees "
+             f"of freedom ({seed_statistics.sigma_threshold(args.sigma, args.seeds + args.ref_seeds - 2):.2f} here). "
              f"Cost: CPU (wall) s per unit time, one thread, median of {args.repeats}, on "
              f"{summary[0]['natoms'] if summary else '?'} beads.", "",
              "| ε | method | largest step h (n) | observables | CPU s / time unit | wall s / time unit | "
@@ -484,11 +571,13 @@ def parse_args():
     ap.add_argument("--chains", type=int, default=30)
     ap.add_argument("--beads", type=int, default=100)
     ap.add_argument("--t-equil", type=float, default=10.0)
-    ap.add_argument("--t-run", type=float, default=4.0)
-    ap.add_argument("--t-ref", type=float, default=6.0)
-    ap.add_argument("--discard", type=float, default=0.5)
-    ap.add_argument("--blocks", type=int, default=10)
-    ap.add_argument("--sigma", type=float, default=3.0)
+    ap.add_argument("--t-run", type=float, default=2.0, help="the length of every run, the reference's too")
+    ap.add_argument("--discard", type=float, default=0.5, help="left out of every run's time averages")
+    ap.add_argument("--seeds", type=int, default=4, help="thermostat seeds per ladder step")
+    ap.add_argument("--ref-seeds", type=int, default=8, help="thermostat seeds of the reference")
+    ap.add_argument("--sigma", type=float, default=3.0,
+                    help="the criterion's normal-equivalent σ: the limit on |z| is the Student-t quantile "
+                         "with K + K_ref − 2 degrees of freedom at the two-sided tail of a σ normal test")
     ap.add_argument("--frame-every", type=float, default=0.05)
     ap.add_argument("--thermo-every", type=float, default=0.01)
     ap.add_argument("--micro-per-eps", type=float, default=10.0, help="micro step δ = ε / this")
@@ -515,8 +604,10 @@ def parse_args():
     args = ap.parse_args()
     if args.quick:
         args.eps = "1e-2,3e-3" if args.eps == ap.get_default("eps") else args.eps
-        args.chains, args.beads, args.t_equil, args.t_run, args.t_ref, args.discard = 8, 20, 0.5, 0.3, 0.3, 0.05
-        args.blocks, args.frame_every, args.thermo_every, args.timing = 5, 0.025, 0.01, "small"
+        args.chains, args.beads, args.t_equil, args.t_run, args.discard = 8, 20, 0.5, 0.3, 0.05
+        args.frame_every, args.thermo_every, args.timing = 0.025, 0.01, "small"
+        args.seeds = 3 if args.seeds == ap.get_default("seeds") else args.seeds
+        args.ref_seeds = 3 if args.ref_seeds == ap.get_default("ref_seeds") else args.ref_seeds
         args.ladder, args.micro_ladder, args.vv_ladder = "0.005,0.01", "0.005,0.01", "0.4"
         args.timed_steps, args.timed_micro, args.repeats = 20, 100, 1
     args.eps = split_floats(args.eps)
@@ -532,6 +623,10 @@ def parse_args():
         v = getattr(args, name)
         if not v or any(b <= a for a, b in zip(v, v[1:])) or v[0] <= 0:
             ap.error(f"--{name.replace('_', '-')}: expected increasing positive steps, got {v}")
+    if args.seeds < 2 or args.ref_seeds < 2:
+        ap.error("--seeds and --ref-seeds must be at least 2 (the error is their spread)")
+    if not args.discard < args.t_run:
+        ap.error("--discard must be shorter than --t-run")
     if args.vv_ladder[0] <= args.ref_h:
         ap.error("--vv-ladder must start above --ref-h (the reference is velocity Verlet's first step)")
     return args
@@ -570,14 +665,27 @@ def main():
             if not args.timing_only:  # else: the ladder.csv of an earlier run
                 ladder_rows = []
                 with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
-                    refs = {e: pool.submit(run_one, args, e, "velocity-verlet", args.ref_h * e, args.t_ref, states[e],
-                                           chains, work) for e in sorted(args.eps)}
+                    # Every seed of every reference a task of its own, queued before any ladder (the
+                    # queue is first in, first out: a ladder waiting for its reference never waits
+                    # for a task queued behind it).
+                    ref_runs = {e: [pool.submit(run_one, args, e, "velocity-verlet", args.ref_h * e, states[e], chains,
+                                                work, k, True) for k in range(args.ref_seeds)]
+                                for e in sorted(args.eps)}
+                    refs, ref_locks = {}, {e: threading.Lock() for e in args.eps}
+
+                    def reference(e):
+                        with ref_locks[e]:
+                            if e not in refs:
+                                for f in ref_runs[e]:
+                                    f.result()  # finished: setting() reads their cached rows
+                                refs[e] = setting(args, e, "velocity-verlet", args.ref_h * e, args.ref_seeds,
+                                                  states[e], chains, work, reference=True)
+                                if refs[e]["status"] != "ok":
+                                    raise RunFailed(f"the reference at eps {e:g} failed: {refs[e]['status']}")
+                            return refs[e]
 
                     def task(e, m):
-                        ref = refs[e].result()
-                        if ref["status"] != "ok":
-                            raise RunFailed(f"the reference at eps {e:g} failed: {ref['status']}")
-                        return climb(args, e, m, ref, states[e], chains, work, log)
+                        return climb(args, e, m, reference(e), states[e], chains, work, log)
 
                     ladders = [pool.submit(task, e, m) for e in sorted(args.eps, reverse=True) for m in args.methods]
                     for f in ladders:

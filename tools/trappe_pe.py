@@ -30,9 +30,9 @@
       every observable's mean is within 3 pooled standard errors of the reference's,
       |Δ| ≤ 3 s_p √(1/K + 1/K_ref) with s_p² the pooled seed variance (K + K_ref − 2 degrees of
       freedom; with 4 and 8 seeds a correct method fails one observable by chance with probability
-      ≈ 1.3 %, one of five ≈ 6 %). What it compares is the law of 20-ps trajectories from this start,
-      not ⟨R²⟩'s equilibrium value. Writes OUT/results.json (per-seed values too) and OUT/table.md,
-      and with --figure PATH the figure.
+      ≈ 1.3 %, one of five ≈ 6 %; the statistics are tools/seed_statistics.py's). What it compares
+      is the law of 20-ps trajectories from this start, not ⟨R²⟩'s equilibrium value. Writes
+      OUT/results.json (per-seed values too) and OUT/table.md, and with --figure PATH the figure.
 
 Why a Python builder and LAMMPS rather than an engine [[build]]: the chains need their bond angles
 and torsions from the start (a bead-spring random walk would start far up the angle potential), the
@@ -63,6 +63,8 @@ import subprocess
 import sys
 
 import numpy as np
+
+import seed_statistics  # tools/ is the script's directory
 
 KB = 0.0019872067  # kcal/(mol K), LAMMPS real
 AVOGADRO = 6.02214076e23
@@ -420,32 +422,21 @@ def cached(args, name, seed, run):
 def ensemble(per_seed):
     """A setting's statistics from its runs with independent seeds: per observable the mean over
     seeds and its standard error s/√K, and the per-seed values; None when any seed blew up."""
-    if any(r is None for r in per_seed):
-        return None
-    k = len(per_seed)
-    out = {"seeds": k, "per_seed": {o: [r[o] for r in per_seed] for o in OBSERVABLES},
-           "temperature": float(np.mean([r["temperature"] for r in per_seed])),
-           "cpu_seconds": float(np.mean([r["cpu_seconds"] for r in per_seed]))}
-    for o in OBSERVABLES:
-        v = np.array(out["per_seed"][o])
-        out[o] = [float(v.mean()), float(v.std(ddof=1) / math.sqrt(k)) if k > 1 else float("nan")]
-    return out
+    return seed_statistics.ensemble(per_seed, OBSERVABLES, averaged=("temperature", "cpu_seconds"))
 
 
 def pooled_z(r, ref, o):
     """(mean − reference mean) / its pooled standard error, s_p² = ((K−1)s² + (K_ref−1)s_ref²)/(K+K_ref−2)."""
-    a, b = np.array(r["per_seed"][o]), np.array(ref["per_seed"][o])
-    k, kr = len(a), len(b)
-    sp2 = ((k - 1) * a.var(ddof=1) + (kr - 1) * b.var(ddof=1)) / (k + kr - 2)
-    se = math.sqrt(sp2 * (1.0 / k + 1.0 / kr))
-    d = a.mean() - b.mean()
-    return d / se if se > 0 else (0.0 if d == 0 else math.inf)
+    return seed_statistics.pooled_z(r["per_seed"][o], ref["per_seed"][o])
 
 
 def keeps_statistics(r, ref, sigmas=3.0):
+    """Every observable within `sigmas` pooled standard errors: a plain 3, whose false-alarm rate
+    with K + K_ref − 2 degrees of freedom the docstring states (tools/cost_vs_eps.py instead takes
+    the Student-t quantile of seed_statistics.sigma_threshold)."""
     if r is None:
         return False
-    return all(abs(pooled_z(r, ref, o)) <= sigmas for o in OBSERVABLES)
+    return seed_statistics.within([pooled_z(r, ref, o) for o in OBSERVABLES], sigmas)
 
 
 def seeded(args, name, seeds, run):
