@@ -28,6 +28,7 @@
 #include <Eigen/SparseCore>
 #include <Eigen/SparseLU>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -391,6 +392,7 @@ struct ConstraintToolbox::Impl {
   // Makes x the kept configuration (a copy), forgetting G and S of the last one unless x is it, bit
   // for bit. Serial; before the clusters' loop.
   void keep(const Eigen::Matrix3Xd& x);
+  void copy_configuration(const Eigen::Matrix3Xd& x);  // kept_x = x, on the threads
   // G and the factors of S at the kept configuration on cluster c, computed if not known yet.
   void factor_kept_s(int c, const char* what);
   // sol = S⁻¹ rhs at the kept configuration (after factor_kept_s).
@@ -570,12 +572,25 @@ void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const Bond
 }
 
 void ConstraintToolbox::Impl::keep(const Eigen::Matrix3Xd& x) {
-  if (kept && kept_x.cols() == x.cols() &&
-      std::memcmp(kept_x.data(), x.data(), sizeof(double) * static_cast<std::size_t>(x.size())) == 0)
-    return;
-  kept_x = x;  // no allocation once sized
-  kept = true;
+  if (kept && kept_x.cols() == x.cols()) {
+    // Bit for bit, in the particle blocks of the threads (a hit reads all of x).
+    const int parts = threads_for(x.cols());
+    std::array<char, kMaxParts> same{};
+    run_parts(parts, [&](int u) {
+      const std::int64_t b = block_begin(x.cols(), parts, u), e = block_begin(x.cols(), parts, u + 1);
+      same[u] = std::memcmp(kept_x.data() + 3 * b, x.data() + 3 * b, sizeof(double) * 3 * (e - b)) == 0;
+    });
+    if (std::all_of(same.begin(), same.begin() + parts, [](char s) { return s != 0; })) return;
+  }
+  copy_configuration(x);
   for (ClusterData& d : data) d.frame_kept = d.s_factored = false;
+}
+
+void ConstraintToolbox::Impl::copy_configuration(const Eigen::Matrix3Xd& x) {
+  if (kept_x.cols() != x.cols()) kept_x.resize(3, x.cols());  // once
+  parallel_blocks(x.cols(), threads_for(x.cols()),
+                  [&](std::int64_t b, std::int64_t e) { kept_x.middleCols(b, e - b) = x.middleCols(b, e - b); });
+  kept = true;
 }
 
 void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
@@ -816,7 +831,7 @@ void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y
   d.for_each_cluster([&](int c) { d.shake_cluster(c, y, tol, max_iter); });
   // Every cluster's last measure was of the converged y: keep y with G there, for the velocity
   // projection that follows in RATTLE (S at y is factored when first asked for).
-  d.kept_x = y;
+  d.copy_configuration(y);
   std::swap(d.at_kept, d.at_cur);
   for (ClusterData& c : d.data) {
     c.frame_kept = true;

@@ -25,6 +25,21 @@ inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
   });
 }
 
+// x_old ← x, then x ← x + dt v: RATTLE's drift keeps its start for SHAKE and the chord velocity.
+inline void keep_and_drift(Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
+  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    x_old.middleCols(b, e - b) = x.middleCols(b, e - b);
+    x.middleCols(b, e - b).noalias() += dt * v.middleCols(b, e - b);
+  });
+}
+
+// v ← (x − x_old) / dt: the velocity of the chord from x_old to x.
+inline void chord_velocity(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_old, double dt) {
+  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    v.middleCols(b, e - b) = (x.middleCols(b, e - b) - x_old.middleCols(b, e - b)) / dt;
+  });
+}
+
 // kick(v, f, dt_kick) then drift(x, v, dt_drift), in one pass over the particles.
 inline void kick_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
                        const Eigen::Matrix3Xd& f, double dt_kick, double dt_drift) {

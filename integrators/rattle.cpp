@@ -46,10 +46,9 @@ void Rattle::refresh(const Eigen::Matrix3Xd& x) {
 // x' = x + dt v + M⁻¹G(x)ᵀλ with g(x') = 0 (SHAKE), v ← (x' − x)/dt: the velocity including the
 // constraint impulse.
 void Rattle::rattle_drift(State& s, double dt) {
-  x_old_ = s.x;
-  drift(s.x, s.v, dt);
+  keep_and_drift(x_old_, s.x, s.v, dt);
   toolbox_.shake(x_old_, s.x);
-  s.v = (s.x - x_old_) / dt;
+  chord_velocity(s.v, s.x, x_old_, dt);
 }
 
 void Rattle::step(State& s, double h) {
@@ -89,15 +88,17 @@ void Rattle::step(State& s, double h) {
 // constraint_force_ (+)= M (v − v_unprojected) / dt; fixed particles (inverse mass 0) have Δv = 0
 // and get no force.
 void Rattle::add_constraint_force(const State& s, double dt, bool first) {
-  for (int i = 0; i < s.size(); ++i) {
-    const Eigen::Vector3d f = s.inv_mass[i] > 0.0
-                                  ? ((s.v.col(i) - v_unprojected_.col(i)) * (1.0 / (dt * s.inv_mass[i]))).eval()
-                                  : Eigen::Vector3d::Zero().eval();
-    if (first)
-      constraint_force_.col(i) = f;
-    else
-      constraint_force_.col(i) += f;
-  }
+  parallel_blocks(s.size(), threads_for(s.size()), [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) {
+      const Eigen::Vector3d f = s.inv_mass[i] > 0.0
+                                    ? ((s.v.col(i) - v_unprojected_.col(i)) * (1.0 / (dt * s.inv_mass[i]))).eval()
+                                    : Eigen::Vector3d::Zero().eval();
+      if (first)
+        constraint_force_.col(i) = f;
+      else
+        constraint_force_.col(i) += f;
+    }
+  });
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]
