@@ -33,6 +33,7 @@ MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
 if shutil.which("lmp"):
     METHODS.append("lammps-respa")
 SEEDS, REF_SEEDS = 3, 3  # --quick's
+REPEATS = 1  # --quick: one timed run per (ε, method)
 # The limit on |z|: Student's t with SEEDS + REF_SEEDS − 2 = 4 degrees of freedom at the two-sided
 # tail probability of a 3σ normal test, erfc(3/√2) = 0.0026998 (scipy.stats.t.isf(0.0013499, 4)).
 LIMIT = 6.620205978448
@@ -148,16 +149,31 @@ def pass_is_the_pooled_seed_criterion_against_the_reference():
 
 @test
 def each_method_is_timed_at_its_largest_passing_step():
+    """Timed at the largest passing step that also ran on the timing system: the steps tried before it
+    (largest first) each failed there with exit 3 and are recorded as such."""
     table = ladders()
     cost = rows("cost.csv")
-    assert len(cost) == len(table), (len(cost), len(table))
+    timed = {}
     for c in cost:
-        rs = table[(float(c["eps"]), c["method"])]
-        ok = [r for r in rs if r["passed"] == "True"]
-        expected = ok[-1] if ok else rs[0]
-        assert math.isclose(float(c["h"]), float(expected["h"])) and int(c["n"]) == int(expected["n"]), (c, expected)
-        for k in ("cpu_per_time", "wall_per_time"):
-            assert math.isfinite(float(c[k])) and float(c[k]) > 0, c
+        timed.setdefault((float(c["eps"]), c["method"]), []).append(c)
+    assert set(timed) == set(table), (sorted(timed), sorted(table))
+    for key, rs in table.items():
+        passing = []
+        for r in rs:
+            if r["passed"] != "True":
+                break
+            passing.append(r)
+        candidates = [(float(r["h"]), int(r["n"])) for r in passing[::-1]] or [(float(rs[0]["h"]), int(rs[0]["n"]))]
+        ok = [c for c in timed[key] if c["status"] == "ok"]
+        failed = {float(c["h"]) for c in timed[key] if c["status"] != "ok"}
+        assert all(c["status"] == "failed (exit 3)" for c in timed[key] if c["status"] != "ok"), timed[key]
+        expected = next(hn for hn in candidates if hn[0] not in failed)
+        assert len(ok) == REPEATS and all(math.isclose(float(c["h"]), expected[0]) and int(c["n"]) == expected[1]
+                                          for c in ok), (key, ok, expected)
+        assert all(f > expected[0] for f in failed), (key, failed, expected)
+        for c in ok:
+            for k in ("cpu_per_time", "wall_per_time"):
+                assert math.isfinite(float(c[k])) and float(c[k]) > 0, c
 
 
 @test

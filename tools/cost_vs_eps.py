@@ -119,7 +119,7 @@ KT, DAMP = 1.0, 1.0
 LADDER_FIELDS = ["eps", "method", "h", "n", "t_end", "seeds", "status", "passed", "limit"] + \
     [f"{q}{s}" for q in OBSERVABLES for s in ("", "_err", "_z", "_seeds")] + ["thermostat_seeds", "frames",
                                                                              "cpu_seconds"]
-COST_FIELDS = ["eps", "method", "h", "n", "steps", "repeat", "natoms", "cpu_per_time", "wall_per_time"]
+COST_FIELDS = ["eps", "method", "h", "n", "steps", "repeat", "natoms", "status", "cpu_per_time", "wall_per_time"]
 
 
 def split_floats(text):
@@ -409,6 +409,16 @@ def climb(args, eps, method, ref, state, chains, work, log):
     return rows
 
 
+def passing_steps(rows):
+    """[(h, n)] of the passing steps before the first failure, largest first; else [the first step]."""
+    passing = []
+    for r in rows:
+        if not r["passed"]:
+            break
+        passing.append((r["h"], r["n"]))
+    return passing[::-1] or [(rows[0]["h"], rows[0]["n"])]
+
+
 def largest_step(rows):
     """(h, n, passed) of the largest passing step before the first failure, else the first step tried."""
     best = None
@@ -427,7 +437,7 @@ def timed_run(args, eps, method, h, n, state, work, repeat):
     """One timed run; its row is kept in its directory (timed.json) and reused by a rerun with the same
     settings (so that ε subsets can be timed apart and assembled by the full command)."""
     steps = max(10, math.ceil(args.timed_micro / n)) if method in MICRO else args.timed_steps
-    run_dir = os.path.join(work, "timed", f"eps{eps:g}_{method}_r{repeat}")
+    run_dir = os.path.join(work, "timed", f"eps{eps:g}_{method}_h{h:.6g}_r{repeat}")
     os.makedirs(run_dir, exist_ok=True)
     key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
     cached = os.path.join(run_dir, "timed.json")
@@ -449,7 +459,7 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
         cmd = [args.lmp, "-in", lmp_in, "-log", "log.lammps", "-screen", "none", "-echo", "none", "-nocite"]
         code, _, _ = run_measured(cmd, run_dir, 1)
         if code != 0:
-            raise RunFailed(f"timed LAMMPS run failed (exit {code}) in {run_dir}")
+            return failed_timing(eps, method, h, n, repeat, f"LAMMPS exit {code}")
         loop, done, cpu_percent, _, _, _ = parse_lammps_log(os.path.join(run_dir, "log.lammps"))
         # LAMMPS prints its CPU use with one decimal; a loop too short for its clock reads 0.0 %
         # (the --quick runs): then the loop's wall time stands for its CPU time.
@@ -462,6 +472,8 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
                "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=4711",
                "--set", "output.checkpoint_every=0"]
         code, _, _ = run_measured(cmd, run_dir, 1)
+        if code == 3:  # a numerical failure at this step on the larger system: the caller steps down
+            return failed_timing(eps, method, h, n, repeat, "exit 3")
         if code != 0:
             raise RunFailed(f"timed run failed (exit {code}): {shlex.join(cmd)}")
         with open(os.path.join(run_dir, "summary.json")) as f:
@@ -469,8 +481,14 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
         wall, cpu, done = s["wall_seconds"], s["cpu_seconds"], s["steps"]
         if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
             os.remove(os.path.join(run_dir, "checkpoint.bin"))
-    return {"eps": eps, "method": method, "h": h, "n": n, "steps": done, "repeat": repeat,
+    return {"eps": eps, "method": method, "h": h, "n": n, "steps": done, "repeat": repeat, "status": "ok",
             "cpu_per_time": cpu / (done * h), "wall_per_time": wall / (done * h)}
+
+
+def failed_timing(eps, method, h, n, repeat, why):
+    """The row of a timed run that did not finish (NaN costs)."""
+    return {"eps": eps, "method": method, "h": h, "n": n, "steps": 0, "repeat": repeat, "status": f"failed ({why})",
+            "cpu_per_time": float("nan"), "wall_per_time": float("nan")}
 
 
 # ----------------------------------------------------------------------------------- the outputs
@@ -490,13 +508,22 @@ def summarise(ladder_rows, cost_rows, args):
                 continue
             rows = [dict(r, passed=str(r["passed"]) == "True", h=float(r["h"]), n=int(r["n"])) for r in rows]
             h, n, ok = largest_step(rows)
-            costs = [r for r in cost_rows if float(r["eps"]) == eps and r["method"] == m]
+            timed = [r for r in cost_rows if float(r["eps"]) == eps and r["method"] == m]
+            costs = [r for r in timed if r.get("status", "ok") == "ok"]
+            # Steps that kept the observables on the small melt but failed (exit 3) on the timing
+            # system: the largest step is the largest that also ran there.
+            unstable = sorted({float(r["h"]) for r in timed if r.get("status", "ok") != "ok"}, reverse=True)
+            if costs:
+                h, n = float(costs[0]["h"]), int(costs[0]["n"])
             cpu = statistics.median(float(r["cpu_per_time"]) for r in costs) if costs else float("nan")
             wall = statistics.median(float(r["wall_per_time"]) for r in costs) if costs else float("nan")
             first_fail = next((r for r in rows if not r["passed"]), None)
             out.append({"eps": eps, "method": m, "h": h, "n": n, "passed": ok, "cpu": cpu, "wall": wall,
                         "natoms": int(costs[0]["natoms"]) if costs else 0,
-                        "stopped": "" if first_fail is None else f"{first_fail['h']:.4g}: " + failing(first_fail, args.sigma)})
+                        "unstable": unstable,
+                        "stopped": "; ".join(
+                            [f"{u:.4g}: exit 3 on the timing system" for u in unstable] +
+                            ([] if first_fail is None else [f"{first_fail['h']:.4g}: " + failing(first_fail, args.sigma)]))})
     return out
 
 
@@ -582,7 +609,7 @@ def parse_args():
     ap.add_argument("--thermo-every", type=float, default=0.01)
     ap.add_argument("--micro-per-eps", type=float, default=10.0, help="micro step δ = ε / this")
     ap.add_argument("--ref-h", type=float, default=0.2, help="the reference's h / ε")
-    ap.add_argument("--vv-ladder", default="0.283,0.4,0.566,0.8", help="velocity Verlet's steps / ε")
+    ap.add_argument("--vv-ladder", default="0.283,0.4,0.566,0.8,0.9", help="velocity Verlet's steps / ε (its stability limit is ε: h ω_max < 2, ω_max = 2α/ε)")
     ap.add_argument("--ladder", default="0.0025,0.0035,0.005,0.007,0.01,0.014,0.02,0.028",
                     help="rattle's and fixman's steps")
     ap.add_argument("--micro-ladder", default="0.0025,0.005,0.01,0.02", help="the micro-step methods' macro steps")
@@ -706,14 +733,30 @@ def main():
                     timing_states[e] = states[e]
                 else:
                     timing_states[e] = prepare_state(args.stiffmd, e, os.path.join(work, f"datachain_eps{e:g}.data"))
+            # Each (ε, method) is timed at its largest passing step; a step that fails there (exit 3:
+            # the timing system has ten times the beads, so ten times the close encounters per unit
+            # time) is recorded and the next smaller passing step is timed instead.
+            ladders = {}
+            for r in ladder_rows:
+                ladders.setdefault((float(r["eps"]), r["method"]), []).append(
+                    dict(r, passed=str(r["passed"]) == "True", h=float(r["h"]), n=int(r["n"])))
+            unstable = set()
             for repeat in range(args.repeats):  # interleaved: slow drifts of the machine's load hit all alike
                 for s in chosen:
-                    e = s["eps"]
-                    r = timed_run(args, e, s["method"], s["h"], s["n"], timing_states[e], work, repeat)
-                    r["natoms"] = chains.natoms if args.timing == "small" else 32000
-                    log(f"timed eps {e:g} {s['method']:18s} h {s['h']:.4g} n {s['n']}: "
-                        f"{r['cpu_per_time']:.3g} CPU s / time unit ({r['wall_per_time']:.3g} wall)")
-                    cost_rows.append(r)
+                    e, m = s["eps"], s["method"]
+                    for h, n in passing_steps(ladders[(e, m)]):
+                        if (e, m, h) in unstable:
+                            continue
+                        r = timed_run(args, e, m, h, n, timing_states[e], work, repeat)
+                        r["natoms"] = chains.natoms if args.timing == "small" else 32000
+                        cost_rows.append(r)
+                        if r["status"] != "ok":
+                            unstable.add((e, m, h))
+                            log(f"timed eps {e:g} {m:18s} h {h:.4g} n {n}: {r['status']}; the next smaller step")
+                            continue
+                        log(f"timed eps {e:g} {m:18s} h {h:.4g} n {n}: "
+                            f"{r['cpu_per_time']:.3g} CPU s / time unit ({r['wall_per_time']:.3g} wall)")
+                        break
             with open(os.path.join(args.out, "cost.csv"), "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=COST_FIELDS)
                 w.writeheader()
