@@ -188,6 +188,7 @@ class NeighborList {
   bool small_box_ = false;
   // Scratch of the half-stencil search: the pairs found, before they are sorted into rows.
   std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (slab of cells)
+  std::vector<std::vector<int>> hits_;             // per thread: one particle's neighbours found
   std::vector<std::int64_t> cursor_;
 
   void search_half_stencil(int n, bool have_exclusions);
