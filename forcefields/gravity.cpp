@@ -11,10 +11,26 @@ Gravity::Gravity(std::string name, Level level, Eigen::Vector3d g, Eigen::Vector
   for (Eigen::Index i = 0; i < inv_mass.size(); ++i) mass_[i] = inv_mass[i] > 0.0 ? 1.0 / inv_mass[i] : 0.0;
 }
 
-double Gravity::add_forces(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) const {
-  f.noalias() += g_ * mass_.transpose();
-  const Eigen::Vector3d first_moment = x * mass_;  // Σ m_i x_i, fixed size: no heap temporary
-  return -g_.dot(first_moment);
+// One plain pass: F_i += m_i g and Σ m_i x_i, in particle order (the Eigen outer product and
+// matrix–vector product it replaces cost 5 ns of the pendulum's 60 ns step; the same bits).
+// Scalar on purpose: f was just written element by element (the bond loop), and a 16-byte load
+// of two 8-byte stores cannot be forwarded — vectorised, this loop stalled ≈ 15 cycles on each.
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("no-tree-vectorize", "no-tree-slp-vectorize")))
+#endif
+double
+Gravity::add_forces(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) const {
+  const double* __restrict xp = x.data();
+  const double* __restrict m = mass_.data();
+  double* __restrict fp = f.data();
+  const double g[3] = {g_.x(), g_.y(), g_.z()};
+  double moment[3] = {0.0, 0.0, 0.0};  // Σ m_i x_i
+  for (Eigen::Index i = 0, n = x.cols(); i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      fp[3 * i + a] += g[a] * m[i];
+      moment[a] += xp[3 * i + a] * m[i];
+    }
+  return -(g[0] * moment[0] + g[1] * moment[1] + g[2] * moment[2]);
 }
 
 std::string Gravity::describe() const {
