@@ -388,9 +388,9 @@ void BM_MicroStepVsFloor(benchmark::State& st, FixtureGetter get) {
   for (auto _ : st) {
     const double t0 = cpu_seconds();
     parallel_blocks(n3, threads, [&](std::int64_t lo, std::int64_t hi) {
-      double* xp = c.x.data();
-      double* vp = c.v.data();
-      const double* fp = fc.data();
+      double* __restrict xp = c.x.data();  // distinct arrays: the fastest such pass is the floor
+      double* __restrict vp = c.v.data();
+      const double* __restrict fp = fc.data();
       for (std::int64_t i = lo; i < hi; ++i) {
         vp[i] += delta * fp[i];
         xp[i] += delta * vp[i];
