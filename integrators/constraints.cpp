@@ -186,35 +186,54 @@ class TridiagonalSolver final : public ClusterSolver {
   std::vector<int> slot_;  // index into bands_ for each coupling
 };
 
-// S = G M⁻¹ Gᵀ of an open chain, SPD and tridiagonal, as L D Lᵀ without pivoting (no row swap
-// is ever needed: each Schur complement exceeds the next sub-diagonal entry, see above):
-//   D_0 = S_00,  l_k = S_{k+1,k} / D_k,  D_{k+1} = S_{k+1,k+1} − l_k S_{k+1,k}.
-// Branch-free, one division per bond; the solve multiplies by 1/D_k.
+// S = G M⁻¹ Gᵀ of an open chain, SPD and tridiagonal, without pivoting (no row swap is ever
+// needed: each Schur complement exceeds the next sub-diagonal entry, see above), as a twisted
+// factorization: L D Lᵀ from the first bond down to the middle p = n/2 and U D Uᵀ from the last
+// bond up to it (Parlett & Dhillon, Linear Algebra Appl. 309 (2000) 121),
+//   top     D_0 = S_00,          l_k = S_{k,k+1} / D_k,      D_{k+1} = S_{k+1,k+1} − l_k S_{k,k+1}  (k < p)
+//   bottom  D_{n−1} = S_{n−1,n−1}, u_k = S_{k,k+1} / D_{k+1},  D_k = S_kk − u_k S_{k,k+1}          (k ≥ p)
+//   twist   γ_p = D⁺_p + D⁻_p − S_pp.
+// Each recurrence is a chain of dependent divisions (latency-bound, one at a time); the two are
+// independent, so running them in one loop overlaps them, as it does the two halves of each sweep.
 class ChainLdlt {
  public:
-  explicit ChainLdlt(int n) : n_(n), diagonal_(n), off_(std::max(n - 1, 0)), inv_pivot_(n) {}
+  explicit ChainLdlt(int n) : n_(n), p_(n / 2), diagonal_(n), off_(std::max(n - 1, 0)), inv_pivot_(n) {}
 
   // The bands of S, to be filled before factorize(): diagonal[k] = S_kk, off[k] = S_{k,k+1}.
   double* diagonal() { return diagonal_.data(); }
   double* off() { return off_.data(); }
 
-  // In place; false when a pivot is ≤ kSingularPivot × the largest diagonal entry.
+  // In place (off[k] becomes l_k or u_k); false when a pivot is ≤ kSingularPivot × the largest
+  // diagonal entry.
   bool factorize() {
-    double* d = diagonal_.data();
+    const double* d = diagonal_.data();
     double* e = off_.data();
-    const double scale = diagonal_.cwiseAbs().maxCoeff();
+    double* inv = inv_pivot_.data();
+    const double tiny = kSingularPivot * diagonal_.cwiseAbs().maxCoeff();
+    const int top_steps = p_, bottom_steps = n_ - 1 - p_;
     bool regular = true;
-    double pivot = d[0];
-    for (int k = 0; k + 1 < n_; ++k) {
-      regular &= pivot > kSingularPivot * scale;
-      const double inv = 1.0 / pivot;
-      inv_pivot_[k] = inv;
-      const double l = e[k] * inv;
-      pivot = d[k + 1] - l * e[k];
-      e[k] = l;
+    double top = d[0], bottom = d[n_ - 1];  // D⁺_k, D⁻_k as they go
+    for (int t = 0; t < std::max(top_steps, bottom_steps); ++t) {
+      if (t < top_steps) {
+        const int k = t;
+        regular &= top > tiny;
+        inv[k] = 1.0 / top;
+        const double l = e[k] * inv[k];
+        top = d[k + 1] - l * e[k];
+        e[k] = l;
+      }
+      if (t < bottom_steps) {
+        const int k = n_ - 2 - t;
+        regular &= bottom > tiny;
+        inv[k + 1] = 1.0 / bottom;
+        const double u = e[k] * inv[k + 1];
+        bottom = d[k] - u * e[k];
+        e[k] = u;
+      }
     }
-    regular &= pivot > kSingularPivot * scale;  // false for NaN too
-    inv_pivot_[n_ - 1] = 1.0 / pivot;
+    const double gamma = top + bottom - d[p_];
+    regular &= gamma > tiny;  // false for NaN too
+    inv[p_] = 1.0 / gamma;
     return regular;
   }
 
@@ -222,33 +241,54 @@ class ChainLdlt {
   void solve(const double* rhs, double* sol) const {
     solve(rhs, sol, [](int, double) {});
   }
-  // The same, calling each(k, sol[k]) as the backward sweep finds sol[k] (k descending), so that
-  // a caller can apply the solution in the same pass.
+  // The same, calling each(k, sol[k]) as the back substitution finds sol[k] (from the twist
+  // outwards), so that a caller can apply the solution in the same pass.
   template <class Each>
   void solve(const double* rhs, double* sol, Each&& each) const {
-    const double* l = off_.data();
+    const double* m = off_.data();
     const double* inv = inv_pivot_.data();
-    double y = rhs[0];
-    sol[0] = y;
-    for (int k = 0; k + 1 < n_; ++k) {  // L z = rhs
-      y = rhs[k + 1] - l[k] * y;
-      sol[k + 1] = y;
+    const int top_steps = p_, bottom_steps = n_ - 1 - p_, steps = std::max(top_steps, bottom_steps);
+    const double b_twist = rhs[p_];
+    double z = rhs[0], w = rhs[n_ - 1];  // L z = b from the top, U w = b from the bottom
+    sol[0] = z;
+    sol[n_ - 1] = w;
+    for (int t = 0; t < steps; ++t) {
+      if (t < top_steps) {
+        z = rhs[t + 1] - m[t] * z;
+        sol[t + 1] = z;
+      }
+      if (t < bottom_steps) {
+        const int k = n_ - 2 - t;
+        w = rhs[k] - m[k] * w;
+        sol[k] = w;
+      }
     }
-    double s = sol[n_ - 1] * inv[n_ - 1];  // D Lᵀ sol = z
-    sol[n_ - 1] = s;
-    each(n_ - 1, s);
-    for (int k = n_ - 2; k >= 0; --k) {
-      s = sol[k] * inv[k] - l[k] * s;
-      sol[k] = s;
-      each(k, s);
+    const double x_twist = (z + w - b_twist) * inv[p_];
+    sol[p_] = x_twist;
+    each(p_, x_twist);
+    double up = x_twist, down = x_twist;
+    for (int t = 0; t < steps; ++t) {
+      if (t < top_steps) {
+        const int k = p_ - 1 - t;
+        up = sol[k] * inv[k] - m[k] * up;
+        sol[k] = up;
+        each(k, up);
+      }
+      if (t < bottom_steps) {
+        const int k = p_ + 1 + t;
+        down = sol[k] * inv[k] - m[k - 1] * down;
+        sol[k] = down;
+        each(k, down);
+      }
     }
   }
 
  private:
   int n_;
-  Eigen::VectorXd diagonal_;   // S_kk, then D_k (unused after factorize)
-  Eigen::VectorXd off_;        // S_{k,k+1}, then l_k
-  Eigen::VectorXd inv_pivot_;  // 1 / D_k
+  int p_;                      // the twist
+  Eigen::VectorXd diagonal_;   // S_kk
+  Eigen::VectorXd off_;        // S_{k,k+1}, then l_k (k < p) or u_k (k ≥ p)
+  Eigen::VectorXd inv_pivot_;  // 1 / D⁺_k (k < p), 1 / γ_p, 1 / D⁻_k (k > p)
 };
 
 // Small clusters of any shape (rings, stars, the pendulum when not a chain ...). Every object
