@@ -410,7 +410,8 @@ struct ClusterData {
   std::unique_ptr<ChainLdlt> spd;      // chains: S
   Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
-  Eigen::VectorXd lambda;  // SHAKE multipliers, accumulated over Newton steps
+  Eigen::VectorXd lambda;           // SHAKE multipliers, accumulated over Newton steps
+  Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::gap)
   // What is known at the toolbox's kept configuration (Impl::keep): G there (in at_kept) and
   // S's factors (spd for chains, else solver until SHAKE's Newton factors J in it).
   bool frame_kept = false;
@@ -425,6 +426,10 @@ struct ConstraintToolbox::Impl {
 
   int num_particles() const { return static_cast<int>(inv_mass.size()); }
 
+  // −h_b(y) = (ℓ_b² − |d_b|²) / (2ℓ_b) into minus_h (local order), max |h_b| returned; NaN when a
+  // length is not finite. h = 0 is the manifold g = 0 and h_b = g_b (1 + g_b / (2ℓ_b)): SHAKE's
+  // chord iterates on it without a square root or a division per bond.
+  double gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const;
   // minus_g (size of the cluster, local order), if given, receives −g_b(x); returns max_b |g_b(x)| then.
   double measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1,
                  double* minus_g = nullptr);
@@ -520,6 +525,8 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
       d.solver = std::make_unique<SparseSolver>(n, d.couplings);
     d.values = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(d.couplings.size()));
     d.rhs = d.sol = d.lambda = Eigen::VectorXd::Zero(n);
+    d.half_inv_length.resize(n);
+    for (int k = 0; k < n; ++k) d.half_inv_length[k] = 0.5 / bonds[d.bonds[k]].length;
     data.push_back(std::move(d));
   }
   bonds_before.assign(1, 0);
@@ -573,6 +580,24 @@ double ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFr
                          (length == 0.0 ? " has zero length" : " has a non-finite length"));
   }
   return worst;
+}
+
+double ConstraintToolbox::Impl::gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
+  const StiffBond* bond = bonds.data();
+  const ClusterData& d = data[c];
+  const int* order = d.bonds.data();
+  const double* half_inv = d.half_inv_length.data();
+  double worst = 0.0;
+  bool finite = true;
+  for (int k = 0, n = static_cast<int>(d.bonds.size()); k < n; ++k) {
+    const StiffBond& b = bond[order[k]];
+    const Eigen::Vector3d r = bond_vector(y, b.i, b.j);
+    const double r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    minus_h[k] = (b.length * b.length - r2) * half_inv[k];
+    worst = std::max(worst, std::abs(minus_h[k]));
+    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+  }
+  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
 }
 
 // Factorizes K = G(rows) M⁻¹ G(cols)ᵀ on cluster c (see Coupling).
@@ -744,9 +769,21 @@ void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double t
   const int* bond = d.bonds.data();
   d.lambda.setZero();
   for (int iteration = 0;; ++iteration) {
-    const double residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());  // rhs = −g(y)
-    if (residual <= tol) return;
+    // The chord needs only the residual, −h(y) (gap: no square root); G(y), a full measure with
+    // rhs = −g(y), only to confirm convergence (it is then kept for the velocity projection), for
+    // a Newton step, or to name a bond whose length is not finite.
+    double residual = chord ? gap(c, y, d.rhs.data()) : 0.0;
+    bool measured = false;
+    auto measure_y = [&] {
+      residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
+      measured = true;
+    };
+    if (!chord || !(residual > tol)) {  // Newton, converged by h, or not finite
+      measure_y();
+      if (residual <= tol) return;
+    }
     if (iteration == max_iter) {
+      if (!measured) measure_y();  // report g, not h
       int worst = 0;
       d.rhs.cwiseAbs().maxCoeff(&worst);
       const int b = bond[worst];
@@ -758,6 +795,7 @@ void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double t
       for (int k = 0; k < n; ++k) chord &= std::abs(d.rhs[k]) <= kChordStart * bonds[bond[k]].length;
     chord &= !(residual > kChordContraction * previous);  // false for NaN too
     previous = residual;
+    if (!chord && !measured) measure_y();  // Newton from here: J needs G(y)
     if (chord) {
       // S(x_ref) δ = −g(y), applied as the backward sweep finds δ: λ += δ, y += M⁻¹G(x_ref)ᵀδ.
       factor_kept_s(c, "SHAKE (reference configuration)");
