@@ -286,8 +286,11 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     hits_.resize(parts);
   }
   run_parts(parts, [&](int u) {
-    std::vector<int>& pi = pair_i_[u];
-    std::vector<int>& pj = pair_j_[u];
+    // The thread's pair buffers, moved onto its own stack for the search and back after it: the
+    // vector objects of all threads sit side by side in pair_i_, pair_j_, so every push_back through
+    // them wrote the end pointer into a cache line the other thread's push_backs wrote too.
+    std::vector<int> pi = std::move(pair_i_[u]);
+    std::vector<int> pj = std::move(pair_j_[u]);
     pi.clear();  // both keep their capacity
     pj.clear();
     // The candidates of one particle i within the list radius, as positions in the cell order:
@@ -351,6 +354,8 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
             record_hits(cp[k1], found);
           }
         }
+    pair_i_[u] = std::move(pi);
+    pair_j_[u] = std::move(pj);
   });
 
   // Counting sort of the pairs into CSR rows by i, the slabs in order.
