@@ -8,8 +8,8 @@
 // non-symmetric K is simply assembled with its arguments swapped instead of solving with Kᵀ.
 //
 // Three back ends, chosen once per cluster in the constructor:
-//   open chains          S: tridiagonal L D Lᵀ without pivoting (SPD); J: tridiagonal LU with
-//                        partial pivoting (LAPACK gttrf); O(bonds) each;
+//   open chains          S: twisted tridiagonal factorization without pivoting (SPD, ChainLdlt);
+//                        J: tridiagonal LU with partial pivoting (LAPACK gttrf); O(bonds) each;
 //   small other clusters dense LLT (S) / PartialPivLU (J), pre-sized, no heap traffic;
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
 // Clusters are solved in parallel on the OpenMP threads (Impl::for_each_cluster).
@@ -56,9 +56,10 @@ constexpr double kSingularPivot = 1e-13;
 // SHAKE iterations allowed inside mollified_force, whose API has no max_iter.
 constexpr int kMollifierMaxIter = 50;
 
-// SHAKE starts with chord iterations on S(x_ref) when every |g_b(y)| ≤ this × ℓ_b (a drift of
-// one step: |g| ~ (h|v|)²/ℓ, 1e-4 ℓ on the stiff melt), and switches to Newton on J = G(y) M⁻¹
-// G(x_ref)ᵀ as soon as an iteration reduces max |g| by less than kChordContraction. The chord's
+// SHAKE starts with chord iterations on S(x_ref) when every |h_b(y)| ≤ this × ℓ_b (h ≈ g near the
+// manifold, Impl::gap; a drift of one step: |g| ~ (h|v|)²/ℓ, 1e-4 ℓ on the stiff melt), and
+// switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces the largest
+// residual by less than kChordContraction. The chord's
 // rate is about |G(y) − G(x_ref)| (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step.
 constexpr double kChordStart = 1e-2;
 constexpr double kChordContraction = 0.25;
@@ -797,7 +798,8 @@ void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double t
     previous = residual;
     if (!chord && !measured) measure_y();  // Newton from here: J needs G(y)
     if (chord) {
-      // S(x_ref) δ = −g(y), applied as the backward sweep finds δ: λ += δ, y += M⁻¹G(x_ref)ᵀδ.
+      // S(x_ref) δ = −h(y) (or −g(y) after a full measure), applied as the back substitution finds
+      // δ: λ += δ, y += M⁻¹G(x_ref)ᵀδ — add_constraint_displacement fused into the solve.
       factor_kept_s(c, "SHAKE (reference configuration)");
       const double* u = at_kept.u.data();
       const double* w = inv_mass.data();
@@ -917,8 +919,8 @@ void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y
   }
   if (lambda == nullptr) return;
   lambda->resize(num_bonds());  // a no-op when the caller keeps the vector
-  for (const ClusterData& d : impl_->data)
-    for (int k = 0; k < d.lambda.size(); ++k) (*lambda)[d.bonds[k]] = d.lambda[k];
+  for (const ClusterData& c : d.data)
+    for (int k = 0; k < c.lambda.size(); ++k) (*lambda)[c.bonds[k]] = c.lambda[k];
 }
 
 void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow, Eigen::Matrix3Xd& X,
