@@ -9,7 +9,7 @@ packages=(
   libeigen3-dev libhdf5-dev libtomlplusplus-dev libmuparser-dev libcli11-dev
   libgtest-dev libgmock-dev libbenchmark-dev liblapack-dev
   zlib1g-dev lammps-examples
-  python3-numpy python3-matplotlib python3-h5py python3-mdanalysis python3-ase
+  python3-numpy python3-scipy python3-matplotlib python3-h5py python3-mdanalysis python3-ase
   pybind11-dev python3-dev
 )
 # `setup.sh --bench`: also LAMMPS, the peer tools/bench_lammps.py and tools/work_precision_melt.py
