@@ -365,6 +365,32 @@ TEST(ConstraintShake, ConvergesQuadraticallyFarFromTheReference) {
   EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
 }
 
+// A chain turned rigidly by 1.2 rad about z, plus a stretch of 1e-6: |g| is tiny, so SHAKE starts
+// with chord steps on S(x_ref), but J = G(y) M⁻¹ G(x_ref)ᵀ is far from S (its diagonal is S's times
+// cos 1.2 ≈ 0.36) and the chord cannot contract. SHAKE must notice and finish by Newton: converged,
+// along G(x_ref)ᵀ, having factored J. (A chord kept to the end runs out of iterations.)
+TEST(ConstraintShake, FallsBackToNewtonWhenTheChordDoesNotContract) {
+  const Scene s = random_chain(10, 31, 0.0);
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd x = s.x;
+  toolbox.shake(x, x);
+  const Eigen::Vector3d centre = x.rowwise().mean();
+  const double phi = 1.2;
+  Eigen::Matrix3d turn;
+  turn << std::cos(phi), -std::sin(phi), 0.0, std::sin(phi), std::cos(phi), 0.0, 0.0, 0.0, 1.0;
+  Eigen::Matrix3Xd y0 = (turn * (x.colwise() - centre)).colwise() + centre;
+  y0 += 1e-6 * random_matrix(10, 32);
+  ASSERT_LT(toolbox.max_violation(y0), 1e-2);
+  Eigen::Matrix3Xd y = y0;
+  Eigen::VectorXd lambda;
+  const std::int64_t before = toolbox.factorizations();
+  ASSERT_NO_THROW(toolbox.shake(x, y, &lambda, 1e-12, 30));
+  EXPECT_GT(toolbox.factorizations(), before);  // Newton's J
+  EXPECT_LE(toolbox.max_violation(y), 1e-12);
+  const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * jacobian(s, x).transpose() * lambda;
+  EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-10);
+}
+
 TEST(ConstraintShake, ZeroLengthBondThrowsNamingTheCluster) {
   Scene s = two_molecules(0.0);
   s.x.col(5) = s.x.col(4);  // collapse bond (4, 5) of the triangle, cluster 1
