@@ -266,14 +266,18 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // Each pair of cells once (a cell with itself, and with the 13 of its 26 neighbours that lie
 // "forward"), each pair of particles once: half the candidates of a full stencil, and no test
 // on the particle indices. Needs ≥ 3 cells on every periodic axis, so that the 27 neighbours
-// of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index.
-// Threads (parallel.hpp) search slabs of cells along x into their own pair buffers; the rows
-// are filled from the buffers in slab order and sorted, so the list does not depend on the
-// thread count.
+// of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index
+// (a stable counting sort). Threads (parallel.hpp) search slabs of cells along x, in cell order,
+// into their own pair buffers; the buffers taken in slab order are the pairs in the order one
+// thread finds them, so the list — its rows and the order within each row — does not depend on
+// the thread count. (Rows are not sorted by j: it cost an eighth of the build and the pair loop
+// was no faster for it.)
 void NeighborList::search_half_stencil(int n, bool have_exclusions) {
-  static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1}, {1, -1, -1},
-                                          {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0}, {1, 0, 1},
-                                          {1, 1, -1}, {1, 1, 0},  {1, 1, 1}};
+  // The forward neighbours as a cell and four columns of three cells along z: {0, 0, 1}, then
+  // (dx, dy) = (0, 1), (1, −1), (1, 0), (1, 1), each with dz = −1, 0, 1. Cells are numbered
+  // (cx · ny + cy) · nz + cz, so a column's cells are contiguous in the cell order, and so are
+  // their particles — one range of candidates instead of three, unless it wraps in z.
+  static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
   const double* xc = cell_x_.data();
   const int* cp = cell_particles_.data();
@@ -284,35 +288,91 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     pair_i_.resize(parts);
     pair_j_.resize(parts);
     hits_.resize(parts);
+    scratch_.resize(parts);
+    pair_count_.resize(parts);
   }
   run_parts(parts, [&](int u) {
-    // The thread's pair buffers, moved onto its own stack for the search and back after it: the
-    // vector objects of all threads sit side by side in pair_i_, pair_j_, so every push_back through
-    // them wrote the end pointer into a cache line the other thread's push_backs wrote too.
-    std::vector<int> pi = std::move(pair_i_[u]);
-    std::vector<int> pj = std::move(pair_j_[u]);
-    pi.clear();  // both keep their capacity
-    pj.clear();
+    // The thread's pair buffers: their size is their capacity, pair_count_[u] the pairs in them.
+    // Written through local pointers: the vector objects of all threads sit side by side, and
+    // a push_back through them wrote the end pointer into a cache line the other thread's
+    // push_backs wrote too (false sharing).
+    std::vector<int>& pi = pair_i_[u];
+    std::vector<int>& pj = pair_j_[u];
+    int* to_i = pi.data();
+    int* to_j = pj.data();
+    std::size_t capacity = pi.size(), used = 0;
     // The candidates of one particle i within the list radius, as positions in the cell order:
     // written for every candidate and kept by advancing the count, without a branch (about one
     // candidate in seven is a neighbour, at random: a branch mispredicted often). Then recorded
-    // in the order found, against i's exclusions read once. At most n candidates per particle.
+    // in the order found, again without a branch: each is written and kept unless it is one of
+    // i's exclusions (a handful of bonded neighbours, read once). At most n candidates per particle.
     std::vector<int>& hits = hits_[u];
     if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
     int* const hit = hits.data();
     auto record_hits = [&](int i, int count) {
+      if (used + count > capacity) {  // rare: the buffers grow geometrically, then stay
+        capacity = std::max(2 * capacity, used + count + 1024);
+        pi.resize(capacity);
+        pj.resize(capacity);
+        to_i = pi.data();
+        to_j = pj.data();
+      }
       const int* first = excl_.data();
       const int* last = first;
       if (have_exclusions) {
         first += excl_offsets_[i];
         last += excl_offsets_[i + 1];
       }
+      std::size_t kept = used;
       for (int h = 0; h < count; ++h) {
         const int j = cp[hit[h]];
-        if (std::find(first, last, j) != last) continue;  // a handful of bonded neighbours
-        pi.push_back(std::min(i, j));
-        pj.push_back(std::max(i, j));
+        bool keep = true;
+        for (const int* e = first; e != last; ++e) keep &= *e != j;
+        to_i[kept] = std::min(i, j);
+        to_j[kept] = std::max(i, j);
+        kept += keep;
       }
+      used = kept;
+    };
+    // The candidates of a cell's particles, gathered once per cell into contiguous arrays
+    // (structure of arrays): the cell's own particles first, then those of its forward
+    // neighbours, shifted next to it. The m-th particle of the cell is then tested against
+    // entries m + 1 … end in one loop. The same candidates in the same order as a loop per
+    // neighbour cell, whose few iterations (≈ 2.6 particles per cell on a melt) made the
+    // loop's exit branch mispredict about once per cell visited: that, not the distance tests,
+    // was most of the build's time.
+    CandidateScratch& sc = scratch_[u];
+    if (sc.x.size() < static_cast<std::size_t>(n)) {
+      sc.x.resize(n);
+      sc.y.resize(n);
+      sc.z.resize(n);
+      sc.k.resize(n);
+    }
+    double* __restrict const gxs = sc.x.data();
+    double* __restrict const gys = sc.y.data();
+    double* __restrict const gzs = sc.z.data();
+    int* __restrict const gks = sc.k.data();
+    int total = 0;
+    // Particles first … last − 1 of the cell order, at x_j + shift (d = x_i − (x_j + shift)).
+    // The count is a local copy: an int held by reference could alias gks, and would be
+    // reloaded and stored at every entry.
+    auto gather = [&](int first, int last, double sx, double sy, double sz) {
+      double* __restrict const to_x = gxs + total;
+      double* __restrict const to_y = gys + total;
+      double* __restrict const to_z = gzs + total;
+      int* __restrict const to_k = gks + total;
+      for (int k2 = first; k2 < last; ++k2) {
+        to_x[k2 - first] = xc[3 * k2] + sx;
+        to_y[k2 - first] = xc[3 * k2 + 1] + sy;
+        to_z[k2 - first] = xc[3 * k2 + 2] + sz;
+        to_k[k2 - first] = k2;
+      }
+      total += std::max(0, last - first);
+    };
+    auto gather_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
+      if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
+      const int cell = (gx * ny + gy) * nz + gz;
+      gather(cs[cell], cs[cell + 1], sx, sy, sz);
     };
     const int cx_end = static_cast<int>(block_begin(nx, parts, u + 1));
     for (int cx = static_cast<int>(block_begin(nx, parts, u)); cx < cx_end; ++cx)
@@ -320,61 +380,51 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         for (int cz = 0; cz < nz; ++cz) {
           const int c = (cx * ny + cy) * nz + cz;
           if (cs[c] == cs[c + 1]) continue;
-          // The forward neighbour cells of c and the shifts that bring their wrapped positions
-          // next to c: d = x_i − (x_j + shift).
-          int other[13];
-          double shift[13][3];
-          int count = 0;
-          for (const auto& o : kForward) {
-            const int gx = adjacent_[0][3 * cx + o[0] + 1], gy = adjacent_[1][3 * cy + o[1] + 1],
-                      gz = adjacent_[2][3 * cz + o[2] + 1];
-            if (gx < 0 || gy < 0 || gz < 0) continue;
-            other[count] = (gx * ny + gy) * nz + gz;
-            shift[count][0] = adjacent_shift_[0][3 * cx + o[0] + 1];
-            shift[count][1] = adjacent_shift_[1][3 * cy + o[1] + 1];
-            shift[count][2] = adjacent_shift_[2][3 * cz + o[2] + 1];
-            ++count;
+          total = 0;
+          if (cz + 1 < nz) {  // the cell and the next along z, one range
+            gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
+          } else {
+            gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
+            gather_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
           }
-          for (int k1 = cs[c]; k1 < cs[c + 1]; ++k1) {
-            const double xi = xc[3 * k1], yi = xc[3 * k1 + 1], zi = xc[3 * k1 + 2];
+          for (const auto& col : kColumns) {
+            const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
+            if (gx < 0 || gy < 0) continue;
+            const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
+            if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+              const int base = (gx * ny + gy) * nz;
+              gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
+            } else {
+              for (int dz = 0; dz < 3; ++dz)
+                gather_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
+            }
+          }
+          for (int m = 0; m < cs[c + 1] - cs[c]; ++m) {
+            const double xi = gxs[m], yi = gys[m], zi = gzs[m];
             int found = 0;
-            for (int k2 = k1 + 1; k2 < cs[c + 1]; ++k2) {
-              const double dx = xi - xc[3 * k2], dy = yi - xc[3 * k2 + 1], dz = zi - xc[3 * k2 + 2];
-              hit[found] = k2;
+            for (int t = m + 1; t < total; ++t) {
+              const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
+              hit[found] = gks[t];
               found += dx * dx + dy * dy + dz * dz < rlist2;
             }
-            for (int q = 0; q < count; ++q) {
-              const double xs = xi - shift[q][0], ys = yi - shift[q][1], zs = zi - shift[q][2];
-              for (int k2 = cs[other[q]]; k2 < cs[other[q] + 1]; ++k2) {
-                const double dx = xs - xc[3 * k2], dy = ys - xc[3 * k2 + 1], dz = zs - xc[3 * k2 + 2];
-                hit[found] = k2;
-                found += dx * dx + dy * dy + dz * dz < rlist2;
-              }
-            }
-            record_hits(cp[k1], found);
+            record_hits(cp[cs[c] + m], found);
           }
         }
-    pair_i_[u] = std::move(pi);
-    pair_j_[u] = std::move(pj);
+    pair_count_[u] = used;
   });
 
   // Counting sort of the pairs into CSR rows by i, the slabs in order.
   offsets_.assign(static_cast<std::size_t>(n) + 1, 0);
   std::size_t total = 0;
   for (int u = 0; u < parts; ++u) {
-    for (const int i : pair_i_[u]) ++offsets_[i + 1];
-    total += pair_i_[u].size();
+    for (std::size_t p = 0; p < pair_count_[u]; ++p) ++offsets_[pair_i_[u][p] + 1];
+    total += pair_count_[u];
   }
   for (int i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
   cursor_.assign(offsets_.begin(), offsets_.end() - 1);
   neighbors_.resize(total);
   for (int u = 0; u < parts; ++u)
-    for (std::size_t p = 0; p < pair_i_[u].size(); ++p) neighbors_[cursor_[pair_i_[u][p]]++] = pair_j_[u][p];
-  // Ascending j within a row: the force loop then walks x and f forward in memory.
-  parallel_blocks(n, parts, [&](std::int64_t first, std::int64_t last) {
-    for (std::int64_t i = first; i < last; ++i)
-      std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + offsets_[i + 1]);
-  });
+    for (std::size_t p = 0; p < pair_count_[u]; ++p) neighbors_[cursor_[pair_i_[u][p]]++] = pair_j_[u][p];
 }
 
 // Boxes with fewer than 3 cells on a periodic axis (a few cutoffs wide): the neighbour cells

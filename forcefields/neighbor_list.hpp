@@ -187,8 +187,14 @@ class NeighborList {
   // c − 1 and c + 1, so no single shift is right and the search rounds to the minimum image.
   bool small_box_ = false;
   // Scratch of the half-stencil search: the pairs found, before they are sorted into rows.
-  std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (slab of cells)
+  std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (slab of cells), sized to capacity
+  std::vector<std::size_t> pair_count_;            // per thread: the pairs in pair_i_, pair_j_
   std::vector<std::vector<int>> hits_;             // per thread: one particle's neighbours found
+  struct CandidateScratch {                        // per thread: one cell's candidates (search_half_stencil)
+    std::vector<double> x, y, z;
+    std::vector<int> k;  // position in the cell order
+  };
+  std::vector<CandidateScratch> scratch_;
   std::vector<std::int64_t> cursor_;
 
   void search_half_stencil(int n, bool have_exclusions);

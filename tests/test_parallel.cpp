@@ -112,6 +112,37 @@ TEST(Parallel, WcaForcesDoNotDependOnTheThreadCount) {
   }
 }
 
+// The list's rows and the order within each row (which fixes the order of the force sums) must
+// be the same for any thread count: the threads search slabs of cells, and their buffers taken in
+// slab order are the pairs in the order one thread finds them. Also across the periodic faces
+// (the jitter puts particles on both sides) and with exclusions.
+TEST(Parallel, NeighborListDoesNotDependOnTheThreadCount) {
+  for (bool shuffle : {false, true}) {
+    SCOPED_TRACE(shuffle ? "shuffled indices" : "chains in index order");
+    Melt m = melt(shuffle);
+    m.x.array() -= 0.5;  // some particles below the origin: binned through their periodic image
+    const std::vector<SpecialPair> excluded = special_pairs(m.x.cols(), m.bonds, SpecialWeights{});
+    auto build = [&](int threads) {
+      set_max_threads(threads);
+      NeighborList list(1.12, 0.3);
+      list.set_exclusions(m.x.cols(), excluded);
+      list.build(m.x, m.box);
+      return std::make_pair(std::vector<std::int64_t>(list.offsets().begin(), list.offsets().end()),
+                            std::vector<int>(list.neighbors().begin(), list.neighbors().end()));
+    };
+    const int restore = max_threads();
+    const auto serial = build(1);
+    ASSERT_GE(static_cast<std::int64_t>(serial.second.size()), kParallelMin);
+    for (int threads : {2, 3, 4}) {
+      SCOPED_TRACE(testing::Message() << threads << " threads");
+      const auto parallel = build(threads);
+      EXPECT_EQ(parallel.first, serial.first);
+      EXPECT_EQ(parallel.second, serial.second);
+    }
+    set_max_threads(restore);
+  }
+}
+
 TEST(Parallel, FeneForcesDoNotDependOnTheThreadCountAndOverstretchStillThrows) {
   Melt m = melt(true);
   const FeneBond fene("fene", Level::slow, m.bonds, {{30.0, 1.5, 1.0, 1.0}});

@@ -1,6 +1,7 @@
 // Google Benchmark timings of the engine's kernels, so that a regression shows as a number:
 //
 //   BM_PairForces/<scene>           the slow level (WCA) at a fixed x, neighbour list already built
+//   BM_NeighborBuild/<scene>        one rebuild of the WCA term's neighbour list at a fixed x
 //   BM_BondForces/<scene>           the fast level (the stiff bonds)
 //   BM_ForceProjection/<scene>      P(x) f (ConstraintToolbox::project_force)
 //   BM_Mollifier/<scene>            α(x) and α′(x)ᵀ f(α(x)) (ConstraintToolbox::mollified_force),
@@ -235,6 +236,30 @@ void BM_PairForces(benchmark::State& st, FixtureGetter get) {
     st.counters["pairs_per_second"] = benchmark::Counter(pairs, benchmark::Counter::kIsIterationInvariantRate);
   }
   st.counters["rebuilds"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds);  // 0: x is fixed
+}
+
+// A rebuild of the WCA term's neighbour list (cutoff and skin of the deck, its exclusions), at the
+// fixed initial x: binning, the half-stencil search and the sort into rows. Counter: listed pairs.
+void BM_NeighborBuild(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  const WcaPair* wca = find_wca(fx->forces());
+  if (!wca) {
+    st.SkipWithError("the scene has no WCA term");
+    return;
+  }
+  const NeighborList& deck_list = wca->neighbor_list();
+  NeighborList list(deck_list.cutoff(), deck_list.skin());
+  const auto exclusions = special_pairs(fx->particles(), fx->scene.topology.bonds, SpecialWeights{});
+  list.set_exclusions(fx->particles(), exclusions);
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  for (auto _ : st) {
+    list.build(x, fx->forces().box());
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * fx->particles());
+  st.counters["listed_pairs"] = static_cast<double>(list.num_pairs());
+  st.counters["deck_list_pairs"] = static_cast<double>(deck_list.num_pairs());
 }
 
 void BM_BondForces(benchmark::State& st, FixtureGetter get) {
@@ -569,6 +594,7 @@ bool register_benchmarks() {
       benchmark::RegisterBenchmark((name + suffix).c_str(), fn, sc.get, args...)->Unit(sc.unit)->UseRealTime();
     };
     add("BM_PairForces", BM_PairForces);
+    add("BM_NeighborBuild", BM_NeighborBuild);
     add("BM_BondForces", BM_BondForces);
     add("BM_ForceProjection", BM_ForceProjection);
     add("BM_Mollifier", BM_Mollifier);
