@@ -413,6 +413,13 @@ struct ClusterData {
   Eigen::VectorXd rhs, sol;
   Eigen::VectorXd lambda;           // SHAKE multipliers, accumulated over Newton steps
   Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::gap)
+  // Open chains, for SHAKE's chord (Impl::chain_gap, Impl::chain_displace): the particles along
+  // the chain, path[k] and path[k + 1] the ends of local bond k (n + 1 of them), their inverse
+  // masses, ℓ_k², and σ_k u_k at the kept configuration (σ_k = +1 when bond k's i is path[k],
+  // −1 when it is path[k + 1]: σ_k u_k points from path[k + 1] to path[k]).
+  std::vector<int> path;
+  Eigen::VectorXd path_inv_mass, length2, orientation;
+  Eigen::Matrix3Xd e_kept;
   // What is known at the toolbox's kept configuration (Impl::keep): G there (in at_kept) and
   // S's factors (spd for chains, else solver until SHAKE's Newton factors J in it).
   bool frame_kept = false;
@@ -431,10 +438,18 @@ struct ConstraintToolbox::Impl {
   // length is not finite. h = 0 is the manifold g = 0 and h_b = g_b (1 + g_b / (2ℓ_b)): SHAKE's
   // chord iterates on it without a square root or a division per bond.
   double gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const;
+  // The same for an open chain, along its path (contiguous particles on a melt read in order).
+  double chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const;
+  // An open chain's chord update and its new residual in one pass along the path: λ += δ,
+  // y += M⁻¹G(x_ref)ᵀδ (each particle once: y_p += m_p⁻¹(σ_k u_k δ_k − σ_{k−1} u_{k−1} δ_{k−1}) for
+  // p = path[k]), then −h(y) into minus_h as soon as both ends of a bond have moved; returns max |h|
+  // (NaN when a length is not finite).
+  double chain_displace(int c, Eigen::Matrix3Xd& y, const double* delta, double* minus_h);
   // minus_g (size of the cluster, local order), if given, receives −g_b(x); returns max_b |g_b(x)| then.
   double measure(int c, const Eigen::Matrix3Xd& x, BondFrame& frame, const char* what, int iteration = -1,
                  double* minus_g = nullptr);
   void factorize(int c, const BondFrame& rows, const BondFrame& cols, bool symmetric, const char* what);
+  void set_path(ClusterData& d) const;  // open chains, at construction
   // Makes x the kept configuration (a copy), forgetting G and S of the last one unless x is it, bit
   // for bit. Serial; before the clusters' loop.
   void keep(const Eigen::Matrix3Xd& x);
@@ -528,6 +543,7 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
     d.rhs = d.sol = d.lambda = Eigen::VectorXd::Zero(n);
     d.half_inv_length.resize(n);
     for (int k = 0; k < n; ++k) d.half_inv_length[k] = 0.5 / bonds[d.bonds[k]].length;
+    if (chain) set_path(d);
     data.push_back(std::move(d));
   }
   bonds_before.assign(1, 0);
@@ -538,6 +554,39 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
       if (owner[p] >= 0 && owner[p] != c) clusters_share_particles = true;
       owner[p] = c;
     }
+  }
+}
+
+// The particles along an open chain (ClusterData::path): consecutive bonds of the path order share
+// a mobile particle, path[k + 1]; path[0] and path[n] are the far ends of the first and last bond.
+void ConstraintToolbox::Impl::set_path(ClusterData& d) const {
+  const int n = static_cast<int>(d.bonds.size());
+  auto shared = [&](const StiffBond& a, const StiffBond& b) {  // the mobile particle of both
+    for (const int p : {a.i, a.j})
+      if (inv_mass[p] > 0.0 && (p == b.i || p == b.j)) return p;
+    throw std::logic_error("constraint toolbox: consecutive bonds of a chain share no mobile particle");
+  };
+  auto other_end = [](const StiffBond& b, int p) { return b.i == p ? b.j : b.i; };
+  d.path.assign(static_cast<std::size_t>(n) + 1, 0);
+  const StiffBond& first = bonds[d.bonds[0]];
+  if (n == 1) {
+    d.path = {first.i, first.j};
+  } else {
+    for (int k = 0; k + 1 < n; ++k) d.path[k + 1] = shared(bonds[d.bonds[k]], bonds[d.bonds[k + 1]]);
+    d.path[0] = other_end(first, d.path[1]);
+    d.path[n] = other_end(bonds[d.bonds[n - 1]], d.path[n - 1]);
+  }
+  d.path_inv_mass.resize(n + 1);
+  d.length2.resize(n);
+  d.orientation.resize(n);
+  d.e_kept = Eigen::Matrix3Xd::Zero(3, n);
+  for (int q = 0; q <= n; ++q) d.path_inv_mass[q] = inv_mass[d.path[q]];
+  for (int k = 0; k < n; ++k) {
+    const StiffBond& b = bonds[d.bonds[k]];
+    d.length2[k] = b.length * b.length;
+    d.orientation[k] = b.i == d.path[k] ? 1.0 : -1.0;
+    if (!(b.i == d.path[k] && b.j == d.path[k + 1]) && !(b.j == d.path[k] && b.i == d.path[k + 1]))
+      throw std::logic_error("constraint toolbox: a chain's bond does not join consecutive particles of its path");
   }
 }
 
@@ -597,6 +646,79 @@ double ConstraintToolbox::Impl::gap(int c, const Eigen::Matrix3Xd& y, double* mi
     minus_h[k] = (b.length * b.length - r2) * half_inv[k];
     worst = std::max(worst, std::abs(minus_h[k]));
     finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+  }
+  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
+}
+
+double ConstraintToolbox::Impl::chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
+  const ClusterData& d = data[c];
+  const int n = static_cast<int>(d.bonds.size());
+  const int* path = d.path.data();
+  const double* l2 = d.length2.data();
+  const double* half_inv = d.half_inv_length.data();
+  const double* yp = y.data();
+  double worst = 0.0;
+  bool finite = true;
+  double px = yp[3 * path[0]], py = yp[3 * path[0] + 1], pz = yp[3 * path[0] + 2];
+  for (int k = 0; k < n; ++k) {
+    const double* q = yp + 3 * path[k + 1];
+    const double qx = q[0], qy = q[1], qz = q[2];
+    const double dx = px - qx, dy = py - qy, dz = pz - qz;
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    minus_h[k] = (l2[k] - r2) * half_inv[k];
+    worst = std::max(worst, std::abs(minus_h[k]));
+    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+    px = qx;
+    py = qy;
+    pz = qz;
+  }
+  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
+}
+
+double ConstraintToolbox::Impl::chain_displace(int c, Eigen::Matrix3Xd& y, const double* delta, double* minus_h) {
+  ClusterData& d = data[c];
+  const int n = static_cast<int>(d.bonds.size());
+  const int* path = d.path.data();
+  const double* w = d.path_inv_mass.data();
+  const double* e = d.e_kept.data();
+  const double* l2 = d.length2.data();
+  const double* half_inv = d.half_inv_length.data();
+  double* lambda = d.lambda.data();
+  double* yp = y.data();
+  double worst = 0.0;
+  bool finite = true;
+  // Particle path[0]: the first bond's displacement alone.
+  double ex = e[0] * delta[0], ey = e[1] * delta[0], ez = e[2] * delta[0];  // σ_k u_k δ_k, k = 0
+  lambda[0] += delta[0];
+  double* p = yp + 3 * path[0];
+  double px = p[0] + w[0] * ex, py = p[1] + w[0] * ey, pz = p[2] + w[0] * ez;
+  p[0] = px;
+  p[1] = py;
+  p[2] = pz;
+  for (int k = 1; k <= n; ++k) {          // particle path[k], then bond k − 1
+    double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k δ_k (none past the last bond)
+    if (k < n) {
+      lambda[k] += delta[k];
+      fx = e[3 * k] * delta[k];
+      fy = e[3 * k + 1] * delta[k];
+      fz = e[3 * k + 2] * delta[k];
+    }
+    double* q = yp + 3 * path[k];
+    const double qx = q[0] + w[k] * (fx - ex), qy = q[1] + w[k] * (fy - ey), qz = q[2] + w[k] * (fz - ez);
+    q[0] = qx;
+    q[1] = qy;
+    q[2] = qz;
+    const double dx = px - qx, dy = py - qy, dz = pz - qz;
+    const double r2 = dx * dx + dy * dy + dz * dz;
+    minus_h[k - 1] = (l2[k - 1] - r2) * half_inv[k - 1];
+    worst = std::max(worst, std::abs(minus_h[k - 1]));
+    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+    px = qx;
+    py = qy;
+    pz = qz;
+    ex = fx;
+    ey = fy;
+    ez = fz;
   }
   return finite ? worst : std::numeric_limits<double>::quiet_NaN();
 }
@@ -680,6 +802,8 @@ void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
     for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
     for (int k = 0; k + 1 < n; ++k) off[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
     if (!d.spd->factorize()) singular(c, true, what);
+    for (int k = 0; k < n; ++k)  // σ_k u_k along the path, for SHAKE's chord
+      d.e_kept.col(k) = d.orientation[k] * at_kept.u.col(bond[k]);
   } else {
     factorize(c, at_kept, at_kept, true, what);
   }
@@ -769,11 +893,15 @@ void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double t
   const int n = static_cast<int>(d.bonds.size());
   const int* bond = d.bonds.data();
   d.lambda.setZero();
+  double chord_residual = 0.0;  // max |h| of the last chord update, with −h in rhs
+  bool have_chord_residual = false;
   for (int iteration = 0;; ++iteration) {
-    // The chord needs only the residual, −h(y) (gap: no square root); G(y), a full measure with
-    // rhs = −g(y), only to confirm convergence (it is then kept for the velocity projection), for
-    // a Newton step, or to name a bond whose length is not finite.
-    double residual = chord ? gap(c, y, d.rhs.data()) : 0.0;
+    // The chord needs only the residual, −h(y) (gap: no square root; after a chord update it was
+    // computed in the update's pass); G(y), a full measure with rhs = −g(y), only to confirm
+    // convergence (it is then kept for the velocity projection), for a Newton step, or to name a
+    // bond whose length is not finite.
+    double residual = !chord ? 0.0 : have_chord_residual ? chord_residual : chain_gap(c, y, d.rhs.data());
+    have_chord_residual = false;
     bool measured = false;
     auto measure_y = [&] {
       residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
@@ -798,23 +926,12 @@ void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double t
     previous = residual;
     if (!chord && !measured) measure_y();  // Newton from here: J needs G(y)
     if (chord) {
-      // S(x_ref) δ = −h(y) (or −g(y) after a full measure), applied as the back substitution finds
-      // δ: λ += δ, y += M⁻¹G(x_ref)ᵀδ — add_constraint_displacement fused into the solve.
+      // S(x_ref) δ = −h(y) (or −g(y) after a full measure); then, in one pass along the chain,
+      // λ += δ, y += M⁻¹G(x_ref)ᵀδ and the new −h(y).
       factor_kept_s(c, "SHAKE (reference configuration)");
-      const double* u = at_kept.u.data();
-      const double* w = inv_mass.data();
-      double* yp = y.data();
-      double* lambda = d.lambda.data();
-      d.spd->solve(d.rhs.data(), d.sol.data(), [&](int k, double delta) {
-        lambda[k] += delta;
-        const StiffBond& sb = bonds[bond[k]];
-        const double* ub = u + 3 * bond[k];
-        const double si = w[sb.i] * delta, sj = w[sb.j] * delta;
-        for (int a = 0; a < 3; ++a) {
-          yp[3 * sb.i + a] += si * ub[a];
-          yp[3 * sb.j + a] -= sj * ub[a];
-        }
-      });
+      d.spd->solve(d.rhs.data(), d.sol.data());
+      chord_residual = chain_displace(c, y, d.sol.data(), d.rhs.data());
+      have_chord_residual = true;
     } else {
       factorize(c, at_cur, at_kept, false, "SHAKE");
       ++d.factorizations;

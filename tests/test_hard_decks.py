@@ -190,7 +190,9 @@ def test_large_actions():
 
 def test_close_encounters():
     for m in METHODS[:5]:
-        Run("close_encounters.toml", ["integrator.h=0.024", "run.t_end=84*0.024", f"integrator.method={m}"]).fails_in_one_line(
+        # t_end = 10, as in the deck's table: when a blow-up turns non-finite is chaotic (round-off
+        # moved the impulse method's from t = 0.36 to 2.4).
+        Run("close_encounters.toml", ["integrator.h=0.024", "run.t_end=420*0.024", f"integrator.method={m}"]).fails_in_one_line(
             "numerical failure")
         r = Run("close_encounters.toml", ["integrator.h=0.008", "run.t_end=2", f"integrator.method={m}"]).ok()
         assert r.energy_error() < 0.3, (m, r.energy_error())

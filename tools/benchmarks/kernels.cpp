@@ -4,6 +4,7 @@
 //   BM_NeighborBuild/<scene>        one rebuild of the WCA term's neighbour list at a fixed x
 //   BM_BondForces/<scene>           the fast level (the stiff bonds)
 //   BM_ForceProjection/<scene>      P(x) f (ConstraintToolbox::project_force)
+//   BM_Shake/<scene>                SHAKE of a drift over 0.01 from x with S(x) kept (ConstraintToolbox::shake)
 //   BM_Mollifier/<scene>            α(x) and α′(x)ᵀ f(α(x)) (ConstraintToolbox::mollified_force),
 //                                   without the slow force itself (f(α(x)) is precomputed)
 //   BM_MacroStep/<method>/<scene>   one macro step of the factory's integrator: the impulse family at
@@ -319,6 +320,37 @@ void BM_Mollifier(benchmark::State& st, FixtureGetter get) {
   st.counters["max_violation_x"] = toolbox.max_violation(s.x);  // how far α has to move x
 }
 
+// SHAKE of a drift over τ = 0.01 (half of fixman's step in the cost-against-ε figure) from the
+// initial x, on the manifold, with the initial velocities made tangent: y = x + τ v, then y ← y + M⁻¹G(x)ᵀλ,
+// g(y) = 0. The converged y becomes the toolbox's kept configuration (for the velocity
+// projection that follows SHAKE in a step), so every call measures x and factors S(x) again:
+// one call is one SHAKE and one factorization of S, as a constrained step has per drift.
+// Counters: the residual max |g(x + τv)|, factorizations per call (of S, and of J when Newton).
+void BM_Shake(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  const State& s = fx->initial;
+  ConstraintToolbox toolbox(fx->forces().stiff_bonds()->bonds, s.inv_mass);
+  Eigen::Matrix3Xd x = s.x;
+  toolbox.shake(x, x);  // exactly on the manifold, with tangent velocities (as in a constrained run)
+  Eigen::Matrix3Xd v = s.v;
+  toolbox.project_velocity(x, v);
+  const double tau = 0.01;
+  const Eigen::Matrix3Xd drifted = x + tau * v;
+  Eigen::Matrix3Xd y = drifted;
+  toolbox.shake(x, y);  // factors S(x)
+  for (auto _ : st) {
+    y = drifted;
+    toolbox.shake(x, y);
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * toolbox.num_bonds());
+  st.counters["bonds"] = toolbox.num_bonds();
+  st.counters["initial_violation"] = toolbox.max_violation(drifted);
+  st.counters["factorizations_per_call"] =
+      static_cast<double>(toolbox.factorizations()) / static_cast<double>(st.iterations() + 2);
+}
+
 struct MacroStepCase {
   const char* method;
   double h;
@@ -598,6 +630,7 @@ bool register_benchmarks() {
     add("BM_BondForces", BM_BondForces);
     add("BM_ForceProjection", BM_ForceProjection);
     add("BM_Mollifier", BM_Mollifier);
+    add("BM_Shake", BM_Shake);
     for (const MacroStepCase& c : kMacroSteps)
       add("BM_MacroStep/" + std::string(c.method) + (c.fused ? "" : "-unfused"), BM_MacroStep, c);
     add("BM_MicroStepVsFloor", BM_MicroStepVsFloor);
