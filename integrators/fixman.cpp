@@ -67,6 +67,24 @@ bool tridiagonal_inverse_band(int n, const double* d, const double* e, double sc
   return true;
 }
 
+// Σ_k log p_k of positive pivots with one logarithm per ~100 factors instead of one each: the
+// product is taken as it goes and its logarithm banked whenever it leaves [2^−500, 2^500]. A
+// pivot lies in (kSingularPivot · scale, scale] (S_kk = 1/m_i + 1/m_j bounds it above, and
+// factorize rejects smaller), so no product overflows before it is banked unless the masses are
+// beyond 1e±150.
+double sum_of_logs(const double* pivot, int n) {
+  constexpr double kHigh = 0x1p500, kLow = 0x1p-500;
+  double banked = 0.0, product = 1.0;
+  for (int k = 0; k < n; ++k) {
+    product *= pivot[k];
+    if (!(product < kHigh && product > kLow)) {
+      banked += std::log(product);
+      product = 1.0;
+    }
+  }
+  return banked + std::log(product);
+}
+
 struct Cluster {
   int index = 0;  // position in find_clusters order, for messages
   ClusterShape shape = ClusterShape::other;
@@ -208,8 +226,7 @@ void FixmanPotential::Impl::inverse_on_pattern(Cluster& c) const {
     if (!tridiagonal_inverse_band(n, c.diag.data(), c.value.data(), scale, c.pivot.data(), c.factor.data(),
                                   c.z_diag.data(), c.z_off.data()))
       singular();
-    c.log_det = 0.0;
-    for (int k = 0; k < n; ++k) c.log_det += std::log(c.pivot[k]);
+    c.log_det = sum_of_logs(c.pivot.data(), n);
     for (int k = 0; k + 1 < n; ++k) c.z_pair[k] = c.z_off[k];
     return;
   }
@@ -233,8 +250,7 @@ void FixmanPotential::Impl::inverse_on_pattern(Cluster& c) const {
     double s = c.diag[n - 1];
     for (int k = 0; k < t; ++k) s -= b[k] * y[k];
     if (!(s > kSingularPivot * scale)) singular();
-    c.log_det = std::log(s);
-    for (int k = 0; k < t; ++k) c.log_det += std::log(c.pivot[k]);
+    c.log_det = std::log(s) + sum_of_logs(c.pivot.data(), t);
     for (int k = 0; k + 1 < t; ++k) c.z_pair[k] = c.z_off[k] + y[k] * y[k + 1] / s;
     c.z_pair[n - 2] = -y[t - 1] / s;
     c.z_pair[n - 1] = -y[0] / s;
