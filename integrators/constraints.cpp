@@ -465,6 +465,8 @@ struct ConstraintToolbox::Impl {
   void add_constraint_displacement(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
                                    Eigen::Matrix3Xd& y) const;
 
+  template <bool kForce>
+  void chain_project(int c, Eigen::Matrix3Xd& a);
   void project_force_cluster(int c, Eigen::Matrix3Xd& f);
   void project_velocity_cluster(int c, Eigen::Matrix3Xd& v);
   void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter);
@@ -855,10 +857,63 @@ void ConstraintToolbox::Impl::add_constraint_displacement(int c, const BondFrame
   }
 }
 
+// An open chain's projection along its path (after factor_kept_s): rhs = G M⁻¹ f (kForce) or
+// G v, rhs_k = σ_k u_k · (a at path[k] − a at path[k + 1]) with a = M⁻¹f or v; S μ = rhs; then,
+// walking the path, a_p −= c_p (σ_k u_k μ_k − σ_{k−1} u_{k−1} μ_{k−1}) for p = path[k], c_p = 1
+// for a force (f − Gᵀμ) and m_p⁻¹ for a velocity (v − M⁻¹Gᵀμ). Each particle is read once per
+// pass, in path order, instead of through the bond records.
+template <bool kForce>
+void ConstraintToolbox::Impl::chain_project(int c, Eigen::Matrix3Xd& a) {
+  ClusterData& d = data[c];
+  const int n = static_cast<int>(d.bonds.size());
+  const int* path = d.path.data();
+  const double* w = d.path_inv_mass.data();
+  const double* e = d.e_kept.data();
+  double* ap = a.data();
+  double* rhs = d.rhs.data();
+  {
+    const double* p = ap + 3 * path[0];
+    const double wp = kForce ? w[0] : 1.0;
+    double px = wp * p[0], py = wp * p[1], pz = wp * p[2];
+    for (int k = 0; k < n; ++k) {
+      const double* q = ap + 3 * path[k + 1];
+      const double wq = kForce ? w[k + 1] : 1.0;
+      const double qx = wq * q[0], qy = wq * q[1], qz = wq * q[2];
+      rhs[k] = e[3 * k] * (px - qx) + e[3 * k + 1] * (py - qy) + e[3 * k + 2] * (pz - qz);
+      px = qx;
+      py = qy;
+      pz = qz;
+    }
+  }
+  d.spd->solve(rhs, d.sol.data());
+  const double* mu = d.sol.data();
+  double ex = 0.0, ey = 0.0, ez = 0.0;  // σ_{k−1} u_{k−1} μ_{k−1}
+  for (int k = 0; k <= n; ++k) {
+    double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k μ_k (none past the last bond)
+    if (k < n) {
+      fx = e[3 * k] * mu[k];
+      fy = e[3 * k + 1] * mu[k];
+      fz = e[3 * k + 2] * mu[k];
+    }
+    double* q = ap + 3 * path[k];
+    const double cq = kForce ? 1.0 : w[k];
+    q[0] -= cq * (fx - ex);
+    q[1] -= cq * (fy - ey);
+    q[2] -= cq * (fz - ez);
+    ex = fx;
+    ey = fy;
+    ez = fz;
+  }
+}
+
 // P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)).
 void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
   factor_kept_s(c, "force projection");
+  if (d.spd) {
+    chain_project<true>(c, f);
+    return;
+  }
   for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
   solve_kept_s(c);
   add_constraint_force(c, at_kept, d.sol, -1.0, f);
@@ -868,6 +923,10 @@ void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) 
 void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v) {
   ClusterData& d = data[c];
   factor_kept_s(c, "velocity projection");
+  if (d.spd) {
+    chain_project<false>(c, v);
+    return;
+  }
   for (int k = 0; k < d.rhs.size(); ++k) {
     const StiffBond& bond = bonds[d.bonds[k]];
     d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));

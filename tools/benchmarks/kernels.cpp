@@ -9,8 +9,9 @@
 //                                   without the slow force itself (f(α(x)) is precomputed)
 //   BM_MacroStep/<method>/<scene>   one macro step of the factory's integrator: the impulse family at
 //                                   h = 0.005 with 20 micro steps (as in the decks), velocity Verlet
-//                                   at h = 0.00025, rattle at h = 0.005; impulse-unfused: the plain
-//                                   micro steps (kick_drift, then the force field's fast level)
+//                                   at h = 0.00025, rattle at h = 0.005, fixman (Langevin kT = 1,
+//                                   γ = 1) at h = 0.02; impulse-unfused: the plain micro steps
+//                                   (kick_drift, then the force field's fast level)
 //   BM_MicroStepVsFloor/<scene>     one micro step fused and plain against the memory floor (one pass
 //                                   reading x, v, f and writing x, v), interleaved, CPU time
 //   BM_BondKernelPerBond/<scene>    ns per bond of the stiff harmonic bond force (vs LAMMPS:
@@ -355,12 +356,14 @@ struct MacroStepCase {
   const char* method;
   double h;
   int micro_steps;
-  bool fused = true;  // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
+  bool fused = true;      // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
+  bool langevin = false;  // BAOAB Langevin, kT = 1, γ = 1 (fixman needs a thermostat)
 };
 
 constexpr MacroStepCase kMacroSteps[] = {
     {"impulse", 0.005, 20},           {"impulse", 0.005, 20, false},   {"projected-impulse", 0.005, 20},
     {"mollified-impulse", 0.005, 20}, {"velocity-verlet", 0.00025, 1}, {"rattle", 0.005, 1},
+    {"fixman", 0.02, 1, true, true},
 };
 
 void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
@@ -374,6 +377,12 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
   settings.method = c.method;
   settings.h = c.h;
   settings.micro_steps = c.micro_steps;
+  if (c.langevin) {
+    settings.thermostat.style = ThermostatSettings::Style::langevin;
+    settings.thermostat.temperature = 1.0;
+    settings.thermostat.friction = Eigen::VectorXd::Ones(s.size());
+    settings.thermostat.seed = 3;
+  }
   std::unique_ptr<Integrator> integrator;
   try {
     integrator = make_integrator(settings, ff, s.inv_mass);
@@ -389,6 +398,7 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
   const long rebuilds0 = neighbor_rebuilds(ff);
   for (auto _ : st) {
     integrator->step(s, c.h);
+    ++s.step;  // the Langevin noise's stream is keyed by the step number
     benchmark::ClobberMemory();
   }
   if (!s.x.allFinite() || !s.v.allFinite()) {
