@@ -238,6 +238,27 @@ class ChainLdlt {
     return regular;
   }
 
+  // The band of Z = S⁻¹ from the factors, without a division: Z_pp = 1/γ_p, then outwards from
+  // the twist by the recurrences of the top and bottom factorizations (Lᵀ Z = D⁻¹ L⁻¹ above it,
+  // its mirror below): Z_{k,k+1} = −l_k Z_{k+1,k+1}, Z_kk = 1/D⁺_k + l_k² Z_{k+1,k+1} for k < p;
+  // Z_{k−1,k} = −u_{k−1} Z_{k−1,k−1}, Z_kk = 1/D⁻_k + u_{k−1}² Z_{k−1,k−1} for k > p. z_diag has n
+  // entries, z_off n − 1 (Z_{k,k+1}).
+  void inverse_band(double* z_diag, double* z_off) const {
+    const double* m = off_.data();
+    const double* inv = inv_pivot_.data();
+    z_diag[p_] = inv[p_];
+    for (int k = p_ - 1; k >= 0; --k) {
+      z_off[k] = -m[k] * z_diag[k + 1];
+      z_diag[k] = inv[k] - m[k] * z_off[k];
+    }
+    for (int k = p_ + 1; k < n_; ++k) {
+      z_off[k - 1] = -m[k - 1] * z_diag[k - 1];
+      z_diag[k] = inv[k] - m[k - 1] * z_off[k - 1];
+    }
+  }
+  // 1/D⁺_k (k < p), 1/γ_p, 1/D⁻_k (k > p): det S = 1 / Π of these.
+  const double* inverse_pivots() const { return inv_pivot_.data(); }
+
   // sol = S⁻¹ rhs (sol may alias rhs).
   void solve(const double* rhs, double* sol) const {
     solve(rhs, sol, [](int, double) {});
@@ -1048,6 +1069,32 @@ const std::vector<ConstraintCluster>& ConstraintToolbox::clusters() const {
 int ConstraintToolbox::num_bonds() const {
   return static_cast<int>(impl_->bonds.size());
 }
+void ConstraintToolbox::keep(const Eigen::Matrix3Xd& x) {
+  require_columns(x, impl_->num_particles(), "keep");
+  impl_->keep(x);
+}
+
+bool ConstraintToolbox::chain_inverse_band(int c, double* z_diag, double* z_off, double* inverse_pivots) {
+  ClusterData& d = impl_->data.at(static_cast<std::size_t>(c));
+  if (!d.spd) return false;
+  impl_->factor_kept_s(c, "Fixman potential");
+  d.spd->inverse_band(z_diag, z_off);
+  const int n = static_cast<int>(d.bonds.size());
+  std::copy(d.spd->inverse_pivots(), d.spd->inverse_pivots() + n, inverse_pivots);
+  return true;
+}
+
+const std::vector<int>& ConstraintToolbox::cluster_bonds(int c) const {
+  return impl_->data.at(static_cast<std::size_t>(c)).bonds;
+}
+
+const Eigen::Matrix3Xd& ConstraintToolbox::kept_directions() const {
+  return impl_->at_kept.u;
+}
+const Eigen::VectorXd& ConstraintToolbox::kept_lengths() const {
+  return impl_->at_kept.length;
+}
+
 std::int64_t ConstraintToolbox::factorizations() const {
   std::int64_t total = 0;
   for (const ClusterData& d : impl_->data) total += d.factorizations;

@@ -69,6 +69,20 @@ class ConstraintToolbox {
   // (compared bit for bit) with G(x) and S(x)'s factors, and SHAKE leaves its converged y kept.
   std::int64_t factorizations() const;
 
+  // For Fixman's potential (integrators/fixman.cpp), which reads G(x) and S(x)'s factors from
+  // here instead of measuring and factoring again: keep(x) makes x the kept configuration (as any
+  // call does); then, for an open chain c, chain_inverse_band measures and factors S there if that
+  // is not done yet and writes the band of S⁻¹ (z_diag: n, z_off: n − 1 entries, Z_{k,k+1}, in the
+  // cluster's bond order, cluster_bonds) and the inverse pivots of its factorization (n entries,
+  // det S = 1 / their product); false (nothing written) when c is not an open chain. Distinct
+  // clusters may be served from distinct threads at once. kept_directions and kept_lengths hold
+  // u_b and |d_b| at the kept configuration for every bond of a cluster measured since keep.
+  void keep(const Eigen::Matrix3Xd& x);
+  bool chain_inverse_band(int c, double* z_diag, double* z_off, double* inverse_pivots);
+  const std::vector<int>& cluster_bonds(int c) const;  // local → global bond (path order on chains)
+  const Eigen::Matrix3Xd& kept_directions() const;
+  const Eigen::VectorXd& kept_lengths() const;
+
   // g_b(x) = |x_i − x_j| − ℓ_b for every bond, into g (size m).
   void constraint_values(const Eigen::Matrix3Xd& x, Eigen::Ref<Eigen::VectorXd> g) const;
   // max_b |g_b(x)|

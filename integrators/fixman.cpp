@@ -113,11 +113,15 @@ struct FixmanPotential::Impl {
   Eigen::Matrix3Xd u;                      // u_b, by global bond index
   Eigen::VectorXd r;                       // r_b = |x_i − x_j|
   Eigen::Matrix3Xd h;                      // h_b = P_b t_b / r_b: force −h_b on i, +h_b on j
+  Path path = Path::fast;
+  ConstraintToolbox* toolbox = nullptr;  // use_toolbox: G and the factors of S on open chains
 
   Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in, Path path);
   void measure(const Cluster& c, const Eigen::Matrix3Xd& x);
   void inverse_on_pattern(Cluster& c) const;
-  void gradient(Cluster& c, double kT);
+  void gradient(Cluster& c, double kT, const Eigen::Matrix3Xd& u_of, const Eigen::VectorXd& r_of);
+  // log det S and Z on the pairs of open chain c from the toolbox's factors (use_toolbox).
+  void inverse_from_toolbox(Cluster& c);
   void scatter(const Cluster& c, Eigen::Matrix3Xd& f) const;
 
   // Runs f(c) for every cluster, in contiguous blocks of about equal bond count on the OpenMP
@@ -143,7 +147,7 @@ struct FixmanPotential::Impl {
 };
 
 FixmanPotential::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in, Path path)
-    : bonds(std::move(bonds_in)), inv_mass(std::move(inv_mass_in)) {
+    : bonds(std::move(bonds_in)), inv_mass(std::move(inv_mass_in)), path(path) {
   validate(bonds, inv_mass);
   const int m = static_cast<int>(bonds.size());
   u = Eigen::Matrix3Xd::Zero(3, m);
@@ -280,19 +284,28 @@ void FixmanPotential::Impl::inverse_on_pattern(Cluster& c) const {
   for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) c.z_pair[p] = c.Z(c.pairs[p].k, c.pairs[p].l);
 }
 
-// h_b = P_b t_b / r_b, t_b = kT Σ_c Z_bc w_bc u_c (the header comment), into h.
-void FixmanPotential::Impl::gradient(Cluster& c, double kT) {
+// h_b = P_b t_b / r_b, t_b = kT Σ_c Z_bc w_bc u_c (the header comment), into h; u_b and r_b from
+// u_of, r_of (this object's measure, or the toolbox's kept frame).
+void FixmanPotential::Impl::gradient(Cluster& c, double kT, const Eigen::Matrix3Xd& u_of, const Eigen::VectorXd& r_of) {
   for (int b : c.bonds) h.col(b).setZero();
   for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) {
     const int bk = c.bonds[c.pairs[p].k], bl = c.bonds[c.pairs[p].l];
     const double gamma = kT * c.z_pair[p] * c.pairs[p].weight;
-    h.col(bk) += gamma * u.col(bl);  // t_b, projected below
-    h.col(bl) += gamma * u.col(bk);
+    h.col(bk) += gamma * u_of.col(bl);  // t_b, projected below
+    h.col(bl) += gamma * u_of.col(bk);
   }
   for (int b : c.bonds) {
     const Eigen::Vector3d t = h.col(b);
-    h.col(b) = (t - u.col(b) * u.col(b).dot(t)) / r[b];
+    h.col(b) = (t - u_of.col(b) * u_of.col(b).dot(t)) / r_of[b];
   }
+}
+
+void FixmanPotential::Impl::inverse_from_toolbox(Cluster& c) {
+  const int n = static_cast<int>(c.bonds.size());
+  toolbox->chain_inverse_band(c.index, c.z_diag.data(), c.z_off.data(), c.pivot.data());
+  // log det S = −Σ log(1/pivot): the inverse pivots' logs, banked as for the pivots.
+  c.log_det = -sum_of_logs(c.pivot.data(), n);
+  for (int k = 0; k + 1 < n; ++k) c.z_pair[k] = c.z_off[k];
 }
 
 void FixmanPotential::Impl::scatter(const Cluster& c, Eigen::Matrix3Xd& f) const {
@@ -300,6 +313,24 @@ void FixmanPotential::Impl::scatter(const Cluster& c, Eigen::Matrix3Xd& f) const
     f.col(bonds[b].i) -= h.col(b);
     f.col(bonds[b].j) += h.col(b);
   }
+}
+
+void FixmanPotential::use_toolbox(ConstraintToolbox* toolbox) {
+  Impl& d = *impl_;
+  if (toolbox && d.path == Path::dense)
+    throw std::invalid_argument("FixmanPotential: the dense path is the reference; it does not use a toolbox");
+  if (toolbox) {
+    // The same bonds in the same clusters, each in the same order (find_clusters, cluster_path).
+    bool same = toolbox->bonds().size() == d.bonds.size() && toolbox->clusters().size() == d.clusters.size();
+    for (std::size_t b = 0; same && b < d.bonds.size(); ++b) {
+      const StiffBond &p = toolbox->bonds()[b], &q = d.bonds[b];
+      same = p.i == q.i && p.j == q.j && p.length == q.length;
+    }
+    for (const Cluster& c : d.clusters)
+      if (same && c.shape == ClusterShape::chain) same = toolbox->cluster_bonds(c.index) == c.bonds;
+    if (!same) throw std::invalid_argument("FixmanPotential: the constraint toolbox is built from other bonds");
+  }
+  d.toolbox = toolbox;
 }
 
 FixmanPotential::FixmanPotential(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, Path path)
@@ -315,13 +346,19 @@ double FixmanPotential::force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matri
                                 std::to_string(d.inv_mass.size()));
   if (f.cols() != x.cols()) f.resize(3, x.cols());
   f.setZero();
+  if (d.toolbox) d.toolbox->keep(x);  // serially, before the clusters' loop
   d.for_each_cluster([&](int ci) {
     Cluster& c = d.clusters[ci];
-    d.measure(c, x);
-    for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
-      c.value[p] = c.pairs[p].weight * d.u.col(c.bonds[c.pairs[p].k]).dot(d.u.col(c.bonds[c.pairs[p].l]));
-    d.inverse_on_pattern(c);
-    d.gradient(c, kT);
+    if (d.toolbox && c.shape == ClusterShape::chain) {
+      d.inverse_from_toolbox(c);
+      d.gradient(c, kT, d.toolbox->kept_directions(), d.toolbox->kept_lengths());
+    } else {
+      d.measure(c, x);
+      for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
+        c.value[p] = c.pairs[p].weight * d.u.col(c.bonds[c.pairs[p].k]).dot(d.u.col(c.bonds[c.pairs[p].l]));
+      d.inverse_on_pattern(c);
+      d.gradient(c, kT, d.u, d.r);
+    }
     if (!d.clusters_share_particles) d.scatter(c, f);  // each cluster owns its particles
   });
   double log_det = 0.0;

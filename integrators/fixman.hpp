@@ -21,6 +21,8 @@
 
 namespace stiffmd {
 
+class ConstraintToolbox;
+
 class FixmanPotential {
  public:
   // How A⁻¹ is formed on each cluster: `fast` uses the chain and ring recurrences where the
@@ -43,6 +45,13 @@ class FixmanPotential {
   // Throws NumericalError (naming the cluster and bond) for a bond of zero or non-finite length, or
   // when S is singular on a cluster (linearly dependent bond directions).
   double force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
+
+  // Read G(x) and the band of S(x)⁻¹ of open chains from `toolbox` (built from the same bonds and
+  // inverse masses; it keeps its factors of S for the integrator's velocity projection at the same
+  // x) instead of measuring and factoring them here; nullptr: measure and factor here. The force
+  // agrees with this object's own path to round-off. Throws std::invalid_argument if the toolbox's
+  // clusters are not this potential's. Not with Path::dense, which stays the reference.
+  void use_toolbox(ConstraintToolbox* toolbox);
 
  private:
   struct Impl;

@@ -25,6 +25,9 @@ class ModelPotential {
   virtual double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) = 0;
   // Once, before the first step of a fresh run, on the state before its projection.
   virtual void prepare(const State&, std::ostream&) {}
+  // The integrator's constraint toolbox, which a potential may read G(x) and S(x)'s factors from
+  // (FixmanCorrection); called once by the integrator that owns both.
+  virtual void attach(ConstraintToolbox&) {}
   // What the potential carries beyond (x, v), for checkpoints.
   virtual std::vector<double> save_state() const { return {}; }
   virtual void load_state(const std::vector<double>& s) {
@@ -67,6 +70,8 @@ class FixmanCorrection final : public ModelPotential {
  public:
   FixmanCorrection(FixmanPotential potential, double kT) : potential_(std::move(potential)), kT_(kT) {}
   double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) override { return potential_.force(x, kT_, f); }
+  // At x_{n+1} the integrator's velocity projection has just measured and factored S there.
+  void attach(ConstraintToolbox& toolbox) override { potential_.use_toolbox(&toolbox); }
 
  private:
   FixmanPotential potential_;

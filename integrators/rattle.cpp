@@ -17,7 +17,9 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       correction_(f_),
       x_old_(f_),
       v_unprojected_(f_),
-      constraint_force_(f_) {}
+      constraint_force_(f_) {
+  if (model_) model_->attach(toolbox_);
+}
 
 void Rattle::prepare(State& s, std::ostream& log) {
   if (model_) model_->prepare(s, log);

@@ -32,6 +32,9 @@ class Rattle final : public Integrator {
   // model == nullptr: plain RATTLE; langevin == nullptr: Hamiltonian dynamics.
   Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
          std::unique_ptr<LangevinNoise> langevin = nullptr);
+  // The model potential holds a pointer to toolbox_ (ModelPotential::attach): not movable.
+  Rattle(Rattle&&) = delete;
+  Rattle& operator=(Rattle&&) = delete;
 
   // Projects (x, v) M-orthogonally onto {g = 0, G v = 0} (paper eq. ACIV); the model potential
   // is prepared from the state before projection (the actions of the effective dynamics).

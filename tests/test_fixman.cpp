@@ -280,6 +280,55 @@ TEST(FixmanPotential, TranslationAndRotationInvariant) {
   }
 }
 
+// With the integrator's constraint toolbox (use_toolbox) open chains take G and the band of S⁻¹
+// from the toolbox's twisted factorization instead of this object's measure and LDLᵀ: the same
+// energy and force to round-off, on every shape (the others keep their own path), at a first x
+// and at a moved one (the toolbox must not serve the factors of the first), with chains numbered
+// against their path and fixed beads; and a toolbox built from other bonds is refused.
+TEST(FixmanPotential, ToolboxFactorsGiveTheSameForce) {
+  std::mt19937 rng(23);
+  std::vector<System> systems = shapes(rng);
+  systems.push_back(chain(rng, 40, 7));
+  {  // a chain numbered backwards, half its bonds reversed
+    System s = chain(rng, 15);
+    const int n = static_cast<int>(s.x.cols());
+    System r = s;
+    for (int p = 0; p < n; ++p) {
+      r.x.col(n - 1 - p) = s.x.col(p);
+      r.inv_mass[n - 1 - p] = s.inv_mass[p];
+    }
+    for (std::size_t b = 0; b < s.bonds.size(); ++b) {
+      r.bonds[b] = s.bonds[b];
+      r.bonds[b].i = n - 1 - s.bonds[b].i;
+      r.bonds[b].j = n - 1 - s.bonds[b].j;
+      if (b % 2 == 0) std::swap(r.bonds[b].i, r.bonds[b].j);
+    }
+    systems.push_back(r);
+  }
+  const double kT = 1.3;
+  for (const System& s : systems) {
+    FixmanPotential own(s.bonds, s.inv_mass), shared(s.bonds, s.inv_mass);
+    ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+    shared.use_toolbox(&toolbox);
+    Matrix3Xd x = s.x;
+    for (int move = 0; move < 2; ++move) {
+      Matrix3Xd f_own, f_shared;
+      const double u_own = own.force(x, kT, f_own);
+      const double u_shared = shared.force(x, kT, f_shared);
+      EXPECT_NEAR(u_shared, u_own, 1e-12 * (1.0 + std::abs(u_own)));
+      EXPECT_LE((f_shared - f_own).cwiseAbs().maxCoeff(), 1e-11 * (1.0 + f_own.cwiseAbs().maxCoeff()));
+      x += 0.05 * Matrix3Xd::Random(3, x.cols());
+    }
+  }
+  const System a = chain(rng, 10), b = chain(rng, 10);
+  ConstraintToolbox other(b.bonds, b.inv_mass);
+  FixmanPotential fp(a.bonds, a.inv_mass);
+  EXPECT_THROW(fp.use_toolbox(&other), std::invalid_argument);
+  FixmanPotential dense(a.bonds, a.inv_mass, FixmanPotential::Path::dense);
+  ConstraintToolbox same(a.bonds, a.inv_mass);
+  EXPECT_THROW(dense.use_toolbox(&same), std::invalid_argument);
+}
+
 // Above the serial threshold clusters run on the threads: the result is the serial one, bit for bit.
 TEST(FixmanPotential, ThreadCountDoesNotChangeTheResult) {
   std::mt19937 rng(15);
@@ -304,6 +353,17 @@ TEST(FixmanPotential, ThreadCountDoesNotChangeTheResult) {
   const double u2 = fp.force(all.x, 1.0, f2);
   set_max_threads(restore);
   EXPECT_EQ(u1, u2);
+  EXPECT_TRUE(f1 == f2);
+  ConstraintToolbox toolbox(all.bonds, all.inv_mass);  // and through the toolbox's factors
+  fp.use_toolbox(&toolbox);
+  set_max_threads(1);
+  const double u3 = fp.force(all.x, 1.0, f1);
+  ConstraintToolbox toolbox2(all.bonds, all.inv_mass);
+  fp.use_toolbox(&toolbox2);
+  set_max_threads(2);
+  const double u4 = fp.force(all.x, 1.0, f2);
+  set_max_threads(restore);
+  EXPECT_EQ(u3, u4);
   EXPECT_TRUE(f1 == f2);
 }
 
