@@ -32,6 +32,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <limits>
 #include <map>
 #include <stdexcept>
@@ -52,6 +53,10 @@ constexpr int kMaxDenseBonds = 40;
 // A pivot this small relative to the largest entry of K means G is (numerically) rank
 // deficient on the cluster, e.g. a collinear triangle; the solve would return garbage.
 constexpr double kSingularPivot = 1e-13;
+
+// Open chains of one length whose solves run in lockstep (Impl::for_each_group): enough
+// independent recurrences to hide the latency of each chain's multiply–subtract and division.
+constexpr int kChainGroup = 4;
 
 // SHAKE iterations allowed inside mollified_force, whose API has no max_iter.
 constexpr int kMollifierMaxIter = 50;
@@ -258,6 +263,109 @@ class ChainLdlt {
   }
   // 1/D⁺_k (k < p), 1/γ_p, 1/D⁻_k (k > p): det S = 1 / Π of these.
   const double* inverse_pivots() const { return inv_pivot_.data(); }
+  int size() const { return n_; }
+
+  // K chains of one length in lockstep: their recurrences interleaved, so that the dependent
+  // multiply–subtract (and division) chains of different chains overlap — one chain's sweep is
+  // latency-bound. Each chain gets exactly the operations of its own factorize() / solve(), in
+  // the same order: the same bits. regular[j]: as factorize()'s return.
+  template <int K>
+  static void factorize_group(ChainLdlt* const* c, bool* regular) {
+    const int n = c[0]->n_, p = c[0]->p_;
+    const int top_steps = p, bottom_steps = n - 1 - p;
+    const double* d[K];
+    double* e[K];
+    double* inv[K];
+    double tiny[K], top[K], bottom[K];
+    for (int j = 0; j < K; ++j) {
+      d[j] = c[j]->diagonal_.data();
+      e[j] = c[j]->off_.data();
+      inv[j] = c[j]->inv_pivot_.data();
+      tiny[j] = kSingularPivot * c[j]->diagonal_.cwiseAbs().maxCoeff();
+      top[j] = d[j][0];
+      bottom[j] = d[j][n - 1];
+      regular[j] = true;
+    }
+    for (int t = 0; t < std::max(top_steps, bottom_steps); ++t) {
+      if (t < top_steps)
+        for (int j = 0; j < K; ++j) {
+          regular[j] &= top[j] > tiny[j];
+          inv[j][t] = 1.0 / top[j];
+          const double l = e[j][t] * inv[j][t];
+          top[j] = d[j][t + 1] - l * e[j][t];
+          e[j][t] = l;
+        }
+      if (t < bottom_steps) {
+        const int k = n - 2 - t;
+        for (int j = 0; j < K; ++j) {
+          regular[j] &= bottom[j] > tiny[j];
+          inv[j][k + 1] = 1.0 / bottom[j];
+          const double u = e[j][k] * inv[j][k + 1];
+          bottom[j] = d[j][k] - u * e[j][k];
+          e[j][k] = u;
+        }
+      }
+    }
+    for (int j = 0; j < K; ++j) {
+      const double gamma = top[j] + bottom[j] - d[j][p];
+      regular[j] &= gamma > tiny[j];  // false for NaN too
+      inv[j][p] = 1.0 / gamma;
+    }
+  }
+
+  template <int K>
+  static void solve_group(const ChainLdlt* const* c, const double* const* rhs, double* const* sol) {
+    const int n = c[0]->n_, p = c[0]->p_;
+    const int top_steps = p, bottom_steps = n - 1 - p, steps = std::max(top_steps, bottom_steps);
+    const double* m[K];
+    const double* inv[K];
+    double z[K], w[K], b_twist[K];
+    for (int j = 0; j < K; ++j) {
+      m[j] = c[j]->off_.data();
+      inv[j] = c[j]->inv_pivot_.data();
+      b_twist[j] = rhs[j][p];
+      z[j] = rhs[j][0];
+      w[j] = rhs[j][n - 1];
+      sol[j][0] = z[j];
+      sol[j][n - 1] = w[j];
+    }
+    for (int t = 0; t < steps; ++t) {
+      if (t < top_steps)
+        for (int j = 0; j < K; ++j) {
+          z[j] = rhs[j][t + 1] - m[j][t] * z[j];
+          sol[j][t + 1] = z[j];
+        }
+      if (t < bottom_steps) {
+        const int k = n - 2 - t;
+        for (int j = 0; j < K; ++j) {
+          w[j] = rhs[j][k] - m[j][k] * w[j];
+          sol[j][k] = w[j];
+        }
+      }
+    }
+    double up[K], down[K];
+    for (int j = 0; j < K; ++j) {
+      const double x_twist = (z[j] + w[j] - b_twist[j]) * inv[j][p];
+      sol[j][p] = x_twist;
+      up[j] = down[j] = x_twist;
+    }
+    for (int t = 0; t < steps; ++t) {
+      if (t < top_steps) {
+        const int k = p - 1 - t;
+        for (int j = 0; j < K; ++j) {
+          up[j] = sol[j][k] * inv[j][k] - m[j][k] * up[j];
+          sol[j][k] = up[j];
+        }
+      }
+      if (t < bottom_steps) {
+        const int k = p + 1 + t;
+        for (int j = 0; j < K; ++j) {
+          down[j] = sol[j][k] * inv[j][k] - m[j][k - 1] * down[j];
+          sol[j][k] = down[j];
+        }
+      }
+    }
+  }
 
   // sol = S⁻¹ rhs (sol may alias rhs).
   void solve(const double* rhs, double* sol) const {
@@ -477,6 +585,9 @@ struct ConstraintToolbox::Impl {
   void copy_configuration(const Eigen::Matrix3Xd& x);  // kept_x = x, on the threads
   // G and the factors of S at the kept configuration on cluster c, computed if not known yet.
   void factor_kept_s(int c, const char* what);
+  void chain_s_bands(int c, const char* what);
+  void chain_s_factored(int c, bool regular, const char* what);
+  void solve_chains(const int* cs, int k);
   // sol = S⁻¹ rhs at the kept configuration (after factor_kept_s).
   void solve_kept_s(int c);
   [[noreturn]] void singular(int c, bool symmetric, const char* what) const;
@@ -488,8 +599,27 @@ struct ConstraintToolbox::Impl {
 
   template <bool kForce>
   void chain_project(int c, Eigen::Matrix3Xd& a);
+  template <bool kForce>
+  void chain_project_rhs(int c, const Eigen::Matrix3Xd& a);
+  template <bool kForce>
+  void chain_project_update(int c, Eigen::Matrix3Xd& a);
   void project_force_cluster(int c, Eigen::Matrix3Xd& f);
   void project_velocity_cluster(int c, Eigen::Matrix3Xd& v);
+  // SHAKE on one cluster, as a sequence of iterations (shake_group interleaves several).
+  struct ShakeState {
+    int c = 0;
+    int iteration = 0;
+    bool chord = false;  // chord steps on S(x_ref); false: Newton on J
+    double previous = std::numeric_limits<double>::infinity();
+    double chord_residual = 0.0;  // max |h| of the last chord update, with −h in rhs
+    bool have_chord_residual = false;
+  };
+  enum class ShakeNext { converged, chord_solve, newton_done };
+  void shake_start(ShakeState& st, int c);
+  // One iteration up to the chord's solve: converged; chord_solve (−h or −g in rhs: solve S(x_ref)
+  // into sol, then shake_chord_update); or a Newton step done. Throws NumericalError.
+  ShakeNext shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  void shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y);
   void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter);
   void mollify_cluster(int c, Eigen::Matrix3Xd& f);
 
@@ -516,6 +646,47 @@ struct ConstraintToolbox::Impl {
       for (int c = first(u); c < end; ++c) f(c);
     });
   }
+
+  // Runs f(first, count) over the clusters in groups: up to kChainGroup consecutive open chains of
+  // one length (their solves run in lockstep: ChainLdlt::solve_group), any other cluster alone; on
+  // the threads in the blocks of for_each_cluster, groups never crossing a block. Each cluster gets
+  // the operations it would get alone, so the result does not depend on the grouping (nor on the
+  // thread count); a NumericalError is rethrown for the first failing cluster in cluster order.
+  template <class F>
+  void for_each_group(F&& f) {
+    const int nc = static_cast<int>(data.size());
+    auto run_block = [&](int begin, int end) {
+      for (int c = begin; c < end;) {
+        int count = 1;
+        if (data[c].spd)
+          while (count < kChainGroup && c + count < end && data[c + count].spd &&
+                 data[c + count].bonds.size() == data[c].bonds.size())
+            ++count;
+        f(c, count);
+        c += count;
+      }
+    };
+    const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
+    if (parts <= 1) {
+      run_block(0, nc);
+      return;
+    }
+    run_parts(parts, [&](int u) {
+      auto first = [&](int v) {
+        return static_cast<int>(
+            std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
+            bonds_before.begin());
+      };
+      run_block(first(u), u + 1 == parts ? nc : first(u + 1));
+    });
+  }
+  // Factorizes S at the kept configuration for the chains first … first + count − 1 that are not
+  // factored yet, in lockstep (factor_kept_s for each, with one factorization pass).
+  void factor_kept_group(int first, int count, const char* what);
+  // SHAKE on a group of open chains (shake_cluster for each, their chord solves in lockstep).
+  void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  template <bool kForce>
+  void project_group(int first, int count, Eigen::Matrix3Xd& a);
 
   std::vector<StiffBond> bonds;
   Eigen::VectorXd inv_mass;
@@ -804,6 +975,38 @@ void ConstraintToolbox::Impl::copy_configuration(const Eigen::Matrix3Xd& x) {
   kept = true;
 }
 
+// An open chain's bands of S at the kept configuration (measured first if need be).
+void ConstraintToolbox::Impl::chain_s_bands(int c, const char* what) {
+  ClusterData& d = data[c];
+  if (!d.frame_kept) {
+    measure(c, kept_x, at_kept, what);
+    d.frame_kept = true;
+  }
+  const double* u = at_kept.u.data();
+  auto dot = [&](int a, int b) {
+    const double* p = u + 3 * a;
+    const double* q = u + 3 * b;
+    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+  };
+  const int n = static_cast<int>(d.bonds.size());
+  const int* bond = d.bonds.data();
+  double* diagonal = d.spd->diagonal();
+  double* off = d.spd->off();
+  for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
+  for (int k = 0; k + 1 < n; ++k) off[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
+}
+
+// After an open chain's factorization: σ_k u_k along the path (SHAKE's chord, the projections).
+void ConstraintToolbox::Impl::chain_s_factored(int c, bool regular, const char* what) {
+  ClusterData& d = data[c];
+  if (!regular) singular(c, true, what);
+  const int* bond = d.bonds.data();
+  for (int k = 0, n = static_cast<int>(d.bonds.size()); k < n; ++k)
+    d.e_kept.col(k) = d.orientation[k] * at_kept.u.col(bond[k]);
+  d.s_factored = true;
+  ++d.factorizations;
+}
+
 void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
   ClusterData& d = data[c];
   if (!d.frame_kept) {
@@ -812,26 +1015,76 @@ void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
   }
   if (d.s_factored) return;
   if (d.spd) {
-    const double* u = at_kept.u.data();
-    auto dot = [&](int a, int b) {
-      const double* p = u + 3 * a;
-      const double* q = u + 3 * b;
-      return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-    };
-    const int n = static_cast<int>(d.bonds.size());
-    const int* bond = d.bonds.data();
-    double* diagonal = d.spd->diagonal();
-    double* off = d.spd->off();
-    for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
-    for (int k = 0; k + 1 < n; ++k) off[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
-    if (!d.spd->factorize()) singular(c, true, what);
-    for (int k = 0; k < n; ++k)  // σ_k u_k along the path, for SHAKE's chord
-      d.e_kept.col(k) = d.orientation[k] * at_kept.u.col(bond[k]);
-  } else {
-    factorize(c, at_kept, at_kept, true, what);
+    chain_s_bands(c, what);
+    chain_s_factored(c, d.spd->factorize(), what);
+    return;
   }
+  factorize(c, at_kept, at_kept, true, what);
   d.s_factored = true;
   ++d.factorizations;
+}
+
+void ConstraintToolbox::Impl::factor_kept_group(int first, int count, const char* what) {
+  int todo[kChainGroup];
+  int k = 0;
+  for (int c = first; c < first + count; ++c) {
+    if (data[c].s_factored) continue;
+    try {
+      chain_s_bands(c, what);
+    } catch (const NumericalError&) {             // a bond of zero or non-finite length: as alone, after
+      factor_kept_group(first, c - first, what);  // the clusters before it are factored
+      throw;
+    }
+    todo[k++] = c;
+  }
+  ChainLdlt* chain[kChainGroup];
+  bool regular[kChainGroup];
+  for (int j = 0; j < k; ++j) chain[j] = data[todo[j]].spd.get();
+  switch (k) {
+    case 0:
+      return;
+    case 1:
+      regular[0] = chain[0]->factorize();
+      break;
+    case 2:
+      ChainLdlt::factorize_group<2>(chain, regular);
+      break;
+    case 3:
+      ChainLdlt::factorize_group<3>(chain, regular);
+      break;
+    default:
+      ChainLdlt::factorize_group<4>(chain, regular);
+      break;
+  }
+  for (int j = 0; j < k; ++j) chain_s_factored(todo[j], regular[j], what);  // the first singular one throws
+}
+
+// sol = S⁻¹ rhs for the given open chains (of one length) in lockstep.
+void ConstraintToolbox::Impl::solve_chains(const int* cs, int k) {
+  const ChainLdlt* chain[kChainGroup];
+  const double* rhs[kChainGroup];
+  double* sol[kChainGroup];
+  for (int j = 0; j < k; ++j) {
+    chain[j] = data[cs[j]].spd.get();
+    rhs[j] = data[cs[j]].rhs.data();
+    sol[j] = data[cs[j]].sol.data();
+  }
+  switch (k) {
+    case 0:
+      return;
+    case 1:
+      chain[0]->solve(rhs[0], sol[0]);
+      return;
+    case 2:
+      ChainLdlt::solve_group<2>(chain, rhs, sol);
+      return;
+    case 3:
+      ChainLdlt::solve_group<3>(chain, rhs, sol);
+      return;
+    default:
+      ChainLdlt::solve_group<4>(chain, rhs, sol);
+      return;
+  }
 }
 
 void ConstraintToolbox::Impl::solve_kept_s(int c) {
@@ -884,30 +1137,37 @@ void ConstraintToolbox::Impl::add_constraint_displacement(int c, const BondFrame
 // for a force (f − Gᵀμ) and m_p⁻¹ for a velocity (v − M⁻¹Gᵀμ). Each particle is read once per
 // pass, in path order, instead of through the bond records.
 template <bool kForce>
-void ConstraintToolbox::Impl::chain_project(int c, Eigen::Matrix3Xd& a) {
+void ConstraintToolbox::Impl::chain_project_rhs(int c, const Eigen::Matrix3Xd& a) {
   ClusterData& d = data[c];
   const int n = static_cast<int>(d.bonds.size());
   const int* path = d.path.data();
   const double* w = d.path_inv_mass.data();
   const double* e = d.e_kept.data();
-  double* ap = a.data();
+  const double* ap = a.data();
   double* rhs = d.rhs.data();
-  {
-    const double* p = ap + 3 * path[0];
-    const double wp = kForce ? w[0] : 1.0;
-    double px = wp * p[0], py = wp * p[1], pz = wp * p[2];
-    for (int k = 0; k < n; ++k) {
-      const double* q = ap + 3 * path[k + 1];
-      const double wq = kForce ? w[k + 1] : 1.0;
-      const double qx = wq * q[0], qy = wq * q[1], qz = wq * q[2];
-      rhs[k] = e[3 * k] * (px - qx) + e[3 * k + 1] * (py - qy) + e[3 * k + 2] * (pz - qz);
-      px = qx;
-      py = qy;
-      pz = qz;
-    }
+  const double* p = ap + 3 * path[0];
+  const double wp = kForce ? w[0] : 1.0;
+  double px = wp * p[0], py = wp * p[1], pz = wp * p[2];
+  for (int k = 0; k < n; ++k) {
+    const double* q = ap + 3 * path[k + 1];
+    const double wq = kForce ? w[k + 1] : 1.0;
+    const double qx = wq * q[0], qy = wq * q[1], qz = wq * q[2];
+    rhs[k] = e[3 * k] * (px - qx) + e[3 * k + 1] * (py - qy) + e[3 * k + 2] * (pz - qz);
+    px = qx;
+    py = qy;
+    pz = qz;
   }
-  d.spd->solve(rhs, d.sol.data());
+}
+
+template <bool kForce>
+void ConstraintToolbox::Impl::chain_project_update(int c, Eigen::Matrix3Xd& a) {
+  ClusterData& d = data[c];
+  const int n = static_cast<int>(d.bonds.size());
+  const int* path = d.path.data();
+  const double* w = d.path_inv_mass.data();
+  const double* e = d.e_kept.data();
   const double* mu = d.sol.data();
+  double* ap = a.data();
   double ex = 0.0, ey = 0.0, ez = 0.0;  // σ_{k−1} u_{k−1} μ_{k−1}
   for (int k = 0; k <= n; ++k) {
     double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k μ_k (none past the last bond)
@@ -925,6 +1185,34 @@ void ConstraintToolbox::Impl::chain_project(int c, Eigen::Matrix3Xd& a) {
     ey = fy;
     ez = fz;
   }
+}
+
+template <bool kForce>
+void ConstraintToolbox::Impl::chain_project(int c, Eigen::Matrix3Xd& a) {
+  chain_project_rhs<kForce>(c, a);
+  data[c].spd->solve(data[c].rhs.data(), data[c].sol.data());
+  chain_project_update<kForce>(c, a);
+}
+
+// A group of clusters (for_each_group): open chains project in lockstep, anything else alone.
+template <bool kForce>
+void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3Xd& a) {
+  const char* what = kForce ? "force projection" : "velocity projection";
+  if (count == 1) {
+    if (kForce)
+      project_force_cluster(first, a);
+    else
+      project_velocity_cluster(first, a);
+    return;
+  }
+  factor_kept_group(first, count, what);
+  int cs[kChainGroup];
+  for (int j = 0; j < count; ++j) {
+    cs[j] = first + j;
+    chain_project_rhs<kForce>(cs[j], a);
+  }
+  solve_chains(cs, count);
+  for (int j = 0; j < count; ++j) chain_project_update<kForce>(cs[j], a);
 }
 
 // P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)).
@@ -962,65 +1250,137 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
 // factors are usually kept from the velocity projection that ended the last step); otherwise, or
 // as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
 // enough for the mollified force's H_λ).
-void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+void ConstraintToolbox::Impl::shake_start(ShakeState& st, int c) {
   ClusterData& d = data[c];
   if (!d.frame_kept) {
     measure(c, kept_x, at_kept, "SHAKE (reference configuration)");
     d.frame_kept = true;
   }
-  bool chord = d.spd != nullptr;
-  double previous = std::numeric_limits<double>::infinity();
+  st = ShakeState{};
+  st.c = c;
+  st.chord = d.spd != nullptr;
+  d.lambda.setZero();
+}
+
+ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y,
+                                                                          double tol, int max_iter) {
+  const int c = st.c;
+  ClusterData& d = data[c];
   const int n = static_cast<int>(d.bonds.size());
   const int* bond = d.bonds.data();
-  d.lambda.setZero();
-  double chord_residual = 0.0;  // max |h| of the last chord update, with −h in rhs
-  bool have_chord_residual = false;
-  for (int iteration = 0;; ++iteration) {
-    // The chord needs only the residual, −h(y) (gap: no square root; after a chord update it was
-    // computed in the update's pass); G(y), a full measure with rhs = −g(y), only to confirm
-    // convergence (it is then kept for the velocity projection), for a Newton step, or to name a
-    // bond whose length is not finite.
-    double residual = !chord ? 0.0 : have_chord_residual ? chord_residual : chain_gap(c, y, d.rhs.data());
-    have_chord_residual = false;
-    bool measured = false;
-    auto measure_y = [&] {
-      residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
-      measured = true;
-    };
-    if (!chord || !(residual > tol)) {  // Newton, converged by h, or not finite
-      measure_y();
-      if (residual <= tol) return;
-    }
-    if (iteration == max_iter) {
-      if (!measured) measure_y();  // report g, not h
-      int worst = 0;
-      d.rhs.cwiseAbs().maxCoeff(&worst);
-      const int b = bond[worst];
-      throw NumericalError("SHAKE did not converge in cluster " + std::to_string(c) + " after " +
-                           std::to_string(max_iter) + " iterations: worst " + describe_bond(b, bonds[b]) +
-                           ", |g| = " + format_g(residual));
-    }
-    if (iteration == 0 && chord)
-      for (int k = 0; k < n; ++k) chord &= std::abs(d.rhs[k]) <= kChordStart * bonds[bond[k]].length;
-    chord &= !(residual > kChordContraction * previous);  // false for NaN too
-    previous = residual;
-    if (!chord && !measured) measure_y();  // Newton from here: J needs G(y)
-    if (chord) {
-      // S(x_ref) δ = −h(y) (or −g(y) after a full measure); then, in one pass along the chain,
-      // λ += δ, y += M⁻¹G(x_ref)ᵀδ and the new −h(y).
+  const int iteration = st.iteration;
+  // The chord needs only the residual, −h(y) (gap: no square root; after a chord update it was
+  // computed in the update's pass); G(y), a full measure with rhs = −g(y), only to confirm
+  // convergence (it is then kept for the velocity projection), for a Newton step, or to name a
+  // bond whose length is not finite.
+  double residual = !st.chord ? 0.0 : st.have_chord_residual ? st.chord_residual : chain_gap(c, y, d.rhs.data());
+  st.have_chord_residual = false;
+  bool measured = false;
+  auto measure_y = [&] {
+    residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
+    measured = true;
+  };
+  if (!st.chord || !(residual > tol)) {  // Newton, converged by h, or not finite
+    measure_y();
+    if (residual <= tol) return ShakeNext::converged;
+  }
+  if (iteration == max_iter) {
+    if (!measured) measure_y();  // report g, not h
+    int worst = 0;
+    d.rhs.cwiseAbs().maxCoeff(&worst);
+    const int b = bond[worst];
+    throw NumericalError("SHAKE did not converge in cluster " + std::to_string(c) + " after " +
+                         std::to_string(max_iter) + " iterations: worst " + describe_bond(b, bonds[b]) +
+                         ", |g| = " + format_g(residual));
+  }
+  if (iteration == 0 && st.chord)
+    for (int k = 0; k < n; ++k) st.chord &= std::abs(d.rhs[k]) <= kChordStart * bonds[bond[k]].length;
+  st.chord &= !(residual > kChordContraction * st.previous);  // false for NaN too
+  st.previous = residual;
+  if (!st.chord && !measured) measure_y();  // Newton from here: J needs G(y)
+  if (st.chord) return ShakeNext::chord_solve;
+  factorize(c, at_cur, at_kept, false, "SHAKE");
+  ++d.factorizations;
+  if (!d.spd) d.s_factored = false;  // J took S's place in the solver
+  d.solver->solve(d.rhs, d.sol);
+  d.lambda += d.sol;
+  add_constraint_displacement(c, at_kept, d.sol, +1.0, y);
+  ++st.iteration;
+  return ShakeNext::newton_done;
+}
+
+// After S(x_ref) δ = −h(y) (or −g(y) after a full measure) into sol: in one pass along the
+// chain, λ += δ, y += M⁻¹G(x_ref)ᵀδ and the new −h(y).
+void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y) {
+  ClusterData& d = data[st.c];
+  st.chord_residual = chain_displace(st.c, y, d.sol.data(), d.rhs.data());
+  st.have_chord_residual = true;
+  ++st.iteration;
+}
+
+// y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
+// configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
+// x_ref take chord steps S(x_ref) δ = −g(y) (SHAKE's quasi-Newton: S is J at y = x_ref, and its
+// factors are usually kept from the velocity projection that ended the last step); otherwise, or
+// as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
+// enough for the mollified force's H_λ).
+void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+  ShakeState st;
+  shake_start(st, c);
+  for (;;) {
+    const ShakeNext next = shake_iterate(st, y, tol, max_iter);
+    if (next == ShakeNext::converged) return;
+    if (next == ShakeNext::chord_solve) {
       factor_kept_s(c, "SHAKE (reference configuration)");
-      d.spd->solve(d.rhs.data(), d.sol.data());
-      chord_residual = chain_displace(c, y, d.sol.data(), d.rhs.data());
-      have_chord_residual = true;
-    } else {
-      factorize(c, at_cur, at_kept, false, "SHAKE");
-      ++d.factorizations;
-      if (!d.spd) d.s_factored = false;  // J took S's place in the solver
-      d.solver->solve(d.rhs, d.sol);
-      d.lambda += d.sol;
-      add_constraint_displacement(c, at_kept, d.sol, +1.0, y);
+      data[c].spd->solve(data[c].rhs.data(), data[c].sol.data());
+      shake_chord_update(st, y);
     }
   }
+}
+
+// shake_cluster on each cluster of a group of open chains, their chord solves in lockstep. Each
+// cluster goes through its own iterations exactly as alone; a failure is held until the group is
+// done and the first failing cluster's rethrown.
+void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+  if (count == 1) {
+    shake_cluster(first, y, tol, max_iter);
+    return;
+  }
+  ShakeState st[kChainGroup];
+  bool active[kChainGroup];
+  std::exception_ptr error[kChainGroup];
+  auto guard = [&](int j, auto&& work) {
+    try {
+      work();
+    } catch (const NumericalError&) {
+      error[j] = std::current_exception();
+      active[j] = false;
+    }
+  };
+  for (int j = 0; j < count; ++j) {
+    active[j] = true;
+    guard(j, [&] { shake_start(st[j], first + j); });
+  }
+  for (;;) {
+    int solving[kChainGroup], cs[kChainGroup];
+    int k = 0;
+    for (int j = 0; j < count; ++j) {
+      if (!active[j]) continue;
+      guard(j, [&] {
+        const ShakeNext next = shake_iterate(st[j], y, tol, max_iter);
+        if (next == ShakeNext::converged) active[j] = false;
+        if (next != ShakeNext::chord_solve) return;
+        factor_kept_s(first + j, "SHAKE (reference configuration)");
+        solving[k] = j;
+        cs[k++] = first + j;
+      });
+    }
+    if (k == 0 && std::none_of(active, active + count, [](bool a) { return a; })) break;
+    solve_chains(cs, k);
+    for (int q = 0; q < k; ++q) shake_chord_update(st[solving[q]], y);
+  }
+  for (int j = 0; j < count; ++j)
+    if (error[j]) std::rethrow_exception(error[j]);
 }
 
 // Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
@@ -1115,14 +1475,14 @@ void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3X
   require_columns(x, impl_->num_particles(), "project_force");
   require_columns(f, impl_->num_particles(), "project_force");
   impl_->keep(x);
-  impl_->for_each_cluster([&](int c) { impl_->project_force_cluster(c, f); });
+  impl_->for_each_group([&](int c, int count) { impl_->project_group<true>(c, count, f); });
 }
 
 void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
   require_columns(x, impl_->num_particles(), "project_velocity");
   require_columns(v, impl_->num_particles(), "project_velocity");
   impl_->keep(x);
-  impl_->for_each_cluster([&](int c) { impl_->project_velocity_cluster(c, v); });
+  impl_->for_each_group([&](int c, int count) { impl_->project_group<false>(c, count, v); });
 }
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
@@ -1131,7 +1491,7 @@ void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y
   require_columns(y, impl_->num_particles(), "shake");
   Impl& d = *impl_;
   d.keep(x_ref);  // a copy: y may be x_ref itself
-  d.for_each_cluster([&](int c) { d.shake_cluster(c, y, tol, max_iter); });
+  d.for_each_group([&](int c, int count) { d.shake_group(c, count, y, tol, max_iter); });
   // Every cluster's last measure was of the converged y: keep y with G there, for the velocity
   // projection that follows in RATTLE (S at y is factored when first asked for).
   d.copy_configuration(y);

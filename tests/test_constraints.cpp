@@ -402,6 +402,53 @@ TEST(ConstraintShake, ConvergesQuadraticallyFarFromTheReference) {
 // with chord steps on S(x_ref), but J = G(y) M⁻¹ G(x_ref)ᵀ is far from S (its diagonal is S's times
 // cos 1.2 ≈ 0.36) and the chord cannot contract. SHAKE must notice and finish by Newton: converged,
 // along G(x_ref)ᵀ, having factored J. (A chord kept to the end runs out of iterations.)
+// Open chains of one length are solved in groups, their recurrences in lockstep
+// (ChainLdlt::factorize_group, solve_group): each chain must get the bits it gets alone. Nine
+// chains of 12 beads (groups of 4, 4, 1) against a toolbox per chain, for SHAKE of a drift (its
+// chord path), a velocity and a force projection; one of the nine chains is far off the manifold,
+// so SHAKE takes Newton steps on it while the others of its group take chord steps.
+TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
+  const int chains = 9, beads = 12;
+  std::vector<Scene> parts;
+  Scene all{"nine_chains", {}, Eigen::VectorXd(chains * beads), Eigen::Matrix3Xd(3, chains * beads)};
+  for (int c = 0; c < chains; ++c) {
+    Scene part = random_chain(beads, 100 + c, 0.0);
+    part.x.colwise() += Eigen::Vector3d(20.0 * c, 0.0, 0.0);
+    all.inv_mass.segment(c * beads, beads) = part.inv_mass;
+    all.x.middleCols(c * beads, beads) = part.x;
+    for (StiffBond b : part.bonds) {
+      b.i += c * beads;
+      b.j += c * beads;
+      all.bonds.push_back(b);
+    }
+    parts.push_back(part);
+  }
+  const Eigen::Matrix3Xd v = random_matrix(chains * beads, 31), f = random_matrix(chains * beads, 32);
+  ConstraintToolbox together(all.bonds, all.inv_mass);
+  ASSERT_EQ(together.clusters().size(), static_cast<std::size_t>(chains));
+  Eigen::Matrix3Xd y = all.x + 0.01 * v;
+  y.middleCols(5 * beads, beads) += 0.06 * random_matrix(beads, 33);  // chain 5: Newton
+  ASSERT_GT(ConstraintToolbox(parts[5].bonds, parts[5].inv_mass).max_violation(y.middleCols(5 * beads, beads)),
+            1.2e-2);  // beyond the chord's start (1e-2 ℓ, ℓ ≤ 1.2)
+  Eigen::Matrix3Xd v_all = v, f_all = f;
+  together.shake(all.x, y);
+  together.project_velocity(y, v_all);
+  together.project_force(y, f_all);
+  for (int c = 0; c < chains; ++c) {
+    SCOPED_TRACE(testing::Message() << "chain " << c);
+    ConstraintToolbox alone(parts[c].bonds, parts[c].inv_mass);
+    Eigen::Matrix3Xd y_c = all.x.middleCols(c * beads, beads) + 0.01 * v.middleCols(c * beads, beads);
+    if (c == 5) y_c += 0.06 * random_matrix(beads, 33);
+    Eigen::Matrix3Xd v_c = v.middleCols(c * beads, beads), f_c = f.middleCols(c * beads, beads);
+    alone.shake(all.x.middleCols(c * beads, beads), y_c);
+    alone.project_velocity(y_c, v_c);
+    alone.project_force(y_c, f_c);
+    EXPECT_EQ((y.middleCols(c * beads, beads) - y_c).cwiseAbs().maxCoeff(), 0.0);
+    EXPECT_EQ((v_all.middleCols(c * beads, beads) - v_c).cwiseAbs().maxCoeff(), 0.0);
+    EXPECT_EQ((f_all.middleCols(c * beads, beads) - f_c).cwiseAbs().maxCoeff(), 0.0);
+  }
+}
+
 TEST(ConstraintShake, FallsBackToNewtonWhenTheChordDoesNotContract) {
   const Scene s = random_chain(10, 31, 0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
