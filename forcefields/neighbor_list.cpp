@@ -209,24 +209,27 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   image_.resize(3, n);
   wrapped_x_.resize(3, n);
   cell_start_.assign(static_cast<std::size_t>(ncells) + 1, 0);
-  for (int i = 0; i < n; ++i) {
-    int c[3];
-    for (int a = 0; a < 3; ++a) {
-      double s = (x(a, i) - lo[a]) * inv_len[a];
-      double image = 0.0;
-      if (box.periodic[a]) {  // positions are unwrapped: bin their image inside the box
-        const double whole = std::floor(s);
-        s -= whole;
-        image = whole * len[a];
+  // Each particle's image and cell on the threads (independent per particle), then the counts.
+  const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
+  parallel_blocks(n, threads_for(n), [&](std::int64_t first, std::int64_t last) {
+    for (std::int64_t i = first; i < last; ++i) {
+      int c[3];
+      for (int a = 0; a < 3; ++a) {
+        double s = (x(a, i) - lo[a]) * inv_len[a];
+        double image = 0.0;
+        if (periodic[a]) {  // positions are unwrapped: bin their image inside the box
+          const double whole = std::floor(s);
+          s -= whole;
+          image = whole * len[a];
+        }
+        image_(a, i) = image;
+        wrapped_x_(a, i) = x(a, i) - image;
+        c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
       }
-      image_(a, i) = image;
-      wrapped_x_(a, i) = x(a, i) - image;
-      c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
+      cell_of_[i] = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
     }
-    const int cell = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
-    cell_of_[i] = cell;
-    ++cell_start_[cell + 1];
-  }
+  });
+  for (int i = 0; i < n; ++i) ++cell_start_[cell_of_[i] + 1];
   for (int c = 0; c < ncells; ++c) cell_start_[c + 1] += cell_start_[c];
   cell_particles_.resize(n);
   cell_x_.resize(3, n);
