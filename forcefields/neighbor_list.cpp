@@ -270,8 +270,8 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // "forward"), each pair of particles once: half the candidates of a full stencil, and no test
 // on the particle indices. Needs ≥ 3 cells on every periodic axis, so that the 27 neighbours
 // of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index
-// (a stable counting sort). Threads (parallel.hpp) search slabs of cells along x, in cell order,
-// into their own pair buffers; the buffers taken in slab order are the pairs in the order one
+// (a stable counting sort). Threads (parallel.hpp) search runs of columns of cells, in cell order,
+// into their own pair buffers; the buffers taken in order are the pairs in the order one
 // thread finds them, so the list — its rows and the order within each row — does not depend on
 // the thread count. (Rows are not sorted by j: it cost an eighth of the build and the pair loop
 // was no faster for it.)
@@ -286,7 +286,27 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
-  const int parts = std::max(1, std::min(threads_for(n), nx));
+  // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
+  // counts: slabs of whole x-planes balanced poorly (23 planes on data.chain: 12 against 11).
+  const int columns = nx * ny;
+  const int parts = std::max(1, std::min(threads_for(n), columns));
+  std::array<int, kMaxParts + 1> first_column{};
+  for (int u = 0; u <= parts; ++u) {
+    if (u == parts) {
+      first_column[u] = columns;
+      continue;
+    }
+    const std::int64_t target = block_begin(n, parts, u);  // the first particle of part u
+    int lo = 0, hi = columns;                              // the first column starting at or past it
+    while (lo < hi) {
+      const int mid = (lo + hi) / 2;
+      if (cs[mid * nz] < target)
+        lo = mid + 1;
+      else
+        hi = mid;
+    }
+    first_column[u] = u == 0 ? 0 : lo;
+  }
   if (static_cast<int>(pair_i_.size()) < parts) {
     pair_i_.resize(parts);
     pair_j_.resize(parts);
@@ -377,46 +397,46 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       const int cell = (gx * ny + gy) * nz + gz;
       gather(cs[cell], cs[cell + 1], sx, sy, sz);
     };
-    const int cx_end = static_cast<int>(block_begin(nx, parts, u + 1));
-    for (int cx = static_cast<int>(block_begin(nx, parts, u)); cx < cx_end; ++cx)
-      for (int cy = 0; cy < ny; ++cy)
-        for (int cz = 0; cz < nz; ++cz) {
-          const int c = (cx * ny + cy) * nz + cz;
-          if (cs[c] == cs[c + 1]) continue;
-          total = 0;
-          if (cz + 1 < nz) {  // the cell and the next along z, one range
-            gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
+    for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
+      const int cx = column / ny, cy = column % ny;
+      for (int cz = 0; cz < nz; ++cz) {
+        const int c = (cx * ny + cy) * nz + cz;
+        if (cs[c] == cs[c + 1]) continue;
+        total = 0;
+        if (cz + 1 < nz) {  // the cell and the next along z, one range
+          gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
+        } else {
+          gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
+          gather_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
+        }
+        for (const auto& col : kColumns) {
+          const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
+          if (gx < 0 || gy < 0) continue;
+          const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
+          if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+            const int base = (gx * ny + gy) * nz;
+            gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
           } else {
-            gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
-            gather_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
-          }
-          for (const auto& col : kColumns) {
-            const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
-            if (gx < 0 || gy < 0) continue;
-            const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
-            if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
-              const int base = (gx * ny + gy) * nz;
-              gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
-            } else {
-              for (int dz = 0; dz < 3; ++dz)
-                gather_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
-            }
-          }
-          for (int m = 0; m < cs[c + 1] - cs[c]; ++m) {
-            const double xi = gxs[m], yi = gys[m], zi = gzs[m];
-            int found = 0;
-            for (int t = m + 1; t < total; ++t) {
-              const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
-              hit[found] = gks[t];
-              found += dx * dx + dy * dy + dz * dz < rlist2;
-            }
-            record_hits(cp[cs[c] + m], found);
+            for (int dz = 0; dz < 3; ++dz)
+              gather_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
           }
         }
+        for (int m = 0; m < cs[c + 1] - cs[c]; ++m) {
+          const double xi = gxs[m], yi = gys[m], zi = gzs[m];
+          int found = 0;
+          for (int t = m + 1; t < total; ++t) {
+            const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
+            hit[found] = gks[t];
+            found += dx * dx + dy * dy + dz * dz < rlist2;
+          }
+          record_hits(cp[cs[c] + m], found);
+        }
+      }
+    }
     pair_count_[u] = used;
   });
 
-  // Counting sort of the pairs into CSR rows by i, the slabs in order.
+  // Counting sort of the pairs into CSR rows by i, the parts in order.
   offsets_.assign(static_cast<std::size_t>(n) + 1, 0);
   std::size_t total = 0;
   for (int u = 0; u < parts; ++u) {

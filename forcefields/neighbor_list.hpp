@@ -187,7 +187,7 @@ class NeighborList {
   // c − 1 and c + 1, so no single shift is right and the search rounds to the minimum image.
   bool small_box_ = false;
   // Scratch of the half-stencil search: the pairs found, before they are sorted into rows.
-  std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (slab of cells), sized to capacity
+  std::vector<std::vector<int>> pair_i_, pair_j_;  // per thread (run of cell columns), sized to capacity
   std::vector<std::size_t> pair_count_;            // per thread: the pairs in pair_i_, pair_j_
   std::vector<std::vector<int>> hits_;             // per thread: one particle's neighbours found
   struct CandidateScratch {                        // per thread: one cell's candidates (search_half_stencil)

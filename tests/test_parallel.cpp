@@ -113,8 +113,8 @@ TEST(Parallel, WcaForcesDoNotDependOnTheThreadCount) {
 }
 
 // The list's rows and the order within each row (which fixes the order of the force sums) must
-// be the same for any thread count: the threads search slabs of cells, and their buffers taken in
-// slab order are the pairs in the order one thread finds them. Also across the periodic faces
+// be the same for any thread count: the threads search runs of cell columns, and their buffers taken in
+// order are the pairs in the order one thread finds them. Also across the periodic faces
 // (the jitter puts particles on both sides) and with exclusions.
 TEST(Parallel, NeighborListDoesNotDependOnTheThreadCount) {
   for (bool shuffle : {false, true}) {
