@@ -181,8 +181,9 @@ struct PairScratch {
 
 // The listed pairs on `parts` threads (parallel.hpp): part u takes a contiguous block of rows
 // holding about 1/parts of the pairs and writes f_i and f_j into its own buffer (a neighbour j
-// may belong to any block); then each thread adds, for a block of particles, the buffers in part
-// order. Fixed blocks and a fixed order: the same sums for a given thread count.
+// may belong to any block) — part 0 into f itself; then each thread adds, for a block of
+// particles, the other buffers in part order. Fixed blocks and a fixed order: the same sums for a
+// given thread count.
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
@@ -201,8 +202,12 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   run_parts(parts, [&](int u) {
     double* fu = nullptr;
     if constexpr (kForces) {
-      scratch.force[u].setZero(3, n);  // allocates only the first time
-      fu = scratch.force[u].data();
+      if (u == 0) {
+        fu = f;  // part 0 adds into f itself: one buffer fewer to clear and to sum
+      } else {
+        scratch.force[u].setZero(3, n);  // allocates only the first time
+        fu = scratch.force[u].data();
+      }
     }
     scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial>(
         list, scratch.first_row[u], std::max(scratch.first_row[u], scratch.first_row[u + 1]), params, type, xw, near,
@@ -210,7 +215,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   });
   if constexpr (kForces)
     parallel_blocks(n, parts, [&](std::int64_t begin, std::int64_t end) {
-      for (int u = 0; u < parts; ++u) {
+      for (int u = 1; u < parts; ++u) {
         const double* fu = scratch.force[u].data();
         for (std::int64_t k = 3 * begin; k < 3 * end; ++k) f[k] += fu[k];
       }
