@@ -90,15 +90,20 @@ void Rattle::step(State& s, double h) {
 // constraint_force_ (+)= M (v − v_unprojected) / dt; fixed particles (inverse mass 0) have Δv = 0
 // and get no force.
 void Rattle::add_constraint_force(const State& s, double dt, bool first) {
+  if (mass_.size() != s.inv_mass.size())  // m_i, 0 at fixed particles: no division per particle and call
+    mass_ = (s.inv_mass.array() > 0.0).select(s.inv_mass.cwiseInverse(), 0.0);
+  const double inv_dt = 1.0 / dt;
   parallel_blocks(s.size(), threads_for(s.size()), [&](std::int64_t b, std::int64_t e) {
+    const double* __restrict v = s.v.data();
+    const double* __restrict vu = v_unprojected_.data();
+    const double* __restrict m = mass_.data();
+    double* __restrict fc = constraint_force_.data();
     for (std::int64_t i = b; i < e; ++i) {
-      const Eigen::Vector3d f = s.inv_mass[i] > 0.0
-                                    ? ((s.v.col(i) - v_unprojected_.col(i)) * (1.0 / (dt * s.inv_mass[i]))).eval()
-                                    : Eigen::Vector3d::Zero().eval();
-      if (first)
-        constraint_force_.col(i) = f;
-      else
-        constraint_force_.col(i) += f;
+      const double scale = m[i] * inv_dt;
+      for (int a = 0; a < 3; ++a) {
+        const double f = (v[3 * i + a] - vu[3 * i + a]) * scale;
+        fc[3 * i + a] = first ? f : fc[3 * i + a] + f;
+      }
     }
   });
 }

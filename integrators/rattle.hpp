@@ -75,6 +75,7 @@ class Rattle final : public Integrator {
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
   Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
+  Eigen::VectorXd mass_;  // m_i (0 at fixed particles), for the constraint force
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
   bool model_value_current_ = false;  // … and x has not moved since
