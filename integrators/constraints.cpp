@@ -637,14 +637,15 @@ struct ConstraintToolbox::Impl {
       return;
     }
     run_parts(parts, [&](int u) {
-      auto first = [&](int v) {  // the first cluster of block v
-        return static_cast<int>(
-            std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
-            bonds_before.begin());
-      };
-      const int end = u + 1 == parts ? nc : first(u + 1);
-      for (int c = first(u); c < end; ++c) f(c);
+      const int end = u + 1 == parts ? nc : first_cluster_of_block(parts, u + 1);
+      for (int c = first_cluster_of_block(parts, u); c < end; ++c) f(c);
     });
+  }
+  // The first cluster of block v of `parts` (blocks of about equal bond count).
+  int first_cluster_of_block(int parts, int v) const {
+    return static_cast<int>(
+        std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
+        bonds_before.begin());
   }
 
   // Runs f(first, count) over the clusters in groups: up to kChainGroup consecutive open chains of
@@ -672,12 +673,7 @@ struct ConstraintToolbox::Impl {
       return;
     }
     run_parts(parts, [&](int u) {
-      auto first = [&](int v) {
-        return static_cast<int>(
-            std::lower_bound(bonds_before.begin(), bonds_before.end() - 1, block_begin(bonds_before.back(), parts, v)) -
-            bonds_before.begin());
-      };
-      run_block(first(u), u + 1 == parts ? nc : first(u + 1));
+      run_block(first_cluster_of_block(parts, u), u + 1 == parts ? nc : first_cluster_of_block(parts, u + 1));
     });
   }
   // Factorizes S at the kept configuration for the chains first … first + count − 1 that are not

@@ -127,7 +127,8 @@ double fd_error(const System& s, double kT) {
 
 // U_F by its definition: (kT/2) log det(K^{1/2} G M⁻¹ Gᵀ K^{1/2}) with G assembled densely.
 // All clusters at once (the log det of a block-diagonal matrix is the sum over blocks).
-double reference_energy(const System& s, double kT) {
+// K^{1/2} G: row b has α_b u_b in the columns of particle i and −α_b u_b in those of j.
+MatrixXd scaled_jacobian(const System& s) {
   const int m = static_cast<int>(s.bonds.size());
   const int n = static_cast<int>(s.x.cols());
   MatrixXd G = MatrixXd::Zero(m, 3 * n);
@@ -137,6 +138,12 @@ double reference_energy(const System& s, double kT) {
     G.block<1, 3>(b, 3 * bond.i) = bond.alpha * u.transpose();
     G.block<1, 3>(b, 3 * bond.j) = -bond.alpha * u.transpose();
   }
+  return G;
+}
+
+double reference_energy(const System& s, double kT) {
+  const int n = static_cast<int>(s.x.cols());
+  const MatrixXd G = scaled_jacobian(s);
   VectorXd minv(3 * n);
   for (int p = 0; p < n; ++p) minv.segment<3>(3 * p).setConstant(s.inv_mass[p]);
   const MatrixXd A = G * minv.asDiagonal() * G.transpose();
@@ -167,14 +174,7 @@ TEST(FixmanPotential, LogDetOfLongChainsOfLightAndHeavyBeadsDoesNotOverflow) {
     std::mt19937 rng(19);
     System s = chain(rng, 301);
     s.inv_mass.setConstant(1.0 / mass);
-    const int m = static_cast<int>(s.bonds.size()), n = static_cast<int>(s.x.cols());
-    MatrixXd G = MatrixXd::Zero(m, 3 * n);
-    for (int b = 0; b < m; ++b) {
-      const StiffBond& bond = s.bonds[b];
-      const Vector3d u = (s.x.col(bond.i) - s.x.col(bond.j)).normalized();
-      G.block<1, 3>(b, 3 * bond.i) = bond.alpha * u.transpose();
-      G.block<1, 3>(b, 3 * bond.j) = -bond.alpha * u.transpose();
-    }
+    const MatrixXd G = scaled_jacobian(s);
     const MatrixXd A = G * G.transpose() / mass;
     const Eigen::LLT<MatrixXd> llt(A);
     ASSERT_EQ(llt.info(), Eigen::Success);
