@@ -62,7 +62,7 @@ constexpr int kChainGroup = 4;
 constexpr int kMollifierMaxIter = 50;
 
 // SHAKE starts with chord iterations on S(x_ref) when every |h_b(y)| ≤ this × ℓ_b (h ≈ g near the
-// manifold, Impl::gap; a drift of one step: |g| ~ (h|v|)²/ℓ, 1e-4 ℓ on the stiff melt), and
+// manifold, Impl::chain_gap; a drift of one step: |g| ~ (h|v|)²/ℓ, 1e-4 ℓ on the stiff melt), and
 // switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces the largest
 // residual by less than kChordContraction. The chord's
 // rate is about |G(y) − G(x_ref)| (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step.
@@ -210,36 +210,12 @@ class ChainLdlt {
   double* off() { return off_.data(); }
 
   // In place (off[k] becomes l_k or u_k); false when a pivot is ≤ kSingularPivot × the largest
-  // diagonal entry.
+  // diagonal entry. D⁺ runs down from the top to the twist p, D⁻ up from the bottom, and
+  // γ_p = D⁺_p + D⁻_p − d_p joins them (factorize_group, one chain).
   bool factorize() {
-    const double* d = diagonal_.data();
-    double* e = off_.data();
-    double* inv = inv_pivot_.data();
-    const double tiny = kSingularPivot * diagonal_.cwiseAbs().maxCoeff();
-    const int top_steps = p_, bottom_steps = n_ - 1 - p_;
-    bool regular = true;
-    double top = d[0], bottom = d[n_ - 1];  // D⁺_k, D⁻_k as they go
-    for (int t = 0; t < std::max(top_steps, bottom_steps); ++t) {
-      if (t < top_steps) {
-        const int k = t;
-        regular &= top > tiny;
-        inv[k] = 1.0 / top;
-        const double l = e[k] * inv[k];
-        top = d[k + 1] - l * e[k];
-        e[k] = l;
-      }
-      if (t < bottom_steps) {
-        const int k = n_ - 2 - t;
-        regular &= bottom > tiny;
-        inv[k + 1] = 1.0 / bottom;
-        const double u = e[k] * inv[k + 1];
-        bottom = d[k] - u * e[k];
-        e[k] = u;
-      }
-    }
-    const double gamma = top + bottom - d[p_];
-    regular &= gamma > tiny;  // false for NaN too
-    inv[p_] = 1.0 / gamma;
+    ChainLdlt* self = this;
+    bool regular = false;
+    factorize_group<1>(&self, &regular);
     return regular;
   }
 
@@ -367,50 +343,11 @@ class ChainLdlt {
     }
   }
 
-  // sol = S⁻¹ rhs (sol may alias rhs).
+  // sol = S⁻¹ rhs (sol may alias rhs): L z = b from the top and U w = b from the bottom to the
+  // twist, then the back substitution outwards from it (solve_group, one chain).
   void solve(const double* rhs, double* sol) const {
-    solve(rhs, sol, [](int, double) {});
-  }
-  // The same, calling each(k, sol[k]) as the back substitution finds sol[k] (from the twist
-  // outwards), so that a caller can apply the solution in the same pass.
-  template <class Each>
-  void solve(const double* rhs, double* sol, Each&& each) const {
-    const double* m = off_.data();
-    const double* inv = inv_pivot_.data();
-    const int top_steps = p_, bottom_steps = n_ - 1 - p_, steps = std::max(top_steps, bottom_steps);
-    const double b_twist = rhs[p_];
-    double z = rhs[0], w = rhs[n_ - 1];  // L z = b from the top, U w = b from the bottom
-    sol[0] = z;
-    sol[n_ - 1] = w;
-    for (int t = 0; t < steps; ++t) {
-      if (t < top_steps) {
-        z = rhs[t + 1] - m[t] * z;
-        sol[t + 1] = z;
-      }
-      if (t < bottom_steps) {
-        const int k = n_ - 2 - t;
-        w = rhs[k] - m[k] * w;
-        sol[k] = w;
-      }
-    }
-    const double x_twist = (z + w - b_twist) * inv[p_];
-    sol[p_] = x_twist;
-    each(p_, x_twist);
-    double up = x_twist, down = x_twist;
-    for (int t = 0; t < steps; ++t) {
-      if (t < top_steps) {
-        const int k = p_ - 1 - t;
-        up = sol[k] * inv[k] - m[k] * up;
-        sol[k] = up;
-        each(k, up);
-      }
-      if (t < bottom_steps) {
-        const int k = p_ + 1 + t;
-        down = sol[k] * inv[k] - m[k - 1] * down;
-        sol[k] = down;
-        each(k, down);
-      }
-    }
+    const ChainLdlt* self = this;
+    solve_group<1>(&self, &rhs, &sol);
   }
 
  private:
@@ -541,7 +478,7 @@ struct ClusterData {
   Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
   Eigen::VectorXd lambda;           // SHAKE multipliers, accumulated over Newton steps
-  Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::gap)
+  Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::chain_gap)
   // Open chains, for SHAKE's chord (Impl::chain_gap, Impl::chain_displace): the particles along
   // the chain, path[k] and path[k + 1] the ends of local bond k (n + 1 of them), their inverse
   // masses, ℓ_k², and σ_k u_k at the kept configuration (σ_k = +1 when bond k's i is path[k],
@@ -563,11 +500,10 @@ struct ConstraintToolbox::Impl {
 
   int num_particles() const { return static_cast<int>(inv_mass.size()); }
 
-  // −h_b(y) = (ℓ_b² − |d_b|²) / (2ℓ_b) into minus_h (local order), max |h_b| returned; NaN when a
-  // length is not finite. h = 0 is the manifold g = 0 and h_b = g_b (1 + g_b / (2ℓ_b)): SHAKE's
-  // chord iterates on it without a square root or a division per bond.
-  double gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const;
-  // The same for an open chain, along its path (contiguous particles on a melt read in order).
+  // An open chain's −h_b(y) = (ℓ_b² − |d_b|²) / (2ℓ_b) into minus_h (local order), along its path
+  // (contiguous particles on a melt read in order); max |h_b| returned, NaN when a length is not
+  // finite. h = 0 is the manifold g = 0 and h_b = g_b (1 + g_b / (2ℓ_b)): SHAKE's chord iterates
+  // on it without a square root or a division per bond.
   double chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const;
   // An open chain's chord update and its new residual in one pass along the path: λ += δ,
   // y += M⁻¹G(x_ref)ᵀδ (each particle once: y_p += m_p⁻¹(σ_k u_k δ_k − σ_{k−1} u_{k−1} δ_{k−1}) for
@@ -820,24 +756,6 @@ double ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFr
                          (length == 0.0 ? " has zero length" : " has a non-finite length"));
   }
   return worst;
-}
-
-double ConstraintToolbox::Impl::gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
-  const StiffBond* bond = bonds.data();
-  const ClusterData& d = data[c];
-  const int* order = d.bonds.data();
-  const double* half_inv = d.half_inv_length.data();
-  double worst = 0.0;
-  bool finite = true;
-  for (int k = 0, n = static_cast<int>(d.bonds.size()); k < n; ++k) {
-    const StiffBond& b = bond[order[k]];
-    const Eigen::Vector3d r = bond_vector(y, b.i, b.j);
-    const double r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-    minus_h[k] = (b.length * b.length - r2) * half_inv[k];
-    worst = std::max(worst, std::abs(minus_h[k]));
-    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
-  }
-  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
 }
 
 double ConstraintToolbox::Impl::chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
