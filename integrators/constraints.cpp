@@ -493,6 +493,64 @@ struct ClusterData {
   std::int64_t factorizations = 0;  // of S and of SHAKE's and the mollifier's J, for tests
 };
 
+// −h_k = (ℓ_k² − |d_k|²) / (2ℓ_k) of an open chain's bonds, fed the particles along its path in
+// order (particle path[k] closes bond k − 1): SHAKE's chord residual (Impl::chain_gap,
+// Impl::chain_displace). result(): max |h|, NaN when a length is not finite.
+struct PathGap {
+  const double* length2;
+  const double* half_inv_length;
+  double* minus_h;
+  double px = 0.0, py = 0.0, pz = 0.0;  // the previous particle
+  double worst = 0.0;
+  bool finite = true;
+
+  PathGap(const ClusterData& d, double* out)
+      : length2(d.length2.data()), half_inv_length(d.half_inv_length.data()), minus_h(out) {}
+  void operator()(int k, double x, double y, double z) {
+    if (k > 0) {
+      const double dx = px - x, dy = py - y, dz = pz - z;
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      minus_h[k - 1] = (length2[k - 1] - r2) * half_inv_length[k - 1];
+      worst = std::max(worst, std::abs(minus_h[k - 1]));
+      finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+    }
+    px = x;
+    py = y;
+    pz = z;
+  }
+  double result() const { return finite ? worst : std::numeric_limits<double>::quiet_NaN(); }
+};
+
+// a += sign · M⁻¹Gᵀ coef (kMassWeighted) or sign · Gᵀ coef on an open chain, with G at the kept
+// configuration, walking its path so that each particle is read and written once:
+// a_p += s_p (σ_k u_k coef_k − σ_{k−1} u_{k−1} coef_{k−1}) for p = path[k] (no term past either
+// end), s_p = sign · m_p⁻¹ or sign; then visit(k, a_p) with the particle's new value.
+template <bool kMassWeighted, class Visit>
+void walk_chain(const ClusterData& d, double* a, const double* coef, double sign, Visit&& visit) {
+  const int n = static_cast<int>(d.bonds.size());
+  const int* path = d.path.data();
+  const double* w = d.path_inv_mass.data();
+  const double* e = d.e_kept.data();
+  double ex = 0.0, ey = 0.0, ez = 0.0;  // σ_{k−1} u_{k−1} coef_{k−1}
+  for (int k = 0; k <= n; ++k) {
+    double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k coef_k
+    if (k < n) {
+      fx = e[3 * k] * coef[k];
+      fy = e[3 * k + 1] * coef[k];
+      fz = e[3 * k + 2] * coef[k];
+    }
+    double* q = a + 3 * path[k];
+    const double s = kMassWeighted ? sign * w[k] : sign;
+    q[0] += s * (fx - ex);
+    q[1] += s * (fy - ey);
+    q[2] += s * (fz - ez);
+    visit(k, q[0], q[1], q[2]);
+    ex = fx;
+    ey = fy;
+    ez = fz;
+  }
+}
+
 }  // namespace
 
 struct ConstraintToolbox::Impl {
@@ -760,75 +818,22 @@ double ConstraintToolbox::Impl::measure(int c, const Eigen::Matrix3Xd& x, BondFr
 
 double ConstraintToolbox::Impl::chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
   const ClusterData& d = data[c];
-  const int n = static_cast<int>(d.bonds.size());
   const int* path = d.path.data();
-  const double* l2 = d.length2.data();
-  const double* half_inv = d.half_inv_length.data();
   const double* yp = y.data();
-  double worst = 0.0;
-  bool finite = true;
-  double px = yp[3 * path[0]], py = yp[3 * path[0] + 1], pz = yp[3 * path[0] + 2];
-  for (int k = 0; k < n; ++k) {
-    const double* q = yp + 3 * path[k + 1];
-    const double qx = q[0], qy = q[1], qz = q[2];
-    const double dx = px - qx, dy = py - qy, dz = pz - qz;
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    minus_h[k] = (l2[k] - r2) * half_inv[k];
-    worst = std::max(worst, std::abs(minus_h[k]));
-    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
-    px = qx;
-    py = qy;
-    pz = qz;
+  PathGap gap(d, minus_h);
+  for (int k = 0, n = static_cast<int>(d.bonds.size()); k <= n; ++k) {
+    const double* q = yp + 3 * path[k];
+    gap(k, q[0], q[1], q[2]);
   }
-  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
+  return gap.result();
 }
 
 double ConstraintToolbox::Impl::chain_displace(int c, Eigen::Matrix3Xd& y, const double* delta, double* minus_h) {
   ClusterData& d = data[c];
-  const int n = static_cast<int>(d.bonds.size());
-  const int* path = d.path.data();
-  const double* w = d.path_inv_mass.data();
-  const double* e = d.e_kept.data();
-  const double* l2 = d.length2.data();
-  const double* half_inv = d.half_inv_length.data();
-  double* lambda = d.lambda.data();
-  double* yp = y.data();
-  double worst = 0.0;
-  bool finite = true;
-  // Particle path[0]: the first bond's displacement alone.
-  double ex = e[0] * delta[0], ey = e[1] * delta[0], ez = e[2] * delta[0];  // σ_k u_k δ_k, k = 0
-  lambda[0] += delta[0];
-  double* p = yp + 3 * path[0];
-  double px = p[0] + w[0] * ex, py = p[1] + w[0] * ey, pz = p[2] + w[0] * ez;
-  p[0] = px;
-  p[1] = py;
-  p[2] = pz;
-  for (int k = 1; k <= n; ++k) {          // particle path[k], then bond k − 1
-    double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k δ_k (none past the last bond)
-    if (k < n) {
-      lambda[k] += delta[k];
-      fx = e[3 * k] * delta[k];
-      fy = e[3 * k + 1] * delta[k];
-      fz = e[3 * k + 2] * delta[k];
-    }
-    double* q = yp + 3 * path[k];
-    const double qx = q[0] + w[k] * (fx - ex), qy = q[1] + w[k] * (fy - ey), qz = q[2] + w[k] * (fz - ez);
-    q[0] = qx;
-    q[1] = qy;
-    q[2] = qz;
-    const double dx = px - qx, dy = py - qy, dz = pz - qz;
-    const double r2 = dx * dx + dy * dy + dz * dz;
-    minus_h[k - 1] = (l2[k - 1] - r2) * half_inv[k - 1];
-    worst = std::max(worst, std::abs(minus_h[k - 1]));
-    finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
-    px = qx;
-    py = qy;
-    pz = qz;
-    ex = fx;
-    ey = fy;
-    ez = fz;
-  }
-  return finite ? worst : std::numeric_limits<double>::quiet_NaN();
+  d.lambda += Eigen::Map<const Eigen::VectorXd>(delta, d.lambda.size());
+  PathGap gap(d, minus_h);
+  walk_chain<true>(d, y.data(), delta, 1.0, gap);
+  return gap.result();
 }
 
 // Factorizes K = G(rows) M⁻¹ G(cols)ᵀ on cluster c (see Coupling).
@@ -1073,32 +1078,10 @@ void ConstraintToolbox::Impl::chain_project_rhs(int c, const Eigen::Matrix3Xd& a
   }
 }
 
+// a −= Gᵀμ (force) or M⁻¹Gᵀμ (velocity), μ in sol.
 template <bool kForce>
 void ConstraintToolbox::Impl::chain_project_update(int c, Eigen::Matrix3Xd& a) {
-  ClusterData& d = data[c];
-  const int n = static_cast<int>(d.bonds.size());
-  const int* path = d.path.data();
-  const double* w = d.path_inv_mass.data();
-  const double* e = d.e_kept.data();
-  const double* mu = d.sol.data();
-  double* ap = a.data();
-  double ex = 0.0, ey = 0.0, ez = 0.0;  // σ_{k−1} u_{k−1} μ_{k−1}
-  for (int k = 0; k <= n; ++k) {
-    double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k μ_k (none past the last bond)
-    if (k < n) {
-      fx = e[3 * k] * mu[k];
-      fy = e[3 * k + 1] * mu[k];
-      fz = e[3 * k + 2] * mu[k];
-    }
-    double* q = ap + 3 * path[k];
-    const double cq = kForce ? 1.0 : w[k];
-    q[0] -= cq * (fx - ex);
-    q[1] -= cq * (fy - ey);
-    q[2] -= cq * (fz - ez);
-    ex = fx;
-    ey = fy;
-    ez = fz;
-  }
+  walk_chain<!kForce>(data[c], a.data(), data[c].sol.data(), -1.0, [](int, double, double, double) {});
 }
 
 template <bool kForce>
