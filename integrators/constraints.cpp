@@ -592,8 +592,6 @@ struct ConstraintToolbox::Impl {
                                    Eigen::Matrix3Xd& y) const;
 
   template <bool kForce>
-  void chain_project(int c, Eigen::Matrix3Xd& a);
-  template <bool kForce>
   void chain_project_rhs(int c, const Eigen::Matrix3Xd& a);
   template <bool kForce>
   void chain_project_update(int c, Eigen::Matrix3Xd& a);
@@ -673,7 +671,7 @@ struct ConstraintToolbox::Impl {
   // Factorizes S at the kept configuration for the chains first … first + count − 1 that are not
   // factored yet, in lockstep (factor_kept_s for each, with one factorization pass).
   void factor_kept_group(int first, int count, const char* what);
-  // SHAKE on a group of open chains (shake_cluster for each, their chord solves in lockstep).
+  // SHAKE on a group of clusters (shake_group below: their chord solves in lockstep).
   void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter);
   template <bool kForce>
   void project_group(int first, int count, Eigen::Matrix3Xd& a);
@@ -1084,25 +1082,18 @@ void ConstraintToolbox::Impl::chain_project_update(int c, Eigen::Matrix3Xd& a) {
   walk_chain<!kForce>(data[c], a.data(), data[c].sol.data(), -1.0, [](int, double, double, double) {});
 }
 
-template <bool kForce>
-void ConstraintToolbox::Impl::chain_project(int c, Eigen::Matrix3Xd& a) {
-  chain_project_rhs<kForce>(c, a);
-  data[c].spd->solve(data[c].rhs.data(), data[c].sol.data());
-  chain_project_update<kForce>(c, a);
-}
-
-// A group of clusters (for_each_group): open chains project in lockstep, anything else alone.
+// A group of clusters (for_each_group): open chains project in lockstep (a group of one alone),
+// any other cluster through project_force_cluster / project_velocity_cluster.
 template <bool kForce>
 void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3Xd& a) {
-  const char* what = kForce ? "force projection" : "velocity projection";
-  if (count == 1) {
+  if (!data[first].spd) {
     if (kForce)
       project_force_cluster(first, a);
     else
       project_velocity_cluster(first, a);
     return;
   }
-  factor_kept_group(first, count, what);
+  factor_kept_group(first, count, kForce ? "force projection" : "velocity projection");
   int cs[kChainGroup];
   for (int j = 0; j < count; ++j) {
     cs[j] = first + j;
@@ -1112,27 +1103,21 @@ void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3
   for (int j = 0; j < count; ++j) chain_project_update<kForce>(cs[j], a);
 }
 
-// P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)).
+// P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)), on a cluster that is not an open chain
+// (those go through project_group).
 void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
   factor_kept_s(c, "force projection");
-  if (d.spd) {
-    chain_project<true>(c, f);
-    return;
-  }
   for (int k = 0; k < d.rhs.size(); ++k) d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(inv_mass_difference(d.bonds[k], f));
   solve_kept_s(c);
   add_constraint_force(c, at_kept, d.sol, -1.0, f);
 }
 
-// RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0.
+// RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0 (not an
+// open chain: those go through project_group).
 void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v) {
   ClusterData& d = data[c];
   factor_kept_s(c, "velocity projection");
-  if (d.spd) {
-    chain_project<false>(c, v);
-    return;
-  }
   for (int k = 0; k < d.rhs.size(); ++k) {
     const StiffBond& bond = bonds[d.bonds[k]];
     d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
@@ -1222,27 +1207,14 @@ void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3X
 // as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
 // enough for the mollified force's H_λ).
 void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
-  ShakeState st;
-  shake_start(st, c);
-  for (;;) {
-    const ShakeNext next = shake_iterate(st, y, tol, max_iter);
-    if (next == ShakeNext::converged) return;
-    if (next == ShakeNext::chord_solve) {
-      factor_kept_s(c, "SHAKE (reference configuration)");
-      data[c].spd->solve(data[c].rhs.data(), data[c].sol.data());
-      shake_chord_update(st, y);
-    }
-  }
+  shake_group(c, 1, y, tol, max_iter);
 }
 
-// shake_cluster on each cluster of a group of open chains, their chord solves in lockstep. Each
-// cluster goes through its own iterations exactly as alone; a failure is held until the group is
-// done and the first failing cluster's rethrown.
+// SHAKE on each cluster of a group (for_each_group: open chains of one length, or any cluster
+// alone), the chord solves of the group in lockstep. Each cluster goes through its own iterations
+// exactly as alone; a failure is held until the group is done and the first failing cluster's
+// rethrown.
 void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter) {
-  if (count == 1) {
-    shake_cluster(first, y, tol, max_iter);
-    return;
-  }
   ShakeState st[kChainGroup];
   bool active[kChainGroup];
   std::exception_ptr error[kChainGroup];
