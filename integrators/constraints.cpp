@@ -944,22 +944,24 @@ void ConstraintToolbox::Impl::factor_kept_s(int c, const char* what) {
 void ConstraintToolbox::Impl::factor_kept_group(int first, int count, const char* what) {
   int todo[kChainGroup];
   int k = 0;
-  for (int c = first; c < first + count; ++c) {
+  // A bond of zero or non-finite length is reported as alone: after the clusters before it are
+  // factored (one of them may be singular: that is then the error).
+  std::exception_ptr failed;
+  for (int c = first; c < first + count && !failed; ++c) {
     if (data[c].s_factored) continue;
     try {
       chain_s_bands(c, what);
-    } catch (const NumericalError&) {             // a bond of zero or non-finite length: as alone, after
-      factor_kept_group(first, c - first, what);  // the clusters before it are factored
-      throw;
+      todo[k++] = c;
+    } catch (const NumericalError&) {
+      failed = std::current_exception();
     }
-    todo[k++] = c;
   }
   ChainLdlt* chain[kChainGroup];
   bool regular[kChainGroup];
   for (int j = 0; j < k; ++j) chain[j] = data[todo[j]].spd.get();
   switch (k) {
     case 0:
-      return;
+      break;
     case 1:
       regular[0] = chain[0]->factorize();
       break;
@@ -974,6 +976,7 @@ void ConstraintToolbox::Impl::factor_kept_group(int first, int count, const char
       break;
   }
   for (int j = 0; j < k; ++j) chain_s_factored(todo[j], regular[j], what);  // the first singular one throws
+  if (failed) std::rethrow_exception(failed);
 }
 
 // sol = S⁻¹ rhs for the given open chains (of one length) in lockstep.

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <numbers>
 #include <numeric>
 #include <random>
@@ -398,19 +399,15 @@ TEST(ConstraintShake, ConvergesQuadraticallyFarFromTheReference) {
   EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
 }
 
-// A chain turned rigidly by 1.2 rad about z, plus a stretch of 1e-6: |g| is tiny, so SHAKE starts
-// with chord steps on S(x_ref), but J = G(y) M⁻¹ G(x_ref)ᵀ is far from S (its diagonal is S's times
-// cos 1.2 ≈ 0.36) and the chord cannot contract. SHAKE must notice and finish by Newton: converged,
-// along G(x_ref)ᵀ, having factored J. (A chord kept to the end runs out of iterations.)
 // Open chains of one length are solved in groups, their recurrences in lockstep
 // (ChainLdlt::factorize_group, solve_group): each chain must get the bits it gets alone. Nine
 // chains of 12 beads (groups of 4, 4, 1) against a toolbox per chain, for SHAKE of a drift (its
 // chord path), a velocity and a force projection; one of the nine chains is far off the manifold,
 // so SHAKE takes Newton steps on it while the others of its group take chord steps.
-TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
-  const int chains = 9, beads = 12;
-  std::vector<Scene> parts;
-  Scene all{"nine_chains", {}, Eigen::VectorXd(chains * beads), Eigen::Matrix3Xd(3, chains * beads)};
+// `chains` random chains of `beads` beads on the manifold, far apart, as one scene (particles of
+// chain c from c · beads on); parts receives each chain alone.
+Scene chains_side_by_side(int chains, int beads, std::vector<Scene>& parts) {
+  Scene all{"chains", {}, Eigen::VectorXd(chains * beads), Eigen::Matrix3Xd(3, chains * beads)};
   for (int c = 0; c < chains; ++c) {
     Scene part = random_chain(beads, 100 + c, 0.0);
     part.x.colwise() += Eigen::Vector3d(20.0 * c, 0.0, 0.0);
@@ -423,6 +420,13 @@ TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
     }
     parts.push_back(part);
   }
+  return all;
+}
+
+TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
+  const int chains = 9, beads = 12;
+  std::vector<Scene> parts;
+  const Scene all = chains_side_by_side(chains, beads, parts);
   const Eigen::Matrix3Xd v = random_matrix(chains * beads, 31), f = random_matrix(chains * beads, 32);
   ConstraintToolbox together(all.bonds, all.inv_mass);
   ASSERT_EQ(together.clusters().size(), static_cast<std::size_t>(chains));
@@ -449,6 +453,49 @@ TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
   }
 }
 
+// Chains solved in a group fail as they would one after the other: the error names the first
+// failing cluster in cluster order. Chains 6 and 7 (both in the second group of four) get a
+// non-finite position; SHAKE, the velocity projection and the force projection must all name
+// cluster 6.
+TEST(ConstraintShake, ChainsInAGroupReportTheFirstFailingCluster) {
+  const int chains = 9, beads = 12;
+  std::vector<Scene> parts;
+  const Scene all = chains_side_by_side(chains, beads, parts);
+  Eigen::Matrix3Xd bad = all.x;
+  bad(0, 6 * beads + 3) = std::numeric_limits<double>::quiet_NaN();
+  bad(1, 7 * beads + 5) = std::numeric_limits<double>::infinity();
+  auto message = [](auto&& call) -> std::string {
+    try {
+      call();
+    } catch (const NumericalError& e) {
+      return e.what();
+    }
+    return "no error";
+  };
+  {
+    ConstraintToolbox toolbox(all.bonds, all.inv_mass);
+    Eigen::Matrix3Xd y = bad;
+    const std::string m = message([&] { toolbox.shake(all.x, y); });
+    EXPECT_NE(m.find("cluster 6"), std::string::npos) << m;
+  }
+  {
+    ConstraintToolbox toolbox(all.bonds, all.inv_mass);
+    Eigen::Matrix3Xd v = random_matrix(chains * beads, 34);
+    const std::string m = message([&] { toolbox.project_velocity(bad, v); });
+    EXPECT_NE(m.find("cluster 6"), std::string::npos) << m;
+  }
+  {
+    ConstraintToolbox toolbox(all.bonds, all.inv_mass);
+    Eigen::Matrix3Xd f = random_matrix(chains * beads, 35);
+    const std::string m = message([&] { toolbox.project_force(bad, f); });
+    EXPECT_NE(m.find("cluster 6"), std::string::npos) << m;
+  }
+}
+
+// A chain turned rigidly by 1.2 rad about z, plus a stretch of 1e-6: |g| is tiny, so SHAKE starts
+// with chord steps on S(x_ref), but J = G(y) M⁻¹ G(x_ref)ᵀ is far from S (its diagonal is S's times
+// cos 1.2 ≈ 0.36) and the chord cannot contract. SHAKE must notice and finish by Newton: converged,
+// along G(x_ref)ᵀ, having factored J. (A chord kept to the end runs out of iterations.)
 TEST(ConstraintShake, FallsBackToNewtonWhenTheChordDoesNotContract) {
   const Scene s = random_chain(10, 31, 0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
