@@ -301,11 +301,10 @@ void FixmanPotential::Impl::gradient(Cluster& c, double kT, const Eigen::Matrix3
 }
 
 void FixmanPotential::Impl::inverse_from_toolbox(Cluster& c) {
-  const int n = static_cast<int>(c.bonds.size());
-  toolbox->chain_inverse_band(c.index, c.z_diag.data(), c.z_off.data(), c.pivot.data());
-  // log det S = −Σ log(1/pivot): the inverse pivots' logs, banked as for the pivots.
-  c.log_det = -sum_of_logs(c.pivot.data(), n);
-  for (int k = 0; k + 1 < n; ++k) c.z_pair[k] = c.z_off[k];
+  // A chain's pairs are (k, k + 1) in order: Z on them is the band's off-diagonal. c.pivot receives
+  // the toolbox's inverse pivots, log det S = −Σ log(1/pivot) (banked as for the pivots).
+  toolbox->chain_inverse_band(c.index, c.z_diag.data(), c.z_pair.data(), c.pivot.data());
+  c.log_det = -sum_of_logs(c.pivot.data(), static_cast<int>(c.bonds.size()));
 }
 
 void FixmanPotential::Impl::scatter(const Cluster& c, Eigen::Matrix3Xd& f) const {
