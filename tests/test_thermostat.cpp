@@ -221,6 +221,55 @@ TEST(CounterNoise, IsStandardNormalAndIndependentOfNeighbouringCounters) {
   EXPECT_NE(noise_key(7, 3, 1), noise_key(7, 4, 0));
 }
 
+TEST(CounterNoise, ZigguratFollowsTheNormalLawOnEveryLayerAndInTheTail) {
+  // 3·10⁶ normals of consecutive particles, binned by sign and by |z| between consecutive layer
+  // edges x_i (255 bins: where each layer's rectangle ends and its wedge begins) and in the tail
+  // (R ≤ |z| < 4, |z| ≥ 4: the tail algorithm), 514 bins against the normal law by χ² (mean 513,
+  // sd 32; fails at 5 sd); and ⟨z⁴⟩ = 3.
+  const ZigguratTable& t = ziggurat_table();
+  const int particles = 1000000, per_sign = ZigguratTable::kLayers + 1, bins = 2 * per_sign;
+  const int n = 3 * particles;
+  std::vector<double> count(bins, 0.0);
+  double fourth = 0.0;
+  for (int i = 0; i < particles; ++i) {
+    const Eigen::Vector3d z = particle_noise(noise_key(11, 5, 0), i, t);
+    for (int a = 0; a < 3; ++a) {
+      const double m = std::abs(z[a]);
+      int lo = 1, hi = ZigguratTable::kLayers;  // the first k ≥ 1 with x_k ≤ |z| (x decreasing, x_256 = 0)
+      while (lo < hi) {
+        const int mid = (lo + hi) / 2;
+        if (t.x[mid] <= m)
+          hi = mid;
+        else
+          lo = mid + 1;
+      }
+      // bin k − 1: x_k ≤ |z| < x_{k−1}; bin 0: R ≤ |z| < 4; bin 256: |z| ≥ 4.
+      const int k = lo == 1 && m >= 4.0 ? ZigguratTable::kLayers : lo - 1;
+      count[(z[a] < 0.0 ? per_sign : 0) + k] += 1.0;
+      fourth += std::pow(z[a], 4) / n;
+    }
+  }
+  auto beyond = [](double x) { return 0.5 * std::erfc(x / std::sqrt(2.0)); };  // P(z > x)
+  double chi2 = 0.0, min_expected = 1e300;
+  for (int b = 0; b < bins; ++b) {
+    const int k = b % per_sign;
+    const double p = k == ZigguratTable::kLayers ? beyond(4.0)
+                     : k == 0                    ? beyond(t.x[1]) - beyond(4.0)
+                                                 : beyond(t.x[k + 1]) - beyond(t.x[k]);
+    const double expected = n * p;
+    min_expected = std::min(min_expected, expected);
+    chi2 += (count[b] - expected) * (count[b] - expected) / expected;
+    if (k == 0 || k == ZigguratTable::kLayers) {  // the tail on each side, on its own (≈ 290 and 95 expected)
+      EXPECT_NEAR(count[b], expected, 5 * std::sqrt(expected)) << "tail bin " << b;
+    }
+  }
+  RecordProperty("chi2_514_bins", std::to_string(chi2));
+  EXPECT_GT(min_expected, 50.0);  // every bin well filled: the statistic is χ²-distributed
+  EXPECT_LT(chi2, 513.0 + 5 * std::sqrt(2.0 * 513.0))
+      << "counts per sign and ziggurat layer differ from the normal law";
+  EXPECT_NEAR(fourth, 3.0, 5 * std::sqrt(96.0 / n));
+}
+
 TEST(CounterNoise, LangevinStepDoesNotDependOnTheThreadCount) {
   const int n = 3 * 4096;
   ThermostatSettings t;
