@@ -15,6 +15,8 @@ Student-t quantile of 3σ's two-sided 0.0027 with K + K_ref − 2 degrees of fre
 rows are checked when `lmp` is on PATH. A rerun of the ladders reuses every seed's cached run.
 """
 import csv
+import glob
+import json
 import math
 import os
 import shutil
@@ -198,12 +200,10 @@ def markdown_has_a_row_per_eps_and_method():
             assert f"| {eps:g} | {m} |" in text, (eps, m)
 
 
-
-@test
-def a_step_that_blows_up_on_the_timing_system_is_recorded_and_the_next_timed():
-    """A stiffmd that exits 3 in fixman's timed runs at its larger --quick step (as fixman at 0.028 did
-    on data.chain): the tool records that run as failed, times the next smaller passing step, and says
-    so in its table."""
+def blow_up_at_the_larger_step(where, status):
+    """A stiffmd that exits 3 in fixman's runs under WHERE/ (timed/ or stable/) at its larger --quick
+    step (as fixman at 0.028 did on data.chain): the tool records it as STATUS, times the next smaller
+    passing step, and says so in its table."""
     ladder = [r for r in rows("ladder.csv") if r["method"] == "fixman" and float(r["eps"]) == EPS[0]]
     passing = []
     for r in ladder:
@@ -214,33 +214,57 @@ def a_step_that_blows_up_on_the_timing_system_is_recorded_and_the_next_timed():
         print("  (skipped: fixman passed fewer than two steps at this ε)")
         return
     limit = 0.5 * (passing[-1] + passing[-2])
-    wrapper = os.path.join(tmp.name, "stiffmd_exits_3")
+    wrapper = os.path.join(tmp.name, f"stiffmd_exits_3_{where}")
     with open(wrapper, "w") as f:
         f.write(f"""#!/bin/bash
-# fixman's timed runs (their directory is under timed/) at h above {limit} fail as a blow-up would
+# fixman's runs under {where}/ at h above {limit} fail as a blow-up would
 deck="$2"
-if [[ "$*" == */timed/* ]] && grep -q 'method = "fixman"' "$deck"; then
+if [[ "$*" == */{where}/* ]] && grep -q 'method = "fixman"' "$deck"; then
   h=$(awk -F' = ' '$1 == "h" {{print $2}}' "$deck")
   if awk -v h="$h" 'BEGIN {{exit !(h > {limit})}}'; then echo "error: numerical failure (test)" >&2; exit 3; fi
 fi
 exec "{os.path.abspath(exe)}" "$@"
 """)
     os.chmod(wrapper, 0o755)
-    out2 = os.path.join(tmp.name, "out_exit3")
+    out2 = os.path.join(tmp.name, f"out_exit3_{where}")
     p = subprocess.run(["/usr/bin/python3", TOOL, "--quick", "--stiffmd", wrapper, "--out", out2, "--figure",
-                        os.path.join(tmp.name, "fig2.png"), "--jobs", "1", "--eps", f"{EPS[0]:g}",
+                        os.path.join(tmp.name, f"fig_{where}.png"), "--jobs", "1", "--eps", f"{EPS[0]:g}",
                         "--methods", "fixman"], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr[-2000:]
     with open(os.path.join(out2, "cost.csv")) as f:
         cost = [c for c in csv.DictReader(f) if c["method"] == "fixman"]
     failed = [c for c in cost if c["status"] != "ok"]
     timed = [c for c in cost if c["status"] == "ok"]
-    assert [c["status"] for c in failed] == ["failed (exit 3)"], cost
+    assert [c["status"] for c in failed] == [status], cost
     assert math.isclose(float(failed[0]["h"]), passing[-1]), (failed, passing)
     assert len(timed) == REPEATS and all(math.isclose(float(c["h"]), passing[-2]) for c in timed), (timed, passing)
     with open(os.path.join(out2, "cost_vs_eps.md")) as f:
         row = next(line for line in f if line.startswith(f"| {EPS[0]:g} | fixman |"))
     assert f"{passing[-2]:.4g}" in row and "exit 3 on the timing system" in row, row
+    return out2, passing
+
+
+@test
+def a_step_that_blows_up_on_the_timing_system_is_recorded_and_the_next_timed():
+    blow_up_at_the_larger_step("timed", "failed (exit 3)")
+
+
+@test
+def a_step_that_fails_its_stability_run_is_not_timed():
+    """The stability run comes first: its failure alone stops the step (no timed run of it), and it
+    is max(--timed-steps, min(--stable-time / h, --stable-steps)) steps long."""
+    done = blow_up_at_the_larger_step("stable", "failed (exit 3 in the stability run)")
+    if done is None:
+        return
+    out2, passing = done
+    runs = glob.glob(os.path.join(out2, "work", "stable", "*", "stable.json"))
+    assert runs, "no stability run recorded"
+    for path in runs:
+        with open(path) as f:
+            kept = json.load(f)
+        h = kept["key"]["h"]
+        assert kept["steps"] == max(20, min(math.ceil(0.5 / h - 1e-9), 2000)), kept
+        assert kept["stable"] == (not math.isclose(h, passing[-1])), kept
 
 
 finish()

@@ -80,7 +80,13 @@ Two systems, because the statistics and the cost need different sizes (computati
    the step found in 1: short timed runs (--timed-steps = 150 steps; micro-step methods max(10,
    --timed-micro / n) macro steps, --timed-micro = 1500), one thread, --repeats interleaved repeats, median. CPU seconds of
    the step loop (stiffmd summary.json; LAMMPS Loop time × CPU %) per unit of simulated time, and
-   wall seconds the same way.
+   wall seconds the same way. Before a method without micro steps (velocity Verlet, rattle, fixman)
+   is timed at a step, a stability run on the timing system must finish: --stable-time = 20 time
+   units (640 000 bead-time units, 27× a ladder step's 4 × 2 × 3 000), at most --stable-steps = 2000
+   steps; the 150-step timed runs alone (4 units at h = 0.028) let fixman through at h = 0.028 by
+   chance on one noise and stopped it on another (a close WCA encounter every few hundred steps
+   there). The micro-step methods are not checked so (20 units at ε = 1e-4 would be 400 000 micro
+   steps per method and step); their largest steps are 0.02 or less.
 
 Outputs in --out (default sweeps/cost_vs_eps): ladder.csv (a row per setting of 1: the number of
 seeds, status, pass, the limit on |z|; per observable the mean over seeds, the pooled standard error
@@ -452,6 +458,38 @@ def timed_run(args, eps, method, h, n, state, work, repeat):
     return row
 
 
+def stable_on_timing_system(args, eps, method, h, n, state, work):
+    """Whether a method without micro steps runs max(--timed-steps, min(--stable-time / h,
+    --stable-steps)) steps at h on the timing system without a numerical failure (exit 3); cached in
+    work/stable/…/stable.json like the timed runs. Micro-step methods are not checked (True)."""
+    if method in MICRO:
+        return True
+    steps = max(args.timed_steps, min(math.ceil(args.stable_time / h - 1e-9), args.stable_steps))
+    run_dir = os.path.join(work, "stable", f"eps{eps:g}_{method}_h{h:.6g}")
+    os.makedirs(run_dir, exist_ok=True)
+    key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
+    cached = os.path.join(run_dir, "stable.json")
+    if os.path.exists(cached):
+        with open(cached) as f:
+            kept = json.load(f)
+        if kept["key"] == key:
+            return kept["stable"]
+    deck = os.path.join(run_dir, "run.toml")
+    write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
+    cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
+           "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+           "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=4713",
+           "--set", "output.checkpoint_every=0"]
+    code, _, _ = run_measured(cmd, run_dir, 2)
+    if code not in (0, 3):
+        raise RunFailed(f"stability run failed (exit {code}): {shlex.join(cmd)}")
+    if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
+        os.remove(os.path.join(run_dir, "checkpoint.bin"))
+    with open(cached, "w") as f:
+        json.dump({"key": key, "stable": code == 0, "steps": steps}, f)
+    return code == 0
+
+
 def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
     if method == "lammps-respa":
         lmp_in = os.path.join(run_dir, "in.run")
@@ -617,6 +655,9 @@ def parse_args():
                     help="the system the cost is measured on")
     ap.add_argument("--timed-steps", type=int, default=150)
     ap.add_argument("--timed-micro", type=int, default=1500)
+    ap.add_argument("--stable-time", type=float, default=20.0,
+                    help="time units a method without micro steps must run on the timing system before it is timed")
+    ap.add_argument("--stable-steps", type=int, default=2000, help="at most this many steps of that run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--jobs", type=int, default=2, help="ladder runs at once (the timed runs are serial)")
     ap.add_argument("--quick", action="store_true",
@@ -637,6 +678,7 @@ def parse_args():
         args.ref_seeds = 3 if args.ref_seeds == ap.get_default("ref_seeds") else args.ref_seeds
         args.ladder, args.micro_ladder, args.vv_ladder = "0.005,0.01", "0.005,0.01", "0.4"
         args.timed_steps, args.timed_micro, args.repeats = 20, 100, 1
+        args.stable_time = 0.5 if args.stable_time == ap.get_default("stable_time") else args.stable_time
     args.eps = split_floats(args.eps)
     args.methods = [m for m in args.methods.replace(",", " ").split()]
     args.vv_ladder, args.ladder, args.micro_ladder = (split_floats(v) for v in (args.vv_ladder, args.ladder,
@@ -746,6 +788,13 @@ def main():
                     e, m = s["eps"], s["method"]
                     for h, n in passing_steps(ladders[(e, m)]):
                         if (e, m, h) in unstable:
+                            continue
+                        if not stable_on_timing_system(args, e, m, h, n, timing_states[e], work):
+                            r = failed_timing(e, m, h, n, repeat, "exit 3 in the stability run")
+                            r["natoms"] = chains.natoms if args.timing == "small" else 32000
+                            cost_rows.append(r)
+                            unstable.add((e, m, h))
+                            log(f"stability eps {e:g} {m:18s} h {h:.4g}: exit 3; the next smaller step")
                             continue
                         r = timed_run(args, e, m, h, n, timing_states[e], work, repeat)
                         r["natoms"] = chains.natoms if args.timing == "small" else 32000
