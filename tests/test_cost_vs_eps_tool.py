@@ -263,8 +263,8 @@ def a_step_that_fails_its_stability_run_is_not_timed():
         with open(path) as f:
             kept = json.load(f)
         h = kept["key"]["h"]
-        assert kept["steps"] == max(20, min(math.ceil(0.5 / h - 1e-9), 2000)), kept
-        assert kept["stable"] == (not math.isclose(h, passing[-1])), kept
+        assert kept["row"]["steps"] == max(20, min(math.ceil(0.5 / h - 1e-9), 2000)), kept
+        assert kept["row"]["stable"] == (not math.isclose(h, passing[-1])), kept
 
 
 finish()

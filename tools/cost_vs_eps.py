@@ -439,55 +439,61 @@ def largest_step(rows):
 
 # ------------------------------------------------------------------------------------------ cost
 
-def timed_run(args, eps, method, h, n, state, work, repeat):
-    """One timed run; its row is kept in its directory (timed.json) and reused by a rerun with the same
-    settings (so that ε subsets can be timed apart and assembled by the full command)."""
-    steps = max(10, math.ceil(args.timed_micro / n)) if method in MICRO else args.timed_steps
-    run_dir = os.path.join(work, "timed", f"eps{eps:g}_{method}_h{h:.6g}_r{repeat}")
+def kept_result(run_dir, name, key, compute):
+    """compute()'s result, kept in run_dir/name with its settings (key) and reused by a rerun with the
+    same settings (so that ε subsets can be run apart and assembled by the full command)."""
     os.makedirs(run_dir, exist_ok=True)
-    key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
-    cached = os.path.join(run_dir, "timed.json")
+    cached = os.path.join(run_dir, name)
     if os.path.exists(cached):
         with open(cached) as f:
             kept = json.load(f)
         if kept["key"] == key:
             return kept["row"]
-    row = timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat)
+    row = compute()
     with open(cached, "w") as f:
         json.dump({"key": key, "row": row}, f)
     return row
 
 
+def stiffmd_on_timing_system(args, deck, run_dir, seed):
+    """The stiffmd command of a run of deck on the timing system: Langevin at kT, damp, seed."""
+    return [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
+            "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+            "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
+            "--set", "output.checkpoint_every=0"]
+
+
+def timed_run(args, eps, method, h, n, state, work, repeat):
+    """One timed run; its row is kept in its directory (timed.json)."""
+    steps = max(10, math.ceil(args.timed_micro / n)) if method in MICRO else args.timed_steps
+    run_dir = os.path.join(work, "timed", f"eps{eps:g}_{method}_h{h:.6g}_r{repeat}")
+    key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
+    return kept_result(run_dir, "timed.json", key,
+                       lambda: timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat))
+
+
 def stable_on_timing_system(args, eps, method, h, n, state, work):
     """Whether a method without micro steps runs max(--timed-steps, min(--stable-time / h,
-    --stable-steps)) steps at h on the timing system without a numerical failure (exit 3); cached in
+    --stable-steps)) steps at h on the timing system without a numerical failure (exit 3); kept in
     work/stable/…/stable.json like the timed runs. Micro-step methods are not checked (True)."""
     if method in MICRO:
         return True
     steps = max(args.timed_steps, min(math.ceil(args.stable_time / h - 1e-9), args.stable_steps))
     run_dir = os.path.join(work, "stable", f"eps{eps:g}_{method}_h{h:.6g}")
-    os.makedirs(run_dir, exist_ok=True)
     key = {"eps": eps, "method": method, "h": h, "n": n, "steps": steps, "state": os.path.abspath(state)}
-    cached = os.path.join(run_dir, "stable.json")
-    if os.path.exists(cached):
-        with open(cached) as f:
-            kept = json.load(f)
-        if kept["key"] == key:
-            return kept["stable"]
-    deck = os.path.join(run_dir, "run.toml")
-    write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
-    cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
-           "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
-           "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=4713",
-           "--set", "output.checkpoint_every=0"]
-    code, _, _ = run_measured(cmd, run_dir, 2)
-    if code not in (0, 3):
-        raise RunFailed(f"stability run failed (exit {code}): {shlex.join(cmd)}")
-    if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
-        os.remove(os.path.join(run_dir, "checkpoint.bin"))
-    with open(cached, "w") as f:
-        json.dump({"key": key, "stable": code == 0, "steps": steps}, f)
-    return code == 0
+
+    def run():
+        deck = os.path.join(run_dir, "run.toml")
+        write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
+        cmd = stiffmd_on_timing_system(args, deck, run_dir, 4713)
+        code, _, _ = run_measured(cmd, run_dir, 2)
+        if code not in (0, 3):
+            raise RunFailed(f"stability run failed (exit {code}): {shlex.join(cmd)}")
+        if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
+            os.remove(os.path.join(run_dir, "checkpoint.bin"))
+        return {"stable": code == 0, "steps": steps}
+
+    return kept_result(run_dir, "stable.json", key, run)["stable"]
 
 
 def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
@@ -505,10 +511,7 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
     else:
         deck = os.path.join(run_dir, "run.toml")
         write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
-        cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
-               "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
-               "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=4711",
-               "--set", "output.checkpoint_every=0"]
+        cmd = stiffmd_on_timing_system(args, deck, run_dir, 4711)
         code, _, _ = run_measured(cmd, run_dir, 1)
         if code == 3:  # a numerical failure at this step on the larger system: the caller steps down
             return failed_timing(eps, method, h, n, repeat, "exit 3")
