@@ -1,10 +1,20 @@
 #include "integrators/ziggurat.hpp"
 
+#include "integrators/thermostat.hpp"  // mix64, kGolden
+
 namespace stiffmd {
 
 namespace {
 double density(double x) {
   return std::exp(-0.5 * x * x);
+}
+// The next word of a draw's chain: splitmix64's step from w.
+std::uint64_t next_word(std::uint64_t w) {
+  return mix64(w + kGolden);
+}
+// The top 53 bits of w as a uniform on (0, 1): (k + ½)/2⁵³.
+double unit_uniform(std::uint64_t w) {
+  return (static_cast<double>(w >> 11) + 0.5) * 0x1p-53;
 }
 }  // namespace
 
@@ -52,8 +62,8 @@ double ziggurat_slow(std::uint64_t w, int layer, double u, const ZigguratTable& 
     w = next_word(w);
     if (f1 + unit_uniform(w) * (f0 - f1) < 1.0) return x;
     w = next_word(w);  // a new draw
-    layer = static_cast<int>(w & 0xffu);
-    u = (static_cast<double>(w >> 11) + 0.5) * 0x1p-52 - 1.0;
+    layer = ziggurat_layer(w);
+    u = signed_uniform(w);
     if (std::abs(u) < t.ratio[layer]) return u * t.x[layer];
   }
 }

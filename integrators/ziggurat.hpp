@@ -30,25 +30,24 @@ struct ZigguratTable {
 
 const ZigguratTable& ziggurat_table();  // built once, on first use
 
+// The layer of a draw from word w: its low 8 bits.
+inline int ziggurat_layer(std::uint64_t w) {
+  return static_cast<int>(w & 0xffu);
+}
+// The signed uniform of a draw from word w: its top 53 bits as (k + ½)/2⁵² − 1 on (−1, 1)
+// (disjoint from the layer's bits).
+inline double signed_uniform(std::uint64_t w) {
+  return (static_cast<double>(w >> 11) + 0.5) * 0x1p-52 - 1.0;
+}
+
 namespace detail {
-inline std::uint64_t next_word(std::uint64_t w) {  // splitmix64's finaliser of w + golden
-  std::uint64_t z = w + 0x9e3779b97f4a7c15ULL;
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-  return z ^ (z >> 31);
-}
-// The top 53 bits of w as a uniform on (0, 1): (k + ½)/2⁵³.
-inline double unit_uniform(std::uint64_t w) {
-  return (static_cast<double>(w >> 11) + 0.5) * 0x1p-53;
-}
 double ziggurat_slow(std::uint64_t w, int layer, double u, const ZigguratTable& t);  // wedges and tail
 }  // namespace detail
 
-// A standard normal from the word w: layer = the low 8 bits, u = the top 53 bits as a signed
-// uniform (k + ½)/2⁵² − 1 on (−1, 1) (disjoint bits).
+// A standard normal from the word w.
 inline double ziggurat_normal(std::uint64_t w, const ZigguratTable& t) {
-  const int layer = static_cast<int>(w & 0xffu);
-  const double u = (static_cast<double>(w >> 11) + 0.5) * 0x1p-52 - 1.0;
+  const int layer = ziggurat_layer(w);
+  const double u = signed_uniform(w);
   if (std::abs(u) < t.ratio[layer]) return u * t.x[layer];
   return detail::ziggurat_slow(w, layer, u, t);
 }
