@@ -524,9 +524,11 @@ struct PathGap {
 // a += sign · M⁻¹Gᵀ coef (kMassWeighted) or sign · Gᵀ coef on an open chain, with G at the kept
 // configuration, walking its path so that each particle is read and written once:
 // a_p += s_p (σ_k u_k coef_k − σ_{k−1} u_{k−1} coef_{k−1}) for p = path[k] (no term past either
-// end), s_p = sign · m_p⁻¹ or sign; then visit(k, a_p) with the particle's new value.
+// end), s_p = sign · m_p⁻¹ or sign; then visit(k, a_p) with the particle's new value. If b is
+// given, also b_p += b_sign (…) at the mobile particles (m_p⁻¹ > 0) in the same pass.
 template <bool kMassWeighted, class Visit>
-void walk_chain(const ClusterData& d, double* a, const double* coef, double sign, Visit&& visit) {
+void walk_chain(const ClusterData& d, double* a, const double* coef, double sign, Visit&& visit, double* b = nullptr,
+                double b_sign = 0.0) {
   const int n = static_cast<int>(d.bonds.size());
   const int* path = d.path.data();
   const double* w = d.path_inv_mass.data();
@@ -545,6 +547,12 @@ void walk_chain(const ClusterData& d, double* a, const double* coef, double sign
     q[1] += s * (fy - ey);
     q[2] += s * (fz - ez);
     visit(k, q[0], q[1], q[2]);
+    if (b != nullptr && w[k] > 0.0) {  // not at a fixed particle, which clusters may share
+      double* r = b + 3 * path[k];
+      r[0] += b_sign * (fx - ex);
+      r[1] += b_sign * (fy - ey);
+      r[2] += b_sign * (fz - ez);
+    }
     ex = fx;
     ey = fy;
     ez = fz;
@@ -593,10 +601,11 @@ struct ConstraintToolbox::Impl {
 
   template <bool kForce>
   void chain_project_rhs(int c, const Eigen::Matrix3Xd& a);
+  // With force (velocity only): force −= rate · Gᵀμ at the mobile particles as well.
   template <bool kForce>
-  void chain_project_update(int c, Eigen::Matrix3Xd& a);
+  void chain_project_update(int c, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force = nullptr, double rate = 0.0);
   void project_force_cluster(int c, Eigen::Matrix3Xd& f);
-  void project_velocity_cluster(int c, Eigen::Matrix3Xd& v);
+  void project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force, double rate);
   // SHAKE on one cluster, as a sequence of iterations (shake_group interleaves several).
   struct ShakeState {
     int c = 0;
@@ -674,7 +683,7 @@ struct ConstraintToolbox::Impl {
   // SHAKE on a group of clusters (shake_group below: their chord solves in lockstep).
   void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter);
   template <bool kForce>
-  void project_group(int first, int count, Eigen::Matrix3Xd& a);
+  void project_group(int first, int count, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force = nullptr, double rate = 0.0);
 
   std::vector<StiffBond> bonds;
   Eigen::VectorXd inv_mass;
@@ -1079,21 +1088,24 @@ void ConstraintToolbox::Impl::chain_project_rhs(int c, const Eigen::Matrix3Xd& a
   }
 }
 
-// a −= Gᵀμ (force) or M⁻¹Gᵀμ (velocity), μ in sol.
+// a −= Gᵀμ (force) or M⁻¹Gᵀμ (velocity), μ in sol; force −= rate · Gᵀμ if given.
 template <bool kForce>
-void ConstraintToolbox::Impl::chain_project_update(int c, Eigen::Matrix3Xd& a) {
-  walk_chain<!kForce>(data[c], a.data(), data[c].sol.data(), -1.0, [](int, double, double, double) {});
+void ConstraintToolbox::Impl::chain_project_update(int c, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force, double rate) {
+  walk_chain<!kForce>(
+      data[c], a.data(), data[c].sol.data(), -1.0, [](int, double, double, double) {},
+      force != nullptr ? force->data() : nullptr, -rate);
 }
 
 // A group of clusters (for_each_group): open chains project in lockstep (a group of one alone),
 // any other cluster through project_force_cluster / project_velocity_cluster.
 template <bool kForce>
-void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3Xd& a) {
+void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force,
+                                            double rate) {
   if (!data[first].spd) {
     if (kForce)
       project_force_cluster(first, a);
     else
-      project_velocity_cluster(first, a);
+      project_velocity_cluster(first, a, force, rate);
     return;
   }
   factor_kept_group(first, count, kForce ? "force projection" : "velocity projection");
@@ -1103,7 +1115,7 @@ void ConstraintToolbox::Impl::project_group(int first, int count, Eigen::Matrix3
     chain_project_rhs<kForce>(cs[j], a);
   }
   solve_chains(cs, count);
-  for (int j = 0; j < count; ++j) chain_project_update<kForce>(cs[j], a);
+  for (int j = 0; j < count; ++j) chain_project_update<kForce>(cs[j], a, force, rate);
 }
 
 // P(x) f = f − Gᵀλ, S λ = G M⁻¹ f (paper eq. (proj)), on a cluster that is not an open chain
@@ -1118,7 +1130,8 @@ void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) 
 
 // RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0 (not an
 // open chain: those go through project_group).
-void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v) {
+void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force,
+                                                       double rate) {
   ClusterData& d = data[c];
   factor_kept_s(c, "velocity projection");
   for (int k = 0; k < d.rhs.size(); ++k) {
@@ -1127,6 +1140,13 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
   }
   solve_kept_s(c);
   add_constraint_displacement(c, at_kept, d.sol, -1.0, v);
+  if (force == nullptr) return;
+  for (int k = 0; k < static_cast<int>(d.bonds.size()); ++k) {  // −rate Gᵀμ, none at fixed particles
+    const int b = d.bonds[k];
+    const Eigen::Vector3d step = -rate * d.sol[k] * at_kept.u.col(b);
+    if (inv_mass[bonds[b].i] > 0.0) force->col(bonds[b].i) += step;
+    if (inv_mass[bonds[b].j] > 0.0) force->col(bonds[b].j) -= step;
+  }
 }
 
 // y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
@@ -1350,11 +1370,13 @@ void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3X
   impl_->for_each_group([&](int c, int count) { impl_->project_group<true>(c, count, f); });
 }
 
-void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force,
+                                         double rate) {
   require_columns(x, impl_->num_particles(), "project_velocity");
   require_columns(v, impl_->num_particles(), "project_velocity");
+  if (force != nullptr) require_columns(*force, impl_->num_particles(), "project_velocity (force)");
   impl_->keep(x);
-  impl_->for_each_group([&](int c, int count) { impl_->project_group<false>(c, count, v); });
+  impl_->for_each_group([&](int c, int count) { impl_->project_group<false>(c, count, v, force, rate); });
 }
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,

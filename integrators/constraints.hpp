@@ -93,7 +93,10 @@ class ConstraintToolbox {
   void project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f);
 
   // RATTLE velocity projection, in place:  v ← v − M⁻¹Gᵀμ,  S μ = G v.  Afterwards G v = 0.
-  void project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
+  // force, if given, gets −rate · Gᵀμ added at the mobile particles: M Δv · rate, the constraint
+  // force of the impulse spread over a time 1/rate (nothing at fixed particles, whose v stays).
+  void project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force = nullptr,
+                        double rate = 0.0);
 
   // SHAKE position projection, in place: y ← y + M⁻¹ G(x_ref)ᵀ λ with g(y) = 0, by Newton on
   // λ (J = G(y) M⁻¹ G(x_ref)ᵀ, per cluster; open chains near x_ref first by chord steps on

@@ -16,7 +16,6 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
-      v_unprojected_(f_),
       constraint_force_(f_) {
   if (model_) model_->attach(toolbox_);
 }
@@ -57,6 +56,7 @@ void Rattle::step(State& s, double h) {
   if (!valid_) refresh(s.x);
   model_value_current_ = false;  // x moves below; the closing refresh makes it current again
   kick(s.v, s.inv_mass, f_, 0.5 * h);
+  constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
   if (!langevin_) {
     rattle_drift(s, h);
   } else {
@@ -71,41 +71,15 @@ void Rattle::step(State& s, double h) {
     // The chord velocity of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along each
     // bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
     // τ = h/2 that is twice the factor of the closing kick's share (below): taken apart here, else
-    // the pressure would miss half the centrifugal force (kT per bond in the virial).
-    v_unprojected_ = s.v;
-    toolbox_.project_velocity(s.x, s.v);
+    // the pressure would miss half the centrifugal force (kT per bond in the virial). The
+    // projection adds M Δv · rate itself (−rate Gᵀμ, none at fixed particles).
+    toolbox_.project_velocity(s.x, s.v, &constraint_force_, 4.0 / h);
   }
-  if (langevin_)
-    add_constraint_force(s, 0.25 * h, true);
-  else
-    constraint_force_.setZero();
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  v_unprojected_ = s.v;
-  toolbox_.project_velocity(s.x, s.v);  // G(x') v' = 0
-  // Without Langevin the chord over h and the kick over h/2 share the factor: F_c = M Δv / (h/2).
-  add_constraint_force(s, 0.5 * h, false);
-}
-
-// constraint_force_ (+)= M (v − v_unprojected) / dt; fixed particles (inverse mass 0) have Δv = 0
-// and get no force.
-void Rattle::add_constraint_force(const State& s, double dt, bool first) {
-  if (mass_.size() != s.inv_mass.size())  // m_i, 0 at fixed particles: no division per particle and call
-    mass_ = (s.inv_mass.array() > 0.0).select(s.inv_mass.cwiseInverse(), 0.0);
-  const double inv_dt = 1.0 / dt;
-  parallel_blocks(s.size(), threads_for(s.size()), [&](std::int64_t b, std::int64_t e) {
-    const double* __restrict v = s.v.data();
-    const double* __restrict vu = v_unprojected_.data();
-    const double* __restrict m = mass_.data();
-    double* __restrict fc = constraint_force_.data();
-    for (std::int64_t i = b; i < e; ++i) {
-      const double scale = m[i] * inv_dt;
-      for (int a = 0; a < 3; ++a) {
-        const double f = (v[3 * i + a] - vu[3 * i + a]) * scale;
-        fc[3 * i + a] = first ? f : fc[3 * i + a] + f;
-      }
-    }
-  });
+  // G(x') v' = 0. Without Langevin the chord over h and the kick over h/2 share the factor:
+  // F_c = M Δv / (h/2).
+  toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]

@@ -43,7 +43,7 @@ class Rattle final : public Integrator {
   void reset() override { valid_ = model_value_current_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
-  // the closing half step: F_c = M (v' − v'_unprojected) / (h/2) (with Langevin, the last half
+  // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with Langevin, the last half
   // drift's centrifugal share is projected apart, over h/4: rattle.cpp). Molecules are whole (unwrapped
   // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
@@ -67,15 +67,13 @@ class Rattle final : public Integrator {
  private:
   void refresh(const Eigen::Matrix3Xd& x);
   void rattle_drift(State& s, double dt);  // x ← x + dt v on g = 0; v ← the tangential chord velocity
-  void add_constraint_force(const State& s, double dt, bool first);  // M (v − v_unprojected)/dt
 
   std::string method_;
   ForceField& forces_;
   ConstraintToolbox toolbox_;
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
-  Eigen::Matrix3Xd f_, correction_, x_old_, v_unprojected_, constraint_force_;
-  Eigen::VectorXd mass_;  // m_i (0 at fixed particles), for the constraint force
+  Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
   bool model_value_current_ = false;  // … and x has not moved since

@@ -322,6 +322,30 @@ TEST_P(OnEveryScene, ProjectVelocityRemovesBondStretching) {
   EXPECT_LT(relative(again, v), 1e-12);
 }
 
+TEST_P(OnEveryScene, ProjectVelocityAddsItsConstraintForce) {
+  // The force output: force += M (P v − v) · rate at mobile particles, untouched at fixed ones
+  // (Rattle's pressure reads it; against the dense reference projection).
+  const Scene& s = GetParam();
+  ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+  Eigen::Matrix3Xd v = random_motion(s, 11);
+  const Eigen::Matrix3Xd before = random_motion(s, 12);  // what the force held already
+  Eigen::Matrix3Xd expected = before;
+  const Eigen::Matrix3Xd projected = reference_projected_velocity(s, v);
+  const double rate = 7.0;
+  for (int k = 0; k < static_cast<int>(s.inv_mass.size()); ++k)
+    if (s.inv_mass[k] > 0.0) expected.col(k) += (projected.col(k) - v.col(k)) * (rate / s.inv_mass[k]);
+  Eigen::Matrix3Xd force = before, plain = v;
+  toolbox.project_velocity(s.x, v, &force, rate);
+  toolbox.project_velocity(s.x, plain);
+  EXPECT_EQ(v, plain) << "the force output changed the projection";
+  EXPECT_LT(relative(force - before, expected - before), 1e-10);
+  for (int k = 0; k < static_cast<int>(s.inv_mass.size()); ++k) {
+    if (s.inv_mass[k] == 0.0) {
+      EXPECT_EQ(force.col(k), before.col(k)) << "fixed particle " << k;
+    }
+  }
+}
+
 // A flat triangle: its three bond directions are parallel, G has rank 2 and S is singular.
 // That must be an error naming the cluster, not NaN forces.
 TEST(ConstraintProjectForce, CollinearTriangleThrowsInsteadOfReturningNaN) {
