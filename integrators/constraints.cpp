@@ -594,8 +594,9 @@ struct ConstraintToolbox::Impl {
   void solve_kept_s(int c);
   [[noreturn]] void singular(int c, bool symmetric, const char* what) const;
   Eigen::Vector3d inv_mass_difference(int b, const Eigen::Matrix3Xd& w) const;
+  // mobile_only: nothing at fixed particles (a velocity projection's constraint force: their v stays).
   void add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
-                            Eigen::Matrix3Xd& f) const;
+                            Eigen::Matrix3Xd& f, bool mobile_only = false) const;
   void add_constraint_displacement(int c, const BondFrame& frame, const Eigen::VectorXd& coef, double sign,
                                    Eigen::Matrix3Xd& y) const;
 
@@ -1035,16 +1036,16 @@ Eigen::Vector3d ConstraintToolbox::Impl::inv_mass_difference(int b, const Eigen:
   return inv_mass[bonds[b].i] * w.col(bonds[b].i) - inv_mass[bonds[b].j] * w.col(bonds[b].j);
 }
 
-// f += sign · Gᵀ coef. Fixed particles receive their share too: it is the reaction force there,
-// and keeping the full Gᵀ makes P an exact projection.
+// f += sign · Gᵀ coef. Fixed particles receive their share too unless mobile_only: it is the
+// reaction force there, and keeping the full Gᵀ makes P an exact projection.
 void ConstraintToolbox::Impl::add_constraint_force(int c, const BondFrame& frame, const Eigen::VectorXd& coef,
-                                                   double sign, Eigen::Matrix3Xd& f) const {
+                                                   double sign, Eigen::Matrix3Xd& f, bool mobile_only) const {
   const ClusterData& d = data[c];
   for (int k = 0; k < static_cast<int>(d.bonds.size()); ++k) {
     const int b = d.bonds[k];
     const Eigen::Vector3d force = sign * coef[k] * frame.u.col(b);
-    f.col(bonds[b].i) += force;
-    f.col(bonds[b].j) -= force;
+    if (!mobile_only || inv_mass[bonds[b].i] > 0.0) f.col(bonds[b].i) += force;
+    if (!mobile_only || inv_mass[bonds[b].j] > 0.0) f.col(bonds[b].j) -= force;
   }
 }
 
@@ -1140,13 +1141,7 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
   }
   solve_kept_s(c);
   add_constraint_displacement(c, at_kept, d.sol, -1.0, v);
-  if (force == nullptr) return;
-  for (int k = 0; k < static_cast<int>(d.bonds.size()); ++k) {  // −rate Gᵀμ, none at fixed particles
-    const int b = d.bonds[k];
-    const Eigen::Vector3d step = -rate * d.sol[k] * at_kept.u.col(b);
-    if (inv_mass[bonds[b].i] > 0.0) force->col(bonds[b].i) += step;
-    if (inv_mass[bonds[b].j] > 0.0) force->col(bonds[b].j) -= step;
-  }
+  if (force != nullptr) add_constraint_force(c, at_kept, d.sol, -rate, *force, true);  // −rate Gᵀμ
 }
 
 // y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept

@@ -182,12 +182,13 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   const Eigen::Matrix3Xd f0 = Eigen::Matrix3Xd::Random(3, m.x.cols());
   auto slow = [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& out) { out = f0 + 0.1 * X; };
   struct Result {
-    Eigen::Matrix3Xd projected, shaken, mollified, alpha;
+    Eigen::Matrix3Xd projected, shaken, mollified, alpha, velocity, constraint_force;
   };
   auto run = [&](int threads) {
     set_max_threads(threads);
-    Result r{f0, m.x, Eigen::Matrix3Xd(), Eigen::Matrix3Xd()};
+    Result r{f0, m.x, Eigen::Matrix3Xd(), Eigen::Matrix3Xd(), f0, Eigen::Matrix3Xd::Zero(3, m.x.cols())};
     toolbox.project_force(m.x, r.projected);
+    toolbox.project_velocity(m.x, r.velocity, &r.constraint_force, 4.0);  // and the constraint force it adds
     toolbox.shake(m.x, r.shaken);
     toolbox.mollified_force(m.x, slow, r.alpha, r.mollified);
     return r;
@@ -200,6 +201,8 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
     EXPECT_EQ(r.shaken, serial.shaken);
     EXPECT_EQ(r.alpha, serial.alpha);
     EXPECT_EQ(r.mollified, serial.mollified);
+    EXPECT_EQ(r.velocity, serial.velocity);
+    EXPECT_EQ(r.constraint_force, serial.constraint_force);
   }
   set_max_threads(restore);
   Eigen::Matrix3Xd twice = serial.projected;  // and it is a projection: P² = P
