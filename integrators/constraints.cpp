@@ -45,6 +45,13 @@
 namespace stiffmd {
 namespace {
 
+// u_a · v_b for the columns a of u and b of v (3 × n arrays, column-major): the couplings of S and J.
+inline double column_dot(const double* u, int a, const double* v, int b) {
+  const double* p = u + 3 * a;
+  const double* q = v + 3 * b;
+  return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
+}
+
 // Clusters that are not open chains and have more bonds than this use sparse factorizations.
 // Measured on rings (mollified force, -O2): dense wins below ~40 bonds, sparse above, and
 // only the dense path is allocation-free.
@@ -850,11 +857,7 @@ void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const Bond
   ClusterData& d = data[c];
   const double* ur = rows.u.data();
   const double* uc = cols.u.data();
-  auto dot = [&](int a, int b) {
-    const double* p = ur + 3 * a;
-    const double* q = uc + 3 * b;
-    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-  };
+  auto dot = [&](int a, int b) { return column_dot(ur, a, uc, b); };
   if (d.chain) {
     const int n = static_cast<int>(d.bonds.size());
     const int* bond = d.bonds.data();
@@ -873,9 +876,7 @@ void ConstraintToolbox::Impl::factorize(int c, const BondFrame& rows, const Bond
   double* values = d.values.data();
   const Coupling* cp = d.couplings.data();
   for (std::size_t k = 0, n = d.couplings.size(); k < n; ++k) {
-    const double* a = ur + 3 * cp[k].row_bond;
-    const double* b = uc + 3 * cp[k].col_bond;
-    values[k] = cp[k].sign * w[cp[k].particle] * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]);
+    values[k] = cp[k].sign * w[cp[k].particle] * column_dot(ur, cp[k].row_bond, uc, cp[k].col_bond);
   }
   if (!d.solver->factorize(d.values, symmetric)) singular(c, symmetric, what);
 }
@@ -910,11 +911,7 @@ void ConstraintToolbox::Impl::chain_s_bands(int c, const char* what) {
     d.frame_kept = true;
   }
   const double* u = at_kept.u.data();
-  auto dot = [&](int a, int b) {
-    const double* p = u + 3 * a;
-    const double* q = u + 3 * b;
-    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2];
-  };
+  auto dot = [&](int a, int b) { return column_dot(u, a, u, b); };
   const int n = static_cast<int>(d.bonds.size());
   const int* bond = d.bonds.data();
   double* diagonal = d.spd->diagonal();
