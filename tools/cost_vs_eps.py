@@ -474,8 +474,9 @@ def timed_run(args, eps, method, h, n, state, work, repeat):
 
 def stable_on_timing_system(args, eps, method, h, n, state, work):
     """Whether a method without micro steps runs max(--timed-steps, min(--stable-time / h,
-    --stable-steps)) steps at h on the timing system without a numerical failure (exit 3); kept in
-    work/stable/…/stable.json like the timed runs. Micro-step methods are not checked (True)."""
+    --stable-steps)) steps at h on the timing system without a numerical failure (exit 3), on two
+    threads (not timed; the verdict is not a timing); kept in work/stable/…/stable.json like the timed
+    runs. Micro-step methods are not checked (True)."""
     if method in MICRO:
         return True
     steps = max(args.timed_steps, min(math.ceil(args.stable_time / h - 1e-9), args.stable_steps))
