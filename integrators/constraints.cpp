@@ -350,8 +350,10 @@ class ChainLdlt {
     }
   }
 
-  // sol = S⁻¹ rhs (sol may alias rhs): L z = b from the top and U w = b from the bottom to the
-  // twist, then the back substitution outwards from it (solve_group, one chain).
+  // sol = S⁻¹ rhs: L z = b from the top and U w = b from the bottom to the twist, then the back
+  // substitution outwards from it (solve_group, one chain). sol must not alias rhs: with n odd the
+  // top sweep writes sol[p] in the same round as the bottom sweep reads rhs[p] (every caller
+  // passes the cluster's distinct rhs and sol).
   void solve(const double* rhs, double* sol) const {
     const ChainLdlt* self = this;
     solve_group<1>(&self, &rhs, &sol);
