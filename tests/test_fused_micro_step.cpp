@@ -91,6 +91,50 @@ TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
   }
 }
 
+// Combs: each chain of `chains` gets a side bead on bead 50, its bond listed before the chain's
+// backbone (the backbone's chain run then meets bead 50 already holding the side bond's force, and
+// must add to it, not overwrite it) or after it. Both must give the bits of the plain path.
+TEST(FusedMicroStep, SideBondsListedBeforeOrAfterTheBackbone) {
+  for (bool side_first : {true, false}) {
+    const Chains c = chains(false);
+    const Eigen::Index beads = c.x.cols(), n_chains = beads / 100;
+    Eigen::Matrix3Xd x(3, beads + n_chains);
+    x.leftCols(beads) = c.x;
+    StiffBonds bonds;
+    bonds.epsilon = c.bonds.epsilon;
+    for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
+      const int stem = static_cast<int>(100 * ch + 50), side = static_cast<int>(beads + ch);
+      x.col(side) = x.col(stem) + Eigen::Vector3d(0.0, 0.0, 0.99);  // stretched by 0.02
+      const StiffBond side_bond{stem, side, 0.97, 1.0};
+      if (side_first) bonds.bonds.push_back(side_bond);
+      for (int b = 0; b < 99; ++b) bonds.bonds.push_back(c.bonds.bonds[99 * ch + b]);
+      if (!side_first) bonds.bonds.push_back(side_bond);
+    }
+    const Eigen::Index n = x.cols();
+    const StiffHarmonicBond term("bonds", Level::fast, bonds);
+    std::mt19937 rng(6);
+    std::normal_distribution<double> g;
+    Eigen::Matrix3Xd v0(3, n), f0(3, n);
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
+    const Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
+    for (int threads : {1, 2, 3}) {
+      SCOPED_TRACE(testing::Message() << "side bond first " << side_first << ", " << threads << " threads");
+      const ThreadCount tc(threads);
+      Eigen::Matrix3Xd x1 = x, v1 = v0, f1 = f0;
+      kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
+      f1.setZero();
+      term.add_forces(x1, Box{}, f1);
+      Eigen::Matrix3Xd x2 = x, v2 = v0, f2 = f0;
+      term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
+      EXPECT_EQ(x1, x2);
+      EXPECT_EQ(v1, v2);
+      EXPECT_EQ(f1, f2);
+      EXPECT_GT(f1.col(50).norm(), 1.0);
+    }
+  }
+}
+
 // The bond loop does a block of at most kFewBonds bond by bond and a larger one gathered
 // (bond_loop.hpp); both must give the same bits. A 3-bond chain alone (one block of 3) against 30
 // copies of it at the same coordinates (90 bonds: blocks of 64 and 26): each copy's forces equal
