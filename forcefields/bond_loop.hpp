@@ -248,41 +248,68 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
 }
 
 // Bonds first … first + m − 1 of a chain run (BondPartition::Segment): bond q joins particles
-// p + q and p + q + 1, both owned. The operations of bond_block on each particle in the same order
-// — the particle p + q gets −f of bond q − 1, then +f of bond q — without the work list's
-// indirections: the separations are read along x, and each particle's force is written once,
-// f = (f − f_{q−1}) + f_q (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). In blocks of
-// kBondBlock bonds; advance_to(end) drifts the particles up to end − 1 before a block reads them.
-template <class Kernel, class Params, class Advance>
-void chain_run(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, const Eigen::Matrix3Xd& x,
-               double* fp, Advance& advance_to) {
-  alignas(64) double d[3][kBondBlock];
-  const double* xp = x.data();
+// p + q and p + q + 1, both owned. In one pass, for each particle i = p … p + m in turn: its kick
+// and drift (unless an earlier segment or the halo pass did them: i < next, or i the next halo
+// particle), then the bond (i − 1, i) at the new positions, and the final force of i − 1,
+// f = (f₀ − f_{q−1}) + f_q, with f₀ = 0 for a particle drifted here and f as it stands otherwise (a
+// branch point an earlier bond has written). The operations of kick_drift and of bond_block on
+// each particle, in the same order — the particle p + q gets −f of bond q − 1, then +f of bond q —
+// so the same bits (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). x, v and f of a
+// particle are read and written once, the bond vector comes from registers, and the bonds' square
+// roots and divisions, independent from bond to bond, overlap with the streaming of the particles.
+// (It replaced blocks of 64 bonds — drift the block's particles, gather their separations from x,
+// the vectorised forces, the forces written back — at 2.2–2.3 × the memory floor, against 1.9 ×:
+// BM_MicroStepVsFloor, 2026-11-25.)
+template <class Kernel, class Params>
+void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, double* __restrict xp,
+                  double* __restrict vp, double* __restrict fp, const double* __restrict w_inv, double dt_kick,
+                  double dt, std::int64_t& next, const int*& halo, const int* halo_end) {
   const std::int64_t p = bonds[first].i;
-  double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
-  for (std::int64_t q0 = 0; q0 < m; q0 += kBondBlock) {
-    const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, m - q0));
-    advance_to(p + q0 + nb + 1);
-    const double* xq = xp + 3 * (p + q0);
-    for (int k = 0; k < nb; ++k)
-      for (int a = 0; a < 3; ++a) d[a][k] = xq[3 * k + a] - xq[3 * k + 3 + a];
-    const BondInstance<Params>* b = bonds.data() + first + q0;
-    for (int k = 0; k < nb; ++k) {
-      const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
-      double e = 0.0, de_dr = 0.0;
-      Kernel::eval(r, b[k].params, e, de_dr);
-      const double scale = -de_dr / r;
-      for (int a = 0; a < 3; ++a) d[a][k] *= scale;
-    }
-    double* fq = fp + 3 * (p + q0);
-    for (int k = 0; k < nb; ++k)
+  const BondInstance<Params>* b = bonds.data() + first - 1;  // b[q]: the bond (p + q − 1, p + q)
+  // Kick and drift particle i unless done (kick_drift's expressions); its position into pos and
+  // its force before the run's bonds into base: 0 when advanced here, else what f holds. The new
+  // position comes from registers, not read back: a 16-byte load of two 8-byte stores just made
+  // cannot be forwarded and stalls.
+  auto advance_one = [&](std::int64_t i, double pos[3], double base[3]) {
+    if (i >= next && !(halo != halo_end && *halo == i)) {
+      const double s = dt_kick * w_inv[i];
       for (int a = 0; a < 3; ++a) {
-        fq[3 * k + a] = (fq[3 * k + a] - carry[a]) + d[a][k];
-        carry[a] = d[a][k];
+        const double vi = vp[3 * i + a] + s * fp[3 * i + a];
+        vp[3 * i + a] = vi;
+        pos[a] = xp[3 * i + a] + dt * vi;
+        xp[3 * i + a] = pos[a];
+        base[a] = 0.0;
       }
+    } else {
+      if (halo != halo_end && *halo == i) ++halo;
+      for (int a = 0; a < 3; ++a) {
+        pos[a] = xp[3 * i + a];
+        base[a] = fp[3 * i + a];
+      }
+    }
+    next = std::max(next, i + 1);
+  };
+  double prev_pos[3], prev_base[3];
+  advance_one(p, prev_pos, prev_base);
+  double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
+  for (std::int64_t q = 1; q <= m; ++q) {
+    const std::int64_t i = p + q;
+    double pos[3], base[3];
+    advance_one(i, pos, base);
+    double d[3] = {prev_pos[0] - pos[0], prev_pos[1] - pos[1], prev_pos[2] - pos[2]};
+    const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    double e = 0.0, de_dr = 0.0;
+    Kernel::eval(r, b[q].params, e, de_dr);
+    const double scale = -de_dr / r;
+    for (int a = 0; a < 3; ++a) {
+      d[a] *= scale;
+      fp[3 * (i - 1) + a] = (prev_base[a] - carry[a]) + d[a];
+      carry[a] = d[a];
+      prev_base[a] = base[a];
+      prev_pos[a] = pos[a];
+    }
   }
-  double* f_last = fp + 3 * (p + m);
-  for (int a = 0; a < 3; ++a) f_last[a] -= carry[a];
+  for (int a = 0; a < 3; ++a) fp[3 * (p + m) + a] = prev_base[a] - carry[a];
 }
 
 // The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
@@ -294,7 +321,7 @@ void chain_run(const std::vector<BondInstance<Params>>& bonds, int first, std::i
 // Owner t streams its particles in index order and evaluates its work in the same order as
 // accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
 // along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
-// touched while in cache; chain runs go through chain_run, without the work list. Particles
+// touched while in cache; chain runs go through chain_stream, without the work list. Particles
 // another owner reads (the halo: ends of bonds between owners) are advanced first, serially: their
 // x is then final before any owner reads it, and no two threads write one particle.
 template <class Kernel, class Params>
@@ -344,7 +371,10 @@ void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
     const BondPartition::Work* work = partition.work();
     for (const auto* seg = partition.segments_begin(t); seg < partition.segments_end(t); ++seg) {
       if (seg->chain) {
-        chain_run<Kernel>(bonds, work[seg->begin].bond, seg->end - seg->begin, x, fp, advance_to);
+        const int first_bond = work[seg->begin].bond;
+        advance_to(bonds[first_bond].i);  // the particles before the run
+        chain_stream<Kernel>(bonds, first_bond, seg->end - seg->begin, xp, vp, fp, w_inv, dt_kick, dt, next, halo,
+                             halo_end);
         continue;
       }
       for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
