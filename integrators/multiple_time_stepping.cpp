@@ -24,7 +24,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
-  if (stages_.size() >= 2 && !langevin_) {
+  if (stages_.size() >= 2) {
     const std::vector<Level>& inner = stages_.back().levels;
     std::vector<const ForceTerm*> terms;
     for (const auto& term : forces_.terms())
@@ -88,17 +88,10 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
 // (see the header for why there and not in every micro step).
 //
 // Fused (fused_micro_step()): kick, drift and the new force in one pass per micro step, the
-// same bits (FusedMicroStep); only without an O step inside the micro steps.
+// same bits (FusedMicroStep: kick_drift, then refresh); the micro step whose drift holds the O
+// step (n odd) runs plain.
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
   if (!valid_[k]) refresh(k, s.x);
-  if (fused_) {
-    for (int i = 0; i < n; ++i) {
-      fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], i == 0 ? 0.5 * dt : dt, dt);
-      forces_.count_evaluations(stages_[k].levels);
-    }
-    kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
-    return;
-  }
   const double span = dt * n;
   for (int i = 0; i < n; ++i) {
     const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;
@@ -106,10 +99,14 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
       o_step(s, span);
       drift(s.x, s.v, 0.5 * dt);
+      refresh(k, s.x);
+    } else if (fused_) {
+      fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+      forces_.count_evaluations(stages_[k].levels);
     } else {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+      refresh(k, s.x);
     }
-    refresh(k, s.x);
     if (langevin_ && n % 2 == 0 && i == n / 2 - 1) {
       kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
       o_step(s, span);

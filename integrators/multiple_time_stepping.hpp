@@ -96,9 +96,9 @@ class MultipleTimeStepping final : public Integrator {
   void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
   std::string_view method() const override { return method_; }
   // Whether the micro steps run fused (FusedMicroStep: one pass per micro step). On by default
-  // when available: the innermost stage is not the only one, its levels hold one term and that
-  // term offers it, and no O step sits inside the micro steps (Hamiltonian dynamics). Switching
-  // it off (tests, benchmarks) gives the same bits.
+  // when available: the innermost stage is not the only one, and its levels hold one term, which
+  // offers it. With Langevin the micro step whose drift holds the O step (n odd) runs plain.
+  // Switching it off (tests, benchmarks) gives the same bits.
   bool fused_micro_step() const { return fused_ != nullptr; }
   void use_fused_micro_step(bool on) { fused_ = on ? fused_available_ : nullptr; }
   double kinetic_energy_estimate(const State& s) const override {
