@@ -292,7 +292,34 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   double prev_pos[3], prev_base[3];
   advance_one(p, prev_pos, prev_base);
   double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
-  for (std::int64_t q = 1; q <= m; ++q) {
+  std::int64_t q = 1;
+  for (; q + 1 <= m; q += 2) {  // two bonds at a time: their square roots and divisions side by side
+    const std::int64_t i = p + q + 1;
+    double pos1[3], base1[3], pos2[3], base2[3];
+    advance_one(i - 1, pos1, base1);
+    advance_one(i, pos2, base2);
+    double d[2][3];
+    for (int a = 0; a < 3; ++a) {
+      d[0][a] = prev_pos[a] - pos1[a];
+      d[1][a] = pos1[a] - pos2[a];
+    }
+    double scale[2];
+    for (int l = 0; l < 2; ++l) {
+      const double r = std::sqrt(d[l][0] * d[l][0] + d[l][1] * d[l][1] + d[l][2] * d[l][2]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b[q + l].params, e, de_dr);
+      scale[l] = -de_dr / r;
+    }
+    for (int a = 0; a < 3; ++a) {
+      const double f0 = d[0][a] * scale[0], f1 = d[1][a] * scale[1];
+      fp[3 * (i - 2) + a] = (prev_base[a] - carry[a]) + f0;
+      fp[3 * (i - 1) + a] = (base1[a] - f0) + f1;
+      carry[a] = f1;
+      prev_base[a] = base2[a];
+      prev_pos[a] = pos2[a];
+    }
+  }
+  for (; q <= m; ++q) {
     const std::int64_t i = p + q;
     double pos[3], base[3];
     advance_one(i, pos, base);
