@@ -22,10 +22,21 @@ void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
 
 }  // namespace
 
+void ForceField::add(std::unique_ptr<ForceTerm> term) {
+  const ForceTerm* t = term.get();
+  terms_.push_back(std::move(term));
+  // The terms that offer a fused step first, then the others, each in the order added.
+  const bool fusable = t->fused_micro_step() != nullptr;
+  const auto at = fusable ? std::find_if(order_.begin(), order_.end(),
+                                         [](const ForceTerm* u) { return u->fused_micro_step() == nullptr; })
+                          : order_.end();
+  order_.insert(at, t);
+}
+
 double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out) {
   zero(out, x.cols());
   double energy = 0.0;
-  for (const auto& term : terms_)
+  for (const ForceTerm* term : order_)
     if (std::find(levels.begin(), levels.end(), term->level()) != levels.end())
       energy += term->add_forces(x, box_, out);
   for (Level l : levels) ++evaluations_[l.index];
@@ -35,7 +46,7 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
 double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
   zero(out, x.cols());
   double energy = 0.0;
-  for (const auto& term : terms_)
+  for (const ForceTerm* term : order_)
     if (!term->stiff_bonds()) energy += term->add_forces(x, box_, out);
   ++evaluations_[outermost().index];
   return energy;
@@ -44,7 +55,7 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
   scratch_.setZero(3, x.cols());
   double energy = 0.0;
-  for (const auto& term : terms_)
+  for (const ForceTerm* term : order_)
     if (term->level() == level) energy += term->add_forces(x, box_, scratch_);
   return energy;
 }

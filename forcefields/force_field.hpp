@@ -28,7 +28,7 @@ class ForceField {
         level_names_(std::move(level_names)),
         evaluations_(level_names_.size(), 0) {}
 
-  void add(std::unique_ptr<ForceTerm> term) { terms_.push_back(std::move(term)); }
+  void add(std::unique_ptr<ForceTerm> term);
 
   // out = Σ forces of the terms on the given levels (out is overwritten, not allocated when
   // already 3×N); returns their energy. Counts one evaluation per level.
@@ -45,13 +45,21 @@ class ForceField {
   // Total force of every term at x, for output (not counted as an evaluation).
   void total_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const {
     out.setZero(3, x.cols());
-    for (const auto& term : terms_) term->add_forces(x, box_, out);
+    for (const ForceTerm* term : order_) term->add_forces(x, box_, out);
   }
 
   // Energy of one level at x (for observables; does not count as a force evaluation).
   double energy(const Eigen::Matrix3Xd& x, Level level) const;
 
   const std::vector<std::unique_ptr<ForceTerm>>& terms() const { return terms_; }
+  // The terms in the order their forces are summed (compute and the others below): those that
+  // offer a fused step (the stiff harmonic bonds) first, then the others, each in the order added.
+  // A fused step (FusedMicroStep: kick, drift and the bond forces in one pass, starting from
+  // f = 0) followed by the other terms in this order then sums what compute sums, in the same
+  // order: the same bits (MultipleTimeStepping).
+  // Not by level: a deck's forces are the same bits whatever levels its terms are put on.
+  // terms() keeps the order added (the deck's), which names columns and checkpoint sections.
+  const std::vector<const ForceTerm*>& evaluation_order() const { return order_; }
   bool has_level(Level l) const;
   // The constraint-defining bonds, if a term has them (at most one term may).
   const StiffBonds* stiff_bonds() const;
@@ -75,6 +83,7 @@ class ForceField {
 
  private:
   std::vector<std::unique_ptr<ForceTerm>> terms_;
+  std::vector<const ForceTerm*> order_;  // evaluation_order()
   Box box_;
   int num_particles_ = 0;
   std::vector<std::string> level_names_;

@@ -24,14 +24,21 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
-  if (stages_.size() >= 2) {
-    const std::vector<Level>& inner = stages_.back().levels;
-    std::vector<const ForceTerm*> terms;
-    for (const auto& term : forces_.terms())
-      if (std::find(inner.begin(), inner.end(), term->level()) != inner.end()) terms.push_back(term.get());
-    if (terms.size() == 1) fused_available_ = terms.front()->fused_micro_step();
-  }
+  const std::vector<Level>& inner = stages_.back().levels;
+  std::vector<const ForceTerm*> terms;  // in the order compute() sums them
+  for (const ForceTerm* term : forces_.evaluation_order())
+    if (std::find(inner.begin(), inner.end(), term->level()) != inner.end()) terms.push_back(term);
+  // Velocity Verlet with Langevin (BAOAB) splits its drift by the O step: never fused.
+  if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
+  rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
   fused_ = fused_available_;
+}
+
+void MultipleTimeStepping::fused_step(State& s, size_t k, double dt_kick, double dt) {
+  fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+  for (const ForceTerm* term : rest_) term->add_forces(s.x, forces_.box(), force_[k]);
+  forces_.count_evaluations(stages_[k].levels);
+  valid_[k] = true;
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -60,8 +67,14 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
     else
       refresh(k, s.x);
   }
-  if (k + 1 == stages_.size()) {
-    kick_drift_langevin(s, force_[k], 0.5 * dt, dt);  // the innermost stage
+  if (k + 1 == stages_.size()) {  // the innermost stage
+    if (k == 0 && fused_) {       // velocity Verlet, fused: kick, drift, closing force
+      fused_step(s, k, 0.5 * dt, dt);
+      if (langevin_force_) langevin_force_->add(s.v, dt, s.step, kClosingForce, force_[0]);
+      kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+      return;
+    }
+    kick_drift_langevin(s, force_[k], 0.5 * dt, dt);
   } else {
     kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
     const int n = stages_[k + 1].substeps;
@@ -101,8 +114,7 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
       drift(s.x, s.v, 0.5 * dt);
       refresh(k, s.x);
     } else if (fused_) {
-      fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
-      forces_.count_evaluations(stages_[k].levels);
+      fused_step(s, k, dt_kick, dt);
     } else {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
       refresh(k, s.x);

@@ -95,10 +95,14 @@ class MultipleTimeStepping final : public Integrator {
   }
   void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
   std::string_view method() const override { return method_; }
-  // Whether the micro steps run fused (FusedMicroStep: one pass per micro step). On by default
-  // when available: the innermost stage is not the only one, and its levels hold one term, which
-  // offers it. With Langevin the micro step whose drift holds the O step (n odd) runs plain.
-  // Switching it off (tests, benchmarks) gives the same bits.
+  // Whether the innermost steps run fused (FusedMicroStep: kick, drift and the first term's new
+  // force in one pass, then the stage's other terms). On by default when
+  // available: the first term (ForceField::evaluation_order: those that offer it first) on the
+  // innermost stage's levels offers it — the stiff harmonic bonds: the impulse family's micro
+  // steps, and velocity Verlet's whole step.
+  // With Langevin, the micro step whose drift holds the O step (n odd) and velocity Verlet's
+  // step (BAOAB: its drift is split by the O step) run plain. Switching it off (tests,
+  // benchmarks) gives the same bits.
   bool fused_micro_step() const { return fused_ != nullptr; }
   void use_fused_micro_step(bool on) { fused_ = on ? fused_available_ : nullptr; }
   double kinetic_energy_estimate(const State& s) const override {
@@ -143,6 +147,11 @@ class MultipleTimeStepping final : public Integrator {
   double o_step_kinetic_ = -1.0;                     // ½vᵀMv just after the last O step (−1: no step yet)
   const FusedMicroStep* fused_available_ = nullptr;  // the innermost term's fused micro step, if any
   const FusedMicroStep* fused_ = nullptr;            // the one in use (null: kick_drift, then refresh)
+  // The innermost stage's terms after the fused one, in evaluation order: the fused step, then
+  // these, sum what compute() sums, in its order (ForceField::evaluation_order).
+  std::vector<const ForceTerm*> rest_;
+  // kick_drift(dt_kick, dt) and the innermost stage k's forces at the new x, fused.
+  void fused_step(State& s, size_t k, double dt_kick, double dt);
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
 };
