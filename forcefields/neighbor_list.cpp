@@ -164,13 +164,6 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
   return wrapped_now_;
 }
 
-void NeighborList::wrap_positions(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const {
-  if (x.cols() != image_.cols())
-    throw std::invalid_argument("neighbour list: wrap_positions before a build for these particles");
-  out.resize(3, x.cols());  // no allocation once sized
-  out = x - image_;
-}
-
 bool NeighborList::update(const Eigen::Matrix3Xd& x, const Box& box) {
   if (!needs_rebuild(x, box)) return false;
   build(x, box);

@@ -125,9 +125,6 @@ class NeighborList {
   // lie within skin/2 of the box, so NearestImage gives their minimum image. Call after update
   // with the same x; the result is a member, overwritten by the next call.
   const Eigen::Matrix3Xd& wrapped_positions(const Eigen::Matrix3Xd& x);
-  // The same values into out (resized if need be), in one serial pass over all particles: for a
-  // thread that wants its own copy (the parallel pair loop, forcefields/pair_loop.hpp).
-  void wrap_positions(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const;
 
   std::span<const std::int64_t> offsets() const { return offsets_; }
   std::span<const int> neighbors() const { return neighbors_; }

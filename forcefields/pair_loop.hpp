@@ -186,17 +186,17 @@ struct PairScratch {
 // particles, the other buffers in part order. Fixed blocks and a fixed order: the same sums for a
 // given thread count.
 //
-// Each part first makes its own copy of the positions it reads (wrapped by the list's images when
-// periodic: NeighborList::wrap_positions, the values of wrapped_positions): one sequential pass
-// over all of x. Read in place, the neighbours x_j of a part's rows lie anywhere in the system,
-// and the lines of x that the other threads had just written (the drift and the wrap run in
-// particle blocks) came over one scattered read at a time: on data.chain with two threads each
-// part's pairs cost 20–35 % more than on one thread, and velocity Verlet's pair loop ran 1.41×
-// faster on two threads instead of 1.7× (2026-11-25).
+// xl: the positions of the list's frame (NeighborList::wrapped_positions when periodic, computed
+// in particle blocks). Each part first makes its own copy of them, one sequential pass (a copy per
+// part of the wrap itself was ≈ 3 % slower on velocity Verlet's step). Read in place, the neighbours x_j of a part's
+// rows lie anywhere in the system, and the lines of x that the other threads had just written (the drift and the wrap
+// run in particle blocks) came over one scattered read at a time: on data.chain with two threads each part's pairs cost
+// 20–35 % more than on one thread, and velocity Verlet's pair loop ran 1.41× faster on two threads instead of 1.7×
+// (2026-11-25).
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                                       const Eigen::Matrix3Xd& x, const NearestImage& near, double* f,
+                                       const Eigen::Matrix3Xd& xl, const NearestImage& near, double* f,
                                        PairScratch& scratch) {
   const int n = list.num_particles();
   const std::span<const std::int64_t> offset = list.offsets();
@@ -211,10 +211,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   if (static_cast<int>(scratch.positions.size()) < parts) scratch.positions.resize(parts);
   run_parts(parts, [&](int u) {
     Eigen::Matrix3Xd& xw = scratch.positions[u];
-    if constexpr (kPeriodic)
-      list.wrap_positions(x, xw);
-    else
-      xw = x;  // allocates only the first time
+    xw = xl;  // allocates only the first time
     double* fu = nullptr;
     if constexpr (kForces) {
       if (u == 0) {
@@ -253,10 +250,11 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
   const bool periodic = box.any_periodic();
   PairSums listed;
-  if (parts > 1) {  // each part wraps x itself
-    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial>(list, parts, params, type, x,
+  if (parts > 1) {  // each part copies the wrapped positions
+    const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
+    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial>(list, parts, params, type, xl,
                                                                                       NearestImage(box), f, scratch)
-                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial>(list, parts, params, type, x,
+                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial>(list, parts, params, type, xl,
                                                                                        NearestImage(box), f, scratch);
   } else {
     const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
