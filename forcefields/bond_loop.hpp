@@ -292,8 +292,12 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   double prev_pos[3], prev_base[3];
   advance_one(p, prev_pos, prev_base);
   double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
+  // A short run (a small molecule, the pendulum) two bonds at a time, their square roots and
+  // divisions side by side: its few bonds would otherwise wait for each other. A long run one bond
+  // at a time: there the bonds of successive iterations overlap anyway, and the paired loop was
+  // ≈ 5 % slower on data.chain's micro step (158–165 against 152–159 µs).
   std::int64_t q = 1;
-  for (; q + 1 <= m; q += 2) {  // two bonds at a time: their square roots and divisions side by side
+  for (; m <= kFewBonds && q + 1 <= m; q += 2) {
     const std::int64_t i = p + q + 1;
     double pos1[3], base1[3], pos2[3], base2[3];
     advance_one(i - 1, pos1, base1);

@@ -91,6 +91,49 @@ TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
   }
 }
 
+// Short chain runs (bond_loop.hpp's chain_stream takes runs of at most kFewBonds bonds two at a
+// time): 2 000 chains of 1 to 5 bonds (runs of every length up to past the limit), a fixed bead
+// among them, 1–3 threads: the bits of the plain path.
+TEST(FusedMicroStep, ShortChainRunsGiveTheBitsOfThePlainPath) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
+  StiffBonds bonds;
+  bonds.epsilon = 0.01;
+  std::vector<Eigen::Vector3d> at;
+  for (int c = 0; c < 2000; ++c) {
+    const int beads = 2 + c % 5;
+    const int first = static_cast<int>(at.size());
+    for (int b = 0; b < beads; ++b) {
+      at.emplace_back(0.97 * b + jitter(rng), 1.1 * (c % 40) + jitter(rng), 1.1 * (c / 40) + jitter(rng));
+      if (b > 0) bonds.bonds.push_back({first + b - 1, first + b, 0.97, 1.0});
+    }
+  }
+  const Eigen::Index n = static_cast<Eigen::Index>(at.size());
+  Eigen::Matrix3Xd x(3, n), v0(3, n), f0(3, n);
+  std::normal_distribution<double> g;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    x.col(i) = at[i];
+    for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
+  }
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
+  inv_mass(3) = 0.0;
+  const StiffHarmonicBond term("bonds", Level::fast, bonds);
+  for (int threads : {1, 2, 3}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    const ThreadCount tc(threads);
+    Eigen::Matrix3Xd x1 = x, v1 = v0, f1 = f0;
+    kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
+    f1.setZero();
+    term.add_forces(x1, Box{}, f1);
+    Eigen::Matrix3Xd x2 = x, v2 = v0, f2 = f0;
+    term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
+    EXPECT_EQ(x1, x2);
+    EXPECT_EQ(v1, v2);
+    EXPECT_EQ(f1, f2);
+    EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);
+  }
+}
+
 // Combs: each chain of `chains` gets a side bead on bead 50, its bond listed before the chain's
 // backbone (the backbone's chain run then meets bead 50 already holding the side bond's force, and
 // must add to it, not overwrite it) or after it. Both must give the bits of the plain path.
