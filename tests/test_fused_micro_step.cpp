@@ -55,6 +55,34 @@ Chains chains(bool shuffle) {
   return c;
 }
 
+// Random velocities and old forces for n particles (the fused step kicks with the old force).
+void random_motion(Eigen::Index n, unsigned seed, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd& f) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g;
+  v.resize(3, n);
+  f.resize(3, n);
+  for (Eigen::Index i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a) v(a, i) = g(rng), f(a, i) = 100.0 * g(rng);
+}
+
+// One micro step of the term both ways — kick_drift, f = 0, the bond forces; and the fused step —
+// with the given thread count: the same bits of x, v and f. Returns the plain path's forces.
+Eigen::Matrix3Xd expect_fused_is_plain(const StiffHarmonicBond& term, const Eigen::Matrix3Xd& x,
+                                       const Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& f,
+                                       const Eigen::VectorXd& inv_mass, int threads) {
+  const ThreadCount tc(threads);
+  Eigen::Matrix3Xd x1 = x, v1 = v, f1 = f;
+  kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
+  f1.setZero();
+  term.add_forces(x1, Box{}, f1);
+  Eigen::Matrix3Xd x2 = x, v2 = v, f2 = f;
+  term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
+  EXPECT_EQ(x1, x2);
+  EXPECT_EQ(v1, v2);
+  EXPECT_EQ(f1, f2);
+  return f1;
+}
+
 // One micro step both ways on the term directly, for 1–4 threads, chain-ordered and shuffled,
 // with a fixed particle (inverse mass 0) and unbonded particles at the end.
 TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
@@ -66,27 +94,15 @@ TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
     const Eigen::Index n = c.x.cols();
     const StiffHarmonicBond term("bonds", Level::fast, c.bonds);
     ASSERT_NE(term.fused_micro_step(), nullptr);
-    std::mt19937 rng(5);
-    std::normal_distribution<double> g;
-    Eigen::Matrix3Xd v0(3, n), f0(3, n);
-    for (Eigen::Index i = 0; i < n; ++i)
-      for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
+    Eigen::Matrix3Xd v0, f0;
+    random_motion(n, 5, v0, f0);
     Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
     inv_mass(17) = 0.0;
     inv_mass(42) = 0.5;
     for (int threads : {1, 2, 3, 4}) {
       SCOPED_TRACE(testing::Message() << "shuffle " << shuffle << ", " << threads << " threads");
-      const ThreadCount tc(threads);
-      Eigen::Matrix3Xd x1 = c.x, v1 = v0, f1 = f0;
-      kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
-      f1.setZero();
-      term.add_forces(x1, Box{}, f1);
-      Eigen::Matrix3Xd x2 = c.x, v2 = v0, f2 = f0;
-      term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
-      EXPECT_EQ(x1, x2);
-      EXPECT_EQ(v1, v2);
-      EXPECT_EQ(f1, f2);
-      EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);  // the bonds are stretched: a real force
+      const Eigen::Matrix3Xd f = expect_fused_is_plain(term, c.x, v0, f0, inv_mass, threads);
+      EXPECT_GT(f.cwiseAbs().maxCoeff(), 1.0);  // the bonds are stretched: a real force
     }
   }
 }
@@ -109,28 +125,15 @@ TEST(FusedMicroStep, ShortChainRunsGiveTheBitsOfThePlainPath) {
     }
   }
   const Eigen::Index n = static_cast<Eigen::Index>(at.size());
-  Eigen::Matrix3Xd x(3, n), v0(3, n), f0(3, n);
-  std::normal_distribution<double> g;
-  for (Eigen::Index i = 0; i < n; ++i) {
-    x.col(i) = at[i];
-    for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
-  }
+  Eigen::Matrix3Xd x(3, n), v0, f0;
+  for (Eigen::Index i = 0; i < n; ++i) x.col(i) = at[i];
+  random_motion(n, 9, v0, f0);
   Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
   inv_mass(3) = 0.0;
   const StiffHarmonicBond term("bonds", Level::fast, bonds);
   for (int threads : {1, 2, 3}) {
     SCOPED_TRACE(testing::Message() << threads << " threads");
-    const ThreadCount tc(threads);
-    Eigen::Matrix3Xd x1 = x, v1 = v0, f1 = f0;
-    kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
-    f1.setZero();
-    term.add_forces(x1, Box{}, f1);
-    Eigen::Matrix3Xd x2 = x, v2 = v0, f2 = f0;
-    term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
-    EXPECT_EQ(x1, x2);
-    EXPECT_EQ(v1, v2);
-    EXPECT_EQ(f1, f2);
-    EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);
+    EXPECT_GT(expect_fused_is_plain(term, x, v0, f0, inv_mass, threads).cwiseAbs().maxCoeff(), 1.0);
   }
 }
 
@@ -155,25 +158,12 @@ TEST(FusedMicroStep, SideBondsListedBeforeOrAfterTheBackbone) {
     }
     const Eigen::Index n = x.cols();
     const StiffHarmonicBond term("bonds", Level::fast, bonds);
-    std::mt19937 rng(6);
-    std::normal_distribution<double> g;
-    Eigen::Matrix3Xd v0(3, n), f0(3, n);
-    for (Eigen::Index i = 0; i < n; ++i)
-      for (int a = 0; a < 3; ++a) v0(a, i) = g(rng), f0(a, i) = 100.0 * g(rng);
+    Eigen::Matrix3Xd v0, f0;
+    random_motion(n, 6, v0, f0);
     const Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
     for (int threads : {1, 2, 3}) {
       SCOPED_TRACE(testing::Message() << "side bond first " << side_first << ", " << threads << " threads");
-      const ThreadCount tc(threads);
-      Eigen::Matrix3Xd x1 = x, v1 = v0, f1 = f0;
-      kick_drift(x1, v1, inv_mass, f1, 0.003, 0.002);
-      f1.setZero();
-      term.add_forces(x1, Box{}, f1);
-      Eigen::Matrix3Xd x2 = x, v2 = v0, f2 = f0;
-      term.fused_micro_step()->kick_drift_force(x2, v2, inv_mass, f2, 0.003, 0.002);
-      EXPECT_EQ(x1, x2);
-      EXPECT_EQ(v1, v2);
-      EXPECT_EQ(f1, f2);
-      EXPECT_GT(f1.col(50).norm(), 1.0);
+      EXPECT_GT(expect_fused_is_plain(term, x, v0, f0, inv_mass, threads).col(50).norm(), 1.0);
     }
   }
 }
