@@ -1,5 +1,7 @@
 #include "engine/run/simulation.hpp"
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -10,6 +12,7 @@
 #include <sstream>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/run/checkpoint.hpp"
@@ -57,7 +60,15 @@ std::int64_t steps_to(double span, double h) {
 }  // namespace
 
 void check_finite(const State& s) {
-  if (s.x.allFinite() && s.v.allFinite()) return;
+  // In the particle blocks of the threads, as the integrators write x and v: read serially, the
+  // blocks the other threads had just written came over from their cores.
+  const int parts = threads_for(s.size());
+  std::array<char, kMaxParts> finite{};
+  run_parts(parts, [&](int u) {
+    const std::int64_t b = block_begin(s.size(), parts, u), e = block_begin(s.size(), parts, u + 1);
+    finite[u] = s.x.middleCols(b, e - b).allFinite() && s.v.middleCols(b, e - b).allFinite();
+  });
+  if (std::all_of(finite.begin(), finite.begin() + parts, [](char f) { return f != 0; })) return;
   int bad = 0;
   while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
   std::ostringstream m;
