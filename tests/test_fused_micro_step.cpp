@@ -206,8 +206,9 @@ MultipleTimeStepping& mts(Integrator& integ) {
 // level), fused against plain, for 1 and 2 threads: the impulse family in NVE, with the bending on
 // the fast level as well (the micro steps' other term, summed after the fused step), and with a
 // Langevin O step in the middle of the micro steps (n odd: inside the middle micro step's drift,
-// which runs plain; n even: between two fused micro steps); velocity Verlet in NVE (its whole step
-// fused, the slow terms after the bonds). Every step the same bits of x, v and the integrator's
+// which runs plain; n even: between two fused micro steps); velocity Verlet in NVE and with
+// Langevin as a force (splitting "lammps": its whole step fused, the slow terms after the bonds,
+// then the friction and noise force). Every step the same bits of x, v and the integrator's
 // cached forces.
 class FusedImpulseFamily : public ::testing::TestWithParam<std::string> {};
 
@@ -218,10 +219,11 @@ TEST_P(FusedImpulseFamily, TrajectoryIsBitIdenticalToThePlainPath) {
     bool langevin;
     int micro_steps;
     bool bending_fast;
+    bool lammps_splitting = false;  // Langevin as a force on the outermost kick, no O step
   };
   const bool vv = GetParam() == "velocity-verlet";
   const std::vector<Case> cases =
-      vv ? std::vector<Case>{{false, 1, false}}
+      vv ? std::vector<Case>{{false, 1, false}, {true, 1, false, true}}
          : std::vector<Case>{{false, 7, false}, {false, 7, true}, {true, 7, false}, {true, 6, false}};
   for (const Case& c : cases) {
     std::vector<std::string> set = {"build.0.chains=64",
@@ -231,6 +233,7 @@ TEST_P(FusedImpulseFamily, TrajectoryIsBitIdenticalToThePlainPath) {
                                     vv ? "integrator.h=0.001" : "integrator.h=0.005",
                                     "integrator.micro_steps=" + std::to_string(c.micro_steps)};
     if (c.langevin) set.insert(set.end(), nvt.begin(), nvt.end());
+    if (c.lammps_splitting) set.push_back("thermostat.splitting=\"lammps\"");
     if (c.bending_fast) set.push_back("forces.bending.level=\"fast\"");
     const Scene base = test::load("tests/decks/small_melt.toml", set);
     ASSERT_GE(base.state.size(), kParallelMin);
