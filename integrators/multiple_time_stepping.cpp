@@ -28,17 +28,10 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   std::vector<const ForceTerm*> terms;  // in the order compute() sums them
   for (const ForceTerm* term : forces_.evaluation_order())
     if (std::find(inner.begin(), inner.end(), term->level()) != inner.end()) terms.push_back(term);
-  // Velocity Verlet with Langevin (BAOAB) splits its drift by the O step: never fused.
+  // Velocity Verlet with Langevin (BAOAB): its one micro step holds the O step, so it runs plain.
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
   fused_ = fused_available_;
-}
-
-void MultipleTimeStepping::fused_step(State& s, size_t k, double dt_kick, double dt) {
-  fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
-  for (const ForceTerm* term : rest_) term->add_forces(s.x, forces_.box(), force_[k]);
-  forces_.count_evaluations(stages_[k].levels);
-  valid_[k] = true;
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -60,6 +53,31 @@ void MultipleTimeStepping::refresh_outer(State& s, double dt, std::uint64_t subs
   if (langevin_force_) langevin_force_->add(s.v, dt, s.step, substep, force_[0]);
 }
 
+// Stage k's force at the new x, reused by the next opening kick; at stage 0 with the Langevin
+// force of the step's span (refresh_outer).
+void MultipleTimeStepping::closing_force(State& s, size_t k, double span) {
+  if (k == 0)
+    refresh_outer(s, span, kClosingForce);
+  else
+    refresh(k, s.x);
+}
+
+// kick(dt_kick), drift(dt), then closing_force. Fused (FusedMicroStep): kick, drift and the
+// first term's forces in one pass, then the stage's other terms in evaluation order — what
+// compute() sums, in its order: the same bits.
+void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double dt, double span) {
+  if (!fused_) {
+    kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+    closing_force(s, k, span);
+    return;
+  }
+  fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+  for (const ForceTerm* term : rest_) term->add_forces(s.x, forces_.box(), force_[k]);
+  forces_.count_evaluations(stages_[k].levels);
+  valid_[k] = true;
+  if (k == 0 && langevin_force_) langevin_force_->add(s.v, span, s.step, kClosingForce, force_[0]);
+}
+
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
   if (!valid_[k]) {
     if (k == 0)
@@ -67,34 +85,24 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
     else
       refresh(k, s.x);
   }
-  if (k + 1 == stages_.size()) {  // the innermost stage
-    if (k == 0 && fused_) {       // velocity Verlet, fused: kick, drift, closing force
-      fused_step(s, k, 0.5 * dt, dt);
-      if (langevin_force_) langevin_force_->add(s.v, dt, s.step, kClosingForce, force_[0]);
-      kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
-      return;
-    }
-    kick_drift_langevin(s, force_[k], 0.5 * dt, dt);
-  } else {
-    kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
-    const int n = stages_[k + 1].substeps;
-    const double sub = dt / n;
-    if (k + 2 == stages_.size())
-      run_innermost(s, k + 1, sub, n);
-    else
-      for (int i = 0; i < n; ++i) advance(s, k + 1, sub);
+  if (k + 1 == stages_.size()) {  // velocity Verlet: the one stage is the innermost, one step of it
+    run_innermost(s, k, dt, 1);   // with Langevin, BAOAB: the O step in the middle of its drift
+    return;
   }
-  // x moved: the closing force, reused by the next opening kick
-  if (k == 0)
-    refresh_outer(s, dt, kClosingForce);
+  kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+  const int n = stages_[k + 1].substeps;
+  const double sub = dt / n;
+  if (k + 2 == stages_.size())
+    run_innermost(s, k + 1, sub, n);
   else
-    refresh(k, s.x);
+    for (int i = 0; i < n; ++i) advance(s, k + 1, sub);
+  closing_force(s, k, dt);  // x moved
   kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
 }
 
-// n steps of the innermost stage k: kick(½δ) drift(δ) [force] kick(½δ), n times. The closing
-// kick of one step and the opening kick of the next use the same force, so they are one kick
-// by δ: one pass over the particles per micro step fewer.
+// n steps of the innermost stage k (velocity Verlet: the one stage, n = 1): kick(½δ) drift(δ)
+// [force] kick(½δ), n times. The closing kick of one step and the opening kick of the next use
+// the same force, so they are one kick by δ: one pass over the particles per micro step fewer.
 //
 // With Langevin, one O step over the whole span nδ sits in the middle of the n steps: inside the
 // drift of the middle step when n is odd, between the two half kicks at the middle when n is even
@@ -112,12 +120,9 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
       kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
       o_step(s, span);
       drift(s.x, s.v, 0.5 * dt);
-      refresh(k, s.x);
-    } else if (fused_) {
-      fused_step(s, k, dt_kick, dt);
+      closing_force(s, k, span);
     } else {
-      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
-      refresh(k, s.x);
+      micro_step(s, k, dt_kick, dt, span);
     }
     if (langevin_ && n % 2 == 0 && i == n / 2 - 1) {
       kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
@@ -153,18 +158,6 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const double* tail = w.data() + stages_.size() * per_stage;
   if (langevin_) o_step_kinetic_ = *tail++;
   removed_virial_.assign(tail, tail + stages_.size());
-}
-
-// kick(dt_kick) then the innermost drift over dt: one pass without a thermostat; with Langevin
-// (velocity Verlet: the innermost stage is the only one) A(½dt) O(dt) A(½dt), i.e. BAOAB.
-void MultipleTimeStepping::kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt) {
-  if (!langevin_) {
-    kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, dt);
-    return;
-  }
-  kick_drift(s.x, s.v, s.inv_mass, f, dt_kick, 0.5 * dt);
-  o_step(s, dt);
-  drift(s.x, s.v, 0.5 * dt);
 }
 
 // One O step per macro step (see the header), so o_step_kinetic_ is that macro step's.

@@ -130,7 +130,8 @@ class MultipleTimeStepping final : public Integrator {
   void advance(State& s, size_t k, double dt);
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
   void run_innermost(State& s, size_t k, double dt, int n);
-  void kick_drift_langevin(State& s, const Eigen::Matrix3Xd& f, double dt_kick, double dt);
+  void closing_force(State& s, size_t k, double span);
+  void micro_step(State& s, size_t k, double dt_kick, double dt, double span);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
   // refresh(0), plus the Langevin force when Langevin is a force
   void refresh_outer(State& s, double dt, std::uint64_t substep);
@@ -150,8 +151,6 @@ class MultipleTimeStepping final : public Integrator {
   // The innermost stage's terms after the fused one, in evaluation order: the fused step, then
   // these, sum what compute() sums, in its order (ForceField::evaluation_order).
   std::vector<const ForceTerm*> rest_;
-  // kick_drift(dt_kick, dt) and the innermost stage k's forces at the new x, fused.
-  void fused_step(State& s, size_t k, double dt_kick, double dt);
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
 };
