@@ -5,11 +5,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <numeric>
 #include <random>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
+#include "engine/run/simulation.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
@@ -168,6 +171,41 @@ TEST(Parallel, KickDriftIsTheSerialUpdate) {
   const Eigen::Matrix3Xd v_expected = v0 + 0.25 * f * inv_mass.asDiagonal();
   EXPECT_EQ(v, v_expected);
   EXPECT_LE((x - (m.x + 0.5 * v_expected)).cwiseAbs().maxCoeff(), 1e-15 * m.x.cwiseAbs().maxCoeff());
+}
+
+// The run loop's check that x and v are finite after a step runs in the threads' particle blocks
+// (engine/run/simulation.cpp): a NaN or an infinity in any block, in x or in v, with 1 to 3
+// threads, stops the run naming the first bad particle, its step and its time.
+TEST(Parallel, FiniteCheckFindsABadValueInEveryBlock) {
+  const Melt m = melt(false);
+  State s;
+  s.x = m.x;
+  s.v = Eigen::Matrix3Xd::Zero(3, m.x.cols());
+  s.inv_mass = Eigen::VectorXd::Ones(m.x.cols());
+  s.step = 12;
+  s.t = 0.06;
+  const int restore = max_threads();
+  for (int threads : {1, 2, 3}) {
+    set_max_threads(threads);
+    EXPECT_NO_THROW(check_finite(s));
+    for (const int bad : {0, 2999, 4000, 7999}) {
+      for (const bool in_v : {false, true}) {
+        SCOPED_TRACE(testing::Message() << threads << " threads, particle " << bad << (in_v ? " v" : " x"));
+        State t = s;
+        (in_v ? t.v : t.x)(1, bad) = in_v ? std::numeric_limits<double>::infinity() : std::nan("");
+        if (bad != 0) t.x(2, bad + (bad < 7999 ? 1 : -1)) = std::nan("");  // a later (or earlier) one too
+        try {
+          check_finite(t);
+          ADD_FAILURE() << "no NumericalError";
+        } catch (const NumericalError& e) {
+          const int first = bad == 7999 ? 7998 : bad;
+          EXPECT_NE(std::string(e.what()).find("particle " + std::to_string(first) + " at step 12"), std::string::npos)
+              << e.what();
+        }
+      }
+    }
+  }
+  set_max_threads(restore);
 }
 
 // Clusters are solved independently, so any thread count gives the serial bits.
