@@ -289,21 +289,15 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
     }
     next = std::max(next, i + 1);
   };
-  // −dE/dr / r of bond q with separation d (bond_block's expressions): its force on the first end is
-  // scale · d.
-  auto scale_of = [&](const double d[3], std::int64_t q) {
-    const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    double e = 0.0, de_dr = 0.0;
-    Kernel::eval(r, b[q].params, e, de_dr);
-    return -de_dr / r;
-  };
   double prev_pos[3], prev_base[3];
   advance_one(p, prev_pos, prev_base);
   double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
   // A short run (a small molecule, the pendulum) two bonds at a time, their square roots and
   // divisions side by side: its few bonds would otherwise wait for each other. A long run one bond
   // at a time: there the bonds of successive iterations overlap anyway, and the paired loop was
-  // ≈ 5 % slower on data.chain's micro step (158–165 against 152–159 µs).
+  // ≈ 5 % slower on data.chain's micro step (158–165 against 152–159 µs). The bond's −dE/dr / r is
+  // written out in both loops: one lambda for it made the single loop ≈ 5 % slower (166–170
+  // against 158–161 µs, 2026-11-25).
   std::int64_t q = 1;
   for (; m <= kFewBonds && q + 1 <= m; q += 2) {
     const std::int64_t i = p + q + 1;
@@ -315,7 +309,13 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
       d[0][a] = prev_pos[a] - pos1[a];
       d[1][a] = pos1[a] - pos2[a];
     }
-    const double scale[2] = {scale_of(d[0], q), scale_of(d[1], q + 1)};
+    double scale[2];
+    for (int l = 0; l < 2; ++l) {
+      const double r = std::sqrt(d[l][0] * d[l][0] + d[l][1] * d[l][1] + d[l][2] * d[l][2]);
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b[q + l].params, e, de_dr);
+      scale[l] = -de_dr / r;
+    }
     for (int a = 0; a < 3; ++a) {
       const double f0 = d[0][a] * scale[0], f1 = d[1][a] * scale[1];
       fp[3 * (i - 2) + a] = (prev_base[a] - carry[a]) + f0;
@@ -330,7 +330,10 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
     double pos[3], base[3];
     advance_one(i, pos, base);
     double d[3] = {prev_pos[0] - pos[0], prev_pos[1] - pos[1], prev_pos[2] - pos[2]};
-    const double scale = scale_of(d, q);
+    const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    double e = 0.0, de_dr = 0.0;
+    Kernel::eval(r, b[q].params, e, de_dr);
+    const double scale = -de_dr / r;
     for (int a = 0; a < 3; ++a) {
       d[a] *= scale;
       fp[3 * (i - 1) + a] = (prev_base[a] - carry[a]) + d[a];
