@@ -260,7 +260,7 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
 // (It replaced blocks of 64 bonds — drift the block's particles, gather their separations from x,
 // the vectorised forces, the forces written back — at 2.2–2.3 × the memory floor, against 1.9 ×:
 // BM_MicroStepVsFloor, 2026-11-25.)
-template <class Kernel, class Params>
+template <class Kernel, bool kPaired, class Params>
 void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, double* __restrict xp,
                   double* __restrict vp, double* __restrict fp, const double* __restrict w_inv, double dt_kick,
                   double dt, std::int64_t& next, const int*& halo, const int* halo_end) {
@@ -298,8 +298,10 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   // ≈ 5 % slower on data.chain's micro step (158–165 against 152–159 µs). The bond's −dE/dr / r is
   // written out in both loops: one lambda for it made the single loop ≈ 5 % slower (166–170
   // against 158–161 µs, 2026-11-25).
+  // kPaired: the caller's choice, m ≤ kFewBonds; a template parameter, so that the long runs' loop
+  // is compiled as if the paired one were not there (with it, ≈ 4 % slower).
   std::int64_t q = 1;
-  for (; m <= kFewBonds && q + 1 <= m; q += 2) {
+  for (; kPaired && q + 1 <= m; q += 2) {
     const std::int64_t i = p + q + 1;
     double pos1[3], base1[3], pos2[3], base2[3];
     advance_one(i - 1, pos1, base1);
@@ -406,8 +408,11 @@ void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
       if (seg->chain) {
         const int first_bond = work[seg->begin].bond;
         advance_to(bonds[first_bond].i);  // the particles before the run
-        chain_stream<Kernel>(bonds, first_bond, seg->end - seg->begin, xp, vp, fp, w_inv, dt_kick, dt, next, halo,
-                             halo_end);
+        const std::int64_t m = seg->end - seg->begin;
+        if (m <= kFewBonds)
+          chain_stream<Kernel, true>(bonds, first_bond, m, xp, vp, fp, w_inv, dt_kick, dt, next, halo, halo_end);
+        else
+          chain_stream<Kernel, false>(bonds, first_bond, m, xp, vp, fp, w_inv, dt_kick, dt, next, halo, halo_end);
         continue;
       }
       for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
