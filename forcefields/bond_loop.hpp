@@ -299,7 +299,8 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   // written out in both loops: one lambda for it made the single loop ≈ 5 % slower (166–170
   // against 158–161 µs, 2026-11-25).
   // kPaired: the caller's choice, m ≤ kFewBonds; a template parameter, so that the long runs' loop
-  // is compiled as if the paired one were not there (with it, ≈ 4 % slower).
+  // is compiled as if the paired one were not there (with it: 155–160 against 152–154 µs in one
+  // comparison, within the noise in another).
   std::int64_t q = 1;
   for (; kPaired && q + 1 <= m; q += 2) {
     const std::int64_t i = p + q + 1;
