@@ -55,28 +55,31 @@ std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
 Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{forces.all_levels(), 1}},
                                                 std::make_unique<PlainKick>(), o_step_of(s, inv_mass),
-                                                langevin_force_of(s, inv_mass));
+                                                langevin_force_of(s, inv_mass), s.thermostat.splitting);
 }
 Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s), std::make_unique<PlainKick>(),
-                                                o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
+                                                o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
+                                                s.thermostat.splitting);
 }
 Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
+                                                s.thermostat.splitting);
 }
 Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
                                       forces.num_particles()),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass));
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
+                                                s.thermostat.splitting);
 }
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass), nullptr,
-                                  langevin_of(s, inv_mass));
+                                  langevin_of(s, inv_mass), s.thermostat.splitting);
 }
 Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   const StiffBonds& stiff = stiff_bonds_of(forces);
@@ -89,7 +92,8 @@ Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen:
                                 std::to_string(StiffModes::kMaxDenseBonds) +
                                 " bonds (the limit of the dense mode computation); use another method");
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
-                                  std::make_unique<EffectiveCorrection>(std::move(modes)), langevin_of(s, inv_mass));
+                                  std::make_unique<EffectiveCorrection>(std::move(modes)), langevin_of(s, inv_mass),
+                                  s.thermostat.splitting);
 }
 
 // The thermal stiff limit (design.md §8): RATTLE on U + U_F at the thermostat's kT.
@@ -102,7 +106,7 @@ Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::Ve
   return std::make_unique<Rattle>(
       s.method, forces, ConstraintToolbox(stiff.bonds, inv_mass),
       std::make_unique<FixmanCorrection>(FixmanPotential(stiff.bonds, inv_mass), s.thermostat.temperature),
-      langevin_of(s, inv_mass));
+      langevin_of(s, inv_mass), s.thermostat.splitting);
 }
 
 //                     name               summary                                                        stiff  micro

@@ -10,7 +10,8 @@ namespace stiffmd {
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                                            std::unique_ptr<KickForce> outer_kick,
                                            std::unique_ptr<LangevinNoise> langevin,
-                                           std::unique_ptr<LangevinForce> langevin_force)
+                                           std::unique_ptr<LangevinForce> langevin_force,
+                                           ThermostatSettings::Splitting splitting)
     : method_(std::move(method)),
       forces_(forces),
       stages_(std::move(stages)),
@@ -21,6 +22,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
       langevin_(std::move(langevin)),
       langevin_force_(std::move(langevin_force)) {
   if (langevin_ && langevin_force_) throw std::invalid_argument("Langevin either as an O step or as a force, not both");
+  if (splitting == ThermostatSettings::Splitting::obabo) obabo_ = std::move(langevin_);  // the step runs as in NVE
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
@@ -32,6 +34,19 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
   fused_ = fused_available_;
+}
+
+void MultipleTimeStepping::step(State& s, double h) {
+  substep_ = 0;
+  if (!obabo_) {
+    advance(s, 0, h);
+    return;
+  }
+  // OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
+  obabo_->apply(s.v, 0.5 * h, s.step, 0);
+  advance(s, 0, h);
+  obabo_->apply(s.v, 0.5 * h, s.step, 1);
+  o_step_kinetic_ = s.kinetic_energy();
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -138,25 +153,26 @@ std::vector<double> MultipleTimeStepping::save_state() const {
     w.push_back(valid_[k] ? 1.0 : 0.0);
     w.insert(w.end(), force_[k].data(), force_[k].data() + force_[k].size());
   }
-  if (langevin_) w.push_back(o_step_kinetic_);
+  if (langevin_ || obabo_) w.push_back(o_step_kinetic_);
   w.insert(w.end(), removed_virial_.begin(), removed_virial_.end());
   return w;
 }
 
 void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const size_t per_stage = 1 + 3 * static_cast<size_t>(forces_.num_particles());
-  const size_t expected = stages_.size() * (per_stage + 1) + (langevin_ ? 1 : 0);
+  const bool o_steps = langevin_ || obabo_;
+  const size_t expected = stages_.size() * (per_stage + 1) + (o_steps ? 1 : 0);
   if (w.size() != expected)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, expected " + std::to_string(expected) + " (" + std::to_string(stages_.size()) +
-                                " stages" + (langevin_ ? ", Langevin)" : ")"));
+                                " stages" + (o_steps ? ", Langevin)" : ")"));
   for (size_t k = 0; k < stages_.size(); ++k) {
     const double* p = w.data() + k * per_stage;
     valid_[k] = p[0] != 0.0;
     force_[k] = Eigen::Map<const Eigen::Matrix3Xd>(p + 1, 3, forces_.num_particles());
   }
   const double* tail = w.data() + stages_.size() * per_stage;
-  if (langevin_) o_step_kinetic_ = *tail++;
+  if (o_steps) o_step_kinetic_ = *tail++;
   removed_virial_.assign(tail, tail + stages_.size());
 }
 

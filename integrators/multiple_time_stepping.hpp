@@ -39,6 +39,10 @@
 // The temperature reads the velocities just after the O step (kinetic_energy_estimate): in BAOAB
 // those are exact in law for harmonic forces at any stable h, the on-step ones low by (hω)²/4.
 //
+// OBABO (splitting = "obabo"; Bussi & Parrinello 2007): an exact O step of ½h before and after the
+// Hamiltonian macro step, which then runs as in NVE (fused where it can). The temperature reads
+// the on-step velocities, just after the closing O step.
+//
 // Langevin as a force (splitting = "lammps", LangevinForce): no O step; the friction and noise
 // force of the velocities at the moment the outermost kick force is computed is added to it (as
 // LAMMPS's fix langevin does in post_force, on the outermost r-RESPA level), so it serves the
@@ -87,12 +91,10 @@ class MultipleTimeStepping final : public Integrator {
   MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                        std::unique_ptr<KickForce> outer_kick = std::make_unique<PlainKick>(),
                        std::unique_ptr<LangevinNoise> langevin = nullptr,
-                       std::unique_ptr<LangevinForce> langevin_force = nullptr);
+                       std::unique_ptr<LangevinForce> langevin_force = nullptr,
+                       ThermostatSettings::Splitting splitting = ThermostatSettings::Splitting::baoab);
 
-  void step(State& s, double h) override {
-    substep_ = 0;
-    advance(s, 0, h);
-  }
+  void step(State& s, double h) override;
   void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
   std::string_view method() const override { return method_; }
   // Whether the innermost steps run fused (FusedMicroStep: kick, drift and the first term's new
@@ -121,8 +123,8 @@ class MultipleTimeStepping final : public Integrator {
   // The cached kick force of every stage with its validity (per stage: 1 word, then 3N): a
   // recomputation after a restart could differ in the last bit (the neighbour list may have been
   // moved on by an observation since the force was computed), so the cache itself is saved.
-  // With Langevin, one more word: the kinetic energy at the last O step (−1: none yet); then one
-  // word per stage, the kick's removed virial (constraint_virial).
+  // With O steps (BAOAB or OBABO), one more word: the kinetic energy at the last O step (−1: none
+  // yet); then one word per stage, the kick's removed virial (constraint_virial).
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& s) override;
 
@@ -143,7 +145,8 @@ class MultipleTimeStepping final : public Integrator {
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
   std::vector<bool> valid_;
   std::vector<double> removed_virial_;               // per stage: the kick's removed_virial() at its last refresh
-  std::unique_ptr<LangevinNoise> langevin_;          // null: Hamiltonian dynamics (or Langevin as a force)
+  std::unique_ptr<LangevinNoise> langevin_;          // null: Hamiltonian dynamics (or Langevin as a force, or OBABO)
+  std::unique_ptr<LangevinNoise> obabo_;             // OBABO: the O(½h) steps around the macro step, else null
   std::uint64_t substep_ = 0;                        // innermost steps taken in this macro step (noise counter)
   double o_step_kinetic_ = -1.0;                     // ½vᵀMv just after the last O step (−1: no step yet)
   const FusedMicroStep* fused_available_ = nullptr;  // the innermost term's fused micro step, if any

@@ -7,17 +7,21 @@
 namespace stiffmd {
 
 Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
-               std::unique_ptr<LangevinNoise> langevin)
+               std::unique_ptr<LangevinNoise> langevin, ThermostatSettings::Splitting splitting)
     : method_(std::move(method)),
       forces_(forces),
       toolbox_(std::move(toolbox)),
       model_(std::move(model)),
       langevin_(std::move(langevin)),
+      obabo_(splitting == ThermostatSettings::Splitting::obabo),
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
       constraint_force_(f_) {
   if (model_) model_->attach(toolbox_);
+  if (splitting == ThermostatSettings::Splitting::lammps)
+    throw std::invalid_argument("method '" + method_ +
+                                "' has no Langevin splitting \"lammps\" (velocity-verlet and the impulse family do)");
 }
 
 void Rattle::prepare(State& s, std::ostream& log) {
@@ -55,9 +59,12 @@ void Rattle::rattle_drift(State& s, double dt) {
 void Rattle::step(State& s, double h) {
   if (!valid_) refresh(s.x);
   model_value_current_ = false;  // x moves below; the closing refresh makes it current again
+  // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
+  // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
+  if (langevin_ && obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
-  if (!langevin_) {
+  if (!langevin_ || obabo_) {
     rattle_drift(s, h);
   } else {
     // Constrained BAOAB: A(½h), O(h) then the velocity projection (friction and noise on the
@@ -77,9 +84,16 @@ void Rattle::step(State& s, double h) {
   }
   refresh(s.x);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  // G(x') v' = 0. Without Langevin the chord over h and the kick over h/2 share the factor:
-  // F_c = M Δv / (h/2).
+  // G(x') v' = 0. Without Langevin (and under OBABO, whose drift is RATTLE's) the chord over h
+  // and the kick over h/2 share the factor: F_c = M Δv / (h/2).
   toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
+  if (langevin_ && obabo_) {
+    // The closing O(½h) on the tangent space; its projection is not a constraint force (as the
+    // BAOAB O step's is not). The temperature reads these on-step velocities.
+    langevin_->apply(s.v, 0.5 * h, s.step, 1);
+    toolbox_.project_velocity(s.x, s.v);
+    o_step_kinetic_ = s.kinetic_energy();
+  }
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]

@@ -10,11 +10,22 @@
 // limit (design.md §8). Plain RATTLE (no model potential) is the "rigid" limit most engines
 // use, which differs by O(1) when the bonds carry vibrational energy.
 //
-// Langevin dynamics: constrained BAOAB (Leimkuhler & Matthews, Proc. R. Soc. A 472, 20160138
-// (2016)): B(½h) A(½h) O(h) A(½h) B(½h), every A a RATTLE position step (SHAKE, then the
-// velocity projection) and the O step followed by the velocity projection, so that friction
-// and noise act on the tangent space {G v = 0} only. The temperature reads the velocities just
-// after the projected O step (kinetic_energy_estimate, integrators/integrator.hpp).
+// Langevin dynamics, splitting "baoab" (the default): constrained BAOAB (Leimkuhler & Matthews,
+// Proc. R. Soc. A 472, 20160138 (2016)): B(½h) A(½h) O(h) A(½h) B(½h), every A a RATTLE position
+// step (SHAKE, then the velocity projection) and the O step followed by the velocity projection,
+// so that friction and noise act on the tangent space {G v = 0} only. The temperature reads the
+// velocities just after the projected O step (kinetic_energy_estimate, integrators/integrator.hpp).
+// Two SHAKEs and three velocity projections per step.
+//
+// Splitting "obabo" (Bussi & Parrinello, Phys. Rev. E 75, 056707 (2007); Leimkuhler & Matthews,
+// "Molecular Dynamics" (2015) §7.3): O(½h), then the Hamiltonian RATTLE step above, then O(½h)
+// and the velocity projection. One SHAKE and two projections per step. The first O step needs no
+// projection of its own: SHAKE's x' = x + h v + M⁻¹G(x)ᵀλ and the chord velocity (x' − x)/h do
+// not depend on the part M⁻¹G(x)ᵀa of v normal to the manifold at x (λ absorbs h·a), exactly
+// as the first half kick's normal part is absorbed in plain RATTLE. Its configurations are those
+// of velocity Verlet with an exact O(h) between steps: second order, without BAOAB's exact
+// harmonic configurational law (tests/test_thermostat.cpp: the finite-step variances of both).
+// The temperature reads the on-step velocities (after the last projected O step).
 #pragma once
 
 #include <memory>
@@ -29,9 +40,11 @@ namespace stiffmd {
 
 class Rattle final : public Integrator {
  public:
-  // model == nullptr: plain RATTLE; langevin == nullptr: Hamiltonian dynamics.
+  // model == nullptr: plain RATTLE; langevin == nullptr: Hamiltonian dynamics; splitting: where
+  // the O steps go (baoab or obabo; lammps is refused: std::invalid_argument).
   Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
-         std::unique_ptr<LangevinNoise> langevin = nullptr);
+         std::unique_ptr<LangevinNoise> langevin = nullptr,
+         ThermostatSettings::Splitting splitting = ThermostatSettings::Splitting::baoab);
   // The model potential holds a pointer to toolbox_ (ModelPotential::attach): not movable.
   Rattle(Rattle&&) = delete;
   Rattle& operator=(Rattle&&) = delete;
@@ -73,6 +86,7 @@ class Rattle final : public Integrator {
   ConstraintToolbox toolbox_;
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
+  bool obabo_ = false;  // with langevin_: O(½h) around the RATTLE step instead of constrained BAOAB
   Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh

@@ -27,9 +27,11 @@ class Integrator;
 struct ThermostatSettings {
   enum class Style { none, langevin, csvr };
   // Where Langevin's friction and noise enter the step: baoab (an exact O step between the drifts),
-  // or lammps (a friction and noise force added to the outermost kick force, as LAMMPS's fix nve +
-  // fix langevin do inside velocity Verlet; LangevinForce below).
-  enum class Splitting { baoab, lammps };
+  // lammps (a friction and noise force added to the outermost kick force, as LAMMPS's fix nve +
+  // fix langevin do inside velocity Verlet; LangevinForce below), or obabo (an exact O step of ½h
+  // before and after the Hamiltonian step, Bussi & Parrinello 2007; for the constrained methods
+  // one SHAKE per step instead of BAOAB's two: integrators/rattle.hpp).
+  enum class Splitting { baoab, lammps, obabo };
   Style style = Style::none;
   Splitting splitting = Splitting::baoab;
   double temperature = 0.0;  // kT (k_B = 1)

@@ -131,6 +131,46 @@ TEST(Pressure, DiluteGasFollowsTheIdealGasLaw) {
   fs::remove_all(d);
 }
 
+// inputs/stiff_melt_nvt.toml as shipped: the thermal stiff limit with the OBABO splitting on a
+// 3 000-bead melt at ε = 1e-3, h = 0.02 (22 × velocity Verlet's largest step). It runs its 100
+// steps on the bonds (max |g| at round-off in every row) and the thermostat holds kT = 1 over
+// 3N − bonds degrees of freedom (the rows after t = 1: the relaxed melt's start is colder).
+TEST(PolymerDecks, TheStiffMeltNvtDeckRunsTheThermalStiffLimitWithObabo) {
+  const fs::path d = test::scratch_dir("stiff_melt_nvt");
+  const auto check = cli("check " + test::source_path("inputs/stiff_melt_nvt.toml"));
+  ASSERT_EQ(check.code, 0) << check.err;
+  EXPECT_NE(check.out.find("(obabo)"), std::string::npos) << check.out;
+  const auto r = cli("run " + test::source_path("inputs/stiff_melt_nvt.toml") + " --no-progress -o " + d.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in(d / "thermo.csv");
+  std::string line;
+  std::getline(in, line);
+  std::map<std::string, int> col;
+  {
+    std::istringstream h(line);
+    std::string name;
+    for (int k = 0; std::getline(h, name, ','); ++k) col[name] = k;
+  }
+  double t_sum = 0.0;
+  int rows = 0, all_rows = 0;
+  while (std::getline(in, line)) {
+    std::vector<double> v;
+    std::istringstream row(line);
+    std::string cell;
+    while (std::getline(row, cell, ',')) v.push_back(std::stod(cell));
+    ++all_rows;
+    EXPECT_LT(v[col.at("max_violation")], 1e-10) << line;
+    if (v[col.at("time")] < 1.0 - 1e-9) continue;
+    t_sum += v[col.at("temperature")];
+    ++rows;
+  }
+  EXPECT_EQ(all_rows, 21);
+  ASSERT_EQ(rows, 11);
+  RecordProperty("T", std::to_string(t_sum / rows));
+  EXPECT_NEAR(t_sum / rows, 1.0, 0.05);
+  fs::remove_all(d);
+}
+
 TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
   const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") +
                      " --no-progress --set run.t_end=0.05 -o " + test::scratch_dir("hanging").string());

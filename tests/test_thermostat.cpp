@@ -12,6 +12,8 @@
 // power to fail. The runs are deterministic (counter-based noise), so a pass is reproducible.
 #include <gtest/gtest.h>
 
+#include <Eigen/LU>
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -358,6 +360,7 @@ struct LawCase {
   int micro_steps;
   bool stiff_law;  // else the rigid law
   double eps = 0.1;
+  std::string splitting = "baoab";
 };
 
 class TrimerLaw : public ::testing::TestWithParam<LawCase> {};
@@ -371,7 +374,8 @@ class TrimerLaw : public ::testing::TestWithParam<LawCase> {};
 // mollified method runs at ε = 0.05 (the stiff law holds at every ε).
 TEST_P(TrimerLaw, BondAngleFollowsItsCanonicalLaw) {
   const LawCase& c = GetParam();
-  const TrimerRun r = run_trimers(c.method, c.h, c.micro_steps, 4.0, 100, kLangevin, 200, c.eps);
+  const TrimerRun r = run_trimers(c.method, c.h, c.micro_steps, 4.0, 100,
+                                  kLangevin + "splitting = \"" + c.splitting + "\"\n", 200, c.eps);
   const double stiff = kStiffC2, rigid = rigid_c2(4.0);
   expect_law("cos2", block_estimate(r.c2), c.stiff_law ? stiff : rigid, c.stiff_law ? rigid : stiff);
   expect_temperature(c.method, r);
@@ -391,9 +395,13 @@ INSTANTIATE_TEST_SUITE_P(Methods, TrimerLaw,
                                            LawCase{"projected-impulse", 0.045, 9,
                                                    true},  // odd n: O inside the middle drift
                                            LawCase{"mollified-impulse", 0.05, 20, true, 0.05},
-                                           LawCase{"rattle", 0.02, 1, false}, LawCase{"fixman", 0.02, 1, true}),
+                                           LawCase{"rattle", 0.02, 1, false}, LawCase{"fixman", 0.02, 1, true},
+                                           LawCase{"velocity-verlet", 0.005, 1, true, 0.1, "obabo"},
+                                           LawCase{"projected-impulse", 0.045, 9, true, 0.1, "obabo"},
+                                           LawCase{"rattle", 0.02, 1, false, 0.1, "obabo"},
+                                           LawCase{"fixman", 0.02, 1, true, 0.1, "obabo"}),
                          [](const auto& info) {
-                           std::string n = info.param.method;
+                           std::string n = info.param.method + (info.param.splitting == "baoab" ? "" : "_obabo");
                            std::replace(n.begin(), n.end(), '-', '_');
                            return n;
                          });
@@ -430,6 +438,25 @@ TEST_P(NvtTemperature, KineticTemperatureIsT) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllMethods, NvtTemperature, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
+
+// The same with the OBABO splitting: the temperature (on-step velocities after the closing O step,
+// projected for the constrained methods) and the ideal-gas pressure, whose constraint virial is
+// the Hamiltonian step's (the projections after the O steps are not constraint forces).
+TEST(NvtTemperature, ObaboHoldsTheTemperatureAndTheIdealGasPressure) {
+  for (const std::string& method : test::kAllMethods) {
+    SCOPED_TRACE(method);
+    const MethodInfo& m = *find_method(method);
+    const std::string obabo = kLangevin + "splitting = \"obabo\"\n";
+    const TrimerRun r = m.micro_steps ? run_trimers(method, 0.05, 10, 1.0, 30, obabo)
+                                      : run_trimers(method, m.rigid_constraints ? 0.02 : 0.005, 1, 1.0, 30, obabo);
+    EXPECT_EQ(r.dof, 3 * 600 - (m.rigid_constraints ? 400 : 0));
+    expect_temperature(method + "_obabo", r);
+    const Estimate p = block_estimate(r.pressure);
+    const double ideal = 200.0 / r.volume, bond_kT = 400.0 / (3.0 * r.volume);
+    EXPECT_NEAR(p.mean, ideal, 4 * p.se) << method << ": P V / (M kT) = " << p.mean / ideal << " +- " << p.se / ideal;
+    EXPECT_LT(8 * p.se, bond_kT) << method << ": the run cannot tell a missing kT per bond";
+  }
+}
 
 // The temperature reads BAOAB's velocities at the O step (Integrator::kinetic_energy_estimate).
 // At h = 0.05 the bond vibrations (ε = 0.1, hω ≈ 0.7) make the on-step velocities read
@@ -471,13 +498,16 @@ class NvtRestart : public ::testing::TestWithParam<std::string> {};
 TEST_P(NvtRestart, ContinuesBitForBit) {
   // The force form of Langevin (splitting "lammps") carries its force in the cached kick force.
   const bool force_form = !find_method(GetParam())->rigid_constraints;
-  for (const char* style : {"langevin", "csvr", "langevin-force"}) {
+  // OBABO (splitting "obabo"): O steps around the Hamiltonian step, every method.
+  for (const char* style : {"langevin", "csvr", "langevin-force", "langevin-obabo"}) {
     if (style == std::string("langevin-force") && !force_form) continue;
     SCOPED_TRACE(style);
     const std::string thermostat = std::string("[thermostat]\nstyle = \"") + (style[0] == 'l' ? "langevin" : style) +
                                    "\"\ntemperature = 1.0\n" + (style[0] == 'l' ? "damp = 1.0\n" : "tau = 0.1\n") +
                                    "seed = 5\n" +
-                                   (style == std::string("langevin-force") ? "splitting = \"lammps\"\n" : "");
+                                   (style == std::string("langevin-force")   ? "splitting = \"lammps\"\n"
+                                    : style == std::string("langevin-obabo") ? "splitting = \"obabo\"\n"
+                                                                             : "");
     Scene sc = load_text(trimer_deck(20, thermostat),
                          {"integrator.method=" + GetParam(), "integrator.h=0.01", "integrator.micro_steps=3"});
     auto first = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
@@ -553,6 +583,52 @@ Eigen::Vector2d force_form_variances(const Oscillator& o) {
   return stationary_variances<3>(half_kick * force * drift * half_kick, o);
 }
 
+// (⟨x²⟩ k/kT, ⟨v²⟩ m/kT, ⟨v_{n+1} v_n⟩ m/kT) on step for the splitting `obabo` (else BAOAB) of an
+// oscillator of mass m, spring k. The lag-one covariance (A Σ)_vv depends on the friction and on where the O
+// steps sit, which the stationary law alone does not tell.
+Eigen::Vector3d oscillator_variances(const Oscillator& o, bool obabo) {
+  using M2 = Eigen::Matrix2d;
+  auto half_kick = [&](double dt) {
+    M2 B = M2::Identity();
+    B(1, 0) = -dt * o.k / o.m;
+    return B;
+  };
+  auto drift = [&](double dt) {
+    M2 A = M2::Identity();
+    A(0, 1) = dt;
+    return A;
+  };
+  auto o_step = [&](double dt, M2& map, Eigen::Vector2d& noise) {
+    const double c = std::exp(-o.gamma * dt);
+    map = M2::Identity();
+    map(1, 1) = c;
+    noise = Eigen::Vector2d(0.0, std::sqrt((1.0 - c * c) * o.kT / o.m));
+  };
+  M2 step, O1, O2;
+  Eigen::Vector2d b1, b2;
+  M2 noise_cov;
+  if (obabo) {
+    o_step(0.5 * o.h, O1, b1);
+    o_step(0.5 * o.h, O2, b2);
+    const M2 after_first = O2 * half_kick(0.5 * o.h) * drift(o.h) * half_kick(0.5 * o.h);
+    step = after_first * O1;
+    noise_cov = (after_first * b1) * (after_first * b1).transpose() + b2 * b2.transpose();
+  } else {
+    o_step(o.h, O1, b1);
+    const M2 after = half_kick(0.5 * o.h) * drift(0.5 * o.h);
+    step = after * O1 * drift(0.5 * o.h) * half_kick(0.5 * o.h);
+    noise_cov = (after * b1) * (after * b1).transpose();
+  }
+  // Σ = A Σ Aᵀ + Q solved directly: (I − A ⊗ A) vec Σ = vec Q.
+  Eigen::Matrix4d kron;
+  for (int i = 0; i < 2; ++i)
+    for (int j = 0; j < 2; ++j) kron.block<2, 2>(2 * j, 2 * i) = step(j, i) * step;
+  const Eigen::Vector4d vec_q(noise_cov(0, 0), noise_cov(1, 0), noise_cov(0, 1), noise_cov(1, 1));
+  const Eigen::Vector4d vec_sigma = (Eigen::Matrix4d::Identity() - kron).partialPivLu().solve(vec_q);
+  const M2 sigma = Eigen::Map<const M2>(vec_sigma.data());
+  return {sigma(0, 0) * o.k / o.kT, sigma(1, 1) * o.m / o.kT, (step * sigma)(1, 1) * o.m / o.kT};
+}
+
 // 1000 particles of mass 2, each tied by a harmonic tether (k = 50: ω = 5) to its own point — 3000
 // independent oscillators —, Langevin γ = 1, kT = 1, h = 0.1 (hω = 0.5, γh = 0.1). The averages of
 // x² and v² over the oscillators, sampled every step over 100 time units after 20, are compared
@@ -580,24 +656,32 @@ TEST_P(LangevinSplitting, HarmonicOscillatorsSampleTheirExactFiniteStepVariances
   settings.thermostat.temperature = o.kT;
   settings.thermostat.friction = Eigen::VectorXd::Constant(n, o.gamma);
   settings.thermostat.seed = 17;
-  const bool lammps = GetParam() == "lammps";
-  settings.thermostat.splitting = lammps ? ThermostatSettings::Splitting::lammps : ThermostatSettings::Splitting::baoab;
+  const bool lammps = GetParam() == "lammps", obabo = GetParam() == "obabo";
+  settings.thermostat.splitting = lammps  ? ThermostatSettings::Splitting::lammps
+                                  : obabo ? ThermostatSettings::Splitting::obabo
+                                          : ThermostatSettings::Splitting::baoab;
   auto integ = make_integrator(settings, forces, s.inv_mass);
-  std::vector<double> x2, v2;
+  std::vector<double> x2, v2, v_lag;
+  Eigen::Matrix3Xd v_before = s.v;
   for (std::int64_t k = 1; k <= 1200; ++k) {
     integ->step(s, o.h);
     s.step = k;
+    const double lag = (s.v.array() * v_before.array()).sum();
+    v_before = s.v;
     if (k <= 200) continue;
     x2.push_back(s.x.squaredNorm() * o.k / (3.0 * n * o.kT));
     v2.push_back(s.v.squaredNorm() * o.m / (3.0 * n * o.kT));
-    // The thermo's temperature reads the on-step velocities in the force form (no O step).
-    if (lammps) {
+    v_lag.push_back(lag * o.m / (3.0 * n * o.kT));
+    // The thermo's temperature reads the on-step velocities in the force form (no O step) and
+    // in OBABO (after its closing O step).
+    if (lammps || obabo) {
       ASSERT_EQ(integ->kinetic_energy_estimate(s), s.kinetic_energy());
     }
   }
   const Estimate ex = block_estimate(x2), ev = block_estimate(v2);
   const Eigen::Vector2d baoab = baoab_variances(o), force = force_form_variances(o);
-  const Eigen::Vector2d exact = lammps ? force : baoab;
+  const Eigen::Vector2d obabo_exact = oscillator_variances(o, true).head<2>();
+  const Eigen::Vector2d exact = lammps ? force : obabo ? obabo_exact : baoab;
   EXPECT_NEAR(baoab[0], 1.0, 1e-12) << "BAOAB samples x exactly for harmonic forces";
   EXPECT_NEAR(baoab[1], 1.0 - 0.25 * o.h * o.h * o.k / o.m, 1e-12);
   RecordProperty("x2", std::to_string(ex.mean) + " +- " + std::to_string(ex.se) + " exact " + std::to_string(exact[0]));
@@ -606,9 +690,23 @@ TEST_P(LangevinSplitting, HarmonicOscillatorsSampleTheirExactFiniteStepVariances
   EXPECT_NEAR(ev.mean, exact[1], 4 * ev.se) << "m<v^2>/kT = " << ev.mean << " +- " << ev.se;
   EXPECT_LT(8 * ex.se, std::abs(force[0] - baoab[0])) << "the run cannot tell the splittings' <x^2> apart";
   EXPECT_LT(8 * ev.se, std::abs(force[1] - baoab[1])) << "the run cannot tell the splittings' <v^2> apart";
+  EXPECT_LT(8 * ex.se, std::abs(obabo_exact[0] - baoab[0])) << "the run cannot tell BAOAB's <x^2> from OBABO's";
+  // The O steps' splittings: the lag-one covariance of v, which the friction and the O steps'
+  // places set (the stationary law does not tell a wrong friction).
+  if (!lammps) {
+    const Estimate el = block_estimate(v_lag);
+    const double lag_exact = oscillator_variances(o, obabo)[2];
+    Oscillator half = o;
+    half.gamma *= 0.5;
+    RecordProperty("v_lag", std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " +
+                                std::to_string(lag_exact));
+    EXPECT_NEAR(el.mean, lag_exact, 4 * el.se) << "m<v_n+1 v_n>/kT = " << el.mean << " +- " << el.se;
+    EXPECT_LT(8 * el.se, std::abs(lag_exact - oscillator_variances(half, obabo)[2]))
+        << "the run cannot tell the friction apart";
+  }
 }
 
-INSTANTIATE_TEST_SUITE_P(Splittings, LangevinSplitting, ::testing::Values("baoab", "lammps"));
+INSTANTIATE_TEST_SUITE_P(Splittings, LangevinSplitting, ::testing::Values("baoab", "lammps", "obabo"));
 
 const std::string kLangevinForce =
     "[thermostat]\nstyle = \"langevin\"\ntemperature = 1.0\ndamp = 1.0\nseed = 5\nsplitting = \"lammps\"\n";
@@ -692,12 +790,103 @@ TEST(ThermostatDeck, LammpsSplittingIsReadAndRefusedForTheConstrainedMethods) {
     }
   }
   try {
-    load_text(trimer_deck(2, kLangevin + "splitting = \"obabo\"\n"), {});
+    load_text(trimer_deck(2, kLangevin + "splitting = \"baoa\"\n"), {});
     ADD_FAILURE() << "an unknown splitting accepted";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("thermostat.splitting"), std::string::npos) << e.what();
   }
 }
+
+TEST(ThermostatDeck, ObaboSplittingIsReadForEveryMethod) {
+  const std::string deck = trimer_deck(2, kLangevin + "splitting = \"obabo\"\n");
+  for (const std::string& method : test::kAllMethods) {
+    SCOPED_TRACE(method);
+    EXPECT_EQ(load_text(deck, {"integrator.method=" + method}).integrator.thermostat.splitting,
+              ThermostatSettings::Splitting::obabo);
+  }
+}
+
+// ---- the constrained splittings on an exactly solvable system ---------------------------------------
+
+// Rigid dimers (two beads of mass m, bond ℓ = 1) whose beads are tethered to one point c with
+// springs k: U = ½k(|x₁ − c|² + |x₂ − c|²) = k|X − c|² + kℓ²/4, so the centre of mass X is a
+// harmonic oscillator of mass 2m and spring 2k (ω² = k/m), decoupled from the rotation. RATTLE's
+// constraint forces sum to zero on each dimer, and the M-orthogonal projection of velocities
+// (equal masses) leaves V = (v₁ + v₂)/2 alone, so X and V follow the splitting's linear map with
+// the O step's noise on V of variance (1 − c²) kT/(2m). Their stationary variances at finite h
+// are then exact (the Lyapunov equation, as for LangevinSplitting above): BAOAB's ⟨X²⟩ is kT/2k
+// at any h, OBABO's (velocity Verlet's map with O(h) between steps) is larger by 1/(1 − (hω)²/4).
+// Both differences are asserted to be above 8 standard errors, so each splitting's run excludes
+// the other's value: a step that put OBABO's O steps elsewhere (or ran BAOAB) fails.
+class ConstrainedLangevinSplitting : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(ConstrainedLangevinSplitting, TetheredRigidDimersSampleTheirExactFiniteStepVariances) {
+  // The COM oscillator: mass 2m = 2, spring 2k = 200 (ω = 10), γ = 1, h = 0.05 (hω = 0.5).
+  const Oscillator com{2.0, 200.0, 1.0, 0.05, 1.0};
+  const int dimers = 1000;
+  const std::string deck =
+      "[box]\nlengths = [60, 60, 60]\nperiodic = true\n[types.bead]\nmass = 1.0\n"
+      "[[build]]\nstyle = \"linear-chains\"\ntype = \"bead\"\nchains = " +
+      std::to_string(dimers) +
+      "\nbeads = 2\nbond_length = 1.0\nbond_type = \"b\"\nmin_distance = 0.0\nseed = 3\n"
+      "[velocities]\ntemperature = 1.0\nseed = 4\n"
+      "[forces.bonds]\nstyle = \"stiff-harmonic\"\nlevel = \"fast\"\nepsilon = 0.1\n"
+      "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
+      "[forces.tether]\nstyle = \"harmonic-tether\"\nk = 100.0\ncenter = [30.0, 30.0, 30.0]\n" +
+      kLangevin + "splitting = \"" + GetParam() +
+      "\"\n[integrator]\nmethod = \"rattle\"\nh = 0.05\n[run]\nt_end = 1\n";
+  Scene sc = load_text(deck, {});
+  State& s = sc.state;
+  const Eigen::Vector3d c(30.0, 30.0, 30.0);
+  for (int d = 0; d < dimers; ++d) {  // each dimer centred on the tether point, its orientation kept
+    const Eigen::Vector3d r = sc.forces->box().min_image(s.x.col(2 * d) - s.x.col(2 * d + 1));
+    s.x.col(2 * d) = c + 0.5 * r;
+    s.x.col(2 * d + 1) = c - 0.5 * r;
+  }
+  auto integ = make_integrator(sc.integrator, *sc.forces, s.inv_mass);
+  std::ostringstream log;
+  integ->prepare(s, log);
+  std::vector<double> x2, v2, v_lag;
+  Eigen::Matrix3Xd v_before(3, dimers);
+  for (std::int64_t k = 1; k <= 2200; ++k) {  // 10 time units (10/γ), then 100 sampled every step
+    integ->step(s, com.h);
+    s.step = k;
+    double sx = 0.0, sv = 0.0, sl = 0.0;
+    for (int d = 0; d < dimers; ++d) {
+      const Eigen::Vector3d v = 0.5 * (s.v.col(2 * d) + s.v.col(2 * d + 1));
+      sx += (0.5 * (s.x.col(2 * d) + s.x.col(2 * d + 1)) - c).squaredNorm();
+      sv += v.squaredNorm();
+      sl += v.dot(v_before.col(d));
+      v_before.col(d) = v;
+    }
+    if (k <= 200) continue;
+    x2.push_back(sx * com.k / (3.0 * dimers * com.kT));
+    v2.push_back(sv * com.m / (3.0 * dimers * com.kT));
+    v_lag.push_back(sl * com.m / (3.0 * dimers * com.kT));
+  }
+  const bool obabo = GetParam() == "obabo";
+  const Eigen::Vector3d baoab = oscillator_variances(com, false), other = oscillator_variances(com, true);
+  EXPECT_NEAR(baoab[0], 1.0, 1e-12) << "BAOAB samples the oscillator's x exactly";
+  EXPECT_NEAR(other[0], 1.0 / (1.0 - 0.25 * com.h * com.h * com.k / com.m), 1e-12) << "OBABO: velocity Verlet's x law";
+  const Eigen::Vector3d exact = obabo ? other : baoab, wrong = obabo ? baoab : other;
+  const Estimate ex = block_estimate(x2), ev = block_estimate(v2), el = block_estimate(v_lag);
+  RecordProperty("v_lag", std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " + std::to_string(exact[2]));
+  EXPECT_NEAR(el.mean, exact[2], 4 * el.se) << "m<V_n+1 V_n>/kT = " << el.mean << " +- " << el.se;
+  // The same map with half the friction (one O(½h) per step) must be excluded too.
+  Oscillator half_friction = com;
+  half_friction.gamma *= 0.5;
+  const double lag_half = oscillator_variances(half_friction, obabo)[2];
+  EXPECT_LT(8 * el.se, std::abs(exact[2] - lag_half)) << "the run cannot tell the friction apart";
+  RecordProperty("x2", std::to_string(ex.mean) + " +- " + std::to_string(ex.se) + " exact " + std::to_string(exact[0]));
+  RecordProperty("v2", std::to_string(ev.mean) + " +- " + std::to_string(ev.se) + " exact " + std::to_string(exact[1]));
+  EXPECT_NEAR(ex.mean, exact[0], 4 * ex.se) << "k<X^2>/kT = " << ex.mean << " +- " << ex.se;
+  EXPECT_NEAR(ev.mean, exact[1], 4 * ev.se) << "m<V^2>/kT = " << ev.mean << " +- " << ev.se;
+  EXPECT_LT(8 * ex.se, std::abs(exact[0] - wrong[0])) << "the run cannot tell the splittings' <X^2> apart";
+  EXPECT_EQ(integ->kinetic_energy_estimate(s) == s.kinetic_energy(), obabo)
+      << "OBABO's temperature reads the on-step velocities, BAOAB's those at its O step";
+}
+
+INSTANTIATE_TEST_SUITE_P(Splittings, ConstrainedLangevinSplitting, ::testing::Values("baoab", "obabo"));
 
 }  // namespace
 }  // namespace stiffmd

@@ -673,8 +673,9 @@ std::string describe(const Scene& sc) {
     if (th.friction.size() > 0)
       s << ", friction " << th.friction.minCoeff() / time_out << ".." << th.friction.maxCoeff() / time_out;
     if (th.style == ThermostatSettings::Style::langevin)
-      s << (th.splitting == ThermostatSettings::Splitting::lammps ? ", as a force in the kick (lammps)"
-                                                                  : ", as an O step (baoab)");
+      s << (th.splitting == ThermostatSettings::Splitting::lammps  ? ", as a force in the kick (lammps)"
+            : th.splitting == ThermostatSettings::Splitting::obabo ? ", as O steps of h/2 around the step (obabo)"
+                                                                   : ", as an O step (baoab)");
     const MethodInfo& m = *find_method(sc.integrator.method);
     const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
     s << ", seed " << th.seed << "; temperature over "

@@ -15,9 +15,11 @@ namespace stiffmd {
 //                      `scale TYPE r`: fix_langevin.cpp multiplies its friction factor by 1/ratio)
 //   tau         = relaxation time of the kinetic energy (csvr, Bussi et al. 2007)
 //   seed        = integer >= 0: the noise is a function of (seed, step, particle) only
-//   splitting   = "baoab" (default) | "lammps": Langevin as an exact O step (BAOAB, BAOAB-RESPA,
-//                 constrained BAOAB) or as a friction and noise force in the outermost kick force
-//                 (LAMMPS's fix nve + fix langevin; velocity-verlet and the impulse family only)
+//   splitting   = "baoab" (default) | "lammps" | "obabo": Langevin as an exact O step (BAOAB,
+//                 BAOAB-RESPA, constrained BAOAB), as a friction and noise force in the outermost
+//                 kick force (LAMMPS's fix nve + fix langevin; velocity-verlet and the impulse family
+//                 only), or as exact O steps of ½h around the Hamiltonian step (OBABO, every
+//                 method; for the constrained ones one SHAKE per step instead of BAOAB's two)
 void read_thermostat(DeckTable& root, Scene& sc) {
   const MethodInfo& method = *find_method(sc.integrator.method);  // read_integrator checked it
   auto t = root.table("thermostat");
@@ -71,8 +73,11 @@ void read_thermostat(DeckTable& root, Scene& sc) {
                 "the \"lammps\" splitting (a friction and noise force inside velocity Verlet) is "
                 "for velocity-verlet and the impulse family; method '" +
                     sc.integrator.method + "' takes \"baoab\" (constrained BAOAB)");
+    } else if (splitting == "obabo") {
+      th.splitting = ThermostatSettings::Splitting::obabo;
     } else if (splitting != "baoab") {
-      t->fail("splitting", "expected \"baoab\" (an exact O step) or \"lammps\" (LAMMPS's fix langevin force), got \"" +
+      t->fail("splitting", "expected \"baoab\" (an exact O step), \"lammps\" (LAMMPS's fix langevin force) or "
+                           "\"obabo\" (O steps of h/2 around the step), got \"" +
                                splitting + "\"");
     }
     th.friction.resize(sc.state.size());
