@@ -30,7 +30,8 @@ from checklist import finish, test
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TOOL = os.path.join(ROOT, "tools", "cost_vs_eps.py")
 EPS = [0.01, 0.003]
-METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman"]
+METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "rattle-obabo",
+           "fixman-obabo"]
 MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
 if shutil.which("lmp"):
     METHODS.append("lammps-respa")
@@ -189,6 +190,31 @@ def a_rerun_reuses_every_seeds_run():
     assert rows("ladder.csv") == before
     rerun = [k for k in kept if os.stat(k).st_mtime_ns != stamps[k]]
     assert not rerun, f"cached seeds ran again: {rerun[:3]}"
+
+
+@test
+def the_obabo_rows_run_their_method_with_the_obabo_splitting():
+    """Every run of rattle-obabo and fixman-obabo (ladder seeds, stability and timed runs) runs the
+    engine's rattle or fixman with thermostat.splitting = "obabo"; no other row does."""
+    commands = glob.glob(os.path.join(out, "work", "*", "*", "command.txt")) + \
+        glob.glob(os.path.join(out, "work", "runs", "*", "*", "command.txt"))
+    seen = set()
+    for path in commands:
+        with open(path) as f:
+            cmd = f.read()
+        tag = os.path.relpath(path, os.path.join(out, "work")).split(os.sep)[1]
+        method = next((m for m in ("rattle-obabo", "fixman-obabo") if f"_{m}_" in tag), None)
+        with open(os.path.join(os.path.dirname(path), "run.toml")) as f:
+            deck = f.read()
+        if method:
+            seen.add((os.path.relpath(path, out).split(os.sep)[1], method))
+            assert 'thermostat.splitting="obabo"' in cmd, (path, cmd)
+            assert f'method = "{method.split("-")[0]}"' in deck, path
+        else:
+            assert "obabo" not in cmd, (path, cmd)
+    for where in ("runs", "timed"):
+        for m in ("rattle-obabo", "fixman-obabo"):
+            assert (where, m) in seen, (where, m, sorted(seen))
 
 
 @test

@@ -9,8 +9,10 @@ largest step that keeps the equilibrium observables of the stiff springs.
 
 Methods: velocity-verlet (BAOAB), impulse, projected-impulse, mollified-impulse (micro step δ = ε/10:
 n = ceil(h/δ) micro steps per macro step h), rattle, fixman (RATTLE on U + Fixman's U_F, the thermal
-stiff limit of design.md §8), and LAMMPS `run_style respa 2 n bond 1 pair 2` with `fix langevin`
-(same δ). Langevin kT = 1, damp = 1 everywhere; stiff harmonic bonds ℓ = 0.97, α = 1, WCA.
+stiff limit of design.md §8; all these with the default splitting, BAOAB), rattle-obabo and
+fixman-obabo (the same methods with `thermostat.splitting = "obabo"`: one SHAKE per step instead of
+two; the run's command is kept in its directory, command.txt), and LAMMPS `run_style respa 2 n bond
+1 pair 2` with `fix langevin` (same δ). Langevin kT = 1, damp = 1 everywhere; stiff harmonic bonds ℓ = 0.97, α = 1, WCA.
 
 Two systems, because the statistics and the cost need different sizes (computational budget):
 
@@ -117,8 +119,26 @@ from chain_melt import RunFailed, fmt, prepare_state, read_bonds, write_deck, wr
 import seed_statistics
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "lammps-respa"]
+METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "rattle-obabo",
+           "fixman-obabo", "lammps-respa"]
 MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
+# The rows that run an engine method with another Langevin splitting: (method, --set overrides).
+SPLITTINGS = {"rattle-obabo": ("rattle", ['thermostat.splitting="obabo"']),
+              "fixman-obabo": ("fixman", ['thermostat.splitting="obabo"'])}
+
+
+def engine_method(method):
+    """(stiffmd's integrator.method, extra --set overrides) of a row of the study."""
+    return SPLITTINGS.get(method, (method, []))
+
+
+def with_splitting(cmd, method, run_dir):
+    """cmd with the row's splitting overrides; the command is kept in run_dir/command.txt."""
+    for o in engine_method(method)[1]:
+        cmd = cmd + ["--set", o]
+    with open(os.path.join(run_dir, "command.txt"), "w") as f:
+        f.write(shlex.join(cmd) + "\n")
+    return cmd
 OBSERVABLES = ["cos", "cos2", "rg", "pressure"]
 WRITER = "tools/cost_vs_eps.py"
 KT, DAMP = 1.0, 1.0
@@ -318,12 +338,12 @@ def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_
         os.remove(os.path.join(run_dir, "frames.dump"))
     else:
         deck = os.path.join(run_dir, "run.toml")
-        write_deck(deck, state, eps, WRITER, method, h, n, t_end, args.thermo_every)
-        cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
-               "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
-               "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
-               "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={fmt(args.frame_every)}",
-               "--set", "output.checkpoint_every=0"]
+        write_deck(deck, state, eps, WRITER, engine_method(method)[0], h, n, t_end, args.thermo_every)
+        cmd = with_splitting([args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
+                              "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
+                              "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
+                              "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={fmt(args.frame_every)}",
+                              "--set", "output.checkpoint_every=0"], method, run_dir)
         code = 0 if finished_earlier(run_dir, h, steps) else run_measured(cmd, run_dir, 1)[0]
         if code != 0:
             row["status"] = f"failed (exit {code})"
@@ -485,8 +505,8 @@ def stable_on_timing_system(args, eps, method, h, n, state, work):
 
     def run():
         deck = os.path.join(run_dir, "run.toml")
-        write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
-        cmd = stiffmd_on_timing_system(args, deck, run_dir, 4713)
+        write_deck(deck, state, eps, WRITER, engine_method(method)[0], h, n, steps * h, steps * h)
+        cmd = with_splitting(stiffmd_on_timing_system(args, deck, run_dir, 4713), method, run_dir)
         code, _, _ = run_measured(cmd, run_dir, 2)
         if code not in (0, 3):
             raise RunFailed(f"stability run failed (exit {code}): {shlex.join(cmd)}")
@@ -511,8 +531,8 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
         wall, cpu = loop, (loop * cpu_percent / 100.0 if cpu_percent > 0 else loop)
     else:
         deck = os.path.join(run_dir, "run.toml")
-        write_deck(deck, state, eps, WRITER, method, h, n, steps * h, steps * h)
-        cmd = stiffmd_on_timing_system(args, deck, run_dir, 4711)
+        write_deck(deck, state, eps, WRITER, engine_method(method)[0], h, n, steps * h, steps * h)
+        cmd = with_splitting(stiffmd_on_timing_system(args, deck, run_dir, 4711), method, run_dir)
         code, _, _ = run_measured(cmd, run_dir, 1)
         if code == 3:  # a numerical failure at this step on the larger system: the caller steps down
             return failed_timing(eps, method, h, n, repeat, "exit 3")
@@ -606,7 +626,7 @@ def figure(summary, path):
     import matplotlib.pyplot as plt
     style = {"velocity-verlet": ("k", "o"), "impulse": ("tab:orange", "v"), "projected-impulse": ("tab:green", "^"),
              "mollified-impulse": ("tab:olive", "D"), "rattle": ("tab:red", "s"), "fixman": ("tab:blue", "*"),
-             "lammps-respa": ("tab:purple", "P")}
+             "rattle-obabo": ("tab:pink", "s"), "fixman-obabo": ("tab:cyan", "*"), "lammps-respa": ("tab:purple", "P")}
     fig, ax = plt.subplots(figsize=(7.0, 5.0))
     for m in METHODS:
         pts = [s for s in summary if s["method"] == m and math.isfinite(s["cpu"])]
