@@ -36,13 +36,8 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   fused_ = fused_available_;
 }
 
-void MultipleTimeStepping::step(State& s, double h) {
-  substep_ = 0;
-  if (!obabo_) {
-    advance(s, 0, h);
-    return;
-  }
-  // OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
+// OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
+void MultipleTimeStepping::step_obabo(State& s, double h) {
   obabo_->apply(s.v, 0.5 * h, s.step, 0);
   advance(s, 0, h);
   obabo_->apply(s.v, 0.5 * h, s.step, 1);

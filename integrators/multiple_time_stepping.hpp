@@ -94,7 +94,13 @@ class MultipleTimeStepping final : public Integrator {
                        std::unique_ptr<LangevinForce> langevin_force = nullptr,
                        ThermostatSettings::Splitting splitting = ThermostatSettings::Splitting::baoab);
 
-  void step(State& s, double h) override;
+  void step(State& s, double h) override {
+    substep_ = 0;
+    if (obabo_)
+      step_obabo(s, h);
+    else
+      advance(s, 0, h);
+  }
   void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
   std::string_view method() const override { return method_; }
   // Whether the innermost steps run fused (FusedMicroStep: kick, drift and the first term's new
@@ -130,6 +136,7 @@ class MultipleTimeStepping final : public Integrator {
 
  private:
   void advance(State& s, size_t k, double dt);
+  void step_obabo(State& s, double h);  // O(½h), the Hamiltonian macro step, O(½h)
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
   void run_innermost(State& s, size_t k, double dt, int n);
   void closing_force(State& s, size_t k, double span);

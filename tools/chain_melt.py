@@ -90,6 +90,17 @@ def count_atoms(data):
     raise RunFailed(f"{data}: no 'N atoms' line")
 
 
+# Names the tools give an engine method run with another Langevin splitting: (integrator.method,
+# the --set overrides that choose the splitting).
+SPLITTINGS = {"rattle-obabo": ("rattle", ['thermostat.splitting="obabo"']),
+              "fixman-obabo": ("fixman", ['thermostat.splitting="obabo"'])}
+
+
+def engine_method(name):
+    """(stiffmd's integrator.method, extra --set overrides) of a tool's method name."""
+    return SPLITTINGS.get(name, (name, []))
+
+
 def write_deck(path, data, eps, writer, method, h, micro_steps, t_end, thermo_interval):
     """A stiffmd deck running the prepared state (with its velocities; no [velocities], no [prepare],
     no trajectory or histogram output)."""

@@ -115,21 +115,14 @@ import zlib
 import numpy as np
 
 from bench_lammps import parse_lammps_log, run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed, fmt, prepare_state, read_bonds, write_deck, write_lammps_input, xyz_frames
+from chain_melt import (RunFailed, engine_method, fmt, prepare_state, read_bonds, write_deck, write_lammps_input,
+                        xyz_frames)
 import seed_statistics
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 METHODS = ["velocity-verlet", "impulse", "projected-impulse", "mollified-impulse", "rattle", "fixman", "rattle-obabo",
            "fixman-obabo", "lammps-respa"]
 MICRO = {"impulse", "projected-impulse", "mollified-impulse", "lammps-respa"}
-# The rows that run an engine method with another Langevin splitting: (method, --set overrides).
-SPLITTINGS = {"rattle-obabo": ("rattle", ['thermostat.splitting="obabo"']),
-              "fixman-obabo": ("fixman", ['thermostat.splitting="obabo"'])}
-
-
-def engine_method(method):
-    """(stiffmd's integrator.method, extra --set overrides) of a row of the study."""
-    return SPLITTINGS.get(method, (method, []))
 
 
 def with_splitting(cmd, method, run_dir):

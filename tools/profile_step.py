@@ -3,6 +3,10 @@
 
     /usr/bin/python3 tools/profile_step.py                       # rattle and fixman, ε = 1e-3, h = 0.005
     /usr/bin/python3 tools/profile_step.py --methods fixman --steps 100
+    /usr/bin/python3 tools/profile_step.py --methods rattle,fixman,rattle-obabo,fixman-obabo --h 0.02
+
+rattle-obabo and fixman-obabo are rattle and fixman with thermostat.splitting = "obabo" (one SHAKE
+per step instead of constrained BAOAB's two).
 
 The state is inputs/lammps_chain.toml prepared at --eps (tools/chain_melt.py: 32 000 beads, 320 chains
 of 100, stiff bonds ℓ = 0.97, WCA), run under Langevin (kT = 1, damp = 1), one thread, --steps macro
@@ -31,7 +35,7 @@ import subprocess
 import sys
 
 from bench_lammps import run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed, prepare_state, write_deck
+from chain_melt import RunFailed, engine_method, prepare_state, write_deck
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GROUPS = [  # (group, regular expression on the symbol); the first match wins
@@ -51,6 +55,8 @@ def timed(args, method, deck, run_dir):
     cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set", 'thermostat.style="langevin"',
            "--set", "thermostat.temperature=1.0", "--set", "thermostat.damp=1.0", "--set", "thermostat.seed=3",
            "--set", "output.checkpoint_every=0"]
+    for o in engine_method(method)[1]:
+        cmd += ["--set", o]
     return cmd
 
 
@@ -98,7 +104,7 @@ def main():
     decks = {}
     for m in methods:
         decks[m] = os.path.join(args.out, f"{m}.toml")
-        write_deck(decks[m], data, args.eps, "tools/profile_step.py", m, args.h, 1, args.steps * args.h,
+        write_deck(decks[m], data, args.eps, "tools/profile_step.py", engine_method(m)[0], args.h, 1, args.steps * args.h,
                    args.steps * args.h)
     per_step = {m: [] for m in methods}
     for r in range(args.repeats):  # interleaved: the machine's load drifts alike for all
