@@ -187,6 +187,21 @@ TEST(RestartMatrix, LangevinForceSplittingContinuesBitForBit) {
   expect_every_interruption_continues_bit_for_bit(m, "impulse_langevin_force");
 }
 
+// OBABO (splitting = "obabo"): the kinetic energy of the closing O step is the thermo's temperature
+// and part of the saved state; fixman's path (Rattle, one SHAKE per step) and the impulse method's
+// (the O steps around the r-RESPA macro step).
+TEST(RestartMatrix, ObaboSplittingContinuesBitForBit) {
+  for (const char* method : {"fixman", "impulse"}) {
+    SCOPED_TRACE(method);
+    MethodRun m = method_run(method);
+    if (!find_method(method)->needs_temperature)
+      m.args += " --set thermostat.style=langevin --set thermostat.temperature=1 --set thermostat.friction=1"
+                " --set thermostat.seed=5";
+    m.args += " --set thermostat.splitting=obabo";
+    expect_every_interruption_continues_bit_for_bit(m, std::string(method) + "_obabo");
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(EveryMethod, RestartMatrix, ::testing::ValuesIn(test::kAllMethods), test::method_test_name);
 
 // The case: SIGTERM from outside (kill) at whatever step the run has reached once its
