@@ -66,16 +66,14 @@ Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen:
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
-                                                s.thermostat.splitting);
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass), s.thermostat.splitting);
 }
 Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(
       s.method, forces, impulse_stages(s),
       std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
                                       forces.num_particles()),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
-                                                s.thermostat.splitting);
+      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass), s.thermostat.splitting);
 }
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass), nullptr,

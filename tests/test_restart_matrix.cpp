@@ -195,8 +195,9 @@ TEST(RestartMatrix, ObaboSplittingContinuesBitForBit) {
     SCOPED_TRACE(method);
     MethodRun m = method_run(method);
     if (!find_method(method)->needs_temperature)
-      m.args += " --set thermostat.style=langevin --set thermostat.temperature=1 --set thermostat.friction=1"
-                " --set thermostat.seed=5";
+      m.args +=
+          " --set thermostat.style=langevin --set thermostat.temperature=1 --set thermostat.friction=1"
+          " --set thermostat.seed=5";
     m.args += " --set thermostat.splitting=obabo";
     expect_every_interruption_continues_bit_for_bit(m, std::string(method) + "_obabo");
   }

@@ -390,21 +390,19 @@ TEST_P(TrimerLaw, BondAngleFollowsItsCanonicalLaw) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Methods, TrimerLaw,
-                         ::testing::Values(LawCase{"velocity-verlet", 0.005, 1, true},
-                                           LawCase{"projected-impulse", 0.045, 9,
-                                                   true},  // odd n: O inside the middle drift
-                                           LawCase{"mollified-impulse", 0.05, 20, true, 0.05},
-                                           LawCase{"rattle", 0.02, 1, false}, LawCase{"fixman", 0.02, 1, true},
-                                           LawCase{"velocity-verlet", 0.005, 1, true, 0.1, "obabo"},
-                                           LawCase{"projected-impulse", 0.045, 9, true, 0.1, "obabo"},
-                                           LawCase{"rattle", 0.02, 1, false, 0.1, "obabo"},
-                                           LawCase{"fixman", 0.02, 1, true, 0.1, "obabo"}),
-                         [](const auto& info) {
-                           std::string n = info.param.method + (info.param.splitting == "baoab" ? "" : "_obabo");
-                           std::replace(n.begin(), n.end(), '-', '_');
-                           return n;
-                         });
+INSTANTIATE_TEST_SUITE_P(
+    Methods, TrimerLaw,
+    ::testing::Values(LawCase{"velocity-verlet", 0.005, 1, true},
+                      LawCase{"projected-impulse", 0.045, 9, true},  // odd n: O inside the middle drift
+                      LawCase{"mollified-impulse", 0.05, 20, true, 0.05}, LawCase{"rattle", 0.02, 1, false},
+                      LawCase{"fixman", 0.02, 1, true}, LawCase{"velocity-verlet", 0.005, 1, true, 0.1, "obabo"},
+                      LawCase{"projected-impulse", 0.045, 9, true, 0.1, "obabo"},
+                      LawCase{"rattle", 0.02, 1, false, 0.1, "obabo"}, LawCase{"fixman", 0.02, 1, true, 0.1, "obabo"}),
+    [](const auto& info) {
+      std::string n = info.param.method + (info.param.splitting == "baoab" ? "" : "_obabo");
+      std::replace(n.begin(), n.end(), '-', '_');
+      return n;
+    });
 
 // Equal masses: RATTLE's law ∝ √(1 − c²/4), ⟨c²⟩ = 0.3210 (design.md §8). The laws differ by only
 // 0.012 here, so this run checks the value, not the power (4 standard errors ≈ 0.006).
@@ -698,8 +696,8 @@ TEST_P(LangevinSplitting, HarmonicOscillatorsSampleTheirExactFiniteStepVariances
     const double lag_exact = oscillator_variances(o, obabo)[2];
     Oscillator half = o;
     half.gamma *= 0.5;
-    RecordProperty("v_lag", std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " +
-                                std::to_string(lag_exact));
+    RecordProperty("v_lag",
+                   std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " + std::to_string(lag_exact));
     EXPECT_NEAR(el.mean, lag_exact, 4 * el.se) << "m<v_n+1 v_n>/kT = " << el.mean << " +- " << el.se;
     EXPECT_LT(8 * el.se, std::abs(lag_exact - oscillator_variances(half, obabo)[2]))
         << "the run cannot tell the friction apart";
@@ -833,8 +831,7 @@ TEST_P(ConstrainedLangevinSplitting, TetheredRigidDimersSampleTheirExactFiniteSt
       "[forces.bonds]\nstyle = \"stiff-harmonic\"\nlevel = \"fast\"\nepsilon = 0.1\n"
       "bond_types.b = { length = 1.0, alpha = 1.0 }\n"
       "[forces.tether]\nstyle = \"harmonic-tether\"\nk = 100.0\ncenter = [30.0, 30.0, 30.0]\n" +
-      kLangevin + "splitting = \"" + GetParam() +
-      "\"\n[integrator]\nmethod = \"rattle\"\nh = 0.05\n[run]\nt_end = 1\n";
+      kLangevin + "splitting = \"" + GetParam() + "\"\n[integrator]\nmethod = \"rattle\"\nh = 0.05\n[run]\nt_end = 1\n";
   Scene sc = load_text(deck, {});
   State& s = sc.state;
   const Eigen::Vector3d c(30.0, 30.0, 30.0);
@@ -870,7 +867,8 @@ TEST_P(ConstrainedLangevinSplitting, TetheredRigidDimersSampleTheirExactFiniteSt
   EXPECT_NEAR(other[0], 1.0 / (1.0 - 0.25 * com.h * com.h * com.k / com.m), 1e-12) << "OBABO: velocity Verlet's x law";
   const Eigen::Vector3d exact = obabo ? other : baoab, wrong = obabo ? baoab : other;
   const Estimate ex = block_estimate(x2), ev = block_estimate(v2), el = block_estimate(v_lag);
-  RecordProperty("v_lag", std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " + std::to_string(exact[2]));
+  RecordProperty("v_lag",
+                 std::to_string(el.mean) + " +- " + std::to_string(el.se) + " exact " + std::to_string(exact[2]));
   EXPECT_NEAR(el.mean, exact[2], 4 * el.se) << "m<V_n+1 V_n>/kT = " << el.mean << " +- " << el.se;
   // The same map with half the friction (one O(½h) per step) must be excluded too.
   Oscillator half_friction = com;

@@ -76,9 +76,10 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     } else if (splitting == "obabo") {
       th.splitting = ThermostatSettings::Splitting::obabo;
     } else if (splitting != "baoab") {
-      t->fail("splitting", "expected \"baoab\" (an exact O step), \"lammps\" (LAMMPS's fix langevin force) or "
-                           "\"obabo\" (O steps of h/2 around the step), got \"" +
-                               splitting + "\"");
+      t->fail("splitting",
+              "expected \"baoab\" (an exact O step), \"lammps\" (LAMMPS's fix langevin force) or "
+              "\"obabo\" (O steps of h/2 around the step), got \"" +
+                  splitting + "\"");
     }
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
