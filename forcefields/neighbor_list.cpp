@@ -137,21 +137,105 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   if (!built_ || x.cols() != x_at_build_.cols() || !same_box(box, box_at_build_)) return true;
   // Raw (unwrapped) displacements: the engine never wraps positions, and if something did, the
   // jump of a box length would only cause an early rebuild.
-  const double limit2 = 0.25 * skin_ * skin_;
+  const double half2 = 0.25 * skin_ * skin_, skin2 = skin_ * skin_;
   const double* xp = x.data();
   const double* x0 = x_at_build_.data();
   const Eigen::Index n = x.cols();
   const int parts = threads_for(n);
-  std::array<char, kMaxParts> moved{};  // per block: some particle moved more than skin/2
+  std::array<double, kMaxParts> worst{};  // per block: the largest squared displacement
   run_parts(parts, [&](int u) {
-    double worst = 0.0;  // no early exit: a branch-free loop over the block is faster
+    double w = 0.0;  // no early exit: a branch-free loop over the block is faster
     for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
       const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-      worst = std::max(worst, dx * dx + dy * dy + dz * dz);
+      w = std::max(w, dx * dx + dy * dy + dz * dz);
     }
-    moved[u] = worst > limit2;
+    worst[u] = w;
   });
-  return std::any_of(moved.begin(), moved.begin() + parts, [](char m) { return m != 0; });
+  const double d2 = *std::max_element(worst.begin(), worst.begin() + parts);
+  if (d2 <= half2) return false;  // every D_i + D_j ≤ skin
+  // The fast particles' check needs a particle within the cutoff of a fast one to have sat in the
+  // build's cells around the fast one's position now (D ≤ skin), the build's cell search (not the
+  // small-box one), and NearestImage to stay exact for the pair loop: positions within the skin of
+  // the box, |d| < L + 2 skin ≤ 1.5 L on periodic axes.
+  if (!(d2 <= skin2) || small_box_) return true;
+  for (int a = 0; a < 3; ++a)
+    if (box.periodic[a] && !(4.0 * skin_ <= box.lengths[a])) return true;
+  // The fast particles, per block in index order, while they are few enough to be worth checking.
+  const std::size_t most = static_cast<std::size_t>(n) / 256;
+  if (fast_.size() < static_cast<std::size_t>(parts)) fast_.resize(parts);
+  std::array<char, kMaxParts> too_many{};
+  run_parts(parts, [&](int u) {
+    std::vector<int>& f = fast_[u];
+    f.clear();
+    for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
+      const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
+      if (dx * dx + dy * dy + dz * dz > half2) {
+        if (f.size() >= most) {
+          too_many[u] = 1;
+          return;
+        }
+        f.push_back(static_cast<int>(i));
+      }
+    }
+  });
+  std::size_t count = 0;
+  for (int u = 0; u < parts; ++u) count += fast_[u].size();
+  if (count > most || std::any_of(too_many.begin(), too_many.begin() + parts, [](char t) { return t != 0; }))
+    return true;
+  std::array<char, kMaxParts> missed{};
+  run_parts(parts, [&](int u) { missed[u] = fast_particle_misses_a_pair(x, box, fast_[u]); });
+  return std::any_of(missed.begin(), missed.begin() + parts, [](char m) { return m != 0; });
+}
+
+bool NeighborList::listed(int i, int j) const {
+  const int row = std::min(i, j), other = std::max(i, j);
+  for (std::int64_t k = offsets_[row]; k < offsets_[row + 1]; ++k)
+    if (neighbors_[k] == other) return true;
+  return false;
+}
+
+bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const Box& box,
+                                               const std::vector<int>& fast) const {
+  const MinimumImage mi(box);
+  const double rc2 = cutoff_ * cutoff_;
+  const int ny = ncell_[1], nz = ncell_[2];
+  const bool have_exclusions = !excl_.empty();
+  for (const int i : fast) {
+    // i's cell now, in the build's grid: its position in the build's image frame, wrapped back into
+    // the box on periodic axes (it may have left it by up to the skin), clamped on open ones.
+    int c[3];
+    Eigen::Vector3d xi;
+    for (int a = 0; a < 3; ++a) {
+      xi[a] = x(a, i) - image_(a, i);
+      double s = bin_len_[a] > 0.0 ? (xi[a] - bin_lo_[a]) / bin_len_[a] : 0.0;
+      if (box.periodic[a]) s -= std::floor(s);
+      c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
+    }
+    for (int ox = 0; ox < 3; ++ox) {
+      const int gx = adjacent_[0][3 * c[0] + ox];
+      if (gx < 0) continue;
+      for (int oy = 0; oy < 3; ++oy) {
+        const int gy = adjacent_[1][3 * c[1] + oy];
+        if (gy < 0) continue;
+        for (int oz = 0; oz < 3; ++oz) {
+          const int gz = adjacent_[2][3 * c[2] + oz];
+          if (gz < 0) continue;
+          const int cell = (gx * ny + gy) * nz + gz;
+          for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
+            const int j = cell_particles_[k];
+            if (j == i) continue;
+            double dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
+                   dz = xi[2] - (x(2, j) - image_(2, j));
+            mi.apply(dx, dy, dz);
+            if (!(dx * dx + dy * dy + dz * dz < rc2)) continue;
+            if (have_exclusions && excluded(i, j)) continue;
+            if (!listed(i, j)) return true;
+          }
+        }
+      }
+    }
+  }
+  return false;
 }
 
 const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
@@ -200,7 +284,11 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
     const int a = static_cast<int>(std::max_element(want, want + 3) - want);
     want[a] = std::max(1.0, std::floor(want[a] / 2.0));
   }
-  for (int a = 0; a < 3; ++a) ncell_[a] = static_cast<int>(want[a]);
+  for (int a = 0; a < 3; ++a) {
+    ncell_[a] = static_cast<int>(want[a]);
+    bin_lo_[a] = lo[a];
+    bin_len_[a] = len[a];
+  }
   const int ncells = ncell_[0] * ncell_[1] * ncell_[2];
 
   double inv_len[3];

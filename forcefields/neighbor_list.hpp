@@ -3,9 +3,17 @@
 // weights of bonded neighbours (LAMMPS `special_bonds lj w12 w13 w14`).
 //
 // The list holds every pair i < j whose minimum-image distance was < cutoff + skin when it was
-// built. It stays valid — every pair now closer than the cutoff is in it — as long as no particle
-// has moved more than skin/2 since: two particles can then have approached each other by at
-// most skin. `update` checks that and rebuilds only when needed.
+// built. It is valid while every pair now closer than the cutoff is in it. Particles that moved
+// D_i, D_j since the build approached each other by at most D_i + D_j, so a pair not listed is
+// still beyond the cutoff while D_i + D_j ≤ skin: the list is valid while no particle moved more
+// than skin/2 (Allen & Tildesley's rule). `update` goes further before rebuilding: while no particle
+// moved more than the skin, only pairs with a "fast" particle (D > skin/2) can have come within
+// the cutoff unlisted, and it checks those directly — each fast particle against the particles
+// of the build's cells around its current position (every particle within the cutoff of it now
+// sat there at the build: it moved at most skin, and a cell is at least cutoff + skin wide) — and
+// rebuilds if one such pair is not listed, if a particle moved more than the skin, or when the
+// fast particles are too many for the check to stay cheap (more than 1/256 of all; checking that
+// many takes ≈ 1 % of a build's distance tests).
 #pragma once
 
 #include <Eigen/Core>
@@ -45,8 +53,9 @@ struct MinimumImage {
 };
 
 // Minimum image of a separation between two positions from NeighborList::wrapped_positions,
-// each within skin/2 of the box while the list is valid: then |d| < L + skin ≤ 1.5 L (the box
-// is at least 2 (cutoff + skin) long), so one fold by ±L gives the minimum image. Pairs across
+// each within the skin of the box while the list is valid (no particle moved more than the skin
+// since the build): then |d| < L + 2 skin ≤ 1.5 L (update rebuilds on a periodic axis shorter
+// than 4 skin), so one fold by ±L gives the minimum image. Pairs across
 // a face are a few per cent of all, so the branches are well predicted — cheaper than rounding
 // d/L. Open axes never fold (half = ∞).
 struct NearestImage {
@@ -113,16 +122,17 @@ class NeighborList {
   // particles 0 … num_particles − 1. Forces the next update to rebuild.
   void set_exclusions(int num_particles, std::span<const SpecialPair> pairs);
 
-  // Rebuilds the list if it is stale (never built, another particle count or box, or some
-  // particle moved more than skin/2 since the last build); returns whether it rebuilt.
-  // Throws std::invalid_argument if the box is too small (check_box_for_cutoff).
+  // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count
+  // or box, or the test above); returns whether it rebuilt. The decision is a function of x and
+  // the positions at the build only (not of the thread count). Throws std::invalid_argument if
+  // the box is too small (check_box_for_cutoff).
   bool update(const Eigen::Matrix3Xd& x, const Box& box);
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   void build(const Eigen::Matrix3Xd& x, const Box& box);
 
   // x less each particle's periodic image at the last build, L·floor((x − origin)/L) per
   // periodic axis: the positions the list was built from, moved on. While the list is valid they
-  // lie within skin/2 of the box, so NearestImage gives their minimum image. Call after update
+  // lie within the skin of the box, so NearestImage gives their minimum image. Call after update
   // with the same x; the result is a member, overwritten by the next call.
   const Eigen::Matrix3Xd& wrapped_positions(const Eigen::Matrix3Xd& x);
 
@@ -149,6 +159,10 @@ class NeighborList {
  private:
   void bin(const Eigen::Matrix3Xd& x, const Box& box);
   bool excluded(int i, int j) const;
+  bool listed(int i, int j) const;  // (i, j) in the list (i ≠ j, either order)
+  // The fast particles' check (see the top): whether some fast particle i of `fast` has a partner
+  // j, not excluded and not listed, with |x_i − x_j| < cutoff (minimum image) at x.
+  bool fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const Box& box, const std::vector<int>& fast) const;
 
   double cutoff_;
   double skin_;
@@ -171,6 +185,8 @@ class NeighborList {
   // positions, wrapped into the box on periodic axes, are cell_x_ in the same order, so the
   // search reads neighbouring particles from contiguous memory.
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
+  double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
+  mutable std::vector<std::vector<int>> fast_;  // needs_rebuild's scratch: per part, the fast particles
   std::vector<int> cell_of_;  // flattened cell index per particle
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;

@@ -66,7 +66,7 @@ class PairTerm final : public ForceTerm {
   std::size_t excluded_ = 0;
   std::vector<SpecialPair> scaled_;
   // A cache of the positions, not part of the term's value: rebuilt on demand by the const
-  // add_forces/virial when particles have moved more than skin/2, hence mutable.
+  // add_forces/virial when the list may miss a pair (NeighborList::update), hence mutable.
   mutable NeighborList list_;
   mutable PairScratch scratch_;  // per-thread force buffers of the pair loop
 };

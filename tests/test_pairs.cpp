@@ -616,7 +616,7 @@ TEST(NeighborList, FewerThanThreeCellsPerAxisAndMixedPeriodicity) {
   EXPECT_EQ(listed_pairs(nl), all_pairs_within(x, box, w));
 }
 
-TEST(NeighborList, RebuildsExactlyWhenSomeParticleMovedMoreThanHalfTheSkin) {
+TEST(NeighborList, RebuildsWhenSomeParticleMovedMoreThanTheSkinOrHalfOfItTooOften) {
   const Box box = periodic_box(Eigen::Vector3d::Constant(8.0));
   Eigen::Matrix3Xd x = random_in_box(300, box, 41);
   NeighborList nl(2.0, 0.4);
@@ -624,13 +624,97 @@ TEST(NeighborList, RebuildsExactlyWhenSomeParticleMovedMoreThanHalfTheSkin) {
   EXPECT_FALSE(nl.update(x, box));
   x(1, 17) += 0.199;
   EXPECT_FALSE(nl.update(x, box)) << "0.199 < skin/2";
-  x(1, 17) += 0.002;
-  EXPECT_TRUE(nl.update(x, box)) << "0.201 > skin/2";
+  x(1, 17) += 0.202;
+  EXPECT_TRUE(nl.update(x, box)) << "0.401 > skin: rebuilt whatever the pairs";
+  EXPECT_EQ(nl.rebuilds(), 2);
+  // More than 1/256 of the particles past skin/2 (here all of them): rebuilt without the check.
+  x.array() += 0.21;
+  EXPECT_TRUE(nl.update(x, box));
   EXPECT_FALSE(nl.update(x, box));
   Box other = box;
   other.lengths.x() += 1e-9;
   EXPECT_TRUE(nl.update(x, other)) << "a new box invalidates the list";
-  EXPECT_EQ(nl.rebuilds(), 3);
+}
+
+// Past skin/2 and within the skin, the list is kept exactly while no unlisted pair is within the
+// cutoff. A and B start 1.45 apart (beyond cutoff + skin = 1.4: not listed); 600 particles far
+// away keep the fast ones at most 1/256 of all.
+TEST(NeighborList, KeepsTheListWhileNoUnlistedPairIsWithinTheCutoff) {
+  for (const bool periodic : {false, true}) {
+    SCOPED_TRACE(periodic ? "periodic" : "open");
+    const Box box = periodic ? periodic_box(Eigen::Vector3d::Constant(40.0), Eigen::Vector3d::Constant(-5.0)) : Box{};
+    Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Zero(3, 602);
+    x.col(1) = Eigen::Vector3d(1.45, 0.0, 0.0);
+    for (int k = 0; k < 600; ++k)
+      x.col(2 + k) = Eigen::Vector3d(10.0 + 2.0 * (k % 10), 2.0 * (k / 10 % 10), 12.0 + 3.0 * (k / 100));
+    NeighborList nl(1.0, 0.4);
+    ASSERT_TRUE(nl.update(x, box));
+    ASSERT_TRUE(listed_pairs(nl).empty() || !listed_pairs(nl).count({0, 1}));
+    const Eigen::Matrix3Xd start = x;
+    x(1, 0) += 0.3;  // A sideways: 1.48 from B
+    EXPECT_FALSE(nl.update(x, box)) << "A moved 0.3 > skin/2, but nothing unlisted is within the cutoff";
+    x = start;
+    x(0, 0) += 0.3;  // A towards B: 1.15
+    EXPECT_FALSE(nl.update(x, box));
+    x(0, 1) -= 0.3;  // and B towards A: 0.85 < cutoff, not listed
+    EXPECT_TRUE(nl.update(x, box));
+    EXPECT_TRUE(listed_pairs(nl).count({0, 1}));
+  }
+}
+
+// Heterogeneous motion checked at every update against the all-pairs search: most particles creep,
+// a few jump, and every fourth update an unlisted pair just beyond cutoff + skin is pulled
+// together, each of its particles by 0.2 (> skin/2, < skin), to 0.4 closer: within the cutoff, so
+// the list must be rebuilt or it would miss that pair. Every pair within the cutoff is listed
+// after every update, and the list is rebuilt less often than the rule "any particle moved more
+// than skin/2" would rebuild it. (A check that never finds a missing pair fails this test.)
+TEST(NeighborList, FastParticlesNeverHideAPairWithinTheCutoff) {
+  for (const bool periodic : {true, false}) {
+    SCOPED_TRACE(periodic ? "periodic" : "open");
+    const int n = 1000;
+    const double side = std::cbrt(n / 0.85), cutoff = 1.12, skin = 0.3;
+    const Box sampling = periodic_box(Eigen::Vector3d::Constant(side));
+    const Box box = periodic ? sampling : Box{};
+    Eigen::Matrix3Xd x = random_in_box(n, sampling, 71, 0.8);
+    NeighborList nl(cutoff, skin);
+    nl.update(x, box);
+    Eigen::Matrix3Xd at_build = x;
+    std::mt19937 rng(72);
+    std::uniform_real_distribution<double> creep(-0.01, 0.01);
+    std::uniform_int_distribution<int> pick(0, n - 1);
+    std::normal_distribution<double> jump(0.0, 0.07);
+    int classic = 0, pulled = 0;
+    for (int s = 0; s < 120; ++s) {
+      for (int i = 0; i < n; ++i)
+        for (int a = 0; a < 3; ++a) x(a, i) += creep(rng);
+      for (int k = 0; k < 2; ++k) {
+        const int i = pick(rng);
+        for (int a = 0; a < 3; ++a) x(a, i) += jump(rng);
+      }
+      if (s % 4 == 3) {  // an unlisted pair of slow particles just beyond the list radius, pulled together
+        const PairSet listed = listed_pairs(nl);
+        const Eigen::VectorXd moved = (x - nl.positions_at_build()).colwise().norm();
+        for (const auto& [i, j] : all_pairs_within(x, box, cutoff + skin + 0.1)) {
+          const Eigen::Vector3d d = separation(x, box, i, j);
+          if (listed.count({i, j}) || d.norm() < cutoff + skin + 0.02 || moved[i] > 0.05 || moved[j] > 0.05) continue;
+          x.col(i) -= 0.2 * d.normalized();
+          x.col(j) += 0.2 * d.normalized();
+          ++pulled;
+          break;
+        }
+      }
+      if ((x - at_build).colwise().norm().maxCoeff() > 0.5 * skin) {
+        ++classic;
+        at_build = x;
+      }
+      if (nl.update(x, box)) at_build = x;
+      EXPECT_EQ(within(listed_pairs(nl), x, box, cutoff), all_pairs_within(x, box, cutoff)) << "update " << s;
+    }
+    EXPECT_GE(pulled, 20);
+    RecordProperty(periodic ? "rebuilds_periodic" : "rebuilds_open",
+                   std::to_string(nl.rebuilds() - 1) + " (the skin/2 rule alone: about " + std::to_string(classic) + ")");
+    EXPECT_LT(nl.rebuilds() - 1, classic) << "the check should keep the list longer than the skin/2 rule";
+  }
 }
 
 TEST(NeighborList, RebuildReusesStorageOnceCapacityIsReached) {
