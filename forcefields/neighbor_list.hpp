@@ -187,7 +187,7 @@ class NeighborList {
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
   double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
   mutable std::vector<std::vector<int>> fast_;  // needs_rebuild's scratch: per part, the fast particles
-  std::vector<int> cell_of_;  // flattened cell index per particle
+  std::vector<int> cell_of_;                    // flattened cell index per particle
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
   Eigen::Matrix3Xd image_;        // per particle, index order: L·floor((x − origin)/L) at build

@@ -711,8 +711,9 @@ TEST(NeighborList, FastParticlesNeverHideAPairWithinTheCutoff) {
       EXPECT_EQ(within(listed_pairs(nl), x, box, cutoff), all_pairs_within(x, box, cutoff)) << "update " << s;
     }
     EXPECT_GE(pulled, 20);
-    RecordProperty(periodic ? "rebuilds_periodic" : "rebuilds_open",
-                   std::to_string(nl.rebuilds() - 1) + " (the skin/2 rule alone: about " + std::to_string(classic) + ")");
+    RecordProperty(
+        periodic ? "rebuilds_periodic" : "rebuilds_open",
+        std::to_string(nl.rebuilds() - 1) + " (the skin/2 rule alone: about " + std::to_string(classic) + ")");
     EXPECT_LT(nl.rebuilds() - 1, classic) << "the check should keep the list longer than the skin/2 rule";
   }
 }
