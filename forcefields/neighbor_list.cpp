@@ -142,12 +142,27 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   const double* x0 = x_at_build_.data();
   const Eigen::Index n = x.cols();
   const int parts = threads_for(n);
-  std::array<double, kMaxParts> worst{};  // per block: the largest squared displacement
+  // One pass per block: the largest squared displacement, and the fast particles (D > skin/2) in
+  // index order while they are few enough to be worth checking (at most 1/256 of all; a block
+  // with more stops recording them and marks itself).
+  const std::size_t most = static_cast<std::size_t>(n) / 256;
+  if (fast_.size() < static_cast<std::size_t>(parts)) fast_.resize(parts);
+  std::array<double, kMaxParts> worst{};
+  std::array<char, kMaxParts> too_many{};
   run_parts(parts, [&](int u) {
-    double w = 0.0;  // no early exit: a branch-free loop over the block is faster
+    std::vector<int>& f = fast_[u];
+    f.clear();
+    double w = 0.0;  // no early exit: a loop over the block whose branch is rarely taken is faster
     for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
       const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-      w = std::max(w, dx * dx + dy * dy + dz * dz);
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      w = std::max(w, d2);
+      if (d2 > half2) {
+        if (f.size() < most)
+          f.push_back(static_cast<int>(i));
+        else
+          too_many[u] = 1;
+      }
     }
     worst[u] = w;
   });
@@ -160,24 +175,6 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   if (!(d2 <= skin2) || small_box_) return true;
   for (int a = 0; a < 3; ++a)
     if (box.periodic[a] && !(4.0 * skin_ <= box.lengths[a])) return true;
-  // The fast particles, per block in index order, while they are few enough to be worth checking.
-  const std::size_t most = static_cast<std::size_t>(n) / 256;
-  if (fast_.size() < static_cast<std::size_t>(parts)) fast_.resize(parts);
-  std::array<char, kMaxParts> too_many{};
-  run_parts(parts, [&](int u) {
-    std::vector<int>& f = fast_[u];
-    f.clear();
-    for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
-      const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-      if (dx * dx + dy * dy + dz * dz > half2) {
-        if (f.size() >= most) {
-          too_many[u] = 1;
-          return;
-        }
-        f.push_back(static_cast<int>(i));
-      }
-    }
-  });
   std::size_t count = 0;
   for (int u = 0; u < parts; ++u) count += fast_[u].size();
   if (count > most || std::any_of(too_many.begin(), too_many.begin() + parts, [](char t) { return t != 0; }))

@@ -13,15 +13,12 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       toolbox_(std::move(toolbox)),
       model_(std::move(model)),
       langevin_(std::move(langevin)),
-      obabo_(splitting == ThermostatSettings::Splitting::obabo),
+      obabo_(langevin_ && splitting == ThermostatSettings::Splitting::obabo),
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
       constraint_force_(f_) {
   if (model_) model_->attach(toolbox_);
-  if (splitting == ThermostatSettings::Splitting::lammps)
-    throw std::invalid_argument("method '" + method_ +
-                                "' has no Langevin splitting \"lammps\" (velocity-verlet and the impulse family do)");
 }
 
 void Rattle::prepare(State& s, std::ostream& log) {
@@ -61,7 +58,7 @@ void Rattle::step(State& s, double h) {
   model_value_current_ = false;  // x moves below; the closing refresh makes it current again
   // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
   // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
-  if (langevin_ && obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
+  if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
   if (!langevin_ || obabo_) {
@@ -87,7 +84,7 @@ void Rattle::step(State& s, double h) {
   // G(x') v' = 0. Without Langevin (and under OBABO, whose drift is RATTLE's) the chord over h
   // and the kick over h/2 share the factor: F_c = M Δv / (h/2).
   toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
-  if (langevin_ && obabo_) {
+  if (obabo_) {
     // The closing O(½h) on the tangent space; its projection is not a constraint force (as the
     // BAOAB O step's is not). The temperature reads these on-step velocities.
     langevin_->apply(s.v, 0.5 * h, s.step, 1);

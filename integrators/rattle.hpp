@@ -41,7 +41,7 @@ namespace stiffmd {
 class Rattle final : public Integrator {
  public:
   // model == nullptr: plain RATTLE; langevin == nullptr: Hamiltonian dynamics; splitting: where
-  // the O steps go (baoab or obabo; lammps is refused: std::invalid_argument).
+  // the O steps go, baoab or obabo (the factory refuses lammps, integrators/factory.cpp).
   Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox, std::unique_ptr<ModelPotential> model,
          std::unique_ptr<LangevinNoise> langevin = nullptr,
          ThermostatSettings::Splitting splitting = ThermostatSettings::Splitting::baoab);
@@ -86,7 +86,7 @@ class Rattle final : public Integrator {
   ConstraintToolbox toolbox_;
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
-  bool obabo_ = false;  // with langevin_: O(½h) around the RATTLE step instead of constrained BAOAB
+  bool obabo_ = false;  // langevin_ as O(½h) around the RATTLE step instead of constrained BAOAB
   Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
