@@ -146,6 +146,49 @@ TEST(Parallel, NeighborListDoesNotDependOnTheThreadCount) {
   }
 }
 
+// The list's keep-or-rebuild decision past skin/2 (the fast particles' check, run in particle
+// blocks) is the same sequence with 1, 2 and 3 threads: 8 000 beads, each update every bead creeps
+// and a few jump, and the lists built match the serial ones.
+TEST(Parallel, NeighborListRebuildDecisionsDoNotDependOnTheThreadCount) {
+  Melt m = melt(true);
+  const std::vector<SpecialPair> excluded = special_pairs(m.x.cols(), m.bonds, SpecialWeights{});
+  auto decisions = [&](int threads) {
+    set_max_threads(threads);
+    NeighborList list(1.12, 0.3);
+    list.set_exclusions(m.x.cols(), excluded);
+    Eigen::Matrix3Xd x = m.x;
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> creep(-0.012, 0.012);
+    std::uniform_int_distribution<int> pick(0, static_cast<int>(x.cols()) - 1);
+    std::normal_distribution<double> jump(0.0, 0.09);
+    std::vector<int> rebuilt;
+    std::vector<std::int64_t> last_offsets;
+    for (int s = 0; s < 60; ++s) {
+      for (Eigen::Index i = 0; i < x.cols(); ++i)
+        for (int a = 0; a < 3; ++a) x(a, i) += creep(rng);
+      for (int k = 0; k < 10; ++k) {
+        const int i = pick(rng);
+        for (int a = 0; a < 3; ++a) x(a, i) += jump(rng);
+      }
+      if (list.update(x, m.box)) rebuilt.push_back(s);
+    }
+    last_offsets.assign(list.offsets().begin(), list.offsets().end());
+    return std::make_pair(rebuilt, last_offsets);
+  };
+  const int restore = max_threads();
+  const auto serial = decisions(1);
+  RecordProperty("rebuilds", static_cast<int>(serial.first.size()));
+  ASSERT_GE(serial.first.size(), 3u);
+  ASSERT_LT(serial.first.size(), 40u) << "the fast particles' check should keep the list between some updates";
+  for (int threads : {2, 3}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    const auto parallel = decisions(threads);
+    EXPECT_EQ(parallel.first, serial.first);
+    EXPECT_EQ(parallel.second, serial.second);
+  }
+  set_max_threads(restore);
+}
+
 TEST(Parallel, FeneForcesDoNotDependOnTheThreadCountAndOverstretchStillThrows) {
   Melt m = melt(true);
   const FeneBond fene("fene", Level::slow, m.bonds, {{30.0, 1.5, 1.0, 1.0}});
