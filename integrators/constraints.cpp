@@ -236,18 +236,28 @@ class ChainLdlt {
   // its mirror below): Z_{k,k+1} = −l_k Z_{k+1,k+1}, Z_kk = 1/D⁺_k + l_k² Z_{k+1,k+1} for k < p;
   // Z_{k−1,k} = −u_{k−1} Z_{k−1,k−1}, Z_kk = 1/D⁻_k + u_{k−1}² Z_{k−1,k−1} for k > p. z_diag has n
   // entries, z_off n − 1 (Z_{k,k+1}).
-  void inverse_band(double* z_diag, double* z_off) const {
-    const double* m = off_.data();
-    const double* inv = inv_pivot_.data();
-    z_diag[p_] = inv[p_];
-    for (int k = p_ - 1; k >= 0; --k) {
-      z_off[k] = -m[k] * z_diag[k + 1];
-      z_diag[k] = inv[k] - m[k] * z_off[k];
+  // For K chains of one length in lockstep (each chain's recurrence is a dependent multiply–subtract
+  // chain, as in factorize_group; each gets the operations it gets alone, K = 1).
+  template <int K>
+  static void inverse_band_group(const ChainLdlt* const* c, double* const* z_diag, double* const* z_off) {
+    const int n = c[0]->n_, p = c[0]->p_;
+    const double* m[K];
+    const double* inv[K];
+    for (int j = 0; j < K; ++j) {
+      m[j] = c[j]->off_.data();
+      inv[j] = c[j]->inv_pivot_.data();
+      z_diag[j][p] = inv[j][p];
     }
-    for (int k = p_ + 1; k < n_; ++k) {
-      z_off[k - 1] = -m[k - 1] * z_diag[k - 1];
-      z_diag[k] = inv[k] - m[k - 1] * z_off[k - 1];
-    }
+    for (int k = p - 1; k >= 0; --k)
+      for (int j = 0; j < K; ++j) {
+        z_off[j][k] = -m[j][k] * z_diag[j][k + 1];
+        z_diag[j][k] = inv[j][k] - m[j][k] * z_off[j][k];
+      }
+    for (int k = p + 1; k < n; ++k)
+      for (int j = 0; j < K; ++j) {
+        z_off[j][k - 1] = -m[j][k - 1] * z_diag[j][k - 1];
+        z_diag[j][k] = inv[j][k] - m[j][k - 1] * z_off[j][k - 1];
+      }
   }
   // 1/D⁺_k (k < p), 1/γ_p, 1/D⁻_k (k > p): det S = 1 / Π of these.
   const double* inverse_pivots() const { return inv_pivot_.data(); }
@@ -505,6 +515,11 @@ struct ClusterData {
   bool frame_kept = false;
   bool s_factored = false;
   std::int64_t factorizations = 0;  // of S and of SHAKE's and the mollifier's J, for tests
+  // Open chains, for Fixman's potential: the band of S⁻¹ at the kept configuration, formed from
+  // the factors of S of factorization number band_at (current while s_factored and no
+  // factorization came since: Impl::band_current).
+  Eigen::VectorXd z_diag, z_off;
+  std::int64_t band_at = -1;
 };
 
 // −h_k = (ℓ_k² − |d_k|²) / (2ℓ_k) of an open chain's bonds, fed the particles along its path in
@@ -695,6 +710,10 @@ struct ConstraintToolbox::Impl {
   // Factorizes S at the kept configuration for the chains first … first + count − 1 that are not
   // factored yet, in lockstep (factor_kept_s for each, with one factorization pass).
   void factor_kept_group(int first, int count, const char* what);
+  // Factors S (factor_kept_group) and forms the band of S⁻¹ for the open chains first … first +
+  // count − 1 (of one length) where it is not current, in lockstep.
+  void chain_inverse_band_group(int first, int count);
+  bool band_current(const ClusterData& d) const { return d.s_factored && d.band_at == d.factorizations; }
   // SHAKE on a group of clusters (shake_group below: their chord solves in lockstep).
   void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter);
   template <bool kForce>
@@ -734,6 +753,8 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
       d.chain = tri.get();
       d.solver = std::move(tri);
       d.spd = std::make_unique<ChainLdlt>(n);
+      d.z_diag = Eigen::VectorXd::Zero(n);
+      d.z_off = Eigen::VectorXd::Zero(std::max(n - 1, 0));
       d.diag_w = Eigen::VectorXd::Zero(n);
       d.off_w = Eigen::VectorXd::Zero(std::max(n - 1, 0));
       for (const Coupling& cp : d.couplings) {
@@ -1325,14 +1346,52 @@ void ConstraintToolbox::keep(const Eigen::Matrix3Xd& x) {
   impl_->keep(x);
 }
 
-bool ConstraintToolbox::chain_inverse_band(int c, double* z_diag, double* z_off, double* inverse_pivots) {
+void ConstraintToolbox::Impl::chain_inverse_band_group(int first, int count) {
+  factor_kept_group(first, count, "Fixman potential");
+  const ChainLdlt* chain[kChainGroup];
+  double* z_diag[kChainGroup];
+  double* z_off[kChainGroup];
+  int k = 0;
+  for (int c = first; c < first + count; ++c) {
+    ClusterData& d = data[c];
+    if (band_current(d)) continue;
+    chain[k] = d.spd.get();
+    z_diag[k] = d.z_diag.data();
+    z_off[k++] = d.z_off.data();
+    d.band_at = d.factorizations;
+  }
+  switch (k) {
+    case 0:
+      break;
+    case 1:
+      ChainLdlt::inverse_band_group<1>(chain, z_diag, z_off);
+      break;
+    case 2:
+      ChainLdlt::inverse_band_group<2>(chain, z_diag, z_off);
+      break;
+    case 3:
+      ChainLdlt::inverse_band_group<3>(chain, z_diag, z_off);
+      break;
+    default:
+      ChainLdlt::inverse_band_group<4>(chain, z_diag, z_off);
+      break;
+  }
+}
+
+void ConstraintToolbox::inverse_bands(const Eigen::Matrix3Xd& x) {
+  require_columns(x, impl_->num_particles(), "inverse_bands");
+  Impl& d = *impl_;
+  d.keep(x);
+  d.for_each_group([&](int c, int count) {
+    if (d.data[c].spd) d.chain_inverse_band_group(c, count);
+  });
+}
+
+ConstraintToolbox::ChainInverseBand ConstraintToolbox::chain_inverse_band(int c) {
   ClusterData& d = impl_->data.at(static_cast<std::size_t>(c));
-  if (!d.spd) return false;
-  impl_->factor_kept_s(c, "Fixman potential");
-  d.spd->inverse_band(z_diag, z_off);
-  const int n = static_cast<int>(d.bonds.size());
-  std::copy(d.spd->inverse_pivots(), d.spd->inverse_pivots() + n, inverse_pivots);
-  return true;
+  if (!d.spd) return {};
+  impl_->chain_inverse_band_group(c, 1);
+  return {d.z_diag.data(), d.z_off.data(), d.spd->inverse_pivots(), static_cast<int>(d.bonds.size())};
 }
 
 const std::vector<int>& ConstraintToolbox::cluster_bonds(int c) const {

@@ -69,16 +69,27 @@ class ConstraintToolbox {
   // (compared bit for bit) with G(x) and S(x)'s factors, and SHAKE leaves its converged y kept.
   std::int64_t factorizations() const;
 
-  // For Fixman's potential (integrators/fixman.cpp), which reads G(x) and S(x)'s factors from
-  // here instead of measuring and factoring again: keep(x) makes x the kept configuration (as any
-  // call does); then, for an open chain c, chain_inverse_band measures and factors S there if that
-  // is not done yet and writes the band of S⁻¹ (z_diag: n, z_off: n − 1 entries, Z_{k,k+1}, in the
-  // cluster's bond order, cluster_bonds) and the inverse pivots of its factorization (n entries,
-  // det S = 1 / their product); false (nothing written) when c is not an open chain. Distinct
-  // clusters may be served from distinct threads at once. kept_directions and kept_lengths hold
-  // u_b and |d_b| at the kept configuration for every bond of a cluster measured since keep.
+  // For Fixman's potential (integrators/fixman.cpp), which reads G(x) and the band of S(x)⁻¹ from
+  // here instead of measuring and factoring again. inverse_bands(x) keeps x (as any call does)
+  // and, on every open chain, measures and factors S there unless that is done (SHAKE and the
+  // projections share the factors) and forms the band of S⁻¹ — chains of one length in lockstep,
+  // each with the operations it gets alone. chain_inverse_band(c) then returns, for open chain c,
+  // the band (z_diag: n entries Z_kk, z_off: n − 1 entries Z_{k,k+1}, in the cluster's bond order,
+  // cluster_bonds) and the inverse pivots of S's factorization (n entries, det S = 1 / their
+  // product), forming them first if they are not current at the kept configuration; all null
+  // when c is not an open chain. Valid until the next call that moves or refactors the kept
+  // configuration. Distinct clusters may be served from distinct threads at once. kept_directions
+  // and kept_lengths hold u_b and |d_b| at the kept configuration for every bond of a cluster
+  // measured since keep. Both throw NumericalError as the factorization does.
+  struct ChainInverseBand {
+    const double* z_diag = nullptr;
+    const double* z_off = nullptr;
+    const double* inverse_pivots = nullptr;
+    int n = 0;
+  };
   void keep(const Eigen::Matrix3Xd& x);
-  bool chain_inverse_band(int c, double* z_diag, double* z_off, double* inverse_pivots);
+  void inverse_bands(const Eigen::Matrix3Xd& x);
+  ChainInverseBand chain_inverse_band(int c);
   const std::vector<int>& cluster_bonds(int c) const;  // local → global bond (path order on chains)
   const Eigen::Matrix3Xd& kept_directions() const;
   const Eigen::VectorXd& kept_lengths() const;

@@ -120,9 +120,14 @@ struct FixmanPotential::Impl {
   void measure(const Cluster& c, const Eigen::Matrix3Xd& x);
   void inverse_on_pattern(Cluster& c) const;
   void gradient(Cluster& c, double kT, const Eigen::Matrix3Xd& u_of, const Eigen::VectorXd& r_of);
-  // log det S and Z on the pairs of open chain c from the toolbox's factors (use_toolbox).
-  void inverse_from_toolbox(Cluster& c);
+  // log det S of open chain c from the toolbox's factors (use_toolbox), and the band of Z there.
+  ConstraintToolbox::ChainInverseBand inverse_from_toolbox(Cluster& c);
   void scatter(const Cluster& c, Eigen::Matrix3Xd& f) const;
+  // An open chain served by the toolbox: gradient and scatter in one walk along the chain, with
+  // u_b, r_b from the toolbox's kept frame (the same terms as gradient and scatter, in their order).
+  void chain_force(const Cluster& c, const double* z_off, double kT, Eigen::Matrix3Xd& f) const;
+  // Adds −∇U_F(x) to f, returns U_F (force's work, without its clearing of f).
+  double add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
 
   // Runs f(c) for every cluster, in contiguous blocks of about equal bond count on the OpenMP
   // threads (as the constraint toolbox does); each cluster writes only its own bonds' scratch.
@@ -300,11 +305,54 @@ void FixmanPotential::Impl::gradient(Cluster& c, double kT, const Eigen::Matrix3
   }
 }
 
-void FixmanPotential::Impl::inverse_from_toolbox(Cluster& c) {
-  // A chain's pairs are (k, k + 1) in order: Z on them is the band's off-diagonal. c.pivot receives
-  // the toolbox's inverse pivots, log det S = −Σ log(1/pivot) (banked as for the pivots).
-  toolbox->chain_inverse_band(c.index, c.z_diag.data(), c.z_pair.data(), c.pivot.data());
-  c.log_det = -sum_of_logs(c.pivot.data(), static_cast<int>(c.bonds.size()));
+ConstraintToolbox::ChainInverseBand FixmanPotential::Impl::inverse_from_toolbox(Cluster& c) {
+  // A chain's pairs are (k, k + 1) in order: Z on them is the band's off-diagonal. log det S =
+  // −Σ log(1/pivot) (banked as for the pivots).
+  const ConstraintToolbox::ChainInverseBand band = toolbox->chain_inverse_band(c.index);
+  c.log_det = -sum_of_logs(band.inverse_pivots, band.n);
+  return band;
+}
+
+// h_k = P_k t_k / r_k with t_k = kT (Z_{k−1,k} w_{k−1,k} u_{k−1} + Z_{k,k+1} w_{k,k+1} u_{k+1}) (the
+// file's top comment), added to bond k's ends as it is formed: one pass over the chain's bonds, no
+// h stored. Each particle receives its bonds' terms in bond order, as scatter adds them.
+void FixmanPotential::Impl::chain_force(const Cluster& c, const double* z_off, double kT, Eigen::Matrix3Xd& f) const {
+  const int n = static_cast<int>(c.bonds.size());
+  const int* bond = c.bonds.data();
+  const double* u = toolbox->kept_directions().data();
+  const double* r = toolbox->kept_lengths().data();
+  double* out = f.data();
+  double before = 0.0;  // γ_{k−1} = kT Z_{k−1,k} w_{k−1,k}; 0 at the first bond
+  for (int k = 0; k < n; ++k) {
+    const double* uk = u + 3 * bond[k];
+    double tx = 0.0, ty = 0.0, tz = 0.0;
+    if (k > 0) {
+      const double* up = u + 3 * bond[k - 1];
+      tx = before * up[0];
+      ty = before * up[1];
+      tz = before * up[2];
+    }
+    if (k + 1 < n) {
+      const double gamma = kT * z_off[k] * c.pairs[k].weight;
+      const double* un = u + 3 * bond[k + 1];
+      tx += gamma * un[0];
+      ty += gamma * un[1];
+      tz += gamma * un[2];
+      before = gamma;
+    }
+    const double along = uk[0] * tx + uk[1] * ty + uk[2] * tz;
+    const double inv_r = 1.0 / r[bond[k]];
+    const double hx = (tx - uk[0] * along) * inv_r, hy = (ty - uk[1] * along) * inv_r,
+                 hz = (tz - uk[2] * along) * inv_r;
+    double* fi = out + 3 * bonds[bond[k]].i;
+    double* fj = out + 3 * bonds[bond[k]].j;
+    fi[0] -= hx;
+    fi[1] -= hy;
+    fi[2] -= hz;
+    fj[0] += hx;
+    fj[1] += hy;
+    fj[2] += hz;
+  }
 }
 
 void FixmanPotential::Impl::scatter(const Cluster& c, Eigen::Matrix3Xd& f) const {
@@ -345,24 +393,43 @@ double FixmanPotential::force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matri
                                 std::to_string(d.inv_mass.size()));
   if (f.cols() != x.cols()) f.resize(3, x.cols());
   f.setZero();
-  if (d.toolbox) d.toolbox->keep(x);  // serially, before the clusters' loop
-  d.for_each_cluster([&](int ci) {
-    Cluster& c = d.clusters[ci];
-    if (d.toolbox && c.shape == ClusterShape::chain) {
-      d.inverse_from_toolbox(c);
-      d.gradient(c, kT, d.toolbox->kept_directions(), d.toolbox->kept_lengths());
-    } else {
-      d.measure(c, x);
-      for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
-        c.value[p] = c.pairs[p].weight * d.u.col(c.bonds[c.pairs[p].k]).dot(d.u.col(c.bonds[c.pairs[p].l]));
-      d.inverse_on_pattern(c);
-      d.gradient(c, kT, d.u, d.r);
+  return d.add_force(x, kT, f);
+}
+
+double FixmanPotential::add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
+  Impl& d = *impl_;
+  if (x.cols() != d.inv_mass.size() || f.cols() != x.cols())
+    throw std::invalid_argument("FixmanPotential::add_force: x has " + std::to_string(x.cols()) + " and f " +
+                                std::to_string(f.cols()) + " particles, expected " + std::to_string(d.inv_mass.size()));
+  return d.add_force(x, kT, f);
+}
+
+double FixmanPotential::Impl::add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
+  // The toolbox's factors of S at x and the band of S⁻¹, open chains of one length in lockstep
+  // (one chain's sweep is latency-bound): chain_inverse_band below then finds them.
+  if (toolbox) toolbox->inverse_bands(x);
+  for_each_cluster([&](int ci) {
+    Cluster& c = clusters[ci];
+    if (toolbox && c.shape == ClusterShape::chain) {
+      const ConstraintToolbox::ChainInverseBand band = inverse_from_toolbox(c);
+      if (!clusters_share_particles) chain_force(c, band.z_off, kT, f);  // each cluster owns its particles
+      return;
     }
-    if (!d.clusters_share_particles) d.scatter(c, f);  // each cluster owns its particles
+    measure(c, x);
+    for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
+      c.value[p] = c.pairs[p].weight * u.col(c.bonds[c.pairs[p].k]).dot(u.col(c.bonds[c.pairs[p].l]));
+    inverse_on_pattern(c);
+    gradient(c, kT, u, r);
+    if (!clusters_share_particles) scatter(c, f);
   });
   double log_det = 0.0;
-  for (const Cluster& c : d.clusters) {
-    if (d.clusters_share_particles) d.scatter(c, f);  // a shared fixed particle: in cluster order
+  for (const Cluster& c : clusters) {
+    if (clusters_share_particles) {  // a shared fixed particle: in cluster order
+      if (toolbox && c.shape == ClusterShape::chain)
+        chain_force(c, toolbox->chain_inverse_band(c.index).z_off, kT, f);  // current: no work
+      else
+        scatter(c, f);
+    }
     log_det += c.log_det + c.log_alpha2;
   }
   return 0.5 * kT * log_det;

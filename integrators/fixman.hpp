@@ -45,6 +45,8 @@ class FixmanPotential {
   // Throws NumericalError (naming the cluster and bond) for a bond of zero or non-finite length, or
   // when S is singular on a cluster (linearly dependent bond directions).
   double force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
+  // The same force added to f (3×N, as x; else std::invalid_argument): f += −∇U_F(x). Returns U_F.
+  double add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
 
   // Read G(x) and the band of S(x)⁻¹ of open chains from `toolbox` (built from the same bonds and
   // inverse masses; it keeps its factors of S for the integrator's velocity projection at the same

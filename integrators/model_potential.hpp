@@ -23,6 +23,13 @@ class ModelPotential {
   virtual ~ModelPotential() = default;
   // f = −∇W(x) (overwritten), returns W(x).
   virtual double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) = 0;
+  // f += −∇W(x) (f is 3×N), returns W(x); scratch (3×N) may be overwritten. By default force()
+  // into scratch, then a pass adding it; a potential that can add in place overrides it.
+  virtual double add_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f, Eigen::Matrix3Xd& scratch) {
+    const double value = force(x, scratch);
+    f += scratch;
+    return value;
+  }
   // Once, before the first step of a fresh run, on the state before its projection.
   virtual void prepare(const State&, std::ostream&) {}
   // The integrator's constraint toolbox, which a potential may read G(x) and S(x)'s factors from
@@ -70,6 +77,9 @@ class FixmanCorrection final : public ModelPotential {
  public:
   FixmanCorrection(FixmanPotential potential, double kT) : potential_(std::move(potential)), kT_(kT) {}
   double force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) override { return potential_.force(x, kT_, f); }
+  double add_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f, Eigen::Matrix3Xd&) override {
+    return potential_.add_force(x, kT_, f);
+  }
   // At x_{n+1} the integrator's velocity projection has just measured and factored S there.
   void attach(ConstraintToolbox& toolbox) override { potential_.use_toolbox(&toolbox); }
 

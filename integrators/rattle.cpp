@@ -38,9 +38,8 @@ void Rattle::prepare(State& s, std::ostream& log) {
 void Rattle::refresh(const Eigen::Matrix3Xd& x) {
   forces_.compute_unconstrained(x, f_);
   if (model_) {
-    model_value_ = model_->force(x, correction_);  // −∇W(I, x) or −∇U_F(x)
+    model_value_ = model_->add_force(x, f_, correction_);  // f += −∇W(I, x) or −∇U_F(x)
     model_value_current_ = true;
-    f_ += correction_;
   }
   valid_ = true;
 }

@@ -284,11 +284,26 @@ TEST(FixmanPotential, TranslationAndRotationInvariant) {
 // from the toolbox's twisted factorization instead of this object's measure and LDLᵀ: the same
 // energy and force to round-off, on every shape (the others keep their own path), at a first x
 // and at a moved one (the toolbox must not serve the factors of the first), with chains numbered
-// against their path and fixed beads; and a toolbox built from other bonds is refused.
+// against their path and fixed beads, and with several chains of one length (their bands formed
+// in lockstep); and a toolbox built from other bonds is refused.
 TEST(FixmanPotential, ToolboxFactorsGiveTheSameForce) {
   std::mt19937 rng(23);
   std::vector<System> systems = shapes(rng);
   systems.push_back(chain(rng, 40, 7));
+  {  // seven chains of one length and two of another: the toolbox forms their bands in lockstep
+    System all;
+    all.inv_mass = VectorXd(0);
+    for (int k = 0; k < 9; ++k) {
+      const System s = chain(rng, k < 7 ? 21 : 13);
+      const int offset = static_cast<int>(all.inv_mass.size());
+      all.inv_mass.conservativeResize(offset + s.inv_mass.size());
+      all.inv_mass.tail(s.inv_mass.size()) = s.inv_mass;
+      all.x.conservativeResize(3, offset + s.x.cols());
+      all.x.rightCols(s.x.cols()) = s.x;
+      for (StiffBond b : s.bonds) all.bonds.push_back({b.i + offset, b.j + offset, b.length, b.alpha});
+    }
+    systems.push_back(all);
+  }
   {  // a chain numbered backwards, half its bonds reversed
     System s = chain(rng, 15);
     const int n = static_cast<int>(s.x.cols());
@@ -327,6 +342,32 @@ TEST(FixmanPotential, ToolboxFactorsGiveTheSameForce) {
   FixmanPotential dense(a.bonds, a.inv_mass, FixmanPotential::Path::dense);
   ConstraintToolbox same(a.bonds, a.inv_mass);
   EXPECT_THROW(dense.use_toolbox(&same), std::invalid_argument);
+}
+
+// add_force (what RATTLE's force evaluation calls: U_F's force added to the slow force in place)
+// adds exactly what force() writes, to round-off, on every shape, with and without the toolbox's
+// factors, and with two chains that share a fixed bead (added serially, in cluster order).
+TEST(FixmanPotential, AddForceAddsTheForce) {
+  std::mt19937 rng(31);
+  std::vector<System> systems = shapes(rng);
+  systems.push_back(chain(rng, 40, 7));  // fixed beads split it into clusters sharing them
+  const double kT = 0.7;
+  for (const System& s : systems)
+    for (bool with_toolbox : {false, true}) {
+      FixmanPotential fp(s.bonds, s.inv_mass);
+      ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+      if (with_toolbox) fp.use_toolbox(&toolbox);
+      const Matrix3Xd f0 = Matrix3Xd::Random(3, s.x.cols());
+      Matrix3Xd f_alone, f = f0;
+      const double u_alone = fp.force(s.x, kT, f_alone);
+      EXPECT_EQ(fp.add_force(s.x, kT, f), u_alone);
+      EXPECT_LE((f - (f0 + f_alone)).cwiseAbs().maxCoeff(), 1e-14 * (1.0 + f_alone.cwiseAbs().maxCoeff()));
+      EXPECT_GT(f_alone.cwiseAbs().maxCoeff(), 0.0);
+    }
+  const System s = chain(rng, 5);
+  FixmanPotential fp(s.bonds, s.inv_mass);
+  Matrix3Xd wrong = Matrix3Xd::Zero(3, 4);
+  EXPECT_THROW(fp.add_force(s.x, kT, wrong), std::invalid_argument);
 }
 
 // Above the serial threshold clusters run on the threads: the result is the serial one, bit for bit.
