@@ -931,7 +931,9 @@ void ConstraintToolbox::Impl::copy_configuration(const Eigen::Matrix3Xd& x) {
   kept = true;
 }
 
-// An open chain's bands of S at the kept configuration (measured first if need be).
+// An open chain's bands of S at the kept configuration (measured first if need be), and σ_k u_k
+// along the path (SHAKE's chord, the projections: used once S is factored) in the same pass: one
+// walk over the chain's directions instead of two.
 void ConstraintToolbox::Impl::chain_s_bands(int c, const char* what) {
   ClusterData& d = data[c];
   if (!d.frame_kept) {
@@ -939,22 +941,26 @@ void ConstraintToolbox::Impl::chain_s_bands(int c, const char* what) {
     d.frame_kept = true;
   }
   const double* u = at_kept.u.data();
-  auto dot = [&](int a, int b) { return column_dot(u, a, u, b); };
   const int n = static_cast<int>(d.bonds.size());
   const int* bond = d.bonds.data();
   double* diagonal = d.spd->diagonal();
   double* off = d.spd->off();
-  for (int k = 0; k < n; ++k) diagonal[k] = d.diag_w[k] * dot(bond[k], bond[k]);
-  for (int k = 0; k + 1 < n; ++k) off[k] = d.off_w[k] * dot(bond[k], bond[k + 1]);
+  double* e = d.e_kept.data();
+  const double* sigma = d.orientation.data();
+  for (int k = 0; k < n; ++k) {
+    const double* uk = u + 3 * bond[k];
+    diagonal[k] = d.diag_w[k] * column_dot(u, bond[k], u, bond[k]);
+    if (k + 1 < n) off[k] = d.off_w[k] * column_dot(u, bond[k], u, bond[k + 1]);
+    e[3 * k] = sigma[k] * uk[0];
+    e[3 * k + 1] = sigma[k] * uk[1];
+    e[3 * k + 2] = sigma[k] * uk[2];
+  }
 }
 
-// After an open chain's factorization: σ_k u_k along the path (SHAKE's chord, the projections).
+// After an open chain's factorization (chain_s_bands wrote σ_k u_k).
 void ConstraintToolbox::Impl::chain_s_factored(int c, bool regular, const char* what) {
   ClusterData& d = data[c];
   if (!regular) singular(c, true, what);
-  const int* bond = d.bonds.data();
-  for (int k = 0, n = static_cast<int>(d.bonds.size()); k < n; ++k)
-    d.e_kept.col(k) = d.orientation[k] * at_kept.u.col(bond[k]);
   d.s_factored = true;
   ++d.factorizations;
 }
