@@ -25,8 +25,8 @@ struct LevelSettings {
 
 struct IntegratorSettings {
   std::string method = "velocity-verlet";
-  double h = 0.0;                 // macro step
-  int micro_steps = 1;            // n micro steps δ = h/n per macro step (impulse family)
+  double h = 0.0;       // macro step
+  int micro_steps = 1;  // n micro steps δ = h/n per macro step (impulse family)
   // Empty: the two levels fast and slow, micro_steps fast steps per slow one. Otherwise the
   // force field's levels (the same names, the same order), and micro_steps is the product of
   // their substeps for the impulse family.
@@ -49,8 +49,9 @@ class Integrator {
   // that kinetic + U + W is the conserved H_eff of paper eq. (CH)); 0 for the others.
   virtual double model_potential(const Eigen::Matrix3Xd&) { return 0.0; }
   // Σ_i x_i·F_c,i of the rigid-constraint forces at the current state (RATTLE, effective), for
-  // the pressure; 0 for methods without rigid constraints.
-  virtual double constraint_virial(const State&) const { return 0.0; }
+  // the pressure; 0 for methods without rigid constraints. Not const: a method may form the
+  // constraint force of its last step only when it is asked for (Rattle under OBABO).
+  virtual double constraint_virial(const State&) { return 0.0; }
   // The kinetic energy the temperature and the pressure's kinetic term read. Under Langevin
   // dynamics it is that of the velocities just after the last O step (BAOAB's mid-step
   // velocities): BAOAB's on-step velocities of a vibration of frequency ω read kT(1 − (hω)²/4),

@@ -121,7 +121,7 @@ class MultipleTimeStepping final : public Integrator {
   // the tension belongs in the pressure although no spring in this dynamics carries it: the
   // virial of −(f − Pf), as RATTLE's constraint force enters its pressure (design.md §3, §8).
   // The cached kick forces are at the current x after a step, so these virials are too.
-  double constraint_virial(const State&) const override {
+  double constraint_virial(const State&) override {
     double w = 0.0;
     for (size_t k = 0; k + 1 < stages_.size(); ++k) w -= removed_virial_[k];
     return w;

@@ -17,8 +17,19 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
-      constraint_force_(f_) {
+      constraint_force_(f_),
+      kicked_(f_) {
   if (model_) model_->attach(toolbox_);
+  // The O step is v ← C v + Σξ with C = diag(c_i): P(C·Pw + Σξ) = P(C·w + Σξ) needs C(w − Pw),
+  // normal to the manifold, to stay normal, which holds when c_i is one number on the particles
+  // of each cluster (P is the identity off the clusters). Per-type friction scales
+  // (thermostat.scale) can break that: those scenes keep the two projections.
+  if (obabo_) {
+    const Eigen::VectorXd& gamma = langevin_->friction();
+    merged_projection_ = true;
+    for (const ConstraintCluster& c : toolbox_.clusters())
+      for (int p : c.particles) merged_projection_ &= gamma[p] == gamma[c.particles.front()];
+  }
 }
 
 void Rattle::prepare(State& s, std::ostream& log) {
@@ -59,7 +70,7 @@ void Rattle::step(State& s, double h) {
   // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
   if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
+  if (!merged_projection_) constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
   if (!langevin_ || obabo_) {
     rattle_drift(s, h);
   } else {
@@ -79,26 +90,52 @@ void Rattle::step(State& s, double h) {
     toolbox_.project_velocity(s.x, s.v, &constraint_force_, 4.0 / h);
   }
   refresh(s.x);
+  if (merged_projection_) {
+    // The closing kick's projection and O(½h)'s are one: with w the kicked velocity, P is linear
+    // and P² = P, so P(c·Pw + σξ) = c·Pw + σPξ = P(c·w + σξ) (the O step is v ← c v + σξ, its
+    // noise independent of v, c one number on each cluster: the constructor). One projection after the unprojected O
+    // step gives the same velocities; the constraint force of the kick's projection, M(Pw − w)/(h/2), is formed from w
+    // only when the pressure asks for it (constraint_virial), so w is kept, scaled by 2/h. The O step's projection is
+    // not a constraint force (as the BAOAB O step's is not). The temperature reads these on-step velocities.
+    kick_and_copy(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h);
+    constraint_force_current_ = false;
+    langevin_->apply(s.v, 0.5 * h, s.step, 1);
+    toolbox_.project_velocity(s.x, s.v);
+    o_step_kinetic_ = s.kinetic_energy();
+    return;
+  }
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   // G(x') v' = 0. Without Langevin (and under OBABO, whose drift is RATTLE's) the chord over h
   // and the kick over h/2 share the factor: F_c = M Δv / (h/2).
   toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
-  if (obabo_) {
-    // The closing O(½h) on the tangent space; its projection is not a constraint force (as the
-    // BAOAB O step's is not). The temperature reads these on-step velocities.
+  if (obabo_) {  // friction not uniform on a cluster: the closing O(½h) on the tangent space
     langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = s.kinetic_energy();
   }
 }
 
-// [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force (3N)]
-// [Langevin: the kinetic energy at the last O step]
+double Rattle::constraint_virial(const State& s) {
+  if (!constraint_force_current_) {
+    // F_c = M(P q − q) with q = (2/h) w (rattle.hpp), the projection at x adding −Gᵀμ itself
+    // (x_old_ is free between steps). At the x of the step the toolbox still holds S's factors.
+    constraint_force_.setZero();
+    x_old_ = kicked_;
+    toolbox_.project_velocity(s.x, x_old_, &constraint_force_, 1.0);
+    constraint_force_current_ = true;
+  }
+  return (s.x.array() * constraint_force_.array()).sum();
+}
+
+// [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force
+// (3N); OBABO: the kicked velocity (2/h) w it is formed from][Langevin: the kinetic energy at the
+// last O step]
 std::vector<double> Rattle::save_state() const {
   std::vector<double> w = model_ ? model_->save_state() : std::vector<double>{};
   w.push_back(valid_ ? 1.0 : 0.0);
   w.insert(w.end(), f_.data(), f_.data() + f_.size());
-  w.insert(w.end(), constraint_force_.data(), constraint_force_.data() + constraint_force_.size());
+  const Eigen::Matrix3Xd& force_or_kicked = merged_projection_ ? kicked_ : constraint_force_;
+  w.insert(w.end(), force_or_kicked.data(), force_or_kicked.data() + force_or_kicked.size());
   if (langevin_) w.push_back(o_step_kinetic_);
   return w;
 }
@@ -118,7 +155,9 @@ void Rattle::load_state(const std::vector<double>& w) {
   valid_ = w[m] != 0.0;
   model_value_current_ = false;  // recomputed at the first sample: the same bits
   f_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1, 3, f_.cols());
-  constraint_force_ = Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
+  (merged_projection_ ? kicked_ : constraint_force_) =
+      Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
+  constraint_force_current_ = !merged_projection_;
   if (langevin_) o_step_kinetic_ = w.back();
 }
 

@@ -19,7 +19,9 @@
 //
 // Splitting "obabo" (Bussi & Parrinello, Phys. Rev. E 75, 056707 (2007); Leimkuhler & Matthews,
 // "Molecular Dynamics" (2015) §7.3): O(½h), then the Hamiltonian RATTLE step above, then O(½h)
-// and the velocity projection. One SHAKE and two projections per step. The first O step needs no
+// and the velocity projection. One SHAKE and one projection per step: the Hamiltonian step's
+// closing projection and the O step's are one projection after the unprojected O step (P is
+// linear: rattle.cpp), the constraint force formed when the pressure asks for it. The first O step needs no
 // projection of its own: SHAKE's x' = x + h v + M⁻¹G(x)ᵀλ and the chord velocity (x' − x)/h do
 // not depend on the part M⁻¹G(x)ᵀa of v normal to the manifold at x (λ absorbs h·a), exactly
 // as the first half kick's normal part is absorbed in plain RATTLE. Its configurations are those
@@ -56,10 +58,11 @@ class Rattle final : public Integrator {
   void reset() override { valid_ = model_value_current_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
-  // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with Langevin, the last half
-  // drift's centrifugal share is projected apart, over h/4: rattle.cpp). Molecules are whole (unwrapped
-  // positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
-  double constraint_virial(const State& s) const override { return (s.x.array() * constraint_force_.array()).sum(); }
+  // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with BAOAB, the last half drift's
+  // centrifugal share is projected apart, over h/4: rattle.cpp; with OBABO it is formed here, at
+  // the first call after the step, from the kicked velocity the step kept). Molecules are whole
+  // (unwrapped positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
+  double constraint_virial(const State& s) override;
   // W (or U_F) at x: the value the step's closing force evaluation computed when x is the state it
   // left (one decomposition per step, shared with the thermo row); computed afresh otherwise (before
   // the first step, after a restart: the same computation at the same x, so the same bits).
@@ -70,6 +73,12 @@ class Rattle final : public Integrator {
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
+
+  // OBABO: whether the closing projections are merged (rattle.cpp; chosen at construction), and
+  // for tests a switch to either path before the first step — merged is exact only with one
+  // friction on each cluster.
+  bool merged_projection() const { return merged_projection_; }
+  void set_merged_projection(bool on) { merged_projection_ = on && obabo_; }
 
   // The model potential's state (actions), the cached force f(x) with its validity and the
   // constraint force of the last step (for the pressure of the first sample after a restart);
@@ -87,7 +96,14 @@ class Rattle final : public Integrator {
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
   bool obabo_ = false;  // langevin_ as O(½h) around the RATTLE step instead of constrained BAOAB
+  // OBABO with one friction on the mobile particles of each constraint cluster: the closing
+  // projections merged (rattle.cpp); otherwise two, as written.
+  bool merged_projection_ = false;
   Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
+  // OBABO: (2/h) × the velocity after the closing kick, before any projection (step), and whether
+  // constraint_force_ has been formed from it since.
+  Eigen::Matrix3Xd kicked_;
+  bool constraint_force_current_ = true;
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
   bool model_value_current_ = false;  // … and x has not moved since

@@ -141,7 +141,7 @@ class VelocityRescaled final : public Integrator {
   void reset() override { inner_->reset(); }
   std::string_view method() const override { return inner_->method(); }
   double model_potential(const Eigen::Matrix3Xd& x) override { return inner_->model_potential(x); }
-  double constraint_virial(const State& s) const override { return inner_->constraint_virial(s); }
+  double constraint_virial(const State& s) override { return inner_->constraint_virial(s); }
   double kinetic_energy_estimate(const State& s) const override { return inner_->kinetic_energy_estimate(s); }
   std::vector<double> save_state() const override { return inner_->save_state(); }
   void load_state(const std::vector<double>& s) override { inner_->load_state(s); }

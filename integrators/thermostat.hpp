@@ -99,6 +99,7 @@ class LangevinNoise {
   // O step of length dt at macro step `step`, sub-step `substep` of that step.
   void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
   double temperature() const { return kT_; }
+  const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
 
  private:
   void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)
