@@ -11,7 +11,8 @@
 //                                   h = 0.005 with 20 micro steps (as in the decks), velocity Verlet
 //                                   at h = 0.00025, rattle at h = 0.005, fixman (Langevin kT = 1,
 //                                   γ = 1) at h = 0.02; impulse-unfused: the plain micro steps
-//                                   (kick_drift, then the force field's fast level)
+//                                   (kick_drift, then the force field's fast level); rattle and
+//                                   fixman -obabo-h<h>: Langevin with the OBABO splitting
 //   BM_MicroStepVsFloor/<scene>     one micro step fused and plain against the memory floor (one pass
 //                                   reading x, v, f and writing x, v), interleaved, CPU time
 //   BM_BondKernelPerBond/<scene>    ns per bond of the stiff harmonic bond force (vs LAMMPS:
@@ -354,14 +355,27 @@ struct MacroStepCase {
   const char* method;
   double h;
   int micro_steps;
-  bool fused = true;      // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
-  bool langevin = false;  // BAOAB Langevin, kT = 1, γ = 1 (fixman needs a thermostat)
+  bool fused = true;       // false: the plain micro steps (MultipleTimeStepping::use_fused_micro_step)
+  bool langevin = false;   // BAOAB Langevin, kT = 1, γ = 1 (fixman needs a thermostat)
+  bool obabo = false;      // with langevin: the splitting "obabo" instead
+  const char* label = "";  // appended to the benchmark's name
 };
 
 constexpr MacroStepCase kMacroSteps[] = {
-    {"impulse", 0.005, 20},           {"impulse", 0.005, 20, false},   {"projected-impulse", 0.005, 20},
-    {"mollified-impulse", 0.005, 20}, {"velocity-verlet", 0.00025, 1}, {"rattle", 0.005, 1},
+    {"impulse", 0.005, 20},
+    {"impulse", 0.005, 20, false},
+    {"projected-impulse", 0.005, 20},
+    {"mollified-impulse", 0.005, 20},
+    {"velocity-verlet", 0.00025, 1},
+    {"rattle", 0.005, 1},
     {"fixman", 0.02, 1, true, true},
+    // The constrained methods under OBABO (one SHAKE, one velocity projection per step) at the
+    // issue's two steps: fixman against rattle (issue 14's ratio), interleave them with
+    // --benchmark_enable_random_interleaving=true --benchmark_repetitions=N.
+    {"rattle", 0.005, 1, true, true, true, "-obabo-h0.005"},
+    {"fixman", 0.005, 1, true, true, true, "-obabo-h0.005"},
+    {"rattle", 0.02, 1, true, true, true, "-obabo-h0.02"},
+    {"fixman", 0.02, 1, true, true, true, "-obabo-h0.02"},
 };
 
 void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
@@ -380,6 +394,7 @@ void BM_MacroStep(benchmark::State& st, FixtureGetter get, MacroStepCase c) {
     settings.thermostat.temperature = 1.0;
     settings.thermostat.friction = Eigen::VectorXd::Ones(s.size());
     settings.thermostat.seed = 3;
+    if (c.obabo) settings.thermostat.splitting = ThermostatSettings::Splitting::obabo;
   }
   std::unique_ptr<Integrator> integrator;
   try {
@@ -640,7 +655,7 @@ bool register_benchmarks() {
     add("BM_Mollifier", BM_Mollifier);
     add("BM_Shake", BM_Shake);
     for (const MacroStepCase& c : kMacroSteps)
-      add("BM_MacroStep/" + std::string(c.method) + (c.fused ? "" : "-unfused"), BM_MacroStep, c);
+      add("BM_MacroStep/" + std::string(c.method) + (c.fused ? "" : "-unfused") + c.label, BM_MacroStep, c);
     add("BM_MicroStepVsFloor", BM_MicroStepVsFloor);
     add("BM_BondKernelPerBond", BM_BondKernelPerBond);
   }
