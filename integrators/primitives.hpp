@@ -26,6 +26,24 @@ inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eig
   });
 }
 
+// v ← v + dt M⁻¹ f, then copy ← scale · v, in one pass.
+inline void kick_and_copy(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
+                          Eigen::Matrix3Xd& copy, double scale) {
+  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    const double* __restrict fp = f.data();
+    const double* __restrict w = inv_mass.data();
+    double* __restrict vp = v.data();
+    double* __restrict cp = copy.data();
+    for (std::int64_t i = b; i < e; ++i) {
+      const double s = dt * w[i];
+      for (int a = 0; a < 3; ++a) {
+        vp[3 * i + a] += s * fp[3 * i + a];
+        cp[3 * i + a] = scale * vp[3 * i + a];
+      }
+    }
+  });
+}
+
 // x ← x + dt v
 inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {

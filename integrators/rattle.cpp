@@ -65,34 +65,15 @@ void Rattle::rattle_drift(State& s, double dt) {
 
 void Rattle::step(State& s, double h) {
   if (!valid_) refresh(s.x);
-  model_value_current_ = false;                          // x moves below; the closing refresh makes it current again
+  model_value_current_ = false;  // x moves below; the closing refresh makes it current again
+  // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
+  // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
+  if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
+  kick(s.v, s.inv_mass, f_, 0.5 * h);
   if (!merged_projection_) constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
-  if (obabo_) {
-    // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
-    // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O
-    // 1. The O step, the half kick and the drift in one pass (kick and keep_and_drift per particle).
-    const double* w = s.inv_mass.data();
-    const double* f = f_.data();
-    double* v = s.v.data();
-    double* x = s.x.data();
-    double* x_old = x_old_.data();
-    langevin_->apply_with(
-        s.v, 0.5 * h, s.step, 0, [](std::int64_t) {},
-        [&](std::int64_t i) {
-          const double k = 0.5 * h * w[i];
-          for (std::int64_t a = 3 * i; a < 3 * i + 3; ++a) {
-            v[a] += k * f[a];
-            x_old[a] = x[a];
-            x[a] += h * v[a];
-          }
-        });
-    toolbox_.shake(x_old_, s.x);
-    chord_velocity(s.v, s.x, x_old_, h);
-  } else if (!langevin_) {
-    kick(s.v, s.inv_mass, f_, 0.5 * h);
+  if (!langevin_ || obabo_) {
     rattle_drift(s, h);
   } else {
-    kick(s.v, s.inv_mass, f_, 0.5 * h);
     // Constrained BAOAB: A(½h), O(h) then the velocity projection (friction and noise on the
     // tangent space; P is linear, so projecting once after O equals projecting before and after),
     // A(½h).
@@ -116,23 +97,9 @@ void Rattle::step(State& s, double h) {
     // step gives the same velocities; the constraint force of the kick's projection, M(Pw − w)/(h/2), is formed from w
     // only when the pressure asks for it (constraint_virial), so w is kept, scaled by 2/h. The O step's projection is
     // not a constraint force (as the BAOAB O step's is not). The temperature reads these on-step velocities.
-    // The kick, the copy and the O step in one pass.
-    const double* w = s.inv_mass.data();
-    const double* f = f_.data();
-    double* v = s.v.data();
-    double* kicked = kicked_.data();
-    const double scale = 2.0 / h;
-    langevin_->apply_with(
-        s.v, 0.5 * h, s.step, 1,
-        [&](std::int64_t i) {
-          const double k = 0.5 * h * w[i];
-          for (std::int64_t a = 3 * i; a < 3 * i + 3; ++a) {
-            v[a] += k * f[a];
-            kicked[a] = scale * v[a];
-          }
-        },
-        [](std::int64_t) {});
+    kick_and_copy(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h);
     constraint_force_current_ = false;
+    langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = s.kinetic_energy();
     return;

@@ -58,8 +58,15 @@ void LangevinNoise::coefficients(double dt) {
 }
 
 void LangevinNoise::apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
-  const auto nothing = [](std::int64_t) {};
-  apply_with(v, dt, step, substep, nothing, nothing);  // fixed particles stay at rest
+  if (dt != dt_) coefficients(dt);
+  const std::uint64_t key = noise_key(seed_, step, substep);
+  const ZigguratTable& table = ziggurat_table();
+  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) {
+      if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
+      v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, i, table);
+    }
+  });
 }
 
 LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)

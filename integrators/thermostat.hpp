@@ -16,7 +16,6 @@
 #include <memory>
 #include <string_view>
 
-#include "engine/core/parallel.hpp"
 #include "engine/core/state.hpp"
 #include "integrators/ziggurat.hpp"
 
@@ -99,23 +98,6 @@ class LangevinNoise {
   LangevinNoise(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass);
   // O step of length dt at macro step `step`, sub-step `substep` of that step.
   void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
-  // The same O step inside one pass over the particles with an integrator's per-particle work:
-  // before(i), particle i's O step, after(i), for each i of a block (the work of separate passes,
-  // in the same order on each particle: the same bits, one sweep through memory).
-  template <class Before, class After>
-  void apply_with(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep, Before&& before,
-                  After&& after) {
-    if (dt != dt_) coefficients(dt);
-    const std::uint64_t key = noise_key(seed_, step, substep);
-    const ZigguratTable& table = ziggurat_table();
-    parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t i = b; i < e; ++i) {
-        before(i);
-        if (inv_mass_[i] != 0.0) v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, i, table);
-        after(i);
-      }
-    });
-  }
   double temperature() const { return kT_; }
   const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
 
