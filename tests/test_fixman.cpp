@@ -150,6 +150,21 @@ double reference_energy(const System& s, double kT) {
   return 0.5 * kT * std::log(A.determinant());
 }
 
+// Several systems side by side in one (particles renumbered).
+System empty_system() {
+  System s;
+  s.inv_mass = VectorXd(0);
+  return s;
+}
+void append(System& all, const System& s) {
+  const int offset = static_cast<int>(all.inv_mass.size());
+  all.inv_mass.conservativeResize(offset + s.inv_mass.size());
+  all.inv_mass.tail(s.inv_mass.size()) = s.inv_mass;
+  all.x.conservativeResize(3, offset + s.x.cols());
+  all.x.rightCols(s.x.cols()) = s.x;
+  for (StiffBond b : s.bonds) all.bonds.push_back({b.i + offset, b.j + offset, b.length, b.alpha});
+}
+
 std::vector<System> shapes(std::mt19937& rng) {
   return {chain(rng, 12),  chain(rng, 9, 4),      ring(rng, 3),        ring(rng, 11),
           star(rng, 4, 2), star(rng, 3, 3, true), branched(rng, 6, 2), chain(rng, 3)};
@@ -291,17 +306,8 @@ TEST(FixmanPotential, ToolboxFactorsGiveTheSameForce) {
   std::vector<System> systems = shapes(rng);
   systems.push_back(chain(rng, 40, 7));
   {  // seven chains of one length and two of another: the toolbox forms their bands in lockstep
-    System all;
-    all.inv_mass = VectorXd(0);
-    for (int k = 0; k < 9; ++k) {
-      const System s = chain(rng, k < 7 ? 21 : 13);
-      const int offset = static_cast<int>(all.inv_mass.size());
-      all.inv_mass.conservativeResize(offset + s.inv_mass.size());
-      all.inv_mass.tail(s.inv_mass.size()) = s.inv_mass;
-      all.x.conservativeResize(3, offset + s.x.cols());
-      all.x.rightCols(s.x.cols()) = s.x;
-      for (StiffBond b : s.bonds) all.bonds.push_back({b.i + offset, b.j + offset, b.length, b.alpha});
-    }
+    System all = empty_system();
+    for (int k = 0; k < 9; ++k) append(all, chain(rng, k < 7 ? 21 : 13));
     systems.push_back(all);
   }
   {  // a chain numbered backwards, half its bonds reversed
@@ -373,17 +379,8 @@ TEST(FixmanPotential, AddForceAddsTheForce) {
 // Above the serial threshold clusters run on the threads: the result is the serial one, bit for bit.
 TEST(FixmanPotential, ThreadCountDoesNotChangeTheResult) {
   std::mt19937 rng(15);
-  System all;
-  all.inv_mass = VectorXd(0);
-  for (int k = 0; k < 45; ++k) {
-    const System s = k % 5 == 4 ? ring(rng, 100) : chain(rng, 101);
-    const int offset = static_cast<int>(all.inv_mass.size());
-    all.inv_mass.conservativeResize(offset + s.inv_mass.size());
-    all.inv_mass.tail(s.inv_mass.size()) = s.inv_mass;
-    all.x.conservativeResize(3, offset + s.x.cols());
-    all.x.rightCols(s.x.cols()) = s.x;
-    for (StiffBond b : s.bonds) all.bonds.push_back({b.i + offset, b.j + offset, b.length, b.alpha});
-  }
+  System all = empty_system();
+  for (int k = 0; k < 45; ++k) append(all, k % 5 == 4 ? ring(rng, 100) : chain(rng, 101));
   ASSERT_GE(static_cast<std::int64_t>(all.bonds.size()), kParallelMin);
   FixmanPotential fp(all.bonds, all.inv_mass);
   const int restore = max_threads();

@@ -40,13 +40,18 @@ from chain_melt import RunFailed, engine_method, prepare_state, write_deck
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GROUPS = [  # (group, regular expression on the symbol); the first match wins
     # U_F's band of S⁻¹ is computed by the toolbox from its factors (chain_inverse_band): U_F's work.
-    ("Fixman U_F", r"FixmanPotential|tridiagonal_inverse_band|chain_inverse_band"),
-    ("constraints", r"ConstraintToolbox|TridiagonalSolver|Rattle::add_constraint_force"),
+    ("Fixman U_F", r"FixmanPotential|tridiagonal_inverse_band|chain_inverse_band|inverse_band_group"),
+    # ChainLdlt: S's factorization (its lockstep template sits outside ConstraintToolbox's name);
+    # memcmp: the toolbox's comparison of x with its kept configuration (its only user in a step).
+    ("constraints", r"ConstraintToolbox|TridiagonalSolver|ChainLdlt|Rattle::add_constraint_force|memcmp"),
     ("slow force", r"accumulate_pair_rows|NeighborList|PairTerm|pair_loop|ForceField::compute"),
-    ("Langevin O step", r"LangevinNoise|__ieee754_log|__cos|__sin|^log@|^cos@|^sin@"),
+    ("Langevin O step", r"LangevinNoise|ziggurat|__ieee754_log|__cos|__sin|^log@|^cos@|^sin@"),
     ("kick, drift", r"\bkick\b|\bdrift\b|Rattle::|check_finite|memset|memmove|memcpy"),
     ("start-up", r"DataReader|from_chars|special_pairs|find_clusters|cluster_path|bonds_at_mobile|split_ws|Rb_tree|"
-                 r"introsort|unrealisable_cycle|_dl_|strtod|Deck|toml|Scene|load_|read_|prepare|NeighborList::build"),
+                 r"introsort|unrealisable_cycle|_dl_|strtod|Deck|toml|Scene|load_|read_|prepare|NeighborList::build|"
+                 # the step loop allocates nothing (perf --call-graph dwarf: every malloc under the
+                 # constructors of the toolbox and Fixman's potential)
+                 r"malloc|_int_free|^cfree|unlink_chunk|find_stiff_bond_problem|parse_long"),
 ]
 
 
