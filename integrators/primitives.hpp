@@ -26,19 +26,22 @@ inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eig
   });
 }
 
-// v ← v + dt M⁻¹ f, then copy ← scale · v, in one pass.
-inline void kick_and_copy(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
-                          Eigen::Matrix3Xd& copy, double scale) {
+// v ← v + dt M⁻¹ f, and in the same pass kept ← scale · v' (with_before: scale · (v + v')), v and
+// v' the velocities before and after the kick.
+inline void kick_and_keep(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
+                          Eigen::Matrix3Xd& kept, double scale, bool with_before) {
+  const double before = with_before ? 1.0 : 0.0;
   parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
     const double* __restrict fp = f.data();
     const double* __restrict w = inv_mass.data();
     double* __restrict vp = v.data();
-    double* __restrict cp = copy.data();
+    double* __restrict kp = kept.data();
     for (std::int64_t i = b; i < e; ++i) {
       const double s = dt * w[i];
       for (int a = 0; a < 3; ++a) {
-        vp[3 * i + a] += s * fp[3 * i + a];
-        cp[3 * i + a] = scale * vp[3 * i + a];
+        const double old = vp[3 * i + a];
+        vp[3 * i + a] = old + s * fp[3 * i + a];
+        kp[3 * i + a] = scale * (before * old + vp[3 * i + a]);
       }
     }
   });

@@ -20,15 +20,18 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       constraint_force_(f_),
       kicked_(f_) {
   if (model_) model_->attach(toolbox_);
-  // The O step is v ← C v + Σξ with C = diag(c_i): P(C·Pw + Σξ) = P(C·w + Σξ) needs C(w − Pw),
-  // normal to the manifold, to stay normal, which holds when c_i is one number on the particles
-  // of each cluster (P is the identity off the clusters). Per-type friction scales
-  // (thermostat.scale) can break that: those scenes keep the two projections.
+  // OBABO: the O step is v ← C v + Σξ with C = diag(c_i): P(C·Pw + Σξ) = P(C·w + Σξ) needs
+  // C(w − Pw), normal to the manifold, to stay normal, which holds when c_i is one number on the
+  // particles of each cluster (P is the identity off the clusters). Per-type friction scales
+  // (thermostat.scale) can break that: those scenes keep the two projections. Constrained BAOAB
+  // merges its two closing projections whatever the friction (no O step between them: step).
   if (obabo_) {
     const Eigen::VectorXd& gamma = langevin_->friction();
     merged_projection_ = true;
     for (const ConstraintCluster& c : toolbox_.clusters())
       for (int p : c.particles) merged_projection_ &= gamma[p] == gamma[c.particles.front()];
+  } else if (langevin_) {
+    merged_projection_ = true;
   }
 }
 
@@ -82,14 +85,26 @@ void Rattle::step(State& s, double h) {
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = s.kinetic_energy();
     rattle_drift(s, 0.5 * h);
-    // The chord velocity of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along each
-    // bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
-    // τ = h/2 that is twice the factor of the closing kick's share (below): taken apart here, else
-    // the pressure would miss half the centrifugal force (kT per bond in the virial). The
-    // projection adds M Δv · rate itself (−rate Gᵀμ, none at fixed particles).
-    toolbox_.project_velocity(s.x, s.v, &constraint_force_, 4.0 / h);
+    // The chord velocity q of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along
+    // each bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
+    // τ = h/2 that is twice the factor of the closing kick's share (below): taken apart, else the
+    // pressure would miss half the centrifugal force (kT per bond in the virial). The projection
+    // adds M Δv · rate itself (−rate Gᵀμ, none at fixed particles). Merged (below), this projection
+    // and the closing kick's are one.
+    if (!merged_projection_) toolbox_.project_velocity(s.x, s.v, &constraint_force_, 4.0 / h);
   }
   refresh(s.x);
+  if (merged_projection_ && !obabo_) {
+    // Constrained BAOAB's two projections at x_{n+1}, of the chord velocity q and, after the kick
+    // k, of Pq + k, are one: P(Pq + k) = P(q + k) (P linear, P² = P). Their constraint forces,
+    // (4/h) M(Pq − q) + (2/h) M(P(Pq + k) − Pq − k) = M(Pz − z) with z = (4/h) q + (2/h) k =
+    // (2/h)(q + q + k), the velocities before and after the kick: kept, and projected only when
+    // the pressure asks for it (constraint_virial).
+    kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, true);
+    constraint_force_current_ = false;
+    toolbox_.project_velocity(s.x, s.v);
+    return;
+  }
   if (merged_projection_) {
     // The closing kick's projection and O(½h)'s are one: with w the kicked velocity, P is linear
     // and P² = P, so P(c·Pw + σξ) = c·Pw + σPξ = P(c·w + σξ) (the O step is v ← c v + σξ, its
@@ -97,7 +112,7 @@ void Rattle::step(State& s, double h) {
     // step gives the same velocities; the constraint force of the kick's projection, M(Pw − w)/(h/2), is formed from w
     // only when the pressure asks for it (constraint_virial), so w is kept, scaled by 2/h. The O step's projection is
     // not a constraint force (as the BAOAB O step's is not). The temperature reads these on-step velocities.
-    kick_and_copy(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h);
+    kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, false);
     constraint_force_current_ = false;
     langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
@@ -117,8 +132,9 @@ void Rattle::step(State& s, double h) {
 
 double Rattle::constraint_virial(const State& s) {
   if (!constraint_force_current_) {
-    // F_c = M(P q − q) with q = (2/h) w (rattle.hpp), the projection at x adding −Gᵀμ itself
-    // (x_old_ is free between steps). At the x of the step the toolbox still holds S's factors.
+    // F_c = M(P z − z) with the kept z (step: (2/h) w under OBABO, (2/h)(q + q + k) under BAOAB),
+    // the projection at x adding −Gᵀμ itself (x_old_ is free between steps). At the x of the step
+    // the toolbox still holds S's factors.
     constraint_force_.setZero();
     x_old_ = kicked_;
     toolbox_.project_velocity(s.x, x_old_, &constraint_force_, 1.0);

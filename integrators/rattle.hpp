@@ -15,7 +15,7 @@
 // step (SHAKE, then the velocity projection) and the O step followed by the velocity projection,
 // so that friction and noise act on the tangent space {G v = 0} only. The temperature reads the
 // velocities just after the projected O step (kinetic_energy_estimate, integrators/integrator.hpp).
-// Two SHAKEs and three velocity projections per step.
+// Two SHAKEs and two velocity projections per step (the two at x_{n+1} merged: rattle.cpp).
 //
 // Splitting "obabo" (Bussi & Parrinello, Phys. Rev. E 75, 056707 (2007); Leimkuhler & Matthews,
 // "Molecular Dynamics" (2015) §7.3): O(½h), then the Hamiltonian RATTLE step above, then O(½h)
@@ -58,9 +58,10 @@ class Rattle final : public Integrator {
   void reset() override { valid_ = model_value_current_ = false; }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
-  // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with BAOAB, the last half drift's
-  // centrifugal share is projected apart, over h/4: rattle.cpp; with OBABO it is formed here, at
-  // the first call after the step, from the kicked velocity the step kept). Molecules are whole
+  // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with BAOAB, plus the last half
+  // drift's centrifugal share over h/4: rattle.cpp). With Langevin it is formed here, at the first
+  // call after the step, from the velocities the step kept (the step's projections at x_{n+1}
+  // merged into one). Molecules are whole
   // (unwrapped positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) override;
   // W (or U_F) at x: the value the step's closing force evaluation computed when x is the state it
@@ -74,11 +75,11 @@ class Rattle final : public Integrator {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
 
-  // OBABO: whether the closing projections are merged (rattle.cpp; chosen at construction), and
-  // for tests a switch to either path before the first step — merged is exact only with one
-  // friction on each cluster.
+  // With Langevin: whether the closing projections are merged (rattle.cpp; chosen at
+  // construction), and for tests a switch to either path before the first step — OBABO's merge is
+  // exact only with one friction on each cluster.
   bool merged_projection() const { return merged_projection_; }
-  void set_merged_projection(bool on) { merged_projection_ = on && obabo_; }
+  void set_merged_projection(bool on) { merged_projection_ = on && langevin_; }
 
   // The model potential's state (actions), the cached force f(x) with its validity and the
   // constraint force of the last step (for the pressure of the first sample after a restart);
@@ -96,11 +97,14 @@ class Rattle final : public Integrator {
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
   bool obabo_ = false;  // langevin_ as O(½h) around the RATTLE step instead of constrained BAOAB
-  // OBABO with one friction on the mobile particles of each constraint cluster: the closing
-  // projections merged (rattle.cpp); otherwise two, as written.
+  // With Langevin: the closing projections merged (rattle.cpp) — BAOAB's two at x_{n+1}, OBABO's
+  // kick and O-step projections when the friction is one number on each cluster; otherwise as
+  // written.
   bool merged_projection_ = false;
   Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
-  // OBABO: (2/h) × the velocity after the closing kick, before any projection (step), and whether
+  // With Langevin (merged_projection_): z, from which the last step's constraint force is
+  // M(Pz − z) — (2/h) × the velocity after the closing kick, unprojected (OBABO), or (2/h) × the
+  // sum of the unprojected chord velocity and the kicked one (BAOAB) — and whether
   // constraint_force_ has been formed from it since.
   Eigen::Matrix3Xd kicked_;
   bool constraint_force_current_ = true;

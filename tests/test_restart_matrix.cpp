@@ -369,6 +369,9 @@ TEST_F(BadCheckpoint, ANewerOrOlderFormatIsRefused) {
   std::memcpy(b.data() + 12, &newer, 4);
   expect_refused(with_crc(b), "format version " + std::to_string(newer) + " (a newer stiffmd)");
   expect_refused("STFMDCK1" + good_.substr(8), "format version 1 (an older stiffmd)");
+  const std::uint32_t two = 2;  // before the Langevin RATTLE state's meaning changed
+  std::memcpy(b.data() + 12, &two, 4);
+  expect_refused(with_crc(b), "format version 2 (an older stiffmd); this stiffmd reads version 3");
 }
 
 TEST_F(BadCheckpoint, ACheckpointOfAnotherSceneIsRefused) {

@@ -309,8 +309,10 @@ Checkpoint read_checkpoint(const std::string& path) {
   const auto version = get_raw<std::uint32_t>(b, 12);
   if (version != kCheckpointVersion)
     fail("checkpoint of format version " + std::to_string(version) +
-         (version > kCheckpointVersion ? " (a newer" : " (an unknown") + " stiffmd); this stiffmd reads version " +
-         std::to_string(kCheckpointVersion));
+         (version > kCheckpointVersion ? " (a newer"
+          : version >= 2               ? " (an older"
+                                       : " (an unknown") +
+         " stiffmd); this stiffmd reads version " + std::to_string(kCheckpointVersion));
   if (bom != kByteOrderMark || get_raw<std::uint32_t>(b, 20) != sizeof(double) || length != b.size())
     fail("malformed checkpoint header (byte order, double size or length)");
 
