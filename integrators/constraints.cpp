@@ -37,6 +37,7 @@
 #include <map>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "engine/core/errors.hpp"
@@ -64,6 +65,29 @@ constexpr double kSingularPivot = 1e-13;
 // Open chains of one length whose solves run in lockstep (Impl::for_each_group): enough
 // independent recurrences to hide the latency of each chain's multiply–subtract and division.
 constexpr int kChainGroup = 4;
+
+// Calls f(std::integral_constant<int, k>()) for a group of 1 ≤ k ≤ kChainGroup chains (the
+// lockstep templates take the group size as a template argument); nothing for k = 0.
+template <class F>
+void for_group_size(int k, F&& f) {
+  static_assert(kChainGroup == 4, "one case per group size");
+  switch (k) {
+    case 0:
+      return;
+    case 1:
+      f(std::integral_constant<int, 1>());
+      return;
+    case 2:
+      f(std::integral_constant<int, 2>());
+      return;
+    case 3:
+      f(std::integral_constant<int, 3>());
+      return;
+    default:
+      f(std::integral_constant<int, 4>());
+      return;
+  }
+}
 
 // SHAKE iterations allowed inside mollified_force, whose API has no max_iter.
 constexpr int kMollifierMaxIter = 50;
@@ -1000,22 +1024,7 @@ void ConstraintToolbox::Impl::factor_kept_group(int first, int count, const char
   ChainLdlt* chain[kChainGroup];
   bool regular[kChainGroup];
   for (int j = 0; j < k; ++j) chain[j] = data[todo[j]].spd.get();
-  switch (k) {
-    case 0:
-      break;
-    case 1:
-      regular[0] = chain[0]->factorize();
-      break;
-    case 2:
-      ChainLdlt::factorize_group<2>(chain, regular);
-      break;
-    case 3:
-      ChainLdlt::factorize_group<3>(chain, regular);
-      break;
-    default:
-      ChainLdlt::factorize_group<4>(chain, regular);
-      break;
-  }
+  for_group_size(k, [&](auto size) { ChainLdlt::factorize_group<decltype(size)::value>(chain, regular); });
   for (int j = 0; j < k; ++j) chain_s_factored(todo[j], regular[j], what);  // the first singular one throws
   if (failed) std::rethrow_exception(failed);
 }
@@ -1030,22 +1039,7 @@ void ConstraintToolbox::Impl::solve_chains(const int* cs, int k) {
     rhs[j] = data[cs[j]].rhs.data();
     sol[j] = data[cs[j]].sol.data();
   }
-  switch (k) {
-    case 0:
-      return;
-    case 1:
-      chain[0]->solve(rhs[0], sol[0]);
-      return;
-    case 2:
-      ChainLdlt::solve_group<2>(chain, rhs, sol);
-      return;
-    case 3:
-      ChainLdlt::solve_group<3>(chain, rhs, sol);
-      return;
-    default:
-      ChainLdlt::solve_group<4>(chain, rhs, sol);
-      return;
-  }
+  for_group_size(k, [&](auto size) { ChainLdlt::solve_group<decltype(size)::value>(chain, rhs, sol); });
 }
 
 void ConstraintToolbox::Impl::solve_kept_s(int c) {
@@ -1366,22 +1360,7 @@ void ConstraintToolbox::Impl::chain_inverse_band_group(int first, int count) {
     z_off[k++] = d.z_off.data();
     d.band_at = d.factorizations;
   }
-  switch (k) {
-    case 0:
-      break;
-    case 1:
-      ChainLdlt::inverse_band_group<1>(chain, z_diag, z_off);
-      break;
-    case 2:
-      ChainLdlt::inverse_band_group<2>(chain, z_diag, z_off);
-      break;
-    case 3:
-      ChainLdlt::inverse_band_group<3>(chain, z_diag, z_off);
-      break;
-    default:
-      ChainLdlt::inverse_band_group<4>(chain, z_diag, z_off);
-      break;
-  }
+  for_group_size(k, [&](auto size) { ChainLdlt::inverse_band_group<decltype(size)::value>(chain, z_diag, z_off); });
 }
 
 void ConstraintToolbox::inverse_bands(const Eigen::Matrix3Xd& x) {
