@@ -93,9 +93,14 @@ struct Cluster {
   double log_alpha2 = 0.0;  // Σ_b log α_b², the constant that turns log det S into log det A
   double log_det = 0.0;     // log det S at the last evaluation
   // Scratch, sized in the constructor.
-  Eigen::VectorXd diag;                                     // S_kk = 1/m_i + 1/m_j
-  Eigen::VectorXd value;                                    // S on each pair
-  Eigen::VectorXd z_pair;                                   // Z = S⁻¹ on each pair
+  Eigen::VectorXd diag;    // S_kk = 1/m_i + 1/m_j
+  Eigen::VectorXd value;   // S on each pair
+  Eigen::VectorXd z_pair;  // Z = S⁻¹ on each pair
+  // Open chains, at the last evaluation: Z_{k,k+1} (the toolbox's band or z_pair) and the frame
+  // u_b, r_b it was formed in (the toolbox's kept one or this object's measure).
+  const double* z_chain = nullptr;
+  const Eigen::Matrix3Xd* u_chain = nullptr;
+  const Eigen::VectorXd* r_chain = nullptr;
   Eigen::VectorXd pivot, factor, z_diag, z_off, border, y;  // chains and rings
   Eigen::MatrixXd S, Z;                                     // other shapes (and Path::dense)
   Eigen::LLT<Eigen::MatrixXd> llt;
@@ -119,13 +124,15 @@ struct FixmanPotential::Impl {
   Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd inv_mass_in, Path path);
   void measure(const Cluster& c, const Eigen::Matrix3Xd& x);
   void inverse_on_pattern(Cluster& c) const;
-  void gradient(Cluster& c, double kT, const Eigen::Matrix3Xd& u_of, const Eigen::VectorXd& r_of);
-  // log det S of open chain c from the toolbox's factors (use_toolbox), and the band of Z there.
-  ConstraintToolbox::ChainInverseBand inverse_from_toolbox(Cluster& c);
+  // Z on the pattern and log det S of cluster c at x: from the toolbox's factors for open chains
+  // (use_toolbox), else measured and inverted here; for open chains also sets z_chain and its frame.
+  void inverse(Cluster& c, const Eigen::Matrix3Xd& x);
+  // Rings and other shapes: h_b for each bond (gradient), added to the ends (scatter).
+  void gradient(Cluster& c, double kT);
   void scatter(const Cluster& c, Eigen::Matrix3Xd& f) const;
-  // An open chain served by the toolbox: gradient and scatter in one walk along the chain, with
-  // u_b, r_b from the toolbox's kept frame (the same terms as gradient and scatter, in their order).
-  void chain_force(const Cluster& c, const double* z_off, double kT, Eigen::Matrix3Xd& f) const;
+  // Open chains: the same terms in one walk along the chain, added to f as they are formed.
+  void chain_force(const Cluster& c, double kT, Eigen::Matrix3Xd& f) const;
+  void add_cluster_force(Cluster& c, double kT, Eigen::Matrix3Xd& f);
   // Adds −∇U_F(x) to f, returns U_F (force's work, without its clearing of f).
   double add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
 
@@ -289,38 +296,60 @@ void FixmanPotential::Impl::inverse_on_pattern(Cluster& c) const {
   for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) c.z_pair[p] = c.Z(c.pairs[p].k, c.pairs[p].l);
 }
 
-// h_b = P_b t_b / r_b, t_b = kT Σ_c Z_bc w_bc u_c (the header comment), into h; u_b and r_b from
-// u_of, r_of (this object's measure, or the toolbox's kept frame).
-void FixmanPotential::Impl::gradient(Cluster& c, double kT, const Eigen::Matrix3Xd& u_of, const Eigen::VectorXd& r_of) {
+// h_b = P_b t_b / r_b, t_b = kT Σ_c Z_bc w_bc u_c (the header comment), into h.
+void FixmanPotential::Impl::gradient(Cluster& c, double kT) {
   for (int b : c.bonds) h.col(b).setZero();
   for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p) {
     const int bk = c.bonds[c.pairs[p].k], bl = c.bonds[c.pairs[p].l];
     const double gamma = kT * c.z_pair[p] * c.pairs[p].weight;
-    h.col(bk) += gamma * u_of.col(bl);  // t_b, projected below
-    h.col(bl) += gamma * u_of.col(bk);
+    h.col(bk) += gamma * u.col(bl);  // t_b, projected below
+    h.col(bl) += gamma * u.col(bk);
   }
   for (int b : c.bonds) {
     const Eigen::Vector3d t = h.col(b);
-    h.col(b) = (t - u_of.col(b) * u_of.col(b).dot(t)) / r_of[b];
+    h.col(b) = (t - u.col(b) * u.col(b).dot(t)) / r[b];
   }
 }
 
-ConstraintToolbox::ChainInverseBand FixmanPotential::Impl::inverse_from_toolbox(Cluster& c) {
-  // A chain's pairs are (k, k + 1) in order: Z on them is the band's off-diagonal. log det S =
-  // −Σ log(1/pivot) (banked as for the pivots).
-  const ConstraintToolbox::ChainInverseBand band = toolbox->chain_inverse_band(c.index);
-  c.log_det = -sum_of_logs(band.inverse_pivots, band.n);
-  return band;
+void FixmanPotential::Impl::inverse(Cluster& c, const Eigen::Matrix3Xd& x) {
+  if (toolbox && c.shape == ClusterShape::chain) {
+    // A chain's pairs are (k, k + 1) in order: Z on them is the band's off-diagonal. log det S =
+    // −Σ log(1/pivot) (banked as for the pivots).
+    const ConstraintToolbox::ChainInverseBand band = toolbox->chain_inverse_band(c.index);
+    c.log_det = -sum_of_logs(band.inverse_pivots, band.n);
+    c.z_chain = band.z_off;
+    c.u_chain = &toolbox->kept_directions();
+    c.r_chain = &toolbox->kept_lengths();
+    return;
+  }
+  measure(c, x);
+  for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
+    c.value[p] = c.pairs[p].weight * u.col(c.bonds[c.pairs[p].k]).dot(u.col(c.bonds[c.pairs[p].l]));
+  inverse_on_pattern(c);
+  c.z_chain = c.z_pair.data();
+  c.u_chain = &u;
+  c.r_chain = &r;
+}
+
+void FixmanPotential::Impl::add_cluster_force(Cluster& c, double kT, Eigen::Matrix3Xd& f) {
+  if (c.shape == ClusterShape::chain) {
+    chain_force(c, kT, f);
+  } else {
+    gradient(c, kT);
+    scatter(c, f);
+  }
 }
 
 // h_k = P_k t_k / r_k with t_k = kT (Z_{k−1,k} w_{k−1,k} u_{k−1} + Z_{k,k+1} w_{k,k+1} u_{k+1}) (the
 // file's top comment), added to bond k's ends as it is formed: one pass over the chain's bonds, no
-// h stored. Each particle receives its bonds' terms in bond order, as scatter adds them.
-void FixmanPotential::Impl::chain_force(const Cluster& c, const double* z_off, double kT, Eigen::Matrix3Xd& f) const {
+// h stored. Each particle receives its bonds' terms in bond order, as scatter adds them. Z and the
+// frame are those inverse() left (z_chain, u_chain, r_chain).
+void FixmanPotential::Impl::chain_force(const Cluster& c, double kT, Eigen::Matrix3Xd& f) const {
   const int n = static_cast<int>(c.bonds.size());
   const int* bond = c.bonds.data();
-  const double* u = toolbox->kept_directions().data();
-  const double* r = toolbox->kept_lengths().data();
+  const double* z_off = c.z_chain;
+  const double* u = c.u_chain->data();
+  const double* r = c.r_chain->data();
   double* out = f.data();
   double before = 0.0;  // γ_{k−1} = kT Z_{k−1,k} w_{k−1,k}; 0 at the first bond
   for (int k = 0; k < n; ++k) {
@@ -406,30 +435,16 @@ double FixmanPotential::add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::M
 
 double FixmanPotential::Impl::add_force(const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
   // The toolbox's factors of S at x and the band of S⁻¹, open chains of one length in lockstep
-  // (one chain's sweep is latency-bound): chain_inverse_band below then finds them.
+  // (one chain's sweep is latency-bound): inverse() below then finds them.
   if (toolbox) toolbox->inverse_bands(x);
   for_each_cluster([&](int ci) {
     Cluster& c = clusters[ci];
-    if (toolbox && c.shape == ClusterShape::chain) {
-      const ConstraintToolbox::ChainInverseBand band = inverse_from_toolbox(c);
-      if (!clusters_share_particles) chain_force(c, band.z_off, kT, f);  // each cluster owns its particles
-      return;
-    }
-    measure(c, x);
-    for (int p = 0; p < static_cast<int>(c.pairs.size()); ++p)
-      c.value[p] = c.pairs[p].weight * u.col(c.bonds[c.pairs[p].k]).dot(u.col(c.bonds[c.pairs[p].l]));
-    inverse_on_pattern(c);
-    gradient(c, kT, u, r);
-    if (!clusters_share_particles) scatter(c, f);
+    inverse(c, x);
+    if (!clusters_share_particles) add_cluster_force(c, kT, f);  // each cluster owns its particles
   });
   double log_det = 0.0;
-  for (const Cluster& c : clusters) {
-    if (clusters_share_particles) {  // a shared fixed particle: in cluster order
-      if (toolbox && c.shape == ClusterShape::chain)
-        chain_force(c, toolbox->chain_inverse_band(c.index).z_off, kT, f);  // current: no work
-      else
-        scatter(c, f);
-    }
+  for (Cluster& c : clusters) {
+    if (clusters_share_particles) add_cluster_force(c, kT, f);  // a shared fixed particle: in cluster order
     log_det += c.log_det + c.log_alpha2;
   }
   return 0.5 * kT * log_det;
