@@ -94,29 +94,22 @@ void Rattle::step(State& s, double h) {
     if (!merged_projection_) toolbox_.project_velocity(s.x, s.v, &constraint_force_, 4.0 / h);
   }
   refresh(s.x);
-  if (merged_projection_ && !obabo_) {
-    // Constrained BAOAB's two projections at x_{n+1}, of the chord velocity q and, after the kick
-    // k, of Pq + k, are one: P(Pq + k) = P(q + k) (P linear, P² = P). Their constraint forces,
-    // (4/h) M(Pq − q) + (2/h) M(P(Pq + k) − Pq − k) = M(Pz − z) with z = (4/h) q + (2/h) k =
-    // (2/h)(q + q + k), the velocities before and after the kick: kept, and projected only when
-    // the pressure asks for it (constraint_virial).
-    kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, true);
-    constraint_force_current_ = false;
-    toolbox_.project_velocity(s.x, s.v);
-    return;
-  }
   if (merged_projection_) {
-    // The closing kick's projection and O(½h)'s are one: with w the kicked velocity, P is linear
-    // and P² = P, so P(c·Pw + σξ) = c·Pw + σPξ = P(c·w + σξ) (the O step is v ← c v + σξ, its
-    // noise independent of v, c one number on each cluster: the constructor). One projection after the unprojected O
-    // step gives the same velocities; the constraint force of the kick's projection, M(Pw − w)/(h/2), is formed from w
-    // only when the pressure asks for it (constraint_virial), so w is kept, scaled by 2/h. The O step's projection is
-    // not a constraint force (as the BAOAB O step's is not). The temperature reads these on-step velocities.
-    kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, false);
+    // The closing projections merged into one (P linear, P² = P), and the constraint force kept as
+    // the z of M(Pz − z), projected only when the pressure asks for it (constraint_virial):
+    //  - BAOAB: the chord velocity q's projection and, after the kick k, Pq + k's are one,
+    //    P(Pq + k) = P(q + k); their forces (4/h) M(Pq − q) + (2/h) M(Pk − k) have
+    //    z = (4/h) q + (2/h) k = (2/h)(q + q + k), the velocities before and after the kick.
+    //  - OBABO: the kick's projection and the closing O step's (v ← c v + σξ, its noise
+    //    independent of v, c one number on each cluster: the constructor) are one,
+    //    P(c·Pw + σξ) = P(c·w + σξ) for the kicked w; the kick's force has z = (2/h) w. The O
+    //    step's projection is no constraint force (as BAOAB's is not); the temperature reads
+    //    these on-step velocities.
+    kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, /*with_before=*/!obabo_);
     constraint_force_current_ = false;
-    langevin_->apply(s.v, 0.5 * h, s.step, 1);
+    if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
-    o_step_kinetic_ = s.kinetic_energy();
+    if (obabo_) o_step_kinetic_ = s.kinetic_energy();
     return;
   }
   kick(s.v, s.inv_mass, f_, 0.5 * h);

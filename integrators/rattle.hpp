@@ -61,8 +61,8 @@ class Rattle final : public Integrator {
   // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with BAOAB, plus the last half
   // drift's centrifugal share over h/4: rattle.cpp). With Langevin it is formed here, at the first
   // call after the step, from the velocities the step kept (the step's projections at x_{n+1}
-  // merged into one). Molecules are whole
-  // (unwrapped positions) and F_c sums to zero on each, so Σ_i x_i·F_c,i equals the pairwise virial.
+  // merged into one). Molecules are whole (unwrapped positions) and F_c sums to zero on each, so
+  // Σ_i x_i·F_c,i equals the pairwise virial.
   double constraint_virial(const State& s) override;
   // W (or U_F) at x: the value the step's closing force evaluation computed when x is the state it
   // left (one decomposition per step, shared with the thermo row); computed afresh otherwise (before
