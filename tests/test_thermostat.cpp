@@ -884,42 +884,53 @@ INSTANTIATE_TEST_SUITE_P(Splittings, ConstrainedLangevinSplitting, ::testing::Va
 // trimers (rattle and fixman, whose U_F force reads the toolbox the lazy projection also uses),
 // the virial asked for at some steps only. With a friction that differs within the trimers OBABO's
 // merge is not exact: off by default, and forced on it changes the velocities; BAOAB's still is.
-struct TwoRuns {
-  Scene a, b;
-  std::unique_ptr<Integrator> ia, ib;
+// Two runs a and b of one deck from the same state: a with the closing projections as the
+// integrator chose them, b merged or not as asked; each side on its own thread count.
+struct Comparison {
+  bool b_merged = false;
+  int steps = 150;
+  double h = 0.02;
+  double friction_scale_middle = 1.0;  // every third bead from the second (a trimer's middle one)
+  int a_threads = 1, b_threads = 1;
+};
+struct Differences {
+  double x = 0.0, v = 0.0, kinetic = 0.0, virial = 0.0;  // largest |a − b| (virial: relative)
+  bool a_merged = false;
 };
 
-// Steps a (merged as constructed) and b (merged switched to `b_merged`) from the same state;
-// returns the largest differences of x, v, the temperature estimate and the relative virial.
-Eigen::Vector4d merged_against_written(const std::string& deck, const std::vector<std::string>& o, bool b_merged,
-                                       int steps, double friction_scale_middle, bool* a_merged) {
-  TwoRuns r{load_text(deck, o), load_text(deck, o), nullptr, nullptr};
-  for (Scene* sc : {&r.a, &r.b})
-    for (int i = 1; i < sc->state.size(); i += 3) sc->integrator.thermostat.friction[i] *= friction_scale_middle;
-  r.ia = make_integrator(r.a.integrator, *r.a.forces, r.a.state.inv_mass);
-  r.ib = make_integrator(r.b.integrator, *r.b.forces, r.b.state.inv_mass);
-  *a_merged = dynamic_cast<Rattle&>(*r.ia).merged_projection();
-  dynamic_cast<Rattle&>(*r.ib).set_merged_projection(b_merged);
+Differences merged_against_written(const std::string& deck, const std::vector<std::string>& o, const Comparison& c) {
+  Scene a = load_text(deck, o), b = load_text(deck, o);
+  for (Scene* sc : {&a, &b})
+    for (int i = 1; i < sc->state.size(); i += 3) sc->integrator.thermostat.friction[i] *= c.friction_scale_middle;
+  const int restore = max_threads();
+  auto ia = make_integrator(a.integrator, *a.forces, a.state.inv_mass);
+  auto ib = make_integrator(b.integrator, *b.forces, b.state.inv_mass);
+  Differences d;
+  d.a_merged = dynamic_cast<Rattle&>(*ia).merged_projection();
+  dynamic_cast<Rattle&>(*ib).set_merged_projection(c.b_merged);
   std::ostringstream log;
-  r.ia->prepare(r.a.state, log);
-  r.ib->prepare(r.b.state, log);
-  Eigen::Vector4d worst = Eigen::Vector4d::Zero();
-  for (int k = 0; k < steps; ++k) {
-    r.a.state.step = r.b.state.step = k;
-    r.ia->step(r.a.state, 0.02);
-    r.ib->step(r.b.state, 0.02);
-    worst[0] = std::max(worst[0], (r.a.state.x - r.b.state.x).cwiseAbs().maxCoeff());
-    worst[1] = std::max(worst[1], (r.a.state.v - r.b.state.v).cwiseAbs().maxCoeff());
-    worst[2] = std::max(worst[2],
-                        std::abs(r.ia->kinetic_energy_estimate(r.a.state) - r.ib->kinetic_energy_estimate(r.b.state)));
+  ia->prepare(a.state, log);
+  ib->prepare(b.state, log);
+  for (int k = 0; k < c.steps; ++k) {
+    a.state.step = b.state.step = k;
+    set_max_threads(c.a_threads);
+    ia->step(a.state, c.h);
+    const double ka = ia->kinetic_energy_estimate(a.state);
+    const double wa = k % 7 == 3 ? ia->constraint_virial(a.state) : 0.0;
+    if (k % 7 == 3) EXPECT_EQ(wa, ia->constraint_virial(a.state));  // formed once, then kept
+    set_max_threads(c.b_threads);
+    ib->step(b.state, c.h);
+    d.x = std::max(d.x, (a.state.x - b.state.x).cwiseAbs().maxCoeff());
+    d.v = std::max(d.v, (a.state.v - b.state.v).cwiseAbs().maxCoeff());
+    d.kinetic = std::max(d.kinetic, std::abs(ka - ib->kinetic_energy_estimate(b.state)));
     if (k % 7 == 3) {
-      const double wa = r.ia->constraint_virial(r.a.state), wb = r.ib->constraint_virial(r.b.state);
-      EXPECT_EQ(wa, r.ia->constraint_virial(r.a.state));  // formed once, then kept
-      EXPECT_GT(std::abs(wb), 1.0);                       // the centrifugal force of 120 bonds at kT = 1
-      worst[3] = std::max(worst[3], std::abs(wa - wb) / std::abs(wb));
+      const double wb = ib->constraint_virial(b.state);
+      EXPECT_GT(std::abs(wb), 1.0);  // the constraint forces of ≥ 120 bonds at kT = 1
+      d.virial = std::max(d.virial, std::abs(wa - wb) / std::abs(wb));
     }
   }
-  return worst;
+  set_max_threads(restore);
+  return d;
 }
 
 class MergedProjection : public ::testing::TestWithParam<std::string> {};
@@ -930,28 +941,71 @@ TEST_P(MergedProjection, GivesTheWrittenProjectionsTrajectoryAndPressure) {
   for (const std::string method : {"rattle", "fixman"}) {
     SCOPED_TRACE(method);
     const std::vector<std::string> o = {"integrator.method=" + method, "integrator.h=0.02"};
-    bool merged = false;
-    const Eigen::Vector4d d = merged_against_written(deck, o, false, 150, 1.0, &merged);
-    EXPECT_TRUE(merged);  // one friction everywhere: merged by default
-    EXPECT_LT(d[0], 1e-11);
-    EXPECT_LT(d[1], 1e-10);
-    EXPECT_LT(d[2], 1e-10);
-    EXPECT_LT(d[3], 1e-10);
-    EXPECT_GT(d[1], 0.0);  // two paths, not one
+    const Differences d = merged_against_written(deck, o, {});
+    EXPECT_TRUE(d.a_merged);  // one friction everywhere: merged by default
+    EXPECT_LT(d.x, 1e-11);
+    EXPECT_LT(d.v, 1e-10);
+    EXPECT_LT(d.kinetic, 1e-10);
+    EXPECT_LT(d.virial, 1e-10);
+    EXPECT_GT(d.v, 0.0);  // two paths, not one
 
     // The middle beads with twice the friction.
-    const Eigen::Vector4d e = merged_against_written(deck, o, true, obabo ? 5 : 150, 2.0, &merged);
+    Comparison twice;
+    twice.friction_scale_middle = 2.0;
+    twice.b_merged = true;
+    twice.steps = obabo ? 5 : 150;
+    const Differences e = merged_against_written(deck, o, twice);
     if (obabo) {  // not merged by default; merging anyway is not the same dynamics
-      EXPECT_FALSE(merged);
-      EXPECT_GT(e[1], 1e-6);
+      EXPECT_FALSE(e.a_merged);
+      EXPECT_GT(e.v, 1e-6);
     } else {  // BAOAB's merge has no O step in between: still merged, still the same
-      EXPECT_TRUE(merged);
-      EXPECT_EQ(e[1], 0.0);  // a and b both merged
-      const Eigen::Vector4d w = merged_against_written(deck, o, false, 150, 2.0, &merged);
-      EXPECT_LT(w[1], 1e-10);
-      EXPECT_LT(w[3], 1e-10);
+      EXPECT_TRUE(e.a_merged);
+      EXPECT_EQ(e.v, 0.0);  // a and b both merged
+      twice.b_merged = false;
+      const Differences w = merged_against_written(deck, o, twice);
+      EXPECT_LT(w.v, 1e-10);
+      EXPECT_LT(w.virial, 1e-10);
     }
   }
+}
+
+// The same on a melt above the threads' threshold (4 200 beads, WCA through the neighbour list,
+// periodic), fixman on two threads: merged against written to round-off; and the merged run on one
+// thread against two (the pair sums' order differs with the thread count: round-off, not bits)
+// and on two threads against itself, bit for bit.
+TEST_P(MergedProjection, HoldsOnAMeltWithPairForcesOnTwoThreads) {
+  const std::string deck =
+      "[types.bead]\nmass = 1.0\n[[build]]\nstyle = \"linear-chains\"\ntype = \"bead\"\nchains = 84\nbeads = 50\n"
+      "bond_length = 0.97\nbond_type = \"b\"\ndensity = 0.6\nmin_distance = 0.8\nseed = 3\n"
+      "[velocities]\ntemperature = 1.0\nseed = 4\n"
+      "[forces.bonds]\nstyle = \"stiff-harmonic\"\nlevel = \"fast\"\nepsilon = 0.01\n"
+      "bond_types.b = { length = 0.97, alpha = 1.0 }\n"
+      "[forces.excluded_volume]\nstyle = \"wca\"\nspecial_bonds = [0.0, 1.0]\nskin = 0.3\n"
+      "[prepare]\nproject = true\nrelax_steps = 200\nseed = 6\n" +
+      kLangevin + "splitting = \"" + GetParam() +
+      "\"\n[integrator]\nmethod = \"fixman\"\nh = 0.005\n[run]\nt_end = 1\n";
+  const std::vector<std::string> o;
+  ASSERT_GE(load_text(deck, o).state.size(), kParallelMin);
+  Comparison c;
+  c.steps = 15;
+  c.h = 0.005;
+  c.a_threads = c.b_threads = 2;
+  const Differences written = merged_against_written(deck, o, c);
+  EXPECT_TRUE(written.a_merged);
+  EXPECT_LT(written.x, 1e-11);
+  EXPECT_LT(written.v, 1e-10);
+  EXPECT_LT(written.kinetic, 1e-8);  // of ≈ 6 000: 2e-12 relative
+  EXPECT_LT(written.virial, 1e-10);
+  c.b_merged = true;
+  const Differences same = merged_against_written(deck, o, c);
+  EXPECT_EQ(same.x, 0.0);
+  EXPECT_EQ(same.v, 0.0);
+  EXPECT_EQ(same.virial, 0.0);
+  c.a_threads = 1;
+  const Differences threads = merged_against_written(deck, o, c);
+  EXPECT_LT(threads.x, 1e-11);
+  EXPECT_LT(threads.virial, 1e-10);
+  EXPECT_GT(threads.x, 0.0);  // the thread counts sum the pairs in another order
 }
 
 INSTANTIATE_TEST_SUITE_P(Splittings, MergedProjection, ::testing::Values("baoab", "obabo"));
