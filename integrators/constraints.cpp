@@ -539,7 +539,8 @@ struct ClusterData {
   bool frame_kept = false;
   bool s_factored = false;
   std::int64_t factorizations = 0;  // of S and of SHAKE's and the mollifier's J, for tests
-  // Open chains, for Fixman's potential: the band of S⁻¹ at the kept configuration, formed from
+  // Open chains, for Fixman's potential: the band of S⁻¹ at the kept configuration (z_diag is the
+  // recurrence's own, z_off what chain_inverse_band hands out), formed from
   // the factors of S of factorization number band_at (current while s_factored and no
   // factorization came since: Impl::band_current).
   Eigen::VectorXd z_diag, z_off;
@@ -1376,7 +1377,7 @@ ConstraintToolbox::ChainInverseBand ConstraintToolbox::chain_inverse_band(int c)
   ClusterData& d = impl_->data.at(static_cast<std::size_t>(c));
   if (!d.spd) return {};
   impl_->chain_inverse_band_group(c, 1);
-  return {d.z_diag.data(), d.z_off.data(), d.spd->inverse_pivots(), static_cast<int>(d.bonds.size())};
+  return {d.z_off.data(), d.spd->inverse_pivots(), static_cast<int>(d.bonds.size())};
 }
 
 const std::vector<int>& ConstraintToolbox::cluster_bonds(int c) const {

@@ -74,15 +74,14 @@ class ConstraintToolbox {
   // and, on every open chain, measures and factors S there unless that is done (SHAKE and the
   // projections share the factors) and forms the band of S⁻¹ — chains of one length in lockstep,
   // each with the operations it gets alone. chain_inverse_band(c) then returns, for open chain c,
-  // the band (z_diag: n entries Z_kk, z_off: n − 1 entries Z_{k,k+1}, in the cluster's bond order,
-  // cluster_bonds) and the inverse pivots of S's factorization (n entries, det S = 1 / their
-  // product), forming them first if they are not current at the kept configuration; all null
+  // the off-diagonal of the band (z_off: n − 1 entries Z_{k,k+1}, in the cluster's bond order,
+  // cluster_bonds — all U_F's gradient needs) and the inverse pivots of S's factorization (n
+  // entries, det S = 1 / their product), forming them first if they are not current at the kept configuration; all null
   // when c is not an open chain. Valid until the next call that moves or refactors the kept
   // configuration. Distinct clusters may be served from distinct threads at once. kept_directions
   // and kept_lengths hold u_b and |d_b| at the kept configuration for every bond of a cluster
   // measured since keep. Both throw NumericalError as the factorization does.
   struct ChainInverseBand {
-    const double* z_diag = nullptr;
     const double* z_off = nullptr;
     const double* inverse_pivots = nullptr;
     int n = 0;
