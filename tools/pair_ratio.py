@@ -20,9 +20,11 @@ import json
 import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
+
+from bench_lammps import check_exit, run_measured  # tools/ is the script's directory
+from chain_melt import RunFailed
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -35,13 +37,13 @@ def run(stiffmd, deck, sets, args, work):
     """CPU ms per step of one run."""
     out = os.path.join(work, "run")
     shutil.rmtree(out, ignore_errors=True)
+    os.makedirs(out)
     cmd = [stiffmd, "run", deck, "--no-progress", "-o", out, "--set", "output.checkpoint_every=0",
            "--set", f"integrator.h={args.h!r}", "--set", f"run.t_end={args.h * args.steps!r}"]
     for kv in sets:
         cmd += ["--set", kv]
-    p = subprocess.run(cmd, env=dict(os.environ, OMP_NUM_THREADS=str(args.threads)), capture_output=True, text=True)
-    if p.returncode != 0:
-        raise RuntimeError(f"run failed (exit {p.returncode}): {' '.join(cmd)}\n{p.stderr[-1500:]}")
+    code, _, _ = run_measured(cmd, out, args.threads)
+    check_exit(code, cmd, out, log="stderr.txt")
     with open(os.path.join(out, "summary.json")) as f:
         s = json.load(f)
     return 1e3 * s["cpu_seconds"] / s["steps"]
@@ -77,7 +79,7 @@ def main():
                 a_ms.append(got[0])
                 b_ms.append(got[1])
                 ratios.append(got[1] / got[0])
-        except RuntimeError as e:
+        except RunFailed as e:
             print(f"pair_ratio: {e}", file=sys.stderr)
             return 2
     print(f"A {statistics.median(a_ms):.3f} ms/step, B {statistics.median(b_ms):.3f} ms/step (medians); "
