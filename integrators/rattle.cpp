@@ -1,6 +1,8 @@
 #include "integrators/rattle.hpp"
 
 #include <sstream>
+#include <stdexcept>
+#include <string>
 
 #include "integrators/primitives.hpp"
 
@@ -20,17 +22,16 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       constraint_force_(f_),
       kicked_(f_) {
   if (model_) model_->attach(toolbox_);
-  // OBABO: the O step is v ← C v + Σξ with C = diag(c_i): P(C·Pw + Σξ) = P(C·w + Σξ) needs
-  // C(w − Pw), normal to the manifold, to stay normal, which holds when c_i is one number on the
-  // particles of each cluster (P is the identity off the clusters). Per-type friction scales
-  // (thermostat.scale) can break that: those scenes keep the two projections. Constrained BAOAB
-  // merges its two closing projections whatever the friction (no O step between them: step).
-  if (obabo_) {
-    const Eigen::VectorXd& gamma = langevin_->friction();
-    merged_projection_ = true;
-    for (const ConstraintCluster& c : toolbox_.clusters())
-      for (int p : c.particles) merged_projection_ &= gamma[p] == gamma[c.particles.front()];
-  } else if (langevin_) {
+  // The constrained O step is exact only with one friction on each cluster (thermostat.hpp,
+  // uneven_friction_in_cluster); with it OBABO's closing projections merge too: P(C·Pw + Σξ) =
+  // P(C·w + Σξ) needs C(w − Pw), normal to the manifold, to stay normal. Constrained BAOAB's merge
+  // holds whatever the friction (no O step between the two projections: step).
+  if (langevin_) {
+    if (const auto u = uneven_friction_in_cluster(toolbox_.clusters(), langevin_->inv_mass(), langevin_->friction()))
+      throw std::invalid_argument(
+          "Langevin friction " + std::to_string(langevin_->friction()[u->a]) + " on particle " + std::to_string(u->a) +
+          " and " + std::to_string(langevin_->friction()[u->b]) + " on particle " + std::to_string(u->b) +
+          " of one rigid cluster: the constrained O step keeps the Maxwell law only with one friction per cluster");
     merged_projection_ = true;
   }
 }

@@ -28,6 +28,10 @@
 // of velocity Verlet with an exact O(h) between steps: second order, without BAOAB's exact
 // harmonic configurational law (tests/test_thermostat.cpp: the finite-step variances of both).
 // The temperature reads the on-step velocities (after the last projected O step).
+//
+// Both keep the Maxwell law on the tangent space only with one Langevin friction on each cluster
+// of stiff bonds (integrators/thermostat.hpp, uneven_friction_in_cluster): the constructor
+// refuses per-type frictions that differ inside a cluster.
 #pragma once
 
 #include <memory>
@@ -75,9 +79,8 @@ class Rattle final : public Integrator {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
 
-  // With Langevin: whether the closing projections are merged (rattle.cpp; chosen at
-  // construction), and for tests a switch to either path before the first step — OBABO's merge is
-  // exact only with one friction on each cluster.
+  // With Langevin: whether the closing projections are merged (always: rattle.cpp), and for tests
+  // a switch to the projections as written, before the first step.
   bool merged_projection() const { return merged_projection_; }
   void set_merged_projection(bool on) { merged_projection_ = on && langevin_; }
 
@@ -98,8 +101,8 @@ class Rattle final : public Integrator {
   std::unique_ptr<LangevinNoise> langevin_;
   bool obabo_ = false;  // langevin_ as O(½h) around the RATTLE step instead of constrained BAOAB
   // With Langevin: the closing projections merged (rattle.cpp) — BAOAB's two at x_{n+1}, OBABO's
-  // kick and O-step projections when the friction is one number on each cluster; otherwise as
-  // written.
+  // kick and O-step projections (the friction is one number on each cluster: the constructor
+  // refuses anything else); as written only when a test asks.
   bool merged_projection_ = false;
   Eigen::Matrix3Xd f_, correction_, x_old_, constraint_force_;
   // With Langevin (merged_projection_): z, from which the last step's constraint force is

@@ -5,6 +5,7 @@
 
 #include "engine/core/parallel.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
 
 namespace stiffmd {
@@ -170,6 +171,26 @@ double rescaling_factor_squared(double kinetic, double target_kinetic, int dof, 
 std::unique_ptr<Integrator> with_velocity_rescaling(std::unique_ptr<Integrator> inner,
                                                     const ThermostatSettings& settings, int dof) {
   return std::make_unique<VelocityRescaled>(std::move(inner), settings, dof);
+}
+
+
+std::optional<UnevenFriction> uneven_friction_in_cluster(const std::vector<ConstraintCluster>& clusters,
+                                                         const Eigen::VectorXd& inv_mass,
+                                                         const Eigen::VectorXd& friction) {
+  std::optional<UnevenFriction> first;
+  for (const ConstraintCluster& c : clusters) {
+    int a = -1;  // a fixed particle never moves: its friction has no effect
+    for (int p : c.particles) {
+      if (inv_mass[p] == 0.0) continue;
+      if (a < 0) {
+        a = p;
+      } else if (friction[p] != friction[a] && (!first || a < first->a)) {
+        first = UnevenFriction{a, p, c.particles};
+        break;
+      }
+    }
+  }
+  return first;
 }
 
 }  // namespace stiffmd

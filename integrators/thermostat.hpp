@@ -14,7 +14,9 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string_view>
+#include <vector>
 
 #include "engine/core/state.hpp"
 #include "integrators/ziggurat.hpp"
@@ -49,6 +51,21 @@ std::string_view thermostat_style_name(ThermostatSettings::Style style);
 // noise: its random forces do not sum to zero), less one per rigid constraint.
 int degrees_of_freedom(const Eigen::VectorXd& inv_mass, bool momentum_conserved, int rigid_constraints);
 bool momentum_conserved(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ThermostatSettings& t);
+
+// The constrained O step v ← P(c v + σξ), c = e^{−γh}, keeps the Maxwell law on the tangent space,
+// covariance kT P M⁻¹, only when c is one number on each cluster of stiff bonds: then
+// c² kT PM⁻¹ + (1 − c²) kT PM⁻¹ Pᵀ = kT PM⁻¹ (PM⁻¹ = M⁻¹Pᵀ, P² = P). With c varying inside a cluster
+// the projection mixes the particles' rates and the stationary temperature falls below kT
+// (rigid trimers, masses 1, 1/4, 1, the middle bead's γ four times the ends': T = 0.985 kT). Two mobile particles of one cluster
+// with different frictions, the first such pair in particle order; none when every cluster has one.
+struct UnevenFriction {
+  int a = -1, b = -1;  // particles, a < b, friction[a] != friction[b]
+  std::vector<int> cluster;  // the cluster's particles, ascending
+};
+struct ConstraintCluster;
+std::optional<UnevenFriction> uneven_friction_in_cluster(const std::vector<ConstraintCluster>& clusters,
+                                                         const Eigen::VectorXd& inv_mass,
+                                                         const Eigen::VectorXd& friction);
 
 // Counter-based noise: splitmix64's finaliser (Steele, Lea & Flood 2014) applied to a key made
 // of the counters. Consecutive inputs give independent-looking outputs (BigCrush-clean).
@@ -100,6 +117,7 @@ class LangevinNoise {
   void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
   double temperature() const { return kT_; }
   const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
+  const Eigen::VectorXd& inv_mass() const { return inv_mass_; }
 
  private:
   void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)

@@ -1,8 +1,12 @@
 #include "engine/scene/thermostat_deck.hpp"
 
 #include <cmath>
+#include <sstream>
 
+#include "forcefields/force_field.hpp"
+#include "integrators/constraints.hpp"
 #include "integrators/methods.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 
@@ -20,6 +24,31 @@ namespace stiffmd {
 //                 kick force (LAMMPS's fix nve + fix langevin; velocity-verlet and the impulse family
 //                 only), or as exact O steps of ½h around the Hamiltonian step (OBABO, every
 //                 method; for the constrained ones one SHAKE per step instead of BAOAB's two)
+namespace {
+
+// The constrained O step is exact only with one friction on each rigid cluster
+// (integrators/thermostat.hpp, uneven_friction_in_cluster): a [thermostat.scale] that gives two
+// particles of one cluster different frictions is refused at the key of one of their types.
+void refuse_uneven_friction(DeckTable& scale, const Scene& sc) {
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
+  if (!stiff) return;
+  const auto u = uneven_friction_in_cluster(find_clusters(stiff->bonds, sc.state.inv_mass), sc.state.inv_mass,
+                                            sc.integrator.thermostat.friction);
+  if (!u) return;
+  const std::string& ta = sc.types[sc.particle_type[u->a]].name;
+  const std::string& tb = sc.types[sc.particle_type[u->b]].name;
+  std::ostringstream m;
+  m << "type " << tb << " (particle " << u->b << ") and type " << ta << " (particle " << u->a
+    << ") get different frictions in one rigid cluster (" << u->cluster.size() << " particles, " << u->cluster.front()
+    << ".." << u->cluster.back() << "): method '"
+    << sc.integrator.method
+    << "' keeps the Maxwell law under Langevin only with one friction per cluster; scale every type of a "
+       "cluster alike, or use velocity-verlet or the impulse family";
+  scale.fail(scale.has(tb) ? tb : ta, m.str());
+}
+
+}  // namespace
+
 void read_thermostat(DeckTable& root, Scene& sc) {
   const MethodInfo& method = *find_method(sc.integrator.method);  // read_integrator checked it
   auto t = root.table("thermostat");
@@ -55,7 +84,8 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     if (friction) t->require(*friction >= 0.0 && std::isfinite(*friction), "friction", "expected a friction >= 0");
     const double gamma = sc.units.rate_in(damp ? 1.0 / *damp : *friction);
     std::vector<double> type_scale(sc.types.size(), 1.0);
-    if (auto scale = t->table("scale")) {
+    auto scale = t->table("scale");
+    if (scale) {
       // One key per particle type; finish() names the types when a key is none of them.
       for (size_t k = 0; k < sc.types.size(); ++k)
         if (const auto r = scale->maybe_number(sc.types[k].name)) {
@@ -83,6 +113,7 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     }
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
+    if (method.rigid_constraints && scale) refuse_uneven_friction(*scale, sc);
   } else {
     const double tau = t->number("tau");
     t->require(tau >= 0.0 && std::isfinite(tau), "tau",
