@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <iostream>
 #include <optional>
+#include <sstream>
 
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
@@ -68,6 +69,8 @@ int main(int argc, char** argv) {
     if (restart.empty())  // a restart's state is the checkpoint's
       stiffmd::prepare_scene(scene, std::cerr, quiet || !run->parsed() ? nullptr : &std::cerr);
     if (check->parsed()) {
+      std::ostringstream start_log;  // the method's preparation notes belong to a run's log
+      stiffmd::check_start(scene, start_log);
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       if (!data_path.empty()) {
         stiffmd::write_scene_lammps_data(scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);

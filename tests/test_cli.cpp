@@ -278,6 +278,36 @@ TEST(Cli, OutputIntervalIsInTimeUnitsIndependentOfTheStep) {
   fs::remove_all(dir);
 }
 
+// An interval longer than the run gives the first and the final frame only: a warning at the key,
+// in the deck's time unit, for every output that has one; none for intervals within the run.
+TEST(Cli, AnIntervalLongerThanTheRunWarns) {
+  const fs::path dir = scratch_dir("long_interval");
+  const std::string deck = test::source_path("inputs/double_pendulum.toml");
+  const CliResult r = cli("run " + deck + " --no-progress -q --set run.t_end=0.5 --set output.xyz_interval=100"
+                          " --set output.h5md_interval=0.25 --set output.checkpoint_interval=7 -o " + dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: " + deck + ":"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("output.xyz_interval = 100 is longer than the run (run.t_end = 0.5): only the first and the "
+                       "final frames are written"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("output.checkpoint_interval = 7 is longer than the run (run.t_end = 0.5): no checkpoint "
+                       "before the final one"),
+            std::string::npos)
+      << r.err;
+  EXPECT_EQ(r.err.find("h5md_interval"), std::string::npos) << r.err;
+  EXPECT_EQ(count_lines(slurp(dir / "trajectory.xyz")) / 5, 2);  // two frames of a pendulum (5 lines each)
+  // In real units the interval and the run are in fs.
+  const CliResult real = cli("check " + test::source_path("inputs/trappe_pe.toml") +
+                             " --set run.t_end=40 --set output.thermo_interval=400");
+  ASSERT_EQ(real.code, 0) << real.err;
+  EXPECT_NE(real.err.find("output.thermo_interval = 400 is longer than the run (run.t_end = 40)"), std::string::npos)
+      << real.err;
+  const CliResult fine = cli("check " + deck);
+  EXPECT_EQ(fine.err.find("warning"), std::string::npos) << fine.err;
+  fs::remove_all(dir);
+}
+
 TEST(Cli, NumericalBlowUpGivesExitThreeAndKeepsOutputsReadable) {
   const fs::path dir = scratch_dir("blowup");
   // h far beyond the stability limit of velocity Verlet (h ω/ε < 2).

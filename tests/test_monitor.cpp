@@ -6,7 +6,10 @@
 #include <filesystem>
 #include <fstream>
 
+#include "engine/observe/monitor.hpp"
+#include "engine/observe/observables.hpp"
 #include "engine/run/checkpoint.hpp"
+#include "engine/scene/scene.hpp"
 #include "tests/cli_support.hpp"
 #include "tests/test_support.hpp"
 
@@ -109,6 +112,81 @@ TEST(Monitor, BadSettingsAreInputErrors) {
     EXPECT_NE(r.err.find("deck.toml"), std::string::npos) << r.err;
     EXPECT_NE(r.err.find("monitor"), std::string::npos) << r.err;
   }
+}
+
+// A temperature meant in kelvin in reduced units: the trimers' stiff springs (ε = 0.1, α = 1)
+// vibrate at kT = 300 with rms amplitude ε√kT/α = 1.73 of their length 1; the run finishes with
+// finite numbers, its energy 480 times E(0). The deck warns at load with the likely cause, and the
+// monitor's default bond check alerts (named cause included) and counts it in the thermo. At
+// kT = 1 neither says a word.
+TEST(Monitor, AKelvinTemperatureInReducedUnitsIsNamedAndCaught) {
+  const std::string trimers = source_path("inputs/nvt_trimers.toml");
+  const fs::path out = scratch_dir("monitor_kelvin");
+  const CliResult r = cli("run " + trimers + " -o " + (out / "hot").string() +
+                          " --no-progress -q --set run.t_end=5 --set thermostat.temperature=300");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string cause = "kT = 300 in LJ units (k_B = 1): the stiff bonds vibrate with rms amplitude";
+  EXPECT_NE(r.err.find("warning: " + trimers + ":"), std::string::npos) << r.err;  // at the deck's line
+  EXPECT_NE(r.err.find("thermostat.temperature: " + cause), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("173 % of their length; a temperature in kelvin needs units = \"real\""), std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("warning: monitor: a stiff bond deviates from its rest length by"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("[monitor] bond_deviation = 1) (" + cause), std::string::npos) << r.err;
+  const CsvTable hot = read_csv((out / "hot" / "thermo.csv").string());
+  EXPECT_GE(hot.rows.back()[hot.col("alerts")], 1.0);
+
+  const CliResult quiet = cli("run " + trimers + " -o " + (out / "kT1").string() + " --no-progress -q --set run.t_end=20");
+  ASSERT_EQ(quiet.code, 0) << quiet.err;
+  EXPECT_EQ(quiet.err.find("warning"), std::string::npos) << quiet.err;
+  // Off when asked: bond_deviation = false.
+  const CliResult off = cli("run " + trimers + " -o " + (out / "off").string() +
+                            " --no-progress -q --set run.t_end=5 --set thermostat.temperature=300"
+                            " --set monitor.bond_deviation=false");
+  ASSERT_EQ(off.code, 0) << off.err;
+  EXPECT_EQ(off.err.find("warning: monitor"), std::string::npos) << off.err;
+  fs::remove_all(out);
+}
+
+// The thermostatted run's default checks on rows made by hand: the kinetic temperature is left
+// alone for ten relaxation times (1/γ = 1 here), then compared with the thermostat's (50 %, or six
+// standard deviations of its fluctuation, √(2/dof) = 0.033 for 1 800 dof); the energy against
+// ten times max(|E(0)|, K(0), dof kT/2).
+TEST(Monitor, TemperatureAndEnergyRunawayOfAThermostattedRun) {
+  const Scene sc = load("inputs/nvt_trimers.toml");
+  EXPECT_EQ(sc.monitor.temperature_deviation, MonitorSettings::kDefaultTemperatureDeviation);
+  EXPECT_EQ(sc.monitor.energy_runaway, MonitorSettings::kDefaultEnergyRunaway);
+  EXPECT_EQ(sc.monitor.bond_deviation, MonitorSettings::kDefaultBondDeviation);
+  EXPECT_EQ(sc.monitor.energy_error, MonitorSettings::kOff);  // a bath exchanges energy
+  EXPECT_EQ(sc.monitor.scene.relaxation, 1.0);
+  const Thermo thermo(*sc.forces, sc.state.inv_mass, sc.observables, &sc.topology);
+  const int dof = thermo.degrees_of_freedom();
+  ASSERT_EQ(dof, 1800);
+  const auto col = [&](const char* name) { return static_cast<size_t>(thermo.column(name)); };
+  const double e0 = 1000.0, bath = 0.5 * dof * 1.0;
+  const auto row = [&](double t, double temperature, double total) {
+    std::vector<double> r(thermo.columns().size(), 0.0);
+    r[col("time")] = t;
+    r[col("temperature")] = temperature;
+    r[col("kinetic")] = 0.5 * dof * temperature;
+    r[col("total")] = total;
+    return r;
+  };
+  Monitor m(sc.monitor, thermo, 0.1, false);
+  std::ostringstream log;
+  EXPECT_EQ(m.check(row(0.0, 0.0, e0), e0, log), 0);     // the reference: a cold start
+  EXPECT_EQ(m.check(row(9.9, 0.4, e0), e0, log), 0);     // still relaxing
+  EXPECT_EQ(m.check(row(10.0, 1.2, e0), e0, log), 0);    // within 50 %
+  EXPECT_EQ(m.check(row(10.0, 0.55, e0), e0, log), 0);
+  EXPECT_EQ(log.str(), "");
+  EXPECT_EQ(m.check(row(12.0, 1.6, e0), e0, log), 1);
+  EXPECT_NE(log.str().find("warning: monitor: kinetic temperature 1.6 is 60 % off the thermostat's 1"),
+            std::string::npos)
+      << log.str();
+  EXPECT_EQ(m.check(row(12.0, 0.45, e0), e0, log), 1);
+  // |E − E(0)| against 10 max(|E(0)|, K(0), dof kT/2) = 10 × 1 000: 9 000 is within, 11 000 not.
+  EXPECT_EQ(m.check(row(12.0, 1.0, e0 + 9.0 * e0), e0, log), 0);
+  EXPECT_EQ(m.check(row(12.0, 1.0, e0 - 11.0 * std::max(e0, bath)), e0, log), 1);
+  EXPECT_NE(log.str().find("warning: monitor: energy runaway"), std::string::npos) << log.str();
 }
 
 }  // namespace

@@ -220,7 +220,7 @@ namespace {
 TEST(Pressure, RigidDimerGasIncludesTheConstraintVirial) {
   Scene sc =
       test::load("tests/decks/small_melt.toml", {"build.0.chains=200", "build.0.beads=2", "build.0.density=0.01",
-                                                 "build.0.angle_type=", "forces.bending.angle_types.bend.k=0",
+                                                 "forces.bending.angle_types.bend.k=0",
                                                  "integrator.method=rattle", "integrator.h=0.01", "run.t_end=20",
                                                  "output.thermo_interval=0.5", "prepare.vibrational_temperature=0"});
   const fs::path d = test::scratch_dir("dimers");

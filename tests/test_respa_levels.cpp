@@ -107,8 +107,8 @@ TEST_P(TwoLevels, AreTheImpulseMethodBitForBit) {
     Trimer old_way{GetParam(), 1e-3, 0.02, "micro_steps = 250\n", "fast", "slow", "slow", thermostat};
     Trimer new_way{
         GetParam(), 1e-3,
-        0.02,       "[[integrator.levels]]\nname = \"stiff\"\n[[integrator.levels]]\nname = \"rest\"\nsubsteps = 250\n",
-        "stiff",    "rest",
+        0.02,       "[[integrator.levels]]\nname = \"bonds\"\n[[integrator.levels]]\nname = \"rest\"\nsubsteps = 250\n",
+        "bonds",    "rest",
         "rest",     thermostat};
     Scene a = load_trimer(old_way), b = load_trimer(new_way);
     EXPECT_EQ(a.integrator.micro_steps, b.integrator.micro_steps);

@@ -130,6 +130,30 @@ TEST(Signals, SigintFinishesTheStepWritesACheckpointAndTheRunContinuesExactly) {
   fs::remove_all(d);
 }
 
+// [output] checkpoint_interval is a time, as every output interval: the checkpoint written last
+// before a kill is the one at the first step at or after the last multiple of the interval, in
+// the deck's time unit (fs in real units).
+TEST(Checkpoint, IsWrittenOnItsTimeGrid) {
+  struct Case {
+    std::string deck, settings;
+    int kill_at, expect;  // the step of the kill, the step the checkpoint must hold
+  };
+  const std::string melt = test::source_path("inputs/polymer_melt.toml");
+  for (const Case& c : {Case{melt, " --set output.checkpoint_interval=0.2", 41, 40},   // h = 0.005
+                        Case{melt, " --set output.checkpoint_interval=0.2", 81, 80},
+                        Case{melt, " --set output.checkpoint_interval=0.0101", 43, 41},  // off the step grid: after
+                        Case{test::source_path("inputs/trappe_pe.toml"), " --set output.checkpoint_interval=12", 7, 6}}) {
+    SCOPED_TRACE(c.deck + c.settings + " killed at " + std::to_string(c.kill_at));
+    const fs::path d = test::scratch_dir("checkpoint_grid");
+    const test::CliResult r =
+        cli("run " + c.deck + " -o " + d.string() + " --no-progress -q" + c.settings + " --set output.h5md=\\\"\\\"",
+            "STIFFMD_SIGNAL_AT_STEP=" + std::to_string(c.kill_at) + ":9 ");
+    ASSERT_EQ(r.code, 128 + SIGKILL) << r.err;
+    EXPECT_EQ(read_checkpoint((d / "checkpoint.bin").string()).state.step, c.expect);
+    fs::remove_all(d);
+  }
+}
+
 TEST(Checkpoint, IsNeverHalfWrittenWhenKilled) {
   const fs::path d = test::scratch_dir("kill9");
   // SIGKILL at a delay after the first checkpoint appears (not after a fixed wall time from the
@@ -138,7 +162,7 @@ TEST(Checkpoint, IsNeverHalfWrittenWhenKilled) {
   for (const int after_ms : {0, 30, 80}) {
     fs::remove_all(d);
     const std::string cmd = "exec " + std::string(STIFFMD_EXE) + " run " + deck() + " -o " + d.string() +
-                            " --no-progress --set variables.eps=1e-4 --set output.checkpoint_every=1"
+                            " --no-progress --set variables.eps=1e-4 --set output.checkpoint_interval=1e-12"
                             " --set run.t_end=5 >/dev/null 2>&1";
     const pid_t pid = ::fork();
     ASSERT_GE(pid, 0);

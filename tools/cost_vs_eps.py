@@ -164,7 +164,7 @@ def equilibrated_melt(args, work):
            "--set", "integrator.h=0.005", "--set", f"run.t_end={fmt(args.t_equil)}",
            "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
            "--set", f"thermostat.damp={fmt(DAMP)}", "--set", "thermostat.seed=5", "--set", 'output.xyz=""',
-           "--set", 'output.h5md=""', "--set", "output.checkpoint_every=0",
+           "--set", 'output.h5md=""', "--set", "output.checkpoint_interval=0",
            "--set", f"output.thermo_interval={fmt(args.t_equil)}", "--set", 'output.lammps_data="final.data"']
     p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
     if p.returncode != 0:
@@ -336,7 +336,7 @@ def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_
                               "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
                               "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
                               "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={fmt(args.frame_every)}",
-                              "--set", "output.checkpoint_every=0"], method, run_dir)
+                              "--set", "output.checkpoint_interval=0"], method, run_dir)
         code = 0 if finished_earlier(run_dir, h, steps) else run_measured(cmd, run_dir, 1)[0]
         if code != 0:
             row["status"] = f"failed (exit {code})"
@@ -473,7 +473,7 @@ def stiffmd_on_timing_system(args, deck, run_dir, seed):
     return [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir,
             "--set", 'thermostat.style="langevin"', "--set", f"thermostat.temperature={fmt(KT)}",
             "--set", f"thermostat.damp={fmt(DAMP)}", "--set", f"thermostat.seed={seed}",
-            "--set", "output.checkpoint_every=0"]
+            "--set", "output.checkpoint_interval=0"]
 
 
 def timed_run(args, eps, method, h, n, state, work, repeat):

@@ -38,7 +38,7 @@ def run(stiffmd, deck, sets, args, work):
     out = os.path.join(work, "run")
     shutil.rmtree(out, ignore_errors=True)
     os.makedirs(out)
-    cmd = [stiffmd, "run", deck, "--no-progress", "-o", out, "--set", "output.checkpoint_every=0",
+    cmd = [stiffmd, "run", deck, "--no-progress", "-o", out, "--set", "output.checkpoint_interval=0",
            "--set", f"integrator.h={args.h!r}", "--set", f"run.t_end={args.h * args.steps!r}"]
     for kv in sets:
         cmd += ["--set", kv]

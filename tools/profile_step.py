@@ -59,7 +59,7 @@ def timed(args, method, deck, run_dir):
     """The command of one run under Langevin."""
     cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set", 'thermostat.style="langevin"',
            "--set", "thermostat.temperature=1.0", "--set", "thermostat.damp=1.0", "--set", "thermostat.seed=3",
-           "--set", "output.checkpoint_every=0"]
+           "--set", "output.checkpoint_interval=0"]
     for o in engine_method(method)[1]:
         cmd += ["--set", o]
     return cmd

@@ -3,11 +3,14 @@
 #include <muParser.h>
 
 #include <toml++/toml.h>
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <vector>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
@@ -308,6 +311,11 @@ std::string DeckTable::key_path(std::string_view key) const {
 }
 
 bool DeckTable::has(std::string_view key) const {
+  known_.emplace(key);  // a key the reader asks about is one this table takes
+  return table_->contains(key);
+}
+
+bool DeckTable::has_retired(std::string_view key) const {
   return table_->contains(key);
 }
 
@@ -361,7 +369,7 @@ std::optional<double> DeckTable::maybe_number(std::string_view key) {
 
 double DeckTable::number(std::string_view key) {
   if (auto v = maybe_number(key)) return *v;
-  fail_here("missing required key '" + std::string(key) + "'");
+  missing(key, "missing required key '" + std::string(key) + "'");
 }
 
 double DeckTable::number(std::string_view key, double fallback) {
@@ -378,7 +386,7 @@ std::optional<long> DeckTable::maybe_integer(std::string_view key) {
 
 long DeckTable::integer(std::string_view key) {
   if (auto v = maybe_integer(key)) return *v;
-  fail_here("missing required key '" + std::string(key) + "'");
+  missing(key, "missing required key '" + std::string(key) + "'");
 }
 
 long DeckTable::integer(std::string_view key, long fallback) {
@@ -387,13 +395,23 @@ long DeckTable::integer(std::string_view key, long fallback) {
 
 std::string DeckTable::string(std::string_view key) {
   const toml::node* n = get(key);
-  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  if (!n) missing(key, "missing required key '" + std::string(key) + "'");
   if (!n->is_string()) fail(key, "expected a string, got " + type_word(*n));
   return *n->value<std::string>();
 }
 
 std::string DeckTable::string(std::string_view key, std::string fallback) {
   return has(key) ? string(key) : (known_.emplace(key), std::move(fallback));
+}
+
+std::string DeckTable::name(std::string_view key) {
+  std::string s = string(key);
+  if (s.empty()) fail(key, "expected a non-empty name");
+  return s;
+}
+
+std::string DeckTable::name(std::string_view key, std::string fallback) {
+  return has(key) ? name(key) : (known_.emplace(key), std::move(fallback));
 }
 
 bool DeckTable::boolean(std::string_view key, bool fallback) {
@@ -405,7 +423,7 @@ bool DeckTable::boolean(std::string_view key, bool fallback) {
 
 Eigen::Vector3d DeckTable::vector3(std::string_view key) {
   const toml::node* n = get(key);
-  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  if (!n) missing(key, "missing required key '" + std::string(key) + "'");
   const toml::array* a = n->as_array();
   if (!a) fail(key, "expected an array of 3 numbers, got " + shown(*n));
   if (a->size() != 3) fail(key, "expected an array of 3 numbers, got " + std::to_string(a->size()));
@@ -434,7 +452,7 @@ Eigen::Vector3i DeckTable::bool3(std::string_view key, bool fallback) {
 
 std::vector<long> DeckTable::integers(std::string_view key) {
   const toml::node* n = get(key);
-  if (!n) fail_here("missing required key '" + std::string(key) + "'");
+  if (!n) missing(key, "missing required key '" + std::string(key) + "'");
   const toml::array* a = n->as_array();
   if (!a) fail(key, "expected an array of integers, got " + shown(*n));
   std::vector<long> out;
@@ -481,6 +499,7 @@ std::vector<std::pair<std::string, std::string>> DeckTable::string_map(std::stri
   for (const auto& [k, v] : *t) {
     if (!v.is_string()) fail(key, "expected a name (string) for '" + std::string(k.str()) + "', got " + type_word(v));
     out.emplace_back(std::string(k.str()), *v.value<std::string>());
+    if (out.back().second.empty()) fail(key, "expected a non-empty name for '" + out.back().first + "'");
   }
   return out;
 }
@@ -520,16 +539,69 @@ std::vector<DeckTable> DeckTable::array_of_tables(std::string_view key) {
   return out;
 }
 
+namespace {
+
+// Edit distance with transpositions (optimal string alignment): a typo is one or two of
+// insertions, deletions, substitutions and swaps of neighbours.
+std::size_t typo_distance(std::string_view a, std::string_view b) {
+  std::vector<std::vector<std::size_t>> d(a.size() + 1, std::vector<std::size_t>(b.size() + 1));
+  for (std::size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+  for (std::size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i)
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
+      d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + cost});
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+    }
+  return d[a.size()][b.size()];
+}
+
+// Whether `typed` is plausibly a misspelling of `meant`: at most one edit in five characters
+// (TOML keys are case-sensitive: another case is a misspelling too); keys shorter than four
+// characters only in another case, since one edit of them is often another valid key.
+bool looks_like(std::string_view typed, std::string_view meant) {
+  if (typed.size() < 4 || meant.size() < 4) {  // x, y, h, K, k, r0, R0: one edit is another key
+    if (typed.size() != meant.size() || typed == meant) return false;
+    for (std::size_t i = 0; i < typed.size(); ++i)
+      if (std::tolower(static_cast<unsigned char>(typed[i])) != std::tolower(static_cast<unsigned char>(meant[i])))
+        return false;
+    return true;
+  }
+  const std::size_t limit = std::max<std::size_t>(1, std::max(typed.size(), meant.size()) / 5);
+  return typo_distance(typed, meant) <= limit;
+}
+
+}  // namespace
+
 void DeckTable::finish() const {
   for (const auto& [k, v] : *table_) {
     if (used_.count(k.str())) continue;
-    std::string expected;
-    for (const auto& name : known_) expected += (expected.empty() ? "" : ", ") + name;
+    std::string expected, nearest;
+    std::size_t best = std::string::npos;
+    for (const auto& name : known_) {
+      expected += (expected.empty() ? "" : ", ") + name;
+      const std::size_t d = typo_distance(k.str(), name);
+      if (d < best && looks_like(k.str(), name) && !table_->contains(name)) {
+        best = d;
+        nearest = name;
+      }
+    }
     const std::string kp = key_path(k.str());
-    throw InputError(
-        deck_->location(&v, kp) + ": " + kp + ": unknown key" +
-        (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
+    throw InputError(deck_->location(&v, kp) + ": " + kp + ": unknown key" +
+                     (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +
+                     (expected.empty() ? std::string(" (this table takes no keys)")
+                                       : " (expected one of: " + expected + ")"));
   }
+}
+
+void DeckTable::missing(std::string_view key, const std::string& what) const {
+  for (const auto& [k, v] : *table_)
+    if (!used_.count(k.str()) && looks_like(k.str(), key)) {
+      const std::string kp = key_path(k.str());
+      throw InputError(deck_->location(&v, kp) + ": " + kp + ": unknown key; did you mean '" + std::string(key) +
+                       "'? (" + what + ")");
+    }
+  fail_here(what);
 }
 
 }  // namespace stiffmd

@@ -43,6 +43,8 @@ class DeckTable {
   DeckTable(const Deck* deck, const toml::table* table, std::string path);
 
   bool has(std::string_view key) const;
+  // Whether a key that is no longer read (and is not listed among this table's keys) was given.
+  bool has_retired(std::string_view key) const;
 
   double number(std::string_view key);
   double number(std::string_view key, double fallback);
@@ -52,6 +54,10 @@ class DeckTable {
   std::optional<long> maybe_integer(std::string_view key);
   std::string string(std::string_view key);
   std::string string(std::string_view key, std::string fallback);
+  // A name (a particle, bond, angle or dihedral type, a level, a style): a non-empty string. An
+  // empty name would select nothing and let a term apply to no particle without a word.
+  std::string name(std::string_view key);
+  std::string name(std::string_view key, std::string fallback);
   bool boolean(std::string_view key, bool fallback);
   Eigen::Vector3d vector3(std::string_view key);
   Eigen::Vector3d vector3(std::string_view key, const Eigen::Vector3d& fallback);
@@ -81,8 +87,12 @@ class DeckTable {
     if (!ok) fail(key, what);
   }
 
-  // Rejects every key that was never asked for, listing the ones this table accepts.
+  // Rejects every key that was never asked for, listing the ones this table accepts (and the one
+  // a misspelled key most likely means).
   void finish() const;
+  // A required key (or table) `key` is absent: fails at a key of this table that looks like a
+  // misspelling of it ("did you mean"), else at the table, with `what`.
+  [[noreturn]] void missing(std::string_view key, const std::string& what) const;
 
   const std::string& path() const { return path_; }
   std::string key_path(std::string_view key) const;
@@ -95,7 +105,7 @@ class DeckTable {
   const toml::table* table_;
   std::string path_;
   std::set<std::string, std::less<>> used_;
-  std::set<std::string, std::less<>> known_;
+  mutable std::set<std::string, std::less<>> known_;  // every key asked for, present or not
 };
 
 class Deck {

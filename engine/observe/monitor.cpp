@@ -14,7 +14,8 @@ namespace stiffmd {
 constexpr double kViolationFloor = 1e-8;  // length units
 
 bool MonitorSettings::active() const {
-  return energy_error < kOff || violation < kOff || violation_growth < kOff || action_drift < kOff || validity;
+  return energy_error < kOff || violation < kOff || violation_growth < kOff || action_drift < kOff || validity ||
+         bond_deviation < kOff || temperature_deviation < kOff || energy_runaway < kOff;
 }
 
 MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
@@ -31,22 +32,33 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   };
   const char* no_bonds = scene.stiff_bonds ? "" : "constraint-defining stiff bonds (a stiff-harmonic term)";
   const char* no_actions = scene.actions ? "" : "the actions observed ([observables] actions = true)";
-  if (t->has("energy_error")) {
-    // A number (0 switches the check off) or a boolean (false: off; true: the default).
-    m.energy_error_given = true;
+  // A check that is on by default where it applies: a number (0 switches it off) or a boolean
+  // (false: off; true: the default).
+  auto switchable = [&](const char* key, double fallback, double& into, bool& given, const char* needs) {
+    if (!t->has(key)) return;
+    given = true;
     std::optional<bool> flag;
     try {
-      flag = t->boolean("energy_error", true);
+      flag = t->boolean(key, true);
     } catch (const InputError&) {  // not a boolean: a number
     }
     if (flag) {
-      m.energy_error = *flag ? MonitorSettings::kDefaultEnergyError : MonitorSettings::kOff;
+      into = *flag ? fallback : MonitorSettings::kOff;
     } else {
-      const double v = t->number("energy_error");
-      t->require(std::isfinite(v) && v >= 0.0, "energy_error", "expected a threshold >= 0 (0 or false: off)");
-      m.energy_error = v > 0.0 ? v : MonitorSettings::kOff;
+      const double v = t->number(key);
+      t->require(std::isfinite(v) && v >= 0.0, key, "expected a threshold >= 0 (0 or false: off)");
+      into = v > 0.0 ? v : MonitorSettings::kOff;
     }
-  }
+    if (into < MonitorSettings::kOff && *needs) t->fail(key, std::string("this check could never fire: it needs ") + needs);
+  };
+  const char* no_thermostat = scene.thermostat ? "" : "a [thermostat]";
+  switchable("energy_error", MonitorSettings::kDefaultEnergyError, m.energy_error, m.energy_error_given, "");
+  switchable("bond_deviation", MonitorSettings::kDefaultBondDeviation, m.bond_deviation, m.bond_deviation_given,
+             no_bonds);
+  switchable("temperature_deviation", MonitorSettings::kDefaultTemperatureDeviation, m.temperature_deviation,
+             m.temperature_deviation_given, no_thermostat);
+  switchable("energy_runaway", MonitorSettings::kDefaultEnergyRunaway, m.energy_runaway, m.energy_runaway_given,
+             no_thermostat);
   threshold("violation", m.violation, no_bonds);
   threshold("violation_growth", m.violation_growth, no_bonds);
   threshold("action_drift", m.action_drift, no_actions);
@@ -62,8 +74,16 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   return m;
 }
 
-void apply_energy_default(MonitorSettings& m, bool conserves_energy) {
-  if (!m.energy_error_given && conserves_energy) m.energy_error = MonitorSettings::kDefaultEnergyError;
+void apply_defaults(MonitorSettings& m, const MonitorScene& scene) {
+  m.scene = scene;
+  if (!m.energy_error_given && scene.conserves_energy) m.energy_error = MonitorSettings::kDefaultEnergyError;
+  if (!m.bond_deviation_given && scene.min_bond_length > 0.0) m.bond_deviation = MonitorSettings::kDefaultBondDeviation;
+  if (scene.kT > 0.0) {
+    if (!m.temperature_deviation_given) m.temperature_deviation = MonitorSettings::kDefaultTemperatureDeviation;
+    if (!m.energy_runaway_given) m.energy_runaway = MonitorSettings::kDefaultEnergyRunaway;
+  } else {  // no bath to compare with (kT = 0: a quench)
+    m.temperature_deviation = m.energy_runaway = MonitorSettings::kOff;
+  }
 }
 
 Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double epsilon, bool effective)
@@ -75,8 +95,12 @@ Monitor::Monitor(const MonitorSettings& settings, const Thermo& thermo, double e
       col_violation_(thermo.column("max_violation")),
       col_gap_(thermo.column("min_gap")),
       col_resonance_(thermo.column("min_resonance")),
+      col_temperature_(thermo.column("temperature")),
       sqrt_eps_(epsilon > 0.0 && effective ? std::sqrt(epsilon) : 0.0),
-      warned_(5, 0) {
+      warned_(8, 0) {
+  const int dof = std::max(1, thermo.degrees_of_freedom());
+  temperature_band_ = std::max(settings.temperature_deviation, 6.0 * std::sqrt(2.0 / dof));
+  bath_energy_ = 0.5 * dof * settings.scene.kT;
   for (int k = 1; thermo.column("action_" + std::to_string(k)) >= 0; ++k)
     col_actions_.push_back(thermo.column("action_" + std::to_string(k)));
 }
@@ -116,7 +140,36 @@ int Monitor::check(const std::vector<double>& row, double initial_energy, std::o
     alert(0, w.str());
     w.str("");
   }
+  const MonitorScene& sc = settings_.scene;
+  const std::string cause = sc.likely_cause.empty() ? "" : " (" + sc.likely_cause + ")";
+  if (settings_.energy_runaway < MonitorSettings::kOff) {
+    const double energy_scale = std::max({std::abs(initial_energy), kinetic0_, bath_energy_});
+    const double grown = std::abs(e - initial_energy) / energy_scale;
+    if (over(grown, settings_.energy_runaway)) {
+      w << "energy runaway: |E - E(0)| = " << grown << " x max(|E(0)|, K(0), dof kT/2) > [monitor] energy_runaway = "
+        << settings_.energy_runaway << cause;
+      alert(6, w.str());
+      w.str("");
+    }
+  }
+  if (settings_.temperature_deviation < MonitorSettings::kOff && row[col_time_] > 0.0 &&
+      row[col_time_] >= 10.0 * sc.relaxation) {
+    const double temperature = row[col_temperature_], off = std::abs(temperature / sc.kT - 1.0);
+    if (over(off, temperature_band_)) {
+      w << "kinetic temperature " << temperature << " is " << off * 100.0 << " % off the thermostat's " << sc.kT
+        << " after ten relaxation times (> [monitor] temperature_deviation = " << temperature_band_ << ")" << cause;
+      alert(5, w.str());
+      w.str("");
+    }
+  }
   const double g = row[col_violation_];
+  if (settings_.bond_deviation < MonitorSettings::kOff &&
+      over(g, settings_.bond_deviation * sc.min_bond_length)) {
+    w << "a stiff bond deviates from its rest length by " << g << ", " << g / sc.min_bond_length * 100.0
+      << " % of the shortest rest length (> [monitor] bond_deviation = " << settings_.bond_deviation << ")" << cause;
+    alert(4, w.str());
+    w.str("");
+  }
   if (settings_.violation < MonitorSettings::kOff && over(g, settings_.violation)) {
     w << "constraint violation max|g| = " << g << " > [monitor] violation = " << settings_.violation;
     alert(1, w.str());

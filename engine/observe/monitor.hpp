@@ -17,6 +17,17 @@ namespace stiffmd {
 class DeckTable;
 class Thermo;
 
+// What the defaults and the temperature check need to know of the scene (engine units).
+struct MonitorScene {
+  bool conserves_energy = true;  // no thermostat
+  double min_bond_length = 0.0;  // of the stiff bonds; 0: none
+  double kT = 0.0;               // the thermostat's; 0: none
+  double relaxation = 0.0;       // the thermostat's slowest relaxation time (1/γ, or csvr's tau)
+  // Appended to a bond-deviation or temperature alert: what most likely made the run leave its
+  // model (load_scene: e.g. a temperature in kelvin in reduced units).
+  std::string likely_cause;
+};
+
 struct MonitorSettings {
   static constexpr double kOff = std::numeric_limits<double>::infinity();
   // The energy check every energy-conserving run gets unless its deck says otherwise. The error is
@@ -29,31 +40,56 @@ struct MonitorSettings {
   static constexpr double kDefaultEnergyError = 0.01;
   double energy_error = kOff;       // see kDefaultEnergyError; kOff: no energy check
   bool energy_error_given = false;  // the deck set energy_error (a number, 0 or false = off)
+
+  // The checks that catch a run which has left its model without a non-finite number (a
+  // temperature in kelvin in reduced units, a step the thermostat cannot hold). Each is on by
+  // default where it applies (apply_defaults), and off with 0 or false.
+  // A stiff bond deviating from its rest length by more than this fraction of it, max_b |g_b| >
+  // f min_b ℓ_b, is no longer a stiff bond. The loosest bundled deck, inputs/nvt_trimers.toml
+  // (rms vibration ε√kT/α = 0.1 ℓ), reaches 0.44 ℓ over its 400 bonds and 100 samples (4.4
+  // standard deviations); a bond as long again as its rest length, or collapsed, is 10.
+  static constexpr double kDefaultBondDeviation = 1.0;
+  double bond_deviation = kOff;
+  bool bond_deviation_given = false;
+  // Thermostatted runs, once the bath has had ten relaxation times: the kinetic temperature
+  // further from the thermostat's than this fraction of it, or than six standard deviations of
+  // its equilibrium fluctuation (√(2/dof) relative), whichever is larger.
+  static constexpr double kDefaultTemperatureDeviation = 0.5;
+  double temperature_deviation = kOff;
+  bool temperature_deviation_given = false;
+  // Thermostatted runs: |E − E(0)| beyond this many times max(|E(0)|, K(0), dof kT/2), the energy
+  // scale of the start and of the bath (NVE runs have energy_error).
+  static constexpr double kDefaultEnergyRunaway = 10.0;
+  double energy_runaway = kOff;
+  bool energy_runaway_given = false;
   double violation = kOff;          // max_b |g_b(x)|, in length units
   double violation_growth = kOff;   // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
   double action_drift = kOff;       // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
   bool validity = true;             // effective: min frequency gap or resonance < √ε (observables.actions)
   bool stop = false;                // on_alert = "stop" (else "warn")
+  MonitorScene scene;               // apply_defaults
 
   bool active() const;  // any check configured
 };
 
 // What the scene observes, so that a check that could never fire is refused rather than silent.
 struct MonitorContext {
-  bool stiff_bonds = false;  // a constraint-defining term: violation, violation_growth
+  bool stiff_bonds = false;  // a constraint-defining term: violation, violation_growth, bond_deviation
   bool actions = false;      // [observables] actions = true: action_drift, validity
+  bool thermostat = false;   // a [thermostat]: temperature_deviation, energy_runaway
 };
+
 
 // Reads [monitor] (absent: the defaults, validity only; energy_error is set by
 // apply_energy_default). Throws InputError at the key of a check
 // the scene cannot evaluate (action_drift without observed actions, violation without stiff bonds).
 MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene);
 
-// The default energy check (kDefaultEnergyError) for a run whose energy should be conserved, when the
-// deck did not set energy_error. A thermostatted run exchanges energy with its bath by design:
-// call with conserves_energy = false there (load_scene decides; the run is NVE unless a thermostat
-// is configured).
-void apply_energy_default(MonitorSettings& m, bool conserves_energy);
+// The defaults of the checks the deck did not set, where they apply: the energy check
+// (kDefaultEnergyError) for a run whose energy should be conserved (a thermostatted run exchanges
+// energy with its bath by design), the bond deviation with stiff bonds, the temperature and the
+// energy runaway with a thermostat at kT > 0. Keeps the scene's facts for Monitor.
+void apply_defaults(MonitorSettings& m, const MonitorScene& scene);
 
 class Monitor {
  public:
@@ -74,7 +110,9 @@ class Monitor {
 
  private:
   MonitorSettings settings_;
-  int col_step_, col_time_, col_total_, col_kinetic_, col_violation_, col_gap_, col_resonance_;
+  int col_step_, col_time_, col_total_, col_kinetic_, col_violation_, col_gap_, col_resonance_, col_temperature_;
+  double temperature_band_ = 0.0;  // relative: max(temperature_deviation, 6 √(2/dof))
+  double bath_energy_ = 0.0;       // dof kT / 2
   std::vector<int> col_actions_;
   double sqrt_eps_;
   bool have_reference_ = false;

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include "engine/core/errors.hpp"
@@ -57,6 +58,15 @@ std::int64_t steps_to(double span, double h) {
   return static_cast<std::int64_t>(std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r));
 }
 
+// The observables as the run counts them: the rigid constraints of the constrained methods take
+// one degree of freedom each.
+ObservableSettings run_observables(const Scene& sc) {
+  ObservableSettings observables = sc.observables;
+  if (find_method(sc.integrator.method)->rigid_constraints)
+    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  return observables;
+}
+
 }  // namespace
 
 void check_finite(const State& s) {
@@ -92,6 +102,22 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
   check_finite(s);
 }
 
+void check_start(Scene& sc, std::ostream& log) {
+  const State initial = sc.state;
+  std::unique_ptr<Integrator> integrator = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  Thermo thermo(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology);
+  integrator->prepare(sc.state, log);
+  try {
+    check_finite(sc.state);
+    thermo.sample(sc.state, integrator->model_potential(sc.state.x), integrator->constraint_virial(sc.state),
+                  integrator->kinetic_energy_estimate(sc.state));
+  } catch (...) {
+    sc.state = initial;
+    throw;
+  }
+  sc.state = initial;
+}
+
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   RunSummary summary;
   summary.method = sc.integrator.method;
@@ -116,11 +142,8 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       refuse(e.what());
     }
   }
-  ObservableSettings observables = sc.observables;
   const MethodInfo& method = *find_method(sc.integrator.method);  // load_scene checked the name
-  if (method.rigid_constraints)
-    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
-  Thermo thermo(*sc.forces, sc.state.inv_mass, observables, &sc.topology);
+  Thermo thermo(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology);
   Monitor monitor(sc.monitor, thermo, summary.epsilon, method.effective);
   // Run statistics carried by checkpoints, so that a restarted run's summary is the whole run's:
   // max |E − E(0)|, force evaluations of the outermost and innermost level and neighbour-list
@@ -146,8 +169,6 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     summary.initial_actions.assign(r.begin() + 4 + levels_between, r.end());
   }
 
-  prepare_output_directory(sc, opt.out_dir);
-
   State& s = sc.state;
   if (restarting)
     restore(sc, *integrator, resumed, opt.restart, log);
@@ -161,6 +182,33 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   const bool new_h = restarting && s.t != static_cast<double>(s.step) * sc.integrator.h;
   const double t0 = new_h ? s.t : 0.0;
   const std::int64_t k0 = new_h ? s.step : 0;
+  const int first_action = thermo.column("action_1");
+  const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
+  sc.forces->reset_counters();
+  // The list is built before the run (relaxation, first force); on restart its count comes from
+  // the checkpoint, of which rebuilds_in_run happened in the run so far.
+  long rebuilds_before = -rebuilds_in_run;
+  for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
+  auto rebuilds_now = [&] {
+    long r = 0;
+    for (const auto& term : sc.forces->terms()) r += term->neighbor_list_rebuilds();
+    return r - rebuilds_before;
+  };
+  check_finite(s);
+  if (!restarting) {
+    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s),
+                                    integrator->kinetic_energy_estimate(s));  // E(0) and the initial actions
+    if (first_action >= 0)
+      summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
+  }
+  // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
+  // an extra evaluation would move the neighbour list on where the interrupted run did not.
+  for (const auto& note : thermo.take_notes()) log << note << "\n";
+  // Everything above can fail on the initial state (the method's preparation, the first force
+  // evaluation: exit 3, or 2 for a foreign checkpoint) before any output is touched; the files
+  // are opened only now.
+  prepare_output_directory(sc, opt.out_dir);
+
   // Outputs: fresh files, or on restart the same files cut back to the step before the
   // checkpoint, t_{k−1}; the frame at t_k is written again below if the uninterrupted run would
   // have written one. So the files end up exactly as an uninterrupted run's (without the
@@ -176,23 +224,11 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   // Thermo columns by name (Thermo::columns), looked up once.
   const int col_total = thermo.column("total"), col_drift = thermo.column("energy_drift"),
             col_violation = thermo.column("max_violation"), col_alerts = thermo.column("alerts");
-  const int first_action = thermo.column("action_1");
-  const int num_actions = thermo.modes() ? thermo.modes()->num_modes() : 0;
 
   const std::int64_t n = k0 + steps_to(sc.run.t_end - t0, sc.integrator.h);
   const std::int64_t first = s.step + 1;
   Progress progress(opt.progress, n - s.step);
   const double h = sc.integrator.h;
-  sc.forces->reset_counters();
-  // The list is built before the run (relaxation, first force); on restart its count comes from
-  // the checkpoint, of which rebuilds_in_run happened in the run so far.
-  long rebuilds_before = -rebuilds_in_run;
-  for (const auto& term : sc.forces->terms()) rebuilds_before += term->neighbor_list_rebuilds();
-  auto rebuilds_now = [&] {
-    long r = 0;
-    for (const auto& term : sc.forces->terms()) r += term->neighbor_list_rebuilds();
-    return r - rebuilds_before;
-  };
 
   const std::uint64_t fingerprint = scene_fingerprint(sc);
   // Everything but the state that a restart needs (checkpoint.hpp), as of now.
@@ -262,21 +298,18 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     }
   };
 
-  check_finite(s);
-  if (!restarting) {
-    const auto& row = thermo.sample(s, integrator->model_potential(s.x), integrator->constraint_virial(s),
-                                    integrator->kinetic_energy_estimate(s));  // E(0) and the initial actions
-    if (first_action >= 0)
-      summary.initial_actions.assign(row.begin() + first_action, row.begin() + first_action + num_actions);
-  }
-  // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
-  // an extra evaluation would move the neighbour list on where the interrupted run did not.
-  for (const auto& note : thermo.take_notes()) log << note << "\n";
   observe();
   summary.initial_energy = thermo.initial_energy();
 
   // Steps are numbered from the start of the run (k = step), so a restart continues the same
   // sequence of times t_k = k h exactly (t0 + (k − k0) h after a change of h).
+  // Periodic checkpoints on their time grid ([output] checkpoint_interval), from the start's time
+  // on: the first at or after the first multiple of the interval.
+  std::optional<IntervalSchedule> checkpoint_due;
+  if (sc.output.checkpoint_interval > 0.0) {
+    checkpoint_due.emplace(sc.output.checkpoint_interval);
+    checkpoint_due->served_until(s.t);
+  }
   install_stop_handlers();
   const SignalAtStep signal_at = SignalAtStep::from_environment();  // tests: a signal at an exact step
   const auto start = std::chrono::steady_clock::now();
@@ -290,7 +323,7 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
       summary.stopped_by_signal = sig;
       break;
     }
-    if (sc.output.checkpoint_every > 0 && k % sc.output.checkpoint_every == 0) checkpoint();
+    if (checkpoint_due && checkpoint_due->due(s.t)) checkpoint();
     progress.update(k - first + 1);
   }
   summary.cpu_seconds = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;

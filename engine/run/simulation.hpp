@@ -56,6 +56,13 @@ struct RunSummary {
 // outputs written up to the last good frame stay readable.
 RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
 
+// What `check` asks of a scene beyond load_scene and [prepare]: the run's start on a copy of its
+// state — the method's preparation (projection onto the constraints, actions), a finite state and
+// the first sample of the observables with its force evaluation — so that `check` fails where
+// `run` would fail before its first step (NumericalError, exit 3). The scene's state is left as
+// it was.
+void check_start(Scene& scene, std::ostream& log);
+
 // Throws NumericalError naming the first particle with a non-finite position or velocity, and
 // the step and time, if there is one.
 void check_finite(const State& s);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <set>
 #include <sstream>
 
@@ -65,7 +66,7 @@ void read_box(DeckTable& root, Scene& sc) {
 
 void read_types(DeckTable& root, Scene& sc) {
   auto t = root.table("types");
-  if (!t) root.fail_here("missing required table [types.NAME] (mass, element)");
+  if (!t) root.missing("types", "missing required table [types.NAME] (mass, element)");
   size_t unnamed = 0;
   for (auto& [name, tt] : t->named_tables()) {
     ParticleType pt;
@@ -84,7 +85,7 @@ void read_types(DeckTable& root, Scene& sc) {
 
 void read_particles(DeckTable& root, Scene& sc) {
   for (DeckTable& p : root.array_of_tables("particles")) {
-    std::string type_name = p.string("type", sc.types.size() == 1 ? sc.types[0].name : "");
+    std::string type_name = p.name("type", sc.types.size() == 1 ? sc.types[0].name : "");
     if (type_name.empty()) p.fail_here("missing required key 'type' (the deck defines several [types])");
     const int type = particle_type_index(sc, p, "type", type_name);
     const double mass = p.number("mass", sc.types[type].mass);
@@ -136,7 +137,7 @@ void read_bonds(DeckTable& root, Scene& sc) {
     if (!seen.insert(key).second)
       b.fail("particles",
              "duplicate bond between particles " + std::to_string(key.first) + " and " + std::to_string(key.second));
-    const std::string type = b.string("type");
+    const std::string type = b.name("type");
     const int t = Topology::intern(sc.topology.bond_types, type);
     if ((sc.state.x.col(ij[0]) - sc.state.x.col(ij[1])).norm() == 0.0)
       b.fail("particles", "the two particles of this bond sit at the same position (zero-length bond)");
@@ -156,8 +157,7 @@ void read_levels(DeckTable& root, Scene& sc) {
   double product = 1.0;
   for (size_t k = 0; k < rows.size(); ++k) {
     DeckTable& r = rows[k];
-    LevelSettings level{r.string("name"), 1};
-    r.require(!level.name.empty(), "name", "expected a non-empty level name");
+    LevelSettings level{r.name("name"), 1};
     for (const LevelSettings& l : sc.integrator.levels)
       r.require(l.name != level.name, "name", "level \"" + level.name + "\" is given twice");
     if (k == 0) {
@@ -177,6 +177,17 @@ void read_levels(DeckTable& root, Scene& sc) {
     r.finish();
     sc.integrator.levels.push_back(level);
   }
+  // Named levels other than the default pair get a thermo column potential_NAME each, beside the
+  // columns every run has, potential_slow (all but the stiff bonds) and potential_stiff: a level
+  // named slow or stiff would write a second column of that name with another meaning.
+  const auto& levels = sc.integrator.levels;
+  const bool default_pair = levels.size() == 2 && levels[0].name == "fast" && levels[1].name == "slow";
+  if (!default_pair)
+    for (size_t k = 0; k < levels.size(); ++k)
+      if (levels[k].name == "slow" || levels[k].name == "stiff")
+        rows[k].fail("name", "level name \"" + levels[k].name + "\" would give the thermo a second potential_" +
+                                 levels[k].name + " column (potential_slow and potential_stiff are the energies of "
+                                 "all but the stiff bonds and of the stiff bonds); choose another name");
 }
 
 // Every named level must hold a term: an empty one would be a kick by zero, most likely a typo.
@@ -190,6 +201,25 @@ void check_levels_used(DeckTable& root, const Scene& sc) {
       rows[k].fail("name", "level \"" + sc.integrator.levels[k].name +
                                "\" has no force term (give a [forces.NAME] level = \"" + sc.integrator.levels[k].name +
                                "\", or remove the level)");
+  }
+}
+
+// A term defined on part of configuration space (FENE: r < R0; a 9-3 wall: its particles on one
+// side; an angle: arms of non-zero length) would fail at the run's first force evaluation, after
+// its outputs were opened, for an initial state outside it: that is the deck's fault, so it is
+// refused here, at the key that defines the domain. Pair terms are left out: evaluating one would
+// build its neighbour list at a state the run may not start from ([prepare]), and their kernels
+// are finite for every r > 0.
+void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
+  if (term.uses_neighbor_list()) return;
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
+  try {
+    term.add_forces(sc.state.x, sc.box, f);
+  } catch (const NumericalError& e) {
+    const std::string what = std::string(e.what()) + " in the initial state";
+    for (const char* key : {"bond_types", "angle_types", "dihedral_types", "position", "particles", "type"})
+      if (t.has(key)) t.fail(key, what);
+    t.fail_here(what);
   }
 }
 
@@ -243,6 +273,7 @@ void read_forces(DeckTable& root, Scene& sc) {
         stiff_term = name;
       }
       t.finish();
+      check_initial_state(t, *term, sc);
       sc.forces->add(std::move(term));
     }
   }
@@ -273,7 +304,7 @@ void read_forces(DeckTable& root, Scene& sc) {
 
 void read_integrator(DeckTable& root, Scene& sc) {
   auto t = root.table("integrator");
-  if (!t) root.fail_here("missing required table [integrator] (method, h)");
+  if (!t) root.missing("integrator", "missing required table [integrator] (method, h)");
   IntegratorSettings& in = sc.integrator;
   in.method = t->string("method");
   const MethodInfo* method = find_method(in.method);
@@ -327,7 +358,7 @@ void read_integrator(DeckTable& root, Scene& sc) {
 // refused, naming the nearest valid end times.
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
-  if (!t) root.fail_here("missing required table [run] (t_end)");
+  if (!t) root.missing("run", "missing required table [run] (t_end)");
   // In the deck's units here (the messages quote them), in the engine's from the end on.
   const double t_end = t->number("t_end");
   t->require(t_end > 0.0, "t_end", "expected an end time > 0");
@@ -415,8 +446,34 @@ void read_output(DeckTable& root, Scene& sc) {
   o.lammps_data = t->string("lammps_data", "");
   o.checkpoint = t->string("checkpoint", o.checkpoint);
   if (o.checkpoint.empty()) t->fail("checkpoint", "expected a file name (checkpoints are always written at the end)");
-  o.checkpoint_every = t->integer("checkpoint_every", 0);
-  t->require(o.checkpoint_every >= 0, "checkpoint_every", "expected a number of steps >= 0 (0: only at the end)");
+  // Every output key is a time; checkpoint_every counted macro steps.
+  if (t->has_retired("checkpoint_every")) {
+    const double n = t->number("checkpoint_every");
+    const double h = sc.integrator.h / sc.units.time;
+    t->fail("checkpoint_every", "is no longer read (it counted steps; every output key is a time): write "
+                                "checkpoint_interval = " +
+                                    format_number(n * h) + " (" + format_number(n) + " steps of h = " + format_number(h) +
+                                    "; 0: only at the end)");
+  }
+  o.checkpoint_interval = t->has("checkpoint_interval") ? sc.units.time_in(t->number("checkpoint_interval")) : 0.0;
+  t->require(o.checkpoint_interval >= 0.0, "checkpoint_interval",
+             "expected a time interval >= 0 (0: only at the end and on a signal)");
+  // An interval longer than the run gives the first and the final frame only (and a checkpoint
+  // interval none but the final one): most likely a time meant in other units or a typo.
+  const double time_out = sc.units.out(Dimension::time);
+  const auto warn_if_longer = [&](const char* key, double interval, bool on) {
+    if (on && t->has(key) && interval > sc.run.t_end)
+      sc.notes.push_back("warning: " + t->where() + ": output." + key + " = " + format_number(interval * time_out) +
+                         " is longer than the run (run.t_end = " + format_number(sc.run.t_end * time_out) +
+                         (std::string(key) == "checkpoint_interval" ? "): no checkpoint before the final one"
+                                                                     : "): only the first and the final frames are written"));
+  };
+  warn_if_longer("xyz_interval", o.xyz_interval, !o.xyz.empty());
+  warn_if_longer("thermo_interval", o.thermo_interval, true);
+  warn_if_longer("state_interval", o.state_interval, !o.state.empty());
+  warn_if_longer("h5md_interval", o.h5md_interval, !o.h5md.empty());
+  warn_if_longer("screen_interval", o.screen_interval, o.screen_interval > 0.0);
+  warn_if_longer("checkpoint_interval", o.checkpoint_interval, o.checkpoint_interval > 0.0);
   std::vector<std::pair<std::string, std::string>> seen;  // what writes it, file name
   for (const auto& [k, f] : output_files(sc)) {
     const std::string what = k.empty() ? "the run's " + f : "output." + k;
@@ -553,6 +610,51 @@ std::int64_t Scene::num_steps() const {
                                                                                                    : std::ceil(r));
 }
 
+// What the monitor's default checks need of the scene, and the likely cause of a run that leaves
+// its model: stiff bonds whose thermal vibration at the thermostat's kT, of rms amplitude
+// ε√kT/α_b (equipartition on ε⁻² ½α²g²), is a good part of their length — in reduced units
+// typically a temperature meant in kelvin. Said once now as a warning, and again with an alert.
+namespace {
+
+MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
+  MonitorScene m;
+  m.conserves_energy = !sc.thermostatted();
+  const ThermostatSettings& th = sc.integrator.thermostat;
+  if (th.on()) {
+    m.kT = th.temperature;
+    m.relaxation = th.style == ThermostatSettings::Style::csvr ? th.tau
+                   : th.friction.size() > 0 && th.friction.minCoeff() > 0.0
+                       ? 1.0 / th.friction.minCoeff()
+                       : std::numeric_limits<double>::infinity();
+  }
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
+  if (!stiff || stiff->bonds.empty()) return m;
+  m.min_bond_length = std::numeric_limits<double>::infinity();
+  double amplitude = 0.0, fraction = 0.0;  // the largest ε√kT/α_b and (ε√kT/α_b)/ℓ_b
+  for (const StiffBond& b : stiff->bonds) {
+    m.min_bond_length = std::min(m.min_bond_length, b.length);
+    const double a = stiff->epsilon * std::sqrt(m.kT) / b.alpha;
+    amplitude = std::max(amplitude, a);
+    fraction = std::max(fraction, a / b.length);
+  }
+  constexpr double kLooseBonds = 0.2;  // rms vibration beyond a fifth of the length: not stiff
+  if (find_method(sc.integrator.method)->rigid_constraints || !(fraction > kLooseBonds)) return m;
+  std::ostringstream c;
+  c.precision(3);
+  if (sc.units.reduced())
+    c << "kT = " << m.kT << " in LJ units (k_B = 1)";
+  else
+    c << "T = " << m.kT * sc.units.out(Dimension::temperature) << " K";
+  c << ": the stiff bonds vibrate with rms amplitude eps sqrt(kT)/alpha = " << amplitude << ", " << fraction * 100.0
+    << " % of their length";
+  if (sc.units.reduced()) c << "; a temperature in kelvin needs units = \"real\"";
+  m.likely_cause = c.str();
+  sc.notes.push_back("warning: " + root.table("thermostat")->where() + ".temperature: " + m.likely_cause);
+  return m;
+}
+
+}  // namespace
+
 Scene load_scene(const Deck& deck) {
   Scene sc;
   sc.deck_path = deck.path();
@@ -578,10 +680,8 @@ Scene load_scene(const Deck& deck) {
   read_run(root, sc);
   read_observables(root, sc);
   read_thermostat(root, sc);
-  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions});
-  // The default energy check applies to energy-conserving (NVE) runs only: a thermostat exchanges
-  // energy with its bath by design.
-  apply_energy_default(sc.monitor, /*conserves_energy=*/!sc.thermostatted());
+  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted()});
+  apply_defaults(sc.monitor, monitor_scene(root, sc));
   read_output(root, sc);
   root.finish();
   check_integrator(root, sc);

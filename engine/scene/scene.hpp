@@ -49,7 +49,7 @@ struct OutputSettings {
   std::string author;                         // H5MD author (default: the user name)
   std::string lammps_data;                    // the final state as a LAMMPS data file ("" = none)
   std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
-  long checkpoint_every = 0;                  // N (0 = only at the end and on a signal)
+  double checkpoint_interval = 0.0;           // a time (0 = only at the end and on a signal)
 };
 
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls

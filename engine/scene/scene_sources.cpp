@@ -132,7 +132,7 @@ void read_builders(DeckTable& root, Scene& sc) {
     const std::string style = b.string("style");
     if (style != "linear-chains" && style != "rings" && style != "stars")
       b.fail("style", "unknown builder '" + style + "' (known: linear-chains, rings, stars)");
-    const int type = particle_type_index(sc, b, "type", b.string("type", sc.types[0].name));
+    const int type = particle_type_index(sc, b, "type", b.name("type", sc.types[0].name));
     // Counts are checked as read, before the narrowing to int and before anything is built.
     const long chains = b.integer("chains", 1);
     b.require(chains >= 1 && chains <= kMaxBuiltBeads, "chains",
@@ -165,9 +165,9 @@ void read_builders(DeckTable& root, Scene& sc) {
     spec.min_distance = b.number("min_distance", spec.min_distance);
     spec.seed = static_cast<std::uint64_t>(b.integer("seed", 1));
     b.require(spec.bond_length > 0, "bond_length", "expected a bond length > 0");
-    const std::string bond_type = b.string("bond_type");
-    const std::string angle_type = b.string("angle_type", "");
-    const std::string dihedral_type = b.string("dihedral_type", "");
+    const std::string bond_type = b.name("bond_type");
+    const std::string angle_type = b.name("angle_type", "");
+    const std::string dihedral_type = b.name("dihedral_type", "");
     if (auto density = b.maybe_number("density")) {
       b.require(*density > 0, "density", "expected a number density > 0");
       try {
