@@ -9,6 +9,8 @@
 #include <sstream>
 
 #include "cli_support.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/observe/polymer_observables.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/simulation.hpp"
 #include "integrators/modes.hpp"
@@ -169,6 +171,71 @@ TEST(PolymerDecks, TheStiffMeltNvtDeckRunsTheThermalStiffLimitWithObabo) {
   RecordProperty("T", std::to_string(t_sum / rows));
   EXPECT_NEAR(t_sum / rows, 1.0, 0.05);
   fs::remove_all(d);
+}
+
+// The thermo's end_to_end per molecule shape (engine/observe/polymer_observables.hpp): a linear
+// chain's end-to-end distance, its ends found from the bonds whatever the index order; a ring's
+// root-mean-square diameter (tools/analyze.py's R), its beads taken in bond order; a star left out,
+// and with no chain or ring, no end_to_end column. rg averages over every molecule.
+TEST(MoleculeSizes, ChainEndToEndRingDiameterNoneForAStar) {
+  Topology t;
+  Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Zero(3, 18);
+  auto bond = [&](int i, int j) { t.bonds.push_back({i, j, 0}); };
+  // Molecule 0: the chain 1 – 0 – 2 bent at a right angle; ends 1 and 2, √2 apart.
+  x.col(0) << 1, 0, 0;
+  x.col(2) << 1, 1, 0;
+  bond(1, 0), bond(0, 2);
+  // Molecule 1: a unit square ringed 3 – 5 – 4 – 6 – 3; opposite beads (3, 4) and (5, 6), √2 apart.
+  x.col(3) << 0, 0, 2;
+  x.col(5) << 1, 0, 2;
+  x.col(4) << 1, 1, 2;
+  x.col(6) << 0, 1, 2;
+  bond(3, 5), bond(5, 4), bond(4, 6), bond(6, 3);
+  // Molecule 2: a regular pentagon of circumradius 1; each bead's nearest-to-opposite (two on) is
+  // 2 sin(2π/5) away.
+  for (int k = 0; k < 5; ++k) {
+    x.col(7 + k) << std::cos(2 * M_PI * k / 5), std::sin(2 * M_PI * k / 5), 4;
+    bond(7 + k, 7 + (k + 1) % 5);
+  }
+  // Molecule 3: a three-armed star, centre 12: branched, no size. Molecule 4: a dimer 1.5 long.
+  x.col(12) << 0, 0, 6;
+  x.col(13) << 1, 0, 6;
+  x.col(14) << 0, 1, 6;
+  x.col(15) << 0, 0, 7;
+  bond(12, 13), bond(12, 14), bond(12, 15);
+  x.col(16) << 0, 0, 8;
+  x.col(17) << 1.5, 0, 8;
+  bond(16, 17);
+  t.molecule = {0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 2, 3, 3, 3, 3, 4, 4};
+  const Eigen::VectorXd unit = Eigen::VectorXd::Ones(18);
+
+  double rg = 0, size = 0;
+  Molecules(t, unit, unit).measure(x, rg, size);
+  EXPECT_NEAR(size, (std::sqrt(2.0) + std::sqrt(2.0) + 2 * std::sin(2 * M_PI / 5) + 1.5) / 4, 1e-15);
+  double rg_sum = 0;  // unit masses: Rg² = ⟨|x − x̄|²⟩ over the molecule's beads
+  for (const std::vector<int>& m : std::vector<std::vector<int>>{{0, 1, 2}, {3, 4, 5, 6}, {7, 8, 9, 10, 11},
+                                                                 {12, 13, 14, 15}, {16, 17}}) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (int i : m) mean += x.col(i) / m.size();
+    double r2 = 0;
+    for (int i : m) r2 += (x.col(i) - mean).squaredNorm() / m.size();
+    rg_sum += std::sqrt(r2);
+  }
+  EXPECT_NEAR(rg, rg_sum / 5, 1e-15);
+
+  // The star alone: rg, but no end-to-end distance and no column for one.
+  Topology star;
+  star.molecule.assign(18, 0);
+  for (int i = 12; i < 16; ++i) star.molecule[i] = 1;
+  for (const Bond& b : t.bonds)
+    if (b.i >= 12 && b.i < 16) star.bonds.push_back(b);
+  EXPECT_FALSE(Molecules(star, unit, unit).has_end_to_end());
+  EXPECT_TRUE(Molecules(t, unit, unit).has_end_to_end());
+  const Scene sc = test::load("inputs/double_pendulum.toml");
+  const Thermo with_star(*sc.forces, unit, {}, &star), with_all(*sc.forces, unit, {}, &t);
+  EXPECT_GE(with_star.column("rg"), 0);
+  EXPECT_EQ(with_star.column("end_to_end"), -1);
+  EXPECT_EQ(with_all.column("end_to_end"), with_all.column("rg") + 1);
 }
 
 TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {

@@ -35,8 +35,9 @@ Outputs (OUT_DIR, default RUN_DIR/analysis), each a CSV and a PNG, and a summary
   angles, dihedrals     histograms (degrees) of the bond angle i-j-k (180 = straight) and of the
                         torsion i-j-k-l (180 = trans) over all bonded triples/quadruples (guessed from
                         the bonds, not from the data file's angle list), time-averaged
-Definitions. Rg^2 = sum m_i |r_i - R_cm|^2 / sum m_i. For a ring the end-to-end distance is 0, so R is
-its diameter |r_{i+N/2} - r_i| averaged over i (N even; the nearest-to-opposite bead for N odd).
+Definitions. Rg^2 = sum m_i |r_i - R_cm|^2 / sum m_i. For a ring the end-to-end distance is 0, so R^2 is
+its squared diameter |r_{i+N/2} - r_i|^2 averaged over i (N even; the nearest-to-opposite bead for N odd),
+the thermo column end_to_end's sqrt(R^2) per ring.
 Time correlations (msd, ree_autocorrelation) average over every time origin and need equally spaced
 frames: a last frame off the grid (the final state of a run whose t_end is not a multiple of the
 output interval) is left out of them. No centre-of-mass drift is removed: stiffmd keeps the total

@@ -66,7 +66,8 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     if (molecules_->empty())
       molecules_.reset();
     else
-      columns_.insert(columns_.end(), {"rg", "end_to_end"});
+      columns_.push_back("rg");
+    if (molecules_ && molecules_->has_end_to_end()) columns_.push_back("end_to_end");  // no chain or ring: none
   }
   const StiffBonds* stiff = forces.stiff_bonds();
   if (settings.actions && stiff) {
@@ -113,7 +114,8 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   if (molecules_) {
     double rg = 0.0, ree = 0.0;
     molecules_->measure(s.x, rg, ree);
-    values_.insert(values_.end(), {rg, ree});
+    values_.push_back(rg);
+    if (molecules_->has_end_to_end()) values_.push_back(ree);
   }
   if (modes_) {
     modes_->frequencies(s.x, omega_);

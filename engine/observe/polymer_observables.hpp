@@ -1,5 +1,6 @@
-// Observables for polymer scenes: kinetic temperature, virial pressure, mean radius of
-// gyration and end-to-end distance per molecule, and bond-length / bond-angle histograms.
+// Observables for polymer scenes: kinetic temperature, virial pressure, mean radius of gyration
+// and size (chains: end-to-end distance; rings: diameter) per molecule, and bond-length /
+// bond-angle histograms.
 #pragma once
 
 #include <string>
@@ -25,17 +26,32 @@ int degrees_of_freedom(const State& s, bool momentum_conserved, int constraints)
 // kinetic: the K of the kinetic term (Thermo: the integrator's estimate); < 0: the state's.
 double pressure(const State& s, const ForceField& forces, double volume, double kinetic = -1.0);
 
-// Molecules with at least two particles: particle lists in index order.
+// Molecules with at least two particles, each with the shape of its own bond graph: a linear chain
+// (a path: two ends), a ring (a cycle: every bead has two bonded neighbours) or neither (branched,
+// as a star, or not one connected graph).
 class Molecules {
  public:
   Molecules(const Topology& topology, const Eigen::VectorXd& inv_mass, const Eigen::VectorXd& mass);
-  bool empty() const { return members_.empty(); }
-  // Mean over molecules of the mass-weighted radius of gyration and of |x_last − x_first|
-  // (the end-to-end distance of a linear chain). Positions are unwrapped, so molecules are whole.
+  bool empty() const { return molecules_.empty(); }
+  // Whether some molecule is a linear chain or a ring, the shapes with a size R below.
+  bool has_end_to_end() const { return num_sized_ > 0; }
+  // rg: the mean over molecules of the mass-weighted radius of gyration.
+  // end_to_end: the mean over linear chains and rings of their size R, as tools/analyze.py defines
+  // it: a linear chain's end-to-end distance |x_end − x_start|; a ring's root-mean-square diameter
+  // R = √(⟨|x_{p(k+⌊N/2⌋)} − x_{p(k)}|²⟩ over k), p the N beads in bond order (a ring's ends meet).
+  // Branched molecules have no end-to-end distance and are left out (0 when none is sized).
+  // Positions are unwrapped, so molecules are whole.
   void measure(const Eigen::Matrix3Xd& x, double& rg, double& end_to_end) const;
 
  private:
-  std::vector<std::vector<int>> members_;
+  enum class Shape { linear, ring, other };
+  struct Molecule {
+    std::vector<int> members;  // index order
+    Shape shape = Shape::other;
+    std::vector<int> path;  // linear: the two ends (lower index first); ring: the beads in bond order
+  };
+  std::vector<Molecule> molecules_;
+  int num_sized_ = 0;  // linear chains and rings
   Eigen::VectorXd mass_;
 };
 
