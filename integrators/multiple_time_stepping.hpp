@@ -101,7 +101,12 @@ class MultipleTimeStepping final : public Integrator {
     else
       advance(s, 0, h);
   }
-  void reset() override { std::fill(valid_.begin(), valid_.end(), false); }
+  // The O step's kinetic energy is of the velocities before the change: the temperature reads the
+  // state's ½vᵀMv again until the next step, as before the first.
+  void reset() override {
+    std::fill(valid_.begin(), valid_.end(), false);
+    o_step_kinetic_ = -1.0;
+  }
   std::string_view method() const override { return method_; }
   // Whether the innermost steps run fused (FusedMicroStep: kick, drift and the first term's new
   // force in one pass, then the stage's other terms). On by default when

@@ -59,7 +59,12 @@ class Rattle final : public Integrator {
   // is prepared from the state before projection (the actions of the effective dynamics).
   void prepare(State& s, std::ostream& log) override;
   void step(State& s, double h) override;
-  void reset() override { valid_ = model_value_current_ = false; }
+  // The O step's kinetic energy is of the velocities before the change: the temperature reads the
+  // state's ½vᵀMv again until the next step, as before the first.
+  void reset() override {
+    valid_ = model_value_current_ = false;
+    o_step_kinetic_ = -1.0;
+  }
   std::string_view method() const override { return method_; }
   // The constraint force at the end of the last step is the velocity projection's impulse over
   // the closing half step: F_c = M Δv / (h/2) = −Gᵀμ / (h/2) (with BAOAB, plus the last half

@@ -6,6 +6,9 @@
 // round-off), so that n steps here are the CLI's n steps bit for bit. No outputs are written:
 // positions, velocities, energies, forces and the thermo row are read back as numpy arrays.
 //
+// Units: every number that crosses the module's boundary is in the deck's units (`units`, README
+// "Units"), as the CLI's inputs and outputs are; DeckUnits below does every conversion.
+//
 // Errors: InputError (bad deck, bad --set) → ValueError with its one line; NumericalError
 // (non-finite state, a constraint solve that fails) → stiffmd.NumericalError (a RuntimeError).
 #include <pybind11/numpy.h>
@@ -19,6 +22,7 @@
 #include <memory>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -60,17 +64,18 @@ std::vector<std::string> overrides(const py::dict& set) {
   return out;
 }
 
-// 3×N (the engine's column per particle) → N×3 numpy array, a copy.
-py::array_t<double> to_numpy(const Eigen::Matrix3Xd& m) {
+// 3×N (the engine's column per particle) → N×3 numpy array, a copy, each entry times `scale`.
+py::array_t<double> to_numpy(const Eigen::Matrix3Xd& m, double scale) {
   py::array_t<double> a({static_cast<py::ssize_t>(m.cols()), py::ssize_t{3}});
   auto r = a.mutable_unchecked<2>();
   for (Eigen::Index i = 0; i < m.cols(); ++i)
-    for (int k = 0; k < 3; ++k) r(i, k) = m(k, i);
+    for (int k = 0; k < 3; ++k) r(i, k) = m(k, i) * scale;
   return a;
 }
 
-// N×3 array-like → 3×N, refusing another shape or a non-finite entry (ValueError).
-void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, const char* what) {
+// N×3 array-like → 3×N, each entry times `scale`, refusing another shape or a non-finite entry
+// (ValueError).
+void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, double scale, const char* what) {
   const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(obj);
   if (!a) throw py::value_error(std::string(what) + ": expected an array of numbers");
   if (a.ndim() != 2 || a.shape(0) != m.cols() || a.shape(1) != 3)
@@ -81,8 +86,46 @@ void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, const char* what) {
       if (!std::isfinite(r(i, k)))
         throw py::value_error(std::string(what) + ": non-finite value for particle " + std::to_string(i));
   for (Eigen::Index i = 0; i < m.cols(); ++i)
-    for (int k = 0; k < 3; ++k) m(k, i) = r(i, k);
+    for (int k = 0; k < 3; ++k) m(k, i) = scale * r(i, k);
 }
+
+// The deck's units at the module's boundary (engine/core/units.hpp), the one place where the
+// module converts. Out of the engine a value of dimension d is multiplied by Units::out(d), as the
+// CLI's outputs are (real: time in fs, velocity in Å/fs, as its data files write them); into it by
+// the factor the deck's own values get (times as Units::time_in, velocities as imported ones,
+// Units::velocity_in(1)·v). Lengths, energies and forces pass with the factor 1 (their internal
+// unit is the deck's: Å, kcal/mol, kcal/(mol Å) in real units); so do masses (g/mol), which have
+// no Dimension. The thermo row goes through the CLI's ThermoOutput, which converts each column by
+// its thermo_column_dimension.
+class DeckUnits {
+ public:
+  explicit DeckUnits(const Units& units) : units_(units) {}
+  const std::string& name() const { return units_.name; }
+  double out(double value, Dimension d) const { return value * units_.out(d); }
+  py::array_t<double> out(const Eigen::Matrix3Xd& m, Dimension d) const { return to_numpy(m, units_.out(d)); }
+  double in(double value, Dimension d) const { return in_factor(d) * value; }
+  void in(const py::handle& a, Eigen::Matrix3Xd& m, Dimension d, const char* what) const {
+    from_numpy(a, m, in_factor(d), what);
+  }
+
+ private:
+  double in_factor(Dimension d) const {
+    switch (d) {
+      case Dimension::time:  // as the deck's h and t_end (engine/scene/scene.cpp)
+        return units_.time_in(1.0);
+      case Dimension::velocity:  // as [[particles]] velocity and imported Velocities
+        return units_.velocity_in(1.0);
+      case Dimension::length:
+      case Dimension::force:
+      case Dimension::energy:
+        return 1.0;
+      default:  // nothing else comes in
+        throw std::logic_error("DeckUnits::in: a dimension the module does not take in");
+    }
+  }
+
+  const Units& units_;
+};
 
 // A level by its name in the scene ("fast", "slow", or the deck's [[integrator.levels]]).
 Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
@@ -94,7 +137,8 @@ Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
 
 class Simulation {
  public:
-  explicit Simulation(std::unique_ptr<Deck> deck) : deck_(std::move(deck)), scene_(load_scene(*deck_)) {
+  explicit Simulation(std::unique_ptr<Deck> deck)
+      : deck_(std::move(deck)), scene_(load_scene(*deck_)), units_(scene_.units) {
     for (const auto& note : scene_.notes) log_ << note << "\n";
     prepare_scene(scene_, log_);
     integrator_ = make_integrator(scene_.integrator, *scene_.forces, scene_.state.inv_mass);
@@ -102,6 +146,7 @@ class Simulation {
     if (find_method(scene_.integrator.method)->rigid_constraints)  // as the run loop counts them
       observables.rigid_constraints = static_cast<int>(scene_.forces->stiff_bonds()->bonds.size());
     thermo_ = std::make_unique<Thermo>(*scene_.forces, scene_.state.inv_mass, observables, &scene_.topology);
+    table_ = std::make_unique<ThermoOutput>(*thermo_, scene_.state.size(), scene_.output.thermo_norm, scene_.units);
     integrator_->prepare(scene_.state, log_);
     check_finite(scene_.state);
     sample();  // E(0), the reference of energy_drift, as the run loop's first sample
@@ -123,14 +168,16 @@ class Simulation {
     }
   }
 
-  // To the first step at or after t (t a whole number of steps to 1e-9 relative, as t_end).
-  void run_to(double t) {
+  // To the first step at or after t (in the deck's time unit; a whole number of steps to 1e-9
+  // relative, as t_end).
+  void run_to(double t_deck) {
+    const double t = units_.in(t_deck, Dimension::time);
     const double h = scene_.integrator.h, r = t / h, nearest = std::round(r);
     const double n = std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r);
     if (!std::isfinite(t) || n < static_cast<double>(scene_.state.step)) {
       std::ostringstream m;
       m.precision(17);
-      m << "run_to: t = " << t << " is before the current time " << scene_.state.t;
+      m << "run_to: t = " << t_deck << " is before the current time " << time();
       throw py::value_error(m.str());
     }
     run(static_cast<std::int64_t>(n) - scene_.state.step);
@@ -139,13 +186,19 @@ class Simulation {
   // A state set from outside: the integrator's cached forces are stale, and energy_drift is
   // measured from the new state's energy on.
   void set_positions(const py::handle& a) {
-    from_numpy(a, scene_.state.x, "positions");
+    units_.in(a, scene_.state.x, Dimension::length, "positions");
     restarted();
   }
   void set_velocities(const py::handle& a) {
-    from_numpy(a, scene_.state.v, "velocities");
+    units_.in(a, scene_.state.v, Dimension::velocity, "velocities");
     restarted();
   }
+  py::array_t<double> positions() const { return units_.out(scene_.state.x, Dimension::length); }
+  py::array_t<double> velocities() const { return units_.out(scene_.state.v, Dimension::velocity); }
+  double time() const { return units_.out(scene_.state.t, Dimension::time); }
+  double h() const { return units_.out(scene_.integrator.h, Dimension::time); }
+  double t_end() const { return units_.out(scene_.run.t_end, Dimension::time); }
+  const std::string& units() const { return units_.name(); }
   // The method's preparation of the current state again (projection onto g = 0 for RATTLE and
   // the effective dynamics, the actions of the latter), as at the start of a run.
   void prepare() {
@@ -155,10 +208,11 @@ class Simulation {
 
   double energy(const std::optional<std::string>& level) const {
     const Eigen::Matrix3Xd& x = scene_.state.x;
-    if (level) return scene_.forces->energy(x, parse_level_or_throw(*scene_.forces, *level));
+    if (level)
+      return units_.out(scene_.forces->energy(x, parse_level_or_throw(*scene_.forces, *level)), Dimension::energy);
     double u = scene_.forces->energy(x, Level{0});
     for (int k = 1; k < scene_.forces->num_levels(); ++k) u += scene_.forces->energy(x, Level{k});
-    return u;
+    return units_.out(u, Dimension::energy);
   }
   py::array_t<double> forces(const std::optional<std::string>& level) {
     Eigen::Matrix3Xd f;
@@ -168,15 +222,15 @@ class Simulation {
     } else {
       scene_.forces->compute(scene_.state.x, scene_.forces->all_levels(), f);
     }
-    return to_numpy(f);
+    return units_.out(f, Dimension::force);
   }
 
-  // The thermo row {column: value} at the current state (the CLI's thermo.csv columns but
-  // alerts: no [monitor] runs here).
+  // The thermo row {column: value} at the current state as the CLI's thermo.csv writes it (its
+  // columns, thermo_norm, the deck's units: ThermoOutput) but alerts: no [monitor] runs here.
   py::dict thermo() {
-    const std::vector<double>& row = sample();
+    const std::vector<double>& row = (*table_)(sample());
     py::dict d;
-    const auto& columns = thermo_->columns();
+    const auto& columns = table_->columns();
     for (size_t k = 0; k < columns.size(); ++k)
       if (columns[k] != "alerts") d[py::str(columns[k])] = row[k];
     return d;
@@ -186,9 +240,13 @@ class Simulation {
   std::string log() const { return log_.str(); }
 
  private:
+  // As the run loop samples: under Langevin the temperature and the pressure's kinetic term read
+  // the kinetic energy at the last O step (Integrator::kinetic_energy_estimate).
   const std::vector<double>& sample() {
-    const std::vector<double>& row = thermo_->sample(scene_.state, integrator_->model_potential(scene_.state.x),
-                                                     integrator_->constraint_virial(scene_.state));
+    const State& s = scene_.state;
+    const std::vector<double>& row =
+        thermo_->sample(s, integrator_->model_potential(s.x), integrator_->constraint_virial(s),
+                        integrator_->kinetic_energy_estimate(s));
     for (const auto& note : thermo_->take_notes()) log_ << note << "\n";
     return row;
   }
@@ -200,8 +258,10 @@ class Simulation {
 
   std::unique_ptr<Deck> deck_;
   Scene scene_;
+  DeckUnits units_;
   std::unique_ptr<Integrator> integrator_;
   std::unique_ptr<Thermo> thermo_;
+  std::unique_ptr<ThermoOutput> table_;  // the written row: thermo_norm, the deck's units
   std::ostringstream log_;
 };
 
@@ -232,7 +292,11 @@ PYBIND11_MODULE(stiffmd, m) {
       "The integrator methods (integrator.method), in the order of README.");
 
   py::class_<Simulation>(m, "Simulation",
-                         "A scene from a deck with its integrator, prepared as `stiffmd run` prepares it.")
+                         "A scene from a deck with its integrator, prepared as `stiffmd run` prepares it.\n\n"
+                         "Every number in and out is in the deck's units (`units`), as the CLI's: with "
+                         "units = \"lj\" reduced (sigma, m, epsilon, tau); with units = \"real\" lengths in "
+                         "Angstrom, masses in g/mol, energies in kcal/mol, forces in kcal/(mol Angstrom), "
+                         "times in fs, velocities in Angstrom/fs, temperature in K, pressure in atm.")
       .def(py::init([](const std::string& path, const py::dict& set) {
              return std::make_unique<Simulation>(std::make_unique<Deck>(path, overrides(set)));
            }),
@@ -246,22 +310,25 @@ PYBIND11_MODULE(stiffmd, m) {
           py::arg("text"), py::arg("set") = py::dict(), py::arg("name") = "<toml>",
           "From TOML text; `name` stands for the file in error messages.")
       .def("run", &Simulation::run, py::arg("steps"), "Take `steps` macro steps of size h.")
-      .def("run_to", &Simulation::run_to, py::arg("t"), "Step to time t (the first step at or after t).")
+      .def("run_to", &Simulation::run_to, py::arg("t"),
+           "Step to time t (the deck's time unit: fs in real units), the first step at or after t.")
       .def("prepare", &Simulation::prepare,
            "Apply the method's preparation to the current state again (projection onto the constraints, actions).")
       .def("energy", &Simulation::energy, py::arg("level") = py::none(),
-           "Potential energy of a level (\"fast\", \"slow\", or a name of the deck's [[integrator.levels]]) or of all "
-           "(None) at the current positions.")
+           "Potential energy (the deck's energy unit: kcal/mol in real units) of a level (\"fast\", \"slow\", or a "
+           "name of the deck's [[integrator.levels]]) or of all (None) at the current positions.")
       .def("forces", &Simulation::forces, py::arg("level") = py::none(),
-           "Forces (N×3) of a level (\"fast\", \"slow\", or a name of the deck's [[integrator.levels]]) or of all "
-           "(None) at the current positions.")
-      .def("thermo", &Simulation::thermo, "The thermo row {column: value} at the current state.")
-      .def_property(
-          "positions", [](const Simulation& s) { return to_numpy(s.scene().state.x); }, &Simulation::set_positions,
-          "Positions, N×3 (a copy; assign an N×3 array to set).")
-      .def_property(
-          "velocities", [](const Simulation& s) { return to_numpy(s.scene().state.v); }, &Simulation::set_velocities,
-          "Velocities, N×3 (a copy; assign an N×3 array to set).")
+           "Forces (N×3; kcal/(mol Angstrom) in real units) of a level (\"fast\", \"slow\", or a name of the deck's "
+           "[[integrator.levels]]) or of all (None) at the current positions.")
+      .def("thermo", &Simulation::thermo,
+           "The thermo row {column: value} at the current state, as the CLI's thermo.csv writes it: its columns "
+           "(\"_per_atom\" with output.thermo_norm), each in the deck's units (real: time in fs, energies in "
+           "kcal/mol, temperature in K, pressure in atm, lengths in Angstrom, frequencies in 1/fs); no alerts.")
+      .def_property("positions", &Simulation::positions, &Simulation::set_positions,
+                    "Positions, N×3 (Angstrom in real units; a copy; assign an N×3 array to set).")
+      .def_property("velocities", &Simulation::velocities, &Simulation::set_velocities,
+                    "Velocities, N×3 (Angstrom/fs in real units, as the CLI's data files; a copy; assign an N×3 "
+                    "array to set).")
       .def_property_readonly(
           "masses",
           [](const Simulation& s) {
@@ -272,10 +339,11 @@ PYBIND11_MODULE(stiffmd, m) {
               r(i) = w[i] > 0.0 ? 1.0 / w[i] : std::numeric_limits<double>::infinity();
             return a;
           },
-          "Masses (inf for a fixed particle).")
-      .def_property_readonly("time", [](const Simulation& s) { return s.scene().state.t; })
+          "Masses (g/mol in real units; inf for a fixed particle).")
+      .def_property_readonly("units", &Simulation::units, "The deck's units: \"lj\" or \"real\".")
+      .def_property_readonly("time", &Simulation::time, "The current time t = step h (fs in real units).")
       .def_property_readonly("step", [](const Simulation& s) { return s.scene().state.step; })
-      .def_property_readonly("h", [](const Simulation& s) { return s.scene().integrator.h; })
+      .def_property_readonly("h", &Simulation::h, "The macro step integrator.h (fs in real units).")
       .def_property_readonly("micro_steps", [](const Simulation& s) { return s.scene().integrator.micro_steps; })
       .def_property_readonly("method", [](const Simulation& s) { return s.scene().integrator.method; })
       .def_property_readonly(
@@ -287,14 +355,13 @@ PYBIND11_MODULE(stiffmd, m) {
             return names;
           },
           "The force levels' names, innermost first.")
-      .def_property_readonly(
-          "t_end", [](const Simulation& s) { return s.scene().run.t_end; }, "The deck's run.t_end.")
+      .def_property_readonly("t_end", &Simulation::t_end, "The deck's run.t_end (fs in real units).")
       .def_property_readonly("num_particles", [](const Simulation& s) { return s.scene().state.size(); })
       .def_property_readonly("log", &Simulation::log, "What preparation said (the CLI prints it on stderr).")
       .def("__repr__", [](const Simulation& s) {
         std::ostringstream o;
         o << "<stiffmd.Simulation " << s.scene().deck_path << ": " << s.scene().state.size() << " particles, "
-          << s.scene().integrator.method << ", h = " << s.scene().integrator.h << ", t = " << s.scene().state.t << ">";
+          << s.scene().integrator.method << ", units " << s.units() << ", h = " << s.h() << ", t = " << s.time() << ">";
         return o.str();
       });
 }

@@ -12,7 +12,12 @@ module's build directory on PYTHONPATH:
     RATTLE after sim.prepare(), which projects as the deck's start does);
   - the README's example runs as written;
   - bad input: a misspelt override raises ValueError naming the key, a TOML error names the line,
-    a wrong shape is refused, a blow-up raises stiffmd.NumericalError (a RuntimeError).
+    a wrong shape is refused, a blow-up raises stiffmd.NumericalError (a RuntimeError);
+  - a real-units deck (inputs/trappe_pe.toml, 5 steps of 4 fs under Langevin) speaks the deck's units,
+    as the CLI does: h, t_end, time and run_to in fs, the thermo row as thermo.csv and the H5MD
+    observables write it (K, atm, kcal/mol; with thermo_norm per atom), velocities in Å/fs as the
+    final LAMMPS data file writes them, and velocities set in Å/fs; after a set the temperature reads
+    the state's ½vᵀMv (impulse, RATTLE), not the last O step's kinetic energy.
 Usage: test_python_module.py STIFFMD_EXE"""
 import json
 import os
@@ -100,7 +105,7 @@ def pair_deck_equals_the_command_line_whatever_is_evaluated_between_steps():
 def steps_and_times():
     sim = stiffmd.Simulation(PENDULUM)
     h = sim.h
-    assert h == 1 / 64 and sim.step == 0 and sim.time == 0.0
+    assert h == 1 / 64 and sim.step == 0 and sim.time == 0.0 and sim.units == "lj"
     sim.run(3)
     assert sim.step == 3 and sim.time == 3 * h
     sim.run_to(0.5)  # 32 steps
@@ -295,6 +300,104 @@ def a_blow_up_raises_numerical_error():
     except stiffmd.NumericalError as e:
         assert isinstance(e, RuntimeError) and "non-finite" in str(e), e
         assert 0 < sim.step < 640
+
+
+TRAPPE = os.path.join(ROOT, "inputs", "trappe_pe.toml")
+
+
+def read_data_velocities(path):
+    """The Velocities section of a LAMMPS data file, by atom id (1…N), as an N×3 array."""
+    with open(path) as f:
+        lines = f.read().split("\nVelocities\n\n")[1].split("\n\n")[0].splitlines()
+    v = np.zeros((len(lines), 3))
+    for line in lines:
+        fields = line.split()
+        v[int(fields[0]) - 1] = [float(w) for w in fields[1:4]]
+    return v
+
+
+def cli_real_run(out, norm):
+    """`stiffmd run` on the TraPPE-UA deck for 20 fs (5 steps), writing the thermo row, an H5MD file
+    with velocities and the final state as a LAMMPS data file; (thermo.csv header and last row as
+    text, H5MD observables' last values, H5MD positions unwrapped (x = r + image L) and velocities,
+    data-file velocities, summary.json)."""
+    cmd = [EXE, "run", TRAPPE, "-o", out, "--no-progress", "--set", "run.t_end=20", "--set", "output.h5md=t.h5md",
+           "--set", "output.h5md_velocity=true", "--set", "output.lammps_data=final.data",
+           "--set", f"output.thermo_norm={'true' if norm else 'false'}"]
+    subprocess.run(cmd, capture_output=True, text=True, check=True)
+    with open(os.path.join(out, "thermo.csv")) as f:
+        rows = f.read().splitlines()
+    header, last = rows[0].split(","), rows[-1].split(",")
+    with h5py.File(os.path.join(out, "t.h5md"), "r") as f:
+        observables = {name: f["observables"][name]["value"][-1] for name in f["observables"]}
+        edges = np.diag(f["particles/all/box/edges/value"][-1])  # the box's edge vectors: a diagonal
+        x = f["particles/all/position/value"][-1] + f["particles/all/image/value"][-1] * edges
+        v_ps = f["particles/all/velocity/value"][-1]
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    return dict(zip(header, last)), observables, x, v_ps, read_data_velocities(os.path.join(out, "final.data")), summary
+
+
+@test
+def real_units_deck_speaks_the_decks_units_as_the_command_line():
+    sets = {"run.t_end": 20.0}
+    sim = stiffmd.Simulation(TRAPPE, set=sets)
+    assert sim.units == "real"
+    assert abs(sim.h - 4.0) <= 1e-15 * 4.0, sim.h  # the deck's 4 fs (4 × (1/τ) × τ: to round-off)
+    assert abs(sim.t_end - 20.0) <= 1e-15 * 20.0, sim.t_end
+    sim.run_to(8.0)  # 8 fs: step 2
+    assert sim.step == 2 and abs(sim.time - 8.0) <= 1e-15 * 8.0, (sim.step, sim.time)
+    assert "units real" in repr(sim), repr(sim)
+    cli = {}
+    for norm in (False, True):
+        with tempfile.TemporaryDirectory() as out:
+            cli[norm] = csv, observables, x, v_ps, v_data, summary = cli_real_run(out, norm)
+        sim = stiffmd.Simulation(TRAPPE, set=dict(sets, **{"output.thermo_norm": norm}))
+        assert sim.h == summary["h"] and sim.t_end == summary["t_end"], (sim.h, sim.t_end, summary)
+        sim.run_to(sim.t_end)
+        assert sim.step == summary["steps"] == 5, (sim.step, summary["steps"])
+        assert np.abs(sim.positions - x).max() < 1e-12, np.abs(sim.positions - x).max()  # Å (to the wrap's round-off)
+        # Velocities in Å/fs: those of the final data file to the bit, the H5MD file's Å/ps to round-off.
+        v = sim.velocities
+        assert np.array_equal(v, v_data), np.abs(v / v_data - 1).max()
+        assert np.allclose(1000.0 * v, v_ps, rtol=1e-15, atol=0), np.abs(1000.0 * v / v_ps - 1).max()
+        row = sim.thermo()
+        assert sorted(row) == sorted(c for c in csv if c != "alerts"), (sorted(row), sorted(csv))
+        assert ("kinetic_per_atom" in row) == norm and ("kinetic" in row) != norm, sorted(row)
+        for column, value in row.items():
+            assert f"{value:.12g}" == csv[column], (norm, column, value, csv[column])  # as thermo.csv writes it
+            if column not in ("time", "step"):  # H5MD keeps those on its own grid
+                assert value == observables[column], (norm, column, value, observables[column])  # to the bit
+        assert row["time"] == sim.time
+        assert 400 < row["temperature"] < 500 and 1 < abs(row["pressure"]) < 1e4, row  # K, atm
+        if not norm:
+            assert row["total"] == summary["final_energy"], (row["total"], summary["final_energy"])
+            assert row["potential_pair"] == sim.energy("pair")  # kcal/mol, no conversion
+            final_row = row
+    # Velocities set in Å/fs: the CLI's final state given to a fresh simulation has the run's kinetic
+    # energy and reads back to round-off (the deck's import factor, then the output's). The
+    # temperature then reads ½vᵀMv, as at the start, not the last O step's kinetic energy.
+    csv, observables, x, v_ps, v_data, summary = cli[False]
+    fresh = stiffmd.Simulation(TRAPPE, set=sets)
+    start = fresh.thermo()
+    fresh.positions, fresh.velocities = x, v_data
+    assert np.allclose(fresh.velocities, v_data, rtol=1e-15, atol=0), np.abs(fresh.velocities / v_data - 1).max()
+    row = fresh.thermo()
+    assert abs(row["kinetic"] / final_row["kinetic"] - 1) < 1e-14, (row["kinetic"], final_row["kinetic"])
+    ratio = start["temperature"] / start["kinetic"]  # 2/(dof k_B)
+    assert abs(row["temperature"] / row["kinetic"] / ratio - 1) < 1e-14, (row["temperature"], row["kinetic"])
+    assert abs(final_row["temperature"] / final_row["kinetic"] / ratio - 1) > 1e-6  # the run's read the O step
+    # The same after steps (the O step's kinetic energy is forgotten), with the impulse family and RATTLE.
+    for method in ("impulse", "rattle"):
+        sim = stiffmd.Simulation(TRAPPE, set=dict(sets, **{"integrator.method": method}))
+        row = sim.thermo()
+        ratio = row["temperature"] / row["kinetic"]
+        sim.run(2)
+        row = sim.thermo()
+        assert abs(row["temperature"] / row["kinetic"] / ratio - 1) > 1e-6, method  # the O step's
+        sim.velocities = sim.velocities
+        row = sim.thermo()
+        assert abs(row["temperature"] / row["kinetic"] / ratio - 1) < 1e-14, (method, row)
 
 
 @test

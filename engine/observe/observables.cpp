@@ -143,8 +143,9 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
   return values_;
 }
 
-ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm)
+ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm, const Units& units)
     : thermo_(thermo), n_(num_particles), columns_(thermo.columns()), divide_(columns_.size(), 0) {
+  for (const std::string& c : columns_) scale_.push_back(units.out(thermo_column_dimension(c)));
   if (norm && num_particles > 0)
     for (size_t c = 0; c < columns_.size(); ++c) {
       const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift
@@ -161,8 +162,10 @@ int ThermoOutput::column(const std::string& thermo_name) const {
 
 const std::vector<double>& ThermoOutput::operator()(const std::vector<double>& row) {
   row_ = row;  // same size every call: no allocation after the first
-  for (size_t c = 0; c < row_.size(); ++c)
+  for (size_t c = 0; c < row_.size(); ++c) {
     if (divide_[c]) row_[c] /= n_;  // a division, so that the value is exactly total / N
+    row_[c] *= scale_[c];           // then in the deck's units (× 1 exactly in reduced units)
+  }
   return row_;
 }
 

@@ -99,14 +99,16 @@ class Thermo {
   double e0_ = 0.0;
 };
 
-// The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line): the one
-// place where the written columns are formed from Thermo's. With norm (the deck's [output]
-// thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the energies kinetic,
-// potential_slow, potential_stiff (every potential_* column), total and energy_drift — are divided by the number of
-// particles N and named with the suffix "_per_atom"; intensive ones (temperature, pressure, rg, …) stay.
+// The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line, the Python
+// module's thermo()): the one place where the written columns are formed from Thermo's. With norm
+// (the deck's [output] thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the
+// energies kinetic, potential_slow, potential_stiff (every potential_* column), total and
+// energy_drift — are divided by the number of particles N and named with the suffix "_per_atom";
+// intensive ones (temperature, pressure, rg, …) stay. Then each column is in the deck's units:
+// times Units::out of its dimension (thermo_column_dimension; real: time in fs, T in K, p in atm).
 class ThermoOutput {
  public:
-  ThermoOutput(const Thermo& thermo, int num_particles, bool norm);
+  ThermoOutput(const Thermo& thermo, int num_particles, bool norm, const Units& units);
   const std::vector<std::string>& columns() const { return columns_; }
   int column(const std::string& thermo_name) const;  // index of Thermo's column `thermo_name`, −1 if none
   bool normalised(int column) const { return divide_[column]; }
@@ -118,6 +120,7 @@ class ThermoOutput {
   double n_;
   std::vector<std::string> columns_;
   std::vector<char> divide_;
+  std::vector<double> scale_;  // per column: engine value → the deck's unit (all 1 in reduced units)
   std::vector<double> row_;
 };
 

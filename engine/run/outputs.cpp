@@ -80,7 +80,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
       thermo_due_(sc.output.thermo_interval),
       state_due_(sc.output.state_interval),
       h5md_due_(sc.output.h5md_interval),
-      table_(thermo, sc.state.size(), sc.output.thermo_norm) {
+      table_(thermo, sc.state.size(), sc.output.thermo_norm, sc.units) {
   const fs::path dir(out_dir);
   const State& s = sc.state;
   const bool restarting = restart_cut != nullptr;
@@ -89,7 +89,6 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   // The files hold times in the deck's units (real: fs), the engine's grids in its own.
   const double time_out = sc.units.out(Dimension::time);
   const double file_cut = cut * time_out, file_tol = tol * time_out;
-  for (const std::string& c : thermo.columns()) thermo_scale_.push_back(sc.units.out(thermo_column_dimension(c)));
   velocity_scale_ = sc.units.out(Dimension::velocity);
   auto open_output = [&](const std::string& name, auto truncate) {
     const fs::path p = dir / name;
@@ -182,12 +181,8 @@ bool RunOutputs::due(double t, bool final) {
 }
 
 void RunOutputs::write(const State& s, const std::vector<double>& row) {
-  if (thermo_now_ || h5md_now_) {
-    written_ = table_(row);
-    // The row in the output's units (README "Units"), for the files and the terminal alike.
-    if (!sc_.units.reduced())
-      for (size_t k = 0; k < written_.size(); ++k) written_[k] *= thermo_scale_[k];
-  }
+  // The row in the output's units (README "Units"), for the files and the terminal alike.
+  if (thermo_now_ || h5md_now_) written_ = table_(row);
   if (thermo_now_ && thermo_) thermo_->write(written_);
   if (h5md_now_) {
     if (sc_.output.h5md_force) sc_.forces->total_force(s.x, h5md_force_);

@@ -44,7 +44,8 @@ class RunOutputs {
   // Whether the last due() was a sample of the thermo grid (or the final state): the rows the
   // thermo file gets, and the terminal's line may show.
   bool thermo_sampled() const { return thermo_now_; }
-  // The thermo columns as written (normalised with [output] thermo_norm), and the last row written.
+  // The thermo columns as written (normalised with [output] thermo_norm, in the deck's units), and the
+  // last row written.
   const ThermoOutput& thermo_table() const { return table_; }
   const std::vector<double>& thermo_row() const { return written_; }
   // After the last step: the LAMMPS data file and the histograms, when asked for.
@@ -66,7 +67,6 @@ class RunOutputs {
   std::vector<double> written_;
   bool xyz_now_ = false, thermo_now_ = false, state_now_ = false, h5md_now_ = false;
   std::vector<double> state_row_;
-  std::vector<double> thermo_scale_;  // per thermo column: engine value → output unit
   double velocity_scale_ = 1.0;
   Eigen::Matrix3Xd h5md_velocity_;
   std::vector<int> h5md_columns_;  // every thermo column but time and step
