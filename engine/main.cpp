@@ -12,7 +12,7 @@
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/run/checkpoint.hpp"
-#include "engine/run/simulation.hpp"
+#include "engine/run/run.hpp"
 #include "engine/scene/scene.hpp"
 
 namespace {
@@ -70,7 +70,7 @@ int main(int argc, char** argv) {
       stiffmd::prepare_scene(scene, std::cerr, quiet || !run->parsed() ? nullptr : &std::cerr);
     if (check->parsed()) {
       std::ostringstream start_log;  // the method's preparation notes belong to a run's log
-      stiffmd::check_start(scene, start_log);
+      stiffmd::check_run(scene, start_log);
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       if (!data_path.empty()) {
         stiffmd::write_scene_lammps_data(scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);

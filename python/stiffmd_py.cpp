@@ -1,10 +1,10 @@
 // The Python module `stiffmd` (pybind11): a simulation made from a deck, stepped from Python.
 //
-// It sits above the engine and uses only its pieces, as the run loop does
-// (engine/run/simulation.cpp): Deck → load_scene → prepare_scene → make_integrator →
-// Integrator::prepare, then step(state, h) with t_k = k h from the start (no accumulated
-// round-off), so that n steps here are the CLI's n steps bit for bit. No outputs are written:
-// positions, velocities, energies, forces and the thermo row are read back as numpy arrays.
+// It drives the CLI's run (engine/run/run.hpp): Deck → load_scene → prepare_scene (or a
+// checkpoint) → Run, then Run::step_to and Run::finish, so that n steps here are the CLI's n steps
+// bit for bit, with the same outputs, checkpoints, restart and [monitor] when given an output
+// directory. Positions, velocities, energies, forces and the thermo row are read back as numpy
+// arrays.
 //
 // Units: every number that crosses the module's boundary is in the deck's units (`units`, README
 // "Units"), as the CLI's inputs and outputs are; DeckUnits below does every conversion.
@@ -29,7 +29,8 @@
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
-#include "engine/run/simulation.hpp"  // take_step, check_finite
+#include "engine/run/checkpoint.hpp"
+#include "engine/run/run.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/methods.hpp"
 
@@ -137,61 +138,80 @@ Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
 
 class Simulation {
  public:
-  explicit Simulation(std::unique_ptr<Deck> deck)
+  // The CLI's run (engine/run/run.hpp) driven from Python: `output` a directory for the deck's
+  // outputs, periodic checkpoints and summary.json (none: no files, the thermo samples and the
+  // [monitor] still on their grid); `restart` a checkpoint to continue, checked before anything
+  // is prepared, as `stiffmd run --restart` does.
+  Simulation(std::unique_ptr<Deck> deck, const std::optional<std::string>& output,
+             const std::optional<std::string>& restart)
       : deck_(std::move(deck)), scene_(load_scene(*deck_)), units_(scene_.units) {
     for (const auto& note : scene_.notes) log_ << note << "\n";
-    prepare_scene(scene_, log_);
-    integrator_ = make_integrator(scene_.integrator, *scene_.forces, scene_.state.inv_mass);
-    ObservableSettings observables = scene_.observables;
-    if (find_method(scene_.integrator.method)->rigid_constraints)  // as the run loop counts them
-      observables.rigid_constraints = static_cast<int>(scene_.forces->stiff_bonds()->bonds.size());
-    thermo_ = std::make_unique<Thermo>(*scene_.forces, scene_.state.inv_mass, observables, &scene_.topology);
-    table_ = std::make_unique<ThermoOutput>(*thermo_, scene_.state.size(), scene_.output.thermo_norm, scene_.units);
-    integrator_->prepare(scene_.state, log_);
-    check_finite(scene_.state);
-    sample();  // E(0), the reference of energy_drift, as the run loop's first sample
+    std::optional<Checkpoint> checkpoint;
+    if (restart) checkpoint = read_checkpoint_for(scene_, *restart);
+    else prepare_scene(scene_, log_);  // a restart's state is the checkpoint's
+    RunOptions options;
+    options.out_dir = output.value_or("");
+    options.restart = restart.value_or("");
+    options.checkpoint = checkpoint ? &*checkpoint : nullptr;
+    options.handle_signals = false;  // Ctrl-C is Python's (run)
+    run_ = std::make_unique<Run>(scene_, options, log_);
   }
 
-  // Macro steps: step k ends at t = k h exactly (engine/run/simulation.cpp).
+  // Macro steps: step k ends at t = k h exactly, the CLI's step k bit for bit.
   void run(std::int64_t steps) {
     if (steps < 0) throw py::value_error("steps: expected a number >= 0");
-    State& s = scene_.state;
-    const double h = scene_.integrator.h;
+    if (finished_) throw py::value_error("run: the run is finished (finish() was called)");
+    const State& s = scene_.state;
     const std::int64_t last = s.step + steps;
     py::gil_scoped_release free;
-    for (std::int64_t k = s.step + 1; k <= last; ++k) {
-      take_step(*integrator_, s, h, k, static_cast<double>(k) * h);
-      if (k % 1024 == 0) {  // Ctrl-C: stop between steps, the state consistent
-        py::gil_scoped_acquire held;
-        if (PyErr_CheckSignals() != 0) throw py::error_already_set();
-      }
+    while (s.step < last) {
+      run_->step_to(std::min(last, s.step + 1024));
+      py::gil_scoped_acquire held;  // Ctrl-C: stop between steps, the state consistent
+      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
     }
   }
 
-  // To the first step at or after t (in the deck's time unit; a whole number of steps to 1e-9
-  // relative, as t_end).
+  // To the first step at or after t (in the deck's time unit), rounded as run.t_end is.
   void run_to(double t_deck) {
     const double t = units_.in(t_deck, Dimension::time);
-    const double h = scene_.integrator.h, r = t / h, nearest = std::round(r);
-    const double n = std::abs(r - nearest) <= 1e-9 * std::max(1.0, r) ? nearest : std::ceil(r);
-    if (!std::isfinite(t) || n < static_cast<double>(scene_.state.step)) {
+    const std::int64_t n = std::isfinite(t) ? whole_steps(t, scene_.integrator.h) : -1;
+    if (n < scene_.state.step) {
       std::ostringstream m;
       m.precision(17);
       m << "run_to: t = " << t_deck << " is before the current time " << time();
       throw py::value_error(m.str());
     }
-    run(static_cast<std::int64_t>(n) - scene_.state.step);
+    run(n - scene_.state.step);
+  }
+
+  // Ends the run as `stiffmd run` ends it: the checkpoint, the final state in every output and
+  // summary.json (with an output directory); returns the summary. No step after it.
+  py::dict finish() {
+    if (finished_) throw py::value_error("finish: the run is finished already");
+    finished_ = true;
+    const RunSummary& r = run_->finish();
+    py::dict d;
+    d["method"] = r.method;
+    d["units"] = r.units;
+    d["steps"] = r.steps;
+    d["h"] = r.h;
+    d["initial_energy"] = r.initial_energy;
+    d["final_energy"] = r.final_energy;
+    d["max_energy_error"] = r.max_energy_error;
+    d["outputs"] = r.outputs;
+    d["checkpoint"] = r.checkpoint;
+    return d;
   }
 
   // A state set from outside: the integrator's cached forces are stale, and energy_drift is
   // measured from the new state's energy on.
   void set_positions(const py::handle& a) {
     units_.in(a, scene_.state.x, Dimension::length, "positions");
-    restarted();
+    run_->state_changed();
   }
   void set_velocities(const py::handle& a) {
     units_.in(a, scene_.state.v, Dimension::velocity, "velocities");
-    restarted();
+    run_->state_changed();
   }
   py::array_t<double> positions() const { return units_.out(scene_.state.x, Dimension::length); }
   py::array_t<double> velocities() const { return units_.out(scene_.state.v, Dimension::velocity); }
@@ -202,8 +222,8 @@ class Simulation {
   // The method's preparation of the current state again (projection onto g = 0 for RATTLE and
   // the effective dynamics, the actions of the latter), as at the start of a run.
   void prepare() {
-    integrator_->prepare(scene_.state, log_);
-    restarted();
+    run_->integrator().prepare(scene_.state, log_);
+    run_->state_changed();
   }
 
   double energy(const std::optional<std::string>& level) const {
@@ -226,11 +246,12 @@ class Simulation {
   }
 
   // The thermo row {column: value} at the current state as the CLI's thermo.csv writes it (its
-  // columns, thermo_norm, the deck's units: ThermoOutput) but alerts: no [monitor] runs here.
+  // columns, thermo_norm, the deck's units: ThermoOutput), sampled now; alerts are the run's
+  // [monitor] at its own samples.
   py::dict thermo() {
-    const std::vector<double>& row = (*table_)(sample());
+    const std::vector<double>& row = run_->as_written(run_->sample_now());
     py::dict d;
-    const auto& columns = table_->columns();
+    const auto& columns = run_->thermo_table().columns();
     for (size_t k = 0; k < columns.size(); ++k)
       if (columns[k] != "alerts") d[py::str(columns[k])] = row[k];
     return d;
@@ -240,29 +261,12 @@ class Simulation {
   std::string log() const { return log_.str(); }
 
  private:
-  // As the run loop samples: under Langevin the temperature and the pressure's kinetic term read
-  // the kinetic energy at the last O step (Integrator::kinetic_energy_estimate).
-  const std::vector<double>& sample() {
-    const State& s = scene_.state;
-    const std::vector<double>& row =
-        thermo_->sample(s, integrator_->model_potential(s.x), integrator_->constraint_virial(s),
-                        integrator_->kinetic_energy_estimate(s));
-    for (const auto& note : thermo_->take_notes()) log_ << note << "\n";
-    return row;
-  }
-
-  void restarted() {
-    integrator_->reset();
-    thermo_->set_initial_energy(sample()[thermo_->column("total")]);
-  }
-
   std::unique_ptr<Deck> deck_;
   Scene scene_;
   DeckUnits units_;
-  std::unique_ptr<Integrator> integrator_;
-  std::unique_ptr<Thermo> thermo_;
-  std::unique_ptr<ThermoOutput> table_;  // the written row: thermo_norm, the deck's units
   std::ostringstream log_;
+  std::unique_ptr<Run> run_;
+  bool finished_ = false;
 };
 
 }  // namespace
@@ -297,18 +301,27 @@ PYBIND11_MODULE(stiffmd, m) {
                          "units = \"lj\" reduced (sigma, m, epsilon, tau); with units = \"real\" lengths in "
                          "Angstrom, masses in g/mol, energies in kcal/mol, forces in kcal/(mol Angstrom), "
                          "times in fs, velocities in Angstrom/fs, temperature in K, pressure in atm.")
-      .def(py::init([](const std::string& path, const py::dict& set) {
-             return std::make_unique<Simulation>(std::make_unique<Deck>(path, overrides(set)));
+      .def(py::init([](const std::string& path, const py::dict& set, const std::optional<std::string>& output,
+                       const std::optional<std::string>& restart) {
+             return std::make_unique<Simulation>(std::make_unique<Deck>(path, overrides(set)), output, restart);
            }),
-           py::arg("deck"), py::arg("set") = py::dict(),
-           "From a deck file; `set` overrides keys like --set: {\"integrator.method\": \"rattle\"}.")
+           py::arg("deck"), py::arg("set") = py::dict(), py::arg("output") = py::none(),
+           py::arg("restart") = py::none(),
+           "From a deck file; `set` overrides keys like --set: {\"integrator.method\": \"rattle\"}; `output` a "
+           "directory for the deck's outputs, checkpoints and summary.json, as `stiffmd run -o` (None: no files); "
+           "`restart` a checkpoint to continue from, as --restart.")
       .def_static(
           "from_toml",
-          [](const std::string& text, const py::dict& set, const std::string& name) {
-            return std::make_unique<Simulation>(std::make_unique<Deck>(Deck::Text{name, text}, overrides(set)));
+          [](const std::string& text, const py::dict& set, const std::string& name,
+             const std::optional<std::string>& output, const std::optional<std::string>& restart) {
+            return std::make_unique<Simulation>(std::make_unique<Deck>(Deck::Text{name, text}, overrides(set)), output,
+                                                restart);
           },
-          py::arg("text"), py::arg("set") = py::dict(), py::arg("name") = "<toml>",
-          "From TOML text; `name` stands for the file in error messages.")
+          py::arg("text"), py::arg("set") = py::dict(), py::arg("name") = "<toml>", py::arg("output") = py::none(),
+          py::arg("restart") = py::none(), "From TOML text; `name` stands for the file in error messages.")
+      .def("finish", &Simulation::finish,
+           "End the run as `stiffmd run` does: the checkpoint, the final state in every output and summary.json "
+           "(with an output directory); returns the summary as a dict. No step after it.")
       .def("run", &Simulation::run, py::arg("steps"), "Take `steps` macro steps of size h.")
       .def("run_to", &Simulation::run_to, py::arg("t"),
            "Step to time t (the deck's time unit: fs in real units), the first step at or after t.")

@@ -12,7 +12,7 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
-#include "engine/run/simulation.hpp"
+#include "engine/run/run.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
@@ -217,7 +217,7 @@ TEST(Parallel, KickDriftIsTheSerialUpdate) {
 }
 
 // The run loop's check that x and v are finite after a step runs in the threads' particle blocks
-// (engine/run/simulation.cpp): a NaN or an infinity in any block, in x or in v, with 1 to 3
+// (engine/run/run.cpp, check_finite): a NaN or an infinity in any block, in x or in v, with 1 to 3
 // threads, stops the run naming the first bad particle, its step and its time.
 TEST(Parallel, FiniteCheckFindsABadValueInEveryBlock) {
   const Melt m = melt(false);

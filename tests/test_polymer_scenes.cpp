@@ -12,7 +12,7 @@
 #include "engine/observe/observables.hpp"
 #include "engine/observe/polymer_observables.hpp"
 #include "engine/run/checkpoint.hpp"
-#include "engine/run/simulation.hpp"
+#include "engine/run/run.hpp"
 #include "integrators/modes.hpp"
 #include "test_support.hpp"
 

@@ -19,6 +19,7 @@ module's build directory on PYTHONPATH:
     final LAMMPS data file writes them, and velocities set in Å/fs; after a set the temperature reads
     the state's ½vᵀMv (impulse, RATTLE), not the last O step's kinetic energy.
 Usage: test_python_module.py STIFFMD_EXE"""
+import gzip
 import json
 import os
 import subprocess
@@ -416,5 +417,83 @@ def readme_example_runs():
     assert sim.method == "rattle" and sim.time == 2.0 and sim.step == 128
     assert eff.method == "effective"
 
+
+
+def same_run_directories(a, b):
+    """Every file of two run directories equal: byte for byte (gzip files once decompressed: a
+    restart appends a gzip member), H5MD datasets value for value, summary.json but for its
+    timings and paths."""
+    names = sorted(os.listdir(a))
+    assert names == sorted(os.listdir(b)), (names, sorted(os.listdir(b)))
+    for name in names:
+        pa, pb = os.path.join(a, name), os.path.join(b, name)
+        if name == "summary.json":
+            with open(pa) as fa, open(pb) as fb:
+                ja, jb = json.load(fa), json.load(fb)
+            for k in ("wall_seconds", "cpu_seconds", "outputs"):
+                ja.pop(k, None), jb.pop(k, None)
+            assert ja == jb, (ja, jb)
+        elif name.endswith(".h5md"):
+            with h5py.File(pa, "r") as fa, h5py.File(pb, "r") as fb:
+                sets = []
+                fa.visititems(lambda n, o: sets.append(n) if isinstance(o, h5py.Dataset) else None)
+                for n in sets:
+                    assert np.array_equal(fa[n][()], fb[n][()]), (name, n)
+        else:
+            opener = gzip.open if name.endswith(".gz") else open
+            with opener(pa, "rb") as fa, opener(pb, "rb") as fb:
+                assert fa.read() == fb.read(), name
+
+
+@test
+def the_run_from_python_is_the_command_lines_with_outputs_checkpoints_and_restart():
+    # One Run (engine/run/run.hpp) behind `stiffmd run`, `stiffmd check` and the module: with an
+    # output directory the module writes the CLI's files (trajectories, thermo with the monitor's
+    # alerts, H5MD, checkpoint, summary.json), and a run finished halfway and restarted from its
+    # checkpoint from Python writes the files of the uninterrupted run — on the melt with pairs (LJ
+    # units, a monitor that alerts) and on the TraPPE alkanes (real units, Langevin).
+    melt = os.path.join(ROOT, "inputs", "polymer_melt.toml")
+    cases = [(melt, {"run.t_end": 0.2, "output.thermo_interval": 0.01, "output.xyz_interval": 0.05,
+                     "output.h5md_interval": 0.05, "monitor.violation": 1e-9}, 0.1),
+             (TRAPPE, {"run.t_end": 80.0, "output.thermo_interval": 8.0, "output.h5md": "t.h5md",
+                       "output.h5md_interval": 16.0}, 40.0)]
+    for deck, sets, half in cases:
+        with tempfile.TemporaryDirectory() as tmp:
+            cli = os.path.join(tmp, "cli")
+            cmd = [EXE, "run", deck, "-o", cli, "--no-progress", "-q"]
+            for key, value in sets.items():
+                cmd += ["--set", f"{key}={json.dumps(value)}"]
+            subprocess.run(cmd, capture_output=True, text=True, check=True)
+            check = subprocess.run([EXE, "check", deck] + cmd[7:], capture_output=True, text=True)
+            assert check.returncode == 0, check.stderr
+            whole = os.path.join(tmp, "python")
+            sim = stiffmd.Simulation(deck, set=sets, output=whole)
+            sim.run_to(sim.t_end)
+            summary = sim.finish()
+            assert summary["steps"] == sim.step and summary["checkpoint"].endswith("checkpoint.bin")
+            same_run_directories(cli, whole)
+            halves = os.path.join(tmp, "halves")
+            first = stiffmd.Simulation(deck, set=dict(sets, **{"run.t_end": half}), output=halves)
+            first.run_to(first.t_end)
+            first.finish()
+            second = stiffmd.Simulation(deck, set=sets, output=halves,
+                                        restart=os.path.join(halves, "checkpoint.bin"))
+            assert second.step == first.step and "restart from" in second.log
+            second.run_to(second.t_end)
+            second.finish()
+            same_run_directories(cli, halves)
+            if deck == melt:  # the monitor ran from Python as on the command line
+                with open(os.path.join(whole, "thermo.csv")) as f:
+                    rows = f.read().splitlines()
+                alerts = rows[0].split(",").index("alerts")
+                assert any(float(r.split(",")[alerts]) > 0 for r in rows[1:])
+    sim = stiffmd.Simulation(PENDULUM)
+    sim.run(2)
+    sim.finish()
+    try:
+        sim.run(1)
+        raise AssertionError("stepped after finish()")
+    except ValueError as e:
+        assert "finished" in str(e)
 
 finish()

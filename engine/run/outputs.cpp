@@ -102,26 +102,27 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
   // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
   // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
-  if (!sc.output.xyz.empty() || !sc.output.h5md.empty()) {
+  const bool writing = !out_dir.empty();  // empty: no files (check, Python without an output directory)
+  if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
     const fs::path p = dir / kTopologyFile;
     if (!restarting)
       write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
     files.push_back(p.string());
   }
-  if (!sc.output.xyz.empty()) {
+  if (writing && !sc.output.xyz.empty()) {
     const bool append =
         open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
     xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
                                        append, masses);
     xyz_->set_units(time_out, velocity_scale_);
   }
-  if (!sc.output.thermo.empty()) {
+  if (writing && !sc.output.thermo.empty()) {
     const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
       return truncate_csv_after(p, file_cut, file_tol, table_.columns());
     });
     thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
   }
-  if (!sc.output.state.empty()) {
+  if (writing && !sc.output.state.empty()) {
     const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
     const bool append = open_output(
         sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
@@ -131,7 +132,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
     if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns_.push_back(c);
   h5md_values_.resize(h5md_columns_.size());
-  if (!sc.output.h5md.empty()) {
+  if (writing && !sc.output.h5md.empty()) {
     H5mdSetup setup;
     setup.num_particles = s.size();
     setup.species = species;
@@ -160,8 +161,10 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
     h5md_ = std::make_unique<H5mdWriter>(path, setup, append, s.step);
   }
-  checkpoint_path_ = (dir / sc.output.checkpoint).string();
-  files.push_back(checkpoint_path_);
+  if (writing) {
+    checkpoint_path_ = (dir / sc.output.checkpoint).string();
+    files.push_back(checkpoint_path_);
+  }
   if (restarting) {
     xyz_due_.served_until(cut);
     thermo_due_.served_until(cut);
@@ -211,7 +214,15 @@ void RunOutputs::write_state(const State& s) {
   state_->write(state_row_);
 }
 
+void RunOutputs::close() {
+  xyz_.reset();
+  thermo_.reset();
+  state_.reset();
+  h5md_.reset();
+}
+
 void RunOutputs::write_final(std::vector<std::string>& files) {
+  if (dir_.empty()) return;
   const fs::path dir(dir_);
   if (!sc_.output.lammps_data.empty()) {
     write_scene_lammps_data(sc_, (dir / sc_.output.lammps_data).string(),

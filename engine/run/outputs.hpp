@@ -32,7 +32,8 @@ class RunOutputs {
   // checkpoint, t_{k−1}: every file is cut back to it and appended to, and the schedules resume
   // from there, so that the files end up exactly as an uninterrupted run's. Lists every file it
   // owns in `files`, in the order of the summary (topology.data, XYZ, thermo, state, H5MD,
-  // checkpoint).
+  // checkpoint). An empty `dir`: no files at all, the time grids (and so the thermo samples) as
+  // with files, checkpoint_path() empty.
   RunOutputs(Scene& scene, const std::string& dir, const Thermo& thermo, const double* restart_cut,
              std::vector<std::string>& files, std::ostream& log);
 
@@ -47,11 +48,16 @@ class RunOutputs {
   // The thermo columns as written (normalised with [output] thermo_norm, in the deck's units), and the
   // last row written.
   const ThermoOutput& thermo_table() const { return table_; }
+  // A thermo row as written (for rows sampled outside the grids: the Python module's thermo()).
+  const std::vector<double>& as_written(const std::vector<double>& row) { return table_(row); }
   const std::vector<double>& thermo_row() const { return written_; }
   // After the last step: the LAMMPS data file and the histograms, when asked for.
   void write_final(std::vector<std::string>& files);
 
   const std::string& checkpoint_path() const { return checkpoint_path_; }
+  // Closes every file (a gzip stream gets its end), as the destructor would; nothing is written
+  // after it.
+  void close();
 
  private:
   void write_state(const State& s);

@@ -490,7 +490,7 @@ void read_output(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
-// What run_simulation will ask of the scene, asked now: the integrator is built once here and
+// What a Run (engine/run/run.hpp) will ask of the scene, asked now: the integrator is built once here and
 // discarded, so that whatever its constructor refuses (the effective dynamics' cluster limit,
 // constraints it cannot solve) is refused by `check` too, at integrator.method, before [prepare].
 void check_integrator(DeckTable& root, Scene& sc) {
@@ -507,7 +507,7 @@ void check_integrator(DeckTable& root, Scene& sc) {
   } catch (const NumericalError& e) {
     fail(e.what());
   }
-  // Likewise the observers run_simulation builds: the thermo row (with the modes when actions are
+  // Likewise the observers a Run builds: the thermo row (with the modes when actions are
   // observed) and the projected momenta of the state output.
   auto refused_at = [&](const char* table, const char* key, const std::string& what) {
     if (auto t = root.table(table)) t->fail(key, "the scene cannot provide it: " + what);
@@ -602,12 +602,14 @@ int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3X
   return first;
 }
 
-std::int64_t Scene::num_steps() const {
-  // Round to the nearest whole step when t_end/h is an integer up to rounding, else up.
-  const double r = run.t_end / integrator.h;
-  const double nearest = std::round(r);
+std::int64_t whole_steps(double span, double h) {
+  const double r = span / h, nearest = std::round(r);
   return static_cast<std::int64_t>(std::abs(r - nearest) <= kWholeStepTolerance * std::max(1.0, r) ? nearest
                                                                                                    : std::ceil(r));
+}
+
+std::int64_t Scene::num_steps() const {
+  return whole_steps(run.t_end, integrator.h);
 }
 
 // What the monitor's default checks need of the scene, and the likely cause of a run that leaves

@@ -59,6 +59,11 @@ struct PrepareTable : PrepareSettings {
   std::string where;       // "file:line" of that table, for errors
 };
 
+// Macro steps of size h to cover a time span: the nearest whole number when span/h is one up to
+// a relative 1e-9 (run.t_end must be: read_run), else rounded up (a span that is not a whole
+// number of steps, as the Python module's run_to may ask for, ends at the first step after it).
+std::int64_t whole_steps(double span, double h);
+
 struct Scene {
   std::string deck_path;
   Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (engine/core/units.hpp)

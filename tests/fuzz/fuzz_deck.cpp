@@ -17,7 +17,7 @@
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/io/lammps_data.hpp"
-#include "engine/run/simulation.hpp"
+#include "engine/run/run.hpp"
 #include "engine/scene/scene.hpp"
 #include "fuzz_support.hpp"
 

@@ -1,0 +1,359 @@
+#include "engine/run/run.hpp"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
+#include "integrators/methods.hpp"
+
+namespace stiffmd {
+namespace fs = std::filesystem;
+
+namespace {
+
+// Writes the file whole or not at all: a temporary file renamed into place.
+void write_atomically(const fs::path& p, const std::string& text) {
+  const fs::path tmp = p.string() + ".tmp";
+  {
+    std::ofstream out(tmp);
+    out << text;
+    if (!out) throw InputError(tmp.string() + ": write failed");
+  }
+  fs::rename(tmp, p);
+}
+
+// The observables as the run counts them: the rigid constraints of the constrained methods take
+// one degree of freedom each.
+ObservableSettings run_observables(const Scene& sc) {
+  ObservableSettings observables = sc.observables;
+  if (find_method(sc.integrator.method)->rigid_constraints)
+    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  return observables;
+}
+
+// A restart's checkpoint, read and checked against the scene (which loads the force terms'
+// states) before anything else: a damaged or foreign one is refused before any output is touched.
+Checkpoint resumed_checkpoint(Scene& sc, const RunOptions& opt) {
+  if (opt.restart.empty()) return {};
+  return opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
+}
+
+double seconds_now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace
+
+void check_finite(const State& s) {
+  // In the particle blocks of the threads, as the integrators write x and v: read serially, the
+  // blocks the other threads had just written came over from their cores.
+  const int parts = threads_for(s.size());
+  std::array<char, kMaxParts> finite{};
+  run_parts(parts, [&](int u) {
+    const std::int64_t b = block_begin(s.size(), parts, u), e = block_begin(s.size(), parts, u + 1);
+    finite[u] = s.x.middleCols(b, e - b).allFinite() && s.v.middleCols(b, e - b).allFinite();
+  });
+  if (std::all_of(finite.begin(), finite.begin() + parts, [](char f) { return f != 0; })) return;
+  int bad = 0;
+  while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
+  std::ostringstream m;
+  m.precision(10);
+  m << "numerical failure: non-finite position or velocity of particle " << bad << " at step " << s.step
+    << " (t = " << s.t << "); reduce integrator.h or micro_dt";
+  throw NumericalError(m.str());
+}
+
+void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k) {
+  try {
+    integrator.step(s, h);
+  } catch (const NumericalError& e) {
+    std::ostringstream m;
+    m.precision(10);
+    m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+    throw NumericalError(m.str());
+  }
+  s.step = k;
+  s.t = t_k;
+  check_finite(s);
+}
+
+Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
+    : sc_(sc),
+      s_(sc.state),
+      options_(opt),
+      log_(log),
+      resumed_(resumed_checkpoint(sc, opt)),
+      integrator_(make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)),
+      thermo_(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology),
+      monitor_(sc.monitor, thermo_, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
+               find_method(sc.integrator.method)->effective),
+      stats_(sc.forces->num_levels()),
+      h_(sc.integrator.h) {
+  summary_.method = sc.integrator.method;
+  summary_.units = sc.units.name;
+  summary_.h = sc.integrator.h * sc.units.out(Dimension::time);
+  summary_.micro_steps = sc.integrator.micro_steps;
+  summary_.t_end = sc.run.t_end * sc.units.out(Dimension::time);
+  if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary_.epsilon = sb->epsilon;
+
+  const bool restarting = !opt.restart.empty();
+  auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };
+  if (restarting) {
+    if (resumed_.method == sc.integrator.method) try {
+        integrator_->load_state(resumed_.integrator_state);
+      } catch (const std::invalid_argument& e) {
+        refuse(e.what());
+      }
+    if (!thermo_.load_state(resumed_.thermo_state)) refuse("thermo state does not fit this scene's observables");
+    if (!monitor_.load_state(resumed_.monitor_state))  // [observables] actions changed with --set
+      log << "note: " << opt.restart << ": the monitor's reference is taken afresh (the actions observed changed)\n";
+    if (const std::string e = stats_.load(resumed_.run_state); !e.empty()) refuse(e);
+    summary_.initial_actions = stats_.initial_actions;
+    // The scene's state becomes the checkpoint's; the deck supplies everything else. With another
+    // method the integrator starts afresh from that state.
+    s_ = resumed_.state;
+    if (resumed_.method != sc.integrator.method || resumed_.h != sc.integrator.h)
+      log << "note: " << opt.restart << " was written by " << resumed_.method << " with h = " << resumed_.h
+          << "; continuing with " << sc.integrator.method << ", h = " << sc.integrator.h
+          << " (not bit-identical to an uninterrupted run)\n";
+    if (resumed_.method != sc.integrator.method) integrator_->prepare(s_, log);  // else: its state is loaded
+    log << "restart from " << opt.restart << " at step " << s_.step << " (t = " << s_.t << ")\n";
+  } else {
+    integrator_->prepare(s_, log);
+  }
+
+  const bool new_h = restarting && s_.t != static_cast<double>(s_.step) * h_;
+  t0_ = new_h ? s_.t : 0.0;
+  k0_ = new_h ? s_.step : 0;
+  first_action_ = thermo_.column("action_1");
+  num_actions_ = thermo_.modes() ? thermo_.modes()->num_modes() : 0;
+  sc.forces->reset_counters();
+  // The list is built before the run (relaxation, first force); on restart the rebuilds of the
+  // run so far come from the checkpoint.
+  for (const auto& term : sc.forces->terms()) rebuilds_at_start_ += term->neighbor_list_rebuilds();
+  check_finite(s_);
+  if (!restarting) {
+    const auto& row = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
+                                     integrator_->kinetic_energy_estimate(s_));  // E(0) and the initial actions
+    if (first_action_ >= 0) {
+      stats_.initial_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
+      summary_.initial_actions = stats_.initial_actions;
+    }
+  }
+  // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
+  // an extra evaluation would move the neighbour list on where the interrupted run did not.
+  for (const auto& note : thermo_.take_notes()) log << note << "\n";
+
+  // Outputs: fresh files, or on restart the same files cut back to the step before the
+  // checkpoint, t_{k−1}; the frame at t_k is written again below if the uninterrupted run would
+  // have written one. So the files end up exactly as an uninterrupted run's (without the
+  // interrupted run's off-grid final frame).
+  if (!opt.out_dir.empty()) prepare_output_directory(sc, opt.out_dir);
+  const double cut = new_h ? s_.t - resumed_.h : static_cast<double>(s_.step - 1) * h_;
+  outputs_ = std::make_unique<RunOutputs>(sc, opt.out_dir, thermo_, restarting ? &cut : nullptr, summary_.outputs, log);
+  // The terminal: the thermo lines (from the rows the thermo file gets) and the progress bar.
+  bool levels = false;
+  for (const auto& term : sc.forces->terms()) levels |= term->level() == Level::fast;
+  screen_ = std::make_unique<ThermoScreen>(outputs_->thermo_table(), sc.output.screen_interval, opt.screen, levels);
+  if (restarting) screen_->served_until(cut);
+  col_total_ = thermo_.column("total");
+  col_drift_ = thermo_.column("energy_drift");
+  col_violation_ = thermo_.column("max_violation");
+  col_alerts_ = thermo_.column("alerts");
+
+  final_step_ = k0_ + whole_steps(sc.run.t_end - t0_, h_);
+  first_step_ = s_.step + 1;
+  progress_ = std::make_unique<Progress>(opt.progress, final_step_ - s_.step);
+  fingerprint_ = scene_fingerprint(sc);
+
+  observe();
+  summary_.initial_energy = thermo_.initial_energy();
+  // Periodic checkpoints on their time grid ([output] checkpoint_interval), from the start's time
+  // on: the first at or after the first multiple of the interval.
+  if (sc.output.checkpoint_interval > 0.0 && !outputs_->checkpoint_path().empty()) {
+    checkpoint_due_.emplace(sc.output.checkpoint_interval);
+    checkpoint_due_->served_until(s_.t);
+  }
+  if (opt.handle_signals) install_stop_handlers();
+  signal_at_ = SignalAtStep::from_environment();  // tests: a signal at an exact step
+  wall_start_ = seconds_now();
+  cpu_start_ = std::clock();
+}
+
+Run::~Run() = default;
+
+void Run::step_to(std::int64_t k) {
+  while (s_.step < k) {
+    if (pending_) {
+      pending_ = false;
+      after_step();
+      if (stopped()) return;
+    }
+    const std::int64_t j = s_.step + 1;
+    take_step(*integrator_, s_, h_, j, t0_ + static_cast<double>(j - k0_) * h_);
+    pending_ = true;
+  }
+}
+
+void Run::after_step() {
+  observe();
+  signal_at_.at(s_.step);
+  if (options_.handle_signals)
+    if (const int sig = stop_requested()) {
+      summary_.stopped_by_signal = sig;
+      return;
+    }
+  if (checkpoint_due_ && checkpoint_due_->due(s_.t)) write_checkpoint_now();
+  progress_->update(s_.step - first_step_ + 1);
+}
+
+const RunSummary& Run::finish() {
+  summary_.cpu_seconds = static_cast<double>(std::clock() - cpu_start_) / CLOCKS_PER_SEC;
+  summary_.wall_seconds = seconds_now() - wall_start_;
+  progress_->finish(s_.step - first_step_ + 1);  // where it stopped: a signal leaves the bar short of 100 %
+  write_checkpoint_now();
+  summary_.steps = s_.step;
+  if (stopped()) {  // outputs are flushed frame by frame; no summary.json: not finished
+    outputs_->close();
+    return summary_;
+  }
+  // The final state is always written, exactly once, whatever the intervals.
+  pending_ = false;
+  observe(true);
+  const std::vector<double>& row = last_row_;
+  outputs_->write_final(summary_.outputs);
+  outputs_->close();
+  summary_.final_energy = row[col_total_];
+  summary_.final_max_violation = row[col_violation_];
+  if (first_action_ >= 0)
+    summary_.final_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
+  summary_.max_energy_error = stats_.max_energy_error;
+  bool has_pairs = false;
+  for (const auto& term : sc_.forces->terms()) has_pairs |= term->uses_neighbor_list();
+  if (has_pairs) summary_.neighbor_rebuilds = rebuilds_now();
+  const std::vector<std::int64_t> now = evaluations_now();
+  summary_.slow_evaluations = stats_.evaluations.back() + now.back();
+  summary_.fast_evaluations = stats_.evaluations.front() + now.front();
+  summary_.level_evaluations.clear();
+  for (int k = 0; k < sc_.forces->num_levels(); ++k)
+    summary_.level_evaluations.emplace_back(sc_.forces->level_name(Level{k}), stats_.evaluations[k] + now[k]);
+  if (!options_.out_dir.empty()) {
+    const fs::path summary_path = fs::path(options_.out_dir) / "summary.json";
+    summary_.outputs.push_back(summary_path.string());
+    write_atomically(summary_path, summary_json(summary_));
+  }
+  return summary_;
+}
+
+const std::vector<double>& Run::sample() {
+  last_row_ = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
+                             integrator_->kinetic_energy_estimate(s_));
+  stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
+  for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
+  alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
+  last_row_[col_alerts_] = alerts_;
+  if (alerts_ == 0 && monitor_.stops()) {
+    last_good_.state = s_;
+    snapshot(last_good_);
+  }
+  return last_row_;
+}
+
+// One sample of the observables serves the thermo row and the H5MD frame of the same step.
+void Run::observe(bool final) {
+  const bool sampled = outputs_->due(s_.t, final);
+  if (sampled) sample();
+  outputs_->write(s_, last_row_);
+  if (outputs_->thermo_sampled() && screen_->due(s_.t, final)) {
+    progress_->clear();  // a line of its own, not after the bar (when both are on one terminal)
+    screen_->print(outputs_->thermo_row(), s_.step);
+  }
+  if (sampled && alerts_ > 0 && monitor_.stops()) {
+    // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
+    std::ostringstream m;
+    m.precision(10);
+    m << monitor_.last_alert() << "; stopped ([monitor] on_alert = \"stop\"), ";
+    const std::string& path = outputs_->checkpoint_path();
+    if (last_good_.method.empty()) {  // the first sample alerted: there is no state to keep
+      m << "no sampled state was within the thresholds, no checkpoint written";
+    } else if (!path.empty()) {
+      write_checkpoint(path, last_good_);
+      summary_.checkpoint = path;
+      m << "the last state within the thresholds (step " << last_good_.state.step << ", t = " << last_good_.state.t
+        << ") is in " << path;
+    }
+    throw NumericalError(m.str());
+  }
+}
+
+const std::vector<double>& Run::sample_now() {
+  last_row_ = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
+                             integrator_->kinetic_energy_estimate(s_));
+  for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
+  return last_row_;
+}
+
+void Run::state_changed() {
+  integrator_->reset();
+  thermo_.set_initial_energy(sample_now()[col_total_]);
+}
+
+std::vector<std::int64_t> Run::evaluations_now() const {
+  std::vector<std::int64_t> e;
+  for (int k = 0; k < sc_.forces->num_levels(); ++k) e.push_back(sc_.forces->evaluations(Level{k}));
+  return e;
+}
+
+long Run::rebuilds_now() const {
+  long r = 0;
+  for (const auto& term : sc_.forces->terms()) r += term->neighbor_list_rebuilds();
+  return stats_.neighbor_rebuilds + r - rebuilds_at_start_;
+}
+
+// Everything but the state that a restart needs (checkpoint.hpp), as of now.
+Checkpoint& Run::snapshot(Checkpoint& c) {
+  c.method = sc_.integrator.method;
+  c.h = h_;
+  c.scene_fingerprint = fingerprint_;
+  c.integrator_state = integrator_->save_state();
+  c.force_term_states.clear();
+  for (const auto& term : sc_.forces->terms()) c.force_term_states.push_back(term->save_state());
+  c.thermo_state = thermo_.save_state();
+  c.monitor_state = monitor_.save_state();
+  c.run_state = stats_.save(evaluations_now(), rebuilds_now());
+  return c;
+}
+
+void Run::write_checkpoint_now() {
+  const std::string& path = outputs_->checkpoint_path();
+  if (path.empty()) return;
+  write_checkpoint(path, s_, snapshot(now_));
+  summary_.checkpoint = path;
+}
+
+RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
+  Run run(sc, opt, log);
+  run.step_to(run.final_step());
+  return run.finish();
+}
+
+void check_run(Scene& sc, std::ostream& log) {
+  const State initial = sc.state;
+  try {
+    RunOptions no_outputs;
+    no_outputs.handle_signals = false;
+    Run run(sc, no_outputs, log);
+  } catch (...) {
+    sc.state = initial;
+    throw;
+  }
+  sc.state = initial;
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,139 @@
+// A run: what a run builds from a prepared scene, as components — the integrator, the observers
+// (thermo row and monitor), the outputs and the terminal, the run statistics, the checkpoints —
+// driven by step_to(k) and finish() (docs/design.md, "The run"). `stiffmd run` drives one to
+// run.t_end, `stiffmd check` builds one without outputs and discards it, and the Python module
+// steps one from Python; so what a run refuses, check refuses, and the three see the same
+// numbers. Each component saves and loads its own part of a checkpoint.
+//
+// Step k is at t_k = t0 + (k − k0) h: from the start, and on a restart whose checkpoint is at
+// t = k h (the same h throughout), t0 = k0 = 0, so t_k = k h exactly, the uninterrupted run's
+// times. After a change of h the run continues from the checkpoint's time (k0 = its step).
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <ctime>
+#include <memory>
+#include <optional>
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "engine/io/writers.hpp"
+#include "engine/observe/monitor.hpp"
+#include "engine/observe/observables.hpp"
+#include "engine/run/checkpoint.hpp"
+#include "engine/run/outputs.hpp"
+#include "engine/run/progress.hpp"
+#include "engine/run/run_statistics.hpp"
+#include "engine/run/screen.hpp"
+#include "engine/run/signals.hpp"
+#include "engine/run/summary.hpp"
+#include "engine/scene/scene.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+struct RunOptions {
+  // Where the outputs go (created if missing); empty: no files at all (check, and the Python
+  // module unless asked), the thermo samples and the monitor still on their grid.
+  std::string out_dir;
+  bool progress = false;  // progress bar with ETA on stderr
+  std::string restart;    // checkpoint to continue from ("" = a fresh run)
+  // The restart's checkpoint already read by read_checkpoint_for (which loads the force terms'
+  // states into the scene); null: the Run reads `restart` itself, before any output.
+  const Checkpoint* checkpoint = nullptr;
+  // Where the thermo lines go ([output] screen_interval; engine/run/screen.hpp): stdout for the
+  // CLI, null (no lines) for `--quiet` and for callers that want no terminal output.
+  std::FILE* screen = nullptr;
+  // SIGINT/SIGTERM stop the run cleanly after the step in progress (the CLI); the Python module
+  // leaves them to Python.
+  bool handle_signals = true;
+};
+
+class Run {
+ public:
+  // Restores the checkpoint (or prepares the method's initial data), takes the first sample and
+  // only then opens the outputs: whatever fails on the initial state (a foreign checkpoint: exit
+  // 2; the method's preparation, a non-finite state: exit 3) fails before any file is touched.
+  Run(Scene& scene, const RunOptions& options, std::ostream& log);
+  ~Run();
+  Run(const Run&) = delete;
+  Run& operator=(const Run&) = delete;
+
+  // The step of run.t_end.
+  std::int64_t final_step() const { return final_step_; }
+  // Macro steps up to step k (or until a SIGINT/SIGTERM: stopped()). After each step but the last
+  // one taken, the outputs due, the [monitor] checks, a periodic checkpoint; the last step's are
+  // taken by the next step_to or by finish(). Throws NumericalError (exit 3) on a non-finite state
+  // or a monitor stop, the outputs written so far readable.
+  void step_to(std::int64_t k);
+  int stopped() const { return summary_.stopped_by_signal; }
+  // Ends the run: the checkpoint, and unless stopped by a signal, every output of the current
+  // state (whatever the grids), the files written at the end and summary.json.
+  const RunSummary& finish();
+
+  // For the Python module: the thermo row of the current state (sampled now, as the run samples;
+  // no monitor), the columns as written (ThermoOutput), and a state set from outside (the
+  // integrator's cached forces forgotten, energy_drift measured from the new state on).
+  const std::vector<double>& sample_now();
+  const ThermoOutput& thermo_table() const { return outputs_->thermo_table(); }
+  const std::vector<double>& as_written(const std::vector<double>& row) { return outputs_->as_written(row); }
+  void state_changed();
+  Integrator& integrator() { return *integrator_; }
+  const Thermo& thermo() const { return thermo_; }
+
+ private:
+  void observe(bool final = false);  // the outputs due at this step (`final`: all)
+  const std::vector<double>& sample();
+  void after_step();  // what follows a step that is not the run's last
+  Checkpoint& snapshot(Checkpoint& c);
+  void write_checkpoint_now();
+  std::vector<std::int64_t> evaluations_now() const;
+  long rebuilds_now() const;
+
+  Scene& sc_;
+  State& s_;
+  RunOptions options_;
+  std::ostream& log_;
+  RunSummary summary_;
+  Checkpoint resumed_;  // a restart's checkpoint (empty for a fresh run)
+  std::unique_ptr<Integrator> integrator_;
+  Thermo thermo_;
+  Monitor monitor_;
+  RunStatistics stats_;
+  std::unique_ptr<RunOutputs> outputs_;
+  std::unique_ptr<ThermoScreen> screen_;
+  std::unique_ptr<Progress> progress_;
+  std::optional<IntervalSchedule> checkpoint_due_;
+  SignalAtStep signal_at_;
+  std::uint64_t fingerprint_ = 0;
+  double h_ = 0.0, t0_ = 0.0;
+  std::int64_t k0_ = 0, first_step_ = 0, final_step_ = 0;
+  long rebuilds_at_start_ = 0;  // this process's rebuild count when the run started
+  bool pending_ = false;        // the last step's outputs are still to be taken
+  int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
+  std::vector<double> last_row_;
+  int alerts_ = 0;         // of the last sample
+  Checkpoint last_good_;   // with on_alert = "stop": the run as of the last sample without alerts
+  Checkpoint now_;         // snapshot() of the current step, written with the state (no copy)
+  double wall_start_ = 0.0;
+  std::clock_t cpu_start_ = 0;
+};
+
+// `stiffmd run`: a Run from the scene's state to run.t_end.
+RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
+
+// `stiffmd check`: a Run without outputs built on the scene and discarded, so that check fails
+// where run would fail before its first step. The scene's state is left as it was.
+void check_run(Scene& scene, std::ostream& log);
+
+// Throws NumericalError naming the first particle with a non-finite position or velocity, and
+// the step and time, if there is one.
+void check_finite(const State& s);
+// Macro step k of a run (the state is at step k − 1): integrator.step(s, h), then s.step = k and
+// s.t = t_k (given, so that time has no accumulated round-off), then check_finite. A
+// NumericalError from the step is re-thrown naming k and the time.
+void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k);
+
+}  // namespace stiffmd

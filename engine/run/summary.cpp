@@ -1,0 +1,65 @@
+#include "engine/run/summary.hpp"
+
+#include <sstream>
+
+namespace stiffmd {
+
+std::string format_summary(const RunSummary& s) {
+  std::ostringstream o;
+  o.precision(6);
+  o << "method:        " << s.method << " (h = " << s.h;
+  if (s.micro_steps > 1) o << ", " << s.micro_steps << " micro steps of " << s.h / s.micro_steps;
+  o << ")\n";
+  o << "steps:         " << s.steps << " to t = " << s.t_end << " in " << s.wall_seconds << " s wall\n";
+  o << "force evals:   ";
+  if (s.level_evaluations.size() > 2) {
+    for (size_t k = s.level_evaluations.size(); k-- > 0;)
+      o << s.level_evaluations[k].second << " " << s.level_evaluations[k].first << (k ? ", " : "");
+  } else {
+    o << s.slow_evaluations << " slow, " << s.fast_evaluations << " fast";
+  }
+  if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
+  o << "\n";
+  const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
+  o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
+    << ", max |E - E(0)| = " << s.max_energy_error << " (relative " << rel << ")\n";
+  if (!s.final_actions.empty()) {
+    o << "actions:       ";
+    for (size_t k = 0; k < s.final_actions.size(); ++k)
+      o << (k ? ", " : "") << "I_" << k + 1 << " " << s.initial_actions[k] << " -> " << s.final_actions[k];
+    o << "\n";
+  }
+  o << "outputs:       ";
+  for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
+  o << "\n";
+  return o.str();
+}
+
+std::string summary_json(const RunSummary& s) {
+  std::ostringstream o;
+  o.precision(17);
+  auto list = [&](const std::vector<double>& v) {
+    o << "[";
+    for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
+    o << "]";
+  };
+  o << "{\n  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
+    << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
+    << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
+    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds
+    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"level_evaluations\": {";
+  for (size_t k = 0; k < s.level_evaluations.size(); ++k)
+    o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
+  o << "}"
+    << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
+    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
+    << ",\n  \"initial_actions\": ";
+  list(s.initial_actions);
+  o << ",\n  \"final_actions\": ";
+  list(s.final_actions);
+  o << "\n}\n";
+  return o.str();
+}
+
+}  // namespace stiffmd

@@ -1,0 +1,41 @@
+// The summary of a run: what the terminal prints at its end and summary.json holds (written only
+// for a finished run).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace stiffmd {
+
+struct RunSummary {
+  std::string method;
+  std::string units = "lj";  // the deck's: h and t_end are in its time unit (real: fs)
+  std::int64_t steps = 0;
+  double h = 0.0;
+  int micro_steps = 1;
+  double t_end = 0.0;
+  double wall_seconds = 0.0;
+  double cpu_seconds = 0.0;  // process CPU time of the step loop
+  double epsilon = 0.0;      // of the stiff bonds (0 if none)
+  double initial_energy = 0.0;
+  double final_energy = 0.0;
+  double max_energy_error = 0.0;      // max |E(t) − E(0)| over the thermo samples
+  std::int64_t slow_evaluations = 0;  // of the outermost level
+  std::int64_t fast_evaluations = 0;  // of the innermost level
+  // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
+  std::vector<std::pair<std::string, std::int64_t>> level_evaluations;
+  long neighbor_rebuilds = -1;  // over the run; −1 when the scene has no pair term
+  double final_max_violation = 0.0;
+  std::vector<double> initial_actions, final_actions;  // when actions are observed
+  std::vector<std::string> outputs;
+  int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
+  std::string checkpoint;     // the last checkpoint written
+};
+
+std::string format_summary(const RunSummary& s);
+// The summary as JSON (written to DIR/summary.json at the end of a successful run only).
+std::string summary_json(const RunSummary& s);
+
+}  // namespace stiffmd
