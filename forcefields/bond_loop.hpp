@@ -1,4 +1,4 @@
-// The loop over two-body bonds, written once and shared by every bond style (style.md §1,
+// The loop over two-body bonds, written once and shared by every bond style (docs/design.md §11.1,
 // after HOOMD's EvaluatorBond*): a style supplies only a kernel
 //     static void eval(double r, const Params& p, double& energy, double& dE_dr);
 //
@@ -348,7 +348,7 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   for (int a = 0; a < 3; ++a) fp[3 * (p + m) + a] = prev_base[a] - carry[a];
 }
 
-// The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
+// The fused micro step (FusedMicroStep, force_term.hpp; docs/design.md §3): in one pass over the
 // particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
 // forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
 // f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same

@@ -1,4 +1,4 @@
-// The loop over non-bonded pairs, written once and shared by every pair style (style.md §1,
+// The loop over non-bonded pairs, written once and shared by every pair style (docs/design.md §11.1,
 // after HOOMD's PotentialPair and miniMD's force_lj): a style supplies only a kernel (see
 // pair_potentials.hpp)
 //     static void eval(double r2, const Params& p, double& energy, double& fpair);

@@ -1,4 +1,4 @@
-// The constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3).
+// The constraint toolbox (docs/design.md §2; Lubich & Weiss §2.2–2.3).
 //
 // Every operation reduces to solves with K(a, b) = G(a) M⁻¹ G(b)ᵀ on one cluster:
 //   S(x) = K(x, x)        (SPD)  force and velocity projections;
@@ -141,7 +141,7 @@ bool pivots_regular(const Eigen::MatrixBase<Pivots>& pivots, double scale) {
   return pivots.allFinite() && pivots.cwiseAbs().minCoeff() > kSingularPivot * scale;
 }
 
-// Open chains in chain order: K is tridiagonal (design.md §2). S itself never needs a row
+// Open chains in chain order: K is tridiagonal (docs/design.md §2). S itself never needs a row
 // swap (each Schur complement is ≥ the next sub-diagonal entry, 1/m_shared), but J far from
 // the manifold (SHAKE from a distant start, the mollifier of a badly stretched state) does.
 class TridiagonalSolver final : public ClusterSolver {
@@ -1296,7 +1296,7 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
     if (error[j]) std::rethrow_exception(error[j]);
 }
 
-// Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
+// Steps 2–4 of the mollified force (docs/design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
 // which follows by differentiating X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and
 // data[c].lambda holds the multipliers of X = α(x).
 void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {

@@ -1,4 +1,4 @@
-// The simulation loop (design.md §6): step the integrator to t_end, watch for numerical
+// The simulation loop (docs/design.md §8): step the integrator to t_end, watch for numerical
 // failure, write outputs on their time grids, and summarise.
 #pragma once
 
