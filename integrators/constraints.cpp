@@ -14,8 +14,8 @@
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
 // Clusters are solved in parallel on the OpenMP threads (Impl::for_each_cluster).
 //
-// S(x) is measured and factored once per configuration (issue 14: a constrained BAOAB step asks
-// for it up to five times at three positions). The toolbox keeps the last configuration it was
+// S(x) is measured and factored once per configuration, because a constrained BAOAB step asks
+// for it up to five times at three positions (docs/design.md §2). The toolbox keeps the last configuration it was
 // handed, bit for bit, with G there and S's factors; an operation at the same x reuses them. What
 // is kept is a function of x alone, so a run restarted without the cache computes the same bits.
 // SHAKE near its reference iterates with that S(x_ref) (the chord, SHAKE's own quasi-Newton, no
@@ -96,12 +96,11 @@ constexpr int kMollifierMaxIter = 50;
 // manifold, Impl::chain_gap; a drift of one step: |g| ~ (h|v_rel|)²/(2ℓ), 1e-4 ℓ typical on the
 // stiff melt), and switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces
 // the largest residual by less than kChordContraction. The chord's rate is about |G(y) − G(x_ref)|
-// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. The start bound was 1e-2 ℓ: a
-// full drift of h = 0.02 (fixman's OBABO step) on data.chain puts the fastest pair of some chains
-// past it ((0.02 · 8)²/2 ≈ 0.013), and those chains then took Newton from the start (a measure,
-// a factorization of J and a solve per iteration): OBABO was 3 % faster than BAOAB per step with
-// 1e-2 and is 13 % faster with 5e-2 (medians of 5 interleaved runs each). The chords still
-// contract there (the contraction test guards the rest).
+// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. Why 5e-2 ℓ: a full drift of
+// h = 0.02 (fixman's OBABO step) on data.chain puts the fastest pair of some chains at
+// |g| ≈ (0.02 · 8)²/2 ≈ 0.013 ℓ, and a chain past the bound takes Newton from the start (a
+// measure, a factorization of J and a solve per iteration) although the chords still contract
+// there; the contraction test guards the rest (docs/performance_notes.md: OBABO against BAOAB).
 constexpr double kChordStart = 5e-2;
 constexpr double kChordContraction = 0.25;
 

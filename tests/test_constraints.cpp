@@ -610,7 +610,7 @@ TEST(ConstraintShake, NonConvergenceNamesClusterWorstBondAndIterations) {
   }
 }
 
-// ---- one configuration, measured and factored once (issue 14) -------------------------------
+// ---- one configuration, measured and factored once (docs/design.md §2) ---------------------------
 
 // RATTLE's drift: x_ref on the manifold, v tangent there, y0 = x_ref + τv, so |g(y0)| ~ τ²|v|².
 // Open chains then take SHAKE's chord steps on the kept S(x_ref) and need no factorization; the
