@@ -1,4 +1,4 @@
-// The stiffmd command line (design.md §7):
+// The stiffmd command line (docs/design.md §8):
 //   stiffmd run DECK [-o DIR] [--set key=value]...   exit 0 ok, 2 bad input, 3 numerical failure
 //   stiffmd check DECK [--set key=value]... [--write-data FILE]
 //                                                    validate and describe the scene; write its

@@ -1,4 +1,4 @@
-// The loop over two-body bonds, written once and shared by every bond style (style.md §1,
+// The loop over two-body bonds, written once and shared by every bond style (docs/design.md §11.1,
 // after HOOMD's EvaluatorBond*): a style supplies only a kernel
 //     static void eval(double r, const Params& p, double& energy, double& dE_dr);
 //
@@ -257,9 +257,10 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
 // so the same bits (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). x, v and f of a
 // particle are read and written once, the bond vector comes from registers, and the bonds' square
 // roots and divisions, independent from bond to bond, overlap with the streaming of the particles.
-// (It replaced blocks of 64 bonds — drift the block's particles, gather their separations from x,
-// the vectorised forces, the forces written back — at 2.2–2.3 × the memory floor, against 1.9 ×:
-// BM_MicroStepVsFloor, 2026-11-25.)
+// Why one pass rather than blocks of bonds (drift a block's particles, gather their separations
+// from x, vectorised forces, write the forces back): a micro step is bound by memory traffic, and
+// the pass touches each particle's x, v and f once, so it runs closer to the memory floor
+// (docs/performance_notes.md, BM_MicroStepVsFloor).
 template <class Kernel, bool kPaired, class Params>
 void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, double* __restrict xp,
                   double* __restrict vp, double* __restrict fp, const double* __restrict w_inv, double dt_kick,
@@ -294,13 +295,11 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
   // A short run (a small molecule, the pendulum) two bonds at a time, their square roots and
   // divisions side by side: its few bonds would otherwise wait for each other. A long run one bond
-  // at a time: there the bonds of successive iterations overlap anyway, and the paired loop was
-  // ≈ 5 % slower on data.chain's micro step (158–165 against 152–159 µs). The bond's −dE/dr / r is
-  // written out in both loops: one lambda for it made the single loop ≈ 5 % slower (166–170
-  // against 158–161 µs, 2026-11-25).
+  // at a time: there the bonds of successive iterations overlap anyway, and pairing them only adds
+  // work (measured slower on data.chain's micro step). The bond's −dE/dr / r is written out in
+  // both loops rather than shared through a lambda, which measured slower in the single loop.
   // kPaired: the caller's choice, m ≤ kFewBonds; a template parameter, so that the long runs' loop
-  // is compiled as if the paired one were not there (with it: 155–160 against 152–154 µs in one
-  // comparison, within the noise in another).
+  // is compiled as if the paired one were not there. Measurements: docs/performance_notes.md.
   std::int64_t q = 1;
   for (; kPaired && q + 1 <= m; q += 2) {
     const std::int64_t i = p + q + 1;
@@ -348,7 +347,7 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
   for (int a = 0; a < 3; ++a) fp[3 * (p + m) + a] = prev_base[a] - carry[a];
 }
 
-// The fused micro step (FusedMicroStep, force_term.hpp; design.md §3): in one pass over the
+// The fused micro step (FusedMicroStep, force_term.hpp; docs/design.md §3): in one pass over the
 // particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
 // forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
 // f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same

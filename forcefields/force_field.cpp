@@ -7,9 +7,9 @@
 namespace stiffmd {
 namespace {
 
-// out = 0, in particle blocks on the threads (a 32 000-particle memset, 20 times per macro step
-// of the impulse method, was a serial 1.4 % of it); a few particles directly (the pendulum's
-// step paid 9 ns for the parallel machinery around a 72-byte clear).
+// out = 0, in particle blocks on the threads (a serial 32 000-particle memset, 20 times per macro
+// step of the impulse method, is 1.4 % of it); a few particles directly (around a 72-byte clear,
+// the parallel machinery costs the pendulum's step 9 ns).
 void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
   if (out.cols() != n) out.resize(3, n);
   const int parts = threads_for(n);

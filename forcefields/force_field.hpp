@@ -1,5 +1,5 @@
 // The set of force terms of a scene, grouped by level, with one entry point that
-// evaluates a set of levels (style.md §2): forces(x, levels, out) -> energy.
+// evaluates a set of levels (docs/design.md §11.2): forces(x, levels, out) -> energy.
 #pragma once
 
 #include <Eigen/Core>

@@ -1,4 +1,4 @@
-// The force-term interface (style.md §1–3). A term knows its energy and forces and the
+// The force-term interface (docs/design.md §11.1–§11.3). A term knows its energy and forces and the
 // level it is integrated on; it knows nothing about decks or integrators.
 #pragma once
 
@@ -14,7 +14,7 @@
 
 namespace stiffmd {
 
-// Time-scale levels of the splitting H = T + U + ε⁻²V (design.md §1, §3): an index into the
+// Time-scale levels of the splitting H = T + U + ε⁻²V (docs/design.md §1, §3): an index into the
 // scene's levels, innermost (fastest) first, as LAMMPS numbers its r-RESPA levels. A scene
 // without [[integrator.levels]] has two, "fast" (index 0, the micro steps) and "slow" (index 1,
 // the macro-step kicks); Level::fast and Level::slow name those, and in the force-style
@@ -29,7 +29,7 @@ struct Level {
 inline constexpr Level Level::fast{0};
 inline constexpr Level Level::slow{1};
 
-// A capability of a fast term (design.md §3): the innermost micro step of multiple time stepping
+// A capability of a fast term (docs/design.md §3): the innermost micro step of multiple time stepping
 // in one pass over the particles. kick_drift_force does v += dt_kick M⁻¹f, x += dt v, and then
 // replaces f by the term's force at the new x — the same bits as kick_drift, f = 0, add_forces
 // (MultipleTimeStepping::run_innermost uses it when the term is alone on the innermost level).
@@ -58,7 +58,7 @@ class ForceTerm {
     return 0.0;
   }
 
-  // Capabilities (style.md: facts on the term, not lists of style names elsewhere).
+  // Capabilities (docs/design.md §11.1: facts on the term, not lists of style names elsewhere).
   // Whether the term finds its pairs through a neighbour list (pair styles).
   virtual bool uses_neighbor_list() const { return false; }
   // Whether its forces sum to zero (internal forces: bonds, angles, pairs). External fields

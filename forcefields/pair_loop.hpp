@@ -1,4 +1,4 @@
-// The loop over non-bonded pairs, written once and shared by every pair style (style.md §1,
+// The loop over non-bonded pairs, written once and shared by every pair style (docs/design.md §11.1,
 // after HOOMD's PotentialPair and miniMD's force_lj): a style supplies only a kernel (see
 // pair_potentials.hpp)
 //     static void eval(double r2, const Params& p, double& energy, double& fpair);
@@ -187,12 +187,12 @@ struct PairScratch {
 // given thread count.
 //
 // xl: the positions of the list's frame (NeighborList::wrapped_positions when periodic, computed
-// in particle blocks). Each part first makes its own copy of them, one sequential pass (a copy per
-// part of the wrap itself was ≈ 3 % slower on velocity Verlet's step). Read in place, the neighbours x_j of a part's
-// rows lie anywhere in the system, and the lines of x that the other threads had just written (the drift and the wrap
-// run in particle blocks) came over one scattered read at a time: on data.chain with two threads each part's pairs cost
-// 20–35 % more than on one thread, and velocity Verlet's pair loop ran 1.41× faster on two threads instead of 1.7×
-// (2026-11-25).
+// in particle blocks). Each part first makes its own copy of them, one sequential pass (copying
+// them rather than wrapping again per part: the wrap is done once). Why a copy: the neighbours
+// x_j of a part's rows lie anywhere in the system, and read in place the lines of x that the
+// other threads had just written (the drift and the wrap run in particle blocks) would come over
+// one scattered read at a time, which makes each part's pairs dearer on two threads than on one
+// (docs/performance_notes.md).
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,

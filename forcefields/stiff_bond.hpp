@@ -1,4 +1,4 @@
-// A stiff, constraint-defining bond b = (i, j) (design.md §1):
+// A stiff, constraint-defining bond b = (i, j) (docs/design.md §1):
 //   V_b = ½ α_b² g_b(x)²,   g_b(x) = |x_i − x_j| − ℓ_b,   energy ε⁻² V_b.
 // The set of these bonds defines the constraint manifold g(x) = 0 used by the
 // constraint toolbox (integrators/constraints.hpp).

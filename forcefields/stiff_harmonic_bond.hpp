@@ -1,4 +1,4 @@
-// Stiff harmonic bond, the constraint-defining fast part ε⁻²V (design.md §1):
+// Stiff harmonic bond, the constraint-defining fast part ε⁻²V (docs/design.md §1):
 //   E_b = ½ (α_b/ε)² (|x_i − x_j| − ℓ_b)².
 #pragma once
 

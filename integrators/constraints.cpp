@@ -1,4 +1,4 @@
-// The constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3).
+// The constraint toolbox (docs/design.md §2; Lubich & Weiss §2.2–2.3).
 //
 // Every operation reduces to solves with K(a, b) = G(a) M⁻¹ G(b)ᵀ on one cluster:
 //   S(x) = K(x, x)        (SPD)  force and velocity projections;
@@ -14,8 +14,8 @@
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once.
 // Clusters are solved in parallel on the OpenMP threads (Impl::for_each_cluster).
 //
-// S(x) is measured and factored once per configuration (issue 14: a constrained BAOAB step asks
-// for it up to five times at three positions). The toolbox keeps the last configuration it was
+// S(x) is measured and factored once per configuration, because a constrained BAOAB step asks
+// for it up to five times at three positions (docs/design.md §2). The toolbox keeps the last configuration it was
 // handed, bit for bit, with G there and S's factors; an operation at the same x reuses them. What
 // is kept is a function of x alone, so a run restarted without the cache computes the same bits.
 // SHAKE near its reference iterates with that S(x_ref) (the chord, SHAKE's own quasi-Newton, no
@@ -96,12 +96,11 @@ constexpr int kMollifierMaxIter = 50;
 // manifold, Impl::chain_gap; a drift of one step: |g| ~ (h|v_rel|)²/(2ℓ), 1e-4 ℓ typical on the
 // stiff melt), and switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces
 // the largest residual by less than kChordContraction. The chord's rate is about |G(y) − G(x_ref)|
-// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. The start bound was 1e-2 ℓ: a
-// full drift of h = 0.02 (fixman's OBABO step) on data.chain puts the fastest pair of some chains
-// past it ((0.02 · 8)²/2 ≈ 0.013), and those chains then took Newton from the start (a measure,
-// a factorization of J and a solve per iteration): OBABO was 3 % faster than BAOAB per step with
-// 1e-2 and is 13 % faster with 5e-2 (medians of 5 interleaved runs each). The chords still
-// contract there (the contraction test guards the rest).
+// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. Why 5e-2 ℓ: a full drift of
+// h = 0.02 (fixman's OBABO step) on data.chain puts the fastest pair of some chains at
+// |g| ≈ (0.02 · 8)²/2 ≈ 0.013 ℓ, and a chain past the bound takes Newton from the start (a
+// measure, a factorization of J and a solve per iteration) although the chords still contract
+// there; the contraction test guards the rest (docs/performance_notes.md: OBABO against BAOAB).
 constexpr double kChordStart = 5e-2;
 constexpr double kChordContraction = 0.25;
 
@@ -141,7 +140,7 @@ bool pivots_regular(const Eigen::MatrixBase<Pivots>& pivots, double scale) {
   return pivots.allFinite() && pivots.cwiseAbs().minCoeff() > kSingularPivot * scale;
 }
 
-// Open chains in chain order: K is tridiagonal (design.md §2). S itself never needs a row
+// Open chains in chain order: K is tridiagonal (docs/design.md §2). S itself never needs a row
 // swap (each Schur complement is ≥ the next sub-diagonal entry, 1/m_shared), but J far from
 // the manifold (SHAKE from a distant start, the mollifier of a badly stretched state) does.
 class TridiagonalSolver final : public ClusterSolver {
@@ -1296,7 +1295,7 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
     if (error[j]) std::rethrow_exception(error[j]);
 }
 
-// Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
+// Steps 2–4 of the mollified force (docs/design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
 // which follows by differentiating X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and
 // data[c].lambda holds the multipliers of X = α(x).
 void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {

@@ -1,4 +1,4 @@
-// The one table of integrator methods (integrators/methods.hpp; design.md §3, §7).
+// The one table of integrator methods (integrators/methods.hpp; docs/design.md §3–§5, §8).
 #include <algorithm>
 #include <array>
 #include <stdexcept>
@@ -42,7 +42,7 @@ std::unique_ptr<LangevinForce> langevin_force_of(const IntegratorSettings& s, co
 
 // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h; with the deck's
 // levels (innermost first, LAMMPS's loop factors) one stage per level, outermost first, each
-// taking the loop factor of the level enclosing it as its substeps (design.md §3).
+// taking the loop factor of the level enclosing it as its substeps (docs/design.md §3).
 std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
   if (s.levels.empty()) return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
   const int n = static_cast<int>(s.levels.size());
@@ -94,7 +94,7 @@ Ptr make_effective(const IntegratorSettings& s, ForceField& forces, const Eigen:
                                   s.thermostat.splitting);
 }
 
-// The thermal stiff limit (design.md §8): RATTLE on U + U_F at the thermostat's kT.
+// The thermal stiff limit (docs/design.md §5): RATTLE on U + U_F at the thermostat's kT.
 Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   if (!s.thermostat.on())
     throw std::invalid_argument(

@@ -1,4 +1,4 @@
-// Fixman's potential U_F = (kT/2) log det A and its force (design.md §8).
+// Fixman's potential U_F = (kT/2) log det A and its force (docs/design.md §5).
 //
 // log det A = log det S + Σ_b log α_b², so the gradient needs only S = G M⁻¹ Gᵀ:
 //   ∂U_F/∂x = (kT/2) tr(S⁻¹ ∂S/∂x).

@@ -1,5 +1,5 @@
 // Fixman's potential: the correction that makes rigid-bond dynamics sample the stiff-spring
-// canonical ensemble in the limit ε → 0 (design.md §8).
+// canonical ensemble in the limit ε → 0 (docs/design.md §5).
 //
 //   ρ_stiff = ρ_rigid · exp(−β U_F),   U_F(x) = (kT/2) log det A(x),
 //   A = K^{1/2} G M⁻¹ Gᵀ K^{1/2} = K^{1/2} S K^{1/2},  K = diag(α_b²),

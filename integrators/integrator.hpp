@@ -1,5 +1,5 @@
 // The integrator interface: one macro step of size h, state and h passed as arguments
-// (style.md §5). Integrators see forces only through ForceField's levels.
+// (docs/design.md §11.5). Integrators see forces only through ForceField's levels.
 #pragma once
 
 #include <memory>

@@ -1,4 +1,4 @@
-// The outer kick forces of the impulse family (design.md §3; Lubich & Weiss §2.2–2.3):
+// The outer kick forces of the impulse family (docs/design.md §3; Lubich & Weiss §2.2–2.3):
 //   projected impulse:  K(x) = P(x) f(x)                       (the projected kick)
 //   mollified impulse:  K(x) = α′(x)ᵀ f(α(x))                   (projection mollifier, eq. ProMol)
 // P(x) removes the M-orthogonal (bond-normal) part of the slow force, which is what pumps

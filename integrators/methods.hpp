@@ -1,4 +1,4 @@
-// The one table of integrator methods (design.md §3, §7): every fact about a method — its deck
+// The one table of integrator methods (docs/design.md §3–§5, §8): every fact about a method — its deck
 // name, what it needs from the scene and what it does with the stiff bonds — lives in its row.
 // The deck reader, the factory, the run loop, the outputs and the tests all read this table;
 // nothing else tests method names.

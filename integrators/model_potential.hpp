@@ -1,9 +1,9 @@
-// The potential a constrained method adds to U on the manifold g = 0 (design.md §3, §8): a
+// The potential a constrained method adds to U on the manifold g = 0 (docs/design.md §4, §5): a
 // strategy of Rattle, so that one RATTLE step serves
 //   rattle     no model potential (the rigid limit);
 //   effective  W(I, x) = Σ_k I_k ω_k(x) at the actions I of the initial state (paper eq. (CH));
 //   fixman     U_F(x) = (kT/2) log det(K^{1/2} G M⁻¹ Gᵀ K^{1/2}), the canonical average of W
-//              (design.md §8): with a thermostat at kT, the ε → 0 limit of the stiff ensemble.
+//              (docs/design.md §5): with a thermostat at kT, the ε → 0 limit of the stiff ensemble.
 #pragma once
 
 #include <Eigen/Core>
@@ -70,7 +70,7 @@ class EffectiveCorrection final : public ModelPotential {
   Eigen::VectorXd actions_;
 };
 
-// Fixman's potential U_F(x) = (kT/2) log det(K^{1/2} G M⁻¹ Gᵀ K^{1/2}) (design.md §8): with it
+// Fixman's potential U_F(x) = (kT/2) log det(K^{1/2} G M⁻¹ Gᵀ K^{1/2}) (docs/design.md §5): with it
 // and a thermostat at kT, RATTLE's rigid-bond ensemble becomes the stiff-spring one,
 // ρ_stiff = ρ_rigid exp(−β U_F). It carries no state: kT is the thermostat's.
 class FixmanCorrection final : public ModelPotential {

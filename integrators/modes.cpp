@@ -1,5 +1,5 @@
 // Frequencies, actions and correction potential of the effective dynamics
-// (design.md §3; Lubich & Weiss eqs. (CH), (actions), (separated), (nonresonant)).
+// (docs/design.md §4; Lubich & Weiss eqs. (CH), (actions), (separated), (nonresonant)).
 #include "integrators/eigen_dense.hpp"  // first: see the header
 
 #include <algorithm>
@@ -101,7 +101,7 @@ struct StiffModes::Impl {
   }
 
   // Bond geometry and A = K^{1/2} S K^{1/2} of cluster c at x, then its eigen-decomposition
-  // (design.md §3). S_bc = Σ_p m_p⁻¹ (s_b(p) u_b)·(s_c(p) u_c) over the particles p the two
+  // (docs/design.md §4). S_bc = Σ_p m_p⁻¹ (s_b(p) u_b)·(s_c(p) u_c) over the particles p the two
   // bonds share, s_b(i) = +1, s_b(j) = −1: the rows of G carry +u_b at i and −u_b at j.
   // u_b, r_b of every bond of cluster c at x, by local bond index.
   void measure(const Cluster& c, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& u, Eigen::VectorXd& r) const {
@@ -150,7 +150,7 @@ struct StiffModes::Impl {
     return lk;
   }
 
-  // The tridiagonal A of chain c at x (design.md §3; A_bb = α_b² (1/m_i + 1/m_j) since u_b·u_b = 1),
+  // The tridiagonal A of chain c at x (docs/design.md §4; A_bb = α_b² (1/m_i + 1/m_j) since u_b·u_b = 1),
   // then its eigenvalues (ascending, in ws.lambda) and, if asked, its eigenvectors (ws.q).
   void decompose_chain(const Cluster& c, const Eigen::Matrix3Xd& x, bool vectors, ChainWorkspace& ws) const {
     int n = static_cast<int>(c.bonds.size());
@@ -460,7 +460,7 @@ void StiffModes::actions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, E
     if (c.chain) continue;
     d.decompose(c, x, true);
     const int nb = static_cast<int>(c.bonds.size());
-    // Linearised normal motion (design.md §3): ζ = g(x) obeys ζ̈ ≈ G ẍ = −ε⁻² S K ζ, so
+    // Linearised normal motion (docs/design.md §4): ζ = g(x) obeys ζ̈ ≈ G ẍ = −ε⁻² S K ζ, so
     // z = K^{1/2} ζ obeys z̈ = −ε⁻² A z and decouples in the eigenbasis of A. The normal
     // kinetic energy ½ ζ̇ᵀ S⁻¹ ζ̇ = ½ żᵀ A⁻¹ ż splits into ½ ẇ_k²/λ_k; the potential
     // ε⁻² V = ½ ε⁻² |z|² into ½ ε⁻² w_k².
@@ -544,7 +544,7 @@ double StiffModes::correction_force(const Eigen::VectorXd& I, const Eigen::Matri
       W += Ik * omega;
       // Perturbation theory on A q_k = λ_k q_k with |q_k| = 1: dλ_k = q_kᵀ dA q_k
       // = 2 (K^{1/2} q_k)ᵀ dG M⁻¹ Gᵀ K^{1/2} q_k, and row b of dG is (∇²g_b dx)ᵀ, hence
-      // ∇λ_k = 2 Σ_b √K_b q_kb ∇²g_b w_k, w_k = M⁻¹ Gᵀ K^{1/2} q_k (design.md §3).
+      // ∇λ_k = 2 Σ_b √K_b q_kb ∇²g_b w_k, w_k = M⁻¹ Gᵀ K^{1/2} q_k (docs/design.md §4).
       d.wk.leftCols(np).setZero();
       for (int b = 0; b < nb; ++b) {
         const double s = d.bonds[c.bonds[b]].alpha * Q(b, k);

@@ -1,5 +1,5 @@
 // Frequencies, actions and the correction potential of the effective dynamics
-// (design.md §3 "Frequencies and actions"; Lubich & Weiss eq. (CH), (actions),
+// (docs/design.md §4 "Frequencies and actions"; Lubich & Weiss eq. (CH), (actions),
 // (separated), (nonresonant)).
 //
 // The stiff part ε⁻² V, V = ½ Σ_b α_b² g_b(x)², vibrates in m normal modes. Near the
@@ -68,7 +68,7 @@ class StiffModes {
 
   // Actions I_k(x, v) = E_k/ω_k into I (size num_modes()), with the modal energy
   //   E_k = ½ ẇ_k²/λ_k + ½ ε⁻² w_k²,  w = Qᵀ K^{1/2} g(x),  ẇ = Qᵀ K^{1/2} G v
-  // (design.md §3). This is paper eq. (actions): I_k = (q_{1,k}² + p_{1,k}²)/(2ε), i.e. the
+  // (docs/design.md §4). This is paper eq. (actions): I_k = (q_{1,k}² + p_{1,k}²)/(2ε), i.e. the
   // harmonic action E_k/(ω_k/ε) divided by ε, so that W = Σ I_k ω_k is the vibrational
   // energy and I = O(1) under the energy bound (EBound).
   // Throws NumericalError if a mode of an included cluster has (numerically) zero frequency.

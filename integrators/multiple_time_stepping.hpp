@@ -1,4 +1,4 @@
-// Multiple time stepping as data (design.md §3, style.md §4; r-RESPA, Tuckerman, Berne &
+// Multiple time stepping as data (docs/design.md §3, §11.4; r-RESPA, Tuckerman, Berne &
 // Martyna 1992): a list of stages, outermost first. Stage k kicks with the forces of its
 // levels for half its step, runs `substeps` steps of stage k+1 (the innermost stage drifts
 // instead), then kicks again:
@@ -13,7 +13,7 @@
 // the step: the method's kick is that of every stage but the innermost, which holds the stiff
 // bonds and is always plain. Why every slower stage and not only the outermost: a kick of step
 // Δ_k ≫ ε/ω by a force with a component along the stiff directions is an impulse the stiff
-// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (design.md §3; the
+// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (docs/design.md §3; the
 // seed paper's argument for the projected and mollified kicks does not use which level the kick
 // belongs to, only that its step does not resolve the stiff period). Only a stage whose kicks
 // resolve the stiff period may kick plainly, and in a deck that is the innermost one. Test:
@@ -124,7 +124,7 @@ class MultipleTimeStepping final : public Integrator {
   // The projected kick leaves out the bond-normal part f − P(x)f of every slower level's force.
   // In the stiff system the bonds stretch until their tension cancels that part on average, so
   // the tension belongs in the pressure although no spring in this dynamics carries it: the
-  // virial of −(f − Pf), as RATTLE's constraint force enters its pressure (design.md §3, §8).
+  // virial of −(f − Pf), as RATTLE's constraint force enters its pressure (docs/design.md §3, §4).
   // The cached kick forces are at the current x after a step, so these virials are too.
   double constraint_virial(const State&) override {
     double w = 0.0;
@@ -154,7 +154,7 @@ class MultipleTimeStepping final : public Integrator {
   ForceField& forces_;
   std::vector<Stage> stages_;
   std::unique_ptr<KickForce> outer_kick_;
-  std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (style.md §3)
+  std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (docs/design.md §11.3)
   std::vector<bool> valid_;
   std::vector<double> removed_virial_;               // per stage: the kick's removed_virial() at its last refresh
   std::unique_ptr<LangevinNoise> langevin_;          // null: Hamiltonian dynamics (or Langevin as a force, or OBABO)

@@ -1,4 +1,4 @@
-// The named primitives every integrator is written from (style.md §5, after JAX-MD):
+// The named primitives every integrator is written from (docs/design.md §11.5, after JAX-MD):
 // kick (momentum step) and drift (position step). Fixed particles have inverse mass 0,
 // so a kick leaves their velocity at zero and a drift leaves them in place. Large systems
 // update in contiguous particle blocks on the OpenMP threads (parallel.hpp): each particle

@@ -7,7 +7,7 @@
 // A ModelPotential (integrators/model_potential.hpp) adds its force to f: W(I, x) = Σ_k I_k ω_k
 // makes this the effective dynamics (paper eq. EHS) — the ε → 0 limit of the stiff system
 // (Rubin–Ungar, Takens, Bornemann); Fixman's U_F with a thermostat makes it the thermal stiff
-// limit (design.md §8). Plain RATTLE (no model potential) is the "rigid" limit most engines
+// limit (docs/design.md §5). Plain RATTLE (no model potential) is the "rigid" limit most engines
 // use, which differs by O(1) when the bonds carry vibrational energy.
 //
 // Langevin dynamics, splitting "baoab" (the default): constrained BAOAB (Leimkuhler & Matthews,

@@ -1,4 +1,4 @@
-// The canonical ensemble (design.md §8): Langevin dynamics inside every method, and the
+// The canonical ensemble (docs/design.md §5): Langevin dynamics inside every method, and the
 // stochastic velocity rescaling thermostat of Bussi, Donadio & Parrinello (J. Chem. Phys. 126,
 // 014101 (2007)) around any of them.
 //

@@ -1,6 +1,6 @@
 // Checks every force term must pass, shared by the typed suites of bond, angle and pair kernels
 // (test_bond_angle_kernels.cpp, test_pairs.cpp): forces against central finite differences of
-// the term's own energy, Newton's third law, and the virial against Σ r·f (style.md §8a).
+// the term's own energy, Newton's third law, and the virial against Σ r·f (docs/design.md §11.8a).
 #pragma once
 
 #include <Eigen/Core>

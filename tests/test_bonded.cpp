@@ -1,5 +1,5 @@
 // Soft bonded and external terms (FENE, angles, tether, 9-3 wall) against energies computed here
-// by hand, brute-force virials, the singular geometries and their failure modes (style.md §8a).
+// by hand, brute-force virials, the singular geometries and their failure modes (docs/design.md §11.8a).
 // The checks every bond and angle kernel passes (−∇E open and periodic, Newton's third law) are
 // the typed suites of test_bonded_kernels.cpp.
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// The command line end to end (design.md §7): exit codes, one-line errors that name the
+// The command line end to end (docs/design.md §8): exit codes, one-line errors that name the
 // file, line and key, outputs that parse.
 #include <gtest/gtest.h>
 #include <sys/wait.h>

@@ -1,4 +1,4 @@
-// Tests of the constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3, Lemma "alpha").
+// Tests of the constraint toolbox (docs/design.md §2; Lubich & Weiss §2.2–2.3, Lemma "alpha").
 //
 // The references here are written independently of integrators/constraints.cpp: G(x) as an
 // explicit dense m × 3N matrix, S = G M⁻¹ Gᵀ inverted densely, and finite differences of
@@ -33,7 +33,7 @@ void PrintTo(const Scene& scene, std::ostream* os) {
   *os << scene.name;
 }
 
-// The seed experiment (design.md §4): pivot 0 fixed at the origin, unit masses, l = α = 1,
+// The seed experiment (docs/design.md §7): pivot 0 fixed at the origin, unit masses, l = α = 1,
 // x(0) = (√½, −√½), (√2, 5ε): bond 1 is exact, bond 2 is stretched by O(ε).
 Scene pendulum(double eps) {
   Scene s{"pendulum", {{0, 1, 1.0, 1.0}, {1, 2, 1.0, 1.0}}, Eigen::Vector3d(0.0, 1.0, 1.0), Eigen::Matrix3Xd(3, 3)};
@@ -610,7 +610,7 @@ TEST(ConstraintShake, NonConvergenceNamesClusterWorstBondAndIterations) {
   }
 }
 
-// ---- one configuration, measured and factored once (issue 14) -------------------------------
+// ---- one configuration, measured and factored once (docs/design.md §2) ---------------------------
 
 // RATTLE's drift: x_ref on the manifold, v tangent there, y0 = x_ref + τv, so |g(y0)| ~ τ²|v|².
 // Open chains then take SHAKE's chord steps on the kept S(x_ref) and need no factorization; the

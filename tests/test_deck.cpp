@@ -1,4 +1,4 @@
-// Deck loading (design.md §7): variables and expressions, --set overrides, strictness.
+// Deck loading (docs/design.md §8): variables and expressions, --set overrides, strictness.
 #include <gtest/gtest.h>
 
 #include <cmath>

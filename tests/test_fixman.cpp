@@ -1,5 +1,5 @@
 // Tests for integrators/fixman.hpp: Fixman's potential U_F = (kT/2) log det A and its force
-// (design.md §8).
+// (docs/design.md §5).
 #include "integrators/eigen_dense.hpp"  // first: see the header
 
 #include <gtest/gtest.h>
@@ -252,7 +252,7 @@ TEST(FixmanPotential, ChainAndRingPathsAgreeWithDensePath) {
   }
 }
 
-// design.md §8: the freely jointed trimer, equal masses m, unit bonds, c = cos θ at the middle
+// docs/design.md §5: the freely jointed trimer, equal masses m, unit bonds, c = cos θ at the middle
 // particle: det(G M⁻¹ Gᵀ) = (4 − c²)/m², so U_F = (kT/2) log((4 − c²)/m²) + kT Σ log α_b, and
 // the torque dU_F/dθ = kT c sin θ/(4 − c²); no force along the bonds (U_F depends on directions).
 TEST(FixmanPotential, FreelyJointedTrimerKnownValues) {

@@ -1,5 +1,5 @@
 // Force terms against central finite differences of their own energy, and Newton's third
-// law (style.md §8a).
+// law (docs/design.md §11.8a).
 #include <gtest/gtest.h>
 
 #include "engine/scene/whole_molecules.hpp"

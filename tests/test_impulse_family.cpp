@@ -1,4 +1,4 @@
-// The seed paper's integrators on its experiment (Lubich & Weiss §2; design.md §3–4):
+// The seed paper's integrators on its experiment (Lubich & Weiss §2; docs/design.md §3, §7):
 // projected and mollified impulse converge like h² + ε to the effective dynamics and keep the
 // actions, the plain impulse method does not; the effective dynamics is the ε → 0 limit of
 // the stiff system, and plain RATTLE is not.

@@ -1,5 +1,5 @@
 // Tests for integrators/modes.hpp: frequencies, actions, correction potential and the
-// validity monitor of the effective dynamics (design.md §3; Lubich & Weiss eqs. (CH),
+// validity monitor of the effective dynamics (docs/design.md §4; Lubich & Weiss eqs. (CH),
 // (actions), (separated), (nonresonant)).
 
 #include "integrators/eigen_dense.hpp"  // first: see the header
@@ -69,7 +69,7 @@ System random_chain(std::mt19937& rng, int beads, double stretch) {
   return s;
 }
 
-// Stiff force −ε⁻² Σ_b α_b² g_b ∇g_b (design.md §1), added to f.
+// Stiff force −ε⁻² Σ_b α_b² g_b ∇g_b (docs/design.md §1), added to f.
 void add_stiff_force(const std::vector<StiffBond>& bonds, double eps, const Matrix3Xd& x, Matrix3Xd& f) {
   for (const StiffBond& b : bonds) {
     const Vector3d d = x.col(b.i) - x.col(b.j);

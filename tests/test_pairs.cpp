@@ -1,7 +1,7 @@
 // Pair styles (lj, wca, soft), the Verlet neighbour list and special bonds, against
 // definitions: forces = −∇E by central finite differences, Newton's third law, the virial
 // Σ r_ij·f_ij, and every list against an all-pairs O(N²) search with the minimum image
-// (style.md §8a).
+// (docs/design.md §11.8a).
 #include <gtest/gtest.h>
 
 #include <algorithm>

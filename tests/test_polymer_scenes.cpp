@@ -1,4 +1,4 @@
-// Polymer scenes end to end (issue: polymer scenes): every integrator runs a melt, the bundled
+// Polymer scenes end to end: every integrator runs a melt, the bundled
 // decks are valid, the imported LAMMPS benchmark has the right size, the pressure of a dilute
 // gas is N k T / V, and the validity monitor speaks up on a long chain.
 #include <gtest/gtest.h>

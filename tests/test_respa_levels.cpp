@@ -1,4 +1,4 @@
-// N-level r-RESPA as data (design.md §3; issue 16): the deck's [[integrator.levels]], innermost
+// N-level r-RESPA as data (docs/design.md §3): the deck's [[integrator.levels]], innermost
 // first with LAMMPS's loop factors, become the stages of MultipleTimeStepping. One level is
 // velocity Verlet, two named levels are today's impulse family, bit for bit; three levels are
 // time-reversible and second order; the method's kick on every level slower than the stiff one

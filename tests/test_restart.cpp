@@ -1,4 +1,4 @@
-// Checkpoints and restart (issue: runs that survive interruption): a run of 2n steps and a run
+// Checkpoints and restart (docs/design.md §8): a run of 2n steps and a run
 // of n steps continued from its checkpoint for n more end in the same state bit for bit, for
 // every integrator, and their outputs are the same files; signals stop cleanly; a checkpoint
 // is never half-written; bad output paths are clear errors.

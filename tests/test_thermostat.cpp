@@ -1,4 +1,4 @@
-// The canonical ensemble (design.md §8, issue 13): counter-based noise, Langevin dynamics inside
+// The canonical ensemble (docs/design.md §5): counter-based noise, Langevin dynamics inside
 // every method, stochastic velocity rescaling, degrees of freedom, and the freely jointed trimer's
 // known bond-angle laws.
 //
@@ -173,7 +173,7 @@ TrimerRun run_trimers(const std::string& method, double h, int micro_steps, doub
   return r;
 }
 
-// The two laws of the bond angle c = cos θ (design.md §8) for end masses m_end, middle mass 1:
+// The two laws of the bond angle c = cos θ (docs/design.md §5) for end masses m_end, middle mass 1:
 // stiff springs uniform in c (any masses, any ε), rigid bonds ∝ √det S(c) with
 // S = [[1/m_end + 1, c], [c, 1 + 1/m_end]].
 const double kStiffC2 = 1.0 / 3.0;
@@ -405,7 +405,7 @@ INSTANTIATE_TEST_SUITE_P(
       return n;
     });
 
-// Equal masses: RATTLE's law ∝ √(1 − c²/4), ⟨c²⟩ = 0.3210 (design.md §8). The laws differ by only
+// Equal masses: RATTLE's law ∝ √(1 − c²/4), ⟨c²⟩ = 0.3210 (docs/design.md §5). The laws differ by only
 // 0.012 here, so this run checks the value, not the power (4 standard errors ≈ 0.006).
 TEST(TrimerLaw, RattleWithEqualMassesGivesTheRigidValue) {
   const TrimerRun r = run_trimers("rattle", 0.02, 1, 1.0, 100);
@@ -467,7 +467,7 @@ TEST(NvtTemperature, BaoabReadsTheTemperatureAtTheOStepAtACoarseStep) {
   EXPECT_LT(on_step.mean + 8 * on_step.se, 1.0) << "on-step T = " << on_step.mean << " +- " << on_step.se;
 }
 
-// RATTLE plus Fixman's potential, with equal masses too (design.md §8's trimer): uniform in c.
+// RATTLE plus Fixman's potential, with equal masses too (docs/design.md §5's trimer): uniform in c.
 TEST(TrimerLaw, FixmanWithEqualMassesGivesTheStiffValue) {
   const TrimerRun r = run_trimers("fixman", 0.02, 1, 1.0, 100);
   const Estimate e = block_estimate(r.c2);

@@ -1,4 +1,4 @@
-// Velocity Verlet on the full stiff system (style.md §8c): reversibility, measured order 2
+// Velocity Verlet on the full stiff system (docs/design.md §11.8c): reversibility, measured order 2
 // against a fine-step solution, bounded energy error with the h² scaling.
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Cost against ε on the stiff melt in NVT (issue 14's headline, design.md §9): every method at its
+"""Cost against ε on the stiff melt in NVT (docs/design.md §6): every method at its
 largest step that keeps the equilibrium observables of the stiff springs.
 
     /usr/bin/python3 tools/cost_vs_eps.py                  # the README figure (≈ 30 min CPU, ≈ 20 wall, 2 jobs)
@@ -9,7 +9,7 @@ largest step that keeps the equilibrium observables of the stiff springs.
 
 Methods: velocity-verlet (BAOAB), impulse, projected-impulse, mollified-impulse (micro step δ = ε/10:
 n = ceil(h/δ) micro steps per macro step h), rattle, fixman (RATTLE on U + Fixman's U_F, the thermal
-stiff limit of design.md §8; all these with the default splitting, BAOAB), rattle-obabo and
+stiff limit of docs/design.md §5; all these with the default splitting, BAOAB), rattle-obabo and
 fixman-obabo (the same methods with `thermostat.splitting = "obabo"`: one SHAKE per step instead of
 two; the run's command is kept in its directory, command.txt), and LAMMPS `run_style respa 2 n bond
 1 pair 2` with `fix langevin` (same δ). Langevin kT = 1, damp = 1 everywhere; stiff harmonic bonds ℓ = 0.97, α = 1, WCA.

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""Issue 14's headline ratio: velocity Verlet at its stability-limited step (0.9 ε) against the thermal
-stiff limit, timed side by side on data.chain (design.md §9).
+"""The headline ratio: velocity Verlet at its stability-limited step (0.9 ε) against the thermal
+stiff limit, timed side by side on data.chain (docs/design.md §6).
 
     /usr/bin/python3 tools/headline_ratio.py                      # ε = 1e-3, 1e-4, 3e-3; 3 repeats (≈ 3 min)
     /usr/bin/python3 tools/headline_ratio.py --eps 1e-3 --repeats 5

@@ -23,7 +23,7 @@ steps of --h. Two measurements:
    neighbour list's first build, topology) which is left out of the shares. ms per step = share of
    the step's samples × the step loop's CPU seconds / steps.
 
-Issue 14's target: constraint work per macro step ≤ the slow force's (WCA + neighbour list).
+The target: constraint work per macro step ≤ the slow force's (WCA + neighbour list).
 """
 import argparse
 import json

@@ -9,7 +9,7 @@ writes DIR/sweep_eps<ε>.csv with one row per run:
     cpu_seconds, wall_seconds, max_energy_error, action_1.., status
 
 err_x = max_n |x_n − X(t_n)|∞ and err_p = max_n |P(x_n)p_n − Y(t_n)|∞ over the macro times
-t_n = n h (design.md §4–5). Runs that blow up (exit 3) are kept with status "unstable".
+t_n = n h (docs/design.md §7). Runs that blow up (exit 3) are kept with status "unstable".
 Each run's thermo.csv (energies, actions) stays in DIR/runs/ for plotting.
 
 Example (the paper's experiment, see tools/paper_experiment.sh):

@@ -1,4 +1,4 @@
-// Error types that map onto the CLI's exit codes (design.md §7):
+// Error types that map onto the CLI's exit codes (docs/design.md §8):
 //   InputError     -> exit 2: one line naming the file, line, key and what was expected;
 //   NumericalError -> exit 3: where (step, time, particle/cluster/bond) and what went wrong.
 #pragma once

@@ -1,4 +1,4 @@
-// OpenMP in one place (style.md: "OpenMP where the work is"). Every parallel loop in the engine
+// OpenMP in one place (docs/design.md §9). Every parallel loop in the engine
 // splits its work into a fixed partition per thread count and combines per-thread results in
 // thread order, so a run is bit-for-bit reproducible for a given OMP_NUM_THREADS (no atomics,
 // no OpenMP reductions, whose combination order is unspecified). Loops over fewer than

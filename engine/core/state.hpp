@@ -1,4 +1,4 @@
-// The dynamical state: contiguous 3×N storage, one column per particle (style.md §7).
+// The dynamical state: contiguous 3×N storage, one column per particle (docs/design.md §11.7).
 //
 // What a scene guarantees about x (engine/scene/scene_sources.cpp, make_molecules_whole): positions are
 // unwrapped and every molecule is whole. Every source — [[particles]] with [[bonds]], [[build]],

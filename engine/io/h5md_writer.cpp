@@ -2,7 +2,7 @@
 // comments ("§Time-dependent data", "§Simulation box", ...) are those of the H5MD specification,
 // https://nongnu.org/h5md/h5md.html.
 //
-// Units. stiffmd works in reduced units, so no dataset carries a `unit` attribute (§Units module:
+// Units. In reduced units (`units = "lj"`) no dataset carries a `unit` attribute (§Units module:
 // the attribute is optional). This is also what MDAnalysis 2.4.2 needs: its H5MD reader raises a
 // RuntimeError for any unit string it does not know (e.g. "reduced"), even with
 // convert_units=False, and a known one such as "nm" would make it rescale our reduced lengths by
@@ -699,7 +699,8 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
   for (std::size_t k = 0; k < obs.size(); ++k) observables[k].write(index, &obs[k]);
   time.write(index, &t);
   flush();
-  // position/value and then step, each after a flush of what came before. HDF5 writes metadata
+  // The frame's other series and time first, then position/value and then step, each after a
+  // flush of what came before (the crash-safety order at the top of this file). HDF5 writes metadata
   // (such as a dataset's extent) in no fixed order within a flush, and MDAnalysis counts frames by
   // position/value, stops iterating at the end of position/step, and reads every other series at
   // those indices. So a kill at any moment leaves step no longer than position/value, and that no

@@ -35,8 +35,9 @@ struct MonitorSettings {
   // alone it is meaningless when E(0) ≈ 0 (a liquid whose potential cancels its kinetic energy),
   // and K(0) is the thermal energy scale, so 1 % of it is a temperature error of about 1 %.
   // Measured on the bundled decks' own runs (inputs/*.toml): at most 0.3 % (the LAMMPS chain's
-  // bond-thermalisation transient) apart from the hanging chain's documented breakdown; the failures
-  // of the issue reach 3 % (lammps_chain to t = 10) and 11 % (the melt at projected impulse, t = 40).
+  // bond-thermalisation transient) apart from the hanging chain's documented breakdown, while runs
+  // that have left their model reach 3 % (lammps_chain to t = 10) and 11 % (the melt at projected
+  // impulse, t = 40): 1 % separates the two.
   static constexpr double kDefaultEnergyError = 0.01;
   double energy_error = kOff;       // see kDefaultEnergyError; kOff: no energy check
   bool energy_error_given = false;  // the deck set energy_error (a number, 0 or false = off)

@@ -9,7 +9,7 @@ namespace stiffmd {
 Energies energies(const State& s, const ForceField& forces) {
   Energies e;
   e.kinetic = s.kinetic_energy();
-  // By level, innermost first: the innermost is the stiff one, the others are U (design.md §1).
+  // By level, innermost first: the innermost is the stiff one, the others are U (docs/design.md §1).
   for (int k = forces.num_levels() - 1; k >= 0; --k) {
     const double u = forces.energy(s.x, Level{k});
     e.by_level.push_back(u);

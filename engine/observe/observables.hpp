@@ -1,5 +1,5 @@
 // Observables computed from a state: the thermo row (time, energies, constraint violation
-// and, when asked for, frequencies ω_k and actions I_k, design.md §3) and the projected
+// and, when asked for, frequencies ω_k and actions I_k, docs/design.md §4) and the projected
 // momenta P(x)p (paper eq. (proj)).
 #pragma once
 

@@ -4,10 +4,10 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 3), in the byte order and double format of the writing machine. Version 3
-// (2026-11-26): RATTLE-based methods under Langevin keep, in the constraint force's slot, the
-// velocities their constraint force is formed from (integrators/rattle.cpp); a version-2 file
-// would be read with the wrong meaning there, so it is refused.
+// Format (version 3), in the byte order and double format of the writing machine. In version 3
+// RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
+// constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
+// the wrong meaning there, so it is refused.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)

@@ -1,6 +1,6 @@
 // A run: what a run builds from a prepared scene, as components — the integrator, the observers
 // (thermo row and monitor), the outputs and the terminal, the run statistics, the checkpoints —
-// driven by step_to(k) and finish() (docs/design.md, "The run"). `stiffmd run` drives one to
+// driven by step_to(k) and finish() (docs/design.md §8). `stiffmd run` drives one to
 // run.t_end, `stiffmd check` builds one without outputs and discards it, and the Python module
 // steps one from Python; so what a run refuses, check refuses, and the three see the same
 // numbers. Each component saves and loads its own part of a checkpoint.

@@ -1,4 +1,4 @@
-// The one table of force-term styles a deck may name (style.md §6). Each row reads a
+// The one table of force-term styles a deck may name (docs/design.md §11.6). Each row reads a
 // [forces.NAME] table into the term's validated parameters; the term itself (forcefields/)
 // knows nothing about decks. A bond or pair style is a kernel (forcefields/bond_potentials.hpp,
 // pair_potentials.hpp) plus one row in force_styles() (see ARCHITECTURE.md).

@@ -146,7 +146,7 @@ void read_bonds(DeckTable& root, Scene& sc) {
   }
 }
 
-// [[integrator.levels]]: the r-RESPA levels (design.md §3), innermost first as LAMMPS numbers
+// [[integrator.levels]]: the r-RESPA levels (docs/design.md §3), innermost first as LAMMPS numbers
 // them, each with LAMMPS's loop factor `substeps` (steps of the level inside it per step of this
 // one). Read before [forces], whose terms name them; without it the levels are fast and slow.
 void read_levels(DeckTable& root, Scene& sc) {
@@ -261,7 +261,7 @@ void read_forces(DeckTable& root, Scene& sc) {
         t.fail_here(e.what());
       }
       // The constraint-defining term is what the impulse methods' micro steps resolve and what the
-      // constrained methods replace by rigid constraints (design.md §3): on a slower level the impulse
+      // constrained methods replace by rigid constraints (docs/design.md §3–§4): on a slower level the impulse
       // methods would kick it with the macro step and blow up (energy 5.57 -> 263 210 on the pendulum).
       if (term->is_constraint_defining() && term->level() != ff.innermost())
         t.fail("level", "a constraint-defining term (" + style + ") must sit on the fastest level, \"" +
@@ -331,7 +331,7 @@ void read_integrator(DeckTable& root, Scene& sc) {
     return;
   }
   // Micro steps belong to the impulse family; other methods ignore them, so that one deck
-  // serves every method (design.md §7).
+  // serves every method (docs/design.md §8).
   if (!method->micro_steps) {
     in.micro_steps = 1;
   } else if (micro_dt) {

@@ -1,5 +1,5 @@
 // A Scene is everything a run needs, assembled from a deck: particles, topology, box, the
-// force terms the deck names (and only those: design.md §1), and the run's settings.
+// force terms the deck names (and only those: docs/design.md §1), and the run's settings.
 #pragma once
 
 #include <cstdint>

@@ -1,5 +1,5 @@
 // Particles from the polymer builders and imported files, thermal velocities, and the
-// preparation of a stiff state (issue: polymer scenes).
+// preparation of a stiff state ([[build]], [import], [velocities], [prepare]: docs/decks.md).
 #include "engine/scene/scene_sources.hpp"
 
 #include <cmath>

@@ -370,7 +370,7 @@ constexpr MacroStepCase kMacroSteps[] = {
     {"rattle", 0.005, 1},
     {"fixman", 0.02, 1, true, true},
     // The constrained methods under OBABO (one SHAKE, one velocity projection per step) at the
-    // issue's two steps: fixman against rattle (issue 14's ratio), interleave them with
+    // steps of the cost study: fixman against rattle, interleave them with
     // --benchmark_enable_random_interleaving=true --benchmark_repetitions=N.
     {"rattle", 0.005, 1, true, true, true, "-obabo-h0.005"},
     {"fixman", 0.005, 1, true, true, true, "-obabo-h0.005"},
@@ -436,7 +436,7 @@ double cpu_seconds() {
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
 }
 
-// The micro step at the memory limit (issue 14). Per iteration, interleaved so that the machine's
+// The micro step at the memory limit. Per iteration, interleaved so that the machine's
 // load hits all three alike: the floor — one pass that reads x, v, f and writes x, v (a kick and a
 // drift written as one loop over the 3N numbers, on the same threads) — then one fused micro step
 // (FusedMicroStep: kick, drift and the stiff-bond force in one pass), then one plain micro step
@@ -542,7 +542,7 @@ void BM_BondKernelPerBond(benchmark::State& st, FixtureGetter get) {
   st.counters["with_clear_cpu_ns_per_bond"] = 1e9 * cpu_clear / (clears * bonds);
 }
 
-// Small systems (issue 14): velocity Verlet on the double pendulum (inputs/double_pendulum.toml,
+// Small systems: velocity Verlet on the double pendulum (inputs/double_pendulum.toml,
 // 3 particles, the pivot fixed, two stiff springs at ε = 1e-3 and gravity) through the engine's
 // integrator, against a hand-written loop of the same physics: kick ½h, drift h, the spring forces
 // and gravity, kick ½h. Per iteration both run kBatch steps from the same state, interleaved;
