@@ -48,4 +48,14 @@ std::string describe_angles(std::string_view style, size_t n, const std::vector<
   return s.str();
 }
 
+void define_angles(ParameterRecord& record, const std::vector<AngleCoeffs>& types, const std::vector<Angle>& angles) {
+  record.add("angle types", types.size());
+  for (const AngleCoeffs& c : types) {
+    record.add("k", c.k);
+    record.add("theta0", c.theta0);
+  }
+  record.add("angles", angles.size());
+  for (const Angle& a : angles) record.add("angle", {a.i, a.j, a.k, a.type});
+}
+
 }  // namespace stiffmd::angle_detail

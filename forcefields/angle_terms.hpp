@@ -67,9 +67,12 @@ class AngleTerm final : public ForceTerm {
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;
+  // Every type's k and θ₀, then every angle: its particles and its type.
+  void define(ParameterRecord& record) const override;
 
  private:
   std::vector<AngleCoeffs> types_;
+  std::vector<Angle> angles_;  // as given, type indexing types_: for define()
   std::vector<AngleInstance<Params>> instances_;
 };
 
@@ -85,17 +88,24 @@ std::vector<AngleInstance<AngleCoeffs>> angle_instances(std::string_view style, 
                                                         const std::vector<Angle>& angles,
                                                         const std::vector<AngleCoeffs>& types);
 std::string describe_angles(std::string_view style, std::size_t n, const std::vector<AngleCoeffs>& types);
+void define_angles(ParameterRecord& record, const std::vector<AngleCoeffs>& types, const std::vector<Angle>& angles);
 }  // namespace angle_detail
 
 template <class K>
 AngleTerm<K>::AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types)
     : ForceTerm(std::move(name), level),
       types_(std::move(types)),
-      instances_(angle_detail::angle_instances(K::kStyle, this->name(), angles, types_)) {}
+      angles_(std::move(angles)),
+      instances_(angle_detail::angle_instances(K::kStyle, this->name(), angles_, types_)) {}
 
 template <class K>
 std::string AngleTerm<K>::describe() const {
   return angle_detail::describe_angles(K::kStyle, instances_.size(), types_);
+}
+
+template <class K>
+void AngleTerm<K>::define(ParameterRecord& record) const {
+  angle_detail::define_angles(record, types_, angles_);
 }
 
 }  // namespace stiffmd

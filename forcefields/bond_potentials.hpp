@@ -10,7 +10,9 @@
 //   eval(r, p, e, dE_dr)    the energy and its derivative at bond length r > 0. A kernel defined
 //                           only on part of r > 0 (FENE) throws NumericalError outside it; the
 //                           term then names the bond;
-//   describe(s, c)          the coefficients, for `stiffmd check`.
+//   describe(s, c)          the coefficients, for `stiffmd check`;
+//   define(record, c)       every coefficient, exactly (parameter_record.hpp), for the scene
+//                           fingerprint of checkpoints.
 #pragma once
 
 #include <cmath>
@@ -20,6 +22,7 @@
 
 #include "engine/core/errors.hpp"
 #include "forcefields/coefficients.hpp"
+#include "forcefields/parameter_record.hpp"
 
 namespace stiffmd {
 
@@ -77,6 +80,12 @@ struct Fene {
   static void describe(std::ostream& s, const Coeffs& c) {
     s << "K = " << c.K << ", R0 = " << c.R0 << ", epsilon = " << c.epsilon << ", sigma = " << c.sigma;
   }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("K", c.K);
+    r.add("R0", c.R0);
+    r.add("epsilon", c.epsilon);
+    r.add("sigma", c.sigma);
+  }
 
   [[noreturn]] static void out_of_range(double r, double R0) {
     std::ostringstream m;
@@ -118,6 +127,11 @@ struct Morse {
   }
   static void describe(std::ostream& s, const Coeffs& c) {
     s << "D0 = " << c.D0 << ", alpha = " << c.alpha << ", r0 = " << c.r0;
+  }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("D0", c.D0);
+    r.add("alpha", c.alpha);
+    r.add("r0", c.r0);
   }
 };
 

@@ -61,6 +61,7 @@ class BondTerm final : public ForceTerm {
     bond_detail::check_bonds(who, bonds, types_.size());
     instances_.reserve(bonds.size());
     for (const Bond& b : bonds) instances_.push_back({b.i, b.j, params[b.type]});
+    bonds_ = std::move(bonds);
   }
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
@@ -87,6 +88,13 @@ class BondTerm final : public ForceTerm {
     }
     return s.str();
   }
+  // Every type's coefficients, then every bond: its particles and its type.
+  void define(ParameterRecord& record) const override {
+    record.add("bond types", types_.size());
+    for (const Coeffs& c : types_) K::define(record, c);
+    record.add("bonds", bonds_.size());
+    for (const Bond& b : bonds_) record.add("bond", {b.i, b.j, b.type});
+  }
   const std::vector<Coeffs>& types() const { return types_; }
 
  private:
@@ -108,6 +116,7 @@ class BondTerm final : public ForceTerm {
   }
 
   std::vector<Coeffs> types_;
+  std::vector<Bond> bonds_;  // as given, type indexing types_: for define()
   std::vector<BondInstance<Params>> instances_;
   mutable BondPartition partition_;  // thread plan of the bond loop
 };

@@ -7,7 +7,8 @@
 //   MultiHarmonicDihedral  E = Σ_{n=1..5} A_n cos^{n−1}(φ)
 //   OplsDihedral           E = ½K₁(1 + cos φ) + ½K₂(1 − cos 2φ) + ½K₃(1 + cos 3φ) + ½K₄(1 − cos 4φ)
 // A kernel: Coeffs, kStyle, validate(c) (throws std::invalid_argument naming the coefficient),
-// eval(φ, c, E, dE/dφ) and describe(os, c).
+// eval(φ, c, E, dE/dφ), describe(os, c) and define(record, c) (every coefficient, exactly, for the
+// scene fingerprint of checkpoints: parameter_record.hpp).
 #pragma once
 
 #include <array>
@@ -23,6 +24,7 @@
 #include "forcefields/coefficients.hpp"
 #include "forcefields/dihedral_loop.hpp"
 #include "forcefields/force_term.hpp"
+#include "forcefields/parameter_record.hpp"
 
 namespace stiffmd {
 
@@ -45,6 +47,11 @@ struct HarmonicDihedralKernel {
   static void describe(std::ostream& s, const Coeffs& c) {
     s << "K = " << format_exact(c.K) << ", d = " << c.d << ", n = " << c.n;
   }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("K", c.K);
+    r.add("d", c.d);
+    r.add("n", c.n);
+  }
 };
 
 struct MultiHarmonicDihedralKernel {
@@ -66,6 +73,7 @@ struct MultiHarmonicDihedralKernel {
   static void describe(std::ostream& s, const Coeffs& c) {
     for (int n = 0; n < 5; ++n) s << (n ? ", " : "") << "A" << n + 1 << " = " << format_exact(c.A[n]);
   }
+  static void define(ParameterRecord& r, const Coeffs& c) { r.add("A", std::span<const double>(c.A)); }
 };
 
 struct OplsDihedralKernel {
@@ -85,6 +93,7 @@ struct OplsDihedralKernel {
   static void describe(std::ostream& s, const Coeffs& c) {
     for (int n = 0; n < 4; ++n) s << (n ? ", " : "") << "K" << n + 1 << " = " << format_exact(c.K[n]);
   }
+  static void define(ParameterRecord& r, const Coeffs& c) { r.add("K", std::span<const double>(c.K)); }
 };
 
 // A dihedral term over a kernel (as AngleTerm is over an angle kernel).
@@ -118,6 +127,7 @@ class DihedralTerm final : public ForceTerm {
              " types)");
       instances_.push_back({d.i, d.j, d.k, d.l, types_[d.type]});
     }
+    dihedrals_ = dihedrals;
   }
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
@@ -131,14 +141,22 @@ class DihedralTerm final : public ForceTerm {
     std::ostringstream s;
     s << instances_.size() << " " << K::kStyle.substr(0, K::kStyle.rfind('-')) << " dihedrals";
     for (size_t t = 0; t < types_.size(); ++t) {
-      s << "; type " << t << ": ";  // exact values: describe() is the checkpoint fingerprint too
+      s << "; type " << t << ": ";
       K::describe(s, types_[t]);
     }
     return s.str();
   }
+  // Every type's coefficients, then every dihedral: its particles and its type.
+  void define(ParameterRecord& record) const override {
+    record.add("dihedral types", types_.size());
+    for (const Coeffs& c : types_) K::define(record, c);
+    record.add("dihedrals", dihedrals_.size());
+    for (const Dihedral& d : dihedrals_) record.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
+  }
 
  private:
   std::vector<Coeffs> types_;
+  std::vector<Dihedral> dihedrals_;  // as given, type indexing types_: for define()
   std::vector<DihedralInstance<Coeffs>> instances_;
 };
 

@@ -66,22 +66,10 @@ std::string HarmonicTether::describe() const {
   return s.str();
 }
 
-namespace {
-
-// The particles a term acts on, after a description whose numbers are printed in full.
-std::string exact_definition(std::ostringstream& s, const std::vector<int>& particles) {
-  s << "; particles";
-  for (const int i : particles) s << ' ' << i;
-  return s.str();
-}
-
-}  // namespace
-
-std::string HarmonicTether::definition() const {
-  std::ostringstream s;
-  s.precision(17);
-  s << "tether to (" << center_.x() << ", " << center_.y() << ", " << center_.z() << "), k = " << k_;
-  return exact_definition(s, particles_);
+void HarmonicTether::define(ParameterRecord& record) const {
+  record.add("center", {center_.x(), center_.y(), center_.z()});
+  record.add("k", k_);
+  record.add("particles", std::span<const int>(particles_));
 }
 
 LJ93Wall::LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles)
@@ -142,12 +130,14 @@ std::string LJ93Wall::describe() const {
   return s.str();
 }
 
-std::string LJ93Wall::definition() const {
-  std::ostringstream s;
-  s.precision(17);
-  s << "wall on axis " << p_.axis << " at " << p_.position << ", side " << p_.side << ", epsilon = " << p_.epsilon
-    << ", sigma = " << p_.sigma << ", cutoff = " << p_.cutoff;
-  return exact_definition(s, particles_);
+void LJ93Wall::define(ParameterRecord& record) const {
+  record.add("axis", p_.axis);
+  record.add("position", p_.position);
+  record.add("side", p_.side);
+  record.add("epsilon", p_.epsilon);
+  record.add("sigma", p_.sigma);
+  record.add("cutoff", p_.cutoff);
+  record.add("particles", std::span<const int>(particles_));
 }
 
 }  // namespace stiffmd

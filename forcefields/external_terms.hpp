@@ -34,7 +34,7 @@ class HarmonicTether final : public ForceTerm {
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   std::string_view style() const override { return "harmonic-tether"; }
   std::string describe() const override;
-  std::string definition() const override;  // every particle and parameter (checkpoint fingerprint)
+  void define(ParameterRecord& record) const override;  // every parameter and particle
 
  private:
   std::vector<int> particles_;
@@ -63,7 +63,7 @@ class LJ93Wall final : public ForceTerm {
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   std::string_view style() const override { return "lj93-wall"; }
   std::string describe() const override;
-  std::string definition() const override;  // every particle and parameter (checkpoint fingerprint)
+  void define(ParameterRecord& record) const override;  // every parameter and particle
 
  private:
   LJ93WallParams p_;

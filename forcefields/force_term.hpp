@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "forcefields/parameter_record.hpp"
 #include "forcefields/stiff_bond.hpp"
 
 namespace stiffmd {
@@ -75,9 +76,12 @@ class ForceTerm {
   virtual std::string_view style() const = 0;
   virtual std::string describe() const = 0;
 
-  // What defines the term — style parameters, no run-time counters — for the scene fingerprint
-  // of checkpoints (engine/run/checkpoint.hpp): a checkpoint is refused by a scene whose terms differ.
-  virtual std::string definition() const { return describe(); }
+  // What defines the term, for the scene fingerprint of checkpoints (engine/run/checkpoint.hpp):
+  // every parameter and every list its forces depend on — each coefficient of each type or type
+  // pair as used (after mixing), cutoffs, weights, the bonds, angles, dihedrals or particles it
+  // acts on — written exactly into `record`; no run-time counters. A checkpoint is refused by a
+  // scene whose terms differ in any of it.
+  virtual void define(ParameterRecord& record) const = 0;
 
   // State the term carries from one evaluation to the next that its forces depend on (a pair
   // term's neighbour list: which pairs, in which order, with which periodic images), for

@@ -41,4 +41,9 @@ std::string Gravity::describe() const {
   return s.str();
 }
 
+void Gravity::define(ParameterRecord& record) const {
+  record.add("g", {g_.x(), g_.y(), g_.z()});
+  record.add("masses", std::span<const double>(mass_.data(), static_cast<std::size_t>(mass_.size())));
+}
+
 }  // namespace stiffmd

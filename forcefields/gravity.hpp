@@ -17,6 +17,7 @@ class Gravity final : public ForceTerm {
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   std::string_view style() const override { return "gravity"; }
   std::string describe() const override;
+  void define(ParameterRecord& record) const override;  // g and the masses it multiplies
 
  private:
   Eigen::Vector3d g_;

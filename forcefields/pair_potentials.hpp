@@ -7,6 +7,8 @@
 //   validate(c)                   throws std::invalid_argument naming the bad coefficient
 //                                 (coefficients.hpp);
 //   cutoff(c), params(c)          the interaction range and the derived constants;
+//   define(record, c)             every coefficient of c, exactly (parameter_record.hpp), for
+//                                 the scene fingerprint of checkpoints;
 //   eval(r², p, e, fpair)         the energy e and fpair = −(dE/dr)/r, so that the force on i
 //                                 is fpair · (x_i − x_j) and the pair virial r_ij · f_ij is
 //                                 fpair · r². Valid for r² < rc²; the pair loop also calls it
@@ -23,6 +25,7 @@
 #include <string_view>
 
 #include "forcefields/coefficients.hpp"
+#include "forcefields/parameter_record.hpp"
 
 namespace stiffmd {
 
@@ -75,6 +78,11 @@ struct LennardJones {
   }
   static double cutoff(const Coeffs& c) { return c.rc; }
   static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, c.rc); }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("epsilon", c.epsilon);
+    r.add("sigma", c.sigma);
+    r.add("rc", c.rc);
+  }
   static void eval(double r2, const Params& p, double& e, double& fpair) { Params::eval(r2, p, e, fpair); }
 };
 
@@ -96,6 +104,10 @@ struct WeeksChandlerAndersen {
   }
   static double cutoff(const Coeffs& c) { return kMinimumOverSigma * c.sigma; }
   static Params params(const Coeffs& c) { return Params::make(c.epsilon, c.sigma, cutoff(c)); }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("epsilon", c.epsilon);
+    r.add("sigma", c.sigma);
+  }
   static void eval(double r2, const Params& p, double& e, double& fpair) { Params::eval(r2, p, e, fpair); }
 };
 
@@ -119,6 +131,10 @@ struct SoftCosine {
   }
   static double cutoff(const Coeffs& c) { return c.rc; }
   static Params params(const Coeffs& c) { return {c.rc * c.rc, c.A, std::numbers::pi / c.rc}; }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("A", c.A);
+    r.add("rc", c.rc);
+  }
 
   static void eval(double r2, const Params& p, double& e, double& fpair) {
     const double r = std::sqrt(r2);
@@ -155,6 +171,11 @@ struct Yukawa {
   }
   static double cutoff(const Coeffs& c) { return c.rc; }
   static Params params(const Coeffs& c) { return {c.rc * c.rc, c.A, c.kappa, c.A * std::exp(-c.kappa * c.rc) / c.rc}; }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("A", c.A);
+    r.add("kappa", c.kappa);
+    r.add("rc", c.rc);
+  }
 
   static void eval(double r2, const Params& p, double& e, double& fpair) {
     const double r = std::sqrt(r2);

@@ -56,14 +56,31 @@ void check_sizes(const std::string& name, std::string_view style, const Eigen::M
   }
 }
 
-std::string define_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
-                         SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
+std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                           SpecialWeights weights, std::size_t excluded, std::size_t scaled) {
   std::ostringstream s;
   s << style << " pairs, " << num_types << " particle type(s), cutoff " << cutoff << ", skin " << list.skin()
     << ", special bonds w12 = " << weights.w12 << ", w13 = " << weights.w13;
   if (weights.w14 != 1.0) s << ", w14 = " << weights.w14;
   s << " (" << excluded << " pairs excluded, " << scaled << " scaled)";
   return s.str();
+}
+
+void define_pair_settings(ParameterRecord& record, const std::vector<int>& types, double cutoff, double skin,
+                          SpecialWeights weights, std::size_t excluded, std::span<const SpecialPair> scaled) {
+  record.add("types", std::span<const int>(types));
+  record.add("cutoff", cutoff);
+  record.add("skin", skin);
+  record.add("w12", weights.w12);
+  record.add("w13", weights.w13);
+  record.add("w14", weights.w14);
+  record.add("excluded pairs", excluded);
+  record.add("scaled pairs", scaled.size());
+  for (const SpecialPair& p : scaled) {
+    record.add("i", p.i);
+    record.add("j", p.j);
+    record.add("weight", p.weight);
+  }
 }
 
 // Words: rebuilds, periodic x y z (0/1), origin (3), lengths (3), then x_at_build column-major.

@@ -37,8 +37,8 @@ class PairTerm final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
 
   std::string_view style() const override { return Kernel::kStyle; }
-  std::string describe() const override;  // definition() and the rebuilds so far
-  std::string definition() const override;
+  std::string describe() const override;  // the settings and the rebuilds so far
+  void define(ParameterRecord& record) const override;
   // The neighbour list's state (NeighborList::restore): empty before the first build, else the
   // rebuild count, the box and the 3N positions of the last build.
   std::vector<double> save_state() const override;
@@ -89,8 +89,13 @@ std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_v
                                           const std::vector<Bond>& bonds, SpecialWeights weights);
 void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f,
                  std::size_t num_types);
-std::string define_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
-                         SpecialWeights weights, std::size_t excluded, std::size_t scaled);
+std::string describe_pairs(std::string_view style, int num_types, double cutoff, const NeighborList& list,
+                           SpecialWeights weights, std::size_t excluded, std::size_t scaled);
+// What define() writes besides the coefficients: each particle's type, the cutoff, the skin (it
+// decides when the list is rebuilt, and so the order of the pair sums), the special weights and
+// the scaled pairs. The excluded pairs follow from the scene's bonds, which the scene writes.
+void define_pair_settings(ParameterRecord& record, const std::vector<int>& types, double cutoff, double skin,
+                          SpecialWeights weights, std::size_t excluded, std::span<const SpecialPair> scaled);
 // The neighbour list's state for checkpoints: its positions, box and rebuild count at the last
 // build, from which restore() rebuilds the same list (same pairs, order and images).
 std::vector<double> save_list_state(const NeighborList& list);
@@ -165,15 +170,22 @@ double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const
       .virial;
 }
 
+// The coefficients of every type pair (a, b), a <= b, as the pair loop uses them: after the
+// mixing rule and the per-pair overrides.
 template <class Kernel>
-std::string PairTerm<Kernel>::definition() const {
-  return pair_detail::define_pairs(Kernel::kStyle, coeffs_.num_types(), cutoff_, list_, weights_, excluded_,
-                                   scaled_.size());
+void PairTerm<Kernel>::define(ParameterRecord& record) const {
+  const int n = coeffs_.num_types();
+  record.add("particle types", n);
+  for (int a = 0; a < n; ++a)
+    for (int b = a; b < n; ++b) Kernel::define(record, coeffs_(a, b));
+  pair_detail::define_pair_settings(record, types_, cutoff_, list_.skin(), weights_, excluded_, scaled_);
 }
 
 template <class Kernel>
 std::string PairTerm<Kernel>::describe() const {
-  return definition() + ", " + std::to_string(list_.rebuilds()) + " neighbour-list rebuilds so far";
+  return pair_detail::describe_pairs(Kernel::kStyle, coeffs_.num_types(), cutoff_, list_, weights_, excluded_,
+                                     scaled_.size()) +
+         ", " + std::to_string(list_.rebuilds()) + " neighbour-list rebuilds so far";
 }
 
 template <class Kernel>

@@ -28,4 +28,14 @@ std::string StiffHarmonicBond::describe() const {
   return s.str();
 }
 
+void StiffHarmonicBond::define(ParameterRecord& record) const {
+  record.add("epsilon", bonds_.epsilon);
+  record.add("bonds", bonds_.bonds.size());
+  for (const StiffBond& b : bonds_.bonds) {
+    record.add("bond", {b.i, b.j});
+    record.add("length", b.length);
+    record.add("alpha", b.alpha);
+  }
+}
+
 }  // namespace stiffmd

@@ -22,6 +22,7 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   }
   std::string_view style() const override { return "stiff-harmonic"; }
   std::string describe() const override;
+  void define(ParameterRecord& record) const override;  // ε and every bond's particles, ℓ_b and α_b
   const StiffBonds* stiff_bonds() const override { return &bonds_; }
   const FusedMicroStep* fused_micro_step() const override { return this; }
   void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,

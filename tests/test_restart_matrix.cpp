@@ -372,13 +372,17 @@ TEST_F(BadCheckpoint, ANewerOrOlderFormatIsRefused) {
   expect_refused("STFMDCK1" + good_.substr(8), "format version 1 (an older stiffmd)");
   const std::uint32_t two = 2;  // before the Langevin RATTLE state's meaning changed
   std::memcpy(b.data() + 12, &two, 4);
-  expect_refused(with_crc(b), "format version 2 (an older stiffmd); this stiffmd reads version 3");
+  expect_refused(with_crc(b), "format version 2 (an older stiffmd); this stiffmd reads version 4");
+  const std::uint32_t three = 3;  // before the exact scene fingerprint: it would read as another scene
+  std::memcpy(b.data() + 12, &three, 4);
+  expect_refused(with_crc(b), "format version 3 (an older stiffmd); this stiffmd reads version 4");
 }
 
 TEST_F(BadCheckpoint, ACheckpointOfAnotherSceneIsRefused) {
-  // The same particles and masses, another ε, another WCA skin, another tether, another box.
-  for (const char* set : {" --set variables.eps=0.02", " --set forces.excluded_volume.skin=0.25",
-                          " --set forces.anchor.k=0.6", " --set build.0.density=0.69"})
+  // The same particles and masses, another ε, another WCA skin or depth, another tether, another box.
+  for (const char* set :
+       {" --set variables.eps=0.02", " --set forces.excluded_volume.skin=0.25",
+        " --set forces.excluded_volume.epsilon=2.5", " --set forces.anchor.k=0.6", " --set build.0.density=0.69"})
     expect_refused(good_, "checkpoint of another scene", set);
   expect_refused(good_, "checkpoint holds 64 particles, the deck 72", " --set build.0.beads=9");
   // Settings a restart may change are not the scene: another method continues (not bit for bit).

@@ -17,6 +17,7 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/scene/scene.hpp"
+#include "forcefields/parameter_record.hpp"
 
 namespace stiffmd {
 namespace {
@@ -148,72 +149,46 @@ T get_raw(const std::vector<char>& b, std::size_t at) {
   return v;
 }
 
-// FNV-1a, 64 bit: a fingerprint, not a defence against forgery.
-class Fingerprint {
- public:
-  void bytes(const void* p, std::size_t n) {
-    const auto* c = static_cast<const unsigned char*>(p);
-    for (std::size_t k = 0; k < n; ++k) h_ = (h_ ^ c[k]) * 0x100000001b3ull;
-  }
-  template <class T>
-  void add(const T& v) {
-    bytes(&v, sizeof(T));
-  }
-  void add(const std::string& s) {
-    add<std::uint64_t>(s.size());
-    bytes(s.data(), s.size());
-  }
-  std::uint64_t value() const { return h_; }
-
- private:
-  std::uint64_t h_ = 0xcbf29ce484222325ull;
-};
-
 }  // namespace
 
 std::uint64_t scene_fingerprint(const Scene& sc) {
-  Fingerprint f;
-  const std::int64_t n = sc.state.size();
-  f.add(n);
-  f.bytes(sc.state.inv_mass.data(), sizeof(double) * static_cast<std::size_t>(sc.state.inv_mass.size()));
-  f.add<std::uint64_t>(sc.particle_type.size());
-  for (const int t : sc.particle_type) f.add(t);
-  f.add<std::uint64_t>(sc.types.size());
+  ParameterRecord r;
+  r.add("particles", sc.state.size());
+  r.add("inverse masses",
+        std::span<const double>(sc.state.inv_mass.data(), static_cast<std::size_t>(sc.state.inv_mass.size())));
+  r.add("particle type", std::span<const int>(sc.particle_type));
+  r.add("types", sc.types.size());
   for (const ParticleType& t : sc.types) {
-    f.add(t.name);
-    f.add(t.mass);
+    r.add("name", t.name);
+    r.add("mass", t.mass);
   }
   const Topology& top = sc.topology;
-  f.add<std::uint64_t>(top.bonds.size());
-  for (const Bond& b : top.bonds) f.add(std::array<int, 3>{b.i, b.j, b.type});
-  f.add<std::uint64_t>(top.angles.size());
-  for (const Angle& a : top.angles) f.add(std::array<int, 4>{a.i, a.j, a.k, a.type});
-  f.add<std::uint64_t>(top.molecule.size());
-  for (const int m : top.molecule) f.add(m);
+  r.add("bonds", top.bonds.size());
+  for (const Bond& b : top.bonds) r.add("bond", {b.i, b.j, b.type});
+  r.add("angles", top.angles.size());
+  for (const Angle& a : top.angles) r.add("angle", {a.i, a.j, a.k, a.type});
+  r.add("dihedrals", top.dihedrals.size());
+  for (const Dihedral& d : top.dihedrals) r.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
+  r.add("molecule", std::span<const int>(top.molecule));
   for (int a = 0; a < 3; ++a) {
-    f.add(sc.box.periodic[a]);
-    f.add(sc.box.origin[a]);
-    f.add(sc.box.lengths[a]);
+    r.add("periodic", sc.box.periodic[a]);
+    r.add("origin", sc.box.origin[a]);
+    r.add("length", sc.box.lengths[a]);
   }
-  for (const LevelSettings& l : sc.integrator.levels) f.add(l.name);  // none without [[integrator.levels]]
-  // The units give the deck's times and temperatures their meaning (added only when not the
-  // default, so that checkpoints of reduced-unit runs keep their fingerprints).
-  if (!sc.units.reduced()) f.add(sc.units.name);
-  f.add<std::uint64_t>(sc.forces->terms().size());
+  r.add("levels", sc.integrator.levels.size());  // none without [[integrator.levels]]
+  for (const LevelSettings& l : sc.integrator.levels) r.add("level", l.name);
+  // The units give the deck's times and temperatures their meaning.
+  r.add("units", sc.units.name);
+  // Each term writes its own parameters and lists (ForceTerm::define): the coefficients the
+  // forces are computed from, bit for bit.
+  r.add("terms", sc.forces->terms().size());
   for (const auto& term : sc.forces->terms()) {
-    f.add(term->name());
-    f.add(std::string(term->style()));
-    f.add(term->level().index);
-    f.add(term->definition());
+    r.add("name", term->name());
+    r.add("style", term->style());
+    r.add("level", term->level().index);
+    term->define(r);
   }
-  if (const StiffBonds* sb = sc.forces->stiff_bonds()) {  // exactly: definition() rounds ε
-    f.add(sb->epsilon);
-    for (const StiffBond& b : sb->bonds) {
-      f.add(std::array<int, 2>{b.i, b.j});
-      f.add(std::array<double, 2>{b.length, b.alpha});
-    }
-  }
-  return f.value();
+  return r.value();
 }
 
 void write_checkpoint(const std::string& path, const State& state, const Checkpoint& c) {

@@ -4,10 +4,13 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 3), in the byte order and double format of the writing machine. In version 3
+// Format (version 4), in the byte order and double format of the writing machine. Version 3:
 // RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
 // constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
-// the wrong meaning there, so it is refused.
+// the wrong meaning there, so it is refused. Version 4: the scene fingerprint is the exact
+// parameter record of forcefields/parameter_record.hpp (every coefficient bit for bit, the
+// dihedrals); a version-3 file of the same scene would be taken for another scene, so it is
+// refused as of an older stiffmd.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
@@ -31,7 +34,7 @@ namespace stiffmd {
 
 struct Scene;
 
-inline constexpr std::uint32_t kCheckpointVersion = 3;
+inline constexpr std::uint32_t kCheckpointVersion = 4;
 
 struct Checkpoint {
   State state;         // x, v, inverse masses, t, step
@@ -46,9 +49,11 @@ struct Checkpoint {
       run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
 };
 
-// A hash of what defines the scene — particle count, inverse masses, particle types, topology,
-// box, every force term's name, style, level and definition(), the stiff bonds and ε — but not
-// the integrator, run or output settings, which a restart may change with --set.
+// What defines the scene, exactly (a ParameterRecord, forcefields/parameter_record.hpp): particle
+// count, inverse masses, particle types, topology (bonds, angles, dihedrals, molecules), box,
+// levels, units, and every force term's name, style, level and ForceTerm::define (each of its
+// coefficients and lists, bit for bit) — but not the integrator, run or output settings, which
+// a restart may change with --set, nor run-time counters such as neighbour-list rebuilds.
 std::uint64_t scene_fingerprint(const Scene& scene);
 
 // Writes `state` and everything of `rest` but rest.state. Throws InputError naming the path on

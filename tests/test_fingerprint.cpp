@@ -1,0 +1,261 @@
+// The scene fingerprint of checkpoints (engine/run/checkpoint.hpp) covers every parameter of
+// every force term exactly. tests/decks/every_force_style.toml holds a term of each style of the
+// registry with every key its reader asks for given (checked here against the reader, so that a
+// new style or key fails this test until the deck gives it). Each key of each term, changed
+// through --set in its last bit, by a relative 1e-12 or to another valid value, must make a
+// checkpoint of the deck's scene be refused as another scene, unless the change left every force
+// bit-identical; the unchanged deck must continue it; the dihedrals' types swapped between two
+// dihedrals must be refused too.
+#include <gtest/gtest.h>
+
+#include <toml++/toml.h>
+#include <cmath>
+#include <cstdio>
+#include <optional>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "cli_support.hpp"
+#include "engine/core/errors.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/run/checkpoint.hpp"
+#include "engine/scene/force_registry.hpp"
+#include "engine/scene/scene.hpp"
+#include "test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+
+const std::string kDeck = "tests/decks/every_force_style.toml";
+
+// Keys that no other value loads for, and why: the test checks that none does.
+const std::set<std::string> kNoOtherValue = {
+    "forces.bonds.level",  // the constraint-defining term must sit on the innermost level
+};
+// Keys that the deck gives but the scene does not use, so that changing them leaves the same
+// scene, whose checkpoint continues (the test checks that no change of them is refused and that
+// the forces stay bit-identical): with per-type tables for every type, the term's own
+// coefficients are only the defaults of keys those tables leave out.
+const std::set<std::string> kUnused = {"forces.lj.epsilon", "forces.lj.sigma", "forces.lj.cutoff", "forces.wca.epsilon",
+                                       "forces.wca.sigma"};
+
+// Values a string key may take in this deck: levels, mixing rules, axes, particle types.
+const std::vector<std::string> kWords = {"fast", "slow", "geometric", "arithmetic", "x", "y", "z", "A", "B"};
+
+std::string exact(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  std::string s = buf;
+  if (s.find_first_of(".en") == std::string::npos) s += ".0";  // stays a TOML float
+  return s;
+}
+
+// Other values for a deck leaf, as --set text: a number changed in its last bit either way and
+// by a relative 1e-12 either way (a zero made ±1e-9), an integer by one or its sign, a string to
+// another word of kWords.
+std::vector<std::string> other_values(const toml::node& n) {
+  std::vector<std::string> out;
+  if (const auto d = n.value_exact<double>()) {
+    if (*d == 0.0) return {exact(1e-9), exact(-1e-9)};
+    return {exact(std::nextafter(*d, INFINITY)), exact(std::nextafter(*d, -INFINITY)), exact(*d * (1 + 1e-12)),
+            exact(*d * (1 - 1e-12))};
+  }
+  if (const auto i = n.value_exact<std::int64_t>()) {
+    for (const std::int64_t v : {*i + 1, *i - 1, -*i})
+      if (v != *i) out.push_back(std::to_string(v));
+    return out;
+  }
+  if (const auto s = n.value_exact<std::string>()) {
+    for (const std::string& w : kWords)
+      if (w != *s) out.push_back("\"" + w + "\"");
+    return out;
+  }
+  if (const auto b = n.value_exact<bool>()) return {*b ? "false" : "true"};
+  return out;
+}
+
+struct Leaf {
+  std::string path;  // as --set takes it: forces.lj.pair.0.epsilon, forces.lj.special_bonds.1
+  const toml::node* node;
+};
+
+// Every value under `n` (tables and arrays entered), and every table holding a value, by path.
+void walk(const toml::node& n, const std::string& path, std::vector<Leaf>& leaves,
+          std::vector<std::pair<std::string, const toml::table*>>& tables) {
+  if (const auto* t = n.as_table()) {
+    bool holds_a_value = false;
+    for (const auto& [k, v] : *t) {
+      holds_a_value |= !v.is_table() && !v.is_array_of_tables();
+      walk(v, path + "." + std::string(k.str()), leaves, tables);
+    }
+    if (holds_a_value) tables.emplace_back(path, t);
+  } else if (const auto* a = n.as_array()) {
+    for (size_t k = 0; k < a->size(); ++k) walk(*a->get(k), path + "." + std::to_string(k), leaves, tables);
+  } else {
+    leaves.push_back({path, &n});
+  }
+}
+
+class SceneFingerprintOfEveryStyle : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = test::scratch_dir("fingerprint");
+    const auto r = test::cli("run " + test::source_path(kDeck) + " -o " + (dir_ / "out").string() + " --no-progress");
+    ASSERT_EQ(r.code, 0) << r.err;
+    parsed_ = toml::parse_file(test::source_path(kDeck));
+  }
+  static void TearDownTestSuite() { fs::remove_all(dir_); }
+
+  static std::string checkpoint() { return (dir_ / "out" / "checkpoint.bin").string(); }
+
+  enum class Outcome { bad_deck, refused, continued };
+  struct Restart {
+    Outcome outcome;
+    std::string what;            // the error
+    std::optional<Scene> scene;  // the deck's scene, when it loads
+  };
+  // Loads the deck with `overrides` (and a later run.t_end) and offers it the checkpoint.
+  static Restart restart(std::vector<std::string> overrides) {
+    overrides.push_back("run.t_end=1");
+    Restart r{Outcome::continued, "", std::nullopt};
+    try {
+      r.scene.emplace(load_scene(Deck(test::source_path(kDeck), overrides)));
+    } catch (const InputError& e) {
+      return {Outcome::bad_deck, e.what(), std::nullopt};
+    }
+    try {
+      read_checkpoint_for(*r.scene, checkpoint());
+    } catch (const InputError& e) {
+      r.outcome = Outcome::refused;
+      r.what = e.what();
+    }
+    return r;
+  }
+
+  // Whether every term of `a` and `b` gives the same energy and forces, bit for bit, at the
+  // checkpoint's positions.
+  static bool same_forces(const Scene& a, const Scene& b) {
+    const Eigen::Matrix3Xd x = read_checkpoint(checkpoint()).state.x;
+    const auto &ta = a.forces->terms(), &tb = b.forces->terms();
+    if (ta.size() != tb.size()) return false;
+    for (size_t k = 0; k < ta.size(); ++k) {
+      Eigen::Matrix3Xd fa = Eigen::Matrix3Xd::Zero(3, x.cols()), fb = fa;
+      if (ta[k]->add_forces(x, a.box, fa) != tb[k]->add_forces(x, b.box, fb) || !(fa.array() == fb.array()).all())
+        return false;
+    }
+    return true;
+  }
+
+  static const toml::table& forces() { return *parsed_["forces"].as_table(); }
+
+  static inline fs::path dir_;
+  static inline toml::table parsed_;
+};
+
+TEST_F(SceneFingerprintOfEveryStyle, TheDeckHasATermOfEveryStyleAndTheUnchangedDeckContinues) {
+  std::set<std::string> styles;
+  for (const auto& [name, t] : forces()) styles.insert(std::string(*t.as_table()->get("style")->value<std::string>()));
+  for (const ForceStyle& s : force_styles()) EXPECT_TRUE(styles.count(s.name)) << "no term of style " << s.name;
+  const Restart same = restart({});
+  EXPECT_EQ(same.outcome, Outcome::continued) << same.what;
+  // Through the command line too.
+  fs::copy(dir_ / "out", dir_ / "copy");
+  const auto r =
+      test::cli("run " + test::source_path(kDeck) + " -o " + (dir_ / "copy").string() +
+                " --no-progress --set run.t_end=0.02 --restart " + (dir_ / "copy" / "checkpoint.bin").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  fs::remove_all(dir_ / "copy");
+}
+
+// Every key a style's reader asks for is given in the deck: a key added to a reader, or a style
+// added to the registry, fails here until the deck gives it (and the sweep below changes it).
+TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+  std::vector<Leaf> leaves;
+  std::vector<std::pair<std::string, const toml::table*>> tables;
+  for (const auto& [name, t] : forces()) walk(t, "forces." + std::string(name.str()), leaves, tables);
+  for (const auto& [path, table] : tables) {
+    // An unknown key makes the reader list the keys it asked for (DeckTable::finish).
+    const std::string what = restart({path + ".zz_probe=1"}).what;
+    const std::string marker = "zz_probe: unknown key (expected one of: ";
+    const size_t at = what.find(marker);
+    ASSERT_NE(at, std::string::npos) << path << ": " << what;
+    const size_t from = at + marker.size(), to = what.find(')', from);
+    std::stringstream asked(what.substr(from, to - from));
+    for (std::string key; std::getline(asked, key, ',');) {
+      key.erase(0, key.find_first_not_of(' '));
+      EXPECT_TRUE(table->contains(key)) << "the reader asks for " << path << "." << key << ", which " << kDeck
+                                        << " does not give";
+    }
+  }
+}
+
+// Each key of each term changed on its own (other_values): a valid deck it gives is another
+// scene, refused. A change in the last bit may round away where the scene computes the coefficient
+// it uses from the deck's values (θ₀ from degrees, ε_AB = √(ε_A ε_B) by the mixing rule): the
+// scene is then the same and its restart continues, which is accepted when every term's energy and
+// forces at the checkpoint are bit-identical — and some change of the key must still be refused.
+TEST_F(SceneFingerprintOfEveryStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+  std::vector<Leaf> leaves;
+  std::vector<std::pair<std::string, const toml::table*>> tables;
+  for (const auto& [name, t] : forces()) walk(t, "forces." + std::string(name.str()), leaves, tables);
+  const Restart base = restart({});
+  ASSERT_TRUE(base.scene);
+  int changes = 0;
+  for (const Leaf& leaf : leaves) {
+    if (leaf.path.ends_with(".style")) continue;  // what the table is, not a parameter of it
+    std::string loads_not;
+    bool another_scene = false;
+    for (const std::string& value : other_values(*leaf.node)) {
+      const std::string set = leaf.path + "=" + value;
+      const Restart r = restart({set});
+      if (r.outcome == Outcome::bad_deck) {
+        loads_not += "\n  " + r.what;
+        continue;
+      }
+      ++changes;
+      if (r.outcome == Outcome::continued) {
+        EXPECT_TRUE(same_forces(*base.scene, *r.scene)) << set << " continues the checkpoint but changes the forces";
+        continue;
+      }
+      EXPECT_NE(r.what.find("checkpoint of another scene"), std::string::npos) << set << ": " << r.what;
+      another_scene = true;
+    }
+    if (kUnused.count(leaf.path))
+      EXPECT_FALSE(another_scene) << leaf.path << " is refused: take it out of kUnused";
+    else if (kNoOtherValue.count(leaf.path))
+      EXPECT_FALSE(another_scene) << leaf.path << " loads with another value: take it out of kNoOtherValue";
+    else
+      EXPECT_TRUE(another_scene) << "no other value of " << leaf.path
+                                 << " is refused; those that do not load:" << loads_not;
+  }
+  EXPECT_GT(changes, 100);  // the deck's keys, most changed both ways
+}
+
+// The same dihedrals with their two harmonic types swapped: the same topology lists and the same
+// coefficients, but each dihedral turns with the other's.
+TEST_F(SceneFingerprintOfEveryStyle, DihedralTypesSwappedAreAnotherScene) {
+  const Restart r = restart({"build.0.dihedral_type=h2", "build.1.dihedral_type=h1"});
+  ASSERT_TRUE(r.scene) << r.what;
+  EXPECT_EQ(r.scene->topology.dihedrals.size(), 6u);
+  EXPECT_EQ(r.outcome, Outcome::refused);
+  EXPECT_NE(r.what.find("checkpoint of another scene"), std::string::npos) << r.what;
+}
+
+// The command line refuses a restart with another pair ε: exit 2, one line, nothing run.
+TEST_F(SceneFingerprintOfEveryStyle, ARestartWithAnotherPairEpsilonExitsWith2) {
+  fs::copy(dir_ / "out", dir_ / "eps");
+  const auto r = test::cli("run " + test::source_path(kDeck) + " -o " + (dir_ / "eps").string() +
+                           " --no-progress --set run.t_end=0.02 --set forces.wca.types.A.epsilon=2.5 --restart " +
+                           (dir_ / "eps" / "checkpoint.bin").string());
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("checkpoint of another scene"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "");
+  fs::remove_all(dir_ / "eps");
+}
+
+}  // namespace
+}  // namespace stiffmd
