@@ -1,4 +1,4 @@
-// Connected constraint clusters (design.md §2): S = G M⁻¹ Gᵀ is block-diagonal over them.
+// Connected constraint clusters: S = G M⁻¹ Gᵀ is block-diagonal over them.
 #include <algorithm>
 #include <numeric>
 #include <utility>

@@ -56,9 +56,10 @@ bool pivots_regular(const Eigen::MatrixBase<Pivots>& pivots, double scale) {
   return pivots.allFinite() && pivots.cwiseAbs().minCoeff() > kSingularPivot * scale;
 }
 
-// Open chains in chain order: K is tridiagonal (design.md §2). S itself never needs a row
-// swap (each Schur complement is ≥ the next sub-diagonal entry, 1/m_shared), but J far from
-// the manifold (SHAKE from a distant start, the mollifier of a badly stretched state) does.
+// Open chains in chain order: K is tridiagonal (bond k shares particles only with bonds k ± 1).
+// S itself never needs a row swap (each Schur complement is ≥ the next sub-diagonal entry,
+// 1/m_shared), but J far from the manifold (SHAKE from a distant start, the mollifier of a badly
+// stretched state) does.
 class TridiagonalSolver final : public ClusterSolver {
  public:
   TridiagonalSolver(int n, const std::vector<Coupling>& couplings)

@@ -1,4 +1,4 @@
-// The constraint toolbox (design.md §2; Lubich & Weiss §2.2–2.3).
+// The constraint toolbox (Lubich & Weiss §2.2–2.3): building it, and its accessors.
 //
 // Every operation reduces to solves with K(a, b) = G(a) M⁻¹ G(b)ᵀ on one cluster:
 //   S(x) = K(x, x)        (SPD)  force and velocity projections;
@@ -12,8 +12,8 @@
 // parallel on the OpenMP threads (Impl::for_each_cluster). The toolbox's work by file:
 // integrators/constraint_toolbox_impl.hpp.
 //
-// S(x) is measured and factored once per configuration (issue 14: a constrained BAOAB step asks
-// for it up to five times at three positions). The toolbox keeps the last configuration it was
+// S(x) is measured and factored once per configuration: a constrained BAOAB step asks for it up
+// to five times, at three positions. The toolbox keeps the last configuration it was
 // handed, bit for bit, with G there and S's factors; an operation at the same x reuses them. What
 // is kept is a function of x alone, so a run restarted without the cache computes the same bits.
 // SHAKE near its reference iterates with that S(x_ref) (the chord, SHAKE's own quasi-Newton, no

@@ -11,9 +11,10 @@ constexpr int kMollifierMaxIter = 50;
 
 }  // namespace
 
-// Steps 2–4 of the mollified force (design.md §2), from α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ),
-// which follows by differentiating X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and
-// data[c].lambda holds the multipliers of X = α(x).
+// Steps 2–4 of the mollified force (integrators/constraints.hpp), from
+// α′(x) = (I − M⁻¹G(x)ᵀJ⁻¹G(X))(I + M⁻¹H_λ), which follows by differentiating
+// X = x + M⁻¹G(x)ᵀλ(x), g(X) = 0. On entry f = f_slow(X) and data[c].lambda holds the multipliers
+// of X = α(x).
 void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {
   ClusterData& d = data[c];
   // G(x) and G(X) are in at_kept and at_cur: shake_cluster measured x as its reference and

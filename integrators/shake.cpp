@@ -21,12 +21,11 @@ namespace {
 // manifold, Impl::chain_gap; a drift of one step: |g| ~ (h|v_rel|)²/(2ℓ), 1e-4 ℓ typical on the
 // stiff melt), and switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces
 // the largest residual by less than kChordContraction. The chord's rate is about |G(y) − G(x_ref)|
-// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. The start bound was 1e-2 ℓ: a
-// full drift of h = 0.02 (fixman's OBABO step) on data.chain puts the fastest pair of some chains
-// past it ((0.02 · 8)²/2 ≈ 0.013), and those chains then took Newton from the start (a measure,
-// a factorization of J and a solve per iteration): OBABO was 3 % faster than BAOAB per step with
-// 1e-2 and is 13 % faster with 5e-2 (medians of 5 interleaved runs each). The chords still
-// contract there (the contraction test guards the rest).
+// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. The start bound admits a full drift
+// of h = 0.02 (fixman's OBABO step) on LAMMPS's data.chain, whose fastest pairs reach
+// |g| ≈ (0.02 · 8)²/2 ≈ 0.013 ℓ: the chords still contract there, and Newton from the start would
+// cost a measure, a factorization of J and a solve per iteration where a chord step is one solve
+// with S's kept factors. Where the chord does contract slowly, the contraction test switches.
 constexpr double kChordStart = 5e-2;
 constexpr double kChordContraction = 0.25;
 
