@@ -1,4 +1,4 @@
-// Connected constraint clusters (docs/design.md §2): S = G M⁻¹ Gᵀ is block-diagonal over them.
+// Connected constraint clusters: S = G M⁻¹ Gᵀ is block-diagonal over them.
 #include <algorithm>
 #include <numeric>
 #include <utility>
@@ -93,6 +93,17 @@ ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<Sti
   path.shape = ring ? ClusterShape::ring : ClusterShape::chain;
   path.bonds = std::move(order);
   return path;
+}
+
+BondsAtParticles bonds_at_mobile_particles(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
+                                           const Eigen::VectorXd& inv_mass) {
+  BondsAtParticles at;
+  for (int r = 0; r < static_cast<int>(order.size()); ++r) {
+    const StiffBond& b = bonds[order[r]];
+    if (inv_mass[b.i] > 0.0) at[b.i].emplace_back(r, +1.0);
+    if (inv_mass[b.j] > 0.0) at[b.j].emplace_back(r, -1.0);
+  }
+  return at;
 }
 
 }  // namespace stiffmd

@@ -1,4 +1,4 @@
-// The constraint toolbox (docs/design.md §2; Lubich & Weiss §2.2–2.3).
+// The constraint toolbox (Lubich & Weiss §2.2–2.3).
 //
 // Built from the stiff bonds of a scene. Every operation uses the sparse SPD matrix
 //   S(x) = G M⁻¹ Gᵀ,  G = g′(x) (one row per bond: +u_b at i, −u_b at j),
@@ -117,7 +117,7 @@ class ConstraintToolbox {
   void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr, double tol = 1e-12,
              int max_iter = 50);
 
-  // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)) (docs/design.md §2, steps 1–4):
+  // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)), in four steps:
   //   X = α(x), f = f_slow(X); solve Jᵀμ = G(x) M⁻¹ f, J = G(X) M⁻¹ G(x)ᵀ;
   //   r = f − G(X)ᵀμ;  F̄ = r + H_λ M⁻¹ r,  H_λ = Σ_b λ_b ∇²g_b(x).
   // X receives α(x); out receives F̄. f_slow is called exactly once.

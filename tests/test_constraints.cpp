@@ -1,8 +1,8 @@
-// Tests of the constraint toolbox (docs/design.md §2; Lubich & Weiss §2.2–2.3, Lemma "alpha").
+// Tests of the constraint toolbox (Lubich & Weiss §2.2–2.3, Lemma "alpha").
 //
-// The references here are written independently of integrators/constraints.cpp: G(x) as an
-// explicit dense m × 3N matrix, S = G M⁻¹ Gᵀ inverted densely, and finite differences of
-// U(α(x)) for the mollified force.
+// The references here are written independently of the toolbox's sources (integrators/constraint*,
+// shake.cpp, mollifier.cpp): G(x) as an explicit dense m × 3N matrix, S = G M⁻¹ Gᵀ inverted
+// densely, and finite differences of U(α(x)) for the mollified force.
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>

@@ -41,9 +41,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GROUPS = [  # (group, regular expression on the symbol); the first match wins
     # U_F's band of S⁻¹ is computed by the toolbox from its factors (chain_inverse_band): U_F's work.
     ("Fixman U_F", r"FixmanPotential|tridiagonal_inverse_band|chain_inverse_band|inverse_band_group"),
-    # ChainLdlt: S's factorization (its lockstep template sits outside ConstraintToolbox's name);
+    # constraint_detail: the toolbox's private helpers outside ConstraintToolbox's name (the cluster
+    # solvers, ChainLdlt's lockstep templates, the path walks; integrators/constraint_toolbox_impl.hpp);
     # memcmp: the toolbox's comparison of x with its kept configuration (its only user in a step).
-    ("constraints", r"ConstraintToolbox|TridiagonalSolver|ChainLdlt|Rattle::add_constraint_force|memcmp"),
+    ("constraints", r"ConstraintToolbox|constraint_detail|TridiagonalSolver|ChainLdlt|Rattle::add_constraint_force|"
+                    r"memcmp"),
     ("slow force", r"accumulate_pair_rows|NeighborList|PairTerm|pair_loop|ForceField::compute"),
     ("Langevin O step", r"LangevinNoise|ziggurat|__ieee754_log|__cos|__sin|^log@|^cos@|^sin@"),
     ("kick, drift", r"\bkick\b|\bdrift\b|Rattle::|check_finite|memset|memmove|memcpy"),

@@ -1,0 +1,235 @@
+// SHAKE in the constraint toolbox (integrators/constraints.hpp): the position projection
+// y ← y + M⁻¹ G(x_ref)ᵀ λ with g(y) = 0, by chord steps on S(x_ref) for open chains near x_ref and
+// Newton on J = G(y) M⁻¹ G(x_ref)ᵀ otherwise.
+#include "integrators/constraint_toolbox_impl.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <exception>
+#include <limits>
+#include <string>
+#include <utility>
+
+#include "engine/core/errors.hpp"
+
+namespace stiffmd {
+using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
+namespace {
+
+// SHAKE starts with chord iterations on S(x_ref) when every |h_b(y)| ≤ this × ℓ_b (h ≈ g near the
+// manifold, Impl::chain_gap; a drift of one step: |g| ~ (h|v_rel|)²/(2ℓ), 1e-4 ℓ typical on the
+// stiff melt), and switches to Newton on J = G(y) M⁻¹ G(x_ref)ᵀ as soon as an iteration reduces
+// the largest residual by less than kChordContraction. The chord's rate is about |G(y) − G(x_ref)|
+// (the bonds' rotation since x_ref): ≈ 0.01 for a melt's step. The start bound admits a full drift
+// of h = 0.02 (fixman's OBABO step) on LAMMPS's data.chain, whose fastest pairs reach
+// |g| ≈ (0.02 · 8)²/2 ≈ 0.013 ℓ: the chords still contract there, and Newton from the start would
+// cost a measure, a factorization of J and a solve per iteration where a chord step is one solve
+// with S's kept factors. Where the chord does contract slowly, the contraction test switches.
+constexpr double kChordStart = 5e-2;
+constexpr double kChordContraction = 0.25;
+
+std::string format_g(double value) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.1e", value);
+  return buffer;
+}
+
+// −h_k = (ℓ_k² − |d_k|²) / (2ℓ_k) of an open chain's bonds, fed the particles along its path in
+// order (particle path[k] closes bond k − 1): SHAKE's chord residual (Impl::chain_gap,
+// Impl::chain_displace). result(): max |h|, NaN when a length is not finite.
+struct PathGap {
+  const double* length2;
+  const double* half_inv_length;
+  double* minus_h;
+  double px = 0.0, py = 0.0, pz = 0.0;  // the previous particle
+  double worst = 0.0;
+  bool finite = true;
+
+  PathGap(const ClusterData& d, double* out)
+      : length2(d.length2.data()), half_inv_length(d.half_inv_length.data()), minus_h(out) {}
+  void operator()(int k, double x, double y, double z) {
+    if (k > 0) {
+      const double dx = px - x, dy = py - y, dz = pz - z;
+      const double r2 = dx * dx + dy * dy + dz * dz;
+      minus_h[k - 1] = (length2[k - 1] - r2) * half_inv_length[k - 1];
+      worst = std::max(worst, std::abs(minus_h[k - 1]));
+      finite &= r2 <= std::numeric_limits<double>::max();  // false for ∞ and NaN
+    }
+    px = x;
+    py = y;
+    pz = z;
+  }
+  double result() const { return finite ? worst : std::numeric_limits<double>::quiet_NaN(); }
+};
+
+}  // namespace
+
+double ConstraintToolbox::Impl::chain_gap(int c, const Eigen::Matrix3Xd& y, double* minus_h) const {
+  const ClusterData& d = data[c];
+  const int* path = d.path.data();
+  const double* yp = y.data();
+  PathGap gap(d, minus_h);
+  for (int k = 0, n = static_cast<int>(d.bonds.size()); k <= n; ++k) {
+    const double* q = yp + 3 * path[k];
+    gap(k, q[0], q[1], q[2]);
+  }
+  return gap.result();
+}
+
+double ConstraintToolbox::Impl::chain_displace(int c, Eigen::Matrix3Xd& y, const double* delta, double* minus_h) {
+  ClusterData& d = data[c];
+  d.lambda += Eigen::Map<const Eigen::VectorXd>(delta, d.lambda.size());
+  PathGap gap(d, minus_h);
+  walk_chain<true>(d, y.data(), delta, 1.0, gap);
+  return gap.result();
+}
+
+// y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
+// configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
+// x_ref take chord steps S(x_ref) δ = −g(y) (SHAKE's quasi-Newton: S is J at y = x_ref, and its
+// factors are usually kept from the velocity projection that ended the last step); otherwise, or
+// as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
+// enough for the mollified force's H_λ).
+void ConstraintToolbox::Impl::shake_start(ShakeState& st, int c) {
+  ClusterData& d = data[c];
+  if (!d.frame_kept) {
+    measure(c, kept_x, at_kept, "SHAKE (reference configuration)");
+    d.frame_kept = true;
+  }
+  st = ShakeState{};
+  st.c = c;
+  st.chord = d.spd != nullptr;
+  d.lambda.setZero();
+}
+
+ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y,
+                                                                          double tol, int max_iter) {
+  const int c = st.c;
+  ClusterData& d = data[c];
+  const int n = static_cast<int>(d.bonds.size());
+  const int* bond = d.bonds.data();
+  const int iteration = st.iteration;
+  // The chord needs only the residual, −h(y) (gap: no square root; after a chord update it was
+  // computed in the update's pass); G(y), a full measure with rhs = −g(y), only to confirm
+  // convergence (it is then kept for the velocity projection), for a Newton step, or to name a
+  // bond whose length is not finite.
+  double residual = !st.chord ? 0.0 : st.have_chord_residual ? st.chord_residual : chain_gap(c, y, d.rhs.data());
+  st.have_chord_residual = false;
+  bool measured = false;
+  auto measure_y = [&] {
+    residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
+    measured = true;
+  };
+  if (!st.chord || !(residual > tol)) {  // Newton, converged by h, or not finite
+    measure_y();
+    if (residual <= tol) return ShakeNext::converged;
+  }
+  if (iteration == max_iter) {
+    if (!measured) measure_y();  // report g, not h
+    int worst = 0;
+    d.rhs.cwiseAbs().maxCoeff(&worst);
+    const int b = bond[worst];
+    throw NumericalError("SHAKE did not converge in cluster " + std::to_string(c) + " after " +
+                         std::to_string(max_iter) + " iterations: worst " + describe_bond(b, bonds[b]) +
+                         ", |g| = " + format_g(residual));
+  }
+  if (iteration == 0 && st.chord)
+    for (int k = 0; k < n; ++k) st.chord &= std::abs(d.rhs[k]) <= kChordStart * bonds[bond[k]].length;
+  st.chord &= !(residual > kChordContraction * st.previous);  // false for NaN too
+  st.previous = residual;
+  if (!st.chord && !measured) measure_y();  // Newton from here: J needs G(y)
+  if (st.chord) return ShakeNext::chord_solve;
+  factorize(c, at_cur, at_kept, false, "SHAKE");
+  ++d.factorizations;
+  if (!d.spd) d.s_factored = false;  // J took S's place in the solver
+  d.solver->solve(d.rhs, d.sol);
+  d.lambda += d.sol;
+  add_constraint_displacement(c, at_kept, d.sol, +1.0, y);
+  ++st.iteration;
+  return ShakeNext::newton_done;
+}
+
+// After S(x_ref) δ = −h(y) (or −g(y) after a full measure) into sol: in one pass along the
+// chain, λ += δ, y += M⁻¹G(x_ref)ᵀδ and the new −h(y).
+void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y) {
+  ClusterData& d = data[st.c];
+  st.chord_residual = chain_displace(st.c, y, d.sol.data(), d.rhs.data());
+  st.have_chord_residual = true;
+  ++st.iteration;
+}
+
+// y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
+// configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
+// x_ref take chord steps S(x_ref) δ = −g(y) (SHAKE's quasi-Newton: S is J at y = x_ref, and its
+// factors are usually kept from the velocity projection that ended the last step); otherwise, or
+// as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
+// enough for the mollified force's H_λ).
+void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+  shake_group(c, 1, y, tol, max_iter);
+}
+
+// SHAKE on each cluster of a group (for_each_group: open chains of one length, or any cluster
+// alone), the chord solves of the group in lockstep. Each cluster goes through its own iterations
+// exactly as alone; a failure is held until the group is done and the first failing cluster's
+// rethrown.
+void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+  ShakeState st[kChainGroup];
+  bool active[kChainGroup];
+  std::exception_ptr error[kChainGroup];
+  auto guard = [&](int j, auto&& work) {
+    try {
+      work();
+    } catch (const NumericalError&) {
+      error[j] = std::current_exception();
+      active[j] = false;
+    }
+  };
+  for (int j = 0; j < count; ++j) {
+    active[j] = true;
+    guard(j, [&] { shake_start(st[j], first + j); });
+  }
+  for (;;) {
+    int solving[kChainGroup], cs[kChainGroup];
+    int k = 0;
+    for (int j = 0; j < count; ++j) {
+      if (!active[j]) continue;
+      guard(j, [&] {
+        const ShakeNext next = shake_iterate(st[j], y, tol, max_iter);
+        if (next == ShakeNext::converged) active[j] = false;
+        if (next != ShakeNext::chord_solve) return;
+        factor_kept_s(first + j, "SHAKE (reference configuration)");
+        solving[k] = j;
+        cs[k++] = first + j;
+      });
+    }
+    if (k == 0 && std::none_of(active, active + count, [](bool a) { return a; })) break;
+    solve_chains(cs, k);
+    for (int q = 0; q < k; ++q) shake_chord_update(st[solving[q]], y);
+  }
+  for (int j = 0; j < count; ++j)
+    if (error[j]) std::rethrow_exception(error[j]);
+}
+
+void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
+                              int max_iter) {
+  require_columns(x_ref, impl_->num_particles(), "shake");
+  require_columns(y, impl_->num_particles(), "shake");
+  Impl& d = *impl_;
+  d.keep(x_ref);  // a copy: y may be x_ref itself
+  d.for_each_group([&](int c, int count) { d.shake_group(c, count, y, tol, max_iter); });
+  // Every cluster's last measure was of the converged y: keep y with G there, for the velocity
+  // projection that follows in RATTLE (S at y is factored when first asked for).
+  d.copy_configuration(y);
+  std::swap(d.at_kept, d.at_cur);
+  for (ClusterData& c : d.data) {
+    c.frame_kept = true;
+    c.s_factored = false;
+  }
+  if (lambda == nullptr) return;
+  lambda->resize(num_bonds());  // a no-op when the caller keeps the vector
+  for (const ClusterData& c : d.data)
+    for (int k = 0; k < c.lambda.size(); ++k) (*lambda)[c.bonds[k]] = c.lambda[k];
+}
+
+}  // namespace stiffmd
