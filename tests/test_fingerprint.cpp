@@ -11,6 +11,7 @@
 #include <toml++/toml.h>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <optional>
 #include <set>
 #include <sstream>
@@ -35,7 +36,11 @@ const std::string kDeck = "tests/decks/every_force_style.toml";
 // Keys that no other value loads for, and why: the test checks that none does.
 const std::set<std::string> kNoOtherValue = {
     "forces.bonds.level",  // the constraint-defining term must sit on the innermost level
+    "forces.wall.side",    // the other side leaves the wall's particles outside its domain: refused at load
 };
+// Keys a reader asks about that are alternatives: a term selects its particles by `particles` or
+// by `type`, never both (the deck gives the tether the one and the wall the other).
+const std::map<std::string, std::string> kAlternative = {{"particles", "type"}, {"type", "particles"}};
 // Keys that the deck gives but the scene does not use, so that changing them leaves the same
 // scene, whose checkpoint continues (the test checks that no change of them is refused and that
 // the forces stay bit-identical): with per-type tables for every type, the term's own
@@ -187,6 +192,7 @@ TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
     std::stringstream asked(what.substr(from, to - from));
     for (std::string key; std::getline(asked, key, ',');) {
       key.erase(0, key.find_first_not_of(' '));
+      if (const auto alt = kAlternative.find(key); alt != kAlternative.end() && table->contains(alt->second)) continue;
       EXPECT_TRUE(table->contains(key)) << "the reader asks for " << path << "." << key << ", which " << kDeck
                                         << " does not give";
     }
