@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
 
 namespace stiffmd {
@@ -18,6 +19,12 @@ void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
     return;
   }
   parallel_blocks(n, parts, [&](std::int64_t b, std::int64_t e) { out.middleCols(b, e - b).setZero(); });
+}
+
+// A term's forces, timed as pair or bonded forces (engine/core/timing.hpp).
+double timed_add_forces(const ForceTerm& term, const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) {
+  const ScopedPhase phase(term.uses_neighbor_list() ? Phase::pair : Phase::bonded);
+  return term.add_forces(x, box, f);
 }
 
 }  // namespace
@@ -38,7 +45,7 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
   double energy = 0.0;
   for (const ForceTerm* term : order_)
     if (std::find(levels.begin(), levels.end(), term->level()) != levels.end())
-      energy += term->add_forces(x, box_, out);
+      energy += timed_add_forces(*term, x, box_, out);
   for (Level l : levels) ++evaluations_[l.index];
   return energy;
 }
@@ -47,7 +54,7 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
   zero(out, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
-    if (!term->stiff_bonds()) energy += term->add_forces(x, box_, out);
+    if (!term->stiff_bonds()) energy += timed_add_forces(*term, x, box_, out);
   ++evaluations_[outermost().index];
   return energy;
 }
@@ -56,7 +63,7 @@ double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
   scratch_.setZero(3, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
-    if (term->level() == level) energy += term->add_forces(x, box_, scratch_);
+    if (term->level() == level) energy += timed_add_forces(*term, x, box_, scratch_);
   return energy;
 }
 

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/timing.hpp"
 #include "engine/core/topology.hpp"
 #include "forcefields/force_term.hpp"
 #include "forcefields/neighbor_list.hpp"
@@ -157,7 +158,10 @@ void PairTerm<Kernel>::check_positions(const Eigen::Matrix3Xd& x, const Eigen::M
 template <class Kernel>
 double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
   check_positions(x, &f);
-  list_.update(x, box);
+  {
+    const ScopedPhase phase(Phase::neighbor);
+    list_.update(x, box);
+  }
   return accumulate_pairs<Kernel, true, false>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_)
       .energy;
 }
@@ -165,7 +169,10 @@ double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, E
 template <class Kernel>
 double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
   check_positions(x, nullptr);
-  list_.update(x, box);
+  {
+    const ScopedPhase phase(Phase::neighbor);
+    list_.update(x, box);
+  }
   return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_)
       .virial;
 }

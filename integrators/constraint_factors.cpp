@@ -14,6 +14,7 @@
 #include <string>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
 
 namespace stiffmd {
@@ -237,6 +238,7 @@ void ConstraintToolbox::Impl::chain_inverse_band_group(int first, int count) {
 }
 
 void ConstraintToolbox::inverse_bands(const Eigen::Matrix3Xd& x) {
+  const ScopedPhase phase(Phase::constraints);
   require_columns(x, impl_->num_particles(), "inverse_bands");
   Impl& d = *impl_;
   d.keep(x);

@@ -4,6 +4,7 @@
 #include "integrators/constraint_toolbox_impl.hpp"
 
 #include "engine/core/errors.hpp"
+#include "engine/core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
@@ -122,6 +123,7 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
 }
 
 void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
+  const ScopedPhase phase(Phase::constraints);
   require_columns(x, impl_->num_particles(), "project_force");
   require_columns(f, impl_->num_particles(), "project_force");
   impl_->keep(x);
@@ -130,6 +132,7 @@ void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3X
 
 void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force,
                                          double rate) {
+  const ScopedPhase phase(Phase::constraints);
   require_columns(x, impl_->num_particles(), "project_velocity");
   require_columns(v, impl_->num_particles(), "project_velocity");
   if (force != nullptr) require_columns(*force, impl_->num_particles(), "project_velocity (force)");

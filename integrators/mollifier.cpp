@@ -2,6 +2,8 @@
 // F̄(x) = α′(x)ᵀ f(α(x)), α the M-orthogonal projection onto g = 0 (paper eq. (ProMol)).
 #include "integrators/constraint_toolbox_impl.hpp"
 
+#include "engine/core/timing.hpp"
+
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
 namespace {
@@ -45,6 +47,7 @@ void ConstraintToolbox::Impl::mollify_cluster(int c, Eigen::Matrix3Xd& f) {
 
 void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFunction& f_slow, Eigen::Matrix3Xd& X,
                                         Eigen::Matrix3Xd& out, double tol) {
+  const ScopedPhase phase(Phase::constraints);
   require_columns(x, impl_->num_particles(), "mollified_force");
   // Step 1: X = α(x), the M-orthogonal projection of x onto g = 0 (paper eq. (ProMol)).
   impl_->keep(x);

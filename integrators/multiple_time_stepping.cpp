@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "engine/core/timing.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {
@@ -81,8 +82,14 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
     closing_force(s, k, span);
     return;
   }
-  fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
-  for (const ForceTerm* term : rest_) term->add_forces(s.x, forces_.box(), force_[k]);
+  {
+    const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kick and drift fused in
+    fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+  }
+  for (const ForceTerm* term : rest_) {
+    const ScopedPhase phase(term->uses_neighbor_list() ? Phase::pair : Phase::bonded);
+    term->add_forces(s.x, forces_.box(), force_[k]);
+  }
   forces_.count_evaluations(stages_[k].levels);
   valid_[k] = true;
   if (k == 0 && langevin_force_) langevin_force_->add(s.v, span, s.step, kClosingForce, force_[0]);

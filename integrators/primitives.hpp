@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 
 #include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
 
 namespace stiffmd {
 
@@ -15,6 +16,7 @@ namespace stiffmd {
 // few particles (the pendulum) the Eigen expression on blocks of dynamic size cost more than the
 // arithmetic.
 inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt) {
+  const ScopedPhase phase(Phase::integrate);
   parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
     const double* __restrict fp = f.data();
     const double* __restrict w = inv_mass.data();
@@ -30,6 +32,7 @@ inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eig
 // v' the velocities before and after the kick.
 inline void kick_and_keep(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
                           Eigen::Matrix3Xd& kept, double scale, bool with_before) {
+  const ScopedPhase phase(Phase::integrate);
   const double before = with_before ? 1.0 : 0.0;
   parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
     const double* __restrict fp = f.data();
@@ -49,6 +52,7 @@ inline void kick_and_keep(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, 
 
 // x ← x + dt v
 inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
+  const ScopedPhase phase(Phase::integrate);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     x.middleCols(b, e - b).noalias() += dt * v.middleCols(b, e - b);
   });
@@ -56,6 +60,7 @@ inline void drift(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
 
 // x_old ← x, then x ← x + dt v: RATTLE's drift keeps its start for SHAKE and the chord velocity.
 inline void keep_and_drift(Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double dt) {
+  const ScopedPhase phase(Phase::integrate);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     x_old.middleCols(b, e - b) = x.middleCols(b, e - b);
     x.middleCols(b, e - b).noalias() += dt * v.middleCols(b, e - b);
@@ -64,6 +69,7 @@ inline void keep_and_drift(Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x, const E
 
 // v ← (x − x_old) / dt: the velocity of the chord from x_old to x.
 inline void chord_velocity(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_old, double dt) {
+  const ScopedPhase phase(Phase::integrate);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     v.middleCols(b, e - b) = (x.middleCols(b, e - b) - x_old.middleCols(b, e - b)) / dt;
   });
@@ -72,6 +78,7 @@ inline void chord_velocity(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const
 // kick(v, f, dt_kick) then drift(x, v, dt_drift), in one pass over the particles.
 inline void kick_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
                        const Eigen::Matrix3Xd& f, double dt_kick, double dt_drift) {
+  const ScopedPhase phase(Phase::integrate);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     const double* __restrict fp = f.data();
     const double* __restrict w = inv_mass.data();

@@ -12,6 +12,7 @@
 #include <utility>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
@@ -213,6 +214,7 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
                               int max_iter) {
+  const ScopedPhase phase(Phase::constraints);
   require_columns(x_ref, impl_->num_particles(), "shake");
   require_columns(y, impl_->num_particles(), "shake");
   Impl& d = *impl_;

@@ -3,6 +3,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
@@ -59,6 +60,7 @@ void LangevinNoise::coefficients(double dt) {
 }
 
 void LangevinNoise::apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+  const ScopedPhase phase(Phase::thermostat);
   if (dt != dt_) coefficients(dt);
   const std::uint64_t key = noise_key(seed_, step, substep);
   const ZigguratTable& table = ziggurat_table();
@@ -80,6 +82,7 @@ LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::Ve
 
 void LangevinForce::add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep,
                         Eigen::Matrix3Xd& f) const {
+  const ScopedPhase phase(Phase::thermostat);
   constexpr double kScale = 1.0 / 4294967296.0;
   // (k + ½)/2³² − ½ for the 32-bit halves k of a word: uniform on (−½, ½), variance 1/12.
   const auto centred = [](std::uint64_t k) { return (static_cast<double>(k) + 0.5) * kScale - 0.5; };
@@ -129,6 +132,7 @@ class VelocityRescaled final : public Integrator {
   void prepare(State& s, std::ostream& log) override { inner_->prepare(s, log); }
   void step(State& s, double h) override {
     inner_->step(s, h);
+    const ScopedPhase phase(Phase::thermostat);
     const double kinetic = s.kinetic_energy();
     if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <exception>
 
@@ -65,8 +66,56 @@ inline std::int64_t block_begin(std::int64_t n, int parts, int t) {
 // data, so the result does not depend on which thread ran which part, nor on the team OpenMP
 // actually gives. An exception thrown in a part is caught there (it must not leave a parallel
 // region) and the first one, in part order, is rethrown after every part has ended.
+// The wall time spent inside the outermost run_parts calls of this thread, whatever their part
+// count: the work that runs in parallel with more threads. The rest of a step loop is its serial
+// share (Amdahl's law: with p threads at best 1/(s + (1 − s)/p) faster), which one thread can
+// measure. Timed only while `on` (a run of at least kParallelMin particles: below it every loop
+// stays serial, and two steady_clock reads per call would be felt by a two-bond pendulum's step);
+// nested calls (a part that splits again) are inside their parent's time.
+struct ParallelTime {
+  double seconds = 0.0;
+  int depth = 0;
+  bool on = false;
+};
+inline ParallelTime& parallel_time() {
+  thread_local ParallelTime t;
+  return t;
+}
+inline double parallel_seconds() {
+  return parallel_time().seconds;
+}
+inline void reset_parallel_seconds() {
+  parallel_time().seconds = 0.0;
+}
+inline void time_parallel_loops(bool on) {
+  parallel_time().on = on;
+}
+
+namespace parallel_detail {
+// Times an outermost run_parts call into parallel_time().
+class Timed {
+ public:
+  Timed() : t_(parallel_time()), counted_(t_.on), outermost_(counted_ && t_.depth++ == 0) {
+    if (outermost_) start_ = std::chrono::steady_clock::now();
+  }
+  ~Timed() {
+    if (!counted_) return;
+    --t_.depth;
+    if (outermost_) t_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+  Timed(const Timed&) = delete;
+  Timed& operator=(const Timed&) = delete;
+
+ private:
+  ParallelTime& t_;
+  bool counted_, outermost_;
+  std::chrono::steady_clock::time_point start_;
+};
+}  // namespace parallel_detail
+
 template <class Part>
 void run_parts(int parts, Part&& part) {
+  const parallel_detail::Timed timed;
   if (parts <= 1) {
     if (parts == 1) part(0);
     return;
@@ -88,6 +137,7 @@ void run_parts(int parts, Part&& part) {
 template <class Body>
 void parallel_blocks(std::int64_t n, int parts, Body&& body) {
   if (parts <= 1) {  // small systems: no lambda, no 64-bit divisions (≈ 20 cycles each) per call
+    const parallel_detail::Timed timed;
     if (parts == 1) body(std::int64_t{0}, n);
     return;
   }

@@ -19,6 +19,8 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -91,6 +93,7 @@ class Run {
   void write_checkpoint_now();
   std::vector<std::int64_t> evaluations_now() const;
   long rebuilds_now() const;
+  bool timed_by_phase() const { return s_.size() >= kParallelMin; }
 
   Scene& sc_;
   State& s_;
@@ -117,7 +120,9 @@ class Run {
   int alerts_ = 0;         // of the last sample
   Checkpoint last_good_;   // with on_alert = "stop": the run as of the last sample without alerts
   Checkpoint now_;         // snapshot() of the current step, written with the state (no copy)
-  double wall_start_ = 0.0;
+  PhaseClock clock_;           // where the step loop's time goes, running inside step_to
+  double loop_seconds_ = 0.0;  // the step loop's wall time, measured apart from the clock
+  double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (engine/core/parallel.hpp)
   std::clock_t cpu_start_ = 0;
 };
 

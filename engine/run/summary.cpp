@@ -1,6 +1,9 @@
 #include "engine/run/summary.hpp"
 
+#include <cstdio>
 #include <sstream>
+
+#include "engine/core/parallel.hpp"
 
 namespace stiffmd {
 
@@ -28,6 +31,23 @@ std::string format_summary(const RunSummary& s) {
     for (size_t k = 0; k < s.final_actions.size(); ++k)
       o << (k ? ", " : "") << "I_" << k + 1 << " " << s.initial_actions[k] << " -> " << s.final_actions[k];
     o << "\n";
+  }
+  if (s.phase_seconds.empty()) {
+    o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
+      << (s.threads == 1 ? " thread" : " threads")
+      << "; by phase from " << kParallelMin << " particles on (a smaller step is too short to time by parts)\n";
+  } else if (s.loop_seconds > 0.0) {
+    o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
+      << (s.threads == 1 ? " thread" : " threads");
+    if (s.serial_share >= 0.0)
+      o << ", serial share " << 100.0 * s.serial_share << " % (outside the parallel loops)";
+    o << "\n";
+    char line[96];
+    for (size_t k = 0; k < s.phase_seconds.size(); ++k) {
+      std::snprintf(line, sizeof line, "  %-13s %10.4f s %6.1f %%\n", std::string(kPhaseNames[k]).c_str(),
+                    s.phase_seconds[k], 100.0 * s.phase_seconds[k] / s.loop_seconds);
+      o << "             " << line;
+    }
   }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
@@ -58,6 +78,14 @@ std::string summary_json(const RunSummary& s) {
   list(s.initial_actions);
   o << ",\n  \"final_actions\": ";
   list(s.final_actions);
+  o << ",\n  \"threads\": " << s.threads << ",\n  \"loop_seconds\": " << s.loop_seconds << ",\n  \"timing\": {";
+  for (size_t k = 0; k < s.phase_seconds.size(); ++k)
+    o << (k ? ", " : "") << "\"" << kPhaseNames[k] << "\": " << s.phase_seconds[k];
+  o << "},\n  \"serial_share\": ";
+  if (s.serial_share >= 0.0)
+    o << s.serial_share;
+  else
+    o << "null";
   o << "\n}\n";
   return o.str();
 }

@@ -7,6 +7,8 @@
 #include <utility>
 #include <vector>
 
+#include "engine/core/timing.hpp"
+
 namespace stiffmd {
 
 struct RunSummary {
@@ -31,6 +33,14 @@ struct RunSummary {
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
   int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
+  // Where the step loop's wall time went (engine/core/timing.hpp): seconds per phase, in the
+  // order of kPhaseNames, adding up to loop_seconds; and the share of the loop outside the
+  // engine's parallel loops (−1: not measured, a system below kParallelMin particles, whose
+  // loops all stay serial).
+  double loop_seconds = 0.0;
+  std::vector<double> phase_seconds;
+  double serial_share = -1.0;
+  int threads = 1;
   std::string checkpoint;     // the last checkpoint written
 };
 

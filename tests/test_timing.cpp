@@ -1,0 +1,136 @@
+// Where a run's time goes (engine/core/timing.hpp, engine/core/parallel.hpp): the phase clock's
+// exclusive accounting, the time inside the parallel loops, and every run's report — the phases
+// add up to the step loop's separately measured wall time within 2 %, the serial share is a
+// fraction, and a system too small to time by parts says so.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
+#include "tests/cli_support.hpp"
+#include "tests/test_support.hpp"
+
+namespace stiffmd {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+// Busy for at least d (a sleep would do, but a loaded machine may oversleep by milliseconds).
+void busy(std::chrono::microseconds d) {
+  const auto until = std::chrono::steady_clock::now() + d;
+  while (std::chrono::steady_clock::now() < until) {
+  }
+}
+
+// Nested scopes are exclusive: the inner one's time is its own, not also its parent's; the time
+// outside every scope is "other"; the phases add up to the clock's span; nothing is recorded
+// while the clock is paused or by a scope opened in a parallel region.
+TEST(PhaseClock, NestedScopesAreExclusiveAndAddUpToTheSpan) {
+  PhaseClock clock;
+  const auto t0 = std::chrono::steady_clock::now();
+  clock.resume();
+  busy(2ms);  // other
+  {
+    const ScopedPhase pair(Phase::pair);
+    busy(3ms);
+    {
+      const ScopedPhase list(Phase::neighbor);
+      busy(4ms);
+    }
+    busy(1ms);
+  }
+  clock.pause();
+  const double span = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  {
+    const ScopedPhase ignored(Phase::constraints);  // paused: nothing recorded
+    busy(2ms);
+  }
+  EXPECT_GE(clock.seconds(Phase::neighbor), 4e-3);
+  EXPECT_GE(clock.seconds(Phase::pair), 4e-3);
+  EXPECT_GE(clock.seconds(Phase::other), 2e-3);
+  EXPECT_EQ(clock.seconds(Phase::constraints), 0.0);
+  EXPECT_LE(clock.total(), span);  // the neighbour list's 4 ms counted twice would exceed it
+  EXPECT_NEAR(clock.total(), span, 0.02 * span);
+}
+
+// The time inside the outermost run_parts / parallel_blocks calls, counted only while switched
+// on, whatever the part count (one thread runs the same loops a team would split), a nested
+// call inside its parent's time.
+TEST(ParallelSeconds, CountsTheOutermostParallelLoopsWhileOn) {
+  reset_parallel_seconds();
+  run_parts(2, [](int) { busy(1ms); });
+  EXPECT_EQ(parallel_seconds(), 0.0);  // off
+  time_parallel_loops(true);
+  const auto t0 = std::chrono::steady_clock::now();
+  parallel_blocks(100, 1, [](std::int64_t, std::int64_t) {
+    busy(2ms);
+    run_parts(2, [](int) { busy(1ms); });  // nested: part of the 2 ms + parts
+  });
+  const double span = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  busy(2ms);  // serial: not counted
+  time_parallel_loops(false);
+  EXPECT_GE(parallel_seconds(), 3e-3);
+  EXPECT_LE(parallel_seconds(), span);
+  reset_parallel_seconds();
+  EXPECT_EQ(parallel_seconds(), 0.0);
+}
+
+double json_number(const std::string& json, const std::string& key) {
+  const size_t at = json.find("\"" + key + "\": ");
+  if (at == std::string::npos) return std::nan("");
+  return std::stod(json.substr(at + key.size() + 4));
+}
+
+// Every run reports its step loop; from kParallelMin particles on by phase, with the serial
+// share, on the terminal and in summary.json, the phases adding up to the loop's wall time.
+TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
+  const fs::path dir = test::scratch_dir("timing");
+  for (const char* threads : {"1", "2"}) {
+    SCOPED_TRACE(std::string("threads ") + threads);
+    const test::CliResult r = test::cli("run " + test::source_path("inputs/polymer_melt.toml") + " -o " +
+                                            dir.string() + " --no-progress -q --set run.t_end=0.05",
+                                        std::string("OMP_NUM_THREADS=") + threads + " ");
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find("timing:        step loop "), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find(std::string(" on ") + threads + (threads[0] == '1' ? " thread, " : " threads, ")),
+              std::string::npos)
+        << r.out;
+    EXPECT_NE(r.out.find("serial share"), std::string::npos) << r.out;
+    const std::string json = test::slurp(dir / "summary.json");
+    const double loop = json_number(json, "loop_seconds");
+    ASSERT_GT(loop, 0.0) << json;
+    double sum = 0.0;
+    for (std::string_view p : kPhaseNames) {
+      const double s = json_number(json, std::string(p));
+      ASSERT_GE(s, 0.0) << p << "\n" << json;
+      EXPECT_NE(r.out.find("  " + std::string(p) + " "), std::string::npos) << p;
+      sum += s;
+    }
+    EXPECT_NEAR(sum, loop, 0.02 * loop) << json;
+    EXPECT_GT(json_number(json, "pair"), 0.0);  // WCA through the neighbour list
+    EXPECT_GT(json_number(json, "constraints") + json_number(json, "bonded"), 0.0);
+    const double serial = json_number(json, "serial_share");
+    EXPECT_GE(serial, 0.0);
+    EXPECT_LT(serial, 1.0);
+  }
+  // The pendulum: too small to time by parts, and it says so.
+  const test::CliResult small =
+      test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " + dir.string() +
+                " --no-progress -q --set run.t_end=1");
+  ASSERT_EQ(small.code, 0) << small.err;
+  EXPECT_NE(small.out.find("by phase from 4096 particles on"), std::string::npos) << small.out;
+  const std::string json = test::slurp(dir / "summary.json");
+  EXPECT_NE(json.find("\"serial_share\": null"), std::string::npos) << json;
+  EXPECT_NE(json.find("\"timing\": {}"), std::string::npos) << json;
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace stiffmd
