@@ -68,7 +68,7 @@ Two systems, because the statistics and the cost need different sizes (computati
    by its settings): a rerun after an interruption reuses the finished seeds.
 
    CPU of the ladders with the defaults, estimated from the step-loop seconds of the ladders measured
-   on 2026-11-24 (docs/figures/cost_vs_eps_ladder.csv: 145 s for the 6-unit references, 485 s for
+   on the project's 2-core VM (docs/figures/cost_vs_eps_ladder.csv: 145 s for the 6-unit references, 485 s for
    the 4-unit ladder runs, 630 s in all, ≈ 12 min with the start-up and analysis of every run): a
    run's cost is proportional to its length, so the references now cost 8 × 2/6 × 145 ≈ 390 s, and
    the ladder steps 4 × 2/4 × 485 ≈ 970 s if the ladders stop where they did (1 360 s in all,

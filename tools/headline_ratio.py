@@ -6,9 +6,9 @@ stiff limit, timed side by side on data.chain (docs/design.md §6).
     /usr/bin/python3 tools/headline_ratio.py --eps 1e-3 --repeats 5
 
 tools/cost_vs_eps.py times every method at the largest step its ladder passed; when a false alarm
-of the ladder's criterion stops velocity Verlet early (as at ε = 1e-4 on 2026-11-26), its row there
+of the ladder's criterion stops velocity Verlet early (as once at ε = 1e-4), its row there
 is not the reference the headline means. This times velocity Verlet at --vv-step × ε (0.9: it is
-stable up to h = ε, ω_max = 2α/ε, and kept every observable there on 2026-11-25) and --method at
+stable up to h = ε, ω_max = 2α/ε, and kept every observable there in the cost study) and --method at
 --h, interleaved, --repeats times per ε, with the cost study's timed runs (`timed_measure`: Langevin
 kT = 1, damp = 1, --steps steps of the step loop, one thread, CPU seconds per unit simulated time;
 the prepared states of the study, OUT/work/datachain_eps*.data, made here if missing). Prints the

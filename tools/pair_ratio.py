@@ -12,7 +12,7 @@ default build/stiffmd) and a list of `--set` overrides (--both, then --a or --b:
 with OMP_NUM_THREADS=--threads for --steps steps of --h (run.t_end = steps × h, no checkpoints, the
 deck's outputs otherwise). CPU seconds are the step loop's (summary.json's cpu_seconds).
 
-Used for the fixman ÷ rattle ratio and for before/after comparisons of a change (README).
+Used for the fixman ÷ rattle ratio and for before/after comparisons of a change (docs/performance.md).
 Prints one line: both medians in ms per step, the median of the pair ratios and their range.
 """
 import argparse

@@ -16,7 +16,7 @@ blocks; cost per unit simulated time (summary.json: wall and CPU of the step loo
 Chains of 100 relax over far longer times than these runs: Rg compares runs from the same start,
 not equilibrium values. Figure: docs/figures/stiff_melt_nvt_angles.png; table: OUT/summary.md.
 
-    /usr/bin/python3 tools/stiff_melt_nvt.py                    # the README numbers (5-10 min on 2 cores)
+    /usr/bin/python3 tools/stiff_melt_nvt.py                    # docs/performance.md §3 (5-10 min on 2 cores)
     /usr/bin/python3 tools/stiff_melt_nvt.py --plot-only        # figure and table from OUT
 """
 import argparse
