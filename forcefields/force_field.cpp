@@ -2,8 +2,8 @@
 
 #include <algorithm>
 
-#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
 
 namespace stiffmd {
 namespace {

@@ -14,8 +14,8 @@
 #include <string>
 
 #include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)

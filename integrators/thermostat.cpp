@@ -3,8 +3,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "engine/core/timing.hpp"
 #include "engine/core/parallel.hpp"
+#include "engine/core/timing.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
@@ -176,7 +176,6 @@ std::unique_ptr<Integrator> with_velocity_rescaling(std::unique_ptr<Integrator> 
                                                     const ThermostatSettings& settings, int dof) {
   return std::make_unique<VelocityRescaled>(std::move(inner), settings, dof);
 }
-
 
 std::optional<UnevenFriction> uneven_friction_in_cluster(const std::vector<ConstraintCluster>& clusters,
                                                          const Eigen::VectorXd& inv_mass,

@@ -56,10 +56,10 @@ bool momentum_conserved(const ForceField& forces, const Eigen::VectorXd& inv_mas
 // covariance kT P M⁻¹, only when c is one number on each cluster of stiff bonds: then
 // c² kT PM⁻¹ + (1 − c²) kT PM⁻¹ Pᵀ = kT PM⁻¹ (PM⁻¹ = M⁻¹Pᵀ, P² = P). With c varying inside a cluster
 // the projection mixes the particles' rates and the stationary temperature falls below kT
-// (rigid trimers, masses 1, 1/4, 1, the middle bead's γ four times the ends': T = 0.985 kT). Two mobile particles of one cluster
-// with different frictions, the first such pair in particle order; none when every cluster has one.
+// (rigid trimers, masses 1, 1/4, 1, the middle bead's γ four times the ends': T = 0.985 kT). Two mobile particles of
+// one cluster with different frictions, the first such pair in particle order; none when every cluster has one.
 struct UnevenFriction {
-  int a = -1, b = -1;  // particles, a < b, friction[a] != friction[b]
+  int a = -1, b = -1;        // particles, a < b, friction[a] != friction[b]
   std::vector<int> cluster;  // the cluster's particles, ascending
 };
 struct ConstraintCluster;

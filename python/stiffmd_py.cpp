@@ -147,8 +147,10 @@ class Simulation {
       : deck_(std::move(deck)), scene_(load_scene(*deck_)), units_(scene_.units) {
     for (const auto& note : scene_.notes) log_ << note << "\n";
     std::optional<Checkpoint> checkpoint;
-    if (restart) checkpoint = read_checkpoint_for(scene_, *restart);
-    else prepare_scene(scene_, log_);  // a restart's state is the checkpoint's
+    if (restart)
+      checkpoint = read_checkpoint_for(scene_, *restart);
+    else
+      prepare_scene(scene_, log_);  // a restart's state is the checkpoint's
     RunOptions options;
     options.out_dir = output.value_or("");
     options.restart = restart.value_or("");

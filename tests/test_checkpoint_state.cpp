@@ -148,10 +148,10 @@ TEST(SceneFingerprint, CoversTheSceneNotTheRunSettings) {
   Scene unprepared = load_scene(d);
   const std::uint64_t f = scene_fingerprint(unprepared);
   EXPECT_EQ(scene_fingerprint(test::load(deck)), f) << "[prepare] (which rebuilds the list) changed it";
-  for (const char* same :
-       {"integrator.method=rattle", "integrator.h=0.004", "integrator.micro_steps=7", "run.t_end=3",
-        "output.xyz_interval=0.05", "output.checkpoint_interval=0.015", "monitor.energy_error=0.1", "velocities.seed=99",
-        "prepare.relax_steps=5", "build.0.seed=12"})  // the builder's seed: another initial state, the same scene
+  for (const char* same : {"integrator.method=rattle", "integrator.h=0.004", "integrator.micro_steps=7", "run.t_end=3",
+                           "output.xyz_interval=0.05", "output.checkpoint_interval=0.015", "monitor.energy_error=0.1",
+                           "velocities.seed=99", "prepare.relax_steps=5",
+                           "build.0.seed=12"})  // the builder's seed: another initial state, the same scene
     EXPECT_EQ(scene_fingerprint(test::load(deck, {same})), f) << same;
   for (const char* other : {"variables.eps=0.02", "forces.excluded_volume.skin=0.25",
                             "forces.bending.angle_types.bend.k=2", "forces.anchor.particles=[0, 28]",

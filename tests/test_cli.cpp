@@ -283,8 +283,10 @@ TEST(Cli, OutputIntervalIsInTimeUnitsIndependentOfTheStep) {
 TEST(Cli, AnIntervalLongerThanTheRunWarns) {
   const fs::path dir = scratch_dir("long_interval");
   const std::string deck = test::source_path("inputs/double_pendulum.toml");
-  const CliResult r = cli("run " + deck + " --no-progress -q --set run.t_end=0.5 --set output.xyz_interval=100"
-                          " --set output.h5md_interval=0.25 --set output.checkpoint_interval=7 -o " + dir.string());
+  const CliResult r = cli("run " + deck +
+                          " --no-progress -q --set run.t_end=0.5 --set output.xyz_interval=100"
+                          " --set output.h5md_interval=0.25 --set output.checkpoint_interval=7 -o " +
+                          dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("warning: " + deck + ":"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("output.xyz_interval = 100 is longer than the run (run.t_end = 0.5): only the first and the "

@@ -135,7 +135,8 @@ TEST(Monitor, AKelvinTemperatureInReducedUnitsIsNamedAndCaught) {
   const CsvTable hot = read_csv((out / "hot" / "thermo.csv").string());
   EXPECT_GE(hot.rows.back()[hot.col("alerts")], 1.0);
 
-  const CliResult quiet = cli("run " + trimers + " -o " + (out / "kT1").string() + " --no-progress -q --set run.t_end=20");
+  const CliResult quiet =
+      cli("run " + trimers + " -o " + (out / "kT1").string() + " --no-progress -q --set run.t_end=20");
   ASSERT_EQ(quiet.code, 0) << quiet.err;
   EXPECT_EQ(quiet.err.find("warning"), std::string::npos) << quiet.err;
   // Off when asked: bond_deviation = false.
@@ -173,9 +174,9 @@ TEST(Monitor, TemperatureAndEnergyRunawayOfAThermostattedRun) {
   };
   Monitor m(sc.monitor, thermo, 0.1, false);
   std::ostringstream log;
-  EXPECT_EQ(m.check(row(0.0, 0.0, e0), e0, log), 0);     // the reference: a cold start
-  EXPECT_EQ(m.check(row(9.9, 0.4, e0), e0, log), 0);     // still relaxing
-  EXPECT_EQ(m.check(row(10.0, 1.2, e0), e0, log), 0);    // within 50 %
+  EXPECT_EQ(m.check(row(0.0, 0.0, e0), e0, log), 0);   // the reference: a cold start
+  EXPECT_EQ(m.check(row(9.9, 0.4, e0), e0, log), 0);   // still relaxing
+  EXPECT_EQ(m.check(row(10.0, 1.2, e0), e0, log), 0);  // within 50 %
   EXPECT_EQ(m.check(row(10.0, 0.55, e0), e0, log), 0);
   EXPECT_EQ(log.str(), "");
   EXPECT_EQ(m.check(row(12.0, 1.6, e0), e0, log), 1);

@@ -213,8 +213,8 @@ TEST(MoleculeSizes, ChainEndToEndRingDiameterNoneForAStar) {
   Molecules(t, unit, unit).measure(x, rg, size);
   EXPECT_NEAR(size, (std::sqrt(2.0) + std::sqrt(2.0) + 2 * std::sin(2 * M_PI / 5) + 1.5) / 4, 1e-15);
   double rg_sum = 0;  // unit masses: Rg² = ⟨|x − x̄|²⟩ over the molecule's beads
-  for (const std::vector<int>& m : std::vector<std::vector<int>>{{0, 1, 2}, {3, 4, 5, 6}, {7, 8, 9, 10, 11},
-                                                                 {12, 13, 14, 15}, {16, 17}}) {
+  for (const std::vector<int>& m :
+       std::vector<std::vector<int>>{{0, 1, 2}, {3, 4, 5, 6}, {7, 8, 9, 10, 11}, {12, 13, 14, 15}, {16, 17}}) {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     for (int i : m) mean += x.col(i) / m.size();
     double r2 = 0;
@@ -285,11 +285,10 @@ namespace {
 // A dilute gas of rigid dimers under RATTLE: without the constraint forces' virial the atomic
 // pressure would be 2K/(3V) ≈ (5/3) N_d T/V; with it, P V = N_d T (an ideal gas of molecules).
 TEST(Pressure, RigidDimerGasIncludesTheConstraintVirial) {
-  Scene sc =
-      test::load("tests/decks/small_melt.toml", {"build.0.chains=200", "build.0.beads=2", "build.0.density=0.01",
-                                                 "forces.bending.angle_types.bend.k=0",
-                                                 "integrator.method=rattle", "integrator.h=0.01", "run.t_end=20",
-                                                 "output.thermo_interval=0.5", "prepare.vibrational_temperature=0"});
+  Scene sc = test::load("tests/decks/small_melt.toml",
+                        {"build.0.chains=200", "build.0.beads=2", "build.0.density=0.01",
+                         "forces.bending.angle_types.bend.k=0", "integrator.method=rattle", "integrator.h=0.01",
+                         "run.t_end=20", "output.thermo_interval=0.5", "prepare.vibrational_temperature=0"});
   const fs::path d = test::scratch_dir("dimers");
   std::ostringstream log;
   run_simulation(sc, {d.string(), false, ""}, log);

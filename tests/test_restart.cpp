@@ -139,10 +139,11 @@ TEST(Checkpoint, IsWrittenOnItsTimeGrid) {
     int kill_at, expect;  // the step of the kill, the step the checkpoint must hold
   };
   const std::string melt = test::source_path("inputs/polymer_melt.toml");
-  for (const Case& c : {Case{melt, " --set output.checkpoint_interval=0.2", 41, 40},   // h = 0.005
-                        Case{melt, " --set output.checkpoint_interval=0.2", 81, 80},
-                        Case{melt, " --set output.checkpoint_interval=0.0101", 43, 41},  // off the step grid: after
-                        Case{test::source_path("inputs/trappe_pe.toml"), " --set output.checkpoint_interval=12", 7, 6}}) {
+  for (const Case& c :
+       {Case{melt, " --set output.checkpoint_interval=0.2", 41, 40},  // h = 0.005
+        Case{melt, " --set output.checkpoint_interval=0.2", 81, 80},
+        Case{melt, " --set output.checkpoint_interval=0.0101", 43, 41},  // off the step grid: after
+        Case{test::source_path("inputs/trappe_pe.toml"), " --set output.checkpoint_interval=12", 7, 6}}) {
     SCOPED_TRACE(c.deck + c.settings + " killed at " + std::to_string(c.kill_at));
     const fs::path d = test::scratch_dir("checkpoint_grid");
     const test::CliResult r =

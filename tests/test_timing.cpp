@@ -94,8 +94,8 @@ TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
   const fs::path dir = test::scratch_dir("timing");
   for (const char* threads : {"1", "2"}) {
     SCOPED_TRACE(std::string("threads ") + threads);
-    const test::CliResult r = test::cli("run " + test::source_path("inputs/polymer_melt.toml") + " -o " +
-                                            dir.string() + " --no-progress -q --set run.t_end=0.05",
+    const test::CliResult r = test::cli("run " + test::source_path("inputs/polymer_melt.toml") + " -o " + dir.string() +
+                                            " --no-progress -q --set run.t_end=0.05",
                                         std::string("OMP_NUM_THREADS=") + threads + " ");
     ASSERT_EQ(r.code, 0) << r.err;
     EXPECT_NE(r.out.find("timing:        step loop "), std::string::npos) << r.out;
@@ -121,9 +121,8 @@ TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
     EXPECT_LT(serial, 1.0);
   }
   // The pendulum: too small to time by parts, and it says so.
-  const test::CliResult small =
-      test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " + dir.string() +
-                " --no-progress -q --set run.t_end=1");
+  const test::CliResult small = test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " +
+                                          dir.string() + " --no-progress -q --set run.t_end=1");
   ASSERT_EQ(small.code, 0) << small.err;
   EXPECT_NE(small.out.find("by phase from 4096 particles on"), std::string::npos) << small.out;
   const std::string json = test::slurp(dir / "summary.json");

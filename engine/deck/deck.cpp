@@ -551,7 +551,8 @@ std::size_t typo_distance(std::string_view a, std::string_view b) {
     for (std::size_t j = 1; j <= b.size(); ++j) {
       const std::size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
       d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + cost});
-      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1])
+        d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
     }
   return d[a.size()][b.size()];
 }
@@ -587,10 +588,10 @@ void DeckTable::finish() const {
       }
     }
     const std::string kp = key_path(k.str());
-    throw InputError(deck_->location(&v, kp) + ": " + kp + ": unknown key" +
-                     (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +
-                     (expected.empty() ? std::string(" (this table takes no keys)")
-                                       : " (expected one of: " + expected + ")"));
+    throw InputError(
+        deck_->location(&v, kp) + ": " + kp + ": unknown key" +
+        (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +
+        (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
   }
 }
 

@@ -49,7 +49,8 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
       t->require(std::isfinite(v) && v >= 0.0, key, "expected a threshold >= 0 (0 or false: off)");
       into = v > 0.0 ? v : MonitorSettings::kOff;
     }
-    if (into < MonitorSettings::kOff && *needs) t->fail(key, std::string("this check could never fire: it needs ") + needs);
+    if (into < MonitorSettings::kOff && *needs)
+      t->fail(key, std::string("this check could never fire: it needs ") + needs);
   };
   const char* no_thermostat = scene.thermostat ? "" : "a [thermostat]";
   switchable("energy_error", MonitorSettings::kDefaultEnergyError, m.energy_error, m.energy_error_given, "");
@@ -146,8 +147,8 @@ int Monitor::check(const std::vector<double>& row, double initial_energy, std::o
     const double energy_scale = std::max({std::abs(initial_energy), kinetic0_, bath_energy_});
     const double grown = std::abs(e - initial_energy) / energy_scale;
     if (over(grown, settings_.energy_runaway)) {
-      w << "energy runaway: |E - E(0)| = " << grown << " x max(|E(0)|, K(0), dof kT/2) > [monitor] energy_runaway = "
-        << settings_.energy_runaway << cause;
+      w << "energy runaway: |E - E(0)| = " << grown
+        << " x max(|E(0)|, K(0), dof kT/2) > [monitor] energy_runaway = " << settings_.energy_runaway << cause;
       alert(6, w.str());
       w.str("");
     }
@@ -163,8 +164,7 @@ int Monitor::check(const std::vector<double>& row, double initial_energy, std::o
     }
   }
   const double g = row[col_violation_];
-  if (settings_.bond_deviation < MonitorSettings::kOff &&
-      over(g, settings_.bond_deviation * sc.min_bond_length)) {
+  if (settings_.bond_deviation < MonitorSettings::kOff && over(g, settings_.bond_deviation * sc.min_bond_length)) {
     w << "a stiff bond deviates from its rest length by " << g << ", " << g / sc.min_bond_length * 100.0
       << " % of the shortest rest length (> [monitor] bond_deviation = " << settings_.bond_deviation << ")" << cause;
     alert(4, w.str());

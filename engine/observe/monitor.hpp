@@ -63,12 +63,12 @@ struct MonitorSettings {
   static constexpr double kDefaultEnergyRunaway = 10.0;
   double energy_runaway = kOff;
   bool energy_runaway_given = false;
-  double violation = kOff;          // max_b |g_b(x)|, in length units
-  double violation_growth = kOff;   // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
-  double action_drift = kOff;       // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
-  bool validity = true;             // effective: min frequency gap or resonance < √ε (observables.actions)
-  bool stop = false;                // on_alert = "stop" (else "warn")
-  MonitorScene scene;               // apply_defaults
+  double violation = kOff;         // max_b |g_b(x)|, in length units
+  double violation_growth = kOff;  // max_b |g_b(x)| / max(max_b |g_b(x(0))|, 1e-8)
+  double action_drift = kOff;      // max_k |I_k(t) − I_k(0)| / max_k |I_k(0)|  (observables.actions)
+  bool validity = true;            // effective: min frequency gap or resonance < √ε (observables.actions)
+  bool stop = false;               // on_alert = "stop" (else "warn")
+  MonitorScene scene;              // apply_defaults
 
   bool active() const;  // any check configured
 };
@@ -79,7 +79,6 @@ struct MonitorContext {
   bool actions = false;      // [observables] actions = true: action_drift, validity
   bool thermostat = false;   // a [thermostat]: temperature_deviation, energy_runaway
 };
-
 
 // Reads [monitor] (absent: the defaults, validity only; energy_error is set by
 // apply_energy_default). Throws InputError at the key of a check

@@ -237,8 +237,7 @@ const RunSummary& Run::finish() {
   summary_.threads = max_threads();
   summary_.phase_seconds.clear();
   if (timed_by_phase()) {
-    for (int p = 0; p < static_cast<int>(Phase::count); ++p)
-      summary_.phase_seconds.push_back(clock_.seconds(Phase(p)));
+    for (int p = 0; p < static_cast<int>(Phase::count); ++p) summary_.phase_seconds.push_back(clock_.seconds(Phase(p)));
     if (loop_seconds_ > 0.0) summary_.serial_share = std::clamp(1.0 - parallel_seconds_ / loop_seconds_, 0.0, 1.0);
   }
   progress_->finish(s_.step - first_step_ + 1);  // where it stopped: a signal leaves the bar short of 100 %

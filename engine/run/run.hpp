@@ -117,11 +117,11 @@ class Run {
   bool pending_ = false;        // the last step's outputs are still to be taken
   int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
   std::vector<double> last_row_;
-  int alerts_ = 0;         // of the last sample
-  Checkpoint last_good_;   // with on_alert = "stop": the run as of the last sample without alerts
-  Checkpoint now_;         // snapshot() of the current step, written with the state (no copy)
-  PhaseClock clock_;           // where the step loop's time goes, running inside step_to
-  double loop_seconds_ = 0.0;  // the step loop's wall time, measured apart from the clock
+  int alerts_ = 0;                 // of the last sample
+  Checkpoint last_good_;           // with on_alert = "stop": the run as of the last sample without alerts
+  Checkpoint now_;                 // snapshot() of the current step, written with the state (no copy)
+  PhaseClock clock_;               // where the step loop's time goes, running inside step_to
+  double loop_seconds_ = 0.0;      // the step loop's wall time, measured apart from the clock
   double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (engine/core/parallel.hpp)
   std::clock_t cpu_start_ = 0;
 };

@@ -11,10 +11,10 @@
 namespace stiffmd {
 
 struct RunStatistics {
-  double max_energy_error = 0.0;              // max |E(t) − E(0)| over the thermo samples
-  std::vector<std::int64_t> evaluations;      // per level, innermost first, before this process
-  long neighbor_rebuilds = 0;                 // in the run, before this process
-  std::vector<double> initial_actions;        // I_k(0), when actions are observed
+  double max_energy_error = 0.0;          // max |E(t) − E(0)| over the thermo samples
+  std::vector<std::int64_t> evaluations;  // per level, innermost first, before this process
+  long neighbor_rebuilds = 0;             // in the run, before this process
+  std::vector<double> initial_actions;    // I_k(0), when actions are observed
 
   explicit RunStatistics(int levels = 2) : evaluations(static_cast<size_t>(std::max(levels, 1)), 0) {}
 

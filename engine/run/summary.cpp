@@ -34,13 +34,12 @@ std::string format_summary(const RunSummary& s) {
   }
   if (s.phase_seconds.empty()) {
     o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
-      << (s.threads == 1 ? " thread" : " threads")
-      << "; by phase from " << kParallelMin << " particles on (a smaller step is too short to time by parts)\n";
+      << (s.threads == 1 ? " thread" : " threads") << "; by phase from " << kParallelMin
+      << " particles on (a smaller step is too short to time by parts)\n";
   } else if (s.loop_seconds > 0.0) {
     o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
       << (s.threads == 1 ? " thread" : " threads");
-    if (s.serial_share >= 0.0)
-      o << ", serial share " << 100.0 * s.serial_share << " % (outside the parallel loops)";
+    if (s.serial_share >= 0.0) o << ", serial share " << 100.0 * s.serial_share << " % (outside the parallel loops)";
     o << "\n";
     char line[96];
     for (size_t k = 0; k < s.phase_seconds.size(); ++k) {

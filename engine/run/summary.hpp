@@ -41,7 +41,7 @@ struct RunSummary {
   std::vector<double> phase_seconds;
   double serial_share = -1.0;
   int threads = 1;
-  std::string checkpoint;     // the last checkpoint written
+  std::string checkpoint;  // the last checkpoint written
 };
 
 std::string format_summary(const RunSummary& s);

@@ -16,9 +16,9 @@ namespace stiffmd {
 
 // What a style's reader may see of the scene being assembled.
 struct TermContext {
-  const Scene& scene;                          // particles, types, topology and box so far
-  std::vector<std::string>& bond_type_owner;   // per bond type: the term that defines it ("" = none yet)
-  std::vector<std::string>& angle_type_owner;  // likewise per angle type
+  const Scene& scene;                             // particles, types, topology and box so far
+  std::vector<std::string>& bond_type_owner;      // per bond type: the term that defines it ("" = none yet)
+  std::vector<std::string>& angle_type_owner;     // likewise per angle type
   std::vector<std::string>& dihedral_type_owner;  // and per dihedral type
 };
 

@@ -186,7 +186,8 @@ void read_levels(DeckTable& root, Scene& sc) {
     for (size_t k = 0; k < levels.size(); ++k)
       if (levels[k].name == "slow" || levels[k].name == "stiff")
         rows[k].fail("name", "level name \"" + levels[k].name + "\" would give the thermo a second potential_" +
-                                 levels[k].name + " column (potential_slow and potential_stiff are the energies of "
+                                 levels[k].name +
+                                 " column (potential_slow and potential_stiff are the energies of "
                                  "all but the stiff bonds and of the stiff bonds); choose another name");
 }
 
@@ -450,10 +451,11 @@ void read_output(DeckTable& root, Scene& sc) {
   if (t->has_retired("checkpoint_every")) {
     const double n = t->number("checkpoint_every");
     const double h = sc.integrator.h / sc.units.time;
-    t->fail("checkpoint_every", "is no longer read (it counted steps; every output key is a time): write "
-                                "checkpoint_interval = " +
-                                    format_number(n * h) + " (" + format_number(n) + " steps of h = " + format_number(h) +
-                                    "; 0: only at the end)");
+    t->fail("checkpoint_every",
+            "is no longer read (it counted steps; every output key is a time): write "
+            "checkpoint_interval = " +
+                format_number(n * h) + " (" + format_number(n) + " steps of h = " + format_number(h) +
+                "; 0: only at the end)");
   }
   o.checkpoint_interval = t->has("checkpoint_interval") ? sc.units.time_in(t->number("checkpoint_interval")) : 0.0;
   t->require(o.checkpoint_interval >= 0.0, "checkpoint_interval",
@@ -465,8 +467,9 @@ void read_output(DeckTable& root, Scene& sc) {
     if (on && t->has(key) && interval > sc.run.t_end)
       sc.notes.push_back("warning: " + t->where() + ": output." + key + " = " + format_number(interval * time_out) +
                          " is longer than the run (run.t_end = " + format_number(sc.run.t_end * time_out) +
-                         (std::string(key) == "checkpoint_interval" ? "): no checkpoint before the final one"
-                                                                     : "): only the first and the final frames are written"));
+                         (std::string(key) == "checkpoint_interval"
+                              ? "): no checkpoint before the final one"
+                              : "): only the first and the final frames are written"));
   };
   warn_if_longer("xyz_interval", o.xyz_interval, !o.xyz.empty());
   warn_if_longer("thermo_interval", o.thermo_interval, true);
@@ -624,10 +627,9 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
   const ThermostatSettings& th = sc.integrator.thermostat;
   if (th.on()) {
     m.kT = th.temperature;
-    m.relaxation = th.style == ThermostatSettings::Style::csvr ? th.tau
-                   : th.friction.size() > 0 && th.friction.minCoeff() > 0.0
-                       ? 1.0 / th.friction.minCoeff()
-                       : std::numeric_limits<double>::infinity();
+    m.relaxation = th.style == ThermostatSettings::Style::csvr              ? th.tau
+                   : th.friction.size() > 0 && th.friction.minCoeff() > 0.0 ? 1.0 / th.friction.minCoeff()
+                                                                            : std::numeric_limits<double>::infinity();
   }
   const StiffBonds* stiff = sc.forces->stiff_bonds();
   if (!stiff || stiff->bonds.empty()) return m;

@@ -40,7 +40,7 @@ struct OutputSettings {
   double thermo_interval = 0.0;
   bool thermo_norm = false;      // extensive columns per particle (ThermoOutput, engine/observe/observables.hpp)
   double screen_interval = 0.0;  // time between thermo lines on stdout (at thermo samples; 0 = none)
-  std::string state;  // CSV of x and P(x)p per particle, for error measurements ("" = none)
+  std::string state;             // CSV of x and P(x)p per particle, for error measurements ("" = none)
   double state_interval = 0.0;
   std::string h5md;  // H5MD 1.1 trajectory file name ("" = none)
   double h5md_interval = 0.0;

@@ -40,8 +40,7 @@ void refuse_uneven_friction(DeckTable& scale, const Scene& sc) {
   std::ostringstream m;
   m << "type " << tb << " (particle " << u->b << ") and type " << ta << " (particle " << u->a
     << ") get different frictions in one rigid cluster (" << u->cluster.size() << " particles, " << u->cluster.front()
-    << ".." << u->cluster.back() << "): method '"
-    << sc.integrator.method
+    << ".." << u->cluster.back() << "): method '" << sc.integrator.method
     << "' keeps the Maxwell law under Langevin only with one friction per cluster; scale every type of a "
        "cluster alike, or use velocity-verlet or the impulse family";
   scale.fail(scale.has(tb) ? tb : ta, m.str());
