@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -158,6 +159,12 @@ void read_levels(DeckTable& root, Scene& sc) {
   for (size_t k = 0; k < rows.size(); ++k) {
     DeckTable& r = rows[k];
     LevelSettings level{r.name("name"), 1};
+    // A level's name becomes a thermo column (potential_NAME: a CSV header, an H5MD observable
+    // group), so it is a word: no comma, slash, quote or space to break those files.
+    r.require(std::all_of(level.name.begin(), level.name.end(),
+                          [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'; }),
+              "name", "expected a level name of letters, digits, '_' and '-' (it names the thermo column potential_" +
+                          level.name + "), got \"" + level.name + "\"");
     for (const LevelSettings& l : sc.integrator.levels)
       r.require(l.name != level.name, "name", "level \"" + level.name + "\" is given twice");
     if (k == 0) {
