@@ -3,16 +3,25 @@
 //   stiffmd check DECK [--set key=value]... [--write-data FILE]
 //                                                    validate and describe the scene; write its
 //                                                    prepared initial state as LAMMPS data
+// A deck with [ensemble] is many runs (engine/run/ensemble.hpp): run writes member k to
+// DIR/member_k, one after the other, or divided among the processes of `mpiexec -n N`
+// (engine/run/processes.hpp); check checks every member.
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <filesystem>
 #include <iostream>
+#include <tuple>
+#include <vector>
 #include <optional>
 #include <sstream>
 
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/run/checkpoint.hpp"
+#include "engine/run/ensemble.hpp"
+#include "engine/run/processes.hpp"
 #include "engine/run/run.hpp"
+#include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/scene.hpp"
 
 namespace {
@@ -20,9 +29,83 @@ namespace {
 constexpr int kExitBadInput = 2;
 constexpr int kExitNumerical = 3;
 
+// One line, whatever the message held.
+std::string one_line(std::string s) {
+  std::replace(s.begin(), s.end(), '\n', ' ');
+  std::replace(s.begin(), s.end(), '\t', ' ');
+  return s;
+}
+
+struct TerminalFlags {
+  bool quiet = false, no_progress = false;
+};
+
+// `stiffmd run` of an [ensemble] deck: every member's deck loads first (a bad value fails before
+// any output); then process r of N runs members r, r + N, … (N at most the member count: within
+// a member there is no domain decomposition yet). One process alone prints each member's thermo
+// lines as a plain run does, under a line naming the member; several print no thermo lines and no
+// progress (they would interleave) and prefix each note and warning with the member. Errors come
+// as "error: member k (…): …" on stderr when they happen; at the end rank 0 prints one line per
+// member on stdout, and the job exits with the code of the first member (by index) that failed.
+int run_ensemble(stiffmd::Processes& processes, const stiffmd::EnsembleJob& job, TerminalFlags flags) {
+  const int members = job.members(), ranks = processes.size();
+  if (ranks > members)
+    throw stiffmd::InputError(job.ensemble.where + ": " + std::to_string(ranks) + " processes for " +
+                              std::to_string(members) +
+                              " members: domain decomposition within a member is not built yet; use at most " +
+                              std::to_string(members) + " processes (mpiexec -n " + std::to_string(members) + ")");
+  stiffmd::load_members(job);
+  const int groups = std::min(ranks, members);
+  const int group = processes.split(groups);
+  const bool speaker = processes.rank() == 0;
+  if (speaker)
+    std::cout << "stiffmd " STIFFMD_VERSION ": " << job.deck_path << " -> " << job.out_dir << " (" << members
+              << " members on " << ranks << (ranks == 1 ? " process" : " processes") << ")\n"
+              << std::flush;
+  std::ostringstream outcomes;  // "member<TAB>exit code<TAB>line" per member run here
+  for (int k = group; k < members; k += groups) {
+    stiffmd::MemberOutcome o;
+    if (ranks == 1) {
+      std::cout << job.member_name(k) << " -> " << job.member_dir(k) << "\n" << std::flush;
+      o = stiffmd::run_member(job, k, {flags.quiet ? nullptr : stdout, !flags.quiet && !flags.no_progress}, std::cerr);
+    } else {
+      std::ostringstream log;
+      o = stiffmd::run_member(job, k, {}, log);
+      std::istringstream lines(log.str());
+      for (std::string line; std::getline(lines, line);) std::cerr << job.member_name(k) << ": " << line << "\n";
+    }
+    if (o.exit_code != 0) std::cerr << "error: " << one_line(o.line) << "\n" << std::flush;
+    outcomes << k << '\t' << o.exit_code << '\t' << one_line(o.line) << '\n';
+    if (o.exit_code > 128) break;  // stopped by a signal: this process starts no other member
+  }
+  int code = 0;
+  std::vector<std::tuple<int, int, std::string>> by_member;  // member, exit code, line
+  for (const std::string& text : processes.gather(outcomes.str())) {
+    std::istringstream rows(text);
+    for (std::string row; std::getline(rows, row);) {
+      const auto a = row.find('\t'), b = row.find('\t', a + 1);
+      by_member.emplace_back(std::stoi(row.substr(0, a)), std::stoi(row.substr(a + 1, b - a - 1)), row.substr(b + 1));
+    }
+  }
+  std::sort(by_member.begin(), by_member.end());
+  for (const auto& [k, exit_code, line] : by_member) {
+    if (exit_code == 0)
+      std::cout << line << "\n";
+    else
+      std::cout << job.member_name(k) << ": failed (exit " << exit_code << ")\n";
+    if (code == 0) code = exit_code;
+  }
+  if (speaker && static_cast<int>(by_member.size()) < members)
+    std::cout << members - static_cast<int>(by_member.size()) << " members not run (stopped by a signal)\n";
+  return processes.broadcast(code);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+  stiffmd::Processes processes(argc, argv);
+  // What every process finds alike (a bad deck, a bad command line) is printed by rank 0 alone.
+  const bool speaker = processes.rank() == 0;
   CLI::App app{"stiffmd " STIFFMD_VERSION
                " - molecular dynamics with stiff bonds: impulse, mollified and projected impulse,\n"
                "RATTLE, velocity Verlet and the effective (eps -> 0) dynamics"};
@@ -54,12 +137,41 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    const int code = app.exit(e);
+    const int code = speaker ? app.exit(e) : e.get_exit_code();
     return code == 0 ? 0 : kExitBadInput;
   }
 
   try {
+    if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
     const stiffmd::Deck deck(deck_path, overrides);
+    stiffmd::DeckTable root = deck.root();
+    if (auto ensemble = stiffmd::read_ensemble(root)) {
+      if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
+      const stiffmd::EnsembleJob job{deck_path, overrides, *ensemble, out_dir};
+      if (!restart.empty())
+        throw stiffmd::InputError(ensemble->where + ": --restart continues one run, and [ensemble] makes " +
+                                  std::to_string(job.members()) +
+                                  ": members do not restart yet (run a member's checkpoint, DIR/member_k/"
+                                  "checkpoint.bin, with a deck without [ensemble] and the member's --set)");
+      if (check->parsed()) {
+        if (!data_path.empty())
+          throw stiffmd::InputError(ensemble->where + ": --write-data writes one scene, and [ensemble] makes " +
+                                    std::to_string(job.members()));
+        std::ostringstream start_log;
+        stiffmd::check_members(job, start_log);
+        if (speaker) {
+          std::cout << "ensemble:    " << job.members() << " members, varying";
+          for (const auto& list : ensemble->varied) std::cout << " " << list.key;
+          std::cout << "\ndeck is valid\n";
+        }
+        return 0;
+      }
+      return run_ensemble(processes, job, {quiet, no_progress});
+    }
+    if (processes.size() > 1)
+      throw stiffmd::InputError(deck_path + ": " + std::to_string(processes.size()) +
+                                " processes for one run: domain decomposition within a run is not built yet; run "
+                                "it on one process, or give the deck an [ensemble] of independent runs");
     stiffmd::Scene scene = stiffmd::load_scene(deck);
     // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
     // printed or written: a damaged or foreign one is one line and exit 2.
@@ -93,10 +205,10 @@ int main(int argc, char** argv) {
     std::cout << stiffmd::format_summary(summary);
     return 0;
   } catch (const stiffmd::InputError& e) {
-    std::cerr << "error: " << e.what() << "\n";
+    if (speaker) std::cerr << "error: " << e.what() << "\n";
     return kExitBadInput;
   } catch (const stiffmd::NumericalError& e) {
-    std::cerr << "error: " << e.what() << "\n";
+    if (speaker) std::cerr << "error: " << e.what() << "\n";
     return kExitNumerical;
   } catch (const std::exception& e) {
     std::cerr << "internal error: " << e.what() << "\n";

@@ -26,7 +26,7 @@ KEY_SOURCES = ["engine/scene/*.cpp", "engine/observe/monitor.cpp"]
 
 # DeckTable's accessors (engine/deck/deck.hpp) whose first argument is a key.
 ACCESSORS = ("number", "integer", "string", "name", "boolean", "vector3", "bool3", "integers", "strings",
-             "numbers", "string_map", "table", "array_of_tables", "has", "has_retired", "maybe_number",
+             "numbers", "string_map", "value_lists", "table", "array_of_tables", "has", "has_retired", "maybe_number",
              "maybe_integer")
 
 # Helpers that pass a key on to an accessor: name -> index of the key argument. A call of one of

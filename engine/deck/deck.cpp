@@ -4,6 +4,7 @@
 
 #include <toml++/toml.h>
 #include <algorithm>
+#include <charconv>
 #include <cctype>
 #include <cmath>
 #include <cstdlib>
@@ -501,6 +502,54 @@ std::vector<std::pair<std::string, std::string>> DeckTable::string_map(std::stri
     out.emplace_back(std::string(k.str()), *v.value<std::string>());
     if (out.back().second.empty()) fail(key, "expected a non-empty name for '" + out.back().first + "'");
   }
+  return out;
+}
+
+namespace {
+
+// A value as TOML text that parses back to the same value: a float in its shortest round-trip
+// form (with a decimal point, so that it stays a float), anything else as toml++ prints it.
+std::string toml_text(const toml::node& n) {
+  if (const auto x = n.value_exact<double>()) {
+    char buf[64];
+    const auto [end, ec] = std::to_chars(buf, buf + sizeof buf, *x);
+    std::string s(buf, ec == std::errc() ? end : buf);
+    if (std::isfinite(*x) && s.find_first_of(".e") == std::string::npos) s += ".0";
+    return s;
+  }
+  std::ostringstream o;
+  n.visit([&](const auto& v) { o << v; });
+  return o.str();
+}
+
+}  // namespace
+
+std::vector<DeckTable::ValueList> DeckTable::value_lists(std::string_view key) {
+  const toml::node* n = get(key);
+  if (!n) return {};
+  if (!n->is_table()) fail(key, "expected a table of lists, e.g. { \"thermostat.seed\" = [1, 2] }, got " + shown(*n));
+  std::vector<ValueList> out;
+  const auto flatten = [&](const auto& self, const toml::table& t, const std::string& prefix) -> void {
+    for (const auto& [k, v] : t) {
+      const std::string name = prefix + std::string(k.str());
+      if (const toml::table* sub = v.as_table()) {
+        self(self, *sub, name + ".");
+        continue;
+      }
+      const std::string kp = key_path(key) + "." + name;
+      const toml::array* a = v.as_array();
+      if (!a) throw InputError(deck_->location(&v, kp) + ": " + kp + ": expected a list of values, got " + shown(v));
+      if (a->empty()) throw InputError(deck_->location(&v, kp) + ": " + kp + ": expected a non-empty list of values");
+      ValueList list{name, deck_->location(&v, kp), {}};
+      for (const toml::node& e : *a) {
+        if (e.is_table())
+          throw InputError(list.where + ": " + kp + ": expected a list of values, got a table among them");
+        list.values.push_back(toml_text(e));
+      }
+      out.push_back(std::move(list));
+    }
+  };
+  flatten(flatten, *n->as_table(), "");
   return out;
 }
 

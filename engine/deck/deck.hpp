@@ -70,6 +70,15 @@ class DeckTable {
   std::vector<double> numbers(std::string_view key);
   // A table of string values, e.g. atom_types = { "1" = "bead" }; empty when absent.
   std::vector<std::pair<std::string, std::string>> string_map(std::string_view key);
+  // A table of lists of values, e.g. vary = { "thermostat.seed" = [1, 2] }, its nested tables
+  // flattened to dotted keys ([t.vary.thermostat] seed = [1, 2] is the same): each list's
+  // elements as TOML text (what --set key=text reads back as the same value), and where the list
+  // is ("file:line"); empty when absent. Every list must be non-empty.
+  struct ValueList {
+    std::string key, where;
+    std::vector<std::string> values;
+  };
+  std::vector<ValueList> value_lists(std::string_view key);
 
   std::optional<DeckTable> table(std::string_view key);
   // Every entry of this table must itself be a table: [types.A], [types.B], …

@@ -12,6 +12,7 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
+#include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
 #include "engine/scene/thermostat_deck.hpp"
@@ -694,6 +695,7 @@ Scene load_scene(const Deck& deck) {
   sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted()});
   apply_defaults(sc.monitor, monitor_scene(root, sc));
   read_output(root, sc);
+  read_ensemble(root);  // the members' overrides, validated here; run by engine/run/ensemble.*
   root.finish();
   check_integrator(root, sc);
   return sc;
