@@ -9,6 +9,9 @@
 #include <limits>
 #include <numeric>
 #include <random>
+#include <chrono>
+#include <stdexcept>
+#include <thread>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
@@ -290,6 +293,87 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   toolbox.project_force(m.x, twice);
   EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
+}
+
+// parallel_seconds: the wall time inside the outermost parallel loops since the last reset, one
+// thread or several. Bounds from the test's own clock (no timing thresholds): work of a known least
+// duration inside a loop is counted, work outside is not, and a loop nested in another is counted
+// once — the count never exceeds the wall time around the outer call.
+void busy_for(std::chrono::steady_clock::duration d) {
+  const auto until = std::chrono::steady_clock::now() + d;
+  while (std::chrono::steady_clock::now() < until) {
+  }
+}
+
+double seconds_of(std::chrono::steady_clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+TEST(ParallelSeconds, CountsTheOutermostParallelLoopsOnly) {
+  using std::chrono::milliseconds;
+  const int restore = max_threads();
+  for (int threads : {1, 2}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    reset_parallel_seconds();
+    EXPECT_EQ(parallel_seconds(), 0.0);
+    busy_for(milliseconds(30));  // serial: not counted
+    EXPECT_EQ(parallel_seconds(), 0.0);
+
+    // One part and several: each part's work is inside.
+    for (int parts : {1, threads}) {
+      reset_parallel_seconds();
+      const auto start = std::chrono::steady_clock::now();
+      run_parts(parts, [](int) { busy_for(milliseconds(20)); });
+      const double wall = seconds_of(std::chrono::steady_clock::now() - start);
+      EXPECT_GE(parallel_seconds(), 0.020);
+      EXPECT_LE(parallel_seconds(), wall);
+    }
+
+    // Nested: the inner loop's time is already inside the outer one.
+    reset_parallel_seconds();
+    const auto start = std::chrono::steady_clock::now();
+    run_parts(1, [](int) {
+      busy_for(milliseconds(10));
+      run_parts(1, [](int) { busy_for(milliseconds(10)); });
+      parallel_blocks(kParallelMin, 1, [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    });
+    const double wall = seconds_of(std::chrono::steady_clock::now() - start);
+    EXPECT_GE(parallel_seconds(), 0.030);
+    EXPECT_LE(parallel_seconds(), wall);
+
+    // Blocks: a loop of kParallelMin items is parallel work even when one thread runs it; a
+    // shorter one is serial at every thread count.
+    reset_parallel_seconds();
+    parallel_blocks(kParallelMin - 1, threads_for(kParallelMin - 1),
+                    [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    EXPECT_EQ(parallel_seconds(), 0.0);
+    parallel_blocks(kParallelMin, threads_for(kParallelMin), [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    EXPECT_GE(parallel_seconds(), 0.010);
+
+    // A part that throws still closes its interval: the next loop is counted as outermost.
+    reset_parallel_seconds();
+    EXPECT_THROW(run_parts(threads, [](int) {
+                   busy_for(milliseconds(5));
+                   throw std::runtime_error("part");
+                 }),
+                 std::runtime_error);
+    const double after_throw = parallel_seconds();
+    EXPECT_GE(after_throw, 0.005);
+    run_parts(1, [](int) { busy_for(milliseconds(10)); });
+    EXPECT_GE(parallel_seconds(), after_throw + 0.010);
+  }
+  set_max_threads(restore);
+}
+
+// Opt-in: a thread that never reset its count counts nothing (the loops of a test binary or of
+// the Python module pay one branch, not two clock reads).
+TEST(ParallelSeconds, CountsNothingBeforeAReset) {
+  double counted = -1.0;
+  std::thread other([&] {
+    run_parts(1, [](int) { busy_for(std::chrono::milliseconds(5)); });
+    counted = parallel_seconds();
+  });
+  other.join();
+  EXPECT_EQ(counted, 0.0);
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <exception>
 
@@ -61,16 +62,9 @@ inline std::int64_t block_begin(std::int64_t n, int parts, int t) {
   return n * t / parts;
 }
 
-// Runs part(u) for u = 0 … parts − 1, in parallel when parts > 1. Each part writes only its own
-// data, so the result does not depend on which thread ran which part, nor on the team OpenMP
-// actually gives. An exception thrown in a part is caught there (it must not leave a parallel
-// region) and the first one, in part order, is rethrown after every part has ended.
+namespace detail {
 template <class Part>
-void run_parts(int parts, Part&& part) {
-  if (parts <= 1) {
-    if (parts == 1) part(0);
-    return;
-  }
+void run_parts_on_threads(int parts, Part& part) {
   std::array<std::exception_ptr, kMaxParts> error;
 #pragma omp parallel for schedule(static, 1) num_threads(parts)
   for (int u = 0; u < parts; ++u) {
@@ -83,12 +77,80 @@ void run_parts(int parts, Part&& part) {
   for (int u = 0; u < parts; ++u)
     if (error[u]) std::rethrow_exception(error[u]);
 }
+}  // namespace detail
+
+// The time spent inside parallel loops, for the share of a run that stays serial (Amdahl's law:
+// a serial share s caps the speed-up at p threads at 1/(s + (1 − s)/p)). Opt-in and per thread:
+// reset_parallel_seconds() starts counting on the calling thread; from then on every outermost
+// run_parts call that thread makes (parts = 1 included: at one thread the question is which work
+// could run in parallel), and every parallel_blocks call over at least kParallelMin items (below
+// that it is serial at any thread count), adds its wall time — two steady_clock reads per call.
+// Calls nested in a timed one are not counted again.
+namespace detail {
+struct ParallelClock {
+  bool counting = false;
+  int depth = 0;  // timed calls open on this thread
+  std::chrono::steady_clock::duration inside{};
+};
+inline thread_local ParallelClock parallel_clock;
+
+// Runs f(), adding its wall time to the thread's clock when it is the outermost timed call.
+template <class F>
+void timed_parallel(F&& f) {
+  ParallelClock& c = parallel_clock;
+  if (!c.counting || c.depth > 0) {
+    f();
+    return;
+  }
+  struct Close {  // also when f throws
+    ParallelClock& c;
+    std::chrono::steady_clock::time_point start;
+    ~Close() {
+      c.inside += std::chrono::steady_clock::now() - start;
+      --c.depth;
+    }
+  } close{c, std::chrono::steady_clock::now()};
+  ++c.depth;
+  f();
+}
+}  // namespace detail
+
+// Seconds this thread spent inside parallel loops since its last reset_parallel_seconds() (0 if
+// it never called it).
+inline double parallel_seconds() {
+  return std::chrono::duration<double>(detail::parallel_clock.inside).count();
+}
+
+// Sets this thread's count to 0 and starts counting (see above).
+inline void reset_parallel_seconds() {
+  detail::parallel_clock.counting = true;
+  detail::parallel_clock.inside = {};
+}
+
+// Runs part(u) for u = 0 … parts − 1, in parallel when parts > 1. Each part writes only its own
+// data, so the result does not depend on which thread ran which part, nor on the team OpenMP
+// actually gives. An exception thrown in a part is caught there (it must not leave a parallel
+// region) and the first one, in part order, is rethrown after every part has ended.
+// A loop that is serial at every thread count calls its body directly, not through run_parts
+// with one part: it would count as parallel work (see parallel_seconds).
+template <class Part>
+void run_parts(int parts, Part&& part) {
+  if (parts <= 1) {
+    if (parts == 1) detail::timed_parallel([&] { part(0); });
+    return;
+  }
+  detail::timed_parallel([&] { detail::run_parts_on_threads(parts, part); });
+}
 
 // Runs body(begin, end) on `parts` contiguous blocks of [0, n).
 template <class Body>
 void parallel_blocks(std::int64_t n, int parts, Body&& body) {
   if (parts <= 1) {  // small systems: no lambda, no 64-bit divisions (≈ 20 cycles each) per call
-    if (parts == 1) body(std::int64_t{0}, n);
+    if (parts != 1) return;
+    if (n < kParallelMin)
+      body(std::int64_t{0}, n);  // serial at any thread count: not parallel work
+    else
+      detail::timed_parallel([&] { body(std::int64_t{0}, n); });
     return;
   }
   run_parts(parts, [&](int u) { body(block_begin(n, parts, u), block_begin(n, parts, u + 1)); });
