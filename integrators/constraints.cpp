@@ -689,7 +689,9 @@ struct ConstraintToolbox::Impl {
     const int nc = static_cast<int>(data.size());
     const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
-      for (int c = 0; c < nc; ++c) f(c);
+      run_as_one_part(serial_everywhere() ? 0 : static_cast<std::int64_t>(bonds.size()), [&] {
+        for (int c = 0; c < nc; ++c) f(c);
+      });
       return;
     }
     run_parts(parts, [&](int u) {
@@ -697,6 +699,8 @@ struct ConstraintToolbox::Impl {
       for (int c = first_cluster_of_block(parts, u); c < end; ++c) f(c);
     });
   }
+  // One block at any thread count: run_as_one_part must not count it as parallel work.
+  bool serial_everywhere() const { return clusters_share_particles || data.size() <= 1; }
   // The first cluster of block v of `parts` (blocks of about equal bond count).
   int first_cluster_of_block(int parts, int v) const {
     return static_cast<int>(
@@ -725,7 +729,7 @@ struct ConstraintToolbox::Impl {
     };
     const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
-      run_block(0, nc);
+      run_as_one_part(serial_everywhere() ? 0 : static_cast<std::int64_t>(bonds.size()), [&] { run_block(0, nc); });
       return;
     }
     run_parts(parts, [&](int u) {

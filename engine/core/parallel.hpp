@@ -127,12 +127,23 @@ inline void reset_parallel_seconds() {
   detail::parallel_clock.inside = {};
 }
 
+// Runs f() where a loop over `items` items runs as one part (one thread, or a caller's own serial
+// path): counted by parallel_seconds from kParallelMin items on, as run_parts(1, …) is — with more
+// threads it would be split — and called plainly below that, where it is serial at any thread count.
+template <class F>
+void run_as_one_part(std::int64_t items, F&& f) {
+  if (items < kParallelMin)
+    f();
+  else
+    detail::timed_parallel(f);
+}
+
 // Runs part(u) for u = 0 … parts − 1, in parallel when parts > 1. Each part writes only its own
 // data, so the result does not depend on which thread ran which part, nor on the team OpenMP
 // actually gives. An exception thrown in a part is caught there (it must not leave a parallel
 // region) and the first one, in part order, is rethrown after every part has ended.
-// A loop that is serial at every thread count calls its body directly, not through run_parts
-// with one part: it would count as parallel work (see parallel_seconds).
+// A loop that is serial at every thread count calls its body directly or through run_as_one_part
+// with no items, not through run_parts with one part: that would count as parallel work.
 template <class Part>
 void run_parts(int parts, Part&& part) {
   if (parts <= 1) {
@@ -142,18 +153,21 @@ void run_parts(int parts, Part&& part) {
   detail::timed_parallel([&] { detail::run_parts_on_threads(parts, part); });
 }
 
+// Runs body(u, begin, end) on `parts` contiguous blocks of [0, n): block u is
+// [block_begin(n, parts, u), block_begin(n, parts, u + 1)).
+template <class Body>
+void parallel_numbered_blocks(std::int64_t n, int parts, Body&& body) {
+  if (parts <= 1) {  // small systems: no lambda, no 64-bit divisions (≈ 20 cycles each) per call
+    if (parts == 1) run_as_one_part(n, [&] { body(0, std::int64_t{0}, n); });
+    return;
+  }
+  run_parts(parts, [&](int u) { body(u, block_begin(n, parts, u), block_begin(n, parts, u + 1)); });
+}
+
 // Runs body(begin, end) on `parts` contiguous blocks of [0, n).
 template <class Body>
 void parallel_blocks(std::int64_t n, int parts, Body&& body) {
-  if (parts <= 1) {  // small systems: no lambda, no 64-bit divisions (≈ 20 cycles each) per call
-    if (parts != 1) return;
-    if (n < kParallelMin)
-      body(std::int64_t{0}, n);  // serial at any thread count: not parallel work
-    else
-      detail::timed_parallel([&] { body(std::int64_t{0}, n); });
-    return;
-  }
-  run_parts(parts, [&](int u) { body(block_begin(n, parts, u), block_begin(n, parts, u + 1)); });
+  parallel_numbered_blocks(n, parts, [&](int, std::int64_t begin, std::int64_t end) { body(begin, end); });
 }
 
 }  // namespace stiffmd
