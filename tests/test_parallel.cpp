@@ -5,11 +5,11 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <random>
-#include <chrono>
 #include <stdexcept>
 #include <thread>
 
@@ -21,6 +21,7 @@
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/primitives.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 namespace {
@@ -293,6 +294,46 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   toolbox.project_force(m.x, twice);
   EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
+}
+
+// The kinetic energies the integrators keep (primitives.hpp kinetic_energy, the O step's
+// LangevinNoise::apply_and_measure): with one thread the bits of State::kinetic_energy, with
+// more its value to rounding and the same bits call to call; the O step's the same as its plain
+// step followed by kinetic_energy. Fixed particles count nothing.
+TEST(Parallel, KineticEnergiesAreTheStatesSummedInBlocks) {
+  const Melt m = melt(true);
+  const Eigen::Index n = m.x.cols();
+  State s;
+  s.x = m.x;
+  s.v = Eigen::Matrix3Xd::Random(3, n);
+  s.inv_mass = Eigen::VectorXd::Random(n).cwiseAbs() + Eigen::VectorXd::Constant(n, 0.5);
+  s.inv_mass[7] = s.inv_mass[5000] = 0.0;
+  s.v.col(7).setZero();
+  s.v.col(5000).setZero();
+  ThermostatSettings t;
+  t.style = ThermostatSettings::Style::langevin;
+  t.temperature = 1.5;
+  t.friction = Eigen::VectorXd::Constant(n, 2.0);
+  t.seed = 9;
+  const int restore = max_threads();
+  for (int threads : {1, 2, 3}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    const double k = kinetic_energy(s.v, s.inv_mass);
+    if (threads == 1)
+      EXPECT_EQ(k, s.kinetic_energy());
+    else
+      EXPECT_NEAR(k, s.kinetic_energy(), 1e-13 * k);
+    EXPECT_EQ(kinetic_energy(s.v, s.inv_mass), k);
+    LangevinNoise plain(t, s.inv_mass), measured(t, s.inv_mass);
+    Eigen::Matrix3Xd v_plain = s.v, v_measured = s.v;
+    plain.apply(v_plain, 0.01, 4, 1);
+    const double after = measured.apply_and_measure(v_measured, 0.01, 4, 1);
+    EXPECT_EQ(v_measured, v_plain);
+    EXPECT_EQ(after, kinetic_energy(v_plain, s.inv_mass));
+    EXPECT_NE(after, k);
+  }
+  set_max_threads(restore);
 }
 
 // parallel_seconds: the wall time inside the outermost parallel loops since the last reset, one

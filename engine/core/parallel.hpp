@@ -170,4 +170,15 @@ void parallel_blocks(std::int64_t n, int parts, Body&& body) {
   parallel_numbered_blocks(n, parts, [&](int, std::int64_t begin, std::int64_t end) { body(begin, end); });
 }
 
+// Σ of body(begin, end) over `parts` contiguous blocks of [0, n), the blocks' sums added in block
+// order: the same bits for a given number of parts, and with one part the sum body(0, n) itself.
+template <class Body>
+double parallel_sum(std::int64_t n, int parts, Body&& body) {
+  std::array<double, kMaxParts> sums{};
+  parallel_numbered_blocks(n, parts, [&](int u, std::int64_t begin, std::int64_t end) { sums[u] = body(begin, end); });
+  double total = sums[0];
+  for (int u = 1; u < parts; ++u) total += sums[u];
+  return total;
+}
+
 }  // namespace stiffmd
