@@ -17,6 +17,7 @@
 #include "engine/core/parallel.hpp"
 #include "engine/run/simulation.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/counting_sort.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
@@ -294,6 +295,47 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   toolbox.project_force(m.x, twice);
   EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
+}
+
+// The neighbour list's sorts (counting_sort.hpp): items in parts, sorted by key then part then
+// place, for 1 to 5 parts, are the stable sort of the concatenated items (keys with no item, keys
+// with many, a part with none included), and the starts are the keys' first slots.
+TEST(Parallel, CountingSortIsTheStableSortForAnyNumberOfParts) {
+  std::mt19937 rng(3);
+  const int keys = 9000, items = 60000;
+  std::vector<int> key(items);
+  std::uniform_int_distribution<int> any_key(0, keys - 1);
+  for (int& k : key) k = any_key(rng) % 3 == 0 ? 17 : any_key(rng);  // key 17 crowded, some keys empty
+  std::vector<int> expected(items);
+  std::iota(expected.begin(), expected.end(), 0);
+  std::stable_sort(expected.begin(), expected.end(), [&](int a, int b) { return key[a] < key[b]; });
+  const int restore = max_threads();
+  for (int parts : {1, 2, 3, 5}) {
+    SCOPED_TRACE(testing::Message() << parts << " parts");
+    set_max_threads(parts);
+    std::vector<std::int64_t> bound(parts + 1);  // part u: items bound[u] … bound[u+1] − 1
+    for (int u = 0; u <= parts; ++u) bound[u] = u == parts ? items : u == 1 ? 0 : block_begin(items, parts, u);
+    CountingSort<std::int64_t> sort;
+    sort.begin(parts, keys);
+    run_parts(parts, [&](int u) {
+      int* count = sort.clear(u);
+      for (std::int64_t i = bound[u]; i < std::max(bound[u], bound[u + 1]); ++i) ++count[key[i]];
+    });
+    std::vector<std::int64_t> start(keys + 1);
+    sort.starts(start.data());
+    std::vector<int> sorted(items, -1);
+    run_parts(parts, [&](int u) {
+      auto cursor = sort.cursor(u);
+      for (std::int64_t i = bound[u]; i < std::max(bound[u], bound[u + 1]); ++i) sorted[cursor.slot(key[i])] = i;
+    });
+    EXPECT_EQ(sorted, expected);
+    for (int k = 0; k < keys; ++k)
+      ASSERT_EQ(start[k], std::lower_bound(expected.begin(), expected.end(), k,
+                                           [&](int a, int kk) { return key[a] < kk; }) -
+                              expected.begin());
+    EXPECT_EQ(start[keys], items);
+  }
+  set_max_threads(restore);
 }
 
 // The kinetic energies the integrators keep (primitives.hpp kinetic_energy, the O step's
