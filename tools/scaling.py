@@ -25,6 +25,11 @@ over repeats of the ratio of the two runs of the same repeat, × t₀; efficienc
 The serial share is the median of summary.json's "serial_share" where the engine writes it (the share
 of the step loop's wall time outside parallel loops), '—' otherwise.
 
+A shared machine: "others" is the median number of cores other processes kept busy during a row's
+runs (/proc/stat's busy time less the run's own CPU time, over its wall time); with two threads on
+two cores any of it slows the run. --wait-idle S waits before each repeat's runs (at most S
+seconds) until other processes use less than 0.2 cores over a second.
+
 Outputs in --out (default sweeps/scaling): scaling.md (the table, also printed), runs.csv (every run),
 work/ (states, decks, runs).
 """
@@ -32,9 +37,11 @@ import argparse
 import csv
 import json
 import os
+import resource
 import shutil
 import statistics
 import sys
+import time
 
 from bench_lammps import check_exit, run_measured  # tools/ is the script's directory
 from chain_melt import RunFailed, engine_method, fmt, prepare_state, tile_data, write_deck
@@ -110,28 +117,56 @@ def deck_runs(deck, methods, args):
     return runs
 
 
+def busy_seconds():
+    """CPU seconds the whole machine has been busy (all cores; /proc/stat), or None off Linux."""
+    try:
+        with open("/proc/stat") as f:
+            ticks = [int(w) for w in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")  # less idle and iowait
+
+
+def wait_idle(limit):
+    """Waits until other processes use < 0.2 cores over a second, at most `limit` seconds."""
+    start = time.monotonic()
+    while time.monotonic() - start < limit:
+        before = busy_seconds()
+        if before is None:
+            return
+        time.sleep(1.0)
+        if busy_seconds() - before < 0.2:
+            return
+
+
 def run_once(args, deck, sets, threads, run_dir):
-    """(ms per step of the step loop's wall time, serial share or None) of one run."""
+    """(ms per step of the step loop's wall time, serial share or None, cores other processes kept
+    busy meanwhile or None) of one run."""
     shutil.rmtree(run_dir, ignore_errors=True)
     os.makedirs(run_dir)
     cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set", "output.checkpoint_interval=0"]
     for kv in sets + args.set:
         cmd += ["--set", kv]
+    busy0, own0, t0 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
     code, _, _ = run_measured(cmd, run_dir, threads)
+    busy1, own1, t1 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
     check_exit(code, cmd, run_dir, log="stderr.txt")
     with open(os.path.join(run_dir, "summary.json")) as f:
         s = json.load(f)
     if s["steps"] < 1:
         raise RunFailed(f"{run_dir}: no steps run")
-    share = s.get("serial_share")
-    return 1e3 * s["wall_seconds"] / s["steps"], share
+    others = None
+    if busy0 is not None:
+        own = (own1.ru_utime + own1.ru_stime) - (own0.ru_utime + own0.ru_stime)
+        others = max(0.0, (busy1 - busy0 - own) / (t1 - t0))
+    return 1e3 * s["wall_seconds"] / s["steps"], s.get("serial_share"), others
 
 
 def table(rows, thread_counts):
     """The markdown table of the medians."""
     t0 = thread_counts[0]
-    lines = ["| system | method | threads | ms/step | speed-up | efficiency | serial share |",
-             "|---|---|--:|--:|--:|--:|--:|"]
+    lines = ["| system | method | threads | ms/step | speed-up | efficiency | serial share | others |",
+             "|---|---|--:|--:|--:|--:|--:|--:|"]
     for (system, method), by_threads in rows.items():
         base = by_threads[t0]
         for t in thread_counts:
@@ -139,8 +174,10 @@ def table(rows, thread_counts):
             speedup = t0 * statistics.median(b / a for b, a in zip(base, ms))
             shares = [s for s in by_threads.get(("share", t), []) if s is not None]
             share = f"{100 * statistics.median(shares):.2f} %" if shares else "—"
+            busy = [b for b in by_threads.get(("others", t), []) if b is not None]
+            others = f"{statistics.median(busy):.2f}" if busy else "—"
             lines.append(f"| {system} | {method} | {t} | {statistics.median(ms):.2f} | {speedup:.2f} | "
-                         f"{100 * speedup / t:.0f} % | {share} |")
+                         f"{100 * speedup / t:.0f} % | {share} | {others} |")
     return "\n".join(lines)
 
 
@@ -156,6 +193,8 @@ def main():
     ap.add_argument("--steps", type=int, default=50)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run (repeatable)")
+    ap.add_argument("--wait-idle", type=float, default=0.0, metavar="S",
+                    help="before each repeat's runs, wait up to S seconds for other processes to go quiet")
     ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
     ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "scaling"))
     args = ap.parse_args()
@@ -188,13 +227,17 @@ def main():
             order = thread_counts if r % 2 == 0 else thread_counts[::-1]
             for system, method, deck, sets in runs:
                 by_threads = rows.setdefault((system, method), {})
+                if args.wait_idle > 0:
+                    wait_idle(args.wait_idle)
                 for t in order:
                     run_dir = os.path.join(work, "runs", f"{system}_{method}_t{t}")
-                    ms, share = run_once(args, deck, sets, t, run_dir)
+                    ms, share, others = run_once(args, deck, sets, t, run_dir)
                     by_threads.setdefault(t, []).append(ms)
                     by_threads.setdefault(("share", t), []).append(share)
+                    by_threads.setdefault(("others", t), []).append(others)
                     records.append({"system": system, "method": method, "threads": t, "repeat": r,
-                                    "ms_per_step": ms, "serial_share": "" if share is None else share})
+                                    "ms_per_step": ms, "serial_share": "" if share is None else share,
+                                    "others": "" if others is None else others})
     except RunFailed as e:
         print(f"scaling: {e}", file=sys.stderr)
         return 2
