@@ -15,7 +15,7 @@ void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
   if (out.cols() != n) out.resize(3, n);
   const int parts = threads_for(n);
   if (parts == 1) {
-    std::fill_n(out.data(), 3 * n, 0.0);
+    run_as_one_part(n, [&] { std::fill_n(out.data(), 3 * n, 0.0); });
     return;
   }
   parallel_blocks(n, parts, [&](std::int64_t b, std::int64_t e) { out.middleCols(b, e - b).setZero(); });

@@ -293,10 +293,17 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   cell_of_.resize(n);
   image_.resize(3, n);
   wrapped_x_.resize(3, n);
-  cell_start_.assign(static_cast<std::size_t>(ncells) + 1, 0);
-  // Each particle's image and cell on the threads (independent per particle), then the counts.
+  cell_start_.resize(static_cast<std::size_t>(ncells) + 1);
+  cell_particles_.resize(n);
+  cell_x_.resize(3, n);
+  // Each particle's image and cell on the threads (independent per particle), counted per block;
+  // then the cells' starts and the counting sort's scatter (counting_sort.hpp), which keeps each
+  // cell's particles in increasing index for any number of blocks.
   const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
-  parallel_blocks(n, threads_for(n), [&](std::int64_t first, std::int64_t last) {
+  const int parts = threads_for(n);
+  cell_sort_.begin(parts, ncells);
+  parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
+    int* count = cell_sort_.clear(u);
     for (std::int64_t i = first; i < last; ++i) {
       int c[3];
       for (int a = 0; a < 3; ++a) {
@@ -311,22 +318,20 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
         wrapped_x_(a, i) = x(a, i) - image;
         c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
       }
-      cell_of_[i] = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
+      const int cell = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
+      cell_of_[i] = cell;
+      ++count[cell];
     }
   });
-  for (int i = 0; i < n; ++i) ++cell_start_[cell_of_[i] + 1];
-  for (int c = 0; c < ncells; ++c) cell_start_[c + 1] += cell_start_[c];
-  cell_particles_.resize(n);
-  cell_x_.resize(3, n);
-  // Counting sort in increasing i keeps each cell's particles in increasing index: fill
-  // through a cursor held in cell_start_, then shift the starts back.
-  for (int i = 0; i < n; ++i) {
-    const int k = cell_start_[cell_of_[i]]++;
-    cell_particles_[k] = i;
-    cell_x_.col(k) = wrapped_x_.col(i);
-  }
-  for (int c = ncells; c > 0; --c) cell_start_[c] = cell_start_[c - 1];
-  cell_start_[0] = 0;
+  cell_sort_.starts(cell_start_.data());
+  parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
+    auto cursor = cell_sort_.cursor(u);
+    for (std::int64_t i = first; i < last; ++i) {
+      const int k = cursor.slot(cell_of_[i]);
+      cell_particles_[k] = static_cast<int>(i);
+      cell_x_.col(k) = wrapped_x_.col(i);
+    }
+  });
 
   small_box_ = false;
   for (int a = 0; a < 3; ++a) {
@@ -392,6 +397,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     }
     first_column[u] = u == 0 ? 0 : lo;
   }
+  row_sort_.begin(parts, n);
   if (static_cast<int>(pair_i_.size()) < parts) {
     pair_i_.resize(parts);
     pair_j_.resize(parts);
@@ -417,6 +423,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     std::vector<int>& hits = hits_[u];
     if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
     int* const hit = hits.data();
+    int* const row_count = row_sort_.clear(u);  // the part's pairs per row, for the CSR sort
     auto record_hits = [&](int i, int count) {
       if (used + count > capacity) {  // rare: the buffers grow geometrically, then stay
         capacity = std::max(2 * capacity, used + count + 1024);
@@ -436,8 +443,10 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         const int j = cp[hit[h]];
         bool keep = true;
         for (const int* e = first; e != last; ++e) keep &= *e != j;
-        to_i[kept] = std::min(i, j);
+        const int row = std::min(i, j);
+        to_i[kept] = row;
         to_j[kept] = std::max(i, j);
+        row_count[row] += keep;
         kept += keep;
       }
       used = kept;
@@ -521,18 +530,18 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     pair_count_[u] = used;
   });
 
-  // Counting sort of the pairs into CSR rows by i, the parts in order.
-  offsets_.assign(static_cast<std::size_t>(n) + 1, 0);
-  std::size_t total = 0;
-  for (int u = 0; u < parts; ++u) {
-    for (std::size_t p = 0; p < pair_count_[u]; ++p) ++offsets_[pair_i_[u][p] + 1];
-    total += pair_count_[u];
-  }
-  for (int i = 0; i < n; ++i) offsets_[i + 1] += offsets_[i];
-  cursor_.assign(offsets_.begin(), offsets_.end() - 1);
-  neighbors_.resize(total);
-  for (int u = 0; u < parts; ++u)
-    for (std::size_t p = 0; p < pair_count_[u]; ++p) neighbors_[cursor_[pair_i_[u][p]]++] = pair_j_[u][p];
+  // The pairs into CSR rows by i: a counting sort of the parts' buffers in part order
+  // (counting_sort.hpp), on the threads.
+  offsets_.resize(static_cast<std::size_t>(n) + 1);
+  row_sort_.starts(offsets_.data());
+  neighbors_.resize(static_cast<std::size_t>(offsets_[n]));
+  run_parts(parts, [&](int u) {
+    auto cursor = row_sort_.cursor(u);
+    const int* pi = pair_i_[u].data();
+    const int* pj = pair_j_[u].data();
+    int* to = neighbors_.data();
+    for (std::size_t p = 0; p < pair_count_[u]; ++p) to[cursor.slot(pi[p])] = pj[p];
+  });
 }
 
 // Boxes with fewer than 3 cells on a periodic axis (a few cutoffs wide): the neighbour cells
@@ -595,7 +604,10 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
   else
     search_half_stencil(n, have_exclusions);
 
-  x_at_build_ = x;  // same size after the first build: Eigen reuses the storage
+  x_at_build_.resize(3, n);  // same size after the first build: Eigen reuses the storage
+  parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) {
+    x_at_build_.middleCols(b, e - b) = x.middleCols(b, e - b);
+  });
   box_at_build_ = box;
   built_ = true;
   ++rebuilds_;

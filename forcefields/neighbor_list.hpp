@@ -24,6 +24,7 @@
 
 #include "engine/core/box.hpp"
 #include "engine/core/topology.hpp"
+#include "forcefields/counting_sort.hpp"
 
 namespace stiffmd {
 
@@ -211,7 +212,8 @@ class NeighborList {
     std::vector<int> k;  // position in the cell order
   };
   std::vector<CandidateScratch> scratch_;
-  std::vector<std::int64_t> cursor_;
+  CountingSort<int> cell_sort_;           // particles into cells (bin)
+  CountingSort<std::int64_t> row_sort_;  // pairs into rows (search_half_stencil)
 
   void search_half_stencil(int n, bool have_exclusions);
   void search_small_box(int n, const MinimumImage& mi, bool have_exclusions);

@@ -244,7 +244,9 @@ struct ConstraintToolbox::Impl {
     const int nc = static_cast<int>(data.size());
     const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
-      for (int c = 0; c < nc; ++c) f(c);
+      run_as_one_part(serial_everywhere() ? 0 : static_cast<std::int64_t>(bonds.size()), [&] {
+        for (int c = 0; c < nc; ++c) f(c);
+      });
       return;
     }
     run_parts(parts, [&](int u) {
@@ -280,7 +282,7 @@ struct ConstraintToolbox::Impl {
     };
     const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
-      run_block(0, nc);
+      run_as_one_part(serial_everywhere() ? 0 : static_cast<std::int64_t>(bonds.size()), [&] { run_block(0, nc); });
       return;
     }
     run_parts(parts, [&](int u) {
@@ -294,6 +296,8 @@ struct ConstraintToolbox::Impl {
   std::vector<ClusterData> data;           // parallel to clusters
   std::vector<std::int64_t> bonds_before;  // bonds in clusters 0 … c − 1; size clusters + 1
   bool clusters_share_particles = false;   // through a fixed particle
+  // One block at any thread count: run_as_one_part must not count it as parallel work.
+  bool serial_everywhere() const { return clusters_share_particles || data.size() <= 1; }
   Eigen::Matrix3Xd kept_x;                 // the kept configuration (x_ref of SHAKE, x of P(x))
   bool kept = false;
   BondFrame at_kept;           // G at kept_x, for the clusters with frame_kept

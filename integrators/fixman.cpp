@@ -143,7 +143,9 @@ struct FixmanPotential::Impl {
     const int nc = static_cast<int>(clusters.size());
     const int parts = std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
-      for (int c = 0; c < nc; ++c) f(c);
+      run_as_one_part(nc > 1 ? static_cast<std::int64_t>(bonds.size()) : 0, [&] {
+        for (int c = 0; c < nc; ++c) f(c);
+      });
       return;
     }
     run_parts(parts, [&](int part) {

@@ -287,7 +287,9 @@ struct StiffModes::Impl {
     const int nc = static_cast<int>(chains.size());
     const int parts = std::min({threads_for(chain_bonds_before.back()), nc, static_cast<int>(workspaces.size())});
     if (parts <= 1) {
-      for (int k = 0; k < nc; ++k) f(clusters[chains[k]], workspaces[0]);
+      run_as_one_part(nc > 1 ? chain_bonds_before.back() : 0, [&] {
+        for (int k = 0; k < nc; ++k) f(clusters[chains[k]], workspaces[0]);
+      });
       return;
     }
     run_parts(parts, [&](int part) {

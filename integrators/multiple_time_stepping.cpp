@@ -41,8 +41,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
 void MultipleTimeStepping::step_obabo(State& s, double h) {
   obabo_->apply(s.v, 0.5 * h, s.step, 0);
   advance(s, 0, h);
-  obabo_->apply(s.v, 0.5 * h, s.step, 1);
-  o_step_kinetic_ = s.kinetic_energy();
+  o_step_kinetic_ = obabo_->apply_and_measure(s.v, 0.5 * h, s.step, 1);
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -180,8 +179,7 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
 
 // One O step per macro step (see the header), so o_step_kinetic_ is that macro step's.
 void MultipleTimeStepping::o_step(State& s, double dt) {
-  langevin_->apply(s.v, dt, s.step, substep_++);
-  o_step_kinetic_ = s.kinetic_energy();
+  o_step_kinetic_ = langevin_->apply_and_measure(s.v, dt, s.step, substep_++);
 }
 
 }  // namespace stiffmd

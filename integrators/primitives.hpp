@@ -75,6 +75,17 @@ inline void chord_velocity(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const
   });
 }
 
+// ½ vᵀ M v, skipping fixed particles (inverse mass 0), summed in particle blocks on the threads
+// (parallel_sum): with one thread the bits of State::kinetic_energy.
+inline double kinetic_energy(const Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass) {
+  return parallel_sum(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    double k = 0.0;
+    for (std::int64_t i = b; i < e; ++i)
+      if (inv_mass[i] > 0.0) k += 0.5 * v.col(i).squaredNorm() / inv_mass[i];
+    return k;
+  });
+}
+
 // kick(v, f, dt_kick) then drift(x, v, dt_drift), in one pass over the particles.
 inline void kick_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
                        const Eigen::Matrix3Xd& f, double dt_kick, double dt_drift) {

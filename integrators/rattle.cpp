@@ -86,7 +86,7 @@ void Rattle::step(State& s, double h) {
     rattle_drift(s, 0.5 * h);
     langevin_->apply(s.v, h, s.step, 0);
     toolbox_.project_velocity(s.x, s.v);
-    o_step_kinetic_ = s.kinetic_energy();
+    o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
     rattle_drift(s, 0.5 * h);
     // The chord velocity q of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along
     // each bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
@@ -112,7 +112,7 @@ void Rattle::step(State& s, double h) {
     constraint_force_current_ = false;
     if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
-    if (obabo_) o_step_kinetic_ = s.kinetic_energy();
+    if (obabo_) o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
     return;
   }
   kick(s.v, s.inv_mass, f_, 0.5 * h);
@@ -122,7 +122,7 @@ void Rattle::step(State& s, double h) {
   if (obabo_) {  // friction not uniform on a cluster: the closing O(½h) on the tangent space
     langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
-    o_step_kinetic_ = s.kinetic_energy();
+    o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
   }
 }
 

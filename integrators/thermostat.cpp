@@ -8,6 +8,7 @@
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/primitives.hpp"
 
 namespace stiffmd {
 
@@ -59,18 +60,26 @@ void LangevinNoise::coefficients(double dt) {
   dt_ = dt;
 }
 
-void LangevinNoise::apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+template <bool kMeasure>
+double LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
   const ScopedPhase phase(Phase::thermostat);
   if (dt != dt_) coefficients(dt);
   const std::uint64_t key = noise_key(seed_, step, substep);
   const ZigguratTable& table = ziggurat_table();
-  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+  return parallel_sum(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    double kinetic = 0.0;
     for (std::int64_t i = b; i < e; ++i) {
       if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
       v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, i, table);
+      if constexpr (kMeasure)
+        if (inv_mass_[i] > 0.0) kinetic += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
     }
+    return kinetic;
   });
 }
+
+template double LangevinNoise::o_step<false>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
+template double LangevinNoise::o_step<true>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
 
 LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
     : kT_(settings.temperature), seed_(settings.seed), friction_(settings.friction), inv_mass_(inv_mass) {
@@ -133,7 +142,7 @@ class VelocityRescaled final : public Integrator {
   void step(State& s, double h) override {
     inner_->step(s, h);
     const ScopedPhase phase(Phase::thermostat);
-    const double kinetic = s.kinetic_energy();
+    const double kinetic = kinetic_energy(s.v, s.inv_mass);
     if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
     double r1 = 0.0;
@@ -141,7 +150,8 @@ class VelocityRescaled final : public Integrator {
     // The sign of α (Bussi et al., Appendix): negative only when the noise overshoots, which
     // needs a tiny K or a very short τ; it keeps the K process exact.
     const double sign = r1 + std::sqrt(c * dof_ * kinetic / ((1.0 - c) * 0.5 * dof_ * kT_)) < 0.0 ? -1.0 : 1.0;
-    s.v *= sign * std::sqrt(a2);
+    const double alpha = sign * std::sqrt(a2);
+    parallel_blocks(s.size(), threads_for(s.size()), [&](std::int64_t b, std::int64_t e) { s.v.middleCols(b, e - b) *= alpha; });
   }
   void reset() override { inner_->reset(); }
   std::string_view method() const override { return inner_->method(); }

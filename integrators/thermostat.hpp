@@ -114,13 +114,22 @@ class LangevinNoise {
  public:
   LangevinNoise(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass);
   // O step of length dt at macro step `step`, sub-step `substep` of that step.
-  void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
+  void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+    o_step<false>(v, dt, step, substep);
+  }
+  // The same, returning ½ vᵀ M v after it, formed in the same pass (summed as kinetic_energy in
+  // integrators/primitives.hpp: the same bits).
+  double apply_and_measure(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+    return o_step<true>(v, dt, step, substep);
+  }
   double temperature() const { return kT_; }
   const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
   const Eigen::VectorXd& inv_mass() const { return inv_mass_; }
 
  private:
   void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)
+  template <bool kMeasure>
+  double o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
   double kT_;
   std::uint64_t seed_;
   Eigen::VectorXd friction_, inv_mass_, c_, sigma_;

@@ -5,19 +5,24 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <random>
+#include <stdexcept>
+#include <thread>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/run/run.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/counting_sort.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/primitives.hpp"
+#include "integrators/thermostat.hpp"
 
 namespace stiffmd {
 namespace {
@@ -290,6 +295,168 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   toolbox.project_force(m.x, twice);
   EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
+}
+
+// The neighbour list's sorts (counting_sort.hpp): items in parts, sorted by key then part then
+// place, for 1 to 5 parts, are the stable sort of the concatenated items (keys with no item, keys
+// with many, a part with none included), and the starts are the keys' first slots.
+TEST(Parallel, CountingSortIsTheStableSortForAnyNumberOfParts) {
+  std::mt19937 rng(3);
+  const int keys = 9000, items = 60000;
+  std::vector<int> key(items);
+  std::uniform_int_distribution<int> any_key(0, keys - 1);
+  for (int& k : key) k = any_key(rng) % 3 == 0 ? 17 : any_key(rng);  // key 17 crowded, some keys empty
+  std::vector<int> expected(items);
+  std::iota(expected.begin(), expected.end(), 0);
+  std::stable_sort(expected.begin(), expected.end(), [&](int a, int b) { return key[a] < key[b]; });
+  const int restore = max_threads();
+  for (int parts : {1, 2, 3, 5}) {
+    SCOPED_TRACE(testing::Message() << parts << " parts");
+    set_max_threads(parts);
+    std::vector<std::int64_t> bound(parts + 1);  // part u: items bound[u] … bound[u+1] − 1
+    for (int u = 0; u <= parts; ++u) bound[u] = u == parts ? items : u == 1 ? 0 : block_begin(items, parts, u);
+    CountingSort<std::int64_t> sort;
+    sort.begin(parts, keys);
+    run_parts(parts, [&](int u) {
+      int* count = sort.clear(u);
+      for (std::int64_t i = bound[u]; i < std::max(bound[u], bound[u + 1]); ++i) ++count[key[i]];
+    });
+    std::vector<std::int64_t> start(keys + 1);
+    sort.starts(start.data());
+    std::vector<int> sorted(items, -1);
+    run_parts(parts, [&](int u) {
+      auto cursor = sort.cursor(u);
+      for (std::int64_t i = bound[u]; i < std::max(bound[u], bound[u + 1]); ++i) sorted[cursor.slot(key[i])] = i;
+    });
+    EXPECT_EQ(sorted, expected);
+    for (int k = 0; k < keys; ++k)
+      ASSERT_EQ(start[k], std::lower_bound(expected.begin(), expected.end(), k,
+                                           [&](int a, int kk) { return key[a] < kk; }) -
+                              expected.begin());
+    EXPECT_EQ(start[keys], items);
+  }
+  set_max_threads(restore);
+}
+
+// The kinetic energies the integrators keep (primitives.hpp kinetic_energy, the O step's
+// LangevinNoise::apply_and_measure): with one thread the bits of State::kinetic_energy, with
+// more its value to rounding and the same bits call to call; the O step's the same as its plain
+// step followed by kinetic_energy. Fixed particles count nothing.
+TEST(Parallel, KineticEnergiesAreTheStatesSummedInBlocks) {
+  const Melt m = melt(true);
+  const Eigen::Index n = m.x.cols();
+  State s;
+  s.x = m.x;
+  s.v = Eigen::Matrix3Xd::Random(3, n);
+  s.inv_mass = Eigen::VectorXd::Random(n).cwiseAbs() + Eigen::VectorXd::Constant(n, 0.5);
+  s.inv_mass[7] = s.inv_mass[5000] = 0.0;
+  s.v.col(7).setZero();
+  s.v.col(5000).setZero();
+  ThermostatSettings t;
+  t.style = ThermostatSettings::Style::langevin;
+  t.temperature = 1.5;
+  t.friction = Eigen::VectorXd::Constant(n, 2.0);
+  t.seed = 9;
+  const int restore = max_threads();
+  for (int threads : {1, 2, 3}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    const double k = kinetic_energy(s.v, s.inv_mass);
+    if (threads == 1)
+      EXPECT_EQ(k, s.kinetic_energy());
+    else
+      EXPECT_NEAR(k, s.kinetic_energy(), 1e-13 * k);
+    EXPECT_EQ(kinetic_energy(s.v, s.inv_mass), k);
+    LangevinNoise plain(t, s.inv_mass), measured(t, s.inv_mass);
+    Eigen::Matrix3Xd v_plain = s.v, v_measured = s.v;
+    plain.apply(v_plain, 0.01, 4, 1);
+    const double after = measured.apply_and_measure(v_measured, 0.01, 4, 1);
+    EXPECT_EQ(v_measured, v_plain);
+    EXPECT_EQ(after, kinetic_energy(v_plain, s.inv_mass));
+    EXPECT_NE(after, k);
+  }
+  set_max_threads(restore);
+}
+
+// parallel_seconds: the wall time inside the outermost parallel loops since the last reset, one
+// thread or several. Bounds from the test's own clock (no timing thresholds): work of a known least
+// duration inside a loop is counted, work outside is not, and a loop nested in another is counted
+// once — the count never exceeds the wall time around the outer call.
+void busy_for(std::chrono::steady_clock::duration d) {
+  const auto until = std::chrono::steady_clock::now() + d;
+  while (std::chrono::steady_clock::now() < until) {
+  }
+}
+
+double seconds_of(std::chrono::steady_clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+TEST(ParallelSeconds, CountsTheOutermostParallelLoopsOnly) {
+  using std::chrono::milliseconds;
+  const int restore = max_threads();
+  for (int threads : {1, 2}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    reset_parallel_seconds();
+    EXPECT_EQ(parallel_seconds(), 0.0);
+    busy_for(milliseconds(30));  // serial: not counted
+    EXPECT_EQ(parallel_seconds(), 0.0);
+
+    // One part and several: each part's work is inside.
+    for (int parts : {1, threads}) {
+      reset_parallel_seconds();
+      const auto start = std::chrono::steady_clock::now();
+      run_parts(parts, [](int) { busy_for(milliseconds(20)); });
+      const double wall = seconds_of(std::chrono::steady_clock::now() - start);
+      EXPECT_GE(parallel_seconds(), 0.020);
+      EXPECT_LE(parallel_seconds(), wall);
+    }
+
+    // Nested: the inner loop's time is already inside the outer one.
+    reset_parallel_seconds();
+    const auto start = std::chrono::steady_clock::now();
+    run_parts(1, [](int) {
+      busy_for(milliseconds(10));
+      run_parts(1, [](int) { busy_for(milliseconds(10)); });
+      parallel_blocks(kParallelMin, 1, [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    });
+    const double wall = seconds_of(std::chrono::steady_clock::now() - start);
+    EXPECT_GE(parallel_seconds(), 0.030);
+    EXPECT_LE(parallel_seconds(), wall);
+
+    // Blocks: a loop of kParallelMin items is parallel work even when one thread runs it; a
+    // shorter one is serial at every thread count.
+    reset_parallel_seconds();
+    parallel_blocks(kParallelMin - 1, threads_for(kParallelMin - 1),
+                    [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    EXPECT_EQ(parallel_seconds(), 0.0);
+    parallel_blocks(kParallelMin, threads_for(kParallelMin), [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    EXPECT_GE(parallel_seconds(), 0.010);
+
+    // A part that throws still closes its interval: the next loop is counted as outermost.
+    reset_parallel_seconds();
+    EXPECT_THROW(run_parts(threads, [](int) {
+                   busy_for(milliseconds(5));
+                   throw std::runtime_error("part");
+                 }),
+                 std::runtime_error);
+    const double after_throw = parallel_seconds();
+    EXPECT_GE(after_throw, 0.005);
+    run_parts(1, [](int) { busy_for(milliseconds(10)); });
+    EXPECT_GE(parallel_seconds(), after_throw + 0.010);
+  }
+  set_max_threads(restore);
+}
+
+// Opt-in: a thread that never reset its count counts nothing (the loops of a test binary or of
+// the Python module pay one branch, not two clock reads).
+TEST(ParallelSeconds, CountsNothingBeforeAReset) {
+  double counted = -1.0;
+  std::thread other([&] {
+    run_parts(1, [](int) { busy_for(std::chrono::milliseconds(5)); });
+    counted = parallel_seconds();
+  });
+  other.join();
+  EXPECT_EQ(counted, 0.0);
 }
 
 }  // namespace

@@ -60,26 +60,16 @@ TEST(PhaseClock, NestedScopesAreExclusiveAndAddUpToTheSpan) {
   EXPECT_NEAR(clock.total(), span, 0.02 * span);
 }
 
-// The time inside the outermost run_parts / parallel_blocks calls, counted only while switched
-// on, whatever the part count (one thread runs the same loops a team would split), a nested
-// call inside its parent's time.
-TEST(ParallelSeconds, CountsTheOutermostParallelLoopsWhileOn) {
+// A run counts the parallel loops only while it steps: after stop_parallel_seconds nothing is
+// added (tests/test_parallel.cpp, ParallelSeconds.*, has the counting rules).
+TEST(ParallelSeconds, StopKeepsTheCountAndCountsNoMore) {
   reset_parallel_seconds();
-  run_parts(2, [](int) { busy(1ms); });
-  EXPECT_EQ(parallel_seconds(), 0.0);  // off
-  time_parallel_loops(true);
-  const auto t0 = std::chrono::steady_clock::now();
-  parallel_blocks(100, 1, [](std::int64_t, std::int64_t) {
-    busy(2ms);
-    run_parts(2, [](int) { busy(1ms); });  // nested: part of the 2 ms + parts
-  });
-  const double span = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  busy(2ms);  // serial: not counted
-  time_parallel_loops(false);
-  EXPECT_GE(parallel_seconds(), 3e-3);
-  EXPECT_LE(parallel_seconds(), span);
-  reset_parallel_seconds();
-  EXPECT_EQ(parallel_seconds(), 0.0);
+  run_parts(1, [](int) { busy(1ms); });
+  const double counted = parallel_seconds();
+  EXPECT_GE(counted, 1e-3);
+  stop_parallel_seconds();
+  run_parts(1, [](int) { busy(1ms); });
+  EXPECT_EQ(parallel_seconds(), counted);
 }
 
 double json_number(const std::string& json, const std::string& key) {

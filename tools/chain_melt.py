@@ -82,6 +82,72 @@ def prepare_state(stiffmd, eps, data, env=None, deck=SOURCE_DECK):
     return data
 
 
+def tile_data(src, dst, reps=(2, 2, 2)):
+    """Writes the LAMMPS data file `src` (atom_style bond: Atoms `id mol type x y z [ix iy iz]`,
+    Velocities, Bonds; no angles) replicated reps[0] × reps[1] × reps[2] times into a box that many
+    times larger, as LAMMPS's `replicate`: copy k of atom id is id + k·N in molecule mol + k·M, at
+    its unwrapped position shifted by the copy's offset, written wrapped into the new box with its
+    image flags. Returns dst."""
+    with open(src) as f:
+        lines = f.read().splitlines()
+    counts, lo, length, sections, current = {}, [0.0] * 3, [0.0] * 3, {}, None
+    for line in lines:
+        s = line.split("#")[0].strip()
+        w = s.split()
+        if not w:
+            continue
+        if w[0] in ("Masses", "Atoms", "Velocities", "Bonds", "Angles", "Dihedrals", "Impropers"):
+            current = w[0]
+            sections[current] = []
+        elif current is None and len(w) == 2 and w[1] in ("atoms", "bonds", "angles", "dihedrals", "impropers"):
+            counts[w[1]] = int(w[0])
+        elif current is None and len(w) == 3 and w[1] == "atom" and w[2] == "types":
+            counts["atom types"] = int(w[0])
+        elif current is None and len(w) == 3 and w[1] == "bond" and w[2] == "types":
+            counts["bond types"] = int(w[0])
+        elif current is None and len(w) == 4 and w[2] in ("xlo", "ylo", "zlo"):
+            a = "xyz".index(w[2][0])
+            lo[a], length[a] = float(w[0]), float(w[1]) - float(w[0])
+        elif current is not None:
+            sections[current].append(w)
+    if any(counts.get(k, 0) for k in ("angles", "dihedrals", "impropers")):
+        raise RunFailed(f"{src}: tile_data handles atoms and bonds only")
+    n, nb = counts["atoms"], counts.get("bonds", 0)
+    atoms, bonds = sections["Atoms"], sections.get("Bonds", [])
+    if len(atoms) != n or len(bonds) != nb:
+        raise RunFailed(f"{src}: {len(atoms)} atoms and {len(bonds)} bonds listed, the header says {n} and {nb}")
+    velocities = {w[0]: w[1:4] for w in sections.get("Velocities", [])}
+    nmol = max(int(w[1]) for w in atoms)
+    new_length = [length[a] * reps[a] for a in range(3)]
+    copies = [(i, j, k) for k in range(reps[2]) for j in range(reps[1]) for i in range(reps[0])]
+    out = [f"LAMMPS data file: {src} replicated {reps[0]} x {reps[1]} x {reps[2]} (tools/chain_melt.py tile_data)", "",
+           f"{n * len(copies)} atoms", f"{nb * len(copies)} bonds", f"{counts.get('atom types', 1)} atom types",
+           f"{counts.get('bond types', 1)} bond types", ""]
+    out += [f"{fmt(lo[a])} {fmt(lo[a] + new_length[a])} {c}lo {c}hi" for a, c in enumerate("xyz")]
+    out += ["", "Masses", ""] + [" ".join(w) for w in sections.get("Masses", [])] + ["", "Atoms # bond", ""]
+    for u, shift in enumerate(copies):
+        for w in atoms:
+            image = [int(v) for v in w[6:9]] if len(w) >= 9 else [0, 0, 0]
+            pos, flags = [], []
+            for a in range(3):
+                unwrapped = float(w[3 + a]) + image[a] * length[a] + shift[a] * length[a]
+                whole = math.floor((unwrapped - lo[a]) / new_length[a])
+                pos.append(fmt(unwrapped - whole * new_length[a]))
+                flags.append(str(whole))
+            out.append(f"{int(w[0]) + u * n} {int(w[1]) + u * nmol} {w[2]} {' '.join(pos)} {' '.join(flags)}")
+    if velocities:
+        out += ["", "Velocities", ""]
+        for u in range(len(copies)):
+            out += [f"{int(w[0]) + u * n} {' '.join(velocities[w[0]])}" for w in atoms]
+    if bonds:
+        out += ["", "Bonds", ""]
+        for u in range(len(copies)):
+            out += [f"{int(w[0]) + u * nb} {w[1]} {int(w[2]) + u * n} {int(w[3]) + u * n}" for w in bonds]
+    with open(dst, "w") as f:
+        f.write("\n".join(out) + "\n")
+    return dst
+
+
 def count_atoms(data):
     with open(data) as f:
         for line in f:

@@ -192,20 +192,25 @@ void Run::step_to(std::int64_t k) {
   // loops run only while stepping, and only in systems whose loops can run in parallel (from
   // kParallelMin particles): a smaller system's step is too short to time by parts (a mark costs
   // two clock reads, ≈ 50 ns here, against 240 ns for a whole velocity-Verlet step of the pendulum).
-  const double entered = seconds_now(), parallel_before = parallel_seconds();
+  const double entered = seconds_now();
   const bool timed = timed_by_phase();
-  time_parallel_loops(timed);
-  if (timed) clock_.resume();
+  if (timed) {
+    reset_parallel_seconds();
+    clock_.resume();
+  }
   struct Pause {
     Run& r;
-    double entered, parallel_before;
+    double entered;
+    bool timed;
     ~Pause() {
-      r.clock_.pause();
-      time_parallel_loops(false);
-      r.parallel_seconds_ += parallel_seconds() - parallel_before;
+      if (timed) {
+        r.clock_.pause();
+        r.parallel_seconds_ += parallel_seconds();
+        stop_parallel_seconds();
+      }
       r.loop_seconds_ += seconds_now() - entered;
     }
-  } pause{*this, entered, parallel_before};
+  } pause{*this, entered, timed};
   while (s_.step < k) {
     if (pending_) {
       pending_ = false;
