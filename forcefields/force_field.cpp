@@ -53,7 +53,7 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
 }
 
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
-  scratch_.setZero(3, x.cols());
+  zero(scratch_, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
     if (term->level() == level) energy += term->add_forces(x, box_, scratch_);

@@ -297,6 +297,27 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
 }
 
+// The pressure's and the thermo's sums over bonds on the threads: the bond virial summed per block
+// (to rounding, the same bits call to call) and the largest constraint violation (a maximum: the
+// serial value exactly, for any thread count).
+TEST(Parallel, BondVirialAndMaxViolationOnTheThreads) {
+  const Melt m = melt(true);
+  const FeneBond fene("fene", Level::slow, m.bonds, {{30.0, 1.5, 1.0, 1.0}});
+  StiffBonds sb = stiff(m.bonds);
+  const int restore = max_threads();
+  set_max_threads(1);
+  const double virial = fene.virial(m.x, m.box), worst = max_violation(sb.bonds, m.x);
+  ASSERT_GT(worst, 0.0);
+  for (int threads : {2, 3, 4}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    EXPECT_NEAR(fene.virial(m.x, m.box), virial, 1e-12 * std::abs(virial));
+    EXPECT_EQ(fene.virial(m.x, m.box), fene.virial(m.x, m.box));
+    EXPECT_EQ(max_violation(sb.bonds, m.x), worst);
+  }
+  set_max_threads(restore);
+}
+
 // The neighbour list's sorts (counting_sort.hpp): items in parts, sorted by key then part then
 // place, for 1 to 5 parts, are the stable sort of the concatenated items (keys with no item, keys
 // with many, a part with none included), and the starts are the keys' first slots.
