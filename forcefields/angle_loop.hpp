@@ -24,13 +24,16 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <cmath>
 #include <sstream>
 #include <vector>
 
 #include "engine/core/box.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "engine/core/state.hpp"
+#include "forcefields/tuple_partition.hpp"
 
 namespace stiffmd {
 
@@ -81,24 +84,45 @@ inline Geometry geometry(int i, int j, int k, const Eigen::Matrix3Xd& x) {
 }  // namespace angle_detail
 
 // Adds −∇E into f for every angle and returns Σ E. F_i = −E'(θ) ∂θ/∂x_i, F_k likewise, and
-// F_j = −F_i − F_k (θ is translation invariant, so the three forces sum to zero).
+// F_j = −F_i − F_k (θ is translation invariant, so the three forces sum to zero). On the threads by
+// owner computes (tuple_partition.hpp, `partition` the term's plan): the forces are the serial
+// loop's bits for any thread count, Σ E is summed per owner.
+template <class Kernel, class Params>
+double accumulate_angle_forces(const std::vector<AngleInstance<Params>>& angles, const Eigen::Matrix3Xd& x,
+                               const Box& box, Eigen::Matrix3Xd& f, TuplePartition<3>& partition) {
+  (void)box;  // bond vectors are raw differences of whole molecules
+  const int parts = threads_for(static_cast<std::int64_t>(angles.size()));
+  partition.prepare(angles.size(), parts, [&](std::size_t t) {
+    return std::array<int, 3>{angles[t].i, angles[t].j, angles[t].k};
+  });
+  std::array<double, kMaxParts> energy{};
+  run_parts(parts, [&](int u) {
+    double e_u = 0.0;
+    for (const auto* w = partition.begin(u); w < partition.end(u); ++w) {
+      const auto& t = angles[w->tuple];
+      const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
+      double e = 0.0, de_dtheta = 0.0;
+      Kernel::eval(g.theta, t.params, e, de_dtheta);
+      if (w->owned & 1u) e_u += e;
+      const Eigen::Vector3d fi = -de_dtheta * g.dtheta_da;
+      const Eigen::Vector3d fk = -de_dtheta * g.dtheta_db;
+      if (w->owned & 1u) f.col(t.i) += fi;
+      if (w->owned & 4u) f.col(t.k) += fk;
+      if (w->owned & 2u) f.col(t.j) -= fi + fk;
+    }
+    energy[u] = e_u;
+  });
+  double sum = energy[0];
+  for (int u = 1; u < parts; ++u) sum += energy[u];
+  return sum;
+}
+
+// The same for a caller without a term's plan (made here, allocating).
 template <class Kernel, class Params>
 double accumulate_angle_forces(const std::vector<AngleInstance<Params>>& angles, const Eigen::Matrix3Xd& x,
                                const Box& box, Eigen::Matrix3Xd& f) {
-  double energy = 0.0;
-  (void)box;  // bond vectors are raw differences of whole molecules
-  for (const auto& t : angles) {
-    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
-    double e = 0.0, de_dtheta = 0.0;
-    Kernel::eval(g.theta, t.params, e, de_dtheta);
-    energy += e;
-    const Eigen::Vector3d fi = -de_dtheta * g.dtheta_da;
-    const Eigen::Vector3d fk = -de_dtheta * g.dtheta_db;
-    f.col(t.i) += fi;
-    f.col(t.k) += fk;
-    f.col(t.j) -= fi + fk;
-  }
-  return energy;
+  TuplePartition<3> plan;
+  return accumulate_angle_forces<Kernel>(angles, x, box, f, plan);
 }
 
 // The angle virial Σ_angles Σ_{a∈{i,j,k}} r_a · F_a with positions taken relative to the vertex
@@ -110,15 +134,19 @@ double accumulate_angle_forces(const std::vector<AngleInstance<Params>>& angles,
 template <class Kernel, class Params>
 double accumulate_angle_virial(const std::vector<AngleInstance<Params>>& angles, const Eigen::Matrix3Xd& x,
                                const Box& box) {
-  double w = 0.0;
   (void)box;  // bond vectors are raw differences of whole molecules
-  for (const auto& t : angles) {
-    const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
-    double e = 0.0, de_dtheta = 0.0;
-    Kernel::eval(g.theta, t.params, e, de_dtheta);
-    w -= de_dtheta * (g.a.dot(g.dtheta_da) + g.b.dot(g.dtheta_db));
-  }
-  return w;
+  const std::int64_t n = static_cast<std::int64_t>(angles.size());
+  return parallel_sum(n, threads_for(n), [&](std::int64_t first, std::int64_t last) {  // blocks of angles
+    double w = 0.0;
+    for (std::int64_t k = first; k < last; ++k) {
+      const auto& t = angles[k];
+      const angle_detail::Geometry g = angle_detail::geometry(t.i, t.j, t.k, x);
+      double e = 0.0, de_dtheta = 0.0;
+      Kernel::eval(g.theta, t.params, e, de_dtheta);
+      w -= de_dtheta * (g.a.dot(g.dtheta_da) + g.b.dot(g.dtheta_db));
+    }
+    return w;
+  });
 }
 
 }  // namespace stiffmd

@@ -60,7 +60,7 @@ class AngleTerm final : public ForceTerm {
   AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
-    return accumulate_angle_forces<Kernel>(instances_, x, box, f);
+    return accumulate_angle_forces<Kernel>(instances_, x, box, f, partition_);
   }
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_angle_virial<Kernel>(instances_, x, box);
@@ -74,6 +74,7 @@ class AngleTerm final : public ForceTerm {
   std::vector<AngleCoeffs> types_;
   std::vector<Angle> angles_;  // as given, type indexing types_: for define()
   std::vector<AngleInstance<Params>> instances_;
+  mutable TuplePartition<3> partition_;  // thread plan of the angle loop
 };
 
 using HarmonicAngle = AngleTerm<HarmonicAngleKernel>;

@@ -436,14 +436,18 @@ template <class Kernel, class Params>
 double accumulate_bond_virial(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x,
                               const Box& box) {
   (void)box;
-  double w = 0.0;
-  for (const auto& b : bonds) {
-    const double r = bond_vector(x, b.i, b.j).norm();
-    double e = 0.0, de_dr = 0.0;
-    Kernel::eval(r, b.params, e, de_dr);
-    w -= r * de_dr;
-  }
-  return w;
+  const std::int64_t n = static_cast<std::int64_t>(bonds.size());
+  return parallel_sum(n, threads_for(n), [&](std::int64_t first, std::int64_t last) {  // blocks of bonds
+    double w = 0.0;
+    for (std::int64_t k = first; k < last; ++k) {
+      const auto& b = bonds[k];
+      const double r = bond_vector(x, b.i, b.j).norm();
+      double e = 0.0, de_dr = 0.0;
+      Kernel::eval(r, b.params, e, de_dr);
+      w -= r * de_dr;
+    }
+    return w;
+  });
 }
 
 }  // namespace stiffmd

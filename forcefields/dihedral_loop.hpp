@@ -22,13 +22,16 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <cmath>
 #include <sstream>
 #include <vector>
 
 #include "engine/core/box.hpp"
 #include "engine/core/errors.hpp"
+#include "engine/core/parallel.hpp"
 #include "engine/core/state.hpp"
+#include "forcefields/tuple_partition.hpp"
 
 namespace stiffmd {
 
@@ -81,24 +84,36 @@ inline Geometry geometry(int i, int j, int k, int l, const Eigen::Matrix3Xd& x) 
 
 }  // namespace dihedral_detail
 
-// Adds −∇E into f for every dihedral and returns Σ E: F_a = −E'(φ) ∂φ/∂x_a. Serial, in the
-// order of the list (as the angle loop): the result does not depend on the thread count.
+// Adds −∇E into f for every dihedral and returns Σ E: F_a = −E'(φ) ∂φ/∂x_a. On the threads by
+// owner computes, as the angle loop (tuple_partition.hpp): the forces are the serial loop's bits
+// for any thread count, Σ E is summed per owner.
 template <class Kernel, class Params>
 double accumulate_dihedral_forces(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
-                                  const Box& box, Eigen::Matrix3Xd& f) {
-  double energy = 0.0;
+                                  const Box& box, Eigen::Matrix3Xd& f, TuplePartition<4>& partition) {
   (void)box;  // bond vectors are raw differences of whole molecules
-  for (const auto& t : dihedrals) {
-    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
-    double e = 0.0, de_dphi = 0.0;
-    Kernel::eval(g.phi, t.params, e, de_dphi);
-    energy += e;
-    f.col(t.i) -= de_dphi * g.dphi_di;
-    f.col(t.j) -= de_dphi * g.dphi_dj;
-    f.col(t.k) -= de_dphi * g.dphi_dk;
-    f.col(t.l) -= de_dphi * g.dphi_dl;
-  }
-  return energy;
+  const int parts = threads_for(static_cast<std::int64_t>(dihedrals.size()));
+  partition.prepare(dihedrals.size(), parts, [&](std::size_t t) {
+    return std::array<int, 4>{dihedrals[t].i, dihedrals[t].j, dihedrals[t].k, dihedrals[t].l};
+  });
+  std::array<double, kMaxParts> energy{};
+  run_parts(parts, [&](int u) {
+    double e_u = 0.0;
+    for (const auto* w = partition.begin(u); w < partition.end(u); ++w) {
+      const auto& t = dihedrals[w->tuple];
+      const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
+      double e = 0.0, de_dphi = 0.0;
+      Kernel::eval(g.phi, t.params, e, de_dphi);
+      if (w->owned & 1u) e_u += e;
+      if (w->owned & 1u) f.col(t.i) -= de_dphi * g.dphi_di;
+      if (w->owned & 2u) f.col(t.j) -= de_dphi * g.dphi_dj;
+      if (w->owned & 4u) f.col(t.k) -= de_dphi * g.dphi_dk;
+      if (w->owned & 8u) f.col(t.l) -= de_dphi * g.dphi_dl;
+    }
+    energy[u] = e_u;
+  });
+  double sum = energy[0];
+  for (int u = 1; u < parts; ++u) sum += energy[u];
+  return sum;
 }
 
 // The dihedral virial Σ r_a · F_a with positions relative to x_j (r_i = r_ij, r_k = r_kj,
@@ -108,15 +123,19 @@ double accumulate_dihedral_forces(const std::vector<DihedralInstance<Params>>& d
 template <class Kernel, class Params>
 double accumulate_dihedral_virial(const std::vector<DihedralInstance<Params>>& dihedrals, const Eigen::Matrix3Xd& x,
                                   const Box& box) {
-  double w = 0.0;
   (void)box;  // bond vectors are raw differences of whole molecules
-  for (const auto& t : dihedrals) {
-    const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
-    double e = 0.0, de_dphi = 0.0;
-    Kernel::eval(g.phi, t.params, e, de_dphi);
-    w -= de_dphi * (g.r_ij.dot(g.dphi_di) + g.r_kj.dot(g.dphi_dk) + (g.r_kj - g.r_kl).dot(g.dphi_dl));
-  }
-  return w;
+  const std::int64_t n = static_cast<std::int64_t>(dihedrals.size());
+  return parallel_sum(n, threads_for(n), [&](std::int64_t first, std::int64_t last) {  // blocks of dihedrals
+    double w = 0.0;
+    for (std::int64_t k = first; k < last; ++k) {
+      const auto& t = dihedrals[k];
+      const dihedral_detail::Geometry g = dihedral_detail::geometry(t.i, t.j, t.k, t.l, x);
+      double e = 0.0, de_dphi = 0.0;
+      Kernel::eval(g.phi, t.params, e, de_dphi);
+      w -= de_dphi * (g.r_ij.dot(g.dphi_di) + g.r_kj.dot(g.dphi_dk) + (g.r_kj - g.r_kl).dot(g.dphi_dl));
+    }
+    return w;
+  });
 }
 
 }  // namespace stiffmd

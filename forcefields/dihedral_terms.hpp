@@ -131,7 +131,7 @@ class DihedralTerm final : public ForceTerm {
   }
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override {
-    return accumulate_dihedral_forces<Kernel>(instances_, x, box, f);
+    return accumulate_dihedral_forces<Kernel>(instances_, x, box, f, partition_);
   }
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_dihedral_virial<Kernel>(instances_, x, box);
@@ -158,6 +158,7 @@ class DihedralTerm final : public ForceTerm {
   std::vector<Coeffs> types_;
   std::vector<Dihedral> dihedrals_;  // as given, type indexing types_: for define()
   std::vector<DihedralInstance<Coeffs>> instances_;
+  mutable TuplePartition<4> partition_;  // thread plan of the dihedral loop
 };
 
 using HarmonicDihedral = DihedralTerm<HarmonicDihedralKernel>;

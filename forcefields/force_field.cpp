@@ -60,7 +60,7 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
 }
 
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
-  scratch_.setZero(3, x.cols());
+  zero(scratch_, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
     if (term->level() == level) energy += timed_add_forces(*term, x, box_, scratch_);

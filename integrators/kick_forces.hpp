@@ -6,10 +6,27 @@
 // plain impulse method.
 #pragma once
 
+#include "engine/core/parallel.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 
 namespace stiffmd {
+
+// to = from, in particle blocks on the threads (same size after the first call: no allocation in
+// the step loop).
+inline void copy_forces(const Eigen::Matrix3Xd& from, Eigen::Matrix3Xd& to) {
+  to.resize(3, from.cols());
+  parallel_blocks(from.cols(), threads_for(from.cols()),
+                  [&](std::int64_t b, std::int64_t e) { to.middleCols(b, e - b) = from.middleCols(b, e - b); });
+}
+
+// Σ x · (f − k) over the particles: the virial of the part f − k of a force a kick leaves out, in
+// particle blocks added in block order (parallel_sum).
+inline double removed_virial_of(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& f, const Eigen::Matrix3Xd& k) {
+  return parallel_sum(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
+    return (x.middleCols(b, e - b).array() * (f.middleCols(b, e - b) - k.middleCols(b, e - b)).array()).sum();
+  });
+}
 
 class ProjectedKick final : public KickForce {
  public:
@@ -17,9 +34,9 @@ class ProjectedKick final : public KickForce {
   void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                 Eigen::Matrix3Xd& out) override {
     forces.compute(x, levels, out);
-    raw_ = out;  // same size after the first call: no allocation in the step loop
+    copy_forces(out, raw_);
     toolbox_.project_force(x, out);
-    removed_virial_ = (x.array() * (raw_ - out).array()).sum();
+    removed_virial_ = removed_virial_of(x, raw_, out);
   }
   double removed_virial() const override { return removed_virial_; }
 
@@ -39,7 +56,7 @@ class MollifiedKick final : public KickForce {
         x,
         [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f) {
           forces.compute(X, levels, f);
-          f_at_X_ = f;  // same size after the first call: no allocation in the step loop
+          copy_forces(f, f_at_X_);
         },
         X_, out);
     // The part of f(α(x)) the mollifier leaves out, f(α) − α′(x)ᵀf(α): the bond-normal part, as
@@ -47,7 +64,7 @@ class MollifiedKick final : public KickForce {
     // cluster (α commutes with translations), so its virial Σ x·(…) does not depend on which
     // periodic image a molecule is in. The stiff system's bonds carry it as tension: it belongs
     // in the pressure (MultipleTimeStepping::constraint_virial).
-    removed_virial_ = (x.array() * (f_at_X_ - out).array()).sum();
+    removed_virial_ = removed_virial_of(x, f_at_X_, out);
   }
   double removed_virial() const override { return removed_virial_; }
 

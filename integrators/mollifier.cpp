@@ -2,6 +2,7 @@
 // F̄(x) = α′(x)ᵀ f(α(x)), α the M-orthogonal projection onto g = 0 (paper eq. (ProMol)).
 #include "integrators/constraint_toolbox_impl.hpp"
 
+#include "engine/core/parallel.hpp"
 #include "engine/core/timing.hpp"
 
 namespace stiffmd {
@@ -51,7 +52,9 @@ void ConstraintToolbox::mollified_force(const Eigen::Matrix3Xd& x, const ForceFu
   require_columns(x, impl_->num_particles(), "mollified_force");
   // Step 1: X = α(x), the M-orthogonal projection of x onto g = 0 (paper eq. (ProMol)).
   impl_->keep(x);
-  X = x;
+  X.resize(3, x.cols());  // no allocation once sized
+  parallel_blocks(x.cols(), threads_for(x.cols()),
+                  [&](std::int64_t b, std::int64_t e) { X.middleCols(b, e - b) = x.middleCols(b, e - b); });
   impl_->for_each_cluster([&](int c) { impl_->shake_cluster(c, X, tol, kMollifierMaxIter); });
   out.resize(3, x.cols());
   f_slow(X, out);

@@ -76,7 +76,9 @@ void Rattle::step(State& s, double h) {
   // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
   if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
   kick(s.v, s.inv_mass, f_, 0.5 * h);
-  if (!merged_projection_) constraint_force_.setZero();  // the velocity projections at x_{n+1} add their shares
+  if (!merged_projection_)  // the velocity projections at x_{n+1} add their shares
+    parallel_blocks(s.x.cols(), threads_for(s.x.cols()),
+                    [&](std::int64_t b, std::int64_t e) { constraint_force_.middleCols(b, e - b).setZero(); });
   if (!langevin_ || obabo_) {
     rattle_drift(s, h);
   } else {
@@ -131,12 +133,17 @@ double Rattle::constraint_virial(const State& s) {
     // F_c = M(P z − z) with the kept z (step: (2/h) w under OBABO, (2/h)(q + q + k) under BAOAB),
     // the projection at x adding −Gᵀμ itself (x_old_ is free between steps). At the x of the step
     // the toolbox still holds S's factors.
-    constraint_force_.setZero();
-    x_old_ = kicked_;
+    const Eigen::Index n = s.x.cols();
+    parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) {
+      constraint_force_.middleCols(b, e - b).setZero();
+      x_old_.middleCols(b, e - b) = kicked_.middleCols(b, e - b);
+    });
     toolbox_.project_velocity(s.x, x_old_, &constraint_force_, 1.0);
     constraint_force_current_ = true;
   }
-  return (s.x.array() * constraint_force_.array()).sum();
+  return parallel_sum(s.x.cols(), threads_for(s.x.cols()), [&](std::int64_t b, std::int64_t e) {
+    return (s.x.middleCols(b, e - b).array() * constraint_force_.middleCols(b, e - b).array()).sum();
+  });
 }
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force

@@ -16,8 +16,10 @@
 #include "engine/core/errors.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/run/run.hpp"
+#include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/counting_sort.hpp"
+#include "forcefields/dihedral_terms.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/constraints.hpp"
@@ -295,6 +297,63 @@ TEST(Parallel, ConstraintSolvesAreTheSerialOnes) {
   toolbox.project_force(m.x, twice);
   EXPECT_LE((twice - serial.projected).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_LE(toolbox.max_violation(serial.shaken), 1e-12);
+}
+
+// Angles and dihedrals by owner computes (tuple_partition.hpp): with 2 to 4 threads each particle
+// gets its forces from the tuples in list order, so the forces are the one-thread bits (tuples
+// across owners are evaluated twice, each owner adding to its own particles); the energy and the
+// virial are summed per owner (to rounding). The melt's chains, indices shuffled: most tuples span
+// owners.
+TEST(Parallel, AngleAndDihedralForcesAreTheSerialBits) {
+  const Melt m = melt(true);
+  std::vector<Angle> angles;
+  std::vector<Dihedral> dihedrals;
+  for (std::size_t b = 0; b + 1 < m.bonds.size(); ++b) {  // a row's bonds are consecutive, joined end to start
+    if (m.bonds[b].j != m.bonds[b + 1].i) continue;
+    angles.push_back({m.bonds[b].i, m.bonds[b].j, m.bonds[b + 1].j, 0});
+    if (b + 2 < m.bonds.size() && m.bonds[b + 1].j == m.bonds[b + 2].i)
+      dihedrals.push_back({m.bonds[b].i, m.bonds[b].j, m.bonds[b + 1].j, m.bonds[b + 2].j, 0});
+  }
+  ASSERT_GE(static_cast<std::int64_t>(dihedrals.size()), kParallelMin);
+  const HarmonicAngle bend("bend", Level::slow, angles, {{3.0, 2.0}});
+  const OplsDihedral torsion("torsion", Level::slow, dihedrals, {{{1.0, -0.5, 0.3, 0.1}}});
+  const int restore = max_threads();
+  for (const ForceTerm* term : std::initializer_list<const ForceTerm*>{&bend, &torsion}) {
+    SCOPED_TRACE(term->name());
+    const Forces serial = evaluate(*term, m, 1);
+    const double virial = term->virial(m.x, m.box);
+    ASSERT_GT(serial.f.cwiseAbs().maxCoeff(), 0.0);
+    for (int threads : {2, 3, 4}) {
+      SCOPED_TRACE(testing::Message() << threads << " threads");
+      const Forces a = evaluate(*term, m, threads), b = evaluate(*term, m, threads);
+      EXPECT_EQ(a.f, serial.f);
+      EXPECT_EQ(a.energy, b.energy);
+      EXPECT_NEAR(a.energy, serial.energy, 1e-12 * std::abs(serial.energy));
+      EXPECT_NEAR(term->virial(m.x, m.box), virial, 1e-9 * serial.f.cwiseAbs().maxCoeff());
+    }
+  }
+  set_max_threads(restore);
+}
+
+// The pressure's and the thermo's sums over bonds on the threads: the bond virial summed per block
+// (to rounding, the same bits call to call) and the largest constraint violation (a maximum: the
+// serial value exactly, for any thread count).
+TEST(Parallel, BondVirialAndMaxViolationOnTheThreads) {
+  const Melt m = melt(true);
+  const FeneBond fene("fene", Level::slow, m.bonds, {{30.0, 1.5, 1.0, 1.0}});
+  StiffBonds sb = stiff(m.bonds);
+  const int restore = max_threads();
+  set_max_threads(1);
+  const double virial = fene.virial(m.x, m.box), worst = max_violation(sb.bonds, m.x);
+  ASSERT_GT(worst, 0.0);
+  for (int threads : {2, 3, 4}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    set_max_threads(threads);
+    EXPECT_NEAR(fene.virial(m.x, m.box), virial, 1e-12 * std::abs(virial));
+    EXPECT_EQ(fene.virial(m.x, m.box), fene.virial(m.x, m.box));
+    EXPECT_EQ(max_violation(sb.bonds, m.x), worst);
+  }
+  set_max_threads(restore);
 }
 
 // The neighbour list's sorts (counting_sort.hpp): items in parts, sorted by key then part then
