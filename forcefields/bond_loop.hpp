@@ -20,6 +20,7 @@
 #include "engine/core/parallel.hpp"
 #include "engine/core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
+#include "forcefields/tuple_partition.hpp"
 
 namespace stiffmd {
 
@@ -68,11 +69,7 @@ class BondPartition {
       ++ends[b.i + 1];
       ++ends[b.j + 1];
     }
-    for (int p = 0; p < n; ++p) ends[p + 1] += ends[p];
-    std::vector<int> first(threads + 1, n);  // owner t: particles first[t] … first[t+1] − 1
-    for (int t = 0; t < threads; ++t)
-      first[t] = static_cast<int>(std::lower_bound(ends.begin(), ends.end(), ends[n] * t / threads) - ends.begin());
-    first[0] = 0;
+    const std::vector<int> first = owner_ranges(ends, threads);  // owner t: particles first[t] … first[t+1] − 1
     auto owner = [&](int p) {
       return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
     };

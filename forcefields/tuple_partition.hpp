@@ -15,6 +15,20 @@
 
 namespace stiffmd {
 
+// Owner computes' particle ranges: `ends[p + 1]` counts the bond or tuple ends at particle p (as
+// built by the caller); the counts are summed in place and the particles split into `parts`
+// contiguous ranges of about equal ends. Returns first[0 … parts], part u owning particles
+// first[u] … first[u + 1] − 1 (first[parts] = the particle count).
+inline std::vector<int> owner_ranges(std::vector<std::int64_t>& ends, int parts) {
+  const int n = static_cast<int>(ends.size()) - 1;
+  for (int p = 0; p < n; ++p) ends[p + 1] += ends[p];
+  std::vector<int> first(parts + 1, n);
+  for (int u = 1; u < parts; ++u)
+    first[u] = static_cast<int>(std::lower_bound(ends.begin(), ends.end(), ends[n] * u / parts) - ends.begin());
+  first[0] = 0;
+  return first;
+}
+
 template <int K>
 class TuplePartition {
  public:
@@ -43,11 +57,7 @@ class TuplePartition {
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: tuple ends at particles ≤ p
     for (std::size_t t = 0; t < tuples; ++t)
       for (int p : particles(t)) ++ends[p + 1];
-    for (int p = 0; p < n; ++p) ends[p + 1] += ends[p];
-    std::vector<int> first(parts + 1, n);  // part u: particles first[u] … first[u + 1] − 1
-    for (int u = 1; u < parts; ++u)
-      first[u] = static_cast<int>(std::lower_bound(ends.begin(), ends.end(), ends[n] * u / parts) - ends.begin());
-    first[0] = 0;
+    const std::vector<int> first = owner_ranges(ends, parts);  // part u: particles first[u] … first[u + 1] − 1
     auto owner = [&](int p) {
       return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
     };
