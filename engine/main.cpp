@@ -10,10 +10,10 @@
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
-#include <tuple>
-#include <vector>
 #include <optional>
 #include <sstream>
+#include <tuple>
+#include <vector>
 
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"

@@ -605,9 +605,8 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
     search_half_stencil(n, have_exclusions);
 
   x_at_build_.resize(3, n);  // same size after the first build: Eigen reuses the storage
-  parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) {
-    x_at_build_.middleCols(b, e - b) = x.middleCols(b, e - b);
-  });
+  parallel_blocks(n, threads_for(n),
+                  [&](std::int64_t b, std::int64_t e) { x_at_build_.middleCols(b, e - b) = x.middleCols(b, e - b); });
   box_at_build_ = box;
   built_ = true;
   ++rebuilds_;

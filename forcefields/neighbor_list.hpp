@@ -212,7 +212,7 @@ class NeighborList {
     std::vector<int> k;  // position in the cell order
   };
   std::vector<CandidateScratch> scratch_;
-  CountingSort<int> cell_sort_;           // particles into cells (bin)
+  CountingSort<int> cell_sort_;          // particles into cells (bin)
   CountingSort<std::int64_t> row_sort_;  // pairs into rows (search_half_stencil)
 
   void search_half_stencil(int n, bool have_exclusions);

@@ -4,8 +4,8 @@
 
 #include <toml++/toml.h>
 #include <algorithm>
-#include <charconv>
 #include <cctype>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>

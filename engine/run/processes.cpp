@@ -81,9 +81,15 @@ Processes::Processes(int&, char**&) {
                  "build again)";
 }
 Processes::~Processes() = default;
-int Processes::split(int groups) { return rank_ % groups; }
-std::vector<std::string> Processes::gather(const std::string& text) const { return {text}; }
-int Processes::broadcast(int value) const { return value; }
+int Processes::split(int groups) {
+  return rank_ % groups;
+}
+std::vector<std::string> Processes::gather(const std::string& text) const {
+  return {text};
+}
+int Processes::broadcast(int value) const {
+  return value;
+}
 
 #endif
 

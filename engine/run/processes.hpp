@@ -38,7 +38,7 @@ class Processes {
   int rank_ = 0, size_ = 1;
   bool mpi_ = false;
   std::string problem_;
-  struct Group;                  // the group's communicator (with MPI), freed at the end
+  struct Group;  // the group's communicator (with MPI), freed at the end
   std::unique_ptr<Group> group_;
 };
 

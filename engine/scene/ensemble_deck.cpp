@@ -20,7 +20,8 @@ std::optional<Ensemble> read_ensemble(DeckTable& root) {
   auto t = root.table("ensemble");
   if (!t) return std::nullopt;
   Ensemble e{t->where(), t->value_lists("vary")};
-  if (e.varied.empty()) t->missing("vary", "expected vary = { \"KEY\" = [value, ...], ... }: the members' --set values");
+  if (e.varied.empty())
+    t->missing("vary", "expected vary = { \"KEY\" = [value, ...], ... }: the members' --set values");
   for (const auto& list : e.varied) {
     if (list.values.size() != e.varied.front().values.size())
       throw InputError(list.where + ": ensemble.vary." + list.key + ": expected " +

@@ -164,8 +164,9 @@ void read_levels(DeckTable& root, Scene& sc) {
     // group), so it is a word: no comma, slash, quote or space to break those files.
     r.require(std::all_of(level.name.begin(), level.name.end(),
                           [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'; }),
-              "name", "expected a level name of letters, digits, '_' and '-' (it names the thermo column potential_" +
-                          level.name + "), got \"" + level.name + "\"");
+              "name",
+              "expected a level name of letters, digits, '_' and '-' (it names the thermo column potential_" +
+                  level.name + "), got \"" + level.name + "\"");
     for (const LevelSettings& l : sc.integrator.levels)
       r.require(l.name != level.name, "name", "level \"" + level.name + "\" is given twice");
     if (k == 0) {
