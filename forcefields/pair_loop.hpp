@@ -259,10 +259,10 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   } else {
     const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
-      listed =
-          periodic
-              ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xl, NearestImage(box), f)
-              : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, xl, NearestImage(box), f);
+      listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xl,
+                                                                               NearestImage(box), f)
+                        : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, xl,
+                                                                                NearestImage(box), f);
     });
   }
   // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to

@@ -298,7 +298,7 @@ struct ConstraintToolbox::Impl {
   bool clusters_share_particles = false;   // through a fixed particle
   // One block at any thread count: run_as_one_part must not count it as parallel work.
   bool serial_everywhere() const { return clusters_share_particles || data.size() <= 1; }
-  Eigen::Matrix3Xd kept_x;                 // the kept configuration (x_ref of SHAKE, x of P(x))
+  Eigen::Matrix3Xd kept_x;  // the kept configuration (x_ref of SHAKE, x of P(x))
   bool kept = false;
   BondFrame at_kept;           // G at kept_x, for the clusters with frame_kept
   BondFrame at_cur;            // G at y (or X = α(x))

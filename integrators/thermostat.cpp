@@ -151,7 +151,8 @@ class VelocityRescaled final : public Integrator {
     // needs a tiny K or a very short τ; it keeps the K process exact.
     const double sign = r1 + std::sqrt(c * dof_ * kinetic / ((1.0 - c) * 0.5 * dof_ * kT_)) < 0.0 ? -1.0 : 1.0;
     const double alpha = sign * std::sqrt(a2);
-    parallel_blocks(s.size(), threads_for(s.size()), [&](std::int64_t b, std::int64_t e) { s.v.middleCols(b, e - b) *= alpha; });
+    parallel_blocks(s.size(), threads_for(s.size()),
+                    [&](std::int64_t b, std::int64_t e) { s.v.middleCols(b, e - b) *= alpha; });
   }
   void reset() override { inner_->reset(); }
   std::string_view method() const override { return inner_->method(); }

@@ -389,9 +389,9 @@ TEST(Parallel, CountingSortIsTheStableSortForAnyNumberOfParts) {
     });
     EXPECT_EQ(sorted, expected);
     for (int k = 0; k < keys; ++k)
-      ASSERT_EQ(start[k], std::lower_bound(expected.begin(), expected.end(), k,
-                                           [&](int a, int kk) { return key[a] < kk; }) -
-                              expected.begin());
+      ASSERT_EQ(start[k], std::lower_bound(expected.begin(), expected.end(), k, [&](int a, int kk) {
+                            return key[a] < kk;
+                          }) - expected.begin());
     EXPECT_EQ(start[keys], items);
   }
   set_max_threads(restore);
@@ -447,7 +447,9 @@ void busy_for(std::chrono::steady_clock::duration d) {
   }
 }
 
-double seconds_of(std::chrono::steady_clock::duration d) { return std::chrono::duration<double>(d).count(); }
+double seconds_of(std::chrono::steady_clock::duration d) {
+  return std::chrono::duration<double>(d).count();
+}
 
 TEST(ParallelSeconds, CountsTheOutermostParallelLoopsOnly) {
   using std::chrono::milliseconds;
@@ -488,15 +490,17 @@ TEST(ParallelSeconds, CountsTheOutermostParallelLoopsOnly) {
     parallel_blocks(kParallelMin - 1, threads_for(kParallelMin - 1),
                     [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
     EXPECT_EQ(parallel_seconds(), 0.0);
-    parallel_blocks(kParallelMin, threads_for(kParallelMin), [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
+    parallel_blocks(kParallelMin, threads_for(kParallelMin),
+                    [](std::int64_t, std::int64_t) { busy_for(milliseconds(10)); });
     EXPECT_GE(parallel_seconds(), 0.010);
 
     // A part that throws still closes its interval: the next loop is counted as outermost.
     reset_parallel_seconds();
-    EXPECT_THROW(run_parts(threads, [](int) {
-                   busy_for(milliseconds(5));
-                   throw std::runtime_error("part");
-                 }),
+    EXPECT_THROW(run_parts(threads,
+                           [](int) {
+                             busy_for(milliseconds(5));
+                             throw std::runtime_error("part");
+                           }),
                  std::runtime_error);
     const double after_throw = parallel_seconds();
     EXPECT_GE(after_throw, 0.005);
