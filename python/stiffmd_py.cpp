@@ -31,6 +31,7 @@
 #include "engine/observe/observables.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/run.hpp"
+#include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/methods.hpp"
 
@@ -145,6 +146,13 @@ class Simulation {
   Simulation(std::unique_ptr<Deck> deck, const std::optional<std::string>& output,
              const std::optional<std::string>& restart)
       : deck_(std::move(deck)), scene_(load_scene(*deck_)), units_(scene_.units) {
+    // An [ensemble] deck is many runs (engine/run/ensemble.*): stepping its base deck would look
+    // like a member and be none of them.
+    DeckTable root = deck_->root();
+    if (const auto ensemble = read_ensemble(root))
+      throw py::value_error(ensemble->where + ": an [ensemble] deck is " + std::to_string(ensemble->size()) +
+                            " runs: run it with `stiffmd run`, or step one member here with its overrides in set= (" +
+                            ensemble->label(0) + " for member 0) and the [ensemble] table removed");
     for (const auto& note : scene_.notes) log_ << note << "\n";
     std::optional<Checkpoint> checkpoint;
     if (restart)

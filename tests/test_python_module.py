@@ -496,4 +496,14 @@ def the_run_from_python_is_the_command_lines_with_outputs_checkpoints_and_restar
     except ValueError as e:
         assert "finished" in str(e)
 
+
+@test
+def an_ensemble_deck_is_refused_not_stepped_as_its_base():
+    deck = os.path.join(ROOT, "inputs", "ensemble_seeds.toml")
+    try:
+        stiffmd.Simulation(deck)
+        raise AssertionError("an [ensemble] deck was stepped as one run")
+    except ValueError as e:
+        assert "[ensemble] deck is" in str(e) and "stiffmd run" in str(e), str(e)
+
 finish()
