@@ -121,7 +121,7 @@ void Rattle::step(State& s, double h) {
   // G(x') v' = 0. Without Langevin (and under OBABO, whose drift is RATTLE's) the chord over h
   // and the kick over h/2 share the factor: F_c = M Δv / (h/2).
   toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
-  if (obabo_) {  // friction not uniform on a cluster: the closing O(½h) on the tangent space
+  if (obabo_) {  // the projections as written (tests: set_merged_projection): the closing O(½h) on the tangent space
     langevin_->apply(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
