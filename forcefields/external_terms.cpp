@@ -11,7 +11,10 @@ namespace stiffmd {
 namespace {
 
 // A particle listed twice would feel the field twice: almost surely a deck mistake.
-void check_particle_list(const std::string& what, const std::vector<int>& particles) {
+// An empty list is refused unless allowed: a decomposed run's part may hold none of the
+// particles a term selects (engine/domain/domain_integrator.cpp).
+void check_particle_list(const std::string& what, const std::vector<int>& particles, bool allow_empty) {
+  if (particles.empty() && allow_empty) return;
   if (particles.empty()) throw std::invalid_argument(what + ": the particle list is empty");
   std::vector<int> sorted = particles;
   std::sort(sorted.begin(), sorted.end());
@@ -35,10 +38,10 @@ double lj93(double epsilon, double sigma, double r) {
 }  // namespace
 
 HarmonicTether::HarmonicTether(std::string name, Level level, std::vector<int> particles, Eigen::Vector3d center,
-                               double k)
+                               double k, bool allow_empty)
     : ForceTerm(std::move(name), level), particles_(std::move(particles)), center_(center), k_(k) {
   const std::string what = "harmonic-tether '" + this->name() + "'";
-  check_particle_list(what, particles_);
+  check_particle_list(what, particles_, allow_empty);
   if (!center_.allFinite()) throw std::invalid_argument(what + ": center must be finite");
   if (!(k_ >= 0.0) || !std::isfinite(k_)) {
     std::ostringstream m;
@@ -72,7 +75,7 @@ void HarmonicTether::define(ParameterRecord& record) const {
   record.add("particles", std::span<const int>(particles_));
 }
 
-LJ93Wall::LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles)
+LJ93Wall::LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles, bool allow_empty)
     : ForceTerm(std::move(name), level), p_(params), particles_(std::move(particles)), shift_(0.0) {
   const std::string what = "lj93-wall '" + this->name() + "'";
   std::ostringstream m;
@@ -90,7 +93,7 @@ LJ93Wall::LJ93Wall(std::string name, Level level, LJ93WallParams params, std::ve
   else if (!(p_.cutoff > 0.0) || !std::isfinite(p_.cutoff))
     m << "cutoff must be finite and > 0, got " << p_.cutoff;
   else {
-    check_particle_list(what, particles_);
+    check_particle_list(what, particles_, allow_empty);
     shift_ = lj93(p_.epsilon, p_.sigma, p_.cutoff);
     return;
   }

@@ -29,7 +29,9 @@ class HarmonicTether final : public ForceTerm {
   bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: particles non-empty, each index ≥ 0 and listed once; center finite;
   // k finite and ≥ 0 (energy/length²).
-  HarmonicTether(std::string name, Level level, std::vector<int> particles, Eigen::Vector3d center, double k);
+  // allow_empty: a decomposed run's part, which may hold none of the particles.
+  HarmonicTether(std::string name, Level level, std::vector<int> particles, Eigen::Vector3d center, double k,
+                 bool allow_empty = false);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   std::string_view style() const override { return "harmonic-tether"; }
@@ -56,7 +58,7 @@ class LJ93Wall final : public ForceTerm {
   bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: axis in {0, 1, 2}, side ±1, position finite, epsilon finite and ≥ 0,
   // sigma and cutoff finite and > 0; particles non-empty, each index ≥ 0 and listed once.
-  LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles);
+  LJ93Wall(std::string name, Level level, LJ93WallParams params, std::vector<int> particles, bool allow_empty = false);
 
   // Throws std::invalid_argument if the box is periodic along the wall's axis (a wall there has no
   // meaning), NumericalError if a particle is not strictly on the wall's side.

@@ -69,6 +69,10 @@ class ForceTerm {
   // Whether it defines the constraint manifold g(x) = 0 (stiff bonds: see stiff_bonds()).
   bool is_constraint_defining() const { return stiff_bonds() != nullptr; }
 
+  // The largest pair distance it acts over and its list's skin (pair terms; 0 for the others):
+  // what a decomposed run's ghosts must cover (engine/domain/decomposition.hpp).
+  virtual double pair_cutoff() const { return 0.0; }
+  virtual double pair_skin() const { return 0.0; }
   // Neighbour-list rebuilds so far (pair terms; 0 for the others).
   virtual long neighbor_list_rebuilds() const { return 0; }
 

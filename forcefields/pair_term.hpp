@@ -48,6 +48,8 @@ class PairTerm final : public ForceTerm {
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   bool uses_neighbor_list() const override { return true; }
+  double pair_cutoff() const override { return cutoff_; }
+  double pair_skin() const override { return list_.skin(); }
   double cutoff() const { return cutoff_; }  // the largest over type pairs
   double skin() const { return list_.skin(); }
   const TypePairMatrix<Coeffs>& coeffs() const { return coeffs_; }

@@ -160,9 +160,10 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
   std::unique_ptr<Integrator> integrator = m->make(s, forces, inv_mass);
   if (s.thermostat.style != ThermostatSettings::Style::csvr) return integrator;
   const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
-  return with_velocity_rescaling(
-      std::move(integrator), s.thermostat,
-      degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid));
+  const int dof = s.thermostat.degrees_of_freedom > 0
+                      ? s.thermostat.degrees_of_freedom
+                      : degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid);
+  return with_velocity_rescaling(std::move(integrator), s.thermostat, dof);
 }
 
 }  // namespace stiffmd

@@ -34,6 +34,13 @@ struct IntegratorSettings {
   ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
 };
 
+// An integrator's state between steps, by kind (Integrator::carried_state).
+struct CarriedState {
+  std::vector<double> flags;              // the same on every process
+  std::vector<double> sums;               // sums over particles: each process its share
+  std::vector<Eigen::Matrix3Xd> columns;  // one column per particle
+};
+
 class Integrator {
  public:
   virtual ~Integrator() = default;
@@ -61,7 +68,23 @@ class Integrator {
   // State the integrator carries beyond (x, v) — cached forces, the constraint force, the
   // effective dynamics' actions — for checkpoints: restoring it (and skipping prepare())
   // continues a run bit for bit. Everything a later step or observable reads must be in it.
+  // Constants the method took from the initial state and keeps (the effective dynamics' actions
+  // I_k, one per stiff mode in the modes' order: integrators/modes.hpp): what a run whose
+  // particles are redistributed among processes must hand to the integrator of each part
+  // (docs/parallel.md); the rest of save_state() is recomputed after reset(). Default: none.
+  virtual std::vector<double> invariants() const { return {}; }
+  virtual void set_invariants(const std::vector<double>& w) {
+    if (!w.empty()) throw std::invalid_argument("this integrator keeps no invariants, got some");
+  }
   virtual std::vector<double> save_state() const { return {}; }
+  // save_state() split by what it belongs to, for a run that redistributes its particles among
+  // processes (docs/parallel.md): per-particle columns (the cached kick forces, the constraint
+  // force) move with the particles, sums over particles (a kinetic energy, a virial) are each
+  // process's share, flags are alike everywhere; the invariants are not in it. After
+  // restore_carried_state on an integrator of the particles the columns now belong to (same
+  // method and settings), every later step is the one the carrying integrator would have taken.
+  virtual CarriedState carried_state() const { return {save_state(), {}, {}}; }
+  virtual void restore_carried_state(CarriedState c) { load_state(c.flags); }
   virtual void load_state(const std::vector<double>& s) {
     if (!s.empty()) throw std::invalid_argument("this integrator carries no state, the checkpoint has some");
   }

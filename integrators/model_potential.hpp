@@ -37,6 +37,9 @@ class ModelPotential {
   virtual void attach(ConstraintToolbox&) {}
   // What the potential carries beyond (x, v), for checkpoints.
   virtual std::vector<double> save_state() const { return {}; }
+  // The constants among its state (Integrator::invariants): all of it, for the effective correction.
+  virtual std::vector<double> invariants() const { return save_state(); }
+  virtual void set_invariants(const std::vector<double>& w) { load_state(w); }
   virtual void load_state(const std::vector<double>& s) {
     if (!s.empty()) throw std::invalid_argument("this integrator carries no state, the checkpoint has some");
   }

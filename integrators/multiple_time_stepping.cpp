@@ -34,6 +34,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   // Velocity Verlet with Langevin (BAOAB): its one micro step holds the O step, so it runs plain.
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
+  for (const ForceTerm* t : rest_) rest_reads_ghosts_ |= t->uses_neighbor_list();
   fused_ = fused_available_;
 }
 
@@ -85,6 +86,7 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
     const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kick and drift fused in
     fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
   }
+  if (rest_reads_ghosts_) forces_.refresh_ghosts(s.x);
   for (const ForceTerm* term : rest_) {
     const ScopedPhase phase(term->uses_neighbor_list() ? Phase::pair : Phase::bonded);
     term->add_forces(s.x, forces_.box(), force_[k]);
@@ -157,6 +159,29 @@ std::vector<double> MultipleTimeStepping::save_state() const {
   if (langevin_ || obabo_) w.push_back(o_step_kinetic_);
   w.insert(w.end(), removed_virial_.begin(), removed_virial_.end());
   return w;
+}
+
+// flags: valid per stage, whether an O step measured the kinetic energy; sums: that kinetic
+// energy, the removed virials; columns: the stages' kick forces.
+CarriedState MultipleTimeStepping::carried_state() const {
+  CarriedState c;
+  for (size_t k = 0; k < stages_.size(); ++k) c.flags.push_back(valid_[k] ? 1.0 : 0.0);
+  c.flags.push_back(o_step_kinetic_ >= 0.0 ? 1.0 : 0.0);
+  c.sums.push_back(std::max(o_step_kinetic_, 0.0));
+  c.sums.insert(c.sums.end(), removed_virial_.begin(), removed_virial_.end());
+  c.columns = force_;
+  return c;
+}
+
+void MultipleTimeStepping::restore_carried_state(CarriedState c) {
+  if (c.flags.size() != 1 + stages_.size() || c.sums.size() != 1 + stages_.size() || c.columns.size() != stages_.size())
+    throw std::invalid_argument(method_ + ": carried state of another method");
+  for (size_t k = 0; k < stages_.size(); ++k) {
+    valid_[k] = c.flags[k] != 0.0;
+    force_[k] = std::move(c.columns[k]);
+  }
+  o_step_kinetic_ = c.flags.back() != 0.0 ? c.sums[0] : -1.0;
+  removed_virial_.assign(c.sums.begin() + 1, c.sums.end());
 }
 
 void MultipleTimeStepping::load_state(const std::vector<double>& w) {

@@ -137,6 +137,8 @@ class MultipleTimeStepping final : public Integrator {
   // With O steps (BAOAB or OBABO), one more word: the kinetic energy at the last O step (−1: none
   // yet); then one word per stage, the kick's removed virial (constraint_virial).
   std::vector<double> save_state() const override;
+  CarriedState carried_state() const override;
+  void restore_carried_state(CarriedState c) override;
   void load_state(const std::vector<double>& s) override;
 
  private:
@@ -166,6 +168,7 @@ class MultipleTimeStepping final : public Integrator {
   // The innermost stage's terms after the fused one, in evaluation order: the fused step, then
   // these, sum what compute() sums, in its order (ForceField::evaluation_order).
   std::vector<const ForceTerm*> rest_;
+  bool rest_reads_ghosts_ = false;  // a pair term on the innermost level: a halo per micro step
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
 };

@@ -159,6 +159,30 @@ std::vector<double> Rattle::save_state() const {
   return w;
 }
 
+// flags: valid, whether an O step measured the kinetic energy; sums: that kinetic energy (with
+// Langevin); columns: the cached force and
+// the constraint force (or, under OBABO's merged projection, the kicked velocities it is formed
+// from). The model's actions are invariants, handed over apart.
+CarriedState Rattle::carried_state() const {
+  CarriedState c;
+  c.flags.push_back(valid_ ? 1.0 : 0.0);
+  c.flags.push_back(o_step_kinetic_ >= 0.0 ? 1.0 : 0.0);
+  if (langevin_) c.sums.push_back(std::max(o_step_kinetic_, 0.0));
+  c.columns = {f_, merged_projection_ ? kicked_ : constraint_force_};
+  return c;
+}
+
+void Rattle::restore_carried_state(CarriedState c) {
+  if (c.flags.size() != 2 || c.sums.size() != (langevin_ ? 1u : 0u) || c.columns.size() != 2)
+    throw std::invalid_argument(method_ + ": carried state of another method");
+  valid_ = c.flags[0] != 0.0;
+  model_value_current_ = false;
+  f_ = std::move(c.columns[0]);
+  (merged_projection_ ? kicked_ : constraint_force_) = std::move(c.columns[1]);
+  constraint_force_current_ = !merged_projection_;
+  if (langevin_) o_step_kinetic_ = c.flags[1] != 0.0 ? c.sums[0] : -1.0;
+}
+
 void Rattle::load_state(const std::vector<double>& w) {
   const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3 + (langevin_ ? 1 : 0);
   if (w.size() < own)

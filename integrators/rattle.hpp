@@ -92,7 +92,16 @@ class Rattle final : public Integrator {
   // The model potential's state (actions), the cached force f(x) with its validity and the
   // constraint force of the last step (for the pressure of the first sample after a restart);
   // with Langevin, the kinetic energy at the last O step.
+  std::vector<double> invariants() const override { return model_ ? model_->invariants() : std::vector<double>{}; }
+  void set_invariants(const std::vector<double>& w) override {
+    if (model_)
+      model_->set_invariants(w);
+    else
+      Integrator::set_invariants(w);
+  }
   std::vector<double> save_state() const override;
+  CarriedState carried_state() const override;
+  void restore_carried_state(CarriedState c) override;
   void load_state(const std::vector<double>& s) override;
 
  private:

@@ -3,6 +3,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "engine/core/communicator.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/core/timing.hpp"
 #include "forcefields/force_field.hpp"
@@ -41,6 +42,7 @@ bool momentum_conserved(const ForceField& forces, const Eigen::VectorXd& inv_mas
 LangevinNoise::LangevinNoise(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
     : kT_(settings.temperature),
       seed_(settings.seed),
+      id_(settings.particle_id),
       friction_(settings.friction),
       inv_mass_(inv_mass),
       c_(inv_mass.size()),
@@ -70,7 +72,7 @@ double LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, 
     double kinetic = 0.0;
     for (std::int64_t i = b; i < e; ++i) {
       if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
-      v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, i, table);
+      v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, id_.empty() ? i : id_[i], table);
       if constexpr (kMeasure)
         if (inv_mass_[i] > 0.0) kinetic += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
     }
@@ -82,7 +84,11 @@ template double LangevinNoise::o_step<false>(Eigen::Matrix3Xd&, double, std::int
 template double LangevinNoise::o_step<true>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
 
 LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
-    : kT_(settings.temperature), seed_(settings.seed), friction_(settings.friction), inv_mass_(inv_mass) {
+    : kT_(settings.temperature),
+      seed_(settings.seed),
+      id_(settings.particle_id),
+      friction_(settings.friction),
+      inv_mass_(inv_mass) {
   if (friction_.size() != inv_mass.size())
     throw std::invalid_argument("Langevin force: " + std::to_string(friction_.size()) + " frictions for " +
                                 std::to_string(inv_mass.size()) + " particles");
@@ -101,8 +107,9 @@ void LangevinForce::add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, 
       if (inv_mass_[i] == 0.0) continue;  // fixed
       const double m = 1.0 / inv_mass_[i], g = friction_[i];
       const double amplitude = std::sqrt(24.0 * g * m * kT_ / h);
-      const std::uint64_t w0 = noise_word(key, 2 * static_cast<std::uint64_t>(i));
-      const std::uint64_t w1 = noise_word(key, 2 * static_cast<std::uint64_t>(i) + 1);
+      const auto id = static_cast<std::uint64_t>(id_.empty() ? i : id_[i]);
+      const std::uint64_t w0 = noise_word(key, 2 * id);
+      const std::uint64_t w1 = noise_word(key, 2 * id + 1);
       const Eigen::Vector3d u(centred(w0 >> 32), centred(w0 & 0xffffffffULL), centred(w1 >> 32));
       f.col(i) += -g * m * v.col(i) + amplitude * u;
     }
@@ -135,14 +142,15 @@ double sum_of_squared_normals(std::uint64_t key, int n) {
 class VelocityRescaled final : public Integrator {
  public:
   VelocityRescaled(std::unique_ptr<Integrator> inner, const ThermostatSettings& t, int dof)
-      : inner_(std::move(inner)), kT_(t.temperature), tau_(t.tau), seed_(t.seed), dof_(dof) {
+      : inner_(std::move(inner)), kT_(t.temperature), tau_(t.tau), seed_(t.seed), dof_(dof), processes_(t.processes) {
     if (dof_ < 1) throw std::invalid_argument("velocity rescaling needs at least one degree of freedom");
   }
   void prepare(State& s, std::ostream& log) override { inner_->prepare(s, log); }
   void step(State& s, double h) override {
     inner_->step(s, h);
     const ScopedPhase phase(Phase::thermostat);
-    const double kinetic = kinetic_energy(s.v, s.inv_mass);
+    double kinetic = kinetic_energy(s.v, s.inv_mass);
+    if (processes_) kinetic = processes_->sum(kinetic);  // the whole system's K: one α for all
     if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
     double r1 = 0.0;
@@ -159,7 +167,11 @@ class VelocityRescaled final : public Integrator {
   double model_potential(const Eigen::Matrix3Xd& x) override { return inner_->model_potential(x); }
   double constraint_virial(const State& s) override { return inner_->constraint_virial(s); }
   double kinetic_energy_estimate(const State& s) const override { return inner_->kinetic_energy_estimate(s); }
+  std::vector<double> invariants() const override { return inner_->invariants(); }
+  void set_invariants(const std::vector<double>& w) override { inner_->set_invariants(w); }
   std::vector<double> save_state() const override { return inner_->save_state(); }
+  CarriedState carried_state() const override { return inner_->carried_state(); }
+  void restore_carried_state(CarriedState c) override { inner_->restore_carried_state(std::move(c)); }
   void load_state(const std::vector<double>& s) override { inner_->load_state(s); }
 
  private:
@@ -167,6 +179,7 @@ class VelocityRescaled final : public Integrator {
   double kT_, tau_;
   std::uint64_t seed_;
   int dof_;
+  const Communicator* processes_;
 };
 
 }  // namespace

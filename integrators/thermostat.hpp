@@ -23,6 +23,7 @@
 
 namespace stiffmd {
 
+class Communicator;
 class ForceField;
 class Integrator;
 
@@ -41,6 +42,14 @@ struct ThermostatSettings {
   Eigen::VectorXd friction;
   double tau = 0.0;  // csvr: relaxation time of the kinetic energy
   std::uint64_t seed = 1;
+  // A decomposed run's part of the system (docs/parallel.md): the noise of local particle i is
+  // that of particle particle_id[i] of the whole system (empty: i itself), so a trajectory does
+  // not depend on how the particles are distributed; csvr's kinetic energy is summed over
+  // `processes` (null: this process holds the whole system) and its degrees of freedom are
+  // `degrees_of_freedom` when > 0 (the whole system's), else counted from the particles.
+  std::vector<std::int64_t> particle_id;
+  const Communicator* processes = nullptr;
+  int degrees_of_freedom = 0;
   bool on() const { return style != Style::none; }
 };
 
@@ -132,6 +141,7 @@ class LangevinNoise {
   double o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
   double kT_;
   std::uint64_t seed_;
+  std::vector<std::int64_t> id_;  // ThermostatSettings::particle_id
   Eigen::VectorXd friction_, inv_mass_, c_, sigma_;
   double dt_ = -1.0;
 };
@@ -154,6 +164,7 @@ class LangevinForce {
  private:
   double kT_;
   std::uint64_t seed_;
+  std::vector<std::int64_t> id_;  // ThermostatSettings::particle_id
   Eigen::VectorXd friction_, inv_mass_;
 };
 

@@ -18,4 +18,16 @@ class NumericalError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A stop every rank of a decomposed run takes at the same point (a non-finite state found by the
+// step's reduction, rank 0's [monitor]): each exits with code 3, rank 0 alone saying why
+// (printed_here: false on the ranks whose message is not to be printed).
+class AgreedStop : public NumericalError {
+ public:
+  AgreedStop(const std::string& what, bool printed_here) : NumericalError(what), printed_here_(printed_here) {}
+  bool printed_here() const { return printed_here_; }
+
+ private:
+  bool printed_here_;
+};
+
 }  // namespace stiffmd
