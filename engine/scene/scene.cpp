@@ -221,7 +221,7 @@ void check_levels_used(DeckTable& root, const Scene& sc) {
 // build its neighbour list at a state the run may not start from ([prepare]), and their kernels
 // are finite for every r > 0.
 void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
-  if (term.uses_neighbor_list()) return;
+  if (term.uses_neighbor_list() || sc.local()) return;
   Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
   try {
     term.add_forces(sc.state.x, sc.box, f);
@@ -366,6 +366,24 @@ void read_integrator(DeckTable& root, Scene& sc) {
 // A run is a whole number of macro steps: t_end = n h to a relative 1e-9 (Scene::num_steps rounds
 // to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
 // refused, naming the nearest valid end times.
+// [parallel] grid = [px, py, pz] (each ≥ 1; their product must be the number of ranks, checked
+// when the run starts on them), halo_margin > 0 (a length).
+void read_parallel(DeckTable& root, Scene& sc) {
+  auto t = root.table("parallel");
+  if (!t) return;
+  if (t->has("grid")) {
+    const std::vector<long> g = t->integers("grid");
+    t->require(g.size() == 3 && g[0] >= 1 && g[1] >= 1 && g[2] >= 1, "grid",
+               "expected three domain counts >= 1, one per axis, e.g. [2, 2, 1]");
+    sc.parallel.grid = Eigen::Vector3i(static_cast<int>(g[0]), static_cast<int>(g[1]), static_cast<int>(g[2]));
+  }
+  if (auto m = t->maybe_number("halo_margin")) {
+    t->require(std::isfinite(*m) && *m > 0.0, "halo_margin", "expected a length > 0");
+    sc.parallel.halo_margin = *m;  // lengths are the same in every unit system (σ or Å)
+  }
+  t->finish();
+}
+
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
   if (!t) root.missing("run", "missing required table [run] (t_end)");
@@ -668,6 +686,11 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
 
 }  // namespace
 
+void read_force_terms(const Deck& deck, Scene& part) {
+  DeckTable root = deck.root();
+  read_forces(root, part);
+}
+
 Scene load_scene(const Deck& deck) {
   Scene sc;
   sc.deck_path = deck.path();
@@ -696,6 +719,7 @@ Scene load_scene(const Deck& deck) {
   sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted()});
   apply_defaults(sc.monitor, monitor_scene(root, sc));
   read_output(root, sc);
+  read_parallel(root, sc);
   read_ensemble(root);  // the members' overrides, validated here; run by engine/run/ensemble.*
   root.finish();
   check_integrator(root, sc);

@@ -52,6 +52,12 @@ struct OutputSettings {
   double checkpoint_interval = 0.0;           // a time (0 = only at the end and on a signal)
 };
 
+// [parallel]: what a run on several ranks lets a user choose (docs/parallel.md); ignored on one.
+struct ParallelSettings {
+  Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
+  double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: the pair lists' skin
+};
+
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
 // prepare_state in integrators/prepare.hpp with these settings).
 struct PrepareTable : PrepareSettings {
@@ -79,8 +85,13 @@ struct Scene {
   ObservableSettings observables;
   MonitorSettings monitor;         // [monitor]
   PrepareTable prepare;            // [prepare], applied by prepare_scene
+  ParallelSettings parallel;       // [parallel]
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
+  // A decomposed run's local scene (engine/domain/local_scene.*): the whole system's index of
+  // each particle here. Empty: the scene is the whole system.
+  std::vector<int> global_id;
+  bool local() const { return !global_id.empty(); }
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
   // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
@@ -90,6 +101,11 @@ struct Scene {
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not
 // change the deck's initial state: [prepare] is applied by prepare_scene.
 Scene load_scene(const Deck& deck);
+
+// The deck's [forces] built on `part`, a decomposed run's local scene (its state, box, types
+// and topology set; engine/domain/local_scene.*): the terms as load_scene builds them, without
+// the checks of the initial state that load_scene made on the whole system.
+void read_force_terms(const Deck& deck, Scene& part);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) to the scene's state and
 // says what it did on `log`. Called for `check` and for a fresh run; a restart takes its state
