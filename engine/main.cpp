@@ -102,6 +102,11 @@ int run_ensemble(stiffmd::Processes& processes, const stiffmd::EnsembleJob& job,
 
 }  // namespace
 
+// " (rank r)" for a message of one rank of a decomposed run.
+std::string rank_tag(const stiffmd::Processes& p, bool decomposed) {
+  return decomposed ? " (rank " + std::to_string(p.rank()) + ")" : "";
+}
+
 int main(int argc, char** argv) {
   stiffmd::Processes processes(argc, argv);
   // What every process finds alike (a bad deck, a bad command line) is printed by rank 0 alone.
@@ -141,6 +146,7 @@ int main(int argc, char** argv) {
     return code == 0 ? 0 : kExitBadInput;
   }
 
+  bool decomposed = false;
   try {
     if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
     const stiffmd::Deck deck(deck_path, overrides);
@@ -168,21 +174,23 @@ int main(int argc, char** argv) {
       }
       return run_ensemble(processes, job, {quiet, no_progress});
     }
-    if (processes.size() > 1)
-      throw stiffmd::InputError(deck_path + ": " + std::to_string(processes.size()) +
-                                " processes for one run: domain decomposition within a run is not built yet; run "
-                                "it on one process, or give the deck an [ensemble] of independent runs");
+    // On several processes one run is decomposed (docs/parallel.md): every rank loads and
+    // prepares the whole scene alike, rank 0 alone speaks and writes.
+    decomposed = processes.size() > 1;
+    std::ostringstream quiet_log;
+    std::ostream& log = speaker ? std::cerr : quiet_log;
     stiffmd::Scene scene = stiffmd::load_scene(deck);
     // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
     // printed or written: a damaged or foreign one is one line and exit 2.
     std::optional<stiffmd::Checkpoint> checkpoint;
     if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(scene, restart);
-    for (const auto& note : scene.notes) std::cerr << note << "\n";
+    for (const auto& note : scene.notes) log << note << "\n";
     if (restart.empty())  // a restart's state is the checkpoint's
-      stiffmd::prepare_scene(scene, std::cerr, quiet || !run->parsed() ? nullptr : &std::cerr);
+      stiffmd::prepare_scene(scene, log, quiet || !run->parsed() || !speaker ? nullptr : &std::cerr);
     if (check->parsed()) {
       std::ostringstream start_log;  // the method's preparation notes belong to a run's log
       stiffmd::check_run(scene, start_log);
+      if (!speaker) return 0;
       std::cout << stiffmd::describe(scene) << "deck is valid\n";
       if (!data_path.empty()) {
         stiffmd::write_scene_lammps_data(scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
@@ -191,11 +199,12 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
-    std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
-    const auto summary = stiffmd::run_simulation(
-        scene,
-        {out_dir, !no_progress && !quiet, restart, checkpoint ? &*checkpoint : nullptr, quiet ? nullptr : stdout},
-        std::cerr);
+    if (speaker) std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
+    stiffmd::RunOptions options{speaker ? out_dir : std::string(), speaker && !no_progress && !quiet, restart,
+                                checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
+    if (decomposed) options.processes = &processes.communicator(), options.deck = &deck;
+    const auto summary = stiffmd::run_simulation(scene, options, log);
+    if (!speaker) return summary.stopped_by_signal ? 128 + summary.stopped_by_signal : 0;
     if (summary.stopped_by_signal) {
       std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps
                 << "; outputs flushed, checkpoint " << summary.checkpoint << "; continue with: stiffmd run "
@@ -207,11 +216,18 @@ int main(int argc, char** argv) {
   } catch (const stiffmd::InputError& e) {
     if (speaker) std::cerr << "error: " << e.what() << "\n";
     return kExitBadInput;
+  } catch (const stiffmd::AgreedStop& e) {  // every rank stops here; rank 0 says why
+    if (e.printed_here()) std::cerr << "error: " << e.what() << "\n";
+    return kExitNumerical;
   } catch (const stiffmd::NumericalError& e) {
-    if (speaker) std::cerr << "error: " << e.what() << "\n";
+    // In a decomposed run this rank alone failed: it says so, and the job ends (the others wait
+    // for it in a collective); rank 0's outputs so far are flushed frame by frame.
+    if (speaker || decomposed) std::cerr << "error" << rank_tag(processes, decomposed) << ": " << e.what() << "\n";
+    if (decomposed) processes.abort(kExitNumerical);
     return kExitNumerical;
   } catch (const std::exception& e) {
-    std::cerr << "internal error: " << e.what() << "\n";
+    std::cerr << "internal error" << rank_tag(processes, decomposed) << ": " << e.what() << "\n";
+    if (decomposed) processes.abort(1);
     return 1;
   }
 }

@@ -26,12 +26,85 @@ struct Processes::Group {
   MPI_Comm comm = MPI_COMM_NULL;
 };
 
+namespace {
+
+// The engine's collectives on MPI_COMM_WORLD (engine/core/communicator.hpp).
+class MpiCommunicator final : public Communicator {
+ public:
+  MpiCommunicator() {
+    MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
+    MPI_Comm_size(MPI_COMM_WORLD, &size_);
+    requests_.reserve(2 * static_cast<size_t>(size_));
+  }
+  int rank() const override { return rank_; }
+  int size() const override { return size_; }
+  void sum(double* v, int n) const override { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD); }
+  void max(double* v, int n) const override { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD); }
+  void min(std::int64_t* v, int n) const override {
+    MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_INT64_T, MPI_MIN, MPI_COMM_WORLD);
+  }
+  void broadcast(std::int64_t* v, int n) const override { MPI_Bcast(v, n, MPI_INT64_T, 0, MPI_COMM_WORLD); }
+  void broadcast(double* v, int n) const override { MPI_Bcast(v, n, MPI_DOUBLE, 0, MPI_COMM_WORLD); }
+  void exchange(const std::vector<std::vector<double>>& send, std::vector<std::vector<double>>& recv) const override {
+    std::vector<long long> out(size_), in(size_);
+    for (int r = 0; r < size_; ++r) out[r] = static_cast<long long>(send[r].size());
+    MPI_Alltoall(out.data(), 1, MPI_LONG_LONG, in.data(), 1, MPI_LONG_LONG, MPI_COMM_WORLD);
+    recv.resize(size_);
+    for (int r = 0; r < size_; ++r) recv[r].resize(static_cast<size_t>(in[r]));
+    exchange_known(send, recv);
+  }
+  void exchange_known(const std::vector<std::vector<double>>& send,
+                      std::vector<std::vector<double>>& recv) const override {
+    requests_.clear();
+    constexpr int kTag = 17;
+    for (int r = 0; r < size_; ++r)
+      if (!recv[r].empty()) {
+        requests_.emplace_back();
+        MPI_Irecv(recv[r].data(), static_cast<int>(recv[r].size()), MPI_DOUBLE, r, kTag, MPI_COMM_WORLD,
+                  &requests_.back());
+      }
+    for (int r = 0; r < size_; ++r)
+      if (!send[r].empty()) {
+        requests_.emplace_back();
+        MPI_Isend(send[r].data(), static_cast<int>(send[r].size()), MPI_DOUBLE, r, kTag, MPI_COMM_WORLD,
+                  &requests_.back());
+      }
+    MPI_Waitall(static_cast<int>(requests_.size()), requests_.data(), MPI_STATUSES_IGNORE);
+  }
+  void gather(const std::vector<double>& mine, std::vector<std::vector<double>>& all) const override {
+    const long long n = static_cast<long long>(mine.size());
+    std::vector<long long> counts(size_);
+    MPI_Gather(&n, 1, MPI_LONG_LONG, counts.data(), 1, MPI_LONG_LONG, 0, MPI_COMM_WORLD);
+    std::vector<int> c(size_), offsets(size_);
+    long long total = 0;
+    for (int r = 0; r < size_; ++r)
+      c[r] = static_cast<int>(counts[r]), offsets[r] = static_cast<int>(total), total += counts[r];
+    std::vector<double> flat(rank_ == 0 ? static_cast<size_t>(total) : 0);
+    MPI_Gatherv(mine.data(), static_cast<int>(n), MPI_DOUBLE, flat.data(), c.data(), offsets.data(), MPI_DOUBLE, 0,
+                MPI_COMM_WORLD);
+    all.clear();
+    if (rank_ != 0) return;
+    for (int r = 0; r < size_; ++r) all.emplace_back(flat.begin() + offsets[r], flat.begin() + offsets[r] + c[r]);
+  }
+
+ private:
+  int rank_ = 0, size_ = 1;
+  mutable std::vector<MPI_Request> requests_;
+};
+
+}  // namespace
+
 Processes::Processes(int& argc, char**& argv) {
   if (!started_by_launcher()) return;
   MPI_Init(&argc, &argv);
   mpi_ = true;
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
   MPI_Comm_size(MPI_COMM_WORLD, &size_);
+  communicator_ = std::make_unique<MpiCommunicator>();
+}
+
+void Processes::abort(int code) const {
+  if (mpi_ && size_ > 1) MPI_Abort(MPI_COMM_WORLD, code);
 }
 
 Processes::~Processes() {
@@ -90,6 +163,7 @@ std::vector<std::string> Processes::gather(const std::string& text) const {
 int Processes::broadcast(int value) const {
   return value;
 }
+void Processes::abort(int) const {}
 
 #endif
 

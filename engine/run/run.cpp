@@ -44,6 +44,15 @@ Checkpoint resumed_checkpoint(Scene& sc, const RunOptions& opt) {
   return opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
 }
 
+// The run's integrator: the deck's method, on more than one process wrapped in the decomposition
+// (engine/domain/domain_integrator.hpp).
+std::unique_ptr<Integrator> run_integrator(Scene& sc, const RunOptions& opt) {
+  std::unique_ptr<Integrator> method = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  if (!opt.processes || opt.processes->size() == 1) return method;
+  if (!opt.deck) throw std::invalid_argument("a run on several processes needs its deck");
+  return std::make_unique<DomainIntegrator>(sc, *opt.deck, *opt.processes, std::move(method));
+}
+
 double seconds_now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
@@ -76,6 +85,7 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
     std::ostringstream m;
     m.precision(10);
     m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+    if (const auto* agreed = dynamic_cast<const AgreedStop*>(&e)) throw AgreedStop(m.str(), agreed->printed_here());
     throw NumericalError(m.str());
   }
   s.step = k;
@@ -89,7 +99,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
       options_(opt),
       log_(log),
       resumed_(resumed_checkpoint(sc, opt)),
-      integrator_(make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)),
+      integrator_(run_integrator(sc, opt)),
+      domain_(dynamic_cast<DomainIntegrator*>(integrator_.get())),
       thermo_(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology),
       monitor_(sc.monitor, thermo_, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
                find_method(sc.integrator.method)->effective),
@@ -171,12 +182,13 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   first_step_ = s_.step + 1;
   progress_ = std::make_unique<Progress>(opt.progress, final_step_ - s_.step);
   fingerprint_ = scene_fingerprint(sc);
+  writes_checkpoints_ = agreed(!outputs_->checkpoint_path().empty()) != 0;
 
   observe();
   summary_.initial_energy = thermo_.initial_energy();
   // Periodic checkpoints on their time grid ([output] checkpoint_interval), from the start's time
   // on: the first at or after the first multiple of the interval.
-  if (sc.output.checkpoint_interval > 0.0 && !outputs_->checkpoint_path().empty()) {
+  if (sc.output.checkpoint_interval > 0.0 && writes_checkpoints_) {
     checkpoint_due_.emplace(sc.output.checkpoint_interval);
     checkpoint_due_->served_until(s_.t);
   }
@@ -227,7 +239,7 @@ void Run::after_step() {
   observe();
   signal_at_.at(s_.step);
   if (options_.handle_signals)
-    if (const int sig = stop_requested()) {
+    if (const int sig = static_cast<int>(agreed(stop_requested()))) {
       summary_.stopped_by_signal = sig;
       return;
     }
@@ -239,6 +251,13 @@ const RunSummary& Run::finish() {
   summary_.cpu_seconds = static_cast<double>(std::clock() - cpu_start_) / CLOCKS_PER_SEC;
   summary_.wall_seconds = loop_seconds_;
   summary_.loop_seconds = loop_seconds_;
+  if (domain_) {  // every rank's step loop: the slowest sets the pace, max/mean is the imbalance
+    const Communicator& c = *options_.processes;
+    summary_.rank_loop_seconds_mean = c.sum(loop_seconds_) / c.size();
+    summary_.rank_loop_seconds_max = c.max(loop_seconds_);
+    summary_.wall_seconds = summary_.loop_seconds = summary_.rank_loop_seconds_max;
+    summary_.domains = domain_->report();
+  }
   summary_.threads = max_threads();
   summary_.phase_seconds.clear();
   if (timed_by_phase()) {
@@ -256,6 +275,7 @@ const RunSummary& Run::finish() {
   pending_ = false;
   observe(true);
   const std::vector<double>& row = last_row_;
+  if (!root()) return summary_;  // rank 0 writes the files and the summary
   outputs_->write_final(summary_.outputs);
   outputs_->close();
   summary_.final_energy = row[col_total_];
@@ -281,15 +301,23 @@ const RunSummary& Run::finish() {
 }
 
 const std::vector<double>& Run::sample() {
-  last_row_ = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                             integrator_->kinetic_energy_estimate(s_));
-  stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
-  for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
-  alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
-  last_row_[col_alerts_] = alerts_;
-  if (alerts_ == 0 && monitor_.stops()) {
-    last_good_.state = s_;
-    snapshot(last_good_);
+  // The integrator's sums first (on every rank: a decomposed run reduces them), then rank 0
+  // samples the whole system, gathered for it.
+  const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
+  const double kinetic = integrator_->kinetic_energy_estimate(s_);
+  if (root()) {
+    last_row_ = thermo_.sample(s_, model, virial, kinetic);
+    stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
+    for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
+    alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
+    last_row_[col_alerts_] = alerts_;
+  }
+  if (monitor_.stops() && agreed(alerts_ == 0) != 0) {  // the run as of this sample, kept
+    std::vector<double> words = integrator_->save_state();
+    if (root()) {
+      last_good_.state = s_;
+      snapshot(last_good_, std::move(words));
+    }
   }
   return last_row_;
 }
@@ -297,14 +325,21 @@ const std::vector<double>& Run::sample() {
 // One sample of the observables serves the thermo row and the H5MD frame of the same step.
 void Run::observe(bool final) {
   const ScopedPhase phase(Phase::output);
-  const bool sampled = outputs_->due(s_.t, final);
+  bool sampled = outputs_->due(s_.t, final);
+  if (domain_) {  // rank 0's outputs decide; the others take part in the gather and the sums
+    const std::int64_t due = agreed((sampled ? 1 : 0) | (outputs_->writes_now() ? 2 : 0));
+    sampled = (due & 1) != 0;
+    if (due != 0) domain_->gather(s_);
+  }
   if (sampled) sample();
-  outputs_->write(s_, last_row_);
-  if (outputs_->thermo_sampled() && screen_->due(s_.t, final)) {
+  if (root()) outputs_->write(s_, last_row_);
+  if (root() && outputs_->thermo_sampled() && screen_->due(s_.t, final)) {
     progress_->clear();  // a line of its own, not after the bar (when both are on one terminal)
     screen_->print(outputs_->thermo_row(), s_.step);
   }
-  if (sampled && alerts_ > 0 && monitor_.stops()) {
+  const bool stop = sampled && monitor_.stops() && agreed(alerts_ > 0) != 0;
+  if (stop && !root()) throw AgreedStop("stopped by rank 0's [monitor]", false);
+  if (stop) {
     // The outputs hold the alerting sample; the checkpoint the last state within the thresholds.
     std::ostringstream m;
     m.precision(10);
@@ -318,6 +353,7 @@ void Run::observe(bool final) {
       m << "the last state within the thresholds (step " << last_good_.state.step << ", t = " << last_good_.state.t
         << ") is in " << path;
     }
+    if (domain_) throw AgreedStop(m.str(), true);
     throw NumericalError(m.str());
   }
 }
@@ -334,24 +370,31 @@ void Run::state_changed() {
   thermo_.set_initial_energy(sample_now()[col_total_]);
 }
 
+std::int64_t Run::agreed(std::int64_t rank0_value) const {
+  if (domain_) options_.processes->broadcast(&rank0_value, 1);
+  return rank0_value;
+}
+
 std::vector<std::int64_t> Run::evaluations_now() const {
+  if (domain_) return domain_->evaluations();
   std::vector<std::int64_t> e;
   for (int k = 0; k < sc_.forces->num_levels(); ++k) e.push_back(sc_.forces->evaluations(Level{k}));
   return e;
 }
 
 long Run::rebuilds_now() const {
+  if (domain_) return stats_.neighbor_rebuilds + domain_->neighbor_rebuilds();
   long r = 0;
   for (const auto& term : sc_.forces->terms()) r += term->neighbor_list_rebuilds();
   return stats_.neighbor_rebuilds + r - rebuilds_at_start_;
 }
 
 // Everything but the state that a restart needs (checkpoint.hpp), as of now.
-Checkpoint& Run::snapshot(Checkpoint& c) {
+Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
   c.method = sc_.integrator.method;
   c.h = h_;
   c.scene_fingerprint = fingerprint_;
-  c.integrator_state = integrator_->save_state();
+  c.integrator_state = std::move(integrator_state);
   c.force_term_states.clear();
   for (const auto& term : sc_.forces->terms()) c.force_term_states.push_back(term->save_state());
   c.thermo_state = thermo_.save_state();
@@ -361,10 +404,13 @@ Checkpoint& Run::snapshot(Checkpoint& c) {
 }
 
 void Run::write_checkpoint_now() {
-  const std::string& path = outputs_->checkpoint_path();
-  if (path.empty()) return;
+  if (!writes_checkpoints_) return;
   const ScopedPhase phase(Phase::output);
-  write_checkpoint(path, s_, snapshot(now_));
+  if (domain_) domain_->gather(s_);
+  std::vector<double> words = integrator_->save_state();  // collective in a decomposed run
+  if (!root()) return;
+  const std::string& path = outputs_->checkpoint_path();
+  write_checkpoint(path, s_, snapshot(now_, std::move(words)));
   summary_.checkpoint = path;
 }
 

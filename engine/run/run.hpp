@@ -19,8 +19,10 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/communicator.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/core/timing.hpp"
+#include "engine/domain/domain_integrator.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -51,6 +53,12 @@ struct RunOptions {
   // SIGINT/SIGTERM stop the run cleanly after the step in progress (the CLI); the Python module
   // leaves them to Python.
   bool handle_signals = true;
+  // More than one process: the run is decomposed over them (engine/domain/domain_integrator.hpp,
+  // docs/parallel.md), the deck building each rank's force terms. Rank 0 writes every output
+  // (the others get an empty out_dir, no screen, no progress bar); every rank drives its Run
+  // through the same steps.
+  const Communicator* processes = nullptr;
+  const Deck* deck = nullptr;
 };
 
 class Run {
@@ -89,11 +97,16 @@ class Run {
   void observe(bool final = false);  // the outputs due at this step (`final`: all)
   const std::vector<double>& sample();
   void after_step();  // what follows a step that is not the run's last
-  Checkpoint& snapshot(Checkpoint& c);
+  // The checkpoint's parts as of now, with the integrator's words (Integrator::save_state, which
+  // every rank of a decomposed run computes together).
+  Checkpoint& snapshot(Checkpoint& c, std::vector<double> integrator_state);
   void write_checkpoint_now();
   std::vector<std::int64_t> evaluations_now() const;
   long rebuilds_now() const;
   bool timed_by_phase() const { return s_.size() >= kParallelMin; }
+  bool root() const { return !domain_ || options_.processes->root(); }
+  // A decomposed run: rank 0's decision (an output due, a stop) on every rank.
+  std::int64_t agreed(std::int64_t rank0_value) const;
 
   Scene& sc_;
   State& s_;
@@ -102,6 +115,8 @@ class Run {
   RunSummary summary_;
   Checkpoint resumed_;  // a restart's checkpoint (empty for a fresh run)
   std::unique_ptr<Integrator> integrator_;
+  DomainIntegrator* domain_ = nullptr;  // integrator_ when the run is decomposed
+  bool writes_checkpoints_ = false;     // rank 0 has a checkpoint path (every rank gathers for it)
   Thermo thermo_;
   Monitor monitor_;
   RunStatistics stats_;

@@ -48,6 +48,14 @@ std::string format_summary(const RunSummary& s) {
       o << "             " << line;
     }
   }
+  if (s.domains.ranks > 1) {
+    const DomainReport& d = s.domains;
+    o << "ranks:         " << d.ranks << " (domains " << d.grid[0] << " x " << d.grid[1] << " x " << d.grid[2]
+      << "), step loop max " << s.rank_loop_seconds_max << " s, mean " << s.rank_loop_seconds_mean << " s; "
+      << d.ghosts_per_owned << " ghosts per owned bead, halo " << d.halo_bytes_per_step << " bytes in "
+      << d.halo_messages_per_step << " messages; " << d.redistributions << " redistributions moved "
+      << d.migrated_molecules << " molecules\n";
+  }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
   o << "\n";
@@ -85,6 +93,15 @@ std::string summary_json(const RunSummary& s) {
     o << s.serial_share;
   else
     o << "null";
+  if (s.domains.ranks > 1) {
+    const DomainReport& d = s.domains;
+    o << ",\n  \"ranks\": " << d.ranks << ",\n  \"domains\": {\"grid\": [" << d.grid[0] << ", " << d.grid[1] << ", "
+      << d.grid[2] << "], \"rank_loop_seconds_mean\": " << s.rank_loop_seconds_mean
+      << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max << ", \"ghosts_per_owned\": " << d.ghosts_per_owned
+      << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
+      << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
+      << ", \"migrated_molecules\": " << d.migrated_molecules << "}";
+  }
   o << "\n}\n";
   return o.str();
 }

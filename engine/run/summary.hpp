@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "engine/core/timing.hpp"
+#include "engine/domain/decomposition.hpp"
 
 namespace stiffmd {
 
@@ -41,6 +42,10 @@ struct RunSummary {
   std::vector<double> phase_seconds;
   double serial_share = -1.0;
   int threads = 1;
+  // A decomposed run (ranks > 1): the step loop's wall time per rank (mean and max: the load
+  // imbalance; loop_seconds is the max) and the decomposition's counts.
+  double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
+  DomainReport domains;
   std::string checkpoint;  // the last checkpoint written
 };
 

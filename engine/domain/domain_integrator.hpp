@@ -1,0 +1,88 @@
+// A run on several ranks that own whole molecules (docs/parallel.md), as one Integrator of the
+// whole system: the Run drives it as it drives any method, and it steps this rank's part.
+//
+// The part is a Scene of its own (owned particles, then ghosts with inverse mass 0: nothing
+// moves them and they count in no sum) with the deck's force terms built on it and the deck's
+// method on those: every per-molecule solve (SHAKE/RATTLE, the tridiagonal G M⁻¹ Gᵀ, Fixman's
+// log-det, the effective dynamics' modes) is the one-process code on whole molecules. The only
+// communication inside a step is the halo before a neighbour-list term is evaluated (once per
+// macro step when pairs are slow); after each step one reduction of two numbers (the largest
+// displacement since the ghosts were selected, the first non-finite particle). When a bead may
+// have moved margin/2 by the end of the next step, the molecules are redistributed by their
+// anchors and the ghosts selected again, before that step; the part's integrator is built
+// afresh and takes over what the old one carried for the particles (Integrator::carried_state:
+// cached kick forces move with their particles) and the effective dynamics' actions
+// (Integrator::invariants).
+//
+// Until the first step, and for what the Run asks about the whole system before it (prepare,
+// the first sample), the whole-system integrator answers, the same on every rank.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "engine/core/communicator.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/domain/decomposition.hpp"
+#include "engine/scene/scene.hpp"
+#include "integrators/integrator.hpp"
+
+namespace stiffmd {
+
+class DomainIntegrator final : public Integrator {
+ public:
+  // `whole`: the integrator of the whole system (built on whole.forces), used until the first
+  // step and for checkpoints. The deck builds the part's force terms; both must outlive this.
+  DomainIntegrator(Scene& whole, const Deck& deck, const Communicator& comm, std::unique_ptr<Integrator> whole_method);
+  ~DomainIntegrator() override;
+
+  void prepare(State& s, std::ostream& log) override { whole_->prepare(s, log); }
+  void step(State& s, double h) override;
+  void reset() override;
+  std::string_view method() const override { return whole_->method(); }
+  double model_potential(const Eigen::Matrix3Xd& x) override;
+  double constraint_virial(const State& s) override;
+  double kinetic_energy_estimate(const State& s) const override;
+  std::vector<double> invariants() const override { return whole_->invariants(); }
+  void set_invariants(const std::vector<double>& w) override { whole_->set_invariants(w); }
+  // The whole-system integrator's words (on rank 0; collective): a checkpoint that restarts on any
+  // number of ranks, and on one as the same run.
+  std::vector<double> save_state() const override;
+  void load_state(const std::vector<double>& w) override { whole_->load_state(w); }
+
+  // Rank 0's whole.x, whole.v become the system's current state (collective; nothing before the
+  // first step: the whole state is then current on every rank).
+  void gather(State& whole) const;
+  bool distributed() const { return part_ != nullptr; }
+  // Force evaluations per level and neighbour-list rebuilds of this rank's parts so far.
+  std::vector<std::int64_t> evaluations() const;
+  long neighbor_rebuilds() const;
+  DomainReport report() const;  // collective
+
+ private:
+  struct Part;
+  void start(const State& s);
+  void rebuild();
+  void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
+  std::vector<double> part_invariants() const;
+
+  Scene& whole_scene_;
+  const Deck& deck_;
+  const Communicator& comm_;
+  std::unique_ptr<Integrator> whole_;
+  std::unique_ptr<Decomposition> domains_;
+  std::unique_ptr<Part> part_;
+  bool redistribute_ = false;  // before the next step
+  double last_displacement_ = 0.0;
+  int whole_dof_ = 0;  // csvr: the whole system's degrees of freedom
+  // The effective dynamics' modes: per constraint cluster of the whole system (clusters in the
+  // order of their first bond, integrators/modes.hpp), its molecule, first mode and mode count.
+  struct Cluster {
+    int molecule, first, modes;
+  };
+  std::vector<Cluster> clusters_;
+  std::vector<std::int64_t> evaluations_;  // of the parts before the current one
+  long rebuilds_ = 0;
+};
+
+}  // namespace stiffmd
