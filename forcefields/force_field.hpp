@@ -31,6 +31,11 @@ class ForceField {
 
   void add(std::unique_ptr<ForceTerm> term);
 
+  // Particles first_ghost, … are ghosts for every term (ForceTerm::set_first_ghost).
+  void set_first_ghost(int first_ghost) {
+    for (const auto& term : terms_) term->set_first_ghost(first_ghost);
+  }
+
   // out = Σ forces of the terms on the given levels (out is overwritten, not allocated when
   // already 3×N); returns their energy. Counts one evaluation per level.
   double compute(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out);

@@ -126,6 +126,14 @@ void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair
   built_ = false;
 }
 
+void NeighborList::set_first_ghost(int first_ghost) {
+  if (first_ghost < 0)
+    throw std::invalid_argument("neighbour list: the first ghost must be a particle index >= 0 (got " +
+                                std::to_string(first_ghost) + ")");
+  if (first_ghost != first_ghost_) built_ = false;
+  first_ghost_ = first_ghost;
+}
+
 bool NeighborList::excluded(int i, int j) const {
   // Rows hold a handful of bonded neighbours: a linear scan beats a search.
   for (int k = excl_offsets_[i]; k < excl_offsets_[i + 1]; ++k)
@@ -198,6 +206,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
   const int ny = ncell_[1], nz = ncell_[2];
   const bool have_exclusions = !excl_.empty();
   for (const int i : fast) {
+    const int partner_end = i >= first_ghost_ ? first_ghost_ : kNoGhosts;  // a ghost's partners: owned ones
     // i's cell now, in the build's grid: its position in the build's image frame, wrapped back into
     // the box on periodic axes (it may have left it by up to the skin), clamped on open ones.
     int c[3];
@@ -220,7 +229,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
           const int cell = (gx * ny + gy) * nz + gz;
           for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
             const int j = cell_particles_[k];
-            if (j == i) continue;
+            if (j == i || j >= partner_end) continue;
             double dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
                    dz = xi[2] - (x(2, j) - image_(2, j));
             mi.apply(dx, dy, dz);
@@ -376,6 +385,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
+  const int first_ghost = first_ghost_;
   // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
   // counts: slabs of whole x-planes balanced poorly (23 planes on data.chain: 12 against 11).
   const int columns = nx * ny;
@@ -419,7 +429,8 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     // written for every candidate and kept by advancing the count, without a branch (about one
     // candidate in seven is a neighbour, at random: a branch mispredicted often). Then recorded
     // in the order found, again without a branch: each is written and kept unless it is one of
-    // i's exclusions (a handful of bonded neighbours, read once). At most n candidates per particle.
+    // i's exclusions (a handful of bonded neighbours, read once) or a pair of two ghosts, whose
+    // row min(i, j) is a ghost's. At most n candidates per particle.
     std::vector<int>& hits = hits_[u];
     if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
     int* const hit = hits.data();
@@ -444,6 +455,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         bool keep = true;
         for (const int* e = first; e != last; ++e) keep &= *e != j;
         const int row = std::min(i, j);
+        keep &= row < first_ghost;
         to_i[kept] = row;
         to_j[kept] = std::max(i, j);
         row_count[row] += keep;
@@ -491,11 +503,31 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       const int cell = (gx * ny + gy) * nz + gz;
       gather(cs[cell], cs[cell + 1], sx, sy, sz);
     };
+    // Whether a cell holds an owned particle: its particles are in increasing index, so its
+    // first is its smallest.
+    auto holds_owned = [&](int gx, int gy, int gz) {
+      if (gx < 0 || gy < 0 || gz < 0) return false;  // past an open edge
+      const int cell = (gx * ny + gy) * nz + gz;
+      return cs[cell] < cs[cell + 1] && cp[cs[cell]] < first_ghost;
+    };
+    // Whether the forward neighbours of cell (cx, cy, cz) (the stencil gathered below) hold one.
+    auto forward_cells_hold_owned = [&](int cx, int cy, int cz) {
+      if (holds_owned(cx, cy, adjacent_[2][3 * cz + 2])) return true;
+      for (const auto& col : kColumns)
+        for (int dz = 0; dz < 3; ++dz)
+          if (holds_owned(adjacent_[0][3 * cx + col[0] + 1], adjacent_[1][3 * cy + col[1] + 1],
+                          adjacent_[2][3 * cz + dz]))
+            return true;
+      return false;
+    };
     for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
       const int cx = column / ny, cy = column % ny;
       for (int cz = 0; cz < nz; ++cz) {
         const int c = (cx * ny + cy) * nz + cz;
         if (cs[c] == cs[c + 1]) continue;
+        // A cell of ghosts whose forward neighbours hold only ghosts finds only pairs of two
+        // ghosts: skipped whole (without ghosts, first_ghost = kNoGhosts, never).
+        if (cp[cs[c]] >= first_ghost && !forward_cells_hold_owned(cx, cy, cz)) continue;
         total = 0;
         if (cz + 1 < nz) {  // the cell and the next along z, one range
           gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
@@ -560,6 +592,10 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
   offsets_[0] = 0;
   neighbors_.clear();  // keeps its capacity
   for (int i = 0; i < n; ++i) {
+    if (i >= first_ghost_) {  // its partners j > i are ghosts too: an empty row
+      offsets_[i + 1] = offsets_[i];
+      continue;
+    }
     const int cell = cell_of_[i];
     const int ci[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
     for (int a = 0; a < 3; ++a) {

@@ -14,9 +14,16 @@
 // rebuilds if one such pair is not listed, if a particle moved more than the skin, or when the
 // fast particles are too many for the check to stay cheap (more than 1/256 of all; checking that
 // many takes ≈ 1 % of a build's distance tests).
+//
+// Ghosts (set_first_ghost): under domain decomposition a rank holds its own particles first and
+// then copies of other ranks' particles near its domain, the ghosts, whose forces it ignores. A
+// pair of two ghosts then only costs time, so it is never listed: row i of the half list holds
+// j > i, so the ghost-ghost pairs are exactly the rows of the ghosts, which are left empty; the
+// rows of owned particles are the rows without ghosts, pair for pair and in the same order.
 #pragma once
 
 #include <Eigen/Core>
+#include <climits>
 #include <cmath>
 #include <cstdint>
 #include <span>
@@ -123,6 +130,15 @@ class NeighborList {
   // particles 0 … num_particles − 1. Forces the next update to rebuild.
   void set_exclusions(int num_particles, std::span<const SpecialPair> pairs);
 
+  // Particles first_ghost, first_ghost + 1, … are ghosts (see the top): from the next build on
+  // no pair of two of them is listed, and the fast particles' check ignores such pairs.
+  // first_ghost ≥ the particle count, or kNoGhosts (the default), is the list without ghosts,
+  // bit for bit. A change forces the next update to rebuild. Throws std::invalid_argument for
+  // first_ghost < 0.
+  static constexpr int kNoGhosts = INT_MAX;
+  void set_first_ghost(int first_ghost);
+  int first_ghost() const { return first_ghost_; }
+
   // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count
   // or box, or the test above); returns whether it rebuilt. The decision is a function of x and
   // the positions at the build only (not of the thread count). Throws std::invalid_argument if
@@ -162,13 +178,15 @@ class NeighborList {
   bool excluded(int i, int j) const;
   bool listed(int i, int j) const;  // (i, j) in the list (i ≠ j, either order)
   // The fast particles' check (see the top): whether some fast particle i of `fast` has a partner
-  // j, not excluded and not listed, with |x_i − x_j| < cutoff (minimum image) at x.
+  // j, not excluded, not a ghost as i is, and not listed, with |x_i − x_j| < cutoff (minimum
+  // image) at x.
   bool fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const Box& box, const std::vector<int>& fast) const;
 
   double cutoff_;
   double skin_;
   long rebuilds_ = 0;
   bool built_ = false;
+  int first_ghost_ = kNoGhosts;
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;

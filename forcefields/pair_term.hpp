@@ -45,6 +45,10 @@ class PairTerm final : public ForceTerm {
   std::vector<double> save_state() const override;
   void load_state(std::span<const double> words) override;
 
+  // No pair of two ghosts is listed from the next evaluation on (NeighborList::set_first_ghost).
+  // The scaled special pairs are still all evaluated.
+  void set_first_ghost(int first_ghost) override { list_.set_first_ghost(first_ghost); }
+
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   bool uses_neighbor_list() const override { return true; }
