@@ -31,9 +31,9 @@ class ForceField {
 
   void add(std::unique_ptr<ForceTerm> term);
 
-  // Particles first_ghost, … are ghosts for every term (ForceTerm::set_first_ghost).
-  void set_first_ghost(int first_ghost) {
-    for (const auto& term : terms_) term->set_first_ghost(first_ghost);
+  // ghost[i] = 1: particle i is a ghost, for every term (ForceTerm::set_ghosts).
+  void set_ghosts(const std::vector<char>& ghost) {
+    for (const auto& term : terms_) term->set_ghosts(ghost);
   }
 
   // out = Σ forces of the terms on the given levels (out is overwritten, not allocated when

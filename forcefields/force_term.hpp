@@ -76,12 +76,11 @@ class ForceTerm {
   // Neighbour-list rebuilds so far (pair terms; 0 for the others).
   virtual long neighbor_list_rebuilds() const { return 0; }
 
-  // Particles first_ghost, first_ghost + 1, … are ghosts: copies of another domain's particles,
-  // whose forces the caller ignores, while the forces on the others must stay complete. A term
-  // may then skip what acts on ghosts alone (a pair term: the pairs of two ghosts,
-  // NeighborList::set_first_ghost). first_ghost ≥ the particle count: no ghosts. Default: nothing
-  // to skip.
-  virtual void set_first_ghost(int first_ghost) { (void)first_ghost; }
+  // ghost[i] = 1: particle i is a ghost, a copy of another domain's particle whose force the
+  // caller ignores, while the forces on the others must stay complete. A term may then skip what
+  // acts on ghosts alone (a pair term: the pairs of two ghosts, NeighborList::set_ghosts). Empty:
+  // no ghosts. Default: nothing to skip.
+  virtual void set_ghosts(const std::vector<char>& ghost) { (void)ghost; }
 
   // The deck's style name and a one-line description of the instance (for `stiffmd check`).
   virtual std::string_view style() const = 0;

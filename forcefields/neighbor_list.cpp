@@ -126,12 +126,12 @@ void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair
   built_ = false;
 }
 
-void NeighborList::set_first_ghost(int first_ghost) {
-  if (first_ghost < 0)
-    throw std::invalid_argument("neighbour list: the first ghost must be a particle index >= 0 (got " +
-                                std::to_string(first_ghost) + ")");
-  if (first_ghost != first_ghost_) built_ = false;
-  first_ghost_ = first_ghost;
+void NeighborList::set_ghosts(std::vector<char> ghost) {
+  for (char g : ghost)
+    if (g != 0 && g != 1) throw std::invalid_argument("neighbour list: a ghost flag must be 0 or 1");
+  if (std::find(ghost.begin(), ghost.end(), 1) == ghost.end()) ghost.clear();  // none: the list without ghosts
+  if (ghost != ghost_) built_ = false;
+  ghost_ = std::move(ghost);
 }
 
 bool NeighborList::excluded(int i, int j) const {
@@ -206,7 +206,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
   const int ny = ncell_[1], nz = ncell_[2];
   const bool have_exclusions = !excl_.empty();
   for (const int i : fast) {
-    const int partner_end = i >= first_ghost_ ? first_ghost_ : kNoGhosts;  // a ghost's partners: owned ones
+    const bool i_ghost = !ghost_.empty() && ghost_[i];  // a ghost's partners: owned ones
     // i's cell now, in the build's grid: its position in the build's image frame, wrapped back into
     // the box on periodic axes (it may have left it by up to the skin), clamped on open ones.
     int c[3];
@@ -229,7 +229,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
           const int cell = (gx * ny + gy) * nz + gz;
           for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
             const int j = cell_particles_[k];
-            if (j == i || j >= partner_end) continue;
+            if (j == i || (i_ghost && ghost_[j])) continue;
             double dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
                    dz = xi[2] - (x(2, j) - image_(2, j));
             mi.apply(dx, dy, dz);
@@ -248,8 +248,19 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
   if (x.cols() != image_.cols())
     throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
   wrapped_now_.resize(3, x.cols());  // no allocation once sized
+  // Wrapped now, not with the build's images: a separation then depends only on the two
+  // positions (not on when the list was built), so the forces are the same bits whenever the
+  // list is rebuilt (docs/parallel.md).
+  double lo[3], len[3], inv[3];
+  for (int a = 0; a < 3; ++a) {
+    const bool periodic = box_at_build_.periodic[a] != 0;
+    lo[a] = box_at_build_.origin[a];
+    len[a] = periodic ? box_at_build_.lengths[a] : 0.0;
+    inv[a] = periodic ? 1.0 / box_at_build_.lengths[a] : 0.0;
+  }
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
-    wrapped_now_.middleCols(b, e - b) = x.middleCols(b, e - b) - image_.middleCols(b, e - b);
+    for (std::int64_t i = b; i < e; ++i)
+      for (int a = 0; a < 3; ++a) wrapped_now_(a, i) = x(a, i) - len[a] * std::floor((x(a, i) - lo[a]) * inv[a]);
   });
   return wrapped_now_;
 }
@@ -385,7 +396,19 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
-  const int first_ghost = first_ghost_;
+  const char* const ghost = ghost_.empty() ? nullptr : ghost_.data();
+  // Whether a cell holds a particle that is not a ghost (with ghosts only).
+  if (ghost) {
+    const int cells = nx * ny * nz;
+    cell_owned_.resize(static_cast<std::size_t>(cells));
+    parallel_blocks(cells, threads_for(n), [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t c = b; c < e; ++c) {
+        char owned = 0;
+        for (int k = cs[c]; k < cs[c + 1]; ++k) owned |= !ghost[cp[k]];
+        cell_owned_[c] = owned;
+      }
+    });
+  }
   // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
   // counts: slabs of whole x-planes balanced poorly (23 planes on data.chain: 12 against 11).
   const int columns = nx * ny;
@@ -450,12 +473,13 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         last += excl_offsets_[i + 1];
       }
       std::size_t kept = used;
+      const bool i_ghost = ghost && ghost[i];
       for (int h = 0; h < count; ++h) {
         const int j = cp[hit[h]];
         bool keep = true;
         for (const int* e = first; e != last; ++e) keep &= *e != j;
+        if (i_ghost) keep &= !ghost[j];
         const int row = std::min(i, j);
-        keep &= row < first_ghost;
         to_i[kept] = row;
         to_j[kept] = std::max(i, j);
         row_count[row] += keep;
@@ -503,12 +527,10 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       const int cell = (gx * ny + gy) * nz + gz;
       gather(cs[cell], cs[cell + 1], sx, sy, sz);
     };
-    // Whether a cell holds an owned particle: its particles are in increasing index, so its
-    // first is its smallest.
+    // Whether a cell holds a particle that is not a ghost.
     auto holds_owned = [&](int gx, int gy, int gz) {
       if (gx < 0 || gy < 0 || gz < 0) return false;  // past an open edge
-      const int cell = (gx * ny + gy) * nz + gz;
-      return cs[cell] < cs[cell + 1] && cp[cs[cell]] < first_ghost;
+      return cell_owned_[(gx * ny + gy) * nz + gz] != 0;
     };
     // Whether the forward neighbours of cell (cx, cy, cz) (the stencil gathered below) hold one.
     auto forward_cells_hold_owned = [&](int cx, int cy, int cz) {
@@ -526,8 +548,8 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         const int c = (cx * ny + cy) * nz + cz;
         if (cs[c] == cs[c + 1]) continue;
         // A cell of ghosts whose forward neighbours hold only ghosts finds only pairs of two
-        // ghosts: skipped whole (without ghosts, first_ghost = kNoGhosts, never).
-        if (cp[cs[c]] >= first_ghost && !forward_cells_hold_owned(cx, cy, cz)) continue;
+        // ghosts: skipped whole.
+        if (ghost && !cell_owned_[c] && !forward_cells_hold_owned(cx, cy, cz)) continue;
         total = 0;
         if (cz + 1 < nz) {  // the cell and the next along z, one range
           gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
@@ -574,6 +596,12 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     int* to = neighbors_.data();
     for (std::size_t p = 0; p < pair_count_[u]; ++p) to[cursor.slot(pi[p])] = pj[p];
   });
+  // Each row in increasing j: the pairs of a particle are then summed in an order that depends
+  // only on which particles they are, not on where the cells were at the build (docs/parallel.md:
+  // a decomposed run's forces are the same sums, bit for bit).
+  parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) std::sort(neighbors_.begin() + offsets_[i], neighbors_.begin() + offsets_[i + 1]);
+  });
 }
 
 // Boxes with fewer than 3 cells on a periodic axis (a few cutoffs wide): the neighbour cells
@@ -592,10 +620,7 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
   offsets_[0] = 0;
   neighbors_.clear();  // keeps its capacity
   for (int i = 0; i < n; ++i) {
-    if (i >= first_ghost_) {  // its partners j > i are ghosts too: an empty row
-      offsets_[i + 1] = offsets_[i];
-      continue;
-    }
+    const bool i_ghost = !ghost_.empty() && ghost_[i];
     const int cell = cell_of_[i];
     const int ci[3] = {cell / (ny * nz), (cell / nz) % ny, cell % nz};
     for (int a = 0; a < 3; ++a) {
@@ -616,7 +641,8 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
           for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
             double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
             mi.apply(dx, dy, dz);
-            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])))
+            if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])) &&
+                !(i_ghost && ghost_[cp[k]]))
               neighbors_.push_back(cp[k]);
           }
         }

@@ -15,15 +15,16 @@
 // fast particles are too many for the check to stay cheap (more than 1/256 of all; checking that
 // many takes ≈ 1 % of a build's distance tests).
 //
-// Ghosts (set_first_ghost): under domain decomposition a rank holds its own particles first and
-// then copies of other ranks' particles near its domain, the ghosts, whose forces it ignores. A
-// pair of two ghosts then only costs time, so it is never listed: row i of the half list holds
-// j > i, so the ghost-ghost pairs are exactly the rows of the ghosts, which are left empty; the
-// rows of owned particles are the rows without ghosts, pair for pair and in the same order.
+// Ghosts (set_ghosts): under domain decomposition a rank holds its own particles and copies of
+// other ranks' particles near its domain, the ghosts, whose forces it ignores. A pair of two
+// ghosts then only costs time, so it is never listed; every other pair is, as without ghosts.
+//
+// Each row is sorted (increasing j), and the pair loop reads positions wrapped at the call: a
+// particle's pair forces are then the same sums, bit for bit, whenever and on whichever particle
+// set (with its partners, in the same relative order) the list was built (docs/parallel.md).
 #pragma once
 
 #include <Eigen/Core>
-#include <climits>
 #include <cmath>
 #include <cstdint>
 #include <span>
@@ -130,14 +131,12 @@ class NeighborList {
   // particles 0 … num_particles − 1. Forces the next update to rebuild.
   void set_exclusions(int num_particles, std::span<const SpecialPair> pairs);
 
-  // Particles first_ghost, first_ghost + 1, … are ghosts (see the top): from the next build on
-  // no pair of two of them is listed, and the fast particles' check ignores such pairs.
-  // first_ghost ≥ the particle count, or kNoGhosts (the default), is the list without ghosts,
-  // bit for bit. A change forces the next update to rebuild. Throws std::invalid_argument for
-  // first_ghost < 0.
-  static constexpr int kNoGhosts = INT_MAX;
-  void set_first_ghost(int first_ghost);
-  int first_ghost() const { return first_ghost_; }
+  // ghost[i] = 1: particle i is a ghost (see the top): from the next build on no pair of two
+  // ghosts is listed, and the fast particles' check ignores such pairs. Empty or all 0: no
+  // ghosts (the default), the list without ghosts bit for bit. A change forces the next update
+  // to rebuild. Throws std::invalid_argument for a flag other than 0 or 1.
+  void set_ghosts(std::vector<char> ghost);
+  const std::vector<char>& ghosts() const { return ghost_; }
 
   // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count
   // or box, or the test above); returns whether it rebuilt. The decision is a function of x and
@@ -186,7 +185,8 @@ class NeighborList {
   double skin_;
   long rebuilds_ = 0;
   bool built_ = false;
-  int first_ghost_ = kNoGhosts;
+  std::vector<char> ghost_;       // set_ghosts (empty: none)
+  std::vector<char> cell_owned_;  // the search's scratch: whether a cell holds a non-ghost
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;

@@ -45,9 +45,9 @@ class PairTerm final : public ForceTerm {
   std::vector<double> save_state() const override;
   void load_state(std::span<const double> words) override;
 
-  // No pair of two ghosts is listed from the next evaluation on (NeighborList::set_first_ghost).
+  // No pair of two ghosts is listed from the next evaluation on (NeighborList::set_ghosts).
   // The scaled special pairs are still all evaluated.
-  void set_first_ghost(int first_ghost) override { list_.set_first_ghost(first_ghost); }
+  void set_ghosts(const std::vector<char>& ghost) override { list_.set_ghosts(ghost); }
 
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }

@@ -1,9 +1,11 @@
 #include "integrators/thermostat.hpp"
 
+#include <array>
 #include <stdexcept>
 #include <string>
 
 #include "engine/core/communicator.hpp"
+#include "engine/core/exact_sum.hpp"
 #include "engine/core/parallel.hpp"
 #include "engine/core/timing.hpp"
 #include "forcefields/force_field.hpp"
@@ -149,8 +151,7 @@ class VelocityRescaled final : public Integrator {
   void step(State& s, double h) override {
     inner_->step(s, h);
     const ScopedPhase phase(Phase::thermostat);
-    double kinetic = kinetic_energy(s.v, s.inv_mass);
-    if (processes_) kinetic = processes_->sum(kinetic);  // the whole system's K: one α for all
+    const double kinetic = exact_kinetic_energy(s);  // the whole system's K: one α for all
     if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
     double r1 = 0.0;
@@ -164,6 +165,24 @@ class VelocityRescaled final : public Integrator {
   }
   void reset() override { inner_->reset(); }
   std::string_view method() const override { return inner_->method(); }
+  // ½vᵀMv of the whole system, its terms added exactly (ExactSum): the same bits on any number of
+  // threads and processes, so that α, which scales every velocity, is too.
+  double exact_kinetic_energy(const State& s) const {
+    const int parts = threads_for(s.size());
+    std::array<ExactSum, kMaxParts> part{};
+    run_parts(parts, [&](int u) {
+      for (std::int64_t i = block_begin(s.size(), parts, u); i < block_begin(s.size(), parts, u + 1); ++i)
+        if (s.inv_mass[i] > 0.0) part[u].add(0.5 * s.v.col(i).squaredNorm() / s.inv_mass[i]);
+    });
+    ExactSum total;
+    for (int u = 0; u < parts; ++u) total.add(part[u]);
+    if (processes_) {
+      std::int64_t words[3] = {total.whole, total.high, total.low};
+      processes_->sum(words, 3);
+      total = {words[0], words[1], words[2]};
+    }
+    return total.value();
+  }
   double model_potential(const Eigen::Matrix3Xd& x) override { return inner_->model_potential(x); }
   double constraint_virial(const State& s) override { return inner_->constraint_virial(s); }
   double kinetic_energy_estimate(const State& s) const override { return inner_->kinetic_energy_estimate(s); }

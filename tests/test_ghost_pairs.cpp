@@ -1,8 +1,8 @@
-// Ghost particles (NeighborList::set_first_ghost, ForceTerm::set_first_ghost): particles
-// first_ghost … N − 1 are copies of another domain's particles, whose forces are ignored. No pair
-// of two ghosts is listed; the rows of the owned particles are the full list's, pair for pair and
-// in the same order, so the forces on owned particles are the full system's; and with
-// first_ghost ≥ N nothing changes, bit for bit.
+// Ghost particles (NeighborList::set_ghosts, ForceTerm::set_ghosts): flagged particles are copies
+// of another domain's particles, whose forces are ignored. No pair of two ghosts is listed; every
+// other pair is, in the full list's order, so the forces on owned particles are the full system's;
+// with no flag set nothing changes, bit for bit; and a pair force does not depend on when the
+// list was built.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -31,11 +31,14 @@ struct System {
   Eigen::Matrix3Xd x;
   Box box;
   std::vector<Bond> bonds;
-  int first_ghost = 0;
+  std::vector<char> ghost;  // per particle
   int size() const { return static_cast<int>(x.cols()); }
+  bool is_ghost(int i) const { return ghost[i] != 0; }
 };
 
-System lattice(int m, Eigen::Vector3i periodic, bool scatter, unsigned seed) {
+// With `interleave`, every third index is a ghost instead of the last third (a decomposed run's
+// local arrays hold owned particles and ghosts mixed, in the whole system's order).
+System lattice(int m, Eigen::Vector3i periodic, bool scatter, unsigned seed, bool interleave = false) {
   const double a = 1.2;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> jitter(-0.25, 0.25);
@@ -56,7 +59,8 @@ System lattice(int m, Eigen::Vector3i periodic, bool scatter, unsigned seed) {
     s.bonds.push_back({3 * k, 3 * k + 1, 0});
     s.bonds.push_back({3 * k + 1, 3 * k + 2, 0});
   }
-  s.first_ghost = n - n / 3;
+  s.ghost.resize(n);
+  for (int i = 0; i < n; ++i) s.ghost[i] = interleave ? i % 3 == 1 : i >= n - n / 3;
   return s;
 }
 
@@ -68,6 +72,7 @@ struct Case {
   int m;
   Eigen::Vector3i periodic;
   bool scatter;
+  bool interleave = false;
 };
 // 17³ = 4913 particles (above kParallelMin: the search runs on the threads) in 7 cells per axis;
 // 5³ in a periodic box of 2 cells per axis, which takes the small-box search.
@@ -76,12 +81,14 @@ const Case kCases[] = {
     {"periodic, ghosts scattered", 17, Eigen::Vector3i::Ones(), true},
     {"open along z, ghosts in a slab", 17, Eigen::Vector3i(1, 1, 0), false},
     {"small periodic box", 5, Eigen::Vector3i::Ones(), true},
+    {"periodic, ghosts interleaved in index", 17, Eigen::Vector3i::Ones(), false, true},
+    {"small periodic box, ghosts interleaved", 5, Eigen::Vector3i::Ones(), true, true},
 };
 
-NeighborList make_list(const System& s, int first_ghost = NeighborList::kNoGhosts) {
+NeighborList make_list(const System& s, bool with_ghosts = false) {
   NeighborList list(kCutoff, kSkin);
   list.set_exclusions(s.size(), special_pairs(s.size(), s.bonds, kWeights));
-  if (first_ghost != NeighborList::kNoGhosts) list.set_first_ghost(first_ghost);
+  if (with_ghosts) list.set_ghosts(s.ghost);
   return list;
 }
 
@@ -90,14 +97,14 @@ std::vector<int> row(const NeighborList& list, int i) {
   return {list.neighbors().begin() + off[i], list.neighbors().begin() + off[i + 1]};
 }
 
-// Row by row: `ghosts` is `full` without its pairs of two particles ≥ first_ghost, in full's order.
-void expect_full_rows_less_ghost_pairs(const NeighborList& ghosts, const NeighborList& full, int first_ghost) {
+// Row by row: `ghosts` is `full` without its pairs of two ghosts, in full's order.
+void expect_full_rows_less_ghost_pairs(const NeighborList& ghosts, const NeighborList& full, const System& s) {
   ASSERT_EQ(ghosts.num_particles(), full.num_particles());
   std::size_t ghost_pairs = 0;
   for (int i = 0; i < full.num_particles(); ++i) {
     std::vector<int> expected;
     for (const int j : row(full, i)) {
-      if (i >= first_ghost && j >= first_ghost)
+      if (s.is_ghost(i) && s.is_ghost(j))
         ++ghost_pairs;
       else
         expected.push_back(j);
@@ -122,11 +129,11 @@ TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
     for (const int threads : {1, 2, 3}) {
       SCOPED_TRACE(testing::Message() << c.name << ", " << threads << " thread(s)");
       const ThreadCount scope(threads);
-      const System s = lattice(c.m, c.periodic, c.scatter, 3);
-      NeighborList full = make_list(s), ghosts = make_list(s, s.first_ghost);
+      const System s = lattice(c.m, c.periodic, c.scatter, 3, c.interleave);
+      NeighborList full = make_list(s), ghosts = make_list(s, true);
       full.build(s.x, s.box);
       ghosts.build(s.x, s.box);
-      expect_full_rows_less_ghost_pairs(ghosts, full, s.first_ghost);
+      expect_full_rows_less_ghost_pairs(ghosts, full, s);
     }
 }
 
@@ -149,31 +156,51 @@ Evaluation evaluate(ForceField& ff, const Eigen::Matrix3Xd& x) {
   return e;
 }
 
-// Through ForceField::set_first_ghost (which forwards to the pair term's list). On one thread the
-// owned particles' forces are the same bits: their rows are the full list's, and a ghost's row,
-// now empty, held only ghosts. On more, the pair loop splits the shorter list into other row
-// blocks, so the sums differ by rounding.
+// The owned particles' columns of a 3×N array.
+Eigen::Matrix3Xd owned_columns(const System& s, const Eigen::Matrix3Xd& a) {
+  Eigen::Matrix3Xd out(3, 0);
+  for (int i = 0; i < s.size(); ++i)
+    if (!s.is_ghost(i)) {
+      out.conservativeResize(3, out.cols() + 1);
+      out.col(out.cols() - 1) = a.col(i);
+    }
+  return out;
+}
+Eigen::Matrix3Xd ghost_columns(const System& s, const Eigen::Matrix3Xd& a) {
+  Eigen::Matrix3Xd out(3, 0);
+  for (int i = 0; i < s.size(); ++i)
+    if (s.is_ghost(i)) {
+      out.conservativeResize(3, out.cols() + 1);
+      out.col(out.cols() - 1) = a.col(i);
+    }
+  return out;
+}
+
+// Through ForceField::set_ghosts (which forwards to the pair term's list). On one thread the
+// owned particles' forces are the same bits: their pairs are the full list's, in the same order,
+// and only pairs of two ghosts are gone. On more, the pair loop splits the shorter list into other
+// row blocks, so the sums differ by rounding.
 TEST(GhostPairs, ForcesOnOwnedParticlesAreTheFullSystemsForces) {
   for (const Case& c : kCases)
     for (const int threads : {1, 2}) {
       SCOPED_TRACE(testing::Message() << c.name << ", " << threads << " thread(s)");
       const ThreadCount scope(threads);
-      const System s = lattice(c.m, c.periodic, c.scatter, 5);
+      const System s = lattice(c.m, c.periodic, c.scatter, 5, c.interleave);
       ForceField full(s.box, s.size()), ghosts(s.box, s.size());
       full.add(lj_term(s));
       ghosts.add(lj_term(s));
-      ghosts.set_first_ghost(s.first_ghost);
+      ghosts.set_ghosts(s.ghost);
       const Evaluation a = evaluate(full, s.x), b = evaluate(ghosts, s.x);
-      const int owned = s.first_ghost;
-      const double scale = a.f.leftCols(owned).cwiseAbs().maxCoeff();
+      const Eigen::Matrix3Xd fa = owned_columns(s, a.f), fb = owned_columns(s, b.f);
+      const double scale = fa.cwiseAbs().maxCoeff();
       ASSERT_GT(scale, 0.0);
-      const double worst = (b.f.leftCols(owned) - a.f.leftCols(owned)).cwiseAbs().maxCoeff();
+      const double worst = (fb - fa).cwiseAbs().maxCoeff();
       if (threads == 1)
-        EXPECT_EQ(b.f.leftCols(owned), a.f.leftCols(owned));
+        EXPECT_EQ(fb, fa);
       else
         EXPECT_LE(worst, 1e-12 * scale);
       // The pairs of two ghosts were left out: the ghosts' forces lost them.
-      EXPECT_GT((b.f.rightCols(s.size() - owned) - a.f.rightCols(s.size() - owned)).cwiseAbs().maxCoeff(), 1e-3);
+      EXPECT_GT((ghost_columns(s, b.f) - ghost_columns(s, a.f)).cwiseAbs().maxCoeff(), 1e-3);
     }
 }
 
@@ -196,19 +223,22 @@ TEST(GhostPairs, RebuildAfterMovesBeyondHalfTheSkinListsNoPairOfTwoGhosts) {
   for (const Case& c : kCases) {
     SCOPED_TRACE(c.name);
     const ThreadCount scope(2);
-    const System s = lattice(c.m, c.periodic, c.scatter, 7);
-    NeighborList full = make_list(s), ghosts = make_list(s, s.first_ghost);
+    const System s = lattice(c.m, c.periodic, c.scatter, 7, c.interleave);
+    NeighborList full = make_list(s), ghosts = make_list(s, true);
     ASSERT_TRUE(ghosts.update(s.x, s.box));
     const Eigen::Matrix3Xd y = moved(s.x, 0.6 * kSkin, 8);
     ASSERT_TRUE(ghosts.update(y, s.box));
     EXPECT_EQ(ghosts.rebuilds(), 2);
     full.build(y, s.box);
-    expect_full_rows_less_ghost_pairs(ghosts, full, s.first_ghost);
+    expect_full_rows_less_ghost_pairs(ghosts, full, s);
 
     std::vector<std::vector<int>> excluded(s.size());  // special weight ≠ 1: never listed
     for (const SpecialPair& p : special_pairs(s.size(), s.bonds, kWeights)) excluded[p.i].push_back(p.j);
     int checked = 0;
-    for (int i = 0; i < s.first_ghost; ++i) {
+    int owned = 0;
+    for (int i = 0; i < s.size(); ++i) {
+      if (s.is_ghost(i)) continue;
+      ++owned;
       const std::vector<int> listed = row(ghosts, i);
       for (int j = i + 1; j < s.size(); ++j) {
         if (std::find(excluded[i].begin(), excluded[i].end(), j) != excluded[i].end()) continue;
@@ -217,7 +247,7 @@ TEST(GhostPairs, RebuildAfterMovesBeyondHalfTheSkinListsNoPairOfTwoGhosts) {
         ASSERT_NE(std::find(listed.begin(), listed.end(), j), listed.end()) << "pair (" << i << ", " << j << ")";
       }
     }
-    EXPECT_GT(checked, s.first_ghost);
+    EXPECT_GT(checked, owned);
   }
 }
 
@@ -227,14 +257,15 @@ TEST(GhostPairs, RebuildAfterMovesBeyondHalfTheSkinListsNoPairOfTwoGhosts) {
 // that approach each other from just beyond the list radius, both by 0.6 skin, do make it rebuild.
 TEST(GhostPairs, FastParticlesCheckIgnoresPairsOfTwoGhosts) {
   const System s = lattice(17, Eigen::Vector3i::Ones(), false, 9);
-  NeighborList list = make_list(s, s.first_ghost);
+  NeighborList list = make_list(s, true);
   ASSERT_TRUE(list.update(s.x, s.box));
   const int ghost = s.size() - 100;  // inside the ghost slab: its neighbours are ghosts
   Eigen::Matrix3Xd y = s.x;
   y.col(ghost) += Eigen::Vector3d(0.6 * kSkin, 0.0, 0.0);
   int near_ghosts = 0;
-  for (int j = s.first_ghost; j < s.size(); ++j)
-    near_ghosts += j != ghost && s.box.min_image(y.col(ghost) - y.col(j)).norm() < kCutoff;
+  ASSERT_TRUE(s.is_ghost(ghost));
+  for (int j = 0; j < s.size(); ++j)
+    near_ghosts += s.is_ghost(j) && j != ghost && s.box.min_image(y.col(ghost) - y.col(j)).norm() < kCutoff;
   ASSERT_GT(near_ghosts, 0);
   EXPECT_FALSE(list.update(y, s.box));
   EXPECT_EQ(list.rebuilds(), 1);
@@ -242,8 +273,9 @@ TEST(GhostPairs, FastParticlesCheckIgnoresPairsOfTwoGhosts) {
   // An owned-ghost pair just beyond cutoff + skin, moved 0.6 skin each toward the other.
   int owned = -1, other = -1;
   const double lo = kCutoff + kSkin, hi = kCutoff + 1.15 * kSkin;
-  for (int i = 0; i < s.first_ghost && owned < 0; ++i)
-    for (int j = s.first_ghost; j < s.size(); ++j) {
+  for (int i = 0; i < s.size() && owned < 0; ++i)
+    for (int j = 0; j < s.size() && !s.is_ghost(i); ++j) {
+      if (!s.is_ghost(j)) continue;
       const double r = s.box.min_image(s.x.col(i) - s.x.col(j)).norm();
       if (r > lo && r < hi) {
         owned = i, other = j;
@@ -261,24 +293,24 @@ TEST(GhostPairs, FastParticlesCheckIgnoresPairsOfTwoGhosts) {
   EXPECT_NE(std::find(r.begin(), r.end(), other), r.end());
 }
 
-// first_ghost ≥ N is no ghosts: the same list (rows, order), the same forces, energy and virial
+// No ghost flag set is no ghosts: the same list (rows, order), the same forces, energy and virial
 // bits and the same checkpoint state as a list never told of ghosts.
-TEST(GhostPairs, FirstGhostAtOrPastTheEndChangesNothing) {
+TEST(GhostPairs, NoGhostFlagSetChangesNothing) {
   for (const int threads : {1, 2}) {
     SCOPED_TRACE(testing::Message() << threads << " thread(s)");
     const ThreadCount scope(threads);
     const System s = lattice(17, Eigen::Vector3i::Ones(), true, 11);
     NeighborList plain = make_list(s);
     plain.build(s.x, s.box);
-    for (const int first_ghost : {s.size(), s.size() + 7, NeighborList::kNoGhosts}) {
+    for (const std::vector<char>& flags : {std::vector<char>(s.size(), 0), std::vector<char>{}}) {
       NeighborList list = make_list(s);
-      list.set_first_ghost(first_ghost);
+      list.set_ghosts(flags);
       list.build(s.x, s.box);
       EXPECT_TRUE(std::ranges::equal(list.offsets(), plain.offsets()));
       EXPECT_TRUE(std::ranges::equal(list.neighbors(), plain.neighbors()));
     }
     const auto a = lj_term(s), b = lj_term(s);
-    b->set_first_ghost(s.size());
+    b->set_ghosts(std::vector<char>(s.size(), 0));
     Eigen::Matrix3Xd fa = Eigen::Matrix3Xd::Zero(3, s.size()), fb = fa;
     const Eigen::Matrix3Xd y = moved(s.x, 0.2 * kSkin, 12);
     for (const Eigen::Matrix3Xd* at : {&s.x, &y}) {
@@ -290,28 +322,58 @@ TEST(GhostPairs, FirstGhostAtOrPastTheEndChangesNothing) {
   }
 }
 
-TEST(GhostPairs, ChangingTheFirstGhostRebuildsAndANegativeOneIsRefused) {
+TEST(GhostPairs, ChangingTheGhostsRebuildsAndABadFlagIsRefused) {
   const System s = lattice(5, Eigen::Vector3i::Ones(), false, 13);
   NeighborList list = make_list(s);
   ASSERT_TRUE(list.update(s.x, s.box));
   EXPECT_FALSE(list.update(s.x, s.box));
-  list.set_first_ghost(NeighborList::kNoGhosts);  // unchanged: the list stands
+  list.set_ghosts(std::vector<char>(s.size(), 0));  // no ghosts, as before: the list stands
   EXPECT_FALSE(list.update(s.x, s.box));
-  list.set_first_ghost(s.first_ghost);
-  EXPECT_EQ(list.first_ghost(), s.first_ghost);
+  list.set_ghosts(s.ghost);
+  EXPECT_EQ(list.ghosts(), s.ghost);
   EXPECT_TRUE(list.update(s.x, s.box));
   EXPECT_FALSE(list.update(s.x, s.box));
-  list.set_first_ghost(s.size());
+  list.set_ghosts({});
   EXPECT_TRUE(list.update(s.x, s.box));
-  EXPECT_THROW(list.set_first_ghost(-1), std::invalid_argument);
-  // ForceField forwards it to its pair terms' lists.
+  std::vector<char> bad(s.size(), 0);
+  bad[3] = 2;
+  EXPECT_THROW(list.set_ghosts(bad), std::invalid_argument);
+  // ForceField forwards them to its pair terms' lists.
   ForceField ff(s.box, s.size());
   ff.add(lj_term(s));
-  ff.set_first_ghost(s.first_ghost);
+  ff.set_ghosts(s.ghost);
   Eigen::Matrix3Xd f;
   ff.compute(s.x, ff.all_levels(), f);
   const auto& term = dynamic_cast<const Lj&>(*ff.terms()[0]);
-  EXPECT_EQ(term.neighbor_list().first_ghost(), s.first_ghost);
+  EXPECT_EQ(term.neighbor_list().ghosts(), s.ghost);
+}
+
+// A pair force does not depend on when the list was built (rows sorted, positions wrapped at the
+// call): a list built at x and evaluated at y, particles having crossed periodic faces in between,
+// gives the bits of a list built at y — the property that makes a decomposed run's forces, whose
+// lists are built at other steps, the one-process forces (docs/parallel.md).
+TEST(GhostPairs, ForcesDoNotDependOnWhenTheListWasBuilt) {
+  for (const Case& c : kCases) {
+    SCOPED_TRACE(c.name);
+    const ThreadCount scope(1);
+    System s = lattice(c.m, c.periodic, c.scatter, 15, c.interleave);
+    s.x.array() += 0.5;  // the last plane straddles the faces: moves of 0.45 skin cross them
+    const auto early = lj_term(s), late = lj_term(s);
+    Eigen::Matrix3Xd f_early = Eigen::Matrix3Xd::Zero(3, s.size()), f_late = f_early;
+    early->add_forces(s.x, s.box, f_early);  // built at x
+    const Eigen::Matrix3Xd y = moved(s.x, 0.45 * kSkin, 16);
+    int crossed = 0;
+    for (int i = 0; i < s.size(); ++i)
+      for (int a = 0; a < 3; ++a)
+        crossed += s.box.periodic[a] && std::floor(y(a, i) / s.box.lengths[a]) != std::floor(s.x(a, i) / s.box.lengths[a]);
+    ASSERT_GT(crossed, 0);
+    f_early.setZero();
+    const double e_early = early->add_forces(y, s.box, f_early);
+    ASSERT_EQ(early->rebuilds(), 1);  // the list of x serves y
+    const double e_late = late->add_forces(y, s.box, f_late);
+    EXPECT_EQ(f_early, f_late);
+    EXPECT_EQ(e_early, e_late);
+  }
 }
 
 }  // namespace

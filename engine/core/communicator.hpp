@@ -20,6 +20,7 @@ class Communicator {
 
   // In place, element-wise over the ranks (the same n on every rank).
   virtual void sum(double* values, int n) const = 0;
+  virtual void sum(std::int64_t* values, int n) const = 0;
   virtual void max(double* values, int n) const = 0;
   virtual void min(std::int64_t* values, int n) const = 0;
   // Rank 0's values on every rank.
@@ -52,6 +53,7 @@ class OneProcess final : public Communicator {
   int rank() const override { return 0; }
   int size() const override { return 1; }
   void sum(double*, int) const override {}
+  void sum(std::int64_t*, int) const override {}
   void max(double*, int) const override {}
   void min(std::int64_t*, int) const override {}
   void broadcast(std::int64_t*, int) const override {}

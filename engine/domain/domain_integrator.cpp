@@ -132,7 +132,9 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   read_force_terms(deck_, p);
   Decomposition* domains = domains_.get();
   p.forces->set_halo([domains](const Eigen::Matrix3Xd& a) { domains->halo(const_cast<Eigen::Matrix3Xd&>(a)); });
-  // MERGE p.forces->set_ghosts(...)
+  std::vector<char> ghost(n);
+  for (int i = 0; i < n; ++i) ghost[i] = !d.owned(i);
+  p.forces->set_ghosts(ghost);
   part->integrator = make_integrator(p.integrator, *p.forces, p.state.inv_mass);
   if (std::vector<double> inv = part_invariants(); !inv.empty()) part->integrator->set_invariants(inv);
   part_ = std::move(part);

@@ -1,0 +1,36 @@
+// A sum whose value does not depend on the order of its terms: each non-negative term is
+// rounded once to a multiple of 2⁻⁶⁴ and the multiples are added as integers (exactly, so in
+// any order, over threads and over processes alike). For a global quantity that feeds back into
+// the dynamics (csvr's kinetic energy): a run on N processes then takes the same value as on one,
+// bit for bit (docs/parallel.md).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+
+namespace stiffmd {
+
+struct ExactSum {
+  // t = whole + high·2⁻³² + low·2⁻⁶⁴, each word an integer: up to 2³¹ terms, a total < 2⁶³.
+  std::int64_t whole = 0, high = 0, low = 0;
+
+  // Adds t ≥ 0 (finite), truncated to a multiple of 2⁻⁶⁴ (a relative 1e-19 of a term of order 1).
+  void add(double t) {
+    const double w = std::floor(t);
+    const auto fraction = static_cast<std::uint64_t>(std::ldexp(t - w, 64));  // t − w exact; · 2⁶⁴ exact
+    whole += static_cast<std::int64_t>(w);
+    high += static_cast<std::int64_t>(fraction >> 32);
+    low += static_cast<std::int64_t>(fraction & 0xffffffffULL);
+  }
+  void add(const ExactSum& o) { whole += o.whole, high += o.high, low += o.low; }
+  double value() const {
+    // Carries first, in integers: then one rounding, the same for every order of the terms.
+    std::int64_t l = low, h = high, w = whole;
+    h += l >> 32, l &= 0xffffffffLL;
+    w += h >> 32, h &= 0xffffffffLL;
+    const std::uint64_t fraction = (static_cast<std::uint64_t>(h) << 32) | static_cast<std::uint64_t>(l);
+    return static_cast<double>(w) + std::ldexp(static_cast<double>(fraction), -64);
+  }
+};
+
+}  // namespace stiffmd
