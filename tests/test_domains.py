@@ -89,6 +89,8 @@ class Deviations:
     def __init__(self):
         self.failures = []
         self.largest = (0.0, "nothing")  # the largest |Δ| / scale seen, and of what
+        self.last = 0.0  # |Δ| / scale of the last `close`
+        self.growth = []  # lines: |Δ| / scale frame by frame, to tell round-off grown by chaos from a bug
 
     def fail(self, what):
         self.failures.append(what)
@@ -107,6 +109,7 @@ class Deviations:
         d[np.isnan(d)] = np.inf
         worst = np.unravel_index(np.argmax(d), d.shape)
         rel = d[worst] / scale if scale > 0 else (0.0 if d[worst] == 0 else np.inf)
+        self.last = rel
         if rel > self.largest[0]:
             self.largest = (rel, f"{what} at {where(worst)}")
         if rel > TOL:
@@ -329,6 +332,7 @@ def compare_h5md(dev, ref_path, got_path):
             series = [unwrapped(f, k) if element == "position" else f[P + f"/{element}/value"][k]
                       for f in (ref, got) for k in range(frames)]
             scale = max(float(np.abs(s).max()) for s in series[:frames])
+            by_frame = []
             for k in range(frames):
                 x_ref, ids = by_id(ref, k, series[k])
                 x_got, ids_got = by_id(got, k, series[frames + k])
@@ -336,6 +340,9 @@ def compare_h5md(dev, ref_path, got_path):
                 what = f"H5MD {element} (unwrapped)" if element == "position" else f"H5MD {element}"
                 dev.close(f"{what}, frame {k} (step {steps[k]})", x_ref, x_got, scale,
                           lambda i, ids=ids: f"particle id {ids[i[0]]}, axis {'xyz'[i[1]]}")
+                by_frame.append(f"{dev.last:.1e}")
+            dev.growth.append(f"{element} max |Δ| / scale at steps {', '.join(str(k) for k in steps)}: "
+                              f"{', '.join(by_frame)}")
         observables = {name: ref[f"observables/{name}/value"][()] for name in ref.get("observables", {})}
         got_observables = {name: got[f"observables/{name}/value"][()] for name in observables}
         compare_columns(dev, "H5MD observable", observables, got_observables, position_scale, steps)
@@ -406,6 +413,8 @@ def compare_runs(ref_dir, out_dir, what):
         print(f"FAIL: {what} differs from the serial run ({len(dev.failures)} comparisons over {TOL:g} of "
               "their scale; the largest deviation of each):")
         for line in dev.failures[:40]:
+            print("  " + line)
+        for line in dev.growth:
             print("  " + line)
         sys.exit(1)
     print(f"{what}: positions, velocities, thermo, summary and H5MD layout equal the serial run's to "
