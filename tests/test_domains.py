@@ -1,0 +1,517 @@
+#!/usr/bin/python3
+"""Domain decomposition: a run on N ranks writes the serial run's outputs (run by ctest, label mpi).
+
+    test_domains.py STIFFMD MPIEXEC NUMPROC_FLAG N CASE
+
+CASE is one of
+    kremer_grest              inputs/kremer_grest.toml (32 000 beads, velocity Verlet, Langevin)
+    stiff_melt:METHOD         inputs/stiff_melt_nvt.toml (3 000 beads, eps = 1e-3, Langevin) with
+                              integrator.method = METHOD (every method of integrators/methods.hpp)
+    stiff_melt:METHOD:csvr    the same under the csvr thermostat instead of Langevin
+    straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
+    restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
+                              step 200 into the same folder (N is not used; ctest passes max(A, B))
+
+Each case runs the serial reference, `STIFFMD run DECK -o REF` (no launcher), and
+`MPIEXEC NUMPROC_FLAG N STIFFMD run DECK -o OUT`, both with OMP_NUM_THREADS=1 (another thread count
+sums the pair forces in another order), `-q --no-progress`, and the overrides of `overrides()`: 200
+macro steps (run.t_end = 200 h, h given explicitly), an H5MD file with velocities every 50 steps
+(frames 0, 50, 100, 150, 200), thermo every 10 steps, no XYZ. Open MPI as root and with more ranks
+than cores wants permission: given by its environment variables (OMPI_ALLOW_RUN_AS_ROOT,
+OMPI_MCA_rmaps_base_oversubscribe), which MPICH's launcher ignores where it would reject
+--allow-run-as-root --oversubscribe.
+
+Then the N-rank outputs must be the serial ones to round-off:
+  - trajectory.h5md: the same datasets (paths, shapes, dtypes) and attributes, valid H5MD
+    (tests/h5md_spec.py); steps and the static datasets (id, species, mass, bonds, box) equal;
+    unwrapped positions (position + image·L, so that a bead wrapped across a face by round-off does
+    not count) and velocities of every frame, matched by particle id, within 1e-10 of the serial
+    file's largest |value|; the observables as the thermo columns below;
+  - thermo.csv: the same header and rows (steps), every column within 1e-10 of its scale
+    (`column_scale`);
+  - summary.json: method, steps, force evaluations equal; energies to the same tolerance;
+  - MDAnalysis opens the N-rank H5MD with the N-rank run's topology.data: the serial topology
+    (molecules, masses, bonds), the serial number of frames and the serial positions (float32).
+The straddle deck's claim is checked on the serial run: every plane where 1–4 ranks put a domain
+face (the periodic faces, the mid-planes and the thirds of each axis) is crossed by chains in every
+frame, and chains' anchors (wrapped centres of mass) change domain during the run.
+
+A failure prints every deviation over the tolerance with the largest (frame, particle id and axis;
+column and step) and exits 1. While the engine refuses a run on more than one rank ("not built
+yet"), a case that needs one exits 77 (ctest: skipped).
+"""
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import h5py
+import numpy as np
+from h5md_spec import h5md_problems
+
+ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+TOL = 1e-10
+STEPS = 200
+H5MD = "trajectory.h5md"
+P = "particles/all"
+SKIP = 77
+NOT_BUILT = "domain decomposition within a run is not built yet"
+
+STIFF_MELT = os.path.join(ROOT, "inputs", "stiff_melt_nvt.toml")
+# The stiff melt's step by method at eps = 1e-3 (bond period ≈ 0.004): the rigid limits take the
+# deck's h = 0.02; the impulse family h = 0.005 with 20 micro steps of 2.5e-4 (16 per bond period);
+# velocity Verlet resolves the bonds, h = eps/2.
+MACRO = {"integrator.h": 0.005, "integrator.micro_steps": 20}
+STIFF_MELT_STEPS = {
+    "fixman": {"integrator.h": 0.02},
+    "rattle": {"integrator.h": 0.02},
+    "effective": {"integrator.h": 0.02},
+    "impulse": MACRO,
+    "projected-impulse": MACRO,
+    "mollified-impulse": MACRO,
+    "velocity-verlet": {"integrator.h": 0.0005},
+}
+CSVR = '{ style = "csvr", temperature = 1.0, tau = 0.5, seed = 14 }'
+STRADDLE = os.path.join(ROOT, "inputs", "domain_straddle.toml")
+
+
+class Skip(Exception):
+    pass
+
+
+class Deviations:
+    """The comparisons over tolerance, each with its worst place; `ok` when there are none."""
+
+    def __init__(self):
+        self.failures = []
+        self.largest = (0.0, "nothing")  # the largest |Δ| / scale seen, and of what
+        self.last = 0.0  # |Δ| / scale of the last `close`
+        self.growth = []  # lines: |Δ| / scale frame by frame, to tell round-off grown by chaos from a bug
+
+    def fail(self, what):
+        self.failures.append(what)
+
+    def close(self, what, ref, got, scale, where):
+        """|got - ref| <= TOL * scale everywhere (scale 0: exactly equal); `where(index)` names the
+        place of the largest deviation."""
+        ref, got = np.atleast_1d(np.asarray(ref, dtype=float)), np.atleast_1d(np.asarray(got, dtype=float))
+        if ref.shape != got.shape:
+            self.fail(f"{what}: shape {got.shape}, serial {ref.shape}")
+            return
+        if ref.size == 0:
+            return
+        d = np.abs(got - ref)
+        d[np.isnan(ref) & np.isnan(got)] = 0.0
+        d[np.isnan(d)] = np.inf
+        worst = np.unravel_index(np.argmax(d), d.shape)
+        rel = d[worst] / scale if scale > 0 else (0.0 if d[worst] == 0 else np.inf)
+        self.last = rel
+        if rel > self.largest[0]:
+            self.largest = (rel, f"{what} at {where(worst)}")
+        if rel > TOL:
+            self.fail(f"{what}: max |Δ| = {d[worst]:.3e} = {rel:.3e} × scale {scale:.6g} at {where(worst)} "
+                      f"(serial {ref[worst]!r}, N ranks {got[worst]!r})")
+
+    def equal(self, what, ref, got):
+        if isinstance(ref, np.ndarray) or isinstance(got, np.ndarray):
+            ref, got = np.asarray(ref), np.asarray(got)
+            if ref.shape != got.shape:
+                self.fail(f"{what}: shape {got.shape} on N ranks, serial {ref.shape}")
+            elif not np.array_equal(ref, got):
+                first = tuple(int(i) for i in np.argwhere(ref != got)[0]) if ref.ndim else ()
+                self.fail(f"{what}: first difference at index {first}: {short(got[first])} on N ranks, "
+                          f"serial {short(ref[first])}")
+        elif ref != got:
+            self.fail(f"{what}: {short(got)} on N ranks, serial {short(ref)}")
+
+
+def short(value):
+    s = repr(value)
+    return s if len(s) < 200 else s[:200] + "…"
+
+
+# ---------------------------------------------------------------- running
+
+def environment():
+    return dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+                OMPI_MCA_rmaps_base_oversubscribe="1")
+
+
+def number(x):
+    return f"{x:.15g}"
+
+
+def overrides(h, steps, extra):
+    """--set arguments: `steps` macro steps of h, H5MD with velocities every 50 steps, thermo every
+    10, no XYZ (not compared; the Kremer–Grest melt's would dominate the time)."""
+    sets = dict(extra)
+    sets.update({"integrator.h": number(h), "run.t_end": number(steps * h), "output.xyz": '""',
+                 "output.h5md": f'"{H5MD}"', "output.h5md_interval": number(50 * h),
+                 "output.h5md_velocity": "true", "output.thermo_interval": number(10 * h)})
+    args = []
+    for key, value in sets.items():
+        args += ["--set", f"{key}={value}"]
+    return args
+
+
+def run(cmd, ranks):
+    """Runs cmd (OMP_NUM_THREADS=1, Open MPI's permissions); Skip when more than one rank is
+    refused because the decomposition is not built yet."""
+    print("$ " + " ".join(cmd), flush=True)
+    start = time.monotonic()
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=environment())
+    seconds = time.monotonic() - start
+    if r.returncode == 2 and ranks > 1 and NOT_BUILT in r.stderr:
+        raise Skip(f"{ranks} ranks refused ({NOT_BUILT})")
+    if r.returncode != 0:
+        sys.stderr.write(r.stdout[-3000:] + r.stderr[-3000:])
+        raise SystemExit(f"FAIL: exit {r.returncode} from: {' '.join(cmd)}")
+    print(f"  {seconds:.2f} s", flush=True)
+    return r
+
+
+def launch(mpiexec, numproc_flag, ranks, stiffmd):
+    return [mpiexec, numproc_flag, str(ranks), stiffmd]
+
+
+def case_setup(case):
+    """(deck, h, extra --set) of a non-restart case."""
+    parts = case.split(":")
+    if case == "kremer_grest":
+        data = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"
+        if not os.path.exists(data):
+            raise Skip(f"{data} not installed (Debian package lammps-examples)")
+        return os.path.join(ROOT, "inputs", "kremer_grest.toml"), 0.012, {}
+    if parts[0] == "stiff_melt" and len(parts) in (2, 3) and parts[1] in STIFF_MELT_STEPS:
+        steps = dict(STIFF_MELT_STEPS[parts[1]])
+        h = steps.pop("integrator.h")
+        extra = {"integrator.method": parts[1], **{k: str(v) for k, v in steps.items()}}
+        if len(parts) == 3:
+            if parts[2] != "csvr":
+                raise SystemExit(f"unknown thermostat {parts[2]!r} in {case!r} (csvr; Langevin is the deck's)")
+            extra["thermostat"] = CSVR
+        return STIFF_MELT, h, extra
+    if case == "straddle":
+        return STRADDLE, 0.02, {}
+    raise SystemExit(f"unknown case {case!r}: kremer_grest, stiff_melt:METHOD[:csvr] (METHOD one of "
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, restart:A:B")
+
+
+# ---------------------------------------------------------------- comparing
+
+def read_thermo(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    header, values = rows[0], np.array([[float(v) for v in r] for r in rows[1:]])
+    return header, {name: values[:, k] for k, name in enumerate(header)}
+
+
+def column_scale(name, columns, position_scale):
+    """The scale a thermo column's round-off is measured against; None: must be equal exactly.
+
+    time, step and the alert count are exact. Most columns (energies, temperature, pressure, Rg,
+    end-to-end, actions) are sums over particles or molecules: their round-off is relative to their
+    size, so the scale is the column's largest |value| over the serial run (for the pressure the
+    kinetic and virial parts partly cancel, but both are of the pressure's size in these decks).
+    Two columns are differences of larger numbers and carry those numbers' round-off:
+    energy_drift = E(t) − E(0), scaled by the total energy; max_violation = max | |x_i − x_j| − ℓ |,
+    round-off of coordinates (for the rigid methods its value is all round-off, ~1e-12), scaled by
+    the positions' scale."""
+    base = name[:-len("_per_atom")] if name.endswith("_per_atom") else name
+    if base in ("time", "step", "alerts"):
+        return None
+    if base == "energy_drift":
+        return float(np.abs(columns[name.replace("energy_drift", "total")]).max())
+    if base == "max_violation":
+        return position_scale
+    return float(np.abs(columns[name]).max())
+
+
+def compare_columns(dev, what, ref, got, position_scale, steps):
+    for name, values in ref.items():
+        scale = column_scale(name, ref, position_scale)
+        if scale is None:
+            dev.equal(f"{what} {name}", values, got[name])
+        else:
+            dev.close(f"{what} {name}", values, got[name], scale, lambda i, n=name: f"step {int(steps[i[0]])}")
+
+
+def compare_thermo(dev, ref_dir, out_dir, position_scale):
+    ref_header, ref = read_thermo(os.path.join(ref_dir, "thermo.csv"))
+    header, got = read_thermo(os.path.join(out_dir, "thermo.csv"))
+    if header != ref_header:
+        dev.fail(f"thermo.csv header {header}, serial {ref_header}")
+        return
+    if not np.array_equal(ref["step"], got["step"]):
+        dev.fail(f"thermo.csv rows at steps {got['step'].astype(int).tolist()}, serial {ref['step'].astype(int).tolist()}")
+        return
+    compare_columns(dev, "thermo.csv", ref, got, position_scale, ref["step"])
+
+
+def objects(f):
+    """Every object of the file by every path that names it (hard links included, unlike visititems)."""
+    out = {}
+
+    def walk(group, prefix):
+        for name in group:
+            link = group.get(name, getlink=True)
+            if not isinstance(link, h5py.HardLink):
+                continue
+            obj = group[name]
+            path = prefix + "/" + name
+            out[path] = obj
+            if isinstance(obj, h5py.Group):
+                walk(obj, path)
+    out["/"] = f
+    walk(f, "")
+    return out
+
+
+def attribute(f, value):
+    return f[value].name if isinstance(value, h5py.Reference) else value
+
+
+def unwrapped(f, frame):
+    x = f[P + "/position/value"][frame]
+    if P + "/image" in f:
+        x = x + f[P + "/image/value"][frame] * np.diag(f[P + "/box/edges/value"][frame])
+    return x
+
+
+def particle_ids(f, frame):
+    ids = f[P + "/id"]
+    return ids["value"][frame] if isinstance(ids, h5py.Group) else ids[()]
+
+
+def by_id(f, frame, values):
+    """values (per particle, in file order) ordered by particle id, and the sorted ids."""
+    ids = particle_ids(f, frame)
+    order = np.argsort(ids, kind="stable")
+    return values[order], ids[order]
+
+
+def compare_h5md(dev, ref_path, got_path):
+    """The N-rank file against the serial one; returns the positions' scale (for max_violation)."""
+    with h5py.File(ref_path, "r") as ref, h5py.File(got_path, "r") as got:
+        for problem in h5md_problems(got):
+            dev.fail(f"{got_path}: {problem}")
+        frames = ref[P + "/position/value"].shape[0]
+        position_scale = max(float(np.abs(unwrapped(ref, k)).max()) for k in range(frames))
+        a, b = objects(ref), objects(got)
+        if set(a) != set(b):
+            dev.fail(f"H5MD objects: missing {sorted(set(a) - set(b))}, extra {sorted(set(b) - set(a))}")
+        for path in sorted(set(a) & set(b)):
+            oa, ob = a[path], b[path]
+            dev.equal(f"H5MD {path}: attributes", sorted(oa.attrs), sorted(ob.attrs))
+            for key in set(oa.attrs) & set(ob.attrs):
+                dev.equal(f"H5MD {path}@{key}", np.asarray(attribute(ref, oa.attrs[key])),
+                          np.asarray(attribute(got, ob.attrs[key])))
+            if isinstance(oa, h5py.Dataset) and isinstance(ob, h5py.Dataset):
+                dev.equal(f"H5MD {path}: shape", oa.shape, ob.shape)
+                dev.equal(f"H5MD {path}: dtype", oa.dtype, ob.dtype)
+        if dev.failures:  # the values of a file of another layout are not compared
+            return position_scale
+        steps = ref[P + "/position/step"][()]
+        time_dependent = {p for p in a if p.endswith(("/step", "/time", "/value"))}
+        # Static datasets (id, species, mass, box offset, bonds, VMD's structure): the same.
+        for path in sorted(p for p in a if isinstance(a[p], h5py.Dataset) and p not in time_dependent):
+            dev.equal(f"H5MD {path}", a[path][()], b[path][()])
+        for path in sorted(p for p in time_dependent if p.endswith("/step")):
+            dev.equal(f"H5MD {path}", a[path][()], b[path][()])
+        dev.close("H5MD time", ref[P + "/position/time"][()], got[P + "/position/time"][()],
+                  float(np.abs(ref[P + "/position/time"][()]).max()), lambda i: f"frame {i[0]}")
+        if P + "/box/edges" in ref:
+            dev.equal("H5MD box edges", ref[P + "/box/edges/value"][()], got[P + "/box/edges/value"][()])
+        for element in ("position", "velocity", "force"):
+            if P + "/" + element not in ref:
+                continue
+            series = [unwrapped(f, k) if element == "position" else f[P + f"/{element}/value"][k]
+                      for f in (ref, got) for k in range(frames)]
+            scale = max(float(np.abs(s).max()) for s in series[:frames])
+            by_frame = []
+            for k in range(frames):
+                x_ref, ids = by_id(ref, k, series[k])
+                x_got, ids_got = by_id(got, k, series[frames + k])
+                dev.equal(f"H5MD particle ids (frame {k})", ids, ids_got)
+                what = f"H5MD {element} (unwrapped)" if element == "position" else f"H5MD {element}"
+                dev.close(f"{what}, frame {k} (step {steps[k]})", x_ref, x_got, scale,
+                          lambda i, ids=ids: f"particle id {ids[i[0]]}, axis {'xyz'[i[1]]}")
+                by_frame.append(f"{dev.last:.1e}")
+            dev.growth.append(f"{element} max |Δ| / scale at steps {', '.join(str(k) for k in steps)}: "
+                              f"{', '.join(by_frame)}")
+        observables = {name: ref[f"observables/{name}/value"][()] for name in ref.get("observables", {})}
+        got_observables = {name: got[f"observables/{name}/value"][()] for name in observables}
+        compare_columns(dev, "H5MD observable", observables, got_observables, position_scale, steps)
+        return position_scale
+
+
+def compare_summary(dev, ref_dir, out_dir, position_scale):
+    """summary.json: what the run did equal, its energies to round-off (its times and the neighbour
+    list's rebuild count, which depends on how the ranks share the skin test, are not compared)."""
+    with open(os.path.join(ref_dir, "summary.json")) as f:
+        ref = json.load(f)
+    with open(os.path.join(out_dir, "summary.json")) as f:
+        got = json.load(f)
+    for key in ("method", "units", "h", "micro_steps", "epsilon", "steps", "t_end", "slow_evaluations",
+                "fast_evaluations", "level_evaluations"):
+        dev.equal(f"summary.json {key}", ref.get(key), got.get(key))
+    energy = max(abs(ref["initial_energy"]), abs(ref["final_energy"]))
+    for key in ("initial_energy", "final_energy", "max_energy_error"):
+        dev.close(f"summary.json {key}", ref[key], got[key], energy, lambda i: "")
+    dev.close("summary.json final_max_violation", ref["final_max_violation"], got["final_max_violation"],
+              position_scale, lambda i: "")
+    dev.close("summary.json actions", ref["initial_actions"] + ref["final_actions"],
+              got["initial_actions"] + got["final_actions"],
+              max([abs(v) for v in ref["initial_actions"] + ref["final_actions"]] + [0.0]), lambda i: f"action {i}")
+
+
+def universe(directory):
+    import MDAnalysis as mda
+    return mda.Universe(os.path.join(directory, "topology.data"), os.path.join(directory, H5MD),
+                        topology_format="DATA", atom_style="id resid type x y z", format="H5MD",
+                        convert_units=False)
+
+
+def compare_mdanalysis(dev, ref_dir, out_dir):
+    """MDAnalysis reads the N-rank H5MD with the N-rank topology.data as it reads the serial run:
+    the serial topology, frame count and positions (float32, wrapped: compared modulo the box)."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        serial, mine = universe(ref_dir), universe(out_dir)
+    dev.equal("MDAnalysis molecules (resids)", serial.atoms.resids, mine.atoms.resids)
+    dev.equal("MDAnalysis masses", serial.atoms.masses, mine.atoms.masses)
+    dev.equal("MDAnalysis bonds", serial.bonds.indices, mine.bonds.indices)
+    dev.equal("MDAnalysis frames", len(serial.trajectory), len(mine.trajectory))
+    with h5py.File(os.path.join(ref_dir, H5MD), "r") as f:
+        stored = f[P + "/position/value"][()]
+    for ts in mine.trajectory[:len(stored)]:
+        k = ts.frame
+        lengths = ts.dimensions[:3] if ts.dimensions is not None else None
+        d = ts.positions.astype(float) - stored[k]
+        if lengths is not None:
+            d -= lengths * np.round(d / lengths)  # a bead wrapped to the other face by round-off
+        scale = max(1.0, float(np.abs(stored[k]).max()))
+        worst = np.unravel_index(np.argmax(np.abs(d)), d.shape)
+        if abs(d[worst]) > 1e-6 * scale:  # float32: 6e-8 relative
+            dev.fail(f"MDAnalysis positions, frame {k}: |Δ| = {abs(d[worst]):.3e} at atom index {worst[0]} axis {'xyz'[worst[1]]}")
+    serial.trajectory.close()
+    mine.trajectory.close()
+
+
+def compare_runs(ref_dir, out_dir, what):
+    dev = Deviations()
+    position_scale = compare_h5md(dev, os.path.join(ref_dir, H5MD), os.path.join(out_dir, H5MD))
+    compare_thermo(dev, ref_dir, out_dir, position_scale)
+    compare_summary(dev, ref_dir, out_dir, position_scale)
+    compare_mdanalysis(dev, ref_dir, out_dir)
+    if dev.failures:
+        print(f"FAIL: {what} differs from the serial run ({len(dev.failures)} comparisons over {TOL:g} of "
+              "their scale; the largest deviation of each):")
+        for line in dev.failures[:40]:
+            print("  " + line)
+        for line in dev.growth:
+            print("  " + line)
+        sys.exit(1)
+    print(f"{what}: positions, velocities, thermo, summary and H5MD layout equal the serial run's to "
+          f"{TOL:g} (largest |Δ| / scale {dev.largest[0]:.2e}: {dev.largest[1]}); MDAnalysis reads the same frames")
+
+
+# ---------------------------------------------------------------- the straddle deck's geometry
+
+def check_straddle_geometry(ref_dir):
+    """Every plane where 1–4 ranks put a domain face — the periodic face (0), the mid-plane (1/2)
+    and the thirds (1/3, 2/3) of each axis — is crossed by chains in every frame of the serial run,
+    and chains' anchors (wrapped centres of mass) cross one such plane during the run (migrate)."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        u = universe(ref_dir)
+    molecules = u.atoms.resids
+    u.trajectory.close()
+    fractions = (0.0, 1 / 3, 1 / 2, 2 / 3)
+    with h5py.File(os.path.join(ref_dir, H5MD), "r") as f:
+        origin = f[P + "/box/offset"][()]
+        frames = f[P + "/position/value"].shape[0]
+        anchors, least = [], None
+        for k in range(frames):
+            lengths = np.diag(f[P + "/box/edges/value"][k])
+            x = unwrapped(f, k)
+            spans = np.array([[x[molecules == m].min(axis=0), x[molecules == m].max(axis=0)] for m in np.unique(molecules)])
+            anchors.append((np.array([x[molecules == m].mean(axis=0) for m in np.unique(molecules)]) - origin) % lengths / lengths)
+            for a in range(3):
+                for frac in fractions:
+                    plane = origin[a] + frac * lengths[a]
+                    # an image of the plane, plane + j L, within [lo, hi]
+                    crossing = int(np.sum(np.floor((spans[:, 1, a] - plane) / lengths[a]) >=
+                                          np.ceil((spans[:, 0, a] - plane) / lengths[a])))
+                    least = crossing if least is None else min(least, crossing)
+                    assert crossing > 0, f"frame {k}: no chain crosses the plane {'xyz'[a]} = {frac:.3f} L"
+    migrations = sum(int(np.sum(np.floor(anchors[k] * n) != np.floor(anchors[k + 1] * n)))
+                     for n in (2, 3) for k in range(frames - 1))
+    assert migrations > 0, "no chain's anchor crosses a mid-plane or a third of an axis between frames"
+    print(f"straddle deck: every face, mid-plane and third of each axis crossed by at least {least} chains "
+          f"in each of {frames} frames; {migrations} anchor crossings of those planes between frames")
+
+
+# ---------------------------------------------------------------- cases
+
+def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
+    deck, h, extra = case_setup(case)
+    args = ["run", deck, "-q", "--no-progress"] + overrides(h, STEPS, extra)
+    ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{n}")
+    # The N-rank run first: while N > 1 is refused, a skipped case costs only the launcher's start.
+    run(launch(mpiexec, numproc_flag, n, stiffmd) + args[:2] + ["-o", out] + args[2:], n)
+    run([stiffmd] + args[:2] + ["-o", ref] + args[2:], 1)
+    if case == "straddle":
+        check_straddle_geometry(ref)
+    compare_runs(ref, out, f"{case} on {n} ranks")
+
+
+def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
+    """100 steps on `first` ranks, continued from its checkpoint on `second` ranks to step 200 into
+    the same folder: the files of the uninterrupted serial run."""
+    h = 0.02
+    ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{first}_then_{second}")
+    base = ["run", STRADDLE, "-q", "--no-progress"]
+    run(launch(mpiexec, numproc_flag, first, stiffmd) + base[:2] + ["-o", out] + base[2:] +
+        overrides(h, STEPS // 2, {}), first)
+    r = run(launch(mpiexec, numproc_flag, second, stiffmd) + base[:2] + ["-o", out, "--restart",
+            os.path.join(out, "checkpoint.bin")] + base[2:] + overrides(h, STEPS, {}), second)
+    # A fresh run to step 200 would also give the serial files: the second run must have continued.
+    if f"at step {STEPS // 2} " not in r.stderr:
+        raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {STEPS // 2}:\n{r.stderr}")
+    run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, STEPS, {}), 1)
+    compare_runs(ref, out, f"straddle on {first} ranks, restarted on {second}")
+
+
+def main(argv):
+    if len(argv) != 6:
+        raise SystemExit(__doc__)
+    stiffmd, mpiexec, numproc_flag, n, case = argv[1], argv[2], argv[3], int(argv[4]), argv[5]
+    tmp = tempfile.mkdtemp(prefix="stiffmd_domains_")
+    start = time.monotonic()
+    try:
+        if case.startswith("restart:"):
+            first, second = (int(r) for r in case.split(":")[1:])
+            restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
+        else:
+            plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp)
+    except Skip as e:
+        print(f"SKIP: {case}: {e}")
+        shutil.rmtree(tmp)
+        return SKIP
+    except BaseException:
+        print(f"(outputs kept in {tmp})")
+        raise
+    shutil.rmtree(tmp)
+    print(f"{case}: {time.monotonic() - start:.1f} s in all")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
