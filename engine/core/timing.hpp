@@ -29,12 +29,13 @@ enum class Phase : int {
   integrate,    // kicks and drifts
   thermostat,   // the O steps, the Langevin force, velocity rescaling
   output,       // thermo samples' bookkeeping, trajectories, checkpoints, the terminal
+  domain,       // a decomposed run's halo, its step's reduction, redistributing the molecules
   other,        // the rest of the loop
   count
 };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> kPhaseNames = {
-    "pair", "bonded", "neighbor", "constraints", "integrate", "thermostat", "output", "other"};
+    "pair", "bonded", "neighbor", "constraints", "integrate", "thermostat", "output", "domain", "other"};
 
 class PhaseClock {
  public:

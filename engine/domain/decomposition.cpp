@@ -4,6 +4,10 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <sstream>
+
+#include "engine/core/errors.hpp"
+#include "engine/core/timing.hpp"
 #include <stdexcept>
 
 namespace stiffmd {
@@ -147,6 +151,7 @@ void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::M
 }
 
 void Decomposition::redistribute(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried) {
+  const ScopedPhase phase(Phase::domain);
   ++redistributions_;
   const int ranks = comm_.size(), me = comm_.rank();
   const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
@@ -414,6 +419,17 @@ void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std:
 }
 
 void Decomposition::halo(Eigen::Matrix3Xd& a) const {
+  const ScopedPhase phase(Phase::domain);
+  // The ghosts cover every bead within r_c of ours while no bead moved margin/2 since their
+  // selection (the redistribution before each step sees to that, from the last step's growth): a
+  // step that moved one farther would miss pairs, so it stops here (on this rank: the others wait
+  // in the halo, so the job ends).
+  if (const double d = max_displacement(a); d >= 0.5 * margin_) {
+    std::ostringstream m;
+    m << "a bead moved " << d << " within one step, more than half the halo margin " << margin_
+      << " ([parallel] halo_margin): pairs would be missed; a larger halo_margin or a smaller step";
+    throw NumericalError(m.str());
+  }
   const int ranks = comm_.size();
   for (int r = 0; r < ranks; ++r) {
     double* b = send_buffer_[r].data();

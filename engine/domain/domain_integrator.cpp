@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "engine/core/errors.hpp"
+#include "engine/core/timing.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/thermostat.hpp"
 
@@ -19,11 +20,12 @@ struct DomainIntegrator::Part {
 
 namespace {
 
-// The halo's margin beyond the cutoff: [parallel] halo_margin, else the pair lists' skin (so
-// that the molecules are redistributed about as often as the lists are rebuilt).
+// The halo's margin beyond the cutoff: [parallel] halo_margin, else twice the pair lists' skin
+// (a redistribution when some bead may have moved a skin, about as often as one process rebuilds
+// its list: each redistribution builds the part and its lists anew).
 double halo_margin(const Scene& sc, double skin) {
   if (sc.parallel.halo_margin > 0.0) return sc.parallel.halo_margin;
-  return skin > 0.0 ? skin : 0.3;
+  return skin > 0.0 ? 2.0 * skin : 0.6;
 }
 
 }  // namespace
@@ -161,6 +163,7 @@ void DomainIntegrator::start(const State& s) {
 // forces, a Langevin force among them: they are not recomputed, so the run goes on as if
 // nothing had moved).
 void DomainIntegrator::rebuild() {
+  const ScopedPhase phase(Phase::domain);
   State& l = part_->scene.state;
   CarriedState carried = part_->integrator->carried_state();
   std::vector<Eigen::Matrix3Xd*> columns;
@@ -191,7 +194,10 @@ void DomainIntegrator::step(State& s, double h) {
       break;
     }
   double reduced[2] = {domains_->max_displacement(l.x), first_bad};
-  comm_.max(reduced, 2);
+  {
+    const ScopedPhase phase(Phase::domain);
+    comm_.max(reduced, 2);
+  }
   if (std::isfinite(reduced[1])) {
     std::ostringstream m;
     m << "numerical failure: non-finite position or velocity of particle " << static_cast<long>(-reduced[1]);
