@@ -99,7 +99,16 @@ def check_layouts(exe, work, mpiexec):
 
 def check_refusals(exe, work):
     out = os.path.join(work, "bad")
+    # An mpiexec that drops "-n N" and runs the command once: a run on one rank where two were asked
+    # for, as a stiffmd built without MPI would give.
+    one_rank = os.path.join(work, "one_rank_mpiexec")
+    with open(one_rank, "w") as f:
+        f.write('#!/bin/sh\nshift 2\nexec "$@"\n')
+    os.chmod(one_rank, 0o755)
     for extra, says in ((["--deck", DECK, "--methods", "no-such-method"], "no-such-method"),
+                        (["--deck", DECK, "--methods", "rattle", "--layouts", "1x1,2x1", "--mpiexec", one_rank],
+                         "ran on 1 rank(s), not 2"),
+                        (["--layouts", "1x2x3"], "--layouts"),
                         (["--threads", "0"], "--threads"),
                         (["--layouts", "2y1"], "--layouts"),
                         (["--layouts", "0x1"], "--layouts"),
