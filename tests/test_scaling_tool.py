@@ -1,14 +1,18 @@
 #!/usr/bin/python3
-"""Smoke test: tools/scaling.py on a small deck with 1 and 2 threads, and tools/chain_melt.py tile_data.
+"""Smoke test: tools/scaling.py on a small deck with 1 and 2 threads and, given an mpiexec, on 1 and 2
+ranks; and tools/chain_melt.py tile_data.
 
-    /usr/bin/python3 tests/test_scaling_tool.py build/stiffmd
+    /usr/bin/python3 tests/test_scaling_tool.py build/stiffmd [MPIEXEC]
 
 Checks the table (a row per method and thread count, positive ms/step, speed-up 1 and efficiency
 100 % at one thread, efficiency = speed-up / threads, the serial share a percentage where the
-engine reports one), runs.csv (one row per run), that bad arguments and a failing run exit 2 with
-one line naming them, and that tile_data replicates a data file: every copy's unwrapped positions
-are the original's shifted by its offset, ids, molecules and bonds renumbered."""
+engine reports one), runs.csv (one row per run), the layouts 1x1,2x1 under MPIEXEC (the table's
+columns; the 2×1 row's ghosts, halo and imbalance from the run's domains, none on one rank),
+that bad arguments and a failing run exit 2 with one line naming them, and that tile_data
+replicates a data file: every copy's unwrapped positions are the original's shifted by its offset,
+ids, molecules and bonds renumbered."""
 import csv
+import json
 import os
 import re
 import subprocess
@@ -32,8 +36,8 @@ def check_table(exe, work):
     p = tool(exe, out, "--deck", DECK, "--methods", "rattle,impulse", "--threads", "2,1", "--h", "0.005",
              "--steps", "4", "--repeats", "2", "--wait-idle", "0.5")
     assert p.returncode == 0, p.stdout + p.stderr
-    rows = re.findall(r"^\| small_melt\.toml \| (\S+) \| (\d+) \| ([0-9.]+) \| ([0-9.]+) \| (\d+) % \| (.+) \| "
-                      r"([0-9.]+|—) \|$", p.stdout, re.M)
+    rows = re.findall(r"^\| small_melt\.toml \| (\S+) \| 1×(\d+) \| ([0-9.]+) \| ([0-9.]+) \| (\d+) % \| ([^|]+) \| "
+                      r"— \| — \| — \| — \| ([0-9.]+|—) \|$", p.stdout, re.M)
     assert [(m, t) for m, t, *_ in rows] == [("rattle", "1"), ("rattle", "2"), ("impulse", "1"), ("impulse", "2")], p.stdout
     for method, threads, ms, speedup, efficiency, share, others in rows:
         threads, ms, speedup, efficiency = int(threads), float(ms), float(speedup), int(efficiency)
@@ -45,7 +49,7 @@ def check_table(exe, work):
     with open(os.path.join(out, "runs.csv")) as f:
         runs = list(csv.DictReader(f))
     assert len(runs) == 2 * 2 * 2, runs  # methods × threads × repeats
-    assert {r["threads"] for r in runs} == {"1", "2"}
+    assert {r["threads"] for r in runs} == {"1", "2"} and {r["ranks"] for r in runs} == {"1"}
     # The printed speed-up at 2 threads: the median over repeats of the ratio within each repeat.
     for method, threads, ms, speedup, *_ in rows:
         ms_of = {(r["threads"], r["repeat"]): float(r["ms_per_step"]) for r in runs if r["method"] == method}
@@ -56,10 +60,60 @@ def check_table(exe, work):
         assert f.read().strip() in p.stdout
 
 
+HEADER = ("| system | method | ranks×threads | ms/step | speed-up | efficiency | serial share | ghosts/owned | "
+          "halo kB/step | halo msgs/step | imbalance | others |")
+
+
+def check_layouts(exe, work, mpiexec):
+    """--layouts 1x1,2x1: the 2×1 run on two ranks under mpiexec, its domains' measures in the table."""
+    out = os.path.join(work, "layouts")
+    p = tool(exe, out, "--deck", DECK, "--methods", "rattle", "--layouts", "1x1,2x1", "--mpiexec", mpiexec,
+             "--h", "0.005", "--steps", "5", "--repeats", "1")
+    assert p.returncode == 0, p.stdout + p.stderr
+    lines = p.stdout.splitlines()
+    assert HEADER in lines, p.stdout
+    cells = {c[2]: c for c in ([w.strip() for w in l.strip("|").split("|")] for l in lines
+                                if l.startswith("| small_melt.toml |"))}
+    assert list(cells) == ["1×1", "2×1"], p.stdout
+    name = HEADER.strip("| ").split(" | ")
+    one, two = (dict(zip(name, cells[k])) for k in ("1×1", "2×1"))
+    assert one["speed-up"] == "1.00" and one["efficiency"] == "100 %", p.stdout
+    assert all(one[k] == "—" for k in ("ghosts/owned", "halo kB/step", "halo msgs/step", "imbalance")), p.stdout
+    assert float(two["ms/step"]) > 0 and float(two["ghosts/owned"]) > 0, p.stdout
+    assert float(two["halo kB/step"]) > 0 and float(two["halo msgs/step"]) > 0, p.stdout
+    assert float(two["imbalance"]) >= 1.0, p.stdout
+    # The 2×1 run's own summary: two ranks, and the table's cells are its domains' numbers.
+    with open(os.path.join(out, "work", "runs", "small_melt.toml_rattle_r2t1", "summary.json")) as f:
+        d = json.load(f)
+    assert d["ranks"] == 2, d
+    dom = d["domains"]
+    assert two["ghosts/owned"] == f"{dom['ghosts_per_owned']:.3f}", (two, dom)
+    assert two["halo kB/step"] == f"{dom['halo_bytes_per_step'] / 1e3:.1f}", (two, dom)
+    assert two["imbalance"] == f"{dom['rank_loop_seconds_max'] / dom['rank_loop_seconds_mean']:.3f}", (two, dom)
+    with open(os.path.join(out, "runs.csv")) as f:
+        runs = list(csv.DictReader(f))
+    assert [(r["ranks"], r["threads"]) for r in runs] == [("1", "1"), ("2", "1")], runs
+    assert runs[0]["ghosts_per_owned"] == "" and float(runs[1]["ghosts_per_owned"]) == dom["ghosts_per_owned"], runs
+    assert float(runs[1]["halo_messages_per_step"]) == dom["halo_messages_per_step"], runs
+
+
 def check_refusals(exe, work):
     out = os.path.join(work, "bad")
+    # An mpiexec that drops "-n N" and runs the command once: a run on one rank where two were asked
+    # for, as a stiffmd built without MPI would give.
+    one_rank = os.path.join(work, "one_rank_mpiexec")
+    with open(one_rank, "w") as f:
+        f.write('#!/bin/sh\nshift 2\nexec "$@"\n')
+    os.chmod(one_rank, 0o755)
     for extra, says in ((["--deck", DECK, "--methods", "no-such-method"], "no-such-method"),
+                        (["--deck", DECK, "--methods", "rattle", "--layouts", "1x1,2x1", "--mpiexec", one_rank],
+                         "ran on 1 rank(s), not 2"),
+                        (["--layouts", "1x2x3"], "--layouts"),
                         (["--threads", "0"], "--threads"),
+                        (["--layouts", "2y1"], "--layouts"),
+                        (["--layouts", "0x1"], "--layouts"),
+                        (["--threads", "1", "--layouts", "1x1"], "--threads and --layouts"),
+                        (["--layouts", "2x1", "--mpiexec", "/no/such/mpiexec"], "/no/such/mpiexec"),
                         (["--systems", "stiff-1k"], "stiff-1k")):
         p = tool(exe, out, "--steps", "2", "--repeats", "1", *extra)
         assert p.returncode == 2, (extra, p.stdout + p.stderr)
@@ -97,11 +151,16 @@ def check_tile(work):
 
 def main():
     exe = os.path.abspath(sys.argv[1]) if len(sys.argv) > 1 else os.path.join(ROOT, "build", "stiffmd")
+    mpiexec = sys.argv[2] if len(sys.argv) > 2 else None  # tests/CMakeLists.txt: when CMake found MPI
     with tempfile.TemporaryDirectory() as work:
         check_table(exe, work)
+        if mpiexec:
+            check_layouts(exe, work, mpiexec)
+        else:
+            print("layouts: skipped (no MPIEXEC given: stiffmd built without MPI)")
         check_refusals(exe, work)
         check_tile(work)
-    print("3 passed, 0 failed")
+    print(f"{4 if mpiexec else 3} passed, 0 failed{'' if mpiexec else ', 1 skipped'}")
 
 
 if __name__ == "__main__":

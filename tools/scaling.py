@@ -1,8 +1,11 @@
 #!/usr/bin/python3
-"""Speed-up with threads: systems × methods × thread counts → ms per step, speed-up, efficiency, serial share.
+"""Speed-up with threads and ranks: systems × methods × layouts (ranks × threads) → ms per step,
+speed-up, efficiency, serial share and, on several ranks, the halo's cost and the load imbalance.
 
     /usr/bin/python3 tools/scaling.py                                  # the 256 000-bead melts, 1 and 2 threads
     /usr/bin/python3 tools/scaling.py --systems stiff-32k,kg-32k --threads 1,2,4,8,16 --repeats 2
+    /usr/bin/python3 tools/scaling.py --systems kg-32k --layouts 1x2,2x1 --repeats 3 --steps 30
+    /usr/bin/python3 tools/scaling.py --systems kg-256k --layouts 1x1,2x1,4x1,8x1,16x1,1x16 --mpiexec /usr/bin/mpiexec
     /usr/bin/python3 tools/scaling.py --systems stiff-256k --methods fixman,rattle --steps 30 --repeats 7
     /usr/bin/python3 tools/scaling.py --deck inputs/polymer_melt.toml --methods rattle,fixman --h 0.01
 
@@ -16,19 +19,31 @@ Systems (--systems; or --deck PATH: that deck with each method as integrator.met
                        0.9 ε, impulse at 0.005 with 50 micro steps, rattle and fixman at 0.02 (BAOAB;
                        rattle-obabo, fixman-obabo with OBABO), effective at 0.02.
 
-Every run is --steps steps with OMP_NUM_THREADS = the thread count, no checkpoints, one thermo sample
-at the end (the step loop is what is timed). Runs are interleaved: each repeat runs every system,
-method and thread count in turn (thread counts in alternating order from one repeat to the next), so
-a drift of the machine's speed hits all alike. Per (system, method, threads): the median over repeats
-of summary.json's wall_seconds / steps (ms/step); the speed-up over the fewest threads t₀ is the median
-over repeats of the ratio of the two runs of the same repeat, × t₀; efficiency = speed-up / threads.
-The serial share is the median of summary.json's "serial_share" where the engine writes it (the share
-of the step loop's wall time outside parallel loops), '—' otherwise.
+Layouts: --layouts R1xT1,R2xT2,... runs each deck on R ranks (`MPIEXEC -n R stiffmd run ...`, the
+plain command when R = 1) of T threads (OMP_NUM_THREADS = T), in the order given; --threads T1,T2,...
+(default 1,2; not with --layouts) is the layouts 1xT, fewest threads first. The deck is the same for
+every layout (the engine chooses the domains). For R > 1 the tool sets, unless already set, Open
+MPI's OMPI_ALLOW_RUN_AS_ROOT(_CONFIRM)=1 (runs as root), OMPI_MCA_rmaps_base_oversubscribe=1 (more
+ranks than cores) and OMPI_MCA_hwloc_base_binding_policy=none (Open MPI would bind each of 2 ranks to
+one core, all its threads with it; R = 1 runs unbound too); MPICH ignores them.
+
+Every run is --steps steps, no checkpoints, one thermo sample at the end (the step loop is what is
+timed). Runs are interleaved: each repeat runs every system, method and layout in turn (layouts in
+alternating order from one repeat to the next), so a drift of the machine's speed hits all alike.
+Per (system, method, layout): the median over repeats of summary.json's wall_seconds / steps
+(ms/step; on several ranks the slowest rank's step loop); the speed-up over the row's first layout is
+the median over repeats of the ratio of the two runs of the same repeat; efficiency = speed-up × the
+first layout's cores / the layout's cores (cores = R × T). The serial share is the median of
+summary.json's "serial_share" where the engine writes it (the share of the step loop's wall time
+outside parallel loops), '—' otherwise. On R > 1 ranks, medians over repeats of summary.json's
+"domains": ghosts per owned bead, halo kB (1000 bytes) and messages per step, and the load imbalance
+rank_loop_seconds_max / rank_loop_seconds_mean (1 = balanced); '—' on one rank.
 
 A shared machine: "others" is the median number of cores other processes kept busy during a row's
-runs (/proc/stat's busy time less the run's own CPU time, over its wall time); with two threads on
-two cores any of it slows the run. --wait-idle S waits before each repeat's runs (at most S
-seconds) until other processes use less than 0.2 cores over a second.
+runs (/proc/stat's busy time less the run's own CPU time, over its wall time; the run's own is
+RUSAGE_CHILDREN, which holds mpiexec's ranks too: mpiexec waits for them before it exits); with two
+threads on two cores any of it slows the run. --wait-idle S waits before each repeat's runs (at most
+S seconds) until other processes use less than 0.2 cores over a second.
 
 Outputs in --out (default sweeps/scaling): scaling.md (the table, also printed), runs.csv (every run),
 work/ (states, decks, runs).
@@ -62,11 +77,33 @@ METHODS = {
     "effective": (lambda eps: 0.02, 1),
 }
 SYSTEMS = ("kg-32k", "kg-256k", "stiff-32k", "stiff-256k")
+# Open MPI's settings for R > 1 ranks (docstring); MPICH ignores them.
+OPEN_MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+                "OMPI_MCA_rmaps_base_oversubscribe": "1", "OMPI_MCA_hwloc_base_binding_policy": "none"}
 LANGEVIN = ['thermostat.style="langevin"', "thermostat.temperature=1.0", "thermostat.damp=1.0", "thermostat.seed=3"]
 
 
 def split(text):
     return [w for w in text.replace(",", " ").split() if w]
+
+
+def parse_layouts(layouts, threads):
+    """[(ranks, threads)] of --layouts (in the order given) or --threads (1×T, fewest threads first);
+    None when a count is not an integer >= 1."""
+    try:
+        if layouts is not None:
+            pairs = [tuple(int(n) for n in w.lower().split("x")) for w in split(layouts)]
+        else:
+            pairs = sorted({(1, int(t)) for t in split(threads)})
+    except ValueError:
+        return None
+    if not pairs or any(len(p) != 2 or min(p) < 1 for p in pairs):
+        return None
+    return list(dict.fromkeys(pairs))  # repeated layouts once, in order
+
+
+def layout_name(layout):
+    return f"{layout[0]}×{layout[1]}"
 
 
 def system_runs(system, methods, args, work):
@@ -139,14 +176,25 @@ def wait_idle(limit):
             return
 
 
-def run_once(args, deck, sets, threads, run_dir):
-    """(ms per step of the step loop's wall time, serial share or None, cores other processes kept
-    busy meanwhile or None) of one run."""
+# A run's measures (run_once), each a column of runs.csv and, as the median over repeats, of the table.
+MEASURES = ("ms_per_step", "serial_share", "ghosts_per_owned", "halo_kb_per_step", "halo_messages_per_step",
+            "imbalance", "others")
+
+
+def run_once(args, deck, sets, layout, run_dir):
+    """{measure: value or None} of one run on layout = (ranks, threads): ms per step of the step loop's
+    wall time (the slowest rank's), serial share, the domains' halo and imbalance (None on one rank),
+    cores other processes kept busy meanwhile (None off Linux)."""
+    ranks, threads = layout
     shutil.rmtree(run_dir, ignore_errors=True)
     os.makedirs(run_dir)
     cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set", "output.checkpoint_interval=0"]
     for kv in sets + args.set:
         cmd += ["--set", kv]
+    if ranks > 1:
+        cmd = [args.mpiexec, "-n", str(ranks)] + cmd
+    # RUSAGE_CHILDREN: every process this one has waited for and their waited-for children, so the
+    # ranks of mpiexec (which waits for them) count as the run's own CPU time.
     busy0, own0, t0 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
     code, _, _ = run_measured(cmd, run_dir, threads)
     busy1, own1, t1 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
@@ -155,29 +203,47 @@ def run_once(args, deck, sets, threads, run_dir):
         s = json.load(f)
     if s["steps"] < 1:
         raise RunFailed(f"{run_dir}: no steps run")
-    others = None
+    if s.get("ranks", 1) != ranks:
+        raise RunFailed(f"{run_dir}: ran on {s.get('ranks', 1)} rank(s), not {ranks} (is {args.stiffmd} built with "
+                        f"the MPI of {args.mpiexec}?)")
+    m = dict.fromkeys(MEASURES)
+    m["ms_per_step"] = 1e3 * s["wall_seconds"] / s["steps"]
+    m["serial_share"] = s.get("serial_share")
+    if ranks > 1:
+        d = s["domains"]
+        m["ghosts_per_owned"] = d["ghosts_per_owned"]
+        m["halo_kb_per_step"] = d["halo_bytes_per_step"] / 1e3
+        m["halo_messages_per_step"] = d["halo_messages_per_step"]
+        m["imbalance"] = d["rank_loop_seconds_max"] / d["rank_loop_seconds_mean"]
     if busy0 is not None:
         own = (own1.ru_utime + own1.ru_stime) - (own0.ru_utime + own0.ru_stime)
-        others = max(0.0, (busy1 - busy0 - own) / (t1 - t0))
-    return 1e3 * s["wall_seconds"] / s["steps"], s.get("serial_share"), others
+        m["others"] = max(0.0, (busy1 - busy0 - own) / (t1 - t0))
+    return m
 
 
-def table(rows, thread_counts):
+def table(rows, layouts):
     """The markdown table of the medians."""
-    t0 = thread_counts[0]
-    lines = ["| system | method | threads | ms/step | speed-up | efficiency | serial share | others |",
-             "|---|---|--:|--:|--:|--:|--:|--:|"]
-    for (system, method), by_threads in rows.items():
-        base = by_threads[t0]
-        for t in thread_counts:
-            ms = by_threads[t]
-            speedup = t0 * statistics.median(b / a for b, a in zip(base, ms))
-            shares = [s for s in by_threads.get(("share", t), []) if s is not None]
-            share = f"{100 * statistics.median(shares):.2f} %" if shares else "—"
-            busy = [b for b in by_threads.get(("others", t), []) if b is not None]
-            others = f"{statistics.median(busy):.2f}" if busy else "—"
-            lines.append(f"| {system} | {method} | {t} | {statistics.median(ms):.2f} | {speedup:.2f} | "
-                         f"{100 * speedup / t:.0f} % | {share} | {others} |")
+    def median(runs, key, form):
+        values = [m[key] for m in runs if m[key] is not None]
+        return form(statistics.median(values)) if values else "—"
+
+    first = layouts[0]
+    lines = ["| system | method | ranks×threads | ms/step | speed-up | efficiency | serial share | ghosts/owned | "
+             "halo kB/step | halo msgs/step | imbalance | others |",
+             "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
+    for (system, method), by_layout in rows.items():
+        base = [m["ms_per_step"] for m in by_layout[first]]
+        for layout in layouts:
+            runs = by_layout[layout]
+            speedup = statistics.median(b / m["ms_per_step"] for b, m in zip(base, runs))
+            efficiency = speedup * (first[0] * first[1]) / (layout[0] * layout[1])
+            lines.append(f"| {system} | {method} | {layout_name(layout)} | {median(runs, 'ms_per_step', '{:.2f}'.format)} | "
+                         f"{speedup:.2f} | {100 * efficiency:.0f} % | "
+                         f"{median(runs, 'serial_share', lambda v: f'{100 * v:.2f} %')} | "
+                         f"{median(runs, 'ghosts_per_owned', '{:.3f}'.format)} | "
+                         f"{median(runs, 'halo_kb_per_step', '{:.1f}'.format)} | "
+                         f"{median(runs, 'halo_messages_per_step', '{:g}'.format)} | "
+                         f"{median(runs, 'imbalance', '{:.3f}'.format)} | {median(runs, 'others', '{:.2f}'.format)} |")
     return "\n".join(lines)
 
 
@@ -187,7 +253,9 @@ def main():
     ap.add_argument("--deck", help="a deck to run instead of the named systems")
     ap.add_argument("--methods", default="velocity-verlet,impulse,rattle,fixman",
                     help="for the stiff systems and --deck (kg-* run velocity-verlet)")
-    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--threads", help="thread counts on one rank: the layouts 1xT (default 1,2)")
+    ap.add_argument("--layouts", help="RANKSxTHREADS,... e.g. 1x2,2x1 (not with --threads)")
+    ap.add_argument("--mpiexec", default="mpiexec", help="runs the layouts of more than one rank")
     ap.add_argument("--eps", type=float, default=1e-3, help="the stiff systems' ε")
     ap.add_argument("--h", type=float, default=0.005, help="--deck's step")
     ap.add_argument("--steps", type=int, default=50)
@@ -198,14 +266,20 @@ def main():
     ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
     ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "scaling"))
     args = ap.parse_args()
-    try:
-        thread_counts = sorted({int(t) for t in split(args.threads)})
-    except ValueError:
-        thread_counts = []
-    if not thread_counts or thread_counts[0] < 1 or args.steps < 1 or args.repeats < 1 or not args.eps > 0 or \
-            not args.h > 0:
-        print("scaling: --threads must be integers >= 1, --steps and --repeats >= 1, --eps and --h > 0", file=sys.stderr)
+    if args.threads is not None and args.layouts is not None:
+        print("scaling: --threads and --layouts both given: --threads T means --layouts 1xT; give one", file=sys.stderr)
         return 2
+    layouts = parse_layouts(args.layouts, "1,2" if args.threads is None else args.threads)
+    if not layouts or args.steps < 1 or args.repeats < 1 or not args.eps > 0 or not args.h > 0:
+        print("scaling: --threads must be integers >= 1 (--layouts RANKSxTHREADS,... of integers >= 1), --steps and "
+              "--repeats >= 1, --eps and --h > 0", file=sys.stderr)
+        return 2
+    if any(r > 1 for r, _ in layouts):
+        if shutil.which(args.mpiexec) is None:
+            print(f"scaling: no mpiexec {args.mpiexec!r} (--mpiexec) for the layouts of several ranks", file=sys.stderr)
+            return 2
+        for key, value in OPEN_MPI_ENV.items():
+            os.environ.setdefault(key, value)
     args.stiffmd, args.out = os.path.abspath(args.stiffmd), os.path.abspath(args.out)
     work = os.path.join(args.out, "work")
     os.makedirs(work, exist_ok=True)
@@ -224,26 +298,23 @@ def main():
                 runs += system_runs(system, sys_methods, args, work)
         rows, records = {}, []
         for r in range(args.repeats):
-            order = thread_counts if r % 2 == 0 else thread_counts[::-1]
+            order = layouts if r % 2 == 0 else layouts[::-1]
             for system, method, deck, sets in runs:
-                by_threads = rows.setdefault((system, method), {})
+                by_layout = rows.setdefault((system, method), {})
                 if args.wait_idle > 0:
                     wait_idle(args.wait_idle)
-                for t in order:
-                    run_dir = os.path.join(work, "runs", f"{system}_{method}_t{t}")
-                    ms, share, others = run_once(args, deck, sets, t, run_dir)
-                    by_threads.setdefault(t, []).append(ms)
-                    by_threads.setdefault(("share", t), []).append(share)
-                    by_threads.setdefault(("others", t), []).append(others)
-                    records.append({"system": system, "method": method, "threads": t, "repeat": r,
-                                    "ms_per_step": ms, "serial_share": "" if share is None else share,
-                                    "others": "" if others is None else others})
+                for layout in order:
+                    run_dir = os.path.join(work, "runs", f"{system}_{method}_r{layout[0]}t{layout[1]}")
+                    m = run_once(args, deck, sets, layout, run_dir)
+                    by_layout.setdefault(layout, []).append(m)
+                    records.append({"system": system, "method": method, "ranks": layout[0], "threads": layout[1],
+                                    "repeat": r, **{k: "" if v is None else v for k, v in m.items()}})
     except RunFailed as e:
         print(f"scaling: {e}", file=sys.stderr)
         return 2
     head = (f"Wall ms per step of the step loop, {args.steps} steps, median of {args.repeats} interleaved repeats; "
-            f"speed-up over {thread_counts[0]} thread(s) (median of the ratios within a repeat)")
-    text = head + "\n\n" + table(rows, thread_counts) + "\n"
+            f"speed-up over {layout_name(layouts[0])} (ranks×threads; median of the ratios within a repeat)")
+    text = head + "\n\n" + table(rows, layouts) + "\n"
     with open(os.path.join(args.out, "scaling.md"), "w") as f:
         f.write(text)
     with open(os.path.join(args.out, "runs.csv"), "w", newline="") as f:
