@@ -29,10 +29,13 @@ double timed_add_forces(const ForceTerm& term, const Eigen::Matrix3Xd& x, const 
 
 }  // namespace
 
-// Whether a term selected by `pick` reads ghosts, and so needs the halo first.
-template <class Pick>
-bool reads_ghosts(const std::vector<const ForceTerm*>& order, Pick pick) {
-  return std::any_of(order.begin(), order.end(), [&](const ForceTerm* t) { return pick(t) && t->uses_neighbor_list(); });
+std::unique_ptr<ForceTerm> ForceField::replace(size_t k, std::unique_ptr<ForceTerm> term) {
+  if (term->level() != terms_[k]->level() || term->fused_micro_step() || terms_[k]->fused_micro_step())
+    throw std::invalid_argument("ForceField::replace: a term of another level or a fused one");
+  std::replace(order_.begin(), order_.end(), static_cast<const ForceTerm*>(terms_[k].get()),
+               static_cast<const ForceTerm*>(term.get()));
+  std::swap(terms_[k], term);
+  return term;
 }
 
 void ForceField::add(std::unique_ptr<ForceTerm> term) {
@@ -47,10 +50,6 @@ void ForceField::add(std::unique_ptr<ForceTerm> term) {
 }
 
 double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out) {
-  if (halo_ && reads_ghosts(order_, [&](const ForceTerm* t) {
-        return std::find(levels.begin(), levels.end(), t->level()) != levels.end();
-      }))
-    halo_(x);
   zero(out, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
@@ -61,7 +60,6 @@ double ForceField::compute(const Eigen::Matrix3Xd& x, std::span<const Level> lev
 }
 
 double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
-  if (halo_ && reads_ghosts(order_, [](const ForceTerm* t) { return t->stiff_bonds() == nullptr; })) halo_(x);
   zero(out, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)
@@ -71,7 +69,6 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
 }
 
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
-  if (halo_ && reads_ghosts(order_, [&](const ForceTerm* t) { return t->level() == level; })) halo_(x);
   zero(scratch_, x.cols());
   double energy = 0.0;
   for (const ForceTerm* term : order_)

@@ -5,7 +5,6 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cstdint>
-#include <functional>
 #include <initializer_list>
 #include <memory>
 #include <optional>
@@ -50,7 +49,6 @@ class ForceField {
 
   // Total force of every term at x, for output (not counted as an evaluation).
   void total_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const {
-    refresh_ghosts(x);
     out.setZero(3, x.cols());
     for (const ForceTerm* term : order_) term->add_forces(x, box_, out);
   }
@@ -88,21 +86,11 @@ class ForceField {
   const Box& box() const { return box_; }
   int num_particles() const { return num_particles_; }
 
-  // A decomposed run (docs/parallel.md): the particles past the owned ones are ghosts, copies of
-  // other ranks' particles that pair terms read. `halo(x)` fills the ghost columns of x from their
-  // owners' columns of the same array (x itself or a mollified copy): called before every
-  // evaluation of a neighbour-list term, on every rank at the same point of the step. x is passed
-  // const to the terms; its ghost columns are a cache of other ranks' values, refreshed here.
-  void set_halo(std::function<void(const Eigen::Matrix3Xd&)> halo) { halo_ = std::move(halo); }
-  // Refreshes the ghost columns of x when some of `terms` uses a neighbour list (nothing without
-  // a halo): for callers that evaluate terms one by one (the fused micro step).
-  void refresh_ghosts(const Eigen::Matrix3Xd& x) const {
-    if (halo_) halo_(x);
-  }
-  bool has_halo() const { return static_cast<bool>(halo_); }
+  // Term k replaced by `term` (same level, neither fused), in term k's place in the evaluation
+  // order; returns the old one. A decomposed run's part wraps its pair terms so (docs/parallel.md).
+  std::unique_ptr<ForceTerm> replace(size_t k, std::unique_ptr<ForceTerm> term);
 
  private:
-  std::function<void(const Eigen::Matrix3Xd&)> halo_;
   std::vector<std::unique_ptr<ForceTerm>> terms_;
   std::vector<const ForceTerm*> order_;  // evaluation_order()
   Box box_;

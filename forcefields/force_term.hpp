@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <memory>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -10,6 +11,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/stiff_bond.hpp"
 
@@ -69,6 +71,14 @@ class ForceTerm {
   // Whether it defines the constraint manifold g(x) = 0 (stiff bonds: see stiff_bonds()).
   bool is_constraint_defining() const { return stiff_bonds() != nullptr; }
 
+  // The same term acting on other particles: `types` per particle, the scene's `bonds` among them
+  // (special pairs), the box (neighbour-list terms: a decomposed run's part, docs/parallel.md,
+  // re-targets them on its owned particles and ghosts); null for terms that cannot.
+  virtual std::unique_ptr<ForceTerm> on_particles(std::vector<int> types, const std::vector<Bond>& bonds,
+                                                  const Box& box) const {
+    (void)types, (void)bonds, (void)box;
+    return nullptr;
+  }
   // The largest pair distance it acts over and its list's skin (pair terms; 0 for the others):
   // what a decomposed run's ghosts must cover (engine/domain/decomposition.hpp).
   virtual double pair_cutoff() const { return 0.0; }

@@ -52,6 +52,10 @@ class PairTerm final : public ForceTerm {
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   bool uses_neighbor_list() const override { return true; }
+  std::unique_ptr<ForceTerm> on_particles(std::vector<int> types, const std::vector<Bond>& bonds,
+                                          const Box& box) const override {
+    return std::make_unique<PairTerm>(name(), level(), std::move(types), coeffs_, bonds, weights_, box, list_.skin());
+  }
   double pair_cutoff() const override { return cutoff_; }
   double pair_skin() const override { return list_.skin(); }
   double cutoff() const { return cutoff_; }  // the largest over type pairs

@@ -34,7 +34,6 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   // Velocity Verlet with Langevin (BAOAB): its one micro step holds the O step, so it runs plain.
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
-  for (const ForceTerm* t : rest_) rest_reads_ghosts_ |= t->uses_neighbor_list();
   fused_ = fused_available_;
 }
 
@@ -86,7 +85,6 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
     const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kick and drift fused in
     fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
   }
-  if (rest_reads_ghosts_) forces_.refresh_ghosts(s.x);
   for (const ForceTerm* term : rest_) {
     const ScopedPhase phase(term->uses_neighbor_list() ? Phase::pair : Phase::bonded);
     term->add_forces(s.x, forces_.box(), force_[k]);

@@ -168,7 +168,6 @@ class MultipleTimeStepping final : public Integrator {
   // The innermost stage's terms after the fused one, in evaluation order: the fused step, then
   // these, sum what compute() sums, in its order (ForceField::evaluation_order).
   std::vector<const ForceTerm*> rest_;
-  bool rest_reads_ghosts_ = false;  // a pair term on the innermost level: a halo per micro step
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
 };

@@ -6,9 +6,9 @@
 #include <numeric>
 #include <sstream>
 
+#include <stdexcept>
 #include "engine/core/errors.hpp"
 #include "engine/core/timing.hpp"
-#include <stdexcept>
 
 namespace stiffmd {
 
@@ -22,6 +22,18 @@ double wrap(double p, double origin, double length, bool periodic) {
 }
 
 }  // namespace
+
+bool DomainGrid::within(int domain, const Eigen::Vector3d& p, double slack) const {
+  const int index[3] = {domain / (dims[1] * dims[2]), (domain / dims[2]) % dims[1], domain % dims[2]};
+  for (int a = 0; a < 3; ++a) {
+    const double width = length[a] / dims[a], lo = origin[a] + index[a] * width, hi = lo + width;
+    double q = periodic[a] ? wrap(p[a], origin[a], length[a], true) : p[a];
+    if (periodic[a] && q > hi + slack) q -= length[a];  // the image nearest the domain
+    if (periodic[a] && q < lo - slack) q += length[a];
+    if (q < lo - slack || q > hi + slack) return false;
+  }
+  return true;
+}
 
 int DomainGrid::domain_of(const Eigen::Vector3d& p) const {
   int index[3];
@@ -103,128 +115,13 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   std::vector<int> next(molecule_start_.begin(), molecule_start_.end() - 1);
   for (int i = 0; i < n; ++i) molecule_particles_[next[molecule_[i]]++] = i;  // increasing within each
   if (dims) grid_dims_ = *dims, have_dims_ = true;
-  local_of_.assign(n, -1);
+  owned_of_.assign(n, -1);
   const int ranks = comm_.size();
   send_.resize(ranks);
   ghost_begin_.assign(ranks, 0);
   ghost_count_.assign(ranks, 0);
   send_buffer_.resize(ranks);
   recv_buffer_.resize(ranks);
-}
-
-bool Decomposition::owns_molecule(int m) const {
-  return std::binary_search(owned_.begin(), owned_.end(), m);
-}
-
-Eigen::Vector3d Decomposition::anchor(const Eigen::Matrix3Xd& x, std::span<const int> global) const {
-  // The centre of mass of a whole molecule (unwrapped: its bonds are their own minimum images).
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  double total = 0.0;
-  for (int g : global) {
-    const int i = local_of_[g] >= 0 ? local_of_[g] : g;  // local columns, or the whole state's
-    c += mass_[g] * x.col(i);
-    total += mass_[g];
-  }
-  return c / total;
-}
-
-void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
-  const int molecules = num_molecules();
-  Eigen::Matrix3Xd anchors(3, molecules);
-  std::fill(local_of_.begin(), local_of_.end(), -1);
-  for (int m = 0; m < molecules; ++m) anchors.col(m) = anchor(whole.x, molecule(m));
-  grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
-  owned_.clear();
-  for (int m = 0; m < molecules; ++m)
-    if (grid_.domain_of(anchors.col(m)) == comm_.rank()) owned_.push_back(m);
-  ids_.clear();
-  for (int m : owned_)
-    for (int g : molecule(m)) ids_.push_back(g);
-  std::sort(ids_.begin(), ids_.end());
-  num_owned_ = static_cast<int>(ids_.size());
-  x.resize(3, num_owned_);
-  v.resize(3, num_owned_);
-  for (int i = 0; i < num_owned_; ++i) x.col(i) = whole.x.col(ids_[i]), v.col(i) = whole.v.col(ids_[i]);
-  owned_flag_.assign(num_owned_, 1);
-  std::vector<Eigen::Matrix3Xd*> none;
-  select_ghosts(x, v, none);
-}
-
-void Decomposition::redistribute(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried) {
-  const ScopedPhase phase(Phase::domain);
-  ++redistributions_;
-  const int ranks = comm_.size(), me = comm_.rank();
-  const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
-  // Molecules whose anchor left the domain, whole, to their new owner: [m, columns of its particles].
-  std::vector<std::vector<double>> out(ranks), in;
-  std::vector<int> kept;
-  for (int m : owned_) {
-    const int to = grid_.domain_of(anchor(x, molecule(m)));
-    if (to == me) {
-      kept.push_back(m);
-      continue;
-    }
-    ++migrated_;
-    std::vector<double>& o = out[to];
-    o.push_back(m);
-    for (int g : molecule(m)) {
-      const int i = local_of_[g];
-      for (int a = 0; a < 3; ++a) o.push_back(x(a, i));
-      for (int a = 0; a < 3; ++a) o.push_back(v(a, i));
-      for (const Eigen::Matrix3Xd* c : carried)
-        for (int a = 0; a < 3; ++a) o.push_back((*c)(a, i));
-    }
-  }
-  comm_.exchange(out, in);
-  // The new owned particles in increasing global index: kept ones from the local columns,
-  // received ones from the messages.
-  std::vector<int> received_slot(0);
-  std::vector<std::pair<int, const double*>> arrived;  // global index, its words
-  std::vector<int> owned = kept;
-  for (int r = 0; r < ranks; ++r) {
-    const std::vector<double>& b = in[r];
-    for (size_t k = 0; k < b.size();) {
-      const int m = static_cast<int>(b[k++]);
-      owned.push_back(m);
-      for (int g : molecule(m)) {
-        arrived.emplace_back(g, b.data() + k);
-        k += words;
-      }
-    }
-  }
-  std::sort(owned.begin(), owned.end());
-  std::sort(arrived.begin(), arrived.end());
-  std::vector<int> ids;
-  for (int m : owned)
-    for (int g : molecule(m)) ids.push_back(g);
-  std::sort(ids.begin(), ids.end());
-  const int n = static_cast<int>(ids.size());
-  Eigen::Matrix3Xd nx(3, n), nv(3, n);
-  std::vector<Eigen::Matrix3Xd> nc(carried.size(), Eigen::Matrix3Xd(3, n));
-  for (int i = 0; i < n; ++i) {
-    const int g = ids[i];
-    const int old = local_of_[g];
-    if (old >= 0 && owned_flag_[old]) {
-      nx.col(i) = x.col(old), nv.col(i) = v.col(old);
-      for (size_t c = 0; c < carried.size(); ++c) nc[c].col(i) = carried[c]->col(old);
-      continue;
-    }
-    const auto it =
-        std::lower_bound(arrived.begin(), arrived.end(), std::make_pair(g, static_cast<const double*>(nullptr)));
-    const double* w = it->second;
-    nx.col(i) = Eigen::Vector3d(w[0], w[1], w[2]);
-    nv.col(i) = Eigen::Vector3d(w[3], w[4], w[5]);
-    for (size_t c = 0; c < carried.size(); ++c)
-      nc[c].col(i) = Eigen::Vector3d(w[6 + 3 * c], w[7 + 3 * c], w[8 + 3 * c]);
-  }
-  for (int g : ids_) local_of_[g] = -1;
-  owned_ = std::move(owned);
-  ids_ = std::move(ids);
-  num_owned_ = n;
-  x = std::move(nx);
-  v = std::move(nv);
-  for (size_t c = 0; c < carried.size(); ++c) *carried[c] = std::move(nc[c]);
-  select_ghosts(x, v, carried);
 }
 
 namespace {
@@ -279,11 +176,125 @@ bool intervals_within(double lo1, double hi1, double lo2, double hi2, double r, 
 
 }  // namespace
 
-void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*>& carried) {
+bool Decomposition::owns_molecule(int m) const {
+  return std::binary_search(owned_.begin(), owned_.end(), m);
+}
+
+Eigen::Vector3d Decomposition::anchor(const Eigen::Matrix3Xd& x, std::span<const int> global,
+                                      bool owned_columns) const {
+  // The centre of mass of a whole molecule (unwrapped: its bonds are their own minimum images).
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  double total = 0.0;
+  for (int g : global) {
+    c += mass_[g] * x.col(owned_columns ? owned_of_[g] : g);
+    total += mass_[g];
+  }
+  return c / total;
+}
+
+void Decomposition::own(std::vector<int> molecules) {
+  for (int g : ids_) owned_of_[g] = -1;
+  owned_ = std::move(molecules);
+  std::sort(owned_.begin(), owned_.end());
+  ids_.clear();
+  for (int m : owned_)
+    for (int g : molecule(m)) ids_.push_back(g);
+  std::sort(ids_.begin(), ids_.end());
+  for (int k = 0; k < static_cast<int>(ids_.size()); ++k) owned_of_[ids_[k]] = k;
+}
+
+void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+  const int molecules = num_molecules();
+  Eigen::Matrix3Xd anchors(3, molecules);
+  for (int m = 0; m < molecules; ++m) anchors.col(m) = anchor(whole.x, molecule(m), false);
+  grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
+  std::vector<int> mine;
+  for (int m = 0; m < molecules; ++m)
+    if (grid_.domain_of(anchors.col(m)) == comm_.rank()) mine.push_back(m);
+  own(std::move(mine));
+  x.resize(3, num_owned());
+  v.resize(3, num_owned());
+  for (int k = 0; k < num_owned(); ++k) x.col(k) = whole.x.col(ids_[k]), v.col(k) = whole.v.col(ids_[k]);
+}
+
+bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried) {
+  const ScopedPhase phase(Phase::domain);
   const int ranks = comm_.size(), me = comm_.rank();
-  for (int g : ids_) local_of_[g] = -1;
-  ids_.resize(num_owned_);
-  for (int i = 0; i < num_owned_; ++i) local_of_[ids_[i]] = i;
+  const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
+  // A molecule leaves when its anchor is more than the margin past this rank's domain: an anchor
+  // near a face does not go back and forth (each move rebuilds two ranks' parts).
+  std::vector<std::vector<double>> out(ranks), in;
+  std::vector<int> kept;
+  for (int m : owned_) {
+    const Eigen::Vector3d c = anchor(x, molecule(m), true);
+    const int to = grid_.domain_of(c);
+    if (to == me || grid_.within(me, c, margin_)) {
+      kept.push_back(m);
+      continue;
+    }
+    ++migrated_;
+    std::vector<double>& o = out[to];
+    o.push_back(m);
+    for (int g : molecule(m)) {
+      const int k = owned_of_[g];
+      for (int a = 0; a < 3; ++a) o.push_back(x(a, k));
+      for (int a = 0; a < 3; ++a) o.push_back(v(a, k));
+      for (const Eigen::Matrix3Xd* c : carried)
+        for (int a = 0; a < 3; ++a) o.push_back((*c)(a, k));
+    }
+  }
+  comm_.exchange(out, in);
+  bool arrived = false;
+  for (const auto& b : in) arrived |= !b.empty();
+  if (kept.size() == owned_.size() && !arrived) return false;
+  // The new owned particles in increasing global index: kept ones from the old columns, arrived
+  // ones from the messages.
+  std::vector<std::pair<int, const double*>> from_messages;  // global index, its words
+  std::vector<int> molecules = kept;
+  for (const auto& b : in)
+    for (size_t k = 0; k < b.size();) {
+      const int m = static_cast<int>(b[k++]);
+      molecules.push_back(m);
+      for (int g : molecule(m)) {
+        from_messages.emplace_back(g, b.data() + k);
+        k += words;
+      }
+    }
+  std::sort(from_messages.begin(), from_messages.end());
+  const std::vector<int> was = ids_;  // the old owned particles, increasing
+  own(std::move(molecules));
+  std::vector<int> old_index(ids_.size(), -1);  // per new owned particle: its old index, −1 if it arrived
+  for (size_t k = 0, j = 0; k < ids_.size(); ++k) {
+    while (j < was.size() && was[j] < ids_[k]) ++j;
+    if (j < was.size() && was[j] == ids_[k]) old_index[k] = static_cast<int>(j);
+  }
+  const int n = num_owned();
+  Eigen::Matrix3Xd nx(3, n), nv(3, n);
+  std::vector<Eigen::Matrix3Xd> nc(carried.size(), Eigen::Matrix3Xd(3, n));
+  for (int k = 0; k < n; ++k) {
+    if (const int o = old_index[k]; o >= 0) {
+      nx.col(k) = x.col(o), nv.col(k) = v.col(o);
+      for (size_t c = 0; c < carried.size(); ++c) nc[c].col(k) = carried[c]->col(o);
+      continue;
+    }
+    const auto it = std::lower_bound(from_messages.begin(), from_messages.end(),
+                                     std::make_pair(ids_[k], static_cast<const double*>(nullptr)));
+    const double* w = it->second;
+    nx.col(k) = Eigen::Vector3d(w[0], w[1], w[2]);
+    nv.col(k) = Eigen::Vector3d(w[3], w[4], w[5]);
+    for (size_t c = 0; c < carried.size(); ++c)
+      nc[c].col(k) = Eigen::Vector3d(w[6 + 3 * c], w[7 + 3 * c], w[8 + 3 * c]);
+  }
+  x = std::move(nx);
+  v = std::move(nv);
+  for (size_t c = 0; c < carried.size(); ++c) *carried[c] = std::move(nc[c]);
+  return true;
+}
+
+void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
+  const ScopedPhase phase(Phase::domain);
+  ++selections_;
+  const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
   // Each rank's region: the bounding box of its owned beads, each molecule at its anchor's image,
   // and (open axes) the extent of every owned bead.
   std::vector<double> regions(6 * static_cast<size_t>(ranks) + 6, 0.0);
@@ -291,18 +302,18 @@ void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std:
   double* extent = regions.data() + 6 * ranks;  // −min, max per axis over all ranks (max-reduced)
   for (int a = 0; a < 3; ++a) mine[a] = kInf, mine[3 + a] = -kInf, extent[a] = extent[3 + a] = -kInf;
   for (int m : owned_) {
-    const Eigen::Vector3d c = anchor(x, molecule(m));
+    const Eigen::Vector3d c = anchor(x, molecule(m), true);
     Eigen::Vector3d shift = Eigen::Vector3d::Zero();
     for (int a = 0; a < 3; ++a)
       if (box_.periodic[a]) shift[a] = c[a] - wrap(c[a], box_.origin[a], box_.lengths[a], true);
     for (int g : molecule(m)) {
-      const Eigen::Vector3d p = x.col(local_of_[g]) - shift;
+      const Eigen::Vector3d p = x.col(owned_of_[g]) - shift;
       for (int a = 0; a < 3; ++a) mine[a] = std::min(mine[a], p[a]), mine[3 + a] = std::max(mine[3 + a], p[a]);
     }
   }
-  for (int i = 0; i < num_owned_; ++i)
+  for (int k = 0; k < owned; ++k)
     for (int a = 0; a < 3; ++a)
-      extent[a] = std::max(extent[a], -x(a, i)), extent[3 + a] = std::max(extent[3 + a], x(a, i));
+      extent[a] = std::max(extent[a], -x(a, k)), extent[3 + a] = std::max(extent[3 + a], x(a, k));
   // One max-reduction: the other ranks' slots are −∞ here (so a rank's slot is its own), the
   // extent is the largest over ranks.
   for (int r = 0; r < ranks; ++r)
@@ -333,8 +344,9 @@ void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std:
                               box_.lengths[a], cells.periodic[a]);
     neighbour[r] = near;
   }
-  std::vector<std::int64_t> occupied(static_cast<size_t>(num_owned_));
-  for (int i = 0; i < num_owned_; ++i) occupied[i] = cells.index(x.col(i).data());
+  std::vector<std::int64_t> cell_of(static_cast<size_t>(owned));
+  for (int k = 0; k < owned; ++k) cell_of[k] = cells.index(x.col(k).data());
+  std::vector<std::int64_t> occupied = cell_of;
   std::sort(occupied.begin(), occupied.end());
   occupied.erase(std::unique(occupied.begin(), occupied.end()), occupied.end());
   std::vector<std::vector<double>> out(ranks), in;
@@ -342,72 +354,46 @@ void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std:
     if (neighbour[r]) out[r].assign(occupied.begin(), occupied.end());
   comm_.exchange(out, in);
   // An owned bead is a ghost of neighbour r when its cell is adjacent to one r's beads occupy.
-  for (auto& s : send_) s.clear();
+  for (auto& list : send_) list.clear();
   std::vector<char> near_r(static_cast<size_t>(cells.size()));
   for (int r = 0; r < ranks; ++r) {
     if (!neighbour[r] || in[r].empty()) continue;
     std::fill(near_r.begin(), near_r.end(), 0);
     for (double c : in[r])
       cells.for_each_adjacent(static_cast<std::int64_t>(c), [&](std::int64_t q) { near_r[q] = 1; });
-    for (int i = 0; i < num_owned_; ++i)
-      if (near_r[cells.index(x.col(i).data())]) send_[r].push_back(i);
+    for (int k = 0; k < owned; ++k)
+      if (near_r[cell_of[k]]) send_[r].push_back(k);
   }
   for (int r = 0; r < ranks; ++r) {
     out[r].clear();
-    for (int i : send_[r]) {
-      out[r].push_back(ids_[i]);
-      for (int a = 0; a < 3; ++a) out[r].push_back(x(a, i));
-    }
+    for (int k : send_[r]) out[r].push_back(ids_[k]);
   }
   comm_.exchange(out, in);
+  // The extended set: owned and ghosts in increasing global index (so a particle's pairs are
+  // summed in the one-process order: forcefields/neighbor_list.hpp).
+  std::vector<std::pair<int, int>> members;  // global index, owned index (≥ 0) or −1 − ghost number
+  members.reserve(static_cast<size_t>(owned));
+  for (int k = 0; k < owned; ++k) members.emplace_back(ids_[k], k);
   int ghosts = 0;
-  for (int r = 0; r < ranks; ++r)
-    ghost_begin_[r] = num_owned_ + ghosts, ghosts += ghost_count_[r] = static_cast<int>(in[r].size() / 4);
-  const int n = num_owned_ + ghosts;
-  x.conservativeResize(3, n);
-  v.conservativeResize(3, n);
-  v.rightCols(ghosts).setZero();
-  for (Eigen::Matrix3Xd* c : carried) {
-    c->conservativeResize(3, n);
-    c->rightCols(ghosts).setZero();
+  for (int r = 0; r < ranks; ++r) {
+    ghost_begin_[r] = ghosts;
+    ghost_count_[r] = static_cast<int>(in[r].size());
+    for (double g : in[r]) members.emplace_back(static_cast<int>(g), -1 - ghosts++);
   }
-  for (int r = 0; r < ranks; ++r)
-    for (int k = 0; k < ghost_count_[r]; ++k) {
-      const double* w = in[r].data() + 4 * k;
-      const int i = ghost_begin_[r] + k;
-      ids_.push_back(static_cast<int>(w[0]));
-      x.col(i) = Eigen::Vector3d(w[1], w[2], w[3]);
-    }
-  // The local arrays in increasing global index, ghosts among the owned particles: every
-  // particle's pair partners then come in the order they come in one process (the lists' rows
-  // are sorted, NeighborList), so its forces are the same sums, bit for bit, at one thread.
-  std::vector<int> order(n);
-  std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](int a, int b) { return ids_[a] < ids_[b]; });
-  std::vector<int> new_index(n);
-  for (int k = 0; k < n; ++k) new_index[order[k]] = k;
-  const auto permute = [&](Eigen::Matrix3Xd& a) {
-    Eigen::Matrix3Xd b(3, n);
-    for (int k = 0; k < n; ++k) b.col(k) = a.col(order[k]);
-    a = std::move(b);
-  };
-  permute(x), permute(v);
-  for (Eigen::Matrix3Xd* c : carried) permute(*c);
-  std::vector<int> ids(n);
-  for (int k = 0; k < n; ++k) ids[k] = ids_[order[k]];
-  ids_ = std::move(ids);
-  owned_flag_.assign(n, 0);
-  owned_index_.clear();
-  for (int k = 0; k < n; ++k) {
-    local_of_[ids_[k]] = k;
-    if (order[k] < num_owned_) owned_flag_[k] = 1, owned_index_.push_back(k);
-  }
-  for (auto& list : send_)
-    for (int& i : list) i = new_index[i];
+  std::sort(members.begin(), members.end());
+  const int n = static_cast<int>(members.size());
+  extended_ids_.resize(n);
+  ghost_flag_.assign(n, 0);
+  owned_slot_.resize(owned);
   ghost_slot_.resize(ghosts);
-  for (int g = 0; g < ghosts; ++g) ghost_slot_[g] = new_index[num_owned_ + g];
-  x_at_selection_.resize(3, num_owned_);
-  for (int k = 0; k < num_owned_; ++k) x_at_selection_.col(k) = x.col(owned_index_[k]);
+  for (int e = 0; e < n; ++e) {
+    extended_ids_[e] = members[e].first;
+    if (members[e].second >= 0)
+      owned_slot_[members[e].second] = e;
+    else
+      ghost_slot_[-1 - members[e].second] = e, ghost_flag_[e] = 1;
+  }
+  x_at_selection_ = x;
   halo_doubles_ = 0;
   halo_messages_ = 0;
   for (int r = 0; r < ranks; ++r) {
@@ -418,38 +404,40 @@ void Decomposition::select_ghosts(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std:
   }
 }
 
-void Decomposition::halo(Eigen::Matrix3Xd& a) const {
+void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) const {
   const ScopedPhase phase(Phase::domain);
   // The ghosts cover every bead within r_c of ours while no bead moved margin/2 since their
-  // selection (the redistribution before each step sees to that, from the last step's growth): a
-  // step that moved one farther would miss pairs, so it stops here (on this rank: the others wait
-  // in the halo, so the job ends).
+  // selection (DomainIntegrator selects them again before a step that may): a step that moved one
+  // farther would miss pairs, so it stops here (on this rank: the others wait in the halo, so the
+  // job ends).
   if (const double d = max_displacement(a); d >= 0.5 * margin_) {
     std::ostringstream m;
-    m << "a bead moved " << d << " within one step, more than half the halo margin " << margin_
-      << " ([parallel] halo_margin): pairs would be missed; a larger halo_margin or a smaller step";
+    m << "a bead moved " << d << " since the ghosts were selected, more than half the halo margin " << margin_
+      << " ([parallel] halo_margin) in less than a step: pairs would be missed; a larger halo_margin or a smaller step";
     throw NumericalError(m.str());
   }
   const int ranks = comm_.size();
+  extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
+  for (int k = 0; k < num_owned(); ++k) extended.col(owned_slot_[k]) = a.col(k);
   for (int r = 0; r < ranks; ++r) {
     double* b = send_buffer_[r].data();
-    for (int i : send_[r]) b[0] = a(0, i), b[1] = a(1, i), b[2] = a(2, i), b += 3;
+    for (int k : send_[r]) b[0] = a(0, k), b[1] = a(1, k), b[2] = a(2, k), b += 3;
   }
   comm_.exchange_known(send_buffer_, recv_buffer_);
   for (int r = 0; r < ranks; ++r) {
     const double* b = recv_buffer_[r].data();
-    const int* slot = ghost_slot_.data() + (ghost_begin_[r] - num_owned_);
-    for (int k = 0; k < ghost_count_[r]; ++k, b += 3) a.col(slot[k]) = Eigen::Vector3d(b[0], b[1], b[2]);
+    const int* slot = ghost_slot_.data() + ghost_begin_[r];
+    for (int k = 0; k < ghost_count_[r]; ++k, b += 3) extended.col(slot[k]) = Eigen::Vector3d(b[0], b[1], b[2]);
   }
 }
 
 void Decomposition::gather(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, State& whole) const {
   std::vector<double> mine;
-  mine.reserve(7 * static_cast<size_t>(num_owned_));
-  for (int i : owned_index_) {
-    mine.push_back(ids_[i]);
-    for (int a = 0; a < 3; ++a) mine.push_back(x(a, i));
-    for (int a = 0; a < 3; ++a) mine.push_back(v(a, i));
+  mine.reserve(7 * static_cast<size_t>(num_owned()));
+  for (int k = 0; k < num_owned(); ++k) {
+    mine.push_back(ids_[k]);
+    for (int a = 0; a < 3; ++a) mine.push_back(x(a, k));
+    for (int a = 0; a < 3; ++a) mine.push_back(v(a, k));
   }
   std::vector<std::vector<double>> all;
   comm_.gather(mine, all);
@@ -465,11 +453,11 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
                                    int num_particles) const {
   const size_t arrays = local.size(), words = 1 + 3 * arrays;
   std::vector<double> mine;
-  mine.reserve(words * static_cast<size_t>(num_owned_));
-  for (int i : owned_index_) {
-    mine.push_back(ids_[i]);
+  mine.reserve(words * static_cast<size_t>(num_owned()));
+  for (int k = 0; k < num_owned(); ++k) {
+    mine.push_back(ids_[k]);
     for (const Eigen::Matrix3Xd& a : local)
-      for (int k = 0; k < 3; ++k) mine.push_back(a(k, i));
+      for (int c = 0; c < 3; ++c) mine.push_back(a(c, k));
   }
   std::vector<std::vector<double>> all;
   comm_.gather(mine, all);
@@ -484,8 +472,7 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
 
 double Decomposition::max_displacement(const Eigen::Matrix3Xd& x) const {
   double d2 = 0.0;
-  for (int k = 0; k < num_owned_; ++k)
-    d2 = std::max(d2, (x.col(owned_index_[k]) - x_at_selection_.col(k)).squaredNorm());
+  for (int k = 0; k < num_owned(); ++k) d2 = std::max(d2, (x.col(k) - x_at_selection_.col(k)).squaredNorm());
   return std::sqrt(d2);
 }
 

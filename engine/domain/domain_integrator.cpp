@@ -8,6 +8,7 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/core/timing.hpp"
+#include "engine/domain/ghosted_pairs.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/thermostat.hpp"
 
@@ -16,13 +17,13 @@ namespace stiffmd {
 struct DomainIntegrator::Part {
   Scene scene;
   std::unique_ptr<Integrator> integrator;
+  std::vector<GhostedPairs*> pairs;  // its force field's pair terms
 };
 
 namespace {
 
-// The halo's margin beyond the cutoff: [parallel] halo_margin, else twice the pair lists' skin
-// (a redistribution when some bead may have moved a skin, about as often as one process rebuilds
-// its list: each redistribution builds the part and its lists anew).
+// The halo's margin beyond the cutoff: [parallel] halo_margin, else to start with twice the pair
+// lists' skin, then adapted (DomainIntegrator::reselect).
 double halo_margin(const Scene& sc, double skin) {
   if (sc.parallel.halo_margin > 0.0) return sc.parallel.halo_margin;
   return skin > 0.0 ? 2.0 * skin : 0.6;
@@ -39,6 +40,8 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.box, comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin) : 0.0, dims);
+  adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);
+  margin_range_[0] = std::max(skin, 1e-3 * cutoff), margin_range_[1] = 4.0 * (cutoff + skin);
   evaluations_.assign(whole.forces->num_levels(), 0);
   const MethodInfo* m = find_method(whole.integrator.method);
   const StiffBonds* stiff = whole.forces->stiff_bonds();
@@ -93,16 +96,16 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   p.integrator = w.integrator;
   p.run = w.run;
   p.observables = w.observables;
-  p.global_id = d.local_ids();
-  const int n = d.num_local();
+  p.global_id = d.owned_ids();
+  const int n = d.num_owned();
   p.state.x = std::move(x);
   p.state.v = std::move(v);
   p.state.inv_mass.resize(n);
   p.particle_type.resize(n);
-  for (int i = 0; i < n; ++i) {
-    const int g = p.global_id[i];
-    p.state.inv_mass[i] = d.owned(i) ? w.state.inv_mass[g] : 0.0;  // ghosts: moved by their owners only
-    p.particle_type[i] = w.particle_type[g];
+  for (int k = 0; k < n; ++k) {
+    const int g = p.global_id[k];
+    p.state.inv_mass[k] = w.state.inv_mass[g];
+    p.particle_type[k] = w.particle_type[g];
   }
   p.state.t = s.t;
   p.state.step = s.step;
@@ -111,35 +114,48 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   const Topology& wt = w.topology;
   Topology& t = p.topology;
   t.bond_types = wt.bond_types, t.angle_types = wt.angle_types, t.dihedral_types = wt.dihedral_types;
-  const auto mine = [&](int g) {
-    const int i = d.local_index(g);
-    return i >= 0 && d.owned(i);
-  };
+  const auto at = [&](int g) { return d.owned_index(g); };
   for (const Bond& b : wt.bonds)
-    if (mine(b.i)) t.bonds.push_back({d.local_index(b.i), d.local_index(b.j), b.type});
+    if (at(b.i) >= 0) t.bonds.push_back({at(b.i), at(b.j), b.type});
   for (const Angle& a : wt.angles)
-    if (mine(a.i)) t.angles.push_back({d.local_index(a.i), d.local_index(a.j), d.local_index(a.k), a.type});
+    if (at(a.i) >= 0) t.angles.push_back({at(a.i), at(a.j), at(a.k), a.type});
   for (const Dihedral& h : wt.dihedrals)
-    if (mine(h.i))
-      t.dihedrals.push_back({d.local_index(h.i), d.local_index(h.j), d.local_index(h.k), d.local_index(h.l), h.type});
+    if (at(h.i) >= 0) t.dihedrals.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
   ThermostatSettings& th = p.integrator.thermostat;
   if (th.friction.size() > 0) {
     Eigen::VectorXd f(n);
-    for (int i = 0; i < n; ++i) f[i] = w.integrator.thermostat.friction[p.global_id[i]];
+    for (int k = 0; k < n; ++k) f[k] = w.integrator.thermostat.friction[p.global_id[k]];
     th.friction = f;
   }
   th.particle_id.assign(p.global_id.begin(), p.global_id.end());
   th.processes = &comm_;
   th.degrees_of_freedom = whole_dof_;
   read_force_terms(deck_, p);
-  Decomposition* domains = domains_.get();
-  p.forces->set_halo([domains](const Eigen::Matrix3Xd& a) { domains->halo(const_cast<Eigen::Matrix3Xd&>(a)); });
-  std::vector<char> ghost(n);
-  for (int i = 0; i < n; ++i) ghost[i] = !d.owned(i);
-  p.forces->set_ghosts(ghost);
+  // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs).
+  for (size_t k = 0; k < p.forces->terms().size(); ++k) {
+    const ForceTerm& term = *p.forces->terms()[k];
+    if (!term.uses_neighbor_list()) continue;
+    auto ghosted = std::make_unique<GhostedPairs>(term.on_particles(p.particle_type, t.bonds, p.box), d);
+    part->pairs.push_back(ghosted.get());
+    p.forces->replace(k, std::move(ghosted));
+  }
   part->integrator = make_integrator(p.integrator, *p.forces, p.state.inv_mass);
   if (std::vector<double> inv = part_invariants(); !inv.empty()) part->integrator->set_invariants(inv);
   part_ = std::move(part);
+}
+
+// The pair terms on the extended set of the last selection: its particles' types and the owned
+// molecules' bonds (their special pairs) in its indices.
+void DomainIntegrator::retarget_pairs() {
+  const Decomposition& d = *domains_;
+  const std::vector<int>& ext = d.extended_ids();
+  const auto at = [&](int g) { return static_cast<int>(std::lower_bound(ext.begin(), ext.end(), g) - ext.begin()); };
+  std::vector<int> types(ext.size());
+  for (size_t e = 0; e < ext.size(); ++e) types[e] = whole_scene_.particle_type[ext[e]];
+  std::vector<Bond> bonds;
+  for (const Bond& b : whole_scene_.topology.bonds)
+    if (d.owned_index(b.i) >= 0) bonds.push_back({at(b.i), at(b.j), b.type});
+  for (GhostedPairs* term : part_->pairs) term->retarget(types, bonds, whole_scene_.box);
 }
 
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
@@ -148,67 +164,82 @@ void DomainIntegrator::start(const State& s) {
   Eigen::Matrix3Xd x, v;
   domains_->distribute(s, x, v);
   build_part(std::move(x), std::move(v), s);
+  domains_->select_ghosts(part_->scene.state.x);
+  retarget_pairs();
   CarriedState c = whole_->carried_state();
-  const std::vector<int>& ids = domains_->local_ids();
+  const std::vector<int>& ids = domains_->owned_ids();
   for (Eigen::Matrix3Xd& column : c.columns) {
-    Eigen::Matrix3Xd mine = Eigen::Matrix3Xd::Zero(3, domains_->num_local());
-    for (int i : domains_->owned_particles()) mine.col(i) = column.col(ids[i]);
+    Eigen::Matrix3Xd mine(3, domains_->num_owned());
+    for (int k = 0; k < domains_->num_owned(); ++k) mine.col(k) = column.col(ids[k]);
     column = std::move(mine);
   }
   if (!comm_.root()) std::fill(c.sums.begin(), c.sums.end(), 0.0);
   part_->integrator->restore_carried_state(std::move(c));
 }
 
-// The molecules move with what the part's integrator carries for their particles (cached kick
-// forces, a Langevin force among them: they are not recomputed, so the run goes on as if
-// nothing had moved).
-void DomainIntegrator::rebuild() {
+// The ghosts selected again; first the molecules whose anchors have left their domains move,
+// with what the part's integrator carries for their particles (cached kick forces, a Langevin
+// force among them: not recomputed, so the run goes on as if nothing had moved). Only a part
+// whose particles changed is built again.
+void DomainIntegrator::reselect() {
   const ScopedPhase phase(Phase::domain);
+  // The margin's trade: a wider one holds more ghosts (a larger halo and lists), a narrower one
+  // selects them more often (each selection builds the pair terms and their lists anew, a few
+  // steps' worth). Aim at a selection every 10–40 steps, as a list's skin usually lasts; the steps
+  // between selections are the same on every rank, so is the margin.
+  if (adapt_margin_) {
+    const double m = domains_->margin();
+    if (steps_since_selection_ < 10) domains_->set_margin(std::min(1.5 * m, margin_range_[1]));
+    if (steps_since_selection_ > 40) domains_->set_margin(std::max(m / 1.25, margin_range_[0]));
+  }
+  steps_since_selection_ = 0;
   State& l = part_->scene.state;
   CarriedState carried = part_->integrator->carried_state();
   std::vector<Eigen::Matrix3Xd*> columns;
   for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
-  Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
-  domains_->redistribute(x, v, columns);
-  build_part(std::move(x), std::move(v), l);
-  part_->integrator->restore_carried_state(std::move(carried));
-  last_displacement_ = 0.0;
+  if (domains_->migrate(l.x, l.v, columns)) {
+    Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
+    build_part(std::move(x), std::move(v), l);
+    part_->integrator->restore_carried_state(std::move(carried));
+  }
+  domains_->select_ghosts(part_->scene.state.x);
+  retarget_pairs();
 }
 
 void DomainIntegrator::step(State& s, double h) {
   if (!part_)
     start(s);
-  else if (redistribute_)
-    rebuild();
-  redistribute_ = false;
+  else if (reselect_)
+    reselect();
+  reselect_ = false;
   State& l = part_->scene.state;
   l.step = s.step;
   l.t = s.t;
   part_->integrator->step(l, h);
+  ++steps_since_selection_;
   // One reduction: the largest displacement since the ghosts were selected, and the first
   // particle (global index) with a non-finite position or velocity.
-  double first_bad = -std::numeric_limits<double>::infinity();
-  for (int i : domains_->owned_particles())
-    if (!l.x.col(i).allFinite() || !l.v.col(i).allFinite()) {
-      first_bad = -static_cast<double>(part_->scene.global_id[i]);
+  double first_bad = -std::numeric_limits<double>::infinity(), v2 = 0.0;
+  for (int k = 0; k < domains_->num_owned(); ++k) {
+    if (!l.x.col(k).allFinite() || !l.v.col(k).allFinite()) {
+      first_bad = -static_cast<double>(part_->scene.global_id[k]);
       break;
     }
-  double reduced[2] = {domains_->max_displacement(l.x), first_bad};
+    v2 = std::max(v2, l.v.col(k).squaredNorm());
+  }
+  double reduced[3] = {domains_->max_displacement(l.x), first_bad, std::sqrt(v2) * h};
   {
     const ScopedPhase phase(Phase::domain);
-    comm_.max(reduced, 2);
+    comm_.max(reduced, 3);
   }
   if (std::isfinite(reduced[1])) {
     std::ostringstream m;
     m << "numerical failure: non-finite position or velocity of particle " << static_cast<long>(-reduced[1]);
     throw AgreedStop(m.str(), comm_.root());
   }
-  // Redistribute before the next step if it may take a bead past margin/2: its displacement is
-  // bounded by twice the last step's growth (a step's displacement changes slowly).
-  const double d = reduced[0];
-  const double growth = std::max(d - last_displacement_, 0.0);
-  last_displacement_ = d;
-  if (domains_->margin() > 0.0 && d + 2.0 * growth >= 0.5 * domains_->margin()) redistribute_ = true;
+  // Select the ghosts again before the next step if it may take a bead past margin/2: a bead
+  // moves about |v| h in a step; twice the fastest one's bounds the next step's displacement.
+  if (domains_->margin() > 0.0 && reduced[0] + 2.0 * reduced[2] >= 0.5 * domains_->margin()) reselect_ = true;
 }
 
 void DomainIntegrator::reset() {
@@ -269,15 +300,15 @@ DomainReport DomainIntegrator::report() const {
   if (!part_) return r;
   r.grid = domains_->grid().dims;
   const int owned = domains_->num_owned();
-  double v[4] = {owned > 0 ? static_cast<double>(domains_->num_local() - owned) / owned : 0.0,
-                 8.0 * static_cast<double>(domains_->halo_doubles()), static_cast<double>(domains_->halo_messages()),
-                 static_cast<double>(domains_->migrated_molecules())};
+  const double ghosts = static_cast<double>(domains_->extended_ids().size()) - owned;
+  double v[4] = {owned > 0 ? ghosts / owned : 0.0, 8.0 * static_cast<double>(domains_->halo_doubles()),
+                 static_cast<double>(domains_->halo_messages()), static_cast<double>(domains_->migrated_molecules())};
   comm_.sum(v, 4);
   r.ghosts_per_owned = v[0] / r.ranks;
   r.halo_bytes_per_step = v[1];
   r.halo_messages_per_step = v[2];
   r.migrated_molecules = static_cast<long>(v[3]);
-  r.redistributions = domains_->redistributions();
+  r.redistributions = domains_->selections() - 1;
   return r;
 }
 

@@ -6,10 +6,11 @@
 // method on those: every per-molecule solve (SHAKE/RATTLE, the tridiagonal G M⁻¹ Gᵀ, Fixman's
 // log-det, the effective dynamics' modes) is the one-process code on whole molecules. The only
 // communication inside a step is the halo before a neighbour-list term is evaluated (once per
-// macro step when pairs are slow); after each step one reduction of two numbers (the largest
-// displacement since the ghosts were selected, the first non-finite particle). When a bead may
-// have moved margin/2 by the end of the next step, the molecules are redistributed by their
-// anchors and the ghosts selected again, before that step; the part's integrator is built
+// macro step when pairs are slow); after each step one reduction of three numbers (the largest
+// displacement since the ghosts were selected, the first non-finite particle, the fastest bead's
+// |v| h). When a bead may have moved margin/2 by the end of the next step, the molecules are
+// redistributed by their anchors and the ghosts selected again, before that step; a part's
+// integrator whose molecules changed is built
 // afresh and takes over what the old one carried for the particles (Integrator::carried_state:
 // cached kick forces move with their particles) and the effective dynamics' actions
 // (Integrator::invariants).
@@ -62,7 +63,8 @@ class DomainIntegrator final : public Integrator {
  private:
   struct Part;
   void start(const State& s);
-  void rebuild();
+  void reselect();
+  void retarget_pairs();
   void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
   std::vector<double> part_invariants() const;
 
@@ -72,8 +74,10 @@ class DomainIntegrator final : public Integrator {
   std::unique_ptr<Integrator> whole_;
   std::unique_ptr<Decomposition> domains_;
   std::unique_ptr<Part> part_;
-  bool redistribute_ = false;  // before the next step
-  double last_displacement_ = 0.0;
+  bool reselect_ = false;            // the ghosts (and the molecules' owners) before the next step
+  bool adapt_margin_ = false;        // no [parallel] halo_margin: DomainIntegrator::reselect adapts it
+  double margin_range_[2] = {0, 0};  // its least and largest value
+  long steps_since_selection_ = 0;
   int whole_dof_ = 0;  // csvr: the whole system's degrees of freedom
   // The effective dynamics' modes: per constraint cluster of the whole system (clusters in the
   // order of their first bond, integrators/modes.hpp), its molecule, first mode and mode count.
