@@ -54,6 +54,12 @@ class DomainIntegrator final : public Integrator {
   // Rank 0's whole.x, whole.v become the system's current state (collective; nothing before the
   // first step: the whole state is then current on every rank).
   void gather(State& whole) const;
+  // The parts built from the whole state s (the same on every rank) now, rather than at the first
+  // step (collective; nothing once built): the Run does it before its step loop, which then times
+  // steps only.
+  void distribute(const State& s) {
+    if (!part_) start(s);
+  }
   bool distributed() const { return part_ != nullptr; }
   // Force evaluations per level and neighbour-list rebuilds of this rank's parts so far.
   std::vector<std::int64_t> evaluations() const;

@@ -192,6 +192,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     checkpoint_due_.emplace(sc.output.checkpoint_interval);
     checkpoint_due_->served_until(s_.t);
   }
+  if (domain_) domain_->distribute(s_);  // the parts, before the step loop and its clock
   if (opt.handle_signals) install_stop_handlers();
   signal_at_ = SignalAtStep::from_environment();  // tests: a signal at an exact step
   cpu_start_ = std::clock();
