@@ -9,6 +9,7 @@ CASE is one of
                               integrator.method = METHOD (every method of integrators/methods.hpp)
     stiff_melt:METHOD:csvr    the same under the csvr thermostat instead of Langevin
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
+    bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
     restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
                               step 200 into the same folder (N is not used; ctest passes max(A, B))
 
@@ -477,6 +478,21 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     compare_runs(ref, out, f"{case} on {n} ranks")
 
 
+def bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp):
+    """A [parallel] grid of another number of domains than ranks: exit 2, one line naming the key,
+    no output directory."""
+    out = os.path.join(tmp, "bad_grid")
+    deck = os.path.join(ROOT, "inputs", "domain_straddle.toml")
+    cmd = launch(mpiexec, numproc_flag, n, stiffmd) + ["run", deck, "-o", out, "-q", "--no-progress",
+                                                        "--set", f"parallel.grid=[{n + 1}, 1, 1]"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=environment())
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error")]
+    if r.returncode != 2 or len(errors) != 1 or "parallel.grid" not in errors[0] or os.path.exists(out):
+        raise SystemExit(f"FAIL: expected exit 2, one error line naming parallel.grid and no {out}; got exit "
+                         f"{r.returncode}, stderr:\n{r.stderr}")
+    print(errors[0])
+
+
 def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
     """100 steps on `first` ranks, continued from its checkpoint on `second` ranks to step 200 into
     the same folder: the files of the uninterrupted serial run."""
@@ -501,7 +517,9 @@ def main(argv):
     tmp = tempfile.mkdtemp(prefix="stiffmd_domains_")
     start = time.monotonic()
     try:
-        if case.startswith("restart:"):
+        if case == "bad_grid":
+            bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp)
+        elif case.startswith("restart:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
         else:

@@ -38,6 +38,11 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   for (const auto& t : whole.forces->terms())
     if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
   const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
+  if (dims && dims->prod() != comm.size())
+    throw InputError(whole.parallel.where + ".grid: " + std::to_string(dims->prod()) + " domains (" +
+                     std::to_string((*dims)[0]) + " x " + std::to_string((*dims)[1]) + " x " +
+                     std::to_string((*dims)[2]) + ") for " + std::to_string(comm.size()) +
+                     " ranks: expected one domain per rank (or no grid: it is chosen)");
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.box, comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin) : 0.0, dims);
   adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);

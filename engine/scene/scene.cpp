@@ -371,6 +371,7 @@ void read_integrator(DeckTable& root, Scene& sc) {
 void read_parallel(DeckTable& root, Scene& sc) {
   auto t = root.table("parallel");
   if (!t) return;
+  sc.parallel.where = t->where();
   if (t->has("grid")) {
     const std::vector<long> g = t->integers("grid");
     t->require(g.size() == 3 && g[0] >= 1 && g[1] >= 1 && g[2] >= 1, "grid",

@@ -56,6 +56,7 @@ struct OutputSettings {
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
   double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: the pair lists' skin
+  std::string where;                               // "file:line: parallel" of the table, for errors
 };
 
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
