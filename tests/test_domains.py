@@ -9,6 +9,7 @@ CASE is one of
                               integrator.method = METHOD (every method of integrators/methods.hpp)
     stiff_melt:METHOD:csvr    the same under the csvr thermostat instead of Langevin
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
+    migrate                   the same, a field driving the chains across the domains: molecules migrate
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
     restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
                               step 200 into the same folder (N is not used; ctest passes max(A, B))
@@ -198,8 +199,10 @@ def case_setup(case):
         return STIFF_MELT, h, extra
     if case == "straddle":
         return STRADDLE, 0.02, {}
+    if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
+        return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest, stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing
@@ -475,6 +478,12 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     run([stiffmd] + args[:2] + ["-o", ref] + args[2:], 1)
     if case == "straddle":
         check_straddle_geometry(ref)
+    if case == "migrate" and n > 1:  # the case is there to move molecules between ranks
+        with open(os.path.join(out, "summary.json")) as f:
+            moved = json.load(f)["domains"]["migrated_molecules"]
+        if moved == 0:
+            raise SystemExit(f"FAIL: no molecule migrated on {n} ranks")
+        print(f"{moved} molecules migrated")
     compare_runs(ref, out, f"{case} on {n} ranks")
 
 

@@ -221,14 +221,17 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   const ScopedPhase phase(Phase::domain);
   const int ranks = comm_.size(), me = comm_.rank();
   const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
-  // A molecule leaves when its anchor is more than the margin past this rank's domain: an anchor
-  // near a face does not go back and forth (each move rebuilds two ranks' parts).
+  // A molecule leaves when its anchor is past this rank's domain by more than the margin (at most a
+  // quarter of the domain's narrowest width): an anchor near a face does not go back and forth
+  // (each move rebuilds two ranks' parts), nor does a wide margin keep molecules far from home.
+  double slack = margin_;
+  for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * grid_.length[a] / grid_.dims[a]);
   std::vector<std::vector<double>> out(ranks), in;
   std::vector<int> kept;
   for (int m : owned_) {
     const Eigen::Vector3d c = anchor(x, molecule(m), true);
     const int to = grid_.domain_of(c);
-    if (to == me || grid_.within(me, c, margin_)) {
+    if (to == me || grid_.within(me, c, slack)) {
       kept.push_back(m);
       continue;
     }

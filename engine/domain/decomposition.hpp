@@ -65,7 +65,8 @@ class Decomposition {
   // From the whole state (the same on every rank, at the start): owners by anchor, and this
   // rank's owned x, v. Collective (through select_ghosts, which the caller runs next).
   void distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
-  // Molecules whose anchor has gone more than the margin past this rank's domain move whole to the
+  // Molecules whose anchor has gone more than the margin (at most a quarter of a domain's width)
+  // past this rank's domain move whole to the
   // owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel with
   // them); x, v, carried become the new owned arrays. Returns whether this rank's owned particles
   // changed. Collective.
