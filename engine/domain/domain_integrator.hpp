@@ -1,19 +1,18 @@
 // A run on several ranks that own whole molecules (docs/parallel.md), as one Integrator of the
 // whole system: the Run drives it as it drives any method, and it steps this rank's part.
 //
-// The part is a Scene of its own (owned particles, then ghosts with inverse mass 0: nothing
-// moves them and they count in no sum) with the deck's force terms built on it and the deck's
-// method on those: every per-molecule solve (SHAKE/RATTLE, the tridiagonal G M⁻¹ Gᵀ, Fixman's
-// log-det, the effective dynamics' modes) is the one-process code on whole molecules. The only
-// communication inside a step is the halo before a neighbour-list term is evaluated (once per
-// macro step when pairs are slow); after each step one reduction of three numbers (the largest
+// The part is a Scene of its own particles (the integrator never sees a ghost) with the deck's
+// force terms built on it and the deck's method on those: every per-molecule solve (SHAKE/RATTLE,
+// the tridiagonal G M⁻¹ Gᵀ, Fixman's log-det, the effective dynamics' modes) is the one-process
+// code on whole molecules. Its pair terms act on owned particles and ghosts (GhostedPairs). The
+// only communication inside a step is the halo before a pair term is evaluated (once per macro
+// step when pairs are slow); after each step one reduction of three numbers (the largest
 // displacement since the ghosts were selected, the first non-finite particle, the fastest bead's
 // |v| h). When a bead may have moved margin/2 by the end of the next step, the molecules are
-// redistributed by their anchors and the ghosts selected again, before that step; a part's
-// integrator whose molecules changed is built
-// afresh and takes over what the old one carried for the particles (Integrator::carried_state:
-// cached kick forces move with their particles) and the effective dynamics' actions
-// (Integrator::invariants).
+// redistributed by their anchors and the ghosts selected again, before that step; a part whose
+// molecules changed is built afresh and takes over what the old one carried for the particles
+// (Integrator::carried_state: cached kick forces move with their particles) and the effective
+// dynamics' actions (Integrator::invariants).
 //
 // Until the first step, and for what the Run asks about the whole system before it (prepare,
 // the first sample), the whole-system integrator answers, the same on every rank.
