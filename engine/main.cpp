@@ -146,7 +146,7 @@ int main(int argc, char** argv) {
     return code == 0 ? 0 : kExitBadInput;
   }
 
-  bool decomposed = false;
+  bool decomposed = false, running = false;  // running: a decomposed run's Run is being built or stepped
   try {
     if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
     const stiffmd::Deck deck(deck_path, overrides);
@@ -180,6 +180,11 @@ int main(int argc, char** argv) {
     std::ostringstream quiet_log;
     std::ostream& log = speaker ? std::cerr : quiet_log;
     stiffmd::Scene scene = stiffmd::load_scene(deck);
+    if (const Eigen::Vector3i& g = scene.parallel.grid; decomposed && g.prod() > 0 && g.prod() != processes.size())
+      throw stiffmd::InputError(scene.parallel.where + ".grid: " + std::to_string(g.prod()) + " domains (" +
+                                std::to_string(g[0]) + " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) +
+                                ") for " + std::to_string(processes.size()) +
+                                " ranks: expected one domain per rank (or no grid: it is chosen)");
     // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
     // printed or written: a damaged or foreign one is one line and exit 2.
     std::optional<stiffmd::Checkpoint> checkpoint;
@@ -203,6 +208,7 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{speaker ? out_dir : std::string(), speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator(), options.deck = &deck;
+    running = decomposed;
     const auto summary = stiffmd::run_simulation(scene, options, log);
     if (!speaker) return summary.stopped_by_signal ? 128 + summary.stopped_by_signal : 0;
     if (summary.stopped_by_signal) {
@@ -214,7 +220,10 @@ int main(int argc, char** argv) {
     std::cout << stiffmd::format_summary(summary);
     return 0;
   } catch (const stiffmd::InputError& e) {
-    if (speaker) std::cerr << "error: " << e.what() << "\n";
+    // Before the run, every rank finds the same (rank 0 says it); within a decomposed run's steps an
+    // error may be this rank's alone, and the others wait for it in a collective: the job ends.
+    if (speaker || running) std::cerr << "error" << rank_tag(processes, running) << ": " << e.what() << "\n";
+    if (running) processes.abort(kExitBadInput);
     return kExitBadInput;
   } catch (const stiffmd::AgreedStop& e) {  // every rank stops here; rank 0 says why
     if (e.printed_here()) std::cerr << "error: " << e.what() << "\n";
@@ -222,12 +231,12 @@ int main(int argc, char** argv) {
   } catch (const stiffmd::NumericalError& e) {
     // In a decomposed run this rank alone failed: it says so, and the job ends (the others wait
     // for it in a collective); rank 0's outputs so far are flushed frame by frame.
-    if (speaker || decomposed) std::cerr << "error" << rank_tag(processes, decomposed) << ": " << e.what() << "\n";
-    if (decomposed) processes.abort(kExitNumerical);
+    if (speaker || running) std::cerr << "error" << rank_tag(processes, running) << ": " << e.what() << "\n";
+    if (running) processes.abort(kExitNumerical);
     return kExitNumerical;
   } catch (const std::exception& e) {
     std::cerr << "internal error" << rank_tag(processes, decomposed) << ": " << e.what() << "\n";
-    if (decomposed) processes.abort(1);
+    if (running) processes.abort(1);
     return 1;
   }
 }

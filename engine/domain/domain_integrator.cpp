@@ -101,6 +101,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   p.integrator = w.integrator;
   p.run = w.run;
   p.observables = w.observables;
+  p.part = true;
   p.global_id = d.owned_ids();
   const int n = d.num_owned();
   p.state.x = std::move(x);

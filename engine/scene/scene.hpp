@@ -89,10 +89,11 @@ struct Scene {
   ParallelSettings parallel;       // [parallel]
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
-  // A decomposed run's local scene (engine/domain/local_scene.*): the whole system's index of
-  // each particle here. Empty: the scene is the whole system.
+  // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
+  // whole system's index of each particle here.
+  bool part = false;
   std::vector<int> global_id;
-  bool local() const { return !global_id.empty(); }
+  bool local() const { return part; }
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end
   // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
