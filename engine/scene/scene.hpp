@@ -55,7 +55,7 @@ struct OutputSettings {
 // [parallel]: what a run on several ranks lets a user choose (docs/parallel.md); ignored on one.
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
-  double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: the pair lists' skin
+  double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: adapted (docs/parallel.md)
   std::string where;                               // "file:line: parallel" of the table, for errors
 };
 
