@@ -180,11 +180,7 @@ int main(int argc, char** argv) {
     std::ostringstream quiet_log;
     std::ostream& log = speaker ? std::cerr : quiet_log;
     stiffmd::Scene scene = stiffmd::load_scene(deck);
-    if (const Eigen::Vector3i& g = scene.parallel.grid; decomposed && g.prod() > 0 && g.prod() != processes.size())
-      throw stiffmd::InputError(scene.parallel.where + ".grid: " + std::to_string(g.prod()) + " domains (" +
-                                std::to_string(g[0]) + " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) +
-                                ") for " + std::to_string(processes.size()) +
-                                " ranks: expected one domain per rank (or no grid: it is chosen)");
+    if (decomposed) stiffmd::check_parallel_grid(scene, processes.size());  // on every rank alike, before the run
     // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
     // printed or written: a damaged or foreign one is one line and exit 2.
     std::optional<stiffmd::Checkpoint> checkpoint;

@@ -434,24 +434,6 @@ void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) 
   }
 }
 
-void Decomposition::gather(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, State& whole) const {
-  std::vector<double> mine;
-  mine.reserve(7 * static_cast<size_t>(num_owned()));
-  for (int k = 0; k < num_owned(); ++k) {
-    mine.push_back(ids_[k]);
-    for (int a = 0; a < 3; ++a) mine.push_back(x(a, k));
-    for (int a = 0; a < 3; ++a) mine.push_back(v(a, k));
-  }
-  std::vector<std::vector<double>> all;
-  comm_.gather(mine, all);
-  for (const std::vector<double>& b : all)
-    for (size_t k = 0; k + 7 <= b.size(); k += 7) {
-      const int g = static_cast<int>(b[k]);
-      whole.x.col(g) = Eigen::Vector3d(b[k + 1], b[k + 2], b[k + 3]);
-      whole.v.col(g) = Eigen::Vector3d(b[k + 4], b[k + 5], b[k + 6]);
-    }
-}
-
 void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, std::vector<Eigen::Matrix3Xd>& whole,
                                    int num_particles) const {
   const size_t arrays = local.size(), words = 1 + 3 * arrays;

@@ -79,8 +79,6 @@ class Decomposition {
   // the buffers have their size. Stops the run (NumericalError) when a bead has moved margin/2
   // since the selection: pairs would be missed.
   void halo(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& extended) const;
-  // Rank 0 gets every rank's owned columns of x and v into whole.x, whole.v by global index.
-  void gather(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, State& whole) const;
   // Rank 0 gets every rank's owned columns of each array into a 3 × N array by global index (the
   // others get nothing). Collective.
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,

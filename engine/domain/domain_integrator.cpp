@@ -31,6 +31,14 @@ double halo_margin(const Scene& sc, double skin) {
 
 }  // namespace
 
+void check_parallel_grid(const Scene& sc, int ranks) {
+  const Eigen::Vector3i& g = sc.parallel.grid;
+  if (g.prod() > 0 && g.prod() != ranks)
+    throw InputError(sc.parallel.where + ".grid: " + std::to_string(g.prod()) + " domains (" + std::to_string(g[0]) +
+                     " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) + ") for " + std::to_string(ranks) +
+                     " ranks: expected one domain per rank (or no grid: it is chosen)");
+}
+
 DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communicator& comm,
                                    std::unique_ptr<Integrator> whole_method)
     : whole_scene_(whole), deck_(deck), comm_(comm), whole_(std::move(whole_method)) {
@@ -38,11 +46,7 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   for (const auto& t : whole.forces->terms())
     if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
   const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
-  if (dims && dims->prod() != comm.size())
-    throw InputError(whole.parallel.where + ".grid: " + std::to_string(dims->prod()) + " domains (" +
-                     std::to_string((*dims)[0]) + " x " + std::to_string((*dims)[1]) + " x " +
-                     std::to_string((*dims)[2]) + ") for " + std::to_string(comm.size()) +
-                     " ranks: expected one domain per rank (or no grid: it is chosen)");
+  check_parallel_grid(whole, comm.size());
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.box, comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin) : 0.0, dims);
   adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);
@@ -150,17 +154,15 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   part_ = std::move(part);
 }
 
-// The pair terms on the extended set of the last selection: its particles' types and the owned
-// molecules' bonds (their special pairs) in its indices.
+// The pair terms on the extended set of the last selection: its particles' types and the part's
+// bonds (their special pairs) in its indices (owned particle k is extended particle slot(k)).
 void DomainIntegrator::retarget_pairs() {
   const Decomposition& d = *domains_;
   const std::vector<int>& ext = d.extended_ids();
-  const auto at = [&](int g) { return static_cast<int>(std::lower_bound(ext.begin(), ext.end(), g) - ext.begin()); };
   std::vector<int> types(ext.size());
   for (size_t e = 0; e < ext.size(); ++e) types[e] = whole_scene_.particle_type[ext[e]];
-  std::vector<Bond> bonds;
-  for (const Bond& b : whole_scene_.topology.bonds)
-    if (d.owned_index(b.i) >= 0) bonds.push_back({at(b.i), at(b.j), b.type});
+  std::vector<Bond> bonds = part_->scene.topology.bonds;
+  for (Bond& b : bonds) b.i = d.extended_slot(b.i), b.j = d.extended_slot(b.j);
   for (GhostedPairs* term : part_->pairs) term->retarget(types, bonds, whole_scene_.box);
 }
 
@@ -283,7 +285,12 @@ std::vector<double> DomainIntegrator::save_state() const {
 }
 
 void DomainIntegrator::gather(State& whole) const {
-  if (part_) domains_->gather(part_->scene.state.x, part_->scene.state.v, whole);
+  if (!part_) return;
+  std::vector<Eigen::Matrix3Xd> columns;
+  domains_->gather_columns({part_->scene.state.x, part_->scene.state.v}, columns, whole.size());
+  if (!comm_.root()) return;
+  whole.x = std::move(columns[0]);
+  whole.v = std::move(columns[1]);
 }
 
 std::vector<std::int64_t> DomainIntegrator::evaluations() const {

@@ -29,6 +29,9 @@
 
 namespace stiffmd {
 
+// Throws InputError, naming the key, when [parallel] grid has another number of domains than ranks.
+void check_parallel_grid(const Scene& scene, int ranks);
+
 class DomainIntegrator final : public Integrator {
  public:
   // `whole`: the integrator of the whole system (built on whole.forces), used until the first
