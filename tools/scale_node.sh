@@ -24,43 +24,12 @@ import sys; sys.path.insert(0, '$D/../tools')
 from chain_melt import tile_data
 tile_data('s32k.data', 's256k.data'); tile_data('data.chain', 'kg256k.data')"
 ls -la *.data | awk '{print $5, $9}'
-cat > stiff.toml <<T
-[types.bead]
-mass = 1.0
-[import]
-lammps_data = "s256k.data"
-atom_types = { "1" = "bead" }
-bond_types = { "1" = "backbone" }
-velocities = true
-[forces.bonds]
-style = "stiff-harmonic"
-level = "fast"
-epsilon = 0.001
-bond_types.backbone = { length = 0.97, alpha = 1.0 }
-[forces.excluded_volume]
-style = "wca"
-level = "slow"
-epsilon = 1.0
-sigma = 1.0
-special_bonds = [0.0, 1.0]
-skin = 0.3
-[thermostat]
-style = "langevin"
-temperature = 1.0
-damp = 1.0
-seed = 3
-[integrator]
-method = "fixman"
-h = 0.02
-[run]
-t_end = 1.2
-[output]
-xyz = ""
-thermo_interval = 1.2
-checkpoint_interval = 0
-[observables]
-histograms = false
-T
+python3 -c "
+import sys; sys.path.insert(0, '$D/../tools')
+from chain_melt import write_deck
+write_deck('stiff.toml', 's256k.data', 1e-3, 'tools/scale_node.sh', 'fixman', 0.02, 1, 1.2, 1.2)"
+# Langevin kT = 1, damp = 1 (tools/scaling.py's stiff melts); no checkpoints.
+THERMOSTAT=(--set 'thermostat={ style = "langevin", temperature = 1.0, damp = 1.0, seed = 3 }' --set output.checkpoint_interval=0)
 run() {  # name ranks threads deck sets...
   local name=$1 r=$2 t=$3 deck=$4; shift 4
   local bind="--bind-to none"; [ $t = 1 ] && bind="--bind-to core"
@@ -81,11 +50,11 @@ print(f"{name:18s} {r:2d}x{t:<2d} {ms:9.2f} ms/step  ghosts/owned={d.get('ghosts
 P
 }
 L=${L:-"1x1 1x2 1x16 2x1 4x1 8x1 16x1 4x4 2x8"}; ONLY=${ONLY:-}; SKIPFX=${SKIPFX:-}
-[ -n "${SKIPFX:-}" ] || for lay in $L; do r=${lay%x*}; t=${lay#*x}; run fixman $r $t stiff.toml; done
-[ -n "$ONLY$SKIPFX" ] || for lay in $L; do r=${lay%x*}; t=${lay#*x}; run impulse $r $t stiff.toml --set integrator.method=impulse --set integrator.h=0.005 --set integrator.micro_steps=50 --set thermostat.splitting=baoab --set run.t_end=0.3 --set output.thermo_interval=0.3; done
+[ -n "${SKIPFX:-}" ] || for lay in $L; do r=${lay%x*}; t=${lay#*x}; run fixman $r $t stiff.toml "${THERMOSTAT[@]}"; done
+[ -n "$ONLY$SKIPFX" ] || for lay in $L; do r=${lay%x*}; t=${lay#*x}; run impulse $r $t stiff.toml "${THERMOSTAT[@]}" --set integrator.method=impulse --set integrator.h=0.005 --set integrator.micro_steps=50 --set thermostat.splitting=baoab --set run.t_end=0.3 --set output.thermo_interval=0.3; done
 [ -n "$ONLY" ] || for lay in $L; do r=${lay%x*}; t=${lay#*x}; run kg-vv $r $t $D/../inputs/kremer_grest.toml --set import.lammps_data=\"$W/kg256k.data\" --set run.t_end=0.72 --set output.thermo_interval=0.72 --set output.screen_interval=0.72 --set output.checkpoint_interval=0; done
 # The same trajectory on 1 and 16 ranks (one thread each): positions and velocities bit for bit.
-[ -n "${SKIPFX:-}" ] || for r in 1 16; do o=$W/bits_$r; rm -rf $o; OMP_NUM_THREADS=1 mpirun --allow-run-as-root --oversubscribe --bind-to none -np $r -x LD_LIBRARY_PATH -x OMP_NUM_THREADS $EXE run stiff.toml -o $o -q --no-progress --set run.t_end=1.0 --set output.h5md=\"t.h5md\" --set output.h5md_interval=1.0 --set output.h5md_velocity=true > $o.log 2>&1 || tail -3 $o.log; done
+[ -n "${SKIPFX:-}" ] || for r in 1 16; do o=$W/bits_$r; rm -rf $o; OMP_NUM_THREADS=1 mpirun --allow-run-as-root --oversubscribe --bind-to none -np $r -x LD_LIBRARY_PATH -x OMP_NUM_THREADS $EXE run stiff.toml -o $o -q --no-progress "${THERMOSTAT[@]}" --set run.t_end=1.0 --set output.h5md=\"t.h5md\" --set output.h5md_interval=1.0 --set output.h5md_velocity=true > $o.log 2>&1 || tail -3 $o.log; done
 [ -n "${SKIPFX:-}" ] || python3 -c "
 import h5py, numpy as np
 a, b = h5py.File('bits_1/t.h5md'), h5py.File('bits_16/t.h5md')
