@@ -10,6 +10,7 @@ CASE is one of
     stiff_melt:METHOD:csvr    the same under the csvr thermostat instead of Langevin
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
     migrate                   the same, a field driving the chains across the domains: molecules migrate
+    trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
@@ -201,12 +202,14 @@ def case_setup(case):
         return STIFF_MELT, h, extra
     if case == "straddle":
         return STRADDLE, 0.02, {}
+    if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
+        return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {}
     if case == "one_chain":  # one molecule: every rank but one owns nothing
         return os.path.join(ROOT, "inputs", "hanging_chain.toml"), 0.01, {}
     if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
         return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest, stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, one_chain, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe, one_chain, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing
