@@ -17,6 +17,7 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/deck/deck.hpp"
+#include "engine/io/h5md_writer.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/ensemble.hpp"
 #include "engine/run/processes.hpp"
@@ -114,7 +115,22 @@ int main(int argc, char** argv) {
   CLI::App app{"stiffmd " STIFFMD_VERSION
                " - molecular dynamics with stiff bonds: impulse, mollified and projected impulse,\n"
                "RATTLE, velocity Verlet and the effective (eps -> 0) dynamics"};
-  app.set_version_flag("--version", "stiffmd " STIFFMD_VERSION);
+  // The version and what this build can do on many cores and processes (README, "Running on many
+  // cores and machines").
+#ifdef _OPENMP
+  const std::string threads = "OpenMP";
+#else
+  const std::string threads = "one";
+#endif
+#ifdef STIFFMD_MPI
+  const std::string ranks = "MPI";
+#else
+  const std::string ranks = "one";
+#endif
+  const std::string build = " (threads: " + threads + "; processes: " + ranks +
+                            "; H5MD written by every rank: " + (stiffmd::H5mdWriter::shared_files() ? "yes" : "no") +
+                            ")";
+  app.set_version_flag("--version", "stiffmd " STIFFMD_VERSION + build);
   app.require_subcommand(1);
 
   std::string deck_path, out_dir, restart;
@@ -201,7 +217,7 @@ int main(int argc, char** argv) {
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     if (speaker) std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
-    stiffmd::RunOptions options{speaker ? out_dir : std::string(), speaker && !no_progress && !quiet, restart,
+    stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator(), options.deck = &deck;
     running = decomposed;

@@ -20,8 +20,8 @@ CASE is one of
 Each case runs the serial reference, `STIFFMD run DECK -o REF` (no launcher), and
 `MPIEXEC NUMPROC_FLAG N STIFFMD run DECK -o OUT`, both with OMP_NUM_THREADS=1 (another thread count
 sums the pair forces in another order), `-q --no-progress`, and the overrides of `overrides()`: 200
-macro steps (run.t_end = 200 h, h given explicitly), an H5MD file with velocities every 50 steps
-(frames 0, 50, 100, 150, 200), thermo every 10 steps, no XYZ. Open MPI as root and with more ranks
+macro steps (run.t_end = 200 h, h given explicitly), an H5MD file with velocities and forces every
+50 steps (frames 0, 50, 100, 150, 200), thermo every 10 steps, no XYZ. Open MPI as root and with more ranks
 than cores wants permission: given by its environment variables (OMPI_ALLOW_RUN_AS_ROOT,
 OMPI_MCA_rmaps_base_oversubscribe), which MPICH's launcher ignores where it would reject
 --allow-run-as-root --oversubscribe.
@@ -30,8 +30,10 @@ Then the N-rank outputs must be the serial ones to round-off:
   - trajectory.h5md: the same datasets (paths, shapes, dtypes) and attributes, valid H5MD
     (tests/h5md_spec.py); steps and the static datasets (id, species, mass, bonds, box) equal;
     unwrapped positions (position + image·L, so that a bead wrapped across a face by round-off does
-    not count) and velocities of every frame, matched by particle id, within 1e-10 of the serial
-    file's largest |value|; the observables as the thermo columns below;
+    not count), velocities and forces of every frame, matched by particle id, within 1e-10 of the
+    serial file's largest |value|; the observables as the thermo columns below; written by every
+    rank (summary.json domains.h5md_writers = N) when `STIFFMD --version` says the build can
+    (parallel HDF5), else by rank 0;
   - thermo.csv: the same header and rows (steps), every column within 1e-10 of its scale
     (`column_scale`);
   - summary.json: method, steps, force evaluations equal; energies to the same tolerance;
@@ -42,7 +44,8 @@ face (the periodic faces, the mid-planes and the thirds of each axis) is crossed
 frame, and chains' anchors (wrapped centres of mass) change domain during the run.
 
 And more: at one thread per rank the trajectory is the serial one bit for bit (docs/parallel.md),
-so the H5MD position, image and velocity datasets of every frame must be equal to the last bit.
+so the H5MD position, image, velocity and force datasets of every frame must be equal to the last
+bit.
 The thermo columns stay at 1e-10: rank 0 adds the ranks' shares of the integrator's own sums (the
 kinetic energy at the O step, the constraint virial) in another order than one process does.
 
@@ -159,7 +162,8 @@ def overrides(h, steps, extra):
     sets = dict(extra)
     sets.update({"integrator.h": number(h), "run.t_end": number(steps * h), "output.xyz": '""',
                  "output.h5md": f'"{H5MD}"', "output.h5md_interval": number(50 * h),
-                 "output.h5md_velocity": "true", "output.thermo_interval": number(10 * h)})
+                 "output.h5md_velocity": "true", "output.h5md_force": "true",
+                 "output.thermo_interval": number(10 * h)})
     args = []
     for key, value in sets.items():
         args += ["--set", f"{key}={value}"]
@@ -181,6 +185,20 @@ def run(cmd, ranks):
 
 def launch(mpiexec, numproc_flag, ranks, stiffmd):
     return [mpiexec, numproc_flag, str(ranks), stiffmd]
+
+
+def check_h5md_writers(stiffmd, out, ranks):
+    """A build with parallel HDF5 has every rank write its particles' rows of the one H5MD file
+    (docs/parallel.md); without it rank 0 writes the whole file."""
+    if ranks == 1:
+        return
+    version = subprocess.run([stiffmd, "--version"], capture_output=True, text=True).stdout
+    expected = ranks if "H5MD written by every rank: yes" in version else 1
+    with open(os.path.join(out, "summary.json")) as f:
+        writers = json.load(f)["domains"]["h5md_writers"]
+    if writers != expected:
+        raise SystemExit(f"FAIL: the H5MD file was written by {writers} ranks, expected {expected} ({version.strip()})")
+    print(f"H5MD written by {writers} of {ranks} ranks")
 
 
 def case_setup(case):
@@ -482,6 +500,7 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{n}")
     # The N-rank run first: while N > 1 is refused, a skipped case costs only the launcher's start.
     run(launch(mpiexec, numproc_flag, n, stiffmd) + args[:2] + ["-o", out] + args[2:], n)
+    check_h5md_writers(stiffmd, out, n)
     run([stiffmd] + args[:2] + ["-o", ref] + args[2:], 1)
     if case == "straddle":
         check_straddle_geometry(ref)
@@ -522,6 +541,7 @@ def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
     # A fresh run to step 200 would also give the serial files: the second run must have continued.
     if f"at step {STEPS // 2} " not in r.stderr:
         raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {STEPS // 2}:\n{r.stderr}")
+    check_h5md_writers(stiffmd, out, second)
     run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, STEPS, {}), 1)
     compare_runs(ref, out, f"straddle on {first} ranks, restarted on {second}")
 

@@ -36,6 +36,9 @@ class Communicator {
                               std::vector<std::vector<double>>& recv) const = 0;
   // Rank 0 receives every rank's `mine`, in rank order (the others receive nothing).
   virtual void gather(const std::vector<double>& mine, std::vector<std::vector<double>>& all) const = 0;
+  // The MPI communicator these processes are (a pointer to an MPI_Comm), for a library that takes
+  // one (parallel HDF5: engine/io/h5md_writer.cpp); null without MPI.
+  virtual const void* native() const { return nullptr; }
 
   double sum(double v) const {
     sum(&v, 1);

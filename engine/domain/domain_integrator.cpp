@@ -325,4 +325,12 @@ DomainReport DomainIntegrator::report() const {
   return r;
 }
 
+const State& DomainIntegrator::owned_state() const {
+  return part_->scene.state;
+}
+
+void DomainIntegrator::owned_forces(Eigen::Matrix3Xd& f) const {
+  part_->scene.forces->total_force(part_->scene.state.x, f);
+}
+
 }  // namespace stiffmd

@@ -68,6 +68,12 @@ class DomainIntegrator final : public Integrator {
   long neighbor_rebuilds() const;
   DomainReport report() const;  // collective
 
+  // This rank's particles, once distributed: their global indices (increasing), their state, and
+  // their total forces at the current positions (collective: the pair terms' halo).
+  const std::vector<int>& owned_ids() const { return domains_->owned_ids(); }
+  const State& owned_state() const;
+  void owned_forces(Eigen::Matrix3Xd& f) const;
+
  private:
   struct Part;
   void start(const State& s);

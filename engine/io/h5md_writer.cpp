@@ -43,6 +43,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "engine/core/communicator.hpp"
 #include "engine/core/errors.hpp"
 
 namespace stiffmd {
@@ -209,16 +210,42 @@ std::string read_string_attribute(hid_t object, const std::string& name) {
 
 // ---- time-independent datasets (§Time-independent data) ----
 
+// `writes`: false on the processes of a shared file but rank 0 (the dataset is created by all of
+// them, its data written by one, independently).
 void write_dataset(hid_t parent, const std::string& name, hid_t file_type, hid_t memory_type,
-                   const std::vector<hsize_t>& dims, const void* data) {
+                   const std::vector<hsize_t>& dims, const void* data, bool writes) {
   Handle d(H5Dcreate2(parent, name.c_str(), file_type, simple_space(dims), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
            H5Dclose, "cannot create dataset " + name);
   bool empty = false;
   for (hsize_t n : dims) empty = empty || n == 0;
-  if (!empty) ok(H5Dwrite(d, memory_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data), "cannot write dataset " + name);
+  if (!empty && writes)
+    ok(H5Dwrite(d, memory_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data), "cannot write dataset " + name);
 }
 
 // ---- time-dependent series (§Time-dependent data) ----
+
+// What of a frame this process writes: all of it, nothing (a process of a shared file whose rank
+// 0 writes this series), or along the particle axis the runs of consecutive particles it holds.
+struct FramePart {
+  enum What { all, none, runs } what = all;
+  std::vector<std::pair<hsize_t, hsize_t>> particles;  // runs: (first particle, count), increasing
+  hsize_t count = 0;                                   // runs: particles in them
+};
+
+// The runs of consecutive indices in `ids` (increasing).
+FramePart frame_part(const std::vector<int>& ids) {
+  FramePart p;
+  p.what = ids.empty() ? FramePart::none : FramePart::runs;
+  for (std::size_t k = 0; k < ids.size(); ++k) {
+    const auto i = static_cast<hsize_t>(ids[k]);
+    if (!p.particles.empty() && p.particles.back().first + p.particles.back().second == i)
+      ++p.particles.back().second;
+    else
+      p.particles.emplace_back(i, 1);
+  }
+  p.count = ids.size();
+  return p;
+}
 
 // The `value` (or `step`/`time`) dataset of a time-dependent element: [frames][item...], with an
 // unlimited frame axis so frames can be appended.
@@ -227,6 +254,7 @@ struct Series {
   hid_t memory_type = H5I_INVALID_HID;  // a predefined native type, owned by the library
   std::vector<hsize_t> item;            // shape of one frame: {} scalar, {3}, {N, 3}
   std::string name;
+  hid_t transfer = H5P_DEFAULT;  // a shared file's: collective (owned by the writer)
 
   hsize_t length() const {
     Handle space(H5Dget_space(dataset), H5Sclose, "cannot read the extent of " + name);
@@ -241,17 +269,33 @@ struct Series {
     ok(H5Dset_extent(dataset, dims.data()), "cannot resize " + name);
   }
 
-  // Writes frame `index`, setting the extent to index + 1 (so a frame interrupted by an error is
-  // overwritten by the next call rather than left as a gap).
-  void write(hsize_t index, const void* data) const {
+  // Writes frame `index` (this process's `part` of it), setting the extent to index + 1 (so a
+  // frame interrupted by an error is overwritten by the next call rather than left as a gap). In
+  // a shared file every process calls it (collective), each with its part.
+  void write(hsize_t index, const void* data, const FramePart& part = {}) const {
     resize(index + 1);
     std::vector<hsize_t> start(item.size() + 1, 0), count{1};
     start[0] = index;
     count.insert(count.end(), item.begin(), item.end());
     Handle file_space(H5Dget_space(dataset), H5Sclose, "cannot select in " + name);
-    ok(H5Sselect_hyperslab(file_space, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr),
-       "cannot select in " + name);
-    ok(H5Dwrite(dataset, memory_type, simple_space(count), file_space, H5P_DEFAULT, data), "cannot write " + name);
+    Handle memory = simple_space(count);
+    const std::string what = "cannot select in " + name;
+    if (part.what == FramePart::all) {
+      ok(H5Sselect_hyperslab(file_space, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr), what);
+    } else if (part.what == FramePart::none) {
+      ok(H5Sselect_none(file_space), what);
+      ok(H5Sselect_none(memory), what);
+    } else {  // the runs of particles, in the order of the memory's columns
+      ok(H5Sselect_none(file_space), what);
+      for (const auto& [first, n] : part.particles) {
+        start[1] = first, count[1] = n;
+        ok(H5Sselect_hyperslab(file_space, H5S_SELECT_OR, start.data(), nullptr, count.data(), nullptr), what);
+      }
+      count[1] = part.count;
+      memory = simple_space(count);
+    }
+    static const double nothing = 0.0;  // HDF5 wants a buffer even for an empty selection
+    ok(H5Dwrite(dataset, memory_type, memory, file_space, transfer, data ? data : &nothing), "cannot write " + name);
   }
 };
 
@@ -385,7 +429,13 @@ void check_setup(const H5mdSetup& s) {
 struct H5mdWriter::Impl {
   std::string path;
   H5mdSetup setup;
-  Handle file;  // declared first: closed last
+  // A file shared by the processes (H5mdSetup::processes, parallel HDF5): every metadata call is
+  // made by all of them alike; rank 0 alone writes the time-independent datasets and the scalar
+  // series, each process its own particles' rows through a collective transfer.
+  bool shared = false;
+  bool writes_whole = true;  // one process, or rank 0 of a shared file
+  Handle transfer;           // shared: the collective transfer properties
+  Handle file;               // declared after transfer: closed first
   Series step, time, position, image, velocity, force, edges;
   std::vector<Series> observables;
   std::int64_t frames = 0;
@@ -393,15 +443,19 @@ struct H5mdWriter::Impl {
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
 
-  Impl(std::string p, const H5mdSetup& s) : path(std::move(p)), setup(s) { edge_vectors.diagonal() = s.box.lengths; }
+  Impl(std::string p, const H5mdSetup& s) : path(std::move(p)), setup(s) {
+    edge_vectors.diagonal() = s.box.lengths;
+    shared = s.processes && s.processes->size() > 1;
+    writes_whole = !shared || s.processes->root();
+  }
 
   void create();
   void append(std::int64_t first_step);
   void write_frame(std::int64_t step, double t, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
-                   const Eigen::Matrix3Xd* f, const std::vector<double>& obs);
+                   const Eigen::Matrix3Xd* f, const std::vector<double>& obs, const std::vector<int>* ids);
 
  private:
-  Handle file_access() const;
+  Handle file_access(bool shared_access) const;
   void write_metadata();
   void create_particles();
   void create_box(hid_t particles, hid_t position_group);
@@ -413,16 +467,36 @@ struct H5mdWriter::Impl {
   void check_optional_element(hid_t particles, const char* name, bool wanted) const;
   void check_observables() const;
   std::vector<Series*> all_series();
+  void share_series();
   void flush() const { ok(H5Fflush(file, H5F_SCOPE_LOCAL), "cannot write the file"); }
 };
 
 // §File format recommends the HDF5 format version 2 (library 1.8); it also keeps a killed file
 // readable (see the top of this file). File locks where the file system has them, none elsewhere.
-Handle H5mdWriter::Impl::file_access() const {
+// A shared file goes through MPI-IO, its metadata written collectively.
+Handle H5mdWriter::Impl::file_access(bool shared_access) const {
   Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose, "cannot create file properties");
   ok(H5Pset_libver_bounds(fapl, H5F_LIBVER_V18, H5F_LIBVER_V18), "cannot set the file format version");
   ok(H5Pset_file_locking(fapl, true, true), "cannot set file locking");
+#ifdef H5_HAVE_PARALLEL
+  if (shared_access) {
+    const MPI_Comm comm = *static_cast<const MPI_Comm*>(setup.processes->native());
+    ok(H5Pset_fapl_mpio(fapl, comm, MPI_INFO_NULL), "cannot open the file on every process (MPI-IO)");
+    ok(H5Pset_all_coll_metadata_ops(fapl, true), "cannot set collective metadata reads");
+    ok(H5Pset_coll_metadata_write(fapl, true), "cannot set collective metadata writes");
+  }
+#endif
   return fapl;
+}
+
+// Every series of a shared file is written through the collective transfer.
+void H5mdWriter::Impl::share_series() {
+  if (!shared) return;
+#ifdef H5_HAVE_PARALLEL
+  transfer = Handle(H5Pcreate(H5P_DATASET_XFER), H5Pclose, "cannot create transfer properties");
+  ok(H5Pset_dxpl_mpio(transfer, H5FD_MPIO_COLLECTIVE), "cannot set collective transfers");
+  for (Series* s : all_series()) s->transfer = transfer;
+#endif
 }
 
 void H5mdWriter::Impl::create() {
@@ -432,12 +506,13 @@ void H5mdWriter::Impl::create() {
   const fs::path parent = fs::path(path).parent_path();
   if (!parent.empty() && !fs::is_directory(parent, ec))
     throw Failure("directory " + parent.string() + " does not exist");
-  file = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, file_access()), H5Fclose,
+  file = Handle(H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, file_access(shared)), H5Fclose,
                 "cannot create the HDF5 file");
   write_metadata();
   create_particles();
   create_connectivity();
   create_vmd_structure();
+  share_series();
   flush();
 }
 
@@ -479,12 +554,12 @@ void H5mdWriter::Impl::create_particles() {
   // species: an index into the element table stored as the `elements` attribute (H5MD leaves the
   // meaning of species values to the application; symbols are what trajectory viewers need).
   const auto [table, index] = element_table(setup.species);
-  write_dataset(particles, "species", H5T_STD_I32LE, H5T_NATIVE_INT, {n}, index.data());
+  write_dataset(particles, "species", H5T_STD_I32LE, H5T_NATIVE_INT, {n}, index.data(), writes_whole);
   write_strings_attribute(Handle(H5Dopen2(particles, "species", H5P_DEFAULT), H5Dclose, "species"), "elements", table);
-  write_dataset(particles, "mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.mass.data());
+  write_dataset(particles, "mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.mass.data(), writes_whole);
   std::vector<std::int64_t> id(n);
   for (hsize_t i = 0; i < n; ++i) id[i] = static_cast<std::int64_t>(i);
-  write_dataset(particles, "id", H5T_STD_I64LE, H5T_NATIVE_INT64, {n}, id.data());
+  write_dataset(particles, "id", H5T_STD_I64LE, H5T_NATIVE_INT64, {n}, id.data(), writes_whole);
 
   create_box(particles, pos);
   create_observables(pos);
@@ -510,7 +585,7 @@ void H5mdWriter::Impl::create_box(hid_t particles, hid_t position_group) {
   link_time_grid(position_group, g);
   edges = create_series(g, "value", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {3, 3}, 0);
   write_unit(edges.dataset, setup.length_unit);
-  write_dataset(box, "offset", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {3}, setup.box.origin.data());
+  write_dataset(box, "offset", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {3}, setup.box.origin.data(), writes_whole);
 }
 
 // §Observables group: one time-dependent scalar element per name, on the position grid.
@@ -531,7 +606,7 @@ void H5mdWriter::Impl::create_connectivity() {
   std::vector<std::int32_t> pairs;
   for (const auto& [i, j] : setup.bonds) pairs.insert(pairs.end(), {i, j});
   Handle group = create_group(file, "connectivity");
-  write_dataset(group, "bonds", H5T_STD_I32LE, H5T_NATIVE_INT32, {setup.bonds.size(), 2}, pairs.data());
+  write_dataset(group, "bonds", H5T_STD_I32LE, H5T_NATIVE_INT32, {setup.bonds.size(), 2}, pairs.data(), writes_whole);
   hobj_ref_t ref{};
   ok(H5Rcreate(&ref, file, (std::string("/particles/") + kParticleGroup).c_str(), H5R_OBJECT, -1),
      "cannot reference the particle group");
@@ -558,12 +633,12 @@ void H5mdWriter::Impl::create_vmd_structure() {
   }
   Handle vmd = create_group(create_group(file, "parameters"), "vmd_structure");
   const hsize_t s = table.size(), m = setup.bonds.size();
-  write_dataset(vmd, "indexOfSpecies", H5T_STD_I32LE, H5T_NATIVE_INT, {s}, index.data());
+  write_dataset(vmd, "indexOfSpecies", H5T_STD_I32LE, H5T_NATIVE_INT, {s}, index.data(), writes_whole);
   Handle fixed = string_type(false, 16);
-  write_dataset(vmd, "name", fixed, fixed, {s}, names.data());
-  write_dataset(vmd, "type", fixed, fixed, {s}, names.data());
-  write_dataset(vmd, "bond_from", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, from.data());
-  write_dataset(vmd, "bond_to", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, to.data());
+  write_dataset(vmd, "name", fixed, fixed, {s}, names.data(), writes_whole);
+  write_dataset(vmd, "type", fixed, fixed, {s}, names.data(), writes_whole);
+  write_dataset(vmd, "bond_from", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, from.data(), writes_whole);
+  write_dataset(vmd, "bond_to", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, to.data(), writes_whole);
 }
 
 // ---- append ----
@@ -574,17 +649,29 @@ void H5mdWriter::Impl::append(std::int64_t first_step) {
   if (fs::is_directory(path, ec)) throw Failure("is a directory, not an H5MD file");
   if (!fs::exists(path, ec)) throw Failure("cannot append: the file does not exist");
   if (H5Fis_hdf5(path.c_str()) <= 0) throw Failure("cannot append: not an HDF5 file");
-  file =
-      Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access()), H5Fclose, "cannot open the HDF5 file for appending");
-  if (H5Lexists(file, "h5md", H5P_DEFAULT) <= 0 || H5Lexists(file, "h5md/creator", H5P_DEFAULT) <= 0 ||
-      read_string_attribute(open_group(file, "h5md/creator"), "name") != "stiffmd")
-    throw Failure("cannot append: not an H5MD file written by stiffmd");
   // A kill inside a flush can leave the newest chunk of the frame being written beyond the end of
   // allocation recorded in the superblock (written last in a flush); HDF5 then fails when that
   // frame is dropped below. Extending the recorded end to the file's size (`h5clear --increment`)
-  // makes such a chunk ordinary space. Frames before the last step are never affected.
-  ok(H5Fincrement_filesize(file, 0), "cannot open the HDF5 file for appending");
+  // makes such a chunk ordinary space. Frames before the last step are never affected. (HDF5 does
+  // it through one process's driver only: a shared file's rank 0 does it first, alone.)
+  auto increment_filesize = [&](hid_t f) {
+    ok(H5Fincrement_filesize(f, 0), "cannot open the HDF5 file for appending");
+  };
+  if (shared) {
+    if (writes_whole)
+      increment_filesize(Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access(false)), H5Fclose,
+                                "cannot open the HDF5 file for appending"));
+    std::int64_t done = 0;
+    setup.processes->broadcast(&done, 1);  // the others open it after
+  }
+  file = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access(shared)), H5Fclose,
+                "cannot open the HDF5 file for appending");
+  if (!shared) increment_filesize(file);
+  if (H5Lexists(file, "h5md", H5P_DEFAULT) <= 0 || H5Lexists(file, "h5md/creator", H5P_DEFAULT) <= 0 ||
+      read_string_attribute(open_group(file, "h5md/creator"), "name") != "stiffmd")
+    throw Failure("cannot append: not an H5MD file written by stiffmd");
   open_elements();
+  share_series();
 
   // Drop frames at or after first_step, and any frame a kill left half written.
   std::vector<Series*> series = all_series();
@@ -680,24 +767,31 @@ std::vector<Series*> H5mdWriter::Impl::all_series() {
 // ---- one frame ----
 
 void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eigen::Matrix3Xd& x,
-                                   const Eigen::Matrix3Xd* v, const Eigen::Matrix3Xd* f,
-                                   const std::vector<double>& obs) {
-  const Eigen::Index n = setup.num_particles;
+                                   const Eigen::Matrix3Xd* v, const Eigen::Matrix3Xd* f, const std::vector<double>& obs,
+                                   const std::vector<int>* ids) {
+  const Eigen::Index n = ids ? static_cast<Eigen::Index>(ids->size()) : setup.num_particles;
   if (x.cols() != n || (setup.velocity && (!v || v->cols() != n)) || (setup.force && (!f || f->cols() != n)) ||
-      obs.size() != setup.observables.size())
+      obs.size() != setup.observables.size() || (ids && !shared))
     throw std::invalid_argument("H5mdWriter::write_frame: arrays do not match the setup");
+  // This process's part of the per-particle series and of the scalar ones.
+  FramePart rows, scalars;
+  if (!writes_whole) scalars.what = FramePart::none;
+  if (ids)
+    rows = frame_part(*ids);
+  else
+    rows.what = scalars.what;
   const auto index = static_cast<hsize_t>(frames);
   const Eigen::Matrix3Xd* positioned = &x;
   if (setup.box.any_periodic()) {
     wrap_into_box(setup.box, x, wrapped, images);
     positioned = &wrapped;
-    image.write(index, images.data());
-    edges.write(index, edge_vectors.data());
+    image.write(index, images.data(), rows);
+    edges.write(index, edge_vectors.data(), scalars);
   }
-  if (setup.velocity) velocity.write(index, v->data());
-  if (setup.force) force.write(index, f->data());
-  for (std::size_t k = 0; k < obs.size(); ++k) observables[k].write(index, &obs[k]);
-  time.write(index, &t);
+  if (setup.velocity) velocity.write(index, v->data(), rows);
+  if (setup.force) force.write(index, f->data(), rows);
+  for (std::size_t k = 0; k < obs.size(); ++k) observables[k].write(index, &obs[k], scalars);
+  time.write(index, &t, scalars);
   flush();
   // The frame's other series and time first, then position/value and then step, each after a
   // flush of what came before (the crash-safety order at the top of this file). HDF5 writes metadata
@@ -705,9 +799,9 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
   // position/value, stops iterating at the end of position/step, and reads every other series at
   // those indices. So a kill at any moment leaves step no longer than position/value, and that no
   // longer than any other series (tests/test_h5md.py kills writers mid-frame to check it).
-  position.write(index, positioned->data());
+  position.write(index, positioned->data(), rows);
   flush();
-  step.write(index, &step_number);
+  step.write(index, &step_number, scalars);
   flush();
   ++frames;
 }
@@ -737,9 +831,10 @@ H5mdWriter::H5mdWriter(const std::string& path, const H5mdSetup& setup, bool app
 H5mdWriter::~H5mdWriter() = default;
 
 void H5mdWriter::write_frame(std::int64_t step, double time, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
-                             const Eigen::Matrix3Xd* f, const std::vector<double>& observables) {
+                             const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
+                             const std::vector<int>* ids) {
   try {
-    impl_->write_frame(step, time, x, v, f, observables);
+    impl_->write_frame(step, time, x, v, f, observables, ids);
   } catch (const Failure& e) {
     throw InputError(impl_->path + ": H5MD output: " + e.what());
   }
@@ -747,6 +842,14 @@ void H5mdWriter::write_frame(std::int64_t step, double time, const Eigen::Matrix
 
 std::int64_t H5mdWriter::frames() const {
   return impl_->frames;
+}
+
+bool H5mdWriter::shared_files() {
+#ifdef H5_HAVE_PARALLEL
+  return true;
+#else
+  return false;
+#endif
 }
 
 }  // namespace stiffmd

@@ -54,6 +54,8 @@
 
 namespace stiffmd {
 
+class Communicator;
+
 struct H5mdSetup {
   int num_particles = 0;
   std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
@@ -69,6 +71,11 @@ struct H5mdSetup {
   // observable ("" or an empty list: none, as in reduced units).
   std::string length_unit, time_unit, velocity_unit, force_unit;
   std::vector<std::string> observable_units;  // empty, or one per observable
+  // Several processes (a decomposed run, docs/parallel.md): with parallel HDF5 (shared_files())
+  // every one of them opens the one file and writes its own particles' rows of each frame
+  // (collective hyperslabs in global index order); the file is the one process's, byte for byte
+  // in its datasets. Null, or one process: this process writes everything.
+  const Communicator* processes = nullptr;
 };
 
 class H5mdWriter {
@@ -88,9 +95,17 @@ class H5mdWriter {
   // One frame; x holds unwrapped coordinates, v and f may be null (ignored unless enabled in the
   // setup, required when enabled), observables in the order of setup.observables. The file is
   // flushed before returning, so a kill after this call leaves every frame so far readable.
+  //
+  // A file shared by several processes (setup.processes): every process calls it for every frame
+  // (collective), `ids` the global indices of the columns of x, v and f (increasing; empty: none),
+  // or null on rank 0 for all N columns in order (the others then pass none). Step, time and the
+  // observables are rank 0's. One process: `ids` is null.
   void write_frame(std::int64_t step, double time, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
-                   const Eigen::Matrix3Xd* f, const std::vector<double>& observables);
+                   const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
+                   const std::vector<int>* ids = nullptr);
   std::int64_t frames() const;
+  // Whether this build can share a file among processes (HDF5 built with MPI-IO).
+  static bool shared_files();
 
  private:
   struct Impl;  // keeps <hdf5.h> out of this header

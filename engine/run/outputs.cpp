@@ -3,6 +3,7 @@
 #include <filesystem>
 #include <system_error>
 
+#include "engine/core/communicator.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/observe/polymer_observables.hpp"
@@ -73,9 +74,11 @@ void write_scene_lammps_data(const Scene& scene, const std::string& path, const 
 }
 
 RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& thermo, const double* restart_cut,
-                       std::vector<std::string>& files, std::ostream& log)
+                       std::vector<std::string>& files, std::ostream& log, const Communicator* processes)
     : sc_(sc),
       dir_(out_dir),
+      root_(!processes || processes->root()),
+      shared_h5md_(processes && processes->size() > 1 && H5mdWriter::shared_files()),
       xyz_due_(sc.output.xyz_interval),
       thermo_due_(sc.output.thermo_interval),
       state_due_(sc.output.state_interval),
@@ -102,7 +105,9 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
   // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
   // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
-  const bool writing = !out_dir.empty();  // empty: no files (check, Python without an output directory)
+  // Empty: no files (check, Python without an output directory); a decomposed run's rank 0 writes
+  // them (all ranks the shared H5MD file).
+  const bool writing = !out_dir.empty() && root_;
   if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
     const fs::path p = dir / kTopologyFile;
     if (!restarting)
@@ -132,7 +137,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
     if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns_.push_back(c);
   h5md_values_.resize(h5md_columns_.size());
-  if (writing && !sc.output.h5md.empty()) {
+  if (!out_dir.empty() && (root_ || shared_h5md_) && !sc.output.h5md.empty()) {
     H5mdSetup setup;
     setup.num_particles = s.size();
     setup.species = species;
@@ -155,6 +160,8 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     if (!u.reduced())
       for (int c : h5md_columns_)
         setup.observable_units.push_back(u.h5md_unit(thermo_column_dimension(thermo.columns()[c])));
+    if (shared_h5md_) setup.processes = processes;
+    h5md_writers_ = shared_h5md_ ? processes->size() : 1;
     const std::string path = (dir / sc.output.h5md).string();
     files.push_back(path);
     const bool append = restarting && fs::exists(path);
@@ -183,23 +190,39 @@ bool RunOutputs::due(double t, bool final) {
   return thermo_now_ || h5md_now_;
 }
 
-void RunOutputs::write(const State& s, const std::vector<double>& row) {
+void RunOutputs::write(const State& s, const std::vector<double>& row, const ProcessRows* mine) {
   // The row in the output's units (README "Units"), for the files and the terminal alike.
-  if (thermo_now_ || h5md_now_) written_ = table_(row);
+  if (root_ && (thermo_now_ || h5md_now_)) written_ = table_(row);
   if (thermo_now_ && thermo_) thermo_->write(written_);
-  if (h5md_now_) {
-    if (sc_.output.h5md_force) sc_.forces->total_force(s.x, h5md_force_);
-    for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = written_[h5md_columns_[k]];
-    const Eigen::Matrix3Xd* v = &s.v;
-    if (const double scale = sc_.units.h5md_scale(Dimension::velocity); scale != 1.0 && sc_.output.h5md_velocity) {
-      h5md_velocity_ = s.v * scale;
-      v = &h5md_velocity_;
-    }
-    h5md_->write_frame(s.step, s.t * sc_.units.out(Dimension::time), s.x, v,
-                       sc_.output.h5md_force ? &h5md_force_ : nullptr, h5md_values_);
-  }
+  if (h5md_now_ && h5md_) write_h5md(s, mine);
   if (xyz_now_) xyz_->write(s);
   if (state_now_) write_state(s);
+}
+
+// Rank 0's observables; the particles' rows from `mine` (a shared file), else the whole state s
+// (rank 0; the other ranks of a shared file then write no rows).
+void RunOutputs::write_h5md(const State& s, const ProcessRows* mine) {
+  if (root_)
+    for (size_t k = 0; k < h5md_columns_.size(); ++k) h5md_values_[k] = written_[h5md_columns_[k]];
+  const bool whole = !mine && root_;
+  static const Eigen::Matrix3Xd none(3, 0);
+  const Eigen::Matrix3Xd& x = mine ? mine->x : whole ? s.x : none;
+  const Eigen::Matrix3Xd* v = mine ? &mine->v : whole ? &s.v : &none;
+  const Eigen::Matrix3Xd* f = &none;
+  if (sc_.output.h5md_force) {
+    if (mine) {
+      f = mine->f;
+    } else if (whole) {
+      sc_.forces->total_force(s.x, h5md_force_);
+      f = &h5md_force_;
+    }
+  }
+  if (const double scale = sc_.units.h5md_scale(Dimension::velocity); scale != 1.0 && sc_.output.h5md_velocity) {
+    h5md_velocity_ = *v * scale;
+    v = &h5md_velocity_;
+  }
+  const std::vector<int>* ids = mine ? &mine->ids : whole ? nullptr : &no_rows_;
+  h5md_->write_frame(s.step, s.t * sc_.units.out(Dimension::time), x, v, f, h5md_values_, ids);
 }
 
 void RunOutputs::write_state(const State& s) {

@@ -25,6 +25,15 @@ void prepare_output_directory(const Scene& scene, const std::string& dir);
 // loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
 
+// This process's particles in a decomposed run (engine/domain/domain_integrator.hpp): their
+// global indices, increasing, their positions and velocities, and their forces when the H5MD file
+// has them.
+struct ProcessRows {
+  const std::vector<int>& ids;
+  const Eigen::Matrix3Xd &x, &v;
+  const Eigen::Matrix3Xd* f = nullptr;
+};
+
 class RunOutputs {
  public:
   // Opens the outputs for the scene's current state. `restart_cut`: null for a fresh run (files
@@ -34,14 +43,25 @@ class RunOutputs {
   // owns in `files`, in the order of the summary (topology.data, XYZ, thermo, state, H5MD,
   // checkpoint). An empty `dir`: no files at all, the time grids (and so the thermo samples) as
   // with files, checkpoint_path() empty.
+  //
+  // `processes` (a decomposed run; null: one process): every rank has its RunOutputs, on the same
+  // grids; rank 0 writes every file, but the H5MD file when HDF5 is parallel
+  // (H5mdWriter::shared_files): every rank writes its particles' rows of it (shares_frame()).
   RunOutputs(Scene& scene, const std::string& dir, const Thermo& thermo, const double* restart_cut,
-             std::vector<std::string>& files, std::ostream& log);
+             std::vector<std::string>& files, std::ostream& log, const Communicator* processes = nullptr);
 
   // Advances the time grids to t and returns whether a thermo sample is due (for the thermo CSV
   // or an H5MD frame); `final`: every output is due (the last state, whatever the grids).
   bool due(double t, bool final);
-  // Writes what the last due() found due; `row` is the thermo sample when one was due.
-  void write(const State& s, const std::vector<double>& row);
+  // Writes what the last due() found due; `row` is the thermo sample when one was due (rank 0's).
+  // Called by rank 0 alone, or by every rank when shares_frame(): `mine` its particles (null
+  // before the run is distributed: the whole state is then rank 0's to write).
+  void write(const State& s, const std::vector<double>& row, const ProcessRows* mine = nullptr);
+  // Whether the last due() found an H5MD frame that every rank writes a part of.
+  bool shares_frame() const { return h5md_now_ && shared_h5md_; }
+  // The processes that write the H5MD file: all of a decomposed run's (parallel HDF5), else one;
+  // 0 without an H5MD file.
+  int h5md_writers() const { return h5md_writers_; }
   // Whether the last due() was a sample of the thermo grid (or the final state): the rows the
   // thermo file gets, and the terminal's line may show.
   bool thermo_sampled() const { return thermo_now_; }
@@ -63,9 +83,12 @@ class RunOutputs {
 
  private:
   void write_state(const State& s);
+  void write_h5md(const State& s, const ProcessRows* mine);
 
   Scene& sc_;
   std::string dir_;
+  bool root_ = true, shared_h5md_ = false;
+  int h5md_writers_ = 0;
   std::unique_ptr<XyzWriter> xyz_;
   std::unique_ptr<CsvWriter> thermo_, state_;
   std::unique_ptr<ProjectedMomenta> projected_;
@@ -80,6 +103,7 @@ class RunOutputs {
   std::vector<int> h5md_columns_;  // every thermo column but time and step
   std::vector<double> h5md_values_;
   Eigen::Matrix3Xd h5md_force_;
+  const std::vector<int> no_rows_;  // a shared frame's part of a rank that holds no particles
   std::string checkpoint_path_;
 };
 

@@ -38,6 +38,7 @@ class MpiCommunicator final : public Communicator {
   }
   int rank() const override { return rank_; }
   int size() const override { return size_; }
+  const void* native() const override { return &world_; }
   void sum(double* v, int n) const override { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD); }
   void sum(std::int64_t* v, int n) const override {
     MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_INT64_T, MPI_SUM, MPI_COMM_WORLD);
@@ -92,6 +93,7 @@ class MpiCommunicator final : public Communicator {
 
  private:
   int rank_ = 0, size_ = 1;
+  MPI_Comm world_ = MPI_COMM_WORLD;
   mutable std::vector<MPI_Request> requests_;
 };
 

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "engine/core/errors.hpp"
@@ -165,9 +166,11 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // checkpoint, t_{k−1}; the frame at t_k is written again below if the uninterrupted run would
   // have written one. So the files end up exactly as an uninterrupted run's (without the
   // interrupted run's off-grid final frame).
-  if (!opt.out_dir.empty()) prepare_output_directory(sc, opt.out_dir);
+  if (!opt.out_dir.empty() && root()) prepare_output_directory(sc, opt.out_dir);
+  agreed(0);  // the directory exists before any rank opens the shared H5MD file in it
   const double cut = new_h ? s_.t - resumed_.h : static_cast<double>(s_.step - 1) * h_;
-  outputs_ = std::make_unique<RunOutputs>(sc, opt.out_dir, thermo_, restarting ? &cut : nullptr, summary_.outputs, log);
+  outputs_ = std::make_unique<RunOutputs>(sc, opt.out_dir, thermo_, restarting ? &cut : nullptr, summary_.outputs, log,
+                                          domain_ ? opt.processes : nullptr);
   // The terminal: the thermo lines (from the rows the thermo file gets) and the progress bar.
   bool levels = false;
   for (const auto& term : sc.forces->terms()) levels |= term->level() == Level::fast;
@@ -259,6 +262,7 @@ const RunSummary& Run::finish() {
     summary_.rank_loop_seconds_max = c.max(loop_seconds_);
     summary_.wall_seconds = summary_.loop_seconds = summary_.rank_loop_seconds_max;
     summary_.domains = domain_->report();
+    summary_.h5md_writers = outputs_->h5md_writers();
   }
   summary_.threads = max_threads();
   summary_.phase_seconds.clear();
@@ -277,7 +281,10 @@ const RunSummary& Run::finish() {
   pending_ = false;
   observe(true);
   const std::vector<double>& row = last_row_;
-  if (!root()) return summary_;  // rank 0 writes the files and the summary
+  if (!root()) {  // rank 0 writes the files and the summary
+    outputs_->close();
+    return summary_;
+  }
   outputs_->write_final(summary_.outputs);
   outputs_->close();
   summary_.final_energy = row[col_total_];
@@ -334,7 +341,17 @@ void Run::observe(bool final) {
     if (due != 0) domain_->gather(s_);
   }
   if (sampled) sample();
-  if (root()) outputs_->write(s_, last_row_);
+  if (domain_ && outputs_->shares_frame()) {  // every rank writes its particles' rows of the H5MD frame
+    std::optional<ProcessRows> mine;
+    if (domain_->distributed()) {
+      if (sc_.output.h5md_force) domain_->owned_forces(owned_force_);
+      mine.emplace(
+          ProcessRows{domain_->owned_ids(), domain_->owned_state().x, domain_->owned_state().v, &owned_force_});
+    }
+    outputs_->write(s_, last_row_, mine ? &*mine : nullptr);
+  } else if (root()) {
+    outputs_->write(s_, last_row_);
+  }
   if (root() && outputs_->thermo_sampled() && screen_->due(s_.t, final)) {
     progress_->clear();  // a line of its own, not after the bar (when both are on one terminal)
     screen_->print(outputs_->thermo_row(), s_.step);

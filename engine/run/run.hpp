@@ -54,9 +54,10 @@ struct RunOptions {
   // leaves them to Python.
   bool handle_signals = true;
   // More than one process: the run is decomposed over them (engine/domain/domain_integrator.hpp,
-  // docs/parallel.md), the deck building each rank's force terms. Rank 0 writes every output
-  // (the others get an empty out_dir, no screen, no progress bar); every rank drives its Run
-  // through the same steps.
+  // docs/parallel.md), the deck building each rank's force terms. Every rank gets the same
+  // out_dir; rank 0 writes every output but the H5MD file, which with parallel HDF5 every rank
+  // writes its particles' rows of (RunOutputs); only rank 0 has a screen and a progress bar;
+  // every rank drives its Run through the same steps.
   const Communicator* processes = nullptr;
   const Deck* deck = nullptr;
 };
@@ -132,6 +133,7 @@ class Run {
   bool pending_ = false;        // the last step's outputs are still to be taken
   int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
   std::vector<double> last_row_;
+  Eigen::Matrix3Xd owned_force_;   // a shared H5MD frame's forces of this rank's particles
   int alerts_ = 0;                 // of the last sample
   Checkpoint last_good_;           // with on_alert = "stop": the run as of the last sample without alerts
   Checkpoint now_;                 // snapshot() of the current step, written with the state (no copy)

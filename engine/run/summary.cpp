@@ -54,7 +54,9 @@ std::string format_summary(const RunSummary& s) {
       << "), step loop max " << s.rank_loop_seconds_max << " s, mean " << s.rank_loop_seconds_mean << " s; "
       << d.ghosts_per_owned << " ghosts per owned bead, halo " << d.halo_bytes_per_step << " bytes in "
       << d.halo_messages_per_step << " messages; " << d.redistributions << " redistributions moved "
-      << d.migrated_molecules << " molecules\n";
+      << d.migrated_molecules << " molecules";
+    if (s.h5md_writers > 0) o << "; H5MD written by " << s.h5md_writers << (s.h5md_writers > 1 ? " ranks" : " rank");
+    o << "\n";
   }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
@@ -100,7 +102,7 @@ std::string summary_json(const RunSummary& s) {
       << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max << ", \"ghosts_per_owned\": " << d.ghosts_per_owned
       << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
-      << ", \"migrated_molecules\": " << d.migrated_molecules << "}";
+      << ", \"migrated_molecules\": " << d.migrated_molecules << ", \"h5md_writers\": " << s.h5md_writers << "}";
   }
   o << "\n}\n";
   return o.str();

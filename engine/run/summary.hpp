@@ -46,6 +46,7 @@ struct RunSummary {
   // imbalance; loop_seconds is the max) and the decomposition's counts.
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
   DomainReport domains;
+  int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
 };
 
