@@ -76,6 +76,24 @@ double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {
   return energy;
 }
 
+void ForceField::energies_and_virial(const Eigen::Matrix3Xd& x, std::vector<double>& level_energy,
+                                     double& virial) const {
+  zero(scratch_, x.cols());
+  term_sums_.resize(terms_.size());
+  for (size_t k = 0; k < terms_.size(); ++k) {
+    const ScopedPhase phase(terms_[k]->uses_neighbor_list() ? Phase::pair : Phase::bonded);
+    term_sums_[k] = terms_[k]->energy_and_virial(x, box_, scratch_);
+  }
+  // Summed as energy(x, level) sums each level (in the evaluation order) and the pressure the
+  // virials (in the order the terms were added).
+  level_energy.assign(num_levels(), 0.0);
+  for (const ForceTerm* term : order_)
+    for (size_t k = 0; k < terms_.size(); ++k)
+      if (terms_[k].get() == term) level_energy[term->level().index] += term_sums_[k].energy;
+  virial = 0.0;
+  for (const ForceTerm::Sums& s : term_sums_) virial += s.virial;
+}
+
 bool ForceField::has_level(Level l) const {
   return std::any_of(terms_.begin(), terms_.end(), [l](const auto& t) { return t->level() == l; });
 }

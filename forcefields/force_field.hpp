@@ -55,6 +55,10 @@ class ForceField {
 
   // Energy of one level at x (for observables; does not count as a force evaluation).
   double energy(const Eigen::Matrix3Xd& x, Level level) const;
+  // The energy of every level (energy(x, level) for each, innermost first) and the virial Σ r·f
+  // of every term, in one evaluation of each term (ForceTerm::energy_and_virial: a decomposed
+  // run's part gives its share of both). For observables: not a force evaluation.
+  void energies_and_virial(const Eigen::Matrix3Xd& x, std::vector<double>& level_energy, double& virial) const;
 
   const std::vector<std::unique_ptr<ForceTerm>>& terms() const { return terms_; }
   // The terms in the order their forces are summed (compute and the others below): those that
@@ -98,6 +102,7 @@ class ForceField {
   std::vector<std::string> level_names_;
   std::vector<std::int64_t> evaluations_;
   mutable Eigen::Matrix3Xd scratch_;
+  mutable std::vector<ForceTerm::Sums> term_sums_;  // energies_and_virial
 };
 
 }  // namespace stiffmd

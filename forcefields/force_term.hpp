@@ -61,6 +61,18 @@ class ForceTerm {
     return 0.0;
   }
 
+  // The energy and the virial as the thermo row wants them: this process's share of them in a
+  // decomposed run (docs/parallel.md; a pair term counts a pair with a ghost half, so the
+  // processes' shares add up to the whole system's), else the plain ones. `scratch` (3×N) takes
+  // the forces add_forces computes on the way. Default: add_forces's energy and virial().
+  struct Sums {
+    double energy = 0.0, virial = 0.0;
+  };
+  virtual Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const {
+    const double energy = add_forces(x, box, scratch);
+    return {energy, virial(x, box)};
+  }
+
   // Capabilities (docs/design.md §11.1: facts on the term, not lists of style names elsewhere).
   // Whether the term finds its pairs through a neighbour list (pair styles).
   virtual bool uses_neighbor_list() const { return false; }

@@ -90,7 +90,12 @@ struct PairSums {
 // Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),
 // whose minimum image is one fold away (NearestImage). f (3×N, column-major: f[3j + a]) may be
 // null when kForces is false. type[i] indexes params.
-template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
+//
+// kShares: the energy and virial are this process's share when the list has ghosts
+// (NeighborList::set_ghosts): a pair of an owned particle and a ghost counts half, its other half
+// being the ghost's owner's, so that the processes' shares add up to the whole system's
+// (docs/parallel.md). Without ghosts the sums are the plain ones.
+template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
                               const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                               const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f) {
@@ -98,8 +103,10 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
   const double* xp = xw.data();
   const std::int64_t* offset = list.offsets().data();
   const int* nbr = list.neighbors().data();
+  const char* ghost = kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr;
   PairSums sums;
   for (int i = first; i < last; ++i) {
+    const bool i_ghost = ghost && ghost[i];
     const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
     const Params* prow = params.row(type[i]);
     double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i summed in registers, stored once per row
@@ -117,8 +124,14 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       Kernel::eval(r2, p, e, fpair);
       e *= inside;
       fpair *= inside;
-      sums.energy += e;
-      if constexpr (kVirial) sums.virial += fpair * r2;
+      if constexpr (kShares) {
+        const double share = ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0;
+        sums.energy += share * e;
+        if constexpr (kVirial) sums.virial += share * (fpair * r2);
+      } else {
+        sums.energy += e;
+        if constexpr (kVirial) sums.virial += fpair * r2;
+      }
       if constexpr (kForces) {
         const double fx = fpair * dx, fy = fpair * dy, fz = fpair * dz;
         fxi += fx;
@@ -193,7 +206,7 @@ struct PairScratch {
 // other threads had just written (the drift and the wrap run in particle blocks) would come over
 // one scattered read at a time, which makes each part's pairs dearer on two threads than on one
 // (docs/performance_notes.md).
-template <class Kernel, bool kPeriodic, bool kForces, bool kVirial>
+template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                                        const Eigen::Matrix3Xd& xl, const NearestImage& near, double* f,
@@ -221,7 +234,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
         fu = scratch.force[u].data();
       }
     }
-    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial>(
+    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(
         list, scratch.first_row[u], std::max(scratch.first_row[u], scratch.first_row[u + 1]), params, type, xw, near,
         fu);
   });
@@ -241,8 +254,10 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
 }
 
 // The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
-// Σ E and Σ r_ij·f_ij (if kVirial). The list must be up to date for x and box (update).
-template <class Kernel, bool kForces, bool kVirial>
+// Σ E and Σ r_ij·f_ij (if kVirial; with kShares this process's share of both, see
+// accumulate_pair_rows: the scaled pairs count whole, as a decomposed run's are those of its own
+// whole molecules). The list must be up to date for x and box (update).
+template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                           const Eigen::Matrix3Xd& x, const Box& box, double* f, PairScratch& scratch) {
@@ -252,17 +267,17 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   PairSums listed;
   if (parts > 1) {  // each part copies the wrapped positions
     const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
-    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial>(list, parts, params, type, xl,
-                                                                                      NearestImage(box), f, scratch)
-                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial>(list, parts, params, type, xl,
-                                                                                       NearestImage(box), f, scratch);
+    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares>(
+                            list, parts, params, type, xl, NearestImage(box), f, scratch)
+                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares>(
+                            list, parts, params, type, xl, NearestImage(box), f, scratch);
   } else {
     const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
-      listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial>(list, 0, n, params, type, xl,
-                                                                               NearestImage(box), f)
-                        : accumulate_pair_rows<Kernel, false, kForces, kVirial>(list, 0, n, params, type, xl,
-                                                                                NearestImage(box), f);
+      listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
+                                                                                        NearestImage(box), f)
+                        : accumulate_pair_rows<Kernel, false, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
+                                                                                         NearestImage(box), f);
     });
   }
   // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to

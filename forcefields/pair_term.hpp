@@ -36,6 +36,8 @@ class PairTerm final : public ForceTerm {
   // Not safe to call concurrently on one term: they update the list.
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
+  // Both in one pass over the pairs, with ghosts this process's share (accumulate_pair_rows).
+  Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
 
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;  // the settings and the rebuilds so far
@@ -185,6 +187,20 @@ double PairTerm<Kernel>::virial(const Eigen::Matrix3Xd& x, const Box& box) const
   }
   return accumulate_pairs<Kernel, false, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_)
       .virial;
+}
+
+template <class Kernel>
+ForceTerm::Sums PairTerm<Kernel>::energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box,
+                                                    Eigen::Matrix3Xd& scratch) const {
+  (void)scratch;
+  check_positions(x, nullptr);
+  {
+    const ScopedPhase phase(Phase::neighbor);
+    list_.update(x, box);
+  }
+  const PairSums s =
+      accumulate_pairs<Kernel, false, true, true>(list_, scaled_, params_, types_.data(), x, box, nullptr, scratch_);
+  return {s.energy, s.virial};
 }
 
 // The coefficients of every type pair (a, b), a <= b, as the pair loop uses them: after the

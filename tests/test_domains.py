@@ -46,8 +46,9 @@ frame, and chains' anchors (wrapped centres of mass) change domain during the ru
 And more: at one thread per rank the trajectory is the serial one bit for bit (docs/parallel.md),
 so the H5MD position, image, velocity and force datasets of every frame must be equal to the last
 bit.
-The thermo columns stay at 1e-10: rank 0 adds the ranks' shares of the integrator's own sums (the
-kinetic energy at the O step, the constraint virial) in another order than one process does.
+The thermo columns stay at 1e-10: each rank sums its part's energies (a pair with a ghost counted
+half), virials and the integrator's own sums, and the ranks' sums are added up, in another order
+than one process sums them.
 
 A failure prints every deviation over the tolerance with the largest (frame, particle id and axis;
 column and step) and exits 1.

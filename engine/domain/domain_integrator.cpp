@@ -18,6 +18,7 @@ struct DomainIntegrator::Part {
   Scene scene;
   std::unique_ptr<Integrator> integrator;
   std::vector<GhostedPairs*> pairs;  // its force field's pair terms
+  std::unique_ptr<Thermo> thermo;    // the thermo row's sums of the part (sample_sums)
 };
 
 namespace {
@@ -52,6 +53,17 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);
   margin_range_[0] = std::max(skin, 1e-3 * cutoff), margin_range_[1] = 4.0 * (cutoff + skin);
   evaluations_.assign(whole.forces->num_levels(), 0);
+  // The polymer columns average over the topology's molecules (its molecule ids); a rank can sum
+  // them only over molecules it holds whole.
+  const std::vector<int>& id = whole.topology.molecule;
+  std::vector<int> bonded_of_id;
+  for (size_t i = 0; i < id.size() && molecules_whole_; ++i) {
+    if (id[i] < 0) continue;
+    if (static_cast<size_t>(id[i]) >= bonded_of_id.size()) bonded_of_id.resize(id[i] + 1, -1);
+    int& b = bonded_of_id[id[i]];
+    if (b < 0) b = domains_->molecule_of(static_cast<int>(i));
+    molecules_whole_ = b == domains_->molecule_of(static_cast<int>(i));
+  }
   const MethodInfo* m = find_method(whole.integrator.method);
   const StiffBonds* stiff = whole.forces->stiff_bonds();
   const int rigid = m->rigid_constraints && stiff ? static_cast<int>(stiff->bonds.size()) : 0;
@@ -131,6 +143,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     if (at(a.i) >= 0) t.angles.push_back({at(a.i), at(a.j), at(a.k), a.type});
   for (const Dihedral& h : wt.dihedrals)
     if (at(h.i) >= 0) t.dihedrals.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
+  if (!wt.molecule.empty())
+    for (int k = 0; k < n; ++k) t.molecule.push_back(wt.molecule[p.global_id[k]]);
   ThermostatSettings& th = p.integrator.thermostat;
   if (th.friction.size() > 0) {
     Eigen::VectorXd f(n);
@@ -150,6 +164,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     p.forces->replace(k, std::move(ghosted));
   }
   part->integrator = make_integrator(p.integrator, *p.forces, p.state.inv_mass);
+  part->thermo = std::make_unique<Thermo>(*p.forces, p.state.inv_mass, ObservableSettings{}, &p.topology);
   if (std::vector<double> inv = part_invariants(); !inv.empty()) part->integrator->set_invariants(inv);
   part_ = std::move(part);
 }
@@ -331,6 +346,16 @@ const State& DomainIntegrator::owned_state() const {
 
 void DomainIntegrator::owned_forces(Eigen::Matrix3Xd& f) const {
   part_->scene.forces->total_force(part_->scene.state.x, f);
+}
+
+ThermoSums DomainIntegrator::sample_sums() const {
+  ThermoSums sums = part_->thermo->sums(part_->scene.state);
+  sums.level_energy.resize(whole_scene_.forces->num_levels(), 0.0);
+  std::vector<double> flat = sums.flat();
+  comm_.sum(flat.data(), static_cast<int>(flat.size()));
+  comm_.max(&sums.max_violation, 1);
+  sums.set_flat(flat);
+  return sums;
 }
 
 }  // namespace stiffmd

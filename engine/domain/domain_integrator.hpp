@@ -24,6 +24,7 @@
 #include "engine/core/communicator.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/domain/decomposition.hpp"
+#include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
 
@@ -73,6 +74,13 @@ class DomainIntegrator final : public Integrator {
   const std::vector<int>& owned_ids() const { return domains_->owned_ids(); }
   const State& owned_state() const;
   void owned_forces(Eigen::Matrix3Xd& f) const;
+  // Whether the thermo row can be summed by parts (sample_sums): once distributed, when every
+  // molecule of the topology (its molecule ids: Rg, end-to-end) lies within one bonded molecule,
+  // which a rank owns whole.
+  bool samples_by_parts() const { return part_ && molecules_whole_; }
+  // The thermo row's sums of the whole system: each rank's part's (its share of the pair terms),
+  // added up over the ranks. Collective; the same on every rank.
+  ThermoSums sample_sums() const;
 
  private:
   struct Part;
@@ -92,7 +100,8 @@ class DomainIntegrator final : public Integrator {
   bool adapt_margin_ = false;        // no [parallel] halo_margin: DomainIntegrator::reselect adapts it
   double margin_range_[2] = {0, 0};  // its least and largest value
   long steps_since_selection_ = 0;
-  int whole_dof_ = 0;  // csvr: the whole system's degrees of freedom
+  int whole_dof_ = 0;            // csvr: the whole system's degrees of freedom
+  bool molecules_whole_ = true;  // every topology molecule within one bonded molecule
   // The effective dynamics' modes: per constraint cluster of the whole system (clusters in the
   // order of their first bond, integrators/modes.hpp), its molecule, first mode and mode count.
   struct Cluster {

@@ -32,4 +32,11 @@ double GhostedPairs::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
   return extended_->virial(x_, box);
 }
 
+ForceTerm::Sums GhostedPairs::energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box,
+                                                Eigen::Matrix3Xd& scratch) const {
+  (void)scratch;
+  domains_.halo(x, x_);
+  return extended_->energy_and_virial(x_, box, f_);
+}
+
 }  // namespace stiffmd

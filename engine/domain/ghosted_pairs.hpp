@@ -27,6 +27,9 @@ class GhostedPairs final : public ForceTerm {
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
+  // This rank's share: a pair of an owned particle and a ghost counts half (its owner has the
+  // other half), so the ranks' shares add up to the whole system's energy and virial.
+  Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
   bool uses_neighbor_list() const override { return true; }
   double pair_cutoff() const override { return template_->pair_cutoff(); }
   double pair_skin() const override { return template_->pair_skin(); }

@@ -95,9 +95,51 @@ int Thermo::column(const std::string& name) const {
   return -1;
 }
 
+std::vector<double> ThermoSums::flat() const {
+  std::vector<double> v{kinetic};
+  v.insert(v.end(), level_energy.begin(), level_energy.end());
+  v.insert(v.end(), {virial, rg, end_to_end, molecules, sized});
+  return v;
+}
+
+void ThermoSums::set_flat(const std::vector<double>& v) {
+  const size_t levels = v.size() - 6;
+  kinetic = v[0];
+  level_energy.assign(v.begin() + 1, v.begin() + 1 + static_cast<std::ptrdiff_t>(levels));
+  virial = v[1 + levels], rg = v[2 + levels], end_to_end = v[3 + levels];
+  molecules = v[4 + levels], sized = v[5 + levels];
+}
+
+ThermoSums Thermo::sums(const State& s) const {
+  ThermoSums sums;
+  sums.kinetic = s.kinetic_energy();
+  forces_.energies_and_virial(s.x, sums.level_energy, sums.virial);
+  sums.max_violation = max_constraint_violation(s.x, forces_.stiff_bonds());
+  if (molecules_) {
+    molecules_->sum(s.x, sums.rg, sums.end_to_end);
+    sums.molecules = molecules_->count();
+    sums.sized = molecules_->sized();
+  }
+  return sums;
+}
+
 const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial,
                                           double kinetic_estimate) {
-  Energies e = energies(s, forces_);
+  return sample(s, sums(s), model_potential, constraint_virial, kinetic_estimate);
+}
+
+const std::vector<double>& Thermo::sample(const State& s, const ThermoSums& sums, double model_potential,
+                                          double constraint_virial, double kinetic_estimate) {
+  // The energies by level, innermost first: the innermost is the stiff one, the others are U
+  // (docs/design.md §1), added from the outermost in.
+  Energies e;
+  e.kinetic = sums.kinetic;
+  e.by_level = sums.level_energy;
+  for (int k = static_cast<int>(e.by_level.size()) - 1; k >= 0; --k)
+    if (k > 0)
+      e.slow += e.by_level[k];
+    else
+      e.stiff = e.by_level[k];
   const double thermal_kinetic = kinetic_estimate >= 0.0 ? kinetic_estimate : e.kinetic;
   e.stiff += model_potential;
   if (!have_e0_) {
@@ -105,17 +147,16 @@ const std::vector<double>& Thermo::sample(const State& s, double model_potential
     have_e0_ = true;
   }
   values_.clear();
-  values_.insert(values_.end(),
-                 {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(), e.total() - e0_,
-                  max_constraint_violation(s.x, forces_.stiff_bonds()), dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
+                                 e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
+  // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
+  // polymer means, from the sums.
   if (volume_ > 0)
-    values_.push_back(pressure(s, forces_, volume_, thermal_kinetic) + constraint_virial / (3.0 * volume_));
+    values_.push_back((2.0 * thermal_kinetic + sums.virial) / (3.0 * volume_) + constraint_virial / (3.0 * volume_));
   if (molecules_) {
-    double rg = 0.0, ree = 0.0;
-    molecules_->measure(s.x, rg, ree);
-    values_.push_back(rg);
-    if (molecules_->has_end_to_end()) values_.push_back(ree);
+    values_.push_back(sums.molecules > 0 ? sums.rg / sums.molecules : 0.0);
+    if (molecules_->has_end_to_end()) values_.push_back(sums.sized > 0 ? sums.end_to_end / sums.sized : 0.0);
   }
   if (modes_) {
     modes_->frequencies(s.x, omega_);

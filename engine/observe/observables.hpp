@@ -42,6 +42,21 @@ struct ObservableSettings {
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
 };
 
+// What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
+// ranks sums its part, and the ranks' sums add up to the whole system's (docs/parallel.md).
+struct ThermoSums {
+  double kinetic = 0.0;               // ½ vᵀMv
+  std::vector<double> level_energy;   // the potential energy of each level, innermost first
+  double virial = 0.0;                // Σ r·f of the force terms (the pressure's)
+  double rg = 0.0, end_to_end = 0.0;  // summed over the molecules (Molecules::sum)
+  double molecules = 0.0, sized = 0.0;
+  double max_violation = 0.0;  // not a sum: the largest over the ranks
+  // The sums as one array (kinetic, level_energy…, virial, rg, end_to_end, molecules, sized), to
+  // add up over the ranks, and back.
+  std::vector<double> flat() const;
+  void set_flat(const std::vector<double>& v);
+};
+
 // What a thermo column measures (time, energy, temperature, …), for the units it is written in.
 Dimension thermo_column_dimension(const std::string& column);
 
@@ -61,6 +76,13 @@ class Thermo {
   // velocities at the O step. The kinetic, total and energy_drift columns stay the state's.
   const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0,
                                     double kinetic_estimate = -1.0);
+  // The same from sums taken elsewhere (a decomposed run's parts, added up): s gives the time and
+  // the step. Not with the actions (modes()), which need the whole state.
+  const std::vector<double>& sample(const State& s, const ThermoSums& sums, double model_potential,
+                                    double constraint_virial, double kinetic_estimate);
+  // The sums of the row at state s (of this Thermo's force field: a part's share in a decomposed
+  // run).
+  ThermoSums sums(const State& s) const;
   double initial_energy() const { return e0_; }
   // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
   void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }

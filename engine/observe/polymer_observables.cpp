@@ -71,6 +71,12 @@ Molecules::Molecules(const Topology& topology, const Eigen::VectorXd& inv_mass, 
 }
 
 void Molecules::measure(const Eigen::Matrix3Xd& x, double& rg, double& end_to_end) const {
+  sum(x, rg, end_to_end);
+  if (!molecules_.empty()) rg /= molecules_.size();
+  if (num_sized_ > 0) end_to_end /= num_sized_;
+}
+
+void Molecules::sum(const Eigen::Matrix3Xd& x, double& rg, double& end_to_end) const {
   rg = end_to_end = 0.0;
   for (const Molecule& m : molecules_) {
     Eigen::Vector3d com = Eigen::Vector3d::Zero();
@@ -89,8 +95,6 @@ void Molecules::measure(const Eigen::Matrix3Xd& x, double& rg, double& end_to_en
       end_to_end += std::sqrt(d2 / static_cast<double>(n));
     }
   }
-  if (!molecules_.empty()) rg /= molecules_.size();
-  if (num_sized_ > 0) end_to_end /= num_sized_;
 }
 
 namespace {

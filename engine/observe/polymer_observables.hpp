@@ -42,6 +42,11 @@ class Molecules {
   // Branched molecules have no end-to-end distance and are left out (0 when none is sized).
   // Positions are unwrapped, so molecules are whole.
   void measure(const Eigen::Matrix3Xd& x, double& rg, double& end_to_end) const;
+  // The sums behind the means (over the molecules, over the sized ones) and their counts: the
+  // means of several processes' molecules together (Thermo::sums).
+  void sum(const Eigen::Matrix3Xd& x, double& rg_sum, double& end_to_end_sum) const;
+  int count() const { return static_cast<int>(molecules_.size()); }
+  int sized() const { return num_sized_; }
 
  private:
   enum class Shape { linear, ring, other };

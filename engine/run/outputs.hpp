@@ -65,8 +65,9 @@ class RunOutputs {
   // Whether the last due() was a sample of the thermo grid (or the final state): the rows the
   // thermo file gets, and the terminal's line may show.
   bool thermo_sampled() const { return thermo_now_; }
-  // Whether the last due() found a file to write (a trajectory frame, a state row, a thermo row).
-  bool writes_now() const { return xyz_now_ || state_now_ || h5md_now_ || (thermo_now_ && thermo_); }
+  // Whether what the last due() found due is written from the whole state on rank 0 (XYZ, the
+  // state file, an H5MD frame not shared among the ranks).
+  bool needs_whole_state() const { return xyz_now_ || state_now_ || (h5md_now_ && !shared_h5md_); }
   // The thermo columns as written (normalised with [output] thermo_norm, in the deck's units), and the
   // last row written.
   const ThermoOutput& thermo_table() const { return table_; }

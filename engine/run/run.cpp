@@ -309,13 +309,20 @@ const RunSummary& Run::finish() {
   return summary_;
 }
 
+bool Run::sampled_by_parts() const {
+  return domain_ && domain_->samples_by_parts() && !thermo_.modes();
+}
+
 const std::vector<double>& Run::sample() {
-  // The integrator's sums first (on every rank: a decomposed run reduces them), then rank 0
-  // samples the whole system, gathered for it.
+  // The integrator's sums first (on every rank: a decomposed run reduces them), then the row's
+  // sums: each rank's part's, added up (DomainIntegrator::sample_sums), or rank 0's of the whole
+  // system, gathered for it (the actions).
   const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
   const double kinetic = integrator_->kinetic_energy_estimate(s_);
+  std::optional<ThermoSums> parts;
+  if (sampled_by_parts()) parts = domain_->sample_sums();
   if (root()) {
-    last_row_ = thermo_.sample(s_, model, virial, kinetic);
+    last_row_ = parts ? thermo_.sample(s_, *parts, model, virial, kinetic) : thermo_.sample(s_, model, virial, kinetic);
     stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
     for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
     alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
@@ -336,9 +343,12 @@ void Run::observe(bool final) {
   const ScopedPhase phase(Phase::output);
   bool sampled = outputs_->due(s_.t, final);
   if (domain_) {  // rank 0's outputs decide; the others take part in the gather and the sums
-    const std::int64_t due = agreed((sampled ? 1 : 0) | (outputs_->writes_now() ? 2 : 0));
+    // The whole state, gathered on rank 0: for the files it writes from it, the final state, a
+    // sample that cannot be summed by parts, and the state the [monitor] keeps.
+    const bool whole = outputs_->needs_whole_state() || final || (sampled && (!sampled_by_parts() || monitor_.stops()));
+    const std::int64_t due = agreed((sampled ? 1 : 0) | (whole ? 2 : 0));
     sampled = (due & 1) != 0;
-    if (due != 0) domain_->gather(s_);
+    if ((due & 2) != 0) domain_->gather(s_);
   }
   if (sampled) sample();
   if (domain_ && outputs_->shares_frame()) {  // every rank writes its particles' rows of the H5MD frame

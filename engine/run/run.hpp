@@ -106,6 +106,9 @@ class Run {
   long rebuilds_now() const;
   bool timed_by_phase() const { return s_.size() >= kParallelMin; }
   bool root() const { return !domain_ || options_.processes->root(); }
+  // Whether a decomposed run's thermo row is summed by its ranks' parts (else rank 0 samples the
+  // gathered whole state).
+  bool sampled_by_parts() const;
   // A decomposed run: rank 0's decision (an output due, a stop) on every rank.
   std::int64_t agreed(std::int64_t rank0_value) const;
 
