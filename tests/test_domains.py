@@ -190,16 +190,25 @@ def launch(mpiexec, numproc_flag, ranks, stiffmd):
 
 def check_h5md_writers(stiffmd, out, ranks):
     """A build with parallel HDF5 has every rank write its particles' rows of the one H5MD file
-    (docs/parallel.md); without it rank 0 writes the whole file."""
+    (docs/parallel.md); without it rank 0 writes the whole file. And the timing by phase has its
+    mean and max over the ranks."""
     if ranks == 1:
         return
     version = subprocess.run([stiffmd, "--version"], capture_output=True, text=True).stdout
     expected = ranks if "H5MD written by every rank: yes" in version else 1
     with open(os.path.join(out, "summary.json")) as f:
-        writers = json.load(f)["domains"]["h5md_writers"]
+        summary = json.load(f)
+    writers = summary["domains"]["h5md_writers"]
     if writers != expected:
         raise SystemExit(f"FAIL: the H5MD file was written by {writers} ranks, expected {expected} ({version.strip()})")
     print(f"H5MD written by {writers} of {ranks} ranks")
+    # The timing by phase (systems timed by parts) comes with its mean and max over the ranks.
+    if summary["timing"]:
+        mean, most = summary["domains"].get("timing_mean"), summary["domains"].get("timing_max")
+        if mean is None or most is None or set(mean) != set(summary["timing"]) or set(most) != set(mean) or \
+                any(most[k] < mean[k] or most[k] < 0 for k in mean):
+            raise SystemExit(f"FAIL: domains.timing_mean/timing_max missing or not max >= mean >= 0 per phase: "
+                             f"{mean}, {most} (timing {summary['timing']})")
 
 
 def case_setup(case):

@@ -268,6 +268,14 @@ const RunSummary& Run::finish() {
   summary_.phase_seconds.clear();
   if (timed_by_phase()) {
     for (int p = 0; p < static_cast<int>(Phase::count); ++p) summary_.phase_seconds.push_back(clock_.seconds(Phase(p)));
+    if (domain_) {
+      const Communicator& c = *options_.processes;
+      const int n = static_cast<int>(summary_.phase_seconds.size());
+      summary_.rank_phase_seconds_mean = summary_.rank_phase_seconds_max = summary_.phase_seconds;
+      c.sum(summary_.rank_phase_seconds_mean.data(), n);
+      for (double& v : summary_.rank_phase_seconds_mean) v /= c.size();
+      c.max(summary_.rank_phase_seconds_max.data(), n);
+    }
     if (loop_seconds_ > 0.0) summary_.serial_share = std::clamp(1.0 - parallel_seconds_ / loop_seconds_, 0.0, 1.0);
   }
   progress_->finish(s_.step - first_step_ + 1);  // where it stopped: a signal leaves the bar short of 100 %

@@ -43,9 +43,15 @@ std::string format_summary(const RunSummary& s) {
     o << "\n";
     char line[96];
     for (size_t k = 0; k < s.phase_seconds.size(); ++k) {
-      std::snprintf(line, sizeof line, "  %-13s %10.4f s %6.1f %%\n", std::string(kPhaseNames[k]).c_str(),
+      std::snprintf(line, sizeof line, "  %-13s %10.4f s %6.1f %%", std::string(kPhaseNames[k]).c_str(),
                     s.phase_seconds[k], 100.0 * s.phase_seconds[k] / s.loop_seconds);
       o << "             " << line;
+      if (k < s.rank_phase_seconds_max.size()) {  // rank 0's; the ranks' mean and max
+        std::snprintf(line, sizeof line, "   ranks: mean %.4f s, max %.4f s", s.rank_phase_seconds_mean[k],
+                      s.rank_phase_seconds_max[k]);
+        o << line;
+      }
+      o << "\n";
     }
   }
   if (s.domains.ranks > 1) {
@@ -102,7 +108,16 @@ std::string summary_json(const RunSummary& s) {
       << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max << ", \"ghosts_per_owned\": " << d.ghosts_per_owned
       << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
-      << ", \"migrated_molecules\": " << d.migrated_molecules << ", \"h5md_writers\": " << s.h5md_writers << "}";
+      << ", \"migrated_molecules\": " << d.migrated_molecules << ", \"h5md_writers\": " << s.h5md_writers;
+    for (const auto& [name, seconds] :
+         {std::pair{"timing_mean", &s.rank_phase_seconds_mean}, std::pair{"timing_max", &s.rank_phase_seconds_max}}) {
+      if (seconds->empty()) continue;
+      o << ", \"" << name << "\": {";
+      for (size_t k = 0; k < seconds->size(); ++k)
+        o << (k ? ", " : "") << "\"" << kPhaseNames[k] << "\": " << (*seconds)[k];
+      o << "}";
+    }
+    o << "}";
   }
   o << "\n}\n";
   return o.str();

@@ -45,6 +45,8 @@ struct RunSummary {
   // A decomposed run (ranks > 1): the step loop's wall time per rank (mean and max: the load
   // imbalance; loop_seconds is the max) and the decomposition's counts.
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
+  // Each phase's seconds, mean and max over the ranks (a decomposed run's load imbalance by phase).
+  std::vector<double> rank_phase_seconds_mean, rank_phase_seconds_max;
   DomainReport domains;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
