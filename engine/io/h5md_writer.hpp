@@ -97,9 +97,9 @@ class H5mdWriter {
   // flushed before returning, so a kill after this call leaves every frame so far readable.
   //
   // A file shared by several processes (setup.processes): every process calls it for every frame
-  // (collective), `ids` the global indices of the columns of x, v and f (increasing; empty: none),
-  // or null on rank 0 for all N columns in order (the others then pass none). Step, time and the
-  // observables are rank 0's. One process: `ids` is null.
+  // (collective), `ids` the global indices of the columns of x, v and f (each particle on one
+  // process; empty: none). Step, time and the observables are rank 0's. One process: `ids` is
+  // null.
   void write_frame(std::int64_t step, double time, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
                    const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
                    const std::vector<int>* ids = nullptr);

@@ -1,6 +1,7 @@
 #include "engine/run/outputs.hpp"
 
 #include <filesystem>
+#include <numeric>
 #include <system_error>
 
 #include "engine/core/communicator.hpp"
@@ -221,7 +222,14 @@ void RunOutputs::write_h5md(const State& s, const ProcessRows* mine) {
     h5md_velocity_ = *v * scale;
     v = &h5md_velocity_;
   }
-  const std::vector<int>* ids = mine ? &mine->ids : whole ? nullptr : &no_rows_;
+  const std::vector<int>* ids = nullptr;  // one process: all rows
+  if (shared_h5md_) {                     // every rank passes its rows (rank 0 all before the parts)
+    if (whole && all_rows_.empty()) {
+      all_rows_.resize(s.size());
+      std::iota(all_rows_.begin(), all_rows_.end(), 0);
+    }
+    ids = mine ? &mine->ids : whole ? &all_rows_ : &no_rows_;
+  }
   h5md_->write_frame(s.step, s.t * sc_.units.out(Dimension::time), x, v, f, h5md_values_, ids);
 }
 

@@ -104,7 +104,9 @@ class RunOutputs {
   std::vector<int> h5md_columns_;  // every thermo column but time and step
   std::vector<double> h5md_values_;
   Eigen::Matrix3Xd h5md_force_;
-  const std::vector<int> no_rows_;  // a shared frame's part of a rank that holds no particles
+  // A shared frame's rows before the run is distributed: rank 0 all, the others none.
+  std::vector<int> all_rows_;
+  const std::vector<int> no_rows_;
   std::string checkpoint_path_;
 };
 
