@@ -383,7 +383,9 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   // selection's positions, 40 % fewer than the cells' candidates on a melt of chains.
   for (int r = 0; r < ranks; ++r) {
     out[r].clear();
-    for (int k : send_[r]) out[r].insert(out[r].end(), {static_cast<double>(ids_[k]), x(0, k), x(1, k), x(2, k)});
+    out[r].resize(4 * send_[r].size());
+    double* w = out[r].data();
+    for (int k : send_[r]) w[0] = ids_[k], w[1] = x(0, k), w[2] = x(1, k), w[3] = x(2, k), w += 4;
   }
   comm_.exchange(out, in);
   const double radius2 = radius_ * radius_;

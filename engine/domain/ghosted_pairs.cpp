@@ -40,7 +40,9 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
   domains_.halo(x, x_);
   const int owned = domains_.num_owned();
   f_.resize(3, x_.cols());  // no allocation once sized
-  f_.setZero();
+  const std::vector<char>& ghost = domains_.ghost_flags();
+  for (Eigen::Index e = 0; e < f_.cols(); ++e)
+    if (ghost[e]) f_.col(e).setZero();
   for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
   const double energy = extended_->add_forces(x_, box, f_);
   for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));
