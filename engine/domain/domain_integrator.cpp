@@ -167,15 +167,6 @@ void DomainIntegrator::retarget_pairs() {
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
 // or what the first sample left): each its particles' columns, rank 0 the sums.
 void DomainIntegrator::start(const State& s) {
-  // The adapted margin starts where the fastest bead, at its speed, would reach margin/2 in about
-  // ten steps (a bead moves |v| h a step): no run of selections at the start while the margin
-  // grows from the lists' skin. The state is the same on every rank, so is the margin.
-  if (adapt_margin_) {
-    double v2 = 0.0;
-    for (Eigen::Index i = 0; i < s.v.cols(); ++i) v2 = std::max(v2, s.v.col(i).squaredNorm());
-    const double wanted = 20.0 * std::sqrt(v2) * whole_scene_.integrator.h;
-    domains_->set_margin(std::clamp(std::max(domains_->margin(), wanted), margin_range_[0], margin_range_[1]));
-  }
   Eigen::Matrix3Xd x, v;
   domains_->distribute(s, x, v);
   build_part(std::move(x), std::move(v), s);
