@@ -107,6 +107,9 @@ NeighborList::NeighborList(double cutoff, double skin) : cutoff_(cutoff), skin_(
 
 void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair> pairs) {
   excl_particles_ = num_particles;
+  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new extended set
+  // at each selection of the ghosts): counts, their prefix sums, each pair placed at its rows'
+  // cursors, the cursors shifted back into row starts.
   excl_offsets_.assign(static_cast<std::size_t>(num_particles) + 1, 0);
   for (const SpecialPair& p : pairs) {
     if (p.i < 0 || p.j < 0 || p.i >= num_particles || p.j >= num_particles)
@@ -115,23 +118,33 @@ void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair
     ++excl_offsets_[p.j + 1];
   }
   for (int i = 0; i < num_particles; ++i) excl_offsets_[i + 1] += excl_offsets_[i];
-  excl_.assign(excl_offsets_.back(), 0);
-  std::vector<int> fill(excl_offsets_.begin(), excl_offsets_.end() - 1);
+  excl_.resize(excl_offsets_.back());
   for (const SpecialPair& p : pairs) {
-    excl_[fill[p.i]++] = p.j;
-    excl_[fill[p.j]++] = p.i;
+    excl_[excl_offsets_[p.i]++] = p.j;
+    excl_[excl_offsets_[p.j]++] = p.i;
   }
-  for (int i = 0; i < num_particles; ++i)
-    std::sort(excl_.begin() + excl_offsets_[i], excl_.begin() + excl_offsets_[i + 1]);
+  for (int i = num_particles; i > 0; --i) excl_offsets_[i] = excl_offsets_[i - 1];
+  excl_offsets_[0] = 0;
+  // Pairs sorted by (i, j), as special_pairs gives them, leave each row sorted already.
+  for (int i = 0; i < num_particles; ++i) {
+    const auto first = excl_.begin() + excl_offsets_[i], last = excl_.begin() + excl_offsets_[i + 1];
+    if (!std::is_sorted(first, last)) std::sort(first, last);
+  }
   built_ = false;
 }
 
-void NeighborList::set_ghosts(std::vector<char> ghost) {
+void NeighborList::set_ghosts(std::span<const char> ghost) {
   for (char g : ghost)
     if (g != 0 && g != 1) throw std::invalid_argument("neighbour list: a ghost flag must be 0 or 1");
-  if (std::find(ghost.begin(), ghost.end(), 1) == ghost.end()) ghost.clear();  // none: the list without ghosts
-  if (ghost != ghost_) built_ = false;
-  ghost_ = std::move(ghost);
+  // None set: the list without ghosts. The flags are copied into the member's capacity.
+  const bool none = std::find(ghost.begin(), ghost.end(), char{1}) == ghost.end();
+  if (none) {
+    if (!ghost_.empty()) built_ = false;
+    ghost_.clear();
+    return;
+  }
+  if (!std::equal(ghost.begin(), ghost.end(), ghost_.begin(), ghost_.end())) built_ = false;
+  ghost_.assign(ghost.begin(), ghost.end());
 }
 
 bool NeighborList::excluded(int i, int j) const {

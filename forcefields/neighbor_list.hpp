@@ -135,7 +135,7 @@ class NeighborList {
   // ghosts is listed, and the fast particles' check ignores such pairs. Empty or all 0: no
   // ghosts (the default), the list without ghosts bit for bit. A change forces the next update
   // to rebuild. Throws std::invalid_argument for a flag other than 0 or 1.
-  void set_ghosts(std::vector<char> ghost);
+  void set_ghosts(std::span<const char> ghost);
   const std::vector<char>& ghosts() const { return ghost_; }
 
   // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count

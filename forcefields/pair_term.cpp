@@ -9,8 +9,7 @@ void fail(const std::string& name, std::string_view style, const std::string& wh
   throw std::invalid_argument("pair term '" + name + "' (" + std::string(style) + "): " + what);
 }
 
-void check_pair_inputs(const std::string& name, std::string_view style, const std::vector<int>& types, int ntypes,
-                       SpecialWeights weights, const Box& box, double rc, double skin) {
+void check_types(const std::string& name, std::string_view style, std::span<const int> types, int ntypes) {
   for (std::size_t i = 0; i < types.size(); ++i)
     if (types[i] < 0 || types[i] >= ntypes) {
       std::ostringstream s;
@@ -18,6 +17,11 @@ void check_pair_inputs(const std::string& name, std::string_view style, const st
         << " (the types given pair coefficients)";
       fail(name, style, s.str());
     }
+}
+
+void check_pair_inputs(const std::string& name, std::string_view style, const std::vector<int>& types, int ntypes,
+                       SpecialWeights weights, const Box& box, double rc, double skin) {
+  check_types(name, style, types, ntypes);
   for (const auto& [what, w] :
        {std::pair{"w12", weights.w12}, std::pair{"w13", weights.w13}, std::pair{"w14", weights.w14}})
     if (!(w >= 0.0 && w <= 1.0)) {

@@ -19,8 +19,28 @@
 
 namespace stiffmd {
 
+// A pair term moved from one particle set onto another of the same molecules, in place: what a
+// decomposed run's part (engine/domain/ghosted_pairs.hpp) does to its pair terms at each selection
+// of the ghosts. The term keeps its settings and its neighbour list's buffers; only the particles'
+// types, special pairs and ghost flags change.
+class PairsOnParticles {
+ public:
+  virtual ~PairsOnParticles() = default;
+  // Every pair of the term's particles whose special weight is not 1, sorted by (i, j)
+  // (special_pairs of the particles and bonds it was built on or moved to).
+  virtual std::span<const SpecialPair> special_pairs() const = 0;
+  // The term on another particle set: types[i] per particle, `special` its special pairs as
+  // special_pairs gives them (sorted by (i, j); weights from this term's w12, w13, w14), ghost[i]
+  // (empty or all 0: none; NeighborList::set_ghosts). The same term, bit for bit, as on_particles
+  // builds with the bonds that give `special`, and then set_ghosts; the list is built at the next
+  // evaluation, allocating nothing once its buffers have grown. Throws std::invalid_argument for a
+  // type or a pair out of range.
+  virtual void move_to(std::span<const int> types, std::span<const SpecialPair> special,
+                       std::span<const char> ghost) = 0;
+};
+
 template <class Kernel>
-class PairTerm final : public ForceTerm {
+class PairTerm final : public ForceTerm, public PairsOnParticles {
  public:
   using Coeffs = typename Kernel::Coeffs;
   using Params = typename Kernel::Params;
@@ -51,6 +71,9 @@ class PairTerm final : public ForceTerm {
   // The scaled special pairs are still all evaluated.
   void set_ghosts(const std::vector<char>& ghost) override { list_.set_ghosts(ghost); }
 
+  std::span<const SpecialPair> special_pairs() const override { return special_; }
+  void move_to(std::span<const int> types, std::span<const SpecialPair> special, std::span<const char> ghost) override;
+
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   bool uses_neighbor_list() const override { return true; }
@@ -77,7 +100,8 @@ class PairTerm final : public ForceTerm {
   TypePairMatrix<Params> params_;
   SpecialWeights weights_;
   std::size_t excluded_ = 0;
-  std::vector<SpecialPair> scaled_;
+  std::vector<SpecialPair> special_;  // every pair with w ≠ 1
+  std::vector<SpecialPair> scaled_;   // those with 0 < w < 1
   // A cache of the positions, not part of the term's value: rebuilt on demand by the const
   // add_forces/virial when the list may miss a pair (NeighborList::update), hence mutable.
   mutable NeighborList list_;
@@ -98,6 +122,8 @@ namespace pair_detail {
 // [0, 1], skin ≥ 0, a box of at least 2 × (rc + skin) on periodic axes.
 void check_pair_inputs(const std::string& name, std::string_view style, const std::vector<int>& types, int ntypes,
                        SpecialWeights weights, const Box& box, double rc, double skin);
+// Particle types in 0 … ntypes − 1.
+void check_types(const std::string& name, std::string_view style, std::span<const int> types, int ntypes);
 std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_view style, int n,
                                           const std::vector<Bond>& bonds, SpecialWeights weights);
 void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f,
@@ -151,15 +177,33 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
       weights_(weights),
       list_(cutoff_, skin) {
   const int n = static_cast<int>(types_.size());
-  const std::vector<SpecialPair> special =
-      pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
-  for (const SpecialPair& sp : special) {
+  special_ = pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
+  for (const SpecialPair& sp : special_) {
     if (sp.weight > 0.0)
       scaled_.push_back(sp);
     else
       ++excluded_;
   }
-  list_.set_exclusions(n, special);  // every pair with w ≠ 1; the scaled ones go through scaled_
+  list_.set_exclusions(n, special_);  // every pair with w ≠ 1; the scaled ones go through scaled_
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const SpecialPair> special,
+                               std::span<const char> ghost) {
+  pair_detail::check_types(name(), Kernel::kStyle, types, coeffs_.num_types());
+  const int n = static_cast<int>(types.size());
+  list_.set_exclusions(n, special);
+  list_.set_ghosts(ghost);
+  types_.assign(types.begin(), types.end());
+  special_.assign(special.begin(), special.end());
+  scaled_.clear();
+  excluded_ = 0;
+  for (const SpecialPair& sp : special_) {
+    if (sp.weight > 0.0)
+      scaled_.push_back(sp);
+    else
+      ++excluded_;
+  }
 }
 
 template <class Kernel>

@@ -376,5 +376,62 @@ TEST(GhostPairs, ForcesDoNotDependOnWhenTheListWasBuilt) {
   }
 }
 
+// PairsOnParticles::move_to (a decomposed run's pair terms at each selection of the ghosts): a
+// term moved onto a particle set, from a larger and from a smaller one, is the term built there
+// (on_particles with the set's bonds, then set_ghosts) — the same list row by row, the same
+// scaled pairs, the same forces and energy bit for bit.
+TEST(GhostPairs, TermMovedOntoAParticleSetIsTheTermBuiltThere) {
+  for (const Case& c : kCases) {
+    SCOPED_TRACE(c.name);
+    const ThreadCount scope(1);
+    const System s = lattice(c.m, c.periodic, c.scatter, 17, c.interleave);
+    // A smaller set: the first trimers (whole molecules), with the ghost flags of those particles.
+    System part = s;
+    const int n_part = 3 * (s.size() / 6);
+    part.x = s.x.leftCols(n_part);
+    part.ghost.resize(n_part);
+    part.bonds.clear();
+    for (const Bond& b : s.bonds)
+      if (b.j < n_part) part.bonds.push_back(b);
+    for (const auto& [from, to] : {std::pair<const System*, const System*>{&s, &part}, {&part, &s}}) {
+      const auto moved_term = lj_term(*from);
+      Eigen::Matrix3Xd f_before = Eigen::Matrix3Xd::Zero(3, from->size());
+      moved_term->add_forces(from->x, from->box, f_before);  // its list built on the first set
+      const std::vector<int> types(to->size(), 0);
+      const std::vector<SpecialPair> special = special_pairs(to->size(), to->bonds, kWeights);
+      moved_term->move_to(types, special, to->ghost);
+      const auto built = moved_term->on_particles(types, to->bonds, to->box);
+      built->set_ghosts(to->ghost);
+      Eigen::Matrix3Xd f_moved = Eigen::Matrix3Xd::Zero(3, to->size());
+      Eigen::Matrix3Xd f_built = f_moved;
+      const double e_moved = moved_term->add_forces(to->x, to->box, f_moved);
+      const double e_built = built->add_forces(to->x, to->box, f_built);
+      const auto& b = dynamic_cast<const Lj&>(*built);
+      ASSERT_EQ(moved_term->neighbor_list().num_particles(), to->size());
+      for (int i = 0; i < to->size(); ++i)
+        ASSERT_EQ(row(moved_term->neighbor_list(), i), row(b.neighbor_list(), i)) << "row " << i;
+      EXPECT_EQ(moved_term->excluded_pairs(), b.excluded_pairs());
+      ASSERT_EQ(moved_term->scaled_pairs().size(), b.scaled_pairs().size());
+      EXPECT_GT(b.scaled_pairs().size(), 0u);
+      for (std::size_t p = 0; p < b.scaled_pairs().size(); ++p) {
+        EXPECT_EQ(moved_term->scaled_pairs()[p].i, b.scaled_pairs()[p].i);
+        EXPECT_EQ(moved_term->scaled_pairs()[p].j, b.scaled_pairs()[p].j);
+        EXPECT_EQ(moved_term->scaled_pairs()[p].weight, b.scaled_pairs()[p].weight);
+      }
+      EXPECT_EQ(f_moved, f_built);
+      EXPECT_EQ(e_moved, e_built);
+      EXPECT_EQ(moved_term->rebuilds(), 2);  // built on each set once
+    }
+  }
+}
+
+TEST(GhostPairs, MoveRefusesATypeOutsideTheCoefficients) {
+  const System s = lattice(5, Eigen::Vector3i::Ones(), false, 18);
+  const auto term = lj_term(s);
+  std::vector<int> types(s.size(), 0);
+  types[7] = 1;
+  EXPECT_THROW(term->move_to(types, {}, {}), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace stiffmd

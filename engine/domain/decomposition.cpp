@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include "engine/core/errors.hpp"
 #include "engine/core/timing.hpp"
+#include "forcefields/neighbor_list.hpp"  // MinimumImage
 
 namespace stiffmd {
 
@@ -347,16 +348,26 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
                               box_.lengths[a], cells.periodic[a]);
     neighbour[r] = near;
   }
+  // The owned beads by cell (a counting sort, increasing owned index within a cell): those of
+  // cell c are by_cell[cell_start[c] … cell_start[c + 1]); `occupied` the cells that hold one.
   std::vector<std::int64_t> cell_of(static_cast<size_t>(owned));
   for (int k = 0; k < owned; ++k) cell_of[k] = cells.index(x.col(k).data());
-  std::vector<std::int64_t> occupied = cell_of;
-  std::sort(occupied.begin(), occupied.end());
-  occupied.erase(std::unique(occupied.begin(), occupied.end()), occupied.end());
+  std::vector<int> cell_start(static_cast<size_t>(cells.size()) + 1, 0), by_cell(static_cast<size_t>(owned));
+  for (int k = 0; k < owned; ++k) ++cell_start[cell_of[k] + 1];
+  std::vector<std::int64_t> occupied;
+  for (std::int64_t c = 0; c < cells.size(); ++c) {
+    if (cell_start[c + 1] > 0) occupied.push_back(c);
+    cell_start[c + 1] += cell_start[c];
+  }
+  for (int k = 0; k < owned; ++k) by_cell[cell_start[cell_of[k]]++] = k;
+  for (std::int64_t c = cells.size(); c > 0; --c) cell_start[c] = cell_start[c - 1];
+  cell_start[0] = 0;
   std::vector<std::vector<double>> out(ranks), in;
   for (int r = 0; r < ranks; ++r)
     if (neighbour[r]) out[r].assign(occupied.begin(), occupied.end());
   comm_.exchange(out, in);
-  // An owned bead is a ghost of neighbour r when its cell is adjacent to one r's beads occupy.
+  // The candidates for neighbour r: the owned beads in a cell adjacent to one r's beads occupy
+  // (every bead within R of one of r's, and more: up to two cells away).
   for (auto& list : send_) list.clear();
   std::vector<char> near_r(static_cast<size_t>(cells.size()));
   for (int r = 0; r < ranks; ++r) {
@@ -367,23 +378,71 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
     for (int k = 0; k < owned; ++k)
       if (near_r[cell_of[k]]) send_[r].push_back(k);
   }
+  // Each candidate's global index and position to r, which keeps those within R of one of its
+  // beads (minimum image) and answers which: the ghosts are exactly the beads within R of the
+  // selection's positions, 40 % fewer than the cells' candidates on a melt of chains.
   for (int r = 0; r < ranks; ++r) {
     out[r].clear();
-    for (int k : send_[r]) out[r].push_back(ids_[k]);
+    out[r].resize(4 * send_[r].size());
+    double* w = out[r].data();
+    for (int k : send_[r]) w[0] = ids_[k], w[1] = x(0, k), w[2] = x(1, k), w[3] = x(2, k), w += 4;
   }
   comm_.exchange(out, in);
+  const double radius2 = radius_ * radius_;
+  const MinimumImage image(box_);
+  const auto near_an_owned_bead = [&](const Eigen::Vector3d& p) {
+    bool near = false;
+    const auto scan = [&](std::int64_t q) {
+      for (int i = cell_start[q]; i < cell_start[q + 1] && !near; ++i) {
+        const int k = by_cell[i];
+        double dx = p[0] - x(0, k), dy = p[1] - x(1, k), dz = p[2] - x(2, k);
+        image.apply(dx, dy, dz);
+        near = dx * dx + dy * dy + dz * dz <= radius2;
+      }
+    };
+    const std::int64_t own = cells.index(p.data());
+    scan(own);  // most candidates that are ghosts have a bead in their own cell
+    cells.for_each_adjacent(own, [&](std::int64_t q) {
+      if (!near && q != own) scan(q);
+    });
+    return near;
+  };
+  std::vector<std::vector<int>> ghost_ids(ranks);
+  for (int r = 0; r < ranks; ++r) {
+    out[r].clear();
+    for (size_t m = 0; m + 4 <= in[r].size(); m += 4) {
+      const bool near = near_an_owned_bead(Eigen::Vector3d(in[r][m + 1], in[r][m + 2], in[r][m + 3]));
+      out[r].push_back(near ? 1.0 : 0.0);
+      if (near) ghost_ids[r].push_back(static_cast<int>(in[r][m]));
+    }
+  }
+  comm_.exchange(out, in);
+  for (int r = 0; r < ranks; ++r) {
+    size_t kept = 0;
+    for (size_t m = 0; m < send_[r].size(); ++m)
+      if (in[r][m] != 0.0) send_[r][kept++] = send_[r][m];
+    send_[r].resize(kept);
+  }
   // The extended set: owned and ghosts in increasing global index (so a particle's pairs are
   // summed in the one-process order: forcefields/neighbor_list.hpp).
   std::vector<std::pair<int, int>> members;  // global index, owned index (≥ 0) or −1 − ghost number
-  members.reserve(static_cast<size_t>(owned));
+  size_t received = 0;
+  for (const auto& list : ghost_ids) received += list.size();
+  members.reserve(static_cast<size_t>(owned) + received);
   for (int k = 0; k < owned; ++k) members.emplace_back(ids_[k], k);
   int ghosts = 0;
   for (int r = 0; r < ranks; ++r) {
     ghost_begin_[r] = ghosts;
-    ghost_count_[r] = static_cast<int>(in[r].size());
-    for (double g : in[r]) members.emplace_back(static_cast<int>(g), -1 - ghosts++);
+    ghost_count_[r] = static_cast<int>(ghost_ids[r].size());
+    for (int g : ghost_ids[r]) members.emplace_back(g, -1 - ghosts++);
   }
-  std::sort(members.begin(), members.end());
+  // Runs in increasing global index (the owned particles, then each rank's ghosts, which it sends
+  // in its owned order): merged, not sorted.
+  for (int r = 0, end = owned; r < ranks; ++r) {
+    const auto middle = members.begin() + end;
+    end += ghost_count_[r];
+    if (ghost_count_[r] > 0) std::inplace_merge(members.begin(), middle, members.begin() + end);
+  }
   const int n = static_cast<int>(members.size());
   extended_ids_.resize(n);
   ghost_flag_.assign(n, 0);
@@ -459,6 +518,13 @@ double Decomposition::max_displacement(const Eigen::Matrix3Xd& x) const {
   double d2 = 0.0;
   for (int k = 0; k < num_owned(); ++k) d2 = std::max(d2, (x.col(k) - x_at_selection_.col(k)).squaredNorm());
   return std::sqrt(d2);
+}
+
+double Decomposition::max_reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t) const {
+  double reach = 0.0;
+  for (int k = 0; k < num_owned(); ++k)
+    reach = std::max(reach, (x.col(k) - x_at_selection_.col(k)).norm() + t * v.col(k).norm());
+  return reach;
 }
 
 }  // namespace stiffmd

@@ -86,6 +86,10 @@ class Decomposition {
 
   // The largest displacement of an owned bead since the ghosts were selected (this rank's).
   double max_displacement(const Eigen::Matrix3Xd& x) const;
+  // The largest over owned beads of |x − x at the selection| + t |v| (this rank's): with t = 2h, a
+  // bound on each bead's displacement by the end of the next step if none moves more than 2 |v| h
+  // in a step.
+  double max_reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t) const;
 
   const std::vector<int>& owned_ids() const { return ids_; }  // global index per owned particle
   int num_owned() const { return static_cast<int>(ids_.size()); }

@@ -155,11 +155,13 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   th.processes = &comm_;
   th.degrees_of_freedom = whole_dof_;
   read_force_terms(deck_, p);
-  // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs).
+  // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs);
+  // a part built again keeps the old part's terms on the extended set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {
     const ForceTerm& term = *p.forces->terms()[k];
     if (!term.uses_neighbor_list()) continue;
     auto ghosted = std::make_unique<GhostedPairs>(term.on_particles(p.particle_type, t.bonds, p.box), d);
+    if (part_ && part->pairs.size() < part_->pairs.size()) ghosted->take_over(*part_->pairs[part->pairs.size()]);
     part->pairs.push_back(ghosted.get());
     p.forces->replace(k, std::move(ghosted));
   }
@@ -169,16 +171,12 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   part_ = std::move(part);
 }
 
-// The pair terms on the extended set of the last selection: its particles' types and the part's
-// bonds (their special pairs) in its indices (owned particle k is extended particle slot(k)).
+// The pair terms moved onto the extended set of the last selection, with its particles' types.
 void DomainIntegrator::retarget_pairs() {
-  const Decomposition& d = *domains_;
-  const std::vector<int>& ext = d.extended_ids();
-  std::vector<int> types(ext.size());
-  for (size_t e = 0; e < ext.size(); ++e) types[e] = whole_scene_.particle_type[ext[e]];
-  std::vector<Bond> bonds = part_->scene.topology.bonds;
-  for (Bond& b : bonds) b.i = d.extended_slot(b.i), b.j = d.extended_slot(b.j);
-  for (GhostedPairs* term : part_->pairs) term->retarget(types, bonds, whole_scene_.box);
+  const std::vector<int>& ext = domains_->extended_ids();
+  extended_types_.resize(ext.size());
+  for (size_t e = 0; e < ext.size(); ++e) extended_types_[e] = whole_scene_.particle_type[ext[e]];
+  for (GhostedPairs* term : part_->pairs) term->retarget(extended_types_, whole_scene_.box);
 }
 
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
@@ -240,29 +238,28 @@ void DomainIntegrator::step(State& s, double h) {
   l.t = s.t;
   part_->integrator->step(l, h);
   ++steps_since_selection_;
-  // One reduction: the largest displacement since the ghosts were selected, and the first
-  // particle (global index) with a non-finite position or velocity.
-  double first_bad = -std::numeric_limits<double>::infinity(), v2 = 0.0;
-  for (int k = 0; k < domains_->num_owned(); ++k) {
+  // One reduction: the largest bound on a bead's displacement since the ghosts were selected by
+  // the end of the next step, and the first particle (global index) with a non-finite position
+  // or velocity.
+  double first_bad = -std::numeric_limits<double>::infinity();
+  for (int k = 0; k < domains_->num_owned(); ++k)
     if (!l.x.col(k).allFinite() || !l.v.col(k).allFinite()) {
       first_bad = -static_cast<double>(part_->scene.global_id[k]);
       break;
     }
-    v2 = std::max(v2, l.v.col(k).squaredNorm());
-  }
-  double reduced[3] = {domains_->max_displacement(l.x), first_bad, std::sqrt(v2) * h};
+  // A bead moves about |v| h in a step; twice its own |v| h bounds its next step's displacement.
+  double reduced[2] = {domains_->max_reach(l.x, l.v, 2.0 * h), first_bad};
   {
     const ScopedPhase phase(Phase::domain);
-    comm_.max(reduced, 3);
+    comm_.max(reduced, 2);
   }
   if (std::isfinite(reduced[1])) {
     std::ostringstream m;
     m << "numerical failure: non-finite position or velocity of particle " << static_cast<long>(-reduced[1]);
     throw AgreedStop(m.str(), comm_.root());
   }
-  // Select the ghosts again before the next step if it may take a bead past margin/2: a bead
-  // moves about |v| h in a step; twice the fastest one's bounds the next step's displacement.
-  if (domains_->margin() > 0.0 && reduced[0] + 2.0 * reduced[2] >= 0.5 * domains_->margin()) reselect_ = true;
+  // Select the ghosts again before the next step if it may take a bead past margin/2.
+  if (domains_->margin() > 0.0 && reduced[0] >= 0.5 * domains_->margin()) reselect_ = true;
 }
 
 void DomainIntegrator::reset() {

@@ -6,9 +6,9 @@
 // the tridiagonal G M⁻¹ Gᵀ, Fixman's log-det, the effective dynamics' modes) is the one-process
 // code on whole molecules. Its pair terms act on owned particles and ghosts (GhostedPairs). The
 // only communication inside a step is the halo before a pair term is evaluated (once per macro
-// step when pairs are slow); after each step one reduction of three numbers (the largest
-// displacement since the ghosts were selected, the first non-finite particle, the fastest bead's
-// |v| h). When a bead may have moved margin/2 by the end of the next step, the molecules are
+// step when pairs are slow); after each step one reduction of two numbers (the largest over beads
+// of the displacement since the ghosts were selected plus 2 |v| h, the first non-finite particle).
+// When a bead may have moved margin/2 by the end of the next step, the molecules are
 // redistributed by their anchors and the ghosts selected again, before that step; a part whose
 // molecules changed is built afresh and takes over what the old one carried for the particles
 // (Integrator::carried_state: cached kick forces move with their particles) and the effective
@@ -108,6 +108,7 @@ class DomainIntegrator final : public Integrator {
     int molecule, first, modes;
   };
   std::vector<Cluster> clusters_;
+  std::vector<int> extended_types_;        // per extended particle (retarget_pairs)
   std::vector<std::int64_t> evaluations_;  // of the parts before the current one
   long rebuilds_ = 0;
 };

@@ -7,20 +7,42 @@ namespace stiffmd {
 GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, const Decomposition& domains)
     : ForceTerm(owned_term->name(), owned_term->level()), template_(std::move(owned_term)), domains_(domains) {
   if (!template_->uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
+  owned_pairs_ = dynamic_cast<const PairsOnParticles*>(template_.get());
+  if (!owned_pairs_) throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
 }
 
-void GhostedPairs::retarget(std::vector<int> types, const std::vector<Bond>& bonds, const Box& box) {
-  if (extended_) rebuilds_before_ += extended_->neighbor_list_rebuilds();
-  extended_ = template_->on_particles(std::move(types), bonds, box);
-  if (!extended_) throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
-  extended_->set_ghosts(domains_.ghost_flags());
+void GhostedPairs::retarget(std::span<const int> types, const Box& box) {
+  if (!extended_) {
+    extended_ = template_->on_particles({}, {}, box);
+    extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
+    if (!extended_pairs_) throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
+  }
+  // The owned particles' bonds join owned particles only (molecules are whole), so the extended
+  // set's special pairs are the owned term's through the owned → extended slots; the slots
+  // increase with the owned index, so the pairs stay sorted by (i, j), as special_pairs gives them.
+  const std::span<const SpecialPair> owned = owned_pairs_->special_pairs();
+  special_.resize(owned.size());
+  for (std::size_t p = 0; p < owned.size(); ++p)
+    special_[p] = {domains_.extended_slot(owned[p].i), domains_.extended_slot(owned[p].j), owned[p].weight};
+  extended_pairs_->move_to(types, special_, domains_.ghost_flags());
+}
+
+void GhostedPairs::take_over(GhostedPairs& old) {
+  if (!old.extended_) return;
+  extended_ = std::move(old.extended_);
+  extended_pairs_ = old.extended_pairs_;
+  old.extended_pairs_ = nullptr;
+  rebuilds_before_ = extended_->neighbor_list_rebuilds();
+  special_ = std::move(old.special_);
 }
 
 double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
   domains_.halo(x, x_);
   const int owned = domains_.num_owned();
   f_.resize(3, x_.cols());  // no allocation once sized
-  f_.setZero();
+  const std::vector<char>& ghost = domains_.ghost_flags();
+  for (Eigen::Index e = 0; e < f_.cols(); ++e)
+    if (ghost[e]) f_.col(e).setZero();
   for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
   const double energy = extended_->add_forces(x_, box, f_);
   for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));
