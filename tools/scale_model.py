@@ -13,11 +13,12 @@ The model, per macro step and rank holding n beads (a cubic domain of side a = (
   c   compute per owned bead and step, one thread (µs), measured: the 256k melts at 1 rank × 1 thread
       on the 16-core machine (tools/scale_node.sh): KG velocity Verlet 0.296, impulse (50 micro
       steps) 0.885, fixman 0.672
-  γ   ghosts per owned bead: (1 + 2w/a)³ − 1. Whole molecules: w = 8.3 σ (chains of 100 at ρ = 0.85:
-      the cutoff, the halo's margin and the chains' reach past the domain; fitted to the measured
-      2.32 ghosts per owned bead at 32 000 beads per rank on a 2 × 2 × 2 grid; it gives 3.28 for the
-      2 × 2 × 4 grid at 16 000, measured 3.24). The formula is for domains cut on every axis: slabs hold
-      fewer (1 × 1 × 2 at 128 000: 0.59 measured, 1.26 by the formula). Atoms: w = r_c + skin = 1.42 σ.
+  γ   ghosts per owned bead: (1 + 2w/a)³ − 1. Whole molecules: w = 5.35 σ (chains of 100 at ρ = 0.85:
+      the beads within the cutoff plus the halo's margin of an owned bead, which reach past the
+      domain with the chains; fitted to the measured 1.30 ghosts per owned bead at 32 000 beads per
+      rank on a 2 × 2 × 2 grid (fixman, tools/scale_node.sh); it gives 1.76 for the 2 × 2 × 4 grid at
+      16 000, measured 1.75). The formula is for domains cut on every axis: slabs hold fewer
+      (1 × 1 × 2 at 128 000: 0.38 measured, 0.73 by the formula). Atoms: w = r_c + skin = 1.42 σ.
   β   the ghosts' share of the work (their list build and the owned–ghost pairs): 0.43, fitted to the
       measured 8 and 16 rank runs (0.40 fixman, 0.46 KG)
   h   halos per macro step: 1 for whole molecules (pairs are slow; no halo in the micro steps);
@@ -68,7 +69,7 @@ def atoms(n, method, args):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--beta", type=float, default=0.43)
-    ap.add_argument("--whole-width", type=float, default=8.3)
+    ap.add_argument("--whole-width", type=float, default=5.35)
     ap.add_argument("--atom-width", type=float, default=1.42)
     ap.add_argument("--latency", type=float, default=2e-6)
     ap.add_argument("--bandwidth", type=float, default=10e9)
