@@ -472,15 +472,20 @@ void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) 
   // selection (DomainIntegrator selects them again before a step that may): a step that moved one
   // farther would miss pairs, so it stops here (on this rank: the others wait in the halo, so the
   // job ends).
-  if (const double d = max_displacement(a); d >= 0.5 * margin_) {
+  // (Checked in the pass that copies the owned columns, before anything is sent.)
+  extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
+  double d2 = 0.0;
+  for (int k = 0; k < num_owned(); ++k) {
+    extended.col(owned_slot_[k]) = a.col(k);
+    d2 = std::max(d2, (a.col(k) - x_at_selection_.col(k)).squaredNorm());
+  }
+  if (const double d = std::sqrt(d2); d >= 0.5 * margin_) {
     std::ostringstream m;
     m << "a bead moved " << d << " since the ghosts were selected, more than half the halo margin " << margin_
       << " ([parallel] halo_margin) in less than a step: pairs would be missed; a larger halo_margin or a smaller step";
     throw NumericalError(m.str());
   }
   const int ranks = comm_.size();
-  extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
-  for (int k = 0; k < num_owned(); ++k) extended.col(owned_slot_[k]) = a.col(k);
   for (int r = 0; r < ranks; ++r) {
     double* b = send_buffer_[r].data();
     for (int k : send_[r]) b[0] = a(0, k), b[1] = a(1, k), b[2] = a(2, k), b += 3;
@@ -514,17 +519,22 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
     }
 }
 
-double Decomposition::max_displacement(const Eigen::Matrix3Xd& x) const {
-  double d2 = 0.0;
-  for (int k = 0; k < num_owned(); ++k) d2 = std::max(d2, (x.col(k) - x_at_selection_.col(k)).squaredNorm());
-  return std::sqrt(d2);
-}
-
-double Decomposition::max_reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t) const {
-  double reach = 0.0;
-  for (int k = 0; k < num_owned(); ++k)
-    reach = std::max(reach, (x.col(k) - x_at_selection_.col(k)).norm() + t * v.col(k).norm());
-  return reach;
+Decomposition::Reach Decomposition::reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t,
+                                          double floor) const {
+  // d + t|v| < floor whenever 2 (d² + t²|v|²) < floor², as (a + b)² ≤ 2 (a² + b²): most beads pass
+  // that test, without a square root. A non-finite x or v fails it (NaN compares false).
+  Reach r;
+  const double floor2 = floor * floor, t2 = t * t;
+  for (int k = 0; k < num_owned(); ++k) {
+    const double d2 = (x.col(k) - x_at_selection_.col(k)).squaredNorm(), s2 = t2 * v.col(k).squaredNorm();
+    if (2.0 * (d2 + s2) < floor2) continue;
+    if (!x.col(k).allFinite() || !v.col(k).allFinite()) {
+      r.first_bad = k;
+      return r;
+    }
+    r.largest = std::max(r.largest, std::sqrt(d2) + std::sqrt(s2));
+  }
+  return r;
 }
 
 }  // namespace stiffmd

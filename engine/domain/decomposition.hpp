@@ -84,12 +84,15 @@ class Decomposition {
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,
                       int num_particles) const;
 
-  // The largest displacement of an owned bead since the ghosts were selected (this rank's).
-  double max_displacement(const Eigen::Matrix3Xd& x) const;
-  // The largest over owned beads of |x − x at the selection| + t |v| (this rank's): with t = 2h, a
-  // bound on each bead's displacement by the end of the next step if none moves more than 2 |v| h
-  // in a step.
-  double max_reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t) const;
+  // One pass over the owned beads (this rank's): the largest |x − x at the selection| + t |v| of
+  // those whose reach may be `floor` or more (the others count 0) — with t = 2h, a bound on each
+  // bead's displacement by the end of the next step if none moves more than 2 |v| h in a step —
+  // and the first owned bead whose x or v is not finite (−1: none; the pass stops there).
+  struct Reach {
+    double largest = 0.0;
+    int first_bad = -1;
+  };
+  Reach reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t, double floor) const;
 
   const std::vector<int>& owned_ids() const { return ids_; }  // global index per owned particle
   int num_owned() const { return static_cast<int>(ids_.size()); }
@@ -99,6 +102,7 @@ class Decomposition {
   const std::vector<int>& extended_ids() const { return extended_ids_; }
   int extended_slot(int owned) const { return owned_slot_[owned]; }
   const std::vector<char>& ghost_flags() const { return ghost_flag_; }
+  const std::vector<int>& ghost_slots() const { return ghost_slot_; }  // the ghosts' extended indices
   bool owns_molecule(int m) const;
   const DomainGrid& grid() const { return grid_; }
   double margin() const { return margin_; }

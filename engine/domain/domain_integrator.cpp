@@ -241,14 +241,11 @@ void DomainIntegrator::step(State& s, double h) {
   // One reduction: the largest bound on a bead's displacement since the ghosts were selected by
   // the end of the next step, and the first particle (global index) with a non-finite position
   // or velocity.
-  double first_bad = -std::numeric_limits<double>::infinity();
-  for (int k = 0; k < domains_->num_owned(); ++k)
-    if (!l.x.col(k).allFinite() || !l.v.col(k).allFinite()) {
-      first_bad = -static_cast<double>(part_->scene.global_id[k]);
-      break;
-    }
   // A bead moves about |v| h in a step; twice its own |v| h bounds its next step's displacement.
-  double reduced[2] = {domains_->max_reach(l.x, l.v, 2.0 * h), first_bad};
+  const Decomposition::Reach reach = domains_->reach(l.x, l.v, 2.0 * h, 0.5 * domains_->margin());
+  const double first_bad = reach.first_bad >= 0 ? -static_cast<double>(part_->scene.global_id[reach.first_bad])
+                                                : -std::numeric_limits<double>::infinity();
+  double reduced[2] = {reach.largest, first_bad};
   {
     const ScopedPhase phase(Phase::domain);
     comm_.max(reduced, 2);

@@ -15,7 +15,8 @@ void GhostedPairs::retarget(std::span<const int> types, const Box& box) {
   if (!extended_) {
     extended_ = template_->on_particles({}, {}, box);
     extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
-    if (!extended_pairs_) throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
+    if (!extended_pairs_)
+      throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
   }
   // The owned particles' bonds join owned particles only (molecules are whole), so the extended
   // set's special pairs are the owned term's through the owned → extended slots; the slots
@@ -40,9 +41,7 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
   domains_.halo(x, x_);
   const int owned = domains_.num_owned();
   f_.resize(3, x_.cols());  // no allocation once sized
-  const std::vector<char>& ghost = domains_.ghost_flags();
-  for (Eigen::Index e = 0; e < f_.cols(); ++e)
-    if (ghost[e]) f_.col(e).setZero();
+  for (const int e : domains_.ghost_slots()) f_.col(e).setZero();
   for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
   const double energy = extended_->add_forces(x_, box, f_);
   for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));

@@ -56,7 +56,7 @@ class GhostedPairs final : public ForceTerm {
   const PairsOnParticles* owned_pairs_ = nullptr;  // template_'s
   PairsOnParticles* extended_pairs_ = nullptr;     // extended_'s
   const Decomposition& domains_;
-  long rebuilds_before_ = 0;         // of extended_ when this term took it over
+  long rebuilds_before_ = 0;          // of extended_ when this term took it over
   std::vector<SpecialPair> special_;  // the extended set's
   mutable Eigen::Matrix3Xd x_, f_;
 };
