@@ -10,6 +10,7 @@
 #include "engine/core/parallel.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/pair_term.hpp"
+#include "test_support.hpp"
 
 namespace stiffmd {
 namespace {
@@ -62,14 +63,7 @@ ForceField lj_field(const Melt& s, const std::vector<Bond>& bonds) {
   return ff;
 }
 
-class ThreadCount {
- public:
-  explicit ThreadCount(int threads) { set_max_threads(threads); }
-  ~ThreadCount() { set_max_threads(restore_); }
-
- private:
-  int restore_ = max_threads();
-};
+using test::ThreadCount;
 
 TEST(EnergyShares, WithoutGhostsTheyAreTheEnergyAndTheVirial) {
   for (const int threads : {1, 2}) {

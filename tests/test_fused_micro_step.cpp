@@ -22,11 +22,7 @@
 namespace stiffmd {
 namespace {
 
-struct ThreadCount {
-  explicit ThreadCount(int n) : restore(max_threads()) { set_max_threads(n); }
-  ~ThreadCount() { set_max_threads(restore); }
-  int restore;
-};
+using test::ThreadCount;
 
 // 6 000 beads in 60 chains of 100 beads along x on a jittered lattice (above kParallelMin, so two
 // threads split the bonds); with `shuffle`, the particle indices are a random permutation, so

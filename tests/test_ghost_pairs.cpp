@@ -15,6 +15,7 @@
 #include "forcefields/force_field.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/pair_term.hpp"
+#include "test_support.hpp"
 
 namespace stiffmd {
 namespace {
@@ -115,14 +116,7 @@ void expect_full_rows_less_ghost_pairs(const NeighborList& ghosts, const Neighbo
   EXPECT_EQ(ghosts.num_pairs() + ghost_pairs, full.num_pairs());
 }
 
-class ThreadCount {
- public:
-  explicit ThreadCount(int threads) { set_max_threads(threads); }
-  ~ThreadCount() { set_max_threads(restore_); }
-
- private:
-  int restore_ = max_threads();
-};
+using test::ThreadCount;
 
 TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
   for (const Case& c : kCases)
@@ -365,7 +359,8 @@ TEST(GhostPairs, ForcesDoNotDependOnWhenTheListWasBuilt) {
     int crossed = 0;
     for (int i = 0; i < s.size(); ++i)
       for (int a = 0; a < 3; ++a)
-        crossed += s.box.periodic[a] && std::floor(y(a, i) / s.box.lengths[a]) != std::floor(s.x(a, i) / s.box.lengths[a]);
+        crossed +=
+            s.box.periodic[a] && std::floor(y(a, i) / s.box.lengths[a]) != std::floor(s.x(a, i) / s.box.lengths[a]);
     ASSERT_GT(crossed, 0);
     f_early.setZero();
     const double e_early = early->add_forces(y, s.box, f_early);

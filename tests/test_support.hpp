@@ -8,12 +8,25 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/parallel.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd::test {
+
+// The engine's thread count (set_max_threads) for a scope, the previous one restored after it.
+class ThreadCount {
+ public:
+  explicit ThreadCount(int threads) { set_max_threads(threads); }
+  ~ThreadCount() { set_max_threads(restore_); }
+  ThreadCount(const ThreadCount&) = delete;
+  ThreadCount& operator=(const ThreadCount&) = delete;
+
+ private:
+  int restore_ = max_threads();
+};
 
 // Every integrator method of the method table (integrators/methods.hpp), for tests
 // parameterised over them: a method added to the table is tested by every such suite.
