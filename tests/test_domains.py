@@ -17,6 +17,10 @@ CASE is one of
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
+    kill                      the Kremer–Grest melt on N ranks writing an H5MD frame every 20 steps,
+                              every rank killed (SIGKILL) mid-run: the file opens as a one-process
+                              writer's killed file does, its complete frames (len(position/step))
+                              the serial run's bit for bit
     restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
                               step 200 into the same folder (N is not used; ctest passes max(A, B))
 
@@ -548,6 +552,54 @@ def bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     print(errors[0])
 
 
+def kill_case(stiffmd, mpiexec, numproc_flag, n, tmp):
+    """The Kremer–Grest melt, a frame every 20 steps (so that the kill lands between frames, as a
+    one-process writer's kill test does: a kill inside an HDF5 flush may leave the newest frames
+    unreadable until a restart repairs them, README "Outputs")."""
+    deck, h, _ = case_setup("kremer_grest")
+    out, ref = os.path.join(tmp, f"killed_{n}"), os.path.join(tmp, "serial")
+    every = 20
+    frames = ["--set", f"output.h5md=\"{H5MD}\"", "--set", f"output.h5md_interval={number(every * h)}",
+              "--set", "output.h5md_velocity=true", "--set", f"integrator.h={number(h)}",
+              "--set", "output.xyz=\"\"", "--set", "output.checkpoint_interval=0"]
+    cmd = launch(mpiexec, numproc_flag, n, stiffmd) + ["run", deck, "-o", out, "-q", "--no-progress",
+                                                       "--set", f"run.t_end={number(100000 * h)}"] + frames
+    print("$ " + " ".join(cmd), flush=True)
+    job = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=environment())
+    path = os.path.join(out, H5MD)
+    deadline = time.monotonic() + 120
+    while not os.path.exists(path) or os.path.getsize(path) < 8 << 20:  # 4 frames of 1.9 MB
+        if job.poll() is not None or time.monotonic() > deadline:
+            job.kill()
+            raise SystemExit(f"FAIL: the run ended or wrote no 4 MB of {path} in time: {job.communicate()[1][-2000:]}")
+        time.sleep(0.05)
+    subprocess.run(["pkill", "-KILL", "-f", out])  # every rank (and the launcher): their command lines name out
+    job.wait(timeout=60)
+    # As a one-process writer's killed file (README "Outputs", tests/test_h5md.py): position/step
+    # no longer than position/value, and that no longer than any other series; every series reads
+    # up to the length of position/step.
+    with h5py.File(path, "r") as f:
+        values = {path: o for path, o in objects(f).items() if isinstance(o, h5py.Dataset) and path.endswith("/value")}
+        steps = f[P + "/position/step"][()]
+        kept = len(steps)
+        position_frames = f[P + "/position/value"].shape[0]
+        others = [o.shape[0] for path, o in values.items() if path != "/" + P + "/position/value"]
+        if kept < 2 or not kept <= position_frames <= min(others):
+            raise SystemExit(f"FAIL: after the kill {kept} steps, {position_frames} position frames, the other "
+                             f"series {others}")
+        for o in values.values():
+            o[:kept]
+        got = (f[P + "/position/value"][:kept], f[P + "/velocity/value"][:kept], steps)
+    # The same frames from one process, run to the last complete frame's step.
+    run([stiffmd, "run", deck, "-o", ref, "-q", "--no-progress", "--set",
+         f"run.t_end={number(int(got[2][-1]) * h)}"] + frames, 1)
+    with h5py.File(os.path.join(ref, H5MD), "r") as f:
+        want = (f[P + "/position/value"][:kept], f[P + "/velocity/value"][:kept], f[P + "/position/step"][()])
+    if not np.array_equal(got[2], want[2]) or not np.array_equal(got[0], want[0]) or not np.array_equal(got[1], want[1]):
+        raise SystemExit(f"FAIL: the {kept} complete frames of the killed {n}-rank file differ from the serial run's")
+    print(f"killed on {n} ranks after {kept} complete frames: they read as the serial run's, bit for bit")
+
+
 def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
     """100 steps on `first` ranks, continued from its checkpoint on `second` ranks to step 200 into
     the same folder: the files of the uninterrupted serial run."""
@@ -575,6 +627,8 @@ def main(argv):
     try:
         if case == "bad_grid":
             bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp)
+        elif case == "kill":
+            kill_case(stiffmd, mpiexec, numproc_flag, n, tmp)
         elif case.startswith("restart:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
