@@ -225,11 +225,10 @@ void write_dataset(hid_t parent, const std::string& name, hid_t file_type, hid_t
 // ---- time-dependent series (§Time-dependent data) ----
 
 // What of a frame this process writes: all of it, nothing (a process of a shared file whose rank
-// 0 writes this series), or along the particle axis the runs of consecutive particles it holds.
+// 0 writes this series), or along the particle axis its block of particles [first, first + count).
 struct FramePart {
-  enum What { all, none, runs } what = all;
-  std::vector<std::pair<hsize_t, hsize_t>> particles;  // runs: (first particle, count), increasing
-  hsize_t count = 0;                                   // runs: particles in them
+  enum What { all, none, block } what = all;
+  hsize_t first = 0, count = 0;  // block
 };
 
 // The `value` (or `step`/`time`) dataset of a time-dependent element: [frames][item...], with an
@@ -270,13 +269,9 @@ struct Series {
     } else if (part.what == FramePart::none) {
       ok(H5Sselect_none(file_space), what);
       ok(H5Sselect_none(memory), what);
-    } else {  // the runs of particles, in the order of the memory's columns
-      ok(H5Sselect_none(file_space), what);
-      for (const auto& [first, n] : part.particles) {
-        start[1] = first, count[1] = n;
-        ok(H5Sselect_hyperslab(file_space, H5S_SELECT_OR, start.data(), nullptr, count.data(), nullptr), what);
-      }
-      count[1] = part.count;
+    } else {  // the block of particles
+      start[1] = part.first, count[1] = part.count;
+      ok(H5Sselect_hyperslab(file_space, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr), what);
       memory = simple_space(count);
     }
     static const double nothing = 0.0;  // HDF5 wants a buffer even for an empty selection
@@ -429,6 +424,7 @@ struct H5mdWriter::Impl {
   // that brings them there (to_block).
   Eigen::Matrix3Xd block_x, block_v, block_f;
   std::vector<std::vector<double>> send, received;
+  std::vector<char> filled;  // to_block: the block's rows received
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
 
@@ -778,12 +774,11 @@ void H5mdWriter::Impl::to_block(const std::vector<int>& ids, const Eigen::Matrix
   send.resize(p);
   for (auto& buffer : send) buffer.clear();
   for (std::size_t k = 0; k < ids.size(); ++k) {
-    // The owner of row g: the r with first(r) ≤ g < first(r + 1), first(r) = ⌊n r / p⌋.
+    // The owner of row g: the largest r with first(r) = ⌊n r / p⌋ ≤ g, i.e. n r / p < g + 1,
+    // r = ⌊((g + 1) p − 1) / n⌋.
     const auto g = static_cast<hsize_t>(ids[k]);
-    int r = static_cast<int>((g * static_cast<hsize_t>(p)) / n);
-    while (r + 1 < p && block_rows(r + 1).first <= g) ++r;
-    while (r > 0 && block_rows(r).first > g) --r;
-    std::vector<double>& b = send[r];
+    if (ids[k] < 0 || g >= n) throw std::invalid_argument("H5mdWriter::write_frame: a particle index out of range");
+    std::vector<double>& b = send[((g + 1) * static_cast<hsize_t>(p) - 1) / n];
     b.push_back(static_cast<double>(ids[k]));
     b.insert(b.end(), x.col(k).data(), x.col(k).data() + 3);
     if (setup.velocity) b.insert(b.end(), v->col(k).data(), v->col(k).data() + 3);
@@ -794,17 +789,18 @@ void H5mdWriter::Impl::to_block(const std::vector<int>& ids, const Eigen::Matrix
   block_x.resize(3, static_cast<Eigen::Index>(count));
   if (setup.velocity) block_v.resize(3, static_cast<Eigen::Index>(count));
   if (setup.force) block_f.resize(3, static_cast<Eigen::Index>(count));
-  hsize_t filled = 0;
+  filled.assign(count, 0);
   for (const std::vector<double>& b : received)
-    for (std::size_t at = 0; at < b.size(); at += static_cast<std::size_t>(record), ++filled) {
+    for (std::size_t at = 0; at < b.size(); at += static_cast<std::size_t>(record)) {
       const auto row = static_cast<Eigen::Index>(static_cast<hsize_t>(b[at]) - first);
+      if (filled[row]++) throw std::invalid_argument("H5mdWriter::write_frame: a particle on two processes");
       block_x.col(row) = Eigen::Vector3d(b[at + 1], b[at + 2], b[at + 3]);
       std::size_t next = at + 4;
       if (setup.velocity) block_v.col(row) = Eigen::Vector3d(b[next], b[next + 1], b[next + 2]), next += 3;
       if (setup.force) block_f.col(row) = Eigen::Vector3d(b[next], b[next + 1], b[next + 2]);
     }
-  if (filled != count)
-    throw std::invalid_argument("H5mdWriter::write_frame: the processes' rows are not every particle once");
+  if (std::find(filled.begin(), filled.end(), 0) != filled.end())
+    throw std::invalid_argument("H5mdWriter::write_frame: a particle on no process");
 }
 
 void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eigen::Matrix3Xd& x,
@@ -822,9 +818,7 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
   if (ids) {
     to_block(*ids, x, v, f);
     const auto [first, count] = block_rows(setup.processes->rank());
-    rows.what = count > 0 ? FramePart::runs : FramePart::none;
-    rows.particles.assign(1, {first, count});
-    rows.count = count;
+    rows = {count > 0 ? FramePart::block : FramePart::none, first, count};
     xs = &block_x, vs = &block_v, fs = &block_f;
   }
   const auto index = static_cast<hsize_t>(frames);

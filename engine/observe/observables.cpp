@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 
 namespace stiffmd {
 
@@ -125,11 +126,17 @@ ThermoSums Thermo::sums(const State& s) const {
 
 const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial,
                                           double kinetic_estimate) {
-  return sample(s, sums(s), model_potential, constraint_virial, kinetic_estimate);
+  return row(s, sums(s), model_potential, constraint_virial, kinetic_estimate);
 }
 
 const std::vector<double>& Thermo::sample(const State& s, const ThermoSums& sums, double model_potential,
                                           double constraint_virial, double kinetic_estimate) {
+  if (modes_) throw std::logic_error("Thermo::sample: the actions need the whole state, not sums");
+  return row(s, sums, model_potential, constraint_virial, kinetic_estimate);
+}
+
+const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, double model_potential,
+                                       double constraint_virial, double kinetic_estimate) {
   // The energies by level, innermost first: the innermost is the stiff one, the others are U
   // (docs/design.md §1), added from the outermost in.
   Energies e;

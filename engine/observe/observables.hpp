@@ -77,7 +77,7 @@ class Thermo {
   const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0,
                                     double kinetic_estimate = -1.0);
   // The same from sums taken elsewhere (a decomposed run's parts, added up): s gives the time and
-  // the step. Not with the actions (modes()), which need the whole state.
+  // the step. Not with the actions (modes(): std::logic_error), which need the whole state.
   const std::vector<double>& sample(const State& s, const ThermoSums& sums, double model_potential,
                                     double constraint_virial, double kinetic_estimate);
   // The sums of the row at state s (of this Thermo's force field: a part's share in a decomposed
@@ -117,6 +117,9 @@ class Thermo {
   std::vector<std::string> columns_;
   std::vector<double> values_;
   std::vector<std::string> notes_;
+  // The row of sums taken at s (which gives the time, the step and, for the actions, x and v).
+  const std::vector<double>& row(const State& s, const ThermoSums& sums, double model_potential,
+                                 double constraint_virial, double kinetic_estimate);
   bool have_e0_ = false;
   double e0_ = 0.0;
 };
