@@ -93,6 +93,7 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
 
  private:
   void check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const;
+  void set_special(std::span<const SpecialPair> special);
 
   std::vector<int> types_;
   TypePairMatrix<Coeffs> coeffs_;
@@ -177,24 +178,13 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
       weights_(weights),
       list_(cutoff_, skin) {
   const int n = static_cast<int>(types_.size());
-  special_ = pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights);
-  for (const SpecialPair& sp : special_) {
-    if (sp.weight > 0.0)
-      scaled_.push_back(sp);
-    else
-      ++excluded_;
-  }
-  list_.set_exclusions(n, special_);  // every pair with w ≠ 1; the scaled ones go through scaled_
+  set_special(pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights));
 }
 
+// Every pair with w ≠ 1 leaves the list; the scaled ones (0 < w < 1) go through scaled_.
 template <class Kernel>
-void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const SpecialPair> special,
-                               std::span<const char> ghost) {
-  pair_detail::check_types(name(), Kernel::kStyle, types, coeffs_.num_types());
-  const int n = static_cast<int>(types.size());
-  list_.set_exclusions(n, special);
-  list_.set_ghosts(ghost);
-  types_.assign(types.begin(), types.end());
+void PairTerm<Kernel>::set_special(std::span<const SpecialPair> special) {
+  list_.set_exclusions(static_cast<int>(types_.size()), special);
   special_.assign(special.begin(), special.end());
   scaled_.clear();
   excluded_ = 0;
@@ -204,6 +194,15 @@ void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const Speci
     else
       ++excluded_;
   }
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const SpecialPair> special,
+                               std::span<const char> ghost) {
+  pair_detail::check_types(name(), Kernel::kStyle, types, coeffs_.num_types());
+  types_.assign(types.begin(), types.end());
+  set_special(special);
+  list_.set_ghosts(ghost);
 }
 
 template <class Kernel>
