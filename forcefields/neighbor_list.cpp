@@ -285,7 +285,8 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
 }
 
 bool NeighborList::update(const Eigen::Matrix3Xd& x, const Box& box) {
-  if (!needs_rebuild(x, box)) return false;
+  const bool stale = needs_rebuild(x, box);
+  if (!(agree_ ? agree_(stale) : stale)) return false;
   build(x, box);
   return true;
 }

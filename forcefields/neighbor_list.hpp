@@ -27,6 +27,7 @@
 #include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <vector>
 
@@ -140,9 +141,18 @@ class NeighborList {
 
   // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count
   // or box, or the test above); returns whether it rebuilt. The decision is a function of x and
-  // the positions at the build only (not of the thread count). Throws std::invalid_argument if
-  // the box is too small (check_box_for_cutoff).
+  // the positions at the build only (not of the thread count), or, with a rebuild agreement, of
+  // every agreeing list's. Throws std::invalid_argument if the box is too small
+  // (check_box_for_cutoff).
   bool update(const Eigen::Matrix3Xd& x, const Box& box);
+  // Lists that rebuild together: `agree` takes this list's verdict (whether it may miss a pair)
+  // and returns the verdict all of them follow, each then rebuilding or not alike. A decomposed
+  // run's ranks (docs/parallel.md) agree by a max-reduction in each update, which every rank
+  // reaches at the same point: a rank that rebuilt alone would keep the others waiting for it,
+  // and an early rebuild costs nothing else (the pair sums do not depend on when the list was
+  // built). Empty: the list's own verdict (the default).
+  using RebuildAgreement = std::function<bool(bool)>;
+  void set_rebuild_agreement(RebuildAgreement agree) { agree_ = std::move(agree); }
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   void build(const Eigen::Matrix3Xd& x, const Box& box);
 
@@ -185,6 +195,7 @@ class NeighborList {
   double skin_;
   long rebuilds_ = 0;
   bool built_ = false;
+  RebuildAgreement agree_;
   std::vector<char> ghost_;       // set_ghosts (empty: none)
   std::vector<char> cell_owned_;  // the search's scratch: whether a cell holds a non-ghost
 

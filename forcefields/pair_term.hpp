@@ -37,6 +37,8 @@ class PairsOnParticles {
   // type or a pair out of range.
   virtual void move_to(std::span<const int> types, std::span<const SpecialPair> special,
                        std::span<const char> ghost) = 0;
+  // Its neighbour list rebuilds as `agree` decides (NeighborList::set_rebuild_agreement).
+  virtual void set_rebuild_agreement(NeighborList::RebuildAgreement agree) = 0;
 };
 
 template <class Kernel>
@@ -73,6 +75,9 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
 
   std::span<const SpecialPair> special_pairs() const override { return special_; }
   void move_to(std::span<const int> types, std::span<const SpecialPair> special, std::span<const char> ghost) override;
+  void set_rebuild_agreement(NeighborList::RebuildAgreement agree) override {
+    list_.set_rebuild_agreement(std::move(agree));
+  }
 
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }

@@ -196,7 +196,7 @@ def launch(mpiexec, numproc_flag, ranks, stiffmd):
     return [mpiexec, numproc_flag, str(ranks), stiffmd]
 
 
-def check_h5md_writers(stiffmd, out, ranks):
+def check_domain_summary(stiffmd, out, ranks):
     """A build with parallel HDF5 has every rank write its particles' rows of the one H5MD file
     (docs/parallel.md); without it rank 0 writes the whole file. And the timing by phase has its
     mean and max over the ranks."""
@@ -210,6 +210,12 @@ def check_h5md_writers(stiffmd, out, ranks):
     if writers != expected:
         raise SystemExit(f"FAIL: the H5MD file was written by {writers} ranks, expected {expected} ({version.strip()})")
     print(f"H5MD written by {writers} of {ranks} ranks")
+    # The ranks rebuild their neighbour lists together (one rebuilding alone keeps the others
+    # waiting): every rank the same number of times.
+    d = summary["domains"]
+    if d["neighbor_rebuilds_min"] != d["neighbor_rebuilds_max"]:
+        raise SystemExit(f"FAIL: the ranks rebuilt their neighbour lists {d['neighbor_rebuilds_min']} to "
+                         f"{d['neighbor_rebuilds_max']} times: not together")
     # The timing by phase (systems timed by parts) comes with its mean and max over the ranks.
     if summary["timing"]:
         mean, most = summary["domains"].get("timing_mean"), summary["domains"].get("timing_max")
@@ -524,7 +530,7 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{n}")
     # The N-rank run first: while N > 1 is refused, a skipped case costs only the launcher's start.
     run(launch(mpiexec, numproc_flag, n, stiffmd) + args[:2] + ["-o", out] + args[2:], n)
-    check_h5md_writers(stiffmd, out, n)
+    check_domain_summary(stiffmd, out, n)
     run([stiffmd] + args[:2] + ["-o", ref] + args[2:], 1)
     if case == "straddle":
         check_straddle_geometry(ref)
@@ -613,7 +619,7 @@ def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
     # A fresh run to step 200 would also give the serial files: the second run must have continued.
     if f"at step {STEPS // 2} " not in r.stderr:
         raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {STEPS // 2}:\n{r.stderr}")
-    check_h5md_writers(stiffmd, out, second)
+    check_domain_summary(stiffmd, out, second)
     run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, STEPS, {}), 1)
     compare_runs(ref, out, f"straddle on {first} ranks, restarted on {second}")
 

@@ -245,6 +245,45 @@ TEST(GhostPairs, RebuildAfterMovesBeyondHalfTheSkinListsNoPairOfTwoGhosts) {
   }
 }
 
+// Lists that agree on their rebuilds (a decomposed run's ranks): each update hands the agreement
+// the list's own verdict and follows the agreed one, rebuilding when another list needs it, and
+// an early rebuild leaves the forces as they were, bit for bit.
+TEST(GhostPairs, ListsThatAgreeRebuildTogether) {
+  const System s = lattice(9, Eigen::Vector3i::Ones(), false, 7, true);
+  NeighborList mine = make_list(s, true);
+  std::vector<char> verdicts;
+  bool other_is_stale = false;  // the other lists' verdict
+  mine.set_rebuild_agreement([&](bool stale) {
+    verdicts.push_back(stale);
+    return stale || other_is_stale;
+  });
+  ASSERT_TRUE(mine.update(s.x, s.box));  // never built
+  const Eigen::Matrix3Xd y = moved(s.x, 0.1 * kSkin, 8);
+  EXPECT_FALSE(mine.update(y, s.box));  // fresh here, and elsewhere
+  other_is_stale = true;
+  EXPECT_TRUE(mine.update(y, s.box));  // fresh here, stale elsewhere
+  EXPECT_EQ(verdicts, (std::vector<char>{1, 0, 0}));
+  EXPECT_EQ(mine.rebuilds(), 2);
+  other_is_stale = false;
+  EXPECT_TRUE(mine.update(moved(s.x, 0.6 * kSkin, 9), s.box));  // stale here
+  EXPECT_EQ(verdicts.back(), 1);
+
+  // The forces after a rebuild another list asked for are those of the list kept (one thread:
+  // the pair loop's row blocks do not depend on the list then).
+  const ThreadCount scope(1);
+  auto rebuilt = lj_term(s);
+  rebuilt->set_rebuild_agreement([](bool) { return true; });
+  ForceField a(s.box, s.size()), b(s.box, s.size());
+  a.add(lj_term(s)), b.add(std::move(rebuilt));
+  a.set_ghosts(s.ghost), b.set_ghosts(s.ghost);
+  evaluate(a, s.x), evaluate(b, s.x);
+  const Evaluation ea = evaluate(a, y), eb = evaluate(b, y);
+  EXPECT_EQ(b.terms()[0]->neighbor_list_rebuilds(), 2);
+  EXPECT_EQ(a.terms()[0]->neighbor_list_rebuilds(), 1);
+  EXPECT_TRUE(ea.f.cwiseEqual(eb.f).all());
+  EXPECT_EQ(ea.energy, eb.energy);
+}
+
 // The fast particles' check ignores pairs of two ghosts: one ghost moved 0.6 skin is within the
 // cutoff of ghosts it is not listed with (none are), yet no pair with an owned particle can have
 // come in unlisted (the others did not move), so the list is kept. An owned particle and a ghost

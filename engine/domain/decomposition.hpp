@@ -53,6 +53,8 @@ struct DomainReport {
   double halo_messages_per_step = 0.0;  // all ranks, one halo
   long redistributions = 0;             // the ghosts selected again (and molecules migrated) after the first
   long migrated_molecules = 0;          // all ranks
+  long neighbor_rebuilds_min = 0;       // a rank's neighbour-list rebuilds: the fewest and the most
+  long neighbor_rebuilds_max = 0;
 };
 
 class Decomposition {

@@ -331,6 +331,11 @@ DomainReport DomainIntegrator::report() const {
   r.halo_messages_per_step = v[2];
   r.migrated_molecules = static_cast<long>(v[3]);
   r.redistributions = domains_->selections() - 1;
+  // The ranks rebuild their lists together (GhostedPairs), so the fewest and the most agree.
+  double rebuilds[2] = {-static_cast<double>(neighbor_rebuilds()), static_cast<double>(neighbor_rebuilds())};
+  comm_.max(rebuilds, 2);
+  r.neighbor_rebuilds_min = static_cast<long>(-rebuilds[0]);
+  r.neighbor_rebuilds_max = static_cast<long>(rebuilds[1]);
   return r;
 }
 

@@ -17,6 +17,15 @@ void GhostedPairs::retarget(std::span<const int> types, const Box& box) {
     extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
     if (!extended_pairs_)
       throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
+    // Every evaluation runs on every rank at once (the halo is collective), so the ranks can
+    // rebuild their lists together: one rebuilding alone would hold the others up at the next
+    // halo for as long as its build takes.
+    const Communicator& comm = domains_.comm();
+    extended_pairs_->set_rebuild_agreement([&comm](bool stale) {
+      double any = stale ? 1.0 : 0.0;
+      comm.max(&any, 1);
+      return any > 0.0;
+    });
   }
   // The owned particles' bonds join owned particles only (molecules are whole), so the extended
   // set's special pairs are the owned term's through the owned → extended slots; the slots

@@ -108,7 +108,9 @@ std::string summary_json(const RunSummary& s) {
       << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max << ", \"ghosts_per_owned\": " << d.ghosts_per_owned
       << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
-      << ", \"migrated_molecules\": " << d.migrated_molecules << ", \"h5md_writers\": " << s.h5md_writers;
+      << ", \"migrated_molecules\": " << d.migrated_molecules
+      << ", \"neighbor_rebuilds_min\": " << d.neighbor_rebuilds_min
+      << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"h5md_writers\": " << s.h5md_writers;
     for (const auto& [name, seconds] :
          {std::pair{"timing_mean", &s.rank_phase_seconds_mean}, std::pair{"timing_max", &s.rank_phase_seconds_max}}) {
       if (seconds->empty()) continue;
