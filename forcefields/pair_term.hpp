@@ -39,6 +39,8 @@ class PairsOnParticles {
                        std::span<const char> ghost) = 0;
   // Its neighbour list rebuilds as `agree` decides (NeighborList::set_rebuild_agreement).
   virtual void set_rebuild_agreement(NeighborList::RebuildAgreement agree) = 0;
+  // Its neighbour list brought up to date for x (NeighborList::update), ahead of an evaluation.
+  virtual void update_list(const Eigen::Matrix3Xd& x, const Box& box) = 0;
 };
 
 template <class Kernel>
@@ -77,6 +79,11 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
   void move_to(std::span<const int> types, std::span<const SpecialPair> special, std::span<const char> ghost) override;
   void set_rebuild_agreement(NeighborList::RebuildAgreement agree) override {
     list_.set_rebuild_agreement(std::move(agree));
+  }
+  void update_list(const Eigen::Matrix3Xd& x, const Box& box) override {
+    check_positions(x, nullptr);
+    const ScopedPhase phase(Phase::neighbor);
+    list_.update(x, box);
   }
 
   long rebuilds() const { return list_.rebuilds(); }

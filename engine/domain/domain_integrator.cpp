@@ -187,6 +187,9 @@ void DomainIntegrator::start(const State& s) {
   build_part(std::move(x), std::move(v), s);
   domains_->select_ghosts(part_->scene.state.x);
   retarget_pairs();
+  // The lists built now, before the step loop, as one process builds its list in the first
+  // force evaluation.
+  for (GhostedPairs* term : part_->pairs) term->update_list(part_->scene.state.x, part_->scene.box);
   CarriedState c = whole_->carried_state();
   const std::vector<int>& ids = domains_->owned_ids();
   for (Eigen::Matrix3Xd& column : c.columns) {

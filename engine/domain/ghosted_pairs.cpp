@@ -46,6 +46,11 @@ void GhostedPairs::take_over(GhostedPairs& old) {
   special_ = std::move(old.special_);
 }
 
+void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {
+  domains_.halo(x, x_);
+  extended_pairs_->update_list(x_, box);
+}
+
 double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
   domains_.halo(x, x_);
   const int owned = domains_.num_owned();

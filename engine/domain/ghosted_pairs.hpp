@@ -34,6 +34,9 @@ class GhostedPairs final : public ForceTerm {
   // A part built again (molecules migrated) keeps the old part's term on the extended set, and
   // so its buffers; `old` held the same deck term. The next retarget moves it.
   void take_over(GhostedPairs& old);
+  // The neighbour list on the extended set brought up to date for the owned positions x (through
+  // the halo; collective), as one process builds its list before the step loop.
+  void update_list(const Eigen::Matrix3Xd& x, const Box& box);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
