@@ -136,33 +136,47 @@ struct HaloCells {
   bool periodic[3] = {false, false, false};
 
   std::int64_t size() const { return static_cast<std::int64_t>(n[0]) * n[1] * n[2]; }
-  int coordinate(double p, int a) const {
-    const double q = periodic[a] ? wrap(p, lo[a], length[a], true) : p;
+  // q: a coordinate wrapped into the frame on a periodic axis (wrapped).
+  int coordinate(double q, int a) const {
     return std::clamp(static_cast<int>(std::floor((q - lo[a]) / width[a])), 0, n[a] - 1);
   }
-  std::int64_t index(const double* p) const {
-    return (static_cast<std::int64_t>(coordinate(p[0], 0)) * n[1] + coordinate(p[1], 1)) * n[2] + coordinate(p[2], 2);
+  std::int64_t index(const double* q) const {
+    return (static_cast<std::int64_t>(coordinate(q[0], 0)) * n[1] + coordinate(q[1], 1)) * n[2] + coordinate(q[2], 2);
   }
-  // The cells adjacent to cell c (itself included), each once.
+  // p wrapped into the frame on the periodic axes (open axes: as it is).
+  void wrapped(const double* p, double* q) const {
+    for (int a = 0; a < 3; ++a) q[a] = periodic[a] ? wrap(p[a], lo[a], length[a], true) : p[a];
+  }
+  // Per axis and cell coordinate, the distinct coordinates within one cell of it (periodically on
+  // a periodic axis): around[a][4 c] is their count, the next three the coordinates.
+  std::vector<int> around[3];
+  void tabulate() {
+    for (int a = 0; a < 3; ++a) {
+      around[a].assign(4 * static_cast<size_t>(n[a]), 0);
+      for (int c = 0; c < n[a]; ++c) {
+        int* out = around[a].data() + 4 * c;
+        for (int d = -1; d <= 1; ++d) {
+          int q = c + d;
+          if (periodic[a])
+            q = (q + n[a]) % n[a];
+          else if (q < 0 || q >= n[a])
+            continue;
+          if (std::find(out + 1, out + 1 + out[0], q) == out + 1 + out[0]) out[1 + out[0]++] = q;
+        }
+      }
+    }
+  }
+  // The cells adjacent to cell c (itself included), each once (after tabulate).
   template <class F>
   void for_each_adjacent(std::int64_t c, F f) const {
     const int c2 = static_cast<int>(c % n[2]), c1 = static_cast<int>((c / n[2]) % n[1]),
               c0 = static_cast<int>(c / (static_cast<std::int64_t>(n[2]) * n[1]));
-    int a0[3], a1[3], a2[3], k0 = 0, k1 = 0, k2 = 0;
-    const auto around = [&](int cc, int a, int* out, int& k) {
-      for (int d = -1; d <= 1; ++d) {
-        int q = cc + d;
-        if (periodic[a])
-          q = (q + n[a]) % n[a];
-        else if (q < 0 || q >= n[a])
-          continue;
-        if (std::find(out, out + k, q) == out + k) out[k++] = q;
+    const int *a0 = around[0].data() + 4 * c0, *a1 = around[1].data() + 4 * c1, *a2 = around[2].data() + 4 * c2;
+    for (int i = 1; i <= a0[0]; ++i)
+      for (int j = 1; j <= a1[0]; ++j) {
+        const std::int64_t row = (static_cast<std::int64_t>(a0[i]) * n[1] + a1[j]) * n[2];
+        for (int l = 1; l <= a2[0]; ++l) f(row + a2[l]);
       }
-    };
-    around(c0, 0, a0, k0), around(c1, 1, a1, k1), around(c2, 2, a2, k2);
-    for (int i = 0; i < k0; ++i)
-      for (int j = 0; j < k1; ++j)
-        for (int l = 0; l < k2; ++l) f((static_cast<std::int64_t>(a0[i]) * n[1] + a1[j]) * n[2] + a2[l]);
   }
 };
 
@@ -337,6 +351,7 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
         std::clamp(static_cast<int>(std::floor(len / radius_)), 1, 256);  // wider cells: more ghosts, still every one
     cells.width[a] = len / cells.n[a];
   }
+  cells.tabulate();
   // The neighbour ranks: those whose region comes within R of this one's (the relation is
   // symmetric, so both sides agree on it). They exchange the cells their owned beads occupy.
   std::vector<char> neighbour(ranks, 0);
@@ -349,12 +364,23 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
     neighbour[r] = near;
   }
   // The owned beads by cell (a counting sort, increasing owned index within a cell): those of
-  // cell c are by_cell[cell_start[c] … cell_start[c + 1]); `occupied` the cells that hold one.
-  std::vector<std::int64_t> cell_of(static_cast<size_t>(owned));
-  for (int k = 0; k < owned; ++k) cell_of[k] = cells.index(x.col(k).data());
-  std::vector<int> cell_start(static_cast<size_t>(cells.size()) + 1, 0), by_cell(static_cast<size_t>(owned));
+  // cell c are by_cell[cell_start[c] … cell_start[c + 1]), their wrapped positions cell_x in the
+  // same order; `occupied` the cells that hold one.
+  SelectionScratch& sc = scratch_;
+  std::vector<std::int64_t>& cell_of = sc.cell_of;
+  std::vector<int>&cell_start = sc.cell_start, &by_cell = sc.by_cell;
+  std::vector<std::int64_t>& occupied = sc.occupied;
+  sc.wrapped.resize(3, owned);
+  cell_of.resize(static_cast<size_t>(owned));
+  for (int k = 0; k < owned; ++k) {
+    double* q = sc.wrapped.col(k).data();
+    cells.wrapped(x.col(k).data(), q);
+    cell_of[k] = cells.index(q);
+  }
+  cell_start.assign(static_cast<size_t>(cells.size()) + 1, 0);
+  by_cell.resize(static_cast<size_t>(owned));
   for (int k = 0; k < owned; ++k) ++cell_start[cell_of[k] + 1];
-  std::vector<std::int64_t> occupied;
+  occupied.clear();
   for (std::int64_t c = 0; c < cells.size(); ++c) {
     if (cell_start[c + 1] > 0) occupied.push_back(c);
     cell_start[c + 1] += cell_start[c];
@@ -362,6 +388,8 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   for (int k = 0; k < owned; ++k) by_cell[cell_start[cell_of[k]]++] = k;
   for (std::int64_t c = cells.size(); c > 0; --c) cell_start[c] = cell_start[c - 1];
   cell_start[0] = 0;
+  sc.cell_x.resize(3, owned);
+  for (int i = 0; i < owned; ++i) sc.cell_x.col(i) = sc.wrapped.col(by_cell[i]);
   std::vector<std::vector<double>> out(ranks), in;
   for (int r = 0; r < ranks; ++r)
     if (neighbour[r]) out[r].assign(occupied.begin(), occupied.end());
@@ -369,7 +397,8 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   // The candidates for neighbour r: the owned beads in a cell adjacent to one r's beads occupy
   // (every bead within R of one of r's, and more: up to two cells away).
   for (auto& list : send_) list.clear();
-  std::vector<char> near_r(static_cast<size_t>(cells.size()));
+  std::vector<char>& near_r = sc.near;
+  near_r.resize(static_cast<size_t>(cells.size()));
   for (int r = 0; r < ranks; ++r) {
     if (!neighbour[r] || in[r].empty()) continue;
     std::fill(near_r.begin(), near_r.end(), 0);
@@ -388,19 +417,23 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
     for (int k : send_[r]) w[0] = ids_[k], w[1] = x(0, k), w[2] = x(1, k), w[3] = x(2, k), w += 4;
   }
   comm_.exchange(out, in);
+  // Both positions wrapped into the frame: a separation is within a box length on a periodic
+  // axis, and one fold (NearestImage) makes it the minimum image.
   const double radius2 = radius_ * radius_;
-  const MinimumImage image(box_);
-  const auto near_an_owned_bead = [&](const Eigen::Vector3d& p) {
+  const NearestImage image(box_);
+  const double* cx = sc.cell_x.data();
+  const auto near_an_owned_bead = [&](const Eigen::Vector3d& raw) {
+    double p[3];
+    cells.wrapped(raw.data(), p);
     bool near = false;
     const auto scan = [&](std::int64_t q) {
       for (int i = cell_start[q]; i < cell_start[q + 1] && !near; ++i) {
-        const int k = by_cell[i];
-        double dx = p[0] - x(0, k), dy = p[1] - x(1, k), dz = p[2] - x(2, k);
+        double dx = p[0] - cx[3 * i], dy = p[1] - cx[3 * i + 1], dz = p[2] - cx[3 * i + 2];
         image.apply(dx, dy, dz);
         near = dx * dx + dy * dy + dz * dz <= radius2;
       }
     };
-    const std::int64_t own = cells.index(p.data());
+    const std::int64_t own = cells.index(p);
     scan(own);  // most candidates that are ghosts have a bead in their own cell
     cells.for_each_adjacent(own, [&](std::int64_t q) {
       if (!near && q != own) scan(q);
@@ -425,10 +458,8 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   }
   // The extended set: owned and ghosts in increasing global index (so a particle's pairs are
   // summed in the one-process order: forcefields/neighbor_list.hpp).
-  std::vector<std::pair<int, int>> members;  // global index, owned index (≥ 0) or −1 − ghost number
-  size_t received = 0;
-  for (const auto& list : ghost_ids) received += list.size();
-  members.reserve(static_cast<size_t>(owned) + received);
+  std::vector<std::pair<int, int>>& members = sc.members;  // global index, owned index (≥ 0) or −1 − ghost number
+  members.clear();
   for (int k = 0; k < owned; ++k) members.emplace_back(ids_[k], k);
   int ghosts = 0;
   for (int r = 0; r < ranks; ++r) {

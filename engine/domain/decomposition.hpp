@@ -152,6 +152,16 @@ class Decomposition {
   std::int64_t halo_doubles_ = 0;
   int halo_messages_ = 0;
   long selections_ = 0, migrated_ = 0;
+  // select_ghosts' scratch, kept from one selection to the next: per owned bead its cell and its
+  // position wrapped into the cells' frame; the beads by cell (a counting sort) and their wrapped
+  // positions in that order.
+  struct SelectionScratch {
+    std::vector<std::int64_t> cell_of, occupied;
+    std::vector<int> cell_start, by_cell;
+    std::vector<char> near;
+    Eigen::Matrix3Xd wrapped, cell_x;
+    std::vector<std::pair<int, int>> members;
+  } scratch_;
 };
 
 }  // namespace stiffmd
