@@ -913,7 +913,9 @@ Differences merged_against_written(const std::string& deck, const std::vector<st
     ia->step(a.state, c.h);
     const double ka = ia->kinetic_energy_estimate(a.state);
     const double wa = k % 7 == 3 ? ia->constraint_virial(a.state) : 0.0;
-    if (k % 7 == 3) EXPECT_EQ(wa, ia->constraint_virial(a.state));  // formed once, then kept
+    if (k % 7 == 3) {
+      EXPECT_EQ(wa, ia->constraint_virial(a.state));  // formed once, then kept
+    }
     set_max_threads(c.b_threads);
     ib->step(b.state, c.h);
     d.x = std::max(d.x, (a.state.x - b.state.x).cwiseAbs().maxCoeff());
@@ -932,7 +934,6 @@ Differences merged_against_written(const std::string& deck, const std::vector<st
 class MergedProjection : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(MergedProjection, GivesTheWrittenProjectionsTrajectoryAndPressure) {
-  const bool obabo = GetParam() == "obabo";
   const std::string deck = trimer_deck(60, kLangevin + "splitting = \"" + GetParam() + "\"\n");
   for (const std::string method : {"rattle", "fixman"}) {
     SCOPED_TRACE(method);
