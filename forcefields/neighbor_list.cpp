@@ -157,8 +157,10 @@ bool NeighborList::excluded(int i, int j) const {
 bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const {
   if (!built_ || x.cols() != x_at_build_.cols() || !same_box(box, box_at_build_)) return true;
   // Raw (unwrapped) displacements: the engine never wraps positions, and if something did, the
-  // jump of a box length would only cause an early rebuild.
+  // jump of a box length would only cause an early rebuild. Positions given wrapped
+  // (set_positions_wrapped): both in the box, so one fold gives a displacement's minimum image.
   const double half2 = 0.25 * skin_ * skin_, skin2 = skin_ * skin_;
+  const NearestImage fold(positions_wrapped_ ? box : Box{});
   const double* xp = x.data();
   const double* x0 = x_at_build_.data();
   const Eigen::Index n = x.cols();
@@ -175,8 +177,12 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
     f.clear();
     double w = 0.0;  // no early exit: a loop over the block whose branch is rarely taken is faster
     for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
-      const double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-      const double d2 = dx * dx + dy * dy + dz * dz;
+      double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
+      double d2 = dx * dx + dy * dy + dz * dz;
+      if (d2 > half2) {  // rare: a fast particle, or a wrapped one that crossed a face
+        fold.apply(dx, dy, dz);
+        d2 = dx * dx + dy * dy + dz * dz;
+      }
       w = std::max(w, d2);
       if (d2 > half2) {
         if (f.size() < most)
@@ -260,26 +266,15 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
 const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
   if (x.cols() != image_.cols())
     throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
+  if (positions_wrapped_) return x;
   wrapped_now_.resize(3, x.cols());  // no allocation once sized
   // Wrapped now, not with the build's images: a separation then depends only on the two
   // positions (not on when the list was built), so the forces are the same bits whenever the
   // list is rebuilt (docs/parallel.md).
-  double lo[3], len[3], inv[3];
-  for (int a = 0; a < 3; ++a) {
-    const bool periodic = box_at_build_.periodic[a] != 0;
-    lo[a] = box_at_build_.origin[a];
-    len[a] = periodic ? box_at_build_.lengths[a] : 0.0;
-    inv[a] = periodic ? 1.0 / box_at_build_.lengths[a] : 0.0;
-  }
-  // floor by truncation and a correction: one conversion each way, no call (x86-64 before SSE4.1
-  // has no floor instruction); the same value as std::floor for |q| < 2⁶³.
-  const auto floor_of = [](double q) {
-    const double t = static_cast<double>(static_cast<std::int64_t>(q));
-    return t > q ? t - 1.0 : t;
-  };
+  const BoxWrap wrap(box_at_build_);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t i = b; i < e; ++i)
-      for (int a = 0; a < 3; ++a) wrapped_now_(a, i) = x(a, i) - len[a] * floor_of((x(a, i) - lo[a]) * inv[a]);
+      for (int a = 0; a < 3; ++a) wrapped_now_(a, i) = wrap(x(a, i), a);
   });
   return wrapped_now_;
 }

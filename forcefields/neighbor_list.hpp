@@ -91,6 +91,32 @@ struct NearestImage {
   }
 };
 
+// A position wrapped into the box on its periodic axes, x − L·floor((x − origin)/L) (open axes: x),
+// as the pair loop reads it (NeighborList::wrapped_positions; a decomposed run's halo writes the
+// extended positions so, NeighborList::set_positions_wrapped): a function of the position alone,
+// the same bits wherever it is computed.
+class BoxWrap {
+ public:
+  explicit BoxWrap(const Box& box) {
+    for (int a = 0; a < 3; ++a) {
+      const bool periodic = box.periodic[a] != 0;
+      lo_[a] = box.origin[a];
+      len_[a] = periodic ? box.lengths[a] : 0.0;
+      inv_[a] = periodic ? 1.0 / box.lengths[a] : 0.0;
+    }
+  }
+  double operator()(double x, int a) const { return x - len_[a] * floor_of((x - lo_[a]) * inv_[a]); }
+
+ private:
+  // floor by truncation and a correction: one conversion each way, no call (x86-64 before SSE4.1
+  // has no floor instruction); the same value as std::floor for |q| < 2⁶³.
+  static double floor_of(double q) {
+    const double t = static_cast<double>(static_cast<std::int64_t>(q));
+    return t > q ? t - 1.0 : t;
+  }
+  double lo_[3], len_[3], inv_[3];
+};
+
 // Throws std::invalid_argument when a periodic axis is shorter than 2 × (cutoff + skin): the
 // minimum image is then not the only image within the list radius, and a pair could interact
 // through two images at once.
@@ -156,11 +182,18 @@ class NeighborList {
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   void build(const Eigen::Matrix3Xd& x, const Box& box);
 
-  // x less each particle's periodic image at the last build, L·floor((x − origin)/L) per
-  // periodic axis: the positions the list was built from, moved on. While the list is valid they
-  // lie within the skin of the box, so NearestImage gives their minimum image. Call after update
-  // with the same x; the result is a member, overwritten by the next call.
+  // x wrapped into the box (BoxWrap), so NearestImage gives the minimum image of a separation.
+  // Call after update with the same x; the result is a member, overwritten by the next call (with
+  // set_positions_wrapped, x itself).
   const Eigen::Matrix3Xd& wrapped_positions(const Eigen::Matrix3Xd& x);
+  // The positions this list is given are wrapped already (BoxWrap, as a decomposed run's halo
+  // writes them): wrapped_positions returns them as they are (no pass of its own), and the
+  // displacements since the build are taken through the minimum image (a bead crossing a face
+  // jumps by a box length). Forces the next update to rebuild.
+  void set_positions_wrapped(bool wrapped) {
+    positions_wrapped_ = wrapped;
+    built_ = false;
+  }
 
   std::span<const std::int64_t> offsets() const { return offsets_; }
   std::span<const int> neighbors() const { return neighbors_; }
@@ -195,6 +228,7 @@ class NeighborList {
   double skin_;
   long rebuilds_ = 0;
   bool built_ = false;
+  bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
   std::vector<char> ghost_;       // set_ghosts (empty: none)
   std::vector<char> cell_owned_;  // the search's scratch: whether a cell holds a non-ghost

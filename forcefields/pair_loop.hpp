@@ -264,15 +264,14 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const int n = list.num_particles();
   const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
   const bool periodic = box.any_periodic();
+  const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
   PairSums listed;
   if (parts > 1) {  // each part copies the wrapped positions
-    const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
     listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares>(
                             list, parts, params, type, xl, NearestImage(box), f, scratch)
                       : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares>(
                             list, parts, params, type, xl, NearestImage(box), f, scratch);
   } else {
-    const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
       listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
                                                                                         NearestImage(box), f)
@@ -280,10 +279,12 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
                                                                                          NearestImage(box), f);
     });
   }
-  // The scaled pairs round the raw separations (MinimumImage): they are few, and not tied to
-  // the list's frame.
+  // The scaled pairs round the separations of the wrapped positions (MinimumImage): they are few,
+  // and not tied to the list's build. Wrapped, as the listed pairs: a decomposed run's halo hands
+  // the pair terms wrapped positions (NeighborList::set_positions_wrapped), and the same positions
+  // give the same bits.
   const PairSums special =
-      accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, x, MinimumImage(box), f);
+      accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, xl, MinimumImage(box), f);
   return {listed.energy + special.energy, listed.virial + special.virial};
 }
 

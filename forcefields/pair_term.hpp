@@ -41,6 +41,8 @@ class PairsOnParticles {
   virtual void set_rebuild_agreement(NeighborList::RebuildAgreement agree) = 0;
   // Its neighbour list brought up to date for x (NeighborList::update), ahead of an evaluation.
   virtual void update_list(const Eigen::Matrix3Xd& x, const Box& box) = 0;
+  // The positions it is given are wrapped into the box (NeighborList::set_positions_wrapped).
+  virtual void set_positions_wrapped(bool wrapped) = 0;
 };
 
 template <class Kernel>
@@ -80,6 +82,7 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
   void set_rebuild_agreement(NeighborList::RebuildAgreement agree) override {
     list_.set_rebuild_agreement(std::move(agree));
   }
+  void set_positions_wrapped(bool wrapped) override { list_.set_positions_wrapped(wrapped); }
   void update_list(const Eigen::Matrix3Xd& x, const Box& box) override {
     check_positions(x, nullptr);
     const ScopedPhase phase(Phase::neighbor);

@@ -14,6 +14,7 @@ CASE is one of
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
     migrate                   the same, a field driving the chains across the domains: molecules migrate
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
+    trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
@@ -246,12 +247,14 @@ def case_setup(case):
         return STRADDLE, 0.02, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
         return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {}
+    if case == "trappe:scaled":  # 1-3 and 1-4 pairs at half weight: the scaled special pairs
+        return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {"forces.lj.special_bonds": "[0.0, 0.5, 0.5]"}
     if case == "one_chain":  # one molecule: every rank but one owns nothing
         return os.path.join(ROOT, "inputs", "hanging_chain.toml"), 0.01, {}
     if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
         return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest[:threads], stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe, one_chain, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled], one_chain, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing

@@ -284,6 +284,39 @@ TEST(GhostPairs, ListsThatAgreeRebuildTogether) {
   EXPECT_EQ(ea.energy, eb.energy);
 }
 
+// A list given positions wrapped into the box already (a decomposed run's halo writes them so):
+// the same forces, bit for bit, as the list given the raw positions, which wraps them itself; no
+// rebuild when beads cross a face by less than half the skin (their wrapped positions jump by a
+// box length); a rebuild, as the raw list's, when they move more.
+TEST(GhostPairs, ListOnWrappedPositionsIsTheListOnRawOnes) {
+  const ThreadCount scope(1);
+  const System s = lattice(9, Eigen::Vector3i::Ones(), false, 11, true);
+  const BoxWrap into_box(s.box);
+  const auto wrapped = [&](const Eigen::Matrix3Xd& x) {
+    Eigen::Matrix3Xd w(3, x.cols());
+    for (int i = 0; i < x.cols(); ++i)
+      for (int a = 0; a < 3; ++a) w(a, i) = into_box(x(a, i), a);
+    return w;
+  };
+  Eigen::Matrix3Xd x = s.x;
+  x.row(0).array() -= 0.6;                     // the first plane of beads straddles the face x = 0
+  x.row(2).array() += 3.0 * s.box.lengths[2];  // raw positions some box lengths away
+  auto given_wrapped = lj_term(s);
+  given_wrapped->set_positions_wrapped(true);
+  ForceField raw(s.box, s.size()), pre(s.box, s.size());
+  raw.add(lj_term(s)), pre.add(std::move(given_wrapped));
+  raw.set_ghosts(s.ghost), pre.set_ghosts(s.ghost);
+  for (const double step : {0.0, 0.1 * kSkin, 0.6 * kSkin}) {
+    SCOPED_TRACE(step);
+    x.row(0).array() -= step;  // beads near the face cross it
+    const Evaluation a = evaluate(raw, x), b = evaluate(pre, wrapped(x));
+    EXPECT_TRUE(a.f.cwiseEqual(b.f).all());
+    EXPECT_EQ(a.energy, b.energy);
+    EXPECT_EQ(pre.terms()[0]->neighbor_list_rebuilds(), raw.terms()[0]->neighbor_list_rebuilds());
+  }
+  EXPECT_EQ(raw.terms()[0]->neighbor_list_rebuilds(), 2);  // kept after 0.1 skin, rebuilt after 0.7
+}
+
 // The fast particles' check ignores pairs of two ghosts: one ghost moved 0.6 skin is within the
 // cutoff of ghosts it is not listed with (none are), yet no pair with an owned particle can have
 // come in unlisted (the others did not move), so the list is kept. An owned particle and a ghost

@@ -497,7 +497,7 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   }
 }
 
-void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) const {
+void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended, bool wrap) const {
   const ScopedPhase phase(Phase::domain);
   // The ghosts cover every bead within r_c of ours while no bead moved margin/2 since their
   // selection (DomainIntegrator selects them again before a step that may): a step that moved one
@@ -506,8 +506,10 @@ void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) 
   // (Checked in the pass that copies the owned columns, before anything is sent.)
   extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
   double d2 = 0.0;
+  const BoxWrap into_box(wrap ? box_ : Box{});  // open axes (Box{}): the identity
   for (int k = 0; k < num_owned(); ++k) {
-    extended.col(owned_slot_[k]) = a.col(k);
+    const int e = owned_slot_[k];
+    for (int c = 0; c < 3; ++c) extended(c, e) = into_box(a(c, k), c);
     d2 = std::max(d2, (a.col(k) - x_at_selection_.col(k)).squaredNorm());
   }
   if (const double d = std::sqrt(d2); d >= 0.5 * margin_) {
@@ -525,7 +527,8 @@ void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) 
   for (int r = 0; r < ranks; ++r) {
     const double* b = recv_buffer_[r].data();
     const int* slot = ghost_slot_.data() + ghost_begin_[r];
-    for (int k = 0; k < ghost_count_[r]; ++k, b += 3) extended.col(slot[k]) = Eigen::Vector3d(b[0], b[1], b[2]);
+    for (int k = 0; k < ghost_count_[r]; ++k, b += 3)
+      for (int c = 0; c < 3; ++c) extended(c, slot[k]) = into_box(b[c], c);
   }
 }
 
