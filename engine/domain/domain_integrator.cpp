@@ -208,13 +208,14 @@ void DomainIntegrator::start(const State& s) {
 void DomainIntegrator::reselect() {
   const ScopedPhase phase(Phase::domain);
   // The margin's trade: a wider one holds more ghosts (a larger halo and lists), a narrower one
-  // selects them more often (each selection builds the pair terms and their lists anew, a few
-  // steps' worth). Aim at a selection every 10–40 steps, as a list's skin usually lasts; the steps
+  // selects them more often (each selection costs about half a list build, and rebuilds the lists
+  // before their skin is used up). Aim at a selection every 20–80 steps (docs/parallel.md: on the
+  // in.chain melt a selection every 14 steps cost 3–4 % more than one every 30–70); the steps
   // between selections are the same on every rank, so is the margin.
   if (adapt_margin_) {
     const double m = domains_->margin();
-    if (steps_since_selection_ < 10) domains_->set_margin(std::min(1.5 * m, margin_range_[1]));
-    if (steps_since_selection_ > 40) domains_->set_margin(std::max(m / 1.25, margin_range_[0]));
+    if (steps_since_selection_ < 20) domains_->set_margin(std::min(1.5 * m, margin_range_[1]));
+    if (steps_since_selection_ > 80) domains_->set_margin(std::max(m / 1.25, margin_range_[0]));
   }
   steps_since_selection_ = 0;
   State& l = part_->scene.state;
