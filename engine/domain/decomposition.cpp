@@ -136,16 +136,12 @@ struct HaloCells {
   bool periodic[3] = {false, false, false};
 
   std::int64_t size() const { return static_cast<std::int64_t>(n[0]) * n[1] * n[2]; }
-  // q: a coordinate wrapped into the frame on a periodic axis (wrapped).
+  // q: a coordinate wrapped into the box on a periodic axis (BoxWrap).
   int coordinate(double q, int a) const {
     return std::clamp(static_cast<int>(std::floor((q - lo[a]) / width[a])), 0, n[a] - 1);
   }
   std::int64_t index(const double* q) const {
     return (static_cast<std::int64_t>(coordinate(q[0], 0)) * n[1] + coordinate(q[1], 1)) * n[2] + coordinate(q[2], 2);
-  }
-  // p wrapped into the frame on the periodic axes (open axes: as it is).
-  void wrapped(const double* p, double* q) const {
-    for (int a = 0; a < 3; ++a) q[a] = periodic[a] ? wrap(p[a], lo[a], length[a], true) : p[a];
   }
   // Per axis and cell coordinate, the distinct coordinates within one cell of it (periodically on
   // a periodic axis): around[a][4 c] is their count, the next three the coordinates.
@@ -370,11 +366,15 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   std::vector<std::int64_t>& cell_of = sc.cell_of;
   std::vector<int>&cell_start = sc.cell_start, &by_cell = sc.by_cell;
   std::vector<std::int64_t>& occupied = sc.occupied;
+  const BoxWrap into_box(box_);  // the cells' frame on periodic axes is the box
+  const auto wrapped = [&](const double* p, double* q) {
+    for (int a = 0; a < 3; ++a) q[a] = into_box(p[a], a);
+  };
   sc.wrapped.resize(3, owned);
   cell_of.resize(static_cast<size_t>(owned));
   for (int k = 0; k < owned; ++k) {
     double* q = sc.wrapped.col(k).data();
-    cells.wrapped(x.col(k).data(), q);
+    wrapped(x.col(k).data(), q);
     cell_of[k] = cells.index(q);
   }
   cell_start.assign(static_cast<size_t>(cells.size()) + 1, 0);
@@ -424,7 +424,7 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   const double* cx = sc.cell_x.data();
   const auto near_an_owned_bead = [&](const Eigen::Vector3d& raw) {
     double p[3];
-    cells.wrapped(raw.data(), p);
+    wrapped(raw.data(), p);
     bool near = false;
     const auto scan = [&](std::int64_t q) {
       for (int i = cell_start[q]; i < cell_start[q + 1] && !near; ++i) {
@@ -497,7 +497,7 @@ void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
   }
 }
 
-void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended, bool wrap) const {
+void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) const {
   const ScopedPhase phase(Phase::domain);
   // The ghosts cover every bead within r_c of ours while no bead moved margin/2 since their
   // selection (DomainIntegrator selects them again before a step that may): a step that moved one
@@ -506,7 +506,7 @@ void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended, 
   // (Checked in the pass that copies the owned columns, before anything is sent.)
   extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
   double d2 = 0.0;
-  const BoxWrap into_box(wrap ? box_ : Box{});  // open axes (Box{}): the identity
+  const BoxWrap into_box(box_);
   for (int k = 0; k < num_owned(); ++k) {
     const int e = owned_slot_[k];
     for (int c = 0; c < 3; ++c) extended(c, e) = into_box(a(c, k), c);

@@ -80,9 +80,9 @@ class Decomposition {
   // the ghost columns from their owners' arrays of the same kind. Collective; no allocation once
   // the buffers have their size. Stops the run (NumericalError) when a bead has moved margin/2
   // since the selection: pairs would be missed.
-  // `wrap`: every column wrapped into the box (BoxWrap, forcefields/neighbor_list.hpp), as the
-  // pair loop reads positions.
-  void halo(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& extended, bool wrap = false) const;
+  // Every column is wrapped into the box (BoxWrap, forcefields/neighbor_list.hpp), as the pair
+  // loop reads positions.
+  void halo(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& extended) const;
   // Rank 0 gets every rank's owned columns of each array into a 3 × N array by global index (the
   // others get nothing). Collective.
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,

@@ -17,12 +17,12 @@ void GhostedPairs::retarget(std::span<const int> types, const Box& box) {
     extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
     if (!extended_pairs_)
       throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
-    // Every evaluation runs on every rank at once (the halo is collective), so the ranks can
-    // rebuild their lists together: one rebuilding alone would hold the others up at the next
-    // halo for as long as its build takes.
     // The halo writes the extended positions wrapped into the box, as the pair loop reads them:
     // the list makes no wrapped copy of its own.
     extended_pairs_->set_positions_wrapped(true);
+    // Every evaluation runs on every rank at once (the halo is collective), so the ranks can
+    // rebuild their lists together: one rebuilding alone would hold the others up at the next
+    // halo for as long as its build takes.
     const Communicator& comm = domains_.comm();
     extended_pairs_->set_rebuild_agreement([&comm](bool stale) {
       double any = stale ? 1.0 : 0.0;
@@ -50,12 +50,12 @@ void GhostedPairs::take_over(GhostedPairs& old) {
 }
 
 void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {
-  domains_.halo(x, x_, true);
+  domains_.halo(x, x_);
   extended_pairs_->update_list(x_, box);
 }
 
 double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  domains_.halo(x, x_, true);
+  domains_.halo(x, x_);
   const int owned = domains_.num_owned();
   f_.resize(3, x_.cols());  // no allocation once sized
   for (const int e : domains_.ghost_slots()) f_.col(e).setZero();
@@ -66,14 +66,14 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
 }
 
 double GhostedPairs::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  domains_.halo(x, x_, true);
+  domains_.halo(x, x_);
   return extended_->virial(x_, box);
 }
 
 ForceTerm::Sums GhostedPairs::energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box,
                                                 Eigen::Matrix3Xd& scratch) const {
   (void)scratch;
-  domains_.halo(x, x_, true);
+  domains_.halo(x, x_);
   return extended_->energy_and_virial(x_, box, f_);
 }
 

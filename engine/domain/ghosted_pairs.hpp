@@ -2,7 +2,8 @@
 // owned particles, evaluated on the extended set (owned and ghosts, Decomposition) so that every
 // owned particle meets all its partners. The integrator sees the owned particles only; this term
 // fills the extended positions through the halo (the owned columns of whatever array the forces
-// are wanted at: x, or the mollified positions), evaluates the pair term there and hands the owned
+// are wanted at: x, or the mollified positions; wrapped into the box, the frame the pair loop
+// reads, so its list makes no wrapped copy), evaluates the pair term there and hands the owned
 // particles' forces back. The forces are accumulated onto the owned particles' columns as they
 // were (the terms before it already added theirs), in the one-process order: the same bits.
 //
