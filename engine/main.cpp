@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <tuple>
@@ -41,8 +42,8 @@ struct TerminalFlags {
   bool quiet = false, no_progress = false;
 };
 
-// `stiffmd run` of an [ensemble] deck: every member's deck loads first (a bad value fails before
-// any output); then process r of N runs members r, r + N, … (N at most the member count: within
+// `stiffmd run` of an [ensemble] deck, whose members' decks all loaded (load_members: a bad value
+// fails before any output, on every process alike); process r of N runs members r, r + N, … (N at most the member count: within
 // a member there is no domain decomposition yet). One process alone prints each member's thermo
 // lines as a plain run does, under a line naming the member; several print no thermo lines and no
 // progress (they would interleave) and prefix each note and warning with the member. Errors come
@@ -50,12 +51,6 @@ struct TerminalFlags {
 // member on stdout, and the job exits with the code of the first member (by index) that failed.
 int run_ensemble(stiffmd::Processes& processes, const stiffmd::EnsembleJob& job, TerminalFlags flags) {
   const int members = job.members(), ranks = processes.size();
-  if (ranks > members)
-    throw stiffmd::InputError(job.ensemble.where + ": " + std::to_string(ranks) + " processes for " +
-                              std::to_string(members) +
-                              " members: domain decomposition within a member is not built yet; use at most " +
-                              std::to_string(members) + " processes (mpiexec -n " + std::to_string(members) + ")");
-  stiffmd::load_members(job);
   const int groups = std::min(ranks, members);
   const int group = processes.split(groups);
   const bool speaker = processes.rank() == 0;
@@ -99,6 +94,39 @@ int run_ensemble(stiffmd::Processes& processes, const stiffmd::EnsembleJob& job,
   if (speaker && static_cast<int>(by_member.size()) < members)
     std::cout << members - static_cast<int>(by_member.size()) << " members not run (stopped by a signal)\n";
   return processes.broadcast(code);
+}
+
+// The outcome of what each process did alone (exit code, 0 for none, and its message), agreed:
+// every process gets the code of the lowest process that failed and, in `problem`, its message
+// (prefixed "rank r: " when that is not rank 0). Collective.
+int agreed_outcome(const stiffmd::Processes& processes, int code, std::string& problem) {
+  const stiffmd::Communicator& c = processes.communicator();
+  const stiffmd::Communicator::Problem first = c.first_problem(code != 0 ? problem : std::string());
+  if (first.rank < 0) return 0;
+  std::int64_t agreed = first.rank == c.rank() ? code : std::numeric_limits<std::int64_t>::max();
+  c.min(&agreed, 1);
+  problem = first.said();
+  return static_cast<int>(agreed);
+}
+
+// What an [ensemble] deck cannot do with this command line (the same on every process).
+void check_ensemble_command(const stiffmd::EnsembleJob& job, const std::string& restart, bool check,
+                            const std::string& data_path, int ranks) {
+  const stiffmd::Ensemble& ensemble = job.ensemble;
+  if (!restart.empty())
+    throw stiffmd::InputError(ensemble.where + ": --restart continues one run, and [ensemble] makes " +
+                              std::to_string(job.members()) +
+                              ": members do not restart yet (run a member's checkpoint, DIR/member_k/"
+                              "checkpoint.bin, with a deck without [ensemble] and the member's --set)");
+  if (check && !data_path.empty())
+    throw stiffmd::InputError(ensemble.where + ": --write-data writes one scene, and [ensemble] makes " +
+                              std::to_string(job.members()));
+  if (!check && ranks > job.members())
+    throw stiffmd::InputError(ensemble.where + ": " + std::to_string(ranks) + " processes for " +
+                              std::to_string(job.members()) +
+                              " members: domain decomposition within a member is not built yet; use at most " +
+                              std::to_string(job.members()) + " processes (mpiexec -n " +
+                              std::to_string(job.members()) + ")");
 }
 
 }  // namespace
@@ -162,55 +190,77 @@ int main(int argc, char** argv) {
     return code == 0 ? 0 : kExitBadInput;
   }
 
-  bool decomposed = false, running = false;  // running: a decomposed run's Run is being built or stepped
+  // Each process first does alone what needs no other (the deck, the scene, a restart's
+  // checkpoint, [prepare]; check's whole work); what it found is agreed before the first collective
+  // call (docs/parallel.md, "Errors"), so that a process that fails there, and only there (a file
+  // its machine cannot read), ends every process with its message instead of leaving them waiting.
+  std::optional<stiffmd::Deck> deck;
+  std::optional<stiffmd::EnsembleJob> job;
+  std::optional<stiffmd::Scene> scene;
+  std::optional<stiffmd::Checkpoint> checkpoint;
+  std::ostringstream quiet_log, check_log;
+  std::ostream& log = speaker ? std::cerr : quiet_log;
+  const bool decomposed = processes.size() > 1;
+  {
+    int code = 0;
+    std::string problem;
+    try {
+      if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
+      deck.emplace(deck_path, overrides);
+      stiffmd::DeckTable root = deck->root();
+      if (auto ensemble = stiffmd::read_ensemble(root)) {
+        if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
+        job.emplace(stiffmd::EnsembleJob{deck_path, overrides, *ensemble, out_dir});
+        check_ensemble_command(*job, restart, check->parsed(), data_path, processes.size());
+        if (check->parsed())
+          stiffmd::check_members(*job, check_log);
+        else
+          stiffmd::load_members(*job);
+      } else {
+        // On several processes one run is decomposed (docs/parallel.md): every rank loads and
+        // prepares the whole scene alike, rank 0 alone speaks and writes.
+        scene.emplace(stiffmd::load_scene(*deck));
+        if (decomposed) stiffmd::check_parallel_grid(*scene, processes.size());  // every rank alike, before the run
+        // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
+        // printed or written: a damaged or foreign one is one line and exit 2.
+        if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
+        for (const auto& note : scene->notes) log << note << "\n";
+        if (restart.empty())  // a restart's state is the checkpoint's
+          stiffmd::prepare_scene(*scene, log, quiet || !run->parsed() || !speaker ? nullptr : &std::cerr);
+        if (check->parsed()) stiffmd::check_run(*scene, check_log);  // the method's notes belong to a run's log
+      }
+    } catch (const stiffmd::InputError& e) {
+      code = kExitBadInput, problem = e.what();
+    } catch (const stiffmd::NumericalError& e) {
+      code = kExitNumerical, problem = e.what();
+    } catch (const std::exception& e) {
+      code = 1, problem = e.what();
+    }
+    if (decomposed || job) code = agreed_outcome(processes, code, problem);
+    if (code != 0) {
+      if (speaker) std::cerr << (code == 1 ? "internal error: " : "error: ") << problem << "\n";
+      return code;
+    }
+  }
+
+  bool running = false;  // a decomposed run's Run is being built or stepped: its errors may be one rank's
   try {
-    if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
-    const stiffmd::Deck deck(deck_path, overrides);
-    stiffmd::DeckTable root = deck.root();
-    if (auto ensemble = stiffmd::read_ensemble(root)) {
-      if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
-      const stiffmd::EnsembleJob job{deck_path, overrides, *ensemble, out_dir};
-      if (!restart.empty())
-        throw stiffmd::InputError(ensemble->where + ": --restart continues one run, and [ensemble] makes " +
-                                  std::to_string(job.members()) +
-                                  ": members do not restart yet (run a member's checkpoint, DIR/member_k/"
-                                  "checkpoint.bin, with a deck without [ensemble] and the member's --set)");
+    if (job) {
       if (check->parsed()) {
-        if (!data_path.empty())
-          throw stiffmd::InputError(ensemble->where + ": --write-data writes one scene, and [ensemble] makes " +
-                                    std::to_string(job.members()));
-        std::ostringstream start_log;
-        stiffmd::check_members(job, start_log);
         if (speaker) {
-          std::cout << "ensemble:    " << job.members() << " members, varying";
-          for (const auto& list : ensemble->varied) std::cout << " " << list.key;
+          std::cout << "ensemble:    " << job->members() << " members, varying";
+          for (const auto& list : job->ensemble.varied) std::cout << " " << list.key;
           std::cout << "\ndeck is valid\n";
         }
         return 0;
       }
-      return run_ensemble(processes, job, {quiet, no_progress});
+      return run_ensemble(processes, *job, {quiet, no_progress});
     }
-    // On several processes one run is decomposed (docs/parallel.md): every rank loads and
-    // prepares the whole scene alike, rank 0 alone speaks and writes.
-    decomposed = processes.size() > 1;
-    std::ostringstream quiet_log;
-    std::ostream& log = speaker ? std::cerr : quiet_log;
-    stiffmd::Scene scene = stiffmd::load_scene(deck);
-    if (decomposed) stiffmd::check_parallel_grid(scene, processes.size());  // on every rank alike, before the run
-    // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
-    // printed or written: a damaged or foreign one is one line and exit 2.
-    std::optional<stiffmd::Checkpoint> checkpoint;
-    if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(scene, restart);
-    for (const auto& note : scene.notes) log << note << "\n";
-    if (restart.empty())  // a restart's state is the checkpoint's
-      stiffmd::prepare_scene(scene, log, quiet || !run->parsed() || !speaker ? nullptr : &std::cerr);
     if (check->parsed()) {
-      std::ostringstream start_log;  // the method's preparation notes belong to a run's log
-      stiffmd::check_run(scene, start_log);
       if (!speaker) return 0;
-      std::cout << stiffmd::describe(scene) << "deck is valid\n";
+      std::cout << stiffmd::describe(*scene) << "deck is valid\n";
       if (!data_path.empty()) {
-        stiffmd::write_scene_lammps_data(scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
+        stiffmd::write_scene_lammps_data(*scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
         std::cout << "initial state written to " << data_path << "\n";
       }
       return 0;
@@ -219,9 +269,9 @@ int main(int argc, char** argv) {
     if (speaker) std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
-    if (decomposed) options.processes = &processes.communicator(), options.deck = &deck;
+    if (decomposed) options.processes = &processes.communicator(), options.deck = &*deck;
     running = decomposed;
-    const auto summary = stiffmd::run_simulation(scene, options, log);
+    const auto summary = stiffmd::run_simulation(*scene, options, log);
     if (!speaker) return summary.stopped_by_signal ? 128 + summary.stopped_by_signal : 0;
     if (summary.stopped_by_signal) {
       std::cerr << "stopped by signal " << summary.stopped_by_signal << " after step " << summary.steps
@@ -231,9 +281,13 @@ int main(int argc, char** argv) {
     }
     std::cout << stiffmd::format_summary(summary);
     return 0;
+  } catch (const stiffmd::AgreedInputError& e) {  // every rank stops here; rank 0 says why
+    if (e.printed_here()) std::cerr << "error: " << e.what() << "\n";
+    return kExitBadInput;
   } catch (const stiffmd::InputError& e) {
-    // Before the run, every rank finds the same (rank 0 says it); within a decomposed run's steps an
-    // error may be this rank's alone, and the others wait for it in a collective: the job ends.
+    // Within a decomposed run an error not agreed is this rank's alone, and the others wait for it
+    // in a collective: it says so, and the job ends (no collective clean-up on the way: the shared
+    // H5MD file is left as a killed writer's, H5mdWriter::close).
     if (speaker || running) std::cerr << "error" << rank_tag(processes, running) << ": " << e.what() << "\n";
     if (running) processes.abort(kExitBadInput);
     return kExitBadInput;

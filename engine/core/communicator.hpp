@@ -7,7 +7,10 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
+
+#include "engine/core/errors.hpp"
 
 namespace stiffmd {
 
@@ -34,11 +37,30 @@ class Communicator {
   // halo's fixed plan). No allocation.
   virtual void exchange_known(const std::vector<std::vector<double>>& send,
                               std::vector<std::vector<double>>& recv) const = 0;
+  // Rank `root`'s text on every rank.
+  virtual void broadcast(std::string& text, int root) const = 0;
   // Rank 0 receives every rank's `mine`, in rank order (the others receive nothing).
   virtual void gather(const std::vector<double>& mine, std::vector<std::vector<double>>& all) const = 0;
   // The MPI communicator these processes are (a pointer to an MPI_Comm), for a library that takes
   // one (parallel HDF5: engine/io/h5md_writer.cpp); null without MPI.
   virtual const void* native() const { return nullptr; }
+
+  // The problem of the lowest rank that has one (`mine`: this rank's, empty for none), on every
+  // rank: that rank and its text (rank −1: no rank has one). Collective.
+  struct Problem {
+    int rank = -1;
+    std::string text;
+    // "rank r: text" when it is not rank 0's, else the text.
+    std::string said() const { return rank > 0 ? "rank " + std::to_string(rank) + ": " + text : text; }
+  };
+  Problem first_problem(const std::string& mine) const {
+    std::int64_t first = mine.empty() ? size() : rank();
+    min(&first, 1);
+    if (first == size()) return {};
+    Problem p{static_cast<int>(first), mine};
+    broadcast(p.text, p.rank);
+    return p;
+  }
 
   double sum(double v) const {
     sum(&v, 1);
@@ -61,6 +83,7 @@ class OneProcess final : public Communicator {
   void min(std::int64_t*, int) const override {}
   void broadcast(std::int64_t*, int) const override {}
   void broadcast(double*, int) const override {}
+  void broadcast(std::string&, int) const override {}
   void exchange(const std::vector<std::vector<double>>& send, std::vector<std::vector<double>>& recv) const override {
     recv = send;
   }
@@ -72,5 +95,24 @@ class OneProcess final : public Communicator {
     all.assign(1, mine);
   }
 };
+
+// An agreement at a defined point of a run on several processes (docs/parallel.md, "Errors"):
+// runs `local`, work of this rank alone (no collective call inside, so that a rank that fails
+// early cannot leave the others waiting in one), and when it threw InputError on any rank, every
+// rank throws AgreedInputError with the first rank's message (said by rank 0). Collective; with
+// no communicator, or one process, `local` runs as it is.
+template <class Local>
+void agree(const Communicator* processes, Local&& local) {
+  if (!processes || processes->size() == 1) return local();
+  std::string problem;
+  try {
+    local();
+  } catch (const InputError& e) {
+    problem = e.what();
+    if (problem.empty()) problem = "input error";
+  }
+  if (const Communicator::Problem first = processes->first_problem(problem); first.rank >= 0)
+    throw AgreedInputError(first.said(), processes->root());
+}
 
 }  // namespace stiffmd

@@ -30,4 +30,15 @@ class AgreedStop : public NumericalError {
   bool printed_here_;
 };
 
+// Bad input every rank of a decomposed run found, or learned of, at the same point (an agreement,
+// engine/core/communicator.hpp `agree`): each exits with code 2, rank 0 alone saying why.
+class AgreedInputError : public InputError {
+ public:
+  AgreedInputError(const std::string& what, bool printed_here) : InputError(what), printed_here_(printed_here) {}
+  bool printed_here() const { return printed_here_; }
+
+ private:
+  bool printed_here_;
+};
+
 }  // namespace stiffmd

@@ -53,7 +53,16 @@ namespace {
 // one InputError line that starts with the path.
 struct Failure : std::runtime_error {
   using std::runtime_error::runtime_error;
+  // Found by every process of a shared file at the same point (a check of the file's content, or
+  // an outcome broadcast), rather than by this one alone.
+  bool agreed = false;
 };
+
+Failure agreed_failure(const std::string& what) {
+  Failure f(what);
+  f.agreed = true;
+  return f;
+}
 
 // Why the last HDF5 call failed, from the innermost entry of its error stack: the system's message
 // where there is one ("Permission denied", "No space left on device"), else HDF5's own.
@@ -106,6 +115,9 @@ class Handle {
     if (id_ >= 0 && close_) close_(id_);
     id_ = H5I_INVALID_HID;
   }
+  // Forgets the identifier without closing it (a shared file's rank that is about to end the job:
+  // see H5mdWriter::Impl::~Impl).
+  void release() { id_ = H5I_INVALID_HID; }
   operator hid_t() const { return id_; }  // NOLINT: passes straight into the C API
 
  private:
@@ -313,6 +325,14 @@ Series create_series(hid_t group, const std::string& name, hid_t file_type, hid_
   if (gzip > 0) {
     ok(H5Pset_shuffle(dcpl), "cannot set the shuffle filter on " + name);  // byte shuffle: doubles compress better
     ok(H5Pset_deflate(dcpl, static_cast<unsigned>(gzip)), "cannot set gzip on " + name);
+  } else {
+    // Chunks allocated when the frame axis grows, as parallel HDF5 allocates them in a shared
+    // file: it writes an unfiltered series only into allocated chunks, so a file that one process
+    // wrote with HDF5's serial default (a chunk allocated at its first write) could not be
+    // appended to by several (a restart onto more ranks). No fill value is written: every frame
+    // is written whole.
+    ok(H5Pset_alloc_time(dcpl, H5D_ALLOC_TIME_EARLY), "cannot set the allocation time of " + name);
+    ok(H5Pset_fill_time(dcpl, H5D_FILL_TIME_NEVER), "cannot set the fill time of " + name);
   }
   Series s;
   s.dataset =
@@ -425,6 +445,7 @@ struct H5mdWriter::Impl {
   Eigen::Matrix3Xd block_x, block_v, block_f;
   std::vector<std::vector<double>> send, received;
   std::vector<char> filled;  // to_block: the block's rows received
+  std::vector<double> shared_scalars, shared_obs;  // rank 0's time and observables, broadcast
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
 
@@ -432,10 +453,31 @@ struct H5mdWriter::Impl {
     edge_vectors.diagonal() = s.box.lengths;
     shared = s.processes && s.processes->size() > 1;
     writes_whole = !shared || s.processes->root();
+    shared_obs.resize(s.observables.size());
+  }
+  // Closing a shared file is collective (H5Fclose, and H5Dclose where metadata is flushed): it is
+  // done by close(), which every process calls at the same point. A shared file destroyed without
+  // it belongs to a process that is leaving alone (an error on this rank: the job is ended by
+  // MPI_Abort, engine/main.cpp), and a collective call there would wait for ranks that never come:
+  // its identifiers are dropped unclosed. Every frame was flushed when written, so the file reads
+  // as a killed writer's (see the top of this file).
+  ~Impl() {
+    if (!shared) return;
+    for (Series* s : all_series()) s->dataset.release();
+    file.release();
+  }
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+  void close() {
+    for (Series* s : all_series()) s->dataset.reset();
+    const herr_t status = file >= 0 ? H5Fclose(file) : 0;
+    file.release();
+    ok(status, "cannot close the file");
   }
 
   void create();
   void append(std::int64_t first_step);
+  void open_for_append(std::int64_t first_step, hid_t access);
   void write_frame(std::int64_t step, double t, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
                    const Eigen::Matrix3Xd* f, const std::vector<double>& obs, const std::vector<int>* ids);
 
@@ -448,6 +490,7 @@ struct H5mdWriter::Impl {
   void create_vmd_structure();
   void create_observables(hid_t position_group);
   void open_elements();
+  void check_allocation();
   void check_particle_count(hid_t position_group) const;
   void check_optional_element(hid_t particles, const char* name, bool wanted) const;
   void check_observables() const;
@@ -632,36 +675,58 @@ void H5mdWriter::Impl::create_vmd_structure() {
 // ---- append ----
 
 void H5mdWriter::Impl::append(std::int64_t first_step) {
+  if (!shared) {
+    open_for_append(first_step, file_access(false));
+    return;
+  }
+  // A shared file: rank 0 alone readies it (the checks, the frames dropped) through one process's
+  // driver and closes it; then every process opens it and only writes frames. So the processes
+  // start from the same state, an empty metadata cache each: in one test of 4 processes appending
+  // to a 2-process file, dropping the frames together left one process's cache without an object
+  // header the others had, and it waited alone in a collective read (HDF5 1.10).
+  std::string problem;
+  std::int64_t kept = 0;
+  if (writes_whole) try {
+      open_for_append(first_step, file_access(false));
+      check_allocation();
+      kept = frames;
+      close();
+    } catch (const Failure& e) {
+      problem = e.what();
+      for (Series* s : all_series()) s->dataset.reset();
+      file.reset();
+    }
+  setup.processes->broadcast(problem, 0);
+  setup.processes->broadcast(&kept, 1);
+  if (!problem.empty()) throw agreed_failure(problem);
+  observables.clear();
+  file = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access(true)), H5Fclose,
+                "cannot open the HDF5 file for appending");
+  open_elements();
+  share_series();
+  frames = kept;
+}
+
+// Opens the file for appending through `access` (one process's) and drops the frames at or after
+// first_step, and any frame a kill left half written.
+void H5mdWriter::Impl::open_for_append(std::int64_t first_step, hid_t access) {
   namespace fs = std::filesystem;
   std::error_code ec;
   if (fs::is_directory(path, ec)) throw Failure("is a directory, not an H5MD file");
   if (!fs::exists(path, ec)) throw Failure("cannot append: the file does not exist");
   if (H5Fis_hdf5(path.c_str()) <= 0) throw Failure("cannot append: not an HDF5 file");
+  file = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, access), H5Fclose, "cannot open the HDF5 file for appending");
   // A kill inside a flush can leave the newest chunk of the frame being written beyond the end of
   // allocation recorded in the superblock (written last in a flush); HDF5 then fails when that
   // frame is dropped below. Extending the recorded end to the file's size (`h5clear --increment`)
   // makes such a chunk ordinary space. Frames before the last step are never affected. (HDF5 does
-  // it through one process's driver only: a shared file's rank 0 does it first, alone.)
-  auto increment_filesize = [&](hid_t f) {
-    ok(H5Fincrement_filesize(f, 0), "cannot open the HDF5 file for appending");
-  };
-  if (shared) {
-    if (writes_whole)
-      increment_filesize(Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access(false)), H5Fclose,
-                                "cannot open the HDF5 file for appending"));
-    std::int64_t done = 0;
-    setup.processes->broadcast(&done, 1);  // the others open it after
-  }
-  file = Handle(H5Fopen(path.c_str(), H5F_ACC_RDWR, file_access(shared)), H5Fclose,
-                "cannot open the HDF5 file for appending");
-  if (!shared) increment_filesize(file);
+  // it through one process's driver only.)
+  ok(H5Fincrement_filesize(file, 0), "cannot open the HDF5 file for appending");
   if (H5Lexists(file, "h5md", H5P_DEFAULT) <= 0 || H5Lexists(file, "h5md/creator", H5P_DEFAULT) <= 0 ||
       read_string_attribute(open_group(file, "h5md/creator"), "name") != "stiffmd")
     throw Failure("cannot append: not an H5MD file written by stiffmd");
   open_elements();
-  share_series();
 
-  // Drop frames at or after first_step, and any frame a kill left half written.
   std::vector<Series*> series = all_series();
   hsize_t keep = std::numeric_limits<hsize_t>::max();
   for (const Series* s : series) keep = std::min(keep, s->length());
@@ -673,6 +738,22 @@ void H5mdWriter::Impl::append(std::int64_t first_step) {
   for (const Series* s : series) s->resize(keep);
   frames = static_cast<std::int64_t>(keep);
   flush();
+}
+
+// Parallel HDF5 writes an unfiltered series only into chunks allocated when it grows (see
+// create_series); a file of an earlier stiffmd written by one process allocated them at their
+// first write. Rank 0 checks it while it readies the file alone (append); every process refuses.
+void H5mdWriter::Impl::check_allocation() {
+  for (Series* s : all_series()) {
+    Handle dcpl(H5Dget_create_plist(s->dataset), H5Pclose, "cannot read the properties of " + s->name);
+    H5D_alloc_time_t when = H5D_ALLOC_TIME_DEFAULT;
+    ok(H5Pget_alloc_time(dcpl, &when), "cannot read the allocation time of " + s->name);
+    if (H5Pget_nfilters(dcpl) == 0 && when != H5D_ALLOC_TIME_EARLY)
+      throw agreed_failure("cannot append on " + std::to_string(setup.processes->size()) +
+                           " processes: the file was written by one process of an earlier stiffmd, whose chunks "
+                           "parallel HDF5 cannot extend; continue this run on one process, or write a new H5MD "
+                           "file (another output.h5md)");
+  }
 }
 
 // Opens every series this setup writes and checks that the file holds exactly those.
@@ -810,11 +891,25 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
   if (x.cols() != n || (setup.velocity && (!v || v->cols() != n)) || (setup.force && (!f || f->cols() != n)) ||
       obs.size() != setup.observables.size() || (ids != nullptr) != shared)
     throw std::invalid_argument("H5mdWriter::write_frame: arrays do not match the setup");
-  // This process's part of the per-particle series and of the scalar ones; with ids, its block.
-  FramePart rows, scalars;
-  if (!writes_whole) scalars.what = FramePart::none;
-  rows.what = scalars.what;
+  // This process's part of the per-particle series (with ids, its block). The scalar series (step,
+  // time, edges, observables) every process of a shared file writes alike, rank 0's values: HDF5
+  // keeps one metadata cache per process, and a collective write that selects elements on one
+  // process and none on the others reads the chunk index on the one alone, so the caches part
+  // and a later collective call finds the processes at different points (a hang). The same
+  // bytes from every process to the same place leave the file as one writer's.
+  FramePart rows;
+  if (!writes_whole) rows.what = FramePart::none;
   const Eigen::Matrix3Xd *xs = &x, *vs = v, *fs = f;
+  const std::vector<double>* scalar_values = &obs;
+  if (shared) {
+    setup.processes->broadcast(&step_number, 1);
+    shared_scalars.assign(1, t);
+    shared_scalars.insert(shared_scalars.end(), obs.begin(), obs.end());
+    setup.processes->broadcast(shared_scalars.data(), static_cast<int>(shared_scalars.size()));
+    t = shared_scalars[0];
+    std::copy(shared_scalars.begin() + 1, shared_scalars.end(), shared_obs.begin());
+    scalar_values = &shared_obs;
+  }
   if (ids) {
     to_block(*ids, x, v, f);
     const auto [first, count] = block_rows(setup.processes->rank());
@@ -827,12 +922,12 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
     wrap_into_box(setup.box, *xs, wrapped, images);
     positioned = &wrapped;
     image.write(index, images.data(), rows);
-    edges.write(index, edge_vectors.data(), scalars);
+    edges.write(index, edge_vectors.data());
   }
   if (setup.velocity) velocity.write(index, vs->data(), rows);
   if (setup.force) force.write(index, fs->data(), rows);
-  for (std::size_t k = 0; k < obs.size(); ++k) observables[k].write(index, &obs[k], scalars);
-  time.write(index, &t, scalars);
+  for (std::size_t k = 0; k < obs.size(); ++k) observables[k].write(index, &(*scalar_values)[k]);
+  time.write(index, &t);
   flush();
   // The frame's other series and time first, then position/value and then step, each after a
   // flush of what came before (the crash-safety order at the top of this file). HDF5 writes metadata
@@ -842,7 +937,7 @@ void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eig
   // longer than any other series (tests/test_h5md.py kills writers mid-frame to check it).
   position.write(index, positioned->data(), rows);
   flush();
-  step.write(index, &step_number, scalars);
+  step.write(index, &step_number);
   flush();
   ++frames;
 }
@@ -864,12 +959,30 @@ H5mdWriter::H5mdWriter(const std::string& path, const H5mdSetup& setup, bool app
     else
       impl_->create();
   } catch (const Failure& e) {
+    const std::string what = path + ": H5MD output: " + e.what();
+    const bool agreed = e.agreed || !impl_ || !impl_->shared;
+    // Every process of a shared file failed here alike: they close it together (collective);
+    // a failure of this process alone leaves it to the job's end (~Impl).
+    if (impl_ && impl_->shared && e.agreed) try {
+        impl_->close();
+      } catch (const Failure&) {
+      }
     impl_.reset();
-    throw InputError(path + ": H5MD output: " + e.what());
+    if (setup.processes && setup.processes->size() > 1 && agreed)
+      throw AgreedInputError(what, setup.processes->root());
+    throw InputError(what);
   }
 }
 
 H5mdWriter::~H5mdWriter() = default;
+
+void H5mdWriter::close() {
+  try {
+    impl_->close();
+  } catch (const Failure& e) {
+    throw InputError(impl_->path + ": H5MD output: " + e.what());
+  }
+}
 
 void H5mdWriter::write_frame(std::int64_t step, double time, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
                              const Eigen::Matrix3Xd* f, const std::vector<double>& observables,

@@ -104,6 +104,11 @@ class H5mdWriter {
                    const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
                    const std::vector<int>* ids = nullptr);
   std::int64_t frames() const;
+  // Closes the file; nothing is written after it. For a file shared by several processes it is
+  // collective, and the one way to close it: a shared file destroyed unclosed is left as a killed
+  // writer's (every frame flushed), because its process is leaving the job alone and the others
+  // would wait for it in the collective close. One process: the destructor closes it too.
+  void close();
   // Whether this build can share a file among processes (HDF5 built with MPI-IO).
   static bool shared_files();
 

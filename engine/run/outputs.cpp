@@ -1,6 +1,7 @@
 #include "engine/run/outputs.hpp"
 
 #include <filesystem>
+#include <fstream>
 #include <numeric>
 #include <system_error>
 
@@ -65,6 +66,18 @@ void prepare_output_directory(const Scene& sc, const std::string& out_dir) {
   fs::remove(dir / "summary.json", ec);  // a summary only ever describes a finished run
 }
 
+void check_rank_directory(const std::string& dir, int rank) {
+  const fs::path probe = fs::path(dir) / (".stiffmd_write_test." + std::to_string(rank));
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    throw InputError(dir + ": the output directory rank 0 created is not there for rank " + std::to_string(rank) +
+                     " (every rank writes its rows of the H5MD file: give a directory that all of them see)");
+  if (!std::ofstream(probe))
+    throw InputError(dir + ": output directory is not writable by rank " + std::to_string(rank) +
+                     " (every rank writes its rows of the H5MD file)");
+  fs::remove(probe, ec);
+}
+
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
   const Topology& t = scene.topology;
   write_lammps_data(path, to_lammps(scene),
@@ -109,36 +122,48 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   // Empty: no files (check, Python without an output directory); a decomposed run's rank 0 writes
   // them (all ranks the shared H5MD file).
   const bool writing = !out_dir.empty() && root_;
-  if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
-    const fs::path p = dir / kTopologyFile;
-    if (!restarting)
-      write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
-    files.push_back(p.string());
-  }
-  if (writing && !sc.output.xyz.empty()) {
-    const bool append =
-        open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
-    xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
-                                       append, masses);
-    xyz_->set_units(time_out, velocity_scale_);
-  }
-  if (writing && !sc.output.thermo.empty()) {
-    const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
-      return truncate_csv_after(p, file_cut, file_tol, table_.columns());
-    });
-    thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
-  }
-  if (writing && !sc.output.state.empty()) {
-    const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
-    const bool append = open_output(
-        sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
-    state_ = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
-    projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
-  }
+  const bool h5md_here = !out_dir.empty() && (root_ || shared_h5md_) && !sc.output.h5md.empty();
+  const fs::path h5md_path = dir / sc.output.h5md;
+  // Rank 0's files, and each rank's check of the directory it writes the shared H5MD file in,
+  // are this rank's alone: their outcome is agreed before the H5MD file is opened, which every
+  // rank of a shared file does together (a rank that failed alone would leave the others waiting
+  // in MPI_File_open).
+  const Communicator* ranks = processes && processes->size() > 1 ? processes : nullptr;
+  bool h5md_exists = false;
+  agree(ranks, [&] {
+    if (h5md_here && !root_) check_rank_directory(out_dir, processes->rank());
+    if (h5md_here && root_) h5md_exists = fs::exists(h5md_path);
+    if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
+      const fs::path p = dir / kTopologyFile;
+      if (!restarting)
+        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
+      files.push_back(p.string());
+    }
+    if (writing && !sc.output.xyz.empty()) {
+      const bool append =
+          open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
+      xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
+                                         append, masses);
+      xyz_->set_units(time_out, velocity_scale_);
+    }
+    if (writing && !sc.output.thermo.empty()) {
+      const bool append = open_output(sc.output.thermo, [&](const std::string& p) {
+        return truncate_csv_after(p, file_cut, file_tol, table_.columns());
+      });
+      thermo_ = std::make_unique<CsvWriter>((dir / sc.output.thermo).string(), table_.columns(), append);
+    }
+    if (writing && !sc.output.state.empty()) {
+      const auto scols = state_columns(s.size());  // 6N names: only when asked for (8 MB at N = 32 000)
+      const bool append = open_output(
+          sc.output.state, [&](const std::string& p) { return truncate_csv_after(p, file_cut, file_tol, scols); });
+      state_ = std::make_unique<CsvWriter>((dir / sc.output.state).string(), scols, append);
+      projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
+    }
+  });
   for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
     if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns_.push_back(c);
   h5md_values_.resize(h5md_columns_.size());
-  if (!out_dir.empty() && (root_ || shared_h5md_) && !sc.output.h5md.empty()) {
+  if (h5md_here) {
     H5mdSetup setup;
     setup.num_particles = s.size();
     setup.species = species;
@@ -163,10 +188,17 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
         setup.observable_units.push_back(u.h5md_unit(thermo_column_dimension(thermo.columns()[c])));
     if (shared_h5md_) setup.processes = processes;
     h5md_writers_ = shared_h5md_ ? processes->size() : 1;
-    const std::string path = (dir / sc.output.h5md).string();
+    const std::string path = h5md_path.string();
     files.push_back(path);
-    const bool append = restarting && fs::exists(path);
-    if (!restarting && fs::exists(path)) log << "note: overwriting " << path << " from a previous run\n";
+    // Whether the file is there, as rank 0 sees it: every rank of a shared file creates it or
+    // appends to it alike.
+    if (shared_h5md_) {
+      std::int64_t seen = h5md_exists ? 1 : 0;
+      processes->broadcast(&seen, 1);
+      h5md_exists = seen != 0;
+    }
+    const bool append = restarting && h5md_exists;
+    if (!restarting && h5md_exists) log << "note: overwriting " << path << " from a previous run\n";
     h5md_ = std::make_unique<H5mdWriter>(path, setup, append, s.step);
   }
   if (writing) {
@@ -249,6 +281,7 @@ void RunOutputs::close() {
   xyz_.reset();
   thermo_.reset();
   state_.reset();
+  if (h5md_) h5md_->close();  // collective for a shared file: every rank closes here
   h5md_.reset();
 }
 

@@ -21,6 +21,11 @@ namespace stiffmd {
 // describes a finished run). Throws InputError.
 void prepare_output_directory(const Scene& scene, const std::string& dir);
 
+// A rank but 0 of a decomposed run that writes its rows of the shared H5MD file: the directory
+// rank 0 prepared must be there for this rank too (not a node-local path of rank 0's machine) and
+// writable by it. Throws InputError naming the rank.
+void check_rank_directory(const std::string& dir, int rank);
+
 // Writes the scene's current state (after [prepare], before any step when called on a freshly
 // loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
@@ -78,8 +83,9 @@ class RunOutputs {
   void write_final(std::vector<std::string>& files);
 
   const std::string& checkpoint_path() const { return checkpoint_path_; }
-  // Closes every file (a gzip stream gets its end), as the destructor would; nothing is written
-  // after it.
+  // Closes every file (a gzip stream gets its end); nothing is written after it. Collective when
+  // the ranks share the H5MD file: its destructor leaves a shared file unclosed (H5mdWriter::close),
+  // as a rank that fails alone does before it ends the job.
   void close();
 
  private:

@@ -49,6 +49,12 @@ class MpiCommunicator final : public Communicator {
   }
   void broadcast(std::int64_t* v, int n) const override { MPI_Bcast(v, n, MPI_INT64_T, 0, MPI_COMM_WORLD); }
   void broadcast(double* v, int n) const override { MPI_Bcast(v, n, MPI_DOUBLE, 0, MPI_COMM_WORLD); }
+  void broadcast(std::string& text, int root) const override {
+    long long n = static_cast<long long>(text.size());
+    MPI_Bcast(&n, 1, MPI_LONG_LONG, root, MPI_COMM_WORLD);
+    text.resize(static_cast<size_t>(n));
+    MPI_Bcast(text.data(), static_cast<int>(n), MPI_CHAR, root, MPI_COMM_WORLD);
+  }
   void exchange(const std::vector<std::vector<double>>& send, std::vector<std::vector<double>>& recv) const override {
     std::vector<long long> out(size_), in(size_);
     for (int r = 0; r < size_; ++r) out[r] = static_cast<long long>(send[r].size());

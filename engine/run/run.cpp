@@ -166,8 +166,11 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // checkpoint, t_{k−1}; the frame at t_k is written again below if the uninterrupted run would
   // have written one. So the files end up exactly as an uninterrupted run's (without the
   // interrupted run's off-grid final frame).
-  if (!opt.out_dir.empty() && root()) prepare_output_directory(sc, opt.out_dir);
-  agreed(0);  // the directory exists before any rank opens the shared H5MD file in it
+  // Rank 0 prepares the directory; its outcome is agreed, so that it exists before any rank opens
+  // the shared H5MD file in it and a failure ends every rank alike (docs/parallel.md, "Errors").
+  agree(domain_ ? opt.processes : nullptr, [&] {
+    if (!opt.out_dir.empty() && root()) prepare_output_directory(sc, opt.out_dir);
+  });
   const double cut = new_h ? s_.t - resumed_.h : static_cast<double>(s_.step - 1) * h_;
   outputs_ = std::make_unique<RunOutputs>(sc, opt.out_dir, thermo_, restarting ? &cut : nullptr, summary_.outputs, log,
                                           domain_ ? opt.processes : nullptr);
@@ -402,6 +405,10 @@ const std::vector<double>& Run::sample_now() {
   return last_row_;
 }
 
+void Run::close_outputs() {
+  outputs_->close();
+}
+
 void Run::state_changed() {
   integrator_->reset();
   thermo_.set_initial_energy(sample_now()[col_total_]);
@@ -453,7 +460,12 @@ void Run::write_checkpoint_now() {
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
   Run run(sc, opt, log);
-  run.step_to(run.final_step());
+  try {
+    run.step_to(run.final_step());
+  } catch (const AgreedStop&) {  // every rank stops here: they close the shared files together
+    run.close_outputs();
+    throw;
+  }
   return run.finish();
 }
 

@@ -83,6 +83,10 @@ class Run {
   // Ends the run: the checkpoint, and unless stopped by a signal, every output of the current
   // state (whatever the grids), the files written at the end and summary.json.
   const RunSummary& finish();
+  // Closes the outputs without writing more: after a stop every rank of a decomposed run takes
+  // at the same point (AgreedStop), whose ranks close the shared H5MD file together. (A Run
+  // destroyed unclosed leaves a shared file as a killed writer's: see H5mdWriter::close.)
+  void close_outputs();
 
   // For the Python module: the thermo row of the current state (sampled now, as the run samples;
   // no monitor), the columns as written (ThermoOutput), and a state set from outside (the
