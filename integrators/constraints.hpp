@@ -12,44 +12,13 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <functional>
-#include <map>
 #include <memory>
-#include <utility>
 #include <vector>
 
 #include "forcefields/stiff_bond.hpp"
+#include "integrators/clusters.hpp"
 
 namespace stiffmd {
-
-// A connected set of stiff bonds (a molecule, a chain, the double pendulum).
-struct ConstraintCluster {
-  std::vector<int> bonds;      // indices into the bond list, in ascending order
-  std::vector<int> particles;  // particles touched by these bonds, ascending
-};
-
-// Splits bonds into connected clusters (particles with inv_mass 0 do NOT connect
-// clusters: two bonds meeting only at a fixed particle are still coupled through
-// nothing, since S_bc = ±(u_b·u_c)/m_shared = 0 there).
-std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass);
-
-// The shape of a cluster's coupling graph (bonds joined when they share a mobile particle), which
-// fixes the sparsity of S on it: a path (open chain: S tridiagonal), a cycle (ring: S cyclic
-// tridiagonal), or anything else (stars, branched polymers).
-enum class ClusterShape { chain, ring, other };
-struct ClusterPath {
-  ClusterShape shape = ClusterShape::other;
-  std::vector<int> bonds;  // chain, ring: the bonds in path order (consecutive ones share a
-                           // mobile particle, and for a ring the last and the first); other: as given
-};
-ClusterPath cluster_path(const ConstraintCluster& cluster, const std::vector<StiffBond>& bonds,
-                         const Eigen::VectorXd& inv_mass);
-
-// For each mobile particle of a cluster, the (position in `order`, sign in G: +1 at i, −1 at j)
-// of its bonds, particles ascending. Fixed particles are left out: m⁻¹ = 0 there, so they
-// couple nothing. The couplings of S = G M⁻¹ Gᵀ are every pair of bonds at one particle.
-using BondsAtParticles = std::map<int, std::vector<std::pair<int, double>>>;
-BondsAtParticles bonds_at_mobile_particles(const std::vector<int>& order, const std::vector<StiffBond>& bonds,
-                                           const Eigen::VectorXd& inv_mass);
 
 // Slow force evaluated at a configuration: out = f(x) (f = −∇U), overwriting out.
 using ForceFunction = std::function<void(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out)>;

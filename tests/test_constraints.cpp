@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/disjoint_sets.hpp"
 #include "engine/core/errors.hpp"
 #include "integrators/constraints.hpp"
 
@@ -255,6 +256,45 @@ TEST(ConstraintClusters, FixedBeadDoesNotCoupleItsBonds) {
   const Scene s = chain_through_fixed_bead(0.0);
   ConstraintToolbox toolbox(s.bonds, s.inv_mass);
   EXPECT_EQ(toolbox.clusters().size(), 2u);
+}
+
+// A pinned core (0) with arm A (bonds 0 and 3) and arm B (bond 2), a free dimer's bond (1) listed
+// between them: the core couples nothing (S_bc = ±(u_b·u_c) m⁻¹ = 0 there), so its molecule holds
+// two clusters, which come in the order of their first bond (0, 1, 2), not molecule by molecule.
+TEST(ConstraintClusters, PinnedCoreSplitsItsMoleculeAndClustersComeByFirstBond) {
+  const std::vector<StiffBond> bonds = {{0, 1, 1.0, 1.0}, {3, 4, 1.0, 1.0}, {0, 2, 1.0, 1.0}, {1, 5, 1.0, 1.0}};
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::Ones(6);
+  inv_mass[0] = 0.0;
+  const std::vector<ConstraintCluster> clusters = find_clusters(bonds, inv_mass);
+  ASSERT_EQ(clusters.size(), 3u);
+  EXPECT_EQ(clusters[0].bonds, (std::vector<int>{0, 3}));
+  EXPECT_EQ(clusters[0].particles, (std::vector<int>{0, 1, 5}));
+  EXPECT_EQ(clusters[1].bonds, (std::vector<int>{1}));
+  EXPECT_EQ(clusters[1].particles, (std::vector<int>{3, 4}));
+  EXPECT_EQ(clusters[2].bonds, (std::vector<int>{2}));
+  EXPECT_EQ(clusters[2].particles, (std::vector<int>{0, 2}));
+  // The molecules join through the pinned core all the same: one molecule, named by its first
+  // particle, and the dimer.
+  DisjointSets molecules(6);
+  for (const StiffBond& b : bonds) molecules.join(b.i, b.j);
+  for (int p : {1, 2, 5}) EXPECT_EQ(molecules.root(p), 0) << "particle " << p;
+  EXPECT_EQ(molecules.root(4), 3);
+  // A mobile core couples its two arms into one cluster, still first by its first bond.
+  inv_mass[0] = 1.0;
+  const std::vector<ConstraintCluster> joined = find_clusters(bonds, inv_mass);
+  ASSERT_EQ(joined.size(), 2u);
+  EXPECT_EQ(joined[0].bonds, (std::vector<int>{0, 2, 3}));
+  EXPECT_EQ(joined[1].bonds, (std::vector<int>{1}));
+}
+
+TEST(DisjointSets, RootIsTheLeastElementWhateverTheOrderOfTheJoins) {
+  DisjointSets sets(7);
+  sets.join(6, 4), sets.join(4, 5), sets.join(2, 6), sets.join(3, 1);
+  for (int a : {2, 4, 5, 6}) EXPECT_EQ(sets.root(a), 2) << a;
+  EXPECT_EQ(sets.root(3), 1);
+  EXPECT_EQ(sets.root(0), 0);
+  sets.join(5, 1);
+  for (int a : {1, 2, 3, 4, 5, 6}) EXPECT_EQ(sets.root(a), 1) << a;
 }
 
 TEST(ConstraintInput, RejectsBondsThatMakeSSingular) {

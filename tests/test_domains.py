@@ -17,6 +17,9 @@ CASE is one of
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
+    pinned_cores              tests/decks/pinned_cores.toml, the effective dynamics: molecules whose pinned
+                              core joins two stiff arms that are two constraint clusters, listed apart in
+                              the clusters' order (each rank's actions are those of its own modes)
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
     kill                      the Kremer–Grest melt on N ranks writing an H5MD frame every 20 steps,
                               every rank killed (SIGKILL) mid-run: the file opens as a one-process
@@ -251,10 +254,12 @@ def case_setup(case):
         return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {"forces.lj.special_bonds": "[0.0, 0.5, 0.5]"}
     if case == "one_chain":  # one molecule: every rank but one owns nothing
         return os.path.join(ROOT, "inputs", "hanging_chain.toml"), 0.01, {}
+    if case == "pinned_cores":  # a pinned bead splits a molecule into two constraint clusters
+        return os.path.join(ROOT, "tests", "decks", "pinned_cores.toml"), 0.02, {}
     if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
         return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest[:threads], stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled], one_chain, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled], one_chain, pinned_cores, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing

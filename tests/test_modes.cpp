@@ -171,6 +171,28 @@ TEST(StiffModes, SingleBondFrequencyIsAlphaOverSqrtReducedMass) {
   }
 }
 
+// The modes come cluster after cluster in find_clusters' order (integrators/clusters.hpp), which
+// the effective dynamics' actions and a decomposed run's share of them are numbered by. A pinned
+// core (0) with two one-bond arms, bonds 0 (ω = 1, a unit mass) and 2 (ω = 2, inverse mass 4),
+// a free unit dimer's bond 1 (ω = √2) listed between them: three clusters, modes [1, √2, 2]. Had
+// the core coupled its arms, their cluster's modes would come first and ascending: [1, 2, √2].
+TEST(StiffModes, ModesComeClusterAfterClusterAPinnedBeadSplittingThem) {
+  Matrix3Xd x(3, 5);
+  x.col(0) << 0.0, 0.0, 0.0;
+  x.col(1) << 1.0, 0.0, 0.0;
+  x.col(2) << 5.0, 0.0, 0.0;
+  x.col(3) << 6.0, 0.0, 0.0;
+  x.col(4) << 0.0, 1.0, 0.0;
+  VectorXd im(5);
+  im << 0.0, 1.0, 1.0, 1.0, 4.0;
+  StiffModes modes({{0, 1, 1.0, 1.0}, {2, 3, 1.0, 1.0}, {0, 4, 1.0, 1.0}}, im, 1e-3);
+  ASSERT_EQ(modes.num_modes(), 3);
+  const VectorXd omega = freqs(modes, x);
+  EXPECT_NEAR(omega[0], 1.0, 1e-14);
+  EXPECT_NEAR(omega[1], std::sqrt(2.0), 1e-14);
+  EXPECT_NEAR(omega[2], 2.0, 1e-14);
+}
+
 // Paper eq. (CH): ω_k² are the nonzero eigenvalues of the pencil λM − ∇²V on the manifold.
 // Checked against a finite-difference Hessian of V, independently of A = K½ S K½.
 TEST(StiffModes, FrequenciesAreTheNonzeroEigenvaluesOfThePencil) {

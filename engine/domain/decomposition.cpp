@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include <stdexcept>
+#include "engine/core/disjoint_sets.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/core/timing.hpp"
 #include "forcefields/neighbor_list.hpp"  // MinimumImage
@@ -90,23 +91,16 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   // Molecules: the connected components of the bonded terms (bonds, angles, dihedrals), numbered
   // by their first particle; a lone particle is its own. Not the deck's or the data file's
   // molecule ids: a term must never join two molecules, whatever a file calls them.
-  std::vector<int> parent(n);
-  for (int i = 0; i < n; ++i) parent[i] = i;
-  const auto find = [&](int i) {
-    while (parent[i] != i) i = parent[i] = parent[parent[i]];
-    return i;
-  };
-  const auto join = [&](int i, int j) {
-    i = find(i), j = find(j);
-    if (i != j) parent[std::max(i, j)] = std::min(i, j);
-  };
-  for (const Bond& b : topology.bonds) join(b.i, b.j);
-  for (const Angle& a : topology.angles) join(a.i, a.j), join(a.j, a.k);
-  for (const Dihedral& d : topology.dihedrals) join(d.i, d.j), join(d.j, d.k), join(d.k, d.l);
+  // Pinned particles join too (a term acts on all its particles): a molecule may hold several
+  // constraint clusters (integrators/clusters.hpp).
+  DisjointSets bonded(n);
+  for (const Bond& b : topology.bonds) bonded.join(b.i, b.j);
+  for (const Angle& a : topology.angles) bonded.join(a.i, a.j), bonded.join(a.j, a.k);
+  for (const Dihedral& d : topology.dihedrals) bonded.join(d.i, d.j), bonded.join(d.j, d.k), bonded.join(d.k, d.l);
   molecule_.assign(n, -1);
   int molecules = 0;
   for (int i = 0; i < n; ++i) {
-    const int root = find(i);
+    const int root = bonded.root(i);
     molecule_[i] = root == i ? molecules++ : molecule_[root];  // a root is its component's first particle
   }
   molecule_start_.assign(molecules + 1, 0);

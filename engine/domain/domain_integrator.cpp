@@ -3,12 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <numeric>
 #include <sstream>
 
 #include "engine/core/errors.hpp"
 #include "engine/core/timing.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
+#include "integrators/clusters.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/thermostat.hpp"
 
@@ -70,20 +70,10 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   const Eigen::VectorXd& im = whole.state.inv_mass;
   whole_dof_ = degrees_of_freedom(im, momentum_conserved(*whole.forces, im, whole.integrator.thermostat), rigid);
   if (m->effective && stiff) {
-    // Clusters of the stiff bonds (union–find on the particles), in the order of their first bond.
-    std::vector<int> parent(im.size());
-    std::iota(parent.begin(), parent.end(), 0);
-    const auto find = [&](int i) {
-      while (parent[i] != i) i = parent[i] = parent[parent[i]];
-      return i;
-    };
-    for (const StiffBond& b : stiff->bonds) parent[find(b.i)] = find(b.j);
-    std::vector<int> cluster_of_root(im.size(), -1);
-    for (const StiffBond& b : stiff->bonds) {
-      int& c = cluster_of_root[find(b.i)];
-      if (c < 0) c = static_cast<int>(clusters_.size()), clusters_.push_back({domains_->molecule_of(b.i), 0, 0});
-      ++clusters_[c].modes;
-    }
+    // The constraint clusters as the modes number them (find_clusters: a pinned bead couples
+    // nothing, so it may split a molecule into several clusters), one mode per bond.
+    for (const ConstraintCluster& c : find_clusters(stiff->bonds, im))
+      clusters_.push_back({domains_->molecule_of(stiff->bonds[c.bonds[0]].i), 0, static_cast<int>(c.bonds.size())});
     for (size_t c = 1; c < clusters_.size(); ++c) clusters_[c].first = clusters_[c - 1].first + clusters_[c - 1].modes;
   }
 }

@@ -102,8 +102,8 @@ class DomainIntegrator final : public Integrator {
   long steps_since_selection_ = 0;
   int whole_dof_ = 0;            // csvr: the whole system's degrees of freedom
   bool molecules_whole_ = true;  // every topology molecule within one bonded molecule
-  // The effective dynamics' modes: per constraint cluster of the whole system (clusters in the
-  // order of their first bond, integrators/modes.hpp), its molecule, first mode and mode count.
+  // The effective dynamics' modes: per constraint cluster of the whole system (find_clusters,
+  // integrators/clusters.hpp, the order the modes take), its molecule, first mode and mode count.
   struct Cluster {
     int molecule, first, modes;
   };

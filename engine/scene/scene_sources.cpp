@@ -7,6 +7,7 @@
 #include <limits>
 #include <sstream>
 
+#include "engine/core/disjoint_sets.hpp"
 #include "engine/core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/xyz_bonds.hpp"
@@ -75,17 +76,13 @@ std::vector<std::pair<int, int>> bond_pairs(const std::vector<ImportedSystem::Bo
   return pairs;
 }
 
-// An XYZ file has no molecule ids: the molecules are the connected components of its bonds.
+// An XYZ file has no molecule ids: the molecules are the connected components of its bonds, each
+// named by its first atom (append_particles numbers them densely in that order).
 std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>& bonds) {
-  std::vector<int> parent(static_cast<size_t>(n));
-  for (int p = 0; p < n; ++p) parent[p] = p;
-  auto root = [&](int p) {
-    while (parent[p] != p) p = parent[p] = parent[parent[p]];
-    return p;
-  };
-  for (const auto& b : bonds) parent[root(b.i)] = root(b.j);
+  DisjointSets bonded(n);
+  for (const auto& b : bonds) bonded.join(b.i, b.j);
   std::vector<int> molecule(static_cast<size_t>(n));
-  for (int p = 0; p < n; ++p) molecule[p] = root(p);
+  for (int p = 0; p < n; ++p) molecule[p] = bonded.root(p);
   return molecule;
 }
 
