@@ -7,8 +7,8 @@
 CASE is one of
     rank_error     tests/decks/wall_crossing.toml on 2 ranks with H5MD on: a bead passes the 9-3
                    wall in rank 1's domain (a NumericalError on rank 1 alone, while rank 0 waits in
-                   the halo): exit 3 naming rank 1 and the wall; the H5MD file opens in h5py and
-                   its complete frames are the serial run's
+                   the halo): exit 3 naming rank 1, the wall and the bead by the serial run's
+                   number; the H5MD file opens in h5py and its complete frames are the serial run's
     actions        inputs/ring_solution.toml with [observables] actions (1 442 observables, each an
                    H5MD dataset) and H5MD on 2 ranks: it finishes, and the file's observables and
                    positions are the serial run's
@@ -103,7 +103,8 @@ def rank_error(stiffmd, mpiexec, numproc_flag, tmp):
     run([stiffmd] + base + ["-o", serial], 3)
     r = run([mpiexec, numproc_flag, "2", stiffmd] + base +
             ["-o", ranks, "--set", "parallel.grid=[2,1,1]", "--set", "parallel.halo_margin=5"], 3)
-    expect_message(r, "rank 1", "lj93-wall", "step 1")
+    # The serial run's numbers: the bead is particle 3 of the system (rank 1 holds it as its 1).
+    expect_message(r, "error (rank 1)", "lj93-wall 'wall': particle 3 is not on the wall", "step 1")
     with h5py.File(os.path.join(serial, "trajectory.h5md"), "r") as f:
         want = f[P + "/position/value"][:len(f[P + "/position/step"])]
     with h5py.File(os.path.join(ranks, "trajectory.h5md"), "r") as f:

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <regex>
 #include <sstream>
 
 #include "engine/core/errors.hpp"
@@ -22,6 +23,30 @@ struct DomainIntegrator::Part {
 };
 
 namespace {
+
+// A part's message with its particle numbers ("particle 3", "particles 3 and 4", "particles 3–4",
+// "(particles 3, 4)") made the whole system's, as one process would name them: a rank numbers
+// its owned and ghost particles 0, 1, … in its part.
+std::string with_global_particles(const std::string& what, const std::vector<int>& global_id) {
+  static const std::regex numbers("(particles? )([0-9]+)((?: and |–|, )([0-9]+))?");
+  std::string out;
+  auto global = [&](const std::string& local) {
+    const auto i = static_cast<size_t>(std::stoul(local));
+    return i < global_id.size() ? std::to_string(global_id[i]) : local;
+  };
+  auto last = what.cbegin();
+  for (std::sregex_iterator m(what.begin(), what.end(), numbers), end; m != end; ++m) {
+    out.append(last, what.cbegin() + m->position(0));
+    out += (*m)[1].str() + global((*m)[2].str());
+    if ((*m)[3].matched) {
+      const std::string joined = (*m)[3].str();
+      out += joined.substr(0, joined.size() - (*m)[4].length()) + global((*m)[4].str());
+    }
+    last = what.cbegin() + m->position(0) + m->length(0);
+  }
+  out.append(last, what.cend());
+  return out;
+}
 
 // The halo's margin beyond the cutoff: [parallel] halo_margin, else to start with twice the pair
 // lists' skin, then adapted (DomainIntegrator::reselect).
@@ -230,7 +255,11 @@ void DomainIntegrator::step(State& s, double h) {
   State& l = part_->scene.state;
   l.step = s.step;
   l.t = s.t;
-  part_->integrator->step(l, h);
+  try {
+    part_->integrator->step(l, h);
+  } catch (const NumericalError& e) {  // this rank's alone (engine/main.cpp ends the job)
+    throw NumericalError(with_global_particles(e.what(), part_->scene.global_id));
+  }
   ++steps_since_selection_;
   // One reduction: the largest bound on a bead's displacement since the ghosts were selected by
   // the end of the next step, and the first particle (global index) with a non-finite position
