@@ -288,11 +288,17 @@ TEST(Cli, AnIntervalLongerThanTheRunWarns) {
                           " --set output.h5md_interval=0.25 --set output.checkpoint_interval=7 -o " +
                           dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.err.find("warning: " + deck + ":"), std::string::npos) << r.err;
-  EXPECT_NE(r.err.find("output.xyz_interval = 100 is longer than the run (run.t_end = 0.5): only the first and the "
-                       "final frames are written"),
+  // At the key: the --set that gave it, or its line with the --set that shortened the run.
+  EXPECT_NE(r.err.find("warning: --set output.xyz_interval: output.xyz_interval = 100 is longer than the run "
+                       "(run.t_end = 0.5): only the first and the final frames are written"),
             std::string::npos)
       << r.err;
+  const CliResult short_run = cli("check " + deck + " --set run.t_end=0.005 --set integrator.h=0.005");
+  ASSERT_EQ(short_run.code, 0) << short_run.err;
+  EXPECT_NE(short_run.err.find("warning: " + deck +
+                               ":76 (with --set run.t_end): output.thermo_interval = 0.01 is longer than the run"),
+            std::string::npos)
+      << short_run.err;
   EXPECT_NE(r.err.find("output.checkpoint_interval = 7 is longer than the run (run.t_end = 0.5): no checkpoint "
                        "before the final one"),
             std::string::npos)
