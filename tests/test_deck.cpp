@@ -163,6 +163,33 @@ TEST(Deck, UnknownKeysListWhatIsExpected) {
   }
 }
 
+// "Did you mean" looks among the keys the table takes. A key the deck file sets is not offered for
+// another key of the file (both were written on purpose: a key of another style, copied), but it
+// is for a key given with --set, which is how a set key is changed.
+TEST(Deck, DidYouMeanOffersAKeyTheDeckSetsToASet) {
+  const auto error = [](const std::string& deck, const std::vector<std::string>& set) {
+    try {
+      const Deck d(deck, set);
+      load_scene(d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string trimers = test::source_path("inputs/nvt_trimers.toml");  // sets output.thermo_interval
+  std::string m = error(trimers, {"output.thermo_intervall=1"});
+  EXPECT_EQ(m.rfind("--set output.thermo_intervall: output.thermo_intervall: unknown key; did you mean "
+                    "'thermo_interval'? (expected one of:",
+                    0),
+            0u)
+      << m;
+  m = error(trimers, {"output.xyz_intervall=1"});  // a key the deck does not set, as before
+  EXPECT_NE(m.find("did you mean 'xyz_interval'?"), std::string::npos) << m;
+  m = error(write_deck("typo_beside_key", std::string(kMinimal) + "[output]\nxyz_interval = 0.1\nxyz_intervall = 0.1\n"),
+            {});
+  EXPECT_NE(m.find("output.xyz_intervall: unknown key (expected one of:"), std::string::npos) << m;
+}
+
 // An error a --set causes names the --set, wherever the check that finds it stands: at a key whose
 // expression uses an overridden variable, at a key checked against an overridden one (t_end
 // against h), at a table that holds an overridden key, at a key that collides with an overridden

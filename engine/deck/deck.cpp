@@ -684,20 +684,31 @@ bool looks_like(std::string_view typed, std::string_view meant) {
 
 }  // namespace
 
+std::string nearest_name(std::string_view typed, const std::vector<std::string>& known) {
+  std::string nearest;
+  std::size_t best = std::string::npos;
+  for (const std::string& name : known) {
+    const std::size_t d = typo_distance(typed, name);
+    if (d < best && looks_like(typed, name)) best = d, nearest = name;
+  }
+  return nearest;
+}
+
 void DeckTable::finish() const {
   for (const auto& [k, v] : *table_) {
     if (used_.count(k.str())) continue;
-    std::string expected, nearest;
-    std::size_t best = std::string::npos;
+    const std::string kp = key_path(k.str());
+    // A key the table already sets is rarely what another key of the same file meant (a style's
+    // key copied beside the one this style takes); a --set is how a set key is overridden, so
+    // there it is the likeliest meaning of all.
+    const bool from_set = !deck_->override_of(kp).empty();
+    std::string expected;
+    std::vector<std::string> candidates;
     for (const auto& name : known_) {
       expected += (expected.empty() ? "" : ", ") + name;
-      const std::size_t d = typo_distance(k.str(), name);
-      if (d < best && looks_like(k.str(), name) && !table_->contains(name)) {
-        best = d;
-        nearest = name;
-      }
+      if (from_set || !table_->contains(name)) candidates.push_back(name);
     }
-    const std::string kp = key_path(k.str());
+    const std::string nearest = nearest_name(k.str(), candidates);
     throw InputError(
         deck_->location(&v, kp) + ": " + kp + ": unknown key" +
         (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +
