@@ -182,6 +182,20 @@ TEST(Cli, BadOverridesAndArgumentsGiveExitTwo) {
   EXPECT_EQ(r.code, 2);
 }
 
+// A first word that is no subcommand is named, with the nearest subcommand when it looks like a
+// misspelling of one (the same rule as a deck key's "did you mean").
+TEST(Cli, AnUnknownSubcommandIsNamedWithTheNearestOne) {
+  CliResult r = cli("runn " + test::source_path("inputs/double_pendulum.toml"));
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'runn'; did you mean 'run'?\n");
+  r = cli("chek");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'chek'; did you mean 'check'?\n");
+  r = cli("frobnicate");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'frobnicate'; expected run or check\n");
+}
+
 // The effective dynamics takes every constraint cluster the dense mode computation can (up to
 // StiffModes::kMaxDenseBonds = 128 bonds), whatever observables.max_cluster_bonds says: data.chain's
 // 99-bond chains once needed that observables setting raised. `check` builds the integrator, so

@@ -669,8 +669,10 @@ std::size_t typo_distance(std::string_view a, std::string_view b) {
 
 // Whether `typed` is plausibly a misspelling of `meant`: at most one edit in five characters
 // (TOML keys are case-sensitive: another case is a misspelling too); keys shorter than four
-// characters only in another case, since one edit of them is often another valid key.
-bool looks_like(std::string_view typed, std::string_view meant) {
+// characters only in another case, since one edit of them is often another valid key — unless
+// the names compared with are all the names there are (`every_name`).
+bool looks_like(std::string_view typed, std::string_view meant, bool every_name = false) {
+  if (every_name && (typed.size() < 4 || meant.size() < 4) && typed != meant) return typo_distance(typed, meant) <= 1;
   if (typed.size() < 4 || meant.size() < 4) {  // x, y, h, K, k, r0, R0: one edit is another key
     if (typed.size() != meant.size() || typed == meant) return false;
     for (std::size_t i = 0; i < typed.size(); ++i)
@@ -684,12 +686,12 @@ bool looks_like(std::string_view typed, std::string_view meant) {
 
 }  // namespace
 
-std::string nearest_name(std::string_view typed, const std::vector<std::string>& known) {
+std::string nearest_name(std::string_view typed, const std::vector<std::string>& known, bool every_name) {
   std::string nearest;
   std::size_t best = std::string::npos;
   for (const std::string& name : known) {
     const std::size_t d = typo_distance(typed, name);
-    if (d < best && looks_like(typed, name)) best = d, nearest = name;
+    if (d < best && looks_like(typed, name, every_name)) best = d, nearest = name;
   }
   return nearest;
 }

@@ -177,7 +177,8 @@ class Deck {
 // The name among `known` that `typed` most likely misspells ("did you mean"), or "" if none
 // looks like it: at most one edit in five characters (another case counts), and for names
 // shorter than four characters another case only — one edit of a key such as r0 or K is often
-// another style's key.
-std::string nearest_name(std::string_view typed, const std::vector<std::string>& known);
+// another style's key — or one edit when `known` holds every name there is (`every_name`: a
+// command's subcommands).
+std::string nearest_name(std::string_view typed, const std::vector<std::string>& known, bool every_name = false);
 
 }  // namespace stiffmd
