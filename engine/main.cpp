@@ -178,7 +178,7 @@ int main(int argc, char** argv) {
     stiffmd::DeckTable root = deck.root();
     if (auto ensemble = stiffmd::read_ensemble(root)) {
       if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
-      const stiffmd::EnsembleJob job{deck_path, overrides, *ensemble, out_dir};
+      const stiffmd::EnsembleJob job{deck_path, overrides, *ensemble, out_dir, processes.size()};
       if (!restart.empty())
         throw stiffmd::InputError(ensemble->where + ": --restart continues one run, and [ensemble] makes " +
                                   std::to_string(job.members()) +

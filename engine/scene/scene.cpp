@@ -376,14 +376,15 @@ void read_integrator(DeckTable& root, Scene& sc) {
 void read_parallel(DeckTable& root, Scene& sc) {
   auto t = root.table("parallel");
   if (!t) return;
-  sc.parallel.where = t->where();
   if (t->has("grid")) {
+    sc.parallel.grid_where = t->where("grid");
     const std::vector<long> g = t->integers("grid");
     t->require(g.size() == 3 && g[0] >= 1 && g[1] >= 1 && g[2] >= 1, "grid",
                "expected three domain counts >= 1, one per axis, e.g. [2, 2, 1]");
     sc.parallel.grid = Eigen::Vector3i(static_cast<int>(g[0]), static_cast<int>(g[1]), static_cast<int>(g[2]));
   }
   if (auto m = t->maybe_number("halo_margin")) {
+    sc.parallel.halo_margin_where = t->where("halo_margin");
     t->require(std::isfinite(*m) && *m > 0.0, "halo_margin", "expected a length > 0");
     sc.parallel.halo_margin = *m;  // lengths are the same in every unit system (σ or Å)
   }
