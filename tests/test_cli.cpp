@@ -196,6 +196,30 @@ TEST(Cli, AnUnknownSubcommandIsNamedWithTheNearestOne) {
   EXPECT_EQ(r.err, "error: unknown subcommand 'frobnicate'; expected run or check\n");
 }
 
+// The H5MD and state files are written only when named: an option of one given without its name
+// does nothing, and says so at the key (the deck's line, or the --set). An output named "" is
+// switched off on purpose: its options are quiet.
+TEST(Cli, OptionsOfAnOutputThatIsNotWrittenWarnAtTheKey) {
+  const std::string trimers = test::source_path("inputs/nvt_trimers.toml");
+  CliResult r = cli("check " + trimers + " --set output.h5md_interval=2 --set output.h5md_velocity=true");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: --set output.h5md_interval: output.h5md_interval: does nothing: output.h5md is not "
+                       "given, so no such file is written (e.g. output.h5md = \"trajectory.h5md\" writes one)"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("warning: --set output.h5md_velocity: output.h5md_velocity: does nothing"), std::string::npos)
+      << r.err;
+  r = cli("check " + trimers + " --set output.state_interval=2");
+  EXPECT_NE(r.err.find("warning: --set output.state_interval: output.state_interval: does nothing: output.state is "
+                       "not given"),
+            std::string::npos)
+      << r.err;
+  r = cli("check " + trimers + " --set output.h5md_interval=2 --set 'output.h5md=\"\"'");
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+  r = cli("check " + test::source_path("inputs/double_pendulum.toml"));  // names its H5MD file
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+}
+
 // The effective dynamics takes every constraint cluster the dense mode computation can (up to
 // StiffModes::kMaxDenseBonds = 128 bonds), whatever observables.max_cluster_bonds says: data.chain's
 // 99-bond chains once needed that observables setting raised. `check` builds the integrator, so

@@ -513,6 +513,21 @@ void read_output(DeckTable& root, Scene& sc) {
   warn_if_longer("h5md_interval", o.h5md_interval, !o.h5md.empty());
   warn_if_longer("screen_interval", o.screen_interval, o.screen_interval > 0.0);
   warn_if_longer("checkpoint_interval", o.checkpoint_interval, o.checkpoint_interval > 0.0);
+  // The H5MD and state files are written only when named: their options given without the name
+  // write nothing, most likely because the name was forgotten. (An output named "" is switched
+  // off on purpose, e.g. by --set, and its options wait for it silently.)
+  struct NamedOutput {
+    const char *key, *example;
+    std::vector<const char*> options;
+  };
+  for (const NamedOutput& out : {NamedOutput{"h5md", "trajectory.h5md", {"h5md_interval", "h5md_velocity", "h5md_force", "h5md_gzip"}},
+                                 NamedOutput{"state", "state.csv", {"state_interval"}}})
+    if (!t->has(out.key))
+      for (const char* key : out.options)
+        if (t->has(key))
+          sc.notes.push_back("warning: " + t->where(key) + ": does nothing: output." + out.key +
+                             " is not given, so no such file is written (e.g. output." + out.key + " = \"" +
+                             out.example + "\" writes one)");
   std::vector<std::pair<std::string, std::string>> seen;  // what writes it, file name
   for (const auto& [k, f] : output_files(sc)) {
     const std::string what = k.empty() ? "the run's " + f : "output." + k;
