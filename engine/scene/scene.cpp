@@ -742,7 +742,8 @@ Scene load_scene(const Deck& deck) {
   read_run(root, sc);
   read_observables(root, sc);
   read_thermostat(root, sc);
-  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted()});
+  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted(),
+                                   sc.thermostatted() && sc.integrator.thermostat.temperature == 0.0});
   apply_defaults(sc.monitor, monitor_scene(root, sc));
   read_output(root, sc);
   read_parallel(root, sc);
