@@ -220,6 +220,28 @@ TEST(Cli, OptionsOfAnOutputThatIsNotWrittenWarnAtTheKey) {
   EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
 }
 
+// [prepare] vibrational_temperature under a method that holds the stiff bonds rigid: its start
+// projects the vibrations away, so the key warns, at its line (and with the --set that chose the
+// method). The methods that keep them (the effective dynamics as its actions) are quiet.
+TEST(Cli, VibrationsThatARigidMethodProjectsAwayWarnAtTheKey) {
+  const std::string melt = test::source_path("tests/decks/small_melt.toml");
+  for (const char* method : {"rattle", "fixman"}) {
+    const CliResult r =
+        cli("check " + melt + " --set integrator.method=" + method +
+            " --set 'thermostat={style=\"langevin\", temperature=1.0, damp=1.0, seed=1}'");
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.err.find("warning: " + melt + ":40 (with --set integrator.method): prepare.vibrational_temperature: "
+                         "method '" + method + "' holds the stiff bonds rigid"),
+              std::string::npos)
+        << r.err;
+  }
+  for (const char* method : {"projected-impulse", "velocity-verlet", "effective"}) {
+    const CliResult r = cli("check " + melt + " --set integrator.method=" + method);
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err.find("vibrational_temperature"), std::string::npos) << method << ": " << r.err;
+  }
+}
+
 // The effective dynamics takes every constraint cluster the dense mode computation can (up to
 // StiffModes::kMaxDenseBonds = 128 bonds), whatever observables.max_cluster_bonds says: data.chain's
 // 99-bond chains once needed that observables setting raised. `check` builds the integrator, so

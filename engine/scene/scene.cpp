@@ -368,6 +368,21 @@ void read_integrator(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
+// [prepare] vibrational_temperature gives the stiff bonds thermal vibrations (prepare_state). A
+// method that holds the bonds rigid projects its initial data onto them (Rattle::prepare), which
+// takes the vibrations out again: the run starts without their energy. The effective dynamics
+// keeps it, as the actions it reads before that projection (EffectiveCorrection::prepare).
+void warn_projected_vibrations(DeckTable& root, Scene& sc) {
+  const MethodInfo& m = *find_method(sc.integrator.method);
+  if (!sc.prepare.requested || !(sc.prepare.vibrational_temperature > 0.0) || !m.rigid_constraints || m.effective)
+    return;
+  sc.notes.push_back("warning: " + root.table("prepare")->where("vibrational_temperature", {"integrator.method"}) +
+                     ": method '" + sc.integrator.method +
+                     "' holds the stiff bonds rigid and projects the initial state onto them, which takes these "
+                     "vibrations out again: the run starts without their energy (velocity-verlet and the impulse "
+                     "family keep them, effective as its actions)");
+}
+
 // A run is a whole number of macro steps: t_end = n h to a relative 1e-9 (Scene::num_steps rounds
 // to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
 // refused, naming the nearest valid end times.
@@ -739,6 +754,7 @@ Scene load_scene(const Deck& deck) {
   check_levels_used(root, sc);
   read_prepare(root, sc);
   read_integrator(root, sc);
+  warn_projected_vibrations(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
   read_thermostat(root, sc);
