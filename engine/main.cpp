@@ -186,6 +186,15 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
+    // A first word that is no subcommand: CLI11 would say only that one is required.
+    if (argc > 1 && argv[1][0] != '-' && app.get_subcommands().empty()) {
+      const std::string typed = argv[1];
+      const std::string nearest = stiffmd::nearest_name(typed, {run->get_name(), check->get_name()}, true);
+      if (speaker)
+        std::cerr << "error: unknown subcommand '" << typed << "'"
+                  << (nearest.empty() ? "; expected run or check" : "; did you mean '" + nearest + "'?") << "\n";
+      return kExitBadInput;
+    }
     const int code = speaker ? app.exit(e) : e.get_exit_code();
     return code == 0 ? 0 : kExitBadInput;
   }
@@ -210,7 +219,7 @@ int main(int argc, char** argv) {
       stiffmd::DeckTable root = deck->root();
       if (auto ensemble = stiffmd::read_ensemble(root)) {
         if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
-        job.emplace(stiffmd::EnsembleJob{deck_path, overrides, *ensemble, out_dir});
+        job.emplace(stiffmd::EnsembleJob{deck_path, overrides, *ensemble, out_dir, processes.size()});
         check_ensemble_command(*job, restart, check->parsed(), data_path, processes.size());
         if (check->parsed())
           stiffmd::check_members(*job, check_log);

@@ -182,6 +182,66 @@ TEST(Cli, BadOverridesAndArgumentsGiveExitTwo) {
   EXPECT_EQ(r.code, 2);
 }
 
+// A first word that is no subcommand is named, with the nearest subcommand when it looks like a
+// misspelling of one (the same rule as a deck key's "did you mean").
+TEST(Cli, AnUnknownSubcommandIsNamedWithTheNearestOne) {
+  CliResult r = cli("runn " + test::source_path("inputs/double_pendulum.toml"));
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'runn'; did you mean 'run'?\n");
+  r = cli("chek");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'chek'; did you mean 'check'?\n");
+  r = cli("frobnicate");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_EQ(r.err, "error: unknown subcommand 'frobnicate'; expected run or check\n");
+}
+
+// The H5MD and state files are written only when named: an option of one given without its name
+// does nothing, and says so at the key (the deck's line, or the --set). An output named "" is
+// switched off on purpose: its options are quiet.
+TEST(Cli, OptionsOfAnOutputThatIsNotWrittenWarnAtTheKey) {
+  const std::string trimers = test::source_path("inputs/nvt_trimers.toml");
+  CliResult r = cli("check " + trimers + " --set output.h5md_interval=2 --set output.h5md_velocity=true");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: --set output.h5md_interval: output.h5md_interval: does nothing: output.h5md is not "
+                       "given, so no such file is written (e.g. output.h5md = \"trajectory.h5md\" writes one)"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("warning: --set output.h5md_velocity: output.h5md_velocity: does nothing"), std::string::npos)
+      << r.err;
+  r = cli("check " + trimers + " --set output.state_interval=2");
+  EXPECT_NE(r.err.find("warning: --set output.state_interval: output.state_interval: does nothing: output.state is "
+                       "not given"),
+            std::string::npos)
+      << r.err;
+  r = cli("check " + trimers + " --set output.h5md_interval=2 --set 'output.h5md=\"\"'");
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+  r = cli("check " + test::source_path("inputs/double_pendulum.toml"));  // names its H5MD file
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+}
+
+// [prepare] vibrational_temperature under a method that holds the stiff bonds rigid: its start
+// projects the vibrations away, so the key warns, at its line (and with the --set that chose the
+// method). The methods that keep them (the effective dynamics as its actions) are quiet.
+TEST(Cli, VibrationsThatARigidMethodProjectsAwayWarnAtTheKey) {
+  const std::string melt = test::source_path("tests/decks/small_melt.toml");
+  for (const char* method : {"rattle", "fixman"}) {
+    const CliResult r =
+        cli("check " + melt + " --set integrator.method=" + method +
+            " --set 'thermostat={style=\"langevin\", temperature=1.0, damp=1.0, seed=1}'");
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.err.find("warning: " + melt + ":40 (with --set integrator.method): prepare.vibrational_temperature: "
+                         "method '" + method + "' holds the stiff bonds rigid"),
+              std::string::npos)
+        << r.err;
+  }
+  for (const char* method : {"projected-impulse", "velocity-verlet", "effective"}) {
+    const CliResult r = cli("check " + melt + " --set integrator.method=" + method);
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err.find("vibrational_temperature"), std::string::npos) << method << ": " << r.err;
+  }
+}
+
 // The effective dynamics takes every constraint cluster the dense mode computation can (up to
 // StiffModes::kMaxDenseBonds = 128 bonds), whatever observables.max_cluster_bonds says: data.chain's
 // 99-bond chains once needed that observables setting raised. `check` builds the integrator, so
@@ -288,11 +348,17 @@ TEST(Cli, AnIntervalLongerThanTheRunWarns) {
                           " --set output.h5md_interval=0.25 --set output.checkpoint_interval=7 -o " +
                           dir.string());
   ASSERT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.err.find("warning: " + deck + ":"), std::string::npos) << r.err;
-  EXPECT_NE(r.err.find("output.xyz_interval = 100 is longer than the run (run.t_end = 0.5): only the first and the "
-                       "final frames are written"),
+  // At the key: the --set that gave it, or its line with the --set that shortened the run.
+  EXPECT_NE(r.err.find("warning: --set output.xyz_interval: output.xyz_interval = 100 is longer than the run "
+                       "(run.t_end = 0.5): only the first and the final frames are written"),
             std::string::npos)
       << r.err;
+  const CliResult short_run = cli("check " + deck + " --set run.t_end=0.005 --set integrator.h=0.005");
+  ASSERT_EQ(short_run.code, 0) << short_run.err;
+  EXPECT_NE(short_run.err.find("warning: " + deck +
+                               ":76 (with --set run.t_end): output.thermo_interval = 0.01 is longer than the run"),
+            std::string::npos)
+      << short_run.err;
   EXPECT_NE(r.err.find("output.checkpoint_interval = 7 is longer than the run (run.t_end = 0.5): no checkpoint "
                        "before the final one"),
             std::string::npos)

@@ -163,5 +163,99 @@ TEST(Deck, UnknownKeysListWhatIsExpected) {
   }
 }
 
+// "Did you mean" looks among the keys the table takes. A key the deck file sets is not offered for
+// another key of the file (both were written on purpose: a key of another style, copied), but it
+// is for a key given with --set, which is how a set key is changed.
+TEST(Deck, DidYouMeanOffersAKeyTheDeckSetsToASet) {
+  const auto error = [](const std::string& deck, const std::vector<std::string>& set) {
+    try {
+      const Deck d(deck, set);
+      load_scene(d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string trimers = test::source_path("inputs/nvt_trimers.toml");  // sets output.thermo_interval
+  std::string m = error(trimers, {"output.thermo_intervall=1"});
+  EXPECT_EQ(m.rfind("--set output.thermo_intervall: output.thermo_intervall: unknown key; did you mean "
+                    "'thermo_interval'? (expected one of:",
+                    0),
+            0u)
+      << m;
+  m = error(trimers, {"output.xyz_intervall=1"});  // a key the deck does not set, as before
+  EXPECT_NE(m.find("did you mean 'xyz_interval'?"), std::string::npos) << m;
+  m = error(write_deck("typo_beside_key", std::string(kMinimal) + "[output]\nxyz_interval = 0.1\nxyz_intervall = 0.1\n"),
+            {});
+  EXPECT_NE(m.find("output.xyz_intervall: unknown key (expected one of:"), std::string::npos) << m;
+}
+
+// An error a --set causes names the --set, wherever the check that finds it stands: at a key whose
+// expression uses an overridden variable, at a key checked against an overridden one (t_end
+// against h), at a table that holds an overridden key, at a key that collides with an overridden
+// one, or at the deck for a type an overridden builder key names.
+TEST(Deck, AnErrorCausedByASetNamesTheSet) {
+  const std::string trimers = test::source_path("inputs/nvt_trimers.toml");
+  const auto error = [&](const std::vector<std::string>& set) {
+    try {
+      const Deck d(trimers, set);
+      load_scene(d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_EQ(error({"variables.eps=0"}),
+            trimers + ":40 (with --set variables.eps): forces.bonds.epsilon: expected a number > 0, got 0");
+  EXPECT_EQ(error({"integrator.h=0.07"}).rfind(trimers + ":55 (with --set integrator.h): run.t_end: t_end = 100 is "
+                                               "1428.57142857 macro steps of integrator.h = 0.07",
+                                               0),
+            0u)
+      << error({"integrator.h=0.07"});
+  EXPECT_EQ(error({"output.xyz=thermo.csv"}),
+            trimers + " (with --set output.xyz): output.thermo: \"thermo.csv\" is also output.xyz; expected a file "
+                      "of its own");
+  EXPECT_EQ(error({"build.0.bond_type=c"}),
+            trimers + ":1 (with --set build.0.bond_type): deck: bond type 'c' is not defined by any force term (add "
+                      "[forces.NAME.bond_types.c])");
+  // A FENE bond stretched beyond an overridden R0 is refused at the term's bond_types, the table
+  // that holds the override.
+  const std::string fene = write_deck("fene_r0", R"([types.bead]
+mass = 1.0
+[[particles]]
+position = [0, 0, 0]
+[[particles]]
+position = [1, 0, 0]
+[[bonds]]
+particles = [0, 1]
+type = "b"
+[forces.chain]
+style = "fene"
+bond_types.b = { K = 30.0, R0 = 1.5, epsilon = 1.0, sigma = 1.0 }
+[integrator]
+method = "velocity-verlet"
+h = 0.001
+[run]
+t_end = 0.01
+)");
+  try {
+    const Deck d(fene, {"forces.chain.bond_types.b.R0=0.5"});
+    load_scene(d);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()).rfind(fene + ":12 (with --set forces.chain.bond_types.b.R0): forces.chain.bond_types: ", 0), 0u)
+        << e.what();
+  }
+  // A variable of the file that refers to an overridden one is named through it.
+  const std::string chained = write_deck("chained_variable", std::string(kMinimal) + "[forces.g]\nstyle = \"gravity\"\ng = [0, 0, \"a\"]\n");
+  try {
+    const Deck d(chained, {"variables.b=1e200"});
+    load_scene(d);
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("(with --set variables.b)"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace stiffmd

@@ -47,6 +47,7 @@ INDIRECT_KEYS = {
     ("force_registry.cpp", "range_key"): "check_box_for_pairs: cutoff or sigma, read directly",
     ("scene.cpp", "key"): "the lambdas interval and warn_if_longer (HELPERS), check_initial_state's literal list",
     ("scene.cpp", "table"): "check_integrator's refused_at: observables and output, read directly",
+    ("scene.cpp", "out.key"): "read_output's outputs whose options warn without them: h5md and state, read directly",
     ("monitor.cpp", "key"): "the lambdas threshold and switchable (HELPERS)",
     ("scene_sources.cpp", "file_key"): "lammps_data or xyz, read directly",
     ("scene_sources.cpp", "key"): "lookup's atom_types, bond_types, ... maps, read directly",

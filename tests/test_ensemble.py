@@ -8,7 +8,8 @@
         a member that fails numerically gives the job its exit code 3 while the others finish.
     test_ensemble.py mpi STIFFMD MPIEXEC NUMPROC_FLAG N
         the same ensemble under `MPIEXEC NUMPROC_FLAG N`: with N <= 3, the files of the serial ensemble
-        byte for byte; with N > 3, refused with exit 2, one error line, nothing written.
+        byte for byte, and a [parallel] grid refused at its key (members are not divided); with N > 3,
+        refused with exit 2, one error line, nothing written.
 
 Open MPI as root and with more processes than cores wants permission: given by its environment
 variables (which MPICH's launcher ignores, where it would reject --oversubscribe)."""
@@ -104,6 +105,25 @@ def mpi(stiffmd, mpiexec, numproc_flag, n):
             return
         assert r.returncode == 0, r.stderr
         assert f"3 members on {n} processes" in r.stdout, r.stdout
+        # [parallel] divides one run among processes, and the members run whole: a grid is refused
+        # at its key (the deck's line, or the --set), before anything is written.
+        with open(deck) as f:
+            text = f.read()
+        gridded = os.path.join(tmp, "gridded.toml")
+        with open(gridded, "w") as f:
+            f.write(text + f"\n[parallel]\ngrid = [{n}, 1, 1]\n")
+        line = text.count("\n") + 3
+        for cmd, where in (([gridded], f"{gridded}:{line}: parallel.grid"),
+                           ([deck, "--set", f"parallel.grid=[{n}, 1, 1]"], "--set parallel.grid: parallel.grid")):
+            refused = os.path.join(tmp, "refused")
+            g = run([mpiexec, numproc_flag, str(n), stiffmd, "run"] + cmd + ["-o", refused] + SHORT, env)
+            errors = [l for l in g.stderr.splitlines() if l.startswith("error: ")]
+            assert g.returncode == 2 and len(errors) == 1, (g.returncode, g.stderr)
+            assert errors[0].startswith(f"error: {where}: {n} domains ({n} x 1 x 1) divide one run among ranks, and "
+                                        f"an [ensemble] runs each member whole on one process (3 members on {n} "
+                                        "processes): expected no grid"), errors
+            assert not os.path.exists(refused)
+        print(f"{n} processes: a [parallel] grid is refused at its key")
         summary = [l for l in r.stdout.splitlines() if l.startswith("member ")]
         assert [l.split(" ")[1] for l in summary] == ["0", "1", "2"], r.stdout  # once each, in order
         serial_out = os.path.join(tmp, "serial")

@@ -126,8 +126,9 @@ TEST(Monitor, AKelvinTemperatureInReducedUnitsIsNamedAndCaught) {
                           " --no-progress -q --set run.t_end=5 --set thermostat.temperature=300");
   ASSERT_EQ(r.code, 0) << r.err;
   const std::string cause = "kT = 300 in LJ units (k_B = 1): the stiff bonds vibrate with rms amplitude";
-  EXPECT_NE(r.err.find("warning: " + trimers + ":"), std::string::npos) << r.err;  // at the deck's line
-  EXPECT_NE(r.err.find("thermostat.temperature: " + cause), std::string::npos) << r.err;
+  // At the key: here the --set that gave the temperature.
+  EXPECT_NE(r.err.find("warning: --set thermostat.temperature: thermostat.temperature: " + cause), std::string::npos)
+      << r.err;
   EXPECT_NE(r.err.find("173 % of their length; a temperature in kelvin needs units = \"real\""), std::string::npos)
       << r.err;
   EXPECT_NE(r.err.find("warning: monitor: a stiff bond deviates from its rest length by"), std::string::npos) << r.err;

@@ -83,6 +83,17 @@ void refuse_nul(const Deck& deck, const toml::node& n, const std::string& kp) {
   }
 }
 
+// Array elements are "particles[1].position" in key paths but "particles.1.position" in overrides.
+std::string dotted_path(const std::string& key_path) {
+  std::string dotted;
+  for (const char c : key_path)
+    if (c == '[')
+      dotted += '.';
+    else if (c != ']')
+      dotted += c;
+  return dotted;
+}
+
 bool valid_identifier(const std::string& s) {
   if (s.empty() || std::isdigit(static_cast<unsigned char>(s[0]))) return false;
   for (char c : s)
@@ -138,20 +149,64 @@ DeckTable Deck::root() const {
   return DeckTable(this, table_.get(), "");
 }
 
-std::string Deck::location(const toml::node* n, const std::string& key_path) const {
-  // A value given with --set names the override; so does anything below an overridden key. Array
-  // elements are "particles[1].position" in key paths but "particles.1.position" in overrides.
-  std::string dotted;
-  for (const char c : key_path)
-    if (c == '[')
-      dotted += '.';
-    else if (c != ']')
-      dotted += c;
+std::string Deck::override_of(const std::string& key_path) const {
+  const std::string dotted = dotted_path(key_path);
   for (const std::string& o : overridden_)
     for (const std::string& kp : {key_path, dotted})
-      if (kp == o || kp.rfind(o + ".", 0) == 0 || kp.rfind(o + "[", 0) == 0) return "--set " + o;
-  if (n && n->source().begin.line > 0) return path_ + ":" + std::to_string(n->source().begin.line);
-  return path_;
+      if (kp == o || kp.rfind(o + ".", 0) == 0 || kp.rfind(o + "[", 0) == 0) return o;
+  return "";
+}
+
+std::string Deck::location(const toml::node* n, const std::string& key_path,
+                           const std::vector<std::string>& related) const {
+  if (const std::string o = override_of(key_path); !o.empty()) return "--set " + o;
+  std::string where = path_;
+  if (n && n->source().begin.line > 0) where += ":" + std::to_string(n->source().begin.line);
+  std::set<std::string> sources;
+  // A table holding values given with --set (not the root: its errors are about the whole deck,
+  // and every --set lies inside it).
+  const auto inside = [&](const std::string& kp) {
+    const std::string dotted = dotted_path(kp);
+    if (dotted.empty()) return;
+    for (const std::string& o : overridden_)
+      if (o.rfind(dotted + ".", 0) == 0) sources.insert(o);
+  };
+  inside(key_path);
+  const bool variables_set = std::any_of(overridden_.begin(), overridden_.end(), [](const std::string& o) {
+    return o == "variables" || o.rfind("variables.", 0) == 0;
+  });
+  if (n && variables_set && expressions_.count(n)) {
+    std::set<std::string> visited;
+    add_variable_sources(*n->value<std::string>(), sources, visited);
+  }
+  for (const std::string& r : related) {
+    if (const std::string o = override_of(r); !o.empty()) sources.insert(o);
+    inside(r);
+  }
+  if (sources.empty()) return where;
+  where += " (with";
+  for (auto it = sources.begin(); it != sources.end(); ++it) where += (it == sources.begin() ? " --set " : ", --set ") + *it;
+  return where + ")";
+}
+
+void Deck::add_variable_sources(const std::string& expr, std::set<std::string>& sources,
+                                std::set<std::string>& visited) const {
+  std::set<std::string> names;
+  try {
+    names = referenced_names(expr, "");
+  } catch (const InputError&) {
+    return;  // a syntax error is reported as such where the expression is evaluated
+  }
+  const toml::table* vars = table_->get("variables") ? table_->get("variables")->as_table() : nullptr;
+  for (const std::string& name : names) {
+    if (!variables_.count(name) && !(vars && vars->contains(name))) continue;  // not a variable
+    if (!visited.insert(name).second) continue;
+    if (const std::string o = override_of("variables." + name); !o.empty()) {
+      sources.insert(o);
+    } else if (const toml::node* v = vars ? vars->get(name) : nullptr; v && v->is_string()) {
+      add_variable_sources(*v->value<std::string>(), sources, visited);
+    }
+  }
 }
 
 void Deck::apply_override(const std::string& assignment) {
@@ -261,6 +316,7 @@ void Deck::resolve_variables() {
       if (!std::isfinite(x)) throw InputError(where + ": expected a finite number, got " + shown(v));
       variables_[name] = x;
     } else if (v.is_string()) {
+      mark_expression(&v);
       pending[name] = &v;
     } else {
       throw InputError(where + ": expected a number or an expression string, got " + type_word(v));
@@ -327,20 +383,25 @@ const toml::node* DeckTable::get(std::string_view key) {
   return n;
 }
 
-void DeckTable::fail(std::string_view key, const std::string& what) const {
-  const std::string kp = key_path(key);
-  throw InputError(deck_->location(table_->get(key), kp) + ": " + kp + ": " + what);
+void DeckTable::fail(std::string_view key, const std::string& what, const std::vector<std::string>& related) const {
+  throw InputError(where(key, related) + ": " + what);
 }
 
-void DeckTable::fail_here(const std::string& what) const {
-  throw InputError(deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_) + ": " + what);
+void DeckTable::fail_here(const std::string& what, const std::vector<std::string>& related) const {
+  throw InputError(deck_->location(table_, path_, related) + ": " + (path_.empty() ? "deck" : path_) + ": " + what);
 }
 
 std::string DeckTable::where() const {
   return deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_);
 }
 
+std::string DeckTable::where(std::string_view key, const std::vector<std::string>& related) const {
+  const std::string kp = key_path(key);
+  return deck_->location(table_->get(key), kp, related) + ": " + kp;
+}
+
 double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
+  if (n.is_string()) deck_->mark_expression(&n);  // its variables are where its value came from
   const std::string where = deck_->location(&n, kp) + ": " + kp;
   double x;
   if (n.is_integer() || n.is_floating_point()) {
@@ -608,8 +669,10 @@ std::size_t typo_distance(std::string_view a, std::string_view b) {
 
 // Whether `typed` is plausibly a misspelling of `meant`: at most one edit in five characters
 // (TOML keys are case-sensitive: another case is a misspelling too); keys shorter than four
-// characters only in another case, since one edit of them is often another valid key.
-bool looks_like(std::string_view typed, std::string_view meant) {
+// characters only in another case, since one edit of them is often another valid key — unless
+// the names compared with are all the names there are (`every_name`).
+bool looks_like(std::string_view typed, std::string_view meant, bool every_name = false) {
+  if (every_name && (typed.size() < 4 || meant.size() < 4) && typed != meant) return typo_distance(typed, meant) <= 1;
   if (typed.size() < 4 || meant.size() < 4) {  // x, y, h, K, k, r0, R0: one edit is another key
     if (typed.size() != meant.size() || typed == meant) return false;
     for (std::size_t i = 0; i < typed.size(); ++i)
@@ -623,20 +686,31 @@ bool looks_like(std::string_view typed, std::string_view meant) {
 
 }  // namespace
 
+std::string nearest_name(std::string_view typed, const std::vector<std::string>& known, bool every_name) {
+  std::string nearest;
+  std::size_t best = std::string::npos;
+  for (const std::string& name : known) {
+    const std::size_t d = typo_distance(typed, name);
+    if (d < best && looks_like(typed, name, every_name)) best = d, nearest = name;
+  }
+  return nearest;
+}
+
 void DeckTable::finish() const {
   for (const auto& [k, v] : *table_) {
     if (used_.count(k.str())) continue;
-    std::string expected, nearest;
-    std::size_t best = std::string::npos;
+    const std::string kp = key_path(k.str());
+    // A key the table already sets is rarely what another key of the same file meant (a style's
+    // key copied beside the one this style takes); a --set is how a set key is overridden, so
+    // there it is the likeliest meaning of all.
+    const bool from_set = !deck_->override_of(kp).empty();
+    std::string expected;
+    std::vector<std::string> candidates;
     for (const auto& name : known_) {
       expected += (expected.empty() ? "" : ", ") + name;
-      const std::size_t d = typo_distance(k.str(), name);
-      if (d < best && looks_like(k.str(), name) && !table_->contains(name)) {
-        best = d;
-        nearest = name;
-      }
+      if (from_set || !table_->contains(name)) candidates.push_back(name);
     }
-    const std::string kp = key_path(k.str());
+    const std::string nearest = nearest_name(k.str(), candidates);
     throw InputError(
         deck_->location(&v, kp) + ": " + kp + ": unknown key" +
         (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +

@@ -86,11 +86,17 @@ class DeckTable {
   // An array of tables ([[particles]]); empty when the key is absent.
   std::vector<DeckTable> array_of_tables(std::string_view key);
 
-  // Errors at a key (its file:line) or at this table.
-  [[noreturn]] void fail(std::string_view key, const std::string& what) const;
-  [[noreturn]] void fail_here(const std::string& what) const;
+  // Errors at a key (its file:line, or the --set that gave it) or at this table. `related`: the
+  // dotted key paths of other values the condition used (integrator.h for a t_end that is no
+  // whole number of steps): a --set among them is named too, since it may be what broke it.
+  [[noreturn]] void fail(std::string_view key, const std::string& what,
+                         const std::vector<std::string>& related = {}) const;
+  [[noreturn]] void fail_here(const std::string& what, const std::vector<std::string>& related = {}) const;
   // "file:line: path" of this table, for errors raised after reading (e.g. by [prepare]).
   std::string where() const;
+  // "file:line: path.key" (or "--set path.key: path.key") of a key, with `related` as in fail():
+  // for warnings and errors raised after reading, at the key rather than at its table.
+  std::string where(std::string_view key, const std::vector<std::string>& related = {}) const;
   // Check that a number read from `key` satisfies a condition.
   void require(bool ok, std::string_view key, const std::string& what) const {
     if (!ok) fail(key, what);
@@ -136,8 +142,18 @@ class Deck {
   const std::string& path() const { return path_; }
   const std::map<std::string, double>& variables() const { return variables_; }
 
-  // "file:line" for a node, or "--set a.b" when the value came from the command line.
-  std::string location(const toml::node* n, const std::string& key_path) const;
+  // Where a value came from, for messages: "--set a.b" when it (or a table above it) was given
+  // on the command line, else "file:line" — followed by " (with --set x.y, ...)" for the --set
+  // values it was formed from: keys inside it (a table), variables its expression refers to
+  // (directly or through other variables), and the `related` key paths (other values the
+  // message's condition used). An error caused by a --set then names the --set, wherever the
+  // check that found it stands.
+  std::string location(const toml::node* n, const std::string& key_path,
+                       const std::vector<std::string>& related = {}) const;
+  // The --set key that gave the value at this key path, or at a table above it; empty if none.
+  std::string override_of(const std::string& key_path) const;
+  // Records that the node's string was evaluated as an expression (its variables are sources).
+  void mark_expression(const toml::node* n) const { expressions_.insert(n); }
   // Evaluates a muparser expression over the deck's variables; throws InputError on failure.
   double evaluate(const std::string& expr, const std::string& where) const;
 
@@ -147,11 +163,22 @@ class Deck {
   void resolve_variables();
   // The variable names an expression refers to, defined or not (throws InputError on a syntax error).
   std::set<std::string> referenced_names(const std::string& expr, const std::string& where) const;
+  // The --set keys among the variables an expression refers to, through other variables too.
+  void add_variable_sources(const std::string& expr, std::set<std::string>& sources,
+                            std::set<std::string>& visited) const;
 
   std::string path_;
   std::unique_ptr<toml::table> table_;
   std::set<std::string> overridden_;
   std::map<std::string, double> variables_;
+  mutable std::set<const toml::node*> expressions_;  // string values evaluated as expressions
 };
+
+// The name among `known` that `typed` most likely misspells ("did you mean"), or "" if none
+// looks like it: at most one edit in five characters (another case counts), and for names
+// shorter than four characters another case only — one edit of a key such as r0 or K is often
+// another style's key — or one edit when `known` holds every name there is (`every_name`: a
+// command's subcommands).
+std::string nearest_name(std::string_view typed, const std::vector<std::string>& known, bool every_name = false);
 
 }  // namespace stiffmd

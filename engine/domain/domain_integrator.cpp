@@ -60,7 +60,7 @@ double halo_margin(const Scene& sc, double skin) {
 void check_parallel_grid(const Scene& sc, int ranks) {
   const Eigen::Vector3i& g = sc.parallel.grid;
   if (g.prod() > 0 && g.prod() != ranks)
-    throw InputError(sc.parallel.where + ".grid: " + std::to_string(g.prod()) + " domains (" + std::to_string(g[0]) +
+    throw InputError(sc.parallel.grid_where + ": " + std::to_string(g.prod()) + " domains (" + std::to_string(g[0]) +
                      " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) + ") for " + std::to_string(ranks) +
                      " ranks: expected one domain per rank (or no grid: it is chosen)");
 }

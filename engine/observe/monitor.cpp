@@ -34,7 +34,8 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
   const char* no_actions = scene.actions ? "" : "the actions observed ([observables] actions = true)";
   // A check that is on by default where it applies: a number (0 switches it off) or a boolean
   // (false: off; true: the default).
-  auto switchable = [&](const char* key, double fallback, double& into, bool& given, const char* needs) {
+  auto switchable = [&](const char* key, double fallback, double& into, bool& given, const char* needs,
+                        const std::vector<std::string>& related = {}) {
     if (!t->has(key)) return;
     given = true;
     std::optional<bool> flag;
@@ -50,16 +51,22 @@ MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene) {
       into = v > 0.0 ? v : MonitorSettings::kOff;
     }
     if (into < MonitorSettings::kOff && *needs)
-      t->fail(key, std::string("this check could never fire: it needs ") + needs);
+      t->fail(key, std::string("this check could never fire: it needs ") + needs, related);
   };
-  const char* no_thermostat = scene.thermostat ? "" : "a [thermostat]";
+  // apply_defaults switches the bath's checks off at kT = 0 (a quench has no temperature to hold).
+  const char* no_thermostat = !scene.thermostat ? "a [thermostat]"
+                              : scene.quench
+                                  ? "a thermostat at kT > 0 (thermostat.temperature = 0 is a quench, with no bath "
+                                    "temperature or energy to compare with)"
+                                  : "";
+  const std::vector<std::string> bath = {"thermostat.temperature"};
   switchable("energy_error", MonitorSettings::kDefaultEnergyError, m.energy_error, m.energy_error_given, "");
   switchable("bond_deviation", MonitorSettings::kDefaultBondDeviation, m.bond_deviation, m.bond_deviation_given,
              no_bonds);
   switchable("temperature_deviation", MonitorSettings::kDefaultTemperatureDeviation, m.temperature_deviation,
-             m.temperature_deviation_given, no_thermostat);
+             m.temperature_deviation_given, no_thermostat, bath);
   switchable("energy_runaway", MonitorSettings::kDefaultEnergyRunaway, m.energy_runaway, m.energy_runaway_given,
-             no_thermostat);
+             no_thermostat, bath);
   threshold("violation", m.violation, no_bonds);
   threshold("violation_growth", m.violation_growth, no_bonds);
   threshold("action_drift", m.action_drift, no_actions);

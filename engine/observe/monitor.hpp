@@ -78,11 +78,13 @@ struct MonitorContext {
   bool stiff_bonds = false;  // a constraint-defining term: violation, violation_growth, bond_deviation
   bool actions = false;      // [observables] actions = true: action_drift, validity
   bool thermostat = false;   // a [thermostat]: temperature_deviation, energy_runaway
+  bool quench = false;       // the thermostat's kT is 0: no bath temperature or energy to compare with
 };
 
 // Reads [monitor] (absent: the defaults, validity only; energy_error is set by
 // apply_energy_default). Throws InputError at the key of a check
-// the scene cannot evaluate (action_drift without observed actions, violation without stiff bonds).
+// the scene cannot evaluate (action_drift without observed actions, violation without stiff bonds,
+// temperature_deviation or energy_runaway without a thermostat at kT > 0).
 MonitorSettings read_monitor(DeckTable& root, const MonitorContext& scene);
 
 // The defaults of the checks the deck did not set, where they apply: the energy check

@@ -16,12 +16,32 @@ constexpr int kExitInternal = 1;
 constexpr int kExitBadInput = 2;
 constexpr int kExitNumerical = 3;
 
+// [parallel] divides one run among processes; on several processes an ensemble runs each member
+// whole on one of them, so a key there would do nothing: refused at the key, as a plain run
+// refuses a grid that does not fit its processes.
+void refuse_parallel_keys(const Scene& sc, const EnsembleJob& job) {
+  if (job.processes < 2) return;  // on one process [parallel] is ignored by every deck alike
+  const std::string why = ", and an [ensemble] runs each member whole on one process (" +
+                          std::to_string(job.members()) + " members on " + std::to_string(job.processes) +
+                          " processes): expected no ";
+  const Eigen::Vector3i& g = sc.parallel.grid;
+  if (!sc.parallel.grid_where.empty())
+    throw InputError(sc.parallel.grid_where + ": " + std::to_string(g.prod()) + " domains (" + std::to_string(g[0]) +
+                     " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) + ") divide one run among ranks" +
+                     why + "grid (without [ensemble] one run is divided)");
+  if (!sc.parallel.halo_margin_where.empty())
+    throw InputError(sc.parallel.halo_margin_where + ": the halo of one run divided among ranks" + why +
+                     "halo_margin (without [ensemble] one run is divided)");
+}
+
 // Member k's deck loaded. A failure at one of the member's values ("--set KEY" in the message,
 // Deck::location) is named at the varied key's line, with the member: the line a user edits.
 Scene load_member(const EnsembleJob& job, int k) {
   try {
     const Deck deck(job.deck_path, job.member_overrides(k));
-    return load_scene(deck);
+    Scene scene = load_scene(deck);
+    refuse_parallel_keys(scene, job);
+    return scene;
   } catch (const InputError& e) {
     const std::string what = e.what();
     for (const auto& list : job.ensemble.varied)

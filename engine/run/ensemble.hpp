@@ -18,6 +18,7 @@ struct EnsembleJob {
   std::vector<std::string> overrides;  // the command line's --set, before each member's own
   Ensemble ensemble;
   std::string out_dir;
+  int processes = 1;  // the members are divided among them, each member whole on one
 
   int members() const { return ensemble.size(); }
   // OUT/member_k, k zero-padded to the digits of the member count (member_00 … member_11).

@@ -290,6 +290,7 @@ void read_forces(DeckTable& root, Scene& sc) {
   // Every bonded interaction must have its parameters somewhere: name the deck row of an
   // explicit bond, or the type for builder/imported bonds (which precede the explicit ones).
   auto bond_rows = root.array_of_tables("bonds");
+  const std::vector<std::string> type_sources = {"build", "import"};  // what names the other types
   const size_t first_explicit = sc.topology.bonds.size() - bond_rows.size();
   for (size_t k = 0; k < sc.topology.bonds.size(); ++k) {
     const int t = sc.topology.bonds[k].type;
@@ -298,18 +299,20 @@ void read_forces(DeckTable& root, Scene& sc) {
                              "' is not defined by any force term (add [forces.NAME.bond_types." +
                              sc.topology.bond_types[t] + "])";
     if (k >= first_explicit) bond_rows[k - first_explicit].fail("type", what);
-    root.fail_here(what);
+    root.fail_here(what, type_sources);
   }
   for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
     if (angle_owner[t].empty())
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
-                     "' is not defined by any force term (add [forces.NAME.angle_types." + sc.topology.angle_types[t] +
-                     "])");
+                         "' is not defined by any force term (add [forces.NAME.angle_types." +
+                         sc.topology.angle_types[t] + "])",
+                     type_sources);
   for (size_t t = 0; t < sc.topology.dihedral_types.size(); ++t)
     if (dihedral_owner[t].empty())
       root.fail_here("dihedral type '" + sc.topology.dihedral_types[t] +
-                     "' is not defined by any force term (add [forces.NAME.dihedral_types." +
-                     sc.topology.dihedral_types[t] + "])");
+                         "' is not defined by any force term (add [forces.NAME.dihedral_types." +
+                         sc.topology.dihedral_types[t] + "])",
+                     type_sources);
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
@@ -346,21 +349,38 @@ void read_integrator(DeckTable& root, Scene& sc) {
     in.micro_steps = 1;
   } else if (micro_dt) {
     t->require(*micro_dt > 0.0, "micro_dt", "expected a micro step > 0");
-    t->require(*micro_dt <= in.h * (1 + 1e-12), "micro_dt",
-               "expected micro_dt <= h = " + format_number(in.h / sc.units.time));
+    if (!(*micro_dt <= in.h * (1 + 1e-12)))
+      t->fail("micro_dt", "expected micro_dt <= h = " + format_number(in.h / sc.units.time), {"integrator.h"});
     // n = h/δ rounded up, so the micro step actually used never exceeds micro_dt; bounded as
     // micro_steps is (and before the conversion to int).
     const double n = std::ceil(in.h / *micro_dt - 1e-9);
-    t->require(n <= 1e8, "micro_dt",
-               "h / micro_dt = " + format_number(in.h / sc.units.time) + " / " +
-                   format_number(*micro_dt / sc.units.time) + " = " + format_number(n) +
-                   " micro steps per macro step; expected at most 1e8");
+    if (!(n <= 1e8))
+      t->fail("micro_dt",
+              "h / micro_dt = " + format_number(in.h / sc.units.time) + " / " +
+                  format_number(*micro_dt / sc.units.time) + " = " + format_number(n) +
+                  " micro steps per macro step; expected at most 1e8",
+              {"integrator.h"});
     in.micro_steps = static_cast<int>(n);
   } else if (micro_steps) {
     t->require(*micro_steps >= 1 && *micro_steps <= 100000000, "micro_steps", "expected an integer in 1..1e8");
     in.micro_steps = static_cast<int>(*micro_steps);
   }
   t->finish();
+}
+
+// [prepare] vibrational_temperature gives the stiff bonds thermal vibrations (prepare_state). A
+// method that holds the bonds rigid projects its initial data onto them (Rattle::prepare), which
+// takes the vibrations out again: the run starts without their energy. The effective dynamics
+// keeps it, as the actions it reads before that projection (EffectiveCorrection::prepare).
+void warn_projected_vibrations(DeckTable& root, Scene& sc) {
+  const MethodInfo& m = *find_method(sc.integrator.method);
+  if (!sc.prepare.requested || !(sc.prepare.vibrational_temperature > 0.0) || !m.rigid_constraints || m.effective)
+    return;
+  sc.notes.push_back("warning: " + root.table("prepare")->where("vibrational_temperature", {"integrator.method"}) +
+                     ": method '" + sc.integrator.method +
+                     "' holds the stiff bonds rigid and projects the initial state onto them, which takes these "
+                     "vibrations out again: the run starts without their energy (velocity-verlet and the impulse "
+                     "family keep them, effective as its actions)");
 }
 
 // A run is a whole number of macro steps: t_end = n h to a relative 1e-9 (Scene::num_steps rounds
@@ -371,14 +391,15 @@ void read_integrator(DeckTable& root, Scene& sc) {
 void read_parallel(DeckTable& root, Scene& sc) {
   auto t = root.table("parallel");
   if (!t) return;
-  sc.parallel.where = t->where();
   if (t->has("grid")) {
+    sc.parallel.grid_where = t->where("grid");
     const std::vector<long> g = t->integers("grid");
     t->require(g.size() == 3 && g[0] >= 1 && g[1] >= 1 && g[2] >= 1, "grid",
                "expected three domain counts >= 1, one per axis, e.g. [2, 2, 1]");
     sc.parallel.grid = Eigen::Vector3i(static_cast<int>(g[0]), static_cast<int>(g[1]), static_cast<int>(g[2]));
   }
   if (auto m = t->maybe_number("halo_margin")) {
+    sc.parallel.halo_margin_where = t->where("halo_margin");
     t->require(std::isfinite(*m) && *m > 0.0, "halo_margin", "expected a length > 0");
     sc.parallel.halo_margin = *m;  // lengths are the same in every unit system (σ or Å)
   }
@@ -394,8 +415,10 @@ void read_run(DeckTable& root, Scene& sc) {
   const double h = sc.integrator.h / sc.units.time;
   const double steps = t_end / h;
   if (!(steps <= 1e12))
-    t->fail("t_end", "t_end / integrator.h = " + format_number(t_end) + " / " + format_number(h) + " = " +
-                         format_number(steps) + " steps; expected at most 1e12 steps");
+    t->fail("t_end",
+            "t_end / integrator.h = " + format_number(t_end) + " / " + format_number(h) + " = " +
+                format_number(steps) + " steps; expected at most 1e12 steps",
+            {"integrator.h"});
   const double n = std::round(steps);
   if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
     std::ostringstream m;
@@ -406,7 +429,7 @@ void read_run(DeckTable& root, Scene& sc) {
     const auto steps_word = [](double k) { return k == 1 ? " step)" : " steps)"; };
     if (below >= 1) m << below * h << " (" << below << steps_word(below) << " or ";
     m << above * h << " (" << above << steps_word(above) << ", or an h that divides t_end";
-    t->fail("t_end", m.str());
+    t->fail("t_end", m.str(), {"integrator.h"});
   }
   sc.run.t_end = sc.units.time_in(t_end);
   t->finish();
@@ -493,7 +516,7 @@ void read_output(DeckTable& root, Scene& sc) {
   const double time_out = sc.units.out(Dimension::time);
   const auto warn_if_longer = [&](const char* key, double interval, bool on) {
     if (on && t->has(key) && interval > sc.run.t_end)
-      sc.notes.push_back("warning: " + t->where() + ": output." + key + " = " + format_number(interval * time_out) +
+      sc.notes.push_back("warning: " + t->where(key, {"run.t_end"}) + " = " + format_number(interval * time_out) +
                          " is longer than the run (run.t_end = " + format_number(sc.run.t_end * time_out) +
                          (std::string(key) == "checkpoint_interval"
                               ? "): no checkpoint before the final one"
@@ -505,6 +528,21 @@ void read_output(DeckTable& root, Scene& sc) {
   warn_if_longer("h5md_interval", o.h5md_interval, !o.h5md.empty());
   warn_if_longer("screen_interval", o.screen_interval, o.screen_interval > 0.0);
   warn_if_longer("checkpoint_interval", o.checkpoint_interval, o.checkpoint_interval > 0.0);
+  // The H5MD and state files are written only when named: their options given without the name
+  // write nothing, most likely because the name was forgotten. (An output named "" is switched
+  // off on purpose, e.g. by --set, and its options wait for it silently.)
+  struct NamedOutput {
+    const char *key, *example;
+    std::vector<const char*> options;
+  };
+  for (const NamedOutput& out : {NamedOutput{"h5md", "trajectory.h5md", {"h5md_interval", "h5md_velocity", "h5md_force", "h5md_gzip"}},
+                                 NamedOutput{"state", "state.csv", {"state_interval"}}})
+    if (!t->has(out.key))
+      for (const char* key : out.options)
+        if (t->has(key))
+          sc.notes.push_back("warning: " + t->where(key) + ": does nothing: output." + out.key +
+                             " is not given, so no such file is written (e.g. output." + out.key + " = \"" +
+                             out.example + "\" writes one)");
   std::vector<std::pair<std::string, std::string>> seen;  // what writes it, file name
   for (const auto& [k, f] : output_files(sc)) {
     const std::string what = k.empty() ? "the run's " + f : "output." + k;
@@ -514,7 +552,9 @@ void read_output(DeckTable& root, Scene& sc) {
       if (std::any_of(f.begin(), f.end(), [](char c) { return static_cast<unsigned char>(c) < 0x20; }))
         t->fail(k, "expected a plain file name without control characters");
       for (const auto& [other, name] : seen)
-        if (name == f) t->fail(k, "\"" + f + "\" is also " + other + "; expected a file of its own");
+        if (name == f)
+          t->fail(k, "\"" + f + "\" is also " + other + "; expected a file of its own",
+                  other.rfind("output.", 0) == 0 ? std::vector<std::string>{other} : std::vector<std::string>{});
     }
     seen.emplace_back(what, f);
   }
@@ -681,7 +721,7 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
     << " % of their length";
   if (sc.units.reduced()) c << "; a temperature in kelvin needs units = \"real\"";
   m.likely_cause = c.str();
-  sc.notes.push_back("warning: " + root.table("thermostat")->where() + ".temperature: " + m.likely_cause);
+  sc.notes.push_back("warning: " + root.table("thermostat")->where("temperature") + ": " + m.likely_cause);
   return m;
 }
 
@@ -714,10 +754,12 @@ Scene load_scene(const Deck& deck) {
   check_levels_used(root, sc);
   read_prepare(root, sc);
   read_integrator(root, sc);
+  warn_projected_vibrations(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
   read_thermostat(root, sc);
-  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted()});
+  sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted(),
+                                   sc.thermostatted() && sc.integrator.thermostat.temperature == 0.0});
   apply_defaults(sc.monitor, monitor_scene(root, sc));
   read_output(root, sc);
   read_parallel(root, sc);

@@ -56,7 +56,8 @@ struct OutputSettings {
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
   double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: adapted (docs/parallel.md)
-  std::string where;                               // "file:line: parallel" of the table, for errors
+  // "file:line: parallel.grid" (or the --set that gave it), for errors at the key; empty: not given.
+  std::string grid_where, halo_margin_where;
 };
 
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
