@@ -18,27 +18,21 @@ class NumericalError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// A stop every rank of a decomposed run takes at the same point (a non-finite state found by the
-// step's reduction, rank 0's [monitor]): each exits with code 3, rank 0 alone saying why
-// (printed_here: false on the ranks whose message is not to be printed).
-class AgreedStop : public NumericalError {
+// An error every rank of a decomposed run finds, or learns of, at the same point, so that each
+// rank ends alike without ending the others: exit 3 for a stop (a non-finite state found by the
+// step's reduction, rank 0's [monitor]), exit 2 for bad input (an agreement, `agree` in
+// engine/core/communicator.hpp); rank 0 alone says why (printed_here: false on the ranks whose
+// message is not to be printed).
+template <class Error>
+class Agreed : public Error {
  public:
-  AgreedStop(const std::string& what, bool printed_here) : NumericalError(what), printed_here_(printed_here) {}
+  Agreed(const std::string& what, bool printed_here) : Error(what), printed_here_(printed_here) {}
   bool printed_here() const { return printed_here_; }
 
  private:
   bool printed_here_;
 };
-
-// Bad input every rank of a decomposed run found, or learned of, at the same point (an agreement,
-// engine/core/communicator.hpp `agree`): each exits with code 2, rank 0 alone saying why.
-class AgreedInputError : public InputError {
- public:
-  AgreedInputError(const std::string& what, bool printed_here) : InputError(what), printed_here_(printed_here) {}
-  bool printed_here() const { return printed_here_; }
-
- private:
-  bool printed_here_;
-};
+using AgreedStop = Agreed<NumericalError>;
+using AgreedInputError = Agreed<InputError>;
 
 }  // namespace stiffmd
