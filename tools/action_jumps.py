@@ -34,22 +34,17 @@ Example:
 """
 import argparse
 import csv
-import json
 import math
 import os
-import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 
 import numpy as np
 
+from engines import read_summary, read_thermo, run_stiffmd, whole_steps_t_end  # tools/ is the script's directory
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def whole_steps_t_end(t_end, h):
-    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
-    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
 
 
 def eval_eps(expr, eps):
@@ -58,22 +53,10 @@ def eval_eps(expr, eps):
 
 
 def run_deck(exe, deck, out_dir, sets):
-    cmd = [exe, "run", deck, "-o", out_dir, "--no-progress"]
-    for s in sets:
-        cmd += ["--set", s]
-    env = dict(os.environ)
-    env.setdefault("OMP_NUM_THREADS", "1")
-    env.setdefault("OMP_WAIT_POLICY", "passive")
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if p.returncode != 0:
-        sys.exit(f"action_jumps: stiffmd failed (exit {p.returncode}): {' '.join(cmd)}\n{p.stderr}")
-    with open(os.path.join(out_dir, "summary.json")) as f:
-        return json.load(f)
-
-
-def read_thermo(path):
-    d = np.genfromtxt(path, delimiter=",", names=True)
-    return {n: np.asarray(d[n], dtype=float) for n in d.dtype.names}
+    """One run (one thread unless OMP_NUM_THREADS says otherwise); its summary.json. A failure stops the tool."""
+    run_stiffmd(exe, deck, out_dir, sets, threads=os.environ.get("OMP_NUM_THREADS", "1"),
+                fail=lambda m: sys.exit(f"action_jumps: {m}"))
+    return read_summary(out_dir)
 
 
 def moving_average(y, n):

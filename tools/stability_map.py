@@ -39,7 +39,6 @@ Re-plot without running: add --plot-only.
 """
 import argparse
 import csv
-import json
 import math
 import os
 import shutil
@@ -49,6 +48,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+
+from engines import read_summary, read_thermo, run_stiffmd, whole_steps_t_end  # tools/ is the script's directory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ALL_METHODS = ["impulse", "mollified-impulse", "projected-impulse", "rattle", "effective", "velocity-verlet"]
@@ -82,18 +83,6 @@ def grid(spec, eps=None, factor=2.0):
     return sorted(ev(s) for s in spec.split(",") if s.strip())
 
 
-def read_thermo(path):
-    with open(path) as f:
-        header = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    return {n: data[:, k] for k, n in enumerate(header)} if data.size else {n: np.array([]) for n in header}
-
-
-def whole_steps_t_end(t_end, h):
-    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
-    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
-
-
 def run_one(a, deck, eps, method, h, out_dir):
     sets = [f"integrator.method={method}", f"integrator.h={h!r}", f"run.t_end={whole_steps_t_end(a.t_end, h)}",
             "output.xyz=", "output.h5md=", "output.thermo=thermo.csv", f"output.thermo_interval={a.sample or a.t_end / 200!r}"]
@@ -106,26 +95,16 @@ def run_one(a, deck, eps, method, h, out_dir):
         micro = eval_expr(a.micro_dt, eps if eps is not None else a.deck_eps)
         sets.append(f"integrator.micro_dt={min(micro, h)!r}")
         micro_steps = int(math.ceil(h / min(micro, h) - 1e-9))
-    cmd = [a.stiffmd, "run", deck, "-o", out_dir, "--no-progress"]
-    for s in sets + a.set:
-        cmd += ["--set", s]
-    env = dict(os.environ)
-    env.setdefault("OMP_NUM_THREADS", "1")
-    env.setdefault("OMP_WAIT_POLICY", "passive")
     if os.path.isdir(out_dir):
         shutil.rmtree(out_dir)
-    t0 = time.monotonic()
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    wall = time.monotonic() - t0
-    row = {"method": method, "h": h, "micro_steps": micro_steps, "exit_code": p.returncode, "wall_seconds": wall}
-    if p.returncode == 3:
+    p = run_stiffmd(a.stiffmd, deck, out_dir, sets + a.set, threads=os.environ.get("OMP_NUM_THREADS", "1"),
+                    accept=(0, 3), fail=lambda m: sys.exit(f"stability_map: {m}"))
+    row = {"method": method, "h": h, "micro_steps": micro_steps, "exit_code": p.code, "wall_seconds": p.seconds}
+    if p.code == 3:
         lines = [ln for ln in p.stderr.splitlines() if ln.startswith("error")]
         row.update(status="unstable", reason="exit 3", message=(lines[-1] if lines else p.stderr.strip()[-300:]))
         return row, None
-    if p.returncode != 0:
-        sys.exit(f"stability_map: stiffmd failed (exit {p.returncode}): {' '.join(cmd)}\n{p.stderr}")
-    with open(os.path.join(out_dir, "summary.json")) as f:
-        s = json.load(f)
+    s = read_summary(out_dir)
     th = read_thermo(os.path.join(out_dir, "thermo.csv"))
     e0 = s["initial_energy"]
     parts = abs(th["kinetic"][0]) + abs(th["potential_slow"][0]) + abs(th["potential_stiff"][0])

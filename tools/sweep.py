@@ -18,23 +18,17 @@ Example (the paper's experiment, see tools/paper_experiment.sh):
 """
 import argparse
 import csv
-import json
-import math
 import os
-import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 
 import numpy as np
 
+from engines import read_summary, run_stiffmd, whole_steps_t_end  # tools/ is the script's directory
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ALL_METHODS = ["impulse", "mollified-impulse", "projected-impulse", "rattle", "effective", "velocity-verlet"]
-
-
-def whole_steps_t_end(t_end, h):
-    """t_end as a whole number of macro steps h (stiffmd refuses any other): the run's own ceil."""
-    return repr(math.ceil(float(t_end) / float(h) - 1e-9) * float(h))
 
 
 def halvings(spec):
@@ -50,14 +44,11 @@ def halvings(spec):
     return [Fraction(s) for s in spec.split(",")]
 
 
-def run_stiffmd(exe, deck, out_dir, sets):
-    cmd = [exe, "run", deck, "-o", out_dir, "--no-progress"]
-    for s in sets:
-        cmd += ["--set", s]
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    if p.returncode not in (0, 3):
-        sys.exit(f"sweep: stiffmd failed (exit {p.returncode}): {' '.join(cmd)}\n{p.stderr}")
-    return p.returncode, p.stderr
+def run(exe, deck, out_dir, sets):
+    """(exit code, stderr) of one run; exit 3 (blown up) is a result, any other failure stops the sweep.
+    The thread count is the caller's environment's (CPU times of one thread need OMP_NUM_THREADS=1)."""
+    r = run_stiffmd(exe, deck, out_dir, sets, threads=None, accept=(0, 3), fail=lambda m: sys.exit(f"sweep: {m}"))
+    return r.code, r.stderr
 
 
 def read_state(path):
@@ -112,7 +103,7 @@ def main():
         else:
             div = a.ref_divisor or int(np.ceil(float(h_min) / (eps / 200)))
         ref_dir = os.path.join(a.out, "runs", f"reference_{a.reference}_eps{eps_text}")
-        code, err = run_stiffmd(a.stiffmd, a.deck, ref_dir,
+        code, err = run(a.stiffmd, a.deck, ref_dir,
                                 common + [f"integrator.method={a.reference}", f"integrator.h={float(h_min / div)!r}",
                                           f"run.t_end={whole_steps_t_end(a.t_end, h_min / div)}"])
         if code != 0:
@@ -138,13 +129,12 @@ def main():
             if m in ("impulse", "mollified-impulse", "projected-impulse"):
                 micro = a.micro_dt_impulse if m == "impulse" else a.micro_dt
                 sets.append(f"integrator.micro_dt={micro}")
-            code, err = run_stiffmd(a.stiffmd, a.deck, d, sets)
+            code, err = run(a.stiffmd, a.deck, d, sets)
             row = {"eps": eps, "method": m, "h": float(h), "micro_dt": micro or "", "status": "ok"}
             if code != 0:
                 row.update(status="unstable", err_x=float("inf"), err_p=float("inf"))
                 return row
-            with open(os.path.join(d, "summary.json")) as f:
-                s = json.load(f)
+            s = read_summary(d)
             t, x, p = read_state(os.path.join(d, "state.csv"))
             # Macro times t_n = n h lie on the reference grid (spacing h_min).
             idx = np.rint(t / float(h_min)).astype(int)
