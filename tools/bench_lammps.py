@@ -30,7 +30,6 @@ work/ (the prepared states, decks, LAMMPS inputs and each run's log and thermo o
 """
 import argparse
 import csv
-import json
 import os
 import platform
 import shlex
@@ -40,7 +39,9 @@ import subprocess
 import sys
 import time
 
-from chain_melt import RunFailed, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+from chain_melt import count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+from engines import (RunFailed, check_exit, lammps_command, read_summary, read_thermo, run_measured,
+                     stiffmd_command)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STIFFMD_METHODS = ["impulse", "projected-impulse", "mollified-impulse", "velocity-verlet"]
@@ -88,36 +89,6 @@ def binary_date(path):
         return "missing"
 
 
-def tail(path, lines=15):
-    try:
-        with open(path, errors="replace") as f:
-            return "".join(f.readlines()[-lines:])
-    except OSError:
-        return ""
-
-
-def run_measured(cmd, run_dir, threads):
-    """Runs cmd in run_dir (stdout/stderr to files there) with OMP_NUM_THREADS = threads.
-
-    Returns (exit code, seconds, max RSS of that process in MiB). os.wait4 gives the rusage of
-    exactly this child (and of children it waited for, none here)."""
-    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
-    with open(os.path.join(run_dir, "stdout.txt"), "w") as out, open(os.path.join(run_dir, "stderr.txt"), "w") as err:
-        start = time.monotonic()
-        proc = subprocess.Popen(cmd, cwd=run_dir, stdout=out, stderr=err, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)
-        seconds = time.monotonic() - start
-    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: tell Popen
-    return proc.returncode, seconds, usage.ru_maxrss / 1024.0
-
-
-def check_exit(code, cmd, run_dir, log="stdout.txt"):
-    """A failed run: one line naming it, then the tail of its stderr (or of its log when stderr is empty)."""
-    if code != 0:
-        text = tail(os.path.join(run_dir, "stderr.txt")) or tail(os.path.join(run_dir, log))
-        raise RunFailed(f"run failed (exit {code}): {shlex.join(cmd)}\n--- tail of its output ({run_dir}) ---\n{text}")
-
-
 def energy_drift(energies, natoms):
     e0 = energies[0]
     d_end = abs(energies[-1] - e0)
@@ -130,19 +101,17 @@ def energy_drift(energies, natoms):
 
 # ------------------------------------------------------------------------------------------- runs
 
-def run_stiffmd(stiffmd, deck, method, threads, args, run_dir, natoms):
+def time_stiffmd(stiffmd, deck, method, threads, args, run_dir, natoms):
+    """One timed stiffmd run of the benchmark: its row of bench.csv."""
     h = args.h / args.micro_steps if method == "velocity-verlet" else args.h
-    cmd = [stiffmd, "run", deck, "-o", run_dir, "--no-progress", "--set", f"integrator.method={method}",
-           "--set", f"integrator.h={fmt(h)}"]
+    cmd = stiffmd_command(stiffmd, deck, run_dir, [f"integrator.method={method}", f"integrator.h={fmt(h)}"])
     code, seconds, rss = run_measured(cmd, run_dir, threads)
     check_exit(code, cmd, run_dir)
-    with open(os.path.join(run_dir, "summary.json")) as f:
-        summary = json.load(f)
+    summary = read_summary(run_dir)
     expected_steps = args.steps * (args.micro_steps if method == "velocity-verlet" else 1)
     if summary["steps"] != expected_steps:
         raise RunFailed(f"stiffmd ran {summary['steps']} steps, expected {expected_steps}: {shlex.join(cmd)}")
-    with open(os.path.join(run_dir, "thermo.csv")) as f:
-        energies = [float(row["total"]) for row in csv.DictReader(f)]
+    energies = [float(e) for e in read_thermo(os.path.join(run_dir, "thermo.csv"))["total"]]
     energies[0] = summary["initial_energy"]  # the same E(0), with all 17 digits
     checkpoint = os.path.join(run_dir, "checkpoint.bin")  # always written; not needed here
     if os.path.exists(checkpoint):
@@ -183,9 +152,10 @@ def parse_lammps_log(path):
     return loop[0], loop[1], cpu_percent, energies, warnings, version
 
 
-def run_lammps(lmp, lammps_input, args, run_dir, natoms):
+def time_lammps(lmp, lammps_input, args, run_dir, natoms):
+    """One timed LAMMPS r-RESPA run of the benchmark: its row of bench.csv."""
     log = os.path.join(run_dir, "log.lammps")
-    cmd = [lmp, "-in", lammps_input, "-log", log, "-screen", "none", "-echo", "none", "-nocite"]
+    cmd = lammps_command(lmp, lammps_input, log)
     code, seconds, rss = run_measured(cmd, run_dir, 1)
     check_exit(code, cmd, run_dir, log="log.lammps")
     loop_seconds, steps, cpu_percent, energies, warnings, version = parse_lammps_log(log)
@@ -223,11 +193,11 @@ def benchmark_eps(eps, args, lmp, work, raw_writer):
             print(f"  eps {eps}: {method}, {threads} thread(s), repeat {repeat + 1}/{args.repeats}", file=sys.stderr,
                   flush=True)
             if method == "lammps-respa":
-                r = run_lammps(lmp, lammps_input, args, run_dir, natoms)
+                r = time_lammps(lmp, lammps_input, args, run_dir, natoms)
                 lammps_info["warnings"] = sorted(set(lammps_info["warnings"]) | set(r.pop("warnings")))
                 lammps_info["version"] = r.pop("version")
             else:
-                r = run_stiffmd(args.stiffmd, deck, method, threads, args, run_dir, natoms)
+                r = time_stiffmd(args.stiffmd, deck, method, threads, args, run_dir, natoms)
             r.update(eps=eps, repeat=repeat, natoms=natoms,
                      cpu_ms_per_macro_step=r["ms_per_macro_step"] * r["cpu_percent"] / 100)
             raw_writer.writerow({k: r[k] for k in CSV_FIELDS})

@@ -14,6 +14,8 @@ import os
 import shlex
 import subprocess
 
+from engines import RunFailed  # tools/ is the script's directory
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SOURCE_DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
 BOND_LENGTH = 0.97  # ℓ and α of inputs/lammps_chain.toml
@@ -59,10 +61,6 @@ def block_mean(series, nblocks):
     per = len(series) // nblocks
     means = series[: per * nblocks].reshape(nblocks, per, *series.shape[1:]).mean(axis=1)
     return means.mean(axis=0), means.std(axis=0, ddof=1) / math.sqrt(nblocks)
-
-
-class RunFailed(Exception):
-    """A run failed for a reason other than a numerical blow-up (bad input, missing binary...)."""
 
 
 def fmt(x):

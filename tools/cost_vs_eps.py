@@ -114,9 +114,10 @@ import zlib
 
 import numpy as np
 
-from bench_lammps import parse_lammps_log, run_measured  # tools/ is the script's directory
-from chain_melt import (RunFailed, engine_method, fmt, prepare_state, read_bonds, write_deck, write_lammps_input,
+from bench_lammps import parse_lammps_log  # tools/ is the script's directory
+from chain_melt import (engine_method, fmt, prepare_state, read_bonds, write_deck, write_lammps_input,
                         xyz_frames)
+from engines import RunFailed, run_measured
 import seed_statistics
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -20,7 +20,8 @@ import statistics
 import sys
 
 import cost_vs_eps  # tools/ is the script's directory
-from chain_melt import RunFailed, prepare_state
+from chain_melt import prepare_state
+from engines import RunFailed
 
 
 def main():

@@ -23,8 +23,7 @@ import statistics
 import sys
 import tempfile
 
-from bench_lammps import check_exit, run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed
+from engines import RunFailed, check_exit, run_measured  # tools/ is the script's directory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

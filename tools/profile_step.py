@@ -34,8 +34,8 @@ import statistics
 import subprocess
 import sys
 
-from bench_lammps import run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed, engine_method, prepare_state, write_deck
+from chain_melt import engine_method, prepare_state, write_deck  # tools/ is the script's directory
+from engines import RunFailed, run_measured
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GROUPS = [  # (group, regular expression on the symbol); the first match wins

@@ -58,8 +58,8 @@ import statistics
 import sys
 import time
 
-from bench_lammps import check_exit, run_measured  # tools/ is the script's directory
-from chain_melt import RunFailed, engine_method, fmt, prepare_state, tile_data, write_deck
+from chain_melt import engine_method, fmt, prepare_state, tile_data, write_deck  # tools/ is the script's directory
+from engines import RunFailed, check_exit, run_measured
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA_CHAIN = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"

@@ -83,7 +83,8 @@ from fractions import Fraction
 
 import numpy as np
 
-from chain_melt import ALPHA, RunFailed, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+from chain_melt import ALPHA, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
+from engines import RunFailed
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 IMPULSE_METHODS = ["impulse", "mollified-impulse", "projected-impulse"]
