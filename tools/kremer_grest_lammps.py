@@ -47,6 +47,7 @@ import numpy as np
 # tools/ is the script's directory
 from chain_melt import (autocorrelation_time, block_mean, chain_shapes, count_atoms, lammps_dump_frames,
                         linear_chains, read_bonds, read_box, xyz_frames)
+from engines import failure, read_summary, read_thermo, run_lammps, run_stiffmd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "kremer_grest.toml")
@@ -120,10 +121,9 @@ def lammps(args, folder, text, log_name):
     with open(inp, "w") as f:
         f.write(text)
     log = os.path.join(folder, log_name + ".log")
-    cmd = [args.lmp, "-in", inp, "-log", log, "-screen", "none", "-echo", "none", "-nocite"]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"), cwd=folder)
-    if p.returncode != 0:
-        sys.exit(f"LAMMPS failed ({p.returncode}): {p.stderr[-2000:]}")
+    p = run_lammps(args.lmp, inp, log, cwd=folder)
+    if p.code != 0:
+        sys.exit(failure(p, "LAMMPS"))
     return log
 
 
@@ -157,24 +157,19 @@ def frame_quantities(frames, chains, box, first):
     return out
 
 
-def run_stiffmd(args, data, splitting, out):
+def sample_stiffmd(args, data, splitting, out):
+    """The stiffmd run of the comparison (one Langevin splitting): its samples and cost per step."""
     t_end = args.steps * H
-    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out, "--set", f"import.lammps_data={json.dumps(data)}",
-           "--set", f"thermostat.splitting={json.dumps(splitting)}",
-           "--set", f"run.t_end={t_end!r}", "--set", f"integrator.h={H!r}",
-           "--set", f"output.thermo_interval={args.every * H!r}", "--set", 'output.xyz="frames.xyz"',
-           "--set", f"output.xyz_interval={args.frame_every * H!r}"]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
-    if p.returncode != 0:
-        sys.exit(f"stiffmd failed ({p.returncode}): {p.stderr[-2000:]}")
-    with open(os.path.join(out, "thermo.csv")) as f:
-        header = f.readline().strip().split(",")
-        rows = [list(map(float, line.split(","))) for line in f if line.strip()]
-    col = {k: i for i, k in enumerate(header)}
-    keep = [r for r in rows if r[col["step"]] > args.discard]
-    with open(os.path.join(out, "summary.json")) as f:
-        summary = json.load(f)
-    result = {"temperature": [r[col["temperature"]] for r in keep], "pressure": [r[col["pressure"]] for r in keep],
+    run_stiffmd(args.stiffmd, DECK, out, [f"import.lammps_data={json.dumps(data)}",
+                                          f"thermostat.splitting={json.dumps(splitting)}",
+                                          f"run.t_end={t_end!r}", f"integrator.h={H!r}",
+                                          f"output.thermo_interval={args.every * H!r}", 'output.xyz="frames.xyz"',
+                                          f"output.xyz_interval={args.frame_every * H!r}"], fail=sys.exit)
+    th = read_thermo(os.path.join(out, "thermo.csv"))
+    keep = th["step"] > args.discard
+    summary = read_summary(out)
+    result = {"temperature": [float(v) for v in th["temperature"][keep]],
+              "pressure": [float(v) for v in th["pressure"][keep]],
               "ms_per_step": 1e3 * summary["wall_seconds"] / summary["steps"],
               "cpu_ms_per_step": 1e3 * summary["cpu_seconds"] / summary["steps"]}
     chains = linear_chains(read_bonds(data), count_atoms(data))
@@ -183,7 +178,8 @@ def run_stiffmd(args, data, splitting, out):
     return result
 
 
-def run_lammps(args, data, out):
+def sample_lammps(args, data, out):
+    """The LAMMPS run of the comparison: its samples and cost per step."""
     log = lammps(args, out, LAMMPS_SETUP.format(data=data, seed=904297, h=H) +
                  LAMMPS_RUN.format(every=args.every, frame_every=args.frame_every, steps=args.steps), "in.chain")
     rows, loop, natoms, in_thermo, cpu_percent = [], None, None, False, 100.0
@@ -245,9 +241,9 @@ def main():
         data = short_melt_start(args)
     # All runs at once, one core each (all single-threaded).
     with concurrent.futures.ThreadPoolExecutor(len(splittings) + 1) as pool:
-        futures = {f"stiffmd {s}": pool.submit(run_stiffmd, args, data, s, os.path.join(args.out, "stiffmd_" + s))
+        futures = {f"stiffmd {s}": pool.submit(sample_stiffmd, args, data, s, os.path.join(args.out, "stiffmd_" + s))
                    for s in splittings}
-        futures["LAMMPS"] = pool.submit(run_lammps, args, data, os.path.join(args.out, "lammps"))
+        futures["LAMMPS"] = pool.submit(sample_lammps, args, data, os.path.join(args.out, "lammps"))
         runs = {name: f.result() for name, f in futures.items()}
     names = list(runs)
     result = {"melt": args.melt, "data": data, "h": H, "steps": args.steps, "discard": args.discard,
