@@ -65,6 +65,7 @@ import sys
 import numpy as np
 
 import seed_statistics  # tools/ is the script's directory
+from engines import read_summary, read_thermo, run_lammps, run_stiffmd
 
 KB = 0.0019872067  # kcal/(mol K), LAMMPS real
 AVOGADRO = 6.02214076e23
@@ -296,8 +297,8 @@ def summarise(energy, pressure, frames, mol, dihedrals, sites, cpu_seconds):
             "rg2": float(per_frame[:, 2].mean()), "frames": len(frames), "cpu_seconds": cpu_seconds}
 
 
-def run_lammps(args, out, h, respa, seed):
-    """respa: None (velocity Verlet) or the loop factors "N n1 n2" of run_style respa."""
+def measure_lammps(args, out, h, respa, seed):
+    """One LAMMPS run's result (see summarise), None when it blew up. respa: None (velocity Verlet) or the loop factors "N n1 n2" of run_style respa."""
     os.makedirs(out, exist_ok=True)
     steps = int(round(args.ps * 1000 / h))
     style = f"run_style respa {respa} bond 1 angle 2 dihedral 2 pair 3" if respa else "run_style verlet"
@@ -319,8 +320,7 @@ dump frames all custom {int(round(args.frame_fs / h))} frames.dump id xu yu zu
 dump_modify frames sort id format float %.8g
 run {steps}
 """)
-    p = subprocess.run([args.lmp, "-in", "in.run", "-log", "log.lammps", "-screen", "none", "-nocite"], cwd=out,
-                       capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    p = run_lammps(args.lmp, "in.run", "log.lammps", cwd=out, echo=True)
     rows, cpu, cpu_percent = [], None, 100.0
     with open(os.path.join(out, "log.lammps")) as f:
         on = False
@@ -339,7 +339,7 @@ run {steps}
                     rows.append([float(v) for v in w])
                 except ValueError:
                     on = False
-    if p.returncode != 0 or cpu is None or not rows or not all(map(math.isfinite, np.ravel(rows))):
+    if p.code != 0 or cpu is None or not rows or not all(map(math.isfinite, np.ravel(rows))):
         return None  # LAMMPS stopped (lost atoms, a bond too long) or produced NaN: unstable
     rows = np.array(rows)
     keep = rows[:, 1] >= args.skip_ps * 1000
@@ -359,29 +359,20 @@ run {steps}
     return r
 
 
-def run_stiffmd(args, out, method, h, seed, extra=()):
+def measure_stiffmd(args, out, method, h, seed, extra=()):
+    """One stiffmd run's result (see summarise), None when it blew up (exit 3)."""
     os.makedirs(out, exist_ok=True)
     t_end = args.ps * 1000
-    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out,
-           "--set", f'integrator.method="{method}"', "--set", f"integrator.h={h!r}",
-           "--set", f"run.t_end={t_end!r}", "--set", f"output.thermo_interval={THERMO_FS!r}",
-           "--set", f"output.xyz_interval={args.frame_fs!r}", "--set", f"import.lammps_data=\"{os.path.abspath(args.data)}\""]
-    cmd += ["--set", f"thermostat.seed={seed}"]
-    for e in extra:
-        cmd += ["--set", e]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
-    if p.returncode == 3:
+    sets = [f'integrator.method="{method}"', f"integrator.h={h!r}", f"run.t_end={t_end!r}",
+            f"output.thermo_interval={THERMO_FS!r}", f"output.xyz_interval={args.frame_fs!r}",
+            f"import.lammps_data=\"{os.path.abspath(args.data)}\"", f"thermostat.seed={seed}", *extra]
+    if run_stiffmd(args.stiffmd, DECK, out, sets, accept=(0, 3), fail=sys.exit).code == 3:
         return None  # numerical blow-up
-    if p.returncode != 0:
-        sys.exit(f"stiffmd failed ({p.returncode}): {p.stderr[-2000:]}")
-    with open(os.path.join(out, "thermo.csv")) as f:
-        header = f.readline().strip().split(",")
-        rows = np.array([[float(v) for v in line.split(",")] for line in f if line.strip()])
-    col = {k: i for i, k in enumerate(header)}
-    keep = rows[:, col["time"]] >= args.skip_ps * 1000
+    th = read_thermo(os.path.join(out, "thermo.csv"))
+    keep = th["time"] >= args.skip_ps * 1000
     # The potential without the C–C bonds: potential_slow, the sum of every level but the innermost
     # (the per-level columns potential_<name> of [[integrator.levels]] add up to the same).
-    energy = rows[keep, col["potential_slow"]]
+    energy = th["potential_slow"][keep]
     frames = []
     with open(os.path.join(out, "trajectory.xyz")) as f:
         lines = f.read().splitlines()
@@ -392,11 +383,10 @@ def run_stiffmd(args, out, method, h, seed, extra=()):
         if t >= args.skip_ps * 1000:
             frames.append(np.array([[float(v) for v in line.split()[1:4]] for line in lines[k + 2:k + 2 + n]]))
         k += 2 + n
-    with open(os.path.join(out, "summary.json")) as f:
-        cpu = json.load(f)["cpu_seconds"]
+    cpu = read_summary(out)["cpu_seconds"]
     mol, dih = read_data_topology(args.data)
-    r = summarise(energy, rows[keep, col["pressure"]], frames, mol, dih, len(mol), cpu)
-    r["temperature"] = float(rows[keep, col["temperature"]].mean())
+    r = summarise(energy, th["pressure"][keep], frames, mol, dih, len(mol), cpu)
+    r["temperature"] = float(th["temperature"][keep].mean())
     return r
 
 
@@ -470,10 +460,10 @@ def compare(args):
     path = os.path.join(args.out, "results.json")
     print(f"reference ({args.reference} velocity Verlet, 1 fs) ...", flush=True)
     if args.reference == "lammps":
-        ref = seeded(args, "lammps_verlet_1fs", args.reference_seeds, lambda d, s: run_lammps(args, d, 1.0, None, s))
+        ref = seeded(args, "lammps_verlet_1fs", args.reference_seeds, lambda d, s: measure_lammps(args, d, 1.0, None, s))
     else:
         ref = seeded(args, "stiffmd_verlet_1fs", args.reference_seeds,
-                     lambda d, s: run_stiffmd(args, d, "velocity-verlet", 1.0, s, args.set))
+                     lambda d, s: measure_stiffmd(args, d, "velocity-verlet", 1.0, s, args.set))
     if ref is None:
         sys.exit("the reference run failed")
     results["reference"] = ref
@@ -481,8 +471,8 @@ def compare(args):
         name = label.replace(" ", "_") + f"_{h:g}fs"
         print(f"{label} h = {h:g} fs ...", flush=True)
         lammps = label.startswith("lammps respa")
-        r = seeded(args, name, args.seeds, lambda d, s: run_lammps(args, d, h, method, s) if lammps else
-                   run_stiffmd(args, d, method, h, s, args.set))
+        r = seeded(args, name, args.seeds, lambda d, s: measure_lammps(args, d, h, method, s) if lammps else
+                   measure_stiffmd(args, d, method, h, s, args.set))
         results["runs"].append({"code": "LAMMPS" if lammps else "stiffmd", "method": label, "h": h,
                                 "result": r, "keeps": keeps_statistics(r, ref),
                                 "z": {o: pooled_z(r, ref, o) for o in OBSERVABLES} if r else None})
