@@ -70,12 +70,10 @@ All runs are serial (OMP_NUM_THREADS = 1, OMP_WAIT_POLICY = passive); --jobs N r
 """
 import argparse
 import csv
-import json
 import math
 import os
 import shlex
 import shutil
-import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -84,7 +82,7 @@ from fractions import Fraction
 import numpy as np
 
 from chain_melt import ALPHA, count_atoms, fmt, prepare_state, write_deck, write_lammps_input
-from engines import RunFailed
+from engines import TIMEOUT, RunFailed, engine_env, read_summary, read_thermo, run_lammps, run_stiffmd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 IMPULSE_METHODS = ["impulse", "mollified-impulse", "projected-impulse"]
@@ -167,10 +165,6 @@ def fresh_dir(path):
     os.makedirs(path)
 
 
-def run_env():
-    return dict(os.environ, OMP_NUM_THREADS="1", OMP_WAIT_POLICY="passive")
-
-
 def read_data_positions(path):
     """The Atoms section of a LAMMPS data file (atom_style bond: id mol type x y z [ix iy iz]) in id
     order, image flags applied; returns (x [N,3], molecule ids [N], box lengths [3])."""
@@ -222,23 +216,7 @@ def drift_stats(energies, e0, natoms):
 
 # ------------------------------------------------------------------------------------------- runs
 
-def read_thermo_csv(path):
-    """(times, total energies, temperatures) of a stiffmd thermo.csv (possibly cut short)."""
-    t, e, temp = [], [], []
-    if not os.path.exists(path):
-        return t, e, temp
-    with open(path) as f:
-        for row in csv.DictReader(f):
-            try:
-                t.append(float(row["time"]))
-                e.append(float(row["total"]))
-                temp.append(float(row["temperature"]))
-            except (TypeError, ValueError, KeyError):
-                break
-    return t, e, temp
-
-
-def run_stiffmd(args, deck, run_dir, method, h, n, t_end, thermo_interval, natoms, final_data=False):
+def drift_stiffmd(args, deck, run_dir, method, h, n, t_end, thermo_interval, natoms, final_data=False):
     """One stiffmd run in a fresh run_dir. Returns a dict with status 'ok' or 'unstable', cpu/wall
     seconds, drift statistics, final temperature; 'final' = the final-state data path (if asked)."""
     fresh_dir(run_dir)
@@ -248,28 +226,18 @@ def run_stiffmd(args, deck, run_dir, method, h, n, t_end, thermo_interval, natom
         sets.append(f"integrator.micro_steps={n}")
     if final_data:
         sets.append('output.lammps_data="final.data"')
-    cmd = [args.stiffmd, "run", deck, "-o", run_dir, "--no-progress"]
-    for s in sets:
-        cmd += ["--set", s]
-    start = time.monotonic()
-    try:
-        p = subprocess.run(cmd, capture_output=True, text=True, env=run_env(), timeout=args.timeout)
-        code, stderr = p.returncode, p.stderr
-    except subprocess.TimeoutExpired:
-        code, stderr = "timeout", ""
-    wall = time.monotonic() - start
+    p = run_stiffmd(args.stiffmd, deck, run_dir, sets, timeout=args.timeout, accept=(0, 3, TIMEOUT))
+    code, stderr, wall = p.code, p.stderr, p.seconds
     with open(os.path.join(run_dir, "stderr.txt"), "w") as f:
         f.write(stderr)
-    if code not in (0, 3, "timeout"):
-        raise RunFailed(f"stiffmd failed (exit {code}): {shlex.join(cmd)}\n{tail_text(stderr)}")
-    times, energies, temps = read_thermo_csv(os.path.join(run_dir, "thermo.csv"))
+    th = read_thermo(os.path.join(run_dir, "thermo.csv"), missing_ok=True)  # a run stopped early may have none
+    times, energies, temps = (list(map(float, th.get(k, []))) for k in ("time", "total", "temperature"))
     for junk in ("checkpoint.bin", "histograms.csv"):
         if os.path.exists(os.path.join(run_dir, junk)):
             os.remove(os.path.join(run_dir, junk))
     r = {"steps": round(t_end / h), "t_end": t_end, "t_last": times[-1] if times else 0.0}
     if code == 0:
-        with open(os.path.join(run_dir, "summary.json")) as f:
-            s = json.load(f)
+        s = read_summary(run_dir)
         e0 = s["initial_energy"]
         d_end, d_max = drift_stats(energies + [s["final_energy"]], e0, natoms)
         r.update(status="ok", note="", steps=s["steps"], cpu_seconds=s["cpu_seconds"], wall_seconds=s["wall_seconds"],
@@ -281,7 +249,7 @@ def run_stiffmd(args, deck, run_dir, method, h, n, t_end, thermo_interval, natom
             r.update(status="unstable", note="non-finite energy")
     else:
         last = [line for line in stderr.splitlines() if "numerical failure" in line]
-        note = "timeout" if code == "timeout" else (last[-1].strip() if last else f"exit {code}")
+        note = "timeout" if code == TIMEOUT else (last[-1].strip() if last else f"exit {code}")
         r.update(status="unstable", note=note[:200], cpu_seconds=float("nan"), wall_seconds=wall,
                  drift_end_per_atom=float("inf"), drift_max_per_atom=float("inf"), max_energy_error_per_atom=float("inf"),
                  final_temperature=float("nan"), final=None)
@@ -315,20 +283,13 @@ def parse_lammps_log(path):
     return rows, loop, cpu, error
 
 
-def run_lammps(args, data, eps, h, n, steps, thermo_every, run_dir, natoms):
+def drift_lammps(args, data, eps, h, n, steps, thermo_every, run_dir, natoms):
     fresh_dir(run_dir)
     inp = os.path.join(run_dir, "in.respa")
     write_lammps_input(inp, data, eps, h, n, steps, thermo_every, "tools/work_precision_melt.py (resonance scan)")
     logf = os.path.join(run_dir, "log.lammps")
-    cmd = [args.lmp, "-in", inp, "-log", logf, "-screen", "none", "-echo", "none", "-nocite"]
-    start = time.monotonic()
-    try:
-        p = subprocess.run(cmd, capture_output=True, text=True, env=run_env(), timeout=args.timeout, cwd=run_dir)
-        code = p.returncode
-        output = p.stdout + p.stderr
-    except subprocess.TimeoutExpired:
-        code, output = "timeout", ""
-    wall = time.monotonic() - start
+    p = run_lammps(args.lmp, inp, logf, cwd=run_dir, timeout=args.timeout)
+    code, output, wall, cmd = p.code, p.stdout + p.stderr, p.seconds, p.cmd
     rows, loop, cpu, error = parse_lammps_log(logf) if os.path.exists(logf) else ([], None, 100.0, "")
     error = error or next((line.strip() for line in output.splitlines() if line.startswith("ERROR")), "")
     r = {"steps": steps, "t_end": steps * h, "t_last": rows[-1][0] * h if rows else 0.0}
@@ -342,7 +303,7 @@ def run_lammps(args, data, eps, h, n, steps, thermo_every, run_dir, natoms):
         r.update(status="ok", note="", drift_end_per_atom=d_end, drift_max_per_atom=d_max,
                  final_temperature=rows[-1][1])
     else:
-        note = "timeout" if code == "timeout" else (error or ("non-finite energy" if finished else f"exit {code}"))
+        note = "timeout" if code == TIMEOUT else (error or ("non-finite energy" if finished else f"exit {code}"))
         r.update(status="unstable", note=note[:200], drift_end_per_atom=float("inf"), drift_max_per_atom=float("inf"),
                  final_temperature=float("nan"))
     r.update(cpu_seconds=loop * cpu / 100.0 if loop is not None else float("nan"),
@@ -395,7 +356,7 @@ def short_phase(args, eps_text, eps, deck, work, natoms):
     t_end = args.t_short
     ref_dt, ref_steps = dividing_step(t_end, eps * args.ref_dt)
     log(f"eps {eps_text}: short-horizon reference, velocity Verlet δ = {ref_dt:.4g} ({ref_steps} steps to t = {t_end})")
-    ref = run_stiffmd(args, deck, os.path.join(work, "short", "reference"), "velocity-verlet", ref_dt, 1, t_end,
+    ref = drift_stiffmd(args, deck, os.path.join(work, "short", "reference"), "velocity-verlet", ref_dt, 1, t_end,
                       t_end / 10, natoms, final_data=True)
     if ref["status"] != "ok":
         raise RunFailed(f"the reference run (velocity Verlet δ = {ref_dt}) failed: {ref['note']}")
@@ -408,7 +369,7 @@ def short_phase(args, eps_text, eps, deck, work, natoms):
         h, steps = dividing_step(t_end, nominal)
         n = 1 if method == "velocity-verlet" else micro_count(h, eps * args.micro_dt)
         d = os.path.join(work, "short", f"{method}_h{h:.6g}")
-        r = run_stiffmd(args, deck, d, method, h, n, t_end, t_end / 10, natoms, final_data=True)
+        r = drift_stiffmd(args, deck, d, method, h, n, t_end, t_end / 10, natoms, final_data=True)
         r.update(eps=eps_text, method=method, h=h, n=n, micro_dt=h / n, err_rms=float("inf"), err_max=float("inf"),
                  err_com_rms=float("inf"))
         if r["status"] == "ok":
@@ -442,7 +403,7 @@ def long_phase(args, eps_text, eps, deck, work, natoms):
         steps = max(1, round(t_end / h))
         n = 1 if method == "velocity-verlet" else micro_count(h, eps * args.micro_dt)
         d = os.path.join(work, "long", f"{method}_h{h:.6g}")
-        r = run_stiffmd(args, deck, d, method, h, n, steps * h, max(h, steps * h / 200), natoms)
+        r = drift_stiffmd(args, deck, d, method, h, n, steps * h, max(h, steps * h / 200), natoms)
         r.update(eps=eps_text, method=method, h=h, n=n, micro_dt=h / n)
         r["label"] = (f"eps {eps_text} long {method} h={h:.4g} n={n}: {r['status']}, cpu {r['cpu_seconds']:.3g} s, "
                       f"max drift/atom {r['drift_max_per_atom']:.3g}")
@@ -466,9 +427,9 @@ def scan_phase(args, eps_text, eps, deck, data, work, natoms):
         every = max(1, steps // 200)
         d = os.path.join(work, "scan", f"{code}_r{ratio:.4g}")
         if code == "lammps-respa":
-            r = run_lammps(args, data, eps, h, n, steps, every, d, natoms)
+            r = drift_lammps(args, data, eps, h, n, steps, every, d, natoms)
         else:
-            r = run_stiffmd(args, deck, d, code, h, n, steps * h, every * h, natoms)
+            r = drift_stiffmd(args, deck, d, code, h, n, steps * h, every * h, natoms)
         r.update(eps=eps_text, code="lammps" if code == "lammps-respa" else "stiffmd",
                  method="respa" if code == "lammps-respa" else code, h=h, h_over_tmin=ratio, n=n, micro_dt=h / n)
         r["label"] = (f"eps {eps_text} scan {code} h/T_min={ratio:.3g} n={n}: {r['status']}, "
@@ -827,7 +788,7 @@ def main(argv=None):
                 continue
             work = os.path.join(args.out, "work", f"eps{eps_text}")
             t0 = time.monotonic()
-            state = prepare_state(args.stiffmd, eps_text, os.path.join(work, "state.data"), env=run_env())
+            state = prepare_state(args.stiffmd, eps_text, os.path.join(work, "state.data"), env=engine_env(1))
             natoms = count_atoms(state)
             deck = os.path.join(work, "deck.toml")
             write_deck(deck, state, eps, "tools/work_precision_melt.py", "velocity-verlet", eps / 40, 1, eps, eps)
