@@ -117,7 +117,7 @@ import numpy as np
 from bench_lammps import parse_lammps_log  # tools/ is the script's directory
 from chain_melt import (engine_method, fmt, prepare_state, read_bonds, write_deck, write_lammps_input,
                         xyz_frames)
-from engines import RunFailed, run_measured
+from engines import RunFailed, read_summary, run_measured
 import seed_statistics
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -302,8 +302,7 @@ def run_one(args, eps, method, h, state, chains, work, k, reference=False):
 def finished_earlier(run_dir, h, steps):
     """A stiffmd run in run_dir that finished with this h and these steps and was not analysed."""
     try:
-        with open(os.path.join(run_dir, "summary.json")) as f:
-            s = json.load(f)
+        s = read_summary(run_dir)
     except (OSError, ValueError):
         return False
     return s["steps"] == steps and math.isclose(s["h"], h, rel_tol=1e-12) and \
@@ -342,8 +341,7 @@ def measure_run(args, eps, method, h, n, t_end, steps, seed, state, chains, run_
         if code != 0:
             row["status"] = f"failed (exit {code})"
             return row
-        with open(os.path.join(run_dir, "summary.json")) as f:
-            row["cpu_seconds"] = json.load(f)["cpu_seconds"]
+        row["cpu_seconds"] = read_summary(run_dir)["cpu_seconds"]
         frames = list(xyz_frames(os.path.join(run_dir, "frames.xyz")))
         with open(os.path.join(run_dir, "thermo.csv")) as f:
             pressure = [(float(r["time"]), float(r["pressure"])) for r in csv.DictReader(f)]
@@ -532,8 +530,7 @@ def timed_measure(args, eps, method, h, n, steps, state, run_dir, repeat):
             return failed_timing(eps, method, h, n, repeat, "exit 3")
         if code != 0:
             raise RunFailed(f"timed run failed (exit {code}): {shlex.join(cmd)}")
-        with open(os.path.join(run_dir, "summary.json")) as f:
-            s = json.load(f)
+        s = read_summary(run_dir)
         wall, cpu, done = s["wall_seconds"], s["cpu_seconds"], s["steps"]
         if os.path.exists(os.path.join(run_dir, "checkpoint.bin")):
             os.remove(os.path.join(run_dir, "checkpoint.bin"))

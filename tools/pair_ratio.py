@@ -16,14 +16,13 @@ Used for the fixman ÷ rattle ratio and for before/after comparisons of a change
 Prints one line: both medians in ms per step, the median of the pair ratios and their range.
 """
 import argparse
-import json
 import os
 import shutil
 import statistics
 import sys
 import tempfile
 
-from engines import RunFailed, check_exit, run_measured  # tools/ is the script's directory
+from engines import RunFailed, check_exit, read_summary, run_measured  # tools/ is the script's directory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -43,8 +42,7 @@ def run(stiffmd, deck, sets, args, work):
         cmd += ["--set", kv]
     code, _, _ = run_measured(cmd, out, args.threads)
     check_exit(code, cmd, out, log="stderr.txt")
-    with open(os.path.join(out, "summary.json")) as f:
-        s = json.load(f)
+    s = read_summary(out)
     return 1e3 * s["cpu_seconds"] / s["steps"]
 
 

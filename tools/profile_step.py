@@ -26,7 +26,6 @@ steps of --h. Two measurements:
 The target: constraint work per macro step ≤ the slow force's (WCA + neighbour list).
 """
 import argparse
-import json
 import os
 import re
 import shutil
@@ -35,7 +34,7 @@ import subprocess
 import sys
 
 from chain_melt import engine_method, prepare_state, write_deck  # tools/ is the script's directory
-from engines import RunFailed, run_measured
+from engines import RunFailed, read_summary, run_measured
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GROUPS = [  # (group, regular expression on the symbol); the first match wins
@@ -68,8 +67,7 @@ def timed(args, method, deck, run_dir):
 
 
 def cpu_per_step(run_dir):
-    with open(os.path.join(run_dir, "summary.json")) as f:
-        s = json.load(f)
+    s = read_summary(run_dir)
     return s["cpu_seconds"] / s["steps"], s["steps"]
 
 

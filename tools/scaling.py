@@ -50,7 +50,6 @@ work/ (states, decks, runs).
 """
 import argparse
 import csv
-import json
 import os
 import resource
 import shutil
@@ -59,7 +58,7 @@ import sys
 import time
 
 from chain_melt import engine_method, fmt, prepare_state, tile_data, write_deck  # tools/ is the script's directory
-from engines import RunFailed, check_exit, run_measured
+from engines import RunFailed, check_exit, read_summary, run_measured
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA_CHAIN = "/usr/share/lammps/examples/COUPLE/multiple/data.chain"
@@ -199,8 +198,7 @@ def run_once(args, deck, sets, layout, run_dir):
     code, _, _ = run_measured(cmd, run_dir, threads)
     busy1, own1, t1 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
     check_exit(code, cmd, run_dir, log="stderr.txt")
-    with open(os.path.join(run_dir, "summary.json")) as f:
-        s = json.load(f)
+    s = read_summary(run_dir)
     if s["steps"] < 1:
         raise RunFailed(f"{run_dir}: no steps run")
     if s.get("ranks", 1) != ranks:

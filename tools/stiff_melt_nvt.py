@@ -21,15 +21,14 @@ not equilibrium values. Figure: docs/figures/stiff_melt_nvt_angles.png; table: O
 """
 import argparse
 import concurrent.futures
-import json
 import math
 import os
-import subprocess
 import sys
 
 import numpy as np
 
 from chain_melt import block_mean, read_bonds, xyz_frames  # tools/ is the script's directory
+from engines import failure, read_summary, read_thermo, run_engine, stiffmd_command
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "lammps_chain.toml")
@@ -39,20 +38,17 @@ LABEL = {"velocity-verlet": "velocity Verlet (stiff springs)", "rattle": "rattle
 
 def run(args, method, h):
     out = os.path.join(args.out, method)
-    cmd = [args.stiffmd, "run", DECK, "--no-progress", "-o", out,
-           "--set", f"variables.eps={args.eps!r}", "--set", f'integrator.method="{method}"',
-           "--set", f"integrator.h={h!r}", "--set", "integrator.micro_steps=1",
-           "--set", f"run.t_end={args.t_end!r}",
-           "--set", 'thermostat.style="langevin"', "--set", "thermostat.temperature=1.0",
-           "--set", f"thermostat.damp={args.damp!r}", "--set", f"thermostat.seed={args.seed}",
-           "--set", 'output.xyz="frames.xyz"', "--set", f"output.xyz_interval={args.frame_every!r}",
-           "--set", f"output.thermo_interval={args.frame_every / 5!r}"]
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    cmd = stiffmd_command(args.stiffmd, DECK, out, [
+        f"variables.eps={args.eps!r}", f'integrator.method="{method}"', f"integrator.h={h!r}",
+        "integrator.micro_steps=1", f"run.t_end={args.t_end!r}", 'thermostat.style="langevin"',
+        "thermostat.temperature=1.0", f"thermostat.damp={args.damp!r}", f"thermostat.seed={args.seed}",
+        'output.xyz="frames.xyz"', f"output.xyz_interval={args.frame_every!r}",
+        f"output.thermo_interval={args.frame_every / 5!r}"])
     with open(os.path.join(args.out, method + ".command.txt"), "w") as f:
         f.write(" ".join(cmd) + "\n")
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if p.returncode != 0:
-        sys.exit(f"{method} failed ({p.returncode}): {p.stderr[-2000:]}")
+    p = run_engine(cmd)
+    if p.code != 0:
+        sys.exit(failure(p, method))
     return method
 
 
@@ -84,17 +80,13 @@ def analyse(args, method, bins):
         cos2.append((c * c).mean())
         theta = np.degrees(np.arccos(np.clip(c, -1, 1)))
         hist.append(np.histogram(theta, bins=bins)[0] / len(theta))
-    with open(os.path.join(out, "thermo.csv")) as f:
-        header = f.readline().strip().split(",")
-        rows = np.array([list(map(float, line.split(","))) for line in f if line.strip()])
-    col = {k: i for i, k in enumerate(header)}
-    keep = rows[rows[:, col["time"]] > args.discard + 1e-9]
-    with open(os.path.join(out, "summary.json")) as f:
-        summary = json.load(f)
+    th = read_thermo(os.path.join(out, "thermo.csv"))
+    keep = th["time"] > args.discard + 1e-9
+    summary = read_summary(out)
     nb = args.blocks
     r = {"frames": len(cos1), "cos": block_mean(cos1, nb), "cos2": block_mean(cos2, nb),
-         "hist": block_mean(hist, nb), "rg": block_mean(keep[:, col["rg"]], nb),
-         "pressure": block_mean(keep[:, col["pressure"]], nb), "temperature": block_mean(keep[:, col["temperature"]], nb),
+         "hist": block_mean(hist, nb), "rg": block_mean(th["rg"][keep], nb),
+         "pressure": block_mean(th["pressure"][keep], nb), "temperature": block_mean(th["temperature"][keep], nb),
          "wall_per_time": summary["wall_seconds"] / summary["t_end"],
          "cpu_per_time": summary["cpu_seconds"] / summary["t_end"], "h": summary["h"]}
     return r
