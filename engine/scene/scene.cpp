@@ -387,7 +387,19 @@ void read_parallel(DeckTable& root, Scene& sc) {
 
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
-  if (!t) root.missing("run", "missing required table [run] (t_end)");
+  if (!t) root.missing("run", "missing required table [run] (t_end or steps)");
+  // run.steps = N: the run ends at step N, time N h (the run's time grid t_k = k h). Exactly one
+  // of steps and t_end: two ends could disagree.
+  if (t->has("steps")) {
+    if (t->has("t_end"))
+      t->fail("steps", "run.t_end is given too; expected either t_end (a time) or steps (a number of macro steps)");
+    const long steps = t->integer("steps");
+    t->require(steps >= 1 && steps <= 1'000'000'000'000L, "steps", "expected a number of macro steps 1 .. 1e12");
+    sc.run.steps = steps;
+    sc.run.t_end = static_cast<double>(steps) * sc.integrator.h;
+    t->finish();
+    return;
+  }
   // In the deck's units here (the messages quote them), in the engine's from the end on.
   const double t_end = t->number("t_end");
   t->require(t_end > 0.0, "t_end", "expected an end time > 0");
@@ -640,7 +652,7 @@ std::int64_t whole_steps(double span, double h) {
 }
 
 std::int64_t Scene::num_steps() const {
-  return whole_steps(run.t_end, integrator.h);
+  return run.steps > 0 ? run.steps : whole_steps(run.t_end, integrator.h);
 }
 
 // What the monitor's default checks need of the scene, and the likely cause of a run that leaves

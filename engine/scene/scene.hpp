@@ -29,7 +29,8 @@ struct ParticleType {
 };
 
 struct RunSettings {
-  double t_end = 0.0;
+  double t_end = 0.0;      // engine time; with `steps`, steps × h
+  std::int64_t steps = 0;  // run.steps: the final macro step, counted from t = 0 (0: run to t_end)
 };
 
 struct OutputSettings {
