@@ -18,6 +18,7 @@
 #include "forcefields/gravity.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd {
 namespace {
@@ -478,26 +479,48 @@ std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, De
 
 const std::vector<ForceStyle>& force_styles() {
   static const std::vector<ForceStyle> styles = {
-      {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
-      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
-      {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
-      {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
-      {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
-      {"harmonic-dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
+      {"stiff-harmonic", "bond", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
+      {"fene", "bond", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
+      {"morse", "bond", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
+      {"harmonic-angle", "angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
+      {"cosine-angle", "angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"harmonic-dihedral", "dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
        read_dihedral<HarmonicDihedralKernel, harmonic_dihedral_coeffs>},
-      {"multi-harmonic-dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
+      {"multi-harmonic-dihedral", "dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
        read_dihedral<MultiHarmonicDihedralKernel, multi_harmonic_dihedral_coeffs>},
-      {"opls-dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
+      {"opls-dihedral", "dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
        read_dihedral<OplsDihedralKernel, opls_dihedral_coeffs>},
-      {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
-      {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
-      {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
-      {"yukawa", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
-      {"gravity", Level::slow, "uniform external field, F = m g", read_gravity},
-      {"harmonic-tether", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
-      {"lj93-wall", Level::slow, "flat LJ 9-3 wall", read_wall},
+      {"lj", "pair", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
+      {"wca", "pair", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
+      {"soft", "pair", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
+      {"yukawa", "pair", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
+      {"gravity", "external", Level::slow, "uniform external field, F = m g", read_gravity},
+      {"harmonic-tether", "external", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
+      {"lj93-wall", "external", Level::slow, "flat LJ 9-3 wall", read_wall},
   };
   return styles;
+}
+
+std::string list_styles() {
+  std::ostringstream o;
+  const auto row = [&o](std::string_view name, std::string_view summary) {
+    o << "  " << name << std::string(name.size() < 26 ? 26 - name.size() : 1, ' ') << summary << "\n";
+  };
+  o << "integrator.method:\n";
+  for (const MethodInfo& m : methods()) row(m.name, m.summary);
+  for (const char* kind : {"bond", "angle", "dihedral", "pair", "external"}) {
+    o << "forces.NAME.style, " << kind << (std::string_view(kind) == "external" ? " fields" : " styles") << ":\n";
+    for (const ForceStyle& s : force_styles())
+      if (std::string_view(s.kind) == kind) row(s.name, s.summary);
+  }
+  o << "thermostat.style:\n";
+  row("langevin", "Langevin friction and noise (BAOAB; splitting = \"obabo\" or \"lammps\")");
+  row("csvr", "stochastic velocity rescaling (Bussi-Donadio-Parrinello)");
+  o << "build.style:\n";
+  row("linear-chains", "random-walk linear chains (chains, beads, bond_length, min_distance)");
+  row("rings", "closed rings (chains, beads >= 3)");
+  row("stars", "star polymers: a core with `arms` arms of `beads` beads");
+  return o.str();
 }
 
 }  // namespace stiffmd

@@ -24,11 +24,18 @@ struct TermContext {
 
 struct ForceStyle {
   const char* name;
+  const char* kind;  // "bond", "angle", "dihedral", "pair" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);
 };
 
 const std::vector<ForceStyle>& force_styles();
+
+// What a deck may name, for `stiffmd list` and `stiffmd --help`: the integrator methods
+// (integrators/methods.hpp), the force styles grouped by kind, the thermostats and the builders,
+// one line each with its summary.
+std::string list_styles();
+
 
 }  // namespace stiffmd
