@@ -278,33 +278,125 @@ void check_box_for_pairs(DeckTable& t, const TypePairMatrix<typename Kernel::Coe
 // Two particles closer than this fraction of the pair cutoff (in practice: at the same position)
 // make a pair force singular — for `soft` too, whose force has no direction at r = 0.
 constexpr double kOverlapFraction = 1e-6;
+// A kernel with a core length σ (lj, wca) cannot bear a pair closer than σ/2: there
+// E = 4ε[(σ/r)¹² − (σ/r)⁶] ≥ 4ε(2¹² − 2⁶) ≈ 1.6e4 ε and |F| ≥ 24ε(2·2¹² − 2⁶)·2/σ ≈ 3.9e5 ε/σ, so the
+// first step throws the pair apart at a speed no step resolves (with stiff bonds SHAKE then fails
+// to converge). A melt at kT ≤ 10 ε comes there with probability e^(−1600): no thermal state is
+// refused. Builders keep their own beads min_distance (0.8 σ by default) apart, but not from
+// another source's, hence the check on the scene as assembled.
+constexpr double kCoreFraction = 0.5;
+
+// The distance below which a pair of the kernel counts as overlapping at the start.
+template <class Kernel>
+double overlap_distance(const typename Kernel::Coeffs& c) {
+  double d = kOverlapFraction * Kernel::cutoff(c);
+  if constexpr (requires { c.sigma; }) d = std::max(d, kCoreFraction * c.sigma);
+  return d;
+}
+
+// Every pair (i < j) of particles closer than `range` (minimum image on periodic axes), found
+// through cells at least `range` wide: O(N) for a scene of roughly uniform density. The cells are
+// capped at a few per particle (a tiny range in a big box would ask for millions of empty ones).
+template <class Visit>
+void close_pairs(const Eigen::Matrix3Xd& x, const Box& box, double range, Visit visit) {
+  const int n = static_cast<int>(x.cols());
+  if (n < 2) return;
+  double lo[3], len[3];
+  long cells[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = box.periodic[a] ? box.origin[a] : x.row(a).minCoeff();
+    len[a] = box.periodic[a] ? box.lengths[a] : std::max(x.row(a).maxCoeff() - lo[a], range);
+    cells[a] = std::clamp(static_cast<long>(len[a] / range), 1L, 1L << 20);
+  }
+  while (cells[0] * cells[1] * cells[2] > 4L * n + 64) {
+    const int a = static_cast<int>(std::max_element(cells, cells + 3) - cells);
+    cells[a] = std::max(1L, cells[a] / 2);
+  }
+  std::vector<std::array<long, 3>> coord(static_cast<size_t>(n));
+  std::vector<long> cell_of(static_cast<size_t>(n));
+  std::vector<int> start(static_cast<size_t>(cells[0] * cells[1] * cells[2] + 1), 0), order(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      double f = (x(a, i) - lo[a]) / len[a];
+      if (box.periodic[a]) f -= std::floor(f);
+      coord[i][a] = std::clamp(static_cast<long>(f * cells[a]), 0L, cells[a] - 1);
+    }
+    cell_of[i] = (coord[i][0] * cells[1] + coord[i][1]) * cells[2] + coord[i][2];
+    ++start[static_cast<size_t>(cell_of[i]) + 1];
+  }
+  for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+  std::vector<int> fill(start.begin(), start.end() - 1);
+  for (int i = 0; i < n; ++i) order[static_cast<size_t>(fill[static_cast<size_t>(cell_of[i])]++)] = i;
+  const MinimumImage image(box);
+  for (int i = 0; i < n; ++i) {
+    long seen[27];
+    int nseen = 0;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          long c[3] = {coord[i][0] + dx, coord[i][1] + dy, coord[i][2] + dz};
+          bool inside = true;
+          for (int a = 0; a < 3; ++a) {
+            if (c[a] >= 0 && c[a] < cells[a]) continue;
+            if (box.periodic[a])
+              c[a] = (c[a] + cells[a]) % cells[a];
+            else
+              inside = false;
+          }
+          if (!inside) continue;
+          const long cell = (c[0] * cells[1] + c[1]) * cells[2] + c[2];
+          if (std::find(seen, seen + nseen, cell) != seen + nseen) continue;  // a narrow periodic axis
+          seen[nseen++] = cell;
+          for (int k = start[static_cast<size_t>(cell)]; k < start[static_cast<size_t>(cell) + 1]; ++k) {
+            const int j = order[static_cast<size_t>(k)];
+            if (j <= i) continue;
+            Eigen::Vector3d d = x.col(i) - x.col(j);
+            image.apply(d[0], d[1], d[2]);
+            const double r = d.norm();
+            if (r < range) visit(i, j, r);
+          }
+        }
+  }
+}
 
 // Overlapping particles at the start, with every pair the term acts on (special weight ≠ 0)
-// considered: an error naming the first two, found through a neighbour list of that tiny range.
+// considered: an error naming the closest two and the sources they came from.
 template <class Kernel>
 void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
                     const Scene& sc) {
-  double rc = 0.0;
+  double range = 0.0;
   for (int a = 0; a < coeffs.num_types(); ++a)
-    for (int b = a; b < coeffs.num_types(); ++b) rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
-  const double threshold = kOverlapFraction * rc;
+    for (int b = a; b < coeffs.num_types(); ++b) range = std::max(range, overlap_distance<Kernel>(coeffs(a, b)));
   const int n = sc.state.size();
-  std::vector<SpecialPair> excluded;
+  std::vector<std::pair<int, int>> excluded;
   for (const SpecialPair& sp : special_pairs(n, sc.topology.bonds, w))
-    if (sp.weight == 0.0) excluded.push_back(sp);
-  NeighborList list(threshold, 0.0);
-  list.set_exclusions(n, excluded);
-  list.build(sc.state.x, sc.box);
-  if (list.num_pairs() == 0) return;
-  const auto offsets = list.offsets();
-  int i = 0;
-  while (offsets[i + 1] == offsets[i]) ++i;
-  const int j = list.neighbors()[offsets[i]];
-  Eigen::Vector3d d = sc.state.x.col(i) - sc.state.x.col(j);
-  MinimumImage(sc.box).apply(d[0], d[1], d[2]);
-  t.fail_here("particles " + std::to_string(i) + " and " + std::to_string(j) + " overlap at the start (distance " +
-              format_number(d.norm()) + " < " + format_number(kOverlapFraction) + " × cutoff " + format_number(rc) +
-              "): the pair force between them is singular; move one of them apart");
+    if (sp.weight == 0.0) excluded.emplace_back(std::min(sp.i, sp.j), std::max(sp.i, sp.j));
+  std::sort(excluded.begin(), excluded.end());
+  long overlapping = 0;
+  int ci = -1, cj = -1;
+  double closest = 0.0, limit = 0.0;
+  close_pairs(sc.state.x, sc.box, range, [&](int i, int j, double r) {
+    const double below = overlap_distance<Kernel>(coeffs(sc.particle_type[i], sc.particle_type[j]));
+    if (!(r < below) || std::binary_search(excluded.begin(), excluded.end(), std::pair{i, j})) return;
+    ++overlapping;
+    if (ci < 0 || r < closest || (r == closest && std::pair{i, j} < std::pair{ci, cj}))
+      ci = i, cj = j, closest = r, limit = below;
+  });
+  if (ci < 0) return;
+  const auto& c = coeffs(sc.particle_type[ci], sc.particle_type[cj]);
+  std::string rule;
+  if constexpr (requires { c.sigma; })
+    rule = limit > kOverlapFraction * Kernel::cutoff(c)
+               ? "sigma/2 = " + format_number(limit) + " (the pair energy there is above 1.6e4 epsilon)"
+               : "";
+  if (rule.empty())
+    rule = format_number(kOverlapFraction) + " x cutoff " + format_number(Kernel::cutoff(c)) +
+           " (the pair force there is singular)";
+  t.fail_here(particle_and_source(sc, ci) + " and " + particle_and_source(sc, cj) + " are " + format_number(closest) +
+              " apart at the start, closer than " + rule + "; " +
+              (overlapping > 1 ? std::to_string(overlapping) + " pairs overlap, this is the closest" : "the only such pair") +
+              ": place the sources apart (a [[build]]'s density or box, [[particles]] positions, the [import]'s "
+              "file) or push them apart first (a run with a soft pair term)");
 }
 
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the

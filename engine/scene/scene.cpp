@@ -97,6 +97,7 @@ void read_particles(DeckTable& root, Scene& sc) {
     const Eigen::Matrix3Xd v = sc.units.velocity_in(1.0) * p.vector3("velocity", Eigen::Vector3d::Zero());
     if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
     const int i = append_particles(sc, x, v, {type}, {});
+    sc.sources.push_back({i, 1, p.where()});
     sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
     p.finish();
   }
@@ -608,6 +609,12 @@ void check_output_paths(const Scene& sc, const std::string& dir) {
     if (!out) throw InputError(dir + ": output directory is not writable");
   }
   fs::remove(probe, ec);
+}
+
+std::string particle_and_source(const Scene& sc, int i) {
+  for (const ParticleSource& src : sc.sources)
+    if (i >= src.first && i < src.first + src.count) return "particle " + std::to_string(i) + " (" + src.what + ")";
+  return "particle " + std::to_string(i);
 }
 
 int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name) {

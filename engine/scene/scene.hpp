@@ -72,6 +72,13 @@ struct PrepareTable : PrepareSettings {
 // number of steps, as the Python module's run_to may ask for, ends at the first step after it).
 std::int64_t whole_steps(double span, double h);
 
+// Where a run of particles came from: a [[particles]] entry, a [[build]] or the [import], for
+// messages that name a particle (the overlap check of the pair terms).
+struct ParticleSource {
+  int first = 0, count = 0;
+  std::string what;  // "file:line: build[1]", as DeckTable::where() names the table
+};
+
 struct Scene {
   std::string deck_path;
   Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (engine/core/units.hpp)
@@ -89,6 +96,7 @@ struct Scene {
   PrepareTable prepare;            // [prepare], applied by prepare_scene
   ParallelSettings parallel;       // [parallel]
   bool box_from_source = false;    // a builder's density or an imported file set the box
+  std::vector<ParticleSource> sources;  // in particle order, covering every particle
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
   // whole system's index of each particle here.
@@ -100,6 +108,9 @@ struct Scene {
   // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
   bool thermostatted() const { return integrator.thermostat.on(); }
 };
+
+// "particle 12 (file:line: build[1])": a particle and the deck table that made it.
+std::string particle_and_source(const Scene& scene, int i);
 
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not
 // change the deck's initial state: [prepare] is applied by prepare_scene.

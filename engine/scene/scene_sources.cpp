@@ -187,6 +187,7 @@ void read_builders(DeckTable& root, Scene& sc) {
     b.finish();
     const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
                                        std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
+    sc.sources.push_back({first, static_cast<int>(p.x.cols()), b.where()});
     add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type, p.dihedrals, dihedral_type);
   }
 }
@@ -280,6 +281,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const Eigen::Matrix3Xd v =
       use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
+  sc.sources.push_back({first, n, t->where() + " " + t->string(file_key)});
   for (const auto& b : in.bonds) {
     const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
     sc.topology.bonds.push_back({first + b.i, first + b.j, Topology::intern(sc.topology.bond_types, name)});
