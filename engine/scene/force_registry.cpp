@@ -37,6 +37,28 @@ double read(DeckTable& t, std::string_view key, const Quantity& q, double fallba
   return v;
 }
 
+// LAMMPS coefficient rows (Scene::lammps_coeffs): numbers in the shortest text that reads back
+// as the same double, so that a data file written back gives LAMMPS the deck's values.
+std::string numbers(std::initializer_list<double> values) {
+  std::string out;
+  for (const double v : values) {
+    if (!out.empty()) out += ' ';
+    append_shortest(out, v);
+  }
+  return out;
+}
+
+// The rows of the types a bonded term claims (index: per scene type, its coefficients in
+// `coeffs`, or -1), under the LAMMPS style `style` ("" when LAMMPS has no style of that form).
+template <class Coeffs, class Row>
+void note_lammps(LammpsCoeffs::Section* section, const std::string& style, const std::vector<int>& index,
+                 const std::vector<Coeffs>& coeffs, Row row) {
+  if (!section) return;
+  section->claim(style);
+  for (size_t k = 0; k < index.size(); ++k)
+    if (index[k] >= 0) section->rows[{static_cast<int>(k), -1}] = row(coeffs[static_cast<size_t>(index[k])]);
+}
+
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
 // Returns, per type of the scene, the index of its coefficients in `coeffs` (−1: not claimed
 // by this term). A type claimed by two terms, or a table that is missing, is an error.
@@ -94,6 +116,10 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
         return c;
       },
       coeffs);
+  // LAMMPS bond_style harmonic: E = K(r − r0)², K = ½(α/ε)².
+  note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, coeffs, [&sb](const StiffBond& c) {
+    return numbers({0.5 * (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon), c.length});
+  });
   std::vector<int> type_of;  // the scene's bond type of each stiff bond, for the message
   for (const Bond& b : claimed(ctx.scene.topology.bonds, index)) {
     sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
@@ -109,6 +135,14 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }
 
+// The LAMMPS rows of the bond kernels: bond_style fene K R0 epsilon sigma, morse D0 alpha r0.
+std::string lammps_row(const Fene::Coeffs& c) {
+  return numbers({c.K, c.R0, c.epsilon, c.sigma});
+}
+std::string lammps_row(const Morse::Coeffs& c) {
+  return numbers({c.D0, c.alpha, c.r0});
+}
+
 // Bond styles (BondTerm over a kernel of forcefields/bond_potentials.hpp): bond_types.TYPE =
 // {coefficients}, each read by `coeffs` from its table.
 template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
@@ -116,6 +150,8 @@ std::unique_ptr<ForceTerm> read_bond(const std::string& name, Level level, DeckT
   std::vector<typename Kernel::Coeffs> types;
   const auto index =
       claim_types(t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name, coeffs, types);
+  note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, std::string(Kernel::kStyle), index, types,
+              [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
   // A bond that starts outside the kernel's domain (FENE: r >= R0) is refused by read_forces
   // (engine/scene/scene.cpp, check_initial_state), as every term's initial state is.
   return std::make_unique<BondTerm<Kernel>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
@@ -147,7 +183,36 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
         return c;
       },
       coeffs);
+  // LAMMPS angle_style harmonic: K(θ − θ0)², K = k/2; angle_style cosine: K[1 + cos θ], which is
+  // k[1 − cos(θ − θ0)] only for θ0 = 180°.
+  const bool harmonic = std::is_same_v<Term, HarmonicAngle>;
+  bool straight = true;
+  for (const AngleCoeffs& c : coeffs) straight &= std::abs(c.theta0 - M_PI) < 1e-12;
+  const std::string style = harmonic ? "harmonic" : straight ? "cosine" : "";
+  note_lammps(ctx.lammps ? &ctx.lammps->angle : nullptr, style, index, coeffs, [harmonic](const AngleCoeffs& c) {
+    return harmonic ? numbers({0.5 * c.k, c.theta0 * 180.0 / M_PI}) : numbers({c.k});
+  });
   return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// The LAMMPS dihedral styles of the same form: harmonic K d n, multi/harmonic A1..A5, opls K1..K4.
+std::string lammps_dihedral_style(const HarmonicDihedralKernel::Coeffs&) {
+  return "harmonic";
+}
+std::string lammps_dihedral_style(const MultiHarmonicDihedralKernel::Coeffs&) {
+  return "multi/harmonic";
+}
+std::string lammps_dihedral_style(const OplsDihedralKernel::Coeffs&) {
+  return "opls";
+}
+std::string lammps_row(const HarmonicDihedralKernel::Coeffs& c) {
+  return numbers({c.K}) + " " + std::to_string(c.d) + " " + std::to_string(c.n);
+}
+std::string lammps_row(const MultiHarmonicDihedralKernel::Coeffs& c) {
+  return numbers({c.A[0], c.A[1], c.A[2], c.A[3], c.A[4]});
+}
+std::string lammps_row(const OplsDihedralKernel::Coeffs& c) {
+  return numbers({c.K[0], c.K[1], c.K[2], c.K[3]});
 }
 
 // Dihedral styles (DihedralTerm over a kernel of forcefields/dihedral_terms.hpp):
@@ -157,6 +222,8 @@ std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, D
   std::vector<typename Kernel::Coeffs> types;
   const auto index =
       claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name, coeffs, types);
+  note_lammps(ctx.lammps ? &ctx.lammps->dihedral : nullptr, lammps_dihedral_style(typename Kernel::Coeffs{}), index,
+              types, [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
   return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
 }
 
@@ -399,6 +466,26 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
               "file) or push them apart first (a run with a soft pair term)");
 }
 
+// The LAMMPS pair styles of the same form, cut and shifted as stiffmd's (with pair_modify shift
+// yes): lj/cut ε σ rc (wca: rc = 2^(1/6) σ), soft A rc, yukawa A rc (κ in pair_style). Returns
+// the style and sets `row`.
+std::string lammps_pair(const LennardJones::Coeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, c.rc});
+  return "lj/cut";
+}
+std::string lammps_pair(const WeeksChandlerAndersen::Coeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, WeeksChandlerAndersen::cutoff(c)});
+  return "lj/cut";
+}
+std::string lammps_pair(const SoftCosine::Coeffs& c, std::string& row) {
+  row = numbers({c.A, c.rc});
+  return "soft";
+}
+std::string lammps_pair(const Yukawa::Coeffs& c, std::string& row) {
+  row = numbers({c.A, c.rc});
+  return "yukawa";
+}
+
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
 // pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults.
 // Mixing rules (LAMMPS pair_modify mix): the coefficients of an unlike pair from those of its two
@@ -505,6 +592,18 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   auto term =
       std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
   if (!sc.local()) check_overlaps<Kernel>(t, coeffs, w, sc);  // the coefficients are valid: the term accepted them
+  if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
+    LammpsCoeffs::Section& section = ctx.lammps->pair;
+    section.pairwise = true;
+    std::string style;
+    for (int a = 0; a < ntypes; ++a)
+      for (int b = a; b < ntypes; ++b) style = lammps_pair(coeffs(a, b), section.rows[{a, b}]);
+    if constexpr (std::is_same_v<Kernel, Yukawa>)  // κ is pair_style yukawa's one global argument
+      for (int a = 0; a < ntypes; ++a)
+        for (int b = a; b < ntypes; ++b)
+          if (coeffs(a, b).kappa != coeffs(0, 0).kappa) style.clear();
+    section.claim(style);
+  }
   return term;
 }
 

@@ -20,6 +20,7 @@ struct TermContext {
   std::vector<std::string>& bond_type_owner;      // per bond type: the term that defines it ("" = none yet)
   std::vector<std::string>& angle_type_owner;     // likewise per angle type
   std::vector<std::string>& dihedral_type_owner;  // and per dihedral type
+  LammpsCoeffs* lammps = nullptr;                 // where the readers put their LAMMPS coefficients (null: nowhere)
 };
 
 struct ForceStyle {
@@ -36,6 +37,5 @@ const std::vector<ForceStyle>& force_styles();
 // (integrators/methods.hpp), the force styles grouped by kind, the thermostats and the builders,
 // one line each with its summary.
 std::string list_styles();
-
 
 }  // namespace stiffmd

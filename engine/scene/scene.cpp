@@ -241,7 +241,7 @@ void read_forces(DeckTable& root, Scene& sc) {
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
       dihedral_owner(sc.topology.dihedral_types.size());
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner};
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner, &sc.lammps_coeffs};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
