@@ -171,5 +171,22 @@ TEST(WriteData, ReimportedDataGivesTheSameEnergies) {
   EXPECT_NEAR(bends, term_energy(first, "bend"), 1e-9 * bends);
 }
 
+// One atom type: "Pair Coeffs" (rows "I coeffs"), which MDAnalysis reads too. A kind whose terms
+// need several LAMMPS styles (tests/decks/every_force_style.toml: stiff, FENE and Morse bonds; four
+// pair terms) is left out rather than written half.
+TEST(WriteData, WritesTheSectionsLammpsCanRead) {
+  const fs::path dir = scratch_dir("write_data_sections");
+  const fs::path kg = dir / "kg.data", every = dir / "every.data";
+  ASSERT_EQ(cli("check " + source_path("inputs/kremer_grest.toml") + " --write-data " + kg.string()).code, 0);
+  const ImportedSystem d = read_lammps_data(kg.string());
+  std::map<std::string, std::vector<std::string>> rows;
+  for (const auto& c : d.coeffs) rows[c.name + " # " + c.style] = c.rows;
+  EXPECT_EQ(rows, (std::map<std::string, std::vector<std::string>>{{"Pair Coeffs # lj/cut", {"1 1 1 1.12"}},
+                                                                   {"Bond Coeffs # fene", {"1 30 1.5 1 1"}}}));
+  ASSERT_EQ(cli("check " + source_path("tests/decks/every_force_style.toml") + " --write-data " + every.string()).code,
+            0);
+  EXPECT_TRUE(read_lammps_data(every.string()).coeffs.empty());
+}
+
 }  // namespace
 }  // namespace stiffmd
