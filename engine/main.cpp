@@ -24,6 +24,7 @@
 #include "engine/run/processes.hpp"
 #include "engine/run/run.hpp"
 #include "engine/scene/ensemble_deck.hpp"
+#include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene.hpp"
 
 namespace {
@@ -131,6 +132,13 @@ void check_ensemble_command(const stiffmd::EnsembleJob& job, const std::string& 
 
 }  // namespace
 
+// `stiffmd list`: the methods, force styles, thermostats and builders a deck may name; `--help`
+// says where to find them.
+CLI::App* add_list_command(CLI::App& app) {
+  app.footer("Methods, force styles, thermostats and builders: stiffmd list");
+  return app.add_subcommand("list", "list the integrator methods, force styles, thermostats and builders");
+}
+
 // " (rank r)" for a message of one rank of a decomposed run.
 std::string rank_tag(const stiffmd::Processes& p, bool decomposed) {
   return decomposed ? " (rank " + std::to_string(p.rank()) + ")" : "";
@@ -176,6 +184,8 @@ int main(int argc, char** argv) {
                 "no thermo lines on stdout, no progress bar or [prepare] progress on stderr: stdout holds only "
                 "the first line and the summary, stderr only notes, warnings and errors");
 
+  CLI::App* list = add_list_command(app);
+
   CLI::App* check = app.add_subcommand("check", "validate a deck and print what the scene contains");
   check->add_option("deck", deck_path, "deck file (TOML)")->required();
   check->add_option("--set", overrides, "override a deck key")->take_all();
@@ -197,6 +207,10 @@ int main(int argc, char** argv) {
     }
     const int code = speaker ? app.exit(e) : e.get_exit_code();
     return code == 0 ? 0 : kExitBadInput;
+  }
+  if (list->parsed()) {
+    if (speaker) std::cout << stiffmd::list_styles();
+    return 0;
   }
 
   // Each process first does alone what needs no other (the deck, the scene, a restart's

@@ -14,6 +14,8 @@
 #include <vector>
 
 #include "cli_support.hpp"
+#include "engine/scene/force_registry.hpp"
+#include "integrators/methods.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -262,6 +264,54 @@ TEST(Cli, HelpAndVersion) {
   r = cli("run --help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find("--set"), std::string::npos);
+}
+
+// `stiffmd list`: every method, force style, thermostat and builder a deck may name, with its
+// summary; `--help` points there.
+TEST(Cli, ListNamesEveryMethodAndStyle) {
+  const CliResult r = cli("list");
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const MethodInfo& m : methods()) {
+    EXPECT_NE(r.out.find(std::string(m.name)), std::string::npos) << m.name;
+    EXPECT_NE(r.out.find(std::string(m.summary)), std::string::npos) << m.summary;
+  }
+  for (const ForceStyle& s : force_styles()) {
+    EXPECT_NE(r.out.find("  " + std::string(s.name) + " "), std::string::npos) << s.name;
+    EXPECT_NE(r.out.find(s.summary), std::string::npos) << s.summary;
+  }
+  for (const char* heading : {"integrator.method:", "bond styles:", "angle styles:", "dihedral styles:", "pair styles:",
+                              "external fields:", "thermostat.style:", "build.style:"})
+    EXPECT_NE(r.out.find(heading), std::string::npos) << heading;
+  for (const char* name : {"langevin", "csvr", "linear-chains", "rings", "stars"})
+    EXPECT_NE(r.out.find(name), std::string::npos) << name;
+  EXPECT_NE(cli("--help").out.find("stiffmd list"), std::string::npos);
+}
+
+// run.steps = N ends the run at step N (t = N h), also after a restart (--set run.steps=M: to step
+// M); a --set of one of run.steps and run.t_end replaces the deck's other.
+TEST(Cli, RunStepsEndsAtThatStep) {
+  const fs::path dir = scratch_dir("run_steps");
+  const std::string deck = test::source_path("inputs/double_pendulum.toml");
+  CliResult r = cli("run " + deck + " -q --no-progress --set run.steps=64 -o " + dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("steps:         64 to t = 1 "), std::string::npos) << r.out;
+  r = cli("run " + deck + " -q --no-progress --set run.steps=96 -o " + dir.string() + " --restart " +
+          (dir / "checkpoint.bin").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("steps:         96 to t = 1.5 "), std::string::npos) << r.out;
+  r = cli("run " + deck + " -q --no-progress --set run.steps=64 -o " + dir.string() + " --restart " +
+          (dir / "checkpoint.bin").string());
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("checkpoint is at step 96, not before run.steps = 64"), std::string::npos) << r.err;
+  r = cli("check " + deck + " --set run.steps=64");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("(64 steps)"), std::string::npos) << r.out;
+  r = cli("check " + deck + " --set run.steps=64 --set run.t_end=1");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("--set run.steps: run.steps: run.t_end is given too; expected either t_end (a time) or steps"),
+            std::string::npos)
+      << r.err;
+  fs::remove_all(dir);
 }
 
 TEST(Cli, CheckDescribesTheScene) {

@@ -168,6 +168,8 @@ def engine_method(name):
 def write_deck(path, data, eps, writer, method, h, micro_steps, t_end, thermo_interval):
     """A stiffmd deck running the prepared state (with its velocities; no [velocities], no [prepare],
     no trajectory or histogram output)."""
+    # The styles come before read_data: the data file holds stiffmd's force field as Coeffs sections,
+    # which LAMMPS reads only for styles already defined.
     with open(path, "w") as f:
         f.write(f"""# Written by {writer}: the prepared state of inputs/lammps_chain.toml at eps = {eps}.
 [types.bead]
@@ -220,18 +222,20 @@ def write_lammps_input(path, data, eps, h, n, steps, thermo_every, writer, lange
         f"dump            1 all custom {int(dump[0])} {dump[1]} id mol xu yu zu\ndump_modify     1 sort id format float %.10g\n"
     columns = "step temp pe ke etotal" + ("" if langevin is None else " press")
     k_lammps = ALPHA ** 2 / (2.0 * float(eps) ** 2)  # LAMMPS harmonic: K (r - r0)^2, stiffmd ½ k (r - ℓ)^2
+    # The styles come before read_data: the data file holds stiffmd's force field as Coeffs sections,
+    # which LAMMPS reads only for styles already defined.
     with open(path, "w") as f:
         f.write(f"""# Written by {writer}: the prepared state of inputs/lammps_chain.toml at eps = {eps}, h = {h}, n = {n}.
 units           lj
 atom_style      bond
 boundary        p p p
 special_bonds   lj 0.0 1.0 1.0
-read_data       {data}
-
 bond_style      harmonic
-bond_coeff      1 {k_lammps:.17g} {fmt(BOND_LENGTH)}
 pair_style      lj/cut {WCA_CUTOFF:.17g}
 pair_modify     shift yes
+read_data       {data}
+
+bond_coeff      1 {k_lammps:.17g} {fmt(BOND_LENGTH)}
 pair_coeff      1 1 1.0 1.0 {WCA_CUTOFF:.17g}
 
 neighbor        0.3 bin

@@ -259,6 +259,11 @@ void Deck::apply_override(const std::string& assignment) {
       throw InputError("--set " + assignment + ": '" + sofar.substr(0, sofar.rfind('.')) + "' is a value, not a table");
     }
   }
+  // run.steps and run.t_end are two ways to give the run's end: a --set of one replaces the file's
+  // other (both given by --set stay, and read_run refuses them as it refuses both in the file).
+  for (const auto& [given, other] : {std::pair{"run.steps", "t_end"}, std::pair{"run.t_end", "steps"}})
+    if (key == given && !overridden_.count(std::string("run.") + other))
+      if (auto* run = table_->get_as<toml::table>("run")) run->erase(other);
   overridden_.insert(key);
 }
 

@@ -334,7 +334,10 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
   if (c.force_term_states.size() != terms.size())
     throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +
                      " force terms, the deck has " + std::to_string(terms.size()));
-  if (c.state.t >= sc.run.t_end * (1 - 1e-12)) {
+  if (sc.run.steps > 0 && c.state.step >= sc.run.steps)
+    throw InputError(path + ": checkpoint is at step " + std::to_string(c.state.step) + ", not before run.steps = " +
+                     std::to_string(sc.run.steps) + " (raise it with --set run.steps=...)");
+  if (sc.run.steps == 0 && c.state.t >= sc.run.t_end * (1 - 1e-12)) {
     std::ostringstream m;
     m.precision(10);
     m << path << ": checkpoint is at t = " << c.state.t << ", not before run.t_end = " << sc.run.t_end

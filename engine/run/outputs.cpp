@@ -2,7 +2,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <numeric>
+#include <set>
 #include <system_error>
 
 #include "engine/core/communicator.hpp"
@@ -23,26 +25,90 @@ std::vector<std::string> state_columns(int n) {
   return c;
 }
 
-// The scene's state as a LAMMPS data file's content: deck particle/bond/angle types become
-// LAMMPS types 1, 2, … in deck order; an open box gets the particles' bounding box.
-ImportedSystem to_lammps(const Scene& sc) {
+// LAMMPS type numbers for `count` scene types: those an [import] gave (`imported`, 0: none) kept,
+// the others the smallest numbers still free, in scene order. Returns the number of each.
+std::vector<int> lammps_numbers(const std::vector<int>& imported, size_t count) {
+  std::vector<int> number(count, 0);
+  std::set<int> used;
+  for (size_t k = 0; k < count && k < imported.size(); ++k)
+    if (imported[k] > 0) number[k] = imported[k], used.insert(imported[k]);
+  int next = 1;
+  for (int& n : number) {
+    if (n > 0) continue;
+    while (used.count(next)) ++next;
+    n = next++;
+  }
+  return number;
+}
+
+// A force-field section in LAMMPS's numbering, when the scene's terms give every type of the kind
+// (1 .. `types`) a row of one LAMMPS style; else nothing (a partial section would not read).
+void add_coeffs(ImportedSystem& out, const char* name, const LammpsCoeffs::Section& section,
+                const std::vector<int>& number, int types) {
+  if (!section.representable || section.style.empty() || types == 0) return;
+  ImportedSystem::CoeffSection c{name, section.style, {}};
+  std::map<std::pair<int, int>, std::string> rows;  // by LAMMPS numbers
+  for (const auto& [key, row] : section.rows) {
+    const auto [a, b] = key;
+    if (b < 0) {
+      rows[{number[static_cast<size_t>(a)], 0}] = std::to_string(number[static_cast<size_t>(a)]) + " " + row;
+    } else {
+      const int i = std::min(number[static_cast<size_t>(a)], number[static_cast<size_t>(b)]);
+      const int j = std::max(number[static_cast<size_t>(a)], number[static_cast<size_t>(b)]);
+      const bool diagonal_section = std::string_view(name) == "Pair Coeffs";  // rows "I coeffs"
+      if (diagonal_section && i != j) return;
+      rows[{i, j}] = std::to_string(i) + (diagonal_section ? "" : " " + std::to_string(j)) + " " + row;
+    }
+  }
+  const size_t expected = section.pairwise ? static_cast<size_t>(types) * (types + 1) / 2 : static_cast<size_t>(types);
+  if (rows.size() != expected) return;
+  for (const auto& [key, row] : rows) c.rows.push_back(row);
+  out.coeffs.push_back(std::move(c));
+}
+
+// The scene's state as a LAMMPS data file's content: the type numbers of an imported data file
+// kept (Scene::lammps_types), every other particle/bond/angle/dihedral type numbered after them in
+// deck order; Masses, and with `force_field` the Coeffs sections where LAMMPS has the same forms
+// (Scene::lammps_coeffs); an open box gets the particles' bounding box.
+ImportedSystem to_lammps(const Scene& sc, bool force_field) {
   ImportedSystem out;
   const State& s = sc.state;
+  const Topology& top = sc.topology;
+  const LammpsTypeNumbers& imported = sc.lammps_types;
+  const auto atom = lammps_numbers(imported.atom, sc.types.size());
+  const auto bond = lammps_numbers(imported.bond, top.bond_types.size());
+  const auto angle = lammps_numbers(imported.angle, top.angle_types.size());
+  const auto dihedral = lammps_numbers(imported.dihedral, top.dihedral_types.size());
   out.x = s.x;
   out.v = s.v * sc.units.out(Dimension::velocity);  // LAMMPS's velocity unit (real: Å/fs)
   for (int i = 0; i < s.size(); ++i) {
-    out.type.push_back(sc.particle_type[i] + 1);
-    out.molecule.push_back(sc.topology.molecule.empty() ? 0 : sc.topology.molecule[i] + 1);
+    out.type.push_back(atom[static_cast<size_t>(sc.particle_type[i])]);
+    out.molecule.push_back(top.molecule.empty() ? 0 : top.molecule[i] + 1);
     out.id.push_back(i + 1);
   }
-  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[static_cast<int>(k) + 1] = sc.types[k].mass;
-  for (const Bond& b : sc.topology.bonds) out.bonds.push_back({b.type + 1, b.i, b.j});
-  for (const Angle& a : sc.topology.angles) out.angles.push_back({a.type + 1, a.i, a.j, a.k});
-  for (const Dihedral& d : sc.topology.dihedrals) out.dihedrals.push_back({d.type + 1, d.i, d.j, d.k, d.l});
-  out.num_atom_types = static_cast<int>(sc.types.size());
-  out.num_bond_types = static_cast<int>(sc.topology.bond_types.size());
-  out.num_angle_types = static_cast<int>(sc.topology.angle_types.size());
-  out.num_dihedral_types = static_cast<int>(sc.topology.dihedral_types.size());
+  const auto max_of = [](const std::vector<int>& v) { return v.empty() ? 0 : *std::max_element(v.begin(), v.end()); };
+  out.num_atom_types = max_of(atom);
+  // A number of the imported file that no scene type took keeps the file's mass (LAMMPS needs one
+  // per type).
+  for (int t = 1; t <= out.num_atom_types; ++t)
+    if (const auto it = imported.masses.find(t); it != imported.masses.end()) out.type_mass[t] = it->second;
+  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[atom[k]] = sc.types[k].mass;
+  for (int t = 1; t <= out.num_atom_types; ++t) out.type_mass.emplace(t, 1.0);
+  for (const Bond& b : top.bonds) out.bonds.push_back({bond[static_cast<size_t>(b.type)], b.i, b.j});
+  for (const Angle& a : top.angles) out.angles.push_back({angle[static_cast<size_t>(a.type)], a.i, a.j, a.k});
+  for (const Dihedral& d : top.dihedrals)
+    out.dihedrals.push_back({dihedral[static_cast<size_t>(d.type)], d.i, d.j, d.k, d.l});
+  out.num_bond_types = max_of(bond);
+  out.num_angle_types = max_of(angle);
+  out.num_dihedral_types = max_of(dihedral);
+  const LammpsCoeffs& ff = sc.lammps_coeffs;
+  // One atom type: its one pair is the diagonal, "Pair Coeffs" (which more readers know).
+  if (force_field) {
+    add_coeffs(out, out.num_atom_types == 1 ? "Pair Coeffs" : "PairIJ Coeffs", ff.pair, atom, out.num_atom_types);
+    if (!top.bonds.empty()) add_coeffs(out, "Bond Coeffs", ff.bond, bond, out.num_bond_types);
+    if (!top.angles.empty()) add_coeffs(out, "Angle Coeffs", ff.angle, angle, out.num_angle_types);
+    if (!top.dihedrals.empty()) add_coeffs(out, "Dihedral Coeffs", ff.dihedral, dihedral, out.num_dihedral_types);
+  }
   if (sc.box.periodic.all()) {
     out.lo = sc.box.origin;
     out.hi = sc.box.origin + sc.box.lengths;
@@ -78,9 +144,10 @@ void check_rank_directory(const std::string& dir, int rank) {
   fs::remove(probe, ec);
 }
 
-void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title) {
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title,
+                             bool force_field) {
   const Topology& t = scene.topology;
-  write_lammps_data(path, to_lammps(scene),
+  write_lammps_data(path, to_lammps(scene, force_field),
                     !t.dihedrals.empty() ? "molecular"
                     : t.angles.empty()   ? "bond"
                                          : "angle",
@@ -136,7 +203,8 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
       const fs::path p = dir / kTopologyFile;
       if (!restarting)
-        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)");
+        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)",
+                                false);
       files.push_back(p.string());
     }
     if (writing && !sc.output.xyz.empty()) {

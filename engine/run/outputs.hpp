@@ -28,7 +28,10 @@ void check_rank_directory(const std::string& dir, int rank);
 
 // Writes the scene's current state (after [prepare], before any step when called on a freshly
 // loaded scene) as a LAMMPS data file: atom style bond (angle when the scene has angles).
-void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title);
+// `force_field`: with the deck's force field as Coeffs sections (Scene::lammps_coeffs), for LAMMPS;
+// without, a topology for analysis programs (MDAnalysis's reader stops at a PairIJ Coeffs section).
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title,
+                             bool force_field = true);
 
 // This process's particles in a decomposed run (engine/domain/domain_integrator.hpp): their
 // global indices, increasing, their positions and velocities, and their forces when the H5MD file

@@ -184,7 +184,10 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   col_violation_ = thermo_.column("max_violation");
   col_alerts_ = thermo_.column("alerts");
 
-  final_step_ = k0_ + whole_steps(sc.run.t_end - t0_, h_);
+  // run.steps names the final step itself: a restart with another h still ends at step N.
+  final_step_ = sc.run.steps > 0 ? sc.run.steps : k0_ + whole_steps(sc.run.t_end - t0_, h_);
+  if (sc.run.steps > 0)
+    summary_.t_end = (t0_ + static_cast<double>(final_step_ - k0_) * h_) * sc.units.out(Dimension::time);
   first_step_ = s_.step + 1;
   progress_ = std::make_unique<Progress>(opt.progress, final_step_ - s_.step);
   fingerprint_ = scene_fingerprint(sc);

@@ -18,6 +18,7 @@
 #include "forcefields/gravity.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd {
 namespace {
@@ -34,6 +35,28 @@ double read(DeckTable& t, std::string_view key, const Quantity& q, double fallba
   const double v = t.number(key, fallback);
   t.require(q.admits(v), key, "expected " + q.expected(v));
   return v;
+}
+
+// LAMMPS coefficient rows (Scene::lammps_coeffs): numbers in the shortest text that reads back
+// as the same double, so that a data file written back gives LAMMPS the deck's values.
+std::string numbers(std::initializer_list<double> values) {
+  std::string out;
+  for (const double v : values) {
+    if (!out.empty()) out += ' ';
+    append_shortest(out, v);
+  }
+  return out;
+}
+
+// The rows of the types a bonded term claims (index: per scene type, its coefficients in
+// `coeffs`, or -1), under the LAMMPS style `style` ("" when LAMMPS has no style of that form).
+template <class Coeffs, class Row>
+void note_lammps(LammpsCoeffs::Section* section, const std::string& style, const std::vector<int>& index,
+                 const std::vector<Coeffs>& coeffs, Row row) {
+  if (!section) return;
+  section->claim(style);
+  for (size_t k = 0; k < index.size(); ++k)
+    if (index[k] >= 0) section->rows[{static_cast<int>(k), -1}] = row(coeffs[static_cast<size_t>(index[k])]);
 }
 
 // Bonded styles claim named bond (or angle) types: [forces.NAME.bond_types.TYPE] = {params}.
@@ -93,6 +116,10 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
         return c;
       },
       coeffs);
+  // LAMMPS bond_style harmonic: E = K(r − r0)², K = ½(α/ε)².
+  note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, coeffs, [&sb](const StiffBond& c) {
+    return numbers({0.5 * (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon), c.length});
+  });
   std::vector<int> type_of;  // the scene's bond type of each stiff bond, for the message
   for (const Bond& b : claimed(ctx.scene.topology.bonds, index)) {
     sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
@@ -108,6 +135,14 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }
 
+// The LAMMPS rows of the bond kernels: bond_style fene K R0 epsilon sigma, morse D0 alpha r0.
+std::string lammps_row(const Fene::Coeffs& c) {
+  return numbers({c.K, c.R0, c.epsilon, c.sigma});
+}
+std::string lammps_row(const Morse::Coeffs& c) {
+  return numbers({c.D0, c.alpha, c.r0});
+}
+
 // Bond styles (BondTerm over a kernel of forcefields/bond_potentials.hpp): bond_types.TYPE =
 // {coefficients}, each read by `coeffs` from its table.
 template <class Kernel, typename Kernel::Coeffs (*coeffs)(DeckTable&)>
@@ -115,6 +150,8 @@ std::unique_ptr<ForceTerm> read_bond(const std::string& name, Level level, DeckT
   std::vector<typename Kernel::Coeffs> types;
   const auto index =
       claim_types(t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name, coeffs, types);
+  note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, std::string(Kernel::kStyle), index, types,
+              [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
   // A bond that starts outside the kernel's domain (FENE: r >= R0) is refused by read_forces
   // (engine/scene/scene.cpp, check_initial_state), as every term's initial state is.
   return std::make_unique<BondTerm<Kernel>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
@@ -146,7 +183,36 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
         return c;
       },
       coeffs);
+  // LAMMPS angle_style harmonic: K(θ − θ0)², K = k/2; angle_style cosine: K[1 + cos θ], which is
+  // k[1 − cos(θ − θ0)] only for θ0 = 180°.
+  const bool harmonic = std::is_same_v<Term, HarmonicAngle>;
+  bool straight = true;
+  for (const AngleCoeffs& c : coeffs) straight &= std::abs(c.theta0 - M_PI) < 1e-12;
+  const std::string style = harmonic ? "harmonic" : straight ? "cosine" : "";
+  note_lammps(ctx.lammps ? &ctx.lammps->angle : nullptr, style, index, coeffs, [harmonic](const AngleCoeffs& c) {
+    return harmonic ? numbers({0.5 * c.k, c.theta0 * 180.0 / M_PI}) : numbers({c.k});
+  });
   return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// The LAMMPS dihedral styles of the same form: harmonic K d n, multi/harmonic A1..A5, opls K1..K4.
+std::string lammps_dihedral_style(const HarmonicDihedralKernel::Coeffs&) {
+  return "harmonic";
+}
+std::string lammps_dihedral_style(const MultiHarmonicDihedralKernel::Coeffs&) {
+  return "multi/harmonic";
+}
+std::string lammps_dihedral_style(const OplsDihedralKernel::Coeffs&) {
+  return "opls";
+}
+std::string lammps_row(const HarmonicDihedralKernel::Coeffs& c) {
+  return numbers({c.K}) + " " + std::to_string(c.d) + " " + std::to_string(c.n);
+}
+std::string lammps_row(const MultiHarmonicDihedralKernel::Coeffs& c) {
+  return numbers({c.A[0], c.A[1], c.A[2], c.A[3], c.A[4]});
+}
+std::string lammps_row(const OplsDihedralKernel::Coeffs& c) {
+  return numbers({c.K[0], c.K[1], c.K[2], c.K[3]});
 }
 
 // Dihedral styles (DihedralTerm over a kernel of forcefields/dihedral_terms.hpp):
@@ -156,6 +222,8 @@ std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, D
   std::vector<typename Kernel::Coeffs> types;
   const auto index =
       claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name, coeffs, types);
+  note_lammps(ctx.lammps ? &ctx.lammps->dihedral : nullptr, lammps_dihedral_style(typename Kernel::Coeffs{}), index,
+              types, [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
   return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
 }
 
@@ -277,33 +345,145 @@ void check_box_for_pairs(DeckTable& t, const TypePairMatrix<typename Kernel::Coe
 // Two particles closer than this fraction of the pair cutoff (in practice: at the same position)
 // make a pair force singular — for `soft` too, whose force has no direction at r = 0.
 constexpr double kOverlapFraction = 1e-6;
+// A kernel with a core length σ (lj, wca) cannot bear a pair closer than σ/2: there
+// E = 4ε[(σ/r)¹² − (σ/r)⁶] ≥ 4ε(2¹² − 2⁶) ≈ 1.6e4 ε and |F| ≥ 24ε(2·2¹² − 2⁶)·2/σ ≈ 3.9e5 ε/σ, so the
+// first step throws the pair apart at a speed no step resolves (with stiff bonds SHAKE then fails
+// to converge). A melt at kT ≤ 10 ε comes there with probability e^(−1600): no thermal state is
+// refused. Builders keep their own beads min_distance (0.8 σ by default) apart, but not from
+// another source's, hence the check on the scene as assembled.
+constexpr double kCoreFraction = 0.5;
+
+// The distance below which a pair of the kernel counts as overlapping at the start.
+template <class Kernel>
+double overlap_distance(const typename Kernel::Coeffs& c) {
+  double d = kOverlapFraction * Kernel::cutoff(c);
+  if constexpr (requires { c.sigma; }) d = std::max(d, kCoreFraction * c.sigma);
+  return d;
+}
+
+// Every pair (i < j) of particles closer than `range` (minimum image on periodic axes), found
+// through cells at least `range` wide: O(N) for a scene of roughly uniform density. The cells are
+// capped at a few per particle (a tiny range in a big box would ask for millions of empty ones).
+template <class Visit>
+void close_pairs(const Eigen::Matrix3Xd& x, const Box& box, double range, Visit visit) {
+  const int n = static_cast<int>(x.cols());
+  if (n < 2) return;
+  double lo[3], len[3];
+  long cells[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = box.periodic[a] ? box.origin[a] : x.row(a).minCoeff();
+    len[a] = box.periodic[a] ? box.lengths[a] : std::max(x.row(a).maxCoeff() - lo[a], range);
+    cells[a] = std::clamp(static_cast<long>(len[a] / range), 1L, 1L << 20);
+  }
+  while (cells[0] * cells[1] * cells[2] > 4L * n + 64) {
+    const int a = static_cast<int>(std::max_element(cells, cells + 3) - cells);
+    cells[a] = std::max(1L, cells[a] / 2);
+  }
+  std::vector<std::array<long, 3>> coord(static_cast<size_t>(n));
+  std::vector<long> cell_of(static_cast<size_t>(n));
+  std::vector<int> start(static_cast<size_t>(cells[0] * cells[1] * cells[2] + 1), 0), order(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      double f = (x(a, i) - lo[a]) / len[a];
+      if (box.periodic[a]) f -= std::floor(f);
+      coord[i][a] = std::clamp(static_cast<long>(f * cells[a]), 0L, cells[a] - 1);
+    }
+    cell_of[i] = (coord[i][0] * cells[1] + coord[i][1]) * cells[2] + coord[i][2];
+    ++start[static_cast<size_t>(cell_of[i]) + 1];
+  }
+  for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
+  std::vector<int> fill(start.begin(), start.end() - 1);
+  for (int i = 0; i < n; ++i) order[static_cast<size_t>(fill[static_cast<size_t>(cell_of[i])]++)] = i;
+  const MinimumImage image(box);
+  for (int i = 0; i < n; ++i) {
+    long seen[27];
+    int nseen = 0;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          long c[3] = {coord[i][0] + dx, coord[i][1] + dy, coord[i][2] + dz};
+          bool inside = true;
+          for (int a = 0; a < 3; ++a) {
+            if (c[a] >= 0 && c[a] < cells[a]) continue;
+            if (box.periodic[a])
+              c[a] = (c[a] + cells[a]) % cells[a];
+            else
+              inside = false;
+          }
+          if (!inside) continue;
+          const long cell = (c[0] * cells[1] + c[1]) * cells[2] + c[2];
+          if (std::find(seen, seen + nseen, cell) != seen + nseen) continue;  // a narrow periodic axis
+          seen[nseen++] = cell;
+          for (int k = start[static_cast<size_t>(cell)]; k < start[static_cast<size_t>(cell) + 1]; ++k) {
+            const int j = order[static_cast<size_t>(k)];
+            if (j <= i) continue;
+            Eigen::Vector3d d = x.col(i) - x.col(j);
+            image.apply(d[0], d[1], d[2]);
+            const double r = d.norm();
+            if (r < range) visit(i, j, r);
+          }
+        }
+  }
+}
 
 // Overlapping particles at the start, with every pair the term acts on (special weight ≠ 0)
-// considered: an error naming the first two, found through a neighbour list of that tiny range.
+// considered: an error naming the closest two and the sources they came from.
 template <class Kernel>
 void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
                     const Scene& sc) {
-  double rc = 0.0;
+  double range = 0.0;
   for (int a = 0; a < coeffs.num_types(); ++a)
-    for (int b = a; b < coeffs.num_types(); ++b) rc = std::max(rc, Kernel::cutoff(coeffs(a, b)));
-  const double threshold = kOverlapFraction * rc;
+    for (int b = a; b < coeffs.num_types(); ++b) range = std::max(range, overlap_distance<Kernel>(coeffs(a, b)));
   const int n = sc.state.size();
-  std::vector<SpecialPair> excluded;
+  std::vector<std::pair<int, int>> excluded;
   for (const SpecialPair& sp : special_pairs(n, sc.topology.bonds, w))
-    if (sp.weight == 0.0) excluded.push_back(sp);
-  NeighborList list(threshold, 0.0);
-  list.set_exclusions(n, excluded);
-  list.build(sc.state.x, sc.box);
-  if (list.num_pairs() == 0) return;
-  const auto offsets = list.offsets();
-  int i = 0;
-  while (offsets[i + 1] == offsets[i]) ++i;
-  const int j = list.neighbors()[offsets[i]];
-  Eigen::Vector3d d = sc.state.x.col(i) - sc.state.x.col(j);
-  MinimumImage(sc.box).apply(d[0], d[1], d[2]);
-  t.fail_here("particles " + std::to_string(i) + " and " + std::to_string(j) + " overlap at the start (distance " +
-              format_number(d.norm()) + " < " + format_number(kOverlapFraction) + " × cutoff " + format_number(rc) +
-              "): the pair force between them is singular; move one of them apart");
+    if (sp.weight == 0.0) excluded.emplace_back(std::min(sp.i, sp.j), std::max(sp.i, sp.j));
+  std::sort(excluded.begin(), excluded.end());
+  long overlapping = 0;
+  int ci = -1, cj = -1;
+  double closest = 0.0, limit = 0.0;
+  close_pairs(sc.state.x, sc.box, range, [&](int i, int j, double r) {
+    const double below = overlap_distance<Kernel>(coeffs(sc.particle_type[i], sc.particle_type[j]));
+    if (!(r < below) || std::binary_search(excluded.begin(), excluded.end(), std::pair{i, j})) return;
+    ++overlapping;
+    if (ci < 0 || r < closest || (r == closest && std::pair{i, j} < std::pair{ci, cj}))
+      ci = i, cj = j, closest = r, limit = below;
+  });
+  if (ci < 0) return;
+  const auto& c = coeffs(sc.particle_type[ci], sc.particle_type[cj]);
+  std::string rule;
+  if constexpr (requires { c.sigma; })
+    rule = limit > kOverlapFraction * Kernel::cutoff(c)
+               ? "sigma/2 = " + format_number(limit) + " (the pair energy there is above 1.6e4 epsilon)"
+               : "";
+  if (rule.empty())
+    rule = format_number(kOverlapFraction) + " x cutoff " + format_number(Kernel::cutoff(c)) +
+           " (the pair force there is singular)";
+  t.fail_here(particle_and_source(sc, ci) + " and " + particle_and_source(sc, cj) + " are " + format_number(closest) +
+              " apart at the start, closer than " + rule + "; " +
+              (overlapping > 1 ? std::to_string(overlapping) + " pairs overlap, this is the closest" : "the only such pair") +
+              ": place the sources apart (a [[build]]'s density or box, [[particles]] positions, the [import]'s "
+              "file) or push them apart first (a run with a soft pair term)");
+}
+
+// The LAMMPS pair styles of the same form, cut and shifted as stiffmd's (with pair_modify shift
+// yes): lj/cut ε σ rc (wca: rc = 2^(1/6) σ), soft A rc, yukawa A rc (κ in pair_style). Returns
+// the style and sets `row`.
+std::string lammps_pair(const LennardJones::Coeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, c.rc});
+  return "lj/cut";
+}
+std::string lammps_pair(const WeeksChandlerAndersen::Coeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, WeeksChandlerAndersen::cutoff(c)});
+  return "lj/cut";
+}
+std::string lammps_pair(const SoftCosine::Coeffs& c, std::string& row) {
+  row = numbers({c.A, c.rc});
+  return "soft";
+}
+std::string lammps_pair(const Yukawa::Coeffs& c, std::string& row) {
+  row = numbers({c.A, c.rc});
+  return "yukawa";
 }
 
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
@@ -412,6 +592,18 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   auto term =
       std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
   if (!sc.local()) check_overlaps<Kernel>(t, coeffs, w, sc);  // the coefficients are valid: the term accepted them
+  if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
+    LammpsCoeffs::Section& section = ctx.lammps->pair;
+    section.pairwise = true;
+    std::string style;
+    for (int a = 0; a < ntypes; ++a)
+      for (int b = a; b < ntypes; ++b) style = lammps_pair(coeffs(a, b), section.rows[{a, b}]);
+    if constexpr (std::is_same_v<Kernel, Yukawa>)  // κ is pair_style yukawa's one global argument
+      for (int a = 0; a < ntypes; ++a)
+        for (int b = a; b < ntypes; ++b)
+          if (coeffs(a, b).kappa != coeffs(0, 0).kappa) style.clear();
+    section.claim(style);
+  }
   return term;
 }
 
@@ -478,26 +670,48 @@ std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, De
 
 const std::vector<ForceStyle>& force_styles() {
   static const std::vector<ForceStyle> styles = {
-      {"stiff-harmonic", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
-      {"fene", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
-      {"morse", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
-      {"harmonic-angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
-      {"cosine-angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
-      {"harmonic-dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
+      {"stiff-harmonic", "bond", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
+      {"fene", "bond", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
+      {"morse", "bond", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
+      {"harmonic-angle", "angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
+      {"cosine-angle", "angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"harmonic-dihedral", "dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
        read_dihedral<HarmonicDihedralKernel, harmonic_dihedral_coeffs>},
-      {"multi-harmonic-dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
+      {"multi-harmonic-dihedral", "dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
        read_dihedral<MultiHarmonicDihedralKernel, multi_harmonic_dihedral_coeffs>},
-      {"opls-dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
+      {"opls-dihedral", "dihedral", Level::slow, "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
        read_dihedral<OplsDihedralKernel, opls_dihedral_coeffs>},
-      {"lj", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
-      {"wca", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
-      {"soft", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
-      {"yukawa", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
-      {"gravity", Level::slow, "uniform external field, F = m g", read_gravity},
-      {"harmonic-tether", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
-      {"lj93-wall", Level::slow, "flat LJ 9-3 wall", read_wall},
+      {"lj", "pair", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
+      {"wca", "pair", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
+      {"soft", "pair", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
+      {"yukawa", "pair", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
+      {"gravity", "external", Level::slow, "uniform external field, F = m g", read_gravity},
+      {"harmonic-tether", "external", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
+      {"lj93-wall", "external", Level::slow, "flat LJ 9-3 wall", read_wall},
   };
   return styles;
+}
+
+std::string list_styles() {
+  std::ostringstream o;
+  const auto row = [&o](std::string_view name, std::string_view summary) {
+    o << "  " << name << std::string(name.size() < 26 ? 26 - name.size() : 1, ' ') << summary << "\n";
+  };
+  o << "integrator.method:\n";
+  for (const MethodInfo& m : methods()) row(m.name, m.summary);
+  for (const char* kind : {"bond", "angle", "dihedral", "pair", "external"}) {
+    o << "forces.NAME.style, " << kind << (std::string_view(kind) == "external" ? " fields" : " styles") << ":\n";
+    for (const ForceStyle& s : force_styles())
+      if (std::string_view(s.kind) == kind) row(s.name, s.summary);
+  }
+  o << "thermostat.style:\n";
+  row("langevin", "Langevin friction and noise (BAOAB; splitting = \"obabo\" or \"lammps\")");
+  row("csvr", "stochastic velocity rescaling (Bussi-Donadio-Parrinello)");
+  o << "build.style:\n";
+  row("linear-chains", "random-walk linear chains (chains, beads, bond_length, min_distance)");
+  row("rings", "closed rings (chains, beads >= 3)");
+  row("stars", "star polymers: a core with `arms` arms of `beads` beads");
+  return o.str();
 }
 
 }  // namespace stiffmd

@@ -20,15 +20,22 @@ struct TermContext {
   std::vector<std::string>& bond_type_owner;      // per bond type: the term that defines it ("" = none yet)
   std::vector<std::string>& angle_type_owner;     // likewise per angle type
   std::vector<std::string>& dihedral_type_owner;  // and per dihedral type
+  LammpsCoeffs* lammps = nullptr;                 // where the readers put their LAMMPS coefficients (null: nowhere)
 };
 
 struct ForceStyle {
   const char* name;
+  const char* kind;  // "bond", "angle", "dihedral", "pair" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);
 };
 
 const std::vector<ForceStyle>& force_styles();
+
+// What a deck may name, for `stiffmd list` and `stiffmd --help`: the integrator methods
+// (integrators/methods.hpp), the force styles grouped by kind, the thermostats and the builders,
+// one line each with its summary.
+std::string list_styles();
 
 }  // namespace stiffmd

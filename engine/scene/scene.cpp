@@ -97,6 +97,7 @@ void read_particles(DeckTable& root, Scene& sc) {
     const Eigen::Matrix3Xd v = sc.units.velocity_in(1.0) * p.vector3("velocity", Eigen::Vector3d::Zero());
     if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
     const int i = append_particles(sc, x, v, {type}, {});
+    sc.sources.push_back({i, 1, p.where()});
     sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
     p.finish();
   }
@@ -240,7 +241,7 @@ void read_forces(DeckTable& root, Scene& sc) {
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
       dihedral_owner(sc.topology.dihedral_types.size());
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner};
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner, &sc.lammps_coeffs};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -408,7 +409,19 @@ void read_parallel(DeckTable& root, Scene& sc) {
 
 void read_run(DeckTable& root, Scene& sc) {
   auto t = root.table("run");
-  if (!t) root.missing("run", "missing required table [run] (t_end)");
+  if (!t) root.missing("run", "missing required table [run] (t_end or steps)");
+  // run.steps = N: the run ends at step N, time N h (the run's time grid t_k = k h). Exactly one
+  // of steps and t_end: two ends could disagree.
+  if (t->has("steps")) {
+    if (t->has("t_end"))
+      t->fail("steps", "run.t_end is given too; expected either t_end (a time) or steps (a number of macro steps)");
+    const long steps = t->integer("steps");
+    t->require(steps >= 1 && steps <= 1'000'000'000'000L, "steps", "expected a number of macro steps 1 .. 1e12");
+    sc.run.steps = steps;
+    sc.run.t_end = static_cast<double>(steps) * sc.integrator.h;
+    t->finish();
+    return;
+  }
   // In the deck's units here (the messages quote them), in the engine's from the end on.
   const double t_end = t->number("t_end");
   t->require(t_end > 0.0, "t_end", "expected an end time > 0");
@@ -638,6 +651,12 @@ void check_output_paths(const Scene& sc, const std::string& dir) {
   fs::remove(probe, ec);
 }
 
+std::string particle_and_source(const Scene& sc, int i) {
+  for (const ParticleSource& src : sc.sources)
+    if (i >= src.first && i < src.first + src.count) return "particle " + std::to_string(i) + " (" + src.what + ")";
+  return "particle " + std::to_string(i);
+}
+
 int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name) {
   for (size_t k = 0; k < sc.types.size(); ++k)
     if (sc.types[k].name == name) return static_cast<int>(k);
@@ -680,7 +699,7 @@ std::int64_t whole_steps(double span, double h) {
 }
 
 std::int64_t Scene::num_steps() const {
-  return whole_steps(run.t_end, integrator.h);
+  return run.steps > 0 ? run.steps : whole_steps(run.t_end, integrator.h);
 }
 
 // What the monitor's default checks need of the scene, and the likely cause of a run that leaves

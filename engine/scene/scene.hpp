@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <ostream>
 #include <string>
@@ -29,7 +30,8 @@ struct ParticleType {
 };
 
 struct RunSettings {
-  double t_end = 0.0;
+  double t_end = 0.0;      // engine time; with `steps`, steps × h
+  std::int64_t steps = 0;  // run.steps: the final macro step, counted from t = 0 (0: run to t_end)
 };
 
 struct OutputSettings {
@@ -72,6 +74,43 @@ struct PrepareTable : PrepareSettings {
 // number of steps, as the Python module's run_to may ask for, ends at the first step after it).
 std::int64_t whole_steps(double span, double h);
 
+// Where a run of particles came from: a [[particles]] entry, a [[build]] or the [import], for
+// messages that name a particle (the overlap check of the pair terms).
+struct ParticleSource {
+  int first = 0, count = 0;
+  std::string what;  // "file:line: build[1]", as DeckTable::where() names the table
+};
+
+// The force field as LAMMPS read_data sections, for a data file written back (engine/run/outputs.cpp):
+// each force style's reader gives the coefficients of the types it claims where LAMMPS has a
+// style of the same functional form (README's force-style table), in LAMMPS's convention
+// (harmonic K = k/2, angles in degrees). A kind whose types need two LAMMPS styles, or one
+// LAMMPS lacks, is not representable and is left out of the file.
+struct LammpsCoeffs {
+  struct Section {
+    std::string style;        // the LAMMPS style ("harmonic", "lj/cut"); "" while no term gave rows
+    bool representable = true;
+    // Per scene type index (pair terms: per type pair a <= b) the coefficients after the type(s).
+    std::map<std::pair<int, int>, std::string> rows;
+    // A term of `lammps_style` gives rows; a second style of the same kind, a second pair term or
+    // "" (no LAMMPS equivalent) makes the section unrepresentable.
+    void claim(const std::string& lammps_style) {
+      if (lammps_style.empty() || (!style.empty() && (style != lammps_style || pairwise))) representable = false;
+      style = lammps_style;
+    }
+    bool pairwise = false;  // PairIJ rows: one term only (two would need pair_style hybrid/overlay)
+  };
+  Section pair, bond, angle, dihedral;
+};
+
+// The LAMMPS type numbers an [import] of a data file gave each scene type (index: the scene's
+// particle type, or its bond / angle / dihedral type; 0: none), and the file's masses, so that a
+// data file written back numbers them as the imported one did.
+struct LammpsTypeNumbers {
+  std::vector<int> atom, bond, angle, dihedral;
+  std::map<int, double> masses;
+};
+
 struct Scene {
   std::string deck_path;
   Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (engine/core/units.hpp)
@@ -89,6 +128,9 @@ struct Scene {
   PrepareTable prepare;            // [prepare], applied by prepare_scene
   ParallelSettings parallel;       // [parallel]
   bool box_from_source = false;    // a builder's density or an imported file set the box
+  std::vector<ParticleSource> sources;  // in particle order, covering every particle
+  LammpsCoeffs lammps_coeffs;           // filled by the force styles' readers
+  LammpsTypeNumbers lammps_types;       // filled by a LAMMPS [import]
   std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
   // whole system's index of each particle here.
@@ -96,10 +138,13 @@ struct Scene {
   std::vector<int> global_id;
   bool local() const { return part; }
 
-  std::int64_t num_steps() const;  // macro steps to reach run.t_end
+  std::int64_t num_steps() const;  // macro steps to reach run.t_end (run.steps when given)
   // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
   bool thermostatted() const { return integrator.thermostat.on(); }
 };
+
+// "particle 12 (file:line: build[1])": a particle and the deck table that made it.
+std::string particle_and_source(const Scene& scene, int i);
 
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not
 // change the deck's initial state: [prepare] is applied by prepare_scene.

@@ -187,6 +187,7 @@ void read_builders(DeckTable& root, Scene& sc) {
     b.finish();
     const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
                                        std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
+    sc.sources.push_back({first, static_cast<int>(p.x.cols()), b.where()});
     add_topology(sc, first, p.bonds, bond_type, p.angles, angle_type, p.dihedrals, dihedral_type);
   }
 }
@@ -280,19 +281,33 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const Eigen::Matrix3Xd v =
       use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
+  sc.sources.push_back({first, n, t->where() + " " + t->string(file_key)});
+  // The file's type numbers, kept per scene type so that a data file written back numbers them
+  // alike (several LAMMPS types mapped to one name: the smallest).
+  const auto remember = [&](std::vector<int>& numbers, int scene_type, int lammps_type) {
+    if (!lammps) return;
+    if (numbers.size() <= static_cast<size_t>(scene_type)) numbers.resize(static_cast<size_t>(scene_type) + 1, 0);
+    int& k = numbers[static_cast<size_t>(scene_type)];
+    if (k == 0 || lammps_type < k) k = lammps_type;
+  };
+  LammpsTypeNumbers& numbers = sc.lammps_types;
+  if (lammps) numbers.masses = in.type_mass;
+  for (int i = 0; i < n; ++i) remember(numbers.atom, type[i], in.type[i]);
   for (const auto& b : in.bonds) {
     const std::string name = lammps ? lookup(bond_map, b.type, "bond_types") : single_bond_type;
-    sc.topology.bonds.push_back({first + b.i, first + b.j, Topology::intern(sc.topology.bond_types, name)});
+    const int bt = Topology::intern(sc.topology.bond_types, name);
+    remember(numbers.bond, bt, b.type);
+    sc.topology.bonds.push_back({first + b.i, first + b.j, bt});
   }
   for (const auto& a : in.angles) {
-    const std::string name = lookup(angle_map, a.type, "angle_types");
-    sc.topology.angles.push_back(
-        {first + a.i, first + a.j, first + a.k, Topology::intern(sc.topology.angle_types, name)});
+    const int at = Topology::intern(sc.topology.angle_types, lookup(angle_map, a.type, "angle_types"));
+    remember(numbers.angle, at, a.type);
+    sc.topology.angles.push_back({first + a.i, first + a.j, first + a.k, at});
   }
   for (const auto& d : in.dihedrals) {
-    const std::string name = lookup(dihedral_map, d.type, "dihedral_types");
-    sc.topology.dihedrals.push_back(
-        {first + d.i, first + d.j, first + d.k, first + d.l, Topology::intern(sc.topology.dihedral_types, name)});
+    const int dt = Topology::intern(sc.topology.dihedral_types, lookup(dihedral_map, d.type, "dihedral_types"));
+    remember(numbers.dihedral, dt, d.type);
+    sc.topology.dihedrals.push_back({first + d.i, first + d.j, first + d.k, first + d.l, dt});
   }
 }
 
