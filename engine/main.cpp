@@ -199,10 +199,11 @@ int main(int argc, char** argv) {
     // A first word that is no subcommand: CLI11 would say only that one is required.
     if (argc > 1 && argv[1][0] != '-' && app.get_subcommands().empty()) {
       const std::string typed = argv[1];
-      const std::string nearest = stiffmd::nearest_name(typed, {run->get_name(), check->get_name()}, true);
+      const std::string nearest =
+          stiffmd::nearest_name(typed, {run->get_name(), check->get_name(), list->get_name()}, true);
       if (speaker)
         std::cerr << "error: unknown subcommand '" << typed << "'"
-                  << (nearest.empty() ? "; expected run or check" : "; did you mean '" + nearest + "'?") << "\n";
+                  << (nearest.empty() ? "; expected run, check or list" : "; did you mean '" + nearest + "'?") << "\n";
       return kExitBadInput;
     }
     const int code = speaker ? app.exit(e) : e.get_exit_code();

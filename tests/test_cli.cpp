@@ -195,7 +195,7 @@ TEST(Cli, AnUnknownSubcommandIsNamedWithTheNearestOne) {
   EXPECT_EQ(r.err, "error: unknown subcommand 'chek'; did you mean 'check'?\n");
   r = cli("frobnicate");
   EXPECT_EQ(r.code, 2);
-  EXPECT_EQ(r.err, "error: unknown subcommand 'frobnicate'; expected run or check\n");
+  EXPECT_EQ(r.err, "error: unknown subcommand 'frobnicate'; expected run, check or list\n");
 }
 
 // The H5MD and state files are written only when named: an option of one given without its name
