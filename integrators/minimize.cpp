@@ -11,13 +11,15 @@
 namespace stiffmd {
 
 // FIRE 2.0 as LAMMPS's MinFire::iterate with its defaults (integrator eulerimplicit,
-// halfstepback yes, delaystep_start yes, max_vdotf_negatif 0), step k = 1, 2, …:
+// halfstepback yes, initialdelay yes, vdfmax 2000: more than 2000 steps with P ≤ 0 stop it,
+// reported as "vdfmax"), step k = 1, 2, …:
 //   P = F·v.  P > 0: mixing factors c1 = 1 − α, c2 = α |v|/|F|; after more than delaystep steps
 //     since the last P ≤ 0, dt ← min(dt·dtgrow, tmax·dt0) and α ← α·alphashrink.
 //   P ≤ 0: (not within the first delaystep steps) α ← α0 and dt ← dt·dtshrink if that stays
 //     ≥ tmin·dt0; x ← x − ½ dt_v v (the half step back); v ← 0.
 //   dt_v = dt, reduced so that dt_v · max_{i,c} |v_ic| ≤ dmax (from v = dt M⁻¹F when v was reset);
-//   v ← v + dt_v M⁻¹F; if P > 0: v ← c1 v + c2 F; x ← x + dt_v v (semi-implicit Euler).
+//   v ← v + dt_v M⁻¹F; if P > 0: v ← c1 v + c2 F; x ← x + dt_v v (semi-implicit Euler), the
+//   move scaled down where a coordinate would move further than dmax (below).
 // Under rigid bonds F is P(x) f = f − Gᵀλ (G M⁻¹ F = 0: M⁻¹F is a tangent velocity), v is
 // projected onto G v = 0 before each move and at the new positions, and every move of x
 // (the step and the half step back) is followed by SHAKE (y ← y + M⁻¹G(x_old)ᵀλ, g(y) = 0).
@@ -28,7 +30,7 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
   if (p.rigid && stiff && !stiff->bonds.empty()) toolbox.emplace(stiff->bonds, s.inv_mass);
   const std::vector<Level> levels = forces.all_levels();
   Eigen::Matrix3Xd& x = s.x;
-  Eigen::Matrix3Xd raw(3, n), f(3, n), fmove(3, n), v = Eigen::Matrix3Xd::Zero(3, n), x_old;
+  Eigen::Matrix3Xd raw(3, n), f(3, n), fmove(3, n), v = Eigen::Matrix3Xd::Zero(3, n), x_old, last_move;
   const Eigen::Matrix3Xd deck_velocities = s.v;
   MinimizeReport r;
 
@@ -72,8 +74,9 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
   say("minimize: FIRE on ", n, " particles (potential energy ", e, ", force 2-norm ", f.norm(), ") ...");
 
   const double dtmax = p.tmax * p.dt, dtmin = p.tmin * p.dt;
-  double dt = p.dt, dtv = p.dt, alpha = p.alpha0;
-  long last_negative = 0;
+  double dt = p.dt, dtv = p.dt, alpha = p.alpha0;  // dt_v: the last step's, for the dmax limit
+  long last_negative = 0, uphill = 0;
+  constexpr long kMaxUphill = 2000;  // LAMMPS's min_modify vdfmax default
   bool v_reset = true;
   r.stopped_by = "maxiter";
   for (long k = 1; k <= p.maxiter; ++k) {
@@ -89,13 +92,17 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
       }
     } else {
       last_negative = k;
+      if (++uphill > kMaxUphill) {
+        r.stopped_by = "vdfmax";
+        break;
+      }
       if (k >= p.delaystep) {  // delaystep_start: no reset in the first delaystep steps
         alpha = p.alpha0;
         if (dt * p.dtshrink >= dtmin) dt *= p.dtshrink;
       }
       if (p.halfstepback && !v_reset) {
         x_old = x;
-        x -= 0.5 * dtv * v;
+        x -= 0.5 * last_move;  // −½ dt_v v, the half of the last move (as capped by dmax)
         shake_from(x_old);
         e = evaluate();
       }
@@ -114,8 +121,12 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
     v += dtv * (fmove * s.inv_mass.asDiagonal());
     if (power > 0.0) v = scale1 * v + scale2 * fmove;
     if (toolbox) toolbox->project_velocity(x, v);
+    // dmax is a hard cap on the move: LAMMPS sizes dt_v by the velocity before the kick, so a
+    // large force (an overlap) could still carry a particle far past dmax, and SHAKE with it.
+    const double reach = dtv * v.cwiseAbs().maxCoeff();
     x_old = x;
-    x += dtv * v;
+    last_move = (reach > p.dmax ? p.dmax / reach : 1.0) * dtv * v;
+    x += last_move;
     shake_from(x_old);
     if (toolbox) toolbox->project_velocity(x, v);
     e_prev = e;

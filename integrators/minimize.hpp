@@ -46,7 +46,7 @@ struct MinimizeSettings {
 };
 
 struct MinimizeReport {
-  std::string stopped_by;  // "etol", "ftol", "maxiter" or "maxeval"
+  std::string stopped_by;  // "etol", "ftol", "maxiter", "maxeval" or "vdfmax" (over 2000 steps with F·v ≤ 0, as LAMMPS)
   long iterations = 0;
   long evaluations = 0;  // force evaluations, the first one included
   double initial_energy = 0.0, energy = 0.0;
