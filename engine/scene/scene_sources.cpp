@@ -374,7 +374,7 @@ void read_minimize(DeckTable& root, Scene& sc) {
   p.dmax = t->number("dmax", 0.1);
   t->require(p.dmax > 0 && std::isfinite(p.dmax), "dmax", "expected a length > 0");
   p.max_force = t->number("max_force", 0.0);
-  t->require(p.max_force >= 0 && std::isfinite(p.max_force), "max_force", "expected a force > 0 (0: no cap)");
+  t->require(p.max_force >= 0 && std::isfinite(p.max_force), "max_force", "expected a force >= 0 (0: no cap)");
   const MethodInfo* m = find_method(sc.integrator.method);
   p.rigid = m && m->rigid_constraints && sc.forces->stiff_bonds() != nullptr;
   t->finish();
