@@ -113,6 +113,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   summary_.micro_steps = sc.integrator.micro_steps;
   summary_.t_end = sc.run.t_end * sc.units.out(Dimension::time);
   if (const StiffBonds* sb = sc.forces->stiff_bonds()) summary_.epsilon = sb->epsilon;
+  if (opt.restart.empty()) summary_.minimize = sc.minimized;
 
   const bool restarting = !opt.restart.empty();
   auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };

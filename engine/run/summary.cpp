@@ -101,6 +101,13 @@ std::string summary_json(const RunSummary& s) {
     o << s.serial_share;
   else
     o << "null";
+  if (s.minimize) {
+    const MinimizeReport& m = *s.minimize;
+    o << ",\n  \"minimize\": {\"style\": \"fire\", \"stopped_by\": \"" << m.stopped_by << "\", \"iterations\": " << m.iterations
+      << ", \"evaluations\": " << m.evaluations << ", \"initial_energy\": " << m.initial_energy
+      << ", \"energy\": " << m.energy << ", \"fmax\": " << m.fmax << ", \"fnorm\": " << m.fnorm
+      << ", \"max_violation\": " << m.max_violation << "}";
+  }
   if (s.domains.ranks > 1) {
     const DomainReport& d = s.domains;
     o << ",\n  \"ranks\": " << d.ranks << ",\n  \"domains\": {\"grid\": [" << d.grid[0] << ", " << d.grid[1] << ", "

@@ -3,12 +3,14 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "engine/core/timing.hpp"
 #include "engine/domain/decomposition.hpp"
+#include "integrators/minimize.hpp"
 
 namespace stiffmd {
 
@@ -50,6 +52,9 @@ struct RunSummary {
   DomainReport domains;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
+  // [minimize] before the run (a fresh run's; a restart does not minimise): in summary.json as
+  // "minimize": {stopped_by, iterations, evaluations, initial_energy, energy, fmax, fnorm, max_violation}.
+  std::optional<MinimizeReport> minimize;
 };
 
 std::string format_summary(const RunSummary& s);

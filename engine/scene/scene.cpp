@@ -773,6 +773,7 @@ Scene load_scene(const Deck& deck) {
   check_levels_used(root, sc);
   read_prepare(root, sc);
   read_integrator(root, sc);
+  read_minimize(root, sc);
   warn_projected_vibrations(root, sc);
   read_run(root, sc);
   read_observables(root, sc);

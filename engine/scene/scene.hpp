@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <optional>
 #include <ostream>
 #include <string>
 #include <utility>
@@ -19,6 +20,7 @@
 #include "engine/observe/observables.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/minimize.hpp"
 #include "integrators/prepare.hpp"
 
 namespace stiffmd {
@@ -66,6 +68,13 @@ struct ParallelSettings {
 // prepare_state in integrators/prepare.hpp with these settings).
 struct PrepareTable : PrepareSettings {
   bool requested = false;  // the deck has a [prepare] table
+  std::string where;       // "file:line" of that table, for errors
+};
+
+// [minimize]: FIRE 2.0 on the prepared state (prepare_scene, which calls minimize_fire in
+// integrators/minimize.hpp with these settings).
+struct MinimizeTable : MinimizeSettings {
+  bool requested = false;  // the deck has a [minimize] table
   std::string where;       // "file:line" of that table, for errors
 };
 
@@ -126,6 +135,8 @@ struct Scene {
   ObservableSettings observables;
   MonitorSettings monitor;         // [monitor]
   PrepareTable prepare;            // [prepare], applied by prepare_scene
+  MinimizeTable minimize;          // [minimize], applied by prepare_scene after [prepare]
+  std::optional<MinimizeReport> minimized;  // what [minimize] did (a fresh run's prepare_scene)
   ParallelSettings parallel;       // [parallel]
   bool box_from_source = false;    // a builder's density or an imported file set the box
   std::vector<ParticleSource> sources;  // in particle order, covering every particle
@@ -155,8 +166,8 @@ Scene load_scene(const Deck& deck);
 // the checks of the initial state that load_scene made on the whole system.
 void read_force_terms(const Deck& deck, Scene& part);
 
-// Applies [prepare] (projection, relaxation, thermal bond vibrations) to the scene's state and
-// says what it did on `log`. Called for `check` and for a fresh run; a restart takes its state
+// Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
+// relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a fresh run; a restart takes its state
 // from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
 // `progress` (null: silent) gets what it is doing while it does it (prepare_state).
 void prepare_scene(Scene& scene, std::ostream& log, std::ostream* progress = nullptr);

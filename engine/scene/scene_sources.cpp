@@ -13,6 +13,8 @@
 #include "engine/io/xyz_bonds.hpp"
 #include "engine/scene/builders.hpp"
 #include "engine/scene/whole_molecules.hpp"
+#include "integrators/methods.hpp"
+#include "integrators/minimize.hpp"
 #include "integrators/prepare.hpp"
 
 namespace stiffmd {
@@ -29,10 +31,12 @@ namespace fs = std::filesystem;
 constexpr long kMaxBuiltBeads = 500;
 constexpr long kMaxRelaxSteps = 20;
 constexpr long kMaxImportedAtoms = 500;
+constexpr long kMaxMinimizeIterations = 20;
 #else
 constexpr long kMaxBuiltBeads = 10'000'000;
 constexpr long kMaxRelaxSteps = 10'000'000;
 constexpr long kMaxImportedAtoms = std::numeric_limits<int>::max();
+constexpr long kMaxMinimizeIterations = 100'000'000;
 #endif
 
 void set_box(DeckTable& t, std::string_view key, Scene& sc, const Box& box) {
@@ -184,6 +188,10 @@ void read_builders(DeckTable& root, Scene& sc) {
     } catch (const std::exception& e) {  // invalid parameters or a builder that could not place a chain
       b.fail_here(e.what());
     }
+    // A shift of every built bead: several builders in open space all grow from the origin.
+    const Eigen::Vector3d offset = b.vector3("offset", Eigen::Vector3d::Zero());
+    b.require(offset.allFinite(), "offset", "expected a finite displacement [x, y, z]");
+    p.x.colwise() += offset;
     b.finish();
     const int first = append_particles(sc, p.x, Eigen::Matrix3Xd::Zero(3, p.x.cols()),
                                        std::vector<int>(static_cast<size_t>(p.x.cols()), type), p.molecule);
@@ -353,18 +361,76 @@ void read_prepare(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
+// [minimize]: the settings of minimize_fire (integrators/minimize.*, where the algorithm is) and
+// the table's file:line for its errors. Read after [integrator]: the step dt defaults to its h,
+// and a method with rigid constraints minimises on g(x) = 0.
+void read_minimize(DeckTable& root, Scene& sc) {
+  auto t = root.table("minimize");
+  if (!t) return;
+  MinimizeTable& p = sc.minimize;
+  p.requested = true;
+  p.where = t->where();
+  const std::string style = t->string("style", "fire");
+  t->require(style == "fire", "style", "expected \"fire\" (FIRE 2.0; no line-search method yet)");
+  p.etol = t->number("etol", 0.0);
+  t->require(p.etol >= 0 && p.etol < 1, "etol", "expected a relative energy change 0 <= etol < 1 (0: off)");
+  p.ftol = t->number("ftol", 1e-6);
+  t->require(p.ftol >= 0 && std::isfinite(p.ftol), "ftol", "expected a force >= 0 (0: off)");
+  p.maxiter = t->integer("maxiter", std::min(10'000L, kMaxMinimizeIterations));
+  t->require(p.maxiter >= 1 && p.maxiter <= kMaxMinimizeIterations, "maxiter",
+             "expected a number of iterations 1 .. " + std::to_string(kMaxMinimizeIterations));
+  p.maxeval = t->integer("maxeval", std::min(100'000L, kMaxMinimizeIterations));
+  t->require(p.maxeval >= 1 && p.maxeval <= kMaxMinimizeIterations, "maxeval",
+             "expected a number of force evaluations 1 .. " + std::to_string(kMaxMinimizeIterations));
+  const double h = sc.integrator.h / sc.units.time;
+  const double dt = t->number("dt", h);
+  t->require(dt > 0 && std::isfinite(dt), "dt", "expected a time step > 0");
+  p.dt = sc.units.time_in(dt);
+  p.dmax = t->number("dmax", 0.1);
+  t->require(p.dmax > 0 && std::isfinite(p.dmax), "dmax", "expected a length > 0");
+  p.max_force = t->number("max_force", 0.0);
+  t->require(p.max_force >= 0 && std::isfinite(p.max_force), "max_force", "expected a force >= 0 (0: no cap)");
+  const MethodInfo* m = find_method(sc.integrator.method);
+  p.rigid = m && m->rigid_constraints && sc.forces->stiff_bonds() != nullptr;
+  t->finish();
+}
+
 void prepare_scene(Scene& sc, std::ostream& log, std::ostream* progress) {
   const PrepareTable& p = sc.prepare;
-  if (!p.requested) return;
-  std::string note;
-  try {
-    note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, p, progress);
-  } catch (const NumericalError& e) {
-    throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
-  } catch (const InputError& e) {
-    throw InputError(p.where + ": prepare: " + e.what());
+  const MinimizeTable& mt = sc.minimize;
+  // The order: project, relax, minimise, then the thermal bond vibrations (a minimisation after
+  // them would take them out again).
+  const bool vibrate_after = p.requested && mt.requested && p.vibrational_temperature > 0.0;
+  auto prepare = [&](const PrepareSettings& settings) {
+    std::string note;
+    try {
+      note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, settings, progress);
+    } catch (const NumericalError& e) {
+      throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(p.where + ": prepare: " + e.what());
+    }
+    if (!note.empty()) log << note << "\n";
+  };
+  if (p.requested) {
+    PrepareSettings first = p;
+    if (vibrate_after) first.vibrational_temperature = 0.0;
+    prepare(first);
   }
-  log << note << "\n";
+  if (mt.requested) {
+    try {
+      sc.minimized = minimize_fire(*sc.forces, sc.forces->stiff_bonds(), sc.state, mt, progress);
+    } catch (const NumericalError& e) {
+      throw InputError(mt.where + ": " + e.what());
+    }
+    log << describe(*sc.minimized) << "\n";
+  }
+  if (vibrate_after) {
+    PrepareSettings vibrate = p;
+    vibrate.project = false;
+    vibrate.relax_steps = 0;
+    prepare(vibrate);
+  }
 }
 
 }  // namespace stiffmd

@@ -23,5 +23,6 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
 void make_scene_molecules_whole(DeckTable& root, Scene& sc);
 void read_velocities(DeckTable& root, Scene& sc);
 void read_prepare(DeckTable& root, Scene& sc);  // reads the settings; prepare_scene (scene.hpp) acts
+void read_minimize(DeckTable& root, Scene& sc);  // [minimize], read after [integrator]; prepare_scene acts
 
 }  // namespace stiffmd

@@ -1,0 +1,72 @@
+// Energy minimisation by FIRE 2.0 (Guénolé et al., Comput. Mater. Sci. 175, 109584 (2020),
+// Algorithm 2; the variant and defaults of LAMMPS's `min_style fire`), with LAMMPS's stopping
+// rules `minimize etol ftol maxiter maxeval`. Rigid bonds stay exact: the force is projected onto
+// the tangent space of the constraint manifold and the positions are SHAKEn after every move, as
+// GROMACS does. The deck side ([minimize], errors at its file:line) is engine/scene/scene_sources.cpp.
+#pragma once
+
+#include <functional>
+#include <ostream>
+#include <string>
+
+#include "engine/core/state.hpp"
+#include "forcefields/force_field.hpp"
+#include "forcefields/stiff_bond.hpp"
+
+namespace stiffmd {
+
+struct MinimizeSettings {
+  // Stopping rules, as LAMMPS's `minimize etol ftol maxiter maxeval` (0 switches etol or ftol off):
+  //   etol: |E_k − E_{k−1}| < etol · ½ (|E_k| + |E_{k−1}| + 1e-8)  (LAMMPS's relative change, EPS_ENERGY = 1e-8)
+  //   ftol: ‖F‖₂ = (Σ_i |F_i|²)^{1/2} < ftol over the whole system's force vector (LAMMPS's default
+  //         min_modify norm two), F the force that moves: projected, under rigid bonds, and zero
+  //         at fixed particles
+  double etol = 0.0;
+  double ftol = 1e-6;  // a force
+  long maxiter = 10000;
+  long maxeval = 100000;
+  // FIRE 2.0 (LAMMPS min_style fire defaults, its names): the initial step dt, the bounds
+  // tmax·dt and tmin·dt on the adapted step, the steps after an uphill move before dt may grow,
+  // the growth and shrink factors, the mixing α and its decay, and the half step back on an
+  // uphill move (the "inertia correction"); the scheme is semi-implicit Euler.
+  double dt = 0.0;    // engine time units; must be > 0
+  double dmax = 0.1;  // no coordinate of any particle moves further in one step (LAMMPS min_modify dmax)
+  double tmax = 10.0, tmin = 0.02;
+  long delaystep = 20;
+  double dtgrow = 1.1, dtshrink = 0.5, alpha0 = 0.25, alphashrink = 0.99;
+  bool halfstepback = true;
+  // Soft start: each particle's force magnitude capped at this during the moves (0: no cap), so
+  // that overlapping beads move apart by dmax per step instead of by what r⁻¹³ asks. The
+  // stopping rules read the true force.
+  double max_force = 0.0;
+  // Hold the constraint-defining stiff bonds rigid (a method with rigid_constraints): minimise
+  // the other terms on g(x) = 0. Otherwise every term, the stiff springs included, is minimised.
+  bool rigid = false;
+  double shake_tolerance = 1e-10;  // max |g| after each move
+};
+
+struct MinimizeReport {
+  std::string stopped_by;  // "etol", "ftol", "maxiter", "maxeval" or "vdfmax" (over 2000 steps with F·v ≤ 0, as LAMMPS)
+  long iterations = 0;
+  long evaluations = 0;  // force evaluations, the first one included
+  double initial_energy = 0.0, energy = 0.0;
+  double fmax = 0.0;   // the largest |F_i| at the end
+  double fnorm = 0.0;  // ‖F‖₂ at the end
+  double max_violation = 0.0;  // max |g| at the end (rigid bonds; 0 otherwise)
+};
+
+// Called after every move with the new positions and their energy (for tests and progress).
+using MinimizeObserver = std::function<void(const Eigen::Matrix3Xd& x, double energy)>;
+
+// Minimises the potential energy of `s` in place. The velocities s.v are not FIRE's: they are
+// kept (projected onto the tangent space at the minimum under rigid bonds), as a LAMMPS
+// `minimize` leaves a run's velocities to the deck. `stiff` may be null when !p.rigid.
+// Throws NumericalError when SHAKE does not converge or the energy is not finite.
+MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                             std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
+
+// "minimize: FIRE stopped by ftol after N iterations (M force evaluations): E0 -> E, largest
+// force |f|max = …, force 2-norm …"
+std::string describe(const MinimizeReport& r);
+
+}  // namespace stiffmd
