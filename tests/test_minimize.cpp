@@ -166,6 +166,10 @@ TEST(Minimize, OverlappingBuildersRelaxAndRun) {
   const CliResult r = cli("run " + deck + " --no-progress -o " + (dir / "out").string(), "timeout 120 ");
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("minimize: FIRE stopped by ftol after "), std::string::npos) << r.err;
+  // The overlap a deck without [minimize] is refused for (tests/bad_decks/builders_overlap.toml)
+  // is named, and left to the minimiser.
+  EXPECT_NE(r.err.find("are 0.2 apart at the start, closer than sigma/2 = 0.5"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("[minimize] relaxes them before the run"), std::string::npos) << r.err;
   const std::string summary = slurp(dir / "out" / "summary.json");
   EXPECT_NE(summary.find("\"minimize\": {\"style\": \"fire\", \"stopped_by\": \"ftol\""), std::string::npos)
       << summary;

@@ -430,7 +430,7 @@ void close_pairs(const Eigen::Matrix3Xd& x, const Box& box, double range, Visit 
 // considered: an error naming the closest two and the sources they came from.
 template <class Kernel>
 void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
-                    const Scene& sc) {
+                    const Scene& sc, std::string* found) {
   double range = 0.0;
   for (int a = 0; a < coeffs.num_types(); ++a)
     for (int b = a; b < coeffs.num_types(); ++b) range = std::max(range, overlap_distance<Kernel>(coeffs(a, b)));
@@ -459,11 +459,14 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
   if (rule.empty())
     rule = format_number(kOverlapFraction) + " x cutoff " + format_number(Kernel::cutoff(c)) +
            " (the pair force there is singular)";
-  t.fail_here(particle_and_source(sc, ci) + " and " + particle_and_source(sc, cj) + " are " + format_number(closest) +
-              " apart at the start, closer than " + rule + "; " +
-              (overlapping > 1 ? std::to_string(overlapping) + " pairs overlap, this is the closest" : "the only such pair") +
-              ": place the sources apart (a [[build]]'s density or box, [[particles]] positions, the [import]'s "
-              "file) or push them apart first (a run with a soft pair term)");
+  const std::string what =
+      particle_and_source(sc, ci) + " and " + particle_and_source(sc, cj) + " are " + format_number(closest) +
+      " apart at the start, closer than " + rule + "; " +
+      (overlapping > 1 ? std::to_string(overlapping) + " pairs overlap, this is the closest" : "the only such pair") +
+      ": place the sources apart (a [[build]]'s density or box, [[particles]] positions, the [import]'s file) or "
+      "relax them first ([minimize] with max_force)";
+  if (!found) t.fail_here(what);
+  if (found->empty()) found->assign(t.where() + ": " + what);  // the first term's finding
 }
 
 // The LAMMPS pair styles of the same form, cut and shifted as stiffmd's (with pair_modify shift
@@ -591,7 +594,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
   auto term =
       std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
-  if (!sc.local()) check_overlaps<Kernel>(t, coeffs, w, sc);  // the coefficients are valid: the term accepted them
+  if (!sc.local()) check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);  // the term accepted the coefficients
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
     section.pairwise = true;

@@ -21,6 +21,9 @@ struct TermContext {
   std::vector<std::string>& angle_type_owner;     // likewise per angle type
   std::vector<std::string>& dihedral_type_owner;  // and per dihedral type
   LammpsCoeffs* lammps = nullptr;                 // where the readers put their LAMMPS coefficients (null: nowhere)
+  // The pair terms' overlap finding (the closest two particles closer than the potential bears,
+  // the whole error line): load_scene refuses it unless [minimize] relaxes the start.
+  std::string* overlap = nullptr;
 };
 
 struct ForceStyle {

@@ -234,14 +234,16 @@ void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
   }
 }
 
-void read_forces(DeckTable& root, Scene& sc) {
+// `overlap`: where the pair terms put their finding of overlapping particles at the start (null:
+// they refuse it at once).
+void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
   std::vector<std::string> level_names;
   for (const LevelSettings& l : sc.integrator.levels) level_names.push_back(l.name);
   sc.forces = level_names.empty() ? std::make_unique<ForceField>(sc.box, sc.state.size())
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
       dihedral_owner(sc.topology.dihedral_types.size());
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner, &sc.lammps_coeffs};
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner, &sc.lammps_coeffs, overlap};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -769,11 +771,19 @@ Scene load_scene(const Deck& deck) {
   make_scene_molecules_whole(root, sc);
   read_velocities(root, sc);
   read_levels(root, sc);
-  read_forces(root, sc);
+  std::string overlap;
+  read_forces(root, sc, &overlap);
   check_levels_used(root, sc);
   read_prepare(root, sc);
   read_integrator(root, sc);
   read_minimize(root, sc);
+  // Beads closer than the pair potentials bear: [minimize] relaxes them before the run (its soft
+  // start, max_force, caps the forces there); without it the run would blow up at its first step.
+  if (!overlap.empty()) {
+    if (!sc.minimize.requested) throw InputError(overlap);
+    sc.notes.push_back("note: " + overlap.substr(0, overlap.rfind(": place the sources apart")) +
+                       "; [minimize] relaxes them before the run");
+  }
   warn_projected_vibrations(root, sc);
   read_run(root, sc);
   read_observables(root, sc);
