@@ -214,6 +214,7 @@ void Run::step_to(std::int64_t k) {
     reset_parallel_seconds();
     clock_.resume();
   }
+  reset_widest_team();
   struct Pause {
     Run& r;
     double entered;
@@ -225,6 +226,7 @@ void Run::step_to(std::int64_t k) {
         stop_parallel_seconds();
       }
       r.loop_seconds_ += seconds_now() - entered;
+      r.threads_used_ = std::max(r.threads_used_, widest_team());
     }
   } pause{*this, entered, timed};
   while (s_.step < k) {
@@ -264,7 +266,7 @@ const RunSummary& Run::finish() {
     summary_.domains = domain_->report();
     summary_.h5md_writers = outputs_->h5md_writers();
   }
-  summary_.threads = max_threads();
+  summary_.threads = threads_used_;  // not OMP_NUM_THREADS: loops over few items run on one
   summary_.phase_seconds.clear();
   if (timed_by_phase()) {
     for (int p = 0; p < static_cast<int>(Phase::count); ++p) summary_.phase_seconds.push_back(clock_.seconds(Phase(p)));

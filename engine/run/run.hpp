@@ -143,6 +143,7 @@ class Run {
   PhaseClock clock_;               // where the step loop's time goes, running inside step_to
   double loop_seconds_ = 0.0;      // the step loop's wall time, measured apart from the clock
   double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (engine/core/parallel.hpp)
+  int threads_used_ = 1;           // the most threads a parallel loop of the step loop ran on
   std::clock_t cpu_start_ = 0;
 };
 

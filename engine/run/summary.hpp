@@ -41,7 +41,7 @@ struct RunSummary {
   double loop_seconds = 0.0;
   std::vector<double> phase_seconds;
   double serial_share = -1.0;
-  int threads = 1;
+  int threads = 1;  // the most threads a loop of the step loop ran on (1 for a small system)
   // A decomposed run (ranks > 1): the step loop's wall time per rank (mean and max: the load
   // imbalance; loop_seconds is the max) and the decomposition's counts.
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
