@@ -278,6 +278,22 @@ TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
   EXPECT_NE(r.err.find("at step 0 (t = 0)"), std::string::npos) << r.err;
 }
 
+// The warning concerns the methods that follow the effective dynamics (effective, the projected
+// and mollified impulse methods); velocity Verlet and the impulse method resolve the vibrations and
+// rattle has none, so on the same chain they say nothing about it.
+TEST(ValidityMonitor, WarnsOnlyForTheMethodsThatFollowTheEffectiveDynamics) {
+  for (const std::string method : {"effective", "mollified-impulse", "velocity-verlet", "impulse", "rattle"}) {
+    SCOPED_TRACE(method);
+    const std::string h = method == "velocity-verlet" ? "2e-4" : "0.01";
+    const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") +
+                       " --no-progress --set run.t_end=0.02 --set integrator.h=" + h +
+                       " --set integrator.method=" + method + " -o " + test::scratch_dir("hanging_" + method).string());
+    EXPECT_EQ(r.code, 0) << r.err;
+    const bool follows = find_method(method)->follows_effective;
+    EXPECT_EQ(r.err.find("loses validity") != std::string::npos, follows) << r.err;
+  }
+}
+
 }  // namespace
 }  // namespace stiffmd
 

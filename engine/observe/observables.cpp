@@ -81,6 +81,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     omega_.resize(m);
     actions_.resize(m);
     sqrt_eps_ = std::sqrt(stiff->epsilon);
+    validity_warnings_ = settings.validity_warnings;
     for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
     for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
     columns_.push_back("min_gap");
@@ -174,9 +175,11 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
     values_.push_back(std::isfinite(v.min_gap) ? v.min_gap : -1.0);
     values_.push_back(std::isfinite(v.min_resonance) ? v.min_resonance : -1.0);
     // Validity of the effective dynamics (paper eqs. (separated), (nonresonant)): below √ε the
-    // slow motion is no longer determined by the actions (Takens chaos).
+    // slow motion is no longer determined by the actions (Takens chaos). Said only for a method
+    // that follows the effective dynamics: velocity Verlet and the impulse method resolve the
+    // vibrations, and the constrained methods but effective have none, so it says nothing of theirs.
     auto warn = [&](bool& warned, double value, const char* what) {
-      if (warned || !(value < sqrt_eps_)) return;
+      if (!validity_warnings_ || warned || !(value < sqrt_eps_)) return;
       warned = true;
       std::ostringstream m;
       m << "warning: " << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step " << s.step

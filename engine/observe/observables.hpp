@@ -40,6 +40,9 @@ struct ObservableSettings {
   // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
+  // With the actions: warn when the stiff frequencies come closer than √ε (a gap or a resonance),
+  // for a method whose solution follows the effective dynamics (MethodInfo::follows_effective).
+  bool validity_warnings = false;
 };
 
 // What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
@@ -101,7 +104,8 @@ class Thermo {
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
-  // √ε, said once each, with step and time). Taken (cleared) by the caller.
+  // √ε, said once each, with step and time; ObservableSettings::validity_warnings). Taken
+  // (cleared) by the caller.
   std::vector<std::string> take_notes() { return std::move(notes_); }
 
  private:
@@ -113,6 +117,7 @@ class Thermo {
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;
   double sqrt_eps_ = 0.0;
+  bool validity_warnings_ = false;
   bool warned_gap_ = false, warned_resonance_ = false;
   std::vector<std::string> columns_;
   std::vector<double> values_;

@@ -30,11 +30,13 @@ void write_atomically(const fs::path& p, const std::string& text) {
 }
 
 // The observables as the run counts them: the rigid constraints of the constrained methods take
-// one degree of freedom each.
+// one degree of freedom each; the effective dynamics' validity is watched where the method follows it.
 ObservableSettings run_observables(const Scene& sc) {
   ObservableSettings observables = sc.observables;
-  if (find_method(sc.integrator.method)->rigid_constraints)
+  const MethodInfo& method = *find_method(sc.integrator.method);
+  if (method.rigid_constraints)
     observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  observables.validity_warnings = method.follows_effective;
   return observables;
 }
 
