@@ -71,6 +71,7 @@ const std::map<std::string, std::string> kColumnOf = {{"Time", "time"},
                                                       {"KinEng", "kinetic"},
                                                       {"PotSlow", "potential_slow"},
                                                       {"PotStiff", "potential_stiff"},
+                                                      {"PotFixman", "potential_fixman"},
                                                       {"PotEng", "potential_slow"},
                                                       {"TotEng", "total"},
                                                       {"Press", "pressure"}};
@@ -119,6 +120,33 @@ std::vector<double> h5_observable(const fs::path& file, const std::string& name)
   }
   H5Fclose(f);
   return v;
+}
+
+// Under fixman the model potential is Fixman's U_F, a free energy (up to a constant), not the
+// springs' energy: it has its own column potential_fixman (screen: PotFixman), in the total, and
+// potential_stiff stays the stiff bonds' energy (0 on rigid bonds, to SHAKE's tolerance).
+TEST(Terminal, FixmansPotentialHasAColumnOfItsOwn) {
+  const fs::path dir = scratch_dir("screen_fixman");
+  const CliResult r = cli("run " + melt() +
+                          " --no-progress --set run.t_end=0.075 --set output.screen_interval=0.015"
+                          " --set integrator.method=fixman --set thermostat.style=langevin"
+                          " --set thermostat.temperature=1.0 --set thermostat.damp=1.0 --set thermostat.seed=3"
+                          " --set monitor.energy_error=0 -o " +
+                          dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const ScreenLines s = screen_lines(r.out);
+  ASSERT_EQ(std::count(s.labels.begin(), s.labels.end(), "PotFixman"), 1) << r.out;
+  const test::CsvTable csv = test::read_csv((dir / "thermo.csv").string());
+  expect_lines_are_csv_rows(s, csv);
+  ASSERT_FALSE(csv.rows.empty());
+  for (const auto& row : csv.rows) {
+    EXPECT_NE(row[csv.col("potential_fixman")], 0.0);
+    EXPECT_LT(std::abs(row[csv.col("potential_stiff")]), 1e-12);
+    const double sum = row[csv.col("kinetic")] + row[csv.col("potential_slow")] + row[csv.col("potential_stiff")] +
+                       row[csv.col("potential_fixman")];
+    EXPECT_NEAR(row[csv.col("total")], sum, 1e-10 * std::abs(sum));
+  }
+  fs::remove_all(dir);
 }
 
 TEST(Terminal, ThermoLinesAreTheThermoRowsAtTheScreenInterval) {

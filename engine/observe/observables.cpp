@@ -44,8 +44,10 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     : forces_(forces),
       level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
                        forces.level_name(Level::slow) == "slow")),
-      columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
-               "total", "energy_drift", "max_violation", "temperature"} {
+      fixman_(settings.fixman),
+      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff"} {
+  if (fixman_) columns_.push_back("potential_fixman");
+  columns_.insert(columns_.end(), {"total", "energy_drift", "max_violation", "temperature"});
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
   ThermostatSettings thermostat;
@@ -149,14 +151,16 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
     else
       e.stiff = e.by_level[k];
   const double thermal_kinetic = kinetic_estimate >= 0.0 ? kinetic_estimate : e.kinetic;
-  e.stiff += model_potential;
+  (fixman_ ? e.fixman : e.stiff) += model_potential;
   if (!have_e0_) {
     e0_ = e.total();
     have_e0_ = true;
   }
   values_.clear();
-  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
-                                 e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff});
+  if (fixman_) values_.push_back(e.fixman);
+  values_.insert(values_.end(),
+                 {e.total(), e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.

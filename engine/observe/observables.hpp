@@ -23,8 +23,9 @@ struct Energies {
   double kinetic = 0.0;
   double slow = 0.0;             // U(x): every term on a level outside the innermost
   double stiff = 0.0;            // ε⁻²V(x) and anything else integrated on the fast (innermost) level
+  double fixman = 0.0;           // Fixman's U_F (the fixman method's model potential), else 0
   std::vector<double> by_level;  // each level's potential energy, innermost first
-  double total() const { return kinetic + slow + stiff; }
+  double total() const { return kinetic + slow + stiff + fixman; }
 };
 
 Energies energies(const State& s, const ForceField& forces);
@@ -40,6 +41,11 @@ struct ObservableSettings {
   // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
+  // The method's model potential is Fixman's U_F, a free energy (negative: the log-determinant of
+  // the bond frequencies), not an energy of the springs: it gets its own column potential_fixman
+  // (in the total), and potential_stiff stays the stiff level's energy. The effective dynamics'
+  // W = Σ I_k ω_k is the averaged energy of the bond vibrations and stays in potential_stiff.
+  bool fixman = false;
   // With the actions: warn when the stiff frequencies come closer than √ε (a gap or a resonance),
   // for a method whose solution follows the effective dynamics (MethodInfo::follows_effective).
   bool validity_warnings = false;
@@ -72,7 +78,8 @@ class Thermo {
          const Topology* topology = nullptr);
   const std::vector<std::string>& columns() const { return columns_; }
   // Values for the current state; energy_drift is relative to the first call's total energy.
-  // model_potential (W of the effective dynamics) is counted in potential_stiff.
+  // model_potential (W of the effective dynamics) is counted in potential_stiff, or under fixman
+  // (Fixman's U_F) in potential_fixman; both in the total.
   // constraint_virial (Σ x·F_c of rigid constraints) is added to the pressure's virial.
   // kinetic_estimate (Integrator::kinetic_energy_estimate; < 0: the state's ½vᵀMv) is the kinetic
   // energy of the temperature and of the pressure's kinetic term: under Langevin, that of the
@@ -111,6 +118,7 @@ class Thermo {
  private:
   const ForceField& forces_;
   bool level_columns_;  // a potential_<level> column per named level
+  bool fixman_;         // ObservableSettings::fixman: the model potential in potential_fixman
   int dof_ = 0;
   double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
   std::unique_ptr<Molecules> molecules_;

@@ -37,6 +37,7 @@ ObservableSettings run_observables(const Scene& sc) {
   if (method.rigid_constraints)
     observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
   observables.validity_warnings = method.follows_effective;
+  observables.fixman = method.needs_temperature;  // its model potential is a free energy: Fixman's U_F
   return observables;
 }
 
