@@ -83,7 +83,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     omega_.resize(m);
     actions_.resize(m);
     sqrt_eps_ = std::sqrt(stiff->epsilon);
-    validity_warnings_ = settings.validity_warnings;
+    resonances_ = settings.resonances;
     for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
     for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
     columns_.push_back("min_gap");
@@ -178,17 +178,20 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
     values_.insert(values_.end(), actions_.begin(), actions_.end());
     values_.push_back(std::isfinite(v.min_gap) ? v.min_gap : -1.0);
     values_.push_back(std::isfinite(v.min_resonance) ? v.min_resonance : -1.0);
-    // Validity of the effective dynamics (paper eqs. (separated), (nonresonant)): below √ε the
-    // slow motion is no longer determined by the actions (Takens chaos). Said only for a method
-    // that follows the effective dynamics: velocity Verlet and the impulse method resolve the
-    // vibrations, and the constrained methods but effective have none, so it says nothing of theirs.
+    // Below √ε (paper eqs. (separated), (nonresonant)) the actions need not stay adiabatic
+    // invariants: a method that resolves the vibrations shows them jump there, and the effective
+    // dynamics, which holds them fixed, loses validity (the slow motion is no longer determined by
+    // the actions: Takens chaos) — a warning for the methods that follow it. Rigid bonds without it
+    // have no vibrations, and nothing is said.
     auto warn = [&](bool& warned, double value, const char* what) {
-      if (!validity_warnings_ || warned || !(value < sqrt_eps_)) return;
+      if (resonances_ == ObservableSettings::Resonances::none || warned || !(value < sqrt_eps_)) return;
       warned = true;
+      const bool effective = resonances_ == ObservableSettings::Resonances::effective;
       std::ostringstream m;
-      m << "warning: " << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step " << s.step
-        << " (t = " << s.t << "): the actions need not stay adiabatic invariants and the effective dynamics "
-        << "loses validity here";
+      m << (effective ? "warning: " : "note: ") << what << " " << value << " < sqrt(eps) = " << sqrt_eps_
+        << " at step " << s.step << " (t = " << s.t << "): the actions need not stay adiabatic invariants"
+        << (effective ? " and the effective dynamics, which this method follows, loses validity here"
+                      : " here (they may jump)");
       notes_.push_back(m.str());
     };
     warn(warned_gap_, v.min_gap, "frequency gap min|w_j - w_k| =");

@@ -41,14 +41,18 @@ struct ObservableSettings {
   // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
-  // The method's model potential is Fixman's U_F, a free energy (negative: the log-determinant of
-  // the bond frequencies), not an energy of the springs: it gets its own column potential_fixman
+  // The method's model potential is Fixman's U_F, a free energy (kT Σ_k log ω_k up to a constant:
+  // on polyethylene −55.8 kcal/mol), not an energy of the springs: it gets its own column potential_fixman
   // (in the total), and potential_stiff stays the stiff level's energy. The effective dynamics'
   // W = Σ I_k ω_k is the averaged energy of the bond vibrations and stays in potential_stiff.
   bool fixman = false;
-  // With the actions: warn when the stiff frequencies come closer than √ε (a gap or a resonance),
-  // for a method whose solution follows the effective dynamics (MethodInfo::follows_effective).
-  bool validity_warnings = false;
+  // With the actions: what a frequency gap or resonance below √ε means for the method, said once
+  // each in the log. effective: a method whose solution follows the effective dynamics
+  // (MethodInfo::follows_effective) — a warning that it loses validity there; actions: a method that
+  // resolves the vibrations (velocity Verlet, impulse) — a note that the actions may jump there;
+  // none: rigid bonds without the effective dynamics (rattle, fixman), which have no vibrations.
+  enum class Resonances { none, actions, effective };
+  Resonances resonances = Resonances::none;
 };
 
 // What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
@@ -111,7 +115,7 @@ class Thermo {
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
-  // √ε, said once each, with step and time; ObservableSettings::validity_warnings). Taken
+  // √ε, said once each, with step and time; ObservableSettings::resonances). Taken
   // (cleared) by the caller.
   std::vector<std::string> take_notes() { return std::move(notes_); }
 
@@ -125,7 +129,7 @@ class Thermo {
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;
   double sqrt_eps_ = 0.0;
-  bool validity_warnings_ = false;
+  ObservableSettings::Resonances resonances_ = ObservableSettings::Resonances::none;
   bool warned_gap_ = false, warned_resonance_ = false;
   std::vector<std::string> columns_;
   std::vector<double> values_;

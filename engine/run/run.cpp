@@ -30,13 +30,15 @@ void write_atomically(const fs::path& p, const std::string& text) {
 }
 
 // The observables as the run counts them: the rigid constraints of the constrained methods take
-// one degree of freedom each; the effective dynamics' validity is watched where the method follows it.
+// one degree of freedom each; what a resonance of the stiff modes means depends on the method.
 ObservableSettings run_observables(const Scene& sc) {
   ObservableSettings observables = sc.observables;
   const MethodInfo& method = *find_method(sc.integrator.method);
   if (method.rigid_constraints)
     observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
-  observables.validity_warnings = method.follows_effective;
+  observables.resonances = method.follows_effective   ? ObservableSettings::Resonances::effective
+                           : method.rigid_constraints ? ObservableSettings::Resonances::none
+                                                      : ObservableSettings::Resonances::actions;
   observables.fixman = method.needs_temperature;  // its model potential is a free energy: Fixman's U_F
   return observables;
 }
