@@ -521,8 +521,11 @@ TEST_P(NvtRestart, ContinuesBitForBit) {
     EXPECT_EQ(a.x, b.x);
     EXPECT_EQ(a.v, b.v);
     EXPECT_NE(a.v, sc.state.v);
-    // The temperature's kinetic energy (the O step's under Langevin) is part of the saved state.
+    // The temperature's kinetic energy (the O step's under Langevin) is part of the saved state,
+    // and so is the thermostat's heat.
     EXPECT_EQ(first->kinetic_energy_estimate(a), resumed->kinetic_energy_estimate(b));
+    EXPECT_EQ(first->thermostat_heat(), resumed->thermostat_heat());
+    EXPECT_NE(first->thermostat_heat(), 0.0);
     auto fresh = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
     fresh->load_state(resumed->save_state());
     EXPECT_EQ(fresh->kinetic_energy_estimate(b), resumed->kinetic_energy_estimate(b));
