@@ -74,6 +74,7 @@ const std::map<std::string, std::string> kColumnOf = {{"Time", "time"},
                                                       {"PotFixman", "potential_fixman"},
                                                       {"PotEng", "potential_slow"},
                                                       {"TotEng", "total"},
+                                                      {"EConserve", "econserve"},
                                                       {"Press", "pressure"}};
 
 // Every screen line is the thermo file's row of its step.
@@ -147,6 +148,57 @@ TEST(Terminal, FixmansPotentialHasAColumnOfItsOwn) {
     EXPECT_NEAR(row[csv.col("total")], sum, 1e-10 * std::abs(sum));
   }
   fs::remove_all(dir);
+}
+
+double json_number(const std::string& json, const std::string& key) {
+  const size_t at = json.find("\"" + key + "\": ");
+  if (at == std::string::npos) return std::nan("");
+  return std::stod(json.substr(at + key.size() + 4));
+}
+
+// Under a thermostat E is not conserved: the thermo has ecouple (−the heat the thermostat put in)
+// and econserve = total + ecouple (per atom with thermo_norm), the screen an EConserve column, and
+// the summary the conserved energy's drift per particle and time unit where an NVE run has its
+// energy error.
+TEST(Terminal, AThermostattedRunShowsTheEnergyItConservesWithTheHeat) {
+  const fs::path d = scratch_dir("screen_nvt");
+  const std::string args =
+      " --no-progress --set run.t_end=0.15 --set output.screen_interval=0.03 --set thermostat.style=langevin"
+      " --set thermostat.temperature=1.0 --set thermostat.damp=0.5 --set thermostat.seed=3"
+      " --set monitor.energy_error=0";
+  const CliResult nvt = cli("run " + melt() + args + " -o " + (d / "total").string());
+  const CliResult norm = cli("run " + melt() + args + " --set output.thermo_norm=true -o " + (d / "norm").string());
+  ASSERT_EQ(nvt.code, 0) << nvt.err;
+  ASSERT_EQ(norm.code, 0) << norm.err;
+  const test::CsvTable csv = test::read_csv((d / "total" / "thermo.csv").string());
+  const ScreenLines s = screen_lines(nvt.out);
+  ASSERT_EQ(std::count(s.labels.begin(), s.labels.end(), "EConserve"), 1) << nvt.out;
+  expect_lines_are_csv_rows(s, csv);
+  const ScreenLines sn = screen_lines(norm.out);
+  ASSERT_EQ(std::count(sn.labels.begin(), sn.labels.end(), "EConserve/N"), 1) << norm.out;
+  expect_lines_are_csv_rows(sn, test::read_csv((d / "norm" / "thermo.csv").string()), "_per_atom");
+  const size_t ec = csv.col("econserve"), total = csv.col("total"), heat = csv.col("ecouple");
+  EXPECT_EQ(csv.rows.front()[heat], 0.0);
+  EXPECT_NE(csv.rows.back()[heat], 0.0);
+  for (const auto& row : csv.rows) EXPECT_NEAR(row[ec], row[total] + row[heat], 1e-10 * std::abs(row[total]));
+  // The summary: the conserved energy's drift, not |E − E(0)|, which the heat makes large.
+  EXPECT_NE(nvt.out.find("conserved:     E + ecouple"), std::string::npos) << nvt.out;
+  EXPECT_EQ(nvt.out.find("max |E - E(0)|"), std::string::npos) << nvt.out;
+  const std::string json = slurp(d / "total" / "summary.json");
+  const double ec0 = csv.rows.front()[ec], ec1 = csv.rows.back()[ec];
+  EXPECT_NEAR(json_number(json, "initial_conserved_energy"), ec0, 1e-10 * std::abs(ec0));
+  EXPECT_NEAR(json_number(json, "final_conserved_energy"), ec1, 1e-10 * std::abs(ec1));
+  const double drift = (ec1 - ec0) / (kMeltParticles * 0.15);
+  EXPECT_NEAR(json_number(json, "conserved_energy_drift"), drift, 1e-9 * std::abs(ec0) / (kMeltParticles * 0.15));
+  EXPECT_NE(drift, 0.0);
+  // Without a thermostat: the energy error as before, no ecouple or econserve.
+  const CliResult nve = cli("run " + melt() + " --no-progress -q --set run.t_end=0.03 -o " + (d / "nve").string());
+  ASSERT_EQ(nve.code, 0) << nve.err;
+  EXPECT_NE(nve.out.find("max |E - E(0)|"), std::string::npos) << nve.out;
+  EXPECT_EQ(nve.out.find("conserved:"), std::string::npos) << nve.out;
+  const test::CsvTable plain = test::read_csv((d / "nve" / "thermo.csv").string());
+  EXPECT_EQ(std::count(plain.header.begin(), plain.header.end(), "econserve"), 0);
+  fs::remove_all(d);
 }
 
 TEST(Terminal, ThermoLinesAreTheThermoRowsAtTheScreenInterval) {

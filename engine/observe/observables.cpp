@@ -26,7 +26,9 @@ Energies energies(const State& s, const ForceField& forces) {
 Dimension thermo_column_dimension(const std::string& c) {
   const auto starts = [&](const char* prefix) { return c.rfind(prefix, 0) == 0; };
   if (c == "time") return Dimension::time;
-  if (c == "kinetic" || c == "total" || c == "energy_drift" || starts("potential_")) return Dimension::energy;
+  if (c == "kinetic" || c == "total" || c == "energy_drift" || c == "ecouple" || c == "econserve" ||
+      starts("potential_"))
+    return Dimension::energy;
   if (c == "max_violation" || c == "rg" || c == "end_to_end") return Dimension::length;
   if (c == "temperature") return Dimension::temperature;
   if (c == "pressure") return Dimension::pressure;
@@ -45,9 +47,13 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
       level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
                        forces.level_name(Level::slow) == "slow")),
       fixman_(settings.fixman),
+      thermostat_(settings.thermostat != ThermostatSettings::Style::none),
       columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff"} {
   if (fixman_) columns_.push_back("potential_fixman");
   columns_.insert(columns_.end(), {"total", "energy_drift", "max_violation", "temperature"});
+  // The heat exchanged with the thermostat and the energy conserved with it (LAMMPS's ecouple and
+  // econserve): econserve drifts only by the integrator's error (docs/design.md §5).
+  if (thermostat_) columns_.insert(columns_.end(), {"ecouple", "econserve"});
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
   ThermostatSettings thermostat;
@@ -128,18 +134,18 @@ ThermoSums Thermo::sums(const State& s) const {
 }
 
 const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial,
-                                          double kinetic_estimate) {
-  return row(s, sums(s), model_potential, constraint_virial, kinetic_estimate);
+                                          double kinetic_estimate, double heat) {
+  return row(s, sums(s), model_potential, constraint_virial, kinetic_estimate, heat);
 }
 
 const std::vector<double>& Thermo::sample(const State& s, const ThermoSums& sums, double model_potential,
-                                          double constraint_virial, double kinetic_estimate) {
+                                          double constraint_virial, double kinetic_estimate, double heat) {
   if (modes_) throw std::logic_error("Thermo::sample: the actions need the whole state, not sums");
-  return row(s, sums, model_potential, constraint_virial, kinetic_estimate);
+  return row(s, sums, model_potential, constraint_virial, kinetic_estimate, heat);
 }
 
 const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, double model_potential,
-                                       double constraint_virial, double kinetic_estimate) {
+                                       double constraint_virial, double kinetic_estimate, double heat) {
   // The energies by level, innermost first: the innermost is the stiff one, the others are U
   // (docs/design.md §1), added from the outermost in.
   Energies e;
@@ -152,8 +158,11 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
       e.stiff = e.by_level[k];
   const double thermal_kinetic = kinetic_estimate >= 0.0 ? kinetic_estimate : e.kinetic;
   (fixman_ ? e.fixman : e.stiff) += model_potential;
+  const double ecouple = thermostat_ ? 0.0 - heat : 0.0, econserve = e.total() + ecouple;  // 0, not −0, at the start
   if (!have_e0_) {
     e0_ = e.total();
+    ec0_ = econserve;
+    t0_ = s.t;
     have_e0_ = true;
   }
   values_.clear();
@@ -161,6 +170,7 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
   if (fixman_) values_.push_back(e.fixman);
   values_.insert(values_.end(),
                  {e.total(), e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  if (thermostat_) values_.insert(values_.end(), {ecouple, econserve});
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.
@@ -206,8 +216,9 @@ ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm, c
   for (const std::string& c : columns_) scale_.push_back(units.out(thermo_column_dimension(c)));
   if (norm && num_particles > 0)
     for (size_t c = 0; c < columns_.size(); ++c) {
-      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift
-      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift") {
+      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift, …
+      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift" ||
+          name == "ecouple" || name == "econserve") {
         divide_[c] = 1;
         columns_[c] += "_per_atom";
       }

@@ -88,25 +88,33 @@ class Thermo {
   // kinetic_estimate (Integrator::kinetic_energy_estimate; < 0: the state's ½vᵀMv) is the kinetic
   // energy of the temperature and of the pressure's kinetic term: under Langevin, that of the
   // velocities at the O step. The kinetic, total and energy_drift columns stay the state's.
+  // heat (Integrator::thermostat_heat) gives, with a thermostat, ecouple = −heat and econserve =
+  // total + ecouple (docs/design.md §5, the conserved energy).
   const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0,
-                                    double kinetic_estimate = -1.0);
+                                    double kinetic_estimate = -1.0, double heat = 0.0);
   // The same from sums taken elsewhere (a decomposed run's parts, added up): s gives the time and
   // the step. Not with the actions (modes(): std::logic_error), which need the whole state.
   const std::vector<double>& sample(const State& s, const ThermoSums& sums, double model_potential,
-                                    double constraint_virial, double kinetic_estimate);
+                                    double constraint_virial, double kinetic_estimate, double heat);
   // The sums of the row at state s (of this Thermo's force field: a part's share in a decomposed
   // run).
   ThermoSums sums(const State& s) const;
+  // The reference sample's total energy E(0), conserved energy E_c(0) = E(0) + ecouple(0) and time:
+  // the first sample's, or the next one's after take_reference_at_next_sample().
   double initial_energy() const { return e0_; }
-  // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
-  void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }
-  // For checkpoints: E(0) and which validity warnings were given (each is said once per run).
+  double initial_conserved_energy() const { return ec0_; }
+  double initial_time() const { return t0_; }
+  // A state set from outside: energy_drift (and the conserved energy's drift) from the next sample on.
+  void take_reference_at_next_sample() { have_e0_ = false; }
+  // For checkpoints: the reference sample's E(0), E_c(0) and time, and which validity warnings
+  // were given (each is said once per run).
   std::vector<double> save_state() const {
-    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0};
+    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0, ec0_, t0_};
   }
   bool load_state(const std::vector<double>& w) {  // false: not a Thermo state
-    if (w.size() != 4) return false;
+    if (w.size() != 6) return false;
     have_e0_ = w[0] != 0.0, e0_ = w[1], warned_gap_ = w[2] != 0.0, warned_resonance_ = w[3] != 0.0;
+    ec0_ = w[4], t0_ = w[5];
     return true;
   }
   int column(const std::string& name) const;
@@ -123,6 +131,7 @@ class Thermo {
   const ForceField& forces_;
   bool level_columns_;  // a potential_<level> column per named level
   bool fixman_;         // ObservableSettings::fixman: the model potential in potential_fixman
+  bool thermostat_;     // a [thermostat]: the ecouple and econserve columns
   int dof_ = 0;
   double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
   std::unique_ptr<Molecules> molecules_;
@@ -136,16 +145,16 @@ class Thermo {
   std::vector<std::string> notes_;
   // The row of sums taken at s (which gives the time, the step and, for the actions, x and v).
   const std::vector<double>& row(const State& s, const ThermoSums& sums, double model_potential,
-                                 double constraint_virial, double kinetic_estimate);
+                                 double constraint_virial, double kinetic_estimate, double heat);
   bool have_e0_ = false;
-  double e0_ = 0.0;
+  double e0_ = 0.0, ec0_ = 0.0, t0_ = 0.0;
 };
 
 // The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line, the Python
 // module's thermo()): the one place where the written columns are formed from Thermo's. With norm
 // (the deck's [output] thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the
-// energies kinetic, potential_slow, potential_stiff (every potential_* column), total and
-// energy_drift — are divided by the number of particles N and named with the suffix "_per_atom";
+// energies kinetic, potential_slow, potential_stiff (every potential_* column), total,
+// energy_drift, ecouple and econserve — are divided by the number of particles N and named with the suffix "_per_atom";
 // intensive ones (temperature, pressure, rg, …) stay. Then each column is in the deck's units:
 // times Units::out of its dimension (thermo_column_dimension; real: time in fs, T in K, p in atm).
 class ThermoOutput {

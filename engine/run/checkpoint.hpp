@@ -11,8 +11,8 @@
 // parameter record of forcefields/parameter_record.hpp (every coefficient bit for bit, the
 // dihedrals); a version-3 file of the same scene would be taken for another scene, so it is
 // refused as of an older stiffmd. Version 5: the integrator's state holds the thermostat's heat
-// (Integrator::thermostat_heat; the Langevin force's part of the kick force): a version-4 file
-// lacks it, and its words would be misread.
+// (Integrator::thermostat_heat; the Langevin force's part of the kick force), the thermo's the
+// conserved energy's reference, the run statistics its max error: a version-4 file lacks them.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)

@@ -157,7 +157,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   check_finite(s_);
   if (!restarting) {
     const auto& row = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                                     integrator_->kinetic_energy_estimate(s_));  // E(0) and the initial actions
+                                     integrator_->kinetic_energy_estimate(s_),
+                                     integrator_->thermostat_heat());  // E(0) and the initial actions
     if (first_action_ >= 0) {
       stats_.initial_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
       summary_.initial_actions = stats_.initial_actions;
@@ -183,6 +184,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   if (restarting) screen_->served_until(cut);
   col_total_ = thermo_.column("total");
   col_drift_ = thermo_.column("energy_drift");
+  col_econserve_ = thermo_.column("econserve");
   col_violation_ = thermo_.column("max_violation");
   col_alerts_ = thermo_.column("alerts");
 
@@ -303,6 +305,18 @@ const RunSummary& Run::finish() {
   outputs_->write_final(summary_.outputs);
   outputs_->close();
   summary_.final_energy = row[col_total_];
+  // The energy conserved with the thermostat's heat (E itself without one): its drift per particle
+  // and time unit over the run, (E_c(end) − E_c(0)) / (N t), GROMACS's "conserved energy drift".
+  summary_.thermostat = col_econserve_ >= 0;
+  summary_.particles = s_.size();
+  summary_.initial_conserved_energy = thermo_.initial_conserved_energy();
+  summary_.final_conserved_energy = col_econserve_ >= 0 ? row[col_econserve_] : row[col_total_];
+  summary_.max_conserved_error = col_econserve_ >= 0 ? stats_.max_conserved_error : stats_.max_energy_error;
+  const double span = s_.t - thermo_.initial_time();
+  if (span > 0.0 && s_.size() > 0)
+    summary_.conserved_energy_drift = (summary_.final_conserved_energy - summary_.initial_conserved_energy) /
+                                      (static_cast<double>(s_.size()) * span) * sc_.units.out(Dimension::energy) /
+                                      sc_.units.out(Dimension::time);
   summary_.final_max_violation = row[col_violation_];
   if (first_action_ >= 0)
     summary_.final_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
@@ -333,12 +347,16 @@ const std::vector<double>& Run::sample() {
   // sums: each rank's part's, added up (DomainIntegrator::sample_sums), or rank 0's of the whole
   // system, gathered for it (the actions).
   const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
-  const double kinetic = integrator_->kinetic_energy_estimate(s_);
+  const double kinetic = integrator_->kinetic_energy_estimate(s_), heat = integrator_->thermostat_heat();
   std::optional<ThermoSums> parts;
   if (sampled_by_parts()) parts = domain_->sample_sums();
   if (root()) {
-    last_row_ = parts ? thermo_.sample(s_, *parts, model, virial, kinetic) : thermo_.sample(s_, model, virial, kinetic);
+    last_row_ = parts ? thermo_.sample(s_, *parts, model, virial, kinetic, heat)
+                      : thermo_.sample(s_, model, virial, kinetic, heat);
     stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
+    if (col_econserve_ >= 0)
+      stats_.max_conserved_error = std::max(
+          stats_.max_conserved_error, std::abs(last_row_[col_econserve_] - thermo_.initial_conserved_energy()));
     for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
     alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
     last_row_[col_alerts_] = alerts_;
@@ -404,14 +422,15 @@ void Run::observe(bool final) {
 
 const std::vector<double>& Run::sample_now() {
   last_row_ = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                             integrator_->kinetic_energy_estimate(s_));
+                             integrator_->kinetic_energy_estimate(s_), integrator_->thermostat_heat());
   for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
   return last_row_;
 }
 
 void Run::state_changed() {
   integrator_->reset();
-  thermo_.set_initial_energy(sample_now()[col_total_]);
+  thermo_.take_reference_at_next_sample();
+  sample_now();
 }
 
 std::int64_t Run::agreed(std::int64_t rank0_value) const {

@@ -135,6 +135,7 @@ class Run {
   long rebuilds_at_start_ = 0;  // this process's rebuild count when the run started
   bool pending_ = false;        // the last step's outputs are still to be taken
   int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
+  int col_econserve_ = -1;  // with a thermostat
   std::vector<double> last_row_;
   Eigen::Matrix3Xd owned_force_;   // a shared H5MD frame's forces of this rank's particles
   int alerts_ = 0;                 // of the last sample

@@ -25,6 +25,13 @@ struct RunSummary {
   double initial_energy = 0.0;
   double final_energy = 0.0;
   double max_energy_error = 0.0;      // max |E(t) − E(0)| over the thermo samples
+  // The energy conserved with the thermostat's heat, E_c = E + ecouple (E itself without one:
+  // docs/design.md §5): E_c(0), E_c(end), max |E_c − E_c(0)| over the samples, and its drift
+  // (E_c(end) − E_c(0)) / (N t) per particle and time unit (the deck's: real, kcal/mol per fs).
+  bool thermostat = false;
+  int particles = 0;
+  double initial_conserved_energy = 0.0, final_conserved_energy = 0.0, max_conserved_error = 0.0;
+  double conserved_energy_drift = 0.0;
   std::int64_t slow_evaluations = 0;  // of the outermost level
   std::int64_t fast_evaluations = 0;  // of the innermost level
   // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
