@@ -122,6 +122,42 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
   if (force != nullptr) add_constraint_force(c, at_kept, d.sol, -rate, *force, true);  // −rate Gᵀμ
 }
 
+// The velocity projection's right-hand side G v and its solve S μ = G v, without the update:
+// ½ μᵀ S μ = ½ (Gv)ᵀ μ is the kinetic energy the update would remove (K(v − M⁻¹Gᵀμ) =
+// K(v) − vᵀGᵀμ + ½ μᵀ G M⁻¹ Gᵀ μ, fixed particles at rest).
+void ConstraintToolbox::Impl::normal_energy_group(int first, int count, const Eigen::Matrix3Xd& v) {
+  if (!data[first].spd) {
+    ClusterData& d = data[first];
+    factor_kept_s(first, "velocity projection");
+    for (int k = 0; k < d.rhs.size(); ++k) {
+      const StiffBond& bond = bonds[d.bonds[k]];
+      d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
+    }
+    solve_kept_s(first);
+    d.normal_energy = 0.5 * d.rhs.dot(d.sol);
+    return;
+  }
+  factor_kept_group(first, count, "velocity projection");
+  int cs[kChainGroup];
+  for (int j = 0; j < count; ++j) {
+    cs[j] = first + j;
+    chain_project_rhs<false>(cs[j], v);
+  }
+  solve_chains(cs, count);
+  for (int j = 0; j < count; ++j) data[cs[j]].normal_energy = 0.5 * data[cs[j]].rhs.dot(data[cs[j]].sol);
+}
+
+double ConstraintToolbox::normal_kinetic_energy(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) {
+  const ScopedPhase phase(Phase::constraints);
+  require_columns(x, impl_->num_particles(), "normal_kinetic_energy");
+  require_columns(v, impl_->num_particles(), "normal_kinetic_energy");
+  impl_->keep(x);
+  impl_->for_each_group([&](int c, int count) { impl_->normal_energy_group(c, count, v); });
+  double sum = 0.0;
+  for (const ClusterData& d : impl_->data) sum += d.normal_energy;
+  return sum;
+}
+
 void ConstraintToolbox::project_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) {
   const ScopedPhase phase(Phase::constraints);
   require_columns(x, impl_->num_particles(), "project_force");

@@ -86,6 +86,7 @@ struct ClusterData {
   std::unique_ptr<ChainLdlt> spd;      // chains: S
   Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
+  double normal_energy = 0.0;  // ½ rhsᵀ sol of the last normal_kinetic_energy
   Eigen::VectorXd lambda;           // SHAKE multipliers, accumulated over Newton steps
   Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::chain_gap)
   // Open chains, for SHAKE's chord (Impl::chain_gap, Impl::chain_displace): the particles along
@@ -199,6 +200,8 @@ struct ConstraintToolbox::Impl {
   void project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force, double rate);
   template <bool kForce>
   void project_group(int first, int count, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force = nullptr, double rate = 0.0);
+  // ½ (Gv)ᵀ S⁻¹ (Gv) on each cluster of the group into its normal_energy.
+  void normal_energy_group(int first, int count, const Eigen::Matrix3Xd& v);
 
   // SHAKE (shake.cpp).
   // An open chain's −h_b(y) = (ℓ_b² − |d_b|²) / (2ℓ_b) into minus_h (local order), along its path

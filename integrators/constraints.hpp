@@ -77,6 +77,11 @@ class ConstraintToolbox {
   void project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force = nullptr,
                         double rate = 0.0);
 
+  // ½ (Gv)ᵀ S⁻¹ (Gv) = K(v) − K(P(x)v), S μ = G v at x: the kinetic energy of v's part normal to
+  // the manifold, which the velocity projection removes (P is M-orthogonal), without changing v.
+  // Summed over the clusters in cluster order: the same bits on any thread count.
+  double normal_kinetic_energy(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v);
+
   // SHAKE position projection, in place: y ← y + M⁻¹ G(x_ref)ᵀ λ with g(y) = 0, by Newton on
   // λ (J = G(y) M⁻¹ G(x_ref)ᵀ, per cluster; open chains near x_ref first by chord steps on
   // S(x_ref), falling back to Newton when they contract slowly). With x_ref = y this is the mollifier α(x) of

@@ -108,21 +108,22 @@ Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::Ve
 }
 
 //                     name               summary                                                        stiff  micro
-//                     rigid  eff.  kT
+//                     rigid  eff.  follows eff.  kT
 constexpr std::array<MethodInfo, 7> kMethods = {{
-    {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false,
+    {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false, false,
      make_velocity_verlet},
     {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false,
-     false, make_impulse},
-    {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, false,
+     false, false, make_impulse},
+    {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, true, false,
      make_mollified},
-    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, false, make_projected},
+    {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, true, false,
+     make_projected},
     {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false, false,
-     make_rattle},
+     false, make_rattle},
     {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true,
-     false, make_effective},
+     true, false, make_effective},
     {"fixman", "RATTLE on U + U_F (Fixman) with a thermostat: the thermal eps -> 0 limit", true, false, true, false,
-     true, make_fixman},
+     false, true, make_fixman},
 }};
 
 }  // namespace

@@ -65,6 +65,14 @@ class Integrator {
   // those at the O step read kT exactly for harmonic forces (Leimkuhler & Matthews 2013, 2016).
   // Otherwise, and before the first step, the state's ½vᵀMv.
   virtual double kinetic_energy_estimate(const State& s) const { return s.kinetic_energy(); }
+  // The heat the thermostat has put into this process's particles since the run began: the sum of
+  // the kinetic-energy changes of every velocity change it made (an O step, a Langevin force's
+  // share of a kick, a rescaling), each measured on the velocities the Hamiltonian step continues
+  // from — under constraints after the velocity projection, whose normal part SHAKE would absorb.
+  // E − heat (LAMMPS's econserve; ecouple = −heat) changes only by the integrator's error
+  // (docs/design.md §5, the conserved energy). 0 without a thermostat. Part of save_state, a sum
+  // in carried_state.
+  virtual double thermostat_heat() const { return 0.0; }
   // State the integrator carries beyond (x, v) — cached forces, the constraint force, the
   // effective dynamics' actions — for checkpoints: restoring it (and skipping prepare())
   // continues a run bit for bit. Everything a later step or observable reads must be in it.

@@ -20,6 +20,12 @@ struct MethodInfo {
   bool micro_steps;          // takes micro_dt / micro_steps (the impulse family)
   bool rigid_constraints;    // integrates on g(x) = 0: removes one degree of freedom per bond
   bool effective;            // carries actions I and the correction potential W(I, x)
+  // Its solution approaches the effective dynamics' as ε → 0: the effective method itself, and
+  // the projected and mollified impulse methods, whose error against it falls like h² down to
+  // O(ε) (docs/design.md §7). Both rest on the actions being adiabatic invariants, which needs
+  // separated, nonresonant stiff frequencies: the thermo's validity warnings concern these
+  // methods only (a method that resolves the vibrations, or has none, needs no such assumption).
+  bool follows_effective;
   bool needs_temperature;    // its model potential is a free energy at kT: refuses a run without a thermostat
   // Builds the integrator for a scene whose force field and inverse masses are given; throws
   // std::invalid_argument when the scene cannot run it.

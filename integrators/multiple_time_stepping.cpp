@@ -8,6 +8,10 @@
 
 namespace stiffmd {
 
+// Noise counters of the Langevin force: the closing force of a macro step, and the opening one
+// when there is no cached force (first step, after reset()) — LAMMPS's fix langevin setup().
+constexpr std::uint64_t kClosingForce = 0x1a3e000000000000ULL, kOpeningForce = kClosingForce + 1;
+
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
                                            std::unique_ptr<KickForce> outer_kick,
                                            std::unique_ptr<LangevinNoise> langevin,
@@ -21,7 +25,8 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
       valid_(stages_.size(), false),
       removed_virial_(stages_.size(), 0.0),
       langevin_(std::move(langevin)),
-      langevin_force_(std::move(langevin_force)) {
+      langevin_force_(std::move(langevin_force)),
+      langevin_part_(Eigen::Matrix3Xd::Zero(3, langevin_force_ ? forces.num_particles() : 0)) {
   if (langevin_ && langevin_force_) throw std::invalid_argument("Langevin either as an O step or as a force, not both");
   if (splitting == ThermostatSettings::Splitting::obabo) obabo_ = std::move(langevin_);  // the step runs as in NVE
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
@@ -39,9 +44,27 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
 
 // OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
 void MultipleTimeStepping::step_obabo(State& s, double h) {
-  obabo_->apply(s.v, 0.5 * h, s.step, 0);
+  heat_ += obabo_->apply_and_measure(s.v, 0.5 * h, s.step, 0).heat();
   advance(s, 0, h);
-  o_step_kinetic_ = obabo_->apply_and_measure(s.v, 0.5 * h, s.step, 1);
+  const KineticChange closing = obabo_->apply_and_measure(s.v, 0.5 * h, s.step, 1);
+  o_step_kinetic_ = closing.after;
+  heat_ += closing.heat();
+}
+
+// The Langevin force f_L is part of the outermost kick force, which kicks by ½h at the start of
+// the macro step and at its end. Its heat counts its impulses ½h M⁻¹f_L as jumps at the on-step
+// times: the opening kick's before its conservative part, the closing kick's after it
+// (LangevinForce::kick_heat). Kicks commute, so this is the same step, and what lies between the
+// jumps is the Hamiltonian step whole, whose energy error is O(h²) and bounded; counted inside
+// it, after the opening kick's conservative part, a jump b would leave the Hamiltonian part an
+// error −½h f·b per step, f the force: O(h^{3/2}) per step from the noise, an O(h) random walk
+// over a time. The opening kick's force is the one cached by the last step (or made now, as
+// advance would make it).
+void MultipleTimeStepping::step_langevin_force(State& s, double h) {
+  if (!valid_[0]) refresh_outer(s, h, kOpeningForce);
+  heat_ += langevin_force_->kick_heat(s.v, langevin_part_, 0.5 * h, false);
+  advance(s, 0, h);
+  heat_ += langevin_force_->kick_heat(s.v, langevin_part_, 0.5 * h, true);
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
@@ -54,13 +77,9 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
   valid_[k] = true;
 }
 
-// Noise counters of the Langevin force: the closing force of a macro step, and the opening one
-// when there is no cached force (first step, after reset()) — LAMMPS's fix langevin setup().
-constexpr std::uint64_t kClosingForce = 0x1a3e000000000000ULL, kOpeningForce = kClosingForce + 1;
-
 void MultipleTimeStepping::refresh_outer(State& s, double dt, std::uint64_t substep) {
   refresh(0, s.x);
-  if (langevin_force_) langevin_force_->add(s.v, dt, s.step, substep, force_[0]);
+  if (langevin_force_) langevin_force_->add(s.v, dt, s.step, substep, force_[0], langevin_part_);
 }
 
 // Stage k's force at the new x, reused by the next opening kick; at stage 0 with the Langevin
@@ -91,7 +110,7 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
   }
   forces_.count_evaluations(stages_[k].levels);
   valid_[k] = true;
-  if (k == 0 && langevin_force_) langevin_force_->add(s.v, span, s.step, kClosingForce, force_[0]);
+  if (k == 0 && langevin_force_) langevin_force_->add(s.v, span, s.step, kClosingForce, force_[0], langevin_part_);
 }
 
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
@@ -156,40 +175,49 @@ std::vector<double> MultipleTimeStepping::save_state() const {
   }
   if (langevin_ || obabo_) w.push_back(o_step_kinetic_);
   w.insert(w.end(), removed_virial_.begin(), removed_virial_.end());
+  if (thermostatted()) w.push_back(heat_);
+  w.insert(w.end(), langevin_part_.data(), langevin_part_.data() + langevin_part_.size());
   return w;
 }
 
 // flags: valid per stage, whether an O step measured the kinetic energy; sums: that kinetic
-// energy, the removed virials; columns: the stages' kick forces.
+// energy, the removed virials, the heat; columns: the stages' kick forces, then the Langevin
+// force's part of the outermost one (with it).
 CarriedState MultipleTimeStepping::carried_state() const {
   CarriedState c;
   for (size_t k = 0; k < stages_.size(); ++k) c.flags.push_back(valid_[k] ? 1.0 : 0.0);
   c.flags.push_back(o_step_kinetic_ >= 0.0 ? 1.0 : 0.0);
   c.sums.push_back(std::max(o_step_kinetic_, 0.0));
   c.sums.insert(c.sums.end(), removed_virial_.begin(), removed_virial_.end());
+  c.sums.push_back(heat_);
   c.columns = force_;
+  if (langevin_force_) c.columns.push_back(langevin_part_);
   return c;
 }
 
 void MultipleTimeStepping::restore_carried_state(CarriedState c) {
-  if (c.flags.size() != 1 + stages_.size() || c.sums.size() != 1 + stages_.size() || c.columns.size() != stages_.size())
+  if (c.flags.size() != 1 + stages_.size() || c.sums.size() != 2 + stages_.size() ||
+      c.columns.size() != stages_.size() + (langevin_force_ ? 1 : 0))
     throw std::invalid_argument(method_ + ": carried state of another method");
   for (size_t k = 0; k < stages_.size(); ++k) {
     valid_[k] = c.flags[k] != 0.0;
     force_[k] = std::move(c.columns[k]);
   }
+  if (langevin_force_) langevin_part_ = std::move(c.columns.back());
   o_step_kinetic_ = c.flags.back() != 0.0 ? c.sums[0] : -1.0;
-  removed_virial_.assign(c.sums.begin() + 1, c.sums.end());
+  removed_virial_.assign(c.sums.begin() + 1, c.sums.end() - 1);
+  heat_ = c.sums.back();
 }
 
 void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const size_t per_stage = 1 + 3 * static_cast<size_t>(forces_.num_particles());
   const bool o_steps = langevin_ || obabo_;
-  const size_t expected = stages_.size() * (per_stage + 1) + (o_steps ? 1 : 0);
+  const size_t expected = stages_.size() * (per_stage + 1) + (o_steps ? 1 : 0) + (thermostatted() ? 1 : 0) +
+                          static_cast<size_t>(langevin_part_.size());
   if (w.size() != expected)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, expected " + std::to_string(expected) + " (" + std::to_string(stages_.size()) +
-                                " stages" + (o_steps ? ", Langevin)" : ")"));
+                                " stages" + (thermostatted() ? ", Langevin)" : ")"));
   for (size_t k = 0; k < stages_.size(); ++k) {
     const double* p = w.data() + k * per_stage;
     valid_[k] = p[0] != 0.0;
@@ -198,11 +226,16 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
   const double* tail = w.data() + stages_.size() * per_stage;
   if (o_steps) o_step_kinetic_ = *tail++;
   removed_virial_.assign(tail, tail + stages_.size());
+  tail += stages_.size();
+  if (thermostatted()) heat_ = *tail++;
+  if (langevin_force_) langevin_part_ = Eigen::Map<const Eigen::Matrix3Xd>(tail, 3, forces_.num_particles());
 }
 
 // One O step per macro step (see the header), so o_step_kinetic_ is that macro step's.
 void MultipleTimeStepping::o_step(State& s, double dt) {
-  o_step_kinetic_ = langevin_->apply_and_measure(s.v, dt, s.step, substep_++);
+  const KineticChange change = langevin_->apply_and_measure(s.v, dt, s.step, substep_++);
+  o_step_kinetic_ = change.after;
+  heat_ += change.heat();
 }
 
 }  // namespace stiffmd

@@ -98,6 +98,8 @@ class MultipleTimeStepping final : public Integrator {
     substep_ = 0;
     if (obabo_)
       step_obabo(s, h);
+    else if (langevin_force_)
+      step_langevin_force(s, h);
     else
       advance(s, 0, h);
   }
@@ -121,6 +123,9 @@ class MultipleTimeStepping final : public Integrator {
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
+  // The O steps' ½vᵀMv after − before (BAOAB, OBABO), or the Langevin force's share of the
+  // outermost kicks (LangevinForce::kick_heat), summed over the run.
+  double thermostat_heat() const override { return heat_; }
   // The projected kick leaves out the bond-normal part f − P(x)f of every slower level's force.
   // In the stiff system the bonds stretch until their tension cancels that part on average, so
   // the tension belongs in the pressure although no spring in this dynamics carries it: the
@@ -135,7 +140,9 @@ class MultipleTimeStepping final : public Integrator {
   // recomputation after a restart could differ in the last bit (the neighbour list may have been
   // moved on by an observation since the force was computed), so the cache itself is saved.
   // With O steps (BAOAB or OBABO), one more word: the kinetic energy at the last O step (−1: none
-  // yet); then one word per stage, the kick's removed virial (constraint_virial).
+  // yet); then one word per stage, the kick's removed virial (constraint_virial); with a
+  // thermostat inside the step, its heat (thermostat_heat); with the Langevin force, its part of
+  // the outermost kick force (3N).
   std::vector<double> save_state() const override;
   CarriedState carried_state() const override;
   void restore_carried_state(CarriedState c) override;
@@ -144,6 +151,8 @@ class MultipleTimeStepping final : public Integrator {
  private:
   void advance(State& s, size_t k, double dt);
   void step_obabo(State& s, double h);  // O(½h), the Hamiltonian macro step, O(½h)
+  void step_langevin_force(State& s, double h);  // the macro step, its outermost kicks' Langevin heat
+  bool thermostatted() const { return langevin_ || obabo_ || langevin_force_; }
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
   void run_innermost(State& s, size_t k, double dt, int n);
   void closing_force(State& s, size_t k, double span);
@@ -170,6 +179,8 @@ class MultipleTimeStepping final : public Integrator {
   std::vector<const ForceTerm*> rest_;
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
+  Eigen::Matrix3Xd langevin_part_;  // its part of force_[0] (3 × N, sized only with it)
+  double heat_ = 0.0;               // thermostat_heat()
 };
 
 }  // namespace stiffmd

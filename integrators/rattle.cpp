@@ -74,7 +74,12 @@ void Rattle::step(State& s, double h) {
   model_value_current_ = false;  // x moves below; the closing refresh makes it current again
   // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
   // normal part, as they absorb the half kick's). Substep 0 of the step's noise, the closing O 1.
-  if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 0);
+  // Its heat: the step continues from P(x)v, so K(Pv) − K(v_n), v_n tangent (the last step's
+  // projection left it so).
+  if (obabo_) {
+    const KineticChange o = langevin_->apply_and_measure(s.v, 0.5 * h, s.step, 0);
+    heat_ += o.heat() - toolbox_.normal_kinetic_energy(s.x, s.v);
+  }
   kick(s.v, s.inv_mass, f_, 0.5 * h);
   if (!merged_projection_)  // the velocity projections at x_{n+1} add their shares
     parallel_blocks(s.x.cols(), threads_for(s.x.cols()),
@@ -86,9 +91,15 @@ void Rattle::step(State& s, double h) {
     // tangent space; P is linear, so projecting once after O equals projecting before and after),
     // A(½h).
     rattle_drift(s, 0.5 * h);
-    langevin_->apply(s.v, h, s.step, 0);
+    // The heat: K after the projected O step less K of the chord velocity a projected, which is
+    // what the A step's own projection (merged into the O step's) leaves: K(Pa) = K(a) − ½(Ga)ᵀS⁻¹(Ga).
+    // K(a) itself would count the normal part of the chord velocity, O(h²) of kinetic energy that
+    // the constraint takes every step whatever the thermostat, as heat.
+    const double normal = toolbox_.normal_kinetic_energy(s.x, s.v);
+    const KineticChange o = langevin_->apply_and_measure(s.v, h, s.step, 0);
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
+    heat_ += o_step_kinetic_ - (o.before - normal);
     rattle_drift(s, 0.5 * h);
     // The chord velocity q of a drift over τ leaves the tangent space at x' by τ|v|²/(2ℓ) along
     // each bond: its projection is the centrifugal share of the constraint force, M Δv / (τ/2). Over
@@ -112,9 +123,17 @@ void Rattle::step(State& s, double h) {
     //    these on-step velocities.
     kick_and_keep(s.v, s.inv_mass, f_, 0.5 * h, kicked_, 2.0 / h, /*with_before=*/!obabo_);
     constraint_force_current_ = false;
-    if (obabo_) langevin_->apply(s.v, 0.5 * h, s.step, 1);
+    if (!obabo_) {
+      toolbox_.project_velocity(s.x, s.v);
+      return;
+    }
+    // OBABO's heat: K of the on-step velocity less K(Pw), w the kicked velocity, where the
+    // Hamiltonian RATTLE step would have ended.
+    const double normal = toolbox_.normal_kinetic_energy(s.x, s.v);
+    const KineticChange o = langevin_->apply_and_measure(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
-    if (obabo_) o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
+    o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
+    heat_ += o_step_kinetic_ - (o.before - normal);
     return;
   }
   kick(s.v, s.inv_mass, f_, 0.5 * h);
@@ -122,9 +141,10 @@ void Rattle::step(State& s, double h) {
   // and the kick over h/2 share the factor: F_c = M Δv / (h/2).
   toolbox_.project_velocity(s.x, s.v, &constraint_force_, 2.0 / h);
   if (obabo_) {  // the projections as written (tests: set_merged_projection): the closing O(½h) on the tangent space
-    langevin_->apply(s.v, 0.5 * h, s.step, 1);
+    const KineticChange o = langevin_->apply_and_measure(s.v, 0.5 * h, s.step, 1);
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
+    heat_ += o_step_kinetic_ - o.before;
   }
 }
 
@@ -148,43 +168,46 @@ double Rattle::constraint_virial(const State& s) {
 
 // [the model potential's state (the effective dynamics' actions)][valid][f (3N)][constraint force
 // (3N); OBABO: the kicked velocity (2/h) w it is formed from][Langevin: the kinetic energy at the
-// last O step]
+// last O step, the heat]
 std::vector<double> Rattle::save_state() const {
   std::vector<double> w = model_ ? model_->save_state() : std::vector<double>{};
   w.push_back(valid_ ? 1.0 : 0.0);
   w.insert(w.end(), f_.data(), f_.data() + f_.size());
   const Eigen::Matrix3Xd& force_or_kicked = merged_projection_ ? kicked_ : constraint_force_;
   w.insert(w.end(), force_or_kicked.data(), force_or_kicked.data() + force_or_kicked.size());
-  if (langevin_) w.push_back(o_step_kinetic_);
+  if (langevin_) w.insert(w.end(), {o_step_kinetic_, heat_});
   return w;
 }
 
-// flags: valid, whether an O step measured the kinetic energy; sums: that kinetic energy (with
-// Langevin); columns: the cached force and
+// flags: valid, whether an O step measured the kinetic energy; sums: that kinetic energy and the
+// heat (with Langevin); columns: the cached force and
 // the constraint force (or, under OBABO's merged projection, the kicked velocities it is formed
 // from). The model's actions are invariants, handed over apart.
 CarriedState Rattle::carried_state() const {
   CarriedState c;
   c.flags.push_back(valid_ ? 1.0 : 0.0);
   c.flags.push_back(o_step_kinetic_ >= 0.0 ? 1.0 : 0.0);
-  if (langevin_) c.sums.push_back(std::max(o_step_kinetic_, 0.0));
+  if (langevin_) c.sums.insert(c.sums.end(), {std::max(o_step_kinetic_, 0.0), heat_});
   c.columns = {f_, merged_projection_ ? kicked_ : constraint_force_};
   return c;
 }
 
 void Rattle::restore_carried_state(CarriedState c) {
-  if (c.flags.size() != 2 || c.sums.size() != (langevin_ ? 1u : 0u) || c.columns.size() != 2)
+  if (c.flags.size() != 2 || c.sums.size() != (langevin_ ? 2u : 0u) || c.columns.size() != 2)
     throw std::invalid_argument(method_ + ": carried state of another method");
   valid_ = c.flags[0] != 0.0;
   model_value_current_ = false;
   f_ = std::move(c.columns[0]);
   (merged_projection_ ? kicked_ : constraint_force_) = std::move(c.columns[1]);
   constraint_force_current_ = !merged_projection_;
-  if (langevin_) o_step_kinetic_ = c.flags[1] != 0.0 ? c.sums[0] : -1.0;
+  if (langevin_) {
+    o_step_kinetic_ = c.flags[1] != 0.0 ? c.sums[0] : -1.0;
+    heat_ = c.sums[1];
+  }
 }
 
 void Rattle::load_state(const std::vector<double>& w) {
-  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3 + (langevin_ ? 1 : 0);
+  const size_t n3 = static_cast<size_t>(f_.size()), own = 1 + 2 * n3 + (langevin_ ? 2 : 0);
   if (w.size() < own)
     throw std::invalid_argument("the checkpoint holds " + std::to_string(w.size()) + " words of " + method_ +
                                 " state, this scene needs at least " + std::to_string(own) + " (forces of " +
@@ -201,7 +224,10 @@ void Rattle::load_state(const std::vector<double>& w) {
   (merged_projection_ ? kicked_ : constraint_force_) =
       Eigen::Map<const Eigen::Matrix3Xd>(w.data() + m + 1 + n3, 3, f_.cols());
   constraint_force_current_ = !merged_projection_;
-  if (langevin_) o_step_kinetic_ = w.back();
+  if (langevin_) {
+    o_step_kinetic_ = w[w.size() - 2];
+    heat_ = w.back();
+  }
 }
 
 }  // namespace stiffmd

@@ -83,6 +83,11 @@ class Rattle final : public Integrator {
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }
+  // The O steps' heat, each measured on tangent velocities (rattle.cpp): K after the projected O
+  // step less K of the velocity the Hamiltonian step left, projected (ConstraintToolbox::
+  // normal_kinetic_energy: one more solve at a configuration whose S is factored, per O step
+  // whose input is not tangent).
+  double thermostat_heat() const override { return heat_; }
 
   // With Langevin: whether the closing projections are merged (always: rattle.cpp), and for tests
   // a switch to the projections as written, before the first step.
@@ -91,7 +96,7 @@ class Rattle final : public Integrator {
 
   // The model potential's state (actions), the cached force f(x) with its validity and the
   // constraint force of the last step (for the pressure of the first sample after a restart);
-  // with Langevin, the kinetic energy at the last O step.
+  // with Langevin, the kinetic energy at the last O step and the heat.
   std::vector<double> invariants() const override { return model_ ? model_->invariants() : std::vector<double>{}; }
   void set_invariants(const std::vector<double>& w) override {
     if (model_)
@@ -129,6 +134,7 @@ class Rattle final : public Integrator {
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
   bool model_value_current_ = false;  // … and x has not moved since
   double o_step_kinetic_ = -1.0;      // ½vᵀMv just after the last (projected) O step; −1: none yet
+  double heat_ = 0.0;                 // thermostat_heat()
 };
 
 }  // namespace stiffmd

@@ -65,25 +65,32 @@ void LangevinNoise::coefficients(double dt) {
 }
 
 template <bool kMeasure>
-double LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+KineticChange LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
   const ScopedPhase phase(Phase::thermostat);
   if (dt != dt_) coefficients(dt);
   const std::uint64_t key = noise_key(seed_, step, substep);
   const ZigguratTable& table = ziggurat_table();
-  return parallel_sum(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
-    double kinetic = 0.0;
+  const int parts = threads_for(v.cols());
+  std::array<KineticChange, kMaxParts> sums{};
+  parallel_numbered_blocks(v.cols(), parts, [&](int u, std::int64_t b, std::int64_t e) {
+    double before = 0.0, after = 0.0;
     for (std::int64_t i = b; i < e; ++i) {
       if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
+      if constexpr (kMeasure)
+        if (inv_mass_[i] > 0.0) before += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
       v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, id_.empty() ? i : id_[i], table);
       if constexpr (kMeasure)
-        if (inv_mass_[i] > 0.0) kinetic += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
+        if (inv_mass_[i] > 0.0) after += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
     }
-    return kinetic;
+    sums[u] = {before, after};
   });
+  KineticChange total = sums[0];  // the blocks in order, as parallel_sum adds them
+  for (int u = 1; u < parts; ++u) total.before += sums[u].before, total.after += sums[u].after;
+  return total;
 }
 
-template double LangevinNoise::o_step<false>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
-template double LangevinNoise::o_step<true>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
+template KineticChange LangevinNoise::o_step<false>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
+template KineticChange LangevinNoise::o_step<true>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
 
 LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
     : kT_(settings.temperature),
@@ -98,7 +105,7 @@ LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::Ve
 }
 
 void LangevinForce::add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep,
-                        Eigen::Matrix3Xd& f) const {
+                        Eigen::Matrix3Xd& f, Eigen::Matrix3Xd& part) const {
   const ScopedPhase phase(Phase::thermostat);
   constexpr double kScale = 1.0 / 4294967296.0;
   // (k + ½)/2³² − ½ for the 32-bit halves k of a word: uniform on (−½, ½), variance 1/12.
@@ -106,15 +113,34 @@ void LangevinForce::add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, 
   const std::uint64_t key = noise_key(seed_, step, substep);
   parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t i = b; i < e; ++i) {
-      if (inv_mass_[i] == 0.0) continue;  // fixed
+      if (inv_mass_[i] == 0.0) {  // fixed
+        part.col(i).setZero();
+        continue;
+      }
       const double m = 1.0 / inv_mass_[i], g = friction_[i];
       const double amplitude = std::sqrt(24.0 * g * m * kT_ / h);
       const auto id = static_cast<std::uint64_t>(id_.empty() ? i : id_[i]);
       const std::uint64_t w0 = noise_word(key, 2 * id);
       const std::uint64_t w1 = noise_word(key, 2 * id + 1);
       const Eigen::Vector3d u(centred(w0 >> 32), centred(w0 & 0xffffffffULL), centred(w1 >> 32));
-      f.col(i) += -g * m * v.col(i) + amplitude * u;
+      part.col(i) = -g * m * v.col(i) + amplitude * u;
+      f.col(i) += part.col(i);
     }
+  });
+}
+
+double LangevinForce::kick_heat(const Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& part, double dt,
+                                bool closing) const {
+  const ScopedPhase phase(Phase::thermostat);
+  const double half = closing ? -0.5 : 0.5;
+  return parallel_sum(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
+    double heat = 0.0;
+    for (std::int64_t i = b; i < e; ++i) {
+      if (inv_mass_[i] == 0.0) continue;  // fixed
+      const Eigen::Vector3d jump = dt * inv_mass_[i] * part.col(i);  // b
+      heat += (jump.dot(v.col(i)) + half * jump.squaredNorm()) / inv_mass_[i];
+    }
+    return heat;
   });
 }
 
@@ -151,7 +177,8 @@ class VelocityRescaled final : public Integrator {
   void step(State& s, double h) override {
     inner_->step(s, h);
     const ScopedPhase phase(Phase::thermostat);
-    const double kinetic = exact_kinetic_energy(s);  // the whole system's K: one α for all
+    double local = 0.0;
+    const double kinetic = exact_kinetic_energy(s, local);  // the whole system's K: one α for all
     if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
     double r1 = 0.0;
@@ -162,12 +189,15 @@ class VelocityRescaled final : public Integrator {
     const double alpha = sign * std::sqrt(a2);
     parallel_blocks(s.size(), threads_for(s.size()),
                     [&](std::int64_t b, std::int64_t e) { s.v.middleCols(b, e - b) *= alpha; });
+    heat_ += (a2 - 1.0) * local;  // this process's particles' K changes by the factor α²
   }
   void reset() override { inner_->reset(); }
   std::string_view method() const override { return inner_->method(); }
+  double thermostat_heat() const override { return heat_ + inner_->thermostat_heat(); }
   // ½vᵀMv of the whole system, its terms added exactly (ExactSum): the same bits on any number of
-  // threads and processes, so that α, which scales every velocity, is too.
-  double exact_kinetic_energy(const State& s) const {
+  // threads and processes, so that α, which scales every velocity, is too. `local`: this process's
+  // particles' share.
+  double exact_kinetic_energy(const State& s, double& local) const {
     const int parts = threads_for(s.size());
     std::array<ExactSum, kMaxParts> part{};
     run_parts(parts, [&](int u) {
@@ -176,6 +206,7 @@ class VelocityRescaled final : public Integrator {
     });
     ExactSum total;
     for (int u = 0; u < parts; ++u) total.add(part[u]);
+    local = total.value();
     if (processes_) {
       std::int64_t words[3] = {total.whole, total.high, total.low};
       processes_->sum(words, 3);
@@ -188,13 +219,33 @@ class VelocityRescaled final : public Integrator {
   double kinetic_energy_estimate(const State& s) const override { return inner_->kinetic_energy_estimate(s); }
   std::vector<double> invariants() const override { return inner_->invariants(); }
   void set_invariants(const std::vector<double>& w) override { inner_->set_invariants(w); }
-  std::vector<double> save_state() const override { return inner_->save_state(); }
-  CarriedState carried_state() const override { return inner_->carried_state(); }
-  void restore_carried_state(CarriedState c) override { inner_->restore_carried_state(std::move(c)); }
-  void load_state(const std::vector<double>& s) override { inner_->load_state(s); }
+  // The inner method's words, then the rescaling's heat.
+  std::vector<double> save_state() const override {
+    std::vector<double> w = inner_->save_state();
+    w.push_back(heat_);
+    return w;
+  }
+  // The heat is a sum over particles (each process its share): the last of the sums.
+  CarriedState carried_state() const override {
+    CarriedState c = inner_->carried_state();
+    c.sums.push_back(heat_);
+    return c;
+  }
+  void restore_carried_state(CarriedState c) override {
+    if (c.sums.empty()) throw std::invalid_argument("velocity rescaling: carried state without its heat");
+    heat_ = c.sums.back();
+    c.sums.pop_back();
+    inner_->restore_carried_state(std::move(c));
+  }
+  void load_state(const std::vector<double>& s) override {
+    if (s.empty()) throw std::invalid_argument("the checkpoint holds no velocity-rescaling state");
+    inner_->load_state(std::vector<double>(s.begin(), s.end() - 1));
+    heat_ = s.back();
+  }
 
  private:
   std::unique_ptr<Integrator> inner_;
+  double heat_ = 0.0;  // Σ (α² − 1) K of this process's particles over the steps: the heat put in
   double kT_, tau_;
   std::uint64_t seed_;
   int dof_;

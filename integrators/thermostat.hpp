@@ -115,6 +115,13 @@ inline Eigen::Vector3d particle_noise(std::uint64_t key, std::int64_t i, const Z
           ziggurat_normal(noise_word(key, j + 2), t)};
 }
 
+// ½vᵀMv before and after a thermostat's change of the velocities: after − before is the heat
+// it put into the system (docs/design.md §5, the conserved energy).
+struct KineticChange {
+  double before = 0.0, after = 0.0;
+  double heat() const { return after - before; }
+};
+
 // The Ornstein–Uhlenbeck part "O" of a Langevin splitting, solved exactly over dt:
 //   v_i ← c_i v_i + √((1 − c_i²) kT / m_i) ξ_i,   c_i = exp(−γ_i dt),   ξ_i ~ N(0, I₃).
 // Fixed particles (inverse mass 0) stay at rest. Parallel over particle blocks; the noise of a
@@ -126,9 +133,9 @@ class LangevinNoise {
   void apply(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
     o_step<false>(v, dt, step, substep);
   }
-  // The same, returning ½ vᵀ M v after it, formed in the same pass (summed as kinetic_energy in
-  // integrators/primitives.hpp: the same bits).
-  double apply_and_measure(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+  // The same, returning ½ vᵀ M v before and after it, formed in the same pass (each summed as
+  // kinetic_energy in integrators/primitives.hpp: the same bits).
+  KineticChange apply_and_measure(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
     return o_step<true>(v, dt, step, substep);
   }
   double temperature() const { return kT_; }
@@ -138,7 +145,7 @@ class LangevinNoise {
  private:
   void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)
   template <bool kMeasure>
-  double o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
+  KineticChange o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
   double kT_;
   std::uint64_t seed_;
   std::vector<std::int64_t> id_;  // ThermostatSettings::particle_id
@@ -158,8 +165,16 @@ class LangevinNoise {
 class LangevinForce {
  public:
   LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass);
-  // Adds the friction and noise force for velocities v over a step h to f.
-  void add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep, Eigen::Matrix3Xd& f) const;
+  // Adds the friction and noise force for velocities v over a step h to f, and writes it into
+  // `part` (what of f is the thermostat's: its kicks' heat, kick_heat).
+  void add(const Eigen::Matrix3Xd& v, double h, std::int64_t step, std::uint64_t substep, Eigen::Matrix3Xd& f,
+           Eigen::Matrix3Xd& part) const;
+  // The heat of the Langevin part f_L of a kick by dt: its impulse b = dt M⁻¹f_L taken as a jump
+  // of its own at the on-step velocity v, before the opening kick's conservative part
+  // (K(v + b) − K(v) = Σ m b·v + ½ m|b|²) or, `closing`, after the closing kick's (K(v) − K(v − b)
+  // = Σ m b·v − ½ m|b|², v the kicked velocity). Between the two the Hamiltonian step is velocity
+  // Verlet's, whole (multiple_time_stepping.cpp). Summed in particle blocks (parallel_sum).
+  double kick_heat(const Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& part, double dt, bool closing) const;
 
  private:
   double kT_;

@@ -208,13 +208,15 @@ class Simulation {
     d["initial_energy"] = r.initial_energy;
     d["final_energy"] = r.final_energy;
     d["max_energy_error"] = r.max_energy_error;
+    d["conserved_energy_drift"] = r.conserved_energy_drift;
+    d["max_conserved_energy_error"] = r.max_conserved_error;
     d["outputs"] = r.outputs;
     d["checkpoint"] = r.checkpoint;
     return d;
   }
 
-  // A state set from outside: the integrator's cached forces are stale, and energy_drift is
-  // measured from the new state's energy on.
+  // A state set from outside: the integrator's cached forces are stale, and energy_drift (and
+  // the conserved energy's) is measured from the new state's energy on.
   void set_positions(const py::handle& a) {
     units_.in(a, scene_.state.x, Dimension::length, "positions");
     run_->state_changed();

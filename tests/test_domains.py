@@ -278,15 +278,16 @@ def column_scale(name, columns, position_scale):
     end-to-end, actions) are sums over particles or molecules: their round-off is relative to their
     size, so the scale is the column's largest |value| over the serial run (for the pressure the
     kinetic and virial parts partly cancel, but both are of the pressure's size in these decks).
-    Two columns are differences of larger numbers and carry those numbers' round-off:
-    energy_drift = E(t) − E(0), scaled by the total energy; max_violation = max | |x_i − x_j| − ℓ |,
+    Three columns are differences of larger numbers and carry those numbers' round-off:
+    energy_drift = E(t) − E(0) and ecouple (the thermostat's heat, each step's a difference of
+    kinetic energies), scaled by the total energy; max_violation = max | |x_i − x_j| − ℓ |,
     round-off of coordinates (for the rigid methods its value is all round-off, ~1e-12), scaled by
     the positions' scale."""
     base = name[:-len("_per_atom")] if name.endswith("_per_atom") else name
     if base in ("time", "step", "alerts"):
         return None
-    if base == "energy_drift":
-        return float(np.abs(columns[name.replace("energy_drift", "total")]).max())
+    if base in ("energy_drift", "ecouple"):
+        return float(np.abs(columns[name.replace(base, "total")]).max())
     if base == "max_violation":
         return position_scale
     return float(np.abs(columns[name]).max())

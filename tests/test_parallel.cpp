@@ -398,9 +398,9 @@ TEST(Parallel, CountingSortIsTheStableSortForAnyNumberOfParts) {
 }
 
 // The kinetic energies the integrators keep (primitives.hpp kinetic_energy, the O step's
-// LangevinNoise::apply_and_measure): with one thread the bits of State::kinetic_energy, with
-// more its value to rounding and the same bits call to call; the O step's the same as its plain
-// step followed by kinetic_energy. Fixed particles count nothing.
+// LangevinNoise::apply_and_measure, before and after): with one thread the bits of
+// State::kinetic_energy, with more its value to rounding and the same bits call to call; the O
+// step's the same as kinetic_energy before and after its plain step. Fixed particles count nothing.
 TEST(Parallel, KineticEnergiesAreTheStatesSummedInBlocks) {
   const Melt m = melt(true);
   const Eigen::Index n = m.x.cols();
@@ -429,10 +429,11 @@ TEST(Parallel, KineticEnergiesAreTheStatesSummedInBlocks) {
     LangevinNoise plain(t, s.inv_mass), measured(t, s.inv_mass);
     Eigen::Matrix3Xd v_plain = s.v, v_measured = s.v;
     plain.apply(v_plain, 0.01, 4, 1);
-    const double after = measured.apply_and_measure(v_measured, 0.01, 4, 1);
+    const KineticChange change = measured.apply_and_measure(v_measured, 0.01, 4, 1);
     EXPECT_EQ(v_measured, v_plain);
-    EXPECT_EQ(after, kinetic_energy(v_plain, s.inv_mass));
-    EXPECT_NE(after, k);
+    EXPECT_EQ(change.before, k);
+    EXPECT_EQ(change.after, kinetic_energy(v_plain, s.inv_mass));
+    EXPECT_NE(change.after, k);
   }
   set_max_threads(restore);
 }

@@ -238,12 +238,63 @@ TEST(MoleculeSizes, ChainEndToEndRingDiameterNoneForAStar) {
   EXPECT_EQ(with_all.column("end_to_end"), with_all.column("rg") + 1);
 }
 
+// Rigid bonds are all of one length to SHAKE's tolerance: the bond-length histogram's bins are
+// still readable ranges (not "0.97,0.97"), one of them holding every bond and 0.97.
+TEST(Histograms, RigidBondLengthsGetBinsThatReadAsTheirLength) {
+  const fs::path d = test::scratch_dir("histograms_rigid");
+  const auto r = cli("run " + test::source_path("tests/decks/small_melt.toml") +
+                     " --no-progress -q --set integrator.method=rattle -o " + d.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in(d / "histograms.csv");
+  std::string line;
+  int rows = 0;
+  long bonds = 0;
+  while (std::getline(in, line)) {
+    if (line.rfind("bond_length,", 0) != 0) continue;
+    std::istringstream row(line.substr(12));
+    std::string low, high, count;
+    std::getline(row, low, ',');
+    std::getline(row, high, ',');
+    std::getline(row, count);
+    ++rows;
+    EXPECT_NE(low, high) << line;
+    EXPECT_GT(std::stod(high) - std::stod(low), 1e-6) << line;
+    if (std::stol(count) > 0) {
+      bonds += std::stol(count);
+      EXPECT_LE(std::stod(low), 0.97) << line;
+      EXPECT_GE(std::stod(high), 0.97) << line;
+    }
+  }
+  EXPECT_EQ(rows, 100);
+  EXPECT_GT(bonds, 0);
+  fs::remove_all(d);
+}
+
 TEST(ValidityMonitor, WarnsOnTheLongChainsNearlyDegenerateFrequencies) {
   const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") +
                      " --no-progress --set run.t_end=0.05 -o " + test::scratch_dir("hanging").string());
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("warning: frequency gap"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("at step 0 (t = 0)"), std::string::npos) << r.err;
+}
+
+// The effective dynamics' validity concerns the methods that follow it (effective, the projected
+// and mollified impulse methods); velocity Verlet and the impulse method resolve the vibrations,
+// whose actions may jump there (a note that says so), and rattle has none (nothing).
+TEST(ValidityMonitor, WarnsOnlyForTheMethodsThatFollowTheEffectiveDynamics) {
+  for (const std::string method : {"effective", "mollified-impulse", "velocity-verlet", "impulse", "rattle"}) {
+    SCOPED_TRACE(method);
+    const std::string h = method == "velocity-verlet" ? "2e-4" : "0.01";
+    const auto r = cli("run " + test::source_path("inputs/hanging_chain.toml") +
+                       " --no-progress --set run.t_end=0.02 --set integrator.h=" + h +
+                       " --set integrator.method=" + method + " -o " + test::scratch_dir("hanging_" + method).string());
+    EXPECT_EQ(r.code, 0) << r.err;
+    const bool follows = find_method(method)->follows_effective, rigid = find_method(method)->rigid_constraints;
+    EXPECT_EQ(r.err.find("effective dynamics") != std::string::npos, follows) << r.err;
+    EXPECT_EQ(r.err.find("warning: frequency gap") != std::string::npos, follows) << r.err;
+    EXPECT_EQ(r.err.find("note: frequency gap") != std::string::npos, !follows && !rigid) << r.err;
+    EXPECT_EQ(r.err.find("adiabatic invariants") != std::string::npos, follows || !rigid) << r.err;
+  }
 }
 
 }  // namespace

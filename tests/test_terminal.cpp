@@ -71,8 +71,10 @@ const std::map<std::string, std::string> kColumnOf = {{"Time", "time"},
                                                       {"KinEng", "kinetic"},
                                                       {"PotSlow", "potential_slow"},
                                                       {"PotStiff", "potential_stiff"},
+                                                      {"PotFixman", "potential_fixman"},
                                                       {"PotEng", "potential_slow"},
                                                       {"TotEng", "total"},
+                                                      {"EConserve", "econserve"},
                                                       {"Press", "pressure"}};
 
 // Every screen line is the thermo file's row of its step.
@@ -119,6 +121,84 @@ std::vector<double> h5_observable(const fs::path& file, const std::string& name)
   }
   H5Fclose(f);
   return v;
+}
+
+// Under fixman the model potential is Fixman's U_F, a free energy (up to a constant), not the
+// springs' energy: it has its own column potential_fixman (screen: PotFixman), in the total, and
+// potential_stiff stays the stiff bonds' energy (0 on rigid bonds, to SHAKE's tolerance).
+TEST(Terminal, FixmansPotentialHasAColumnOfItsOwn) {
+  const fs::path dir = scratch_dir("screen_fixman");
+  const CliResult r = cli("run " + melt() +
+                          " --no-progress --set run.t_end=0.075 --set output.screen_interval=0.015"
+                          " --set integrator.method=fixman --set thermostat.style=langevin"
+                          " --set thermostat.temperature=1.0 --set thermostat.damp=1.0 --set thermostat.seed=3"
+                          " --set monitor.energy_error=0 -o " +
+                          dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const ScreenLines s = screen_lines(r.out);
+  ASSERT_EQ(std::count(s.labels.begin(), s.labels.end(), "PotFixman"), 1) << r.out;
+  const test::CsvTable csv = test::read_csv((dir / "thermo.csv").string());
+  expect_lines_are_csv_rows(s, csv);
+  ASSERT_FALSE(csv.rows.empty());
+  for (const auto& row : csv.rows) {
+    EXPECT_NE(row[csv.col("potential_fixman")], 0.0);
+    EXPECT_LT(std::abs(row[csv.col("potential_stiff")]), 1e-12);
+    const double sum = row[csv.col("kinetic")] + row[csv.col("potential_slow")] + row[csv.col("potential_stiff")] +
+                       row[csv.col("potential_fixman")];
+    EXPECT_NEAR(row[csv.col("total")], sum, 1e-10 * std::abs(sum));
+  }
+  fs::remove_all(dir);
+}
+
+double json_number(const std::string& json, const std::string& key) {
+  const size_t at = json.find("\"" + key + "\": ");
+  if (at == std::string::npos) return std::nan("");
+  return std::stod(json.substr(at + key.size() + 4));
+}
+
+// Under a thermostat E is not conserved: the thermo has ecouple (−the heat the thermostat put in)
+// and econserve = total + ecouple (per atom with thermo_norm), the screen an EConserve column, and
+// the summary the conserved energy's drift per particle and time unit where an NVE run has its
+// energy error.
+TEST(Terminal, AThermostattedRunShowsTheEnergyItConservesWithTheHeat) {
+  const fs::path d = scratch_dir("screen_nvt");
+  const std::string args =
+      " --no-progress --set run.t_end=0.15 --set output.screen_interval=0.03 --set thermostat.style=langevin"
+      " --set thermostat.temperature=1.0 --set thermostat.damp=0.5 --set thermostat.seed=3"
+      " --set monitor.energy_error=0";
+  const CliResult nvt = cli("run " + melt() + args + " -o " + (d / "total").string());
+  const CliResult norm = cli("run " + melt() + args + " --set output.thermo_norm=true -o " + (d / "norm").string());
+  ASSERT_EQ(nvt.code, 0) << nvt.err;
+  ASSERT_EQ(norm.code, 0) << norm.err;
+  const test::CsvTable csv = test::read_csv((d / "total" / "thermo.csv").string());
+  const ScreenLines s = screen_lines(nvt.out);
+  ASSERT_EQ(std::count(s.labels.begin(), s.labels.end(), "EConserve"), 1) << nvt.out;
+  expect_lines_are_csv_rows(s, csv);
+  const ScreenLines sn = screen_lines(norm.out);
+  ASSERT_EQ(std::count(sn.labels.begin(), sn.labels.end(), "EConserve/N"), 1) << norm.out;
+  expect_lines_are_csv_rows(sn, test::read_csv((d / "norm" / "thermo.csv").string()), "_per_atom");
+  const size_t ec = csv.col("econserve"), total = csv.col("total"), heat = csv.col("ecouple");
+  EXPECT_EQ(csv.rows.front()[heat], 0.0);
+  EXPECT_NE(csv.rows.back()[heat], 0.0);
+  for (const auto& row : csv.rows) EXPECT_NEAR(row[ec], row[total] + row[heat], 1e-10 * std::abs(row[total]));
+  // The summary: the conserved energy's drift, not |E − E(0)|, which the heat makes large.
+  EXPECT_NE(nvt.out.find("conserved:     E + ecouple"), std::string::npos) << nvt.out;
+  EXPECT_EQ(nvt.out.find("max |E - E(0)|"), std::string::npos) << nvt.out;
+  const std::string json = slurp(d / "total" / "summary.json");
+  const double ec0 = csv.rows.front()[ec], ec1 = csv.rows.back()[ec];
+  EXPECT_NEAR(json_number(json, "initial_conserved_energy"), ec0, 1e-10 * std::abs(ec0));
+  EXPECT_NEAR(json_number(json, "final_conserved_energy"), ec1, 1e-10 * std::abs(ec1));
+  const double drift = (ec1 - ec0) / (kMeltParticles * 0.15);
+  EXPECT_NEAR(json_number(json, "conserved_energy_drift"), drift, 1e-9 * std::abs(ec0) / (kMeltParticles * 0.15));
+  EXPECT_NE(drift, 0.0);
+  // Without a thermostat: the energy error as before, no ecouple or econserve.
+  const CliResult nve = cli("run " + melt() + " --no-progress -q --set run.t_end=0.03 -o " + (d / "nve").string());
+  ASSERT_EQ(nve.code, 0) << nve.err;
+  EXPECT_NE(nve.out.find("max |E - E(0)|"), std::string::npos) << nve.out;
+  EXPECT_EQ(nve.out.find("conserved:"), std::string::npos) << nve.out;
+  const test::CsvTable plain = test::read_csv((d / "nve" / "thermo.csv").string());
+  EXPECT_EQ(std::count(plain.header.begin(), plain.header.end(), "econserve"), 0);
+  fs::remove_all(d);
 }
 
 TEST(Terminal, ThermoLinesAreTheThermoRowsAtTheScreenInterval) {

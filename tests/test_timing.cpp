@@ -121,5 +121,18 @@ TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
   fs::remove_all(dir);
 }
 
+// The thread count a summary gives is that of the step loop's loops, not OMP_NUM_THREADS: the
+// pendulum's loops (two bonds, two particles) all run on one thread at any thread count.
+TEST(RunTiming, ThreadCountIsTheThreadsTheLoopsRanOn) {
+  const fs::path dir = test::scratch_dir("timing_threads");
+  const test::CliResult r = test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " + dir.string() +
+                                          " --no-progress -q --set run.t_end=1",
+                                      "OMP_NUM_THREADS=2 ");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find(" s wall on 1 thread; "), std::string::npos) << r.out;
+  EXPECT_EQ(json_number(test::slurp(dir / "summary.json"), "threads"), 1.0);
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace stiffmd

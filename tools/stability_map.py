@@ -108,6 +108,8 @@ def run_one(a, deck, eps, method, h, out_dir):
     th = read_thermo(os.path.join(out_dir, "thermo.csv"))
     e0 = s["initial_energy"]
     parts = abs(th["kinetic"][0]) + abs(th["potential_slow"][0]) + abs(th["potential_stiff"][0])
+    if "potential_fixman" in th:  # fixman: Fixman's potential, in the total
+        parts += abs(th["potential_fixman"][0])
     scale = abs(e0) if abs(e0) >= 0.1 * parts else parts
     eps_run = s.get("epsilon", eps)
     viol = float(max(np.max(th["max_violation"]), s.get("final_max_violation", 0.0)))

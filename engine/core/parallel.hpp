@@ -144,6 +144,20 @@ void run_as_one_part(std::int64_t items, F&& f) {
     detail::timed_parallel(f);
 }
 
+// The most parts any parallel loop started by this thread ran on since its last
+// reset_widest_team(): the threads a run's step loop actually used. A loop below kParallelMin items
+// runs as one part whatever OMP_NUM_THREADS says, and a small system's loops all do — but a pair
+// loop splits by pairs, so a system of fewer particles may still use every thread there.
+namespace detail {
+inline thread_local int widest_team = 1;
+}
+inline int widest_team() {
+  return detail::widest_team;
+}
+inline void reset_widest_team() {
+  detail::widest_team = 1;
+}
+
 // Runs part(u) for u = 0 … parts − 1, in parallel when parts > 1. Each part writes only its own
 // data, so the result does not depend on which thread ran which part, nor on the team OpenMP
 // actually gives. An exception thrown in a part is caught there (it must not leave a parallel
@@ -156,6 +170,7 @@ void run_parts(int parts, Part&& part) {
     if (parts == 1) detail::timed_parallel([&] { part(0); });
     return;
   }
+  if (team_size() == 1) detail::widest_team = std::max(detail::widest_team, parts);  // not a nested loop
   detail::timed_parallel([&] { detail::run_parts_on_threads(parts, part); });
 }
 

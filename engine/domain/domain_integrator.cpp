@@ -302,6 +302,13 @@ double DomainIntegrator::kinetic_energy_estimate(const State& s) const {
   return comm_.sum(part_->integrator->kinetic_energy_estimate(part_->scene.state));
 }
 
+// Each rank's thermostat acts on its own particles, and their heats add up (csvr's too: each
+// rank counts (α² − 1) times its particles' kinetic energy).
+double DomainIntegrator::thermostat_heat() const {
+  if (!part_) return whole_->thermostat_heat();
+  return comm_.sum(part_->integrator->thermostat_heat());
+}
+
 std::vector<double> DomainIntegrator::save_state() const {
   if (!part_) return whole_->save_state();
   // The whole system's state: the parts' columns by global index, their sums added, the flags

@@ -47,6 +47,7 @@ class DomainIntegrator final : public Integrator {
   double model_potential(const Eigen::Matrix3Xd& x) override;
   double constraint_virial(const State& s) override;
   double kinetic_energy_estimate(const State& s) const override;
+  double thermostat_heat() const override;  // the ranks' heats added (collective)
   std::vector<double> invariants() const override { return whole_->invariants(); }
   void set_invariants(const std::vector<double>& w) override { whole_->set_invariants(w); }
   // The whole-system integrator's words (on rank 0; collective): a checkpoint that restarts on any

@@ -26,7 +26,9 @@ Energies energies(const State& s, const ForceField& forces) {
 Dimension thermo_column_dimension(const std::string& c) {
   const auto starts = [&](const char* prefix) { return c.rfind(prefix, 0) == 0; };
   if (c == "time") return Dimension::time;
-  if (c == "kinetic" || c == "total" || c == "energy_drift" || starts("potential_")) return Dimension::energy;
+  if (c == "kinetic" || c == "total" || c == "energy_drift" || c == "ecouple" || c == "econserve" ||
+      starts("potential_"))
+    return Dimension::energy;
   if (c == "max_violation" || c == "rg" || c == "end_to_end") return Dimension::length;
   if (c == "temperature") return Dimension::temperature;
   if (c == "pressure") return Dimension::pressure;
@@ -44,8 +46,14 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     : forces_(forces),
       level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
                        forces.level_name(Level::slow) == "slow")),
-      columns_{"time",  "step",         "kinetic",       "potential_slow", "potential_stiff",
-               "total", "energy_drift", "max_violation", "temperature"} {
+      fixman_(settings.fixman),
+      thermostat_(settings.thermostat != ThermostatSettings::Style::none),
+      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff"} {
+  if (fixman_) columns_.push_back("potential_fixman");
+  columns_.insert(columns_.end(), {"total", "energy_drift", "max_violation", "temperature"});
+  // The heat exchanged with the thermostat and the energy conserved with it (LAMMPS's ecouple and
+  // econserve): econserve drifts only by the integrator's error (docs/design.md §5).
+  if (thermostat_) columns_.insert(columns_.end(), {"ecouple", "econserve"});
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
   ThermostatSettings thermostat;
@@ -81,6 +89,7 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     omega_.resize(m);
     actions_.resize(m);
     sqrt_eps_ = std::sqrt(stiff->epsilon);
+    resonances_ = settings.resonances;
     for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
     for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
     columns_.push_back("min_gap");
@@ -125,18 +134,18 @@ ThermoSums Thermo::sums(const State& s) const {
 }
 
 const std::vector<double>& Thermo::sample(const State& s, double model_potential, double constraint_virial,
-                                          double kinetic_estimate) {
-  return row(s, sums(s), model_potential, constraint_virial, kinetic_estimate);
+                                          double kinetic_estimate, double heat) {
+  return row(s, sums(s), model_potential, constraint_virial, kinetic_estimate, heat);
 }
 
 const std::vector<double>& Thermo::sample(const State& s, const ThermoSums& sums, double model_potential,
-                                          double constraint_virial, double kinetic_estimate) {
+                                          double constraint_virial, double kinetic_estimate, double heat) {
   if (modes_) throw std::logic_error("Thermo::sample: the actions need the whole state, not sums");
-  return row(s, sums, model_potential, constraint_virial, kinetic_estimate);
+  return row(s, sums, model_potential, constraint_virial, kinetic_estimate, heat);
 }
 
 const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, double model_potential,
-                                       double constraint_virial, double kinetic_estimate) {
+                                       double constraint_virial, double kinetic_estimate, double heat) {
   // The energies by level, innermost first: the innermost is the stiff one, the others are U
   // (docs/design.md §1), added from the outermost in.
   Energies e;
@@ -148,14 +157,20 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
     else
       e.stiff = e.by_level[k];
   const double thermal_kinetic = kinetic_estimate >= 0.0 ? kinetic_estimate : e.kinetic;
-  e.stiff += model_potential;
+  (fixman_ ? e.fixman : e.stiff) += model_potential;
+  const double ecouple = thermostat_ ? 0.0 - heat : 0.0, econserve = e.total() + ecouple;  // 0, not −0, at the start
   if (!have_e0_) {
     e0_ = e.total();
+    ec0_ = econserve;
+    t0_ = s.t;
     have_e0_ = true;
   }
   values_.clear();
-  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff, e.total(),
-                                 e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  values_.insert(values_.end(), {s.t, static_cast<double>(s.step), e.kinetic, e.slow, e.stiff});
+  if (fixman_) values_.push_back(e.fixman);
+  values_.insert(values_.end(),
+                 {e.total(), e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
+  if (thermostat_) values_.insert(values_.end(), {ecouple, econserve});
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.
@@ -173,15 +188,20 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
     values_.insert(values_.end(), actions_.begin(), actions_.end());
     values_.push_back(std::isfinite(v.min_gap) ? v.min_gap : -1.0);
     values_.push_back(std::isfinite(v.min_resonance) ? v.min_resonance : -1.0);
-    // Validity of the effective dynamics (paper eqs. (separated), (nonresonant)): below √ε the
-    // slow motion is no longer determined by the actions (Takens chaos).
+    // Below √ε (paper eqs. (separated), (nonresonant)) the actions need not stay adiabatic
+    // invariants: a method that resolves the vibrations shows them jump there, and the effective
+    // dynamics, which holds them fixed, loses validity (the slow motion is no longer determined by
+    // the actions: Takens chaos) — a warning for the methods that follow it. Rigid bonds without it
+    // have no vibrations, and nothing is said.
     auto warn = [&](bool& warned, double value, const char* what) {
-      if (warned || !(value < sqrt_eps_)) return;
+      if (resonances_ == ObservableSettings::Resonances::none || warned || !(value < sqrt_eps_)) return;
       warned = true;
+      const bool effective = resonances_ == ObservableSettings::Resonances::effective;
       std::ostringstream m;
-      m << "warning: " << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step " << s.step
-        << " (t = " << s.t << "): the actions need not stay adiabatic invariants and the effective dynamics "
-        << "loses validity here";
+      m << (effective ? "warning: " : "note: ") << what << " " << value << " < sqrt(eps) = " << sqrt_eps_
+        << " at step " << s.step << " (t = " << s.t << "): the actions need not stay adiabatic invariants"
+        << (effective ? " and the effective dynamics, which this method follows, loses validity here"
+                      : " here (they may jump)");
       notes_.push_back(m.str());
     };
     warn(warned_gap_, v.min_gap, "frequency gap min|w_j - w_k| =");
@@ -196,8 +216,9 @@ ThermoOutput::ThermoOutput(const Thermo& thermo, int num_particles, bool norm, c
   for (const std::string& c : columns_) scale_.push_back(units.out(thermo_column_dimension(c)));
   if (norm && num_particles > 0)
     for (size_t c = 0; c < columns_.size(); ++c) {
-      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift
-      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift") {
+      const std::string& name = columns_[c];  // the energies: kinetic, every potential_*, total, drift, …
+      if (name == "kinetic" || name.rfind("potential_", 0) == 0 || name == "total" || name == "energy_drift" ||
+          name == "ecouple" || name == "econserve") {
         divide_[c] = 1;
         columns_[c] += "_per_atom";
       }

@@ -23,8 +23,9 @@ struct Energies {
   double kinetic = 0.0;
   double slow = 0.0;             // U(x): every term on a level outside the innermost
   double stiff = 0.0;            // ε⁻²V(x) and anything else integrated on the fast (innermost) level
+  double fixman = 0.0;           // Fixman's U_F (the fixman method's model potential), else 0
   std::vector<double> by_level;  // each level's potential energy, innermost first
-  double total() const { return kinetic + slow + stiff; }
+  double total() const { return kinetic + slow + stiff + fixman; }
 };
 
 Energies energies(const State& s, const ForceField& forces);
@@ -40,6 +41,18 @@ struct ObservableSettings {
   // [thermostat] style: Langevin noise does not conserve the total momentum (3 more dof).
   ThermostatSettings::Style thermostat = ThermostatSettings::Style::none;
   bool histograms = true;  // bond-length and angle histograms at the end (when there are bonds)
+  // The method's model potential is Fixman's U_F, a free energy (kT Σ_k log ω_k up to a constant:
+  // on polyethylene −55.8 kcal/mol), not an energy of the springs: it gets its own column potential_fixman
+  // (in the total), and potential_stiff stays the stiff level's energy. The effective dynamics'
+  // W = Σ I_k ω_k is the averaged energy of the bond vibrations and stays in potential_stiff.
+  bool fixman = false;
+  // With the actions: what a frequency gap or resonance below √ε means for the method, said once
+  // each in the log. effective: a method whose solution follows the effective dynamics
+  // (MethodInfo::follows_effective) — a warning that it loses validity there; actions: a method that
+  // resolves the vibrations (velocity Verlet, impulse) — a note that the actions may jump there;
+  // none: rigid bonds without the effective dynamics (rattle, fixman), which have no vibrations.
+  enum class Resonances { none, actions, effective };
+  Resonances resonances = Resonances::none;
 };
 
 // What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
@@ -69,30 +82,39 @@ class Thermo {
          const Topology* topology = nullptr);
   const std::vector<std::string>& columns() const { return columns_; }
   // Values for the current state; energy_drift is relative to the first call's total energy.
-  // model_potential (W of the effective dynamics) is counted in potential_stiff.
+  // model_potential (W of the effective dynamics) is counted in potential_stiff, or under fixman
+  // (Fixman's U_F) in potential_fixman; both in the total.
   // constraint_virial (Σ x·F_c of rigid constraints) is added to the pressure's virial.
   // kinetic_estimate (Integrator::kinetic_energy_estimate; < 0: the state's ½vᵀMv) is the kinetic
   // energy of the temperature and of the pressure's kinetic term: under Langevin, that of the
   // velocities at the O step. The kinetic, total and energy_drift columns stay the state's.
+  // heat (Integrator::thermostat_heat) gives, with a thermostat, ecouple = −heat and econserve =
+  // total + ecouple (docs/design.md §5, the conserved energy).
   const std::vector<double>& sample(const State& s, double model_potential = 0.0, double constraint_virial = 0.0,
-                                    double kinetic_estimate = -1.0);
+                                    double kinetic_estimate = -1.0, double heat = 0.0);
   // The same from sums taken elsewhere (a decomposed run's parts, added up): s gives the time and
   // the step. Not with the actions (modes(): std::logic_error), which need the whole state.
   const std::vector<double>& sample(const State& s, const ThermoSums& sums, double model_potential,
-                                    double constraint_virial, double kinetic_estimate);
+                                    double constraint_virial, double kinetic_estimate, double heat);
   // The sums of the row at state s (of this Thermo's force field: a part's share in a decomposed
   // run).
   ThermoSums sums(const State& s) const;
+  // The reference sample's total energy E(0), conserved energy E_c(0) = E(0) + ecouple(0) and time:
+  // the first sample's, or the next one's after take_reference_at_next_sample().
   double initial_energy() const { return e0_; }
-  // On restart: the run's E(0) from the checkpoint, so energy_drift continues seamlessly.
-  void set_initial_energy(double e0) { e0_ = e0, have_e0_ = true; }
-  // For checkpoints: E(0) and which validity warnings were given (each is said once per run).
+  double initial_conserved_energy() const { return ec0_; }
+  double initial_time() const { return t0_; }
+  // A state set from outside: energy_drift (and the conserved energy's drift) from the next sample on.
+  void take_reference_at_next_sample() { have_e0_ = false; }
+  // For checkpoints: the reference sample's E(0), E_c(0) and time, and which validity warnings
+  // were given (each is said once per run).
   std::vector<double> save_state() const {
-    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0};
+    return {have_e0_ ? 1.0 : 0.0, e0_, warned_gap_ ? 1.0 : 0.0, warned_resonance_ ? 1.0 : 0.0, ec0_, t0_};
   }
   bool load_state(const std::vector<double>& w) {  // false: not a Thermo state
-    if (w.size() != 4) return false;
+    if (w.size() != 6) return false;
     have_e0_ = w[0] != 0.0, e0_ = w[1], warned_gap_ = w[2] != 0.0, warned_resonance_ = w[3] != 0.0;
+    ec0_ = w[4], t0_ = w[5];
     return true;
   }
   int column(const std::string& name) const;
@@ -101,34 +123,38 @@ class Thermo {
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
-  // √ε, said once each, with step and time). Taken (cleared) by the caller.
+  // √ε, said once each, with step and time; ObservableSettings::resonances). Taken
+  // (cleared) by the caller.
   std::vector<std::string> take_notes() { return std::move(notes_); }
 
  private:
   const ForceField& forces_;
   bool level_columns_;  // a potential_<level> column per named level
+  bool fixman_;         // ObservableSettings::fixman: the model potential in potential_fixman
+  bool thermostat_;     // a [thermostat]: the ecouple and econserve columns
   int dof_ = 0;
   double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
   std::unique_ptr<Molecules> molecules_;
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;
   double sqrt_eps_ = 0.0;
+  ObservableSettings::Resonances resonances_ = ObservableSettings::Resonances::none;
   bool warned_gap_ = false, warned_resonance_ = false;
   std::vector<std::string> columns_;
   std::vector<double> values_;
   std::vector<std::string> notes_;
   // The row of sums taken at s (which gives the time, the step and, for the actions, x and v).
   const std::vector<double>& row(const State& s, const ThermoSums& sums, double model_potential,
-                                 double constraint_virial, double kinetic_estimate);
+                                 double constraint_virial, double kinetic_estimate, double heat);
   bool have_e0_ = false;
-  double e0_ = 0.0;
+  double e0_ = 0.0, ec0_ = 0.0, t0_ = 0.0;
 };
 
 // The thermo row as the outputs show it (thermo CSV, H5MD observables, the terminal line, the Python
 // module's thermo()): the one place where the written columns are formed from Thermo's. With norm
 // (the deck's [output] thermo_norm, LAMMPS's `thermo_modify norm yes`) the extensive columns — the
-// energies kinetic, potential_slow, potential_stiff (every potential_* column), total and
-// energy_drift — are divided by the number of particles N and named with the suffix "_per_atom";
+// energies kinetic, potential_slow, potential_stiff (every potential_* column), total,
+// energy_drift, ecouple and econserve — are divided by the number of particles N and named with the suffix "_per_atom";
 // intensive ones (temperature, pressure, rg, …) stay. Then each column is in the deck's units:
 // times Units::out of its dimension (thermo_column_dimension; real: time in fs, T in K, p in atm).
 class ThermoOutput {

@@ -99,11 +99,21 @@ void Molecules::sum(const Eigen::Matrix3Xd& x, double& rg, double& end_to_end) c
 
 namespace {
 
+// The bins span [min, max] of the values, unless the values are equal to within 1e-6 of their
+// size: rigid bonds are equal to SHAKE's tolerance (1e-12), and bins that narrow print as
+// "0.97,0.97" (10 significant digits) and say nothing. Then the bins span 1 % of the value (1
+// about 0), the value in the middle of one bin, so that the one filled bin reads as the value it
+// holds.
 void histogram(std::FILE* f, const char* name, std::vector<double> values, int bins) {
   if (values.empty()) return;
   const auto [lo_it, hi_it] = std::minmax_element(values.begin(), values.end());
   double lo = *lo_it, hi = *hi_it;
-  if (hi - lo < 1e-12 * std::max(1.0, std::abs(hi))) lo -= 0.5e-6, hi += 0.5e-6;  // all equal: one narrow bin range
+  const double size = std::max(std::abs(lo), std::abs(hi));
+  if (hi - lo <= 1e-6 * size) {
+    const double mid = 0.5 * (lo + hi), width = (size > 0.0 ? 1e-2 * size : 1.0) / bins;
+    lo = mid - (bins / 2 + 0.5) * width;
+    hi = lo + bins * width;
+  }
   std::vector<long> count(bins, 0);
   for (double v : values) ++count[std::min(bins - 1, static_cast<int>((v - lo) / (hi - lo) * bins))];
   for (int k = 0; k < bins; ++k)

@@ -4,13 +4,15 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 4), in the byte order and double format of the writing machine. Version 3:
+// Format (version 5), in the byte order and double format of the writing machine. Version 3:
 // RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
 // constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
 // the wrong meaning there, so it is refused. Version 4: the scene fingerprint is the exact
 // parameter record of forcefields/parameter_record.hpp (every coefficient bit for bit, the
 // dihedrals); a version-3 file of the same scene would be taken for another scene, so it is
-// refused as of an older stiffmd.
+// refused as of an older stiffmd. Version 5: the integrator's state holds the thermostat's heat
+// (Integrator::thermostat_heat; the Langevin force's part of the kick force), the thermo's the
+// conserved energy's reference, the run statistics its max error: a version-4 file lacks them.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
@@ -34,7 +36,7 @@ namespace stiffmd {
 
 struct Scene;
 
-inline constexpr std::uint32_t kCheckpointVersion = 4;
+inline constexpr std::uint32_t kCheckpointVersion = 5;
 
 struct Checkpoint {
   State state;         // x, v, inverse masses, t, step

@@ -30,11 +30,16 @@ void write_atomically(const fs::path& p, const std::string& text) {
 }
 
 // The observables as the run counts them: the rigid constraints of the constrained methods take
-// one degree of freedom each.
+// one degree of freedom each; what a resonance of the stiff modes means depends on the method.
 ObservableSettings run_observables(const Scene& sc) {
   ObservableSettings observables = sc.observables;
-  if (find_method(sc.integrator.method)->rigid_constraints)
+  const MethodInfo& method = *find_method(sc.integrator.method);
+  if (method.rigid_constraints)
     observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+  observables.resonances = method.follows_effective   ? ObservableSettings::Resonances::effective
+                           : method.rigid_constraints ? ObservableSettings::Resonances::none
+                                                      : ObservableSettings::Resonances::actions;
+  observables.fixman = method.needs_temperature;  // its model potential is a free energy: Fixman's U_F
   return observables;
 }
 
@@ -153,7 +158,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   check_finite(s_);
   if (!restarting) {
     const auto& row = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                                     integrator_->kinetic_energy_estimate(s_));  // E(0) and the initial actions
+                                     integrator_->kinetic_energy_estimate(s_),
+                                     integrator_->thermostat_heat());  // E(0) and the initial actions
     if (first_action_ >= 0) {
       stats_.initial_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
       summary_.initial_actions = stats_.initial_actions;
@@ -182,6 +188,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   if (restarting) screen_->served_until(cut);
   col_total_ = thermo_.column("total");
   col_drift_ = thermo_.column("energy_drift");
+  col_econserve_ = thermo_.column("econserve");
   col_violation_ = thermo_.column("max_violation");
   col_alerts_ = thermo_.column("alerts");
 
@@ -221,6 +228,7 @@ void Run::step_to(std::int64_t k) {
     reset_parallel_seconds();
     clock_.resume();
   }
+  reset_widest_team();
   struct Pause {
     Run& r;
     double entered;
@@ -232,6 +240,7 @@ void Run::step_to(std::int64_t k) {
         stop_parallel_seconds();
       }
       r.loop_seconds_ += seconds_now() - entered;
+      r.threads_used_ = std::max(r.threads_used_, widest_team());
     }
   } pause{*this, entered, timed};
   while (s_.step < k) {
@@ -271,7 +280,7 @@ const RunSummary& Run::finish() {
     summary_.domains = domain_->report();
     summary_.h5md_writers = outputs_->h5md_writers();
   }
-  summary_.threads = max_threads();
+  summary_.threads = threads_used_;  // not OMP_NUM_THREADS: loops over few items run on one
   summary_.phase_seconds.clear();
   if (timed_by_phase()) {
     for (int p = 0; p < static_cast<int>(Phase::count); ++p) summary_.phase_seconds.push_back(clock_.seconds(Phase(p)));
@@ -303,6 +312,18 @@ const RunSummary& Run::finish() {
   outputs_->write_final(summary_.outputs);
   outputs_->close();
   summary_.final_energy = row[col_total_];
+  // The energy conserved with the thermostat's heat (E itself without one): its drift per particle
+  // and time unit over the run, (E_c(end) − E_c(0)) / (N t), GROMACS's "conserved energy drift".
+  summary_.thermostat = col_econserve_ >= 0;
+  summary_.particles = s_.size();
+  summary_.initial_conserved_energy = thermo_.initial_conserved_energy();
+  summary_.final_conserved_energy = col_econserve_ >= 0 ? row[col_econserve_] : row[col_total_];
+  summary_.max_conserved_error = col_econserve_ >= 0 ? stats_.max_conserved_error : stats_.max_energy_error;
+  const double span = s_.t - thermo_.initial_time();
+  if (span > 0.0 && s_.size() > 0)
+    summary_.conserved_energy_drift = (summary_.final_conserved_energy - summary_.initial_conserved_energy) /
+                                      (static_cast<double>(s_.size()) * span) * sc_.units.out(Dimension::energy) /
+                                      sc_.units.out(Dimension::time);
   summary_.final_max_violation = row[col_violation_];
   if (first_action_ >= 0)
     summary_.final_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
@@ -333,12 +354,16 @@ const std::vector<double>& Run::sample() {
   // sums: each rank's part's, added up (DomainIntegrator::sample_sums), or rank 0's of the whole
   // system, gathered for it (the actions).
   const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
-  const double kinetic = integrator_->kinetic_energy_estimate(s_);
+  const double kinetic = integrator_->kinetic_energy_estimate(s_), heat = integrator_->thermostat_heat();
   std::optional<ThermoSums> parts;
   if (sampled_by_parts()) parts = domain_->sample_sums();
   if (root()) {
-    last_row_ = parts ? thermo_.sample(s_, *parts, model, virial, kinetic) : thermo_.sample(s_, model, virial, kinetic);
+    last_row_ = parts ? thermo_.sample(s_, *parts, model, virial, kinetic, heat)
+                      : thermo_.sample(s_, model, virial, kinetic, heat);
     stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
+    if (col_econserve_ >= 0)
+      stats_.max_conserved_error = std::max(
+          stats_.max_conserved_error, std::abs(last_row_[col_econserve_] - thermo_.initial_conserved_energy()));
     for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
     alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
     last_row_[col_alerts_] = alerts_;
@@ -404,7 +429,7 @@ void Run::observe(bool final) {
 
 const std::vector<double>& Run::sample_now() {
   last_row_ = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                             integrator_->kinetic_energy_estimate(s_));
+                             integrator_->kinetic_energy_estimate(s_), integrator_->thermostat_heat());
   for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
   return last_row_;
 }
@@ -415,7 +440,8 @@ void Run::close_outputs() {
 
 void Run::state_changed() {
   integrator_->reset();
-  thermo_.set_initial_energy(sample_now()[col_total_]);
+  thermo_.take_reference_at_next_sample();
+  sample_now();
 }
 
 std::int64_t Run::agreed(std::int64_t rank0_value) const {

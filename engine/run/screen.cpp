@@ -13,13 +13,16 @@ ThermoScreen::ThermoScreen(const ThermoOutput& table, double interval, std::FILE
     shown.insert(shown.end(), {{"potential_slow", "PotSlow"}, {"potential_stiff", "PotStiff"}});
   else
     shown.emplace_back("potential_slow", "PotEng");
-  shown.insert(shown.end(), {{"total", "TotEng"}, {"pressure", "Press"}});
+  shown.emplace_back("potential_fixman", "PotFixman");
+  shown.emplace_back("total", "TotEng");
+  shown.emplace_back("econserve", "EConserve");  // with a thermostat: E + ecouple
+  shown.emplace_back("pressure", "Press");
   char cell[64];
   std::snprintf(cell, sizeof cell, "%10s", "Step");
   header_ = cell;
   for (const auto& [name, label] : shown) {
     const int c = table.column(name);
-    if (c < 0) continue;  // pressure: only in a periodic box
+    if (c < 0) continue;  // pressure: only in a periodic box; potential_fixman, econserve: fixman, a thermostat
     columns_.push_back(c);
     std::snprintf(cell, sizeof cell, " %14s", (std::string(label) + (table.normalised(c) ? "/N" : "")).c_str());
     header_ += cell;

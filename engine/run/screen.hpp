@@ -1,5 +1,6 @@
 // The thermo line on stdout (the deck's [output] screen_interval): a header, then one line per
-// screen interval — step, time, temperature, energies (by level when the scene has a fast level),
+// screen interval — step, time, temperature, energies (by level when the scene has a fast level;
+// Fixman's potential under fixman; with a thermostat, the energy conserved with its heat),
 // pressure when the box is periodic, and steps per wall-clock second (LAMMPS's S/CPU) — LAMMPS's
 // thermo output in spirit. Lines are printed at thermo samples only, from the row the thermo file
 // gets (ThermoOutput: normalised the same way), so the terminal costs no force evaluation and

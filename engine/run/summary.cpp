@@ -23,9 +23,21 @@ std::string format_summary(const RunSummary& s) {
   }
   if (s.neighbor_rebuilds >= 0) o << "; " << s.neighbor_rebuilds << " neighbour-list rebuilds";
   o << "\n";
-  const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
-  o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
-    << ", max |E - E(0)| = " << s.max_energy_error << " (relative " << rel << ")\n";
+  if (!s.thermostat) {
+    const double rel = s.initial_energy != 0.0 ? s.max_energy_error / std::abs(s.initial_energy) : s.max_energy_error;
+    o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
+      << ", max |E - E(0)| = " << s.max_energy_error << " (relative " << rel << ")\n";
+  } else {
+    // E exchanges heat with the bath: what tells the step's error is E + ecouple, the energy with
+    // the heat the thermostat took, and its drift per particle and time (GROMACS's "conserved
+    // energy drift", LAMMPS's econserve).
+    o << "energy:        E(0) = " << s.initial_energy << ", E(end) = " << s.final_energy
+      << " (not conserved: the thermostat exchanges heat)\n";
+    o << "conserved:     E + ecouple: E_c(end) - E_c(0) = " << s.final_conserved_energy - s.initial_conserved_energy
+      << ", drift " << s.conserved_energy_drift
+      << (s.units == "real" ? " kcal/mol per atom per fs" : " per particle per time unit") << " (/ N t, N = "
+      << s.particles << "), max |E_c - E_c(0)| = " << s.max_conserved_error << "\n";
+  }
   if (!s.final_actions.empty()) {
     o << "actions:       ";
     for (size_t k = 0; k < s.final_actions.size(); ++k)
@@ -88,7 +100,11 @@ std::string summary_json(const RunSummary& s) {
     o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
   o << "}"
     << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
-    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"final_max_violation\": " << s.final_max_violation
+    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"initial_conserved_energy\": "
+    << s.initial_conserved_energy << ",\n  \"final_conserved_energy\": " << s.final_conserved_energy
+    << ",\n  \"max_conserved_energy_error\": " << s.max_conserved_error
+    << ",\n  \"conserved_energy_drift\": " << s.conserved_energy_drift
+    << ",\n  \"final_max_violation\": " << s.final_max_violation
     << ",\n  \"initial_actions\": ";
   list(s.initial_actions);
   o << ",\n  \"final_actions\": ";

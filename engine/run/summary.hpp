@@ -27,6 +27,13 @@ struct RunSummary {
   double initial_energy = 0.0;
   double final_energy = 0.0;
   double max_energy_error = 0.0;      // max |E(t) − E(0)| over the thermo samples
+  // The energy conserved with the thermostat's heat, E_c = E + ecouple (E itself without one:
+  // docs/design.md §5): E_c(0), E_c(end), max |E_c − E_c(0)| over the samples, and its drift
+  // (E_c(end) − E_c(0)) / (N t) per particle and time unit (the deck's: real, kcal/mol per fs).
+  bool thermostat = false;
+  int particles = 0;
+  double initial_conserved_energy = 0.0, final_conserved_energy = 0.0, max_conserved_error = 0.0;
+  double conserved_energy_drift = 0.0;
   std::int64_t slow_evaluations = 0;  // of the outermost level
   std::int64_t fast_evaluations = 0;  // of the innermost level
   // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
@@ -43,7 +50,7 @@ struct RunSummary {
   double loop_seconds = 0.0;
   std::vector<double> phase_seconds;
   double serial_share = -1.0;
-  int threads = 1;
+  int threads = 1;  // the most threads a loop of the step loop ran on (1 for a small system)
   // A decomposed run (ranks > 1): the step loop's wall time per rank (mean and max: the load
   // imbalance; loop_seconds is the max) and the decomposition's counts.
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;

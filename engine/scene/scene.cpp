@@ -188,17 +188,19 @@ void read_levels(DeckTable& root, Scene& sc) {
     sc.integrator.levels.push_back(level);
   }
   // Named levels other than the default pair get a thermo column potential_NAME each, beside the
-  // columns every run has, potential_slow (all but the stiff bonds) and potential_stiff: a level
-  // named slow or stiff would write a second column of that name with another meaning.
+  // columns every run has, potential_slow (all but the stiff bonds) and potential_stiff, and
+  // potential_fixman (Fixman's potential under fixman): a level named slow, stiff or fixman would
+  // write a column of that name with another meaning.
   const auto& levels = sc.integrator.levels;
   const bool default_pair = levels.size() == 2 && levels[0].name == "fast" && levels[1].name == "slow";
   if (!default_pair)
     for (size_t k = 0; k < levels.size(); ++k)
-      if (levels[k].name == "slow" || levels[k].name == "stiff")
+      if (levels[k].name == "slow" || levels[k].name == "stiff" || levels[k].name == "fixman")
         rows[k].fail("name", "level name \"" + levels[k].name + "\" would give the thermo a second potential_" +
                                  levels[k].name +
-                                 " column (potential_slow and potential_stiff are the energies of "
-                                 "all but the stiff bonds and of the stiff bonds); choose another name");
+                                 " column (potential_slow, potential_stiff and potential_fixman are the energies of "
+                                 "all but the stiff bonds, of the stiff bonds and Fixman's potential); choose another "
+                                 "name");
 }
 
 // Every named level must hold a term: an empty one would be a kick by zero, most likely a typo.
