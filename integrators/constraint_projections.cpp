@@ -107,10 +107,8 @@ void ConstraintToolbox::Impl::project_force_cluster(int c, Eigen::Matrix3Xd& f) 
   add_constraint_force(c, at_kept, d.sol, -1.0, f);
 }
 
-// RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0 (not an
-// open chain: those go through project_group).
-void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force,
-                                                       double rate) {
+// S μ = G v on cluster c (not an open chain), at the kept configuration: μ in its `sol`.
+void ConstraintToolbox::Impl::solve_velocity_normal(int c, const Eigen::Matrix3Xd& v) {
   ClusterData& d = data[c];
   factor_kept_s(c, "velocity projection");
   for (int k = 0; k < d.rhs.size(); ++k) {
@@ -118,6 +116,14 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
     d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
   }
   solve_kept_s(c);
+}
+
+// RATTLE's velocity step: the M-orthogonal projection of v onto the tangent space G v = 0 (not an
+// open chain: those go through project_group).
+void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force,
+                                                       double rate) {
+  ClusterData& d = data[c];
+  solve_velocity_normal(c, v);
   add_constraint_displacement(c, at_kept, d.sol, -1.0, v);
   if (force != nullptr) add_constraint_force(c, at_kept, d.sol, -rate, *force, true);  // −rate Gᵀμ
 }
@@ -128,12 +134,7 @@ void ConstraintToolbox::Impl::project_velocity_cluster(int c, Eigen::Matrix3Xd& 
 void ConstraintToolbox::Impl::normal_energy_group(int first, int count, const Eigen::Matrix3Xd& v) {
   if (!data[first].spd) {
     ClusterData& d = data[first];
-    factor_kept_s(first, "velocity projection");
-    for (int k = 0; k < d.rhs.size(); ++k) {
-      const StiffBond& bond = bonds[d.bonds[k]];
-      d.rhs[k] = at_kept.u.col(d.bonds[k]).dot(v.col(bond.i) - v.col(bond.j));
-    }
-    solve_kept_s(first);
+    solve_velocity_normal(first, v);
     d.normal_energy = 0.5 * d.rhs.dot(d.sol);
     return;
   }

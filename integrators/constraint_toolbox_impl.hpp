@@ -197,6 +197,7 @@ struct ConstraintToolbox::Impl {
   template <bool kForce>
   void chain_project_update(int c, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force = nullptr, double rate = 0.0);
   void project_force_cluster(int c, Eigen::Matrix3Xd& f);
+  void solve_velocity_normal(int c, const Eigen::Matrix3Xd& v);
   void project_velocity_cluster(int c, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force, double rate);
   template <bool kForce>
   void project_group(int first, int count, Eigen::Matrix3Xd& a, Eigen::Matrix3Xd* force = nullptr, double rate = 0.0);
