@@ -16,6 +16,9 @@ CASE is one of
                    rank 1, before any rank opens the shared H5MD file
     unseen         the output directory not there for rank 1 (a tmpfs over its parent, as a
                    node-local path of rank 0's machine): exit 2 naming rank 1
+    gzip_append    a compressed H5MD file (output.h5md_gzip) written by one process, continued on 2
+                   ranks: parallel HDF5 cannot extend its chunks (allocated at their first write by
+                   one process), so every rank refuses alike: exit 2, said once
     setup          a restart whose checkpoint rank 1 cannot read (a tmpfs over the folder): rank 1
                    fails before the run's first collective call: exit 2 naming rank 1
 
@@ -160,6 +163,23 @@ def setup(stiffmd, mpiexec, numproc_flag, tmp):
     print("a checkpoint rank 1 cannot read ended every rank (exit 2) before the run")
 
 
+def gzip_append(stiffmd, mpiexec, numproc_flag, tmp):
+    out = os.path.join(tmp, "out")
+    sets = ["--set", 'output.h5md="t.h5md"', "--set", "output.h5md_gzip=4"]
+    run([stiffmd, "run", FREE, "-q", "--no-progress", "-o", out, "--set", "run.t_end=1"] + sets, 0)
+    with h5py.File(os.path.join(out, "t.h5md"), "r") as f:
+        steps = f[P + "/position/step"][()]
+    r = run([mpiexec, numproc_flag, "2", stiffmd, "run", FREE, "-q", "--no-progress", "-o", out, "--restart",
+             os.path.join(out, "checkpoint.bin")] + sets, 2)
+    expect_message(r, "cannot append on 2 processes: its compressed series (output.h5md_gzip) were written by one")
+    if r.stderr.count("error") != 1:
+        raise SystemExit(f"FAIL: the agreed error is to be said once:\n{r.stderr}")
+    with h5py.File(os.path.join(out, "t.h5md"), "r") as f:  # untouched: the one-process run's frames
+        if not np.array_equal(f[P + "/position/step"][()], steps):
+            raise SystemExit(f"FAIL: the refused append changed the file's frames {steps}")
+    print("a compressed one-process file refused on 2 ranks (exit 2), the file as it was")
+
+
 def main(argv):
     if len(argv) != 5:
         raise SystemExit(__doc__)
@@ -175,6 +195,8 @@ def main(argv):
             actions(stiffmd, mpiexec, numproc_flag, tmp)
         elif case in ("unwritable", "unseen"):
             unwritable(stiffmd, mpiexec, numproc_flag, tmp, case == "unseen")
+        elif case == "gzip_append":
+            gzip_append(stiffmd, mpiexec, numproc_flag, tmp)
         elif case == "setup":
             setup(stiffmd, mpiexec, numproc_flag, tmp)
         else:

@@ -688,7 +688,6 @@ void H5mdWriter::Impl::append(std::int64_t first_step) {
   std::int64_t kept = 0;
   if (writes_whole) try {
       open_for_append(first_step, file_access(false));
-      check_allocation();
       kept = frames;
       close();
     } catch (const Failure& e) {
@@ -726,6 +725,7 @@ void H5mdWriter::Impl::open_for_append(std::int64_t first_step, hid_t access) {
       read_string_attribute(open_group(file, "h5md/creator"), "name") != "stiffmd")
     throw Failure("cannot append: not an H5MD file written by stiffmd");
   open_elements();
+  if (shared) check_allocation();  // before anything is changed
 
   std::vector<Series*> series = all_series();
   hsize_t keep = std::numeric_limits<hsize_t>::max();
@@ -740,19 +740,22 @@ void H5mdWriter::Impl::open_for_append(std::int64_t first_step, hid_t access) {
   flush();
 }
 
-// Parallel HDF5 writes an unfiltered series only into chunks allocated when it grows (see
-// create_series); a file of an earlier stiffmd written by one process allocated them at their
-// first write. Rank 0 checks it while it readies the file alone (append); every process refuses.
+// Parallel HDF5 writes a series only into chunks allocated when it grows (H5D_ALLOC_TIME_EARLY,
+// its own choice in a shared file); one process allocates a compressed series' chunk at its
+// first write (so that a chunk is written once and never moved, the crash safety at the top of
+// this file), as an earlier stiffmd did every series'. Rank 0 checks it while it readies the file
+// alone (append); every process refuses.
 void H5mdWriter::Impl::check_allocation() {
   for (Series* s : all_series()) {
     Handle dcpl(H5Dget_create_plist(s->dataset), H5Pclose, "cannot read the properties of " + s->name);
     H5D_alloc_time_t when = H5D_ALLOC_TIME_DEFAULT;
     ok(H5Pget_alloc_time(dcpl, &when), "cannot read the allocation time of " + s->name);
-    if (H5Pget_nfilters(dcpl) == 0 && when != H5D_ALLOC_TIME_EARLY)
-      throw agreed_failure("cannot append on " + std::to_string(setup.processes->size()) +
-                           " processes: the file was written by one process of an earlier stiffmd, whose chunks "
-                           "parallel HDF5 cannot extend; continue this run on one process, or write a new H5MD "
-                           "file (another output.h5md)");
+    if (when == H5D_ALLOC_TIME_EARLY) continue;
+    const std::string why = H5Pget_nfilters(dcpl) > 0 ? "its compressed series (output.h5md_gzip) were written by one process"
+                                                      : "it was written by one process of an earlier stiffmd";
+    throw agreed_failure("cannot append on " + std::to_string(setup.processes->size()) + " processes: " + why +
+                         ", whose chunks parallel HDF5 cannot extend; continue this run on one process, or write a "
+                         "new H5MD file (another output.h5md)");
   }
 }
 
