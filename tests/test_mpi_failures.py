@@ -9,6 +9,10 @@ CASE is one of
                    wall in rank 1's domain (a NumericalError on rank 1 alone, while rank 0 waits in
                    the halo): exit 3 naming rank 1, the wall and the bead by the serial run's
                    number; the H5MD file opens in h5py and its complete frames are the serial run's
+    shake_error    tests/decks/shake_failure.toml on 2 ranks, H5MD on: SHAKE cannot hold rank 1's
+                   dimer (one bead thrown 20 bond lengths in a step): exit 3 naming rank 1 and the
+                   bond's particles by the serial run's numbers (the cluster and bond numbers are
+                   rank 1's); the file's complete frames are the serial run's
     actions        inputs/ring_solution.toml with [observables] actions (1 442 observables, each an
                    H5MD dataset) and H5MD on 2 ranks: it finishes, and the file's observables and
                    positions are the serial run's
@@ -40,6 +44,7 @@ ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)),
 WALL = os.path.join(ROOT, "tests", "decks", "wall_crossing.toml")
 RINGS = os.path.join(ROOT, "inputs", "ring_solution.toml")
 FREE = os.path.join(ROOT, "tests", "decks", "periodic_free.toml")
+SHAKE = os.path.join(ROOT, "tests", "decks", "shake_failure.toml")
 LIMIT = 60  # seconds: every case ends in a few on 2 cores
 SKIP = 77
 P = "particles/all"
@@ -100,14 +105,12 @@ def expect_message(r, *parts):
             raise SystemExit(f"FAIL: stderr does not say {p!r}:\n{r.stderr}")
 
 
-def rank_error(stiffmd, mpiexec, numproc_flag, tmp):
+def rank_error(stiffmd, mpiexec, numproc_flag, tmp, deck, sets, said):
     serial, ranks = os.path.join(tmp, "serial"), os.path.join(tmp, "ranks")
-    base = ["run", WALL, "-q", "--no-progress"]
+    base = ["run", deck, "-q", "--no-progress"]
     run([stiffmd] + base + ["-o", serial], 3)
-    r = run([mpiexec, numproc_flag, "2", stiffmd] + base +
-            ["-o", ranks, "--set", "parallel.grid=[2,1,1]", "--set", "parallel.halo_margin=5"], 3)
-    # The serial run's numbers: the bead is particle 3 of the system (rank 1 holds it as its 1).
-    expect_message(r, "error (rank 1)", "lj93-wall 'wall': particle 3 is not on the wall", "step 1")
+    r = run([mpiexec, numproc_flag, "2", stiffmd] + base + ["-o", ranks, "--set", "parallel.grid=[2,1,1]"] + sets, 3)
+    expect_message(r, "error (rank 1)", said, "step 1")
     with h5py.File(os.path.join(serial, "trajectory.h5md"), "r") as f:
         want = f[P + "/position/value"][:len(f[P + "/position/step"])]
     with h5py.File(os.path.join(ranks, "trajectory.h5md"), "r") as f:
@@ -190,7 +193,12 @@ def main(argv):
     tmp = tempfile.mkdtemp(prefix="stiffmd_mpi_failures_")
     try:
         if case == "rank_error":
-            rank_error(stiffmd, mpiexec, numproc_flag, tmp)
+            # The serial run's numbers: the bead is particle 3 of the system (rank 1 holds it as its 1).
+            rank_error(stiffmd, mpiexec, numproc_flag, tmp, WALL, ["--set", "parallel.halo_margin=5"],
+                       "lj93-wall 'wall': particle 3 is not on the wall")
+        elif case == "shake_error":
+            rank_error(stiffmd, mpiexec, numproc_flag, tmp, SHAKE, [],
+                       "SHAKE did not converge in cluster 0 after 50 iterations: worst bond 0 (particles 2–3)")
         elif case == "actions":
             actions(stiffmd, mpiexec, numproc_flag, tmp)
         elif case in ("unwritable", "unseen"):
