@@ -601,7 +601,7 @@ TEST_P(ConservedEnergyDrift, IsTheStepsErrorAndFallsLikeHSquared) {
   const ConservedEnergy fine = conserved_energy(c, c.h / 2, c.micro_dt / 2, std::string(c.name) + "_h2");
   ::testing::Test::RecordProperty("error_h", std::to_string(coarse.error));
   ::testing::Test::RecordProperty("error_h2", std::to_string(fine.error));
-  // h² gives 4, its random walk 2^{3/2} = 2.8 (measured 3.8–7.5); a heat off by O(h²) per step, 2.
+  // h² gives 4, its random walk 2^{3/2} = 2.8 (measured 3.6–6.6); a heat off by O(h²) per step, 2.
   EXPECT_GT(coarse.error, 3.0 * fine.error) << "h = " << c.h << ": " << coarse.error << ", h/2: " << fine.error;
   // The thermostat's heat moves E by hundreds of times more (measured 200–2000).
   EXPECT_LT(fine.error, 0.01 * fine.spread) << "spread of E " << fine.spread;
