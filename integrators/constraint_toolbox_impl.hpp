@@ -86,7 +86,7 @@ struct ClusterData {
   std::unique_ptr<ChainLdlt> spd;      // chains: S
   Eigen::VectorXd diag_w, off_w;
   Eigen::VectorXd rhs, sol;
-  double normal_energy = 0.0;  // ½ rhsᵀ sol of the last normal_kinetic_energy
+  double normal_energy = 0.0;       // ½ rhsᵀ sol of the last normal_kinetic_energy
   Eigen::VectorXd lambda;           // SHAKE multipliers, accumulated over Newton steps
   Eigen::VectorXd half_inv_length;  // 1 / (2ℓ_b), local order: SHAKE's chord residual (Impl::chain_gap)
   // Open chains, for SHAKE's chord (Impl::chain_gap, Impl::chain_displace): the particles along

@@ -26,7 +26,7 @@ struct MethodInfo {
   // separated, nonresonant stiff frequencies: the thermo's validity warnings concern these
   // methods only (a method that resolves the vibrations, or has none, needs no such assumption).
   bool follows_effective;
-  bool needs_temperature;    // its model potential is a free energy at kT: refuses a run without a thermostat
+  bool needs_temperature;  // its model potential is a free energy at kT: refuses a run without a thermostat
   // Builds the integrator for a scene whose force field and inverse masses are given; throws
   // std::invalid_argument when the scene cannot run it.
   std::unique_ptr<Integrator> (*make)(const IntegratorSettings&, ForceField&, const Eigen::VectorXd& inv_mass);

@@ -444,7 +444,7 @@ struct H5mdWriter::Impl {
   // that brings them there (to_block).
   Eigen::Matrix3Xd block_x, block_v, block_f;
   std::vector<std::vector<double>> send, received;
-  std::vector<char> filled;  // to_block: the block's rows received
+  std::vector<char> filled;                        // to_block: the block's rows received
   std::vector<double> shared_scalars, shared_obs;  // rank 0's time and observables, broadcast
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
@@ -751,8 +751,9 @@ void H5mdWriter::Impl::check_allocation() {
     H5D_alloc_time_t when = H5D_ALLOC_TIME_DEFAULT;
     ok(H5Pget_alloc_time(dcpl, &when), "cannot read the allocation time of " + s->name);
     if (when == H5D_ALLOC_TIME_EARLY) continue;
-    const std::string why = H5Pget_nfilters(dcpl) > 0 ? "its compressed series (output.h5md_gzip) were written by one process"
-                                                      : "it was written by one process of an earlier stiffmd";
+    const std::string why = H5Pget_nfilters(dcpl) > 0
+                                ? "its compressed series (output.h5md_gzip) were written by one process"
+                                : "it was written by one process of an earlier stiffmd";
     throw agreed_failure("cannot append on " + std::to_string(setup.processes->size()) + " processes: " + why +
                          ", whose chunks parallel HDF5 cannot extend; continue this run on one process, or write a "
                          "new H5MD file (another output.h5md)");
@@ -971,8 +972,7 @@ H5mdWriter::H5mdWriter(const std::string& path, const H5mdSetup& setup, bool app
       } catch (const Failure&) {
       }
     impl_.reset();
-    if (setup.processes && setup.processes->size() > 1 && agreed)
-      throw AgreedInputError(what, setup.processes->root());
+    if (setup.processes && setup.processes->size() > 1 && agreed) throw AgreedInputError(what, setup.processes->root());
     throw InputError(what);
   }
 }

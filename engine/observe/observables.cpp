@@ -198,8 +198,8 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
       warned = true;
       const bool effective = resonances_ == ObservableSettings::Resonances::effective;
       std::ostringstream m;
-      m << (effective ? "warning: " : "note: ") << what << " " << value << " < sqrt(eps) = " << sqrt_eps_
-        << " at step " << s.step << " (t = " << s.t << "): the actions need not stay adiabatic invariants"
+      m << (effective ? "warning: " : "note: ") << what << " " << value << " < sqrt(eps) = " << sqrt_eps_ << " at step "
+        << s.step << " (t = " << s.t << "): the actions need not stay adiabatic invariants"
         << (effective ? " and the effective dynamics, which this method follows, loses validity here"
                       : " here (they may jump)");
       notes_.push_back(m.str());

@@ -362,8 +362,8 @@ const std::vector<double>& Run::sample() {
                       : thermo_.sample(s_, model, virial, kinetic, heat);
     stats_.max_energy_error = std::max(stats_.max_energy_error, std::abs(last_row_[col_drift_]));
     if (col_econserve_ >= 0)
-      stats_.max_conserved_error = std::max(
-          stats_.max_conserved_error, std::abs(last_row_[col_econserve_] - thermo_.initial_conserved_energy()));
+      stats_.max_conserved_error = std::max(stats_.max_conserved_error,
+                                            std::abs(last_row_[col_econserve_] - thermo_.initial_conserved_energy()));
     for (const auto& note : thermo_.take_notes()) log_ << note << "\n";
     alerts_ = monitor_.check(last_row_, thermo_.initial_energy(), log_);
     last_row_[col_alerts_] = alerts_;

@@ -35,8 +35,8 @@ std::string format_summary(const RunSummary& s) {
       << " (not conserved: the thermostat exchanges heat)\n";
     o << "conserved:     E + ecouple: E_c(end) - E_c(0) = " << s.final_conserved_energy - s.initial_conserved_energy
       << ", drift " << s.conserved_energy_drift
-      << (s.units == "real" ? " kcal/mol per atom per fs" : " per particle per time unit") << " (/ N t, N = "
-      << s.particles << "), max |E_c - E_c(0)| = " << s.max_conserved_error << "\n";
+      << (s.units == "real" ? " kcal/mol per atom per fs" : " per particle per time unit")
+      << " (/ N t, N = " << s.particles << "), max |E_c - E_c(0)| = " << s.max_conserved_error << "\n";
   }
   if (!s.final_actions.empty()) {
     o << "actions:       ";
@@ -100,12 +100,12 @@ std::string summary_json(const RunSummary& s) {
     o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
   o << "}"
     << ",\n  \"initial_energy\": " << s.initial_energy << ",\n  \"final_energy\": " << s.final_energy
-    << ",\n  \"max_energy_error\": " << s.max_energy_error << ",\n  \"initial_conserved_energy\": "
-    << s.initial_conserved_energy << ",\n  \"final_conserved_energy\": " << s.final_conserved_energy
+    << ",\n  \"max_energy_error\": " << s.max_energy_error
+    << ",\n  \"initial_conserved_energy\": " << s.initial_conserved_energy
+    << ",\n  \"final_conserved_energy\": " << s.final_conserved_energy
     << ",\n  \"max_conserved_energy_error\": " << s.max_conserved_error
     << ",\n  \"conserved_energy_drift\": " << s.conserved_energy_drift
-    << ",\n  \"final_max_violation\": " << s.final_max_violation
-    << ",\n  \"initial_actions\": ";
+    << ",\n  \"final_max_violation\": " << s.final_max_violation << ",\n  \"initial_actions\": ";
   list(s.initial_actions);
   o << ",\n  \"final_actions\": ";
   list(s.final_actions);
@@ -119,10 +119,10 @@ std::string summary_json(const RunSummary& s) {
     o << "null";
   if (s.minimize) {
     const MinimizeReport& m = *s.minimize;
-    o << ",\n  \"minimize\": {\"style\": \"fire\", \"stopped_by\": \"" << m.stopped_by << "\", \"iterations\": " << m.iterations
-      << ", \"evaluations\": " << m.evaluations << ", \"initial_energy\": " << m.initial_energy
-      << ", \"energy\": " << m.energy << ", \"fmax\": " << m.fmax << ", \"fnorm\": " << m.fnorm
-      << ", \"max_violation\": " << m.max_violation << "}";
+    o << ",\n  \"minimize\": {\"style\": \"fire\", \"stopped_by\": \"" << m.stopped_by
+      << "\", \"iterations\": " << m.iterations << ", \"evaluations\": " << m.evaluations
+      << ", \"initial_energy\": " << m.initial_energy << ", \"energy\": " << m.energy << ", \"fmax\": " << m.fmax
+      << ", \"fnorm\": " << m.fnorm << ", \"max_violation\": " << m.max_violation << "}";
   }
   if (s.domains.ranks > 1) {
     const DomainReport& d = s.domains;

@@ -26,7 +26,7 @@ struct RunSummary {
   double epsilon = 0.0;      // of the stiff bonds (0 if none)
   double initial_energy = 0.0;
   double final_energy = 0.0;
-  double max_energy_error = 0.0;      // max |E(t) − E(0)| over the thermo samples
+  double max_energy_error = 0.0;  // max |E(t) − E(0)| over the thermo samples
   // The energy conserved with the thermostat's heat, E_c = E + ecouple (E itself without one:
   // docs/design.md §5): E_c(0), E_c(end), max |E_c − E_c(0)| over the samples, and its drift
   // (E_c(end) − E_c(0)) / (N t) per particle and time unit (the deck's: real, kcal/mol per fs).

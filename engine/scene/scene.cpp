@@ -433,8 +433,8 @@ void read_run(DeckTable& root, Scene& sc) {
   const double steps = t_end / h;
   if (!(steps <= 1e12))
     t->fail("t_end",
-            "t_end / integrator.h = " + format_number(t_end) + " / " + format_number(h) + " = " +
-                format_number(steps) + " steps; expected at most 1e12 steps",
+            "t_end / integrator.h = " + format_number(t_end) + " / " + format_number(h) + " = " + format_number(steps) +
+                " steps; expected at most 1e12 steps",
             {"integrator.h"});
   const double n = std::round(steps);
   if (n < 1 || std::abs(steps - n) > kWholeStepTolerance * steps) {
@@ -552,8 +552,9 @@ void read_output(DeckTable& root, Scene& sc) {
     const char *key, *example;
     std::vector<const char*> options;
   };
-  for (const NamedOutput& out : {NamedOutput{"h5md", "trajectory.h5md", {"h5md_interval", "h5md_velocity", "h5md_force", "h5md_gzip"}},
-                                 NamedOutput{"state", "state.csv", {"state_interval"}}})
+  for (const NamedOutput& out :
+       {NamedOutput{"h5md", "trajectory.h5md", {"h5md_interval", "h5md_velocity", "h5md_force", "h5md_gzip"}},
+        NamedOutput{"state", "state.csv", {"state_interval"}}})
     if (!t->has(out.key))
       for (const char* key : out.options)
         if (t->has(key))
