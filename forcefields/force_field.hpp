@@ -88,6 +88,10 @@ class ForceField {
   }
   void reset_counters() { std::fill(evaluations_.begin(), evaluations_.end(), 0); }
   const Box& box() const { return box_; }
+  // The box every later evaluation uses: a barostat's cell move (integrators/barostat.hpp). The
+  // neighbour lists follow it without a rebuild while the move keeps them complete
+  // (NeighborList::needs_rebuild).
+  void set_box(const Box& box) { box_ = box; }
   int num_particles() const { return num_particles_; }
 
   // Term k replaced by `term` (same level, neither fused), in term k's place in the evaluation

@@ -73,6 +73,17 @@ class ForceTerm {
     return {energy, virial(x, box)};
   }
 
+  // Adds this term's force into f, like add_forces, and returns the diagonal of its virial tensor,
+  // Σ over interacting pairs of (r_ij)_a (f_ij)_a, a = x, y, z: the per-axis pressure of the
+  // barostat (integrators/barostat.hpp), in the same pass as the forces. Pair terms give it; the
+  // default (bonded terms, whose share of the molecular virial is zero, and external fields)
+  // adds the forces and returns zero.
+  virtual Eigen::Vector3d add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box,
+                                                         Eigen::Matrix3Xd& f) const {
+    add_forces(x, box, f);
+    return Eigen::Vector3d::Zero();
+  }
+
   // Capabilities (docs/design.md §11.1: facts on the term, not lists of style names elsewhere).
   // Whether the term finds its pairs through a neighbour list (pair styles).
   virtual bool uses_neighbor_list() const { return false; }

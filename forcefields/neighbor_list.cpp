@@ -154,8 +154,38 @@ bool NeighborList::excluded(int i, int j) const {
   return false;
 }
 
+bool NeighborList::deformed_needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const {
+  // Wrapped positions jump by box lengths, and the small-box search lists images by the build's
+  // box: rebuild on any change there.
+  if (positions_wrapped_ || small_box_) return true;
+  Eigen::Vector3d mu = Eigen::Vector3d::Ones();
+  for (int a = 0; a < 3; ++a)
+    if (box.periodic[a]) mu[a] = box.lengths[a] / box_at_build_.lengths[a];
+  const double reach = mu.minCoeff() * (cutoff_ + skin_) - cutoff_;  // the bound on 2U
+  if (!(reach > 0.0)) return true;
+  const double bound2 = 0.25 * reach * reach;
+  const Eigen::Vector3d o = box.origin, o0 = box_at_build_.origin;
+  const Eigen::Index n = x.cols();
+  const int parts = threads_for(n);
+  std::array<char, kMaxParts> far{};
+  run_parts(parts, [&](int u) {
+    for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
+      const Eigen::Vector3d d = x.col(i) - (o + mu.cwiseProduct(x_at_build_.col(i) - o0));
+      if (!(d.squaredNorm() <= bound2)) {
+        far[u] = 1;
+        break;
+      }
+    }
+  });
+  return std::any_of(far.begin(), far.begin() + parts, [](char f) { return f != 0; });
+}
+
 bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const {
-  if (!built_ || x.cols() != x_at_build_.cols() || !same_box(box, box_at_build_)) return true;
+  if (!built_ || x.cols() != x_at_build_.cols() || box.periodic != box_at_build_.periodic) return true;
+  if (!same_box(box, box_at_build_)) {
+    check_box_for_cutoff(box, cutoff_, skin_);
+    return deformed_needs_rebuild(x, box);
+  }
   // Raw (unwrapped) displacements: the engine never wraps positions, and if something did, the
   // jump of a box length would only cause an early rebuild. Positions given wrapped
   // (set_positions_wrapped): both in the box, so one fold gives a displacement's minimum image.
@@ -271,7 +301,7 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
   // Wrapped now, not with the build's images: a separation then depends only on the two
   // positions (not on when the list was built), so the forces are the same bits whenever the
   // list is rebuilt (docs/parallel.md).
-  const BoxWrap wrap(box_at_build_);
+  const BoxWrap wrap(box_now_);
   parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t i = b; i < e; ++i)
       for (int a = 0; a < 3; ++a) wrapped_now_(a, i) = wrap(x(a, i), a);
@@ -280,6 +310,7 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
 }
 
 bool NeighborList::update(const Eigen::Matrix3Xd& x, const Box& box) {
+  box_now_ = box;
   const bool stale = needs_rebuild(x, box);
   if (!(agree_ ? agree_(stale) : stale)) return false;
   build(x, box);
@@ -700,7 +731,7 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
   x_at_build_.resize(3, n);  // same size after the first build: Eigen reuses the storage
   parallel_blocks(n, threads_for(n),
                   [&](std::int64_t b, std::int64_t e) { x_at_build_.middleCols(b, e - b) = x.middleCols(b, e - b); });
-  box_at_build_ = box;
+  box_at_build_ = box_now_ = box;
   built_ = true;
   ++rebuilds_;
 }

@@ -180,6 +180,12 @@ class NeighborList {
   using RebuildAgreement = std::function<bool(bool)>;
   void set_rebuild_agreement(RebuildAgreement agree) { agree_ = std::move(agree); }
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
+  // needs_rebuild after the box changed its lengths or origin since the build (a barostat): the
+  // list stays complete while 2U ≤ μ_min (cutoff + skin) − cutoff, U the largest displacement of
+  // a particle from the build's position mapped affinely into the new box (x₀ → o + μ(x₀ − o₀),
+  // μ_a = L_a / L_a,build) — a pair within the cutoff now was within (cutoff + 2U)/μ_min of each
+  // other at the build (docs/design.md, "Constant pressure").
+  bool deformed_needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   void build(const Eigen::Matrix3Xd& x, const Box& box);
 
   // x wrapped into the box (BoxWrap), so NearestImage gives the minimum image of a separation.
@@ -238,6 +244,7 @@ class NeighborList {
   std::vector<int> neighbors_;
   Eigen::Matrix3Xd x_at_build_;
   Box box_at_build_;
+  Box box_now_;  // the box of the last update: wrapped_positions wraps into it
 
   // Exclusions, CSR by particle (both directions), each row sorted: looked up only while building.
   int excl_particles_ = 0;

@@ -85,6 +85,14 @@ class TypePairMatrix {
 struct PairSums {
   double energy = 0.0;  // Σ E over the pairs
   double virial = 0.0;  // Σ r_ij · f_ij over the pairs
+  // The virial tensor's diagonal Σ (r_ij)_a (f_ij)_a, a = x, y, z (with kVirial; the barostat's
+  // per-axis pressure, integrators/barostat.hpp). Summed beside `virial`, which stays the sum it was.
+  double vxx = 0.0, vyy = 0.0, vzz = 0.0;
+  void add_diagonal(const PairSums& o) {
+    vxx += o.vxx;
+    vyy += o.vyy;
+    vzz += o.vzz;
+  }
 };
 
 // Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),
@@ -127,10 +135,20 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       if constexpr (kShares) {
         const double share = ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0;
         sums.energy += share * e;
-        if constexpr (kVirial) sums.virial += share * (fpair * r2);
+        if constexpr (kVirial) {
+          sums.virial += share * (fpair * r2);
+          sums.vxx += share * (fpair * dx * dx);
+          sums.vyy += share * (fpair * dy * dy);
+          sums.vzz += share * (fpair * dz * dz);
+        }
       } else {
         sums.energy += e;
-        if constexpr (kVirial) sums.virial += fpair * r2;
+        if constexpr (kVirial) {
+          sums.virial += fpair * r2;
+          sums.vxx += fpair * dx * dx;
+          sums.vyy += fpair * dy * dy;
+          sums.vzz += fpair * dz * dz;
+        }
       }
       if constexpr (kForces) {
         const double fx = fpair * dx, fy = fpair * dy, fz = fpair * dz;
@@ -172,7 +190,12 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
     Kernel::eval(r2, p, e, fpair);
     sums.energy += sp.weight * e;
     fpair *= sp.weight;
-    if constexpr (kVirial) sums.virial += fpair * r2;
+    if constexpr (kVirial) {
+      sums.virial += fpair * r2;
+      sums.vxx += fpair * dx * dx;
+      sums.vyy += fpair * dy * dy;
+      sums.vzz += fpair * dz * dz;
+    }
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;
@@ -249,6 +272,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   for (int u = 0; u < parts; ++u) {
     total.energy += scratch.sums[u].energy;
     total.virial += scratch.sums[u].virial;
+    total.add_diagonal(scratch.sums[u]);
   }
   return total;
 }
@@ -285,7 +309,10 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   // give the same bits.
   const PairSums special =
       accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, xl, MinimumImage(box), f);
-  return {listed.energy + special.energy, listed.virial + special.virial};
+  PairSums total{listed.energy + special.energy, listed.virial + special.virial};
+  total.add_diagonal(listed);
+  total.add_diagonal(special);
+  return total;
 }
 
 }  // namespace stiffmd

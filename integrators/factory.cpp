@@ -159,12 +159,16 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
     throw std::invalid_argument("method '" + s.method +
                                 "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
   std::unique_ptr<Integrator> integrator = m->make(s, forces, inv_mass);
-  if (s.thermostat.style != ThermostatSettings::Style::csvr) return integrator;
-  const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
-  const int dof = s.thermostat.degrees_of_freedom > 0
-                      ? s.thermostat.degrees_of_freedom
-                      : degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid);
-  return with_velocity_rescaling(std::move(integrator), s.thermostat, dof);
+  if (s.thermostat.style == ThermostatSettings::Style::csvr) {
+    const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
+    const int dof = s.thermostat.degrees_of_freedom > 0
+                        ? s.thermostat.degrees_of_freedom
+                        : degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, s.thermostat), rigid);
+    integrator = with_velocity_rescaling(std::move(integrator), s.thermostat, dof);
+  }
+  // The cell moves around the thermostatted step, at the macro step (integrators/barostat.hpp).
+  if (s.barostat.on) integrator = with_cell_rescaling(std::move(integrator), s.barostat, forces, inv_mass);
+  return integrator;
 }
 
 }  // namespace stiffmd

@@ -11,6 +11,7 @@
 
 #include "engine/core/state.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/barostat.hpp"
 #include "integrators/thermostat.hpp"
 
 namespace stiffmd {
@@ -32,6 +33,7 @@ struct IntegratorSettings {
   // their substeps for the impulse family.
   std::vector<LevelSettings> levels;
   ThermostatSettings thermostat;  // [thermostat]: none, Langevin inside the step, or csvr around it
+  BarostatSettings barostat;      // [barostat]: the cell rescaled around the (thermostatted) step
 };
 
 // An integrator's state between steps, by kind (Integrator::carried_state).

@@ -631,9 +631,19 @@ TEST(NeighborList, RebuildsWhenSomeParticleMovedMoreThanTheSkinOrHalfOfItTooOfte
   x.array() += 0.21;
   EXPECT_TRUE(nl.update(x, box));
   EXPECT_FALSE(nl.update(x, box));
+  // A changed box (a barostat's cell move) keeps the list while it stays complete
+  // (NeighborList::deformed_needs_rebuild): here the particles did not follow the box, so a
+  // particle at x is U = |x|·(1 − μ) from its build position mapped into the new box.
   Box other = box;
   other.lengths.x() += 1e-9;
-  EXPECT_TRUE(nl.update(x, other)) << "a new box invalidates the list";
+  EXPECT_FALSE(nl.update(x, other)) << "2U ≈ 2e-9 ≤ μ(cutoff + skin) − cutoff: kept";
+  other.lengths.x() = 0.99 * box.lengths.x();
+  EXPECT_FALSE(nl.update(x, other)) << "U ≤ 0.01 × 8 = 0.08, 2U ≤ 0.99 × 2.4 − 2 = 0.376: kept";
+  other.lengths.x() = 0.9 * box.lengths.x();
+  EXPECT_TRUE(nl.update(x, other)) << "U up to 0.1 × 8 = 0.8, 2U > 0.9 × 2.4 − 2 = 0.16: rebuilt";
+  Box open_z = box;
+  open_z.periodic.z() = 0;
+  EXPECT_TRUE(nl.update(x, open_z)) << "other periodic axes: rebuilt";
 }
 
 // Past skin/2 and within the skin, the list is kept exactly while no unlisted pair is within the

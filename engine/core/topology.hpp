@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/disjoint_sets.hpp"
+
 namespace stiffmd {
 
 struct Bond {
@@ -52,5 +54,23 @@ struct Topology {
     return static_cast<int>(names.size()) - 1;
   }
 };
+
+// The molecules of n particles: the connected components of the bonded terms (bonds, angles,
+// dihedrals), numbered 0, 1, … in the order of their first particle; a lone particle is its own.
+// Not the deck's or a data file's molecule ids: a term must never join two molecules, whatever a
+// file calls them. What is scaled as one by a barostat and owned by one rank of a decomposed run.
+inline std::vector<int> bonded_molecules(const Topology& topology, int n) {
+  DisjointSets bonded(n);
+  for (const Bond& b : topology.bonds) bonded.join(b.i, b.j);
+  for (const Angle& a : topology.angles) bonded.join(a.i, a.j), bonded.join(a.j, a.k);
+  for (const Dihedral& d : topology.dihedrals) bonded.join(d.i, d.j), bonded.join(d.j, d.k), bonded.join(d.k, d.l);
+  std::vector<int> molecule(static_cast<size_t>(n), -1);
+  int molecules = 0;
+  for (int i = 0; i < n; ++i) {
+    const int root = bonded.root(i);  // the least particle of its component
+    molecule[i] = root == i ? molecules++ : molecule[root];
+  }
+  return molecule;
+}
 
 }  // namespace stiffmd

@@ -18,7 +18,7 @@
 namespace stiffmd {
 
 // What a written number measures, for its conversion and its H5MD `unit` attribute.
-enum class Dimension { none, length, time, velocity, force, energy, temperature, pressure, frequency, action };
+enum class Dimension { none, length, time, velocity, force, energy, temperature, pressure, frequency, action, volume, density };
 
 struct Units {
   std::string name = "lj";
@@ -29,6 +29,7 @@ struct Units {
   static constexpr double kRealTimeFs = 48.88821291;      // τ in fs: 1/sqrt(ftm2v)
   static constexpr double kRealBoltzmann = 0.0019872067;  // kcal/(mol K)
   static constexpr double kRealPressure = 68568.415;      // nktv2p: atm per kcal/(mol Å³)
+  static constexpr double kRealDensity = 1.66053906660;   // g/cm³ per (g/mol)/Å³: 10²⁴/N_A
 
   // "lj" or "real"; nothing for any other name.
   static std::optional<Units> named(std::string_view n) {
@@ -64,6 +65,8 @@ struct Units {
         return time;
       case Dimension::action:
         return 1.0 / time;
+      case Dimension::density:  // real: g/mol per Å³ in g/cm³ (10²⁴ / N_A)
+        return reduced() ? 1.0 : kRealDensity;
       default:
         return 1.0;
     }
@@ -97,6 +100,10 @@ struct Units {
         return "fs-1";
       case Dimension::action:
         return "kcal mol-1 fs";
+      case Dimension::volume:
+        return "Angstrom^3";
+      case Dimension::density:
+        return "g cm-3";
       default:
         return "";
     }

@@ -377,6 +377,12 @@ bool DeckTable::has(std::string_view key) const {
   return table_->contains(key);
 }
 
+bool DeckTable::is_array(std::string_view key) const {
+  known_.emplace(key);
+  const toml::node* n = table_->get(key);
+  return n && n->is_array();
+}
+
 bool DeckTable::has_retired(std::string_view key) const {
   return table_->contains(key);
 }

@@ -43,6 +43,8 @@ class DeckTable {
   DeckTable(const Deck* deck, const toml::table* table, std::string path);
 
   bool has(std::string_view key) const;
+  // Whether `key` holds an array (a key that takes one value or a list).
+  bool is_array(std::string_view key) const;
   // Whether a key that is no longer read (and is not listed among this table's keys) was given.
   bool has_retired(std::string_view key) const;
 

@@ -88,21 +88,11 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
     : comm_(comm), box_(box), mass_(inv_mass.size()), radius_(cutoff + margin), margin_(margin) {
   const int n = static_cast<int>(inv_mass.size());
   for (int i = 0; i < n; ++i) mass_[i] = inv_mass[i] > 0.0 ? 1.0 / inv_mass[i] : 1.0;
-  // Molecules: the connected components of the bonded terms (bonds, angles, dihedrals), numbered
-  // by their first particle; a lone particle is its own. Not the deck's or the data file's
-  // molecule ids: a term must never join two molecules, whatever a file calls them.
-  // Pinned particles join too (a term acts on all its particles): a molecule may hold several
-  // constraint clusters (integrators/clusters.hpp).
-  DisjointSets bonded(n);
-  for (const Bond& b : topology.bonds) bonded.join(b.i, b.j);
-  for (const Angle& a : topology.angles) bonded.join(a.i, a.j), bonded.join(a.j, a.k);
-  for (const Dihedral& d : topology.dihedrals) bonded.join(d.i, d.j), bonded.join(d.j, d.k), bonded.join(d.k, d.l);
-  molecule_.assign(n, -1);
+  // Molecules (bonded_molecules): pinned particles join too (a term acts on all its particles), so a
+  // molecule may hold several constraint clusters (integrators/clusters.hpp).
+  molecule_ = bonded_molecules(topology, n);
   int molecules = 0;
-  for (int i = 0; i < n; ++i) {
-    const int root = bonded.root(i);
-    molecule_[i] = root == i ? molecules++ : molecule_[root];  // a root is its component's first particle
-  }
+  for (int m : molecule_) molecules = std::max(molecules, m + 1);
   molecule_start_.assign(molecules + 1, 0);
   for (int i = 0; i < n; ++i) ++molecule_start_[molecule_[i] + 1];
   for (int m = 0; m < molecules; ++m) molecule_start_[m + 1] += molecule_start_[m];

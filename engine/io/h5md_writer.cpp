@@ -997,6 +997,12 @@ void H5mdWriter::write_frame(std::int64_t step, double time, const Eigen::Matrix
   }
 }
 
+void H5mdWriter::set_box_lengths(const Eigen::Vector3d& lengths) {
+  if (!impl_) return;
+  impl_->setup.box.lengths = lengths;
+  impl_->edge_vectors.diagonal() = lengths;
+}
+
 std::int64_t H5mdWriter::frames() const {
   return impl_->frames;
 }

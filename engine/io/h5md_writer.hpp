@@ -104,6 +104,9 @@ class H5mdWriter {
                    const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
                    const std::vector<int>* ids = nullptr);
   std::int64_t frames() const;
+  // The box edges of the frames written from now on (a barostat moves them; the origin and the
+  // periodic axes stay the setup's). Positions are wrapped into it.
+  void set_box_lengths(const Eigen::Vector3d& lengths);
   // Closes the file; nothing is written after it. For a file shared by several processes it is
   // collective, and the one way to close it: a shared file destroyed unclosed is left as a killed
   // writer's (every frame flushed), because its process is leaving the job alone and the others

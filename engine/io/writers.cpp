@@ -128,8 +128,12 @@ XyzWriter::XyzWriter(const std::string& path, std::vector<std::string> species, 
       species_(std::move(species)),
       masses_(std::move(masses)),
       velocities_(velocities) {
+  set_box(box);
+}
+
+void XyzWriter::set_box(const Box& box) {
   std::ostringstream h;
-  h << "Properties=species:S:1:pos:R:3" << (masses_.empty() ? "" : ":masses:R:1") << (velocities ? ":velo:R:3" : "");
+  h << "Properties=species:S:1:pos:R:3" << (masses_.empty() ? "" : ":masses:R:1") << (velocities_ ? ":velo:R:3" : "");
   h << " pbc=\"" << (box.periodic[0] ? 'T' : 'F') << ' ' << (box.periodic[1] ? 'T' : 'F') << ' '
     << (box.periodic[2] ? 'T' : 'F') << '"';
   if (box.any_periodic()) {

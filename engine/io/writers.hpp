@@ -51,6 +51,8 @@ class XyzWriter {
     time_scale_ = time_scale, velocity_scale_ = velocity_scale;
   }
   void write(const State& s);
+  // The box of the frames written from now on (a barostat moves it): their Lattice and Origin.
+  void set_box(const Box& box);
 
  private:
   TextFile file_;

@@ -29,9 +29,12 @@ Dimension thermo_column_dimension(const std::string& c) {
   if (c == "kinetic" || c == "total" || c == "energy_drift" || c == "ecouple" || c == "econserve" ||
       starts("potential_"))
     return Dimension::energy;
-  if (c == "max_violation" || c == "rg" || c == "end_to_end") return Dimension::length;
+  if (c == "max_violation" || c == "rg" || c == "end_to_end" || c == "lx" || c == "ly" || c == "lz")
+    return Dimension::length;
   if (c == "temperature") return Dimension::temperature;
-  if (c == "pressure") return Dimension::pressure;
+  if (c == "pressure" || c == "molecular_pressure") return Dimension::pressure;
+  if (c == "volume") return Dimension::volume;
+  if (c == "density") return Dimension::density;
   if (starts("omega_") || c == "min_gap" || c == "min_resonance") return Dimension::frequency;
   if (starts("action_")) return Dimension::action;
   return Dimension::none;  // step, alerts
@@ -65,8 +68,14 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     for (int k = 0; k < forces.num_levels(); ++k) columns_.push_back("potential_" + forces.level_name(Level{k}));
   const Box& box = forces.box();
   if (box.periodic.all()) {
-    volume_ = box.lengths.prod();
+    periodic_ = true;
     columns_.push_back("pressure");
+  }
+  if (settings.barostat && periodic_ && topology) {
+    for (Eigen::Index i = 0; i < inv_mass.size(); ++i) mass_ += inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
+    molecular_ = std::make_unique<MolecularPressure>(bonded_molecules(*topology, static_cast<int>(inv_mass.size())),
+                                                     inv_mass);
+    columns_.insert(columns_.end(), {"volume", "lx", "ly", "lz", "density", "molecular_pressure"});
   }
   if (topology) {
     Eigen::VectorXd mass = inv_mass;
@@ -125,6 +134,10 @@ ThermoSums Thermo::sums(const State& s) const {
   sums.kinetic = s.kinetic_energy();
   forces_.energies_and_virial(s.x, sums.level_energy, sums.virial);
   sums.max_violation = max_constraint_violation(s.x, forces_.stiff_bonds());
+  if (molecular_) {
+    molecular_->locate(s);
+    sums.molecular = molecular_->virial_and_kinetic(s, forces_, molecular_scratch_).sum();
+  }
   if (molecules_) {
     molecules_->sum(s.x, sums.rg, sums.end_to_end);
     sums.molecules = molecules_->count();
@@ -174,8 +187,13 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.
-  if (volume_ > 0)
-    values_.push_back((2.0 * thermal_kinetic + sums.virial) / (3.0 * volume_) + constraint_virial / (3.0 * volume_));
+  if (periodic_) {
+    const double volume = forces_.box().lengths.prod();
+    values_.push_back((2.0 * thermal_kinetic + sums.virial) / (3.0 * volume) + constraint_virial / (3.0 * volume));
+    const Eigen::Vector3d& l = forces_.box().lengths;
+    if (molecular_)
+      values_.insert(values_.end(), {volume, l[0], l[1], l[2], mass_ / volume, sums.molecular / (3.0 * volume)});
+  }
   if (molecules_) {
     values_.push_back(sums.molecules > 0 ? sums.rg / sums.molecules : 0.0);
     if (molecules_->has_end_to_end()) values_.push_back(sums.sized > 0 ? sums.end_to_end / sums.sized : 0.0);

@@ -13,6 +13,7 @@
 #include "engine/core/units.hpp"
 #include "engine/observe/polymer_observables.hpp"
 #include "forcefields/force_field.hpp"
+#include "integrators/barostat.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/modes.hpp"
 #include "integrators/thermostat.hpp"
@@ -53,6 +54,8 @@ struct ObservableSettings {
   // none: rigid bonds without the effective dynamics (rattle, fixman), which have no vibrations.
   enum class Resonances { none, actions, effective };
   Resonances resonances = Resonances::none;
+  // A [barostat]: the columns volume, density and molecular_pressure (integrators/barostat.hpp).
+  bool barostat = false;
 };
 
 // What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
@@ -64,6 +67,8 @@ struct ThermoSums {
   double rg = 0.0, end_to_end = 0.0;  // summed over the molecules (Molecules::sum)
   double molecules = 0.0, sized = 0.0;
   double max_violation = 0.0;  // not a sum: the largest over the ranks
+  // Under a barostat, 2K_com + W_mol summed over the axes (MolecularPressure); whole state only.
+  double molecular = 0.0;
   // The sums as one array (kinetic, level_energy…, virial, rg, end_to_end, molecules, sized), to
   // add up over the ranks, and back.
   std::vector<double> flat() const;
@@ -122,6 +127,8 @@ class Thermo {
   int degrees_of_freedom() const { return dof_; }
   // The modes, when actions were asked for (nullptr otherwise).
   const StiffModes* modes() const { return modes_.get(); }
+  // Under a barostat: the molecular pressure needs the whole state (no sums by parts).
+  bool has_molecular_pressure() const { return molecular_ != nullptr; }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
   // √ε, said once each, with step and time; ObservableSettings::resonances). Taken
   // (cleared) by the caller.
@@ -133,7 +140,10 @@ class Thermo {
   bool fixman_;         // ObservableSettings::fixman: the model potential in potential_fixman
   bool thermostat_;     // a [thermostat]: the ecouple and econserve columns
   int dof_ = 0;
-  double volume_ = 0.0;  // > 0 when the box is periodic on every axis: pressure column
+  bool periodic_ = false;  // the box is periodic on every axis: pressure column (V: the box now)
+  double mass_ = 0.0;      // Σ m, for the density
+  mutable std::unique_ptr<MolecularPressure> molecular_;  // a [barostat]'s columns
+  mutable Eigen::Matrix3Xd molecular_scratch_;
   std::unique_ptr<Molecules> molecules_;
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;

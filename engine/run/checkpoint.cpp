@@ -213,6 +213,9 @@ void write_checkpoint(const std::string& path, const State& state, const Checkpo
     w.put(state.inv_mass.data(), static_cast<size_t>(state.inv_mass.size()));
     for (const std::vector<double>* block : {&c.integrator_state, &c.thermo_state, &c.monitor_state, &c.run_state})
       w.put(block->data(), block->size());
+    const double box[6] = {c.box.origin[0],  c.box.origin[1],  c.box.origin[2],
+                           c.box.lengths[0], c.box.lengths[1], c.box.lengths[2]};
+    w.put(box, 6);
     w.put<std::uint64_t>(c.force_term_states.size());
     for (const std::vector<double>& block : c.force_term_states) w.put(block.data(), block.size());
     w.flush();
@@ -304,6 +307,10 @@ Checkpoint read_checkpoint(const std::string& path) {
   c.thermo_state = r.doubles();
   c.monitor_state = r.doubles();
   c.run_state = r.doubles();
+  const auto box = r.doubles();
+  if (box.size() != 6) r.bad("box");
+  c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
+  c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
   const auto terms = r.get<std::uint64_t>();
   if (terms > b.size()) r.bad("term count");
   for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
@@ -344,6 +351,11 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
       << " (raise it with --set run.t_end=...)";
     throw InputError(m.str());
   }
+  // The box as it was (a barostat moves it; the scene's is the deck's, which the fingerprint holds).
+  Box box = sc.forces->box();
+  box.origin = c.box.origin;
+  box.lengths = c.box.lengths;
+  sc.forces->set_box(box);
   for (size_t k = 0; k < terms.size(); ++k) {
     try {
       terms[k]->load_state(c.force_term_states[k]);

@@ -13,6 +13,8 @@
 // refused as of an older stiffmd. Version 5: the integrator's state holds the thermostat's heat
 // (Integrator::thermostat_heat; the Langevin force's part of the kick force), the thermo's the
 // conserved energy's reference, the run statistics its max error: a version-4 file lacks them.
+// Version 6: the box as of the checkpoint (origin, lengths: a barostat moves it), after the run
+// statistics.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
@@ -22,7 +24,7 @@
 //         32–39  scene fingerprint (u64, scene_fingerprint)
 //         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), then blocks
 //                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
-//                monitor, run statistics, then a u64 count of force terms and one block each.
+//                monitor, run statistics, box (6), then a u64 count of force terms and one block each.
 // Written atomically — to a temporary file, fsync, rename — so a checkpoint on disk is whole.
 #pragma once
 
@@ -30,13 +32,14 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/box.hpp"
 #include "engine/core/state.hpp"
 
 namespace stiffmd {
 
 struct Scene;
 
-inline constexpr std::uint32_t kCheckpointVersion = 5;
+inline constexpr std::uint32_t kCheckpointVersion = 6;
 
 struct Checkpoint {
   State state;         // x, v, inverse masses, t, step
@@ -49,6 +52,7 @@ struct Checkpoint {
   std::vector<double> monitor_state;                   // Monitor::save_state()
   std::vector<double>
       run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
+  Box box;        // the box at the checkpoint (origin and lengths; ForceField::box)
 };
 
 // What defines the scene, exactly (a ParameterRecord, forcefields/parameter_record.hpp): particle

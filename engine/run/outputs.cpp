@@ -109,9 +109,9 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
     if (!top.angles.empty()) add_coeffs(out, "Angle Coeffs", ff.angle, angle, out.num_angle_types);
     if (!top.dihedrals.empty()) add_coeffs(out, "Dihedral Coeffs", ff.dihedral, dihedral, out.num_dihedral_types);
   }
-  if (sc.box.periodic.all()) {
-    out.lo = sc.box.origin;
-    out.hi = sc.box.origin + sc.box.lengths;
+  if (sc.box.periodic.all()) {  // the box now (a barostat moves it)
+    out.lo = sc.forces->box().origin;
+    out.hi = sc.forces->box().origin + sc.forces->box().lengths;
   } else {
     out.lo = s.x.rowwise().minCoeff().array() - 1.0;
     out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
@@ -295,6 +295,11 @@ void RunOutputs::write(const State& s, const std::vector<double>& row, const Pro
   // The row in the output's units (README "Units"), for the files and the terminal alike.
   if (root_ && (thermo_now_ || h5md_now_)) written_ = table_(row);
   if (thermo_now_ && thermo_) thermo_->write(written_);
+  if (sc_.integrator.barostat.on) {  // the box of this frame (a barostat moves it)
+    const Box& box = sc_.forces->box();
+    if (h5md_) h5md_->set_box_lengths(box.lengths);
+    if (xyz_) xyz_->set_box(box);
+  }
   if (h5md_now_ && h5md_) write_h5md(s, mine);
   if (xyz_now_) xyz_->write(s);
   if (state_now_) write_state(s);
@@ -362,7 +367,7 @@ void RunOutputs::write_final(std::vector<std::string>& files) {
     files.push_back((dir / sc_.output.lammps_data).string());
   }
   if (sc_.observables.histograms && !sc_.topology.bonds.empty()) {
-    write_histograms((dir / "histograms.csv").string(), sc_.state.x, sc_.box, sc_.topology);
+    write_histograms((dir / "histograms.csv").string(), sc_.state.x, sc_.forces->box(), sc_.topology);
     files.push_back((dir / "histograms.csv").string());
   }
 }

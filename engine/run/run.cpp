@@ -56,6 +56,8 @@ std::unique_ptr<Integrator> run_integrator(Scene& sc, const RunOptions& opt) {
   std::unique_ptr<Integrator> method = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   if (!opt.processes || opt.processes->size() == 1) return method;
   if (!opt.deck) throw std::invalid_argument("a run on several processes needs its deck");
+  if (sc.integrator.barostat.on)
+    throw InputError("[barostat]: a barostat runs on one process (with threads) in this version; run without mpiexec");
   return std::make_unique<DomainIntegrator>(sc, *opt.deck, *opt.processes, std::move(method));
 }
 
@@ -346,7 +348,7 @@ const RunSummary& Run::finish() {
 }
 
 bool Run::sampled_by_parts() const {
-  return domain_ && domain_->samples_by_parts() && !thermo_.modes();
+  return domain_ && domain_->samples_by_parts() && !thermo_.modes() && !thermo_.has_molecular_pressure();
 }
 
 const std::vector<double>& Run::sample() {
@@ -474,6 +476,7 @@ Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
   c.thermo_state = thermo_.save_state();
   c.monitor_state = monitor_.save_state();
   c.run_state = stats_.save(evaluations_now(), rebuilds_now());
+  c.box = sc_.forces->box();
   return c;
 }
 

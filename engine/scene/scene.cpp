@@ -15,6 +15,7 @@
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
+#include "engine/scene/barostat_deck.hpp"
 #include "engine/scene/thermostat_deck.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/modes.hpp"
@@ -791,6 +792,7 @@ Scene load_scene(const Deck& deck) {
   read_run(root, sc);
   read_observables(root, sc);
   read_thermostat(root, sc);
+  read_barostat(root, sc);
   sc.monitor = read_monitor(root, {sc.forces->stiff_bonds() != nullptr, sc.observables.actions, sc.thermostatted(),
                                    sc.thermostatted() && sc.integrator.thermostat.temperature == 0.0});
   apply_defaults(sc.monitor, monitor_scene(root, sc));
