@@ -9,6 +9,150 @@
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {
+namespace {
+
+// What every method shares: E(x) with the true force f and the force that moves fmove (f, or the
+// soft start's capped force), both projected onto the tangent space under rigid bonds and zero at
+// fixed particles (inverse mass 0: they never move, and the stopping rules do not see them);
+// SHAKE back onto g = 0 after a move; progress lines; the report's closing numbers.
+// `metric`: the inverse masses of the projection and SHAKE — the particles' own for FIRE's
+// dynamics, 1 (0 at fixed particles) for the line searches, which move x by αh (docs/design.md §12).
+class Descent {
+ public:
+  Descent(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+          const Eigen::VectorXd& metric, std::ostream* progress)
+      : forces_(forces),
+        s_(s),
+        p_(p),
+        progress_(progress),
+        levels_(forces.all_levels()),
+        own_metric_(metric == s.inv_mass) {
+    const Eigen::Index n = s.x.cols();
+    raw_.resize(3, n);
+    f.resize(3, n);
+    fmove.resize(3, n);
+    if (p.rigid && stiff && !stiff->bonds.empty()) {
+      bonds_ = &stiff->bonds;
+      toolbox_.emplace(stiff->bonds, metric);
+    }
+    deck_velocities_ = s.v;
+    report.style = p.style;
+    report.rigid = toolbox_.has_value();
+  }
+
+  bool rigid() const { return toolbox_.has_value(); }
+  Eigen::Index size() const { return s_.x.cols(); }
+  bool fixed(Eigen::Index i) const { return s_.inv_mass[i] == 0.0; }
+
+  // E(x); sets f and fmove, and capped (whether the cap changed any particle's force).
+  double evaluate() {
+    const Eigen::Matrix3Xd& x = s_.x;
+    const double e = toolbox_ ? forces_.compute_unconstrained(x, raw_) : forces_.compute(x, levels_, raw_);
+    ++report.evaluations;
+    if (!std::isfinite(e))
+      throw NumericalError("minimize: the potential energy is not finite (" + std::to_string(e) +
+                           "): beads on top of each other?");
+    for (Eigen::Index i = 0; i < size(); ++i)
+      if (fixed(i)) raw_.col(i).setZero();
+    f = raw_;
+    project(f);
+    capped = false;
+    if (p_.max_force > 0.0) {
+      for (Eigen::Index i = 0; i < size(); ++i) {
+        const double m = raw_.col(i).norm();
+        if (m > p_.max_force) {
+          raw_.col(i) *= p_.max_force / m;
+          capped = true;
+        }
+      }
+    }
+    if (capped) {
+      fmove = raw_;
+      project(fmove);
+    } else {
+      fmove = f;
+    }
+    return e;
+  }
+
+  // v ← P(x) v at the current positions (unchanged without rigid bonds), zero at fixed particles.
+  void project(Eigen::Matrix3Xd& v) {
+    if (!toolbox_) return;
+    toolbox_->project_force(s_.x, v);
+    for (Eigen::Index i = 0; i < size(); ++i)
+      if (fixed(i)) v.col(i).setZero();
+  }
+  // v ← v − M⁻¹Gᵀμ with G v = 0 (RATTLE's velocity projection): FIRE's velocities, whose metric
+  // is the particles' own.
+  void project_velocity(Eigen::Matrix3Xd& v) {
+    if (toolbox_) toolbox_->project_velocity(s_.x, v);
+  }
+  // x ← SHAKE(x) along the constraint directions at `from` (the positions before the move).
+  void shake_from(const Eigen::Matrix3Xd& from) {
+    if (toolbox_) toolbox_->shake(from, s_.x, nullptr, p_.shake_tolerance, 200);
+  }
+
+  template <typename... What>
+  void say(const What&... what) {
+    if (!progress_) return;
+    const auto old = progress_->precision(6);
+    ((*progress_) << ... << what) << std::endl;
+    progress_->precision(old);
+  }
+
+  // The closing numbers, the deck's velocities back (tangent at the minimum, in the particles'
+  // own metric: RATTLE's projection).
+  MinimizeReport finish(double e) {
+    report.energy = e;
+    report.fmax = size() > 0 ? f.colwise().norm().maxCoeff() : 0.0;
+    report.fnorm = f.norm();
+    s_.v = deck_velocities_;
+    if (toolbox_) {
+      report.max_violation = toolbox_->max_violation(s_.x);
+      if (own_metric_) {
+        toolbox_->project_velocity(s_.x, s_.v);
+      } else {
+        ConstraintToolbox velocities(*bonds_, s_.inv_mass);
+        velocities.project_velocity(s_.x, s_.v);
+      }
+    }
+    return report;
+  }
+
+  Eigen::Matrix3Xd f, fmove;
+  bool capped = false;
+  MinimizeReport report;
+
+ private:
+  ForceField& forces_;
+  State& s_;
+  const MinimizeSettings& p_;
+  std::ostream* progress_;
+  const std::vector<Level> levels_;
+  const bool own_metric_;
+  const std::vector<StiffBond>* bonds_ = nullptr;
+  std::optional<ConstraintToolbox> toolbox_;
+  Eigen::Matrix3Xd raw_, deck_velocities_;
+};
+
+// LAMMPS's relative energy change (EPS_ENERGY = 1e-8): etol's rule.
+bool energy_converged(double etol, double e, double e_prev) {
+  return etol > 0.0 && std::abs(e - e_prev) < etol * 0.5 * (std::abs(e) + std::abs(e_prev) + 1e-8);
+}
+
+}  // namespace
+
+const char* style_name(MinimizeStyle style) {
+  switch (style) {
+    case MinimizeStyle::fire:
+      return "fire";
+    case MinimizeStyle::cg:
+      return "cg";
+    case MinimizeStyle::sd:
+      return "sd";
+  }
+  return "?";
+}
 
 // FIRE 2.0 as LAMMPS's MinFire::iterate with its defaults (integrator eulerimplicit,
 // halfstepback yes, initialdelay yes, vdfmax 2000: more than 2000 steps with P ≤ 0 stop it,
@@ -25,53 +169,17 @@ namespace stiffmd {
 // (the step and the half step back) is followed by SHAKE (y ← y + M⁻¹G(x_old)ᵀλ, g(y) = 0).
 MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                              std::ostream* progress, const MinimizeObserver& after_move) {
+  Descent d(forces, stiff, s, p, s.inv_mass, progress);
   const Eigen::Index n = s.x.cols();
-  std::optional<ConstraintToolbox> toolbox;
-  if (p.rigid && stiff && !stiff->bonds.empty()) toolbox.emplace(stiff->bonds, s.inv_mass);
-  const std::vector<Level> levels = forces.all_levels();
   Eigen::Matrix3Xd& x = s.x;
-  Eigen::Matrix3Xd raw(3, n), f(3, n), fmove(3, n), v = Eigen::Matrix3Xd::Zero(3, n), x_old, last_move;
-  const Eigen::Matrix3Xd deck_velocities = s.v;
-  MinimizeReport r;
+  const Eigen::Matrix3Xd& fmove = d.fmove;
+  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n), x_old, last_move;
+  MinimizeReport& r = d.report;
 
-  auto shake_from = [&](const Eigen::Matrix3Xd& from) {
-    if (toolbox) toolbox->shake(from, x, nullptr, p.shake_tolerance, 200);
-  };
-  // E(x); f = the true force (projected under rigid bonds), fmove = the force that moves (f, or
-  // the capped force projected). Fixed particles (inverse mass 0) have no force: they do not move.
-  auto evaluate = [&]() {
-    const double e = toolbox ? forces.compute_unconstrained(x, raw) : forces.compute(x, levels, raw);
-    ++r.evaluations;
-    if (!std::isfinite(e))
-      throw NumericalError("minimize: the potential energy is not finite (" + std::to_string(e) +
-                           "): beads on top of each other?");
-    for (Eigen::Index i = 0; i < n; ++i)
-      if (s.inv_mass[i] == 0.0) raw.col(i).setZero();
-    f = raw;
-    if (toolbox) toolbox->project_force(x, f);
-    if (p.max_force > 0.0) {
-      for (Eigen::Index i = 0; i < n; ++i) {
-        const double m = raw.col(i).norm();
-        if (m > p.max_force) raw.col(i) *= p.max_force / m;
-      }
-      fmove = raw;
-      if (toolbox) toolbox->project_force(x, fmove);
-    } else {
-      fmove = f;
-    }
-    return e;
-  };
-  auto say = [&](auto&&... what) {
-    if (!progress) return;
-    const auto old = progress->precision(6);
-    ((*progress) << ... << what) << std::endl;
-    progress->precision(old);
-  };
-
-  if (toolbox) shake_from(x);  // start on g = 0
-  double e = evaluate(), e_prev = e;
+  d.shake_from(x);  // start on g = 0
+  double e = d.evaluate(), e_prev = e;
   r.initial_energy = e;
-  say("minimize: FIRE on ", n, " particles (potential energy ", e, ", force 2-norm ", f.norm(), ") ...");
+  d.say("minimize: FIRE on ", n, " particles (potential energy ", e, ", force 2-norm ", d.f.norm(), ") ...");
 
   const double dtmax = p.tmax * p.dt, dtmin = p.tmin * p.dt;
   double dt = p.dt, dtv = p.dt, alpha = p.alpha0;  // dt_v: the last step's, for the dmax limit
@@ -103,8 +211,8 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
       if (p.halfstepback && !v_reset) {
         x_old = x;
         x -= 0.5 * last_move;  // −½ dt_v v, the half of the last move (as capped by dmax)
-        shake_from(x_old);
-        e = evaluate();
+        d.shake_from(x_old);
+        e = d.evaluate();
       }
       v.setZero();
       v_reset = true;
@@ -120,28 +228,27 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
 
     v += dtv * (fmove * s.inv_mass.asDiagonal());
     if (power > 0.0) v = scale1 * v + scale2 * fmove;
-    if (toolbox) toolbox->project_velocity(x, v);
+    d.project_velocity(v);
     // dmax is a hard cap on the move: LAMMPS sizes dt_v by the velocity before the kick, so a
     // large force (an overlap) could still carry a particle far past dmax, and SHAKE with it.
     const double reach = dtv * v.cwiseAbs().maxCoeff();
     x_old = x;
     last_move = (reach > p.dmax ? p.dmax / reach : 1.0) * dtv * v;
     x += last_move;
-    shake_from(x_old);
-    if (toolbox) toolbox->project_velocity(x, v);
+    d.shake_from(x_old);
+    d.project_velocity(v);
     e_prev = e;
-    e = evaluate();
+    e = d.evaluate();
     v_reset = false;
     r.iterations = k;
     if (after_move) after_move(x, e);
-    if (k % 1000 == 0) say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", f.norm());
+    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", d.f.norm());
 
-    if (p.etol > 0.0 && k - last_negative > p.delaystep &&
-        std::abs(e - e_prev) < p.etol * 0.5 * (std::abs(e) + std::abs(e_prev) + 1e-8)) {
+    if (k - last_negative > p.delaystep && energy_converged(p.etol, e, e_prev)) {
       r.stopped_by = "etol";
       break;
     }
-    if (p.ftol > 0.0 && f.squaredNorm() < p.ftol * p.ftol) {
+    if (p.ftol > 0.0 && d.f.squaredNorm() < p.ftol * p.ftol) {
       r.stopped_by = "ftol";
       break;
     }
@@ -150,23 +257,172 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
       break;
     }
   }
-  r.energy = e;
-  r.fmax = n > 0 ? f.colwise().norm().maxCoeff() : 0.0;
-  r.fnorm = f.norm();
-  s.v = deck_velocities;
-  if (toolbox) {
-    r.max_violation = toolbox->max_violation(x);
-    toolbox->project_velocity(x, s.v);
+  return d.finish(e);
+}
+
+// The quadratic line search of LAMMPS's MinLineSearch::linemin_quadratic (after Dennis and
+// Schnabel), from x0 = x along h with E0 = e, the slope E'(0) = −f·h < 0:
+//   α_max = min(1, dmax / max_ic |h_ic|); α = α_max.
+//   Repeat: x = x0 + αh (then SHAKE), E(α), fh = f(α)·h.
+//     |fh| or |fh − fh_prev| < 1e-28: back to x0, "zero-quadratic".
+//     If the quadratic model through the previous point holds, relerr = |1 − (½(α − α_prev)(fh +
+//     fh_prev) + E(α)) / E_prev| ≤ 0.1, take the secant step to fh = 0, α₀ = α − (α − α_prev)
+//     fh / (fh − fh_prev), when 0 < α₀ < α_max: accepted if E(α₀) − E0 < EMACH = 1e-8 (near the
+//     minimum the energy changes by less than its round-off, and the force decides).
+//     Otherwise accept the point reached if E − E0 ≤ −0.4 α f0·h (Armijo, Nocedal & Wright
+//     Proc. 3.1); else α ← α/2, and back to x0 with "zero-alpha" once 0.4 α f0·h ≤ EMACH.
+// After a rejected secant step the previous point's energy is E(α₀), its slope α's, as in LAMMPS,
+// whose iterates these then are up to round-off (docs/decks.md [minimize]). Under rigid bonds
+// every trial point is SHAKEn from x0 and the slope is f(α)·h with f projected at x(α): the
+// derivative of E along the retracted path to first order in α (docs/design.md §12).
+namespace {
+
+enum class LineSearch { accepted, zero_alpha, zero_quadratic, zero_force };
+
+LineSearch quadratic_line_search(Descent& d, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& h, double dmax, double& e) {
+  constexpr double kAlphaMax = 1.0, kAlphaReduce = 0.5, kBacktrackSlope = 0.4, kQuadraticTol = 0.1;
+  constexpr double kEmach = 1e-8, kEpsQuad = 1e-28;
+  const double hmax = h.size() > 0 ? h.cwiseAbs().maxCoeff() : 0.0;
+  if (hmax == 0.0) return LineSearch::zero_force;
+  const double fh0 = (d.f.array() * h.array()).sum();
+  const double alpha_max = std::min(kAlphaMax, dmax / hmax);
+  const Eigen::Matrix3Xd x0 = x;
+  const double e0 = e;
+  auto step = [&](double alpha) {
+    x = x0;
+    if (alpha > 0.0) {
+      x += alpha * h;
+      d.shake_from(x0);
+    }
+    return d.evaluate();
+  };
+  double alpha = alpha_max, alpha_prev = 0.0, fh_prev = fh0, e_prev = e0;
+  for (;;) {
+    e = step(alpha);
+    const double fh = (d.f.array() * h.array()).sum();
+    const double dfh = fh - fh_prev;
+    if (std::abs(fh) < kEpsQuad || std::abs(dfh) < kEpsQuad) {
+      e = step(0.0);
+      return LineSearch::zero_quadratic;
+    }
+    const double relerr = std::abs(1.0 - (0.5 * (alpha - alpha_prev) * (fh + fh_prev) + e) / e_prev);
+    const double alpha0 = alpha - (alpha - alpha_prev) * fh / dfh;
+    double e_at = e;  // the energy where x is
+    if (relerr <= kQuadraticTol && alpha0 > 0.0 && alpha0 < alpha_max) {
+      e_at = step(alpha0);
+      if (e_at - e0 < kEmach) {
+        e = e_at;
+        return LineSearch::accepted;
+      }
+    }
+    const double de_ideal = -kBacktrackSlope * alpha * fh0;
+    if (e_at - e0 <= de_ideal) {
+      e = e_at;
+      return LineSearch::accepted;
+    }
+    fh_prev = fh;
+    e_prev = e_at;
+    alpha_prev = alpha;
+    alpha *= kAlphaReduce;
+    if (alpha <= 0.0 || de_ideal >= -kEmach) {
+      e = step(0.0);
+      return LineSearch::zero_alpha;
+    }
   }
-  return r;
+}
+
+}  // namespace
+
+// LAMMPS's MinCG::iterate (Polak–Ribière; Shewchuk, "An introduction to the conjugate gradient
+// method without the agonizing pain" (1994), §14.1) and MinSD, on the force that moves (fmove):
+//   g = h = F(x_0); each iteration: a line search along h; the stopping rules; then
+//   β = max(0, (F·F − F·g) / g·g) (cg; 0 for sd, on a soft-start step, every 3N − m iterations),
+//   g ← F, h ← F + β P(x) h, and h ← F when F_true·h ≤ 0 (not downhill), h ← F_true when even F
+//   is not (a capped force can point against the true one after the projection).
+MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                                   std::ostream* progress, const MinimizeObserver& after_move) {
+  Eigen::VectorXd unit_metric = Eigen::VectorXd::Ones(s.inv_mass.size());
+  for (Eigen::Index i = 0; i < unit_metric.size(); ++i)
+    if (s.inv_mass[i] == 0.0) unit_metric[i] = 0.0;
+  Descent d(forces, stiff, s, p, unit_metric, progress);
+  MinimizeReport& r = d.report;
+  Eigen::Matrix3Xd& x = s.x;
+  const char* name = p.style == MinimizeStyle::cg ? "CG" : "SD";
+
+  d.shake_from(x);  // start on g = 0
+  double e = d.evaluate();
+  r.initial_energy = e;
+  d.say("minimize: ", name, " on ", x.cols(), " particles (potential energy ", e, ", force 2-norm ", d.f.norm(),
+        ") ...");
+  // Degrees of freedom: the conjugate directions run out after this many iterations.
+  long dof = 3 * static_cast<long>(unit_metric.sum());
+  if (d.rigid()) dof -= static_cast<long>(stiff->bonds.size());
+  const long restart_every = std::max(1L, dof);
+
+  Eigen::Matrix3Xd g = d.fmove, h = d.fmove;
+  double gg = g.squaredNorm();
+  bool was_capped = d.capped;
+  r.stopped_by = "maxiter";
+  for (long k = 1; k <= p.maxiter; ++k) {
+    const double e_prev = e;
+    const LineSearch result = quadratic_line_search(d, x, h, p.dmax, e);
+    r.iterations = k;
+    if (result != LineSearch::accepted) {
+      r.stopped_by = result == LineSearch::zero_alpha       ? "zero-alpha"
+                     : result == LineSearch::zero_quadratic ? "zero-quadratic"
+                                                            : "zero-force";
+      break;
+    }
+    if (after_move) after_move(x, e);
+    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", d.f.norm());
+
+    if (energy_converged(p.etol, e, e_prev)) {
+      r.stopped_by = "etol";
+      break;
+    }
+    if (p.ftol > 0.0 && d.f.squaredNorm() < p.ftol * p.ftol) {
+      r.stopped_by = "ftol";
+      break;
+    }
+    if (r.evaluations >= p.maxeval) {
+      r.stopped_by = "maxeval";
+      break;
+    }
+
+    const Eigen::Matrix3Xd& fm = d.fmove;
+    const double ff = fm.squaredNorm(), fg = (fm.array() * g.array()).sum();
+    const bool conjugate =
+        p.style == MinimizeStyle::cg && !d.capped && !was_capped && (k + 1) % restart_every != 0 && gg > 0.0;
+    const double beta = conjugate ? std::max(0.0, (ff - fg) / gg) : 0.0;
+    gg = ff;
+    g = fm;
+    was_capped = d.capped;
+    if (beta > 0.0) {
+      d.project(h);  // onto the tangent space at the new x
+      h = g + beta * h;
+    } else {
+      h = g;
+    }
+    if ((d.f.array() * h.array()).sum() <= 0.0) h = g;
+    if ((d.f.array() * h.array()).sum() <= 0.0) h = d.f;
+  }
+  return d.finish(e);
+}
+
+MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                        std::ostream* progress, const MinimizeObserver& after_move) {
+  if (p.style == MinimizeStyle::fire) return minimize_fire(forces, stiff, s, p, progress, after_move);
+  return minimize_linesearch(forces, stiff, s, p, progress, after_move);
 }
 
 std::string describe(const MinimizeReport& r) {
   std::ostringstream o;
   o.precision(10);
-  o << "minimize: FIRE stopped by " << r.stopped_by << " after " << r.iterations << " iterations (" << r.evaluations
-    << " force evaluations): E0 " << r.initial_energy << " -> E " << r.energy << ", largest force |f|max = " << r.fmax
-    << ", force 2-norm " << r.fnorm;
+  const char* name = r.style == MinimizeStyle::fire ? "FIRE" : r.style == MinimizeStyle::cg ? "CG" : "SD";
+  o << "minimize: " << name << " stopped by " << r.stopped_by << " after " << r.iterations << " iterations ("
+    << r.evaluations << " force evaluations): E0 " << r.initial_energy << " -> E " << r.energy
+    << ", largest force |f|max = " << r.fmax << ", force 2-norm " << r.fnorm;
+  if (r.rigid) o << ", max |g| = " << r.max_violation;
   return o.str();
 }
 

@@ -1,8 +1,11 @@
 // Energy minimisation by FIRE 2.0 (Guénolé et al., Comput. Mater. Sci. 175, 109584 (2020),
-// Algorithm 2; the variant and defaults of LAMMPS's `min_style fire`), with LAMMPS's stopping
-// rules `minimize etol ftol maxiter maxeval`. Rigid bonds stay exact: the force is projected onto
-// the tangent space of the constraint manifold and the positions are SHAKEn after every move, as
-// GROMACS does. The deck side ([minimize], errors at its file:line) is engine/scene/scene_sources.cpp.
+// Algorithm 2; the variant and defaults of LAMMPS's `min_style fire`) or by a line-search method,
+// Polak–Ribière conjugate gradient or steepest descent with LAMMPS's quadratic line search
+// (`min_style cg` / `sd`, `min_modify line quadratic`), all with LAMMPS's stopping rules `minimize
+// etol ftol maxiter maxeval`. Rigid bonds stay exact: the force is projected onto the tangent
+// space of the constraint manifold and the positions are SHAKEn after every move, as GROMACS does
+// (docs/design.md §12). The deck side ([minimize], errors at its file:line) is
+// engine/scene/scene_sources.cpp.
 #pragma once
 
 #include <functional>
@@ -15,12 +18,16 @@
 
 namespace stiffmd {
 
+enum class MinimizeStyle { fire, cg, sd };
+const char* style_name(MinimizeStyle style);  // "fire", "cg", "sd": the deck's words
+
 struct MinimizeSettings {
+  MinimizeStyle style = MinimizeStyle::fire;
   // Stopping rules, as LAMMPS's `minimize etol ftol maxiter maxeval` (0 switches etol or ftol off):
   //   etol: |E_k − E_{k−1}| < etol · ½ (|E_k| + |E_{k−1}| + 1e-8)  (LAMMPS's relative change, EPS_ENERGY = 1e-8)
   //   ftol: ‖F‖₂ = (Σ_i |F_i|²)^{1/2} < ftol over the whole system's force vector (LAMMPS's default
-  //         min_modify norm two), F the force that moves: projected, under rigid bonds, and zero
-  //         at fixed particles
+  //         min_modify norm two), F the true force (not the soft start's cap): projected under
+  //         rigid bonds, and zero at fixed particles
   double etol = 0.0;
   double ftol = 1e-6;  // a force
   long maxiter = 10000;
@@ -29,15 +36,19 @@ struct MinimizeSettings {
   // tmax·dt and tmin·dt on the adapted step, the steps after an uphill move before dt may grow,
   // the growth and shrink factors, the mixing α and its decay, and the half step back on an
   // uphill move (the "inertia correction"); the scheme is semi-implicit Euler.
-  double dt = 0.0;    // engine time units; must be > 0
-  double dmax = 0.1;  // no coordinate of any particle moves further in one step (LAMMPS min_modify dmax)
+  double dt = 0.0;  // engine time units; must be > 0
+  // No coordinate of any particle moves further in one step (LAMMPS min_modify dmax; for cg and
+  // sd the largest step the line search tries, capped at α = 1 as LAMMPS's ALPHA_MAX).
+  double dmax = 0.1;
   double tmax = 10.0, tmin = 0.02;
   long delaystep = 20;
   double dtgrow = 1.1, dtshrink = 0.5, alpha0 = 0.25, alphashrink = 0.99;
   bool halfstepback = true;
   // Soft start: each particle's force magnitude capped at this during the moves (0: no cap), so
   // that overlapping beads move apart by dmax per step instead of by what r⁻¹³ asks. The
-  // stopping rules read the true force.
+  // stopping rules read the true force. For cg and sd the capped force is the search direction
+  // (steepest descent while any particle's force exceeds the cap), and the line search measures
+  // the true energy and slope along it.
   double max_force = 0.0;
   // Hold the constraint-defining stiff bonds rigid (a method with rigid_constraints): minimise
   // the other terms on g(x) = 0. Otherwise every term, the stiff springs included, is minimised.
@@ -46,17 +57,30 @@ struct MinimizeSettings {
 };
 
 struct MinimizeReport {
-  std::string stopped_by;  // "etol", "ftol", "maxiter", "maxeval" or "vdfmax" (over 2000 steps with F·v ≤ 0, as LAMMPS)
+  MinimizeStyle style = MinimizeStyle::fire;
+  // "etol", "ftol", "maxiter", "maxeval"; FIRE's "vdfmax" (over 2000 steps with F·v ≤ 0, as
+  // LAMMPS); a line search's failure, as LAMMPS's stop strings: "zero-alpha" (backtracked until the
+  // expected decrease is below round-off, 1e-8, without enough decrease: "linesearch alpha is
+  // zero"), "zero-quadratic" (the slope along the direction or its change below 1e-28: "quadratic
+  // factors are zero"), "zero-force" (the search direction is zero: "forces are zero").
+  std::string stopped_by;
   long iterations = 0;
   long evaluations = 0;  // force evaluations, the first one included
   double initial_energy = 0.0, energy = 0.0;
-  double fmax = 0.0;   // the largest |F_i| at the end
-  double fnorm = 0.0;  // ‖F‖₂ at the end
+  double fmax = 0.0;           // the largest |F_i| at the end
+  double fnorm = 0.0;          // ‖F‖₂ at the end
+  bool rigid = false;          // minimised on g = 0
   double max_violation = 0.0;  // max |g| at the end (rigid bonds; 0 otherwise)
 };
 
-// Called after every move with the new positions and their energy (for tests and progress).
+// Called after every move with the new positions and their energy (for tests and progress): every
+// FIRE step, every accepted line search (the trial points of a line search are not reported; each is
+// SHAKEn to the same tolerance, or NumericalError is thrown).
 using MinimizeObserver = std::function<void(const Eigen::Matrix3Xd& x, double energy)>;
+
+// p.style's method: minimize_fire or minimize_linesearch.
+MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                        std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
 
 // Minimises the potential energy of `s` in place. The velocities s.v are not FIRE's: they are
 // kept (projected onto the tangent space at the minimum under rigid bonds), as a LAMMPS
@@ -65,8 +89,18 @@ using MinimizeObserver = std::function<void(const Eigen::Matrix3Xd& x, double en
 MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                              std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
 
+// Conjugate gradient (p.style cg: Polak–Ribière with β = max(0, ·), restarted every 3N − m
+// iterations and whenever the direction is not downhill) or steepest descent (sd), each iteration
+// one quadratic line search from x along h as LAMMPS's MinLineSearch::linemin_quadratic. Positions
+// move as x + αh, not by the masses: under rigid bonds the projection and SHAKE use the unit
+// metric (fixed particles still 0), and h is re-projected onto the tangent space at each new x
+// (docs/design.md §12). Velocities and errors as minimize_fire.
+MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                                   std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
+
 // "minimize: FIRE stopped by ftol after N iterations (M force evaluations): E0 -> E, largest
-// force |f|max = …, force 2-norm …"
+// force |f|max = …, force 2-norm …[, max |g| = …]" (CG or SD for the line-search styles; max |g|
+// under rigid bonds).
 std::string describe(const MinimizeReport& r);
 
 }  // namespace stiffmd

@@ -119,7 +119,7 @@ std::string summary_json(const RunSummary& s) {
     o << "null";
   if (s.minimize) {
     const MinimizeReport& m = *s.minimize;
-    o << ",\n  \"minimize\": {\"style\": \"fire\", \"stopped_by\": \"" << m.stopped_by
+    o << ",\n  \"minimize\": {\"style\": \"" << style_name(m.style) << "\", \"stopped_by\": \"" << m.stopped_by
       << "\", \"iterations\": " << m.iterations << ", \"evaluations\": " << m.evaluations
       << ", \"initial_energy\": " << m.initial_energy << ", \"energy\": " << m.energy << ", \"fmax\": " << m.fmax
       << ", \"fnorm\": " << m.fnorm << ", \"max_violation\": " << m.max_violation << "}";

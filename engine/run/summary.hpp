@@ -60,7 +60,7 @@ struct RunSummary {
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
   // [minimize] before the run (a fresh run's; a restart does not minimise): in summary.json as
-  // "minimize": {stopped_by, iterations, evaluations, initial_energy, energy, fmax, fnorm, max_violation}.
+  // "minimize": {style, stopped_by, iterations, evaluations, initial_energy, energy, fmax, fnorm, max_violation}.
   std::optional<MinimizeReport> minimize;
 };
 

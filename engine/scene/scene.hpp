@@ -71,7 +71,7 @@ struct PrepareTable : PrepareSettings {
   std::string where;       // "file:line" of that table, for errors
 };
 
-// [minimize]: FIRE 2.0 on the prepared state (prepare_scene, which calls minimize_fire in
+// [minimize]: FIRE 2.0, CG or SD on the prepared state (prepare_scene, which calls minimize in
 // integrators/minimize.hpp with these settings).
 struct MinimizeTable : MinimizeSettings {
   bool requested = false;  // the deck has a [minimize] table
@@ -97,7 +97,7 @@ struct ParticleSource {
 // LAMMPS lacks, is not representable and is left out of the file.
 struct LammpsCoeffs {
   struct Section {
-    std::string style;        // the LAMMPS style ("harmonic", "lj/cut"); "" while no term gave rows
+    std::string style;  // the LAMMPS style ("harmonic", "lj/cut"); "" while no term gave rows
     bool representable = true;
     // Per scene type index (pair terms: per type pair a <= b) the coefficients after the type(s).
     std::map<std::pair<int, int>, std::string> rows;
@@ -133,16 +133,16 @@ struct Scene {
   RunSettings run;
   OutputSettings output;
   ObservableSettings observables;
-  MonitorSettings monitor;         // [monitor]
-  PrepareTable prepare;            // [prepare], applied by prepare_scene
-  MinimizeTable minimize;          // [minimize], applied by prepare_scene after [prepare]
+  MonitorSettings monitor;                  // [monitor]
+  PrepareTable prepare;                     // [prepare], applied by prepare_scene
+  MinimizeTable minimize;                   // [minimize], applied by prepare_scene after [prepare]
   std::optional<MinimizeReport> minimized;  // what [minimize] did (a fresh run's prepare_scene)
-  ParallelSettings parallel;       // [parallel]
-  bool box_from_source = false;    // a builder's density or an imported file set the box
-  std::vector<ParticleSource> sources;  // in particle order, covering every particle
-  LammpsCoeffs lammps_coeffs;           // filled by the force styles' readers
-  LammpsTypeNumbers lammps_types;       // filled by a LAMMPS [import]
-  std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
+  ParallelSettings parallel;                // [parallel]
+  bool box_from_source = false;             // a builder's density or an imported file set the box
+  std::vector<ParticleSource> sources;      // in particle order, covering every particle
+  LammpsCoeffs lammps_coeffs;               // filled by the force styles' readers
+  LammpsTypeNumbers lammps_types;           // filled by a LAMMPS [import]
+  std::vector<std::string> notes;           // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
   // whole system's index of each particle here.
   bool part = false;
@@ -167,9 +167,9 @@ Scene load_scene(const Deck& deck);
 void read_force_terms(const Deck& deck, Scene& part);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
-// relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a fresh run; a restart takes its state
-// from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
-// `progress` (null: silent) gets what it is doing while it does it (prepare_state).
+// relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a
+// fresh run; a restart takes its state from the checkpoint instead. Throws InputError naming the [prepare] table when
+// it fails. `progress` (null: silent) gets what it is doing while it does it (prepare_state).
 void prepare_scene(Scene& scene, std::ostream& log, std::ostream* progress = nullptr);
 
 // The files a run of the scene writes into its output directory, with the deck key that names

@@ -361,8 +361,8 @@ void read_prepare(DeckTable& root, Scene& sc) {
   t->finish();
 }
 
-// [minimize]: the settings of minimize_fire (integrators/minimize.*, where the algorithm is) and
-// the table's file:line for its errors. Read after [integrator]: the step dt defaults to its h,
+// [minimize]: the settings of minimize (integrators/minimize.*, where the algorithms are) and the
+// table's file:line for its errors. Read after [integrator]: FIRE's step dt defaults to its h,
 // and a method with rigid constraints minimises on g(x) = 0.
 void read_minimize(DeckTable& root, Scene& sc) {
   auto t = root.table("minimize");
@@ -371,7 +371,17 @@ void read_minimize(DeckTable& root, Scene& sc) {
   p.requested = true;
   p.where = t->where();
   const std::string style = t->string("style", "fire");
-  t->require(style == "fire", "style", "expected \"fire\" (FIRE 2.0; no line-search method yet)");
+  if (style == "fire")
+    p.style = MinimizeStyle::fire;
+  else if (style == "cg")
+    p.style = MinimizeStyle::cg;
+  else if (style == "sd")
+    p.style = MinimizeStyle::sd;
+  else
+    t->fail("style",
+            "expected \"fire\" (FIRE 2.0), \"cg\" (Polak-Ribiere conjugate gradient) or \"sd\" (steepest "
+            "descent), got \"" +
+                style + "\"");
   p.etol = t->number("etol", 0.0);
   t->require(p.etol >= 0 && p.etol < 1, "etol", "expected a relative energy change 0 <= etol < 1 (0: off)");
   p.ftol = t->number("ftol", 1e-6);
@@ -383,9 +393,13 @@ void read_minimize(DeckTable& root, Scene& sc) {
   t->require(p.maxeval >= 1 && p.maxeval <= kMaxMinimizeIterations, "maxeval",
              "expected a number of force evaluations 1 .. " + std::to_string(kMaxMinimizeIterations));
   const double h = sc.integrator.h / sc.units.time;
-  const double dt = t->number("dt", h);
-  t->require(dt > 0 && std::isfinite(dt), "dt", "expected a time step > 0");
-  p.dt = sc.units.time_in(dt);
+  if (p.style == MinimizeStyle::fire) {
+    const double dt = t->number("dt", h);
+    t->require(dt > 0 && std::isfinite(dt), "dt", "expected a time step > 0");
+    p.dt = sc.units.time_in(dt);
+  } else if (t->has("dt")) {
+    t->fail("dt", "FIRE's initial time step; style \"" + style + "\" moves by a line search and has none (remove it)");
+  }
   p.dmax = t->number("dmax", 0.1);
   t->require(p.dmax > 0 && std::isfinite(p.dmax), "dmax", "expected a length > 0");
   p.max_force = t->number("max_force", 0.0);
@@ -419,7 +433,7 @@ void prepare_scene(Scene& sc, std::ostream& log, std::ostream* progress) {
   }
   if (mt.requested) {
     try {
-      sc.minimized = minimize_fire(*sc.forces, sc.forces->stiff_bonds(), sc.state, mt, progress);
+      sc.minimized = minimize(*sc.forces, sc.forces->stiff_bonds(), sc.state, mt, progress);
     } catch (const NumericalError& e) {
       throw InputError(mt.where + ": " + e.what());
     }
