@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/exact_sum.hpp"
 #include "engine/core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/stiff_bond.hpp"
@@ -73,15 +74,15 @@ class ForceTerm {
     return {energy, virial(x, box)};
   }
 
-  // Adds this term's force into f, like add_forces, and returns the diagonal of its virial tensor,
-  // Σ over interacting pairs of (r_ij)_a (f_ij)_a, a = x, y, z: the per-axis pressure of the
-  // barostat (integrators/barostat.hpp), in the same pass as the forces. Pair terms give it; the
-  // default (bonded terms, whose share of the molecular virial is zero, and external fields)
-  // adds the forces and returns zero.
-  virtual Eigen::Vector3d add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box,
-                                                         Eigen::Matrix3Xd& f) const {
+  // Adds this term's force into f, like add_forces, and its virial tensor's diagonal, Σ over
+  // interacting pairs of (r_ij)_a (f_ij)_a, a = x, y, z, into w (exactly: ExactDiagonal), in the
+  // same pass: the barostat's per-axis pressure (integrators/barostat.hpp). Pair terms give it; a
+  // decomposed run's part its share (a pair with a ghost half). The default (bonded terms, whose
+  // share of the molecular virial is zero, and external fields) adds the forces only.
+  virtual void add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
+                                              ExactDiagonal& w) const {
+    (void)w;
     add_forces(x, box, f);
-    return Eigen::Vector3d::Zero();
   }
 
   // Capabilities (docs/design.md §11.1: facts on the term, not lists of style names elsewhere).

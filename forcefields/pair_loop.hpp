@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "engine/core/box.hpp"
+#include "engine/core/exact_sum.hpp"
 #include "engine/core/parallel.hpp"
 #include "forcefields/neighbor_list.hpp"
 
@@ -85,15 +86,20 @@ class TypePairMatrix {
 struct PairSums {
   double energy = 0.0;  // Σ E over the pairs
   double virial = 0.0;  // Σ r_ij · f_ij over the pairs
-  // The virial tensor's diagonal Σ (r_ij)_a (f_ij)_a, a = x, y, z (with kVirial; the barostat's
-  // per-axis pressure, integrators/barostat.hpp). Summed beside `virial`, which stays the sum it was.
-  double vxx = 0.0, vyy = 0.0, vzz = 0.0;
-  void add_diagonal(const PairSums& o) {
-    vxx += o.vxx;
-    vyy += o.vyy;
-    vzz += o.vzz;
-  }
+  // With kForces and kVirial (the barostat's pass, integrators/barostat.hpp): the virial tensor's
+  // diagonal Σ (r_ij)_a (f_ij)_a, summed exactly, each pair as two halves (one per particle: a
+  // pair with a ghost counts one, its owner's rank the other), so that its value does not depend on
+  // the thread count or the number of processes. `virial` stays the plain sum it was.
+  ExactDiagonal diagonal;
 };
+
+// Adds a pair's d_a² fpair, a = x, y, z, to the exact diagonal, `halves` times half of it.
+inline void add_pair_diagonal(ExactDiagonal& w, double fpair, double dx, double dy, double dz, int halves) {
+  if (fpair == 0.0) return;  // most listed pairs: beyond the cutoff
+  const double t[3] = {0.5 * fpair * dx * dx, 0.5 * fpair * dy * dy, 0.5 * fpair * dz * dz};
+  for (int h = 0; h < halves; ++h)
+    for (int a = 0; a < 3; ++a) w.axis[a].add(t[a]);
+}
 
 // Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),
 // whose minimum image is one fold away (NearestImage). f (3×N, column-major: f[3j + a]) may be
@@ -135,20 +141,12 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       if constexpr (kShares) {
         const double share = ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0;
         sums.energy += share * e;
-        if constexpr (kVirial) {
-          sums.virial += share * (fpair * r2);
-          sums.vxx += share * (fpair * dx * dx);
-          sums.vyy += share * (fpair * dy * dy);
-          sums.vzz += share * (fpair * dz * dz);
-        }
+        if constexpr (kVirial) sums.virial += share * (fpair * r2);
+        if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
       } else {
         sums.energy += e;
-        if constexpr (kVirial) {
-          sums.virial += fpair * r2;
-          sums.vxx += fpair * dx * dx;
-          sums.vyy += fpair * dy * dy;
-          sums.vzz += fpair * dz * dz;
-        }
+        if constexpr (kVirial) sums.virial += fpair * r2;
+        if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
       }
       if constexpr (kForces) {
         const double fx = fpair * dx, fy = fpair * dy, fz = fpair * dz;
@@ -190,12 +188,8 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
     Kernel::eval(r2, p, e, fpair);
     sums.energy += sp.weight * e;
     fpair *= sp.weight;
-    if constexpr (kVirial) {
-      sums.virial += fpair * r2;
-      sums.vxx += fpair * dx * dx;
-      sums.vyy += fpair * dy * dy;
-      sums.vzz += fpair * dz * dz;
-    }
+    if constexpr (kVirial) sums.virial += fpair * r2;
+    if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;
@@ -272,7 +266,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   for (int u = 0; u < parts; ++u) {
     total.energy += scratch.sums[u].energy;
     total.virial += scratch.sums[u].virial;
-    total.add_diagonal(scratch.sums[u]);
+    total.diagonal.add(scratch.sums[u].diagonal);
   }
   return total;
 }
@@ -310,8 +304,8 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const PairSums special =
       accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, xl, MinimumImage(box), f);
   PairSums total{listed.energy + special.energy, listed.virial + special.virial};
-  total.add_diagonal(listed);
-  total.add_diagonal(special);
+  total.diagonal.add(listed.diagonal);
+  total.diagonal.add(special.diagonal);
   return total;
 }
 

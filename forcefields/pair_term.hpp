@@ -64,8 +64,8 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
   // Both in one pass over the pairs, with ghosts this process's share (accumulate_pair_rows).
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
-  Eigen::Vector3d add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box,
-                                                 Eigen::Matrix3Xd& f) const override;
+  void add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
+                                      ExactDiagonal& w) const override;
 
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;  // the settings and the rebuilds so far
@@ -239,16 +239,17 @@ double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, E
 }
 
 template <class Kernel>
-Eigen::Vector3d PairTerm<Kernel>::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box,
-                                                                 Eigen::Matrix3Xd& f) const {
+void PairTerm<Kernel>::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
+                                                      ExactDiagonal& w) const {
   check_positions(x, &f);
   {
     const ScopedPhase phase(Phase::neighbor);
     list_.update(x, box);
   }
+  // With ghosts (a decomposed run's part) this process's share (kShares); without, the whole.
   const PairSums s =
-      accumulate_pairs<Kernel, true, true>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_);
-  return {s.vxx, s.vyy, s.vzz};
+      accumulate_pairs<Kernel, true, true, true>(list_, scaled_, params_, types_.data(), x, box, f.data(), scratch_);
+  w.add(s.diagonal);
 }
 
 template <class Kernel>

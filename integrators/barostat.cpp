@@ -65,16 +65,24 @@ void MolecularPressure::locate(const State& s) {
 Eigen::Vector3d MolecularPressure::virial_and_kinetic(const State& s, const ForceField& forces,
                                                       Eigen::Matrix3Xd& scratch) {
   scratch.setZero(3, s.size());
-  Eigen::Vector3d w = Eigen::Vector3d::Zero();
+  // Every sum exact (ExactDiagonal): the same bits for any thread count and number of processes.
+  ExactDiagonal w;
   for (const auto& term : forces.terms())
-    if (term->uses_neighbor_list()) w += term->add_forces_and_virial_diagonal(s.x, forces.box(), scratch);
+    if (term->uses_neighbor_list()) term->add_forces_and_virial_diagonal(s.x, forces.box(), scratch, w);
   // W_aa = Σ_pairs d_a f_a − Σ_i δ_{i,a} f_{i,a}: the pair virial less what the forces do inside
-  // each molecule (docs/design.md, "Constant pressure").
-  for (int i = 0; i < s.size(); ++i) w -= (s.x.col(i) - centre_.col(molecule_[i])).cwiseProduct(scratch.col(i));
-  for (Eigen::Index k = 0; k < velocity_.cols(); ++k)
-    w += molecule_mass_[k] * velocity_.col(k).cwiseProduct(velocity_.col(k));  // 2 K_a
-  if (processes_) processes_->sum(w.data(), 3);
-  return w;
+  // each molecule (docs/design.md §5b).
+  for (int i = 0; i < s.size(); ++i)
+    for (int a = 0; a < 3; ++a) w.axis[a].add(-(s.x(a, i) - centre_(a, molecule_[i])) * scratch(a, i));
+  for (Eigen::Index k = 0; k < velocity_.cols(); ++k)  // 2 K_a
+    for (int a = 0; a < 3; ++a) w.axis[a].add(molecule_mass_[k] * velocity_(a, k) * velocity_(a, k));
+  if (processes_) {
+    constexpr int n = SignedExactSum::kWords;
+    std::int64_t words[3 * n];
+    for (int a = 0; a < 3; ++a) w.axis[a].to_words(words + n * a);
+    processes_->sum(words, 3 * n);
+    for (int a = 0; a < 3; ++a) w.axis[a].from_words(words + n * a);
+  }
+  return {w.axis[0].value(), w.axis[1].value(), w.axis[2].value()};
 }
 
 Eigen::Vector3d MolecularPressure::pressure(const State& s, const ForceField& forces, Eigen::Matrix3Xd& scratch) {
@@ -138,6 +146,7 @@ class CellRescaled final : public Integrator {
     const ScopedPhase phase(Phase::thermostat);
     const Box& box = forces_.box();
     const Eigen::Vector3d p = pressure_.pressure(s, forces_, scratch_);
+    if (!p.allFinite()) throw NumericalError("the barostat's molecular pressure is not finite");
     const Eigen::Vector3d mu = cell_scaling(settings_, p, box.lengths.prod(), settings_.interval * h, s.step + 1);
     Box moved = box;
     moved.lengths = box.lengths.cwiseProduct(mu);

@@ -11,6 +11,9 @@ CASE is one of
     stiff_melt:METHOD         inputs/stiff_melt_nvt.toml (3 000 beads, eps = 1e-3, Langevin) with
                               integrator.method = METHOD (every method of integrators/methods.hpp)
     stiff_melt:METHOD:csvr    the same under the csvr thermostat instead of Langevin
+    stiff_melt_npt:METHOD     inputs/stiff_melt_npt.toml (1 000 beads, the C-rescale barostat every 10
+                              steps): the box moves, the domains follow it, and the trajectory and the
+                              box of every frame are the serial run's bit for bit
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
     migrate                   the same, a field driving the chains across the domains: molecules migrate
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
@@ -27,6 +30,8 @@ CASE is one of
                               the serial run's bit for bit
     restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
                               step 200 into the same folder (N is not used; ctest passes max(A, B))
+    restart_npt:A:B           the same on inputs/stiff_melt_npt.toml (fixman): the barostat's box in
+                              the checkpoint
 
 Each case runs the serial reference, `STIFFMD run DECK -o REF` (no launcher), and
 `MPIEXEC NUMPROC_FLAG N STIFFMD run DECK -o OUT`, both with OMP_NUM_THREADS=1 (another thread count
@@ -101,6 +106,7 @@ STIFF_MELT_STEPS = {
 }
 CSVR = '{ style = "csvr", temperature = 1.0, tau = 0.5, seed = 14 }'
 STRADDLE = os.path.join(ROOT, "inputs", "domain_straddle.toml")
+STIFF_MELT_NPT = os.path.join(ROOT, "inputs", "stiff_melt_npt.toml")
 
 
 class Skip(Exception):
@@ -246,6 +252,10 @@ def case_setup(case):
                 raise SystemExit(f"unknown thermostat {parts[2]!r} in {case!r} (csvr; Langevin is the deck's)")
             extra["thermostat"] = CSVR
         return STIFF_MELT, h, extra
+    if parts[0] == "stiff_melt_npt" and len(parts) == 2 and parts[1] in STIFF_MELT_STEPS:
+        steps = dict(STIFF_MELT_STEPS[parts[1]])
+        h = steps.pop("integrator.h")
+        return STIFF_MELT_NPT, h, {"integrator.method": parts[1], **{k: str(v) for k, v in steps.items()}}
     if case == "straddle":
         return STRADDLE, 0.02, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
@@ -615,12 +625,11 @@ def kill_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     print(f"killed on {n} ranks after {kept} complete frames: they read as the serial run's, bit for bit")
 
 
-def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
+def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, deck=STRADDLE, h=0.02):
     """100 steps on `first` ranks, continued from its checkpoint on `second` ranks to step 200 into
     the same folder: the files of the uninterrupted serial run."""
-    h = 0.02
     ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{first}_then_{second}")
-    base = ["run", STRADDLE, "-q", "--no-progress"]
+    base = ["run", deck, "-q", "--no-progress"]
     run(launch(mpiexec, numproc_flag, first, stiffmd) + base[:2] + ["-o", out] + base[2:] +
         overrides(h, STEPS // 2, {}), first)
     r = run(launch(mpiexec, numproc_flag, second, stiffmd) + base[:2] + ["-o", out, "--restart",
@@ -630,7 +639,7 @@ def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
         raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {STEPS // 2}:\n{r.stderr}")
     check_domain_summary(stiffmd, out, second)
     run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, STEPS, {}), 1)
-    compare_runs(ref, out, f"straddle on {first} ranks, restarted on {second}")
+    compare_runs(ref, out, f"{os.path.basename(deck)} on {first} ranks, restarted on {second}")
 
 
 def main(argv):
@@ -647,6 +656,9 @@ def main(argv):
         elif case.startswith("restart:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
+        elif case.startswith("restart_npt:"):
+            first, second = (int(r) for r in case.split(":")[1:])
+            restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, STIFF_MELT_NPT, 0.01)
         else:
             plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp)
     except Skip as e:

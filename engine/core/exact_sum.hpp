@@ -33,4 +33,47 @@ struct ExactSum {
   }
 };
 
+// An exact sum of terms of either sign: the positive and the negative ones apart, each an
+// ExactSum; value() = Σ⁺ − Σ⁻, each rounded once. A term that is not finite (or too large for
+// the words, ≥ 2⁶²) is counted, not added, and makes value() NaN.
+struct SignedExactSum {
+  ExactSum positive, negative;
+  std::int64_t nonfinite = 0;
+  void add(double t) {
+    if (!(std::abs(t) < 4.6e18)) {
+      ++nonfinite;
+    } else if (t >= 0.0) {
+      positive.add(t);
+    } else {
+      negative.add(-t);
+    }
+  }
+  void add(const SignedExactSum& o) {
+    positive.add(o.positive), negative.add(o.negative);
+    nonfinite += o.nonfinite;
+  }
+  double value() const { return nonfinite > 0 ? std::nan("") : positive.value() - negative.value(); }
+  static constexpr int kWords = 7;  // for a sum over processes: the integer words, added as integers
+  void to_words(std::int64_t* w) const {
+    const ExactSum* s[2] = {&positive, &negative};
+    for (int k = 0; k < 2; ++k) w[3 * k] = s[k]->whole, w[3 * k + 1] = s[k]->high, w[3 * k + 2] = s[k]->low;
+    w[6] = nonfinite;
+  }
+  void from_words(const std::int64_t* w) {
+    ExactSum* s[2] = {&positive, &negative};
+    for (int k = 0; k < 2; ++k) *s[k] = {w[3 * k], w[3 * k + 1], w[3 * k + 2]};
+    nonfinite = w[6];
+  }
+};
+
+// The diagonal of a virial tensor, Σ r_a f_a for a = x, y, z, summed exactly: the barostat's
+// pressure is then the same bits for any order of its terms — any thread count, any number of
+// processes (integrators/barostat.hpp).
+struct ExactDiagonal {
+  SignedExactSum axis[3];
+  void add(const ExactDiagonal& o) {
+    for (int a = 0; a < 3; ++a) axis[a].add(o.axis[a]);
+  }
+};
+
 }  // namespace stiffmd

@@ -187,6 +187,12 @@ Eigen::Vector3d Decomposition::anchor(const Eigen::Matrix3Xd& x, std::span<const
   return c / total;
 }
 
+void Decomposition::set_box(const Box& box) {
+  box_ = box;
+  for (int a = 0; a < 3; ++a)
+    if (box.periodic[a]) grid_.origin[a] = box.origin[a], grid_.length[a] = box.lengths[a];
+}
+
 void Decomposition::own(std::vector<int> molecules) {
   for (int g : ids_) owned_of_[g] = -1;
   owned_ = std::move(molecules);

@@ -118,6 +118,10 @@ class Decomposition {
   int halo_messages() const { return halo_messages_; }
   long selections() const { return selections_; }
   long migrated_molecules() const { return migrated_; }
+  // The box after a barostat's cell move: the domains scale with it (periodic axes), and the next
+  // ghost selection uses it.
+  void set_box(const Box& box);
+  const Box& box() const { return box_; }
   int molecule_of(int global) const { return molecule_[global]; }
   int num_molecules() const { return static_cast<int>(molecule_start_.size()) - 1; }
   // The global indices of molecule m, increasing.

@@ -73,7 +73,8 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
     if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
   const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
   check_parallel_grid(whole, comm.size());
-  domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.box, comm, cutoff,
+  // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
+  domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.forces->box(), comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin) : 0.0, dims);
   adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);
   margin_range_[0] = std::max(skin, 1e-3 * cutoff), margin_range_[1] = 4.0 * (cutoff + skin);
@@ -127,7 +128,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   Scene& p = part->scene;
   p.deck_path = w.deck_path;
   p.units = w.units;
-  p.box = w.box;
+  p.box = w.forces->box();  // the box now (a barostat moves it)
   p.types = w.types;
   p.integrator = w.integrator;
   p.run = w.run;
@@ -169,6 +170,13 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   th.particle_id.assign(p.global_id.begin(), p.global_id.end());
   th.processes = &comm_;
   th.degrees_of_freedom = whole_dof_;
+  // A barostat's sums over this rank's molecules, added over the ranks (exactly: the same cell
+  // moves on any number of ranks).
+  BarostatSettings& baro = p.integrator.barostat;
+  if (baro.on) {
+    baro.molecule = bonded_molecules(t, n);
+    baro.processes = &comm_;
+  }
   read_force_terms(deck_, p);
   // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs);
   // a part built again keeps the old part's terms on the extended set, and their buffers.
@@ -191,7 +199,7 @@ void DomainIntegrator::retarget_pairs() {
   const std::vector<int>& ext = domains_->extended_ids();
   extended_types_.resize(ext.size());
   for (size_t e = 0; e < ext.size(); ++e) extended_types_[e] = whole_scene_.particle_type[ext[e]];
-  for (GhostedPairs* term : part_->pairs) term->retarget(extended_types_, whole_scene_.box);
+  for (GhostedPairs* term : part_->pairs) term->retarget(extended_types_, whole_scene_.forces->box());
 }
 
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
@@ -261,6 +269,13 @@ void DomainIntegrator::step(State& s, double h) {
     throw NumericalError(with_global_particles(e.what(), part_->scene.global_id));
   }
   ++steps_since_selection_;
+  // A barostat moved the cell (every rank alike, at the same step): the domains, the whole
+  // system's box (checkpoints, outputs) and the ghosts follow it before the next step.
+  if (const Box& box = part_->scene.forces->box(); box.lengths != domains_->box().lengths) {
+    domains_->set_box(box);
+    whole_scene_.forces->set_box(box);
+    reselect_ = true;
+  }
   // One reduction: the largest bound on a bead's displacement since the ghosts were selected by
   // the end of the next step, and the first particle (global index) with a non-finite position
   // or velocity.

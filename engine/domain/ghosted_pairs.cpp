@@ -65,6 +65,17 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
   return energy;
 }
 
+void GhostedPairs::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
+                                                  ExactDiagonal& w) const {
+  domains_.halo(x, x_);
+  const int owned = domains_.num_owned();
+  f_.resize(3, x_.cols());
+  for (const int e : domains_.ghost_slots()) f_.col(e).setZero();
+  for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
+  extended_->add_forces_and_virial_diagonal(x_, box, f_, w);
+  for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));
+}
+
 double GhostedPairs::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
   domains_.halo(x, x_);
   return extended_->virial(x_, box);

@@ -41,6 +41,9 @@ class GhostedPairs final : public ForceTerm {
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
+  // The owned particles' forces as add_forces, and this rank's share of the virial's diagonal.
+  void add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
+                                      ExactDiagonal& w) const override;
   // This rank's share: a pair of an owned particle and a ghost counts half (its owner has the
   // other half), so the ranks' shares add up to the whole system's energy and virial.
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;

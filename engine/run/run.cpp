@@ -56,8 +56,6 @@ std::unique_ptr<Integrator> run_integrator(Scene& sc, const RunOptions& opt) {
   std::unique_ptr<Integrator> method = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   if (!opt.processes || opt.processes->size() == 1) return method;
   if (!opt.deck) throw std::invalid_argument("a run on several processes needs its deck");
-  if (sc.integrator.barostat.on)
-    throw InputError("[barostat]: a barostat runs on one process (with threads) in this version; run without mpiexec");
   return std::make_unique<DomainIntegrator>(sc, *opt.deck, *opt.processes, std::move(method));
 }
 
