@@ -36,6 +36,15 @@ struct RunSettings {
   std::int64_t steps = 0;  // run.steps: the final macro step, counted from t = 0 (0: run to t_end)
 };
 
+// One stage of a staged protocol (engine/scene/stage_deck.hpp): its number 1..count and name;
+// number 0: a plain run. A stage's run may have no steps (steps = 0: t_end = 0, a stage that only
+// minimises); its steps and time count from 0.
+struct StageIdentity {
+  int number = 0, count = 0;
+  std::string name;
+  bool staged() const { return number > 0; }
+};
+
 struct OutputSettings {
   std::string xyz;            // extended XYZ trajectory file name ("" = none)
   double xyz_interval = 0.0;  // time between frames
@@ -97,7 +106,7 @@ struct ParticleSource {
 // LAMMPS lacks, is not representable and is left out of the file.
 struct LammpsCoeffs {
   struct Section {
-    std::string style;        // the LAMMPS style ("harmonic", "lj/cut"); "" while no term gave rows
+    std::string style;  // the LAMMPS style ("harmonic", "lj/cut"); "" while no term gave rows
     bool representable = true;
     // Per scene type index (pair terms: per type pair a <= b) the coefficients after the type(s).
     std::map<std::pair<int, int>, std::string> rows;
@@ -131,18 +140,19 @@ struct Scene {
   std::unique_ptr<ForceField> forces;
   IntegratorSettings integrator;
   RunSettings run;
+  StageIdentity stage;  // of a staged protocol's stage (number 0: a plain run)
   OutputSettings output;
   ObservableSettings observables;
-  MonitorSettings monitor;         // [monitor]
-  PrepareTable prepare;            // [prepare], applied by prepare_scene
-  MinimizeTable minimize;          // [minimize], applied by prepare_scene after [prepare]
+  MonitorSettings monitor;                  // [monitor]
+  PrepareTable prepare;                     // [prepare], applied by prepare_scene
+  MinimizeTable minimize;                   // [minimize], applied by prepare_scene after [prepare]
   std::optional<MinimizeReport> minimized;  // what [minimize] did (a fresh run's prepare_scene)
-  ParallelSettings parallel;       // [parallel]
-  bool box_from_source = false;    // a builder's density or an imported file set the box
-  std::vector<ParticleSource> sources;  // in particle order, covering every particle
-  LammpsCoeffs lammps_coeffs;           // filled by the force styles' readers
-  LammpsTypeNumbers lammps_types;       // filled by a LAMMPS [import]
-  std::vector<std::string> notes;  // what assembly did beyond the obvious (projection, thermalisation)
+  ParallelSettings parallel;                // [parallel]
+  bool box_from_source = false;             // a builder's density or an imported file set the box
+  std::vector<ParticleSource> sources;      // in particle order, covering every particle
+  LammpsCoeffs lammps_coeffs;               // filled by the force styles' readers
+  LammpsTypeNumbers lammps_types;           // filled by a LAMMPS [import]
+  std::vector<std::string> notes;           // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
   // whole system's index of each particle here.
   bool part = false;
@@ -158,8 +168,10 @@ struct Scene {
 std::string particle_and_source(const Scene& scene, int i);
 
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not
-// change the deck's initial state: [prepare] is applied by prepare_scene.
-Scene load_scene(const Deck& deck);
+// change the deck's initial state: [prepare] is applied by prepare_scene. A deck with [[stage]]
+// tables is refused: its scenes are its stages' (engine/scene/stage_deck.hpp), each loaded with
+// its `stage` identity.
+Scene load_scene(const Deck& deck, const StageIdentity& stage = {});
 
 // The deck's [forces] built on `part`, a decomposed run's local scene (its state, box, types
 // and topology set; engine/domain/local_scene.*): the terms as load_scene builds them, without
@@ -167,9 +179,9 @@ Scene load_scene(const Deck& deck);
 void read_force_terms(const Deck& deck, Scene& part);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
-// relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a fresh run; a restart takes its state
-// from the checkpoint instead. Throws InputError naming the [prepare] table when it fails.
-// `progress` (null: silent) gets what it is doing while it does it (prepare_state).
+// relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a
+// fresh run; a restart takes its state from the checkpoint instead. Throws InputError naming the [prepare] table when
+// it fails. `progress` (null: silent) gets what it is doing while it does it (prepare_state).
 void prepare_scene(Scene& scene, std::ostream& log, std::ostream* progress = nullptr);
 
 // The files a run of the scene writes into its output directory, with the deck key that names
@@ -184,7 +196,11 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& scene
 // writable.
 void check_output_paths(const Scene& scene, const std::string& dir);
 
-// Human-readable inventory of a scene (for `stiffmd check`).
+// Human-readable inventory of a scene (for `stiffmd check`): what it holds (particles, box,
+// topology, force terms) and how it is run (integrator, thermostat, run, outputs), the two parts
+// also apart (describe_settings: a staged protocol's stages share the first).
 std::string describe(const Scene& scene);
+std::string describe_scene(const Scene& scene);
+std::string describe_settings(const Scene& scene);
 
 }  // namespace stiffmd
