@@ -317,9 +317,9 @@ int main(int argc, char** argv) {
       const int sig = outcome.stopped_by_signal;
       if (!speaker) return sig ? 128 + sig : 0;
       if (sig) {
-        std::cerr << "stopped by signal " << sig << "; outputs flushed, checkpoint " << outcome.checkpoint
-                  << "; continue with: stiffmd run " << deck_path << " -o " << out_dir << " --restart "
-                  << outcome.checkpoint << " (and the same --set)\n";
+        std::cerr << "stopped by signal " << sig << " " << outcome.where << "; outputs flushed, checkpoint "
+                  << outcome.checkpoint << "; continue with: stiffmd run " << deck_path << " -o " << out_dir
+                  << " --restart " << outcome.checkpoint << " (and the same --set)\n";
         return 128 + sig;
       }
       std::cout << "protocol:      " << protocol->count() << " stages; " << outcome.protocol_json << "\n";

@@ -214,7 +214,7 @@ std::string check_protocol(Protocol& p, std::ostream& log) {
     d << "stage " << spec.identity.number << "/" << p.count() << " " << spec.identity.name << ":\n";
     std::istringstream lines(describe_settings(sc));
     for (std::string line; std::getline(lines, line);) d << "  " << line << "\n";
-    if (sc.minimize.requested) d << "  minimize:  FIRE at the stage's start\n";
+    if (sc.minimize.requested) d << "  minimize:    FIRE at the stage's start\n";
   }
   return d.str();
 }
@@ -242,6 +242,7 @@ ProtocolOutcome run_protocol(Protocol& p, const RunOptions& options, std::ostrea
         if (sig != 0) {
           out.stopped_by_signal = static_cast<int>(sig);
           out.checkpoint = last_checkpoint;
+          out.where = "after " + stage_label(p.stages[k - 1].identity);
           return out;
         }
       }
@@ -270,6 +271,7 @@ ProtocolOutcome run_protocol(Protocol& p, const RunOptions& options, std::ostrea
     if (s.stopped_by_signal) {
       out.stopped_by_signal = s.stopped_by_signal;
       out.checkpoint = s.checkpoint;
+      out.where = "in " + stage_label(spec.identity);
       return out;
     }
     last_checkpoint = s.checkpoint;

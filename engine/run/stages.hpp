@@ -77,6 +77,7 @@ struct ProtocolOutcome {
   std::vector<RunSummary> summaries;  // of the stages run here
   int stopped_by_signal = 0;          // SIGINT/SIGTERM: stopped after writing `checkpoint`
   std::string checkpoint;             // the checkpoint to continue from
+  std::string where;                  // "in stage 2 (equilibrate)", "after stage 1 (relax)"
   std::string protocol_json;          // OUT/protocol.json, written when the last stage finished
 };
 
