@@ -300,6 +300,31 @@ seed = 5
   fs::remove_all(dir);
 }
 
+// The deck's overlapping beads are stage 1's to relax ([stage.minimize]); a later stage, which
+// starts from the relaxed state, is not refused for them.
+TEST(StageCli, AStageThatMinimisesRelaxesTheDecksOverlap) {
+  const fs::path dir = scratch_dir("stage_overlap");
+  std::string text = slurp(test::source_path("inputs/minimize_overlap.toml"));
+  const auto minimize = text.find("\n[minimize]") + 1, integrator = text.find("\n[integrator]") + 1;
+  const std::string table = text.substr(minimize, integrator - minimize);
+  text.erase(minimize, integrator - minimize);
+  text.erase(text.find("\n[run]") + 1);
+  const std::string deck = write_deck(dir, "overlap.toml",
+                                      text + "[[stage]]\nname = \"relax\"\nsteps = 0\n[stage.minimize]" +
+                                          table.substr(table.find('\n')) + "[[stage]]\nname = \"run\"\nsteps = 20\n");
+  const CliResult r = cli("run " + deck + " -q --no-progress -o " + (dir / "out").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(has(r.err, "minimize: FIRE stopped by ftol")) << r.err;
+  EXPECT_TRUE(fs::exists(dir / "out" / "2_run" / "summary.json"));
+  // Without the minimisation, stage 1 is refused for the overlap.
+  std::string bare = slurp(deck);
+  bare.erase(bare.find("[stage.minimize]"), bare.find("[[stage]]\nname = \"run\"") - bare.find("[stage.minimize]"));
+  const CliResult refused = cli("check " + write_deck(dir, "bare.toml", bare));
+  EXPECT_EQ(refused.code, 2);
+  EXPECT_TRUE(has(refused.err, "stage 1 (relax): ")) << refused.err;
+  fs::remove_all(dir);
+}
+
 TEST(StageCli, ACheckpointOfAnotherStageOrOfNoneIsRefused) {
   const fs::path dir = scratch_dir("stage_refuse");
   const std::string staged = write_deck(dir, "staged.toml", std::string(kBase) + kStages);

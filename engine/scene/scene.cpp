@@ -792,7 +792,9 @@ Scene load_scene(const Deck& deck, const StageIdentity& stage) {
   read_minimize(root, sc);
   // Beads closer than the pair potentials bear: [minimize] relaxes them before the run (its soft
   // start, max_force, caps the forces there); without it the run would blow up at its first step.
-  if (!overlap.empty()) {
+  // A later stage of a staged protocol starts from the state the previous stage left, not from
+  // the deck's: the deck's overlap is stage 1's to relax.
+  if (!overlap.empty() && sc.stage.number <= 1) {
     if (!sc.minimize.requested) throw InputError(overlap);
     sc.notes.push_back("note: " + overlap.substr(0, overlap.rfind(": place the sources apart")) +
                        "; [minimize] relaxes them before the run");
