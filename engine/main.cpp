@@ -23,6 +23,7 @@
 #include "engine/run/ensemble.hpp"
 #include "engine/run/processes.hpp"
 #include "engine/run/run.hpp"
+#include "engine/run/stages.hpp"
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene.hpp"
@@ -44,12 +45,12 @@ struct TerminalFlags {
 };
 
 // `stiffmd run` of an [ensemble] deck, whose members' decks all loaded (load_members: a bad value
-// fails before any output, on every process alike); process r of N runs members r, r + N, … (N at most the member count: within
-// a member there is no domain decomposition yet). One process alone prints each member's thermo
-// lines as a plain run does, under a line naming the member; several print no thermo lines and no
-// progress (they would interleave) and prefix each note and warning with the member. Errors come
-// as "error: member k (…): …" on stderr when they happen; at the end rank 0 prints one line per
-// member on stdout, and the job exits with the code of the first member (by index) that failed.
+// fails before any output, on every process alike); process r of N runs members r, r + N, … (N at most the member
+// count: within a member there is no domain decomposition yet). One process alone prints each member's thermo lines as
+// a plain run does, under a line naming the member; several print no thermo lines and no progress (they would
+// interleave) and prefix each note and warning with the member. Errors come as "error: member k (…): …" on stderr when
+// they happen; at the end rank 0 prints one line per member on stdout, and the job exits with the code of the first
+// member (by index) that failed.
 int run_ensemble(stiffmd::Processes& processes, const stiffmd::EnsembleJob& job, TerminalFlags flags) {
   const int members = job.members(), ranks = processes.size();
   const int groups = std::min(ranks, members);
@@ -123,11 +124,10 @@ void check_ensemble_command(const stiffmd::EnsembleJob& job, const std::string& 
     throw stiffmd::InputError(ensemble.where + ": --write-data writes one scene, and [ensemble] makes " +
                               std::to_string(job.members()));
   if (!check && ranks > job.members())
-    throw stiffmd::InputError(ensemble.where + ": " + std::to_string(ranks) + " processes for " +
-                              std::to_string(job.members()) +
-                              " members: domain decomposition within a member is not built yet; use at most " +
-                              std::to_string(job.members()) + " processes (mpiexec -n " +
-                              std::to_string(job.members()) + ")");
+    throw stiffmd::InputError(
+        ensemble.where + ": " + std::to_string(ranks) + " processes for " + std::to_string(job.members()) +
+        " members: domain decomposition within a member is not built yet; use at most " +
+        std::to_string(job.members()) + " processes (mpiexec -n " + std::to_string(job.members()) + ")");
 }
 
 }  // namespace
@@ -222,6 +222,8 @@ int main(int argc, char** argv) {
   std::optional<stiffmd::EnsembleJob> job;
   std::optional<stiffmd::Scene> scene;
   std::optional<stiffmd::Checkpoint> checkpoint;
+  std::optional<stiffmd::Protocol> protocol;  // a deck with [[stage]] tables (engine/run/stages.hpp)
+  std::string description;                    // check's of a protocol
   std::ostringstream quiet_log, check_log;
   std::ostream& log = speaker ? std::cerr : quiet_log;
   const bool decomposed = processes.size() > 1;
@@ -232,8 +234,21 @@ int main(int argc, char** argv) {
       if (!processes.problem().empty()) throw stiffmd::InputError(processes.problem());
       deck.emplace(deck_path, overrides);
       stiffmd::DeckTable root = deck->root();
-      if (auto ensemble = stiffmd::read_ensemble(root)) {
-        if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
+      std::ostream* progress = quiet || !run->parsed() || !speaker ? nullptr : &std::cerr;
+      if (auto stages = stiffmd::read_stages(root); !stages.empty()) {
+        // Every stage loaded (a bad value in any stage fails now, before stage 1 runs), on every
+        // rank alike; then the first stage's state: prepared, or a restart's.
+        protocol.emplace(stiffmd::load_protocol(*deck, std::move(stages), processes.size()));
+        for (const auto& note : protocol->notes) log << note << "\n";
+        if (check->parsed())
+          description = stiffmd::check_protocol(*protocol, check_log);
+        else if (!restart.empty())
+          stiffmd::resume_protocol(*protocol, restart, log, progress);
+        else
+          stiffmd::start_protocol(*protocol, log, progress);
+      } else if (auto ensemble = stiffmd::read_ensemble(root)) {
+        if (out_dir.empty())
+          out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
         job.emplace(stiffmd::EnsembleJob{deck_path, overrides, *ensemble, out_dir, processes.size()});
         check_ensemble_command(*job, restart, check->parsed(), data_path, processes.size());
         if (check->parsed())
@@ -250,7 +265,7 @@ int main(int argc, char** argv) {
         if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
         for (const auto& note : scene->notes) log << note << "\n";
         if (restart.empty())  // a restart's state is the checkpoint's
-          stiffmd::prepare_scene(*scene, log, quiet || !run->parsed() || !speaker ? nullptr : &std::cerr);
+          stiffmd::prepare_scene(*scene, log, progress);
         if (check->parsed()) stiffmd::check_run(*scene, check_log);  // the method's notes belong to a run's log
       }
     } catch (const stiffmd::InputError& e) {
@@ -282,15 +297,34 @@ int main(int argc, char** argv) {
     }
     if (check->parsed()) {
       if (!speaker) return 0;
-      std::cout << stiffmd::describe(*scene) << "deck is valid\n";
+      std::cout << (protocol ? description : stiffmd::describe(*scene)) << "deck is valid\n";
       if (!data_path.empty()) {
-        stiffmd::write_scene_lammps_data(*scene, data_path, "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
+        stiffmd::write_scene_lammps_data(protocol ? *protocol->scene : *scene, data_path,
+                                         "stiffmd " STIFFMD_VERSION " initial state of " + deck_path);
         std::cout << "initial state written to " << data_path << "\n";
       }
       return 0;
     }
     if (out_dir.empty()) out_dir = (std::filesystem::path("out") / std::filesystem::path(deck_path).stem()).string();
     if (speaker) std::cout << "stiffmd " STIFFMD_VERSION ": " << deck_path << " -> " << out_dir << "\n" << std::flush;
+    if (protocol) {  // the stages one after the other, each into OUT/<k>_<name>
+      stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, "", nullptr,
+                                  speaker && !quiet ? stdout : nullptr};
+      if (decomposed) options.processes = &processes.communicator();
+      running = decomposed;
+      const stiffmd::ProtocolOutcome outcome =
+          stiffmd::run_protocol(*protocol, options, log, speaker ? stdout : nullptr);
+      const int sig = outcome.stopped_by_signal;
+      if (!speaker) return sig ? 128 + sig : 0;
+      if (sig) {
+        std::cerr << "stopped by signal " << sig << " " << outcome.where << "; outputs flushed, checkpoint "
+                  << outcome.checkpoint << "; continue with: stiffmd run " << deck_path << " -o " << out_dir
+                  << " --restart " << outcome.checkpoint << " (and the same --set)\n";
+        return 128 + sig;
+      }
+      std::cout << "protocol:      " << protocol->count() << " stages; " << outcome.protocol_json << "\n";
+      return 0;
+    }
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator(), options.deck = &*deck;

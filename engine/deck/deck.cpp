@@ -132,6 +132,8 @@ Deck::Deck(const Text& deck, const std::vector<std::string>& overrides) : path_(
 }
 
 void Deck::parse(const std::string& text, const std::vector<std::string>& overrides) {
+  text_ = text;
+  overrides_ = overrides;
   try {
     table_ = std::make_unique<toml::table>(toml::parse(text, path_));
   } catch (const toml::parse_error& e) {
@@ -141,6 +143,111 @@ void Deck::parse(const std::string& text, const std::vector<std::string>& overri
   for (const std::string& o : overrides) apply_override(o);
   refuse_nul(*this, *table_, "");
   resolve_variables();
+}
+
+Deck::Deck(const Deck& base, const Merge& merge) : path_(base.path_), text_(base.text_), overrides_(base.overrides_) {
+  // Parsed again rather than copied: toml++ copies a node without its source region, and every
+  // message names the file:line of its value.
+  table_ = std::make_unique<toml::table>(toml::parse(text_, path_));
+  for (const std::string& o : overrides_) apply_override(o);
+  merge_element(merge);
+  refuse_nul(*this, *table_, "");
+  resolve_variables();
+}
+
+namespace {
+
+// `src`'s entries moved into `dst` key by key: a table into a table of the same name, anything
+// else replacing dst's value. Moving (not copying) keeps each node's file:line. `replaced` gets
+// the key path of every value put into dst whole.
+void merge_into(toml::table& dst, toml::table& src, const std::string& path, std::vector<std::string>& replaced) {
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : src) keys.emplace_back(k.str());
+  for (const std::string& k : keys) {
+    toml::node& v = *src.get(k);
+    const std::string kp = path.empty() ? k : path + "." + k;
+    toml::node* old = dst.get(k);
+    if (v.is_table() && old && old->is_table()) {
+      merge_into(*old->as_table(), *v.as_table(), kp, replaced);
+      continue;
+    }
+    v.visit([&](auto& value) { dst.insert_or_assign(k, std::move(value)); });
+    replaced.push_back(kp);
+  }
+}
+
+bool under(const std::string& kp, const std::string& prefix) {
+  return kp == prefix || kp.rfind(prefix + ".", 0) == 0 || kp.rfind(prefix + "[", 0) == 0;
+}
+
+}  // namespace
+
+void Deck::merge_element(const Merge& m) {
+  toml::array* array = table_->get_as<toml::array>(m.array);
+  if (!array || m.element >= array->size() || !array->get(m.element)->is_table())
+    throw std::invalid_argument("Deck merge: no table " + m.array + "[" + std::to_string(m.element) + "]");
+  toml::table element = std::move(*array->get(m.element)->as_table());
+  table_->erase(m.array);
+  const std::string shown = m.array + "[" + std::to_string(m.element) + "]";
+  const std::string given = m.array + "." + std::to_string(m.element);
+  // The element's --set keys, as the merged deck has them; the other elements' are gone.
+  std::map<std::string, std::string> moved_overrides;
+  for (auto it = overridden_.begin(); it != overridden_.end();) {
+    if (!under(*it, m.array)) {
+      ++it;
+      continue;
+    }
+    if (it->rfind(given + ".", 0) == 0) {
+      std::string rest = it->substr(given.size() + 1);
+      const std::string first = rest.substr(0, rest.find('.'));
+      if (std::find(m.moved.begin(), m.moved.end(), first) != m.moved.end()) rest = m.moved_into + "." + rest;
+      moved_overrides[rest] = *it;
+    }
+    it = overridden_.erase(it);
+  }
+  std::vector<std::string> replaced;
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : element) keys.emplace_back(k.str());
+  bool moves = false;
+  for (const std::string& k : keys) {
+    toml::node& v = *element.get(k);
+    if (std::find(m.moved.begin(), m.moved.end(), k) != m.moved.end()) {
+      moves = true;
+      continue;
+    }
+    if (v.is_table()) {
+      toml::node* dst = table_->get(k);
+      if (dst && dst->is_table()) {
+        merge_into(*dst->as_table(), *v.as_table(), k, replaced);
+      } else {  // the element's table whole, with its file:line
+        v.visit([&](auto& value) { table_->insert_or_assign(k, std::move(value)); });
+        replaced.push_back(k);
+      }
+    }
+    element.erase(k);
+  }
+  // The moved values stay in the element's own table (so that the table keeps its file:line, the
+  // element's header), which replaces `moved_into`.
+  if (moves) {
+    table_->insert_or_assign(m.moved_into, std::move(element));
+    replaced.push_back(m.moved_into);
+    shown_paths_.emplace_back(m.moved_into, shown);
+  }
+  for (const std::string& kp : replaced) {
+    // A base value the element replaced is no longer the --set's that set it.
+    for (auto it = overridden_.begin(); it != overridden_.end();) it = under(*it, kp) ? overridden_.erase(it) : ++it;
+    if (kp != m.moved_into) shown_paths_.emplace_back(kp, shown + "." + kp);
+  }
+  for (const auto& [kp, o] : moved_overrides) {
+    overridden_.insert(kp);
+    override_shown_[kp] = o;
+  }
+}
+
+std::string Deck::shown_path(const std::string& key_path) const {
+  for (const auto& [merged, written] : shown_paths_)
+    if (under(key_path, merged)) return written + key_path.substr(merged.size());
+  return key_path;
 }
 
 Deck::~Deck() = default;
@@ -159,7 +266,11 @@ std::string Deck::override_of(const std::string& key_path) const {
 
 std::string Deck::location(const toml::node* n, const std::string& key_path,
                            const std::vector<std::string>& related) const {
-  if (const std::string o = override_of(key_path); !o.empty()) return "--set " + o;
+  const auto given = [&](const std::string& o) {
+    const auto it = override_shown_.find(o);
+    return it == override_shown_.end() ? o : it->second;
+  };
+  if (const std::string o = override_of(key_path); !o.empty()) return "--set " + given(o);
   std::string where = path_;
   if (n && n->source().begin.line > 0) where += ":" + std::to_string(n->source().begin.line);
   std::set<std::string> sources;
@@ -185,7 +296,8 @@ std::string Deck::location(const toml::node* n, const std::string& key_path,
   }
   if (sources.empty()) return where;
   where += " (with";
-  for (auto it = sources.begin(); it != sources.end(); ++it) where += (it == sources.begin() ? " --set " : ", --set ") + *it;
+  for (auto it = sources.begin(); it != sources.end(); ++it)
+    where += (it == sources.begin() ? " --set " : ", --set ") + given(*it);
   return where + ")";
 }
 
@@ -259,11 +371,24 @@ void Deck::apply_override(const std::string& assignment) {
       throw InputError("--set " + assignment + ": '" + sofar.substr(0, sofar.rfind('.')) + "' is a value, not a table");
     }
   }
-  // run.steps and run.t_end are two ways to give the run's end: a --set of one replaces the file's
-  // other (both given by --set stay, and read_run refuses them as it refuses both in the file).
-  for (const auto& [given, other] : {std::pair{"run.steps", "t_end"}, std::pair{"run.t_end", "steps"}})
-    if (key == given && !overridden_.count(std::string("run.") + other))
-      if (auto* run = table_->get_as<toml::table>("run")) run->erase(other);
+  // steps and t_end are two ways to give a run's end (run.steps, or a [[stage]]'s steps): a --set
+  // of one replaces the file's other (both given by --set stay, and the reader refuses them as it
+  // refuses both in the file).
+  if (parts.size() >= 2 && (parts.back() == "steps" || parts.back() == "t_end")) {
+    const std::string table = key.substr(0, key.rfind('.'));
+    const std::string other = parts.back() == "steps" ? "t_end" : "steps";
+    toml::table* t = nullptr;
+    if (table == "run") {
+      t = table_->get_as<toml::table>("run");
+    } else if (parts.size() == 3 && parts[0] == "stage") {
+      if (auto* stages = table_->get_as<toml::array>("stage")) {
+        char* end = nullptr;
+        const long idx = std::strtol(parts[1].c_str(), &end, 10);
+        if (*end == '\0' && idx >= 0 && idx < static_cast<long>(stages->size())) t = stages->get(idx)->as_table();
+      }
+    }
+    if (t && !overridden_.count(table + "." + other)) t->erase(other);
+  }
   overridden_.insert(key);
 }
 
@@ -399,21 +524,26 @@ void DeckTable::fail(std::string_view key, const std::string& what, const std::v
 }
 
 void DeckTable::fail_here(const std::string& what, const std::vector<std::string>& related) const {
-  throw InputError(deck_->location(table_, path_, related) + ": " + (path_.empty() ? "deck" : path_) + ": " + what);
+  throw InputError(deck_->location(table_, path_, related) + ": " + (path_.empty() ? "deck" : shown_key(path_)) + ": " +
+                   what);
 }
 
 std::string DeckTable::where() const {
-  return deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : path_);
+  return deck_->location(table_, path_) + ": " + (path_.empty() ? "deck" : shown_key(path_));
 }
 
 std::string DeckTable::where(std::string_view key, const std::vector<std::string>& related) const {
   const std::string kp = key_path(key);
-  return deck_->location(table_->get(key), kp, related) + ": " + kp;
+  return deck_->location(table_->get(key), kp, related) + ": " + shown_key(kp);
+}
+
+std::string DeckTable::shown_key(const std::string& kp) const {
+  return deck_->shown_path(kp);
 }
 
 double DeckTable::to_number(const toml::node& n, const std::string& kp) const {
   if (n.is_string()) deck_->mark_expression(&n);  // its variables are where its value came from
-  const std::string where = deck_->location(&n, kp) + ": " + kp;
+  const std::string where = deck_->location(&n, kp) + ": " + shown_key(kp);
   double x;
   if (n.is_integer() || n.is_floating_point()) {
     x = as_double(n);
@@ -654,7 +784,7 @@ std::vector<DeckTable> DeckTable::array_of_tables(std::string_view key) {
     const toml::node* e = a->get(k);
     const std::string kp = key_path(key) + "[" + std::to_string(k) + "]";
     if (!e->is_table())
-      throw InputError(deck_->location(e, kp) + ": " + kp + ": expected a table, got " + type_word(*e));
+      throw InputError(deck_->location(e, kp) + ": " + shown_key(kp) + ": expected a table, got " + type_word(*e));
     out.emplace_back(deck_, e->as_table(), kp);
   }
   return out;
@@ -723,7 +853,7 @@ void DeckTable::finish() const {
     }
     const std::string nearest = nearest_name(k.str(), candidates);
     throw InputError(
-        deck_->location(&v, kp) + ": " + kp + ": unknown key" +
+        deck_->location(&v, kp) + ": " + shown_key(kp) + ": unknown key" +
         (nearest.empty() ? "" : "; did you mean '" + nearest + "'?") +
         (expected.empty() ? std::string(" (this table takes no keys)") : " (expected one of: " + expected + ")"));
   }
@@ -733,8 +863,8 @@ void DeckTable::missing(std::string_view key, const std::string& what) const {
   for (const auto& [k, v] : *table_)
     if (!used_.count(k.str()) && looks_like(k.str(), key)) {
       const std::string kp = key_path(k.str());
-      throw InputError(deck_->location(&v, kp) + ": " + kp + ": unknown key; did you mean '" + std::string(key) +
-                       "'? (" + what + ")");
+      throw InputError(deck_->location(&v, kp) + ": " + shown_key(kp) + ": unknown key; did you mean '" +
+                       std::string(key) + "'? (" + what + ")");
     }
   fail_here(what);
 }

@@ -113,6 +113,8 @@ class DeckTable {
 
   const std::string& path() const { return path_; }
   std::string key_path(std::string_view key) const;
+  // A key path as messages name it (Deck::shown_path).
+  std::string shown_key(const std::string& key_path) const;
 
  private:
   const toml::node* get(std::string_view key);
@@ -136,6 +138,21 @@ class Deck {
     std::string name, toml;
   };
   Deck(const Text& deck, const std::vector<std::string>& overrides);
+  // One element of an array of tables merged over the rest of the deck (a [[stage]] of a staged
+  // protocol, engine/scene/stage_deck.hpp): the base deck's text and --set read again, then the
+  // element `element` of the root array `array` taken out of it and merged over the root key by
+  // key — each of its tables into the root's table of that name (a value replaces the base's, a
+  // table merges into the base's table), its plain values named in `moved` into the root table
+  // `moved_into` (which they replace whole; the element's other plain values are left out) — and
+  // `array` removed. Every value keeps its file:line; messages name a merged value by its path in
+  // the element ("stage[1].integrator.h", not "integrator.h"), and a --set of it as given.
+  struct Merge {
+    std::string array;
+    std::size_t element = 0;
+    std::vector<std::string> moved;
+    std::string moved_into;
+  };
+  Deck(const Deck& base, const Merge& merge);
   ~Deck();
   Deck(const Deck&) = delete;
   Deck& operator=(const Deck&) = delete;
@@ -154,6 +171,9 @@ class Deck {
                        const std::vector<std::string>& related = {}) const;
   // The --set key that gave the value at this key path, or at a table above it; empty if none.
   std::string override_of(const std::string& key_path) const;
+  // A key path as the deck file spells it: a value a Merge moved is named where it was written
+  // ("run.steps" -> "stage[1].steps"); every other path as it is.
+  std::string shown_path(const std::string& key_path) const;
   // Records that the node's string was evaluated as an expression (its variables are sources).
   void mark_expression(const toml::node* n) const { expressions_.insert(n); }
   // Evaluates a muparser expression over the deck's variables; throws InputError on failure.
@@ -169,9 +189,17 @@ class Deck {
   void add_variable_sources(const std::string& expr, std::set<std::string>& sources,
                             std::set<std::string>& visited) const;
 
+  void merge_element(const Merge& merge);
+
   std::string path_;
+  std::string text_;                    // the TOML text, read again for a Merge
+  std::vector<std::string> overrides_;  // the --set assignments, as given
   std::unique_ptr<toml::table> table_;
   std::set<std::string> overridden_;
+  // A Merge's renames: a --set key path as the merged deck has it -> as given; a merged value's
+  // key path -> where the deck file has it.
+  std::map<std::string, std::string> override_shown_;
+  std::vector<std::pair<std::string, std::string>> shown_paths_;
   std::map<std::string, double> variables_;
   mutable std::set<const toml::node*> expressions_;  // string values evaluated as expressions
 };

@@ -12,11 +12,13 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <system_error>
 
 #include "engine/core/errors.hpp"
 #include "engine/scene/scene.hpp"
+#include "engine/scene/stage_deck.hpp"
 #include "forcefields/parameter_record.hpp"
 
 namespace stiffmd {
@@ -208,6 +210,8 @@ void write_checkpoint(const std::string& path, const State& state, const Checkpo
     w.put<double>(state.t);
     w.put<double>(c.h);
     w.put(c.method);
+    w.put<std::int64_t>(c.stage);
+    w.put(c.stage_name);
     w.put(state.x.data(), static_cast<size_t>(state.x.size()));
     w.put(state.v.data(), static_cast<size_t>(state.v.size()));
     w.put(state.inv_mass.data(), static_cast<size_t>(state.inv_mass.size()));
@@ -285,12 +289,13 @@ Checkpoint read_checkpoint(const std::string& path) {
     fail(m.str());
   }
   const auto version = get_raw<std::uint32_t>(b, 12);
-  if (version != kCheckpointVersion)
+  if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
     fail("checkpoint of format version " + std::to_string(version) +
          (version > kCheckpointVersion ? " (a newer"
           : version >= 2               ? " (an older"
                                        : " (an unknown") +
-         " stiffmd); this stiffmd reads version " + std::to_string(kCheckpointVersion));
+         " stiffmd); this stiffmd reads versions " + std::to_string(kOldestCheckpointVersion) + " to " +
+         std::to_string(kCheckpointVersion));
   if (bom != kByteOrderMark || get_raw<std::uint32_t>(b, 20) != sizeof(double) || length != b.size())
     fail("malformed checkpoint header (byte order, double size or length)");
 
@@ -302,15 +307,25 @@ Checkpoint read_checkpoint(const std::string& path) {
   c.state.t = r.get<double>();
   c.h = r.get<double>();
   c.method = r.string();
+  if (version >= 6) {  // the stage; a version-5 file is of a run without stages
+    const auto stage = r.get<std::int64_t>();
+    if (stage < 0 || stage > std::numeric_limits<int>::max()) r.bad("stage number");
+    c.stage = static_cast<int>(stage);
+    c.stage_name = r.string();
+    if ((c.stage == 0) != c.stage_name.empty()) r.bad("stage number and name");
+  }
   const auto x = r.doubles(), v = r.doubles(), im = r.doubles();
   c.integrator_state = r.doubles();
   c.thermo_state = r.doubles();
   c.monitor_state = r.doubles();
   c.run_state = r.doubles();
-  const auto box = r.doubles();
-  if (box.size() != 6) r.bad("box");
-  c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
-  c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
+  if (version >= 6) {  // the box; a version-5 file's run kept the deck's
+    const auto box = r.doubles();
+    if (box.size() != 6) r.bad("box");
+    c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
+    c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
+    c.has_box = true;
+  }
   const auto terms = r.get<std::uint64_t>();
   if (terms > b.size()) r.bad("term count");
   for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
@@ -326,8 +341,23 @@ Checkpoint read_checkpoint(const std::string& path) {
   return c;
 }
 
-Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
+void check_checkpoint_stage(const Scene& sc, const Checkpoint& c, const std::string& path) {
+  const std::string again = ": continue it with the deck it was written with";
+  const StageIdentity written{c.stage, 0, c.stage_name};
+  if (c.stage > 0 && !sc.stage.staged())
+    throw InputError(path + ": checkpoint of " + stage_label(written) +
+                     " of a staged protocol, and the deck has no [[stage]] tables" + again);
+  if (c.stage == 0 && sc.stage.staged())
+    throw InputError(path + ": checkpoint of a run without stages, and the deck is a protocol of " +
+                     std::to_string(sc.stage.count) + " stages" + again);
+  if (c.stage != sc.stage.number || c.stage_name != sc.stage.name)
+    throw InputError(path + ": checkpoint of " + stage_label(written) + ", not of the deck's " + stage_label(sc.stage) +
+                     again);
+}
+
+Checkpoint read_checkpoint_of(const Scene& sc, const std::string& path) {
   Checkpoint c = read_checkpoint(path);
+  check_checkpoint_stage(sc, c, path);
   if (c.state.size() != sc.state.size())
     throw InputError(path + ": checkpoint holds " + std::to_string(c.state.size()) + " particles, the deck " +
                      std::to_string(sc.state.size()) + ": not a checkpoint of this scene");
@@ -341,6 +371,16 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
   if (c.force_term_states.size() != terms.size())
     throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +
                      " force terms, the deck has " + std::to_string(terms.size()));
+  return c;
+}
+
+bool checkpoint_at_end(const Scene& sc, const Checkpoint& c) {
+  return sc.run.steps > 0 ? c.state.step >= sc.run.steps : c.state.t >= sc.run.t_end * (1 - 1e-12);
+}
+
+Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
+  Checkpoint c = read_checkpoint_of(sc, path);
+  const auto& terms = sc.forces->terms();
   if (sc.run.steps > 0 && c.state.step >= sc.run.steps)
     throw InputError(path + ": checkpoint is at step " + std::to_string(c.state.step) + ", not before run.steps = " +
                      std::to_string(sc.run.steps) + " (raise it with --set run.steps=...)");
@@ -352,10 +392,12 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
     throw InputError(m.str());
   }
   // The box as it was (a barostat moves it; the scene's is the deck's, which the fingerprint holds).
-  Box box = sc.forces->box();
-  box.origin = c.box.origin;
-  box.lengths = c.box.lengths;
-  sc.forces->set_box(box);
+  if (c.has_box) {
+    Box box = sc.forces->box();
+    box.origin = c.box.origin;
+    box.lengths = c.box.lengths;
+    sc.forces->set_box(box);
+  }
   for (size_t k = 0; k < terms.size(); ++k) {
     try {
       terms[k]->load_state(c.force_term_states[k]);

@@ -4,7 +4,7 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 5), in the byte order and double format of the writing machine. Version 3:
+// Format (version 6), in the byte order and double format of the writing machine. Version 3:
 // RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
 // constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
 // the wrong meaning there, so it is refused. Version 4: the scene fingerprint is the exact
@@ -13,8 +13,10 @@
 // refused as of an older stiffmd. Version 5: the integrator's state holds the thermostat's heat
 // (Integrator::thermostat_heat; the Langevin force's part of the kick force), the thermo's the
 // conserved energy's reference, the run statistics its max error: a version-4 file lacks them.
-// Version 6: the box as of the checkpoint (origin, lengths: a barostat moves it), after the run
-// statistics.
+// Version 6: the stage of a staged protocol that wrote it (engine/run/stages.hpp: number and name;
+// 0 and "" for a run without stages) and the box as of the checkpoint (origin, lengths: a barostat
+// moves it), after the run statistics; a version-5 file has neither and reads as a run without
+// stages in the deck's box.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
@@ -22,7 +24,8 @@
 //         20–23  sizeof(double) = 8 (u32)
 //         24–31  length of the file in bytes (u64)
 //         32–39  scene fingerprint (u64, scene_fingerprint)
-//         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), then blocks
+//         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), stage number
+//                (i64) and name (u64 length + bytes; version 6), then blocks
 //                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
 //                monitor, run statistics, box (6), then a u64 count of force terms and one block each.
 // Written atomically — to a temporary file, fsync, rename — so a checkpoint on disk is whole.
@@ -40,11 +43,17 @@ namespace stiffmd {
 struct Scene;
 
 inline constexpr std::uint32_t kCheckpointVersion = 6;
+// The oldest version read (as a run without stages, in the deck's box).
+inline constexpr std::uint32_t kOldestCheckpointVersion = 5;
 
 struct Checkpoint {
   State state;         // x, v, inverse masses, t, step
   std::string method;  // integrator that wrote it
   double h = 0.0;
+  // The stage of a staged protocol it was written in (StageIdentity: number 1.., name); 0 and ""
+  // for a run without stages.
+  int stage = 0;
+  std::string stage_name;
   std::uint64_t scene_fingerprint = 0;
   std::vector<double> integrator_state;                // Integrator::save_state()
   std::vector<std::vector<double>> force_term_states;  // ForceTerm::save_state(), in the field's order
@@ -53,6 +62,7 @@ struct Checkpoint {
   std::vector<double>
       run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
   Box box;        // the box at the checkpoint (origin and lengths; ForceField::box)
+  bool has_box = false;  // version 6 on: a version-5 file leaves the deck's box
 };
 
 // What defines the scene, exactly (a ParameterRecord, forcefields/parameter_record.hpp): particle
@@ -73,9 +83,21 @@ inline void write_checkpoint(const std::string& path, const Checkpoint& c) {
 // damaged (checksum), truncated, of another byte order, or of another format version.
 Checkpoint read_checkpoint(const std::string& path);
 
-// read_checkpoint, then checked against the scene it is to continue: particle count, masses,
-// fingerprint, one state per force term, a step before run.t_end. Loads the force terms' states
-// into the scene (nothing else of the scene changes). Throws InputError naming the path.
+// read_checkpoint, then checked to be of this scene: of its stage (a staged protocol's stage
+// number and name, or none: check_checkpoint_stage), particle count, masses, fingerprint, one
+// state per force term. Nothing of the scene changes. Throws InputError naming the path.
+Checkpoint read_checkpoint_of(const Scene& scene, const std::string& path);
+// InputError with one line when the checkpoint is of a staged protocol's stage and the scene of
+// none, of none and the scene a stage's, or of another stage (number or name).
+void check_checkpoint_stage(const Scene& scene, const Checkpoint& c, const std::string& path);
+
+// Whether the checkpoint's step is the scene's run.steps, or its time run.t_end or later: its run
+// is complete (a staged protocol continues with the next stage from it).
+bool checkpoint_at_end(const Scene& scene, const Checkpoint& c);
+
+// read_checkpoint_of, then checked to be before the scene's end (run.steps, run.t_end) and
+// loaded: the force terms' states into the scene (nothing else of the scene changes). Throws
+// InputError naming the path.
 Checkpoint read_checkpoint_for(Scene& scene, const std::string& path);
 
 }  // namespace stiffmd

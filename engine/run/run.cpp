@@ -114,6 +114,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
       h_(sc.integrator.h) {
   summary_.method = sc.integrator.method;
   summary_.units = sc.units.name;
+  summary_.stage = sc.stage;
   summary_.h = sc.integrator.h * sc.units.out(Dimension::time);
   summary_.micro_steps = sc.integrator.micro_steps;
   summary_.t_end = sc.run.t_end * sc.units.out(Dimension::time);
@@ -467,6 +468,8 @@ long Run::rebuilds_now() const {
 Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
   c.method = sc_.integrator.method;
   c.h = h_;
+  c.stage = sc_.stage.number;
+  c.stage_name = sc_.stage.name;
   c.scene_fingerprint = fingerprint_;
   c.integrator_state = std::move(integrator_state);
   c.force_term_states.clear();

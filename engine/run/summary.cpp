@@ -90,7 +90,11 @@ std::string summary_json(const RunSummary& s) {
     for (size_t k = 0; k < v.size(); ++k) o << (k ? ", " : "") << v[k];
     o << "]";
   };
-  o << "{\n  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
+  o << "{\n";
+  if (s.stage.staged())  // the stage's number (1..) and name among the protocol's (engine/run/stages.hpp)
+    o << "  \"stage\": {\"number\": " << s.stage.number << ", \"of\": " << s.stage.count << ", \"name\": \""
+      << s.stage.name << "\"},\n";
+  o << "  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
     << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
     << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
     << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds

@@ -10,11 +10,13 @@
 
 #include "engine/core/timing.hpp"
 #include "engine/domain/decomposition.hpp"
+#include "engine/scene/scene.hpp"
 #include "integrators/minimize.hpp"
 
 namespace stiffmd {
 
 struct RunSummary {
+  StageIdentity stage;  // a staged protocol's stage (number 0: a run without stages)
   std::string method;
   std::string units = "lj";  // the deck's: h and t_end are in its time unit (real: fs)
   std::int64_t steps = 0;

@@ -421,7 +421,10 @@ void read_run(DeckTable& root, Scene& sc) {
     if (t->has("t_end"))
       t->fail("steps", "run.t_end is given too; expected either t_end (a time) or steps (a number of macro steps)");
     const long steps = t->integer("steps");
-    t->require(steps >= 1 && steps <= 1'000'000'000'000L, "steps", "expected a number of macro steps 1 .. 1e12");
+    // A stage may take no step (a stage that only minimises, at its start); a run takes one at least.
+    const long least = sc.stage.staged() ? 0 : 1;
+    t->require(steps >= least && steps <= 1'000'000'000'000L, "steps",
+               "expected a number of macro steps " + std::to_string(least) + " .. 1e12");
     sc.run.steps = steps;
     sc.run.t_end = static_cast<double>(steps) * sc.integrator.h;
     t->finish();
@@ -478,7 +481,9 @@ double default_screen_interval(double t_end, double thermo_interval) {
 
 void read_output(DeckTable& root, Scene& sc) {
   OutputSettings& o = sc.output;
-  const double default_interval = sc.run.t_end / 100;  // engine units; the keys are in the deck's
+  // Engine units; the keys are in the deck's. A stage of no steps writes its one state whatever
+  // the intervals: any interval > 0 will do.
+  const double default_interval = sc.run.t_end > 0.0 ? sc.run.t_end / 100 : sc.integrator.h;
   auto t = root.table("output");
   if (!t) {
     o.xyz = "trajectory.xyz";
@@ -533,7 +538,7 @@ void read_output(DeckTable& root, Scene& sc) {
   // interval none but the final one): most likely a time meant in other units or a typo.
   const double time_out = sc.units.out(Dimension::time);
   const auto warn_if_longer = [&](const char* key, double interval, bool on) {
-    if (on && t->has(key) && interval > sc.run.t_end)
+    if (on && t->has(key) && interval > sc.run.t_end && sc.run.t_end > 0.0)
       sc.notes.push_back("warning: " + t->where(key, {"run.t_end"}) + " = " + format_number(interval * time_out) +
                          " is longer than the run (run.t_end = " + format_number(sc.run.t_end * time_out) +
                          (std::string(key) == "checkpoint_interval"
@@ -757,10 +762,15 @@ void read_force_terms(const Deck& deck, Scene& part) {
   read_forces(root, part);
 }
 
-Scene load_scene(const Deck& deck) {
+Scene load_scene(const Deck& deck, const StageIdentity& stage) {
   Scene sc;
   sc.deck_path = deck.path();
+  sc.stage = stage;
   DeckTable root = deck.root();
+  if (root.has_retired("stage"))
+    root.fail("stage",
+              "a deck with [[stage]] tables is a protocol of runs, one per stage (docs/decks.md, "
+              "[[stage]]): `stiffmd run` and `stiffmd check` run and check it; this reader loads one run's deck");
   root.table("variables");  // resolved by Deck; mark as read
   read_units(root, sc);
   read_box(root, sc);
@@ -783,7 +793,9 @@ Scene load_scene(const Deck& deck) {
   read_minimize(root, sc);
   // Beads closer than the pair potentials bear: [minimize] relaxes them before the run (its soft
   // start, max_force, caps the forces there); without it the run would blow up at its first step.
-  if (!overlap.empty()) {
+  // A later stage of a staged protocol starts from the state the previous stage left, not from
+  // the deck's: the deck's overlap is stage 1's to relax.
+  if (!overlap.empty() && sc.stage.number <= 1) {
     if (!sc.minimize.requested) throw InputError(overlap);
     sc.notes.push_back("note: " + overlap.substr(0, overlap.rfind(": place the sources apart")) +
                        "; [minimize] relaxes them before the run");
@@ -806,11 +818,16 @@ Scene load_scene(const Deck& deck) {
 
 std::string describe(const Scene& sc) {
   std::ostringstream s;
+  s << describe_scene(sc) << describe_settings(sc);
+  return s.str();
+}
+
+std::string describe_scene(const Scene& sc) {
+  std::ostringstream s;
   const State& st = sc.state;
   int fixed = 0;
   for (int i = 0; i < st.size(); ++i) fixed += st.inv_mass[i] == 0.0;
   s << "deck:        " << sc.deck_path << "\n";
-  const double time_out = sc.units.out(Dimension::time);  // times and temperatures in the deck's units
   if (!sc.units.reduced())
     s << "units:       " << sc.units.name << " (A, fs, kcal/mol, g/mol, K; internal time unit " << Units::kRealTimeFs
       << " fs)\n";
@@ -854,6 +871,13 @@ std::string describe(const Scene& sc) {
   for (const auto& t : sc.forces->terms())
     s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level()) << "]: " << t->describe()
       << "\n";
+  return s.str();
+}
+
+std::string describe_settings(const Scene& sc) {
+  std::ostringstream s;
+  const State& st = sc.state;
+  const double time_out = sc.units.out(Dimension::time);  // times and temperatures in the deck's units
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h * time_out;
   if (sc.integrator.micro_steps > 1)
     s << ", " << sc.integrator.micro_steps

@@ -36,6 +36,15 @@ struct RunSettings {
   std::int64_t steps = 0;  // run.steps: the final macro step, counted from t = 0 (0: run to t_end)
 };
 
+// One stage of a staged protocol (engine/scene/stage_deck.hpp): its number 1..count and name;
+// number 0: a plain run. A stage's run may have no steps (steps = 0: t_end = 0, a stage that only
+// minimises); its steps and time count from 0.
+struct StageIdentity {
+  int number = 0, count = 0;
+  std::string name;
+  bool staged() const { return number > 0; }
+};
+
 struct OutputSettings {
   std::string xyz;            // extended XYZ trajectory file name ("" = none)
   double xyz_interval = 0.0;  // time between frames
@@ -131,6 +140,7 @@ struct Scene {
   std::unique_ptr<ForceField> forces;
   IntegratorSettings integrator;
   RunSettings run;
+  StageIdentity stage;  // of a staged protocol's stage (number 0: a plain run)
   OutputSettings output;
   ObservableSettings observables;
   MonitorSettings monitor;                  // [monitor]
@@ -158,8 +168,10 @@ struct Scene {
 std::string particle_and_source(const Scene& scene, int i);
 
 // Reads and validates the whole deck; throws InputError naming file, line and key. Does not
-// change the deck's initial state: [prepare] is applied by prepare_scene.
-Scene load_scene(const Deck& deck);
+// change the deck's initial state: [prepare] is applied by prepare_scene. A deck with [[stage]]
+// tables is refused: its scenes are its stages' (engine/scene/stage_deck.hpp), each loaded with
+// its `stage` identity.
+Scene load_scene(const Deck& deck, const StageIdentity& stage = {});
 
 // The deck's [forces] built on `part`, a decomposed run's local scene (its state, box, types
 // and topology set; engine/domain/local_scene.*): the terms as load_scene builds them, without
@@ -184,7 +196,11 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& scene
 // writable.
 void check_output_paths(const Scene& scene, const std::string& dir);
 
-// Human-readable inventory of a scene (for `stiffmd check`).
+// Human-readable inventory of a scene (for `stiffmd check`): what it holds (particles, box,
+// topology, force terms) and how it is run (integrator, thermostat, run, outputs), the two parts
+// also apart (describe_settings: a staged protocol's stages share the first).
 std::string describe(const Scene& scene);
+std::string describe_scene(const Scene& scene);
+std::string describe_settings(const Scene& scene);
 
 }  // namespace stiffmd

@@ -1,4 +1,5 @@
-// libFuzzer target: the bytes as a TOML deck, through Deck and load_scene (and what `stiffmd
+// libFuzzer target: the bytes as a TOML deck, through Deck and load_scene — a staged deck through
+// every stage's deck and scene (load_protocol), then on with the first stage's — and what `stiffmd
 // check` does next: describe the scene, write its initial state as LAMMPS data and read that
 // back). stiffmd::InputError is the expected outcome of a bad deck; any other exception, a crash,
 // a hang or a sanitizer report is a finding.
@@ -18,6 +19,7 @@
 #include "engine/deck/deck.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/run/run.hpp"
+#include "engine/run/stages.hpp"
 #include "engine/scene/scene.hpp"
 #include "fuzz_support.hpp"
 
@@ -37,7 +39,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   Scene scene;
   try {
     const Deck deck(deck_file.path, overrides);
-    scene = load_scene(deck);
+    DeckTable root = deck.root();
+    std::vector<StageSpec> stages = read_stages(root);
+    if (stages.empty()) {
+      scene = load_scene(deck);
+    } else {  // a staged protocol: every stage's deck and scene, as `stiffmd check` loads them
+      Protocol protocol = load_protocol(deck, std::move(stages), 1);
+      scene = std::move(*protocol.scene);
+    }
     std::ostringstream log;
     prepare_scene(scene, log);
   } catch (const InputError&) {
