@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates the performance tables (README "Performance summary", docs/performance.md §4): the stiffmd vs LAMMPS table (tools/bench_lammps.py)
+# Regenerates the performance tables (docs/performance.md §4; README "Performance summary" quotes them): the stiffmd vs LAMMPS table (tools/bench_lammps.py)
 # and the work–precision / step-size resonance figures on the melt (tools/work_precision_melt.py).
 #
 #   bash tools/performance.sh          # table (≈ 5 min) + figures at ε = 0.01 (≈ 10 min) on 2 cores
