@@ -219,7 +219,9 @@ std::string check_protocol(Protocol& p, std::ostream& log) {
     d << "stage " << spec.identity.number << "/" << p.count() << " " << spec.identity.name << ":\n";
     std::istringstream lines(describe_settings(sc));
     for (std::string line; std::getline(lines, line);) d << "  " << line << "\n";
-    if (sc.minimize.requested) d << "  minimize:    FIRE at the stage's start\n";
+    if (sc.minimize.requested)
+      d << "  minimize:    " << style_name(sc.minimize.style) << " at the stage's start, ftol " << sc.minimize.ftol
+        << ", etol " << sc.minimize.etol << ", maxiter " << sc.minimize.maxiter << "\n";
   }
   return d.str();
 }

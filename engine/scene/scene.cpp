@@ -12,10 +12,10 @@
 
 #include "engine/core/errors.hpp"
 #include "engine/core/format.hpp"
+#include "engine/scene/barostat_deck.hpp"
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
-#include "engine/scene/barostat_deck.hpp"
 #include "engine/scene/thermostat_deck.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/modes.hpp"
@@ -921,6 +921,14 @@ std::string describe_settings(const Scene& sc) {
     s << ", seed " << th.seed << "; temperature over "
       << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
       << " degrees of freedom\n";
+  }
+  if (const BarostatSettings& b = sc.integrator.barostat; b.on) {
+    const double p_out = sc.units.out(Dimension::pressure);
+    s << "barostat:    c-rescale, " << coupling_name(b.coupling) << ", P = " << b.pressure[0] * p_out;
+    if (b.coupling != BarostatSettings::Coupling::isotropic)
+      s << " / " << b.pressure[1] * p_out << " / " << b.pressure[2] * p_out;
+    s << ", tau = " << b.tau * time_out << ", compressibility " << b.compressibility / p_out << ", a cell move every "
+      << b.interval << " steps, seed " << b.seed << "\n";
   }
   s << "run:         t_end = " << sc.run.t_end * time_out << " (" << sc.num_steps() << " steps)\n";
   s << "outputs:     ";
