@@ -280,9 +280,10 @@ TEST(Cli, ListNamesEveryMethodAndStyle) {
     EXPECT_NE(r.out.find(s.summary), std::string::npos) << s.summary;
   }
   for (const char* heading : {"integrator.method:", "bond styles:", "angle styles:", "dihedral styles:", "pair styles:",
-                              "external fields:", "thermostat.style:", "build.style:"})
+                              "external fields:", "thermostat.style:", "barostat.style:", "minimize.style:",
+                              "build.style:"})
     EXPECT_NE(r.out.find(heading), std::string::npos) << heading;
-  for (const char* name : {"langevin", "csvr", "linear-chains", "rings", "stars"})
+  for (const char* name : {"langevin", "csvr", "c-rescale", "fire", "cg", "sd", "linear-chains", "rings", "stars"})
     EXPECT_NE(r.out.find(name), std::string::npos) << name;
   EXPECT_NE(cli("--help").out.find("stiffmd list"), std::string::npos);
 }

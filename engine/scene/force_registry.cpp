@@ -710,6 +710,12 @@ std::string list_styles() {
   o << "thermostat.style:\n";
   row("langevin", "Langevin friction and noise (BAOAB; splitting = \"obabo\" or \"lammps\")");
   row("csvr", "stochastic velocity rescaling (Bussi-Donadio-Parrinello)");
+  o << "barostat.style:\n";
+  row("c-rescale", "stochastic cell rescaling on molecules (Bernetti-Bussi; isotropic, semi-isotropic, anisotropic)");
+  o << "minimize.style:\n";
+  row("fire", "FIRE 2.0 (LAMMPS min_style fire)");
+  row("cg", "Polak-Ribiere conjugate gradient, quadratic line search (min_style cg)");
+  row("sd", "steepest descent with the same line search (min_style sd)");
   o << "build.style:\n";
   row("linear-chains", "random-walk linear chains (chains, beads, bond_length, min_distance)");
   row("rings", "closed rings (chains, beads >= 3)");
