@@ -96,9 +96,9 @@ struct PairSums {
 // Adds a pair's d_a² fpair, a = x, y, z, to the exact diagonal, `halves` times half of it.
 inline void add_pair_diagonal(ExactDiagonal& w, double fpair, double dx, double dy, double dz, int halves) {
   if (fpair == 0.0) return;  // most listed pairs: beyond the cutoff
-  const double t[3] = {0.5 * fpair * dx * dx, 0.5 * fpair * dy * dy, 0.5 * fpair * dz * dz};
-  for (int h = 0; h < halves; ++h)
-    for (int a = 0; a < 3; ++a) w.axis[a].add(t[a]);
+  w.axis[0].add(0.5 * fpair * dx * dx, halves);
+  w.axis[1].add(0.5 * fpair * dy * dy, halves);
+  w.axis[2].add(0.5 * fpair * dz * dz, halves);
 }
 
 // Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),

@@ -68,5 +68,36 @@ TEST(ExactSum, DoesNotDependOnTheOrderOrTheSplitOfTheTerms) {
   EXPECT_TRUE(naive_differs) << "these terms would not show an order-dependent sum";
 }
 
+// The barostat's sums (SignedExactSum, ExactDiagonal): terms of either sign, a term added twice in
+// one call as two calls, the same value in any order and split (processes: through the words), and
+// a term that is not finite making the value NaN.
+TEST(SignedExactSum, TakesBothSignsInAnyOrder) {
+  std::vector<double> t = terms(3000, 9);
+  for (size_t i = 0; i < t.size(); i += 2) t[i] = -t[i];
+  SignedExactSum once, twice;
+  double positive = 0.0, negative = 0.0;
+  for (double v : t) {
+    once.add(v);
+    once.add(v);
+    twice.add(v, 2);
+    (v >= 0 ? positive : negative) += v >= 0 ? v : -v;
+  }
+  EXPECT_EQ(once.value(), twice.value());
+  EXPECT_NEAR(once.value(), 2.0 * (positive - negative), 1e-12 * (positive + negative));
+  std::mt19937 rng(10);
+  std::shuffle(t.begin(), t.end(), rng);
+  SignedExactSum a, b;
+  for (size_t i = 0; i < t.size(); ++i) (i < t.size() / 3 ? a : b).add(t[i], 2);
+  std::int64_t words[SignedExactSum::kWords], more[SignedExactSum::kWords];
+  a.to_words(words);
+  b.to_words(more);
+  for (int k = 0; k < SignedExactSum::kWords; ++k) words[k] += more[k];  // a sum over processes
+  SignedExactSum together;
+  together.from_words(words);
+  EXPECT_EQ(together.value(), twice.value());
+  together.add(std::nan(""));
+  EXPECT_TRUE(std::isnan(together.value()));
+}
+
 }  // namespace
 }  // namespace stiffmd

@@ -14,13 +14,15 @@ struct ExactSum {
   // t = whole + high·2⁻³² + low·2⁻⁶⁴, each word an integer: up to 2³¹ terms, a total < 2⁶³.
   std::int64_t whole = 0, high = 0, low = 0;
 
-  // Adds t ≥ 0 (finite), truncated to a multiple of 2⁻⁶⁴ (a relative 1e-19 of a term of order 1).
-  void add(double t) {
-    const double w = std::floor(t);
-    const auto fraction = static_cast<std::uint64_t>(std::ldexp(t - w, 64));  // t − w exact; · 2⁶⁴ exact
-    whole += static_cast<std::int64_t>(w);
-    high += static_cast<std::int64_t>(fraction >> 32);
-    low += static_cast<std::int64_t>(fraction & 0xffffffffULL);
+  // Adds t ≥ 0 (finite, < 2⁶³), truncated to a multiple of 2⁻⁶⁴ (a relative 1e-19 of a term of
+  // order 1), `times` times. In integer arithmetic and one conversion each way: a cast truncates,
+  // which for t ≥ 0 is the floor, and t − ⌊t⌋ and its product with 2⁶⁴ are exact.
+  void add(double t, std::int64_t times = 1) {
+    const auto w = static_cast<std::int64_t>(t);
+    const auto fraction = static_cast<std::uint64_t>((t - static_cast<double>(w)) * 18446744073709551616.0);
+    whole += times * w;
+    high += times * static_cast<std::int64_t>(fraction >> 32);
+    low += times * static_cast<std::int64_t>(fraction & 0xffffffffULL);
   }
   void add(const ExactSum& o) { whole += o.whole, high += o.high, low += o.low; }
   double value() const {
@@ -39,13 +41,13 @@ struct ExactSum {
 struct SignedExactSum {
   ExactSum positive, negative;
   std::int64_t nonfinite = 0;
-  void add(double t) {
+  void add(double t, std::int64_t times = 1) {
     if (!(std::abs(t) < 4.6e18)) {
-      ++nonfinite;
+      nonfinite += times;
     } else if (t >= 0.0) {
-      positive.add(t);
+      positive.add(t, times);
     } else {
-      negative.add(-t);
+      negative.add(-t, times);
     }
   }
   void add(const SignedExactSum& o) {
