@@ -103,7 +103,7 @@ def cost_mode_times_every_setting():
     assert cost.returncode == 0, f"exit {cost.returncode}\n{cost.stdout[-3000:]}\n{cost.stderr[-3000:]}"
     with open(os.path.join(cost_out, "cost.json")) as f:
         c = json.load(f)
-    assert list(c["settings"]) == ["none", "interval 10", "interval 25", "interval 100"], list(c["settings"])
+    assert list(c["settings"]) == ["none", "interval 10", "interval 25", "interval 50", "interval 100"], list(c["settings"])
     for name, row in c["settings"].items():
         assert row["ms_per_step"] > 0 and math.isfinite(row["overhead_percent"]), (name, row)
     # A move every 10 steps over 50 steps: 4 fresh force evaluations (the last move ends the run).
