@@ -1,6 +1,12 @@
 // Google Benchmark timings of the engine's kernels, so that a regression shows as a number:
 //
 //   BM_PairForces/<scene>           the slow level (WCA) at a fixed x, neighbour list already built
+//   BM_PairVirialDiagonal/<scene>   the WCA term's forces with the exact virial diagonal at a fixed x
+//                                   (PairTerm::add_forces_and_virial_diagonal: the pair pass of a
+//                                   barostat's cell move), to set beside BM_PairForces
+//   BM_MolecularPressure/<scene>    the whole molecular pressure of a cell move
+//                                   (MolecularPressure::pressure: centres of mass, the pass above,
+//                                   Σ δ·f and 2K, every sum exact; docs/design.md §5b)
 //   BM_NeighborBuild/<scene>        one rebuild of the WCA term's neighbour list at a fixed x
 //   BM_BondForces/<scene>           the fast level (the stiff bonds)
 //   BM_ForceProjection/<scene>      P(x) f (ConstraintToolbox::project_force)
@@ -44,9 +50,12 @@
 #include <string>
 #include <vector>
 
+#include "engine/core/exact_sum.hpp"
+#include "engine/core/topology.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/pair_term.hpp"
+#include "integrators/barostat.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/multiple_time_stepping.hpp"
@@ -239,6 +248,48 @@ void BM_PairForces(benchmark::State& st, FixtureGetter get) {
     st.counters["pairs_per_second"] = benchmark::Counter(pairs, benchmark::Counter::kIsIterationInvariantRate);
   }
   st.counters["rebuilds"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds);  // 0: x is fixed
+}
+
+// What a barostat's cell move adds to the pair loop: the same WCA forces with the diagonal of the
+// pair virial summed exactly (ExactDiagonal), as MolecularPressure evaluates it.
+void BM_PairVirialDiagonal(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  const WcaPair* wca = find_wca(fx->forces());
+  if (!wca) {
+    st.SkipWithError("the scene has no WCA term");
+    return;
+  }
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  const Box& box = fx->forces().box();
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, x.cols());
+  ExactDiagonal w;
+  wca->add_forces_and_virial_diagonal(x, box, f, w);  // builds the neighbour list at x
+  for (auto _ : st) {
+    f.setZero();
+    ExactDiagonal sum;
+    wca->add_forces_and_virial_diagonal(x, box, f, sum);
+    benchmark::DoNotOptimize(sum);
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * fx->particles());
+  st.counters["listed_pairs"] = static_cast<double>(wca->neighbor_list().num_pairs());
+}
+
+// The molecular pressure of a cell move (MolecularPressure::pressure), molecules as the barostat
+// takes them (bonded_molecules).
+void BM_MolecularPressure(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  MolecularPressure pressure(bonded_molecules(fx->scene.topology, fx->particles()), fx->initial.inv_mass);
+  Eigen::Matrix3Xd scratch;
+  pressure.pressure(fx->initial, fx->forces(), scratch);  // builds the neighbour list at x
+  for (auto _ : st) {
+    benchmark::DoNotOptimize(pressure.pressure(fx->initial, fx->forces(), scratch));
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * fx->particles());
+  st.counters["molecules"] = pressure.molecules();
 }
 
 // A rebuild of the WCA term's neighbour list (the term's cutoff, skin and special-bond weights: its
@@ -649,6 +700,8 @@ bool register_benchmarks() {
       benchmark::RegisterBenchmark((name + suffix).c_str(), fn, sc.get, args...)->Unit(sc.unit)->UseRealTime();
     };
     add("BM_PairForces", BM_PairForces);
+    add("BM_PairVirialDiagonal", BM_PairVirialDiagonal);
+    add("BM_MolecularPressure", BM_MolecularPressure);
     add("BM_NeighborBuild", BM_NeighborBuild);
     add("BM_BondForces", BM_BondForces);
     add("BM_ForceProjection", BM_ForceProjection);
