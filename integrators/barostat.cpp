@@ -136,7 +136,8 @@ class CellRescaled final : public Integrator {
     if (b.interval < 1) throw std::invalid_argument("barostat: interval must be >= 1");
     if (!(b.tau > 0.0) || !(b.compressibility > 0.0) || !(b.temperature > 0.0))
       throw std::invalid_argument("barostat: tau, compressibility and temperature must be > 0");
-    for (const auto& term : forces.terms()) min_length_ = std::max(min_length_, 2.0 * (term->pair_cutoff() + term->pair_skin()));
+    for (const auto& term : forces.terms())
+      min_length_ = std::max(min_length_, 2.0 * (term->pair_cutoff() + term->pair_skin()));
   }
   void prepare(State& s, std::ostream& log) override { inner_->prepare(s, log); }
   void step(State& s, double h) override {

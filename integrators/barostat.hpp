@@ -46,7 +46,8 @@ struct BarostatSettings {
 // stiff springs and constraint forces act within molecules, and their share is zero identically.
 class MolecularPressure {
  public:
-  MolecularPressure(std::vector<int> molecule, const Eigen::VectorXd& inv_mass, const Communicator* processes = nullptr);
+  MolecularPressure(std::vector<int> molecule, const Eigen::VectorXd& inv_mass,
+                    const Communicator* processes = nullptr);
   // The centres of mass R_I and their velocities V_I at s (centres(), velocities()).
   void locate(const State& s);
   // 2K_a + W_aa, summed over every process (no division by V); locate() first. `scratch` takes the
@@ -79,8 +80,8 @@ Eigen::Vector3d cell_scaling(const BarostatSettings& b, const Eigen::Vector3d& p
 // every molecule with it: x_i += (μ − 1)∘(R_I − o), v_i −= (1 − 1/μ)∘V_I, L ← μ∘L (o the box's
 // origin, fixed). The box is set on `forces` (every later evaluation and the neighbour lists
 // follow it) and the inner method forgets its cached forces. The box is the checkpoint's own
-// (engine/run/checkpoint.hpp), not the method's: its words are the inner method's. Throws NumericalError when the box shrinks below
-// twice the longest pair cutoff plus skin.
+// (engine/run/checkpoint.hpp), not the method's: its words are the inner method's. Throws NumericalError when the box
+// shrinks below twice the longest pair cutoff plus skin.
 std::unique_ptr<Integrator> with_cell_rescaling(std::unique_ptr<Integrator> inner, const BarostatSettings& settings,
                                                 ForceField& forces, const Eigen::VectorXd& inv_mass);
 

@@ -146,7 +146,8 @@ TEST(MolecularVirial, KineticPartIsTheCentresOfMass) {
   State s = sc.state();
   for (int k = 0; k < sc.molecules; ++k) {
     s.v.col(2 * k) = Eigen::Vector3d(1.0, 0.0, 0.0) + Eigen::Vector3d(0.0, 3.0, 0.0);
-    s.v.col(2 * k + 1) = Eigen::Vector3d(1.0, 0.0, 0.0) - Eigen::Vector3d(0.0, 1.5, 0.0);  // mass 2: centre at rest in y
+    s.v.col(2 * k + 1) =
+        Eigen::Vector3d(1.0, 0.0, 0.0) - Eigen::Vector3d(0.0, 1.5, 0.0);  // mass 2: centre at rest in y
   }
   Eigen::Matrix3Xd scratch;
   mp.locate(s);
@@ -178,8 +179,8 @@ TEST(NeighborListUnderCellMove, StaysCompleteWithoutRebuildForSmallMoves) {
     EXPECT_EQ(term.neighbor_list_rebuilds(), built) << "mu = " << mu;
     TypePairMatrix<LennardJones::Coeffs> c(1);
     c.set(0, 0, {1.0, 1.0, 2.5});
-    const LennardJonesPair again("lj", Level::slow, std::vector<int>(s.size(), 0), c, sc.bonds, SpecialWeights{0.0, 1.0},
-                                 box, 0.3);
+    const LennardJonesPair again("lj", Level::slow, std::vector<int>(s.size(), 0), c, sc.bonds,
+                                 SpecialWeights{0.0, 1.0}, box, 0.3);
     const double e_fresh = again.add_forces(moved.x, box, fresh);
     EXPECT_NEAR(e, e_fresh, 1e-10 * std::abs(e_fresh));
     EXPECT_LT((f - fresh).cwiseAbs().maxCoeff(), 1e-10 * fresh.cwiseAbs().maxCoeff());

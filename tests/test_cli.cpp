@@ -228,12 +228,13 @@ TEST(Cli, OptionsOfAnOutputThatIsNotWrittenWarnAtTheKey) {
 TEST(Cli, VibrationsThatARigidMethodProjectsAwayWarnAtTheKey) {
   const std::string melt = test::source_path("tests/decks/small_melt.toml");
   for (const char* method : {"rattle", "fixman"}) {
-    const CliResult r =
-        cli("check " + melt + " --set integrator.method=" + method +
-            " --set 'thermostat={style=\"langevin\", temperature=1.0, damp=1.0, seed=1}'");
+    const CliResult r = cli("check " + melt + " --set integrator.method=" + method +
+                            " --set 'thermostat={style=\"langevin\", temperature=1.0, damp=1.0, seed=1}'");
     ASSERT_EQ(r.code, 0) << r.err;
-    EXPECT_NE(r.err.find("warning: " + melt + ":40 (with --set integrator.method): prepare.vibrational_temperature: "
-                         "method '" + method + "' holds the stiff bonds rigid"),
+    EXPECT_NE(r.err.find("warning: " + melt +
+                         ":40 (with --set integrator.method): prepare.vibrational_temperature: "
+                         "method '" +
+                         method + "' holds the stiff bonds rigid"),
               std::string::npos)
         << r.err;
   }
@@ -279,9 +280,9 @@ TEST(Cli, ListNamesEveryMethodAndStyle) {
     EXPECT_NE(r.out.find("  " + std::string(s.name) + " "), std::string::npos) << s.name;
     EXPECT_NE(r.out.find(s.summary), std::string::npos) << s.summary;
   }
-  for (const char* heading : {"integrator.method:", "bond styles:", "angle styles:", "dihedral styles:", "pair styles:",
-                              "external fields:", "thermostat.style:", "barostat.style:", "minimize.style:",
-                              "build.style:"})
+  for (const char* heading :
+       {"integrator.method:", "bond styles:", "angle styles:", "dihedral styles:", "pair styles:", "external fields:",
+        "thermostat.style:", "barostat.style:", "minimize.style:", "build.style:"})
     EXPECT_NE(r.out.find(heading), std::string::npos) << heading;
   for (const char* name : {"langevin", "csvr", "c-rescale", "fire", "cg", "sd", "linear-chains", "rings", "stars"})
     EXPECT_NE(r.out.find(name), std::string::npos) << name;

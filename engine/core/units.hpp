@@ -18,7 +18,20 @@
 namespace stiffmd {
 
 // What a written number measures, for its conversion and its H5MD `unit` attribute.
-enum class Dimension { none, length, time, velocity, force, energy, temperature, pressure, frequency, action, volume, density };
+enum class Dimension {
+  none,
+  length,
+  time,
+  velocity,
+  force,
+  energy,
+  temperature,
+  pressure,
+  frequency,
+  action,
+  volume,
+  density
+};
 
 struct Units {
   std::string name = "lj";

@@ -73,8 +73,8 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
   }
   if (settings.barostat && periodic_ && topology) {
     for (Eigen::Index i = 0; i < inv_mass.size(); ++i) mass_ += inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
-    molecular_ = std::make_unique<MolecularPressure>(bonded_molecules(*topology, static_cast<int>(inv_mass.size())),
-                                                     inv_mass);
+    molecular_ =
+        std::make_unique<MolecularPressure>(bonded_molecules(*topology, static_cast<int>(inv_mass.size())), inv_mass);
     columns_.insert(columns_.end(), {"volume", "lx", "ly", "lz", "density", "molecular_pressure"});
   }
   if (topology) {

@@ -60,8 +60,8 @@ struct Checkpoint {
   std::vector<double> thermo_state;                    // Thermo::save_state(): E(0), warnings given
   std::vector<double> monitor_state;                   // Monitor::save_state()
   std::vector<double>
-      run_state;  // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
-  Box box;        // the box at the checkpoint (origin and lengths; ForceField::box)
+      run_state;         // for the summary: max |E − E(0)|, slow and fast evaluations, rebuilds, initial actions
+  Box box;               // the box at the checkpoint (origin and lengths; ForceField::box)
   bool has_box = false;  // version 6 on: a version-5 file leaves the deck's box
 };
 

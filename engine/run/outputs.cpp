@@ -144,8 +144,7 @@ void check_rank_directory(const std::string& dir, int rank) {
   fs::remove(probe, ec);
 }
 
-void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title,
-                             bool force_field) {
+void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title, bool force_field) {
   const Topology& t = scene.topology;
   write_lammps_data(path, to_lammps(scene, force_field),
                     !t.dihedrals.empty() ? "molecular"
@@ -203,8 +202,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
       const fs::path p = dir / kTopologyFile;
       if (!restarting)
-        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)",
-                                false);
+        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)", false);
       files.push_back(p.string());
     }
     if (writing && !sc.output.xyz.empty()) {

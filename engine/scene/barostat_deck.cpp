@@ -57,7 +57,8 @@ void read_barostat(DeckTable& root, Scene& sc) {
   b.on = true;
   const std::string style = t->string("style");
   if (style != "c-rescale")
-    t->fail("style", "expected \"c-rescale\" (stochastic cell rescaling, Bernetti & Bussi 2020), got \"" + style + "\"");
+    t->fail("style",
+            "expected \"c-rescale\" (stochastic cell rescaling, Bernetti & Bussi 2020), got \"" + style + "\"");
   const std::string coupling = t->string("coupling", "isotropic");
   if (coupling == "isotropic")
     b.coupling = BarostatSettings::Coupling::isotropic;
@@ -79,22 +80,23 @@ void read_barostat(DeckTable& root, Scene& sc) {
                           : b.coupling == BarostatSettings::Coupling::semi_isotropic ? 2
                                                                                      : 1;
     t->require(p.size() == groups || p.size() == 1, "pressure",
-               groups == 1 ? "expected one pressure for coupling \"isotropic\", got " + std::to_string(p.size())
-                           : "expected one pressure or " + std::to_string(groups) + " (one per coupled group) for coupling \"" +
-                                 coupling + "\", got " + std::to_string(p.size()));
+               groups == 1
+                   ? "expected one pressure for coupling \"isotropic\", got " + std::to_string(p.size())
+                   : "expected one pressure or " + std::to_string(groups) + " (one per coupled group) for coupling \"" +
+                         coupling + "\", got " + std::to_string(p.size()));
     if (p.size() == 1) p.assign(3, p[0]);
     if (p.size() == 2) p = {p[0], p[0], p[1]};
   }
-  for (double v : p)
-    t->require(std::isfinite(v), "pressure", "expected a finite pressure (" + units + ")");
+  for (double v : p) t->require(std::isfinite(v), "pressure", "expected a finite pressure (" + units + ")");
   for (int a = 0; a < 3; ++a) b.pressure[a] = p[a] / sc.units.pressure;
   const double tau = t->number("tau");
   t->require(tau > 0.0 && std::isfinite(tau), "tau", "expected a relaxation time tau > 0");
   b.tau = sc.units.time_in(tau);
   const double beta = t->number("compressibility");
   t->require(beta > 0.0 && std::isfinite(beta), "compressibility",
-             "expected an isothermal compressibility > 0 (1/" + units + "; an estimate: with tau it sets how fast "
-             "the volume relaxes, not its fluctuations)");
+             "expected an isothermal compressibility > 0 (1/" + units +
+                 "; an estimate: with tau it sets how fast "
+                 "the volume relaxes, not its fluctuations)");
   b.compressibility = beta * sc.units.pressure;
   const long interval = t->integer("interval", 10);
   t->require(interval >= 1 && interval <= 1000000, "interval", "expected a whole number of macro steps >= 1");
