@@ -463,7 +463,7 @@ def main():
     ap.add_argument("--compressibility", type=float, default=0.05, help="stiffmd barostat compressibility estimate")
     ap.add_argument("--interval", type=int, default=10, help="stiffmd barostat interval (steps per cell move)")
     ap.add_argument("--set", action="append", default=[], help="a --set for the stiffmd run of the comparison, "
-                    'e.g. thermostat.splitting=\'"lammps"\' (repeatable)')
+                    'e.g. barostat.interval=40 (repeatable)')
     ap.add_argument("--engines", type=lambda v: [e.strip().lower() for e in v.split(",") if e.strip()],
                     default=["stiffmd", "lammps"], help="the engines to run: stiffmd,lammps (one alone: its numbers, "
                     "no comparison)")
