@@ -16,7 +16,7 @@
 #include <tuple>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/io/h5md_writer.hpp"
 #include "engine/run/checkpoint.hpp"

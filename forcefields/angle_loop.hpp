@@ -29,10 +29,10 @@
 #include <sstream>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
-#include "engine/core/state.hpp"
+#include "core/box.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
+#include "core/state.hpp"
 #include "forcefields/tuple_partition.hpp"
 
 namespace stiffmd {

@@ -12,7 +12,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/topology.hpp"
+#include "core/topology.hpp"
 #include "forcefields/angle_loop.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/force_term.hpp"
@@ -55,7 +55,7 @@ class AngleTerm final : public ForceTerm {
   using Kernel = K;
 
   // Validating constructor: every k ≥ 0 and finite, θ₀ in [0, π], i, j, k ≥ 0 and distinct,
-  // 0 ≤ type < types.size(). Angle (engine/core/topology.hpp) is i–j–k, j the vertex; its type
+  // 0 ≤ type < types.size(). Angle (core/topology.hpp) is i–j–k, j the vertex; its type
   // indexes `types` (the reader maps the deck's angle types onto this list).
   AngleTerm(std::string name, Level level, std::vector<Angle> angles, std::vector<AngleCoeffs> types);
 

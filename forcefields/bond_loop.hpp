@@ -16,9 +16,9 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/parallel.hpp"
-#include "engine/core/state.hpp"
+#include "core/box.hpp"
+#include "core/parallel.hpp"
+#include "core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/tuple_partition.hpp"
 
@@ -219,7 +219,7 @@ inline void bond_block(const std::vector<BondInstance<Params>>& bonds, const Bon
 }
 
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
-// positions (bond_vector, engine/core/state.hpp): molecules are whole, so it is the minimum image
+// positions (bond_vector, core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
 // (rebuilt when the thread count changes). Each owner works in blocks (bond_block).
 template <class Kernel, class Params>

@@ -20,7 +20,7 @@
 #include <sstream>
 #include <string_view>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/parameter_record.hpp"
 

@@ -13,8 +13,8 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/topology.hpp"
+#include "core/errors.hpp"
+#include "core/topology.hpp"
 #include "forcefields/bond_loop.hpp"
 #include "forcefields/bond_potentials.hpp"
 #include "forcefields/force_term.hpp"
@@ -102,7 +102,7 @@ class BondTerm final : public ForceTerm {
   // test, bond by bond; only reached on failure) and throw NumericalError naming it.
   [[noreturn]] void throw_outside_domain(const Eigen::Matrix3Xd& x, const Box& box) const {
     for (const auto& b : instances_) {
-      (void)box;  // the bond vector needs no box: molecules are whole (engine/core/state.hpp)
+      (void)box;  // the bond vector needs no box: molecules are whole (core/state.hpp)
       const double r = bond_vector(x, b.i, b.j).norm();
       double e = 0.0, de_dr = 0.0;
       try {

@@ -16,7 +16,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 
 namespace stiffmd {
 

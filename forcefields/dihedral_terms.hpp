@@ -19,8 +19,8 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/format.hpp"
-#include "engine/core/topology.hpp"
+#include "core/format.hpp"
+#include "core/topology.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/dihedral_loop.hpp"
 #include "forcefields/force_term.hpp"

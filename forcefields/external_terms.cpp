@@ -5,7 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 namespace {

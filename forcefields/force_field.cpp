@@ -2,8 +2,8 @@
 
 #include <algorithm>
 
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 namespace {
@@ -21,7 +21,7 @@ void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
   parallel_blocks(n, parts, [&](std::int64_t b, std::int64_t e) { out.middleCols(b, e - b).setZero(); });
 }
 
-// A term's forces, timed as pair or bonded forces (engine/core/timing.hpp).
+// A term's forces, timed as pair or bonded forces (core/timing.hpp).
 double timed_add_forces(const ForceTerm& term, const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) {
   const ScopedPhase phase(term.uses_neighbor_list() ? Phase::pair : Phase::bonded);
   return term.add_forces(x, box, f);

@@ -13,7 +13,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/box.hpp"
+#include "core/box.hpp"
 #include "forcefields/force_term.hpp"
 
 namespace stiffmd {

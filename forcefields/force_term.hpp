@@ -10,9 +10,9 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/exact_sum.hpp"
-#include "engine/core/topology.hpp"
+#include "core/box.hpp"
+#include "core/exact_sum.hpp"
+#include "core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/stiff_bond.hpp"
 

@@ -1,6 +1,6 @@
 #include "forcefields/neighbor_list.hpp"
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 
 #include <algorithm>
 #include <array>

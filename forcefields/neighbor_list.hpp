@@ -31,15 +31,15 @@
 #include <span>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/topology.hpp"
+#include "core/box.hpp"
+#include "core/topology.hpp"
 #include "forcefields/counting_sort.hpp"
 
 namespace stiffmd {
 
 // Minimum image for unwrapped coordinates, without a branch on periodicity: on a periodic axis
 // d − L·round(d/L); an open axis has L = 1/L = 0, which leaves d unchanged. The rounding is
-// round_nearest (engine/core/box.hpp), shared with Box::min_image. Ties (|d| = L/2) round to even:
+// round_nearest (core/box.hpp), shared with Box::min_image. Ties (|d| = L/2) round to even:
 // both images are at the same distance, ≥ the cutoff.
 struct MinimumImage {
   double length[3] = {0.0, 0.0, 0.0};

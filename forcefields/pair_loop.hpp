@@ -21,9 +21,9 @@
 #include <type_traits>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/exact_sum.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/box.hpp"
+#include "core/exact_sum.hpp"
+#include "core/parallel.hpp"
 #include "forcefields/neighbor_list.hpp"
 
 namespace stiffmd {

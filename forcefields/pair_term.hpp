@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/timing.hpp"
-#include "engine/core/topology.hpp"
+#include "core/timing.hpp"
+#include "core/topology.hpp"
 #include "forcefields/force_term.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/pair_loop.hpp"

@@ -8,7 +8,7 @@
 #include <sstream>
 #include <utility>
 
-#include "engine/core/format.hpp"
+#include "core/format.hpp"
 
 namespace stiffmd {
 namespace {

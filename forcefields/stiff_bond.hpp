@@ -5,7 +5,7 @@
 //
 // The rules a set of stiff bonds obeys are checked once, here (find_stiff_bond_problem), for the
 // stiff-harmonic force term, the constraint toolbox and the stiff modes alike; g_b and max |g|
-// are defined once, here, on the one bond vector (engine/core/state.hpp).
+// are defined once, here, on the one bond vector (core/state.hpp).
 #pragma once
 
 #include <Eigen/Core>
@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 
 namespace stiffmd {
 

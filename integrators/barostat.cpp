@@ -4,9 +4,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/core/communicator.hpp"
-#include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
+#include "core/communicator.hpp"
+#include "core/errors.hpp"
+#include "core/timing.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/thermostat.hpp"
 

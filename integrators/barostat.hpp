@@ -12,7 +12,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 #include "forcefields/force_field.hpp"
 
 namespace stiffmd {
@@ -32,7 +32,7 @@ struct BarostatSettings {
   int interval = 10;                                   // macro steps per cell move (GROMACS's nstpcouple)
   double temperature = 0.0;                            // kT, the thermostat's
   std::uint64_t seed = 1;
-  // The molecule of each particle (bonded_molecules, engine/core/topology.hpp): what moves rigidly.
+  // The molecule of each particle (bonded_molecules, core/topology.hpp): what moves rigidly.
   std::vector<int> molecule;
   // A decomposed run's part (docs/parallel.md): the sums over molecules are added over
   // `processes` (null: this process holds the whole system).

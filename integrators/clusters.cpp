@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <utility>
 
-#include "engine/core/disjoint_sets.hpp"
+#include "core/disjoint_sets.hpp"
 
 namespace stiffmd {
 

@@ -1,7 +1,7 @@
 // Constraint clusters: the connected sets of stiff bonds over which S = G M⁻¹ Gᵀ is block-diagonal,
 // and their shapes. S_bc = ±(u_b·u_c) m⁻¹_p for two bonds b, c sharing particle p, and 0 when p is
 // pinned (m⁻¹ = 0): a pinned particle couples nothing, so two bonds meeting only there belong to
-// two clusters, though to one molecule (engine/core/disjoint_sets.hpp tells the two notions apart).
+// two clusters, though to one molecule (core/disjoint_sets.hpp tells the two notions apart).
 //
 // The clusters' order is the one every consumer numbers by — the toolbox's solves, the stiff
 // modes (one mode per bond, cluster after cluster), Fixman's potential, the effective dynamics'

@@ -13,9 +13,9 @@
 #include <limits>
 #include <string>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)

@@ -3,8 +3,8 @@
 // projection v ← v − M⁻¹Gᵀμ, S μ = G v; open chains walk their path, in lockstep groups.
 #include "integrators/constraint_toolbox_impl.hpp"
 
-#include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
+#include "core/errors.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)

@@ -21,7 +21,7 @@
 #include <type_traits>
 #include <vector>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 #include "integrators/constraint_solvers.hpp"
 #include "integrators/constraints.hpp"
 

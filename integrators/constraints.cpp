@@ -27,7 +27,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "integrators/constraint_toolbox_impl.hpp"
 
 namespace stiffmd {

@@ -20,8 +20,8 @@
 #include <string>
 #include <utility>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

@@ -9,7 +9,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/barostat.hpp"
 #include "integrators/thermostat.hpp"

@@ -6,7 +6,7 @@
 // plain impulse method.
 #pragma once
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 

@@ -5,7 +5,7 @@
 #include <optional>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 #include "integrators/fixman.hpp"
 #include "integrators/modes.hpp"
 

@@ -10,8 +10,8 @@
 #include <utility>
 #include "integrators/modes.hpp"
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "integrators/constraints.hpp"
 
 // LAPACK: the eigenvalues of a symmetric tridiagonal matrix, ascending, by the Pal–Walker–Kahan

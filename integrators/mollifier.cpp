@@ -2,8 +2,8 @@
 // F̄(x) = α′(x)ᵀ f(α(x)), α the M-orthogonal projection onto g = 0 (paper eq. (ProMol)).
 #include "integrators/constraint_toolbox_impl.hpp"
 
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <stdexcept>
 
-#include "engine/core/timing.hpp"
+#include "core/timing.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {

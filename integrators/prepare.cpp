@@ -4,7 +4,7 @@
 #include <sstream>
 #include <vector>
 
-#include "engine/core/portable_random.hpp"
+#include "core/portable_random.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

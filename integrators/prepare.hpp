@@ -7,7 +7,7 @@
 #include <ostream>
 #include <string>
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/stiff_bond.hpp"
 

@@ -7,8 +7,8 @@
 
 #include <Eigen/Core>
 
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 

@@ -4,7 +4,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "engine/core/timing.hpp"
+#include "core/timing.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {

@@ -11,8 +11,8 @@
 #include <string>
 #include <utility>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
+#include "core/errors.hpp"
+#include "core/timing.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)

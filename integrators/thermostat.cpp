@@ -4,10 +4,10 @@
 #include <stdexcept>
 #include <string>
 
-#include "engine/core/communicator.hpp"
-#include "engine/core/exact_sum.hpp"
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/communicator.hpp"
+#include "core/exact_sum.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/integrator.hpp"

@@ -18,7 +18,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/state.hpp"
+#include "core/state.hpp"
 #include "integrators/ziggurat.hpp"
 
 namespace stiffmd {

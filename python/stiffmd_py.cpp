@@ -26,7 +26,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/run/checkpoint.hpp"
@@ -91,7 +91,7 @@ void from_numpy(const py::handle& obj, Eigen::Matrix3Xd& m, double scale, const 
     for (int k = 0; k < 3; ++k) m(k, i) = scale * r(i, k);
 }
 
-// The deck's units at the module's boundary (engine/core/units.hpp), the one place where the
+// The deck's units at the module's boundary (core/units.hpp), the one place where the
 // module converts. Out of the engine a value of dimension d is multiplied by Units::out(d), as the
 // CLI's outputs are (real: time in fs, velocity in Å/fs, as its data files write them); into it by
 // the factor the deck's own values get (times as Units::time_in, velocities as imported ones,

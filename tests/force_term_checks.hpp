@@ -8,7 +8,7 @@
 #include <cmath>
 #include <random>
 
-#include "engine/core/box.hpp"
+#include "core/box.hpp"
 #include "forcefields/force_term.hpp"
 
 namespace stiffmd::test {

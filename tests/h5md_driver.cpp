@@ -29,7 +29,7 @@
 #include <thread>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/h5md_writer.hpp"
 
 namespace {

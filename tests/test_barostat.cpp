@@ -8,7 +8,7 @@
 #include <random>
 #include <stdexcept>
 
-#include "engine/core/topology.hpp"
+#include "core/topology.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/pair_term.hpp"

@@ -11,7 +11,7 @@
 #include <random>
 #include <string>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"

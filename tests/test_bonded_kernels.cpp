@@ -8,7 +8,7 @@
 
 #include <numbers>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "force_term_checks.hpp"
 #include "forcefields/angle_terms.hpp"
@@ -109,7 +109,7 @@ TYPED_TEST(BondKernel, ForceIsMinusGradientInOpenSpace) {
   }
 }
 
-// Positions reach a bond term whole (engine/core/state.hpp): a chain folded into the cell is made whole
+// Positions reach a bond term whole (core/state.hpp): a chain folded into the cell is made whole
 // again by whole box vectors, and then gives the open-space energy and forces.
 Matrix3Xd made_whole(Matrix3Xd xw, int n) {
   std::vector<std::pair<int, int>> pairs;

@@ -27,7 +27,7 @@ def tree(files):
 def main():
     code, out = check(os.path.join(HERE, ".."))
     assert code == 0, "the repository breaks its layering:\n" + out
-    clean = {"engine/core/box.hpp": "", "forcefields/term.hpp": '#include "engine/core/box.hpp"\n'}
+    clean = {"core/box.hpp": "", "forcefields/term.hpp": '#include "core/box.hpp"\n'}
     assert check(tree(clean))[0] == 0
     code, out = check(tree({**clean, "forcefields/bad.hpp": '#include "engine/scene/scene.hpp"\n',
                             "engine/scene/scene.hpp": ""}))

@@ -16,8 +16,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/disjoint_sets.hpp"
-#include "engine/core/errors.hpp"
+#include "core/disjoint_sets.hpp"
+#include "core/errors.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {

@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {

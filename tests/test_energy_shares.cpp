@@ -7,7 +7,7 @@
 #include <random>
 #include <vector>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/pair_term.hpp"
 #include "test_support.hpp"

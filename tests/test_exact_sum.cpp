@@ -1,4 +1,4 @@
-// ExactSum (engine/core/exact_sum.hpp): the value of a sum of non-negative terms, rounded once,
+// ExactSum (core/exact_sum.hpp): the value of a sum of non-negative terms, rounded once,
 // whatever the order of the terms and however they are split into partial sums (threads,
 // processes): what csvr's kinetic energy needs to be the same bits on any number of processes.
 #include <gtest/gtest.h>
@@ -8,7 +8,7 @@
 #include <random>
 #include <vector>
 
-#include "engine/core/exact_sum.hpp"
+#include "core/exact_sum.hpp"
 
 namespace stiffmd {
 namespace {

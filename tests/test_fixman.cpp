@@ -10,8 +10,8 @@
 #include <stdexcept>
 #include <vector>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "integrators/constraints.hpp"
 #include "integrators/fixman.hpp"
 

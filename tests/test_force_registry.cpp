@@ -11,7 +11,7 @@
 
 #include <unistd.h>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 

@@ -51,7 +51,7 @@ TEST(StiffHarmonicBond, ForceIsMinusGradientOfEnergy) {
   EXPECT_LT(fd_mismatch(term, random_positions(6, 1.0, 1), Box{}), 1e-6);
 }
 
-// Positions reach a force term whole (engine/core/state.hpp): a chain wrapped across the x face is made
+// Positions reach a force term whole (core/state.hpp): a chain wrapped across the x face is made
 // whole first, and then a translation of the whole chain by box vectors changes nothing.
 TEST(StiffHarmonicBond, ForceIsMinusGradientAcrossPeriodicBoundary) {
   Box box;

@@ -1,5 +1,5 @@
-// The one number formatter (engine/core/format.hpp).
-#include "engine/core/format.hpp"
+// The one number formatter (core/format.hpp).
+#include "core/format.hpp"
 
 #include <gtest/gtest.h>
 

@@ -13,7 +13,7 @@
 #include <numeric>
 #include <random>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 #include "integrators/primitives.hpp"

@@ -18,7 +18,7 @@
 #include <sstream>
 #include <string>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/xyz_bonds.hpp"
 

@@ -14,8 +14,8 @@
 #include <vector>
 #include "integrators/modes.hpp"
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 
 namespace stiffmd {
 namespace {

@@ -1,4 +1,4 @@
-// The OpenMP paths (engine/core/parallel.hpp): bond forces (owner computes), pair forces
+// The OpenMP paths (core/parallel.hpp): bond forces (owner computes), pair forces
 // (per-thread buffers), the fused kick–drift. For a system above kParallelMin they must give
 // the serial forces to rounding for any thread count, the same bits on every call with a given
 // count, and an exception from a kernel must surface as the kernel's exception, not terminate().
@@ -13,8 +13,8 @@
 #include <stdexcept>
 #include <thread>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "engine/run/run.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"

@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "cli_support.hpp"
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/stages.hpp"

@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"

@@ -20,8 +20,8 @@
 #include <sstream>
 
 #include "cli_support.hpp"
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/run/run.hpp"
 #include "forcefields/external_terms.hpp"

@@ -1,4 +1,4 @@
-// Where a run's time goes (engine/core/timing.hpp, engine/core/parallel.hpp): the phase clock's
+// Where a run's time goes (core/timing.hpp, core/parallel.hpp): the phase clock's
 // exclusive accounting, the time inside the parallel loops, and every run's report — the phases
 // add up to the step loop's separately measured wall time within 2 %, the serial share is a
 // fraction, and a system too small to time by parts says so.
@@ -11,8 +11,8 @@
 #include <sstream>
 #include <thread>
 
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 #include "tests/cli_support.hpp"
 #include "tests/test_support.hpp"
 

@@ -1,4 +1,4 @@
-"""units = "lj" and units = "real" (README "Units", engine/core/units.hpp).
+"""units = "lj" and units = "real" (README "Units", core/units.hpp).
 
 1. The same physical system — bead-spring chains with stiff bonds, LJ, Langevin at T — once in
    reduced units (σ = ε = m = 1) and once in real units with σ = 3.4 Å, ε = 0.2381 kcal/mol,

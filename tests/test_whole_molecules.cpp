@@ -1,4 +1,4 @@
-// Whole molecules and one bond vector (engine/core/state.hpp): wrapped inputs are unwrapped along the
+// Whole molecules and one bond vector (core/state.hpp): wrapped inputs are unwrapped along the
 // bonds at load, what cannot be made whole is refused, and the stiff-bond rules shared by the
 // force term, the constraint toolbox and the stiff modes (forcefields/stiff_bond.hpp).
 #include <gtest/gtest.h>
@@ -7,7 +7,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "forcefields/stiff_bond.hpp"

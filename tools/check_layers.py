@@ -3,7 +3,7 @@
 one of a higher layer, and the include graph has no cycles.
 
 Layers, bottom to top (a file may include its own layer and those below):
-  engine/core  <  forcefields  <  integrators  <  engine/deck  <  engine/io  <  engine/observe
+  core  <  forcefields  <  integrators  <  engine/deck  <  engine/io  <  engine/observe
   <  engine/scene  <  engine/domain  <  engine/run  <  engine/main.cpp (the command line)  <  python (the module)
 
 Usage: check_layers.py [REPO]   (exit 0 clean, 1 with one line per violation)
@@ -12,7 +12,7 @@ import os
 import re
 import sys
 
-LAYERS = ["engine/core", "forcefields", "integrators", "engine/deck", "engine/io", "engine/observe",
+LAYERS = ["core", "forcefields", "integrators", "engine/deck", "engine/io", "engine/observe",
           "engine/scene", "engine/domain", "engine/run", "engine/main.cpp", "python"]
 
 

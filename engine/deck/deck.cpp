@@ -13,8 +13,8 @@
 #include <sstream>
 #include <vector>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/format.hpp"
+#include "core/errors.hpp"
+#include "core/format.hpp"
 
 namespace stiffmd {
 namespace {

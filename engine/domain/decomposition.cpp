@@ -7,9 +7,9 @@
 #include <sstream>
 
 #include <stdexcept>
-#include "engine/core/disjoint_sets.hpp"
-#include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
+#include "core/disjoint_sets.hpp"
+#include "core/errors.hpp"
+#include "core/timing.hpp"
 #include "forcefields/neighbor_list.hpp"  // MinimumImage
 
 namespace stiffmd {

@@ -19,10 +19,10 @@
 #include <span>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/communicator.hpp"
-#include "engine/core/state.hpp"
-#include "engine/core/topology.hpp"
+#include "core/box.hpp"
+#include "core/communicator.hpp"
+#include "core/state.hpp"
+#include "core/topology.hpp"
 
 namespace stiffmd {
 

@@ -6,8 +6,8 @@
 #include <regex>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/timing.hpp"
+#include "core/errors.hpp"
+#include "core/timing.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
 #include "integrators/clusters.hpp"
 #include "integrators/methods.hpp"

@@ -21,7 +21,7 @@
 #include <memory>
 #include <vector>
 
-#include "engine/core/communicator.hpp"
+#include "core/communicator.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/observe/observables.hpp"

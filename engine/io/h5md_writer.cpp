@@ -8,7 +8,7 @@
 // convert_units=False, and a known one such as "nm" would make it rescale our reduced lengths by
 // default. Without units it reads the file when opened with convert_units=False (with the default
 // convert_units=True it raises ValueError: "H5MD file must have readable units").
-// In real units (`units = "real"`, engine/core/units.hpp) position/value, position/time (shared by
+// In real units (`units = "real"`, core/units.hpp) position/value, position/time (shared by
 // every element through hard links), velocity/value, force/value, box/edges/value and the
 // observables carry `unit` (Angstrom, fs, "Angstrom ps-1", "kcal mol-1 Angstrom-1", …), strings
 // MDAnalysis 2.4.2 knows; as variable-length strings, because h5py hands fixed-length ones to it
@@ -43,8 +43,8 @@
 #include <limits>
 #include <stdexcept>
 
-#include "engine/core/communicator.hpp"
-#include "engine/core/errors.hpp"
+#include "core/communicator.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 namespace {

@@ -50,7 +50,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/box.hpp"
+#include "core/box.hpp"
 
 namespace stiffmd {
 

@@ -15,7 +15,7 @@
 #include <tuple>
 #include <unordered_set>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data_format.hpp"
 
 namespace stiffmd {

@@ -10,8 +10,8 @@
 #include <tuple>
 #include <utility>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/format.hpp"
+#include "core/errors.hpp"
+#include "core/format.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/lammps_data_format.hpp"
 
@@ -21,7 +21,7 @@ namespace {
 using detail::quote;
 using namespace lammps_format;
 
-// Output helpers: shortest text that reads back as the same double (engine/core/format.hpp).
+// Output helpers: shortest text that reads back as the same double (core/format.hpp).
 void put(std::string& out, double v) {
   append_shortest(out, v);
 }

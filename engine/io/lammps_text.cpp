@@ -5,7 +5,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 
 namespace stiffmd {

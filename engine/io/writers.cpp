@@ -9,7 +9,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 namespace {

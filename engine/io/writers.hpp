@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/state.hpp"
+#include "core/box.hpp"
+#include "core/state.hpp"
 
 namespace stiffmd {
 
@@ -46,7 +46,7 @@ class XyzWriter {
   XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
             bool append = false, std::vector<double> masses = {});
   // Times and velocities written in other units than the engine's: t·time_scale, v·velocity_scale
-  // (engine/core/units.hpp; positions need none).
+  // (core/units.hpp; positions need none).
   void set_units(double time_scale, double velocity_scale) {
     time_scale_ = time_scale, velocity_scale_ = velocity_scale;
   }

@@ -7,7 +7,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 

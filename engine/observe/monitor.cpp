@@ -5,7 +5,7 @@
 #include <optional>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
 

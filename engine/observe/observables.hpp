@@ -8,9 +8,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/state.hpp"
-#include "engine/core/topology.hpp"
-#include "engine/core/units.hpp"
+#include "core/state.hpp"
+#include "core/topology.hpp"
+#include "core/units.hpp"
 #include "engine/observe/polymer_observables.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/barostat.hpp"

@@ -7,7 +7,7 @@
 
 #include <Eigen/Geometry>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "integrators/thermostat.hpp"
 
 namespace stiffmd {
@@ -125,7 +125,7 @@ void histogram(std::FILE* f, const char* name, std::vector<double> values, int b
 void write_histograms(const std::string& path, const Eigen::Matrix3Xd& x, const Box& box, const Topology& topology,
                       int bins) {
   std::vector<double> lengths, angles;
-  (void)box;  // molecules are whole: the raw differences are the bond vectors (engine/core/state.hpp)
+  (void)box;  // molecules are whole: the raw differences are the bond vectors (core/state.hpp)
   for (const Bond& b : topology.bonds) lengths.push_back(bond_vector(x, b.i, b.j).norm());
   auto angle = [&](int i, int j, int k) {
     const Eigen::Vector3d a = bond_vector(x, i, j), c = bond_vector(x, k, j);

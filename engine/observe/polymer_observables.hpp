@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/state.hpp"
-#include "engine/core/topology.hpp"
+#include "core/state.hpp"
+#include "core/topology.hpp"
 #include "forcefields/force_field.hpp"
 
 namespace stiffmd {

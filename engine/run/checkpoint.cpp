@@ -16,7 +16,7 @@
 #include <sstream>
 #include <system_error>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/scene/scene.hpp"
 #include "engine/scene/stage_deck.hpp"
 #include "forcefields/parameter_record.hpp"

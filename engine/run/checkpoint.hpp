@@ -35,8 +35,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/state.hpp"
+#include "core/box.hpp"
+#include "core/state.hpp"
 
 namespace stiffmd {
 

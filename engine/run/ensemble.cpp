@@ -3,7 +3,7 @@
 #include <filesystem>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/run/run.hpp"
 #include "engine/scene/scene.hpp"

@@ -7,8 +7,8 @@
 #include <set>
 #include <system_error>
 
-#include "engine/core/communicator.hpp"
-#include "engine/core/errors.hpp"
+#include "core/communicator.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/observe/polymer_observables.hpp"
 

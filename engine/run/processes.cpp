@@ -28,7 +28,7 @@ struct Processes::Group {
 
 namespace {
 
-// The engine's collectives on MPI_COMM_WORLD (engine/core/communicator.hpp).
+// The engine's collectives on MPI_COMM_WORLD (core/communicator.hpp).
 class MpiCommunicator final : public Communicator {
  public:
   MpiCommunicator() {

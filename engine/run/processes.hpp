@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/communicator.hpp"
+#include "core/communicator.hpp"
 
 namespace stiffmd {
 

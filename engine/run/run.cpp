@@ -9,8 +9,8 @@
 #include <optional>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/parallel.hpp"
+#include "core/errors.hpp"
+#include "core/parallel.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {

@@ -19,9 +19,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/communicator.hpp"
-#include "engine/core/parallel.hpp"
-#include "engine/core/timing.hpp"
+#include "core/communicator.hpp"
+#include "core/parallel.hpp"
+#include "core/timing.hpp"
 #include "engine/domain/domain_integrator.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/monitor.hpp"
@@ -147,7 +147,7 @@ class Run {
   Checkpoint now_;                 // snapshot() of the current step, written with the state (no copy)
   PhaseClock clock_;               // where the step loop's time goes, running inside step_to
   double loop_seconds_ = 0.0;      // the step loop's wall time, measured apart from the clock
-  double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (engine/core/parallel.hpp)
+  double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (core/parallel.hpp)
   int threads_used_ = 1;           // the most threads a parallel loop of the step loop ran on
   std::clock_t cpu_start_ = 0;
 };

@@ -6,7 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/domain/domain_integrator.hpp"
 #include "engine/run/signals.hpp"
 

@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/communicator.hpp"
+#include "core/communicator.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/run.hpp"

@@ -3,7 +3,7 @@
 #include <cstdio>
 #include <sstream>
 
-#include "engine/core/parallel.hpp"
+#include "core/parallel.hpp"
 
 namespace stiffmd {
 

@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/timing.hpp"
+#include "core/timing.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/minimize.hpp"
@@ -45,7 +45,7 @@ struct RunSummary {
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
   int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
-  // Where the step loop's wall time went (engine/core/timing.hpp): seconds per phase, in the
+  // Where the step loop's wall time went (core/timing.hpp): seconds per phase, in the
   // order of kPhaseNames, adding up to loop_seconds; and the share of the loop outside the
   // engine's parallel loops (−1: not measured, a system below kParallelMin particles, whose
   // loops all stay serial).

@@ -13,8 +13,8 @@
 #include <cmath>
 #include <sstream>
 
-#include "engine/core/format.hpp"
-#include "engine/core/topology.hpp"
+#include "core/format.hpp"
+#include "core/topology.hpp"
 #include "engine/scene/scene.hpp"
 
 namespace stiffmd {

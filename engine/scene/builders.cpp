@@ -9,8 +9,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "engine/core/format.hpp"
-#include "engine/core/portable_random.hpp"
+#include "core/format.hpp"
+#include "core/portable_random.hpp"
 
 // No fused multiply-adds: contracting a*b+c changes the last bit, which can flip an accept/
 // reject decision and so the whole configuration between machines. GCC in ISO mode (-std=c++20,

@@ -1,6 +1,6 @@
 // Initial configurations for polymer scenes: linear chains, rings and stars grown as
 // self-avoiding random walks with exact bond lengths, and a cubic box for a number density
-// (Maxwell–Boltzmann velocities: maxwell_boltzmann in engine/core/portable_random.hpp).
+// (Maxwell–Boltzmann velocities: maxwell_boltzmann in core/portable_random.hpp).
 //
 // Reproducibility: every random number comes from std::mt19937_64 (whose output the standard
 // fixes) through our own uniform-from-bits, Marsaglia-polar normals and a logarithm/exponential
@@ -16,8 +16,8 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/portable_random.hpp"  // maxwell_boltzmann, for the builders' users
+#include "core/box.hpp"
+#include "core/portable_random.hpp"  // maxwell_boltzmann, for the builders' users
 
 namespace stiffmd {
 

@@ -1,6 +1,6 @@
 #include "engine/scene/ensemble_deck.hpp"
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 

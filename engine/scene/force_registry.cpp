@@ -8,8 +8,8 @@
 #include <stdexcept>
 #include <type_traits>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/format.hpp"
+#include "core/errors.hpp"
+#include "core/format.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/coefficients.hpp"

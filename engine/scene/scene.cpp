@@ -10,8 +10,8 @@
 #include <set>
 #include <sstream>
 
-#include "engine/core/errors.hpp"
-#include "engine/core/format.hpp"
+#include "core/errors.hpp"
+#include "core/format.hpp"
 #include "engine/scene/barostat_deck.hpp"
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"

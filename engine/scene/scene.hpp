@@ -11,10 +11,10 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/box.hpp"
-#include "engine/core/state.hpp"
-#include "engine/core/topology.hpp"
-#include "engine/core/units.hpp"
+#include "core/box.hpp"
+#include "core/state.hpp"
+#include "core/topology.hpp"
+#include "core/units.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -131,7 +131,7 @@ struct LammpsTypeNumbers {
 
 struct Scene {
   std::string deck_path;
-  Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (engine/core/units.hpp)
+  Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (core/units.hpp)
   State state;
   Box box;
   Topology topology;

@@ -7,8 +7,8 @@
 #include <limits>
 #include <sstream>
 
-#include "engine/core/disjoint_sets.hpp"
-#include "engine/core/errors.hpp"
+#include "core/disjoint_sets.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/xyz_bonds.hpp"
 #include "engine/scene/builders.hpp"
@@ -90,7 +90,7 @@ std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>&
   return molecule;
 }
 
-// Imported molecules made whole (engine/core/state.hpp): unwrapped along their bonds, or, when the
+// Imported molecules made whole (core/state.hpp): unwrapped along their bonds, or, when the
 // LAMMPS file has image flags, checked to be whole as the flags unwrap them. A failure names the
 // file (through the deck key that gave it) and the atoms as the file numbers them.
 void make_imported_molecules_whole(DeckTable& t, const char* file_key, ImportedSystem& in, const Box& box) {
@@ -107,7 +107,7 @@ void make_imported_molecules_whole(DeckTable& t, const char* file_key, ImportedS
 
 }  // namespace
 
-// Every molecule of the scene made whole (engine/core/state.hpp): builders and imports already are,
+// Every molecule of the scene made whole (core/state.hpp): builders and imports already are,
 // explicit [[bonds]] between [[particles]] (or joining sources) are unwrapped here. A failure
 // names the [[bonds]] row when an explicit bond is the one that cannot be made whole.
 void make_scene_molecules_whole(DeckTable& root, Scene& sc) {

@@ -19,7 +19,7 @@ int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, con
 
 void read_builders(DeckTable& root, Scene& sc);
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
-// After the [[bonds]]: every molecule whole, positions unwrapped (the guarantee of engine/core/state.hpp).
+// After the [[bonds]]: every molecule whole, positions unwrapped (the guarantee of core/state.hpp).
 void make_scene_molecules_whole(DeckTable& root, Scene& sc);
 void read_velocities(DeckTable& root, Scene& sc);
 void read_prepare(DeckTable& root, Scene& sc);  // reads the settings; prepare_scene (scene.hpp) acts

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <set>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "integrators/thermostat.hpp"
 
 namespace stiffmd {

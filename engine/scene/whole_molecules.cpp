@@ -3,7 +3,7 @@
 #include <cmath>
 #include <sstream>
 
-#include "engine/core/format.hpp"
+#include "core/format.hpp"
 
 namespace stiffmd {
 

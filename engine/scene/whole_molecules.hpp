@@ -1,4 +1,4 @@
-// Whole molecules from wrapped positions (the guarantee stated in engine/core/state.hpp): each connected
+// Whole molecules from wrapped positions (the guarantee stated in core/state.hpp): each connected
 // component of the bond graph is traversed breadth first from its lowest-index particle, which
 // stays where it is; each particle reached over a bond is moved by whole box lengths so that the
 // bond's raw difference is its minimum image. Open axes are left alone.
@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/core/box.hpp"
+#include "core/box.hpp"
 
 namespace stiffmd {
 

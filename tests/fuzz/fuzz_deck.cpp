@@ -15,7 +15,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/run/run.hpp"

@@ -13,7 +13,7 @@
 #include <cstring>
 #include <string>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/xyz_bonds.hpp"
 #include "fuzz_support.hpp"

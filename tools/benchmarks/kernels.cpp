@@ -50,8 +50,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/exact_sum.hpp"
-#include "engine/core/topology.hpp"
+#include "core/exact_sum.hpp"
+#include "core/topology.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/pair_term.hpp"

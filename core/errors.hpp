@@ -21,7 +21,7 @@ class NumericalError : public std::runtime_error {
 // An error every rank of a decomposed run finds, or learns of, at the same point, so that each
 // rank ends alike without ending the others: exit 3 for a stop (a non-finite state found by the
 // step's reduction, rank 0's [monitor]), exit 2 for bad input (an agreement, `agree` in
-// engine/core/communicator.hpp); rank 0 alone says why (printed_here: false on the ranks whose
+// core/communicator.hpp); rank 0 alone says why (printed_here: false on the ranks whose
 // message is not to be printed).
 template <class Error>
 class Agreed : public Error {

@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/disjoint_sets.hpp"
+#include "core/disjoint_sets.hpp"
 
 namespace stiffmd {
 

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/core/errors.hpp"
+#include "core/errors.hpp"
 
 namespace stiffmd {
 

@@ -13,7 +13,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "engine/core/format.hpp"
+#include "core/format.hpp"
 
 // No fused multiply-adds (see builders.cpp): GCC in ISO mode does not contract; clang does.
 #if defined(__clang__)
