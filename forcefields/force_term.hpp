@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <stdexcept>
@@ -104,11 +105,14 @@ class ForceTerm {
     return nullptr;
   }
   // The largest pair distance it acts over and its list's skin (pair terms; 0 for the others):
-  // what a decomposed run's ghosts must cover (engine/domain/decomposition.hpp).
+  // what a decomposed run's pair sets must cover (engine/domain/decomposition.hpp).
   virtual double pair_cutoff() const { return 0.0; }
   virtual double pair_skin() const { return 0.0; }
   // Neighbour-list rebuilds so far (pair terms; 0 for the others).
   virtual long neighbor_list_rebuilds() const { return 0; }
+  // The pairs in its neighbour list as last built (pair terms; 0 for the others): what an
+  // evaluation goes through.
+  virtual std::int64_t listed_pairs() const { return 0; }
 
   // ghost[i] = 1: particle i is a ghost, a copy of another domain's particle whose force the
   // caller ignores, while the forces on the others must stay complete. A term may then skip what

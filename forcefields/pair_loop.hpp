@@ -169,11 +169,13 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
 
 // The special pairs with 0 < w < 1 (special_bonds): the same kernel, energy and force scaled
 // by w. They are kept out of the Verlet list, so they are looked at every call — a short list
-// (at most a few per particle), and the common case w12 = 0, w13 = 1 has none.
-template <class Kernel, bool kForces, bool kVirial>
+// (at most a few per particle), and the common case w12 = 0, w13 = 1 has none. ghost (kShares):
+// as in accumulate_pair_rows, a pair with a ghost counts half in the sums (null: every pair whole).
+template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
                                  const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                                 const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f) {
+                                 const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f,
+                                 const char* ghost = nullptr) {
   using Params = typename Kernel::Params;
   const double* xp = x.data();
   PairSums sums;
@@ -186,10 +188,17 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
     if (!(r2 < p.rc2)) continue;
     double e = 0.0, fpair = 0.0;
     Kernel::eval(r2, p, e, fpair);
-    sums.energy += sp.weight * e;
     fpair *= sp.weight;
-    if constexpr (kVirial) sums.virial += fpair * r2;
-    if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
+    if constexpr (kShares) {
+      const double share = ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0;
+      sums.energy += share * (sp.weight * e);
+      if constexpr (kVirial) sums.virial += share * (fpair * r2);
+      if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
+    } else {
+      sums.energy += sp.weight * e;
+      if constexpr (kVirial) sums.virial += fpair * r2;
+      if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
+    }
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;
@@ -273,8 +282,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
 
 // The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
 // Σ E and Σ r_ij·f_ij (if kVirial; with kShares this process's share of both, see
-// accumulate_pair_rows: the scaled pairs count whole, as a decomposed run's are those of its own
-// whole molecules). The list must be up to date for x and box (update).
+// accumulate_pair_rows, the scaled pairs' too). The list must be up to date for x and box (update).
 template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
@@ -301,8 +309,9 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   // and not tied to the list's build. Wrapped, as the listed pairs: a decomposed run's halo hands
   // the pair terms wrapped positions (NeighborList::set_positions_wrapped), and the same positions
   // give the same bits.
-  const PairSums special =
-      accumulate_scaled_pairs<Kernel, kForces, kVirial>(scaled, params, type, xl, MinimumImage(box), f);
+  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares>(
+      scaled, params, type, xl, MinimumImage(box), f,
+      kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr);
   PairSums total{listed.energy + special.energy, listed.virial + special.virial};
   total.diagonal.add(listed.diagonal);
   total.diagonal.add(special.diagonal);

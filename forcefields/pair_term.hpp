@@ -93,6 +93,7 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
 
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
+  std::int64_t listed_pairs() const override { return static_cast<std::int64_t>(list_.num_pairs()); }
   bool uses_neighbor_list() const override { return true; }
   std::unique_ptr<ForceTerm> on_particles(std::vector<int> types, const std::vector<Bond>& bonds,
                                           const Box& box) const override {

@@ -7,7 +7,6 @@
 #include <sstream>
 
 #include <stdexcept>
-#include "core/disjoint_sets.hpp"
 #include "core/errors.hpp"
 #include "core/timing.hpp"
 #include "forcefields/neighbor_list.hpp"  // MinimumImage
@@ -101,75 +100,13 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   for (int i = 0; i < n; ++i) molecule_particles_[next[molecule_[i]]++] = i;  // increasing within each
   if (dims) grid_dims_ = *dims, have_dims_ = true;
   owned_of_.assign(n, -1);
+  pair_slot_of_.assign(n, -1);
   const int ranks = comm_.size();
-  send_.resize(ranks);
-  ghost_begin_.assign(ranks, 0);
-  ghost_count_.assign(ranks, 0);
+  out_.resize(ranks);
+  in_.resize(ranks);
   send_buffer_.resize(ranks);
   recv_buffer_.resize(ranks);
 }
-
-namespace {
-
-// Cells at least R wide over the box (periodic axes) or over the beads' extent (open axes): two
-// beads closer than R sit in the same or adjacent cells (per axis, periodically on a periodic
-// axis), so the beads within R of a set of beads lie in the cells adjacent to theirs.
-struct HaloCells {
-  int n[3] = {1, 1, 1};
-  double lo[3] = {0, 0, 0}, width[3] = {1, 1, 1}, length[3] = {0, 0, 0};
-  bool periodic[3] = {false, false, false};
-
-  std::int64_t size() const { return static_cast<std::int64_t>(n[0]) * n[1] * n[2]; }
-  // q: a coordinate wrapped into the box on a periodic axis (BoxWrap).
-  int coordinate(double q, int a) const {
-    return std::clamp(static_cast<int>(std::floor((q - lo[a]) / width[a])), 0, n[a] - 1);
-  }
-  std::int64_t index(const double* q) const {
-    return (static_cast<std::int64_t>(coordinate(q[0], 0)) * n[1] + coordinate(q[1], 1)) * n[2] + coordinate(q[2], 2);
-  }
-  // Per axis and cell coordinate, the distinct coordinates within one cell of it (periodically on
-  // a periodic axis): around[a][4 c] is their count, the next three the coordinates.
-  std::vector<int> around[3];
-  void tabulate() {
-    for (int a = 0; a < 3; ++a) {
-      around[a].assign(4 * static_cast<size_t>(n[a]), 0);
-      for (int c = 0; c < n[a]; ++c) {
-        int* out = around[a].data() + 4 * c;
-        for (int d = -1; d <= 1; ++d) {
-          int q = c + d;
-          if (periodic[a])
-            q = (q + n[a]) % n[a];
-          else if (q < 0 || q >= n[a])
-            continue;
-          if (std::find(out + 1, out + 1 + out[0], q) == out + 1 + out[0]) out[1 + out[0]++] = q;
-        }
-      }
-    }
-  }
-  // The cells adjacent to cell c (itself included), each once (after tabulate).
-  template <class F>
-  void for_each_adjacent(std::int64_t c, F f) const {
-    const int c2 = static_cast<int>(c % n[2]), c1 = static_cast<int>((c / n[2]) % n[1]),
-              c0 = static_cast<int>(c / (static_cast<std::int64_t>(n[2]) * n[1]));
-    const int *a0 = around[0].data() + 4 * c0, *a1 = around[1].data() + 4 * c1, *a2 = around[2].data() + 4 * c2;
-    for (int i = 1; i <= a0[0]; ++i)
-      for (int j = 1; j <= a1[0]; ++j) {
-        const std::int64_t row = (static_cast<std::int64_t>(a0[i]) * n[1] + a1[j]) * n[2];
-        for (int l = 1; l <= a2[0]; ++l) f(row + a2[l]);
-      }
-  }
-};
-
-// Whether two intervals (each within a box length of the box on a periodic axis) come closer
-// than r, over the periodic images of the second.
-bool intervals_within(double lo1, double hi1, double lo2, double hi2, double r, double length, bool periodic) {
-  if (lo1 > hi1 || lo2 > hi2) return false;
-  const auto gap = [&](double shift) { return std::max({0.0, lo2 + shift - hi1, lo1 - hi2 - shift}); };
-  if (!periodic) return gap(0.0) < r;
-  return std::min({gap(-length), gap(0.0), gap(length)}) < r;
-}
-
-}  // namespace
 
 bool Decomposition::owns_molecule(int m) const {
   return std::binary_search(owned_.begin(), owned_.end(), m);
@@ -222,10 +159,11 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   const ScopedPhase phase(Phase::domain);
   const int ranks = comm_.size(), me = comm_.rank();
   const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
-  // A molecule leaves when its anchor is past this rank's domain by more than the margin (at most a
-  // quarter of the domain's narrowest width): an anchor near a face does not go back and forth
-  // (each move rebuilds two ranks' parts), nor does a wide margin keep molecules far from home.
-  double slack = margin_;
+  // A molecule leaves when its anchor is past this rank's domain by more than a quarter of the
+  // domain's narrowest width: an anchor near a face does not go back and forth (each move rebuilds
+  // two ranks' parts). A molecule away from its domain costs only messages: its beads' pair forces
+  // are computed at their homes whoever owns it.
+  double slack = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * grid_.length[a] / grid_.dims[a]);
   std::vector<std::vector<double>> out(ranks), in;
   std::vector<int> kept;
@@ -295,230 +233,199 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   return true;
 }
 
-void Decomposition::select_ghosts(const Eigen::Matrix3Xd& x) {
-  const ScopedPhase phase(Phase::domain);
-  ++selections_;
-  const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
-  // Each rank's region: the bounding box of its owned beads, each molecule at its anchor's image,
-  // and (open axes) the extent of every owned bead.
-  std::vector<double> regions(6 * static_cast<size_t>(ranks) + 6, 0.0);
-  double* mine = regions.data() + 6 * me;
-  double* extent = regions.data() + 6 * ranks;  // −min, max per axis over all ranks (max-reduced)
-  for (int a = 0; a < 3; ++a) mine[a] = kInf, mine[3 + a] = -kInf, extent[a] = extent[3 + a] = -kInf;
-  for (int m : owned_) {
-    const Eigen::Vector3d c = anchor(x, molecule(m), true);
-    Eigen::Vector3d shift = Eigen::Vector3d::Zero();
-    for (int a = 0; a < 3; ++a)
-      if (box_.periodic[a]) shift[a] = c[a] - wrap(c[a], box_.origin[a], box_.lengths[a], true);
-    for (int g : molecule(m)) {
-      const Eigen::Vector3d p = x.col(owned_of_[g]) - shift;
-      for (int a = 0; a < 3; ++a) mine[a] = std::min(mine[a], p[a]), mine[3 + a] = std::max(mine[3 + a], p[a]);
-    }
-  }
-  for (int k = 0; k < owned; ++k)
-    for (int a = 0; a < 3; ++a)
-      extent[a] = std::max(extent[a], -x(a, k)), extent[3 + a] = std::max(extent[3 + a], x(a, k));
-  // One max-reduction: the other ranks' slots are −∞ here (so a rank's slot is its own), the
-  // extent is the largest over ranks.
-  for (int r = 0; r < ranks; ++r)
-    if (r != me)
-      for (int k = 0; k < 6; ++k) regions[6 * r + k] = -kInf;
-  for (int a = 0; a < 3; ++a) mine[a] = -mine[a];  // lows as −low, so that max reduces them too
-  comm_.max(regions.data(), static_cast<int>(regions.size()));
-  for (int r = 0; r < ranks; ++r)
-    for (int a = 0; a < 3; ++a) regions[6 * r + a] = -regions[6 * r + a];
-  HaloCells cells;
-  for (int a = 0; a < 3; ++a) {
-    cells.periodic[a] = box_.periodic[a] != 0;
-    const double lo = cells.periodic[a] ? box_.origin[a] : -extent[a];
-    const double len = cells.periodic[a] ? box_.lengths[a] : std::max(extent[3 + a] + extent[a], 0.0) + radius_;
-    cells.lo[a] = lo, cells.length[a] = len;
-    cells.n[a] =
-        std::clamp(static_cast<int>(std::floor(len / radius_)), 1, 256);  // wider cells: more ghosts, still every one
-    cells.width[a] = len / cells.n[a];
-  }
-  cells.tabulate();
-  // The neighbour ranks: those whose region comes within R of this one's (the relation is
-  // symmetric, so both sides agree on it). They exchange the cells their owned beads occupy.
-  std::vector<char> neighbour(ranks, 0);
-  for (int r = 0; r < ranks; ++r) {
-    if (r == me) continue;
-    bool near = true;
-    for (int a = 0; a < 3 && near; ++a)
-      near = intervals_within(mine[a], mine[3 + a], regions[6 * r + a], regions[6 * r + 3 + a], radius_,
-                              box_.lengths[a], cells.periodic[a]);
-    neighbour[r] = near;
-  }
-  // The owned beads by cell (a counting sort, increasing owned index within a cell): those of
-  // cell c are by_cell[cell_start[c] … cell_start[c + 1]), their wrapped positions cell_x in the
-  // same order; `occupied` the cells that hold one.
-  SelectionScratch& sc = scratch_;
-  std::vector<std::int64_t>& cell_of = sc.cell_of;
-  std::vector<int>&cell_start = sc.cell_start, &by_cell = sc.by_cell;
-  std::vector<std::int64_t>& occupied = sc.occupied;
-  const BoxWrap into_box(box_);  // the cells' frame on periodic axes is the box
-  const auto wrapped = [&](const double* p, double* q) {
-    for (int a = 0; a < 3; ++a) q[a] = into_box(p[a], a);
+namespace {
+
+// Per axis, the domain coordinates whose slab comes within `reach` of the coordinate q (wrapped
+// into the box on a periodic axis): out[0] their count, then the coordinates, each once; `home`
+// (the coordinate domain_of gives) is among them.
+void slabs_within(const DomainGrid& g, int a, double q, double reach, int home, std::vector<int>& out) {
+  const int n = g.dims[a];
+  const double width = g.length[a] / n;
+  int lo = static_cast<int>(std::floor((q - reach - g.origin[a]) / width));
+  int hi = static_cast<int>(std::floor((q + reach - g.origin[a]) / width));
+  out.assign(1, 0);
+  const auto add = [&](int c) {
+    if (std::find(out.begin() + 1, out.end(), c) == out.end()) out.push_back(c), ++out[0];
   };
-  sc.wrapped.resize(3, owned);
-  cell_of.resize(static_cast<size_t>(owned));
-  for (int k = 0; k < owned; ++k) {
-    double* q = sc.wrapped.col(k).data();
-    wrapped(x.col(k).data(), q);
-    cell_of[k] = cells.index(q);
-  }
-  cell_start.assign(static_cast<size_t>(cells.size()) + 1, 0);
-  by_cell.resize(static_cast<size_t>(owned));
-  for (int k = 0; k < owned; ++k) ++cell_start[cell_of[k] + 1];
-  occupied.clear();
-  for (std::int64_t c = 0; c < cells.size(); ++c) {
-    if (cell_start[c + 1] > 0) occupied.push_back(c);
-    cell_start[c + 1] += cell_start[c];
-  }
-  for (int k = 0; k < owned; ++k) by_cell[cell_start[cell_of[k]]++] = k;
-  for (std::int64_t c = cells.size(); c > 0; --c) cell_start[c] = cell_start[c - 1];
-  cell_start[0] = 0;
-  sc.cell_x.resize(3, owned);
-  for (int i = 0; i < owned; ++i) sc.cell_x.col(i) = sc.wrapped.col(by_cell[i]);
-  std::vector<std::vector<double>> out(ranks), in;
-  for (int r = 0; r < ranks; ++r)
-    if (neighbour[r]) out[r].assign(occupied.begin(), occupied.end());
-  comm_.exchange(out, in);
-  // The candidates for neighbour r: the owned beads in a cell adjacent to one r's beads occupy
-  // (every bead within R of one of r's, and more: up to two cells away).
-  for (auto& list : send_) list.clear();
-  std::vector<char>& near_r = sc.near;
-  near_r.resize(static_cast<size_t>(cells.size()));
-  for (int r = 0; r < ranks; ++r) {
-    if (!neighbour[r] || in[r].empty()) continue;
-    std::fill(near_r.begin(), near_r.end(), 0);
-    for (double c : in[r])
-      cells.for_each_adjacent(static_cast<std::int64_t>(c), [&](std::int64_t q) { near_r[q] = 1; });
-    for (int k = 0; k < owned; ++k)
-      if (near_r[cell_of[k]]) send_[r].push_back(k);
-  }
-  // Each candidate's global index and position to r, which keeps those within R of one of its
-  // beads (minimum image) and answers which: the ghosts are exactly the beads within R of the
-  // selection's positions, 40 % fewer than the cells' candidates on a melt of chains.
-  for (int r = 0; r < ranks; ++r) {
-    out[r].clear();
-    out[r].resize(4 * send_[r].size());
-    double* w = out[r].data();
-    for (int k : send_[r]) w[0] = ids_[k], w[1] = x(0, k), w[2] = x(1, k), w[3] = x(2, k), w += 4;
-  }
-  comm_.exchange(out, in);
-  // Both positions wrapped into the frame: a separation is within a box length on a periodic
-  // axis, and one fold (NearestImage) makes it the minimum image.
-  const double radius2 = radius_ * radius_;
-  const NearestImage image(box_);
-  const double* cx = sc.cell_x.data();
-  const auto near_an_owned_bead = [&](const Eigen::Vector3d& raw) {
-    double p[3];
-    wrapped(raw.data(), p);
-    bool near = false;
-    const auto scan = [&](std::int64_t q) {
-      for (int i = cell_start[q]; i < cell_start[q + 1] && !near; ++i) {
-        double dx = p[0] - cx[3 * i], dy = p[1] - cx[3 * i + 1], dz = p[2] - cx[3 * i + 2];
-        image.apply(dx, dy, dz);
-        near = dx * dx + dy * dy + dz * dz <= radius2;
-      }
-    };
-    const std::int64_t own = cells.index(p);
-    scan(own);  // most candidates that are ghosts have a bead in their own cell
-    cells.for_each_adjacent(own, [&](std::int64_t q) {
-      if (!near && q != own) scan(q);
-    });
-    return near;
-  };
-  std::vector<std::vector<int>> ghost_ids(ranks);
-  for (int r = 0; r < ranks; ++r) {
-    out[r].clear();
-    for (size_t m = 0; m + 4 <= in[r].size(); m += 4) {
-      const bool near = near_an_owned_bead(Eigen::Vector3d(in[r][m + 1], in[r][m + 2], in[r][m + 3]));
-      out[r].push_back(near ? 1.0 : 0.0);
-      if (near) ghost_ids[r].push_back(static_cast<int>(in[r][m]));
-    }
-  }
-  comm_.exchange(out, in);
-  for (int r = 0; r < ranks; ++r) {
-    size_t kept = 0;
-    for (size_t m = 0; m < send_[r].size(); ++m)
-      if (in[r][m] != 0.0) send_[r][kept++] = send_[r][m];
-    send_[r].resize(kept);
-  }
-  // The extended set: owned and ghosts in increasing global index (so a particle's pairs are
-  // summed in the one-process order: forcefields/neighbor_list.hpp).
-  std::vector<std::pair<int, int>>& members = sc.members;  // global index, owned index (≥ 0) or −1 − ghost number
-  members.clear();
-  for (int k = 0; k < owned; ++k) members.emplace_back(ids_[k], k);
-  int ghosts = 0;
-  for (int r = 0; r < ranks; ++r) {
-    ghost_begin_[r] = ghosts;
-    ghost_count_[r] = static_cast<int>(ghost_ids[r].size());
-    for (int g : ghost_ids[r]) members.emplace_back(g, -1 - ghosts++);
-  }
-  // Runs in increasing global index (the owned particles, then each rank's ghosts, which it sends
-  // in its owned order): merged, not sorted.
-  for (int r = 0, end = owned; r < ranks; ++r) {
-    const auto middle = members.begin() + end;
-    end += ghost_count_[r];
-    if (ghost_count_[r] > 0) std::inplace_merge(members.begin(), middle, members.begin() + end);
-  }
-  const int n = static_cast<int>(members.size());
-  extended_ids_.resize(n);
-  ghost_flag_.assign(n, 0);
-  owned_slot_.resize(owned);
-  ghost_slot_.resize(ghosts);
-  for (int e = 0; e < n; ++e) {
-    extended_ids_[e] = members[e].first;
-    if (members[e].second >= 0)
-      owned_slot_[members[e].second] = e;
-    else
-      ghost_slot_[-1 - members[e].second] = e, ghost_flag_[e] = 1;
-  }
-  x_at_selection_ = x;
-  halo_doubles_ = 0;
-  halo_messages_ = 0;
-  for (int r = 0; r < ranks; ++r) {
-    send_buffer_[r].resize(3 * send_[r].size());
-    recv_buffer_[r].resize(3 * static_cast<size_t>(ghost_count_[r]));
-    halo_doubles_ += static_cast<std::int64_t>(send_buffer_[r].size());
-    halo_messages_ += !send_[r].empty();
+  add(home);
+  if (g.periodic[a]) {
+    if (hi - lo + 1 >= n) lo = 0, hi = n - 1;
+    for (int c = lo; c <= hi; ++c) add(((c % n) + n) % n);
+  } else {  // the edge domains reach to infinity (domain_of clamps)
+    for (int c = std::max(lo, 0); c <= std::min(hi, n - 1); ++c) add(c);
   }
 }
 
-void Decomposition::halo(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& extended) const {
+}  // namespace
+
+void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
-  // The ghosts cover every bead within r_c of ours while no bead moved margin/2 since their
-  // selection (DomainIntegrator selects them again before a step that may): a step that moved one
-  // farther would miss pairs, so it stops here (on this rank: the others wait in the halo, so the
-  // job ends).
-  // (Checked in the pass that copies the owned columns, before anything is sent.)
-  extended.resize(3, static_cast<Eigen::Index>(extended_ids_.size()));  // no allocation once sized
-  double d2 = 0.0;
+  ++selections_;
+  const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
+  // Each owned bead goes to every rank whose domain comes within R of its position wrapped into
+  // the box (a hair more, so that rounding cannot drop a bead at R), as a home bead to the one
+  // whose domain holds it. A bead's partners within r_c of it while no bead has moved margin/2
+  // were within r_c + margin of it at the selection, hence within R of its home's domain.
+  const double reach = radius_ * (1.0 + 1e-12) + 1e-12;
   const BoxWrap into_box(box_);
-  for (int k = 0; k < num_owned(); ++k) {
-    const int e = owned_slot_[k];
-    for (int c = 0; c < 3; ++c) extended(c, e) = into_box(a(c, k), c);
-    d2 = std::max(d2, (a.col(k) - x_at_selection_.col(k)).squaredNorm());
+  for (Plan& p : out_) p.owned.clear(), p.home.clear(), p.homes = 0;
+  local_.owned.clear(), local_.home.clear(), local_.homes = 0;
+  std::vector<int> axis[3];
+  const Eigen::Vector3i& dims = grid_.dims;
+  for (int k = 0; k < owned; ++k) {
+    Eigen::Vector3d q;
+    for (int a = 0; a < 3; ++a) q[a] = into_box(x(a, k), a);
+    const int home = grid_.domain_of(q);
+    const int hc[3] = {home / (dims[1] * dims[2]), (home / dims[2]) % dims[1], home % dims[2]};
+    for (int a = 0; a < 3; ++a) slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
+    for (int i = 1; i <= axis[0][0]; ++i)
+      for (int j = 1; j <= axis[1][0]; ++j)
+        for (int l = 1; l <= axis[2][0]; ++l) {
+          const int d = (axis[0][i] * dims[1] + axis[1][j]) * dims[2] + axis[2][l];
+          Plan& p = d == me ? local_ : out_[d];
+          p.owned.push_back(k);
+          p.home.push_back(d == home);
+          p.homes += d == home;
+        }
   }
-  if (const double d = std::sqrt(d2); d >= 0.5 * margin_) {
-    std::ostringstream m;
-    m << "a bead moved " << d << " since the ghosts were selected, more than half the halo margin " << margin_
-      << " ([parallel] halo_margin) in less than a step: pairs would be missed; a larger halo_margin or a smaller step";
-    throw NumericalError(m.str());
-  }
-  const int ranks = comm_.size();
+  // The receivers learn which beads come and which are home: a global index g as g (home) or
+  // −1 − g (halo).
+  std::vector<std::vector<double>> ids(ranks), in;
+  for (int r = 0; r < ranks; ++r)
+    for (size_t m = 0; m < out_[r].owned.size(); ++m) {
+      const int g = ids_[out_[r].owned[m]];
+      ids[r].push_back(out_[r].home[m] ? g : -1 - g);
+    }
+  comm_.exchange(ids, in);
+  // The pair set: every bead received or kept, in increasing global index (so a home bead's pairs
+  // are summed in the one-process order: forcefields/neighbor_list.hpp).
+  for (const int g : pair_ids_) pair_slot_of_[g] = -1;
+  struct Member {
+    int global, from, index;  // from: the sending rank (this one: local_), index in its message
+    bool home;
+    bool operator<(const Member& o) const { return global < o.global; }
+  };
+  std::vector<Member> members;
+  for (size_t m = 0; m < local_.owned.size(); ++m)
+    members.push_back({ids_[local_.owned[m]], me, static_cast<int>(m), local_.home[m] != 0});
   for (int r = 0; r < ranks; ++r) {
-    double* b = send_buffer_[r].data();
-    for (int k : send_[r]) b[0] = a(0, k), b[1] = a(1, k), b[2] = a(2, k), b += 3;
+    Plan& p = in_[r];
+    p.slot.assign(in[r].size(), -1), p.home.assign(in[r].size(), 0), p.homes = 0;
+    for (size_t m = 0; m < in[r].size(); ++m) {
+      const double w = in[r][m];
+      const bool home = w >= 0.0;
+      members.push_back({home ? static_cast<int>(w) : static_cast<int>(-1.0 - w), r, static_cast<int>(m), home});
+      p.home[m] = home, p.homes += home;
+    }
+  }
+  std::sort(members.begin(), members.end());
+  const int n = static_cast<int>(members.size());
+  pair_ids_.resize(n);
+  halo_flag_.assign(n, 0);
+  local_.slot.assign(local_.owned.size(), -1);
+  num_home_ = 0;
+  for (int e = 0; e < n; ++e) {
+    const Member& m = members[e];
+    pair_ids_[e] = m.global;
+    pair_slot_of_[m.global] = e;
+    halo_flag_[e] = !m.home;
+    num_home_ += m.home;
+    (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
+  }
+  x_at_selection_ = x;
+  // What one evaluation with forces sends: positions out (and the forces so far of the home
+  // beads), the home beads' forces back.
+  halo_doubles_ = 0;
+  halo_messages_ = 0;
+  for (int r = 0; r < ranks; ++r) {
+    const std::int64_t out = 3 * static_cast<std::int64_t>(out_[r].owned.size() + out_[r].homes);
+    const std::int64_t back = 3 * static_cast<std::int64_t>(in_[r].homes);
+    halo_doubles_ += out + back;
+    halo_messages_ += (out > 0) + (back > 0);
+  }
+}
+
+bool Decomposition::pair_set_stale(const Eigen::Matrix3Xd& a) const {
+  const ScopedPhase phase(Phase::domain);
+  double d2 = 0.0;
+  for (int k = 0; k < num_owned(); ++k) d2 = std::max(d2, (a.col(k) - x_at_selection_.col(k)).squaredNorm());
+  // Half the margin: two beads that each moved less than margin/2 were within r_c + margin of
+  // each other at the selection when they are within r_c now. A non-finite position counts as
+  // stale (NaN fails the test), and is found by the step's own check.
+  double stale = std::sqrt(d2) < 0.5 * margin_ ? 0.0 : 1.0;
+  comm_.max(&stale, 1);
+  return stale > 0.0;
+}
+
+void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, const Eigen::Matrix3Xd* owned_f,
+                            Eigen::Matrix3Xd* pair_f) const {
+  const ScopedPhase phase(Phase::domain);
+  const int ranks = comm_.size();
+  const bool forces = owned_f && pair_f;
+  const Eigen::Index n = static_cast<Eigen::Index>(pair_ids_.size());
+  pair.resize(3, n);  // no allocation once sized
+  const BoxWrap into_box(box_);
+  if (forces) {
+    pair_f->resize(3, n);
+    for (Eigen::Index e = 0; e < n; ++e)
+      if (halo_flag_[e]) pair_f->col(e).setZero();
+  }
+  for (size_t m = 0; m < local_.owned.size(); ++m) {
+    const int k = local_.owned[m], e = local_.slot[m];
+    for (int c = 0; c < 3; ++c) pair(c, e) = into_box(a(c, k), c);
+    if (forces && local_.home[m]) pair_f->col(e) = owned_f->col(k);
+  }
+  for (int r = 0; r < ranks; ++r) {
+    const Plan& p = out_[r];
+    std::vector<double>& b = send_buffer_[r];
+    b.resize(3 * p.owned.size() + (forces ? 3 * p.homes : 0));  // no allocation once sized
+    double* w = b.data();
+    for (size_t m = 0; m < p.owned.size(); ++m) {
+      const int k = p.owned[m];
+      w[0] = a(0, k), w[1] = a(1, k), w[2] = a(2, k), w += 3;
+      if (forces && p.home[m]) w[0] = (*owned_f)(0, k), w[1] = (*owned_f)(1, k), w[2] = (*owned_f)(2, k), w += 3;
+    }
+    recv_buffer_[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
   comm_.exchange_known(send_buffer_, recv_buffer_);
   for (int r = 0; r < ranks; ++r) {
-    const double* b = recv_buffer_[r].data();
-    const int* slot = ghost_slot_.data() + ghost_begin_[r];
-    for (int k = 0; k < ghost_count_[r]; ++k, b += 3)
-      for (int c = 0; c < 3; ++c) extended(c, slot[k]) = into_box(b[c], c);
+    const Plan& p = in_[r];
+    const double* w = recv_buffer_[r].data();
+    for (size_t m = 0; m < p.slot.size(); ++m) {
+      const int e = p.slot[m];
+      for (int c = 0; c < 3; ++c) pair(c, e) = into_box(w[c], c);
+      w += 3;
+      if (forces && p.home[m]) (*pair_f)(0, e) = w[0], (*pair_f)(1, e) = w[1], (*pair_f)(2, e) = w[2], w += 3;
+    }
+  }
+}
+
+void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const {
+  const ScopedPhase phase(Phase::domain);
+  const int ranks = comm_.size();
+  for (size_t m = 0; m < local_.owned.size(); ++m)
+    if (local_.home[m]) owned_f.col(local_.owned[m]) = pair_f.col(local_.slot[m]);
+  for (int r = 0; r < ranks; ++r) {
+    const Plan& p = in_[r];
+    std::vector<double>& b = send_buffer_[r];
+    b.resize(3 * static_cast<size_t>(p.homes));
+    double* w = b.data();
+    for (size_t m = 0; m < p.slot.size(); ++m)
+      if (p.home[m]) {
+        const int e = p.slot[m];
+        w[0] = pair_f(0, e), w[1] = pair_f(1, e), w[2] = pair_f(2, e), w += 3;
+      }
+    recv_buffer_[r].resize(3 * static_cast<size_t>(out_[r].homes));
+  }
+  comm_.exchange_known(send_buffer_, recv_buffer_);
+  for (int r = 0; r < ranks; ++r) {
+    const Plan& p = out_[r];
+    const double* w = recv_buffer_[r].data();
+    for (size_t m = 0; m < p.owned.size(); ++m)
+      if (p.home[m]) {
+        const int k = p.owned[m];
+        owned_f(0, k) = w[0], owned_f(1, k) = w[1], owned_f(2, k) = w[2], w += 3;
+      }
   }
 }
 

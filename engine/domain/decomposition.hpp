@@ -1,17 +1,20 @@
-// Domain decomposition with whole-molecule ownership (docs/parallel.md): which rank owns which
-// molecule, which beads of other ranks it sees as ghosts, and the messages that move them.
+// Domain decomposition with two ownerships (docs/parallel.md): which rank integrates which
+// molecule, which rank computes which bead's pair forces, and the messages that move positions out
+// and forces back.
 //
-// A grid of domains covers the box; a molecule (a lone bead is a molecule of one) belongs to the
-// rank whose domain holds its anchor, the centre of mass wrapped into the box, and moves to another
-// rank when its anchor has gone more than the halo's margin past its owner's domain. A rank's
-// owned particles are its local arrays, in increasing global index. Its ghosts are every bead of
-// another rank within R = r_c + margin of one of its own (through cells at least R wide); the
-// owned particles and the ghosts together, in increasing global index, are the extended set the
-// pair terms work on (GhostedPairs). Beads that were farther than R at the selection come within
-// r_c of an owned bead only after some bead moved margin/2, so the ghosts are complete until then;
-// they are selected again before that (DomainIntegrator). Ghosts carry their owners' coordinates,
-// never a shifted image: every pair distance goes through the box's minimum image, as in one
-// process.
+// A grid of domains covers the box. A molecule (a lone bead is a molecule of one) is integrated by
+// the rank whose domain holds its anchor, the centre of mass wrapped into the box (its owner); it
+// moves to another rank when its anchor has gone more than the margin past its owner's domain. A
+// rank's owned particles are its local arrays, in increasing global index. The pair forces are
+// computed where the beads are: a bead's home is the rank whose domain held its position at the
+// last selection of the pair sets; that rank's pair set is every bead within R = r_c + margin of
+// its domain, in increasing global index (its home beads and a thin halo). A bead's partners
+// within r_c lie in its home's pair set while no bead has moved margin/2 since the selection, so
+// the pair sets are selected again before that (pair_set_stale). Per pair evaluation the owners
+// send each bead's position to the ranks whose pair set holds it, and its force so far to its home
+// (forward); the home ranks send the forces back (reverse). Positions are their owners' coordinates
+// wrapped into the box, never a shifted image: every pair distance goes through the box's minimum
+// image, as in one process.
 #pragma once
 
 #include <Eigen/Core>
@@ -48,7 +51,8 @@ DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* di
 struct DomainReport {
   int ranks = 1;
   Eigen::Vector3i grid = Eigen::Vector3i::Ones();
-  double ghosts_per_owned = 0.0;        // mean over ranks, at the last selection
+  double ghosts_per_owned = 0.0;        // halo beads per home bead (all ranks), at the last selection
+  std::int64_t neighbor_pairs = 0;      // the pairs in the ranks' lists as last built, summed
   double halo_bytes_per_step = 0.0;     // all ranks, one halo
   double halo_messages_per_step = 0.0;  // all ranks, one halo
   long redistributions = 0;             // the ghosts selected again (and molecules migrated) after the first
@@ -65,24 +69,30 @@ class Decomposition {
                 double cutoff, double margin, const Eigen::Vector3i* dims);
 
   // From the whole state (the same on every rank, at the start): owners by anchor, and this
-  // rank's owned x, v. Collective (through select_ghosts, which the caller runs next).
+  // rank's owned x, v (no communication: the caller selects the pair sets next).
   void distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
-  // Molecules whose anchor has gone more than the margin (at most a quarter of a domain's width)
-  // past this rank's domain move whole to the
-  // owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel with
-  // them); x, v, carried become the new owned arrays. Returns whether this rank's owned particles
-  // changed. Collective.
+  // Molecules whose anchor has gone more than a quarter of a domain's width past this rank's
+  // domain move whole to the owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel
+  // with them); x, v, carried become the new owned arrays. Returns whether this rank's owned particles changed.
+  // Collective.
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried);
-  // The ghosts of the owned positions x, and the extended set. Collective.
-  void select_ghosts(const Eigen::Matrix3Xd& x);
+  // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
+  void select_pair_set(const Eigen::Matrix3Xd& x);
+  // Whether some bead of the owned array `a` (x, or the mollified positions) has moved margin/2 or
+  // more since the selection, on any rank: the pair sets may miss a pair and must be selected
+  // again. Collective (one max-reduction).
+  bool pair_set_stale(const Eigen::Matrix3Xd& a) const;
 
-  // The extended array of an owned one (x, or the mollified positions): the owned columns copied,
-  // the ghost columns from their owners' arrays of the same kind. Collective; no allocation once
-  // the buffers have their size. Stops the run (NumericalError) when a bead has moved margin/2
-  // since the selection: pairs would be missed.
-  // Every column is wrapped into the box (BoxWrap, forcefields/neighbor_list.hpp), as the pair
-  // loop reads positions.
-  void halo(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& extended) const;
+  // The pair set's array of an owned one (the positions, or the mollified positions), wrapped into
+  // the box (BoxWrap, forcefields/neighbor_list.hpp) as the pair loop reads positions; with
+  // `owned_f`, also `pair_f`: each home bead's force as its owner has it so far (so that the pair
+  // forces add onto it in the one-process order), 0 on the halo. Collective; no allocation once
+  // the buffers have their size.
+  void forward(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& pair, const Eigen::Matrix3Xd* owned_f = nullptr,
+               Eigen::Matrix3Xd* pair_f = nullptr) const;
+  // Each owned bead's force from its home's pair-set array `pair_f` into owned_f (replacing it:
+  // the home added the pair forces onto the owner's). Collective.
+  void reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const;
   // Rank 0 gets every rank's owned columns of each array into a 3 × N array by global index (the
   // others get nothing). Collective.
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,
@@ -101,25 +111,24 @@ class Decomposition {
   const std::vector<int>& owned_ids() const { return ids_; }  // global index per owned particle
   int num_owned() const { return static_cast<int>(ids_.size()); }
   int owned_index(int global) const { return owned_of_[global]; }  // −1: not owned here
-  // The extended set: global index per extended particle (increasing), the extended index of
-  // owned particle k, and whether an extended particle is a ghost.
-  const std::vector<int>& extended_ids() const { return extended_ids_; }
-  int extended_slot(int owned) const { return owned_slot_[owned]; }
-  const std::vector<char>& ghost_flags() const { return ghost_flag_; }
-  const std::vector<int>& ghost_slots() const { return ghost_slot_; }  // the ghosts' extended indices
+  // The pair set: global index per slot (increasing), whether a slot is a halo bead (not home
+  // here: NeighborList::set_ghosts), the home beads' count, and the slot of a global index (−1: not
+  // in this rank's pair set).
+  const std::vector<int>& pair_ids() const { return pair_ids_; }
+  const std::vector<char>& halo_flags() const { return halo_flag_; }
+  int num_home() const { return num_home_; }
+  int pair_slot(int global) const { return pair_slot_of_[global]; }
   bool owns_molecule(int m) const;
   const DomainGrid& grid() const { return grid_; }
   double margin() const { return margin_; }
-  // A new margin for the next selection (> 0).
-  void set_margin(double margin) { radius_ += margin - margin_, margin_ = margin; }
   const Communicator& comm() const { return comm_; }
-  // Per halo: the doubles sent, the messages sent (this rank).
+  // Per pair evaluation with forces (forward and reverse): the doubles and messages this rank sends.
   std::int64_t halo_doubles() const { return halo_doubles_; }
   int halo_messages() const { return halo_messages_; }
   long selections() const { return selections_; }
   long migrated_molecules() const { return migrated_; }
   // The box after a barostat's cell move: the domains scale with it (periodic axes), and the next
-  // ghost selection uses it.
+  // selection of the pair sets uses it.
   void set_box(const Box& box);
   const Box& box() const { return box_; }
   int molecule_of(int global) const { return molecule_[global]; }
@@ -144,30 +153,29 @@ class Decomposition {
   bool have_dims_ = false;
   double radius_, margin_;
 
-  std::vector<int> owned_;     // molecules, increasing
-  std::vector<int> ids_;       // owned particles: global index, increasing
-  std::vector<int> owned_of_;  // global → owned index (−1: not owned here)
-  Eigen::Matrix3Xd x_at_selection_;
-  // The extended set and the halo's plan: to rank r the owned columns send_[r]; from rank r
-  // ghost_count_[r] columns, into the extended slots ghost_slot_[ghost_begin_[r] + k].
-  std::vector<int> extended_ids_, owned_slot_, ghost_slot_;
-  std::vector<char> ghost_flag_;
-  std::vector<std::vector<int>> send_;
-  std::vector<int> ghost_begin_, ghost_count_;
+  std::vector<int> owned_;           // molecules, increasing
+  std::vector<int> ids_;             // owned particles: global index, increasing
+  std::vector<int> owned_of_;        // global → owned index (−1: not owned here)
+  Eigen::Matrix3Xd x_at_selection_;  // the owned positions at the selection
+
+  // The pair set and the plan of forward and reverse. From this rank to rank r (≠ this one):
+  // the owned columns out_[r].owned, each a home bead there or not (out_[r].home); back from r
+  // the forces of the home ones, in the same order. From rank r: its columns into the slots
+  // in_[r].slot, home here or not. The beads this rank sends itself: `local_`.
+  struct Plan {
+    std::vector<int> owned, slot;  // sender: owned index; receiver: pair slot
+    std::vector<char> home;
+    int homes = 0;
+  };
+  std::vector<Plan> out_, in_;
+  Plan local_;  // owned index and slot together
+  std::vector<int> pair_ids_, pair_slot_of_;
+  std::vector<char> halo_flag_;
+  int num_home_ = 0;
   mutable std::vector<std::vector<double>> send_buffer_, recv_buffer_;
   std::int64_t halo_doubles_ = 0;
   int halo_messages_ = 0;
   long selections_ = 0, migrated_ = 0;
-  // select_ghosts' scratch, kept from one selection to the next: per owned bead its cell and its
-  // position wrapped into the cells' frame; the beads by cell (a counting sort) and their wrapped
-  // positions in that order.
-  struct SelectionScratch {
-    std::vector<std::int64_t> cell_of, occupied;
-    std::vector<int> cell_start, by_cell;
-    std::vector<char> near;
-    Eigen::Matrix3Xd wrapped, cell_x;
-    std::vector<std::pair<int, int>> members;
-  } scratch_;
 };
 
 }  // namespace stiffmd

@@ -48,11 +48,12 @@ std::string with_global_particles(const std::string& what, const std::vector<int
   return out;
 }
 
-// The halo's margin beyond the cutoff: [parallel] halo_margin, else to start with twice the pair
-// lists' skin, then adapted (DomainIntegrator::reselect).
-double halo_margin(const Scene& sc, double skin) {
+// The halo's margin beyond the cutoff: [parallel] halo_margin, else the pair lists' skin, so that
+// the pair sets are selected again when a list would be rebuilt (Decomposition::pair_set_stale:
+// a bead moved half of it), as LAMMPS exchanges its ghosts at each rebuild.
+double halo_margin(const Scene& sc, double skin, double cutoff) {
   if (sc.parallel.halo_margin > 0.0) return sc.parallel.halo_margin;
-  return skin > 0.0 ? 2.0 * skin : 0.6;
+  return skin > 0.0 ? skin : 0.3 * cutoff;
 }
 
 }  // namespace
@@ -75,9 +76,13 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communi
   check_parallel_grid(whole, comm.size());
   // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.forces->box(), comm, cutoff,
-                                             cutoff > 0.0 ? halo_margin(whole, skin) : 0.0, dims);
-  adapt_margin_ = cutoff > 0.0 && !(whole.parallel.halo_margin > 0.0);
-  margin_range_[0] = std::max(skin, 1e-3 * cutoff), margin_range_[1] = 4.0 * (cutoff + skin);
+                                             cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
+  // Each pair term's special pairs over the whole system, by particle: a pair set's are those
+  // among its beads (GhostedPairs).
+  for (const auto& t : whole.forces->terms()) {
+    const auto* pairs = t->uses_neighbor_list() ? dynamic_cast<const PairsOnParticles*>(t.get()) : nullptr;
+    special_.push_back(pairs ? std::make_unique<SpecialPartners>(pairs->special_pairs(), whole.state.size()) : nullptr);
+  }
   evaluations_.assign(whole.forces->num_levels(), 0);
   // The polymer columns average over the topology's molecules (its molecule ids); a rank can sum
   // them only over molecules it holds whole.
@@ -178,12 +183,15 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.processes = &comm_;
   }
   read_force_terms(deck_, p);
-  // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs);
-  // a part built again keeps the old part's terms on the extended set, and their buffers.
+  // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
+  // built again keeps the old part's terms on the pair set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {
     const ForceTerm& term = *p.forces->terms()[k];
     if (!term.uses_neighbor_list()) continue;
-    auto ghosted = std::make_unique<GhostedPairs>(term.on_particles(p.particle_type, t.bonds, p.box), d);
+    if (k >= special_.size() || !special_[k])
+      throw std::logic_error("a part's pair term '" + term.name() + "' is not the whole system's");
+    auto ghosted = std::make_unique<GhostedPairs>(term.on_particles(p.particle_type, t.bonds, p.box), *domains_,
+                                                  w.particle_type, *special_[k]);
     if (part_ && part->pairs.size() < part_->pairs.size()) ghosted->take_over(*part_->pairs[part->pairs.size()]);
     part->pairs.push_back(ghosted.get());
     p.forces->replace(k, std::move(ghosted));
@@ -194,22 +202,13 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   part_ = std::move(part);
 }
 
-// The pair terms moved onto the extended set of the last selection, with its particles' types.
-void DomainIntegrator::retarget_pairs() {
-  const std::vector<int>& ext = domains_->extended_ids();
-  extended_types_.resize(ext.size());
-  for (size_t e = 0; e < ext.size(); ++e) extended_types_[e] = whole_scene_.particle_type[ext[e]];
-  for (GhostedPairs* term : part_->pairs) term->retarget(extended_types_, whole_scene_.forces->box());
-}
-
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
 // or what the first sample left): each its particles' columns, rank 0 the sums.
 void DomainIntegrator::start(const State& s) {
   Eigen::Matrix3Xd x, v;
   domains_->distribute(s, x, v);
   build_part(std::move(x), std::move(v), s);
-  domains_->select_ghosts(part_->scene.state.x);
-  retarget_pairs();
+  domains_->select_pair_set(part_->scene.state.x);
   // The lists built now, before the step loop, as one process builds its list in the first
   // force evaluation.
   for (GhostedPairs* term : part_->pairs) term->update_list(part_->scene.state.x, part_->scene.box);
@@ -224,42 +223,35 @@ void DomainIntegrator::start(const State& s) {
   part_->integrator->restore_carried_state(std::move(c));
 }
 
-// The ghosts selected again; first the molecules whose anchors have left their domains move,
-// with what the part's integrator carries for their particles (cached kick forces, a Langevin
-// force among them: not recomputed, so the run goes on as if nothing had moved). Only a part
-// whose particles changed is built again.
-void DomainIntegrator::reselect() {
+// After the pair sets were selected again (or the box moved): the molecules whose anchors have
+// left their domains move, with what the part's integrator carries for their particles (cached
+// kick forces, a Langevin force among them: not recomputed, so the run goes on as if nothing had
+// moved). Only a part whose particles changed is built again; the pair sets follow any change on
+// any rank (each rank's plan names the owners' columns).
+void DomainIntegrator::reselect(bool box_moved) {
   const ScopedPhase phase(Phase::domain);
-  // The margin's trade: a wider one holds more ghosts (a larger halo and lists), a narrower one
-  // selects them more often (each selection costs about half a list build, and rebuilds the lists
-  // before their skin is used up). Aim at a selection every 20–80 steps (docs/parallel.md: on the
-  // in.chain melt a selection every 14 steps cost 3–4 % more than one every 30–70); the steps
-  // between selections are the same on every rank, so is the margin.
-  if (adapt_margin_) {
-    const double m = domains_->margin();
-    if (steps_since_selection_ < 20) domains_->set_margin(std::min(1.5 * m, margin_range_[1]));
-    if (steps_since_selection_ > 80) domains_->set_margin(std::max(m / 1.25, margin_range_[0]));
-  }
-  steps_since_selection_ = 0;
   State& l = part_->scene.state;
   CarriedState carried = part_->integrator->carried_state();
   std::vector<Eigen::Matrix3Xd*> columns;
   for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
+  double changed = 0.0;
   if (domains_->migrate(l.x, l.v, columns)) {
+    changed = 1.0;
     Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
     build_part(std::move(x), std::move(v), l);
     part_->integrator->restore_carried_state(std::move(carried));
   }
-  domains_->select_ghosts(part_->scene.state.x);
-  retarget_pairs();
+  comm_.max(&changed, 1);
+  if (changed > 0.0 || box_moved) domains_->select_pair_set(part_->scene.state.x);
 }
 
 void DomainIntegrator::step(State& s, double h) {
   if (!part_)
     start(s);
-  else if (reselect_)
-    reselect();
-  reselect_ = false;
+  else if (reselect_ || box_moved_)
+    reselect(box_moved_);
+  reselect_ = box_moved_ = false;
+  const long selections = domains_->selections();
   State& l = part_->scene.state;
   l.step = s.step;
   l.t = s.t;
@@ -268,33 +260,30 @@ void DomainIntegrator::step(State& s, double h) {
   } catch (const NumericalError& e) {  // this rank's alone (engine/main.cpp ends the job)
     throw NumericalError(with_global_particles(e.what(), part_->scene.global_id));
   }
-  ++steps_since_selection_;
   // A barostat moved the cell (every rank alike, at the same step): the domains, the whole
-  // system's box (checkpoints, outputs) and the ghosts follow it before the next step.
+  // system's box (checkpoints, outputs) and the pair sets follow it before the next step.
   if (const Box& box = part_->scene.forces->box(); box.lengths != domains_->box().lengths) {
     domains_->set_box(box);
     whole_scene_.forces->set_box(box);
-    reselect_ = true;
+    box_moved_ = true;
   }
-  // One reduction: the largest bound on a bead's displacement since the ghosts were selected by
-  // the end of the next step, and the first particle (global index) with a non-finite position
-  // or velocity.
-  // A bead moves about |v| h in a step; twice its own |v| h bounds its next step's displacement.
-  const Decomposition::Reach reach = domains_->reach(l.x, l.v, 2.0 * h, 0.5 * domains_->margin());
-  const double first_bad = reach.first_bad >= 0 ? -static_cast<double>(part_->scene.global_id[reach.first_bad])
-                                                : -std::numeric_limits<double>::infinity();
-  double reduced[2] = {reach.largest, first_bad};
+  // The pair sets were selected again in this step (every rank alike): the molecules whose anchor
+  // left their domain move before the next.
+  reselect_ = domains_->selections() != selections;
+  // One reduction: the first particle (global index) with a non-finite position or velocity.
+  const Decomposition::Reach reach =
+      domains_->reach(l.x, l.v, 0.0, std::numeric_limits<double>::infinity());  // finiteness only
+  double first_bad = reach.first_bad >= 0 ? -static_cast<double>(part_->scene.global_id[reach.first_bad])
+                                          : -std::numeric_limits<double>::infinity();
   {
     const ScopedPhase phase(Phase::domain);
-    comm_.max(reduced, 2);
+    comm_.max(&first_bad, 1);
   }
-  if (std::isfinite(reduced[1])) {
+  if (std::isfinite(first_bad)) {
     std::ostringstream m;
-    m << "numerical failure: non-finite position or velocity of particle " << static_cast<long>(-reduced[1]);
+    m << "numerical failure: non-finite position or velocity of particle " << static_cast<long>(-first_bad);
     throw AgreedStop(m.str(), comm_.root());
   }
-  // Select the ghosts again before the next step if it may take a bead past margin/2.
-  if (domains_->margin() > 0.0 && reduced[0] >= 0.5 * domains_->margin()) reselect_ = true;
 }
 
 void DomainIntegrator::reset() {
@@ -366,15 +355,22 @@ DomainReport DomainIntegrator::report() const {
   r.ranks = comm_.size();
   if (!part_) return r;
   r.grid = domains_->grid().dims;
-  const int owned = domains_->num_owned();
-  const double ghosts = static_cast<double>(domains_->extended_ids().size()) - owned;
-  double v[4] = {owned > 0 ? ghosts / owned : 0.0, 8.0 * static_cast<double>(domains_->halo_doubles()),
-                 static_cast<double>(domains_->halo_messages()), static_cast<double>(domains_->migrated_molecules())};
-  comm_.sum(v, 4);
-  r.ghosts_per_owned = v[0] / r.ranks;
-  r.halo_bytes_per_step = v[1];
-  r.halo_messages_per_step = v[2];
-  r.migrated_molecules = static_cast<long>(v[3]);
+  const double home = domains_->num_home();
+  const double halo = static_cast<double>(domains_->pair_ids().size()) - home;
+  std::int64_t listed = 0;
+  for (const auto& t : part_->scene.forces->terms()) listed += t->listed_pairs();
+  double v[6] = {halo,
+                 home,
+                 8.0 * static_cast<double>(domains_->halo_doubles()),
+                 static_cast<double>(domains_->halo_messages()),
+                 static_cast<double>(domains_->migrated_molecules()),
+                 static_cast<double>(listed)};
+  comm_.sum(v, 6);
+  r.ghosts_per_owned = v[1] > 0.0 ? v[0] / v[1] : 0.0;
+  r.halo_bytes_per_step = v[2];
+  r.halo_messages_per_step = v[3];
+  r.migrated_molecules = static_cast<long>(v[4]);
+  r.neighbor_pairs = static_cast<std::int64_t>(v[5]);
   r.redistributions = domains_->selections() - 1;
   // The ranks rebuild their lists together (GhostedPairs), so the fewest and the most agree.
   double rebuilds[2] = {-static_cast<double>(neighbor_rebuilds()), static_cast<double>(neighbor_rebuilds())};

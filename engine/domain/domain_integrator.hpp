@@ -24,6 +24,7 @@
 #include "core/communicator.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/domain/decomposition.hpp"
+#include "engine/domain/ghosted_pairs.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
@@ -86,8 +87,7 @@ class DomainIntegrator final : public Integrator {
  private:
   struct Part;
   void start(const State& s);
-  void reselect();
-  void retarget_pairs();
+  void reselect(bool box_moved);
   void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
   std::vector<double> part_invariants() const;
 
@@ -97,19 +97,17 @@ class DomainIntegrator final : public Integrator {
   std::unique_ptr<Integrator> whole_;
   std::unique_ptr<Decomposition> domains_;
   std::unique_ptr<Part> part_;
-  bool reselect_ = false;            // the ghosts (and the molecules' owners) before the next step
-  bool adapt_margin_ = false;        // no [parallel] halo_margin: DomainIntegrator::reselect adapts it
-  double margin_range_[2] = {0, 0};  // its least and largest value
-  long steps_since_selection_ = 0;
-  int whole_dof_ = 0;            // csvr: the whole system's degrees of freedom
-  bool molecules_whole_ = true;  // every topology molecule within one bonded molecule
+  bool reselect_ = false;   // the pair sets were selected again: molecules may migrate before the next step
+  bool box_moved_ = false;  // a barostat moved the cell: the pair sets follow before the next step
+  std::vector<std::unique_ptr<SpecialPartners>> special_;  // per whole-system term: a pair term's
+  int whole_dof_ = 0;                                      // csvr: the whole system's degrees of freedom
+  bool molecules_whole_ = true;                            // every topology molecule within one bonded molecule
   // The effective dynamics' modes: per constraint cluster of the whole system (find_clusters,
   // integrators/clusters.hpp, the order the modes take), its molecule, first mode and mode count.
   struct Cluster {
     int molecule, first, modes;
   };
   std::vector<Cluster> clusters_;
-  std::vector<int> extended_types_;        // per extended particle (retarget_pairs)
   std::vector<std::int64_t> evaluations_;  // of the parts before the current one
   long rebuilds_ = 0;
 };

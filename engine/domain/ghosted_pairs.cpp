@@ -1,90 +1,119 @@
 #include "engine/domain/ghosted_pairs.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace stiffmd {
 
-GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, const Decomposition& domains)
-    : ForceTerm(owned_term->name(), owned_term->level()), template_(std::move(owned_term)), domains_(domains) {
-  if (!template_->uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
-  owned_pairs_ = dynamic_cast<const PairsOnParticles*>(template_.get());
-  if (!owned_pairs_) throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
+SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_particles)
+    : start(static_cast<size_t>(num_particles) + 1, 0) {
+  for (const SpecialPair& p : pairs) ++start[p.i + 1], ++start[p.j + 1];
+  for (int g = 0; g < num_particles; ++g) start[g + 1] += start[g];
+  partner.resize(start.back());
+  weight.resize(start.back());
+  std::vector<int> next(start.begin(), start.end() - 1);
+  for (const SpecialPair& p : pairs) {
+    partner[next[p.i]] = p.j, weight[next[p.i]++] = p.weight;
+    partner[next[p.j]] = p.i, weight[next[p.j]++] = p.weight;
+  }
 }
 
-void GhostedPairs::retarget(std::span<const int> types, const Box& box) {
-  if (!extended_) {
-    extended_ = template_->on_particles({}, {}, box);
-    extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
-    if (!extended_pairs_)
-      throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
-    // The halo writes the extended positions wrapped into the box, as the pair loop reads them:
-    // the list makes no wrapped copy of its own.
-    extended_pairs_->set_positions_wrapped(true);
-    // Every evaluation runs on every rank at once (the halo is collective), so the ranks can
-    // rebuild their lists together: one rebuilding alone would hold the others up at the next
-    // halo for as long as its build takes.
-    const Communicator& comm = domains_.comm();
-    extended_pairs_->set_rebuild_agreement([&comm](bool stale) {
-      double any = stale ? 1.0 : 0.0;
-      comm.max(&any, 1);
-      return any > 0.0;
-    });
-  }
-  // The owned particles' bonds join owned particles only (molecules are whole), so the extended
-  // set's special pairs are the owned term's through the owned → extended slots; the slots
-  // increase with the owned index, so the pairs stay sorted by (i, j), as special_pairs gives them.
-  const std::span<const SpecialPair> owned = owned_pairs_->special_pairs();
-  special_.resize(owned.size());
-  for (std::size_t p = 0; p < owned.size(); ++p)
-    special_[p] = {domains_.extended_slot(owned[p].i), domains_.extended_slot(owned[p].j), owned[p].weight};
-  extended_pairs_->move_to(types, special_, domains_.ghost_flags());
+GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition& domains, std::span<const int> types,
+                           const SpecialPartners& special)
+    : ForceTerm(owned_term->name(), owned_term->level()),
+      template_(std::move(owned_term)),
+      domains_(domains),
+      whole_types_(types),
+      whole_special_(special) {
+  if (!template_->uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
+  extended_ = template_->on_particles({}, {}, domains.box());
+  extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
+  if (!extended_pairs_)
+    throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
+  // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
+  // reads them: the list makes no wrapped copy of its own.
+  extended_pairs_->set_positions_wrapped(true);
+  // Every evaluation runs on every rank at once (forward is collective), so the ranks can rebuild
+  // their lists together: one rebuilding alone would hold the others up at the next exchange for
+  // as long as its build takes.
+  const Communicator& comm = domains.comm();
+  extended_pairs_->set_rebuild_agreement([&comm](bool stale) {
+    double any = stale ? 1.0 : 0.0;
+    comm.max(&any, 1);
+    return any > 0.0;
+  });
 }
 
 void GhostedPairs::take_over(GhostedPairs& old) {
-  if (!old.extended_) return;
   extended_ = std::move(old.extended_);
   extended_pairs_ = old.extended_pairs_;
   old.extended_pairs_ = nullptr;
   rebuilds_before_ = extended_->neighbor_list_rebuilds();
+  selection_ = old.selection_;
+  types_ = std::move(old.types_);
   special_ = std::move(old.special_);
 }
 
+void GhostedPairs::current(const Eigen::Matrix3Xd& x) const {
+  if (domains_.pair_set_stale(x)) domains_.select_pair_set(x);
+  if (selection_ == domains_.selections()) return;
+  selection_ = domains_.selections();
+  const std::vector<int>& ids = domains_.pair_ids();
+  const std::vector<char>& halo = domains_.halo_flags();
+  const int n = static_cast<int>(ids.size());
+  types_.resize(n);
+  for (int e = 0; e < n; ++e) types_[e] = whole_types_[ids[e]];
+  // The special pairs of the whole system with a home bead here and both beads in the pair set: a
+  // home bead's partners within R are all here, and a pair of two halo beads is not evaluated.
+  special_.clear();
+  const SpecialPartners& s = whole_special_;
+  for (int e = 0; e < n; ++e) {
+    if (halo[e]) continue;
+    const int g = ids[e];
+    for (int q = s.start[g]; q < s.start[g + 1]; ++q) {
+      const int j = s.partner[q], t = domains_.pair_slot(j);
+      if (t < 0 || (!halo[t] && j < g)) continue;  // two home beads: once, from the lower
+      special_.push_back({std::min(e, t), std::max(e, t), s.weight[q]});
+    }
+  }
+  std::sort(special_.begin(), special_.end(),
+            [](const SpecialPair& a, const SpecialPair& b) { return a.i != b.i ? a.i < b.i : a.j < b.j; });
+  extended_pairs_->move_to(types_, special_, halo);
+}
+
 void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {
-  domains_.halo(x, x_);
+  current(x);
+  domains_.forward(x, x_);
   extended_pairs_->update_list(x_, box);
 }
 
 double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  domains_.halo(x, x_);
-  const int owned = domains_.num_owned();
-  f_.resize(3, x_.cols());  // no allocation once sized
-  for (const int e : domains_.ghost_slots()) f_.col(e).setZero();
-  for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
+  current(x);
+  domains_.forward(x, x_, &f, &f_);
   const double energy = extended_->add_forces(x_, box, f_);
-  for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));
+  domains_.reverse(f_, f);
   return energy;
 }
 
 void GhostedPairs::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
                                                   ExactDiagonal& w) const {
-  domains_.halo(x, x_);
-  const int owned = domains_.num_owned();
-  f_.resize(3, x_.cols());
-  for (const int e : domains_.ghost_slots()) f_.col(e).setZero();
-  for (int k = 0; k < owned; ++k) f_.col(domains_.extended_slot(k)) = f.col(k);
+  current(x);
+  domains_.forward(x, x_, &f, &f_);
   extended_->add_forces_and_virial_diagonal(x_, box, f_, w);
-  for (int k = 0; k < owned; ++k) f.col(k) = f_.col(domains_.extended_slot(k));
+  domains_.reverse(f_, f);
 }
 
 double GhostedPairs::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  domains_.halo(x, x_);
+  current(x);
+  domains_.forward(x, x_);
   return extended_->virial(x_, box);
 }
 
 ForceTerm::Sums GhostedPairs::energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box,
                                                 Eigen::Matrix3Xd& scratch) const {
   (void)scratch;
-  domains_.halo(x, x_);
+  current(x);
+  domains_.forward(x, x_);
   return extended_->energy_and_virial(x_, box, f_);
 }
 

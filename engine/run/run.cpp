@@ -332,6 +332,14 @@ const RunSummary& Run::finish() {
   bool has_pairs = false;
   for (const auto& term : sc_.forces->terms()) has_pairs |= term->uses_neighbor_list();
   if (has_pairs) summary_.neighbor_rebuilds = rebuilds_now();
+  // The pairs the lists hold (a decomposed run's ranks summed: a pair of a home and a halo bead is
+  // listed on both its beads' homes).
+  if (has_pairs && domain_) {
+    summary_.neighbor_pairs = summary_.domains.neighbor_pairs;
+  } else if (has_pairs) {
+    summary_.neighbor_pairs = 0;
+    for (const auto& term : sc_.forces->terms()) summary_.neighbor_pairs += term->listed_pairs();
+  }
   const std::vector<std::int64_t> now = evaluations_now();
   summary_.slow_evaluations = stats_.evaluations.back() + now.back();
   summary_.fast_evaluations = stats_.evaluations.front() + now.front();

@@ -70,7 +70,7 @@ std::string format_summary(const RunSummary& s) {
     const DomainReport& d = s.domains;
     o << "ranks:         " << d.ranks << " (domains " << d.grid[0] << " x " << d.grid[1] << " x " << d.grid[2]
       << "), step loop max " << s.rank_loop_seconds_max << " s, mean " << s.rank_loop_seconds_mean << " s; "
-      << d.ghosts_per_owned << " ghosts per owned bead, halo " << d.halo_bytes_per_step << " bytes in "
+      << d.ghosts_per_owned << " halo beads per home bead, halo " << d.halo_bytes_per_step << " bytes in "
       << d.halo_messages_per_step << " messages; " << d.redistributions << " redistributions moved "
       << d.migrated_molecules << " molecules";
     if (s.h5md_writers > 0) o << "; H5MD written by " << s.h5md_writers << (s.h5md_writers > 1 ? " ranks" : " rank");
@@ -98,8 +98,8 @@ std::string summary_json(const RunSummary& s) {
     << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
     << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
     << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds
-    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
-    << ",\n  \"level_evaluations\": {";
+    << ",\n  \"neighbor_pairs\": " << s.neighbor_pairs << ",\n  \"slow_evaluations\": " << s.slow_evaluations
+    << ",\n  \"fast_evaluations\": " << s.fast_evaluations << ",\n  \"level_evaluations\": {";
   for (size_t k = 0; k < s.level_evaluations.size(); ++k)
     o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
   o << "}"

@@ -40,7 +40,8 @@ struct RunSummary {
   std::int64_t fast_evaluations = 0;  // of the innermost level
   // Every level's evaluations, innermost first, with its name ([[integrator.levels]] or fast/slow).
   std::vector<std::pair<std::string, std::int64_t>> level_evaluations;
-  long neighbor_rebuilds = -1;  // over the run; −1 when the scene has no pair term
+  long neighbor_rebuilds = -1;       // over the run; −1 when the scene has no pair term
+  std::int64_t neighbor_pairs = -1;  // in the lists as last built (all ranks); −1: no pair term
   double final_max_violation = 0.0;
   std::vector<double> initial_actions, final_actions;  // when actions are observed
   std::vector<std::string> outputs;
