@@ -107,7 +107,7 @@ NeighborList::NeighborList(double cutoff, double skin) : cutoff_(cutoff), skin_(
 
 void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair> pairs) {
   excl_particles_ = num_particles;
-  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new extended set
+  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new pair set
   // at each selection of the ghosts): counts, their prefix sums, each pair placed at its rows'
   // cursors, the cursors shifted back into row starts.
   excl_offsets_.assign(static_cast<std::size_t>(num_particles) + 1, 0);

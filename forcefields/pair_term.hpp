@@ -39,6 +39,9 @@ class PairsOnParticles {
                        std::span<const char> ghost) = 0;
   // Its neighbour list rebuilds as `agree` decides (NeighborList::set_rebuild_agreement).
   virtual void set_rebuild_agreement(NeighborList::RebuildAgreement agree) = 0;
+  // Whether its neighbour list may miss a pair at x (NeighborList::needs_rebuild: this list's
+  // verdict alone, whatever the agreement).
+  virtual bool list_stale(const Eigen::Matrix3Xd& x, const Box& box) const = 0;
   // Its neighbour list brought up to date for x (NeighborList::update), ahead of an evaluation.
   virtual void update_list(const Eigen::Matrix3Xd& x, const Box& box) = 0;
   // The positions it is given are wrapped into the box (NeighborList::set_positions_wrapped).
@@ -85,6 +88,7 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
     list_.set_rebuild_agreement(std::move(agree));
   }
   void set_positions_wrapped(bool wrapped) override { list_.set_positions_wrapped(wrapped); }
+  bool list_stale(const Eigen::Matrix3Xd& x, const Box& box) const override { return list_.needs_rebuild(x, box); }
   void update_list(const Eigen::Matrix3Xd& x, const Box& box) override {
     check_positions(x, nullptr);
     const ScopedPhase phase(Phase::neighbor);

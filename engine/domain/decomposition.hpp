@@ -79,8 +79,10 @@ class Decomposition {
   // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
   // Whether some bead of the owned array `a` (x, or the mollified positions) has moved margin/2 or
-  // more since the selection, on any rank: the pair sets may miss a pair and must be selected
-  // again. Collective (one max-reduction).
+  // more since the selection: this rank's verdict (moved_half_margin), or any rank's
+  // (pair_set_stale, collective: one max-reduction). Then the pair sets may miss a pair and must
+  // be selected again.
+  bool moved_half_margin(const Eigen::Matrix3Xd& a) const;
   bool pair_set_stale(const Eigen::Matrix3Xd& a) const;
 
   // The pair set's array of an owned one (the positions, or the mollified positions), wrapped into

@@ -33,15 +33,6 @@ GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition&
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
   // reads them: the list makes no wrapped copy of its own.
   extended_pairs_->set_positions_wrapped(true);
-  // Every evaluation runs on every rank at once (forward is collective), so the ranks can rebuild
-  // their lists together: one rebuilding alone would hold the others up at the next exchange for
-  // as long as its build takes.
-  const Communicator& comm = domains.comm();
-  extended_pairs_->set_rebuild_agreement([&comm](bool stale) {
-    double any = stale ? 1.0 : 0.0;
-    comm.max(&any, 1);
-    return any > 0.0;
-  });
 }
 
 void GhostedPairs::take_over(GhostedPairs& old) {
@@ -54,9 +45,25 @@ void GhostedPairs::take_over(GhostedPairs& old) {
   special_ = std::move(old.special_);
 }
 
-void GhostedPairs::current(const Eigen::Matrix3Xd& x) const {
-  if (domains_.pair_set_stale(x)) domains_.select_pair_set(x);
-  if (selection_ == domains_.selections()) return;
+void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd* f) const {
+  // Moved onto a pair set another term selected: its list is built there at this evaluation.
+  const bool moved = selection_ != domains_.selections();
+  if (moved) retarget();
+  domains_.forward(x, x_, f, f ? &f_ : nullptr);
+  // One max-reduction decides for every rank: the pair sets are selected again when a bead has
+  // moved margin/2 (else they may miss a pair), and also when a rank's list would be rebuilt
+  // anyway — so that a rebuild, the costly part of a selection, is the one the list would make,
+  // as LAMMPS exchanges its ghosts at each reneighbouring. Every list then rebuilds together: a
+  // rank rebuilding alone would hold the others up at the next exchange.
+  double stale = domains_.moved_half_margin(x) || (!moved && extended_pairs_->list_stale(x_, box)) ? 1.0 : 0.0;
+  domains_.comm().max(&stale, 1);
+  if (stale == 0.0) return;
+  domains_.select_pair_set(x);
+  retarget();
+  domains_.forward(x, x_, f, f ? &f_ : nullptr);
+}
+
+void GhostedPairs::retarget() const {
   selection_ = domains_.selections();
   const std::vector<int>& ids = domains_.pair_ids();
   const std::vector<char>& halo = domains_.halo_flags();
@@ -82,14 +89,12 @@ void GhostedPairs::current(const Eigen::Matrix3Xd& x) const {
 }
 
 void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {
-  current(x);
-  domains_.forward(x, x_);
+  forward(x, box, nullptr);
   extended_pairs_->update_list(x_, box);
 }
 
 double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
-  current(x);
-  domains_.forward(x, x_, &f, &f_);
+  forward(x, box, &f);
   const double energy = extended_->add_forces(x_, box, f_);
   domains_.reverse(f_, f);
   return energy;
@@ -97,23 +102,20 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
 
 void GhostedPairs::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
                                                   ExactDiagonal& w) const {
-  current(x);
-  domains_.forward(x, x_, &f, &f_);
+  forward(x, box, &f);
   extended_->add_forces_and_virial_diagonal(x_, box, f_, w);
   domains_.reverse(f_, f);
 }
 
 double GhostedPairs::virial(const Eigen::Matrix3Xd& x, const Box& box) const {
-  current(x);
-  domains_.forward(x, x_);
+  forward(x, box, nullptr);
   return extended_->virial(x_, box);
 }
 
 ForceTerm::Sums GhostedPairs::energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box,
                                                 Eigen::Matrix3Xd& scratch) const {
   (void)scratch;
-  current(x);
-  domains_.forward(x, x_);
+  forward(x, box, nullptr);
   return extended_->energy_and_virial(x_, box, f_);
 }
 

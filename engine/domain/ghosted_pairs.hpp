@@ -7,9 +7,9 @@
 // bead's pair forces are added onto its owner's forces so far, in the one-process order: the
 // same bits as one process.
 //
-// Before each evaluation the pair sets are checked (Decomposition::pair_set_stale: some bead has
-// moved margin/2 since the selection) and selected again when stale, as a list rebuild decides in
-// one process; the term then moves onto the new pair set in place (PairsOnParticles::move_to):
+// Before each evaluation the pair sets are checked (some bead has moved margin/2 since the
+// selection, or a rank's list would be rebuilt) and selected again when stale; the term then
+// moves onto the new pair set in place (PairsOnParticles::move_to):
 // its neighbour list keeps its buffers, and the pair set's special pairs are the whole system's
 // among its beads.
 #pragma once
@@ -69,8 +69,11 @@ class GhostedPairs final : public ForceTerm {
   void define(ParameterRecord& record) const override { template_->define(record); }
 
  private:
-  // The pair sets selected again when stale (collective), and this term moved onto the current one.
-  void current(const Eigen::Matrix3Xd& x) const;
+  // The pair set's positions x_ (and with f, the home beads' forces so far f_) for the owned
+  // positions x, the pair sets selected again first when stale or when a rank's list would be
+  // rebuilt (collective), this term moved onto the current pair set.
+  void forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd* f) const;
+  void retarget() const;
 
   std::unique_ptr<ForceTerm> template_, extended_;
   PairsOnParticles* extended_pairs_ = nullptr;  // extended_'s

@@ -68,7 +68,7 @@ struct OutputSettings {
 // [parallel]: what a run on several ranks lets a user choose (docs/parallel.md); ignored on one.
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
-  double halo_margin = 0.0;                        // ghosts beyond the cutoff; 0: adapted (docs/parallel.md)
+  double halo_margin = 0.0;                        // the pair sets beyond the cutoff; 0: 1.5 × skin (docs/parallel.md)
   // "file:line: parallel.grid" (or the --set that gave it), for errors at the key; empty: not given.
   std::string grid_where, halo_margin_where;
 };
