@@ -248,7 +248,7 @@ class FakeCommunicator final : public Communicator {
 
   template <class T, class Op>
   void reduce(T* v, int n, const char* op, Op combine) const {
-    std::vector<T> result(v, v + n);
+    std::vector<T> result(static_cast<size_t>(std::max(n, 0)));
     collective(
         {op, n, 0, v, nullptr}, [] {},
         [&] {
@@ -258,7 +258,7 @@ class FakeCommunicator final : public Communicator {
             result[k] = acc;
           }
         });
-    std::copy(result.begin(), result.end(), v);  // after barrier 2: nobody reads v any more
+    for (int k = 0; k < n; ++k) v[k] = result[k];  // after barrier 2: nobody reads v any more
   }
 
   template <class T>
@@ -266,7 +266,8 @@ class FakeCommunicator final : public Communicator {
     collective(
         {op, n, 0, v, nullptr}, [] {},
         [&] {
-          if (rank_ != 0) std::copy_n(static_cast<const T*>(shared_.slot(0).in), n, v);
+          if (rank_ != 0)
+            for (int k = 0; k < n; ++k) v[k] = static_cast<const T*>(shared_.slot(0).in)[k];
         });
   }
 
