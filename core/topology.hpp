@@ -6,6 +6,7 @@
 
 #include <array>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/disjoint_sets.hpp"
@@ -60,17 +61,13 @@ struct Topology {
 // Not the deck's or a data file's molecule ids: a term must never join two molecules, whatever a
 // file calls them. What is scaled as one by a barostat and owned by one rank of a decomposed run.
 inline std::vector<int> bonded_molecules(const Topology& topology, int n) {
-  DisjointSets bonded(n);
-  for (const Bond& b : topology.bonds) bonded.join(b.i, b.j);
-  for (const Angle& a : topology.angles) bonded.join(a.i, a.j), bonded.join(a.j, a.k);
-  for (const Dihedral& d : topology.dihedrals) bonded.join(d.i, d.j), bonded.join(d.j, d.k), bonded.join(d.k, d.l);
-  std::vector<int> molecule(static_cast<size_t>(n), -1);
-  int molecules = 0;
-  for (int i = 0; i < n; ++i) {
-    const int root = bonded.root(i);  // the least particle of its component
-    molecule[i] = root == i ? molecules++ : molecule[root];
-  }
-  return molecule;
+  std::vector<std::pair<int, int>> joins;
+  joins.reserve(topology.bonds.size() + 2 * topology.angles.size() + 3 * topology.dihedrals.size());
+  for (const Bond& b : topology.bonds) joins.emplace_back(b.i, b.j);
+  for (const Angle& a : topology.angles) joins.emplace_back(a.i, a.j), joins.emplace_back(a.j, a.k);
+  for (const Dihedral& d : topology.dihedrals)
+    joins.emplace_back(d.i, d.j), joins.emplace_back(d.j, d.k), joins.emplace_back(d.k, d.l);
+  return connected_components(n, joins);
 }
 
 }  // namespace stiffmd

@@ -9,26 +9,29 @@
 namespace stiffmd {
 
 std::vector<ConstraintCluster> find_clusters(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& inv_mass) {
-  // Union–find over bonds: two bonds are coupled iff they share a mobile particle.
-  const int m = static_cast<int>(bonds.size());
-  DisjointSets coupled(m);
-  std::vector<int> last_bond_at(static_cast<size_t>(inv_mass.size()), -1);
-  for (int b = 0; b < m; ++b) {
-    for (int p : {bonds[b].i, bonds[b].j}) {
-      if (inv_mass[p] == 0.0) continue;  // a fixed particle transmits no constraint force
-      if (last_bond_at[p] >= 0) coupled.join(b, last_bond_at[p]);
-      last_bond_at[p] = b;
-    }
-  }
-  std::vector<int> cluster_of_root(m, -1);
+  // Two bonds are coupled iff they share a mobile particle (a pinned one, m⁻¹ = 0, transmits no
+  // constraint force): the particles' components with only mobile ones joining, a bond's cluster
+  // the component of its mobile ends (one with none, both ends pinned, is a cluster of its own).
+  const int n = static_cast<int>(inv_mass.size()), m = static_cast<int>(bonds.size());
+  std::vector<std::pair<int, int>> ends(static_cast<size_t>(m));
+  std::vector<char> mobile(static_cast<size_t>(n));
+  for (int b = 0; b < m; ++b) ends[b] = {bonds[b].i, bonds[b].j};
+  for (int p = 0; p < n; ++p) mobile[p] = inv_mass[p] != 0.0;
+  const std::vector<int> component = connected_components(n, ends, &mobile);
+  std::vector<int> cluster_of_component(static_cast<size_t>(n), -1);
   std::vector<ConstraintCluster> clusters;
   for (int b = 0; b < m; ++b) {
-    const int r = coupled.root(b);
-    if (cluster_of_root[r] < 0) {
-      cluster_of_root[r] = static_cast<int>(clusters.size());
-      clusters.emplace_back();
+    const int p = mobile[bonds[b].i] ? bonds[b].i : bonds[b].j;  // a mobile end, if it has one
+    int k = static_cast<int>(clusters.size());                   // a new cluster, unless p's component has one
+    if (mobile[p]) {
+      int& known = cluster_of_component[component[p]];
+      if (known < 0)
+        known = k;
+      else
+        k = known;
     }
-    ConstraintCluster& c = clusters[cluster_of_root[r]];
+    if (k == static_cast<int>(clusters.size())) clusters.emplace_back();
+    ConstraintCluster& c = clusters[k];
     c.bonds.push_back(b);
     c.particles.push_back(bonds[b].i);
     c.particles.push_back(bonds[b].j);

@@ -275,10 +275,9 @@ TEST(ConstraintClusters, PinnedCoreSplitsItsMoleculeAndClustersComeByFirstBond) 
   EXPECT_EQ(clusters[2].particles, (std::vector<int>{0, 2}));
   // The molecules join through the pinned core all the same: one molecule, named by its first
   // particle, and the dimer.
-  DisjointSets molecules(6);
-  for (const StiffBond& b : bonds) molecules.join(b.i, b.j);
-  for (int p : {1, 2, 5}) EXPECT_EQ(molecules.root(p), 0) << "particle " << p;
-  EXPECT_EQ(molecules.root(4), 3);
+  std::vector<std::pair<int, int>> pairs;
+  for (const StiffBond& b : bonds) pairs.emplace_back(b.i, b.j);
+  EXPECT_EQ(connected_components(6, pairs), (std::vector<int>{0, 0, 0, 1, 1, 0}));
   // A mobile core couples its two arms into one cluster, still first by its first bond.
   inv_mass[0] = 1.0;
   const std::vector<ConstraintCluster> joined = find_clusters(bonds, inv_mass);
@@ -295,6 +294,71 @@ TEST(DisjointSets, RootIsTheLeastElementWhateverTheOrderOfTheJoins) {
   EXPECT_EQ(sets.root(0), 0);
   sets.join(5, 1);
   for (int a : {1, 2, 3, 4, 5, 6}) EXPECT_EQ(sets.root(a), 1) << a;
+}
+
+// Vertices 0 … 8: 0–1–2 and 2–3 a path, 5 a non-coupling vertex between 4 and 6, 7–8 joined,
+// listed in no particular order.
+TEST(ConnectedComponents, LabelsByFirstVertexAndANonCouplingVertexJoinsNothing) {
+  const std::vector<std::pair<int, int>> edges = {{8, 7}, {5, 4}, {3, 2}, {6, 5}, {1, 0}, {2, 1}};
+  EXPECT_EQ(connected_components(9, edges), (std::vector<int>{0, 0, 0, 0, 1, 1, 1, 2, 2}));
+  std::vector<char> couples(9, 1);
+  couples[5] = 0;
+  EXPECT_EQ(connected_components(9, edges, &couples), (std::vector<int>{0, 0, 0, 0, 1, 2, 3, 4, 4}));
+  couples[2] = 0;  // the path splits at 2: {0, 1}, {2}, {3}
+  EXPECT_EQ(connected_components(9, edges, &couples), (std::vector<int>{0, 0, 1, 2, 3, 4, 5, 6, 6}));
+  EXPECT_EQ(connected_components(3, {}), (std::vector<int>{0, 1, 2}));
+  EXPECT_TRUE(connected_components(0, {}).empty());
+}
+
+// find_clusters against its definition, on random bonds among few particles (branches, rings,
+// repeated pairs) with random pinned ones: bonds b < c are in one cluster iff a path of bonds
+// joins them, each sharing a mobile particle with the next; clusters by first bond, bonds and
+// particles ascending.
+TEST(ConstraintClusters, AreTheBondsJoinedThroughMobileParticles) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 200; ++trial) {
+    const int n = 2 + trial % 13, m = trial % 17;
+    std::uniform_int_distribution<int> particle(0, n - 1);
+    std::vector<StiffBond> bonds;
+    for (int b = 0; b < m; ++b) {
+      const int i = particle(rng);
+      int j = particle(rng);
+      if (j == i) j = (i + 1) % n;
+      bonds.push_back({i, j, 1.0, 1.0});
+    }
+    Eigen::VectorXd inv_mass = Eigen::VectorXd::Ones(n);
+    for (int p = 0; p < n; ++p)
+      if (rng() % 4 == 0) inv_mass[p] = 0.0;
+    // The reference: bonds as vertices, joined at each mobile particle they share.
+    std::vector<int> cluster_of(m);
+    std::iota(cluster_of.begin(), cluster_of.end(), 0);
+    for (bool changed = true; changed;) {
+      changed = false;
+      for (int b = 0; b < m; ++b)
+        for (int c = 0; c < m; ++c)
+          for (int p : {bonds[b].i, bonds[b].j})
+            if (inv_mass[p] != 0.0 && (p == bonds[c].i || p == bonds[c].j) && cluster_of[c] > cluster_of[b])
+              cluster_of[c] = cluster_of[b], changed = true;
+    }
+    std::vector<ConstraintCluster> expected;
+    std::vector<int> index(m, -1);
+    for (int b = 0; b < m; ++b) {
+      int& k = index[cluster_of[b]];
+      if (k < 0) k = static_cast<int>(expected.size()), expected.emplace_back();
+      expected[k].bonds.push_back(b);
+      for (int p : {bonds[b].i, bonds[b].j}) expected[k].particles.push_back(p);
+    }
+    for (ConstraintCluster& c : expected) {
+      std::sort(c.particles.begin(), c.particles.end());
+      c.particles.erase(std::unique(c.particles.begin(), c.particles.end()), c.particles.end());
+    }
+    const std::vector<ConstraintCluster> found = find_clusters(bonds, inv_mass);
+    ASSERT_EQ(found.size(), expected.size()) << "trial " << trial;
+    for (size_t k = 0; k < found.size(); ++k) {
+      EXPECT_EQ(found[k].bonds, expected[k].bonds) << "trial " << trial << ", cluster " << k;
+      EXPECT_EQ(found[k].particles, expected[k].particles) << "trial " << trial << ", cluster " << k;
+    }
+  }
 }
 
 TEST(ConstraintInput, RejectsBondsThatMakeSSingular) {

@@ -80,14 +80,12 @@ std::vector<std::pair<int, int>> bond_pairs(const std::vector<ImportedSystem::Bo
   return pairs;
 }
 
-// An XYZ file has no molecule ids: the molecules are the connected components of its bonds, each
-// named by its first atom (append_particles numbers them densely in that order).
+// An XYZ file has no molecule ids: the molecules are the connected components of its bonds (its
+// only bonded terms), numbered in the order of their first atom (the order append_particles
+// keeps). Pinning needs no care: a molecule joins through a pinned particle (bonded_molecules), and
+// an imported atom is never pinned (a type's mass is > 0; only [[particles]] pins).
 std::vector<int> bond_components(int n, const std::vector<ImportedSystem::Bond>& bonds) {
-  DisjointSets bonded(n);
-  for (const auto& b : bonds) bonded.join(b.i, b.j);
-  std::vector<int> molecule(static_cast<size_t>(n));
-  for (int p = 0; p < n; ++p) molecule[p] = bonded.root(p);
-  return molecule;
+  return connected_components(n, bond_pairs(bonds));
 }
 
 // Imported molecules made whole (core/state.hpp): unwrapped along their bonds, or, when the

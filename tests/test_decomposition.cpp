@@ -1,0 +1,348 @@
+// The decomposition's ownership, migration, gather and reach (engine/domain/decomposition.hpp) on
+// 2, 3 and 4 fake ranks in one process (tests/fake_processes.hpp), on a periodic melt whose
+// molecules straddle the domain faces and the periodic faces (tests/decomposition_fixtures.hpp).
+// The ghosts and the halo are not tested here.
+//
+// What must hold: every molecule is owned whole by exactly one rank, the rank of the domain of its
+// anchor (its centre of mass wrapped into the box); a rank's owned particles come in increasing
+// global index; a molecule whose anchor has gone far into another domain moves there whole with
+// x, v and the carried columns, one that has gone less than the margin past its domain's face
+// stays, and so does every other; rank 0 gathers every array by global index; reach is the largest
+// displacement since the selection plus t |v|, and the first non-finite bead.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "decomposition_fixtures.hpp"
+#include "engine/domain/decomposition.hpp"
+#include "fake_processes.hpp"
+
+namespace stiffmd {
+namespace {
+
+using fake::FakeCommunicator;
+using fake::Melt;
+using fake::run_ranks;
+
+constexpr double kCutoff = 2.5, kMargin = 0.8;
+
+struct Layout {
+  int ranks;
+  Eigen::Vector3i dims;  // zero: the decomposition chooses
+  bool given() const { return dims.prod() > 0; }
+};
+
+std::string layout_name(const ::testing::TestParamInfo<Layout>& info) {
+  const Layout& l = info.param;
+  if (!l.given()) return std::to_string(l.ranks) + "_ranks_grid_chosen";
+  return std::to_string(l.ranks) + "_ranks_grid_" + std::to_string(l.dims[0]) + "x" + std::to_string(l.dims[1]) + "x" +
+         std::to_string(l.dims[2]);
+}
+
+// One rank's decomposition as seen through its public queries, taken on its own thread.
+struct Snapshot {
+  std::vector<int> ids;
+  std::vector<int> owned_index;  // per global particle
+  std::vector<char> owns;        // per molecule of the decomposition
+  std::vector<int> molecule_of;  // per global particle
+  DomainGrid grid;
+  Eigen::Matrix3Xd x, v;
+  std::vector<Eigen::Matrix3Xd> carried;
+};
+
+Snapshot snapshot(const Decomposition& d, int n, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
+                  std::vector<Eigen::Matrix3Xd> carried = {}) {
+  Snapshot s;
+  s.ids = d.owned_ids();
+  for (int i = 0; i < n; ++i) s.owned_index.push_back(d.owned_index(i)), s.molecule_of.push_back(d.molecule_of(i));
+  for (int m = 0; m < d.num_molecules(); ++m) s.owns.push_back(d.owns_molecule(m));
+  s.grid = d.grid();
+  s.x = x, s.v = v, s.carried = std::move(carried);
+  return s;
+}
+
+std::unique_ptr<Decomposition> make(const Melt& melt, const Communicator& comm, const Layout& layout) {
+  return std::make_unique<Decomposition>(melt.topology, melt.state.inv_mass, melt.box, comm, kCutoff, kMargin,
+                                         layout.given() ? &layout.dims : nullptr);
+}
+
+// The melt's molecule anchors' ranks on grid g, for positions x (by global index).
+std::vector<int> anchor_ranks(const Melt& melt, const DomainGrid& g, const Eigen::Matrix3Xd& x) {
+  std::vector<int> rank(melt.molecules);
+  for (int m = 0; m < melt.molecules; ++m)
+    rank[m] = fake::rank_of_point(g, fake::centre_of_mass(melt, x, melt.members(m)));
+  return rank;
+}
+
+// The invariants of an ownership: the grid the same on every rank, each particle owned by exactly
+// one rank at its owned index, owned ids increasing, the decomposition's molecules the melt's,
+// each owned whole by `owner[label]`, and the owned columns those of x, v (by global index).
+void expect_ownership(const Melt& melt, const std::vector<Snapshot>& ranks, const std::vector<int>& owner,
+                      const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) {
+  const int n = melt.size(), size = static_cast<int>(ranks.size());
+  for (const Snapshot& s : ranks) {
+    EXPECT_EQ(s.grid.dims, ranks[0].grid.dims);
+    EXPECT_EQ(s.grid.origin, ranks[0].grid.origin);
+    EXPECT_EQ(s.grid.length, ranks[0].grid.length);
+  }
+  // The decomposition's molecules are the melt's (the same partition, numbered its own way).
+  for (int i = 0; i < n; ++i)
+    for (int j = i + 1; j < n; ++j)
+      ASSERT_EQ(ranks[0].molecule_of[i] == ranks[0].molecule_of[j], melt.label[i] == melt.label[j])
+          << "particles " << i << ", " << j;
+  std::vector<int> owner_of(n, -1);
+  for (int r = 0; r < size; ++r) {
+    const Snapshot& s = ranks[r];
+    EXPECT_TRUE(std::is_sorted(s.ids.begin(), s.ids.end()) &&
+                std::adjacent_find(s.ids.begin(), s.ids.end()) == s.ids.end())
+        << "rank " << r << ": owned ids not increasing";
+    ASSERT_EQ(s.x.cols(), static_cast<long>(s.ids.size()));
+    ASSERT_EQ(s.v.cols(), static_cast<long>(s.ids.size()));
+    for (int k = 0; k < static_cast<int>(s.ids.size()); ++k) {
+      const int g = s.ids[k];
+      EXPECT_EQ(owner_of[g], -1) << "particle " << g << " owned by ranks " << owner_of[g] << " and " << r;
+      owner_of[g] = r;
+      EXPECT_EQ(s.owned_index[g], k);
+      EXPECT_EQ(s.x.col(k), x.col(g)) << "rank " << r << ", particle " << g;
+      EXPECT_EQ(s.v.col(k), v.col(g)) << "rank " << r << ", particle " << g;
+    }
+    // owned_index is −1 for every particle not owned here.
+    int indexed = 0;
+    for (int g = 0; g < n; ++g) indexed += s.owned_index[g] >= 0;
+    EXPECT_EQ(indexed, static_cast<int>(s.ids.size())) << "rank " << r;
+  }
+  for (int g = 0; g < n; ++g) {
+    ASSERT_GE(owner_of[g], 0) << "particle " << g << " owned by no rank";
+    EXPECT_EQ(owner_of[g], owner[melt.label[g]])
+        << "particle " << g << " of molecule " << melt.label[g] << ": not on the rank of its anchor's domain";
+    for (int r = 0; r < size; ++r)
+      EXPECT_EQ(ranks[r].owns[ranks[r].molecule_of[g]] != 0, owner_of[g] == r) << "rank " << r << ", particle " << g;
+  }
+}
+
+// Equal sizes and equal values (Eigen's == assumes equal sizes).
+bool same(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
+  return a.cols() == b.cols() && a == b;
+}
+
+class DecompositionOnFakeRanks : public ::testing::TestWithParam<Layout> {};
+
+TEST_P(DecompositionOnFakeRanks, DistributeGivesEachMoleculeWholeToTheRankOfItsAnchorsDomain) {
+  const Layout layout = GetParam();
+  const Melt melt = fake::straddling_melt();
+  const int n = melt.size();
+  std::vector<Snapshot> ranks(layout.ranks);
+  std::vector<long> collectives(layout.ranks, -1);
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    // distribute is each rank's own work (the collective call comes with select_ghosts, next).
+    collectives[comm.rank()] = comm.collectives();
+    ranks[comm.rank()] = snapshot(*d, n, x, v);
+    std::vector<Eigen::Matrix3Xd> whole;
+    d->gather_columns({x, v}, whole, n);
+    ASSERT_EQ(whole.size(), 2u);
+    if (!comm.root()) {
+      EXPECT_EQ(whole[0].cols(), 0);
+      return;
+    }
+    EXPECT_TRUE(same(whole[0], melt.state.x));
+    EXPECT_TRUE(same(whole[1], melt.state.v));
+  });
+  for (long c : collectives) EXPECT_EQ(c, 0);
+  const DomainGrid& grid = ranks[0].grid;
+  EXPECT_EQ(grid.dims.prod(), layout.ranks);
+  if (layout.given()) {
+    EXPECT_EQ(grid.dims, layout.dims);
+  }
+  EXPECT_EQ(grid.origin, melt.box.origin);
+  EXPECT_EQ(grid.length, melt.box.lengths);
+  const std::vector<int> owner = anchor_ranks(melt, grid, melt.state.x);
+  expect_ownership(melt, ranks, owner, melt.state.x, melt.state.v);
+
+  // The melt tests what it should: molecules across the domains' faces and across the box's, and
+  // every rank owning some.
+  int across_domains = 0, across_box = 0;
+  for (int m = 0; m < melt.molecules; ++m) {
+    std::vector<int> domains;
+    bool inside = false, outside = false;
+    for (int g : melt.members(m)) {
+      const Eigen::Vector3d p = melt.state.x.col(g);
+      domains.push_back(fake::rank_of_point(grid, p));
+      const bool in = ((p - melt.box.origin).array() >= 0.0).all() &&
+                      ((p - melt.box.origin - melt.box.lengths).array() < 0.0).all();
+      (in ? inside : outside) = true;
+    }
+    across_domains += std::any_of(domains.begin(), domains.end(), [&](int r) { return r != domains[0]; });
+    across_box += inside && outside;
+  }
+  EXPECT_GE(across_domains, 5);
+  EXPECT_GE(across_box, 5);
+  for (int r = 0; r < layout.ranks; ++r) EXPECT_FALSE(ranks[r].ids.empty()) << "rank " << r << " owns nothing";
+}
+
+// Where each molecule goes and where it ends: x moved per molecule, and its owner after migrate.
+struct Moves {
+  Eigen::Matrix3Xd x;
+  std::vector<int> owner_before, owner_after;
+  int far = 0, near_face_stays = 0, past_slack = 0;
+};
+
+// Molecule m by m % 4: 0 to the centre of another rank's domain (every second one a box length
+// further along x: unwrapped, outside the box); 1 its anchor half the slack past its domain's
+// upper face along a cut axis (it stays); 2 one and a half slacks past it (it moves to the
+// neighbour); 3 not at all. The slack: the margin, at most a quarter of a domain's narrowest width.
+Moves plan_moves(const Melt& melt, const DomainGrid& g) {
+  Moves p;
+  p.x = melt.state.x;
+  p.owner_before = anchor_ranks(melt, g, melt.state.x);
+  const int ranks = g.size();
+  double slack = kMargin;
+  for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * g.length[a] / g.dims[a]);
+  int cut = 0;
+  while (g.dims[cut] == 1) ++cut;
+  for (int m = 0; m < melt.molecules; ++m) {
+    const std::vector<int> members = melt.members(m);
+    const Eigen::Vector3d c = fake::centre_of_mass(melt, melt.state.x, members);
+    const int from = p.owner_before[m];
+    Eigen::Vector3d shift = Eigen::Vector3d::Zero();
+    if (m % 4 == 0) {
+      const int to = (from + 1 + m / 4 % (ranks - 1)) % ranks;
+      // The centre of `to`'s domain at the image of the box nearest c.
+      Eigen::Vector3d target = fake::domain_centre(g, to);
+      target += melt.box.lengths.cwiseProduct(((c - target).cwiseQuotient(melt.box.lengths)).array().round().matrix());
+      shift = target - c;
+      if (m % 8 == 0) shift[0] += melt.box.lengths[0];
+      ++p.far;
+    } else if (m % 4 == 1 || m % 4 == 2) {
+      // c wrapped into the box, then to slack/2 or 3 slack/2 past its domain's upper face.
+      double q = c[cut] - melt.box.lengths[cut] * std::floor((c[cut] - g.origin[cut]) / g.length[cut]);
+      const double face = fake::domain_corner(g, from)[cut] + g.length[cut] / g.dims[cut];
+      shift[cut] = face + (m % 4 == 1 ? 0.5 : 1.5) * slack - q;
+      ++(m % 4 == 1 ? p.near_face_stays : p.past_slack);
+    }
+    for (int i : members) p.x.col(i) += shift;
+  }
+  p.owner_after = anchor_ranks(melt, g, p.x);
+  for (int m = 0; m < melt.molecules; ++m)
+    if (m % 4 == 1) {
+      EXPECT_NE(p.owner_after[m], p.owner_before[m]) << "molecule " << m << ": its anchor did not cross the face";
+      p.owner_after[m] = p.owner_before[m];
+    }
+  return p;
+}
+
+TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAndKeepsTheRest) {
+  const Layout layout = GetParam();
+  const Melt melt = fake::straddling_melt();
+  const int n = melt.size();
+  // Two carried columns per particle, distinct by global index.
+  Eigen::Matrix3Xd c1(3, n), c2(3, n);
+  for (int g = 0; g < n; ++g)
+    for (int a = 0; a < 3; ++a) c1(a, g) = 10.0 * g + a, c2(a, g) = -0.5 * g - 0.25 * a;
+  std::vector<Snapshot> before(layout.ranks), after(layout.ranks);
+  std::vector<char> changed(layout.ranks), changed_again(layout.ranks, 1);
+  std::vector<Moves> moves(layout.ranks);
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    const int me = comm.rank();
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    before[me] = snapshot(*d, n, x, v);
+    moves[me] = plan_moves(melt, d->grid());  // the same on every rank
+    Eigen::Matrix3Xd mine1(3, d->num_owned()), mine2(3, d->num_owned());
+    for (int k = 0; k < d->num_owned(); ++k) {
+      const int g = d->owned_ids()[k];
+      x.col(k) = moves[me].x.col(g);
+      mine1.col(k) = c1.col(g), mine2.col(k) = c2.col(g);
+    }
+    changed[me] = d->migrate(x, v, {&mine1, &mine2});
+    after[me] = snapshot(*d, n, x, v, {mine1, mine2});
+    // Nothing moved since: nothing changes.
+    changed_again[me] = d->migrate(x, v, {&mine1, &mine2});
+    EXPECT_EQ(d->owned_ids(), after[me].ids);
+    EXPECT_TRUE(same(x, after[me].x));
+    EXPECT_TRUE(same(mine1, after[me].carried[0]));
+    // Rank 0 gathers the moved arrays by global index.
+    std::vector<Eigen::Matrix3Xd> whole;
+    d->gather_columns({x, v, mine1, mine2}, whole, n);
+    ASSERT_EQ(whole.size(), 4u);
+    if (!comm.root()) {
+      for (const Eigen::Matrix3Xd& w : whole) EXPECT_EQ(w.cols(), 0);
+      return;
+    }
+    EXPECT_TRUE(same(whole[0], moves[me].x));
+    EXPECT_TRUE(same(whole[1], melt.state.v));
+    EXPECT_TRUE(same(whole[2], c1));
+    EXPECT_TRUE(same(whole[3], c2));
+  });
+  const Moves& p = moves[0];
+  ASSERT_GE(p.far, 3);
+  ASSERT_GE(p.near_face_stays, 3);
+  ASSERT_GE(p.past_slack, 3);
+  expect_ownership(melt, before, p.owner_before, melt.state.x, melt.state.v);
+  expect_ownership(melt, after, p.owner_after, p.x, melt.state.v);
+  for (int r = 0; r < layout.ranks; ++r) {
+    ASSERT_EQ(after[r].carried.size(), 2u);
+    for (int k = 0; k < static_cast<int>(after[r].ids.size()); ++k) {
+      EXPECT_EQ(after[r].carried[0].col(k), c1.col(after[r].ids[k])) << "rank " << r;
+      EXPECT_EQ(after[r].carried[1].col(k), c2.col(after[r].ids[k])) << "rank " << r;
+    }
+    EXPECT_EQ(changed[r] != 0, before[r].ids != after[r].ids) << "rank " << r;
+    EXPECT_FALSE(changed_again[r]) << "rank " << r;
+  }
+  int moved = 0;
+  for (int m = 0; m < melt.molecules; ++m) moved += p.owner_after[m] != p.owner_before[m];
+  EXPECT_GE(moved, p.far + p.past_slack);
+}
+
+TEST_P(DecompositionOnFakeRanks, ReachIsTheLargestDisplacementPlusTVAndTheFirstNonFiniteBead) {
+  const Layout layout = GetParam();
+  const Melt melt = fake::straddling_melt();
+  constexpr double t = 0.3;
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    fake::mark_selection(*d, x);
+    const int owned = d->num_owned();
+    // Each bead displaced by its own amount; the largest d + t|v| expected, computed here.
+    double largest = 0.0;
+    for (int k = 0; k < owned; ++k) {
+      const int g = d->owned_ids()[k];
+      const Eigen::Vector3d dx = 0.01 * (g % 11) * Eigen::Vector3d(1.0, -2.0, 0.5 * (g % 3));
+      x.col(k) += dx;
+      largest = std::max(largest, (x.col(k) - melt.state.x.col(g)).norm() + t * v.col(k).norm());
+    }
+    const Decomposition::Reach all = d->reach(x, v, t, 0.0);
+    EXPECT_EQ(all.first_bad, -1);
+    EXPECT_DOUBLE_EQ(all.largest, largest);
+    // A floor below the largest keeps it; one above it leaves only values under the floor.
+    EXPECT_DOUBLE_EQ(d->reach(x, v, t, 0.5 * largest).largest, largest);
+    const Decomposition::Reach above = d->reach(x, v, t, largest + 0.1);
+    EXPECT_LT(above.largest, largest + 0.1);
+    EXPECT_EQ(above.first_bad, -1);
+    if (owned < 3) return;
+    // The first non-finite bead in owned order, x or v, whatever the floor.
+    const int first = owned / 2;
+    v(0, owned - 1) = std::numeric_limits<double>::infinity();
+    EXPECT_EQ(d->reach(x, v, t, 0.0).first_bad, owned - 1);
+    x(1, first) = std::nan("");
+    EXPECT_EQ(d->reach(x, v, t, 0.0).first_bad, first);
+    EXPECT_EQ(d->reach(x, v, t, 1e300).first_bad, first);
+  });
+}
+
+INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,
+                         ::testing::Values(Layout{2, {2, 1, 1}}, Layout{3, {1, 3, 1}}, Layout{4, {2, 1, 2}},
+                                           Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}}),
+                         layout_name);
+
+}  // namespace
+}  // namespace stiffmd
