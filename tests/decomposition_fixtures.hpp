@@ -146,10 +146,4 @@ inline Eigen::Vector3d domain_centre(const DomainGrid& g, int r) {
   return domain_corner(g, r) + 0.5 * g.length.cwiseQuotient(g.dims.cast<double>());
 }
 
-// The reference positions of reach(): those of the last ghost selection, the only call that sets
-// them. Nothing about the ghosts themselves is tested through this.
-inline void mark_selection(Decomposition& d, const Eigen::Matrix3Xd& x) {
-  d.select_ghosts(x);
-}
-
 }  // namespace stiffmd::fake

@@ -1,14 +1,15 @@
-// The decomposition's ownership, migration, gather and reach (engine/domain/decomposition.hpp) on
+// The decomposition's ownership, migration, gather, pair sets, forward and reverse
+// (engine/domain/decomposition.hpp) on
 // 2, 3 and 4 fake ranks in one process (tests/fake_processes.hpp), on a periodic melt whose
 // molecules straddle the domain faces and the periodic faces (tests/decomposition_fixtures.hpp).
-// The ghosts and the halo are not tested here.
 //
 // What must hold: every molecule is owned whole by exactly one rank, the rank of the domain of its
 // anchor (its centre of mass wrapped into the box); a rank's owned particles come in increasing
 // global index; a molecule whose anchor has gone far into another domain moves there whole with
 // x, v and the carried columns, one that has gone less than the margin past its domain's face
-// stays, and so does every other; rank 0 gathers every array by global index; reach is the largest
-// displacement since the selection plus t |v|, and the first non-finite bead.
+// stays, and so does every other; rank 0 gathers every array by global index; the pair sets are
+// the beads within R of each domain, each bead home on one rank; forward and reverse move
+// positions out and forces back.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -197,13 +198,13 @@ struct Moves {
 // Molecule m by m % 4: 0 to the centre of another rank's domain (every second one a box length
 // further along x: unwrapped, outside the box); 1 its anchor half the slack past its domain's
 // upper face along a cut axis (it stays); 2 one and a half slacks past it (it moves to the
-// neighbour); 3 not at all. The slack: the margin, at most a quarter of a domain's narrowest width.
+// neighbour); 3 not at all. The slack: a quarter of a domain's narrowest width.
 Moves plan_moves(const Melt& melt, const DomainGrid& g) {
   Moves p;
   p.x = melt.state.x;
   p.owner_before = anchor_ranks(melt, g, melt.state.x);
   const int ranks = g.size();
-  double slack = kMargin;
+  double slack = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * g.length[a] / g.dims[a]);
   int cut = 0;
   while (g.dims[cut] == 1) ++cut;
@@ -302,41 +303,151 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
   EXPECT_GE(moved, p.far + p.past_slack);
 }
 
-TEST_P(DecompositionOnFakeRanks, ReachIsTheLargestDisplacementPlusTVAndTheFirstNonFiniteBead) {
+TEST_P(DecompositionOnFakeRanks, FirstNonFiniteIsTheFirstOwnedBeadWithANonFiniteXOrV) {
   const Layout layout = GetParam();
   const Melt melt = fake::straddling_melt();
-  constexpr double t = 0.3;
   run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
     d->distribute(melt.state, x, v);
-    fake::mark_selection(*d, x);
     const int owned = d->num_owned();
-    // Each bead displaced by its own amount; the largest d + t|v| expected, computed here.
-    double largest = 0.0;
-    for (int k = 0; k < owned; ++k) {
-      const int g = d->owned_ids()[k];
-      const Eigen::Vector3d dx = 0.01 * (g % 11) * Eigen::Vector3d(1.0, -2.0, 0.5 * (g % 3));
-      x.col(k) += dx;
-      largest = std::max(largest, (x.col(k) - melt.state.x.col(g)).norm() + t * v.col(k).norm());
-    }
-    const Decomposition::Reach all = d->reach(x, v, t, 0.0);
-    EXPECT_EQ(all.first_bad, -1);
-    EXPECT_DOUBLE_EQ(all.largest, largest);
-    // A floor below the largest keeps it; one above it leaves only values under the floor.
-    EXPECT_DOUBLE_EQ(d->reach(x, v, t, 0.5 * largest).largest, largest);
-    const Decomposition::Reach above = d->reach(x, v, t, largest + 0.1);
-    EXPECT_LT(above.largest, largest + 0.1);
-    EXPECT_EQ(above.first_bad, -1);
+    EXPECT_EQ(d->first_non_finite(x, v), -1);
     if (owned < 3) return;
-    // The first non-finite bead in owned order, x or v, whatever the floor.
     const int first = owned / 2;
     v(0, owned - 1) = std::numeric_limits<double>::infinity();
-    EXPECT_EQ(d->reach(x, v, t, 0.0).first_bad, owned - 1);
+    EXPECT_EQ(d->first_non_finite(x, v), owned - 1);
     x(1, first) = std::nan("");
-    EXPECT_EQ(d->reach(x, v, t, 0.0).first_bad, first);
-    EXPECT_EQ(d->reach(x, v, t, 1e300).first_bad, first);
+    EXPECT_EQ(d->first_non_finite(x, v), first);
   });
+}
+
+// The distance from p to rank r's domain (per axis the gap to its slab, over the periodic images),
+// computed here from the grid's numbers.
+double distance_to_domain(const DomainGrid& g, const Box& box, int r, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d lo = fake::domain_corner(g, r);
+  double d2 = 0.0;
+  for (int a = 0; a < 3; ++a) {
+    const double width = g.length[a] / g.dims[a];
+    double gap = std::numeric_limits<double>::infinity();
+    for (int image = -2; image <= 2; ++image) {
+      const double q = p[a] + image * box.lengths[a];
+      gap = std::min(gap, std::max({0.0, lo[a] - q, q - (lo[a] + width)}));
+    }
+    d2 += gap * gap;
+  }
+  return std::sqrt(d2);
+}
+
+// p wrapped into the box (every axis periodic here).
+Eigen::Vector3d wrapped(const Box& box, const Eigen::Vector3d& p) {
+  Eigen::Vector3d q;
+  for (int a = 0; a < 3; ++a) q[a] = p[a] - box.lengths[a] * std::floor((p[a] - box.origin[a]) / box.lengths[a]);
+  return q;
+}
+
+// The pair sets (two ownerships, one halo): each bead is home on exactly one rank, the one whose
+// domain holds it; a rank's pair set is exactly the beads within R = r_c + margin of its domain
+// (up to rounding at R), in increasing global index, its halo the beads not home there; forward
+// gives every slot its bead's position wrapped into the box and each home bead the force its owner
+// holds (0 on the halo); reverse gives each owner its beads' forces as their homes hold them; the
+// pair sets are stale on every rank once one bead moved margin/2.
+TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutAndForcesBack) {
+  const Layout layout = GetParam();
+  const Melt melt = fake::straddling_melt();
+  const int n = melt.size();
+  const double radius = kCutoff + kMargin;
+  struct PairSet {
+    std::vector<int> ids;
+    std::vector<char> halo;
+    int home = 0;
+  };
+  std::vector<PairSet> sets(layout.ranks);
+  DomainGrid grid;
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    const int me = comm.rank();
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    d->select_pair_set(x);
+    PairSet& s = sets[me];
+    s.ids = d->pair_ids(), s.halo = d->halo_flags(), s.home = d->num_home();
+    if (me == 0) grid = d->grid();
+    for (int e = 0; e < static_cast<int>(s.ids.size()); ++e) EXPECT_EQ(d->pair_slot(s.ids[e]), e);
+    // Forward: positions wrapped, the owners' forces on the home beads, 0 on the halo.
+    Eigen::Matrix3Xd f(3, d->num_owned()), pair_x, pair_f;
+    for (int k = 0; k < d->num_owned(); ++k) f.col(k) = Eigen::Vector3d(d->owned_ids()[k], -1.0, 0.5);
+    d->forward(x, pair_x, &f, &pair_f);
+    ASSERT_EQ(pair_x.cols(), static_cast<long>(s.ids.size()));
+    ASSERT_EQ(pair_f.cols(), static_cast<long>(s.ids.size()));
+    for (int e = 0; e < static_cast<int>(s.ids.size()); ++e) {
+      const int g = s.ids[e];
+      EXPECT_TRUE(pair_x.col(e).isApprox(wrapped(melt.box, melt.state.x.col(g)), 1e-14)) << "rank " << me << ", " << g;
+      const Eigen::Vector3d want = s.halo[e] ? Eigen::Vector3d::Zero() : Eigen::Vector3d(g, -1.0, 0.5);
+      EXPECT_EQ(pair_f.col(e), want) << "rank " << me << ", particle " << g;
+    }
+    // Positions alone: the same positions.
+    Eigen::Matrix3Xd again;
+    d->forward(x, again);
+    EXPECT_TRUE(same(again, pair_x));
+    // Reverse: each home bead's force, as its home set it, reaches its owner.
+    for (int e = 0; e < static_cast<int>(s.ids.size()); ++e)
+      pair_f.col(e) = s.halo[e] ? Eigen::Vector3d(1e9, 1e9, 1e9) : Eigen::Vector3d(2.0 * s.ids[e], me, 7.0);
+    f.setConstant(-3.0);
+    d->reverse(pair_f, f);
+    for (int k = 0; k < d->num_owned(); ++k) {
+      const int g = d->owned_ids()[k];
+      EXPECT_EQ(f(0, k), 2.0 * g) << "particle " << g;
+      EXPECT_EQ(f(1, k), fake::rank_of_point(d->grid(), melt.state.x.col(g))) << "particle " << g << ": not its home's";
+      EXPECT_EQ(f(2, k), 7.0);
+    }
+    // Stale: not at the selection; on every rank once one bead of the last rank with beads moved
+    // margin/2 (this rank alone sees it moved).
+    EXPECT_FALSE(d->pair_set_stale(x));
+    std::int64_t mover = d->num_owned() > 0 ? me : -1;
+    {
+      std::int64_t m = -mover;  // the largest rank with beads: min of the negatives
+      comm.min(&m, 1);
+      mover = -m;
+    }
+    Eigen::Matrix3Xd y = x;
+    if (me == mover) y(1, 0) += 0.5 * kMargin * 1.0001;
+    EXPECT_EQ(d->moved_half_margin(y), me == mover);
+    EXPECT_TRUE(d->pair_set_stale(y));
+    if (me == mover) y(1, 0) = x(1, 0) + 0.49 * kMargin;
+    EXPECT_FALSE(d->pair_set_stale(y));
+  });
+  // Every bead home on exactly one rank: the one whose domain holds it.
+  std::vector<int> home_of(n, -1);
+  int homes = 0;
+  for (int r = 0; r < layout.ranks; ++r) {
+    const PairSet& s = sets[r];
+    EXPECT_TRUE(std::is_sorted(s.ids.begin(), s.ids.end()) &&
+                std::adjacent_find(s.ids.begin(), s.ids.end()) == s.ids.end());
+    int home = 0;
+    for (size_t e = 0; e < s.ids.size(); ++e) {
+      if (s.halo[e]) continue;
+      ++home;
+      EXPECT_EQ(home_of[s.ids[e]], -1) << "particle " << s.ids[e] << " home on two ranks";
+      home_of[s.ids[e]] = r;
+    }
+    EXPECT_EQ(home, s.home);
+    homes += home;
+  }
+  EXPECT_EQ(homes, n);
+  for (int g = 0; g < n; ++g) EXPECT_EQ(home_of[g], fake::rank_of_point(grid, melt.state.x.col(g))) << "particle " << g;
+  // A rank's pair set: the beads within R of its domain (either side of R by more than rounding).
+  int halo_beads = 0;
+  for (int r = 0; r < layout.ranks; ++r) {
+    const PairSet& s = sets[r];
+    for (int g = 0; g < n; ++g) {
+      const double dist = distance_to_domain(grid, melt.box, r, melt.state.x.col(g));
+      const bool in = std::binary_search(s.ids.begin(), s.ids.end(), g);
+      if (dist < radius - 1e-9) EXPECT_TRUE(in) << "rank " << r << " misses particle " << g << " at " << dist;
+      if (dist > radius + 1e-9) EXPECT_FALSE(in) << "rank " << r << " holds particle " << g << " at " << dist;
+    }
+    halo_beads += static_cast<int>(s.ids.size()) - s.home;
+  }
+  EXPECT_GT(halo_beads, 0);
 }
 
 INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,

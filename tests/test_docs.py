@@ -214,7 +214,7 @@ def check_deck_keys():
 # ---------------------------------------------------------------------------------------------
 # Paths
 
-TOP_DIRS = ("engine", "forcefields", "integrators", "inputs", "tests", "tools", "docs", "python", "cmake")
+TOP_DIRS = ("core", "engine", "forcefields", "integrators", "inputs", "tests", "tools", "docs", "python", "cmake")
 TOP_FILES = ("README.md", "ARCHITECTURE.md", "CMakeLists.txt")
 EXTENSIONS = ("md", "cpp", "hpp", "h", "py", "sh", "toml", "txt", "csv", "png", "json", "data", "in", "xyz",
               "h5", "h5md", "cmake", "bin", "gz", "log", "xml")

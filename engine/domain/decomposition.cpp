@@ -236,23 +236,27 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
 namespace {
 
 // Per axis, the domain coordinates whose slab comes within `reach` of the coordinate q (wrapped
-// into the box on a periodic axis): out[0] their count, then the coordinates, each once; `home`
-// (the coordinate domain_of gives) is among them.
-void slabs_within(const DomainGrid& g, int a, double q, double reach, int home, std::vector<int>& out) {
+// into the box on a periodic axis), each once with its gap (the distance from q to the slab, over
+// the periodic images; the edge slabs of an open axis reach to infinity, as domain_of clamps);
+// `home` (the coordinate domain_of gives) is among them, at gap 0.
+void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
+                  std::vector<std::pair<int, double>>& out) {
   const int n = g.dims[a];
   const double width = g.length[a] / n;
-  int lo = static_cast<int>(std::floor((q - reach - g.origin[a]) / width));
-  int hi = static_cast<int>(std::floor((q + reach - g.origin[a]) / width));
-  out.assign(1, 0);
-  const auto add = [&](int c) {
-    if (std::find(out.begin() + 1, out.end(), c) == out.end()) out.push_back(c), ++out[0];
+  const int lo = static_cast<int>(std::floor((q - reach - g.origin[a]) / width));
+  const int hi = static_cast<int>(std::floor((q + reach - g.origin[a]) / width));
+  out.assign(1, {home, 0.0});
+  const auto add = [&](int c, double gap) {
+    for (auto& [coordinate, least] : out)
+      if (coordinate == c) return void(least = std::min(least, gap));
+    out.emplace_back(c, gap);
   };
-  add(home);
-  if (g.periodic[a]) {
-    if (hi - lo + 1 >= n) lo = 0, hi = n - 1;
-    for (int c = lo; c <= hi; ++c) add(((c % n) + n) % n);
-  } else {  // the edge domains reach to infinity (domain_of clamps)
-    for (int c = std::max(lo, 0); c <= std::min(hi, n - 1); ++c) add(c);
+  for (int c = lo; c <= hi; ++c) {
+    if (!g.periodic[a] && (c < 0 || c >= n)) continue;
+    double below = g.origin[a] + c * width, above = below + width;
+    if (!g.periodic[a] && c == 0) below = -std::numeric_limits<double>::infinity();
+    if (!g.periodic[a] && c == n - 1) above = std::numeric_limits<double>::infinity();
+    add(g.periodic[a] ? ((c % n) + n) % n : c, std::max({0.0, below - q, q - above}));
   }
 }
 
@@ -263,25 +267,29 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   ++selections_;
   const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
   // Each owned bead goes to every rank whose domain comes within R of its position wrapped into
-  // the box (a hair more, so that rounding cannot drop a bead at R), as a home bead to the one
-  // whose domain holds it. A bead's partners within r_c of it while no bead has moved margin/2
-  // were within r_c + margin of it at the selection, hence within R of its home's domain.
+  // the box (a hair more, so that rounding cannot drop a bead at R: the distance to the domain's
+  // box, not per axis), as a home bead to the one whose domain holds it. A bead's partners within r_c of it while no
+  // bead has moved margin/2 were within r_c + margin of it at the selection, hence within R of its home's domain.
   const double reach = radius_ * (1.0 + 1e-12) + 1e-12;
   const BoxWrap into_box(box_);
   for (Plan& p : out_) p.owned.clear(), p.home.clear(), p.homes = 0;
   local_.owned.clear(), local_.home.clear(), local_.homes = 0;
-  std::vector<int> axis[3];
+  std::vector<std::pair<int, double>> axis[3];
   const Eigen::Vector3i& dims = grid_.dims;
+  const double reach2 = reach * reach;
   for (int k = 0; k < owned; ++k) {
     Eigen::Vector3d q;
     for (int a = 0; a < 3; ++a) q[a] = into_box(x(a, k), a);
     const int home = grid_.domain_of(q);
     const int hc[3] = {home / (dims[1] * dims[2]), (home / dims[2]) % dims[1], home % dims[2]};
     for (int a = 0; a < 3; ++a) slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
-    for (int i = 1; i <= axis[0][0]; ++i)
-      for (int j = 1; j <= axis[1][0]; ++j)
-        for (int l = 1; l <= axis[2][0]; ++l) {
-          const int d = (axis[0][i] * dims[1] + axis[1][j]) * dims[2] + axis[2][l];
+    // The domains within R of q: the per-axis gaps add in squares (a domain's corner is farther
+    // than its faces).
+    for (const auto& [cx, gx] : axis[0])
+      for (const auto& [cy, gy] : axis[1])
+        for (const auto& [cz, gz] : axis[2]) {
+          if (gx * gx + gy * gy + gz * gz > reach2) continue;
+          const int d = (cx * dims[1] + cy) * dims[2] + cz;
           Plan& p = d == me ? local_ : out_[d];
           p.owned.push_back(k);
           p.home.push_back(d == home);
@@ -454,22 +462,10 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
     }
 }
 
-Decomposition::Reach Decomposition::reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t,
-                                          double floor) const {
-  // d + t|v| < floor whenever 2 (d² + t²|v|²) < floor², as (a + b)² ≤ 2 (a² + b²): most beads pass
-  // that test, without a square root. A non-finite x or v fails it (NaN compares false).
-  Reach r;
-  const double floor2 = floor * floor, t2 = t * t;
-  for (int k = 0; k < num_owned(); ++k) {
-    const double d2 = (x.col(k) - x_at_selection_.col(k)).squaredNorm(), s2 = t2 * v.col(k).squaredNorm();
-    if (2.0 * (d2 + s2) < floor2) continue;
-    if (!x.col(k).allFinite() || !v.col(k).allFinite()) {
-      r.first_bad = k;
-      return r;
-    }
-    r.largest = std::max(r.largest, std::sqrt(d2) + std::sqrt(s2));
-  }
-  return r;
+int Decomposition::first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const {
+  for (int k = 0; k < num_owned(); ++k)
+    if (!x.col(k).allFinite() || !v.col(k).allFinite()) return k;
+  return -1;
 }
 
 }  // namespace stiffmd

@@ -100,15 +100,8 @@ class Decomposition {
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,
                       int num_particles) const;
 
-  // One pass over the owned beads (this rank's): the largest |x − x at the selection| + t |v| of
-  // those whose reach may be `floor` or more (the others count 0) — with t = 2h, a bound on each
-  // bead's displacement by the end of the next step if none moves more than 2 |v| h in a step —
-  // and the first owned bead whose x or v is not finite (−1: none; the pass stops there).
-  struct Reach {
-    double largest = 0.0;
-    int first_bad = -1;
-  };
-  Reach reach(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, double t, double floor) const;
+  // The first owned bead whose x or v is not finite (−1: none).
+  int first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const;
 
   const std::vector<int>& owned_ids() const { return ids_; }  // global index per owned particle
   int num_owned() const { return static_cast<int>(ids_.size()); }

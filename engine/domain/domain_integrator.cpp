@@ -273,10 +273,9 @@ void DomainIntegrator::step(State& s, double h) {
   // left their domain move before the next.
   reselect_ = domains_->selections() != selections;
   // One reduction: the first particle (global index) with a non-finite position or velocity.
-  const Decomposition::Reach reach =
-      domains_->reach(l.x, l.v, 0.0, std::numeric_limits<double>::infinity());  // finiteness only
-  double first_bad = reach.first_bad >= 0 ? -static_cast<double>(part_->scene.global_id[reach.first_bad])
-                                          : -std::numeric_limits<double>::infinity();
+  const int bad = domains_->first_non_finite(l.x, l.v);
+  double first_bad =
+      bad >= 0 ? -static_cast<double>(part_->scene.global_id[bad]) : -std::numeric_limits<double>::infinity();
   {
     const ScopedPhase phase(Phase::domain);
     comm_.max(&first_bad, 1);
