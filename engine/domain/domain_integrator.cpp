@@ -133,7 +133,6 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   p.integrator = w.integrator;
   p.run = w.run;
   p.observables = w.observables;
-  p.part = true;
   p.global_id = d.owned_ids();
   const int n = d.num_owned();
   p.state.x = std::move(x);
@@ -177,7 +176,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.molecule = bonded_molecules(t, n);
     baro.processes = &comm_;
   }
-  read_force_terms(deck_, p);
+  p.forces = w.forces->on_subset({p.global_id, p.particle_type, t});
   // The pair terms act on the extended set (owned and ghosts) through the halo (retarget_pairs);
   // a part built again keeps the old part's terms on the extended set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {

@@ -36,7 +36,8 @@ void check_parallel_grid(const Scene& scene, int ranks);
 class DomainIntegrator final : public Integrator {
  public:
   // `whole`: the integrator of the whole system (built on whole.forces), used until the first
-  // step and for checkpoints. The deck builds the part's force terms; both must outlive this.
+  // step and for checkpoints; whole.forces, on a part's particles, its force terms
+  // (ForceField::on_subset). Both must outlive this.
   DomainIntegrator(Scene& whole, const Deck& deck, const Communicator& comm, std::unique_ptr<Integrator> whole_method);
   ~DomainIntegrator() override;
 
