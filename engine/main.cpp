@@ -327,7 +327,7 @@ int main(int argc, char** argv) {
     }
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
-    if (decomposed) options.processes = &processes.communicator(), options.deck = &*deck;
+    if (decomposed) options.processes = &processes.communicator();
     running = decomposed;
     const auto summary = stiffmd::run_simulation(*scene, options, log);
     if (!speaker) return summary.stopped_by_signal ? 128 + summary.stopped_by_signal : 0;

@@ -65,6 +65,12 @@ class AngleTerm final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_angle_virial<Kernel>(instances_, x, box);
   }
+  // The angles of the subset, in this term's order, with its coefficients.
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
+    const std::string who = std::string(K::kStyle) + " '" + name() + "'";
+    return std::make_unique<AngleTerm>(
+        name(), level(), items_on_subset(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
+  }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;
   // Every type's k and θ₀, then every angle: its particles and its type.

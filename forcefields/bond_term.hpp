@@ -78,6 +78,12 @@ class BondTerm final : public ForceTerm {
       throw_outside_domain(x, box);
     }
   }
+  // The bonds of the subset, in this term's order, with its coefficients.
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
+    const std::string who = std::string(K::kStyle) + " '" + name() + "'";
+    return std::make_unique<BondTerm>(name(), level(), items_on_subset(bonds_, subset, who, "bond", &Bond::i, &Bond::j),
+                                      types_);
+  }
   std::string_view style() const override { return K::kStyle; }
   std::string describe() const override {
     std::ostringstream s;

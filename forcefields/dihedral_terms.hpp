@@ -136,6 +136,14 @@ class DihedralTerm final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_dihedral_virial<Kernel>(instances_, x, box);
   }
+  // The dihedrals of the subset, in this term's order, with its coefficients.
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
+    const std::string who = std::string(K::kStyle) + " '" + name() + "'";
+    return std::make_unique<DihedralTerm>(
+        name(), level(),
+        items_on_subset(dihedrals_, subset, who, "dihedral", &Dihedral::i, &Dihedral::j, &Dihedral::k, &Dihedral::l),
+        types_);
+  }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override {
     std::ostringstream s;

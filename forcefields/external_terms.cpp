@@ -11,8 +11,8 @@ namespace stiffmd {
 namespace {
 
 // A particle listed twice would feel the field twice: almost surely a deck mistake.
-// An empty list is refused unless allowed: a decomposed run's part may hold none of the
-// particles a term selects (engine/domain/domain_integrator.cpp).
+// An empty list is refused unless allowed: a particle subset (on_subset) may hold none of the
+// particles a term selects.
 void check_particle_list(const std::string& what, const std::vector<int>& particles, bool allow_empty) {
   if (particles.empty() && allow_empty) return;
   if (particles.empty()) throw std::invalid_argument(what + ": the particle list is empty");
@@ -60,6 +60,10 @@ double HarmonicTether::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eig
     f.col(i) -= k_ * d;
   }
   return energy;
+}
+
+std::unique_ptr<ForceTerm> HarmonicTether::on_subset(const ParticleSubset& subset, const Box&) const {
+  return std::make_unique<HarmonicTether>(name(), level(), subset.select(particles_), center_, k_, true);
 }
 
 std::string HarmonicTether::describe() const {
@@ -123,6 +127,10 @@ double LJ93Wall::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Ma
     f(p_.axis, i) -= p_.side * de_dr;
   }
   return energy;
+}
+
+std::unique_ptr<ForceTerm> LJ93Wall::on_subset(const ParticleSubset& subset, const Box&) const {
+  return std::make_unique<LJ93Wall>(name(), level(), p_, subset.select(particles_), true);
 }
 
 std::string LJ93Wall::describe() const {

@@ -29,11 +29,13 @@ class HarmonicTether final : public ForceTerm {
   bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: particles non-empty, each index ≥ 0 and listed once; center finite;
   // k finite and ≥ 0 (energy/length²).
-  // allow_empty: a decomposed run's part, which may hold none of the particles.
+  // allow_empty: a term on a particle subset (on_subset), which may hold none of the particles.
   HarmonicTether(std::string name, Level level, std::vector<int> particles, Eigen::Vector3d center, double k,
                  bool allow_empty = false);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  // On the subset's particles among this term's (possibly none).
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "harmonic-tether"; }
   std::string describe() const override;
   void define(ParameterRecord& record) const override;  // every parameter and particle
@@ -63,6 +65,8 @@ class LJ93Wall final : public ForceTerm {
   // Throws std::invalid_argument if the box is periodic along the wall's axis (a wall there has no
   // meaning), NumericalError if a particle is not strictly on the wall's side.
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  // On the subset's particles among this term's (possibly none).
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "lj93-wall"; }
   std::string describe() const override;
   void define(ParameterRecord& record) const override;  // every parameter and particle

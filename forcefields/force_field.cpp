@@ -38,6 +38,12 @@ std::unique_ptr<ForceTerm> ForceField::replace(size_t k, std::unique_ptr<ForceTe
   return term;
 }
 
+std::unique_ptr<ForceField> ForceField::on_subset(const ParticleSubset& subset) const {
+  auto out = std::make_unique<ForceField>(box_, subset.size(), level_names_);
+  for (const auto& term : terms_) out->add(term->on_subset(subset, box_));
+  return out;
+}
+
 void ForceField::add(std::unique_ptr<ForceTerm> term) {
   const ForceTerm* t = term.get();
   terms_.push_back(std::move(term));

@@ -94,6 +94,12 @@ class ForceField {
   void set_box(const Box& box) { box_ = box; }
   int num_particles() const { return num_particles_; }
 
+  // The same terms acting on a subset of the particles alone (ForceTerm::on_subset), in the same
+  // order (terms() and evaluation_order()), on the same levels, in the box now; no evaluations
+  // counted yet. A decomposed run's part is built so from the whole system's force field
+  // (docs/parallel.md). Throws std::invalid_argument, naming the term, when a term cannot be.
+  std::unique_ptr<ForceField> on_subset(const ParticleSubset& subset) const;
+
   // Term k replaced by `term` (same level, neither fused), in term k's place in the evaluation
   // order; returns the old one. A decomposed run's part wraps its pair terms so (docs/parallel.md).
   std::unique_ptr<ForceTerm> replace(size_t k, std::unique_ptr<ForceTerm> term);

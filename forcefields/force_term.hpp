@@ -15,6 +15,7 @@
 #include "core/exact_sum.hpp"
 #include "core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
+#include "forcefields/particle_subset.hpp"
 #include "forcefields/stiff_bond.hpp"
 
 namespace stiffmd {
@@ -103,6 +104,19 @@ class ForceTerm {
                                                   const Box& box) const {
     (void)types, (void)bonds, (void)box;
     return nullptr;
+  }
+  // The same term on a subset of the system's particles alone, in the subset's numbering
+  // (particle_subset.hpp), evaluated in `box`, with this term's parameters: a bonded term its
+  // bonds (angles, dihedrals) among them, in its order; a pair term the pairs among them; an
+  // external field or tether those of its particles in the subset (possibly none). On whole
+  // molecules it gives each of their particles, bit for bit, what this term gives it from within
+  // its molecule and from outside fields: a decomposed run's part is built so (docs/parallel.md).
+  // Throws std::invalid_argument for a term that cannot (the default: a term must say how) or for
+  // an item the subset holds only in part.
+  virtual std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const {
+    (void)subset, (void)box;
+    throw std::invalid_argument("force term '" + name_ + "' (" + std::string(style()) +
+                                ") cannot be built on a subset of the particles");
   }
   // The largest pair distance it acts over and its list's skin (pair terms; 0 for the others):
   // what a decomposed run's pair sets must cover (engine/domain/decomposition.hpp).

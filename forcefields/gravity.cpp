@@ -35,6 +35,13 @@ Gravity::add_forces(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) 
   return -(g[0] * moment[0] + g[1] * moment[1] + g[2] * moment[2]);
 }
 
+std::unique_ptr<ForceTerm> Gravity::on_subset(const ParticleSubset& subset, const Box&) const {
+  auto out = std::make_unique<Gravity>(name(), level(), g_, Eigen::VectorXd());
+  out->mass_.resize(subset.size());
+  for (int k = 0; k < subset.size(); ++k) out->mass_[k] = mass_[subset.global[static_cast<size_t>(k)]];
+  return out;
+}
+
 std::string Gravity::describe() const {
   std::ostringstream s;
   s << "uniform field g = (" << g_.x() << ", " << g_.y() << ", " << g_.z() << ")";

@@ -103,6 +103,10 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
                                           const Box& box) const override {
     return std::make_unique<PairTerm>(name(), level(), std::move(types), coeffs_, bonds, weights_, box, list_.skin());
   }
+  // The pairs among the subset's particles: its types, the special pairs of its bonds.
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override {
+    return on_particles(std::vector<int>(subset.types.begin(), subset.types.end()), subset.topology.bonds, box);
+  }
   double pair_cutoff() const override { return cutoff_; }
   double pair_skin() const override { return list_.skin(); }
   double cutoff() const { return cutoff_; }  // the largest over type pairs

@@ -22,6 +22,14 @@ double StiffHarmonicBond::add_forces(const Eigen::Matrix3Xd& x, const Box& box, 
   return accumulate_bond_forces<Kernel>(instances_, x, box, f, partition_);
 }
 
+std::unique_ptr<ForceTerm> StiffHarmonicBond::on_subset(const ParticleSubset& subset, const Box&) const {
+  StiffBonds mine;
+  mine.epsilon = bonds_.epsilon;
+  mine.bonds = items_on_subset(bonds_.bonds, subset, "stiff-harmonic '" + name() + "'", "stiff bond", &StiffBond::i,
+                               &StiffBond::j);
+  return std::make_unique<StiffHarmonicBond>(name(), level(), std::move(mine));
+}
+
 std::string StiffHarmonicBond::describe() const {
   std::ostringstream s;
   s << bonds_.bonds.size() << " stiff bonds, epsilon = " << bonds_.epsilon;

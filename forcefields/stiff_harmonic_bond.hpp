@@ -20,6 +20,8 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_bond_virial<Kernel>(instances_, x, box);
   }
+  // The stiff bonds of the subset, in this term's order (the constraint clusters' order), same ε.
+  std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "stiff-harmonic"; }
   std::string describe() const override;
   void define(ParameterRecord& record) const override;  // ε and every bond's particles, ℓ_b and α_b

@@ -68,9 +68,8 @@ void check_parallel_grid(const Scene& sc, int ranks) {
                      " ranks: expected one domain per rank (or no grid: it is chosen)");
 }
 
-DomainIntegrator::DomainIntegrator(Scene& whole, const Deck& deck, const Communicator& comm,
-                                   std::unique_ptr<Integrator> whole_method)
-    : whole_scene_(whole), deck_(deck), comm_(comm), whole_(std::move(whole_method)) {
+DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::unique_ptr<Integrator> whole_method)
+    : whole_scene_(whole), comm_(comm), whole_(std::move(whole_method)) {
   double cutoff = 0.0, skin = 0.0;
   for (const auto& t : whole.forces->terms())
     if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
@@ -140,7 +139,6 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   p.integrator = w.integrator;
   p.run = w.run;
   p.observables = w.observables;
-  p.part = true;
   p.global_id = d.owned_ids();
   const int n = d.num_owned();
   p.state.x = std::move(x);
@@ -184,7 +182,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.molecule = bonded_molecules(t, n);
     baro.processes = &comm_;
   }
-  read_force_terms(deck_, p);
+  p.forces = w.forces->on_subset({p.global_id, p.particle_type, t});
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
   // built again keeps the old part's terms on the pair set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {

@@ -22,7 +22,6 @@
 #include <vector>
 
 #include "core/communicator.hpp"
-#include "engine/deck/deck.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
 #include "engine/observe/observables.hpp"
@@ -37,8 +36,9 @@ void check_parallel_grid(const Scene& scene, int ranks);
 class DomainIntegrator final : public Integrator {
  public:
   // `whole`: the integrator of the whole system (built on whole.forces), used until the first
-  // step and for checkpoints. The deck builds the part's force terms; both must outlive this.
-  DomainIntegrator(Scene& whole, const Deck& deck, const Communicator& comm, std::unique_ptr<Integrator> whole_method);
+  // step and for checkpoints; whole.forces, on a part's particles, its force terms
+  // (ForceField::on_subset). Both must outlive this.
+  DomainIntegrator(Scene& whole, const Communicator& comm, std::unique_ptr<Integrator> whole_method);
   ~DomainIntegrator() override;
 
   void prepare(State& s, std::ostream& log) override { whole_->prepare(s, log); }
@@ -92,7 +92,6 @@ class DomainIntegrator final : public Integrator {
   std::vector<double> part_invariants() const;
 
   Scene& whole_scene_;
-  const Deck& deck_;
   const Communicator& comm_;
   std::unique_ptr<Integrator> whole_;
   std::unique_ptr<Decomposition> domains_;

@@ -55,8 +55,7 @@ Checkpoint resumed_checkpoint(Scene& sc, const RunOptions& opt) {
 std::unique_ptr<Integrator> run_integrator(Scene& sc, const RunOptions& opt) {
   std::unique_ptr<Integrator> method = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
   if (!opt.processes || opt.processes->size() == 1) return method;
-  if (!opt.deck) throw std::invalid_argument("a run on several processes needs its deck");
-  return std::make_unique<DomainIntegrator>(sc, *opt.deck, *opt.processes, std::move(method));
+  return std::make_unique<DomainIntegrator>(sc, *opt.processes, std::move(method));
 }
 
 double seconds_now() {

@@ -59,7 +59,6 @@ struct RunOptions {
   // writes its particles' rows of (RunOutputs); only rank 0 has a screen and a progress bar;
   // every rank drives its Run through the same steps.
   const Communicator* processes = nullptr;
-  const Deck* deck = nullptr;
 };
 
 class Run {

@@ -269,7 +269,6 @@ ProtocolOutcome run_protocol(Protocol& p, const RunOptions& options, std::ostrea
     }
     RunOptions stage_options = options;
     stage_options.out_dir = dir;
-    stage_options.deck = p.decks[k].get();
     const bool resuming = k == p.start && p.checkpoint;
     stage_options.restart = resuming ? p.restart : "";
     stage_options.checkpoint = resuming ? &*p.checkpoint : nullptr;

@@ -82,7 +82,7 @@ struct ProtocolOutcome {
 };
 
 // Runs the stages from p.start into options.out_dir/<k>_<name> (every other option as for one
-// run; options.deck is each stage's deck). `stages_out`: where "stage k/N name -> DIR" and each
+// run). `stages_out`: where "stage k/N name -> DIR" and each
 // stage's summary go (null: nowhere). Stops after the stage in progress on SIGINT/SIGTERM, or
 // between stages, with the checkpoint to continue from.
 ProtocolOutcome run_protocol(Protocol& p, const RunOptions& options, std::ostream& log, std::FILE* stages_out);

@@ -262,11 +262,6 @@ std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
   if (t.has("particles") && t.has("type")) t.fail("type", "give either particles or type, not both");
   if (t.has("particles")) {
     const std::vector<long> ids = t.integers("particles");
-    if (sc.local()) {  // the whole system's indices, those of this part (validated by load_scene)
-      for (int i = 0; i < sc.state.size(); ++i)
-        if (std::find(ids.begin(), ids.end(), static_cast<long>(sc.global_id[i])) != ids.end()) out.push_back(i);
-      return out;
-    }
     for (long i : ids) {
       if (i < 0 || i >= sc.state.size()) t.fail("particles", "particle " + std::to_string(i) + " does not exist");
       out.push_back(static_cast<int>(i));
@@ -282,7 +277,7 @@ std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
   } else {
     for (int i = 0; i < sc.state.size(); ++i) out.push_back(i);
   }
-  if (out.empty() && !sc.local()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
+  if (out.empty()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
   return out;
 }
 
@@ -290,7 +285,7 @@ std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
 std::unique_ptr<ForceTerm> read_tether(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   const double k = read(t, "k", kStiffness);
   const Eigen::Vector3d c = t.vector3("center");
-  return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k, ctx.scene.local());
+  return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k);
 }
 
 // lj93-wall: axis = "x"|"y"|"z", position, side = 1 | -1, epsilon, sigma, cutoff, particles or type.
@@ -308,7 +303,7 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   p.epsilon = read(t, "epsilon", kEnergy, p.epsilon);
   p.sigma = read(t, "sigma", kLength, p.sigma);
   p.cutoff = read(t, "cutoff", kLength, p.cutoff);
-  return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene), ctx.scene.local());
+  return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
 }
 
 // The neighbour list needs every periodic box length >= 2 (cutoff + skin) (check_box_for_cutoff):
@@ -594,7 +589,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
   auto term =
       std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
-  if (!sc.local()) check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);  // the term accepted the coefficients
+  check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);  // the term accepted the coefficients
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
     section.pairwise = true;

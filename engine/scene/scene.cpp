@@ -225,7 +225,7 @@ void check_levels_used(DeckTable& root, const Scene& sc) {
 // build its neighbour list at a state the run may not start from ([prepare]), and their kernels
 // are finite for every r > 0.
 void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
-  if (term.uses_neighbor_list() || sc.local()) return;
+  if (term.uses_neighbor_list()) return;
   Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
   try {
     term.add_forces(sc.state.x, sc.box, f);
@@ -756,11 +756,6 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
 }
 
 }  // namespace
-
-void read_force_terms(const Deck& deck, Scene& part) {
-  DeckTable root = deck.root();
-  read_forces(root, part);
-}
 
 Scene load_scene(const Deck& deck, const StageIdentity& stage) {
   Scene sc;

@@ -154,10 +154,8 @@ struct Scene {
   LammpsTypeNumbers lammps_types;           // filled by a LAMMPS [import]
   std::vector<std::string> notes;           // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
-  // whole system's index of each particle here.
-  bool part = false;
+  // whole system's index of each particle here. Empty: the whole system.
   std::vector<int> global_id;
-  bool local() const { return part; }
 
   std::int64_t num_steps() const;  // macro steps to reach run.t_end (run.steps when given)
   // A [thermostat] acts (canonical ensemble): energy is not conserved, momentum not with Langevin.
@@ -172,11 +170,6 @@ std::string particle_and_source(const Scene& scene, int i);
 // tables is refused: its scenes are its stages' (engine/scene/stage_deck.hpp), each loaded with
 // its `stage` identity.
 Scene load_scene(const Deck& deck, const StageIdentity& stage = {});
-
-// The deck's [forces] built on `part`, a decomposed run's local scene (its state, box, types
-// and topology set; engine/domain/local_scene.*): the terms as load_scene builds them, without
-// the checks of the initial state that load_scene made on the whole system.
-void read_force_terms(const Deck& deck, Scene& part);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
 // relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a
