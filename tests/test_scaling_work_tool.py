@@ -6,7 +6,8 @@
 Without valgrind or a binary: the callgrind reader on files written here (the trigger, Ir from
 "summary:" or "totals:", MPI's share as the inclusive cost of the calls into MPI's objects from
 outside them, name compression), the sum over a run's processes of their step-loop dumps, and the
-pair count read from summary.json (top level, under "domains", absent: "n/a"). With valgrind
+pair count read from summary.json (top level, under "domains", absent: "n/a"), and that a missing
+valgrind exits 2 naming it. With valgrind
 installed (skipped otherwise): --work on a small deck, 1×1 and, given MPIEXEC, 2×1 — every rank's
 dumps found, the work column 1.000 on 1×1, and the step loop's count doubling (within a first
 step's extra) when the steps double, where the set-up (50 relaxation steps, over 5 times the 8
@@ -167,6 +168,11 @@ def work_rows(stdout):
     return rows
 
 
+def check_refusal(exe, work):
+    p = tool(exe, os.path.join(work, "bad"), "--valgrind", "/no/such/valgrind", "--layouts", "1x1")
+    assert p.returncode == 2 and "/no/such/valgrind" in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
 def check_work(exe, work, mpiexec):
     layouts = "1x1,2x1" if mpiexec else "1x1"
     extra = ["--mpiexec", mpiexec] if mpiexec else []
@@ -207,13 +213,14 @@ def main():
         os.makedirs(os.path.join(work, "cg"))
         check_reader(os.path.join(work, "cg"))
         check_pairs()
+        check_refusal(exe, work)
         if shutil.which("valgrind") is None:
             print("work: skipped (no valgrind)")
-            print("2 passed, 0 failed, 1 skipped")
+            print("3 passed, 0 failed, 1 skipped")
             return
         ratio = check_work(exe, work, mpiexec)
         print(f"work: 8 steps / 4 steps = {ratio:.2f}{'' if mpiexec else ' (1x1 only: no MPIEXEC)'}")
-    print("3 passed, 0 failed")
+    print("4 passed, 0 failed")
 
 
 if __name__ == "__main__":

@@ -59,8 +59,9 @@ whatever the cores (16 ranks or 16 threads measure the same on 2 cores, only slo
 threads are made to sleep (OMP_WAIT_POLICY=passive: a spinning wait would count) and idle Open MPI
 ranks to yield. The table adds the set-up's instructions (all ranks: each prepares the whole scene)
 and the seconds each run took under valgrind; work.md and work.csv in --out. The default systems are
-kg-32k and stiff-32k: the 256 000-bead melts under callgrind take about 50× their time, and 16 ranks
-each prepare the whole scene (see docs/parallel.md, "Before the thin halo").
+kg-32k and stiff-32k (16 ranks of kg-32k: about 5 minutes on 2 cores): every rank prepares the whole
+scene, so 16 ranks of a 256 000-bead melt would take about half an hour under valgrind (see
+docs/parallel.md, "Before the thin halo").
 
 A shared machine: "others" is the median number of cores other processes kept busy during a row's
 runs (/proc/stat's busy time less the run's own CPU time, over its wall time; the run's own is
