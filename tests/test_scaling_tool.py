@@ -7,7 +7,8 @@ ranks; and tools/chain_melt.py tile_data.
 Checks the table (a row per method and thread count, positive ms/step, speed-up 1 and efficiency
 100 % at one thread, efficiency = speed-up / threads, the serial share a percentage where the
 engine reports one), runs.csv (one row per run), the layouts 1x1,2x1 under MPIEXEC (the table's
-columns; the 2×1 row's ghosts, halo and imbalance from the run's domains, none on one rank),
+columns; the 2×1 row's ghosts, halo and imbalance from the run's domains, none on one rank; pairs
+per bead against 1×1's, n/a where summary.json has no neighbor_pairs),
 that bad arguments and a failing run exit 2 with one line naming them, and that tile_data
 replicates a data file: every copy's unwrapped positions are the original's shifted by its offset,
 ids, molecules and bonds renumbered."""
@@ -37,7 +38,7 @@ def check_table(exe, work):
              "--steps", "4", "--repeats", "2", "--wait-idle", "0.5")
     assert p.returncode == 0, p.stdout + p.stderr
     rows = re.findall(r"^\| small_melt\.toml \| (\S+) \| 1×(\d+) \| ([0-9.]+) \| ([0-9.]+) \| (\d+) % \| ([^|]+) \| "
-                      r"— \| — \| — \| — \| ([0-9.]+|—) \|$", p.stdout, re.M)
+                      r"— \| (?:n/a|1\.000) \| — \| — \| — \| ([0-9.]+|—) \|$", p.stdout, re.M)
     assert [(m, t) for m, t, *_ in rows] == [("rattle", "1"), ("rattle", "2"), ("impulse", "1"), ("impulse", "2")], p.stdout
     for method, threads, ms, speedup, efficiency, share, others in rows:
         threads, ms, speedup, efficiency = int(threads), float(ms), float(speedup), int(efficiency)
@@ -61,7 +62,7 @@ def check_table(exe, work):
 
 
 HEADER = ("| system | method | ranks×threads | ms/step | speed-up | efficiency | serial share | ghosts/owned | "
-          "halo kB/step | halo msgs/step | imbalance | others |")
+          "pairs/1 rank | halo kB/step | halo msgs/step | imbalance | others |")
 
 
 def check_layouts(exe, work, mpiexec):
@@ -90,6 +91,14 @@ def check_layouts(exe, work, mpiexec):
     assert two["ghosts/owned"] == f"{dom['ghosts_per_owned']:.3f}", (two, dom)
     assert two["halo kB/step"] == f"{dom['halo_bytes_per_step'] / 1e3:.1f}", (two, dom)
     assert two["imbalance"] == f"{dom['rank_loop_seconds_max'] / dom['rank_loop_seconds_mean']:.3f}", (two, dom)
+    # Pairs per bead against one rank's: n/a until the engine writes neighbor_pairs (top level or domains).
+    with open(os.path.join(out, "work", "runs", "small_melt.toml_rattle_r1t1", "summary.json")) as f:
+        d1 = json.load(f)
+    pairs = [s.get("neighbor_pairs", s.get("domains", {}).get("neighbor_pairs")) for s in (d1, d)]
+    if None in pairs:
+        assert one["pairs/1 rank"] == "n/a" and two["pairs/1 rank"] == "n/a", (one, two)
+    else:
+        assert one["pairs/1 rank"] == "1.000" and two["pairs/1 rank"] == f"{pairs[1] / pairs[0]:.3f}", (one, two, pairs)
     with open(os.path.join(out, "runs.csv")) as f:
         runs = list(csv.DictReader(f))
     assert [(r["ranks"], r["threads"]) for r in runs] == [("1", "1"), ("2", "1")], runs

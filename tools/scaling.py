@@ -8,6 +8,7 @@ speed-up, efficiency, serial share and, on several ranks, the halo's cost and th
     /usr/bin/python3 tools/scaling.py --systems kg-256k --layouts 1x1,2x1,4x1,8x1,16x1,1x16 --mpiexec /usr/bin/mpiexec
     /usr/bin/python3 tools/scaling.py --systems stiff-256k --methods fixman,rattle --steps 30 --repeats 7
     /usr/bin/python3 tools/scaling.py --deck inputs/polymer_melt.toml --methods rattle,fixman --h 0.01
+    /usr/bin/python3 tools/scaling.py --work --layouts 1x1,2x1,1x2,16x1,1x16    # instructions, kg-32k and stiff-32k
 
 Systems (--systems; or --deck PATH: that deck with each method as integrator.method, at --h):
   kg-32k, kg-256k      LAMMPS's in.chain as inputs/kremer_grest.toml (FENE + LJ, velocity Verlet with
@@ -37,7 +38,30 @@ first layout's cores / the layout's cores (cores = R × T). The serial share is 
 summary.json's "serial_share" where the engine writes it (the share of the step loop's wall time
 outside parallel loops), '—' otherwise. On R > 1 ranks, medians over repeats of summary.json's
 "domains": ghosts per owned bead, halo kB (1000 bytes) and messages per step, and the load imbalance
-rank_loop_seconds_max / rank_loop_seconds_mean (1 = balanced); '—' on one rank.
+rank_loop_seconds_max / rank_loop_seconds_mean (1 = balanced); '—' on one rank. "pairs/1 rank": the
+pairs computed per bead relative to one process's, summary.json's neighbor_pairs (the pairs in the
+ranks' neighbour lists summed over ranks, a pair counted once by each rank that lists it; at the top
+level or under "domains") ÷ that of the row's first one-rank layout (1×T: the threads share one
+list); "n/a" where the engine writes no neighbor_pairs or no layout runs on one rank.
+
+--work: the cost of parallelism without the cores. Each layout runs once, --steps steps (default 10),
+every rank under `valgrind --tool=callgrind` (`MPIEXEC -n R valgrind --tool=callgrind
+--callgrind-out-file=DIR/cg.%p --dump-before='stiffmd::Run::step_to*' --dump-before='stiffmd::Run::finish*'
+stiffmd run ...`): engine/run/run.cpp's run_simulation calls Run::step_to (every macro step) and then
+Run::finish, so each process's second dump is exactly its step loop, set-up excluded (its first dump);
+a dump holds all the process's threads (callgrind's --toggle-collect would count the calling thread
+alone: its switch is per thread, and OpenMP's workers never enter step_to — 1×2 would show half the
+work). The step loop's instructions (Ir, the dump's "summary:" line) are summed over ranks, less what
+ran inside MPI (the inclusive cost of the calls from outside Open MPI's or MPICH's objects into them:
+a rank waiting for another polls inside MPI_Waitall, and that polling depends on the scheduling). Work
+= Ir per step ÷ that of the first layout: the instructions the parallel run spends on the same steps,
+whatever the cores (16 ranks or 16 threads measure the same on 2 cores, only slower). Idle OpenMP
+threads are made to sleep (OMP_WAIT_POLICY=passive: a spinning wait would count) and idle Open MPI
+ranks to yield. The table adds the set-up's instructions (all ranks: each prepares the whole scene)
+and the seconds each run took under valgrind; work.md and work.csv in --out. The default systems are
+kg-32k and stiff-32k (16 ranks of kg-32k: about 5 minutes on 2 cores): every rank prepares the whole
+scene, so 16 ranks of a 256 000-bead melt would take about half an hour under valgrind (see
+docs/parallel.md, "Before the thin halo").
 
 A shared machine: "others" is the median number of cores other processes kept busy during a row's
 runs (/proc/stat's busy time less the run's own CPU time, over its wall time; the run's own is
@@ -46,11 +70,13 @@ threads on two cores any of it slows the run. --wait-idle S waits before each re
 S seconds) until other processes use less than 0.2 cores over a second.
 
 Outputs in --out (default sweeps/scaling): scaling.md (the table, also printed), runs.csv (every run),
-work/ (states, decks, runs).
+work/ (states, decks, runs; work/work/ the --work runs and their callgrind files); with --work,
+work.md and work.csv instead of scaling.md and runs.csv.
 """
 import argparse
 import csv
 import os
+import re
 import resource
 import shutil
 import statistics
@@ -177,46 +203,217 @@ def wait_idle(limit):
 
 # A run's measures (run_once), each a column of runs.csv and, as the median over repeats, of the table.
 MEASURES = ("ms_per_step", "serial_share", "ghosts_per_owned", "halo_kb_per_step", "halo_messages_per_step",
-            "imbalance", "others")
+            "imbalance", "others", "neighbor_pairs")
 
 
-def run_once(args, deck, sets, layout, run_dir):
-    """{measure: value or None} of one run on layout = (ranks, threads): ms per step of the step loop's
-    wall time (the slowest rank's), serial share, the domains' halo and imbalance (None on one rank),
-    cores other processes kept busy meanwhile (None off Linux)."""
-    ranks, threads = layout
-    shutil.rmtree(run_dir, ignore_errors=True)
-    os.makedirs(run_dir)
-    cmd = [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set", "output.checkpoint_interval=0"]
+def neighbor_pairs(s):
+    """summary.json's neighbor_pairs (the pairs in the ranks' neighbour lists, summed over ranks: a pair
+    counted once per rank that lists it), at the top level or under "domains"; None where the engine
+    does not write it."""
+    v = s.get("neighbor_pairs")
+    if v is None:
+        v = (s.get("domains") or {}).get("neighbor_pairs")
+    return v
+
+
+def pairs_ratio(pairs, one_rank):
+    """pairs computed per bead relative to one process's: neighbor_pairs ÷ that of a one-rank run of the same
+    system and method; None when either is missing."""
+    return pairs / one_rank if pairs is not None and one_rank else None
+
+
+def engine_command(args, deck, sets, run_dir, ranks, wrapper=()):
+    """`stiffmd run` of a deck with its --set overrides, prefixed by wrapper (valgrind and its options)
+    and, on several ranks, by `MPIEXEC -n RANKS` (every rank under the wrapper)."""
+    cmd = list(wrapper) + [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set",
+                           "output.checkpoint_interval=0"]
     for kv in sets + args.set:
         cmd += ["--set", kv]
     if ranks > 1:
         cmd = [args.mpiexec, "-n", str(ranks)] + cmd
-    # RUSAGE_CHILDREN: every process this one has waited for and their waited-for children, so the
-    # ranks of mpiexec (which waits for them) count as the run's own CPU time.
-    busy0, own0, t0 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
-    code, _, _ = run_measured(cmd, run_dir, threads)
-    busy1, own1, t1 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
-    check_exit(code, cmd, run_dir, log="stderr.txt")
+    return cmd
+
+
+def checked_summary(args, run_dir, ranks):
+    """summary.json of a finished run, refused when it ran no steps or on another number of ranks."""
     s = read_summary(run_dir)
     if s["steps"] < 1:
         raise RunFailed(f"{run_dir}: no steps run")
     if s.get("ranks", 1) != ranks:
         raise RunFailed(f"{run_dir}: ran on {s.get('ranks', 1)} rank(s), not {ranks} (is {args.stiffmd} built with "
                         f"the MPI of {args.mpiexec}?)")
-    m = dict.fromkeys(MEASURES)
-    m["ms_per_step"] = 1e3 * s["wall_seconds"] / s["steps"]
-    m["serial_share"] = s.get("serial_share")
+    return s
+
+
+def domain_measures(m, s, ranks):
+    """Fills m's pair count and, on several ranks, the domains' ghosts, halo and imbalance from summary s."""
+    m["neighbor_pairs"] = neighbor_pairs(s)
     if ranks > 1:
         d = s["domains"]
         m["ghosts_per_owned"] = d["ghosts_per_owned"]
         m["halo_kb_per_step"] = d["halo_bytes_per_step"] / 1e3
         m["halo_messages_per_step"] = d["halo_messages_per_step"]
-        m["imbalance"] = d["rank_loop_seconds_max"] / d["rank_loop_seconds_mean"]
+        if "imbalance" in m:
+            m["imbalance"] = d["rank_loop_seconds_max"] / d["rank_loop_seconds_mean"]
+
+
+def run_once(args, deck, sets, layout, run_dir):
+    """{measure: value or None} of one run on layout = (ranks, threads): ms per step of the step loop's
+    wall time (the slowest rank's), serial share, the pair count (None where the engine writes none),
+    the domains' halo and imbalance (None on one rank), cores other processes kept busy meanwhile
+    (None off Linux)."""
+    ranks, threads = layout
+    shutil.rmtree(run_dir, ignore_errors=True)
+    os.makedirs(run_dir)
+    cmd = engine_command(args, deck, sets, run_dir, ranks)
+    # RUSAGE_CHILDREN: every process this one has waited for and their waited-for children, so the
+    # ranks of mpiexec (which waits for them) count as the run's own CPU time.
+    busy0, own0, t0 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
+    code, _, _ = run_measured(cmd, run_dir, threads)
+    busy1, own1, t1 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
+    check_exit(code, cmd, run_dir, log="stderr.txt")
+    s = checked_summary(args, run_dir, ranks)
+    m = dict.fromkeys(MEASURES)
+    m["ms_per_step"] = 1e3 * s["wall_seconds"] / s["steps"]
+    m["serial_share"] = s.get("serial_share")
+    domain_measures(m, s, ranks)
     if busy0 is not None:
         own = (own1.ru_utime + own1.ru_stime) - (own0.ru_utime + own0.ru_stime)
         m["others"] = max(0.0, (busy1 - busy0 - own) / (t1 - t0))
     return m
+
+
+# --work: callgrind's instruction count of the step loop (docstring). run_simulation (engine/run/run.cpp)
+# calls Run::step_to(final step), which takes every macro step, then Run::finish(): a dump on entering
+# each splits every process's count into set-up (part 1), the step loop (part 2) and the rest (the
+# final dump). A dump holds every thread of the process (callgrind's --toggle-collect would not: its
+# switch is per thread, and OpenMP's worker threads never enter step_to). MPI's own instructions (a
+# waiting rank polls) are taken out afterwards: the inclusive cost of every call from outside MPI's
+# objects into them (MPI_OBJECT).
+STEP_LOOP = "stiffmd::Run::step_to*"
+AFTER_LOOP = "stiffmd::Run::finish*"
+CALLGRIND = ("--tool=callgrind", "-q", f"--dump-before={STEP_LOOP}", f"--dump-before={AFTER_LOOP}")
+# Open MPI's and MPICH's libraries and plugins, and the event and topology libraries they run (which call
+# back into them: a call from there is inside MPI already).
+MPI_OBJECT = re.compile(r"libmpi|libopen-pal|libopen-rte|libpmix|libpmi|libmpich|/openmpi/|/pmix/|mca_|libevent|"
+                        r"libhwloc|libucp|libucs|libuct|libfabric|libpsm")
+WORK_MEASURES = ("steps", "ir_steps", "ir_setup", "ir_mpi_steps", "ghosts_per_owned", "neighbor_pairs",
+                 "halo_kb_per_step", "halo_messages_per_step", "valgrind_seconds")
+
+
+def read_callgrind(path, event="Ir"):
+    """{"trigger", "total", "mpi"} of one callgrind output file (one dump): the text of its "desc:
+    Trigger:" line (None when absent); the event's count from its "summary:" line (or "totals:" where it
+    has no summary), in the order of its "events:" line; and of that count, what ran inside MPI: the
+    inclusive cost of the calls from objects outside MPI_OBJECT to functions in it (the cost line after
+    "calls="; the callee's object is the "cob=" given for that call, else the caller's "ob=")."""
+    trigger, events, summary, totals, npos = None, None, None, None, 1
+    names, ob, cob, mpi, call = {}, "", None, 0, False
+
+    def name_of(value):  # "(id) name" defines an id, "(id)" refers to it, else the name itself
+        value = value.strip()
+        if value.startswith("("):
+            key, _, rest = value.partition(")")
+            if rest.strip():
+                names[key] = rest.strip()
+            return names.get(key, "")
+        return value
+
+    with open(path, errors="replace") as f:
+        for line in f:
+            if call:  # the call's cost line: positions, then the inclusive counts
+                call = False
+                w = line.split()
+                if cob is not None and MPI_OBJECT.search(cob) and not MPI_OBJECT.search(ob) and events:
+                    i = npos + events.index(event) if event in events else len(w)
+                    mpi += int(w[i]) if i < len(w) else 0
+                cob = None
+            elif line.startswith("ob="):
+                ob, cob = name_of(line[3:]), None
+            elif line.startswith("cob="):
+                cob = name_of(line[4:])
+            elif line.startswith("calls="):
+                call, cob = True, ob if cob is None else cob
+            elif line.startswith("desc: Trigger:"):
+                trigger = line.split(":", 2)[2].strip()
+            elif line.startswith("positions:"):
+                npos = len(line.split(":", 1)[1].split())
+            elif line.startswith("events:"):
+                events = line.split(":", 1)[1].split()
+            elif line.startswith("summary:"):
+                summary = line.split(":", 1)[1].split()
+            elif line.startswith("totals:"):
+                totals = line.split(":", 1)[1].split()
+    counts = summary if summary is not None else totals
+    if events is None or counts is None or event not in events:
+        raise RunFailed(f"{path}: not a callgrind output file with an {event} count (no events:/summary:/totals: line)")
+    i = events.index(event)
+    total = int(counts[i]) if i < len(counts) else 0  # trailing zero counts may be left off
+    return {"trigger": trigger, "total": total, "mpi": mpi}
+
+
+def step_loop_work(cg_dir, ranks):
+    """(instructions in the step loop less MPI's, those of the set-up, MPI's in the step loop), each
+    summed over the run's processes, from the callgrind files in cg_dir: a process's step loop is its
+    dump triggered on entering Run::finish, its set-up the dump on entering Run::step_to."""
+    loop, setup = [], []
+    for name in sorted(os.listdir(cg_dir)):
+        part = read_callgrind(os.path.join(cg_dir, name))
+        if part["trigger"] and "Run::finish" in part["trigger"]:
+            loop.append(part)
+        elif part["trigger"] and "Run::step_to" in part["trigger"]:
+            setup.append(part)
+    if len(loop) != ranks or len(setup) != ranks:
+        raise RunFailed(f"{cg_dir}: {len(loop)} step-loop and {len(setup)} set-up dumps for {ranks} process(es): the "
+                        f"step loop is no longer {STEP_LOOP} followed by {AFTER_LOOP} (engine/run/run.cpp)?")
+    mpi = sum(p["mpi"] for p in loop)
+    return sum(p["total"] for p in loop) - mpi, sum(p["total"] - p["mpi"] for p in setup), mpi
+
+
+def work_once(args, deck, sets, layout, run_dir):
+    """{work measure: value or None} of one run under callgrind on layout = (ranks, threads): the step
+    loop's and the set-up's instructions (all ranks and threads), the pair count, the domains' ghosts and
+    halo (None on one rank), and the run's wall seconds under valgrind."""
+    ranks, threads = layout
+    shutil.rmtree(run_dir, ignore_errors=True)
+    cg_dir = os.path.join(run_dir, "callgrind")
+    os.makedirs(cg_dir)
+    wrapper = [args.valgrind, *CALLGRIND, f"--callgrind-out-file={os.path.join(cg_dir, 'cg.%p')}"]
+    cmd = engine_command(args, deck, sets, run_dir, ranks, wrapper)
+    code, seconds, _ = run_measured(cmd, run_dir, threads)
+    check_exit(code, cmd, run_dir, log="stderr.txt")
+    s = checked_summary(args, run_dir, ranks)
+    m = dict.fromkeys(WORK_MEASURES)
+    m["steps"] = s["steps"]
+    m["ir_steps"], m["ir_setup"], m["ir_mpi_steps"] = step_loop_work(cg_dir, ranks)
+    m["valgrind_seconds"] = seconds
+    domain_measures(m, s, ranks)
+    return m
+
+
+def work_table(rows, layouts):
+    """The markdown table of --work: one run per (system, method, layout)."""
+    first = layouts[0]
+
+    def cell(v, form):
+        return "—" if v is None else form(v)
+
+    lines = [f"| system | method | ranks×threads | steps | step-loop Ir ×10⁹ (all ranks) | work ÷ {layout_name(first)} | "
+             "set-up Ir ×10⁹ (all ranks) | ghosts/owned | pairs/1 rank | halo kB/step | halo msgs/step | valgrind s |",
+             "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
+    for (system, method), by_layout in rows.items():
+        base = by_layout[first][0]["ir_steps"] / by_layout[first][0]["steps"]
+        one_rank = one_rank_pairs(by_layout, layouts)
+        for layout in layouts:
+            m = by_layout[layout][0]
+            work = m["ir_steps"] / m["steps"] / base if base > 0 else None
+            lines.append(f"| {system} | {method} | {layout_name(layout)} | {m['steps']} | {m['ir_steps'] / 1e9:.3f} | "
+                         f"{cell(work, '{:.3f}'.format)} | {m['ir_setup'] / 1e9:.2f} | "
+                         f"{cell(m['ghosts_per_owned'], '{:.3f}'.format)} | "
+                         f"{form_pairs(pairs_ratio(m['neighbor_pairs'], one_rank))} | "
+                         f"{cell(m['halo_kb_per_step'], '{:.1f}'.format)} | "
+                         f"{cell(m['halo_messages_per_step'], '{:g}'.format)} | {m['valgrind_seconds']:.0f} |")
+    return "\n".join(lines)
 
 
 def table(rows, layouts):
@@ -227,10 +424,11 @@ def table(rows, layouts):
 
     first = layouts[0]
     lines = ["| system | method | ranks×threads | ms/step | speed-up | efficiency | serial share | ghosts/owned | "
-             "halo kB/step | halo msgs/step | imbalance | others |",
-             "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
+             "pairs/1 rank | halo kB/step | halo msgs/step | imbalance | others |",
+             "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"]
     for (system, method), by_layout in rows.items():
         base = [m["ms_per_step"] for m in by_layout[first]]
+        one_rank = one_rank_pairs(by_layout, layouts)
         for layout in layouts:
             runs = by_layout[layout]
             speedup = statistics.median(b / m["ms_per_step"] for b, m in zip(base, runs))
@@ -239,15 +437,35 @@ def table(rows, layouts):
                          f"{speedup:.2f} | {100 * efficiency:.0f} % | "
                          f"{median(runs, 'serial_share', lambda v: f'{100 * v:.2f} %')} | "
                          f"{median(runs, 'ghosts_per_owned', '{:.3f}'.format)} | "
+                         f"{form_pairs(pairs_ratio(median_of(runs, 'neighbor_pairs'), one_rank))} | "
                          f"{median(runs, 'halo_kb_per_step', '{:.1f}'.format)} | "
                          f"{median(runs, 'halo_messages_per_step', '{:g}'.format)} | "
                          f"{median(runs, 'imbalance', '{:.3f}'.format)} | {median(runs, 'others', '{:.2f}'.format)} |")
     return "\n".join(lines)
 
 
+def median_of(runs, key):
+    values = [m[key] for m in runs if m.get(key) is not None]
+    return statistics.median(values) if values else None
+
+
+def one_rank_pairs(by_layout, layouts):
+    """The reference of "pairs/1 rank": the median neighbor_pairs of the first one-rank layout (1×T: the
+    threads share one list), or None when no layout runs on one rank or the engine writes no pair count."""
+    for layout in layouts:
+        if layout[0] == 1:
+            return median_of(by_layout[layout], "neighbor_pairs")
+    return None
+
+
+def form_pairs(ratio):
+    return "n/a" if ratio is None else f"{ratio:.3f}"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--systems", default="kg-256k,stiff-256k", help=f"comma-separated, of {', '.join(SYSTEMS)}")
+    ap.add_argument("--systems", help=f"comma-separated, of {', '.join(SYSTEMS)} (default kg-256k,stiff-256k; "
+                    "kg-32k,stiff-32k with --work)")
     ap.add_argument("--deck", help="a deck to run instead of the named systems")
     ap.add_argument("--methods", default="velocity-verlet,impulse,rattle,fixman",
                     help="for the stiff systems and --deck (kg-* run velocity-verlet)")
@@ -256,14 +474,24 @@ def main():
     ap.add_argument("--mpiexec", default="mpiexec", help="runs the layouts of more than one rank")
     ap.add_argument("--eps", type=float, default=1e-3, help="the stiff systems' ε")
     ap.add_argument("--h", type=float, default=0.005, help="--deck's step")
-    ap.add_argument("--steps", type=int, default=50)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--steps", type=int, help="steps per run (default 50; 10 with --work)")
+    ap.add_argument("--repeats", type=int, default=5, help="interleaved repeats (--work: one run each)")
+    ap.add_argument("--work", action="store_true",
+                    help="instructions of the step loop under valgrind's callgrind (all ranks and threads), "
+                         "not wall time")
+    ap.add_argument("--valgrind", default="valgrind", help="--work's valgrind")
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run (repeatable)")
     ap.add_argument("--wait-idle", type=float, default=0.0, metavar="S",
                     help="before each repeat's runs, wait up to S seconds for other processes to go quiet")
     ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
     ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "scaling"))
     args = ap.parse_args()
+    if args.systems is None:
+        args.systems = "kg-32k,stiff-32k" if args.work else "kg-256k,stiff-256k"
+    if args.steps is None:
+        args.steps = 10 if args.work else 50
+    if args.work:
+        args.repeats = 1
     if args.threads is not None and args.layouts is not None:
         print("scaling: --threads and --layouts both given: --threads T means --layouts 1xT; give one", file=sys.stderr)
         return 2
@@ -278,6 +506,14 @@ def main():
             return 2
         for key, value in OPEN_MPI_ENV.items():
             os.environ.setdefault(key, value)
+    if args.work:
+        if shutil.which(args.valgrind) is None:
+            print(f"scaling: no valgrind {args.valgrind!r} (--valgrind) for --work", file=sys.stderr)
+            return 2
+        # A spinning wait would count as work: idle OpenMP threads sleep (whatever the caller set), and
+        # Open MPI's idle ranks yield their core (their polling inside MPI is not collected anyway).
+        os.environ["OMP_WAIT_POLICY"] = "passive"
+        os.environ.setdefault("OMPI_MCA_mpi_yield_when_idle", "1")
     args.stiffmd, args.out = os.path.abspath(args.stiffmd), os.path.abspath(args.out)
     work = os.path.join(args.out, "work")
     os.makedirs(work, exist_ok=True)
@@ -302,20 +538,26 @@ def main():
                 if args.wait_idle > 0:
                     wait_idle(args.wait_idle)
                 for layout in order:
-                    run_dir = os.path.join(work, "runs", f"{system}_{method}_r{layout[0]}t{layout[1]}")
-                    m = run_once(args, deck, sets, layout, run_dir)
+                    kind = "work" if args.work else "runs"
+                    run_dir = os.path.join(work, kind, f"{system}_{method}_r{layout[0]}t{layout[1]}")
+                    m = (work_once if args.work else run_once)(args, deck, sets, layout, run_dir)
                     by_layout.setdefault(layout, []).append(m)
                     records.append({"system": system, "method": method, "ranks": layout[0], "threads": layout[1],
                                     "repeat": r, **{k: "" if v is None else v for k, v in m.items()}})
     except RunFailed as e:
         print(f"scaling: {e}", file=sys.stderr)
         return 2
-    head = (f"Wall ms per step of the step loop, {args.steps} steps, median of {args.repeats} interleaved repeats; "
-            f"speed-up over {layout_name(layouts[0])} (ranks×threads; median of the ratios within a repeat)")
-    text = head + "\n\n" + table(rows, layouts) + "\n"
-    with open(os.path.join(args.out, "scaling.md"), "w") as f:
+    if args.work:
+        head = (f"Instructions (callgrind's Ir) of the step loop, {args.steps} steps, all ranks and threads, MPI's own "
+                f"excluded; work = Ir per step ÷ that of {layout_name(layouts[0])} (ranks×threads)")
+        text, names = head + "\n\n" + work_table(rows, layouts) + "\n", ("work.md", "work.csv")
+    else:
+        head = (f"Wall ms per step of the step loop, {args.steps} steps, median of {args.repeats} interleaved repeats; "
+                f"speed-up over {layout_name(layouts[0])} (ranks×threads; median of the ratios within a repeat)")
+        text, names = head + "\n\n" + table(rows, layouts) + "\n", ("scaling.md", "runs.csv")
+    with open(os.path.join(args.out, names[0]), "w") as f:
         f.write(text)
-    with open(os.path.join(args.out, "runs.csv"), "w", newline="") as f:
+    with open(os.path.join(args.out, names[1]), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(records[0]))
         w.writeheader()
         w.writerows(records)
