@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <compare>
 #include <sstream>
 #include <stdexcept>
@@ -734,6 +735,8 @@ void NeighborList::build(const Eigen::Matrix3Xd& x, const Box& box) {
   box_at_build_ = box_now_ = box;
   built_ = true;
   ++rebuilds_;
+  static std::atomic<std::uint64_t> builds{0};  // every list's, for build_id
+  build_id_ = ++builds;
 }
 
 void NeighborList::restore(const Eigen::Matrix3Xd& x_at_build, const Box& box, long rebuilds) {

@@ -208,7 +208,11 @@ class NeighborList {
 
   double cutoff() const { return cutoff_; }
   double skin() const { return skin_; }
-  long rebuilds() const { return rebuilds_; }                       // builds so far, the first included
+  long rebuilds() const { return rebuilds_; }  // builds so far, the first included
+  // The latest build's number, shared by no other build of any list in this process (0: never
+  // built): the key of a cache of facts about the pairs (PairScratch's touched runs). A copy of
+  // the list keeps it, with the same pairs.
+  std::uint64_t build_id() const { return build_id_; }
   const Eigen::Vector3i& cells_per_axis() const { return ncell_; }  // of the last build
 
   // For checkpoints: the list is a function of the positions and box of its last build (bin and
@@ -233,6 +237,7 @@ class NeighborList {
   double cutoff_;
   double skin_;
   long rebuilds_ = 0;
+  std::uint64_t build_id_ = 0;
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;

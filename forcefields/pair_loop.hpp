@@ -15,6 +15,8 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
+#include <bit>
+#include <cstdint>
 #include <span>
 #include <sstream>
 #include <stdexcept>
@@ -211,10 +213,61 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
   return sums;
 }
 
-// Per-thread buffers of the parallel pair loop, reused from call to call.
+// A set of particle indices as ascending, disjoint runs [begin, end).
+using IndexRuns = std::vector<std::array<int, 2>>;
+
+// The particles that rows first … last − 1 of the half list read and write: the rows themselves
+// and their neighbours j, as runs, two runs with a gap of at most kRunGap particles between them
+// taken as one (the gap's 48 bytes of f lie mostly in cache lines the runs touch anyway, and each
+// run costs a loop of its own in each pass). marks: a bit per particle, all 0 on entry and on
+// return. In a melt whose chains lie at consecutive indices the set is the neighbourhoods of a
+// part's chains, however many particles there are: a part of the parallel pair loop clears,
+// copies and adds only these.
+inline constexpr int kRunGap = 2;
+
+inline void touched_runs(const NeighborList& list, int first, int last, std::vector<std::uint64_t>& marks,
+                         IndexRuns& runs) {
+  runs.clear();
+  if (first >= last) return;
+  const int n = list.num_particles();
+  const std::size_t words = (static_cast<std::size_t>(n) + 63) / 64;
+  if (marks.size() < words) marks.resize(words, 0);
+  const std::span<const std::int64_t> offset = list.offsets();
+  const int* nbr = list.neighbors().data();
+  const auto mark = [&](int k) { marks[k >> 6] |= std::uint64_t{1} << (k & 63); };
+  for (int i = first; i < last; ++i) mark(i);
+  for (std::int64_t k = offset[first]; k < offset[last]; ++k) mark(nbr[k]);
+  int begin = 0, end = -1;  // the run being extended
+  for (std::size_t w = static_cast<std::size_t>(first) >> 6; w < words; ++w) {
+    std::uint64_t bits = marks[w];
+    if (bits == 0) continue;
+    marks[w] = 0;
+    while (bits != 0) {  // each stretch of set bits, lowest first
+      const int b = std::countr_zero(bits);
+      const int len = std::countr_one(bits >> b);
+      const int k = static_cast<int>(64 * w) + b;
+      if (end >= 0 && k - end <= kRunGap) {
+        end = k + len;
+      } else {
+        if (end >= 0) runs.push_back({begin, end});
+        begin = k;
+        end = k + len;
+      }
+      bits = b + len == 64 ? 0 : bits & ~(((std::uint64_t{1} << len) - 1) << b);
+    }
+  }
+  runs.push_back({begin, end});
+}
+
+// Per-thread buffers of the parallel pair loop, reused from call to call. A part's buffers hold
+// values only on its touched runs; the rest is never written nor read.
 struct PairScratch {
-  std::vector<Eigen::Matrix3Xd> force;      // one per part (part 0 writes into f itself)
-  std::vector<Eigen::Matrix3Xd> positions;  // one per part: its own copy of the positions it reads
+  std::vector<Eigen::Matrix3Xd> force;            // one per part (part 0 writes into f itself)
+  std::vector<Eigen::Matrix3Xd> positions;        // one per part: its own copy of the positions it reads
+  std::vector<IndexRuns> touched;                 // per part: touched_runs of its rows
+  std::vector<std::vector<std::uint64_t>> marks;  // per part: touched_runs' scratch
+  std::uint64_t touched_build = 0;                // the list's build_id that `touched` is for …
+  int touched_parts = 0;                          // … and the part count
   std::array<PairSums, kMaxParts> sums;
   std::array<int, kMaxParts + 1> first_row;
 };
@@ -225,13 +278,20 @@ struct PairScratch {
 // particles, the other buffers in part order. Fixed blocks and a fixed order: the same sums for a
 // given thread count.
 //
+// A part touches only its rows and their neighbours (touched_runs, found once per list build):
+// it clears its buffer and copies the positions there alone, and the sum adds buffer u into f_k
+// only where part u touched k — the other buffers hold 0 there, and f_k + 0 = f_k, so the sum is
+// the one over every buffer. Memory traffic per call: Σ_u |touched_u| particles, ≈ N + the
+// neighbours of the parts' boundaries when the particle order follows space, at most N + pairs,
+// rather than N per part.
+//
 // xl: the positions of the list's frame (NeighborList::wrapped_positions when periodic, computed
-// in particle blocks). Each part first makes its own copy of them, one sequential pass (copying
-// them rather than wrapping again per part: the wrap is done once). Why a copy: the neighbours
-// x_j of a part's rows lie anywhere in the system, and read in place the lines of x that the
-// other threads had just written (the drift and the wrap run in particle blocks) would come over
-// one scattered read at a time, which makes each part's pairs dearer on two threads than on one
-// (docs/performance_notes.md).
+// in particle blocks). Each part first copies the runs of them it reads, sequential passes
+// (copying them rather than wrapping again per part: the wrap is done once). Why a copy: the
+// neighbours x_j of a part's rows lie anywhere in the system, and read in place the lines of x
+// that the other threads had just written (the drift and the wrap run in particle blocks) would
+// come over one scattered read at a time, which makes each part's pairs dearer on two threads
+// than on one (docs/performance_notes.md).
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
@@ -248,27 +308,46 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   scratch.first_row[0] = 0;
   if (kForces && static_cast<int>(scratch.force.size()) < parts) scratch.force.resize(parts);
   if (static_cast<int>(scratch.positions.size()) < parts) scratch.positions.resize(parts);
+  if (static_cast<int>(scratch.touched.size()) < parts) {
+    scratch.touched.resize(parts);
+    scratch.marks.resize(parts);
+  }
+  const bool find_touched = scratch.touched_build != list.build_id() || scratch.touched_parts != parts;
+  scratch.touched_build = 0;  // until every part has found its runs
   run_parts(parts, [&](int u) {
+    const int first = scratch.first_row[u], last = std::max(first, scratch.first_row[u + 1]);
+    if (find_touched) touched_runs(list, first, last, scratch.marks[u], scratch.touched[u]);
+    const IndexRuns& runs = scratch.touched[u];
     Eigen::Matrix3Xd& xw = scratch.positions[u];
-    xw = xl;  // allocates only the first time
+    xw.resize(3, n);  // allocates only the first time
+    for (const auto& [b, e] : runs) xw.middleCols(b, e - b) = xl.middleCols(b, e - b);
     double* fu = nullptr;
     if constexpr (kForces) {
       if (u == 0) {
         fu = f;  // part 0 adds into f itself: one buffer fewer to clear and to sum
       } else {
-        scratch.force[u].setZero(3, n);  // allocates only the first time
-        fu = scratch.force[u].data();
+        Eigen::Matrix3Xd& fw = scratch.force[u];
+        fw.resize(3, n);
+        for (const auto& [b, e] : runs) fw.middleCols(b, e - b).setZero();
+        fu = fw.data();
       }
     }
-    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(
-        list, scratch.first_row[u], std::max(scratch.first_row[u], scratch.first_row[u + 1]), params, type, xw, near,
-        fu);
+    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(list, first, last, params,
+                                                                                         type, xw, near, fu);
   });
+  scratch.touched_build = list.build_id();
+  scratch.touched_parts = parts;
   if constexpr (kForces)
     parallel_blocks(n, parts, [&](std::int64_t begin, std::int64_t end) {
-      for (int u = 1; u < parts; ++u) {
+      for (int u = 1; u < parts; ++u) {  // f_k += buffer u's f_k where part u touched k, in part order
+        const IndexRuns& runs = scratch.touched[u];
         const double* fu = scratch.force[u].data();
-        for (std::int64_t k = 3 * begin; k < 3 * end; ++k) f[k] += fu[k];
+        auto r = std::lower_bound(runs.begin(), runs.end(), begin,
+                                  [](const std::array<int, 2>& run, std::int64_t k) { return run[1] <= k; });
+        for (; r != runs.end() && (*r)[0] < end; ++r) {
+          const std::int64_t lo = std::max<std::int64_t>(begin, (*r)[0]), hi = std::min<std::int64_t>(end, (*r)[1]);
+          for (std::int64_t k = 3 * lo; k < 3 * hi; ++k) f[k] += fu[k];
+        }
       }
     });
   PairSums total;
@@ -292,7 +371,7 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const bool periodic = box.any_periodic();
   const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
   PairSums listed;
-  if (parts > 1) {  // each part copies the wrapped positions
+  if (parts > 1) {  // each part copies the wrapped positions it reads
     listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares>(
                             list, parts, params, type, xl, NearestImage(box), f, scratch)
                       : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares>(

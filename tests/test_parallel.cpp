@@ -122,6 +122,115 @@ TEST(Parallel, WcaForcesDoNotDependOnTheThreadCount) {
   }
 }
 
+// The parallel pair loop itself (accumulate_pair_rows_parallel): for 1, 2, 3 and 7 parts the
+// serial loop's forces (added into what f held), energy and virial to round-off, 1 part bit for
+// bit, and a given part count the same bits on every call — with its touched runs cached, from a
+// fresh scratch, and after the list is rebuilt for moved particles (the cache must follow the
+// build). LJ at rc = 2.5 over the lattice melt: ~40 neighbours a row, most in other parts' rows.
+struct PairRowsResult {
+  Eigen::Matrix3Xd f;
+  PairSums sums;
+  std::array<int, kMaxParts + 1> first_row;
+};
+
+PairRowsResult pair_rows(NeighborList& list, const Eigen::Matrix3Xd& x, const Box& box,
+                         const Eigen::Matrix3Xd& f_before, int parts, PairScratch& scratch) {
+  TypePairMatrix<LennardJonesParams> params(1);
+  params.set(0, 0, LennardJonesParams::make(1.0, 1.0, list.cutoff()));
+  const std::vector<int> type(x.cols(), 0);
+  const Eigen::Matrix3Xd& xl = list.wrapped_positions(x);
+  PairRowsResult out{f_before, {}, {}};
+  if (parts == 0)  // the serial loop
+    out.sums = accumulate_pair_rows<LennardJones, true, true, true>(list, 0, list.num_particles(), params, type.data(),
+                                                                    xl, NearestImage(box), out.f.data());
+  else
+    out.sums = accumulate_pair_rows_parallel<LennardJones, true, true, true>(list, parts, params, type.data(), xl,
+                                                                             NearestImage(box), out.f.data(), scratch);
+  out.first_row = scratch.first_row;
+  return out;
+}
+
+void expect_pair_rows_match_serial(NeighborList& list, const Eigen::Matrix3Xd& x, const Box& box,
+                                   std::initializer_list<int> part_counts, bool want_empty_part) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> any(-1.0, 1.0);
+  const Eigen::Matrix3Xd before = Eigen::Matrix3Xd::NullaryExpr(3, x.cols(), [&] { return any(rng); });
+  PairScratch none;
+  const PairRowsResult serial = pair_rows(list, x, box, before, 0, none);
+  const Eigen::Matrix3Xd force = serial.f - before;
+  const double scale = force.cwiseAbs().maxCoeff();
+  ASSERT_GT(scale, 0.0);
+  bool some_part_empty = false;
+  for (int parts : part_counts) {
+    SCOPED_TRACE(testing::Message() << parts << " parts");
+    PairScratch scratch, fresh;
+    const PairRowsResult a = pair_rows(list, x, box, before, parts, scratch);
+    const PairRowsResult b = pair_rows(list, x, box, before, parts, scratch);  // cached touched runs
+    const PairRowsResult c = pair_rows(list, x, box, before, parts, fresh);
+    EXPECT_TRUE(a.f == b.f);
+    EXPECT_TRUE(a.f == c.f);
+    EXPECT_EQ(a.sums.energy, b.sums.energy);
+    EXPECT_EQ(a.sums.virial, c.sums.virial);
+    if (parts == 1) {
+      EXPECT_TRUE(a.f == serial.f);
+      EXPECT_EQ(a.sums.energy, serial.sums.energy);
+      EXPECT_EQ(a.sums.virial, serial.sums.virial);
+    }
+    EXPECT_LE(((a.f - before) - force).cwiseAbs().maxCoeff(), 1e-12 * scale);
+    EXPECT_NEAR(a.sums.energy, serial.sums.energy, 1e-12 * std::abs(serial.sums.energy));
+    EXPECT_NEAR(a.sums.virial, serial.sums.virial, 1e-12 * std::abs(serial.sums.virial));
+    for (int u = 0; u < parts; ++u) some_part_empty |= a.first_row[u] >= a.first_row[u + 1];
+  }
+  if (want_empty_part) EXPECT_TRUE(some_part_empty) << "no part had an empty range of rows";
+}
+
+TEST(Parallel, PairRowsOnPartsAreTheSerialLoopsSums) {
+  for (bool shuffle : {false, true}) {
+    SCOPED_TRACE(shuffle ? "shuffled indices" : "chains in index order");
+    Melt m = melt(shuffle);
+    m.x.array() -= 0.5;  // some particles below the origin: wrapped
+    NeighborList list(2.5, 0.3);
+    list.set_exclusions(m.x.cols(), special_pairs(m.x.cols(), m.bonds, SpecialWeights{}));
+    list.build(m.x, m.box);
+    expect_pair_rows_match_serial(list, m.x, m.box, {1, 2, 3, 7}, false);
+
+    // The same scratch after a rebuild for moved particles: the touched runs must be found again.
+    PairScratch scratch;
+    const Eigen::Matrix3Xd zero = Eigen::Matrix3Xd::Zero(3, m.x.cols());
+    pair_rows(list, m.x, m.box, zero, 7, scratch);
+    std::mt19937 rng(8);
+    std::uniform_real_distribution<double> move(-0.6, 0.6);
+    Eigen::Matrix3Xd moved = m.x;
+    for (Eigen::Index i = 0; i < moved.cols(); i += 3) moved(0, i) += move(rng);
+    list.build(moved, m.box);
+    PairScratch fresh;
+    EXPECT_TRUE(pair_rows(list, moved, m.box, zero, 7, scratch).f == pair_rows(list, moved, m.box, zero, 7, fresh).f);
+  }
+}
+
+// Parts with no rows: a row holding more than a part's share of the pairs takes the blocks that
+// fall in it. A periodic box of scattered beads with one tight cluster at the lowest indices,
+// whose first bead lists every other bead of it.
+TEST(Parallel, PairRowsWithEmptyPartsAreTheSerialLoopsSums) {
+  Box box;
+  box.lengths = Eigen::Vector3d::Constant(12.0);
+  box.periodic = Eigen::Vector3i::Ones();
+  const int cluster = 6, n = 6 * 6 * 6;
+  Eigen::Matrix3Xd x(3, n);
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> jitter(-0.1, 0.1);
+  for (int k = 0; k < n; ++k)  // a 6³ lattice of spacing 2 beyond the cutoff + skin of 1.5
+    x.col(k) =
+        Eigen::Vector3d(2.0 * (k % 6) + jitter(rng), 2.0 * (k / 6 % 6) + jitter(rng), 2.0 * (k / 36) + jitter(rng));
+  for (int k = 1; k < cluster; ++k)  // beads 1 … 5 around bead 0 (at the box's corner: across its faces)
+    x.col(k) = x.col(0) + Eigen::Vector3d(0.6 * std::cos(1.2 * k), 0.6 * std::sin(1.2 * k), 0.3 * (k - 3)) +
+               Eigen::Vector3d::Constant(jitter(rng));
+  NeighborList list(1.2, 0.3);
+  list.build(x, box);
+  ASSERT_GT(list.num_pairs(), 0u);
+  expect_pair_rows_match_serial(list, x, box, {2, 3, 7}, true);
+}
+
 // The list's rows and the order within each row (which fixes the order of the force sums) must
 // be the same for any thread count: the threads search runs of cell columns, and their buffers taken in
 // order are the pairs in the order one thread finds them. Also across the periodic faces
