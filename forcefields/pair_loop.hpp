@@ -391,7 +391,9 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares>(
       scaled, params, type, xl, MinimumImage(box), f,
       kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr);
-  PairSums total{listed.energy + special.energy, listed.virial + special.virial};
+  PairSums total;
+  total.energy = listed.energy + special.energy;
+  total.virial = listed.virial + special.virial;
   total.diagonal.add(listed.diagonal);
   total.diagonal.add(special.diagonal);
   return total;

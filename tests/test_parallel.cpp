@@ -181,7 +181,9 @@ void expect_pair_rows_match_serial(NeighborList& list, const Eigen::Matrix3Xd& x
     EXPECT_NEAR(a.sums.virial, serial.sums.virial, 1e-12 * std::abs(serial.sums.virial));
     for (int u = 0; u < parts; ++u) some_part_empty |= a.first_row[u] >= a.first_row[u + 1];
   }
-  if (want_empty_part) EXPECT_TRUE(some_part_empty) << "no part had an empty range of rows";
+  if (want_empty_part) {
+    EXPECT_TRUE(some_part_empty) << "no part had an empty range of rows";
+  }
 }
 
 TEST(Parallel, PairRowsOnPartsAreTheSerialLoopsSums) {
