@@ -312,7 +312,8 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
 
 bool NeighborList::update(const Eigen::Matrix3Xd& x, const Box& box) {
   box_now_ = box;
-  const bool stale = needs_rebuild(x, box);
+  const bool stale = next_verdict_ >= 0 ? next_verdict_ != 0 : needs_rebuild(x, box);
+  next_verdict_ = -1;
   if (!(agree_ ? agree_(stale) : stale)) return false;
   build(x, box);
   return true;

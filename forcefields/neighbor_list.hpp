@@ -179,6 +179,9 @@ class NeighborList {
   // built). Empty: the list's own verdict (the default).
   using RebuildAgreement = std::function<bool(bool)>;
   void set_rebuild_agreement(RebuildAgreement agree) { agree_ = std::move(agree); }
+  // The next update's verdict, already known to the caller (it asked needs_rebuild at the same x
+  // and box, and the ranks agreed on it): that update does not compute it again.
+  void set_next_verdict(bool stale) { next_verdict_ = stale ? 1 : 0; }
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   // needs_rebuild after the box changed its lengths or origin since the build (a barostat): the
   // list stays complete while 2U ≤ μ_min (cutoff + skin) − cutoff, U the largest displacement of
@@ -241,6 +244,7 @@ class NeighborList {
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
+  int next_verdict_ = -1;         // set_next_verdict's, for the next update only (−1: none)
   std::vector<char> ghost_;       // set_ghosts (empty: none)
   std::vector<char> cell_owned_;  // the search's scratch: whether a cell holds a non-ghost
 

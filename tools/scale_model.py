@@ -1,7 +1,10 @@
 #!/usr/bin/python3
-"""Scaling on paper, from measured per-rank costs: whole-molecule ownership (stiffmd's decomposition,
-docs/parallel.md) against atom decomposition with a halo per micro step, for 10⁶ and 10⁷ beads on
-8–512 ranks (strong and weak), and the beads per rank above which whole-molecule ownership wins.
+"""Scaling on paper, from measured per-rank costs: stiffmd's decomposition (docs/parallel.md: whole
+molecules integrated by their owners, each bead's pair forces on the rank of its own domain over a
+thin halo — "thin"), the earlier whole-molecule ghosts (every bead within r_c + margin of an owned
+bead — "whole") and atom decomposition with a halo per micro step ("atoms"), for 10⁶ and 10⁷ beads
+on 8–512 ranks (strong and weak), and the beads per rank above which whole-molecule ghosts win over
+atoms.
 
     /usr/bin/python3 tools/scale_model.py                 # the tables of docs/parallel.md
     /usr/bin/python3 tools/scale_model.py --micro 20 --latency 5e-6 --bandwidth 5e9
@@ -32,6 +35,13 @@ The model, per macro step and rank holding n beads (a cubic domain of side a = (
   S/k  selecting the ghosts again: S = 0.5 µs per extended bead, every k = 15 steps (measured:
       tools/scale_node.sh, the "domain" phase). Atom decomposition pays its own list rebuilds too;
       left out for it, which favours it.
+  thin  the ghosts are the halo of a domain, w = r_c + 1.5 skin = 1.72 σ (in.chain ×8 on 16 ranks,
+      16 000 beads per rank on a 4 × 2 × 2 grid: 0.46 measured, 0.44 by the formula); two exchanges
+      per macro step (positions out, forces back: 2 m messages) carrying 24 γ n bytes of halo
+      positions and 72 μ n bytes for the beads whose home is not their owner (position and force
+      out, force back), μ = 0.2 at 16 000 beads per rank (from the measured 6.6 MB per step of
+      in.chain ×8 on 16 ranks) and growing as the domain's surface per volume, 1/a; a selection is
+      the list rebuild one process makes anyway (its extra pass and exchange left out).
 
 The tables print the time per macro step, the speed-up over the fewest ranks (strong) and the
 efficiency (weak); the crossover line is the smallest n at which T_whole ≤ T_atom.
@@ -61,6 +71,18 @@ def whole(n, method, args):
     return step_seconds(n, COMPUTE_US[method], 1, args.whole_width, args)
 
 
+def moved(n, args):
+    a0 = (16000 / RHO) ** (1.0 / 3.0)
+    return min(1.0, args.moved * a0 / (n / RHO) ** (1.0 / 3.0))
+
+
+def thin(n, method, args):
+    g = ghosts(n, args.thin_width)
+    compute = COMPUTE_US[method] * 1e-6 * n * (1.0 + args.beta * g)
+    comm = 2 * args.latency * args.neighbours + (24.0 * g * n + 72.0 * moved(n, args) * n) / args.bandwidth
+    return compute + comm
+
+
 def atoms(n, method, args):
     return step_seconds(n, COMPUTE_US[method], HALOS_ATOMS[method](args), args.atom_width, args) - (
         args.select_us * 1e-6 * n * (1.0 + ghosts(n, args.atom_width)) / args.select_every)
@@ -71,6 +93,8 @@ def main():
     ap.add_argument("--beta", type=float, default=0.43)
     ap.add_argument("--whole-width", type=float, default=5.35)
     ap.add_argument("--atom-width", type=float, default=1.42)
+    ap.add_argument("--thin-width", type=float, default=1.72)
+    ap.add_argument("--moved", type=float, default=0.2, help="beads away from their owner's domain at 16 000 per rank")
     ap.add_argument("--latency", type=float, default=2e-6)
     ap.add_argument("--bandwidth", type=float, default=10e9)
     ap.add_argument("--neighbours", type=int, default=26)
@@ -82,21 +106,24 @@ def main():
     ranks = [8, 16, 32, 64, 128, 256, 512]
     for method in COMPUTE_US:
         print(f"\n### {method}\n")
-        print("| beads | ranks | beads/rank | ghosts/owned | whole: ms/step | speed-up | atoms: ms/step |")
-        print("|--:|--:|--:|--:|--:|--:|--:|")
+        print("| beads | ranks | beads/rank | thin: ghosts/bead | thin: ms/step | speed-up | whole: ghosts/owned "
+              "| whole: ms/step | atoms: ms/step |")
+        print("|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
         for total in (1e6, 1e7):
-            t0 = whole(total / ranks[0], method, args)
+            t0 = thin(total / ranks[0], method, args)
             for p in ranks:
                 n = total / p
-                t = whole(n, method, args)
-                print(f"| {total:.0e} | {p} | {n:,.0f} | {ghosts(n, args.whole_width):.2f} | {1e3 * t:.2f} | "
-                      f"{ranks[0] * t0 / t:.0f} | {1e3 * atoms(n, method, args):.2f} |")
-        print("\nweak scaling (whole molecules; the time per step does not depend on the rank count in this model,"
-              " only on beads per rank):")
+                t = thin(n, method, args)
+                print(f"| {total:.0e} | {p} | {n:,.0f} | {ghosts(n, args.thin_width):.2f} | {1e3 * t:.2f} | "
+                      f"{ranks[0] * t0 / t:.0f} | {ghosts(n, args.whole_width):.2f} | "
+                      f"{1e3 * whole(n, method, args):.2f} | {1e3 * atoms(n, method, args):.2f} |")
+        print("\nweak scaling (the time per step does not depend on the rank count in this model, only on beads"
+              " per rank; thin halo, and whole-molecule ghosts):")
         for n in (1e4, 3e4, 1e5, 3e5, 1e6):
             ideal = COMPUTE_US[method] * 1e-6 * n
-            print(f"  {n:>9,.0f} beads/rank: {1e3 * whole(n, method, args):8.2f} ms/step, efficiency "
-                  f"{100 * ideal / whole(n, method, args):3.0f} % of one rank without ghosts")
+            print(f"  {n:>9,.0f} beads/rank: thin {1e3 * thin(n, method, args):8.2f} ms/step, efficiency "
+                  f"{100 * ideal / thin(n, method, args):3.0f} %; whole {100 * ideal / whole(n, method, args):3.0f} %"
+                  " of one rank without ghosts")
         # The crossover, for the measured β and for ghosts that cost less (a leaner extended-set
         # evaluation: the list built on the owned particles' cells only, say).
         measured = args.beta

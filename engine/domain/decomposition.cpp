@@ -282,6 +282,21 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     for (int a = 0; a < 3; ++a) q[a] = into_box(x(a, k), a);
     const int home = grid_.domain_of(q);
     const int hc[3] = {home / (dims[1] * dims[2]), (home / dims[2]) % dims[1], home % dims[2]};
+    // Most beads lie deeper than R inside their domain on every cut axis: home alone.
+    bool inside = true;
+    for (int a = 0; a < 3 && inside; ++a) {
+      if (dims[a] == 1) continue;
+      const double width = grid_.length[a] / dims[a], lo = grid_.origin[a] + hc[a] * width;
+      inside = (hc[a] == 0 && !grid_.periodic[a] ? true : q[a] - lo >= reach) &&
+               (hc[a] == dims[a] - 1 && !grid_.periodic[a] ? true : lo + width - q[a] >= reach);
+    }
+    if (inside) {
+      Plan& p = home == me ? local_ : out_[home];
+      p.owned.push_back(k);
+      p.home.push_back(1);
+      ++p.homes;
+      continue;
+    }
     for (int a = 0; a < 3; ++a) slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
     // The domains within R of q: the per-axis gaps add in squares (a domain's corner is farther
     // than its faces).
@@ -326,7 +341,13 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
       p.home[m] = home, p.homes += home;
     }
   }
-  std::sort(members.begin(), members.end());
+  // Runs in increasing global index (the local beads, then each rank's, which it sends in its
+  // owned order): merged, not sorted.
+  for (size_t r = 0, end = local_.owned.size(); r < static_cast<size_t>(ranks); ++r) {
+    const auto middle = members.begin() + static_cast<std::ptrdiff_t>(end);
+    end += in[r].size();
+    std::inplace_merge(members.begin(), middle, members.begin() + static_cast<std::ptrdiff_t>(end));
+  }
   const int n = static_cast<int>(members.size());
   pair_ids_.resize(n);
   halo_flag_.assign(n, 0);

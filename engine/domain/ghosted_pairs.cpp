@@ -57,7 +57,10 @@ void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Mat
   // rank rebuilding alone would hold the others up at the next exchange.
   double stale = domains_.moved_half_margin(x) || (!moved && extended_pairs_->list_stale(x_, box)) ? 1.0 : 0.0;
   domains_.comm().max(&stale, 1);
-  if (stale == 0.0) return;
+  if (stale == 0.0) {
+    if (!moved) extended_pairs_->set_next_list_verdict(false);  // the list's own test, just made
+    return;
+  }
   domains_.select_pair_set(x);
   retarget();
   domains_.forward(x, x_, f, f ? &f_ : nullptr);
