@@ -225,7 +225,9 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
     worst[u] = w;
   });
   const double d2 = *std::max_element(worst.begin(), worst.begin() + parts);
-  if (d2 <= half2) return false;  // every D_i + D_j ≤ skin
+  const double limit = displacement_limit_ > 0.0 ? std::min(displacement_limit_, skin_) : skin_;
+  if (!(d2 <= limit * limit)) return true;  // (a non-finite position too)
+  if (d2 <= half2) return false;            // every D_i + D_j ≤ skin
   // The fast particles' check needs a particle within the cutoff of a fast one to have sat in the
   // build's cells around the fast one's position now (D ≤ skin), the build's cell search (not the
   // small-box one), and NearestImage to stay exact for the pair loop: positions within the skin of

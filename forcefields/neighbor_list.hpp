@@ -182,6 +182,10 @@ class NeighborList {
   // The next update's verdict, already known to the caller (it asked needs_rebuild at the same x
   // and box, and the ranks agreed on it): that update does not compute it again.
   void set_next_verdict(bool stale) { next_verdict_ = stale ? 1 : 0; }
+  // A displacement since the build past which the list counts as stale whatever the fast
+  // particles' test says (> 0; the skin when larger): a decomposed run's pair set holds the
+  // partners of its beads only while none moved half the halo's margin.
+  void set_displacement_limit(double limit) { displacement_limit_ = limit; }
   bool needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) const;
   // needs_rebuild after the box changed its lengths or origin since the build (a barostat): the
   // list stays complete while 2U ≤ μ_min (cutoff + skin) − cutoff, U the largest displacement of
@@ -244,9 +248,10 @@ class NeighborList {
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
-  int next_verdict_ = -1;         // set_next_verdict's, for the next update only (−1: none)
-  std::vector<char> ghost_;       // set_ghosts (empty: none)
-  std::vector<char> cell_owned_;  // the search's scratch: whether a cell holds a non-ghost
+  int next_verdict_ = -1;            // set_next_verdict's, for the next update only (−1: none)
+  double displacement_limit_ = 0.0;  // set_displacement_limit's (0: the skin)
+  std::vector<char> ghost_;          // set_ghosts (empty: none)
+  std::vector<char> cell_owned_;     // the search's scratch: whether a cell holds a non-ghost
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;

@@ -44,6 +44,8 @@ class PairsOnParticles {
   virtual bool list_stale(const Eigen::Matrix3Xd& x, const Box& box) const = 0;
   // The verdict the next list update takes (NeighborList::set_next_verdict).
   virtual void set_next_list_verdict(bool stale) = 0;
+  // NeighborList::set_displacement_limit.
+  virtual void set_displacement_limit(double limit) = 0;
   // Its neighbour list brought up to date for x (NeighborList::update), ahead of an evaluation.
   virtual void update_list(const Eigen::Matrix3Xd& x, const Box& box) = 0;
   // The positions it is given are wrapped into the box (NeighborList::set_positions_wrapped).
@@ -92,6 +94,7 @@ class PairTerm final : public ForceTerm, public PairsOnParticles {
   void set_positions_wrapped(bool wrapped) override { list_.set_positions_wrapped(wrapped); }
   bool list_stale(const Eigen::Matrix3Xd& x, const Box& box) const override { return list_.needs_rebuild(x, box); }
   void set_next_list_verdict(bool stale) override { list_.set_next_verdict(stale); }
+  void set_displacement_limit(double limit) override { list_.set_displacement_limit(limit); }
   void update_list(const Eigen::Matrix3Xd& x, const Box& box) override {
     check_positions(x, nullptr);
     const ScopedPhase phase(Phase::neighbor);

@@ -33,6 +33,9 @@ GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition&
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
   // reads them: the list makes no wrapped copy of its own.
   extended_pairs_->set_positions_wrapped(true);
+  // Every list build is at a selection of the pair sets (below), so a displacement since the build
+  // is one since the selection: past margin/2 the pair set may miss a pair.
+  extended_pairs_->set_displacement_limit(0.5 * domains.margin());
 }
 
 void GhostedPairs::take_over(GhostedPairs& old) {
@@ -50,12 +53,13 @@ void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Mat
   const bool moved = selection_ != domains_.selections();
   if (moved) retarget();
   domains_.forward(x, x_, f, f ? &f_ : nullptr);
-  // One max-reduction decides for every rank: the pair sets are selected again when a bead has
-  // moved margin/2 (else they may miss a pair), and also when a rank's list would be rebuilt
-  // anyway — so that a rebuild, the costly part of a selection, is the one the list would make,
-  // as LAMMPS exchanges its ghosts at each reneighbouring. Every list then rebuilds together: a
-  // rank rebuilding alone would hold the others up at the next exchange.
-  double stale = domains_.moved_half_margin(x) || (!moved && extended_pairs_->list_stale(x_, box)) ? 1.0 : 0.0;
+  // One max-reduction decides for every rank: the pair sets are selected again when a rank's list
+  // would be rebuilt — its fast beads' test, or a bead of its pair set moved margin/2 since the
+  // build, which was at the selection (else the pair set may miss a pair) — so that a rebuild, the
+  // costly part of a selection, is the one the list would make, as LAMMPS exchanges its ghosts at
+  // each reneighbouring. Every list then rebuilds together: a rank rebuilding alone would hold the
+  // others up at the next exchange. (Every owned bead is some rank's home bead.)
+  double stale = !moved && extended_pairs_->list_stale(x_, box) ? 1.0 : 0.0;
   domains_.comm().max(&stale, 1);
   if (stale == 0.0) {
     if (!moved) extended_pairs_->set_next_list_verdict(false);  // the list's own test, just made
@@ -75,19 +79,19 @@ void GhostedPairs::retarget() const {
   for (int e = 0; e < n; ++e) types_[e] = whole_types_[ids[e]];
   // The special pairs of the whole system with a home bead here and both beads in the pair set: a
   // home bead's partners within R are all here, and a pair of two halo beads is not evaluated.
+  // Made in (i, j) order: by slot i, then its partners j > i sorted (a handful).
   special_.clear();
   const SpecialPartners& s = whole_special_;
   for (int e = 0; e < n; ++e) {
-    if (halo[e]) continue;
     const int g = ids[e];
+    const size_t first = special_.size();
     for (int q = s.start[g]; q < s.start[g + 1]; ++q) {
-      const int j = s.partner[q], t = domains_.pair_slot(j);
-      if (t < 0 || (!halo[t] && j < g)) continue;  // two home beads: once, from the lower
-      special_.push_back({std::min(e, t), std::max(e, t), s.weight[q]});
+      const int t = domains_.pair_slot(s.partner[q]);
+      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q]});
     }
+    std::sort(special_.begin() + static_cast<std::ptrdiff_t>(first), special_.end(),
+              [](const SpecialPair& a, const SpecialPair& b) { return a.j < b.j; });
   }
-  std::sort(special_.begin(), special_.end(),
-            [](const SpecialPair& a, const SpecialPair& b) { return a.i != b.i ? a.i < b.i : a.j < b.j; });
   extended_pairs_->move_to(types_, special_, halo);
 }
 
