@@ -442,8 +442,12 @@ TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutA
     for (int g = 0; g < n; ++g) {
       const double dist = distance_to_domain(grid, melt.box, r, melt.state.x.col(g));
       const bool in = std::binary_search(s.ids.begin(), s.ids.end(), g);
-      if (dist < radius - 1e-9) EXPECT_TRUE(in) << "rank " << r << " misses particle " << g << " at " << dist;
-      if (dist > radius + 1e-9) EXPECT_FALSE(in) << "rank " << r << " holds particle " << g << " at " << dist;
+      if (dist < radius - 1e-9) {
+        EXPECT_TRUE(in) << "rank " << r << " misses particle " << g << " at " << dist;
+      }
+      if (dist > radius + 1e-9) {
+        EXPECT_FALSE(in) << "rank " << r << " holds particle " << g << " at " << dist;
+      }
     }
     halo_beads += static_cast<int>(s.ids.size()) - s.home;
   }
