@@ -349,8 +349,8 @@ Eigen::Vector3d wrapped(const Box& box, const Eigen::Vector3d& p) {
 // domain holds it; a rank's pair set is exactly the beads within R = r_c + margin of its domain
 // (up to rounding at R), in increasing global index, its halo the beads not home there; forward
 // gives every slot its bead's position wrapped into the box and each home bead the force its owner
-// holds (0 on the halo); reverse gives each owner its beads' forces as their homes hold them; the
-// pair sets are stale on every rank once one bead moved margin/2.
+// holds (0 on the halo); reverse gives each owner its beads' forces as their homes hold them.
+// (When they are selected again is the lists' test: NeighborList.DisplacementLimit*.)
 TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutAndForcesBack) {
   const Layout layout = GetParam();
   const Melt melt = fake::straddling_melt();
@@ -400,21 +400,6 @@ TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutA
       EXPECT_EQ(f(1, k), fake::rank_of_point(d->grid(), melt.state.x.col(g))) << "particle " << g << ": not its home's";
       EXPECT_EQ(f(2, k), 7.0);
     }
-    // Stale: not at the selection; on every rank once one bead of the last rank with beads moved
-    // margin/2 (this rank alone sees it moved).
-    EXPECT_FALSE(d->pair_set_stale(x));
-    std::int64_t mover = d->num_owned() > 0 ? me : -1;
-    {
-      std::int64_t m = -mover;  // the largest rank with beads: min of the negatives
-      comm.min(&m, 1);
-      mover = -m;
-    }
-    Eigen::Matrix3Xd y = x;
-    if (me == mover) y(1, 0) += 0.5 * kMargin * 1.0001;
-    EXPECT_EQ(d->moved_half_margin(y), me == mover);
-    EXPECT_TRUE(d->pair_set_stale(y));
-    if (me == mover) y(1, 0) = x(1, 0) + 0.49 * kMargin;
-    EXPECT_FALSE(d->pair_set_stale(y));
   });
   // Every bead home on exactly one rank: the one whose domain holds it.
   std::vector<int> home_of(n, -1);

@@ -672,6 +672,39 @@ TEST(NeighborList, KeepsTheListWhileNoUnlistedPairIsWithinTheCutoff) {
   }
 }
 
+// A displacement limit (a decomposed run's pair set: complete while no bead moved half the halo's
+// margin) makes the list stale past it, where the fast particles' test alone would keep it; and a
+// verdict given ahead (set_next_verdict, the ranks' agreed one) is what the next update does,
+// once.
+TEST(NeighborList, DisplacementLimitAndAGivenVerdict) {
+  const Box box = periodic_box(Eigen::Vector3d::Constant(40.0), Eigen::Vector3d::Constant(-5.0));
+  Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Zero(3, 602);
+  x.col(1) = Eigen::Vector3d(1.45, 0.0, 0.0);
+  for (int k = 0; k < 600; ++k)
+    x.col(2 + k) = Eigen::Vector3d(10.0 + 2.0 * (k % 10), 2.0 * (k / 10 % 10), 12.0 + 3.0 * (k / 100));
+  NeighborList nl(1.0, 0.4);
+  ASSERT_TRUE(nl.update(x, box));
+  const Eigen::Matrix3Xd start = x;
+  x(1, 0) += 0.3;  // A sideways: past skin/2, no unlisted pair within the cutoff
+  EXPECT_FALSE(nl.needs_rebuild(x, box));
+  nl.set_displacement_limit(0.29);
+  EXPECT_TRUE(nl.needs_rebuild(x, box)) << "0.3 past the limit 0.29";
+  nl.set_displacement_limit(0.31);
+  EXPECT_FALSE(nl.needs_rebuild(x, box)) << "0.3 within the limit 0.31: the fast particles' test decides";
+  nl.set_displacement_limit(0.1);
+  x = start;
+  x(1, 0) += 0.15;  // below skin/2, past the limit
+  EXPECT_TRUE(nl.needs_rebuild(x, box)) << "a limit below skin/2 holds too";
+  // The verdict given: the next update follows it, the one after tests again.
+  const long rebuilds = nl.rebuilds();
+  nl.set_next_verdict(false);
+  EXPECT_FALSE(nl.update(x, box));
+  EXPECT_EQ(nl.rebuilds(), rebuilds);
+  EXPECT_TRUE(nl.update(x, box)) << "the given verdict holds for one update only";
+  nl.set_next_verdict(true);
+  EXPECT_TRUE(nl.update(x, box)) << "a rebuild asked for is made";
+}
+
 // Heterogeneous motion checked at every update against the all-pairs search: most particles creep,
 // a few jump, and every fourth update an unlisted pair just beyond cutoff + skin is pulled
 // together, each of its particles by 0.2 (> skin/2, < skin), to 0.4 closer: within the cutoff, so

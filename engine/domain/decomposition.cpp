@@ -361,7 +361,6 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     num_home_ += m.home;
     (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
   }
-  x_at_selection_ = x;
   // What one evaluation with forces sends: positions out (and the forces so far of the home
   // beads), the home beads' forces back.
   halo_doubles_ = 0;
@@ -372,22 +371,6 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     halo_doubles_ += out + back;
     halo_messages_ += (out > 0) + (back > 0);
   }
-}
-
-bool Decomposition::moved_half_margin(const Eigen::Matrix3Xd& a) const {
-  const ScopedPhase phase(Phase::domain);
-  double d2 = 0.0;
-  for (int k = 0; k < num_owned(); ++k) d2 = std::max(d2, (a.col(k) - x_at_selection_.col(k)).squaredNorm());
-  // Half the margin: two beads that each moved less than margin/2 were within r_c + margin of
-  // each other at the selection when they are within r_c now. A non-finite position counts as
-  // moved (NaN fails the test), and is found by the step's own check.
-  return !(std::sqrt(d2) < 0.5 * margin_);
-}
-
-bool Decomposition::pair_set_stale(const Eigen::Matrix3Xd& a) const {
-  double stale = moved_half_margin(a) ? 1.0 : 0.0;
-  comm_.max(&stale, 1);
-  return stale > 0.0;
 }
 
 void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, const Eigen::Matrix3Xd* owned_f,

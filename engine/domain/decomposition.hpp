@@ -10,11 +10,11 @@
 // last selection of the pair sets; that rank's pair set is every bead within R = r_c + margin of
 // its domain, in increasing global index (its home beads and a thin halo). A bead's partners
 // within r_c lie in its home's pair set while no bead has moved margin/2 since the selection, so
-// the pair sets are selected again before that (pair_set_stale). Per pair evaluation the owners
-// send each bead's position to the ranks whose pair set holds it, and its force so far to its home
-// (forward); the home ranks send the forces back (reverse). Positions are their owners' coordinates
-// wrapped into the box, never a shifted image: every pair distance goes through the box's minimum
-// image, as in one process.
+// the pair sets are selected again before that (GhostedPairs: the lists' own test,
+// NeighborList::set_displacement_limit). Per pair evaluation the owners send each bead's position to the ranks whose
+// pair set holds it, and its force so far to its home (forward); the home ranks send the forces back (reverse).
+// Positions are their owners' coordinates wrapped into the box, never a shifted image: every pair distance goes through
+// the box's minimum image, as in one process.
 #pragma once
 
 #include <Eigen/Core>
@@ -78,12 +78,6 @@ class Decomposition {
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried);
   // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
-  // Whether some bead of the owned array `a` (x, or the mollified positions) has moved margin/2 or
-  // more since the selection: this rank's verdict (moved_half_margin), or any rank's
-  // (pair_set_stale, collective: one max-reduction). Then the pair sets may miss a pair and must
-  // be selected again.
-  bool moved_half_margin(const Eigen::Matrix3Xd& a) const;
-  bool pair_set_stale(const Eigen::Matrix3Xd& a) const;
 
   // The pair set's array of an owned one (the positions, or the mollified positions), wrapped into
   // the box (BoxWrap, forcefields/neighbor_list.hpp) as the pair loop reads positions; with
@@ -148,10 +142,9 @@ class Decomposition {
   bool have_dims_ = false;
   double radius_, margin_;
 
-  std::vector<int> owned_;           // molecules, increasing
-  std::vector<int> ids_;             // owned particles: global index, increasing
-  std::vector<int> owned_of_;        // global → owned index (−1: not owned here)
-  Eigen::Matrix3Xd x_at_selection_;  // the owned positions at the selection
+  std::vector<int> owned_;     // molecules, increasing
+  std::vector<int> ids_;       // owned particles: global index, increasing
+  std::vector<int> owned_of_;  // global → owned index (−1: not owned here)
 
   // The pair set and the plan of forward and reverse. From this rank to rank r (≠ this one):
   // the owned columns out_[r].owned, each a home bead there or not (out_[r].home); back from r

@@ -18,15 +18,25 @@ SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_par
   }
 }
 
-GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition& domains, std::span<const int> types,
-                           const SpecialPartners& special)
-    : ForceTerm(owned_term->name(), owned_term->level()),
-      template_(std::move(owned_term)),
+GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
+                           const SpecialPartners& special, GhostedPairs* old)
+    : ForceTerm(whole_term.name(), whole_term.level()),
+      template_(whole_term),
       domains_(domains),
       whole_types_(types),
       whole_special_(special) {
-  if (!template_->uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
-  extended_ = template_->on_particles({}, {}, domains.box());
+  if (!template_.uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
+  if (old) {  // the old part's term on the pair set, its list's buffers with it
+    extended_ = std::move(old->extended_);
+    extended_pairs_ = old->extended_pairs_;
+    old->extended_pairs_ = nullptr;
+    rebuilds_before_ = extended_->neighbor_list_rebuilds();
+    selection_ = old->selection_;
+    types_ = std::move(old->types_);
+    special_ = std::move(old->special_);
+    return;
+  }
+  extended_ = template_.on_particles({}, {}, domains.box());
   extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
   if (!extended_pairs_)
     throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
@@ -36,16 +46,6 @@ GhostedPairs::GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition&
   // Every list build is at a selection of the pair sets (below), so a displacement since the build
   // is one since the selection: past margin/2 the pair set may miss a pair.
   extended_pairs_->set_displacement_limit(0.5 * domains.margin());
-}
-
-void GhostedPairs::take_over(GhostedPairs& old) {
-  extended_ = std::move(old.extended_);
-  extended_pairs_ = old.extended_pairs_;
-  old.extended_pairs_ = nullptr;
-  rebuilds_before_ = extended_->neighbor_list_rebuilds();
-  selection_ = old.selection_;
-  types_ = std::move(old.types_);
-  special_ = std::move(old.special_);
 }
 
 void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd* f) const {

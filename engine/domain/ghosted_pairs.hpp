@@ -34,16 +34,14 @@ struct SpecialPartners {
 
 class GhostedPairs final : public ForceTerm {
  public:
-  // `owned_term`: the deck's neighbour-list term built on the part's owned particles (its
-  // settings; on_particles makes the one that acts on the pair set). `types`: every particle's
-  // type, by global index; `special`: the whole system's special pairs of this term. All must
-  // outlive the term.
-  GhostedPairs(std::unique_ptr<ForceTerm> owned_term, Decomposition& domains, std::span<const int> types,
-               const SpecialPartners& special);
+  // `whole_term`: the whole scene's neighbour-list term (its settings; on_particles makes the one
+  // that acts on the pair set). `types`: every particle's type, by global index; `special`: the
+  // whole system's special pairs of this term. All must outlive the term. `old`: a part built
+  // again (molecules migrated) takes the old part's term on the pair set over, and so its list's
+  // buffers (the same deck term); null: a new one.
+  GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
+               const SpecialPartners& special, GhostedPairs* old = nullptr);
 
-  // A part built again (molecules migrated) keeps the old part's term on the pair set, and so its
-  // buffers; `old` held the same deck term.
-  void take_over(GhostedPairs& old);
   // The neighbour list on the pair set brought up to date for the owned positions x (collective),
   // as one process builds its list before the step loop.
   void update_list(const Eigen::Matrix3Xd& x, const Box& box);
@@ -57,16 +55,16 @@ class GhostedPairs final : public ForceTerm {
   // has the other half), so the ranks' shares add up to the whole system's energy and virial.
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
   bool uses_neighbor_list() const override { return true; }
-  double pair_cutoff() const override { return template_->pair_cutoff(); }
-  double pair_skin() const override { return template_->pair_skin(); }
+  double pair_cutoff() const override { return template_.pair_cutoff(); }
+  double pair_skin() const override { return template_.pair_skin(); }
   // The rebuilds while this term held the pair set's.
   long neighbor_list_rebuilds() const override {
     return extended_ ? extended_->neighbor_list_rebuilds() - rebuilds_before_ : 0;
   }
   std::int64_t listed_pairs() const override { return extended_ ? extended_->listed_pairs() : 0; }
-  std::string_view style() const override { return template_->style(); }
-  std::string describe() const override { return template_->describe(); }
-  void define(ParameterRecord& record) const override { template_->define(record); }
+  std::string_view style() const override { return template_.style(); }
+  std::string describe() const override { return template_.describe(); }
+  void define(ParameterRecord& record) const override { template_.define(record); }
 
  private:
   // The pair set's positions x_ (and with f, the home beads' forces so far f_) for the owned
@@ -75,7 +73,8 @@ class GhostedPairs final : public ForceTerm {
   void forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd* f) const;
   void retarget() const;
 
-  std::unique_ptr<ForceTerm> template_, extended_;
+  const ForceTerm& template_;
+  std::unique_ptr<ForceTerm> extended_;
   PairsOnParticles* extended_pairs_ = nullptr;  // extended_'s
   Decomposition& domains_;
   std::span<const int> whole_types_;
