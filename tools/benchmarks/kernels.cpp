@@ -222,6 +222,13 @@ const WcaPair* find_wca(const ForceField& ff) {
   return nullptr;
 }
 
+// The scene's WCA term, or null with the benchmark skipped.
+const WcaPair* wca_or_skip(benchmark::State& st, Fixture& fx) {
+  const WcaPair* wca = find_wca(fx.forces());
+  if (!wca) st.SkipWithError("the scene has no WCA term");
+  return wca;
+}
+
 long neighbor_rebuilds(const ForceField& ff) {
   long n = 0;
   for (const auto& term : ff.terms()) n += term->neighbor_list_rebuilds();
@@ -254,12 +261,8 @@ void BM_PairForces(benchmark::State& st, FixtureGetter get) {
 // pair virial summed exactly (ExactDiagonal), as MolecularPressure evaluates it.
 void BM_PairVirialDiagonal(benchmark::State& st, FixtureGetter get) {
   Fixture* fx = fixture_or_skip(st, get);
-  if (!fx) return;
-  const WcaPair* wca = find_wca(fx->forces());
-  if (!wca) {
-    st.SkipWithError("the scene has no WCA term");
-    return;
-  }
+  const WcaPair* wca = fx ? wca_or_skip(st, *fx) : nullptr;
+  if (!wca) return;
   const Eigen::Matrix3Xd& x = fx->initial.x;
   const Box& box = fx->forces().box();
   Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, x.cols());
@@ -297,12 +300,8 @@ void BM_MolecularPressure(benchmark::State& st, FixtureGetter get) {
 // half-stencil search and the sort into rows. Counter: the listed pairs.
 void BM_NeighborBuild(benchmark::State& st, FixtureGetter get) {
   Fixture* fx = fixture_or_skip(st, get);
-  if (!fx) return;
-  const WcaPair* wca = find_wca(fx->forces());
-  if (!wca) {
-    st.SkipWithError("the scene has no WCA term");
-    return;
-  }
+  const WcaPair* wca = fx ? wca_or_skip(st, *fx) : nullptr;
+  if (!wca) return;
   NeighborList list(wca->neighbor_list().cutoff(), wca->skin());
   list.set_exclusions(fx->particles(), special_pairs(fx->particles(), fx->scene.topology.bonds, wca->weights()));
   const Eigen::Matrix3Xd& x = fx->initial.x;
