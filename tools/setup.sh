@@ -12,6 +12,7 @@ packages=(
   python3-numpy python3-scipy python3-matplotlib python3-h5py python3-mdanalysis python3-ase
   pybind11-dev python3-dev
   openmpi-bin libopenmpi-dev libhdf5-openmpi-dev
+  libfftw3-dev libfftw3-mpi-dev
 )
 # `setup.sh --bench`: also LAMMPS, the peer tools/bench_lammps.py and tools/work_precision_melt.py
 # measure against (never a dependency of the engine or of the tests).
