@@ -149,7 +149,7 @@ ParticleParticleParticleMesh::ParticleParticleParticleMesh(std::string name, Lev
   green_.resize(fft_->modes);
   virial_factor_.resize(3 * fft_->modes);
   for (int a = 0; a < 3; ++a) wavenumber_[a].resize(static_cast<std::size_t>(parameters_.mesh[a]));
-  first_.resize(3 * charges_.size());
+  offset_.resize(3 * charges_.size() * static_cast<std::size_t>(parameters_.order));
   weight_.resize(3 * charges_.size() * static_cast<std::size_t>(parameters_.order));
   influence_function(box);
 }
@@ -238,28 +238,30 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
   const bool shared = comm_ && comm_->size() > 1;
 
   // 1. Charge assignment (this process's charges), then the whole system's mesh.
+  const std::size_t stride[3] = {1, static_cast<std::size_t>(n[0]), static_cast<std::size_t>(n[0]) * n[1]};
   std::fill(t.density, t.density + t.real + 2, 0.0);
   double own_charge = 0.0, own_q2 = 0.0;
   for (int i = 0; i < count; ++i) {
     const double q = charges_[i];
     own_charge += q;
     own_q2 += q * q;
-    int* first = &first_[3 * static_cast<std::size_t>(i)];
+    // The mesh points' offsets (folded, times the axis's stride) and weights per axis.
+    std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
     double* w = &weight_[3 * static_cast<std::size_t>(i) * order];
     for (int a = 0; a < 3; ++a) {
       double s = (x(a, i) - box.origin[a]) / box.lengths[a];
       s -= std::floor(s);
-      first[a] = assignment_weights(s * n[a], order, w + a * order);
+      const int first = assignment_weights(s * n[a], order, w + a * order);
+      for (int j = 0; j < order; ++j)
+        offset[a * order + j] = static_cast<std::size_t>(fold(first + j, n[a])) * stride[a];
     }
     if (q == 0.0) continue;
     for (int jz = 0; jz < order; ++jz) {
-      const std::size_t mz = static_cast<std::size_t>(fold(first[2] + jz, n[2]));
       const double wz = q * w[2 * order + jz];
       for (int jy = 0; jy < order; ++jy) {
-        const std::size_t my = static_cast<std::size_t>(fold(first[1] + jy, n[1]));
         const double wyz = wz * w[order + jy];
-        double* row = t.density + (mz * n[1] + my) * n[0];
-        for (int jx = 0; jx < order; ++jx) row[fold(first[0] + jx, n[0])] += wyz * w[jx];
+        double* row = t.density + offset[2 * order + jz] + offset[order + jy];
+        for (int jx = 0; jx < order; ++jx) row[offset[jx]] += wyz * w[jx];
       }
     }
   }
@@ -310,32 +312,41 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
     fftw_execute_dft_c2r(t.backward, t.work, t.field[a]);
   }
 
-  // Interpolation back to this process's particles.
+  // Interpolation back to this process's particles (the potential too when it was computed).
   double potential_share = 0.0;
-  if (fields > 0)
+  auto gather = [&]<bool kPotential>() {
     for (int i = 0; i < count; ++i) {
       const double q = charges_[i];
       if (q == 0.0) continue;
-      const int* first = &first_[3 * static_cast<std::size_t>(i)];
+      const std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
       const double* wt = &weight_[3 * static_cast<std::size_t>(i) * order];
-      double e[4] = {0.0, 0.0, 0.0, 0.0};
-      for (int jz = 0; jz < order; ++jz) {
-        const std::size_t mz = static_cast<std::size_t>(fold(first[2] + jz, n[2]));
+      double ex = 0.0, ey = 0.0, ez = 0.0, phi = 0.0;
+      for (int jz = 0; jz < order; ++jz)
         for (int jy = 0; jy < order; ++jy) {
-          const std::size_t my = static_cast<std::size_t>(fold(first[1] + jy, n[1]));
           const double wyz = wt[2 * order + jz] * wt[order + jy];
-          const std::size_t row = (mz * n[1] + my) * n[0];
+          const std::size_t row = offset[2 * order + jz] + offset[order + jy];
           for (int jx = 0; jx < order; ++jx) {
-            const std::size_t m = row + static_cast<std::size_t>(fold(first[0] + jx, n[0]));
+            const std::size_t m = row + offset[jx];
             const double wm = wyz * wt[jx];
-            for (int a = 0; a < fields; ++a) e[a] += wm * t.field[a][m];
+            ex += wm * t.field[0][m];
+            ey += wm * t.field[1][m];
+            ez += wm * t.field[2][m];
+            if constexpr (kPotential) phi += wm * t.field[3][m];
           }
         }
+      if (f) {
+        (*f)(0, i) += q * ex;
+        (*f)(1, i) += q * ey;
+        (*f)(2, i) += q * ez;
       }
-      if (f)
-        for (int a = 0; a < 3; ++a) (*f)(a, i) += q * e[a];
-      potential_share += 0.5 * q * e[3];
+      if constexpr (kPotential) potential_share += 0.5 * q * phi;
     }
+  };
+  if (fields == 4) {
+    gather.template operator()<true>();
+  } else if (fields == 3) {
+    gather.template operator()<false>();
+  }
 
   Result r;
   const double self = -qqrd2e_ * g / std::sqrt(kPi);

@@ -96,8 +96,8 @@ class ParticleParticleParticleMesh final : public ForceTerm {
   // computed at.
   mutable std::vector<double> green_, virial_factor_, wavenumber_[3];
   mutable Eigen::Vector3d green_lengths_ = Eigen::Vector3d::Zero();
-  // Per particle: its first mesh point and weights per axis (scratch).
-  mutable std::vector<int> first_;
+  // Per particle and axis: its P mesh points (as offsets into the mesh) and weights (scratch).
+  mutable std::vector<std::size_t> offset_;
   mutable std::vector<double> weight_;
 };
 
