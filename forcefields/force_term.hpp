@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/box.hpp"
+#include "core/communicator.hpp"
 #include "core/exact_sum.hpp"
 #include "core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
@@ -158,6 +159,12 @@ class ForceTerm {
     if (!words.empty())
       throw std::invalid_argument("force term '" + name_ + "' carries no state, the checkpoint has some");
   }
+
+  // A term whose evaluation sums over every particle of the system (the Ewald and PPPM reciprocal
+  // sums, forcefields/kspace/) is told the processes of a decomposed run: its part on a rank then
+  // sums over the ranks, so every rank evaluates it at the same points (a collective). Null: one
+  // process. Default: a term that needs only its own particles, which ignores them.
+  virtual void set_processes(const Communicator* processes) { (void)processes; }
 
   // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.
   virtual const StiffBonds* stiff_bonds() const { return nullptr; }

@@ -413,7 +413,7 @@ void check_decomposed(const Parameters& parameters) {
     const std::vector<int> types(global[r].size(), 0);
     const ParticleSubset subset{global[r], types, topology};
     std::unique_ptr<ForceTerm> part = whole.on_subset(subset, box);
-    dynamic_cast<Term&>(*part).set_communicator(&comm);
+    part->set_processes(&comm);
     Eigen::Matrix3Xd x(3, subset.size());
     for (int k = 0; k < subset.size(); ++k) x.col(k) = s.x.col(global[r][k]);
     Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, subset.size());

@@ -186,6 +186,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   }
   p.forces = w.forces->on_subset(
       {p.global_id, p.particle_type, t, w.charged() ? std::span<const double>(p.charge) : std::span<const double>()});
+  // The reciprocal sums (k-space terms) sum over the ranks.
+  for (const auto& term : p.forces->terms()) term->set_processes(&comm_);
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
   // built again keeps the old part's terms on the pair set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {

@@ -57,7 +57,7 @@ class EwaldSum final : public ForceTerm {
 
   // The processes the structure factors are summed over (null: one process). Every rank's term
   // must then be evaluated at the same points (each evaluation is one collective sum).
-  void set_communicator(const Communicator* comm) { comm_ = comm; }
+  void set_processes(const Communicator* comm) override { comm_ = comm; }
   const EwaldParameters& parameters() const { return parameters_; }
   const std::vector<double>& charges() const { return charges_; }
   // The k-vectors summed over (half of them: one of each ±k pair).

@@ -72,7 +72,7 @@ class ParticleParticleParticleMesh final : public ForceTerm {
   std::string describe() const override;
   void define(ParameterRecord& record) const override;
 
-  void set_communicator(const Communicator* comm) { comm_ = comm; }
+  void set_processes(const Communicator* comm) override { comm_ = comm; }
   const MeshParameters& parameters() const { return parameters_; }
   const std::vector<double>& charges() const { return charges_; }
 
