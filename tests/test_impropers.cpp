@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "cli_support.hpp"
 #include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/scene/scene.hpp"
@@ -267,7 +268,8 @@ class LammpsReference : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(LammpsReference, EnergyAndForcesMatch) {
   const std::string name = GetParam();
-  const Scene sc = test::load("tests/data/lammps_bonded/" + name + ".toml");
+  const Scene sc =
+      test::load(name == "peptide" ? "inputs/peptide_bonded.toml" : "tests/data/lammps_bonded/" + name + ".toml");
   const Reference ref = reference(name);
   Matrix3Xd f = Matrix3Xd::Zero(3, sc.state.size());
   double e = 0.0;
@@ -277,7 +279,18 @@ TEST_P(LammpsReference, EnergyAndForcesMatch) {
 }
 INSTANTIATE_TEST_SUITE_P(Styles, LammpsReference,
                          ::testing::Values("improper_harmonic", "improper_cvff", "improper_umbrella", "angle_charmm",
-                                           "angle_harmonic", "dihedral_charmm"));
+                                           "angle_harmonic", "dihedral_charmm", "peptide"));
+
+// The bundled all-atom deck (the peptide example's bonded part, every coefficient from its data
+// file): `stiffmd check` accepts it and lists its impropers and charmm terms.
+TEST(PeptideDeck, StiffmdCheckAcceptsIt) {
+  const test::CliResult r = test::cli("check " + test::source_path("inputs/peptide_bonded.toml"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* what :
+       {"impropers:   12", "[charmm-angle, slow]", "[charmm-dihedral, slow]", "207 weighted 1-4 pairs",
+        "[harmonic-improper, slow]", "[harmonic-bond, slow]", "deck is valid"})
+    EXPECT_NE(r.out.find(what), std::string::npos) << what << "\n" << r.out;
+}
 
 // charmm-dihedral with charges (the constructor's charges; a scene has none yet): LAMMPS's edihed,
 // evdwl and ecoul apart, and the forces.

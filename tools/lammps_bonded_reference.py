@@ -25,7 +25,12 @@ CASES = {
     'angle_harmonic': (ZERO_PAIR[0] + 'bond_style harmonic\nangle_style harmonic\n', ZERO_PAIR[1]),
     'dihedral_charmm': (CHARMM_PAIR[0] + 'dihedral_style charmm\n', CHARMM_PAIR[1]),
     'dihedral_charmm_q': (CHARMM_PAIR[0] + 'dihedral_style charmm\n', CHARMM_PAIR[1]),
+    # The bonded part of the peptide example (inputs/peptide.data, its Pair Coeffs' 1-4 columns).
+    'peptide': ('pair_style lj/charmm/coul/charmm 1.0 1.1\nbond_style harmonic\nangle_style charmm\n'
+                'dihedral_style charmm\nimproper_style harmonic\n', ''),
 }
+# Where a case's data file is, when not tests/data/lammps_bonded/CASE.data.
+DATA = {'peptide': os.path.join(HERE, '..', '..', '..', 'inputs', 'peptide.data')}
 COLUMNS = ['pe', 'ebond', 'eangle', 'edihed', 'eimp', 'evdwl', 'ecoul']
 
 
@@ -34,7 +39,7 @@ def main():
     version = next((l.strip() for l in version if 'Large-scale' in l), 'LAMMPS')
     tmp = tempfile.mkdtemp()
     for case, (styles, pair_coeffs) in CASES.items():
-        data = os.path.join(HERE, case + '.data')
+        data = os.path.normpath(DATA.get(case, os.path.join(HERE, case + '.data')))
         forces = os.path.join(tmp, case + '.forces')
         inp = ('units real\natom_style full\nboundary f f f\n' + styles + f'read_data {data}\n' + pair_coeffs +
                'special_bonds lj/coul 0.0 0.0 0.0\n'
@@ -50,9 +55,9 @@ def main():
         energies = lines[k + 1].split()[1:]
         rows = [l.split() for l in open(forces).read().splitlines()[9:]]
         with open(os.path.join(HERE, case + '.ref'), 'w') as f:
-            f.write(f'# LAMMPS ({version}) on {case}.data: made by /usr/bin/python3 tools/lammps_bonded_reference.py\n')
+            f.write(f'# LAMMPS ({version}) on {os.path.basename(data)}: made by /usr/bin/python3 tools/lammps_bonded_reference.py\n')
             f.write('# with the input (data file path shortened):\n')
-            for l in inp.replace(data, case + '.data').replace(forces, case + '.forces').splitlines():
+            for l in inp.replace(data, os.path.basename(data)).replace(forces, case + '.forces').splitlines():
                 f.write('#   ' + l + '\n')
             f.write('# energies (kcal/mol): ' + ' '.join(COLUMNS) + '\n')
             f.write(' '.join(energies) + '\n')

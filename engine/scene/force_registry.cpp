@@ -176,8 +176,8 @@ std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind
   for (const auto& sec : data.sections)
     if (sec.name == kind.section) section = &sec;
   if (section && !section->style.empty() && section->style != row.lammps_style)
-    t.fail("coefficients", where + " is marked '# " + section->style + "', but " + term + " takes LAMMPS " + kind.word +
-                               "_style " + row.lammps_style + " rows ('TYPE " + row.layout + "')");
+    t.fail("coefficients", where + " is marked '# " + section->style + "', but [forces." + term + "] takes LAMMPS " +
+                               kind.word + "_style " + row.lammps_style + " rows ('TYPE " + row.layout + "')");
   // The numbers of the row of file type `number`.
   const auto values_of = [&](int number) {
     if (!section)
