@@ -135,4 +135,31 @@ struct Morse {
   }
 };
 
+// `harmonic-bond`: E(r) = ½ k (r − r₀)², the soft (non-constraint-defining) harmonic bond; as
+// harmonic-angle, k is the curvature, so LAMMPS's bond_style harmonic K (E = K (r − r₀)²) is k/2.
+struct HarmonicBond {
+  struct Coeffs {
+    double k = 0.0;   // stiffness, energy/length²
+    double r0 = 0.0;  // rest length
+  };
+  using Params = Coeffs;
+  static constexpr std::string_view kStyle = "harmonic-bond";
+
+  static void validate(const Coeffs& c) {
+    require(c.k, kStiffness, "k");
+    require(c.r0, kLength, "r0");
+  }
+  static Params params(const Coeffs& c) { return c; }
+  static void eval(double r, const Params& p, double& e, double& de_dr) {
+    const double g = r - p.r0;
+    e = 0.5 * p.k * g * g;
+    de_dr = p.k * g;
+  }
+  static void describe(std::ostream& s, const Coeffs& c) { s << "k = " << c.k << ", r0 = " << c.r0; }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("k", c.k);
+    r.add("r0", c.r0);
+  }
+};
+
 }  // namespace stiffmd

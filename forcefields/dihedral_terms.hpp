@@ -1,11 +1,12 @@
 // Dihedral (torsion) terms on quadruples (i, j, k, l) about the bond j–k, through the shared
 // loop in dihedral_loop.hpp. φ in radians, φ = ±π trans (IUPAC/polymer convention, LAMMPS's);
-// every kernel below is even in φ, so the sign of φ does not matter. Coefficients per dihedral
+// every kernel below but charmm's (d not 0 or 180) is even in φ; its sign is LAMMPS's too. Coefficients per dihedral
 // type. Each kernel is LAMMPS's dihedral style of the same name, coefficient for coefficient
 // (LAMMPS doc/src/dihedral_harmonic.rst, dihedral_multi_harmonic.rst, dihedral_opls.rst):
 //   HarmonicDihedral       E = K [1 + d cos(nφ)],                 d = ±1, n ≥ 0 an integer
 //   MultiHarmonicDihedral  E = Σ_{n=1..5} A_n cos^{n−1}(φ)
 //   OplsDihedral           E = ½K₁(1 + cos φ) + ½K₂(1 − cos 2φ) + ½K₃(1 + cos 3φ) + ½K₄(1 − cos 4φ)
+//   CharmmDihedralKernel   E = K [1 + cos(nφ − d)]        (with its 1-4 pair: charmm_terms.hpp)
 // A kernel: Coeffs, kStyle, validate(c) (throws std::invalid_argument naming the coefficient),
 // eval(φ, c, E, dE/dφ), describe(os, c) and define(record, c) (every coefficient, exactly, for the
 // scene fingerprint of checkpoints: parameter_record.hpp).
@@ -96,16 +97,69 @@ struct OplsDihedralKernel {
   static void define(ParameterRecord& r, const Coeffs& c) { r.add("K", std::span<const double>(c.K)); }
 };
 
-// A dihedral term over a kernel (as AngleTerm is over an angle kernel).
-template <class K>
+// The torsion of LAMMPS's dihedral_style charmm, E = K [1 + cos(nφ − d)], d an integer number of
+// degrees (as LAMMPS requires); w weights the 1-4 pair that CharmmDihedral (charmm_terms.hpp)
+// adds, the kernel ignores it. LAMMPS evaluates cos(nφ − d) as cos nφ cos d + sin nφ sin d (the
+// same to rounding); n = 0 gives K (1 + cos d).
+struct CharmmDihedralKernel {
+  static constexpr std::string_view kStyle = "charmm-dihedral";
+  struct Coeffs {
+    double K = 0.0;  // energy, any sign
+    int n = 1;       // multiplicity >= 0
+    int d = 0;       // phase, integer degrees
+    double w = 0.0;  // weight of the 1-4 pair, 0 .. 1
+  };
+  static void validate(const Coeffs& c) {
+    require(c.K, kTorsionEnergy, "K");
+    if (c.n < 0) throw std::invalid_argument("n: expected an integer >= 0, got " + std::to_string(c.n));
+    if (!(c.w >= 0.0 && c.w <= 1.0))
+      throw std::invalid_argument("w: expected a weight 0 .. 1, got " + format_number(c.w));
+  }
+  static void eval(double phi, const Coeffs& c, double& e, double& de_dphi) {
+    const double shift = c.d * (M_PI / 180.0);
+    const double a = c.n * phi - shift;
+    e = c.K * (1.0 + std::cos(a));
+    de_dphi = -c.K * c.n * std::sin(a);
+  }
+  static void describe(std::ostream& s, const Coeffs& c) {
+    s << "K = " << format_exact(c.K) << ", n = " << c.n << ", d = " << c.d << ", w = " << format_exact(c.w);
+  }
+  static void define(ParameterRecord& r, const Coeffs& c) {
+    r.add("K", c.K);
+    r.add("n", c.n);
+    r.add("d", c.d);
+    r.add("w", c.w);
+  }
+};
+
+namespace dihedral_detail {
+// The word for a term's items in its messages and its fingerprint: DihedralTerm serves the
+// impropers too (improper_terms.hpp), on the same loop.
+template <class Item>
+constexpr const char* item_word();
+template <>
+constexpr const char* item_word<Dihedral>() {
+  return "dihedral";
+}
+template <>
+constexpr const char* item_word<Improper>() {
+  return "improper";
+}
+}  // namespace dihedral_detail
+
+// A dihedral term over a kernel (as AngleTerm is over an angle kernel). `Item` is Dihedral, or
+// Improper for the improper styles whose angle is the dihedral angle of i, j, k, l (harmonic,
+// cvff: improper_terms.hpp).
+template <class K, class Item = Dihedral>
 class DihedralTerm final : public ForceTerm {
  public:
   using Kernel = K;
   using Coeffs = typename K::Coeffs;
+  static constexpr const char* kItem = dihedral_detail::item_word<Item>();
 
   // Validating constructor: every type's coefficients (Kernel::validate), i, j, k, l ≥ 0 and
   // distinct, 0 ≤ type < types.size(); throws std::invalid_argument naming the term.
-  DihedralTerm(std::string name, Level level, const std::vector<Dihedral>& dihedrals, std::vector<Coeffs> types)
+  DihedralTerm(std::string name, Level level, const std::vector<Item>& dihedrals, std::vector<Coeffs> types)
       : ForceTerm(std::move(name), level), types_(std::move(types)) {
     auto fail = [&](const std::string& what) {
       throw std::invalid_argument(std::string(K::kStyle) + " '" + this->name() + "': " + what);
@@ -113,18 +167,18 @@ class DihedralTerm final : public ForceTerm {
     for (size_t t = 0; t < types_.size(); ++t) try {
         K::validate(types_[t]);
       } catch (const std::invalid_argument& e) {
-        fail("dihedral type " + std::to_string(t) + ": " + e.what());
+        fail(std::string(kItem) + " type " + std::to_string(t) + ": " + e.what());
       }
     instances_.reserve(dihedrals.size());
-    for (const Dihedral& d : dihedrals) {
-      const std::string which = "dihedral (" + std::to_string(d.i) + ", " + std::to_string(d.j) + ", " +
+    for (const Item& d : dihedrals) {
+      const std::string which = std::string(kItem) + " (" + std::to_string(d.i) + ", " + std::to_string(d.j) + ", " +
                                 std::to_string(d.k) + ", " + std::to_string(d.l) + ")";
       if (d.i < 0 || d.j < 0 || d.k < 0 || d.l < 0) fail(which + ": particle indices must be >= 0");
       if (d.i == d.j || d.i == d.k || d.i == d.l || d.j == d.k || d.j == d.l || d.k == d.l)
         fail(which + ": the four particles must be distinct");
       if (d.type < 0 || static_cast<size_t>(d.type) >= types_.size())
-        fail(which + ": dihedral type " + std::to_string(d.type) + " is not defined (" + std::to_string(types_.size()) +
-             " types)");
+        fail(which + ": " + kItem + " type " + std::to_string(d.type) + " is not defined (" +
+             std::to_string(types_.size()) + " types)");
       instances_.push_back({d.i, d.j, d.k, d.l, types_[d.type]});
     }
     dihedrals_ = dihedrals;
@@ -140,14 +194,13 @@ class DihedralTerm final : public ForceTerm {
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
     return std::make_unique<DihedralTerm>(
-        name(), level(),
-        items_on_subset(dihedrals_, subset, who, "dihedral", &Dihedral::i, &Dihedral::j, &Dihedral::k, &Dihedral::l),
+        name(), level(), items_on_subset(dihedrals_, subset, who, kItem, &Item::i, &Item::j, &Item::k, &Item::l),
         types_);
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override {
     std::ostringstream s;
-    s << instances_.size() << " " << K::kStyle.substr(0, K::kStyle.rfind('-')) << " dihedrals";
+    s << instances_.size() << " " << K::kStyle.substr(0, K::kStyle.rfind('-')) << " " << kItem << "s";
     for (size_t t = 0; t < types_.size(); ++t) {
       s << "; type " << t << ": ";
       K::describe(s, types_[t]);
@@ -156,15 +209,17 @@ class DihedralTerm final : public ForceTerm {
   }
   // Every type's coefficients, then every dihedral: its particles and its type.
   void define(ParameterRecord& record) const override {
-    record.add("dihedral types", types_.size());
+    record.add(std::string(kItem) + " types", types_.size());
     for (const Coeffs& c : types_) K::define(record, c);
-    record.add("dihedrals", dihedrals_.size());
-    for (const Dihedral& d : dihedrals_) record.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
+    record.add(std::string(kItem) + "s", dihedrals_.size());
+    for (const Item& d : dihedrals_) record.add(kItem, {d.i, d.j, d.k, d.l, d.type});
   }
+  const std::vector<Item>& items() const { return dihedrals_; }
+  const std::vector<Coeffs>& types() const { return types_; }
 
  private:
   std::vector<Coeffs> types_;
-  std::vector<Dihedral> dihedrals_;  // as given, type indexing types_: for define()
+  std::vector<Item> dihedrals_;  // as given, type indexing types_: for define()
   std::vector<DihedralInstance<Coeffs>> instances_;
   mutable TuplePartition<4> partition_;  // thread plan of the dihedral loop
 };
@@ -172,5 +227,6 @@ class DihedralTerm final : public ForceTerm {
 using HarmonicDihedral = DihedralTerm<HarmonicDihedralKernel>;
 using MultiHarmonicDihedral = DihedralTerm<MultiHarmonicDihedralKernel>;
 using OplsDihedral = DihedralTerm<OplsDihedralKernel>;
+using CharmmTorsion = DihedralTerm<CharmmDihedralKernel>;  // the torsion alone; CharmmDihedral adds the 1-4 pairs
 
 }  // namespace stiffmd

@@ -44,6 +44,8 @@ HELPERS = {
 # keys it can take come from. Any other non-literal key is an error: this test could not see it.
 INDIRECT_KEYS = {
     ("force_registry.cpp", "key"): "the helpers read and claim_types (HELPERS)",
+    ("force_registry.cpp", "kind.types_key"): "TypeKind's bond_types, angle_types, dihedral_types, improper_types, "
+                                              "read by claim_types",
     ("force_registry.cpp", "range_key"): "check_box_for_pairs: cutoff or sigma, read directly",
     ("scene.cpp", "key"): "the lambdas interval and warn_if_longer (HELPERS), check_initial_state's literal list",
     ("scene.cpp", "table"): "check_integrator's refused_at: observables and output, read directly",

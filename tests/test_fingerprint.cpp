@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <toml++/toml.h>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -32,6 +33,9 @@ namespace {
 namespace fs = std::filesystem;
 
 const std::string kDeck = "tests/decks/every_force_style.toml";
+// The all-atom styles, whose impropers need an imported data file (and so its periodic box, which
+// the first deck's wall cannot have): a second deck, swept the same way.
+const std::string kAllAtomDeck = "tests/decks/every_all_atom_style.toml";
 
 // Keys that no other value loads for, and why: the test checks that none does.
 const std::set<std::string> kNoOtherValue = {
@@ -39,8 +43,13 @@ const std::set<std::string> kNoOtherValue = {
     "forces.wall.side",    // the other side leaves the wall's particles outside its domain: refused at load
 };
 // Keys a reader asks about that are alternatives: a term selects its particles by `particles` or
-// by `type`, never both (the deck gives the tether the one and the wall the other).
-const std::map<std::string, std::string> kAlternative = {{"particles", "type"}, {"type", "particles"}};
+// by `type`, never both (the deck gives the tether the one and the wall the other); a bonded term
+// takes its coefficients from per-type tables or from the data file (`coefficients = "data"`:
+// tests/test_impropers.cpp covers it), never both.
+const std::map<std::string, std::vector<std::string>> kAlternative = {
+    {"particles", {"type"}},
+    {"type", {"particles"}},
+    {"coefficients", {"bond_types", "angle_types", "dihedral_types", "improper_types"}}};
 // Keys that the deck gives but the scene does not use, so that changing them leaves the same
 // scene, whose checkpoint continues (the test checks that no change of them is refused and that
 // the forces stay bit-identical): with per-type tables for every type, the term's own
@@ -107,11 +116,13 @@ void walk(const toml::node& n, const std::string& path, std::vector<Leaf>& leave
 
 class SceneFingerprintOfEveryStyle : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() {
+  static void SetUpTestSuite() { set_up(kDeck); }
+  static void set_up(const std::string& deck) {
+    deck_ = deck;
     dir_ = test::scratch_dir("fingerprint");
-    const auto r = test::cli("run " + test::source_path(kDeck) + " -o " + (dir_ / "out").string() + " --no-progress");
+    const auto r = test::cli("run " + test::source_path(deck_) + " -o " + (dir_ / "out").string() + " --no-progress");
     ASSERT_EQ(r.code, 0) << r.err;
-    parsed_ = toml::parse_file(test::source_path(kDeck));
+    parsed_ = toml::parse_file(test::source_path(deck_));
   }
   static void TearDownTestSuite() { fs::remove_all(dir_); }
 
@@ -128,7 +139,7 @@ class SceneFingerprintOfEveryStyle : public ::testing::Test {
     overrides.push_back("run.t_end=1");
     Restart r{Outcome::continued, "", std::nullopt};
     try {
-      r.scene.emplace(load_scene(Deck(test::source_path(kDeck), overrides)));
+      r.scene.emplace(load_scene(Deck(test::source_path(deck_), overrides)));
     } catch (const InputError& e) {
       return {Outcome::bad_deck, e.what(), std::nullopt};
     }
@@ -156,14 +167,21 @@ class SceneFingerprintOfEveryStyle : public ::testing::Test {
   }
 
   static const toml::table& forces() { return *parsed_["forces"].as_table(); }
+  static void expect_every_key_given();
+  static void expect_every_key_changed_refused(int min_changes);
 
+  static inline std::string deck_;
   static inline fs::path dir_;
   static inline toml::table parsed_;
 };
 
 TEST_F(SceneFingerprintOfEveryStyle, TheDeckHasATermOfEveryStyleAndTheUnchangedDeckContinues) {
   std::set<std::string> styles;
-  for (const auto& [name, t] : forces()) styles.insert(std::string(*t.as_table()->get("style")->value<std::string>()));
+  for (const std::string& deck : {kDeck, kAllAtomDeck}) {
+    const toml::table parsed = toml::parse_file(test::source_path(deck));
+    for (const auto& [name, t] : *parsed["forces"].as_table())
+      styles.insert(std::string(*t.as_table()->get("style")->value<std::string>()));
+  }
   for (const ForceStyle& s : force_styles()) EXPECT_TRUE(styles.count(s.name)) << "no term of style " << s.name;
   const Restart same = restart({});
   EXPECT_EQ(same.outcome, Outcome::continued) << same.what;
@@ -178,7 +196,7 @@ TEST_F(SceneFingerprintOfEveryStyle, TheDeckHasATermOfEveryStyleAndTheUnchangedD
 
 // Every key a style's reader asks for is given in the deck: a key added to a reader, or a style
 // added to the registry, fails here until the deck gives it (and the sweep below changes it).
-TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+void SceneFingerprintOfEveryStyle::expect_every_key_given() {
   std::vector<Leaf> leaves;
   std::vector<std::pair<std::string, const toml::table*>> tables;
   for (const auto& [name, t] : forces()) walk(t, "forces." + std::string(name.str()), leaves, tables);
@@ -192,8 +210,11 @@ TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
     std::stringstream asked(what.substr(from, to - from));
     for (std::string key; std::getline(asked, key, ',');) {
       key.erase(0, key.find_first_not_of(' '));
-      if (const auto alt = kAlternative.find(key); alt != kAlternative.end() && table->contains(alt->second)) continue;
-      EXPECT_TRUE(table->contains(key)) << "the reader asks for " << path << "." << key << ", which " << kDeck
+      if (const auto alt = kAlternative.find(key);
+          alt != kAlternative.end() &&
+          std::any_of(alt->second.begin(), alt->second.end(), [&](const std::string& k) { return table->contains(k); }))
+        continue;
+      EXPECT_TRUE(table->contains(key)) << "the reader asks for " << path << "." << key << ", which " << deck_
                                         << " does not give";
     }
   }
@@ -204,7 +225,7 @@ TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
 // it uses from the deck's values (θ₀ from degrees, ε_AB = √(ε_A ε_B) by the mixing rule): the
 // scene is then the same and its restart continues, which is accepted when every term's energy and
 // forces at the checkpoint are bit-identical — and some change of the key must still be refused.
-TEST_F(SceneFingerprintOfEveryStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+void SceneFingerprintOfEveryStyle::expect_every_key_changed_refused(int min_changes) {
   std::vector<Leaf> leaves;
   std::vector<std::pair<std::string, const toml::table*>> tables;
   for (const auto& [name, t] : forces()) walk(t, "forces." + std::string(name.str()), leaves, tables);
@@ -238,7 +259,37 @@ TEST_F(SceneFingerprintOfEveryStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
       EXPECT_TRUE(another_scene) << "no other value of " << leaf.path
                                  << " is refused; those that do not load:" << loads_not;
   }
-  EXPECT_GT(changes, 100);  // the deck's keys, most changed both ways
+  EXPECT_GT(changes, min_changes);  // the deck's keys, most changed both ways
+}
+
+TEST_F(SceneFingerprintOfEveryStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+  expect_every_key_given();
+}
+TEST_F(SceneFingerprintOfEveryStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+  expect_every_key_changed_refused(100);
+}
+
+class SceneFingerprintOfEveryAllAtomStyle : public SceneFingerprintOfEveryStyle {
+ protected:
+  static void SetUpTestSuite() { set_up(kAllAtomDeck); }
+};
+TEST_F(SceneFingerprintOfEveryAllAtomStyle, TheUnchangedDeckContinues) {
+  EXPECT_EQ(restart({}).outcome, Outcome::continued);
+}
+TEST_F(SceneFingerprintOfEveryAllAtomStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+  expect_every_key_given();
+}
+TEST_F(SceneFingerprintOfEveryAllAtomStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+  expect_every_key_changed_refused(40);
+}
+// The impropers of two types swapped between their terms: the same lists and coefficients, but
+// each improper under the other's term.
+TEST_F(SceneFingerprintOfEveryAllAtomStyle, ImproperTypesSwappedAreAnotherScene) {
+  const Restart r = restart({"import.improper_types.1=cvff", "import.improper_types.2=flat"});
+  ASSERT_TRUE(r.scene) << r.what;
+  EXPECT_EQ(r.scene->topology.impropers.size(), 3u);
+  EXPECT_EQ(r.outcome, Outcome::refused);
+  EXPECT_NE(r.what.find("checkpoint of another scene"), std::string::npos) << r.what;
 }
 
 // The same dihedrals with their two harmonic types swapped: the same topology lists and the same

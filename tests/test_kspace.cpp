@@ -6,6 +6,8 @@
 // that compute it in a run are not these terms'.
 #include <gtest/gtest.h>
 
+#include "core/units.hpp"
+
 #include <Eigen/Core>
 #include <algorithm>
 #include <chrono>
@@ -31,7 +33,7 @@ using test::forces_of;
 using test::periodic_box;
 
 constexpr double kPi = std::numbers::pi;
-constexpr double kQqrd2eReal = 332.06371;  // kcal·Å/(mol·e²)
+constexpr double kQqrd2eReal = Units::kRealCoulomb;  // kcal·Å/(mol·e²)
 
 // The real-space Ewald sum, plainly: every pair and every periodic image within `cutoff` (no
 // minimum image), C q_i q_j erfc(g r)/r, and each particle with its own images (no force). O(N²)

@@ -159,6 +159,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   const Topology& wt = w.topology;
   Topology& t = p.topology;
   t.bond_types = wt.bond_types, t.angle_types = wt.angle_types, t.dihedral_types = wt.dihedral_types;
+  t.improper_types = wt.improper_types;
   const auto at = [&](int g) { return d.owned_index(g); };
   for (const Bond& b : wt.bonds)
     if (at(b.i) >= 0) t.bonds.push_back({at(b.i), at(b.j), b.type});
@@ -166,6 +167,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     if (at(a.i) >= 0) t.angles.push_back({at(a.i), at(a.j), at(a.k), a.type});
   for (const Dihedral& h : wt.dihedrals)
     if (at(h.i) >= 0) t.dihedrals.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
+  for (const Improper& h : wt.impropers)
+    if (at(h.i) >= 0) t.impropers.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
   if (!wt.molecule.empty())
     for (int k = 0; k < n; ++k) t.molecule.push_back(wt.molecule[p.global_id[k]]);
   ThermostatSettings& th = p.integrator.thermostat;

@@ -172,6 +172,10 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
   for (const Angle& a : top.angles) r.add("angle", {a.i, a.j, a.k, a.type});
   r.add("dihedrals", top.dihedrals.size());
   for (const Dihedral& d : top.dihedrals) r.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
+  if (!top.impropers.empty()) {  // only then: the fingerprints of scenes without impropers are unchanged
+    r.add("impropers", top.impropers.size());
+    for (const Improper& d : top.impropers) r.add("improper", {d.i, d.j, d.k, d.l, d.type});
+  }
   r.add("molecule", std::span<const int>(top.molecule));
   for (int a = 0; a < 3; ++a) {
     r.add("periodic", sc.box.periodic[a]);

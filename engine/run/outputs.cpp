@@ -79,6 +79,7 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
   const auto bond = lammps_numbers(imported.bond, top.bond_types.size());
   const auto angle = lammps_numbers(imported.angle, top.angle_types.size());
   const auto dihedral = lammps_numbers(imported.dihedral, top.dihedral_types.size());
+  const auto improper = lammps_numbers(imported.improper, top.improper_types.size());
   out.x = s.x;
   out.v = s.v * sc.units.out(Dimension::velocity);  // LAMMPS's velocity unit (real: Å/fs)
   for (int i = 0; i < s.size(); ++i) {
@@ -102,6 +103,9 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
   out.num_bond_types = max_of(bond);
   out.num_angle_types = max_of(angle);
   out.num_dihedral_types = max_of(dihedral);
+  for (const Improper& d : top.impropers)
+    out.impropers.push_back({improper[static_cast<size_t>(d.type)], d.i, d.j, d.k, d.l});
+  out.num_improper_types = max_of(improper);
   const LammpsCoeffs& ff = sc.lammps_coeffs;
   // One atom type: its one pair is the diagonal, "Pair Coeffs" (which more readers know).
   if (force_field) {
@@ -109,6 +113,7 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
     if (!top.bonds.empty()) add_coeffs(out, "Bond Coeffs", ff.bond, bond, out.num_bond_types);
     if (!top.angles.empty()) add_coeffs(out, "Angle Coeffs", ff.angle, angle, out.num_angle_types);
     if (!top.dihedrals.empty()) add_coeffs(out, "Dihedral Coeffs", ff.dihedral, dihedral, out.num_dihedral_types);
+    if (!top.impropers.empty()) add_coeffs(out, "Improper Coeffs", ff.improper, improper, out.num_improper_types);
   }
   if (sc.box.periodic.all()) {  // the box now (a barostat moves it)
     out.lo = sc.forces->box().origin;
@@ -148,10 +153,10 @@ void check_rank_directory(const std::string& dir, int rank) {
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title, bool force_field) {
   const Topology& t = scene.topology;
   write_lammps_data(path, to_lammps(scene, force_field),
-                    scene.charged()        ? "full"
-                    : !t.dihedrals.empty() ? "molecular"
-                    : t.angles.empty()     ? "bond"
-                                           : "angle",
+                    scene.charged()                                ? "full"
+                    : !t.dihedrals.empty() || !t.impropers.empty() ? "molecular"
+                    : t.angles.empty()                             ? "bond"
+                                                                   : "angle",
                     title);
 }
 

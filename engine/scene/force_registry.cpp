@@ -12,12 +12,15 @@
 
 #include "core/errors.hpp"
 #include "core/format.hpp"
+#include "engine/io/lammps_data.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
+#include "forcefields/charmm_terms.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/dihedral_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/gravity.hpp"
+#include "forcefields/improper_terms.hpp"
 #include "forcefields/pair_term.hpp"
 #include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/methods.hpp"
@@ -96,6 +99,151 @@ std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>
       out.push_back(it);
     }
   return out;
+}
+
+// One kind of bonded type, as a reader claims it: its deck key, its data-file section, the
+// scene's names, which term owns each, and the data file's numbers of each (LammpsDataCoeffs).
+struct TypeKind {
+  const char* types_key;  // "angle_types"
+  const char* section;    // "Angle Coeffs"
+  const char* word;       // "angle"
+  const std::vector<std::string>& names;
+  std::vector<std::string>& owner;
+  const std::vector<std::vector<int>>& numbers;
+};
+TypeKind bond_kind(TermContext& ctx) {
+  return {"bond_types",
+          "Bond Coeffs",
+          "bond",
+          ctx.scene.topology.bond_types,
+          ctx.bond_type_owner,
+          ctx.scene.lammps_data_coeffs.bond};
+}
+TypeKind angle_kind(TermContext& ctx) {
+  return {"angle_types",
+          "Angle Coeffs",
+          "angle",
+          ctx.scene.topology.angle_types,
+          ctx.angle_type_owner,
+          ctx.scene.lammps_data_coeffs.angle};
+}
+TypeKind dihedral_kind(TermContext& ctx) {
+  return {"dihedral_types",
+          "Dihedral Coeffs",
+          "dihedral",
+          ctx.scene.topology.dihedral_types,
+          ctx.dihedral_type_owner,
+          ctx.scene.lammps_data_coeffs.dihedral};
+}
+TypeKind improper_kind(TermContext& ctx) {
+  return {"improper_types",
+          "Improper Coeffs",
+          "improper",
+          ctx.scene.topology.improper_types,
+          ctx.improper_type_owner,
+          ctx.scene.lammps_data_coeffs.improper};
+}
+
+// A LAMMPS coefficient row's layout, for `coefficients = "data"`: the LAMMPS style whose row it is
+// and the names of the numbers after the type ("K theta0 K_UB r_UB").
+struct DataRow {
+  const char* lammps_style;
+  const char* layout;
+};
+
+// A data-file coefficient that LAMMPS reads as an integer (n, d): refused when it is not one.
+int data_integer(double v, const char* what) {
+  if (!(v == std::floor(v)) || std::abs(v) > 1e6)
+    throw std::invalid_argument(std::string(what) + ": expected an integer, got " + format_number(v));
+  return static_cast<int>(v);
+}
+
+// coefficients = "data": every type of `kind` that the [import] mapped from the LAMMPS data file
+// takes the numbers of its row in the file's section (in LAMMPS's units and conventions), turned
+// into Coeffs by `make` (std::invalid_argument naming a coefficient when they are out of range).
+// Several file types mapped onto one name must have equal rows. Every failure is one line at the
+// `coefficients` key naming the data file, the section, the type and what was expected.
+template <class Coeffs, class Make>
+std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind& kind, const std::string& term,
+                                  const DataRow& row, Make make, std::vector<Coeffs>& coeffs) {
+  const LammpsDataCoeffs& data = ctx.scene.lammps_data_coeffs;
+  if (data.file.empty())
+    t.fail("coefficients",
+           "coefficients = \"data\" takes the coefficients from an imported LAMMPS data file, and "
+           "there is none ([import] lammps_data = PATH)");
+  const std::string where = data.file + ": " + kind.section;
+  const size_t columns = detail::split_ws(row.layout).size();
+  const auto expected_row = [&](int number) { return "'" + std::to_string(number) + " " + row.layout + "'"; };
+  const LammpsDataCoeffs::Section* section = nullptr;
+  for (const auto& sec : data.sections)
+    if (sec.name == kind.section) section = &sec;
+  if (section && !section->style.empty() && section->style != row.lammps_style)
+    t.fail("coefficients", where + " is marked '# " + section->style + "', but [forces." + term + "] takes LAMMPS " +
+                               kind.word + "_style " + row.lammps_style + " rows ('TYPE " + row.layout + "')");
+  // The numbers of the row of file type `number`.
+  const auto values_of = [&](int number) {
+    if (!section)
+      t.fail("coefficients", data.file + ": no " + kind.section + " section; coefficients = \"data\" needs the row " +
+                                 expected_row(number) + " for " + kind.word + " type " + std::to_string(number));
+    for (const std::string& text : section->rows) {
+      const auto tok = detail::split_ws(text);
+      long long type = 0;
+      if (tok.empty() || !detail::parse_long(tok[0], type) || type != number) continue;
+      if (tok.size() - 1 != columns)
+        t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(number) + ": expected " +
+                                   std::to_string(columns) + " coefficients " + expected_row(number) + " (LAMMPS " +
+                                   row.lammps_style + "), found " + std::to_string(tok.size() - 1));
+      std::vector<double> v(columns);
+      for (size_t c = 0; c < columns; ++c)
+        if (!detail::parse_double(tok[c + 1], v[c]))
+          t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(number) +
+                                     ": expected a number for " + std::string(detail::split_ws(row.layout)[c]) +
+                                     ", found " + detail::quote(tok[c + 1]));
+      return v;
+    }
+    t.fail("coefficients", where + ": no row for " + kind.word + " type " + std::to_string(number) + "; expected " +
+                               expected_row(number));
+  };
+  std::vector<int> index(kind.names.size(), -1);
+  for (size_t k = 0; k < kind.names.size() && k < kind.numbers.size(); ++k) {
+    const std::vector<int>& numbers = kind.numbers[k];
+    if (numbers.empty()) continue;
+    if (!kind.owner[k].empty())
+      t.fail("coefficients", std::string(kind.word) + " type '" + kind.names[k] + "' is already defined by [forces." +
+                                 kind.owner[k] + "]");
+    const std::vector<double> first = values_of(numbers[0]);
+    for (size_t m = 1; m < numbers.size(); ++m)
+      if (values_of(numbers[m]) != first)
+        t.fail("coefficients", where + ": " + kind.word + " types " + std::to_string(numbers[0]) + " and " +
+                                   std::to_string(numbers[m]) + " are both named '" + kind.names[k] +
+                                   "' but their coefficients differ; expected one row per name (map them to "
+                                   "different names in [import] " +
+                                   kind.types_key + ")");
+    try {
+      coeffs.push_back(make(first));
+    } catch (const std::invalid_argument& e) {
+      t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(numbers[0]) + ": " + e.what());
+    }
+    kind.owner[k] = term;
+    index[k] = static_cast<int>(coeffs.size()) - 1;
+  }
+  return index;
+}
+
+// The types a bonded term claims: from the deck's `kind.types_key`.TYPE tables (read by `read`), or
+// with coefficients = "data" from the imported data file (claim_data_types; `row` and `make`).
+template <class Coeffs, class Read, class Make>
+std::vector<int> claim_kind(DeckTable& t, TermContext& ctx, const TypeKind& kind, const std::string& term, Read read,
+                            const DataRow& row, Make make, std::vector<Coeffs>& coeffs) {
+  if (!t.has("coefficients")) return claim_types(t, kind.types_key, kind.names, kind.owner, term, read, coeffs);
+  const std::string v = t.string("coefficients");
+  if (v != "data")
+    t.fail("coefficients",
+           "expected \"data\" (the imported LAMMPS data file's " + std::string(kind.section) + "), got \"" + v + "\"");
+  if (t.has(kind.types_key))
+    t.fail(kind.types_key,
+           "give either coefficients = \"data\" or " + t.key_path(kind.types_key) + ".TYPE tables, not both");
+  return claim_data_types(t, ctx, kind, term, row, make, coeffs);
 }
 
 // stiff-harmonic's angle_types.TYPE = {theta0 (degrees), alpha}: each angle i–j–k of the type
@@ -209,24 +357,62 @@ Morse::Coeffs morse_coeffs(DeckTable& d) {
   return {read(d, "D0", kEnergy), read(d, "alpha", kInverseLength), read(d, "r0", kLength)};
 }
 
-// harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}.
+// harmonic-bond: bond_types.TYPE = {k, r0}, E = ½k(r − r0)²; or coefficients = "data" (LAMMPS
+// bond_style harmonic rows 'K r0', E = K(r − r0)²: k = 2K).
+HarmonicBond::Coeffs harmonic_bond_coeffs(DeckTable& d) {
+  return {read(d, "k", kStiffness), read(d, "r0", kLength)};
+}
+std::unique_ptr<ForceTerm> read_harmonic_bond(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<HarmonicBond::Coeffs> types;
+  const auto index = claim_kind(
+      t, ctx, bond_kind(ctx), name, harmonic_bond_coeffs, DataRow{"harmonic", "K r0"},
+      [](const std::vector<double>& v) {
+        require(v[0], kStiffness, "K");
+        require(v[1], kLength, "r0");
+        return HarmonicBond::Coeffs{2.0 * v[0], v[1]};
+      },
+      types);
+  note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, types, [](const HarmonicBond::Coeffs& c) {
+    return numbers({0.5 * c.k, c.r0});
+  });
+  return std::make_unique<BondTerm<HarmonicBond>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
+}
+
+// An angle in degrees 0 .. 180 (a deck key or a data-file column), in radians.
+double angle_in_degrees(double deg, const char* what) {
+  if (!(deg >= 0 && deg <= 180))
+    throw std::invalid_argument(std::string(what) + ": expected an angle in degrees, 0..180, got " +
+                                format_number(deg));
+  return deg * M_PI / 180.0;
+}
+
+// harmonic-angle / cosine-angle: angle_types.TYPE = {k, theta0 (degrees, default 180)}; harmonic-angle
+// also coefficients = "data" (LAMMPS angle_style harmonic rows 'K theta0', E = K(θ − θ0)²: k = 2K).
 template <class Term>
 std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   std::vector<AngleCoeffs> coeffs;
-  const auto index = claim_types(
-      t, "angle_types", ctx.scene.topology.angle_types, ctx.angle_type_owner, name,
-      [](DeckTable& at) {
-        AngleCoeffs c;
-        c.k = read(at, "k", kStiffness);
-        const double deg = at.number("theta0", 180.0);
-        at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
-        c.theta0 = deg * M_PI / 180.0;
-        return c;
-      },
-      coeffs);
+  const auto read_one = [](DeckTable& at) {
+    AngleCoeffs c;
+    c.k = read(at, "k", kStiffness);
+    const double deg = at.number("theta0", 180.0);
+    at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
+    c.theta0 = deg * M_PI / 180.0;
+    return c;
+  };
+  const bool harmonic = std::is_same_v<Term, HarmonicAngle>;
+  std::vector<int> index;
+  if (harmonic)
+    index = claim_kind(
+        t, ctx, angle_kind(ctx), name, read_one, DataRow{"harmonic", "K theta0"},
+        [](const std::vector<double>& v) {
+          require(v[0], kStiffness, "K");
+          return AngleCoeffs{2.0 * v[0], angle_in_degrees(v[1], "theta0")};
+        },
+        coeffs);
+  else
+    index = claim_types(t, "angle_types", ctx.scene.topology.angle_types, ctx.angle_type_owner, name, read_one, coeffs);
   // LAMMPS angle_style harmonic: K(θ − θ0)², K = k/2; angle_style cosine: K[1 + cos θ], which is
   // k[1 − cos(θ − θ0)] only for θ0 = 180°.
-  const bool harmonic = std::is_same_v<Term, HarmonicAngle>;
   bool straight = true;
   for (const AngleCoeffs& c : coeffs) straight &= std::abs(c.theta0 - M_PI) < 1e-12;
   const std::string style = harmonic ? "harmonic" : straight ? "cosine" : "";
@@ -234,6 +420,34 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
     return harmonic ? numbers({0.5 * c.k, c.theta0 * 180.0 / M_PI}) : numbers({c.k});
   });
   return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+}
+
+// charmm-angle: angle_types.TYPE = {K, theta0 (degrees), K_UB = 0, r_UB = 0} or coefficients =
+// "data", both LAMMPS angle_style charmm's coefficients: E = K(θ − θ0)² + K_UB(r13 − r_UB)².
+CharmmAngleCoeffs charmm_angle_of(double K, double theta0_deg, double K_ub, double r_ub) {
+  require(K, kStiffness, "K");
+  require(K_ub, kStiffness, "K_UB");
+  if (!(std::isfinite(r_ub) && r_ub >= 0))
+    throw std::invalid_argument("r_UB: expected a length >= 0, got " + format_number(r_ub));
+  return {K, angle_in_degrees(theta0_deg, "theta0"), K_ub, r_ub};
+}
+std::unique_ptr<ForceTerm> read_charmm_angle(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  std::vector<CharmmAngleCoeffs> coeffs;
+  const auto index = claim_kind(
+      t, ctx, angle_kind(ctx), name,
+      [](DeckTable& at) {
+        const double K = read(at, "K", kStiffness), deg = at.number("theta0");
+        at.require(deg >= 0 && deg <= 180, "theta0", "expected an angle in degrees, 0..180");
+        const double K_ub = read(at, "K_UB", kStiffness, 0.0), r_ub = at.number("r_UB", 0.0);
+        at.require(std::isfinite(r_ub) && r_ub >= 0, "r_UB", "expected a length >= 0");
+        return charmm_angle_of(K, deg, K_ub, r_ub);
+      },
+      DataRow{"charmm", "K theta0 K_UB r_UB"},
+      [](const std::vector<double>& v) { return charmm_angle_of(v[0], v[1], v[2], v[3]); }, coeffs);
+  note_lammps(ctx.lammps ? &ctx.lammps->angle : nullptr, "charmm", index, coeffs, [](const CharmmAngleCoeffs& c) {
+    return numbers({c.K, c.theta0 * 180.0 / M_PI, c.K_ub, c.r_ub});
+  });
+  return std::make_unique<CharmmAngle>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
 }
 
 // The LAMMPS dihedral styles of the same form: harmonic K d n, multi/harmonic A1..A5, opls K1..K4.
@@ -295,6 +509,162 @@ OplsDihedralKernel::Coeffs opls_dihedral_coeffs(DeckTable& d) {
   for (int n = 0; n < 4; ++n)
     c.K[n] = read(d, std::array<const char*, 4>{"K1", "K2", "K3", "K4"}[n], kTorsionEnergy, 0.0);
   return c;
+}
+
+// Mixing rules (LAMMPS pair_modify mix): the coefficients of an unlike pair from those of its two
+// types. Both rules take ε_ab = √(ε_a ε_b); a length (σ, and the cutoff, as LAMMPS's lj/cut
+// init_one mixes cut[i][i] and cut[j][j] with mix_distance) is √(σ_a σ_b) under "geometric"
+// (LAMMPS's default) and (σ_a + σ_b)/2 under "arithmetic" (Lorentz–Berthelot). Checked with lmp
+// (29 Sep 2021): per-type cutoffs 2 and 3, a 1-2 pair at r = 2.47 interacts under arithmetic
+// (cut 2.5) and not under geometric (cut √6).
+enum class Mix { geometric, arithmetic };
+double mix_energy(double a, double b) {
+  return std::sqrt(a * b);
+}
+double mix_length(double a, double b, Mix m) {
+  return m == Mix::geometric ? std::sqrt(a * b) : 0.5 * (a + b);
+}
+// charmm-dihedral: dihedral_types.TYPE = {K, n, d, w} or coefficients = "data" (LAMMPS dihedral_style
+// charmm's 'K n d w': n >= 0 and d integers, d in degrees, w the 1-4 weight 0 .. 1), and
+// lj14 = { TYPE = { epsilon, sigma } } per particle type, mixed as lj/charmm/coul/charmm mixes its
+// 1-4 coefficients (arithmetic: ε = √(ε_a ε_b), σ = (σ_a + σ_b)/2); needed for the particle types at
+// the ends of the dihedrals with w > 0.
+CharmmDihedralKernel::Coeffs charmm_dihedral_of(double K, int n, int d, double w) {
+  require(K, kTorsionEnergy, "K");
+  if (n < 0 || n > 12) throw std::invalid_argument("n: expected a multiplicity 0 .. 12, got " + std::to_string(n));
+  if (d < -360 || d > 360)
+    throw std::invalid_argument("d: expected a phase in degrees -360 .. 360, got " + std::to_string(d));
+  if (!(w >= 0.0 && w <= 1.0)) throw std::invalid_argument("w: expected a weight 0 .. 1, got " + format_number(w));
+  return {K, n, d, w};
+}
+// The particles' charges for the 1-4 Coulomb part (none in an uncharged scene: LJ 1-4 only).
+std::vector<double> particle_charges(const Scene& sc) {
+  return sc.charged() ? sc.charge : std::vector<double>();
+}
+std::unique_ptr<ForceTerm> read_charmm_dihedral(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  const Scene& sc = ctx.scene;
+  std::vector<CharmmDihedralKernel::Coeffs> coeffs;
+  const auto index = claim_kind(
+      t, ctx, dihedral_kind(ctx), name,
+      [](DeckTable& d) {
+        const double K = read(d, "K", kTorsionEnergy);
+        const long n = d.integer("n");
+        d.require(n >= 0 && n <= 12, "n", "expected a multiplicity 0 .. 12");
+        const long phase = d.integer("d");
+        d.require(phase >= -360 && phase <= 360, "d", "expected a phase in integer degrees -360 .. 360");
+        const double w = d.number("w");
+        d.require(w >= 0 && w <= 1, "w", "expected a weight 0 .. 1 (LAMMPS's weighting factor of the 1-4 pair)");
+        return charmm_dihedral_of(K, static_cast<int>(n), static_cast<int>(phase), w);
+      },
+      DataRow{"charmm", "K n d w"},
+      [](const std::vector<double>& v) {
+        return charmm_dihedral_of(v[0], data_integer(v[1], "n"), data_integer(v[2], "d"), v[3]);
+      },
+      coeffs);
+  note_lammps(ctx.lammps ? &ctx.lammps->dihedral : nullptr, "charmm", index, coeffs,
+              [](const CharmmDihedralKernel::Coeffs& c) {
+                return numbers({c.K}) + " " + std::to_string(c.n) + " " + std::to_string(c.d) + " " + numbers({c.w});
+              });
+  const std::vector<Dihedral> dihedrals = claimed(sc.topology.dihedrals, index);
+  // The per-type 1-4 coefficients, and which particle types need them.
+  const int ntypes = static_cast<int>(sc.types.size());
+  std::vector<std::optional<Lj14>> own(static_cast<size_t>(ntypes));
+  if (auto table = t.table("lj14")) {
+    for (auto& [type_name, tt] : table->named_tables()) {
+      int k = -1;
+      for (int q = 0; q < ntypes; ++q)
+        if (sc.types[q].name == type_name) k = q;
+      if (k < 0) table->fail(type_name, "unknown particle type '" + type_name + "'");
+      own[static_cast<size_t>(k)] = Lj14{read(tt, "epsilon", kEnergy), read(tt, "sigma", kLength)};
+      tt.finish();
+    }
+    table->finish();
+  }
+  for (const Dihedral& d : dihedrals)
+    if (coeffs[static_cast<size_t>(d.type)].w > 0.0)
+      for (const int end : {d.i, d.l}) {
+        const int k = sc.particle_type[end];
+        if (own[static_cast<size_t>(k)]) continue;
+        const std::string what = "no 1-4 coefficients for particle type '" + sc.types[k].name + "' (particle " +
+                                 std::to_string(end) + ", an end of a dihedral with w > 0); expected " +
+                                 t.key_path("lj14") + "." + sc.types[k].name + " = { epsilon = …, sigma = … }";
+        if (t.has("lj14")) t.fail("lj14", what);
+        t.fail_here(what);
+      }
+  TypePairMatrix<Lj14> lj14(ntypes);
+  for (int a = 0; a < ntypes; ++a)
+    for (int b = a; b < ntypes; ++b)
+      if (own[a] && own[b])
+        lj14.set(a, b,
+                 Lj14{mix_energy(own[a]->epsilon, own[b]->epsilon),
+                      mix_length(own[a]->sigma, own[b]->sigma, Mix::arithmetic)});
+  std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
+  return std::make_unique<CharmmDihedral>(name, level, dihedrals, coeffs, std::move(types), std::move(lj14),
+                                          particle_charges(sc), sc.units.coulomb);
+}
+
+// harmonic-improper: improper_types.TYPE = {K, chi0 (degrees)}; cvff-improper: {K, d = +1|-1, n};
+// umbrella-improper: {K, omega0 (degrees)}; each LAMMPS's improper style of the same name, or
+// coefficients = "data" (its rows 'K chi0', 'K d n', 'K omega0').
+HarmonicImproperKernel::Coeffs harmonic_improper_of(double K, double chi0_deg) {
+  require(K, kStiffness, "K");
+  return {K, angle_in_degrees(chi0_deg, "chi0")};
+}
+UmbrellaCoeffs umbrella_of(double K, double omega0_deg) {
+  require(K, kStiffness, "K");
+  if (!(omega0_deg >= 0 && omega0_deg <= 90))
+    throw std::invalid_argument("omega0: expected an angle in degrees, 0..90, got " + format_number(omega0_deg));
+  return {K, omega0_deg * M_PI / 180.0};
+}
+template <class Term, class Read, class Make>
+std::unique_ptr<ForceTerm> read_improper_term(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
+                                              const char* lammps_style, const char* layout, Read read_one, Make make,
+                                              std::string (*row)(const typename Term::Coeffs&)) {
+  std::vector<typename Term::Coeffs> coeffs;
+  const auto index =
+      claim_kind(t, ctx, improper_kind(ctx), name, read_one, DataRow{lammps_style, layout}, make, coeffs);
+  note_lammps(ctx.lammps ? &ctx.lammps->improper : nullptr, lammps_style, index, coeffs, row);
+  return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.impropers, index), coeffs);
+}
+std::unique_ptr<ForceTerm> read_harmonic_improper(const std::string& name, Level level, DeckTable& t,
+                                                  TermContext& ctx) {
+  return read_improper_term<HarmonicImproper>(
+      name, level, t, ctx, "harmonic", "K chi0",
+      [](DeckTable& d) {
+        const double K = read(d, "K", kStiffness), deg = d.number("chi0");
+        d.require(deg >= 0 && deg <= 180, "chi0", "expected an angle in degrees, 0..180");
+        return harmonic_improper_of(K, deg);
+      },
+      [](const std::vector<double>& v) { return harmonic_improper_of(v[0], v[1]); },
+      [](const HarmonicImproperKernel::Coeffs& c) {
+        return numbers({c.K, c.chi0 * 180.0 / M_PI});
+      });
+}
+std::unique_ptr<ForceTerm> read_cvff_improper(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_improper_term<CvffImproper>(
+      name, level, t, ctx, "cvff", "K d n", harmonic_dihedral_coeffs,
+      [](const std::vector<double>& v) {
+        HarmonicDihedralKernel::Coeffs c{v[0], data_integer(v[1], "d"), data_integer(v[2], "n")};
+        HarmonicDihedralKernel::validate(c);
+        if (c.n > 6)
+          throw std::invalid_argument("n: expected a multiplicity 0 .. 6 (LAMMPS's cvff), got " + std::to_string(c.n));
+        return c;
+      },
+      [](const HarmonicDihedralKernel::Coeffs& c) { return lammps_row(c); });
+}
+std::unique_ptr<ForceTerm> read_umbrella_improper(const std::string& name, Level level, DeckTable& t,
+                                                  TermContext& ctx) {
+  return read_improper_term<UmbrellaImproper>(
+      name, level, t, ctx, "umbrella", "K omega0",
+      [](DeckTable& d) {
+        const double K = read(d, "K", kStiffness), deg = d.number("omega0");
+        d.require(deg >= 0 && deg <= 90, "omega0", "expected an angle in degrees, 0..90");
+        return umbrella_of(K, deg);
+      },
+      [](const std::vector<double>& v) { return umbrella_of(v[0], v[1]); },
+      [](const UmbrellaCoeffs& c) {
+        return numbers({c.K, c.omega0 * 180.0 / M_PI});
+      });
 }
 
 // Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
@@ -526,20 +896,8 @@ std::string lammps_pair(const Yukawa::Coeffs& c, std::string& row) {
 }
 
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
-// pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults.
-// Mixing rules (LAMMPS pair_modify mix): the coefficients of an unlike pair from those of its two
-// types. Both rules take ε_ab = √(ε_a ε_b); a length (σ, and the cutoff, as LAMMPS's lj/cut
-// init_one mixes cut[i][i] and cut[j][j] with mix_distance) is √(σ_a σ_b) under "geometric"
-// (LAMMPS's default) and (σ_a + σ_b)/2 under "arithmetic" (Lorentz–Berthelot). Checked with lmp
-// (29 Sep 2021): per-type cutoffs 2 and 3, a 1-2 pair at r = 2.47 interacts under arithmetic
-// (cut 2.5) and not under geometric (cut √6).
-enum class Mix { geometric, arithmetic };
-double mix_energy(double a, double b) {
-  return std::sqrt(a * b);
-}
-double mix_length(double a, double b, Mix m) {
-  return m == Mix::geometric ? std::sqrt(a * b) : 0.5 * (a + b);
-}
+// pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults;
+// per-type tables are mixed by mix_energy and mix_length (above).
 // A style without mixing rules: the reader refuses per-type tables for it.
 struct NoMixing {};
 
@@ -712,8 +1070,10 @@ const std::vector<ForceStyle>& force_styles() {
       {"stiff-harmonic", "bond", Level::fast, "stiff bond ½(α/ε)²(r−ℓ)², constraint-defining", read_stiff_harmonic},
       {"fene", "bond", Level::slow, "FENE bond −½KR₀² ln(1−(r/R₀)²) [+ WCA]", read_bond<Fene, fene_coeffs>},
       {"morse", "bond", Level::slow, "Morse bond D₀[1 − e^(−α(r−r₀))]²", read_bond<Morse, morse_coeffs>},
+      {"harmonic-bond", "bond", Level::slow, "harmonic bond ½k(r−r₀)² (LAMMPS harmonic, K = k/2)", read_harmonic_bond},
       {"harmonic-angle", "angle", Level::slow, "angle ½k(θ−θ₀)²", read_angle<HarmonicAngle>},
       {"cosine-angle", "angle", Level::slow, "angle k[1 − cos(θ−θ₀)]", read_angle<CosineAngle>},
+      {"charmm-angle", "angle", Level::slow, "angle K(θ−θ₀)² + K_UB(r₁₃−r_UB)² (LAMMPS charmm)", read_charmm_angle},
       {"harmonic-dihedral", "dihedral", Level::slow, "dihedral K[1 + d cos(nφ)] (LAMMPS harmonic)",
        read_dihedral<HarmonicDihedralKernel, harmonic_dihedral_coeffs>},
       {"multi-harmonic-dihedral", "dihedral", Level::slow, "dihedral Σ Aₙ cosⁿ⁻¹φ (LAMMPS multi/harmonic)",
@@ -721,6 +1081,12 @@ const std::vector<ForceStyle>& force_styles() {
       {"opls-dihedral", "dihedral", Level::slow,
        "dihedral ½K₁(1+cos φ) + ½K₂(1−cos 2φ) + ½K₃(1+cos 3φ) + ½K₄(1−cos 4φ)",
        read_dihedral<OplsDihedralKernel, opls_dihedral_coeffs>},
+      {"charmm-dihedral", "dihedral", Level::slow,
+       "dihedral K[1 + cos(nφ−d)] + w·(LJ 1-4 + Coulomb 1-4) (LAMMPS charmm)", read_charmm_dihedral},
+      {"harmonic-improper", "improper", Level::slow, "improper K(χ−χ₀)² (LAMMPS harmonic)", read_harmonic_improper},
+      {"cvff-improper", "improper", Level::slow, "improper K[1 + d cos(nφ)] (LAMMPS cvff)", read_cvff_improper},
+      {"umbrella-improper", "improper", Level::slow,
+       "improper ½K(cos ω − cos ω₀)²/sin²ω₀, K(1 − cos ω) for ω₀ = 0 (LAMMPS umbrella)", read_umbrella_improper},
       {"lj", "pair", Level::slow, "Lennard-Jones, cut and shifted", read_lj},
       {"wca", "pair", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
       {"soft", "pair", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
@@ -739,7 +1105,7 @@ std::string list_styles() {
   };
   o << "integrator.method:\n";
   for (const MethodInfo& m : methods()) row(m.name, m.summary);
-  for (const char* kind : {"bond", "angle", "dihedral", "pair", "external"}) {
+  for (const char* kind : {"bond", "angle", "dihedral", "improper", "pair", "external"}) {
     o << "forces.NAME.style, " << kind << (std::string_view(kind) == "external" ? " fields" : " styles") << ":\n";
     for (const ForceStyle& s : force_styles())
       if (std::string_view(s.kind) == kind) row(s.name, s.summary);

@@ -20,6 +20,7 @@ struct TermContext {
   std::vector<std::string>& bond_type_owner;      // per bond type: the term that defines it ("" = none yet)
   std::vector<std::string>& angle_type_owner;     // likewise per angle type
   std::vector<std::string>& dihedral_type_owner;  // and per dihedral type
+  std::vector<std::string>& improper_type_owner;  // and per improper type
   LammpsCoeffs* lammps = nullptr;                 // where the readers put their LAMMPS coefficients (null: nowhere)
   // The pair terms' overlap finding (the closest two particles closer than the potential bears,
   // the whole error line): load_scene refuses it unless [minimize] relaxes the start.
@@ -28,7 +29,7 @@ struct TermContext {
 
 struct ForceStyle {
   const char* name;
-  const char* kind;  // "bond", "angle", "dihedral", "pair" or "external": how `stiffmd list` groups it
+  const char* kind;  // "bond", "angle", "dihedral", "improper", "pair" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);

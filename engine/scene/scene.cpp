@@ -236,7 +236,8 @@ void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
     term.add_forces(sc.state.x, sc.box, f);
   } catch (const NumericalError& e) {
     const std::string what = std::string(e.what()) + " in the initial state";
-    for (const char* key : {"bond_types", "angle_types", "dihedral_types", "position", "particles", "type"})
+    for (const char* key : {"bond_types", "angle_types", "dihedral_types", "improper_types", "coefficients", "position",
+                            "particles", "type"})
       if (t.has(key)) t.fail(key, what);
     t.fail_here(what);
   }
@@ -272,8 +273,8 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
   sc.forces = level_names.empty() ? std::make_unique<ForceField>(sc.box, sc.state.size())
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
-      dihedral_owner(sc.topology.dihedral_types.size());
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner, &sc.lammps_coeffs, overlap};
+      dihedral_owner(sc.topology.dihedral_types.size()), improper_owner(sc.topology.improper_types.size());
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner, improper_owner, &sc.lammps_coeffs, overlap};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -345,6 +346,14 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
       root.fail_here("dihedral type '" + sc.topology.dihedral_types[t] +
                          "' is not defined by any force term (add [forces.NAME.dihedral_types." +
                          sc.topology.dihedral_types[t] + "])",
+                     type_sources);
+  // Impropers come only from an imported data file's Impropers section.
+  for (size_t t = 0; t < sc.topology.improper_types.size(); ++t)
+    if (improper_owner[t].empty())
+      root.fail_here("improper type '" + sc.topology.improper_types[t] +
+                         "' (the imported data file's Impropers section) is not defined by any force term (add "
+                         "[forces.NAME] with an improper style and improper_types." +
+                         sc.topology.improper_types[t] + ", or coefficients = \"data\")",
                      type_sources);
   check_charges(root, sc);
 }
@@ -886,6 +895,14 @@ std::string describe_scene(const Scene& sc) {
       const auto count = std::count_if(sc.topology.dihedrals.begin(), sc.topology.dihedrals.end(),
                                        [&](const Dihedral& d) { return d.type == static_cast<int>(k); });
       s << "  type " << sc.topology.dihedral_types[k] << ": " << count << "\n";
+    }
+  }
+  if (!sc.topology.impropers.empty()) {
+    s << "impropers:   " << sc.topology.impropers.size() << "\n";
+    for (size_t k = 0; k < sc.topology.improper_types.size(); ++k) {
+      const auto count = std::count_if(sc.topology.impropers.begin(), sc.topology.impropers.end(),
+                                       [&](const Improper& d) { return d.type == static_cast<int>(k); });
+      s << "  type " << sc.topology.improper_types[k] << ": " << count << "\n";
     }
   }
   int molecules = 0;

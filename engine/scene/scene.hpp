@@ -121,15 +121,29 @@ struct LammpsCoeffs {
     }
     bool pairwise = false;  // PairIJ rows: one term only (two would need pair_style hybrid/overlay)
   };
-  Section pair, bond, angle, dihedral;
+  Section pair, bond, angle, dihedral, improper;
 };
 
 // The LAMMPS type numbers an [import] of a data file gave each scene type (index: the scene's
-// particle type, or its bond / angle / dihedral type; 0: none), and the file's masses, so that a
-// data file written back numbers them as the imported one did.
+// particle type, or its bond / angle / dihedral / improper type; 0: none), and the file's masses, so
+// that a data file written back numbers them as the imported one did.
 struct LammpsTypeNumbers {
-  std::vector<int> atom, bond, angle, dihedral;
+  std::vector<int> atom, bond, angle, dihedral, improper;
   std::map<int, double> masses;
+};
+
+// What a force term's `coefficients = "data"` reads (engine/scene/force_registry.cpp): the imported
+// LAMMPS data file's "… Coeffs" sections as text, and per scene bond / angle / dihedral / improper
+// type every LAMMPS type number the [import] mapped onto it (several numbers may share a name).
+struct LammpsDataCoeffs {
+  std::string file;  // the data file as the deck names it; "" when no LAMMPS data file was imported
+  struct Section {
+    std::string name;               // "Angle Coeffs"
+    std::string style;              // the hint after '#' ("charmm"), "" without one
+    std::vector<std::string> rows;  // each row: the type, then the coefficients
+  };
+  std::vector<Section> sections;
+  std::vector<std::vector<int>> bond, angle, dihedral, improper;  // per scene type, its LAMMPS numbers
 };
 
 struct Scene {
@@ -162,6 +176,7 @@ struct Scene {
   std::vector<ParticleSource> sources;      // in particle order, covering every particle
   LammpsCoeffs lammps_coeffs;               // filled by the force styles' readers
   LammpsTypeNumbers lammps_types;           // filled by a LAMMPS [import]
+  LammpsDataCoeffs lammps_data_coeffs;      // filled by a LAMMPS [import], read by coefficients = "data"
   std::vector<std::string> notes;           // what assembly did beyond the obvious (projection, thermalisation)
   // A decomposed run's part (engine/domain/domain_integrator.*; it may hold no particle): the
   // whole system's index of each particle here. Empty: the whole system.

@@ -2,6 +2,7 @@
 // preparation of a stiff state ([[build]], [import], [velocities], [prepare]: docs/decks.md).
 #include "engine/scene/scene_sources.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -199,7 +200,10 @@ void read_builders(DeckTable& root, Scene& sc) {
 }
 
 // [import] lammps_data = PATH (atom_style, atom_types = {"1" = "bead"}, bond_types = {...},
-// angle_types = {...}, dihedral_types = {...}, velocities = true) — or xyz = PATH, bonds = PATH, type, bond_type.
+// angle_types = {...}, dihedral_types = {...}, improper_types = {...}, velocities = true) — or xyz =
+// PATH, bonds = PATH, type, bond_type. A bond, angle, dihedral or improper map left out names each
+// type by its number in the file ("1", "2", …); atom_types is always needed (the deck's [types]
+// give the masses).
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   auto t = root.table("import");
   if (!t) return;
@@ -209,7 +213,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const bool lammps = t->has("lammps_data"), xyz = t->has("xyz");
   if (lammps == xyz) t->fail_here("expected either lammps_data = PATH or xyz = PATH (with bonds = PATH)");
   ImportedSystem in;
-  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map, dihedral_map;
+  std::vector<std::pair<std::string, std::string>> atom_map, bond_map, angle_map, dihedral_map, improper_map;
   std::string single_type, single_bond_type;
   // The reader's one-line error (file, line, section) behind the deck key that named the file.
   const char* file_key = lammps ? "lammps_data" : "xyz";
@@ -225,12 +229,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     bond_map = t->string_map("bond_types");
     angle_map = t->string_map("angle_types");
     dihedral_map = t->string_map("dihedral_types");
-    // Impropers are read and kept by the reader (an export writes them back), but no improper
-    // style exists to run them: refused rather than dropped.
-    if (!in.impropers.empty())
-      t->fail("lammps_data", t->string("lammps_data") + ": " + std::to_string(in.impropers.size()) +
-                                 " impropers, but stiffmd has no improper terms: they would be lost; remove the "
-                                 "Impropers section (and set '0 impropers' in the header) to run without them");
+    improper_map = t->string_map("improper_types");
   } else {
     const std::string xyz_path = resolve(t->string("xyz")), bonds_path = resolve(t->string("bonds"));
     try {
@@ -264,6 +263,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
   // Particle types: a LAMMPS type maps to a deck type; masses must agree.
   auto lookup = [&](const std::vector<std::pair<std::string, std::string>>& map, int lammps_type, const char* key) {
+    if (std::string_view(key) != "atom_types" && !t->has(key)) return std::to_string(lammps_type);  // the file's number
     for (const auto& [k, v] : map)
       if (k == std::to_string(lammps_type)) return v;
     const std::string what = "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" +
@@ -315,6 +315,34 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
     remember(numbers.dihedral, dt, d.type);
     sc.topology.dihedrals.push_back({first + d.i, first + d.j, first + d.k, first + d.l, dt});
   }
+  for (const auto& d : in.impropers) {
+    const int it = Topology::intern(sc.topology.improper_types, lookup(improper_map, d.type, "improper_types"));
+    remember(numbers.improper, it, d.type);
+    sc.topology.impropers.push_back({first + d.i, first + d.j, first + d.k, first + d.l, it});
+  }
+  if (!lammps) return;
+  // What coefficients = "data" reads: the Coeffs sections, and every file number of each scene type.
+  LammpsDataCoeffs& data = sc.lammps_data_coeffs;
+  data.file = t->string("lammps_data");
+  for (const auto& section : in.coeffs) data.sections.push_back({section.name, section.style, section.rows});
+  const auto all_numbers = [](std::vector<std::vector<int>>& out, size_t types, int scene_type, int lammps_type) {
+    out.resize(types);
+    auto& v = out[static_cast<size_t>(scene_type)];
+    if (std::find(v.begin(), v.end(), lammps_type) == v.end())
+      v.insert(std::upper_bound(v.begin(), v.end(), lammps_type), lammps_type);
+  };
+  const Topology& top = sc.topology;
+  for (const auto& b : in.bonds)
+    all_numbers(data.bond, top.bond_types.size(), top.bond_type_index(lookup(bond_map, b.type, "bond_types")), b.type);
+  for (const auto& a : in.angles)
+    all_numbers(data.angle, top.angle_types.size(), top.angle_type_index(lookup(angle_map, a.type, "angle_types")),
+                a.type);
+  for (const auto& d : in.dihedrals)
+    all_numbers(data.dihedral, top.dihedral_types.size(),
+                top.dihedral_type_index(lookup(dihedral_map, d.type, "dihedral_types")), d.type);
+  for (const auto& d : in.impropers)
+    all_numbers(data.improper, top.improper_types.size(),
+                top.improper_type_index(lookup(improper_map, d.type, "improper_types")), d.type);
 }
 
 // [velocities] temperature, seed: Maxwell–Boltzmann velocities for every mobile particle,
