@@ -23,6 +23,7 @@ namespace stiffmd {
 
 enum class Phase : int {
   pair,         // pair forces through the neighbour list
+  kspace,       // the reciprocal-space sums of long-range electrostatics (Ewald, PPPM)
   bonded,       // bonds, angles, dihedrals, external fields; the stiff bonds (and the fused micro step)
   neighbor,     // neighbour-list builds and their keep-or-rebuild checks
   constraints,  // SHAKE/RATTLE, the projections, the mollifier, Fixman's potential, the stiff modes
@@ -35,7 +36,7 @@ enum class Phase : int {
 };
 
 inline constexpr std::array<std::string_view, static_cast<int>(Phase::count)> kPhaseNames = {
-    "pair", "bonded", "neighbor", "constraints", "integrate", "thermostat", "output", "domain", "other"};
+    "pair", "kspace", "bonded", "neighbor", "constraints", "integrate", "thermostat", "output", "domain", "other"};
 
 class PhaseClock {
  public:

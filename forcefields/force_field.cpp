@@ -23,7 +23,7 @@ void zero(Eigen::Matrix3Xd& out, Eigen::Index n) {
 
 // A term's forces, timed as pair or bonded forces (core/timing.hpp).
 double timed_add_forces(const ForceTerm& term, const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) {
-  const ScopedPhase phase(term.uses_neighbor_list() ? Phase::pair : Phase::bonded);
+  const ScopedPhase phase(term.phase());
   return term.add_forces(x, box, f);
 }
 
@@ -87,7 +87,7 @@ void ForceField::energies_and_virial(const Eigen::Matrix3Xd& x, std::vector<doub
   zero(scratch_, x.cols());
   term_sums_.resize(terms_.size());
   for (size_t k = 0; k < terms_.size(); ++k) {
-    const ScopedPhase phase(terms_[k]->uses_neighbor_list() ? Phase::pair : Phase::bonded);
+    const ScopedPhase phase(terms_[k]->phase());
     term_sums_[k] = terms_[k]->energy_and_virial(x, box_, scratch_);
   }
   // Summed as energy(x, level) sums each level (in the evaluation order) and the pressure the

@@ -14,6 +14,7 @@
 #include "core/box.hpp"
 #include "core/communicator.hpp"
 #include "core/exact_sum.hpp"
+#include "core/timing.hpp"
 #include "core/topology.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/particle_subset.hpp"
@@ -95,6 +96,9 @@ class ForceTerm {
   // (gravity, tethers, walls) do not conserve total momentum, so the thermo's degrees of
   // freedom keep the centre-of-mass motion.
   virtual bool conserves_momentum() const { return true; }
+  // The phase of the step loop's timing its evaluation counts to (core/timing.hpp): pair terms
+  // the pair phase, the reciprocal sums their own, the rest bonded.
+  virtual Phase phase() const { return uses_neighbor_list() ? Phase::pair : Phase::bonded; }
   // Whether it reads the particles' charges (the Coulomb styles): a scene with charges and no
   // such term is refused, since its charges would act on nothing.
   virtual bool uses_charges() const { return false; }

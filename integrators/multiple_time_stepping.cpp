@@ -105,7 +105,7 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
     fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
   }
   for (const ForceTerm* term : rest_) {
-    const ScopedPhase phase(term->uses_neighbor_list() ? Phase::pair : Phase::bonded);
+    const ScopedPhase phase(term->phase());
     term->add_forces(s.x, forces_.box(), force_[k]);
   }
   forces_.count_evaluations(stages_[k].levels);

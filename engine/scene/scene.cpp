@@ -278,15 +278,25 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
-    for (auto& [name, t] : forces->named_tables()) {
+    // The k-space terms last, whatever the tables' order: they set the splitting parameter of the
+    // real-space (coul/long) terms read before them (engine/scene/kspace_deck.hpp).
+    auto tables = forces->named_tables();
+    const auto& styles = force_styles();
+    const auto style_of = [&](DeckTable& t) {
       const std::string style = t.string("style");
-      const auto& styles = force_styles();
       auto it = std::find_if(styles.begin(), styles.end(), [&](const ForceStyle& s) { return style == s.name; });
       if (it == styles.end()) {
         std::string known;
         for (const auto& s : styles) known += (known.empty() ? "" : ", ") + std::string(s.name);
         t.fail("style", "unknown force style '" + style + "' (known: " + known + ")");
       }
+      return it;
+    };
+    std::stable_partition(tables.begin(), tables.end(),
+                          [&](auto& entry) { return std::string_view(style_of(entry.second)->kind) != "kspace"; });
+    for (auto& [name, t] : tables) {
+      const auto it = style_of(t);
+      const std::string style = it->name;
       // A style's default level is a role: the innermost level (Level::fast) or the outermost.
       const ForceField& ff = *sc.forces;
       const Level fallback = it->default_level == Level::fast ? ff.innermost() : ff.outermost();

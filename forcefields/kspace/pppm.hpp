@@ -67,6 +67,8 @@ class ParticleParticleParticleMesh final : public ForceTerm {
   void add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
                                       ExactDiagonal& w) const override;
   bool conserves_momentum() const override { return true; }
+  bool uses_charges() const override { return true; }
+  Phase phase() const override { return Phase::kspace; }
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "pppm"; }
   std::string describe() const override;
