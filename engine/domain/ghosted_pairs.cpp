@@ -11,10 +11,11 @@ SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_par
   for (int g = 0; g < num_particles; ++g) start[g + 1] += start[g];
   partner.resize(start.back());
   weight.resize(start.back());
+  weight_coul.resize(start.back());
   std::vector<int> next(start.begin(), start.end() - 1);
   for (const SpecialPair& p : pairs) {
-    partner[next[p.i]] = p.j, weight[next[p.i]++] = p.weight;
-    partner[next[p.j]] = p.i, weight[next[p.j]++] = p.weight;
+    partner[next[p.i]] = p.j, weight[next[p.i]] = p.weight, weight_coul[next[p.i]++] = p.weight_coul;
+    partner[next[p.j]] = p.i, weight[next[p.j]] = p.weight, weight_coul[next[p.j]++] = p.weight_coul;
   }
 }
 
@@ -33,11 +34,14 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
     rebuilds_before_ = extended_->neighbor_list_rebuilds();
     selection_ = old->selection_;
     types_ = std::move(old->types_);
+    charges_ = std::move(old->charges_);
     special_ = std::move(old->special_);
+    whole_charges_ = old->whole_charges_;
     return;
   }
   extended_ = template_.on_particles({}, {}, domains.box());
   extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
+  if (const auto* whole = dynamic_cast<const PairsOnParticles*>(&template_)) whole_charges_ = whole->charges();
   if (!extended_pairs_)
     throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
@@ -77,6 +81,9 @@ void GhostedPairs::retarget() const {
   const int n = static_cast<int>(ids.size());
   types_.resize(n);
   for (int e = 0; e < n; ++e) types_[e] = whole_types_[ids[e]];
+  // A charged term's charges follow the beads as their types do.
+  charges_.resize(whole_charges_.empty() ? 0 : n);
+  for (int e = 0; e < static_cast<int>(charges_.size()); ++e) charges_[e] = whole_charges_[ids[e]];
   // The special pairs of the whole system with a home bead here and both beads in the pair set: a
   // home bead's partners within R are all here, and a pair of two halo beads is not evaluated.
   // Made in (i, j) order: by slot i, then its partners j > i sorted (a handful).
@@ -87,12 +94,15 @@ void GhostedPairs::retarget() const {
     const size_t first = special_.size();
     for (int q = s.start[g]; q < s.start[g + 1]; ++q) {
       const int t = domains_.pair_slot(s.partner[q]);
-      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q]});
+      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
     std::sort(special_.begin() + static_cast<std::ptrdiff_t>(first), special_.end(),
               [](const SpecialPair& a, const SpecialPair& b) { return a.j < b.j; });
   }
-  extended_pairs_->move_to(types_, special_, halo);
+  extended_pairs_->move_to(types_, charges_, special_, halo);
+  // The whole tail correction on the rank home to particle 0, none on the others.
+  const int slot0 = whole_types_.empty() ? -1 : domains_.pair_slot(0);
+  extended_pairs_->set_tail_share(slot0 >= 0 && !halo[slot0] ? 1.0 : 0.0);
 }
 
 void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {

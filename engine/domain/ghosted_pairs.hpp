@@ -25,11 +25,11 @@
 namespace stiffmd {
 
 // The special pairs of a pair term over the whole system, by particle: the partners of particle g
-// are partner[start[g] … start[g + 1]), with their weights.
+// are partner[start[g] … start[g + 1]), with their weights (SpecialPair::weight, weight_coul).
 struct SpecialPartners {
   SpecialPartners(std::span<const SpecialPair> pairs, int num_particles);
   std::vector<int> start, partner;
-  std::vector<double> weight;
+  std::vector<double> weight, weight_coul;
 };
 
 class GhostedPairs final : public ForceTerm {
@@ -78,12 +78,14 @@ class GhostedPairs final : public ForceTerm {
   PairsOnParticles* extended_pairs_ = nullptr;  // extended_'s
   Decomposition& domains_;
   std::span<const int> whole_types_;
+  std::span<const double> whole_charges_;  // the whole term's (PairsOnParticles::charges), empty when uncharged
   const SpecialPartners& whole_special_;
   long rebuilds_before_ = 0;  // of extended_ when this term took it over
   // The pair set this term was last moved onto (Decomposition::selections), its particles' types
   // and special pairs.
   mutable long selection_ = -1;
   mutable std::vector<int> types_;
+  mutable std::vector<double> charges_;
   mutable std::vector<SpecialPair> special_;
   mutable Eigen::Matrix3Xd x_, f_;
 };
