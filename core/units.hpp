@@ -38,11 +38,14 @@ struct Units {
   double time = 1.0;       // one deck time unit in engine time units (real: 1 fs = 1/48.88821291 τ)
   double boltzmann = 1.0;  // k_B: engine energy per deck temperature unit (real: kcal/mol per K)
   double pressure = 1.0;   // one engine pressure unit (energy/length³) in the output's (real: atm)
+  // Coulomb's constant qqrd2e: E = coulomb · q_i q_j / r with charges in e (real: kcal Å/(mol e²)).
+  double coulomb = 1.0;
 
   static constexpr double kRealTimeFs = 48.88821291;      // τ in fs: 1/sqrt(ftm2v)
   static constexpr double kRealBoltzmann = 0.0019872067;  // kcal/(mol K)
   static constexpr double kRealPressure = 68568.415;      // nktv2p: atm per kcal/(mol Å³)
   static constexpr double kRealDensity = 1.66053906660;   // g/cm³ per (g/mol)/Å³: 10²⁴/N_A
+  static constexpr double kRealCoulomb = 332.06371;       // qqr2e: kcal Å/(mol e²), as LAMMPS's units real
 
   // "lj" or "real"; nothing for any other name.
   static std::optional<Units> named(std::string_view n) {
@@ -53,6 +56,7 @@ struct Units {
     u.time = 1.0 / kRealTimeFs;
     u.boltzmann = kRealBoltzmann;
     u.pressure = kRealPressure;
+    u.coulomb = kRealCoulomb;
     return u;
   }
   bool reduced() const { return name == "lj"; }

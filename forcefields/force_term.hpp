@@ -95,6 +95,9 @@ class ForceTerm {
   // (gravity, tethers, walls) do not conserve total momentum, so the thermo's degrees of
   // freedom keep the centre-of-mass motion.
   virtual bool conserves_momentum() const { return true; }
+  // Whether it reads the particles' charges (the Coulomb styles): a scene with charges and no
+  // such term is refused, since its charges would act on nothing.
+  virtual bool uses_charges() const { return false; }
   // Whether it defines the constraint manifold g(x) = 0 (stiff bonds: see stiff_bonds()).
   bool is_constraint_defining() const { return stiff_bonds() != nullptr; }
 

@@ -21,6 +21,7 @@ struct ParticleSubset {
   // The bonds, angles and dihedrals among the subset's particles, in the subset's numbering and in
   // the system's order (the pair terms' special pairs come from its bonds).
   const Topology& topology;
+  std::span<const double> charges = {};  // per particle of the subset, in e; empty: uncharged
 
   int size() const { return static_cast<int>(global.size()); }
   // The subset's index of the system's particle g; −1 when g is not in the subset.

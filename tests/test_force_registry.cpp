@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <numbers>
 #include <string>
 #include <vector>
 
@@ -14,6 +15,7 @@
 #include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
+#include "tests/test_support.hpp"
 
 namespace stiffmd {
 namespace {
@@ -206,6 +208,43 @@ TEST(ForceRegistry, BondOutsideTheKernelsDomainAtTheStart) {
             std::string::npos)
       << err;
   EXPECT_NE(err.find("in the initial state"), std::string::npos) << err;
+}
+
+// stiff-harmonic's angle_types: each angle of the type gets a third stiff bond between its ends,
+// of the law-of-cosines length, as LAMMPS's fix shake `a` (rigid water: a triangle); an arm that
+// is not a stiff bond of the term is refused at the angle type.
+std::string waters(const std::string& stiff) {
+  return "[types.O]\nmass = 15.9994\n[types.H]\nmass = 1.008\n"
+         "[import]\nlammps_data = \"" +
+         test::source_path("tests/data/two_waters.data") +
+         "\"\natom_types = { \"1\" = \"O\", \"2\" = \"H\" }\nbond_types = { \"1\" = \"OH\" }\n"
+         "angle_types = { \"1\" = \"HOH\" }\n"
+         "[forces.bend]\nstyle = \"harmonic-angle\"\nangle_types.HOH = { k = 100, theta0 = 109.47 }\n"
+         "[forces.rigid]\nstyle = \"stiff-harmonic\"\nepsilon = 0.01\n" +
+         stiff + "[integrator]\nmethod = \"rattle\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+}
+
+TEST(ForceRegistry, RigidAnglesCloseTheTriangle) {
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_waters_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << waters(
+      "bond_types.OH = { length = 1.0, alpha = 1 }\nangle_types.HOH = { theta0 = 109.47, alpha = 1 }\n");
+  const Scene sc = load_scene(Deck(p.string(), {}));
+  fs::remove(p);
+  const StiffBonds* sb = sc.forces->stiff_bonds();
+  ASSERT_NE(sb, nullptr);
+  ASSERT_EQ(sb->bonds.size(), 6u);  // four O–H bonds, then one H–H per water
+  const double hh = 2.0 * std::sin(109.47 / 2 * std::numbers::pi / 180.0);
+  for (int w = 0; w < 2; ++w) {
+    const StiffBond& b = sb->bonds[4 + w];
+    EXPECT_EQ(std::min(b.i, b.j), 3 * w + 1);
+    EXPECT_EQ(std::max(b.i, b.j), 3 * w + 2);
+    EXPECT_NEAR(b.length, hh, 1e-14);
+  }
+  const std::string err =
+      load_error(waters("bond_types.OH = { length = 1.0, alpha = 1 }\n"
+                        "angle_types.HOH = { theta0 = 180, alpha = 1 }\n"));
+  EXPECT_NE(err.find("forces.rigid.angle_types.HOH.theta0: expected the rigid angle in degrees"), std::string::npos)
+      << err;
 }
 
 }  // namespace

@@ -145,10 +145,12 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   p.state.v = std::move(v);
   p.state.inv_mass.resize(n);
   p.particle_type.resize(n);
+  p.charge.resize(n);
   for (int k = 0; k < n; ++k) {
     const int g = p.global_id[k];
     p.state.inv_mass[k] = w.state.inv_mass[g];
     p.particle_type[k] = w.particle_type[g];
+    p.charge[k] = w.charge[g];
   }
   p.state.t = s.t;
   p.state.step = s.step;
@@ -182,7 +184,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.molecule = bonded_molecules(t, n);
     baro.processes = &comm_;
   }
-  p.forces = w.forces->on_subset({p.global_id, p.particle_type, t});
+  p.forces = w.forces->on_subset(
+      {p.global_id, p.particle_type, t, w.charged() ? std::span<const double>(p.charge) : std::span<const double>()});
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
   // built again keeps the old part's terms on the pair set, and their buffers.
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {

@@ -413,6 +413,8 @@ void check_setup(const H5mdSetup& s) {
   if (s.num_particles < 1) throw Failure("no particles to write");
   if (s.species.size() != n || static_cast<std::size_t>(s.mass.size()) != n)
     throw std::invalid_argument("H5mdSetup: species and mass need one entry per particle");
+  if (!s.charge.empty() && s.charge.size() != n)
+    throw std::invalid_argument("H5mdSetup: charge needs one entry per particle (or none)");
   for (const auto& [i, j] : s.bonds)
     if (i < 0 || j < 0 || i >= s.num_particles || j >= s.num_particles)
       throw std::invalid_argument("H5mdSetup: bond index out of range");
@@ -588,6 +590,8 @@ void H5mdWriter::Impl::create_particles() {
   write_dataset(particles, "species", H5T_STD_I32LE, H5T_NATIVE_INT, {n}, index.data(), writes_whole);
   write_strings_attribute(Handle(H5Dopen2(particles, "species", H5P_DEFAULT), H5Dclose, "species"), "elements", table);
   write_dataset(particles, "mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.mass.data(), writes_whole);
+  if (!setup.charge.empty())
+    write_dataset(particles, "charge", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.charge.data(), writes_whole);
   std::vector<std::int64_t> id(n);
   for (hsize_t i = 0; i < n; ++i) id[i] = static_cast<std::int64_t>(i);
   write_dataset(particles, "id", H5T_STD_I64LE, H5T_NATIVE_INT64, {n}, id.data(), writes_whole);

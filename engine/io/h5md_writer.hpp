@@ -15,6 +15,7 @@
 //     velocity, force           (optional) value float64[F][N][3]
 //     species int32[N]          index into the element table, attribute `elements` (string[S])
 //     mass float64[N], id int64[N] (0..N-1)       time-independent datasets
+//     charge float64[N]                           (H5MD's `charge`, in e; charged scenes only)
 //     box                       +dimension int32 = 3, +boundary string[3] ("periodic"/"none")
 //       edges                   (any axis periodic) value float64[F][3][3] = diag(L), rows the edge vectors
 //       offset float64[3]       (any axis periodic) the box origin, low corner of the wrapping cell
@@ -60,6 +61,7 @@ struct H5mdSetup {
   int num_particles = 0;
   std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
   Eigen::VectorXd mass;                    // per particle (a fixed particle: its type's mass)
+  std::vector<double> charge;              // per particle, in e; empty: uncharged (no `charge` dataset)
   Box box;                                 // open box when no axis is periodic
   std::vector<std::pair<int, int>> bonds;  // 0-based particle indices
   std::string author;                      // empty: $USER, else the login name

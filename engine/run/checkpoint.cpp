@@ -159,6 +159,7 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
   r.add("inverse masses",
         std::span<const double>(sc.state.inv_mass.data(), static_cast<std::size_t>(sc.state.inv_mass.size())));
   r.add("particle type", std::span<const int>(sc.particle_type));
+  if (sc.charged()) r.add("charge", std::span<const double>(sc.charge));
   r.add("types", sc.types.size());
   for (const ParticleType& t : sc.types) {
     r.add("name", t.name);

@@ -86,6 +86,7 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
     out.molecule.push_back(top.molecule.empty() ? 0 : top.molecule[i] + 1);
     out.id.push_back(i + 1);
   }
+  if (sc.charged()) out.charge = sc.charge;
   const auto max_of = [](const std::vector<int>& v) { return v.empty() ? 0 : *std::max_element(v.begin(), v.end()); };
   out.num_atom_types = max_of(atom);
   // A number of the imported file that no scene type took keeps the file's mass (LAMMPS needs one
@@ -147,9 +148,10 @@ void check_rank_directory(const std::string& dir, int rank) {
 void write_scene_lammps_data(const Scene& scene, const std::string& path, const std::string& title, bool force_field) {
   const Topology& t = scene.topology;
   write_lammps_data(path, to_lammps(scene, force_field),
-                    !t.dihedrals.empty() ? "molecular"
-                    : t.angles.empty()   ? "bond"
-                                         : "angle",
+                    scene.charged()        ? "full"
+                    : !t.dihedrals.empty() ? "molecular"
+                    : t.angles.empty()     ? "bond"
+                                           : "angle",
                     title);
 }
 
@@ -235,6 +237,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     setup.species = species;
     setup.mass.resize(s.size());
     for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
+    if (sc.charged()) setup.charge = sc.charge;
     setup.box = sc.box;
     for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
     setup.author = sc.output.author;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <numbers>
 #include <optional>
 #include <set>
 #include <sstream>
@@ -96,7 +98,43 @@ std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>
   return out;
 }
 
-// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}.
+// stiff-harmonic's angle_types.TYPE = {theta0 (degrees), alpha}: each angle i–j–k of the type
+// made rigid by a third stiff bond i–k, as LAMMPS's fix shake/rattle `a` does (rigid water: a
+// triangle of three constraints). Its length is the law of cosines on the two arms, which must be
+// stiff bonds of this term: ℓ_ik² = ℓ_ij² + ℓ_jk² − 2 ℓ_ij ℓ_jk cos θ₀. The angle type stays the
+// angle term's (under RATTLE its energy is then a constant, as in LAMMPS). type_of gets −1 for them.
+void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vector<int>& type_of) {
+  auto types = t.table("angle_types");
+  if (!types) return;
+  const Topology& top = ctx.scene.topology;
+  std::map<std::pair<int, int>, double> arm;  // stiff bond lengths by particle pair (i < j)
+  for (const StiffBond& b : sb.bonds) arm[{std::min(b.i, b.j), std::max(b.i, b.j)}] = b.length;
+  for (auto& [type_name, tt] : types->named_tables()) {
+    const double deg = tt.number("theta0");
+    tt.require(deg > 0.0 && deg < 180.0, "theta0", "expected the rigid angle in degrees, strictly between 0 and 180");
+    const double alpha = read(tt, "alpha", kPositive);
+    tt.finish();
+    const int k = top.angle_type_index(type_name);
+    if (k < 0) continue;  // no angle of that type in this scene
+    const double c = std::cos(deg * std::numbers::pi / 180.0);
+    for (const Angle& a : top.angles) {
+      if (a.type != k) continue;
+      const auto l1 = arm.find({std::min(a.i, a.j), std::max(a.i, a.j)});
+      const auto l2 = arm.find({std::min(a.j, a.k), std::max(a.j, a.k)});
+      if (l1 == arm.end() || l2 == arm.end())
+        types->fail(type_name,
+                    "angle " + std::to_string(a.i) + "–" + std::to_string(a.j) + "–" + std::to_string(a.k) +
+                        " of type '" + type_name +
+                        "': a rigid angle needs both of its bonds to be stiff bonds of this term (bond_types)");
+      const double l = std::sqrt(l1->second * l1->second + l2->second * l2->second - 2.0 * l1->second * l2->second * c);
+      sb.bonds.push_back({a.i, a.k, l, alpha});
+      type_of.push_back(-1);
+    }
+  }
+  types->finish();
+}
+
+// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}; angle_types.TYPE = {theta0, alpha}.
 std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   StiffBonds sb;
   sb.epsilon = read(t, "epsilon", kPositive);
@@ -125,11 +163,14 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
     sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
     type_of.push_back(static_cast<int>(std::find(index.begin(), index.end(), b.type) - index.begin()));
   }
+  add_rigid_angles(t, ctx, sb, type_of);
   // The rules the constraint toolbox and the stiff modes will enforce (forcefields/stiff_bond.hpp),
   // checked now with the masses, so that a deck no run could use is refused at load.
   if (const auto problem = find_stiff_bond_problem(sb.bonds, &ctx.scene.state.inv_mass)) {
-    const std::string type =
-        problem->bond >= 0 ? " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')" : "";
+    const std::string type = problem->bond < 0 ? ""
+                             : type_of[problem->bond] < 0
+                                 ? " (a rigid angle's bond, angle_types)"
+                                 : " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')";
     t.fail("bond_types", problem->what + type);
   }
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));

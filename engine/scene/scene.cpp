@@ -80,6 +80,8 @@ void read_types(DeckTable& root, Scene& sc) {
     pt.element = tt.string("element", fallback);
     if (!is_element(pt.element))
       tt.fail("element", "expected a chemical element symbol such as \"C\", got \"" + pt.element + "\"");
+    pt.charge = tt.number("charge", 0.0);
+    tt.require(std::isfinite(pt.charge), "charge", "expected a finite charge (in units of e)");
     tt.finish();
     sc.types.push_back(pt);
   }
@@ -94,12 +96,15 @@ void read_particles(DeckTable& root, Scene& sc) {
     const double mass = p.number("mass", sc.types[type].mass);
     p.require(mass > 0.0, "mass", "expected a mass > 0");
     const bool fixed = p.boolean("fixed", false);
+    const double charge = p.number("charge", sc.types[type].charge);
+    p.require(std::isfinite(charge), "charge", "expected a finite charge (in units of e)");
     const Eigen::Matrix3Xd x = p.vector3("position");
     const Eigen::Matrix3Xd v = sc.units.velocity_in(1.0) * p.vector3("velocity", Eigen::Vector3d::Zero());
     if (fixed && !v.isZero()) p.fail("velocity", "a fixed particle cannot have a velocity");
     const int i = append_particles(sc, x, v, {type}, {});
     sc.sources.push_back({i, 1, p.where()});
     sc.state.inv_mass[i] = fixed ? 0.0 : 1.0 / mass;
+    sc.charge[i] = charge;
     p.finish();
   }
 }
@@ -239,6 +244,28 @@ void check_initial_state(DeckTable& t, const ForceTerm& term, const Scene& sc) {
 
 // `overlap`: where the pair terms put their finding of overlapping particles at the start (null:
 // they refuse it at once).
+// Charges act only through a term that reads them (ForceTerm::uses_charges): without one they
+// would be lost, so the scene is refused, naming where the first charge came from. A net charge
+// is said as a warning: the Ewald terms add a uniform neutralising background (as LAMMPS does),
+// the cut-off styles simply sum what they see.
+void check_charges(DeckTable& root, Scene& sc) {
+  if (!sc.charged()) return;
+  const auto& terms = sc.forces->terms();
+  const bool used = std::any_of(terms.begin(), terms.end(), [](const auto& t) { return t->uses_charges(); });
+  const auto first = std::find_if(sc.charge.begin(), sc.charge.end(), [](double q) { return q != 0.0; });
+  const int i = static_cast<int>(first - sc.charge.begin());
+  if (!used)
+    root.fail_here(particle_and_source(sc, i) + " has charge " + format_number(*first) +
+                       ", but no force term acts on charges: they would be lost; add a Coulomb pair style "
+                       "(coul/cut, coul/debye, lj/cut/coul/long with an ewald or pppm term, …) or set the charges to 0",
+                   {"forces"});
+  double total = 0.0, scale = 0.0;
+  for (const double q : sc.charge) total += q, scale = std::max(scale, std::abs(q));
+  if (std::abs(total) > 1e-5 * std::max(1.0, scale))
+    sc.notes.push_back("warning: the system's net charge is " + format_number(total) +
+                       " e: the Ewald and PPPM terms add a uniform neutralising background (as LAMMPS does)");
+}
+
 void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
   std::vector<std::string> level_names;
   for (const LevelSettings& l : sc.integrator.levels) level_names.push_back(l.name);
@@ -319,6 +346,7 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
                          "' is not defined by any force term (add [forces.NAME.dihedral_types." +
                          sc.topology.dihedral_types[t] + "])",
                      type_sources);
+  check_charges(root, sc);
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
@@ -685,6 +713,7 @@ int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3X
   s.v.rightCols(n) = v;
   for (int k = 0; k < n; ++k) s.inv_mass[first + k] = 1.0 / sc.types[type[k]].mass;
   sc.particle_type.insert(sc.particle_type.end(), type.begin(), type.end());
+  for (int k = 0; k < n; ++k) sc.charge.push_back(sc.types[type[k]].charge);
   // Molecule ids: particles without one get their own; a source's ids are offset past the
   // ids already used.
   auto& mol = sc.topology.molecule;

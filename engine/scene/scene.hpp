@@ -2,6 +2,8 @@
 // force terms the deck names (and only those: docs/design.md §1), and the run's settings.
 #pragma once
 
+#include <algorithm>
+
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -29,6 +31,7 @@ struct ParticleType {
   std::string name;
   double mass = 1.0;
   std::string element;  // chemical symbol written as the species in trajectories (ASE, OVITO)
+  double charge = 0.0;  // in units of the elementary charge e (both `lj` and `real`), the default of its particles
 };
 
 struct RunSettings {
@@ -137,6 +140,13 @@ struct Scene {
   Topology topology;
   std::vector<ParticleType> types;
   std::vector<int> particle_type;  // index into types, per particle
+  // Per particle, in units of e: the type's charge, a [[particles]] row's, or a LAMMPS data
+  // file's q column (atom_style full). All 0 in an uncharged scene; read by the terms that say
+  // ForceTerm::uses_charges (the Coulomb styles), refused with any other (it would be lost).
+  std::vector<double> charge;
+  bool charged() const {
+    return std::any_of(charge.begin(), charge.end(), [](double q) { return q != 0.0; });
+  }
   std::unique_ptr<ForceField> forces;
   IntegratorSettings integrator;
   RunSettings run;

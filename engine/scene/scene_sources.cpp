@@ -254,13 +254,12 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
                                 : "bond between atoms " + std::to_string(b.i) + " and " + std::to_string(b.j) +
                                       " (0-based, as in the bonds file)") +
                             ": both atoms sit at the same position (zero-length bond)");
-  // Charges (atom_style full) would be read and then dropped: stiffmd has no Coulomb term yet.
+  // Charges (atom_style full's q column, in e) replace the types' own: a non-finite one is refused.
   for (size_t k = 0; k < in.charge.size(); ++k)
-    if (in.charge[k] != 0.0)
+    if (!std::isfinite(in.charge[k]))
       t->fail(file_key, t->string(file_key) + ": atom id " + std::to_string(in.id[k]) + " has charge " +
                             (std::ostringstream() << in.charge[k]).str() +
-                            ", but stiffmd has no Coulomb interactions: the charges would be lost; set the q column "
-                            "to 0 (or use atom_style molecular) to run without them");
+                            "; expected a finite charge (in units of e)");
   const bool use_velocities = t->boolean("velocities", true);
   t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
   // Particle types: a LAMMPS type maps to a deck type; masses must agree.
@@ -287,6 +286,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   const Eigen::Matrix3Xd v =
       use_velocities ? Eigen::Matrix3Xd(sc.units.velocity_in(1.0) * in.v) : Eigen::Matrix3Xd::Zero(3, n);
   const int first = append_particles(sc, in.x, v, type, in.molecule);
+  for (size_t k = 0; k < in.charge.size(); ++k) sc.charge[first + k] = in.charge[k];
   sc.sources.push_back({first, n, t->where() + " " + t->string(file_key)});
   // The file's type numbers, kept per scene type so that a data file written back numbers them
   // alike (several LAMMPS types mapped to one name: the smallest).
