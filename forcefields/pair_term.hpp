@@ -205,6 +205,7 @@ class PairTerm final : public ForceTerm,
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   std::int64_t listed_pairs() const override { return static_cast<std::int64_t>(list_.num_pairs()); }
   bool uses_neighbor_list() const override { return true; }
+  bool uses_charges() const override { return kCharged; }
   // A charged term on particles other than its own takes charges it does not know: only on none
   // (a decomposed run's term on the pair set, which move_to then gives their charges).
   std::unique_ptr<ForceTerm> on_particles(std::vector<int> types, const std::vector<Bond>& bonds,
@@ -213,13 +214,17 @@ class PairTerm final : public ForceTerm,
       pair_detail::fail(name(), Kernel::kStyle, "a charged pair term on other particles needs their charges");
     return copy_on(std::move(types), {}, bonds, box);
   }
-  // The pairs among the subset's particles: its types, its charges (this term's of the subset's
-  // particles, subset.global), the special pairs of its bonds; the tail correction's whole-system
-  // type counts and the Ewald splitting as this term's.
+  // The pairs among the subset's particles: its types, its charges (subset.charges; without them
+  // this term's of the subset's particles, subset.global), the special pairs of its bonds; the tail
+  // correction's whole-system type counts and the Ewald splitting as this term's.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override {
     std::vector<double> q;
-    if constexpr (kCharged)
-      for (const int g : subset.global) q.push_back(charges_.at(static_cast<std::size_t>(g)));
+    if constexpr (kCharged) {
+      if (subset.charges.size() == subset.global.size())
+        q.assign(subset.charges.begin(), subset.charges.end());
+      else
+        for (const int g : subset.global) q.push_back(charges_.at(static_cast<std::size_t>(g)));
+    }
     return copy_on(std::vector<int>(subset.types.begin(), subset.types.end()), std::move(q), subset.topology.bonds,
                    box);
   }

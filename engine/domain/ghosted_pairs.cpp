@@ -20,12 +20,17 @@ SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_par
 }
 
 GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
-                           const SpecialPartners& special, GhostedPairs* old)
+                           std::span<const double> charges, const SpecialPartners& special, GhostedPairs* old)
     : ForceTerm(whole_term.name(), whole_term.level()),
       template_(whole_term),
       domains_(domains),
       whole_types_(types),
+      whole_charges_(whole_term.uses_charges() ? charges : std::span<const double>()),
       whole_special_(special) {
+  if (whole_term.uses_charges() && charges.size() != types.size())
+    throw std::invalid_argument("GhostedPairs: term '" + name() + "' reads charges, but " +
+                                std::to_string(charges.size()) + " were given for " + std::to_string(types.size()) +
+                                " particles");
   if (!template_.uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
   if (old) {  // the old part's term on the pair set, its list's buffers with it
     extended_ = std::move(old->extended_);
@@ -36,12 +41,10 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
     types_ = std::move(old->types_);
     charges_ = std::move(old->charges_);
     special_ = std::move(old->special_);
-    whole_charges_ = old->whole_charges_;
     return;
   }
   extended_ = template_.on_particles({}, {}, domains.box());
   extended_pairs_ = extended_ ? dynamic_cast<PairsOnParticles*>(extended_.get()) : nullptr;
-  if (const auto* whole = dynamic_cast<const PairsOnParticles*>(&template_)) whole_charges_ = whole->charges();
   if (!extended_pairs_)
     throw std::invalid_argument("GhostedPairs: term '" + name() + "' cannot act on other particles");
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
