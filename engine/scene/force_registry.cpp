@@ -571,8 +571,8 @@ SpecialWeights read_weights(DeckTable& t, const char* key, bool allow_two) {
 }
 
 // The special-bond weights of a pair term: `special_bonds` (both the van der Waals and the Coulomb
-// weights: a list [w12, w13(, w14)] or a LAMMPS preset name), then `special_lj` and, for a charged
-// style, `special_coul` ([w12, w13, w14] each) over it.
+// weights: a list [w12, w13(, w14)] or a LAMMPS preset name), then, for a charged style,
+// `special_lj` and `special_coul` ([w12, w13, w14] each) over it.
 std::pair<SpecialWeights, SpecialWeights> read_special_bonds(DeckTable& t, bool charged) {
   SpecialWeights lj, coul;
   if (t.has("special_bonds")) {
@@ -590,7 +590,7 @@ std::pair<SpecialWeights, SpecialWeights> read_special_bonds(DeckTable& t, bool 
       lj = p->lj, coul = p->coul;
     }
   }
-  if (t.has("special_lj")) lj = read_weights(t, "special_lj", false);
+  if (charged && t.has("special_lj")) lj = read_weights(t, "special_lj", false);
   if (charged && t.has("special_coul")) coul = read_weights(t, "special_coul", false);
   if (!charged) coul = lj;
   return {lj, coul};
