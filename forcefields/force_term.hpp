@@ -72,6 +72,7 @@ class ForceTerm {
   // the forces add_forces computes on the way. Default: add_forces's energy and virial().
   struct Sums {
     double energy = 0.0, virial = 0.0;
+    double coulomb = 0.0;  // the Coulomb part of energy (charged pair styles: LAMMPS's ecoul; evdwl the rest)
   };
   virtual Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const {
     const double energy = add_forces(x, box, scratch);

@@ -45,6 +45,11 @@ void check_box_for_cutoff(const Box& box, double cutoff, double skin) {
 }
 
 std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond>& bonds, SpecialWeights w) {
+  return special_pairs(num_particles, bonds, w, w);
+}
+
+std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond>& bonds, SpecialWeights w,
+                                       SpecialWeights coul) {
   if (num_particles < 0) throw std::invalid_argument("special_pairs: negative particle count");
   // Bonded partners per particle (CSR), to walk 1-2 and then 1-3 neighbours.
   std::vector<int> deg(static_cast<std::size_t>(num_particles) + 1, 0);
@@ -81,7 +86,7 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
       for (int q = p + 1; q < deg[k + 1]; ++q)  // both bonded to k: 1-3 through k
         if (partner[p] != partner[q])
           rel.push_back({std::min(partner[p], partner[q]), std::max(partner[p], partner[q]), 2});
-  if (w.w14 != 1.0)  // 1-4 about each bond j–k: a partner of j (not k) and a partner of k (not j)
+  if (w.w14 != 1.0 || coul.w14 != 1.0)  // 1-4 about each bond j–k: a partner of j (not k) and a partner of k (not j)
     for (const Bond& b : bonds)
       for (int p = deg[b.i]; p < deg[b.i + 1]; ++p)
         for (int q = deg[b.j]; q < deg[b.j + 1]; ++q) {
@@ -93,8 +98,11 @@ std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond
   std::vector<SpecialPair> out;
   for (std::size_t r = 0; r < rel.size(); ++r) {
     if (r > 0 && rel[r].i == rel[r - 1].i && rel[r].j == rel[r - 1].j) continue;
-    const double weight = rel[r].bonds_apart == 1 ? w.w12 : rel[r].bonds_apart == 2 ? w.w13 : w.w14;
-    if (weight != 1.0) out.push_back({rel[r].i, rel[r].j, weight});  // weight 1: an ordinary pair
+    const int k = rel[r].bonds_apart;
+    const double weight = k == 1 ? w.w12 : k == 2 ? w.w13 : w.w14;
+    const double weight_coul = k == 1 ? coul.w12 : k == 2 ? coul.w13 : coul.w14;
+    if (weight != 1.0 || weight_coul != 1.0)  // both 1: an ordinary pair
+      out.push_back({rel[r].i, rel[r].j, weight, weight_coul});
   }
   return out;
 }

@@ -133,16 +133,25 @@ struct SpecialWeights {
   double w14 = 1.0;
 };
 
+// A bonded pair with its weights: `weight` scales the pair energy of an uncharged style and the
+// van der Waals part of a charged one (LAMMPS special_lj), `weight_coul` the Coulomb part of a
+// charged one (special_coul; an uncharged style never reads it).
 struct SpecialPair {
   int i;  // i < j
   int j;
   double weight;
+  double weight_coul;
 };
 
 // Every pair whose special weight is not 1, sorted by (i, j), each once. A pair that is both
 // 1-2 and 1-3 (a three-membered ring) takes the 1-2 weight, as in LAMMPS. Throws
 // std::invalid_argument for a bond to a particle outside [0, num_particles) or to itself.
+// weight_coul = weight.
 std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond>& bonds, SpecialWeights w);
+// The same with separate weights (LAMMPS special_bonds lj w12 w13 w14 coul w12 w13 w14): every pair
+// with either weight not 1, `lj` giving its weight and `coul` its weight_coul.
+std::vector<SpecialPair> special_pairs(int num_particles, const std::vector<Bond>& bonds, SpecialWeights lj,
+                                       SpecialWeights coul);
 
 // Half Verlet list in CSR form: the neighbours of particle i are
 //   neighbors()[offsets()[i]] … neighbors()[offsets()[i+1] − 1],   all j > i,

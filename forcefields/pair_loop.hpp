@@ -5,6 +5,14 @@
 // with fpair = −(dE/dr)/r. For the pair d = x_i − x_j (minimum image) the force on i is
 // fpair·d and, by Newton's third law, −fpair·d on j; the pair's virial r_ij·f_ij is fpair·r².
 //
+// A charged kernel (coulomb_potentials.hpp; `static constexpr bool kCharged = true`) instead has
+//     static void eval(double r2, const Params& p, double qq, double factor_lj, double factor_coul,
+//                      double& evdwl, double& ecoul, double& fpair);
+// with qq = qqrd2e q_i q_j and the special-bond factors of the pair (LAMMPS special_lj and
+// special_coul; 1 and 1 in the listed pairs), returning the van der Waals and the Coulomb energies
+// apart (LAMMPS's evdwl and ecoul). The uncharged kernels' loop is the same code as before: the
+// charged path is a compile-time branch.
+//
 // What a call accumulates (forces, virial) and whether the box is periodic are template
 // parameters, so the inner loop carries no run-time branch for them. The loop reads only its
 // arguments — no hidden state — and works on a range of rows, so that the OpenMP version gives
@@ -85,9 +93,32 @@ class TypePairMatrix {
   std::vector<char> given_;
 };
 
+// A kernel that takes the charges (see the top).
+template <class Kernel>
+concept ChargedKernel = requires {
+  requires Kernel::kCharged;
+};
+// A charged kernel whose Coulomb part is the real-space half of an Ewald sum (coul/long): the
+// pairs excluded by special bonds (both weights 0) are evaluated too within the cutoff, for the
+// reciprocal sum's interaction of them that the pair term subtracts (LAMMPS: excluded pairs stay
+// in the neighbour list when a kspace style is defined).
+template <class Kernel>
+concept EwaldKernel = requires {
+  requires Kernel::kLong;
+};
+
+// The charges a charged kernel reads: q[i] per particle (in e), qqrd2e the Coulomb constant in the
+// run's units (Units::coulomb: 332.06371 kcal Å/(mol e²) in real units, 1 in lj). Unused by the
+// uncharged kernels.
+struct PairCharges {
+  const double* q = nullptr;
+  double qqrd2e = 1.0;
+};
+
 struct PairSums {
-  double energy = 0.0;  // Σ E over the pairs
-  double virial = 0.0;  // Σ r_ij · f_ij over the pairs
+  double energy = 0.0;   // Σ E over the pairs
+  double coulomb = 0.0;  // of which the Coulomb part (charged kernels: LAMMPS's ecoul; the rest is evdwl)
+  double virial = 0.0;   // Σ r_ij · f_ij over the pairs
   // With kForces and kVirial (the barostat's pass, integrators/barostat.hpp): the virial tensor's
   // diagonal Σ (r_ij)_a (f_ij)_a, summed exactly, each pair as two halves (one per particle: a
   // pair with a ghost counts one, its owner's rank the other), so that its value does not depend on
@@ -114,7 +145,8 @@ inline void add_pair_diagonal(ExactDiagonal& w, double fpair, double dx, double 
 template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
                               const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                              const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f) {
+                              const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f,
+                              const PairCharges& charges = {}) {
   using Params = typename Kernel::Params;
   const double* xp = xw.data();
   const std::int64_t* offset = list.offsets().data();
@@ -125,6 +157,8 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
     const bool i_ghost = ghost && ghost[i];
     const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
     const Params* prow = params.row(type[i]);
+    [[maybe_unused]] double qi = 0.0;  // qqrd2e q_i (charged kernels), as LAMMPS forms qqrd2e q_i q_j
+    if constexpr (ChargedKernel<Kernel>) qi = charges.qqrd2e * charges.q[i];
     double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i summed in registers, stored once per row
     for (std::int64_t k = offset[i]; k < offset[i + 1]; ++k) {
       const int j = nbr[k];
@@ -137,16 +171,26 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       // branch around eval — measured ~1.5× faster on a dense liquid.
       const double inside = r2 < p.rc2 ? 1.0 : 0.0;
       double e = 0.0, fpair = 0.0;
-      Kernel::eval(r2, p, e, fpair);
+      [[maybe_unused]] double ecoul = 0.0;
+      if constexpr (ChargedKernel<Kernel>) {
+        double evdwl = 0.0;
+        Kernel::eval(r2, p, qi * charges.q[j], 1.0, 1.0, evdwl, ecoul, fpair);
+        e = evdwl + ecoul;
+        ecoul *= inside;
+      } else {
+        Kernel::eval(r2, p, e, fpair);
+      }
       e *= inside;
       fpair *= inside;
       if constexpr (kShares) {
         const double share = ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0;
         sums.energy += share * e;
+        if constexpr (ChargedKernel<Kernel>) sums.coulomb += share * ecoul;
         if constexpr (kVirial) sums.virial += share * (fpair * r2);
         if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
       } else {
         sums.energy += e;
+        if constexpr (ChargedKernel<Kernel>) sums.coulomb += ecoul;
         if constexpr (kVirial) sums.virial += fpair * r2;
         if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
       }
@@ -173,11 +217,14 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
 // by w. They are kept out of the Verlet list, so they are looked at every call — a short list
 // (at most a few per particle), and the common case w12 = 0, w13 = 1 has none. ghost (kShares):
 // as in accumulate_pair_rows, a pair with a ghost counts half in the sums (null: every pair whole).
+// A charged kernel gets the pair's two weights as its factors (SpecialPair::weight, weight_coul)
+// and scales its energies itself; the pairs handed in are those the term evaluates (with an
+// EwaldKernel the excluded ones too).
 template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
                                  const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                                  const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f,
-                                 const char* ghost = nullptr) {
+                                 const char* ghost = nullptr, const PairCharges& charges = {}) {
   using Params = typename Kernel::Params;
   const double* xp = x.data();
   PairSums sums;
@@ -189,15 +236,25 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
     const Params& p = params.row(type[i])[type[j]];
     if (!(r2 < p.rc2)) continue;
     double e = 0.0, fpair = 0.0;
-    Kernel::eval(r2, p, e, fpair);
-    fpair *= sp.weight;
+    [[maybe_unused]] double ecoul = 0.0;
+    if constexpr (ChargedKernel<Kernel>) {
+      double evdwl = 0.0;
+      Kernel::eval(r2, p, charges.qqrd2e * charges.q[i] * charges.q[j], sp.weight, sp.weight_coul, evdwl, ecoul, fpair);
+      e = evdwl + ecoul;
+    } else {
+      Kernel::eval(r2, p, e, fpair);
+      fpair *= sp.weight;
+      e *= sp.weight;
+    }
     if constexpr (kShares) {
       const double share = ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0;
-      sums.energy += share * (sp.weight * e);
+      sums.energy += share * e;
+      if constexpr (ChargedKernel<Kernel>) sums.coulomb += share * ecoul;
       if constexpr (kVirial) sums.virial += share * (fpair * r2);
       if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
     } else {
-      sums.energy += sp.weight * e;
+      sums.energy += e;
+      if constexpr (ChargedKernel<Kernel>) sums.coulomb += ecoul;
       if constexpr (kVirial) sums.virial += fpair * r2;
       if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
     }
@@ -296,7 +353,7 @@ template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                                        const Eigen::Matrix3Xd& xl, const NearestImage& near, double* f,
-                                       PairScratch& scratch) {
+                                       PairScratch& scratch, const PairCharges& charges = {}) {
   const int n = list.num_particles();
   const std::span<const std::int64_t> offset = list.offsets();
   const std::int64_t pairs = offset[n];
@@ -333,7 +390,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
       }
     }
     scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(list, first, last, params,
-                                                                                         type, xw, near, fu);
+                                                                                         type, xw, near, fu, charges);
   });
   scratch.touched_build = list.build_id();
   scratch.touched_parts = parts;
@@ -353,6 +410,7 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   PairSums total;
   for (int u = 0; u < parts; ++u) {
     total.energy += scratch.sums[u].energy;
+    total.coulomb += scratch.sums[u].coulomb;
     total.virial += scratch.sums[u].virial;
     total.diagonal.add(scratch.sums[u].diagonal);
   }
@@ -365,7 +423,8 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
 template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
 PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
-                          const Eigen::Matrix3Xd& x, const Box& box, double* f, PairScratch& scratch) {
+                          const Eigen::Matrix3Xd& x, const Box& box, double* f, PairScratch& scratch,
+                          const PairCharges& charges = {}) {
   const int n = list.num_particles();
   const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
   const bool periodic = box.any_periodic();
@@ -373,15 +432,15 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   PairSums listed;
   if (parts > 1) {  // each part copies the wrapped positions it reads
     listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch)
+                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges)
                       : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch);
+                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges);
   } else {
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
       listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
-                                                                                        NearestImage(box), f)
+                                                                                        NearestImage(box), f, charges)
                         : accumulate_pair_rows<Kernel, false, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
-                                                                                         NearestImage(box), f);
+                                                                                         NearestImage(box), f, charges);
     });
   }
   // The scaled pairs round the separations of the wrapped positions (MinimumImage): they are few,
@@ -390,9 +449,10 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   // give the same bits.
   const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares>(
       scaled, params, type, xl, MinimumImage(box), f,
-      kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr);
+      kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr, charges);
   PairSums total;
   total.energy = listed.energy + special.energy;
+  total.coulomb = listed.coulomb + special.coulomb;
   total.virial = listed.virial + special.virial;
   total.diagonal.add(listed.diagonal);
   total.diagonal.add(special.diagonal);

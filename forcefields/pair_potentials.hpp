@@ -60,6 +60,19 @@ struct LennardJonesParams {
   }
 };
 
+// LAMMPS pair_lj_cut's long-range tail (pair_modify tail yes; init_one) of one type pair, without the
+// type counts N_a N_b:
+//   etail_ab = 8π ε σ⁶ (σ⁶ − 3 rc⁶) / (9 rc⁹),   ptail_ab = 16π ε σ⁶ (2σ⁶ − 3 rc⁶) / (9 rc⁹);
+// the energy is Σ_ab N_a N_b etail_ab / V, each diagonal component of the virial Σ N_a N_b ptail_ab / V
+// (the sums over ordered type pairs). A kernel with `tail(c, e, p)` offers it (PairTerm::set_tail).
+inline void lennard_jones_tail(double epsilon, double sigma, double rc, double& e, double& p) {
+  const double sig2 = sigma * sigma, sig6 = sig2 * sig2 * sig2;
+  const double rc3 = rc * rc * rc, rc6 = rc3 * rc3, rc9 = rc3 * rc6;
+  const double prefactor = 8.0 * std::numbers::pi * epsilon * sig6 / (9.0 * rc9);
+  e = prefactor * (sig6 - 3.0 * rc6);
+  p = 2.0 * prefactor * (2.0 * sig6 - 3.0 * rc6);
+}
+
 // `lj`: E = 4ε[(σ/r)¹² − (σ/r)⁶] − E(rc) for r < rc, 0 beyond (LAMMPS lj/cut with
 // pair_modify shift yes). The force is not shifted: it jumps by F(rc) at the cutoff.
 struct LennardJones {
@@ -83,6 +96,7 @@ struct LennardJones {
     r.add("sigma", c.sigma);
     r.add("rc", c.rc);
   }
+  static void tail(const Coeffs& c, double& e, double& p) { lennard_jones_tail(c.epsilon, c.sigma, c.rc, e, p); }
   static void eval(double r2, const Params& p, double& e, double& fpair) { Params::eval(r2, p, e, fpair); }
 };
 

@@ -42,12 +42,45 @@ void check_pair_inputs(const std::string& name, std::string_view style, const st
 }
 
 std::vector<SpecialPair> special_pairs_of(const std::string& name, std::string_view style, int n,
-                                          const std::vector<Bond>& bonds, SpecialWeights weights) {
+                                          const std::vector<Bond>& bonds, SpecialWeights weights, SpecialWeights coul) {
   try {
-    return special_pairs(n, bonds, weights);
+    return special_pairs(n, bonds, weights, coul);
   } catch (const std::invalid_argument& e) {
     fail(name, style, e.what());
   }
+}
+
+std::string number_text(double v) {
+  std::ostringstream s;
+  s.precision(17);
+  s << v;
+  double back = 0.0;
+  for (int digits = 1; digits <= 17; ++digits) {  // the shortest that reads back
+    std::ostringstream t;
+    t.precision(digits);
+    t << v;
+    std::istringstream(t.str()) >> back;
+    if (back == v) return t.str();
+  }
+  return s.str();
+}
+
+void check_electrostatics(const std::string& name, std::string_view style, const Electrostatics& e,
+                          std::size_t particles) {
+  for (const auto& [what, w] :
+       {std::pair{"coul w12", e.coul.w12}, std::pair{"coul w13", e.coul.w13}, std::pair{"coul w14", e.coul.w14}})
+    if (!(w >= 0.0 && w <= 1.0)) {
+      std::ostringstream s;
+      s << "special-bond weight " << what << " must be in [0, 1] (got " << w << ")";
+      fail(name, style, s.str());
+    }
+  if (!(e.qqrd2e > 0.0) || !std::isfinite(e.qqrd2e)) fail(name, style, "the Coulomb constant qqrd2e must be > 0");
+  if (e.charges.size() != particles)
+    fail(name, style,
+         std::to_string(e.charges.size()) + " charges for " + std::to_string(particles) +
+             " particles: a charged style needs one per particle");
+  for (std::size_t i = 0; i < particles; ++i)
+    if (!std::isfinite(e.charges[i])) fail(name, style, "particle " + std::to_string(i) + " has a non-finite charge");
 }
 
 void check_sizes(const std::string& name, std::string_view style, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f,

@@ -18,6 +18,8 @@ CASE is one of
     migrate                   the same, a field driving the chains across the domains: molecules migrate
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
+    trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
+                              special_coul [0, 0.3, 0.6]): the charges follow the beads onto the pair sets
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     pinned_cores              tests/decks/pinned_cores.toml, the effective dynamics: molecules whose pinned
@@ -262,6 +264,11 @@ def case_setup(case):
         return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {}
     if case == "trappe:scaled":  # 1-3 and 1-4 pairs at half weight: the scaled special pairs
         return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {"forces.lj.special_bonds": "[0.0, 0.5, 0.5]"}
+    if case == "trappe:charged":  # charges that follow the beads: lj/cut/coul/debye, its own Coulomb weights
+        return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {
+            "types.CH3.charge": "0.22", "types.CH2.charge": "-0.02", "forces.lj.style": '"lj/cut/coul/debye"',
+            "forces.lj.kappa": "0.1", "forces.lj.special_bonds": "[0.0, 0.5, 0.5]",
+            "forces.lj.special_coul": "[0.0, 0.3, 0.6]"}
     if case == "one_chain":  # one molecule: every rank but one owns nothing
         return os.path.join(ROOT, "inputs", "hanging_chain.toml"), 0.01, {}
     if case == "pinned_cores":  # a pinned bead splits a molecule into two constraint clusters
@@ -269,7 +276,7 @@ def case_setup(case):
     if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
         return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest[:threads], stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled], one_chain, pinned_cores, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled|:charged], one_chain, pinned_cores, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing

@@ -466,7 +466,7 @@ TEST(GhostPairs, TermMovedOntoAParticleSetIsTheTermBuiltThere) {
       moved_term->add_forces(from->x, from->box, f_before);  // its list built on the first set
       const std::vector<int> types(to->size(), 0);
       const std::vector<SpecialPair> special = special_pairs(to->size(), to->bonds, kWeights);
-      moved_term->move_to(types, special, to->ghost);
+      moved_term->move_to(types, {}, special, to->ghost);
       const auto built = moved_term->on_particles(types, to->bonds, to->box);
       built->set_ghosts(to->ghost);
       Eigen::Matrix3Xd f_moved = Eigen::Matrix3Xd::Zero(3, to->size());
@@ -497,7 +497,7 @@ TEST(GhostPairs, MoveRefusesATypeOutsideTheCoefficients) {
   const auto term = lj_term(s);
   std::vector<int> types(s.size(), 0);
   types[7] = 1;
-  EXPECT_THROW(term->move_to(types, {}, {}), std::invalid_argument);
+  EXPECT_THROW(term->move_to(types, {}, {}, {}), std::invalid_argument);
 }
 
 }  // namespace

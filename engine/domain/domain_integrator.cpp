@@ -199,7 +199,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     if (k >= special_.size() || !special_[k])
       throw std::logic_error("a part's pair term '" + term.name() + "' is not the whole system's");
     GhostedPairs* old = part_ && part->pairs.size() < part_->pairs.size() ? part_->pairs[part->pairs.size()] : nullptr;
-    auto ghosted = std::make_unique<GhostedPairs>(*w.forces->terms()[k], *domains_, w.particle_type, *special_[k], old);
+    auto ghosted =
+        std::make_unique<GhostedPairs>(*w.forces->terms()[k], *domains_, w.particle_type, w.charge, *special_[k], old);
     part->pairs.push_back(ghosted.get());
     p.forces->replace(k, std::move(ghosted));
   }

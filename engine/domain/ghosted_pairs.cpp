@@ -11,20 +11,26 @@ SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_par
   for (int g = 0; g < num_particles; ++g) start[g + 1] += start[g];
   partner.resize(start.back());
   weight.resize(start.back());
+  weight_coul.resize(start.back());
   std::vector<int> next(start.begin(), start.end() - 1);
   for (const SpecialPair& p : pairs) {
-    partner[next[p.i]] = p.j, weight[next[p.i]++] = p.weight;
-    partner[next[p.j]] = p.i, weight[next[p.j]++] = p.weight;
+    partner[next[p.i]] = p.j, weight[next[p.i]] = p.weight, weight_coul[next[p.i]++] = p.weight_coul;
+    partner[next[p.j]] = p.i, weight[next[p.j]] = p.weight, weight_coul[next[p.j]++] = p.weight_coul;
   }
 }
 
 GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
-                           const SpecialPartners& special, GhostedPairs* old)
+                           std::span<const double> charges, const SpecialPartners& special, GhostedPairs* old)
     : ForceTerm(whole_term.name(), whole_term.level()),
       template_(whole_term),
       domains_(domains),
       whole_types_(types),
+      whole_charges_(whole_term.uses_charges() ? charges : std::span<const double>()),
       whole_special_(special) {
+  if (whole_term.uses_charges() && charges.size() != types.size())
+    throw std::invalid_argument("GhostedPairs: term '" + name() + "' reads charges, but " +
+                                std::to_string(charges.size()) + " were given for " + std::to_string(types.size()) +
+                                " particles");
   if (!template_.uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
   if (old) {  // the old part's term on the pair set, its list's buffers with it
     extended_ = std::move(old->extended_);
@@ -33,6 +39,7 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
     rebuilds_before_ = extended_->neighbor_list_rebuilds();
     selection_ = old->selection_;
     types_ = std::move(old->types_);
+    charges_ = std::move(old->charges_);
     special_ = std::move(old->special_);
     return;
   }
@@ -77,6 +84,9 @@ void GhostedPairs::retarget() const {
   const int n = static_cast<int>(ids.size());
   types_.resize(n);
   for (int e = 0; e < n; ++e) types_[e] = whole_types_[ids[e]];
+  // A charged term's charges follow the beads as their types do.
+  charges_.resize(whole_charges_.empty() ? 0 : n);
+  for (int e = 0; e < static_cast<int>(charges_.size()); ++e) charges_[e] = whole_charges_[ids[e]];
   // The special pairs of the whole system with a home bead here and both beads in the pair set: a
   // home bead's partners within R are all here, and a pair of two halo beads is not evaluated.
   // Made in (i, j) order: by slot i, then its partners j > i sorted (a handful).
@@ -87,12 +97,15 @@ void GhostedPairs::retarget() const {
     const size_t first = special_.size();
     for (int q = s.start[g]; q < s.start[g + 1]; ++q) {
       const int t = domains_.pair_slot(s.partner[q]);
-      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q]});
+      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
     std::sort(special_.begin() + static_cast<std::ptrdiff_t>(first), special_.end(),
               [](const SpecialPair& a, const SpecialPair& b) { return a.j < b.j; });
   }
-  extended_pairs_->move_to(types_, special_, halo);
+  extended_pairs_->move_to(types_, charges_, special_, halo);
+  // The whole tail correction on the rank home to particle 0, none on the others.
+  const int slot0 = whole_types_.empty() ? -1 : domains_.pair_slot(0);
+  extended_pairs_->set_tail_share(slot0 >= 0 && !halo[slot0] ? 1.0 : 0.0);
 }
 
 void GhostedPairs::update_list(const Eigen::Matrix3Xd& x, const Box& box) {

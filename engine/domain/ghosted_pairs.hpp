@@ -25,11 +25,11 @@
 namespace stiffmd {
 
 // The special pairs of a pair term over the whole system, by particle: the partners of particle g
-// are partner[start[g] … start[g + 1]), with their weights.
+// are partner[start[g] … start[g + 1]), with their weights (SpecialPair::weight, weight_coul).
 struct SpecialPartners {
   SpecialPartners(std::span<const SpecialPair> pairs, int num_particles);
   std::vector<int> start, partner;
-  std::vector<double> weight;
+  std::vector<double> weight, weight_coul;
 };
 
 class GhostedPairs final : public ForceTerm {
@@ -39,8 +39,10 @@ class GhostedPairs final : public ForceTerm {
   // whole system's special pairs of this term. All must outlive the term. `old`: a part built
   // again (molecules migrated) takes the old part's term on the pair set over, and so its list's
   // buffers (the same deck term); null: a new one.
+  // `charges`: every particle's charge, by global index, for a term that uses_charges (empty for
+  // the others), which follow the beads onto the pair set as their types do.
   GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
-               const SpecialPartners& special, GhostedPairs* old = nullptr);
+               std::span<const double> charges, const SpecialPartners& special, GhostedPairs* old = nullptr);
 
   // The neighbour list on the pair set brought up to date for the owned positions x (collective),
   // as one process builds its list before the step loop.
@@ -55,6 +57,7 @@ class GhostedPairs final : public ForceTerm {
   // has the other half), so the ranks' shares add up to the whole system's energy and virial.
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
   bool uses_neighbor_list() const override { return true; }
+  bool uses_charges() const override { return template_.uses_charges(); }
   double pair_cutoff() const override { return template_.pair_cutoff(); }
   double pair_skin() const override { return template_.pair_skin(); }
   // The rebuilds while this term held the pair set's.
@@ -78,12 +81,14 @@ class GhostedPairs final : public ForceTerm {
   PairsOnParticles* extended_pairs_ = nullptr;  // extended_'s
   Decomposition& domains_;
   std::span<const int> whole_types_;
+  std::span<const double> whole_charges_;  // the scene's, empty for a term that reads no charges
   const SpecialPartners& whole_special_;
   long rebuilds_before_ = 0;  // of extended_ when this term took it over
   // The pair set this term was last moved onto (Decomposition::selections), its particles' types
   // and special pairs.
   mutable long selection_ = -1;
   mutable std::vector<int> types_;
+  mutable std::vector<double> charges_;
   mutable std::vector<SpecialPair> special_;
   mutable Eigen::Matrix3Xd x_, f_;
 };

@@ -17,6 +17,7 @@
 #include "forcefields/bond_term.hpp"
 #include "forcefields/charmm_terms.hpp"
 #include "forcefields/coefficients.hpp"
+#include "forcefields/coulomb_potentials.hpp"
 #include "forcefields/dihedral_terms.hpp"
 #include "forcefields/external_terms.hpp"
 #include "forcefields/gravity.hpp"
@@ -763,7 +764,8 @@ constexpr double kCoreFraction = 0.5;
 template <class Kernel>
 double overlap_distance(const typename Kernel::Coeffs& c) {
   double d = kOverlapFraction * Kernel::cutoff(c);
-  if constexpr (requires { c.sigma; }) d = std::max(d, kCoreFraction * c.sigma);
+  if constexpr (requires { c.sigma; })
+    if (!requires { c.epsilon; } || c.epsilon > 0.0) d = std::max(d, kCoreFraction * c.sigma);
   return d;
 }
 
@@ -894,6 +896,75 @@ std::string lammps_pair(const Yukawa::Coeffs& c, std::string& row) {
   row = numbers({c.A, c.rc});
   return "yukawa";
 }
+// The charged styles: LAMMPS's own names; PairIJ Coeffs rows as pair_coeff i j takes them.
+std::string lammps_pair(const CoulombCut::Coeffs& c, std::string& row) {
+  row = numbers({c.coulomb_cutoff});
+  return "coul/cut";
+}
+std::string lammps_pair(const CoulombDebye::Coeffs& c, std::string& row) {
+  row = numbers({c.coulomb_cutoff});
+  return "coul/debye";
+}
+std::string lammps_pair(const CoulombLong::Coeffs&, std::string& row) {
+  row.clear();
+  return "coul/long";
+}
+std::string lammps_pair(const LjCoulCoeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, c.rc, c.coulomb_cutoff});
+  return "";  // lj/cut/coul/*: the caller names it
+}
+std::string lammps_pair(const LjCharmmCoulLong::Coeffs& c, std::string& row) {
+  row = numbers({c.epsilon, c.sigma, c.epsilon14, c.sigma14});
+  return "lj/charmm/coul/long";
+}
+
+// LAMMPS special_bonds presets (special_bonds amber, charmm, dreiding, fene): {lj, coul}.
+struct SpecialBondsPreset {
+  const char* name;
+  SpecialWeights lj, coul;
+};
+constexpr SpecialBondsPreset kSpecialPresets[] = {
+    {"amber", {0.0, 0.0, 0.5}, {0.0, 0.0, 5.0 / 6.0}},
+    {"charmm", {0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}},
+    {"dreiding", {0.0, 0.0, 1.0}, {0.0, 0.0, 1.0}},
+    {"fene", {0.0, 1.0, 1.0}, {0.0, 1.0, 1.0}},
+};
+
+// Three weights w12, w13(, w14) in 0..1 from a list key.
+SpecialWeights read_weights(DeckTable& t, const char* key, bool allow_two) {
+  const auto sb = t.numbers(key);
+  const bool in_range = std::all_of(sb.begin(), sb.end(), [](double x) { return x >= 0 && x <= 1; });
+  if (!((sb.size() == 3) || (allow_two && sb.size() == 2)) || !in_range)
+    t.fail(key, std::string(allow_two ? "expected [w12, w13] or [w12, w13, w14]" : "expected [w12, w13, w14]") +
+                    ", weights in 0..1");
+  return {sb[0], sb[1], sb.size() == 3 ? sb[2] : 1.0};
+}
+
+// The special-bond weights of a pair term: `special_bonds` (both the van der Waals and the Coulomb
+// weights: a list [w12, w13(, w14)] or a LAMMPS preset name), then, for a charged style,
+// `special_lj` and `special_coul` ([w12, w13, w14] each) over it.
+std::pair<SpecialWeights, SpecialWeights> read_special_bonds(DeckTable& t, bool charged) {
+  SpecialWeights lj, coul;
+  if (t.has("special_bonds")) {
+    if (t.is_array("special_bonds")) {
+      lj = coul = read_weights(t, "special_bonds", true);
+    } else {
+      const std::string preset = t.string("special_bonds");
+      const auto* p = std::find_if(std::begin(kSpecialPresets), std::end(kSpecialPresets),
+                                   [&](const SpecialBondsPreset& q) { return preset == q.name; });
+      if (p == std::end(kSpecialPresets))
+        t.fail("special_bonds",
+               "expected [w12, w13(, w14)] or one of \"amber\", \"charmm\", \"dreiding\", "
+               "\"fene\" (LAMMPS special_bonds presets), got \"" +
+                   preset + "\"");
+      lj = p->lj, coul = p->coul;
+    }
+  }
+  if (charged && t.has("special_lj")) lj = read_weights(t, "special_lj", false);
+  if (charged && t.has("special_coul")) coul = read_weights(t, "special_coul", false);
+  if (!charged) coul = lj;
+  return {lj, coul};
+}
 
 // `defaults`: the term's values where its table gives none; a [[pair]] override starts from the
 // pair's values (the term's global epsilon, sigma, …, or the mixed ones), not from the defaults;
@@ -909,7 +980,7 @@ template <class Kernel, class ReadCoeffs, class MixCoeffs = NoMixing>
 std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckTable& t, TermContext& ctx,
                                      ReadCoeffs read_coeffs, const char* range_key,
                                      typename Kernel::Coeffs defaults = typename Kernel::Coeffs{},
-                                     MixCoeffs mix_coeffs = {}) {
+                                     MixCoeffs mix_coeffs = {}, const char* default_mix = "geometric") {
   using Coeffs = typename Kernel::Coeffs;
   const Scene& sc = ctx.scene;
   const int ntypes = static_cast<int>(sc.types.size());
@@ -920,7 +991,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   if constexpr (std::is_same_v<MixCoeffs, NoMixing>) {
     (void)mix_coeffs;
   } else if (auto per_type = t.table("types")) {
-    const std::string rule = t.string("mix", "geometric");
+    const std::string rule = t.string("mix", default_mix);
     if (rule != "geometric" && rule != "arithmetic")
       t.fail("mix", "expected \"geometric\" or \"arithmetic\" (LAMMPS pair_modify mix), got \"" + rule + "\"");
     const Mix m = rule == "geometric" ? Mix::geometric : Mix::arithmetic;
@@ -962,18 +1033,13 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     coeffs.set(ab[0], ab[1], read_coeffs(p, coeffs(ab[0], ab[1])));
     p.finish();
   }
-  // LAMMPS special_bonds lj w12 w13 w14: the weight of 1-2, 1-3 and 1-4 bonded pairs (default:
-  // bonded neighbours do not interact, 1-3 and 1-4 pairs do).
-  SpecialWeights w;
-  if (t.has("special_bonds")) {
-    const auto sb = t.numbers("special_bonds");
-    const bool in_range = std::all_of(sb.begin(), sb.end(), [](double x) { return x >= 0 && x <= 1; });
-    if ((sb.size() != 2 && sb.size() != 3) || !in_range)
-      t.fail("special_bonds", "expected [w12, w13] or [w12, w13, w14], weights in 0..1");
-    w.w12 = sb[0];
-    w.w13 = sb[1];
-    if (sb.size() == 3) w.w14 = sb[2];
-  }
+  // LAMMPS special_bonds lj w12 w13 w14 (coul w12 w13 w14): the weights of 1-2, 1-3 and 1-4 bonded
+  // pairs (default: bonded neighbours do not interact, 1-3 and 1-4 pairs do).
+  const auto [w, w_coul] = read_special_bonds(t, ChargedKernel<Kernel>);
+  constexpr bool kTail = PairTerm<Kernel>::kHasTail;
+  const bool tail = kTail && t.boolean("tail", false);
+  if (tail && !(sc.box.periodic[0] && sc.box.periodic[1] && sc.box.periodic[2]))
+    t.fail("tail", "the tail correction (LAMMPS pair_modify tail yes) needs a box periodic on every axis");
   const double skin = read(t, "skin", kSkin, 0.3);
   check_box_for_pairs<Kernel>(t, coeffs, skin, sc, range_key);
   // Special bonds list the 1-3 pairs through every particle: deg·(deg − 1)/2 of them. A hub with
@@ -986,8 +1052,24 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
         t.fail_here("particle " + std::to_string(i) + " has more than " + std::to_string(kMaxBondsPerParticle) +
                     " bonds; a pair term's special bonds (its 1-3 pairs) allow at most that many per particle");
   std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
-  auto term =
-      std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin);
+  Electrostatics electrostatics;
+  if constexpr (ChargedKernel<Kernel>) {
+    if (!sc.charged())
+      t.fail_here("pair style " + std::string(Kernel::kStyle) +
+                  " needs charges; every particle of this scene has charge 0 (give them in [[particles]] charge, "
+                  "[types.NAME] charge or an [import] of atom_style full)");
+    electrostatics = {sc.charge, sc.units.coulomb, w_coul};
+  }
+  std::unique_ptr<PairTerm<Kernel>> term;
+  try {
+    term = std::make_unique<PairTerm<Kernel>>(name, level, std::move(types), coeffs, sc.topology.bonds, w, sc.box, skin,
+                                              std::move(electrostatics));
+  } catch (const std::invalid_argument& e) {
+    if constexpr (EwaldKernel<Kernel>)  // the one Coulomb cutoff an Ewald sum needs
+      if (std::string(e.what()).find("Coulomb cutoff") != std::string::npos) t.fail("coulomb_cutoff", e.what());
+    throw;
+  }
+  if (tail) term->set_tail(true);
   check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);  // the term accepted the coefficients
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
@@ -999,6 +1081,13 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
       for (int a = 0; a < ntypes; ++a)
         for (int b = a; b < ntypes; ++b)
           if (coeffs(a, b).kappa != coeffs(0, 0).kappa) style.clear();
+    if constexpr (std::is_same_v<typename Kernel::Coeffs, LjCoulCoeffs>) {
+      style = std::string(Kernel::kStyle);
+      for (int a = 0; a < ntypes; ++a)  // lj/cut/coul/long: pair_coeff i j ε σ rc_lj (its rc_coul is global)
+        for (int b = a; b < ntypes; ++b)
+          if constexpr (EwaldKernel<Kernel>)
+            section.rows[{a, b}] = numbers({coeffs(a, b).epsilon, coeffs(a, b).sigma, coeffs(a, b).rc});
+    }
     section.claim(style);
   }
   return term;
@@ -1058,6 +1147,102 @@ std::unique_ptr<ForceTerm> read_yukawa(const std::string& name, Level level, Dec
       "cutoff");
 }
 
+// The charged styles (forcefields/coulomb_potentials.hpp; LAMMPS's names). The Coulomb cutoff
+// `coulomb_cutoff` defaults to the LJ cutoff `cutoff` (a table that gives `cutoff` alone sets both, as
+// LAMMPS's pair_coeff with one cutoff); every coefficient per type pair as for lj.
+std::unique_ptr<ForceTerm> read_coul_cut(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<CoulombCut>(
+      name, level, t, ctx,
+      [](DeckTable& d, CoulombCut::Coeffs c) {
+        c.coulomb_cutoff = read(d, "coulomb_cutoff", kLength, c.coulomb_cutoff);
+        return c;
+      },
+      "coulomb_cutoff");
+}
+
+std::unique_ptr<ForceTerm> read_coul_debye(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<CoulombDebye>(
+      name, level, t, ctx,
+      [](DeckTable& d, CoulombDebye::Coeffs c) {
+        c.kappa = read(d, "kappa", kInverseLength, c.kappa);
+        c.coulomb_cutoff = read(d, "coulomb_cutoff", kLength, c.coulomb_cutoff);
+        return c;
+      },
+      "coulomb_cutoff");
+}
+
+std::unique_ptr<ForceTerm> read_coul_long(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  return read_pair<CoulombLong>(
+      name, level, t, ctx,
+      [](DeckTable& d, CoulombLong::Coeffs c) {
+        c.coulomb_cutoff = read(d, "coulomb_cutoff", kLength, c.coulomb_cutoff);
+        return c;
+      },
+      "coulomb_cutoff");
+}
+
+// lj/cut/coul/cut, lj/cut/coul/debye (kappa), lj/cut/coul/long: epsilon, sigma, cutoff (LJ),
+// coulomb_cutoff, shift (LAMMPS pair_modify shift; default false); mixed geometrically by default.
+template <class Kernel>
+std::unique_ptr<ForceTerm> read_lj_coul(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
+  LjCoulCoeffs defaults;
+  defaults.epsilon = 1.0, defaults.sigma = 1.0, defaults.rc = 2.5, defaults.coulomb_cutoff = 2.5, defaults.kappa = 1.0;
+  return read_pair<Kernel>(
+      name, level, t, ctx,
+      [](DeckTable& d, LjCoulCoeffs c) {
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);
+        c.sigma = read(d, "sigma", kLength, c.sigma);
+        const bool lj_cut_given = d.has("cutoff");
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        c.coulomb_cutoff = read(d, "coulomb_cutoff", kLength, lj_cut_given ? c.rc : c.coulomb_cutoff);
+        if constexpr (Kernel::kStyle == "lj/cut/coul/debye") c.kappa = read(d, "kappa", kInverseLength, c.kappa);
+        c.shift = d.boolean("shift", c.shift);
+        return c;
+      },
+      "cutoff", defaults,
+      [](const LjCoulCoeffs& a, const LjCoulCoeffs& b, Mix m) {
+        LjCoulCoeffs c = a;
+        c.epsilon = mix_energy(a.epsilon, b.epsilon);
+        c.sigma = mix_length(a.sigma, b.sigma, m);
+        c.rc = mix_length(a.rc, b.rc, m);
+        c.coulomb_cutoff = mix_length(a.coulomb_cutoff, b.coulomb_cutoff, m);
+        return c;
+      });
+}
+
+// lj/charmm/coul/long: epsilon, sigma, epsilon14, sigma14 (default epsilon, sigma), inner, cutoff
+// (outer), coulomb_cutoff (default the outer cutoff); mixed arithmetically by default (LAMMPS).
+std::unique_ptr<ForceTerm> read_lj_charmm_coul_long(const std::string& name, Level level, DeckTable& t,
+                                                    TermContext& ctx) {
+  return read_pair<LjCharmmCoulLong>(
+      name, level, t, ctx,
+      [](DeckTable& d, LjCharmmCoulLong::Coeffs c) {
+        const bool eps_given = d.has("epsilon"), sigma_given = d.has("sigma");
+        c.epsilon = read(d, "epsilon", kEnergy, c.epsilon);
+        c.sigma = read(d, "sigma", kLength, c.sigma);
+        c.epsilon14 = read(d, "epsilon14", kEnergy, eps_given ? c.epsilon : c.epsilon14);
+        c.sigma14 = read(d, "sigma14", kLength, sigma_given ? c.sigma : c.sigma14);
+        c.inner = read(d, "inner", kLength, c.inner);
+        const bool outer_given = d.has("cutoff");
+        c.rc = read(d, "cutoff", kLength, c.rc);
+        c.coulomb_cutoff = read(d, "coulomb_cutoff", kLength, outer_given ? c.rc : c.coulomb_cutoff);
+        d.require(c.inner < c.rc, "inner",
+                  "expected the inner cutoff " + format_number(c.inner) + " below the outer cutoff " +
+                      format_number(c.rc) + " (key cutoff)");
+        return c;
+      },
+      "cutoff", LjCharmmCoulLong::Coeffs{1.0, 1.0, 1.0, 1.0, 8.0, 10.0, 10.0},
+      [](const LjCharmmCoulLong::Coeffs& a, const LjCharmmCoulLong::Coeffs& b, Mix m) {
+        LjCharmmCoulLong::Coeffs c = a;
+        c.epsilon = mix_energy(a.epsilon, b.epsilon);
+        c.sigma = mix_length(a.sigma, b.sigma, m);
+        c.epsilon14 = mix_energy(a.epsilon14, b.epsilon14);
+        c.sigma14 = mix_length(a.sigma14, b.sigma14, m);
+        return c;
+      },
+      "arithmetic");
+}
+
 // gravity: g = [gx, gy, gz].
 std::unique_ptr<ForceTerm> read_gravity(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   return std::make_unique<Gravity>(name, level, t.vector3("g"), ctx.scene.state.inv_mass);
@@ -1091,6 +1276,19 @@ const std::vector<ForceStyle>& force_styles() {
       {"wca", "pair", Level::slow, "Weeks–Chandler–Andersen (purely repulsive LJ)", read_wca},
       {"soft", "pair", Level::slow, "soft cosine pair A[1 + cos(πr/rc)], to push overlaps apart", read_soft},
       {"yukawa", "pair", Level::slow, "screened Coulomb pair A e^(−κr)/r, cut and shifted", read_yukawa},
+      {"coul/cut", "pair", Level::slow, "Coulomb qqrd2e q_i q_j / r, cut (LAMMPS coul/cut)", read_coul_cut},
+      {"coul/debye", "pair", Level::slow, "screened Coulomb qqrd2e q_i q_j e^(−κr)/r, cut (LAMMPS coul/debye)",
+       read_coul_debye},
+      {"coul/long", "pair", Level::slow, "Ewald real-space Coulomb qqrd2e q_i q_j erfc(g r)/r (needs ewald/pppm)",
+       read_coul_long},
+      {"lj/cut/coul/cut", "pair", Level::slow, "LJ 12-6 + cut Coulomb (LAMMPS lj/cut/coul/cut)",
+       read_lj_coul<LjCutCoulCut>},
+      {"lj/cut/coul/debye", "pair", Level::slow, "LJ 12-6 + screened Coulomb (LAMMPS lj/cut/coul/debye)",
+       read_lj_coul<LjCutCoulDebye>},
+      {"lj/cut/coul/long", "pair", Level::slow, "LJ 12-6 + Ewald real-space Coulomb (needs ewald/pppm)",
+       read_lj_coul<LjCutCoulLong>},
+      {"lj/charmm/coul/long", "pair", Level::slow, "CHARMM-switched LJ + Ewald real-space Coulomb (needs ewald/pppm)",
+       read_lj_charmm_coul_long},
       {"gravity", "external", Level::slow, "uniform external field, F = m g", read_gravity},
       {"harmonic-tether", "external", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
       {"lj93-wall", "external", Level::slow, "flat LJ 9-3 wall", read_wall},
