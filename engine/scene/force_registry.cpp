@@ -13,6 +13,7 @@
 #include "core/errors.hpp"
 #include "core/format.hpp"
 #include "engine/io/lammps_data.hpp"
+#include "engine/scene/kspace_deck.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/charmm_terms.hpp"
@@ -250,8 +251,9 @@ std::vector<int> claim_kind(DeckTable& t, TermContext& ctx, const TypeKind& kind
 // stiff-harmonic's angle_types.TYPE = {theta0 (degrees), alpha}: each angle i–j–k of the type
 // made rigid by a third stiff bond i–k, as LAMMPS's fix shake/rattle `a` does (rigid water: a
 // triangle of three constraints). Its length is the law of cosines on the two arms, which must be
-// stiff bonds of this term: ℓ_ik² = ℓ_ij² + ℓ_jk² − 2 ℓ_ij ℓ_jk cos θ₀. The angle type stays the
-// angle term's (under RATTLE its energy is then a constant, as in LAMMPS). type_of gets −1 for them.
+// stiff bonds of this term: ℓ_ik² = ℓ_ij² + ℓ_jk² − 2 ℓ_ij ℓ_jk cos θ₀. The angle type needs no
+// angle term then; one may still claim it (under RATTLE its energy is a constant, as in LAMMPS).
+// type_of gets −1 for them.
 void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vector<int>& type_of) {
   auto types = t.table("angle_types");
   if (!types) return;
@@ -265,6 +267,7 @@ void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vecto
     tt.finish();
     const int k = top.angle_type_index(type_name);
     if (k < 0) continue;  // no angle of that type in this scene
+    if (ctx.rigid_angle_type) (*ctx.rigid_angle_type)[static_cast<size_t>(k)] = 1;
     const double c = std::cos(deg * std::numbers::pi / 180.0);
     for (const Angle& a : top.angles) {
       if (a.type != k) continue;
@@ -1289,6 +1292,9 @@ const std::vector<ForceStyle>& force_styles() {
        read_lj_coul<LjCutCoulLong>},
       {"lj/charmm/coul/long", "pair", Level::slow, "CHARMM-switched LJ + Ewald real-space Coulomb (needs ewald/pppm)",
        read_lj_charmm_coul_long},
+      {"ewald", "kspace", Level::slow, "Ewald reciprocal sum of the coul/long terms' charges (LAMMPS kspace ewald)",
+       read_ewald},
+      {"pppm", "kspace", Level::slow, "PPPM mesh reciprocal sum, ik differentiation (LAMMPS kspace pppm)", read_pppm},
       {"gravity", "external", Level::slow, "uniform external field, F = m g", read_gravity},
       {"harmonic-tether", "external", Level::slow, "harmonic tether ½k|x − c|²", read_tether},
       {"lj93-wall", "external", Level::slow, "flat LJ 9-3 wall", read_wall},
@@ -1303,7 +1309,7 @@ std::string list_styles() {
   };
   o << "integrator.method:\n";
   for (const MethodInfo& m : methods()) row(m.name, m.summary);
-  for (const char* kind : {"bond", "angle", "dihedral", "improper", "pair", "external"}) {
+  for (const char* kind : {"bond", "angle", "dihedral", "improper", "pair", "kspace", "external"}) {
     o << "forces.NAME.style, " << kind << (std::string_view(kind) == "external" ? " fields" : " styles") << ":\n";
     for (const ForceStyle& s : force_styles())
       if (std::string_view(s.kind) == kind) row(s.name, s.summary);

@@ -25,11 +25,14 @@ struct TermContext {
   // The pair terms' overlap finding (the closest two particles closer than the potential bears,
   // the whole error line): load_scene refuses it unless [minimize] relaxes the start.
   std::string* overlap = nullptr;
+  // Per angle type: 1 when the stiff-harmonic term makes its angles rigid (angle_types), which
+  // defines them without an angle term (one may still claim the type). Null: not recorded.
+  std::vector<char>* rigid_angle_type = nullptr;
 };
 
 struct ForceStyle {
   const char* name;
-  const char* kind;  // "bond", "angle", "dihedral", "improper", "pair" or "external": how `stiffmd list` groups it
+  const char* kind;  // "bond", "angle", "dihedral", "improper", "pair", "kspace" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);

@@ -17,6 +17,7 @@
 #include "engine/scene/force_registry.hpp"
 #include "engine/scene/scene_sources.hpp"
 #include "engine/scene/thermostat_deck.hpp"
+#include "forcefields/ewald_real_space.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/modes.hpp"
 
@@ -274,7 +275,8 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
                                   : std::make_unique<ForceField>(sc.box, sc.state.size(), level_names);
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
       dihedral_owner(sc.topology.dihedral_types.size()), improper_owner(sc.topology.improper_types.size());
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner, improper_owner, &sc.lammps_coeffs, overlap};
+  std::vector<char> rigid_angle(sc.topology.angle_types.size(), 0);
+  TermContext ctx{sc, owner, angle_owner, dihedral_owner, improper_owner, &sc.lammps_coeffs, overlap, &rigid_angle};
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;
@@ -346,7 +348,7 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
     root.fail_here(what, type_sources);
   }
   for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
-    if (angle_owner[t].empty())
+    if (angle_owner[t].empty() && !rigid_angle[t])
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
                          "' is not defined by any force term (add [forces.NAME.angle_types." +
                          sc.topology.angle_types[t] + "])",
@@ -366,6 +368,12 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
                          sc.topology.improper_types[t] + ", or coefficients = \"data\")",
                      type_sources);
   check_charges(root, sc);
+  // A coul/long term's splitting comes from the ewald or pppm term: without one it has none.
+  for (const auto& term : sc.forces->terms())
+    if (const auto* r = dynamic_cast<const EwaldRealSpace*>(term.get()); r && std::isnan(r->ewald_splitting()))
+      forces->fail(term->name(), "pair style " + std::string(term->style()) +
+                                     " is Ewald's real-space half and needs a [forces.NAME] term of style ewald or "
+                                     "pppm (its reciprocal half, which chooses the splitting parameter)");
 }
 
 void read_integrator(DeckTable& root, Scene& sc) {
