@@ -210,9 +210,7 @@ std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind
   for (size_t k = 0; k < kind.names.size() && k < kind.numbers.size(); ++k) {
     const std::vector<int>& numbers = kind.numbers[k];
     if (numbers.empty()) continue;
-    if (!kind.owner[k].empty())
-      t.fail("coefficients", std::string(kind.word) + " type '" + kind.names[k] + "' is already defined by [forces." +
-                                 kind.owner[k] + "]");
+    if (!kind.owner[k].empty()) continue;  // a term that names the type takes it (read first: scene.cpp)
     const std::vector<double> first = values_of(numbers[0]);
     for (size_t m = 1; m < numbers.size(); ++m)
       if (values_of(numbers[m]) != first)
@@ -229,6 +227,11 @@ std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind
     kind.owner[k] = term;
     index[k] = static_cast<int>(coeffs.size()) - 1;
   }
+  if (std::all_of(index.begin(), index.end(), [](int i) { return i < 0; }))
+    t.fail("coefficients",
+           "coefficients = \"data\": every " + std::string(kind.word) +
+               " type of the data file is already defined by another term; expected some left for [forces." + term +
+               "]");
   return index;
 }
 

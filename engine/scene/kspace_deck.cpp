@@ -28,8 +28,8 @@ std::vector<EwaldRealSpace*> real_space_terms(DeckTable& t, const Scene& sc, con
   for (const EwaldRealSpace* r : out)
     if (r->coulomb_cutoff() != out.front()->coulomb_cutoff())
       t.fail("style", style + ": the coul/long terms have different Coulomb cutoffs (" +
-                          format_number(out.front()->coulomb_cutoff()) + " and " +
-                          format_number(r->coulomb_cutoff()) + "); expected one, as LAMMPS's kspace styles do");
+                          format_number(out.front()->coulomb_cutoff()) + " and " + format_number(r->coulomb_cutoff()) +
+                          "); expected one, as LAMMPS's kspace styles do");
   return out;
 }
 
@@ -58,8 +58,8 @@ void read_triple(DeckTable& t, const char* key, int lo, int hi, int* out) {
   if (v.size() != 3) t.fail(key, "expected three integers [nx, ny, nz]");
   for (int a = 0; a < 3; ++a) {
     if (!(v[a] == std::floor(v[a]) && v[a] >= lo && v[a] <= hi))
-      t.fail(key, "expected integers " + std::to_string(lo) + " .. " + std::to_string(hi) + ", got " +
-                      format_number(v[a]));
+      t.fail(key,
+             "expected integers " + std::to_string(lo) + " .. " + std::to_string(hi) + ", got " + format_number(v[a]));
     out[a] = static_cast<int>(v[a]);
   }
 }
@@ -87,8 +87,9 @@ std::unique_ptr<ForceTerm> read_ewald(const std::string& name, Level level, Deck
   if (t.has("kmax")) read_triple(t, "kmax", 1, 1000, p.kmax);
   if (t.has("g_ewald") || t.has("kmax")) {  // the estimate at the parameters given
     const auto [n, q2] = charge_moments(sc);
-    p.estimated_error = std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
-                                   ewald_kspace_error(p, sc.box, n, q2));
+    p.estimated_error =
+        std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
+                   ewald_kspace_error(p, sc.box, n, q2));
   }
   for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
   return std::make_unique<EwaldSum>(name, level, sc.charge, p, sc.units.coulomb, sc.box);
@@ -112,8 +113,9 @@ std::unique_ptr<ForceTerm> read_pppm(const std::string& name, Level level, DeckT
   if (t.has("mesh")) read_triple(t, "mesh", 2, 4096, p.mesh);
   if (t.has("g_ewald") || t.has("mesh")) {
     const auto [n, q2] = charge_moments(sc);
-    p.estimated_error = std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
-                                   pppm_kspace_error(p, sc.box, n, q2));
+    p.estimated_error =
+        std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
+                   pppm_kspace_error(p, sc.box, n, q2));
   }
   for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
   return std::make_unique<ParticleParticleParticleMesh>(name, level, sc.charge, p, sc.units.coulomb, sc.box);

@@ -294,9 +294,16 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
       }
       return it;
     };
-    std::stable_partition(tables.begin(), tables.end(),
-                          [&](auto& entry) { return std::string_view(style_of(entry.second)->kind) != "kspace"; });
-    for (auto& [name, t] : tables) {
+    // The terms with coefficients = "data" after those that name their types: a data term takes
+    // every type of the file that no other term claims (a stiff term's bonds to hydrogen, say).
+    std::vector<std::pair<int, size_t>> order;  // (rank, position in the deck)
+    for (size_t k = 0; k < tables.size(); ++k) {
+      DeckTable& t = tables[k].second;
+      order.emplace_back(std::string_view(style_of(t)->kind) == "kspace" ? 2 : t.has("coefficients") ? 1 : 0, k);
+    }
+    std::stable_sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (const auto& [rank, k] : order) {
+      auto& [name, t] = tables[k];
       const auto it = style_of(t);
       const std::string style = it->name;
       // A style's default level is a role: the innermost level (Level::fast) or the outermost.
