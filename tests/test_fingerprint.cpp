@@ -36,12 +36,29 @@ const std::string kDeck = "tests/decks/every_force_style.toml";
 // The all-atom styles, whose impropers need an imported data file (and so its periodic box, which
 // the first deck's wall cannot have): a second deck, swept the same way.
 const std::string kAllAtomDeck = "tests/decks/every_all_atom_style.toml";
+const std::string kChargedDeck = "tests/decks/every_charged_style.toml";
+const std::string kMeshDeck = "tests/decks/every_mesh_style.toml";
 
 // Keys that no other value loads for, and why: the test checks that none does.
 const std::set<std::string> kNoOtherValue = {
     "forces.bonds.level",  // the constraint-defining term must sit on the innermost level
     "forces.wall.side",    // the other side leaves the wall's particles outside its domain: refused at load
-};
+    "forces.lj.tail",      // true needs a fully periodic box, which the wall's deck cannot have
+    // The Coulomb cutoff of an Ewald sum's real space is one for every type pair: another value of
+    // one of them does not load (every_charged_style.toml, every_mesh_style.toml).
+    "forces.charmm.pair.0.coulomb_cutoff", "forces.charmm.types.A.coulomb_cutoff",
+    "forces.charmm.types.B.coulomb_cutoff", "forces.ljlong.pair.0.coulomb_cutoff",
+    "forces.ljlong.types.A.coulomb_cutoff", "forces.ljlong.types.B.coulomb_cutoff", "forces.long.coulomb_cutoff",
+    "forces.long.pair.0.coulomb_cutoff",
+    // Overridden by every per-type and per-pair table, and some values out of range: the mixing
+    // rule, special_bonds under special_lj and special_coul, and which pair the coul/long pair
+    // table names (its one key, the cutoff, is the same for every pair).
+    "forces.charmm.mix", "forces.ljcut.mix", "forces.ljdebye.mix", "forces.ljlong.mix", "forces.charmm.special_bonds.0",
+    "forces.charmm.special_bonds.2", "forces.cut.special_bonds.0", "forces.cut.special_bonds.2",
+    "forces.debye.special_bonds.0", "forces.debye.special_bonds.2", "forces.ljcut.special_bonds.0",
+    "forces.ljcut.special_bonds.2", "forces.ljdebye.special_bonds.0", "forces.ljdebye.special_bonds.2",
+    "forces.ljlong.special_bonds.0", "forces.ljlong.special_bonds.2", "forces.long.special_bonds.0",
+    "forces.long.special_bonds.2", "forces.long.pair.0.types.0", "forces.long.pair.0.types.1"};
 // Keys a reader asks about that are alternatives: a term selects its particles by `particles` or
 // by `type`, never both (the deck gives the tether the one and the wall the other); a bonded term
 // takes its coefficients from per-type tables or from the data file (`coefficients = "data"`:
@@ -54,8 +71,18 @@ const std::map<std::string, std::vector<std::string>> kAlternative = {
 // scene, whose checkpoint continues (the test checks that no change of them is refused and that
 // the forces stay bit-identical): with per-type tables for every type, the term's own
 // coefficients are only the defaults of keys those tables leave out.
-const std::set<std::string> kUnused = {"forces.lj.epsilon", "forces.lj.sigma", "forces.lj.cutoff", "forces.wca.epsilon",
-                                       "forces.wca.sigma"};
+const std::set<std::string> kUnused = {
+    "forces.lj.epsilon", "forces.lj.sigma", "forces.lj.cutoff", "forces.wca.epsilon", "forces.wca.sigma",
+    // The charged styles' term-level coefficients under per-type and per-pair tables, and
+    // special_bonds under special_lj and special_coul (every_charged_style.toml).
+    "forces.charmm.coulomb_cutoff", "forces.charmm.cutoff", "forces.charmm.epsilon", "forces.charmm.epsilon14",
+    "forces.charmm.inner", "forces.charmm.sigma", "forces.charmm.sigma14", "forces.ljcut.coulomb_cutoff",
+    "forces.ljcut.cutoff", "forces.ljcut.epsilon", "forces.ljcut.shift", "forces.ljcut.sigma",
+    "forces.ljdebye.coulomb_cutoff", "forces.ljdebye.cutoff", "forces.ljdebye.epsilon", "forces.ljdebye.kappa",
+    "forces.ljdebye.shift", "forces.ljdebye.sigma", "forces.ljlong.coulomb_cutoff", "forces.ljlong.cutoff",
+    "forces.ljlong.epsilon", "forces.ljlong.shift", "forces.ljlong.sigma", "forces.charmm.special_bonds.1",
+    "forces.cut.special_bonds.1", "forces.debye.special_bonds.1", "forces.ljcut.special_bonds.1",
+    "forces.ljdebye.special_bonds.1", "forces.ljlong.special_bonds.1", "forces.long.special_bonds.1"};
 
 // Values a string key may take in this deck: levels, mixing rules, axes, particle types.
 const std::vector<std::string> kWords = {"fast", "slow", "geometric", "arithmetic", "x", "y", "z", "A", "B"};
@@ -177,7 +204,7 @@ class SceneFingerprintOfEveryStyle : public ::testing::Test {
 
 TEST_F(SceneFingerprintOfEveryStyle, TheDeckHasATermOfEveryStyleAndTheUnchangedDeckContinues) {
   std::set<std::string> styles;
-  for (const std::string& deck : {kDeck, kAllAtomDeck}) {
+  for (const std::string& deck : {kDeck, kAllAtomDeck, kChargedDeck, kMeshDeck}) {
     const toml::table parsed = toml::parse_file(test::source_path(deck));
     for (const auto& [name, t] : *parsed["forces"].as_table())
       styles.insert(std::string(*t.as_table()->get("style")->value<std::string>()));
@@ -282,6 +309,41 @@ TEST_F(SceneFingerprintOfEveryAllAtomStyle, TheDeckGivesEveryKeyTheReadersAskFor
 TEST_F(SceneFingerprintOfEveryAllAtomStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
   expect_every_key_changed_refused(40);
 }
+// The charged pair styles and an Ewald sum (one k-space term per deck), and the mesh.
+class SceneFingerprintOfEveryChargedStyle : public SceneFingerprintOfEveryStyle {
+ protected:
+  static void SetUpTestSuite() { set_up(kChargedDeck); }
+};
+TEST_F(SceneFingerprintOfEveryChargedStyle, TheUnchangedDeckContinues) {
+  EXPECT_EQ(restart({}).outcome, Outcome::continued);
+}
+TEST_F(SceneFingerprintOfEveryChargedStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+  expect_every_key_given();
+}
+TEST_F(SceneFingerprintOfEveryChargedStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+  expect_every_key_changed_refused(60);
+}
+// The particles' charges are part of the scene: one charge changed in its last bit is another.
+TEST_F(SceneFingerprintOfEveryChargedStyle, ChargesArePartOfTheScene) {
+  Scene sc = load_scene(Deck(test::source_path(deck_), {}));
+  const std::uint64_t before = scene_fingerprint(sc);
+  sc.charge[3] = std::nextafter(sc.charge[3], 1.0);
+  EXPECT_NE(scene_fingerprint(sc), before);
+}
+class SceneFingerprintOfEveryMeshStyle : public SceneFingerprintOfEveryStyle {
+ protected:
+  static void SetUpTestSuite() { set_up(kMeshDeck); }
+};
+TEST_F(SceneFingerprintOfEveryMeshStyle, TheUnchangedDeckContinues) {
+  EXPECT_EQ(restart({}).outcome, Outcome::continued);
+}
+TEST_F(SceneFingerprintOfEveryMeshStyle, TheDeckGivesEveryKeyTheReadersAskFor) {
+  expect_every_key_given();
+}
+TEST_F(SceneFingerprintOfEveryMeshStyle, EveryKeyOfEveryTermChangedIsAnotherScene) {
+  expect_every_key_changed_refused(15);
+}
+
 // The impropers of two types swapped between their terms: the same lists and coefficients, but
 // each improper under the other's term.
 TEST_F(SceneFingerprintOfEveryAllAtomStyle, ImproperTypesSwappedAreAnotherScene) {

@@ -47,6 +47,9 @@ class DeckTable {
   bool is_array(std::string_view key) const;
   // Whether a key that is no longer read (and is not listed among this table's keys) was given.
   bool has_retired(std::string_view key) const;
+  // Whether the key is given, without counting it among the keys this table takes (a look ahead
+  // before the table's reader runs: the order in which [forces] are read).
+  bool gives(std::string_view key) const { return has_retired(key); }
 
   double number(std::string_view key);
   double number(std::string_view key, double fallback);

@@ -19,8 +19,12 @@ namespace {
 // the k-space term chooses. None, or two with different Coulomb cutoffs, is the deck's mistake.
 std::vector<EwaldRealSpace*> real_space_terms(DeckTable& t, const Scene& sc, const std::string& style) {
   std::vector<EwaldRealSpace*> out;
-  for (const auto& term : sc.forces->terms())
+  for (const auto& term : sc.forces->terms()) {
+    if (term->phase() == Phase::kspace)
+      t.fail("style", style + ": [forces." + term->name() + "] (" + std::string(term->style()) +
+                          ") is the scene's k-space term already; expected one, as LAMMPS has one kspace_style");
     if (auto* r = dynamic_cast<EwaldRealSpace*>(term.get())) out.push_back(r);
+  }
   if (out.empty())
     t.fail("style", style +
                         " is the reciprocal-space half of Ewald summation and needs its real-space half: a "

@@ -299,7 +299,7 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
     std::vector<std::pair<int, size_t>> order;  // (rank, position in the deck)
     for (size_t k = 0; k < tables.size(); ++k) {
       DeckTable& t = tables[k].second;
-      order.emplace_back(std::string_view(style_of(t)->kind) == "kspace" ? 2 : t.has("coefficients") ? 1 : 0, k);
+      order.emplace_back(std::string_view(style_of(t)->kind) == "kspace" ? 2 : t.gives("coefficients") ? 1 : 0, k);
     }
     std::stable_sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     for (const auto& [rank, k] : order) {
