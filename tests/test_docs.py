@@ -52,6 +52,7 @@ INDIRECT_KEYS = {
     ("scene.cpp", "out.key"): "read_output's outputs whose options warn without them: h5md and state, read directly",
     ("monitor.cpp", "key"): "the lambdas threshold and switchable (HELPERS)",
     ("scene_sources.cpp", "file_key"): "lammps_data or xyz, read directly",
+    ("kspace_deck.cpp", "key"): "read_triple's kmax and mesh, read at the callers' literal keys",
     ("scene_sources.cpp", "key"): "lookup's atom_types, bond_types, ... maps, read directly",
     ("thermostat_deck.cpp", "sc.types[k].name"): "[thermostat.scale] TYPE: a particle type name",
     ("thermostat_deck.cpp", "tb"): "[thermostat.scale] TYPE: a particle type name",
