@@ -15,11 +15,12 @@
 // Each type pair's Params.rc2 is the larger of the two cutoffs squared (the list's range); eval
 // applies the van der Waals and Coulomb cutoffs itself, by masks.
 //
-// Differences from LAMMPS: the coul/long family takes std::erfc (exact to round-off) where LAMMPS
-// (pair_modify table 0) takes the Abramowitz–Stegun polynomial 7.1.26 (absolute error ≲ 1.5e-7 in
-// erfc), and 2/√π exactly where LAMMPS writes EWALD_F = 1.12837917; with tables (LAMMPS's default,
-// table 12) LAMMPS interpolates erfc instead. So a coul/long ecoul agrees with LAMMPS's to about
-// 1e-7 relative, not to round-off (tests/test_coulomb.cpp measures it).
+// Differences from LAMMPS: the coul/long family takes erfc exact to round-off (e^{−x²} · erfcx(x),
+// erfc_scaled.hpp: ≤ 1e-15 relative from std::erfc, with the e^{−x²} the force needs anyway) where
+// LAMMPS (pair_modify table 0) takes the Abramowitz–Stegun polynomial 7.1.26 (absolute error ≲
+// 1.5e-7 in erfc), and 2/√π exactly where LAMMPS writes EWALD_F = 1.12837917; with tables
+// (LAMMPS's default, table 12) LAMMPS interpolates erfc instead. So a coul/long ecoul agrees with
+// LAMMPS's to about 1e-7 relative, not to round-off (tests/test_coulomb.cpp measures it).
 #pragma once
 
 #include <algorithm>
@@ -31,6 +32,7 @@
 #include <string_view>
 
 #include "forcefields/coefficients.hpp"
+#include "forcefields/erfc_scaled.hpp"
 #include "forcefields/pair_potentials.hpp"
 #include "forcefields/parameter_record.hpp"
 
@@ -71,8 +73,8 @@ inline void coulomb_debye(double qq, double kappa, double r, double rinv, double
 // reciprocal sum counts and special bonds remove.
 inline void coulomb_long(double qq, double g, double r, double w, double& force, double& energy) {
   const double grij = g * r;
-  const double expm2 = std::exp(-grij * grij);
-  const double erfc = std::erfc(grij);
+  const double expm2 = exp_minus_square(grij);
+  const double erfc = expm2 * erfc_scaled(grij);  // one exp for both (erfc_scaled.hpp)
   const double prefactor = qq / r;
   const double excluded = (1.0 - w) * prefactor;
   force = prefactor * (erfc + std::numbers::inv_sqrtpi * 2.0 * grij * expm2) - excluded;

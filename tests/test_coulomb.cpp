@@ -241,7 +241,8 @@ TEST(CoulombLammps, CutAndDebyeStylesMatchRunZero) {
 }
 
 // The coul/long family to LAMMPS's polynomial erfc (pair_modify table 0; Abramowitz–Stegun 7.1.26,
-// |error| ≤ 1.5e-7): stiffmd's std::erfc differs from it by that much per pair.
+// |error| ≤ 1.5e-7): stiffmd's erfc (exact to round-off: forcefields/erfc_scaled.hpp) differs from
+// it by that much per pair.
 TEST(CoulombLammps, EwaldRealSpaceMatchesRunZeroToLammpsErfc) {
   const ChargedChains s;
   const auto d1 = compare(s, *make_term<CoulombLong>(s, same<CoulombLong::Coeffs>({8.0})), "coul/long");

@@ -8,6 +8,9 @@
 //                                   (MolecularPressure::pressure: centres of mass, the pass above,
 //                                   Σ δ·f and 2K, every sum exact; docs/design.md §5b)
 //   BM_NeighborBuild/<scene>        one rebuild of the WCA term's neighbour list at a fixed x
+//   BM_CoulLongPairForces/Water     the lj/cut/coul/long term alone (the real-space Ewald pairs,
+//                                   erfc per pair) of inputs/spce_water.toml (1 536 atoms, 10 Å
+//                                   cutoff, 2 Å skin) at a fixed x, neighbour list already built
 //   BM_BondForces/<scene>           the fast level (the stiff bonds)
 //   BM_ForceProjection/<scene>      P(x) f (ConstraintToolbox::project_force)
 //   BM_Shake/<scene>                SHAKE of a drift over 0.01 from x with S(x) kept (ConstraintToolbox::shake)
@@ -26,7 +29,8 @@
 //   BM_PendulumVsHandWritten        velocity Verlet on the double pendulum through the engine vs a
 //                                   hand-written loop of the same physics, interleaved, CPU time
 //
-// Scenes: Melt — inputs/lammps_chain.toml, LAMMPS's data.chain (32 000 beads, Debian package
+// Scenes: Water — inputs/spce_water.toml (BM_CoulLongPairForces only); Melt —
+// inputs/lammps_chain.toml, LAMMPS's data.chain (32 000 beads, Debian package
 // lammps-examples; the Melt benchmarks skip with an error when it is missing); Synthetic — a built
 // melt of 16 chains × 64 beads from a deck embedded below, which needs no data file. Each scene is
 // loaded and prepared once per process, on first use. Items are particles (bonds for the bond
@@ -255,6 +259,41 @@ void BM_PairForces(benchmark::State& st, FixtureGetter get) {
     st.counters["pairs_per_second"] = benchmark::Counter(pairs, benchmark::Counter::kIsIterationInvariantRate);
   }
   st.counters["rebuilds"] = static_cast<double>(neighbor_rebuilds(ff) - rebuilds);  // 0: x is fixed
+}
+
+Fixture& water() {
+  static Fixture fx = load_fixture("Water", std::string(STIFFMD_SOURCE_DIR) + "/inputs/spce_water.toml");
+  return fx;
+}
+
+// The charged pair kernel of the coul/long family: the scene's lj/cut/coul/long term by itself (not
+// the PPPM mesh of the same level), as BM_PairForces times the WCA term.
+void BM_CoulLongPairForces(benchmark::State& st, FixtureGetter get) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  const LjCutCoulLongPair* pair = nullptr;
+  for (const auto& term : fx->forces().terms())
+    if (const auto* p = dynamic_cast<const LjCutCoulLongPair*>(term.get())) pair = p;
+  if (!pair) {
+    st.SkipWithError("the scene has no lj/cut/coul/long term");
+    return;
+  }
+  const Box& box = fx->forces().box();
+  const Eigen::Matrix3Xd& x = fx->initial.x;
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, x.cols());
+  pair->add_forces(x, box, f);  // builds the neighbour list at x: the loop times the pair loop alone
+  const long rebuilds = pair->neighbor_list_rebuilds();
+  for (auto _ : st) {
+    f.setZero();
+    benchmark::DoNotOptimize(pair->add_forces(x, box, f));
+    benchmark::ClobberMemory();
+  }
+  st.SetItemsProcessed(st.iterations() * fx->particles());
+  const auto pairs = static_cast<double>(pair->neighbor_list().num_pairs());
+  st.counters["particles"] = fx->particles();
+  st.counters["listed_pairs"] = pairs;  // within cutoff + skin, every one evaluated (masked beyond the cutoff)
+  st.counters["pairs_per_second"] = benchmark::Counter(pairs, benchmark::Counter::kIsIterationInvariantRate);
+  st.counters["rebuilds"] = static_cast<double>(pair->neighbor_list_rebuilds() - rebuilds);  // 0: x is fixed
 }
 
 // What a barostat's cell move adds to the pair loop: the same WCA forces with the diagonal of the
@@ -711,6 +750,9 @@ bool register_benchmarks() {
     add("BM_MicroStepVsFloor", BM_MicroStepVsFloor);
     add("BM_BondKernelPerBond", BM_BondKernelPerBond);
   }
+  benchmark::RegisterBenchmark("BM_CoulLongPairForces/Water", BM_CoulLongPairForces, &water)
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
   benchmark::RegisterBenchmark("BM_PendulumVsHandWritten", BM_PendulumVsHandWritten)
       ->Unit(benchmark::kMicrosecond)
       ->UseRealTime();
