@@ -168,7 +168,11 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       const Params& p = prow[type[j]];
       // Listed within cutoff + skin, interacting within the cutoff: a third to a half of the
       // listed pairs (WCA, skin 0.3σ), in no predictable order, so mask the result rather than
-      // branch around eval — measured ~1.5× faster on a dense liquid.
+      // branch around eval — measured ~1.5× faster on a dense liquid. A charged kernel (an exp
+      // and erfc_scaled: several times a WCA pair) is worth the mispredicted branch around it:
+      // the same bits (a masked pair adds exact zeros), docs/electrostatics.md has the speed-up.
+      if constexpr (ChargedKernel<Kernel>)
+        if (!(r2 < p.rc2)) continue;
       const double inside = r2 < p.rc2 ? 1.0 : 0.0;
       double e = 0.0, fpair = 0.0;
       [[maybe_unused]] double ecoul = 0.0;
