@@ -110,6 +110,24 @@ def pendulum_bonds_and_particles_group():
             assert "action_1" in f["observables"]
 
 
+def charges_in_h5md_and_topology():
+    """A charged scene (SPC/E water): /particles/all/charge per particle, in e, and topology.data in
+    atom_style full with the same q column; MDAnalysis reads the charges from it."""
+    with tempfile.TemporaryDirectory() as d:
+        run("inputs/spce_water.toml", d, "output.h5md=traj.h5md", "run.t_end=4", "output.h5md_interval=2")
+        with h5py.File(os.path.join(d, "traj.h5md"), "r") as f:
+            assert_spec(f)
+            q = f[P + "/charge"][:]
+            species = f[P + "/species"][:]
+        assert q.shape == (1536,), q.shape
+        assert np.allclose(q[0::3], -0.8476, rtol=0, atol=0) and np.allclose(q[1::3], 0.4238, rtol=0, atol=0), q[:6]
+        assert abs(q.sum()) < 1e-12
+        import MDAnalysis as mda
+        u = mda.Universe(os.path.join(d, "topology.data"), os.path.join(d, "traj.h5md"), atom_style="id resid type charge x y z")
+        assert np.allclose(u.atoms.charges, q, rtol=1e-7, atol=0), u.atoms.charges[:6]  # MDAnalysis keeps float32
+        assert len(species) == 1536
+
+
 def killed_run_keeps_its_frames():
     with tempfile.TemporaryDirectory() as d:
         proc = subprocess.Popen([EXE, "run", os.path.join(ROOT, "inputs/double_pendulum.toml"), "-o", d, "--no-progress",
@@ -192,7 +210,8 @@ def restart_appends_to_variable_length_strings():
 
 
 for t in (periodic_layout_values_and_mdanalysis, cubic_box_mdanalysis_positions_box_time,
-          restart_appends_to_variable_length_strings, pendulum_bonds_and_particles_group, killed_run_keeps_its_frames,
+          restart_appends_to_variable_length_strings, pendulum_bonds_and_particles_group, charges_in_h5md_and_topology,
+          killed_run_keeps_its_frames,
           restart_appends_exactly):
     test(t)
 finish()
