@@ -2,7 +2,8 @@
 # SPC/E water (inputs/spce_water.data, 512 rigid molecules) in stiffmd and in LAMMPS from the same
 # state: LAMMPS equilibrates it (Langevin, 300 K, fix rattle b 1 a 1, pppm 1e-5, 2 fs, --equil ps)
 # and writes it out; then both run NVE for --nve ps from that state at 2 fs with the same styles
-# (lj/cut/coul/long 10 Å, pppm 1e-5, rigid water) and the tool reports each engine's energy drift
+# (lj/cut/coul/long 10 Å, pppm 1e-5, rigid water; LAMMPS's fix rattle after the integrators, as
+# it requires) and the tool reports each engine's energy drift
 # (the slope of a line fitted to E_total(t), per atom and per ns) and the O–O radial distribution of
 # the NVE trajectories (frames every 0.2 ps), with its statistical error from 5 blocks.
 #     /usr/bin/python3 tools/spce_compare.py [--equil 10] [--nve 10] [--stiffmd build/stiffmd]
@@ -43,14 +44,14 @@ neigh_modify every 1 delay 0 check yes
 timestep 2.0
 """
 equil = styles + f"read_data {os.path.join(root, 'inputs', 'spce_water.data')}\n" + coeffs + f"""velocity all create 300.0 4928459 mom yes rot yes dist gaussian
-fix r all rattle 1e-10 200 0 b 1 a 1
-fix t all langevin 300.0 300.0 100.0 91
 fix i all nve
+fix t all langevin 300.0 300.0 100.0 91
+fix r all rattle 1e-10 200 0 b 1 a 1
 run {n_equil}
 write_data equilibrated.data nocoeff
 """
-nve = styles + "read_data equilibrated.data\n" + coeffs + f"""fix r all rattle 1e-10 200 0 b 1 a 1
-fix i all nve
+nve = styles + "read_data equilibrated.data\n" + coeffs + f"""fix i all nve
+fix r all rattle 1e-10 200 0 b 1 a 1
 thermo_style custom step etotal pe ke temp
 thermo_modify format float %.12g
 thermo {every}
