@@ -208,6 +208,13 @@ class CharmmDihedral final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return torsion_.virial(x, box) + accumulate_bond_virial<charmm_detail::Pair14>(pairs_, x, box);
   }
+  // The thermo's sums, with the 1-4 pairs' Coulomb energy apart (Sums::coulomb: LAMMPS counts it in
+  // ecoul).
+  Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override {
+    Sums s = ForceTerm::energy_and_virial(x, box, scratch);
+    for (const auto& b : pairs_) s.coulomb += b.params.Q / bond_vector(x, b.i, b.j).norm();
+    return s;
+  }
   // The energy in LAMMPS's three parts: the torsion (edihed), the 1-4 Lennard-Jones (its share of
   // evdwl) and the 1-4 Coulomb (of ecoul).
   struct Parts {

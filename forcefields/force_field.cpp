@@ -100,6 +100,27 @@ void ForceField::energies_and_virial(const Eigen::Matrix3Xd& x, std::vector<doub
   for (const ForceTerm::Sums& s : term_sums_) virial += s.virial;
 }
 
+double ForceField::last_coulomb_energy() const {
+  double e = 0.0;
+  for (const ForceTerm::Sums& s : term_sums_) e += s.coulomb;
+  return e;
+}
+
+double ForceField::last_kspace_energy() const {
+  double e = 0.0;
+  for (size_t k = 0; k < terms_.size() && k < term_sums_.size(); ++k)
+    if (terms_[k]->phase() == Phase::kspace) e += term_sums_[k].energy;
+  return e;
+}
+
+bool ForceField::has_charges() const {
+  return std::any_of(terms_.begin(), terms_.end(), [](const auto& t) { return t->uses_charges(); });
+}
+
+bool ForceField::has_kspace() const {
+  return std::any_of(terms_.begin(), terms_.end(), [](const auto& t) { return t->phase() == Phase::kspace; });
+}
+
 bool ForceField::has_level(Level l) const {
   return std::any_of(terms_.begin(), terms_.end(), [l](const auto& t) { return t->level() == l; });
 }

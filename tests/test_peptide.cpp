@@ -74,6 +74,7 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
         const auto parts = dynamic_cast<const CharmmDihedral&>(*term).energy_parts(x, sc.box);
         e["E_dihed"] += parts.torsion, e["E_vdwl"] += parts.lj14, e["E_coul"] += parts.coul14;
         EXPECT_NEAR(parts.torsion + parts.lj14 + parts.coul14, s.energy, 1e-10 * std::abs(s.energy));
+        EXPECT_NEAR(s.coulomb, parts.coul14, 1e-12 * std::abs(parts.coul14));  // the thermo's ecoul share
       }
     }
   }

@@ -61,15 +61,17 @@ struct ObservableSettings {
 // What the thermo row sums over particles and terms (Thermo::sums): each of a decomposed run's
 // ranks sums its part, and the ranks' sums add up to the whole system's (docs/parallel.md).
 struct ThermoSums {
-  double kinetic = 0.0;               // ½ vᵀMv
-  std::vector<double> level_energy;   // the potential energy of each level, innermost first
-  double virial = 0.0;                // Σ r·f of the force terms (the pressure's)
-  double rg = 0.0, end_to_end = 0.0;  // summed over the molecules (Molecules::sum)
+  double kinetic = 0.0;                // ½ vᵀMv
+  std::vector<double> level_energy;    // the potential energy of each level, innermost first
+  double virial = 0.0;                 // Σ r·f of the force terms (the pressure's)
+  double coulomb = 0.0, kspace = 0.0;  // ecoul and elong (ForceField::last_coulomb_energy, …)
+  double rg = 0.0, end_to_end = 0.0;   // summed over the molecules (Molecules::sum)
   double molecules = 0.0, sized = 0.0;
   double max_violation = 0.0;  // not a sum: the largest over the ranks
   // Under a barostat, 2K_com + W_mol summed over the axes (MolecularPressure); whole state only.
   double molecular = 0.0;
-  // The sums as one array (kinetic, level_energy…, virial, rg, end_to_end, molecules, sized), to
+  // The sums as one array (kinetic, level_energy…, virial, rg, end_to_end, molecules, sized,
+  // coulomb, kspace), to
   // add up over the ranks, and back.
   std::vector<double> flat() const;
   void set_flat(const std::vector<double>& v);
@@ -136,9 +138,10 @@ class Thermo {
 
  private:
   const ForceField& forces_;
-  bool level_columns_;  // a potential_<level> column per named level
-  bool fixman_;         // ObservableSettings::fixman: the model potential in potential_fixman
-  bool thermostat_;     // a [thermostat]: the ecouple and econserve columns
+  bool level_columns_;                                   // a potential_<level> column per named level
+  bool coulomb_column_ = false, kspace_column_ = false;  // ecoul, elong
+  bool fixman_;      // ObservableSettings::fixman: the model potential in potential_fixman
+  bool thermostat_;  // a [thermostat]: the ecouple and econserve columns
   int dof_ = 0;
   bool periodic_ = false;  // the box is periodic on every axis: pressure column (V: the box now)
   double mass_ = 0.0;      // Σ m, for the density
