@@ -2,8 +2,8 @@
 # The bonded part of LAMMPS's peptide example (examples/peptide/data.peptide: a solvated 5-mer,
 # CHARMM: bond harmonic, angle charmm, dihedral charmm, improper harmonic) as inputs/peptide.data:
 # the peptide's atoms (types 1-12, no water), every bond, angle, dihedral and improper among them,
-# and every "… Coeffs" section as it is. Its charges are set to 0 (stiffmd's import refuses charges
-# until the scene carries them); the title line says so.
+# and every "… Coeffs" section as it is. Its charges are set to 0 (the bonded part alone: its
+# LAMMPS reference has no Coulomb); the title line says so. The whole example: tools/peptide_deck.py.
 #     /usr/bin/python3 tools/peptide_bonded.py [/usr/share/lammps/examples/peptide/data.peptide]
 import os, sys
 
