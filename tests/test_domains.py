@@ -35,6 +35,7 @@ CASE is one of
                               the serial run's bit for bit
     restart:A:B               the straddle deck: 100 steps on A ranks, then --restart on B ranks to
                               step 200 into the same folder (N is not used; ctest passes max(A, B))
+    restart_water:A:B         the same on inputs/spce_water.toml (PPPM), 25 + 25 steps, to round-off
     restart_npt:A:B           the same on inputs/stiff_melt_npt.toml (fixman): the barostat's box in
                               the checkpoint
 
@@ -646,20 +647,20 @@ def kill_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     print(f"killed on {n} ranks after {kept} complete frames: they read as the serial run's, bit for bit")
 
 
-def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, deck=STRADDLE, h=0.02):
-    """100 steps on `first` ranks, continued from its checkpoint on `second` ranks to step 200 into
-    the same folder: the files of the uninterrupted serial run."""
+def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, deck=STRADDLE, h=0.02, steps=STEPS):
+    """steps/2 on `first` ranks, continued from its checkpoint on `second` ranks to `steps` into the
+    same folder: the files of the uninterrupted serial run."""
     ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{first}_then_{second}")
     base = ["run", deck, "-q", "--no-progress"]
     run(launch(mpiexec, numproc_flag, first, stiffmd) + base[:2] + ["-o", out] + base[2:] +
-        overrides(h, STEPS // 2, {}), first)
+        overrides(h, steps // 2, {}), first)
     r = run(launch(mpiexec, numproc_flag, second, stiffmd) + base[:2] + ["-o", out, "--restart",
-            os.path.join(out, "checkpoint.bin")] + base[2:] + overrides(h, STEPS, {}), second)
-    # A fresh run to step 200 would also give the serial files: the second run must have continued.
-    if f"at step {STEPS // 2} " not in r.stderr:
-        raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {STEPS // 2}:\n{r.stderr}")
+            os.path.join(out, "checkpoint.bin")] + base[2:] + overrides(h, steps, {}), second)
+    # A fresh run to the end would also give the serial files: the second run must have continued.
+    if f"at step {steps // 2} " not in r.stderr:
+        raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step {steps // 2}:\n{r.stderr}")
     check_domain_summary(stiffmd, out, second)
-    run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, STEPS, {}), 1)
+    run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + overrides(h, steps, {}), 1)
     compare_runs(ref, out, f"{os.path.basename(deck)} on {first} ranks, restarted on {second}")
 
 
@@ -680,6 +681,12 @@ def main(argv):
         elif case.startswith("restart_npt:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, STIFF_MELT_NPT, 0.01)
+        elif case.startswith("restart_water:"):  # PPPM's mesh summed over the ranks: to round-off
+            global BITWISE
+            BITWISE = False
+            first, second = (int(r) for r in case.split(":")[1:])
+            restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, os.path.join(ROOT, "inputs", "spce_water.toml"),
+                         2.0, STEPS // 4)
         else:
             plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp)
     except Skip as e:

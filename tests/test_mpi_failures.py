@@ -13,6 +13,8 @@ CASE is one of
                    dimer (one bead thrown 20 bond lengths in a step): exit 3 naming rank 1 and the
                    bond's particles by the serial run's numbers (the cluster and bond numbers are
                    rank 1's); the file's complete frames are the serial run's
+    shake_error_pppm  the same with charges, coul/long and PPPM (the mesh summed over the ranks at
+                   every force evaluation: rank 0 waits there): the same exit, message and frames
     actions        inputs/ring_solution.toml with [observables] actions (1 442 observables, each an
                    H5MD dataset) and H5MD on 2 ranks: it finishes, and the file's observables and
                    positions are the serial run's
@@ -105,9 +107,10 @@ def expect_message(r, *parts):
             raise SystemExit(f"FAIL: stderr does not say {p!r}:\n{r.stderr}")
 
 
-def rank_error(stiffmd, mpiexec, numproc_flag, tmp, deck, sets, said):
+def rank_error(stiffmd, mpiexec, numproc_flag, tmp, deck, sets, said, both=()):
+    """`both`: --set arguments of the serial and the 2-rank run alike; `sets`: the 2-rank run's."""
     serial, ranks = os.path.join(tmp, "serial"), os.path.join(tmp, "ranks")
-    base = ["run", deck, "-q", "--no-progress"]
+    base = ["run", deck, "-q", "--no-progress"] + list(both)
     run([stiffmd] + base + ["-o", serial], 3)
     r = run([mpiexec, numproc_flag, "2", stiffmd] + base + ["-o", ranks, "--set", "parallel.grid=[2,1,1]"] + sets, 3)
     expect_message(r, "error (rank 1)", said, "step 1")
@@ -199,6 +202,13 @@ def main(argv):
         elif case == "shake_error":
             rank_error(stiffmd, mpiexec, numproc_flag, tmp, SHAKE, [],
                        "SHAKE did not converge in cluster 0 after 50 iterations: worst bond 0 (particles 2–3)")
+        elif case == "shake_error_pppm":
+            # The same with charges, coul/long and PPPM: rank 0 waits in the mesh's sum over the ranks.
+            rank_error(stiffmd, mpiexec, numproc_flag, tmp, SHAKE, [],
+                       "SHAKE did not converge in cluster 0 after 50 iterations: worst bond 0 (particles 2–3)",
+                       ["--set", "types.A.charge=0.3", "--set",
+                        'forces.coul={ style = "coul/long", coulomb_cutoff = 2.5, skin = 0.3 }',
+                        "--set", 'forces.mesh={ style = "pppm", accuracy = 1e-4 }'])
         elif case == "actions":
             actions(stiffmd, mpiexec, numproc_flag, tmp)
         elif case in ("unwritable", "unseen"):
