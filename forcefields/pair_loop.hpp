@@ -134,6 +134,18 @@ inline void add_pair_diagonal(ExactDiagonal& w, double fpair, double dx, double 
   w.axis[2].add(0.5 * fpair * dz * dz, halves);
 }
 
+// One pair's share (1, or ½ for a pair with a ghost: kShares) of the energy, the Coulomb part
+// (charged kernels), the virial and its diagonal, into sums. A share of 1 adds the values
+// themselves (× 1 is exact): one process's sums are the plain ones.
+template <bool kCharged, bool kForces, bool kVirial>
+inline void add_pair_sums(PairSums& sums, double share, double e, double ecoul, double fpair, double r2, double dx,
+                          double dy, double dz) {
+  sums.energy += share * e;
+  if constexpr (kCharged) sums.coulomb += share * ecoul;
+  if constexpr (kVirial) sums.virial += share * (fpair * r2);
+  if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
+}
+
 // Rows first … last − 1 of the half list. xw: the positions from list.wrapped_positions(x),
 // whose minimum image is one fold away (NearestImage). f (3×N, column-major: f[3j + a]) may be
 // null when kForces is false. type[i] indexes params.
@@ -186,18 +198,8 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       }
       e *= inside;
       fpair *= inside;
-      if constexpr (kShares) {
-        const double share = ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0;
-        sums.energy += share * e;
-        if constexpr (ChargedKernel<Kernel>) sums.coulomb += share * ecoul;
-        if constexpr (kVirial) sums.virial += share * (fpair * r2);
-        if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
-      } else {
-        sums.energy += e;
-        if constexpr (ChargedKernel<Kernel>) sums.coulomb += ecoul;
-        if constexpr (kVirial) sums.virial += fpair * r2;
-        if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
-      }
+      add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(
+          sums, kShares && ghost && (i_ghost || ghost[j]) ? 0.5 : 1.0, e, ecoul, fpair, r2, dx, dy, dz);
       if constexpr (kForces) {
         const double fx = fpair * dx, fy = fpair * dy, fz = fpair * dz;
         fxi += fx;
@@ -250,18 +252,8 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
       fpair *= sp.weight;
       e *= sp.weight;
     }
-    if constexpr (kShares) {
-      const double share = ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0;
-      sums.energy += share * e;
-      if constexpr (ChargedKernel<Kernel>) sums.coulomb += share * ecoul;
-      if constexpr (kVirial) sums.virial += share * (fpair * r2);
-      if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, share < 1.0 ? 1 : 2);
-    } else {
-      sums.energy += e;
-      if constexpr (ChargedKernel<Kernel>) sums.coulomb += ecoul;
-      if constexpr (kVirial) sums.virial += fpair * r2;
-      if constexpr (kVirial && kForces) add_pair_diagonal(sums.diagonal, fpair, dx, dy, dz, 2);
-    }
+    add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(
+        sums, kShares && ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0, e, ecoul, fpair, r2, dx, dy, dz);
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;

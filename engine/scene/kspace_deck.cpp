@@ -75,6 +75,25 @@ std::pair<double, double> charge_moments(const Scene& sc) {
   return {n, sc.units.coulomb * q2};
 }
 
+// What both styles do once LAMMPS's choice is made: the deck's g_ewald and resolution (`key`,
+// the k-vectors or the mesh) over it, with the error estimate at the parameters given; the real-
+// space terms' g; the term.
+template <class Term, class Params, class KspaceError>
+std::unique_ptr<ForceTerm> finish_kspace(const std::string& name, Level level, DeckTable& t, const Scene& sc,
+                                         const std::vector<EwaldRealSpace*>& real, Params p, const char* key, int lo,
+                                         int hi, int (Params::*resolution)[3], KspaceError kspace_error) {
+  p.g_ewald = read_splitting(t, p.g_ewald);
+  if (t.has(key)) read_triple(t, key, lo, hi, p.*resolution);
+  if (t.has("g_ewald") || t.has(key)) {
+    const auto [n, q2] = charge_moments(sc);
+    p.estimated_error =
+        std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
+                   kspace_error(p, sc.box, n, q2));
+  }
+  for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
+  return std::make_unique<Term>(name, level, sc.charge, p, sc.units.coulomb, sc.box);
+}
+
 }  // namespace
 
 std::unique_ptr<ForceTerm> read_ewald(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -87,16 +106,8 @@ std::unique_ptr<ForceTerm> read_ewald(const std::string& name, Level level, Deck
   } catch (const std::invalid_argument& e) {
     t.fail("accuracy", e.what());
   }
-  p.g_ewald = read_splitting(t, p.g_ewald);
-  if (t.has("kmax")) read_triple(t, "kmax", 1, 1000, p.kmax);
-  if (t.has("g_ewald") || t.has("kmax")) {  // the estimate at the parameters given
-    const auto [n, q2] = charge_moments(sc);
-    p.estimated_error =
-        std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
-                   ewald_kspace_error(p, sc.box, n, q2));
-  }
-  for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
-  return std::make_unique<EwaldSum>(name, level, sc.charge, p, sc.units.coulomb, sc.box);
+  return finish_kspace<EwaldSum>(name, level, t, sc, real, p, "kmax", 1, 1000, &EwaldParameters::kmax,
+                                 ewald_kspace_error);
 }
 
 std::unique_ptr<ForceTerm> read_pppm(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
@@ -113,16 +124,8 @@ std::unique_ptr<ForceTerm> read_pppm(const std::string& name, Level level, DeckT
   } catch (const std::invalid_argument& e) {
     t.fail("accuracy", e.what());
   }
-  p.g_ewald = read_splitting(t, p.g_ewald);
-  if (t.has("mesh")) read_triple(t, "mesh", 2, 4096, p.mesh);
-  if (t.has("g_ewald") || t.has("mesh")) {
-    const auto [n, q2] = charge_moments(sc);
-    p.estimated_error =
-        std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
-                   pppm_kspace_error(p, sc.box, n, q2));
-  }
-  for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
-  return std::make_unique<ParticleParticleParticleMesh>(name, level, sc.charge, p, sc.units.coulomb, sc.box);
+  return finish_kspace<ParticleParticleParticleMesh>(name, level, t, sc, real, p, "mesh", 2, 4096,
+                                                     &MeshParameters::mesh, pppm_kspace_error);
 }
 
 }  // namespace stiffmd

@@ -71,12 +71,12 @@ int assignment_weights(double s, int order, double* w) {
 }
 
 struct ParticleParticleParticleMesh::Fftw {
-  int n[3];                          // mesh points per axis (x fastest in memory)
-  std::size_t real = 0, modes = 0;   // nz·ny·nx, nz·ny·(nx/2 + 1)
-  double* density = nullptr;         // the mesh's charges, then one slot for Σq and one for Σq²
-  fftw_complex* spectrum = nullptr;  // ρ̂
-  fftw_complex* work = nullptr;      // the input of each inverse transform (destroyed by it)
-  double* field[4] = {nullptr, nullptr, nullptr, nullptr};  // E_x, E_y, E_z, φ on the mesh
+  int n[3];                                        // mesh points per axis (x fastest in memory)
+  std::size_t real = 0, modes = 0;                 // nz·ny·nx, nz·ny·(nx/2 + 1)
+  double* density = nullptr;                       // the mesh's charges, then one slot for Σq and one for Σq²
+  fftw_complex* spectrum = nullptr;                // ρ̂
+  fftw_complex* work = nullptr;                    // the input of each inverse transform (destroyed by it)
+  double* field[3] = {nullptr, nullptr, nullptr};  // E_x, E_y, E_z on the mesh
   fftw_plan forward = nullptr, backward = nullptr;
 
   Fftw(const int mesh[3]) {
@@ -88,7 +88,7 @@ struct ParticleParticleParticleMesh::Fftw {
     spectrum = fftw_alloc_complex(modes);
     work = fftw_alloc_complex(modes);
     for (double*& m : field) m = fftw_alloc_real(real);
-    if (!density || !spectrum || !work || !field[0] || !field[1] || !field[2] || !field[3]) {
+    if (!density || !spectrum || !work || !field[0] || !field[1] || !field[2]) {
       release();
       throw std::bad_alloc();
     }
@@ -290,19 +290,13 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
   const double background_total = -qqrd2e_ * kPi * total_charge * total_charge / (2.0 * volume * g * g);
   for (double& v : w) v += background_total;
 
-  // 5. The field (and on several processes the potential) on the mesh: (C/V) (−i k_a) G ρ̂.
-  const int fields = shared ? 4 : (f ? 3 : 0);
-  for (int a = 0; a < fields; ++a) {
+  // 5. The field on the mesh: (C/V) (−i k_a) G ρ̂.
+  for (int a = 0; f && a < 3; ++a) {
     std::size_t mode = 0;
     for (int iz = 0; iz < n[2]; ++iz)
       for (int iy = 0; iy < n[1]; ++iy)
         for (int ix = 0; ix < nxh; ++ix, ++mode) {
           const double scale = c * green_[mode];
-          if (a == 3) {
-            t.work[mode][0] = scale * t.spectrum[mode][0];
-            t.work[mode][1] = scale * t.spectrum[mode][1];
-            continue;
-          }
           const int j = a == 0 ? ix : a == 1 ? iy : iz;
           const double k = 2 * j == n[a] ? 0.0 : wavenumber_[a][static_cast<std::size_t>(j)];
           // (−i k)(re + i im) = k im − i k re
@@ -312,52 +306,38 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
     fftw_execute_dft_c2r(t.backward, t.work, t.field[a]);
   }
 
-  // Interpolation back to this process's particles (the potential too when it was computed).
-  double potential_share = 0.0;
-  auto gather = [&]<bool kPotential>() {
-    for (int i = 0; i < count; ++i) {
-      const double q = charges_[i];
-      if (q == 0.0) continue;
-      const std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
-      const double* wt = &weight_[3 * static_cast<std::size_t>(i) * order];
-      double ex = 0.0, ey = 0.0, ez = 0.0, phi = 0.0;
-      for (int jz = 0; jz < order; ++jz)
-        for (int jy = 0; jy < order; ++jy) {
-          const double wyz = wt[2 * order + jz] * wt[order + jy];
-          const std::size_t row = offset[2 * order + jz] + offset[order + jy];
-          for (int jx = 0; jx < order; ++jx) {
-            const std::size_t m = row + offset[jx];
-            const double wm = wyz * wt[jx];
-            ex += wm * t.field[0][m];
-            ey += wm * t.field[1][m];
-            ez += wm * t.field[2][m];
-            if constexpr (kPotential) phi += wm * t.field[3][m];
-          }
+  // Interpolation back to this process's particles.
+  for (int i = 0; f && i < count; ++i) {
+    const double q = charges_[i];
+    if (q == 0.0) continue;
+    const std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
+    const double* wt = &weight_[3 * static_cast<std::size_t>(i) * order];
+    double ex = 0.0, ey = 0.0, ez = 0.0;
+    for (int jz = 0; jz < order; ++jz)
+      for (int jy = 0; jy < order; ++jy) {
+        const double wyz = wt[2 * order + jz] * wt[order + jy];
+        const std::size_t row = offset[2 * order + jz] + offset[order + jy];
+        for (int jx = 0; jx < order; ++jx) {
+          const std::size_t m = row + offset[jx];
+          const double wm = wyz * wt[jx];
+          ex += wm * t.field[0][m];
+          ey += wm * t.field[1][m];
+          ez += wm * t.field[2][m];
         }
-      if (f) {
-        (*f)(0, i) += q * ex;
-        (*f)(1, i) += q * ey;
-        (*f)(2, i) += q * ez;
       }
-      if constexpr (kPotential) potential_share += 0.5 * q * phi;
-    }
-  };
-  if (fields == 4) {
-    gather.template operator()<true>();
-  } else if (fields == 3) {
-    gather.template operator()<false>();
+    (*f)(0, i) += q * ex;
+    (*f)(1, i) += q * ey;
+    (*f)(2, i) += q * ez;
   }
 
+  // Every process has the whole mesh, so the whole energy and virial: each returns 1/size of them,
+  // so that the shares add up to the whole system's.
   Result r;
   const double self = -qqrd2e_ * g / std::sqrt(kPi);
   const double background = -qqrd2e_ * kPi * total_charge / (2.0 * volume * g * g);
-  if (shared) {
-    r.energy = potential_share + self * own_q2 + background * own_charge;
-    for (int a = 0; a < 3; ++a) r.w[a] = w[a] / comm_->size();
-  } else {
-    r.energy = kspace + self * total_q2 + background * total_charge;
-    for (int a = 0; a < 3; ++a) r.w[a] = w[a];
-  }
+  const double share = shared ? 1.0 / comm_->size() : 1.0;
+  r.energy = share * (kspace + self * total_q2 + background * total_charge);
+  for (int a = 0; a < 3; ++a) r.w[a] = share * w[a];
   return r;
 }
 

@@ -31,10 +31,8 @@
 // charges over the whole mesh, the ranks sum the mesh (and Σq, Σq²), every rank does the same
 // FFTs and interpolates the forces on its own particles. A distributed mesh (each rank a slab of
 // the FFT) is not done: the mesh's sum costs one all-reduce of the whole mesh per evaluation.
-// Each rank's energy is its particles' share ½ q_i φ(r_i) − C g q_i²/√π − C π Q q_i/(2 V g²), with
-// φ interpolated from the mesh potential (a fourth inverse FFT, only on more than one process);
-// its virial is 1/size of the whole system's. The shares add up to the whole system's energy and
-// virial; on one process they are the energy and virial.
+// Every rank then has the whole energy and virial from the whole mesh, and returns 1/size of each:
+// the shares add up to the whole system's (on one process they are the energy and virial).
 #pragma once
 
 #include <memory>
