@@ -74,7 +74,7 @@ rows = [l.split() for l in log.splitlines() if l.split() and l.split()[0].isdigi
 lmp_t = np.array([float(r[0]) * dt for r in rows]); lmp_e = np.array([float(r[1]) for r in rows])
 
 deck = open(os.path.join(root, 'inputs', 'spce_water.toml')).read()
-deck = deck.split('[thermostat]')[0] + deck.split('[integrator]')[1].join(['[integrator]', ''])
+deck = deck.split('[thermostat]')[0] + '[integrator]' + deck.split('[integrator]')[1]  # NVE: no [thermostat]
 deck = deck.replace('lammps_data = "spce_water.data"', 'lammps_data = "equilibrated.data"')
 deck = deck.replace('t_end = 2000.0', f't_end = {n_nve * dt}').replace('thermo_interval = 100.0', f'thermo_interval = {every * dt}\nxyz_interval = {every * dt}')
 open(os.path.join(work, 'nve.toml'), 'w').write(deck)
