@@ -4,7 +4,7 @@ module's build directory on PYTHONPATH:
   - the double pendulum stepped from Python ends exactly where `stiffmd run` ends (bit for bit: the
     final H5MD frame's positions and velocities, summary.json's energies), for several methods, from
     the file and from the same deck as TOML text; so does a deck with pairs on a neighbour list,
-    with thermo() or forces() called after every step;
+    with thermo() or forces() called after every step, and SPC/E water (charges, PPPM, real units);
   - forces by level sum to the total and are −∇ of the level's energy (central differences) on a
     small deck with stiff bonds (fast), angles and Lennard-Jones pairs (slow); named r-RESPA levels
     ([[integrator.levels]]) are addressed by their names;
@@ -72,6 +72,27 @@ def pendulum_equals_the_command_line_bit_for_bit():
             assert row["potential_slow"] == sim.energy("slow"), method
             if method != "effective":  # its potential_stiff is W(I, x), the model potential
                 assert row["potential_stiff"] == sim.energy("fast"), method
+
+
+@test
+def charged_water_with_pppm_equals_the_command_line():
+    # SPC/E water (real units: charges, lj/cut/coul/long, PPPM, rigid triangles) for 10 steps of
+    # 2 fs: the same final state as `stiffmd run`, bit for bit, and the thermo's ecoul and elong.
+    deck = os.path.join(ROOT, "inputs", "spce_water.toml")
+    sets = {"run.t_end": 20.0, "output.h5md": '"trajectory.h5md"', "output.h5md_interval": 20.0}
+    with tempfile.TemporaryDirectory() as out:
+        _, v, step, summary = cli_final_state(deck, out, sets)  # H5MD positions are wrapped
+        rows = np.genfromtxt(os.path.join(out, "thermo.csv"), delimiter=",", names=True)
+    sim = stiffmd.Simulation(deck, set={"run.t_end": 20.0})
+    sim.run_to(sim.t_end)
+    assert sim.step == step == 10, (sim.step, step)
+    # H5MD's velocities are in Å/ps (its unit attribute), the module's in the deck's Å/fs.
+    assert np.allclose(1000.0 * sim.velocities, v, rtol=1e-13, atol=0), np.abs(1000.0 * sim.velocities - v).max()
+    row = sim.thermo()
+    assert row["total"] == summary["final_energy"], (row["total"], summary["final_energy"])  # x, v to the bit
+    for column in ("ecoul", "elong"):
+        assert np.isclose(row[column], rows[column][-1], rtol=1e-10, atol=0), (column, row[column], rows[column][-1])
+        assert row[column] != 0.0, column
 
 
 @test
