@@ -23,6 +23,9 @@ CASE is one of
     water                     inputs/spce_water.toml: charges, lj/cut/coul/long and PPPM (the reciprocal
                               sum over every rank's charges: the mesh added up over the ranks, so to
                               round-off (1e-10), not bit for bit), rigid water triangles, 50 steps
+    polyelectrolyte           inputs/polyelectrolyte.toml: charged chains and counterions, lj/cut/coul/long
+                              and PPPM on the macro step of the projected impulse, stiff bonds (to
+                              round-off, as water), 200 macro steps
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     pinned_cores              tests/decks/pinned_cores.toml, the effective dynamics: molecules whose pinned
@@ -276,6 +279,8 @@ def case_setup(case):
             "forces.lj.special_coul": "[0.0, 0.3, 0.6]"}
     if case == "water":  # charges, Ewald real space and the PPPM mesh summed over the ranks; rigid triangles
         return os.path.join(ROOT, "inputs", "spce_water.toml"), 2.0, {}
+    if case == "polyelectrolyte":  # PPPM with molecules of 32 beads that reach across domains
+        return os.path.join(ROOT, "inputs", "polyelectrolyte.toml"), 0.01, {}
     if case == "one_chain":  # one molecule: every rank but one owns nothing
         return os.path.join(ROOT, "inputs", "hanging_chain.toml"), 0.01, {}
     if case == "pinned_cores":  # a pinned bead splits a molecule into two constraint clusters
@@ -283,7 +288,7 @@ def case_setup(case):
     if case == "migrate":  # a field drives the chains (Langevin: 3 σ per time unit along z) across the domains
         return STRADDLE, 0.02, {"forces.drift": '{ style = "gravity", g = [1.0, 1.0, 3.0] }'}
     raise SystemExit(f"unknown case {case!r}: kremer_grest[:threads], stiff_melt:METHOD[:csvr] (METHOD one of "
-                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled|:charged], water, one_chain, pinned_cores, restart:A:B")
+                     f"{', '.join(STIFF_MELT_STEPS)}), straddle, migrate, trappe[:scaled|:charged], water, polyelectrolyte, one_chain, pinned_cores, restart:A:B")
 
 
 # ---------------------------------------------------------------- comparing
@@ -561,7 +566,7 @@ def check_straddle_geometry(ref_dir):
 def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     global THREADS, BITWISE
     THREADS = 2 if case.endswith(":threads") else 1
-    BITWISE = THREADS == 1 and case != "water"
+    BITWISE = THREADS == 1 and case not in ("water", "polyelectrolyte")
     deck, h, extra = case_setup(case)
     # At 2 threads the runs differ by round-off, which the melt's chaos grows (about 100× per 100
     # steps here, to 6e-11 of the scale by step 200): 100 steps keep it well inside TOL. Water's

@@ -1,8 +1,11 @@
-// LAMMPS's peptide example (a CHARMM22 5-mer in water, 2004 atoms, atom_style full) read from its
-// own data file with the same styles — harmonic bonds, charmm angles (Urey–Bradley) and dihedrals
-// (weighted 1-4 pairs), harmonic impropers, lj/charmm/coul/long with an Ewald sum at 1e-8 — against
-// LAMMPS's `run 0` of the same (tests/data/peptide_lammps/, made by tools/peptide_deck.py
-// --reference): every energy term, the forces and the pressure.
+// Charged decks against LAMMPS's `run 0` of the same styles on the same data file, with an Ewald sum
+// at 1e-8: every energy term, the forces and the pressure.
+//   - LAMMPS's peptide example (a CHARMM22 5-mer in water, 2004 atoms, atom_style full): harmonic
+//     bonds, charmm angles (Urey–Bradley) and dihedrals (weighted 1-4 pairs), harmonic impropers,
+//     lj/charmm/coul/long (tests/data/peptide_lammps/, made by tools/peptide_deck.py --reference);
+//   - a salt-free polyelectrolyte of our own (8 chains, every second bead charged, counterions; lj
+//     units): harmonic bonds, WCA + Coulomb as lj/cut/coul/long with Coulomb between bonded
+//     neighbours (tests/data/polyelectrolyte_lammps/, made by tools/polyelectrolyte.py --reference).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,17 +13,19 @@
 #include <map>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "core/units.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/charmm_terms.hpp"
+#include "forcefields/ewald_real_space.hpp"
 #include "tests/test_support.hpp"
 
 namespace stiffmd {
 namespace {
 
-std::map<std::string, double> lammps_energies() {
-  std::ifstream in(test::source_path("tests/data/peptide_lammps/energies.txt"));
+std::map<std::string, double> lammps_energies(const std::string& dir) {
+  std::ifstream in(test::source_path(dir + "/energies.txt"));
   std::map<std::string, double> out;
   for (std::string line; std::getline(in, line);) {
     if (line.empty() || line[0] == '#') continue;
@@ -33,8 +38,8 @@ std::map<std::string, double> lammps_energies() {
   return out;
 }
 
-Eigen::Matrix3Xd lammps_forces(int n) {
-  std::ifstream in(test::source_path("tests/data/peptide_lammps/forces.txt"));
+Eigen::Matrix3Xd lammps_forces(const std::string& dir, int n) {
+  std::ifstream in(test::source_path(dir + "/forces.txt"));
   Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Constant(3, n, std::nan(""));
   for (std::string line; std::getline(in, line);) {
     if (line.empty() || line[0] == '#') continue;
@@ -46,10 +51,14 @@ Eigen::Matrix3Xd lammps_forces(int n) {
   return f;
 }
 
-TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
-  const Scene sc = test::load("tests/decks/peptide_run0.toml");
+// The deck's run-0 state against LAMMPS's reference in `dir`: the energy terms `names` (LAMMPS's
+// thermo names) each to 1e-6 relative, every force component within 1e-6 of the RMS force, the
+// pressure ((2 KE + W)/3V in the deck's units, × `pressure_unit`) to 1e-6 relative.
+// Returns stiffmd's energy terms by LAMMPS's names.
+std::map<std::string, double> expect_lammps_run_zero(const std::string& deck, const std::string& dir,
+                                                     std::vector<std::string> names, double pressure_unit) {
+  const Scene sc = test::load(deck);
   const int n = sc.state.size();
-  ASSERT_EQ(n, 2004);
   const Eigen::Matrix3Xd& x = sc.state.x;
   std::map<std::string, double> e;
   Eigen::Matrix3Xd total = Eigen::Matrix3Xd::Zero(3, n);
@@ -60,7 +69,7 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
     const ForceTerm::Sums s = term->energy_and_virial(x, sc.box, scratch);
     total += f;
     const std::string style(term->style());
-    if (style == "lj/charmm/coul/long") {
+    if (term->uses_neighbor_list() && term->uses_charges()) {
       e["E_vdwl"] += s.energy - s.coulomb, e["E_coul"] += s.coulomb, virial += s.virial;
     } else if (style == "ewald") {
       e["E_long"] += s.energy, virial += s.virial;
@@ -78,29 +87,75 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
       }
     }
   }
-  const auto ref = lammps_energies();
+  const auto ref = lammps_energies(dir);
   // Each term to 1e-6 relative: the real-space Coulomb differs by LAMMPS's polynomial erfc (~1e-7,
   // docs/electrostatics.md), the rest by round-off.
-  for (const char* name : {"E_bond", "E_angle", "E_dihed", "E_impro", "E_vdwl", "E_coul", "E_long"}) {
-    ASSERT_TRUE(ref.count(name)) << name;
+  for (const std::string& name : names) {
+    EXPECT_TRUE(ref.count(name)) << name;
+    if (!ref.count(name)) continue;
     EXPECT_NEAR(e[name], ref.at(name), 1e-6 * std::abs(ref.at(name))) << name;
-    std::printf("%-8s stiffmd %.12g  LAMMPS %.12g  relative %.2e\n", name, e[name], ref.at(name),
+    std::printf("%-8s stiffmd %.12g  LAMMPS %.12g  relative %.2e\n", name.c_str(), e[name], ref.at(name),
                 std::abs(e[name] - ref.at(name)) / std::abs(ref.at(name)));
   }
   // Forces: each component within 1e-6 of the RMS force.
-  const Eigen::Matrix3Xd f_ref = lammps_forces(n);
+  const Eigen::Matrix3Xd f_ref = lammps_forces(dir, n);
+  EXPECT_FALSE(f_ref.hasNaN()) << "a particle without a LAMMPS force in " << dir;
   const double rms = std::sqrt(f_ref.squaredNorm() / n);
   const double worst = (total - f_ref).cwiseAbs().maxCoeff();
   std::printf("forces: max |Δf| = %.3g, RMS |f| = %.6g (ratio %.2e)\n", worst, rms, worst / rms);
   EXPECT_LT(worst, 1e-6 * rms);
-  // Pressure (atm): (2 KE + W) / 3V, with the data file's velocities.
+  // Pressure: (2 KE + W) / 3V, with the data file's velocities.
   double ke = 0.0;
   for (int i = 0; i < n; ++i) ke += 0.5 * sc.state.v.col(i).squaredNorm() / sc.state.inv_mass[i];
   EXPECT_NEAR(ke, ref.at("KinEng"), 1e-9 * ref.at("KinEng"));
   const double volume = sc.box.lengths.prod();
-  const double pressure = (2.0 * ke + virial) / (3.0 * volume) * Units::kRealPressure;
-  std::printf("pressure: stiffmd %.10g atm, LAMMPS %.10g atm\n", pressure, ref.at("Press"));
+  const double pressure = (2.0 * ke + virial) / (3.0 * volume) * pressure_unit;
+  std::printf("pressure: stiffmd %.10g, LAMMPS %.10g\n", pressure, ref.at("Press"));
   EXPECT_NEAR(pressure, ref.at("Press"), 1e-6 * std::abs(ref.at("Press")));
+  return e;
+}
+
+TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
+  expect_lammps_run_zero("tests/decks/peptide_run0.toml", "tests/data/peptide_lammps",
+                         {"E_bond", "E_angle", "E_dihed", "E_impro", "E_vdwl", "E_coul", "E_long"},
+                         Units::kRealPressure);
+}
+
+// The polyelectrolyte's real-space Coulomb energy is a sum of terms of both signs (2.3 from pairs
+// of size ~1 each): LAMMPS's polynomial erfc (pair_modify table 0: Abramowitz–Stegun 7.1.26,
+// |error| ≤ 1.5e-7) moves it by up to 1.5e-7 Σ|qq|/r, which is more than 1e-6 of the sum. It is
+// checked by what it is: the same pairs summed here with LAMMPS's erfc equal LAMMPS's E_coul to
+// 1e-10, and stiffmd's (erfc exact to round-off) is within that bound of it.
+TEST(PolyelectrolyteLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
+  const std::string deck = "tests/decks/polyelectrolyte_run0.toml", dir = "tests/data/polyelectrolyte_lammps";
+  const auto e = expect_lammps_run_zero(deck, dir, {"E_bond", "E_vdwl", "E_long"}, 1.0);
+  const double lammps = lammps_energies(dir).at("E_coul");
+  const Scene sc = test::load(deck);
+  const EwaldRealSpace* pair = nullptr;
+  for (const auto& term : sc.forces->terms())
+    if (auto* p = dynamic_cast<const EwaldRealSpace*>(term.get())) pair = p;
+  ASSERT_NE(pair, nullptr);
+  const double g = pair->ewald_splitting(), rc = pair->coulomb_cutoff();
+  const auto lammps_erfc = [](double x) {  // LAMMPS pair_lj_cut_coul_long.cpp, its EWALD_P and A1..A5
+    const double t = 1.0 / (1.0 + 0.3275911 * x);
+    return t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429)))) *
+           std::exp(-x * x);
+  };
+  double with_lammps_erfc = 0.0, bound = 0.0;  // special_coul is 1 for every pair: no exclusions
+  const Eigen::Matrix3Xd& x = sc.state.x;
+  for (int i = 0; i < sc.state.size(); ++i)
+    for (int j = i + 1; j < sc.state.size(); ++j) {
+      Eigen::Vector3d d = x.col(i) - x.col(j);
+      for (int a = 0; a < 3; ++a) d[a] -= sc.box.lengths[a] * std::round(d[a] / sc.box.lengths[a]);
+      const double r = d.norm(), qq = sc.charge[i] * sc.charge[j];
+      if (r >= rc || qq == 0.0) continue;
+      with_lammps_erfc += qq * lammps_erfc(g * r) / r;
+      bound += 1.5e-7 * std::abs(qq) / r;
+    }
+  std::printf("E_coul: stiffmd %.12g, with LAMMPS's erfc %.12g, LAMMPS %.12g; bound %.3g\n", e.at("E_coul"),
+              with_lammps_erfc, lammps, bound);
+  EXPECT_NEAR(with_lammps_erfc, lammps, 1e-10 * std::abs(lammps));
+  EXPECT_NEAR(e.at("E_coul"), lammps, bound);
 }
 
 }  // namespace
