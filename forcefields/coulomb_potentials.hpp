@@ -15,8 +15,9 @@
 // Each type pair's Params.rc2 is the larger of the two cutoffs squared (the list's range); eval
 // applies the van der Waals and Coulomb cutoffs itself, by masks.
 //
-// Differences from LAMMPS: the coul/long family takes erfc exact to round-off (e^{−x²} · erfcx(x),
-// erfc_scaled.hpp: ≤ 1e-15 relative from std::erfc, with the e^{−x²} the force needs anyway) where
+// Differences from LAMMPS: the coul/long family takes its ordinary pairs' E and −r dE/dr from a
+// table in r² good to ~1e-14 relative (ewald_table.hpp; 1e-12 at g r_c = 4.8) and erfc exact to
+// round-off elsewhere (e^{−x²} · erfcx(x), erfc_scaled.hpp: ≤ 1e-15 relative from std::erfc) where
 // LAMMPS (pair_modify table 0) takes the Abramowitz–Stegun polynomial 7.1.26 (absolute error ≲
 // 1.5e-7 in erfc), and 2/√π exactly where LAMMPS writes EWALD_F = 1.12837917; with tables
 // (LAMMPS's default, table 12) LAMMPS interpolates erfc instead. So a coul/long ecoul agrees with
@@ -33,6 +34,7 @@
 
 #include "forcefields/coefficients.hpp"
 #include "forcefields/erfc_scaled.hpp"
+#include "forcefields/ewald_table.hpp"
 #include "forcefields/pair_potentials.hpp"
 #include "forcefields/parameter_record.hpp"
 
@@ -79,6 +81,20 @@ inline void coulomb_long(double qq, double g, double r, double w, double& force,
   const double excluded = (1.0 - w) * prefactor;
   force = prefactor * (erfc + std::numbers::inv_sqrtpi * 2.0 * grij * expm2) - excluded;
   energy = prefactor * erfc - excluded;
+}
+
+// The same at r² = r2, from the table (ewald_table.hpp; null: none) where it covers r2 and the pair
+// is an ordinary one (w = 1: no correction, which needs 1/r), else exactly. The pair loop's pairs
+// have w = 1 as a constant, so that test folds away there.
+inline void coulomb_long_at(double qq, double g, const EwaldRealSpaceTable* table, double r2, double w, double& force,
+                            double& energy) {
+  if (w == 1.0 && table && table->covers(r2)) {
+    table->eval(r2, energy, force);
+    energy *= qq;
+    force *= qq;
+    return;
+  }
+  coulomb_long(qq, g, std::sqrt(r2), w, force, energy);
 }
 
 inline double unset_splitting() {
@@ -160,6 +176,7 @@ struct CoulombLong {
   struct Params {
     double rc2 = 0.0;
     double g_ewald = coulomb_detail::unset_splitting();
+    const EwaldRealSpaceTable* table = nullptr;  // E, G in r² (the term's, set with g)
   };
   static constexpr std::string_view kStyle = "coul/long";
   static void validate(const Coeffs& c) { coulomb_detail::require_cutoff(c.coulomb_cutoff, "coulomb_cutoff"); }
@@ -170,7 +187,7 @@ struct CoulombLong {
   static void eval(double r2, const Params& p, double qq, double, double factor_coul, double& evdwl, double& ecoul,
                    double& fpair) {
     double force = 0.0;
-    coulomb_detail::coulomb_long(qq, p.g_ewald, std::sqrt(r2), factor_coul, force, ecoul);
+    coulomb_detail::coulomb_long_at(qq, p.g_ewald, p.table, r2, factor_coul, force, ecoul);
     evdwl = 0.0;
     fpair = force / r2;
   }
@@ -198,6 +215,7 @@ struct LjCutCoul {
     double coul_rc2 = 0.0;
     double kappa = 0.0;
     double g_ewald = coulomb_detail::unset_splitting();
+    const EwaldRealSpaceTable* table = nullptr;  // E, G in r² (the term's, set with g)
   };
   static constexpr std::string_view kStyle = kForm == 0   ? "lj/cut/coul/cut"
                                              : kForm == 1 ? "lj/cut/coul/debye"
@@ -245,7 +263,7 @@ struct LjCutCoul {
       forcecoul *= factor_coul;
       energy *= factor_coul;
     } else {
-      coulomb_detail::coulomb_long(qq, p.g_ewald, std::sqrt(r2), factor_coul, forcecoul, energy);
+      coulomb_detail::coulomb_long_at(qq, p.g_ewald, p.table, r2, factor_coul, forcecoul, energy);
     }
     const double r6inv = r2inv * r2inv * r2inv;
     const double forcelj = r6inv * (p.lj.lj1 * r6inv - p.lj.lj2);
@@ -283,6 +301,7 @@ struct LjCharmmCoulLong {
     double lj1 = 0.0, lj2 = 0.0, lj3 = 0.0, lj4 = 0.0;
     double coul_rc2 = 0.0;
     double g_ewald = coulomb_detail::unset_splitting();
+    const EwaldRealSpaceTable* table = nullptr;  // E, G in r² (the term's, set with g)
   };
   static constexpr std::string_view kStyle = "lj/charmm/coul/long";
   static void validate(const Coeffs& c) {
@@ -325,17 +344,19 @@ struct LjCharmmCoulLong {
     const double in_coul = r2 < p.coul_rc2 ? 1.0 : 0.0;
     const double in_lj = r2 < p.lj_rc2 ? 1.0 : 0.0;
     double forcecoul = 0.0, energy = 0.0;
-    coulomb_detail::coulomb_long(qq, p.g_ewald, std::sqrt(r2), factor_coul, forcecoul, energy);
+    coulomb_detail::coulomb_long_at(qq, p.g_ewald, p.table, r2, factor_coul, forcecoul, energy);
     const double r6inv = r2inv * r2inv * r2inv;
     double forcelj = r6inv * (p.lj1 * r6inv - p.lj2);
     double philj = r6inv * (p.lj3 * r6inv - p.lj4);
-    if (r2 > p.inner2) {  // the switching region: a few per cent of the pairs
-      const double dc = p.lj_rc2 - r2;
-      const double switch1 = dc * dc * (p.lj_rc2 + 2.0 * r2 - 3.0 * p.inner2) * p.inv_denom;
-      const double switch2 = 12.0 * r2 * dc * (r2 - p.inner2) * p.inv_denom;
-      forcelj = forcelj * switch1 + philj * switch2;
-      philj *= switch1;
-    }
+    // The switching region holds about half the pairs within the cutoff (the shell between 8 and
+    // 10 Å of a sphere of 10), in no predictable order: the switched values are computed for every
+    // pair and selected, not branched to (the same bits; no mispredicted branch).
+    const double dc = p.lj_rc2 - r2;
+    const double switch1 = dc * dc * (p.lj_rc2 + 2.0 * r2 - 3.0 * p.inner2) * p.inv_denom;
+    const double switch2 = 12.0 * r2 * dc * (r2 - p.inner2) * p.inv_denom;
+    const bool switched = r2 > p.inner2;
+    forcelj = switched ? forcelj * switch1 + philj * switch2 : forcelj;
+    philj = switched ? philj * switch1 : philj;
     ecoul = in_coul * energy;
     evdwl = in_lj * factor_lj * philj;
     fpair = (in_coul * forcecoul + in_lj * factor_lj * forcelj) * r2inv;

@@ -180,9 +180,10 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
       const Params& p = prow[type[j]];
       // Listed within cutoff + skin, interacting within the cutoff: a third to a half of the
       // listed pairs (WCA, skin 0.3σ), in no predictable order, so mask the result rather than
-      // branch around eval — measured ~1.5× faster on a dense liquid. A charged kernel (an exp
-      // and erfc_scaled: several times a WCA pair) is worth the mispredicted branch around it:
-      // the same bits (a masked pair adds exact zeros), docs/electrostatics.md has the speed-up.
+      // branch around eval — measured ~1.5× faster on a dense liquid. A charged kernel (a table
+      // of two degree-7 polynomials, or erfc: several times a WCA pair) is worth the mispredicted
+      // branch around it: the same bits (a masked pair adds exact zeros), docs/electrostatics.md
+      // has the speed-up.
       if constexpr (ChargedKernel<Kernel>)
         if (!(r2 < p.rc2)) continue;
       const double inside = r2 < p.rc2 ? 1.0 : 0.0;
@@ -252,8 +253,8 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
       fpair *= sp.weight;
       e *= sp.weight;
     }
-    add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(
-        sums, kShares && ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0, e, ecoul, fpair, r2, dx, dy, dz);
+    add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(sums, kShares && ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0,
+                                                           e, ecoul, fpair, r2, dx, dy, dz);
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;

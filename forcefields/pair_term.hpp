@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -263,11 +264,13 @@ class PairTerm final : public ForceTerm,
     if constexpr (kCharged) return Kernel::coulomb_cutoff(coeffs_(0, 0));
     return 0.0;
   }
-  void set_splitting(double g);
+  void set_splitting(double g) { set_splitting(g, nullptr); }
   double splitting() const { return g_ewald_; }
 
  private:
   void check_positions(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* f) const;
+  // g and its table (null: made here; a copy's: the original's, the same for the same g).
+  void set_splitting(double g, std::shared_ptr<const EwaldRealSpaceTable> table);
   void set_special(std::span<const SpecialPair> special);
   void set_charges(std::vector<double> q);
   void check_ready(const Box& box) const;
@@ -288,6 +291,7 @@ class PairTerm final : public ForceTerm,
   Electrostatics electrostatics_;                              // coul weights and qqrd2e (charged kernels)
   std::vector<double> charges_;                                // per particle (charged kernels), else empty
   double g_ewald_ = std::numeric_limits<double>::quiet_NaN();  // coul/long kernels
+  std::shared_ptr<const EwaldRealSpaceTable> table_;           // E, G at g (coul/long kernels)
   bool tail_ = false;
   double etail_ = 0.0, ptail_ = 0.0;  // Σ N_a N_b etail_ab, Σ N_a N_b ptail_ab
   double tail_share_ = 1.0;
@@ -383,7 +387,7 @@ std::unique_ptr<ForceTerm> PairTerm<Kernel>::copy_on(std::vector<int> types, std
   term->etail_ = etail_;
   term->ptail_ = ptail_;
   if constexpr (kEwald)
-    if (!std::isnan(g_ewald_)) term->set_splitting(g_ewald_);
+    if (!std::isnan(g_ewald_)) term->set_splitting(g_ewald_, table_);
   return term;
 }
 
@@ -420,17 +424,20 @@ std::pair<double, double> PairTerm<Kernel>::tail_at(const Box& box) const {
 }
 
 template <class Kernel>
-void PairTerm<Kernel>::set_splitting(double g) {
+void PairTerm<Kernel>::set_splitting(double g, std::shared_ptr<const EwaldRealSpaceTable> table) {
   if (!(g > 0.0) || !std::isfinite(g))
     pair_detail::fail(name(), Kernel::kStyle,
                       "the Ewald splitting g must be finite and > 0 (got " + std::to_string(g) + ")");
   g_ewald_ = g;
   if constexpr (kEwald) {
+    table_ = table && table->g() == g ? std::move(table)
+                                      : std::make_shared<const EwaldRealSpaceTable>(g, one_coulomb_cutoff());
     const int nt = params_.num_types();
     for (int a = 0; a < nt; ++a)
       for (int b = a; b < nt; ++b) {
         Params p = params_(a, b);
         p.g_ewald = g;
+        p.table = table_.get();
         params_.set(a, b, p);
       }
   }

@@ -4,14 +4,18 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
 
 #include "engine/io/lammps_data.hpp"
 #include "force_term_checks.hpp"
+#include "forcefields/ewald_table.hpp"
 #include "forcefields/pair_term.hpp"
 
 namespace stiffmd {
@@ -31,17 +35,27 @@ KernelValue kernel_at(const typename K::Params& p, double r2, double qq, double 
   return v;
 }
 
+// With `table`, a coul/long kernel's Params carry the real-space table for (kG, its Coulomb cutoff),
+// as the term sets them (PairTerm::set_splitting); without, the exact form alone.
 template <class K>
-typename K::Params kernel_params(const typename K::Coeffs& c) {
+typename K::Params kernel_params(const typename K::Coeffs& c, bool table = false) {
   typename K::Params p = K::params(c);
-  if constexpr (EwaldKernel<K>) p.g_ewald = kG;
+  if constexpr (EwaldKernel<K>) {
+    p.g_ewald = kG;
+    static const EwaldRealSpaceTable shared(kG, 8.0);
+    if (table) {
+      EXPECT_EQ(K::coulomb_cutoff(c), 8.0);
+      p.table = &shared;
+    }
+  }
   return p;
 }
 
 // −dE/dr / r against central differences of E = evdwl + ecoul, away from the cutoffs.
 template <class K>
-void expect_force_is_minus_derivative(const typename K::Coeffs& c, std::initializer_list<double> cutoffs) {
-  const typename K::Params p = kernel_params<K>(c);
+void expect_force_is_minus_derivative(const typename K::Coeffs& c, std::initializer_list<double> cutoffs,
+                                      bool table = false) {
+  const typename K::Params p = kernel_params<K>(c, table);
   for (const auto& [flj, fcoul] : {std::pair{1.0, 1.0}, std::pair{0.5, 0.3}, std::pair{0.0, 0.0}})
     for (double r = 1.2; r < 9.5; r += 0.137) {
       bool near_cut = false;
@@ -76,6 +90,86 @@ TEST(CoulombKernels, ForceIsMinusDerivativeOfEnergy) {
   expect_force_is_minus_derivative<LjCutCoulDebye>(lj_coul(0.2, true), {7.0, 8.0});
   expect_force_is_minus_derivative<LjCutCoulLong>(lj_coul(0, false), {7.0, 8.0});
   expect_force_is_minus_derivative<LjCharmmCoulLong>(charmm(), {6.0, 7.0, 8.0});
+  // The coul/long family on its real-space table (E and G interpolated apart).
+  expect_force_is_minus_derivative<CoulombLong>({8.0}, {8.0}, true);
+  expect_force_is_minus_derivative<LjCutCoulLong>(lj_coul(0, false), {7.0, 8.0}, true);
+  expect_force_is_minus_derivative<LjCharmmCoulLong>(charmm(), {6.0, 7.0, 8.0}, true);
+}
+
+// The real-space table (forcefields/ewald_table.hpp) against the exact form (coulomb_long: erfc to
+// round-off) at 20 000 points spread over its 13 octaves, for the g r_c of LAMMPS's accuracies 1e-4
+// … 1e-8 at a 10 Å cutoff: relative error of E and G at most the header's figures.
+TEST(EwaldTable, MatchesTheExactFormToItsStatedAccuracy) {
+  const double rc = 10.0;
+  for (const auto& [g_rc, bound] :
+       {std::pair{2.0, 1e-13}, std::pair{3.1, 1e-13}, std::pair{3.5, 1e-13}, std::pair{4.8, 1e-11}}) {
+    const EwaldRealSpaceTable table(g_rc / rc, rc);
+    EXPECT_LE(table.s_max(), 2.0 * rc * rc);
+    EXPECT_GE(table.s_max(), rc * rc);
+    double worst_e = 0.0, worst_f = 0.0;
+    for (int k = 0; k < 20000; ++k) {
+      const double s = table.s_min() * std::pow(rc * rc / table.s_min(), (k + 0.5) / 20000.0);
+      ASSERT_TRUE(table.covers(s));
+      double e = 0.0, f = 0.0, exact_e = 0.0, exact_f = 0.0;
+      table.eval(s, e, f);
+      coulomb_detail::coulomb_long(1.0, table.g(), std::sqrt(s), 1.0, exact_f, exact_e);
+      worst_e = std::max(worst_e, std::abs(e - exact_e) / exact_e);
+      worst_f = std::max(worst_f, std::abs(f - exact_f) / exact_f);
+    }
+    std::printf("g rc = %.1f: max relative error E %.2e, G %.2e (bound %.0e)\n", g_rc, worst_e, worst_f, bound);
+    EXPECT_LE(worst_e, bound);
+    EXPECT_LE(worst_f, bound);
+  }
+}
+
+// At every interval's start the polynomials on both sides meet (to the interpolation's accuracy):
+// the table is continuous where its pieces join, so a pair crossing a join sees no jump.
+TEST(EwaldTable, IsContinuousWhereItsIntervalsJoin) {
+  const EwaldRealSpaceTable table(0.31, 10.0);
+  int joins = 0;
+  for (double s = table.s_min() * (1.0 + 1.0 / 32.0); s < table.s_max(); s *= 1.0 + 1.0 / 64.0) {
+    // the join at or below s: s with the bits below the top 5 of the mantissa cleared
+    const std::uint64_t mask = ~((std::uint64_t{1} << (52 - EwaldRealSpaceTable::kMantissaBits)) - 1);
+    const double join = std::bit_cast<double>(std::bit_cast<std::uint64_t>(s) & mask);
+    double e_below = 0.0, f_below = 0.0, e_at = 0.0, f_at = 0.0;
+    table.eval(std::nextafter(join, 0.0), e_below, f_below);
+    table.eval(join, e_at, f_at);
+    EXPECT_NEAR(e_below, e_at, 1e-13 * e_at) << "s = " << join;
+    EXPECT_NEAR(f_below, f_at, 1e-13 * f_at) << "s = " << join;
+    ++joins;
+  }
+  EXPECT_GT(joins, 300);
+}
+
+// Below the table (r < r_c/90), beyond it and for special pairs (w ≠ 1, which need 1/r) the kernels
+// take the exact form: the same bits as without a table.
+TEST(EwaldTable, KernelsTakeTheExactFormOutsideTheTableAndForSpecialPairs) {
+  const CoulombLong::Params with = kernel_params<CoulombLong>({8.0}, true), without = kernel_params<CoulombLong>({8.0});
+  ASSERT_NE(with.table, nullptr);
+  const double qq = -0.42 * kQqrd2eReal;
+  for (const double r2 : {0.5 * with.table->s_min(), with.table->s_max() * 1.5}) {
+    const KernelValue a = kernel_at<CoulombLong>(with, r2, qq, 1.0, 1.0),
+                      b = kernel_at<CoulombLong>(without, r2, qq, 1.0, 1.0);
+    EXPECT_EQ(a.ecoul, b.ecoul);
+    EXPECT_EQ(a.fpair, b.fpair);
+  }
+  for (const double w : {0.0, 0.5}) {
+    const KernelValue a = kernel_at<CoulombLong>(with, 2.3, qq, w, w),
+                      b = kernel_at<CoulombLong>(without, 2.3, qq, w, w);
+    EXPECT_EQ(a.ecoul, b.ecoul);
+    EXPECT_EQ(a.fpair, b.fpair);
+  }
+  // Inside the table an ordinary pair is the table's, within its accuracy of the exact form.
+  const KernelValue a = kernel_at<CoulombLong>(with, 7.3, qq, 1.0, 1.0),
+                    b = kernel_at<CoulombLong>(without, 7.3, qq, 1.0, 1.0);
+  EXPECT_NEAR(a.ecoul, b.ecoul, 1e-13 * std::abs(b.ecoul));
+  EXPECT_NEAR(a.fpair, b.fpair, 1e-13 * std::abs(b.fpair));
+}
+
+TEST(EwaldTable, RefusesBadInput) {
+  for (const auto& [g, rc] : {std::pair{0.0, 10.0}, std::pair{-1.0, 10.0}, std::pair{0.3, 0.0},
+                              std::pair{std::nan(""), 10.0}, std::pair{0.3, std::numeric_limits<double>::infinity()}})
+    EXPECT_THROW(EwaldRealSpaceTable(g, rc), std::invalid_argument) << g << " " << rc;
 }
 
 // The formulas at one distance, written out as LAMMPS's pair styles compute them.

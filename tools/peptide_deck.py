@@ -88,7 +88,9 @@ def deck(run0):
         w("style = \"pppm\"\naccuracy = 1e-4\n")
         w("[thermostat]\nstyle = \"langevin\"\ntemperature = 275.0\ndamp = 100.0\nseed = 3\n")
         w("[integrator]\nmethod = \"rattle\"\nh = 2.0                        # fs\n")
-        w("[run]\nsteps = 300\n\n[output]\nthermo_interval = 100.0\n")
+        w("[run]\nsteps = 300\n\n[output]\nthermo_interval = 100.0")
+        w("xyz = \"\"                       # no trajectory, as the example (its dumps are commented out);")
+        w("                               # --set output.h5md='\"traj.h5md\"' writes one\n")
     return "\n".join(o)
 
 open(os.path.join(root, 'inputs', 'peptide.toml'), 'w').write(deck(False))
