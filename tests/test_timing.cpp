@@ -121,12 +121,31 @@ TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
   fs::remove_all(dir);
 }
 
+// A small system with a k-space term (384 charged beads, PPPM): its step is milliseconds long, so it
+// is timed by phase, and the mesh's time is its own phase, above zero, the phases adding up.
+TEST(RunTiming, AKSpaceTermIsTimedByPhaseAtAnySize) {
+  const fs::path dir = test::scratch_dir("timing_kspace");
+  const test::CliResult r = test::cli("run " + test::source_path("inputs/polyelectrolyte.toml") + " -o " +
+                                          dir.string() + " --no-progress -q --set run.t_end=0.5",
+                                      "OMP_NUM_THREADS=1 ");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("  kspace "), std::string::npos) << r.out;
+  const std::string json = test::slurp(dir / "summary.json");
+  EXPECT_GT(json_number(json, "kspace"), 0.0) << json;
+  EXPECT_GT(json_number(json, "pair"), 0.0) << json;
+  double sum = 0.0;
+  for (std::string_view p : kPhaseNames) sum += json_number(json, std::string(p));
+  const double loop = json_number(json, "loop_seconds");
+  EXPECT_NEAR(sum, loop, 0.02 * loop) << json;
+  fs::remove_all(dir);
+}
+
 // The thread count a summary gives is that of the step loop's loops, not OMP_NUM_THREADS: the
 // pendulum's loops (two bonds, two particles) all run on one thread at any thread count.
 TEST(RunTiming, ThreadCountIsTheThreadsTheLoopsRanOn) {
   const fs::path dir = test::scratch_dir("timing_threads");
-  const test::CliResult r = test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " + dir.string() +
-                                          " --no-progress -q --set run.t_end=1",
+  const test::CliResult r = test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " +
+                                          dir.string() + " --no-progress -q --set run.t_end=1",
                                       "OMP_NUM_THREADS=2 ");
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find(" s wall on 1 thread; "), std::string::npos) << r.out;

@@ -100,6 +100,8 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
 
 Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     : sc_(sc),
+      has_kspace_(std::any_of(sc.forces->terms().begin(), sc.forces->terms().end(),
+                              [](const auto& t) { return t->phase() == Phase::kspace; })),
       s_(sc.state),
       options_(opt),
       log_(log),
@@ -219,9 +221,9 @@ Run::~Run() = default;
 
 void Run::step_to(std::int64_t k) {
   // The step loop's time, and where it goes: the phase clock and the time inside the parallel
-  // loops run only while stepping, and only in systems whose loops can run in parallel (from
-  // kParallelMin particles): a smaller system's step is too short to time by parts (a mark costs
-  // two clock reads, ≈ 50 ns here, against 240 ns for a whole velocity-Verlet step of the pendulum).
+  // loops run only while stepping, and only where timed_by_phase: a small system's step is too
+  // short to time by parts (a mark costs two clock reads, ≈ 50 ns here, against 240 ns for a whole
+  // velocity-Verlet step of the pendulum).
   const double entered = seconds_now();
   const bool timed = timed_by_phase();
   if (timed) {

@@ -107,7 +107,10 @@ class Run {
   void write_checkpoint_now();
   std::vector<std::int64_t> evaluations_now() const;
   long rebuilds_now() const;
-  bool timed_by_phase() const { return s_.size() >= kParallelMin; }
+  // A step long enough to time by parts (a mark costs two clock reads, ≈ 50 ns): from kParallelMin
+  // particles, or at any size with a k-space term (a mesh or an Ewald sum: a step of milliseconds,
+  // whose k-space share the breakdown reports).
+  bool timed_by_phase() const { return s_.size() >= kParallelMin || has_kspace_; }
   bool root() const { return !domain_ || options_.processes->root(); }
   // Whether a decomposed run's thermo row is summed by its ranks' parts (else rank 0 samples the
   // gathered whole state).
@@ -116,6 +119,7 @@ class Run {
   std::int64_t agreed(std::int64_t rank0_value) const;
 
   Scene& sc_;
+  bool has_kspace_ = false;  // a term in the kspace phase (timed_by_phase)
   State& s_;
   RunOptions options_;
   std::ostream& log_;

@@ -47,7 +47,7 @@ std::string format_summary(const RunSummary& s) {
   if (s.phase_seconds.empty()) {
     o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
       << (s.threads == 1 ? " thread" : " threads") << "; by phase from " << kParallelMin
-      << " particles on (a smaller step is too short to time by parts)\n";
+      << " particles on, or with a k-space term (a smaller step is too short to time by parts)\n";
   } else if (s.loop_seconds > 0.0) {
     o << "timing:        step loop " << s.loop_seconds << " s wall on " << s.threads
       << (s.threads == 1 ? " thread" : " threads");

@@ -48,8 +48,8 @@ struct RunSummary {
   int stopped_by_signal = 0;  // SIGINT/SIGTERM: stopped early after writing a checkpoint
   // Where the step loop's wall time went (core/timing.hpp): seconds per phase, in the
   // order of kPhaseNames, adding up to loop_seconds; and the share of the loop outside the
-  // engine's parallel loops (−1: not measured, a system below kParallelMin particles, whose
-  // loops all stay serial).
+  // engine's parallel loops (−1: not measured, a step too short to time by parts: below
+  // kParallelMin particles without a k-space term).
   double loop_seconds = 0.0;
   std::vector<double> phase_seconds;
   double serial_share = -1.0;
