@@ -2,16 +2,19 @@
 // own data file with the same styles — harmonic bonds, charmm angles (Urey–Bradley) and dihedrals
 // (weighted 1-4 pairs), harmonic impropers, lj/charmm/coul/long with an Ewald sum at 1e-8 — against
 // LAMMPS's `run 0` of the same (tests/data/peptide_lammps/, made by tools/peptide_deck.py
-// --reference): every energy term, the forces and the pressure.
+// --reference): every energy term, the forces and the pressure; and the example's SHAKE set chosen
+// by mass as by bond type.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <string>
 
 #include "core/units.hpp"
+#include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/charmm_terms.hpp"
 #include "tests/test_support.hpp"
@@ -101,6 +104,54 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
   const double pressure = (2.0 * ke + virial) / (3.0 * volume) * Units::kRealPressure;
   std::printf("pressure: stiffmd %.10g atm, LAMMPS %.10g atm\n", pressure, ref.at("Press"));
   EXPECT_NEAR(pressure, ref.at("Press"), 1e-6 * std::abs(ref.at("Press")));
+}
+
+// LAMMPS's fix shake … m 1.008 on the peptide: every bond with a hydrogen, the CHARMM ones (1.008)
+// and the water's (1.01, within LAMMPS's 0.1), is in.peptide's `b 4 6 8 10 12 14 18` and no other.
+// The deck with the bond_types entries replaced by masses = [1.008] makes the same bonds rigid, in
+// the same order, with the same lengths (the data file's r0, as the entries were written from it)
+// and stiffnesses (α = ε√(2K) from the Bond Coeffs row; the entries are that to 12 digits), and
+// the water angle's third bond from the mass-selected arms.
+TEST(PeptideShake, BondsToHydrogenByMassAreTheExamplesBondTypes) {
+  std::ifstream in(test::source_path("inputs/peptide.toml"));
+  std::string by_mass, line;
+  int named = 0;
+  while (std::getline(in, line)) {
+    if (line.rfind("bond_types.\"", 0) == 0) {
+      if (named++ == 0) by_mass += "masses = [1.008]\n";
+      continue;
+    }
+    if (line.rfind("lammps_data = ", 0) == 0)
+      line = "lammps_data = \"" + test::source_path("inputs/peptide_solvated.data") + "\"";
+    by_mass += line + "\n";
+  }
+  ASSERT_EQ(named, 7);
+  const Scene a = load_scene(Deck(test::source_path("inputs/peptide.toml"), {}));
+  const Scene b = load_scene(Deck(Deck::Text{"peptide_by_mass.toml", by_mass}, {}));
+  const StiffBonds& by_type = *a.forces->stiff_bonds();
+  const StiffBonds& chosen = *b.forces->stiff_bonds();
+  // 1320 bonds to hydrogen (1280 of them the waters' O–H) and one H–H per water (640).
+  ASSERT_EQ(by_type.bonds.size(), 1320u + 640u);
+  ASSERT_EQ(chosen.bonds.size(), by_type.bonds.size());
+  EXPECT_EQ(chosen.epsilon, by_type.epsilon);
+  for (size_t k = 0; k < by_type.bonds.size(); ++k) {
+    const StiffBond &x = by_type.bonds[k], &y = chosen.bonds[k];
+    ASSERT_EQ(x.i, y.i) << k;
+    ASSERT_EQ(x.j, y.j) << k;
+    EXPECT_EQ(x.length, y.length) << k;
+    EXPECT_NEAR(x.alpha, y.alpha, 1e-11 * x.alpha) << k;
+  }
+  // Every bond with a particle of mass near 1.008 is rigid, and every rigid bond of the file has one.
+  std::set<std::pair<int, int>> rigid;
+  for (const StiffBond& s : chosen.bonds) rigid.insert({std::min(s.i, s.j), std::max(s.i, s.j)});
+  const auto hydrogen = [&](int i) { return std::abs(1.0 / b.state.inv_mass[i] - 1.008) <= 0.1; };
+  int with_h = 0;
+  for (const Bond& bond : b.topology.bonds) {
+    const bool h = hydrogen(bond.i) || hydrogen(bond.j);
+    with_h += h;
+    EXPECT_EQ(rigid.count({std::min(bond.i, bond.j), std::max(bond.i, bond.j)}), h ? 1u : 0u);
+  }
+  EXPECT_EQ(with_h, 1320);
 }
 
 }  // namespace
