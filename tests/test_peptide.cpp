@@ -2,8 +2,8 @@
 // own data file with the same styles — harmonic bonds, charmm angles (Urey–Bradley) and dihedrals
 // (weighted 1-4 pairs), harmonic impropers, lj/charmm/coul/long with an Ewald sum at 1e-8 — against
 // LAMMPS's `run 0` of the same (tests/data/peptide_lammps/, made by tools/peptide_deck.py
-// --reference): every energy term, the forces and the pressure; and the example's SHAKE set chosen
-// by mass as by bond type.
+// --reference): every energy term, the forces and the pressure, the thermo's evdwl; and the
+// example's SHAKE set chosen by mass as by bond type.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -15,6 +15,7 @@
 
 #include "core/units.hpp"
 #include "engine/deck/deck.hpp"
+#include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/charmm_terms.hpp"
 #include "tests/test_support.hpp"
@@ -104,6 +105,38 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
   const double pressure = (2.0 * ke + virial) / (3.0 * volume) * Units::kRealPressure;
   std::printf("pressure: stiffmd %.10g atm, LAMMPS %.10g atm\n", pressure, ref.at("Press"));
   EXPECT_NEAR(pressure, ref.at("Press"), 1e-6 * std::abs(ref.at("Press")));
+}
+
+// The thermo row's evdwl, ecoul and elong on the same run 0: evdwl (the lj/charmm pairs and the
+// charmm dihedrals' 1-4 Lennard-Jones) is LAMMPS's E_vdwl, and with ecoul, elong and the bonded
+// terms' own energies (bonds, charmm angles, the torsions without their 1-4 pairs, impropers) it
+// is the potential energy to round-off.
+TEST(PeptideLammps, ThermoEvdwlIsLammpsAndTheColumnsAddUpToThePotential) {
+  const Scene sc = test::load("tests/decks/peptide_run0.toml");
+  Thermo thermo(*sc.forces, sc.state.inv_mass, ObservableSettings{}, &sc.topology);
+  const std::vector<double> row = thermo.sample(sc.state);
+  const auto column = [&](const char* name) {
+    const int k = thermo.column(name);
+    EXPECT_GE(k, 0) << name;
+    return k < 0 ? std::nan("") : row[static_cast<size_t>(k)];
+  };
+  const double evdwl = column("evdwl"), ecoul = column("ecoul"), elong = column("elong");
+  EXPECT_EQ(thermo.column("evdwl") + 1, thermo.column("ecoul"));  // LAMMPS's order: evdwl ecoul elong
+  const auto ref = lammps_energies();
+  std::printf("evdwl: stiffmd %.15g  LAMMPS %.15g  relative %.2e\n", evdwl, ref.at("E_vdwl"),
+              std::abs(evdwl - ref.at("E_vdwl")) / ref.at("E_vdwl"));
+  EXPECT_NEAR(evdwl, ref.at("E_vdwl"), 1e-9 * ref.at("E_vdwl"));
+  double bonded = 0.0;
+  for (const auto& term : sc.forces->terms()) {
+    const std::string style(term->style());
+    Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
+    if (style == "charmm-dihedral")
+      bonded += dynamic_cast<const CharmmDihedral&>(*term).energy_parts(sc.state.x, sc.box).torsion;
+    else if (style == "harmonic-bond" || style == "charmm-angle" || style == "harmonic-improper")
+      bonded += term->add_forces(sc.state.x, sc.box, f);
+  }
+  const double potential = column("potential_slow") + column("potential_stiff");
+  EXPECT_NEAR(evdwl + ecoul + elong + bonded, potential, 1e-12 * (std::abs(ecoul) + std::abs(elong)));
 }
 
 // LAMMPS's fix shake … m 1.008 on the peptide: every bond with a hydrogen, the CHARMM ones (1.008)
