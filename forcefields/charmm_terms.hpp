@@ -208,11 +208,16 @@ class CharmmDihedral final : public ForceTerm {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return torsion_.virial(x, box) + accumulate_bond_virial<charmm_detail::Pair14>(pairs_, x, box);
   }
-  // The thermo's sums, with the 1-4 pairs' Coulomb energy apart (Sums::coulomb: LAMMPS counts it in
-  // ecoul).
+  // The thermo's sums, with the 1-4 pairs' Coulomb and Lennard-Jones energies apart (Sums::coulomb
+  // and Sums::vdwl: LAMMPS counts them in ecoul and evdwl).
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override {
     Sums s = ForceTerm::energy_and_virial(x, box, scratch);
-    for (const auto& b : pairs_) s.coulomb += b.params.Q / bond_vector(x, b.i, b.j).norm();
+    for (const auto& b : pairs_) {
+      const double r = bond_vector(x, b.i, b.j).norm();
+      const double r2inv = 1.0 / (r * r), r6inv = r2inv * r2inv * r2inv;
+      s.coulomb += b.params.Q / r;
+      s.vdwl += r6inv * (b.params.A * r6inv - b.params.B);
+    }
     return s;
   }
   // The energy in LAMMPS's three parts: the torsion (edihed), the 1-4 Lennard-Jones (its share of

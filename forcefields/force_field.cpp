@@ -106,6 +106,12 @@ double ForceField::last_coulomb_energy() const {
   return e;
 }
 
+double ForceField::last_vdwl_energy() const {
+  double e = 0.0;
+  for (const ForceTerm::Sums& s : term_sums_) e += s.vdwl;
+  return e;
+}
+
 double ForceField::last_kspace_energy() const {
   double e = 0.0;
   for (size_t k = 0; k < terms_.size() && k < term_sums_.size(); ++k)

@@ -60,9 +60,11 @@ class ForceField {
   // run's part gives its share of both). For observables: not a force evaluation.
   void energies_and_virial(const Eigen::Matrix3Xd& x, std::vector<double>& level_energy, double& virial) const;
   // Of the last energies_and_virial (this process's shares): the Coulomb energy of the charged
-  // terms (LAMMPS's ecoul: real-space pairs and 1-4 pairs, ForceTerm::Sums::coulomb) and the
-  // k-space terms' energy (elong).
+  // terms (LAMMPS's ecoul: real-space pairs and 1-4 pairs, ForceTerm::Sums::coulomb), the van der
+  // Waals energy (LAMMPS's evdwl: the pair terms' rest with their tail corrections, the 1-4
+  // Lennard-Jones, Sums::vdwl) and the k-space terms' energy (elong).
   double last_coulomb_energy() const;
+  double last_vdwl_energy() const;
   double last_kspace_energy() const;
   // Whether a term reads charges (the thermo's ecoul column) and whether one is a k-space term (elong).
   bool has_charges() const;

@@ -72,7 +72,10 @@ class ForceTerm {
   // the forces add_forces computes on the way. Default: add_forces's energy and virial().
   struct Sums {
     double energy = 0.0, virial = 0.0;
-    double coulomb = 0.0;  // the Coulomb part of energy (charged pair styles: LAMMPS's ecoul; evdwl the rest)
+    double coulomb = 0.0;  // the Coulomb part of energy (charged pair styles, 1-4 pairs: LAMMPS's ecoul)
+    // The van der Waals part, LAMMPS's evdwl: a pair term's energy less its Coulomb part (its tail
+    // correction included), the charmm dihedrals' 1-4 Lennard-Jones; 0 for the other terms.
+    double vdwl = 0.0;
   };
   virtual Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const {
     const double energy = add_forces(x, box, scratch);

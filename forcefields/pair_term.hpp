@@ -523,7 +523,7 @@ ForceTerm::Sums PairTerm<Kernel>::energy_and_virial(const Eigen::Matrix3Xd& x, c
                                                                  nullptr, scratch_, loop_charges());
   const auto [tail_energy, tail_virial] = tail_at(box);
   coulomb_energy_ = s.coulomb;
-  return {s.energy + tail_energy, s.virial + tail_virial, s.coulomb};
+  return {s.energy + tail_energy, s.virial + tail_virial, s.coulomb, s.energy - s.coulomb + tail_energy};
 }
 
 // The coefficients of every type pair (a, b), a <= b, as the pair loop uses them: after the

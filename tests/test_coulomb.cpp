@@ -289,15 +289,17 @@ const std::map<std::string, Reference>& lammps_reference() {
   return ref;
 }
 
-// Compares a term with LAMMPS's row: evdwl and ecoul (the split of energy_and_virial), the pair
-// virial, the forces on atoms 1, 7, 23. Returns the largest relative difference of the energies and
+// Compares a term with LAMMPS's row: evdwl and ecoul (the split of energy_and_virial: Sums::vdwl, the
+// tail correction included as LAMMPS's evdwl includes it, and Sums::coulomb, which add up to the
+// energy), the pair virial, the forces on atoms 1, 7, 23. Returns the largest relative difference of the energies and
 // virial (see below), and of the forces (relative to the largest force component).
 template <class K>
 std::pair<double, double> compare(const ChargedChains& s, const PairTerm<K>& term, const std::string& name) {
   const Reference& ref = lammps_reference().at(name);
   Eigen::Matrix3Xd scratch(3, s.x.cols());
   const ForceTerm::Sums sums = term.energy_and_virial(s.x, s.box, scratch);
-  const double evdwl = sums.energy - sums.coulomb;
+  const double evdwl = sums.vdwl;
+  EXPECT_NEAR(sums.vdwl + sums.coulomb, sums.energy, 1e-14 * (std::abs(sums.vdwl) + std::abs(sums.coulomb))) << name;
   const auto rel = [](double a, double b) { return std::abs(a - b) / std::max(1e-300, std::abs(b)); };
   // The virial relative to the larger of |W| and |ecoul|: the coul/long virial is a sum of terms as large
   // as ecoul's that nearly cancel (0.9 against 221 kcal/mol here).

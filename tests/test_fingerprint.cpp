@@ -62,11 +62,14 @@ const std::set<std::string> kNoOtherValue = {
 // Keys a reader asks about that are alternatives: a term selects its particles by `particles` or
 // by `type`, never both (the deck gives the tether the one and the wall the other); a bonded term
 // takes its coefficients from per-type tables or from the data file (`coefficients = "data"`:
-// tests/test_impropers.cpp covers it), never both.
+// tests/test_impropers.cpp covers it), never both; the stiff-harmonic term selects its bonds by
+// bond_types or also by `masses` (tests/test_force_registry.cpp and tests/test_peptide.cpp cover
+// it; what it selects is in the fingerprint as the term's bonds).
 const std::map<std::string, std::vector<std::string>> kAlternative = {
     {"particles", {"type"}},
     {"type", {"particles"}},
-    {"coefficients", {"bond_types", "angle_types", "dihedral_types", "improper_types"}}};
+    {"coefficients", {"bond_types", "angle_types", "dihedral_types", "improper_types"}},
+    {"masses", {"bond_types"}}};
 // Keys that the deck gives but the scene does not use, so that changing them leaves the same
 // scene, whose checkpoint continues (the test checks that no change of them is refused and that
 // the forces stay bit-identical): with per-type tables for every type, the term's own

@@ -247,5 +247,68 @@ TEST(ForceRegistry, RigidAnglesCloseTheTriangle) {
       << err;
 }
 
+// stiff-harmonic's masses (LAMMPS's fix shake … m): on tests/data/butanes.data (CH3 15, CH2 14;
+// Bond Coeffs 1: K 200, r0 1.0 — the CH3–CH2 bonds; 2: K 150, r0 1.05 — CH2–CH2), masses = [15]
+// makes the six end bonds rigid with the file's r0 and α = ε√(2K), and a harmonic-bond term with
+// coefficients = "data" takes the middle bonds: the two terms' energy is the bonds' LAMMPS energy,
+// 4.6419945562564111 (tools/lammps_butane_reference.py, as ImportedButanes.SameEnergiesAsLammps).
+// masses = [14] selects every bond (each has a CH2 end); a bond_types entry takes precedence over
+// the data file for its type.
+Scene butanes_by_mass(const std::string& stiff, const std::string& more) {
+  const std::string deck =
+      "[types.CH3]\nmass = 15.0\n[types.CH2]\nmass = 14.0\n"
+      "[import]\nlammps_data = \"" +
+      test::source_path("tests/data/butanes.data") +
+      "\"\natom_types = { \"1\" = \"CH3\", \"2\" = \"CH2\" }\nbond_types = { \"1\" = \"end\", \"2\" = \"mid\" }\n"
+      "angle_types = { \"1\" = \"ccc\" }\ndihedral_types = { \"1\" = \"butane\" }\n"
+      "[forces.rigid]\nstyle = \"stiff-harmonic\"\nepsilon = 0.05\n" +
+      stiff + more +
+      "[forces.angle]\nstyle = \"harmonic-angle\"\ncoefficients = \"data\"\n"
+      "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = "
+      "0.1 }\n[integrator]\nmethod = \"rattle\"\nh = 0.001\n[run]\nt_end = 0.001\n";
+  const fs::path p = fs::temp_directory_path() / ("stiffmd_butanes_" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(p) << deck;
+  Scene sc = load_scene(Deck(p.string(), {}));
+  fs::remove(p);
+  return sc;
+}
+
+double bond_energy(const Scene& sc) {
+  double e = 0.0;
+  for (const auto& t : sc.forces->terms())
+    if (t->name() == "rigid" || t->name() == "flex") {
+      Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
+      e += t->add_forces(sc.state.x, sc.box, f);
+    }
+  return e;
+}
+
+TEST(ForceRegistry, StiffBondsSelectedByMassAsLammpsShake) {
+  const std::string flex = "[forces.flex]\nstyle = \"harmonic-bond\"\ncoefficients = \"data\"\n";
+  const Scene ends = butanes_by_mass("masses = [15.0]\n", flex);
+  const StiffBonds& sb = *ends.forces->stiff_bonds();
+  std::vector<std::pair<int, int>> end_bonds, rigid;
+  for (const Bond& b : ends.topology.bonds)
+    if (ends.topology.bond_types[b.type] == "end") end_bonds.emplace_back(b.i, b.j);
+  for (const StiffBond& b : sb.bonds) {
+    rigid.emplace_back(b.i, b.j);
+    EXPECT_EQ(b.length, 1.0);
+    EXPECT_NEAR(b.alpha, 0.05 * std::sqrt(400.0), 1e-15);
+  }
+  EXPECT_EQ(rigid, end_bonds);
+  ASSERT_EQ(rigid.size(), 6u);
+  EXPECT_NEAR(bond_energy(ends), 4.6419945562564111, 1e-12);
+  // Within LAMMPS's 0.1 of a listed mass: 15.05 selects the CH3 ends, not the CH2 (14).
+  EXPECT_EQ(butanes_by_mass("masses = [15.05]\n", flex).forces->stiff_bonds()->bonds.size(), 6u);
+  const Scene all = butanes_by_mass("masses = [14.0]\n", "");
+  EXPECT_EQ(all.forces->stiff_bonds()->bonds.size(), 9u);
+  EXPECT_NEAR(bond_energy(all), 4.6419945562564111, 1e-12);
+  const Scene named = butanes_by_mass("masses = [14.0]\nbond_types.mid = { length = 1.5, alpha = 2.0 }\n", "");
+  const std::vector<StiffBond>& mixed = named.forces->stiff_bonds()->bonds;
+  ASSERT_EQ(mixed.size(), 9u);
+  for (size_t k = 0; k < mixed.size(); ++k)
+    EXPECT_EQ(mixed[k].length, named.topology.bond_types[named.topology.bonds[k].type] == "mid" ? 1.5 : 1.0) << k;
+}
+
 }  // namespace
 }  // namespace stiffmd

@@ -129,17 +129,18 @@ def charges_in_h5md_and_topology():
 
 
 def ecoul_and_elong_columns():
-    """A charged scene's thermo has ecoul (the real-space Coulomb pairs) and elong (the k-space
-    term), in the H5MD observables too; with only bonds besides them (tests/decks/every_mesh_style.toml:
-    harmonic bonds, coul/long, pppm) they add up with the bonds' energy to potential_slow."""
+    """A charged scene's thermo has evdwl (the pairs' van der Waals part: 0 for coul/long), ecoul
+    (the real-space Coulomb pairs) and elong (the k-space term), in the H5MD observables too; with
+    only bonds besides them (tests/decks/every_mesh_style.toml: harmonic bonds, coul/long, pppm) they
+    add up with the bonds' energy to potential_slow."""
     with tempfile.TemporaryDirectory() as d:
         run("tests/decks/every_mesh_style.toml", d, "output.h5md=traj.h5md", "output.h5md_interval=0.01")
         rows = np.genfromtxt(os.path.join(d, "thermo.csv"), delimiter=",", names=True)
         with h5py.File(os.path.join(d, "traj.h5md"), "r") as f:
-            assert "ecoul" in f["observables"] and "elong" in f["observables"]
+            assert all(c in f["observables"] for c in ("evdwl", "ecoul", "elong"))
             assert np.allclose(f["observables/elong/value"][:], rows["elong"][: len(f["observables/elong/value"])],
                                rtol=1e-10, atol=0)
-        assert np.all(rows["elong"] != 0) and np.all(rows["ecoul"] != 0)
+        assert np.all(rows["elong"] != 0) and np.all(rows["ecoul"] != 0) and np.all(rows["evdwl"] == 0)
         # At t = 0, potential_slow − ecoul − elong is the bonds' Σ ½k(r − r0)² (k = 100, r0 = 1.1) at
         # the data file's positions.
         x = {}
@@ -150,7 +151,7 @@ def ecoul_and_elong_columns():
             x[int(w[0])] = np.array([float(v) for v in w[4:7]])
         bonds = [(1, 2), (2, 3), (3, 4), (5, 6), (6, 7), (7, 8)]
         expected = sum(0.5 * 100.0 * (np.linalg.norm(x[i] - x[j]) - 1.1) ** 2 for i, j in bonds)
-        got = rows["potential_slow"][0] - rows["ecoul"][0] - rows["elong"][0]
+        got = rows["potential_slow"][0] - rows["evdwl"][0] - rows["ecoul"][0] - rows["elong"][0]
         assert abs(got - expected) < 1e-9 * (abs(rows["ecoul"][0]) + abs(rows["elong"][0])), (got, expected)
 
 

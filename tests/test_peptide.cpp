@@ -5,17 +5,21 @@
 //     lj/charmm/coul/long (tests/data/peptide_lammps/, made by tools/peptide_deck.py --reference);
 //   - a salt-free polyelectrolyte of our own (8 chains, every second bead charged, counterions; lj
 //     units): harmonic bonds, WCA + Coulomb as lj/cut/coul/long with Coulomb between bonded
-//     neighbours (tests/data/polyelectrolyte_lammps/, made by tools/polyelectrolyte.py --reference).
+//     neighbours (tests/data/polyelectrolyte_lammps/, made by tools/polyelectrolyte.py --reference);
+// and on the peptide the thermo's evdwl, and the example's SHAKE set chosen by mass as by bond type.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "core/units.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/charmm_terms.hpp"
 #include "forcefields/ewald_real_space.hpp"
@@ -125,7 +129,7 @@ TEST(PeptideLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
 // of size ~1 each): LAMMPS's polynomial erfc (pair_modify table 0: Abramowitz–Stegun 7.1.26,
 // |error| ≤ 1.5e-7) moves it by up to 1.5e-7 Σ|qq|/r, which is more than 1e-6 of the sum. It is
 // checked by what it is: the same pairs summed here with LAMMPS's erfc equal LAMMPS's E_coul to
-// 1e-10, and stiffmd's (erfc exact to round-off) is within that bound of it.
+// 1e-10, and stiffmd's (its table, ~1e-14 of the exact form) is within that bound of it.
 TEST(PolyelectrolyteLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
   const std::string deck = "tests/decks/polyelectrolyte_run0.toml", dir = "tests/data/polyelectrolyte_lammps";
   const auto e = expect_lammps_run_zero(deck, dir, {"E_bond", "E_vdwl", "E_long"}, 1.0);
@@ -156,6 +160,86 @@ TEST(PolyelectrolyteLammps, EveryEnergyTermTheForcesAndThePressureAsLammps) {
               with_lammps_erfc, lammps, bound);
   EXPECT_NEAR(with_lammps_erfc, lammps, 1e-10 * std::abs(lammps));
   EXPECT_NEAR(e.at("E_coul"), lammps, bound);
+}
+
+// The thermo row's evdwl, ecoul and elong on the same run 0: evdwl (the lj/charmm pairs and the
+// charmm dihedrals' 1-4 Lennard-Jones) is LAMMPS's E_vdwl, and with ecoul, elong and the bonded
+// terms' own energies (bonds, charmm angles, the torsions without their 1-4 pairs, impropers) it
+// is the potential energy to round-off.
+TEST(PeptideLammps, ThermoEvdwlIsLammpsAndTheColumnsAddUpToThePotential) {
+  const Scene sc = test::load("tests/decks/peptide_run0.toml");
+  Thermo thermo(*sc.forces, sc.state.inv_mass, ObservableSettings{}, &sc.topology);
+  const std::vector<double> row = thermo.sample(sc.state);
+  const auto column = [&](const char* name) {
+    const int k = thermo.column(name);
+    EXPECT_GE(k, 0) << name;
+    return k < 0 ? std::nan("") : row[static_cast<size_t>(k)];
+  };
+  const double evdwl = column("evdwl"), ecoul = column("ecoul"), elong = column("elong");
+  EXPECT_EQ(thermo.column("evdwl") + 1, thermo.column("ecoul"));  // LAMMPS's order: evdwl ecoul elong
+  const auto ref = lammps_energies("tests/data/peptide_lammps");
+  std::printf("evdwl: stiffmd %.15g  LAMMPS %.15g  relative %.2e\n", evdwl, ref.at("E_vdwl"),
+              std::abs(evdwl - ref.at("E_vdwl")) / ref.at("E_vdwl"));
+  EXPECT_NEAR(evdwl, ref.at("E_vdwl"), 1e-9 * ref.at("E_vdwl"));
+  double bonded = 0.0;
+  for (const auto& term : sc.forces->terms()) {
+    const std::string style(term->style());
+    Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, sc.state.size());
+    if (style == "charmm-dihedral")
+      bonded += dynamic_cast<const CharmmDihedral&>(*term).energy_parts(sc.state.x, sc.box).torsion;
+    else if (style == "harmonic-bond" || style == "charmm-angle" || style == "harmonic-improper")
+      bonded += term->add_forces(sc.state.x, sc.box, f);
+  }
+  const double potential = column("potential_slow") + column("potential_stiff");
+  EXPECT_NEAR(evdwl + ecoul + elong + bonded, potential, 1e-12 * (std::abs(ecoul) + std::abs(elong)));
+}
+
+// LAMMPS's fix shake … m 1.008 on the peptide: every bond with a hydrogen, the CHARMM ones (1.008)
+// and the water's (1.01, within LAMMPS's 0.1), is in.peptide's `b 4 6 8 10 12 14 18` and no other.
+// The deck with the bond_types entries replaced by masses = [1.008] makes the same bonds rigid, in
+// the same order, with the same lengths (the data file's r0, as the entries were written from it)
+// and stiffnesses (α = ε√(2K) from the Bond Coeffs row; the entries are that to 12 digits), and
+// the water angle's third bond from the mass-selected arms.
+TEST(PeptideShake, BondsToHydrogenByMassAreTheExamplesBondTypes) {
+  std::ifstream in(test::source_path("inputs/peptide.toml"));
+  std::string by_mass, line;
+  int named = 0;
+  while (std::getline(in, line)) {
+    if (line.rfind("bond_types.\"", 0) == 0) {
+      if (named++ == 0) by_mass += "masses = [1.008]\n";
+      continue;
+    }
+    if (line.rfind("lammps_data = ", 0) == 0)
+      line = "lammps_data = \"" + test::source_path("inputs/peptide_solvated.data") + "\"";
+    by_mass += line + "\n";
+  }
+  ASSERT_EQ(named, 7);
+  const Scene a = load_scene(Deck(test::source_path("inputs/peptide.toml"), {}));
+  const Scene b = load_scene(Deck(Deck::Text{"peptide_by_mass.toml", by_mass}, {}));
+  const StiffBonds& by_type = *a.forces->stiff_bonds();
+  const StiffBonds& chosen = *b.forces->stiff_bonds();
+  // 1320 bonds to hydrogen (1280 of them the waters' O–H) and one H–H per water (640).
+  ASSERT_EQ(by_type.bonds.size(), 1320u + 640u);
+  ASSERT_EQ(chosen.bonds.size(), by_type.bonds.size());
+  EXPECT_EQ(chosen.epsilon, by_type.epsilon);
+  for (size_t k = 0; k < by_type.bonds.size(); ++k) {
+    const StiffBond &x = by_type.bonds[k], &y = chosen.bonds[k];
+    ASSERT_EQ(x.i, y.i) << k;
+    ASSERT_EQ(x.j, y.j) << k;
+    EXPECT_EQ(x.length, y.length) << k;
+    EXPECT_NEAR(x.alpha, y.alpha, 1e-11 * x.alpha) << k;
+  }
+  // Every bond with a particle of mass near 1.008 is rigid, and every rigid bond of the file has one.
+  std::set<std::pair<int, int>> rigid;
+  for (const StiffBond& s : chosen.bonds) rigid.insert({std::min(s.i, s.j), std::max(s.i, s.j)});
+  const auto hydrogen = [&](int i) { return std::abs(1.0 / b.state.inv_mass[i] - 1.008) <= 0.1; };
+  int with_h = 0;
+  for (const Bond& bond : b.topology.bonds) {
+    const bool h = hydrogen(bond.i) || hydrogen(bond.j);
+    with_h += h;
+    EXPECT_EQ(rigid.count({std::min(bond.i, bond.j), std::max(bond.i, bond.j)}), h ? 1u : 0u);
+  }
+  EXPECT_EQ(with_h, 1320);
 }
 
 }  // namespace

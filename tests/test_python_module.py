@@ -77,7 +77,7 @@ def pendulum_equals_the_command_line_bit_for_bit():
 @test
 def charged_water_with_pppm_equals_the_command_line():
     # SPC/E water (real units: charges, lj/cut/coul/long, PPPM, rigid triangles) for 10 steps of
-    # 2 fs: the same final state as `stiffmd run`, bit for bit, and the thermo's ecoul and elong.
+    # 2 fs: the same final state as `stiffmd run`, bit for bit, and the thermo's evdwl, ecoul and elong.
     deck = os.path.join(ROOT, "inputs", "spce_water.toml")
     sets = {"run.t_end": 20.0, "output.h5md": '"trajectory.h5md"', "output.h5md_interval": 20.0}
     with tempfile.TemporaryDirectory() as out:
@@ -90,7 +90,7 @@ def charged_water_with_pppm_equals_the_command_line():
     assert np.allclose(1000.0 * sim.velocities, v, rtol=1e-13, atol=0), np.abs(1000.0 * sim.velocities - v).max()
     row = sim.thermo()
     assert row["total"] == summary["final_energy"], (row["total"], summary["final_energy"])  # x, v to the bit
-    for column in ("ecoul", "elong"):
+    for column in ("evdwl", "ecoul", "elong"):
         assert np.isclose(row[column], rows[column][-1], rtol=1e-10, atol=0), (column, row[column], rows[column][-1])
         assert row[column] != 0.0, column
 

@@ -26,8 +26,8 @@ Energies energies(const State& s, const ForceField& forces) {
 Dimension thermo_column_dimension(const std::string& c) {
   const auto starts = [&](const char* prefix) { return c.rfind(prefix, 0) == 0; };
   if (c == "time") return Dimension::time;
-  if (c == "kinetic" || c == "total" || c == "energy_drift" || c == "ecouple" || c == "econserve" || c == "ecoul" ||
-      c == "elong" || starts("potential_"))
+  if (c == "kinetic" || c == "total" || c == "energy_drift" || c == "ecouple" || c == "econserve" || c == "evdwl" ||
+      c == "ecoul" || c == "elong" || starts("potential_"))
     return Dimension::energy;
   if (c == "max_violation" || c == "rg" || c == "end_to_end" || c == "lx" || c == "ly" || c == "lz")
     return Dimension::length;
@@ -66,11 +66,12 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
   // Named r-RESPA levels (other than the default fast and slow): one column each.
   if (level_columns_)
     for (int k = 0; k < forces.num_levels(); ++k) columns_.push_back("potential_" + forces.level_name(Level{k}));
-  // A charged scene: the Coulomb energy apart (LAMMPS's ecoul: real-space and 1-4 pairs) and the
-  // k-space terms' (elong), both also in potential_*.
+  // A charged scene: the pair energy split as LAMMPS's evdwl (the van der Waals rest, tail and 1-4
+  // Lennard-Jones included) and ecoul (real-space and 1-4 Coulomb pairs), and the k-space terms'
+  // (elong), all also in potential_*.
   coulomb_column_ = forces.has_charges();
   kspace_column_ = forces.has_kspace();
-  if (coulomb_column_) columns_.push_back("ecoul");
+  if (coulomb_column_) columns_.insert(columns_.end(), {"evdwl", "ecoul"});
   if (kspace_column_) columns_.push_back("elong");
   const Box& box = forces.box();
   if (box.periodic.all()) {
@@ -123,17 +124,17 @@ int Thermo::column(const std::string& name) const {
 std::vector<double> ThermoSums::flat() const {
   std::vector<double> v{kinetic};
   v.insert(v.end(), level_energy.begin(), level_energy.end());
-  v.insert(v.end(), {virial, rg, end_to_end, molecules, sized, coulomb, kspace});
+  v.insert(v.end(), {virial, rg, end_to_end, molecules, sized, coulomb, kspace, vdwl});
   return v;
 }
 
 void ThermoSums::set_flat(const std::vector<double>& v) {
-  const size_t levels = v.size() - 8;
+  const size_t levels = v.size() - 9;
   kinetic = v[0];
   level_energy.assign(v.begin() + 1, v.begin() + 1 + static_cast<std::ptrdiff_t>(levels));
   virial = v[1 + levels], rg = v[2 + levels], end_to_end = v[3 + levels];
   molecules = v[4 + levels], sized = v[5 + levels];
-  coulomb = v[6 + levels], kspace = v[7 + levels];
+  coulomb = v[6 + levels], kspace = v[7 + levels], vdwl = v[8 + levels];
 }
 
 ThermoSums Thermo::sums(const State& s) const {
@@ -141,6 +142,7 @@ ThermoSums Thermo::sums(const State& s) const {
   sums.kinetic = s.kinetic_energy();
   forces_.energies_and_virial(s.x, sums.level_energy, sums.virial);
   sums.coulomb = forces_.last_coulomb_energy();
+  sums.vdwl = forces_.last_vdwl_energy();
   sums.kspace = forces_.last_kspace_energy();
   sums.max_violation = max_constraint_violation(s.x, forces_.stiff_bonds());
   if (molecular_) {
@@ -194,7 +196,7 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
                  {e.total(), e.total() - e0_, sums.max_violation, dof_ > 0 ? 2.0 * thermal_kinetic / dof_ : 0.0});
   if (thermostat_) values_.insert(values_.end(), {ecouple, econserve});
   if (level_columns_) values_.insert(values_.end(), e.by_level.begin(), e.by_level.end());
-  if (coulomb_column_) values_.push_back(sums.coulomb);
+  if (coulomb_column_) values_.insert(values_.end(), {sums.vdwl, sums.coulomb});
   if (kspace_column_) values_.push_back(sums.kspace);
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.

@@ -65,14 +65,14 @@ struct ThermoSums {
   std::vector<double> level_energy;    // the potential energy of each level, innermost first
   double virial = 0.0;                 // Σ r·f of the force terms (the pressure's)
   double coulomb = 0.0, kspace = 0.0;  // ecoul and elong (ForceField::last_coulomb_energy, …)
+  double vdwl = 0.0;                   // evdwl (ForceField::last_vdwl_energy)
   double rg = 0.0, end_to_end = 0.0;   // summed over the molecules (Molecules::sum)
   double molecules = 0.0, sized = 0.0;
   double max_violation = 0.0;  // not a sum: the largest over the ranks
   // Under a barostat, 2K_com + W_mol summed over the axes (MolecularPressure); whole state only.
   double molecular = 0.0;
   // The sums as one array (kinetic, level_energy…, virial, rg, end_to_end, molecules, sized,
-  // coulomb, kspace), to
-  // add up over the ranks, and back.
+  // coulomb, kspace, vdwl), to add up over the ranks, and back.
   std::vector<double> flat() const;
   void set_flat(const std::vector<double>& v);
 };
@@ -139,7 +139,7 @@ class Thermo {
  private:
   const ForceField& forces_;
   bool level_columns_;                                   // a potential_<level> column per named level
-  bool coulomb_column_ = false, kspace_column_ = false;  // ecoul, elong
+  bool coulomb_column_ = false, kspace_column_ = false;  // evdwl and ecoul, elong
   bool fixman_;      // ObservableSettings::fixman: the model potential in potential_fixman
   bool thermostat_;  // a [thermostat]: the ecouple and econserve columns
   int dof_ = 0;

@@ -160,11 +160,62 @@ int data_integer(double v, const char* what) {
   return static_cast<int>(v);
 }
 
+// The numbers of scene type k's row in the imported data file's `kind.section` (LAMMPS
+// `row.lammps_style`, laid out as `row.layout`); several file types mapped onto k must have equal
+// rows. k must have come from the data file (kind.numbers[k] not empty). Every failure is one line at
+// `key` naming the data file, the section, the type and what was expected; `reader` is what reads
+// the row, for the messages (coefficients = "data").
+std::vector<double> data_row(DeckTable& t, const char* key, const std::string& reader, TermContext& ctx,
+                             const TypeKind& kind, const DataRow& row, size_t k) {
+  const LammpsDataCoeffs& data = ctx.scene.lammps_data_coeffs;
+  const std::string where = data.file + ": " + kind.section;
+  const size_t columns = detail::split_ws(row.layout).size();
+  const auto expected_row = [&](int number) { return "'" + std::to_string(number) + " " + row.layout + "'"; };
+  const LammpsDataCoeffs::Section* section = nullptr;
+  for (const auto& sec : data.sections)
+    if (sec.name == kind.section) section = &sec;
+  if (section && !section->style.empty() && section->style != row.lammps_style)
+    t.fail(key, where + " is marked '# " + section->style + "', but [" + t.path() + "] takes LAMMPS " + kind.word +
+                    "_style " + row.lammps_style + " rows ('TYPE " + row.layout + "')");
+  // The numbers of the row of file type `number`.
+  const auto values_of = [&](int number) {
+    if (!section)
+      t.fail(key, data.file + ": no " + kind.section + " section; " + reader + " needs the row " +
+                      expected_row(number) + " for " + kind.word + " type " + std::to_string(number));
+    for (const std::string& text : section->rows) {
+      const auto tok = detail::split_ws(text);
+      long long type = 0;
+      if (tok.empty() || !detail::parse_long(tok[0], type) || type != number) continue;
+      if (tok.size() - 1 != columns)
+        t.fail(key, where + ": " + kind.word + " type " + std::to_string(number) + ": expected " +
+                        std::to_string(columns) + " coefficients " + expected_row(number) + " (LAMMPS " +
+                        row.lammps_style + "), found " + std::to_string(tok.size() - 1));
+      std::vector<double> v(columns);
+      for (size_t c = 0; c < columns; ++c)
+        if (!detail::parse_double(tok[c + 1], v[c]))
+          t.fail(key, where + ": " + kind.word + " type " + std::to_string(number) + ": expected a number for " +
+                          std::string(detail::split_ws(row.layout)[c]) + ", found " + detail::quote(tok[c + 1]));
+      return v;
+    }
+    t.fail(key, where + ": no row for " + kind.word + " type " + std::to_string(number) + "; expected " +
+                    expected_row(number));
+  };
+  const std::vector<int>& numbers = kind.numbers[k];
+  const std::vector<double> first = values_of(numbers[0]);
+  for (size_t m = 1; m < numbers.size(); ++m)
+    if (values_of(numbers[m]) != first)
+      t.fail(key, where + ": " + kind.word + " types " + std::to_string(numbers[0]) + " and " +
+                      std::to_string(numbers[m]) + " are both named '" + kind.names[k] +
+                      "' but their coefficients differ; expected one row per name (map them to different names in "
+                      "[import] " +
+                      kind.types_key + ")");
+  return first;
+}
+
 // coefficients = "data": every type of `kind` that the [import] mapped from the LAMMPS data file
-// takes the numbers of its row in the file's section (in LAMMPS's units and conventions), turned
-// into Coeffs by `make` (std::invalid_argument naming a coefficient when they are out of range).
-// Several file types mapped onto one name must have equal rows. Every failure is one line at the
-// `coefficients` key naming the data file, the section, the type and what was expected.
+// takes the numbers of its row in the file's section (data_row: in LAMMPS's units and conventions),
+// turned into Coeffs by `make` (std::invalid_argument naming a coefficient when they are out of
+// range). Every failure is one line at the `coefficients` key.
 template <class Coeffs, class Make>
 std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind& kind, const std::string& term,
                                   const DataRow& row, Make make, std::vector<Coeffs>& coeffs) {
@@ -173,56 +224,16 @@ std::vector<int> claim_data_types(DeckTable& t, TermContext& ctx, const TypeKind
     t.fail("coefficients",
            "coefficients = \"data\" takes the coefficients from an imported LAMMPS data file, and "
            "there is none ([import] lammps_data = PATH)");
-  const std::string where = data.file + ": " + kind.section;
-  const size_t columns = detail::split_ws(row.layout).size();
-  const auto expected_row = [&](int number) { return "'" + std::to_string(number) + " " + row.layout + "'"; };
-  const LammpsDataCoeffs::Section* section = nullptr;
-  for (const auto& sec : data.sections)
-    if (sec.name == kind.section) section = &sec;
-  if (section && !section->style.empty() && section->style != row.lammps_style)
-    t.fail("coefficients", where + " is marked '# " + section->style + "', but [forces." + term + "] takes LAMMPS " +
-                               kind.word + "_style " + row.lammps_style + " rows ('TYPE " + row.layout + "')");
-  // The numbers of the row of file type `number`.
-  const auto values_of = [&](int number) {
-    if (!section)
-      t.fail("coefficients", data.file + ": no " + kind.section + " section; coefficients = \"data\" needs the row " +
-                                 expected_row(number) + " for " + kind.word + " type " + std::to_string(number));
-    for (const std::string& text : section->rows) {
-      const auto tok = detail::split_ws(text);
-      long long type = 0;
-      if (tok.empty() || !detail::parse_long(tok[0], type) || type != number) continue;
-      if (tok.size() - 1 != columns)
-        t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(number) + ": expected " +
-                                   std::to_string(columns) + " coefficients " + expected_row(number) + " (LAMMPS " +
-                                   row.lammps_style + "), found " + std::to_string(tok.size() - 1));
-      std::vector<double> v(columns);
-      for (size_t c = 0; c < columns; ++c)
-        if (!detail::parse_double(tok[c + 1], v[c]))
-          t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(number) +
-                                     ": expected a number for " + std::string(detail::split_ws(row.layout)[c]) +
-                                     ", found " + detail::quote(tok[c + 1]));
-      return v;
-    }
-    t.fail("coefficients", where + ": no row for " + kind.word + " type " + std::to_string(number) + "; expected " +
-                               expected_row(number));
-  };
   std::vector<int> index(kind.names.size(), -1);
   for (size_t k = 0; k < kind.names.size() && k < kind.numbers.size(); ++k) {
-    const std::vector<int>& numbers = kind.numbers[k];
-    if (numbers.empty()) continue;
+    if (kind.numbers[k].empty()) continue;
     if (!kind.owner[k].empty()) continue;  // a term that names the type takes it (read first: scene.cpp)
-    const std::vector<double> first = values_of(numbers[0]);
-    for (size_t m = 1; m < numbers.size(); ++m)
-      if (values_of(numbers[m]) != first)
-        t.fail("coefficients", where + ": " + kind.word + " types " + std::to_string(numbers[0]) + " and " +
-                                   std::to_string(numbers[m]) + " are both named '" + kind.names[k] +
-                                   "' but their coefficients differ; expected one row per name (map them to "
-                                   "different names in [import] " +
-                                   kind.types_key + ")");
+    const std::vector<double> first = data_row(t, "coefficients", "coefficients = \"data\"", ctx, kind, row, k);
     try {
       coeffs.push_back(make(first));
     } catch (const std::invalid_argument& e) {
-      t.fail("coefficients", where + ": " + kind.word + " type " + std::to_string(numbers[0]) + ": " + e.what());
+      t.fail("coefficients", data.file + ": " + kind.section + ": " + kind.word + " type " +
+                                 std::to_string(kind.numbers[k][0]) + ": " + e.what());
     }
     kind.owner[k] = term;
     index[k] = static_cast<int>(coeffs.size()) - 1;
@@ -289,26 +300,116 @@ void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vecto
   types->finish();
 }
 
-// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}; angle_types.TYPE = {theta0, alpha}.
+// LAMMPS's fix shake/rattle `m` tolerance (fix_shake.cpp, MASSDELTA): a particle's mass matches a
+// listed mass within it, in the deck's mass unit.
+constexpr double kMassDelta = 0.1;
+
+// stiff-harmonic's masses = [m, …]: a bond is rigid when either of its particles has a mass within
+// kMassDelta of a listed one, as LAMMPS's fix shake/rattle `m` selects bonds. The term takes
+// whole bond types (`index`, `coeffs`: as claim_types fills them), each with its bond_types entry
+// when named there, else its row in the imported data file's Bond Coeffs (bond_style harmonic
+// K r0: ℓ = r0 and α = ε√(2K), so that the stiff potential ½(α/ε)²(r − r0)² is LAMMPS's
+// K(r − r0)²). LAMMPS selects per bond; a bond type of which only some bonds are selected would have
+// to be split between this term and a flexible one, so it is refused, naming a bond of each kind.
+void add_bonds_by_mass(DeckTable& t, TermContext& ctx, const std::string& term, double epsilon, std::vector<int>& index,
+                       std::vector<StiffBond>& coeffs) {
+  const std::vector<double> masses = t.numbers("masses");
+  t.require(!masses.empty(), "masses", "expected a list of one or more masses, e.g. masses = [1.008]");
+  for (const double m : masses)
+    t.require(std::isfinite(m) && m > 0.0, "masses", "expected masses > 0, got " + format_number(m));
+  const Scene& sc = ctx.scene;
+  const Topology& top = sc.topology;
+  // A pinned particle (inverse mass 0) is matched by its type's mass.
+  const auto mass_of = [&](int i) {
+    const double w = sc.state.inv_mass[i];
+    return w > 0.0 ? 1.0 / w : sc.types[static_cast<size_t>(sc.particle_type[static_cast<size_t>(i)])].mass;
+  };
+  const auto listed = [&](double m) {
+    return std::any_of(masses.begin(), masses.end(), [m](double l) { return std::abs(l - m) <= kMassDelta; });
+  };
+  std::string list;
+  for (const double m : masses) list += (list.empty() ? "" : ", ") + format_number(m);
+  list = "[" + list + "]";
+  // Per bond type: a bond selected and a bond not selected (−1: none).
+  const size_t ntypes = top.bond_types.size();
+  std::vector<int> selected(ntypes, -1), unselected(ntypes, -1);
+  for (size_t k = 0; k < top.bonds.size(); ++k) {
+    const Bond& b = top.bonds[k];
+    auto& slot = listed(mass_of(b.i)) || listed(mass_of(b.j)) ? selected : unselected;
+    if (slot[static_cast<size_t>(b.type)] < 0) slot[static_cast<size_t>(b.type)] = static_cast<int>(k);
+  }
+  const auto bond_text = [&](int k) {
+    const Bond& b = top.bonds[static_cast<size_t>(k)];
+    return "particles " + std::to_string(b.i) + " and " + std::to_string(b.j) + ", masses " +
+           format_number(mass_of(b.i)) + " and " + format_number(mass_of(b.j));
+  };
+  if (std::all_of(selected.begin(), selected.end(), [](int k) { return k < 0; }))
+    t.fail("masses", "no bond has a particle of mass within " + format_number(kMassDelta) + " of " + list +
+                         "; expected at least one bond to make rigid");
+  const TypeKind kind = bond_kind(ctx);
+  const bool from_data = !sc.lammps_data_coeffs.file.empty();
+  for (size_t type = 0; type < ntypes; ++type) {
+    if (selected[type] < 0 || index[type] >= 0) continue;  // none selected, or named in bond_types
+    const std::string name = "bond type '" + top.bond_types[type] + "'";
+    if (unselected[type] >= 0)
+      t.fail("masses", name + " has bonds with a particle of mass within " + format_number(kMassDelta) + " of " + list +
+                           " (" + bond_text(selected[type]) + ") and bonds without (" + bond_text(unselected[type]) +
+                           "); this term makes whole bond types rigid: give the selected bonds a bond type of "
+                           "their own, or name the type in bond_types to make all of its bonds rigid");
+    if (!ctx.bond_type_owner[type].empty())
+      t.fail("masses", name + " (" + bond_text(selected[type]) + ") is already defined by [forces." +
+                           ctx.bond_type_owner[type] + "]");
+    if (!from_data || type >= kind.numbers.size() || kind.numbers[type].empty())
+      t.fail("masses", name + " is selected by mass (" + bond_text(selected[type]) +
+                           ") but has no length: expected bond_types." + top.bond_types[type] +
+                           " = { length, alpha }, or the type imported from a LAMMPS data file with its Bond Coeffs "
+                           "row 'K r0'");
+    const std::vector<double> v = data_row(t, "masses", "masses", ctx, kind, DataRow{"harmonic", "K r0"}, type);
+    const std::string where = sc.lammps_data_coeffs.file + ": Bond Coeffs: bond type " +
+                              std::to_string(kind.numbers[type][0]) + " (selected by mass)";
+    t.require(std::isfinite(v[0]) && v[0] > 0.0, "masses",
+              where + ": expected K > 0 for a rigid bond, got " + format_number(v[0]));
+    t.require(std::isfinite(v[1]) && v[1] > 0.0, "masses",
+              where + ": expected r0 > 0 for a rigid bond, got " + format_number(v[1]));
+    t.require(std::isfinite(v[0] * v[1] * v[1]), "masses",
+              where + ": the energy K r0^2 of the stiff potential overflows; expected a smaller K");
+    StiffBond c;
+    c.length = v[1];
+    c.alpha = epsilon * std::sqrt(2.0 * v[0]);
+    ctx.bond_type_owner[type] = term;
+    index[type] = static_cast<int>(coeffs.size());
+    coeffs.push_back(c);
+  }
+}
+
+// stiff-harmonic: epsilon; bond_types.TYPE = {length, alpha}; angle_types.TYPE = {theta0, alpha};
+// masses = [m, …] (add_bonds_by_mass).
 std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   StiffBonds sb;
   sb.epsilon = read(t, "epsilon", kPositive);
   std::vector<StiffBond> coeffs;
-  const auto index = claim_types(
-      t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
-      [&sb](DeckTable& bt) {
-        StiffBond c;
-        c.length = read(bt, "length", kLength);
-        c.alpha = read(bt, "alpha", kPositive);
-        // The spring constant (α/ε)² and the energy ½(α/ε)²ℓ² of a bond stretched by its length
-        // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
-        const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
-        bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
-                   "the spring constant (alpha/epsilon)^2 = (" + format_number(c.alpha) + "/" +
-                       format_number(sb.epsilon) + ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
-        return c;
-      },
-      coeffs);
+  // The bond types named in bond_types (required unless masses selects the bonds), then those of
+  // the bonds selected by mass.
+  const bool by_mass = t.has("masses");
+  auto index = by_mass && !t.has("bond_types")
+                   ? std::vector<int>(ctx.scene.topology.bond_types.size(), -1)
+                   : claim_types(
+                         t, "bond_types", ctx.scene.topology.bond_types, ctx.bond_type_owner, name,
+                         [&sb](DeckTable& bt) {
+                           StiffBond c;
+                           c.length = read(bt, "length", kLength);
+                           c.alpha = read(bt, "alpha", kPositive);
+                           // The spring constant (α/ε)² and the energy ½(α/ε)²ℓ² of a bond stretched by its length
+                           // must be finite doubles: else the first force evaluation overflows (exit 3 at step 1).
+                           const double k = (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon);
+                           bt.require(std::isfinite(0.5 * k * c.length * c.length), "alpha",
+                                      "the spring constant (alpha/epsilon)^2 = (" + format_number(c.alpha) + "/" +
+                                          format_number(sb.epsilon) +
+                                          ")^2 times length^2 overflows; expected a smaller alpha/epsilon");
+                           return c;
+                         },
+                         coeffs);
+  if (by_mass) add_bonds_by_mass(t, ctx, name, sb.epsilon, index, coeffs);
   // LAMMPS bond_style harmonic: E = K(r − r0)², K = ½(α/ε)².
   note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, coeffs, [&sb](const StiffBond& c) {
     return numbers({0.5 * (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon), c.length});
@@ -326,7 +427,7 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
                              : type_of[problem->bond] < 0
                                  ? " (a rigid angle's bond, angle_types)"
                                  : " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')";
-    t.fail("bond_types", problem->what + type);
+    t.fail(by_mass && !t.has("bond_types") ? "masses" : "bond_types", problem->what + type);
   }
   return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
 }

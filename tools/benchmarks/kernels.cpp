@@ -28,8 +28,12 @@
 //                                   tools/benchmarks/lammps_bond_harmonic.in)
 //   BM_PendulumVsHandWritten        velocity Verlet on the double pendulum through the engine vs a
 //                                   hand-written loop of the same physics, interleaved, CPU time
+//   BM_WaterConstraints/<solver>    the constraint work of one RATTLE step per water of
+//                                   inputs/spce_water.toml (512 rigid triangles): SHAKE of a 2 fs
+//                                   drift and the velocity projection, by the engine's general
+//                                   solver (ConstraintToolbox) or by an analytic SETTLE (settle.hpp)
 //
-// Scenes: Water — inputs/spce_water.toml (BM_CoulLongPairForces only); Melt —
+// Scenes: Water — inputs/spce_water.toml (BM_CoulLongPairForces, BM_WaterConstraints); Melt —
 // inputs/lammps_chain.toml, LAMMPS's data.chain (32 000 beads, Debian package
 // lammps-examples; the Melt benchmarks skip with an error when it is missing); Synthetic — a built
 // melt of 16 chains × 64 beads from a deck embedded below, which needs no data file. Each scene is
@@ -55,6 +59,7 @@
 #include <vector>
 
 #include "core/exact_sum.hpp"
+#include "core/portable_random.hpp"
 #include "core/topology.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
@@ -64,6 +69,7 @@
 #include "integrators/integrator.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 #include "integrators/primitives.hpp"
+#include "tools/benchmarks/settle.hpp"
 
 namespace stiffmd {
 namespace {
@@ -723,6 +729,140 @@ void BM_PendulumVsHandWritten(benchmark::State& st) {
   st.counters["max_position_difference"] = max_diff;
 }
 
+// The constraint work of a RATTLE step on rigid water, per water: from x on the manifold with
+// tangent velocities (Maxwell–Boltzmann at 300 K, projected), free flight at the deck's h (2 fs):
+// x ← x + h v, SHAKE back onto the manifold from x_old, v ← (x − x_old)/h (the chord velocity),
+// the velocity projection at x — what `rattle` does per step without forces (NVE; constrained
+// BAOAB does the position half twice). Only the two constraint calls are timed, in process CPU
+// time (ns_per_water_*: run it on one thread, OMP_NUM_THREADS=1, as a shared machine's wall time
+// is not the work); the step follows one trajectory. `general`: the engine's ConstraintToolbox
+// (each triangle a cluster of 3 bonds, SHAKE to max |g| ≤ 1e-12 Å); `settle`: the analytic SETTLE
+// of settle.hpp.
+// Counters: max_violation of the last step; difference_100_steps, the largest coordinate
+// difference between the two solvers after 100 steps from the same start (both solve the same
+// equations: SHAKE's tolerance and round-off apart).
+struct WaterConstraintCase {
+  std::vector<bench::SettleWater> waters;
+  double m_o = 0.0, m_h = 0.0, d_oh = 0.0, d_hh = 0.0;
+  std::string error;  // non-empty: the scene's stiff bonds are not rigid water triangles
+};
+
+WaterConstraintCase water_triangles(const Fixture& fx) {
+  WaterConstraintCase c;
+  const std::vector<StiffBond>& bonds = fx.scene.forces->stiff_bonds()->bonds;
+  const Eigen::VectorXd& w = fx.initial.inv_mass;
+  for (const ConstraintCluster& cl : find_clusters(bonds, w)) {
+    if (cl.bonds.size() != 3 || cl.particles.size() != 3) {
+      c.error = "a constraint cluster is not a triangle";
+      return c;
+    }
+    // The apex: the particle opposite the bond whose two neighbours have equal lengths.
+    const size_t found = c.waters.size();
+    for (int k = 0; k < 3; ++k) {
+      const StiffBond& base = bonds[static_cast<size_t>(cl.bonds[k])];
+      const StiffBond& a = bonds[static_cast<size_t>(cl.bonds[(k + 1) % 3])];
+      const StiffBond& b = bonds[static_cast<size_t>(cl.bonds[(k + 2) % 3])];
+      if (a.length != b.length) continue;
+      int apex = -1;
+      for (const int p : cl.particles)
+        if (p != base.i && p != base.j) apex = p;
+      c.waters.push_back({apex, base.i, base.j});
+      c.d_oh = a.length, c.d_hh = base.length;
+      break;
+    }
+    if (c.waters.size() == found) {
+      c.error = "a triangle has no two sides of equal length (no apex for SETTLE)";
+      return c;
+    }
+    const bench::SettleWater& s = c.waters.back();
+    c.m_o = 1.0 / w[s.o], c.m_h = 1.0 / w[s.h1];
+    if (w[s.h1] != w[s.h2]) c.error = "a triangle's base masses differ";
+  }
+  return c;
+}
+
+// One solver's step: position and velocity halves, by the toolbox or by SETTLE.
+struct WaterSolver {
+  virtual ~WaterSolver() = default;
+  virtual void positions(const Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x) = 0;
+  virtual void velocities(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) = 0;
+};
+struct GeneralSolver final : WaterSolver {
+  ConstraintToolbox toolbox;
+  GeneralSolver(const std::vector<StiffBond>& bonds, const Eigen::VectorXd& w) : toolbox(bonds, w) {}
+  void positions(const Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x) override { toolbox.shake(x_old, x); }
+  void velocities(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) override { toolbox.project_velocity(x, v); }
+};
+struct SettleSolver final : WaterSolver {
+  const WaterConstraintCase& c;
+  bench::SettleGeometry g;
+  explicit SettleSolver(const WaterConstraintCase& wc) : c(wc), g(wc.m_o, wc.m_h, wc.d_oh, wc.d_hh) {}
+  void positions(const Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& x) override {
+    for (const bench::SettleWater& w : c.waters) bench::settle_positions(g, w, x_old, x);
+  }
+  void velocities(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) override {
+    for (const bench::SettleWater& w : c.waters) bench::settle_velocities(g, w, x, v);
+  }
+};
+
+void BM_WaterConstraints(benchmark::State& st, FixtureGetter get, bool settle) {
+  Fixture* fx = fixture_or_skip(st, get);
+  if (!fx) return;
+  const WaterConstraintCase wc = water_triangles(*fx);
+  if (!wc.error.empty()) {
+    st.SkipWithError(wc.error.c_str());
+    return;
+  }
+  const std::vector<StiffBond>& bonds = fx->forces().stiff_bonds()->bonds;
+  const Eigen::VectorXd& inv_mass = fx->initial.inv_mass;
+  const double h = fx->scene.integrator.h;
+  // The start: x on the manifold, tangent Maxwell–Boltzmann velocities at 300 K.
+  ConstraintToolbox start(bonds, inv_mass);
+  Eigen::Matrix3Xd x0 = fx->initial.x;
+  start.shake(x0, x0, nullptr, 1e-12, 200);
+  Eigen::Matrix3Xd v0 = maxwell_boltzmann(inv_mass, fx->scene.units.kT(300.0), 7);
+  start.project_velocity(x0, v0);
+  const auto step = [h](WaterSolver& s, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd& x_old,
+                        double* t_pos, double* t_vel) {
+    x_old = x;
+    x += h * v;
+    const double t0 = cpu_seconds();
+    s.positions(x_old, x);
+    const double t1 = cpu_seconds();
+    v = (x - x_old) / h;
+    const double t2 = cpu_seconds();
+    s.velocities(x, v);
+    const double t3 = cpu_seconds();
+    if (t_pos) *t_pos += t1 - t0;
+    if (t_vel) *t_vel += t3 - t2;
+  };
+  // The two solvers side by side from the same start: the same trajectory.
+  GeneralSolver general(bonds, inv_mass);
+  SettleSolver analytic(wc);
+  {
+    Eigen::Matrix3Xd xa = x0, va = v0, xb = x0, vb = v0, old;
+    for (int k = 0; k < 100; ++k) {
+      step(general, xa, va, old, nullptr, nullptr);
+      step(analytic, xb, vb, old, nullptr, nullptr);
+    }
+    st.counters["difference_100_steps"] = (xa - xb).cwiseAbs().maxCoeff();
+  }
+  WaterSolver& solver = settle ? static_cast<WaterSolver&>(analytic) : general;
+  Eigen::Matrix3Xd x = x0, v = v0, x_old;
+  double t_pos = 0.0, t_vel = 0.0;
+  for (auto _ : st) {
+    step(solver, x, v, x_old, &t_pos, &t_vel);
+    benchmark::ClobberMemory();
+  }
+  const double per_water = 1e9 / (static_cast<double>(st.iterations()) * static_cast<double>(wc.waters.size()));
+  st.SetItemsProcessed(st.iterations() * static_cast<std::int64_t>(wc.waters.size()));
+  st.counters["waters"] = static_cast<double>(wc.waters.size());
+  st.counters["ns_per_water_positions"] = t_pos * per_water;
+  st.counters["ns_per_water_velocities"] = t_vel * per_water;
+  st.counters["ns_per_water_constraints"] = (t_pos + t_vel) * per_water;
+  st.counters["max_violation"] = start.max_violation(x);
+}
+
 bool register_benchmarks() {
   const char* omp_threads = std::getenv("OMP_NUM_THREADS");
   benchmark::AddCustomContext("OMP_NUM_THREADS", omp_threads ? omp_threads : "(unset)");
@@ -753,6 +893,11 @@ bool register_benchmarks() {
   benchmark::RegisterBenchmark("BM_CoulLongPairForces/Water", BM_CoulLongPairForces, &water)
       ->Unit(benchmark::kMicrosecond)
       ->UseRealTime();
+  for (const bool settle : {false, true})
+    benchmark::RegisterBenchmark(settle ? "BM_WaterConstraints/settle" : "BM_WaterConstraints/general",
+                                 BM_WaterConstraints, &water, settle)
+        ->Unit(benchmark::kMicrosecond)
+        ->UseRealTime();
   benchmark::RegisterBenchmark("BM_PendulumVsHandWritten", BM_PendulumVsHandWritten)
       ->Unit(benchmark::kMicrosecond)
       ->UseRealTime();
