@@ -541,8 +541,9 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
     v.resize(size);
   };
   auto exchange = [&](const Slabs::Buffers& send, Slabs::Buffers& recv) {
-    for (const std::vector<double>& b : send)
-      if (!b.empty()) ++traffic_.messages, traffic_.bytes += static_cast<long>(b.size() * sizeof(double));
+    for (int r = 0; r < ranks; ++r)
+      if (r != me && !send[r].empty())
+        ++traffic_.messages, traffic_.bytes += static_cast<long>(send[r].size() * sizeof(double));
     comm.exchange_known(send, recv);
   };
 

@@ -109,7 +109,7 @@ class ParticleParticleParticleMesh final : public ForceTerm {
   const std::vector<double>& charges() const { return charges_; }
 
   // What this rank's last evaluation sent (on several processes): messages and bytes of its
-  // exchanges (non-empty buffers, to itself included), the reductions, and the window's
+  // exchanges to the other ranks (what it keeps is copied), the reductions, and the window's
   // buffers that had to grow (allocations).
   struct Traffic {
     long messages = 0, bytes = 0, reductions = 0, growths = 0;
