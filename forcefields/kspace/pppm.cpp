@@ -135,16 +135,19 @@ struct ParticleParticleParticleMesh::Slabs {
   fftw_complex* rho = nullptr;         // pc columns of n_z: ρ̂ (column c_local at c_local n_z)
   fftw_complex* field = nullptr;       // 3 pc columns: (−i k_a) G ρ̂, then along z transformed back
   fftw_plan forward_planes = nullptr, forward_columns = nullptr, backward_columns = nullptr, backward_planes = nullptr;
-  // The transposes (fixed: planes × columns of each pair of ranks).
+  // The transposes (fixed: planes × columns of each pair of ranks; none to itself).
   Buffers forward_send, forward_recv, backward_send, backward_recv;
   // The window: per rank its first plane and width (this evaluation's, from one sum); this
   // rank's planes touched; per window plane its owner, its index among the planes sent to that
-  // owner, and where its charges and its field are; the charges to each owner and the field back.
+  // owner, and where its charges and its field's three components are; the charges to each other
+  // owner and the field back (a plane this rank owns: its charges in own_charges, its field read
+  // where the inverse FFT left it, none of it through the exchanges).
   std::vector<std::int64_t> windows;
   std::vector<unsigned char> touched;
   std::vector<int> window_owner, window_index, per_owner;
   std::vector<double*> charge_plane;
-  std::vector<const double*> field_plane;
+  std::vector<const double*> field_plane;  // 3 per window plane
+  std::vector<double> own_charges;
   Buffers spread_send, spread_recv, field_send, field_recv;
 
   Slabs(const int mesh[3], int ranks_, int rank_) : ranks(ranks_), rank(rank_) {
@@ -164,8 +167,9 @@ struct ParticleParticleParticleMesh::Slabs {
     z0 = z_first[rank], pz = z_first[rank + 1] - z0;
     c0 = c_first[rank], pc = c_first[rank + 1] - c0;
     forward_send.resize(ranks), forward_recv.resize(ranks), backward_send.resize(ranks), backward_recv.resize(ranks);
-    for (int t = 0; t < ranks; ++t) {
-      const std::size_t pz_t = z_first[t + 1] - z_first[t], pc_t = c_first[t + 1] - c_first[t];
+    for (int t = 0; t < ranks; ++t) {  // this rank's own block is copied, not exchanged
+      const std::size_t pz_t = t == rank ? 0 : z_first[t + 1] - z_first[t];
+      const std::size_t pc_t = t == rank ? 0 : c_first[t + 1] - c_first[t];
       forward_send[t].resize(2 * pz * pc_t);
       forward_recv[t].resize(2 * pz_t * pc);
       backward_send[t].resize(6 * pc * pz_t);
@@ -177,7 +181,7 @@ struct ParticleParticleParticleMesh::Slabs {
     window_index.resize(static_cast<std::size_t>(n[2]));
     per_owner.resize(static_cast<std::size_t>(ranks));
     charge_plane.reserve(static_cast<std::size_t>(n[2]));
-    field_plane.reserve(static_cast<std::size_t>(n[2]));
+    field_plane.reserve(3 * static_cast<std::size_t>(n[2]));
     spread_send.resize(ranks), spread_recv.resize(ranks), field_send.resize(ranks), field_recv.resize(ranks);
 
     std::lock_guard lock(planner_mutex());
@@ -584,20 +588,25 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
     s.window_index[j] = s.per_owner[o]++;
   }
   for (int o = 0; o < ranks; ++o) {
-    grow(s.spread_send[o], s.per_owner[o] * plane);
-    grow(s.field_recv[o], 3 * s.per_owner[o] * plane);
+    const std::size_t planes = o == me ? 0 : s.per_owner[o];
+    grow(s.spread_send[o], planes * plane);
+    grow(s.field_recv[o], 3 * planes * plane);
   }
+  grow(s.own_charges, s.per_owner[me] * plane);
   s.charge_plane.resize(width);
-  s.field_plane.resize(width);
+  s.field_plane.resize(3 * static_cast<std::size_t>(width));
   for (int j = 0; j < width; ++j) {
     const int o = s.window_owner[j];
-    s.charge_plane[j] = s.spread_send[o].data() + s.window_index[j] * plane;
-    s.field_plane[j] = s.field_recv[o].data() + 3 * s.window_index[j] * plane;
+    const std::size_t k = s.window_index[j];
+    s.charge_plane[j] = (o == me ? s.own_charges.data() : s.spread_send[o].data()) + k * plane;
+    for (int a = 0; a < 3; ++a)
+      s.field_plane[3 * j + a] =
+          o == me ? s.real + (a * s.pz + ((lo + j) % nz - s.z0)) * plane : s.field_recv[o].data() + (3 * k + a) * plane;
   }
   for (int r = 0; r < ranks; ++r) {
     const int lo_r = static_cast<int>(s.windows[2 * r]), width_r = static_cast<int>(s.windows[2 * r + 1]);
     std::size_t mine = 0;
-    for (int j = 0; j < width_r; ++j) mine += s.owner[(lo_r + j) % nz] == me;
+    for (int j = 0; j < width_r && r != me; ++j) mine += s.owner[(lo_r + j) % nz] == me;
     grow(s.spread_recv[r], mine * plane);
     grow(s.field_send[r], 3 * mine * plane);
   }
@@ -605,6 +614,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
   // 3. Charge assignment into the window (z now the window's plane), sent to the planes' owners,
   // who add the ranks' charges in rank order.
   for (std::vector<double>& b : s.spread_send) std::fill(b.begin(), b.end(), 0.0);
+  std::fill(s.own_charges.begin(), s.own_charges.end(), 0.0);
   for (int i = 0; i < count; ++i) {
     const double q = charges_[i];
     if (q == 0.0) continue;
@@ -624,7 +634,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
   std::fill(s.real, s.real + s.pz * plane, 0.0);
   for (int r = 0; r < ranks; ++r) {
     const int lo_r = static_cast<int>(s.windows[2 * r]), width_r = static_cast<int>(s.windows[2 * r + 1]);
-    const double* in = s.spread_recv[r].data();
+    const double* in = r == me ? s.own_charges.data() : s.spread_recv[r].data();
     for (int j = 0; j < width_r; ++j) {
       const int z = (lo_r + j) % nz;
       if (s.owner[z] != me) continue;
@@ -638,6 +648,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
   // the columns' transforms.
   if (s.forward_planes) fftw_execute(s.forward_planes);
   for (int t = 0; t < ranks; ++t) {
+    if (t == me) continue;
     double* out = s.forward_send[t].data();
     const int c_t = s.c_first[t], pc_t = s.c_first[t + 1] - c_t;
     for (int lz = 0; lz < s.pz; ++lz) {
@@ -646,7 +657,14 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
     }
   }
   exchange(s.forward_send, s.forward_recv);
+  for (int lz = 0; lz < s.pz; ++lz)  // this rank's planes of its own columns
+    for (int cl = 0; cl < s.pc; ++cl) {
+      const fftw_complex& in = s.spectra[lz * row + s.c0 + cl];
+      fftw_complex& v = s.rho[static_cast<std::size_t>(cl) * nz + s.z0 + lz];
+      v[0] = in[0], v[1] = in[1];
+    }
   for (int t = 0; t < ranks; ++t) {
+    if (t == me) continue;
     const double* in = s.forward_recv[t].data();
     for (int z = s.z_first[t]; z < s.z_first[t + 1]; ++z)
       for (int cl = 0; cl < s.pc; ++cl, in += 2) {
@@ -697,6 +715,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
       }
     if (s.backward_columns) fftw_execute(s.backward_columns);
     for (int t = 0; t < ranks; ++t) {
+      if (t == me) continue;
       double* out = s.backward_send[t].data();
       for (int a = 0; a < 3; ++a)
         for (int z = s.z_first[t]; z < s.z_first[t + 1]; ++z)
@@ -706,7 +725,15 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
           }
     }
     exchange(s.backward_send, s.backward_recv);
+    for (int a = 0; a < 3; ++a)
+      for (int lz = 0; lz < s.pz; ++lz)
+        for (int cl = 0; cl < s.pc; ++cl) {
+          const fftw_complex& in = s.field[(static_cast<std::size_t>(a) * s.pc + cl) * nz + s.z0 + lz];
+          fftw_complex& out = s.spectra[(static_cast<std::size_t>(a) * s.pz + lz) * row + s.c0 + cl];
+          out[0] = in[0], out[1] = in[1];
+        }
     for (int t = 0; t < ranks; ++t) {
+      if (t == me) continue;
       const double* in = s.backward_recv[t].data();
       const int c_t = s.c_first[t], pc_t = s.c_first[t + 1] - c_t;
       for (int a = 0; a < 3; ++a)
@@ -718,6 +745,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
     if (s.backward_planes) fftw_execute(s.backward_planes);
     for (int r = 0; r < ranks; ++r) {
       const int lo_r = static_cast<int>(s.windows[2 * r]), width_r = static_cast<int>(s.windows[2 * r + 1]);
+      if (r == me) continue;  // read in place
       double* out = s.field_send[r].data();
       for (int j = 0; j < width_r; ++j) {
         const int z = (lo_r + j) % nz;
@@ -736,9 +764,8 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
       const double* wt = &weight_[3 * static_cast<std::size_t>(i) * order];
       double ex = 0.0, ey = 0.0, ez = 0.0;
       for (int jz = 0; jz < order; ++jz) {
-        const double* fx = s.field_plane[offset[2 * order + jz]];
-        const double* fy = fx + plane;
-        const double* fz = fy + plane;
+        const double* const* field = &s.field_plane[3 * offset[2 * order + jz]];
+        const double *fx = field[0], *fy = field[1], *fz = field[2];
         for (int jy = 0; jy < order; ++jy) {
           const double wyz = wt[2 * order + jz] * wt[order + jy];
           const std::size_t line = offset[order + jy];

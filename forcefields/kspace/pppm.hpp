@@ -50,16 +50,22 @@
 // (Communicator::native()), so it would bring MPI calls into forcefields/ (the engine calls MPI in
 // engine/run/processes.cpp only), could not run on tests/fake_processes.hpp's ranks (threads of
 // one process, no MPI) nor in a build without MPI, and its own transposes are the same all-to-all.
-// Per rank: about 20 mesh/N doubles (owned planes and their spectra, own columns, G and the
-// virial factors on own modes, the transposes' buffers) plus 4 per mesh point of the window's
-// planes (charges out, field back) and of the planes other ranks send it; no whole mesh anywhere.
-// A part's buffers are made when it is given its processes (set_processes: on_subset builds no
-// mesh, so a rank never holds the whole one); the window's grow when a rank's charges touch more
-// planes than they ever did (the first evaluation, then rarely: the one allocation an evaluation
-// may make; capacity is never given back). Messages per evaluation and rank (exchange_known sends
-// only the non-empty): one to each owner of its window's planes, the transpose to each rank whose
-// columns meet its planes (up to N), and with forces the same two again (the field three times the
-// charges' bytes); plus two small sums. traffic() reports the last evaluation's.
+// Per rank, in doubles (mesh = n_x n_y n_z): about 12 mesh/N for its planes (charges, then the
+// three field components), their 2D spectra, its columns (ρ̂ and the three fields), G and the
+// virial factors on its modes; 8 mesh/N (N − 1)/N for the transposes' buffers (its own block is
+// copied); 4 per point of the window's planes other ranks own (charges out, field back), 1 per
+// point of those it owns (its charges: its field is read where the inverse FFT left it), and 4 per
+// point of the planes other ranks' windows hold of its own (charges in, field out). One process:
+// 8 mesh. No rank holds the whole mesh: a part's buffers are made when it is given its processes
+// (set_processes; on_subset builds no mesh). The window's buffers grow when a rank's charges
+// touch more planes than they ever did (its first evaluation, then rarely: the one allocation an
+// evaluation may make; capacity is never given back). An evaluation is 4 exchanges and 2 sums
+// (without forces 2 and 2): to each other owner of its window's planes, the transpose to each
+// rank whose columns meet its planes (up to N − 1), and with forces the transpose back and the
+// field (three times the charges' bytes) to the ranks whose windows hold its planes; the sums of
+// 2N integers (the windows) and 6 doubles. traffic() reports the last evaluation's. Each
+// exchange is a synchronisation, against the replicated mesh's one all-reduce: on few ranks and
+// small meshes the replicated mesh was quicker (docs/electrostatics.md, "Several processes").
 // Every rank has the whole energy and virial after the sum and returns 1/size of each, so that the
 // shares add up to the whole system's (on one process they are the energy and virial). On one
 // process (no Communicator, or one rank) the mesh is whole and transformed by one 3D plan: the
