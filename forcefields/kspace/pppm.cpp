@@ -329,6 +329,14 @@ void ParticleParticleParticleMesh::build_mesh() const {
   green_lengths_.setZero();
 }
 
+void ParticleParticleParticleMesh::release_buffers() const {
+  fft_.reset();
+  slabs_.reset();
+  green_ = {};
+  virial_factor_ = {};
+  green_lengths_.setZero();
+}
+
 void ParticleParticleParticleMesh::set_processes(const Communicator* comm) {
   comm_ = comm;
   build_mesh();
@@ -417,7 +425,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
   if (x.cols() != count)
     throw std::invalid_argument("force term '" + name() + "' (pppm): " + std::to_string(x.cols()) + " particles, but " +
                                 std::to_string(count) + " charges");
-  if (!fft_ && !slabs_) build_mesh();  // a term from on_subset never given its processes
+  if (!fft_ && !slabs_) build_mesh();  // from on_subset and never given processes, or released
   if (box.lengths != green_lengths_) influence_function(box);
   if (slabs_) return evaluate_slabs(x, box, f);
   Fftw& t = *fft_;

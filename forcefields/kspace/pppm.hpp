@@ -111,6 +111,8 @@ class ParticleParticleParticleMesh final : public ForceTerm {
 
   // One process (null, or one rank): the whole mesh; more: this rank's slab (built here).
   void set_processes(const Communicator* comm) override;
+  // The mesh, its plans and G, made again (the same plans, so the same bits) when next evaluated.
+  void release_buffers() const override;
   const MeshParameters& parameters() const { return parameters_; }
   const std::vector<double>& charges() const { return charges_; }
 
