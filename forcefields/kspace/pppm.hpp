@@ -56,16 +56,17 @@
 // copied); 4 per point of the window's planes other ranks own (charges out, field back), 1 per
 // point of those it owns (its charges: its field is read where the inverse FFT left it), and 4 per
 // point of the planes other ranks' windows hold of its own (charges in, field out). One process:
-// 8 mesh. No rank holds the whole mesh: a part's buffers are made when it is given its processes
+// 8 mesh. No part holds the whole mesh: a part's buffers are made when it is given its processes
 // (set_processes; on_subset builds no mesh). The window's buffers grow when a rank's charges
 // touch more planes than they ever did (its first evaluation, then rarely: the one allocation an
-// evaluation may make; capacity is never given back). An evaluation is 4 exchanges and 2 sums
+// evaluation may make; capacity is never given back; a part built again after a migration starts
+// empty, as its plans and G are made again). An evaluation is 4 exchanges and 2 sums
 // (without forces 2 and 2): to each other owner of its window's planes, the transpose to each
 // rank whose columns meet its planes (up to N − 1), and with forces the transpose back and the
 // field (three times the charges' bytes) to the ranks whose windows hold its planes; the sums of
 // 2N integers (the windows) and 6 doubles. traffic() reports the last evaluation's. Each
 // exchange is a synchronisation, against the replicated mesh's one all-reduce: on few ranks and
-// small meshes the replicated mesh was quicker (docs/electrostatics.md, "Several processes").
+// small meshes the replicated mesh was quicker (docs/electrostatics.md, "What it costs, measured").
 // Every rank has the whole energy and virial after the sum and returns 1/size of each, so that the
 // shares add up to the whole system's (on one process they are the energy and virial). On one
 // process (no Communicator, or one rank) the mesh is whole and transformed by one 3D plan: the
