@@ -173,6 +173,9 @@ class ForceTerm {
   // sums over the ranks, so every rank evaluates it at the same points (a collective). Null: one
   // process. Default: a term that needs only its own particles, which ignores them.
   virtual void set_processes(const Communicator* processes) { (void)processes; }
+  // Drops buffers the term makes again at its next evaluation, with the same results (PPPM's whole
+  // mesh: a decomposed run's whole-system terms once the parts have taken over). Default: none.
+  virtual void release_buffers() const {}
 
   // Constraint-defining terms (stiff bonds) expose their bonds to the constraint toolbox.
   virtual const StiffBonds* stiff_bonds() const { return nullptr; }

@@ -21,8 +21,9 @@ CASE is one of
     trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
                               special_coul [0, 0.3, 0.6]): the charges follow the beads onto the pair sets
     water                     inputs/spce_water.toml: charges, lj/cut/coul/long and PPPM (the reciprocal
-                              sum over every rank's charges: the mesh added up over the ranks, so to
-                              round-off (1e-10), not bit for bit), rigid water triangles, 50 steps
+                              sum over every rank's charges: the mesh distributed over the ranks, each
+                              plane the ranks' charges added up, the FFTs in slabs, so to round-off
+                              (1e-10), not bit for bit), rigid water triangles, 50 steps
     polyelectrolyte           inputs/polyelectrolyte.toml: charged chains and counterions, lj/cut/coul/long
                               and PPPM on the macro step of the projected impulse, stiff bonds (to
                               round-off, as water), 200 macro steps
@@ -277,7 +278,7 @@ def case_setup(case):
             "types.CH3.charge": "0.22", "types.CH2.charge": "-0.02", "forces.lj.style": '"lj/cut/coul/debye"',
             "forces.lj.kappa": "0.1", "forces.lj.special_bonds": "[0.0, 0.5, 0.5]",
             "forces.lj.special_coul": "[0.0, 0.3, 0.6]"}
-    if case == "water":  # charges, Ewald real space and the PPPM mesh summed over the ranks; rigid triangles
+    if case == "water":  # charges, Ewald real space and the PPPM mesh distributed over the ranks; rigid triangles
         return os.path.join(ROOT, "inputs", "spce_water.toml"), 2.0, {}
     if case == "polyelectrolyte":  # PPPM with molecules of 32 beads that reach across domains
         return os.path.join(ROOT, "inputs", "polyelectrolyte.toml"), 0.01, {}
@@ -686,7 +687,7 @@ def main(argv):
         elif case.startswith("restart_npt:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, STIFF_MELT_NPT, 0.01)
-        elif case.startswith("restart_water:"):  # PPPM's mesh summed over the ranks: to round-off
+        elif case.startswith("restart_water:"):  # PPPM's distributed mesh: to round-off
             global BITWISE
             BITWISE = False
             first, second = (int(r) for r in case.split(":")[1:])

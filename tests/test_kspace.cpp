@@ -442,6 +442,105 @@ TEST(KSpace, PppmOnSubsetsOfRanksIsTheWholeSystems) {
   check_decomposed<ParticleParticleParticleMesh>(p);
 }
 
+// The distributed mesh (pppm.hpp: slabs of planes along z, the transposes, each rank's window of
+// planes) on n = 1 … 4 fake ranks against one process, 80 charges (net +0.5, so the background
+// term is shared too, and one of them unwrapped by several box lengths). The particles of the z
+// slab that rank k would own are held by rank k + 1 (so every rank's charges lie in planes other
+// ranks own), the last rank's by rank 1 (so the last rank holds none and rank 1 two slabs apart:
+// a window around an untouched gap); rank 0 holds the top slab, whose window wraps through z = 0.
+// Every particle's force and the shares' sums of the energy and virial equal one process's to
+// 1e-12 (n = 1: bit for bit), a second evaluation grows no buffer and repeats the first's bits, and
+// so does one after release_buffers (the whole term's too).
+void check_distributed_mesh(const MeshParameters& p) {
+  const Box box = periodic_box({5.0, 6.0, 7.0}, {1.0, -2.0, 0.5});
+  Charged s = random_charges(80, box, 9, 0.5);
+  s.x.col(3) += Eigen::Vector3d(10.0, -12.0, 21.0);
+  const ParticleParticleParticleMesh whole("coulomb", Level::slow, s.q, p, 1.0, box);
+  const Eigen::Matrix3Xd f_whole = forces_of(whole, s.x, box);
+  const double e_whole = energy_of(whole, s.x, box);
+  const Eigen::Vector3d w_whole = virial_diagonal(whole, s.x, box);
+  const double scale = f_whole.cwiseAbs().maxCoeff();
+  whole.release_buffers();
+  EXPECT_EQ(forces_of(whole, s.x, box), f_whole);
+  const Topology topology;
+  for (int n = 1; n <= 4; ++n) {
+    std::vector<std::vector<int>> global(n);
+    for (int i = 0; i < s.x.cols(); ++i) {
+      double z = (s.x(2, i) - box.origin[2]) / box.lengths[2];
+      z -= std::floor(z);
+      int holder = (std::min(static_cast<int>(z * n), n - 1) + 1) % n;
+      if (n > 1 && holder == n - 1) holder = n > 2 ? 1 : 0;
+      global[holder].push_back(i);
+    }
+    Eigen::Matrix3Xd f_parts = Eigen::Matrix3Xd::Zero(3, s.x.cols());
+    std::vector<double> energies(n);
+    std::vector<Eigen::Vector3d> virials(n);
+    std::vector<ParticleParticleParticleMesh::Traffic> traffic(n);
+    std::vector<int> repeated(n, 0);
+    fake::run_ranks(n, [&](const Communicator& comm) {
+      const int r = comm.rank();
+      const std::vector<int> types(global[r].size(), 0);
+      const ParticleSubset subset{global[r], types, topology};
+      std::unique_ptr<ForceTerm> part = whole.on_subset(subset, box);
+      part->set_processes(&comm);
+      Eigen::Matrix3Xd x(3, subset.size());
+      for (int k = 0; k < subset.size(); ++k) x.col(k) = s.x.col(global[r][k]);
+      Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, subset.size());
+      energies[r] = part->add_forces(x, box, f);
+      for (int k = 0; k < subset.size(); ++k) f_parts.col(global[r][k]) = f.col(k);
+      virials[r] = virial_diagonal(*part, x, box);
+      const auto& mesh = dynamic_cast<const ParticleParticleParticleMesh&>(*part);
+      traffic[r] = mesh.traffic();
+      Eigen::Matrix3Xd again = Eigen::Matrix3Xd::Zero(3, subset.size());
+      const double e_again = part->add_forces(x, box, again);
+      repeated[r] = e_again == energies[r] && again == f && mesh.traffic().growths == 0;
+      // Its buffers dropped, the term makes them again at the next evaluation: the same bits.
+      part->release_buffers();
+      again.setZero();
+      repeated[r] = repeated[r] && part->add_forces(x, box, again) == energies[r] && again == f;
+    });
+    double e_sum = 0.0;
+    Eigen::Vector3d w_sum = Eigen::Vector3d::Zero();
+    for (int r = 0; r < n; ++r) e_sum += energies[r], w_sum += virials[r];
+    const double df = (f_parts - f_whole).cwiseAbs().maxCoeff() / scale;
+    std::printf("mesh %d×%d×%d order %d on %d ranks: max |dF|/max |F| %.2e, dE/E %.1e, dW/W %.1e;", p.mesh[0],
+                p.mesh[1], p.mesh[2], p.order, n, df, std::abs(e_sum / e_whole - 1.0),
+                (w_sum - w_whole).cwiseAbs().maxCoeff() / w_whole.cwiseAbs().maxCoeff());
+    for (int r = 0; r < n; ++r)
+      std::printf(" rank %d: %zu charges, %d window planes, %ld messages, %ld bytes%s", r, global[r].size(),
+                  traffic[r].window_planes, traffic[r].messages, traffic[r].bytes, r + 1 < n ? ";" : "\n");
+    if (n == 1) {
+      EXPECT_EQ(f_parts, f_whole);
+      EXPECT_EQ(e_sum, e_whole);
+      EXPECT_EQ(w_sum, w_whole);
+    }
+    EXPECT_LT(df, 1e-12) << n << " ranks";
+    EXPECT_NEAR(e_sum, e_whole, 1e-12 * std::abs(e_whole)) << n << " ranks";
+    for (int a = 0; a < 3; ++a)
+      EXPECT_NEAR(w_sum[a], w_whole[a], 1e-12 * w_whole.cwiseAbs().maxCoeff()) << n << " ranks, axis " << a;
+    for (int r = 0; r < n; ++r) EXPECT_TRUE(repeated[r]) << "rank " << r << " of " << n;
+    if (n > 1) {
+      EXPECT_TRUE(global[n - 1].empty());
+      EXPECT_EQ(traffic[n - 1].window_planes, 0);
+    }
+  }
+}
+
+TEST(KSpace, PppmDistributedMeshOnOneToFourRanksIsOneProcesss) {
+  MeshParameters p = mesh_parameters(0.9, 16, 5);
+  p.mesh[1] = 18, p.mesh[2] = 15;
+  check_distributed_mesh(p);
+}
+
+TEST(KSpace, PppmMeshWithFewerPlanesOrColumnsThanRanks) {
+  // 2 planes for up to 4 ranks (two own none); then 3 planes and 2 columns (n_y (n_x/2 + 1)).
+  MeshParameters p = mesh_parameters(0.9, 6, 3);
+  p.mesh[1] = 5, p.mesh[2] = 2;
+  check_distributed_mesh(p);
+  p.mesh[0] = 2, p.mesh[1] = 1, p.mesh[2] = 3, p.order = 2;
+  check_distributed_mesh(p);
+}
+
 TEST(KSpace, SubsetsKeepTheirCharges) {
   const Box box = periodic_box({5.0, 6.0, 7.0}, {0.0, 0.0, 0.0});
   const Charged s = random_charges(10, box, 3);

@@ -229,6 +229,10 @@ void DomainIntegrator::start(const State& s) {
   }
   if (!comm_.root()) std::fill(c.sums.begin(), c.sums.end(), 0.0);
   part_->integrator->restore_carried_state(std::move(c));
+  // The parts evaluate the forces from now on: the whole system's terms drop what they can make
+  // again (PPPM's whole mesh, which every rank made to prepare and sample the whole scene; rank 0
+  // makes it again if it samples the gathered state with the whole field).
+  for (const auto& term : whole_scene_.forces->terms()) term->release_buffers();
 }
 
 // After the pair sets were selected again (or the box moved): the molecules whose anchors have
