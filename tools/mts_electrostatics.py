@@ -6,7 +6,7 @@ the mollified and projected kick on the PPPM level only (the middle level kicked
 [[integrator.levels]] kick = "plain"), stiffmd rattle (rigid X–H bonds and water, the reference)
 and LAMMPS `run_style respa` on the same state and force field.
 
-    /usr/bin/python3 tools/mts_electrostatics.py                 # ≈ 10 min on one core
+    /usr/bin/python3 tools/mts_electrostatics.py                 # 56 runs, ≈ 20 min on one idle core
     /usr/bin/python3 tools/mts_electrostatics.py --h "2 4" --methods impulse --no-lammps --t-end 480  # smoke
 
 The scene is inputs/peptide.toml (2004 atoms, CHARMM22, lj/charmm/coul/long 8/10 Å, PPPM 1e-4) with
