@@ -40,41 +40,52 @@ std::unique_ptr<LangevinForce> langevin_force_of(const IntegratorSettings& s, co
   return langevin_force(s) ? std::make_unique<LangevinForce>(s.thermostat, inv_mass) : nullptr;
 }
 
+// The kick strategies the impulse family's levels use (integrators/kick_forces.hpp).
+std::shared_ptr<KickForce> make_kick(Kick kick, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  if (kick == Kick::plain) return std::make_shared<PlainKick>();
+  if (!forces.stiff_bonds())
+    throw std::invalid_argument("the " + std::string(kick_name(kick)) +
+                                " kick needs constraint-defining stiff bonds (a stiff-harmonic term)");
+  ConstraintToolbox toolbox(stiff_bonds_of(forces).bonds, inv_mass);
+  if (kick == Kick::projected) return std::make_shared<ProjectedKick>(std::move(toolbox));
+  return std::make_shared<MollifiedKick>(std::move(toolbox), forces.num_particles());
+}
+
 // The impulse family: slow kick ½h, n micro steps of the fast part, slow kick ½h; with the deck's
 // levels (innermost first, LAMMPS's loop factors) one stage per level, outermost first, each
-// taking the loop factor of the level enclosing it as its substeps (docs/design.md §3).
-std::vector<Stage> impulse_stages(const IntegratorSettings& s) {
-  if (s.levels.empty()) return {{{Level::slow}, 1}, {{Level::fast}, s.micro_steps}};
-  const int n = static_cast<int>(s.levels.size());
+// taking the loop factor of the level enclosing it as its substeps (docs/design.md §3). Every
+// stage but the innermost kicks with its level's kick, by default the method's; the stages of one
+// kind share one strategy, so that one constraint toolbox serves them all (S(x) factored once
+// per configuration when two levels kick at the same x).
+Ptr make_impulse_family(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
+  const Kick method_kick = *find_method(s.method)->kick;
+  std::array<std::shared_ptr<KickForce>, kKickNames.size()> made;
+  const auto kick_of = [&](Kick k) {
+    std::shared_ptr<KickForce>& p = made[static_cast<size_t>(k)];
+    if (!p) p = make_kick(k, forces, inv_mass);
+    return p;
+  };
   std::vector<Stage> stages;
-  for (int k = n - 1; k >= 0; --k) stages.push_back({{Level{k}}, k + 1 < n ? s.levels[k + 1].substeps : 1});
-  return stages;
+  if (s.levels.empty()) {
+    stages = {{{Level::slow}, 1, kick_of(method_kick)}, {{Level::fast}, s.micro_steps, nullptr}};
+  } else {
+    const int n = static_cast<int>(s.levels.size());
+    for (int k = n - 1; k >= 0; --k)
+      stages.push_back({{Level{k}},
+                        k + 1 < n ? s.levels[k + 1].substeps : 1,
+                        k > 0 ? kick_of(s.levels[k].kick.value_or(method_kick)) : nullptr});
+  }
+  return std::make_unique<MultipleTimeStepping>(s.method, forces, std::move(stages), o_step_of(s, inv_mass),
+                                                langevin_force_of(s, inv_mass), s.thermostat.splitting);
 }
 
 // Velocity Verlet: every level in one stage (the levels' substeps do not apply).
 Ptr make_velocity_verlet(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<MultipleTimeStepping>(s.method, forces, std::vector<Stage>{{forces.all_levels(), 1}},
-                                                std::make_unique<PlainKick>(), o_step_of(s, inv_mass),
-                                                langevin_force_of(s, inv_mass), s.thermostat.splitting);
-}
-Ptr make_impulse(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
-  return std::make_unique<MultipleTimeStepping>(s.method, forces, impulse_stages(s), std::make_unique<PlainKick>(),
                                                 o_step_of(s, inv_mass), langevin_force_of(s, inv_mass),
                                                 s.thermostat.splitting);
 }
-Ptr make_projected(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
-  return std::make_unique<MultipleTimeStepping>(
-      s.method, forces, impulse_stages(s),
-      std::make_unique<ProjectedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass)),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass), s.thermostat.splitting);
-}
-Ptr make_mollified(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
-  return std::make_unique<MultipleTimeStepping>(
-      s.method, forces, impulse_stages(s),
-      std::make_unique<MollifiedKick>(ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass),
-                                      forces.num_particles()),
-      o_step_of(s, inv_mass), langevin_force_of(s, inv_mass), s.thermostat.splitting);
-}
+
 Ptr make_rattle(const IntegratorSettings& s, ForceField& forces, const Eigen::VectorXd& inv_mass) {
   return std::make_unique<Rattle>(s.method, forces, ConstraintToolbox(stiff_bonds_of(forces).bonds, inv_mass), nullptr,
                                   langevin_of(s, inv_mass), s.thermostat.splitting);
@@ -108,22 +119,22 @@ Ptr make_fixman(const IntegratorSettings& s, ForceField& forces, const Eigen::Ve
 }
 
 //                     name               summary                                                        stiff  micro
-//                     rigid  eff.  follows eff.  kT
+//                     rigid  eff.  follows eff.  kT  kick
 constexpr std::array<MethodInfo, 7> kMethods = {{
     {"velocity-verlet", "Stormer-Verlet on the full H; step limited by eps", false, false, false, false, false, false,
-     make_velocity_verlet},
+     std::nullopt, make_velocity_verlet},
     {"impulse", "r-RESPA / impulse: slow kick, n micro steps of the fast part, slow kick", false, true, false, false,
-     false, false, make_impulse},
+     false, false, Kick::plain, make_impulse_family},
     {"mollified-impulse", "impulse with the mollified kick a'(x)^T f(a(x))", true, true, false, false, true, false,
-     make_mollified},
+     Kick::mollified, make_impulse_family},
     {"projected-impulse", "impulse with the projected kick P(x) f", true, true, false, false, true, false,
-     make_projected},
+     Kick::projected, make_impulse_family},
     {"rattle", "RATTLE with the stiff bonds as rigid constraints (the rigid limit)", true, false, true, false, false,
-     false, make_rattle},
+     false, std::nullopt, make_rattle},
     {"effective", "RATTLE on U + sum I_k omega_k(x): the eps -> 0 limit at fixed actions", true, false, true, true,
-     true, false, make_effective},
+     true, false, std::nullopt, make_effective},
     {"fixman", "RATTLE on U + U_F (Fixman) with a thermostat: the thermal eps -> 0 limit", true, false, true, false,
-     false, true, make_fixman},
+     false, true, std::nullopt, make_fixman},
 }};
 
 }  // namespace
@@ -152,9 +163,13 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
     throw std::invalid_argument("the force field has " + std::to_string(forces.num_levels()) +
                                 " levels, the integrator settings " +
                                 std::to_string(s.levels.empty() ? 2 : s.levels.size()));
-  for (size_t k = 0; k < s.levels.size(); ++k)
+  for (size_t k = 0; k < s.levels.size(); ++k) {
     if (s.levels[k].substeps < 1 || (k == 0 && s.levels[k].substeps != 1))
       throw std::invalid_argument("level '" + s.levels[k].name + "': substeps must be >= 1 (1 on the innermost)");
+    if (s.levels[k].kick && (k == 0 || !m->kick))
+      throw std::invalid_argument("level '" + s.levels[k].name + "': a kick is chosen only on a level slower than " +
+                                  "the innermost, for a method of the impulse family");
+  }
   if (m->needs_stiff_bonds && !forces.stiff_bonds())
     throw std::invalid_argument("method '" + s.method +
                                 "' needs constraint-defining stiff bonds (a stiff-harmonic term)");

@@ -2,7 +2,9 @@
 // (docs/design.md §11.5). Integrators see forces only through ForceField's levels.
 #pragma once
 
+#include <array>
 #include <memory>
+#include <optional>
 #include <ostream>
 #include <stdexcept>
 #include <string>
@@ -16,12 +18,29 @@
 
 namespace stiffmd {
 
+// How the impulse family turns a slower level's forces into its kick (integrators/kick_forces.hpp;
+// docs/design.md §3): K(x) = f(x), P(x) f(x), or α′(x)ᵀ f(α(x)).
+enum class Kick { plain, projected, mollified };
+
+inline constexpr std::array<std::string_view, 3> kKickNames = {"plain", "projected", "mollified"};
+inline std::string_view kick_name(Kick k) {
+  return kKickNames[static_cast<size_t>(k)];
+}
+// The kick named `name` (as in the deck), or none.
+inline std::optional<Kick> find_kick(std::string_view name) {
+  for (size_t k = 0; k < kKickNames.size(); ++k)
+    if (kKickNames[k] == name) return static_cast<Kick>(k);
+  return std::nullopt;
+}
+
 // One r-RESPA level of the deck's [[integrator.levels]], innermost first (LAMMPS's numbering):
 // substeps is LAMMPS's loop factor, the steps of the next inner level per step of this one
-// (1 on the innermost level, which has none).
+// (1 on the innermost level, which has none). kick: this level's kick strategy, on a level slower
+// than the innermost of an impulse-family method; none: the method's own.
 struct LevelSettings {
   std::string name;
   int substeps = 1;
+  std::optional<Kick> kick;
 };
 
 struct IntegratorSettings {

@@ -1,9 +1,11 @@
-// The outer kick forces of the impulse family (docs/design.md §3; Lubich & Weiss §2.2–2.3):
+// The kick forces of the impulse family's levels slower than the innermost (docs/design.md §3;
+// Lubich & Weiss §2.2–2.3), one strategy per level (Stage::kick: the method's, or the level's own):
 //   projected impulse:  K(x) = P(x) f(x)                       (the projected kick)
 //   mollified impulse:  K(x) = α′(x)ᵀ f(α(x))                   (projection mollifier, eq. ProMol)
+//   impulse:            K(x) = f(x)                            (PlainKick, multiple_time_stepping.hpp)
 // P(x) removes the M-orthogonal (bond-normal) part of the slow force, which is what pumps
 // energy into the bond vibrations and destroys the actions' adiabatic invariance under the
-// plain impulse method.
+// plain impulse method when the level's step does not resolve the stiff period.
 #pragma once
 
 #include "core/parallel.hpp"

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -27,6 +28,10 @@ struct MethodInfo {
   // methods only (a method that resolves the vibrations, or has none, needs no such assumption).
   bool follows_effective;
   bool needs_temperature;  // its model potential is a free energy at kT: refuses a run without a thermostat
+  // The impulse family's kick on every level slower than the innermost, unless the level names
+  // its own ([[integrator.levels]] kick); none: a method without such kicks (velocity Verlet
+  // steps every level at once, the constrained methods have no levels to split).
+  std::optional<Kick> kick;
   // Builds the integrator for a scene whose force field and inverse masses are given; throws
   // std::invalid_argument when the scene cannot run it.
   std::unique_ptr<Integrator> (*make)(const IntegratorSettings&, ForceField&, const Eigen::VectorXd& inv_mass);

@@ -13,14 +13,12 @@ namespace stiffmd {
 constexpr std::uint64_t kClosingForce = 0x1a3e000000000000ULL, kOpeningForce = kClosingForce + 1;
 
 MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
-                                           std::unique_ptr<KickForce> outer_kick,
                                            std::unique_ptr<LangevinNoise> langevin,
                                            std::unique_ptr<LangevinForce> langevin_force,
                                            ThermostatSettings::Splitting splitting)
     : method_(std::move(method)),
       forces_(forces),
       stages_(std::move(stages)),
-      outer_kick_(std::move(outer_kick)),
       force_(stages_.size(), Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       valid_(stages_.size(), false),
       removed_virial_(stages_.size(), 0.0),
@@ -32,6 +30,11 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (stages_.empty()) throw std::invalid_argument("multiple time stepping needs at least one stage");
   for (const Stage& st : stages_)
     if (st.substeps < 1) throw std::invalid_argument("substeps must be >= 1");
+  if (stages_.back().kick)
+    throw std::invalid_argument("the innermost stage kicks with its plain force (its steps resolve the stiff bonds)");
+  const auto plain = std::make_shared<PlainKick>();
+  for (size_t k = 0; k + 1 < stages_.size(); ++k)
+    if (!stages_[k].kick) stages_[k].kick = plain;
   const std::vector<Level>& inner = stages_.back().levels;
   std::vector<const ForceTerm*> terms;  // in the order compute() sums them
   for (const ForceTerm* term : forces_.evaluation_order())
@@ -68,10 +71,10 @@ void MultipleTimeStepping::step_langevin_force(State& s, double h) {
 }
 
 void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
-  // Every stage slower than the innermost kicks through the method's strategy (see the header).
+  // Every stage slower than the innermost kicks through its strategy (see the header).
   if (k + 1 < stages_.size()) {
-    outer_kick_->evaluate(x, forces_, stages_[k].levels, force_[k]);
-    removed_virial_[k] = outer_kick_->removed_virial();
+    stages_[k].kick->evaluate(x, forces_, stages_[k].levels, force_[k]);
+    removed_virial_[k] = stages_[k].kick->removed_virial();
   } else
     forces_.compute(x, stages_[k].levels, force_[k]);
   valid_[k] = true;

@@ -9,16 +9,21 @@
 // r-RESPA = one stage per level of the deck's [[integrator.levels]] (integrators/factory.cpp).
 // The closing kick's force of every stage is cached and reused by the next opening kick,
 // so the outer (slow) force is evaluated once per macro step. How a stage turns raw forces
-// into its kick (plain, projected P(x)f, mollified α′(x)ᵀf(α(x))) is a strategy, not a copy of
-// the step: the method's kick is that of every stage but the innermost, which holds the stiff
-// bonds and is always plain. Why every slower stage and not only the outermost: a kick of step
-// Δ_k ≫ ε/ω by a force with a component along the stiff directions is an impulse the stiff
-// oscillators feel; at Δ_k ω/ε near a multiple of π it pumps their actions (docs/design.md §3; the
-// seed paper's argument for the projected and mollified kicks does not use which level the kick
-// belongs to, only that its step does not resolve the stiff period). Only a stage whose kicks
-// resolve the stiff period may kick plainly, and in a deck that is the innermost one. Test:
-// tests/test_respa_levels.cpp (a medium-level angle term: actions kept by this rule, lost by
-// the plain kick and by projecting the outermost kick alone).
+// into its kick (plain, projected P(x)f, mollified α′(x)ᵀf(α(x))) is a strategy, Stage::kick,
+// not a copy of the step. The innermost stage holds the stiff bonds and its force is always
+// plain; by default (integrators/factory.cpp) the method's kick is that of every other stage.
+// Why every slower stage and not only the outermost: a kick of step Δ_k ≫ ε/ω by a force with a
+// component along the stiff directions is an impulse the stiff oscillators feel; at Δ_k ω/ε near
+// a multiple of π it pumps their actions (docs/design.md §3; the seed paper's argument for the
+// projected and mollified kicks does not use which level the kick belongs to, only that its step
+// does not resolve the stiff period). A stage whose step does resolve the stiff period needs no
+// such kick, and a deck may kick it plainly ([[integrator.levels]] kick = "plain"): its kicks then
+// follow the true force, whereas the mollified kick is the force of U(α(x)), not of U(x), and the
+// projected one drops the bond-normal part of f — a difference the true energy carries (the
+// peptide in docs/performance.md: +0.34 kcal/mol/atom when the 1 fs level is mollified too).
+// Test: tests/test_respa_levels.cpp (a medium-level angle term whose step does not resolve the
+// bonds: actions kept by the method's kick on every slower level, lost by the plain kick and by
+// projecting the outermost kick alone; a plain middle level under a mollified outermost one).
 //
 // Langevin dynamics. Velocity Verlet (one stage) becomes BAOAB (Leimkuhler & Matthews 2013):
 // its drift becomes A(½h) O(h) A(½h). The impulse family becomes BAOAB-RESPA with the fast flow
@@ -61,11 +66,6 @@
 
 namespace stiffmd {
 
-struct Stage {
-  std::vector<Level> levels;
-  int substeps = 1;  // steps of this stage per step of the enclosing stage
-};
-
 // Forms a stage's kick force K(x) from the force field (every stage but the innermost).
 class KickForce {
  public:
@@ -86,10 +86,18 @@ class PlainKick final : public KickForce {
   }
 };
 
+struct Stage {
+  std::vector<Level> levels;
+  int substeps = 1;  // steps of this stage per step of the enclosing stage
+  // This stage's kick strategy; null: plain. Stages may share one (and with it its scratch and
+  // constraint toolbox: each evaluate is complete before the next). The innermost stage has none:
+  // its force is the plain force, which its micro steps resolve.
+  std::shared_ptr<KickForce> kick = nullptr;
+};
+
 class MultipleTimeStepping final : public Integrator {
  public:
   MultipleTimeStepping(std::string method, ForceField& forces, std::vector<Stage> stages,
-                       std::unique_ptr<KickForce> outer_kick = std::make_unique<PlainKick>(),
                        std::unique_ptr<LangevinNoise> langevin = nullptr,
                        std::unique_ptr<LangevinForce> langevin_force = nullptr,
                        ThermostatSettings::Splitting splitting = ThermostatSettings::Splitting::baoab);
@@ -126,11 +134,12 @@ class MultipleTimeStepping final : public Integrator {
   // The O steps' ½vᵀMv after − before (BAOAB, OBABO), or the Langevin force's share of the
   // outermost kicks (LangevinForce::kick_heat), summed over the run.
   double thermostat_heat() const override { return heat_; }
-  // The projected kick leaves out the bond-normal part f − P(x)f of every slower level's force.
-  // In the stiff system the bonds stretch until their tension cancels that part on average, so
-  // the tension belongs in the pressure although no spring in this dynamics carries it: the
-  // virial of −(f − Pf), as RATTLE's constraint force enters its pressure (docs/design.md §3, §4).
-  // The cached kick forces are at the current x after a step, so these virials are too.
+  // The projected kick leaves out the bond-normal part f − P(x)f of its level's force (the
+  // mollified kick f(α) − α′ᵀf(α)). In the stiff system the bonds stretch until their tension
+  // cancels that part on average, so the tension belongs in the pressure although no spring in
+  // this dynamics carries it: the virial of −(f − Pf), as RATTLE's constraint force enters its
+  // pressure (docs/design.md §3, §4). Summed over the stages, each with its own kick's (0 for a
+  // plain one). The cached kick forces are at the current x after a step, so these virials are too.
   double constraint_virial(const State&) override {
     double w = 0.0;
     for (size_t k = 0; k + 1 < stages_.size(); ++k) w -= removed_virial_[k];
@@ -150,7 +159,7 @@ class MultipleTimeStepping final : public Integrator {
 
  private:
   void advance(State& s, size_t k, double dt);
-  void step_obabo(State& s, double h);  // O(½h), the Hamiltonian macro step, O(½h)
+  void step_obabo(State& s, double h);           // O(½h), the Hamiltonian macro step, O(½h)
   void step_langevin_force(State& s, double h);  // the macro step, its outermost kicks' Langevin heat
   bool thermostatted() const { return langevin_ || obabo_ || langevin_force_; }
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
@@ -163,8 +172,7 @@ class MultipleTimeStepping final : public Integrator {
 
   std::string method_;
   ForceField& forces_;
-  std::vector<Stage> stages_;
-  std::unique_ptr<KickForce> outer_kick_;
+  std::vector<Stage> stages_;            // every stage but the innermost with its kick (plain where none was given)
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (docs/design.md §11.3)
   std::vector<bool> valid_;
   std::vector<double> removed_virial_;               // per stage: the kick's removed_virial() at its last refresh

@@ -3,6 +3,7 @@
 // velocity Verlet, two named levels are today's impulse family, bit for bit; three levels are
 // time-reversible and second order; the method's kick on every level slower than the stiff one
 // keeps the actions, which the plain kick and a kick projected on the outermost level alone lose;
+// a level's own kick (kick = "plain" under a mollified outermost level) is the one it applies;
 // under Langevin the O steps of a macro step span h exactly once; a restart continues bit for bit.
 #include <gtest/gtest.h>
 
@@ -33,13 +34,17 @@ struct Trimer {
   std::string extra;  // more tables ([thermostat])
 };
 
-std::string three_levels(int na, int nb) {
+// kick_b, kick_a: the angles' and the pair level's `kick` key (none when empty).
+std::string three_levels(int na, int nb, const std::string& kick_b = "", const std::string& kick_a = "") {
+  const auto kick = [](const std::string& k) { return k.empty() ? std::string() : "kick = \"" + k + "\"\n"; };
   return "[[integrator.levels]]\nname = \"bonds\"\n[[integrator.levels]]\nname = \"angles\"\nsubsteps = " +
-         std::to_string(nb) + "\n[[integrator.levels]]\nname = \"pair\"\nsubsteps = " + std::to_string(na) + "\n";
+         std::to_string(nb) + "\n" + kick(kick_b) +
+         "[[integrator.levels]]\nname = \"pair\"\nsubsteps = " + std::to_string(na) + "\n" + kick(kick_a);
 }
 
-Trimer three_level_trimer(const std::string& method, double eps, double h, int na, int nb) {
-  return {method, eps, h, three_levels(na, nb), "bonds", "angles", "pair", ""};
+Trimer three_level_trimer(const std::string& method, double eps, double h, int na, int nb,
+                          const std::string& kick_b = "", const std::string& kick_a = "") {
+  return {method, eps, h, three_levels(na, nb, kick_b, kick_a), "bonds", "angles", "pair", ""};
 }
 
 Scene load_trimer(const Trimer& t) {
@@ -169,22 +174,6 @@ TEST_P(ThreeLevels, AreSecondOrder) {
 INSTANTIATE_TEST_SUITE_P(Methods, ThreeLevels, ::testing::Values("impulse", "projected-impulse", "mollified-impulse"),
                          test::method_test_name);
 
-// The counterfactual of the kick rule: project the kick of the outermost level only, and kick
-// the levels between plainly.
-class ProjectOutermostOnly final : public KickForce {
- public:
-  ProjectOutermostOnly(ConstraintToolbox toolbox, Level outermost) : toolbox_(std::move(toolbox)), outer_(outermost) {}
-  void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
-                Eigen::Matrix3Xd& out) override {
-    forces.compute(x, levels, out);
-    if (std::find(levels.begin(), levels.end(), outer_) != levels.end()) toolbox_.project_force(x, out);
-  }
-
- private:
-  ConstraintToolbox toolbox_;
-  Level outer_;
-};
-
 // max over the macro steps of |sort I(t) − sort I(0)|∞ (sorted: the two modes' labels follow the
 // frequencies, not the modes, and the exact dynamics swaps them while keeping both actions).
 double action_change(Scene& sc, Integrator& integ, int n) {
@@ -205,23 +194,19 @@ double action_change(Scene& sc, Integrator& integ, int n) {
 // ε = 1e-3, h = 0.1 (tether, gravity), the bend every 0.02, the bonds every 2e-5, t ∈ [0, 5]:
 // actions I ≈ (0.15, 0.34). Velocity Verlet on the full system (δ = 2e-5) keeps them within 0.011
 // (measured); the projected and mollified kicks on both slower levels within 0.008; the plain
-// kick changes them by 0.76, and projecting the outermost kick alone (the bend kicked plainly
-// every 0.02, i.e. every ≈ 5 periods of the bonds) by 0.15, 20 times the rule's change.
+// kick changes them by 0.76, and projecting the outermost kick alone (the bend's level kick =
+// "plain": kicked plainly every 0.02, i.e. every ≈ 5 periods of the bonds) by 0.15, 20 times the
+// rule's change. A level's kick may be plain only where its step resolves the stiff period.
 TEST(RespaLevels, TheKickOnEverySlowerLevelKeepsTheActions) {
   const int n = 50, na = 5, nb = 1000;
-  auto change_of = [&](const std::string& method) {
-    Scene sc = load_trimer(three_level_trimer(method, 1e-3, 0.1, na, nb));
+  auto change_of = [&](const std::string& method, const std::string& kick_b) {
+    Scene sc = load_trimer(three_level_trimer(method, 1e-3, 0.1, na, nb, kick_b));
     auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
     return action_change(sc, *integ, n);
   };
-  const double projected = change_of("projected-impulse"), mollified = change_of("mollified-impulse");
-  const double plain = change_of("impulse");
-  Scene sc = load_trimer(three_level_trimer("impulse", 1e-3, 0.1, na, nb));
-  MultipleTimeStepping outermost_only(
-      "projected-outermost-only", *sc.forces, {{{Level{2}}, 1}, {{Level{1}}, na}, {{Level{0}}, nb}},
-      std::make_unique<ProjectOutermostOnly>(ConstraintToolbox(sc.forces->stiff_bonds()->bonds, sc.state.inv_mass),
-                                             Level{2}));
-  const double outer_only = action_change(sc, outermost_only, n);
+  const double projected = change_of("projected-impulse", ""), mollified = change_of("mollified-impulse", "");
+  const double plain = change_of("impulse", "");
+  const double outer_only = change_of("projected-impulse", "plain");
   RecordProperty("action_change", "projected " + std::to_string(projected) + " mollified " + std::to_string(mollified) +
                                       " plain " + std::to_string(plain) + " outermost-only " +
                                       std::to_string(outer_only));
@@ -229,6 +214,66 @@ TEST(RespaLevels, TheKickOnEverySlowerLevelKeepsTheActions) {
   EXPECT_LT(mollified, 0.015);
   EXPECT_GT(plain, 0.3);
   EXPECT_GT(outer_only, 0.1);
+}
+
+// A level whose kick names the method's own is the method's run to the last bit: the key changes
+// nothing unless it changes the kick.
+TEST(RespaLevels, ALevelKickOfTheMethodsOwnIsTheSameRun) {
+  for (const auto& [method, kick] : {std::pair<std::string, std::string>{"impulse", "plain"},
+                                     {"projected-impulse", "projected"},
+                                     {"mollified-impulse", "mollified"}}) {
+    Scene ref_scene = load_trimer(three_level_trimer(method, 1e-2, 0.05, 5, 50));
+    const Eigen::Matrix3Xd x0 = ref_scene.state.x;
+    const State ref = run(ref_scene, 20);
+    ASSERT_GT((ref.x - x0).norm(), 0.01);
+    for (const auto& [kick_b, kick_a] : {std::pair<std::string, std::string>{kick, ""}, {"", kick}, {kick, kick}}) {
+      Scene sc = load_trimer(three_level_trimer(method, 1e-2, 0.05, 5, 50, kick_b, kick_a));
+      EXPECT_TRUE(identical(run(sc, 20), ref)) << method << ": angles kick '" << kick_b << "', pair kick '" << kick_a;
+    }
+  }
+}
+
+// mollified-impulse with the angles' level kick = "plain": after each macro step the integrator's
+// cached kick forces (the forces its next opening kicks apply, carried_state().columns, outermost
+// stage first) are, at the current x, the outermost level's terms mollified alone,
+// α′(x)ᵀ f_pair(α(x)), the angles' level's plain force f_angles(x), and the bonds' plain force;
+// the pressure's constraint virial is the outermost kick's removed virial alone,
+// −Σ x·(f_pair(α) − α′ᵀ f_pair(α)). Each differs from what the other kick would give.
+TEST(RespaLevels, EachLevelKicksWithItsOwnKick) {
+  Scene sc = load_trimer(three_level_trimer("mollified-impulse", 1e-2, 0.05, 5, 50, "plain"));
+  auto integ = make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass);
+  ConstraintToolbox toolbox(sc.forces->stiff_bonds()->bonds, sc.state.inv_mass);
+  const int n = sc.state.size();
+  Eigen::Matrix3Xd X(3, n), f_at_X(3, n), mollified(3, n), plain_pair(3, n), plain_angles(3, n), bonds(3, n);
+  Eigen::Matrix3Xd projected_angles(3, n);
+  for (int step = 1; step <= 5; ++step) {
+    integ->step(sc.state, sc.integrator.h);
+    ++sc.state.step;
+    const Eigen::Matrix3Xd& x = sc.state.x;
+    toolbox.mollified_force(
+        x,
+        [&](const Eigen::Matrix3Xd& at, Eigen::Matrix3Xd& f) {
+          sc.forces->compute(at, {Level{2}}, f);
+          f_at_X = f;
+        },
+        X, mollified);
+    sc.forces->compute(x, {Level{2}}, plain_pair);
+    sc.forces->compute(x, {Level{1}}, plain_angles);
+    sc.forces->compute(x, {Level{0}}, bonds);
+    projected_angles = plain_angles;
+    toolbox.project_force(x, projected_angles);
+    const CarriedState c = integ->carried_state();
+    ASSERT_EQ(c.columns.size(), 3u);
+    EXPECT_TRUE((c.columns[0].array() == mollified.array()).all()) << "step " << step;
+    EXPECT_TRUE((c.columns[1].array() == plain_angles.array()).all()) << "step " << step;
+    EXPECT_TRUE((c.columns[2].array() == bonds.array()).all()) << "step " << step;
+    // What the other kick would have applied differs: the test tells the kicks apart.
+    EXPECT_GT((mollified - plain_pair).norm(), 1e-3 * plain_pair.norm());
+    EXPECT_GT((projected_angles - plain_angles).norm(), 1e-3 * plain_angles.norm());
+    const double removed = (x.array() * (f_at_X - mollified).array()).sum();
+    EXPECT_NEAR(integ->constraint_virial(sc.state), -removed, 1e-12 * std::abs(removed));
+    EXPECT_GT(std::abs(removed), 1e-8);
+  }
 }
 
 // Free particles (zero forces on three levels) under Langevin friction at kT = 0: every O step
@@ -259,12 +304,19 @@ TEST(RespaLevels, LangevinOStepsSpanTheMacroStepOnce) {
 TEST(RespaLevels, CheckPrintsTheLevelStructure) {
   const auto r = test::cli("check " + test::source_path("inputs/respa_chains.toml"));
   ASSERT_EQ(r.code, 0) << r.err;
-  for (const char* line : {"levels:      3, innermost first in the deck; r-RESPA, outermost first, mollified-impulse's "
-                           "kick on every level but the innermost:\n",
-                           "  pair: step 0.01, 2 steps of angles each; terms: excluded_volume\n",
-                           "  angles: step 0.005, 25 steps of bonds each; terms: bending\n",
-                           "  bonds: step 0.0002; terms: bonds\n", "50 micro steps (micro_dt = 0.0002)"})
+  for (const char* line :
+       {"levels:      3, innermost first in the deck; r-RESPA, outermost first, mollified-impulse:\n",
+        "  pair: step 0.01, 2 steps of angles each, kick mollified; terms: excluded_volume\n",
+        "  angles: step 0.005, 25 steps of bonds each, kick mollified; terms: bending\n",
+        "  bonds: step 0.0002, kick plain; terms: bonds\n", "50 micro steps (micro_dt = 0.0002)"})
     EXPECT_NE(r.out.find(line), std::string::npos) << line << "\n" << r.out;
+  // A level's own kick replaces the method's on that level alone.
+  const std::string d =
+      describe_settings(load_trimer(three_level_trimer("projected-impulse", 1e-2, 0.05, 5, 50, "plain")));
+  for (const char* line : {"  pair: step 0.05, 5 steps of angles each, kick projected; terms: anchor gravity\n",
+                           "  angles: step 0.01, 50 steps of bonds each, kick plain; terms: bending\n",
+                           "  bonds: step 0.0002, kick plain; terms: links\n"})
+    EXPECT_NE(d.find(line), std::string::npos) << line << "\n" << d;
 }
 
 // inputs/respa_chains.toml (three levels, mollified kicks, Langevin): 10 steps in one run and

@@ -1,10 +1,12 @@
 #!/usr/bin/python3
 """Multiple time stepping with long-range electrostatics on the slow level: the largest outer (PPPM)
-step at a given energy drift on LAMMPS's peptide example (issue 39), for stiffmd's impulse,
-mollified-impulse and projected-impulse (flexible X–H bonds on micro steps), stiffmd rattle (rigid
-X–H bonds and water, the reference) and LAMMPS `run_style respa` on the same state and force field.
+step at a given energy drift on LAMMPS's peptide example, for stiffmd's impulse, mollified-impulse
+and projected-impulse (flexible X–H bonds on micro steps; the method's kick on both slower levels),
+the mollified and projected kick on the PPPM level only (the middle level kicked plainly:
+[[integrator.levels]] kick = "plain"), stiffmd rattle (rigid X–H bonds and water, the reference)
+and LAMMPS `run_style respa` on the same state and force field.
 
-    /usr/bin/python3 tools/mts_electrostatics.py                 # ≈ 10 min on one core
+    /usr/bin/python3 tools/mts_electrostatics.py                 # 56 runs, ≈ 20 min on one idle core
     /usr/bin/python3 tools/mts_electrostatics.py --h "2 4" --methods impulse --no-lammps --t-end 480  # smoke
 
 The scene is inputs/peptide.toml (2004 atoms, CHARMM22, lj/charmm/coul/long 8/10 Å, PPPM 1e-4) with
@@ -49,7 +51,16 @@ from engines import TIMEOUT, read_summary, read_thermo, run_engine, run_lammps  
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DECK = os.path.join(ROOT, "inputs", "peptide.toml")
 DATA = os.path.join(ROOT, "inputs", "peptide_solvated.data")
-METHODS = ["impulse", "mollified-impulse", "projected-impulse", "rattle"]
+# code: (method, the middle level's kick, or None for the method's own)
+VARIANTS = {
+    "impulse": ("impulse", None),
+    "mollified-impulse": ("mollified-impulse", None),
+    "projected-impulse": ("projected-impulse", None),
+    "mollified-pppm-only": ("mollified-impulse", "plain"),
+    "projected-pppm-only": ("projected-impulse", "plain"),
+    "rattle": ("rattle", None),
+}
+METHODS = list(VARIANTS)
 INNER, MIDDLE = 0.5, 1.0  # fs
 FIELDS = ["code", "h", "status", "drift", "max_abs_de", "wall_s", "wall_per_ps", "final_T", "note"]
 
@@ -58,8 +69,9 @@ def log(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
-def deck_text(method, h, t_end, data, thermo, thermostat=False, rigid_water=False):
-    """inputs/peptide.toml as a 3-level NVE deck (see the module doc) reading `data`."""
+def deck_text(method, h, t_end, data, thermo, thermostat=False, rigid_water=False, middle_kick=None):
+    """inputs/peptide.toml as a 3-level NVE deck (see the module doc) reading `data`; middle_kick: the
+    bonded level's `kick` (None: the method's)."""
     t = open(DECK).read()
     t = t.replace('lammps_data = "peptide_solvated.data"', f'lammps_data = "{os.path.abspath(data)}"')
     t = re.sub(r'\[thermostat\].*?\n\n', '', t, flags=re.S)
@@ -76,6 +88,7 @@ def deck_text(method, h, t_end, data, thermo, thermostat=False, rigid_water=Fals
     sub_bonded, sub_long = round(MIDDLE / INNER), round(h / MIDDLE)
     t += (f'[integrator]\nmethod = "{method}"\nh = {h}\n[[integrator.levels]]\nname = "bonds"\n'
           f'[[integrator.levels]]\nname = "bonded"\nsubsteps = {sub_bonded}\n'
+          + (f'kick = "{middle_kick}"\n' if middle_kick else '') +
           f'[[integrator.levels]]\nname = "long"\nsubsteps = {sub_long}\n\n'
           f'[run]\nt_end = {t_end}\n\n[output]\nthermo_interval = {thermo}\nxyz_interval = {t_end}\n')
     return t
@@ -137,8 +150,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
     ap.add_argument("--lmp", default="lmp")
-    ap.add_argument("--h", default="2 3 4 6 8 12", help="outer (PPPM) steps, fs, multiples of 1")
-    ap.add_argument("--methods", default=" ".join(METHODS))
+    ap.add_argument("--h", default="2 3 4 5 6 8 10 12",
+                    help="outer (PPPM) steps, fs, multiples of 1 that divide --t-end")
+    ap.add_argument("--methods", default=" ".join(METHODS), help="codes among: " + " ".join(METHODS))
     ap.add_argument("--no-lammps", action="store_true")
     ap.add_argument("--t-end", type=float, default=960.0, help="NVE run length, fs (a multiple of every h)")
     ap.add_argument("--t-prep", type=float, default=2000.0, help="Langevin preparation, fs")
@@ -174,6 +188,12 @@ def main():
 
     rows = []
     codes = [m for m in a.methods.split()] + ([] if a.no_lammps else ["lammps-respa"])
+    for c in codes:
+        if c not in VARIANTS and c != "lammps-respa":
+            ap.error(f"unknown code {c!r} (known: {' '.join(METHODS)})")
+    for h in hs:
+        if abs(a.t_end / h - round(a.t_end / h)) > 1e-9:
+            ap.error(f"--t-end {a.t_end:g} is not a whole number of outer steps of {h:g} fs")
     for code in codes:
         for h in hs:
             name = f"{code}_h{h:g}"
@@ -193,7 +213,9 @@ def main():
                                    or ["timeout"])[-1][:80] if run.code != TIMEOUT else "timeout"
             else:
                 deck = os.path.join(d, "deck.toml")
-                open(deck, "w").write(deck_text(code, h, a.t_end, prepared, a.thermo, rigid_water=(code == "rattle")))
+                method, middle_kick = VARIANTS[code]
+                open(deck, "w").write(deck_text(method, h, a.t_end, prepared, a.thermo,
+                                                rigid_water=(method == "rattle"), middle_kick=middle_kick))
                 run = run_engine([a.stiffmd, "run", deck, "-o", os.path.join(d, "out"), "--no-progress"],
                                  timeout=a.timeout)
                 th = read_thermo(os.path.join(d, "out", "thermo.csv"), missing_ok=True)

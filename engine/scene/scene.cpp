@@ -167,7 +167,7 @@ void read_levels(DeckTable& root, Scene& sc) {
   double product = 1.0;
   for (size_t k = 0; k < rows.size(); ++k) {
     DeckTable& r = rows[k];
-    LevelSettings level{r.name("name"), 1};
+    LevelSettings level{r.name("name"), 1, std::nullopt};
     // A level's name becomes a thermo column (potential_NAME: a CSV header, an H5MD observable
     // group), so it is a word: no comma, slash, quote or space to break those files.
     r.require(std::all_of(level.name.begin(), level.name.end(),
@@ -190,6 +190,18 @@ void read_levels(DeckTable& root, Scene& sc) {
       level.substeps = static_cast<int>(n);
       product *= static_cast<double>(n);
       r.require(product <= 1e8, "substeps", "expected at most 1e8 innermost steps per macro step in all");
+    }
+    // The level's kick (integrators/kick_forces.hpp); whether the method has kicks at all is
+    // checked with the method (read_integrator).
+    if (r.has("kick")) {
+      const std::string name = r.name("kick");
+      if (k == 0)
+        r.fail("kick",
+               "the first level is the innermost: its micro steps resolve the stiff bonds and apply its force "
+               "plainly (give kick on the levels outside it)");
+      level.kick = find_kick(name);
+      r.require(level.kick.has_value(), "kick",
+                "expected \"plain\", \"projected\" or \"mollified\", got \"" + name + "\"");
     }
     r.finish();
     sc.integrator.levels.push_back(level);
@@ -399,7 +411,23 @@ void read_integrator(DeckTable& root, Scene& sc) {
   if (micro_dt) *micro_dt = sc.units.time_in(*micro_dt);
   const auto micro_steps = t->maybe_integer("micro_steps");
   if (micro_dt && micro_steps) t->fail("micro_steps", "give either micro_dt or micro_steps, not both");
-  t->array_of_tables("levels");  // read by read_levels
+  auto level_rows = t->array_of_tables("levels");  // read by read_levels
+  for (size_t k = 0; k < in.levels.size(); ++k) {
+    if (!in.levels[k].kick) continue;
+    if (!method->kick) {
+      std::string family;
+      for (const MethodInfo& m : methods())
+        if (m.kick) (family += family.empty() ? "" : ", ") += m.name;
+      level_rows[k].fail(
+          "kick",
+          "method '" + in.method + "' has no kicks to choose (the impulse family has: " + family + "); remove this key",
+          {"integrator.method"});
+    }
+    if (*in.levels[k].kick != Kick::plain && !sc.forces->stiff_bonds())
+      level_rows[k].fail("kick", "the " + std::string(kick_name(*in.levels[k].kick)) +
+                                     " kick needs constraint-defining stiff bonds (a [forces.NAME] of style "
+                                     "stiff-harmonic)");
+  }
   if (!in.levels.empty()) {
     if (micro_dt || micro_steps)
       t->fail(micro_dt ? "micro_dt" : "micro_steps",
@@ -950,18 +978,22 @@ std::string describe_settings(const Scene& sc) {
       << " micro steps (micro_dt = " << sc.integrator.h * time_out / sc.integrator.micro_steps << ")";
   s << "\n";
   if (const auto& levels = sc.integrator.levels; !levels.empty()) {
-    // Outermost first, as the step nests: each level's step, its loop factor and its terms.
-    const bool nested = find_method(sc.integrator.method)->micro_steps;
+    // Outermost first, as the step nests: each level's step, its loop factor, its kick and its
+    // terms. The innermost level's force is applied plainly by its micro steps; the others kick
+    // with the level's own kick or the method's.
+    const MethodInfo& method = *find_method(sc.integrator.method);
+    const bool nested = method.micro_steps;
     s << "levels:      " << levels.size() << ", innermost first in the deck";
     if (!nested)
       s << " (grouping only: " << sc.integrator.method << " steps all levels with h):\n";
     else
-      s << "; r-RESPA, outermost first, " << sc.integrator.method
-        << (levels.size() > 1 ? "'s kick on every level but the innermost:\n" : ":\n");
+      s << "; r-RESPA, outermost first, " << sc.integrator.method << ":\n";
     double step = sc.integrator.h * time_out;
     for (int k = static_cast<int>(levels.size()) - 1; k >= 0; --k) {
       s << "  " << levels[k].name << ": step " << (nested ? step : sc.integrator.h * time_out);
       if (nested && k > 0) s << ", " << levels[k].substeps << " steps of " << levels[k - 1].name << " each";
+      if (nested && method.kick)
+        s << ", kick " << kick_name(k > 0 ? levels[k].kick.value_or(*method.kick) : Kick::plain);
       s << "; terms:";
       for (const auto& t : sc.forces->terms())
         if (t->level() == Level{k}) s << " " << t->name();
