@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <csignal>
+#include <fstream>
 #include <thread>
 
 #include "cli_support.hpp"
@@ -107,6 +108,41 @@ TEST(Restart, RejectsACheckpointOfAnotherScene) {
           " --set run.t_end=0.0625");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("not before run.t_end"), std::string::npos) << r.err;
+  fs::remove_all(d);
+}
+
+// A level's kick is part of what a checkpoint continues: the integrator's cached kick forces are
+// that strategy's. A restart whose deck kicks a level otherwise (here the angles plain under the
+// mollified impulse) is refused with one line; the same deck with the method's own kick spelt out
+// continues the run.
+TEST(Restart, RefusesACheckpointWhoseLevelsKickedOtherwise) {
+  const fs::path d = test::scratch_dir("restart_kick");
+  std::ifstream in(test::source_path("inputs/respa_chains.toml"));
+  std::string text, line;
+  int levels = 0;
+  while (std::getline(in, line)) {
+    text += line + "\n";
+    if (line.rfind("[[integrator.levels]]", 0) == 0 && ++levels == 2) text += "kick = \"KICK\"\n";
+  }
+  ASSERT_EQ(levels, 3);
+  const auto write = [&](const std::string& kick, const fs::path& path) {
+    std::string t = text;
+    t.replace(t.find("KICK"), 4, kick);
+    std::ofstream(path) << t;
+    return path.string();
+  };
+  const std::string plain = write("plain", d / "plain.toml"), own = write("mollified", d / "own.toml");
+  ASSERT_EQ(cli("run " + test::source_path("inputs/respa_chains.toml") + " -o " + (d / "a").string() +
+                " -q --no-progress --set run.t_end=0.05")
+                .code,
+            0);
+  const std::string restart =
+      " -q --no-progress --set run.t_end=0.1 --restart " + (d / "a" / "checkpoint.bin").string();
+  auto r = cli("run " + plain + " -o " + (d / "b").string() + restart);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("levels or their kicks"), std::string::npos) << r.err;
+  r = cli("run " + own + " -o " + (d / "c").string() + restart);
+  EXPECT_EQ(r.code, 0) << r.err;
   fs::remove_all(d);
 }
 

@@ -20,6 +20,7 @@
 #include "engine/scene/scene.hpp"
 #include "engine/scene/stage_deck.hpp"
 #include "forcefields/parameter_record.hpp"
+#include "integrators/methods.hpp"
 
 namespace stiffmd {
 namespace {
@@ -183,7 +184,14 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
     r.add("length", sc.box.lengths[a]);
   }
   r.add("levels", sc.integrator.levels.size());  // none without [[integrator.levels]]
-  for (const LevelSettings& l : sc.integrator.levels) r.add("level", l.name);
+  // A level's kick where it is not the method's own (a restart would otherwise load cached kick
+  // forces of another strategy); absent otherwise, so that the decks without one keep their
+  // fingerprints.
+  const MethodInfo* method = find_method(sc.integrator.method);
+  for (const LevelSettings& l : sc.integrator.levels) {
+    r.add("level", l.name);
+    if (l.kick && (!method || l.kick != method->kick)) r.add("kick", std::string(kick_name(*l.kick)));
+  }
   // The units give the deck's times and temperatures their meaning.
   r.add("units", sc.units.name);
   // Each term writes its own parameters and lists (ForceTerm::define): the coefficients the
@@ -370,8 +378,8 @@ Checkpoint read_checkpoint_of(const Scene& sc, const std::string& path) {
     throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
   if (c.scene_fingerprint != scene_fingerprint(sc))
     throw InputError(path +
-                     ": checkpoint of another scene (particle types, topology, box, force terms or their "
-                     "parameters differ from the deck's)");
+                     ": checkpoint of another scene (particle types, topology, box, levels or their kicks, force "
+                     "terms or their parameters differ from the deck's)");
   const auto& terms = sc.forces->terms();
   if (c.force_term_states.size() != terms.size())
     throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +
