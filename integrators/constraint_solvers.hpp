@@ -6,7 +6,8 @@
 // Three back ends, chosen once per cluster when the toolbox is built (integrators/constraints.cpp):
 //   open chains          S: twisted tridiagonal factorization without pivoting (SPD, ChainLdlt);
 //                        J: tridiagonal LU with partial pivoting (LAPACK gttrf); O(bonds) each;
-//   small other clusters dense LLT (S) / PartialPivLU (J), pre-sized, no heap traffic;
+//   small other clusters dense LLT (S) / LU with partial pivoting (J), no heap traffic: fixed-size
+//                        code up to kMaxSmallBonds bonds, Eigen's dynamic-size ones above;
 //   large other clusters sparse SimplicialLDLT (S) / SparseLU (J), pattern analysed once
 //                        (the dense and sparse ones in integrators/constraint_solvers.cpp).
 #pragma once
@@ -324,7 +325,11 @@ class ChainLdlt {
 
 // The back ends of the clusters that are not open chains (integrators/constraint_solvers.cpp): n
 // bonds, K's pattern given by the couplings.
+// make_dense_solver: fixed-size code for n ≤ kMaxSmallBonds, else the general dense solver
+// (Eigen's dynamic-size LLT / PartialPivLU), which the small one reproduces bit for bit.
+constexpr int kMaxSmallBonds = 4;
 std::unique_ptr<ClusterSolver> make_dense_solver(int n, const std::vector<Coupling>& couplings);
+std::unique_ptr<ClusterSolver> make_general_dense_solver(int n, const std::vector<Coupling>& couplings);
 std::unique_ptr<ClusterSolver> make_sparse_solver(int n, const std::vector<Coupling>& couplings);
 
 }  // namespace stiffmd::constraint_detail
