@@ -162,3 +162,31 @@ def read_thermo(path, missing_ok=False):
             rows.append(values)
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     return {name: data[:, k] for k, name in enumerate(header)}
+
+
+def lammps_run_zero(input_text, out_dir, about, force_unit, lmp="lmp"):
+    """LAMMPS's `run 0` of input_text, a reference for a test: the input must print one thermo row
+    whose header starts `Step E_bond` and dump `forces.dump` (id fx fy fz, sorted by id). Writes
+    out_dir/energies.txt (a `NAME value` line per thermo column, under a header naming LAMMPS's
+    version and `about`: what was run and the command that reruns it) and out_dir/forces.txt."""
+    import tempfile
+    os.makedirs(out_dir, exist_ok=True)
+    with tempfile.TemporaryDirectory() as d:
+        with open(os.path.join(d, "in.run0"), "w") as f:
+            f.write(input_text)
+        log = subprocess.run([lmp, "-in", "in.run0", "-log", "none"], cwd=d, capture_output=True, text=True,
+                             check=True).stdout.splitlines()
+        head = next(k for k, line in enumerate(log) if line.split()[:2] == ["Step", "E_bond"])
+        names, values = log[head].split()[1:], log[head + 1].split()[1:]
+        version = subprocess.run([lmp, "-h"], capture_output=True, text=True).stdout.splitlines()[1].strip()
+        with open(os.path.join(out_dir, "energies.txt"), "w") as f:
+            f.write(f"# LAMMPS ({version}) {about}\n")
+            for n, v in zip(names, values):
+                f.write(f"{n} {v}\n")
+        rows = open(os.path.join(d, "forces.dump")).read().splitlines()
+        start = rows.index("ITEM: ATOMS id fx fy fz") + 1
+        with open(os.path.join(out_dir, "forces.txt"), "w") as f:
+            f.write(f"# id fx fy fz ({force_unit}), LAMMPS run 0 as energies.txt\n")
+            for r in rows[start:]:
+                i, *fx = r.split()
+                f.write(i + " " + " ".join(f"{float(v):.12g}" for v in fx) + "\n")

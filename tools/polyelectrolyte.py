@@ -13,7 +13,9 @@
 # `--reference` also runs LAMMPS (`lmp`) on the run-0 input and writes its energies, pressure and
 # forces to tests/data/polyelectrolyte_lammps/.
 #     /usr/bin/python3 tools/polyelectrolyte.py [--reference]
-import math, os, random, subprocess, sys, tempfile
+import math, os, random, sys
+
+import engines
 
 here = os.path.dirname(os.path.abspath(__file__))
 root = os.path.join(here, '..')
@@ -172,23 +174,6 @@ dump f all custom 1 forces.dump id fx fy fz
 dump_modify f format float %.15g sort id
 run 0
 """
-    with tempfile.TemporaryDirectory() as d:
-        open(os.path.join(d, 'in.run0'), 'w').write(inp)
-        log = subprocess.run(['lmp', '-in', 'in.run0', '-log', 'none'], cwd=d, capture_output=True, text=True,
-                             check=True).stdout.splitlines()
-        head = next(k for k, l in enumerate(log) if l.split()[:2] == ['Step', 'E_bond'])
-        names, values = log[head].split()[1:], log[head + 1].split()[1:]
-        with open(os.path.join(out, 'energies.txt'), 'w') as f:
-            f.write("# LAMMPS (" + subprocess.run(['lmp', '-h'], capture_output=True, text=True).stdout.splitlines()[1].strip()
-                    + ") run 0 of tools/polyelectrolyte.py's input, ewald 1e-8, pair_modify table 0:\n"
-                    "# /usr/bin/python3 tools/polyelectrolyte.py --reference  (lj units)\n")
-            for n, v in zip(names, values):
-                f.write(f"{n} {v}\n")
-        rows = open(os.path.join(d, 'forces.dump')).read().splitlines()
-        start = rows.index('ITEM: ATOMS id fx fy fz') + 1
-        with open(os.path.join(out, 'forces.txt'), 'w') as f:
-            f.write("# id fx fy fz (ε/σ), LAMMPS run 0 as energies.txt\n")
-            for r in rows[start:]:
-                i, *fv = r.split()
-                f.write(i + " " + " ".join(f"{float(v):.12g}" for v in fv) + "\n")
+    engines.lammps_run_zero(inp, out, "run 0 of tools/polyelectrolyte.py's input, ewald 1e-8, pair_modify table 0:\n"
+                            "# /usr/bin/python3 tools/polyelectrolyte.py --reference  (lj units)", 'ε/σ')
     print("wrote tests/data/polyelectrolyte_lammps/energies.txt, forces.txt")
