@@ -28,6 +28,18 @@ inline int fold(int m, int n) {
   return r < 0 ? r + n : r;
 }
 
+// Particle i's P mesh points per axis a, as offsets (the point folded into the mesh, times
+// stride[a]) into offset[a P + j], and their assignment weights into w[a P + j].
+void particle_stencil(const Eigen::Matrix3Xd& x, int i, const Box& box, const int* n, int order,
+                      const std::size_t* stride, std::size_t* offset, double* w) {
+  for (int a = 0; a < 3; ++a) {
+    double s = (x(a, i) - box.origin[a]) / box.lengths[a];
+    s -= std::floor(s);
+    const int first = assignment_weights(s * n[a], order, w + a * order);
+    for (int j = 0; j < order; ++j) offset[a * order + j] = static_cast<std::size_t>(fold(first + j, n[a])) * stride[a];
+  }
+}
+
 // The coefficients b_l (l < P) of Σ_m U²(k + 2πm/h) = Σ_l b_l sin^{2l}(kh/2) for one axis, U the
 // order-P assignment function's transform (Hockney & Eastwood; the recurrence LAMMPS's
 // compute_gf_denom uses, normalised by (2P − 1)!).
@@ -445,13 +457,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate(cons
     // The mesh points' offsets (folded, times the axis's stride) and weights per axis.
     std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
     double* w = &weight_[3 * static_cast<std::size_t>(i) * order];
-    for (int a = 0; a < 3; ++a) {
-      double s = (x(a, i) - box.origin[a]) / box.lengths[a];
-      s -= std::floor(s);
-      const int first = assignment_weights(s * n[a], order, w + a * order);
-      for (int j = 0; j < order; ++j)
-        offset[a * order + j] = static_cast<std::size_t>(fold(first + j, n[a])) * stride[a];
-    }
+    particle_stencil(x, i, box, n, order, stride, offset, w);
     if (q == 0.0) continue;
     for (int jz = 0; jz < order; ++jz) {
       const double wz = q * w[2 * order + jz];
@@ -560,7 +566,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
   };
 
   // 1. Each particle's mesh points and weights (z: the plane, folded), the planes touched.
-  const std::size_t stride[2] = {1, static_cast<std::size_t>(n[0])};
+  const std::size_t stride[3] = {1, static_cast<std::size_t>(n[0]), 1};  // z: the plane's index
   std::fill(s.touched.begin(), s.touched.end(), 0);
   double own_charge = 0.0, own_q2 = 0.0;
   for (int i = 0; i < count; ++i) {
@@ -569,13 +575,7 @@ ParticleParticleParticleMesh::Result ParticleParticleParticleMesh::evaluate_slab
     own_q2 += q * q;
     std::size_t* offset = &offset_[3 * static_cast<std::size_t>(i) * order];
     double* w = &weight_[3 * static_cast<std::size_t>(i) * order];
-    for (int a = 0; a < 3; ++a) {
-      double sa = (x(a, i) - box.origin[a]) / box.lengths[a];
-      sa -= std::floor(sa);
-      const int first = assignment_weights(sa * n[a], order, w + a * order);
-      for (int j = 0; j < order; ++j)
-        offset[a * order + j] = static_cast<std::size_t>(fold(first + j, n[a])) * (a < 2 ? stride[a] : 1);
-    }
+    particle_stencil(x, i, box, n, order, stride, offset, w);
     if (q != 0.0)
       for (int j = 0; j < order; ++j) s.touched[offset[2 * order + j]] = 1;
   }
