@@ -337,8 +337,8 @@ TEST(CoulombLammps, CutAndDebyeStylesMatchRunZero) {
 }
 
 // The coul/long family to LAMMPS's polynomial erfc (pair_modify table 0; Abramowitz–Stegun 7.1.26,
-// |error| ≤ 1.5e-7): stiffmd's erfc (exact to round-off: forcefields/erfc_scaled.hpp) differs from
-// it by that much per pair.
+// |error| ≤ 1.5e-7): stiffmd's real-space functions (the table, ~1e-14 of the exact form:
+// forcefields/ewald_table.hpp) differ from it by that much per pair.
 TEST(CoulombLammps, EwaldRealSpaceMatchesRunZeroToLammpsErfc) {
   const ChargedChains s;
   const auto d1 = compare(s, *make_term<CoulombLong>(s, same<CoulombLong::Coeffs>({8.0})), "coul/long");

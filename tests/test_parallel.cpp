@@ -122,6 +122,25 @@ TEST(Parallel, WcaForcesDoNotDependOnTheThreadCount) {
   }
 }
 
+// The charged pair loop on the threads: lj/cut/coul/long (the real-space table and the exact erfc
+// of the special pairs) over the lattice melt with charges ±0.4 alternating along the chains and
+// the bonded neighbours' Coulomb scaled (special_coul 0.5): the forces and energy the serial ones.
+TEST(Parallel, ChargedEwaldPairForcesDoNotDependOnTheThreadCount) {
+  for (bool shuffle : {false, true}) {
+    const Melt m = melt(shuffle);
+    std::vector<double> q(static_cast<std::size_t>(m.x.cols()), 0.4);
+    for (const Bond& b : m.bonds) q[static_cast<std::size_t>(b.j)] = -q[static_cast<std::size_t>(b.i)];
+    TypePairMatrix<LjCoulCoeffs> c(1);
+    LjCoulCoeffs lj;
+    lj.epsilon = 1.0, lj.sigma = 1.0, lj.rc = 1.122462048309373, lj.coulomb_cutoff = 3.0, lj.shift = true;
+    c.set(0, 0, lj);
+    PairTerm<LjCutCoulLong> term("coul", Level::slow, std::vector<int>(m.x.cols(), 0), c, m.bonds, {0.0, 1.0}, m.box,
+                                 0.3, Electrostatics{q, 1.0, {0.5, 1.0}});
+    term.set_ewald_splitting(1.0);
+    expect_thread_independent(term, m);
+  }
+}
+
 // The parallel pair loop itself (accumulate_pair_rows_parallel): for 1, 2, 3 and 7 parts the
 // serial loop's forces (added into what f held), energy and virial to round-off, 1 part bit for
 // bit, and a given part count the same bits on every call — with its touched runs cached, from a
