@@ -347,5 +347,27 @@ TEST(RespaLevels, ARestartContinuesBitForBit) {
   fs::remove_all(d);
 }
 
+// The bundled deck of the per-level kick (inputs/peptide_mts.toml, tools/mts_electrostatics.py
+// --write-deck): three levels, PPPM alone on the outermost with the method's mollified kick, the
+// bonded level plainly kicked, the stiff X–H bonds innermost; `check` prints each level's kick.
+TEST(RespaLevels, ThePeptideDeckKicksOnlyThePppmLevelMollified) {
+  const Scene sc = test::load("inputs/peptide_mts.toml");
+  ASSERT_EQ(sc.integrator.method, "mollified-impulse");
+  ASSERT_EQ(sc.integrator.levels.size(), 3u);
+  EXPECT_FALSE(sc.integrator.levels[0].kick.has_value());
+  EXPECT_EQ(sc.integrator.levels[1].kick, Kick::plain);
+  EXPECT_FALSE(sc.integrator.levels[2].kick.has_value());
+  for (const auto& term : sc.forces->terms())
+    if (term->style() == "pppm") EXPECT_EQ(term->level().index, 2);
+  // Its stiff bonds are chosen by mass (masses = [1.008]): those of peptide.toml's bond types.
+  const Scene rigid = test::load("inputs/peptide.toml");
+  ASSERT_NE(sc.forces->stiff_bonds(), nullptr);
+  EXPECT_EQ(sc.forces->stiff_bonds()->bonds.size(), rigid.forces->stiff_bonds()->bonds.size() - 640);  // no water angle
+  const test::CliResult r = test::cli("check " + test::source_path("inputs/peptide_mts.toml"));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("kick plain"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("kick mollified"), std::string::npos) << r.out;
+}
+
 }  // namespace
 }  // namespace stiffmd
