@@ -32,8 +32,11 @@ particles, or at any size with a k-space term):
   kspace                 Kspace                    kspace
   other                  Comm + Output + Other     output + domain + other
   total (loop)           Loop time                 loop_seconds (wall_seconds)
+  CPU (loop)             Loop time × % CPU use     cpu_seconds (the step loop's process CPU time)
 
-Modify ≈ integrate + thermostat: LAMMPS's time integration and thermostat are fixes, and so is its SHAKE
+The phases are wall-clock times; the CPU row is the loop's CPU time, whose percentage columns are the
+CPU use (CPU / wall): below 100 % the process waited for the core, and the wall times of that run are
+inflated by the wait. Modify ≈ integrate + thermostat: LAMMPS's time integration and thermostat are fixes, and so is its SHAKE
 (fix shake), whose counterpart is stiffmd's constraints phase. Comm on one core is LAMMPS's periodic
 images (ghost atoms) update, stiffmd's counterpart of which is inside its pair and neighbour phases.
 """
@@ -74,7 +77,7 @@ group           peptide type <= 12
 run             {steps}
 """
 
-ROWS = ["pair", "bond", "neighbour", "integrate/thermostat", "kspace", "other", "total (loop)"]
+ROWS = ["pair", "bond", "neighbour", "integrate/thermostat", "kspace", "other", "total (loop)", "CPU (loop)"]
 LAMMPS_ROWS = {"pair": ["Pair"], "bond": ["Bond"], "neighbour": ["Neigh"], "integrate/thermostat": ["Modify"],
                "kspace": ["Kspace"], "other": ["Comm", "Output", "Other"]}
 STIFFMD_ROWS = {"pair": ["pair"], "bond": ["bonded"], "neighbour": ["neighbor"],
@@ -93,21 +96,24 @@ def case_inputs(case, steps):
 
 
 def lammps_breakdown(log):
-    """{section: avg seconds} of a LAMMPS log's "MPI task timing breakdown", with "Loop" its loop time."""
+    """{section: avg seconds} of a LAMMPS log's "MPI task timing breakdown", with "Loop" its loop time and
+    "CPU use" its per cent CPU use."""
     out = {}
     with open(log) as f:
         lines = f.read().splitlines()
     for i, line in enumerate(lines):
         if line.startswith("Loop time of"):
             out["Loop"] = float(line.split()[3])
+        if "% CPU use with" in line:
+            out["CPU use"] = float(line.split("%")[0])
         if line.startswith("MPI task timing breakdown"):
             for row in lines[i + 3:]:  # the header and the rule, then one row per section
                 cells = [c.strip() for c in row.split("|")]
                 if len(cells) < 3 or not cells[0]:
                     break
                 out[cells[0]] = float(cells[2])
-    if "Loop" not in out or "Pair" not in out:
-        raise RuntimeError(f"{log}: no loop time or timing breakdown")
+    if "Loop" not in out or "Pair" not in out or "CPU use" not in out:
+        raise RuntimeError(f"{log}: no loop time, CPU use or timing breakdown")
     return out
 
 
@@ -118,6 +124,7 @@ def stiffmd_rows(summary):
         raise RuntimeError("summary.json has no per-phase timing (fewer than 4096 particles and no k-space term)")
     rows = {row: sum(timing.get(p, 0.0) for p in phases) for row, phases in STIFFMD_ROWS.items()}
     rows["total (loop)"] = summary["loop_seconds"]
+    rows["CPU (loop)"] = summary["cpu_seconds"]
     return rows
 
 
@@ -125,6 +132,7 @@ def lammps_rows(breakdown):
     """The common rows of a LAMMPS timing breakdown (seconds)."""
     rows = {row: sum(breakdown.get(s, 0.0) for s in sections) for row, sections in LAMMPS_ROWS.items()}
     rows["total (loop)"] = breakdown["Loop"]
+    rows["CPU (loop)"] = breakdown["Loop"] * breakdown["CPU use"] / 100.0
     return rows
 
 
