@@ -121,7 +121,7 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
   }
   s.step = k;
   s.t = t_k;
-  if (check) check_finite(s);
+  if (check && !integrator.checked_finite()) check_finite(s);
 }
 
 Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)

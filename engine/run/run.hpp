@@ -172,7 +172,8 @@ void check_run(Scene& scene, std::ostream& log);
 // the step and time, if there is one.
 void check_finite(const State& s);
 // Macro step k of a run (the state is at step k − 1): integrator.step(s, h), then s.step = k and
-// s.t = t_k (given, so that time has no accumulated round-off), then check_finite (unless `check` is false). A
+// s.t = t_k (given, so that time has no accumulated round-off), then check_finite (unless `check` is false,
+// or the integrator checked the state in its own last pass: Integrator::checked_finite). A
 // NumericalError from the step is re-thrown naming k and the time.
 void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k, bool check = true);
 
