@@ -37,8 +37,9 @@ particles, or at any size with a k-space term):
 The phases are wall-clock times; the CPU row is the loop's CPU time, whose percentage columns are the
 CPU use (CPU / wall): below 100 % the process waited for the core, and the wall times of that run are
 inflated by the wait. Modify ≈ integrate + thermostat: LAMMPS's time integration and thermostat are fixes, and so is its SHAKE
-(fix shake), whose counterpart is stiffmd's constraints phase. Comm on one core is LAMMPS's periodic
-images (ghost atoms) update, stiffmd's counterpart of which is inside its pair and neighbour phases.
+(fix shake), whose counterpart is stiffmd's constraints phase. Comm on one core is LAMMPS's update of
+its ghost atoms (the periodic images); stiffmd has no phase of its own for the images on one process
+(its domain phase is a decomposed run's halo), so Comm goes to "other".
 """
 import argparse
 import json
