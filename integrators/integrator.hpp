@@ -69,6 +69,11 @@ class Integrator {
   // manifold project the initial data onto it (paper eq. ACIV) and say so in the log.
   virtual void prepare(State&, std::ostream&) {}
   virtual void step(State& s, double h) = 0;
+  // Whether the step just taken found its final x and v finite in its own last pass over them (a
+  // closing kick that reads x as it writes v), so that the run needs no pass of its own for the
+  // check (engine/run/run.cpp, take_step). false: not checked there, or not finite — the run
+  // checks, and names the particle.
+  virtual bool checked_finite() const { return false; }
   // Forget cached forces: call when the state was changed other than by step().
   virtual void reset() {}
   virtual std::string_view method() const = 0;

@@ -135,7 +135,14 @@ void MultipleTimeStepping::advance(State& s, size_t k, double dt) {
   else
     for (int i = 0; i < n; ++i) advance(s, k + 1, sub);
   closing_force(s, k, dt);  // x moved
-  kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+  closing_kick(s, k, 0.5 * dt);
+}
+
+void MultipleTimeStepping::closing_kick(State& s, size_t k, double dt) {
+  if (k == 0 && !obabo_ && !langevin_force_)
+    finite_checked_ = kick_checking_finite(s.v, s.x, s.inv_mass, force_[k], dt);
+  else
+    kick(s.v, s.inv_mass, force_[k], dt);
 }
 
 // n steps of the innermost stage k (velocity Verlet: the one stage, n = 1): kick(½δ) drift(δ)
@@ -167,7 +174,7 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
       o_step(s, span);
     }
   }
-  kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+  closing_kick(s, k, 0.5 * dt);
 }
 
 std::vector<double> MultipleTimeStepping::save_state() const {

@@ -104,6 +104,7 @@ class MultipleTimeStepping final : public Integrator {
 
   void step(State& s, double h) override {
     substep_ = 0;
+    finite_checked_ = false;
     if (obabo_)
       step_obabo(s, h);
     else if (langevin_force_)
@@ -118,6 +119,7 @@ class MultipleTimeStepping final : public Integrator {
     o_step_kinetic_ = -1.0;
   }
   std::string_view method() const override { return method_; }
+  bool checked_finite() const override { return finite_checked_; }
   // Whether the innermost steps run fused (FusedMicroStep: kick, drift and the first term's new
   // force in one pass, then the stage's other terms). On by default when
   // available: the first term (ForceField::evaluation_order: those that offer it first) on the
@@ -167,6 +169,9 @@ class MultipleTimeStepping final : public Integrator {
   void closing_force(State& s, size_t k, double span);
   void micro_step(State& s, size_t k, double dt_kick, double dt, double span);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
+  // Stage k's closing half kick; the step's last pass over v when k = 0 and no O step or
+  // Langevin heat follows it, which then checks the final x and v (checked_finite).
+  void closing_kick(State& s, size_t k, double dt);
   // refresh(0), plus the Langevin force when Langevin is a force
   void refresh_outer(State& s, double dt, std::uint64_t substep);
 
@@ -189,6 +194,7 @@ class MultipleTimeStepping final : public Integrator {
   std::unique_ptr<LangevinForce> langevin_force_;
   Eigen::Matrix3Xd langevin_part_;  // its part of force_[0] (3 × N, sized only with it)
   double heat_ = 0.0;               // thermostat_heat()
+  bool finite_checked_ = false;     // checked_finite()
 };
 
 }  // namespace stiffmd

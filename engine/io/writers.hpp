@@ -5,6 +5,8 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -75,18 +77,45 @@ class CsvWriter {
 };
 
 // Output at a fixed time interval, independent of the step: due(t) is true once per
-// interval boundary crossed (every step when the interval is shorter than the step).
+// interval boundary crossed (every step when the interval is shorter than the step); an interval
+// that is not > 0 is never due.
 class IntervalSchedule {
  public:
+  // The step of a grid that is never due again.
+  static constexpr std::int64_t kNever = std::numeric_limits<std::int64_t>::max();
+
   explicit IntervalSchedule(double interval) : interval_(interval) {}
   bool due(double t) {
+    if (!(interval_ > 0.0)) return false;
     const long long k = index(t);
     if (k <= last_) return false;
     last_ = k;
     return true;
   }
   // On restart: the boundary at or before t has been served by the interrupted run.
-  void served_until(double t) { last_ = index(t); }
+  void served_until(double t) {
+    if (interval_ > 0.0) last_ = index(t);
+  }
+
+  // The first step j > k at which due(time(j)) will be true, given the steps' times time(j) (a
+  // run's t_j = t0 + (j − k0) h, nondecreasing in j) and h > 0: found once per due step, so that a
+  // run calls due() only there, and between outputs compares integers instead of dividing and
+  // rounding a time every step. due() is false at every step before it and changes nothing there,
+  // so skipping those calls is the same schedule. The boundary's step is guessed from its time
+  // (index(t) > last_ from t = (last_ + 1 − 1e-9) interval / (1 + 1e-12) on) two steps early, then
+  // index(time(j)) itself, nondecreasing in j, is tested forwards to the first step past it: the
+  // exact step. (After 64 steps the search stops early, which costs one due() that is false.)
+  // kNever when the grid is never due or its next boundary lies beyond 10¹⁸ steps.
+  template <class Time>
+  std::int64_t next_due_step(std::int64_t k, double h, Time time) const {
+    if (!(interval_ > 0.0) || !(h > 0.0)) return kNever;
+    const double boundary = (static_cast<double>(last_) + 1.0 - 1e-9) * interval_ / (1.0 + 1e-12);
+    const double ahead = std::floor((boundary - time(k)) / h) - 2.0;
+    if (!(ahead < 1e18)) return kNever;
+    std::int64_t j = k + 1 + (ahead > 0.0 ? static_cast<std::int64_t>(ahead) : 0);
+    for (int n = 0; n < 64 && index(time(j)) <= last_; ++n) ++j;
+    return j;
+  }
 
  private:
   long long index(double t) const { return static_cast<long long>(std::floor(t / interval_ * (1.0 + 1e-12) + 1e-9)); }

@@ -291,9 +291,10 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
 bool RunOutputs::due(double t, bool final) {
   // The thermo grid drives the samples (and so the [monitor] checks) even without a thermo file.
   thermo_now_ = thermo_due_.due(t) || final;
-  h5md_now_ = h5md_ && (h5md_due_.due(t) || final);
-  xyz_now_ = xyz_ && (xyz_due_.due(t) || final);
-  state_now_ = state_ && (state_due_.due(t) || final);
+  const bool h5md = h5md_due_.due(t), xyz = xyz_due_.due(t), state = state_due_.due(t);
+  h5md_now_ = h5md_ && (h5md || final);
+  xyz_now_ = xyz_ && (xyz || final);
+  state_now_ = state_ && (state || final);
   return thermo_now_ || h5md_now_;
 }
 

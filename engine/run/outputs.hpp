@@ -4,6 +4,8 @@
 // to the step before the checkpoint and appended to — and decides which are due at each step.
 #pragma once
 
+#include <algorithm>
+#include <cstdint>
 #include <memory>
 #include <ostream>
 #include <string>
@@ -59,8 +61,17 @@ class RunOutputs {
              std::vector<std::string>& files, std::ostream& log, const Communicator* processes = nullptr);
 
   // Advances the time grids to t and returns whether a thermo sample is due (for the thermo CSV
-  // or an H5MD frame); `final`: every output is due (the last state, whatever the grids).
+  // or an H5MD frame); `final`: every output is due (the last state, whatever the grids). Every
+  // grid advances, whether this process writes its file or not, so that next_due_step is the same
+  // on every rank of a decomposed run.
   bool due(double t, bool final);
+  // The first step after k at which due() finds some grid due (IntervalSchedule::next_due_step;
+  // time(j): the run's t_j): at the steps before it nothing is due, and a run need not ask.
+  template <class Time>
+  std::int64_t next_due_step(std::int64_t k, double h, Time time) const {
+    return std::min({thermo_due_.next_due_step(k, h, time), h5md_due_.next_due_step(k, h, time),
+                     xyz_due_.next_due_step(k, h, time), state_due_.next_due_step(k, h, time)});
+  }
   // Writes what the last due() found due; `row` is the thermo sample when one was due (rank 0's).
   // Called by rank 0 alone, or by every rank when shares_frame(): `mine` its particles (null
   // before the run is distributed: the whole state is then rank 0's to write).

@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <optional>
@@ -64,7 +65,26 @@ double seconds_now() {
 
 }  // namespace
 
-void check_finite(const State& s) {
+namespace {
+
+// Whether none of the n values is ±∞ or NaN: x·0 is ±0 for a finite x and NaN for ±∞ and NaN, so
+// the sum of the products is 0 exactly when every value is finite. One pass with four independent
+// sums and no branch per value.
+bool all_finite(const double* p, std::int64_t n) {
+  double sum[4] = {0.0, 0.0, 0.0, 0.0};
+  std::int64_t i = 0;
+  for (; i + 4 <= n; i += 4)
+    for (int l = 0; l < 4; ++l) sum[l] += p[i + l] * 0.0;
+  for (; i < n; ++i) sum[0] += p[i] * 0.0;
+  return (sum[0] + sum[1]) + (sum[2] + sum[3]) == 0.0;
+}
+
+bool finite_state(const State& s) {
+  // Below kParallelMin particles every loop is serial at any thread count: one pass over x and v,
+  // without the blocks' run_parts, their 64-bit divisions and Eigen's allFinite on blocks of
+  // dynamic size (at the pendulum's 18 values ≈ 10 ns a step against ≈ 23 ns with them:
+  // docs/performance.md, "The run loop's cost per step").
+  if (s.size() < kParallelMin) return all_finite(s.x.data(), s.x.size()) && all_finite(s.v.data(), s.v.size());
   // In the particle blocks of the threads, as the integrators write x and v: read serially, the
   // blocks the other threads had just written came over from their cores.
   const int parts = threads_for(s.size());
@@ -73,7 +93,13 @@ void check_finite(const State& s) {
     const std::int64_t b = block_begin(s.size(), parts, u), e = block_begin(s.size(), parts, u + 1);
     finite[u] = s.x.middleCols(b, e - b).allFinite() && s.v.middleCols(b, e - b).allFinite();
   });
-  if (std::all_of(finite.begin(), finite.begin() + parts, [](char f) { return f != 0; })) return;
+  return std::all_of(finite.begin(), finite.begin() + parts, [](char f) { return f != 0; });
+}
+
+}  // namespace
+
+void check_finite(const State& s) {
+  if (finite_state(s)) return;
   int bad = 0;
   while (bad < s.size() && s.x.col(bad).allFinite() && s.v.col(bad).allFinite()) ++bad;
   std::ostringstream m;
@@ -95,7 +121,7 @@ void take_step(Integrator& integrator, State& s, double h, std::int64_t k, doubl
   }
   s.step = k;
   s.t = t_k;
-  if (check) check_finite(s);
+  if (check && !integrator.checked_finite()) check_finite(s);
 }
 
 Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
@@ -210,6 +236,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   if (sc.output.checkpoint_interval > 0.0 && writes_checkpoints_) {
     checkpoint_due_.emplace(sc.output.checkpoint_interval);
     checkpoint_due_->served_until(s_.t);
+    next_checkpoint_ = checkpoint_due_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
   }
   if (domain_) domain_->distribute(s_);  // the parts, before the step loop and its clock
   if (opt.handle_signals) install_stop_handlers();
@@ -253,20 +280,27 @@ void Run::step_to(std::int64_t k) {
     }
     const std::int64_t j = s_.step + 1;
     // A decomposed run checks its parts (DomainIntegrator::step); s_ is current only when gathered.
-    take_step(*integrator_, s_, h_, j, t0_ + static_cast<double>(j - k0_) * h_, !domain_);
+    take_step(*integrator_, s_, h_, j, time_at(j), !domain_);
     pending_ = true;
   }
 }
 
+// Every step pays for what runs here, so the grids are not asked between their due steps (every
+// rank of a decomposed run skips the same steps: the grids are the same on all). The signal poll
+// stays per step: a decomposed run's ranks agree on it every step, and a stop takes the step it
+// was asked at.
 void Run::after_step() {
-  observe();
+  if (s_.step >= next_observe_) observe();
   signal_at_.at(s_.step);
   if (options_.handle_signals)
     if (const int sig = static_cast<int>(agreed(stop_requested()))) {
       summary_.stopped_by_signal = sig;
       return;
     }
-  if (checkpoint_due_ && checkpoint_due_->due(s_.t)) write_checkpoint_now();
+  if (s_.step >= next_checkpoint_) {
+    if (checkpoint_due_->due(s_.t)) write_checkpoint_now();
+    next_checkpoint_ = checkpoint_due_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
+  }
   progress_->update(s_.step - first_step_ + 1);
 }
 
@@ -392,6 +426,7 @@ const std::vector<double>& Run::sample() {
 void Run::observe(bool final) {
   const ScopedPhase phase(Phase::output);
   bool sampled = outputs_->due(s_.t, final);
+  next_observe_ = outputs_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
   if (domain_) {  // rank 0's outputs decide; the others take part in the gather and the sums
     // The whole state, gathered on rank 0: for the files it writes from it, the final state, a
     // sample that cannot be summed by parts, and the state the [monitor] keeps.

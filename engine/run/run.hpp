@@ -99,6 +99,9 @@ class Run {
 
  private:
   void observe(bool final = false);  // the outputs due at this step (`final`: all)
+  // The time of macro step j, t_j = t0 + (j − k0) h: the one formula the steps and the output
+  // grids' due steps are computed with.
+  double time_at(std::int64_t j) const { return t0_ + static_cast<double>(j - k0_) * h_; }
   const std::vector<double>& sample();
   void after_step();  // what follows a step that is not the run's last
   // The checkpoint's parts as of now, with the integrator's words (Integrator::save_state, which
@@ -141,6 +144,9 @@ class Run {
   std::int64_t k0_ = 0, first_step_ = 0, final_step_ = 0;
   long rebuilds_at_start_ = 0;  // this process's rebuild count when the run started
   bool pending_ = false;        // the last step's outputs are still to be taken
+  // The next steps at which an output grid, and the periodic checkpoints' grid, are due: the
+  // steps between them ask nothing (RunOutputs::next_due_step).
+  std::int64_t next_observe_ = 0, next_checkpoint_ = IntervalSchedule::kNever;
   int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
   int col_econserve_ = -1;  // with a thermostat
   std::vector<double> last_row_;
@@ -166,7 +172,8 @@ void check_run(Scene& scene, std::ostream& log);
 // the step and time, if there is one.
 void check_finite(const State& s);
 // Macro step k of a run (the state is at step k − 1): integrator.step(s, h), then s.step = k and
-// s.t = t_k (given, so that time has no accumulated round-off), then check_finite (unless `check` is false). A
+// s.t = t_k (given, so that time has no accumulated round-off), then check_finite (unless `check` is false,
+// or the integrator checked the state in its own last pass: Integrator::checked_finite). A
 // NumericalError from the step is re-thrown naming k and the time.
 void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k, bool check = true);
 

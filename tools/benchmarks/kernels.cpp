@@ -28,6 +28,9 @@
 //                                   tools/benchmarks/lammps_bond_harmonic.in)
 //   BM_PendulumVsHandWritten        velocity Verlet on the double pendulum through the engine vs a
 //                                   hand-written loop of the same physics, interleaved, CPU time
+//   BM_PendulumRunVsHandWritten     the same through the whole run path (engine/run's Run stepped
+//                                   10⁷ steps between outputs) vs the hand loop, the same bits at
+//                                   the end (docs/performance.md, "The run loop's cost per step")
 //   BM_WaterConstraints/<solver>    the constraint work of one RATTLE step per water of
 //                                   inputs/spce_water.toml (512 rigid triangles): SHAKE of a 2 fs
 //                                   drift and the velocity projection, by the engine's general
@@ -62,6 +65,7 @@
 #include "core/portable_random.hpp"
 #include "core/topology.hpp"
 #include "engine/deck/deck.hpp"
+#include "engine/run/run.hpp"
 #include "engine/scene/scene.hpp"
 #include "forcefields/pair_term.hpp"
 #include "integrators/barostat.hpp"
@@ -69,6 +73,7 @@
 #include "integrators/integrator.hpp"
 #include "integrators/multiple_time_stepping.hpp"
 #include "integrators/primitives.hpp"
+#include "tools/benchmarks/hand_pendulum.hpp"
 #include "tools/benchmarks/settle.hpp"
 
 namespace stiffmd {
@@ -639,16 +644,18 @@ void BM_BondKernelPerBond(benchmark::State& st, FixtureGetter get) {
 
 // Small systems: velocity Verlet on the double pendulum (inputs/double_pendulum.toml,
 // 3 particles, the pivot fixed, two stiff springs at ε = 1e-3 and gravity) through the engine's
-// integrator, against a hand-written loop of the same physics: kick ½h, drift h, the spring forces
-// and gravity, kick ½h. Per iteration both run kBatch steps from the same state, interleaved;
-// counters: CPU ns per step of each, their ratio (target ≤ 1.5), and the largest difference of the
-// positions after the batch (round-off: the same operations up to the order of the force sums).
-// The engine's time is Integrator::step alone (no observers, as in a run between outputs).
+// integrator, against a hand-written loop of the same physics (tools/benchmarks/hand_pendulum.hpp):
+// kick ½h, drift h, the spring forces and gravity, kick ½h. Per iteration both run kBatch steps
+// from the same state, interleaved; counters: CPU ns per step of each, their ratio, and the
+// largest difference of the positions after the batch (0: the same operations, the same bits).
+// The engine's time is Integrator::step alone (no observers, as in a run between outputs; with the
+// finiteness check its closing kick makes for the run, Integrator::checked_finite).
 constexpr int kPendulumBatch = 10000;
+const std::vector<std::string> kPendulumVerlet = {"integrator.method=\"velocity-verlet\"", "integrator.h=1e-4"};
 
 void BM_PendulumVsHandWritten(benchmark::State& st) {
-  static Fixture fx = load_fixture("Pendulum", std::string(STIFFMD_SOURCE_DIR) + "/inputs/double_pendulum.toml",
-                                   {"integrator.method=\"velocity-verlet\"", "integrator.h=1e-4"});
+  static Fixture fx =
+      load_fixture("Pendulum", std::string(STIFFMD_SOURCE_DIR) + "/inputs/double_pendulum.toml", kPendulumVerlet);
   if (!fx.ok()) {
     st.SkipWithError(fx.error.c_str());
     return;
@@ -658,45 +665,8 @@ void BM_PendulumVsHandWritten(benchmark::State& st) {
   std::unique_ptr<Integrator> integrator = make_integrator(fx.scene.integrator, fx.forces(), s.inv_mass);
   std::ostringstream log;
   integrator->prepare(s, log);
-  // The hand-written physics, with the deck's values (checked against the scene below).
-  const StiffBonds& sb = *fx.forces().stiff_bonds();
-  if (s.size() != 3 || sb.bonds.size() != 2) {
-    st.SkipWithError("the pendulum deck is not 3 particles and 2 bonds");
-    return;
-  }
-  const double k0 = sb.bonds[0].alpha * sb.bonds[0].alpha / (sb.epsilon * sb.epsilon);
-  const double k1 = sb.bonds[1].alpha * sb.bonds[1].alpha / (sb.epsilon * sb.epsilon);
-  const double l0 = sb.bonds[0].length, l1 = sb.bonds[1].length;
-  double x[3][3], v[3][3], f[3][3], w[3], m[3];
-  // The springs, then gravity: the order in which the engine sums them (ForceField::
-  // evaluation_order), so that both give the same bits.
-  auto hand_forces = [&] {
-    for (int p = 0; p < 3; ++p)
-      for (int a = 0; a < 3; ++a) f[p][a] = 0.0;
-    const int bi[2] = {sb.bonds[0].i, sb.bonds[1].i}, bj[2] = {sb.bonds[0].j, sb.bonds[1].j};
-    const double kk[2] = {k0, k1}, ll[2] = {l0, l1};
-    for (int b = 0; b < 2; ++b) {
-      double d[3];
-      for (int a = 0; a < 3; ++a) d[a] = x[bi[b]][a] - x[bj[b]][a];
-      const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      const double sc = -kk[b] * (r - ll[b]) / r;
-      for (int a = 0; a < 3; ++a) {
-        f[bi[b]][a] += sc * d[a];
-        f[bj[b]][a] -= sc * d[a];
-      }
-    }
-    for (int p = 0; p < 3; ++p) f[p][1] -= m[p];  // gravity g = (0, −1, 0)
-  };
-  auto load_hand = [&](const State& from) {
-    for (int p = 0; p < 3; ++p) {
-      for (int a = 0; a < 3; ++a) x[p][a] = from.x(a, p), v[p][a] = from.v(a, p);
-      w[p] = from.inv_mass[p];
-      m[p] = w[p] > 0.0 ? 1.0 / w[p] : 0.0;
-    }
-    hand_forces();
-  };
   integrator->step(s, h);  // fills the integrator's cached force
-  load_hand(s);
+  HandPendulum hand(*fx.forces().stiff_bonds(), s);
   double t_engine = 0.0, t_hand = 0.0, max_diff = 0.0;
   for (auto _ : st) {
     const double t0 = cpu_seconds();
@@ -704,29 +674,72 @@ void BM_PendulumVsHandWritten(benchmark::State& st) {
     benchmark::ClobberMemory();
     const double t1 = cpu_seconds();
     for (int i = 0; i < kPendulumBatch; ++i) {
-      for (int p = 0; p < 3; ++p)
-        for (int a = 0; a < 3; ++a) {
-          v[p][a] += 0.5 * h * w[p] * f[p][a];
-          x[p][a] += h * v[p][a];
-        }
-      hand_forces();
-      for (int p = 0; p < 3; ++p)
-        for (int a = 0; a < 3; ++a) v[p][a] += 0.5 * h * w[p] * f[p][a];
-      benchmark::DoNotOptimize(x);
+      hand.step(h);
+      benchmark::DoNotOptimize(hand.positions());
     }
     benchmark::ClobberMemory();
     const double t2 = cpu_seconds();
     t_engine += t1 - t0;
     t_hand += t2 - t1;
     for (int p = 0; p < 3; ++p)
-      for (int a = 0; a < 3; ++a) max_diff = std::max(max_diff, std::abs(x[p][a] - s.x(a, p)));
-    load_hand(s);  // restart the hand loop from the engine's state: the batches follow one trajectory
+      for (int a = 0; a < 3; ++a) max_diff = std::max(max_diff, std::abs(hand.x(a, p) - s.x(a, p)));
+    hand.load(s);  // restart the hand loop from the engine's state: the batches follow one trajectory
   }
   const double steps = static_cast<double>(st.iterations()) * kPendulumBatch;
   st.counters["engine_ns_per_step"] = 1e9 * t_engine / steps;
   st.counters["hand_ns_per_step"] = 1e9 * t_hand / steps;
   st.counters["engine_over_hand"] = t_engine / t_hand;
   st.counters["max_position_difference"] = max_diff;
+}
+
+// The same against the whole run path: engine/run's Run, as `stiffmd run` drives it (signal
+// handlers installed, no screen, no progress bar, no output directory), stepped by step_to in
+// batches of kBatch steps, the thermo sample (and with it the monitor) at an interval longer than
+// the run: every step pays for what a step between outputs costs — the integrator, the
+// finiteness check, the output schedule, the signal poll. Each side follows its own trajectory
+// from the same initial state for kPendulumRunSteps steps (10⁷), interleaved by batches; at the
+// end their positions and velocities must be the same bits, or the benchmark fails. Counters:
+// CPU ns per step of the run path and of the hand loop, and run_over_hand (target ≤ 1.5).
+constexpr std::int64_t kPendulumRunSteps = 10'000'000;
+
+void BM_PendulumRunVsHandWritten(benchmark::State& st) {
+  std::vector<std::string> sets = kPendulumVerlet;
+  sets.insert(sets.end(), {"run.steps=" + std::to_string(kPendulumRunSteps), "output.thermo_interval=1e4",
+                           "output.xyz=\"\"", "output.h5md=\"\""});
+  Fixture fx = load_fixture("Pendulum", std::string(STIFFMD_SOURCE_DIR) + "/inputs/double_pendulum.toml", sets);
+  if (!fx.ok()) {
+    st.SkipWithError(fx.error.c_str());
+    return;
+  }
+  const double h = fx.scene.integrator.h;
+  RunOptions options;  // as `stiffmd run -q --no-progress` without -o: no files
+  std::ostringstream log;
+  Run run(fx.scene, options, log);
+  HandPendulum hand(*fx.forces().stiff_bonds(), fx.initial);
+  const State& s = fx.scene.state;
+  double t_run = 0.0, t_hand = 0.0;
+  for (auto _ : st) {
+    const double t0 = cpu_seconds();
+    run.step_to(s.step + kPendulumBatch);
+    benchmark::ClobberMemory();
+    const double t1 = cpu_seconds();
+    for (int i = 0; i < kPendulumBatch; ++i) {
+      hand.step(h);
+      benchmark::DoNotOptimize(hand.positions());
+    }
+    benchmark::ClobberMemory();
+    const double t2 = cpu_seconds();
+    t_run += t1 - t0;
+    t_hand += t2 - t1;
+  }
+  bool same = s.step == kPendulumRunSteps;
+  for (int p = 0; p < 3; ++p)
+    for (int a = 0; a < 3; ++a) same = same && hand.x(a, p) == s.x(a, p) && hand.v(a, p) == s.v(a, p);
+  if (!same) st.SkipWithError("the run and the hand-written loop did not end on the same bits");
+  const double steps = static_cast<double>(st.iterations()) * kPendulumBatch;
+  st.counters["run_ns_per_step"] = 1e9 * t_run / steps;
+  st.counters["hand_ns_per_step"] = 1e9 * t_hand / steps;
+  st.counters["run_over_hand"] = t_run / t_hand;
 }
 
 // The constraint work of a RATTLE step on rigid water, per water: from x on the manifold with
@@ -899,6 +912,10 @@ bool register_benchmarks() {
         ->Unit(benchmark::kMicrosecond)
         ->UseRealTime();
   benchmark::RegisterBenchmark("BM_PendulumVsHandWritten", BM_PendulumVsHandWritten)
+      ->Unit(benchmark::kMicrosecond)
+      ->UseRealTime();
+  benchmark::RegisterBenchmark("BM_PendulumRunVsHandWritten", BM_PendulumRunVsHandWritten)
+      ->Iterations(kPendulumRunSteps / kPendulumBatch)
       ->Unit(benchmark::kMicrosecond)
       ->UseRealTime();
   return true;
