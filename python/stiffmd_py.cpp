@@ -30,6 +30,7 @@
 #include "engine/deck/deck.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/run/checkpoint.hpp"
+#include "engine/run/launcher.hpp"
 #include "engine/run/run.hpp"
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/scene.hpp"
@@ -137,6 +138,18 @@ Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
   throw py::value_error("level: expected one of " + known + " (or None for all), got \"" + name + "\"");
 }
 
+// The module runs one process. Started as one of several (mpiexec -n N python3 …), each process
+// would run the whole deck into the same files: refused before anything is read or written, with
+// the command that runs the deck on N ranks.
+void refuse_several_processes(const Deck& deck) {
+  const int n = launched_processes();
+  if (n <= 1) return;
+  throw py::value_error("stiffmd.Simulation runs one process, but this is one of " + std::to_string(n) +
+                        " started by a launcher; run the deck on " + std::to_string(n) +
+                        " ranks with the command line instead: mpiexec -n " + std::to_string(n) + " stiffmd run " +
+                        deck.path() + " -o DIR");
+}
+
 class Simulation {
  public:
   // The CLI's run (engine/run/run.hpp) driven from Python: `output` a directory for the deck's
@@ -145,7 +158,7 @@ class Simulation {
   // is prepared, as `stiffmd run --restart` does.
   Simulation(std::unique_ptr<Deck> deck, const std::optional<std::string>& output,
              const std::optional<std::string>& restart)
-      : deck_(std::move(deck)), scene_(load_scene(*deck_)), units_(scene_.units) {
+      : deck_((refuse_several_processes(*deck), std::move(deck))), scene_(load_scene(*deck_)), units_(scene_.units) {
     // An [ensemble] deck is many runs (engine/run/ensemble.*): stepping its base deck would look
     // like a member and be none of them.
     DeckTable root = deck_->root();

@@ -237,6 +237,11 @@ def check_domain_summary(stiffmd, out, ranks):
     if d["neighbor_rebuilds_min"] != d["neighbor_rebuilds_max"]:
         raise SystemExit(f"FAIL: the ranks rebuilt their neighbour lists {d['neighbor_rebuilds_min']} to "
                          f"{d['neighbor_rebuilds_max']} times: not together")
+    # Each rank's peak resident set, its max and mean over the ranks; rank 0's is one of them.
+    rss, rss_max, rss_mean = summary["peak_rss_mib"], d["peak_rss_mib_max"], d["peak_rss_mib_mean"]
+    if not (0 < rss <= rss_max and 0 < rss_mean <= rss_max):
+        raise SystemExit(f"FAIL: peak_rss_mib {rss}, domains.peak_rss_mib_max {rss_max}, _mean {rss_mean}: "
+                         f"expected 0 < rank 0's <= max and 0 < mean <= max")
     # The timing by phase (systems timed by parts) comes with its mean and max over the ranks.
     if summary["timing"]:
         mean, most = summary["domains"].get("timing_mean"), summary["domains"].get("timing_max")

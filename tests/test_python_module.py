@@ -11,6 +11,8 @@ module's build directory on PYTHONPATH:
   - setting positions and velocities, then stepping, is bit for bit a deck that starts there (for
     RATTLE after sim.prepare(), which projects as the deck's start does);
   - the README's example runs as written;
+  - one of several processes started by a launcher (mpiexec -n N python3 …) is refused with the
+    command that runs the deck on N ranks, before any file is written;
   - bad input: a misspelt override raises ValueError naming the key, a TOML error names the line,
     a wrong shape is refused, a blow-up raises stiffmd.NumericalError (a RuntimeError);
   - a real-units deck (inputs/trappe_pe.toml, 5 steps of 4 fs under Langevin) speaks the deck's units,
@@ -451,7 +453,7 @@ def same_run_directories(a, b):
         if name == "summary.json":
             with open(pa) as fa, open(pb) as fb:
                 ja, jb = json.load(fa), json.load(fb)
-            for k in ("wall_seconds", "cpu_seconds", "outputs", "loop_seconds", "timing", "serial_share"):
+            for k in ("wall_seconds", "cpu_seconds", "outputs", "loop_seconds", "timing", "serial_share", "peak_rss_mib"):
                 ja.pop(k, None), jb.pop(k, None)
             assert ja == jb, (ja, jb)
         elif name.endswith(".h5md"):
@@ -526,5 +528,31 @@ def an_ensemble_deck_is_refused_not_stepped_as_its_base():
         raise AssertionError("an [ensemble] deck was stepped as one run")
     except ValueError as e:
         assert "[ensemble] deck is" in str(e) and "stiffmd run" in str(e), str(e)
+
+
+@test
+def one_of_several_launched_processes_is_refused_with_the_mpiexec_command():
+    # What mpiexec -n 3 python3 … gives each process: the launcher's size in the environment. Each
+    # would otherwise run the whole deck into the same files; refused before any file is written.
+    script = ("import sys, stiffmd\n"
+              "try:\n"
+              "    stiffmd.Simulation(sys.argv[1], output=sys.argv[2] if len(sys.argv) > 2 else None)\n"
+              "except ValueError as e:\n"
+              "    print(e)\n"
+              "    raise SystemExit(2)\n")
+    launched = ("OMPI_", "PMI", "SLURM_")
+    with tempfile.TemporaryDirectory() as out:
+        for size_variable in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE"):
+            env = {k: v for k, v in os.environ.items() if not k.startswith(launched)}
+            env[size_variable] = "3"
+            r = subprocess.run([sys.executable, "-c", script, PENDULUM, out], env=env, capture_output=True, text=True)
+            assert r.returncode == 2, (size_variable, r.returncode, r.stdout, r.stderr)
+            assert f"mpiexec -n 3 stiffmd run {PENDULUM} -o DIR" in r.stdout, r.stdout
+            assert os.listdir(out) == [], os.listdir(out)
+    # One process under a launcher (mpiexec -n 1) is one process: it runs.
+    env = {k: v for k, v in os.environ.items() if not k.startswith(launched)}
+    env["OMPI_COMM_WORLD_SIZE"] = "1"
+    r = subprocess.run([sys.executable, "-c", script, PENDULUM], env=env, capture_output=True, text=True)
+    assert r.returncode == 0, (r.returncode, r.stdout, r.stderr)
 
 finish()

@@ -109,6 +109,12 @@ TEST(RunTiming, PhasesAddUpToTheStepLoopAndTheSerialShareIsAFraction) {
     const double serial = json_number(json, "serial_share");
     EXPECT_GE(serial, 0.0);
     EXPECT_LT(serial, 1.0);
+    // The process's peak resident set (getrusage): at least the melt's 10 000 positions, velocities
+    // and forces, far below a gigabyte.
+    const double rss = json_number(json, "peak_rss_mib");
+    EXPECT_GT(rss, 3 * 3 * 8 * 10000 / 1048576.0) << json;
+    EXPECT_LT(rss, 1024.0) << json;
+    EXPECT_NE(r.out.find("memory:        peak resident set "), std::string::npos) << r.out;
   }
   // The pendulum: too small to time by parts, and it says so.
   const test::CliResult small = test::cli("run " + test::source_path("inputs/double_pendulum.toml") + " -o " +

@@ -3,22 +3,13 @@
 #include <cstdlib>
 #include <string>
 
+#include "engine/run/launcher.hpp"
+
 #ifdef STIFFMD_MPI
 #include <mpi.h>
 #endif
 
 namespace stiffmd {
-
-namespace {
-
-// Started by an MPI launcher: Open MPI's mpiexec, MPICH's Hydra, or a PMIx launcher (srun).
-bool started_by_launcher() {
-  for (const char* v : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"})
-    if (std::getenv(v)) return true;
-  return false;
-}
-
-}  // namespace
 
 #ifdef STIFFMD_MPI
 

@@ -12,6 +12,7 @@
 
 #include "core/errors.hpp"
 #include "core/parallel.hpp"
+#include "core/peak_memory.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {
@@ -308,10 +309,13 @@ const RunSummary& Run::finish() {
   summary_.cpu_seconds = static_cast<double>(std::clock() - cpu_start_) / CLOCKS_PER_SEC;
   summary_.wall_seconds = loop_seconds_;
   summary_.loop_seconds = loop_seconds_;
+  summary_.peak_rss_mib = peak_resident_mib();
   if (domain_) {  // every rank's step loop: the slowest sets the pace, max/mean is the imbalance
     const Communicator& c = *options_.processes;
     summary_.rank_loop_seconds_mean = c.sum(loop_seconds_) / c.size();
     summary_.rank_loop_seconds_max = c.max(loop_seconds_);
+    summary_.rank_peak_rss_mib_mean = c.sum(summary_.peak_rss_mib) / c.size();
+    summary_.rank_peak_rss_mib_max = c.max(summary_.peak_rss_mib);
     summary_.wall_seconds = summary_.loop_seconds = summary_.rank_loop_seconds_max;
     summary_.domains = domain_->report();
     summary_.h5md_writers = outputs_->h5md_writers();

@@ -76,6 +76,16 @@ std::string format_summary(const RunSummary& s) {
     if (s.h5md_writers > 0) o << "; H5MD written by " << s.h5md_writers << (s.h5md_writers > 1 ? " ranks" : " rank");
     o << "\n";
   }
+  {
+    char line[160];
+    if (s.domains.ranks > 1)
+      std::snprintf(line, sizeof line,
+                    "memory:        peak resident set %.0f MiB (rank 0), ranks: max %.0f MiB, mean %.0f MiB\n",
+                    s.peak_rss_mib, s.rank_peak_rss_mib_max, s.rank_peak_rss_mib_mean);
+    else
+      std::snprintf(line, sizeof line, "memory:        peak resident set %.0f MiB\n", s.peak_rss_mib);
+    o << line;
+  }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
   o << "\n";
@@ -97,9 +107,10 @@ std::string summary_json(const RunSummary& s) {
   o << "  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
     << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
     << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
-    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds
-    << ",\n  \"neighbor_pairs\": " << s.neighbor_pairs << ",\n  \"slow_evaluations\": " << s.slow_evaluations
-    << ",\n  \"fast_evaluations\": " << s.fast_evaluations << ",\n  \"level_evaluations\": {";
+    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"peak_rss_mib\": " << s.peak_rss_mib
+    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"neighbor_pairs\": " << s.neighbor_pairs
+    << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
+    << ",\n  \"level_evaluations\": {";
   for (size_t k = 0; k < s.level_evaluations.size(); ++k)
     o << (k ? ", " : "") << "\"" << s.level_evaluations[k].first << "\": " << s.level_evaluations[k].second;
   o << "}"
@@ -137,7 +148,9 @@ std::string summary_json(const RunSummary& s) {
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
       << ", \"migrated_molecules\": " << d.migrated_molecules
       << ", \"neighbor_rebuilds_min\": " << d.neighbor_rebuilds_min
-      << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"h5md_writers\": " << s.h5md_writers;
+      << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"h5md_writers\": " << s.h5md_writers
+      << ", \"peak_rss_mib_mean\": " << s.rank_peak_rss_mib_mean
+      << ", \"peak_rss_mib_max\": " << s.rank_peak_rss_mib_max;
     for (const auto& [name, seconds] :
          {std::pair{"timing_mean", &s.rank_phase_seconds_mean}, std::pair{"timing_max", &s.rank_phase_seconds_max}}) {
       if (seconds->empty()) continue;

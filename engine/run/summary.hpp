@@ -59,6 +59,10 @@ struct RunSummary {
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
   // Each phase's seconds, mean and max over the ranks (a decomposed run's load imbalance by phase).
   std::vector<double> rank_phase_seconds_mean, rank_phase_seconds_max;
+  // Peak resident set in MiB (core/peak_memory.hpp; set-up included): this process's, and in a
+  // decomposed run the largest and the mean over the ranks (memory per rank, docs/parallel.md).
+  double peak_rss_mib = 0.0;
+  double rank_peak_rss_mib_mean = 0.0, rank_peak_rss_mib_max = 0.0;
   DomainReport domains;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
