@@ -27,6 +27,12 @@ double timed_add_forces(const ForceTerm& term, const Eigen::Matrix3Xd& x, const 
   return term.add_forces(x, box, f);
 }
 
+// The same, its force alone (ForceTerm::add_forces_only).
+void timed_add_forces_only(const ForceTerm& term, const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) {
+  const ScopedPhase phase(term.phase());
+  term.add_forces_only(x, box, f);
+}
+
 }  // namespace
 
 std::unique_ptr<ForceTerm> ForceField::replace(size_t k, std::unique_ptr<ForceTerm> term) {
@@ -72,6 +78,21 @@ double ForceField::compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matri
     if (!term->stiff_bonds()) energy += timed_add_forces(*term, x, box_, out);
   ++evaluations_[outermost().index];
   return energy;
+}
+
+void ForceField::compute_forces(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out) {
+  zero(out, x.cols());
+  for (const ForceTerm* term : order_)
+    if (std::find(levels.begin(), levels.end(), term->level()) != levels.end())
+      timed_add_forces_only(*term, x, box_, out);
+  for (Level l : levels) ++evaluations_[l.index];
+}
+
+void ForceField::compute_forces_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) {
+  zero(out, x.cols());
+  for (const ForceTerm* term : order_)
+    if (!term->stiff_bonds()) timed_add_forces_only(*term, x, box_, out);
+  ++evaluations_[outermost().index];
 }
 
 double ForceField::energy(const Eigen::Matrix3Xd& x, Level level) const {

@@ -47,6 +47,15 @@ class ForceField {
   // Counts as one evaluation of the outermost level.
   double compute_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out);
 
+  // compute and compute_unconstrained without the energy (ForceTerm::add_forces_only): the same
+  // out, bit for bit, counted the same. The integrators' steps use these; the energy is for the
+  // minimiser and the thermo (energies_and_virial).
+  void compute_forces(const Eigen::Matrix3Xd& x, std::span<const Level> levels, Eigen::Matrix3Xd& out);
+  void compute_forces(const Eigen::Matrix3Xd& x, std::initializer_list<Level> levels, Eigen::Matrix3Xd& out) {
+    compute_forces(x, std::span<const Level>(levels.begin(), levels.size()), out);
+  }
+  void compute_forces_unconstrained(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out);
+
   // Total force of every term at x, for output (not counted as an evaluation).
   void total_force(const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& out) const {
     out.setZero(3, x.cols());

@@ -58,6 +58,14 @@ class ForceTerm {
   // Adds this term's force −∇E(x) into f (3×N) and returns its energy E(x).
   virtual double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const = 0;
 
+  // Adds the same force into f as add_forces, bit for bit, without the energy: what the
+  // integrators' steps ask for (ForceField::compute_forces). A term whose energy costs extra work
+  // per item (the pair terms: a sum per pair, every pair evaluated) overrides it; the default is
+  // add_forces.
+  virtual void add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+    add_forces(x, box, f);
+  }
+
   // Σ over interacting pairs of r_ij · f_ij (the pair virial, for the pressure; design note:
   // computed only at output times, so it may repeat work add_forces does). Terms whose forces
   // are not pairwise (external fields) return 0.

@@ -220,14 +220,152 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
   return sums;
 }
 
+// The force-only pass of rows first … last − 1 (the integrators' forces: no energy, no virial, no
+// sums), adding into f exactly what accumulate_pair_rows<…, kForces = true, …> adds, bit for bit.
+// Of the listed pairs (within cutoff + skin) a third to a half interact, in no predictable order:
+// accumulate_pair_rows masks the others and so evaluates the kernel on every listed pair. Here the
+// rows are taken in chunks of at most kChunk listed pairs, in three passes:
+//   1. the separations d = x_i − x_j (minimum image) and r², and the pairs with r² < rc² compacted
+//      into a buffer, without a branch (each written, the count advanced by 0 or 1);
+//   2. the kernel on the buffer's pairs alone: a loop with no branch and no gather, which the
+//      compiler vectorises where the kernel allows (the Lennard-Jones family: r² in, fpair out,
+//      IEEE operations lane by lane, so the same bits as one pair at a time);
+//   3. the forces fpair·d added as accumulate_pair_rows adds them: f_j −= fpair d in list order and
+//      f_i += Σ_j fpair d summed in the row's order, added once per row (across chunks too).
+// A pair beyond the cutoff adds exact zeros in accumulate_pair_rows (fpair masked to 0, then
+// f_i + 0 and f_j − 0 are f_i and f_j), so leaving it out gives the same sums.
+// uniform: every particle has this type (≥ 0; kOneType, its coefficients held in registers), or −1.
+// Pass 1 prefetches x_j kPairPrefetch listed pairs ahead: the neighbours of a row lie anywhere in
+// memory (a melt's chains wander), and the loads of x_j are where its time goes.
+inline constexpr int kPairChunk = 256;
+inline constexpr int kPairPrefetch = 64;
+
+template <class Kernel, bool kPeriodic, bool kOneType>
+void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
+                                 const TypePairMatrix<typename Kernel::Params>& params, const int* type, int uniform,
+                                 const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f,
+                                 const PairCharges& charges = {}) {
+  using Params = typename Kernel::Params;
+  constexpr int kChunk = kPairChunk;
+  constexpr bool kCharged = ChargedKernel<Kernel>;
+  const double* xp = xw.data();
+  const std::int64_t* offset = list.offsets().data();
+  const int* nbr = list.neighbors().data();
+  const std::int64_t last_pair = first < last ? offset[last] - 1 : 0;  // the prefetch reads no further
+  [[maybe_unused]] const Params one = kOneType ? params.row(uniform)[uniform] : Params{};
+  alignas(64) double dx[kChunk], dy[kChunk], dz[kChunk], r2[kChunk], fpair[kChunk];
+  int jn[kChunk];
+  [[maybe_unused]] const Params* pn[kOneType ? 1 : kChunk];
+  [[maybe_unused]] double qq[kCharged ? kChunk : 1];
+  int seg_row[kChunk], seg_end[kChunk];    // per row met in the chunk: its index, its buffer end
+  double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i of the open row, carried over a chunk's end
+  int i = first;
+  std::int64_t k = first < last ? offset[first] : 0;
+  bool carried = false;  // the chunk opens in the middle of row i (its f_i sums carried)
+  while (i < last) {
+    // Pass 1: listed pairs from (i, k) on, at most kChunk of them, the interacting ones compacted.
+    int n = 0, segments = 0;
+    bool split = false;  // the chunk ends in the middle of its last row
+    while (i < last && segments < kChunk) {
+      const std::int64_t end = offset[i + 1];
+      const std::int64_t stop = std::min<std::int64_t>(end, k + (kChunk - n));
+      const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
+      [[maybe_unused]] const Params* prow = kOneType ? nullptr : params.row(type[i]);
+      [[maybe_unused]] double qi = 0.0;
+      if constexpr (kCharged) qi = charges.qqrd2e * charges.q[i];
+      for (; k < stop; ++k) {
+        const int j = nbr[k];
+        __builtin_prefetch(xp + 3 * nbr[std::min(k + kPairPrefetch, last_pair)]);
+        double ex = xi - xp[3 * j], ey = yi - xp[3 * j + 1], ez = zi - xp[3 * j + 2];
+        if constexpr (kPeriodic) near.apply(ex, ey, ez);
+        const double s = ex * ex + ey * ey + ez * ez;
+        double rc2;
+        if constexpr (kOneType) {
+          rc2 = one.rc2;
+        } else {
+          const Params* p = prow + type[j];
+          pn[n] = p;
+          rc2 = p->rc2;
+        }
+        jn[n] = j;
+        dx[n] = ex;
+        dy[n] = ey;
+        dz[n] = ez;
+        r2[n] = s;
+        if constexpr (kCharged) qq[n] = qi * charges.q[j];
+        n += s < rc2 ? 1 : 0;
+      }
+      seg_row[segments] = i;
+      seg_end[segments] = n;
+      ++segments;
+      if (k < end) {  // the buffer is full
+        split = true;
+        break;
+      }
+      ++i;  // k = offset[i]: the next row starts where this one ended
+      if (n == kChunk) break;
+    }
+    // Pass 2: the kernel on the interacting pairs.
+    for (int m = 0; m < n; ++m) {
+      const Params* p;
+      if constexpr (kOneType)
+        p = &one;
+      else
+        p = pn[m];
+      double e = 0.0, fp = 0.0;
+      if constexpr (kCharged) {
+        double ecoul = 0.0;
+        Kernel::eval(r2[m], *p, qq[m], 1.0, 1.0, e, ecoul, fp);
+      } else {
+        Kernel::eval(r2[m], *p, e, fp);
+      }
+      fpair[m] = fp;
+    }
+    // Pass 3: the forces, in the list's order.
+    int m = 0;
+    for (int s = 0; s < segments; ++s) {
+      if (!(s == 0 && carried)) fxi = fyi = fzi = 0.0;
+      for (; m < seg_end[s]; ++m) {
+        const int j = jn[m];
+        const double fx = fpair[m] * dx[m], fy = fpair[m] * dy[m], fz = fpair[m] * dz[m];
+        fxi += fx;
+        fyi += fy;
+        fzi += fz;
+        f[3 * j] -= fx;
+        f[3 * j + 1] -= fy;
+        f[3 * j + 2] -= fz;
+      }
+      if (s + 1 < segments || !split) {
+        const int row = seg_row[s];
+        f[3 * row] += fxi;
+        f[3 * row + 1] += fyi;
+        f[3 * row + 2] += fzi;
+      }
+    }
+    carried = split;
+  }
+}
+
+// accumulate_pair_forces_rows with its type specialisation chosen (uniform ≥ 0: every particle of
+// that type).
+template <class Kernel, bool kPeriodic>
+void pair_forces_rows(const NeighborList& list, int first, int last,
+                      const TypePairMatrix<typename Kernel::Params>& params, const int* type, int uniform,
+                      const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f, const PairCharges& charges) {
+  if (uniform >= 0)
+    accumulate_pair_forces_rows<Kernel, kPeriodic, true>(list, first, last, params, type, uniform, xw, near, f,
+                                                         charges);
+  else
+    accumulate_pair_forces_rows<Kernel, kPeriodic, false>(list, first, last, params, type, -1, xw, near, f, charges);
+}
+
 // The special pairs with 0 < w < 1 (special_bonds): the same kernel, energy and force scaled
-// by w. They are kept out of the Verlet list, so they are looked at every call — a short list
-// (at most a few per particle), and the common case w12 = 0, w13 = 1 has none. ghost (kShares):
-// as in accumulate_pair_rows, a pair with a ghost counts half in the sums (null: every pair whole).
-// A charged kernel gets the pair's two weights as its factors (SpecialPair::weight, weight_coul)
-// and scales its energies itself; the pairs handed in are those the term evaluates (with an
-// EwaldKernel the excluded ones too).
-template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
+// by w (kEnergy false: the forces alone, no sums). They are kept out of the Verlet list, so they are looked at every
+// call — a short list (at most a few per particle), and the common case w12 = 0, w13 = 1 has none. ghost (kShares): as
+// in accumulate_pair_rows, a pair with a ghost counts half in the sums (null: every pair whole). A charged kernel gets
+// the pair's two weights as its factors (SpecialPair::weight, weight_coul) and scales its energies itself; the pairs
+// handed in are those the term evaluates (with an EwaldKernel the excluded ones too).
+template <class Kernel, bool kForces, bool kVirial, bool kShares = false, bool kEnergy = true>
 PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
                                  const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                                  const Eigen::Matrix3Xd& x, const MinimumImage& mi, double* f,
@@ -253,8 +391,9 @@ PairSums accumulate_scaled_pairs(std::span<const SpecialPair> pairs,
       fpair *= sp.weight;
       e *= sp.weight;
     }
-    add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(sums, kShares && ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0,
-                                                           e, ecoul, fpair, r2, dx, dy, dz);
+    if constexpr (kEnergy)
+      add_pair_sums<ChargedKernel<Kernel>, kForces, kVirial>(
+          sums, kShares && ghost && (ghost[i] || ghost[j]) ? 0.5 : 1.0, e, ecoul, fpair, r2, dx, dy, dz);
     if constexpr (kForces) {
       f[3 * i] += fpair * dx;
       f[3 * i + 1] += fpair * dy;
@@ -346,11 +485,14 @@ struct PairScratch {
 // that the other threads had just written (the drift and the wrap run in particle blocks) would
 // come over one scattered read at a time, which makes each part's pairs dearer on two threads
 // than on one (docs/performance_notes.md).
-template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false>
+//
+// kEnergy false: the force-only pass (accumulate_pair_forces_rows; uniform as there), no sums.
+template <class Kernel, bool kPeriodic, bool kForces, bool kVirial, bool kShares = false, bool kEnergy = true>
 PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
                                        const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                                        const Eigen::Matrix3Xd& xl, const NearestImage& near, double* f,
-                                       PairScratch& scratch, const PairCharges& charges = {}) {
+                                       PairScratch& scratch, const PairCharges& charges = {}, int uniform = -1) {
+  static_assert(kEnergy || (kForces && !kVirial && !kShares), "the force-only pass adds forces and nothing else");
   const int n = list.num_particles();
   const std::span<const std::int64_t> offset = list.offsets();
   const std::int64_t pairs = offset[n];
@@ -386,8 +528,13 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
         fu = fw.data();
       }
     }
-    scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(list, first, last, params,
-                                                                                         type, xw, near, fu, charges);
+    if constexpr (kEnergy) {
+      scratch.sums[u] = accumulate_pair_rows<Kernel, kPeriodic, kForces, kVirial, kShares>(list, first, last, params,
+                                                                                           type, xw, near, fu, charges);
+    } else {
+      pair_forces_rows<Kernel, kPeriodic>(list, first, last, params, type, uniform, xw, near, fu, charges);
+      scratch.sums[u] = PairSums{};
+    }
   });
   scratch.touched_build = list.build_id();
   scratch.touched_parts = parts;
@@ -417,23 +564,33 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
 // The whole half list plus the scaled special pairs: adds −∇E into f (if kForces) and returns
 // Σ E and Σ r_ij·f_ij (if kVirial; with kShares this process's share of both, see
 // accumulate_pair_rows, the scaled pairs' too). The list must be up to date for x and box (update).
-template <class Kernel, bool kForces, bool kVirial, bool kShares = false>
+// kEnergy false (with kForces alone): the force-only pass, the same forces bit for bit and empty
+// sums; uniform ≥ 0 says every particle has that type (accumulate_pair_forces_rows).
+template <class Kernel, bool kForces, bool kVirial, bool kShares = false, bool kEnergy = true>
 PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scaled,
                           const TypePairMatrix<typename Kernel::Params>& params, const int* type,
                           const Eigen::Matrix3Xd& x, const Box& box, double* f, PairScratch& scratch,
-                          const PairCharges& charges = {}) {
+                          const PairCharges& charges = {}, int uniform = -1) {
+  static_assert(kEnergy || (kForces && !kVirial && !kShares), "the force-only pass adds forces and nothing else");
   const int n = list.num_particles();
   const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
   const bool periodic = box.any_periodic();
   const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
   PairSums listed;
   if (parts > 1) {  // each part copies the wrapped positions it reads
-    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges)
-                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges);
+    listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares, kEnergy>(
+                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges, uniform)
+                      : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares, kEnergy>(
+                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges, uniform);
   } else {
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
+      if constexpr (!kEnergy) {
+        if (periodic)
+          pair_forces_rows<Kernel, true>(list, 0, n, params, type, uniform, xl, NearestImage(box), f, charges);
+        else
+          pair_forces_rows<Kernel, false>(list, 0, n, params, type, uniform, xl, NearestImage(box), f, charges);
+        return;
+      }
       listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
                                                                                         NearestImage(box), f, charges)
                         : accumulate_pair_rows<Kernel, false, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
@@ -444,7 +601,7 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   // and not tied to the list's build. Wrapped, as the listed pairs: a decomposed run's halo hands
   // the pair terms wrapped positions (NeighborList::set_positions_wrapped), and the same positions
   // give the same bits.
-  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares>(
+  const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares, kEnergy>(
       scaled, params, type, xl, MinimumImage(box), f,
       kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr, charges);
   PairSums total;

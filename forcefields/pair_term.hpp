@@ -166,6 +166,9 @@ class PairTerm final : public ForceTerm,
   // Rebuild the neighbour list if stale, then the forces (add_forces) or Σ r_ij·f_ij (virial).
   // Not safe to call concurrently on one term: they update the list.
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  // The same forces, bit for bit, without the energy: the force-only pair loop
+  // (accumulate_pair_forces_rows: the kernel on the interacting pairs alone, no sums).
+  void add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
   // Both in one pass over the pairs, with ghosts this process's share (accumulate_pair_rows).
   Sums energy_and_virial(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& scratch) const override;
@@ -273,6 +276,11 @@ class PairTerm final : public ForceTerm,
   void set_splitting(double g, std::shared_ptr<const EwaldRealSpaceTable> table);
   void set_special(std::span<const SpecialPair> special);
   void set_charges(std::vector<double> q);
+  void find_uniform_type() {
+    uniform_type_ = types_.empty() ? -1 : types_[0];
+    for (const int t : types_)
+      if (t != uniform_type_) uniform_type_ = -1;
+  }
   void check_ready(const Box& box) const;
   PairCharges loop_charges() const { return {charges_.data(), electrostatics_.qqrd2e}; }
   // The tail's energy and virial at this box (0, 0 without it).
@@ -281,6 +289,7 @@ class PairTerm final : public ForceTerm,
                                      const Box& box) const;
 
   std::vector<int> types_;
+  int uniform_type_ = -1;  // the type of every particle when they have one, else −1 (the force-only loop)
   TypePairMatrix<Coeffs> coeffs_;
   double cutoff_ = 0.0;
   TypePairMatrix<Params> params_;
@@ -345,6 +354,7 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
     electrostatics_.coul = weights;
   }
   set_special(pair_detail::special_pairs_of(this->name(), Kernel::kStyle, n, bonds, weights, electrostatics_.coul));
+  find_uniform_type();
 }
 
 // Every pair with w ≠ 1 (either weight) leaves the list; those evaluated (scaled_pairs) go through
@@ -371,6 +381,7 @@ void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const doubl
                       std::to_string(charges.size()) + " charges for " + std::to_string(types.size()) + " particles (" +
                           (kCharged ? "one per particle" : "an uncharged style takes none") + ")");
   types_.assign(types.begin(), types.end());
+  find_uniform_type();
   charges_.assign(charges.begin(), charges.end());
   set_special(special);
   list_.set_ghosts(ghost);
@@ -471,6 +482,18 @@ double PairTerm<Kernel>::add_forces(const Eigen::Matrix3Xd& x, const Box& box, E
                                                loop_charges())
              .energy +
          tail_at(box).first;
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+  check_positions(x, &f);
+  check_ready(box);
+  {
+    const ScopedPhase phase(Phase::neighbor);
+    list_.update(x, box);
+  }
+  accumulate_pairs<Kernel, true, false, false, false>(list_, scaled_, params_, types_.data(), x, box, f.data(),
+                                                      scratch_, loop_charges(), uniform_type_);
 }
 
 template <class Kernel>

@@ -35,7 +35,7 @@ class ProjectedKick final : public KickForce {
   explicit ProjectedKick(ConstraintToolbox toolbox) : toolbox_(std::move(toolbox)) {}
   void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                 Eigen::Matrix3Xd& out) override {
-    forces.compute(x, levels, out);
+    forces.compute_forces(x, levels, out);
     copy_forces(out, raw_);
     toolbox_.project_force(x, out);
     removed_virial_ = removed_virial_of(x, raw_, out);
@@ -57,7 +57,7 @@ class MollifiedKick final : public KickForce {
     toolbox_.mollified_force(
         x,
         [&](const Eigen::Matrix3Xd& X, Eigen::Matrix3Xd& f) {
-          forces.compute(X, levels, f);
+          forces.compute_forces(X, levels, f);
           copy_forces(f, f_at_X_);
         },
         X_, out);

@@ -76,7 +76,7 @@ void MultipleTimeStepping::refresh(size_t k, const Eigen::Matrix3Xd& x) {
     stages_[k].kick->evaluate(x, forces_, stages_[k].levels, force_[k]);
     removed_virial_[k] = stages_[k].kick->removed_virial();
   } else
-    forces_.compute(x, stages_[k].levels, force_[k]);
+    forces_.compute_forces(x, stages_[k].levels, force_[k]);
   valid_[k] = true;
 }
 

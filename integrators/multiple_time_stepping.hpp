@@ -82,7 +82,7 @@ class PlainKick final : public KickForce {
  public:
   void evaluate(const Eigen::Matrix3Xd& x, ForceField& forces, const std::vector<Level>& levels,
                 Eigen::Matrix3Xd& out) override {
-    forces.compute(x, levels, out);
+    forces.compute_forces(x, levels, out);
   }
 };
 

@@ -52,7 +52,7 @@ void Rattle::prepare(State& s, std::ostream& log) {
 }
 
 void Rattle::refresh(const Eigen::Matrix3Xd& x) {
-  forces_.compute_unconstrained(x, f_);
+  forces_.compute_forces_unconstrained(x, f_);
   if (model_) {
     const ScopedPhase phase(Phase::constraints);           // the model potential: the modes' W or Fixman's U_F
     model_value_ = model_->add_force(x, f_, correction_);  // f += −∇W(I, x) or −∇U_F(x)

@@ -1,0 +1,196 @@
+// The force-only pair pass (ForceTerm::add_forces_only, pair_loop.hpp's accumulate_pair_forces_rows)
+// against the full one (add_forces, every listed pair evaluated and masked, with the energy): the
+// same forces bit for bit, for every pair style, on one and on several threads, with one particle
+// type (the coefficients held in registers) and with two, with special pairs scaled and excluded,
+// and with rows longer than the loop's chunk (a row split across chunks keeps its f_i sum whole).
+// The full pass is the one checked against finite differences (test_pairs.cpp, test_coulomb.cpp);
+// equal bits carry that over. ForceField::compute_forces against compute, likewise.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "core/parallel.hpp"
+#include "force_term_checks.hpp"
+#include "forcefields/force_field.hpp"
+#include "forcefields/pair_term.hpp"
+
+namespace stiffmd {
+namespace {
+
+// A jittered simple-cubic melt of side 12 (1 728 particles, density 1, nearest distance ≥ 0.7),
+// chains of 12 along x (bonds between lattice neighbours), charges ±0.5 … ±1, in a periodic box
+// with its origin off zero. Positions are unwrapped by whole boxes for every seventh particle.
+struct Melt {
+  static constexpr int kSide = 12;
+  Eigen::Matrix3Xd x;
+  Box box;
+  std::vector<int> alternating, uniform;
+  std::vector<double> charges;
+  std::vector<Bond> bonds;
+  Melt() {
+    const int n = kSide * kSide * kSide;
+    box = test::periodic_box(Eigen::Vector3d::Constant(kSide), Eigen::Vector3d(-3.0, 1.5, 0.25));
+    x.resize(3, n);
+    std::mt19937_64 rng(2024);
+    std::uniform_real_distribution<double> jitter(-0.15, 0.15), q(0.5, 1.0);
+    for (int i = 0; i < n; ++i) {
+      const int a = i % kSide, b = (i / kSide) % kSide, c = i / (kSide * kSide);
+      x.col(i) = box.origin + Eigen::Vector3d(a + 0.5 + jitter(rng), b + 0.5 + jitter(rng), c + 0.5 + jitter(rng));
+      if (i % 7 == 3) x.col(i) += Eigen::Vector3d(2 * kSide, -kSide, 3 * kSide);
+      alternating.push_back(i % 3 == 0 ? 1 : 0);
+      uniform.push_back(0);
+      charges.push_back((i % 2 == 0 ? 1.0 : -1.0) * q(rng));
+      if (a + 1 < kSide) bonds.push_back({i, i + 1, 0});
+    }
+  }
+};
+
+const Melt& melt() {
+  static const Melt m;
+  return m;
+}
+
+// Each style's coefficients for two types in reduced units (σ ≈ 1); the Coulomb cutoffs (5.5, list
+// radius 5.8) give rows of ~400 listed pairs, longer than kPairChunk.
+template <class K>
+typename K::Coeffs coeffs_of(int a, int b);
+
+template <>
+LennardJones::Coeffs coeffs_of<LennardJones>(int a, int b) {
+  return {1.0 + 0.2 * (a + b), 1.0 - 0.05 * (a + b), 2.5 - 0.2 * (a + b)};
+}
+template <>
+WeeksChandlerAndersen::Coeffs coeffs_of<WeeksChandlerAndersen>(int a, int b) {
+  return {1.0 + 0.3 * (a + b), 1.0 + 0.05 * (a + b)};
+}
+template <>
+SoftCosine::Coeffs coeffs_of<SoftCosine>(int a, int b) {
+  return {3.0 + a + b, 1.0 + 0.1 * (a + b)};
+}
+template <>
+Yukawa::Coeffs coeffs_of<Yukawa>(int a, int b) {
+  return {a == b ? 2.0 : -1.0, 1.0 + 0.25 * (a + b), 2.5 - 0.1 * (a + b)};
+}
+template <>
+CoulombCut::Coeffs coeffs_of<CoulombCut>(int, int) {
+  return {5.5};
+}
+template <>
+CoulombDebye::Coeffs coeffs_of<CoulombDebye>(int, int) {
+  return {0.4, 5.5};
+}
+template <>
+CoulombLong::Coeffs coeffs_of<CoulombLong>(int, int) {
+  return {5.5};
+}
+LjCoulCoeffs lj_coul(int a, int b, double kappa) {
+  LjCoulCoeffs c;
+  c.epsilon = 0.5 + 0.25 * (a + b), c.sigma = 1.0 - 0.05 * (a + b), c.rc = 2.5, c.coulomb_cutoff = 5.5;
+  c.kappa = kappa;
+  return c;
+}
+template <>
+LjCutCoulCut::Coeffs coeffs_of<LjCutCoulCut>(int a, int b) {
+  return lj_coul(a, b, 0.0);
+}
+template <>
+LjCutCoulDebye::Coeffs coeffs_of<LjCutCoulDebye>(int a, int b) {
+  return lj_coul(a, b, 0.4);
+}
+template <>
+LjCutCoulLong::Coeffs coeffs_of<LjCutCoulLong>(int a, int b) {
+  return lj_coul(a, b, 0.0);
+}
+template <>
+LjCharmmCoulLong::Coeffs coeffs_of<LjCharmmCoulLong>(int a, int b) {
+  return {0.5 + 0.25 * (a + b), 1.0 - 0.05 * (a + b), 0.3, 0.9, 2.0, 2.5, 5.5};
+}
+
+template <class K>
+std::unique_ptr<PairTerm<K>> make_term(const std::vector<int>& types) {
+  const Melt& m = melt();
+  TypePairMatrix<typename K::Coeffs> c(2);
+  for (int a = 0; a < 2; ++a)
+    for (int b = a; b < 2; ++b) c.set(a, b, coeffs_of<K>(a, b));
+  const SpecialWeights lj{0.0, 0.5, 0.8};
+  auto term = std::make_unique<PairTerm<K>>(
+      "pairs", Level::slow, types, c, m.bonds, lj, m.box, 0.3,
+      Electrostatics{ChargedKernel<K> ? m.charges : std::vector<double>{}, 1.0, SpecialWeights{0.0, 0.3, 0.6}});
+  if constexpr (EwaldKernel<K>) term->set_ewald_splitting(0.6);
+  return term;
+}
+
+// f0 + the term's forces, by add_forces and by add_forces_only, from the same non-zero f0 (both add).
+template <class K>
+void expect_same_bits(const PairTerm<K>& term, const std::string& what) {
+  const Melt& m = melt();
+  Eigen::Matrix3Xd f0(3, m.x.cols());
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g;
+  for (Eigen::Index k = 0; k < f0.size(); ++k) f0.data()[k] = g(rng);
+  Eigen::Matrix3Xd full = f0, only = f0;
+  term.add_forces(m.x, m.box, full);
+  term.add_forces_only(m.x, m.box, only);
+  ASSERT_GT((full - f0).cwiseAbs().maxCoeff(), 1e-3) << what << ": the melt must interact";
+  EXPECT_EQ(std::memcmp(full.data(), only.data(), sizeof(double) * full.size()), 0)
+      << what << ": max |difference| " << (full - only).cwiseAbs().maxCoeff();
+}
+
+template <class K>
+class ForceOnlyPairs : public ::testing::Test {};
+using AllStyles = ::testing::Types<LennardJones, WeeksChandlerAndersen, SoftCosine, Yukawa, CoulombCut, CoulombDebye,
+                                   CoulombLong, LjCutCoulCut, LjCutCoulDebye, LjCutCoulLong, LjCharmmCoulLong>;
+TYPED_TEST_SUITE(ForceOnlyPairs, AllStyles);
+
+TYPED_TEST(ForceOnlyPairs, SameForcesBitForBitAsTheFullPass) {
+  const int threads = max_threads();
+  for (const bool one_type : {false, true})
+    for (const int t : {1, 2, 3}) {
+      set_max_threads(t);
+      const auto term = make_term<TypeParam>(one_type ? melt().uniform : melt().alternating);
+      expect_same_bits(*term, std::string(TypeParam::kStyle) + (one_type ? ", one type" : ", two types") + ", " +
+                                  std::to_string(t) + " thread(s)");
+    }
+  set_max_threads(threads);
+}
+
+// The Coulomb styles' rows are longer than the force-only loop's chunk: some rows are split.
+TEST(ForceOnlyPairs, CoulombRowsAreLongerThanTheChunk) {
+  const auto term = make_term<CoulombCut>(melt().alternating);
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, melt().x.cols());
+  term->add_forces(melt().x, melt().box, f);
+  const auto offsets = term->neighbor_list().offsets();
+  std::int64_t longest = 0;
+  for (std::size_t i = 0; i + 1 < offsets.size(); ++i) longest = std::max(longest, offsets[i + 1] - offsets[i]);
+  EXPECT_GT(longest, kPairChunk);
+}
+
+// A force field of two pair terms (WCA on one type, screened Coulomb on two): compute_forces gives
+// compute's forces, bit for bit, and counts the evaluation the same.
+TEST(ForceOnlyPairs, ForceFieldComputeForcesIsComputeWithoutTheEnergy) {
+  const Melt& m = melt();
+  ForceField a(m.box, static_cast<int>(m.x.cols())), b(m.box, static_cast<int>(m.x.cols()));
+  for (ForceField* ff : {&a, &b}) {
+    ff->add(make_term<WeeksChandlerAndersen>(m.uniform));
+    ff->add(make_term<CoulombDebye>(m.alternating));
+  }
+  Eigen::Matrix3Xd fa, fb;
+  a.compute(m.x, {Level::slow}, fa);
+  b.compute_forces(m.x, {Level::slow}, fb);
+  ASSERT_EQ(fa.cols(), m.x.cols());
+  EXPECT_EQ(std::memcmp(fa.data(), fb.data(), sizeof(double) * fa.size()), 0);
+  EXPECT_EQ(a.evaluations(Level::slow), b.evaluations(Level::slow));
+  a.compute_unconstrained(m.x, fa);
+  b.compute_forces_unconstrained(m.x, fb);
+  EXPECT_EQ(std::memcmp(fa.data(), fb.data(), sizeof(double) * fa.size()), 0);
+  EXPECT_EQ(a.evaluations(a.outermost()), b.evaluations(b.outermost()));
+}
+
+}  // namespace
+}  // namespace stiffmd
