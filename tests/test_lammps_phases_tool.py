@@ -60,6 +60,18 @@ def main():
                 assert ratio == "—", (row, cells)
         for engine in ("stiffmd", "LAMMPS"):
             assert all(result["repeats_seconds"][engine][row] == [medians[engine][row]] for row in ROWS), result
+        # Two binaries (a build before and after a change): a column each, both run in the repeat.
+        p = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "tools", "lammps_phases.py"), "--stiffmd", exe, exe,
+                            "--case", "chain", "--steps", "10", "--repeats", "1", "--json", out],
+                           capture_output=True, text=True)
+        assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+        header = next(line for line in p.stdout.splitlines() if line.startswith("| phase |"))
+        for name in ("stiffmd 1", "stiffmd 2"):
+            assert f"| {name} (s) |" in header and f"| {name} / LAMMPS |" in header, header
+            assert f"{name}: {exe}" in p.stdout, p.stdout
+        with open(out) as f:
+            result = json.load(f)
+        assert len(result["medians"]) == 3 and all(result["medians"][e]["pair"] > 0 for e in result["medians"]), result
     print("1 passed, 0 failed")
 
 

@@ -4,6 +4,7 @@
     /usr/bin/python3 tools/lammps_phases.py                               # in.chain, 500 steps, 3 repeats
     /usr/bin/python3 tools/lammps_phases.py --case peptide --steps 300
     /usr/bin/python3 tools/lammps_phases.py --steps 20 --repeats 1 --json phases.json
+    /usr/bin/python3 tools/lammps_phases.py --stiffmd /tmp/before/stiffmd build/stiffmd --repeats 5   # before/after
 
 Cases (each engine from the same data file, with the same potentials, thermostat and step):
   chain    inputs/kremer_grest.toml against LAMMPS's in.chain (bench/in.chain: data.chain's 32 000 beads in
@@ -15,8 +16,14 @@ Cases (each engine from the same data file, with the same potentials, thermostat
            thermostats differ (stiffmd Langevin, LAMMPS Nosé–Hoover): both are in "integrate/thermostat".
 
 Both run on one core (OMP_NUM_THREADS=1), interleaved (stiffmd, LAMMPS, stiffmd, LAMMPS, ...),
---repeats times each; every number printed is the median of the repeats (so the rows' medians need not
-add up to the median total). The machine: the CPU model and the load average (1, 5, 15 min) before and
+--repeats times each; every time printed is the median of the repeats (so the rows' medians need not
+add up to the median total), every ratio the median of the ratios taken within one repeat (on a machine
+whose speed drifts within minutes, the figure to read). With several --stiffmd binaries (a build before
+and after a change) each runs in every repeat, in turn, and has its own columns.
+
+The thermo rows are matched: stiffmd's output.thermo_interval is set to LAMMPS's `thermo` (every 100
+steps for in.chain, 50 for in.peptide), since each row is an energy-and-virial pass over the pairs in
+both codes (inputs/kremer_grest.toml's own interval is every 10 steps); --set adds stiffmd overrides. The machine: the CPU model and the load average (1, 5, 15 min) before and
 after; on a loaded machine the ratios of interleaved runs are what to read, not the seconds.
 
 The common rows, from LAMMPS's "MPI task timing breakdown" (avg time) and stiffmd's summary.json
@@ -71,7 +78,7 @@ neighbor        2.0 bin
 neigh_modify    delay 5
 timestep        2.0
 thermo_style    multi
-thermo          50
+thermo          {thermo}
 fix             1 all nvt temp 275.0 275.0 100.0 tchain 1
 fix             2 all shake 0.0001 10 100 b 4 6 8 10 12 14 18 a 31
 group           peptide type <= 12
@@ -86,14 +93,21 @@ STIFFMD_ROWS = {"pair": ["pair"], "bond": ["bonded"], "neighbour": ["neighbor"],
                 "other": ["output", "domain", "other"]}
 
 
+THERMO_EVERY = {"chain": 100, "peptide": 50}  # LAMMPS's `thermo` of each input, in steps
+STEP = {"chain": CHAIN_H, "peptide": 2.0}     # the step of both (τ; fs)
+
+
 def case_inputs(case, steps):
     """(stiffmd deck, its --set overrides, LAMMPS input text, the data file both read) of a case."""
+    thermo = f"output.thermo_interval={THERMO_EVERY[case] * STEP[case]:.12g}"
     if case == "chain":
-        text = CHAIN_SETUP.format(data=CHAIN_DATA, seed=904297, h=CHAIN_H) + f"thermo          100\nrun {steps}\n"
+        text = CHAIN_SETUP.format(data=CHAIN_DATA, seed=904297, h=CHAIN_H) + \
+            f"thermo          {THERMO_EVERY[case]}\nrun {steps}\n"
         deck = os.path.join(ROOT, "inputs", "kremer_grest.toml")
-        return deck, [f"run.steps={steps}", f"import.lammps_data={json.dumps(CHAIN_DATA)}"], text, CHAIN_DATA
+        return deck, [f"run.steps={steps}", thermo, f"import.lammps_data={json.dumps(CHAIN_DATA)}"], text, CHAIN_DATA
     deck = os.path.join(ROOT, "inputs", "peptide.toml")
-    return deck, [f"run.steps={steps}"], PEPTIDE_LAMMPS.format(data=PEPTIDE_DATA, steps=steps), PEPTIDE_DATA
+    return deck, [f"run.steps={steps}", thermo], PEPTIDE_LAMMPS.format(data=PEPTIDE_DATA, steps=steps, thermo=THERMO_EVERY[case]), \
+        PEPTIDE_DATA
 
 
 def lammps_breakdown(log):
@@ -152,9 +166,17 @@ def load_average():
     return tuple(round(v, 2) for v in os.getloadavg())
 
 
+def engine_names(binaries):
+    """A column name per stiffmd binary: "stiffmd", or with several "stiffmd 1", "stiffmd 2", ... in the
+    order given (the printed legend names their paths)."""
+    return ["stiffmd"] if len(binaries) == 1 else [f"stiffmd {k + 1}" for k in range(len(binaries))]
+
+
 def measure(args, work):
-    """Runs both engines --repeats times, interleaved; returns {engine: {row: [seconds per repeat]}}."""
+    """Runs LAMMPS and every stiffmd binary --repeats times, interleaved; returns {engine: {row: [seconds
+    per repeat]}}."""
     deck, sets, text, data = case_inputs(args.case, args.steps)
+    sets += args.set
     if not os.path.exists(data):
         raise SystemExit(f"{data} not found: bash tools/setup.sh --bench (Debian's lammps-examples)")
     lammps_dir = os.path.join(work, "lammps")
@@ -162,14 +184,16 @@ def measure(args, work):
     lammps_input = os.path.join(lammps_dir, f"in.{args.case}")
     with open(lammps_input, "w") as f:
         f.write(text)
-    runs = {"stiffmd": {r: [] for r in ROWS}, "LAMMPS": {r: [] for r in ROWS}}
+    names = engine_names(args.stiffmd)
+    runs = {name: {r: [] for r in ROWS} for name in names + ["LAMMPS"]}
     for k in range(args.repeats):
-        out = os.path.join(work, f"stiffmd_{k}")
-        run = run_engine(stiffmd_command(args.stiffmd, deck, out, sets) + ["-q"], threads=1)
-        if run.code != 0:
-            raise SystemExit(failure(run))
-        for row, seconds in stiffmd_rows(read_summary(out)).items():
-            runs["stiffmd"][row].append(seconds)
+        for b, (exe, name) in enumerate(zip(args.stiffmd, names)):
+            out = os.path.join(work, f"stiffmd{b}_{k}")
+            run = run_engine(stiffmd_command(exe, deck, out, sets) + ["-q"], threads=1)
+            if run.code != 0:
+                raise SystemExit(failure(run))
+            for row, seconds in stiffmd_rows(read_summary(out)).items():
+                runs[name][row].append(seconds)
         log = os.path.join(lammps_dir, f"log_{k}.lammps")
         run = run_engine(lammps_command(args.lmp, lammps_input, log), threads=1, cwd=lammps_dir)
         if run.code != 0:
@@ -179,15 +203,30 @@ def measure(args, work):
     return runs
 
 
-def table(result):
-    """The side-by-side table (markdown) of a result."""
-    s, l = result["stiffmd"], result["LAMMPS"]
-    lines = ["| phase | stiffmd (s) | LAMMPS (s) | stiffmd / LAMMPS | stiffmd % | LAMMPS % |",
-             "|---|---:|---:|---:|---:|---:|"]
+def ratios(runs, name):
+    """{row: the median over repeats of stiffmd's seconds ÷ LAMMPS's in the same repeat} (None where
+    LAMMPS spent no time on the row)."""
+    out = {}
     for row in ROWS:
-        ratio = f"{s[row] / l[row]:.2f}" if l[row] > 0 else "—"
-        lines.append(f"| {row} | {s[row]:.4f} | {l[row]:.4f} | {ratio} | "
-                     f"{100 * s[row] / s['total (loop)']:.1f} | {100 * l[row] / l['total (loop)']:.1f} |")
+        pairs = [(s, l) for s, l in zip(runs[name][row], runs["LAMMPS"][row]) if l > 0]
+        out[row] = statistics.median(s / l for s, l in pairs) if pairs else None
+    return out
+
+
+def table(result, runs, names):
+    """The side-by-side table (markdown): each engine's median seconds, each stiffmd's ratio to LAMMPS,
+    and each engine's share of its loop."""
+    l = result["LAMMPS"]
+    head = [f"{n} (s)" for n in names] + ["LAMMPS (s)"] + [f"{n} / LAMMPS" for n in names] + \
+        [f"{n} %" for n in names] + ["LAMMPS %"]
+    lines = ["| phase | " + " | ".join(head) + " |", "|---|" + "---:|" * len(head)]
+    r = {n: ratios(runs, n) for n in names}
+    for row in ROWS:
+        cells = [f"{result[n][row]:.4f}" for n in names] + [f"{l[row]:.4f}"]
+        cells += [f"{r[n][row]:.2f}" if r[n][row] is not None else "—" for n in names]
+        cells += [f"{100 * result[n][row] / result[n]['total (loop)']:.1f}" for n in names]
+        cells.append(f"{100 * l[row] / l['total (loop)']:.1f}")
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -196,7 +235,10 @@ def main():
     ap.add_argument("--case", choices=("chain", "peptide"), default="chain")
     ap.add_argument("--steps", type=int, default=None, help="steps of both runs (default: in.chain's 500, in.peptide's 300)")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
+    ap.add_argument("--stiffmd", nargs="+", default=[os.path.join(ROOT, "build", "stiffmd")],
+                    help="one or more stiffmd binaries (e.g. a build before and after a change)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a stiffmd override, as stiffmd run --set (repeatable)")
     ap.add_argument("--lmp", default="lmp")
     ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary folder)")
     ap.add_argument("--json", default=None, help="also write the medians, every repeat and the machine as JSON")
@@ -205,7 +247,7 @@ def main():
         args.steps = 500 if args.case == "chain" else 300
     if args.repeats < 1 or args.steps < 1:
         ap.error("--steps and --repeats must be positive")
-    args.stiffmd = os.path.abspath(args.stiffmd)
+    args.stiffmd = [os.path.abspath(b) for b in args.stiffmd]
     lmp = shutil.which(args.lmp)
     if lmp is None:
         sys.exit(f"LAMMPS ('{args.lmp}') not found: bash tools/setup.sh --bench")
@@ -224,10 +266,15 @@ def main():
     print(f"{args.case}: {args.steps} steps, one core each, medians of {args.repeats} interleaved repeats")
     print(f"machine: {info['cpu']}, {os.cpu_count()} cores; load average (1/5/15 min) before "
           f"{' '.join(map(str, before))}, after {' '.join(map(str, after))}")
-    print(table(result))
+    names = engine_names(args.stiffmd)
+    if len(names) > 1:
+        for name, exe in zip(names, args.stiffmd):
+            print(f"{name}: {exe}")
+    print(table(result, runs, names))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({**info, "medians": result, "repeats_seconds": runs}, f, indent=2)
+            json.dump({**info, "binaries": dict(zip(names, args.stiffmd)), "medians": result, "ratios": {n: ratios(runs, n) for n in names},
+                       "repeats_seconds": runs}, f, indent=2)
 
 
 if __name__ == "__main__":
