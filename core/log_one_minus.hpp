@@ -5,16 +5,17 @@
 // The algorithm is fdlibm's log1p (Sun Microsystems, e_log.c and s_log1p.c, as in glibc's and
 // musl's), with its branches replaced by bit arithmetic:
 //   u = fl(1 − s), and c = (1 − u) − s, so that u + c = 1 − s exactly (both subtractions are
-//   exact by Sterbenz's lemma for −1 ≤ s < 1, u ∈ (0, 2]); ln(1 − s) = ln(u + c);
+//   exact by Sterbenz's lemma for −1 ≤ s < 1, u ∈ (0, 2], and c = 0 for s ≥ ½); ln(1 − s) = ln(u + c);
 //   u = 2ᵏ z with z ∈ [√½, √2), read off the bits of u; f = z − 1 + c 2⁻ᵏ (z − 1 exact);
 //   ln(1 + f) = 2 atanh(t), t = f/(2 + f), = f − (½f² − t(½f² + R(t²))), R fdlibm's minimax
 //   polynomial of degree 14 (|error| < 2⁻⁵⁸·⁴⁵ on the range);
 //   ln(1 − s) = k ln 2 + ln(1 + f), ln 2 split in hi + lo so that k ln2_hi is exact.
 // Measured on 10⁶ arguments spread over [0, 1) (many near 0 and near 1): at most 0.79 ulp from
-// the correctly rounded value, as glibc's log1p (tests/test_bonded.cpp, LogOneMinus).
+// the exact value, as glibc's log1p (tests/test_bond_loop.cpp, LogOneMinus).
 //
-// Domain: −1 ≤ s < 1 (a double s < 1 gives 1 − s ≥ 2⁻⁵³, so k ≥ −53). Outside it the result is
-// meaningless (no exception is raised): callers test the domain themselves.
+// Domain: 0 ≤ s < 1, a FENE bond's (r/R₀)² (a double s < 1 gives 1 − s ≥ 2⁻⁵³, so k ≥ −53).
+// Outside it the result is meaningless (no exception is raised): callers test the domain
+// themselves. (For −1 ≤ s < 0 it is still within 1.4 ulp: there c 2⁻ᵏ added into f rounds.)
 #pragma once
 
 #include <bit>

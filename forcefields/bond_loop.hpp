@@ -381,6 +381,11 @@ inline void bond_block(const Bonds& bonds, std::int64_t q0, int nb, const double
 //   f_p += f₀,   f_{p+k} = (f_{p+k} − f_{k−1}) + f_k,   f_{p+nb} −= f_{nb−1}
 // — bond_block's operations on each particle in the same order (−f of bond k − 1, then +f of bond
 // k), so the same bits, without the ends' indices and with the gather and scatter streaming.
+// Compiled twice, for AVX2 and for the baseline x86-64 (the build's default target), the one the
+// CPU has chosen at load time: the kernel's loop then takes four bonds per instruction where the
+// CPU allows. The same bits either way: every operation is an IEEE one, element by element, none
+// is contracted into an FMA (-std=c++20 compiles with -ffp-contract=off), and the sums are in the
+// order written.
 template <class Kernel, class Bonds>
 [[gnu::target_clones("avx2", "default")]] void chain_block(const Bonds& bonds, std::int64_t q0, int nb,
                                                            const double* __restrict xp, double* __restrict fp,
