@@ -14,9 +14,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <type_traits>
 #include <vector>
 
 #include "core/box.hpp"
+#include "core/errors.hpp"
 #include "core/parallel.hpp"
 #include "core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
@@ -62,6 +65,7 @@ class BondPartition {
       for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
       start_[1] = static_cast<std::int64_t>(work_.size());
       find_segments(bonds);
+      find_uniform(bonds);
       return;
     }
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
@@ -119,6 +123,11 @@ class BondPartition {
   const Segment* segments_begin(int t) const { return segments_.data() + segment_start_[t]; }
   const Segment* segments_end(int t) const { return segments_.data() + segment_start_[t + 1]; }
   const Work* work() const { return work_.data(); }
+  // For one owner (prepared for one thread): whether every bond has the same coefficients (those
+  // of bond 0, bit for bit), and then the bonds' ends, i then j for each bond in order — what the
+  // one-thread loop reads in place of the bonds (8 bytes a bond, not 8 + sizeof(Params)).
+  bool uniform() const { return uniform_; }
+  const int* ends() const { return ends_.data(); }
 
  private:
   int threads_ = 0;
@@ -130,6 +139,20 @@ class BondPartition {
   std::vector<std::int64_t> halo_start_;
   std::vector<Segment> segments_;
   std::vector<std::int64_t> segment_start_;
+
+  template <class Params>
+  void find_uniform(const std::vector<BondInstance<Params>>& bonds) {
+    static_assert(std::is_trivially_copyable_v<Params>);
+    uniform_ = std::all_of(bonds.begin(), bonds.end(), [&](const BondInstance<Params>& b) {
+      return std::memcmp(&b.params, &bonds.front().params, sizeof(Params)) == 0;
+    });
+    ends_.clear();
+    if (!uniform_) return;
+    ends_.reserve(2 * bonds.size());
+    for (const auto& b : bonds) ends_.insert(ends_.end(), {b.i, b.j});
+  }
+  bool uniform_ = false;
+  std::vector<int> ends_;
 
   template <class Params>
   void find_segments(const std::vector<BondInstance<Params>>& bonds) {
@@ -158,12 +181,151 @@ class BondPartition {
   std::vector<double> energy_ = std::vector<double>(kMaxParts, 0.0);
 };
 
-// One block of nb ≤ kBondBlock work items of an owner: gather the separations, compute every
-// force of the block in a loop without branches or memory dependences (which the compiler
-// vectorises: two square roots and divisions per instruction), then add the forces into f (the
-// owner's ends only). Adds the block's energy (bonds counted by the owner of i) to e_t. Adding
-// each force as soon as it is known was measured at the latency of sqrt + div per bond: in a
-// chain, bond k + 1 adds into the particle bond k has just written.
+// The force factor of one bond: −(1/r) dE/dr (the force on i is this times x_i − x_j, on j its
+// negative), and its energy into e, from r² = |x_i − x_j|². A kernel with eval_sq
+// (bond_potentials.hpp) takes r² as it is and marks a bond outside its domain by a NaN energy —
+// the caller tests the block's energy, as a throw inside the loop would keep the loop scalar; the
+// others take r = √r² and throw themselves.
+template <class Kernel>
+inline constexpr bool kSquaredKernel = requires(double r_sq, const typename Kernel::Params& p, double& e, double& g) {
+  Kernel::eval_sq(r_sq, p, e, g);
+};
+
+template <class Kernel, class Params>
+[[gnu::always_inline]] inline double bond_force_factor(double r_sq, const Params& p, double& e) {
+  if constexpr (kSquaredKernel<Kernel>) {
+    double g = 0.0;
+    Kernel::eval_sq(r_sq, p, e, g);
+    return -g;
+  } else {
+    const double r = std::sqrt(r_sq);
+    double de_dr = 0.0;
+    Kernel::eval(r, p, e, de_dr);
+    return -de_dr / r;
+  }
+}
+
+// After a kernel with eval_sq: a NaN energy is a bond outside its domain (the term finds and
+// names it). Kernels with eval throw themselves; a NaN they give is left to the run's checks.
+template <class Kernel>
+inline void check_bond_domain(double e) {
+  if constexpr (kSquaredKernel<Kernel>)
+    if (std::isnan(e)) throw NumericalError("a bond left the kernel's domain");
+}
+
+// The bonds a block reads, three ways (each a view with the ends i(q), j(q), the coefficients
+// params(q), which ends get the force, and whether the energy is counted, for item q):
+//   OwnerItems    an owner's work items (BondPartition::Work: several threads, the fused step);
+//   AllBonds      every bond in order, both ends (one thread);
+//   UniformBonds  the same with one set of coefficients for every bond, read once, and the ends
+//                 from BondPartition::ends (one thread, one bond type: the common case).
+template <class Params>
+struct OwnerItems {
+  static constexpr bool kUniform = false;
+  const BondInstance<Params>* bonds;
+  const BondPartition::Work* work;
+  int i(std::int64_t q) const { return bonds[work[q].bond].i; }
+  int j(std::int64_t q) const { return bonds[work[q].bond].j; }
+  const Params& params(std::int64_t q) const { return bonds[work[q].bond].params; }
+  bool add_i(std::int64_t q) const { return work[q].add_i; }  // and count the energy: the owner of i
+  bool add_j(std::int64_t q) const { return work[q].add_j; }
+};
+template <class Params>
+struct AllBonds {
+  static constexpr bool kUniform = false;
+  const BondInstance<Params>* bonds;
+  int i(std::int64_t q) const { return bonds[q].i; }
+  int j(std::int64_t q) const { return bonds[q].j; }
+  const Params& params(std::int64_t q) const { return bonds[q].params; }
+  static constexpr bool add_i(std::int64_t) { return true; }
+  static constexpr bool add_j(std::int64_t) { return true; }
+};
+template <class Params>
+struct UniformBonds {
+  static constexpr bool kUniform = true;
+  const int* ends;  // i, j of each bond
+  const Params* coefficients;
+  int i(std::int64_t q) const { return ends[2 * q]; }
+  int j(std::int64_t q) const { return ends[2 * q + 1]; }
+  const Params& params(std::int64_t) const { return *coefficients; }
+  static constexpr bool add_i(std::int64_t) { return true; }
+  static constexpr bool add_j(std::int64_t) { return true; }
+};
+
+// Kernels whose energy has a logarithmic part apart (eval_sq_split, log_weight: FENE).
+template <class Kernel>
+inline constexpr bool kSplitLogKernel = requires(double r_sq, const typename Kernel::Params& p, double& e, double& u,
+                                                 double& g) {
+  Kernel::eval_sq_split(r_sq, p, e, u, g);
+  Kernel::log_weight(p);
+};
+
+// The forces of a gathered block: d[·][k] = x_i − x_j of its item k on entry, the force on i on
+// return; Σ counted[k] E_k (every E_k without kCounted) added to e_t. One loop without branches or
+// memory dependences, which the compiler vectorises: with eval_sq kernels the whole kernel, else
+// the square roots and divisions, two per instruction. p: the items' coefficients, or with
+// kUniform p[0] for all.
+//
+// One type and every energy counted, with a kernel whose energy is e_rest + w ln u (FENE): the
+// block's logarithms are added as one, w ln Π_k u_k — a product per bond in place of a logarithm
+// per bond, which was most of the kernel's work. Each factor has a relative rounding error below
+// 2⁻⁵³, so the sum's error is that of adding the bonds' logarithms; a product below 2⁻¹⁰⁰⁰ (which
+// would lose digits as a subnormal: bonds near R₀) is redone bond by bond.
+template <class Kernel, bool kUniform, bool kCounted, class Params>
+inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p, const double* __restrict counted,
+                         int nb, double& e_t) {
+  // Locals, not e_t: a store the loop could alias would keep it scalar.
+  const Params p0 = p[0];
+  if constexpr (kUniform && !kCounted && kSplitLogKernel<Kernel>) {
+    alignas(64) double e_rest[kBondBlock], u[kBondBlock];
+    for (int k = 0; k < nb; ++k) {
+      double g = 0.0;
+      Kernel::eval_sq_split(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k], p0, e_rest[k], u[k], g);
+      for (int a = 0; a < 3; ++a) d[a][k] *= -g;
+    }
+    // The sum and the product in four interleaved parts, combined in a fixed order (an in-order
+    // product would be one multiplication's latency per bond, and is not vectorised).
+    double sum[4] = {0.0, 0.0, 0.0, 0.0}, product[4] = {1.0, 1.0, 1.0, 1.0};
+    int k = 0;
+    for (; k + 4 <= nb; k += 4)
+      for (int l = 0; l < 4; ++l) {
+        sum[l] += e_rest[k + l];
+        product[l] *= u[k + l];
+      }
+    for (; k < nb; ++k) {
+      sum[0] += e_rest[k];
+      product[0] *= u[k];
+    }
+    const double e_sum = (sum[0] + sum[1]) + (sum[2] + sum[3]);
+    check_bond_domain<Kernel>(e_sum);
+    const double all = (product[0] * product[1]) * (product[2] * product[3]);
+    double log_sum = std::log(all);
+    if (!(all >= 0x1p-1000)) {
+      log_sum = 0.0;
+      for (int b = 0; b < nb; ++b) log_sum += std::log(u[b]);
+    }
+    e_t += e_sum + Kernel::log_weight(p0) * log_sum;
+    return;
+  }
+  double e_sum = e_t;
+  for (int k = 0; k < nb; ++k) {
+    double e = 0.0;
+    const double scale =
+        bond_force_factor<Kernel>(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k], kUniform ? p0 : p[k], e);
+    if constexpr (kCounted)
+      e_sum += counted[k] * e;  // 0 · NaN is NaN: an item whose energy another owner counts is tested too
+    else
+      e_sum += e;
+    for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+  }
+  check_bond_domain<Kernel>(e_sum);
+  e_t = e_sum;
+}
+
+// Items q … q + nb − 1 (nb ≤ kBondBlock) of a view: gather the separations, compute every force of
+// the block (block_forces), then add the forces into f (the ends the view adds). Adds the block's energy (bonds counted
+// by the owner of i), in item order, to e_t. Adding each force as soon as it is known was measured at the latency of
+// sqrt + div per bond: in a chain, bond k + 1 adds into the particle bond k has just written.
 //
 // A block of at most kFewBonds items (a small molecule, a pendulum, an owner's last items) is
 // done bond by bond: the same operations in the same order, so the same bits, without the
@@ -171,71 +333,124 @@ class BondPartition {
 // a handful of bonds does not amortise.
 inline constexpr int kFewBonds = 4;
 
-template <class Kernel, class Params>
-inline void bond_block(const std::vector<BondInstance<Params>>& bonds, const BondPartition::Work* w, int nb,
-                       const Eigen::Matrix3Xd& x, double* fp, double& e_t) {
+template <class Kernel, class Bonds>
+inline void bond_block(const Bonds& bonds, std::int64_t q0, int nb, const double* __restrict xp, double* __restrict fp,
+                       double& e_t) {
   if (nb <= kFewBonds) {
     for (int k = 0; k < nb; ++k) {
-      const auto& b = bonds[w[k].bond];
-      const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
-      double d[3] = {r_ij[0], r_ij[1], r_ij[2]};
-      const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      double e = 0.0, de_dr = 0.0;
-      Kernel::eval(r, b.params, e, de_dr);
-      e_t += (w[k].add_i ? 1.0 : 0.0) * e;
-      const double scale = -de_dr / r;
+      const std::int64_t q = q0 + k;
+      const int i = bonds.i(q), j = bonds.j(q);
+      double d[3] = {xp[3 * i] - xp[3 * j], xp[3 * i + 1] - xp[3 * j + 1], xp[3 * i + 2] - xp[3 * j + 2]};
+      double e = 0.0;
+      const double scale = bond_force_factor<Kernel>(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], bonds.params(q), e);
+      check_bond_domain<Kernel>(e);
+      e_t += (bonds.add_i(q) ? 1.0 : 0.0) * e;
       for (int a = 0; a < 3; ++a) d[a] *= scale;
-      if (w[k].add_i)
-        for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a];
-      if (w[k].add_j)
-        for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a];
+      if (bonds.add_i(q))
+        for (int a = 0; a < 3; ++a) fp[3 * i + a] += d[a];
+      if (bonds.add_j(q))
+        for (int a = 0; a < 3; ++a) fp[3 * j + a] -= d[a];
     }
     return;
   }
+  using Params = std::remove_cvref_t<decltype(bonds.params(0))>;
   alignas(64) double d[3][kBondBlock], counted[kBondBlock];
-  Params p[kBondBlock];
+  Params p[Bonds::kUniform ? 1 : kBondBlock];  // the block's coefficients, unless one for all
   for (int k = 0; k < nb; ++k) {
-    const auto& b = bonds[w[k].bond];
-    const Eigen::Vector3d r_ij = bond_vector(x, b.i, b.j);
-    for (int a = 0; a < 3; ++a) d[a][k] = r_ij[a];
-    p[k] = b.params;
-    counted[k] = w[k].add_i ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
+    const std::int64_t q = q0 + k;
+    const int i = bonds.i(q), j = bonds.j(q);
+    for (int a = 0; a < 3; ++a) d[a][k] = xp[3 * i + a] - xp[3 * j + a];
+    if constexpr (!Bonds::kUniform) p[k] = bonds.params(q);
+    counted[k] = bonds.add_i(q) ? 1.0 : 0.0;  // the energy is counted once, by the owner of i
   }
+  if constexpr (Bonds::kUniform) p[0] = bonds.params(q0);
+  block_forces<Kernel, Bonds::kUniform, true>(d, p, counted, nb, e_t);
   for (int k = 0; k < nb; ++k) {
-    const double r = std::sqrt(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k]);
-    double e = 0.0, de_dr = 0.0;
-    Kernel::eval(r, p[k], e, de_dr);
-    e_t += counted[k] * e;
-    const double scale = -de_dr / r;  // −∂E/∂x_i = scale · d; x_j gets its negative
-    for (int a = 0; a < 3; ++a) d[a][k] *= scale;
+    const std::int64_t q = q0 + k;
+    const int i = bonds.i(q), j = bonds.j(q);
+    if (bonds.add_i(q))
+      for (int a = 0; a < 3; ++a) fp[3 * i + a] += d[a][k];
+    if (bonds.add_j(q))
+      for (int a = 0; a < 3; ++a) fp[3 * j + a] -= d[a][k];
   }
-  for (int k = 0; k < nb; ++k) {
-    const auto& b = bonds[w[k].bond];
-    if (w[k].add_i)
-      for (int a = 0; a < 3; ++a) fp[3 * b.i + a] += d[a][k];
-    if (w[k].add_j)
-      for (int a = 0; a < 3; ++a) fp[3 * b.j + a] -= d[a][k];
-  }
+}
+
+// Items q … q + nb − 1 of a chain run of one thread (BondPartition::Segment; both ends added,
+// every energy counted): bond q + k joins particles p + k and p + k + 1, p = i(q). The separations
+// are differences of consecutive positions, and each particle's force is written once:
+//   f_p += f₀,   f_{p+k} = (f_{p+k} − f_{k−1}) + f_k,   f_{p+nb} −= f_{nb−1}
+// — bond_block's operations on each particle in the same order (−f of bond k − 1, then +f of bond
+// k), so the same bits, without the ends' indices and with the gather and scatter streaming.
+// Compiled twice, for AVX2 and for the baseline x86-64 (the build's default target), the one the
+// CPU has chosen at load time: the kernel's loop then takes four bonds per instruction where the
+// CPU allows. The same bits either way: every operation is an IEEE one, element by element, none
+// is contracted into an FMA (-std=c++20 compiles with -ffp-contract=off), and the sums are in the
+// order written.
+template <class Kernel, class Bonds>
+[[gnu::target_clones("avx2", "default")]] void chain_block(const Bonds& bonds, std::int64_t q0, int nb,
+                                                           const double* __restrict xp, double* __restrict fp,
+                                                           double& e_t) {
+  using Params = std::remove_cvref_t<decltype(bonds.params(0))>;
+  const std::int64_t first = bonds.i(q0);
+  const double* __restrict x = xp + 3 * first;
+  double* __restrict f = fp + 3 * first;
+  alignas(64) double d[3][kBondBlock];
+  Params p[Bonds::kUniform ? 1 : kBondBlock];
+  for (int k = 0; k < nb; ++k)
+    for (int a = 0; a < 3; ++a) d[a][k] = x[3 * k + a] - x[3 * k + 3 + a];
+  if constexpr (Bonds::kUniform)
+    p[0] = bonds.params(q0);
+  else
+    for (int k = 0; k < nb; ++k) p[k] = bonds.params(q0 + k);
+  block_forces<Kernel, Bonds::kUniform, false>(d, p, nullptr, nb, e_t);
+  for (int a = 0; a < 3; ++a) f[a] += d[a][0];
+  for (int k = 1; k < nb; ++k)
+    for (int a = 0; a < 3; ++a) f[3 * k + a] = (f[3 * k + a] - d[a][k - 1]) + d[a][k];
+  for (int a = 0; a < 3; ++a) f[3 * nb + a] -= d[a][nb - 1];
 }
 
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
 // positions (bond_vector, core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
-// (rebuilt when the thread count changes). Each owner works in blocks (bond_block).
+// (rebuilt when the thread count changes). Each owner works in blocks (bond_block); one thread
+// reads the bonds in order without the plan's work items, and with one set of coefficients for
+// all bonds only their ends (UniformBonds). Every path gives each bond the same operations and
+// each particle its forces in bond order: the same bits at any thread count.
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
   (void)box;
   double* fp = f.data();
+  const double* xp = x.data();
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
   partition.prepare(bonds, threads);
+  if (threads == 1) {
+    double e = 0.0;
+    auto run = [&](const auto& view) {  // the segments of the one owner: chain runs and the rest
+      for (const auto* seg = partition.segments_begin(0); seg < partition.segments_end(0); ++seg)
+        for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
+          const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg->end - q));
+          if (seg->chain)
+            chain_block<Kernel>(view, q, nb, xp, fp, e);
+          else
+            bond_block<Kernel>(view, q, nb, xp, fp, e);
+        }
+    };
+    run_parts(1, [&](int) {
+      if (partition.uniform())
+        run(UniformBonds<Params>{partition.ends(), &bonds.front().params});
+      else
+        run(AllBonds<Params>{bonds.data()});
+    });
+    return e;
+  }
   double* energy = partition.energy_slots();
+  const OwnerItems<Params> items{bonds.data(), partition.work()};
   auto run_owner = [&](int t) {
     double e_t = 0.0;
-    for (const BondPartition::Work* w = partition.begin(t); w < partition.end(t); w += kBondBlock) {
-      const int nb = static_cast<int>(std::min<std::ptrdiff_t>(kBondBlock, partition.end(t) - w));
-      bond_block<Kernel>(bonds, w, nb, x, fp, e_t);
-    }
+    const std::int64_t end = partition.end(t) - partition.work();
+    for (std::int64_t q = partition.begin(t) - partition.work(); q < end; q += kBondBlock)
+      bond_block<Kernel>(items, q, static_cast<int>(std::min<std::int64_t>(kBondBlock, end - q)), xp, fp, e_t);
     energy[t] = e_t;
   };
   run_parts(threads, run_owner);
@@ -421,7 +636,7 @@ void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
           if (work[q + k].add_j) end = std::max<std::int64_t>(end, b.j + 1);
         }
         advance_to(end);
-        bond_block<Kernel>(bonds, work + q, nb, x, fp, e_t);
+        bond_block<Kernel>(OwnerItems<Params>{bonds.data(), work}, q, nb, xp, fp, e_t);
       }
     }
     advance_to(t + 1 == threads ? n : partition.first(t + 1));

@@ -10,17 +10,23 @@
 //   eval(r, p, e, dE_dr)    the energy and its derivative at bond length r > 0. A kernel defined
 //                           only on part of r > 0 (FENE) throws NumericalError outside it; the
 //                           term then names the bond;
+//   eval_sq(r², p, e, g)    optional: the energy and g = (1/r) dE/dr from r² alone, branch-free,
+//                           with e NaN outside the domain (the bond loop then needs no square
+//                           root, vectorises the kernel and tests the energy; FENE);
 //   describe(s, c)          the coefficients, for `stiffmd check`;
 //   define(record, c)       every coefficient, exactly (parameter_record.hpp), for the scene
 //                           fingerprint of checkpoints.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <ostream>
 #include <sstream>
 #include <string_view>
 
 #include "core/errors.hpp"
+#include "core/log_one_minus.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/parameter_record.hpp"
 
@@ -46,8 +52,7 @@ struct Fene {
     double inv_R0_sq;     // 1/R₀²
     double half_K_R0_sq;  // ½ K R₀²
     double epsilon;
-    double sigma_sq;    // σ²
-    double wca_cut_sq;  // (2^{1/6} σ)², 0 when ε = 0
+    double sigma_sq;  // σ²
   };
   static constexpr std::string_view kStyle = "fene";
 
@@ -58,24 +63,44 @@ struct Fene {
     if (c.epsilon > 0.0) require(c.sigma, kLength, "sigma (with epsilon > 0)");
   }
   static Params params(const Coeffs& c) {
-    // WCA cutoff r_c = 2^{1/6} σ, where 4ε[(σ/r)¹² − (σ/r)⁶] has its minimum −ε: the +ε shift
-    // makes the core purely repulsive and continuous (with its derivative) at r_c.
-    const double wca_cut_sq = c.epsilon > 0.0 ? std::cbrt(2.0) * c.sigma * c.sigma : 0.0;
-    return {c.K, c.R0, 1.0 / (c.R0 * c.R0), 0.5 * c.K * c.R0 * c.R0, c.epsilon, c.sigma * c.sigma, wca_cut_sq};
+    return {c.K, c.R0, 1.0 / (c.R0 * c.R0), 0.5 * c.K * c.R0 * c.R0, c.epsilon, c.sigma * c.sigma};
+  }
+  // The kernel in r² (bond_loop.hpp: a kernel may offer eval_sq), with no square root and no
+  // branch, so that the bond loop vectorises it: E and g = (1/r) dE/dr,
+  //   g = K/(1 − (r/R₀)²) − 24ε[2(σ/r)¹² − (σ/r)⁶]/r²   (the core's part for r < 2^{1/6} σ).
+  // Outside the domain, 0 < r² < R₀², e is NaN (and g meaningless). Always inlined: a call keeps
+  // the loop scalar.
+  [[gnu::always_inline]] static void eval_sq(double r_sq, const Params& p, double& e, double& g) {
+    double u = 0.0;
+    eval_sq_split(r_sq, p, e, u, g);
+    // log_one_minus is ln(1 − (r/R₀)²) to an ulp also for short bonds, where it is ≈ −(r/R₀)².
+    e += log_weight(p) * log_one_minus(r_sq * p.inv_R0_sq);
+  }
+  // The same with the logarithm apart: E = e_rest + log_weight(p) ln u, u = 1 − (r/R₀)² (rounded),
+  // so that a loop over bonds of one type can add their logarithms as the logarithm of their
+  // product, one ln for many bonds (bond_loop.hpp, block_forces).
+  static double log_weight(const Params& p) { return -p.half_K_R0_sq; }
+  [[gnu::always_inline]] static void eval_sq_split(double r_sq, const Params& p, double& e_rest, double& u, double& g) {
+    const double stretch = r_sq * p.inv_R0_sq;  // (r/R₀)²
+    u = 1.0 - stretch;
+    // One division for both reciprocals: 1/(1 − (r/R₀)²) = r² q and 1/r² = u q.
+    const double q = 1.0 / (r_sq * u);
+    const double inv_r_sq = u * q;
+    // The core: 4ε[(σ/r)¹² − (σ/r)⁶] + ε = ε (2(σ/r)⁶ − 1)², and r < 2^{1/6} σ is 2(σ/r)⁶ > 1; so the
+    // core is ε m² with m = max(2(σ/r)⁶ − 1, 0), and its g = −24ε m (σ/r)⁶/r², continuous at the
+    // cutoff — no branch, and no cancellation near it.
+    const double s2 = p.sigma_sq * inv_r_sq;
+    const double s6 = s2 * s2 * s2;  // (σ/r)⁶
+    const double m = std::max(2.0 * s6 - 1.0, 0.0);
+    g = p.K * (r_sq * q) - 24.0 * p.epsilon * m * s6 * inv_r_sq;
+    // Outside the domain (r = 0, r ≥ R₀, NaN) the energy is NaN: the loop tests its sum.
+    e_rest = p.epsilon * m * m + ((r_sq > 0.0) & (stretch < 1.0) ? 0.0 : std::numeric_limits<double>::quiet_NaN());
   }
   static void eval(double r, const Params& p, double& e, double& de_dr) {
-    const double r_sq = r * r;
-    const double stretch = r_sq * p.inv_R0_sq;  // (r/R₀)²
-    if (!(r > 0.0 && stretch < 1.0)) out_of_range(r, p.R0);
-    // log1p keeps ln(1 − (r/R₀)²) accurate for short bonds, where it is ≈ −(r/R₀)².
-    e = -p.half_K_R0_sq * std::log1p(-stretch);
-    de_dr = p.K * r / (1.0 - stretch);
-    if (r_sq < p.wca_cut_sq) {
-      const double s2 = p.sigma_sq / r_sq;
-      const double s6 = s2 * s2 * s2;  // (σ/r)⁶
-      e += 4.0 * p.epsilon * (s6 * s6 - s6) + p.epsilon;
-      de_dr -= 24.0 * p.epsilon * (2.0 * s6 * s6 - s6) / r;
-    }
+    if (!(r > 0.0 && r * r * p.inv_R0_sq < 1.0)) out_of_range(r, p.R0);
+    double g = 0.0;
+    eval_sq(r * r, p, e, g);
+    de_dr = g * r;
   }
   static void describe(std::ostream& s, const Coeffs& c) {
     s << "K = " << c.K << ", R0 = " << c.R0 << ", epsilon = " << c.epsilon << ", sigma = " << c.sigma;
