@@ -42,7 +42,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   // Velocity Verlet with Langevin (BAOAB): its one micro step holds the O step, so it runs plain.
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
-  fused_ = fused_available_;
+  fused_ = forces.num_particles() < kFusedMaxParticles ? fused_available_ : nullptr;
 }
 
 // OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
@@ -109,7 +109,7 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
   }
   for (const ForceTerm* term : rest_) {
     const ScopedPhase phase(term->phase());
-    term->add_forces(s.x, forces_.box(), force_[k]);
+    term->add_forces_only(s.x, forces_.box(), force_[k]);
   }
   forces_.count_evaluations(stages_[k].levels);
   valid_[k] = true;

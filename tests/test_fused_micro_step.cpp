@@ -240,6 +240,7 @@ TEST_P(FusedImpulseFamily, TrajectoryIsBitIdenticalToThePlainPath) {
       State a = base.state, b = base.state;
       auto fused = make_integrator(base.integrator, *base.forces, a.inv_mass);
       auto plain = make_integrator(base.integrator, *base.forces, b.inv_mass);
+      mts(*fused).use_fused_micro_step(true);
       ASSERT_TRUE(mts(*fused).fused_micro_step());
       mts(*plain).use_fused_micro_step(false);
       ASSERT_FALSE(mts(*plain).fused_micro_step());
@@ -270,7 +271,7 @@ INSTANTIATE_TEST_SUITE_P(SmallMelt, FusedImpulseFamily,
 TEST(FusedMicroStep, IsUsedOnlyWhereItIsTheSamePass) {
   auto fused = [](const std::vector<std::string>& set) {
     Scene sc = test::load("tests/decks/small_melt.toml", set);
-    return mts(*make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)).fused_micro_step();
+    return mts(*make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass)).fused_micro_step_available();
   };
   const std::vector<std::string> nvt = {"thermostat.style=\"langevin\"", "thermostat.temperature=1.0",
                                         "thermostat.damp=1.0", "thermostat.seed=1"};
@@ -283,6 +284,23 @@ TEST(FusedMicroStep, IsUsedOnlyWhereItIsTheSamePass) {
   EXPECT_TRUE(fused({"integrator.method=\"impulse\"", "forces.bending.level=\"fast\""}));
   EXPECT_TRUE(fused({"integrator.method=\"velocity-verlet\""}));
   EXPECT_FALSE(fused(with({"integrator.method=\"velocity-verlet\""}, nvt)));
+}
+
+// Used by default only where it is the faster: below kFusedMaxParticles particles (the double
+// pendulum), not on a melt, whose plain passes are faster.
+TEST(FusedMicroStep, RunsByDefaultOnlyOnTheSmallestSystems) {
+  for (const char* method : {"impulse", "velocity-verlet"}) {
+    SCOPED_TRACE(method);
+    const std::string set = std::string("integrator.method=\"") + method + "\"";
+    Scene melt = test::load("tests/decks/small_melt.toml", {set});
+    const auto on_melt = make_integrator(melt.integrator, *melt.forces, melt.state.inv_mass);
+    EXPECT_TRUE(mts(*on_melt).fused_micro_step_available());
+    EXPECT_FALSE(mts(*on_melt).fused_micro_step());
+    Scene pendulum = test::load("inputs/double_pendulum.toml", {set, "variables.eps=0.01", "integrator.h=1e-4"});
+    ASSERT_LT(pendulum.state.size(), MultipleTimeStepping::kFusedMaxParticles);
+    const auto on_pendulum = make_integrator(pendulum.integrator, *pendulum.forces, pendulum.state.inv_mass);
+    EXPECT_TRUE(mts(*on_pendulum).fused_micro_step());
+  }
 }
 
 }  // namespace
