@@ -455,14 +455,20 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
   const char* const ghost = ghost_.empty() ? nullptr : ghost_.data();
-  // Whether a cell holds a particle that is not a ghost (with ghosts only).
+  // With ghosts: each cell's count of particles that are not ghosts, and each particle's flag
+  // in the cell order (read contiguously by the split gather below).
   if (ghost) {
     const int cells = nx * ny * nz;
     cell_owned_.resize(static_cast<std::size_t>(cells));
+    ghost_in_cell_order_.resize(static_cast<std::size_t>(n));
     parallel_blocks(cells, threads_for(n), [&](std::int64_t b, std::int64_t e) {
       for (std::int64_t c = b; c < e; ++c) {
-        char owned = 0;
-        for (int k = cs[c]; k < cs[c + 1]; ++k) owned |= !ghost[cp[k]];
+        int owned = 0;
+        for (int k = cs[c]; k < cs[c + 1]; ++k) {
+          const char g = ghost[cp[k]];
+          ghost_in_cell_order_[k] = g;
+          owned += !g;
+        }
         cell_owned_[c] = owned;
       }
     });
@@ -559,6 +565,12 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       sc.z.resize(n);
       sc.k.resize(n);
     }
+    if (ghost && sc.gx.size() < static_cast<std::size_t>(n)) {
+      sc.gx.resize(n);
+      sc.gy.resize(n);
+      sc.gz.resize(n);
+      sc.gk.resize(n);
+    }
     double* __restrict const gxs = sc.x.data();
     double* __restrict const gys = sc.y.data();
     double* __restrict const gzs = sc.z.data();
@@ -585,29 +597,138 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       const int cell = (gx * ny + gy) * nz + gz;
       gather(cs[cell], cs[cell + 1], sx, sy, sz);
     };
-    // Whether a cell holds a particle that is not a ghost.
-    auto holds_owned = [&](int gx, int gy, int gz) {
-      if (gx < 0 || gy < 0 || gz < 0) return false;  // past an open edge
-      return cell_owned_[(gx * ny + gy) * nz + gz] != 0;
-    };
-    // Whether the forward neighbours of cell (cx, cy, cz) (the stencil gathered below) hold one.
-    auto forward_cells_hold_owned = [&](int cx, int cy, int cz) {
-      if (holds_owned(cx, cy, adjacent_[2][3 * cz + 2])) return true;
-      for (const auto& col : kColumns)
-        for (int dz = 0; dz < 3; ++dz)
-          if (holds_owned(adjacent_[0][3 * cx + col[0] + 1], adjacent_[1][3 * cy + col[1] + 1],
-                          adjacent_[2][3 * cz + dz]))
-            return true;
-      return false;
-    };
+    // With ghosts: only the cells that hold a particle that is not a ghost (an owned one) are
+    // searched, and no pair of two ghosts is tested. A cell's owned particles are tested against
+    // the later ones of the cell, every particle of its forward cells (as without ghosts), and the
+    // ghosts of its backward cells — the cells whose forward cell it is, which the search
+    // without ghosts would visit for those ghosts. Every pair with an owned particle is tested
+    // once, and as that search tests it: d = x_i − (x_j + shift), i in the cell whose forward
+    // cell holds j, the shift the one that brings j's cell next to i's (a pair within one cell
+    // may swap i and j, which negates d exactly). The same pairs pass the same test, and the rows
+    // are sorted after: the list is the one without ghosts less its pairs of two ghosts.
+    if (ghost) {
+      double* __restrict const hxs = sc.gx.data();  // the ghosts among the candidates
+      double* __restrict const hys = sc.gy.data();
+      double* __restrict const hzs = sc.gz.data();
+      int* __restrict const hks = sc.gk.data();
+      const char* __restrict const ghost_at = ghost_in_cell_order_.data();
+      int ghost_total = 0;
+      // The forward candidates: the owned ones in gxs …, the ghosts in hxs …, each written to both
+      // and kept in one by advancing that count, without a branch.
+      auto gather_split = [&](int first, int last, double sx, double sy, double sz) {
+        double* __restrict const to_x = gxs + total;
+        double* __restrict const to_y = gys + total;
+        double* __restrict const to_z = gzs + total;
+        int* __restrict const to_k = gks + total;
+        double* __restrict const to_gx = hxs + ghost_total;
+        double* __restrict const to_gy = hys + ghost_total;
+        double* __restrict const to_gz = hzs + ghost_total;
+        int* __restrict const to_gk = hks + ghost_total;
+        int h = 0, g = 0;
+        for (int k2 = first; k2 < last; ++k2) {
+          const double px = xc[3 * k2] + sx, py = xc[3 * k2 + 1] + sy, pz = xc[3 * k2 + 2] + sz;
+          to_x[h] = px, to_y[h] = py, to_z[h] = pz, to_k[h] = k2;
+          to_gx[g] = px, to_gy[g] = py, to_gz[g] = pz, to_gk[g] = k2;
+          const int is_ghost = ghost_at[k2];
+          h += 1 - is_ghost;
+          g += is_ghost;
+        }
+        total += h;
+        ghost_total += g;
+      };
+      auto gather_split_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
+        if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
+        const int cell = (gx * ny + gy) * nz + gz;
+        gather_split(cs[cell], cs[cell + 1], sx, sy, sz);
+      };
+      // The backward cells' ghosts, as they sit (x_i of the test), by cell: each with the shift
+      // that brings the searched cell next to it.
+      struct Segment {
+        int first, last;
+        double sx, sy, sz;
+      };
+      std::array<Segment, 13> back;
+      // The 13 forward offsets (the stencil above): a backward cell is c − o for each.
+      static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1}, {1, -1, -1},
+                                              {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0}, {1, 0, 1},
+                                              {1, 1, -1}, {1, 1, 0},  {1, 1, 1}};
+      for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
+        const int cx = column / ny, cy = column % ny;
+        for (int cz = 0; cz < nz; ++cz) {
+          const int c = (cx * ny + cy) * nz + cz;
+          const int owned_here = cell_owned_[c];
+          if (owned_here == 0) continue;
+          total = 0;
+          ghost_total = 0;
+          gather_split(cs[c], cs[c + 1], 0.0, 0.0, 0.0);  // the cell's own first
+          gather_split_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
+          for (const auto& col : kColumns) {
+            const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
+            if (gx < 0 || gy < 0) continue;
+            const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
+            if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+              const int base = (gx * ny + gy) * nz;
+              gather_split(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
+            } else {
+              for (int dz = 0; dz < 3; ++dz)
+                gather_split_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
+            }
+          }
+          const int forward_ghosts = ghost_total;
+          int segments = 0;
+          for (const auto& o : kForward) {
+            const int b[3] = {adjacent_[0][3 * cx - o[0] + 1], adjacent_[1][3 * cy - o[1] + 1],
+                              adjacent_[2][3 * cz - o[2] + 1]};
+            if (b[0] < 0 || b[1] < 0 || b[2] < 0) continue;  // past an open edge
+            const int cell = (b[0] * ny + b[1]) * nz + b[2];
+            if (cs[cell + 1] - cs[cell] == cell_owned_[cell]) continue;  // no ghost there
+            Segment& seg = back[segments++];
+            seg.first = ghost_total;
+            for (int k2 = cs[cell]; k2 < cs[cell + 1]; ++k2) {
+              hxs[ghost_total] = xc[3 * k2], hys[ghost_total] = xc[3 * k2 + 1], hzs[ghost_total] = xc[3 * k2 + 2];
+              hks[ghost_total] = k2;
+              ghost_total += ghost_at[k2];
+            }
+            seg.last = ghost_total;
+            // The shift the search from cell b gives this cell's particles (forward offset o).
+            seg.sx = adjacent_shift_[0][3 * b[0] + o[0] + 1];
+            seg.sy = adjacent_shift_[1][3 * b[1] + o[1] + 1];
+            seg.sz = adjacent_shift_[2][3 * b[2] + o[2] + 1];
+          }
+          for (int m = 0; m < owned_here; ++m) {
+            const double xi = gxs[m], yi = gys[m], zi = gzs[m];
+            int found = 0;
+            for (int t = m + 1; t < total; ++t) {
+              const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
+              hit[found] = gks[t];
+              found += dx * dx + dy * dy + dz * dz < rlist2;
+            }
+            for (int t = 0; t < forward_ghosts; ++t) {
+              const double dx = xi - hxs[t], dy = yi - hys[t], dz = zi - hzs[t];
+              hit[found] = hks[t];
+              found += dx * dx + dy * dy + dz * dz < rlist2;
+            }
+            for (int q = 0; q < segments; ++q) {
+              const Segment& seg = back[q];
+              const double px = xi + seg.sx, py = yi + seg.sy, pz = zi + seg.sz;
+              for (int t = seg.first; t < seg.last; ++t) {
+                const double dx = hxs[t] - px, dy = hys[t] - py, dz = hzs[t] - pz;
+                hit[found] = hks[t];
+                found += dx * dx + dy * dy + dz * dz < rlist2;
+              }
+            }
+            record_hits(cp[gks[m]], found);
+          }
+        }
+      }
+      pair_count_[u] = used;
+      return;
+    }
     for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
       const int cx = column / ny, cy = column % ny;
       for (int cz = 0; cz < nz; ++cz) {
         const int c = (cx * ny + cy) * nz + cz;
         if (cs[c] == cs[c + 1]) continue;
-        // A cell of ghosts whose forward neighbours hold only ghosts finds only pairs of two
-        // ghosts: skipped whole.
-        if (ghost && !cell_owned_[c] && !forward_cells_hold_owned(cx, cy, cz)) continue;
         total = 0;
         if (cz + 1 < nz) {  // the cell and the next along z, one range
           gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);

@@ -17,7 +17,10 @@
 //
 // Ghosts (set_ghosts): under domain decomposition a rank holds its own particles and copies of
 // other ranks' particles near its domain, the ghosts, whose forces it ignores. A pair of two
-// ghosts then only costs time, so it is never listed; every other pair is, as without ghosts.
+// ghosts then only costs time, so it is never listed, nor tested: the search visits only the
+// cells that hold an owned particle, and tests its owned particles against the ghosts of the
+// cells around, each pair as the search without ghosts tests it. Every other pair is listed, as
+// without ghosts: the list is the one without ghosts less its pairs of two ghosts, row by row.
 //
 // Each row is sorted (increasing j), and the pair loop reads positions wrapped at the call: a
 // particle's pair forces are then the same sums, bit for bit, whenever and on whichever particle
@@ -257,10 +260,11 @@ class NeighborList {
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
-  int next_verdict_ = -1;            // set_next_verdict's, for the next update only (−1: none)
-  double displacement_limit_ = 0.0;  // set_displacement_limit's (0: the skin)
-  std::vector<char> ghost_;          // set_ghosts (empty: none)
-  std::vector<char> cell_owned_;     // the search's scratch: whether a cell holds a non-ghost
+  int next_verdict_ = -1;                  // set_next_verdict's, for the next update only (−1: none)
+  double displacement_limit_ = 0.0;        // set_displacement_limit's (0: the skin)
+  std::vector<char> ghost_;                // set_ghosts (empty: none)
+  std::vector<int> cell_owned_;            // the search's scratch: per cell, its particles that are not ghosts
+  std::vector<char> ghost_in_cell_order_;  // the search's scratch: ghost_ in the cell order
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;
@@ -303,6 +307,9 @@ class NeighborList {
   struct CandidateScratch {                        // per thread: one cell's candidates (search_half_stencil)
     std::vector<double> x, y, z;
     std::vector<int> k;  // position in the cell order
+    // With ghosts, the ghosts among the candidates apart (x, y, z, k then hold the others).
+    std::vector<double> gx, gy, gz;
+    std::vector<int> gk;
   };
   std::vector<CandidateScratch> scratch_;
   CountingSort<int> cell_sort_;          // particles into cells (bin)

@@ -6,12 +6,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <memory>
 #include <numeric>
 #include <random>
 #include <vector>
 
 #include "core/parallel.hpp"
+#include "engine/domain/decomposition.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/neighbor_list.hpp"
 #include "forcefields/pair_term.hpp"
@@ -129,6 +131,81 @@ TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
       ghosts.build(s.x, s.box);
       expect_full_rows_less_ghost_pairs(ghosts, full, s);
     }
+}
+
+// A rank's pair set (docs/parallel.md, "The design"): a melt of uniform random positions at
+// density 0.85 in a box of side 30, cut into the domains of `grid`; the pair set of `domain` is
+// every bead within R = r_c + margin of it (DomainGrid::within), in increasing global index, the
+// halo (the ghosts) among the home beads (those domain_of places in it), chains of five
+// consecutive global indices bonded. With the Kremer–Grest list radius (2^{1/6} + 0.4) the list's
+// cells cover the whole box, most of them empty, and coarser than the box's own grid (the pair
+// set is small against the box).
+struct PairSetCase {
+  const char* name;
+  Eigen::Vector3i dims;
+  int domain;
+  Eigen::Vector3i periodic;
+};
+const PairSetCase kPairSets[] = {
+    {"2 x 2 x 4, the domain at the box's corner (its halo across three faces)", {2, 2, 4}, 0, {1, 1, 1}},
+    {"4 x 4 x 4, an inner domain (two halo beads per home bead)", {4, 4, 4}, 21, {1, 1, 1}},
+    {"16 x 1 x 1, the last slab", {16, 1, 1}, 15, {1, 1, 1}},
+    {"2 x 2 x 4, open along z", {2, 2, 4}, 5, {1, 1, 0}},
+};
+
+System pair_set(const PairSetCase& c, double reach, unsigned seed) {
+  const double side = 30.0;
+  const int n = static_cast<int>(0.85 * side * side * side);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, side);
+  DomainGrid grid;
+  grid.dims = c.dims;
+  grid.origin.setZero();
+  grid.length.setConstant(side);
+  grid.periodic = c.periodic;
+  System s;
+  s.box.lengths = Eigen::Vector3d::Constant(side);
+  s.box.periodic = c.periodic;
+  std::vector<int> slot(n, -1);
+  std::vector<Eigen::Vector3d> kept;
+  for (int g = 0; g < n; ++g) {
+    const Eigen::Vector3d p(u(rng), u(rng), u(rng));
+    if (!grid.within(c.domain, p, reach)) continue;
+    slot[g] = static_cast<int>(kept.size());
+    kept.push_back(p);
+    s.ghost.push_back(grid.domain_of(p) != c.domain);
+  }
+  s.x.resize(3, static_cast<Eigen::Index>(kept.size()));
+  for (std::size_t e = 0; e < kept.size(); ++e) s.x.col(static_cast<Eigen::Index>(e)) = kept[e];
+  for (int g = 0; g + 1 < n; ++g)
+    if (g % 5 != 4 && slot[g] >= 0 && slot[g + 1] >= 0) s.bonds.push_back({slot[g], slot[g + 1], 0});
+  return s;
+}
+
+// The search on a pair set never tests a pair of two ghosts, yet lists every other pair the
+// search without ghosts lists: the list with the ghost flags is, row by row and in the same
+// order, the list of the same positions without them less its pairs of two ghosts, on any
+// number of threads.
+TEST(GhostPairs, PairSetListIsTheListWithoutGhostsLessThePairsOfTwoGhosts) {
+  const double cutoff = std::pow(2.0, 1.0 / 6.0), skin = 0.4, margin = 1.5 * skin;
+  for (const PairSetCase& c : kPairSets)
+    for (const unsigned seed : {1u, 2u})
+      for (const int threads : {1, 2, 3}) {
+        SCOPED_TRACE(testing::Message() << c.name << ", seed " << seed << ", " << threads << " thread(s)");
+        const ThreadCount scope(threads);
+        const System s = pair_set(c, cutoff + margin, seed);
+        const int halo = static_cast<int>(std::count(s.ghost.begin(), s.ghost.end(), char{1}));
+        ASSERT_GT(halo, 0);
+        ASSERT_LT(halo, s.size());
+        NeighborList full(cutoff, skin), ghosts(cutoff, skin);
+        const std::vector<SpecialPair> special = special_pairs(s.size(), s.bonds, kWeights);
+        full.set_exclusions(s.size(), special);
+        ghosts.set_exclusions(s.size(), special);
+        ghosts.set_ghosts(s.ghost);
+        full.build(s.x, s.box);
+        ghosts.build(s.x, s.box);
+        expect_full_rows_less_ghost_pairs(ghosts, full, s);
+      }
 }
 
 using Lj = LennardJonesPair;

@@ -104,8 +104,7 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   const int ranks = comm_.size();
   out_.resize(ranks);
   in_.resize(ranks);
-  send_buffer_.resize(ranks);
-  recv_buffer_.resize(ranks);
+  for (int kind = 0; kind < kMessages; ++kind) send_buffer_[kind].resize(ranks), recv_buffer_[kind].resize(ranks);
 }
 
 bool Decomposition::owns_molecule(int m) const {
@@ -260,6 +259,31 @@ void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
   }
 }
 
+// The runs of the pairs (from[m], to[m]) for the m with keep[m] (every m when keep is empty):
+// the longest stretches where both go up by one from one m to the next. An empty `from` or `to`
+// stands for the position of m among those kept (`count` entries in all).
+void make_runs(std::span<const int> from, std::span<const int> to, std::span<const char> keep, std::size_t count,
+               std::vector<ColumnRun>& runs) {
+  runs.clear();
+  int position = 0;
+  for (std::size_t m = 0; m < count; ++m) {
+    if (!keep.empty() && !keep[m]) continue;
+    const int f = from.empty() ? position : from[m], t = to.empty() ? position : to[m];
+    ++position;
+    if (!runs.empty() && runs.back().from + runs.back().count == f && runs.back().to + runs.back().count == t)
+      ++runs.back().count;
+    else
+      runs.push_back({f, t, 1});
+  }
+}
+
+// Columns run.from … of `source` (3 doubles each) onto run.to … of `target`.
+void copy_runs(std::span<const ColumnRun> runs, const double* source, double* target) {
+  for (const ColumnRun& run : runs)
+    std::copy_n(source + 3 * static_cast<std::ptrdiff_t>(run.from), 3 * run.count,
+                target + 3 * static_cast<std::ptrdiff_t>(run.to));
+}
+
 }  // namespace
 
 void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
@@ -361,6 +385,23 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     num_home_ += m.home;
     (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
   }
+  // The copies' runs.
+  make_runs(local_.owned, local_.slot, {}, local_.owned.size(), local_.all);
+  make_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.home_runs);
+  for (int r = 0; r < ranks; ++r) {
+    make_runs(out_[r].owned, {}, {}, out_[r].owned.size(), out_[r].all);
+    make_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].home_runs);
+    make_runs({}, in_[r].slot, {}, in_[r].slot.size(), in_[r].all);
+    make_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].home_runs);
+  }
+  halo_runs_.clear();
+  for (int e = 0; e < n; ++e)
+    if (halo_flag_[e]) {
+      if (!halo_runs_.empty() && halo_runs_.back().to + halo_runs_.back().count == e)
+        ++halo_runs_.back().count;
+      else
+        halo_runs_.push_back({e, e, 1});
+    }
   // What one evaluation with forces sends: positions out (and the forces so far of the home
   // beads), the home beads' forces back.
   halo_doubles_ = 0;
@@ -381,67 +422,67 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   const Eigen::Index n = static_cast<Eigen::Index>(pair_ids_.size());
   pair.resize(3, n);  // no allocation once sized
   const BoxWrap into_box(box_);
+  // Columns run.from … of the 3 × m array `source` wrapped into the box onto run.to … of pair.
+  const auto wrap_runs = [&](std::span<const Run> runs, const double* source) {
+    double* to = pair.data();
+    for (const Run& run : runs) {
+      const double* w = source + 3 * static_cast<std::ptrdiff_t>(run.from);
+      double* t = to + 3 * static_cast<std::ptrdiff_t>(run.to);
+      for (int q = 0; q < run.count; ++q, w += 3, t += 3)
+        for (int c = 0; c < 3; ++c) t[c] = into_box(w[c], c);
+    }
+  };
   if (forces) {
     pair_f->resize(3, n);
-    for (Eigen::Index e = 0; e < n; ++e)
-      if (halo_flag_[e]) pair_f->col(e).setZero();
+    for (const Run& run : halo_runs_) pair_f->middleCols(run.to, run.count).setZero();
   }
-  for (size_t m = 0; m < local_.owned.size(); ++m) {
-    const int k = local_.owned[m], e = local_.slot[m];
-    for (int c = 0; c < 3; ++c) pair(c, e) = into_box(a(c, k), c);
-    if (forces && local_.home[m]) pair_f->col(e) = owned_f->col(k);
-  }
+  wrap_runs(local_.all, a.data());
+  if (forces) copy_runs(local_.home_runs, owned_f->data(), pair_f->data());
+  std::vector<std::vector<double>>& send = send_buffer_[forces ? kPositionsAndForces : kPositions];
+  std::vector<std::vector<double>>& recv = recv_buffer_[forces ? kPositionsAndForces : kPositions];
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = out_[r];
-    std::vector<double>& b = send_buffer_[r];
-    b.resize(3 * p.owned.size() + (forces ? 3 * p.homes : 0));  // no allocation once sized
-    double* w = b.data();
-    for (size_t m = 0; m < p.owned.size(); ++m) {
-      const int k = p.owned[m];
-      w[0] = a(0, k), w[1] = a(1, k), w[2] = a(2, k), w += 3;
-      if (forces && p.home[m]) w[0] = (*owned_f)(0, k), w[1] = (*owned_f)(1, k), w[2] = (*owned_f)(2, k), w += 3;
-    }
-    recv_buffer_[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
+    std::vector<double>& b = send[r];
+    const std::size_t positions = 3 * p.owned.size();
+    b.resize(positions + (forces ? 3 * p.homes : 0));  // no allocation once sized
+    copy_runs(p.all, a.data(), b.data());
+    if (forces) copy_runs(p.home_runs, owned_f->data(), b.data() + positions);
+    recv[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
-  comm_.exchange_known(send_buffer_, recv_buffer_);
+  comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
-    const double* w = recv_buffer_[r].data();
-    for (size_t m = 0; m < p.slot.size(); ++m) {
-      const int e = p.slot[m];
-      for (int c = 0; c < 3; ++c) pair(c, e) = into_box(w[c], c);
-      w += 3;
-      if (forces && p.home[m]) (*pair_f)(0, e) = w[0], (*pair_f)(1, e) = w[1], (*pair_f)(2, e) = w[2], w += 3;
-    }
+    const double* w = recv[r].data();
+    wrap_runs(p.all, w);
+    if (forces) copy_runs(p.home_runs, w + 3 * p.slot.size(), pair_f->data());
   }
 }
 
 void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const {
   const ScopedPhase phase(Phase::domain);
   const int ranks = comm_.size();
-  for (size_t m = 0; m < local_.owned.size(); ++m)
-    if (local_.home[m]) owned_f.col(local_.owned[m]) = pair_f.col(local_.slot[m]);
+  // The home runs read backwards: slot → owned column (locally), slot → message position.
+  for (const Run& run : local_.home_runs)
+    std::copy_n(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
+                owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
+  std::vector<std::vector<double>>& send = send_buffer_[kForces];
+  std::vector<std::vector<double>>& recv = recv_buffer_[kForces];
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
-    std::vector<double>& b = send_buffer_[r];
+    std::vector<double>& b = send[r];
     b.resize(3 * static_cast<size_t>(p.homes));
-    double* w = b.data();
-    for (size_t m = 0; m < p.slot.size(); ++m)
-      if (p.home[m]) {
-        const int e = p.slot[m];
-        w[0] = pair_f(0, e), w[1] = pair_f(1, e), w[2] = pair_f(2, e), w += 3;
-      }
-    recv_buffer_[r].resize(3 * static_cast<size_t>(out_[r].homes));
+    for (const Run& run : p.home_runs)
+      std::copy_n(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
+                  b.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
+    recv[r].resize(3 * static_cast<size_t>(out_[r].homes));
   }
-  comm_.exchange_known(send_buffer_, recv_buffer_);
+  comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = out_[r];
-    const double* w = recv_buffer_[r].data();
-    for (size_t m = 0; m < p.owned.size(); ++m)
-      if (p.home[m]) {
-        const int k = p.owned[m];
-        owned_f(0, k) = w[0], owned_f(1, k) = w[1], owned_f(2, k) = w[2], w += 3;
-      }
+    const double* w = recv[r].data();
+    for (const Run& run : p.home_runs)
+      std::copy_n(w + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
+                  owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
   }
 }
 

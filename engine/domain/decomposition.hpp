@@ -61,6 +61,12 @@ struct DomainReport {
   long neighbor_rebuilds_max = 0;
 };
 
+// Columns from … from + count − 1 of one 3 × m array and to … to + count − 1 of another: the
+// unit of Decomposition's copies.
+struct ColumnRun {
+  int from, to, count;
+};
+
 class Decomposition {
  public:
   // The whole system's molecules (the connected components of its bonded terms) and masses.
@@ -150,17 +156,30 @@ class Decomposition {
   // the owned columns out_[r].owned, each a home bead there or not (out_[r].home); back from r
   // the forces of the home ones, in the same order. From rank r: its columns into the slots
   // in_[r].slot, home here or not. The beads this rank sends itself: `local_`.
+  //
+  // The copies go by runs of consecutive columns (most beads' home is their owner, and a rank's
+  // beads that go to one other rank are stretches of chains): columns from … from + count − 1 of
+  // one array to columns to … to + count − 1 of the other, made at the selection. A message is
+  // the positions of out_[r].owned in order, then (with forces) the forces of its home ones.
+  using Run = ColumnRun;
   struct Plan {
     std::vector<int> owned, slot;  // sender: owned index; receiver: pair slot
     std::vector<char> home;
     int homes = 0;
+    // Sender: owned column → message position (all; the home ones among the home ones).
+    // Receiver: message position → slot. local_: owned column → slot.
+    std::vector<Run> all, home_runs;
   };
   std::vector<Plan> out_, in_;
   Plan local_;  // owned index and slot together
   std::vector<int> pair_ids_, pair_slot_of_;
   std::vector<char> halo_flag_;
+  std::vector<Run> halo_runs_;  // the halo's slots (from = to)
   int num_home_ = 0;
-  mutable std::vector<std::vector<double>> send_buffer_, recv_buffer_;
+  // Per message kind (Message), per rank: a buffer per kind keeps its size from one evaluation
+  // to the next (one shared by all would grow and shrink, and std::vector zero-fills each growth).
+  enum Message { kPositions, kPositionsAndForces, kForces, kMessages };
+  mutable std::vector<std::vector<double>> send_buffer_[kMessages], recv_buffer_[kMessages];
   std::int64_t halo_doubles_ = 0;
   int halo_messages_ = 0;
   long selections_ = 0, migrated_ = 0;
