@@ -120,6 +120,12 @@ double GhostedPairs::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen
   return energy;
 }
 
+void GhostedPairs::add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const {
+  forward(x, box, &f);
+  extended_->add_forces_only(x_, box, f_);
+  domains_.reverse(f_, f);
+}
+
 void GhostedPairs::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
                                                   ExactDiagonal& w) const {
   forward(x, box, &f);

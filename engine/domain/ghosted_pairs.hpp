@@ -49,6 +49,9 @@ class GhostedPairs final : public ForceTerm {
   void update_list(const Eigen::Matrix3Xd& x, const Box& box);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  // The same forces without the energy: the pair set's term's force-only pass between the same
+  // forward and reverse.
+  void add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override;
   // The owned particles' forces as add_forces, and this rank's share of the virial's diagonal.
   void add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f,
