@@ -357,8 +357,11 @@ TEST(RespaLevels, ThePeptideDeckKicksOnlyThePppmLevelMollified) {
   EXPECT_FALSE(sc.integrator.levels[0].kick.has_value());
   EXPECT_EQ(sc.integrator.levels[1].kick, Kick::plain);
   EXPECT_FALSE(sc.integrator.levels[2].kick.has_value());
-  for (const auto& term : sc.forces->terms())
-    if (term->style() == "pppm") EXPECT_EQ(term->level().index, 2);
+  for (const auto& term : sc.forces->terms()) {
+    if (term->style() == "pppm") {
+      EXPECT_EQ(term->level().index, 2);
+    }
+  }
   // Its stiff bonds are chosen by mass (masses = [1.008]): those of peptide.toml's bond types.
   const Scene rigid = test::load("inputs/peptide.toml");
   ASSERT_NE(sc.forces->stiff_bonds(), nullptr);
