@@ -79,12 +79,13 @@ std::map<std::string, std::string> h5_datasets(const fs::path& file) {
   return out;
 }
 
-// summary.json without the lines that measure time.
+// summary.json without the lines that measure the machine: time, and the process's peak memory.
 std::string summary_without_timings(const fs::path& p) {
   std::istringstream in(slurp(p));
   std::string out;
   for (std::string line; std::getline(in, line);)
-    if (line.find("_seconds") == std::string::npos) out += line + "\n";
+    if (line.find("_seconds") == std::string::npos && line.find("\"peak_rss_mib\"") == std::string::npos)
+      out += line + "\n";
   return out;
 }
 
