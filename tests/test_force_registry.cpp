@@ -15,6 +15,7 @@
 #include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
+#include "tests/butane_decks.hpp"
 #include "tests/test_support.hpp"
 
 namespace stiffmd {
@@ -256,13 +257,7 @@ TEST(ForceRegistry, RigidAnglesCloseTheTriangle) {
 // the data file for its type.
 Scene butanes_by_mass(const std::string& stiff, const std::string& more) {
   const std::string deck =
-      "[types.CH3]\nmass = 15.0\n[types.CH2]\nmass = 14.0\n"
-      "[import]\nlammps_data = \"" +
-      test::source_path("tests/data/butanes.data") +
-      "\"\natom_types = { \"1\" = \"CH3\", \"2\" = \"CH2\" }\nbond_types = { \"1\" = \"end\", \"2\" = \"mid\" }\n"
-      "angle_types = { \"1\" = \"ccc\" }\ndihedral_types = { \"1\" = \"butane\" }\n"
-      "[forces.rigid]\nstyle = \"stiff-harmonic\"\nepsilon = 0.05\n" +
-      stiff + more +
+      test::butanes_import() + "[forces.rigid]\nstyle = \"stiff-harmonic\"\nepsilon = 0.05\n" + stiff + more +
       "[forces.angle]\nstyle = \"harmonic-angle\"\ncoefficients = \"data\"\n"
       "[forces.dihedral]\nstyle = \"opls-dihedral\"\ndihedral_types.butane = { K1 = 1.41, K2 = -0.27, K3 = 3.14, K4 = "
       "0.1 }\n[integrator]\nmethod = \"rattle\"\nh = 0.001\n[run]\nt_end = 0.001\n";

@@ -14,6 +14,7 @@
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/run.hpp"
 #include "integrators/modes.hpp"
+#include "butane_decks.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -373,11 +374,7 @@ namespace {
 std::map<std::string, double> imported_butane_energies(const std::string& pair,
                                                        const std::string& special_bonds = "[0.0, 0.0]") {
   const std::string deck =
-      "[types.CH3]\nmass = 15.0\n[types.CH2]\nmass = 14.0\n"
-      "[import]\nlammps_data = \"" +
-      test::source_path("tests/data/butanes.data") +
-      "\"\natom_types = { \"1\" = \"CH3\", \"2\" = \"CH2\" }\nbond_types = { \"1\" = \"end\", \"2\" = \"mid\" }\n"
-      "angle_types = { \"1\" = \"ccc\" }\ndihedral_types = { \"1\" = \"butane\" }\n"
+      test::butanes_import() +
       "[forces.bond]\nstyle = \"stiff-harmonic\"\nepsilon = 0.05\n"
       "bond_types.end = { length = 1.0, alpha = \"0.05 * sqrt(2 * 200)\" }\n"
       "bond_types.mid = { length = 1.05, alpha = \"0.05 * sqrt(2 * 150)\" }\n"
