@@ -11,6 +11,8 @@
 import argparse, os, subprocess, tempfile, time
 import numpy as np
 
+from spce_lammps import COEFFS, STYLES  # tools/ is the script's directory
+
 here = os.path.dirname(os.path.abspath(__file__))
 root = os.path.normpath(os.path.join(here, '..'))
 ap = argparse.ArgumentParser()
@@ -26,31 +28,14 @@ work = a.keep or tempfile.mkdtemp(prefix='spce_')
 os.makedirs(work, exist_ok=True)
 env = dict(os.environ, OMP_NUM_THREADS='1')
 
-styles = """units real
-atom_style full
-pair_style lj/cut/coul/long 10.0
-pair_modify table 0
-bond_style harmonic
-angle_style harmonic
-kspace_style pppm 1e-5
-special_bonds lj/coul 0.0 0.0 0.0
-"""
-coeffs = """pair_coeff 1 1 0.1553 3.166
-pair_coeff * 2 0.0 1.0
-bond_coeff 1 1000.0 1.0
-angle_coeff 1 100.0 109.47
-neighbor 2.0 bin
-neigh_modify every 1 delay 0 check yes
-timestep 2.0
-"""
-equil = styles + f"read_data {os.path.join(root, 'inputs', 'spce_water.data')}\n" + coeffs + f"""velocity all create 300.0 4928459 mom yes rot yes dist gaussian
+equil = STYLES + f"read_data {os.path.join(root, 'inputs', 'spce_water.data')}\n" + COEFFS + f"""velocity all create 300.0 4928459 mom yes rot yes dist gaussian
 fix i all nve
 fix t all langevin 300.0 300.0 100.0 91
 fix r all rattle 1e-10 200 0 b 1 a 1
 run {n_equil}
 write_data equilibrated.data nocoeff
 """
-nve = styles + "read_data equilibrated.data\n" + coeffs + f"""fix i all nve
+nve = STYLES + "read_data equilibrated.data\n" + COEFFS + f"""fix i all nve
 fix r all rattle 1e-10 200 0 b 1 a 1
 thermo_style custom step etotal pe ke temp
 thermo_modify format float %.12g

@@ -28,6 +28,7 @@ import subprocess
 import sys
 
 from engines import engine_env, read_summary, run_stiffmd  # tools/ is the script's directory
+from spce_lammps import COEFFS, STYLES
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WATERS = 512
@@ -41,23 +42,7 @@ CONSTRAINTS = {
     "lammps": r"FixShake|FixRattle",
 }
 
-LAMMPS_INPUT = """units real
-atom_style full
-pair_style lj/cut/coul/long 10.0
-pair_modify table 0
-bond_style harmonic
-angle_style harmonic
-kspace_style pppm 1e-5
-special_bonds lj/coul 0.0 0.0 0.0
-read_data {data}
-pair_coeff 1 1 0.1553 3.166
-pair_coeff * 2 0.0 1.0
-bond_coeff 1 1000.0 1.0
-angle_coeff 1 100.0 109.47
-neighbor 2.0 bin
-neigh_modify every 1 delay 0 check yes
-timestep 2.0
-fix i all nve
+LAMMPS_INPUT = STYLES + "read_data {data}\n" + COEFFS + """fix i all nve
 fix r all rattle 1e-10 200 0 b 1 a 1
 thermo 100
 run {steps}
