@@ -141,13 +141,13 @@ Level parse_level_or_throw(const ForceField& forces, const std::string& name) {
 // The module runs one process. Started as one of several (mpiexec -n N python3 …), each process
 // would run the whole deck into the same files: refused before anything is read or written, with
 // the command that runs the deck on N ranks.
-void refuse_several_processes(const Deck& deck) {
+std::unique_ptr<Deck> one_process_only(std::unique_ptr<Deck> deck) {
   const int n = launched_processes();
-  if (n <= 1) return;
+  if (n <= 1) return deck;
   throw py::value_error("stiffmd.Simulation runs one process, but this is one of " + std::to_string(n) +
                         " started by a launcher; run the deck on " + std::to_string(n) +
                         " ranks with the command line instead: mpiexec -n " + std::to_string(n) + " stiffmd run " +
-                        deck.path() + " -o DIR");
+                        deck->path() + " -o DIR");
 }
 
 class Simulation {
@@ -158,7 +158,7 @@ class Simulation {
   // is prepared, as `stiffmd run --restart` does.
   Simulation(std::unique_ptr<Deck> deck, const std::optional<std::string>& output,
              const std::optional<std::string>& restart)
-      : deck_((refuse_several_processes(*deck), std::move(deck))), scene_(load_scene(*deck_)), units_(scene_.units) {
+      : deck_(one_process_only(std::move(deck))), scene_(load_scene(*deck_)), units_(scene_.units) {
     // An [ensemble] deck is many runs (engine/run/ensemble.*): stepping its base deck would look
     // like a member and be none of them.
     DeckTable root = deck_->root();
