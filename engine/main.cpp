@@ -259,7 +259,10 @@ int main(int argc, char** argv) {
         // On several processes one run is decomposed (docs/parallel.md): every rank loads and
         // prepares the whole scene alike, rank 0 alone speaks and writes.
         scene.emplace(stiffmd::load_scene(*deck));
-        if (decomposed) stiffmd::check_parallel_grid(*scene, processes.size());  // every rank alike, before the run
+        if (decomposed) {  // every rank alike, before the run
+          stiffmd::check_parallel_grid(*scene, processes.size());
+          stiffmd::check_parallel_outputs(*scene, processes.size());
+        }
         // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
         // printed or written: a damaged or foreign one is one line and exit 2.
         if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);

@@ -62,6 +62,14 @@ struct CarriedState {
   std::vector<Eigen::Matrix3Xd> columns;  // one column per particle
 };
 
+// Integrator::save_state() laid out by what it holds, for a checkpoint written by blocks of
+// particles (engine/run/checkpoint.hpp): runs of words as they are, and carried columns (column ≥ 0:
+// CarriedState::columns[column], its 3 N words where the run stands).
+struct WordRun {
+  std::vector<double> words;
+  int column = -1;
+};
+
 class Integrator {
  public:
   virtual ~Integrator() = default;

@@ -273,7 +273,11 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
     // Rank 0 gathers the moved arrays by global index.
     std::vector<Eigen::Matrix3Xd> whole;
     d->gather_columns({x, v, mine1, mine2}, whole, n);
+    std::vector<Eigen::Matrix3Xd> by_sevens;  // the same, one gather per 7 global indices
+    d->gather_columns({x, v, mine1, mine2}, by_sevens, n, 7);
     ASSERT_EQ(whole.size(), 4u);
+    ASSERT_EQ(by_sevens.size(), 4u);
+    for (size_t a = 0; a < whole.size(); ++a) EXPECT_TRUE(same(by_sevens[a], whole[a])) << "array " << a;
     if (!comm.root()) {
       for (const Eigen::Matrix3Xd& w : whole) EXPECT_EQ(w.cols(), 0);
       return;

@@ -80,6 +80,7 @@ A failure prints every deviation over the tolerance with the largest (frame, par
 column and step) and exits 1.
 """
 import csv
+import filecmp
 import json
 import os
 import shutil
@@ -200,11 +201,11 @@ def overrides(h, steps, extra):
     return args
 
 
-def run(cmd, ranks):
-    """Runs cmd (OMP_NUM_THREADS=1, Open MPI's permissions)."""
+def run(cmd, ranks, extra_env=None):
+    """Runs cmd (OMP_NUM_THREADS=1, Open MPI's permissions, and extra_env)."""
     print("$ " + " ".join(cmd), flush=True)
     start = time.monotonic()
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=environment())
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=dict(environment(), **(extra_env or {})))
     seconds = time.monotonic() - start
     if r.returncode != 0:
         sys.stderr.write(r.stdout[-3000:] + r.stderr[-3000:])
@@ -569,6 +570,17 @@ def check_straddle_geometry(ref_dir):
 
 # ---------------------------------------------------------------- cases
 
+def check_checkpoint_blocks(out, ranks):
+    """The checkpoint the ranks wrote together, each its block of particles, is byte for byte the
+    one-process writer's of the gathered state (engine/run/checkpoint.hpp)."""
+    together = os.path.join(out, "checkpoint.bin")
+    if ranks == 1:  # one process: the serial run, no second checkpoint
+        return
+    if not filecmp.cmp(together, together + ".gathered", shallow=False):
+        raise SystemExit(f"FAIL: the checkpoint written by {ranks} ranks differs from one process's of the same state")
+    print(f"checkpoint written by {ranks} ranks: the one-process writer's bytes ({os.path.getsize(together)} bytes)")
+
+
 def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     global THREADS, BITWISE
     THREADS = 2 if case.endswith(":threads") else 1
@@ -581,8 +593,12 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     args = ["run", deck, "-q", "--no-progress"] + overrides(h, steps, extra)
     ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{n}")
     # The N-rank run first: while N > 1 is refused, a skipped case costs only the launcher's start.
-    run(launch(mpiexec, numproc_flag, n, stiffmd) + args[:2] + ["-o", out] + args[2:], n)
+    # STIFFMD_GATHERED_CHECKPOINT: rank 0 also writes the checkpoint as one process writes it, from
+    # the gathered state, beside the one every rank wrote its block of.
+    run(launch(mpiexec, numproc_flag, n, stiffmd) + args[:2] + ["-o", out] + args[2:], n,
+        {"STIFFMD_GATHERED_CHECKPOINT": "1"})
     check_domain_summary(stiffmd, out, n)
+    check_checkpoint_blocks(out, n)
     run([stiffmd] + args[:2] + ["-o", ref] + args[2:], 1)
     if case == "straddle":
         check_straddle_geometry(ref)
@@ -607,6 +623,33 @@ def bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     if r.returncode != 2 or len(errors) != 1 or "parallel.grid" not in errors[0] or os.path.exists(out):
         raise SystemExit(f"FAIL: expected exit 2, one error line naming parallel.grid and no {out}; got exit "
                          f"{r.returncode}, stderr:\n{r.stderr}")
+    print(errors[0])
+
+
+def xyz_case(stiffmd, mpiexec, numproc_flag, n, tmp):
+    """The stiff melt's XYZ trajectory with velocities, which rank 0 writes block by block of 1 024
+    global indices as the ranks send their rows (3 000 beads: three blocks, each with rows of every
+    rank): byte for byte the serial run's. The state CSV, whose rows hold every particle, is refused
+    on several ranks: exit 2, one error line naming output.state and saying to use output.h5md."""
+    sets = ["--set", "integrator.h=0.02", "--set", "run.t_end=0.4", "--set", 'output.xyz="trajectory.xyz"',
+            "--set", "output.xyz_interval=0.1", "--set", "output.xyz_velocities=true", "--set", 'output.h5md=""']
+    base = ["run", STIFF_MELT, "-q", "--no-progress"]
+    ref, out = os.path.join(tmp, "serial"), os.path.join(tmp, f"ranks_{n}")
+    run(launch(mpiexec, numproc_flag, n, stiffmd) + base[:2] + ["-o", out] + base[2:] + sets, n)
+    run([stiffmd] + base[:2] + ["-o", ref] + base[2:] + sets, 1)
+    got, want = os.path.join(out, "trajectory.xyz"), os.path.join(ref, "trajectory.xyz")
+    if not filecmp.cmp(got, want, shallow=False):
+        raise SystemExit(f"FAIL: the XYZ file written on {n} ranks differs from the serial run's")
+    print(f"XYZ on {n} ranks: the serial run's bytes ({os.path.getsize(got)} bytes, 5 frames)")
+    refused = os.path.join(tmp, "refused")
+    cmd = launch(mpiexec, numproc_flag, n, stiffmd) + base[:2] + ["-o", refused] + base[2:] + sets + [
+        "--set", 'output.state="state.csv"']
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=environment())
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error")]
+    if (r.returncode != 2 or len(errors) != 1 or "output.state" not in errors[0] or "output.h5md" not in errors[0]
+            or os.path.exists(refused)):
+        raise SystemExit(f"FAIL: expected exit 2, one error line naming output.state and output.h5md, no {refused}; "
+                         f"got exit {r.returncode}, stderr:\n{r.stderr}")
     print(errors[0])
 
 
@@ -684,6 +727,8 @@ def main(argv):
     try:
         if case == "bad_grid":
             bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp)
+        elif case == "xyz":
+            xyz_case(stiffmd, mpiexec, numproc_flag, n, tmp)
         elif case == "kill":
             kill_case(stiffmd, mpiexec, numproc_flag, n, tmp)
         elif case.startswith("restart:"):

@@ -25,6 +25,9 @@ CASE is one of
     gzip_append    a compressed H5MD file (output.h5md_gzip) written by one process, continued on 2
                    ranks: parallel HDF5 cannot extend its chunks (allocated at their first write by
                    one process), so every rank refuses alike: exit 2, said once
+    checkpoint     the output directory read-only for rank 1 and no H5MD file, so that the run
+                   goes on until its checkpoint, which every rank writes its block of: exit 2 naming
+                   rank 1 and the checkpoint, said once, and no checkpoint (nor its temporary file)
     setup          a restart whose checkpoint rank 1 cannot read (a tmpfs over the folder): rank 1
                    fails before the run's first collective call: exit 2 naming rank 1
 
@@ -160,6 +163,21 @@ def unwritable(stiffmd, mpiexec, numproc_flag, tmp, hidden):
     print("rank 1's output directory refused on every rank (exit 2) before the shared H5MD file")
 
 
+def checkpoint(stiffmd, mpiexec, numproc_flag, tmp):
+    out = os.path.join(tmp, "out")
+    os.makedirs(out)
+    setup = f"mount --bind {out} {out} && mount -o remount,bind,ro {out}"
+    args = ["run", FREE, "-q", "--no-progress", "-o", out, "--set", 'output.h5md=""', "--set", 'output.xyz=""']
+    r = run(on_rank_one(mpiexec, numproc_flag, stiffmd, args, namespace(setup)), 2)
+    expect_message(r, "rank 1: ", "checkpoint.bin: cannot open checkpoint")
+    if r.stderr.count("error") != 1:
+        raise SystemExit(f"FAIL: the agreed error is to be said once:\n{r.stderr}")
+    left = [name for name in os.listdir(out) if name.startswith("checkpoint")]
+    if left:
+        raise SystemExit(f"FAIL: a failed checkpoint left {left}")
+    print("a checkpoint rank 1 cannot write its block of ended every rank (exit 2), no file left")
+
+
 def setup(stiffmd, mpiexec, numproc_flag, tmp):
     out = os.path.join(tmp, "out")
     run([stiffmd, "run", FREE, "-q", "--no-progress", "-o", out, "--set", "run.t_end=1"], 0)
@@ -190,7 +208,7 @@ def main(argv):
     if len(argv) != 5:
         raise SystemExit(__doc__)
     stiffmd, mpiexec, numproc_flag, case = argv[1:]
-    if case in ("unwritable", "unseen", "setup") and not can_unshare():
+    if case in ("unwritable", "unseen", "setup", "checkpoint") and not can_unshare():
         print(f"SKIP: {case}: no mount namespaces here (unshare -m)")
         return SKIP
     tmp = tempfile.mkdtemp(prefix="stiffmd_mpi_failures_")
@@ -217,6 +235,8 @@ def main(argv):
             gzip_append(stiffmd, mpiexec, numproc_flag, tmp)
         elif case == "setup":
             setup(stiffmd, mpiexec, numproc_flag, tmp)
+        elif case == "checkpoint":
+            checkpoint(stiffmd, mpiexec, numproc_flag, tmp)
         else:
             raise SystemExit(f"unknown case {case}")
     except BaseException:

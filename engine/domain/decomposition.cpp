@@ -486,25 +486,40 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   }
 }
 
-void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, std::vector<Eigen::Matrix3Xd>& whole,
-                                   int num_particles) const {
+void Decomposition::gather_columns(const std::vector<const Eigen::Matrix3Xd*>& local,
+                                   const std::vector<Eigen::Matrix3Xd*>& whole, int num_particles, int block) const {
   const size_t arrays = local.size(), words = 1 + 3 * arrays;
+  if (comm_.root())
+    for (Eigen::Matrix3Xd* w : whole)
+      if (w->cols() != num_particles) w->resize(3, num_particles);
   std::vector<double> mine;
-  mine.reserve(words * static_cast<size_t>(num_owned()));
-  for (int k = 0; k < num_owned(); ++k) {
-    mine.push_back(ids_[k]);
-    for (const Eigen::Matrix3Xd& a : local)
-      for (int c = 0; c < 3; ++c) mine.push_back(a(c, k));
-  }
   std::vector<std::vector<double>> all;
-  comm_.gather(mine, all);
-  whole.assign(arrays, Eigen::Matrix3Xd::Zero(3, comm_.root() ? num_particles : 0));
-  for (const std::vector<double>& b : all)
-    for (size_t k = 0; k + words <= b.size(); k += words) {
-      const int g = static_cast<int>(b[k]);
-      for (size_t a = 0; a < arrays; ++a)
-        whole[a].col(g) = Eigen::Vector3d(b[k + 1 + 3 * a], b[k + 2 + 3 * a], b[k + 3 + 3 * a]);
+  int k = 0;  // the owned columns increase in global index: one pass over them
+  for (int first = 0; first < num_particles; first += block) {
+    const int end = std::min(num_particles, first + block);
+    mine.clear();
+    for (; k < num_owned() && ids_[k] < end; ++k) {
+      mine.push_back(ids_[k]);
+      for (const Eigen::Matrix3Xd* a : local)
+        for (int c = 0; c < 3; ++c) mine.push_back((*a)(c, k));
     }
+    comm_.gather(mine, all);
+    for (const std::vector<double>& b : all)
+      for (size_t at = 0; at + words <= b.size(); at += words) {
+        const int g = static_cast<int>(b[at]);
+        for (size_t a = 0; a < arrays; ++a)
+          whole[a]->col(g) = Eigen::Vector3d(b[at + 1 + 3 * a], b[at + 2 + 3 * a], b[at + 3 + 3 * a]);
+      }
+  }
+}
+
+void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, std::vector<Eigen::Matrix3Xd>& whole,
+                                   int num_particles, int block) const {
+  whole.assign(local.size(), Eigen::Matrix3Xd(3, 0));
+  std::vector<const Eigen::Matrix3Xd*> in;
+  std::vector<Eigen::Matrix3Xd*> out;
+  for (size_t a = 0; a < local.size(); ++a) in.push_back(&local[a]), out.push_back(&whole[a]);
+  gather_columns(in, out, num_particles, block);
 }
 
 int Decomposition::first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const {

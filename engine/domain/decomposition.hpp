@@ -96,9 +96,14 @@ class Decomposition {
   // the home added the pair forces onto the owner's). Collective.
   void reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const;
   // Rank 0 gets every rank's owned columns of each array into a 3 × N array by global index (the
-  // others get nothing). Collective.
+  // others get nothing). Collective: one gather per `block` consecutive global indices, so that
+  // rank 0 holds one block's messages beside the arrays it fills (whole[a], resized to 3 × N
+  // where it is not: the whole state's x and v are written in place).
+  static constexpr int kGatherBlock = 1 << 16;
+  void gather_columns(const std::vector<const Eigen::Matrix3Xd*>& owned, const std::vector<Eigen::Matrix3Xd*>& whole,
+                      int num_particles, int block = kGatherBlock) const;
   void gather_columns(const std::vector<Eigen::Matrix3Xd>& owned, std::vector<Eigen::Matrix3Xd>& whole,
-                      int num_particles) const;
+                      int num_particles, int block = kGatherBlock) const;
 
   // The first owned bead whose x or v is not finite (−1: none).
   int first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const;

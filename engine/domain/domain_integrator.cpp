@@ -1,6 +1,7 @@
 #include "engine/domain/domain_integrator.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <regex>
@@ -66,6 +67,15 @@ void check_parallel_grid(const Scene& sc, int ranks) {
     throw InputError(sc.parallel.grid_where + ": " + std::to_string(g.prod()) + " domains (" + std::to_string(g[0]) +
                      " x " + std::to_string(g[1]) + " x " + std::to_string(g[2]) + ") for " + std::to_string(ranks) +
                      " ranks: expected one domain per rank (or no grid: it is chosen)");
+}
+
+void check_parallel_outputs(const Scene& sc, int ranks) {
+  if (ranks > 1 && !sc.output.state.empty())
+    throw InputError(sc.deck_path +
+                     ": output.state: the state CSV (one row of 6 N values per frame) is written by one "
+                     "process; on " +
+                     std::to_string(ranks) +
+                     " ranks write positions and velocities with output.h5md (output.h5md_velocity = true)");
 }
 
 DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::unique_ptr<Integrator> whole_method)
@@ -338,13 +348,82 @@ std::vector<double> DomainIntegrator::save_state() const {
   return whole_->save_state();
 }
 
+namespace {
+
+// Where save_state() puts each carried column: the whole-system integrator restores columns of one
+// particle whose three words are marks — quiet NaNs whose payload names the column and the row,
+// never a word an integrator keeps (positions, forces, sums, flags and counts are numbers) — and
+// the marks in its words are the columns' places, the words between them its own.
+constexpr std::uint64_t kColumnMark = 0x7ff8'5354'0000'0000ull;
+
+double column_mark(std::size_t column, int row) {
+  return std::bit_cast<double>(kColumnMark | (static_cast<std::uint64_t>(column) << 2) |
+                               static_cast<std::uint64_t>(row));
+}
+
+std::vector<WordRun> word_runs(const std::vector<double>& words, std::size_t columns) {
+  std::vector<WordRun> runs;
+  std::vector<char> seen(columns, 0);
+  for (std::size_t i = 0; i < words.size();) {
+    const auto bits = std::bit_cast<std::uint64_t>(words[i]);
+    if ((bits >> 32) != (kColumnMark >> 32)) {
+      if (runs.empty() || runs.back().column >= 0) runs.emplace_back();
+      runs.back().words.push_back(words[i++]);
+      continue;
+    }
+    const std::size_t column = (bits & 0xffff'ffffull) >> 2;
+    bool whole = column < columns && !seen[column] && i + 3 <= words.size();
+    for (int row = 0; whole && row < 3; ++row)
+      whole = std::bit_cast<std::uint64_t>(words[i + row]) == std::bit_cast<std::uint64_t>(column_mark(column, row));
+    if (!whole) throw std::logic_error("save_state: a carried column not as one run of its particles' words");
+    seen[column] = 1;
+    runs.push_back({{}, static_cast<int>(column)});
+    i += 3;
+  }
+  if (std::find(seen.begin(), seen.end(), 0) != seen.end())
+    throw std::logic_error("save_state: a carried column missing from the integrator's words");
+  return runs;
+}
+
+}  // namespace
+
+StateBlock DomainIntegrator::state_block(const State& whole) const {
+  StateBlock b;
+  const int n = whole_scene_.state.size();
+  b.block = block_of(n, comm_.size(), comm_.rank());
+  const auto first = static_cast<Eigen::Index>(b.block.first), count = static_cast<Eigen::Index>(b.block.count);
+  if (!part_) {
+    b.x = whole.x.middleCols(first, count);
+    b.v = whole.v.middleCols(first, count);
+    b.inv_mass = whole.inv_mass.segment(first, count);
+    b.words.push_back({whole_->save_state(), -1});
+    return b;
+  }
+  // As save_state: the parts' sums added (the same on every rank), their columns by global index.
+  CarriedState c = part_->integrator->carried_state();
+  if (!c.sums.empty()) comm_.sum(c.sums.data(), static_cast<int>(c.sums.size()));
+  const State& mine = part_->scene.state;
+  b.x.resize(3, count);
+  b.v.resize(3, count);
+  b.inv_mass.resize(count);
+  b.columns.assign(c.columns.size(), Eigen::Matrix3Xd(3, count));
+  std::vector<BlockArray> arrays = {
+      {mine.x.data(), b.x.data(), 3}, {mine.v.data(), b.v.data(), 3}, {mine.inv_mass.data(), b.inv_mass.data(), 1}};
+  for (std::size_t k = 0; k < c.columns.size(); ++k) arrays.push_back({c.columns[k].data(), b.columns[k].data(), 3});
+  BlockExchange().run(comm_, n, domains_->owned_ids(), arrays);
+  const std::size_t columns = c.columns.size();
+  for (std::size_t k = 0; k < columns; ++k) {
+    c.columns[k].resize(3, 1);
+    for (int row = 0; row < 3; ++row) c.columns[k](row, 0) = column_mark(k, row);
+  }
+  whole_->restore_carried_state(std::move(c));
+  b.words = word_runs(whole_->save_state(), columns);
+  return b;
+}
+
 void DomainIntegrator::gather(State& whole) const {
   if (!part_) return;
-  std::vector<Eigen::Matrix3Xd> columns;
-  domains_->gather_columns({part_->scene.state.x, part_->scene.state.v}, columns, whole.size());
-  if (!comm_.root()) return;
-  whole.x = std::move(columns[0]);
-  whole.v = std::move(columns[1]);
+  domains_->gather_columns({&part_->scene.state.x, &part_->scene.state.v}, {&whole.x, &whole.v}, whole.size());
 }
 
 std::vector<std::int64_t> DomainIntegrator::evaluations() const {

@@ -24,6 +24,7 @@
 #include "core/communicator.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
+#include "engine/io/particle_blocks.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
@@ -32,6 +33,20 @@ namespace stiffmd {
 
 // Throws InputError, naming the key, when [parallel] grid has another number of domains than ranks.
 void check_parallel_grid(const Scene& scene, int ranks);
+// Throws InputError, naming the key, for an output that a run on several ranks does not write:
+// the state CSV (output.state), whose rows hold every particle (docs/parallel.md, "Outputs").
+void check_parallel_outputs(const Scene& scene, int ranks);
+
+// A rank's block of particles (engine/io/particle_blocks.hpp) of the whole system's state and of
+// the integrator's carried columns, and the whole integrator's words as runs: what a checkpoint
+// written by every rank takes (engine/run/checkpoint.hpp), without the state gathered anywhere.
+struct StateBlock {
+  ParticleBlock block;
+  Eigen::Matrix3Xd x, v;
+  Eigen::VectorXd inv_mass;
+  std::vector<Eigen::Matrix3Xd> columns;  // CarriedState::columns, the block's rows
+  std::vector<WordRun> words;             // save_state() of the whole system, columns by index
+};
 
 class DomainIntegrator final : public Integrator {
  public:
@@ -55,6 +70,9 @@ class DomainIntegrator final : public Integrator {
   // number of ranks, and on one as the same run.
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& w) override { whole_->load_state(w); }
+  // This rank's block of the state `whole` (current on every rank before the first step) and of
+  // the carried columns, and the words save_state() would give as runs (collective).
+  StateBlock state_block(const State& whole) const;
 
   // Rank 0's whole.x, whole.v become the system's current state (collective; nothing before the
   // first step: the whole state is then current on every rank).

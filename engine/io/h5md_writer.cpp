@@ -45,6 +45,7 @@
 
 #include "core/communicator.hpp"
 #include "core/errors.hpp"
+#include "engine/io/particle_blocks.hpp"
 
 namespace stiffmd {
 namespace {
@@ -445,8 +446,7 @@ struct H5mdWriter::Impl {
   // A shared file: this process's block of particles (block_rows), its x, v, f, and the exchange
   // that brings them there (to_block).
   Eigen::Matrix3Xd block_x, block_v, block_f;
-  std::vector<std::vector<double>> send, received;
-  std::vector<char> filled;                        // to_block: the block's rows received
+  BlockExchange exchange;                          // to_block's buffers
   std::vector<double> shared_scalars, shared_obs;  // rank 0's time and observables, broadcast
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
@@ -843,53 +843,34 @@ std::vector<Series*> H5mdWriter::Impl::all_series() {
 
 // ---- one frame ----
 
-// The particles process `rank` of a shared file writes: [first, first + count), N/P of them.
+// The particles process `rank` of a shared file writes: its block (engine/io/particle_blocks.hpp).
 std::pair<hsize_t, hsize_t> H5mdWriter::Impl::block_rows(int rank) const {
-  const auto n = static_cast<hsize_t>(setup.num_particles), p = static_cast<hsize_t>(setup.processes->size());
-  const hsize_t first = n * static_cast<hsize_t>(rank) / p, end = n * static_cast<hsize_t>(rank + 1) / p;
-  return {first, end - first};
+  const ParticleBlock b = block_of(setup.num_particles, setup.processes->size(), rank);
+  return {static_cast<hsize_t>(b.first), static_cast<hsize_t>(b.count)};
 }
 
-// Each process's rows (global indices ids, any set) go to the process whose block holds them, in
-// one exchange, so that every process writes one contiguous block: a single hyperslab, which HDF5
-// maps onto the chunks at once, where a union of runs (a rank's molecules) it maps element by
-// element — measured 25× slower (docs/parallel.md).
+// Each process's rows go to the process whose block holds them, in one exchange, so that every
+// process writes one contiguous block: a single hyperslab, which HDF5 maps onto the chunks at
+// once, where a union of runs (a rank's molecules) it maps element by element — measured 25×
+// slower (docs/parallel.md).
 void H5mdWriter::Impl::to_block(const std::vector<int>& ids, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
                                 const Eigen::Matrix3Xd* f) {
-  const Communicator& comm = *setup.processes;
-  const int p = comm.size();
-  const auto n = static_cast<hsize_t>(setup.num_particles);
-  const int record = 4 + (setup.velocity ? 3 : 0) + (setup.force ? 3 : 0);  // id, x, v, f
-  send.resize(p);
-  for (auto& buffer : send) buffer.clear();
-  for (std::size_t k = 0; k < ids.size(); ++k) {
-    // The owner of row g: the largest r with first(r) = ⌊n r / p⌋ ≤ g, i.e. n r / p < g + 1,
-    // r = ⌊((g + 1) p − 1) / n⌋.
-    const auto g = static_cast<hsize_t>(ids[k]);
-    if (ids[k] < 0 || g >= n) throw std::invalid_argument("H5mdWriter::write_frame: a particle index out of range");
-    std::vector<double>& b = send[((g + 1) * static_cast<hsize_t>(p) - 1) / n];
-    b.push_back(static_cast<double>(ids[k]));
-    b.insert(b.end(), x.col(k).data(), x.col(k).data() + 3);
-    if (setup.velocity) b.insert(b.end(), v->col(k).data(), v->col(k).data() + 3);
-    if (setup.force) b.insert(b.end(), f->col(k).data(), f->col(k).data() + 3);
+  const auto count = static_cast<Eigen::Index>(block_rows(setup.processes->rank()).second);
+  block_x.resize(3, count);
+  std::vector<BlockArray> arrays = {{x.data(), block_x.data(), 3}};
+  if (setup.velocity) {
+    block_v.resize(3, count);
+    arrays.push_back({v->data(), block_v.data(), 3});
   }
-  comm.exchange(send, received);
-  const auto [first, count] = block_rows(comm.rank());
-  block_x.resize(3, static_cast<Eigen::Index>(count));
-  if (setup.velocity) block_v.resize(3, static_cast<Eigen::Index>(count));
-  if (setup.force) block_f.resize(3, static_cast<Eigen::Index>(count));
-  filled.assign(count, 0);
-  for (const std::vector<double>& b : received)
-    for (std::size_t at = 0; at < b.size(); at += static_cast<std::size_t>(record)) {
-      const auto row = static_cast<Eigen::Index>(static_cast<hsize_t>(b[at]) - first);
-      if (filled[row]++) throw std::invalid_argument("H5mdWriter::write_frame: a particle on two processes");
-      block_x.col(row) = Eigen::Vector3d(b[at + 1], b[at + 2], b[at + 3]);
-      std::size_t next = at + 4;
-      if (setup.velocity) block_v.col(row) = Eigen::Vector3d(b[next], b[next + 1], b[next + 2]), next += 3;
-      if (setup.force) block_f.col(row) = Eigen::Vector3d(b[next], b[next + 1], b[next + 2]);
-    }
-  if (std::find(filled.begin(), filled.end(), 0) != filled.end())
-    throw std::invalid_argument("H5mdWriter::write_frame: a particle on no process");
+  if (setup.force) {
+    block_f.resize(3, count);
+    arrays.push_back({f->data(), block_f.data(), 3});
+  }
+  try {
+    exchange.run(*setup.processes, setup.num_particles, ids, arrays);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string("H5mdWriter::write_frame: ") + e.what());
+  }
 }
 
 void H5mdWriter::Impl::write_frame(std::int64_t step_number, double t, const Eigen::Matrix3Xd& x,

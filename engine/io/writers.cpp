@@ -146,24 +146,37 @@ void XyzWriter::set_box(const Box& box) {
 }
 
 void XyzWriter::write(const State& s) {
+  begin_frame(s.size(), s.t, s.step);
+  write_rows(0, s.size(), s.x.data(), s.v.data());
+}
+
+void XyzWriter::begin_frame(int n, double t, std::int64_t step) {
   char line[256];
   buffer_.clear();
-  std::snprintf(line, sizeof line, "%d\n", s.size());
+  std::snprintf(line, sizeof line, "%d\n", n);
   buffer_ += line;
   buffer_ += header_;
-  std::snprintf(line, sizeof line, " time=%.12g step=%lld\n", s.t * time_scale_, static_cast<long long>(s.step));
+  std::snprintf(line, sizeof line, " time=%.12g step=%lld\n", t * time_scale_, static_cast<long long>(step));
   buffer_ += line;
-  for (int i = 0; i < s.size(); ++i) {
-    int k =
-        std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), s.x(0, i), s.x(1, i), s.x(2, i));
-    if (!masses_.empty()) k += std::snprintf(line + k, sizeof line - k, " %.12g", masses_[static_cast<size_t>(i)]);
-    if (velocities_)
-      k += std::snprintf(line + k, sizeof line - k, " %.12g %.12g %.12g", s.v(0, i) * velocity_scale_,
-                         s.v(1, i) * velocity_scale_, s.v(2, i) * velocity_scale_);
-    buffer_.append(line, static_cast<size_t>(k));
+}
+
+void XyzWriter::write_rows(int first, int count, const double* x, const double* v) {
+  char line[256];
+  for (int k = 0; k < count; ++k) {
+    const std::size_t i = static_cast<std::size_t>(first + k);
+    const double* xk = x + 3 * k;
+    int c = std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), xk[0], xk[1], xk[2]);
+    if (!masses_.empty()) c += std::snprintf(line + c, sizeof line - c, " %.12g", masses_[i]);
+    if (velocities_) {
+      const double* vk = v + 3 * k;
+      c += std::snprintf(line + c, sizeof line - c, " %.12g %.12g %.12g", vk[0] * velocity_scale_,
+                         vk[1] * velocity_scale_, vk[2] * velocity_scale_);
+    }
+    buffer_.append(line, static_cast<size_t>(c));
     buffer_ += '\n';
   }
   file_.write(buffer_);
+  buffer_.clear();
 }
 
 CsvWriter::CsvWriter(const std::string& path, const std::vector<std::string>& columns, bool append)

@@ -53,6 +53,12 @@ class XyzWriter {
     time_scale_ = time_scale, velocity_scale_ = velocity_scale;
   }
   void write(const State& s);
+  // A frame written in pieces, in order of global index (a decomposed run's rank 0 streams it in
+  // blocks: engine/run/outputs.cpp): the frame's first two lines, then the lines of particles
+  // [first, first + count) (x, and v when the frame has velocities: 3 × count, column-major), each
+  // piece written as it comes. write(s) is begin_frame, one write_rows, the same bytes.
+  void begin_frame(int n, double t, std::int64_t step);
+  void write_rows(int first, int count, const double* x, const double* v);
   // The box of the frames written from now on (a barostat moves it): their Lattice and Origin.
   void set_box(const Box& box);
 

@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <span>
 #include <sstream>
 #include <system_error>
 
@@ -43,11 +44,21 @@ std::uint32_t crc32_of(std::uint32_t crc, const char* p, std::size_t n) {
 
 // A host-byte-order binary image; checkpoints are for restarting on a machine of the same byte
 // order and double format (checked when read), not for archiving (the trajectory formats are).
+//
+// One piece of the image: consecutive bytes from `offset` on, written through a 64 KiB buffer
+// (the whole image is never held in memory: a checkpoint of a large system would otherwise double
+// the run's peak memory at its end), its crc32 computed as it goes.
+struct Piece {
+  std::uint64_t offset = 0, length = 0;
+  std::uint32_t crc = 0;
+};
+
 class Writer {
  public:
-  // Writes through a 64 KiB buffer to fd (the whole image is never held in memory: a checkpoint
-  // of a large system would otherwise double the run's peak memory at its end).
-  Writer(int fd, std::string path) : fd_(fd), path_(std::move(path)) { buf_.reserve(kBuffer); }
+  Writer(int fd, std::uint64_t offset) : fd_(fd) {
+    piece_.offset = offset;
+    buf_.reserve(kBuffer);
+  }
   template <class T>
   void put(const T& v) {
     append(reinterpret_cast<const char*>(&v), sizeof(T));
@@ -56,30 +67,35 @@ class Writer {
     put<std::uint64_t>(s.size());
     append(s.data(), s.size());
   }
-  void put(const double* d, size_t n) {
+  void put(const double* d, size_t n) {  // a block: its count, then its values
     put<std::uint64_t>(n);
-    append(reinterpret_cast<const char*>(d), n * sizeof(double));
+    put_values(d, n);
   }
-  std::uint64_t written() const { return total_; }  // bytes put so far
-  std::uint32_t crc() const { return crc_; }        // of the bytes flushed so far
+  void put_values(const double* d, size_t n) { append(reinterpret_cast<const char*>(d), n * sizeof(double)); }
+  // Everything put, written: the piece.
+  Piece done() {
+    flush();
+    return piece_;
+  }
+
+ private:
+  static constexpr size_t kBuffer = 1 << 16;
   void flush() {
-    crc_ = crc32_of(crc_, buf_.data(), buf_.size());
+    piece_.crc = crc32_of(piece_.crc, buf_.data(), buf_.size());
     size_t done = 0;
     while (done < buf_.size()) {
-      const ssize_t k = ::write(fd_, buf_.data() + done, buf_.size() - done);
+      const ssize_t k = ::pwrite(fd_, buf_.data() + done, buf_.size() - done,
+                                 static_cast<off_t>(piece_.offset + piece_.length + done));
       if (k < 0) {
         if (errno == EINTR) continue;
         throw std::system_error(errno, std::generic_category(), "write");
       }
       done += static_cast<size_t>(k);
     }
+    piece_.length += buf_.size();
     buf_.clear();
   }
-
- private:
-  static constexpr size_t kBuffer = 1 << 16;
   void append(const char* p, size_t n) {
-    total_ += n;
     while (n > 0) {
       const size_t k = std::min(n, kBuffer - buf_.size());
       buf_.insert(buf_.end(), p, p + k);
@@ -89,11 +105,108 @@ class Writer {
     }
   }
   int fd_;
-  std::string path_;
   std::vector<char> buf_;
-  std::uint64_t total_ = 0;
-  std::uint32_t crc_ = 0;
+  Piece piece_;
 };
+
+// The integrator's words as runs: spans of words, or a carried column (3 N words) by index.
+struct Run {
+  std::span<const double> words;
+  int column = -1;
+};
+
+// Where the sections of the image start (checkpoint.hpp), from what every process knows: N, the
+// method's and the stage's names, the integrator's runs. x, v, inv_mass, integrator: the offset
+// of the block's count word; column: of each carried column's first word; tail: of the thermo
+// block, from which rank 0 writes the rest.
+struct Layout {
+  std::uint64_t x = 0, v = 0, inv_mass = 0, integrator = 0, integrator_words = 0, tail = 0;
+  std::vector<std::uint64_t> column;
+};
+
+Layout layout_of(std::uint64_t n, const Checkpoint& c, std::span<const Run> runs) {
+  Layout l;
+  // particle count, step, t, h; the method (length + bytes); the stage (number; length + bytes)
+  l.x = kHeader + 4 * 8 + 8 + c.method.size() + 8 + 8 + c.stage_name.size();
+  l.v = l.x + 8 + 24 * n;
+  l.inv_mass = l.v + 8 + 24 * n;
+  l.integrator = l.inv_mass + 8 + 8 * n;
+  std::uint64_t at = l.integrator + 8;
+  for (const Run& r : runs) {
+    if (r.column >= 0) {
+      if (l.column.size() <= static_cast<size_t>(r.column)) l.column.resize(static_cast<size_t>(r.column) + 1, 0);
+      l.column[static_cast<size_t>(r.column)] = at;
+      l.integrator_words += 3 * n;
+      at += 24 * n;
+    } else {
+      l.integrator_words += r.words.size();
+      at += 8 * r.words.size();
+    }
+  }
+  l.tail = at;
+  return l;
+}
+
+// This process's pieces of the image (but the header): its block of every per-particle array,
+// and on rank 0 everything between them. Throws std::system_error on a failed write.
+std::vector<Piece> write_pieces(int fd, bool root, std::uint64_t n, std::int64_t step, double t, ParticleBlock b,
+                                const double* x, const double* v, const double* inv_mass,
+                                const std::vector<const double*>& columns, std::span<const Run> runs,
+                                const Checkpoint& c) {
+  const Layout l = layout_of(n, c, runs);
+  std::vector<Piece> pieces;
+  auto rows = [&](std::uint64_t at, const double* values, int per_particle) {
+    if (b.count == 0) return;
+    Writer w(fd, at + 8 * static_cast<std::uint64_t>(per_particle * b.first));
+    w.put_values(values, static_cast<size_t>(per_particle * b.count));
+    pieces.push_back(w.done());
+  };
+  rows(l.x + 8, x, 3);
+  rows(l.v + 8, v, 3);
+  rows(l.inv_mass + 8, inv_mass, 1);
+  for (size_t k = 0; k < l.column.size(); ++k) rows(l.column[k], columns.at(k), 3);
+  if (!root) return pieces;
+
+  auto count_word = [&](std::uint64_t at, std::uint64_t words) {
+    Writer w(fd, at);
+    w.put<std::uint64_t>(words);
+    pieces.push_back(w.done());
+  };
+  Writer head(fd, kHeader);
+  head.put<std::int64_t>(static_cast<std::int64_t>(n));
+  head.put<std::int64_t>(step);
+  head.put<double>(t);
+  head.put<double>(c.h);
+  head.put(c.method);
+  head.put<std::int64_t>(c.stage);
+  head.put(c.stage_name);
+  head.put<std::uint64_t>(3 * n);
+  pieces.push_back(head.done());
+  count_word(l.v, 3 * n);
+  count_word(l.inv_mass, n);
+  count_word(l.integrator, l.integrator_words);
+  std::uint64_t at = l.integrator + 8;
+  for (const Run& r : runs) {
+    if (r.column >= 0) {
+      at += 24 * n;
+    } else if (!r.words.empty()) {
+      Writer w(fd, at);
+      w.put_values(r.words.data(), r.words.size());
+      pieces.push_back(w.done());
+      at += 8 * r.words.size();
+    }
+  }
+  Writer tail(fd, l.tail);
+  for (const std::vector<double>* block : {&c.thermo_state, &c.monitor_state, &c.run_state})
+    tail.put(block->data(), block->size());
+  const double box[6] = {c.box.origin[0],  c.box.origin[1],  c.box.origin[2],
+                         c.box.lengths[0], c.box.lengths[1], c.box.lengths[2]};
+  tail.put(box, 6);
+  tail.put<std::uint64_t>(c.force_term_states.size());
+  for (const std::vector<double>& block : c.force_term_states) tail.put(block.data(), block.size());
+  pieces.push_back(tail.done());
+  return pieces;
+}
 
 class Reader {
  public:
@@ -206,72 +319,125 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
   return r.value();
 }
 
-void write_checkpoint(const std::string& path, const State& state, const Checkpoint& c) {
-  // Temporary file in the same directory, fsync, rename over the old one, fsync the directory.
-  // The body streams through the writer (computing its crc32) after a placeholder header; the
-  // header, which holds the length and the crc32 of everything after its first 12 bytes, is
-  // written last.
-  const std::string tmp = path + ".tmp";
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  if (fd < 0) fail_io(path, "create");
-  try {
-    if (::lseek(fd, static_cast<off_t>(kHeader), SEEK_SET) < 0)
-      throw std::system_error(errno, std::generic_category(), "seek");
-    Writer w(fd, path);
-    w.put<std::int64_t>(state.size());
-    w.put<std::int64_t>(state.step);
-    w.put<double>(state.t);
-    w.put<double>(c.h);
-    w.put(c.method);
-    w.put<std::int64_t>(c.stage);
-    w.put(c.stage_name);
-    w.put(state.x.data(), static_cast<size_t>(state.x.size()));
-    w.put(state.v.data(), static_cast<size_t>(state.v.size()));
-    w.put(state.inv_mass.data(), static_cast<size_t>(state.inv_mass.size()));
-    for (const std::vector<double>* block : {&c.integrator_state, &c.thermo_state, &c.monitor_state, &c.run_state})
-      w.put(block->data(), block->size());
-    const double box[6] = {c.box.origin[0],  c.box.origin[1],  c.box.origin[2],
-                           c.box.lengths[0], c.box.lengths[1], c.box.lengths[2]};
-    w.put(box, 6);
-    w.put<std::uint64_t>(c.force_term_states.size());
-    for (const std::vector<double>& block : c.force_term_states) w.put(block.data(), block.size());
-    w.flush();
+namespace {
 
-    std::array<char, kHeader> head{};
-    std::memcpy(head.data(), kMagic, sizeof kMagic);
-    put_raw<std::uint32_t>(head, 12, kCheckpointVersion);
-    put_raw<std::uint32_t>(head, 16, kByteOrderMark);
-    put_raw<std::uint32_t>(head, 20, sizeof(double));
-    put_raw<std::uint64_t>(head, 24, kHeader + w.written());
-    put_raw<std::uint64_t>(head, 32, c.scene_fingerprint);
-    const std::uint32_t head_crc = crc32_of(0, head.data() + kCrcFrom, kHeader - kCrcFrom);
-    put_raw<std::uint32_t>(
-        head, 8, static_cast<std::uint32_t>(::crc32_combine(head_crc, w.crc(), static_cast<z_off_t>(w.written()))));
-    for (size_t done = 0; done < head.size();) {
-      const ssize_t k = ::pwrite(fd, head.data() + done, head.size() - done, static_cast<off_t>(done));
-      if (k < 0) {
-        if (errno == EINTR) continue;
-        throw std::system_error(errno, std::generic_category(), "write");
-      }
-      done += static_cast<size_t>(k);
+// The header (magic, version, byte order, double size, length, fingerprint, the crc32 of bytes 12
+// … end: the header's own, combined with the pieces' in file order), written over the first
+// kHeader bytes. The pieces must tile [kHeader, end).
+void write_header(int fd, const std::string& path, std::vector<Piece> pieces, std::uint64_t fingerprint) {
+  std::sort(pieces.begin(), pieces.end(), [](const Piece& a, const Piece& b) { return a.offset < b.offset; });
+  std::uint64_t end = kHeader;
+  for (const Piece& p : pieces) {
+    if (p.offset != end)
+      throw InputError(path +
+                       ": cannot write checkpoint: the processes' pieces do not tile the file (a gap or an "
+                       "overlap at byte " +
+                       std::to_string(end) + ")");
+    end += p.length;
+  }
+  std::array<char, kHeader> head{};
+  std::memcpy(head.data(), kMagic, sizeof kMagic);
+  put_raw<std::uint32_t>(head, 12, kCheckpointVersion);
+  put_raw<std::uint32_t>(head, 16, kByteOrderMark);
+  put_raw<std::uint32_t>(head, 20, sizeof(double));
+  put_raw<std::uint64_t>(head, 24, end);
+  put_raw<std::uint64_t>(head, 32, fingerprint);
+  auto crc = static_cast<uLong>(crc32_of(0, head.data() + kCrcFrom, kHeader - kCrcFrom));
+  for (const Piece& p : pieces) crc = ::crc32_combine(crc, p.crc, static_cast<z_off_t>(p.length));
+  put_raw<std::uint32_t>(head, 8, static_cast<std::uint32_t>(crc));
+  for (size_t done = 0; done < head.size();) {
+    const ssize_t k = ::pwrite(fd, head.data() + done, head.size() - done, static_cast<off_t>(done));
+    if (k < 0) {
+      if (errno == EINTR) continue;
+      fail_io(path, "write");
     }
-  } catch (const std::system_error& e) {
-    ::close(fd);
-    ::unlink(tmp.c_str());
-    errno = e.code().value();
-    fail_io(path, "write");
+    done += static_cast<size_t>(k);
   }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
-    ::unlink(tmp.c_str());
-    fail_io(path, "sync");
+}
+
+// The file written by every process: rank 0 creates the temporary file; each process writes its
+// pieces into it and syncs them; rank 0 writes the header from every piece's crc32, syncs, renames
+// it over the old file and syncs the directory. Each step ends in an agreement (core/
+// communicator.hpp `agree`: every process reaches every collective call, and a failure on one
+// ends every one with its message). With one process, the same steps without agreements.
+void write_together(const std::string& path, const Communicator& comm, std::uint64_t n, std::int64_t step, double t,
+                    ParticleBlock b, const double* x, const double* v, const double* inv_mass,
+                    const std::vector<const double*>& columns, std::span<const Run> runs, const Checkpoint& c) {
+  const std::string tmp = path + ".tmp";
+  const bool root = comm.root();
+  int fd = -1;
+  try {
+    agree(&comm, [&] {
+      if (!root) return;
+      fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (fd < 0) fail_io(path, "create");
+    });
+    std::vector<Piece> pieces;
+    agree(&comm, [&] {
+      if (!root && (fd = ::open(tmp.c_str(), O_WRONLY)) < 0) fail_io(path, "open");
+      try {
+        pieces = write_pieces(fd, root, n, step, t, b, x, v, inv_mass, columns, runs, c);
+      } catch (const std::system_error& e) {
+        errno = e.code().value();
+        fail_io(path, "write");
+      }
+      if (!root) {
+        const bool synced = ::fsync(fd) == 0;
+        const bool closed = ::close(fd) == 0;
+        fd = -1;
+        if (!synced || !closed) fail_io(path, "sync");
+      }
+    });
+    // Every process's pieces on rank 0: offset, length, crc32 (each exact in a double).
+    std::vector<double> mine;
+    for (const Piece& p : pieces)
+      mine.insert(mine.end(),
+                  {static_cast<double>(p.offset), static_cast<double>(p.length), static_cast<double>(p.crc)});
+    std::vector<std::vector<double>> all;
+    comm.gather(mine, all);
+    agree(&comm, [&] {
+      if (!root) return;
+      std::vector<Piece> every;
+      for (const std::vector<double>& words : all)
+        for (size_t k = 0; k + 3 <= words.size(); k += 3)
+          every.push_back({static_cast<std::uint64_t>(words[k]), static_cast<std::uint64_t>(words[k + 1]),
+                           static_cast<std::uint32_t>(words[k + 2])});
+      write_header(fd, path, std::move(every), c.scene_fingerprint);
+      const bool synced = ::fsync(fd) == 0;
+      const bool closed = ::close(fd) == 0;
+      fd = -1;
+      if (!synced || !closed) fail_io(path, "sync");
+      if (std::rename(tmp.c_str(), path.c_str()) != 0) fail_io(path, "rename");
+      const std::string dir = std::filesystem::path(path).parent_path().string();
+      const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY);
+      if (dfd >= 0) {
+        ::fsync(dfd);
+        ::close(dfd);
+      }
+    });
+  } catch (...) {
+    if (fd >= 0) ::close(fd);
+    if (root) ::unlink(tmp.c_str());
+    throw;
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) fail_io(path, "rename");
-  const std::string dir = std::filesystem::path(path).parent_path().string();
-  const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+}
+
+}  // namespace
+
+void write_checkpoint(const std::string& path, const State& state, const Checkpoint& c) {
+  static const OneProcess one;
+  const auto n = static_cast<std::uint64_t>(state.size());
+  const Run words[1] = {{std::span<const double>(c.integrator_state), -1}};
+  write_together(path, one, n, state.step, state.t, {0, state.size()}, state.x.data(), state.v.data(),
+                 state.inv_mass.data(), {}, words, c);
+}
+
+void write_checkpoint(const std::string& path, const Communicator& processes, const CheckpointBlock& mine,
+                      const Checkpoint& rest) {
+  std::vector<Run> runs;
+  for (const WordRun& r : *mine.integrator) runs.push_back({std::span<const double>(r.words), r.column});
+  write_together(path, processes, static_cast<std::uint64_t>(mine.num_particles), rest.state.step, rest.state.t,
+                 mine.block, mine.x, mine.v, mine.inv_mass, mine.columns, runs, rest);
 }
 
 Checkpoint read_checkpoint(const std::string& path) {

@@ -29,6 +29,10 @@
 //                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
 //                monitor, run statistics, box (6), then a u64 count of force terms and one block each.
 // Written atomically — to a temporary file, fsync, rename — so a checkpoint on disk is whole.
+// A decomposed run's processes write it together (docs/parallel.md, "Outputs"): each its block of
+// particles (engine/io/particle_blocks.hpp) of every per-particle array at the array's offset,
+// which N and the lengths of the method's and stage's names fix; rank 0 the rest; the crc32 is
+// combined from the pieces' (zlib crc32_combine) in file order. The bytes are one process's.
 #pragma once
 
 #include <cstdint>
@@ -36,7 +40,10 @@
 #include <vector>
 
 #include "core/box.hpp"
+#include "core/communicator.hpp"
 #include "core/state.hpp"
+#include "engine/io/particle_blocks.hpp"
+#include "integrators/integrator.hpp"
 
 namespace stiffmd {
 
@@ -78,6 +85,27 @@ void write_checkpoint(const std::string& path, const State& state, const Checkpo
 inline void write_checkpoint(const std::string& path, const Checkpoint& c) {
   write_checkpoint(path, c.state, c);
 }
+
+// A process's part of a checkpoint of a decomposed run: its block of the num_particles particles,
+// their x, v (3 × count each, column-major), inverse masses (count) and the integrator's carried
+// columns (3 × count each, CarriedState::columns' order), and the whole integrator's words as
+// runs (Integrator::save_state: the same on every process).
+struct CheckpointBlock {
+  std::int64_t num_particles = 0;
+  ParticleBlock block;
+  const double* x = nullptr;
+  const double* v = nullptr;
+  const double* inv_mass = nullptr;
+  std::vector<const double*> columns;
+  const std::vector<WordRun>* integrator = nullptr;
+};
+
+// The same file written by every process, each its block: `rest`'s step, time, method, h and
+// stage on every process, the rest (integrator_state and rest.state's arrays aside: `mine` has
+// them) on rank 0. Collective: an I/O failure on any process throws AgreedInputError (naming the
+// path) on every process, or InputError with one process.
+void write_checkpoint(const std::string& path, const Communicator& processes, const CheckpointBlock& mine,
+                      const Checkpoint& rest);
 
 // Throws InputError with one line naming the path and what is wrong: missing, not a checkpoint,
 // damaged (checksum), truncated, of another byte order, or of another format version.

@@ -164,6 +164,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
                        std::vector<std::string>& files, std::ostream& log, const Communicator* processes)
     : sc_(sc),
       dir_(out_dir),
+      processes_(processes),
       root_(!processes || processes->root()),
       shared_h5md_(processes && processes->size() > 1 && H5mdWriter::shared_files()),
       xyz_due_(sc.output.xyz_interval),
@@ -298,7 +299,7 @@ bool RunOutputs::due(double t, bool final) {
   return thermo_now_ || h5md_now_;
 }
 
-void RunOutputs::write(const State& s, const std::vector<double>& row, const ProcessRows* mine) {
+void RunOutputs::write(const State& s, const std::vector<double>& row, const ProcessRows* mine, bool xyz_by_blocks) {
   // The row in the output's units (README "Units"), for the files and the terminal alike.
   if (root_ && (thermo_now_ || h5md_now_)) written_ = table_(row);
   if (thermo_now_ && thermo_) thermo_->write(written_);
@@ -308,8 +309,47 @@ void RunOutputs::write(const State& s, const std::vector<double>& row, const Pro
     if (xyz_) xyz_->set_box(box);
   }
   if (h5md_now_ && h5md_) write_h5md(s, mine);
-  if (xyz_now_) xyz_->write(s);
+  if (xyz_by_blocks)
+    write_xyz_by_blocks(s, *mine);
+  else if (xyz_now_)
+    xyz_->write(s);
   if (state_now_) write_state(s);
+}
+
+// Rank 0 writes the frame as it gets it: for each block of kBlock consecutive global indices, every
+// rank's rows in it (its ids increase: one pass over them for the whole frame) in one gather. Rank
+// 0 holds one block's rows, the other ranks theirs; a frame of N particles costs N / kBlock
+// gathers.
+void RunOutputs::write_xyz_by_blocks(const State& s, const ProcessRows& mine) {
+  constexpr int kBlock = 1024;  // 57 kB of rows per gather
+  const Communicator& comm = *processes_;
+  const int n = s.size();
+  const int record = 7;  // global index, x, v
+  if (root_) xyz_->begin_frame(n, s.t, s.step);
+  std::vector<double> rows;
+  std::vector<std::vector<double>> all;
+  Eigen::Matrix3Xd x, v;
+  std::size_t k = 0;
+  for (int first = 0; first < n; first += kBlock) {
+    const int end = std::min(n, first + kBlock);
+    rows.clear();
+    for (; k < mine.ids.size() && mine.ids[k] < end; ++k) {
+      const auto c = static_cast<Eigen::Index>(k);
+      rows.insert(rows.end(), {static_cast<double>(mine.ids[k]), mine.x(0, c), mine.x(1, c), mine.x(2, c), mine.v(0, c),
+                               mine.v(1, c), mine.v(2, c)});
+    }
+    comm.gather(rows, all);
+    if (!root_) continue;
+    x.resize(3, end - first);
+    v.resize(3, end - first);
+    for (const std::vector<double>& b : all)
+      for (std::size_t at = 0; at + record <= b.size(); at += record) {
+        const auto col = static_cast<Eigen::Index>(b[at]) - first;
+        x.col(col) = Eigen::Vector3d(b[at + 1], b[at + 2], b[at + 3]);
+        v.col(col) = Eigen::Vector3d(b[at + 4], b[at + 5], b[at + 6]);
+      }
+    xyz_->write_rows(first, end - first, x.data(), v.data());
+  }
 }
 
 // Rank 0's observables; the particles' rows from `mine` (a shared file), else the whole state s

@@ -75,7 +75,13 @@ class RunOutputs {
   // Writes what the last due() found due; `row` is the thermo sample when one was due (rank 0's).
   // Called by rank 0 alone, or by every rank when shares_frame(): `mine` its particles (null
   // before the run is distributed: the whole state is then rank 0's to write).
-  void write(const State& s, const std::vector<double>& row, const ProcessRows* mine = nullptr);
+  // `xyz_by_blocks` (every rank alike, with `mine`): the XYZ frame of the ranks' rows, which rank 0
+  // gets in blocks of consecutive global indices and writes block by block, holding one: not
+  // written from s, nor gathered (collective).
+  void write(const State& s, const std::vector<double>& row, const ProcessRows* mine = nullptr,
+             bool xyz_by_blocks = false);
+  // Whether the last due() found an XYZ frame due (rank 0's file).
+  bool xyz_due() const { return xyz_now_; }
   // Whether the last due() found an H5MD frame that every rank writes a part of.
   bool shares_frame() const { return h5md_now_ && shared_h5md_; }
   // The processes that write the H5MD file: all of a decomposed run's (parallel HDF5), else one;
@@ -86,7 +92,10 @@ class RunOutputs {
   bool thermo_sampled() const { return thermo_now_; }
   // Whether what the last due() found due is written from the whole state on rank 0 (XYZ, the
   // state file, an H5MD frame not shared among the ranks).
-  bool needs_whole_state() const { return xyz_now_ || state_now_ || (h5md_now_ && !shared_h5md_); }
+  // `xyz_by_blocks`: the XYZ frame is streamed from the ranks' rows (write), not written from it.
+  bool needs_whole_state(bool xyz_by_blocks) const {
+    return (xyz_now_ && !xyz_by_blocks) || state_now_ || (h5md_now_ && !shared_h5md_);
+  }
   // The thermo columns as written (normalised with [output] thermo_norm, in the deck's units), and the
   // last row written.
   const ThermoOutput& thermo_table() const { return table_; }
@@ -105,9 +114,11 @@ class RunOutputs {
  private:
   void write_state(const State& s);
   void write_h5md(const State& s, const ProcessRows* mine);
+  void write_xyz_by_blocks(const State& s, const ProcessRows& mine);
 
   Scene& sc_;
   std::string dir_;
+  const Communicator* processes_ = nullptr;  // a decomposed run's
   bool root_ = true, shared_h5md_ = false;
   int h5md_writers_ = 0;
   std::unique_ptr<XyzWriter> xyz_;

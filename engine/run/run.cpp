@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <optional>
@@ -228,7 +229,9 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   first_step_ = s_.step + 1;
   progress_ = std::make_unique<Progress>(opt.progress, final_step_ - s_.step);
   fingerprint_ = scene_fingerprint(sc);
-  writes_checkpoints_ = agreed(!outputs_->checkpoint_path().empty()) != 0;
+  checkpoint_path_ = outputs_->checkpoint_path();  // rank 0's, on every rank: they write it together
+  if (domain_) opt.processes->broadcast(checkpoint_path_, 0);
+  writes_checkpoints_ = !checkpoint_path_.empty();
 
   observe();
   summary_.initial_energy = thermo_.initial_energy();
@@ -430,24 +433,29 @@ const std::vector<double>& Run::sample() {
 void Run::observe(bool final) {
   const ScopedPhase phase(Phase::output);
   bool sampled = outputs_->due(s_.t, final);
+  bool xyz_by_blocks = false;
   next_observe_ = outputs_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
   if (domain_) {  // rank 0's outputs decide; the others take part in the gather and the sums
     // The whole state, gathered on rank 0: for the files it writes from it, the final state, a
     // sample that cannot be summed by parts, and the state the [monitor] keeps.
-    const bool whole = outputs_->needs_whole_state() || final || (sampled && (!sampled_by_parts() || monitor_.stops()));
-    const std::int64_t due = agreed((sampled ? 1 : 0) | (whole ? 2 : 0));
+    // An XYZ frame of a distributed run is streamed from the ranks' rows (RunOutputs::write).
+    const bool stream = outputs_->xyz_due() && domain_->distributed();
+    const bool whole =
+        outputs_->needs_whole_state(stream) || final || (sampled && (!sampled_by_parts() || monitor_.stops()));
+    const std::int64_t due = agreed((sampled ? 1 : 0) | (whole ? 2 : 0) | (stream ? 4 : 0));
     sampled = (due & 1) != 0;
+    xyz_by_blocks = (due & 4) != 0;
     if ((due & 2) != 0) domain_->gather(s_);
   }
   if (sampled) sample();
-  if (domain_ && outputs_->shares_frame()) {  // every rank writes its particles' rows of the H5MD frame
+  if (domain_ && (outputs_->shares_frame() || xyz_by_blocks)) {  // every rank writes its particles' rows
     std::optional<ProcessRows> mine;
     if (domain_->distributed()) {
-      if (sc_.output.h5md_force) domain_->owned_forces(owned_force_);
+      if (outputs_->shares_frame() && sc_.output.h5md_force) domain_->owned_forces(owned_force_);
       mine.emplace(
           ProcessRows{domain_->owned_ids(), domain_->owned_state().x, domain_->owned_state().v, &owned_force_});
     }
-    outputs_->write(s_, last_row_, mine ? &*mine : nullptr);
+    outputs_->write(s_, last_row_, mine ? &*mine : nullptr, xyz_by_blocks);
   } else if (root()) {
     outputs_->write(s_, last_row_);
   }
@@ -512,12 +520,18 @@ long Run::rebuilds_now() const {
   return stats_.neighbor_rebuilds + r - rebuilds_at_start_;
 }
 
-// Everything but the state that a restart needs (checkpoint.hpp), as of now.
-Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
+// What the checkpoint's prefix names: the method, h and the stage (the same on every rank).
+Checkpoint& Run::identity(Checkpoint& c) const {
   c.method = sc_.integrator.method;
   c.h = h_;
   c.stage = sc_.stage.number;
   c.stage_name = sc_.stage.name;
+  return c;
+}
+
+// Everything but the state that a restart needs (checkpoint.hpp), as of now.
+Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
+  identity(c);
   c.scene_fingerprint = fingerprint_;
   c.integrator_state = std::move(integrator_state);
   c.force_term_states.clear();
@@ -532,12 +546,32 @@ Checkpoint& Run::snapshot(Checkpoint& c, std::vector<double> integrator_state) {
 void Run::write_checkpoint_now() {
   if (!writes_checkpoints_) return;
   const ScopedPhase phase(Phase::output);
-  if (domain_) domain_->gather(s_);
-  std::vector<double> words = integrator_->save_state();  // collective in a decomposed run
-  if (!root()) return;
-  const std::string& path = outputs_->checkpoint_path();
-  write_checkpoint(path, s_, snapshot(now_, std::move(words)));
-  summary_.checkpoint = path;
+  if (!domain_) {
+    write_checkpoint(checkpoint_path_, s_, snapshot(now_, integrator_->save_state()));
+    summary_.checkpoint = checkpoint_path_;
+    return;
+  }
+  // Tests (tests/test_domains.py): the same checkpoint beside it as one process writes it, from
+  // the state and carried columns gathered on rank 0, to compare the bytes with.
+  if (std::getenv("STIFFMD_GATHERED_CHECKPOINT")) {
+    domain_->gather(s_);
+    std::vector<double> words = integrator_->save_state();
+    Checkpoint gathered;
+    if (root()) write_checkpoint(checkpoint_path_ + ".gathered", s_, snapshot(gathered, std::move(words)));
+  }
+  // Every rank writes its block of the state and of the integrator's carried columns into the one
+  // file (engine/run/checkpoint.hpp); rank 0 the rest. Nothing is gathered.
+  const StateBlock b = domain_->state_block(s_);
+  if (root())
+    snapshot(now_, {});
+  else
+    identity(now_);
+  now_.state.step = s_.step;
+  now_.state.t = s_.t;
+  CheckpointBlock mine{s_.size(), b.block, b.x.data(), b.v.data(), b.inv_mass.data(), {}, &b.words};
+  for (const Eigen::Matrix3Xd& column : b.columns) mine.columns.push_back(column.data());
+  write_checkpoint(checkpoint_path_, *options_.processes, mine, now_);
+  if (root()) summary_.checkpoint = checkpoint_path_;
 }
 
 RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {

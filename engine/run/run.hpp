@@ -107,6 +107,7 @@ class Run {
   // The checkpoint's parts as of now, with the integrator's words (Integrator::save_state, which
   // every rank of a decomposed run computes together).
   Checkpoint& snapshot(Checkpoint& c, std::vector<double> integrator_state);
+  Checkpoint& identity(Checkpoint& c) const;  // the method, h, the stage: snapshot's part every rank knows
   void write_checkpoint_now();
   std::vector<std::int64_t> evaluations_now() const;
   long rebuilds_now() const;
@@ -130,7 +131,8 @@ class Run {
   Checkpoint resumed_;  // a restart's checkpoint (empty for a fresh run)
   std::unique_ptr<Integrator> integrator_;
   DomainIntegrator* domain_ = nullptr;  // integrator_ when the run is decomposed
-  bool writes_checkpoints_ = false;     // rank 0 has a checkpoint path (every rank gathers for it)
+  std::string checkpoint_path_;         // rank 0's, on every rank (they write it together)
+  bool writes_checkpoints_ = false;     // there is a checkpoint path
   Thermo thermo_;
   Monitor monitor_;
   RunStatistics stats_;

@@ -137,7 +137,11 @@ Protocol load_protocol(const Deck& base, std::vector<StageSpec> stages, int rank
   for (const StageSpec& spec : p.stages) {
     p.decks.push_back(stage_deck(base, spec));
     Scene sc = load_stage_scene(*p.decks.back(), spec);
-    if (ranks > 1) in_stage(spec.identity, [&] { check_parallel_grid(sc, ranks); });
+    if (ranks > 1)
+      in_stage(spec.identity, [&] {
+        check_parallel_grid(sc, ranks);
+        check_parallel_outputs(sc, ranks);
+      });
     // What a stage may set cannot change the scene (read_stages): the state passed on fits.
     const std::uint64_t fingerprint = scene_fingerprint(sc);
     if (spec.identity.number == 1) first = fingerprint;
