@@ -571,10 +571,60 @@ void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std
 // touched while in cache; chain runs go through chain_stream, without the work list. Particles
 // another owner reads (the halo: ends of bonds between owners) are advanced first, serially: their
 // x is then final before any owner reads it, and no two threads write one particle.
+//
+// A system of at most kSmallFusedParticles particles takes two plain passes instead
+// (small_kick_drift_bond_forces): its x, v and f are a few cache lines, so there is no traffic for
+// the one pass to save, and the partition's segments, the halo tests and the chain-run bookkeeping
+// cost more than the bonds themselves (the double pendulum's velocity Verlet step:
+// docs/performance.md, "The run loop's cost per step").
+inline constexpr std::int64_t kSmallFusedParticles = 16;
+
+// The small systems' fused micro step: kick_drift and f = 0 for every particle, then each bond in
+// order, its force added to both ends (bond_block's operations on few bonds, the energy not
+// computed) — the plain path's operations in its order, so its bits. At most kSmallFusedParticles
+// particles, so fewer bonds than kParallelMin (one per pair): one thread at any thread count.
+// Scalar on purpose: vectorised, its loops of a few particles run through alias checks and
+// remainder code longer than themselves (as Gravity::add_forces, forcefields/gravity.cpp).
+template <class Kernel, class Params>
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("no-tree-vectorize", "no-tree-slp-vectorize")))
+#endif
+void small_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
+                                  Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                                  double dt_kick, double dt) {
+  double* __restrict xp = x.data();
+  double* __restrict vp = v.data();
+  double* __restrict fp = f.data();
+  const double* __restrict w_inv = inv_mass.data();
+  for (std::int64_t i = 0, n = x.cols(); i < n; ++i) {
+    const double s = dt_kick * w_inv[i];
+    for (int a = 0; a < 3; ++a) {
+      vp[3 * i + a] += s * fp[3 * i + a];
+      xp[3 * i + a] += dt * vp[3 * i + a];
+      fp[3 * i + a] = 0.0;
+    }
+  }
+  for (const BondInstance<Params>& b : bonds) {
+    double d[3] = {xp[3 * b.i] - xp[3 * b.j], xp[3 * b.i + 1] - xp[3 * b.j + 1], xp[3 * b.i + 2] - xp[3 * b.j + 2]};
+    double e = 0.0;  // unused: the compiler drops what only the energy needs
+    const double scale = bond_force_factor<Kernel>(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], b.params, e);
+    check_bond_domain<Kernel>(e);
+    for (int a = 0; a < 3; ++a) {
+      d[a] *= scale;
+      fp[3 * b.i + a] += d[a];
+      fp[3 * b.j + a] -= d[a];
+    }
+  }
+}
+
 template <class Kernel, class Params>
 void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
                                   Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
                                   double dt_kick, double dt, BondPartition& partition) {
+  if (x.cols() <= kSmallFusedParticles) {
+    small_kick_drift_bond_forces<Kernel>(bonds, x, v, inv_mass, f, dt_kick, dt);
+    return;
+  }
   const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
   partition.prepare(bonds, threads);
   const std::int64_t n = x.cols();

@@ -35,6 +35,18 @@ Gravity::add_forces(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) 
   return -(g[0] * moment[0] + g[1] * moment[1] + g[2] * moment[2]);
 }
 
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("no-tree-vectorize", "no-tree-slp-vectorize")))
+#endif
+void
+Gravity::add_forces_only(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd& f) const {
+  const double* __restrict m = mass_.data();
+  double* __restrict fp = f.data();
+  const double g[3] = {g_.x(), g_.y(), g_.z()};
+  for (Eigen::Index i = 0, n = x.cols(); i < n; ++i)
+    for (int a = 0; a < 3; ++a) fp[3 * i + a] += g[a] * m[i];
+}
+
 std::unique_ptr<ForceTerm> Gravity::on_subset(const ParticleSubset& subset, const Box&) const {
   auto out = std::make_unique<Gravity>(name(), level(), g_, Eigen::VectorXd());
   out->mass_.resize(subset.size());

@@ -15,6 +15,8 @@ class Gravity final : public ForceTerm {
   Gravity(std::string name, Level level, Eigen::Vector3d g, Eigen::VectorXd inv_mass);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
+  // The same forces without Σ m_i x_i (half of add_forces's arithmetic).
+  void add_forces_only(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
   // The field on the subset's particles, with their masses.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "gravity"; }

@@ -42,7 +42,9 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   // Velocity Verlet with Langevin (BAOAB): its one micro step holds the O step, so it runs plain.
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
+  for (const ForceTerm* term : rest_) rest_phase_.push_back(term->phase());
   fused_ = forces.num_particles() < kFusedMaxParticles ? fused_available_ : nullptr;
+  fused_verlet_ = stages_.size() == 1 && !langevin_ && !obabo_ && !langevin_force_;
 }
 
 // OBABO: O(½h), the Hamiltonian macro step, O(½h) (noise substeps 0 and 1 of the step).
@@ -94,6 +96,20 @@ void MultipleTimeStepping::closing_force(State& s, size_t k, double span) {
     refresh(k, s.x);
 }
 
+// The fused micro step of stage k (the innermost) with the stage's other terms: its new force.
+inline void MultipleTimeStepping::fused_force(State& s, size_t k, double dt_kick, double dt) {
+  {
+    const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kick and drift fused in
+    fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
+  }
+  for (size_t t = 0; t < rest_.size(); ++t) {
+    const ScopedPhase phase(rest_phase_[t]);
+    rest_[t]->add_forces_only(s.x, forces_.box(), force_[k]);
+  }
+  forces_.count_evaluations(stages_[k].levels);
+  valid_[k] = true;
+}
+
 // kick(dt_kick), drift(dt), then closing_force. Fused (FusedMicroStep): kick, drift and the
 // first term's forces in one pass, then the stage's other terms in evaluation order — what
 // compute() sums, in its order: the same bits.
@@ -103,17 +119,18 @@ void MultipleTimeStepping::micro_step(State& s, size_t k, double dt_kick, double
     closing_force(s, k, span);
     return;
   }
-  {
-    const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kick and drift fused in
-    fused_->kick_drift_force(s.x, s.v, s.inv_mass, force_[k], dt_kick, dt);
-  }
-  for (const ForceTerm* term : rest_) {
-    const ScopedPhase phase(term->phase());
-    term->add_forces_only(s.x, forces_.box(), force_[k]);
-  }
-  forces_.count_evaluations(stages_[k].levels);
-  valid_[k] = true;
+  fused_force(s, k, dt_kick, dt);
   if (k == 0 && langevin_force_) langevin_force_->add(s.v, span, s.step, kClosingForce, force_[0], langevin_part_);
+}
+
+// advance(0, h) of velocity Verlet (one stage, no thermostat) with a fused micro step and a valid
+// cached force, written out: run_innermost's one micro step and its closing kick, the same
+// operations without the stage loop's bookkeeping — on a system of a few particles, the size the
+// fused step serves, that bookkeeping cost as much as a third of the step (docs/performance.md,
+// "The run loop's cost per step").
+void MultipleTimeStepping::step_verlet_fused(State& s, double h) {
+  fused_force(s, 0, 0.5 * h, h);
+  finite_checked_ = kick_checking_finite(s.v, s.x, s.inv_mass, force_[0], 0.5 * h);
 }
 
 void MultipleTimeStepping::advance(State& s, size_t k, double dt) {

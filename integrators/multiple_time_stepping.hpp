@@ -105,7 +105,9 @@ class MultipleTimeStepping final : public Integrator {
   void step(State& s, double h) override {
     substep_ = 0;
     finite_checked_ = false;
-    if (obabo_)
+    if (fused_verlet_ && fused_ && valid_[0])
+      step_verlet_fused(s, h);
+    else if (obabo_)
       step_obabo(s, h);
     else if (langevin_force_)
       step_langevin_force(s, h);
@@ -169,12 +171,14 @@ class MultipleTimeStepping final : public Integrator {
  private:
   void advance(State& s, size_t k, double dt);
   void step_obabo(State& s, double h);           // O(½h), the Hamiltonian macro step, O(½h)
+  void step_verlet_fused(State& s, double h);    // velocity Verlet's fused step (fused_verlet_)
   void step_langevin_force(State& s, double h);  // the macro step, its outermost kicks' Langevin heat
   bool thermostatted() const { return langevin_ || obabo_ || langevin_force_; }
   void refresh(size_t k, const Eigen::Matrix3Xd& x);
   void run_innermost(State& s, size_t k, double dt, int n);
   void closing_force(State& s, size_t k, double span);
   void micro_step(State& s, size_t k, double dt_kick, double dt, double span);
+  void fused_force(State& s, size_t k, double dt_kick, double dt);
   void o_step(State& s, double dt);  // the O step, and the kinetic energy just after it
   // Stage k's closing half kick; the step's last pass over v when k = 0 and no O step or
   // Langevin heat follows it, which then checks the final x and v (checked_finite).
@@ -186,7 +190,7 @@ class MultipleTimeStepping final : public Integrator {
   ForceField& forces_;
   std::vector<Stage> stages_;            // every stage but the innermost with its kick (plain where none was given)
   std::vector<Eigen::Matrix3Xd> force_;  // per-stage cached kick force (docs/design.md §11.3)
-  std::vector<bool> valid_;
+  std::vector<char> valid_;  // per stage: force_[k] is the force at the current x (char: a plain load per step)
   std::vector<double> removed_virial_;               // per stage: the kick's removed_virial() at its last refresh
   std::unique_ptr<LangevinNoise> langevin_;          // null: Hamiltonian dynamics (or Langevin as a force, or OBABO)
   std::unique_ptr<LangevinNoise> obabo_;             // OBABO: the O(½h) steps around the macro step, else null
@@ -197,11 +201,15 @@ class MultipleTimeStepping final : public Integrator {
   // The innermost stage's terms after the fused one, in evaluation order: the fused step, then
   // these, sum what compute() sums, in its order (ForceField::evaluation_order).
   std::vector<const ForceTerm*> rest_;
+  std::vector<Phase> rest_phase_;  // their phases (ForceTerm::phase), looked up once
   // Langevin as a force inside the outermost kick force (splitting "lammps"), or null.
   std::unique_ptr<LangevinForce> langevin_force_;
   Eigen::Matrix3Xd langevin_part_;  // its part of force_[0] (3 × N, sized only with it)
   double heat_ = 0.0;               // thermostat_heat()
   bool finite_checked_ = false;     // checked_finite()
+  // One stage, no thermostat: velocity Verlet in NVE, whose step is, when fused, one fused micro
+  // step and the closing kick (step_verlet_fused).
+  bool fused_verlet_ = false;
 };
 
 }  // namespace stiffmd

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
 
 #include "core/parallel.hpp"
 #include "core/timing.hpp"
@@ -30,13 +31,21 @@ inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eig
 
 // kick, and in the same pass whether x and the new v are all finite: a step's closing kick, its
 // last pass over v, checks its final state without a pass of its own (Integrator::checked_finite).
-// x·0 is ±0 for a finite x and NaN for ±∞ and NaN, so the sums are 0 exactly when all are finite.
+// A sum with a non-finite term is not finite (∞ + finite = ∞, ∞ − ∞ and NaN + · = NaN), so a
+// finite Σ (x + v) says every x and v is finite; a non-finite one (or an overflow of finite
+// terms, near 10³⁰⁸) returns false, and the run's own check decides and names the particle.
 // v gets the same bits as from kick. Small systems only (below kParallelMin, serial at any thread
 // count), where a pass of its own costs more than the sums here (the pendulum's run path, 77.5 →
 // 73 ns a step: docs/performance.md, "The run loop's cost per step"); a large system kicks
 // plainly (false) and the run checks it in its threads' blocks, a small part of its step.
-inline bool kick_checking_finite(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
-                                 const Eigen::Matrix3Xd& f, double dt) {
+// Scalar on purpose: vectorised, the loop over a few particles runs through alias checks and
+// remainder code longer than itself (as Gravity::add_forces, forcefields/gravity.cpp).
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("no-tree-vectorize", "no-tree-slp-vectorize")))
+#endif
+inline bool
+kick_checking_finite(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
+                     const Eigen::Matrix3Xd& f, double dt) {
   if (v.cols() >= kParallelMin) {
     kick(v, inv_mass, f, dt);
     return false;
@@ -46,15 +55,15 @@ inline bool kick_checking_finite(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x,
   const double* __restrict w = inv_mass.data();
   const double* __restrict xp = x.data();
   double* __restrict vp = v.data();
-  double zero[3] = {0.0, 0.0, 0.0};
+  double sum[3] = {0.0, 0.0, 0.0};
   for (std::int64_t i = 0; i < v.cols(); ++i) {
     const double s = dt * w[i];
     for (int a = 0; a < 3; ++a) {
       vp[3 * i + a] += s * fp[3 * i + a];
-      zero[a] += vp[3 * i + a] * 0.0 + xp[3 * i + a] * 0.0;
+      sum[a] += vp[3 * i + a] + xp[3 * i + a];
     }
   }
-  return (zero[0] + zero[1]) + zero[2] == 0.0;
+  return std::isfinite((sum[0] + sum[1]) + sum[2]);
 }
 
 // v ← v + dt M⁻¹ f, and in the same pass kept ← scale · v' (with_before: scale · (v + v')), v and

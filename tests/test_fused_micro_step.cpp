@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <numeric>
 #include <random>
 
@@ -162,6 +163,51 @@ TEST(FusedMicroStep, SideBondsListedBeforeOrAfterTheBackbone) {
       EXPECT_GT(expect_fused_is_plain(term, x, v0, f0, inv_mass, threads).col(50).norm(), 1.0);
     }
   }
+}
+
+// Systems of at most kSmallFusedParticles particles take the two-pass path
+// (small_kick_drift_bond_forces): molecules of 2 to 16 beads — chains in order, chains numbered
+// backwards, a comb whose side bond is listed before the backbone, a ring of 5, and the bonds in a
+// shuffled order — with a fixed bead: the bits of the plain path.
+TEST(FusedMicroStep, SmallMoleculesGiveTheBitsOfThePlainPath) {
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
+  for (int beads = 2; beads <= static_cast<int>(kSmallFusedParticles); ++beads)
+    for (int shape = 0; shape < 4; ++shape) {
+      SCOPED_TRACE(testing::Message() << beads << " beads, shape " << shape);
+      Eigen::Matrix3Xd x(3, beads);
+      StiffBonds bonds;
+      bonds.epsilon = 0.01;
+      for (int b = 0; b < beads; ++b) {
+        const double angle = 2.0 * M_PI * b / beads;  // a ring's polygon, a chain's zigzag
+        x.col(b) = shape == 3 && beads >= 5 ? Eigen::Vector3d(std::cos(angle), std::sin(angle), jitter(rng))
+                                            : Eigen::Vector3d(0.97 * b, 0.3 * (b % 2), 0.0);
+        x.col(b) += Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng));
+      }
+      const double side = 2.0 * std::sin(M_PI / beads);  // the ring's edge
+      for (int b = 1; b < beads; ++b) {
+        if (shape == 1)
+          bonds.bonds.push_back({beads - b, beads - b - 1, 0.97, 1.0});  // numbered backwards
+        else
+          bonds.bonds.push_back({b - 1, b, shape == 3 && beads >= 5 ? side : 0.97, 1.0 + 0.1 * b});
+      }
+      if (shape == 2 && beads >= 4) {  // a comb: the last bead hangs off bead 1, its bond listed first
+        bonds.bonds.pop_back();
+        bonds.bonds.insert(bonds.bonds.begin(), StiffBond{1, beads - 1, 1.0, 1.2});
+        std::shuffle(bonds.bonds.begin() + 1, bonds.bonds.end(), rng);
+      }
+      if (shape == 3 && beads >= 5) bonds.bonds.push_back({beads - 1, 0, side, 1.0});  // close the ring
+      const StiffHarmonicBond term("bonds", Level::fast, bonds);
+      Eigen::Matrix3Xd v0, f0;
+      random_motion(beads, static_cast<unsigned>(beads), v0, f0);
+      Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(beads, 1.0);
+      inv_mass(0) = 0.0;
+      if (beads > 2) inv_mass(2) = 0.5;
+      for (int threads : {1, 2}) {
+        SCOPED_TRACE(testing::Message() << threads << " threads");
+        EXPECT_GT(expect_fused_is_plain(term, x, v0, f0, inv_mass, threads).cwiseAbs().maxCoeff(), 1.0);
+      }
+    }
 }
 
 // The bond loop does a block of at most kFewBonds bond by bond and a larger one gathered

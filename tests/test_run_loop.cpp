@@ -16,6 +16,7 @@
 #include "core/errors.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/run/run.hpp"
+#include "integrators/primitives.hpp"
 #include "test_support.hpp"
 #include "tools/benchmarks/hand_pendulum.hpp"
 
@@ -113,6 +114,40 @@ TEST(RunLoop, FiniteCheckOfASmallStateNamesTheFirstBadParticle) {
                 << e.what();
           }
         }
+}
+
+// The closing kick's check (kick_checking_finite, integrators/primitives.hpp): v gets the bits of
+// kick; true for a finite state (−0 included); false for a NaN, +∞ or −∞ in any coordinate of x or
+// of the kicked v; and for a finite state whose sum overflows it may say false (unchecked), which
+// the run's own check then passes.
+TEST(RunLoop, ClosingKickSaysFiniteOnlyForAFiniteState) {
+  const Eigen::Index n = 5;
+  Eigen::Matrix3Xd x = Eigen::Matrix3Xd::Random(3, n);
+  x(2, 4) = -0.0;
+  const Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Random(3, n), f = Eigen::Matrix3Xd::Random(3, n);
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::Ones(n);
+  inv_mass(1) = 0.0;
+  Eigen::Matrix3Xd kicked = v, checked = v;
+  kick(kicked, inv_mass, f, 0.01);
+  EXPECT_TRUE(kick_checking_finite(checked, x, inv_mass, f, 0.01));
+  EXPECT_EQ(checked, kicked);
+  const double bad_values[] = {std::nan(""), std::numeric_limits<double>::infinity(),
+                               -std::numeric_limits<double>::infinity()};
+  for (const double bad : bad_values)
+    for (Eigen::Index p = 0; p < n; ++p)
+      for (int a = 0; a < 3; ++a)
+        for (const bool in_v : {false, true}) {
+          SCOPED_TRACE(testing::Message() << bad << " in " << (in_v ? "v" : "x") << "(" << a << ", " << p << ")");
+          Eigen::Matrix3Xd xb = x, vb = v;
+          (in_v ? vb : xb)(a, p) = bad;
+          EXPECT_FALSE(kick_checking_finite(vb, xb, inv_mass, f, 0.01));
+        }
+  State big;
+  big.x = Eigen::Matrix3Xd::Constant(3, n, 1e308);
+  big.v = Eigen::Matrix3Xd::Zero(3, n);
+  big.inv_mass = inv_mass;
+  EXPECT_FALSE(kick_checking_finite(big.v, big.x, inv_mass, Eigen::Matrix3Xd::Zero(3, n), 0.01));
+  EXPECT_NO_THROW(check_finite(big));
 }
 
 // The steps at which a grid is due, found ahead (IntervalSchedule::next_due_step), are exactly

@@ -27,16 +27,7 @@ class Progress {
   // After `done` steps. The clock is read every check_every_ steps, adapted to the step rate so
   // that it is read about every 50 ms: cheap at a microsecond per step and prompt at a second.
   void update(std::int64_t done) {
-    if (!enabled_ || --countdown_ > 0) return;
-    const auto now = clock::now();
-    const double since = std::chrono::duration<double>(now - last_check_).count();
-    const double rate = static_cast<double>(done - done_at_check_) / std::max(since, 1e-9);
-    check_every_ = static_cast<std::int64_t>(std::clamp(0.05 * rate, 1.0, 1048576.0));
-    countdown_ = check_every_;
-    last_check_ = now;
-    done_at_check_ = done;
-    if (now - last_draw_ < std::chrono::milliseconds(500) && drawn_) return;
-    draw(done, now);
+    if (enabled_ && --countdown_ <= 0) check(done);
   }
 
   // Erases the bar (before a line is printed on the same terminal); the next update redraws it.
@@ -57,6 +48,19 @@ class Progress {
 
  private:
   using clock = std::chrono::steady_clock;
+
+  // The clock read of update, out of line: the run loop calls update every step.
+  [[gnu::noinline]] void check(std::int64_t done) {
+    const auto now = clock::now();
+    const double since = std::chrono::duration<double>(now - last_check_).count();
+    const double rate = static_cast<double>(done - done_at_check_) / std::max(since, 1e-9);
+    check_every_ = static_cast<std::int64_t>(std::clamp(0.05 * rate, 1.0, 1048576.0));
+    countdown_ = check_every_;
+    last_check_ = now;
+    done_at_check_ = done;
+    if (now - last_draw_ < std::chrono::milliseconds(500) && drawn_) return;
+    draw(done, now);
+  }
 
   void draw(std::int64_t done, clock::time_point now) {
     last_draw_ = now;

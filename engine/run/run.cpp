@@ -111,15 +111,23 @@ void check_finite(const State& s) {
   throw NumericalError(m.str());
 }
 
+namespace {
+// The failure of step k from the state s, named: out of take_step, which runs every step.
+[[noreturn, gnu::noinline, gnu::cold]] void throw_step_failure(const NumericalError& e, std::int64_t k,
+                                                               const State& s) {
+  std::ostringstream m;
+  m.precision(10);
+  m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
+  if (const auto* agreed = dynamic_cast<const AgreedStop*>(&e)) throw AgreedStop(m.str(), agreed->printed_here());
+  throw NumericalError(m.str());
+}
+}  // namespace
+
 void take_step(Integrator& integrator, State& s, double h, std::int64_t k, double t_k, bool check) {
   try {
     integrator.step(s, h);
   } catch (const NumericalError& e) {
-    std::ostringstream m;
-    m.precision(10);
-    m << "numerical failure in step " << k << " (from t = " << s.t << "): " << e.what();
-    if (const auto* agreed = dynamic_cast<const AgreedStop*>(&e)) throw AgreedStop(m.str(), agreed->printed_here());
-    throw NumericalError(m.str());
+    throw_step_failure(e, k, s);
   }
   s.step = k;
   s.t = t_k;
@@ -301,11 +309,13 @@ void Run::after_step() {
       summary_.stopped_by_signal = sig;
       return;
     }
-  if (s_.step >= next_checkpoint_) {
-    if (checkpoint_due_->due(s_.t)) write_checkpoint_now();
-    next_checkpoint_ = checkpoint_due_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
-  }
+  if (s_.step >= next_checkpoint_) checkpoint_step();
   progress_->update(s_.step - first_step_ + 1);
+}
+
+void Run::checkpoint_step() {
+  if (checkpoint_due_->due(s_.t)) write_checkpoint_now();
+  next_checkpoint_ = checkpoint_due_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
 }
 
 const RunSummary& Run::finish() {

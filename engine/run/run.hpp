@@ -103,7 +103,8 @@ class Run {
   // grids' due steps are computed with.
   double time_at(std::int64_t j) const { return t0_ + static_cast<double>(j - k0_) * h_; }
   const std::vector<double>& sample();
-  void after_step();  // what follows a step that is not the run's last
+  void after_step();       // what follows a step that is not the run's last
+  void checkpoint_step();  // after_step at the checkpoints' due step: the checkpoint, the next due step
   // The checkpoint's parts as of now, with the integrator's words (Integrator::save_state, which
   // every rank of a decomposed run computes together).
   Checkpoint& snapshot(Checkpoint& c, std::vector<double> integrator_state);
