@@ -18,6 +18,7 @@
 #include "core/topology.hpp"
 #include "core/units.hpp"
 #include "engine/deck/deck.hpp"
+#include "engine/domain/decomposition.hpp"  // BalanceSettings
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
 #include "forcefields/force_field.hpp"
@@ -72,8 +73,9 @@ struct OutputSettings {
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
   double halo_margin = 0.0;                        // the pair sets beyond the cutoff; 0: 1.5 × skin (docs/parallel.md)
+  BalanceSettings balance{BalanceSettings::When::dynamic, 1.1};  // when the domains are recut (docs/parallel.md)
   // "file:line: parallel.grid" (or the --set that gave it), for errors at the key; empty: not given.
-  std::string grid_where, halo_margin_where;
+  std::string grid_where, halo_margin_where, balance_where;
 };
 
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
