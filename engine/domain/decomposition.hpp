@@ -27,6 +27,7 @@
 #include "core/communicator.hpp"
 #include "core/state.hpp"
 #include "core/topology.hpp"
+#include "engine/scene/parallel_settings.hpp"  // BalanceSettings
 
 namespace stiffmd {
 
@@ -57,16 +58,6 @@ struct DomainGrid {
 // ranks into three that makes the domains closest to cubes (least surface per volume), periodic
 // axes cut first. `anchors`: the molecules' anchors, for the extent of open axes.
 DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* dims, const Eigen::Matrix3Xd& anchors);
-
-// The load balance (docs/parallel.md, "Load balance"). The work measure is a domain's home beads
-// (the beads whose position, wrapped into the box, lies in it): deterministic, an integer, the same
-// for any number of ranks, known before any neighbour list exists. The imbalance is the measure's
-// max/mean over the domains; the cuts are recut when it exceeds `threshold`.
-struct BalanceSettings {
-  enum class When { off, start, dynamic };
-  When when = When::off;
-  double threshold = 1.1;
-};
 
 // The measure per domain of grid g: the beads of x (columns) counted in the domain that holds them.
 std::vector<double> domain_loads(const DomainGrid& g, const Eigen::Matrix3Xd& x);
