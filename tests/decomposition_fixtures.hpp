@@ -122,28 +122,42 @@ inline Eigen::Vector3d centre_of_mass(const Melt& melt, const Eigen::Matrix3Xd& 
   return c / total;
 }
 
+// The faces of axis a's slabs, c = 0 … dims[a]: equal slabs, or the load balance's cuts (fractions
+// of the axis).
+inline std::vector<double> slab_faces(const DomainGrid& g, int a) {
+  std::vector<double> faces(g.dims[a] + 1);
+  for (int c = 0; c <= g.dims[a]; ++c)
+    faces[c] = g.origin[a] + g.length[a] * (g.cut[a].empty() ? static_cast<double>(c) / g.dims[a] : g.cut[a][c]);
+  return faces;
+}
+
 // The domain holding p (wrapped into the grid's periodic frame), ranks numbered x-major: rank =
 // (i_x d_y + i_y) d_z + i_z.
 inline int rank_of_point(const DomainGrid& g, const Eigen::Vector3d& p) {
   int index[3];
   for (int a = 0; a < 3; ++a) {
-    const double width = g.length[a] / g.dims[a];
-    double q = p[a] - g.origin[a];
-    if (g.periodic[a]) q -= g.length[a] * std::floor(q / g.length[a]);
-    index[a] = std::min(std::max(static_cast<int>(std::floor(q / width)), 0), g.dims[a] - 1);
+    double q = p[a];
+    if (g.periodic[a]) q -= g.length[a] * std::floor((q - g.origin[a]) / g.length[a]);
+    const std::vector<double> faces = slab_faces(g, a);
+    index[a] = 0;  // the last slab whose low face is at or below q (the edge slabs clamp)
+    for (int c = 1; c < g.dims[a]; ++c)
+      if (q >= faces[c]) index[a] = c;
   }
   return (index[0] * g.dims[1] + index[1]) * g.dims[2] + index[2];
 }
 
-// The lowest corner and the centre of rank r's domain.
-inline Eigen::Vector3d domain_corner(const DomainGrid& g, int r) {
+// The lowest and highest corner and the centre of rank r's domain.
+inline Eigen::Vector3d domain_corner(const DomainGrid& g, int r, int side = 0) {
   const int index[3] = {r / (g.dims[1] * g.dims[2]), (r / g.dims[2]) % g.dims[1], r % g.dims[2]};
-  Eigen::Vector3d lo;
-  for (int a = 0; a < 3; ++a) lo[a] = g.origin[a] + index[a] * g.length[a] / g.dims[a];
-  return lo;
+  Eigen::Vector3d corner;
+  for (int a = 0; a < 3; ++a) corner[a] = slab_faces(g, a)[index[a] + side];
+  return corner;
+}
+inline Eigen::Vector3d domain_upper_corner(const DomainGrid& g, int r) {
+  return domain_corner(g, r, 1);
 }
 inline Eigen::Vector3d domain_centre(const DomainGrid& g, int r) {
-  return domain_corner(g, r) + 0.5 * g.length.cwiseQuotient(g.dims.cast<double>());
+  return 0.5 * (domain_corner(g, r) + domain_upper_corner(g, r));
 }
 
 }  // namespace stiffmd::fake

@@ -110,6 +110,29 @@ TEST(Deck, ErrorsNameTheFileLineAndKey) {
   }
 }
 
+// [parallel] balance: recut by default when the load is uneven (docs/parallel.md, "Load balance");
+// a value that is not a mode, or a threshold below 1, refused at its key.
+TEST(Deck, ParallelBalanceTakesAModeAndAThreshold) {
+  const std::string path = write_deck("balance", std::string(kMinimal) + "\n");
+  const Scene plain = load_scene(Deck(path, {}));
+  EXPECT_EQ(plain.parallel.balance.when, BalanceSettings::When::dynamic);
+  EXPECT_EQ(plain.parallel.balance.threshold, 1.1);
+  const Scene start = load_scene(Deck(path, {"parallel.balance=\"start\"", "parallel.balance_threshold=1.25"}));
+  EXPECT_EQ(start.parallel.balance.when, BalanceSettings::When::start);
+  EXPECT_EQ(start.parallel.balance.threshold, 1.25);
+  EXPECT_EQ(load_scene(Deck(path, {"parallel.balance=\"off\""})).parallel.balance.when, BalanceSettings::When::off);
+  for (const auto& [set, key] : {std::pair{"parallel.balance=\"sometimes\"", "parallel.balance"},
+                                 std::pair{"parallel.balance=1", "parallel.balance"},
+                                 std::pair{"parallel.balance_threshold=0.9", "parallel.balance_threshold"}}) {
+    try {
+      load_scene(Deck(path, {set}));
+      FAIL() << set << ": no error";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string(key) + ": "), std::string::npos) << e.what();
+    }
+  }
+}
+
 // A per-pair override ([[forces.NAME.pair]]) inherits what it does not set from the term: a zero
 // global epsilon stays zero when the override sets only sigma (it used to become 1).
 TEST(Deck, PairOverrideInheritsTheTermsParameters) {
@@ -185,8 +208,8 @@ TEST(Deck, DidYouMeanOffersAKeyTheDeckSetsToASet) {
       << m;
   m = error(trimers, {"output.xyz_intervall=1"});  // a key the deck does not set, as before
   EXPECT_NE(m.find("did you mean 'xyz_interval'?"), std::string::npos) << m;
-  m = error(write_deck("typo_beside_key", std::string(kMinimal) + "[output]\nxyz_interval = 0.1\nxyz_intervall = 0.1\n"),
-            {});
+  m = error(
+      write_deck("typo_beside_key", std::string(kMinimal) + "[output]\nxyz_interval = 0.1\nxyz_intervall = 0.1\n"), {});
   EXPECT_NE(m.find("output.xyz_intervall: unknown key (expected one of:"), std::string::npos) << m;
 }
 
@@ -207,17 +230,20 @@ TEST(Deck, AnErrorCausedByASetNamesTheSet) {
   };
   EXPECT_EQ(error({"variables.eps=0"}),
             trimers + ":40 (with --set variables.eps): forces.bonds.epsilon: expected a number > 0, got 0");
-  EXPECT_EQ(error({"integrator.h=0.07"}).rfind(trimers + ":55 (with --set integrator.h): run.t_end: t_end = 100 is "
-                                               "1428.57142857 macro steps of integrator.h = 0.07",
-                                               0),
+  EXPECT_EQ(error({"integrator.h=0.07"})
+                .rfind(trimers + ":55 (with --set integrator.h): run.t_end: t_end = 100 is "
+                                 "1428.57142857 macro steps of integrator.h = 0.07",
+                       0),
             0u)
       << error({"integrator.h=0.07"});
   EXPECT_EQ(error({"output.xyz=thermo.csv"}),
-            trimers + " (with --set output.xyz): output.thermo: \"thermo.csv\" is also output.xyz; expected a file "
-                      "of its own");
+            trimers +
+                " (with --set output.xyz): output.thermo: \"thermo.csv\" is also output.xyz; expected a file "
+                "of its own");
   EXPECT_EQ(error({"build.0.bond_type=c"}),
-            trimers + ":1 (with --set build.0.bond_type): deck: bond type 'c' is not defined by any force term (add "
-                      "[forces.NAME.bond_types.c])");
+            trimers +
+                ":1 (with --set build.0.bond_type): deck: bond type 'c' is not defined by any force term (add "
+                "[forces.NAME.bond_types.c])");
   // A FENE bond stretched beyond an overridden R0 is refused at the term's bond_types, the table
   // that holds the override.
   const std::string fene = write_deck("fene_r0", R"([types.bead]
@@ -243,11 +269,14 @@ t_end = 0.01
     load_scene(d);
     FAIL() << "no error";
   } catch (const InputError& e) {
-    EXPECT_EQ(std::string(e.what()).rfind(fene + ":12 (with --set forces.chain.bond_types.b.R0): forces.chain.bond_types: ", 0), 0u)
+    EXPECT_EQ(std::string(e.what()).rfind(
+                  fene + ":12 (with --set forces.chain.bond_types.b.R0): forces.chain.bond_types: ", 0),
+              0u)
         << e.what();
   }
   // A variable of the file that refers to an overridden one is named through it.
-  const std::string chained = write_deck("chained_variable", std::string(kMinimal) + "[forces.g]\nstyle = \"gravity\"\ng = [0, 0, \"a\"]\n");
+  const std::string chained =
+      write_deck("chained_variable", std::string(kMinimal) + "[forces.g]\nstyle = \"gravity\"\ng = [0, 0, \"a\"]\n");
   try {
     const Deck d(chained, {"variables.b=1e200"});
     load_scene(d);

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <string>
 #include <vector>
 
@@ -34,15 +35,17 @@ constexpr double kCutoff = 2.5, kMargin = 0.8;
 
 struct Layout {
   int ranks;
-  Eigen::Vector3i dims;  // zero: the decomposition chooses
+  Eigen::Vector3i dims;   // zero: the decomposition chooses
+  bool balanced = false;  // the domains recut at the start (any imbalance: unequal slabs)
   bool given() const { return dims.prod() > 0; }
 };
 
 std::string layout_name(const ::testing::TestParamInfo<Layout>& info) {
   const Layout& l = info.param;
-  if (!l.given()) return std::to_string(l.ranks) + "_ranks_grid_chosen";
+  const std::string cut = l.balanced ? "_balanced" : "";
+  if (!l.given()) return std::to_string(l.ranks) + "_ranks_grid_chosen" + cut;
   return std::to_string(l.ranks) + "_ranks_grid_" + std::to_string(l.dims[0]) + "x" + std::to_string(l.dims[1]) + "x" +
-         std::to_string(l.dims[2]);
+         std::to_string(l.dims[2]) + cut;
 }
 
 // One rank's decomposition as seen through its public queries, taken on its own thread.
@@ -68,8 +71,10 @@ Snapshot snapshot(const Decomposition& d, int n, const Eigen::Matrix3Xd& x, cons
 }
 
 std::unique_ptr<Decomposition> make(const Melt& melt, const Communicator& comm, const Layout& layout) {
-  return std::make_unique<Decomposition>(melt.topology, melt.state.inv_mass, melt.box, comm, kCutoff, kMargin,
-                                         layout.given() ? &layout.dims : nullptr);
+  auto d = std::make_unique<Decomposition>(melt.topology, melt.state.inv_mass, melt.box, comm, kCutoff, kMargin,
+                                           layout.given() ? &layout.dims : nullptr);
+  if (layout.balanced) d->set_balance({BalanceSettings::When::start, 1.0});
+  return d;
 }
 
 // The melt's molecule anchors' ranks on grid g, for positions x (by global index).
@@ -164,6 +169,15 @@ TEST_P(DecompositionOnFakeRanks, DistributeGivesEachMoleculeWholeToTheRankOfItsA
   }
   EXPECT_EQ(grid.origin, melt.box.origin);
   EXPECT_EQ(grid.length, melt.box.lengths);
+  // Balanced layouts test unequal slabs: every cut axis recut.
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_EQ(!grid.cut[a].empty(), layout.balanced && grid.dims[a] > 1) << "axis " << a;
+    if (grid.cut[a].empty()) continue;
+    bool unequal = false;
+    for (int c = 0; c <= grid.dims[a]; ++c)
+      unequal |= std::abs(grid.cut[a][c] - static_cast<double>(c) / grid.dims[a]) > 1e-3;
+    EXPECT_TRUE(unequal) << "axis " << a << ": the balanced cuts are the equal slabs'";
+  }
   const std::vector<int> owner = anchor_ranks(melt, grid, melt.state.x);
   expect_ownership(melt, ranks, owner, melt.state.x, melt.state.v);
 
@@ -197,21 +211,20 @@ struct Moves {
 
 // Molecule m by m % 4: 0 to the centre of another rank's domain (every second one a box length
 // further along x: unwrapped, outside the box); 1 its anchor half the slack past its domain's
-// upper face along a cut axis (it stays); 2 one and a half slacks past it (it moves to the
-// neighbour); 3 not at all. The slack: a quarter of a domain's narrowest width.
+// upper face along a cut axis (it stays); 2 one and a half slacks past it (it moves on); 3 not at
+// all. The slack: a quarter of its owner's domain's narrowest width.
 Moves plan_moves(const Melt& melt, const DomainGrid& g) {
   Moves p;
   p.x = melt.state.x;
   p.owner_before = anchor_ranks(melt, g, melt.state.x);
   const int ranks = g.size();
-  double slack = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * g.length[a] / g.dims[a]);
   int cut = 0;
   while (g.dims[cut] == 1) ++cut;
   for (int m = 0; m < melt.molecules; ++m) {
     const std::vector<int> members = melt.members(m);
     const Eigen::Vector3d c = fake::centre_of_mass(melt, melt.state.x, members);
     const int from = p.owner_before[m];
+    const double slack = 0.25 * (fake::domain_upper_corner(g, from) - fake::domain_corner(g, from)).minCoeff();
     Eigen::Vector3d shift = Eigen::Vector3d::Zero();
     if (m % 4 == 0) {
       const int to = (from + 1 + m / 4 % (ranks - 1)) % ranks;
@@ -224,7 +237,7 @@ Moves plan_moves(const Melt& melt, const DomainGrid& g) {
     } else if (m % 4 == 1 || m % 4 == 2) {
       // c wrapped into the box, then to slack/2 or 3 slack/2 past its domain's upper face.
       double q = c[cut] - melt.box.lengths[cut] * std::floor((c[cut] - g.origin[cut]) / g.length[cut]);
-      const double face = fake::domain_corner(g, from)[cut] + g.length[cut] / g.dims[cut];
+      const double face = fake::domain_upper_corner(g, from)[cut];
       shift[cut] = face + (m % 4 == 1 ? 0.5 : 1.5) * slack - q;
       ++(m % 4 == 1 ? p.near_face_stays : p.past_slack);
     }
@@ -328,14 +341,13 @@ TEST_P(DecompositionOnFakeRanks, FirstNonFiniteIsTheFirstOwnedBeadWithANonFinite
 // The distance from p to rank r's domain (per axis the gap to its slab, over the periodic images),
 // computed here from the grid's numbers.
 double distance_to_domain(const DomainGrid& g, const Box& box, int r, const Eigen::Vector3d& p) {
-  const Eigen::Vector3d lo = fake::domain_corner(g, r);
+  const Eigen::Vector3d lo = fake::domain_corner(g, r), hi = fake::domain_upper_corner(g, r);
   double d2 = 0.0;
   for (int a = 0; a < 3; ++a) {
-    const double width = g.length[a] / g.dims[a];
     double gap = std::numeric_limits<double>::infinity();
     for (int image = -2; image <= 2; ++image) {
       const double q = p[a] + image * box.lengths[a];
-      gap = std::min(gap, std::max({0.0, lo[a] - q, q - (lo[a] + width)}));
+      gap = std::min(gap, std::max({0.0, lo[a] - q, q - hi[a]}));
     }
     d2 += gap * gap;
   }
@@ -443,9 +455,145 @@ TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutA
   EXPECT_GT(halo_beads, 0);
 }
 
+// The load balance (docs/parallel.md, "Load balance").
+
+// Cuts at equal shares of a histogram's total: exact where a share ends at a bin's edge, linear
+// inside a bin, an empty stretch of the axis given to the slab below it.
+TEST(LoadBalance, QuantileCutsGiveEachSlabAnEqualShare) {
+  const std::vector<double> even(8, 1.0);
+  EXPECT_EQ(quantile_cuts(even, 4), (std::vector<double>{0.0, 0.25, 0.5, 0.75, 1.0}));
+  // All the work in the upper half: the cut at three quarters of the axis, the empty half below.
+  EXPECT_EQ(quantile_cuts(std::vector<double>{0.0, 0.0, 4.0, 4.0}, 2), (std::vector<double>{0.0, 0.75, 1.0}));
+  // Half of a bin's work: half way through the bin.
+  EXPECT_EQ(quantile_cuts(std::vector<double>{2.0, 0.0, 0.0, 2.0}, 4),
+            (std::vector<double>{0.0, 0.125, 0.25, 0.875, 1.0}));
+  // No work: equal slabs.
+  EXPECT_EQ(quantile_cuts(std::vector<double>(6, 0.0), 3), (std::vector<double>{0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0}));
+}
+
+// A melt filling half a periodic box (x < L/2 of a box 2L × L × L, short chains built in an L
+// cube, many of them, so that the beads fill it evenly enough for a grid of slabs to share out):
+// on 4 ranks the least cut surface is 2 × 1 × 2, and the equal slabs give the two domains at
+// low x every bead.
+Melt half_box_melt() {
+  Box cube;
+  cube.lengths = Eigen::Vector3d(12.0, 12.0, 12.0);
+  cube.periodic = Eigen::Vector3i::Ones();
+  ChainSpec spec;
+  spec.chains = 400, spec.beads = 5, spec.min_distance = 0.0, spec.seed = 11;
+  const Polymer built = build_linear_chains(spec, cube);
+  Melt melt;
+  melt.box = cube;
+  melt.box.lengths[0] *= 2.0;
+  const int n = static_cast<int>(built.x.cols());
+  melt.molecules = spec.chains;
+  melt.label = built.molecule;
+  melt.state.x = built.x;
+  melt.state.v = Eigen::Matrix3Xd::Zero(3, n);
+  melt.state.inv_mass = Eigen::VectorXd::Ones(n);
+  melt.topology.bond_types = {"bond"};
+  for (const auto& [i, j] : built.bonds) melt.topology.bonds.push_back({i, j, 0});
+  return melt;
+}
+
+// Each rank's home beads after a selection of the pair sets, and their max/mean.
+double home_imbalance(const std::vector<int>& home) {
+  const double total = std::accumulate(home.begin(), home.end(), 0.0);
+  return *std::max_element(home.begin(), home.end()) / (total / static_cast<double>(home.size()));
+}
+
+TEST(LoadBalance, AHalfBoxMeltOnFourRanksIsCutIntoEqualSharesAtTheStart) {
+  const Melt melt = half_box_melt();
+  for (const auto when : {BalanceSettings::When::off, BalanceSettings::When::start}) {
+    std::vector<int> home(4);
+    std::vector<double> before(4), after(4);
+    std::vector<long> recuts(4), collectives(4);
+    DomainGrid grid;
+    run_ranks(4, [&](const FakeCommunicator& comm) {
+      auto d = make(melt, comm, Layout{4, {0, 0, 0}});
+      d->set_balance({when, 1.1});
+      Eigen::Matrix3Xd x, v;
+      d->distribute(melt.state, x, v);
+      collectives[comm.rank()] = comm.collectives();  // the recut is each rank's own, alike
+      d->select_pair_set(x);
+      home[comm.rank()] = d->num_home();
+      before[comm.rank()] = d->imbalance_before(), after[comm.rank()] = d->imbalance(x);
+      recuts[comm.rank()] = d->recuts();
+      if (comm.root()) grid = d->grid();
+    });
+    const bool cut = when == BalanceSettings::When::start;
+    EXPECT_EQ(grid.dims, Eigen::Vector3i(2, 1, 2));
+    for (int r = 0; r < 4; ++r) {
+      EXPECT_EQ(collectives[r], 0);
+      EXPECT_GT(before[r], 1.5) << "the equal slabs: two domains hold the melt";
+      EXPECT_EQ(after[r], after[0]);
+      EXPECT_EQ(recuts[r], cut ? 1 : 0);
+    }
+    // The measure is the ranks' home beads.
+    EXPECT_DOUBLE_EQ(after[0], home_imbalance(home));
+    if (cut) {
+      EXPECT_LE(after[0], 1.1);
+      EXPECT_LT(grid.cut[0][1], 0.4) << "the x cut inside the melt";
+    } else {
+      EXPECT_EQ(after[0], before[0]);
+    }
+  }
+}
+
+// The dynamic balance: on equal slabs the melt's home beads exceed the threshold at a selection;
+// every rank recuts alike, the molecules migrate whole to the new domains, and the next selection
+// finds each rank's share within the threshold (and no recut follows).
+TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
+  const Melt melt = half_box_melt();
+  const int n = melt.size();
+  std::vector<int> home_before(4), home_after(4);
+  std::vector<char> recut(4), again(4);
+  std::vector<Snapshot> after(4);
+  DomainGrid grid;
+  run_ranks(4, [&](const FakeCommunicator& comm) {
+    const int me = comm.rank();
+    auto d = make(melt, comm, Layout{4, {0, 0, 0}});
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);  // the balance off: equal slabs
+    d->set_balance({BalanceSettings::When::dynamic, 1.1});
+    d->select_pair_set(x);
+    home_before[me] = d->num_home();
+    recut[me] = d->rebalance(x);
+    d->migrate(x, v, {});
+    d->select_pair_set(x);
+    home_after[me] = d->num_home();
+    again[me] = d->rebalance(x);
+    after[me] = snapshot(*d, n, x, v);
+    if (comm.root()) grid = d->grid();
+  });
+  EXPECT_GT(home_imbalance(home_before), 1.5);
+  EXPECT_LE(home_imbalance(home_after), 1.1);
+  for (int r = 0; r < 4; ++r) {
+    EXPECT_TRUE(recut[r]) << "rank " << r;
+    EXPECT_FALSE(again[r]) << "rank " << r;
+  }
+  // Each molecule whole on one rank, its columns the melt's; owned by its anchor's domain or, within
+  // the migration's slack, its old owner's.
+  std::vector<int> owner(melt.molecules, -1);
+  for (int r = 0; r < 4; ++r)
+    for (int g : after[r].ids) {
+      const int m = melt.label[g];
+      EXPECT_TRUE(owner[m] == -1 || owner[m] == r) << "molecule " << m << " on ranks " << owner[m] << " and " << r;
+      owner[m] = r;
+    }
+  int at_anchor = 0;
+  for (int m = 0; m < melt.molecules; ++m) {
+    ASSERT_GE(owner[m], 0) << "molecule " << m << " owned by no rank";
+    at_anchor += owner[m] == fake::rank_of_point(grid, fake::centre_of_mass(melt, melt.state.x, melt.members(m)));
+  }
+  EXPECT_GE(at_anchor, melt.molecules * 3 / 4);
+}
+
 INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,
                          ::testing::Values(Layout{2, {2, 1, 1}}, Layout{3, {1, 3, 1}}, Layout{4, {2, 1, 2}},
-                                           Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}}),
+                                           Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}},
+                                           Layout{3, {1, 3, 1}, true}, Layout{4, {2, 1, 2}, true},
+                                           Layout{4, {0, 0, 0}, true}),
                          layout_name);
 
 }  // namespace

@@ -32,6 +32,9 @@ CASE is one of
     pinned_cores              tests/decks/pinned_cores.toml, the effective dynamics: molecules whose pinned
                               core joins two stiff arms that are two constraint clusters, listed apart in
                               the clusters' order (each rank's actions are those of its own modes)
+    half_melt                 inputs/half_melt.toml: a melt filling half the box beside vacuum, the domains
+                              recut (the load balance, on by default); on 4 ranks summary.json's home
+                              beads max/mean must be > 1.5 on the equal slabs and <= 1.1 after
     bad_grid                  a [parallel] grid of N + 1 domains on N ranks: refused (exit 2)
     kill                      the Kremer–Grest melt on N ranks writing an H5MD frame every 20 steps,
                               every rank killed (SIGKILL) mid-run: the file opens as a one-process
@@ -42,6 +45,9 @@ CASE is one of
     restart_water:A:B         the same on inputs/spce_water.toml (PPPM), 25 + 25 steps, to round-off
     restart_npt:A:B           the same on inputs/stiff_melt_npt.toml (fixman): the barostat's box in
                               the checkpoint
+    restart_half_melt:A:B     the same on inputs/half_melt.toml: the domains recut on A ranks and again
+                              on B (the cuts are not in the checkpoint; the trajectory does not depend
+                              on them)
 
 Each case runs the serial reference, `STIFFMD run DECK -o REF` (no launcher), and
 `MPIEXEC NUMPROC_FLAG N STIFFMD run DECK -o OUT`, both with OMP_NUM_THREADS=1 (another thread count
@@ -119,6 +125,7 @@ STIFF_MELT_STEPS = {
 CSVR = '{ style = "csvr", temperature = 1.0, tau = 0.5, seed = 14 }'
 STRADDLE = os.path.join(ROOT, "inputs", "domain_straddle.toml")
 STIFF_MELT_NPT = os.path.join(ROOT, "inputs", "stiff_melt_npt.toml")
+HALF_MELT = os.path.join(ROOT, "inputs", "half_melt.toml")
 
 
 class Skip(Exception):
@@ -275,6 +282,8 @@ def case_setup(case):
         return STIFF_MELT_NPT, h, {"integrator.method": parts[1], **{k: str(v) for k, v in steps.items()}}
     if case == "straddle":
         return STRADDLE, 0.02, {}
+    if case == "half_melt":  # a melt beside vacuum: the domains recut
+        return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
         return os.path.join(ROOT, "inputs", "trappe_pe.toml"), 4.0, {}
     if case == "trappe:scaled":  # 1-3 and 1-4 pairs at half weight: the scaled special pairs
@@ -608,7 +617,26 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
         if moved == 0:
             raise SystemExit(f"FAIL: no molecule migrated on {n} ranks")
         print(f"{moved} molecules migrated")
+    if case == "half_melt" and n == 4:
+        check_balance(out)
     compare_runs(ref, out, f"{case} on {n} ranks")
+
+
+def check_balance(out):
+    """The load balance's target (docs/parallel.md, "Load balance"): the melt beside vacuum on 4 ranks,
+    2 x 1 x 2 domains, is more than 1.5 home beads max/mean on equal slabs (1.69) and <= 1.1 on the
+    recut ones at the end of the run."""
+    with open(os.path.join(out, "summary.json")) as f:
+        d = json.load(f)["domains"]
+    before, after, recuts, cuts = d["imbalance_before"], d["imbalance_after"], d["recuts"], d["cuts"]
+    if not (before > 1.5 and after <= 1.1 and recuts >= 1):
+        raise SystemExit(f"FAIL: home beads max/mean {before} on equal slabs, {after} at the end after {recuts} "
+                         f"recuts: expected > 1.5, <= 1.1 and a recut")
+    if d["grid"] != [2, 1, 2] or len(cuts[0]) != 3 or not 0.1 < cuts[0][1] < 0.5:
+        raise SystemExit(f"FAIL: grid {d['grid']}, cuts {cuts}: expected 2 x 1 x 2 with the x cut inside the melt "
+                         f"(x < 0.5 of the box)")
+    print(f"load balance: home beads max/mean {before:.3f} on equal slabs, {after:.3f} at the end "
+          f"({recuts} recuts, x cut at {cuts[0][1]:.3f} of the box)")
 
 
 def bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp):
@@ -737,6 +765,9 @@ def main(argv):
         elif case.startswith("restart_npt:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, STIFF_MELT_NPT, 0.01)
+        elif case.startswith("restart_half_melt:"):
+            first, second = (int(r) for r in case.split(":")[1:])
+            restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, HALF_MELT, 0.01)
         elif case.startswith("restart_water:"):  # PPPM's distributed mesh: to round-off
             global BITWISE
             BITWISE = False

@@ -16,6 +16,9 @@ namespace stiffmd {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+// The load balance's histograms: bins per slab of the most cut axis (the cuts fall within a bin's
+// width of the exact quantiles, linear inside the bin).
+constexpr int kBinsPerSlab = 64;
 
 // p wrapped into [origin, origin + L) on a periodic axis.
 double wrap(double p, double origin, double length, bool periodic) {
@@ -24,10 +27,19 @@ double wrap(double p, double origin, double length, bool periodic) {
 
 }  // namespace
 
+int DomainGrid::slab_of(int a, double q) const {
+  const int n = dims[a];
+  if (cut[a].empty()) return std::clamp(static_cast<int>(std::floor((q - origin[a]) / length[a] * n)), 0, n - 1);
+  // The last face at or below q's fraction of the axis.
+  const double f = (q - origin[a]) / length[a];
+  const auto above = std::upper_bound(cut[a].begin() + 1, cut[a].end() - 1, f);
+  return static_cast<int>(above - cut[a].begin()) - 1;
+}
+
 bool DomainGrid::within(int domain, const Eigen::Vector3d& p, double slack) const {
   const int index[3] = {domain / (dims[1] * dims[2]), (domain / dims[2]) % dims[1], domain % dims[2]};
   for (int a = 0; a < 3; ++a) {
-    const double width = length[a] / dims[a], lo = origin[a] + index[a] * width, hi = lo + width;
+    const double lo = face(a, index[a]), hi = face(a, index[a] + 1);
     double q = periodic[a] ? wrap(p[a], origin[a], length[a], true) : p[a];
     if (periodic[a] && q > hi + slack) q -= length[a];  // the image nearest the domain
     if (periodic[a] && q < lo - slack) q += length[a];
@@ -38,12 +50,69 @@ bool DomainGrid::within(int domain, const Eigen::Vector3d& p, double slack) cons
 
 int DomainGrid::domain_of(const Eigen::Vector3d& p) const {
   int index[3];
-  for (int a = 0; a < 3; ++a) {
-    const double q = wrap(p[a], origin[a], length[a], periodic[a] != 0);
-    const int c = static_cast<int>(std::floor((q - origin[a]) / length[a] * dims[a]));
-    index[a] = std::clamp(c, 0, dims[a] - 1);
-  }
+  for (int a = 0; a < 3; ++a) index[a] = slab_of(a, wrap(p[a], origin[a], length[a], periodic[a] != 0));
   return (index[0] * dims[1] + index[1]) * dims[2] + index[2];
+}
+
+std::vector<double> domain_loads(const DomainGrid& g, const Eigen::Matrix3Xd& x) {
+  std::vector<double> loads(g.size(), 0.0);
+  for (Eigen::Index k = 0; k < x.cols(); ++k) loads[g.domain_of(x.col(k))] += 1.0;
+  return loads;
+}
+
+double load_imbalance(const std::vector<double>& loads) {
+  const double total = std::accumulate(loads.begin(), loads.end(), 0.0);
+  if (loads.empty() || total <= 0.0) return 1.0;
+  return *std::max_element(loads.begin(), loads.end()) / (total / static_cast<double>(loads.size()));
+}
+
+std::vector<double> axis_histograms(const DomainGrid& g, const Eigen::Matrix3Xd& x, int bins) {
+  std::vector<double> h(3 * static_cast<size_t>(bins), 0.0);
+  for (Eigen::Index k = 0; k < x.cols(); ++k)
+    for (int a = 0; a < 3; ++a) {
+      const double q = wrap(x(a, k), g.origin[a], g.length[a], g.periodic[a] != 0);
+      const int b = std::clamp(static_cast<int>(std::floor((q - g.origin[a]) / g.length[a] * bins)), 0, bins - 1);
+      h[static_cast<size_t>(a) * bins + b] += 1.0;
+    }
+  return h;
+}
+
+std::vector<double> quantile_cuts(std::span<const double> histogram, int slabs) {
+  const int bins = static_cast<int>(histogram.size());
+  const double total = std::accumulate(histogram.begin(), histogram.end(), 0.0);
+  std::vector<double> cut(slabs + 1);
+  for (int k = 0; k <= slabs; ++k) cut[k] = static_cast<double>(k) / slabs;
+  if (total <= 0.0 || bins == 0) return cut;
+  // Cut k where the cumulative work reaches k/slabs of the total, in the first bin that holds work
+  // there (an empty stretch of the axis goes to the slab below).
+  double below = 0.0;  // the work in the bins before b
+  int b = 0;
+  for (int k = 1; k < slabs; ++k) {
+    const double target = total * k / slabs;
+    while (b < bins && (below + histogram[b] < target || histogram[b] <= 0.0)) below += histogram[b++];
+    if (b == bins) {
+      cut[k] = 1.0;
+      continue;
+    }
+    cut[k] = (b + std::clamp((target - below) / histogram[b], 0.0, 1.0)) / bins;
+  }
+  // Strictly increasing, every slab of some width: a slab with no bead is still a domain, and the
+  // migration's slack is a quarter of a domain's width.
+  const double least = 1e-3 / slabs;
+  for (int k = 1; k < slabs; ++k) cut[k] = std::max(cut[k], cut[k - 1] + least);
+  for (int k = slabs - 1; k >= 1; --k) cut[k] = std::min(cut[k], cut[k + 1] - least);
+  return cut;
+}
+
+DomainGrid balanced_grid(const DomainGrid& g, const std::vector<double>& histograms, int bins) {
+  DomainGrid out = g;
+  for (int a = 0; a < 3; ++a) {
+    out.cut[a].clear();
+    if (g.dims[a] > 1)
+      out.cut[a] =
+          quantile_cuts(std::span<const double>(histograms).subspan(static_cast<size_t>(a) * bins, bins), g.dims[a]);
+  }
+  return out;
 }
 
 DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* dims, const Eigen::Matrix3Xd& anchors) {
@@ -145,6 +214,13 @@ void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::M
   Eigen::Matrix3Xd anchors(3, molecules);
   for (int m = 0; m < molecules; ++m) anchors.col(m) = anchor(whole.x, molecule(m), false);
   grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
+  // Every rank holds the whole state: each measures the load and recuts alike, without a word.
+  imbalance_before_ = load_imbalance(domain_loads(grid_, whole.x));
+  if (balance_.when != BalanceSettings::When::off && imbalance_before_ > balance_.threshold) {
+    const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
+    DomainGrid cut = balanced_grid(grid_, axis_histograms(grid_, whole.x, bins), bins);
+    if (load_imbalance(domain_loads(cut, whole.x)) < imbalance_before_) grid_ = std::move(cut), ++recuts_;
+  }
   std::vector<int> mine;
   for (int m = 0; m < molecules; ++m)
     if (grid_.domain_of(anchors.col(m)) == comm_.rank()) mine.push_back(m);
@@ -162,8 +238,9 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   // domain's narrowest width: an anchor near a face does not go back and forth (each move rebuilds
   // two ranks' parts). A molecule away from its domain costs only messages: its beads' pair forces
   // are computed at their homes whoever owns it.
+  const int mine[3] = {me / (grid_.dims[1] * grid_.dims[2]), (me / grid_.dims[2]) % grid_.dims[1], me % grid_.dims[2]};
   double slack = std::numeric_limits<double>::infinity();
-  for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * grid_.length[a] / grid_.dims[a]);
+  for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * (grid_.face(a, mine[a] + 1) - grid_.face(a, mine[a])));
   std::vector<std::vector<double>> out(ranks), in;
   std::vector<int> kept;
   for (int m : owned_) {
@@ -241,21 +318,30 @@ namespace {
 void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
                   std::vector<std::pair<int, double>>& out) {
   const int n = g.dims[a];
-  const double width = g.length[a] / n;
-  const int lo = static_cast<int>(std::floor((q - reach - g.origin[a]) / width));
-  const int hi = static_cast<int>(std::floor((q + reach - g.origin[a]) / width));
   out.assign(1, {home, 0.0});
   const auto add = [&](int c, double gap) {
     for (auto& [coordinate, least] : out)
       if (coordinate == c) return void(least = std::min(least, gap));
     out.emplace_back(c, gap);
   };
-  for (int c = lo; c <= hi; ++c) {
-    if (!g.periodic[a] && (c < 0 || c >= n)) continue;
-    double below = g.origin[a] + c * width, above = below + width;
-    if (!g.periodic[a] && c == 0) below = -std::numeric_limits<double>::infinity();
-    if (!g.periodic[a] && c == n - 1) above = std::numeric_limits<double>::infinity();
-    add(g.periodic[a] ? ((c % n) + n) % n : c, std::max({0.0, below - q, q - above}));
+  // The slabs c of the image shifted by `shift` whose faces come within reach of q (the low one
+  // from slab_of(q − reach), the high one from slab_of(q + reach), both in that image's frame).
+  const auto add_image = [&](double shift, int lo, int hi) {
+    for (int c = lo; c <= hi; ++c) {
+      double below = g.face(a, c) + shift, above = g.face(a, c + 1) + shift;
+      if (!g.periodic[a] && c == 0) below = -std::numeric_limits<double>::infinity();
+      if (!g.periodic[a] && c == n - 1) above = std::numeric_limits<double>::infinity();
+      add(c, std::max({0.0, below - q, q - above}));
+    }
+  };
+  if (!g.periodic[a]) return add_image(0.0, g.slab_of(a, q - reach), g.slab_of(a, q + reach));
+  const double length = g.length[a];
+  const int first = static_cast<int>(std::floor((q - reach - g.origin[a]) / length));
+  const int last = static_cast<int>(std::floor((q + reach - g.origin[a]) / length));
+  for (int j = first; j <= last; ++j) {
+    const double shift = j * length;
+    add_image(shift, j == first ? g.slab_of(a, q - reach - shift) : 0,
+              j == last ? g.slab_of(a, q + reach - shift) : n - 1);
   }
 }
 
@@ -310,9 +396,9 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     bool inside = true;
     for (int a = 0; a < 3 && inside; ++a) {
       if (dims[a] == 1) continue;
-      const double width = grid_.length[a] / dims[a], lo = grid_.origin[a] + hc[a] * width;
+      const double lo = grid_.face(a, hc[a]), hi = grid_.face(a, hc[a] + 1);
       inside = (hc[a] == 0 && !grid_.periodic[a] ? true : q[a] - lo >= reach) &&
-               (hc[a] == dims[a] - 1 && !grid_.periodic[a] ? true : lo + width - q[a] >= reach);
+               (hc[a] == dims[a] - 1 && !grid_.periodic[a] ? true : hi - q[a] >= reach);
     }
     if (inside) {
       Plan& p = home == me ? local_ : out_[home];
@@ -412,6 +498,38 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     halo_doubles_ += out + back;
     halo_messages_ += (out > 0) + (back > 0);
   }
+}
+
+double Decomposition::imbalance(const Eigen::Matrix3Xd& x) const {
+  std::vector<double> loads = domain_loads(grid_, x);
+  comm_.sum(loads.data(), static_cast<int>(loads.size()));
+  return load_imbalance(loads);
+}
+
+bool Decomposition::rebalance(const Eigen::Matrix3Xd& x) {
+  if (balance_.when != BalanceSettings::When::dynamic) return false;
+  const ScopedPhase phase(Phase::domain);
+  // Every bead is home on one rank: the mean is N / ranks, and one max of the home beads (counted
+  // at the selection) tells every rank alike whether to recut.
+  const double mean = static_cast<double>(owned_of_.size()) / comm_.size();
+  const double most = comm_.max(static_cast<double>(num_home_));
+  const double before = mean > 0.0 ? most / mean : 1.0;
+  if (before <= balance_.threshold) return false;
+  // The recut from the owned beads' histograms summed over the ranks (counts: exact in any order,
+  // so the cuts are the same on every rank).
+  const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
+  std::vector<double> histograms = axis_histograms(grid_, x, bins);
+  comm_.sum(histograms.data(), static_cast<int>(histograms.size()));
+  DomainGrid cut = balanced_grid(grid_, histograms, bins);
+  std::vector<double> loads = domain_loads(cut, x);
+  comm_.sum(loads.data(), static_cast<int>(loads.size()));
+  // A recut costs a selection of the pair sets (every rank's lists built again) and the parts of
+  // the ranks whose molecules move: kept when it halves the excess over 1 at least, so that a small
+  // system's fluctuations about the threshold are not chased at every selection.
+  if (load_imbalance(loads) - 1.0 > 0.5 * (before - 1.0)) return false;
+  grid_ = std::move(cut);
+  ++recuts_;
+  return true;
 }
 
 void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, const Eigen::Matrix3Xd* owned_f,

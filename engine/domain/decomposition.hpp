@@ -18,6 +18,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -26,16 +27,27 @@
 #include "core/communicator.hpp"
 #include "core/state.hpp"
 #include "core/topology.hpp"
+#include "engine/scene/parallel_settings.hpp"  // BalanceSettings
 
 namespace stiffmd {
 
-// The domains: dims[a] slabs per axis of equal width over the box (periodic axes) or over the
-// anchors' extent at the start (open axes).
+// The domains: a tensor-product grid of dims[a] slabs per axis over the box (periodic axes) or over
+// the anchors' extent at the start (open axes). The slabs are equal unless the load balance cut
+// them (docs/parallel.md, "Load balance"): cut[a] holds the faces of axis a as fractions of its
+// length, 0 = cut[a][0] < … < cut[a][dims[a]] = 1 (empty: equal slabs), so that the slabs scale
+// with the box under a barostat.
 struct DomainGrid {
   Eigen::Vector3i dims = Eigen::Vector3i::Ones();
   Eigen::Vector3d origin = Eigen::Vector3d::Zero(), length = Eigen::Vector3d::Ones();
   Eigen::Vector3i periodic = Eigen::Vector3i::Zero();
+  std::array<std::vector<double>, 3> cut;
   int size() const { return dims.prod(); }
+  // The low face of slab c of axis a (c = dims[a]: the high face of the last slab).
+  double face(int a, int c) const {
+    return cut[a].empty() ? origin[a] + c * (length[a] / dims[a]) : origin[a] + length[a] * cut[a][c];
+  }
+  // The slab of axis a that holds the coordinate q (not wrapped; clamped to the edge slabs).
+  int slab_of(int a, double q) const;
   // The domain of a point (wrapped on periodic axes; clamped to the edge domains on open axes).
   int domain_of(const Eigen::Vector3d& p) const;
   // Whether p lies within `slack` of the domain (periodic axes: of its nearest image).
@@ -46,6 +58,21 @@ struct DomainGrid {
 // ranks into three that makes the domains closest to cubes (least surface per volume), periodic
 // axes cut first. `anchors`: the molecules' anchors, for the extent of open axes.
 DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* dims, const Eigen::Matrix3Xd& anchors);
+
+// The measure per domain of grid g: the beads of x (columns) counted in the domain that holds them.
+std::vector<double> domain_loads(const DomainGrid& g, const Eigen::Matrix3Xd& x);
+// max/mean of the loads (1 when there is no load).
+double load_imbalance(const std::vector<double>& loads);
+// Per axis, the beads of x counted in `bins` equal bins over the grid's extent (wrapped on periodic
+// axes, clamped on open ones): 3 × bins counts, axis-major.
+std::vector<double> axis_histograms(const DomainGrid& g, const Eigen::Matrix3Xd& x, int bins);
+// The faces (fractions of the axis, 0 … 1) of `slabs` slabs that hold equal shares of a histogram's
+// total (its cumulative sum cut at k/slabs of the total, linear within a bin): the shift method's
+// cuts (LAMMPS `balance shift`) reached exactly, since the whole histogram is known.
+std::vector<double> quantile_cuts(std::span<const double> histogram, int slabs);
+// The grid g cut at the quantiles of the summed histograms (axis_histograms with `bins`) on
+// every axis with more than one slab.
+DomainGrid balanced_grid(const DomainGrid& g, const std::vector<double>& histograms, int bins);
 
 // What a decomposed run reports about itself (summary.json, docs/parallel.md).
 struct DomainReport {
@@ -59,6 +86,11 @@ struct DomainReport {
   long migrated_molecules = 0;          // all ranks
   long neighbor_rebuilds_min = 0;       // a rank's neighbour-list rebuilds: the fewest and the most
   long neighbor_rebuilds_max = 0;
+  // The load balance: the measure's max/mean on equal slabs in the initial state, and on the final
+  // cuts in the final state; the recuts (the start's among them) and the final cuts per axis.
+  double imbalance_before = 1.0, imbalance_after = 1.0;
+  long recuts = 0;
+  std::array<std::vector<double>, 3> cuts;
 };
 
 // Columns from … from + count − 1 of one 3 × m array and to … to + count − 1 of another: the
@@ -74,16 +106,28 @@ class Decomposition {
   Decomposition(const Topology& topology, const Eigen::VectorXd& inv_mass, const Box& box, const Communicator& comm,
                 double cutoff, double margin, const Eigen::Vector3i* dims);
 
-  // From the whole state (the same on every rank, at the start): owners by anchor, and this
-  // rank's owned x, v (no communication: the caller selects the pair sets next).
+  // When the domains are recut (off unless set; before distribute).
+  void set_balance(const BalanceSettings& b) { balance_ = b; }
+  // From the whole state (the same on every rank, at the start): the grid (recut to its beads
+  // unless the balance is off), owners by anchor, and this rank's owned x, v (no communication:
+  // the caller selects the pair sets next).
   void distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
-  // Molecules whose anchor has gone more than a quarter of a domain's width past this rank's
-  // domain move whole to the owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel
+  // Molecules whose anchor has gone more than a quarter of this rank's domain's narrowest width
+  // past it move whole to the owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel
   // with them); x, v, carried become the new owned arrays. Returns whether this rank's owned particles changed.
   // Collective.
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried);
   // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
+  // After a selection of the pair sets, with the dynamic balance: when the home beads' max/mean
+  // exceeds the threshold, the grid is recut to the owned positions x if that halves its excess
+  // over 1 at least (the same on every rank). Returns whether it was recut: then the molecules migrate and the pair
+  // sets are selected again. Collective.
+  bool rebalance(const Eigen::Matrix3Xd& x);
+  // The measure's max/mean on the current grid for the owned positions x. Collective.
+  double imbalance(const Eigen::Matrix3Xd& x) const;
+  double imbalance_before() const { return imbalance_before_; }
+  long recuts() const { return recuts_; }
 
   // The pair set's array of an owned one (the positions, or the mollified positions), wrapped into
   // the box (BoxWrap, forcefields/neighbor_list.hpp) as the pair loop reads positions; with
@@ -152,6 +196,9 @@ class Decomposition {
   Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Ones();  // [parallel] grid, when given
   bool have_dims_ = false;
   double radius_, margin_;
+  BalanceSettings balance_;
+  double imbalance_before_ = 1.0;
+  long recuts_ = 0;
 
   std::vector<int> owned_;     // molecules, increasing
   std::vector<int> ids_;       // owned particles: global index, increasing

@@ -88,6 +88,7 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
   // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.forces->box(), comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
+  domains_->set_balance(whole.parallel.balance);
   // Each pair term's special pairs over the whole system, by particle: a pair set's are those
   // among its beads (GhostedPairs).
   for (const auto& t : whole.forces->terms()) {
@@ -256,6 +257,9 @@ void DomainIntegrator::reselect(bool box_moved) {
   CarriedState carried = part_->integrator->carried_state();
   std::vector<Eigen::Matrix3Xd*> columns;
   for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
+  // The home beads counted at the selection: the dynamic balance may recut the domains first, and
+  // the molecules then migrate to the new ones.
+  const bool recut = domains_->rebalance(l.x);
   double changed = 0.0;
   if (domains_->migrate(l.x, l.v, columns)) {
     changed = 1.0;
@@ -264,7 +268,7 @@ void DomainIntegrator::reselect(bool box_moved) {
     part_->integrator->restore_carried_state(std::move(carried));
   }
   comm_.max(&changed, 1);
-  if (changed > 0.0 || box_moved) domains_->select_pair_set(part_->scene.state.x);
+  if (changed > 0.0 || box_moved || recut) domains_->select_pair_set(part_->scene.state.x);
 }
 
 void DomainIntegrator::step(State& s, double h) {
@@ -467,6 +471,15 @@ DomainReport DomainIntegrator::report() const {
   comm_.max(rebuilds, 2);
   r.neighbor_rebuilds_min = static_cast<long>(-rebuilds[0]);
   r.neighbor_rebuilds_max = static_cast<long>(rebuilds[1]);
+  r.imbalance_before = domains_->imbalance_before();
+  r.imbalance_after = domains_->imbalance(part_->scene.state.x);
+  r.recuts = domains_->recuts();
+  for (int a = 0; a < 3; ++a) {
+    const DomainGrid& g = domains_->grid();
+    r.cuts[a].resize(g.dims[a] + 1);
+    for (int c = 0; c <= g.dims[a]; ++c)
+      r.cuts[a][c] = g.cut[a].empty() ? static_cast<double>(c) / g.dims[a] : g.cut[a][c];
+  }
   return r;
 }
 

@@ -32,6 +32,9 @@ void refuse_parallel_keys(const Scene& sc, const EnsembleJob& job) {
   if (!sc.parallel.halo_margin_where.empty())
     throw InputError(sc.parallel.halo_margin_where + ": the halo of one run divided among ranks" + why +
                      "halo_margin (without [ensemble] one run is divided)");
+  if (!sc.parallel.balance_where.empty())
+    throw InputError(sc.parallel.balance_where + ": the domains of one run divided among ranks" + why +
+                     "balance (without [ensemble] one run is divided)");
 }
 
 // Member k's deck loaded. A failure at one of the member's values ("--set KEY" in the message,

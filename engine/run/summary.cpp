@@ -72,7 +72,9 @@ std::string format_summary(const RunSummary& s) {
       << "), step loop max " << s.rank_loop_seconds_max << " s, mean " << s.rank_loop_seconds_mean << " s; "
       << d.ghosts_per_owned << " halo beads per home bead, halo " << d.halo_bytes_per_step << " bytes in "
       << d.halo_messages_per_step << " messages; " << d.redistributions << " redistributions moved "
-      << d.migrated_molecules << " molecules";
+      << d.migrated_molecules << " molecules; home beads max/mean " << d.imbalance_before
+      << " on equal slabs at the start, " << d.imbalance_after << " at the end (" << d.recuts
+      << (d.recuts == 1 ? " recut)" : " recuts)");
     if (s.h5md_writers > 0) o << "; H5MD written by " << s.h5md_writers << (s.h5md_writers > 1 ? " ranks" : " rank");
     o << "\n";
   }
@@ -151,6 +153,14 @@ std::string summary_json(const RunSummary& s) {
       << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"h5md_writers\": " << s.h5md_writers
       << ", \"peak_rss_mib_mean\": " << s.rank_peak_rss_mib_mean
       << ", \"peak_rss_mib_max\": " << s.rank_peak_rss_mib_max;
+    o << ", \"imbalance_before\": " << d.imbalance_before << ", \"imbalance_after\": " << d.imbalance_after
+      << ", \"recuts\": " << d.recuts << ", \"cuts\": [";
+    for (int a = 0; a < 3; ++a) {
+      o << (a ? ", [" : "[");
+      for (size_t c = 0; c < d.cuts[a].size(); ++c) o << (c ? ", " : "") << d.cuts[a][c];
+      o << "]";
+    }
+    o << "]";
     for (const auto& [name, seconds] :
          {std::pair{"timing_mean", &s.rank_phase_seconds_mean}, std::pair{"timing_max", &s.rank_phase_seconds_max}}) {
       if (seconds->empty()) continue;

@@ -483,7 +483,7 @@ void warn_projected_vibrations(DeckTable& root, Scene& sc) {
 // to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
 // refused, naming the nearest valid end times.
 // [parallel] grid = [px, py, pz] (each ≥ 1; their product must be the number of ranks, checked
-// when the run starts on them), halo_margin > 0 (a length).
+// when the run starts on them), halo_margin > 0 (a length), balance and balance_threshold.
 void read_parallel(DeckTable& root, Scene& sc) {
   auto t = root.table("parallel");
   if (!t) return;
@@ -498,6 +498,21 @@ void read_parallel(DeckTable& root, Scene& sc) {
     sc.parallel.halo_margin_where = t->where("halo_margin");
     t->require(std::isfinite(*m) && *m > 0.0, "halo_margin", "expected a length > 0");
     sc.parallel.halo_margin = *m;  // lengths are the same in every unit system (σ or Å)
+  }
+  // balance = "off" | "start" | "dynamic", balance_threshold >= 1 (the measure's max/mean).
+  if (t->has("balance")) {
+    sc.parallel.balance_where = t->where("balance");
+    const std::string when = t->string("balance");
+    using When = BalanceSettings::When;
+    t->require(when == "off" || when == "start" || when == "dynamic", "balance",
+               "expected \"off\", \"start\" or \"dynamic\"");
+    sc.parallel.balance.when = when == "off" ? When::off : when == "start" ? When::start : When::dynamic;
+  }
+  if (auto b = t->maybe_number("balance_threshold")) {
+    if (sc.parallel.balance_where.empty()) sc.parallel.balance_where = t->where("balance_threshold");
+    t->require(std::isfinite(*b) && *b >= 1.0, "balance_threshold",
+               "expected a number >= 1 (the largest domain's home beads over the mean that starts a recut)");
+    sc.parallel.balance.threshold = *b;
   }
   t->finish();
 }

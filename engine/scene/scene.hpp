@@ -20,6 +20,7 @@
 #include "engine/deck/deck.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
+#include "engine/scene/parallel_settings.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/minimize.hpp"
@@ -66,14 +67,6 @@ struct OutputSettings {
   std::string lammps_data;                    // the final state as a LAMMPS data file ("" = none)
   std::string checkpoint = "checkpoint.bin";  // written at the end, on SIGINT/SIGTERM, and every N steps
   double checkpoint_interval = 0.0;           // a time (0 = only at the end and on a signal)
-};
-
-// [parallel]: what a run on several ranks lets a user choose (docs/parallel.md); ignored on one.
-struct ParallelSettings {
-  Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
-  double halo_margin = 0.0;                        // the pair sets beyond the cutoff; 0: 1.5 × skin (docs/parallel.md)
-  // "file:line: parallel.grid" (or the --set that gave it), for errors at the key; empty: not given.
-  std::string grid_where, halo_margin_where;
 };
 
 // [prepare]: how the initial state is made ready for a stiff run (prepare_scene, which calls
