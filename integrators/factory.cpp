@@ -173,11 +173,6 @@ std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& s, ForceFi
   if (m->needs_stiff_bonds && !forces.stiff_bonds())
     throw std::invalid_argument("method '" + s.method +
                                 "' needs constraint-defining stiff bonds (a stiff-harmonic term)");
-  if (!m->rigid_constraints && forces.stiff_bonds() && forces.stiff_bonds()->shake_tolerance > 0.0)
-    throw std::invalid_argument(
-        "the stiff-harmonic term's shake_tolerance is the SHAKE tolerance of the rigid methods "
-        "(rattle, effective, fixman); method '" +
-        s.method + "' solves no SHAKE per step: remove it");
   std::unique_ptr<Integrator> integrator = m->make(s, forces, inv_mass);
   if (s.thermostat.style == ThermostatSettings::Style::csvr) {
     const int rigid = m->rigid_constraints ? static_cast<int>(forces.stiff_bonds()->bonds.size()) : 0;
