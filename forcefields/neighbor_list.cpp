@@ -809,11 +809,15 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int ny = ncell_[1], nz = ncell_[2];
-  // Per axis and cell coordinate, the distinct neighbour coordinates.
-  int distinct[3][3], count[3];
   offsets_.resize(static_cast<std::size_t>(n) + 1);
   offsets_[0] = 0;
   neighbors_.clear();  // keeps its capacity
+  if (ncell_[0] <= 2 && ncell_[1] <= 2 && ncell_[2] <= 2) {
+    search_all_pairs(n, mi, have_exclusions);
+    return;
+  }
+  // Per axis and cell coordinate, the distinct neighbour coordinates.
+  int distinct[3][3], count[3];
   for (int i = 0; i < n; ++i) {
     const bool i_ghost = !ghost_.empty() && ghost_[i];
     const int cell = cell_of_[i];
@@ -842,6 +846,45 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
           }
         }
     std::sort(neighbors_.begin() + offsets_[i], neighbors_.end());
+    offsets_[i + 1] = static_cast<std::int64_t>(neighbors_.size());
+  }
+}
+
+// At most 2 cells on every axis (a box under two list radii wide, as LAMMPS's peptide example's
+// 27 Å for 10 + 2 Å): every cell neighbours every cell, so the candidates of i are all j > i. Read
+// in index order they give search_small_box's rows — the same pairs, the same separations
+// (wrapped_x_ is what cell_x_ holds, in index order), already sorted — without the walk over
+// cells or the sort of each row. The distance test keeps a candidate without a branch (about
+// two in three are beyond the list radius, at random: a branch would mispredict often); the
+// exclusions (bonded neighbours) and ghost pairs are then dropped from the few kept.
+void NeighborList::search_all_pairs(int n, const MinimumImage& mi, bool have_exclusions) {
+  const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
+  const double* xw = wrapped_x_.data();
+  if (hits_.empty()) hits_.resize(1);
+  std::vector<int>& hits = hits_[0];
+  if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
+  int* const hit = hits.data();
+  for (int i = 0; i < n; ++i) {
+    const double xi = xw[3 * i], yi = xw[3 * i + 1], zi = xw[3 * i + 2];
+    int count = 0;
+    for (int j = i + 1; j < n; ++j) {
+      double dx = xi - xw[3 * j], dy = yi - xw[3 * j + 1], dz = zi - xw[3 * j + 2];
+      mi.apply(dx, dy, dz);
+      hit[count] = j;
+      count += dx * dx + dy * dy + dz * dz < rlist2;
+    }
+    const bool may_exclude = have_exclusions && excl_offsets_[i + 1] > excl_offsets_[i];
+    const bool i_ghost = !ghost_.empty() && ghost_[i];
+    if (may_exclude || i_ghost) {
+      int kept = 0;
+      for (int h = 0; h < count; ++h) {
+        const int j = hit[h];
+        hit[kept] = j;
+        kept += !(may_exclude && excluded(i, j)) && !(i_ghost && ghost_[j]);
+      }
+      count = kept;
+    }
+    neighbors_.insert(neighbors_.end(), hit, hit + count);
     offsets_[i + 1] = static_cast<std::int64_t>(neighbors_.size());
   }
 }

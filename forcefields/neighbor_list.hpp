@@ -68,18 +68,31 @@ struct MinimumImage {
 // Minimum image of a separation between two positions from NeighborList::wrapped_positions,
 // each within the skin of the box while the list is valid (no particle moved more than the skin
 // since the build): then |d| < L + 2 skin ≤ 1.5 L (update rebuilds on a periodic axis shorter
-// than 4 skin), so one fold by ±L gives the minimum image. Pairs across
-// a face are a few per cent of all, so the branches are well predicted — cheaper than rounding
-// d/L. Open axes never fold (half = ∞).
+// than 4 skin), so one fold by ±L gives the minimum image. In a box many list radii wide, pairs
+// across a face are a few per cent of all, the fold's branches are well predicted, and folding is
+// cheaper than rounding d/L. In a box a few list radii wide it is not: a listed pair crosses a
+// face on an axis with probability ≈ E|d_a|/L = 3R/(8L) for the list radius R (LAMMPS's peptide
+// example: 12 Å in 27 Å, one pair in six per axis, at random), and the mispredicted branches cost
+// more than the rounding. Given the list radius, a box with an axis shorter than kRoundBelow · R
+// rounds (d − L·round(d/L), without a branch): the same separation as the fold, d − L, d + L or d,
+// except within rounding of |d| = L/2, where either image is at L/2 — beyond every cutoff (the
+// box is at least two list radii wide), so the forces are the same. Open axes never fold.
 struct NearestImage {
+  // Where rounding pays: an estimate (a mispredicted branch ≈ 15 cycles, against a few cycles of
+  // rounding per axis), measured on the peptide (docs/performance.md); data.chain has L/R ≈ 25.
+  static constexpr double kRoundBelow = 6.0;
   double length[3] = {0.0, 0.0, 0.0};
   double half[3] = {INFINITY, INFINITY, INFINITY};
+  double inv_length[3] = {0.0, 0.0, 0.0};
+  bool rounded = false;
 
-  explicit NearestImage(const Box& box) {
+  explicit NearestImage(const Box& box, double list_radius = 0.0) {
     for (int a = 0; a < 3; ++a)
       if (box.periodic[a]) {
         length[a] = box.lengths[a];
         half[a] = 0.5 * box.lengths[a];
+        inv_length[a] = 1.0 / box.lengths[a];
+        rounded |= box.lengths[a] < kRoundBelow * list_radius;
       }
   }
   static double fold(double d, double len, double h) {
@@ -88,6 +101,12 @@ struct NearestImage {
     return d;
   }
   void apply(double& dx, double& dy, double& dz) const {
+    if (rounded) {
+      dx = MinimumImage::wrap(dx, length[0], inv_length[0]);
+      dy = MinimumImage::wrap(dy, length[1], inv_length[1]);
+      dz = MinimumImage::wrap(dz, length[2], inv_length[2]);
+      return;
+    }
     dx = fold(dx, length[0], half[0]);
     dy = fold(dy, length[1], half[1]);
     dz = fold(dz, length[2], half[2]);
@@ -317,6 +336,7 @@ class NeighborList {
 
   void search_half_stencil(int n, bool have_exclusions);
   void search_small_box(int n, const MinimumImage& mi, bool have_exclusions);
+  void search_all_pairs(int n, const MinimumImage& mi, bool have_exclusions);  // ≤ 2 cells per axis
 };
 
 }  // namespace stiffmd

@@ -576,25 +576,26 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   const int parts = threads_for(static_cast<std::int64_t>(list.num_pairs()));
   const bool periodic = box.any_periodic();
   const Eigen::Matrix3Xd& xl = periodic ? list.wrapped_positions(x) : x;
+  const NearestImage near(box, list.cutoff() + list.skin());
   PairSums listed;
   if (parts > 1) {  // each part copies the wrapped positions it reads
     listed = periodic ? accumulate_pair_rows_parallel<Kernel, true, kForces, kVirial, kShares, kEnergy>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges, uniform)
+                            list, parts, params, type, xl, near, f, scratch, charges, uniform)
                       : accumulate_pair_rows_parallel<Kernel, false, kForces, kVirial, kShares, kEnergy>(
-                            list, parts, params, type, xl, NearestImage(box), f, scratch, charges, uniform);
+                            list, parts, params, type, xl, near, f, scratch, charges, uniform);
   } else {
     run_as_one_part(static_cast<std::int64_t>(list.num_pairs()), [&] {
       if constexpr (!kEnergy) {
         if (periodic)
-          pair_forces_rows<Kernel, true>(list, 0, n, params, type, uniform, xl, NearestImage(box), f, charges);
+          pair_forces_rows<Kernel, true>(list, 0, n, params, type, uniform, xl, near, f, charges);
         else
-          pair_forces_rows<Kernel, false>(list, 0, n, params, type, uniform, xl, NearestImage(box), f, charges);
+          pair_forces_rows<Kernel, false>(list, 0, n, params, type, uniform, xl, near, f, charges);
         return;
       }
       listed = periodic ? accumulate_pair_rows<Kernel, true, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
-                                                                                        NearestImage(box), f, charges)
+                                                                                        near, f, charges)
                         : accumulate_pair_rows<Kernel, false, kForces, kVirial, kShares>(list, 0, n, params, type, xl,
-                                                                                         NearestImage(box), f, charges);
+                                                                                         near, f, charges);
     });
   }
   // The scaled pairs round the separations of the wrapped positions (MinimumImage): they are few,

@@ -33,6 +33,10 @@ struct StiffBond {
 struct StiffBonds {
   std::vector<StiffBond> bonds;
   double epsilon = 1.0;
+  // The rigid methods' SHAKE stops, as LAMMPS's fix shake/rattle with this tolerance, at the first
+  // iterate whose update changed no multiplier λ_b / |d_b(x_ref)| by more than it (a mass; the
+  // toolbox's multiplier_tol, integrators/constraints.hpp); 0: it iterates to max |g| ≤ 1e-12.
+  double shake_tolerance = 0.0;
 };
 
 // "bond b (particles i–j)", for messages.

@@ -10,6 +10,7 @@ namespace stiffmd {
 StiffHarmonicBond::StiffHarmonicBond(std::string name, Level level, StiffBonds bonds)
     : ForceTerm(std::move(name), level), bonds_(std::move(bonds)) {
   require(bonds_.epsilon, kPositive, "epsilon");
+  if (bonds_.shake_tolerance != 0.0) require(bonds_.shake_tolerance, kPositive, "shake_tolerance");
   const double inv_eps2 = 1.0 / (bonds_.epsilon * bonds_.epsilon);
   instances_.reserve(bonds_.bonds.size());
   // The masses are not known here: the rules that need them are checked by the deck reader
@@ -25,6 +26,7 @@ double StiffHarmonicBond::add_forces(const Eigen::Matrix3Xd& x, const Box& box, 
 std::unique_ptr<ForceTerm> StiffHarmonicBond::on_subset(const ParticleSubset& subset, const Box&) const {
   StiffBonds mine;
   mine.epsilon = bonds_.epsilon;
+  mine.shake_tolerance = bonds_.shake_tolerance;
   mine.bonds = items_on_subset(bonds_.bonds, subset, "stiff-harmonic '" + name() + "'", "stiff bond", &StiffBond::i,
                                &StiffBond::j);
   return std::make_unique<StiffHarmonicBond>(name(), level(), std::move(mine));
@@ -33,6 +35,7 @@ std::unique_ptr<ForceTerm> StiffHarmonicBond::on_subset(const ParticleSubset& su
 std::string StiffHarmonicBond::describe() const {
   std::ostringstream s;
   s << bonds_.bonds.size() << " stiff bonds, epsilon = " << bonds_.epsilon;
+  if (bonds_.shake_tolerance > 0.0) s << ", SHAKE tolerance " << bonds_.shake_tolerance << " (LAMMPS's)";
   return s.str();
 }
 

@@ -223,16 +223,22 @@ struct ConstraintToolbox::Impl {
     double previous = std::numeric_limits<double>::infinity();
     double chord_residual = 0.0;  // max |h| of the last chord update, with −h in rhs
     bool have_chord_residual = false;
+    // LAMMPS's fix shake tolerance (ConstraintToolbox::shake; 0: off) and whether the last update's
+    // multipliers changed by no more than it (the iterate is then accepted, once G there is measured).
+    double multiplier_tol = 0.0;
+    bool accepted = false;
   };
   enum class ShakeNext { converged, chord_solve, newton_done };
-  void shake_start(ShakeState& st, int c);
+  void shake_start(ShakeState& st, int c, double multiplier_tol);
+  // Whether an update δ (sol, local order) meets LAMMPS's tolerance: max_b |δ_b| / |d_b(x_ref)| ≤ tol.
+  bool within_multiplier_tol(const ClusterData& d, double tol) const;
   // One iteration up to the chord's solve: converged; chord_solve (−h or −g in rhs: solve S(x_ref)
   // into sol, then shake_chord_update); or a Newton step done. Throws NumericalError.
   ShakeNext shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y, double tol, int max_iter);
   void shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y);
-  void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter, double multiplier_tol = 0.0);
   // SHAKE on a group of clusters (shake_group: their chord solves in lockstep).
-  void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter);
+  void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter, double multiplier_tol);
 
   // The mollified force (mollifier.cpp).
   void mollify_cluster(int c, Eigen::Matrix3Xd& f);

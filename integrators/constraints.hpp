@@ -87,9 +87,12 @@ class ConstraintToolbox {
   // S(x_ref), falling back to Newton when they contract slowly). With x_ref = y this is the mollifier α(x) of
   // paper eq. (ProMol). Converged when max_b |g_b| ≤ tol. Throws NumericalError naming the
   // cluster, the worst bond and the iteration count when it does not converge in max_iter.
-  // lambda (size m) receives the multipliers if non-null.
+  // lambda (size m) receives the multipliers if non-null. multiplier_tol > 0 is LAMMPS's fix
+  // shake tolerance as well: a cluster also stops at the first iterate whose update changed no
+  // multiplier in LAMMPS's scaling (λ_b / |d_b(x_ref)|, a mass) by more than multiplier_tol —
+  // the update applied, as LAMMPS applies its last one (docs/decks.md, shake_tolerance).
   void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr, double tol = 1e-12,
-             int max_iter = 50);
+             int max_iter = 50, double multiplier_tol = 0.0);
 
   // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)), in four steps:
   //   X = α(x), f = f_slow(X); solve Jᵀμ = G(x) M⁻¹ f, J = G(X) M⁻¹ G(x)ᵀ;

@@ -17,6 +17,7 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
       model_(std::move(model)),
       langevin_(std::move(langevin)),
       obabo_(langevin_ && splitting == ThermostatSettings::Splitting::obabo),
+      shake_tolerance_(forces.stiff_bonds() ? forces.stiff_bonds()->shake_tolerance : 0.0),
       f_(Eigen::Matrix3Xd::Zero(3, forces.num_particles())),
       correction_(f_),
       x_old_(f_),
@@ -65,7 +66,7 @@ void Rattle::refresh(const Eigen::Matrix3Xd& x) {
 // constraint impulse.
 void Rattle::rattle_drift(State& s, double dt) {
   keep_and_drift(x_old_, s.x, s.v, dt);
-  toolbox_.shake(x_old_, s.x);
+  toolbox_.shake(x_old_, s.x, nullptr, 1e-12, 50, shake_tolerance_);
   chord_velocity(s.v, s.x, x_old_, dt);
 }
 

@@ -119,6 +119,9 @@ class Rattle final : public Integrator {
   std::unique_ptr<ModelPotential> model_;
   std::unique_ptr<LangevinNoise> langevin_;
   bool obabo_ = false;  // langevin_ as O(½h) around the RATTLE step instead of constrained BAOAB
+  // The step's SHAKE stops at LAMMPS's tolerance when the stiff-bond term gives one
+  // (StiffBonds::shake_tolerance; 0: to max |g| ≤ 1e-12). The initial projection is exact.
+  double shake_tolerance_ = 0.0;
   // With Langevin: the closing projections merged (rattle.cpp) — BAOAB's two at x_{n+1}, OBABO's
   // kick and O-step projections (the friction is one number on each cluster: the constructor
   // refuses anything else); as written only when a test asks.

@@ -92,7 +92,7 @@ double ConstraintToolbox::Impl::chain_displace(int c, Eigen::Matrix3Xd& y, const
 // factors are usually kept from the velocity projection that ended the last step); otherwise, or
 // as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
 // enough for the mollified force's H_λ).
-void ConstraintToolbox::Impl::shake_start(ShakeState& st, int c) {
+void ConstraintToolbox::Impl::shake_start(ShakeState& st, int c, double multiplier_tol) {
   ClusterData& d = data[c];
   if (!d.frame_kept) {
     measure(c, kept_x, at_kept, "SHAKE (reference configuration)");
@@ -101,7 +101,20 @@ void ConstraintToolbox::Impl::shake_start(ShakeState& st, int c) {
   st = ShakeState{};
   st.c = c;
   st.chord = d.spd != nullptr;
+  st.multiplier_tol = multiplier_tol;
   d.lambda.setZero();
+}
+
+// LAMMPS's fix shake moves particle i by m_i⁻¹ λ_L r_b with r_b = x_i − x_j at the reference
+// configuration (not a unit vector) and stops when no λ_L changed by more than its tolerance in
+// the last iteration; here the move is m_i⁻¹ λ_b u_b, so λ_L = λ_b / |r_b(x_ref)|, and an update δ
+// (sol) meets that tolerance when every |δ_b| ≤ tol · |r_b(x_ref)|.
+bool ConstraintToolbox::Impl::within_multiplier_tol(const ClusterData& d, double tol) const {
+  const int n = static_cast<int>(d.bonds.size());
+  const double* len = at_kept.length.data();
+  for (int k = 0; k < n; ++k)
+    if (!(std::abs(d.sol[k]) <= tol * len[d.bonds[k]])) return false;  // false for NaN too
+  return true;
 }
 
 ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y,
@@ -122,6 +135,10 @@ ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeS
     residual = measure(c, y, at_cur, "SHAKE", iteration, d.rhs.data());
     measured = true;
   };
+  if (st.accepted) {  // the last update met the multiplier tolerance: G(y) kept, as at convergence
+    measure_y();
+    return ShakeNext::converged;
+  }
   if (!st.chord || !(residual > tol)) {  // Newton, converged by h, or not finite
     measure_y();
     if (residual <= tol) return ShakeNext::converged;
@@ -145,6 +162,7 @@ ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeS
   ++d.factorizations;
   if (!d.spd) d.s_factored = false;  // J took S's place in the solver
   d.solver->solve(d.rhs, d.sol);
+  st.accepted = st.multiplier_tol > 0.0 && within_multiplier_tol(d, st.multiplier_tol);
   d.lambda += d.sol;
   add_constraint_displacement(c, at_kept, d.sol, +1.0, y);
   ++st.iteration;
@@ -155,6 +173,7 @@ ConstraintToolbox::Impl::ShakeNext ConstraintToolbox::Impl::shake_iterate(ShakeS
 // chain, λ += δ, y += M⁻¹G(x_ref)ᵀδ and the new −h(y).
 void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y) {
   ClusterData& d = data[st.c];
+  st.accepted = st.multiplier_tol > 0.0 && within_multiplier_tol(d, st.multiplier_tol);
   st.chord_residual = chain_displace(st.c, y, d.sol.data(), d.rhs.data());
   st.have_chord_residual = true;
   ++st.iteration;
@@ -166,15 +185,17 @@ void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3X
 // factors are usually kept from the velocity projection that ended the last step); otherwise, or
 // as soon as the chord contracts slowly, full Newton on J (quadratic convergence, and λ accurate
 // enough for the mollified force's H_λ).
-void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter) {
-  shake_group(c, 1, y, tol, max_iter);
+void ConstraintToolbox::Impl::shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter,
+                                            double multiplier_tol) {
+  shake_group(c, 1, y, tol, max_iter, multiplier_tol);
 }
 
 // SHAKE on each cluster of a group (for_each_group: open chains of one length, or any cluster
 // alone), the chord solves of the group in lockstep. Each cluster goes through its own iterations
 // exactly as alone; a failure is held until the group is done and the first failing cluster's
 // rethrown.
-void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter) {
+void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter,
+                                          double multiplier_tol) {
   ShakeState st[kChainGroup];
   bool active[kChainGroup];
   std::exception_ptr error[kChainGroup];
@@ -188,7 +209,7 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
   };
   for (int j = 0; j < count; ++j) {
     active[j] = true;
-    guard(j, [&] { shake_start(st[j], first + j); });
+    guard(j, [&] { shake_start(st[j], first + j, multiplier_tol); });
   }
   for (;;) {
     int solving[kChainGroup], cs[kChainGroup];
@@ -213,13 +234,13 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
 }
 
 void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda, double tol,
-                              int max_iter) {
+                              int max_iter, double multiplier_tol) {
   const ScopedPhase phase(Phase::constraints);
   require_columns(x_ref, impl_->num_particles(), "shake");
   require_columns(y, impl_->num_particles(), "shake");
   Impl& d = *impl_;
   d.keep(x_ref);  // a copy: y may be x_ref itself
-  d.for_each_group([&](int c, int count) { d.shake_group(c, count, y, tol, max_iter); });
+  d.for_each_group([&](int c, int count) { d.shake_group(c, count, y, tol, max_iter, multiplier_tol); });
   // Every cluster's last measure was of the converged y: keep y with G there, for the velocity
   // projection that follows in RATTLE (S at y is factored when first asked for).
   d.copy_configuration(y);

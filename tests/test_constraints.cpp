@@ -714,6 +714,75 @@ TEST(ConstraintShake, NonConvergenceNamesClusterWorstBondAndIterations) {
   }
 }
 
+// LAMMPS's fix shake tolerance (multiplier_tol): on a single cluster, the iterates y_k are those
+// of the default solve cut off after k updates (max_iter = k: the throw leaves y_k). Each update
+// δ_k = S(x_ref)⁻¹ G(x_ref)(y_k − y_{k−1}) (the step is M⁻¹G(x_ref)ᵀδ), formed here densely, is in
+// LAMMPS's scaling |δ_b| / |d_b(x_ref)|. With the tolerance between the (K−1)th and the Kth
+// update's, the solve must return y_K bit for bit: not y_{K−1} (stopped early), nor a later iterate
+// (iterated on towards |g| ≤ 1e-12), while y_K is still off the manifold by more than 1e-12. Chains from a
+// drift take chord steps on S(x_ref), the triangle and the star Newton steps on J, and a chain
+// far from x_ref Newton from the start.
+TEST(ConstraintShake, MultiplierToleranceStopsAtTheFirstIterateMeetingIt) {
+  struct Case {
+    Scene scene;
+    double drift;
+  };
+  const std::vector<Case> cases = {{random_chain(10, 41, 0.0), 0.05},
+                                   {ring(3, 42, 0.0), 0.05},
+                                   {star(3, 43, 0.0), 0.05},
+                                   {random_chain(6, 44, 0.0), 0.3}};
+  for (const Case& c : cases) {
+    const Scene& s = c.scene;
+    SCOPED_TRACE(s.name + " drift " + std::to_string(c.drift));
+    Eigen::Matrix3Xd x = s.x;
+    ConstraintToolbox(s.bonds, s.inv_mass).shake(x, x);
+    ASSERT_EQ(ConstraintToolbox(s.bonds, s.inv_mass).clusters().size(), 1u);
+    const Eigen::Matrix3Xd y0 = x + c.drift * random_motion(s, 45);
+    auto iterate = [&](int k) {
+      Eigen::Matrix3Xd y = y0;
+      try {
+        ConstraintToolbox(s.bonds, s.inv_mass).shake(x, y, nullptr, 1e-12, k);
+      } catch (const NumericalError&) {  // y_k: not converged to 1e-12 after k updates
+      }
+      return y;
+    };
+    const Eigen::MatrixXd G = jacobian(s, x);
+    const Eigen::MatrixXd S = G * inv_mass_diagonal(s).asDiagonal() * G.transpose();
+    auto update = [&](const Eigen::Matrix3Xd& from, const Eigen::Matrix3Xd& to) {
+      const Eigen::VectorXd delta = S.ldlt().solve(G * (flat(to) - flat(from)));
+      double worst = 0.0;
+      for (int b = 0; b < static_cast<int>(s.bonds.size()); ++b)
+        worst = std::max(worst, std::abs(delta[b]) / (x.col(s.bonds[b].i) - x.col(s.bonds[b].j)).norm());
+      return worst;
+    };
+    // Stop at y_K, K = 3 where y_3 is still off the manifold by more than 1e-12, else K = 2 (Newton
+    // converges quadratically: on the triangle y_3 is already within it).
+    std::vector<Eigen::Matrix3Xd> ys = {y0};
+    for (int k = 1; k <= 4; ++k) ys.push_back(iterate(k));
+    const ConstraintToolbox measure(s.bonds, s.inv_mass);
+    const int K = measure.max_violation(ys[3]) > 1e-12 ? 3 : 2;
+    ASSERT_GT(measure.max_violation(ys[K]), 1e-12);
+    ASSERT_NE(flat(ys[K]), flat(ys[K + 1]));
+    ASSERT_NE(flat(ys[K - 1]), flat(ys[K]));
+    const double before = update(ys[K - 2], ys[K - 1]), last = update(ys[K - 1], ys[K]);
+    ASSERT_GT(before, 10.0 * last);
+    const double tol = std::sqrt(before * last);
+    Eigen::Matrix3Xd y = y0;
+    Eigen::VectorXd lambda;
+    ConstraintToolbox toolbox(s.bonds, s.inv_mass);
+    toolbox.shake(x, y, &lambda, 1e-12, 50, tol);
+    EXPECT_EQ(flat(y), flat(ys[K]));
+    // The multipliers are the sum of the K updates: y − y0 = M⁻¹G(x_ref)ᵀλ.
+    const Eigen::VectorXd step = inv_mass_diagonal(s).asDiagonal() * G.transpose() * lambda;
+    EXPECT_LT((flat(y) - flat(y0) - step).lpNorm<Eigen::Infinity>(), 1e-12);
+    // The velocity projection that follows at y uses G(y), measured when the iterate was accepted.
+    Eigen::Matrix3Xd v = random_motion(s, 46);
+    toolbox.project_velocity(y, v);
+    const Scene at_y{s.name, s.bonds, s.inv_mass, y};
+    EXPECT_LT((jacobian(at_y, y) * flat(v)).lpNorm<Eigen::Infinity>(), 1e-12);
+  }
+}
+
 // ---- one configuration, measured and factored once (docs/design.md §2) ---------------------------
 
 // RATTLE's drift: x_ref on the manifold, v tangent there, y0 = x_ref + τv, so |g(y0)| ~ τ²|v|².

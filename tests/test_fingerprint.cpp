@@ -76,6 +76,9 @@ const std::map<std::string, std::vector<std::string>> kAlternative = {
 // coefficients are only the defaults of keys those tables leave out.
 const std::set<std::string> kUnused = {
     "forces.lj.epsilon", "forces.lj.sigma", "forces.lj.cutoff", "forces.wca.epsilon", "forces.wca.sigma",
+    // The rigid methods' SHAKE tolerance: a setting of their solver, not of the forces (and this
+    // deck's impulse method solves no SHAKE per step).
+    "forces.bonds.shake_tolerance",
     // The charged styles' term-level coefficients under per-type and per-pair tables, and
     // special_bonds under special_lj and special_coul (every_charged_style.toml).
     "forces.charmm.coulomb_cutoff", "forces.charmm.cutoff", "forces.charmm.epsilon", "forces.charmm.epsilon14",

@@ -6,8 +6,8 @@
 Checks that the printed table has every common row (pair, bond, neighbour, integrate/thermostat,
 kspace, other, total, CPU) with each engine's seconds, that the times in.chain exercises (pair, bond,
 neighbour, integrate/thermostat and the loop) are positive in both engines and none negative, that
-every ratio printed is the quotient of its row's times, and that the machine line names the load
-before and after. Exits 77 (ctest SKIP_RETURN_CODE) when LAMMPS (`lmp`) or data.chain is not installed."""
+every ratio printed is the quotient of its row's times, that the machine line names the load
+before and after, and that --decks hands each binary its own deck (one per binary). Exits 77 (ctest SKIP_RETURN_CODE) when LAMMPS (`lmp`) or data.chain is not installed."""
 import json
 import math
 import os
@@ -72,6 +72,15 @@ def main():
         with open(out) as f:
             result = json.load(f)
         assert len(result["medians"]) == 3 and all(result["medians"][e]["pair"] > 0 for e in result["medians"]), result
+        # --decks: one deck per binary (each run reads its own), refused when the counts differ.
+        deck = os.path.join(ROOT, "inputs", "kremer_grest.toml")
+        p = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "tools", "lammps_phases.py"), "--stiffmd", exe, exe,
+                            "--decks", deck, os.path.join(d, "missing.toml"), "--case", "chain", "--steps", "10",
+                            "--repeats", "1"], capture_output=True, text=True)
+        assert p.returncode != 0 and "missing.toml" in p.stdout + p.stderr, p.stdout[-2000:] + p.stderr[-2000:]
+        p = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "tools", "lammps_phases.py"), "--stiffmd", exe,
+                            "--decks", deck, deck, "--case", "chain"], capture_output=True, text=True)
+        assert p.returncode == 2 and "one deck per --stiffmd binary" in p.stderr, p.stderr
     print("1 passed, 0 failed")
 
 

@@ -6,11 +6,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <map>
 #include <numbers>
 #include <random>
 #include <set>
 #include <utility>
+#include <vector>
 
 #include "force_term_checks.hpp"
 #include "forcefields/neighbor_list.hpp"
@@ -614,6 +617,62 @@ TEST(NeighborList, FewerThanThreeCellsPerAxisAndMixedPeriodicity) {
   EXPECT_EQ(nl.cells_per_axis().x(), 2);
   EXPECT_EQ(nl.cells_per_axis().y(), 2);
   EXPECT_EQ(listed_pairs(nl), all_pairs_within(x, box, w));
+}
+
+// At most 2 cells on every axis (a box under two list radii wide, as LAMMPS's peptide example):
+// the search takes all j > i in index order (search_all_pairs). Every pair within the list radius
+// once, none excluded (every 1-2 and 1-3 pair of chains left out), and each row in increasing j —
+// the order the pair loop's sums depend on (neighbor_list.hpp).
+TEST(NeighborList, AtMostTwoCellsPerAxisListsRowsInIncreasingOrderWithoutExclusions) {
+  const double cutoff = 1.2, skin = 0.3, w = cutoff + skin;
+  const Box box = periodic_box(Eigen::Vector3d(2.6 * w, 2.3 * w, 2.9 * w), Eigen::Vector3d(-1, 0.5, 2));
+  const Eigen::Matrix3Xd x = random_chains(10, 12, box, 0.97, 33);
+  const WeightMap excluded = chain_weights(10, 12, {0.0, 0.0, 1.0});
+  std::vector<SpecialPair> pairs;
+  for (const auto& [ij, weight] : excluded) pairs.push_back({ij.first, ij.second, weight, weight});
+  NeighborList nl(cutoff, skin);
+  nl.set_exclusions(static_cast<int>(x.cols()), pairs);
+  nl.update(x, box);
+  ASSERT_EQ(nl.cells_per_axis(), Eigen::Vector3i(2, 2, 2));
+  EXPECT_EQ(listed_pairs(nl), all_pairs_within(x, box, w, excluded));
+  const auto off = nl.offsets();
+  const auto nb = nl.neighbors();
+  for (int i = 0; i < nl.num_particles(); ++i)
+    EXPECT_TRUE(std::is_sorted(nb.begin() + off[i], nb.begin() + off[i + 1])) << "row " << i;
+}
+
+// In a box a few list radii wide the pair loop rounds d/L instead of folding (NearestImage::rounded):
+// the same separation, bit for bit, for every |d| < 1.5 L away from ±L/2 (and at ±0 and on an open
+// axis), and at ±L/2 one at distance L/2, as the fold's.
+TEST(NearestImage, RoundingGivesTheFoldsSeparation) {
+  const double len = 27.371367;
+  const Box box = periodic_box(Eigen::Vector3d(len, 80.0, 80.0));
+  const NearestImage rounding(box, 12.0), folding(box);
+  ASSERT_TRUE(rounding.rounded);
+  ASSERT_FALSE(folding.rounded);
+  ASSERT_FALSE(NearestImage(box, 2.0).rounded);  // data.chain's proportions
+  std::vector<double> ds = {0.0, -0.0, 1.49 * len, -1.49 * len, 0.4999 * len, -0.5001 * len};
+  std::mt19937 rng(41);
+  std::uniform_real_distribution<double> u(-1.5 * len, 1.5 * len);
+  for (int k = 0; k < 10000; ++k) ds.push_back(u(rng));
+  auto bits = [](double v) {
+    std::uint64_t b;
+    std::memcpy(&b, &v, sizeof b);
+    return b;
+  };
+  for (const double d : ds) {
+    double rx = d, ry = 0.5 * d, rz = 0.0, fx = d, fy = 0.5 * d, fz = 0.0;
+    rounding.apply(rx, ry, rz);
+    folding.apply(fx, fy, fz);
+    EXPECT_EQ(bits(rx), bits(fx)) << d;
+    EXPECT_EQ(bits(ry), bits(fy)) << d;  // an open-like long axis: no fold either way
+    EXPECT_EQ(bits(rz), bits(fz)) << d;
+  }
+  for (const double d : {0.5 * len, -0.5 * len, std::nextafter(0.5 * len, 0.0), std::nextafter(0.5 * len, len)}) {
+    double rx = d, ry = 0.0, rz = 0.0;
+    rounding.apply(rx, ry, rz);
+    EXPECT_NEAR(std::abs(rx), 0.5 * len, 1e-12) << d;
+  }
 }
 
 TEST(NeighborList, RebuildsWhenSomeParticleMovedMoreThanTheSkinOrHalfOfItTooOften) {

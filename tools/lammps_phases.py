@@ -5,6 +5,9 @@
     /usr/bin/python3 tools/lammps_phases.py --case peptide --steps 300
     /usr/bin/python3 tools/lammps_phases.py --steps 20 --repeats 1 --json phases.json
     /usr/bin/python3 tools/lammps_phases.py --stiffmd /tmp/before/stiffmd build/stiffmd --repeats 5   # before/after
+    git show main:inputs/peptide.toml > /tmp/main_peptide.toml    # an older build with its own deck
+    /usr/bin/python3 tools/lammps_phases.py --case peptide --stiffmd /work/main/build/stiffmd build/stiffmd \
+        --decks /tmp/main_peptide.toml inputs/peptide.toml --repeats 3
 
 Cases (each engine from the same data file, with the same potentials, thermostat and step):
   chain    inputs/kremer_grest.toml against LAMMPS's in.chain (bench/in.chain: data.chain's 32 000 beads in
@@ -14,6 +17,8 @@ Cases (each engine from the same data file, with the same potentials, thermostat
            lj/charmm/coul/long 8/10 Å, PPPM 1e-4, SHAKE on the bonds to hydrogen and the water angle,
            2 fs, 275 K), its text below, on the data file tools/peptide_deck.py made the deck from. The
            thermostats differ (stiffmd Langevin, LAMMPS Nosé–Hoover): both are in "integrate/thermostat".
+           Both stop SHAKE at fix shake's tolerance 1e-4 (the deck's shake_tolerance). The data file is
+           set by --set import.lammps_data, so that a deck from elsewhere (--decks) reads the same file.
 
 Both run on one core (OMP_NUM_THREADS=1), interleaved (stiffmd, LAMMPS, stiffmd, LAMMPS, ...),
 --repeats times each; every time printed is the median of the repeats (so the rows' medians need not
@@ -106,8 +111,8 @@ def case_inputs(case, steps):
         deck = os.path.join(ROOT, "inputs", "kremer_grest.toml")
         return deck, [f"run.steps={steps}", thermo, f"import.lammps_data={json.dumps(CHAIN_DATA)}"], text, CHAIN_DATA
     deck = os.path.join(ROOT, "inputs", "peptide.toml")
-    return deck, [f"run.steps={steps}", thermo], PEPTIDE_LAMMPS.format(data=PEPTIDE_DATA, steps=steps, thermo=THERMO_EVERY[case]), \
-        PEPTIDE_DATA
+    return deck, [f"run.steps={steps}", thermo, f"import.lammps_data={json.dumps(PEPTIDE_DATA)}"], \
+        PEPTIDE_LAMMPS.format(data=PEPTIDE_DATA, steps=steps, thermo=THERMO_EVERY[case]), PEPTIDE_DATA
 
 
 def lammps_breakdown(log):
@@ -186,10 +191,11 @@ def measure(args, work):
         f.write(text)
     names = engine_names(args.stiffmd)
     runs = {name: {r: [] for r in ROWS} for name in names + ["LAMMPS"]}
+    decks = args.decks or [deck] * len(args.stiffmd)
     for k in range(args.repeats):
         for b, (exe, name) in enumerate(zip(args.stiffmd, names)):
             out = os.path.join(work, f"stiffmd{b}_{k}")
-            run = run_engine(stiffmd_command(exe, deck, out, sets) + ["-q"], threads=1)
+            run = run_engine(stiffmd_command(exe, decks[b], out, sets) + ["-q"], threads=1)
             if run.code != 0:
                 raise SystemExit(failure(run))
             for row, seconds in stiffmd_rows(read_summary(out)).items():
@@ -237,6 +243,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--stiffmd", nargs="+", default=[os.path.join(ROOT, "build", "stiffmd")],
                     help="one or more stiffmd binaries (e.g. a build before and after a change)")
+    ap.add_argument("--decks", nargs="+", default=None,
+                    help="one deck per --stiffmd binary, in their order (default: the case's deck for each; "
+                         "e.g. an older build with the deck of its own commit)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a stiffmd override, as stiffmd run --set (repeatable)")
     ap.add_argument("--lmp", default="lmp")
@@ -248,6 +257,10 @@ def main():
     if args.repeats < 1 or args.steps < 1:
         ap.error("--steps and --repeats must be positive")
     args.stiffmd = [os.path.abspath(b) for b in args.stiffmd]
+    if args.decks is not None:
+        if len(args.decks) != len(args.stiffmd):
+            ap.error("--decks needs one deck per --stiffmd binary")
+        args.decks = [os.path.abspath(d) for d in args.decks]
     lmp = shutil.which(args.lmp)
     if lmp is None:
         sys.exit(f"LAMMPS ('{args.lmp}') not found: bash tools/setup.sh --bench")

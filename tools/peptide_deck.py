@@ -39,6 +39,7 @@ element = lambda m: 'H' if m < 2 else 'C' if m < 13 else 'N' if m < 15 else 'O' 
 tname = {t: f"{element(m).lower()}{t}" for t, m in masses.items()}
 
 rigid_bonds, rigid_angles = [4, 6, 8, 10, 12, 14, 18], [31]  # in.peptide's fix shake
+shake_tolerance = 1e-4  # in.peptide's fix shake 0.0001 10 100
 eps = 0.05  # the stiff bonds' ε: under RATTLE only their rest lengths matter
 
 def deck(run0):
@@ -68,6 +69,7 @@ def deck(run0):
             w(f'bond_types."{b}" = {{ length = {r0}, alpha = {eps * math.sqrt(2 * K):.12g} }}')
         for a in rigid_angles:
             w(f'angle_types."{a}" = {{ theta0 = {angle[a]}, alpha = {eps * math.sqrt(2 * 450.0):.12g} }}')
+        w(f"shake_tolerance = {shake_tolerance:g}        # fix shake's tolerance: SHAKE stops as LAMMPS's (docs/decks.md)")
         w("")
     w("[forces.bonds]\nstyle = \"harmonic-bond\"\ncoefficients = \"data\"\n")
     w("[forces.angles]\nstyle = \"charmm-angle\"\ncoefficients = \"data\"\n")

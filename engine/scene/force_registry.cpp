@@ -387,6 +387,9 @@ void add_bonds_by_mass(DeckTable& t, TermContext& ctx, const std::string& term, 
 std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   StiffBonds sb;
   sb.epsilon = read(t, "epsilon", kPositive);
+  // LAMMPS's fix shake/rattle tolerance for the rigid methods' SHAKE (StiffBonds::shake_tolerance);
+  // absent: SHAKE iterates to max |g| <= 1e-12.
+  if (t.has("shake_tolerance")) sb.shake_tolerance = read(t, "shake_tolerance", kPositive);
   std::vector<StiffBond> coeffs;
   // The bond types named in bond_types (required unless masses selects the bonds), then those of
   // the bonds selected by mass.
