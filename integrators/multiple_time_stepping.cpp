@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "core/timing.hpp"
+#include "forcefields/bond_loop.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {
@@ -43,7 +44,7 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   if (!terms.empty() && !(stages_.size() == 1 && langevin_)) fused_available_ = terms.front()->fused_micro_step();
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
   for (const ForceTerm* term : rest_) rest_phase_.push_back(term->phase());
-  fused_ = forces.num_particles() < kFusedMaxParticles ? fused_available_ : nullptr;
+  fused_ = forces.num_particles() <= kSmallFusedParticles ? fused_available_ : nullptr;
   fused_verlet_ = stages_.size() == 1 && !langevin_ && !obabo_ && !langevin_force_;
 }
 

@@ -126,19 +126,16 @@ class MultipleTimeStepping final : public Integrator {
   // force in one pass, then the stage's other terms). Available when the first term
   // (ForceField::evaluation_order: those that offer it first) on the innermost stage's levels
   // offers it — the stiff harmonic bonds: the impulse family's micro steps, and velocity Verlet's
-  // whole step. On by default below kFusedMaxParticles particles, where the passes' fixed costs
-  // dominate; above, the plain passes (kick_drift, then the bond loop's chain blocks) are faster.
+  // whole step. On by default on at most kSmallFusedParticles particles (forcefields/bond_loop.hpp:
+  // there the fused step is two plain passes without the thread plan), where the passes' fixed costs
+  // dominate; above, the plain passes (kick_drift, then the bond loop's chain blocks) are faster
+  // (measured: docs/performance.md, "The fused micro step against the plain one").
   // With Langevin, the micro step whose drift holds the O step (n odd) and velocity Verlet's
   // step (BAOAB: its drift is split by the O step) run plain. Either way gives the same bits
   // (tests, benchmarks switch it).
   bool fused_micro_step() const { return fused_ != nullptr; }
   bool fused_micro_step_available() const { return fused_available_ != nullptr; }
   void use_fused_micro_step(bool on) { fused_ = on ? fused_available_ : nullptr; }
-  // Measured one core, velocity Verlet on stiff chains of 8 beads, ns per particle and step, plain ÷
-  // fused (medians of 5 interleaved runs): 8 particles 1.02, 32: 0.95, 128: 0.96, 512: 0.96; the
-  // double pendulum's 3 particles 1.19; data.chain's 32 000 beads 0.77 (docs/performance.md,
-  // "The fused micro step against the plain one").
-  static constexpr int kFusedMaxParticles = 16;
   double kinetic_energy_estimate(const State& s) const override {
     return o_step_kinetic_ >= 0.0 ? o_step_kinetic_ : s.kinetic_energy();
   }

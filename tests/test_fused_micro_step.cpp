@@ -332,7 +332,7 @@ TEST(FusedMicroStep, IsUsedOnlyWhereItIsTheSamePass) {
   EXPECT_FALSE(fused(with({"integrator.method=\"velocity-verlet\""}, nvt)));
 }
 
-// Used by default only where it is the faster: below kFusedMaxParticles particles (the double
+// Used by default only where it is the faster: on at most kSmallFusedParticles particles (the double
 // pendulum), not on a melt, whose plain passes are faster.
 TEST(FusedMicroStep, RunsByDefaultOnlyOnTheSmallestSystems) {
   for (const char* method : {"impulse", "velocity-verlet"}) {
@@ -343,7 +343,7 @@ TEST(FusedMicroStep, RunsByDefaultOnlyOnTheSmallestSystems) {
     EXPECT_TRUE(mts(*on_melt).fused_micro_step_available());
     EXPECT_FALSE(mts(*on_melt).fused_micro_step());
     Scene pendulum = test::load("inputs/double_pendulum.toml", {set, "variables.eps=0.01", "integrator.h=1e-4"});
-    ASSERT_LT(pendulum.state.size(), MultipleTimeStepping::kFusedMaxParticles);
+    ASSERT_LE(pendulum.state.size(), kSmallFusedParticles);
     const auto on_pendulum = make_integrator(pendulum.integrator, *pendulum.forces, pendulum.state.inv_mass);
     EXPECT_TRUE(mts(*on_pendulum).fused_micro_step());
   }
