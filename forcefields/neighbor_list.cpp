@@ -10,6 +10,10 @@
 #include <stdexcept>
 #include <string>
 
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 namespace stiffmd {
 namespace {
 
@@ -26,6 +30,83 @@ int cell_coordinate(double s, int n) {
   if (s >= 0.0 && s < n) return static_cast<int>(s);
   return s >= n ? n - 1 : 0;
 }
+
+// The distance test of one particle at (xi, yi, zi) against the candidates t = first … last − 1
+// (positions xs, ys, zs; their cell-order slots ks): the slots of those with
+// (dx² + dy²) + dz² < r2, d = x_i − x_t, written to hit in the order met; returns their count. A
+// candidate is written and kept by advancing the count, without a branch (about one in seven is a
+// neighbour, at random: a branch would mispredict often). hit has room for last − first entries.
+int test_candidates_scalar(double xi, double yi, double zi, const double* __restrict xs, const double* __restrict ys,
+                           const double* __restrict zs, const int* __restrict ks, int first, int last, double r2,
+                           int* __restrict hit) {
+  int found = 0;
+  for (int t = first; t < last; ++t) {
+    const double dx = xi - xs[t], dy = yi - ys[t], dz = zi - zs[t];
+    hit[found] = ks[t];
+    found += dx * dx + dy * dy + dz * dz < r2;
+  }
+  return found;
+}
+
+#if defined(__x86_64__)
+// The same test four candidates at a time (AVX2): the same IEEE operations lane by lane (no FMA:
+// -ffp-contract=off), so the same candidates pass. The slots of the passing ones are packed to
+// the front of a 128-bit vector by a byte shuffle chosen by the 4-bit mask (kPack) and stored at
+// hit + found: a store of four, of which the count advances by the mask's population — entries
+// past it are overwritten by the next store or ignored.
+struct PackTable {
+  alignas(16) unsigned char control[16][16];
+  constexpr PackTable() : control{} {
+    for (int mask = 0; mask < 16; ++mask) {
+      int out = 0;
+      for (int lane = 0; lane < 4; ++lane)
+        if (mask & (1 << lane)) {
+          for (int b = 0; b < 4; ++b) control[mask][4 * out + b] = static_cast<unsigned char>(4 * lane + b);
+          ++out;
+        }
+      for (; out < 4; ++out)
+        for (int b = 0; b < 4; ++b) control[mask][4 * out + b] = 0x80;  // zero
+    }
+  }
+};
+constexpr PackTable kPack;
+
+[[gnu::target("avx2,popcnt")]] int test_candidates_avx2(double xi, double yi, double zi, const double* __restrict xs,
+                                                        const double* __restrict ys, const double* __restrict zs,
+                                                        const int* __restrict ks, int first, int last, double r2,
+                                                        int* __restrict hit) {
+  const __m256d vx = _mm256_set1_pd(xi), vy = _mm256_set1_pd(yi), vz = _mm256_set1_pd(zi), vr2 = _mm256_set1_pd(r2);
+  int found = 0;
+  int t = first;
+  for (; t + 4 <= last; t += 4) {
+    const __m256d dx = _mm256_sub_pd(vx, _mm256_loadu_pd(xs + t));
+    const __m256d dy = _mm256_sub_pd(vy, _mm256_loadu_pd(ys + t));
+    const __m256d dz = _mm256_sub_pd(vz, _mm256_loadu_pd(zs + t));
+    const __m256d d2 =
+        _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
+    const int mask = _mm256_movemask_pd(_mm256_cmp_pd(d2, vr2, _CMP_LT_OQ));
+    const __m128i slots = _mm_loadu_si128(reinterpret_cast<const __m128i*>(ks + t));
+    const __m128i control = _mm_load_si128(reinterpret_cast<const __m128i*>(kPack.control[mask]));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(hit + found), _mm_shuffle_epi8(slots, control));
+    found += _mm_popcnt_u32(static_cast<unsigned>(mask));
+  }
+  return found + test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, t, last, r2, hit + found);
+}
+
+// The AVX2 test where the CPU has it (chosen once, at the first call), else the scalar one: the
+// same candidates either way.
+int test_candidates(double xi, double yi, double zi, const double* xs, const double* ys, const double* zs,
+                    const int* ks, int first, int last, double r2, int* hit) {
+  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
+  return avx2 ? test_candidates_avx2(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit)
+              : test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit);
+}
+#else
+int test_candidates(double xi, double yi, double zi, const double* xs, const double* ys, const double* zs,
+                    const int* ks, int first, int last, double r2, int* hit) {
+  return test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit);
+}
+#endif
 
 }  // namespace
 
@@ -749,13 +830,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
           }
         }
         for (int m = 0; m < cs[c + 1] - cs[c]; ++m) {
-          const double xi = gxs[m], yi = gys[m], zi = gzs[m];
-          int found = 0;
-          for (int t = m + 1; t < total; ++t) {
-            const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
-            hit[found] = gks[t];
-            found += dx * dx + dy * dy + dz * dz < rlist2;
-          }
+          const int found = test_candidates(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, rlist2, hit);
           record_hits(cp[cs[c] + m], found);
         }
       }

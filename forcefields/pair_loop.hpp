@@ -31,6 +31,10 @@
 #include <type_traits>
 #include <vector>
 
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 #include "core/box.hpp"
 #include "core/exact_sum.hpp"
 #include "core/parallel.hpp"
@@ -240,11 +244,184 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
 inline constexpr int kPairChunk = 256;
 inline constexpr int kPairPrefetch = 64;
 
+#if defined(__x86_64__)
+// Pass 1 of accumulate_pair_forces_rows four listed pairs at a time (AVX2), for every style: the
+// separations, their minimum images and r² as the scalar pass computes them — the same IEEE
+// operations lane by lane (no FMA: -ffp-contract=off), the fold as a select, the rounding as
+// (s + 1.5·2⁵²) − 1.5·2⁵², so the same values bit for bit — and the pairs with r² < rc² appended in
+// the list's order, the chunk's rows taken as the scalar pass takes them. A row's x_j are loaded by
+// index (its partners lie anywhere) and transposed into lanes, the lanes past the row's end
+// masked; the kept lanes are packed to the front by a permutation chosen by the 4-bit mask
+// (PairPackTable) and stored four at a time, the count advanced by the mask's population (the
+// buffers have 3 entries of room past the chunk). x_j is prefetched kPairPrefetch listed pairs
+// ahead, as in the scalar pass.
+struct PairPackTable {
+  alignas(32) int doubles[16][8];          // _mm256_permutevar8x32: the kept doubles' halves, in order
+  alignas(16) unsigned char ints[16][16];  // _mm_shuffle_epi8: the kept 32-bit indices' bytes, in order
+  constexpr PairPackTable() : doubles{}, ints{} {
+    for (int mask = 0; mask < 16; ++mask) {
+      int out = 0;
+      for (int lane = 0; lane < 4; ++lane)
+        if (mask & (1 << lane)) {
+          doubles[mask][2 * out] = 2 * lane;
+          doubles[mask][2 * out + 1] = 2 * lane + 1;
+          for (int b = 0; b < 4; ++b) ints[mask][4 * out + b] = static_cast<unsigned char>(4 * lane + b);
+          ++out;
+        }
+      for (; out < 4; ++out) {
+        doubles[mask][2 * out] = doubles[mask][2 * out + 1] = 0;
+        for (int b = 0; b < 4; ++b) ints[mask][4 * out + b] = 0x80;
+      }
+    }
+  }
+};
+inline constexpr PairPackTable kPairPack;
+
+// Whether the CPU runs the AVX2 passes (asked once).
+inline bool pair_loop_avx2() {
+  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
+  return avx2;
+}
+
+// Where pass 1 of a chunk stands: row i, its listed pair k, n pairs kept, the rows met (seg_row,
+// seg_end: each row's index and its end in the buffer), and whether the chunk ends inside row i.
+struct PairChunkCursor {
+  int i;
+  std::int64_t k;
+  int n = 0, segments = 0;
+  bool split = false;
+};
+
+// Pass 1 of one chunk (accumulate_pair_forces_rows: at most kPairChunk listed pairs from (i, k)
+// on, rows up to last − 1), the rows taken as the scalar pass takes them, four pairs at a time.
+// kRounded: NearestImage::rounded (a box a few list radii wide). kOneType: every pair has the
+// coefficients `one`; else each lane's are params' (type_i, type_j), whose address is kept (pn)
+// and whose rc² the lane is tested against. kCharged: each kept pair's qq = (qqrd2e q_i) q_j too.
+template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Params>
+[[gnu::target("avx2,popcnt")]] void pair_chunk_separations_avx2(
+    PairChunkCursor& c, int last, const std::int64_t* __restrict offset, const int* __restrict nbr,
+    std::int64_t last_pair, const double* __restrict xp, const NearestImage& near, const Params& one,
+    const TypePairMatrix<Params>& params, const int* __restrict type, const PairCharges& charges, int* __restrict jn,
+    double* __restrict dx, double* __restrict dy, double* __restrict dz, double* __restrict r2,
+    const Params** __restrict pn, double* __restrict qq, int* __restrict seg_row, int* __restrict seg_end) {
+  constexpr int kChunk = kPairChunk;
+  const __m256d vrc2 = _mm256_set1_pd(one.rc2);
+  __m256d len[3], half[3], nhalf[3], inv[3];
+  for (int a = 0; a < 3; ++a) {
+    len[a] = _mm256_set1_pd(near.length[a]);
+    half[a] = _mm256_set1_pd(near.half[a]);
+    nhalf[a] = _mm256_set1_pd(-near.half[a]);
+    inv[a] = _mm256_set1_pd(near.inv_length[a]);
+  }
+  const __m256d round_k = _mm256_set1_pd(6755399441055744.0);  // round_nearest's 1.5 · 2⁵²
+  const __m128i lane_index = _mm_setr_epi32(0, 1, 2, 3);
+  // The prefetch reads four indices at k + kPairPrefetch, at most up to the last pair.
+  const std::int64_t prefetch_last = last_pair - 3;
+  int i = c.i, n = 0, segments = 0;
+  std::int64_t k = c.k;
+  bool split = false;
+  while (i < last && segments < kChunk) {
+    const std::int64_t end = offset[i + 1];
+    const std::int64_t stop = std::min<std::int64_t>(end, k + (kChunk - n));
+    const __m256d vxi = _mm256_set1_pd(xp[3 * i]), vyi = _mm256_set1_pd(xp[3 * i + 1]),
+                  vzi = _mm256_set1_pd(xp[3 * i + 2]);
+    [[maybe_unused]] const Params* prow = kOneType ? nullptr : params.row(type[i]);
+    [[maybe_unused]] __m256d vqi = _mm256_setzero_pd();
+    if constexpr (kCharged) vqi = _mm256_set1_pd(charges.qqrd2e * charges.q[i]);
+    for (; k < stop; k += 4) {
+      const int lanes = static_cast<int>(std::min<std::int64_t>(4, stop - k));
+      const __m128i in_row = _mm_cmpgt_epi32(_mm_set1_epi32(lanes), lane_index);
+      const __m128i j = _mm_maskload_epi32(nbr + k, in_row);  // 0 past the row's end: a valid index
+      if (prefetch_last >= 0) {
+        const __m128i ahead =
+            _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + std::min(k + kPairPrefetch, prefetch_last)));
+        const __m128i a3 = _mm_add_epi32(ahead, _mm_add_epi32(ahead, ahead));
+        __builtin_prefetch(xp + _mm_cvtsi128_si32(a3));
+        __builtin_prefetch(xp + _mm_extract_epi32(a3, 1));
+        __builtin_prefetch(xp + _mm_extract_epi32(a3, 2));
+        __builtin_prefetch(xp + _mm_extract_epi32(a3, 3));
+      }
+      const int j0 = _mm_cvtsi128_si32(j), j1 = _mm_extract_epi32(j, 1), j2 = _mm_extract_epi32(j, 2),
+                j3 = _mm_extract_epi32(j, 3);
+      // x_j of each lane as (x, y) and z, transposed into lanes (loads beat a gather here).
+      const double* p0 = xp + 3 * j0;
+      const double* p1 = xp + 3 * j1;
+      const double* p2 = xp + 3 * j2;
+      const double* p3 = xp + 3 * j3;
+      const __m256d xy02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p0)), _mm_loadu_pd(p2), 1);
+      const __m256d xy13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p1)), _mm_loadu_pd(p3), 1);
+      const __m256d z02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p0 + 2)), _mm_load_sd(p2 + 2), 1);
+      const __m256d z13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p1 + 2)), _mm_load_sd(p3 + 2), 1);
+      __m256d e[3] = {_mm256_sub_pd(vxi, _mm256_unpacklo_pd(xy02, xy13)),
+                      _mm256_sub_pd(vyi, _mm256_unpackhi_pd(xy02, xy13)),
+                      _mm256_sub_pd(vzi, _mm256_unpacklo_pd(z02, z13))};
+      if constexpr (kPeriodic)
+        for (int a = 0; a < 3; ++a) {
+          if constexpr (kRounded) {  // d − L·round_nearest(d/L)
+            const __m256d q = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(e[a], inv[a]), round_k), round_k);
+            e[a] = _mm256_sub_pd(e[a], _mm256_mul_pd(len[a], q));
+          } else {  // the fold: d − L (d > L/2), d + L (d < −L/2), else d
+            const __m256d above = _mm256_cmp_pd(e[a], half[a], _CMP_GT_OQ);
+            const __m256d below = _mm256_cmp_pd(e[a], nhalf[a], _CMP_LT_OQ);
+            const __m256d folded = _mm256_blendv_pd(e[a], _mm256_sub_pd(e[a], len[a]), above);
+            e[a] = _mm256_blendv_pd(folded, _mm256_add_pd(folded, len[a]), below);
+          }
+        }
+      const __m256d s =
+          _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])), _mm256_mul_pd(e[2], e[2]));
+      __m256d lane_rc2 = vrc2;
+      [[maybe_unused]] __m256i lane_p;
+      if constexpr (!kOneType) {
+        const Params *q0 = prow + type[j0], *q1 = prow + type[j1], *q2 = prow + type[j2], *q3 = prow + type[j3];
+        lane_rc2 = _mm256_setr_pd(q0->rc2, q1->rc2, q2->rc2, q3->rc2);
+        lane_p = _mm256_setr_epi64x(reinterpret_cast<long long>(q0), reinterpret_cast<long long>(q1),
+                                    reinterpret_cast<long long>(q2), reinterpret_cast<long long>(q3));
+      }
+      const int mask = _mm256_movemask_pd(_mm256_cmp_pd(s, lane_rc2, _CMP_LT_OQ)) & ((1 << lanes) - 1);
+      const __m256i order = _mm256_load_si256(reinterpret_cast<const __m256i*>(kPairPack.doubles[mask]));
+      if constexpr (!kOneType)
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(pn + n), _mm256_permutevar8x32_epi32(lane_p, order));
+      if constexpr (kCharged) {
+        const __m256d lane_qq = _mm256_mul_pd(
+            vqi, _mm256_setr_pd(charges.q[j0], charges.q[j1], charges.q[j2], charges.q[j3]));  // (qqrd2e q_i) q_j
+        _mm256_storeu_pd(qq + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(lane_qq), order)));
+      }
+      _mm256_storeu_pd(dx + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[0]), order)));
+      _mm256_storeu_pd(dy + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[1]), order)));
+      _mm256_storeu_pd(dz + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[2]), order)));
+      _mm256_storeu_pd(r2 + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(s), order)));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(jn + n),
+                       _mm_shuffle_epi8(j, _mm_load_si128(reinterpret_cast<const __m128i*>(kPairPack.ints[mask]))));
+      n += _mm_popcnt_u32(static_cast<unsigned>(mask));
+    }
+    k = stop;  // the last group may have stepped past it
+    seg_row[segments] = i;
+    seg_end[segments] = n;
+    ++segments;
+    if (k < end) {  // the buffer is full
+      split = true;
+      break;
+    }
+    ++i;
+    if (n == kChunk) break;
+  }
+  c.i = i;
+  c.k = k;
+  c.n = n;
+  c.segments = segments;
+  c.split = split;
+}
+#else
+inline bool pair_loop_avx2() {
+  return false;
+}
+#endif
+
 template <class Kernel, bool kPeriodic, bool kOneType>
 void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
                                  const TypePairMatrix<typename Kernel::Params>& params, const int* type, int uniform,
                                  const Eigen::Matrix3Xd& xw, const NearestImage& near, double* f,
-                                 const PairCharges& charges = {}) {
+                                 const PairCharges& charges = {}, bool vector = true) {
   using Params = typename Kernel::Params;
   constexpr int kChunk = kPairChunk;
   constexpr bool kCharged = ChargedKernel<Kernel>;
@@ -253,10 +430,12 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
   const int* nbr = list.neighbors().data();
   const std::int64_t last_pair = first < last ? offset[last] - 1 : 0;  // the prefetch reads no further
   [[maybe_unused]] const Params one = kOneType ? params.row(uniform)[uniform] : Params{};
-  alignas(64) double dx[kChunk], dy[kChunk], dz[kChunk], r2[kChunk], fpair[kChunk];
-  int jn[kChunk];
-  [[maybe_unused]] const Params* pn[kOneType ? 1 : kChunk];
-  [[maybe_unused]] double qq[kCharged ? kChunk : 1];
+  alignas(64) double dx[kChunk + 4], dy[kChunk + 4], dz[kChunk + 4], r2[kChunk + 4], fpair[kChunk];
+  int jn[kChunk + 4];  // 4 more: room for the AVX2 pass's stores of four
+  // The AVX2 pass 1 where the CPU has it (pair_chunk_separations_avx2).
+  [[maybe_unused]] const bool avx2 = vector && pair_loop_avx2();
+  [[maybe_unused]] const Params* pn[kOneType ? 1 : kChunk + 4];
+  [[maybe_unused]] double qq[kCharged ? kChunk + 4 : 1];
   int seg_row[kChunk], seg_end[kChunk];    // per row met in the chunk: its index, its buffer end
   double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i of the open row, carried over a chunk's end
   int i = first;
@@ -266,7 +445,25 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
     // Pass 1: listed pairs from (i, k) on, at most kChunk of them, the interacting ones compacted.
     int n = 0, segments = 0;
     bool split = false;  // the chunk ends in the middle of its last row
-    while (i < last && segments < kChunk) {
+#if defined(__x86_64__)
+    if (avx2) {
+      PairChunkCursor c{i, k};
+      if (kPeriodic && near.rounded)
+        pair_chunk_separations_avx2<true, true, kOneType, kCharged>(c, last, offset, nbr, last_pair, xp, near, one,
+                                                                    params, type, charges, jn, dx, dy, dz, r2, pn, qq,
+                                                                    seg_row, seg_end);
+      else
+        pair_chunk_separations_avx2<kPeriodic, false, kOneType, kCharged>(c, last, offset, nbr, last_pair, xp, near,
+                                                                          one, params, type, charges, jn, dx, dy, dz,
+                                                                          r2, pn, qq, seg_row, seg_end);
+      i = c.i;
+      k = c.k;
+      n = c.n;
+      segments = c.segments;
+      split = c.split;
+    }
+#endif
+    while (!avx2 && i < last && segments < kChunk) {
       const std::int64_t end = offset[i + 1];
       const std::int64_t stop = std::min<std::int64_t>(end, k + (kChunk - n));
       const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];

@@ -160,6 +160,61 @@ TYPED_TEST(ForceOnlyPairs, SameForcesBitForBitAsTheFullPass) {
   set_max_threads(threads);
 }
 
+// The force-only pass's AVX2 separations (pair_row_separations_avx2: one type, no charges) against
+// its scalar pass: the same forces bit for bit, in the melt's periodic box (the fold, pairs across
+// every face), in a periodic box a few list radii wide (NearestImage's rounding), in open space,
+// and with rows longer than the chunk. Where the CPU has no AVX2 both calls take the scalar pass.
+template <class K>
+void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box, const typename K::Coeffs& c,
+                                       const std::string& what) {
+  const int n = static_cast<int>(x.cols());
+  NeighborList list(K::cutoff(c), 0.3);
+  list.update(x, box);
+  TypePairMatrix<typename K::Params> params(1);
+  params.set(0, 0, K::params(c));
+  const std::vector<int> type(n, 0);
+  const Eigen::Matrix3Xd& xw = box.any_periodic() ? list.wrapped_positions(x) : x;
+  const NearestImage near(box, list.cutoff() + list.skin());
+  Eigen::Matrix3Xd f0(3, n);
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> g;
+  for (Eigen::Index k = 0; k < f0.size(); ++k) f0.data()[k] = g(rng);
+  Eigen::Matrix3Xd scalar = f0, vector = f0;
+  for (const bool v : {false, true}) {
+    double* f = (v ? vector : scalar).data();
+    if (box.any_periodic())
+      accumulate_pair_forces_rows<K, true, true>(list, 0, n, params, type.data(), 0, xw, near, f, {}, v);
+    else
+      accumulate_pair_forces_rows<K, false, true>(list, 0, n, params, type.data(), 0, xw, near, f, {}, v);
+  }
+  ASSERT_GT((scalar - f0).cwiseAbs().maxCoeff(), 1e-3) << what << ": the particles must interact";
+  EXPECT_EQ(std::memcmp(scalar.data(), vector.data(), sizeof(double) * scalar.size()), 0)
+      << what << ": max |difference| " << (scalar - vector).cwiseAbs().maxCoeff();
+}
+
+TEST(ForceOnlyPairs, VectorSeparationsGiveTheScalarPassBits) {
+  const Melt& m = melt();
+  // The melt's box: 12 wide, list radius 1.42 (WCA) or 2.8 (LJ) — the fold.
+  expect_vector_pass_is_scalar_pass<WeeksChandlerAndersen>(m.x, m.box, {1.0, 1.0}, "wca, periodic");
+  expect_vector_pass_is_scalar_pass<LennardJones>(m.x, m.box, {1.0, 1.0, 2.5}, "lj, periodic");
+  expect_vector_pass_is_scalar_pass<SoftCosine>(m.x, m.box, {3.0, 1.2}, "soft, periodic");
+  expect_vector_pass_is_scalar_pass<Yukawa>(m.x, m.box, {2.0, 1.0, 2.5}, "yukawa, periodic");
+  // Rows of ~400 listed pairs: longer than the chunk.
+  expect_vector_pass_is_scalar_pass<LennardJones>(m.x, m.box, {1.0, 1.0, 5.5}, "lj 5.5, periodic");
+  // Open space: the same particles without the box.
+  expect_vector_pass_is_scalar_pass<LennardJones>(m.x, Box{}, {1.0, 1.0, 2.5}, "lj, open");
+  // A box under 6 list radii wide: the rounded minimum image (NearestImage::rounded).
+  const Box small = test::periodic_box(Eigen::Vector3d::Constant(6.0), Eigen::Vector3d(0.5, -1.0, 2.0));
+  Eigen::Matrix3Xd xs(3, 216);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> jitter(-0.1, 0.1);
+  for (int i = 0; i < 216; ++i)
+    xs.col(i) = small.origin + Eigen::Vector3d(i % 6 + 0.5 + jitter(rng), (i / 6) % 6 + 0.5 + jitter(rng),
+                                               i / 36 + 0.5 + jitter(rng) + (i % 5 == 0 ? 12.0 : 0.0));
+  ASSERT_TRUE(NearestImage(small, 2.5 + 0.3).rounded);
+  expect_vector_pass_is_scalar_pass<LennardJones>(xs, small, {1.0, 1.0, 2.5}, "lj, small periodic box");
+}
+
 // The Coulomb styles' rows are longer than the force-only loop's chunk: some rows are split.
 TEST(ForceOnlyPairs, CoulombRowsAreLongerThanTheChunk) {
   const auto term = make_term<CoulombCut>(melt().alternating);
