@@ -55,12 +55,8 @@ class BondPartition {
     num_bonds_ = bonds.size();
     start_.assign(threads + 1, 0);
     work_.clear();
-    halo_.clear();
-    halo_start_.assign(threads + 1, 0);
     int n = 0;
     for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
-    first_.assign(threads + 1, n);
-    first_[0] = 0;
     if (threads == 1) {  // every bond, both ends, in order
       for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
       start_[1] = static_cast<std::int64_t>(work_.size());
@@ -78,7 +74,6 @@ class BondPartition {
       return static_cast<int>(std::upper_bound(first.begin(), first.end() - 1, p) - first.begin()) - 1;
     };
     std::vector<std::vector<Work>> per(threads);
-    std::vector<std::vector<int>> halo(threads);
     for (std::size_t k = 0; k < bonds.size(); ++k) {
       const int oi = owner(bonds[k].i), oj = owner(bonds[k].j);
       if (oi == oj) {
@@ -86,19 +81,12 @@ class BondPartition {
       } else {
         per[oi].push_back({static_cast<int>(k), true, false});
         per[oj].push_back({static_cast<int>(k), false, true});
-        halo[oi].push_back(bonds[k].i);
-        halo[oj].push_back(bonds[k].j);
       }
     }
     for (int t = 0; t < threads; ++t) {
       start_[t + 1] = start_[t] + static_cast<std::int64_t>(per[t].size());
       work_.insert(work_.end(), per[t].begin(), per[t].end());
-      std::sort(halo[t].begin(), halo[t].end());
-      halo[t].erase(std::unique(halo[t].begin(), halo[t].end()), halo[t].end());
-      halo_start_[t + 1] = halo_start_[t] + static_cast<std::int64_t>(halo[t].size());
-      halo_.insert(halo_.end(), halo[t].begin(), halo[t].end());
     }
-    for (int t = 1; t < threads; ++t) first_[t] = first[t];
     find_segments(bonds);
   }
 
@@ -106,14 +94,7 @@ class BondPartition {
   const Work* begin(int t) const { return work_.data() + start_[t]; }
   const Work* end(int t) const { return work_.data() + start_[t + 1]; }
   double* energy_slots() { return energy_.data(); }  // one per owner
-  // Owner t's particles are first(t) … first(t + 1) − 1 (the last owner's range ends at the last
-  // bonded particle: the fused micro step gives it the unbonded rest too).
-  int first(int t) const { return first_[t]; }
-  // The particles of owner t that are an end of a bond with an end of another owner (sorted):
-  // the only particles another thread reads.
-  const int* halo_begin(int t) const { return halo_.data() + halo_start_[t]; }
-  const int* halo_end(int t) const { return halo_.data() + halo_start_[t + 1]; }
-  // Owner t's work split for the fused micro step into segments, in work order: chain runs —
+  // Owner t's work split into segments, in work order: chain runs —
   // consecutive items that are bonds k, k + 1, … joining particles p, p + 1, p + 2, … with both
   // ends owned — and the other items.
   struct Segment {
@@ -134,9 +115,6 @@ class BondPartition {
   std::size_t num_bonds_ = 0;
   std::vector<std::int64_t> start_;
   std::vector<Work> work_;
-  std::vector<int> first_;
-  std::vector<int> halo_;
-  std::vector<std::int64_t> halo_start_;
   std::vector<Segment> segments_;
   std::vector<std::int64_t> segment_start_;
 
@@ -459,127 +437,143 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
   return sum;
 }
 
-// Bonds first … first + m − 1 of a chain run (BondPartition::Segment): bond q joins particles
-// p + q and p + q + 1, both owned. In one pass, for each particle i = p … p + m in turn: its kick
-// and drift (unless an earlier segment or the halo pass did them: i < next, or i the next halo
-// particle), then the bond (i − 1, i) at the new positions, and the final force of i − 1,
-// f = (f₀ − f_{q−1}) + f_q, with f₀ = 0 for a particle drifted here and f as it stands otherwise (a
-// branch point an earlier bond has written). The operations of kick_drift and of bond_block on
-// each particle, in the same order — the particle p + q gets −f of bond q − 1, then +f of bond q —
-// so the same bits (with f_{−1} = 0: f − 0 is f, bit for bit, also for −0). x, v and f of a
-// particle are read and written once, the bond vector comes from registers, and the bonds' square
-// roots and divisions, independent from bond to bond, overlap with the streaming of the particles.
-// Why one pass rather than blocks of bonds (drift a block's particles, gather their separations
-// from x, vectorised forces, write the forces back): a micro step is bound by memory traffic, and
-// the pass touches each particle's x, v and f once, so it runs closer to the memory floor
-// (docs/performance_notes.md, BM_MicroStepVsFloor).
-template <class Kernel, bool kPaired, class Params>
-void chain_stream(const std::vector<BondInstance<Params>>& bonds, int first, std::int64_t m, double* __restrict xp,
-                  double* __restrict vp, double* __restrict fp, const double* __restrict w_inv, double dt_kick,
-                  double dt, std::int64_t& next, const int*& halo, const int* halo_end) {
-  const std::int64_t p = bonds[first].i;
-  const BondInstance<Params>* b = bonds.data() + first - 1;  // b[q]: the bond (p + q − 1, p + q)
-  // Kick and drift particle i unless done (kick_drift's expressions); its position into pos and
-  // its force before the run's bonds into base: 0 when advanced here, else what f holds. The new
-  // position comes from registers, not read back: a 16-byte load of two 8-byte stores just made
-  // cannot be forwarded and stalls.
-  auto advance_one = [&](std::int64_t i, double pos[3], double base[3]) {
-    if (i >= next && !(halo != halo_end && *halo == i)) {
-      const double s = dt_kick * w_inv[i];
-      for (int a = 0; a < 3; ++a) {
-        const double vi = vp[3 * i + a] + s * fp[3 * i + a];
-        vp[3 * i + a] = vi;
-        pos[a] = xp[3 * i + a] + dt * vi;
-        xp[3 * i + a] = pos[a];
-        base[a] = 0.0;
-      }
-    } else {
-      if (halo != halo_end && *halo == i) ++halo;
-      for (int a = 0; a < 3; ++a) {
-        pos[a] = xp[3 * i + a];
-        base[a] = fp[3 * i + a];
-      }
-    }
-    next = std::max(next, i + 1);
-  };
-  double prev_pos[3], prev_base[3];
-  advance_one(p, prev_pos, prev_base);
-  double carry[3] = {0.0, 0.0, 0.0};  // the force of the previous bond on its particle j
-  // A short run (a small molecule, the pendulum) two bonds at a time, their square roots and
-  // divisions side by side: its few bonds would otherwise wait for each other. A long run one bond
-  // at a time: there the bonds of successive iterations overlap anyway, and pairing them only adds
-  // work (measured slower on data.chain's micro step). The bond's −dE/dr / r is written out in
-  // both loops rather than shared through a lambda, which measured slower in the single loop.
-  // kPaired: the caller's choice, m ≤ kFewBonds; a template parameter, so that the long runs' loop
-  // is compiled as if the paired one were not there. Measurements: docs/performance_notes.md.
-  std::int64_t q = 1;
-  for (; kPaired && q + 1 <= m; q += 2) {
-    const std::int64_t i = p + q + 1;
-    double pos1[3], base1[3], pos2[3], base2[3];
-    advance_one(i - 1, pos1, base1);
-    advance_one(i, pos2, base2);
-    double d[2][3];
-    for (int a = 0; a < 3; ++a) {
-      d[0][a] = prev_pos[a] - pos1[a];
-      d[1][a] = pos1[a] - pos2[a];
-    }
-    double scale[2];
-    for (int l = 0; l < 2; ++l) {
-      const double r = std::sqrt(d[l][0] * d[l][0] + d[l][1] * d[l][1] + d[l][2] * d[l][2]);
-      double e = 0.0, de_dr = 0.0;
-      Kernel::eval(r, b[q + l].params, e, de_dr);
-      scale[l] = -de_dr / r;
-    }
-    for (int a = 0; a < 3; ++a) {
-      const double f0 = d[0][a] * scale[0], f1 = d[1][a] * scale[1];
-      fp[3 * (i - 2) + a] = (prev_base[a] - carry[a]) + f0;
-      fp[3 * (i - 1) + a] = (base1[a] - f0) + f1;
-      carry[a] = f1;
-      prev_base[a] = base2[a];
-      prev_pos[a] = pos2[a];
-    }
-  }
-  for (; q <= m; ++q) {
-    const std::int64_t i = p + q;
-    double pos[3], base[3];
-    advance_one(i, pos, base);
-    double d[3] = {prev_pos[0] - pos[0], prev_pos[1] - pos[1], prev_pos[2] - pos[2]};
-    const double r = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    double e = 0.0, de_dr = 0.0;
-    Kernel::eval(r, b[q].params, e, de_dr);
-    const double scale = -de_dr / r;
-    for (int a = 0; a < 3; ++a) {
-      d[a] *= scale;
-      fp[3 * (i - 1) + a] = (prev_base[a] - carry[a]) + d[a];
-      carry[a] = d[a];
-      prev_base[a] = base[a];
-      prev_pos[a] = pos[a];
-    }
-  }
-  for (int a = 0; a < 3; ++a) fp[3 * (p + m) + a] = prev_base[a] - carry[a];
-}
+// The micro steps of a bond term alone on the innermost level (FusedMicroStep, force_term.hpp;
+// docs/design.md §3), molecule block by molecule block. A micro step is, for every particle,
+//   v += dt_kick M⁻¹ f,  x += dt v,  f = 0,  then f += the bond forces at the new x,
+// and a bond joins particles of one molecule, so the new force of a molecule's particles depends on
+// that molecule's x alone: `steps` micro steps of a block of whole molecules need no other particle.
+// The plan cuts the particles into blocks of whole molecules (kMicroBlockParticles or more
+// particles each, about 80 bytes a particle: x, v, f and M⁻¹ stay in L1) and takes every micro step
+// of one block before the next block: the particles are read from memory once per `steps` micro
+// steps instead of three times per micro step (kick_drift, f = 0, the bond loop: each pass over a
+// 256 000-bead melt streams ≈ 20 MB, docs/performance.md, "The 256 000-bead melts").
+//
+// Same bits as the plain path (kick_drift, f = 0, accumulate_bond_forces per micro step): each
+// particle gets the same kick and drift expressions, and its bond forces in the bonds' order,
+// starting from 0 — a block's bonds are the term's bonds in their order (a stable sort by block),
+// their chain runs (consecutive bonds along consecutive particles) through chain_block and the
+// rest through bond_block, which give each particle its forces in bond order (the bond loop's
+// claim). The blocks are disjoint in particles, so threads take whole blocks and the bits do not
+// depend on the thread count.
+//
+// A molecule is a range of particle indices: the union of the index intervals [min(i, j),
+// max(i, j)] of its bonds. Molecules numbered in ranges (every engine's data) give blocks of a few
+// molecules; a bond between far-apart indices (a ring closed across the system, shuffled
+// numbering) makes one large block, correct but streamed from memory like the plain path.
+inline constexpr std::int64_t kMicroBlockParticles = 256;
 
-// The fused micro step (FusedMicroStep, force_term.hpp; docs/design.md §3): in one pass over the
-// particles, for each p: v_p += dt_kick M⁻¹_p f_p, x_p += dt v_p, f_p = 0, and f += the bond
-// forces at the new x. The same operations as kick_drift (integrators/primitives.hpp), then
-// f = 0, then accumulate_bond_forces, in the same order per particle, so the result is the same
-// bits (the bond forces into each particle are added in the same work order, starting from 0).
-//
-// Owner t streams its particles in index order and evaluates its work in the same order as
-// accumulate_bond_forces, each block once the particles it reads are drifted: in chains numbered
-// along the backbone the drift runs one block ahead of the forces, and x, v, f of a particle are
-// touched while in cache; chain runs go through chain_stream, without the work list. Particles
-// another owner reads (the halo: ends of bonds between owners) are advanced first, serially: their
-// x is then final before any owner reads it, and no two threads write one particle.
-//
-// A system of at most kSmallFusedParticles particles takes two plain passes instead
-// (small_kick_drift_bond_forces): its x, v and f are a few cache lines, so there is no traffic for
-// the one pass to save, and the partition's segments, the halo tests and the chain-run bookkeeping
-// cost more than the bonds themselves (the double pendulum's velocity Verlet step:
+template <class Params>
+class MicroStepPlan {
+ public:
+  struct Block {
+    std::int64_t first, last;                 // particles first … last − 1
+    std::int64_t segment_begin, segment_end;  // its segments of ordered bonds
+  };
+  struct Segment {
+    std::int64_t begin, end;  // ordered bonds
+    bool chain;               // a chain run: bond q + k joins particles p + k and p + k + 1
+  };
+
+  // Rebuilds when the bonds' count or the particles' count changed (the term's bonds are fixed).
+  void prepare(const std::vector<BondInstance<Params>>& bonds, std::int64_t n) {
+    if (n == particles_ && bonds.size() == num_bonds_) return;
+    particles_ = n;
+    num_bonds_ = bonds.size();
+    // reach[p]: the highest index a bond from p (its lower end) reaches.
+    std::vector<std::int64_t> reach(n);
+    for (std::int64_t p = 0; p < n; ++p) reach[p] = p;
+    for (const auto& b : bonds) {
+      const int lo = std::min(b.i, b.j), hi = std::max(b.i, b.j);
+      reach[lo] = std::max<std::int64_t>(reach[lo], hi);
+    }
+    blocks_.clear();
+    std::vector<std::int64_t> block_of(n);
+    std::int64_t first = 0, end = -1;  // the block being formed, and the molecule's reach
+    for (std::int64_t p = 0; p < n; ++p) {
+      end = std::max(end, reach[p]);
+      block_of[p] = static_cast<std::int64_t>(blocks_.size());
+      if (p == end && (p + 1 - first >= kMicroBlockParticles || p + 1 == n)) {  // a molecule ends here
+        blocks_.push_back({first, p + 1, 0, 0});
+        first = p + 1;
+      }
+    }
+    // The bonds by block, each block's in the term's order (a stable counting sort).
+    std::vector<std::int64_t> start(blocks_.size() + 1, 0);
+    for (const auto& b : bonds) ++start[block_of[b.i] + 1];
+    for (std::size_t k = 0; k < blocks_.size(); ++k) start[k + 1] += start[k];
+    ordered_.resize(bonds.size());
+    std::vector<std::int64_t> at(start.begin(), start.end() - 1);
+    for (const auto& b : bonds) ordered_[at[block_of[b.i]]++] = b;
+    static_assert(std::is_trivially_copyable_v<Params>);
+    uniform_ = std::all_of(bonds.begin(), bonds.end(), [&](const BondInstance<Params>& b) {
+      return std::memcmp(&b.params, &bonds.front().params, sizeof(Params)) == 0;
+    });
+    ends_.clear();
+    if (uniform_)
+      for (const auto& b : ordered_) ends_.insert(ends_.end(), {b.i, b.j});
+    // Each block's chain runs (two or more bonds, as BondPartition's segments) and the rest.
+    segments_.clear();
+    auto links = [&](std::int64_t q) {  // ordered bond q + 1 continues bond q's chain
+      const auto &a = ordered_[q], &b = ordered_[q + 1];
+      return a.j == a.i + 1 && b.i == a.j && b.j == b.i + 1;
+    };
+    for (std::size_t k = 0; k < blocks_.size(); ++k) {
+      blocks_[k].segment_begin = static_cast<std::int64_t>(segments_.size());
+      std::int64_t q = start[k];
+      while (q < start[k + 1]) {
+        std::int64_t e = q + 1;
+        while (e < start[k + 1] && links(e - 1)) ++e;
+        const bool chain = e - q >= 2;
+        if (!chain)
+          while (e < start[k + 1] && !(e + 1 < start[k + 1] && links(e))) ++e;
+        segments_.push_back({q, e, chain});
+        q = e;
+      }
+      blocks_[k].segment_end = static_cast<std::int64_t>(segments_.size());
+    }
+    threads_ = 0;
+  }
+
+  // Thread t's blocks are owned(t) … owned(t + 1) − 1: about the same number of particles each.
+  void split(int threads) {
+    if (threads == threads_) return;
+    threads_ = threads;
+    owned_.assign(threads + 1, static_cast<std::int64_t>(blocks_.size()));
+    owned_[0] = 0;
+    std::int64_t b = 0;
+    for (int t = 1; t < threads; ++t) {
+      const std::int64_t target = particles_ * t / threads;
+      while (b < static_cast<std::int64_t>(blocks_.size()) && blocks_[b].last <= target) ++b;
+      owned_[t] = b;
+    }
+  }
+
+  const std::vector<Block>& blocks() const { return blocks_; }
+  std::int64_t owned(int t) const { return owned_[t]; }
+  const Segment* segments() const { return segments_.data(); }
+  const std::vector<BondInstance<Params>>& ordered() const { return ordered_; }
+  bool uniform() const { return uniform_; }
+  const int* ends() const { return ends_.data(); }
+
+ private:
+  std::int64_t particles_ = -1;
+  std::size_t num_bonds_ = 0;
+  int threads_ = 0;
+  std::vector<Block> blocks_;
+  std::vector<Segment> segments_;
+  std::vector<BondInstance<Params>> ordered_;
+  bool uniform_ = false;
+  std::vector<int> ends_;  // i, j of each ordered bond (uniform_)
+  std::vector<std::int64_t> owned_;
+};
+
+// The micro steps of a system of at most kSmallFusedParticles particles take plain passes
+// (small_kick_drift_bond_forces): its x, v and f are a few cache lines, and the plan's blocks and
+// segments cost more than the bonds themselves (the double pendulum's velocity Verlet step:
 // docs/performance.md, "The run loop's cost per step").
 inline constexpr std::int64_t kSmallFusedParticles = 16;
 
-// The small systems' fused micro step: kick_drift and f = 0 for every particle, then each bond in
+// One micro step of a small system: kick_drift and f = 0 for every particle, then each bond in
 // order, its force added to both ends (bond_block's operations on few bonds, the energy not
 // computed) — the plain path's operations in its order, so its bits. At most kSmallFusedParticles
 // particles, so fewer bonds than kParallelMin (one per pair): one thread at any thread count.
@@ -617,79 +611,67 @@ void small_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
   }
 }
 
+// `steps` micro steps (MicroStepPlan above): the first kicks by first_kick, the others by dt_kick,
+// each drifts by dt and leaves in f the bond forces at the new x. The same bits as `steps` times
+// kick_drift, f = 0, accumulate_bond_forces, at any thread count.
 template <class Kernel, class Params>
 void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds, Eigen::Matrix3Xd& x,
                                   Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
-                                  double dt_kick, double dt, BondPartition& partition) {
-  if (x.cols() <= kSmallFusedParticles) {
-    small_kick_drift_bond_forces<Kernel>(bonds, x, v, inv_mass, f, dt_kick, dt);
+                                  double first_kick, double dt_kick, double dt, int steps,
+                                  MicroStepPlan<Params>& plan) {
+  const std::int64_t n = x.cols();
+  if (n <= kSmallFusedParticles) {
+    for (int s = 0; s < steps; ++s)
+      small_kick_drift_bond_forces<Kernel>(bonds, x, v, inv_mass, f, s == 0 ? first_kick : dt_kick, dt);
     return;
   }
-  const int threads = threads_for(static_cast<std::int64_t>(bonds.size()));
-  partition.prepare(bonds, threads);
-  const std::int64_t n = x.cols();
-  double* xp = x.data();
-  double* vp = v.data();
-  double* fp = f.data();
-  const double* w_inv = inv_mass.data();
-  // Particles [b, e) as kick_drift, then their force slots cleared for the new force. x, v, f
-  // are distinct matrices: restrict lets the compiler vectorise the loop.
-  auto advance = [=](std::int64_t b, std::int64_t e) {
-    double* __restrict xr = xp;
-    double* __restrict vr = vp;
-    double* __restrict fr = fp;
-    for (std::int64_t i = b; i < e; ++i) {
-      const double s = dt_kick * w_inv[i];
-      for (int a = 0; a < 3; ++a) {
-        vr[3 * i + a] += s * fr[3 * i + a];
-        xr[3 * i + a] += dt * vr[3 * i + a];
-        fr[3 * i + a] = 0.0;
+  plan.prepare(bonds, n);
+  const int threads = threads_for(n);
+  plan.split(threads);
+  double* const xp = x.data();
+  double* const vp = v.data();
+  double* const fp = f.data();
+  const double* const w_inv = inv_mass.data();
+  const auto* segments = plan.segments();
+  auto run = [&](int t, const auto& view) {
+    double e = 0.0;  // not needed by a micro step
+    for (std::int64_t k = plan.owned(t); k < plan.owned(t + 1); ++k) {
+      const auto& block = plan.blocks()[k];
+      for (int s = 0; s < steps; ++s) {
+        // kick_drift's expressions (integrators/primitives.hpp), then f = 0. x, v, f are distinct
+        // matrices: restrict lets the compiler vectorise the loop.
+        {
+          const double kick = s == 0 ? first_kick : dt_kick;
+          double* __restrict xr = xp;
+          double* __restrict vr = vp;
+          double* __restrict fr = fp;
+          for (std::int64_t i = block.first; i < block.last; ++i) {
+            const double c = kick * w_inv[i];
+            for (int a = 0; a < 3; ++a) {
+              vr[3 * i + a] += c * fr[3 * i + a];
+              xr[3 * i + a] += dt * vr[3 * i + a];
+              fr[3 * i + a] = 0.0;
+            }
+          }
+        }
+        for (std::int64_t g = block.segment_begin; g < block.segment_end; ++g) {
+          const auto& seg = segments[g];
+          for (std::int64_t q = seg.begin; q < seg.end; q += kBondBlock) {
+            const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg.end - q));
+            if (seg.chain)
+              chain_block<Kernel>(view, q, nb, xp, fp, e);
+            else
+              bond_block<Kernel>(view, q, nb, xp, fp, e);
+          }
+        }
       }
     }
   };
-  for (int t = 0; t < threads; ++t)
-    for (const int* h = partition.halo_begin(t); h < partition.halo_end(t); ++h) advance(*h, *h + 1);
   run_parts(threads, [&](int t) {
-    const int* halo = partition.halo_begin(t);
-    const int* const halo_end = partition.halo_end(t);
-    std::int64_t next = partition.first(t);  // the first of t's particles not yet advanced
-    auto advance_to = [&](std::int64_t end) {
-      while (next < end) {
-        const std::int64_t stop = halo != halo_end ? std::min<std::int64_t>(end, *halo) : end;
-        advance(next, stop);
-        next = stop;
-        if (next < end) {  // a halo particle, advanced before the parallel part
-          ++halo;
-          ++next;
-        }
-      }
-    };
-    double e_t = 0.0;  // not needed by a micro step
-    const BondPartition::Work* work = partition.work();
-    for (const auto* seg = partition.segments_begin(t); seg < partition.segments_end(t); ++seg) {
-      if (seg->chain) {
-        const int first_bond = work[seg->begin].bond;
-        advance_to(bonds[first_bond].i);  // the particles before the run
-        const std::int64_t m = seg->end - seg->begin;
-        if (m <= kFewBonds)
-          chain_stream<Kernel, true>(bonds, first_bond, m, xp, vp, fp, w_inv, dt_kick, dt, next, halo, halo_end);
-        else
-          chain_stream<Kernel, false>(bonds, first_bond, m, xp, vp, fp, w_inv, dt_kick, dt, next, halo, halo_end);
-        continue;
-      }
-      for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
-        const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg->end - q));
-        std::int64_t end = next;  // one past the highest of t's particles the block reads
-        for (int k = 0; k < nb; ++k) {
-          const auto& b = bonds[work[q + k].bond];
-          if (work[q + k].add_i) end = std::max<std::int64_t>(end, b.i + 1);
-          if (work[q + k].add_j) end = std::max<std::int64_t>(end, b.j + 1);
-        }
-        advance_to(end);
-        bond_block<Kernel>(OwnerItems<Params>{bonds.data(), work}, q, nb, xp, fp, e_t);
-      }
-    }
-    advance_to(t + 1 == threads ? n : partition.first(t + 1));
+    if (plan.uniform() && !plan.ordered().empty())
+      run(t, UniformBonds<Params>{plan.ends(), &plan.ordered().front().params});
+    else
+      run(t, AllBonds<Params>{plan.ordered().data()});
   });
 }
 

@@ -37,14 +37,23 @@ struct Level {
 inline constexpr Level Level::fast{0};
 inline constexpr Level Level::slow{1};
 
-// A capability of a fast term (docs/design.md §3): the innermost micro step of multiple time stepping
-// in one pass over the particles. kick_drift_force does v += dt_kick M⁻¹f, x += dt v, and then
-// replaces f by the term's force at the new x — the same bits as kick_drift, f = 0, add_forces
-// (MultipleTimeStepping::run_innermost uses it when the term is alone on the innermost level).
+// A capability of a fast term (docs/design.md §3): the innermost micro steps of multiple time
+// stepping without a pass over the particles per operation. kick_drift_force does v += dt_kick M⁻¹f,
+// x += dt v, and then replaces f by the term's force at the new x — the same bits as kick_drift,
+// f = 0, add_forces (MultipleTimeStepping::run_innermost uses it when the term is first on the
+// innermost level). kick_drift_forces does `steps` of them, the first kicking by first_kick, the
+// others by dt_kick — the same bits as kick_drift_force `steps` times; the term may take them
+// molecule by molecule (forcefields/bond_loop.hpp, MicroStepPlan), so only when it is alone on the
+// innermost level.
 class FusedMicroStep {
  public:
-  virtual void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
-                                Eigen::Matrix3Xd& f, double dt_kick, double dt) const = 0;
+  void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                        double dt_kick, double dt) const {
+    kick_drift_forces(x, v, inv_mass, f, dt_kick, dt_kick, dt, 1);
+  }
+  virtual void kick_drift_forces(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
+                                 Eigen::Matrix3Xd& f, double first_kick, double dt_kick, double dt,
+                                 int steps) const = 0;
 
  protected:
   ~FusedMicroStep() = default;

@@ -27,9 +27,9 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   void define(ParameterRecord& record) const override;  // ε and every bond's particles, ℓ_b and α_b
   const StiffBonds* stiff_bonds() const override { return &bonds_; }
   const FusedMicroStep* fused_micro_step() const override { return this; }
-  void kick_drift_force(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
-                        double dt_kick, double dt) const override {
-    fused_kick_drift_bond_forces<Kernel>(instances_, x, v, inv_mass, f, dt_kick, dt, partition_);
+  void kick_drift_forces(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, Eigen::Matrix3Xd& f,
+                         double first_kick, double dt_kick, double dt, int steps) const override {
+    fused_kick_drift_bond_forces<Kernel>(instances_, x, v, inv_mass, f, first_kick, dt_kick, dt, steps, plan_);
   }
 
   struct Params {
@@ -48,6 +48,8 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   StiffBonds bonds_;
   std::vector<BondInstance<Params>> instances_;
   mutable BondPartition partition_;  // thread plan of the bond loop
+  // The micro steps' blocks of whole molecules (kick_drift_forces)
+  mutable MicroStepPlan<Params> plan_;
 };
 
 }  // namespace stiffmd

@@ -45,6 +45,8 @@ MultipleTimeStepping::MultipleTimeStepping(std::string method, ForceField& force
   rest_.assign(terms.begin() + (terms.empty() ? 0 : 1), terms.end());
   for (const ForceTerm* term : rest_) rest_phase_.push_back(term->phase());
   fused_ = forces.num_particles() <= kSmallFusedParticles ? fused_available_ : nullptr;
+  blocked_available_ = fused_available_ && rest_.empty() && stages_.size() >= 2;
+  blocked_ = blocked_available_;
   fused_verlet_ = stages_.size() == 1 && !langevin_ && !obabo_ && !langevin_force_;
 }
 
@@ -175,14 +177,16 @@ void MultipleTimeStepping::closing_kick(State& s, size_t k, double dt) {
 // same bits (FusedMicroStep: kick_drift, then refresh); the micro step whose drift holds the O
 // step (n odd) runs plain.
 void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
+  if (blocked_ && n >= 2) {
+    run_innermost_blocked(s, k, dt, n);
+    return;
+  }
   if (!valid_[k]) refresh(k, s.x);
   const double span = dt * n;
   for (int i = 0; i < n; ++i) {
     const double dt_kick = i == 0 ? 0.5 * dt : (langevin_ && n % 2 == 0 && i == n / 2) ? 0.5 * dt : dt;
     if (langevin_ && n % 2 == 1 && i == n / 2) {
-      kick_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt);
-      o_step(s, span);
-      drift(s.x, s.v, 0.5 * dt);
+      kick_drift_o_drift(s, k, dt_kick, dt, span);
       closing_force(s, k, span);
     } else {
       micro_step(s, k, dt_kick, dt, span);
@@ -191,6 +195,41 @@ void MultipleTimeStepping::run_innermost(State& s, size_t k, double dt, int n) {
       kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
       o_step(s, span);
     }
+  }
+  closing_kick(s, k, 0.5 * dt);
+}
+
+void MultipleTimeStepping::blocked_steps(State& s, size_t k, int steps, double first_kick, double dt) {
+  if (steps == 0) return;
+  {
+    const ScopedPhase phase(Phase::bonded);  // the stiff bonds' forces, with the kicks and drifts
+    fused_available_->kick_drift_forces(s.x, s.v, s.inv_mass, force_[k], first_kick, dt, dt, steps);
+  }
+  for (int i = 0; i < steps; ++i) forces_.count_evaluations(stages_[k].levels);
+  valid_[k] = true;
+}
+
+// run_innermost's n micro steps (n ≥ 2) in molecule blocks (blocked_micro_steps): the runs of
+// micro steps between the O step's passes taken whole by the fused term, with the kicks
+// run_innermost gives each — ½δ for the first and the one after an even n's O step, δ for the
+// others — and the middle micro step of an odd n, whose drift holds the O step, plain. The same
+// operations on each particle in the same order, so the same bits.
+void MultipleTimeStepping::run_innermost_blocked(State& s, size_t k, double dt, int n) {
+  if (!valid_[k]) refresh(k, s.x);
+  const double span = dt * n;
+  if (!langevin_) {
+    blocked_steps(s, k, n, 0.5 * dt, dt);
+  } else if (n % 2 == 0) {
+    blocked_steps(s, k, n / 2, 0.5 * dt, dt);
+    kick(s.v, s.inv_mass, force_[k], 0.5 * dt);
+    o_step(s, span);
+    blocked_steps(s, k, n / 2, 0.5 * dt, dt);
+  } else {
+    const int before = n / 2;  // ≥ 1
+    blocked_steps(s, k, before, 0.5 * dt, dt);
+    kick_drift_o_drift(s, k, dt, dt, span);
+    closing_force(s, k, span);
+    blocked_steps(s, k, n - before - 1, dt, dt);
   }
   closing_kick(s, k, 0.5 * dt);
 }
@@ -262,6 +301,15 @@ void MultipleTimeStepping::load_state(const std::vector<double>& w) {
 // One O step per macro step (see the header), so o_step_kinetic_ is that macro step's.
 void MultipleTimeStepping::o_step(State& s, double dt) {
   const KineticChange change = langevin_->apply_and_measure(s.v, dt, s.step, substep_++);
+  o_step_kinetic_ = change.after;
+  heat_ += change.heat();
+}
+
+// kick_drift(dt_kick, ½δ), o_step(span), drift(½δ) — the micro step whose drift holds the O step —
+// in one pass (LangevinNoise::kick_drift_o_drift): the same bits.
+void MultipleTimeStepping::kick_drift_o_drift(State& s, size_t k, double dt_kick, double dt, double span) {
+  const KineticChange change =
+      langevin_->kick_drift_o_drift(s.x, s.v, s.inv_mass, force_[k], dt_kick, 0.5 * dt, span, s.step, substep_++);
   o_step_kinetic_ = change.after;
   heat_ += change.heat();
 }

@@ -64,23 +64,100 @@ void LangevinNoise::coefficients(double dt) {
   dt_ = dt;
 }
 
-template <bool kMeasure>
-KineticChange LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+namespace {
+
+// Particles per run of the O step (o_pass below): its normals, kinetic energies and velocities are
+// formed run by run in scratch of a few kB.
+constexpr int kNoiseRun = 64;
+
+// The 3m normals of particles b … b + m − 1 into z, each particle's three as particle_noise gives
+// them (words 3 id, 3 id + 1, 3 id + 2; id = id[p] or p): first every word (independent hashes),
+// then every draw by the ziggurat's fast path u x_i without a branch, then, if any draw fell outside
+// the layer below (0.7 % of them), those again by the wedge or the tail — ziggurat_normal's values,
+// with the hashes' long chains of multiplies side by side instead of one particle after another.
+void run_normals(std::uint64_t key, const std::int64_t* id, std::int64_t b, int m, const ZigguratTable& t,
+                 double* __restrict z) {
+  std::uint64_t w[3 * kNoiseRun];
+  for (int k = 0; k < m; ++k) {
+    const std::uint64_t j = 3 * static_cast<std::uint64_t>(id ? id[b + k] : b + k);
+    for (int a = 0; a < 3; ++a) w[3 * k + a] = noise_word(key, j + a);
+  }
+  bool slow = false;
+  for (int k = 0; k < 3 * m; ++k) {
+    const int layer = ziggurat_layer(w[k]);
+    const double u = signed_uniform(w[k]);
+    z[k] = u * t.x[layer];
+    slow |= !(std::abs(u) < t.ratio[layer]);
+  }
+  if (!slow) return;
+  for (int k = 0; k < 3 * m; ++k) {
+    const int layer = ziggurat_layer(w[k]);
+    const double u = signed_uniform(w[k]);
+    if (!(std::abs(u) < t.ratio[layer])) z[k] = detail::ziggurat_slow(w[k], layer, u, t);
+  }
+}
+
+}  // namespace
+
+// Run by run (kNoiseRun particles): the normals (run_normals), ½ m|v|² before, the new velocities,
+// ½ m|v|² after, then the two sums in particle order — each term the expression of
+// kinetic_energy (integrators/primitives.hpp) and each velocity c v + σ ξ as before, so the same
+// bits, with no loop carrying a hash's or a division's latency from one particle to the next.
+// kDrift: the run's kick and half drift first and its second half drift last (kick_drift_o_drift),
+// with kick_drift's and drift's expressions, while the run is in L1.
+template <bool kMeasure, bool kDrift>
+KineticChange LangevinNoise::o_pass(Eigen::Matrix3Xd* x, Eigen::Matrix3Xd& v, const Eigen::VectorXd* inv_mass,
+                                    const Eigen::Matrix3Xd* f, double dt_kick, double half_drift, double dt,
+                                    std::int64_t step, std::uint64_t substep) {
   const ScopedPhase phase(Phase::thermostat);
   if (dt != dt_) coefficients(dt);
   const std::uint64_t key = noise_key(seed_, step, substep);
   const ZigguratTable& table = ziggurat_table();
   const int parts = threads_for(v.cols());
+  const std::int64_t* id = id_.empty() ? nullptr : id_.data();
   std::array<KineticChange, kMaxParts> sums{};
   parallel_numbered_blocks(v.cols(), parts, [&](int u, std::int64_t b, std::int64_t e) {
     double before = 0.0, after = 0.0;
-    for (std::int64_t i = b; i < e; ++i) {
-      if (inv_mass_[i] == 0.0) continue;  // fixed: stays at rest
-      if constexpr (kMeasure)
-        if (inv_mass_[i] > 0.0) before += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
-      v.col(i) = c_[i] * v.col(i) + sigma_[i] * particle_noise(key, id_.empty() ? i : id_[i], table);
-      if constexpr (kMeasure)
-        if (inv_mass_[i] > 0.0) after += 0.5 * v.col(i).squaredNorm() / inv_mass_[i];
+    alignas(64) double z[3 * kNoiseRun], k0[kNoiseRun], k1[kNoiseRun];
+    const double* const w = inv_mass_.data();
+    double* __restrict vp = v.data();
+    // ½ m|v|² of the run's particles (a fixed one's is not summed)
+    auto kinetic = [&](std::int64_t r, int m, double* k) {
+      for (int q = 0; q < m; ++q) k[q] = 0.5 * v.col(r + q).squaredNorm() / (w[r + q] > 0.0 ? w[r + q] : 1.0);
+    };
+    for (std::int64_t r = b; r < e; r += kNoiseRun) {
+      const int m = static_cast<int>(std::min<std::int64_t>(kNoiseRun, e - r));
+      if constexpr (kDrift) {
+        double* __restrict xp = x->data();
+        const double* __restrict fp = f->data();
+        const double* __restrict wk = inv_mass->data();
+        for (std::int64_t i = r; i < r + m; ++i) {
+          const double c = dt_kick * wk[i];
+          for (int a = 0; a < 3; ++a) {
+            vp[3 * i + a] += c * fp[3 * i + a];
+            xp[3 * i + a] += half_drift * vp[3 * i + a];
+          }
+        }
+      }
+      run_normals(key, id, r, m, table, z);
+      if constexpr (kMeasure) kinetic(r, m, k0);
+      for (int q = 0; q < m; ++q) {
+        const std::int64_t i = r + q;
+        if (w[i] == 0.0) continue;  // fixed: stays at rest
+        v.col(i) = c_[i] * v.col(i) + sigma_[i] * Eigen::Map<const Eigen::Vector3d>(z + 3 * q);
+      }
+      if constexpr (kMeasure) {
+        kinetic(r, m, k1);
+        for (int q = 0; q < m; ++q)
+          if (w[r + q] > 0.0) {
+            before += k0[q];
+            after += k1[q];
+          }
+      }
+      if constexpr (kDrift) {
+        double* __restrict xp = x->data();
+        for (std::int64_t i = 3 * r; i < 3 * (r + m); ++i) xp[i] += half_drift * vp[i];
+      }
     }
     sums[u] = {before, after};
   });
@@ -89,8 +166,19 @@ KineticChange LangevinNoise::o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t
   return total;
 }
 
-template KineticChange LangevinNoise::o_step<false>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
-template KineticChange LangevinNoise::o_step<true>(Eigen::Matrix3Xd&, double, std::int64_t, std::uint64_t);
+template KineticChange LangevinNoise::o_pass<false, false>(Eigen::Matrix3Xd*, Eigen::Matrix3Xd&, const Eigen::VectorXd*,
+                                                           const Eigen::Matrix3Xd*, double, double, double,
+                                                           std::int64_t, std::uint64_t);
+template KineticChange LangevinNoise::o_pass<true, false>(Eigen::Matrix3Xd*, Eigen::Matrix3Xd&, const Eigen::VectorXd*,
+                                                          const Eigen::Matrix3Xd*, double, double, double, std::int64_t,
+                                                          std::uint64_t);
+
+KineticChange LangevinNoise::kick_drift_o_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                                                const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f,
+                                                double dt_kick, double half_drift, double dt, std::int64_t step,
+                                                std::uint64_t substep) {
+  return o_pass<true, true>(&x, v, &inv_mass, &f, dt_kick, half_drift, dt, step, substep);
+}
 
 LangevinForce::LangevinForce(const ThermostatSettings& settings, const Eigen::VectorXd& inv_mass)
     : kT_(settings.temperature),
@@ -136,7 +224,7 @@ double LangevinForce::kick_heat(const Eigen::Matrix3Xd& v, const Eigen::Matrix3X
   return parallel_sum(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
     double heat = 0.0;
     for (std::int64_t i = b; i < e; ++i) {
-      if (inv_mass_[i] == 0.0) continue;  // fixed
+      if (inv_mass_[i] == 0.0) continue;                             // fixed
       const Eigen::Vector3d jump = dt * inv_mass_[i] * part.col(i);  // b
       heat += (jump.dot(v.col(i)) + half * jump.squaredNorm()) / inv_mass_[i];
     }
@@ -179,7 +267,7 @@ class VelocityRescaled final : public Integrator {
     const ScopedPhase phase(Phase::thermostat);
     double local = 0.0;
     const double kinetic = exact_kinetic_energy(s, local);  // the whole system's K: one α for all
-    if (!(kinetic > 0.0)) return;  // nothing moves: no direction to rescale along
+    if (!(kinetic > 0.0)) return;                           // nothing moves: no direction to rescale along
     const double c = tau_ > 0.0 ? std::exp(-h / tau_) : 0.0;
     double r1 = 0.0;
     const double a2 = rescaling_factor_squared(kinetic, 0.5 * dof_ * kT_, dof_, c, seed_, s.step, &r1);

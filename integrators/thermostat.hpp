@@ -138,6 +138,14 @@ class LangevinNoise {
   KineticChange apply_and_measure(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
     return o_step<true>(v, dt, step, substep);
   }
+  // kick_drift(x, v, inv_mass, f, dt_kick, half_drift) (integrators/primitives.hpp), then
+  // apply_and_measure(v, dt, step, substep), then drift(x, v, half_drift), in one pass over the
+  // particles, run by run (thermostat.cpp): each particle's x and v are read and written once
+  // instead of three times. The same bits as the three passes (the same expressions on each
+  // particle, the same sums in the same order).
+  KineticChange kick_drift_o_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
+                                   const Eigen::Matrix3Xd& f, double dt_kick, double half_drift, double dt,
+                                   std::int64_t step, std::uint64_t substep);
   double temperature() const { return kT_; }
   const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
   const Eigen::VectorXd& inv_mass() const { return inv_mass_; }
@@ -145,7 +153,14 @@ class LangevinNoise {
  private:
   void coefficients(double dt);  // c_i and σ_i for dt (recomputed only when dt changes)
   template <bool kMeasure>
-  KineticChange o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep);
+  KineticChange o_step(Eigen::Matrix3Xd& v, double dt, std::int64_t step, std::uint64_t substep) {
+    return o_pass<kMeasure, false>(nullptr, v, nullptr, nullptr, 0.0, 0.0, dt, step, substep);
+  }
+  // With kDrift, the kick and the half drifts around it (kick_drift_o_drift).
+  template <bool kMeasure, bool kDrift>
+  KineticChange o_pass(Eigen::Matrix3Xd* x, Eigen::Matrix3Xd& v, const Eigen::VectorXd* inv_mass,
+                       const Eigen::Matrix3Xd* f, double dt_kick, double half_drift, double dt, std::int64_t step,
+                       std::uint64_t substep);
   double kT_;
   std::uint64_t seed_;
   std::vector<std::int64_t> id_;  // ThermostatSettings::particle_id

@@ -104,9 +104,10 @@ TEST(FusedMicroStep, TermGivesTheBitsOfKickDriftThenForces) {
   }
 }
 
-// Short chain runs (bond_loop.hpp's chain_stream takes runs of at most kFewBonds bonds two at a
-// time): 2 000 chains of 1 to 5 bonds (runs of every length up to past the limit), a fixed bead
-// among them, 1–3 threads: the bits of the plain path.
+// Short chain runs (the micro step's blocks, bond_loop.hpp's MicroStepPlan, take runs of two bonds
+// or more through chain_block, a lone bond through bond_block; the plain bond loop does a block
+// of at most kFewBonds bonds bond by bond): 2 000 chains of 1 to 5 bonds, a fixed bead among them,
+// 1–3 threads: the bits of the plain path.
 TEST(FusedMicroStep, ShortChainRunsGiveTheBitsOfThePlainPath) {
   std::mt19937 rng(8);
   std::uniform_real_distribution<double> jitter(-0.05, 0.05);
@@ -347,6 +348,173 @@ TEST(FusedMicroStep, RunsByDefaultOnlyOnTheSmallestSystems) {
     const auto on_pendulum = make_integrator(pendulum.integrator, *pendulum.forces, pendulum.state.inv_mass);
     EXPECT_TRUE(mts(*on_pendulum).fused_micro_step());
   }
+}
+
+// Several micro steps in molecule blocks (FusedMicroStep::kick_drift_forces, MicroStepPlan in
+// forcefields/bond_loop.hpp) against the plain path's steps (kick_drift, f = 0, the bond forces),
+// the first kicking by its own step: the same bits of x, v and f, for 1–3 threads, on chains in
+// order and shuffled (one block: the molecules are not index ranges), combs with the side bond
+// listed first or last (the side bead numbered after every chain: one block too), rings (a bond
+// back to the first bead), molecules of 1 to 6 beads, fixed beads and unbonded particles.
+struct Molecules {
+  Eigen::Matrix3Xd x;
+  StiffBonds bonds;
+};
+
+Molecules rings_and_small_molecules() {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> jitter(-0.05, 0.05);
+  Molecules m;
+  m.bonds.epsilon = 0.01;
+  std::vector<Eigen::Vector3d> at;
+  for (int c = 0; c < 900; ++c) {
+    const bool ring = c % 3 == 0;
+    const int beads = ring ? 5 + c % 7 : 1 + c % 6;
+    const int first = static_cast<int>(at.size());
+    const double side = 2.0 * std::sin(M_PI / beads);
+    for (int b = 0; b < beads; ++b) {
+      const double angle = 2.0 * M_PI * b / beads;
+      const Eigen::Vector3d base(3.0 * (c % 30), 3.0 * (c / 30), 0.0);
+      at.push_back(base +
+                   (ring ? Eigen::Vector3d(std::cos(angle), std::sin(angle), 0.0)
+                         : Eigen::Vector3d(0.97 * b, 0.3 * (b % 2), 0.0)) +
+                   Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng)));
+      if (b > 0) m.bonds.bonds.push_back({first + b - 1, first + b, ring ? side : 0.97, 1.0 + 0.05 * (b % 3)});
+    }
+    if (ring) m.bonds.bonds.push_back({first + beads - 1, first, side, 1.0});
+  }
+  m.x.resize(3, static_cast<Eigen::Index>(at.size()));
+  for (Eigen::Index i = 0; i < m.x.cols(); ++i) m.x.col(i) = at[i];
+  return m;
+}
+
+void expect_blocked_steps_are_plain(const Eigen::Matrix3Xd& x, const StiffBonds& bonds, unsigned seed,
+                                    const std::string& what) {
+  const Eigen::Index n = x.cols();
+  const StiffHarmonicBond term("bonds", Level::fast, bonds);
+  Eigen::Matrix3Xd v0, f0;
+  random_motion(n, seed, v0, f0);
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::Constant(n, 1.0);
+  inv_mass(7) = 0.0;  // fixed: at rest
+  v0.col(7).setZero();
+  inv_mass(11) = 0.5;
+  const double first_kick = 0.0015, kick = 0.003, dt = 0.002;
+  const int steps = 5;
+  for (int threads : {1, 2, 3}) {
+    SCOPED_TRACE(testing::Message() << what << ", " << threads << " threads");
+    const ThreadCount tc(threads);
+    Eigen::Matrix3Xd x1 = x, v1 = v0, f1 = f0;
+    for (int s = 0; s < steps; ++s) {
+      kick_drift(x1, v1, inv_mass, f1, s == 0 ? first_kick : kick, dt);
+      f1.setZero();
+      term.add_forces(x1, Box{}, f1);
+    }
+    Eigen::Matrix3Xd x2 = x, v2 = v0, f2 = f0;
+    term.fused_micro_step()->kick_drift_forces(x2, v2, inv_mass, f2, first_kick, kick, dt, steps);
+    EXPECT_EQ(x1, x2);
+    EXPECT_EQ(v1, v2);
+    EXPECT_EQ(f1, f2);
+    EXPECT_GT(f1.cwiseAbs().maxCoeff(), 1.0);  // stretched bonds: a real force
+    EXPECT_EQ(x1.col(7), x.col(7));            // the fixed bead stayed
+  }
+}
+
+TEST(BlockedMicroSteps, GiveTheBitsOfThePlainSteps) {
+  for (bool shuffle : {false, true}) {
+    Chains c = chains(shuffle);
+    const Eigen::Index bonded = c.x.cols();
+    c.x.conservativeResize(3, bonded + 7);  // unbonded particles: kicked and drifted, force 0
+    c.x.rightCols(7).setRandom();
+    expect_blocked_steps_are_plain(c.x, c.bonds, 3, shuffle ? "shuffled chains" : "chains");
+  }
+  for (bool side_first : {true, false}) {  // combs, the side beads numbered after the chains
+    const Chains c = chains(false);
+    const Eigen::Index beads = c.x.cols(), n_chains = beads / 100;
+    Eigen::Matrix3Xd x(3, beads + n_chains);
+    x.leftCols(beads) = c.x;
+    StiffBonds bonds;
+    bonds.epsilon = c.bonds.epsilon;
+    for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
+      const int stem = static_cast<int>(100 * ch + 50), side = static_cast<int>(beads + ch);
+      x.col(side) = x.col(stem) + Eigen::Vector3d(0.0, 0.0, 0.99);
+      if (side_first) bonds.bonds.push_back({stem, side, 0.97, 1.0});
+      for (int b = 0; b < 99; ++b) bonds.bonds.push_back(c.bonds.bonds[99 * ch + b]);
+      if (!side_first) bonds.bonds.push_back({stem, side, 0.97, 1.0});
+    }
+    expect_blocked_steps_are_plain(x, bonds, 4, side_first ? "combs, side bond first" : "combs, side bond last");
+  }
+  {  // combs whose side bead follows its stem's chain: blocks of whole combs
+    const Chains c = chains(false);
+    const Eigen::Index n_chains = c.x.cols() / 100;
+    Eigen::Matrix3Xd x(3, c.x.cols() + n_chains);
+    StiffBonds bonds;
+    bonds.epsilon = c.bonds.epsilon;
+    for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
+      const int first = static_cast<int>(101 * ch);
+      x.middleCols(first, 100) = c.x.middleCols(100 * ch, 100);
+      x.col(first + 100) = x.col(first + 50) + Eigen::Vector3d(0.0, 0.0, 0.99);
+      bonds.bonds.push_back({first + 50, first + 100, 0.97, 1.2});
+      for (int b = 0; b < 99; ++b) bonds.bonds.push_back({first + b, first + b + 1, 0.97, 1.0});
+    }
+    expect_blocked_steps_are_plain(x, bonds, 5, "combs in index ranges");
+  }
+  const Molecules m = rings_and_small_molecules();
+  ASSERT_GE(m.x.cols(), kParallelMin);
+  expect_blocked_steps_are_plain(m.x, m.bonds, 6, "rings and small molecules");
+}
+
+// The impulse family's micro steps run in molecule blocks by default on a melt (not only on the
+// smallest systems), and not where a second term shares the innermost level; whole trajectories
+// with the default (blocked) and the plain path, NVE and Langevin with n even and odd (the O step
+// between two runs of blocked micro steps, or inside the middle micro step's drift), 1 and 2
+// threads: the same bits of x, v and the cached forces every step.
+TEST(BlockedMicroSteps, OnByDefaultAndTrajectoryBitIdentical) {
+  auto load = [](std::vector<std::string> set) {
+    set.insert(set.end(), {"build.0.chains=64", "build.0.beads=72", "prepare.relax_steps=20", "integrator.h=0.005"});
+    return test::load("tests/decks/small_melt.toml", set);
+  };
+  {
+    Scene bending_fast = load({"integrator.method=\"impulse\"", "forces.bending.level=\"fast\""});
+    EXPECT_FALSE(mts(*make_integrator(bending_fast.integrator, *bending_fast.forces, bending_fast.state.inv_mass))
+                     .blocked_micro_steps());
+  }
+  const std::vector<std::string> nvt = {"thermostat.style=\"langevin\"", "thermostat.temperature=1.0",
+                                        "thermostat.damp=1.0", "thermostat.seed=5"};
+  for (const char* method : {"impulse", "mollified-impulse"})
+    for (int micro : {6, 7})
+      for (bool langevin : {false, true}) {
+        std::vector<std::string> set = {std::string("integrator.method=\"") + method + "\"",
+                                        "integrator.micro_steps=" + std::to_string(micro)};
+        if (langevin) set.insert(set.end(), nvt.begin(), nvt.end());
+        const Scene base = load(set);
+        for (int threads : {1, 2}) {
+          SCOPED_TRACE(testing::Message() << method << ", " << micro << " micro steps, "
+                                          << (langevin ? "Langevin, " : "NVE, ") << threads << " threads");
+          const ThreadCount tc(threads);
+          State a = base.state, b = base.state;
+          auto blocked = make_integrator(base.integrator, *base.forces, a.inv_mass);
+          auto plain = make_integrator(base.integrator, *base.forces, b.inv_mass);
+          ASSERT_TRUE(mts(*blocked).blocked_micro_steps());
+          mts(*plain).use_fused_micro_step(false);
+          ASSERT_FALSE(mts(*plain).blocked_micro_steps());
+          std::ostringstream log;
+          blocked->prepare(a, log);
+          plain->prepare(b, log);
+          for (int step = 0; step < 3; ++step) {
+            const std::int64_t fast0 = base.forces->evaluations(Level::fast);
+            blocked->step(a, base.integrator.h);
+            const std::int64_t fast1 = base.forces->evaluations(Level::fast);
+            plain->step(b, base.integrator.h);
+            const std::int64_t fast2 = base.forces->evaluations(Level::fast);
+            a.step = b.step = step + 1;
+            ASSERT_EQ(a.x, b.x) << "step " << step;
+            ASSERT_EQ(a.v, b.v) << "step " << step;
+            ASSERT_EQ(blocked->save_state(), plain->save_state()) << "step " << step;
+            EXPECT_EQ(fast1 - fast0, fast2 - fast1) << "step " << step;  // the fast force counted per micro step
+          }
+          EXPECT_GT((a.x - base.state.x).cwiseAbs().maxCoeff(), 1e-3);
+        }
+      }
 }
 
 }  // namespace

@@ -16,6 +16,7 @@ import csv
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -106,6 +107,31 @@ def check_layouts(exe, work, mpiexec):
     assert float(runs[1]["halo_messages_per_step"]) == dom["halo_messages_per_step"], runs
 
 
+def check_compare(exe, work):
+    """--stiffmd B1 B2: every run with each binary, interleaved; the table "B1 ÷ this" with B1's rows at 1.00
+    and B2's ratio the median of the per-repeat ratios of runs.csv. B2 is a copy of the binary."""
+    copy = os.path.join(work, "stiffmd-copy")
+    shutil.copy(exe, copy)
+    out = os.path.join(work, "compare")
+    p = subprocess.run(["/usr/bin/python3", TOOL, "--stiffmd", exe, copy, "--out", out, "--deck", DECK, "--methods",
+                        "impulse", "--layouts", "1x1", "--h", "0.005", "--steps", "3", "--repeats", "2"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stdout + p.stderr
+    rows = re.findall(r"^\| small_melt\.toml \| impulse \| 1×1 \| B(\d) (\S+) \| ([0-9.]+) \| ([0-9.]+) \| ([0-9.]+) \| "
+                      r"([0-9.]+) \|$", p.stdout, re.M)
+    assert [(k, b) for k, b, *_ in rows] == [("1", exe), ("2", copy)], p.stdout
+    assert rows[0][4:] == ("1.00", "1.00"), p.stdout
+    with open(os.path.join(out, "runs.csv")) as f:
+        runs = list(csv.DictReader(f))
+    assert [r["binary"] for r in runs] == [exe, copy, copy, exe], runs  # alternating order
+    ms = {(r["binary"], r["repeat"]): float(r["ms_per_step"]) for r in runs}
+    ratios = sorted(ms[(exe, k)] / ms[(copy, k)] for k in ("0", "1"))
+    assert abs(float(rows[1][4]) - sum(ratios) / 2) <= 0.006, (rows, ratios)
+    assert all(float(r["cpu_ms_per_step"]) > 0 for r in runs), runs
+    p = tool(exe, os.path.join(work, "bad_compare"), "--work", "--stiffmd", exe, copy)
+    assert p.returncode == 2 and "--work takes one --stiffmd" in p.stderr, p.stderr
+
+
 def check_refusals(exe, work):
     out = os.path.join(work, "bad")
     # An mpiexec that drops "-n N" and runs the command once: a run on one rank where two were asked
@@ -167,9 +193,10 @@ def main():
             check_layouts(exe, work, mpiexec)
         else:
             print("layouts: skipped (no MPIEXEC given: stiffmd built without MPI)")
+        check_compare(exe, work)
         check_refusals(exe, work)
         check_tile(work)
-    print(f"{4 if mpiexec else 3} passed, 0 failed{'' if mpiexec else ', 1 skipped'}")
+    print(f"{5 if mpiexec else 4} passed, 0 failed{'' if mpiexec else ', 1 skipped'}")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@
 #include "engine/observe/observables.hpp"
 #include "engine/run/run.hpp"
 #include "forcefields/external_terms.hpp"
+#include "integrators/primitives.hpp"
 #include "integrators/rattle.hpp"
 #include "integrators/thermostat.hpp"
 #include "test_support.hpp"
@@ -297,6 +298,83 @@ TEST(CounterNoise, LangevinStepDoesNotDependOnTheThreadCount) {
   EXPECT_EQ(serial, two);  // bit for bit
   EXPECT_EQ(serial, three);
   EXPECT_TRUE(serial.col(17).isZero());
+}
+
+// The O step as written per particle — v ← c v + σ ξ with ξ = particle_noise(key, id) and
+// c, σ of its γ, m and dt, and ½ m|v|² before and after summed in particle order as
+// kinetic_energy sums it — against LangevinNoise's runs of particles (normals of a run first,
+// the rare wedge and tail draws after): the same bits of v and of both sums, with a fixed particle,
+// uneven frictions and masses, and particle ids (a decomposed run's part). One thread (the sums of
+// several threads are blocks added in order: LangevinStepDoesNotDependOnTheThreadCount).
+TEST(CounterNoise, LangevinStepGivesTheBitsOfTheParticleByParticleFormula) {
+  const int n = 3 * 4096 + 37;
+  for (bool ids : {false, true}) {
+    SCOPED_TRACE(ids ? "particle ids" : "indices");
+    ThermostatSettings t;
+    t.style = ThermostatSettings::Style::langevin;
+    t.temperature = 1.5;
+    t.seed = 11;
+    t.friction = Eigen::VectorXd::LinSpaced(n, 0.5, 2.0);
+    if (ids)
+      for (int i = 0; i < n; ++i) t.particle_id.push_back(7 * static_cast<std::int64_t>(i) + 3);
+    Eigen::VectorXd inv_mass = Eigen::VectorXd::LinSpaced(n, 0.25, 2.0);
+    inv_mass[17] = 0.0;
+    Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Random(3, n);
+    v.col(17).setZero();
+    const double dt = 0.01;
+    const std::int64_t step = 42;
+    Eigen::Matrix3Xd want = v;
+    double before = 0.0, after = 0.0;
+    const std::uint64_t key = noise_key(t.seed, step, 1);
+    for (int i = 0; i < n; ++i) {
+      if (inv_mass[i] == 0.0) continue;
+      const double c = std::exp(-t.friction[i] * dt);
+      const double sigma = std::sqrt(-std::expm1(-2.0 * t.friction[i] * dt) * t.temperature * inv_mass[i]);
+      before += 0.5 * want.col(i).squaredNorm() / inv_mass[i];
+      want.col(i) = c * want.col(i) + sigma * particle_noise(key, ids ? t.particle_id[i] : i);
+      after += 0.5 * want.col(i).squaredNorm() / inv_mass[i];
+    }
+    const test::ThreadCount tc(1);
+    LangevinNoise o(t, inv_mass);
+    const KineticChange got = o.apply_and_measure(v, dt, step, 1);
+    EXPECT_EQ(v, want);
+    EXPECT_EQ(got.before, before);
+    EXPECT_EQ(got.after, after);
+    EXPECT_TRUE(v.col(17).isZero());
+  }
+}
+
+// The micro step whose drift holds the O step in one pass (LangevinNoise::kick_drift_o_drift, used
+// by velocity Verlet with BAOAB and the impulse family's middle micro step) against its three passes
+// kick_drift, the O step, drift: the same bits of x, v and the kinetic energies, 1 to 3 threads.
+TEST(CounterNoise, KickDriftODriftGivesTheBitsOfItsThreePasses) {
+  const int n = 3 * 4096 + 5;
+  ThermostatSettings t;
+  t.style = ThermostatSettings::Style::langevin;
+  t.temperature = 1.2;
+  t.seed = 4;
+  t.friction = Eigen::VectorXd::LinSpaced(n, 0.5, 2.0);
+  Eigen::VectorXd inv_mass = Eigen::VectorXd::LinSpaced(n, 0.5, 1.5);
+  inv_mass[23] = 0.0;
+  const Eigen::Matrix3Xd x0 = Eigen::Matrix3Xd::Random(3, n), f = 50.0 * Eigen::Matrix3Xd::Random(3, n);
+  Eigen::Matrix3Xd v0 = Eigen::Matrix3Xd::Random(3, n);
+  v0.col(23).setZero();
+  for (int threads : {1, 2, 3}) {
+    SCOPED_TRACE(testing::Message() << threads << " threads");
+    const test::ThreadCount tc(threads);
+    LangevinNoise plain(t, inv_mass), fused(t, inv_mass);
+    Eigen::Matrix3Xd x1 = x0, v1 = v0, x2 = x0, v2 = v0;
+    kick_drift(x1, v1, inv_mass, f, 0.003, 0.0025);
+    const KineticChange k1 = plain.apply_and_measure(v1, 0.005, 9, 2);
+    drift(x1, v1, 0.0025);
+    const KineticChange k2 = fused.kick_drift_o_drift(x2, v2, inv_mass, f, 0.003, 0.0025, 0.005, 9, 2);
+    EXPECT_EQ(x1, x2);
+    EXPECT_EQ(v1, v2);
+    EXPECT_EQ(k1.before, k2.before);
+    EXPECT_EQ(k1.after, k2.after);
+    EXPECT_EQ(x2.col(23), x0.col(23));  // the fixed particle stayed
+    EXPECT_GT((x2 - x0).cwiseAbs().maxCoeff(), 1e-3);
+  }
 }
 
 // The O step alone is an exact Ornstein–Uhlenbeck update: from v = 0, after time t the velocity
@@ -612,22 +690,23 @@ TEST_P(ConservedEnergyDrift, IsTheStepsErrorAndFallsLikeHSquared) {
 // the lammps splitting, csvr's rescaling. Not the effective dynamics: its W = Σ I_k ω_k has a kink
 // where a trimer's two frequencies cross (cos θ = 0), so its energy error is O(h) even without a
 // thermostat (ratio 2.9 per halving in NVE).
-INSTANTIATE_TEST_SUITE_P(
-    Trimers, ConservedEnergyDrift,
-    ::testing::Values(ConservedCase{"vv_baoab", "velocity-verlet", 0.01, 0.0, "baoab"},
-                      ConservedCase{"vv_lammps", "velocity-verlet", 0.01, 0.0, "lammps"},
-                      ConservedCase{"vv_obabo", "velocity-verlet", 0.01, 0.0, "obabo"},
-                      ConservedCase{"vv_csvr", "velocity-verlet", 0.01, 0.0, "csvr"},
-                      ConservedCase{"impulse_baoab", "impulse", 0.05, 0.005, "baoab"},
-                      ConservedCase{"impulse_lammps", "impulse", 0.05, 0.005, "lammps"},
-                      ConservedCase{"projected_obabo", "projected-impulse", 0.05, 0.005, "obabo"},
-                      ConservedCase{"rattle_baoab", "rattle", 0.05, 0.0, "baoab"},
-                      ConservedCase{"rattle_obabo", "rattle", 0.05, 0.0, "obabo"},
-                      ConservedCase{"rattle_csvr", "rattle", 0.05, 0.0, "csvr"},
-                      ConservedCase{"fixman_baoab", "fixman", 0.05, 0.0, "baoab"},
-                      ConservedCase{"fixman_obabo", "fixman", 0.05, 0.0, "obabo"},
-                      ConservedCase{"fixman_csvr", "fixman", 0.05, 0.0, "csvr"}),
-    [](const ::testing::TestParamInfo<ConservedCase>& info) { return std::string(info.param.name); });
+INSTANTIATE_TEST_SUITE_P(Trimers, ConservedEnergyDrift,
+                         ::testing::Values(ConservedCase{"vv_baoab", "velocity-verlet", 0.01, 0.0, "baoab"},
+                                           ConservedCase{"vv_lammps", "velocity-verlet", 0.01, 0.0, "lammps"},
+                                           ConservedCase{"vv_obabo", "velocity-verlet", 0.01, 0.0, "obabo"},
+                                           ConservedCase{"vv_csvr", "velocity-verlet", 0.01, 0.0, "csvr"},
+                                           ConservedCase{"impulse_baoab", "impulse", 0.05, 0.005, "baoab"},
+                                           ConservedCase{"impulse_lammps", "impulse", 0.05, 0.005, "lammps"},
+                                           ConservedCase{"projected_obabo", "projected-impulse", 0.05, 0.005, "obabo"},
+                                           ConservedCase{"rattle_baoab", "rattle", 0.05, 0.0, "baoab"},
+                                           ConservedCase{"rattle_obabo", "rattle", 0.05, 0.0, "obabo"},
+                                           ConservedCase{"rattle_csvr", "rattle", 0.05, 0.0, "csvr"},
+                                           ConservedCase{"fixman_baoab", "fixman", 0.05, 0.0, "baoab"},
+                                           ConservedCase{"fixman_obabo", "fixman", 0.05, 0.0, "obabo"},
+                                           ConservedCase{"fixman_csvr", "fixman", 0.05, 0.0, "csvr"}),
+                         [](const ::testing::TestParamInfo<ConservedCase>& info) {
+                           return std::string(info.param.name);
+                         });
 
 // ---- the Langevin splittings on harmonic oscillators -----------------------------------------------
 

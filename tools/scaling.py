@@ -9,6 +9,7 @@ speed-up, efficiency, serial share and, on several ranks, the halo's cost and th
     /usr/bin/python3 tools/scaling.py --systems stiff-256k --methods fixman,rattle --steps 30 --repeats 7
     /usr/bin/python3 tools/scaling.py --deck inputs/polymer_melt.toml --methods rattle,fixman --h 0.01
     /usr/bin/python3 tools/scaling.py --work --layouts 1x1,2x1,1x2,16x1,1x16    # instructions, kg-32k and stiff-32k
+    /usr/bin/python3 tools/scaling.py --layouts 1x1 --steps 40 --repeats 3 --stiffmd /tmp/before build/stiffmd   # two builds
 
 Systems (--systems; or --deck PATH: that deck with each method as integrator.method, at --h):
   kg-32k, kg-256k      LAMMPS's in.chain as inputs/kremer_grest.toml (FENE + LJ, velocity Verlet with
@@ -62,6 +63,13 @@ and the seconds each run took under valgrind; work.md and work.csv in --out. The
 kg-32k and stiff-32k (16 ranks of kg-32k: about 5 minutes on 2 cores): every rank prepares the whole
 scene, so 16 ranks of a 256 000-bead melt would take about half an hour under valgrind (see
 docs/parallel.md, "Before the thin halo").
+
+Builds side by side: --stiffmd B1 B2 ... runs every (system, method, layout) with each binary in turn
+(the binaries in alternating order from one repeat to the next; the decks are prepared by B1) and adds
+a table "before ÷ after": per row each binary's median ms/step of wall time and of CPU time (summary.json
+cpu_seconds / steps, the process's own: less sensitive to other processes on a shared machine than the
+wall time) and B1's time ÷ Bk's, the median of the ratios of the runs of one repeat (wall and CPU).
+Not with --work.
 
 A shared machine: "others" is the median number of cores other processes kept busy during a row's
 runs (/proc/stat's busy time less the run's own CPU time, over its wall time; the run's own is
@@ -148,7 +156,7 @@ def system_runs(system, methods, args, work):
         return [(system, "velocity-verlet", KG_DECK, sets)]
     state = os.path.join(work, f"stiff32k_eps{args.eps:g}.data")
     if not os.path.exists(state):
-        prepare_state(args.stiffmd, args.eps, state)
+        prepare_state(args.stiffmd[0], args.eps, state)
     if system == "stiff-256k":
         tiled = os.path.join(work, f"stiff256k_eps{args.eps:g}.data")
         if not os.path.exists(tiled):
@@ -202,7 +210,7 @@ def wait_idle(limit):
 
 
 # A run's measures (run_once), each a column of runs.csv and, as the median over repeats, of the table.
-MEASURES = ("ms_per_step", "serial_share", "ghosts_per_owned", "halo_kb_per_step", "halo_messages_per_step",
+MEASURES = ("ms_per_step", "cpu_ms_per_step", "serial_share", "ghosts_per_owned", "halo_kb_per_step", "halo_messages_per_step",
             "imbalance", "others", "neighbor_pairs")
 
 
@@ -222,10 +230,11 @@ def pairs_ratio(pairs, one_rank):
     return pairs / one_rank if pairs is not None and one_rank else None
 
 
-def engine_command(args, deck, sets, run_dir, ranks, wrapper=()):
-    """`stiffmd run` of a deck with its --set overrides, prefixed by wrapper (valgrind and its options)
-    and, on several ranks, by `MPIEXEC -n RANKS` (every rank under the wrapper)."""
-    cmd = list(wrapper) + [args.stiffmd, "run", deck, "--no-progress", "-o", run_dir, "--set",
+def engine_command(args, deck, sets, run_dir, ranks, wrapper=(), binary=None):
+    """`stiffmd run` of a deck with its --set overrides (binary: one of --stiffmd, the first by default),
+    prefixed by wrapper (valgrind and its options) and, on several ranks, by `MPIEXEC -n RANKS` (every rank
+    under the wrapper)."""
+    cmd = list(wrapper) + [binary or args.stiffmd[0], "run", deck, "--no-progress", "-o", run_dir, "--set",
                            "output.checkpoint_interval=0"]
     for kv in sets + args.set:
         cmd += ["--set", kv]
@@ -240,7 +249,7 @@ def checked_summary(args, run_dir, ranks):
     if s["steps"] < 1:
         raise RunFailed(f"{run_dir}: no steps run")
     if s.get("ranks", 1) != ranks:
-        raise RunFailed(f"{run_dir}: ran on {s.get('ranks', 1)} rank(s), not {ranks} (is {args.stiffmd} built with "
+        raise RunFailed(f"{run_dir}: ran on {s.get('ranks', 1)} rank(s), not {ranks} (is {args.stiffmd[0]} built with "
                         f"the MPI of {args.mpiexec}?)")
     return s
 
@@ -257,15 +266,15 @@ def domain_measures(m, s, ranks):
             m["imbalance"] = d["rank_loop_seconds_max"] / d["rank_loop_seconds_mean"]
 
 
-def run_once(args, deck, sets, layout, run_dir):
-    """{measure: value or None} of one run on layout = (ranks, threads): ms per step of the step loop's
-    wall time (the slowest rank's), serial share, the pair count (None where the engine writes none),
+def run_once(args, deck, sets, layout, run_dir, binary=None):
+    """{measure: value or None} of one run of binary (one of --stiffmd) on layout = (ranks, threads): ms
+    per step of the step loop's wall time (the slowest rank's) and of CPU time, serial share, the pair count (None where the engine writes none),
     the domains' halo and imbalance (None on one rank), cores other processes kept busy meanwhile
     (None off Linux)."""
     ranks, threads = layout
     shutil.rmtree(run_dir, ignore_errors=True)
     os.makedirs(run_dir)
-    cmd = engine_command(args, deck, sets, run_dir, ranks)
+    cmd = engine_command(args, deck, sets, run_dir, ranks, binary=binary)
     # RUSAGE_CHILDREN: every process this one has waited for and their waited-for children, so the
     # ranks of mpiexec (which waits for them) count as the run's own CPU time.
     busy0, own0, t0 = busy_seconds(), resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
@@ -275,6 +284,8 @@ def run_once(args, deck, sets, layout, run_dir):
     s = checked_summary(args, run_dir, ranks)
     m = dict.fromkeys(MEASURES)
     m["ms_per_step"] = 1e3 * s["wall_seconds"] / s["steps"]
+    if s.get("cpu_seconds") is not None:
+        m["cpu_ms_per_step"] = 1e3 * s["cpu_seconds"] / s["steps"]
     m["serial_share"] = s.get("serial_share")
     domain_measures(m, s, ranks)
     if busy0 is not None:
@@ -444,6 +455,28 @@ def table(rows, layouts):
     return "\n".join(lines)
 
 
+def compare_table(rows, layouts, binaries):
+    """The markdown table of several binaries: per (system, method, layout) each binary's median wall and
+    CPU ms/step and the first binary's ÷ each other's (median of the per-repeat ratios)."""
+    lines = ["| system | method | ranks×threads | binary | ms/step (wall) | ms/step (CPU) | B1 ÷ this (wall) | "
+             "B1 ÷ this (CPU) |", "|---|---|--:|---|--:|--:|--:|--:|"]
+
+    def ratio(first, runs, key):
+        r = [a[key] / b[key] for a, b in zip(first, runs) if a.get(key) and b.get(key)]
+        return f"{statistics.median(r):.2f}" if r else "—"
+
+    for (system, method), by_layout in rows.items():
+        for layout in layouts:
+            first = by_layout[layout][0]
+            for k, binary in enumerate(binaries):
+                runs = by_layout[layout][k]
+                wall, cpu = median_of(runs, "ms_per_step"), median_of(runs, "cpu_ms_per_step")
+                lines.append(f"| {system} | {method} | {layout_name(layout)} | B{k + 1} {binary} | {wall:.2f} | "
+                             f"{'—' if cpu is None else f'{cpu:.2f}'} | {ratio(first, runs, 'ms_per_step')} | "
+                             f"{ratio(first, runs, 'cpu_ms_per_step')} |")
+    return "\n".join(lines)
+
+
 def median_of(runs, key):
     values = [m[key] for m in runs if m.get(key) is not None]
     return statistics.median(values) if values else None
@@ -483,7 +516,8 @@ def main():
     ap.add_argument("--set", action="append", default=[], help="KEY=VALUE for every run (repeatable)")
     ap.add_argument("--wait-idle", type=float, default=0.0, metavar="S",
                     help="before each repeat's runs, wait up to S seconds for other processes to go quiet")
-    ap.add_argument("--stiffmd", default=os.path.join(ROOT, "build", "stiffmd"))
+    ap.add_argument("--stiffmd", nargs="+", default=[os.path.join(ROOT, "build", "stiffmd")],
+                    help="the binary, or several to compare (each run with each, interleaved)")
     ap.add_argument("--out", default=os.path.join(ROOT, "sweeps", "scaling"))
     args = ap.parse_args()
     if args.systems is None:
@@ -514,7 +548,11 @@ def main():
         # Open MPI's idle ranks yield their core (their polling inside MPI is not collected anyway).
         os.environ["OMP_WAIT_POLICY"] = "passive"
         os.environ.setdefault("OMPI_MCA_mpi_yield_when_idle", "1")
-    args.stiffmd, args.out = os.path.abspath(args.stiffmd), os.path.abspath(args.out)
+    if args.work and len(args.stiffmd) > 1:
+        print("scaling: --work takes one --stiffmd", file=sys.stderr)
+        return 2
+    args.stiffmd, args.out = [os.path.abspath(b) for b in args.stiffmd], os.path.abspath(args.out)
+    binaries = list(range(len(args.stiffmd)))
     work = os.path.join(args.out, "work")
     os.makedirs(work, exist_ok=True)
     methods = split(args.methods)
@@ -531,6 +569,7 @@ def main():
                 sys_methods = ["velocity-verlet"] if system.startswith("kg-") else methods
                 runs += system_runs(system, sys_methods, args, work)
         rows, records = {}, []
+        by_binary = {}  # (system, method) -> layout -> [runs of binary k] for k in binaries
         for r in range(args.repeats):
             order = layouts if r % 2 == 0 else layouts[::-1]
             for system, method, deck, sets in runs:
@@ -539,11 +578,20 @@ def main():
                     wait_idle(args.wait_idle)
                 for layout in order:
                     kind = "work" if args.work else "runs"
-                    run_dir = os.path.join(work, kind, f"{system}_{method}_r{layout[0]}t{layout[1]}")
-                    m = (work_once if args.work else run_once)(args, deck, sets, layout, run_dir)
-                    by_layout.setdefault(layout, []).append(m)
-                    records.append({"system": system, "method": method, "ranks": layout[0], "threads": layout[1],
-                                    "repeat": r, **{k: "" if v is None else v for k, v in m.items()}})
+                    for k in (binaries if r % 2 == 0 else binaries[::-1]):
+                        suffix = f"_b{k + 1}" if len(binaries) > 1 else ""
+                        run_dir = os.path.join(work, kind, f"{system}_{method}_r{layout[0]}t{layout[1]}{suffix}")
+                        if args.work:
+                            m = work_once(args, deck, sets, layout, run_dir)
+                        else:
+                            m = run_once(args, deck, sets, layout, run_dir, args.stiffmd[k])
+                        if k == 0:
+                            by_layout.setdefault(layout, []).append(m)
+                        by_binary.setdefault((system, method), {}).setdefault(
+                            layout, [[] for _ in binaries])[k].append(m)
+                        records.append({"system": system, "method": method, "ranks": layout[0], "threads": layout[1],
+                                        "repeat": r, "binary": args.stiffmd[k],
+                                        **{key: "" if v is None else v for key, v in m.items()}})
     except RunFailed as e:
         print(f"scaling: {e}", file=sys.stderr)
         return 2
@@ -555,6 +603,10 @@ def main():
         head = (f"Wall ms per step of the step loop, {args.steps} steps, median of {args.repeats} interleaved repeats; "
                 f"speed-up over {layout_name(layouts[0])} (ranks×threads; median of the ratios within a repeat)")
         text, names = head + "\n\n" + table(rows, layouts) + "\n", ("scaling.md", "runs.csv")
+        if len(binaries) > 1:
+            text = (f"Builds side by side (B1 = {args.stiffmd[0]}; the table above is B1's), median of {args.repeats} "
+                    f"interleaved repeats; B1 ÷ this: the median of the ratios within a repeat\n\n"
+                    + compare_table(by_binary, layouts, args.stiffmd) + "\n\n" + text)
     with open(os.path.join(args.out, names[0]), "w") as f:
         f.write(text)
     with open(os.path.join(args.out, names[1]), "w", newline="") as f:
