@@ -593,7 +593,7 @@ INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,
                          ::testing::Values(Layout{2, {2, 1, 1}}, Layout{3, {1, 3, 1}}, Layout{4, {2, 1, 2}},
                                            Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}},
                                            Layout{3, {1, 3, 1}, true}, Layout{4, {2, 1, 2}, true},
-                                           Layout{4, {0, 0, 0}, true}),
+                                           Layout{4, {0, 0, 0}, true}, Layout{9, {3, 3, 1}}),
                          layout_name);
 
 }  // namespace
