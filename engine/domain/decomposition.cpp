@@ -417,12 +417,14 @@ void make_runs(std::span<const int> from, std::span<const int> to, std::span<con
   }
 }
 
-// count columns (3 doubles each) from `from` onto `to`, column by column rather than by a call of
-// memcpy: most runs of a pair set with a halo are a few beads long (a halo bead ends a run of home
-// beads), where the call costs tens of instructions; and on long runs glibc's memcpy moves the
-// bytes with `rep movsb`, which callgrind counts as one instruction per byte (the work figure,
-// tools/scaling.py --work: a column at 24 where this loop takes 8).
+// Runs up to this many columns are copied or cleared column by column: a call of memcpy or
+// memset costs tens of instructions, and most runs of a pair set with a halo are a few beads long
+// (a halo bead ends a run of home beads).
+constexpr int kShortRun = 8;
+
+// count columns (3 doubles each) from `from` onto `to`.
 void copy_columns(const double* from, double* to, int count) {
+  if (count > kShortRun) return void(std::copy_n(from, 3 * count, to));
   for (int q = 0; q < count; ++q, from += 3, to += 3) {
     const double x = from[0], y = from[1], z = from[2];
     to[0] = x, to[1] = y, to[2] = z;
@@ -641,8 +643,12 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   };
   if (forces) {
     pair_f->resize(3, n);
-    for (const Run& run : halo_runs_) {  // column by column, as copy_columns
+    for (const Run& run : halo_runs_) {
       double* t = pair_f->data() + 3 * static_cast<std::ptrdiff_t>(run.to);
+      if (run.count > kShortRun) {
+        std::fill_n(t, 3 * run.count, 0.0);
+        continue;
+      }
       for (int q = 0; q < run.count; ++q, t += 3) t[0] = 0.0, t[1] = 0.0, t[2] = 0.0;
     }
   }
