@@ -432,8 +432,15 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 
   // Cells at least `width` wide, so that every pair within the list radius lies in the same or
   // adjacent cells. Sparse or spread-out systems (open boxes, a few particles in a big box) get
-  // wider cells: at most ~2 cells per particle, so memory and the stencil walk stay O(N).
-  const double max_cells = std::max(27.0, 2.0 * n);
+  // wider cells: at most ~2 cells per particle, so memory and the stencil walk stay O(N). A list
+  // with ghosts (a decomposed run's pair set: a domain and its halo, a part of the box) may have 8
+  // per particle it holds: the box's own cells, one process's, up to ~20 ranks on a melt (in.chain
+  // has a cell per 3.5 beads), where 2 per particle made them twice as wide along an axis and each
+  // home bead tested twice the candidates; the search skips the empty ones. On one process's
+  // cells every pair is tested from the same bead with the same shift as one process tests it
+  // (docs/parallel.md, "The design").
+  const double per_particle = ghost_.empty() ? 2.0 : 8.0;
+  const double max_cells = std::max(27.0, per_particle * n);
   double want[3];
   for (int a = 0; a < 3; ++a) want[a] = len[a] > width ? std::min(std::floor(len[a] / width), max_cells) : 1.0;
   while (want[0] * want[1] * want[2] > max_cells) {

@@ -455,6 +455,45 @@ TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutA
   EXPECT_GT(halo_beads, 0);
 }
 
+// DomainGrid::slab_of on cut slabs counts the inner faces at or below a coordinate's fraction of
+// the axis (up to 32 slabs) or bisects them (more): either way the slab whose low face is the last
+// at or below it, on the faces themselves too; equal slabs floor the fraction, clamped to the edge
+// slabs.
+TEST(DomainGridSlabs, SlabOfIsTheSlabWhoseLowFaceIsTheLastAtOrBelow) {
+  for (const int n : {2, 5, 32, 33, 64}) {
+    SCOPED_TRACE(testing::Message() << n << " slabs");
+    DomainGrid g;
+    g.dims = Eigen::Vector3i(n, 1, 1);
+    g.origin = Eigen::Vector3d(-2.0, 0.0, 0.0);
+    g.length = Eigen::Vector3d(7.0, 1.0, 1.0);
+    g.periodic = Eigen::Vector3i::Ones();
+    std::vector<double> cut(n + 1);
+    for (int c = 0; c <= n; ++c) cut[c] = std::pow(static_cast<double>(c) / n, 1.3);  // unequal
+    g.cut[0] = cut;
+    const auto expected = [&](double q) {
+      const double f = (q - g.origin[0]) / g.length[0];
+      int slab = 0;
+      for (int c = 1; c < n; ++c)
+        if (cut[c] <= f) slab = c;
+      return slab;
+    };
+    for (int k = -10; k <= 7010; ++k) {
+      const double q = g.origin[0] + 1e-3 * k;
+      ASSERT_EQ(g.slab_of(0, q), expected(q)) << "q = " << q;
+    }
+    for (int c = 1; c < n; ++c) {  // a coordinate whose fraction is a face exactly
+      const double q = g.origin[0] + cut[c] * g.length[0];
+      EXPECT_EQ(g.slab_of(0, q), expected(q)) << "face " << c;
+    }
+    g.cut[0].clear();  // equal slabs
+    EXPECT_EQ(g.slab_of(0, g.origin[0] - 0.5), 0);
+    EXPECT_EQ(g.slab_of(0, g.origin[0] + g.length[0] + 0.5), n - 1);
+    EXPECT_EQ(g.slab_of(0, g.origin[0] + (n - 0.5) * g.length[0] / n), n - 1);
+    EXPECT_EQ(g.slab_of(0, g.origin[0] + 0.5 * g.length[0] / n), 0);
+    EXPECT_EQ(g.slab_of(0, std::nan("")), 0);
+  }
+}
+
 // The load balance (docs/parallel.md, "Load balance").
 
 // Cuts at equal shares of a histogram's total: exact where a share ends at a bin's edge, linear
@@ -593,7 +632,7 @@ INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,
                          ::testing::Values(Layout{2, {2, 1, 1}}, Layout{3, {1, 3, 1}}, Layout{4, {2, 1, 2}},
                                            Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}},
                                            Layout{3, {1, 3, 1}, true}, Layout{4, {2, 1, 2}, true},
-                                           Layout{4, {0, 0, 0}, true}),
+                                           Layout{4, {0, 0, 0}, true}, Layout{9, {3, 3, 1}}),
                          layout_name);
 
 }  // namespace

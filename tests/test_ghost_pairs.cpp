@@ -138,8 +138,8 @@ TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
 // every bead within R = r_c + margin of it (DomainGrid::within), in increasing global index, the
 // halo (the ghosts) among the home beads (those domain_of places in it), chains of five
 // consecutive global indices bonded. With the Kremer–Grest list radius (2^{1/6} + 0.4) the list's
-// cells cover the whole box, most of them empty, and coarser than the box's own grid (the pair
-// set is small against the box).
+// cells cover the whole box, most of them empty: with ghosts the box's own grid, without them
+// a coarser one where the pair set is small against the box.
 struct PairSetCase {
   const char* name;
   Eigen::Vector3i dims;
@@ -153,7 +153,10 @@ const PairSetCase kPairSets[] = {
     {"2 x 2 x 4, open along z", {2, 2, 4}, 5, {1, 1, 0}},
 };
 
-System pair_set(const PairSetCase& c, double reach, unsigned seed) {
+// The pair set of `c` (`global`: each slot's global index) and, with `whole`, the whole melt it was
+// cut from (every bead, the same chains).
+System pair_set(const PairSetCase& c, double reach, unsigned seed, System* whole = nullptr,
+                std::vector<int>* global = nullptr) {
   const double side = 30.0;
   const int n = static_cast<int>(0.85 * side * side * side);
   std::mt19937 rng(seed);
@@ -166,26 +169,35 @@ System pair_set(const PairSetCase& c, double reach, unsigned seed) {
   System s;
   s.box.lengths = Eigen::Vector3d::Constant(side);
   s.box.periodic = c.periodic;
+  if (whole) whole->box = s.box, whole->x.resize(3, n), whole->ghost.assign(n, 0), whole->bonds.clear();
+  if (global) global->clear();
   std::vector<int> slot(n, -1);
   std::vector<Eigen::Vector3d> kept;
   for (int g = 0; g < n; ++g) {
     const Eigen::Vector3d p(u(rng), u(rng), u(rng));
+    if (whole) whole->x.col(g) = p;
     if (!grid.within(c.domain, p, reach)) continue;
     slot[g] = static_cast<int>(kept.size());
     kept.push_back(p);
+    if (global) global->push_back(g);
     s.ghost.push_back(grid.domain_of(p) != c.domain);
   }
   s.x.resize(3, static_cast<Eigen::Index>(kept.size()));
   for (std::size_t e = 0; e < kept.size(); ++e) s.x.col(static_cast<Eigen::Index>(e)) = kept[e];
-  for (int g = 0; g + 1 < n; ++g)
-    if (g % 5 != 4 && slot[g] >= 0 && slot[g + 1] >= 0) s.bonds.push_back({slot[g], slot[g + 1], 0});
+  for (int g = 0; g + 1 < n; ++g) {
+    if (g % 5 == 4) continue;
+    if (whole) whole->bonds.push_back({g, g + 1, 0});
+    if (slot[g] >= 0 && slot[g + 1] >= 0) s.bonds.push_back({slot[g], slot[g + 1], 0});
+  }
   return s;
 }
 
 // The search on a pair set never tests a pair of two ghosts, yet lists every other pair the
 // search without ghosts lists: the list with the ghost flags is, row by row and in the same
 // order, the list of the same positions without them less its pairs of two ghosts, on any
-// number of threads.
+// number of threads. (With ghosts the cells may be finer, so a pair across a periodic face may be
+// tested from its other bead: the lists could differ in a pair within rounding of the list
+// radius, as the lists of two cell grids can; none lies there in these melts.)
 TEST(GhostPairs, PairSetListIsTheListWithoutGhostsLessThePairsOfTwoGhosts) {
   const double cutoff = std::pow(2.0, 1.0 / 6.0), skin = 0.4, margin = 1.5 * skin;
   for (const PairSetCase& c : kPairSets)
@@ -206,6 +218,62 @@ TEST(GhostPairs, PairSetListIsTheListWithoutGhostsLessThePairsOfTwoGhosts) {
         ghosts.build(s.x, s.box);
         expect_full_rows_less_ghost_pairs(ghosts, full, s);
       }
+}
+
+// A list with ghosts (a pair set) may make 8 cells per particle it holds, where a list without
+// them makes 2: here, as on in.chain's 16 ranks, that is the whole box's own cells, one process's.
+// On a periodic box every pair is then tested from the same bead with the same shift as the whole
+// system's search tests it: the pair set's list is, row by row, the whole system's list restricted
+// to the pair set's beads less its pairs of two halo beads — the same pairs to the last bit, at
+// the list radius too.
+TEST(GhostPairs, PairSetListOnTheBoxsCellsIsTheWholeListRestrictedToIt) {
+  const double cutoff = std::pow(2.0, 1.0 / 6.0), skin = 0.4, margin = 1.5 * skin;
+  int compared = 0;
+  for (const PairSetCase& c : kPairSets) {
+    if (!c.periodic.all()) continue;  // an open axis is binned over the particles' own extent
+    for (const unsigned seed : {1u, 2u})
+      for (const int threads : {1, 2}) {
+        SCOPED_TRACE(testing::Message() << c.name << ", seed " << seed << ", " << threads << " thread(s)");
+        const ThreadCount scope(threads);
+        std::vector<int> global;
+        System whole;
+        const System s = pair_set(c, cutoff + margin, seed, &whole, &global);
+        ASSERT_EQ(static_cast<int>(global.size()), s.size());
+        std::vector<int> slot(whole.size(), -1);
+        for (int e = 0; e < s.size(); ++e) slot[global[e]] = e;
+        // The whole system's special pairs among the pair set's beads, as GhostedPairs gives them.
+        const std::vector<SpecialPair> whole_special = special_pairs(whole.size(), whole.bonds, kWeights);
+        std::vector<SpecialPair> special;
+        for (const SpecialPair& p : whole_special)
+          if (slot[p.i] >= 0 && slot[p.j] >= 0) special.push_back({slot[p.i], slot[p.j], p.weight, p.weight_coul});
+        NeighborList full(cutoff, skin), plain(cutoff, skin), ghosts(cutoff, skin);
+        full.set_exclusions(whole.size(), whole_special);
+        plain.set_exclusions(s.size(), special);
+        ghosts.set_exclusions(s.size(), special);
+        ghosts.set_ghosts(s.ghost);
+        full.build(whole.x, whole.box);
+        plain.build(s.x, s.box);
+        ghosts.build(s.x, s.box);
+        ASSERT_LE(full.cells_per_axis().prod(), 8 * s.size());
+        ASSERT_EQ(ghosts.cells_per_axis(), full.cells_per_axis());
+        if (2 * s.size() < full.cells_per_axis().prod()) {  // without ghosts: coarser cells
+          EXPECT_LT(plain.cells_per_axis().prod(), full.cells_per_axis().prod());
+        }
+        // The whole list's rows of the pair set's beads, in slots (the slots increase with the
+        // global index, so a row's j > i stays so; rows are sorted).
+        std::size_t pairs = 0;
+        for (int e = 0; e < s.size(); ++e) {
+          std::vector<int> expected;
+          for (const int j : row(full, global[e]))
+            if (const int t = slot[j]; t >= 0 && !(s.is_ghost(e) && s.is_ghost(t))) expected.push_back(t);
+          ASSERT_EQ(row(ghosts, e), expected) << "slot " << e << ", global " << global[e];
+          pairs += expected.size();
+        }
+        EXPECT_EQ(ghosts.num_pairs(), pairs);
+        ++compared;
+      }
+  }
+  EXPECT_EQ(compared, 12);
 }
 
 using Lj = LennardJonesPair;

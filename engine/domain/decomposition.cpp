@@ -20,18 +20,38 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // width of the exact quantiles, linear inside the bin).
 constexpr int kBinsPerSlab = 64;
 
+// floor by truncation and a correction, as BoxWrap (forcefields/neighbor_list.hpp): no call (x86-64
+// before SSE4.1 has no floor instruction; the selection of the pair sets places every owned bead);
+// the same value as std::floor for |q| < 2⁶³.
+double floor_of(double q) {
+  const double t = static_cast<double>(static_cast<std::int64_t>(q));
+  return t > q ? t - 1.0 : t;
+}
+
 // p wrapped into [origin, origin + L) on a periodic axis.
 double wrap(double p, double origin, double length, bool periodic) {
-  return periodic ? p - length * std::floor((p - origin) / length) : p;
+  return periodic ? p - length * floor_of((p - origin) / length) : p;
 }
+
+// Slabs up to which the cut slab's lookup counts the faces below q (no branch per face) rather
+// than bisecting them.
+constexpr int kCountedSlabs = 32;
 
 }  // namespace
 
 int DomainGrid::slab_of(int a, double q) const {
   const int n = dims[a];
-  if (cut[a].empty()) return std::clamp(static_cast<int>(std::floor((q - origin[a]) / length[a] * n)), 0, n - 1);
-  // The last face at or below q's fraction of the axis.
+  if (cut[a].empty()) {  // floor(s) clamped into 0 … n − 1 (a NaN to 0)
+    const double s = (q - origin[a]) / length[a] * n;
+    return s >= 0.0 && s < n ? static_cast<int>(s) : (s >= n ? n - 1 : 0);
+  }
+  // The last face at or below q's fraction of the axis: the count of the inner faces at or below it.
   const double f = (q - origin[a]) / length[a];
+  if (n <= kCountedSlabs) {
+    int below = 0;
+    for (int c = 1; c < n; ++c) below += cut[a][c] <= f;
+    return below;
+  }
   const auto above = std::upper_bound(cut[a].begin() + 1, cut[a].end() - 1, f);
   return static_cast<int>(above - cut[a].begin()) - 1;
 }
@@ -336,12 +356,46 @@ void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
   };
   if (!g.periodic[a]) return add_image(0.0, g.slab_of(a, q - reach), g.slab_of(a, q + reach));
   const double length = g.length[a];
-  const int first = static_cast<int>(std::floor((q - reach - g.origin[a]) / length));
-  const int last = static_cast<int>(std::floor((q + reach - g.origin[a]) / length));
+  const int first = static_cast<int>(floor_of((q - reach - g.origin[a]) / length));
+  const int last = static_cast<int>(floor_of((q + reach - g.origin[a]) / length));
   for (int j = first; j <= last; ++j) {
     const double shift = j * length;
     add_image(shift, j == first ? g.slab_of(a, q - reach - shift) : 0,
               j == last ? g.slab_of(a, q + reach - shift) : n - 1);
+  }
+}
+
+// slabs_within where every slab of the axis is wider than `reach`, so that a point's slabs within
+// it are its own (`home`) and those beside it (on a periodic axis of two slabs the other one, on
+// either side: the nearer gap): the same slabs with the same gaps, the faces read from `faces`
+// (DomainGrid::face of 0 … dims[a]), without the walk over the images.
+void adjacent_slabs_within(const DomainGrid& g, int a, std::span<const double> faces, double q, double reach, int home,
+                           std::vector<std::pair<int, double>>& out) {
+  const int n = g.dims[a];
+  out.assign(1, {home, 0.0});
+  if (n == 1) return;
+  const bool periodic = g.periodic[a] != 0;
+  const double length = g.length[a];
+  constexpr double kInfinity = std::numeric_limits<double>::infinity();
+  // The gap from q to slab c whose faces are shifted by `shift` (slabs_within's add_image).
+  const auto gap = [&](int c, double shift) {
+    double below = faces[c] + shift, above = faces[c + 1] + shift;
+    if (!periodic && c == 0) below = -kInfinity;
+    if (!periodic && c == n - 1) above = kInfinity;
+    return std::max({0.0, below - q, q - above});
+  };
+  if (home > 0 || periodic) {
+    const int c = home > 0 ? home - 1 : n - 1;
+    if (const double d = gap(c, home > 0 ? 0.0 : -length); d <= reach) out.emplace_back(c, d);
+  }
+  if (home < n - 1 || periodic) {
+    const int c = home < n - 1 ? home + 1 : 0;
+    if (const double d = gap(c, home < n - 1 ? 0.0 : length); d <= reach) {
+      if (out.back().first == c)  // two periodic slabs: the other one is on both sides
+        out.back().second = std::min(out.back().second, d);
+      else
+        out.emplace_back(c, d);
+    }
   }
 }
 
@@ -363,11 +417,25 @@ void make_runs(std::span<const int> from, std::span<const int> to, std::span<con
   }
 }
 
+// Runs up to this many columns are copied or cleared column by column: a call of memcpy or
+// memset costs tens of instructions, and most runs of a pair set with a halo are a few beads long
+// (a halo bead ends a run of home beads).
+constexpr int kShortRun = 8;
+
+// count columns (3 doubles each) from `from` onto `to`.
+void copy_columns(const double* from, double* to, int count) {
+  if (count > kShortRun) return void(std::copy_n(from, 3 * count, to));
+  for (int q = 0; q < count; ++q, from += 3, to += 3) {
+    const double x = from[0], y = from[1], z = from[2];
+    to[0] = x, to[1] = y, to[2] = z;
+  }
+}
+
 // Columns run.from … of `source` (3 doubles each) onto run.to … of `target`.
 void copy_runs(std::span<const ColumnRun> runs, const double* source, double* target) {
   for (const ColumnRun& run : runs)
-    std::copy_n(source + 3 * static_cast<std::ptrdiff_t>(run.from), 3 * run.count,
-                target + 3 * static_cast<std::ptrdiff_t>(run.to));
+    copy_columns(source + 3 * static_cast<std::ptrdiff_t>(run.from), target + 3 * static_cast<std::ptrdiff_t>(run.to),
+                 run.count);
 }
 
 }  // namespace
@@ -387,16 +455,29 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   std::vector<std::pair<int, double>> axis[3];
   const Eigen::Vector3i& dims = grid_.dims;
   const double reach2 = reach * reach;
+  // Per axis its faces, and whether a point's slabs within R are its own and those beside it
+  // (adjacent_slabs_within): every slab wider than R (with room for rounding).
+  std::vector<double> faces[3];
+  bool adjacent[3];
+  for (int a = 0; a < 3; ++a) {
+    const int n = dims[a];
+    faces[a].resize(n + 1);
+    for (int c = 0; c <= n; ++c) faces[a][c] = grid_.face(a, c);
+    double narrowest = std::numeric_limits<double>::infinity();
+    for (int c = 0; c < n; ++c) narrowest = std::min(narrowest, faces[a][c + 1] - faces[a][c]);
+    adjacent[a] = n == 1 || narrowest > reach * (1.0 + 1e-9);
+  }
   for (int k = 0; k < owned; ++k) {
     Eigen::Vector3d q;
     for (int a = 0; a < 3; ++a) q[a] = into_box(x(a, k), a);
-    const int home = grid_.domain_of(q);
-    const int hc[3] = {home / (dims[1] * dims[2]), (home / dims[2]) % dims[1], home % dims[2]};
+    // q is wrapped already: its slabs directly (domain_of would wrap it again).
+    const int hc[3] = {grid_.slab_of(0, q[0]), grid_.slab_of(1, q[1]), grid_.slab_of(2, q[2])};
+    const int home = (hc[0] * dims[1] + hc[1]) * dims[2] + hc[2];
     // Most beads lie deeper than R inside their domain on every cut axis: home alone.
     bool inside = true;
     for (int a = 0; a < 3 && inside; ++a) {
       if (dims[a] == 1) continue;
-      const double lo = grid_.face(a, hc[a]), hi = grid_.face(a, hc[a] + 1);
+      const double lo = faces[a][hc[a]], hi = faces[a][hc[a] + 1];
       inside = (hc[a] == 0 && !grid_.periodic[a] ? true : q[a] - lo >= reach) &&
                (hc[a] == dims[a] - 1 && !grid_.periodic[a] ? true : hi - q[a] >= reach);
     }
@@ -407,7 +488,12 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
       ++p.homes;
       continue;
     }
-    for (int a = 0; a < 3; ++a) slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
+    for (int a = 0; a < 3; ++a) {
+      if (adjacent[a])
+        adjacent_slabs_within(grid_, a, faces[a], q[a], reach, hc[a], axis[a]);
+      else
+        slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
+    }
     // The domains within R of q: the per-axis gaps add in squares (a domain's corner is farther
     // than its faces).
     for (const auto& [cx, gx] : axis[0])
@@ -424,11 +510,13 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   // The receivers learn which beads come and which are home: a global index g as g (home) or
   // −1 − g (halo).
   std::vector<std::vector<double>> ids(ranks), in;
-  for (int r = 0; r < ranks; ++r)
+  for (int r = 0; r < ranks; ++r) {
+    ids[r].reserve(out_[r].owned.size());
     for (size_t m = 0; m < out_[r].owned.size(); ++m) {
       const int g = ids_[out_[r].owned[m]];
       ids[r].push_back(out_[r].home[m] ? g : -1 - g);
     }
+  }
   comm_.exchange(ids, in);
   // The pair set: every bead received or kept, in increasing global index (so a home bead's pairs
   // are summed in the one-process order: forcefields/neighbor_list.hpp).
@@ -439,6 +527,9 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     bool operator<(const Member& o) const { return global < o.global; }
   };
   std::vector<Member> members;
+  std::size_t arriving = 0;
+  for (const auto& b : in) arriving += b.size();
+  members.reserve(local_.owned.size() + arriving);
   for (size_t m = 0; m < local_.owned.size(); ++m)
     members.push_back({ids_[local_.owned[m]], me, static_cast<int>(m), local_.home[m] != 0});
   for (int r = 0; r < ranks; ++r) {
@@ -552,7 +643,14 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   };
   if (forces) {
     pair_f->resize(3, n);
-    for (const Run& run : halo_runs_) pair_f->middleCols(run.to, run.count).setZero();
+    for (const Run& run : halo_runs_) {
+      double* t = pair_f->data() + 3 * static_cast<std::ptrdiff_t>(run.to);
+      if (run.count > kShortRun) {
+        std::fill_n(t, 3 * run.count, 0.0);
+        continue;
+      }
+      for (int q = 0; q < run.count; ++q, t += 3) t[0] = 0.0, t[1] = 0.0, t[2] = 0.0;
+    }
   }
   wrap_runs(local_.all, a.data());
   if (forces) copy_runs(local_.home_runs, owned_f->data(), pair_f->data());
@@ -581,8 +679,8 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   const int ranks = comm_.size();
   // The home runs read backwards: slot → owned column (locally), slot → message position.
   for (const Run& run : local_.home_runs)
-    std::copy_n(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
-                owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
+    copy_columns(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to),
+                 owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
   std::vector<std::vector<double>>& send = send_buffer_[kForces];
   std::vector<std::vector<double>>& recv = recv_buffer_[kForces];
   for (int r = 0; r < ranks; ++r) {
@@ -590,8 +688,8 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
     std::vector<double>& b = send[r];
     b.resize(3 * static_cast<size_t>(p.homes));
     for (const Run& run : p.home_runs)
-      std::copy_n(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
-                  b.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
+      copy_columns(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to),
+                   b.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
     recv[r].resize(3 * static_cast<size_t>(out_[r].homes));
   }
   comm_.exchange_known(send, recv);
@@ -599,8 +697,8 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
     const Plan& p = out_[r];
     const double* w = recv[r].data();
     for (const Run& run : p.home_runs)
-      std::copy_n(w + 3 * static_cast<std::ptrdiff_t>(run.to), 3 * run.count,
-                  owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from));
+      copy_columns(w + 3 * static_cast<std::ptrdiff_t>(run.to),
+                   owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
   }
 }
 
@@ -640,7 +738,26 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
   gather_columns(in, out, num_particles, block);
 }
 
+namespace {
+
+// Whether the n values at p are all finite: Σ p_i · 0 is 0 unless some p_i is a NaN or an
+// infinity (0 · ±∞ = NaN, and a NaN stays one through the sum). Four sums that the compiler
+// vectorises, no branch per value: the check after every step costs a few instructions per bead
+// where a column-by-column test cost tens (engine/run/run.cpp's all_finite, the same test on one
+// process).
+bool all_finite(const double* p, std::int64_t n) {
+  double sum[4] = {0.0, 0.0, 0.0, 0.0};
+  std::int64_t i = 0;
+  for (; i + 4 <= n; i += 4)
+    for (int l = 0; l < 4; ++l) sum[l] += p[i + l] * 0.0;
+  for (; i < n; ++i) sum[0] += p[i] * 0.0;
+  return (sum[0] + sum[1]) + (sum[2] + sum[3]) == 0.0;
+}
+
+}  // namespace
+
 int Decomposition::first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const {
+  if (all_finite(x.data(), x.size()) && all_finite(v.data(), v.size())) return -1;
   for (int k = 0; k < num_owned(); ++k)
     if (!x.col(k).allFinite() || !v.col(k).allFinite()) return k;
   return -1;

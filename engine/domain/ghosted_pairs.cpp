@@ -99,8 +99,10 @@ void GhostedPairs::retarget() const {
       const int t = domains_.pair_slot(s.partner[q]);
       if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
-    std::sort(special_.begin() + static_cast<std::ptrdiff_t>(first), special_.end(),
-              [](const SpecialPair& a, const SpecialPair& b) { return a.j < b.j; });
+    // Insertion sort: a bead has a handful of special partners (two on a chain with 1-2 pairs
+    // alone), where std::sort's call costs more than the sorting.
+    for (size_t q = first + 1; q < special_.size(); ++q)
+      for (size_t r = q; r > first && special_[r - 1].j > special_[r].j; --r) std::swap(special_[r - 1], special_[r]);
   }
   extended_pairs_->move_to(types_, charges_, special_, halo);
   // The whole tail correction on the rank home to particle 0, none on the others.
