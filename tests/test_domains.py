@@ -250,6 +250,17 @@ def check_domain_summary(stiffmd, out, ranks):
     if not (0 < rss <= rss_max and 0 < rss_mean <= rss_max):
         raise SystemExit(f"FAIL: peak_rss_mib {rss}, domains.peak_rss_mib_max {rss_max}, _mean {rss_mean}: "
                          f"expected 0 < rank 0's <= max and 0 < mean <= max")
+    # What a rank's pair forces hold is its part's (docs/parallel.md, "What a rank holds"): no rank
+    # builds a neighbour list of the whole system, unless rank 0 samples the gathered state (the
+    # actions, a barostat's molecular pressure: the thermo row of the whole state).
+    with open(os.path.join(out, "thermo.csv")) as f:
+        header = f.readline()
+    whole_sample = "action_1" in header or "molecular_pressure" in header
+    if not whole_sample and d["whole_list_pairs_max"] != 0:
+        raise SystemExit(f"FAIL: a rank listed {d['whole_list_pairs_max']} pairs of the whole system's particles: "
+                         "its pair forces hold the whole system, not its part")
+    print(f"largest pair set {d['pair_set_max']} of {d['particles']} particles; "
+          f"whole-system list pairs {d['whole_list_pairs_max']}{' (rank 0 samples the whole state)' if whole_sample else ''}")
     # The timing by phase (systems timed by parts) comes with its mean and max over the ranks.
     if summary["timing"]:
         mean, most = summary["domains"].get("timing_mean"), summary["domains"].get("timing_max")

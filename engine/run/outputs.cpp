@@ -286,7 +286,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     state_due_.served_until(cut);
     h5md_due_.served_until(cut);
   }
-  state_row_.resize(1 + 6 * s.size());
+  if (state_) state_row_.resize(1 + 6 * s.size());  // 6 N values: only with a state CSV
 }
 
 bool RunOutputs::due(double t, bool final) {
