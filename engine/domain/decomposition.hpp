@@ -88,8 +88,8 @@ struct DomainReport {
   long neighbor_rebuilds_max = 0;
   // What a rank's pair forces hold (docs/parallel.md, "What a rank holds"): the particles of the
   // whole system, the largest pair set (home beads and halo) at the last selection, and the most
-  // pairs a rank's whole-system force terms list (0: no rank built a neighbour list of the whole
-  // system; rank 0 does for a thermo row of the gathered state, the actions).
+  // pairs a rank's whole-system force terms list at the end (0: no rank holds a neighbour list of
+  // the whole system; rank 0 makes one for a thermo row of the gathered state, the actions).
   int particles = 0;
   long pair_set_max = 0;
   std::int64_t whole_list_pairs_max = 0;
