@@ -8,6 +8,7 @@
 // (engine/run/processes.hpp); check checks every member.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <limits>
@@ -145,6 +146,8 @@ std::string rank_tag(const stiffmd::Processes& p, bool decomposed) {
 }
 
 int main(int argc, char** argv) {
+  // The set-up time counts from here (summary.json setup_seconds): MPI's start-up, the deck, the scene.
+  const double started_at = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
   stiffmd::Processes processes(argc, argv);
   // What every process finds alike (a bad deck, a bad command line) is printed by rank 0 alone.
   const bool speaker = processes.rank() == 0;
@@ -331,6 +334,7 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator();
+    options.started_at = started_at;
     running = decomposed;
     const auto summary = stiffmd::run_simulation(*scene, options, log);
     if (!speaker) return summary.stopped_by_signal ? 128 + summary.stopped_by_signal : 0;

@@ -1001,4 +1001,17 @@ void NeighborList::restore(const Eigen::Matrix3Xd& x_at_build, const Box& box, l
   rebuilds_ = rebuilds;
 }
 
+void NeighborList::release() {
+  built_ = false;
+  // Swapped with empty containers: clear() would keep the capacity.
+  auto free = [](auto& c) { std::remove_reference_t<decltype(c)>().swap(c); };
+  free(cell_owned_), free(ghost_in_cell_order_), free(offsets_), free(neighbors_), free(fast_), free(cell_of_);
+  free(cell_start_), free(cell_particles_), free(pair_i_), free(pair_j_), free(pair_count_), free(hits_);
+  free(scratch_);
+  for (int a = 0; a < 3; ++a) free(adjacent_[a]), free(adjacent_shift_[a]);
+  for (Eigen::Matrix3Xd* m : {&x_at_build_, &image_, &wrapped_x_, &wrapped_now_, &cell_x_}) m->resize(3, 0);
+  cell_sort_ = {};
+  row_sort_ = {};
+}
+
 }  // namespace stiffmd

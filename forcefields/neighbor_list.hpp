@@ -262,6 +262,10 @@ class NeighborList {
   const Eigen::Matrix3Xd& positions_at_build() const { return x_at_build_; }
   const Box& box_at_build() const { return box_at_build_; }
   void restore(const Eigen::Matrix3Xd& x_at_build, const Box& box, long rebuilds);
+  // Forgets the list and frees its arrays and scratch (the next update builds it again); keeps the
+  // settings, exclusions, ghosts and the rebuild count. A decomposed run's whole-system terms once
+  // the parts have taken over (docs/parallel.md, "What a rank holds").
+  void release();
 
  private:
   void bin(const Eigen::Matrix3Xd& x, const Box& box);

@@ -208,6 +208,7 @@ class PairTerm final : public ForceTerm,
   long rebuilds() const { return list_.rebuilds(); }
   long neighbor_list_rebuilds() const override { return list_.rebuilds(); }
   std::int64_t listed_pairs() const override { return static_cast<std::int64_t>(list_.num_pairs()); }
+  void release_buffers() const override { list_.release(); }  // the next evaluation builds the list
   bool uses_neighbor_list() const override { return true; }
   bool uses_charges() const override { return kCharged; }
   // A charged term on particles other than its own takes charges it does not know: only on none

@@ -16,6 +16,8 @@ CASE is one of
                               box of every frame are the serial run's bit for bit
     straddle                  inputs/domain_straddle.toml (chains crossing every domain face)
     migrate                   the same, a field driving the chains across the domains: molecules migrate
+    built_melt                tests/decks/melt_million.toml at 40 chains (4 000 beads, the engine's
+                              builder, no [prepare]): no rank lists the pairs of the whole system
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
@@ -126,6 +128,7 @@ CSVR = '{ style = "csvr", temperature = 1.0, tau = 0.5, seed = 14 }'
 STRADDLE = os.path.join(ROOT, "inputs", "domain_straddle.toml")
 STIFF_MELT_NPT = os.path.join(ROOT, "inputs", "stiff_melt_npt.toml")
 HALF_MELT = os.path.join(ROOT, "inputs", "half_melt.toml")
+MELT_MILLION = os.path.join(ROOT, "tests", "decks", "melt_million.toml")
 
 
 class Skip(Exception):
@@ -250,6 +253,18 @@ def check_domain_summary(stiffmd, out, ranks):
     if not (0 < rss <= rss_max and 0 < rss_mean <= rss_max):
         raise SystemExit(f"FAIL: peak_rss_mib {rss}, domains.peak_rss_mib_max {rss_max}, _mean {rss_mean}: "
                          f"expected 0 < rank 0's <= max and 0 < mean <= max")
+    # What a rank's pair forces hold is its part's (docs/parallel.md, "What a rank holds"): no rank
+    # keeps a neighbour list of the whole system (one that [prepare] relaxed with, or a restart's
+    # checkpoint restored, is dropped once the parts exist), unless rank 0 samples the gathered state
+    # (the actions, a barostat's molecular pressure: the thermo row of the whole state).
+    with open(os.path.join(out, "thermo.csv")) as f:
+        header = f.readline()
+    whole_sample = "action_1" in header or "molecular_pressure" in header
+    if not whole_sample and d["whole_list_pairs_max"] != 0:
+        raise SystemExit(f"FAIL: a rank listed {d['whole_list_pairs_max']} pairs of the whole system's particles: "
+                         "its pair forces hold the whole system, not its part")
+    print(f"largest pair set {d['pair_set_max']} of {d['particles']} particles; "
+          f"whole-system list pairs {d['whole_list_pairs_max']}{' (rank 0 samples the whole state)' if whole_sample else ''}")
     # The timing by phase (systems timed by parts) comes with its mean and max over the ranks.
     if summary["timing"]:
         mean, most = summary["domains"].get("timing_mean"), summary["domains"].get("timing_max")
@@ -282,6 +297,8 @@ def case_setup(case):
         return STIFF_MELT_NPT, h, {"integrator.method": parts[1], **{k: str(v) for k, v in steps.items()}}
     if case == "straddle":
         return STRADDLE, 0.02, {}
+    if case == "built_melt":  # the engine's builder and no [prepare]: no rank lists the whole system's pairs
+        return MELT_MILLION, 0.002, {"build.0.chains": "40"}
     if case == "half_melt":  # a melt beside vacuum: the domains recut
         return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels

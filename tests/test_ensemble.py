@@ -24,7 +24,7 @@ ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)),
 BASE = os.path.join(ROOT, "inputs", "nvt_trimers.toml")
 SEEDS = [11, 12, 13]
 SHORT = ["--set", "run.t_end=3"]
-TIMES = ("wall_seconds", "cpu_seconds", "loop_seconds", "timing", "serial_share", "peak_rss_mib")
+TIMES = ("wall_seconds", "cpu_seconds", "loop_seconds", "timing", "serial_share", "peak_rss_mib", "setup_seconds")
 
 
 def ensemble_deck(tmp, vary):

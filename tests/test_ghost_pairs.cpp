@@ -390,6 +390,29 @@ TEST(GhostPairs, RebuildAfterMovesBeyondHalfTheSkinListsNoPairOfTwoGhosts) {
   }
 }
 
+// A released list (a decomposed run's whole-system term once the parts exist) holds no pair and no
+// build; its next update builds it again as a fresh list with the same exclusions and ghosts would,
+// row for row, and its rebuild count goes on.
+TEST(GhostPairs, ReleasedListIsBuiltAgainAsAFreshOne) {
+  for (const Case& c : kCases) {
+    SCOPED_TRACE(c.name);
+    const System s = lattice(c.m, c.periodic, c.scatter, 7, c.interleave);
+    NeighborList released = make_list(s, true), fresh = make_list(s, true);
+    ASSERT_TRUE(released.update(s.x, s.box));
+    ASSERT_GT(released.num_pairs(), 0u);
+    released.release();
+    EXPECT_FALSE(released.built());
+    EXPECT_EQ(released.num_pairs(), 0u);
+    EXPECT_EQ(released.num_particles(), 0);
+    const Eigen::Matrix3Xd y = moved(s.x, 0.1 * kSkin, 8);
+    ASSERT_TRUE(released.update(y, s.box));
+    fresh.build(y, s.box);
+    EXPECT_EQ(released.rebuilds(), 2);
+    ASSERT_EQ(released.num_particles(), fresh.num_particles());
+    for (int i = 0; i < fresh.num_particles(); ++i) ASSERT_EQ(row(released, i), row(fresh, i)) << "row " << i;
+  }
+}
+
 // Lists that agree on their rebuilds (a decomposed run's ranks): each update hands the agreement
 // the list's own verdict and follows the agreed one, rebuilding when another list needs it, and
 // an early rebuild leaves the forces as they were, bit for bit.

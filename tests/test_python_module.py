@@ -453,7 +453,8 @@ def same_run_directories(a, b):
         if name == "summary.json":
             with open(pa) as fa, open(pb) as fb:
                 ja, jb = json.load(fa), json.load(fb)
-            for k in ("wall_seconds", "cpu_seconds", "outputs", "loop_seconds", "timing", "serial_share", "peak_rss_mib"):
+            for k in ("wall_seconds", "cpu_seconds", "outputs", "loop_seconds", "timing", "serial_share", "peak_rss_mib",
+                      "setup_seconds"):
                 ja.pop(k, None), jb.pop(k, None)
             assert ja == jb, (ja, jb)
         elif name.endswith(".h5md"):

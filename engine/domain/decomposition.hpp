@@ -86,6 +86,13 @@ struct DomainReport {
   long migrated_molecules = 0;          // all ranks
   long neighbor_rebuilds_min = 0;       // a rank's neighbour-list rebuilds: the fewest and the most
   long neighbor_rebuilds_max = 0;
+  // What a rank's pair forces hold (docs/parallel.md, "What a rank holds"): the particles of the
+  // whole system, the largest pair set (home beads and halo) at the last selection, and the most
+  // pairs a rank's whole-system force terms list at the end (0: no rank holds a neighbour list of
+  // the whole system; rank 0 makes one for a thermo row of the gathered state, the actions).
+  int particles = 0;
+  long pair_set_max = 0;
+  std::int64_t whole_list_pairs_max = 0;
   // The load balance: the measure's max/mean on equal slabs in the initial state, and on the final
   // cuts in the final state; the recuts (the start's among them) and the final cuts per axis.
   double imbalance_before = 1.0, imbalance_after = 1.0;

@@ -232,6 +232,11 @@ void DomainIntegrator::start(const State& s) {
   // force evaluation.
   for (GhostedPairs* term : part_->pairs) term->update_list(part_->scene.state.x, part_->scene.box);
   CarriedState c = whole_->carried_state();
+  // From now on the whole-system integrator holds no column of the whole system: the parts carry
+  // them, and a checkpoint hands it columns of one particle for its words (state_block), or the
+  // gathered ones on rank 0 (save_state).
+  whole_->restore_carried_state(
+      {c.flags, c.sums, std::vector<Eigen::Matrix3Xd>(c.columns.size(), Eigen::Matrix3Xd::Zero(3, 1))});
   const std::vector<int>& ids = domains_->owned_ids();
   for (Eigen::Matrix3Xd& column : c.columns) {
     Eigen::Matrix3Xd mine(3, domains_->num_owned());
@@ -471,6 +476,13 @@ DomainReport DomainIntegrator::report() const {
   comm_.max(rebuilds, 2);
   r.neighbor_rebuilds_min = static_cast<long>(-rebuilds[0]);
   r.neighbor_rebuilds_max = static_cast<long>(rebuilds[1]);
+  double whole_listed = 0.0;
+  for (const auto& t : whole_scene_.forces->terms()) whole_listed += static_cast<double>(t->listed_pairs());
+  double held[2] = {static_cast<double>(domains_->pair_ids().size()), whole_listed};
+  comm_.max(held, 2);
+  r.particles = whole_scene_.state.size();
+  r.pair_set_max = static_cast<long>(held[0]);
+  r.whole_list_pairs_max = static_cast<std::int64_t>(held[1]);
   r.imbalance_before = domains_->imbalance_before();
   r.imbalance_after = domains_->imbalance(part_->scene.state.x);
   r.recuts = domains_->recuts();

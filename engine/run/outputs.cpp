@@ -188,9 +188,13 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
     return false;
   };
+  // Per particle (40 bytes each): only for the trajectory files that name them.
   std::vector<std::string> species;
   std::vector<double> masses;
-  for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
+  auto name_particles = [&] {
+    if (species.empty())
+      for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
+  };
   // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
   // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
   // Empty: no files (check, Python without an output directory); a decomposed run's rank 0 writes
@@ -214,6 +218,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
       files.push_back(p.string());
     }
     if (writing && !sc.output.xyz.empty()) {
+      name_particles();
       const bool append =
           open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
       xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
@@ -240,6 +245,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
   if (h5md_here) {
     H5mdSetup setup;
     setup.num_particles = s.size();
+    name_particles();
     setup.species = species;
     setup.mass.resize(s.size());
     for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
@@ -286,7 +292,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
     state_due_.served_until(cut);
     h5md_due_.served_until(cut);
   }
-  state_row_.resize(1 + 6 * s.size());
+  if (state_) state_row_.resize(1 + 6 * s.size());  // 6 N values: only with a state CSV
 }
 
 bool RunOutputs::due(double t, bool final) {

@@ -194,13 +194,24 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // run so far come from the checkpoint.
   for (const auto& term : sc.forces->terms()) rebuilds_at_start_ += term->neighbor_list_rebuilds();
   check_finite(s_);
-  if (!restarting) {
-    const auto& row = thermo_.sample(s_, integrator_->model_potential(s_.x), integrator_->constraint_virial(s_),
-                                     integrator_->kinetic_energy_estimate(s_),
-                                     integrator_->thermostat_heat());  // E(0) and the initial actions
-    if (first_action_ >= 0) {
-      stats_.initial_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
-      summary_.initial_actions = stats_.initial_actions;
+  // A decomposed run's parts are built now, before the first sample: each rank then evaluates
+  // the forces of its part only, and the whole system's force terms never build a neighbour list
+  // or a pair buffer on a rank (docs/parallel.md, "What a rank holds").
+  if (domain_) domain_->distribute(s_);
+  if (!restarting) {  // E(0) and the initial actions
+    const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
+    const double kinetic = integrator_->kinetic_energy_estimate(s_), heat = integrator_->thermostat_heat();
+    std::optional<ThermoSums> parts;
+    if (sampled_by_parts()) parts = domain_->sample_sums();
+    // The row is rank 0's, as at every later sample: a sample of the whole state (the actions) is
+    // made there alone, with the whole system's terms.
+    if (root()) {
+      const auto& row = parts ? thermo_.sample(s_, *parts, model, virial, kinetic, heat)
+                              : thermo_.sample(s_, model, virial, kinetic, heat);
+      if (first_action_ >= 0) {
+        stats_.initial_actions.assign(row.begin() + first_action_, row.begin() + first_action_ + num_actions_);
+        summary_.initial_actions = stats_.initial_actions;
+      }
     }
   }
   // A restart samples nothing here: E(0) and the initial actions come from the checkpoint, and
@@ -250,9 +261,9 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     checkpoint_due_->served_until(s_.t);
     next_checkpoint_ = checkpoint_due_->next_due_step(s_.step, h_, [this](std::int64_t j) { return time_at(j); });
   }
-  if (domain_) domain_->distribute(s_);  // the parts, before the step loop and its clock
   if (opt.handle_signals) install_stop_handlers();
   signal_at_ = SignalAtStep::from_environment();  // tests: a signal at an exact step
+  if (opt.started_at >= 0.0) summary_.setup_seconds = seconds_now() - opt.started_at;
   cpu_start_ = std::clock();
 }
 
@@ -329,6 +340,10 @@ const RunSummary& Run::finish() {
     summary_.rank_loop_seconds_max = c.max(loop_seconds_);
     summary_.rank_peak_rss_mib_mean = c.sum(summary_.peak_rss_mib) / c.size();
     summary_.rank_peak_rss_mib_max = c.max(summary_.peak_rss_mib);
+    if (summary_.setup_seconds >= 0.0) {
+      summary_.rank_setup_seconds_mean = c.sum(summary_.setup_seconds) / c.size();
+      summary_.rank_setup_seconds_max = c.max(summary_.setup_seconds);
+    }
     summary_.wall_seconds = summary_.loop_seconds = summary_.rank_loop_seconds_max;
     summary_.domains = domain_->report();
     summary_.h5md_writers = outputs_->h5md_writers();

@@ -59,6 +59,9 @@ struct RunOptions {
   // writes its particles' rows of (RunOutputs); only rank 0 has a screen and a progress bar;
   // every rank drives its Run through the same steps.
   const Communicator* processes = nullptr;
+  // When the process began its work (seconds on the steady clock; negative: not known): the
+  // run's set-up time is from then to its first step (summary.json `setup_seconds`).
+  double started_at = -1.0;
 };
 
 class Run {

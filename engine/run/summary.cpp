@@ -87,6 +87,14 @@ std::string format_summary(const RunSummary& s) {
     else
       std::snprintf(line, sizeof line, "memory:        peak resident set %.0f MiB\n", s.peak_rss_mib);
     o << line;
+    if (s.setup_seconds >= 0.0) {
+      if (s.domains.ranks > 1)
+        std::snprintf(line, sizeof line, "set-up:        %.3f s (rank 0), ranks: max %.3f s, mean %.3f s\n",
+                      s.setup_seconds, s.rank_setup_seconds_max, s.rank_setup_seconds_mean);
+      else
+        std::snprintf(line, sizeof line, "set-up:        %.3f s\n", s.setup_seconds);
+      o << line;
+    }
   }
   o << "outputs:       ";
   for (size_t k = 0; k < s.outputs.size(); ++k) o << (k ? "\n               " : "") << s.outputs[k];
@@ -109,8 +117,9 @@ std::string summary_json(const RunSummary& s) {
   o << "  \"method\": \"" << s.method << "\",\n  \"units\": \"" << s.units << "\",\n  \"h\": " << s.h
     << ",\n  \"micro_steps\": " << s.micro_steps << ",\n  \"epsilon\": " << s.epsilon << ",\n  \"steps\": " << s.steps
     << ",\n  \"t_end\": " << s.t_end << ",\n  \"wall_seconds\": " << s.wall_seconds
-    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"peak_rss_mib\": " << s.peak_rss_mib
-    << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"neighbor_pairs\": " << s.neighbor_pairs
+    << ",\n  \"cpu_seconds\": " << s.cpu_seconds << ",\n  \"peak_rss_mib\": " << s.peak_rss_mib;
+  if (s.setup_seconds >= 0.0) o << ",\n  \"setup_seconds\": " << s.setup_seconds;
+  o << ",\n  \"neighbor_rebuilds\": " << s.neighbor_rebuilds << ",\n  \"neighbor_pairs\": " << s.neighbor_pairs
     << ",\n  \"slow_evaluations\": " << s.slow_evaluations << ",\n  \"fast_evaluations\": " << s.fast_evaluations
     << ",\n  \"level_evaluations\": {";
   for (size_t k = 0; k < s.level_evaluations.size(); ++k)
@@ -150,9 +159,13 @@ std::string summary_json(const RunSummary& s) {
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
       << ", \"migrated_molecules\": " << d.migrated_molecules
       << ", \"neighbor_rebuilds_min\": " << d.neighbor_rebuilds_min
-      << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"h5md_writers\": " << s.h5md_writers
-      << ", \"peak_rss_mib_mean\": " << s.rank_peak_rss_mib_mean
+      << ", \"neighbor_rebuilds_max\": " << d.neighbor_rebuilds_max << ", \"particles\": " << d.particles
+      << ", \"pair_set_max\": " << d.pair_set_max << ", \"whole_list_pairs_max\": " << d.whole_list_pairs_max
+      << ", \"h5md_writers\": " << s.h5md_writers << ", \"peak_rss_mib_mean\": " << s.rank_peak_rss_mib_mean
       << ", \"peak_rss_mib_max\": " << s.rank_peak_rss_mib_max;
+    if (s.setup_seconds >= 0.0)
+      o << ", \"setup_seconds_mean\": " << s.rank_setup_seconds_mean
+        << ", \"setup_seconds_max\": " << s.rank_setup_seconds_max;
     o << ", \"imbalance_before\": " << d.imbalance_before << ", \"imbalance_after\": " << d.imbalance_after
       << ", \"recuts\": " << d.recuts << ", \"cuts\": [";
     for (int a = 0; a < 3; ++a) {

@@ -63,6 +63,11 @@ struct RunSummary {
   // decomposed run the largest and the mean over the ranks (memory per rank, docs/parallel.md).
   double peak_rss_mib = 0.0;
   double rank_peak_rss_mib_mean = 0.0, rank_peak_rss_mib_max = 0.0;
+  // Wall seconds from the process's start to the first step (reading the deck, building and
+  // preparing the scene, the parts, the first sample and the outputs opened; −1: not measured):
+  // this process's, and in a decomposed run the largest and the mean over the ranks.
+  double setup_seconds = -1.0;
+  double rank_setup_seconds_mean = 0.0, rank_setup_seconds_max = 0.0;
   DomainReport domains;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
