@@ -8,6 +8,7 @@
 
 #include <stdexcept>
 #include "core/errors.hpp"
+#include "core/finite.hpp"
 #include "core/timing.hpp"
 #include "forcefields/neighbor_list.hpp"  // MinimumImage
 
@@ -737,24 +738,6 @@ void Decomposition::gather_columns(const std::vector<Eigen::Matrix3Xd>& local, s
   for (size_t a = 0; a < local.size(); ++a) in.push_back(&local[a]), out.push_back(&whole[a]);
   gather_columns(in, out, num_particles, block);
 }
-
-namespace {
-
-// Whether the n values at p are all finite: Σ p_i · 0 is 0 unless some p_i is a NaN or an
-// infinity (0 · ±∞ = NaN, and a NaN stays one through the sum). Four sums that the compiler
-// vectorises, no branch per value: the check after every step costs a few instructions per bead
-// where a column-by-column test cost tens (engine/run/run.cpp's all_finite, the same test on one
-// process).
-bool all_finite(const double* p, std::int64_t n) {
-  double sum[4] = {0.0, 0.0, 0.0, 0.0};
-  std::int64_t i = 0;
-  for (; i + 4 <= n; i += 4)
-    for (int l = 0; l < 4; ++l) sum[l] += p[i + l] * 0.0;
-  for (; i < n; ++i) sum[0] += p[i] * 0.0;
-  return (sum[0] + sum[1]) + (sum[2] + sum[3]) == 0.0;
-}
-
-}  // namespace
 
 int Decomposition::first_non_finite(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) const {
   if (all_finite(x.data(), x.size()) && all_finite(v.data(), v.size())) return -1;

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "core/errors.hpp"
+#include "core/finite.hpp"
 #include "core/parallel.hpp"
 #include "core/peak_memory.hpp"
 #include "integrators/methods.hpp"
@@ -68,18 +69,6 @@ double seconds_now() {
 }  // namespace
 
 namespace {
-
-// Whether none of the n values is ±∞ or NaN: x·0 is ±0 for a finite x and NaN for ±∞ and NaN, so
-// the sum of the products is 0 exactly when every value is finite. One pass with four independent
-// sums and no branch per value.
-bool all_finite(const double* p, std::int64_t n) {
-  double sum[4] = {0.0, 0.0, 0.0, 0.0};
-  std::int64_t i = 0;
-  for (; i + 4 <= n; i += 4)
-    for (int l = 0; l < 4; ++l) sum[l] += p[i + l] * 0.0;
-  for (; i < n; ++i) sum[0] += p[i] * 0.0;
-  return (sum[0] + sum[1]) + (sum[2] + sum[3]) == 0.0;
-}
 
 bool finite_state(const State& s) {
   // Below kParallelMin particles every loop is serial at any thread count: one pass over x and v,
