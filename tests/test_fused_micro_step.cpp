@@ -52,6 +52,26 @@ Chains chains(bool shuffle) {
   return c;
 }
 
+// Combs: the unshuffled chains, each with a side bead on its bead 50 (numbered after all the
+// chains' beads, its bond stretched by 0.02), the side bond listed before the chain's backbone
+// or after it.
+Chains combs(bool side_first) {
+  const Chains c = chains(false);
+  const Eigen::Index beads = c.x.cols(), n_chains = beads / 100;
+  Chains comb{Eigen::Matrix3Xd(3, beads + n_chains), StiffBonds{}};
+  comb.x.leftCols(beads) = c.x;
+  comb.bonds.epsilon = c.bonds.epsilon;
+  for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
+    const int stem = static_cast<int>(100 * ch + 50), side = static_cast<int>(beads + ch);
+    comb.x.col(side) = comb.x.col(stem) + Eigen::Vector3d(0.0, 0.0, 0.99);
+    const StiffBond side_bond{stem, side, 0.97, 1.0};
+    if (side_first) comb.bonds.bonds.push_back(side_bond);
+    for (int b = 0; b < 99; ++b) comb.bonds.bonds.push_back(c.bonds.bonds[99 * ch + b]);
+    if (!side_first) comb.bonds.bonds.push_back(side_bond);
+  }
+  return comb;
+}
+
 // Random velocities and old forces for n particles (the fused step kicks with the old force).
 void random_motion(Eigen::Index n, unsigned seed, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd& f) {
   std::mt19937 rng(seed);
@@ -140,20 +160,7 @@ TEST(FusedMicroStep, ShortChainRunsGiveTheBitsOfThePlainPath) {
 // must add to it, not overwrite it) or after it. Both must give the bits of the plain path.
 TEST(FusedMicroStep, SideBondsListedBeforeOrAfterTheBackbone) {
   for (bool side_first : {true, false}) {
-    const Chains c = chains(false);
-    const Eigen::Index beads = c.x.cols(), n_chains = beads / 100;
-    Eigen::Matrix3Xd x(3, beads + n_chains);
-    x.leftCols(beads) = c.x;
-    StiffBonds bonds;
-    bonds.epsilon = c.bonds.epsilon;
-    for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
-      const int stem = static_cast<int>(100 * ch + 50), side = static_cast<int>(beads + ch);
-      x.col(side) = x.col(stem) + Eigen::Vector3d(0.0, 0.0, 0.99);  // stretched by 0.02
-      const StiffBond side_bond{stem, side, 0.97, 1.0};
-      if (side_first) bonds.bonds.push_back(side_bond);
-      for (int b = 0; b < 99; ++b) bonds.bonds.push_back(c.bonds.bonds[99 * ch + b]);
-      if (!side_first) bonds.bonds.push_back(side_bond);
-    }
+    const auto [x, bonds] = combs(side_first);
     const Eigen::Index n = x.cols();
     const StiffHarmonicBond term("bonds", Level::fast, bonds);
     Eigen::Matrix3Xd v0, f0;
@@ -428,19 +435,7 @@ TEST(BlockedMicroSteps, GiveTheBitsOfThePlainSteps) {
     expect_blocked_steps_are_plain(c.x, c.bonds, 3, shuffle ? "shuffled chains" : "chains");
   }
   for (bool side_first : {true, false}) {  // combs, the side beads numbered after the chains
-    const Chains c = chains(false);
-    const Eigen::Index beads = c.x.cols(), n_chains = beads / 100;
-    Eigen::Matrix3Xd x(3, beads + n_chains);
-    x.leftCols(beads) = c.x;
-    StiffBonds bonds;
-    bonds.epsilon = c.bonds.epsilon;
-    for (Eigen::Index ch = 0; ch < n_chains; ++ch) {
-      const int stem = static_cast<int>(100 * ch + 50), side = static_cast<int>(beads + ch);
-      x.col(side) = x.col(stem) + Eigen::Vector3d(0.0, 0.0, 0.99);
-      if (side_first) bonds.bonds.push_back({stem, side, 0.97, 1.0});
-      for (int b = 0; b < 99; ++b) bonds.bonds.push_back(c.bonds.bonds[99 * ch + b]);
-      if (!side_first) bonds.bonds.push_back({stem, side, 0.97, 1.0});
-    }
+    const auto [x, bonds] = combs(side_first);
     expect_blocked_steps_are_plain(x, bonds, 4, side_first ? "combs, side bond first" : "combs, side bond last");
   }
   {  // combs whose side bead follows its stem's chain: blocks of whole combs
