@@ -37,6 +37,23 @@ struct BondInstance {
 // Work items per block of the bond loop (bond_block below).
 inline constexpr int kBondBlock = 64;
 
+// Items begin … end − 1 cut into segments {begin, end, chain} appended to `out`, in order: chain
+// runs — two or more items, each continuing the one before (links(k): item k + 1 continues item
+// k's chain) — and between them the other items, each stretch extended up to the next chain run.
+template <class Links, class Segment>
+void append_chain_runs(std::int64_t begin, std::int64_t end, const Links& links, std::vector<Segment>& out) {
+  std::int64_t k = begin;
+  while (k < end) {
+    std::int64_t e = k + 1;
+    while (e < end && links(e - 1)) ++e;
+    const bool chain = e - k >= 2;
+    if (!chain)
+      while (e < end && !(e + 1 < end && links(e))) ++e;
+    out.push_back({k, e, chain});
+    k = e;
+  }
+}
+
 // Which bonds each thread evaluates, and for which ends (owner computes, see above).
 class BondPartition {
  public:
@@ -143,16 +160,7 @@ class BondPartition {
              bb.j == bb.i + 1;
     };
     for (int t = 0; t < threads_; ++t) {
-      std::int64_t k = start_[t];
-      while (k < start_[t + 1]) {
-        std::int64_t e = k + 1;
-        while (e < start_[t + 1] && links(e - 1)) ++e;
-        const bool chain = e - k >= 2;
-        if (!chain)  // extend the other items up to the next chain run
-          while (e < start_[t + 1] && !(e + 1 < start_[t + 1] && links(e))) ++e;
-        segments_.push_back({k, e, chain});
-        k = e;
-      }
+      append_chain_runs(start_[t], start_[t + 1], links, segments_);
       segment_start_[t + 1] = static_cast<std::int64_t>(segments_.size());
     }
   }
@@ -519,16 +527,7 @@ class MicroStepPlan {
     };
     for (std::size_t k = 0; k < blocks_.size(); ++k) {
       blocks_[k].segment_begin = static_cast<std::int64_t>(segments_.size());
-      std::int64_t q = start[k];
-      while (q < start[k + 1]) {
-        std::int64_t e = q + 1;
-        while (e < start[k + 1] && links(e - 1)) ++e;
-        const bool chain = e - q >= 2;
-        if (!chain)
-          while (e < start[k + 1] && !(e + 1 < start[k + 1] && links(e))) ++e;
-        segments_.push_back({q, e, chain});
-        q = e;
-      }
+      append_chain_runs(start[k], start[k + 1], links, segments_);
       blocks_[k].segment_end = static_cast<std::int64_t>(segments_.size());
     }
     threads_ = 0;
