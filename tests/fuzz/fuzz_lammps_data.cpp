@@ -3,6 +3,10 @@
 // stiffmd::InputError is the expected outcome of a bad file; any other exception, a crash, a
 // hang, an allocation beyond -malloc_limit_mb or a sanitizer report is a finding.
 //
+// The same bytes read by parts (read_lammps_data_part, engine/io/lammps_data_parts.hpp), keeping
+// every molecule and keeping none: InputError or a part; when both readers read the file, the part
+// that keeps every molecule is the whole import (positions, velocities, types, ids, bonded terms).
+//
 // A data file that reads must also survive the documented round trip: write_lammps_data (in a
 // style that can hold what was read) and read_lammps_data give back the same positions,
 // velocities, types and bonds, bit for bit.
@@ -15,6 +19,7 @@
 
 #include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
+#include "engine/io/lammps_data_parts.hpp"
 #include "engine/io/xyz_bonds.hpp"
 #include "fuzz_support.hpp"
 
@@ -64,6 +69,37 @@ void round_trip(const ImportedSystem& s, const std::string& path) {
       stiffmd::fuzz::finding("round trip changed a bond");
 }
 
+// The part that keeps every molecule against the whole import (`whole`: null when it was refused).
+void read_by_parts(const std::string& path, const ImportedSystem* whole) {
+  for (const bool keep : {true, false}) {
+    stiffmd::ImportedPart part;
+    try {
+      part = stiffmd::read_lammps_data_part(path, "auto", [keep](const Eigen::Vector3d&) { return keep; });
+    } catch (const stiffmd::InputError&) {
+      return;
+    } catch (const std::exception& e) {
+      stiffmd::fuzz::finding("read_lammps_data_part threw something other than InputError", &e);
+    }
+    if (!keep) {
+      if (part.system.x.cols() != 0 || !part.global.empty())
+        stiffmd::fuzz::finding("a part that keeps nothing has atoms");
+      continue;
+    }
+    if (!whole) continue;
+    const ImportedSystem& p = part.system;
+    if (!same_bits(p.x, whole->x) || !same_bits(p.v, whole->v) || p.type != whole->type || p.id != whole->id ||
+        p.molecule != whole->molecule || p.charge != whole->charge)
+      stiffmd::fuzz::finding("the part that keeps every molecule is not the whole import's atoms");
+    if (p.bonds.size() != whole->bonds.size() || p.angles.size() != whole->angles.size() ||
+        p.dihedrals.size() != whole->dihedrals.size() || p.impropers.size() != whole->impropers.size())
+      stiffmd::fuzz::finding("the part that keeps every molecule is not the whole import's bonded terms");
+    for (std::size_t k = 0; k < p.bonds.size() && k < whole->bonds.size(); ++k)
+      if (p.bonds[k].i != whole->bonds[k].i || p.bonds[k].j != whole->bonds[k].j ||
+          p.bonds[k].type != whole->bonds[k].type)
+        stiffmd::fuzz::finding("the part that keeps every molecule changed a bond");
+  }
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
@@ -81,8 +117,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 
   try {
     const ImportedSystem s = read_lammps_data(input.path);
+    read_by_parts(input.path, &s);
     round_trip(s, written.path);
   } catch (const InputError&) {
+    read_by_parts(input.path, nullptr);
   } catch (const std::exception& e) {
     fuzz::finding("read_lammps_data threw something other than InputError", &e);
   }

@@ -1,0 +1,61 @@
+// A LAMMPS data file read by parts: each rank streams the file and keeps only the molecules whose
+// anchor lies in its domain, never the whole system's arrays (docs/parallel.md, "What a rank
+// holds"). Every rank reads the same file and applies the same rule to the same numbers, so the
+// parts of any number of ranks tile the whole import, each molecule in exactly one part.
+//
+// A molecule is a connected component of the file's bonded terms (bonds, angles, dihedrals,
+// impropers; a lone atom is a molecule of one), the molecules of bonded_molecules
+// (core/topology.hpp) that the decomposition integrates whole. Its anchor is its centre of mass
+// Σ m_i x_i / Σ m_i with x unwrapped by the image flags and m = 1/(1/m_type), summed over its atoms in
+// file order: for a file that lists its atoms by increasing id (write_lammps_data's, and stiffmd's
+// own topology.data) these are exactly the numbers of Decomposition's anchor of the imported
+// scene (its masses come back from the inverse masses), so a rank keeps the molecules that
+// Decomposition::distribute would give it (tests/test_lammps_parts.cpp).
+//
+// What a rank holds while it reads, beyond its part: one int per atom of the file (the union–find
+// of the molecules, then each atom's molecule), the file's atom ids when they are not 1 … N in
+// order (one long each), and four doubles and a flag per molecule (the anchors' sums) — none of
+// them the state, the topology or the force terms of the whole system, and all freed on return.
+// The file is read three times (the structure and the bonded terms; the anchors; the part), by
+// lines, never held whole. The checks are the whole reader's where they concern a kept line (its
+// columns, numbers, types, atoms in the Atoms section) and the header's counts for every section;
+// a duplicate atom id or bond elsewhere in the file is the whole reader's to find (`stiffmd check`
+// reads it whole).
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "engine/io/lammps_data.hpp"
+
+namespace stiffmd {
+
+// Whether this part keeps the molecule whose anchor is `anchor` (the same answer on every rank
+// for a given anchor: the domain grid's).
+using KeepAnchor = std::function<bool(const Eigen::Vector3d& anchor)>;
+
+struct ImportedPart {
+  // The kept atoms by increasing id, as read_lammps_data returns the whole file's (x unwrapped, v,
+  // types, molecule ids, charges), and the bonded terms whose atoms are kept, by part index, in
+  // file order; the masses, the box, the type counts and the "… Coeffs" sections whole.
+  ImportedSystem system;
+  std::vector<int> global;  // per kept atom: its index in read_lammps_data's import (0 … N − 1)
+  int num_atoms = 0;        // in the whole file
+  int num_molecules = 0;    // in the whole file (connected components of its bonded terms)
+};
+
+// The box of the file's header (LAMMPS's default −0.5 … 0.5 on an axis it does not give): what a
+// decomposed run's domain grid needs before it reads its part. Reads the header only.
+struct ImportedBox {
+  Eigen::Vector3d lo, hi;
+};
+ImportedBox read_lammps_data_box(const std::string& path);
+
+// atom_style as read_lammps_data's. Throws InputError, one line naming the file and line, for a
+// file the whole reader refuses in the lines it reads; and when a Velocities, Bonds, Angles,
+// Dihedrals or Impropers section comes before the Atoms section (LAMMPS refuses it too).
+ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepAnchor& keep);
+
+}  // namespace stiffmd
