@@ -62,14 +62,6 @@ std::vector<Line> content_lines(std::string_view text, int& last_line) {
   return lines;
 }
 
-// Keyword lines start with a letter; header and entry lines with a number.
-bool starts_numeric(std::string_view s) {
-  if (s.empty()) return false;
-  size_t k = (s[0] == '-' || s[0] == '+') ? 1 : 0;
-  if (k < s.size() && s[k] == '.') ++k;
-  return k < s.size() && s[k] >= '0' && s[k] <= '9';
-}
-
 std::string join(const std::vector<std::string_view>& tok, size_t from) {
   std::string s;
   for (size_t k = from; k < tok.size(); ++k) {
@@ -78,24 +70,6 @@ std::string join(const std::vector<std::string_view>& tok, size_t from) {
   }
   return s;
 }
-
-enum Count {
-  kAtoms,
-  kBonds,
-  kAngles,
-  kDihedrals,
-  kImpropers,
-  kAtomTypes,
-  kBondTypes,
-  kAngleTypes,
-  kDihedralTypes,
-  kImproperTypes,
-  kPairIJ,
-  kNumCounts
-};
-constexpr std::array<std::string_view, kPairIJ> kCountKeyword = {
-    "atoms",      "bonds",      "angles",      "dihedrals",      "impropers",
-    "atom types", "bond types", "angle types", "dihedral types", "improper types"};
 
 // Fewest bytes an entry of each kind occupies (every column at least one character plus a
 // separator): bounds header counts by the file size before anything is allocated for them.

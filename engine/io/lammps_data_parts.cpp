@@ -28,13 +28,6 @@ std::string_view trim(std::string_view s) {
   return s;
 }
 
-bool starts_numeric(std::string_view s) {
-  if (s.empty()) return false;
-  size_t k = (s[0] == '-' || s[0] == '+') ? 1 : 0;
-  if (k < s.size() && s[k] == '.') ++k;
-  return k < s.size() && s[k] >= '0' && s[k] <= '9';
-}
-
 // The file's lines with something before '#' (the title line skipped), one at a time; a place in
 // the file can be remembered and gone back to.
 class Lines {
@@ -80,23 +73,6 @@ class Lines {
   std::string_view data_, comment_;
   int number_ = 0;
 };
-
-enum Count {
-  kAtoms,
-  kBonds,
-  kAngles,
-  kDihedrals,
-  kImpropers,
-  kAtomTypes,
-  kBondTypes,
-  kAngleTypes,
-  kDihedralTypes,
-  kImproperTypes,
-  kNumCounts
-};
-constexpr std::array<std::string_view, kNumCounts> kCountKeyword = {
-    "atoms",      "bonds",      "angles",      "dihedrals",      "impropers",
-    "atom types", "bond types", "angle types", "dihedral types", "improper types"};
 
 // The bonded sections: their count, their atoms per entry.
 struct Bonded {
@@ -182,7 +158,7 @@ class PartReader {
         kw += tok_[k];
       }
       bool known = false;
-      for (int c = 0; c < kNumCounts; ++c)
+      for (int c = 0; c < kPairIJ; ++c)
         if (kw == kCountKeyword[c]) {
           long long v = 0;
           if (nnum != 1 || !parse_long(tok_[0], v) || v < 0 || v > std::numeric_limits<int>::max())
