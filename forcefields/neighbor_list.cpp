@@ -108,7 +108,48 @@ int test_candidates(double xi, double yi, double zi, const double* xs, const dou
 }
 #endif
 
+#if defined(__x86_64__)
+// BoxWrap::wrap_particles four particles (twelve coordinates, three vectors) at a time: the same
+// IEEE operations as BoxWrap::operator() lane by lane, the vectors' lanes on the axes x y z x |
+// y z x y | z x y z. floor_of truncates and corrects; for |q| < 2⁶³ that is the exact floor, which
+// vroundpd gives, except that floor(−0) is −0 where the truncation gives +0: adding +0 turns −0
+// into +0 and leaves every other integer as it is. The same values for every finite position
+// within 2⁶³ box lengths of the origin (a non-finite one stays non-finite).
+[[gnu::target("avx2")]] void wrap_particles_avx2(const double* __restrict lo, const double* __restrict len,
+                                                 const double* __restrict inv, const double* __restrict x,
+                                                 double* __restrict out, std::int64_t first, std::int64_t last) {
+  __m256d vlo[3], vlen[3], vinv[3];
+  for (int v = 0; v < 3; ++v) {
+    const int a0 = (4 * v) % 3, a1 = (4 * v + 1) % 3, a2 = (4 * v + 2) % 3, a3 = (4 * v + 3) % 3;
+    vlo[v] = _mm256_setr_pd(lo[a0], lo[a1], lo[a2], lo[a3]);
+    vlen[v] = _mm256_setr_pd(len[a0], len[a1], len[a2], len[a3]);
+    vinv[v] = _mm256_setr_pd(inv[a0], inv[a1], inv[a2], inv[a3]);
+  }
+  const __m256d zero = _mm256_setzero_pd();
+  for (std::int64_t i = first; i + 4 <= last; i += 4)
+    for (int v = 0; v < 3; ++v) {
+      const __m256d p = _mm256_loadu_pd(x + 3 * i + 4 * v);
+      const __m256d q = _mm256_mul_pd(_mm256_sub_pd(p, vlo[v]), vinv[v]);
+      const __m256d whole = _mm256_add_pd(_mm256_round_pd(q, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC), zero);
+      _mm256_storeu_pd(out + 3 * i + 4 * v, _mm256_sub_pd(p, _mm256_mul_pd(vlen[v], whole)));
+    }
+}
+#endif
+
 }  // namespace
+
+void BoxWrap::wrap_particles(const double* x, double* out, std::int64_t first, std::int64_t last) const {
+  std::int64_t i = first;
+#if defined(__x86_64__)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (avx2) {
+    wrap_particles_avx2(lo_, len_, inv_, x, out, first, last);
+    i = first + (last - first) / 4 * 4;
+  }
+#endif
+  for (; i < last; ++i)
+    for (int a = 0; a < 3; ++a) out[3 * i + a] = (*this)(x[3 * i + a], a);
+}
 
 void check_box_for_cutoff(const Box& box, double cutoff, double skin) {
   const double need = 2.0 * (cutoff + skin);
@@ -394,10 +435,8 @@ const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& 
   // positions (not on when the list was built), so the forces are the same bits whenever the
   // list is rebuilt (docs/parallel.md).
   const BoxWrap wrap(box_now_);
-  parallel_blocks(x.cols(), threads_for(x.cols()), [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t i = b; i < e; ++i)
-      for (int a = 0; a < 3; ++a) wrapped_now_(a, i) = wrap(x(a, i), a);
-  });
+  parallel_blocks(x.cols(), threads_for(x.cols()),
+                  [&](std::int64_t b, std::int64_t e) { wrap.wrap_particles(x.data(), wrapped_now_.data(), b, e); });
   return wrapped_now_;
 }
 

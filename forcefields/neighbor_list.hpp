@@ -128,6 +128,9 @@ class BoxWrap {
     }
   }
   double operator()(double x, int a) const { return x - len_[a] * floor_of((x - lo_[a]) * inv_[a]); }
+  // Particles first … last − 1 of x (3×N, column-major) wrapped into out, each coordinate as
+  // operator() gives it, bit for bit (four particles at a time with AVX2 where the CPU has it).
+  void wrap_particles(const double* x, double* out, std::int64_t first, std::int64_t last) const;
 
  private:
   // floor by truncation and a correction: one conversion each way, no call (x86-64 before SSE4.1

@@ -249,8 +249,9 @@ inline constexpr int kPairPrefetch = 64;
 // separations, their minimum images and r² as the scalar pass computes them — the same IEEE
 // operations lane by lane (no FMA: -ffp-contract=off), the fold as a select, the rounding as
 // (s + 1.5·2⁵²) − 1.5·2⁵², so the same values bit for bit — and the pairs with r² < rc² appended in
-// the list's order, the chunk's rows taken as the scalar pass takes them. A row's x_j are loaded by
-// index (its partners lie anywhere) and transposed into lanes, the lanes past the row's end
+// the list's order. A chunk is a stretch of the list's pairs (rows end inside groups of four: the
+// scalar pass's rows, the same pairs in the same order, so the same forces). The x_j are loaded by
+// index (a row's partners lie anywhere) and transposed into lanes, the lanes past the chunk's end
 // masked; the kept lanes are packed to the front by a permutation chosen by the 4-bit mask
 // (PairPackTable) and stored four at a time, the count advanced by the mask's population (the
 // buffers have 3 entries of room past the chunk). x_j is prefetched kPairPrefetch listed pairs
@@ -292,11 +293,20 @@ struct PairChunkCursor {
   bool split = false;
 };
 
-// Pass 1 of one chunk (accumulate_pair_forces_rows: at most kPairChunk listed pairs from (i, k)
-// on, rows up to last − 1), the rows taken as the scalar pass takes them, four pairs at a time.
-// kRounded: NearestImage::rounded (a box a few list radii wide). kOneType: every pair has the
-// coefficients `one`; else each lane's are params' (type_i, type_j), whose address is kept (pn)
-// and whose rc² the lane is tested against. kCharged: each kept pair's qq = (qqrd2e q_i) q_j too.
+// Room past a chunk in the buffers of the AVX2 passes: a row's x_i is stored eight lanes at a time
+// from its first pair, and the packed stores write four.
+inline constexpr int kPairChunkRoom = 8;
+
+// Pass 1 of one chunk (accumulate_pair_forces_rows: the kPairChunk listed pairs from (i, k) on,
+// rows up to last − 1) four listed pairs at a time, the lanes running on across the rows' ends: a
+// row holds ≈ 5 listed pairs (in.chain), so groups of four within a row left a quarter of their
+// lanes empty. Each row's x_i (its coefficient row, its qqrd2e q_i) is first written into every
+// slot of its pairs in the chunk (xi, yi, zi; prow; qi), so that a group reads the x_i of its
+// lanes as it reads their x_j. Each group records its kept count before it (group_n) and its mask
+// (group_mask), from which a row's end in the buffer is read afterwards. kRounded:
+// NearestImage::rounded (a box a few list radii wide). kOneType: every pair has the coefficients
+// `one`; else each lane's are params' (type_i, type_j), whose address is kept (pn) and whose rc²
+// the lane is tested against. kCharged: each kept pair's qq = (qqrd2e q_i) q_j too.
 template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Params>
 [[gnu::target("avx2,popcnt")]] void pair_chunk_separations_avx2(
     PairChunkCursor& c, int last, const std::int64_t* __restrict offset, const int* __restrict nbr,
@@ -305,6 +315,43 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
     double* __restrict dx, double* __restrict dy, double* __restrict dz, double* __restrict r2,
     const Params** __restrict pn, double* __restrict qq, int* __restrict seg_row, int* __restrict seg_end) {
   constexpr int kChunk = kPairChunk;
+  alignas(32) double xi[kChunk + kPairChunkRoom], yi[kChunk + kPairChunkRoom], zi[kChunk + kPairChunkRoom];
+  [[maybe_unused]] alignas(32) const Params* prow[kOneType ? 1 : kChunk + kPairChunkRoom];
+  [[maybe_unused]] alignas(32) double qi[kCharged ? kChunk + kPairChunkRoom : 1];
+  int group_n[kChunk / 4 + 1], group_mask[kChunk / 4 + 1];
+  // The rows: each one's x_i into its pairs' slots, its end as a slot of the chunk.
+  const std::int64_t k0 = c.k, k1 = std::min<std::int64_t>(k0 + kChunk, offset[last]);
+  int i = c.i, segments = 0;
+  std::int64_t k = k0;
+  bool split = false;
+  while (i < last && segments < kChunk) {
+    const std::int64_t end = offset[i + 1], stop = std::min(end, k1);
+    const int from = static_cast<int>(k - k0), to = static_cast<int>(stop - k0);
+    const __m256d vx = _mm256_set1_pd(xp[3 * i]), vy = _mm256_set1_pd(xp[3 * i + 1]),
+                  vz = _mm256_set1_pd(xp[3 * i + 2]);
+    [[maybe_unused]] __m256i vp;
+    [[maybe_unused]] __m256d vq;
+    if constexpr (!kOneType) vp = _mm256_set1_epi64x(reinterpret_cast<long long>(params.row(type[i])));
+    if constexpr (kCharged) vq = _mm256_set1_pd(charges.qqrd2e * charges.q[i]);
+    // Eight slots without a test (most rows hold fewer), then the rest of a longer row.
+    for (int q = from; q < from + 8 || q < to; q += 4) {
+      _mm256_storeu_pd(xi + q, vx);
+      _mm256_storeu_pd(yi + q, vy);
+      _mm256_storeu_pd(zi + q, vz);
+      if constexpr (!kOneType) _mm256_storeu_si256(reinterpret_cast<__m256i*>(prow + q), vp);
+      if constexpr (kCharged) _mm256_storeu_pd(qi + q, vq);
+    }
+    seg_row[segments] = i;
+    seg_end[segments] = to;  // a slot for now: made a buffer end below
+    ++segments;
+    k = stop;
+    if (stop < end) {  // the chunk ends inside the row
+      split = true;
+      break;
+    }
+    ++i;  // empty rows past the chunk's last pair join it (f_i += 0, as the scalar pass adds)
+  }
+  const int listed = static_cast<int>(k - k0);
   const __m256d vrc2 = _mm256_set1_pd(one.rc2);
   __m256d len[3], half[3], nhalf[3], inv[3];
   for (int a = 0; a < 3; ++a) {
@@ -317,99 +364,126 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
   const __m128i lane_index = _mm_setr_epi32(0, 1, 2, 3);
   // The prefetch reads four indices at k + kPairPrefetch, at most up to the last pair.
   const std::int64_t prefetch_last = last_pair - 3;
-  int i = c.i, n = 0, segments = 0;
-  std::int64_t k = c.k;
-  bool split = false;
-  while (i < last && segments < kChunk) {
-    const std::int64_t end = offset[i + 1];
-    const std::int64_t stop = std::min<std::int64_t>(end, k + (kChunk - n));
-    const __m256d vxi = _mm256_set1_pd(xp[3 * i]), vyi = _mm256_set1_pd(xp[3 * i + 1]),
-                  vzi = _mm256_set1_pd(xp[3 * i + 2]);
-    [[maybe_unused]] const Params* prow = kOneType ? nullptr : params.row(type[i]);
-    [[maybe_unused]] __m256d vqi = _mm256_setzero_pd();
-    if constexpr (kCharged) vqi = _mm256_set1_pd(charges.qqrd2e * charges.q[i]);
-    for (; k < stop; k += 4) {
-      const int lanes = static_cast<int>(std::min<std::int64_t>(4, stop - k));
-      const __m128i in_row = _mm_cmpgt_epi32(_mm_set1_epi32(lanes), lane_index);
-      const __m128i j = _mm_maskload_epi32(nbr + k, in_row);  // 0 past the row's end: a valid index
-      if (prefetch_last >= 0) {
-        const __m128i ahead =
-            _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + std::min(k + kPairPrefetch, prefetch_last)));
-        const __m128i a3 = _mm_add_epi32(ahead, _mm_add_epi32(ahead, ahead));
-        __builtin_prefetch(xp + _mm_cvtsi128_si32(a3));
-        __builtin_prefetch(xp + _mm_extract_epi32(a3, 1));
-        __builtin_prefetch(xp + _mm_extract_epi32(a3, 2));
-        __builtin_prefetch(xp + _mm_extract_epi32(a3, 3));
-      }
-      const int j0 = _mm_cvtsi128_si32(j), j1 = _mm_extract_epi32(j, 1), j2 = _mm_extract_epi32(j, 2),
-                j3 = _mm_extract_epi32(j, 3);
-      // x_j of each lane as (x, y) and z, transposed into lanes (loads beat a gather here).
-      const double* p0 = xp + 3 * j0;
-      const double* p1 = xp + 3 * j1;
-      const double* p2 = xp + 3 * j2;
-      const double* p3 = xp + 3 * j3;
-      const __m256d xy02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p0)), _mm_loadu_pd(p2), 1);
-      const __m256d xy13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p1)), _mm_loadu_pd(p3), 1);
-      const __m256d z02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p0 + 2)), _mm_load_sd(p2 + 2), 1);
-      const __m256d z13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p1 + 2)), _mm_load_sd(p3 + 2), 1);
-      __m256d e[3] = {_mm256_sub_pd(vxi, _mm256_unpacklo_pd(xy02, xy13)),
-                      _mm256_sub_pd(vyi, _mm256_unpackhi_pd(xy02, xy13)),
-                      _mm256_sub_pd(vzi, _mm256_unpacklo_pd(z02, z13))};
-      if constexpr (kPeriodic)
-        for (int a = 0; a < 3; ++a) {
-          if constexpr (kRounded) {  // d − L·round_nearest(d/L)
-            const __m256d q = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(e[a], inv[a]), round_k), round_k);
-            e[a] = _mm256_sub_pd(e[a], _mm256_mul_pd(len[a], q));
-          } else {  // the fold: d − L (d > L/2), d + L (d < −L/2), else d
-            const __m256d above = _mm256_cmp_pd(e[a], half[a], _CMP_GT_OQ);
-            const __m256d below = _mm256_cmp_pd(e[a], nhalf[a], _CMP_LT_OQ);
-            const __m256d folded = _mm256_blendv_pd(e[a], _mm256_sub_pd(e[a], len[a]), above);
-            e[a] = _mm256_blendv_pd(folded, _mm256_add_pd(folded, len[a]), below);
-          }
+  int n = 0;
+  for (int g = 0; 4 * g < listed; ++g) {
+    const int at = 4 * g;
+    const int lanes = std::min(4, listed - at);
+    const std::int64_t kg = k0 + at;
+    const __m128i j = lanes == 4 ? _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + kg))
+                                 : _mm_maskload_epi32(nbr + kg, _mm_cmpgt_epi32(_mm_set1_epi32(lanes), lane_index));
+    if (prefetch_last >= 0) {
+      const __m128i ahead =
+          _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + std::min(kg + kPairPrefetch, prefetch_last)));
+      const __m128i a3 = _mm_add_epi32(ahead, _mm_add_epi32(ahead, ahead));
+      __builtin_prefetch(xp + _mm_cvtsi128_si32(a3));
+      __builtin_prefetch(xp + _mm_extract_epi32(a3, 1));
+      __builtin_prefetch(xp + _mm_extract_epi32(a3, 2));
+      __builtin_prefetch(xp + _mm_extract_epi32(a3, 3));
+    }
+    const int j0 = _mm_cvtsi128_si32(j), j1 = _mm_extract_epi32(j, 1), j2 = _mm_extract_epi32(j, 2),
+              j3 = _mm_extract_epi32(j, 3);  // 0 past the chunk's end: a valid index
+    // x_j of each lane as (x, y) and z, transposed into lanes (loads beat a gather here).
+    const double* p0 = xp + 3 * j0;
+    const double* p1 = xp + 3 * j1;
+    const double* p2 = xp + 3 * j2;
+    const double* p3 = xp + 3 * j3;
+    const __m256d xy02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p0)), _mm_loadu_pd(p2), 1);
+    const __m256d xy13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p1)), _mm_loadu_pd(p3), 1);
+    const __m256d z02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p0 + 2)), _mm_load_sd(p2 + 2), 1);
+    const __m256d z13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p1 + 2)), _mm_load_sd(p3 + 2), 1);
+    __m256d e[3] = {_mm256_sub_pd(_mm256_load_pd(xi + at), _mm256_unpacklo_pd(xy02, xy13)),
+                    _mm256_sub_pd(_mm256_load_pd(yi + at), _mm256_unpackhi_pd(xy02, xy13)),
+                    _mm256_sub_pd(_mm256_load_pd(zi + at), _mm256_unpacklo_pd(z02, z13))};
+    if constexpr (kPeriodic)
+      for (int a = 0; a < 3; ++a) {
+        if constexpr (kRounded) {  // d − L·round_nearest(d/L)
+          const __m256d q = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(e[a], inv[a]), round_k), round_k);
+          e[a] = _mm256_sub_pd(e[a], _mm256_mul_pd(len[a], q));
+        } else {  // the fold: d − L (d > L/2), d + L (d < −L/2), else d
+          const __m256d above = _mm256_cmp_pd(e[a], half[a], _CMP_GT_OQ);
+          const __m256d below = _mm256_cmp_pd(e[a], nhalf[a], _CMP_LT_OQ);
+          const __m256d folded = _mm256_blendv_pd(e[a], _mm256_sub_pd(e[a], len[a]), above);
+          e[a] = _mm256_blendv_pd(folded, _mm256_add_pd(folded, len[a]), below);
         }
-      const __m256d s =
-          _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])), _mm256_mul_pd(e[2], e[2]));
-      __m256d lane_rc2 = vrc2;
-      [[maybe_unused]] __m256i lane_p;
-      if constexpr (!kOneType) {
-        const Params *q0 = prow + type[j0], *q1 = prow + type[j1], *q2 = prow + type[j2], *q3 = prow + type[j3];
-        lane_rc2 = _mm256_setr_pd(q0->rc2, q1->rc2, q2->rc2, q3->rc2);
-        lane_p = _mm256_setr_epi64x(reinterpret_cast<long long>(q0), reinterpret_cast<long long>(q1),
-                                    reinterpret_cast<long long>(q2), reinterpret_cast<long long>(q3));
       }
-      const int mask = _mm256_movemask_pd(_mm256_cmp_pd(s, lane_rc2, _CMP_LT_OQ)) & ((1 << lanes) - 1);
-      const __m256i order = _mm256_load_si256(reinterpret_cast<const __m256i*>(kPairPack.doubles[mask]));
-      if constexpr (!kOneType)
-        _mm256_storeu_si256(reinterpret_cast<__m256i*>(pn + n), _mm256_permutevar8x32_epi32(lane_p, order));
-      if constexpr (kCharged) {
-        const __m256d lane_qq = _mm256_mul_pd(
-            vqi, _mm256_setr_pd(charges.q[j0], charges.q[j1], charges.q[j2], charges.q[j3]));  // (qqrd2e q_i) q_j
-        _mm256_storeu_pd(qq + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(lane_qq), order)));
-      }
-      _mm256_storeu_pd(dx + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[0]), order)));
-      _mm256_storeu_pd(dy + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[1]), order)));
-      _mm256_storeu_pd(dz + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[2]), order)));
-      _mm256_storeu_pd(r2 + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(s), order)));
-      _mm_storeu_si128(reinterpret_cast<__m128i*>(jn + n),
-                       _mm_shuffle_epi8(j, _mm_load_si128(reinterpret_cast<const __m128i*>(kPairPack.ints[mask]))));
-      n += _mm_popcnt_u32(static_cast<unsigned>(mask));
+    const __m256d s =
+        _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])), _mm256_mul_pd(e[2], e[2]));
+    __m256d lane_rc2 = vrc2;
+    [[maybe_unused]] __m256i lane_p;
+    if constexpr (!kOneType) {
+      const Params *q0 = prow[at] + type[j0], *q1 = prow[at + 1] + type[j1], *q2 = prow[at + 2] + type[j2],
+                   *q3 = prow[at + 3] + type[j3];
+      lane_rc2 = _mm256_setr_pd(q0->rc2, q1->rc2, q2->rc2, q3->rc2);
+      lane_p = _mm256_setr_epi64x(reinterpret_cast<long long>(q0), reinterpret_cast<long long>(q1),
+                                  reinterpret_cast<long long>(q2), reinterpret_cast<long long>(q3));
     }
-    k = stop;  // the last group may have stepped past it
-    seg_row[segments] = i;
-    seg_end[segments] = n;
-    ++segments;
-    if (k < end) {  // the buffer is full
-      split = true;
-      break;
+    const int mask = _mm256_movemask_pd(_mm256_cmp_pd(s, lane_rc2, _CMP_LT_OQ)) & ((1 << lanes) - 1);
+    group_n[g] = n;
+    group_mask[g] = mask;
+    const __m256i order = _mm256_load_si256(reinterpret_cast<const __m256i*>(kPairPack.doubles[mask]));
+    if constexpr (!kOneType)
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(pn + n), _mm256_permutevar8x32_epi32(lane_p, order));
+    if constexpr (kCharged) {
+      const __m256d lane_qq = _mm256_mul_pd(
+          _mm256_load_pd(qi + at),
+          _mm256_setr_pd(charges.q[j0], charges.q[j1], charges.q[j2], charges.q[j3]));  // (qqrd2e q_i) q_j
+      _mm256_storeu_pd(qq + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(lane_qq), order)));
     }
-    ++i;
-    if (n == kChunk) break;
+    _mm256_storeu_pd(dx + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[0]), order)));
+    _mm256_storeu_pd(dy + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[1]), order)));
+    _mm256_storeu_pd(dz + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[2]), order)));
+    _mm256_storeu_pd(r2 + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(s), order)));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(jn + n),
+                     _mm_shuffle_epi8(j, _mm_load_si128(reinterpret_cast<const __m128i*>(kPairPack.ints[mask]))));
+    n += _mm_popcnt_u32(static_cast<unsigned>(mask));
+  }
+  // A row ending at slot e ends in the buffer at the kept count before e's group plus its kept
+  // lanes below e.
+  group_n[(listed + 3) / 4] = n;
+  group_mask[(listed + 3) / 4] = 0;
+  for (int r = 0; r < segments; ++r) {
+    const int e = seg_end[r];
+    seg_end[r] = group_n[e >> 2] + _mm_popcnt_u32(static_cast<unsigned>(group_mask[e >> 2] & ((1 << (e & 3)) - 1)));
   }
   c.i = i;
   c.k = k;
   c.n = n;
   c.segments = segments;
   c.split = split;
+}
+
+// Pass 3 of accumulate_pair_forces_rows with the x and y components side by side (AVX's 128-bit
+// operations): f_j −= fpair d and f_i += fpair d as the scalar pass adds them — the same products
+// and sums, component by component, in the same order. fi: the open row's f_i (carried over a
+// chunk's end), in and out.
+[[gnu::target("avx2")]] inline void pair_chunk_forces_avx2(int segments, const int* __restrict seg_row,
+                                                           const int* __restrict seg_end, bool carried, bool split,
+                                                           const int* __restrict jn, const double* __restrict fpair,
+                                                           const double* __restrict dx, const double* __restrict dy,
+                                                           const double* __restrict dz, double* f, double fi[3]) {
+  __m128d sxy = _mm_setr_pd(fi[0], fi[1]), sz = _mm_set_sd(fi[2]);
+  int m = 0;
+  for (int s = 0; s < segments; ++s) {
+    if (!(s == 0 && carried)) sxy = sz = _mm_setzero_pd();
+    for (; m < seg_end[s]; ++m) {
+      double* fj = f + 3 * jn[m];
+      const __m128d p = _mm_set1_pd(fpair[m]);
+      const __m128d fxy = _mm_mul_pd(p, _mm_loadh_pd(_mm_load_sd(dx + m), dy + m));
+      const __m128d fz = _mm_mul_sd(p, _mm_load_sd(dz + m));
+      sxy = _mm_add_pd(sxy, fxy);
+      sz = _mm_add_sd(sz, fz);
+      _mm_storeu_pd(fj, _mm_sub_pd(_mm_loadu_pd(fj), fxy));
+      _mm_store_sd(fj + 2, _mm_sub_sd(_mm_load_sd(fj + 2), fz));
+    }
+    if (s + 1 < segments || !split) {
+      double* fr = f + 3 * seg_row[s];
+      _mm_storeu_pd(fr, _mm_add_pd(_mm_loadu_pd(fr), sxy));
+      _mm_store_sd(fr + 2, _mm_add_sd(_mm_load_sd(fr + 2), sz));
+    }
+  }
+  _mm_storel_pd(fi, sxy);
+  _mm_storeh_pd(fi + 1, sxy);
+  _mm_store_sd(fi + 2, sz);
 }
 #else
 inline bool pair_loop_avx2() {
@@ -519,6 +593,15 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
       fpair[m] = fp;
     }
     // Pass 3: the forces, in the list's order.
+#if defined(__x86_64__)
+    if (avx2) {
+      double fi[3] = {fxi, fyi, fzi};
+      pair_chunk_forces_avx2(segments, seg_row, seg_end, carried, split, jn, fpair, dx, dy, dz, f, fi);
+      fxi = fi[0], fyi = fi[1], fzi = fi[2];
+      carried = split;
+      continue;
+    }
+#endif
     int m = 0;
     for (int s = 0; s < segments; ++s) {
       if (!(s == 0 && carried)) fxi = fyi = fzi = 0.0;

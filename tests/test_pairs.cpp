@@ -675,6 +675,37 @@ TEST(NearestImage, RoundingGivesTheFoldsSeparation) {
   }
 }
 
+// BoxWrap::wrap_particles (four particles at a time where the CPU has AVX2) gives each coordinate
+// as BoxWrap's one-coordinate form, bit for bit: positions in the box, images several boxes away,
+// on faces and at ±0, a box with an open axis and an origin off zero, and block ends that cut the
+// groups of four.
+TEST(BoxWrap, WrapParticlesIsTheCoordinateWrapBitForBit) {
+  Box box = periodic_box(Eigen::Vector3d(7.3, 5.1, 9.7), Eigen::Vector3d(-1.25, 0.5, 3.0));
+  box.periodic[1] = 0;  // an open axis: its coordinates stay as they are
+  const BoxWrap wrap(box);
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> u(-40.0, 40.0);
+  const int n = 1003;
+  Eigen::Matrix3Xd x(3, n);
+  for (Eigen::Index k = 0; k < x.size(); ++k) x.data()[k] = u(rng);
+  const double special[] = {0.0, -0.0, -1.25, -1.25 + 7.3, 3.0, 3.0 + 9.7, -1.25 - 7.3, 1e-300, -1e-300};
+  for (int k = 0; k < 9; ++k) x(0, k) = x(1, k) = x(2, k) = special[k];
+  auto bits = [](double v) {
+    std::uint64_t b;
+    std::memcpy(&b, &v, sizeof b);
+    return b;
+  };
+  for (const auto& [first, last] : {std::pair{0, n}, std::pair{1, 6}, std::pair{3, 3}, std::pair{5, 1002}}) {
+    Eigen::Matrix3Xd out = Eigen::Matrix3Xd::Constant(3, n, 123.0);
+    wrap.wrap_particles(x.data(), out.data(), first, last);
+    for (int i = 0; i < n; ++i)
+      for (int a = 0; a < 3; ++a) {
+        const double want = i >= first && i < last ? wrap(x(a, i), a) : 123.0;
+        ASSERT_EQ(bits(out(a, i)), bits(want)) << "particle " << i << " axis " << a << " of " << first << " … " << last;
+      }
+  }
+}
+
 TEST(NeighborList, RebuildsWhenSomeParticleMovedMoreThanTheSkinOrHalfOfItTooOften) {
   const Box box = periodic_box(Eigen::Vector3d::Constant(8.0));
   Eigen::Matrix3Xd x = random_in_box(300, box, 41);
