@@ -160,7 +160,7 @@ TYPED_TEST(ForceOnlyPairs, SameForcesBitForBitAsTheFullPass) {
   set_max_threads(threads);
 }
 
-// The force-only pass's AVX2 separations (pair_row_separations_avx2: one type, no charges) against
+// The force-only pass's AVX2 separations (pair_chunk_separations_avx2) against
 // its scalar pass: the same forces bit for bit, in the melt's periodic box (the fold, pairs across
 // every face), in a periodic box a few list radii wide (NearestImage's rounding), in open space,
 // and with rows longer than the chunk. Where the CPU has no AVX2 both calls take the scalar pass.
