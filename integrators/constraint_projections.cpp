@@ -177,4 +177,21 @@ void ConstraintToolbox::project_velocity(const Eigen::Matrix3Xd& x, Eigen::Matri
   impl_->for_each_group([&](int c, int count) { impl_->project_group<false>(c, count, v, force, rate); });
 }
 
+// project_velocity and normal_kinetic_energy's terms on block b (constraints.hpp).
+void ConstraintToolbox::project_velocity_block(int b, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                                               Eigen::Matrix3Xd* force, double rate) {
+  Impl& d = *impl_;
+  const Impl::Block& k = d.blocks[b];
+  d.keep_block(k, x);
+  d.run_groups(k.cluster_begin, k.cluster_end,
+               [&](int c, int count) { d.project_group<false>(c, count, v, force, rate); });
+}
+
+void ConstraintToolbox::normal_energy_block(int b, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v) {
+  Impl& d = *impl_;
+  const Impl::Block& k = d.blocks[b];
+  d.keep_block(k, x);
+  d.run_groups(k.cluster_begin, k.cluster_end, [&](int c, int count) { d.normal_energy_group(c, count, v); });
+}
+
 }  // namespace stiffmd

@@ -6,6 +6,7 @@
 //   constraint_projections.cpp  P(x)f and RATTLE's velocity projection
 //   shake.cpp                   SHAKE: chord steps on S(x_ref), Newton on J
 //   mollifier.cpp               the exact mollified force
+//   constraint_blocks.cpp       the molecule blocks: SHAKE and the projections block by block
 //   constraint_solvers.*        the per-cluster solvers of K
 // and the thread schedule over clusters (for_each_cluster, for_each_group) below.
 #pragma once
@@ -279,17 +280,7 @@ struct ConstraintToolbox::Impl {
   template <class F>
   void for_each_group(F&& f) {
     const int nc = static_cast<int>(data.size());
-    auto run_block = [&](int begin, int end) {
-      for (int c = begin; c < end;) {
-        int count = 1;
-        if (data[c].spd)
-          while (count < constraint_detail::kChainGroup && c + count < end && data[c + count].spd &&
-                 data[c + count].bonds.size() == data[c].bonds.size())
-            ++count;
-        f(c, count);
-        c += count;
-      }
-    };
+    auto run_block = [&](int begin, int end) { run_groups(begin, end, f); };
     const int parts = clusters_share_particles ? 1 : std::min(threads_for(static_cast<std::int64_t>(bonds.size())), nc);
     if (parts <= 1) {
       run_as_one_part(serial_everywhere() ? 0 : static_cast<std::int64_t>(bonds.size()), [&] { run_block(0, nc); });
@@ -299,6 +290,36 @@ struct ConstraintToolbox::Impl {
       run_block(first_cluster_of_block(parts, u), u + 1 == parts ? nc : first_cluster_of_block(parts, u + 1));
     });
   }
+
+  // The groups of clusters begin … end − 1 (for_each_group's, within one block of threads or of
+  // molecules), in order.
+  template <class F>
+  void run_groups(int begin, int end, F&& f) {
+    for (int c = begin; c < end;) {
+      int count = 1;
+      if (data[c].spd)
+        while (count < constraint_detail::kChainGroup && c + count < end && data[c + count].spd &&
+               data[c + count].bonds.size() == data[c].bonds.size())
+          ++count;
+      f(c, count);
+      c += count;
+    }
+  }
+
+  // Molecule blocks (ConstraintToolbox::blocks_available; constraint_blocks.cpp).
+  struct Block {
+    std::int64_t first, last;        // particles
+    int cluster_begin, cluster_end;  // clusters
+  };
+  void plan_blocks();
+  // Block b's particles of x against the kept configuration, bit for bit; on a difference the
+  // block's particles are copied and its clusters forget G and S there.
+  void keep_block(const Block& b, const Eigen::Matrix3Xd& x);
+  std::int64_t min_block_particles = 256;
+  bool blocks_ok = false;
+  std::vector<Block> blocks;
+  int blocks_split_parts = 0;     // owned_blocks is for this many parts
+  std::vector<int> owned_blocks;  // part u's blocks: owned_blocks[u] … owned_blocks[u + 1] − 1
 
   std::vector<StiffBond> bonds;
   Eigen::VectorXd inv_mass;

@@ -107,6 +107,7 @@ ConstraintToolbox::Impl::Impl(std::vector<StiffBond> bonds_in, Eigen::VectorXd i
       owner[p] = c;
     }
   }
+  plan_blocks();
 }
 
 // The particles along an open chain (ClusterData::path): consecutive bonds of the path order share

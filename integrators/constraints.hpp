@@ -94,6 +94,46 @@ class ConstraintToolbox {
   void shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, Eigen::VectorXd* lambda = nullptr, double tol = 1e-12,
              int max_iter = 50, double multiplier_tol = 0.0);
 
+  // Molecule blocks: the constrained step of integrators/rattle.cpp taken block by block
+  // (docs/performance.md, "The constrained step in molecule blocks"). A block is a range of
+  // particles holding whole clusters (at least block_particles() of them, about 120 bytes a
+  // particle of x, v, f and the step's copies plus the clusters' scratch: L2), its clusters a range
+  // of the cluster order; every operation of a step that acts cluster by cluster runs for one
+  // block before the next, while the block is in cache. Available when every cluster's particles
+  // lie in one block (clusters numbered along the particles, as every engine's data numbers its
+  // molecules) and no two clusters share a particle; each cluster gets the operations of the
+  // whole-system calls, so the same bits. A range of clusters numbered out of order or spanning
+  // the system makes one large block: correct, streamed like the whole-system calls.
+  bool blocks_available() const;
+  std::int64_t block_particles() const;
+  void set_block_particles(std::int64_t n);  // the minimum (tests: small blocks); rebuilds the plan
+  int num_blocks() const;
+  std::int64_t block_first(int b) const;  // particles block_first(b) … block_last(b) − 1
+  std::int64_t block_last(int b) const;
+  // Runs f(b) for every block on `parts` threads (contiguous runs of blocks of about equal
+  // particle count; parts ≤ 1: one part, in block order). Each block touches only its own
+  // particles and clusters. An exception ends its part; the first one in part order is rethrown.
+  void for_each_block(int parts, const std::function<void(int)>& f);
+  // The whole-system operations on block b (its particles of x_ref, y, x, v, force and its
+  // clusters only): shake(x_ref, y, nullptr, tol, max_iter, multiplier_tol), project_velocity,
+  // and normal_kinetic_energy's per-cluster terms, which normal_energy_sum() then adds in cluster
+  // order as normal_kinetic_energy does. The kept configuration is kept block by block: a block
+  // whose particles differ from it bit for bit forgets its clusters' G and factors only.
+  void shake_block(int b, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter,
+                   double multiplier_tol);
+  void project_velocity_block(int b, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, Eigen::Matrix3Xd* force = nullptr,
+                              double rate = 0.0);
+  void normal_energy_block(int b, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v);
+  double normal_energy_sum() const;
+  // inverse_bands on block b's clusters (x's particles of the block), and the block's clusters
+  // begin … end − 1 (Fixman's potential block by block, integrators/fixman.hpp).
+  void inverse_bands_block(int b, const Eigen::Matrix3Xd& x);
+  int block_cluster_begin(int b) const;
+  int block_cluster_end(int b) const;
+  // Before a pass of block operations on a configuration of n particles (serial): sizes the kept
+  // configuration if nothing is kept yet.
+  void begin_blocks();
+
   // Exact mollified force F̄(x) = α′(x)ᵀ f(α(x)), in four steps:
   //   X = α(x), f = f_slow(X); solve Jᵀμ = G(x) M⁻¹ f, J = G(X) M⁻¹ G(x)ᵀ;
   //   r = f − G(X)ᵀμ;  F̄ = r + H_λ M⁻¹ r,  H_λ = Σ_b λ_b ∇²g_b(x).

@@ -411,6 +411,28 @@ void FixmanPotential::use_toolbox(ConstraintToolbox* toolbox) {
   d.toolbox = toolbox;
 }
 
+bool FixmanPotential::blocks() const {
+  return impl_->toolbox && impl_->toolbox->blocks_available() && !impl_->clusters_share_particles;
+}
+
+// add_force's work on the clusters of block b: the toolbox's factors and bands there, then each
+// cluster's inverse and force, as for_each_cluster gives them.
+void FixmanPotential::add_block_force(int b, const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f) {
+  Impl& d = *impl_;
+  d.toolbox->inverse_bands_block(b, x);
+  for (int c = d.toolbox->block_cluster_begin(b), end = d.toolbox->block_cluster_end(b); c < end; ++c) {
+    Cluster& cluster = d.clusters[c];
+    d.inverse(cluster, x);
+    d.add_cluster_force(cluster, kT, f);
+  }
+}
+
+double FixmanPotential::value(double kT) const {
+  double log_det = 0.0;
+  for (const Cluster& c : impl_->clusters) log_det += c.log_det + c.log_alpha2;
+  return 0.5 * kT * log_det;
+}
+
 FixmanPotential::FixmanPotential(std::vector<StiffBond> bonds, Eigen::VectorXd inv_mass, Path path)
     : impl_(std::make_unique<Impl>(std::move(bonds), std::move(inv_mass), path)) {}
 FixmanPotential::~FixmanPotential() = default;

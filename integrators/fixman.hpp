@@ -55,6 +55,14 @@ class FixmanPotential {
   // clusters are not this potential's. Not with Path::dense, which stays the reference.
   void use_toolbox(ConstraintToolbox* toolbox);
 
+  // Block by block (ConstraintToolbox's molecule blocks, with a toolbox that has them and clusters
+  // that share no particle): add_block_force adds −∇U_F of block b's clusters to f (their
+  // particles only), value() is U_F of the clusters' last evaluation, summed in cluster order. Every
+  // block once at one x gives add_force's bits.
+  bool blocks() const;
+  void add_block_force(int b, const Eigen::Matrix3Xd& x, double kT, Eigen::Matrix3Xd& f);
+  double value(double kT) const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

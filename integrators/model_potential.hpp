@@ -35,6 +35,13 @@ class ModelPotential {
   // The integrator's constraint toolbox, which a potential may read G(x) and S(x)'s factors from
   // (FixmanCorrection); called once by the integrator that owns both.
   virtual void attach(ConstraintToolbox&) {}
+  // Block by block (the constrained step in molecule blocks, integrators/rattle.hpp): whether the
+  // potential can add its force one molecule block of the attached toolbox at a time
+  // (add_block_force, every block once at one x, then blocked_value() for W there), with the bits
+  // of add_force.
+  virtual bool blocks() const { return false; }
+  virtual void add_block_force(int, const Eigen::Matrix3Xd&, Eigen::Matrix3Xd&) {}
+  virtual double blocked_value() const { return 0.0; }
   // What the potential carries beyond (x, v), for checkpoints.
   virtual std::vector<double> save_state() const { return {}; }
   // The constants among its state (Integrator::invariants): all of it, for the effective correction.
@@ -85,6 +92,11 @@ class FixmanCorrection final : public ModelPotential {
   }
   // At x_{n+1} the integrator's velocity projection has just measured and factored S there.
   void attach(ConstraintToolbox& toolbox) override { potential_.use_toolbox(&toolbox); }
+  bool blocks() const override { return potential_.blocks(); }
+  void add_block_force(int b, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f) override {
+    potential_.add_block_force(b, x, kT_, f);
+  }
+  double blocked_value() const override { return potential_.value(kT_); }
 
  private:
   FixmanPotential potential_;

@@ -71,6 +71,10 @@ void Rattle::rattle_drift(State& s, double dt) {
 }
 
 void Rattle::step(State& s, double h) {
+  if (blocked_step()) {
+    step_blocked(s, h);
+    return;
+  }
   if (!valid_) refresh(s.x);
   model_value_current_ = false;  // x moves below; the closing refresh makes it current again
   // OBABO's first O(½h): not projected (rattle.hpp: SHAKE and the chord velocity absorb the
@@ -146,6 +150,197 @@ void Rattle::step(State& s, double h) {
     toolbox_.project_velocity(s.x, s.v);
     o_step_kinetic_ = kinetic_energy(s.v, s.inv_mass);
     heat_ += o_step_kinetic_ - o.before;
+  }
+}
+
+namespace {
+
+// The whole-system passes of integrators/primitives.hpp on particles first … last − 1, with their
+// expressions (the same bits): kick, then keep_and_drift; chord_velocity; kick_and_keep.
+void kick_keep_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
+                     const Eigen::Matrix3Xd& f, double dt_kick, double dt, std::int64_t first, std::int64_t last) {
+  double* __restrict xp = x.data();
+  double* __restrict op = x_old.data();
+  double* __restrict vp = v.data();
+  const double* __restrict fp = f.data();
+  const double* __restrict w = inv_mass.data();
+  for (std::int64_t i = first; i < last; ++i) {
+    const double c = dt_kick * w[i];
+    for (int a = 0; a < 3; ++a) {
+      vp[3 * i + a] += c * fp[3 * i + a];
+      op[3 * i + a] = xp[3 * i + a];
+      xp[3 * i + a] += dt * vp[3 * i + a];
+    }
+  }
+}
+
+void keep_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& x_old, const Eigen::Matrix3Xd& v, double dt, std::int64_t first,
+                std::int64_t last) {
+  double* __restrict xp = x.data();
+  double* __restrict op = x_old.data();
+  const double* __restrict vp = v.data();
+  for (std::int64_t k = 3 * first; k < 3 * last; ++k) {
+    op[k] = xp[k];
+    xp[k] += dt * vp[k];
+  }
+}
+
+void chord(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_old, double dt, std::int64_t first,
+           std::int64_t last) {
+  double* __restrict vp = v.data();
+  const double* __restrict xp = x.data();
+  const double* __restrict op = x_old.data();
+  for (std::int64_t k = 3 * first; k < 3 * last; ++k) vp[k] = (xp[k] - op[k]) / dt;
+}
+
+void kick_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
+                std::int64_t first, std::int64_t last) {
+  double* __restrict vp = v.data();
+  const double* __restrict fp = f.data();
+  const double* __restrict w = inv_mass.data();
+  for (std::int64_t i = first; i < last; ++i) {
+    const double c = dt * w[i];
+    for (int a = 0; a < 3; ++a) vp[3 * i + a] += c * fp[3 * i + a];
+  }
+}
+
+void kick_and_keep_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
+                         Eigen::Matrix3Xd& kept, double scale, bool with_before, std::int64_t first,
+                         std::int64_t last) {
+  const double before = with_before ? 1.0 : 0.0;
+  double* __restrict vp = v.data();
+  double* __restrict kp = kept.data();
+  const double* __restrict fp = f.data();
+  const double* __restrict w = inv_mass.data();
+  for (std::int64_t i = first; i < last; ++i) {
+    const double c = dt * w[i];
+    for (int a = 0; a < 3; ++a) {
+      const double old = vp[3 * i + a];
+      vp[3 * i + a] = old + c * fp[3 * i + a];
+      kp[3 * i + a] = scale * (before * old + vp[3 * i + a]);
+    }
+  }
+}
+
+// kinetic_energy's terms (integrators/primitives.hpp) of the mobile particles first … last − 1.
+void add_kinetic(ParticleSum& sum, const Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, std::int64_t first,
+                 std::int64_t last) {
+  for (std::int64_t i = first; i < last; ++i)
+    if (inv_mass[i] > 0.0) sum.add(i, 0.5 * v.col(i).squaredNorm() / inv_mass[i]);
+}
+
+}  // namespace
+
+// step's passes in molecule blocks (rattle.hpp, blocked_step): each block goes through the passes
+// up to the forces at x_{n+1}, then (after the forces) through the closing ones. Per block, in
+// step's order: NVE: kick, drift, SHAKE, chord velocity | kick, projection with the constraint
+// force. BAOAB: kick, drift, SHAKE, chord, the normal kinetic energy, O, projection, K, drift,
+// SHAKE, chord | kick (keeping z), projection. OBABO: O, the normal kinetic energy, kick, drift,
+// SHAKE, chord | kick (keeping w), the normal kinetic energy, O, projection, K. The sums (the O
+// steps' K before and after, K after the projected O step, the normal kinetic energies) are formed
+// after each run of blocks, in the whole-system passes' order.
+void Rattle::step_blocked(State& s, double h) {
+  if (!valid_) refresh(s.x);
+  model_value_current_ = false;  // x moves below; the closing refresh makes it current again
+  const std::int64_t n = s.x.cols();
+  const int parts = threads_for(n);
+  const Eigen::VectorXd& w = s.inv_mass;
+  auto first = [&](int b) { return toolbox_.block_first(b); };
+  auto last = [&](int b) { return toolbox_.block_last(b); };
+  auto shake = [&](int b) { toolbox_.shake_block(b, x_old_, s.x, 1e-12, 50, shake_tolerance_); };
+  toolbox_.begin_blocks();
+  if (langevin_) langevin_->set_step(obabo_ ? 0.5 * h : h);
+  {
+    const ScopedPhase phase(Phase::constraints);
+    if (!langevin_) {
+      toolbox_.for_each_block(parts, [&](int b) {
+        const std::int64_t p = first(b), q = last(b);
+        constraint_force_.middleCols(p, q - p).setZero();
+        kick_keep_drift(s.x, x_old_, s.v, w, f_, 0.5 * h, h, p, q);
+        shake(b);
+        chord(s.v, s.x, x_old_, h, p, q);
+      });
+    } else if (!obabo_) {
+      sum_before_.start(n, parts);
+      sum_kinetic_.start(n, parts);
+      toolbox_.for_each_block(parts, [&](int b) {
+        const std::int64_t p = first(b), q = last(b);
+        kick_keep_drift(s.x, x_old_, s.v, w, f_, 0.5 * h, 0.5 * h, p, q);
+        shake(b);
+        chord(s.v, s.x, x_old_, 0.5 * h, p, q);
+        toolbox_.normal_energy_block(b, s.x, s.v);
+        langevin_->apply_range(s.v, s.step, 0, p, q, &sum_before_, nullptr);
+        toolbox_.project_velocity_block(b, s.x, s.v);
+        add_kinetic(sum_kinetic_, s.v, w, p, q);
+        keep_drift(s.x, x_old_, s.v, 0.5 * h, p, q);
+        shake(b);
+        chord(s.v, s.x, x_old_, 0.5 * h, p, q);
+      });
+      const double normal = toolbox_.normal_energy_sum();
+      o_step_kinetic_ = sum_kinetic_.total(w);
+      heat_ += o_step_kinetic_ - (sum_before_.total(w) - normal);
+    } else {
+      sum_before_.start(n, parts);
+      sum_after_.start(n, parts);
+      toolbox_.for_each_block(parts, [&](int b) {
+        const std::int64_t p = first(b), q = last(b);
+        langevin_->apply_range(s.v, s.step, 0, p, q, &sum_before_, &sum_after_);
+        toolbox_.normal_energy_block(b, s.x, s.v);
+        kick_keep_drift(s.x, x_old_, s.v, w, f_, 0.5 * h, h, p, q);
+        shake(b);
+        chord(s.v, s.x, x_old_, h, p, q);
+      });
+      const KineticChange o{sum_before_.total(w), sum_after_.total(w)};
+      heat_ += o.heat() - toolbox_.normal_energy_sum();
+    }
+  }
+  // The forces at x_{n+1}: the model potential's (Fixman's U_F) block by block below where it can,
+  // each block's before its closing kick (refresh's bits: the other forces first, then the
+  // model's on each cluster).
+  const bool model_blocks = model_ && model_->blocks();
+  if (model_blocks) {
+    forces_.compute_forces_unconstrained(s.x, f_);
+    valid_ = true;
+  } else {
+    refresh(s.x);
+  }
+  const ScopedPhase phase(Phase::constraints);
+  auto model_force = [&](int b) {
+    if (model_blocks) model_->add_block_force(b, s.x, f_);
+  };
+  if (!langevin_) {
+    // G(x') v' = 0, F_c = M Δv / (h/2) (step).
+    toolbox_.for_each_block(parts, [&](int b) {
+      model_force(b);
+      kick_range(s.v, w, f_, 0.5 * h, first(b), last(b));
+      toolbox_.project_velocity_block(b, s.x, s.v, &constraint_force_, 2.0 / h);
+    });
+  } else if (!obabo_) {
+    toolbox_.for_each_block(parts, [&](int b) {
+      model_force(b);
+      kick_and_keep_range(s.v, w, f_, 0.5 * h, kicked_, 2.0 / h, true, first(b), last(b));
+      toolbox_.project_velocity_block(b, s.x, s.v);
+    });
+  } else {
+    sum_before_.start(n, parts);
+    sum_kinetic_.start(n, parts);
+    toolbox_.for_each_block(parts, [&](int b) {
+      const std::int64_t p = first(b), q = last(b);
+      model_force(b);
+      kick_and_keep_range(s.v, w, f_, 0.5 * h, kicked_, 2.0 / h, false, p, q);
+      toolbox_.normal_energy_block(b, s.x, s.v);
+      langevin_->apply_range(s.v, s.step, 1, p, q, &sum_before_, nullptr);
+      toolbox_.project_velocity_block(b, s.x, s.v);
+      add_kinetic(sum_kinetic_, s.v, w, p, q);
+    });
+    const double normal = toolbox_.normal_energy_sum();
+    o_step_kinetic_ = sum_kinetic_.total(w);
+    heat_ += o_step_kinetic_ - (sum_before_.total(w) - normal);
+  }
+  if (langevin_) constraint_force_current_ = false;
+  if (model_blocks) {
+    model_value_ = model_->blocked_value();
+    model_value_current_ = true;
   }
 }
 

@@ -94,6 +94,20 @@ class Rattle final : public Integrator {
   bool merged_projection() const { return merged_projection_; }
   void set_merged_projection(bool on) { merged_projection_ = on && langevin_; }
 
+  // Whether the step runs in molecule blocks (ConstraintToolbox::blocks_available): the passes
+  // that act molecule by molecule — the kicks, drifts and chord velocities, SHAKE, the velocity
+  // projections, the O steps and their kinetic energies — for one block of whole clusters before
+  // the next, while its particles are in cache; the forces at the new x (and the model
+  // potential's) between the step's two runs of blocks, whole. Each particle and cluster gets the
+  // operations of the whole-system passes in the same order, and the sums are added as those add
+  // them (ParticleSum, integrators/thermostat.hpp): the same bits at any thread count. Available
+  // where the toolbox has blocks, for NVE and the merged projections (not as written: tests); on
+  // by default (docs/performance.md, "The constrained step in molecule blocks").
+  bool blocked_step() const { return blocked_ && blocked_available(); }
+  void use_blocked_step(bool on) { blocked_ = on; }
+  bool blocked_available() const { return toolbox_.blocks_available() && (!langevin_ || merged_projection_); }
+  ConstraintToolbox& toolbox() { return toolbox_; }  // tests: the blocks' size
+
   // The model potential's state (actions), the cached force f(x) with its validity and the
   // constraint force of the last step (for the pressure of the first sample after a restart);
   // with Langevin, the kinetic energy at the last O step and the heat.
@@ -112,6 +126,7 @@ class Rattle final : public Integrator {
  private:
   void refresh(const Eigen::Matrix3Xd& x);
   void rattle_drift(State& s, double dt);  // x ← x + dt v on g = 0; v ← the tangential chord velocity
+  void step_blocked(State& s, double h);
 
   std::string method_;
   ForceField& forces_;
@@ -133,6 +148,8 @@ class Rattle final : public Integrator {
   // constraint_force_ has been formed from it since.
   Eigen::Matrix3Xd kicked_;
   bool constraint_force_current_ = true;
+  bool blocked_ = true;                               // blocked_step() where available
+  ParticleSum sum_before_, sum_after_, sum_kinetic_;  // the blocked step's sums over particles
   bool valid_ = false;
   double model_value_ = 0.0;          // the model potential at the x of the last refresh
   bool model_value_current_ = false;  // … and x has not moved since

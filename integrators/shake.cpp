@@ -255,4 +255,30 @@ void ConstraintToolbox::shake(const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y
     for (int k = 0; k < c.lambda.size(); ++k) (*lambda)[c.bonds[k]] = c.lambda[k];
 }
 
+// shake on block b (constraints.hpp): its particles of x_ref kept, its clusters shaken, then its
+// particles of y kept with G there. shake swaps the whole frames; a block copies its bonds' columns
+// of G(y) (the same values).
+void ConstraintToolbox::shake_block(int b, const Eigen::Matrix3Xd& x_ref, Eigen::Matrix3Xd& y, double tol, int max_iter,
+                                    double multiplier_tol) {
+  Impl& d = *impl_;
+  const Impl::Block& k = d.blocks[b];
+  d.keep_block(k, x_ref);
+  d.run_groups(k.cluster_begin, k.cluster_end,
+               [&](int c, int count) { d.shake_group(c, count, y, tol, max_iter, multiplier_tol); });
+  d.kept_x.middleCols(k.first, k.last - k.first) = y.middleCols(k.first, k.last - k.first);
+  double* u_kept = d.at_kept.u.data();
+  double* length_kept = d.at_kept.length.data();
+  const double* u_cur = d.at_cur.u.data();
+  const double* length_cur = d.at_cur.length.data();
+  for (int c = k.cluster_begin; c < k.cluster_end; ++c) {
+    ClusterData& cd = d.data[c];
+    for (const int bond : cd.bonds) {
+      for (int a = 0; a < 3; ++a) u_kept[3 * bond + a] = u_cur[3 * bond + a];
+      length_kept[bond] = length_cur[bond];
+    }
+    cd.frame_kept = true;
+    cd.s_factored = false;
+  }
+}
+
 }  // namespace stiffmd

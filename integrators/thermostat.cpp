@@ -173,6 +173,42 @@ template KineticChange LangevinNoise::o_pass<true, false>(Eigen::Matrix3Xd*, Eig
                                                           const Eigen::Matrix3Xd*, double, double, double, std::int64_t,
                                                           std::uint64_t);
 
+double ParticleSum::total(const Eigen::VectorXd& inv_mass) const {
+  if (parts_ <= 1) return running_;
+  return parallel_sum(n_, parts_, [&](std::int64_t b, std::int64_t e) {
+    double k = 0.0;
+    for (std::int64_t i = b; i < e; ++i)
+      if (inv_mass[i] > 0.0) k += terms_[static_cast<std::size_t>(i)];
+    return k;
+  });
+}
+
+// o_pass's runs on one range: the same normals (a particle's depend on its index only), velocities
+// and terms.
+void LangevinNoise::apply_range(Eigen::Matrix3Xd& v, std::int64_t step, std::uint64_t substep, std::int64_t first,
+                                std::int64_t last, ParticleSum* before, ParticleSum* after) const {
+  const std::uint64_t key = noise_key(seed_, step, substep);
+  const ZigguratTable& table = ziggurat_table();
+  const std::int64_t* id = id_.empty() ? nullptr : id_.data();
+  const double* const w = inv_mass_.data();
+  alignas(64) double z[3 * kNoiseRun];
+  for (std::int64_t r = first; r < last; r += kNoiseRun) {
+    const int m = static_cast<int>(std::min<std::int64_t>(kNoiseRun, last - r));
+    run_normals(key, id, r, m, table, z);
+    if (before)
+      for (std::int64_t i = r; i < r + m; ++i)
+        if (w[i] > 0.0) before->add(i, 0.5 * v.col(i).squaredNorm() / w[i]);
+    for (int q = 0; q < m; ++q) {
+      const std::int64_t i = r + q;
+      if (w[i] == 0.0) continue;  // fixed: stays at rest
+      v.col(i) = c_[i] * v.col(i) + sigma_[i] * Eigen::Map<const Eigen::Vector3d>(z + 3 * q);
+    }
+    if (after)
+      for (std::int64_t i = r; i < r + m; ++i)
+        if (w[i] > 0.0) after->add(i, 0.5 * v.col(i).squaredNorm() / w[i]);
+  }
+}
+
 KineticChange LangevinNoise::kick_drift_o_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
                                                 const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f,
                                                 double dt_kick, double half_drift, double dt, std::int64_t step,

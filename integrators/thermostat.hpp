@@ -122,6 +122,35 @@ struct KineticChange {
   double heat() const { return after - before; }
 };
 
+// Σ of per-particle terms over the mobile particles (inverse mass > 0) with the bits of
+// parallel_sum(n, parts, …) over them (core/parallel.hpp), when the terms are formed block by block
+// (the constrained step in molecule blocks, integrators/rattle.cpp), on threads whose blocks are
+// not parallel_sum's: with one part a running sum in particle order (the blocks taken in order by
+// one thread), with several each term kept and the parts' sums formed by total().
+class ParticleSum {
+ public:
+  void start(std::int64_t n, int parts) {
+    parts_ = parts;
+    n_ = n;
+    running_ = 0.0;
+    if (parts_ > 1 && static_cast<std::int64_t>(terms_.size()) != n) terms_.assign(static_cast<std::size_t>(n), 0.0);
+  }
+  // The term of mobile particle i (a fixed one's is never added).
+  void add(std::int64_t i, double term) {
+    if (parts_ > 1)
+      terms_[static_cast<std::size_t>(i)] = term;
+    else
+      running_ += term;
+  }
+  double total(const Eigen::VectorXd& inv_mass) const;
+
+ private:
+  int parts_ = 1;
+  std::int64_t n_ = 0;
+  double running_ = 0.0;
+  std::vector<double> terms_;
+};
+
 // The Ornstein–Uhlenbeck part "O" of a Langevin splitting, solved exactly over dt:
 //   v_i ← c_i v_i + √((1 − c_i²) kT / m_i) ξ_i,   c_i = exp(−γ_i dt),   ξ_i ~ N(0, I₃).
 // Fixed particles (inverse mass 0) stay at rest. Parallel over particle blocks; the noise of a
@@ -146,6 +175,15 @@ class LangevinNoise {
   KineticChange kick_drift_o_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
                                    const Eigen::Matrix3Xd& f, double dt_kick, double half_drift, double dt,
                                    std::int64_t step, std::uint64_t substep);
+  // The O step of apply over dt on particles first … last − 1 only, each velocity with apply's
+  // bits, after set_step(dt) (serial: the coefficients). Ranges on distinct threads may run at once.
+  // before and after, if given, receive ½ m|v|² of each mobile particle of the range before and
+  // after the change (apply_and_measure's terms).
+  void set_step(double dt) {
+    if (dt != dt_) coefficients(dt);
+  }
+  void apply_range(Eigen::Matrix3Xd& v, std::int64_t step, std::uint64_t substep, std::int64_t first, std::int64_t last,
+                   ParticleSum* before, ParticleSum* after) const;
   double temperature() const { return kT_; }
   const Eigen::VectorXd& friction() const { return friction_; }  // γ_i per particle
   const Eigen::VectorXd& inv_mass() const { return inv_mass_; }
