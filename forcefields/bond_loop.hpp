@@ -72,15 +72,20 @@ class BondPartition {
     num_bonds_ = bonds.size();
     start_.assign(threads + 1, 0);
     work_.clear();
-    int n = 0;
-    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
-    if (threads == 1) {  // every bond, both ends, in order
-      for (std::size_t k = 0; k < bonds.size(); ++k) work_.push_back({static_cast<int>(k), true, true});
-      start_[1] = static_cast<std::int64_t>(work_.size());
-      find_segments(bonds);
+    if (threads == 1) {  // every bond, both ends, in order: item k is bond k, read without work items
+      segments_.clear();
+      segment_start_.assign(2, 0);
+      auto links = [&](std::int64_t k) {  // bond k + 1 continues bond k's chain
+        const auto &a = bonds[k], &b = bonds[k + 1];
+        return a.j == a.i + 1 && b.i == a.j && b.j == b.i + 1;
+      };
+      append_chain_runs(0, static_cast<std::int64_t>(bonds.size()), links, segments_);
+      segment_start_[1] = static_cast<std::int64_t>(segments_.size());
       find_uniform(bonds);
       return;
     }
+    int n = 0;
+    for (const auto& b : bonds) n = std::max({n, b.i + 1, b.j + 1});
     std::vector<std::int64_t> ends(n + 1, 0);  // ends[p + 1]: bond ends at particles ≤ p
     for (const auto& b : bonds) {
       ++ends[b.i + 1];
@@ -105,9 +110,11 @@ class BondPartition {
       work_.insert(work_.end(), per[t].begin(), per[t].end());
     }
     find_segments(bonds);
+    find_uniform(bonds);
   }
 
   int threads() const { return threads_; }
+  // Owner t's work items (none when prepared for one thread: its segments index the bonds).
   const Work* begin(int t) const { return work_.data() + start_[t]; }
   const Work* end(int t) const { return work_.data() + start_[t + 1]; }
   double* energy_slots() { return energy_.data(); }  // one per owner
@@ -121,9 +128,9 @@ class BondPartition {
   const Segment* segments_begin(int t) const { return segments_.data() + segment_start_[t]; }
   const Segment* segments_end(int t) const { return segments_.data() + segment_start_[t + 1]; }
   const Work* work() const { return work_.data(); }
-  // For one owner (prepared for one thread): whether every bond has the same coefficients (those
-  // of bond 0, bit for bit), and then the bonds' ends, i then j for each bond in order — what the
-  // one-thread loop reads in place of the bonds (8 bytes a bond, not 8 + sizeof(Params)).
+  // Whether every bond has the same coefficients (those of bond 0, bit for bit), and then the
+  // bonds' ends, i then j for each bond in bond order — what the one-thread loop and the chain
+  // runs read in place of the bonds (8 bytes a bond, not 8 + sizeof(Params)).
   bool uniform() const { return uniform_; }
   const int* ends() const { return ends_.data(); }
 
@@ -143,8 +150,8 @@ class BondPartition {
     });
     ends_.clear();
     if (!uniform_) return;
-    ends_.reserve(2 * bonds.size());
-    for (const auto& b : bonds) ends_.insert(ends_.end(), {b.i, b.j});
+    ends_.resize(2 * bonds.size());
+    for (std::size_t k = 0; k < bonds.size(); ++k) ends_[2 * k] = bonds[k].i, ends_[2 * k + 1] = bonds[k].j;
   }
   bool uniform_ = false;
   std::vector<int> ends_;
@@ -257,7 +264,9 @@ inline constexpr bool kSplitLogKernel = requires(double r_sq, const typename Ker
 // per bond, which was most of the kernel's work. Each factor has a relative rounding error below
 // 2⁻⁵³, so the sum's error is that of adding the bonds' logarithms; a product below 2⁻¹⁰⁰⁰ (which
 // would lose digits as a subnormal: bonds near R₀) is redone bond by bond.
-template <class Kernel, bool kUniform, bool kCounted, class Params>
+// kCheck false: a bond outside the kernel's domain is not thrown here but left as a NaN in e_t,
+// for the caller to test (chain_block: a function compiled with target_clones must not throw).
+template <class Kernel, bool kUniform, bool kCounted, bool kCheck = true, class Params>
 inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p, const double* __restrict counted,
                          int nb, double& e_t) {
   // Locals, not e_t: a store the loop could alias would keep it scalar.
@@ -283,7 +292,7 @@ inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p,
       product[0] *= u[k];
     }
     const double e_sum = (sum[0] + sum[1]) + (sum[2] + sum[3]);
-    check_bond_domain<Kernel>(e_sum);
+    if constexpr (kCheck) check_bond_domain<Kernel>(e_sum);
     const double all = (product[0] * product[1]) * (product[2] * product[3]);
     double log_sum = std::log(all);
     if (!(all >= 0x1p-1000)) {
@@ -304,7 +313,7 @@ inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p,
       e_sum += e;
     for (int a = 0; a < 3; ++a) d[a][k] *= scale;
   }
-  check_bond_domain<Kernel>(e_sum);
+  if constexpr (kCheck) check_bond_domain<Kernel>(e_sum);
   e_t = e_sum;
 }
 
@@ -372,10 +381,15 @@ inline void bond_block(const Bonds& bonds, std::int64_t q0, int nb, const double
 // CPU allows. The same bits either way: every operation is an IEEE one, element by element, none
 // is contracted into an FMA (-std=c++20 compiles with -ffp-contract=off), and the sums are in the
 // order written.
+//
+// It never throws: GCC 12 takes a call of a target_clones function for one that cannot, and an
+// exception thrown through it ends the program (in a parallel region, or in a try block with no
+// other call that may throw). A bond outside the kernel's domain leaves e_t NaN, which chain_block
+// below tests.
 template <class Kernel, class Bonds>
-[[gnu::target_clones("avx2", "default")]] void chain_block(const Bonds& bonds, std::int64_t q0, int nb,
-                                                           const double* __restrict xp, double* __restrict fp,
-                                                           double& e_t) {
+[[gnu::target_clones("avx2", "default")]] void chain_block_forces(const Bonds& bonds, std::int64_t q0, int nb,
+                                                                  const double* __restrict xp, double* __restrict fp,
+                                                                  double& e_t) {
   using Params = std::remove_cvref_t<decltype(bonds.params(0))>;
   const std::int64_t first = bonds.i(q0);
   const double* __restrict x = xp + 3 * first;
@@ -388,20 +402,30 @@ template <class Kernel, class Bonds>
     p[0] = bonds.params(q0);
   else
     for (int k = 0; k < nb; ++k) p[k] = bonds.params(q0 + k);
-  block_forces<Kernel, Bonds::kUniform, false>(d, p, nullptr, nb, e_t);
+  block_forces<Kernel, Bonds::kUniform, false, false>(d, p, nullptr, nb, e_t);
   for (int a = 0; a < 3; ++a) f[a] += d[a][0];
   for (int k = 1; k < nb; ++k)
     for (int a = 0; a < 3; ++a) f[3 * k + a] = (f[3 * k + a] - d[a][k - 1]) + d[a][k];
   for (int a = 0; a < 3; ++a) f[3 * nb + a] -= d[a][nb - 1];
 }
 
+// chain_block_forces, then its domain test (check_bond_domain): NaN energy so far, a bond outside.
+template <class Kernel, class Bonds>
+inline void chain_block(const Bonds& bonds, std::int64_t q0, int nb, const double* __restrict xp, double* __restrict fp,
+                        double& e_t) {
+  chain_block_forces<Kernel>(bonds, q0, nb, xp, fp, e_t);
+  check_bond_domain<Kernel>(e_t);
+}
+
 // Adds −∇E into f for every bond and returns Σ E. The bond vector is x_i − x_j of the unwrapped
 // positions (bond_vector, core/state.hpp): molecules are whole, so it is the minimum image
 // without computing one, and `box` is not needed. `partition` is the per-term thread plan
-// (rebuilt when the thread count changes). Each owner works in blocks (bond_block); one thread
-// reads the bonds in order without the plan's work items, and with one set of coefficients for
-// all bonds only their ends (UniformBonds). Every path gives each bond the same operations and
-// each particle its forces in bond order: the same bits at any thread count.
+// (rebuilt when the thread count changes). Each owner works in blocks: its chain runs through
+// chain_block, the rest through bond_block; one thread reads the bonds in order without the plan's
+// work items, and with one set of coefficients for all bonds only their ends (UniformBonds), as do
+// the chain runs of several owners. Every path gives each bond the same operations and each
+// particle its forces in bond order: the forces' bits at any thread count (the energy's sum is
+// blocked by segment, so its bits are fixed for a given thread count).
 template <class Kernel, class Params>
 double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, const Eigen::Matrix3Xd& x, const Box& box,
                               Eigen::Matrix3Xd& f, BondPartition& partition) {
@@ -430,16 +454,34 @@ double accumulate_bond_forces(const std::vector<BondInstance<Params>>& bonds, co
     });
     return e;
   }
+  // Several owners: each walks its segments. A chain run's items are bonds b₀, b₀ + 1, … with
+  // both ends owned, so it is read as the one-thread loop reads it — the bonds in order (their
+  // ends alone with one set of coefficients) through chain_block — and the other items, those
+  // across an owner's boundary among them, through bond_block. Each particle still gets its
+  // forces in bond order (chain_block's and bond_block's claim), so the forces keep their bits.
   double* energy = partition.energy_slots();
   const OwnerItems<Params> items{bonds.data(), partition.work()};
-  auto run_owner = [&](int t) {
+  const BondPartition::Work* work = partition.work();
+  auto run_owner = [&](int t, const auto& in_order) {
     double e_t = 0.0;
-    const std::int64_t end = partition.end(t) - partition.work();
-    for (std::int64_t q = partition.begin(t) - partition.work(); q < end; q += kBondBlock)
-      bond_block<Kernel>(items, q, static_cast<int>(std::min<std::int64_t>(kBondBlock, end - q)), xp, fp, e_t);
+    for (const auto* seg = partition.segments_begin(t); seg < partition.segments_end(t); ++seg) {
+      const std::int64_t shift = seg->chain ? work[seg->begin].bond - seg->begin : 0;  // item → bond
+      for (std::int64_t q = seg->begin; q < seg->end; q += kBondBlock) {
+        const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg->end - q));
+        if (seg->chain)
+          chain_block<Kernel>(in_order, q + shift, nb, xp, fp, e_t);
+        else
+          bond_block<Kernel>(items, q, nb, xp, fp, e_t);
+      }
+    }
     energy[t] = e_t;
   };
-  run_parts(threads, run_owner);
+  run_parts(threads, [&](int t) {
+    if (partition.uniform())
+      run_owner(t, UniformBonds<Params>{partition.ends(), &bonds.front().params});
+    else
+      run_owner(t, AllBonds<Params>{bonds.data()});
+  });
   double sum = 0.0;
   for (int t = 0; t < threads; ++t) sum += energy[t];
   return sum;

@@ -822,27 +822,17 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
             seg.sy = adjacent_shift_[1][3 * b[1] + o[1] + 1];
             seg.sz = adjacent_shift_[2][3 * b[2] + o[2] + 1];
           }
+          // The three tests through test_candidates (four candidates at a time where the CPU has
+          // AVX2), as the search without ghosts. A backward ghost is tested as x_i + shift − x_j,
+          // the negative of x_j − (x_i + shift) exactly: the same squares, the same hits.
           for (int m = 0; m < owned_here; ++m) {
             const double xi = gxs[m], yi = gys[m], zi = gzs[m];
-            int found = 0;
-            for (int t = m + 1; t < total; ++t) {
-              const double dx = xi - gxs[t], dy = yi - gys[t], dz = zi - gzs[t];
-              hit[found] = gks[t];
-              found += dx * dx + dy * dy + dz * dz < rlist2;
-            }
-            for (int t = 0; t < forward_ghosts; ++t) {
-              const double dx = xi - hxs[t], dy = yi - hys[t], dz = zi - hzs[t];
-              hit[found] = hks[t];
-              found += dx * dx + dy * dy + dz * dz < rlist2;
-            }
+            int found = test_candidates(xi, yi, zi, gxs, gys, gzs, gks, m + 1, total, rlist2, hit);
+            found += test_candidates(xi, yi, zi, hxs, hys, hzs, hks, 0, forward_ghosts, rlist2, hit + found);
             for (int q = 0; q < segments; ++q) {
               const Segment& seg = back[q];
-              const double px = xi + seg.sx, py = yi + seg.sy, pz = zi + seg.sz;
-              for (int t = seg.first; t < seg.last; ++t) {
-                const double dx = hxs[t] - px, dy = hys[t] - py, dz = hzs[t] - pz;
-                hit[found] = hks[t];
-                found += dx * dx + dy * dy + dz * dz < rlist2;
-              }
+              found += test_candidates(xi + seg.sx, yi + seg.sy, zi + seg.sz, hxs, hys, hzs, hks, seg.first, seg.last,
+                                       rlist2, hit + found);
             }
             record_hits(cp[gks[m]], found);
           }

@@ -127,6 +127,7 @@ void expect_paths_agree(const std::vector<Bond>& bonds, const std::vector<FeneCo
     const Result many = evaluate(term, x, threads);
     EXPECT_EQ(many.f, one.f);  // each bond the same operations, each particle its forces in bond order
     EXPECT_NEAR(many.energy, one.energy, 1e-12 * std::abs(one.energy));
+    EXPECT_EQ(evaluate(term, x, threads).energy, many.energy);  // the owners' sums in a fixed order
   }
   EXPECT_EQ(evaluate(term, x, 1).f, one.f);  // and call to call
   EXPECT_EQ(evaluate(term, x, 1).energy, one.energy);

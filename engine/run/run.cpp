@@ -77,12 +77,14 @@ bool finite_state(const State& s) {
   // docs/performance.md, "The run loop's cost per step").
   if (s.size() < kParallelMin) return all_finite(s.x.data(), s.x.size()) && all_finite(s.v.data(), s.v.size());
   // In the particle blocks of the threads, as the integrators write x and v: read serially, the
-  // blocks the other threads had just written came over from their cores.
+  // blocks the other threads had just written came over from their cores. Each block by the
+  // one-pass four-sum test (core/finite.hpp), as the ranks do, not Eigen's allFinite, which tests
+  // value by value (docs/parallel.md, "Work figures").
   const int parts = threads_for(s.size());
   std::array<char, kMaxParts> finite{};
   run_parts(parts, [&](int u) {
     const std::int64_t b = block_begin(s.size(), parts, u), e = block_begin(s.size(), parts, u + 1);
-    finite[u] = s.x.middleCols(b, e - b).allFinite() && s.v.middleCols(b, e - b).allFinite();
+    finite[u] = all_finite(s.x.data() + 3 * b, 3 * (e - b)) && all_finite(s.v.data() + 3 * b, 3 * (e - b));
   });
   return std::all_of(finite.begin(), finite.begin() + parts, [](char f) { return f != 0; });
 }
