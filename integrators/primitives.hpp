@@ -16,17 +16,22 @@ namespace stiffmd {
 // v ← v + dt M⁻¹ f. Plain loops on restrict pointers (v, f and the masses are distinct): for a
 // few particles (the pendulum) the Eigen expression on blocks of dynamic size cost more than the
 // arithmetic.
+inline void kick_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
+                       std::int64_t first, std::int64_t last) {
+  const double* __restrict fp = f.data();
+  const double* __restrict w = inv_mass.data();
+  double* __restrict vp = v.data();
+  for (std::int64_t i = first; i < last; ++i) {
+    const double s = dt * w[i];
+    for (int a = 0; a < 3; ++a) vp[3 * i + a] += s * fp[3 * i + a];
+  }
+}
+// The same on every particle, in blocks on the threads; kick_range is the pass on particles
+// first … last − 1 that a step in molecule blocks makes (integrators/rattle.cpp).
 inline void kick(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt) {
   const ScopedPhase phase(Phase::integrate);
-  parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
-    const double* __restrict fp = f.data();
-    const double* __restrict w = inv_mass.data();
-    double* __restrict vp = v.data();
-    for (std::int64_t i = b; i < e; ++i) {
-      const double s = dt * w[i];
-      for (int a = 0; a < 3; ++a) vp[3 * i + a] += s * fp[3 * i + a];
-    }
-  });
+  parallel_blocks(v.cols(), threads_for(v.cols()),
+                  [&](std::int64_t b, std::int64_t e) { kick_range(v, inv_mass, f, dt, b, e); });
 }
 
 // kick, and in the same pass whether x and the new v are all finite: a step's closing kick, its
@@ -68,23 +73,29 @@ kick_checking_finite(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen
 
 // v ← v + dt M⁻¹ f, and in the same pass kept ← scale · v' (with_before: scale · (v + v')), v and
 // v' the velocities before and after the kick.
+inline void kick_and_keep_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f,
+                                double dt, Eigen::Matrix3Xd& kept, double scale, bool with_before, std::int64_t first,
+                                std::int64_t last) {
+  const double before = with_before ? 1.0 : 0.0;
+  const double* __restrict fp = f.data();
+  const double* __restrict w = inv_mass.data();
+  double* __restrict vp = v.data();
+  double* __restrict kp = kept.data();
+  for (std::int64_t i = first; i < last; ++i) {
+    const double s = dt * w[i];
+    for (int a = 0; a < 3; ++a) {
+      const double old = vp[3 * i + a];
+      vp[3 * i + a] = old + s * fp[3 * i + a];
+      kp[3 * i + a] = scale * (before * old + vp[3 * i + a]);
+    }
+  }
+}
+// The same on every particle, in blocks on the threads.
 inline void kick_and_keep(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
                           Eigen::Matrix3Xd& kept, double scale, bool with_before) {
   const ScopedPhase phase(Phase::integrate);
-  const double before = with_before ? 1.0 : 0.0;
   parallel_blocks(v.cols(), threads_for(v.cols()), [&](std::int64_t b, std::int64_t e) {
-    const double* __restrict fp = f.data();
-    const double* __restrict w = inv_mass.data();
-    double* __restrict vp = v.data();
-    double* __restrict kp = kept.data();
-    for (std::int64_t i = b; i < e; ++i) {
-      const double s = dt * w[i];
-      for (int a = 0; a < 3; ++a) {
-        const double old = vp[3 * i + a];
-        vp[3 * i + a] = old + s * fp[3 * i + a];
-        kp[3 * i + a] = scale * (before * old + vp[3 * i + a]);
-      }
-    }
+    kick_and_keep_range(v, inv_mass, f, dt, kept, scale, with_before, b, e);
   });
 }
 

@@ -156,7 +156,8 @@ void Rattle::step(State& s, double h) {
 namespace {
 
 // The whole-system passes of integrators/primitives.hpp on particles first … last − 1, with their
-// expressions (the same bits): kick, then keep_and_drift; chord_velocity; kick_and_keep.
+// expressions (the same bits): kick, then keep_and_drift; keep_and_drift; chord_velocity. The
+// kicks on a range are primitives.hpp's kick_range and kick_and_keep_range.
 void kick_keep_drift(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& x_old, Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass,
                      const Eigen::Matrix3Xd& f, double dt_kick, double dt, std::int64_t first, std::int64_t last) {
   double* __restrict xp = x.data();
@@ -191,35 +192,6 @@ void chord(Eigen::Matrix3Xd& v, const Eigen::Matrix3Xd& x, const Eigen::Matrix3X
   const double* __restrict xp = x.data();
   const double* __restrict op = x_old.data();
   for (std::int64_t k = 3 * first; k < 3 * last; ++k) vp[k] = (xp[k] - op[k]) / dt;
-}
-
-void kick_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
-                std::int64_t first, std::int64_t last) {
-  double* __restrict vp = v.data();
-  const double* __restrict fp = f.data();
-  const double* __restrict w = inv_mass.data();
-  for (std::int64_t i = first; i < last; ++i) {
-    const double c = dt * w[i];
-    for (int a = 0; a < 3; ++a) vp[3 * i + a] += c * fp[3 * i + a];
-  }
-}
-
-void kick_and_keep_range(Eigen::Matrix3Xd& v, const Eigen::VectorXd& inv_mass, const Eigen::Matrix3Xd& f, double dt,
-                         Eigen::Matrix3Xd& kept, double scale, bool with_before, std::int64_t first,
-                         std::int64_t last) {
-  const double before = with_before ? 1.0 : 0.0;
-  double* __restrict vp = v.data();
-  double* __restrict kp = kept.data();
-  const double* __restrict fp = f.data();
-  const double* __restrict w = inv_mass.data();
-  for (std::int64_t i = first; i < last; ++i) {
-    const double c = dt * w[i];
-    for (int a = 0; a < 3; ++a) {
-      const double old = vp[3 * i + a];
-      vp[3 * i + a] = old + c * fp[3 * i + a];
-      kp[3 * i + a] = scale * (before * old + vp[3 * i + a]);
-    }
-  }
 }
 
 // kinetic_energy's terms (integrators/primitives.hpp) of the mobile particles first … last − 1.

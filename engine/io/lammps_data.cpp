@@ -26,12 +26,7 @@ using namespace lammps_format;
 using detail::parse_double;
 using detail::parse_long;
 using detail::quote;
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && detail::is_space(s.front())) s.remove_prefix(1);
-  while (!s.empty() && detail::is_space(s.back())) s.remove_suffix(1);
-  return s;
-}
+using detail::trim;
 
 // One line with something on it besides a comment (blank and comment-only lines carry nothing in
 // this format, and the title line is free text).

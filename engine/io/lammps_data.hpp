@@ -97,6 +97,8 @@ std::vector<std::string_view> split_ws(std::string_view s);
 void split_ws_into(std::string_view s, std::vector<std::string_view>& out);
 // The whitespace split_ws splits on.
 bool is_space(char c);
+// `s` without the whitespace at its ends.
+std::string_view trim(std::string_view s);
 }  // namespace detail
 
 }  // namespace stiffmd

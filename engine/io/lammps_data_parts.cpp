@@ -21,12 +21,7 @@ using namespace lammps_format;
 using detail::parse_double;
 using detail::parse_long;
 using detail::quote;
-
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && detail::is_space(s.front())) s.remove_prefix(1);
-  while (!s.empty() && detail::is_space(s.back())) s.remove_suffix(1);
-  return s;
-}
+using detail::trim;
 
 // The file's lines with something before '#' (the title line skipped), one at a time; a place in
 // the file can be remembered and gone back to.
