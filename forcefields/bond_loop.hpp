@@ -20,6 +20,7 @@
 
 #include "core/box.hpp"
 #include "core/errors.hpp"
+#include "core/molecule_blocks.hpp"
 #include "core/parallel.hpp"
 #include "core/state.hpp"
 #include "forcefields/neighbor_list.hpp"
@@ -537,16 +538,10 @@ class MicroStepPlan {
       reach[lo] = std::max<std::int64_t>(reach[lo], hi);
     }
     blocks_.clear();
-    std::vector<std::int64_t> block_of(n);
-    std::int64_t first = 0, end = -1;  // the block being formed, and the molecule's reach
-    for (std::int64_t p = 0; p < n; ++p) {
-      end = std::max(end, reach[p]);
-      block_of[p] = static_cast<std::int64_t>(blocks_.size());
-      if (p == end && (p + 1 - first >= kMicroBlockParticles || p + 1 == n)) {  // a molecule ends here
-        blocks_.push_back({first, p + 1, 0, 0});
-        first = p + 1;
-      }
-    }
+    const std::vector<std::int64_t> block_of =
+        molecule_blocks(reach, kMicroBlockParticles, [&](std::int64_t first, std::int64_t last) {
+          blocks_.push_back({first, last, 0, 0});
+        });
     // The bonds by block, each block's in the term's order (a stable counting sort).
     std::vector<std::int64_t> start(blocks_.size() + 1, 0);
     for (const auto& b : bonds) ++start[block_of[b.i] + 1];

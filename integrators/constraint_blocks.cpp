@@ -7,14 +7,15 @@
 #include <limits>
 #include <numeric>
 
+#include "core/molecule_blocks.hpp"
 #include "integrators/constraint_toolbox_impl.hpp"
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
 
-// Blocks as the micro steps' (forcefields/bond_loop.hpp, MicroStepPlan): a cluster covers the
-// range of particle indices from its lowest to its highest particle, overlapping ranges join, and
-// a block closes at the first end of such a union past min_block_particles particles. The
+// Blocks as the micro steps' (core/molecule_blocks.hpp): a cluster covers the range of particle
+// indices from its lowest to its highest particle, overlapping ranges join, and a block closes at
+// the first end of such a union past min_block_particles particles. The
 // clusters (ordered by their first bond: integrators/clusters.hpp) must then run through the
 // blocks in order, else everything is one block.
 void ConstraintToolbox::Impl::plan_blocks() {
@@ -28,16 +29,10 @@ void ConstraintToolbox::Impl::plan_blocks() {
   std::iota(reach.begin(), reach.end(), std::int64_t{0});
   for (const ConstraintCluster& c : clusters)
     reach[c.particles.front()] = std::max<std::int64_t>(reach[c.particles.front()], c.particles.back());
-  std::vector<int> block_of(n);
-  std::int64_t first = 0, end = -1;
-  for (std::int64_t p = 0; p < n; ++p) {
-    end = std::max(end, reach[p]);
-    block_of[p] = static_cast<int>(blocks.size());
-    if (p == end && (p + 1 - first >= min_block_particles || p + 1 == n)) {
-      blocks.push_back({first, p + 1, 0, 0});
-      first = p + 1;
-    }
-  }
+  const std::vector<std::int64_t> block_of =
+      molecule_blocks(reach, min_block_particles, [&](std::int64_t first, std::int64_t last) {
+        blocks.push_back({first, last, 0, 0});
+      });
   int c = 0;
   for (int k = 0; k < static_cast<int>(blocks.size()); ++k) {
     blocks[k].cluster_begin = c;

@@ -5,6 +5,8 @@
 // densely, and finite differences of U(α(x)) for the mollified force.
 #include <gtest/gtest.h>
 
+#include "core/molecule_blocks.hpp"
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -235,6 +237,27 @@ double relative(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
 }
 
 // ---- clusters -------------------------------------------------------------------------------
+
+// Blocks of whole molecules: a block never ends inside a molecule (an index range joined by
+// overlapping intervals), closes at the first molecule end at least min_particles past its start,
+// and the last block takes what is left.
+TEST(MoleculeBlocks, CloseOnlyAtMoleculeEndsPastTheMinimum) {
+  // Molecules: 0–2 (0→2), 3–6 (3→4, 4→6: overlapping intervals join), 7, 8–9.
+  const std::vector<std::int64_t> reach = {2, 1, 2, 4, 6, 5, 6, 7, 9, 9};
+  std::vector<std::pair<std::int64_t, std::int64_t>> blocks;
+  const auto block_of =
+      stiffmd::molecule_blocks(reach, 4, [&](std::int64_t f, std::int64_t l) { blocks.emplace_back(f, l); });
+  using B = std::pair<std::int64_t, std::int64_t>;
+  EXPECT_EQ(blocks, (std::vector<B>{{0, 7}, {7, 10}}));
+  EXPECT_EQ(block_of, (std::vector<std::int64_t>{0, 0, 0, 0, 0, 0, 0, 1, 1, 1}));
+  blocks.clear();
+  stiffmd::molecule_blocks(reach, 1, [&](std::int64_t f, std::int64_t l) { blocks.emplace_back(f, l); });
+  EXPECT_EQ(blocks, (std::vector<B>{{0, 3}, {3, 7}, {7, 8}, {8, 10}}));
+  blocks.clear();
+  stiffmd::molecule_blocks(std::vector<std::int64_t>{9, 1, 2, 3, 4, 5, 6, 7, 8, 9}, 1,
+                           [&](std::int64_t f, std::int64_t l) { blocks.emplace_back(f, l); });
+  EXPECT_EQ(blocks, (std::vector<B>{{0, 10}}));  // a bond across the whole range: one block
+}
 
 TEST(ConstraintClusters, PendulumIsOneCluster) {
   const Scene s = pendulum(1e-2);
