@@ -6,6 +6,7 @@
 #include <array>
 #include <atomic>
 #include <compare>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -32,10 +33,11 @@ int cell_coordinate(double s, int n) {
 }
 
 // The distance test of one particle at (xi, yi, zi) against the candidates t = first … last − 1
-// (positions xs, ys, zs; their cell-order slots ks): the slots of those with
+// (positions xs, ys, zs; their particle indices ks): the indices of those with
 // (dx² + dy²) + dz² < r2, d = x_i − x_t, written to hit in the order met; returns their count. A
 // candidate is written and kept by advancing the count, without a branch (about one in seven is a
-// neighbour, at random: a branch would mispredict often). hit has room for last − first entries.
+// neighbour, at random: a branch would mispredict often). hit has room for last − first + 3
+// entries, and xs, ys, zs, ks may be read up to 3 entries past last (padding: see the AVX2 form).
 int test_candidates_scalar(double xi, double yi, double zi, const double* __restrict xs, const double* __restrict ys,
                            const double* __restrict zs, const int* __restrict ks, int first, int last, double r2,
                            int* __restrict hit) {
@@ -53,7 +55,9 @@ int test_candidates_scalar(double xi, double yi, double zi, const double* __rest
 // -ffp-contract=off), so the same candidates pass. The slots of the passing ones are packed to
 // the front of a 128-bit vector by a byte shuffle chosen by the 4-bit mask (kPack) and stored at
 // hit + found: a store of four, of which the count advances by the mask's population — entries
-// past it are overwritten by the next store or ignored.
+// past it are overwritten by the next store or ignored. The last group reads up to three entries
+// past `last` and masks them off: no scalar loop for the remainder, whose 0 … 3 iterations
+// mispredicted its exit branch about once per call.
 struct PackTable {
   alignas(16) unsigned char control[16][16];
   constexpr PackTable() : control{} {
@@ -71,26 +75,32 @@ struct PackTable {
 };
 constexpr PackTable kPack;
 
+// The lanes of a group of four that lie before the end, by the entries left (at most 4).
+constexpr int kLanesBefore[5] = {0, 1, 3, 7, 15};
+
+// kSentinels: the three entries past `last` are known to fail the test (x = +∞, written by the
+// caller), so the last group needs no mask.
+template <bool kSentinels = false>
 [[gnu::target("avx2,popcnt")]] int test_candidates_avx2(double xi, double yi, double zi, const double* __restrict xs,
                                                         const double* __restrict ys, const double* __restrict zs,
                                                         const int* __restrict ks, int first, int last, double r2,
                                                         int* __restrict hit) {
   const __m256d vx = _mm256_set1_pd(xi), vy = _mm256_set1_pd(yi), vz = _mm256_set1_pd(zi), vr2 = _mm256_set1_pd(r2);
   int found = 0;
-  int t = first;
-  for (; t + 4 <= last; t += 4) {
+  for (int t = first; t < last; t += 4) {
     const __m256d dx = _mm256_sub_pd(vx, _mm256_loadu_pd(xs + t));
     const __m256d dy = _mm256_sub_pd(vy, _mm256_loadu_pd(ys + t));
     const __m256d dz = _mm256_sub_pd(vz, _mm256_loadu_pd(zs + t));
     const __m256d d2 =
         _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
-    const int mask = _mm256_movemask_pd(_mm256_cmp_pd(d2, vr2, _CMP_LT_OQ));
+    int mask = _mm256_movemask_pd(_mm256_cmp_pd(d2, vr2, _CMP_LT_OQ));
+    if constexpr (!kSentinels) mask &= kLanesBefore[std::min(last - t, 4)];
     const __m128i slots = _mm_loadu_si128(reinterpret_cast<const __m128i*>(ks + t));
     const __m128i control = _mm_load_si128(reinterpret_cast<const __m128i*>(kPack.control[mask]));
     _mm_storeu_si128(reinterpret_cast<__m128i*>(hit + found), _mm_shuffle_epi8(slots, control));
     found += _mm_popcnt_u32(static_cast<unsigned>(mask));
   }
-  return found + test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, t, last, r2, hit + found);
+  return found;
 }
 
 // The AVX2 test where the CPU has it (chosen once, at the first call), else the scalar one: the
@@ -105,6 +115,392 @@ int test_candidates(double xi, double yi, double zi, const double* xs, const dou
 int test_candidates(double xi, double yi, double zi, const double* xs, const double* ys, const double* zs,
                     const int* ks, int first, int last, double r2, int* hit) {
   return test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit);
+}
+#endif
+
+// Entries first … last − 1 of the cell order (coordinates xs, ys, zs, particle indices ps) copied to
+// to_x, to_y, to_z, to_p at x_j + shift (d = x_i − (x_j + shift)), four at a time: the copy reads and
+// writes up to three entries past the range (the arrays' padding); those are overwritten by the
+// next copy or never read as candidates. A range holds ≈ 3–9 particles on a melt: a loop of
+// whole groups of four, without a remainder, is a few instructions per entry where the loop by
+// entry with its remainder took ≈ 27.
+void gather_shifted_scalar(const double* __restrict xs, const double* __restrict ys, const double* __restrict zs,
+                           const int* __restrict ps, int first, int last, double sx, double sy, double sz,
+                           double* __restrict to_x, double* __restrict to_y, double* __restrict to_z,
+                           int* __restrict to_p) {
+  for (int t = first; t < last; t += 4)
+    for (int l = 0; l < 4; ++l) {
+      to_x[t - first + l] = xs[t + l] + sx;
+      to_y[t - first + l] = ys[t + l] + sy;
+      to_z[t - first + l] = zs[t + l] + sz;
+      to_p[t - first + l] = ps[t + l];
+    }
+}
+
+#if defined(__x86_64__)
+[[gnu::target("avx2")]] void gather_shifted_avx2(const double* __restrict xs, const double* __restrict ys,
+                                                 const double* __restrict zs, const int* __restrict ps, int first,
+                                                 int last, double sx, double sy, double sz, double* __restrict to_x,
+                                                 double* __restrict to_y, double* __restrict to_z,
+                                                 int* __restrict to_p) {
+  const __m256d vx = _mm256_set1_pd(sx), vy = _mm256_set1_pd(sy), vz = _mm256_set1_pd(sz);
+  for (int t = first; t < last; t += 4) {
+    const int o = t - first;
+    _mm256_storeu_pd(to_x + o, _mm256_add_pd(_mm256_loadu_pd(xs + t), vx));
+    _mm256_storeu_pd(to_y + o, _mm256_add_pd(_mm256_loadu_pd(ys + t), vy));
+    _mm256_storeu_pd(to_z + o, _mm256_add_pd(_mm256_loadu_pd(zs + t), vz));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(to_p + o), _mm_loadu_si128(reinterpret_cast<const __m128i*>(ps + t)));
+  }
+}
+#endif
+
+// One part's share of the half-stencil search without ghosts (NeighborList::search_half_stencil):
+// the cells of columns first_column … last_column − 1 in the cell order, each cell's candidates
+// gathered (its own particles, the next cell along z, four columns of three cells), each of its
+// particles tested against the later candidates, and the hits recorded as pairs (min, max) less
+// the exclusions, counted per row for the CSR sort. A template over the kernels so that the AVX2
+// instantiation inlines the copies and the tests into the loop (search_columns_avx2): the calls of
+// one copy per range and one test per particle, with their arguments, were a third of the loop's
+// instructions.
+//
+// The candidates of a cell's particles are gathered once per cell into contiguous arrays
+// (structure of arrays): the cell's own particles first, then those of its forward neighbours,
+// shifted next to it. The m-th particle of the cell is then tested against entries m + 1 … end in
+// one loop. The same candidates in the same order as a loop per neighbour cell, whose few
+// iterations (≈ 2.6 particles per cell on a melt) made the loop's exit branch mispredict about
+// once per cell visited.
+struct HalfStencilPart {
+  const double *cxs, *cys, *czs;  // the cell order's positions (structure of arrays)
+  const int* cp;                  // the cell order's particles
+  const int* cs;                  // the cells' starts
+  const int* adjacent[3];         // NeighborList::adjacent_, adjacent_shift_
+  const double* adjacent_shift[3];
+  int ny, nz;
+  double rlist2;
+  int first_column, last_column;
+  double *gxs, *gys, *gzs;  // the candidates of one cell (padded)
+  int* gks;
+  int* hit;                 // one particle's hits (padded)
+  const int* excl_offsets;  // the exclusions, CSR (null: none)
+  const int* excl;
+  int* row_count;            // the part's pairs per row
+  std::vector<int>*pi, *pj;  // the part's pair buffers (their size is their capacity)
+  std::size_t used;          // pairs in them
+};
+
+#if defined(__x86_64__)
+// The hits of particle i (hit[0 … count − 1], read in groups of four up to three past count) as
+// pairs (min, max) at to_i, to_j (room for count + 3), less i's exclusions [excl, excl_end), in the
+// order found, each row's count raised: the kept ones packed by the mask's shuffle (kPack), their
+// min and max four at a time. Returns the pairs written.
+[[gnu::target("avx2,popcnt")]] int record_hits_avx2(int i, const int* __restrict hit, int count,
+                                                    const int* __restrict excl, const int* __restrict excl_end,
+                                                    int* __restrict to_i, int* __restrict to_j,
+                                                    int* __restrict row_count) {
+  const __m128i vi = _mm_set1_epi32(i);
+  int kept = 0;
+  for (int h = 0; h < count; h += 4) {
+    const __m128i j = _mm_loadu_si128(reinterpret_cast<const __m128i*>(hit + h));
+    __m128i excluded = _mm_setzero_si128();
+    for (const int* e = excl; e != excl_end; ++e)
+      excluded = _mm_or_si128(excluded, _mm_cmpeq_epi32(j, _mm_set1_epi32(*e)));
+    const int mask = ~_mm_movemask_ps(_mm_castsi128_ps(excluded)) & kLanesBefore[std::min(count - h, 4)];
+    const __m128i control = _mm_load_si128(reinterpret_cast<const __m128i*>(kPack.control[mask]));
+    const __m128i packed = _mm_shuffle_epi8(j, control);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(to_i + kept), _mm_min_epi32(packed, vi));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(to_j + kept), _mm_max_epi32(packed, vi));
+    kept += _mm_popcnt_u32(static_cast<unsigned>(mask));
+  }
+  for (int k = 0; k < kept; ++k) ++row_count[to_i[k]];
+  return kept;
+}
+#endif
+
+template <bool kAvx2>
+inline void search_columns(HalfStencilPart& p) {
+  static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
+  const int ny = p.ny, nz = p.nz;
+  const int* const cs = p.cs;
+  double* const gxs = p.gxs;
+  double* const gys = p.gys;
+  double* const gzs = p.gzs;
+  int* const gks = p.gks;
+  int* const hit = p.hit;
+  int* to_i = p.pi->data();
+  int* to_j = p.pj->data();
+  std::size_t capacity = p.pi->size(), used = p.used;
+  int total = 0;
+  auto gather = [&](int first, int last, double sx, double sy, double sz) {
+#if defined(__x86_64__)
+    if constexpr (kAvx2)
+      gather_shifted_avx2(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, gxs + total, gys + total, gzs + total,
+                          gks + total);
+    else
+#endif
+      gather_shifted_scalar(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, gxs + total, gys + total, gzs + total,
+                            gks + total);
+    total += std::max(0, last - first);
+  };
+  auto gather_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
+    if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
+    const int cell = (gx * ny + gy) * nz + gz;
+    gather(cs[cell], cs[cell + 1], sx, sy, sz);
+  };
+  for (int column = p.first_column; column < p.last_column; ++column) {
+    const int cx = column / ny, cy = column % ny;
+    for (int cz = 0; cz < nz; ++cz) {
+      const int c = (cx * ny + cy) * nz + cz;
+      if (cs[c] == cs[c + 1]) continue;
+      total = 0;
+      if (cz + 1 < nz) {  // the cell and the next along z, one range
+        gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
+      } else {
+        gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
+        gather_cell(cx, cy, p.adjacent[2][3 * cz + 2], 0.0, 0.0, p.adjacent_shift[2][3 * cz + 2]);
+      }
+      for (const auto& col : kColumns) {
+        const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
+        if (gx < 0 || gy < 0) continue;
+        const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
+        if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+          const int base = (gx * ny + gy) * nz;
+          gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
+        } else {
+          for (int dz = 0; dz < 3; ++dz)
+            gather_cell(gx, gy, p.adjacent[2][3 * cz + dz], sx, sy, p.adjacent_shift[2][3 * cz + dz]);
+        }
+      }
+      // Three entries past the candidates that fail every distance test (x − ∞ = −∞, squared +∞,
+      // not < r²; NaN neither), so the AVX2 test's last group needs no mask.
+      for (int t = total; t < total + 3; ++t) gxs[t] = std::numeric_limits<double>::infinity();
+      const int own = cs[c + 1] - cs[c];
+      for (int m = 0; m < own; ++m) {
+        int count;
+#if defined(__x86_64__)
+        if constexpr (kAvx2)
+          count = test_candidates_avx2<true>(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, p.rlist2, hit);
+        else
+#endif
+          count = test_candidates_scalar(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, p.rlist2, hit);
+        if (used + count + 4 > capacity) {  // rare: the buffers grow geometrically, then stay
+          capacity = std::max(2 * capacity, used + count + 1024);
+          p.pi->resize(capacity);
+          p.pj->resize(capacity);
+          to_i = p.pi->data();
+          to_j = p.pj->data();
+        }
+        // Each hit written and kept unless it is one of i's exclusions, without a branch.
+        const int i = gks[m];
+        const int* first = p.excl;
+        const int* last = first;
+        if (p.excl_offsets) {
+          first += p.excl_offsets[i];
+          last += p.excl_offsets[i + 1];
+        }
+#if defined(__x86_64__)
+        if constexpr (kAvx2) {
+          used = record_hits_avx2(i, hit, count, first, last, to_i + used, to_j + used, p.row_count) + used;
+          continue;
+        }
+#endif
+        std::size_t kept = used;
+        for (int h = 0; h < count; ++h) {
+          const int j = hit[h];
+          bool keep = true;
+          for (const int* e = first; e != last; ++e) keep &= *e != j;
+          const int row = std::min(i, j);
+          to_i[kept] = row;
+          to_j[kept] = std::max(i, j);
+          p.row_count[row] += keep;
+          kept += keep;
+        }
+        used = kept;
+      }
+    }
+  }
+  p.used = used;
+}
+
+void search_columns_portable(HalfStencilPart& p) {
+  search_columns<false>(p);
+}
+#if defined(__x86_64__)
+[[gnu::target("avx2,popcnt"), gnu::flatten]] void search_columns_avx2(HalfStencilPart& p) {
+  search_columns<true>(p);
+}
+#endif
+
+// Rows b … e − 1 of a CSR list (neighbors, offsets) each sorted in increasing order. A row's
+// partners are distinct: each goes to the place of the count of smaller ones (branch-free
+// compares, which the compiler vectorises; rows hold a few dozen at most); a longer row by
+// std::sort.
+void sort_rows_portable(int* neighbors, const std::int64_t* offsets, std::int64_t b, std::int64_t e) {
+  for (std::int64_t i = b; i < e; ++i) {
+    int* const row = neighbors + offsets[i];
+    const std::int64_t count = offsets[i + 1] - offsets[i];
+    if (count > 48) {
+      std::sort(row, row + count);
+      continue;
+    }
+    int copy[48];
+    std::copy(row, row + count, copy);
+    for (std::int64_t a = 0; a < count; ++a) {
+      int smaller = 0;
+      for (std::int64_t c = 0; c < count; ++c) smaller += copy[c] < copy[a];
+      row[smaller] = copy[a];
+    }
+  }
+}
+
+#if defined(__x86_64__)
+// The same with AVX2 for rows of up to 16 (in.chain's half rows hold ≈ 5): the row in two vectors
+// of eight, padded with INT_MAX (never smaller than a partner), and the count of smaller ones for
+// each partner as the population of one compare's mask — the same places as the portable form.
+[[gnu::target("avx2,popcnt")]] void sort_rows_avx2(int* neighbors, const std::int64_t* offsets, std::int64_t b,
+                                                   std::int64_t e) {
+  const __m256i pad = _mm256_set1_epi32(std::numeric_limits<int>::max());
+  for (std::int64_t i = b; i < e; ++i) {
+    int* const row = neighbors + offsets[i];
+    const int count = static_cast<int>(offsets[i + 1] - offsets[i]);
+    if (count > 16) {
+      sort_rows_portable(neighbors, offsets, i, i + 1);
+      continue;
+    }
+    alignas(32) int copy[16];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(copy), pad);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(copy + 8), pad);
+    for (int a = 0; a < count; ++a) copy[a] = row[a];
+    const __m256i lo = _mm256_load_si256(reinterpret_cast<const __m256i*>(copy));
+    const __m256i hi = _mm256_load_si256(reinterpret_cast<const __m256i*>(copy + 8));
+    for (int a = 0; a < count; ++a) {
+      const __m256i v = _mm256_set1_epi32(copy[a]);
+      const unsigned smaller =
+          static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(v, lo)))) |
+          static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(v, hi)))) << 8;
+      row[_mm_popcnt_u32(smaller)] = copy[a];
+    }
+  }
+}
+#endif
+
+// The binning of particles first … last − 1 of x (3×N, column-major) into a grid of cells (see
+// NeighborList::bin): each one's image L·floor((x − lo)/L) on periodic axes (0 on open ones), its
+// position less the image, and its flattened cell, counted per cell.
+struct BinGrid {
+  double lo[3], inv_len[3], len[3];
+  bool periodic[3];
+  int ncell[3];
+};
+
+inline void bin_particles(const BinGrid& g, const double* __restrict x, std::int64_t first, std::int64_t last,
+                          double* __restrict image, double* __restrict wrapped, int* __restrict cell_of,
+                          int* __restrict count) {
+  for (std::int64_t i = first; i < last; ++i) {
+    int c[3];
+    for (int a = 0; a < 3; ++a) {
+      double s = (x[3 * i + a] - g.lo[a]) * g.inv_len[a];
+      double im = 0.0;
+      if (g.periodic[a]) {  // positions are unwrapped: bin their image inside the box
+        const double whole = std::floor(s);
+        s -= whole;
+        im = whole * g.len[a];
+      }
+      image[3 * i + a] = im;
+      wrapped[3 * i + a] = x[3 * i + a] - im;
+      c[a] = cell_coordinate(s * g.ncell[a], g.ncell[a]);
+    }
+    const int cell = (c[0] * g.ncell[1] + c[1]) * g.ncell[2] + c[2];
+    cell_of[i] = cell;
+    ++count[cell];
+  }
+}
+
+#if defined(__x86_64__)
+// The same where the CPU has SSE4.1, whose roundsd is floor in one instruction (x86-64's baseline
+// calls the library's floor): floor is exact, the same values.
+[[gnu::target("sse4.1"), gnu::flatten]] void bin_particles_sse41(const BinGrid& g, const double* x, std::int64_t first,
+                                                                 std::int64_t last, double* image, double* wrapped,
+                                                                 int* cell_of, int* count) {
+  bin_particles(g, x, first, last, image, wrapped, cell_of, count);
+}
+#endif
+
+// needs_rebuild's pass over a block of particles: the largest squared displacement since the build
+// (x − x0, both 3×N column-major; its minimum image by `fold` where it exceeds half the skin, as
+// a wrapped position that crossed a face does), and the fast particles (d² > half2) in index
+// order, at most `most` of them (more: too_many). A NaN d² is passed over, as std::max(w, NaN)
+// passes it.
+struct DisplacementScan {
+  const double* x;
+  const double* x0;
+  double half2;
+  const NearestImage* fold;
+  std::vector<int>* fast;
+  std::size_t most;
+  double worst;  // the largest d² so far (start: 0)
+  char too_many;
+};
+
+inline void scan_displacements(DisplacementScan& s, std::int64_t first, std::int64_t last) {
+  const double* const xp = s.x;
+  const double* const x0 = s.x0;
+  double w = s.worst;  // no early exit: a loop over the block whose branch is rarely taken is faster
+  for (std::int64_t i = first; i < last; ++i) {
+    double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
+    double d2 = dx * dx + dy * dy + dz * dz;
+    if (d2 > s.half2) {  // rare: a fast particle, or a wrapped one that crossed a face
+      s.fold->apply(dx, dy, dz);
+      d2 = dx * dx + dy * dy + dz * dz;
+    }
+    w = std::max(w, d2);
+    if (d2 > s.half2) {
+      if (s.fast->size() < s.most)
+        s.fast->push_back(static_cast<int>(i));
+      else
+        s.too_many = 1;
+    }
+  }
+  s.worst = w;
+}
+
+#if defined(__x86_64__)
+// The same four particles at a time (AVX2): their twelve coordinates in three vectors, the
+// squared differences transposed into one vector per axis, d² = (dx² + dy²) + dz² lane by lane —
+// the scalar pass's operations, the same values. A group with a lane past half the skin (rare) is
+// passed to the scalar pass, which folds and records it; the others' largest d² is kept by
+// vmaxpd(d², w), which keeps w for a NaN as std::max(w, d²) does. The largest of a set does not
+// depend on the order it is taken in: the same worst as the scalar pass, the same fast particles
+// in the same order. It was 39 instructions per particle at every step.
+[[gnu::target("avx2")]] void scan_displacements_avx2(DisplacementScan& s, std::int64_t first, std::int64_t last) {
+  const double* const xp = s.x;
+  const double* const x0 = s.x0;
+  const __m256d half2 = _mm256_set1_pd(s.half2);
+  __m256d w = _mm256_setzero_pd();
+  std::int64_t i = first;
+  for (; i + 4 <= last; i += 4) {
+    const __m256d d0 = _mm256_sub_pd(_mm256_loadu_pd(xp + 3 * i), _mm256_loadu_pd(x0 + 3 * i));
+    const __m256d d1 = _mm256_sub_pd(_mm256_loadu_pd(xp + 3 * i + 4), _mm256_loadu_pd(x0 + 3 * i + 4));
+    const __m256d d2v = _mm256_sub_pd(_mm256_loadu_pd(xp + 3 * i + 8), _mm256_loadu_pd(x0 + 3 * i + 8));
+    // Lanes x0 y0 z0 x1 | y1 z1 x2 y2 | z2 x3 y3 z3 of the squares into x0 x1 x2 x3, y…, z….
+    const __m256d q0 = _mm256_mul_pd(d0, d0), q1 = _mm256_mul_pd(d1, d1), q2 = _mm256_mul_pd(d2v, d2v);
+    const __m256d sx =
+        _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(q0, q1, 0b0100), q2, 0b0010), _MM_SHUFFLE(1, 2, 3, 0));
+    const __m256d sy =
+        _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(q0, q1, 0b1001), q2, 0b0100), _MM_SHUFFLE(2, 3, 0, 1));
+    const __m256d sz =
+        _mm256_permute4x64_pd(_mm256_blend_pd(_mm256_blend_pd(q0, q1, 0b0010), q2, 0b1001), _MM_SHUFFLE(3, 0, 1, 2));
+    const __m256d r2 = _mm256_add_pd(_mm256_add_pd(sx, sy), sz);
+    const __m256d fast = _mm256_cmp_pd(r2, half2, _CMP_GT_OQ);
+    if (_mm256_movemask_pd(fast) != 0) {  // rare: the scalar pass for these four
+      scan_displacements(s, i, i + 4);
+      continue;
+    }
+    w = _mm256_max_pd(r2, w);
+  }
+  alignas(32) double lanes[4];
+  _mm256_store_pd(lanes, w);
+  for (const double l : lanes) s.worst = std::max(s.worst, l);
+  scan_displacements(s, i, last);
 }
 #endif
 
@@ -336,23 +732,17 @@ bool NeighborList::needs_rebuild(const Eigen::Matrix3Xd& x, const Box& box) cons
   run_parts(parts, [&](int u) {
     std::vector<int>& f = fast_[u];
     f.clear();
-    double w = 0.0;  // no early exit: a loop over the block whose branch is rarely taken is faster
-    for (std::int64_t i = block_begin(n, parts, u); i < block_begin(n, parts, u + 1); ++i) {
-      double dx = xp[3 * i] - x0[3 * i], dy = xp[3 * i + 1] - x0[3 * i + 1], dz = xp[3 * i + 2] - x0[3 * i + 2];
-      double d2 = dx * dx + dy * dy + dz * dz;
-      if (d2 > half2) {  // rare: a fast particle, or a wrapped one that crossed a face
-        fold.apply(dx, dy, dz);
-        d2 = dx * dx + dy * dy + dz * dz;
-      }
-      w = std::max(w, d2);
-      if (d2 > half2) {
-        if (f.size() < most)
-          f.push_back(static_cast<int>(i));
-        else
-          too_many[u] = 1;
-      }
-    }
-    worst[u] = w;
+    DisplacementScan scan{xp, x0, half2, &fold, &f, most, 0.0, 0};
+    const std::int64_t b = block_begin(n, parts, u), e = block_begin(n, parts, u + 1);
+#if defined(__x86_64__)
+    static const bool avx2 = __builtin_cpu_supports("avx2");
+    if (avx2)
+      scan_displacements_avx2(scan, b, e);
+    else
+#endif
+      scan_displacements(scan, b, e);
+    worst[u] = scan.worst;
+    too_many[u] = scan.too_many;
   });
   const double d2 = *std::max_element(worst.begin(), worst.begin() + parts);
   const double limit = displacement_limit_ > 0.0 ? std::min(displacement_limit_, skin_) : skin_;
@@ -499,42 +889,42 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   image_.resize(3, n);
   wrapped_x_.resize(3, n);
   cell_start_.resize(static_cast<std::size_t>(ncells) + 1);
-  cell_particles_.resize(n);
-  cell_x_.resize(3, n);
+  // Padded (kCellPadding): the search's copies read a few entries past a cell's end.
+  const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
+  cell_particles_.resize(stride);
+  cell_x_.resize(3 * stride);
   // Each particle's image and cell on the threads (independent per particle), counted per block;
   // then the cells' starts and the counting sort's scatter (counting_sort.hpp), which keeps each
   // cell's particles in increasing index for any number of blocks.
   const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
   const int parts = threads_for(n);
   cell_sort_.begin(parts, ncells);
+  const BinGrid grid{{lo[0], lo[1], lo[2]},
+                     {inv_len[0], inv_len[1], inv_len[2]},
+                     {len[0], len[1], len[2]},
+                     {periodic[0], periodic[1], periodic[2]},
+                     {ncell_[0], ncell_[1], ncell_[2]}};
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     int* count = cell_sort_.clear(u);
-    for (std::int64_t i = first; i < last; ++i) {
-      int c[3];
-      for (int a = 0; a < 3; ++a) {
-        double s = (x(a, i) - lo[a]) * inv_len[a];
-        double image = 0.0;
-        if (periodic[a]) {  // positions are unwrapped: bin their image inside the box
-          const double whole = std::floor(s);
-          s -= whole;
-          image = whole * len[a];
-        }
-        image_(a, i) = image;
-        wrapped_x_(a, i) = x(a, i) - image;
-        c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
-      }
-      const int cell = (c[0] * ncell_[1] + c[1]) * ncell_[2] + c[2];
-      cell_of_[i] = cell;
-      ++count[cell];
+#if defined(__x86_64__)
+    static const bool sse41 = __builtin_cpu_supports("sse4.1");
+    if (sse41) {
+      bin_particles_sse41(grid, x.data(), first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
+      return;
     }
+#endif
+    bin_particles(grid, x.data(), first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
   });
   cell_sort_.starts(cell_start_.data());
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     auto cursor = cell_sort_.cursor(u);
+    double* const cx = cell_x_.data();
     for (std::int64_t i = first; i < last; ++i) {
       const int k = cursor.slot(cell_of_[i]);
       cell_particles_[k] = static_cast<int>(i);
-      cell_x_.col(k) = wrapped_x_.col(i);
+      cx[k] = wrapped_x_(0, i);
+      cx[stride + k] = wrapped_x_(1, i);
+      cx[2 * stride + k] = wrapped_x_(2, i);
     }
   });
 
@@ -567,9 +957,11 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // of a cell are distinct. The pairs are gathered, then sorted into rows by their smaller index
 // (a stable counting sort). Threads (parallel.hpp) search runs of columns of cells, in cell order,
 // into their own pair buffers; the buffers taken in order are the pairs in the order one
-// thread finds them, so the list — its rows and the order within each row — does not depend on
-// the thread count. (Rows are not sorted by j: it cost an eighth of the build and the pair loop
-// was no faster for it.)
+// thread finds them, so the list does not depend on the thread count; each row is then sorted by j
+// (see the top of neighbor_list.hpp), so it does not depend on the search order either: any search
+// that finds the same pairs gives the same list, array for array. Without ghosts the cells are
+// searched by search_columns (above: the copies, the tests and the recording of the hits in one
+// loop, four entries at a time with AVX2).
 void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   // The forward neighbours as a cell and four columns of three cells along z: {0, 0, 1}, then
   // (dx, dy) = (0, 1), (1, −1), (1, 0), (1, 1), each with dz = −1, 0, 1. Cells are numbered
@@ -577,7 +969,10 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   // their particles — one range of candidates instead of three, unless it wraps in z.
   static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
-  const double* xc = cell_x_.data();
+  const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
+  const double* const cxs = cell_x_.data();  // the cell order's x, y, z (structure of arrays)
+  const double* const cys = cxs + stride;
+  const double* const czs = cys + stride;
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
@@ -639,14 +1034,15 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     int* to_i = pi.data();
     int* to_j = pj.data();
     std::size_t capacity = pi.size(), used = 0;
-    // The candidates of one particle i within the list radius, as positions in the cell order:
+    // The candidates of one particle i within the list radius, as particle indices:
     // written for every candidate and kept by advancing the count, without a branch (about one
     // candidate in seven is a neighbour, at random: a branch mispredicted often). Then recorded
     // in the order found, again without a branch: each is written and kept unless it is one of
     // i's exclusions (a handful of bonded neighbours, read once) or a pair of two ghosts, whose
     // row min(i, j) is a ghost's. At most n candidates per particle.
     std::vector<int>& hits = hits_[u];
-    if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
+    if (hits.size() < static_cast<std::size_t>(n) + kCellPadding)
+      hits.resize(static_cast<std::size_t>(n) + kCellPadding);
     int* const hit = hits.data();
     int* const row_count = row_sort_.clear(u);  // the part's pairs per row, for the CSR sort
     auto record_hits = [&](int i, int count) {
@@ -666,7 +1062,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       std::size_t kept = used;
       const bool i_ghost = ghost && ghost[i];
       for (int h = 0; h < count; ++h) {
-        const int j = cp[hit[h]];
+        const int j = hit[h];
         bool keep = true;
         for (const int* e = first; e != last; ++e) keep &= *e != j;
         if (i_ghost) keep &= !ghost[j];
@@ -678,52 +1074,26 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       }
       used = kept;
     };
-    // The candidates of a cell's particles, gathered once per cell into contiguous arrays
-    // (structure of arrays): the cell's own particles first, then those of its forward
-    // neighbours, shifted next to it. The m-th particle of the cell is then tested against
-    // entries m + 1 … end in one loop. The same candidates in the same order as a loop per
-    // neighbour cell, whose few iterations (≈ 2.6 particles per cell on a melt) made the
-    // loop's exit branch mispredict about once per cell visited: that, not the distance tests,
-    // was most of the build's time.
+    // One cell's candidates (search_columns), each array padded (kCellPadding): the copies and the tests read and write
+    // whole groups of four.
     CandidateScratch& sc = scratch_[u];
-    if (sc.x.size() < static_cast<std::size_t>(n)) {
-      sc.x.resize(n);
-      sc.y.resize(n);
-      sc.z.resize(n);
-      sc.k.resize(n);
+    if (sc.x.size() < stride) {
+      sc.x.resize(stride);
+      sc.y.resize(stride);
+      sc.z.resize(stride);
+      sc.k.resize(stride);
     }
-    if (ghost && sc.gx.size() < static_cast<std::size_t>(n)) {
-      sc.gx.resize(n);
-      sc.gy.resize(n);
-      sc.gz.resize(n);
-      sc.gk.resize(n);
+    if (ghost && sc.gx.size() < stride) {
+      sc.gx.resize(stride);
+      sc.gy.resize(stride);
+      sc.gz.resize(stride);
+      sc.gk.resize(stride);
     }
     double* __restrict const gxs = sc.x.data();
     double* __restrict const gys = sc.y.data();
     double* __restrict const gzs = sc.z.data();
     int* __restrict const gks = sc.k.data();
     int total = 0;
-    // Particles first … last − 1 of the cell order, at x_j + shift (d = x_i − (x_j + shift)).
-    // The count is a local copy: an int held by reference could alias gks, and would be
-    // reloaded and stored at every entry.
-    auto gather = [&](int first, int last, double sx, double sy, double sz) {
-      double* __restrict const to_x = gxs + total;
-      double* __restrict const to_y = gys + total;
-      double* __restrict const to_z = gzs + total;
-      int* __restrict const to_k = gks + total;
-      for (int k2 = first; k2 < last; ++k2) {
-        to_x[k2 - first] = xc[3 * k2] + sx;
-        to_y[k2 - first] = xc[3 * k2 + 1] + sy;
-        to_z[k2 - first] = xc[3 * k2 + 2] + sz;
-        to_k[k2 - first] = k2;
-      }
-      total += std::max(0, last - first);
-    };
-    auto gather_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
-      if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
-      const int cell = (gx * ny + gy) * nz + gz;
-      gather(cs[cell], cs[cell + 1], sx, sy, sz);
-    };
     // With ghosts: only the cells that hold a particle that is not a ghost (an owned one) are
     // searched, and no pair of two ghosts is tested. A cell's owned particles are tested against
     // the later ones of the cell, every particle of its forward cells (as without ghosts), and the
@@ -753,9 +1123,9 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         int* __restrict const to_gk = hks + ghost_total;
         int h = 0, g = 0;
         for (int k2 = first; k2 < last; ++k2) {
-          const double px = xc[3 * k2] + sx, py = xc[3 * k2 + 1] + sy, pz = xc[3 * k2 + 2] + sz;
-          to_x[h] = px, to_y[h] = py, to_z[h] = pz, to_k[h] = k2;
-          to_gx[g] = px, to_gy[g] = py, to_gz[g] = pz, to_gk[g] = k2;
+          const double px = cxs[k2] + sx, py = cys[k2] + sy, pz = czs[k2] + sz;
+          to_x[h] = px, to_y[h] = py, to_z[h] = pz, to_k[h] = cp[k2];
+          to_gx[g] = px, to_gy[g] = py, to_gz[g] = pz, to_gk[g] = cp[k2];
           const int is_ghost = ghost_at[k2];
           h += 1 - is_ghost;
           g += is_ghost;
@@ -812,8 +1182,8 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
             Segment& seg = back[segments++];
             seg.first = ghost_total;
             for (int k2 = cs[cell]; k2 < cs[cell + 1]; ++k2) {
-              hxs[ghost_total] = xc[3 * k2], hys[ghost_total] = xc[3 * k2 + 1], hzs[ghost_total] = xc[3 * k2 + 2];
-              hks[ghost_total] = k2;
+              hxs[ghost_total] = cxs[k2], hys[ghost_total] = cys[k2], hzs[ghost_total] = czs[k2];
+              hks[ghost_total] = cp[k2];
               ghost_total += ghost_at[k2];
             }
             seg.last = ghost_total;
@@ -834,44 +1204,44 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
               found += test_candidates(xi + seg.sx, yi + seg.sy, zi + seg.sz, hxs, hys, hzs, hks, seg.first, seg.last,
                                        rlist2, hit + found);
             }
-            record_hits(cp[gks[m]], found);
+            record_hits(gks[m], found);
           }
         }
       }
       pair_count_[u] = used;
       return;
     }
-    for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
-      const int cx = column / ny, cy = column % ny;
-      for (int cz = 0; cz < nz; ++cz) {
-        const int c = (cx * ny + cy) * nz + cz;
-        if (cs[c] == cs[c + 1]) continue;
-        total = 0;
-        if (cz + 1 < nz) {  // the cell and the next along z, one range
-          gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
-        } else {
-          gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
-          gather_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
-        }
-        for (const auto& col : kColumns) {
-          const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
-          if (gx < 0 || gy < 0) continue;
-          const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
-          if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
-            const int base = (gx * ny + gy) * nz;
-            gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
-          } else {
-            for (int dz = 0; dz < 3; ++dz)
-              gather_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
-          }
-        }
-        for (int m = 0; m < cs[c + 1] - cs[c]; ++m) {
-          const int found = test_candidates(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, rlist2, hit);
-          record_hits(cp[cs[c] + m], found);
-        }
-      }
-    }
-    pair_count_[u] = used;
+    HalfStencilPart part{cxs,
+                         cys,
+                         czs,
+                         cp,
+                         cs,
+                         {adjacent_[0].data(), adjacent_[1].data(), adjacent_[2].data()},
+                         {adjacent_shift_[0].data(), adjacent_shift_[1].data(), adjacent_shift_[2].data()},
+                         ny,
+                         nz,
+                         rlist2,
+                         first_column[u],
+                         first_column[u + 1],
+                         gxs,
+                         gys,
+                         gzs,
+                         gks,
+                         hit,
+                         have_exclusions ? excl_offsets_.data() : nullptr,
+                         excl_.data(),
+                         row_count,
+                         &pi,
+                         &pj,
+                         used};
+#if defined(__x86_64__)
+    static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
+    if (avx2)
+      search_columns_avx2(part);
+    else
+#endif
+      search_columns_portable(part);
+    pair_count_[u] = part.used;
   });
 
   // The pairs into CSR rows by i: a counting sort of the parts' buffers in part order
@@ -890,23 +1260,14 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   // only on which particles they are, not on where the cells were at the build (docs/parallel.md:
   // a decomposed run's forces are the same sums, bit for bit).
   parallel_blocks(n, threads_for(n), [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t i = b; i < e; ++i) {
-      int* const row = neighbors_.data() + offsets_[i];
-      const std::int64_t count = offsets_[i + 1] - offsets_[i];
-      if (count > 48) {
-        std::sort(row, row + count);
-        continue;
-      }
-      // A short row's partners are distinct: each goes to the place of the count of smaller ones
-      // (branch-free compares, which the compiler vectorises; rows hold a few dozen at most).
-      int copy[48];
-      std::copy(row, row + count, copy);
-      for (std::int64_t a = 0; a < count; ++a) {
-        int smaller = 0;
-        for (std::int64_t c = 0; c < count; ++c) smaller += copy[c] < copy[a];
-        row[smaller] = copy[a];
-      }
+#if defined(__x86_64__)
+    static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
+    if (avx2) {
+      sort_rows_avx2(neighbors_.data(), offsets_.data(), b, e);
+      return;
     }
+#endif
+    sort_rows_portable(neighbors_.data(), offsets_.data(), b, e);
   });
 }
 
@@ -916,7 +1277,10 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
 void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exclusions) {
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
   const double* xw = wrapped_x_.data();
-  const double* xc = cell_x_.data();
+  const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
+  const double* const cxs = cell_x_.data();  // the cell order's x, y, z (structure of arrays)
+  const double* const cys = cxs + stride;
+  const double* const czs = cys + stride;
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int ny = ncell_[1], nz = ncell_[2];
@@ -949,7 +1313,7 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
           const int c = (distinct[0][sx] * ny + distinct[1][sy]) * nz + distinct[2][sz];
           // j > i only: a cell's particles are in increasing index, so those are a suffix.
           for (int k = cs[c + 1] - 1; k >= cs[c] && cp[k] > i; --k) {
-            double dx = xi - xc[3 * k], dy = yi - xc[3 * k + 1], dz = zi - xc[3 * k + 2];
+            double dx = xi - cxs[k], dy = yi - cys[k], dz = zi - czs[k];
             mi.apply(dx, dy, dz);
             if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])) &&
                 !(i_ghost && ghost_[cp[k]]))
@@ -1038,7 +1402,8 @@ void NeighborList::release() {
   free(cell_start_), free(cell_particles_), free(pair_i_), free(pair_j_), free(pair_count_), free(hits_);
   free(scratch_);
   for (int a = 0; a < 3; ++a) free(adjacent_[a]), free(adjacent_shift_[a]);
-  for (Eigen::Matrix3Xd* m : {&x_at_build_, &image_, &wrapped_x_, &wrapped_now_, &cell_x_}) m->resize(3, 0);
+  free(cell_x_);
+  for (Eigen::Matrix3Xd* m : {&x_at_build_, &image_, &wrapped_x_, &wrapped_now_}) m->resize(3, 0);
   cell_sort_ = {};
   row_sort_ = {};
 }

@@ -307,7 +307,10 @@ class NeighborList {
   // Cell list of the last build: particles of cell c are cell_particles_[cell_start_[c] …
   // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order), and their
   // positions, wrapped into the box on periodic axes, are cell_x_ in the same order, so the
-  // search reads neighbouring particles from contiguous memory.
+  // search reads neighbouring particles from contiguous memory: the x coordinates, then the y,
+  // then the z (structure of arrays), each n + kCellPadding long, so that the search copies a
+  // range four entries at a time (cell_particles_ likewise padded).
+  static constexpr int kCellPadding = 4;
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
   double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
   mutable std::vector<std::vector<int>> fast_;  // needs_rebuild's scratch: per part, the fast particles
@@ -317,7 +320,7 @@ class NeighborList {
   Eigen::Matrix3Xd image_;        // per particle, index order: L·floor((x − origin)/L) at build
   Eigen::Matrix3Xd wrapped_x_;    // per particle, index order: x − image_ at build
   Eigen::Matrix3Xd wrapped_now_;  // x − image_ for the latest wrapped_positions(x)
-  Eigen::Matrix3Xd cell_x_;       // per particle, cell order
+  std::vector<double> cell_x_;    // per particle, cell order: x … , y … , z … (see above)
   // Per axis, for each cell coordinate c and offset o = −1, 0, 1 (slot 3c + o + 1): the
   // neighbouring cell coordinate (wrapped on periodic axes, −1 past an open edge) and the shift
   // (0 or ±L) that brings a wrapped position in that cell next to cell c.
@@ -332,7 +335,7 @@ class NeighborList {
   std::vector<std::vector<int>> hits_;             // per thread: one particle's neighbours found
   struct CandidateScratch {                        // per thread: one cell's candidates (search_half_stencil)
     std::vector<double> x, y, z;
-    std::vector<int> k;  // position in the cell order
+    std::vector<int> k;  // their particle indices
     // With ghosts, the ghosts among the candidates apart (x, y, z, k then hold the others).
     std::vector<double> gx, gy, gz;
     std::vector<int> gk;

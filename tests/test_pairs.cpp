@@ -641,6 +641,76 @@ TEST(NeighborList, AtMostTwoCellsPerAxisListsRowsInIncreasingOrderWithoutExclusi
     EXPECT_TRUE(std::is_sorted(nb.begin() + off[i], nb.begin() + off[i + 1])) << "row " << i;
 }
 
+// The list, array for array, against the all-pairs search: row i holds every j > i within the list
+// radius (minimum image) that is not excluded, in increasing j, and nothing else — so a search that
+// missed, added or reordered a pair fails. Uniform and clustered particles (clusters of a few
+// dozen within one cell: long rows and crowded cells), chains with 1-2 and 1-3 exclusions, periodic,
+// mixed and open boxes from under 3 list radii (fewer than 3 cells: the small-box searches) to many,
+// on one thread and on two (above the size where the search splits into parts).
+TEST(NeighborList, RowsAreTheAllPairsRowsInIncreasingOrder) {
+  const double cutoff = 1.1, skin = 0.35, w = cutoff + skin;
+  const int restore = max_threads();
+  struct Shape {
+    Eigen::Vector3d lists;  // box edges in list radii
+    Eigen::Vector3i periodic;
+  };
+  const Shape shapes[] = {{{3.2, 4.5, 6.1}, {1, 1, 1}},   {{2.6, 3.3, 7.9}, {1, 1, 1}}, {{5.0, 3.1, 4.2}, {1, 0, 1}},
+                          {{4.4, 5.7, 3.6}, {0, 0, 0}},   {{2.3, 2.8, 2.9}, {1, 1, 1}}, {{3.0, 3.0, 3.0}, {1, 1, 1}},
+                          {{14.5, 12.2, 11.3}, {1, 1, 1}}};
+  int checked = 0;
+  for (const Shape& shape : shapes)
+    for (int layout = 0; layout < 3; ++layout) {  // uniform, clustered, chains with exclusions
+      const Box box = periodic_box(shape.lists * w, Eigen::Vector3d(-0.7, 2.3, 0.4), shape.periodic);
+      const Box sampling = periodic_box(box.lengths, box.origin);
+      const double volume = box.lengths.prod();
+      const int n = std::max(40, static_cast<int>(0.85 * volume));
+      Eigen::Matrix3Xd x;
+      WeightMap excluded;
+      if (layout == 0) {
+        x = random_in_box(n, sampling, 61 + checked);
+      } else if (layout == 1) {  // clusters of 40 within 0.3 list radii, around uniform centres
+        x = random_in_box(n, sampling, 71 + checked);
+        std::mt19937 rng(81 + checked);
+        std::uniform_real_distribution<double> u(-0.15 * w, 0.15 * w);
+        for (int i = 0; i < n; ++i)
+          for (int a = 0; a < 3; ++a) x(a, i) = x(a, i - i % 40) + u(rng);
+      } else {
+        const int beads = 20, chains = std::max(2, n / beads);
+        x = random_chains(chains, beads, sampling, 0.97, 91 + checked);
+        excluded = chain_weights(chains, beads, {0.0, 0.0, 1.0});
+      }
+      if (shape.periodic.x() != 0 && layout != 2)  // some images far from the box: unwrapped positions
+        for (int i = 0; i < x.cols(); i += 3) x(0, i) += box.lengths.x() * ((i % 7) - 3);
+      std::vector<SpecialPair> pairs;
+      for (const auto& [ij, weight] : excluded) pairs.push_back({ij.first, ij.second, weight, weight});
+      const int m = static_cast<int>(x.cols());
+      std::vector<std::int64_t> offsets(1, 0);
+      std::vector<int> neighbors;
+      const PairSet expected = all_pairs_within(x, box, w, excluded);
+      auto next = expected.begin();
+      for (int i = 0; i < m; ++i) {
+        for (; next != expected.end() && next->first == i; ++next) neighbors.push_back(next->second);
+        offsets.push_back(static_cast<std::int64_t>(neighbors.size()));
+      }
+      for (const int threads : {1, 2}) {
+        set_max_threads(threads);
+        NeighborList nl(cutoff, skin);
+        if (!pairs.empty()) nl.set_exclusions(m, pairs);
+        nl.build(x, box);
+        const auto off = nl.offsets();
+        const auto nb = nl.neighbors();
+        EXPECT_TRUE(std::equal(off.begin(), off.end(), offsets.begin(), offsets.end()))
+            << "row lengths, shape " << shape.lists.transpose() << ", layout " << layout << ", " << threads
+            << " thread(s)";
+        EXPECT_TRUE(std::equal(nb.begin(), nb.end(), neighbors.begin(), neighbors.end()))
+            << "partners, shape " << shape.lists.transpose() << ", layout " << layout << ", " << threads
+            << " thread(s)";
+      }
+      ++checked;
+    }
+  set_max_threads(restore);
+}
+
 // In a box a few list radii wide the pair loop rounds d/L instead of folding (NearestImage::rounded):
 // the same separation, bit for bit, for every |d| < 1.5 L away from ±L/2 (and at ±0 and on an open
 // axis), and at ±L/2 one at distance L/2, as the fold's.
