@@ -21,7 +21,7 @@ struct BalanceSettings {
 
 struct ParallelSettings {
   Eigen::Vector3i grid = Eigen::Vector3i::Zero();  // domains per axis; 0: chosen (least cut surface)
-  double halo_margin = 0.0;                        // the pair sets beyond the cutoff; 0: 2.5 × skin (docs/parallel.md)
+  double halo_margin = 0.0;                        // the pair sets beyond the cutoff; 0: 1.5 × skin (docs/parallel.md)
   BalanceSettings balance{BalanceSettings::When::dynamic, 1.1};  // the deck's default: recut when uneven
   // "file:line: parallel.grid" (or the --set that gave it), for errors at the key; empty: not given.
   std::string grid_where, halo_margin_where, balance_where;
