@@ -444,6 +444,7 @@ void copy_runs(std::span<const ColumnRun> runs, const double* source, double* ta
 void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
   ++selections_;
+  at_selection_ = x;
   const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
   // Each owned bead goes to every rank whose domain comes within R of its position wrapped into
   // the box (a hair more, so that rounding cannot drop a bead at R: the distance to the domain's
@@ -590,6 +591,25 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     halo_doubles_ += out + back;
     halo_messages_ += (out > 0) + (back > 0);
   }
+}
+
+double Decomposition::displacement_since_selection(const Eigen::Matrix3Xd& x) const {
+  const ScopedPhase phase(Phase::domain);
+  double worst = 0.0;
+  if (x.cols() != at_selection_.cols()) {
+    worst = std::numeric_limits<double>::infinity();
+  } else {
+    const double* p = x.data();
+    const double* p0 = at_selection_.data();
+    for (Eigen::Index k = 0; k < 3 * x.cols(); k += 3) {
+      const double dx = p[k] - p0[k], dy = p[k + 1] - p0[k + 1], dz = p[k + 2] - p0[k + 2];
+      const double d2 = dx * dx + dy * dy + dz * dz;
+      // A value that is not finite makes it infinite (and stays so: nothing exceeds it).
+      if (!(d2 <= worst)) worst = d2 == d2 ? d2 : std::numeric_limits<double>::infinity();
+    }
+  }
+  comm_.max(&worst, 1);
+  return std::sqrt(worst);
 }
 
 double Decomposition::imbalance(const Eigen::Matrix3Xd& x) const {

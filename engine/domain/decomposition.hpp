@@ -9,12 +9,13 @@
 // computed where the beads are: a bead's home is the rank whose domain held its position at the
 // last selection of the pair sets; that rank's pair set is every bead within R = r_c + margin of
 // its domain, in increasing global index (its home beads and a thin halo). A bead's partners
-// within r_c lie in its home's pair set while no bead has moved margin/2 since the selection, so
-// the pair sets are selected again before that (GhostedPairs: the lists' own test,
-// NeighborList::set_displacement_limit). Per pair evaluation the owners send each bead's position to the ranks whose
-// pair set holds it, and its force so far to its home (forward); the home ranks send the forces back (reverse).
-// Positions are their owners' coordinates wrapped into the box, never a shifted image: every pair distance goes through
-// the box's minimum image, as in one process.
+// within r_c lie in its home's pair set while no bead has moved margin/2 since the selection, and
+// its partners within r_c + skin (a list build's) while none has moved (margin − skin)/2, so
+// the pair sets are selected again before that (GhostedPairs, with displacement_since_selection
+// at each list build and NeighborList::set_displacement_limit between builds). Per pair evaluation the owners send each
+// bead's position to the ranks whose pair set holds it, and its force so far to its home (forward); the home ranks send
+// the forces back (reverse). Positions are their owners' coordinates wrapped into the box, never a shifted image: every
+// pair distance goes through the box's minimum image, as in one process.
 #pragma once
 
 #include <Eigen/Core>
@@ -126,6 +127,11 @@ class Decomposition {
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried);
   // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
+  // The largest displacement of a bead from its position at the last selection, over every rank:
+  // x is the owned array of the selection (the positions, or the mollified positions) at a later
+  // time; each bead is owned by one rank, so the owned beads alone give the whole system's
+  // largest. Infinite when x has another column count or a value that is not finite. Collective.
+  double displacement_since_selection(const Eigen::Matrix3Xd& x) const;
   // After a selection of the pair sets, with the dynamic balance: when the home beads' max/mean
   // exceeds the threshold, the grid is recut to the owned positions x if that halves its excess
   // over 1 at least (the same on every rank). Returns whether it was recut: then the molecules migrate and the pair
@@ -172,6 +178,7 @@ class Decomposition {
   bool owns_molecule(int m) const;
   const DomainGrid& grid() const { return grid_; }
   double margin() const { return margin_; }
+  double radius() const { return radius_; }  // R = r_c + margin: the pair sets' reach
   const Communicator& comm() const { return comm_; }
   // Per pair evaluation with forces (forward and reverse): the doubles and messages this rank sends.
   std::int64_t halo_doubles() const { return halo_doubles_; }
@@ -232,6 +239,7 @@ class Decomposition {
   std::vector<Plan> out_, in_;
   Plan local_;  // owned index and slot together
   std::vector<int> pair_ids_, pair_slot_of_;
+  Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
   std::vector<Run> halo_runs_;  // the halo's slots (from = to)
   int num_home_ = 0;

@@ -49,11 +49,15 @@ std::string with_global_particles(const std::string& what, const std::vector<int
   return out;
 }
 
-// The halo's margin beyond the cutoff: [parallel] halo_margin, else 1.5 × the pair lists' skin. The
-// pair sets are selected again when a list would be rebuilt (GhostedPairs) or a bead has moved
-// margin/2; a list rebuilds when a bead moved skin/2 unless its few fast beads (up to the skin)
-// miss no pair (NeighborList::needs_rebuild), so a margin of the skin alone would select before
-// the lists rebuild (16 selections against 11 rebuilds in 60 steps of in.chain ×8 on 16 ranks).
+// The halo's margin beyond the cutoff: [parallel] halo_margin, else 1.5 × the pair lists' skin. A
+// list rebuild keeps the pair sets while no bead has moved (margin − skin)/2 since their selection
+// (GhostedPairs); a list rebuilds once a bead moved skin/2, unless its few fast beads (up to the
+// skin) miss no pair (NeighborList::needs_rebuild), so at 1.5 skins every rebuild selects again.
+// A wider margin keeps some: at 2.5 skins about every other rebuild selects (in.chain on 16 ranks,
+// 60 steps: 7 selections for 13 rebuilds), but the wider halo's copies and search cost as much as
+// the selections saved (docs/parallel.md, "A pair set kept across list rebuilds"). A margin of the
+// skin alone would select before the lists rebuild (16 selections against 11 rebuilds in 60 steps
+// of in.chain ×8 on 16 ranks).
 double halo_margin(const Scene& sc, double skin, double cutoff) {
   if (sc.parallel.halo_margin > 0.0) return sc.parallel.halo_margin;
   return skin > 0.0 ? 1.5 * skin : 0.3 * cutoff;

@@ -50,31 +50,50 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
   // reads them: the list makes no wrapped copy of its own.
   extended_pairs_->set_positions_wrapped(true);
-  // Every list build is at a selection of the pair sets (below), so a displacement since the build
-  // is one since the selection: past margin/2 the pair set may miss a pair.
-  extended_pairs_->set_displacement_limit(0.5 * domains.margin());
+  // Until its first build (forward): past (R − r_c)/2 since the selection the pair set may miss a
+  // pair within r_c.
+  extended_pairs_->set_displacement_limit(0.5 * (domains.radius() - template_.pair_cutoff()));
 }
 
 void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd* f) const {
-  // Moved onto a pair set another term selected: its list is built there at this evaluation.
+  // Moved onto a pair set selected since this term's last evaluation (by another term, or by the
+  // step driver after a migration): its list is built there at this evaluation.
   const bool moved = selection_ != domains_.selections();
   if (moved) retarget();
   domains_.forward(x, x_, f, f ? &f_ : nullptr);
-  // One max-reduction decides for every rank: the pair sets are selected again when a rank's list
-  // would be rebuilt — its fast beads' test, or a bead of its pair set moved margin/2 since the
-  // build, which was at the selection (else the pair set may miss a pair) — so that a rebuild, the
-  // costly part of a selection, is the one the list would make, as LAMMPS exchanges its ghosts at
-  // each reneighbouring. Every list then rebuilds together: a rank rebuilding alone would hold the
-  // others up at the next exchange. (Every owned bead is some rank's home bead.)
-  double stale = !moved && extended_pairs_->list_stale(x_, box) ? 1.0 : 0.0;
-  domains_.comm().max(&stale, 1);
-  if (stale == 0.0) {
-    if (!moved) extended_pairs_->set_next_list_verdict(false);  // the list's own test, just made
-    return;
+  if (!moved) {
+    // One max-reduction decides for every rank whether the lists rebuild: a rank's list would —
+    // its fast beads' test, or a bead of its pair set moved past the list's displacement limit
+    // (below). Every list then rebuilds together: a rank rebuilding alone would hold the others up
+    // at the next exchange.
+    double stale = extended_pairs_->list_stale(x_, box) ? 1.0 : 0.0;
+    domains_.comm().max(&stale, 1);
+    if (stale == 0.0) {
+      extended_pairs_->set_next_list_verdict(false);  // the list's own test, just made
+      return;
+    }
   }
-  domains_.select_pair_set(x);
-  retarget();
-  domains_.forward(x, x_, f, f ? &f_ : nullptr);
+  // The lists rebuild at x. A pair set selected at x_s holds, for each home bead i, every bead
+  // within R = r_c + margin of i's domain at x_s. A pair within r_c + skin at x, with no bead
+  // displaced more than D since the selection, was within r_c + skin + 2D at x_s: the list built
+  // now on the pair set is one process's list restricted to it (docs/parallel.md) while
+  // r_c + skin + 2D ≤ R. Else the pair sets are selected again here, at x. Each bead is owned once,
+  // so D is one pass over the owned beads and one max-reduction, made at rebuilds only.
+  const double cutoff = template_.pair_cutoff(), skin = template_.pair_skin();
+  double moved_since = domains_.displacement_since_selection(x);
+  const bool box_changed = box.lengths != domains_.box().lengths || box.origin != domains_.box().origin;
+  if (!(cutoff + skin + 2.0 * moved_since <= domains_.radius()) || box_changed) {
+    domains_.select_pair_set(x);
+    retarget();
+    domains_.forward(x, x_, f, f ? &f_ : nullptr);
+    moved_since = 0.0;
+  }
+  // Between builds a pair within r_c of a home bead is in the pair set while no bead has moved
+  // (R − r_c)/2 since the selection: the list counts as stale once a bead has moved
+  // (R − r_c)/2 − D since this build (NeighborList::set_displacement_limit; at least skin/2 by the
+  // test above), whatever its fast beads' test says.
+  extended_pairs_->set_displacement_limit(0.5 * (domains_.radius() - cutoff) - moved_since);
+  extended_pairs_->set_next_list_verdict(true);
 }
 
 void GhostedPairs::retarget() const {

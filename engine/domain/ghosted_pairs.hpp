@@ -7,11 +7,14 @@
 // bead's pair forces are added onto its owner's forces so far, in the one-process order: the
 // same bits as one process.
 //
-// Before each evaluation the pair sets are checked (some bead has moved margin/2 since the
-// selection, or a rank's list would be rebuilt) and selected again when stale; the term then
-// moves onto the new pair set in place (PairsOnParticles::move_to):
-// its neighbour list keeps its buffers, and the pair set's special pairs are the whole system's
-// among its beads.
+// Before each evaluation one max-reduction asks whether a rank's list would be rebuilt. If one
+// would, every list rebuilds, on the pair sets as they are while no bead has moved more than
+// (R − r_c − skin)/2 since their selection (then the list built on a pair set is one process's
+// list restricted to it); past that the pair sets are selected again first, and the term moves
+// onto the new pair set in place (PairsOnParticles::move_to): its neighbour list keeps its
+// buffers, and the pair set's special pairs are the whole system's among its beads. Between
+// builds a list counts as stale once a bead may have moved (R − r_c)/2 since the selection, where
+// a pair within r_c could leave the pair set.
 #pragma once
 
 #include <memory>
