@@ -275,7 +275,9 @@ TEST_P(PartsOnFakeRanks, ThePartIsTheWholeCutAndTheRunOneProcesssWithTheWholeArr
       },
       std::chrono::seconds(120));
   for (int r = 0; r < ranks; ++r) ASSERT_TRUE(out[r].ok) << "rank " << r;
-  if (ranks > 1) EXPECT_GE(out[0].migrated, 10.0) << "too few molecules migrated to test the carried data";
+  if (ranks > 1) {
+    EXPECT_GE(out[0].migrated, 10.0) << "too few molecules migrated to test the carried data";
+  }
   // Bit for bit one process's trajectory.
   EXPECT_TRUE(out[0].x == serial.state.x);
   EXPECT_TRUE(out[0].v == serial.state.v);
