@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "core/parallel.hpp"
 #include "decomposition_fixtures.hpp"
 #include "engine/domain/domain_integrator.hpp"
 #include "engine/domain/part_molecules.hpp"
@@ -237,10 +238,20 @@ void expect_part_is_the_whole_cut(const DomainIntegrator& d, const Scene& refere
   expect_same_topology(p.topology, restricted(reference.topology, ids, reference.topology.molecule));
 }
 
+// One thread in the thread that makes it, as the domains_* ctests run both sides with
+// OMP_NUM_THREADS=1 (tests/test_domains.py): another thread count sums the pair forces in another
+// order, and the fake ranks share the process's OpenMP threads.
+struct OneThread {
+  int was = max_threads();
+  OneThread() { set_max_threads(1); }
+  ~OneThread() { set_max_threads(was); }
+};
+
 class PartsOnFakeRanks : public ::testing::TestWithParam<int> {};
 
 TEST_P(PartsOnFakeRanks, ThePartIsTheWholeCutAndTheRunOneProcesssWithTheWholeArraysPoisoned) {
   const int ranks = GetParam();
+  const OneThread one_thread;
   // One process: the deck's method on the whole scene, step by step as the Run takes them.
   Scene serial = butane();
   const double h = serial.integrator.h;
@@ -254,6 +265,7 @@ TEST_P(PartsOnFakeRanks, ThePartIsTheWholeCutAndTheRunOneProcesssWithTheWholeArr
   run_ranks(
       ranks,
       [&](const FakeCommunicator& comm) {
+        const OneThread rank_thread;
         const int me = comm.rank();
         Scene sc = butane();
         const Scene reference = butane();  // the same scene, never poisoned
