@@ -16,6 +16,7 @@
 #include "forcefields/angle_loop.hpp"
 #include "forcefields/coefficients.hpp"
 #include "forcefields/force_term.hpp"
+#include "forcefields/type_claim.hpp"
 
 namespace stiffmd {
 
@@ -49,7 +50,7 @@ struct CosineAngleKernel {
 
 // An angle term over a kernel (as PairTerm is over a pair kernel).
 template <class K>
-class AngleTerm final : public ForceTerm {
+class AngleTerm final : public ForceTerm, public TypeClaim {
  public:
   using Params = AngleCoeffs;
   using Kernel = K;
@@ -69,7 +70,7 @@ class AngleTerm final : public ForceTerm {
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
     return std::make_unique<AngleTerm>(
-        name(), level(), items_on_subset(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
+        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;

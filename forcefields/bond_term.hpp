@@ -18,6 +18,7 @@
 #include "forcefields/bond_loop.hpp"
 #include "forcefields/bond_potentials.hpp"
 #include "forcefields/force_term.hpp"
+#include "forcefields/type_claim.hpp"
 
 namespace stiffmd {
 
@@ -37,7 +38,7 @@ inline void check_bonds(const std::string& who, const std::vector<Bond>& bonds, 
 }  // namespace bond_detail
 
 template <class K>
-class BondTerm final : public ForceTerm {
+class BondTerm final : public ForceTerm, public TypeClaim {
  public:
   using Kernel = K;
   using Coeffs = typename K::Coeffs;
@@ -81,7 +82,7 @@ class BondTerm final : public ForceTerm {
   // The bonds of the subset, in this term's order, with its coefficients.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
-    return std::make_unique<BondTerm>(name(), level(), items_on_subset(bonds_, subset, who, "bond", &Bond::i, &Bond::j),
+    return std::make_unique<BondTerm>(name(), level(), subset_items(bonds_, subset, who, "bond", &Bond::i, &Bond::j),
                                       types_);
   }
   std::string_view style() const override { return K::kStyle; }

@@ -32,6 +32,7 @@
 #include "forcefields/dihedral_terms.hpp"
 #include "forcefields/force_term.hpp"
 #include "forcefields/pair_loop.hpp"
+#include "forcefields/type_claim.hpp"
 
 namespace stiffmd {
 
@@ -70,7 +71,7 @@ struct CharmmAngleCoeffs {
   double r_ub = 0.0;    // length ≥ 0
 };
 
-class CharmmAngle final : public ForceTerm {
+class CharmmAngle final : public ForceTerm, public TypeClaim {
  public:
   static constexpr std::string_view kStyle = "charmm-angle";
   using Coeffs = CharmmAngleCoeffs;
@@ -111,7 +112,7 @@ class CharmmAngle final : public ForceTerm {
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(kStyle) + " '" + name() + "'";
     return std::make_unique<CharmmAngle>(
-        name(), level(), items_on_subset(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
+        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
   }
   std::string_view style() const override { return kStyle; }
   std::string describe() const override {
@@ -145,7 +146,7 @@ struct Lj14 {
   double sigma = 0.0;    // length > 0
 };
 
-class CharmmDihedral final : public ForceTerm {
+class CharmmDihedral final : public ForceTerm, public TypeClaim {
  public:
   static constexpr std::string_view kStyle = "charmm-dihedral";
   using Coeffs = CharmmDihedralKernel::Coeffs;
@@ -250,7 +251,7 @@ class CharmmDihedral final : public ForceTerm {
     }
     return std::make_unique<CharmmDihedral>(
         name(), level(),
-        items_on_subset(dihedrals_, subset, who, "dihedral", &Dihedral::i, &Dihedral::j, &Dihedral::k, &Dihedral::l),
+        subset_items(dihedrals_, subset, who, "dihedral", &Dihedral::i, &Dihedral::j, &Dihedral::k, &Dihedral::l),
         types_, std::move(types), lj14_, std::move(charges), qqrd2e_);
   }
   std::string_view style() const override { return kStyle; }

@@ -26,6 +26,7 @@
 #include "forcefields/dihedral_loop.hpp"
 #include "forcefields/force_term.hpp"
 #include "forcefields/parameter_record.hpp"
+#include "forcefields/type_claim.hpp"
 
 namespace stiffmd {
 
@@ -151,7 +152,7 @@ constexpr const char* item_word<Improper>() {
 // Improper for the improper styles whose angle is the dihedral angle of i, j, k, l (harmonic,
 // cvff: improper_terms.hpp).
 template <class K, class Item = Dihedral>
-class DihedralTerm final : public ForceTerm {
+class DihedralTerm final : public ForceTerm, public TypeClaim {
  public:
   using Kernel = K;
   using Coeffs = typename K::Coeffs;
@@ -194,8 +195,7 @@ class DihedralTerm final : public ForceTerm {
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
     return std::make_unique<DihedralTerm>(
-        name(), level(), items_on_subset(dihedrals_, subset, who, kItem, &Item::i, &Item::j, &Item::k, &Item::l),
-        types_);
+        name(), level(), subset_items(dihedrals_, subset, who, kItem, &Item::i, &Item::j, &Item::k, &Item::l), types_);
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override {

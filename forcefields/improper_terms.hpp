@@ -44,6 +44,7 @@
 #include "forcefields/force_term.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/tuple_partition.hpp"
+#include "forcefields/type_claim.hpp"
 
 namespace stiffmd {
 
@@ -167,7 +168,7 @@ inline void eval(const Geometry& g, const Params& p, double& e, double& de_dc) {
 }  // namespace umbrella_detail
 
 // The umbrella improper (LAMMPS improper_style umbrella, DREIDING's inversion).
-class UmbrellaImproper final : public ForceTerm {
+class UmbrellaImproper final : public ForceTerm, public TypeClaim {
  public:
   static constexpr std::string_view kStyle = "umbrella-improper";
   using Coeffs = UmbrellaCoeffs;
@@ -252,7 +253,7 @@ class UmbrellaImproper final : public ForceTerm {
     const std::string who = std::string(kStyle) + " '" + name() + "'";
     return std::make_unique<UmbrellaImproper>(
         name(), level(),
-        items_on_subset(impropers_, subset, who, "improper", &Improper::i, &Improper::j, &Improper::k, &Improper::l),
+        subset_items(impropers_, subset, who, "improper", &Improper::i, &Improper::j, &Improper::k, &Improper::l),
         types_);
   }
   std::string_view style() const override { return kStyle; }

@@ -14,6 +14,7 @@
 
 #include "engine/scene/scene.hpp"
 #include "forcefields/force_field.hpp"
+#include "forcefields/type_claim.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -149,6 +150,37 @@ TEST(ForceFieldOnSubset, AllParticlesGiveTheSameField) {
     EXPECT_EQ(p.add_forces(sc.state.x, sc.box, fp), w.add_forces(sc.state.x, sc.box, fw));
     EXPECT_TRUE(fp == fw);
   }
+}
+
+// The bonded terms read from a deck claim their types (TypeClaim): on a subset they take their
+// items from the subset's topology, not from their own lists of the whole system — what a
+// decomposed run's part, which carries its molecules' items, is built from. With the subset's
+// topology emptied, each of them holds no item there and adds no force, while the whole term does.
+TEST(ForceFieldOnSubset, ClaimedTermsTakeTheSubsetsTopology) {
+  const Scene sc = every_style();
+  const int n = sc.state.size();
+  std::vector<int> all(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) all[static_cast<size_t>(i)] = i;
+  Subset s = subset_of(sc, all);
+  s.topology.bonds.clear();
+  s.topology.angles.clear();
+  s.topology.dihedrals.clear();
+  const auto part = sc.forces->on_subset(s.view());
+  std::set<std::string> styles;
+  for (size_t k = 0; k < part->terms().size(); ++k) {
+    const ForceTerm &w = *sc.forces->terms()[k], &p = *part->terms()[k];
+    if (!dynamic_cast<const TypeClaim*>(&w)) continue;
+    SCOPED_TRACE(w.name());
+    styles.insert(std::string(w.style()));
+    EXPECT_EQ(p.describe().rfind("0 ", 0), 0u) << p.describe();
+    Eigen::Matrix3Xd fw = Eigen::Matrix3Xd::Zero(3, n), fp = fw;
+    w.add_forces(sc.state.x, sc.box, fw);
+    EXPECT_EQ(p.add_forces(sc.state.x, sc.box, fp), 0.0);
+    EXPECT_FALSE(fw.isZero(0.0));
+    EXPECT_TRUE(fp.isZero(0.0));
+  }
+  EXPECT_EQ(styles, (std::set<std::string>{"fene", "morse", "harmonic-angle", "cosine-angle", "harmonic-dihedral",
+                                           "multi-harmonic-dihedral", "opls-dihedral"}));
 }
 
 // A subset holding part of a molecule cuts its bonds: refused, naming the bond.

@@ -174,9 +174,12 @@ DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* di
 
 Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& inv_mass, const Box& box,
                              const Communicator& comm, double cutoff, double margin, const Eigen::Vector3i* dims)
-    : comm_(comm), box_(box), mass_(inv_mass.size()), radius_(cutoff + margin), margin_(margin) {
-  const int n = static_cast<int>(inv_mass.size());
-  for (int i = 0; i < n; ++i) mass_[i] = inv_mass[i] > 0.0 ? 1.0 / inv_mass[i] : 1.0;
+    : comm_(comm),
+      box_(box),
+      num_particles_(static_cast<int>(inv_mass.size())),
+      radius_(cutoff + margin),
+      margin_(margin) {
+  const int n = num_particles_;
   // Molecules (bonded_molecules): pinned particles join too (a term acts on all its particles), so a
   // molecule may hold several constraint clusters (integrators/clusters.hpp).
   molecule_ = bonded_molecules(topology, n);
@@ -189,7 +192,6 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   std::vector<int> next(molecule_start_.begin(), molecule_start_.end() - 1);
   for (int i = 0; i < n; ++i) molecule_particles_[next[molecule_[i]]++] = i;  // increasing within each
   if (dims) grid_dims_ = *dims, have_dims_ = true;
-  owned_of_.assign(n, -1);
   pair_slot_of_.assign(n, -1);
   const int ranks = comm_.size();
   out_.resize(ranks);
@@ -201,14 +203,29 @@ bool Decomposition::owns_molecule(int m) const {
   return std::binary_search(owned_.begin(), owned_.end(), m);
 }
 
-Eigen::Vector3d Decomposition::anchor(const Eigen::Matrix3Xd& x, std::span<const int> global,
-                                      bool owned_columns) const {
-  // The centre of mass of a whole molecule (unwrapped: its bonds are their own minimum images).
+int Decomposition::owned_index(int global) const {
+  const auto it = std::lower_bound(ids_.begin(), ids_.end(), global);
+  return it != ids_.end() && *it == global ? static_cast<int>(it - ids_.begin()) : -1;
+}
+
+namespace {
+
+// A particle's mass in its molecule's anchor: 1 for a fixed one (inverse mass 0), which counts there.
+double anchor_mass(double inv_mass) {
+  return inv_mass > 0.0 ? 1.0 / inv_mass : 1.0;
+}
+
+}  // namespace
+
+// The centre of mass of a whole molecule (unwrapped: its bonds are their own minimum images),
+// summed over its particles by increasing global index.
+Eigen::Vector3d Decomposition::owned_anchor(const Eigen::Matrix3Xd& x, int i) const {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   double total = 0.0;
-  for (int g : global) {
-    c += mass_[g] * x.col(owned_columns ? owned_of_[g] : g);
-    total += mass_[g];
+  for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) {
+    const int k = owned_columns_[e];
+    c += owned_mass_[k] * x.col(k);
+    total += owned_mass_[k];
   }
   return c / total;
 }
@@ -219,21 +236,37 @@ void Decomposition::set_box(const Box& box) {
     if (box.periodic[a]) grid_.origin[a] = box.origin[a], grid_.length[a] = box.lengths[a];
 }
 
-void Decomposition::own(std::vector<int> molecules) {
-  for (int g : ids_) owned_of_[g] = -1;
-  owned_ = std::move(molecules);
+void Decomposition::own() {
+  // The owned molecules, and each one's columns by a counting sort of the owned particles (their
+  // columns increase within each molecule).
+  owned_ = owned_molecule_;
   std::sort(owned_.begin(), owned_.end());
-  ids_.clear();
-  for (int m : owned_)
-    for (int g : molecule(m)) ids_.push_back(g);
-  std::sort(ids_.begin(), ids_.end());
-  for (int k = 0; k < static_cast<int>(ids_.size()); ++k) owned_of_[ids_[k]] = k;
+  owned_.erase(std::unique(owned_.begin(), owned_.end()), owned_.end());
+  owned_start_.assign(owned_.size() + 1, 0);
+  std::vector<int> slot(ids_.size());
+  for (size_t k = 0; k < ids_.size(); ++k) {
+    slot[k] = static_cast<int>(std::lower_bound(owned_.begin(), owned_.end(), owned_molecule_[k]) - owned_.begin());
+    ++owned_start_[slot[k] + 1];
+  }
+  for (size_t i = 0; i < owned_.size(); ++i) owned_start_[i + 1] += owned_start_[i];
+  owned_columns_.resize(ids_.size());
+  std::vector<int> next(owned_start_.begin(), owned_start_.end() - 1);
+  for (size_t k = 0; k < ids_.size(); ++k) owned_columns_[next[slot[k]]++] = static_cast<int>(k);
 }
 
 void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
   const int molecules = num_molecules();
   Eigen::Matrix3Xd anchors(3, molecules);
-  for (int m = 0; m < molecules; ++m) anchors.col(m) = anchor(whole.x, molecule(m), false);
+  for (int m = 0; m < molecules; ++m) {  // as owned_anchor, over the whole state
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    double total = 0.0;
+    for (int g : molecule(m)) {
+      const double mass = anchor_mass(whole.inv_mass[g]);
+      c += mass * whole.x.col(g);
+      total += mass;
+    }
+    anchors.col(m) = c / total;
+  }
   grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
   // Every rank holds the whole state: each measures the load and recuts alike, without a word.
   imbalance_before_ = load_imbalance(domain_loads(grid_, whole.x));
@@ -242,19 +275,33 @@ void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::M
     DomainGrid cut = balanced_grid(grid_, axis_histograms(grid_, whole.x, bins), bins);
     if (load_imbalance(domain_loads(cut, whole.x)) < imbalance_before_) grid_ = std::move(cut), ++recuts_;
   }
-  std::vector<int> mine;
+  ids_.clear();
   for (int m = 0; m < molecules; ++m)
-    if (grid_.domain_of(anchors.col(m)) == comm_.rank()) mine.push_back(m);
-  own(std::move(mine));
-  x.resize(3, num_owned());
-  v.resize(3, num_owned());
-  for (int k = 0; k < num_owned(); ++k) x.col(k) = whole.x.col(ids_[k]), v.col(k) = whole.v.col(ids_[k]);
+    if (grid_.domain_of(anchors.col(m)) == comm_.rank())
+      for (int g : molecule(m)) ids_.push_back(g);
+  std::sort(ids_.begin(), ids_.end());
+  const int n = num_owned();
+  owned_molecule_.resize(n);
+  owned_mass_.resize(n);
+  x.resize(3, n);
+  v.resize(3, n);
+  for (int k = 0; k < n; ++k) {
+    const int g = ids_[k];
+    owned_molecule_[k] = molecule_[g];
+    owned_mass_[k] = anchor_mass(whole.inv_mass[g]);
+    x.col(k) = whole.x.col(g), v.col(k) = whole.v.col(g);
+  }
+  own();
 }
 
-bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried) {
+bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
+                            PartMolecules* molecules) {
   const ScopedPhase phase(Phase::domain);
-  const int ranks = comm_.size(), me = comm_.rank();
-  const int words = 6 + 3 * static_cast<int>(carried.size());  // per particle: x, v, the carried columns
+  const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
+  // Per particle: its global index, its molecule, its mass in the anchor, x, v, the carried columns.
+  const int words = 9 + 3 * static_cast<int>(carried.size());
+  if (molecules && molecules->global != ids_)
+    throw std::logic_error("Decomposition::migrate: the part's molecules are not the owned particles");
   // A molecule leaves when its anchor is past this rank's domain by more than a quarter of the
   // domain's narrowest width: an anchor near a face does not go back and forth (each move rebuilds
   // two ranks' parts). A molecule away from its domain costs only messages: its beads' pair forces
@@ -262,71 +309,107 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   const int mine[3] = {me / (grid_.dims[1] * grid_.dims[2]), (me / grid_.dims[2]) % grid_.dims[1], me % grid_.dims[2]};
   double slack = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * (grid_.face(a, mine[a] + 1) - grid_.face(a, mine[a])));
+  std::vector<int> to(owned, -1);  // per owned column: the rank it leaves for (−1: it stays)
+  bool leaving = false;
+  for (int i = 0; i < static_cast<int>(owned_.size()); ++i) {
+    const Eigen::Vector3d c = owned_anchor(x, i);
+    const int dest = grid_.domain_of(c);
+    if (dest == me || grid_.within(me, c, slack)) continue;
+    ++migrated_;
+    leaving = true;
+    for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) to[owned_columns_[e]] = dest;
+  }
+  // A message: the particle count, each particle's words by increasing global index, then (with
+  // molecules) their share of the part's molecules, in the same order.
   std::vector<std::vector<double>> out(ranks), in;
-  std::vector<int> kept;
-  for (int m : owned_) {
-    const Eigen::Vector3d c = anchor(x, molecule(m), true);
-    const int to = grid_.domain_of(c);
-    if (to == me || grid_.within(me, c, slack)) {
-      kept.push_back(m);
+  for (int r = 0; r < ranks; ++r) out[r].push_back(0.0);
+  for (int k = 0; k < owned; ++k) {
+    if (to[k] < 0) continue;
+    std::vector<double>& o = out[to[k]];
+    o[0] += 1.0;
+    o.push_back(ids_[k]);
+    o.push_back(owned_molecule_[k]);
+    o.push_back(owned_mass_[k]);
+    for (int a = 0; a < 3; ++a) o.push_back(x(a, k));
+    for (int a = 0; a < 3; ++a) o.push_back(v(a, k));
+    for (const Eigen::Matrix3Xd* c : carried)
+      for (int a = 0; a < 3; ++a) o.push_back((*c)(a, k));
+  }
+  std::vector<PartMolecules> pieces(molecules ? ranks : 0);
+  PartMolecules kept_molecules;
+  if (molecules && leaving) kept_molecules = split_part(*molecules, to, pieces);
+  for (int r = 0; r < ranks; ++r) {
+    if (out[r][0] == 0.0) {
+      out[r].clear();
       continue;
     }
-    ++migrated_;
-    std::vector<double>& o = out[to];
-    o.push_back(m);
-    for (int g : molecule(m)) {
-      const int k = owned_of_[g];
-      for (int a = 0; a < 3; ++a) o.push_back(x(a, k));
-      for (int a = 0; a < 3; ++a) o.push_back(v(a, k));
-      for (const Eigen::Matrix3Xd* c : carried)
-        for (int a = 0; a < 3; ++a) o.push_back((*c)(a, k));
-    }
+    if (molecules) pack_part(pieces[r], out[r]);
   }
   comm_.exchange(out, in);
   bool arrived = false;
   for (const auto& b : in) arrived |= !b.empty();
-  if (kept.size() == owned_.size() && !arrived) return false;
+  if (!leaving && !arrived) return false;
   // The new owned particles in increasing global index: kept ones from the old columns, arrived
   // ones from the messages.
   std::vector<std::pair<int, const double*>> from_messages;  // global index, its words
-  std::vector<int> molecules = kept;
-  for (const auto& b : in)
-    for (size_t k = 0; k < b.size();) {
-      const int m = static_cast<int>(b[k++]);
-      molecules.push_back(m);
-      for (int g : molecule(m)) {
-        from_messages.emplace_back(g, b.data() + k);
-        k += words;
-      }
+  std::vector<PartMolecules> parts;
+  if (molecules) parts.push_back(leaving ? std::move(kept_molecules) : std::move(*molecules));
+  for (const auto& b : in) {
+    if (b.empty()) continue;
+    const auto count = static_cast<size_t>(b[0]);
+    const double* w = b.data() + 1;
+    for (size_t e = 0; e < count; ++e, w += words) from_messages.emplace_back(static_cast<int>(w[0]), w);
+    if (molecules) {
+      parts.emplace_back();
+      unpack_part(w, parts.back());
     }
-  std::sort(from_messages.begin(), from_messages.end());
-  const std::vector<int> was = ids_;  // the old owned particles, increasing
-  own(std::move(molecules));
-  std::vector<int> old_index(ids_.size(), -1);  // per new owned particle: its old index, −1 if it arrived
-  for (size_t k = 0, j = 0; k < ids_.size(); ++k) {
-    while (j < was.size() && was[j] < ids_[k]) ++j;
-    if (j < was.size() && was[j] == ids_[k]) old_index[k] = static_cast<int>(j);
   }
-  const int n = num_owned();
+  std::sort(from_messages.begin(), from_messages.end());
+  std::vector<int> now;  // the new owned particles: kept ones (old column k ≥ 0) or arrived ones (−1 − e)
+  now.reserve(owned + from_messages.size());
+  {
+    int k = 0;
+    size_t e = 0;
+    while (k < owned || e < from_messages.size()) {
+      while (k < owned && to[k] >= 0) ++k;
+      const bool old = k < owned && (e == from_messages.size() || ids_[k] < from_messages[e].first);
+      if (old)
+        now.push_back(k++);
+      else if (e < from_messages.size())
+        now.push_back(-1 - static_cast<int>(e++));
+    }
+  }
+  const int n = static_cast<int>(now.size());
+  std::vector<int> ids(n), molecule_of(n);
+  std::vector<double> mass(n);
   Eigen::Matrix3Xd nx(3, n), nv(3, n);
   std::vector<Eigen::Matrix3Xd> nc(carried.size(), Eigen::Matrix3Xd(3, n));
   for (int k = 0; k < n; ++k) {
-    if (const int o = old_index[k]; o >= 0) {
+    if (const int o = now[k]; o >= 0) {
+      ids[k] = ids_[o], molecule_of[k] = owned_molecule_[o], mass[k] = owned_mass_[o];
       nx.col(k) = x.col(o), nv.col(k) = v.col(o);
       for (size_t c = 0; c < carried.size(); ++c) nc[c].col(k) = carried[c]->col(o);
       continue;
     }
-    const auto it = std::lower_bound(from_messages.begin(), from_messages.end(),
-                                     std::make_pair(ids_[k], static_cast<const double*>(nullptr)));
-    const double* w = it->second;
-    nx.col(k) = Eigen::Vector3d(w[0], w[1], w[2]);
-    nv.col(k) = Eigen::Vector3d(w[3], w[4], w[5]);
+    const double* w = from_messages[static_cast<size_t>(-1 - now[k])].second;
+    ids[k] = static_cast<int>(w[0]), molecule_of[k] = static_cast<int>(w[1]), mass[k] = w[2];
+    nx.col(k) = Eigen::Vector3d(w[3], w[4], w[5]);
+    nv.col(k) = Eigen::Vector3d(w[6], w[7], w[8]);
     for (size_t c = 0; c < carried.size(); ++c)
-      nc[c].col(k) = Eigen::Vector3d(w[6 + 3 * c], w[7 + 3 * c], w[8 + 3 * c]);
+      nc[c].col(k) = Eigen::Vector3d(w[9 + 3 * c], w[10 + 3 * c], w[11 + 3 * c]);
   }
+  ids_ = std::move(ids);
+  owned_molecule_ = std::move(molecule_of);
+  owned_mass_ = std::move(mass);
+  own();
   x = std::move(nx);
   v = std::move(nv);
   for (size_t c = 0; c < carried.size(); ++c) *carried[c] = std::move(nc[c]);
+  if (molecules) {
+    *molecules = merge_parts(std::move(parts));
+    if (molecules->global != ids_)
+      throw std::logic_error("Decomposition::migrate: the molecules that arrived are not the particles that did");
+  }
   return true;
 }
 
@@ -623,7 +706,7 @@ bool Decomposition::rebalance(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
   // Every bead is home on one rank: the mean is N / ranks, and one max of the home beads (counted
   // at the selection) tells every rank alike whether to recut.
-  const double mean = static_cast<double>(owned_of_.size()) / comm_.size();
+  const double mean = static_cast<double>(num_particles_) / comm_.size();
   const double most = comm_.max(static_cast<double>(num_home_));
   const double before = mean > 0.0 ? most / mean : 1.0;
   if (before <= balance_.threshold) return false;

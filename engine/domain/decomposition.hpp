@@ -28,6 +28,7 @@
 #include "core/communicator.hpp"
 #include "core/state.hpp"
 #include "core/topology.hpp"
+#include "engine/domain/part_molecules.hpp"
 #include "engine/scene/parallel_settings.hpp"  // BalanceSettings
 
 namespace stiffmd {
@@ -109,22 +110,26 @@ struct ColumnRun {
 
 class Decomposition {
  public:
-  // The whole system's molecules (the connected components of its bonded terms) and masses.
-  // `margin` > 0: the halo's margin beyond the pair cutoff `cutoff`.
+  // The whole system's molecules (the connected components of its bonded terms), which the start
+  // distributes (`inv_mass`: its size is the system's). `margin` > 0: the halo's margin beyond the
+  // pair cutoff `cutoff`.
   Decomposition(const Topology& topology, const Eigen::VectorXd& inv_mass, const Box& box, const Communicator& comm,
                 double cutoff, double margin, const Eigen::Vector3i* dims);
 
   // When the domains are recut (off unless set; before distribute).
   void set_balance(const BalanceSettings& b) { balance_ = b; }
   // From the whole state (the same on every rank, at the start): the grid (recut to its beads
-  // unless the balance is off), owners by anchor, and this rank's owned x, v (no communication:
-  // the caller selects the pair sets next).
+  // unless the balance is off), owners by anchor (the centres of mass with whole.inv_mass), and
+  // this rank's owned x, v (no communication: the caller selects the pair sets next). The only
+  // call that reads the whole system: from then on a rank knows its own molecules alone.
   void distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
   // Molecules whose anchor has gone more than a quarter of this rank's domain's narrowest width
   // past it move whole to the owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel
-  // with them); x, v, carried become the new owned arrays. Returns whether this rank's owned particles changed.
-  // Collective.
-  bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried);
+  // with them), their global indices and masses (the receiver's anchors), and with `molecules`,
+  // their share of it (what the part is built from: PartMolecules); x, v, carried and molecules
+  // become the new owned ones. Returns whether this rank's owned particles changed. Collective.
+  bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
+               PartMolecules* molecules = nullptr);
   // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
   // The largest displacement of a bead from its position at the last selection, over every rank:
@@ -167,7 +172,7 @@ class Decomposition {
 
   const std::vector<int>& owned_ids() const { return ids_; }  // global index per owned particle
   int num_owned() const { return static_cast<int>(ids_.size()); }
-  int owned_index(int global) const { return owned_of_[global]; }  // −1: not owned here
+  int owned_index(int global) const;  // −1: not owned here (a search of the owned indices)
   // The pair set: global index per slot (increasing), whether a slot is a halo bead (not home
   // here: NeighborList::set_ghosts), the home beads' count, and the slot of a global index (−1: not
   // in this rank's pair set).
@@ -189,6 +194,9 @@ class Decomposition {
   // selection of the pair sets uses it.
   void set_box(const Box& box);
   const Box& box() const { return box_; }
+  // The whole system's molecules, as the constructor found them: what distribute cuts, and what
+  // the DomainIntegrator's constructor reads; the migration never reads them (a molecule that
+  // arrives brings its global indices).
   int molecule_of(int global) const { return molecule_[global]; }
   int num_molecules() const { return static_cast<int>(molecule_start_.size()) - 1; }
   // The global indices of molecule m, increasing.
@@ -198,12 +206,14 @@ class Decomposition {
   }
 
  private:
-  Eigen::Vector3d anchor(const Eigen::Matrix3Xd& x, std::span<const int> global, bool owned_columns) const;
-  void own(std::vector<int> molecules);  // owned_ and ids_ from a list of molecules
+  // The centre of mass of the owned molecule at owned_[i] (its columns of x, the owned masses).
+  Eigen::Vector3d owned_anchor(const Eigen::Matrix3Xd& x, int i) const;
+  // owned_ and each owned molecule's columns from ids_ and owned_molecule_.
+  void own();
 
   const Communicator& comm_;
   Box box_;
-  Eigen::VectorXd mass_;  // per global particle (1 for fixed ones: they count in the anchor)
+  int num_particles_ = 0;  // the whole system's
   std::vector<int> molecule_;
   std::vector<int> molecule_start_, molecule_particles_;
   DomainGrid grid_;
@@ -214,9 +224,14 @@ class Decomposition {
   double imbalance_before_ = 1.0;
   long recuts_ = 0;
 
-  std::vector<int> owned_;     // molecules, increasing
-  std::vector<int> ids_;       // owned particles: global index, increasing
-  std::vector<int> owned_of_;  // global → owned index (−1: not owned here)
+  // What this rank owns, all of the part's size: its molecules (increasing) and each one's owned
+  // columns (owned_start_, owned_columns_: increasing); per owned particle its global index
+  // (increasing), its molecule and its mass in the anchor (1 for a fixed one: it counts there).
+  std::vector<int> owned_;
+  std::vector<int> owned_start_, owned_columns_;
+  std::vector<int> ids_;
+  std::vector<int> owned_molecule_;
+  std::vector<double> owned_mass_;
 
   // The pair set and the plan of forward and reverse. From this rank to rank r (≠ this one):
   // the owned columns out_[r].owned, each a home bead there or not (out_[r].home); back from r

@@ -100,6 +100,7 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
     special_.push_back(pairs ? std::make_unique<SpecialPartners>(pairs->special_pairs(), whole.state.size()) : nullptr);
   }
   evaluations_.assign(whole.forces->num_levels(), 0);
+  charged_ = whole.charged();
   // The polymer columns average over the topology's molecules (its molecule ids); a rank can sum
   // them only over molecules it holds whole.
   const std::vector<int>& id = whole.topology.molecule;
@@ -144,54 +145,35 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     for (const auto& t : part_->scene.forces->terms()) rebuilds_ += t->neighbor_list_rebuilds();
   }
   const Scene& w = whole_scene_;
-  const Decomposition& d = *domains_;
+  const PartMolecules& mine = molecules_;
   auto part = std::make_unique<Part>();
   Scene& p = part->scene;
   p.deck_path = w.deck_path;
   p.units = w.units;
   p.box = w.forces->box();  // the box now (a barostat moves it)
   p.types = w.types;
-  p.integrator = w.integrator;
+  p.integrator = settings_;
   p.run = w.run;
   p.observables = w.observables;
-  p.global_id = d.owned_ids();
-  const int n = d.num_owned();
+  // The part's particles and bonded items as its molecules carry them (PartMolecules: cut from the
+  // whole system at the start, moved with the molecules since), never the whole system's arrays.
+  if (mine.global != domains_->owned_ids())
+    throw std::logic_error("DomainIntegrator: the part's molecules are not the owned particles");
+  p.global_id = mine.global;
+  const int n = mine.size();
   p.state.x = std::move(x);
   p.state.v = std::move(v);
-  p.state.inv_mass.resize(n);
-  p.particle_type.resize(n);
-  p.charge.resize(n);
-  for (int k = 0; k < n; ++k) {
-    const int g = p.global_id[k];
-    p.state.inv_mass[k] = w.state.inv_mass[g];
-    p.particle_type[k] = w.particle_type[g];
-    p.charge[k] = w.charge[g];
-  }
+  p.state.inv_mass = Eigen::Map<const Eigen::VectorXd>(mine.inv_mass.data(), n);
+  p.particle_type = mine.type;
+  p.charge = mine.charge;
   p.state.t = s.t;
   p.state.step = s.step;
   // The owned molecules' bonded terms, in the whole system's order (so the constraint clusters,
   // and the effective dynamics' modes, come in the whole system's order too).
-  const Topology& wt = w.topology;
-  Topology& t = p.topology;
-  t.bond_types = wt.bond_types, t.angle_types = wt.angle_types, t.dihedral_types = wt.dihedral_types;
-  t.improper_types = wt.improper_types;
-  const auto at = [&](int g) { return d.owned_index(g); };
-  for (const Bond& b : wt.bonds)
-    if (at(b.i) >= 0) t.bonds.push_back({at(b.i), at(b.j), b.type});
-  for (const Angle& a : wt.angles)
-    if (at(a.i) >= 0) t.angles.push_back({at(a.i), at(a.j), at(a.k), a.type});
-  for (const Dihedral& h : wt.dihedrals)
-    if (at(h.i) >= 0) t.dihedrals.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
-  for (const Improper& h : wt.impropers)
-    if (at(h.i) >= 0) t.impropers.push_back({at(h.i), at(h.j), at(h.k), at(h.l), h.type});
-  if (!wt.molecule.empty())
-    for (int k = 0; k < n; ++k) t.molecule.push_back(wt.molecule[p.global_id[k]]);
+  p.topology = mine.topology(w.topology);
+  const Topology& t = p.topology;
   ThermostatSettings& th = p.integrator.thermostat;
-  if (th.friction.size() > 0) {
-    Eigen::VectorXd f(n);
-    for (int k = 0; k < n; ++k) f[k] = w.integrator.thermostat.friction[p.global_id[k]];
-    th.friction = f;
-  }
+  if (per_particle_friction_) th.friction = Eigen::Map<const Eigen::VectorXd>(mine.friction.data(), n);
   th.particle_id.assign(p.global_id.begin(), p.global_id.end());
   th.processes = &comm_;
   th.degrees_of_freedom = whole_dof_;
@@ -203,7 +185,7 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.processes = &comm_;
   }
   p.forces = w.forces->on_subset(
-      {p.global_id, p.particle_type, t, w.charged() ? std::span<const double>(p.charge) : std::span<const double>()});
+      {p.global_id, p.particle_type, t, charged_ ? std::span<const double>(p.charge) : std::span<const double>()});
   // The reciprocal sums (k-space terms) sum over the ranks.
   for (const auto& term : p.forces->terms()) term->set_processes(&comm_);
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
@@ -230,6 +212,21 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
 void DomainIntegrator::start(const State& s) {
   Eigen::Matrix3Xd x, v;
   domains_->distribute(s, x, v);
+  // The part's molecules cut from the whole system, once: from now on they travel with their
+  // molecules (Decomposition::migrate), and no part reads the whole system's arrays again.
+  const Scene& w = whole_scene_;
+  const Eigen::VectorXd& friction = w.integrator.thermostat.friction;
+  molecules_ = cut_part(
+      {std::span<const double>(s.inv_mass.data(), static_cast<size_t>(s.inv_mass.size())), w.particle_type, w.charge,
+       w.topology.molecule, std::span<const double>(friction.data(), static_cast<size_t>(friction.size())), w.topology},
+      domains_->owned_ids());
+  // The method's settings without their per-particle arrays of the whole system (each part sets
+  // its own).
+  settings_ = w.integrator;
+  per_particle_friction_ = settings_.thermostat.friction.size() > 0;
+  settings_.thermostat.friction.resize(0);
+  settings_.thermostat.particle_id.clear();
+  settings_.barostat.molecule.clear();
   build_part(std::move(x), std::move(v), s);
   domains_->select_pair_set(part_->scene.state.x);
   // The lists built now, before the step loop, as one process builds its list in the first
@@ -270,7 +267,7 @@ void DomainIntegrator::reselect(bool box_moved) {
   // the molecules then migrate to the new ones.
   const bool recut = domains_->rebalance(l.x);
   double changed = 0.0;
-  if (domains_->migrate(l.x, l.v, columns)) {
+  if (domains_->migrate(l.x, l.v, columns, &molecules_)) {
     changed = 1.0;
     Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
     build_part(std::move(x), std::move(v), l);
@@ -501,6 +498,10 @@ DomainReport DomainIntegrator::report() const {
 
 const State& DomainIntegrator::owned_state() const {
   return part_->scene.state;
+}
+
+const Scene& DomainIntegrator::part_scene() const {
+  return part_->scene;
 }
 
 void DomainIntegrator::owned_forces(Eigen::Matrix3Xd& f) const {

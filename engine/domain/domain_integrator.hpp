@@ -24,6 +24,7 @@
 #include "core/communicator.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
+#include "engine/domain/part_molecules.hpp"
 #include "engine/io/particle_blocks.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
@@ -93,6 +94,9 @@ class DomainIntegrator final : public Integrator {
   // their total forces at the current positions (collective: the pair terms' halo).
   const std::vector<int>& owned_ids() const { return domains_->owned_ids(); }
   const State& owned_state() const;
+  // This rank's part (its particles, their types and charges, its topology and force terms), once
+  // distributed.
+  const Scene& part_scene() const;
   void owned_forces(Eigen::Matrix3Xd& f) const;
   // Whether the thermo row can be summed by parts (sample_sums): once distributed, when every
   // molecule of the topology (its molecule ids: Rg, end-to-end) lies within one bonded molecule,
@@ -114,11 +118,15 @@ class DomainIntegrator final : public Integrator {
   std::unique_ptr<Integrator> whole_;
   std::unique_ptr<Decomposition> domains_;
   std::unique_ptr<Part> part_;
-  bool reselect_ = false;   // the pair sets were selected again: molecules may migrate before the next step
-  bool box_moved_ = false;  // a barostat moved the cell: the pair sets follow before the next step
+  PartMolecules molecules_;             // what the part is built from: its molecules' particles and items
+  IntegratorSettings settings_;         // the whole system's, less its per-particle arrays
+  bool per_particle_friction_ = false;  // the thermostat has a friction per particle
+  bool reselect_ = false;               // the pair sets were selected again: molecules may migrate before the next step
+  bool box_moved_ = false;              // a barostat moved the cell: the pair sets follow before the next step
   std::vector<std::unique_ptr<SpecialPartners>> special_;  // per whole-system term: a pair term's
   int whole_dof_ = 0;                                      // csvr: the whole system's degrees of freedom
   bool molecules_whole_ = true;                            // every topology molecule within one bonded molecule
+  bool charged_ = false;                                   // some particle of the whole system has a charge
   // The effective dynamics' modes: per constraint cluster of the whole system (find_clusters,
   // integrators/clusters.hpp, the order the modes take), its molecule, first mode and mode count.
   struct Cluster {

@@ -9,6 +9,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <type_traits>
+#include <utility>
 
 #include "core/errors.hpp"
 #include "core/format.hpp"
@@ -94,13 +95,16 @@ std::vector<int> claim_types(DeckTable& t, const char* key, const std::vector<st
 // The bonds (or angles) of the claimed types, their type renumbered into `coeffs`.
 template <class Item>
 std::vector<Item> claimed(const std::vector<Item>& items, const std::vector<int>& index) {
-  std::vector<Item> out;
-  for (Item it : items)
-    if (index[it.type] >= 0) {
-      it.type = index[it.type];
-      out.push_back(it);
-    }
-  return out;
+  return claimed_items(items, index);
+}
+
+// A bonded term made with its claim on the scene's types (TypeClaim, forcefields/type_claim.hpp):
+// on a decomposed run's part it takes its items from the part's own topology.
+template <class Term, class... Args>
+std::unique_ptr<ForceTerm> claiming(const std::vector<int>& index, Args&&... args) {
+  auto term = std::make_unique<Term>(std::forward<Args>(args)...);
+  term->set_type_claim(index);
+  return term;
 }
 
 // One kind of bonded type, as a reader claims it: its deck key, its data-file section, the
@@ -454,7 +458,7 @@ std::unique_ptr<ForceTerm> read_bond(const std::string& name, Level level, DeckT
               [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
   // A bond that starts outside the kernel's domain (FENE: r >= R0) is refused by read_forces
   // (engine/scene/scene.cpp, check_initial_state), as every term's initial state is.
-  return std::make_unique<BondTerm<Kernel>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
+  return claiming<BondTerm<Kernel>>(index, name, level, claimed(ctx.scene.topology.bonds, index), types);
 }
 
 // fene: {K, R0, epsilon = 0, sigma = 1} (LAMMPS bond_style fene).
@@ -486,7 +490,7 @@ std::unique_ptr<ForceTerm> read_harmonic_bond(const std::string& name, Level lev
   note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, types, [](const HarmonicBond::Coeffs& c) {
     return numbers({0.5 * c.k, c.r0});
   });
-  return std::make_unique<BondTerm<HarmonicBond>>(name, level, claimed(ctx.scene.topology.bonds, index), types);
+  return claiming<BondTerm<HarmonicBond>>(index, name, level, claimed(ctx.scene.topology.bonds, index), types);
 }
 
 // An angle in degrees 0 .. 180 (a deck key or a data-file column), in radians.
@@ -530,7 +534,7 @@ std::unique_ptr<ForceTerm> read_angle(const std::string& name, Level level, Deck
   note_lammps(ctx.lammps ? &ctx.lammps->angle : nullptr, style, index, coeffs, [harmonic](const AngleCoeffs& c) {
     return harmonic ? numbers({0.5 * c.k, c.theta0 * 180.0 / M_PI}) : numbers({c.k});
   });
-  return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+  return claiming<Term>(index, name, level, claimed(ctx.scene.topology.angles, index), coeffs);
 }
 
 // charmm-angle: angle_types.TYPE = {K, theta0 (degrees), K_UB = 0, r_UB = 0} or coefficients =
@@ -558,7 +562,7 @@ std::unique_ptr<ForceTerm> read_charmm_angle(const std::string& name, Level leve
   note_lammps(ctx.lammps ? &ctx.lammps->angle : nullptr, "charmm", index, coeffs, [](const CharmmAngleCoeffs& c) {
     return numbers({c.K, c.theta0 * 180.0 / M_PI, c.K_ub, c.r_ub});
   });
-  return std::make_unique<CharmmAngle>(name, level, claimed(ctx.scene.topology.angles, index), coeffs);
+  return claiming<CharmmAngle>(index, name, level, claimed(ctx.scene.topology.angles, index), coeffs);
 }
 
 // The LAMMPS dihedral styles of the same form: harmonic K d n, multi/harmonic A1..A5, opls K1..K4.
@@ -590,7 +594,7 @@ std::unique_ptr<ForceTerm> read_dihedral(const std::string& name, Level level, D
       claim_types(t, "dihedral_types", ctx.scene.topology.dihedral_types, ctx.dihedral_type_owner, name, coeffs, types);
   note_lammps(ctx.lammps ? &ctx.lammps->dihedral : nullptr, lammps_dihedral_style(typename Kernel::Coeffs{}), index,
               types, [](const typename Kernel::Coeffs& c) { return lammps_row(c); });
-  return std::make_unique<DihedralTerm<Kernel>>(name, level, claimed(ctx.scene.topology.dihedrals, index), types);
+  return claiming<DihedralTerm<Kernel>>(index, name, level, claimed(ctx.scene.topology.dihedrals, index), types);
 }
 
 // harmonic-dihedral: {K, d = +1|-1, n >= 0} (LAMMPS dihedral_style harmonic).
@@ -710,8 +714,8 @@ std::unique_ptr<ForceTerm> read_charmm_dihedral(const std::string& name, Level l
                  Lj14{mix_energy(own[a]->epsilon, own[b]->epsilon),
                       mix_length(own[a]->sigma, own[b]->sigma, Mix::arithmetic)});
   std::vector<int> types(sc.particle_type.begin(), sc.particle_type.end());
-  return std::make_unique<CharmmDihedral>(name, level, dihedrals, coeffs, std::move(types), std::move(lj14),
-                                          particle_charges(sc), sc.units.coulomb);
+  return claiming<CharmmDihedral>(index, name, level, dihedrals, coeffs, std::move(types), std::move(lj14),
+                                  particle_charges(sc), sc.units.coulomb);
 }
 
 // harmonic-improper: improper_types.TYPE = {K, chi0 (degrees)}; cvff-improper: {K, d = +1|-1, n};
@@ -735,7 +739,7 @@ std::unique_ptr<ForceTerm> read_improper_term(const std::string& name, Level lev
   const auto index =
       claim_kind(t, ctx, improper_kind(ctx), name, read_one, DataRow{lammps_style, layout}, make, coeffs);
   note_lammps(ctx.lammps ? &ctx.lammps->improper : nullptr, lammps_style, index, coeffs, row);
-  return std::make_unique<Term>(name, level, claimed(ctx.scene.topology.impropers, index), coeffs);
+  return claiming<Term>(index, name, level, claimed(ctx.scene.topology.impropers, index), coeffs);
 }
 std::unique_ptr<ForceTerm> read_harmonic_improper(const std::string& name, Level level, DeckTable& t,
                                                   TermContext& ctx) {
