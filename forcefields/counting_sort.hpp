@@ -53,20 +53,18 @@ class CountingSort {
       block_start[v + 1] = sum;
     });
     for (int v = 0; v < blocks; ++v) block_start[v + 1] += block_start[v];
-    // start[k] and, in place of the counts, Σ_{u' < u} count[u'][k]: part u's first slot of key k
-    // past start[k].
+    // In place of the counts, Σ_{u' < u} count[u'][k] (part u's first slot of key k past start[k]),
+    // part by part over the block's keys (a loop along k: contiguous, so it runs in vector lanes),
+    // before[k] ending as the items of key k; then start[k] by a prefix over the block.
+    if (static_cast<int>(before_.size()) < keys) before_.resize(static_cast<std::size_t>(keys));
     parallel_numbered_blocks(keys, blocks, [&](int v, std::int64_t b, std::int64_t e) {
+      int* before = before_.data();
+      for (std::int64_t k = b; k < e; ++k) before[k] = 0;
+      for (int u = 0; u < parts; ++u) shift_counts(count_[u].data() + b, before + b, e - b);
       Offset run = block_start[v];
       for (std::int64_t k = b; k < e; ++k) {
         start[k] = run;
-        int before = 0;
-        for (int u = 0; u < parts; ++u) {
-          int& c = count_[u][k];
-          const int here = c;
-          c = before;
-          before += here;
-        }
-        run += before;
+        run += before[k];
       }
     });
     start[keys] = block_start[blocks];
@@ -83,8 +81,18 @@ class CountingSort {
   Cursor cursor(int u) { return {start_, count_[u].data()}; }
 
  private:
+  // count[k] becomes before[k], and before[k] grows by the old count[k], for k < len.
+  static void shift_counts(int* __restrict count, int* __restrict before, std::int64_t len) {
+    for (std::int64_t k = 0; k < len; ++k) {
+      const int here = count[k];
+      count[k] = before[k];
+      before[k] += here;
+    }
+  }
+
   int parts_ = 0, keys_ = 0;
   std::vector<std::vector<int>> count_;  // per part, per key
+  std::vector<int> before_;              // starts' scratch: per key, the items of the parts so far
   const Offset* start_ = nullptr;
 };
 

@@ -25,6 +25,8 @@
 #include <array>
 #include <bit>
 #include <cstdint>
+#include <cstdlib>
+#include <new>
 #include <span>
 #include <sstream>
 #include <stdexcept>
@@ -732,15 +734,102 @@ inline void touched_runs(const NeighborList& list, int first, int last, std::vec
   runs.push_back({begin, end});
 }
 
-// Per-thread buffers of the parallel pair loop, reused from call to call. A part's buffers hold
-// values only on its touched runs; the rest is never written nor read.
+// The parallel pair loop's passes over a part's runs of particles (each run 3 (e − b) doubles, a
+// flat array): the sum of a buffer into f, which sets the buffer back to 0, and the copy of the
+// positions. A run is ≈ 10 particles in a melt, the rows' own runs a few thousand; four doubles at a
+// time where the CPU has AVX2 (each lane the scalar addition: the same bits). GCC makes the copy's
+// loop a call of memcpy, the sum's stays a loop: no call of memset per run.
+#if defined(__x86_64__)
+[[gnu::target("avx2")]] inline void add_and_clear_avx2(double* __restrict dst, double* __restrict src,
+                                                       std::int64_t len) {
+  const __m256d zero = _mm256_setzero_pd();
+  std::int64_t m = 0;
+  for (; m + 4 <= len; m += 4) {
+    _mm256_storeu_pd(dst + m, _mm256_add_pd(_mm256_loadu_pd(dst + m), _mm256_loadu_pd(src + m)));
+    _mm256_storeu_pd(src + m, zero);
+  }
+  for (; m < len; ++m) {
+    dst[m] += src[m];
+    src[m] = 0.0;
+  }
+}
+
+[[gnu::target("avx2")]] inline void copy_doubles_avx2(double* __restrict dst, const double* __restrict src,
+                                                      std::int64_t len) {
+  std::int64_t m = 0;
+  for (; m + 4 <= len; m += 4) _mm256_storeu_pd(dst + m, _mm256_loadu_pd(src + m));
+  for (; m < len; ++m) dst[m] = src[m];
+}
+#endif
+
+// dst[m] += src[m], then src[m] = 0, for m < len: a part's buffer added into f and left as it was
+// before the part wrote there (0), so that no call has to clear it first.
+inline void add_and_clear(double* __restrict dst, double* __restrict src, std::int64_t len) {
+#if defined(__x86_64__)
+  if (pair_loop_avx2()) return add_and_clear_avx2(dst, src, len);
+#endif
+  for (std::int64_t m = 0; m < len; ++m) {
+    dst[m] += src[m];
+    src[m] = 0.0;
+  }
+}
+
+// dst[m] = src[m] for m < len.
+inline void copy_doubles(double* __restrict dst, const double* __restrict src, std::int64_t len) {
+#if defined(__x86_64__)
+  if (pair_loop_avx2()) return copy_doubles_avx2(dst, src, len);
+#endif
+  Eigen::Map<Eigen::VectorXd>(dst, len) = Eigen::Map<const Eigen::VectorXd>(src, len);
+}
+
+// A part's force buffer: doubles that start as 0, from calloc — a large block comes as fresh
+// pages of zeros, so the pages a part never writes are never written, where clearing the whole
+// buffer would write them all. Not part of any value: a copy is empty (a call sizes it again).
+class ZeroedDoubles {
+ public:
+  ZeroedDoubles() = default;
+  ZeroedDoubles(const ZeroedDoubles&) {}
+  ZeroedDoubles& operator=(const ZeroedDoubles&) {
+    release();
+    return *this;
+  }
+  ~ZeroedDoubles() { release(); }
+
+  // size doubles, every one 0 (what it held is dropped).
+  void zeros(std::size_t size) {
+    release();
+    if (size == 0) return;
+    data_ = static_cast<double*>(std::calloc(size, sizeof(double)));
+    if (data_ == nullptr) throw std::bad_alloc();
+    size_ = size;
+  }
+  double* data() { return data_; }
+  std::size_t size() const { return size_; }
+
+ private:
+  void release() {
+    std::free(data_);
+    data_ = nullptr;
+    size_ = 0;
+  }
+  double* data_ = nullptr;
+  std::size_t size_ = 0;
+};
+
+// Per-thread buffers of the parallel pair loop, reused from call to call. A part's positions hold
+// values only on its touched runs; the rest is never written nor read. Its force buffer is 0
+// everywhere between calls: a call writes only its touched runs, and the sum that adds them into f
+// sets them back to 0 (add_and_clear).
 struct PairScratch {
-  std::vector<Eigen::Matrix3Xd> force;            // one per part (part 0 writes into f itself)
+  std::vector<ZeroedDoubles> force;               // one per part (part 0 writes into f itself): 3N doubles
   std::vector<Eigen::Matrix3Xd> positions;        // one per part: its own copy of the positions it reads
   std::vector<IndexRuns> touched;                 // per part: touched_runs of its rows
   std::vector<std::vector<std::uint64_t>> marks;  // per part: touched_runs' scratch
   std::uint64_t touched_build = 0;                // the list's build_id that `touched` is for …
   int touched_parts = 0;                          // … and the part count
+  // Every force buffer is 0 (of its size). False while a call runs: a call that did not end (a part
+  // threw) leaves it false, and the next one clears the buffers whole.
+  bool force_zero = true;
   std::array<PairSums, kMaxParts> sums;
   std::array<int, kMaxParts + 1> first_row;
 };
@@ -751,10 +840,11 @@ struct PairScratch {
 // particles, the other buffers in part order. Fixed blocks and a fixed order: the same sums for a
 // given thread count.
 //
-// A part touches only its rows and their neighbours (touched_runs, found once per list build):
-// it clears its buffer and copies the positions there alone, and the sum adds buffer u into f_k
-// only where part u touched k — the other buffers hold 0 there, and f_k + 0 = f_k, so the sum is
-// the one over every buffer. Memory traffic per call: Σ_u |touched_u| particles, ≈ N + the
+// A part touches only its rows and their neighbours (touched_runs, found once per list build): it
+// copies the positions there alone, and the sum adds buffer u into f_k only where part u touched
+// k — the other buffers hold 0 there, and f_k + 0 = f_k, so the sum is the one over every buffer.
+// The sum also sets what it read back to 0 (add_and_clear), so a buffer is 0 at the next call
+// without a pass that clears it. Memory traffic per call: Σ_u |touched_u| particles, ≈ N + the
 // neighbours of the parts' boundaries when the particle order follows space, at most N + pairs,
 // rather than N per part.
 //
@@ -790,21 +880,23 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
   }
   const bool find_touched = scratch.touched_build != list.build_id() || scratch.touched_parts != parts;
   scratch.touched_build = 0;  // until every part has found its runs
+  const bool force_zero = scratch.force_zero;
+  scratch.force_zero = false;  // until the sum has set every buffer back to 0
   run_parts(parts, [&](int u) {
     const int first = scratch.first_row[u], last = std::max(first, scratch.first_row[u + 1]);
     if (find_touched) touched_runs(list, first, last, scratch.marks[u], scratch.touched[u]);
     const IndexRuns& runs = scratch.touched[u];
     Eigen::Matrix3Xd& xw = scratch.positions[u];
     xw.resize(3, n);  // allocates only the first time
-    for (const auto& [b, e] : runs) xw.middleCols(b, e - b) = xl.middleCols(b, e - b);
+    for (const auto& [b, e] : runs) copy_doubles(xw.data() + 3 * b, xl.data() + 3 * b, 3 * (e - b));
     double* fu = nullptr;
     if constexpr (kForces) {
       if (u == 0) {
-        fu = f;  // part 0 adds into f itself: one buffer fewer to clear and to sum
+        fu = f;  // part 0 adds into f itself: one buffer fewer to sum
       } else {
-        Eigen::Matrix3Xd& fw = scratch.force[u];
-        fw.resize(3, n);
-        for (const auto& [b, e] : runs) fw.middleCols(b, e - b).setZero();
+        ZeroedDoubles& fw = scratch.force[u];
+        const std::size_t size = 3 * static_cast<std::size_t>(n);
+        if (!force_zero || fw.size() != size) fw.zeros(size);  // the first call, a new particle count
         fu = fw.data();
       }
     }
@@ -822,15 +914,16 @@ PairSums accumulate_pair_rows_parallel(const NeighborList& list, int parts,
     parallel_blocks(n, parts, [&](std::int64_t begin, std::int64_t end) {
       for (int u = 1; u < parts; ++u) {  // f_k += buffer u's f_k where part u touched k, in part order
         const IndexRuns& runs = scratch.touched[u];
-        const double* fu = scratch.force[u].data();
+        double* fu = scratch.force[u].data();
         auto r = std::lower_bound(runs.begin(), runs.end(), begin,
                                   [](const std::array<int, 2>& run, std::int64_t k) { return run[1] <= k; });
         for (; r != runs.end() && (*r)[0] < end; ++r) {
           const std::int64_t lo = std::max<std::int64_t>(begin, (*r)[0]), hi = std::min<std::int64_t>(end, (*r)[1]);
-          for (std::int64_t k = 3 * lo; k < 3 * hi; ++k) f[k] += fu[k];
+          add_and_clear(f + 3 * lo, fu + 3 * lo, 3 * (hi - lo));
         }
       }
     });
+  scratch.force_zero = kForces || force_zero;  // a pass without forces leaves the buffers as they were
   PairSums total;
   for (int u = 0; u < parts; ++u) {
     total.energy += scratch.sums[u].energy;

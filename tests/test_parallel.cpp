@@ -252,6 +252,79 @@ TEST(Parallel, PairRowsWithEmptyPartsAreTheSerialLoopsSums) {
   expect_pair_rows_match_serial(list, x, box, {2, 3, 7}, true);
 }
 
+// The parallel pair loop against the sum it stands for, written out plainly: the rows whose pairs
+// start in [u, u + 1)·pairs/parts are part u's; each part's rows summed by the serial loop into a
+// whole buffer of zeros (part 0's into f itself), and the buffers added into f in part order. Bit
+// for bit, for 1 … 5 parts (threads), on every one of repeated calls with one scratch: across list
+// rebuilds that move which particles a part touches, changes of the part count, a pass without
+// forces between them, and a list of fewer particles. A part's write to a neighbour in another
+// part's rows (a far write) that the sum lost or added twice, or left in its buffer for the next
+// call to add again, fails it; and the forces are the serial loop's to rounding.
+Eigen::Matrix3Xd pair_rows_by_whole_buffers(const NeighborList& list, const Eigen::Matrix3Xd& xl, const Box& box,
+                                            const Eigen::Matrix3Xd& f_before, int parts) {
+  const int n = list.num_particles();
+  TypePairMatrix<LennardJonesParams> params(1);
+  params.set(0, 0, LennardJonesParams::make(1.0, 1.0, list.cutoff()));
+  const std::vector<int> type(n, 0);
+  const std::int64_t pairs = list.offsets()[n];
+  std::vector<int> first(parts + 1, n);
+  for (int u = 1; u < parts; ++u)
+    first[u] =
+        static_cast<int>(std::lower_bound(list.offsets().begin(), list.offsets().end(), block_begin(pairs, parts, u)) -
+                         list.offsets().begin());
+  first[0] = 0;
+  Eigen::Matrix3Xd f = f_before;
+  std::vector<Eigen::Matrix3Xd> buffer(parts, Eigen::Matrix3Xd::Zero(3, n));
+  for (int u = 0; u < parts; ++u)
+    accumulate_pair_rows<LennardJones, true, true, true>(list, first[u], std::max(first[u], first[u + 1]), params,
+                                                         type.data(), xl, NearestImage(box),
+                                                         u == 0 ? f.data() : buffer[u].data());
+  for (int u = 1; u < parts; ++u) f += buffer[u];
+  return f;
+}
+
+TEST(Parallel, PairRowsOnPartsAddEveryFarWriteOnceInPartOrder) {
+  for (bool shuffle : {false, true}) {
+    SCOPED_TRACE(shuffle ? "shuffled indices" : "chains in index order");
+    const Melt m = melt(shuffle);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> any(-1.0, 1.0), move(-0.5, 0.5);
+    PairScratch scratch;          // one scratch for every call below
+    for (int n : {8000, 6100}) {  // then a list of fewer particles (the first 6 100)
+      Eigen::Matrix3Xd x = m.x.leftCols(n);
+      const Eigen::Matrix3Xd before = Eigen::Matrix3Xd::NullaryExpr(3, n, [&] { return any(rng); });
+      NeighborList list(1.12, 0.4);  // in.chain's reach: ≈ 8 neighbours a row
+      for (int build = 0; build < 3; ++build) {
+        SCOPED_TRACE(testing::Message() << n << " particles, build " << build);
+        if (build > 0)  // every third particle moved: other neighbours, other touched particles
+          for (int k = 0; k < n; k += 3) x.col(k) += Eigen::Vector3d(move(rng), move(rng), move(rng));
+        list.build(x, m.box);
+        const Eigen::Matrix3Xd& xl = list.wrapped_positions(x);
+        TypePairMatrix<LennardJonesParams> params(1);
+        params.set(0, 0, LennardJonesParams::make(1.0, 1.0, list.cutoff()));
+        const std::vector<int> type(n, 0);
+        const Eigen::Matrix3Xd serial = pair_rows_by_whole_buffers(list, xl, m.box, before, 1);
+        const double scale = (serial - before).cwiseAbs().maxCoeff();
+        ASSERT_GT(scale, 0.0);
+        for (int parts : {1, 2, 3, 4, 5, 3}) {
+          SCOPED_TRACE(testing::Message() << parts << " parts");
+          const Eigen::Matrix3Xd expected = pair_rows_by_whole_buffers(list, xl, m.box, before, parts);
+          for (int call = 0; call < 3; ++call) {
+            Eigen::Matrix3Xd f = before;
+            accumulate_pair_rows_parallel<LennardJones, true, true, true>(list, parts, params, type.data(), xl,
+                                                                          NearestImage(m.box), f.data(), scratch);
+            EXPECT_TRUE(f == expected) << "call " << call;
+            EXPECT_LE(((f - before) - (serial - before)).cwiseAbs().maxCoeff(), 1e-12 * scale);
+            // A pass without forces (the energy alone) between two with: it writes no buffer.
+            accumulate_pair_rows_parallel<LennardJones, true, false, false>(list, parts, params, type.data(), xl,
+                                                                            NearestImage(m.box), nullptr, scratch);
+          }
+        }
+      }
+    }
+  }
+}
+
 // The list's rows and the order within each row (which fixes the order of the force sums) must
 // be the same for any thread count: the threads search runs of cell columns, and their buffers taken in
 // order are the pairs in the order one thread finds them. Also across the periodic faces
