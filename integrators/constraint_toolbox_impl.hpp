@@ -326,7 +326,10 @@ struct ConstraintToolbox::Impl {
   // Block b's particles of x against the kept configuration, bit for bit; on a difference the
   // block's particles are copied and its clusters forget G and S there.
   void keep_block(const Block& b, const Eigen::Matrix3Xd& x);
-  std::int64_t min_block_particles = 256;
+  // At least 400 particles (≈ 48 kB of the step's data: L2): on a melt of 100-bead chains a
+  // block holds four, one lockstep group whose chord updates all go in pairs (chain_displace_pair);
+  // blocks of three chains (256 particles) left one chain of each to the scalar walk.
+  std::int64_t min_block_particles = 400;
   bool blocks_ok = false;
   std::vector<Block> blocks;
   int blocks_split_parts = 0;     // owned_blocks is for this many parts
