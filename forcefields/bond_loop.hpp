@@ -267,12 +267,15 @@ inline constexpr bool kSplitLogKernel = requires(double r_sq, const typename Ker
 // would lose digits as a subnormal: bonds near R₀) is redone bond by bond.
 // kCheck false: a bond outside the kernel's domain is not thrown here but left as a NaN in e_t,
 // for the caller to test (chain_block: a function compiled with target_clones must not throw).
-template <class Kernel, bool kUniform, bool kCounted, bool kCheck = true, class Params>
+// kEnergy false: the energies are not formed (nor added to e_t) — for callers that discard them
+// (the micro steps) with a kernel that does not mark its domain by the energy (eval, not eval_sq).
+template <class Kernel, bool kUniform, bool kCounted, bool kCheck = true, bool kEnergy = true, class Params>
 inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p, const double* __restrict counted,
                          int nb, double& e_t) {
+  static_assert(kEnergy || !kSquaredKernel<Kernel>, "an eval_sq kernel's energy is its domain test");
   // Locals, not e_t: a store the loop could alias would keep it scalar.
   const Params p0 = p[0];
-  if constexpr (kUniform && !kCounted && kSplitLogKernel<Kernel>) {
+  if constexpr (kUniform && !kCounted && kEnergy && kSplitLogKernel<Kernel>) {
     alignas(64) double e_rest[kBondBlock], u[kBondBlock];
     for (int k = 0; k < nb; ++k) {
       double g = 0.0;
@@ -308,9 +311,9 @@ inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p,
     double e = 0.0;
     const double scale =
         bond_force_factor<Kernel>(d[0][k] * d[0][k] + d[1][k] * d[1][k] + d[2][k] * d[2][k], kUniform ? p0 : p[k], e);
-    if constexpr (kCounted)
+    if constexpr (kEnergy && kCounted)
       e_sum += counted[k] * e;  // 0 · NaN is NaN: an item whose energy another owner counts is tested too
-    else
+    else if constexpr (kEnergy)
       e_sum += e;
     for (int a = 0; a < 3; ++a) d[a][k] *= scale;
   }
@@ -386,8 +389,8 @@ inline void bond_block(const Bonds& bonds, std::int64_t q0, int nb, const double
 // It never throws: GCC 12 takes a call of a target_clones function for one that cannot, and an
 // exception thrown through it ends the program (in a parallel region, or in a try block with no
 // other call that may throw). A bond outside the kernel's domain leaves e_t NaN, which chain_block
-// below tests.
-template <class Kernel, class Bonds>
+// below tests. kEnergy false (block_forces): e_t is left as it is, the energies not formed.
+template <class Kernel, bool kEnergy, class Bonds>
 [[gnu::target_clones("avx2", "default")]] void chain_block_forces(const Bonds& bonds, std::int64_t q0, int nb,
                                                                   const double* __restrict xp, double* __restrict fp,
                                                                   double& e_t) {
@@ -403,7 +406,7 @@ template <class Kernel, class Bonds>
     p[0] = bonds.params(q0);
   else
     for (int k = 0; k < nb; ++k) p[k] = bonds.params(q0 + k);
-  block_forces<Kernel, Bonds::kUniform, false, false>(d, p, nullptr, nb, e_t);
+  block_forces<Kernel, Bonds::kUniform, false, false, kEnergy>(d, p, nullptr, nb, e_t);
   for (int a = 0; a < 3; ++a) f[a] += d[a][0];
   for (int k = 1; k < nb; ++k)
     for (int a = 0; a < 3; ++a) f[3 * k + a] = (f[3 * k + a] - d[a][k - 1]) + d[a][k];
@@ -411,10 +414,10 @@ template <class Kernel, class Bonds>
 }
 
 // chain_block_forces, then its domain test (check_bond_domain): NaN energy so far, a bond outside.
-template <class Kernel, class Bonds>
+template <class Kernel, bool kEnergy = true, class Bonds>
 inline void chain_block(const Bonds& bonds, std::int64_t q0, int nb, const double* __restrict xp, double* __restrict fp,
                         double& e_t) {
-  chain_block_forces<Kernel>(bonds, q0, nb, xp, fp, e_t);
+  chain_block_forces<Kernel, kEnergy>(bonds, q0, nb, xp, fp, e_t);
   check_bond_domain<Kernel>(e_t);
 }
 
@@ -562,10 +565,12 @@ class MicroStepPlan {
       const auto &a = ordered_[q], &b = ordered_[q + 1];
       return a.j == a.i + 1 && b.i == a.j && b.j == b.i + 1;
     };
+    largest_block_ = 0;
     for (std::size_t k = 0; k < blocks_.size(); ++k) {
       blocks_[k].segment_begin = static_cast<std::int64_t>(segments_.size());
       append_chain_runs(start[k], start[k + 1], links, segments_);
       blocks_[k].segment_end = static_cast<std::int64_t>(segments_.size());
+      largest_block_ = std::max(largest_block_, blocks_[k].last - blocks_[k].first);
     }
     threads_ = 0;
   }
@@ -574,6 +579,7 @@ class MicroStepPlan {
   void split(int threads) {
     if (threads == threads_) return;
     threads_ = threads;
+    kicks_.assign(static_cast<std::size_t>(threads) * 3 * static_cast<std::size_t>(largest_block_), 0.0);
     owned_.assign(threads + 1, static_cast<std::int64_t>(blocks_.size()));
     owned_[0] = 0;
     std::int64_t b = 0;
@@ -586,6 +592,8 @@ class MicroStepPlan {
 
   const std::vector<Block>& blocks() const { return blocks_; }
   std::int64_t owned(int t) const { return owned_[t]; }
+  // Thread t's scratch of 3 × (the largest block's particles) doubles (after split).
+  double* kicks(int t) { return kicks_.data() + static_cast<std::size_t>(t) * 3 * largest_block_; }
   const Segment* segments() const { return segments_.data(); }
   const std::vector<BondInstance<Params>>& ordered() const { return ordered_; }
   bool uniform() const { return uniform_; }
@@ -601,7 +609,25 @@ class MicroStepPlan {
   bool uniform_ = false;
   std::vector<int> ends_;  // i, j of each ordered bond (uniform_)
   std::vector<std::int64_t> owned_;
+  std::int64_t largest_block_ = 0;  // particles
+  std::vector<double> kicks_;       // per thread: a block's kick factors, one per coordinate
 };
+
+// One micro step's kick and drift of `count` coordinates (a block's particles, three each) and
+// f = 0: kick_drift's expressions (integrators/primitives.hpp) with its factor c_i = dt_kick m_i⁻¹
+// formed beforehand, one copy per coordinate, so that the loop runs over the coordinates without
+// the stride of three: v += c f, x += dt v, f = 0. Compiled for AVX2 and the baseline
+// (chain_block_forces: element-wise IEEE operations, none contracted, the same bits either way).
+template <class Params>
+[[gnu::target_clones("avx2", "default")]] void kick_drift_clear(double* __restrict x, double* __restrict v,
+                                                                double* __restrict f, const double* __restrict c,
+                                                                double dt, std::int64_t count) {
+  for (std::int64_t k = 0; k < count; ++k) {
+    v[k] += c[k] * f[k];
+    x[k] += dt * v[k];
+    f[k] = 0.0;
+  }
+}
 
 // The micro steps of a system of at most kSmallFusedParticles particles take plain passes
 // (small_kick_drift_bond_forces): its x, v and f are a few cache lines, and the plan's blocks and
@@ -669,33 +695,28 @@ void fused_kick_drift_bond_forces(const std::vector<BondInstance<Params>>& bonds
   double* const fp = f.data();
   const double* const w_inv = inv_mass.data();
   const auto* segments = plan.segments();
+  // The micro steps discard the energy: not formed, unless it is the kernel's domain test.
+  constexpr bool kEnergy = kSquaredKernel<Kernel>;
+  // The first micro step's kick factors differ from the others' unless the kicks are equal, bit for bit.
+  const bool same_kicks = std::memcmp(&first_kick, &dt_kick, sizeof(double)) == 0;
   auto run = [&](int t, const auto& view) {
     double e = 0.0;  // not needed by a micro step
+    double* const c = plan.kicks(t);
     for (std::int64_t k = plan.owned(t); k < plan.owned(t + 1); ++k) {
       const auto& block = plan.blocks()[k];
+      const std::int64_t first = block.first, count = block.last - block.first;
       for (int s = 0; s < steps; ++s) {
-        // kick_drift's expressions (integrators/primitives.hpp), then f = 0. x, v, f are distinct
-        // matrices: restrict lets the compiler vectorise the loop.
-        {
+        if (s == 0 || (s == 1 && !same_kicks)) {  // c_i = kick m_i⁻¹, kick_drift's factor
           const double kick = s == 0 ? first_kick : dt_kick;
-          double* __restrict xr = xp;
-          double* __restrict vr = vp;
-          double* __restrict fr = fp;
-          for (std::int64_t i = block.first; i < block.last; ++i) {
-            const double c = kick * w_inv[i];
-            for (int a = 0; a < 3; ++a) {
-              vr[3 * i + a] += c * fr[3 * i + a];
-              xr[3 * i + a] += dt * vr[3 * i + a];
-              fr[3 * i + a] = 0.0;
-            }
-          }
+          for (std::int64_t i = 0; i < count; ++i) c[3 * i] = c[3 * i + 1] = c[3 * i + 2] = kick * w_inv[first + i];
         }
+        kick_drift_clear<Params>(xp + 3 * first, vp + 3 * first, fp + 3 * first, c, dt, 3 * count);
         for (std::int64_t g = block.segment_begin; g < block.segment_end; ++g) {
           const auto& seg = segments[g];
           for (std::int64_t q = seg.begin; q < seg.end; q += kBondBlock) {
             const int nb = static_cast<int>(std::min<std::int64_t>(kBondBlock, seg.end - q));
             if (seg.chain)
-              chain_block<Kernel>(view, q, nb, xp, fp, e);
+              chain_block<Kernel, kEnergy>(view, q, nb, xp, fp, e);
             else
               bond_block<Kernel>(view, q, nb, xp, fp, e);
           }

@@ -123,9 +123,11 @@ void walk_chain(const ClusterData& d, double* a, const double* coef, double sign
   const double* w = d.path_inv_mass.data();
   const double* e = d.e_kept.data();
   double ex = 0.0, ey = 0.0, ez = 0.0;  // σ_{k−1} u_{k−1} coef_{k−1}
-  for (int k = 0; k <= n; ++k) {
+  // The path's particles; kBond: bond k's term (k < n). The first and the last particle are taken
+  // apart, so that the loop (and a visit that tests k > 0) has no branch on k.
+  auto particle = [&](int k, auto bond) {
     double fx = 0.0, fy = 0.0, fz = 0.0;  // σ_k u_k coef_k
-    if (k < n) {
+    if constexpr (decltype(bond)::value) {
       fx = e[3 * k] * coef[k];
       fy = e[3 * k + 1] * coef[k];
       fz = e[3 * k + 2] * coef[k];
@@ -145,7 +147,10 @@ void walk_chain(const ClusterData& d, double* a, const double* coef, double sign
     ex = fx;
     ey = fy;
     ez = fz;
-  }
+  };
+  if (n > 0) particle(0, std::true_type());
+  for (int k = 1; k < n; ++k) particle(k, std::true_type());
+  particle(n, std::false_type());
 }
 
 }  // namespace constraint_detail
@@ -216,6 +221,10 @@ struct ConstraintToolbox::Impl {
   // p = path[k]), then −h(y) into minus_h as soon as both ends of a bond have moved; returns max |h|
   // (NaN when a length is not finite).
   double chain_displace(int c, Eigen::Matrix3Xd& y, const double* delta, double* minus_h);
+  // chain_displace on two open chains of one length with no particle in common (c[0], c[1]; δ in
+  // their sol, −h into their rhs, max |h| into result), the two walks side by side in the two
+  // lanes of one SSE2 register: each chain gets chain_displace's operations, so the same bits.
+  void chain_displace_pair(const int* c, Eigen::Matrix3Xd& y, double* result);
   // SHAKE on one cluster, as a sequence of iterations (shake_group interleaves several).
   struct ShakeState {
     int c = 0;
@@ -237,6 +246,8 @@ struct ConstraintToolbox::Impl {
   // into sol, then shake_chord_update); or a Newton step done. Throws NumericalError.
   ShakeNext shake_iterate(ShakeState& st, Eigen::Matrix3Xd& y, double tol, int max_iter);
   void shake_chord_update(ShakeState& st, Eigen::Matrix3Xd& y);
+  // shake_chord_update on two chains of a group at once (chain_displace_pair).
+  void shake_chord_update_pair(ShakeState& a, ShakeState& b, Eigen::Matrix3Xd& y);
   void shake_cluster(int c, Eigen::Matrix3Xd& y, double tol, int max_iter, double multiplier_tol = 0.0);
   // SHAKE on a group of clusters (shake_group: their chord solves in lockstep).
   void shake_group(int first, int count, Eigen::Matrix3Xd& y, double tol, int max_iter, double multiplier_tol);
@@ -315,7 +326,10 @@ struct ConstraintToolbox::Impl {
   // Block b's particles of x against the kept configuration, bit for bit; on a difference the
   // block's particles are copied and its clusters forget G and S there.
   void keep_block(const Block& b, const Eigen::Matrix3Xd& x);
-  std::int64_t min_block_particles = 256;
+  // At least 400 particles (≈ 48 kB of the step's data: L2): on a melt of 100-bead chains a
+  // block holds four, one lockstep group whose chord updates all go in pairs (chain_displace_pair);
+  // blocks of three chains (256 particles) left one chain of each to the scalar walk.
+  std::int64_t min_block_particles = 400;
   bool blocks_ok = false;
   std::vector<Block> blocks;
   int blocks_split_parts = 0;     // owned_blocks is for this many parts

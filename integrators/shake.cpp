@@ -9,10 +9,15 @@
 #include <exception>
 #include <limits>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "core/errors.hpp"
 #include "core/timing.hpp"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace stiffmd {
 using namespace constraint_detail;  // the toolbox's private types (constraint_toolbox_impl.hpp)
@@ -85,6 +90,96 @@ double ConstraintToolbox::Impl::chain_displace(int c, Eigen::Matrix3Xd& y, const
   walk_chain<true>(d, y.data(), delta, 1.0, gap);
   return gap.result();
 }
+
+#if defined(__SSE2__)
+// Two chains' chord updates in the lanes of SSE2 registers (lane j: chain c[j]): chain_displace's
+// walk_chain<true> with sign 1 and its PathGap, operation for operation — the kept σ_k u_k times
+// δ_k, y_p += m_p⁻¹ (σ_k u_k δ_k − σ_{k−1} u_{k−1} δ_{k−1}) (0 past either end, as walk_chain's
+// zeros), then −h_{k−1} = (ℓ² − |d|²) / (2ℓ) of the bond just closed, its running max |h| and the
+// finiteness of |d|² — each an IEEE operation on one lane, so each chain's bits are its own walk's.
+// A chain is one dependent sweep along its path; two side by side take one instruction for two
+// chains' arithmetic, the loads and stores of the scattered particles staying one per lane.
+void ConstraintToolbox::Impl::chain_displace_pair(const int* c, Eigen::Matrix3Xd& y, double* result) {
+  ClusterData& d0 = data[c[0]];
+  ClusterData& d1 = data[c[1]];
+  const int n = static_cast<int>(d0.bonds.size());
+  if (n == 0) {  // no bond (not a chain the toolbox makes): chain_displace's walk
+    for (int j = 0; j < 2; ++j) result[j] = chain_displace(c[j], y, data[c[j]].sol.data(), data[c[j]].rhs.data());
+    return;
+  }
+  d0.lambda += d0.sol;
+  d1.lambda += d1.sol;
+  const int *path0 = d0.path.data(), *path1 = d1.path.data();
+  const double *w0 = d0.path_inv_mass.data(), *w1 = d1.path_inv_mass.data();
+  const double *e0 = d0.e_kept.data(), *e1 = d1.e_kept.data();
+  const double *delta0 = d0.sol.data(), *delta1 = d1.sol.data();
+  const double *length2_0 = d0.length2.data(), *length2_1 = d1.length2.data();
+  const double *half0 = d0.half_inv_length.data(), *half1 = d1.half_inv_length.data();
+  double *out0 = d0.rhs.data(), *out1 = d1.rhs.data();
+  double* yp = y.data();
+  auto pair = [](double a, double b) { return _mm_set_pd(b, a); };  // lane 0: a, lane 1: b
+  const __m128d zero = _mm_setzero_pd();
+  const __m128d magnitude = _mm_castsi128_pd(_mm_set1_epi64x(0x7fffffffffffffffLL));
+  const __m128d largest = _mm_set1_pd(std::numeric_limits<double>::max());
+  __m128d ex = zero, ey = zero, ez = zero;  // σ_{k−1} u_{k−1} δ_{k−1}
+  __m128d px = zero, py = zero, pz = zero;  // the previous particle
+  __m128d worst = zero;
+  __m128d finite = _mm_cmpeq_pd(zero, zero);  // all bits set
+  // Particle path[k]: kBond, bond k's term (k < n); kGap, bond k − 1's residual (k > 0).
+  auto visit = [&](int k, auto bond, auto gap) {
+    __m128d fx = zero, fy = zero, fz = zero;  // σ_k u_k δ_k
+    if constexpr (decltype(bond)::value) {
+      const __m128d coef = pair(delta0[k], delta1[k]);
+      fx = _mm_mul_pd(pair(e0[3 * k], e1[3 * k]), coef);
+      fy = _mm_mul_pd(pair(e0[3 * k + 1], e1[3 * k + 1]), coef);
+      fz = _mm_mul_pd(pair(e0[3 * k + 2], e1[3 * k + 2]), coef);
+    }
+    double* q0 = yp + 3 * path0[k];
+    double* q1 = yp + 3 * path1[k];
+    const __m128d s = pair(w0[k], w1[k]);
+    const __m128d x = _mm_add_pd(pair(q0[0], q1[0]), _mm_mul_pd(s, _mm_sub_pd(fx, ex)));
+    const __m128d yy = _mm_add_pd(pair(q0[1], q1[1]), _mm_mul_pd(s, _mm_sub_pd(fy, ey)));
+    const __m128d z = _mm_add_pd(pair(q0[2], q1[2]), _mm_mul_pd(s, _mm_sub_pd(fz, ez)));
+    _mm_storel_pd(q0, x);
+    _mm_storeh_pd(q1, x);
+    _mm_storel_pd(q0 + 1, yy);
+    _mm_storeh_pd(q1 + 1, yy);
+    _mm_storel_pd(q0 + 2, z);
+    _mm_storeh_pd(q1 + 2, z);
+    if constexpr (decltype(gap)::value) {
+      const __m128d dx = _mm_sub_pd(px, x), dy = _mm_sub_pd(py, yy), dz = _mm_sub_pd(pz, z);
+      const __m128d r2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(dx, dx), _mm_mul_pd(dy, dy)), _mm_mul_pd(dz, dz));
+      const __m128d minus_h =
+          _mm_mul_pd(_mm_sub_pd(pair(length2_0[k - 1], length2_1[k - 1]), r2), pair(half0[k - 1], half1[k - 1]));
+      _mm_storel_pd(out0 + k - 1, minus_h);
+      _mm_storeh_pd(out1 + k - 1, minus_h);
+      // std::max(worst, |−h|): |−h| where worst < |−h|, else worst (a NaN never taken).
+      worst = _mm_max_pd(_mm_and_pd(minus_h, magnitude), worst);
+      finite = _mm_and_pd(finite, _mm_cmple_pd(r2, largest));  // false for ∞ and NaN
+    }
+    px = x;
+    py = yy;
+    pz = z;
+    ex = fx;
+    ey = fy;
+    ez = fz;
+  };
+  using yes = std::true_type;
+  using no = std::false_type;
+  visit(0, yes(), no());
+  for (int k = 1; k < n; ++k) visit(k, yes(), yes());
+  visit(n, no(), yes());
+  double w[2];
+  _mm_storeu_pd(w, worst);
+  const int ok = _mm_movemask_pd(finite);
+  result[0] = (ok & 1) != 0 ? w[0] : std::numeric_limits<double>::quiet_NaN();
+  result[1] = (ok & 2) != 0 ? w[1] : std::numeric_limits<double>::quiet_NaN();
+}
+#else
+void ConstraintToolbox::Impl::chain_displace_pair(const int* c, Eigen::Matrix3Xd& y, double* result) {
+  for (int j = 0; j < 2; ++j) result[j] = chain_displace(c[j], y, data[c[j]].sol.data(), data[c[j]].rhs.data());
+}
+#endif
 
 // y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
 // configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
@@ -179,6 +274,20 @@ void ConstraintToolbox::Impl::shake_chord_update(ShakeState& st, Eigen::Matrix3X
   ++st.iteration;
 }
 
+void ConstraintToolbox::Impl::shake_chord_update_pair(ShakeState& a, ShakeState& b, Eigen::Matrix3Xd& y) {
+  ShakeState* st[2] = {&a, &b};
+  for (ShakeState* s : st)
+    s->accepted = s->multiplier_tol > 0.0 && within_multiplier_tol(data[s->c], s->multiplier_tol);
+  const int c[2] = {a.c, b.c};
+  double residual[2];
+  chain_displace_pair(c, y, residual);
+  for (int j = 0; j < 2; ++j) {
+    st[j]->chord_residual = residual[j];
+    st[j]->have_chord_residual = true;
+    ++st[j]->iteration;
+  }
+}
+
 // y = y0 + M⁻¹G(x_ref)ᵀλ with g(y) = 0 (paper eq. (ProMol) when y0 = x_ref), x_ref the kept
 // configuration: g(y + M⁻¹G(x_ref)ᵀδ) ≈ g(y) + J δ with J = G(y) M⁻¹ G(x_ref)ᵀ. Open chains near
 // x_ref take chord steps S(x_ref) δ = −g(y) (SHAKE's quasi-Newton: S is J at y = x_ref, and its
@@ -227,7 +336,13 @@ void ConstraintToolbox::Impl::shake_group(int first, int count, Eigen::Matrix3Xd
     }
     if (k == 0 && std::none_of(active, active + count, [](bool a) { return a; })) break;
     solve_chains(cs, k);
-    for (int q = 0; q < k; ++q) shake_chord_update(st[solving[q]], y);
+    // The chord updates two chains at a time (chain_displace_pair: a group's chains have one
+    // length) unless a fixed particle is shared, the last of an odd number alone. Each chain gets
+    // its own operations either way.
+    int q = 0;
+    if (!clusters_share_particles)
+      for (; q + 1 < k; q += 2) shake_chord_update_pair(st[solving[q]], st[solving[q + 1]], y);
+    for (; q < k; ++q) shake_chord_update(st[solving[q]], y);
   }
   for (int j = 0; j < count; ++j)
     if (error[j]) std::rethrow_exception(error[j]);

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <numeric>
@@ -601,6 +602,49 @@ TEST(ConstraintShake, ChainsSolvedTogetherGetTheBitsTheyGetAlone) {
     EXPECT_EQ((y.middleCols(c * beads, beads) - y_c).cwiseAbs().maxCoeff(), 0.0);
     EXPECT_EQ((v_all.middleCols(c * beads, beads) - v_c).cwiseAbs().maxCoeff(), 0.0);
     EXPECT_EQ((f_all.middleCols(c * beads, beads) - f_c).cwiseAbs().maxCoeff(), 0.0);
+  }
+}
+
+// SHAKE's chord updates take two chains of a group at a time, side by side in the lanes of one
+// register (ConstraintToolbox::Impl::chain_displace_pair), the last of an odd count alone. Seven
+// chains of 9 beads (groups of 4 and 3: two pairs and a pair and a single), their last beads
+// fixed (a zero inverse mass on the path), each drifted off the manifold: the positions and the
+// multipliers of each chain must be the bits of the chain shaken alone, after one SHAKE and after
+// a second from the first's result (chord steps on the kept factors).
+TEST(ConstraintShake, ChainsUpdatedInPairsGetTheBitsTheyGetAlone) {
+  const int chains = 7, beads = 9;
+  std::vector<Scene> parts;
+  Scene all = chains_side_by_side(chains, beads, parts);
+  for (int c = 0; c < chains; ++c) {
+    all.inv_mass[c * beads + beads - 1] = 0.0;
+    parts[c].inv_mass[beads - 1] = 0.0;
+  }
+  const Eigen::Matrix3Xd drift = random_matrix(chains * beads, 41);
+  ConstraintToolbox together(all.bonds, all.inv_mass);
+  Eigen::Matrix3Xd y = all.x + 0.01 * drift;
+  Eigen::VectorXd lambda;
+  together.shake(all.x, y, &lambda);
+  Eigen::Matrix3Xd y2 = y + 0.005 * drift;
+  Eigen::VectorXd lambda2;
+  together.shake(y, y2, &lambda2);
+  for (int c = 0; c < chains; ++c) {
+    SCOPED_TRACE(testing::Message() << "chain " << c);
+    ConstraintToolbox alone(parts[c].bonds, parts[c].inv_mass);
+    const Eigen::Matrix3Xd x_c = all.x.middleCols(c * beads, beads);
+    const Eigen::Matrix3Xd y0_c = x_c + 0.01 * drift.middleCols(c * beads, beads);
+    Eigen::Matrix3Xd y_c = y0_c;
+    Eigen::VectorXd lambda_c;
+    alone.shake(x_c, y_c, &lambda_c);
+    Eigen::Matrix3Xd y2_c = y_c + 0.005 * drift.middleCols(c * beads, beads);
+    Eigen::VectorXd lambda2_c;
+    alone.shake(y_c, y2_c, &lambda2_c);
+    const int bonds = beads - 1;
+    EXPECT_EQ(std::memcmp(y.middleCols(c * beads, beads).data(), y_c.data(), sizeof(double) * 3 * beads), 0);
+    EXPECT_EQ(std::memcmp(y2.middleCols(c * beads, beads).data(), y2_c.data(), sizeof(double) * 3 * beads), 0);
+    EXPECT_EQ(std::memcmp(lambda.segment(c * bonds, bonds).data(), lambda_c.data(), sizeof(double) * bonds), 0);
+    EXPECT_EQ(std::memcmp(lambda2.segment(c * bonds, bonds).data(), lambda2_c.data(), sizeof(double) * bonds), 0);
+    EXPECT_LE(alone.max_violation(y2_c), 1e-12);
+    EXPECT_EQ(y_c.col(beads - 1), y0_c.col(beads - 1));  // the fixed bead is not moved
   }
 }
 
