@@ -510,6 +510,10 @@ Polymer assemble(const std::vector<V3>& pos, std::vector<std::pair<int, int>> bo
 
 }  // namespace
 
+void validate_chain_spec(const char* who, const ChainSpec& spec, int min_beads, const Box& box, long long total_beads) {
+  validate(who, spec, min_beads, box, total_beads);
+}
+
 // ---------------------------------------------------------------------------------------------
 
 Polymer build_linear_chains(const ChainSpec& spec, const Box& box) {

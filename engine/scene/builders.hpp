@@ -25,16 +25,16 @@ namespace stiffmd {
 // one end (ring: bead 0 is bonded to bead n−1); a star as its core, then arm 0 from the core
 // outwards, arm 1, …
 struct Polymer {
-  Eigen::Matrix3Xd x;                      // positions, unwrapped: bonded beads are exactly
-                                           // bond_length apart without any minimum image
-  std::vector<std::pair<int, int>> bonds;  // in growth order: (i, i+1); a ring's closing bond is (last, first)
-  std::vector<std::array<int, 3>> angles;  // every (i, j, k) with i–j and j–k bonded, i ≠ k, each once:
-                                           // consecutive triplets along each backbone, and at a star's
-                                           // core one triplet per pair of arms
+  Eigen::Matrix3Xd x;                         // positions, unwrapped: bonded beads are exactly
+                                              // bond_length apart without any minimum image
+  std::vector<std::pair<int, int>> bonds;     // in growth order: (i, i+1); a ring's closing bond is (last, first)
+  std::vector<std::array<int, 3>> angles;     // every (i, j, k) with i–j and j–k bonded, i ≠ k, each once:
+                                              // consecutive triplets along each backbone, and at a star's
+                                              // core one triplet per pair of arms
   std::vector<std::array<int, 4>> dihedrals;  // every (i, j, k, l) with i–j, j–k, k–l bonded and
                                               // i ≠ l, by central bond j–k in bond order (LAMMPS's
                                               // definition of the proper dihedrals of a bond graph)
-  std::vector<int> molecule;               // 0-based molecule index per bead
+  std::vector<int> molecule;                  // 0-based molecule index per bead
 };
 
 struct ChainSpec {
@@ -88,6 +88,10 @@ Polymer build_rings(const ChainSpec& spec, const Box& box);
 // per star); the arms grow in turn, one bead each, so that no arm walls in the core.
 constexpr int kMaxStarArms = 1000;
 Polymer build_stars(const ChainSpec& spec, int arms, const Box& box);
+
+// The checks above, shared by every builder (engine/scene/chains_by_molecule.hpp too): the spec,
+// the box and a total of at most INT_MAX beads; std::invalid_argument starting with `who`.
+void validate_chain_spec(const char* who, const ChainSpec& spec, int min_beads, const Box& box, long long total_beads);
 
 // A cube of side (total_beads / density)^(1/3) with its corner at the origin, periodic on all
 // axes. total_beads ≥ 1 and density > 0 (finite), else std::invalid_argument.

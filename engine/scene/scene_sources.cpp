@@ -13,9 +13,11 @@
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/xyz_bonds.hpp"
 #include "engine/scene/builders.hpp"
+#include "engine/scene/chains_by_molecule.hpp"
 #include "engine/scene/whole_molecules.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/minimize.hpp"
+#include "integrators/part_velocities.hpp"
 #include "integrators/prepare.hpp"
 
 namespace stiffmd {
@@ -126,7 +128,7 @@ void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
 
 // [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
 // bond_type, angle_type and dihedral_type (optional), density (optional: sets a periodic cubic box), min_distance,
-// seed.
+// seed, growth = "together" | "by-molecule" (linear chains).
 void read_builders(DeckTable& root, Scene& sc) {
   for (DeckTable& b : root.array_of_tables("build")) {
     const std::string style = b.string("style");
@@ -176,9 +178,21 @@ void read_builders(DeckTable& root, Scene& sc) {
         b.fail("density", e.what());
       }
     }
+    // How the molecules grow: all together, each bead kept clear of every other molecule's, or
+    // each from its own random stream (engine/scene/chains_by_molecule.hpp: the same molecule on
+    // any number of ranks; overlaps between molecules are left to [minimize]'s soft start).
+    const std::string growth = b.string("growth", "together");
+    if (growth != "together" && growth != "by-molecule")
+      b.fail("growth", "unknown growth '" + growth + "' (known: together, by-molecule)");
+    if (growth == "by-molecule" && style != "linear-chains")
+      b.fail("growth",
+             "growth = \"by-molecule\" builds linear chains only; expected style = \"linear-chains\" "
+             "or growth = \"together\"");
     Polymer p;
     try {
-      if (style == "linear-chains")
+      if (growth == "by-molecule")
+        p = build_linear_chains_by_molecule(spec, sc.box);
+      else if (style == "linear-chains")
         p = build_linear_chains(spec, sc.box);
       else if (style == "rings")
         p = build_rings(spec, sc.box);
@@ -353,6 +367,9 @@ void read_velocities(DeckTable& root, Scene& sc) {
   const double temperature = t->number("temperature");
   t->require(temperature >= 0, "temperature", "expected a temperature >= 0");
   const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  // One stream over the particles in order, or each particle's normals keyed by its index
+  // (integrators/part_velocities.hpp: the same velocities whichever rank holds the particle).
+  const bool by_particle = t->boolean("by_particle", false);
   // 3 N_mobile − 3 degrees of freedom once the total momentum is removed: none, and T > 0 cannot
   // be given (every particle fixed, or one free particle), so say so rather than start at rest.
   const auto mobile = (sc.state.inv_mass.array() > 0.0).count();
@@ -361,7 +378,13 @@ void read_velocities(DeckTable& root, Scene& sc) {
                                " mobile particle(s), total momentum removed); expected temperature = 0 or more "
                                "mobile particles");
   t->finish();
-  sc.state.v = maxwell_boltzmann(sc.state.inv_mass, sc.units.kT(temperature), seed);
+  if (by_particle) {
+    std::vector<int> global(static_cast<size_t>(sc.state.inv_mass.size()));
+    for (size_t i = 0; i < global.size(); ++i) global[i] = static_cast<int>(i);
+    sc.state.v = maxwell_boltzmann_by_particle(sc.state.inv_mass, global, sc.units.kT(temperature), seed, nullptr);
+  } else {
+    sc.state.v = maxwell_boltzmann(sc.state.inv_mass, sc.units.kT(temperature), seed);
+  }
 }
 
 // [prepare]: the settings of prepare_state (integrators/prepare.*, where the physics is) and
