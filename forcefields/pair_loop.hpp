@@ -336,8 +336,9 @@ inline constexpr int kPairChunkRoom = 8;
 // the lane is tested against. kCharged: each kept pair's qq = (qqrd2e q_i) q_j too.
 //
 // The fold (NearestImage::fold, d − L where d > L/2, d + L where d < −L/2) changes a separation only
-// on an axis where |d_a| > L_a/2; a group none of whose lanes has r² = (d_x² + d_y²) + d_z² below
-// min_a (L_a/2)² skips it (in.chain: ≈ 80 % of the groups; a pair across a face has |d_a| ≈ L_a).
+// on an axis where |d_a| > L_a/2; a group all of whose lanes have r² = (d_x² + d_y²) + d_z² below
+// min_a (L_a/2)² skips it (in.chain: 87 % of the groups; a pair across a face has |d_a| ≈ L_a;
+// docs/performance.md, "The pair loop's first pass without the fold where no lane needs it").
 // The same values bit for bit: the rounded squares and sums are monotone, so fl(d_a²) ≤ r² <
 // fl((L_a/2)²) gives |d_a| ≤ L_a/2, where the fold returns d_a itself; a group with a lane at or
 // above the bound (or a NaN) folds and computes its r² again, as before.
