@@ -246,6 +246,25 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
 inline constexpr int kPairChunk = 256;
 inline constexpr int kPairPrefetch = 64;
 
+// The buffers of one chunk of accumulate_pair_forces_rows (at most kPairChunk listed pairs): the
+// kept pairs' separations, r², fpair, f_j's place in f (j3 = 3j), their coefficients (several
+// types) and qqrd2e q_i q_j (charged kernels); per row met, its index and its end in the buffer.
+// One object, so that a pass addresses every array from one register. kRoom more entries than
+// pairs: the AVX2 pass's packed stores write four.
+template <class Params, bool kOneType, bool kCharged>
+struct PairChunkBuffers {
+  static constexpr int kRoom = 4;
+  alignas(64) double dx[kPairChunk + kRoom];
+  alignas(64) double dy[kPairChunk + kRoom];
+  alignas(64) double dz[kPairChunk + kRoom];
+  alignas(64) double r2[kPairChunk + kRoom];
+  alignas(64) double fpair[kPairChunk];
+  std::uint32_t j3[kPairChunk + kRoom];
+  const Params* pn[kOneType ? 1 : kPairChunk + kRoom];
+  double qq[kCharged ? kPairChunk + kRoom : 1];
+  int seg_row[kPairChunk], seg_end[kPairChunk];
+};
+
 #if defined(__x86_64__)
 // Pass 1 of accumulate_pair_forces_rows four listed pairs at a time (AVX2), for every style: the
 // separations, their minimum images and r² as the scalar pass computes them — the same IEEE
@@ -254,26 +273,32 @@ inline constexpr int kPairPrefetch = 64;
 // the list's order. A chunk is a stretch of the list's pairs (rows end inside groups of four: the
 // scalar pass's rows, the same pairs in the same order, so the same forces). The x_j are loaded by
 // index (a row's partners lie anywhere) and transposed into lanes, the lanes past the chunk's end
-// masked; the kept lanes are packed to the front by a permutation chosen by the 4-bit mask
-// (PairPackTable) and stored four at a time, the count advanced by the mask's population (the
-// buffers have 3 entries of room past the chunk). x_j is prefetched kPairPrefetch listed pairs
-// ahead, as in the scalar pass.
+// given x_i = +∞, so that no test keeps them; the kept lanes are packed to the front by a
+// permutation chosen by the 4-bit mask (PairPackTable) and stored four at a time, the count
+// advanced by the mask's population (the buffers have 3 entries of room past the chunk). x_j is
+// prefetched kPairPrefetch listed pairs ahead, as in the scalar pass.
 struct PairPackTable {
-  alignas(32) int doubles[16][8];          // _mm256_permutevar8x32: the kept doubles' halves, in order
-  alignas(16) unsigned char ints[16][16];  // _mm_shuffle_epi8: the kept 32-bit indices' bytes, in order
-  constexpr PairPackTable() : doubles{}, ints{} {
+  // One cache line per mask: both orders at one address, mask · 64.
+  struct alignas(64) Entry {
+    int doubles[8];          // _mm256_permutevar8x32: the kept doubles' halves, in order
+    unsigned char ints[16];  // _mm_shuffle_epi8: the kept 32-bit indices' bytes, in order
+    unsigned char unused[16];
+  };
+  Entry entry[16];
+  constexpr PairPackTable() : entry{} {
     for (int mask = 0; mask < 16; ++mask) {
+      Entry& t = entry[mask];
       int out = 0;
       for (int lane = 0; lane < 4; ++lane)
         if (mask & (1 << lane)) {
-          doubles[mask][2 * out] = 2 * lane;
-          doubles[mask][2 * out + 1] = 2 * lane + 1;
-          for (int b = 0; b < 4; ++b) ints[mask][4 * out + b] = static_cast<unsigned char>(4 * lane + b);
+          t.doubles[2 * out] = 2 * lane;
+          t.doubles[2 * out + 1] = 2 * lane + 1;
+          for (int b = 0; b < 4; ++b) t.ints[4 * out + b] = static_cast<unsigned char>(4 * lane + b);
           ++out;
         }
       for (; out < 4; ++out) {
-        doubles[mask][2 * out] = doubles[mask][2 * out + 1] = 0;
-        for (int b = 0; b < 4; ++b) ints[mask][4 * out + b] = 0x80;
+        t.doubles[2 * out] = t.doubles[2 * out + 1] = 0;
+        for (int b = 0; b < 4; ++b) t.ints[4 * out + b] = 0x80;
       }
     }
   }
@@ -309,24 +334,38 @@ inline constexpr int kPairChunkRoom = 8;
 // NearestImage::rounded (a box a few list radii wide). kOneType: every pair has the coefficients
 // `one`; else each lane's are params' (type_i, type_j), whose address is kept (pn) and whose rc²
 // the lane is tested against. kCharged: each kept pair's qq = (qqrd2e q_i) q_j too.
+//
+// The fold (NearestImage::fold, d − L where d > L/2, d + L where d < −L/2) changes a separation only
+// on an axis where |d_a| > L_a/2; a group all of whose lanes have r² = (d_x² + d_y²) + d_z² below
+// min_a (L_a/2)² skips it (in.chain: 87 % of the groups; a pair across a face has |d_a| ≈ L_a;
+// docs/performance.md, "The pair loop's first pass without the fold where no lane needs it").
+// The same values bit for bit: the rounded squares and sums are monotone, so fl(d_a²) ≤ r² <
+// fl((L_a/2)²) gives |d_a| ≤ L_a/2, where the fold returns d_a itself; a group with a lane at or
+// above the bound (or a NaN) folds and computes its r² again, as before.
+//
+// f_j's place in f, 3j, is formed once here, in lanes, and kept (j3) for the scatter; the positions
+// are read at the unsigned offsets 3j, so no extension of a signed index per load.
 template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Params>
 [[gnu::target("avx2,popcnt")]] void pair_chunk_separations_avx2(
-    PairChunkCursor& c, int last, const std::int64_t* __restrict offset, const int* __restrict nbr,
-    std::int64_t last_pair, const double* __restrict xp, const NearestImage& near, const Params& one,
-    const TypePairMatrix<Params>& params, const int* __restrict type, const PairCharges& charges, int* __restrict jn,
-    double* __restrict dx, double* __restrict dy, double* __restrict dz, double* __restrict r2,
-    const Params** __restrict pn, double* __restrict qq, int* __restrict seg_row, int* __restrict seg_end) {
+    PairChunkBuffers<Params, kOneType, kCharged>& b, PairChunkCursor& c, const double* __restrict xp,
+    const int* __restrict nbr, const std::int64_t* __restrict offset, int last, std::int64_t last_pair,
+    const NearestImage& near, const Params& one, const TypePairMatrix<Params>& params, const int* __restrict type,
+    const PairCharges& charges) {
   constexpr int kChunk = kPairChunk;
   alignas(32) double xi[kChunk + kPairChunkRoom], yi[kChunk + kPairChunkRoom], zi[kChunk + kPairChunkRoom];
   [[maybe_unused]] alignas(32) const Params* prow[kOneType ? 1 : kChunk + kPairChunkRoom];
   [[maybe_unused]] alignas(32) double qi[kCharged ? kChunk + kPairChunkRoom : 1];
-  int group_n[kChunk / 4 + 1], group_mask[kChunk / 4 + 1];
-  // The rows: each one's x_i into its pairs' slots, its end as a slot of the chunk.
+  // Per group, at its first slot: the kept count before it and its mask.
+  int group_n[kChunk + 4], group_mask[kChunk + 4];
+  // The rows: each one's x_i into its pairs' slots, its end as a slot of the chunk. At most kChunk
+  // rows (seg_row, seg_end): empty rows past the chunk's last pair join it (f_i += 0, as the scalar
+  // pass adds).
   const std::int64_t k0 = c.k, k1 = std::min<std::int64_t>(k0 + kChunk, offset[last]);
-  int i = c.i, segments = 0;
+  const int i0 = c.i, row_limit = static_cast<int>(std::min<std::int64_t>(last, std::int64_t{i0} + kChunk));
+  int i = i0;
   std::int64_t k = k0;
   bool split = false;
-  while (i < last && segments < kChunk) {
+  for (; i < row_limit; ++i) {
     const std::int64_t end = offset[i + 1], stop = std::min(end, k1);
     const int from = static_cast<int>(k - k0), to = static_cast<int>(stop - k0);
     const __m256d vx = _mm256_set1_pd(xp[3 * i]), vy = _mm256_set1_pd(xp[3 * i + 1]),
@@ -336,59 +375,92 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
     if constexpr (!kOneType) vp = _mm256_set1_epi64x(reinterpret_cast<long long>(params.row(type[i])));
     if constexpr (kCharged) vq = _mm256_set1_pd(charges.qqrd2e * charges.q[i]);
     // Eight slots without a test (most rows hold fewer), then the rest of a longer row.
-    for (int q = from; q < from + 8 || q < to; q += 4) {
+    int q = from;
+    do {
       _mm256_storeu_pd(xi + q, vx);
       _mm256_storeu_pd(yi + q, vy);
       _mm256_storeu_pd(zi + q, vz);
-      if constexpr (!kOneType) _mm256_storeu_si256(reinterpret_cast<__m256i*>(prow + q), vp);
-      if constexpr (kCharged) _mm256_storeu_pd(qi + q, vq);
-    }
-    seg_row[segments] = i;
-    seg_end[segments] = to;  // a slot for now: made a buffer end below
-    ++segments;
+      _mm256_storeu_pd(xi + q + 4, vx);
+      _mm256_storeu_pd(yi + q + 4, vy);
+      _mm256_storeu_pd(zi + q + 4, vz);
+      if constexpr (!kOneType) {
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(prow + q), vp);
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(prow + q + 4), vp);
+      }
+      if constexpr (kCharged) {
+        _mm256_storeu_pd(qi + q, vq);
+        _mm256_storeu_pd(qi + q + 4, vq);
+      }
+      q += 8;
+    } while (q < to);
+    b.seg_row[i - i0] = i;
+    b.seg_end[i - i0] = to;  // a slot for now: made a buffer end below
     k = stop;
     if (stop < end) {  // the chunk ends inside the row
       split = true;
       break;
     }
-    ++i;  // empty rows past the chunk's last pair join it (f_i += 0, as the scalar pass adds)
   }
+  const int segments = i - i0 + (split ? 1 : 0);
   const int listed = static_cast<int>(k - k0);
+  const int slots = (listed + 3) & ~3;  // the groups' lanes
+  // The lanes past the chunk's end: x_i = +∞ (every r² then +∞ or NaN: no test keeps them), a
+  // valid coefficient row, q_i = 0; their j are 0 (below), a valid index.
+  {
+    const __m256d inf = _mm256_set1_pd(INFINITY);
+    _mm256_storeu_pd(xi + listed, inf);
+    _mm256_storeu_pd(yi + listed, inf);
+    _mm256_storeu_pd(zi + listed, inf);
+    if constexpr (!kOneType)
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(prow + listed),
+                          _mm256_set1_epi64x(reinterpret_cast<long long>(params.row(0))));
+    if constexpr (kCharged) _mm256_storeu_pd(qi + listed, _mm256_setzero_pd());
+  }
   const __m256d vrc2 = _mm256_set1_pd(one.rc2);
   __m256d len[3], half[3], nhalf[3], inv[3];
+  double half2 = INFINITY;  // min_a (L_a/2)²: below it no lane folds
   for (int a = 0; a < 3; ++a) {
     len[a] = _mm256_set1_pd(near.length[a]);
     half[a] = _mm256_set1_pd(near.half[a]);
     nhalf[a] = _mm256_set1_pd(-near.half[a]);
     inv[a] = _mm256_set1_pd(near.inv_length[a]);
+    half2 = std::min(half2, near.half[a] * near.half[a]);
   }
+  const __m256d unfolded = _mm256_set1_pd(half2);
   const __m256d round_k = _mm256_set1_pd(6755399441055744.0);  // round_nearest's 1.5 · 2⁵²
-  const __m128i lane_index = _mm_setr_epi32(0, 1, 2, 3);
-  // The prefetch reads four indices at k + kPairPrefetch, at most up to the last pair.
-  const std::int64_t prefetch_last = last_pair - 3;
-  int n = 0;
-  for (int g = 0; 4 * g < listed; ++g) {
-    const int at = 4 * g;
-    const int lanes = std::min(4, listed - at);
-    const std::int64_t kg = k0 + at;
-    const __m128i j = lanes == 4 ? _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + kg))
-                                 : _mm_maskload_epi32(nbr + kg, _mm_cmpgt_epi32(_mm_set1_epi32(lanes), lane_index));
-    if (prefetch_last >= 0) {
-      const __m128i ahead =
-          _mm_loadu_si128(reinterpret_cast<const __m128i*>(nbr + std::min(kg + kPairPrefetch, prefetch_last)));
-      const __m128i a3 = _mm_add_epi32(ahead, _mm_add_epi32(ahead, ahead));
-      __builtin_prefetch(xp + _mm_cvtsi128_si32(a3));
-      __builtin_prefetch(xp + _mm_extract_epi32(a3, 1));
-      __builtin_prefetch(xp + _mm_extract_epi32(a3, 2));
-      __builtin_prefetch(xp + _mm_extract_epi32(a3, 3));
+  // The groups' indices j: the list's own where the last group ends at or before last_pair, else a
+  // copy with 0 past it; and the prefetch's, kPairPrefetch listed pairs ahead of each group's: the
+  // list's own where they lie before last_pair, else a copy clamped to it (a part's last chunks).
+  const int* js = nbr + k0;
+  alignas(16) int js_padded[kChunk + 4];
+  if (k0 + slots > last_pair + 1) {
+    for (int r = 0; r < slots; ++r) js_padded[r] = r < listed ? nbr[k0 + r] : 0;
+    js = js_padded;
+  }
+  const int* ahead = nbr + k0 + kPairPrefetch;
+  alignas(16) int ahead_clamped[kChunk + 4];
+  if (k0 + kPairPrefetch + slots > last_pair + 1) {
+    for (int r = 0; r < slots; ++r) ahead_clamped[r] = nbr[std::min<std::int64_t>(k0 + kPairPrefetch + r, last_pair)];
+    ahead = ahead_clamped;
+  }
+  const unsigned char* pack = reinterpret_cast<const unsigned char*>(kPairPack.entry);
+  std::ptrdiff_t n = 0;
+  for (int at = 0; at < slots; at += 4) {
+    const __m128i j = _mm_loadu_si128(reinterpret_cast<const __m128i*>(js + at));
+    {
+      const __m128i a = _mm_loadu_si128(reinterpret_cast<const __m128i*>(ahead + at));
+      const __m128i a3 = _mm_add_epi32(a, _mm_add_epi32(a, a));
+      __builtin_prefetch(xp + static_cast<std::uint32_t>(_mm_cvtsi128_si32(a3)));
+      __builtin_prefetch(xp + static_cast<std::uint32_t>(_mm_extract_epi32(a3, 1)));
+      __builtin_prefetch(xp + static_cast<std::uint32_t>(_mm_extract_epi32(a3, 2)));
+      __builtin_prefetch(xp + static_cast<std::uint32_t>(_mm_extract_epi32(a3, 3)));
     }
-    const int j0 = _mm_cvtsi128_si32(j), j1 = _mm_extract_epi32(j, 1), j2 = _mm_extract_epi32(j, 2),
-              j3 = _mm_extract_epi32(j, 3);  // 0 past the chunk's end: a valid index
+    const __m128i j3 = _mm_add_epi32(j, _mm_add_epi32(j, j));
     // x_j of each lane as (x, y) and z, transposed into lanes (loads beat a gather here).
-    const double* p0 = xp + 3 * j0;
-    const double* p1 = xp + 3 * j1;
-    const double* p2 = xp + 3 * j2;
-    const double* p3 = xp + 3 * j3;
+    const double* p0 = xp + static_cast<std::uint32_t>(_mm_cvtsi128_si32(j3));
+    const double* p1 = xp + static_cast<std::uint32_t>(_mm_extract_epi32(j3, 1));
+    const double* p2 = xp + static_cast<std::uint32_t>(_mm_extract_epi32(j3, 2));
+    const double* p3 = xp + static_cast<std::uint32_t>(_mm_extract_epi32(j3, 3));
     const __m256d xy02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p0)), _mm_loadu_pd(p2), 1);
     const __m256d xy13 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p1)), _mm_loadu_pd(p3), 1);
     const __m256d z02 = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_sd(p0 + 2)), _mm_load_sd(p2 + 2), 1);
@@ -396,60 +468,70 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
     __m256d e[3] = {_mm256_sub_pd(_mm256_load_pd(xi + at), _mm256_unpacklo_pd(xy02, xy13)),
                     _mm256_sub_pd(_mm256_load_pd(yi + at), _mm256_unpackhi_pd(xy02, xy13)),
                     _mm256_sub_pd(_mm256_load_pd(zi + at), _mm256_unpacklo_pd(z02, z13))};
-    if constexpr (kPeriodic)
-      for (int a = 0; a < 3; ++a) {
-        if constexpr (kRounded) {  // d − L·round_nearest(d/L)
-          const __m256d q = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(e[a], inv[a]), round_k), round_k);
-          e[a] = _mm256_sub_pd(e[a], _mm256_mul_pd(len[a], q));
-        } else {  // the fold: d − L (d > L/2), d + L (d < −L/2), else d
+    if constexpr (kPeriodic && kRounded)
+      for (int a = 0; a < 3; ++a) {  // d − L·round_nearest(d/L)
+        const __m256d q = _mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(e[a], inv[a]), round_k), round_k);
+        e[a] = _mm256_sub_pd(e[a], _mm256_mul_pd(len[a], q));
+      }
+    __m256d s =
+        _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])), _mm256_mul_pd(e[2], e[2]));
+    if constexpr (kPeriodic && !kRounded)
+      if (_mm256_movemask_pd(_mm256_cmp_pd(s, unfolded, _CMP_LT_OQ)) != 0xF) [[unlikely]] {
+        for (int a = 0; a < 3; ++a) {  // the fold: d − L (d > L/2), d + L (d < −L/2), else d
           const __m256d above = _mm256_cmp_pd(e[a], half[a], _CMP_GT_OQ);
           const __m256d below = _mm256_cmp_pd(e[a], nhalf[a], _CMP_LT_OQ);
           const __m256d folded = _mm256_blendv_pd(e[a], _mm256_sub_pd(e[a], len[a]), above);
           e[a] = _mm256_blendv_pd(folded, _mm256_add_pd(folded, len[a]), below);
         }
+        s = _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])),
+                          _mm256_mul_pd(e[2], e[2]));
       }
-    const __m256d s =
-        _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(e[0], e[0]), _mm256_mul_pd(e[1], e[1])), _mm256_mul_pd(e[2], e[2]));
     __m256d lane_rc2 = vrc2;
     [[maybe_unused]] __m256i lane_p;
+    [[maybe_unused]] int j0, j1, j2, j3i;
+    if constexpr (!kOneType || kCharged) {
+      j0 = _mm_cvtsi128_si32(j), j1 = _mm_extract_epi32(j, 1), j2 = _mm_extract_epi32(j, 2),
+      j3i = _mm_extract_epi32(j, 3);
+    }
     if constexpr (!kOneType) {
       const Params *q0 = prow[at] + type[j0], *q1 = prow[at + 1] + type[j1], *q2 = prow[at + 2] + type[j2],
-                   *q3 = prow[at + 3] + type[j3];
+                   *q3 = prow[at + 3] + type[j3i];
       lane_rc2 = _mm256_setr_pd(q0->rc2, q1->rc2, q2->rc2, q3->rc2);
       lane_p = _mm256_setr_epi64x(reinterpret_cast<long long>(q0), reinterpret_cast<long long>(q1),
                                   reinterpret_cast<long long>(q2), reinterpret_cast<long long>(q3));
     }
-    const int mask = _mm256_movemask_pd(_mm256_cmp_pd(s, lane_rc2, _CMP_LT_OQ)) & ((1 << lanes) - 1);
-    group_n[g] = n;
-    group_mask[g] = mask;
-    const __m256i order = _mm256_load_si256(reinterpret_cast<const __m256i*>(kPairPack.doubles[mask]));
+    const unsigned mask = static_cast<unsigned>(_mm256_movemask_pd(_mm256_cmp_pd(s, lane_rc2, _CMP_LT_OQ)));
+    group_n[at] = static_cast<int>(n);
+    group_mask[at] = static_cast<int>(mask);
+    const unsigned char* entry = pack + 64 * mask;
+    const __m256i order = _mm256_load_si256(reinterpret_cast<const __m256i*>(entry));
     if constexpr (!kOneType)
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(pn + n), _mm256_permutevar8x32_epi32(lane_p, order));
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(b.pn + n), _mm256_permutevar8x32_epi32(lane_p, order));
     if constexpr (kCharged) {
       const __m256d lane_qq = _mm256_mul_pd(
           _mm256_load_pd(qi + at),
-          _mm256_setr_pd(charges.q[j0], charges.q[j1], charges.q[j2], charges.q[j3]));  // (qqrd2e q_i) q_j
-      _mm256_storeu_pd(qq + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(lane_qq), order)));
+          _mm256_setr_pd(charges.q[j0], charges.q[j1], charges.q[j2], charges.q[j3i]));  // (qqrd2e q_i) q_j
+      _mm256_storeu_pd(b.qq + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(lane_qq), order)));
     }
-    _mm256_storeu_pd(dx + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[0]), order)));
-    _mm256_storeu_pd(dy + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[1]), order)));
-    _mm256_storeu_pd(dz + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[2]), order)));
-    _mm256_storeu_pd(r2 + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(s), order)));
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(jn + n),
-                     _mm_shuffle_epi8(j, _mm_load_si128(reinterpret_cast<const __m128i*>(kPairPack.ints[mask]))));
-    n += _mm_popcnt_u32(static_cast<unsigned>(mask));
+    _mm256_storeu_pd(b.dx + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[0]), order)));
+    _mm256_storeu_pd(b.dy + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[1]), order)));
+    _mm256_storeu_pd(b.dz + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(e[2]), order)));
+    _mm256_storeu_pd(b.r2 + n, _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(s), order)));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(b.j3 + n),
+                     _mm_shuffle_epi8(j3, _mm_load_si128(reinterpret_cast<const __m128i*>(entry + 32))));
+    n += _mm_popcnt_u32(mask);
   }
   // A row ending at slot e ends in the buffer at the kept count before e's group plus its kept
   // lanes below e.
-  group_n[(listed + 3) / 4] = n;
-  group_mask[(listed + 3) / 4] = 0;
+  group_n[slots] = static_cast<int>(n);
+  group_mask[slots] = 0;
   for (int r = 0; r < segments; ++r) {
-    const int e = seg_end[r];
-    seg_end[r] = group_n[e >> 2] + _mm_popcnt_u32(static_cast<unsigned>(group_mask[e >> 2] & ((1 << (e & 3)) - 1)));
+    const int e = b.seg_end[r], g = e & ~3;
+    b.seg_end[r] = group_n[g] + _mm_popcnt_u32(static_cast<unsigned>(group_mask[g] & ((1 << (e & 3)) - 1)));
   }
   c.i = i;
   c.k = k;
-  c.n = n;
+  c.n = static_cast<int>(n);
   c.segments = segments;
   c.split = split;
 }
@@ -458,27 +540,25 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
 // operations): f_j −= fpair d and f_i += fpair d as the scalar pass adds them — the same products
 // and sums, component by component, in the same order. fi: the open row's f_i (carried over a
 // chunk's end), in and out.
-[[gnu::target("avx2")]] inline void pair_chunk_forces_avx2(int segments, const int* __restrict seg_row,
-                                                           const int* __restrict seg_end, bool carried, bool split,
-                                                           const int* __restrict jn, const double* __restrict fpair,
-                                                           const double* __restrict dx, const double* __restrict dy,
-                                                           const double* __restrict dz, double* f, double fi[3]) {
+template <class Buffers>
+[[gnu::target("avx2")]] inline void pair_chunk_forces_avx2(int segments, const Buffers& b, bool carried, bool split,
+                                                           double* f, double fi[3]) {
   __m128d sxy = _mm_setr_pd(fi[0], fi[1]), sz = _mm_set_sd(fi[2]);
   int m = 0;
   for (int s = 0; s < segments; ++s) {
     if (!(s == 0 && carried)) sxy = sz = _mm_setzero_pd();
-    for (; m < seg_end[s]; ++m) {
-      double* fj = f + 3 * jn[m];
-      const __m128d p = _mm_set1_pd(fpair[m]);
-      const __m128d fxy = _mm_mul_pd(p, _mm_loadh_pd(_mm_load_sd(dx + m), dy + m));
-      const __m128d fz = _mm_mul_sd(p, _mm_load_sd(dz + m));
+    for (const int end = b.seg_end[s]; m < end; ++m) {
+      double* fj = f + b.j3[m];
+      const __m128d p = _mm_set1_pd(b.fpair[m]);
+      const __m128d fxy = _mm_mul_pd(p, _mm_loadh_pd(_mm_load_sd(b.dx + m), b.dy + m));
+      const __m128d fz = _mm_mul_sd(p, _mm_load_sd(b.dz + m));
       sxy = _mm_add_pd(sxy, fxy);
       sz = _mm_add_sd(sz, fz);
       _mm_storeu_pd(fj, _mm_sub_pd(_mm_loadu_pd(fj), fxy));
       _mm_store_sd(fj + 2, _mm_sub_sd(_mm_load_sd(fj + 2), fz));
     }
     if (s + 1 < segments || !split) {
-      double* fr = f + 3 * seg_row[s];
+      double* fr = f + 3 * static_cast<std::size_t>(b.seg_row[s]);
       _mm_storeu_pd(fr, _mm_add_pd(_mm_loadu_pd(fr), sxy));
       _mm_store_sd(fr + 2, _mm_add_sd(_mm_load_sd(fr + 2), sz));
     }
@@ -506,13 +586,9 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
   const int* nbr = list.neighbors().data();
   const std::int64_t last_pair = first < last ? offset[last] - 1 : 0;  // the prefetch reads no further
   [[maybe_unused]] const Params one = kOneType ? params.row(uniform)[uniform] : Params{};
-  alignas(64) double dx[kChunk + 4], dy[kChunk + 4], dz[kChunk + 4], r2[kChunk + 4], fpair[kChunk];
-  int jn[kChunk + 4];  // 4 more: room for the AVX2 pass's stores of four
+  PairChunkBuffers<Params, kOneType, kCharged> b;
   // The AVX2 pass 1 where the CPU has it (pair_chunk_separations_avx2).
   [[maybe_unused]] const bool avx2 = vector && pair_loop_avx2();
-  [[maybe_unused]] const Params* pn[kOneType ? 1 : kChunk + 4];
-  [[maybe_unused]] double qq[kCharged ? kChunk + 4 : 1];
-  int seg_row[kChunk], seg_end[kChunk];    // per row met in the chunk: its index, its buffer end
   double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i of the open row, carried over a chunk's end
   int i = first;
   std::int64_t k = first < last ? offset[first] : 0;
@@ -525,13 +601,11 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
     if (avx2) {
       PairChunkCursor c{i, k};
       if (kPeriodic && near.rounded)
-        pair_chunk_separations_avx2<true, true, kOneType, kCharged>(c, last, offset, nbr, last_pair, xp, near, one,
-                                                                    params, type, charges, jn, dx, dy, dz, r2, pn, qq,
-                                                                    seg_row, seg_end);
+        pair_chunk_separations_avx2<true, true, kOneType, kCharged>(b, c, xp, nbr, offset, last, last_pair, near, one,
+                                                                    params, type, charges);
       else
-        pair_chunk_separations_avx2<kPeriodic, false, kOneType, kCharged>(c, last, offset, nbr, last_pair, xp, near,
-                                                                          one, params, type, charges, jn, dx, dy, dz,
-                                                                          r2, pn, qq, seg_row, seg_end);
+        pair_chunk_separations_avx2<kPeriodic, false, kOneType, kCharged>(b, c, xp, nbr, offset, last, last_pair, near,
+                                                                          one, params, type, charges);
       i = c.i;
       k = c.k;
       n = c.n;
@@ -557,19 +631,19 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
           rc2 = one.rc2;
         } else {
           const Params* p = prow + type[j];
-          pn[n] = p;
+          b.pn[n] = p;
           rc2 = p->rc2;
         }
-        jn[n] = j;
-        dx[n] = ex;
-        dy[n] = ey;
-        dz[n] = ez;
-        r2[n] = s;
-        if constexpr (kCharged) qq[n] = qi * charges.q[j];
+        b.j3[n] = 3 * static_cast<std::uint32_t>(j);
+        b.dx[n] = ex;
+        b.dy[n] = ey;
+        b.dz[n] = ez;
+        b.r2[n] = s;
+        if constexpr (kCharged) b.qq[n] = qi * charges.q[j];
         n += s < rc2 ? 1 : 0;
       }
-      seg_row[segments] = i;
-      seg_end[segments] = n;
+      b.seg_row[segments] = i;
+      b.seg_end[segments] = n;
       ++segments;
       if (k < end) {  // the buffer is full
         split = true;
@@ -584,21 +658,21 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
       if constexpr (kOneType)
         p = &one;
       else
-        p = pn[m];
+        p = b.pn[m];
       double e = 0.0, fp = 0.0;
       if constexpr (kCharged) {
         double ecoul = 0.0;
-        Kernel::eval(r2[m], *p, qq[m], 1.0, 1.0, e, ecoul, fp);
+        Kernel::eval(b.r2[m], *p, b.qq[m], 1.0, 1.0, e, ecoul, fp);
       } else {
-        Kernel::eval(r2[m], *p, e, fp);
+        Kernel::eval(b.r2[m], *p, e, fp);
       }
-      fpair[m] = fp;
+      b.fpair[m] = fp;
     }
     // Pass 3: the forces, in the list's order.
 #if defined(__x86_64__)
     if (avx2) {
       double fi[3] = {fxi, fyi, fzi};
-      pair_chunk_forces_avx2(segments, seg_row, seg_end, carried, split, jn, fpair, dx, dy, dz, f, fi);
+      pair_chunk_forces_avx2(segments, b, carried, split, f, fi);
       fxi = fi[0], fyi = fi[1], fzi = fi[2];
       carried = split;
       continue;
@@ -607,18 +681,18 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
     int m = 0;
     for (int s = 0; s < segments; ++s) {
       if (!(s == 0 && carried)) fxi = fyi = fzi = 0.0;
-      for (; m < seg_end[s]; ++m) {
-        const int j = jn[m];
-        const double fx = fpair[m] * dx[m], fy = fpair[m] * dy[m], fz = fpair[m] * dz[m];
+      for (; m < b.seg_end[s]; ++m) {
+        double* fj = f + b.j3[m];
+        const double fx = b.fpair[m] * b.dx[m], fy = b.fpair[m] * b.dy[m], fz = b.fpair[m] * b.dz[m];
         fxi += fx;
         fyi += fy;
         fzi += fz;
-        f[3 * j] -= fx;
-        f[3 * j + 1] -= fy;
-        f[3 * j + 2] -= fz;
+        fj[0] -= fx;
+        fj[1] -= fy;
+        fj[2] -= fz;
       }
       if (s + 1 < segments || !split) {
-        const int row = seg_row[s];
+        const int row = b.seg_row[s];
         f[3 * row] += fxi;
         f[3 * row + 1] += fyi;
         f[3 * row + 2] += fzi;

@@ -215,6 +215,28 @@ TEST(ForceOnlyPairs, VectorSeparationsGiveTheScalarPassBits) {
   expect_vector_pass_is_scalar_pass<LennardJones>(xs, small, {1.0, 1.0, 2.5}, "lj, small periodic box");
 }
 
+// Lists shorter than a group of four and than the prefetch's reach (kPairPrefetch), and lists whose
+// last group runs past their end (those lanes are given x_i = +∞): a few particles around a corner
+// of the box, so that most pairs cross one to three faces, against the scalar pass — in a box wide
+// enough for the fold (20 > 6 list radii), where a group with a lane across a face folds and the
+// others skip it, and in one where the minimum image rounds (12).
+TEST(ForceOnlyPairs, VectorPassOnShortListsAcrossTheFaces) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> jitter(-0.7, 0.7);
+  for (const double side : {20.0, 12.0}) {
+    const Box box = test::periodic_box(Eigen::Vector3d::Constant(side), Eigen::Vector3d(-3.0, 1.5, 0.25));
+    const Eigen::Vector3d corner = box.origin + box.lengths;
+    ASSERT_EQ(NearestImage(box, 2.5 + 0.3).rounded, side < 16.8);
+    for (const int n : {2, 3, 5, 9, 14, 40}) {  // 1 to 780 listed pairs
+      Eigen::Matrix3Xd x(3, n);
+      for (int i = 0; i < n; ++i) x.col(i) = corner + Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng));
+      expect_vector_pass_is_scalar_pass<LennardJones>(
+          x, box, {1.0, 1.0, 2.5},
+          "lj, " + std::to_string(n) + " particles at a corner of a box " + std::to_string(side));
+    }
+  }
+}
+
 // The Coulomb styles' rows are longer than the force-only loop's chunk: some rows are split.
 TEST(ForceOnlyPairs, CoulombRowsAreLongerThanTheChunk) {
   const auto term = make_term<CoulombCut>(melt().alternating);
