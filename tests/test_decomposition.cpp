@@ -13,7 +13,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <memory>
 #include <numeric>
@@ -23,6 +25,7 @@
 #include "decomposition_fixtures.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "fake_processes.hpp"
+#include "forcefields/neighbor_list.hpp"  // BoxWrap
 
 namespace stiffmd {
 namespace {
@@ -626,6 +629,110 @@ TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
     at_anchor += owner[m] == fake::rank_of_point(grid, fake::centre_of_mass(melt, melt.state.x, melt.members(m)));
   }
   EXPECT_GE(at_anchor, melt.molecules * 3 / 4);
+}
+
+// A melt of long chains numbered along each chain (no permutation), so that a pair set holds runs
+// of many consecutive owned columns, of every length modulo 4, beside the halo's short ones.
+Melt chain_melt() {
+  Melt melt;
+  melt.box.origin = Eigen::Vector3d(0.5, -1.0, 2.0);
+  melt.box.lengths = Eigen::Vector3d(14.0, 13.0, 12.0);
+  melt.box.periodic = Eigen::Vector3i::Ones();
+  ChainSpec spec;
+  spec.chains = 30, spec.beads = 40, spec.min_distance = 0.0, spec.seed = 11;
+  const Polymer built = build_linear_chains(spec, melt.box);
+  const int n = static_cast<int>(built.x.cols());
+  melt.molecules = spec.chains;
+  melt.label = built.molecule;
+  melt.state.x = built.x;
+  melt.state.v.resize(3, n);
+  for (int i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a) melt.state.v(a, i) = std::cos(2.0 + 5 * i + a);
+  melt.state.inv_mass = Eigen::VectorXd::Ones(n);
+  melt.topology.bond_types = {"bond"};
+  for (const auto& [i, j] : built.bonds) melt.topology.bonds.push_back({i, j, 0});
+  return melt;
+}
+
+// The bits of a double (−0 is not +0).
+std::uint64_t bits(double v) {
+  return std::bit_cast<std::uint64_t>(v);
+}
+
+// forward writes each pair-set bead's position as BoxWrap gives it from its owner's coordinates,
+// bit for bit (the owner wraps its array once and the copies move bits), at every evaluation with
+// the beads moved since the selection (some across a periodic face); the home beads' forces so far
+// exactly, the halo's cleared whatever the last evaluation left there; reverse hands each owner its
+// beads' forces from their home, reading no halo column.
+void expect_forward_and_reverse_exact(const Melt& melt, const Layout& layout) {
+  const int n = melt.size();
+  // Per global index: a displacement since the selection (up to 0.45 per axis).
+  const auto moved = [](int g, int pass) {
+    return Eigen::Vector3d(0.45 * std::sin(1.0 + g + pass), 0.45 * std::cos(0.5 * g - pass), 0.45 * std::sin(2.0 * g));
+  };
+  std::vector<int> home_beads(layout.ranks, 0);
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    const int me = comm.rank();
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    d->select_pair_set(x);
+    const BoxWrap into_box(melt.box);
+    const std::vector<int>& ids = d->pair_ids();
+    const std::vector<char>& halo = d->halo_flags();
+    const int owned = d->num_owned();
+    Eigen::Matrix3Xd y(3, owned), f(3, owned), pair_x, pair_f, positions_only;
+    for (int pass = 0; pass < 3; ++pass) {
+      for (int k = 0; k < owned; ++k) {
+        const int g = d->owned_ids()[k];
+        y.col(k) = x.col(k) + moved(g, pass);
+        f.col(k) = Eigen::Vector3d(g + 0.25, -g, pass);
+      }
+      if (pass > 0) pair_f.setConstant(1e300);  // what a pair loop may leave on the halo
+      d->forward(y, pair_x, &f, &pair_f);
+      ASSERT_EQ(pair_x.cols(), static_cast<long>(ids.size()));
+      ASSERT_EQ(pair_f.cols(), static_cast<long>(ids.size()));
+      for (int e = 0; e < static_cast<int>(ids.size()); ++e) {
+        const int g = ids[e];
+        const Eigen::Vector3d at = melt.state.x.col(g) + moved(g, pass);
+        for (int a = 0; a < 3; ++a)
+          ASSERT_EQ(bits(pair_x(a, e)), bits(into_box(at[a], a)))
+              << "rank " << me << ", particle " << g << ", axis " << a << ", pass " << pass;
+        const Eigen::Vector3d want = halo[e] ? Eigen::Vector3d::Zero() : Eigen::Vector3d(g + 0.25, -g, pass);
+        ASSERT_EQ(pair_f.col(e), want) << "rank " << me << ", particle " << g << ", pass " << pass;
+      }
+      d->forward(y, positions_only);
+      EXPECT_TRUE(same(positions_only, pair_x));
+      // Reverse: the home's force, never a halo column's (NaN there).
+      for (int e = 0; e < static_cast<int>(ids.size()); ++e)
+        pair_f.col(e) = halo[e] ? Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN())
+                                : Eigen::Vector3d(3.0 * ids[e], me, ids[e] - pass);
+      f.setConstant(-7.0);
+      d->reverse(pair_f, f);
+      for (int k = 0; k < owned; ++k) {
+        const int g = d->owned_ids()[k];
+        ASSERT_EQ(f(0, k), 3.0 * g) << "rank " << me << ", particle " << g;
+        ASSERT_EQ(f(1, k), fake::rank_of_point(d->grid(), melt.state.x.col(g))) << "particle " << g;
+        ASSERT_EQ(f(2, k), g - pass) << "particle " << g;
+      }
+    }
+    home_beads[me] = d->num_home();
+  });
+  EXPECT_EQ(std::accumulate(home_beads.begin(), home_beads.end(), 0), n);
+}
+
+TEST_P(DecompositionOnFakeRanks, ForwardGivesBoxWrapsBitsAndReverseTheHomesForces) {
+  expect_forward_and_reverse_exact(fake::straddling_melt(), GetParam());
+  expect_forward_and_reverse_exact(chain_melt(), GetParam());
+}
+
+// The same on many ranks: slabs wider than R on every axis (the selection's slabs beside a bead's
+// own), and slabs narrower than R along one axis (its walk over the slabs within R).
+TEST(DecompositionOnManyFakeRanks, ForwardGivesBoxWrapsBitsAndReverseTheHomesForces) {
+  const Melt melt = chain_melt();
+  for (const Layout& layout :
+       {Layout{16, {4, 2, 2}}, Layout{16, {0, 0, 0}}, Layout{8, {8, 1, 1}}, Layout{6, {1, 1, 6}}})
+    expect_forward_and_reverse_exact(melt, layout);
 }
 
 INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,

@@ -7,6 +7,11 @@
 #include <sstream>
 
 #include <stdexcept>
+
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
+
 #include "core/errors.hpp"
 #include "core/finite.hpp"
 #include "core/timing.hpp"
@@ -40,12 +45,8 @@ constexpr int kCountedSlabs = 32;
 
 }  // namespace
 
-int DomainGrid::slab_of(int a, double q) const {
+int DomainGrid::cut_slab_of(int a, double q) const {
   const int n = dims[a];
-  if (cut[a].empty()) {  // floor(s) clamped into 0 … n − 1 (a NaN to 0)
-    const double s = (q - origin[a]) / length[a] * n;
-    return s >= 0.0 && s < n ? static_cast<int>(s) : (s >= n ? n - 1 : 0);
-  }
   // The last face at or below q's fraction of the axis: the count of the inner faces at or below it.
   const double f = (q - origin[a]) / length[a];
   if (n <= kCountedSlabs) {
@@ -452,12 +453,14 @@ void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
 // slabs_within where every slab of the axis is wider than `reach`, so that a point's slabs within
 // it are its own (`home`) and those beside it (on a periodic axis of two slabs the other one, on
 // either side: the nearer gap): the same slabs with the same gaps, the faces read from `faces`
-// (DomainGrid::face of 0 … dims[a]), without the walk over the images.
-void adjacent_slabs_within(const DomainGrid& g, int a, std::span<const double> faces, double q, double reach, int home,
-                           std::vector<std::pair<int, double>>& out) {
+// (DomainGrid::face of 0 … dims[a]), without the walk over the images. Into `out` (room for
+// three); returns their count. Inlined into the selection's loop over the beads near a face.
+[[gnu::always_inline]] inline int adjacent_slabs_within(const DomainGrid& g, int a, std::span<const double> faces,
+                                                        double q, double reach, int home, std::pair<int, double>* out) {
   const int n = g.dims[a];
-  out.assign(1, {home, 0.0});
-  if (n == 1) return;
+  out[0] = {home, 0.0};
+  int count = 1;
+  if (n == 1) return count;
   const bool periodic = g.periodic[a] != 0;
   const double length = g.length[a];
   constexpr double kInfinity = std::numeric_limits<double>::infinity();
@@ -470,56 +473,155 @@ void adjacent_slabs_within(const DomainGrid& g, int a, std::span<const double> f
   };
   if (home > 0 || periodic) {
     const int c = home > 0 ? home - 1 : n - 1;
-    if (const double d = gap(c, home > 0 ? 0.0 : -length); d <= reach) out.emplace_back(c, d);
+    if (const double d = gap(c, home > 0 ? 0.0 : -length); d <= reach) out[count++] = {c, d};
   }
   if (home < n - 1 || periodic) {
     const int c = home < n - 1 ? home + 1 : 0;
     if (const double d = gap(c, home < n - 1 ? 0.0 : length); d <= reach) {
-      if (out.back().first == c)  // two periodic slabs: the other one is on both sides
-        out.back().second = std::min(out.back().second, d);
+      if (out[count - 1].first == c)  // two periodic slabs: the other one is on both sides
+        out[count - 1].second = std::min(out[count - 1].second, d);
       else
-        out.emplace_back(c, d);
+        out[count++] = {c, d};
     }
   }
+  return count;
 }
 
 // The runs of the pairs (from[m], to[m]) for the m with keep[m] (every m when keep is empty):
 // the longest stretches where both go up by one from one m to the next. An empty `from` or `to`
-// stands for the position of m among those kept (`count` entries in all).
-void make_runs(std::span<const int> from, std::span<const int> to, std::span<const char> keep, std::size_t count,
-               std::vector<ColumnRun>& runs) {
+// stands for the position of m among those kept (`count` entries in all). The run being made is
+// kept in registers and stored when the next one starts.
+template <bool kFrom, bool kTo, bool kKeep>
+void make_runs_of(const int* from, const int* to, const char* keep, std::size_t count, std::vector<ColumnRun>& runs) {
   runs.clear();
   int position = 0;
+  ColumnRun run{0, 0, 0};
   for (std::size_t m = 0; m < count; ++m) {
-    if (!keep.empty() && !keep[m]) continue;
-    const int f = from.empty() ? position : from[m], t = to.empty() ? position : to[m];
+    if (kKeep && !keep[m]) continue;
+    const int f = kFrom ? from[m] : position, t = kTo ? to[m] : position;
     ++position;
-    if (!runs.empty() && runs.back().from + runs.back().count == f && runs.back().to + runs.back().count == t)
-      ++runs.back().count;
-    else
-      runs.push_back({f, t, 1});
+    if (run.count > 0 && run.from + run.count == f && run.to + run.count == t) {
+      ++run.count;
+      continue;
+    }
+    if (run.count > 0) runs.push_back(run);
+    run = {f, t, 1};
+  }
+  if (run.count > 0) runs.push_back(run);
+}
+
+void make_runs(std::span<const int> from, std::span<const int> to, std::span<const char> keep, std::size_t count,
+               std::vector<ColumnRun>& runs) {
+  const int* f = from.data();
+  const int* t = to.data();
+  const char* k = keep.data();
+  const int kind = (from.empty() ? 0 : 4) + (to.empty() ? 0 : 2) + (keep.empty() ? 0 : 1);
+  switch (kind) {
+    case 0:
+      return make_runs_of<false, false, false>(f, t, k, count, runs);
+    case 1:
+      return make_runs_of<false, false, true>(f, t, k, count, runs);
+    case 2:
+      return make_runs_of<false, true, false>(f, t, k, count, runs);
+    case 3:
+      return make_runs_of<false, true, true>(f, t, k, count, runs);
+    case 4:
+      return make_runs_of<true, false, false>(f, t, k, count, runs);
+    case 5:
+      return make_runs_of<true, false, true>(f, t, k, count, runs);
+    case 6:
+      return make_runs_of<true, true, false>(f, t, k, count, runs);
+    default:
+      return make_runs_of<true, true, true>(f, t, k, count, runs);
   }
 }
 
-// Runs up to this many columns are copied or cleared column by column: a call of memcpy or
-// memset costs tens of instructions, and most runs of a pair set with a halo are a few beads long
-// (a halo bead ends a run of home beads).
-constexpr int kShortRun = 8;
-
-// count columns (3 doubles each) from `from` onto `to`.
-void copy_columns(const double* from, double* to, int count) {
-  if (count > kShortRun) return void(std::copy_n(from, 3 * count, to));
-  for (int q = 0; q < count; ++q, from += 3, to += 3) {
-    const double x = from[0], y = from[1], z = from[2];
-    to[0] = x, to[1] = y, to[2] = z;
+// The copies by runs. A run of `count` columns is 3 × count consecutive doubles on both sides, so
+// it is copied as one stretch of doubles, four at a time (AVX2, where the CPU has it: one load and
+// one store per four doubles, the last four overlapping the ones before where the stretch is not a
+// multiple of four) — a copy moves bits, so any order gives the same array. A call of memcpy
+// costs tens of instructions on the few beads of most runs of a pair set with a halo (a halo bead
+// ends a run of home beads), and glibc's memcpy moves a long stretch with `rep movsb`; a column
+// loop moves three doubles in about eight instructions.
+//
+// `backwards`: each run read at run.to and written at run.from (reverse's direction).
+void copy_runs_scalar(std::span<const ColumnRun> runs, const double* source, double* target, bool backwards) {
+  for (const ColumnRun& run : runs) {
+    const double* from = source + 3 * static_cast<std::ptrdiff_t>(backwards ? run.to : run.from);
+    double* to = target + 3 * static_cast<std::ptrdiff_t>(backwards ? run.from : run.to);
+    for (int q = 0; q < run.count; ++q, from += 3, to += 3) {
+      const double x = from[0], y = from[1], z = from[2];
+      to[0] = x, to[1] = y, to[2] = z;
+    }
   }
 }
 
-// Columns run.from … of `source` (3 doubles each) onto run.to … of `target`.
-void copy_runs(std::span<const ColumnRun> runs, const double* source, double* target) {
-  for (const ColumnRun& run : runs)
-    copy_columns(source + 3 * static_cast<std::ptrdiff_t>(run.from), target + 3 * static_cast<std::ptrdiff_t>(run.to),
-                 run.count);
+// Zeros on each run's columns run.to … (from = to).
+void clear_runs_scalar(std::span<const ColumnRun> runs, double* target) {
+  for (const ColumnRun& run : runs) {
+    double* to = target + 3 * static_cast<std::ptrdiff_t>(run.to);
+    for (int q = 0; q < run.count; ++q, to += 3) to[0] = 0.0, to[1] = 0.0, to[2] = 0.0;
+  }
+}
+
+#if defined(__x86_64__)
+// Not turned into calls of memcpy and memset (GCC's loop distribution takes these loops for them):
+// a call costs tens of instructions on a run of a few columns, and glibc moves a long one with
+// `rep movsb`, which callgrind counts as an instruction per byte.
+#define STIFFMD_NO_LIBC_CALLS gnu::target("avx2"), gnu::optimize("no-tree-loop-distribute-patterns")
+[[STIFFMD_NO_LIBC_CALLS]] void copy_runs_avx2(std::span<const ColumnRun> runs, const double* __restrict source,
+                                              double* __restrict target, bool backwards) {
+  for (const ColumnRun& run : runs) {
+    const double* from = source + 3 * static_cast<std::ptrdiff_t>(backwards ? run.to : run.from);
+    double* to = target + 3 * static_cast<std::ptrdiff_t>(backwards ? run.from : run.to);
+    const std::ptrdiff_t n = 3 * static_cast<std::ptrdiff_t>(run.count);
+    if (n < 4) {  // one column
+      const double x = from[0], y = from[1], z = from[2];
+      to[0] = x, to[1] = y, to[2] = z;
+      continue;
+    }
+    std::ptrdiff_t d = 0;
+    for (; d + 4 <= n; d += 4) _mm256_storeu_pd(to + d, _mm256_loadu_pd(from + d));
+    if (d < n) _mm256_storeu_pd(to + n - 4, _mm256_loadu_pd(from + n - 4));
+  }
+}
+
+[[STIFFMD_NO_LIBC_CALLS]] void clear_runs_avx2(std::span<const ColumnRun> runs, double* __restrict target) {
+  const __m256d zero = _mm256_setzero_pd();
+  for (const ColumnRun& run : runs) {
+    double* to = target + 3 * static_cast<std::ptrdiff_t>(run.to);
+    const std::ptrdiff_t n = 3 * static_cast<std::ptrdiff_t>(run.count);
+    if (n < 4) {
+      to[0] = 0.0, to[1] = 0.0, to[2] = 0.0;
+      continue;
+    }
+    std::ptrdiff_t d = 0;
+    for (; d + 4 <= n; d += 4) _mm256_storeu_pd(to + d, zero);
+    if (d < n) _mm256_storeu_pd(to + n - 4, zero);
+  }
+}
+
+#undef STIFFMD_NO_LIBC_CALLS
+
+// Before main: the CPU's features read first (__builtin_cpu_init), as GCC asks of a check made
+// while constructors run.
+const bool kHaveAvx2 = (__builtin_cpu_init(), __builtin_cpu_supports("avx2"));
+#endif
+
+// Columns run.from … of `source` onto run.to … of `target` (backwards: run.to … onto run.from …),
+// for every run; source and target do not overlap.
+void copy_runs(std::span<const ColumnRun> runs, const double* source, double* target, bool backwards = false) {
+#if defined(__x86_64__)
+  if (kHaveAvx2) return copy_runs_avx2(runs, source, target, backwards);
+#endif
+  copy_runs_scalar(runs, source, target, backwards);
+}
+
+void clear_runs(std::span<const ColumnRun> runs, double* target) {
+#if defined(__x86_64__)
+  if (kHaveAvx2) return clear_runs_avx2(runs, target);
+#endif
+  clear_runs_scalar(runs, target);
 }
 
 }  // namespace
@@ -538,6 +640,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   for (Plan& p : out_) p.owned.clear(), p.home.clear(), p.homes = 0;
   local_.owned.clear(), local_.home.clear(), local_.homes = 0;
   std::vector<std::pair<int, double>> axis[3];
+  std::pair<int, double> near[3][3];
   const Eigen::Vector3i& dims = grid_.dims;
   const double reach2 = reach * reach;
   // Per axis its faces, and whether a point's slabs within R are its own and those beside it
@@ -573,17 +676,24 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
       ++p.homes;
       continue;
     }
+    // Per axis the slabs within R of q with their gaps: at most three where the slabs are wider
+    // than R (near[a]), any number on narrower ones (axis[a]).
+    const std::pair<int, double>* list[3];
+    int length[3];
     for (int a = 0; a < 3; ++a) {
-      if (adjacent[a])
-        adjacent_slabs_within(grid_, a, faces[a], q[a], reach, hc[a], axis[a]);
-      else
+      if (adjacent[a]) {
+        length[a] = adjacent_slabs_within(grid_, a, faces[a], q[a], reach, hc[a], near[a]);
+        list[a] = near[a];
+      } else {
         slabs_within(grid_, a, q[a], reach, hc[a], axis[a]);
+        list[a] = axis[a].data(), length[a] = static_cast<int>(axis[a].size());
+      }
     }
     // The domains within R of q: the per-axis gaps add in squares (a domain's corner is farther
     // than its faces).
-    for (const auto& [cx, gx] : axis[0])
-      for (const auto& [cy, gy] : axis[1])
-        for (const auto& [cz, gz] : axis[2]) {
+    for (const auto& [cx, gx] : std::span(list[0], length[0]))
+      for (const auto& [cy, gy] : std::span(list[1], length[1]))
+        for (const auto& [cz, gz] : std::span(list[2], length[2])) {
           if (gx * gx + gy * gy + gz * gz > reach2) continue;
           const int d = (cx * dims[1] + cy) * dims[2] + cz;
           Plan& p = d == me ? local_ : out_[d];
@@ -628,11 +738,37 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     }
   }
   // Runs in increasing global index (the local beads, then each rank's, which it sends in its
-  // owned order): merged, not sorted.
-  for (size_t r = 0, end = local_.owned.size(); r < static_cast<size_t>(ranks); ++r) {
-    const auto middle = members.begin() + static_cast<std::ptrdiff_t>(end);
-    end += in[r].size();
-    std::inplace_merge(members.begin(), middle, members.begin() + static_cast<std::ptrdiff_t>(end));
+  // owned order): merged, not sorted — the arrivals' runs pairwise, level by level, then with the
+  // local beads (most of the set: merged once, where merging each rank's run into the growing set
+  // moved them once per rank).
+  {
+    std::vector<std::size_t> bounds{local_.owned.size()};  // the runs' ends, the local one first
+    for (int r = 0; r < ranks; ++r)
+      if (!in[r].empty()) bounds.push_back(bounds.back() + in[r].size());
+    std::vector<Member> other(members.size());
+    const auto at = [](std::vector<Member>& v, std::size_t e) { return v.begin() + static_cast<std::ptrdiff_t>(e); };
+    // Level by level: the arrivals' runs (after bounds[0]) two by two into one, from members into
+    // other and back; the local run stays where it is in both.
+    if (bounds.size() > 2) std::copy(at(members, 0), at(members, bounds[0]), at(other, 0));
+    while (bounds.size() > 2) {
+      std::vector<std::size_t> merged{bounds[0]};
+      std::size_t q = 1;
+      for (; q + 1 < bounds.size(); q += 2) {
+        std::merge(at(members, bounds[q - 1]), at(members, bounds[q]), at(members, bounds[q]),
+                   at(members, bounds[q + 1]), at(other, bounds[q - 1]));
+        merged.push_back(bounds[q + 1]);
+      }
+      if (q < bounds.size()) {  // an odd run out: carried over
+        std::copy(at(members, bounds[q - 1]), at(members, bounds[q]), at(other, bounds[q - 1]));
+        merged.push_back(bounds[q]);
+      }
+      members.swap(other);
+      bounds = std::move(merged);
+    }
+    if (bounds.size() == 2) {
+      std::merge(at(members, 0), at(members, bounds[0]), at(members, bounds[0]), at(members, bounds[1]), at(other, 0));
+      members.swap(other);
+    }
   }
   const int n = static_cast<int>(members.size());
   pair_ids_.resize(n);
@@ -734,29 +870,17 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   const bool forces = owned_f && pair_f;
   const Eigen::Index n = static_cast<Eigen::Index>(pair_ids_.size());
   pair.resize(3, n);  // no allocation once sized
-  const BoxWrap into_box(box_);
-  // Columns run.from … of the 3 × m array `source` wrapped into the box onto run.to … of pair.
-  const auto wrap_runs = [&](std::span<const Run> runs, const double* source) {
-    double* to = pair.data();
-    for (const Run& run : runs) {
-      const double* w = source + 3 * static_cast<std::ptrdiff_t>(run.from);
-      double* t = to + 3 * static_cast<std::ptrdiff_t>(run.to);
-      for (int q = 0; q < run.count; ++q, w += 3, t += 3)
-        for (int c = 0; c < 3; ++c) t[c] = into_box(w[c], c);
-    }
-  };
+  // The owned array wrapped into the box once, as one stretch (BoxWrap::wrap_particles: four
+  // beads at a time): every owned bead is in some pair set (its home's), a halo bead sent to
+  // several ranks is wrapped once, and the wrap is a function of the position alone, so the
+  // receivers get the bits they would make. From there every copy moves bits.
+  wrapped_.resize(3, a.cols());  // no allocation once sized
+  BoxWrap(box_).wrap_particles(a.data(), wrapped_.data(), 0, a.cols());
   if (forces) {
     pair_f->resize(3, n);
-    for (const Run& run : halo_runs_) {
-      double* t = pair_f->data() + 3 * static_cast<std::ptrdiff_t>(run.to);
-      if (run.count > kShortRun) {
-        std::fill_n(t, 3 * run.count, 0.0);
-        continue;
-      }
-      for (int q = 0; q < run.count; ++q, t += 3) t[0] = 0.0, t[1] = 0.0, t[2] = 0.0;
-    }
+    clear_runs(halo_runs_, pair_f->data());
   }
-  wrap_runs(local_.all, a.data());
+  copy_runs(local_.all, wrapped_.data(), pair.data());
   if (forces) copy_runs(local_.home_runs, owned_f->data(), pair_f->data());
   std::vector<std::vector<double>>& send = send_buffer_[forces ? kPositionsAndForces : kPositions];
   std::vector<std::vector<double>>& recv = recv_buffer_[forces ? kPositionsAndForces : kPositions];
@@ -765,7 +889,7 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
     std::vector<double>& b = send[r];
     const std::size_t positions = 3 * p.owned.size();
     b.resize(positions + (forces ? 3 * p.homes : 0));  // no allocation once sized
-    copy_runs(p.all, a.data(), b.data());
+    copy_runs(p.all, wrapped_.data(), b.data());
     if (forces) copy_runs(p.home_runs, owned_f->data(), b.data() + positions);
     recv[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
@@ -773,7 +897,7 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
     const double* w = recv[r].data();
-    wrap_runs(p.all, w);
+    copy_runs(p.all, w, pair.data());
     if (forces) copy_runs(p.home_runs, w + 3 * p.slot.size(), pair_f->data());
   }
 }
@@ -782,28 +906,18 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   const ScopedPhase phase(Phase::domain);
   const int ranks = comm_.size();
   // The home runs read backwards: slot → owned column (locally), slot → message position.
-  for (const Run& run : local_.home_runs)
-    copy_columns(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to),
-                 owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
+  copy_runs(local_.home_runs, pair_f.data(), owned_f.data(), true);
   std::vector<std::vector<double>>& send = send_buffer_[kForces];
   std::vector<std::vector<double>>& recv = recv_buffer_[kForces];
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
     std::vector<double>& b = send[r];
     b.resize(3 * static_cast<size_t>(p.homes));
-    for (const Run& run : p.home_runs)
-      copy_columns(pair_f.data() + 3 * static_cast<std::ptrdiff_t>(run.to),
-                   b.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
+    copy_runs(p.home_runs, pair_f.data(), b.data(), true);
     recv[r].resize(3 * static_cast<size_t>(out_[r].homes));
   }
   comm_.exchange_known(send, recv);
-  for (int r = 0; r < ranks; ++r) {
-    const Plan& p = out_[r];
-    const double* w = recv[r].data();
-    for (const Run& run : p.home_runs)
-      copy_columns(w + 3 * static_cast<std::ptrdiff_t>(run.to),
-                   owned_f.data() + 3 * static_cast<std::ptrdiff_t>(run.from), run.count);
-  }
+  for (int r = 0; r < ranks; ++r) copy_runs(out_[r].home_runs, recv[r].data(), owned_f.data(), true);
 }
 
 void Decomposition::gather_columns(const std::vector<const Eigen::Matrix3Xd*>& local,

@@ -48,8 +48,17 @@ struct DomainGrid {
   double face(int a, int c) const {
     return cut[a].empty() ? origin[a] + c * (length[a] / dims[a]) : origin[a] + length[a] * cut[a][c];
   }
-  // The slab of axis a that holds the coordinate q (not wrapped; clamped to the edge slabs).
-  int slab_of(int a, double q) const;
+  // The slab of axis a that holds the coordinate q (not wrapped; clamped to the edge slabs). Equal
+  // slabs: floor((q − origin)/L × n) clamped into 0 … n − 1 (a NaN to 0), inline (the selection of
+  // the pair sets places every owned bead on every axis); cut slabs: cut_slab_of.
+  int slab_of(int a, double q) const {
+    const int n = dims[a];
+    if (!cut[a].empty()) return cut_slab_of(a, q);
+    const double s = (q - origin[a]) / length[a] * n;
+    return s >= 0.0 && s < n ? static_cast<int>(s) : (s >= n ? n - 1 : 0);
+  }
+  // The slab of cut slabs whose low face is the last at or below q.
+  int cut_slab_of(int a, double q) const;
   // The domain of a point (wrapped on periodic axes; clamped to the edge domains on open axes).
   int domain_of(const Eigen::Vector3d& p) const;
   // Whether p lies within `slack` of the domain (periodic axes: of its nearest image).
@@ -240,8 +249,8 @@ class Decomposition {
   //
   // The copies go by runs of consecutive columns (most beads' home is their owner, and a rank's
   // beads that go to one other rank are stretches of chains): columns from … from + count − 1 of
-  // one array to columns to … to + count − 1 of the other, made at the selection. A message is
-  // the positions of out_[r].owned in order, then (with forces) the forces of its home ones.
+  // one array to columns to … to + count − 1 of the other, made at the selection. A message is the
+  // positions (wrapped) of out_[r].owned in order, then (with forces) the forces of its home ones.
   using Run = ColumnRun;
   struct Plan {
     std::vector<int> owned, slot;  // sender: owned index; receiver: pair slot
@@ -256,7 +265,8 @@ class Decomposition {
   std::vector<int> pair_ids_, pair_slot_of_;
   Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
-  std::vector<Run> halo_runs_;  // the halo's slots (from = to)
+  std::vector<Run> halo_runs_;        // the halo's slots (from = to)
+  mutable Eigen::Matrix3Xd wrapped_;  // forward's owned array wrapped into the box
   int num_home_ = 0;
   // Per message kind (Message), per rank: a buffer per kind keeps its size from one evaluation
   // to the next (one shared by all would grow and shrink, and std::vector zero-fills each growth).
