@@ -11,6 +11,7 @@
 
 #include "core/format.hpp"
 #include "core/portable_random.hpp"
+#include "engine/scene/builder_geometry.hpp"
 
 // No fused multiply-adds: contracting a*b+c changes the last bit, which can flip an accept/
 // reject decision and so the whole configuration between machines. GCC in ISO mode (-std=c++20,
@@ -265,31 +266,8 @@ class Grower {
   }
 
   // Periodic axes: the coordinate measured from the origin, wrapped into [0, L); open axes: as is.
-  V3 wrap(V3 p) const {
-    for (int a = 0; a < 3; ++a)
-      if (box_.periodic[a]) {
-        const double L = box_.lengths[a];
-        double w = at(p, a) - box_.origin[a];
-        w -= L * std::floor(w / L);
-        at(p, a) = w < L ? w : 0.0;  // a tiny negative w rounds to L
-      }
-    return p;
-  }
-
-  // Minimum image of the difference of two wrapped positions: one shift at most, by comparison
-  // (cheaper than rounding d/L in the innermost loop).
-  V3 min_image_wrapped(V3 d) const {
-    for (int a = 0; a < 3; ++a)
-      if (box_.periodic[a]) {
-        const double L = box_.lengths[a];
-        double& x = at(d, a);
-        if (x > 0.5 * L)
-          x -= L;
-        else if (x < -0.5 * L)
-          x += L;
-      }
-    return d;
-  }
+  V3 wrap(V3 p) const { return wrap_into_cell(box_, p); }
+  V3 min_image_wrapped(V3 d) const { return min_image_of_wrapped(box_, d); }
 
   // Does a bead of the growing molecule (index within it) count as a contact for the bead being
   // placed: on another arm of a star, or at least kSelfContactGap bonds away along the branch?

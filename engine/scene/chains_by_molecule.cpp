@@ -8,6 +8,7 @@
 
 #include "core/format.hpp"
 #include "core/portable_random.hpp"
+#include "engine/scene/builder_geometry.hpp"
 
 // No fused multiply-adds (builders.cpp): an accept/reject decision must not move with the compiler.
 #if defined(__clang__)
@@ -233,30 +234,8 @@ class ChainGrower {
   }
 
   // Periodic axes: measured from the origin, wrapped into [0, L); open axes: as is (builders.cpp).
-  V3 wrap(V3 p) const {
-    for (int a = 0; a < 3; ++a)
-      if (box_.periodic[a]) {
-        const double L = box_.lengths[a];
-        double w = at(p, a) - box_.origin[a];
-        w -= L * std::floor(w / L);
-        at(p, a) = w < L ? w : 0.0;
-      }
-    return p;
-  }
-
-  // The minimum image of a difference of wrapped positions: one shift at most.
-  V3 min_image_wrapped(V3 d) const {
-    for (int a = 0; a < 3; ++a)
-      if (box_.periodic[a]) {
-        const double L = box_.lengths[a];
-        double& x = at(d, a);
-        if (x > 0.5 * L)
-          x -= L;
-        else if (x < -0.5 * L)
-          x += L;
-      }
-    return d;
-  }
+  V3 wrap(V3 p) const { return wrap_into_cell(box_, p); }
+  V3 min_image_wrapped(V3 d) const { return min_image_of_wrapped(box_, d); }
 
   ChainSpec spec_;
   Box box_;
