@@ -14,6 +14,7 @@
 
 #include "core/errors.hpp"
 #include "core/finite.hpp"
+#include "core/molecule_anchor.hpp"
 #include "core/timing.hpp"
 #include "forcefields/neighbor_list.hpp"  // MinimumImage
 
@@ -209,26 +210,15 @@ int Decomposition::owned_index(int global) const {
   return it != ids_.end() && *it == global ? static_cast<int>(it - ids_.begin()) : -1;
 }
 
-namespace {
-
-// A particle's mass in its molecule's anchor: 1 for a fixed one (inverse mass 0), which counts there.
-double anchor_mass(double inv_mass) {
-  return inv_mass > 0.0 ? 1.0 / inv_mass : 1.0;
-}
-
-}  // namespace
-
 // The centre of mass of a whole molecule (unwrapped: its bonds are their own minimum images),
 // summed over its particles by increasing global index.
 Eigen::Vector3d Decomposition::owned_anchor(const Eigen::Matrix3Xd& x, int i) const {
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  double total = 0.0;
+  MoleculeAnchor anchor;
   for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) {
     const int k = owned_columns_[e];
-    c += owned_mass_[k] * x.col(k);
-    total += owned_mass_[k];
+    anchor.add(owned_mass_[k], x.col(k));
   }
-  return c / total;
+  return anchor.value();
 }
 
 void Decomposition::set_box(const Box& box) {
@@ -259,14 +249,9 @@ void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::M
   const int molecules = num_molecules();
   Eigen::Matrix3Xd anchors(3, molecules);
   for (int m = 0; m < molecules; ++m) {  // as owned_anchor, over the whole state
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    double total = 0.0;
-    for (int g : molecule(m)) {
-      const double mass = anchor_mass(whole.inv_mass[g]);
-      c += mass * whole.x.col(g);
-      total += mass;
-    }
-    anchors.col(m) = c / total;
+    MoleculeAnchor anchor;
+    for (int g : molecule(m)) anchor.add(anchor_mass(whole.inv_mass[g]), whole.x.col(g));
+    anchors.col(m) = anchor.value();
   }
   grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
   // Every rank holds the whole state: each measures the load and recuts alike, without a word.

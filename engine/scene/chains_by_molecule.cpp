@@ -7,6 +7,7 @@
 #include <string>
 
 #include "core/format.hpp"
+#include "core/molecule_anchor.hpp"
 #include "core/portable_random.hpp"
 #include "engine/scene/builder_geometry.hpp"
 
@@ -249,20 +250,11 @@ void validate(const ChainSpec& spec, const Box& box) {
                       static_cast<long long>(spec.chains) * spec.beads);
 }
 
-// The anchor's mass of a bead, Decomposition::distribute's: 1/inv_mass, 1 for a fixed bead.
-double anchor_mass(double inv_mass) {
-  return inv_mass > 0.0 ? 1.0 / inv_mass : 1.0;
-}
-
-// Σ m x / Σ m over the columns [first, first + n) of x, in order: Decomposition::distribute's sum.
+// The molecule's anchor (core/molecule_anchor.hpp) over the columns [first, first + n) of x.
 Eigen::Vector3d centre_of_mass(const Eigen::Matrix3Xd& x, Eigen::Index first, int n, double mass) {
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  double total = 0.0;
-  for (Eigen::Index g = first; g < first + n; ++g) {
-    c += mass * x.col(g);
-    total += mass;
-  }
-  return c / total;
+  MoleculeAnchor anchor;
+  for (Eigen::Index g = first; g < first + n; ++g) anchor.add(mass, x.col(g));
+  return anchor.value();
 }
 
 }  // namespace
