@@ -254,6 +254,7 @@ inline constexpr int kPairPrefetch = 64;
 template <class Params, bool kOneType, bool kCharged>
 struct PairChunkBuffers {
   static constexpr int kRoom = 4;
+  static constexpr bool kUniform = kOneType;  // every pair has the coefficients `one` (pn unused)
   alignas(64) double dx[kPairChunk + kRoom];
   alignas(64) double dy[kPairChunk + kRoom];
   alignas(64) double dz[kPairChunk + kRoom];
@@ -537,39 +538,113 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
 }
 
 // Pass 3 of accumulate_pair_forces_rows with the x and y components side by side (AVX's 128-bit
-// operations): f_j −= fpair d and f_i += fpair d as the scalar pass adds them — the same products
-// and sums, component by component, in the same order. fi: the open row's f_i (carried over a
+// operations) and no branch per row: f_j −= fpair d and f_i += fpair d as the scalar pass adds
+// them — the same products and sums, component by component. A row holds ≈ 1.6 interacting pairs
+// on in.chain, a number that changes from row to row at random, so a loop over each row's pairs
+// ends with a mispredicted branch in most rows; here two loops of fixed length instead:
+//   A. over the chunk's kept pairs m in the list's order: f_j −= fpair d, and the rows' running
+//      sums as a segmented scan, S_m = (S_{m−1} if m is not its row's first pair, else 0) + fpair d
+//      (the row's first sum 0 + fpair d, as the scalar pass's f_i = 0, f_i += fpair d);
+//   B. over the chunk's rows in order: f_i += S at the row's last pair (0 for a row with no kept
+//      pair, which the scalar pass adds too).
+// Each f_i is the same sum in the row's order. The order of the additions into one f_k is
+// unchanged too: every listed pair has j > i (NeighborList), so the pairs that subtract from f_k
+// lie in rows before row k, and each of them came before row k's f_k += S in the scalar pass as it
+// does here (B follows A; rows and chunks run in order). fi: the open row's f_i (carried over a
 // chunk's end), in and out.
 template <class Buffers>
-[[gnu::target("avx2")]] inline void pair_chunk_forces_avx2(int segments, const Buffers& b, bool carried, bool split,
-                                                           double* f, double fi[3]) {
-  __m128d sxy = _mm_setr_pd(fi[0], fi[1]), sz = _mm_set_sd(fi[2]);
-  int m = 0;
-  for (int s = 0; s < segments; ++s) {
-    if (!(s == 0 && carried)) sxy = sz = _mm_setzero_pd();
-    for (const int end = b.seg_end[s]; m < end; ++m) {
-      double* fj = f + b.j3[m];
-      const __m128d p = _mm_set1_pd(b.fpair[m]);
-      const __m128d fxy = _mm_mul_pd(p, _mm_loadh_pd(_mm_load_sd(b.dx + m), b.dy + m));
-      const __m128d fz = _mm_mul_sd(p, _mm_load_sd(b.dz + m));
-      sxy = _mm_add_pd(sxy, fxy);
-      sz = _mm_add_sd(sz, fz);
-      _mm_storeu_pd(fj, _mm_sub_pd(_mm_loadu_pd(fj), fxy));
-      _mm_store_sd(fj + 2, _mm_sub_sd(_mm_load_sd(fj + 2), fz));
-    }
-    if (s + 1 < segments || !split) {
-      double* fr = f + 3 * static_cast<std::size_t>(b.seg_row[s]);
-      _mm_storeu_pd(fr, _mm_add_pd(_mm_loadu_pd(fr), sxy));
-      _mm_store_sd(fr + 2, _mm_add_sd(_mm_load_sd(fr + 2), sz));
-    }
+[[gnu::target("avx2")]] inline void pair_chunk_forces_avx2(int n, int segments, const Buffers& b, bool carried,
+                                                           bool split, double* f, double fi[3]) {
+  constexpr int kSize = kPairChunk + 1;
+  alignas(16) double sum_xy[kSize][2];
+  alignas(16) double sum_z[kSize];
+  // Per kept pair: all ones, or 0 where a row's sum starts afresh (its first pair).
+  std::uint64_t keep[kSize];
+  for (int m = 0; m < n; ++m) keep[m] = ~std::uint64_t{0};
+  keep[0] = carried ? ~std::uint64_t{0} : 0;
+  for (int s = 0; s + 1 < segments; ++s) keep[b.seg_end[s]] = 0;  // row s + 1's first pair (or n)
+  const __m128d carry_xy = carried ? _mm_setr_pd(fi[0], fi[1]) : _mm_setzero_pd();
+  const __m128d carry_z = carried ? _mm_set_sd(fi[2]) : _mm_setzero_pd();
+  __m128d sxy = carry_xy, sz = carry_z;
+  _mm_store_pd(sum_xy[0], sxy);  // read (and not chosen) by B where the chunk keeps no pair
+  _mm_store_sd(sum_z, sz);
+  for (int m = 0; m < n; ++m) {
+    double* fj = f + b.j3[m];
+    const __m128d p = _mm_set1_pd(b.fpair[m]);
+    const __m128d fxy = _mm_mul_pd(p, _mm_loadh_pd(_mm_load_sd(b.dx + m), b.dy + m));
+    const __m128d fz = _mm_mul_sd(p, _mm_load_sd(b.dz + m));
+    const __m128d k = _mm_castsi128_pd(_mm_set1_epi64x(static_cast<long long>(keep[m])));
+    sxy = _mm_add_pd(_mm_and_pd(sxy, k), fxy);
+    sz = _mm_add_sd(_mm_and_pd(sz, k), fz);
+    _mm_store_pd(sum_xy[m], sxy);
+    _mm_store_sd(sum_z + m, sz);
+    _mm_storeu_pd(fj, _mm_sub_pd(_mm_loadu_pd(fj), fxy));
+    _mm_store_sd(fj + 2, _mm_sub_sd(_mm_load_sd(fj + 2), fz));
   }
-  _mm_storel_pd(fi, sxy);
-  _mm_storeh_pd(fi + 1, sxy);
-  _mm_store_sd(fi + 2, sz);
+  // Row s's f_i: the scan at its last pair, or, with no pair in this chunk, the carried sum (row 0)
+  // or 0. The last row, if the chunk ends inside it, is carried on instead.
+  const int rows = split ? segments - 1 : segments;
+  __m128d rxy = carry_xy, rz = carry_z;
+  int start = 0;
+  for (int s = 0; s < segments; ++s) {
+    const int end = b.seg_end[s], at = end > 0 ? end - 1 : 0;
+    const __m128d has = _mm_castsi128_pd(_mm_set1_epi64x(end > start ? -1 : 0));
+    const __m128d base_xy = s == 0 ? carry_xy : _mm_setzero_pd(), base_z = s == 0 ? carry_z : _mm_setzero_pd();
+    rxy = _mm_blendv_pd(base_xy, _mm_load_pd(sum_xy[at]), has);
+    rz = _mm_blendv_pd(base_z, _mm_load_sd(sum_z + at), has);
+    if (s < rows) {
+      double* fr = f + 3 * static_cast<std::size_t>(b.seg_row[s]);
+      _mm_storeu_pd(fr, _mm_add_pd(_mm_loadu_pd(fr), rxy));
+      _mm_store_sd(fr + 2, _mm_add_sd(_mm_load_sd(fr + 2), rz));
+    }
+    start = end;
+  }
+  _mm_storel_pd(fi, rxy);
+  _mm_storeh_pd(fi + 1, rxy);
+  _mm_store_sd(fi + 2, rz);
 }
 #else
 inline bool pair_loop_avx2() {
   return false;
+}
+#endif
+
+// Pass 2 of accumulate_pair_forces_rows: the kernel on a chunk's n kept pairs, fpair from r² (and
+// the coefficients, qqrd2e q_i q_j). A loop with no branch and no gather, which the compiler
+// vectorises where the kernel allows (the Lennard-Jones family): IEEE operations lane by lane, so
+// the same bits as one pair at a time, whatever the vector width.
+template <class Kernel, class Buffers, class Params>
+[[gnu::always_inline]] inline void pair_chunk_kernel(Buffers& b, int n, const Params& one) {
+  for (int m = 0; m < n; ++m) {
+    const Params* p;
+    if constexpr (Buffers::kUniform)
+      p = &one;
+    else
+      p = b.pn[m];
+    double e = 0.0, fp = 0.0;
+    if constexpr (ChargedKernel<Kernel>) {
+      double ecoul = 0.0;
+      Kernel::eval(b.r2[m], *p, b.qq[m], 1.0, 1.0, e, ecoul, fp);
+    } else {
+      Kernel::eval(b.r2[m], *p, e, fp);
+    }
+    b.fpair[m] = fp;
+  }
+}
+
+#if defined(__x86_64__)
+// The same compiled for AVX2 (no FMA: the same operations, four lanes per division where SSE2 has
+// two), for the uncharged kernels: the charged ones (coulomb_potentials.hpp: tables, erfc) do not
+// vectorise, and their calls are not inlined across the change of target (the peptide's pair phase
+// measured ≈ 1.2× slower so).
+template <class Kernel, class Buffers, class Params>
+[[gnu::target("avx2")]] void pair_chunk_kernel_avx2(Buffers& b, int n, const Params& one) {
+  pair_chunk_kernel<Kernel>(b, n, one);
+}
+#else
+template <class Kernel, class Buffers, class Params>
+void pair_chunk_kernel_avx2(Buffers& b, int n, const Params& one) {  // not called: no AVX2 here
+  pair_chunk_kernel<Kernel>(b, n, one);
 }
 #endif
 
@@ -587,7 +662,9 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
   const std::int64_t last_pair = first < last ? offset[last] - 1 : 0;  // the prefetch reads no further
   [[maybe_unused]] const Params one = kOneType ? params.row(uniform)[uniform] : Params{};
   PairChunkBuffers<Params, kOneType, kCharged> b;
-  // The AVX2 pass 1 where the CPU has it (pair_chunk_separations_avx2).
+  // The AVX2 passes where the CPU has it (pass 1: pair_chunk_separations_avx2; pass 2 for the
+  // uncharged kernels: pair_chunk_kernel_avx2; pass 3: pair_chunk_forces_avx2); vector = false, the
+  // scalar ones (the reference of the tests and of tools/benchmarks/pair_loop.cpp).
   [[maybe_unused]] const bool avx2 = vector && pair_loop_avx2();
   double fxi = 0.0, fyi = 0.0, fzi = 0.0;  // f_i of the open row, carried over a chunk's end
   int i = first;
@@ -653,31 +730,21 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
       if (n == kChunk) break;
     }
     // Pass 2: the kernel on the interacting pairs.
-    for (int m = 0; m < n; ++m) {
-      const Params* p;
-      if constexpr (kOneType)
-        p = &one;
-      else
-        p = b.pn[m];
-      double e = 0.0, fp = 0.0;
-      if constexpr (kCharged) {
-        double ecoul = 0.0;
-        Kernel::eval(b.r2[m], *p, b.qq[m], 1.0, 1.0, e, ecoul, fp);
-      } else {
-        Kernel::eval(b.r2[m], *p, e, fp);
-      }
-      b.fpair[m] = fp;
-    }
-    // Pass 3: the forces, in the list's order.
+    if (avx2 && !kCharged)
+      pair_chunk_kernel_avx2<Kernel>(b, n, one);
+    else
+      pair_chunk_kernel<Kernel>(b, n, one);
 #if defined(__x86_64__)
+    // Pass 3: the forces, in the list's order.
     if (avx2) {
       double fi[3] = {fxi, fyi, fzi};
-      pair_chunk_forces_avx2(segments, b, carried, split, f, fi);
+      pair_chunk_forces_avx2(n, segments, b, carried, split, f, fi);
       fxi = fi[0], fyi = fi[1], fzi = fi[2];
       carried = split;
       continue;
     }
 #endif
+    // Pass 3 without AVX2: the same, one row after another.
     int m = 0;
     for (int s = 0; s < segments; ++s) {
       if (!(s == 0 && carried)) fxi = fyi = fzi = 0.0;

@@ -166,9 +166,9 @@ TYPED_TEST(ForceOnlyPairs, SameForcesBitForBitAsTheFullPass) {
 // and with rows longer than the chunk. Where the CPU has no AVX2 both calls take the scalar pass.
 template <class K>
 void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box, const typename K::Coeffs& c,
-                                       const std::string& what) {
+                                       const std::string& what, double skin = 0.3, bool signed_zeros = false) {
   const int n = static_cast<int>(x.cols());
-  NeighborList list(K::cutoff(c), 0.3);
+  NeighborList list(K::cutoff(c), skin);
   list.update(x, box);
   TypePairMatrix<typename K::Params> params(1);
   params.set(0, 0, K::params(c));
@@ -179,6 +179,8 @@ void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box
   std::mt19937_64 rng(11);
   std::normal_distribution<double> g;
   for (Eigen::Index k = 0; k < f0.size(); ++k) f0.data()[k] = g(rng);
+  if (signed_zeros)  // f_k + 0 is f_k but for −0: each f_i += (its row's sum, 0 for no pair) as the scalar pass adds it
+    for (Eigen::Index k = 0; k < f0.size(); k += 3) f0.data()[k] = k % 2 == 0 ? -0.0 : 0.0;
   Eigen::Matrix3Xd scalar = f0, vector = f0;
   for (const bool v : {false, true}) {
     double* f = (v ? vector : scalar).data();
@@ -233,6 +235,39 @@ TEST(ForceOnlyPairs, VectorPassOnShortListsAcrossTheFaces) {
       expect_vector_pass_is_scalar_pass<LennardJones>(
           x, box, {1.0, 1.0, 2.5},
           "lj, " + std::to_string(n) + " particles at a corner of a box " + std::to_string(side));
+    }
+  }
+}
+
+// The AVX2 scatter (pair_chunk_forces_avx2: the f_j in one loop over the kept pairs, the rows' sums
+// as a scan, the f_i in a loop over the rows) against the scalar pass's loop per row: a list with a
+// wide skin, so that most listed pairs are beyond the cutoff and many rows keep no pair at all —
+// rows with none, rows longer than the chunk split where a chunk's part of them keeps none —
+// in a cluster across a corner of the box (the fold) and in open space, with forces that start as
+// ±0 on one axis in three.
+TEST(ForceOnlyPairs, VectorScatterOnSparseRowsGivesTheScalarPassBits) {
+  std::mt19937_64 rng(23);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const Box box = test::periodic_box(Eigen::Vector3d::Constant(40.0), Eigen::Vector3d(-3.0, 1.5, 0.25));
+  const Eigen::Vector3d corner = box.origin + box.lengths;
+  for (const int n : {7, 60, 500}) {
+    Eigen::Matrix3Xd x(3, n);
+    for (int i = 0; i < n; ++i) {
+      Eigen::Vector3d d;
+      do d = Eigen::Vector3d(u(rng), u(rng), u(rng));
+      while (d.squaredNorm() > 1.0);
+      x.col(i) = corner + (n == 7 ? 0.8 : 3.0) * d;  // the seven close enough to interact
+    }
+    const LennardJones::Coeffs c{1.0, 0.9, 1.0};  // r_c = 1 with a skin of 2: a listed pair in 27 within r_c
+    NeighborList list(LennardJones::cutoff(c), 2.0);
+    list.update(x, box);
+    std::int64_t longest = 0;
+    for (int i = 0; i < n; ++i) longest = std::max(longest, list.offsets()[i + 1] - list.offsets()[i]);
+    if (n == 500) ASSERT_GT(longest, kPairChunk);
+    for (const bool zeros : {false, true}) {
+      const std::string what = std::to_string(n) + " particles" + (zeros ? ", ±0 forces" : "");
+      expect_vector_pass_is_scalar_pass<LennardJones>(x, box, c, what + ", periodic", 2.0, zeros);
+      expect_vector_pass_is_scalar_pass<LennardJones>(x, Box{}, c, what + ", open", 2.0, zeros);
     }
   }
 }

@@ -3,9 +3,10 @@
 // force-only pass (add_forces_only: the interacting pairs alone, no sums), interleaved repeats on
 // one thread, with a check that the two give the same forces bit for bit. Prints the median
 // seconds per evaluation and ns per listed pair of each, and their ratio. For an `lj` or `wca`
-// term of one particle type, then the force-only pass's first pass (pair_loop.hpp) scalar against
-// AVX2 (where the CPU has it), called directly on the term's list: CPU time per call, and whether
-// the forces are the same bits.
+// term of one particle type, then the force-only pass (pair_loop.hpp, accumulate_pair_forces_rows)
+// with its scalar passes against its AVX2 ones (where the CPU has them: the separations, the
+// kernel, the scatter), called directly on the term's list: CPU time per call, and whether the
+// forces are the same bits.
 //
 //   OMP_NUM_THREADS=1 build/tools/benchmarks/stiffmd_pair_loop inputs/kremer_grest.toml [repeats] [calls]
 //
@@ -41,7 +42,7 @@ double cpu_seconds() {
   return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
 }
 
-// The scalar and the AVX2 first pass of accumulate_pair_forces_rows on the term's list (one type);
+// accumulate_pair_forces_rows's scalar and AVX2 passes on the term's list (one type);
 // returns whether their forces are the same bits. False when the term is not of this kernel.
 template <class Kernel>
 bool compare_first_passes(const stiffmd::ForceTerm& t, const Eigen::Matrix3Xd& x, const stiffmd::Box& box, int repeats,
@@ -70,8 +71,9 @@ bool compare_first_passes(const stiffmd::ForceTerm& t, const Eigen::Matrix3Xd& x
       t_pass[v].push_back((cpu_seconds() - start) / calls);
     }
   const double a = median(t_pass[0]), b = median(t_pass[1]);
-  std::printf("  first pass scalar %.4f ms, AVX2 %.4f ms (CPU time; AVX2 %s): AVX2 / scalar %.3f; bit-identical: %s\n",
-              1e3 * a, 1e3 * b, pair_loop_avx2() ? "on this CPU" : "absent: both scalar", b / a, same ? "yes" : "NO");
+  std::printf(
+      "  force-only passes scalar %.4f ms, AVX2 %.4f ms (CPU time; AVX2 %s): AVX2 / scalar %.3f; bit-identical: %s\n",
+      1e3 * a, 1e3 * b, pair_loop_avx2() ? "on this CPU" : "absent: both scalar", b / a, same ? "yes" : "NO");
   return true;
 }
 
