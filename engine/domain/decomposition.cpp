@@ -756,7 +756,8 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   // The receivers learn which beads come and which are home: a global index g as g (home) or
   // −1 − g (halo), followed by what the bead carries (its type, charge and special partners:
   // pack_bead_data) when the owned beads' data is set.
-  std::vector<std::vector<double>> ids(ranks), in;
+  std::vector<std::vector<double>>&ids = selection_out_, &in = selection_in_;
+  ids.resize(ranks);
   for (int r = 0; r < ranks; ++r) {
     const std::vector<int>& owned = out_[r].owned;
     std::size_t words = owned.size();
@@ -772,7 +773,8 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   }
   comm_.exchange(ids, in);
   // Per sender, where each bead's words start in its message (each takes two words at least).
-  std::vector<std::vector<std::size_t>> at(ranks);
+  std::vector<std::vector<std::size_t>>& at = arrival_at_;
+  at.resize(ranks);
   for (int r = 0; r < ranks; ++r) {
     if (!carry_) continue;
     at[r].resize(in[r].size() / 2);
@@ -851,8 +853,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
   }
   // What the beads carried, per slot: a kept bead's from the owned data, an arrived one's from
-  // its message. The partner arrays are sized first for at most every owned bead's partners and
-  // every arrived word (three a partner), written in place, and cut to what was written.
+  // its message. Two passes: the partner counts per slot, then the partners in place.
   if (carry_) {
     PairBeadData& d = pair_data_;
     const std::size_t terms = owned_data_.special.size();
@@ -860,15 +861,29 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     d.type.resize(n);
     d.charge.resize(d.charged ? n : 0);
     d.special.resize(terms);
-    std::size_t arrived_words = 0;
-    for (int r = 0; r < ranks; ++r) arrived_words += in[r].size();
-    std::vector<std::size_t> next(terms, 0);
-    for (std::size_t t = 0; t < terms; ++t) {
-      SpecialPartners& s = d.special[t];
-      const std::size_t most = owned_data_.special[t].partner.size() + arrived_words / 3;
-      s.start.resize(n + 1);
-      s.start[0] = 0;
-      s.partner.resize(most), s.weight.resize(most), s.weight_coul.resize(most);
+    for (SpecialPartners& s : d.special) s.start.resize(n + 1), s.start[0] = 0;
+    for (int e = 0; e < n; ++e) {
+      const Member& m = members[e];
+      if (m.from == me) {
+        const int k = local_.owned[m.index];
+        for (std::size_t t = 0; t < terms; ++t) {
+          const std::vector<int>& o = owned_data_.special[t].start;
+          std::vector<int>& start = d.special[t].start;
+          start[e + 1] = start[e] + o[k + 1] - o[k];
+        }
+      } else {
+        const double* w = in[m.from].data() + at[m.from][m.index] + (d.charged ? 3 : 2);
+        for (std::size_t t = 0; t < terms; ++t) {
+          const int count = static_cast<int>(*w);
+          std::vector<int>& start = d.special[t].start;
+          start[e + 1] = start[e] + count;
+          w += 1 + 3 * count;
+        }
+      }
+    }
+    for (SpecialPartners& s : d.special) {
+      const int total = s.start[n];
+      s.partner.resize(total), s.weight.resize(total), s.weight_coul.resize(total);
     }
     for (int e = 0; e < n; ++e) {
       const Member& m = members[e];
@@ -879,10 +894,8 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
         for (std::size_t t = 0; t < terms; ++t) {
           const SpecialPartners& o = owned_data_.special[t];
           SpecialPartners& s = d.special[t];
-          std::size_t& q = next[t];
-          for (int p = o.start[k]; p < o.start[k + 1]; ++p, ++q)
+          for (int p = o.start[k], q = s.start[e]; p < o.start[k + 1]; ++p, ++q)
             s.partner[q] = o.partner[p], s.weight[q] = o.weight[p], s.weight_coul[q] = o.weight_coul[p];
-          s.start[e + 1] = static_cast<int>(q);
         }
       } else {
         const double* w = in[m.from].data() + at[m.from][m.index] + 1;
@@ -890,17 +903,11 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
         if (d.charged) d.charge[e] = *w++;
         for (std::size_t t = 0; t < terms; ++t) {
           SpecialPartners& s = d.special[t];
-          std::size_t& q = next[t];
-          const int count = static_cast<int>(*w++);
-          for (int p = 0; p < count; ++p, ++q, w += 3)
+          ++w;  // the count, as in the first pass
+          for (int q = s.start[e]; q < s.start[e + 1]; ++q, w += 3)
             s.partner[q] = static_cast<int>(w[0]), s.weight[q] = w[1], s.weight_coul[q] = w[2];
-          s.start[e + 1] = static_cast<int>(q);
         }
       }
-    }
-    for (std::size_t t = 0; t < terms; ++t) {
-      SpecialPartners& s = d.special[t];
-      s.partner.resize(next[t]), s.weight.resize(next[t]), s.weight_coul.resize(next[t]);
     }
   }
   // The copies' runs.

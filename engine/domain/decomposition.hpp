@@ -310,8 +310,12 @@ class Decomposition {
   Plan local_;  // owned index and slot together
   std::vector<int> pair_ids_;
   PairBeadData owned_data_, pair_data_;  // per owned column; per pair-set slot
-  bool carry_ = false;                   // set_owned_pair_data was called
-  Eigen::Matrix3Xd at_selection_;        // the owned array given to the last selection
+  // The selection's messages (per rank: sent, received) and where each received bead's words
+  // start, kept from one selection to the next (a resize fills only what grew).
+  std::vector<std::vector<double>> selection_out_, selection_in_;
+  std::vector<std::vector<std::size_t>> arrival_at_;
+  bool carry_ = false;             // set_owned_pair_data was called
+  Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
   std::vector<Run> halo_runs_;        // the halo's slots (from = to)
   mutable Eigen::Matrix3Xd wrapped_;  // forward's owned array wrapped into the box
