@@ -107,8 +107,9 @@ Outcome expect_one_process_forces(const Walk& walk, int ranks, const Eigen::Vect
     }
   }
   const auto whole_term = lj_term(walk);
-  const std::vector<int> types(n, 0);
-  const SpecialPartners special(whole_term->special_pairs(), n);
+  std::vector<int> every(n);
+  for (int g = 0; g < n; ++g) every[g] = g;
+  const SpecialPartners special = special_partners(whole_term->special_pairs(), every);
   std::vector<Eigen::Matrix3Xd> got(steps, Eigen::Matrix3Xd::Constant(3, n, -7.0));
   std::vector<Outcome> outcome(ranks);
   run_ranks(ranks, [&](const FakeCommunicator& comm) {
@@ -120,8 +121,22 @@ Outcome expect_one_process_forces(const Walk& walk, int ranks, const Eigen::Vect
     whole.inv_mass = walk.inv_mass;
     Eigen::Matrix3Xd x, v;
     d.distribute(whole, x, v);
+    // What the owned beads carry to the pair sets: type 0, the whole term's special partners.
+    PairBeadData owned;
+    owned.type.assign(d.num_owned(), 0);
+    owned.special.resize(1);
+    for (const int g : d.owned_ids()) {
+      SpecialPartners& o = owned.special[0];
+      for (int q = special.start[g]; q < special.start[g + 1]; ++q) {
+        o.partner.push_back(special.partner[q]);
+        o.weight.push_back(special.weight[q]);
+        o.weight_coul.push_back(special.weight_coul[q]);
+      }
+      o.start.push_back(static_cast<int>(o.partner.size()));
+    }
+    d.set_owned_pair_data(std::move(owned));
     d.select_pair_set(x);
-    GhostedPairs pairs(*whole_term, d, types, {}, special);
+    GhostedPairs pairs(*whole_term, d, 0);
     pairs.update_list(x, walk.box);
     const std::vector<int>& ids = d.owned_ids();
     for (int s = 0; s < steps; ++s) {

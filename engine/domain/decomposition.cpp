@@ -194,7 +194,6 @@ Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& in
   std::vector<int> next(molecule_start_.begin(), molecule_start_.end() - 1);
   for (int i = 0; i < n; ++i) molecule_particles_[next[molecule_[i]]++] = i;  // increasing within each
   if (dims) grid_dims_ = *dims, have_dims_ = true;
-  pair_slot_of_.assign(n, -1);
   const int ranks = comm_.size();
   out_.resize(ranks);
   in_.resize(ranks);
@@ -611,8 +610,75 @@ void clear_runs(std::span<const ColumnRun> runs, double* target) {
 
 }  // namespace
 
+void Decomposition::set_owned_pair_data(PairBeadData owned) {
+  owned_data_ = std::move(owned);
+  carry_ = true;
+}
+
+int Decomposition::pair_slot(int global) const {
+  const auto it = std::lower_bound(pair_ids_.begin(), pair_ids_.end(), global);
+  return it != pair_ids_.end() && *it == global ? static_cast<int>(it - pair_ids_.begin()) : -1;
+}
+
+int Decomposition::pair_slot_around(int global, int near) const {
+  const int n = static_cast<int>(pair_ids_.size());
+  if (near < 0 || near >= n) return pair_slot(global);
+  const int* ids = pair_ids_.data();
+  if (ids[near] == global) return near;
+  // Steps of 1, 2, 4, … from `near` toward `global` until one passes it, then a binary search of
+  // the last step: a few comparisons for a partner a few slots away, log₂ n for any.
+  int lo, hi;  // global's slot, if any, lies in [lo, hi)
+  if (ids[near] < global) {
+    lo = near + 1, hi = near + 1;
+    for (int step = 1; hi < n && ids[hi] < global; step *= 2) lo = hi + 1, hi = near + 2 * step;
+    hi = std::min(hi + 1, n);
+  } else {
+    hi = near, lo = near - 1;
+    for (int step = 1; lo >= 0 && ids[lo] > global; step *= 2) hi = lo, lo = near - 2 * step;
+    lo = std::max(lo, 0);
+  }
+  const int* it = std::lower_bound(ids + lo, ids + hi, global);
+  return it != ids + hi && *it == global ? static_cast<int>(it - ids) : -1;
+}
+
+namespace {
+
+// What owned column k carries to a pair set (Decomposition::set_owned_pair_data), written at w: its
+// type, its charge (when charged), and per pair term its partner count and then each partner's
+// global index and two weights. Every number is an integer below 2⁵³ or the double itself: exact.
+// Returns the word past it.
+double* pack_bead_data(const PairBeadData& d, int k, double* w) {
+  *w++ = d.type[k];
+  if (d.charged) *w++ = d.charge[k];
+  for (const SpecialPartners& s : d.special) {
+    const int first = s.start[k], last = s.start[k + 1];
+    *w++ = last - first;
+    for (int q = first; q < last; ++q) w[0] = s.partner[q], w[1] = s.weight[q], w[2] = s.weight_coul[q], w += 3;
+  }
+  return w;
+}
+
+// The words pack_bead_data writes for owned column k.
+std::size_t bead_data_words(const PairBeadData& d, int k) {
+  std::size_t words = 1 + d.charged + d.special.size();
+  for (const SpecialPartners& s : d.special) words += 3 * static_cast<std::size_t>(s.start[k + 1] - s.start[k]);
+  return words;
+}
+
+// The word past one bead's data in a message (pack_bead_data) that starts at `at`.
+std::size_t skip_bead_data(const PairBeadData& d, const double* w, std::size_t at) {
+  at += d.charged ? 2 : 1;
+  for (std::size_t t = 0; t < d.special.size(); ++t) at += 1 + 3 * static_cast<std::size_t>(w[at]);
+  return at;
+}
+
+}  // namespace
+
 void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
+  if (carry_ && (static_cast<int>(owned_data_.type.size()) != num_owned() ||
+                 (owned_data_.charged && static_cast<int>(owned_data_.charge.size()) != num_owned())))
+    throw std::logic_error("Decomposition::select_pair_set: the owned beads' pair data is not of the owned particles");
   ++selections_;
   at_selection_ = x;
   const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
@@ -688,19 +754,37 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
         }
   }
   // The receivers learn which beads come and which are home: a global index g as g (home) or
-  // −1 − g (halo).
-  std::vector<std::vector<double>> ids(ranks), in;
+  // −1 − g (halo), followed by what the bead carries (its type, charge and special partners:
+  // pack_bead_data) when the owned beads' data is set.
+  std::vector<std::vector<double>>&ids = selection_out_, &in = selection_in_;
+  ids.resize(ranks);
   for (int r = 0; r < ranks; ++r) {
-    ids[r].reserve(out_[r].owned.size());
-    for (size_t m = 0; m < out_[r].owned.size(); ++m) {
-      const int g = ids_[out_[r].owned[m]];
-      ids[r].push_back(out_[r].home[m] ? g : -1 - g);
+    const std::vector<int>& owned = out_[r].owned;
+    std::size_t words = owned.size();
+    if (carry_)
+      for (const int k : owned) words += bead_data_words(owned_data_, k);
+    ids[r].resize(words);
+    double* w = ids[r].data();
+    for (size_t m = 0; m < owned.size(); ++m) {
+      const int k = owned[m], g = ids_[k];
+      *w++ = out_[r].home[m] ? g : -1 - g;
+      if (carry_) w = pack_bead_data(owned_data_, k, w);
     }
   }
   comm_.exchange(ids, in);
+  // Per sender, where each bead's words start in its message (each takes two words at least).
+  std::vector<std::vector<std::size_t>>& at = arrival_at_;
+  at.resize(ranks);
+  for (int r = 0; r < ranks; ++r) {
+    if (!carry_) continue;
+    at[r].resize(in[r].size() / 2);
+    std::size_t beads = 0;
+    for (std::size_t w = 0; w < in[r].size(); w = skip_bead_data(owned_data_, in[r].data(), w + 1)) at[r][beads++] = w;
+    at[r].resize(beads);
+  }
+  const auto beads_from = [&](int r) { return carry_ ? at[r].size() : in[r].size(); };
   // The pair set: every bead received or kept, in increasing global index (so a home bead's pairs
   // are summed in the one-process order: forcefields/neighbor_list.hpp).
-  for (const int g : pair_ids_) pair_slot_of_[g] = -1;
   struct Member {
     int global, from, index;  // from: the sending rank (this one: local_), index in its message
     bool home;
@@ -708,15 +792,16 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   };
   std::vector<Member> members;
   std::size_t arriving = 0;
-  for (const auto& b : in) arriving += b.size();
+  for (int r = 0; r < ranks; ++r) arriving += beads_from(r);
   members.reserve(local_.owned.size() + arriving);
   for (size_t m = 0; m < local_.owned.size(); ++m)
     members.push_back({ids_[local_.owned[m]], me, static_cast<int>(m), local_.home[m] != 0});
   for (int r = 0; r < ranks; ++r) {
     Plan& p = in_[r];
-    p.slot.assign(in[r].size(), -1), p.home.assign(in[r].size(), 0), p.homes = 0;
-    for (size_t m = 0; m < in[r].size(); ++m) {
-      const double w = in[r][m];
+    const std::size_t count = beads_from(r);
+    p.slot.assign(count, -1), p.home.assign(count, 0), p.homes = 0;
+    for (size_t m = 0; m < count; ++m) {
+      const double w = in[r][carry_ ? at[r][m] : m];
       const bool home = w >= 0.0;
       members.push_back({home ? static_cast<int>(w) : static_cast<int>(-1.0 - w), r, static_cast<int>(m), home});
       p.home[m] = home, p.homes += home;
@@ -729,7 +814,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   {
     std::vector<std::size_t> bounds{local_.owned.size()};  // the runs' ends, the local one first
     for (int r = 0; r < ranks; ++r)
-      if (!in[r].empty()) bounds.push_back(bounds.back() + in[r].size());
+      if (beads_from(r) > 0) bounds.push_back(bounds.back() + beads_from(r));
     std::vector<Member> other(members.size());
     const auto at = [](std::vector<Member>& v, std::size_t e) { return v.begin() + static_cast<std::ptrdiff_t>(e); };
     // Level by level: the arrivals' runs (after bounds[0]) two by two into one, from members into
@@ -763,10 +848,67 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   for (int e = 0; e < n; ++e) {
     const Member& m = members[e];
     pair_ids_[e] = m.global;
-    pair_slot_of_[m.global] = e;
     halo_flag_[e] = !m.home;
     num_home_ += m.home;
     (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
+  }
+  // What the beads carried, per slot: a kept bead's from the owned data, an arrived one's from
+  // its message. Two passes: the partner counts per slot, then the partners in place.
+  if (carry_) {
+    PairBeadData& d = pair_data_;
+    const std::size_t terms = owned_data_.special.size();
+    d.charged = owned_data_.charged;
+    d.type.resize(n);
+    d.charge.resize(d.charged ? n : 0);
+    d.special.resize(terms);
+    for (SpecialPartners& s : d.special) s.start.resize(n + 1), s.start[0] = 0;
+    for (int e = 0; e < n; ++e) {
+      const Member& m = members[e];
+      if (m.from == me) {
+        const int k = local_.owned[m.index];
+        for (std::size_t t = 0; t < terms; ++t) {
+          const std::vector<int>& o = owned_data_.special[t].start;
+          std::vector<int>& start = d.special[t].start;
+          start[e + 1] = start[e] + o[k + 1] - o[k];
+        }
+      } else {
+        const double* w = in[m.from].data() + at[m.from][m.index] + (d.charged ? 3 : 2);
+        for (std::size_t t = 0; t < terms; ++t) {
+          const int count = static_cast<int>(*w);
+          std::vector<int>& start = d.special[t].start;
+          start[e + 1] = start[e] + count;
+          w += 1 + 3 * count;
+        }
+      }
+    }
+    for (SpecialPartners& s : d.special) {
+      const int total = s.start[n];
+      s.partner.resize(total), s.weight.resize(total), s.weight_coul.resize(total);
+    }
+    for (int e = 0; e < n; ++e) {
+      const Member& m = members[e];
+      if (m.from == me) {
+        const int k = local_.owned[m.index];
+        d.type[e] = owned_data_.type[k];
+        if (d.charged) d.charge[e] = owned_data_.charge[k];
+        for (std::size_t t = 0; t < terms; ++t) {
+          const SpecialPartners& o = owned_data_.special[t];
+          SpecialPartners& s = d.special[t];
+          for (int p = o.start[k], q = s.start[e]; p < o.start[k + 1]; ++p, ++q)
+            s.partner[q] = o.partner[p], s.weight[q] = o.weight[p], s.weight_coul[q] = o.weight_coul[p];
+        }
+      } else {
+        const double* w = in[m.from].data() + at[m.from][m.index] + 1;
+        d.type[e] = static_cast<int>(*w++);
+        if (d.charged) d.charge[e] = *w++;
+        for (std::size_t t = 0; t < terms; ++t) {
+          SpecialPartners& s = d.special[t];
+          ++w;  // the count, as in the first pass
+          for (int q = s.start[e]; q < s.start[e + 1]; ++q, w += 3)
+            s.partner[q] = static_cast<int>(w[0]), s.weight[q] = w[1], s.weight_coul[q] = w[2];
+        }
+      }
+    }
   }
   // The copies' runs.
   make_runs(local_.owned, local_.slot, {}, local_.owned.size(), local_.all);

@@ -111,6 +111,33 @@ struct DomainReport {
   std::array<std::vector<double>, 3> cuts;
 };
 
+// A pair term's special partners by bead: the partners of bead k are partner[start[k] … start[k + 1])
+// by global index, increasing, with their weights (SpecialPair::weight, weight_coul,
+// forcefields/neighbor_list.hpp): the bonded neighbours within its molecule whose special weight is
+// not 1 (1-2, 1-3 and, with a 1-4 weight, 1-4).
+struct SpecialPartners {
+  std::vector<int> start{0}, partner;
+  std::vector<double> weight, weight_coul;
+  int size() const { return static_cast<int>(start.size()) - 1; }
+  void clear() {
+    start.assign(1, 0);
+    partner.clear(), weight.clear(), weight_coul.clear();
+  }
+};
+
+// What the pair terms read of a bead besides its position (docs/parallel.md, "The design"): its
+// type, its charge (`charged`: some pair term reads charges) and, per pair term, its special
+// partners. The owner knows them from its part (its molecules carry the types and charges, and
+// the part's terms make the special pairs of its molecules' bonds); each bead carries them to
+// the pair sets that hold it at the selection (Decomposition::select_pair_set), so a pair set
+// holds them per slot and no rank reads them from arrays of the whole system.
+struct PairBeadData {
+  bool charged = false;
+  std::vector<int> type;
+  std::vector<double> charge;            // empty unless charged
+  std::vector<SpecialPartners> special;  // per pair term of the part, in the force field's order
+};
+
 // Columns from … from + count − 1 of one 3 × m array and to … to + count − 1 of another: the
 // unit of Decomposition's copies.
 struct ColumnRun {
@@ -139,7 +166,13 @@ class Decomposition {
   // become the new owned ones. Returns whether this rank's owned particles changed. Collective.
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
                PartMolecules* molecules = nullptr);
-  // The pair sets of the owned positions x (every rank's home beads and halo). Collective.
+  // What each owned bead carries to the pair sets at the selections from now on (per owned
+  // column, in the owned order; the same `charged` and number of pair terms on every rank): set
+  // whenever the owned particles change (a part built). Not set: the beads carry their global
+  // indices alone, and pair_data() stays empty.
+  void set_owned_pair_data(PairBeadData owned);
+  // The pair sets of the owned positions x (every rank's home beads and halo), each bead with
+  // what it carries (set_owned_pair_data). Collective.
   void select_pair_set(const Eigen::Matrix3Xd& x);
   // The largest displacement of a bead from its position at the last selection, over every rank:
   // x is the owned array of the selection (the positions, or the mollified positions) at a later
@@ -183,12 +216,23 @@ class Decomposition {
   int num_owned() const { return static_cast<int>(ids_.size()); }
   int owned_index(int global) const;  // −1: not owned here (a search of the owned indices)
   // The pair set: global index per slot (increasing), whether a slot is a halo bead (not home
-  // here: NeighborList::set_ghosts), the home beads' count, and the slot of a global index (−1: not
-  // in this rank's pair set).
+  // here: NeighborList::set_ghosts), the home beads' count, what its beads carried (per slot:
+  // set_owned_pair_data), and the slot of a global index (−1: not in this rank's pair set; a
+  // search of the pair set's indices, none of the whole system's size).
   const std::vector<int>& pair_ids() const { return pair_ids_; }
   const std::vector<char>& halo_flags() const { return halo_flag_; }
   int num_home() const { return num_home_; }
-  int pair_slot(int global) const { return pair_slot_of_[global]; }
+  const PairBeadData& pair_data() const { return pair_data_; }
+  int pair_slot(int global) const;
+  // The same, searched outward from slot `near` (a bonded neighbour's slot: a few slots away, as
+  // the global indices of a molecule's beads are near one another; the next slots looked at
+  // first, inline).
+  int pair_slot_near(int global, int near) const {
+    const int n = static_cast<int>(pair_ids_.size());
+    if (near + 1 < n && near >= 0 && pair_ids_[near + 1] == global) return near + 1;
+    if (near + 2 < n && near >= 0 && pair_ids_[near + 2] == global) return near + 2;
+    return pair_slot_around(global, near);
+  }
   bool owns_molecule(int m) const;
   const DomainGrid& grid() const { return grid_; }
   double margin() const { return margin_; }
@@ -215,6 +259,8 @@ class Decomposition {
   }
 
  private:
+  // pair_slot_near's search: steps of 1, 2, 4, … from `near`, then a binary search.
+  int pair_slot_around(int global, int near) const;
   // The centre of mass of the owned molecule at owned_[i] (its columns of x, the owned masses).
   Eigen::Vector3d owned_anchor(const Eigen::Matrix3Xd& x, int i) const;
   // owned_ and each owned molecule's columns from ids_ and owned_molecule_.
@@ -262,7 +308,13 @@ class Decomposition {
   };
   std::vector<Plan> out_, in_;
   Plan local_;  // owned index and slot together
-  std::vector<int> pair_ids_, pair_slot_of_;
+  std::vector<int> pair_ids_;
+  PairBeadData owned_data_, pair_data_;  // per owned column; per pair-set slot
+  // The selection's messages (per rank: sent, received) and where each received bead's words
+  // start, kept from one selection to the next (a resize fills only what grew).
+  std::vector<std::vector<double>> selection_out_, selection_in_;
+  std::vector<std::vector<std::size_t>> arrival_at_;
+  bool carry_ = false;             // set_owned_pair_data was called
   Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
   std::vector<Run> halo_runs_;        // the halo's slots (from = to)

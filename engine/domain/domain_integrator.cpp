@@ -93,12 +93,6 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
   domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.forces->box(), comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
   domains_->set_balance(whole.parallel.balance);
-  // Each pair term's special pairs over the whole system, by particle: a pair set's are those
-  // among its beads (GhostedPairs).
-  for (const auto& t : whole.forces->terms()) {
-    const auto* pairs = t->uses_neighbor_list() ? dynamic_cast<const PairsOnParticles*>(t.get()) : nullptr;
-    special_.push_back(pairs ? std::make_unique<SpecialPartners>(pairs->special_pairs(), whole.state.size()) : nullptr);
-  }
   evaluations_.assign(whole.forces->num_levels(), 0);
   charged_ = whole.charged();
   // The polymer columns average over the topology's molecules (its molecule ids); a rank can sum
@@ -189,18 +183,30 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   // The reciprocal sums (k-space terms) sum over the ranks.
   for (const auto& term : p.forces->terms()) term->set_processes(&comm_);
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
-  // built again keeps the old part's terms on the pair set, and their buffers.
+  // built again keeps the old part's terms on the pair set, and their buffers. What the pair sets
+  // read of a bead besides its position comes with it from its owner at each selection
+  // (Decomposition::set_owned_pair_data): its type and charge as its molecule carries them, and
+  // per pair term its special partners — the part's term made them from its molecules' bonds with
+  // the term's weights (on_subset), the whole system's rows of these beads.
+  PairBeadData carried;
+  carried.type = mine.type;
+  for (const auto& term : p.forces->terms())
+    if (term->uses_neighbor_list() && term->uses_charges()) carried.charged = true;
+  if (carried.charged) carried.charge = mine.charge;
   for (size_t k = 0; k < p.forces->terms().size(); ++k) {
     const ForceTerm& term = *p.forces->terms()[k];
     if (!term.uses_neighbor_list()) continue;
-    if (k >= special_.size() || !special_[k])
+    const auto* on_part = dynamic_cast<const PairsOnParticles*>(&term);
+    if (!on_part || k >= w.forces->terms().size() || w.forces->terms()[k]->name() != term.name())
       throw std::logic_error("a part's pair term '" + term.name() + "' is not the whole system's");
+    carried.special.push_back(special_partners(on_part->special_pairs(), p.global_id));
     GhostedPairs* old = part_ && part->pairs.size() < part_->pairs.size() ? part_->pairs[part->pairs.size()] : nullptr;
-    auto ghosted =
-        std::make_unique<GhostedPairs>(*w.forces->terms()[k], *domains_, w.particle_type, w.charge, *special_[k], old);
+    auto ghosted = std::make_unique<GhostedPairs>(*w.forces->terms()[k], *domains_,
+                                                  static_cast<int>(carried.special.size()) - 1, old);
     part->pairs.push_back(ghosted.get());
     p.forces->replace(k, std::move(ghosted));
   }
+  domains_->set_owned_pair_data(std::move(carried));
   part->integrator = make_integrator(p.integrator, *p.forces, p.state.inv_mass);
   part->thermo = std::make_unique<Thermo>(*p.forces, p.state.inv_mass, ObservableSettings{}, &p.topology);
   if (std::vector<double> inv = part_invariants(); !inv.empty()) part->integrator->set_invariants(inv);

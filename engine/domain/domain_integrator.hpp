@@ -123,10 +123,9 @@ class DomainIntegrator final : public Integrator {
   bool per_particle_friction_ = false;  // the thermostat has a friction per particle
   bool reselect_ = false;               // the pair sets were selected again: molecules may migrate before the next step
   bool box_moved_ = false;              // a barostat moved the cell: the pair sets follow before the next step
-  std::vector<std::unique_ptr<SpecialPartners>> special_;  // per whole-system term: a pair term's
-  int whole_dof_ = 0;                                      // csvr: the whole system's degrees of freedom
-  bool molecules_whole_ = true;                            // every topology molecule within one bonded molecule
-  bool charged_ = false;                                   // some particle of the whole system has a charge
+  int whole_dof_ = 0;                   // csvr: the whole system's degrees of freedom
+  bool molecules_whole_ = true;         // every topology molecule within one bonded molecule
+  bool charged_ = false;                // some particle of the whole system has a charge
   // The effective dynamics' modes: per constraint cluster of the whole system (find_clusters,
   // integrators/clusters.hpp, the order the modes take), its molecule, first mode and mode count.
   struct Cluster {

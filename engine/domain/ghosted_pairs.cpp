@@ -5,32 +5,35 @@
 
 namespace stiffmd {
 
-SpecialPartners::SpecialPartners(std::span<const SpecialPair> pairs, int num_particles)
-    : start(static_cast<size_t>(num_particles) + 1, 0) {
-  for (const SpecialPair& p : pairs) ++start[p.i + 1], ++start[p.j + 1];
-  for (int g = 0; g < num_particles; ++g) start[g + 1] += start[g];
-  partner.resize(start.back());
-  weight.resize(start.back());
-  weight_coul.resize(start.back());
-  std::vector<int> next(start.begin(), start.end() - 1);
+SpecialPartners special_partners(std::span<const SpecialPair> pairs, std::span<const int> global) {
+  SpecialPartners s;
+  const std::size_t n = global.size();
+  s.start.assign(n + 1, 0);
   for (const SpecialPair& p : pairs) {
-    partner[next[p.i]] = p.j, weight[next[p.i]] = p.weight, weight_coul[next[p.i]++] = p.weight_coul;
-    partner[next[p.j]] = p.i, weight[next[p.j]] = p.weight, weight_coul[next[p.j]++] = p.weight_coul;
+    if (p.i < 0 || p.j < 0 || static_cast<std::size_t>(p.i) >= n || static_cast<std::size_t>(p.j) >= n)
+      throw std::invalid_argument("special_partners: a special pair of a particle outside the set");
+    ++s.start[p.i + 1], ++s.start[p.j + 1];
   }
+  for (std::size_t k = 0; k < n; ++k) s.start[k + 1] += s.start[k];
+  s.partner.resize(s.start.back());
+  s.weight.resize(s.start.back());
+  s.weight_coul.resize(s.start.back());
+  // Sorted by (i, j): each bead's partners below it come first (pairs (j, k) by increasing j), then
+  // those above it (pairs (k, j) by increasing j): increasing global indices, as global increases.
+  std::vector<int> next(s.start.begin(), s.start.end() - 1);
+  for (const SpecialPair& p : pairs)
+    for (const auto& [a, b] : {std::pair{p.i, p.j}, std::pair{p.j, p.i}}) {
+      const int q = next[a]++;
+      s.partner[q] = global[b], s.weight[q] = p.weight, s.weight_coul[q] = p.weight_coul;
+    }
+  return s;
 }
 
-GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
-                           std::span<const double> charges, const SpecialPartners& special, GhostedPairs* old)
+GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, int special, GhostedPairs* old)
     : ForceTerm(whole_term.name(), whole_term.level()),
       template_(whole_term),
       domains_(domains),
-      whole_types_(types),
-      whole_charges_(whole_term.uses_charges() ? charges : std::span<const double>()),
-      whole_special_(special) {
-  if (whole_term.uses_charges() && charges.size() != types.size())
-    throw std::invalid_argument("GhostedPairs: term '" + name() + "' reads charges, but " +
-                                std::to_string(charges.size()) + " were given for " + std::to_string(types.size()) +
-                                " particles");
+      special_index_(special) {
   if (!template_.uses_neighbor_list()) throw std::invalid_argument("GhostedPairs: not a neighbour-list term");
   if (old) {  // the old part's term on the pair set, its list's buffers with it
     extended_ = std::move(old->extended_);
@@ -38,8 +41,6 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
     old->extended_pairs_ = nullptr;
     rebuilds_before_ = extended_->neighbor_list_rebuilds();
     selection_ = old->selection_;
-    types_ = std::move(old->types_);
-    charges_ = std::move(old->charges_);
     special_ = std::move(old->special_);
     return;
   }
@@ -98,34 +99,38 @@ void GhostedPairs::forward(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Mat
 
 void GhostedPairs::retarget() const {
   selection_ = domains_.selections();
-  const std::vector<int>& ids = domains_.pair_ids();
   const std::vector<char>& halo = domains_.halo_flags();
-  const int n = static_cast<int>(ids.size());
-  types_.resize(n);
-  for (int e = 0; e < n; ++e) types_[e] = whole_types_[ids[e]];
-  // A charged term's charges follow the beads as their types do.
-  charges_.resize(whole_charges_.empty() ? 0 : n);
-  for (int e = 0; e < static_cast<int>(charges_.size()); ++e) charges_[e] = whole_charges_[ids[e]];
-  // The special pairs of the whole system with a home bead here and both beads in the pair set: a
-  // home bead's partners within R are all here, and a pair of two halo beads is not evaluated.
-  // Made in (i, j) order: by slot i, then its partners j > i sorted (a handful).
+  const PairBeadData& carried = domains_.pair_data();
+  const int n = static_cast<int>(domains_.pair_ids().size());
+  if (static_cast<int>(carried.type.size()) != n || special_index_ < 0 ||
+      static_cast<std::size_t>(special_index_) >= carried.special.size() ||
+      (template_.uses_charges() && !carried.charged))
+    throw std::logic_error("GhostedPairs: term '" + name() + "': the pair set's beads carried no data for it");
+  // The special pairs with a home bead here and both beads in the pair set: a home bead's partners
+  // within R are all here, and a pair of two halo beads is not evaluated. Made in (i, j) order: by
+  // slot i, then its partners j > i (carried in increasing global index, so in increasing slots).
   special_.clear();
-  const SpecialPartners& s = whole_special_;
+  const SpecialPartners& s = carried.special[special_index_];
+  const std::vector<int>& ids = domains_.pair_ids();
   for (int e = 0; e < n; ++e) {
-    const int g = ids[e];
     const size_t first = special_.size();
-    for (int q = s.start[g]; q < s.start[g + 1]; ++q) {
-      const int t = domains_.pair_slot(s.partner[q]);
+    for (int q = s.start[e]; q < s.start[e + 1]; ++q) {
+      // A partner of a lower global index has a lower slot, if any: its pair is made from there.
+      if (s.partner[q] < ids[e]) continue;
+      const int t = domains_.pair_slot_near(s.partner[q], e);
       if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
-    // Insertion sort: a bead has a handful of special partners (two on a chain with 1-2 pairs
-    // alone), where std::sort's call costs more than the sorting.
+    // Insertion sort, which finds them sorted: a bead has a handful of special partners (two on a
+    // chain with 1-2 pairs alone), where std::sort's call costs more than the sorting.
     for (size_t q = first + 1; q < special_.size(); ++q)
       for (size_t r = q; r > first && special_[r - 1].j > special_[r].j; --r) std::swap(special_[r - 1], special_[r]);
   }
-  extended_pairs_->move_to(types_, charges_, special_, halo);
+  // A charged term's charges follow the beads as their types do.
+  extended_pairs_->move_to(
+      carried.type, template_.uses_charges() ? std::span<const double>(carried.charge) : std::span<const double>(),
+      special_, halo);
   // The whole tail correction on the rank home to particle 0, none on the others.
-  const int slot0 = whole_types_.empty() ? -1 : domains_.pair_slot(0);
+  const int slot0 = domains_.pair_slot(0);
   extended_pairs_->set_tail_share(slot0 >= 0 && !halo[slot0] ? 1.0 : 0.0);
 }
 

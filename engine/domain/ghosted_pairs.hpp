@@ -12,7 +12,8 @@
 // (R − r_c − skin)/2 since their selection (then the list built on a pair set is one process's
 // list restricted to it); past that the pair sets are selected again first, and the term moves
 // onto the new pair set in place (PairsOnParticles::move_to): its neighbour list keeps its
-// buffers, and the pair set's special pairs are the whole system's among its beads. Between
+// buffers, and the pair set's types, charges and special pairs are those its beads carried to it
+// from their owners (Decomposition::pair_data): the whole system's among its beads. Between
 // builds a list counts as stale once a bead may have moved (R − r_c)/2 since the selection, where
 // a pair within r_c could leave the pair set.
 #pragma once
@@ -27,25 +28,21 @@
 
 namespace stiffmd {
 
-// The special pairs of a pair term over the whole system, by particle: the partners of particle g
-// are partner[start[g] … start[g + 1]), with their weights (SpecialPair::weight, weight_coul).
-struct SpecialPartners {
-  SpecialPartners(std::span<const SpecialPair> pairs, int num_particles);
-  std::vector<int> start, partner;
-  std::vector<double> weight, weight_coul;
-};
+// The special partners by bead of a term's particle set (PairsOnParticles::special_pairs, in the
+// set's numbering: sorted by (i, j)), the partners by global index: global[k] is particle k's. A
+// part's pair term gives its molecules' (the special pairs of their bonds with the term's weights):
+// for each of its beads the rows the whole system's term gives it, with global = 0 … N − 1.
+SpecialPartners special_partners(std::span<const SpecialPair> pairs, std::span<const int> global);
 
 class GhostedPairs final : public ForceTerm {
  public:
-  // `whole_term`: the whole scene's neighbour-list term (its settings; on_particles makes the one
-  // that acts on the pair set). `types`: every particle's type, by global index; `special`: the
-  // whole system's special pairs of this term. All must outlive the term. `old`: a part built
-  // again (molecules migrated) takes the old part's term on the pair set over, and so its list's
-  // buffers (the same deck term); null: a new one.
-  // `charges`: every particle's charge, by global index, for a term that uses_charges (empty for
-  // the others), which follow the beads onto the pair set as their types do.
-  GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, std::span<const int> types,
-               std::span<const double> charges, const SpecialPartners& special, GhostedPairs* old = nullptr);
+  // `whole_term`: the whole scene's neighbour-list term (its settings alone; on_particles makes
+  // the one that acts on the pair set); it must outlive the term. The pair set's types, charges
+  // (for a term that uses_charges) and special pairs are what its beads carried to it
+  // (Decomposition::pair_data: the types, the charges, and `special`, this term's index in its
+  // special partners per term). `old`: a part built again (molecules migrated) takes the old
+  // part's term on the pair set over, and so its list's buffers (the same deck term); null: a new one.
+  GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, int special, GhostedPairs* old = nullptr);
 
   // The neighbour list on the pair set brought up to date for the owned positions x (collective),
   // as one process builds its list before the step loop.
@@ -86,15 +83,10 @@ class GhostedPairs final : public ForceTerm {
   std::unique_ptr<ForceTerm> extended_;
   PairsOnParticles* extended_pairs_ = nullptr;  // extended_'s
   Decomposition& domains_;
-  std::span<const int> whole_types_;
-  std::span<const double> whole_charges_;  // the scene's, empty for a term that reads no charges
-  const SpecialPartners& whole_special_;
+  int special_index_;         // this term's in Decomposition::pair_data().special
   long rebuilds_before_ = 0;  // of extended_ when this term took it over
-  // The pair set this term was last moved onto (Decomposition::selections), its particles' types
-  // and special pairs.
+  // The pair set this term was last moved onto (Decomposition::selections) and its special pairs.
   mutable long selection_ = -1;
-  mutable std::vector<int> types_;
-  mutable std::vector<double> charges_;
   mutable std::vector<SpecialPair> special_;
   mutable Eigen::Matrix3Xd x_, f_;
 };
