@@ -286,11 +286,11 @@ class NeighborList {
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
-  int next_verdict_ = -1;                  // set_next_verdict's, for the next update only (−1: none)
-  double displacement_limit_ = 0.0;        // set_displacement_limit's (0: the skin)
-  std::vector<char> ghost_;                // set_ghosts (empty: none)
-  std::vector<int> cell_owned_;            // the search's scratch: per cell, its particles that are not ghosts
-  std::vector<char> ghost_in_cell_order_;  // the search's scratch: ghost_ in the cell order
+  int next_verdict_ = -1;            // set_next_verdict's, for the next update only (−1: none)
+  double displacement_limit_ = 0.0;  // set_displacement_limit's (0: the skin)
+  std::vector<char> ghost_;          // set_ghosts (empty: none)
+  std::vector<int> cell_home_;       // with ghosts, per cell: its particles that are not (a prefix)
+  std::vector<int> key_start_;       // with ghosts, bin's scratch: the starts by (cell, flag)
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;
