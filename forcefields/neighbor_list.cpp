@@ -687,29 +687,38 @@ NeighborList::NeighborList(double cutoff, double skin) : cutoff_(cutoff), skin_(
 
 void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair> pairs) {
   excl_particles_ = num_particles;
-  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new pair set
-  // at each selection of the ghosts): counts, their prefix sums, each pair placed at its rows'
-  // cursors, the cursors shifted back into row starts.
-  excl_offsets_.assign(static_cast<std::size_t>(num_particles) + 1, 0);
+  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new pair set at
+  // each selection): each row's count at offsets[i + 2], their prefix sums, so that offsets[i + 1]
+  // is row i's start; each pair placed at its rows' cursors offsets[i + 1]++, which leaves
+  // offsets[i + 1] at row i's end, row i + 1's start: the CSR offsets without a shift back.
+  const std::size_t rows = static_cast<std::size_t>(num_particles);
+  excl_offsets_.assign(rows + 2, 0);
+  int* const offsets = excl_offsets_.data();
+  // Pairs i < j in increasing (i, j), as special_pairs gives them, leave each row sorted: row r
+  // takes the i < r of the pairs (i, r) in increasing i, then the j > r of the pairs (r, j) in
+  // increasing j, all of the first before any of the second.
+  bool ordered = true;
+  int last_i = -1, last_j = -1;
+  const auto n = static_cast<unsigned>(num_particles);
   for (const SpecialPair& p : pairs) {
-    if (p.i < 0 || p.j < 0 || p.i >= num_particles || p.j >= num_particles)
+    if (static_cast<unsigned>(p.i) >= n || static_cast<unsigned>(p.j) >= n)
       throw std::invalid_argument("neighbour list: excluded pair refers to a particle out of range");
-    ++excl_offsets_[p.i + 1];
-    ++excl_offsets_[p.j + 1];
+    ++offsets[p.i + 2];
+    ++offsets[p.j + 2];
+    ordered &= p.i < p.j && (p.i > last_i || (p.i == last_i && p.j > last_j));
+    last_i = p.i;
+    last_j = p.j;
   }
-  for (int i = 0; i < num_particles; ++i) excl_offsets_[i + 1] += excl_offsets_[i];
-  excl_.resize(excl_offsets_.back());
+  for (std::size_t i = 2; i < rows + 2; ++i) offsets[i] += offsets[i - 1];
+  excl_.resize(static_cast<std::size_t>(offsets[rows + 1]));
+  int* const excl = excl_.data();
   for (const SpecialPair& p : pairs) {
-    excl_[excl_offsets_[p.i]++] = p.j;
-    excl_[excl_offsets_[p.j]++] = p.i;
+    excl[offsets[p.i + 1]++] = p.j;
+    excl[offsets[p.j + 1]++] = p.i;
   }
-  for (int i = num_particles; i > 0; --i) excl_offsets_[i] = excl_offsets_[i - 1];
-  excl_offsets_[0] = 0;
-  // Pairs sorted by (i, j), as special_pairs gives them, leave each row sorted already.
-  for (int i = 0; i < num_particles; ++i) {
-    const auto first = excl_.begin() + excl_offsets_[i], last = excl_.begin() + excl_offsets_[i + 1];
-    if (!std::is_sorted(first, last)) std::sort(first, last);
-  }
+  excl_offsets_.resize(rows + 1);  // keeps the capacity
+  if (!ordered)
+    for (std::size_t i = 0; i < rows; ++i) std::sort(excl_.begin() + offsets[i], excl_.begin() + offsets[i + 1]);
   built_ = false;
 }
 

@@ -118,6 +118,40 @@ void expect_full_rows_less_ghost_pairs(const NeighborList& ghosts, const Neighbo
   EXPECT_EQ(ghosts.num_pairs() + ghost_pairs, full.num_pairs());
 }
 
+// set_exclusions reads the pairs as special_pairs gives them (i < j, increasing (i, j)), whose
+// rows come out sorted, and sorts the rows of any other order: the pairs shuffled, with i and j
+// swapped, give the same list, and on a new particle set (a pair set moved onto) the rows of the
+// new set only.
+TEST(NeighborListExclusions, PairsInAnyOrderGiveTheSameList) {
+  const System s = lattice(17, Eigen::Vector3i::Ones(), true, 9);
+  const std::vector<SpecialPair> sorted = special_pairs(s.size(), s.bonds, kWeights);
+  ASSERT_GT(sorted.size(), 1000u);
+  std::vector<SpecialPair> shuffled = sorted;
+  std::mt19937 rng(4);
+  std::shuffle(shuffled.begin(), shuffled.end(), rng);
+  for (std::size_t k = 0; k < shuffled.size(); k += 2) std::swap(shuffled[k].i, shuffled[k].j);
+  NeighborList a(kCutoff, kSkin), b(kCutoff, kSkin), none(kCutoff, kSkin);
+  a.set_exclusions(s.size(), sorted);
+  b.set_exclusions(2 * s.size(), shuffled);  // first on a larger set, then on this one
+  b.set_exclusions(s.size(), shuffled);
+  a.build(s.x, s.box);
+  b.build(s.x, s.box);
+  none.build(s.x, s.box);
+  for (int i = 0; i < s.size(); ++i) ASSERT_EQ(row(a, i), row(b, i)) << "row " << i;
+  EXPECT_EQ(a.num_pairs(), b.num_pairs());
+  auto listed = [](const NeighborList& list, int i, int j) {
+    const std::vector<int> r = row(list, std::min(i, j));
+    return std::find(r.begin(), r.end(), std::max(i, j)) != r.end();
+  };
+  std::size_t excluded_listed = 0;
+  for (const SpecialPair& p : sorted) {
+    EXPECT_FALSE(listed(a, p.i, p.j));
+    excluded_listed += listed(none, p.i, p.j);
+  }
+  EXPECT_GT(excluded_listed, 0u);
+  EXPECT_EQ(a.num_pairs() + excluded_listed, none.num_pairs());
+}
+
 using test::ThreadCount;
 
 TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
