@@ -103,19 +103,6 @@ template <bool kSentinels = false>
   return found;
 }
 
-// The AVX2 test where the CPU has it (chosen once, at the first call), else the scalar one: the
-// same candidates either way.
-int test_candidates(double xi, double yi, double zi, const double* xs, const double* ys, const double* zs,
-                    const int* ks, int first, int last, double r2, int* hit) {
-  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
-  return avx2 ? test_candidates_avx2(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit)
-              : test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit);
-}
-#else
-int test_candidates(double xi, double yi, double zi, const double* xs, const double* ys, const double* zs,
-                    const int* ks, int first, int last, double r2, int* hit) {
-  return test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, last, r2, hit);
-}
 #endif
 
 // Entries first … last − 1 of the cell order (coordinates xs, ys, zs, particle indices ps) copied to
@@ -154,14 +141,23 @@ void gather_shifted_scalar(const double* __restrict xs, const double* __restrict
 }
 #endif
 
-// One part's share of the half-stencil search without ghosts (NeighborList::search_half_stencil):
-// the cells of columns first_column … last_column − 1 in the cell order, each cell's candidates
-// gathered (its own particles, the next cell along z, four columns of three cells), each of its
-// particles tested against the later candidates, and the hits recorded as pairs (min, max) less
-// the exclusions, counted per row for the CSR sort. A template over the kernels so that the AVX2
+// One part's share of the half-stencil search (NeighborList::search_half_stencil): the cells of
+// columns first_column … last_column − 1 in the cell order, each cell's candidates gathered (its
+// own particles, the next cell along z, four columns of three cells), each of its particles
+// tested against the later candidates, and the hits recorded as pairs (min, max) less the
+// exclusions, counted per row for the CSR sort. A template over the kernels so that the AVX2
 // instantiation inlines the copies and the tests into the loop (search_columns_avx2): the calls of
 // one copy per range and one test per particle, with their arguments, were a third of the loop's
 // instructions.
+//
+// With ghosts (kHalo: a decomposed run's pair set, its home beads and its halo) the bins put each
+// cell's home beads first (NeighborList::bin): the home beads' rows are searched exactly as
+// without ghosts — every pair of theirs is one the list keeps — and a ghost's row only against
+// the home beads of the forward cells, a prefix of each cell's range, so no pair of two ghosts
+// is formed and no flag is read per candidate. Every kept pair is tested as the search without
+// ghosts tests it: d = x_i − (x_j + shift), i in the cell whose forward cell holds j (within a
+// cell the order of i and j may swap, which negates d exactly): the same hits, and after the rows
+// are sorted the same list, less its pairs of two ghosts.
 //
 // The candidates of a cell's particles are gathered once per cell into contiguous arrays
 // (structure of arrays): the cell's own particles first, then those of its forward neighbours,
@@ -186,6 +182,11 @@ struct HalfStencilPart {
   int* row_count;            // the part's pairs per row
   std::vector<int>*pi, *pj;  // the part's pair buffers (their size is their capacity)
   std::size_t used;          // pairs in them
+  // With halo beads (ghosts): each cell's beads that are not, a prefix of the cell's range (null:
+  // no ghosts), and a second candidate buffer for the forward cells' home beads (padded).
+  const int* home;
+  double *hxs, *hys, *hzs;
+  int* hks;
 };
 
 #if defined(__x86_64__)
@@ -216,7 +217,7 @@ struct HalfStencilPart {
 }
 #endif
 
-template <bool kAvx2>
+template <bool kAvx2, bool kHalo>
 inline void search_columns(HalfStencilPart& p) {
   static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
   const int ny = p.ny, nz = p.nz;
@@ -230,91 +231,135 @@ inline void search_columns(HalfStencilPart& p) {
   int* to_j = p.pj->data();
   std::size_t capacity = p.pi->size(), used = p.used;
   int total = 0;
-  auto gather = [&](int first, int last, double sx, double sy, double sz) {
+  // Entries first … last − 1 of the cell order, shifted, to the candidates at `at` (to_x …).
+  auto gather_to = [&](double* to_x, double* to_y, double* to_z, int* to_k, int& at, int first, int last, double sx,
+                       double sy, double sz) {
 #if defined(__x86_64__)
     if constexpr (kAvx2)
-      gather_shifted_avx2(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, gxs + total, gys + total, gzs + total,
-                          gks + total);
+      gather_shifted_avx2(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, to_x + at, to_y + at, to_z + at,
+                          to_k + at);
     else
 #endif
-      gather_shifted_scalar(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, gxs + total, gys + total, gzs + total,
-                            gks + total);
-    total += std::max(0, last - first);
+      gather_shifted_scalar(p.cxs, p.cys, p.czs, p.cp, first, last, sx, sy, sz, to_x + at, to_y + at, to_z + at,
+                            to_k + at);
+    at += std::max(0, last - first);
+  };
+  auto gather = [&](int first, int last, double sx, double sy, double sz) {
+    gather_to(gxs, gys, gzs, gks, total, first, last, sx, sy, sz);
   };
   auto gather_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
     if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
     const int cell = (gx * ny + gy) * nz + gz;
     gather(cs[cell], cs[cell + 1], sx, sy, sz);
   };
+  // Particle i (at xi, yi, zi) tested against candidates first … total − 1 of (xs, ys, zs, ks),
+  // whose three entries past the end fail every test, and its hits recorded as pairs (min, max)
+  // less i's exclusions, each written and kept without a branch.
+  auto test_and_record = [&](int i, double xi, double yi, double zi, const double* xs, const double* ys,
+                             const double* zs, const int* ks, int first, int end) {
+    int count;
+#if defined(__x86_64__)
+    if constexpr (kAvx2)
+      count = test_candidates_avx2<true>(xi, yi, zi, xs, ys, zs, ks, first, end, p.rlist2, hit);
+    else
+#endif
+      count = test_candidates_scalar(xi, yi, zi, xs, ys, zs, ks, first, end, p.rlist2, hit);
+    if (used + count + 4 > capacity) {  // rare: the buffers grow geometrically, then stay
+      capacity = std::max(2 * capacity, used + count + 1024);
+      p.pi->resize(capacity);
+      p.pj->resize(capacity);
+      to_i = p.pi->data();
+      to_j = p.pj->data();
+    }
+    const int* first_excl = p.excl;
+    const int* last_excl = first_excl;
+    if (p.excl_offsets) {
+      first_excl += p.excl_offsets[i];
+      last_excl += p.excl_offsets[i + 1];
+    }
+#if defined(__x86_64__)
+    if constexpr (kAvx2) {
+      used = record_hits_avx2(i, hit, count, first_excl, last_excl, to_i + used, to_j + used, p.row_count) + used;
+      return;
+    }
+#endif
+    std::size_t kept = used;
+    for (int h = 0; h < count; ++h) {
+      const int j = hit[h];
+      bool keep = true;
+      for (const int* e = first_excl; e != last_excl; ++e) keep &= *e != j;
+      const int row = std::min(i, j);
+      to_i[kept] = row;
+      to_j[kept] = std::max(i, j);
+      p.row_count[row] += keep;
+      kept += keep;
+    }
+    used = kept;
+  };
+  // Three entries past the candidates that fail every distance test (x − ∞ = −∞, squared +∞,
+  // not < r²; NaN neither), so the AVX2 test's last group needs no mask.
+  auto sentinels = [](double* xs, int end) {
+    for (int t = end; t < end + 3; ++t) xs[t] = std::numeric_limits<double>::infinity();
+  };
   for (int column = p.first_column; column < p.last_column; ++column) {
     const int cx = column / ny, cy = column % ny;
     for (int cz = 0; cz < nz; ++cz) {
       const int c = (cx * ny + cy) * nz + cz;
-      if (cs[c] == cs[c + 1]) continue;
-      total = 0;
-      if (cz + 1 < nz) {  // the cell and the next along z, one range
-        gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
-      } else {
-        gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
-        gather_cell(cx, cy, p.adjacent[2][3 * cz + 2], 0.0, 0.0, p.adjacent_shift[2][3 * cz + 2]);
-      }
-      for (const auto& col : kColumns) {
-        const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
-        if (gx < 0 || gy < 0) continue;
-        const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
-        if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
-          const int base = (gx * ny + gy) * nz;
-          gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
-        } else {
-          for (int dz = 0; dz < 3; ++dz)
-            gather_cell(gx, gy, p.adjacent[2][3 * cz + dz], sx, sy, p.adjacent_shift[2][3 * cz + dz]);
-        }
-      }
-      // Three entries past the candidates that fail every distance test (x − ∞ = −∞, squared +∞,
-      // not < r²; NaN neither), so the AVX2 test's last group needs no mask.
-      for (int t = total; t < total + 3; ++t) gxs[t] = std::numeric_limits<double>::infinity();
       const int own = cs[c + 1] - cs[c];
-      for (int m = 0; m < own; ++m) {
-        int count;
-#if defined(__x86_64__)
-        if constexpr (kAvx2)
-          count = test_candidates_avx2<true>(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, p.rlist2, hit);
-        else
-#endif
-          count = test_candidates_scalar(gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total, p.rlist2, hit);
-        if (used + count + 4 > capacity) {  // rare: the buffers grow geometrically, then stay
-          capacity = std::max(2 * capacity, used + count + 1024);
-          p.pi->resize(capacity);
-          p.pj->resize(capacity);
-          to_i = p.pi->data();
-          to_j = p.pj->data();
+      if (own == 0) continue;
+      // With halo beads, a cell's home beads come first in its range (NeighborList::bin): they
+      // are the rows searched as one process searches them.
+      const int home_here = kHalo ? p.home[c] : own;
+      if (home_here > 0) {
+        total = 0;
+        if (cz + 1 < nz) {  // the cell and the next along z, one range
+          gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
+        } else {
+          gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
+          gather_cell(cx, cy, p.adjacent[2][3 * cz + 2], 0.0, 0.0, p.adjacent_shift[2][3 * cz + 2]);
         }
-        // Each hit written and kept unless it is one of i's exclusions, without a branch.
-        const int i = gks[m];
-        const int* first = p.excl;
-        const int* last = first;
-        if (p.excl_offsets) {
-          first += p.excl_offsets[i];
-          last += p.excl_offsets[i + 1];
+        for (const auto& col : kColumns) {
+          const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
+          if (gx < 0 || gy < 0) continue;
+          const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
+          if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+            const int base = (gx * ny + gy) * nz;
+            gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
+          } else {
+            for (int dz = 0; dz < 3; ++dz)
+              gather_cell(gx, gy, p.adjacent[2][3 * cz + dz], sx, sy, p.adjacent_shift[2][3 * cz + dz]);
+          }
         }
-#if defined(__x86_64__)
-        if constexpr (kAvx2) {
-          used = record_hits_avx2(i, hit, count, first, last, to_i + used, to_j + used, p.row_count) + used;
-          continue;
+        sentinels(gxs, total);
+        for (int m = 0; m < home_here; ++m)
+          test_and_record(gks[m], gxs[m], gys[m], gzs[m], gxs, gys, gzs, gks, m + 1, total);
+      }
+      if constexpr (kHalo) {
+        if (home_here == own) continue;
+        // The cell's halo beads, rows home_here … own − 1: one process tests each against the
+        // later beads of the cell (halo beads: none kept) and every bead of the forward cells, as
+        // x_i − (x_j + shift) with the shift on j. Here only against the forward cells' home beads
+        // (each cell's prefix), with those shifts: the same pairs with a home bead, the same
+        // separations (x_i + 0.0 as the gather above makes it), and no pair of two halo beads.
+        int homes = 0;
+        auto gather_home = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
+          if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
+          const int cell = (gx * ny + gy) * nz + gz;
+          gather_to(p.hxs, p.hys, p.hzs, p.hks, homes, cs[cell], cs[cell] + p.home[cell], sx, sy, sz);
+        };
+        gather_home(cx, cy, p.adjacent[2][3 * cz + 2], 0.0, 0.0, p.adjacent_shift[2][3 * cz + 2]);
+        for (const auto& col : kColumns) {
+          const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
+          if (gx < 0 || gy < 0) continue;
+          const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
+          for (int dz = 0; dz < 3; ++dz)
+            gather_home(gx, gy, p.adjacent[2][3 * cz + dz], sx, sy, p.adjacent_shift[2][3 * cz + dz]);
         }
-#endif
-        std::size_t kept = used;
-        for (int h = 0; h < count; ++h) {
-          const int j = hit[h];
-          bool keep = true;
-          for (const int* e = first; e != last; ++e) keep &= *e != j;
-          const int row = std::min(i, j);
-          to_i[kept] = row;
-          to_j[kept] = std::max(i, j);
-          p.row_count[row] += keep;
-          kept += keep;
-        }
-        used = kept;
+        if (homes == 0) continue;
+        sentinels(p.hxs, homes);
+        for (int k = cs[c] + home_here; k < cs[c + 1]; ++k)
+          test_and_record(p.cp[k], p.cxs[k] + 0.0, p.cys[k] + 0.0, p.czs[k] + 0.0, p.hxs, p.hys, p.hzs, p.hks, 0,
+                          homes);
       }
     }
   }
@@ -322,11 +367,17 @@ inline void search_columns(HalfStencilPart& p) {
 }
 
 void search_columns_portable(HalfStencilPart& p) {
-  search_columns<false>(p);
+  search_columns<false, false>(p);
+}
+void search_columns_halo_portable(HalfStencilPart& p) {
+  search_columns<false, true>(p);
 }
 #if defined(__x86_64__)
 [[gnu::target("avx2,popcnt"), gnu::flatten]] void search_columns_avx2(HalfStencilPart& p) {
-  search_columns<true>(p);
+  search_columns<true, false>(p);
+}
+[[gnu::target("avx2,popcnt"), gnu::flatten]] void search_columns_halo_avx2(HalfStencilPart& p) {
+  search_columns<true, true>(p);
 }
 #endif
 
@@ -385,16 +436,17 @@ void sort_rows_portable(int* neighbors, const std::int64_t* offsets, std::int64_
 
 // The binning of particles first … last − 1 of x (3×N, column-major) into a grid of cells (see
 // NeighborList::bin): each one's image L·floor((x − lo)/L) on periodic axes (0 on open ones), its
-// position less the image, and its flattened cell, counted per cell.
+// position less the image, and its key, counted per key: its flattened cell c, or with halo flags
+// (ghost not null) 2c + ghost[i], so that the sort puts a cell's home beads before its halo beads.
 struct BinGrid {
   double lo[3], inv_len[3], len[3];
   bool periodic[3];
   int ncell[3];
 };
 
-inline void bin_particles(const BinGrid& g, const double* __restrict x, std::int64_t first, std::int64_t last,
-                          double* __restrict image, double* __restrict wrapped, int* __restrict cell_of,
-                          int* __restrict count) {
+inline void bin_particles(const BinGrid& g, const double* __restrict x, const char* __restrict ghost,
+                          std::int64_t first, std::int64_t last, double* __restrict image, double* __restrict wrapped,
+                          int* __restrict key_of, int* __restrict count) {
   for (std::int64_t i = first; i < last; ++i) {
     int c[3];
     for (int a = 0; a < 3; ++a) {
@@ -410,18 +462,19 @@ inline void bin_particles(const BinGrid& g, const double* __restrict x, std::int
       c[a] = cell_coordinate(s * g.ncell[a], g.ncell[a]);
     }
     const int cell = (c[0] * g.ncell[1] + c[1]) * g.ncell[2] + c[2];
-    cell_of[i] = cell;
-    ++count[cell];
+    const int key = ghost ? 2 * cell + ghost[i] : cell;
+    key_of[i] = key;
+    ++count[key];
   }
 }
 
 #if defined(__x86_64__)
 // The same where the CPU has SSE4.1, whose roundsd is floor in one instruction (x86-64's baseline
 // calls the library's floor): floor is exact, the same values.
-[[gnu::target("sse4.1"), gnu::flatten]] void bin_particles_sse41(const BinGrid& g, const double* x, std::int64_t first,
-                                                                 std::int64_t last, double* image, double* wrapped,
-                                                                 int* cell_of, int* count) {
-  bin_particles(g, x, first, last, image, wrapped, cell_of, count);
+[[gnu::target("sse4.1"), gnu::flatten]] void bin_particles_sse41(const BinGrid& g, const double* x, const char* ghost,
+                                                                 std::int64_t first, std::int64_t last, double* image,
+                                                                 double* wrapped, int* key_of, int* count) {
+  bin_particles(g, x, ghost, first, last, image, wrapped, key_of, count);
 }
 #endif
 
@@ -634,29 +687,38 @@ NeighborList::NeighborList(double cutoff, double skin) : cutoff_(cutoff), skin_(
 
 void NeighborList::set_exclusions(int num_particles, std::span<const SpecialPair> pairs) {
   excl_particles_ = num_particles;
-  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new pair set
-  // at each selection of the ghosts): counts, their prefix sums, each pair placed at its rows'
-  // cursors, the cursors shifted back into row starts.
-  excl_offsets_.assign(static_cast<std::size_t>(num_particles) + 1, 0);
+  // CSR rows in the arrays' capacity (a decomposed run moves its lists onto a new pair set at
+  // each selection): each row's count at offsets[i + 2], their prefix sums, so that offsets[i + 1]
+  // is row i's start; each pair placed at its rows' cursors offsets[i + 1]++, which leaves
+  // offsets[i + 1] at row i's end, row i + 1's start: the CSR offsets without a shift back.
+  const std::size_t rows = static_cast<std::size_t>(num_particles);
+  excl_offsets_.assign(rows + 2, 0);
+  int* const offsets = excl_offsets_.data();
+  // Pairs i < j in increasing (i, j), as special_pairs gives them, leave each row sorted: row r
+  // takes the i < r of the pairs (i, r) in increasing i, then the j > r of the pairs (r, j) in
+  // increasing j, all of the first before any of the second.
+  bool ordered = true;
+  int last_i = -1, last_j = -1;
+  const auto n = static_cast<unsigned>(num_particles);
   for (const SpecialPair& p : pairs) {
-    if (p.i < 0 || p.j < 0 || p.i >= num_particles || p.j >= num_particles)
+    if (static_cast<unsigned>(p.i) >= n || static_cast<unsigned>(p.j) >= n)
       throw std::invalid_argument("neighbour list: excluded pair refers to a particle out of range");
-    ++excl_offsets_[p.i + 1];
-    ++excl_offsets_[p.j + 1];
+    ++offsets[p.i + 2];
+    ++offsets[p.j + 2];
+    ordered &= p.i < p.j && (p.i > last_i || (p.i == last_i && p.j > last_j));
+    last_i = p.i;
+    last_j = p.j;
   }
-  for (int i = 0; i < num_particles; ++i) excl_offsets_[i + 1] += excl_offsets_[i];
-  excl_.resize(excl_offsets_.back());
+  for (std::size_t i = 2; i < rows + 2; ++i) offsets[i] += offsets[i - 1];
+  excl_.resize(static_cast<std::size_t>(offsets[rows + 1]));
+  int* const excl = excl_.data();
   for (const SpecialPair& p : pairs) {
-    excl_[excl_offsets_[p.i]++] = p.j;
-    excl_[excl_offsets_[p.j]++] = p.i;
+    excl[offsets[p.i + 1]++] = p.j;
+    excl[offsets[p.j + 1]++] = p.i;
   }
-  for (int i = num_particles; i > 0; --i) excl_offsets_[i] = excl_offsets_[i - 1];
-  excl_offsets_[0] = 0;
-  // Pairs sorted by (i, j), as special_pairs gives them, leave each row sorted already.
-  for (int i = 0; i < num_particles; ++i) {
-    const auto first = excl_.begin() + excl_offsets_[i], last = excl_.begin() + excl_offsets_[i + 1];
-    if (!std::is_sorted(first, last)) std::sort(first, last);
-  }
+  excl_offsets_.resize(rows + 1);  // keeps the capacity
+  if (!ordered)
+    for (std::size_t i = 0; i < rows; ++i) std::sort(excl_.begin() + offsets[i], excl_.begin() + offsets[i + 1]);
   built_ = false;
 }
 
@@ -893,12 +955,21 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
   cell_particles_.resize(stride);
   cell_x_.resize(3 * stride);
+  // A periodic axis with fewer than 3 cells: the small-box search, which reads each cell's
+  // particles in increasing index.
+  small_box_ = false;
+  for (int a = 0; a < 3; ++a)
+    if (box.periodic[a] && ncell_[a] < 3) small_box_ = true;
   // Each particle's image and cell on the threads (independent per particle), counted per block;
   // then the cells' starts and the counting sort's scatter (counting_sort.hpp), which keeps each
-  // cell's particles in increasing index for any number of blocks.
+  // cell's particles in increasing index for any number of blocks. With halo flags (and the
+  // half-stencil search) the key is 2 × cell + flag: a cell's home beads, in increasing index,
+  // then its halo beads, in increasing index, and the search takes the home ones as a prefix
+  // (cell_home_) rather than reading a flag per candidate.
+  const char* const halo = ghost_.empty() || small_box_ ? nullptr : ghost_.data();
   const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
   const int parts = threads_for(n);
-  cell_sort_.begin(parts, ncells);
+  cell_sort_.begin(parts, halo ? 2 * ncells : ncells);
   const BinGrid grid{{lo[0], lo[1], lo[2]},
                      {inv_len[0], inv_len[1], inv_len[2]},
                      {len[0], len[1], len[2]},
@@ -909,13 +980,27 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 #if defined(__x86_64__)
     static const bool sse41 = __builtin_cpu_supports("sse4.1");
     if (sse41) {
-      bin_particles_sse41(grid, x.data(), first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
+      bin_particles_sse41(grid, x.data(), halo, first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
       return;
     }
 #endif
-    bin_particles(grid, x.data(), first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
+    bin_particles(grid, x.data(), halo, first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
   });
-  cell_sort_.starts(cell_start_.data());
+  if (halo) {
+    key_start_.resize(2 * static_cast<std::size_t>(ncells) + 1);
+    cell_home_.resize(static_cast<std::size_t>(ncells));
+    cell_sort_.starts(key_start_.data());
+    parallel_blocks(ncells, parts, [&](std::int64_t b, std::int64_t e) {
+      const int* const ks = key_start_.data();
+      for (std::int64_t c = b; c < e; ++c) {
+        cell_start_[c] = ks[2 * c];
+        cell_home_[c] = ks[2 * c + 1] - ks[2 * c];
+      }
+    });
+    cell_start_[ncells] = n;
+  } else {
+    cell_sort_.starts(cell_start_.data());
+  }
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     auto cursor = cell_sort_.cursor(u);
     double* const cx = cell_x_.data();
@@ -928,10 +1013,8 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
     }
   });
 
-  small_box_ = false;
   for (int a = 0; a < 3; ++a) {
     const int m = ncell_[a];
-    if (box.periodic[a] && m < 3) small_box_ = true;
     adjacent_[a].resize(3 * static_cast<std::size_t>(m));
     adjacent_shift_[a].resize(3 * static_cast<std::size_t>(m));
     for (int c = 0; c < m; ++c)
@@ -959,15 +1042,11 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 // into their own pair buffers; the buffers taken in order are the pairs in the order one
 // thread finds them, so the list does not depend on the thread count; each row is then sorted by j
 // (see the top of neighbor_list.hpp), so it does not depend on the search order either: any search
-// that finds the same pairs gives the same list, array for array. Without ghosts the cells are
-// searched by search_columns (above: the copies, the tests and the recording of the hits in one
-// loop, four entries at a time with AVX2).
+// that finds the same pairs gives the same list, array for array. The cells are searched by
+// search_columns (above: the copies, the tests and the recording of the hits in one loop, four
+// entries at a time with AVX2), with ghosts by its form that takes a cell's home beads as a
+// prefix: a home bead's row as one process's, a ghost's against the forward cells' home beads.
 void NeighborList::search_half_stencil(int n, bool have_exclusions) {
-  // The forward neighbours as a cell and four columns of three cells along z: {0, 0, 1}, then
-  // (dx, dy) = (0, 1), (1, −1), (1, 0), (1, 1), each with dz = −1, 0, 1. Cells are numbered
-  // (cx · ny + cy) · nz + cz, so a column's cells are contiguous in the cell order, and so are
-  // their particles — one range of candidates instead of three, unless it wraps in z.
-  static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
   const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
   const double* const cxs = cell_x_.data();  // the cell order's x, y, z (structure of arrays)
@@ -976,25 +1055,8 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
   const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
-  const char* const ghost = ghost_.empty() ? nullptr : ghost_.data();
-  // With ghosts: each cell's count of particles that are not ghosts, and each particle's flag
-  // in the cell order (read contiguously by the split gather below).
-  if (ghost) {
-    const int cells = nx * ny * nz;
-    cell_owned_.resize(static_cast<std::size_t>(cells));
-    ghost_in_cell_order_.resize(static_cast<std::size_t>(n));
-    parallel_blocks(cells, threads_for(n), [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t c = b; c < e; ++c) {
-        int owned = 0;
-        for (int k = cs[c]; k < cs[c + 1]; ++k) {
-          const char g = ghost[cp[k]];
-          ghost_in_cell_order_[k] = g;
-          owned += !g;
-        }
-        cell_owned_[c] = owned;
-      }
-    });
-  }
+  // With halo flags each cell's home beads are a prefix of its range, cell_home_ long (bin).
+  const bool halo = !ghost_.empty();
   // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
   // counts: slabs of whole x-planes balanced poorly (23 planes on data.chain: 12 against 11).
   const int columns = nx * ny;
@@ -1031,51 +1093,15 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     // push_backs wrote too (false sharing).
     std::vector<int>& pi = pair_i_[u];
     std::vector<int>& pj = pair_j_[u];
-    int* to_i = pi.data();
-    int* to_j = pj.data();
-    std::size_t capacity = pi.size(), used = 0;
-    // The candidates of one particle i within the list radius, as particle indices:
-    // written for every candidate and kept by advancing the count, without a branch (about one
-    // candidate in seven is a neighbour, at random: a branch mispredicted often). Then recorded
-    // in the order found, again without a branch: each is written and kept unless it is one of
-    // i's exclusions (a handful of bonded neighbours, read once) or a pair of two ghosts, whose
-    // row min(i, j) is a ghost's. At most n candidates per particle.
+    // One particle's hits, as particle indices (at most n).
     std::vector<int>& hits = hits_[u];
     if (hits.size() < static_cast<std::size_t>(n) + kCellPadding)
       hits.resize(static_cast<std::size_t>(n) + kCellPadding);
     int* const hit = hits.data();
     int* const row_count = row_sort_.clear(u);  // the part's pairs per row, for the CSR sort
-    auto record_hits = [&](int i, int count) {
-      if (used + count > capacity) {  // rare: the buffers grow geometrically, then stay
-        capacity = std::max(2 * capacity, used + count + 1024);
-        pi.resize(capacity);
-        pj.resize(capacity);
-        to_i = pi.data();
-        to_j = pj.data();
-      }
-      const int* first = excl_.data();
-      const int* last = first;
-      if (have_exclusions) {
-        first += excl_offsets_[i];
-        last += excl_offsets_[i + 1];
-      }
-      std::size_t kept = used;
-      const bool i_ghost = ghost && ghost[i];
-      for (int h = 0; h < count; ++h) {
-        const int j = hit[h];
-        bool keep = true;
-        for (const int* e = first; e != last; ++e) keep &= *e != j;
-        if (i_ghost) keep &= !ghost[j];
-        const int row = std::min(i, j);
-        to_i[kept] = row;
-        to_j[kept] = std::max(i, j);
-        row_count[row] += keep;
-        kept += keep;
-      }
-      used = kept;
-    };
-    // One cell's candidates (search_columns), each array padded (kCellPadding): the copies and the tests read and write
-    // whole groups of four.
+    // One cell's candidates (search_columns), each array padded (kCellPadding): the copies and
+    // the tests read and write whole groups of four. With halo flags a second set for the
+    // forward cells' home beads, the candidates of the cell's halo beads.
     CandidateScratch& sc = scratch_[u];
     if (sc.x.size() < stride) {
       sc.x.resize(stride);
@@ -1083,133 +1109,11 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
       sc.z.resize(stride);
       sc.k.resize(stride);
     }
-    if (ghost && sc.gx.size() < stride) {
+    if (halo && sc.gx.size() < stride) {
       sc.gx.resize(stride);
       sc.gy.resize(stride);
       sc.gz.resize(stride);
       sc.gk.resize(stride);
-    }
-    double* __restrict const gxs = sc.x.data();
-    double* __restrict const gys = sc.y.data();
-    double* __restrict const gzs = sc.z.data();
-    int* __restrict const gks = sc.k.data();
-    int total = 0;
-    // With ghosts: only the cells that hold a particle that is not a ghost (an owned one) are
-    // searched, and no pair of two ghosts is tested. A cell's owned particles are tested against
-    // the later ones of the cell, every particle of its forward cells (as without ghosts), and the
-    // ghosts of its backward cells — the cells whose forward cell it is, which the search
-    // without ghosts would visit for those ghosts. Every pair with an owned particle is tested
-    // once, and as that search tests it: d = x_i − (x_j + shift), i in the cell whose forward
-    // cell holds j, the shift the one that brings j's cell next to i's (a pair within one cell
-    // may swap i and j, which negates d exactly). The same pairs pass the same test, and the rows
-    // are sorted after: the list is the one without ghosts less its pairs of two ghosts.
-    if (ghost) {
-      double* __restrict const hxs = sc.gx.data();  // the ghosts among the candidates
-      double* __restrict const hys = sc.gy.data();
-      double* __restrict const hzs = sc.gz.data();
-      int* __restrict const hks = sc.gk.data();
-      const char* __restrict const ghost_at = ghost_in_cell_order_.data();
-      int ghost_total = 0;
-      // The forward candidates: the owned ones in gxs …, the ghosts in hxs …, each written to both
-      // and kept in one by advancing that count, without a branch.
-      auto gather_split = [&](int first, int last, double sx, double sy, double sz) {
-        double* __restrict const to_x = gxs + total;
-        double* __restrict const to_y = gys + total;
-        double* __restrict const to_z = gzs + total;
-        int* __restrict const to_k = gks + total;
-        double* __restrict const to_gx = hxs + ghost_total;
-        double* __restrict const to_gy = hys + ghost_total;
-        double* __restrict const to_gz = hzs + ghost_total;
-        int* __restrict const to_gk = hks + ghost_total;
-        int h = 0, g = 0;
-        for (int k2 = first; k2 < last; ++k2) {
-          const double px = cxs[k2] + sx, py = cys[k2] + sy, pz = czs[k2] + sz;
-          to_x[h] = px, to_y[h] = py, to_z[h] = pz, to_k[h] = cp[k2];
-          to_gx[g] = px, to_gy[g] = py, to_gz[g] = pz, to_gk[g] = cp[k2];
-          const int is_ghost = ghost_at[k2];
-          h += 1 - is_ghost;
-          g += is_ghost;
-        }
-        total += h;
-        ghost_total += g;
-      };
-      auto gather_split_cell = [&](int gx, int gy, int gz, double sx, double sy, double sz) {
-        if (gx < 0 || gy < 0 || gz < 0) return;  // past an open edge
-        const int cell = (gx * ny + gy) * nz + gz;
-        gather_split(cs[cell], cs[cell + 1], sx, sy, sz);
-      };
-      // The backward cells' ghosts, as they sit (x_i of the test), by cell: each with the shift
-      // that brings the searched cell next to it.
-      struct Segment {
-        int first, last;
-        double sx, sy, sz;
-      };
-      std::array<Segment, 13> back;
-      // The 13 forward offsets (the stencil above): a backward cell is c − o for each.
-      static constexpr int kForward[13][3] = {{0, 0, 1},  {0, 1, -1}, {0, 1, 0},  {0, 1, 1}, {1, -1, -1},
-                                              {1, -1, 0}, {1, -1, 1}, {1, 0, -1}, {1, 0, 0}, {1, 0, 1},
-                                              {1, 1, -1}, {1, 1, 0},  {1, 1, 1}};
-      for (int column = first_column[u]; column < first_column[u + 1]; ++column) {
-        const int cx = column / ny, cy = column % ny;
-        for (int cz = 0; cz < nz; ++cz) {
-          const int c = (cx * ny + cy) * nz + cz;
-          const int owned_here = cell_owned_[c];
-          if (owned_here == 0) continue;
-          total = 0;
-          ghost_total = 0;
-          gather_split(cs[c], cs[c + 1], 0.0, 0.0, 0.0);  // the cell's own first
-          gather_split_cell(cx, cy, adjacent_[2][3 * cz + 2], 0.0, 0.0, adjacent_shift_[2][3 * cz + 2]);
-          for (const auto& col : kColumns) {
-            const int gx = adjacent_[0][3 * cx + col[0] + 1], gy = adjacent_[1][3 * cy + col[1] + 1];
-            if (gx < 0 || gy < 0) continue;
-            const double sx = adjacent_shift_[0][3 * cx + col[0] + 1], sy = adjacent_shift_[1][3 * cy + col[1] + 1];
-            if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
-              const int base = (gx * ny + gy) * nz;
-              gather_split(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
-            } else {
-              for (int dz = 0; dz < 3; ++dz)
-                gather_split_cell(gx, gy, adjacent_[2][3 * cz + dz], sx, sy, adjacent_shift_[2][3 * cz + dz]);
-            }
-          }
-          const int forward_ghosts = ghost_total;
-          int segments = 0;
-          for (const auto& o : kForward) {
-            const int b[3] = {adjacent_[0][3 * cx - o[0] + 1], adjacent_[1][3 * cy - o[1] + 1],
-                              adjacent_[2][3 * cz - o[2] + 1]};
-            if (b[0] < 0 || b[1] < 0 || b[2] < 0) continue;  // past an open edge
-            const int cell = (b[0] * ny + b[1]) * nz + b[2];
-            if (cs[cell + 1] - cs[cell] == cell_owned_[cell]) continue;  // no ghost there
-            Segment& seg = back[segments++];
-            seg.first = ghost_total;
-            for (int k2 = cs[cell]; k2 < cs[cell + 1]; ++k2) {
-              hxs[ghost_total] = cxs[k2], hys[ghost_total] = cys[k2], hzs[ghost_total] = czs[k2];
-              hks[ghost_total] = cp[k2];
-              ghost_total += ghost_at[k2];
-            }
-            seg.last = ghost_total;
-            // The shift the search from cell b gives this cell's particles (forward offset o).
-            seg.sx = adjacent_shift_[0][3 * b[0] + o[0] + 1];
-            seg.sy = adjacent_shift_[1][3 * b[1] + o[1] + 1];
-            seg.sz = adjacent_shift_[2][3 * b[2] + o[2] + 1];
-          }
-          // The three tests through test_candidates (four candidates at a time where the CPU has
-          // AVX2), as the search without ghosts. A backward ghost is tested as x_i + shift − x_j,
-          // the negative of x_j − (x_i + shift) exactly: the same squares, the same hits.
-          for (int m = 0; m < owned_here; ++m) {
-            const double xi = gxs[m], yi = gys[m], zi = gzs[m];
-            int found = test_candidates(xi, yi, zi, gxs, gys, gzs, gks, m + 1, total, rlist2, hit);
-            found += test_candidates(xi, yi, zi, hxs, hys, hzs, hks, 0, forward_ghosts, rlist2, hit + found);
-            for (int q = 0; q < segments; ++q) {
-              const Segment& seg = back[q];
-              found += test_candidates(xi + seg.sx, yi + seg.sy, zi + seg.sz, hxs, hys, hzs, hks, seg.first, seg.last,
-                                       rlist2, hit + found);
-            }
-            record_hits(gks[m], found);
-          }
-        }
-      }
-      pair_count_[u] = used;
-      return;
     }
     HalfStencilPart part{cxs,
                          cys,
@@ -1223,24 +1127,37 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
                          rlist2,
                          first_column[u],
                          first_column[u + 1],
-                         gxs,
-                         gys,
-                         gzs,
-                         gks,
+                         sc.x.data(),
+                         sc.y.data(),
+                         sc.z.data(),
+                         sc.k.data(),
                          hit,
                          have_exclusions ? excl_offsets_.data() : nullptr,
                          excl_.data(),
                          row_count,
                          &pi,
                          &pj,
-                         used};
+                         0,
+                         halo ? cell_home_.data() : nullptr,
+                         sc.gx.data(),
+                         sc.gy.data(),
+                         sc.gz.data(),
+                         sc.gk.data()};
 #if defined(__x86_64__)
     static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
-    if (avx2)
-      search_columns_avx2(part);
-    else
+    if (avx2) {
+      if (halo)
+        search_columns_halo_avx2(part);
+      else
+        search_columns_avx2(part);
+    } else
 #endif
-      search_columns_portable(part);
+    {
+      if (halo)
+        search_columns_halo_portable(part);
+      else
+        search_columns_portable(part);
+    }
     pair_count_[u] = part.used;
   });
 
@@ -1398,7 +1315,7 @@ void NeighborList::release() {
   built_ = false;
   // Swapped with empty containers: clear() would keep the capacity.
   auto free = [](auto& c) { std::remove_reference_t<decltype(c)>().swap(c); };
-  free(cell_owned_), free(ghost_in_cell_order_), free(offsets_), free(neighbors_), free(fast_), free(cell_of_);
+  free(cell_home_), free(key_start_), free(offsets_), free(neighbors_), free(fast_), free(cell_of_);
   free(cell_start_), free(cell_particles_), free(pair_i_), free(pair_j_), free(pair_count_), free(hits_);
   free(scratch_);
   for (int a = 0; a < 3; ++a) free(adjacent_[a]), free(adjacent_shift_[a]);

@@ -17,10 +17,11 @@
 //
 // Ghosts (set_ghosts): under domain decomposition a rank holds its own particles and copies of
 // other ranks' particles near its domain, the ghosts, whose forces it ignores. A pair of two
-// ghosts then only costs time, so it is never listed, nor tested: the search visits only the
-// cells that hold an owned particle, and tests its owned particles against the ghosts of the
-// cells around, each pair as the search without ghosts tests it. Every other pair is listed, as
-// without ghosts: the list is the one without ghosts less its pairs of two ghosts, row by row.
+// ghosts then only costs time, so it is never listed, nor tested: the cells hold their owned
+// particles first, then their ghosts; an owned particle's row is searched as without ghosts, a
+// ghost's only against the owned particles of the forward cells, each pair as the search without
+// ghosts tests it. Every other pair is listed, as without ghosts: the list is the one without
+// ghosts less its pairs of two ghosts, row by row.
 //
 // Each row is sorted (increasing j), and the pair loop reads positions wrapped at the call: a
 // particle's pair forces are then the same sums, bit for bit, whenever and on whichever particle
@@ -286,11 +287,11 @@ class NeighborList {
   bool built_ = false;
   bool positions_wrapped_ = false;  // set_positions_wrapped
   RebuildAgreement agree_;
-  int next_verdict_ = -1;                  // set_next_verdict's, for the next update only (−1: none)
-  double displacement_limit_ = 0.0;        // set_displacement_limit's (0: the skin)
-  std::vector<char> ghost_;                // set_ghosts (empty: none)
-  std::vector<int> cell_owned_;            // the search's scratch: per cell, its particles that are not ghosts
-  std::vector<char> ghost_in_cell_order_;  // the search's scratch: ghost_ in the cell order
+  int next_verdict_ = -1;            // set_next_verdict's, for the next update only (−1: none)
+  double displacement_limit_ = 0.0;  // set_displacement_limit's (0: the skin)
+  std::vector<char> ghost_;          // set_ghosts (empty: none)
+  std::vector<int> cell_home_;       // with ghosts, per cell: its particles that are not (a prefix)
+  std::vector<int> key_start_;       // with ghosts, bin's scratch: the starts by (cell, flag)
 
   // The list (CSR) and the state it was built for.
   std::vector<std::int64_t> offsets_;
@@ -305,7 +306,8 @@ class NeighborList {
   std::vector<int> excl_;
 
   // Cell list of the last build: particles of cell c are cell_particles_[cell_start_[c] …
-  // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order), and their
+  // cell_start_[c+1] − 1], in increasing index (a counting sort keeps the order; with ghosts and
+  // the half-stencil search, the owned ones in increasing index, then the ghosts), and their
   // positions, wrapped into the box on periodic axes, are cell_x_ in the same order, so the
   // search reads neighbouring particles from contiguous memory: the x coordinates, then the y,
   // then the z (structure of arrays), each n + kCellPadding long, so that the search copies a
@@ -314,7 +316,7 @@ class NeighborList {
   Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
   double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
   mutable std::vector<std::vector<int>> fast_;  // needs_rebuild's scratch: per part, the fast particles
-  std::vector<int> cell_of_;                    // flattened cell index per particle
+  std::vector<int> cell_of_;                    // per particle, its cell (bin: with ghosts, 2 × cell + flag)
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
   Eigen::Matrix3Xd image_;        // per particle, index order: L·floor((x − origin)/L) at build

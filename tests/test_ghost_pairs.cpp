@@ -118,6 +118,40 @@ void expect_full_rows_less_ghost_pairs(const NeighborList& ghosts, const Neighbo
   EXPECT_EQ(ghosts.num_pairs() + ghost_pairs, full.num_pairs());
 }
 
+// set_exclusions reads the pairs as special_pairs gives them (i < j, increasing (i, j)), whose
+// rows come out sorted, and sorts the rows of any other order: the pairs shuffled, with i and j
+// swapped, give the same list, and on a new particle set (a pair set moved onto) the rows of the
+// new set only.
+TEST(NeighborListExclusions, PairsInAnyOrderGiveTheSameList) {
+  const System s = lattice(17, Eigen::Vector3i::Ones(), true, 9);
+  const std::vector<SpecialPair> sorted = special_pairs(s.size(), s.bonds, kWeights);
+  ASSERT_GT(sorted.size(), 1000u);
+  std::vector<SpecialPair> shuffled = sorted;
+  std::mt19937 rng(4);
+  std::shuffle(shuffled.begin(), shuffled.end(), rng);
+  for (std::size_t k = 0; k < shuffled.size(); k += 2) std::swap(shuffled[k].i, shuffled[k].j);
+  NeighborList a(kCutoff, kSkin), b(kCutoff, kSkin), none(kCutoff, kSkin);
+  a.set_exclusions(s.size(), sorted);
+  b.set_exclusions(2 * s.size(), shuffled);  // first on a larger set, then on this one
+  b.set_exclusions(s.size(), shuffled);
+  a.build(s.x, s.box);
+  b.build(s.x, s.box);
+  none.build(s.x, s.box);
+  for (int i = 0; i < s.size(); ++i) ASSERT_EQ(row(a, i), row(b, i)) << "row " << i;
+  EXPECT_EQ(a.num_pairs(), b.num_pairs());
+  auto listed = [](const NeighborList& list, int i, int j) {
+    const std::vector<int> r = row(list, std::min(i, j));
+    return std::find(r.begin(), r.end(), std::max(i, j)) != r.end();
+  };
+  std::size_t excluded_listed = 0;
+  for (const SpecialPair& p : sorted) {
+    EXPECT_FALSE(listed(a, p.i, p.j));
+    excluded_listed += listed(none, p.i, p.j);
+  }
+  EXPECT_GT(excluded_listed, 0u);
+  EXPECT_EQ(a.num_pairs() + excluded_listed, none.num_pairs());
+}
+
 using test::ThreadCount;
 
 TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
@@ -274,6 +308,108 @@ TEST(GhostPairs, PairSetListOnTheBoxsCellsIsTheWholeListRestrictedToIt) {
       }
   }
   EXPECT_EQ(compared, 12);
+}
+
+// The search with halo flags takes each cell's home beads as a prefix of its range and searches a
+// halo bead's row only against the forward cells' home beads. Whatever the flags' pattern — each
+// bead a halo bead at random (few, half, most), halo beads in clusters (cells of home beads only,
+// of halo beads only, and mixed), every bead but a few — and whatever the box — periodic, open on
+// one axis or all, a periodic axis or all of them under 3 list radii (the small-box searches), a
+// box of one or two cells along an open axis — the list with the flags is, row by row and in the
+// same order, the list of the same positions without them less its pairs of two halo beads, on 1
+// to 3 threads. Both lists are binned on the same cells here (a dense melt: fewer than 2 cells per
+// bead), so every pair is tested by both as one process tests it: a pair dropped, one of two halo
+// beads kept, or a row out of order fails.
+TEST(GhostPairs, HaloSearchOfAnyFlagsIsTheListWithoutThemLessThePairsOfTwoHaloBeads) {
+  const double cutoff = std::pow(2.0, 1.0 / 6.0), skin = 0.4;
+  struct BoxCase {
+    const char* name;
+    Eigen::Vector3d lengths;
+    Eigen::Vector3i periodic;
+  };
+  const BoxCase boxes[] = {
+      {"periodic, 11 cells per axis", {17.0, 17.0, 17.0}, {1, 1, 1}},
+      {"open along z", {17.0, 17.0, 17.0}, {1, 1, 0}},
+      {"open on every axis", {17.0, 17.0, 17.0}, {0, 0, 0}},
+      {"periodic, z under 3 list radii", {17.0, 17.0, 4.2}, {1, 1, 1}},
+      {"periodic in x, y, open z under 3 list radii", {17.0, 17.0, 4.2}, {1, 1, 0}},
+      {"open z of one cell", {17.0, 17.0, 1.4}, {1, 1, 0}},
+      {"periodic box under 3 list radii", {4.2, 4.2, 4.2}, {1, 1, 1}},
+      {"open box under 3 list radii", {4.2, 4.2, 4.2}, {0, 0, 0}},
+  };
+  enum class Flags { few, half, most, clusters, all_but_a_few };
+  int compared = 0;
+  for (const BoxCase& b : boxes)
+    for (const Flags flags : {Flags::few, Flags::half, Flags::most, Flags::clusters, Flags::all_but_a_few}) {
+      std::mt19937 rng(11 + 7 * compared);
+      System s;
+      s.box.lengths = b.lengths;
+      s.box.periodic = b.periodic;
+      const int n = static_cast<int>(0.85 * b.lengths.prod());
+      std::uniform_real_distribution<double> u(0.0, 1.0);
+      s.x.resize(3, n);
+      for (int i = 0; i < n; ++i)
+        for (int a = 0; a < 3; ++a) s.x(a, i) = u(rng) * b.lengths[a];
+      for (int i = 0; i + 1 < n; ++i)
+        if (i % 5 != 4) s.bonds.push_back({i, i + 1, 0});  // chains of five: exclusions
+      std::vector<Eigen::Vector3d> centres(6);
+      for (auto& c : centres) c = Eigen::Vector3d(u(rng), u(rng), u(rng)).cwiseProduct(b.lengths);
+      const double cluster = std::min(3.0, 0.3 * b.lengths.maxCoeff());  // a cluster's radius
+      s.ghost.assign(n, 0);
+      for (int i = 0; i < n; ++i) {
+        const double p = u(rng);
+        switch (flags) {
+          case Flags::few:
+            s.ghost[i] = p < 0.15;
+            break;
+          case Flags::half:
+            s.ghost[i] = p < 0.5;
+            break;
+          case Flags::most:
+            s.ghost[i] = p < 0.85;
+            break;
+          case Flags::all_but_a_few:
+            s.ghost[i] = i % 40 != 7;
+            break;
+          case Flags::clusters:
+            for (const auto& c : centres) s.ghost[i] |= (s.x.col(i) - c).norm() < cluster;
+            break;
+        }
+      }
+      const int halo = static_cast<int>(std::count(s.ghost.begin(), s.ghost.end(), char{1}));
+      ASSERT_GT(halo, 0) << b.name;
+      ASSERT_LT(halo, n) << b.name;
+      const std::vector<SpecialPair> special = special_pairs(n, s.bonds, kWeights);
+      for (const int threads : {1, 2, 3}) {
+        SCOPED_TRACE(testing::Message() << b.name << ", flags " << static_cast<int>(flags) << ", " << threads
+                                        << " thread(s)");
+        const ThreadCount scope(threads);
+        NeighborList full(cutoff, skin), ghosts(cutoff, skin);
+        full.set_exclusions(n, special);
+        ghosts.set_exclusions(n, special);
+        ghosts.set_ghosts(s.ghost);
+        full.build(s.x, s.box);
+        ghosts.build(s.x, s.box);
+        ASSERT_EQ(ghosts.cells_per_axis(), full.cells_per_axis());
+        std::size_t pairs = 0, halo_pairs = 0;
+        for (int i = 0; i < n; ++i) {
+          std::vector<int> expected;
+          for (const int j : row(full, i)) {
+            if (s.is_ghost(i) && s.is_ghost(j))
+              ++halo_pairs;
+            else
+              expected.push_back(j);
+          }
+          ASSERT_EQ(row(ghosts, i), expected) << "row " << i;
+          pairs += expected.size();
+        }
+        EXPECT_GT(halo_pairs, 0u);
+        EXPECT_GT(pairs, 0u);
+        EXPECT_EQ(ghosts.num_pairs(), pairs);
+      }
+      ++compared;
+    }
+  EXPECT_EQ(compared, 40);
 }
 
 using Lj = LennardJonesPair;
