@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "core/parallel.hpp"
+#include "domain_run_support.hpp"
 #include "engine/domain/decomposition.hpp"
 #include "engine/domain/domain_integrator.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
@@ -192,13 +193,6 @@ TEST_P(PairSetDataOnFakeRanks, EverySlotHoldsItsBeadsTypeChargeAndSpecialPartner
   }
 }
 
-// One thread in the thread that makes it (the fake ranks share the process's OpenMP threads).
-struct OneThread {
-  int was = max_threads();
-  OneThread() { set_max_threads(1); }
-  ~OneThread() { set_max_threads(was); }
-};
-
 // The whole scene's types, charges and pair terms made useless after the start: types A and B
 // swapped (other coefficients, other masses' types), charges NaN, and each whole pair term moved
 // onto those with no special pairs.
@@ -211,53 +205,19 @@ void poison(Scene& sc) {
                      t->uses_charges() ? std::span<const double>(sc.charge) : std::span<const double>(), {}, {});
 }
 
-struct RankRun {
-  bool ok = false;
-  double migrated = 0.0, selections = 0.0;
-  Eigen::Matrix3Xd x, v;  // rank 0: the gathered final state
-};
-
 TEST_P(PairSetDataOnFakeRanks, TheRunIsOneProcesssWithTheWholeTypesChargesAndSpecialPairsPoisoned) {
   const int ranks = GetParam();
-  const OneThread one_thread;
+  const test::OneThread one_thread;  // the scenes' [prepare] too: one thread, as on the ranks
   Scene serial = charged_butane();
-  const double h = serial.integrator.h;
-  {
-    auto method = make_integrator(serial.integrator, *serial.forces, serial.state.inv_mass);
-    std::ostringstream log;
-    method->prepare(serial.state, log);
-    for (int k = 1; k <= kSteps; ++k) take_step(*method, serial.state, h, k, k * h);
-  }
-  std::vector<RankRun> out(static_cast<size_t>(ranks));
-  run_ranks(
-      ranks,
-      [&](const FakeCommunicator& comm) {
-        const OneThread rank_thread;
-        const int me = comm.rank();
-        Scene sc = charged_butane();
-        State s = sc.state;
-        auto d =
-            std::make_unique<DomainIntegrator>(sc, comm, make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass));
-        std::ostringstream log;
-        d->prepare(s, log);
-        d->distribute(s);
-        poison(sc);
-        for (int k = 1; k <= kSteps; ++k) take_step(*d, s, h, k, k * h, false);
-        const DomainReport report = d->report();
-        out[me].migrated = static_cast<double>(report.migrated_molecules);
-        out[me].selections = static_cast<double>(report.redistributions);
-        d->gather(s);
-        if (comm.root()) out[me].x = s.x, out[me].v = s.v;
-        out[me].ok = true;
-      },
-      std::chrono::seconds(120));
-  for (int r = 0; r < ranks; ++r) ASSERT_TRUE(out[r].ok) << "rank " << r;
+  test::run_one_process(serial, kSteps);
+  const test::DomainRun run = test::run_on_fake_ranks(
+      ranks, kSteps, charged_butane, [](int, const DomainIntegrator&, Scene& sc, State&) { poison(sc); });
   if (ranks > 1) {
-    EXPECT_GE(out[0].selections, 3.0) << "the pair sets should be selected again within the run";
-    EXPECT_GE(out[0].migrated, 5.0) << "molecules should migrate within the run";
+    EXPECT_GE(run.selections, 3.0) << "the pair sets should be selected again within the run";
+    EXPECT_GE(run.migrated, 5.0) << "molecules should migrate within the run";
   }
-  EXPECT_TRUE(out[0].x == serial.state.x);
-  EXPECT_TRUE(out[0].v == serial.state.v);
+  EXPECT_TRUE(run.x == serial.state.x);
+  EXPECT_TRUE(run.v == serial.state.v);
 }
 
 INSTANTIATE_TEST_SUITE_P(Ranks, PairSetDataOnFakeRanks, ::testing::Values(1, 2, 3, 4));

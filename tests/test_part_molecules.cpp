@@ -20,6 +20,7 @@
 
 #include "core/parallel.hpp"
 #include "decomposition_fixtures.hpp"
+#include "domain_run_support.hpp"
 #include "engine/domain/domain_integrator.hpp"
 #include "engine/domain/part_molecules.hpp"
 #include "engine/run/run.hpp"
@@ -196,8 +197,8 @@ Scene butane() {
 
 // The whole scene's per-particle arrays and topology made useless: whatever reads them after the
 // start gets NaN masses, charges and frictions, items joining other particles in another order.
-// (The pair terms' halo still reads the whole system's types: docs/parallel.md, "What is not
-// distributed yet"; they are left.)
+// (The pair sets' types, charges and special pairs, carried with the beads, are poisoned in
+// tests/test_pair_set_data.cpp.)
 void poison(Scene& sc, State& s) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const int n = sc.state.size();
@@ -214,12 +215,6 @@ void poison(Scene& sc, State& s) {
   for (Dihedral& d : t.dihedrals) d.l = (d.l + 7) % n;
   std::reverse(t.molecule.begin(), t.molecule.end());
 }
-
-struct RankRun {
-  bool ok = false;
-  double migrated = 0.0;
-  Eigen::Matrix3Xd x, v;  // rank 0: the gathered final state
-};
 
 void expect_part_is_the_whole_cut(const DomainIntegrator& d, const Scene& reference) {
   const Scene& p = d.part_scene();
@@ -238,61 +233,26 @@ void expect_part_is_the_whole_cut(const DomainIntegrator& d, const Scene& refere
   expect_same_topology(p.topology, restricted(reference.topology, ids, reference.topology.molecule));
 }
 
-// One thread in the thread that makes it, as the domains_* ctests run both sides with
-// OMP_NUM_THREADS=1 (tests/test_domains.py): another thread count sums the pair forces in another
-// order, and the fake ranks share the process's OpenMP threads.
-struct OneThread {
-  int was = max_threads();
-  OneThread() { set_max_threads(1); }
-  ~OneThread() { set_max_threads(was); }
-};
-
 class PartsOnFakeRanks : public ::testing::TestWithParam<int> {};
 
 TEST_P(PartsOnFakeRanks, ThePartIsTheWholeCutAndTheRunOneProcesssWithTheWholeArraysPoisoned) {
   const int ranks = GetParam();
-  const OneThread one_thread;
-  // One process: the deck's method on the whole scene, step by step as the Run takes them.
+  const test::OneThread one_thread;  // the scenes' [prepare] too: one thread, as on the ranks
   Scene serial = butane();
-  const double h = serial.integrator.h;
-  {
-    auto method = make_integrator(serial.integrator, *serial.forces, serial.state.inv_mass);
-    std::ostringstream log;
-    method->prepare(serial.state, log);
-    for (int k = 1; k <= kSteps; ++k) take_step(*method, serial.state, h, k, k * h);
-  }
-  std::vector<RankRun> out(static_cast<size_t>(ranks));
-  run_ranks(
-      ranks,
-      [&](const FakeCommunicator& comm) {
-        const OneThread rank_thread;
-        const int me = comm.rank();
-        Scene sc = butane();
-        const Scene reference = butane();  // the same scene, never poisoned
-        State s = sc.state;
-        auto d =
-            std::make_unique<DomainIntegrator>(sc, comm, make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass));
-        std::ostringstream log;
-        d->prepare(s, log);
-        d->distribute(s);
-        expect_part_is_the_whole_cut(*d, reference);
-        poison(sc, s);
-        for (int k = 1; k <= kSteps; ++k) take_step(*d, s, h, k, k * h, false);
-        expect_part_is_the_whole_cut(*d, reference);
-        const DomainReport report = d->report();
-        out[me].migrated = static_cast<double>(report.migrated_molecules);
-        d->gather(s);
-        if (comm.root()) out[me].x = s.x, out[me].v = s.v;
-        out[me].ok = true;
-      },
-      std::chrono::seconds(120));
-  for (int r = 0; r < ranks; ++r) ASSERT_TRUE(out[r].ok) << "rank " << r;
+  test::run_one_process(serial, kSteps);
+  const Scene reference = butane();  // the same scene, never poisoned (read only, by every rank)
+  auto started = [&](int, const DomainIntegrator& d, Scene& sc, State& s) {
+    expect_part_is_the_whole_cut(d, reference);
+    poison(sc, s);
+  };
+  auto ended = [&](int, const DomainIntegrator& d) { expect_part_is_the_whole_cut(d, reference); };
+  const test::DomainRun run = test::run_on_fake_ranks(ranks, kSteps, butane, started, ended);
   if (ranks > 1) {
-    EXPECT_GE(out[0].migrated, 10.0) << "too few molecules migrated to test the carried data";
+    EXPECT_GE(run.migrated, 10.0) << "too few molecules migrated to test the carried data";
   }
   // Bit for bit one process's trajectory.
-  EXPECT_TRUE(out[0].x == serial.state.x);
-  EXPECT_TRUE(out[0].v == serial.state.v);
+  EXPECT_TRUE(run.x == serial.state.x);
+  EXPECT_TRUE(run.v == serial.state.v);
 }
 
 INSTANTIATE_TEST_SUITE_P(Ranks, PartsOnFakeRanks, ::testing::Values(1, 2, 3, 4));
