@@ -620,27 +620,6 @@ int Decomposition::pair_slot(int global) const {
   return it != pair_ids_.end() && *it == global ? static_cast<int>(it - pair_ids_.begin()) : -1;
 }
 
-int Decomposition::pair_slot_around(int global, int near) const {
-  const int n = static_cast<int>(pair_ids_.size());
-  if (near < 0 || near >= n) return pair_slot(global);
-  const int* ids = pair_ids_.data();
-  if (ids[near] == global) return near;
-  // Steps of 1, 2, 4, … from `near` toward `global` until one passes it, then a binary search of
-  // the last step: a few comparisons for a partner a few slots away, log₂ n for any.
-  int lo, hi;  // global's slot, if any, lies in [lo, hi)
-  if (ids[near] < global) {
-    lo = near + 1, hi = near + 1;
-    for (int step = 1; hi < n && ids[hi] < global; step *= 2) lo = hi + 1, hi = near + 2 * step;
-    hi = std::min(hi + 1, n);
-  } else {
-    hi = near, lo = near - 1;
-    for (int step = 1; lo >= 0 && ids[lo] > global; step *= 2) hi = lo, lo = near - 2 * step;
-    lo = std::max(lo, 0);
-  }
-  const int* it = std::lower_bound(ids + lo, ids + hi, global);
-  return it != ids + hi && *it == global ? static_cast<int>(it - ids) : -1;
-}
-
 namespace {
 
 // What owned column k carries to a pair set (Decomposition::set_owned_pair_data), written at w: its

@@ -224,14 +224,13 @@ class Decomposition {
   int num_home() const { return num_home_; }
   const PairBeadData& pair_data() const { return pair_data_; }
   int pair_slot(int global) const;
-  // The same, searched outward from slot `near` (a bonded neighbour's slot: a few slots away, as
-  // the global indices of a molecule's beads are near one another; the next slots looked at
-  // first, inline).
+  // The same, looked for first in the two slots after `near` (a bonded neighbour's slot: the
+  // global indices of a molecule's beads are near one another), then searched.
   int pair_slot_near(int global, int near) const {
     const int n = static_cast<int>(pair_ids_.size());
     if (near + 1 < n && near >= 0 && pair_ids_[near + 1] == global) return near + 1;
     if (near + 2 < n && near >= 0 && pair_ids_[near + 2] == global) return near + 2;
-    return pair_slot_around(global, near);
+    return pair_slot(global);
   }
   bool owns_molecule(int m) const;
   const DomainGrid& grid() const { return grid_; }
@@ -259,8 +258,6 @@ class Decomposition {
   }
 
  private:
-  // pair_slot_near's search: steps of 1, 2, 4, … from `near`, then a binary search.
-  int pair_slot_around(int global, int near) const;
   // The centre of mass of the owned molecule at owned_[i] (its columns of x, the owned masses).
   Eigen::Vector3d owned_anchor(const Eigen::Matrix3Xd& x, int i) const;
   // owned_ and each owned molecule's columns from ids_ and owned_molecule_.

@@ -113,17 +113,12 @@ void GhostedPairs::retarget() const {
   const SpecialPartners& s = carried.special[special_index_];
   const std::vector<int>& ids = domains_.pair_ids();
   for (int e = 0; e < n; ++e) {
-    const size_t first = special_.size();
     for (int q = s.start[e]; q < s.start[e + 1]; ++q) {
       // A partner of a lower global index has a lower slot, if any: its pair is made from there.
       if (s.partner[q] < ids[e]) continue;
       const int t = domains_.pair_slot_near(s.partner[q], e);
       if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
-    // Insertion sort, which finds them sorted: a bead has a handful of special partners (two on a
-    // chain with 1-2 pairs alone), where std::sort's call costs more than the sorting.
-    for (size_t q = first + 1; q < special_.size(); ++q)
-      for (size_t r = q; r > first && special_[r - 1].j > special_[r].j; --r) std::swap(special_[r - 1], special_[r]);
   }
   // A charged term's charges follow the beads as their types do.
   extended_pairs_->move_to(
