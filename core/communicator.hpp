@@ -45,6 +45,15 @@ class Communicator {
   // one (parallel HDF5: engine/io/h5md_writer.cpp); null without MPI.
   virtual const void* native() const { return nullptr; }
 
+  // The wall time this process has spent so far inside the exchanges (exchange, exchange_known:
+  // the halo, the migrations, the selections) and inside the reductions, broadcasts and gathers,
+  // waiting for the other ranks included: what a rank's step loop loses to the others
+  // (docs/parallel.md, "Where two ranks wait"). Zero without MPI.
+  struct Blocked {
+    double exchanges = 0.0, reductions = 0.0;
+  };
+  virtual Blocked blocked() const { return {}; }
+
   // The problem of the lowest rank that has one (`mine`: this rank's, empty for none), on every
   // rank: that rank and its text (rank −1: no rank has one). Collective.
   struct Problem {

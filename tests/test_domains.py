@@ -253,6 +253,17 @@ def check_domain_summary(stiffmd, out, ranks):
     if not (0 < rss <= rss_max and 0 < rss_mean <= rss_max):
         raise SystemExit(f"FAIL: peak_rss_mib {rss}, domains.peak_rss_mib_max {rss_max}, _mean {rss_mean}: "
                          f"expected 0 < rank 0's <= max and 0 < mean <= max")
+    # The time each rank's step loop spent inside MPI's exchanges and reductions (waits for the
+    # other ranks included): measured (every step of a decomposed run has a reduction), part of the
+    # loop, and each max at least its mean.
+    loop = d["rank_loop_seconds_max"]
+    for kind in ("exchange", "reduction"):
+        mean, most = d[f"{kind}_seconds_mean"], d[f"{kind}_seconds_max"]
+        if not (0 <= mean <= most <= loop):
+            raise SystemExit(f"FAIL: {kind}_seconds mean {mean}, max {most} against the loop's {loop}: "
+                             "expected 0 <= mean <= max <= loop")
+    if summary["steps"] > 0 and d["reduction_seconds_max"] <= 0:
+        raise SystemExit(f"FAIL: {summary['steps']} steps on {ranks} ranks spent no time in a reduction")
     # What a rank's pair forces hold is its part's (docs/parallel.md, "What a rank holds"): no rank
     # keeps a neighbour list of the whole system (one that [prepare] relaxed with, or a restart's
     # checkpoint restored, is dropped once the parts exist), unless rank 0 samples the gathered state

@@ -1,5 +1,6 @@
 #include "engine/run/processes.hpp"
 
+#include <chrono>
 #include <cstdlib>
 #include <string>
 
@@ -19,6 +20,19 @@ struct Processes::Group {
 
 namespace {
 
+// Adds the wall time of its scope to `total`: the time inside one MPI call (Communicator::blocked).
+class BlockedTime {
+ public:
+  explicit BlockedTime(double& total) : total_(total), start_(std::chrono::steady_clock::now()) {}
+  ~BlockedTime() { total_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count(); }
+  BlockedTime(const BlockedTime&) = delete;
+  BlockedTime& operator=(const BlockedTime&) = delete;
+
+ private:
+  double& total_;
+  std::chrono::steady_clock::time_point start_;
+};
+
 // The engine's collectives on MPI_COMM_WORLD (core/communicator.hpp).
 class MpiCommunicator final : public Communicator {
  public:
@@ -30,17 +44,33 @@ class MpiCommunicator final : public Communicator {
   int rank() const override { return rank_; }
   int size() const override { return size_; }
   const void* native() const override { return &world_; }
-  void sum(double* v, int n) const override { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD); }
+  Blocked blocked() const override { return blocked_; }
+  void sum(double* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
+    MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD);
+  }
   void sum(std::int64_t* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
     MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_INT64_T, MPI_SUM, MPI_COMM_WORLD);
   }
-  void max(double* v, int n) const override { MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD); }
+  void max(double* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
+    MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+  }
   void min(std::int64_t* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
     MPI_Allreduce(MPI_IN_PLACE, v, n, MPI_INT64_T, MPI_MIN, MPI_COMM_WORLD);
   }
-  void broadcast(std::int64_t* v, int n) const override { MPI_Bcast(v, n, MPI_INT64_T, 0, MPI_COMM_WORLD); }
-  void broadcast(double* v, int n) const override { MPI_Bcast(v, n, MPI_DOUBLE, 0, MPI_COMM_WORLD); }
+  void broadcast(std::int64_t* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
+    MPI_Bcast(v, n, MPI_INT64_T, 0, MPI_COMM_WORLD);
+  }
+  void broadcast(double* v, int n) const override {
+    BlockedTime t(blocked_.reductions);
+    MPI_Bcast(v, n, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  }
   void broadcast(std::string& text, int root) const override {
+    BlockedTime t(blocked_.reductions);
     long long n = static_cast<long long>(text.size());
     MPI_Bcast(&n, 1, MPI_LONG_LONG, root, MPI_COMM_WORLD);
     text.resize(static_cast<size_t>(n));
@@ -49,7 +79,10 @@ class MpiCommunicator final : public Communicator {
   void exchange(const std::vector<std::vector<double>>& send, std::vector<std::vector<double>>& recv) const override {
     std::vector<long long> out(size_), in(size_);
     for (int r = 0; r < size_; ++r) out[r] = static_cast<long long>(send[r].size());
-    MPI_Alltoall(out.data(), 1, MPI_LONG_LONG, in.data(), 1, MPI_LONG_LONG, MPI_COMM_WORLD);
+    {
+      BlockedTime t(blocked_.exchanges);
+      MPI_Alltoall(out.data(), 1, MPI_LONG_LONG, in.data(), 1, MPI_LONG_LONG, MPI_COMM_WORLD);
+    }
     recv.resize(size_);
     for (int r = 0; r < size_; ++r) recv[r].resize(static_cast<size_t>(in[r]));
     exchange_known(send, recv);
@@ -70,11 +103,13 @@ class MpiCommunicator final : public Communicator {
         MPI_Isend(send[r].data(), static_cast<int>(send[r].size()), MPI_DOUBLE, r, kTag, MPI_COMM_WORLD,
                   &requests_.back());
       }
+    BlockedTime t(blocked_.exchanges);
     MPI_Waitall(static_cast<int>(requests_.size()), requests_.data(), MPI_STATUSES_IGNORE);
   }
   void gather(const std::vector<double>& mine, std::vector<std::vector<double>>& all) const override {
     const long long n = static_cast<long long>(mine.size());
     std::vector<long long> counts(size_);
+    BlockedTime t(blocked_.reductions);
     MPI_Gather(&n, 1, MPI_LONG_LONG, counts.data(), 1, MPI_LONG_LONG, 0, MPI_COMM_WORLD);
     std::vector<int> c(size_), offsets(size_);
     long long total = 0;
@@ -92,6 +127,7 @@ class MpiCommunicator final : public Communicator {
   int rank_ = 0, size_ = 1;
   MPI_Comm world_ = MPI_COMM_WORLD;
   mutable std::vector<MPI_Request> requests_;
+  mutable Blocked blocked_;
 };
 
 }  // namespace

@@ -272,11 +272,20 @@ void Run::step_to(std::int64_t k) {
     clock_.resume();
   }
   reset_widest_team();
+  // The time inside MPI's calls during the loop (Communicator::blocked): a rank's waits for the
+  // others, apart from its own work.
+  const Communicator::Blocked blocked = options_.processes ? options_.processes->blocked() : Communicator::Blocked{};
   struct Pause {
     Run& r;
     double entered;
     bool timed;
+    Communicator::Blocked blocked;
     ~Pause() {
+      if (r.options_.processes) {
+        const Communicator::Blocked now = r.options_.processes->blocked();
+        r.loop_blocked_.exchanges += now.exchanges - blocked.exchanges;
+        r.loop_blocked_.reductions += now.reductions - blocked.reductions;
+      }
       if (timed) {
         r.clock_.pause();
         r.parallel_seconds_ += parallel_seconds();
@@ -285,7 +294,7 @@ void Run::step_to(std::int64_t k) {
       r.loop_seconds_ += seconds_now() - entered;
       r.threads_used_ = std::max(r.threads_used_, widest_team());
     }
-  } pause{*this, entered, timed};
+  } pause{*this, entered, timed, blocked};
   while (s_.step < k) {
     if (pending_) {
       pending_ = false;
@@ -329,6 +338,10 @@ const RunSummary& Run::finish() {
     const Communicator& c = *options_.processes;
     summary_.rank_loop_seconds_mean = c.sum(loop_seconds_) / c.size();
     summary_.rank_loop_seconds_max = c.max(loop_seconds_);
+    summary_.rank_exchange_seconds_mean = c.sum(loop_blocked_.exchanges) / c.size();
+    summary_.rank_exchange_seconds_max = c.max(loop_blocked_.exchanges);
+    summary_.rank_reduction_seconds_mean = c.sum(loop_blocked_.reductions) / c.size();
+    summary_.rank_reduction_seconds_max = c.max(loop_blocked_.reductions);
     summary_.rank_peak_rss_mib_mean = c.sum(summary_.peak_rss_mib) / c.size();
     summary_.rank_peak_rss_mib_max = c.max(summary_.peak_rss_mib);
     if (summary_.setup_seconds >= 0.0) {

@@ -156,14 +156,15 @@ class Run {
   int col_total_, col_drift_, col_violation_, col_alerts_, first_action_, num_actions_;
   int col_econserve_ = -1;  // with a thermostat
   std::vector<double> last_row_;
-  Eigen::Matrix3Xd owned_force_;   // a shared H5MD frame's forces of this rank's particles
-  int alerts_ = 0;                 // of the last sample
-  Checkpoint last_good_;           // with on_alert = "stop": the run as of the last sample without alerts
-  Checkpoint now_;                 // snapshot() of the current step, written with the state (no copy)
-  PhaseClock clock_;               // where the step loop's time goes, running inside step_to
-  double loop_seconds_ = 0.0;      // the step loop's wall time, measured apart from the clock
-  double parallel_seconds_ = 0.0;  // of it, inside the engine's parallel loops (core/parallel.hpp)
-  int threads_used_ = 1;           // the most threads a parallel loop of the step loop ran on
+  Eigen::Matrix3Xd owned_force_;        // a shared H5MD frame's forces of this rank's particles
+  int alerts_ = 0;                      // of the last sample
+  Checkpoint last_good_;                // with on_alert = "stop": the run as of the last sample without alerts
+  Checkpoint now_;                      // snapshot() of the current step, written with the state (no copy)
+  PhaseClock clock_;                    // where the step loop's time goes, running inside step_to
+  double loop_seconds_ = 0.0;           // the step loop's wall time, measured apart from the clock
+  Communicator::Blocked loop_blocked_;  // of the loop's time, inside MPI's exchanges and reductions
+  double parallel_seconds_ = 0.0;       // of it, inside the engine's parallel loops (core/parallel.hpp)
+  int threads_used_ = 1;                // the most threads a parallel loop of the step loop ran on
   std::clock_t cpu_start_ = 0;
 };
 

@@ -154,8 +154,12 @@ std::string summary_json(const RunSummary& s) {
     const DomainReport& d = s.domains;
     o << ",\n  \"ranks\": " << d.ranks << ",\n  \"domains\": {\"grid\": [" << d.grid[0] << ", " << d.grid[1] << ", "
       << d.grid[2] << "], \"rank_loop_seconds_mean\": " << s.rank_loop_seconds_mean
-      << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max << ", \"ghosts_per_owned\": " << d.ghosts_per_owned
-      << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
+      << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max
+      << ", \"exchange_seconds_mean\": " << s.rank_exchange_seconds_mean
+      << ", \"exchange_seconds_max\": " << s.rank_exchange_seconds_max
+      << ", \"reduction_seconds_mean\": " << s.rank_reduction_seconds_mean
+      << ", \"reduction_seconds_max\": " << s.rank_reduction_seconds_max
+      << ", \"ghosts_per_owned\": " << d.ghosts_per_owned << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
       << ", \"migrated_molecules\": " << d.migrated_molecules
       << ", \"neighbor_rebuilds_min\": " << d.neighbor_rebuilds_min

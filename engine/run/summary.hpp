@@ -57,6 +57,10 @@ struct RunSummary {
   // A decomposed run (ranks > 1): the step loop's wall time per rank (mean and max: the load
   // imbalance; loop_seconds is the max) and the decomposition's counts.
   double rank_loop_seconds_mean = 0.0, rank_loop_seconds_max = 0.0;
+  // Of each rank's step loop, the time inside MPI's exchanges (the halo, migrations, selections)
+  // and inside its reductions and broadcasts, waits for the other ranks included: mean and max.
+  double rank_exchange_seconds_mean = 0.0, rank_exchange_seconds_max = 0.0;
+  double rank_reduction_seconds_mean = 0.0, rank_reduction_seconds_max = 0.0;
   // Each phase's seconds, mean and max over the ranks (a decomposed run's load imbalance by phase).
   std::vector<double> rank_phase_seconds_mean, rank_phase_seconds_max;
   // Peak resident set in MiB (core/peak_memory.hpp; set-up included): this process's, and in a
