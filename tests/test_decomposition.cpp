@@ -599,7 +599,6 @@ TEST(LoadBalance, AHalfBoxMeltOnFourRanksIsCutIntoEqualSharesAtTheStart) {
 // finds each rank's share within the threshold (and no recut follows).
 TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
   const Melt melt = half_box_melt();
-  const int n = melt.size();
   std::vector<int> home_before(4), home_after(4);
   std::vector<char> recut(4), again(4);
   std::vector<Snapshot> after(4);

@@ -332,6 +332,10 @@ struct NumbersCase {
   std::vector<int> ranks = {1, 2, 3, 4};
 };
 
+void PrintTo(const NumbersCase& c, std::ostream* os) {
+  *os << c.name;
+}
+
 Scene load_case(const NumbersCase& c) {
   Scene sc = test::load(c.deck, c.overrides);
   if (c.join_two_molecules) {
