@@ -95,7 +95,6 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
                                              cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
   domains_->set_balance(whole.parallel.balance);
   evaluations_.assign(whole.forces->num_levels(), 0);
-  charged_ = whole.charged();
   // What the whole system's numbers need of the deck besides the parts (whole_numbers): the
   // method, and whether its terms conserve momentum (each term's own property, not its particles').
   const MethodInfo* m = find_method(whole.integrator.method);
@@ -317,13 +316,17 @@ void DomainIntegrator::start(const State& s) {
 void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
   const Scene& w = whole_scene_;
   molecules_ = std::move(molecules);
-  double frictions = molecules_.friction.empty() ? 0.0 : 1.0;  // a friction per particle, on some rank
-  comm_.max(&frictions, 1);
+  // Over the ranks: whether the particles have a friction each, and whether some has a charge.
+  double some[2] = {
+      molecules_.friction.empty() ? 0.0 : 1.0,
+      std::any_of(molecules_.charge.begin(), molecules_.charge.end(), [](double q) { return q != 0.0; }) ? 1.0 : 0.0};
+  comm_.max(some, 2);
+  charged_ = some[1] > 0.0;
   domains_->start(molecules_, x, v);
   // The method's settings without their per-particle arrays of the whole system (each part sets
   // its own).
   settings_ = w.integrator;
-  per_particle_friction_ = frictions > 0.0;
+  per_particle_friction_ = some[0] > 0.0;
   settings_.thermostat.friction.resize(0);
   settings_.thermostat.particle_id.clear();
   settings_.barostat.molecule.clear();

@@ -146,7 +146,7 @@ class DomainIntegrator final : public Integrator {
   bool box_moved_ = false;              // a barostat moved the cell: the pair sets follow before the next step
   int whole_dof_ = 0;                   // csvr: the whole system's degrees of freedom
   bool molecules_whole_ = true;         // every topology molecule within one bonded molecule
-  bool charged_ = false;                // some particle of the whole system has a charge
+  bool charged_ = false;                // some particle of the whole system has a charge (at the start)
   bool rigid_method_ = false;           // the method holds the stiff bonds rigid
   bool effective_modes_ = false;        // the effective dynamics, with stiff bonds: clusters_
   bool terms_conserve_momentum_ = true;  // every force term of the deck does
