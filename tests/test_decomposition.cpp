@@ -55,27 +55,39 @@ std::string layout_name(const ::testing::TestParamInfo<Layout>& info) {
 struct Snapshot {
   std::vector<int> ids;
   std::vector<int> owned_index;  // per global particle
-  std::vector<char> owns;        // per molecule of the decomposition
-  std::vector<int> molecule_of;  // per global particle
+  std::vector<char> owns;        // per global particle: whether its molecule (by its name) is owned here
+  std::vector<int> molecule_of;  // per global particle: its molecule's name where owned here, else −1
   DomainGrid grid;
   Eigen::Matrix3Xd x, v;
   std::vector<Eigen::Matrix3Xd> carried;
 };
 
-Snapshot snapshot(const Decomposition& d, int n, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
+// A molecule's name, as the decomposition gives it: the first global index of its particles.
+std::vector<int> molecule_names(const Melt& melt) {
+  std::vector<int> name(static_cast<size_t>(melt.size()));
+  for (int m = 0; m < melt.molecules; ++m) {
+    const std::vector<int> members = melt.members(m);
+    for (int g : members) name[g] = members.front();
+  }
+  return name;
+}
+
+Snapshot snapshot(const Decomposition& d, const Melt& melt, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
                   std::vector<Eigen::Matrix3Xd> carried = {}) {
   Snapshot s;
+  const int n = melt.size();
+  const std::vector<int> name = molecule_names(melt);
   s.ids = d.owned_ids();
-  for (int i = 0; i < n; ++i) s.owned_index.push_back(d.owned_index(i)), s.molecule_of.push_back(d.molecule_of(i));
-  for (int m = 0; m < d.num_molecules(); ++m) s.owns.push_back(d.owns_molecule(m));
+  s.molecule_of.assign(static_cast<size_t>(n), -1);
+  for (int i = 0; i < n; ++i) s.owned_index.push_back(d.owned_index(i)), s.owns.push_back(d.owns_molecule(name[i]));
+  for (int k = 0; k < d.num_owned(); ++k) s.molecule_of[s.ids[k]] = d.owned_molecule(k);
   s.grid = d.grid();
   s.x = x, s.v = v, s.carried = std::move(carried);
   return s;
 }
 
 std::unique_ptr<Decomposition> make(const Melt& melt, const Communicator& comm, const Layout& layout) {
-  auto d = std::make_unique<Decomposition>(melt.topology, melt.state.inv_mass, melt.box, comm, kCutoff, kMargin,
-                                           layout.given() ? &layout.dims : nullptr);
+  auto d = std::make_unique<Decomposition>(melt.box, comm, kCutoff, kMargin, layout.given() ? &layout.dims : nullptr);
   if (layout.balanced) d->set_balance({BalanceSettings::When::start, 1.0});
   return d;
 }
@@ -99,11 +111,10 @@ void expect_ownership(const Melt& melt, const std::vector<Snapshot>& ranks, cons
     EXPECT_EQ(s.grid.origin, ranks[0].grid.origin);
     EXPECT_EQ(s.grid.length, ranks[0].grid.length);
   }
-  // The decomposition's molecules are the melt's (the same partition, numbered its own way).
-  for (int i = 0; i < n; ++i)
-    for (int j = i + 1; j < n; ++j)
-      ASSERT_EQ(ranks[0].molecule_of[i] == ranks[0].molecule_of[j], melt.label[i] == melt.label[j])
-          << "particles " << i << ", " << j;
+  // The decomposition's molecules are the melt's, each named by its first particle, on its owner.
+  const std::vector<int> name = molecule_names(melt);
+  for (const Snapshot& s : ranks)
+    for (int g : s.ids) EXPECT_EQ(s.molecule_of[g], name[g]) << "particle " << g;
   std::vector<int> owner_of(n, -1);
   for (int r = 0; r < size; ++r) {
     const Snapshot& s = ranks[r];
@@ -130,7 +141,7 @@ void expect_ownership(const Melt& melt, const std::vector<Snapshot>& ranks, cons
     EXPECT_EQ(owner_of[g], owner[melt.label[g]])
         << "particle " << g << " of molecule " << melt.label[g] << ": not on the rank of its anchor's domain";
     for (int r = 0; r < size; ++r)
-      EXPECT_EQ(ranks[r].owns[ranks[r].molecule_of[g]] != 0, owner_of[g] == r) << "rank " << r << ", particle " << g;
+      EXPECT_EQ(ranks[r].owns[g] != 0, owner_of[g] == r) << "rank " << r << ", particle " << g;
   }
 }
 
@@ -150,10 +161,11 @@ TEST_P(DecompositionOnFakeRanks, DistributeGivesEachMoleculeWholeToTheRankOfItsA
   run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
-    // distribute is each rank's own work (the collective call comes with select_ghosts, next).
+    d->distribute(melt.topology, melt.state, x, v);
+    // The start's collectives: the counts, the anchors' extent, the loads (with a recut also the
+    // histograms and the cut's loads), the molecules' exchange.
     collectives[comm.rank()] = comm.collectives();
-    ranks[comm.rank()] = snapshot(*d, n, x, v);
+    ranks[comm.rank()] = snapshot(*d, melt, x, v);
     std::vector<Eigen::Matrix3Xd> whole;
     d->gather_columns({x, v}, whole, n);
     ASSERT_EQ(whole.size(), 2u);
@@ -164,7 +176,7 @@ TEST_P(DecompositionOnFakeRanks, DistributeGivesEachMoleculeWholeToTheRankOfItsA
     EXPECT_TRUE(same(whole[0], melt.state.x));
     EXPECT_TRUE(same(whole[1], melt.state.v));
   });
-  for (long c : collectives) EXPECT_EQ(c, 0);
+  for (long c : collectives) EXPECT_EQ(c, layout.balanced ? 6 : 4);
   const DomainGrid& grid = ranks[0].grid;
   EXPECT_EQ(grid.dims.prod(), layout.ranks);
   if (layout.given()) {
@@ -270,8 +282,8 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
     const int me = comm.rank();
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
-    before[me] = snapshot(*d, n, x, v);
+    d->distribute(melt.topology, melt.state, x, v);
+    before[me] = snapshot(*d, melt, x, v);
     moves[me] = plan_moves(melt, d->grid());  // the same on every rank
     Eigen::Matrix3Xd mine1(3, d->num_owned()), mine2(3, d->num_owned());
     for (int k = 0; k < d->num_owned(); ++k) {
@@ -280,7 +292,7 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
       mine1.col(k) = c1.col(g), mine2.col(k) = c2.col(g);
     }
     changed[me] = d->migrate(x, v, {&mine1, &mine2});
-    after[me] = snapshot(*d, n, x, v, {mine1, mine2});
+    after[me] = snapshot(*d, melt, x, v, {mine1, mine2});
     // Nothing moved since: nothing changes.
     changed_again[me] = d->migrate(x, v, {&mine1, &mine2});
     EXPECT_EQ(d->owned_ids(), after[me].ids);
@@ -329,7 +341,7 @@ TEST_P(DecompositionOnFakeRanks, FirstNonFiniteIsTheFirstOwnedBeadWithANonFinite
   run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
+    d->distribute(melt.topology, melt.state, x, v);
     const int owned = d->num_owned();
     EXPECT_EQ(d->first_non_finite(x, v), -1);
     if (owned < 3) return;
@@ -386,7 +398,7 @@ TEST_P(DecompositionOnFakeRanks, PairSetsHoldTheBeadsNearTheirDomainAndMoveXOutA
     const int me = comm.rank();
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
+    d->distribute(melt.topology, melt.state, x, v);
     d->select_pair_set(x);
     PairSet& s = sets[me];
     s.ids = d->pair_ids(), s.halo = d->halo_flags(), s.home = d->num_home();
@@ -555,8 +567,8 @@ TEST(LoadBalance, AHalfBoxMeltOnFourRanksIsCutIntoEqualSharesAtTheStart) {
       auto d = make(melt, comm, Layout{4, {0, 0, 0}});
       d->set_balance({when, 1.1});
       Eigen::Matrix3Xd x, v;
-      d->distribute(melt.state, x, v);
-      collectives[comm.rank()] = comm.collectives();  // the recut is each rank's own, alike
+      d->distribute(melt.topology, melt.state, x, v);
+      collectives[comm.rank()] = comm.collectives();  // the recut from the counts summed over the ranks
       d->select_pair_set(x);
       home[comm.rank()] = d->num_home();
       before[comm.rank()] = d->imbalance_before(), after[comm.rank()] = d->imbalance(x);
@@ -566,7 +578,7 @@ TEST(LoadBalance, AHalfBoxMeltOnFourRanksIsCutIntoEqualSharesAtTheStart) {
     const bool cut = when == BalanceSettings::When::start;
     EXPECT_EQ(grid.dims, Eigen::Vector3i(2, 1, 2));
     for (int r = 0; r < 4; ++r) {
-      EXPECT_EQ(collectives[r], 0);
+      EXPECT_EQ(collectives[r], cut ? 6 : 4);
       EXPECT_GT(before[r], 1.5) << "the equal slabs: two domains hold the melt";
       EXPECT_EQ(after[r], after[0]);
       EXPECT_EQ(recuts[r], cut ? 1 : 0);
@@ -587,7 +599,6 @@ TEST(LoadBalance, AHalfBoxMeltOnFourRanksIsCutIntoEqualSharesAtTheStart) {
 // finds each rank's share within the threshold (and no recut follows).
 TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
   const Melt melt = half_box_melt();
-  const int n = melt.size();
   std::vector<int> home_before(4), home_after(4);
   std::vector<char> recut(4), again(4);
   std::vector<Snapshot> after(4);
@@ -596,7 +607,7 @@ TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
     const int me = comm.rank();
     auto d = make(melt, comm, Layout{4, {0, 0, 0}});
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);  // the balance off: equal slabs
+    d->distribute(melt.topology, melt.state, x, v);  // the balance off: equal slabs
     d->set_balance({BalanceSettings::When::dynamic, 1.1});
     d->select_pair_set(x);
     home_before[me] = d->num_home();
@@ -605,7 +616,7 @@ TEST(LoadBalance, DynamicRecutAtASelectionMovesTheMoleculesToTheNewDomains) {
     d->select_pair_set(x);
     home_after[me] = d->num_home();
     again[me] = d->rebalance(x);
-    after[me] = snapshot(*d, n, x, v);
+    after[me] = snapshot(*d, melt, x, v);
     if (comm.root()) grid = d->grid();
   });
   EXPECT_GT(home_imbalance(home_before), 1.5);
@@ -675,7 +686,7 @@ void expect_forward_and_reverse_exact(const Melt& melt, const Layout& layout) {
     const int me = comm.rank();
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
+    d->distribute(melt.topology, melt.state, x, v);
     d->select_pair_set(x);
     const BoxWrap into_box(melt.box);
     const std::vector<int>& ids = d->pair_ids();

@@ -157,9 +157,9 @@ TEST_P(LammpsParts, EachRankKeepsTheMoleculesDecompositionGivesItAndThePartsTile
   std::vector<ImportedPart> parts(ranks);
   std::vector<std::vector<int>> owned(ranks);
   fake::run_ranks(ranks, [&](const Communicator& comm) {
-    Decomposition d(w.topology, w.state.inv_mass, w.box, comm, 2.5, 0.8, nullptr);
+    Decomposition d(w.box, comm, 2.5, 0.8, nullptr);
     Eigen::Matrix3Xd x, v;
-    d.distribute(w.state, x, v);
+    d.distribute(w.topology, w.state, x, v);
     owned[comm.rank()] = d.owned_ids();
     const DomainGrid grid = d.grid();
     parts[comm.rank()] = read_lammps_data_part(

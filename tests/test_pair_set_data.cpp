@@ -148,9 +148,9 @@ TEST_P(PairSetDataOnFakeRanks, EverySlotHoldsItsBeadsTypeChargeAndSpecialPartner
     if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff());
   std::vector<long> held(static_cast<size_t>(ranks), 0);  // per rank, the beads another rank owns
   run_ranks(ranks, [&](const FakeCommunicator& comm) {
-    Decomposition d(sc.topology, sc.state.inv_mass, sc.box, comm, cutoff, 0.45, nullptr);
+    Decomposition d(sc.box, comm, cutoff, 0.45, nullptr);
     Eigen::Matrix3Xd x, v;
-    d.distribute(sc.state, x, v);
+    d.distribute(sc.topology, sc.state, x, v);
     d.set_owned_pair_data(carried_by_part(sc, d.owned_ids()));
     // Twice: the second selection reuses the pair set's buffers.
     for (int selection = 0; selection < 2; ++selection) {

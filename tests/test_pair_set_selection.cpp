@@ -114,13 +114,13 @@ Outcome expect_one_process_forces(const Walk& walk, int ranks, const Eigen::Vect
   std::vector<Outcome> outcome(ranks);
   run_ranks(ranks, [&](const FakeCommunicator& comm) {
     const test::ThreadCount one_here(1);
-    Decomposition d(walk.topology, walk.inv_mass, walk.box, comm, kCutoff, margin, &dims);
+    Decomposition d(walk.box, comm, kCutoff, margin, &dims);
     State whole;
     whole.x = walk.x[0];
     whole.v = Eigen::Matrix3Xd::Zero(3, n);
     whole.inv_mass = walk.inv_mass;
     Eigen::Matrix3Xd x, v;
-    d.distribute(whole, x, v);
+    d.distribute(walk.topology, whole, x, v);
     // What the owned beads carry to the pair sets: type 0, the whole term's special partners.
     PairBeadData owned;
     owned.type.assign(d.num_owned(), 0);

@@ -174,25 +174,9 @@ DomainGrid make_domain_grid(const Box& box, int ranks, const Eigen::Vector3i* di
   return g;
 }
 
-Decomposition::Decomposition(const Topology& topology, const Eigen::VectorXd& inv_mass, const Box& box,
-                             const Communicator& comm, double cutoff, double margin, const Eigen::Vector3i* dims)
-    : comm_(comm),
-      box_(box),
-      num_particles_(static_cast<int>(inv_mass.size())),
-      radius_(cutoff + margin),
-      margin_(margin) {
-  const int n = num_particles_;
-  // Molecules (bonded_molecules): pinned particles join too (a term acts on all its particles), so a
-  // molecule may hold several constraint clusters (integrators/clusters.hpp).
-  molecule_ = bonded_molecules(topology, n);
-  int molecules = 0;
-  for (int m : molecule_) molecules = std::max(molecules, m + 1);
-  molecule_start_.assign(molecules + 1, 0);
-  for (int i = 0; i < n; ++i) ++molecule_start_[molecule_[i] + 1];
-  for (int m = 0; m < molecules; ++m) molecule_start_[m + 1] += molecule_start_[m];
-  molecule_particles_.resize(n);
-  std::vector<int> next(molecule_start_.begin(), molecule_start_.end() - 1);
-  for (int i = 0; i < n; ++i) molecule_particles_[next[molecule_[i]]++] = i;  // increasing within each
+Decomposition::Decomposition(const Box& box, const Communicator& comm, double cutoff, double margin,
+                             const Eigen::Vector3i* dims)
+    : comm_(comm), box_(box), radius_(cutoff + margin), margin_(margin) {
   if (dims) grid_dims_ = *dims, have_dims_ = true;
   const int ranks = comm_.size();
   out_.resize(ranks);
@@ -244,47 +228,85 @@ void Decomposition::own() {
   for (size_t k = 0; k < ids_.size(); ++k) owned_columns_[next[slot[k]]++] = static_cast<int>(k);
 }
 
-void Decomposition::distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
-  const int molecules = num_molecules();
-  Eigen::Matrix3Xd anchors(3, molecules);
-  for (int m = 0; m < molecules; ++m) {  // as owned_anchor, over the whole state
-    MoleculeAnchor anchor;
-    for (int g : molecule(m)) anchor.add(anchor_mass(whole.inv_mass[g]), whole.x.col(g));
-    anchors.col(m) = anchor.value();
-  }
-  grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, anchors);
-  // Every rank holds the whole state: each measures the load and recuts alike, without a word.
-  imbalance_before_ = load_imbalance(domain_loads(grid_, whole.x));
-  if (balance_.when != BalanceSettings::When::off && imbalance_before_ > balance_.threshold) {
-    const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
-    DomainGrid cut = balanced_grid(grid_, axis_histograms(grid_, whole.x, bins), bins);
-    if (load_imbalance(domain_loads(cut, whole.x)) < imbalance_before_) grid_ = std::move(cut), ++recuts_;
-  }
-  ids_.clear();
-  for (int m = 0; m < molecules; ++m)
-    if (grid_.domain_of(anchors.col(m)) == comm_.rank())
-      for (int g : molecule(m)) ids_.push_back(g);
-  std::sort(ids_.begin(), ids_.end());
-  const int n = num_owned();
+void Decomposition::start(PartMolecules& molecules, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+  const int n = molecules.size(), me = comm_.rank();
+  if (x.cols() != n || v.cols() != n)
+    throw std::logic_error("Decomposition::start: x, v are not the columns of the molecules' particles");
+  // The molecules of the part: the components of its items (bonded_molecules, numbered by first
+  // particle; the part's topology refuses an item with a particle elsewhere: a part holds whole
+  // molecules), each named by its first global index, which no other rank's molecule has.
+  const std::vector<int> component = bonded_molecules(molecules.topology(Topology{}), n);
+  std::vector<int> name;
+  ids_ = molecules.global;
   owned_molecule_.resize(n);
   owned_mass_.resize(n);
-  x.resize(3, n);
-  v.resize(3, n);
   for (int k = 0; k < n; ++k) {
-    const int g = ids_[k];
-    owned_molecule_[k] = molecule_[g];
-    owned_mass_[k] = anchor_mass(whole.inv_mass[g]);
-    x.col(k) = whole.x.col(g), v.col(k) = whole.v.col(g);
+    if (static_cast<size_t>(component[k]) == name.size()) name.push_back(ids_[k]);
+    owned_molecule_[k] = name[component[k]];
+    owned_mass_[k] = anchor_mass(molecules.inv_mass[k]);
   }
   own();
+  // The anchors (each molecule's sum over its particles by increasing global index: the whole
+  // system's at every rank count), and their extent over every rank for the open axes.
+  const int owned = static_cast<int>(owned_.size());
+  Eigen::Matrix3Xd anchors(3, owned);
+  for (int i = 0; i < owned; ++i) anchors.col(i) = owned_anchor(x, i);
+  std::int64_t count[2] = {n, owned};
+  comm_.sum(count, 2);
+  num_particles_ = static_cast<int>(count[0]);
+  double extent[6];  // −low, high per axis (a max of each is the extent: exact)
+  for (int a = 0; a < 3; ++a) {
+    extent[a] = owned ? -anchors.row(a).minCoeff() : -kInf;
+    extent[3 + a] = owned ? anchors.row(a).maxCoeff() : -kInf;
+  }
+  comm_.max(extent, 6);
+  Eigen::Matrix3Xd span(3, count[1] > 0 ? 2 : 0);
+  if (count[1] > 0)
+    for (int a = 0; a < 3; ++a) span(a, 0) = -extent[a], span(a, 1) = extent[3 + a];
+  grid_ = make_domain_grid(box_, comm_.size(), have_dims_ ? &grid_dims_ : nullptr, span);
+  // The measure and the start's recut from the beads counted over the ranks (integer counts: the
+  // same sums in any order, so every rank cuts alike).
+  std::vector<double> loads = domain_loads(grid_, x);
+  comm_.sum(loads.data(), static_cast<int>(loads.size()));
+  imbalance_before_ = load_imbalance(loads);
+  if (balance_.when != BalanceSettings::When::off && imbalance_before_ > balance_.threshold) {
+    const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
+    std::vector<double> histograms = axis_histograms(grid_, x, bins);
+    comm_.sum(histograms.data(), static_cast<int>(histograms.size()));
+    DomainGrid cut = balanced_grid(grid_, histograms, bins);
+    std::vector<double> cut_loads = domain_loads(cut, x);
+    comm_.sum(cut_loads.data(), static_cast<int>(cut_loads.size()));
+    if (load_imbalance(cut_loads) < imbalance_before_) grid_ = std::move(cut), ++recuts_;
+  }
+  // Each molecule to the rank of its anchor's domain, by the migration's messages.
+  std::vector<int> to(n, -1);
+  bool leaving = false;
+  for (int i = 0; i < owned; ++i) {
+    const int dest = grid_.domain_of(anchors.col(i));
+    if (dest == me) continue;
+    leaving = true;
+    for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) to[owned_columns_[e]] = dest;
+  }
+  send_molecules(to, leaving, x, v, {}, &molecules);
+}
+
+void Decomposition::distribute(const Topology& topology, const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
+  const int n = whole.size();
+  const std::vector<int> type(static_cast<size_t>(n), 0);
+  const std::vector<double> charge(static_cast<size_t>(n), 0.0);
+  const std::vector<int> mine = whole_block(topology, n, comm_.size(), comm_.rank());
+  PartMolecules molecules = cut_part(
+      {std::span<const double>(whole.inv_mass.data(), static_cast<size_t>(n)), type, charge, {}, {}, topology}, mine);
+  x.resize(3, static_cast<Eigen::Index>(mine.size()));
+  v.resize(3, static_cast<Eigen::Index>(mine.size()));
+  for (size_t k = 0; k < mine.size(); ++k) x.col(k) = whole.x.col(mine[k]), v.col(k) = whole.v.col(mine[k]);
+  start(molecules, x, v);
 }
 
 bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
                             PartMolecules* molecules) {
   const ScopedPhase phase(Phase::domain);
-  const int ranks = comm_.size(), me = comm_.rank(), owned = num_owned();
-  // Per particle: its global index, its molecule, its mass in the anchor, x, v, the carried columns.
-  const int words = 9 + 3 * static_cast<int>(carried.size());
+  const int me = comm_.rank(), owned = num_owned();
   if (molecules && molecules->global != ids_)
     throw std::logic_error("Decomposition::migrate: the part's molecules are not the owned particles");
   // A molecule leaves when its anchor is past this rank's domain by more than a quarter of the
@@ -304,6 +326,14 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
     leaving = true;
     for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) to[owned_columns_[e]] = dest;
   }
+  return send_molecules(to, leaving, x, v, std::move(carried), molecules);
+}
+
+bool Decomposition::send_molecules(const std::vector<int>& to, bool leaving, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                                   std::vector<Eigen::Matrix3Xd*> carried, PartMolecules* molecules) {
+  const int ranks = comm_.size(), owned = num_owned();
+  // Per particle: its global index, its molecule, its mass in the anchor, x, v, the carried columns.
+  const int words = 9 + 3 * static_cast<int>(carried.size());
   // A message: the particle count, each particle's words by increasing global index, then (with
   // molecules) their share of the part's molecules, in the same order.
   std::vector<std::vector<double>> out(ranks), in;

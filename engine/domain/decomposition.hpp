@@ -146,19 +146,24 @@ struct ColumnRun {
 
 class Decomposition {
  public:
-  // The whole system's molecules (the connected components of its bonded terms), which the start
-  // distributes (`inv_mass`: its size is the system's). `margin` > 0: the halo's margin beyond the
-  // pair cutoff `cutoff`.
-  Decomposition(const Topology& topology, const Eigen::VectorXd& inv_mass, const Box& box, const Communicator& comm,
-                double cutoff, double margin, const Eigen::Vector3i* dims);
+  // No table of the whole system: the start brings each rank's molecules. `margin` > 0: the halo's
+  // margin beyond the pair cutoff `cutoff`.
+  Decomposition(const Box& box, const Communicator& comm, double cutoff, double margin, const Eigen::Vector3i* dims);
 
-  // When the domains are recut (off unless set; before distribute).
+  // When the domains are recut (off unless set; before the start).
   void set_balance(const BalanceSettings& b) { balance_ = b; }
-  // From the whole state (the same on every rank, at the start): the grid (recut to its beads
-  // unless the balance is off), owners by anchor (the centres of mass with whole.inv_mass), and
-  // this rank's owned x, v (no communication: the caller selects the pair sets next). The only
-  // call that reads the whole system: from then on a rank knows its own molecules alone.
-  void distribute(const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
+  // The start, from any partition of whole molecules: this rank's `molecules` (particles by
+  // increasing global index, with their inverse masses and bonded items) at x, v. Each owned
+  // molecule (a component of its items, named by its first global index) is anchored at its
+  // centre of mass; the grid's open axes span the anchors' extent (a max-reduction), the load
+  // balance recuts from bead counts summed over the ranks (exact: the same cuts on every rank),
+  // and every molecule goes, as a migration moves it, to the rank of its anchor's domain.
+  // molecules, x, v become the owned ones: for any partition what the whole system's molecules
+  // cut by anchor give, bit for bit. Collective; the caller selects the pair sets next.
+  void start(PartMolecules& molecules, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
+  // The start from the whole state (the same on every rank) and its topology: each rank gives
+  // the molecules of its block (whole_block), with their inverse masses (types, charges 0).
+  void distribute(const Topology& topology, const State& whole, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v);
   // Molecules whose anchor has gone more than a quarter of this rank's domain's narrowest width
   // past it move whole to the owner of their anchor's domain, with x, v and `carried` (per-particle columns that travel
   // with them), their global indices and masses (the receiver's anchors), and with `molecules`,
@@ -232,7 +237,7 @@ class Decomposition {
     if (near + 2 < n && near >= 0 && pair_ids_[near + 2] == global) return near + 2;
     return pair_slot(global);
   }
-  bool owns_molecule(int m) const;
+  bool owns_molecule(int m) const;  // m: a molecule's name (owned_molecule)
   const DomainGrid& grid() const { return grid_; }
   double margin() const { return margin_; }
   double radius() const { return radius_; }  // R = r_c + margin: the pair sets' reach
@@ -246,28 +251,24 @@ class Decomposition {
   // selection of the pair sets uses it.
   void set_box(const Box& box);
   const Box& box() const { return box_; }
-  // The whole system's molecules, as the constructor found them: what distribute cuts, and what
-  // the DomainIntegrator's constructor reads; the migration never reads them (a molecule that
-  // arrives brings its global indices).
-  int molecule_of(int global) const { return molecule_[global]; }
-  int num_molecules() const { return static_cast<int>(molecule_start_.size()) - 1; }
-  // The global indices of molecule m, increasing.
-  std::span<const int> molecule(int m) const {
-    return {molecule_particles_.data() + molecule_start_[m],
-            static_cast<size_t>(molecule_start_[m + 1] - molecule_start_[m])};
-  }
+  // The owned molecule of owned column k: its name, the first global index of its particles.
+  int owned_molecule(int k) const { return owned_molecule_[k]; }
+  int num_particles() const { return num_particles_; }  // the whole system's, summed at the start
 
  private:
   // The centre of mass of the owned molecule at owned_[i] (its columns of x, the owned masses).
   Eigen::Vector3d owned_anchor(const Eigen::Matrix3Xd& x, int i) const;
   // owned_ and each owned molecule's columns from ids_ and owned_molecule_.
   void own();
+  // The owned columns k with to[k] ≥ 0 move to rank to[k] (whole molecules) with x, v, carried
+  // and their share of `molecules`; what arrives is merged in by global index. Returns whether
+  // the owned particles changed. Collective.
+  bool send_molecules(const std::vector<int>& to, bool leaving, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                      std::vector<Eigen::Matrix3Xd*> carried, PartMolecules* molecules);
 
   const Communicator& comm_;
   Box box_;
   int num_particles_ = 0;  // the whole system's
-  std::vector<int> molecule_;
-  std::vector<int> molecule_start_, molecule_particles_;
   DomainGrid grid_;
   Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Ones();  // [parallel] grid, when given
   bool have_dims_ = false;
@@ -278,7 +279,8 @@ class Decomposition {
 
   // What this rank owns, all of the part's size: its molecules (increasing) and each one's owned
   // columns (owned_start_, owned_columns_: increasing); per owned particle its global index
-  // (increasing), its molecule and its mass in the anchor (1 for a fixed one: it counts there).
+  // (increasing), its molecule (named by its first global index) and its mass in the anchor (1
+  // for a fixed one: it counts there).
   std::vector<int> owned_;
   std::vector<int> owned_start_, owned_columns_;
   std::vector<int> ids_;

@@ -1,6 +1,7 @@
 #include "engine/domain/domain_integrator.hpp"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <limits>
@@ -90,34 +91,16 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
   const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
   check_parallel_grid(whole, comm.size());
   // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
-  domains_ = std::make_unique<Decomposition>(whole.topology, whole.state.inv_mass, whole.forces->box(), comm, cutoff,
+  domains_ = std::make_unique<Decomposition>(whole.forces->box(), comm, cutoff,
                                              cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
   domains_->set_balance(whole.parallel.balance);
   evaluations_.assign(whole.forces->num_levels(), 0);
-  charged_ = whole.charged();
-  // The polymer columns average over the topology's molecules (its molecule ids); a rank can sum
-  // them only over molecules it holds whole.
-  const std::vector<int>& id = whole.topology.molecule;
-  std::vector<int> bonded_of_id;
-  for (size_t i = 0; i < id.size() && molecules_whole_; ++i) {
-    if (id[i] < 0) continue;
-    if (static_cast<size_t>(id[i]) >= bonded_of_id.size()) bonded_of_id.resize(id[i] + 1, -1);
-    int& b = bonded_of_id[id[i]];
-    if (b < 0) b = domains_->molecule_of(static_cast<int>(i));
-    molecules_whole_ = b == domains_->molecule_of(static_cast<int>(i));
-  }
+  // What the whole system's numbers need of the deck besides the parts (whole_numbers): the
+  // method, and whether its terms conserve momentum (each term's own property, not its particles').
   const MethodInfo* m = find_method(whole.integrator.method);
-  const StiffBonds* stiff = whole.forces->stiff_bonds();
-  const int rigid = m->rigid_constraints && stiff ? static_cast<int>(stiff->bonds.size()) : 0;
-  const Eigen::VectorXd& im = whole.state.inv_mass;
-  whole_dof_ = degrees_of_freedom(im, momentum_conserved(*whole.forces, im, whole.integrator.thermostat), rigid);
-  if (m->effective && stiff) {
-    // The constraint clusters as the modes number them (find_clusters: a pinned bead couples
-    // nothing, so it may split a molecule into several clusters), one mode per bond.
-    for (const ConstraintCluster& c : find_clusters(stiff->bonds, im))
-      clusters_.push_back({domains_->molecule_of(stiff->bonds[c.bonds[0]].i), 0, static_cast<int>(c.bonds.size())});
-    for (size_t c = 1; c < clusters_.size(); ++c) clusters_[c].first = clusters_[c - 1].first + clusters_[c - 1].modes;
-  }
+  rigid_method_ = m->rigid_constraints;
+  effective_modes_ = m->effective && whole.forces->stiff_bonds();
+  for (const auto& t : whole.forces->terms()) terms_conserve_momentum_ &= t->conserves_momentum();
 }
 
 DomainIntegrator::~DomainIntegrator() = default;
@@ -132,7 +115,100 @@ std::vector<double> DomainIntegrator::part_invariants() const {
   return mine;
 }
 
-void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
+// The whole system's numbers from the parts at the start (collective), O(molecules) words at most
+// on a rank: the ones one process computes from its whole arrays, to the same values.
+void DomainIntegrator::whole_numbers(const Scene& p) {
+  const PartMolecules& mine = molecules_;
+  const int n = mine.size();
+  const StiffBonds* stiff = p.forces->stiff_bonds();
+  // csvr's degrees of freedom (degrees_of_freedom, momentum_conserved: integrators/thermostat.hpp)
+  // from the particles counted over the ranks: 3 per mobile particle, less 3 when the momentum is
+  // conserved (no fixed particle, every term conserving it, no Langevin thermostat) and one per
+  // rigid constraint.
+  std::int64_t count[4] = {n, 0, 0, stiff ? static_cast<std::int64_t>(stiff->bonds.size()) : 0};
+  for (const double w : mine.inv_mass) count[1] += w > 0.0, count[2] += w == 0.0;
+  comm_.sum(count, 4);
+  const bool conserved =
+      terms_conserve_momentum_ && settings_.thermostat.style != ThermostatSettings::Style::langevin && count[2] == 0;
+  whole_dof_ =
+      static_cast<int>(3 * count[1] - (conserved && count[1] == count[0] ? 3 : 0) - (rigid_method_ ? count[3] : 0));
+  // Whether every topology molecule (its molecule id) lies within one bonded molecule: each (id,
+  // bonded molecule) pair of the part goes to the rank id mod ranks, which sees every pair of its
+  // ids; one max tells every rank.
+  const int ranks = comm_.size();
+  std::vector<std::pair<int, int>> pairs;  // (id, the bonded molecule's name)
+  for (int k = 0; k < static_cast<int>(mine.molecule_id.size()); ++k)
+    if (mine.molecule_id[k] >= 0) pairs.emplace_back(mine.molecule_id[k], domains_->owned_molecule(k));
+  std::sort(pairs.begin(), pairs.end());
+  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+  std::vector<std::vector<double>> out(ranks), in;
+  for (const auto& [id, molecule] : pairs) out[id % ranks].push_back(id), out[id % ranks].push_back(molecule);
+  comm_.exchange(out, in);
+  pairs.clear();
+  for (const std::vector<double>& b : in)
+    for (size_t e = 0; e + 1 < b.size(); e += 2) pairs.emplace_back(static_cast<int>(b[e]), static_cast<int>(b[e + 1]));
+  std::sort(pairs.begin(), pairs.end());
+  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+  double split = 0.0;
+  for (size_t e = 1; e < pairs.size(); ++e) split = std::max(split, pairs[e].first == pairs[e - 1].first ? 1.0 : 0.0);
+  molecules_whole_ = comm_.max(split) == 0.0;
+  // The effective dynamics' modes: the constraint clusters as the whole system's find_clusters
+  // orders them (integrators/clusters.hpp: by their first bond in the stiff-bond list), one mode
+  // per bond. A part's stiff bonds are the whole list's restricted to it, in its order: the bonds
+  // of the topology's stiff types first, in the topology's order, then the rigid angles' bonds
+  // (engine/scene/force_registry.cpp, read_stiff_harmonic). A cluster's first bond is one of the
+  // topology's (a rigid angle's bond is coupled to an arm of its angle, a bond of the topology
+  // listed before it), so the clusters take the order of their first bonds' places in the
+  // topology's list, which the part's bonds carry (PartMolecules): each rank's (place, modes,
+  // molecule) gathered, ordered on rank 0 and broadcast.
+  clusters_.clear();
+  if (!effective_modes_) return;
+  std::vector<double> entries;  // place, modes, molecule per cluster
+  if (stiff) {
+    // Each stiff bond of the topology at its place: the part's bonds by place, matched in order.
+    std::vector<std::int64_t> place(stiff->bonds.size(), -1);
+    size_t at = 0;
+    for (size_t b = 0; b < stiff->bonds.size() && at < mine.bonds.size(); ++b) {
+      const int i = mine.global[stiff->bonds[b].i], j = mine.global[stiff->bonds[b].j];
+      size_t e = at;
+      while (e < mine.bonds.size() && (mine.bonds[e].item.i != i || mine.bonds[e].item.j != j)) ++e;
+      if (e == mine.bonds.size()) break;  // the rigid angles' bonds, past the topology's
+      place[b] = mine.bonds[e].place;
+      at = e + 1;
+    }
+    for (const ConstraintCluster& c : find_clusters(stiff->bonds, p.state.inv_mass)) {
+      const int first = c.bonds[0];
+      if (place[first] < 0)
+        throw std::logic_error(
+            "DomainIntegrator: a constraint cluster's first stiff bond is not a bond of the topology");
+      entries.push_back(static_cast<double>(place[first]));
+      entries.push_back(static_cast<double>(c.bonds.size()));
+      entries.push_back(domains_->owned_molecule(stiff->bonds[first].i));  // part index = owned column
+    }
+  }
+  std::vector<std::vector<double>> all;
+  comm_.gather(entries, all);
+  std::vector<double> ordered;
+  if (comm_.root()) {
+    std::vector<std::array<double, 3>> list;
+    for (const std::vector<double>& b : all)
+      for (size_t e = 0; e + 2 < b.size(); e += 3) list.push_back({b[e], b[e + 1], b[e + 2]});
+    std::sort(list.begin(), list.end());
+    for (const auto& c : list) ordered.insert(ordered.end(), {c[2], c[1]});  // molecule, modes
+  }
+  std::int64_t words = static_cast<std::int64_t>(ordered.size());
+  comm_.broadcast(&words, 1);
+  ordered.resize(static_cast<size_t>(words));
+  comm_.broadcast(ordered.data(), static_cast<int>(words));
+  int first = 0;
+  for (size_t e = 0; e < ordered.size(); e += 2) {
+    const int modes = static_cast<int>(ordered[e + 1]);
+    clusters_.push_back({static_cast<int>(ordered[e]), first, modes});
+    first += modes;
+  }
+}
+
+void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool at_start) {
   if (part_) {
     for (int k = 0; k < part_->scene.forces->num_levels(); ++k)
       evaluations_[k] += part_->scene.forces->evaluations(Level{k});
@@ -170,7 +246,6 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   if (per_particle_friction_) th.friction = Eigen::Map<const Eigen::VectorXd>(mine.friction.data(), n);
   th.particle_id.assign(p.global_id.begin(), p.global_id.end());
   th.processes = &comm_;
-  th.degrees_of_freedom = whole_dof_;
   // A barostat's sums over this rank's molecules, added over the ranks (exactly: the same cell
   // moves on any number of ranks).
   BarostatSettings& baro = p.integrator.barostat;
@@ -182,6 +257,8 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
       {p.global_id, p.particle_type, t, charged_ ? std::span<const double>(p.charge) : std::span<const double>()});
   // The reciprocal sums (k-space terms) sum over the ranks.
   for (const auto& term : p.forces->terms()) term->set_processes(&comm_);
+  if (at_start) whole_numbers(p);
+  th.degrees_of_freedom = whole_dof_;
   // The pair terms act on the pair set (home beads and halo) through forward and reverse; a part
   // built again keeps the old part's terms on the pair set, and their buffers. What the pair sets
   // read of a bead besides its position comes with it from its owner at each selection
@@ -216,24 +293,44 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,
 // or what the first sample left): each its particles' columns, rank 0 the sums.
 void DomainIntegrator::start(const State& s) {
-  Eigen::Matrix3Xd x, v;
-  domains_->distribute(s, x, v);
-  // The part's molecules cut from the whole system, once: from now on they travel with their
-  // molecules (Decomposition::migrate), and no part reads the whole system's arrays again.
+  // Each rank cuts a block of the whole system's molecules (any partition of whole molecules
+  // would do) and starts from it as a rank that made only its molecules would (start_parts).
   const Scene& w = whole_scene_;
   const Eigen::VectorXd& friction = w.integrator.thermostat.friction;
-  molecules_ = cut_part(
-      {std::span<const double>(s.inv_mass.data(), static_cast<size_t>(s.inv_mass.size())), w.particle_type, w.charge,
-       w.topology.molecule, std::span<const double>(friction.data(), static_cast<size_t>(friction.size())), w.topology},
-      domains_->owned_ids());
+  PartMolecules block;
+  {
+    const std::vector<int> mine = whole_block(w.topology, s.size(), comm_.size(), comm_.rank());
+    block = cut_part({std::span<const double>(s.inv_mass.data(), static_cast<size_t>(s.inv_mass.size())),
+                      w.particle_type, w.charge, w.topology.molecule,
+                      std::span<const double>(friction.data(), static_cast<size_t>(friction.size())), w.topology},
+                     mine);
+  }
+  Eigen::Matrix3Xd x(3, block.size()), v(3, block.size());
+  for (int k = 0; k < block.size(); ++k) x.col(k) = s.x.col(block.global[k]), v.col(k) = s.v.col(block.global[k]);
+  start_parts(std::move(block), std::move(x), std::move(v), s);
+}
+
+// The decomposition's start sends each molecule to the rank of its anchor's domain; from then on
+// the molecules travel with their data (Decomposition::migrate), and no part reads the whole
+// system's arrays again.
+void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
+  const Scene& w = whole_scene_;
+  molecules_ = std::move(molecules);
+  // Over the ranks: whether the particles have a friction each, and whether some has a charge.
+  double some[2] = {
+      molecules_.friction.empty() ? 0.0 : 1.0,
+      std::any_of(molecules_.charge.begin(), molecules_.charge.end(), [](double q) { return q != 0.0; }) ? 1.0 : 0.0};
+  comm_.max(some, 2);
+  charged_ = some[1] > 0.0;
+  domains_->start(molecules_, x, v);
   // The method's settings without their per-particle arrays of the whole system (each part sets
   // its own).
   settings_ = w.integrator;
-  per_particle_friction_ = settings_.thermostat.friction.size() > 0;
+  per_particle_friction_ = some[0] > 0.0;
   settings_.thermostat.friction.resize(0);
   settings_.thermostat.particle_id.clear();
   settings_.barostat.molecule.clear();
-  build_part(std::move(x), std::move(v), s);
+  build_part(std::move(x), std::move(v), s, true);
   domains_->select_pair_set(part_->scene.state.x);
   // The lists built now, before the step loop, as one process builds its list in the first
   // force evaluation.
@@ -276,7 +373,7 @@ void DomainIntegrator::reselect(bool box_moved) {
   if (domains_->migrate(l.x, l.v, columns, &molecules_)) {
     changed = 1.0;
     Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
-    build_part(std::move(x), std::move(v), l);
+    build_part(std::move(x), std::move(v), l, false);
     part_->integrator->restore_carried_state(std::move(carried));
   }
   comm_.max(&changed, 1);

@@ -84,6 +84,12 @@ class DomainIntegrator final : public Integrator {
   void distribute(const State& s) {
     if (!part_) start(s);
   }
+  // The same from this rank's `molecules` (any partition of whole molecules, each rank its own,
+  // with their x, v) rather than from the whole state (s: its step and time; what the whole
+  // integrator carries, by global index). Collective; nothing once built.
+  void distribute(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
+    if (!part_) start_parts(std::move(molecules), std::move(x), std::move(v), s);
+  }
   bool distributed() const { return part_ != nullptr; }
   // Force evaluations per level and neighbour-list rebuilds of this rank's parts so far.
   std::vector<std::int64_t> evaluations() const;
@@ -106,11 +112,26 @@ class DomainIntegrator final : public Integrator {
   // added up over the ranks. Collective; the same on every rank.
   ThermoSums sample_sums() const;
 
+  // The whole system's numbers, summed from the parts at the start: csvr's degrees of freedom,
+  // whether every topology molecule (its molecule id) lies within one bonded molecule, and the
+  // effective dynamics' modes per constraint cluster of the whole system (find_clusters,
+  // integrators/clusters.hpp, in the order the modes take): its molecule (named by its first
+  // global index: Decomposition::owned_molecule), first mode and mode count.
+  struct Cluster {
+    int molecule, first, modes;
+  };
+  int whole_degrees_of_freedom() const { return whole_dof_; }
+  bool molecules_whole() const { return molecules_whole_; }
+  const std::vector<Cluster>& clusters() const { return clusters_; }
+
  private:
   struct Part;
   void start(const State& s);
+  void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
   void reselect(bool box_moved);
-  void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
+  // at_start: the first part, built by every rank (the whole system's numbers summed then).
+  void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool at_start);
+  void whole_numbers(const Scene& part);
   std::vector<double> part_invariants() const;
 
   Scene& whole_scene_;
@@ -125,12 +146,10 @@ class DomainIntegrator final : public Integrator {
   bool box_moved_ = false;              // a barostat moved the cell: the pair sets follow before the next step
   int whole_dof_ = 0;                   // csvr: the whole system's degrees of freedom
   bool molecules_whole_ = true;         // every topology molecule within one bonded molecule
-  bool charged_ = false;                // some particle of the whole system has a charge
-  // The effective dynamics' modes: per constraint cluster of the whole system (find_clusters,
-  // integrators/clusters.hpp, the order the modes take), its molecule, first mode and mode count.
-  struct Cluster {
-    int molecule, first, modes;
-  };
+  bool charged_ = false;                // some particle of the whole system has a charge (at the start)
+  bool rigid_method_ = false;           // the method holds the stiff bonds rigid
+  bool effective_modes_ = false;        // the effective dynamics, with stiff bonds: clusters_
+  bool terms_conserve_momentum_ = true;  // every force term of the deck does
   std::vector<Cluster> clusters_;
   std::vector<std::int64_t> evaluations_;  // of the parts before the current one
   long rebuilds_ = 0;

@@ -124,6 +124,16 @@ PartMolecules cut_part(const WholeParticles& whole, std::span<const int> global)
   return p;
 }
 
+std::vector<int> whole_block(const Topology& topology, int n, int parts, int part) {
+  const std::vector<int> molecule = bonded_molecules(topology, n);
+  const std::int64_t molecules = molecule.empty() ? 0 : *std::max_element(molecule.begin(), molecule.end()) + 1;
+  const std::int64_t first = molecules * part / parts, end = molecules * (part + 1) / parts;
+  std::vector<int> out;
+  for (int g = 0; g < n; ++g)
+    if (molecule[g] >= first && molecule[g] < end) out.push_back(g);
+  return out;
+}
+
 PartMolecules split_part(const PartMolecules& part, std::span<const int> to, std::vector<PartMolecules>& pieces) {
   PartMolecules kept;
   const bool ids = !part.molecule_id.empty(), friction = !part.friction.empty();

@@ -59,6 +59,12 @@ struct PartMolecules {
 // arrays and every item whose first particle is among them, in the whole system's order.
 PartMolecules cut_part(const WholeParticles& whole, std::span<const int> global);
 
+// The particles (increasing) of block `part` of `parts` contiguous blocks of the whole system's
+// molecules (bonded_molecules' numbering, by first particle: molecules [M·part/parts,
+// M·(part + 1)/parts) of M): a partition of whole molecules, which a start from the whole scene
+// cuts (Decomposition::start sends each molecule to its anchor's rank).
+std::vector<int> whole_block(const Topology& topology, int n, int parts, int part);
+
 // The particles at the columns k with to[k] = r go to pieces[r] (r in 0 … ranks − 1), those with
 // to[k] < 0 to the returned part; an item goes with its first particle (an item lies within one
 // molecule, and a molecule moves whole).
