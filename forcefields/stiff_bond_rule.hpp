@@ -85,6 +85,7 @@ struct StiffBondRule {
   std::vector<StiffBond> bonds_of(const Topology& top) const {
     std::vector<StiffBond> out;
     add_claimed_bonds(top, out);
+    if (rigid_angles.empty()) return out;  // no arms to look up: no map of the bonds
     const StiffArms arm = arms_of(out);
     for (const RigidAngleType& rigid : rigid_angles)
       if (const int n = add_rigid_angle_bonds(top, rigid, arm, out); n >= 0) {
