@@ -69,8 +69,8 @@ class AngleTerm final : public ForceTerm, public TypeClaim {
   // The angles of the subset, in this term's order, with its coefficients.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
-    return std::make_unique<AngleTerm>(
-        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
+    return keeping_claim(std::make_unique<AngleTerm>(
+        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_));
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override;

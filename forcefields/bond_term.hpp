@@ -82,8 +82,8 @@ class BondTerm final : public ForceTerm, public TypeClaim {
   // The bonds of the subset, in this term's order, with its coefficients.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
-    return std::make_unique<BondTerm>(name(), level(), subset_items(bonds_, subset, who, "bond", &Bond::i, &Bond::j),
-                                      types_);
+    return keeping_claim(std::make_unique<BondTerm>(
+        name(), level(), subset_items(bonds_, subset, who, "bond", &Bond::i, &Bond::j), types_));
   }
   std::string_view style() const override { return K::kStyle; }
   std::string describe() const override {

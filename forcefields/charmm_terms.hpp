@@ -111,8 +111,8 @@ class CharmmAngle final : public ForceTerm, public TypeClaim {
   }
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(kStyle) + " '" + name() + "'";
-    return std::make_unique<CharmmAngle>(
-        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_);
+    return keeping_claim(std::make_unique<CharmmAngle>(
+        name(), level(), subset_items(angles_, subset, who, "angle", &Angle::i, &Angle::j, &Angle::k), types_));
   }
   std::string_view style() const override { return kStyle; }
   std::string describe() const override {
@@ -166,6 +166,7 @@ class CharmmDihedral final : public ForceTerm, public TypeClaim {
         particle_types_(std::move(particle_types)),
         lj14_(std::move(lj14)),
         charges_(std::move(charges)),
+        charged_(!charges_.empty()),
         qqrd2e_(qqrd2e) {
     auto fail = [&](const std::string& what) {
       throw std::invalid_argument(std::string(kStyle) + " '" + this->name() + "': " + what);
@@ -238,27 +239,32 @@ class CharmmDihedral final : public ForceTerm, public TypeClaim {
     }
     return p;
   }
-  bool uses_charges() const override { return !charges_.empty(); }
+  bool uses_charges() const override { return charged_; }
+  // The subset's dihedrals (TypeClaim), with the particle types and charges the subset carries
+  // (ParticleSubset::types, ::charges: a decomposed run's part has them from its molecules), so
+  // that this term's arrays of the whole system are never read: the subset's types index lj14 as
+  // this term's particle_types do (the deck reader gives it the scene's types). A charged term on
+  // a subset that carries no charges (one made of indices alone) takes this term's by index.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(kStyle) + " '" + name() + "'";
-    std::vector<int> types(static_cast<size_t>(subset.size()));
-    std::vector<double> charges(charges_.empty() ? 0 : static_cast<size_t>(subset.size()));
-    for (int k = 0; k < subset.size(); ++k) {
-      const int g = subset.global[static_cast<size_t>(k)];
-      types[static_cast<size_t>(k)] = g < static_cast<int>(particle_types_.size()) ? particle_types_[g] : -1;
-      if (!charges_.empty())
-        charges[static_cast<size_t>(k)] = g < static_cast<int>(charges_.size()) ? charges_[g] : 0.0;
-    }
-    return std::make_unique<CharmmDihedral>(
+    std::vector<int> types(subset.types.begin(), subset.types.end());
+    std::vector<double> charges;
+    if (charged_ && subset.charges.size() == subset.global.size())
+      charges.assign(subset.charges.begin(), subset.charges.end());
+    else if (charged_)
+      for (const int g : subset.global) charges.push_back(g < static_cast<int>(charges_.size()) ? charges_[g] : 0.0);
+    auto out = std::make_unique<CharmmDihedral>(
         name(), level(),
         subset_items(dihedrals_, subset, who, "dihedral", &Dihedral::i, &Dihedral::j, &Dihedral::k, &Dihedral::l),
         types_, std::move(types), lj14_, std::move(charges), qqrd2e_);
+    out->charged_ = charged_;  // also on a subset that holds no particle
+    return keeping_claim(std::move(out));
   }
   std::string_view style() const override { return kStyle; }
   std::string describe() const override {
     std::ostringstream s;
     s << torsion_.describe() << "; " << pairs_.size() << " weighted 1-4 pairs"
-      << (charges_.empty() ? " (Lennard-Jones only)" : " (Lennard-Jones and Coulomb)");
+      << (charged_ ? " (Lennard-Jones and Coulomb)" : " (Lennard-Jones only)");
     return s.str();
   }
   void define(ParameterRecord& record) const override {
@@ -277,6 +283,7 @@ class CharmmDihedral final : public ForceTerm, public TypeClaim {
   std::vector<int> particle_types_;
   TypePairMatrix<Lj14> lj14_;
   std::vector<double> charges_;
+  bool charged_;  // charges given (the 1-4 Coulomb part), even on a subset of no particle
   double qqrd2e_;
   std::vector<BondInstance<charmm_detail::Pair14::Params>> pairs_;  // the 1-4 pairs of the dihedrals with w > 0
   mutable BondPartition pair_partition_;

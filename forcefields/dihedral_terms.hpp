@@ -194,8 +194,8 @@ class DihedralTerm final : public ForceTerm, public TypeClaim {
   // The dihedrals of the subset, in this term's order, with its coefficients.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(K::kStyle) + " '" + name() + "'";
-    return std::make_unique<DihedralTerm>(
-        name(), level(), subset_items(dihedrals_, subset, who, kItem, &Item::i, &Item::j, &Item::k, &Item::l), types_);
+    return keeping_claim(std::make_unique<DihedralTerm>(
+        name(), level(), subset_items(dihedrals_, subset, who, kItem, &Item::i, &Item::j, &Item::k, &Item::l), types_));
   }
   std::string_view style() const override { return Kernel::kStyle; }
   std::string describe() const override {

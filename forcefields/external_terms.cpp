@@ -63,7 +63,9 @@ double HarmonicTether::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eig
 }
 
 std::unique_ptr<ForceTerm> HarmonicTether::on_subset(const ParticleSubset& subset, const Box&) const {
-  return std::make_unique<HarmonicTether>(name(), level(), subset.select(particles_), center_, k_, true);
+  auto out = std::make_unique<HarmonicTether>(name(), level(), selected_on(subset, particles_), center_, k_, true);
+  if (has_selection()) out->set_selection(selection());
+  return out;
 }
 
 std::string HarmonicTether::describe() const {
@@ -130,7 +132,9 @@ double LJ93Wall::add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Ma
 }
 
 std::unique_ptr<ForceTerm> LJ93Wall::on_subset(const ParticleSubset& subset, const Box&) const {
-  return std::make_unique<LJ93Wall>(name(), level(), p_, subset.select(particles_), true);
+  auto out = std::make_unique<LJ93Wall>(name(), level(), p_, selected_on(subset, particles_), true);
+  if (has_selection()) out->set_selection(selection());
+  return out;
 }
 
 std::string LJ93Wall::describe() const {

@@ -21,10 +21,11 @@
 #include <vector>
 
 #include "forcefields/force_term.hpp"
+#include "forcefields/particle_selection.hpp"
 
 namespace stiffmd {
 
-class HarmonicTether final : public ForceTerm {
+class HarmonicTether final : public ForceTerm, public SelectionRule {
  public:
   bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: particles non-empty, each index ≥ 0 and listed once; center finite;
@@ -34,7 +35,9 @@ class HarmonicTether final : public ForceTerm {
                  bool allow_empty = false);
 
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
-  // On the subset's particles among this term's (possibly none).
+  // On the subset's particles among this term's (possibly none): with a selection
+  // (SelectionRule), those it selects among the subset's, never this term's list; without, this
+  // term's list cut to the subset.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "harmonic-tether"; }
   std::string describe() const override;
@@ -55,7 +58,7 @@ struct LJ93WallParams {
   double cutoff = 2.5;    // r_c > 0 (length)
 };
 
-class LJ93Wall final : public ForceTerm {
+class LJ93Wall final : public ForceTerm, public SelectionRule {
  public:
   bool conserves_momentum() const override { return false; }  // an external field
   // Validating constructor: axis in {0, 1, 2}, side ±1, position finite, epsilon finite and ≥ 0,
@@ -65,7 +68,9 @@ class LJ93Wall final : public ForceTerm {
   // Throws std::invalid_argument if the box is periodic along the wall's axis (a wall there has no
   // meaning), NumericalError if a particle is not strictly on the wall's side.
   double add_forces(const Eigen::Matrix3Xd& x, const Box& box, Eigen::Matrix3Xd& f) const override;
-  // On the subset's particles among this term's (possibly none).
+  // On the subset's particles among this term's (possibly none): with a selection
+  // (SelectionRule), those it selects among the subset's, never this term's list; without, this
+  // term's list cut to the subset.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "lj93-wall"; }
   std::string describe() const override;

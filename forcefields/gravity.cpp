@@ -50,7 +50,15 @@ Gravity::add_forces_only(const Eigen::Matrix3Xd& x, const Box&, Eigen::Matrix3Xd
 std::unique_ptr<ForceTerm> Gravity::on_subset(const ParticleSubset& subset, const Box&) const {
   auto out = std::make_unique<Gravity>(name(), level(), g_, Eigen::VectorXd());
   out->mass_.resize(subset.size());
-  for (int k = 0; k < subset.size(); ++k) out->mass_[k] = mass_[subset.global[static_cast<size_t>(k)]];
+  // The masses the subset carries (a decomposed run's part: its molecules'), as the constructor
+  // makes them; without them, this term's of the subset's particles.
+  if (subset.inv_mass.size() == subset.global.size())
+    for (int k = 0; k < subset.size(); ++k) {
+      const double w = subset.inv_mass[static_cast<size_t>(k)];
+      out->mass_[k] = w > 0.0 ? 1.0 / w : 0.0;
+    }
+  else
+    for (int k = 0; k < subset.size(); ++k) out->mass_[k] = mass_[subset.global[static_cast<size_t>(k)]];
   return out;
 }
 

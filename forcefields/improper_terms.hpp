@@ -251,10 +251,10 @@ class UmbrellaImproper final : public ForceTerm, public TypeClaim {
   }
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box&) const override {
     const std::string who = std::string(kStyle) + " '" + name() + "'";
-    return std::make_unique<UmbrellaImproper>(
+    return keeping_claim(std::make_unique<UmbrellaImproper>(
         name(), level(),
         subset_items(impropers_, subset, who, "improper", &Improper::i, &Improper::j, &Improper::k, &Improper::l),
-        types_);
+        types_));
   }
   std::string_view style() const override { return kStyle; }
   std::string describe() const override {

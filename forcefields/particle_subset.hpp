@@ -22,6 +22,9 @@ struct ParticleSubset {
   // the system's order (the pair terms' special pairs come from its bonds).
   const Topology& topology;
   std::span<const double> charges = {};  // per particle of the subset, in e; empty: uncharged
+  // Per particle of the subset, its inverse mass (0: fixed); empty: not carried (a term that needs
+  // masses then takes its own of the system's particles).
+  std::span<const double> inv_mass = {};
 
   int size() const { return static_cast<int>(global.size()); }
   // The subset's index of the system's particle g; −1 when g is not in the subset.
@@ -61,6 +64,30 @@ std::vector<Item> items_on_subset(const std::vector<Item>& items, const Particle
     out.push_back(mapped);
   }
   return out;
+}
+
+// Whether an item of the subset's topology (its particles the int members `members`, in the
+// subset's numbering) reaches outside the subset: some particle not in 0 … size − 1 (a subset that
+// cuts a molecule holds its items with the particles outside it as −1).
+template <class Item, class... Members>
+bool reaches_outside(const Item& item, const ParticleSubset& subset, Members... members) {
+  const int n = subset.size();
+  return ((item.*members < 0 || item.*members >= n) || ...);
+}
+
+// The refusal of such an item, named by the system's indices of its particles in the subset and
+// "outside" for the others; prefixed with `who`.
+template <class Item, class... Members>
+[[noreturn]] void refuse_cut_item(const Item& item, const ParticleSubset& subset, const std::string& who,
+                                  std::string_view what, Members... members) {
+  const int n = subset.size();
+  std::string particles;
+  const auto name = [&](int p) {
+    return p >= 0 && p < n ? std::to_string(subset.global[static_cast<std::size_t>(p)]) : std::string("outside");
+  };
+  ((particles += (particles.empty() ? "" : ", ") + name(item.*members)), ...);
+  throw std::invalid_argument(who + ": the " + std::string(what) + " of particles " + particles +
+                              " lies partly outside the particle subset (a subset must hold whole molecules)");
 }
 
 }  // namespace stiffmd

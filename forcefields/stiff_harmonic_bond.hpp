@@ -7,6 +7,7 @@
 
 #include "forcefields/bond_loop.hpp"
 #include "forcefields/force_term.hpp"
+#include "forcefields/stiff_bond_rule.hpp"
 
 namespace stiffmd {
 
@@ -20,7 +21,17 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
   double virial(const Eigen::Matrix3Xd& x, const Box& box) const override {
     return accumulate_bond_virial<Kernel>(instances_, x, box);
   }
-  // The stiff bonds of the subset, in this term's order (the constraint clusters' order), same ε.
+  // The rule that made this term's bonds from the system's topology (StiffBondRule): with it, a
+  // term on a particle subset makes its bonds from the subset's topology by the same rule, and
+  // never reads this term's list. Empty (a term made from its bonds alone): it cuts its list.
+  void set_rule(StiffBondRule rule) { rule_ = std::move(rule); }
+  const StiffBondRule& rule() const { return rule_; }
+  // The stiff bonds of the subset, in this term's order (the constraint clusters' order), same ε
+  // and rule. With a rule: the rule on the subset's topology (the system's restricted to the
+  // subset, in its order: the term's bonds on the subset in the term's order), unless an item of
+  // that topology reaches outside the subset or has a type the rule does not know (a subset that
+  // cuts a molecule, or a topology that is not the system's); then, and without a rule, this
+  // term's list cut to the subset, which names what it refuses.
   std::unique_ptr<ForceTerm> on_subset(const ParticleSubset& subset, const Box& box) const override;
   std::string_view style() const override { return "stiff-harmonic"; }
   std::string describe() const override;
@@ -46,6 +57,7 @@ class StiffHarmonicBond final : public ForceTerm, public FusedMicroStep {
 
  private:
   StiffBonds bonds_;
+  StiffBondRule rule_;
   std::vector<BondInstance<Params>> instances_;
   mutable BondPartition partition_;  // thread plan of the bond loop
   // The micro steps' blocks of whole molecules (kick_drift_forces)

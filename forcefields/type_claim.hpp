@@ -6,6 +6,7 @@
 // the whole system.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -51,25 +52,38 @@ class TypeClaim {
   const std::vector<int>& type_claim() const { return claim_; }
 
  protected:
+  // A term made on a subset keeps the claim: it is the same description, and a subset of it
+  // takes its items from its topology as well.
+  template <class Term>
+  std::unique_ptr<Term> keeping_claim(std::unique_ptr<Term> term) const {
+    term->set_type_claim(claim_);
+    return term;
+  }
   // The term's items on `subset`. With a claim: the claimed items of the subset's topology, which
   // is the system's restricted to the subset, in its order (ParticleSubset), so they are the
   // term's own items on the subset in the term's order — the term's list was the system's
-  // claimed items. Without a claim, or when an item of the subset's topology reaches outside the
-  // subset or has a type the claim does not know (a subset that cuts a molecule, or a topology
-  // that is not the system's): items_on_subset on the term's own list, which names what it
-  // refuses.
+  // claimed items — and the term's own list is not read. Without a claim, or when a claimed item
+  // of the subset's topology reaches outside the subset or an item has a type the claim does not
+  // know (a subset that cuts a molecule, or a topology that is not the system's): items_on_subset on the term's
+  // own list, which names what it refuses; a claimed item of the subset's topology that reaches
+  // outside it is refused even when that list no longer holds it.
   template <class Item, class... Members>
   std::vector<Item> subset_items(const std::vector<Item>& own, const ParticleSubset& subset, const std::string& who,
                                  std::string_view what, Members... members) const {
-    if (!claim_.empty()) {
-      const std::vector<Item>& listed = topology_items(subset.topology, static_cast<const Item*>(nullptr));
-      const int n = subset.size(), types = static_cast<int>(claim_.size());
-      bool inside = true;
-      for (const Item& it : listed)
-        inside = inside && it.type >= 0 && it.type < types && ((it.*members >= 0 && it.*members < n) && ...);
-      if (inside) return claimed_items(listed, claim_);
-    }
-    return items_on_subset(own, subset, who, what, members...);
+    if (claim_.empty()) return items_on_subset(own, subset, who, what, members...);
+    const std::vector<Item>& listed = topology_items(subset.topology, static_cast<const Item*>(nullptr));
+    const int types = static_cast<int>(claim_.size());
+    bool inside = true;  // every type known, and every claimed item within the subset
+    for (const Item& it : listed)
+      inside = inside && it.type >= 0 && it.type < types &&
+               (claim_[static_cast<std::size_t>(it.type)] < 0 || !reaches_outside(it, subset, members...));
+    if (inside) return claimed_items(listed, claim_);
+    std::vector<Item> cut = items_on_subset(own, subset, who, what, members...);
+    for (const Item& it : listed)
+      if (it.type >= 0 && it.type < types && claim_[static_cast<std::size_t>(it.type)] >= 0 &&
+          reaches_outside(it, subset, members...))
+        refuse_cut_item(it, subset, who, what, members...);
+    return cut;
   }
 
  private:

@@ -253,8 +253,9 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
     baro.molecule = bonded_molecules(t, n);
     baro.processes = &comm_;
   }
-  p.forces = w.forces->on_subset(
-      {p.global_id, p.particle_type, t, charged_ ? std::span<const double>(p.charge) : std::span<const double>()});
+  p.forces = w.forces->on_subset({p.global_id, p.particle_type, t,
+                                  charged_ ? std::span<const double>(p.charge) : std::span<const double>(),
+                                  std::span<const double>(mine.inv_mass)});
   // The reciprocal sums (k-space terms) sum over the ranks.
   for (const auto& term : p.forces->terms()) term->set_processes(&comm_);
   if (at_start) whole_numbers(p);

@@ -272,12 +272,11 @@ std::vector<int> claim_kind(DeckTable& t, TermContext& ctx, const TypeKind& kind
 // stiff bonds of this term: ℓ_ik² = ℓ_ij² + ℓ_jk² − 2 ℓ_ij ℓ_jk cos θ₀. The angle type needs no
 // angle term then; one may still claim it (under RATTLE its energy is a constant, as in LAMMPS).
 // type_of gets −1 for them.
-void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vector<int>& type_of) {
+void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, StiffBondRule& rule, std::vector<int>& type_of) {
   auto types = t.table("angle_types");
   if (!types) return;
   const Topology& top = ctx.scene.topology;
-  std::map<std::pair<int, int>, double> arm;  // stiff bond lengths by particle pair (i < j)
-  for (const StiffBond& b : sb.bonds) arm[{std::min(b.i, b.j), std::max(b.i, b.j)}] = b.length;
+  const StiffArms arm = StiffBondRule::arms_of(sb.bonds);  // the claimed bonds' lengths
   for (auto& [type_name, tt] : types->named_tables()) {
     const double deg = tt.number("theta0");
     tt.require(deg > 0.0 && deg < 180.0, "theta0", "expected the rigid angle in degrees, strictly between 0 and 180");
@@ -286,20 +285,17 @@ void add_rigid_angles(DeckTable& t, TermContext& ctx, StiffBonds& sb, std::vecto
     const int k = top.angle_type_index(type_name);
     if (k < 0) continue;  // no angle of that type in this scene
     if (ctx.rigid_angle_type) (*ctx.rigid_angle_type)[static_cast<size_t>(k)] = 1;
-    const double c = std::cos(deg * std::numbers::pi / 180.0);
-    for (const Angle& a : top.angles) {
-      if (a.type != k) continue;
-      const auto l1 = arm.find({std::min(a.i, a.j), std::max(a.i, a.j)});
-      const auto l2 = arm.find({std::min(a.j, a.k), std::max(a.j, a.k)});
-      if (l1 == arm.end() || l2 == arm.end())
-        types->fail(type_name,
-                    "angle " + std::to_string(a.i) + "–" + std::to_string(a.j) + "–" + std::to_string(a.k) +
-                        " of type '" + type_name +
-                        "': a rigid angle needs both of its bonds to be stiff bonds of this term (bond_types)");
-      const double l = std::sqrt(l1->second * l1->second + l2->second * l2->second - 2.0 * l1->second * l2->second * c);
-      sb.bonds.push_back({a.i, a.k, l, alpha});
-      type_of.push_back(-1);
+    const RigidAngleType rigid{k, std::cos(deg * std::numbers::pi / 180.0), alpha};
+    rule.rigid_angles.push_back(rigid);
+    const size_t before = sb.bonds.size();
+    if (const int n = StiffBondRule::add_rigid_angle_bonds(top, rigid, arm, sb.bonds); n >= 0) {
+      const Angle& a = top.angles[static_cast<size_t>(n)];
+      types->fail(type_name,
+                  "angle " + std::to_string(a.i) + "–" + std::to_string(a.j) + "–" + std::to_string(a.k) +
+                      " of type '" + type_name +
+                      "': a rigid angle needs both of its bonds to be stiff bonds of this term (bond_types)");
     }
+    type_of.resize(type_of.size() + (sb.bonds.size() - before), -1);
   }
   types->finish();
 }
@@ -421,12 +417,16 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
   note_lammps(ctx.lammps ? &ctx.lammps->bond : nullptr, "harmonic", index, coeffs, [&sb](const StiffBond& c) {
     return numbers({0.5 * (c.alpha / sb.epsilon) * (c.alpha / sb.epsilon), c.length});
   });
+  // The term's description (StiffBondRule): the whole list is made by it here, and a decomposed
+  // run's part makes its own by it from the part's topology (StiffHarmonicBond::on_subset).
+  StiffBondRule rule;
+  rule.bond_claim = index;
+  rule.bond_coeffs = coeffs;
+  rule.add_claimed_bonds(ctx.scene.topology, sb.bonds);
   std::vector<int> type_of;  // the scene's bond type of each stiff bond, for the message
-  for (const Bond& b : claimed(ctx.scene.topology.bonds, index)) {
-    sb.bonds.push_back({b.i, b.j, coeffs[b.type].length, coeffs[b.type].alpha});
-    type_of.push_back(static_cast<int>(std::find(index.begin(), index.end(), b.type) - index.begin()));
-  }
-  add_rigid_angles(t, ctx, sb, type_of);
+  for (const Bond& b : ctx.scene.topology.bonds)
+    if (index[static_cast<size_t>(b.type)] >= 0) type_of.push_back(b.type);
+  add_rigid_angles(t, ctx, sb, rule, type_of);
   // The rules the constraint toolbox and the stiff modes will enforce (forcefields/stiff_bond.hpp),
   // checked now with the masses, so that a deck no run could use is refused at load.
   if (const auto problem = find_stiff_bond_problem(sb.bonds, &ctx.scene.state.inv_mass)) {
@@ -436,7 +436,9 @@ std::unique_ptr<ForceTerm> read_stiff_harmonic(const std::string& name, Level le
                                  : " (bond type '" + ctx.scene.topology.bond_types[type_of[problem->bond]] + "')";
     t.fail(by_mass && !t.has("bond_types") ? "masses" : "bond_types", problem->what + type);
   }
-  return std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
+  auto term = std::make_unique<StiffHarmonicBond>(name, level, std::move(sb));
+  term->set_rule(std::move(rule));
+  return term;
 }
 
 // The LAMMPS rows of the bond kernels: bond_style fene K R0 epsilon sigma, morse D0 alpha r0.
@@ -782,28 +784,40 @@ std::unique_ptr<ForceTerm> read_umbrella_improper(const std::string& name, Level
       });
 }
 
-// Particles an external term acts on: particles = [i, …], or type = "NAME", or all.
-std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
-  std::vector<int> out;
+// Particles an external term acts on: particles = [i, …], or type = "NAME", or all. The term's
+// selection (ParticleSelection: what a decomposed run's part selects from its own particles) and
+// the whole system's list: the deck's indices in its order, or the selection on every particle.
+struct Selected {
+  ParticleSelection selection;
+  std::vector<int> particles;
+};
+Selected selected_particles(DeckTable& t, const Scene& sc) {
+  Selected out;
+  ParticleSelection& sel = out.selection;
   if (t.has("particles") && t.has("type")) t.fail("type", "give either particles or type, not both");
   if (t.has("particles")) {
+    sel.kind = ParticleSelection::Kind::listed;
     const std::vector<long> ids = t.integers("particles");
     for (long i : ids) {
       if (i < 0 || i >= sc.state.size()) t.fail("particles", "particle " + std::to_string(i) + " does not exist");
-      out.push_back(static_cast<int>(i));
+      sel.listed.push_back(static_cast<int>(i));
     }
-  } else if (t.has("type")) {
-    const std::string type = t.name("type");
-    int k = -1;
-    for (size_t m = 0; m < sc.types.size(); ++m)
-      if (sc.types[m].name == type) k = static_cast<int>(m);
-    if (k < 0) t.fail("type", "unknown particle type '" + type + "'");
-    for (int i = 0; i < sc.state.size(); ++i)
-      if (sc.particle_type[i] == k) out.push_back(i);
+    out.particles = sel.listed;
   } else {
-    for (int i = 0; i < sc.state.size(); ++i) out.push_back(i);
+    if (t.has("type")) {
+      const std::string type = t.name("type");
+      int k = -1;
+      for (size_t m = 0; m < sc.types.size(); ++m)
+        if (sc.types[m].name == type) k = static_cast<int>(m);
+      if (k < 0) t.fail("type", "unknown particle type '" + type + "'");
+      sel.kind = ParticleSelection::Kind::type;
+      sel.type = k;
+    }
+    std::vector<int> every(static_cast<size_t>(sc.state.size()));
+    for (int i = 0; i < sc.state.size(); ++i) every[static_cast<size_t>(i)] = i;
+    out.particles = sel.on(ParticleSubset{every, sc.particle_type, sc.topology});
   }
-  if (out.empty()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
+  if (out.particles.empty()) t.fail(t.has("type") ? "type" : "particles", "selects no particle");
   return out;
 }
 
@@ -811,7 +825,10 @@ std::vector<int> selected_particles(DeckTable& t, const Scene& sc) {
 std::unique_ptr<ForceTerm> read_tether(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   const double k = read(t, "k", kStiffness);
   const Eigen::Vector3d c = t.vector3("center");
-  return std::make_unique<HarmonicTether>(name, level, selected_particles(t, ctx.scene), c, k);
+  Selected sel = selected_particles(t, ctx.scene);
+  auto term = std::make_unique<HarmonicTether>(name, level, std::move(sel.particles), c, k);
+  term->set_selection(std::move(sel.selection));
+  return term;
 }
 
 // lj93-wall: axis = "x"|"y"|"z", position, side = 1 | -1, epsilon, sigma, cutoff, particles or type.
@@ -829,7 +846,10 @@ std::unique_ptr<ForceTerm> read_wall(const std::string& name, Level level, DeckT
   p.epsilon = read(t, "epsilon", kEnergy, p.epsilon);
   p.sigma = read(t, "sigma", kLength, p.sigma);
   p.cutoff = read(t, "cutoff", kLength, p.cutoff);
-  return std::make_unique<LJ93Wall>(name, level, p, selected_particles(t, ctx.scene));
+  Selected sel = selected_particles(t, ctx.scene);
+  auto term = std::make_unique<LJ93Wall>(name, level, p, std::move(sel.particles));
+  term->set_selection(std::move(sel.selection));
+  return term;
 }
 
 // The neighbour list needs every periodic box length >= 2 (cutoff + skin) (check_box_for_cutoff):
