@@ -471,6 +471,16 @@ void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
   return count;
 }
 
+// v sized n, with a quarter more room when it grows past its capacity: a pair set grows and
+// shrinks a little from one selection to the next, and a vector that grows past its capacity
+// copies what it holds into a new block, at each selection where the kept buffers are sized to
+// the last one exactly.
+template <class T>
+void resize_with_room(std::vector<T>& v, std::size_t n) {
+  if (n > v.capacity()) v.reserve(n + n / 4);
+  v.resize(n);
+}
+
 // The runs of the pairs (from[m], to[m]) for every m (`all`) and for the m with home[m] (`homes`),
 // in one pass: the longest stretches where both go up by one from one m to the next. An absent
 // `from` or `to` stands for the position of m among all (for `all`) or among the home ones (for
@@ -745,7 +755,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     if (carry_)
       for (const Run& run : p.all) words += owned_word_at_[run.from + run.count] - owned_word_at_[run.from];
     std::vector<double>& b = out[r];
-    b.resize(beads == 0 ? 0 : 1 + terms + beads + words);  // no message without beads; no allocation once sized
+    resize_with_room(b, beads == 0 ? 0 : 1 + terms + beads + words);  // no message without beads
     if (beads == 0) continue;
     double* w = b.data();
     *w++ = static_cast<double>(beads);
@@ -775,7 +785,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   std::size_t arriving = 0;
   for (int r = 0; r < ranks; ++r) arriving += in[r].empty() ? 0 : static_cast<std::size_t>(in[r][0]);
   const std::size_t local_count = local_.owned.size(), total = local_count + arriving;
-  keys.resize(total);  // no allocation once sized
+  resize_with_room(keys, total);
   bounds.assign(1, local_count);
   const auto key = [](int g, int source, bool home) {
     return static_cast<std::uint64_t>(g) << 32 | static_cast<std::uint64_t>(source) << 1 | (home ? 1u : 0u);
@@ -787,7 +797,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   for (int r = 0; r < ranks; ++r) {
     Plan& p = in_[r];
     const std::size_t count = in[r].empty() ? 0 : static_cast<std::size_t>(in[r][0]);
-    p.slot.resize(count), p.home.resize(count), p.homes = 0;  // every entry written below
+    resize_with_room(p.slot, count), resize_with_room(p.home, count), p.homes = 0;  // every entry written below
     if (count == 0) continue;
     for (std::size_t t = 0; t < terms; ++t) partners_total[t] += static_cast<std::size_t>(in[r][1 + t]);
     const double* w = in[r].data() + 1 + terms;
@@ -804,7 +814,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   // once per rank).
   {
     std::vector<std::uint64_t>& other = merge_other_;
-    other.resize(total);  // no allocation once sized
+    resize_with_room(other, total);
     std::vector<std::size_t>& merged = merge_next_bounds_;
     const auto at = [](std::vector<std::uint64_t>& v, std::size_t e) {
       return v.begin() + static_cast<std::ptrdiff_t>(e);
@@ -833,9 +843,9 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     }
   }
   const int n = static_cast<int>(total);
-  pair_ids_.resize(n);
-  halo_flag_.resize(n);
-  local_.slot.resize(local_count);
+  resize_with_room(pair_ids_, n);
+  resize_with_room(halo_flag_, n);
+  resize_with_room(local_.slot, local_count);
   num_home_ = 0;
   // Per source, the slots of its beads in its order (each source's beads come in that order), and
   // where its next bead's carried words start (an arrival's follow one another in its message; a
@@ -854,17 +864,16 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   fill.assign(terms, 0);
   if (carry_) {
     d.charged = owned_data_.charged;
-    d.type.resize(n);
-    d.charge.resize(d.charged ? n : 0);
+    resize_with_room(d.type, n);
+    resize_with_room(d.charge, d.charged ? n : 0);
     d.special.resize(terms);
     for (std::size_t t = 0; t < terms; ++t) {
-      // The partners of the local beads and of every arrival: sized exactly, so the pass below
-      // writes every entry.
-      const std::vector<int>& start = owned_data_.special[t].start;
-      for (const int k : local_.owned) partners_total[t] += start[k + 1] - start[k];
+      // Room for the partners of every owned bead and every arrival (the local beads are most of
+      // the owned ones); cut to those written after the pass below.
+      const std::size_t room = partners_total[t] + owned_data_.special[t].partner.size();
       SpecialPartners& s = d.special[t];
-      s.start.resize(n + 1), s.start[0] = 0;
-      s.partner.resize(partners_total[t]), s.weight.resize(partners_total[t]), s.weight_coul.resize(partners_total[t]);
+      resize_with_room(s.start, n + 1), s.start[0] = 0;
+      resize_with_room(s.partner, room), resize_with_room(s.weight, room), resize_with_room(s.weight_coul, room);
     }
   }
   // The slots: each member's global index and flag, its source's next slot, and the halo's runs
@@ -922,6 +931,10 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
         row.start[e + 1] = fill[t];
       }
       if (source != me) words[source] = w;
+    }
+    for (std::size_t t = 0; t < terms; ++t) {
+      SpecialPartners& s = d.special[t];
+      s.partner.resize(fill[t]), s.weight.resize(fill[t]), s.weight_coul.resize(fill[t]);
     }
   }
   // The copies' runs.
