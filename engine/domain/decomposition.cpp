@@ -1029,10 +1029,10 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
     const Plan& p = out_[r];
     std::vector<double>& b = send[r];
     const std::size_t positions = 3 * p.owned.size();
-    b.resize(positions + (forces ? 3 * p.homes : 0));  // no allocation once sized
+    resize_with_room(b, positions + (forces ? 3 * p.homes : 0));
     copy_runs(p.all, wrapped_.data(), b.data());
     if (forces) copy_runs(p.home_runs, owned_f->data(), b.data() + positions);
-    recv[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
+    resize_with_room(recv[r], 3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
   comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) {
@@ -1053,9 +1053,9 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
     std::vector<double>& b = send[r];
-    b.resize(3 * static_cast<size_t>(p.homes));
+    resize_with_room(b, 3 * static_cast<size_t>(p.homes));
     copy_runs(p.home_runs, pair_f.data(), b.data(), true);
-    recv[r].resize(3 * static_cast<size_t>(out_[r].homes));
+    resize_with_room(recv[r], 3 * static_cast<size_t>(out_[r].homes));
   }
   comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) copy_runs(out_[r].home_runs, recv[r].data(), owned_f.data(), true);
