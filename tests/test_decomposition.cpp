@@ -746,6 +746,113 @@ TEST(DecompositionOnManyFakeRanks, ForwardGivesBoxWrapsBitsAndReverseTheHomesFor
     expect_forward_and_reverse_exact(melt, layout);
 }
 
+// What a bead carries to the pair sets (set_owned_pair_data), made up from its global index g and a
+// salt that each part build changes: a type, a charge and two terms' special partners — the first
+// the chain's neighbours beside it, the second 0–3 beads after it (every count, so that the beads'
+// words differ in length along a run) — with weights that name the pair.
+struct MadeUpPairData {
+  int salt;
+  int beads;
+  int type(int g) const { return (g * 7 + salt) % 11; }
+  double charge(int g) const { return 0.25 * g - salt; }
+  std::vector<int> partners(int t, int g) const {
+    std::vector<int> p;
+    if (t == 0) {
+      if (g > 0) p.push_back(g - 1);
+      if (g + 1 < beads) p.push_back(g + 1);
+    } else {
+      for (int q = 1; q <= (g + salt) % 4 && g + q < beads; ++q) p.push_back(g + q);
+    }
+    return p;
+  }
+  double weight(int t, int g, int h) const { return 0.5 * t + 1e-3 * g + 1e-7 * h + salt; }
+  PairBeadData owned(const std::vector<int>& ids) const {
+    PairBeadData d;
+    d.charged = true;
+    d.special.resize(2);
+    for (const int g : ids) {
+      d.type.push_back(type(g));
+      d.charge.push_back(charge(g));
+      for (int t = 0; t < 2; ++t) {
+        SpecialPartners& s = d.special[t];
+        for (const int h : partners(t, g))
+          s.partner.push_back(h), s.weight.push_back(weight(t, g, h)), s.weight_coul.push_back(-weight(t, h, g));
+        s.start.push_back(static_cast<int>(s.partner.size()));
+      }
+    }
+    return d;
+  }
+};
+
+// Every pair-set slot holds what its bead carried, sized exactly (partners as many as the rows
+// name), after a selection, after one with the beads moved, and after a part build that changed
+// what the beads carry (set_owned_pair_data again: its words packed afresh).
+void expect_carried_data_exact(const Melt& melt, const Layout& layout) {
+  const int n = melt.size();
+  std::vector<long> arrived(layout.ranks, 0);
+  run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
+    const int me = comm.rank();
+    auto d = make(melt, comm, layout);
+    Eigen::Matrix3Xd x, v;
+    d->distribute(melt.state, x, v);
+    for (int pass = 0; pass < 3; ++pass) {
+      const MadeUpPairData made{pass == 2 ? 5 : 0, n};
+      if (pass != 1) d->set_owned_pair_data(made.owned(d->owned_ids()));
+      if (pass == 1) x.array() += 0.7;
+      d->select_pair_set(x);
+      const std::vector<int>& ids = d->pair_ids();
+      const PairBeadData& p = d->pair_data();
+      const int m = static_cast<int>(ids.size());
+      ASSERT_EQ(p.type.size(), ids.size());
+      ASSERT_EQ(p.charge.size(), ids.size());
+      ASSERT_EQ(p.special.size(), 2u);
+      for (int t = 0; t < 2; ++t) {
+        const SpecialPartners& s = p.special[t];
+        ASSERT_EQ(s.size(), m);
+        ASSERT_EQ(s.start[0], 0);
+        ASSERT_EQ(static_cast<int>(s.partner.size()), s.start[m]) << "rank " << me << ", term " << t;
+        ASSERT_EQ(static_cast<int>(s.weight.size()), s.start[m]);
+        ASSERT_EQ(static_cast<int>(s.weight_coul.size()), s.start[m]);
+      }
+      long others = 0;
+      for (int e = 0; e < m; ++e) {
+        const int g = ids[e];
+        others += d->owned_index(g) < 0;
+        const std::string where =
+            "rank " + std::to_string(me) + ", pass " + std::to_string(pass) + ", particle " + std::to_string(g);
+        ASSERT_EQ(p.type[e], made.type(g)) << where;
+        ASSERT_EQ(p.charge[e], made.charge(g)) << where;
+        for (int t = 0; t < 2; ++t) {
+          const SpecialPartners& s = p.special[t];
+          const std::vector<int> want = made.partners(t, g);
+          ASSERT_EQ(s.start[e + 1] - s.start[e], static_cast<int>(want.size())) << where << ", term " << t;
+          for (std::size_t q = 0; q < want.size(); ++q) {
+            const int at = s.start[e] + static_cast<int>(q);
+            ASSERT_EQ(s.partner[at], want[q]) << where;
+            ASSERT_EQ(s.weight[at], made.weight(t, g, want[q])) << where;
+            ASSERT_EQ(s.weight_coul[at], -made.weight(t, want[q], g)) << where;
+          }
+        }
+      }
+      arrived[me] = others;
+    }
+  });
+  if (layout.ranks > 1) {
+    for (int r = 0; r < layout.ranks; ++r) EXPECT_GT(arrived[r], 0) << "rank " << r << ": no bead from another owner";
+  }
+}
+
+TEST_P(DecompositionOnFakeRanks, EveryPairSetSlotHoldsWhatItsBeadCarried) {
+  expect_carried_data_exact(fake::straddling_melt(), GetParam());
+  expect_carried_data_exact(chain_melt(), GetParam());
+}
+
+TEST(DecompositionOnManyFakeRanks, EveryPairSetSlotHoldsWhatItsBeadCarried) {
+  const Melt melt = chain_melt();
+  for (const Layout& layout : {Layout{16, {4, 2, 2}}, Layout{8, {8, 1, 1}}, Layout{6, {1, 1, 6}}})
+    expect_carried_data_exact(melt, layout);
+}
+
 INSTANTIATE_TEST_SUITE_P(Layouts, DecompositionOnFakeRanks,
                          ::testing::Values(Layout{2, {2, 1, 1}}, Layout{3, {1, 3, 1}}, Layout{4, {2, 1, 2}},
                                            Layout{2, {0, 0, 0}}, Layout{3, {0, 0, 0}}, Layout{4, {0, 0, 0}},

@@ -501,53 +501,50 @@ void slabs_within(const DomainGrid& g, int a, double q, double reach, int home,
   return count;
 }
 
-// The runs of the pairs (from[m], to[m]) for the m with keep[m] (every m when keep is empty):
-// the longest stretches where both go up by one from one m to the next. An empty `from` or `to`
-// stands for the position of m among those kept (`count` entries in all). The run being made is
-// kept in registers and stored when the next one starts.
-template <bool kFrom, bool kTo, bool kKeep>
-void make_runs_of(const int* from, const int* to, const char* keep, std::size_t count, std::vector<ColumnRun>& runs) {
-  runs.clear();
-  int position = 0;
-  ColumnRun run{0, 0, 0};
-  for (std::size_t m = 0; m < count; ++m) {
-    if (kKeep && !keep[m]) continue;
-    const int f = kFrom ? from[m] : position, t = kTo ? to[m] : position;
-    ++position;
-    if (run.count > 0 && run.from + run.count == f && run.to + run.count == t) {
-      ++run.count;
-      continue;
-    }
-    if (run.count > 0) runs.push_back(run);
-    run = {f, t, 1};
-  }
-  if (run.count > 0) runs.push_back(run);
+// v sized n, with a quarter more room when it grows past its capacity: a pair set grows and
+// shrinks a little from one selection to the next, and a vector that grows past its capacity
+// copies what it holds into a new block, at each selection where the kept buffers are sized to
+// the last one exactly.
+template <class T>
+void resize_with_room(std::vector<T>& v, std::size_t n) {
+  if (n > v.capacity()) v.reserve(n + n / 4);
+  v.resize(n);
 }
 
-void make_runs(std::span<const int> from, std::span<const int> to, std::span<const char> keep, std::size_t count,
-               std::vector<ColumnRun>& runs) {
-  const int* f = from.data();
-  const int* t = to.data();
-  const char* k = keep.data();
-  const int kind = (from.empty() ? 0 : 4) + (to.empty() ? 0 : 2) + (keep.empty() ? 0 : 1);
-  switch (kind) {
-    case 0:
-      return make_runs_of<false, false, false>(f, t, k, count, runs);
-    case 1:
-      return make_runs_of<false, false, true>(f, t, k, count, runs);
-    case 2:
-      return make_runs_of<false, true, false>(f, t, k, count, runs);
-    case 3:
-      return make_runs_of<false, true, true>(f, t, k, count, runs);
-    case 4:
-      return make_runs_of<true, false, false>(f, t, k, count, runs);
-    case 5:
-      return make_runs_of<true, false, true>(f, t, k, count, runs);
-    case 6:
-      return make_runs_of<true, true, false>(f, t, k, count, runs);
-    default:
-      return make_runs_of<true, true, true>(f, t, k, count, runs);
+// The runs of the pairs (from[m], to[m]) for every m (`all`) and for the m with home[m] (`homes`),
+// in one pass: the longest stretches where both go up by one from one m to the next. An absent
+// `from` or `to` stands for the position of m among all (for `all`) or among the home ones (for
+// `homes`). The runs being made are kept in registers and stored when the next one starts.
+template <bool kFrom, bool kTo>
+void make_all_and_home_runs_of(const int* from, const int* to, const char* home, std::size_t count,
+                               std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes) {
+  all.clear(), homes.clear();
+  ColumnRun a{0, 0, 0}, h{0, 0, 0};
+  int position = 0;
+  const auto extend = [](ColumnRun& run, int f, int t, std::vector<ColumnRun>& runs) {
+    if (run.count > 0 && run.from + run.count == f && run.to + run.count == t) return void(++run.count);
+    if (run.count > 0) runs.push_back(run);
+    run = {f, t, 1};
+  };
+  for (std::size_t m = 0; m < count; ++m) {
+    const int f = kFrom ? from[m] : static_cast<int>(m), t = kTo ? to[m] : static_cast<int>(m);
+    extend(a, f, t, all);
+    if (home[m]) {
+      extend(h, kFrom ? f : position, kTo ? t : position, homes);
+      ++position;
+    }
   }
+  if (a.count > 0) all.push_back(a);
+  if (h.count > 0) homes.push_back(h);
+}
+
+void make_all_and_home_runs(std::span<const int> from, std::span<const int> to, std::span<const char> home,
+                            std::size_t count, std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes) {
+  if (!from.empty() && !to.empty())
+    return make_all_and_home_runs_of<true, true>(from.data(), to.data(), home.data(), count, all, homes);
+  if (!from.empty())
+    return make_all_and_home_runs_of<true, false>(from.data(), nullptr, home.data(), count, all, homes);
+  make_all_and_home_runs_of<false, true>(nullptr, to.data(), home.data(), count, all, homes);
 }
 
 // The copies by runs. A run of `count` columns is 3 × count consecutive doubles on both sides, so
@@ -643,6 +640,7 @@ void clear_runs(std::span<const ColumnRun> runs, double* target) {
 void Decomposition::set_owned_pair_data(PairBeadData owned) {
   owned_data_ = std::move(owned);
   carry_ = true;
+  owned_packed_ = false;
 }
 
 int Decomposition::pair_slot(int global) const {
@@ -667,21 +665,23 @@ double* pack_bead_data(const PairBeadData& d, int k, double* w) {
   return w;
 }
 
-// The words pack_bead_data writes for owned column k.
-std::size_t bead_data_words(const PairBeadData& d, int k) {
-  std::size_t words = 1 + d.charged + d.special.size();
-  for (const SpecialPartners& s : d.special) words += 3 * static_cast<std::size_t>(s.start[k + 1] - s.start[k]);
-  return words;
-}
-
-// The word past one bead's data in a message (pack_bead_data) that starts at `at`.
-std::size_t skip_bead_data(const PairBeadData& d, const double* w, std::size_t at) {
-  at += d.charged ? 2 : 1;
-  for (std::size_t t = 0; t < d.special.size(); ++t) at += 1 + 3 * static_cast<std::size_t>(w[at]);
-  return at;
-}
-
 }  // namespace
+
+void Decomposition::pack_owned_words() {
+  const int owned = num_owned();
+  owned_word_at_.resize(owned + 1);
+  std::size_t words = 0;
+  for (int k = 0; k < owned; ++k) {
+    owned_word_at_[k] = words;
+    words += 1 + owned_data_.charged + owned_data_.special.size();
+    for (const SpecialPartners& s : owned_data_.special)
+      words += 3 * static_cast<std::size_t>(s.start[k + 1] - s.start[k]);
+  }
+  owned_word_at_[owned] = words;
+  owned_words_.resize(words);
+  for (int k = 0; k < owned; ++k) pack_bead_data(owned_data_, k, owned_words_.data() + owned_word_at_[k]);
+  owned_packed_ = true;
+}
 
 void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
@@ -705,7 +705,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const double reach2 = reach * reach;
   // Per axis its faces, and whether a point's slabs within R are its own and those beside it
   // (adjacent_slabs_within): every slab wider than R (with room for rounding).
-  std::vector<double> faces[3];
+  std::vector<double> faces[3], inner_lo[3], inner_hi[3];
   bool adjacent[3];
   for (int a = 0; a < 3; ++a) {
     const int n = dims[a];
@@ -714,6 +714,15 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     double narrowest = std::numeric_limits<double>::infinity();
     for (int c = 0; c < n; ++c) narrowest = std::min(narrowest, faces[a][c + 1] - faces[a][c]);
     adjacent[a] = n == 1 || narrowest > reach * (1.0 + 1e-9);
+    // A bead in slab c lies deeper than R inside it on axis a where q − inner_lo ≥ R and
+    // inner_hi − q ≥ R: the slab's faces, an open axis's edge faces and an uncut axis's at
+    // infinity (nothing lies beyond them), so that the test below takes no branch per axis.
+    inner_lo[a].resize(n), inner_hi[a].resize(n);
+    for (int c = 0; c < n; ++c) {
+      const bool open = !grid_.periodic[a];
+      inner_lo[a][c] = n == 1 || (c == 0 && open) ? -std::numeric_limits<double>::infinity() : faces[a][c];
+      inner_hi[a][c] = n == 1 || (c == n - 1 && open) ? std::numeric_limits<double>::infinity() : faces[a][c + 1];
+    }
   }
   for (int k = 0; k < owned; ++k) {
     Eigen::Vector3d q;
@@ -723,12 +732,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     const int home = (hc[0] * dims[1] + hc[1]) * dims[2] + hc[2];
     // Most beads lie deeper than R inside their domain on every cut axis: home alone.
     bool inside = true;
-    for (int a = 0; a < 3 && inside; ++a) {
-      if (dims[a] == 1) continue;
-      const double lo = faces[a][hc[a]], hi = faces[a][hc[a] + 1];
-      inside = (hc[a] == 0 && !grid_.periodic[a] ? true : q[a] - lo >= reach) &&
-               (hc[a] == dims[a] - 1 && !grid_.periodic[a] ? true : hi - q[a] >= reach);
-    }
+    for (int a = 0; a < 3; ++a) inside &= (q[a] - inner_lo[a][hc[a]] >= reach) & (inner_hi[a][hc[a]] - q[a] >= reach);
     if (inside) {
       Plan& p = home == me ? local_ : out_[home];
       p.owned.push_back(k);
@@ -762,180 +766,211 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
           p.homes += d == home;
         }
   }
-  // The receivers learn which beads come and which are home: a global index g as g (home) or
-  // −1 − g (halo), followed by what the bead carries (its type, charge and special partners:
-  // pack_bead_data) when the owned beads' data is set.
-  std::vector<std::vector<double>>&ids = selection_out_, &in = selection_in_;
-  ids.resize(ranks);
+  // The runs of owned columns each rank is sent (sender's side of the plan): the carried words
+  // of consecutive owned beads are consecutive (owned_words_), so a message's data is copied by
+  // these runs.
+  for (int r = 0; r < ranks; ++r)
+    make_all_and_home_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].all, out_[r].home_runs);
+  // The receivers learn which beads come, which are home, and what they carry. A message is
+  // [n][per pair term, its partners' count over the n beads][n words: a global index g as g
+  // (home) or −1 − g (halo)][the n beads' carried words (pack_bead_data), in the same order].
+  const std::size_t terms = carry_ ? owned_data_.special.size() : 0;
+  if (carry_ && !owned_packed_) pack_owned_words();
+  std::vector<std::vector<double>>&out = selection_out_, &in = selection_in_;
+  out.resize(ranks);
   for (int r = 0; r < ranks; ++r) {
-    const std::vector<int>& owned = out_[r].owned;
-    std::size_t words = owned.size();
+    const Plan& p = out_[r];
+    const std::size_t beads = p.owned.size();
+    std::size_t words = 0;
     if (carry_)
-      for (const int k : owned) words += bead_data_words(owned_data_, k);
-    ids[r].resize(words);
-    double* w = ids[r].data();
-    for (size_t m = 0; m < owned.size(); ++m) {
-      const int k = owned[m], g = ids_[k];
-      *w++ = out_[r].home[m] ? g : -1 - g;
-      if (carry_) w = pack_bead_data(owned_data_, k, w);
+      for (const Run& run : p.all) words += owned_word_at_[run.from + run.count] - owned_word_at_[run.from];
+    std::vector<double>& b = out[r];
+    resize_with_room(b, beads == 0 ? 0 : 1 + terms + beads + words);  // no message without beads
+    if (beads == 0) continue;
+    double* w = b.data();
+    *w++ = static_cast<double>(beads);
+    for (std::size_t t = 0; t < terms; ++t) {
+      const std::vector<int>& start = owned_data_.special[t].start;
+      std::size_t partners = 0;
+      for (const Run& run : p.all) partners += start[run.from + run.count] - start[run.from];
+      *w++ = static_cast<double>(partners);
     }
+    for (std::size_t m = 0; m < beads; ++m) {
+      const int g = ids_[p.owned[m]];
+      *w++ = p.home[m] ? g : -1 - g;
+    }
+    if (carry_)
+      for (const Run& run : p.all)
+        w = std::copy(owned_words_.begin() + owned_word_at_[run.from],
+                      owned_words_.begin() + owned_word_at_[run.from + run.count], w);
   }
-  comm_.exchange(ids, in);
-  // Per sender, where each bead's words start in its message (each takes two words at least).
-  std::vector<std::vector<std::size_t>>& at = arrival_at_;
-  at.resize(ranks);
-  for (int r = 0; r < ranks; ++r) {
-    if (!carry_) continue;
-    at[r].resize(in[r].size() / 2);
-    std::size_t beads = 0;
-    for (std::size_t w = 0; w < in[r].size(); w = skip_bead_data(owned_data_, in[r].data(), w + 1)) at[r][beads++] = w;
-    at[r].resize(beads);
-  }
-  const auto beads_from = [&](int r) { return carry_ ? at[r].size() : in[r].size(); };
+  comm_.exchange(out, in);
   // The pair set: every bead received or kept, in increasing global index (so a home bead's pairs
-  // are summed in the one-process order: forcefields/neighbor_list.hpp).
-  struct Member {
-    int global, from, index;  // from: the sending rank (this one: local_), index in its message
-    bool home;
-    bool operator<(const Member& o) const { return global < o.global; }
-  };
-  std::vector<Member> members;
+  // are summed in the one-process order: forcefields/neighbor_list.hpp). Each member is a key
+  // g · 2³² + source · 2 + home, so that merging the keys orders the members by global index and
+  // says where each came from; the sources' own orders are increasing (the local beads in the
+  // owned order, each rank's in its owned order).
+  std::vector<std::uint64_t>& keys = merge_keys_;
+  std::vector<std::size_t>& bounds = merge_bounds_;  // the runs' ends, the local one first
   std::size_t arriving = 0;
-  for (int r = 0; r < ranks; ++r) arriving += beads_from(r);
-  members.reserve(local_.owned.size() + arriving);
-  for (size_t m = 0; m < local_.owned.size(); ++m)
-    members.push_back({ids_[local_.owned[m]], me, static_cast<int>(m), local_.home[m] != 0});
+  for (int r = 0; r < ranks; ++r) arriving += in[r].empty() ? 0 : static_cast<std::size_t>(in[r][0]);
+  const std::size_t local_count = local_.owned.size(), total = local_count + arriving;
+  resize_with_room(keys, total);
+  bounds.assign(1, local_count);
+  const auto key = [](int g, int source, bool home) {
+    return static_cast<std::uint64_t>(g) << 32 | static_cast<std::uint64_t>(source) << 1 | (home ? 1u : 0u);
+  };
+  for (std::size_t m = 0; m < local_count; ++m) keys[m] = key(ids_[local_.owned[m]], me, local_.home[m] != 0);
+  std::size_t filled = local_count;
+  std::vector<std::size_t>& partners_total = partners_total_;
+  partners_total.assign(terms, 0);
   for (int r = 0; r < ranks; ++r) {
     Plan& p = in_[r];
-    const std::size_t count = beads_from(r);
-    p.slot.assign(count, -1), p.home.assign(count, 0), p.homes = 0;
-    for (size_t m = 0; m < count; ++m) {
-      const double w = in[r][carry_ ? at[r][m] : m];
-      const bool home = w >= 0.0;
-      members.push_back({home ? static_cast<int>(w) : static_cast<int>(-1.0 - w), r, static_cast<int>(m), home});
+    const std::size_t count = in[r].empty() ? 0 : static_cast<std::size_t>(in[r][0]);
+    resize_with_room(p.slot, count), resize_with_room(p.home, count), p.homes = 0;  // every entry written below
+    if (count == 0) continue;
+    for (std::size_t t = 0; t < terms; ++t) partners_total[t] += static_cast<std::size_t>(in[r][1 + t]);
+    const double* w = in[r].data() + 1 + terms;
+    for (std::size_t m = 0; m < count; ++m) {
+      const bool home = w[m] >= 0.0;
+      keys[filled + m] = key(home ? static_cast<int>(w[m]) : static_cast<int>(-1.0 - w[m]), r, home);
       p.home[m] = home, p.homes += home;
     }
+    filled += count;
+    bounds.push_back(filled);
   }
-  // Runs in increasing global index (the local beads, then each rank's, which it sends in its
-  // owned order): merged, not sorted — the arrivals' runs pairwise, level by level, then with the
-  // local beads (most of the set: merged once, where merging each rank's run into the growing set
-  // moved them once per rank).
+  // Merged, not sorted: the arrivals' runs pairwise, level by level, then with the local beads
+  // (most of the set: merged once, where merging each rank's run into the growing set moved them
+  // once per rank).
   {
-    std::vector<std::size_t> bounds{local_.owned.size()};  // the runs' ends, the local one first
-    for (int r = 0; r < ranks; ++r)
-      if (beads_from(r) > 0) bounds.push_back(bounds.back() + beads_from(r));
-    std::vector<Member> other(members.size());
-    const auto at = [](std::vector<Member>& v, std::size_t e) { return v.begin() + static_cast<std::ptrdiff_t>(e); };
-    // Level by level: the arrivals' runs (after bounds[0]) two by two into one, from members into
+    std::vector<std::uint64_t>& other = merge_other_;
+    resize_with_room(other, total);
+    std::vector<std::size_t>& merged = merge_next_bounds_;
+    const auto at = [](std::vector<std::uint64_t>& v, std::size_t e) {
+      return v.begin() + static_cast<std::ptrdiff_t>(e);
+    };
+    // Level by level: the arrivals' runs (after bounds[0]) two by two into one, from keys into
     // other and back; the local run stays where it is in both.
-    if (bounds.size() > 2) std::copy(at(members, 0), at(members, bounds[0]), at(other, 0));
+    if (bounds.size() > 2) std::copy(at(keys, 0), at(keys, bounds[0]), at(other, 0));
     while (bounds.size() > 2) {
-      std::vector<std::size_t> merged{bounds[0]};
+      merged.assign(1, bounds[0]);
       std::size_t q = 1;
       for (; q + 1 < bounds.size(); q += 2) {
-        std::merge(at(members, bounds[q - 1]), at(members, bounds[q]), at(members, bounds[q]),
-                   at(members, bounds[q + 1]), at(other, bounds[q - 1]));
+        std::merge(at(keys, bounds[q - 1]), at(keys, bounds[q]), at(keys, bounds[q]), at(keys, bounds[q + 1]),
+                   at(other, bounds[q - 1]));
         merged.push_back(bounds[q + 1]);
       }
       if (q < bounds.size()) {  // an odd run out: carried over
-        std::copy(at(members, bounds[q - 1]), at(members, bounds[q]), at(other, bounds[q - 1]));
+        std::copy(at(keys, bounds[q - 1]), at(keys, bounds[q]), at(other, bounds[q - 1]));
         merged.push_back(bounds[q]);
       }
-      members.swap(other);
-      bounds = std::move(merged);
+      keys.swap(other);
+      bounds.swap(merged);
     }
     if (bounds.size() == 2) {
-      std::merge(at(members, 0), at(members, bounds[0]), at(members, bounds[0]), at(members, bounds[1]), at(other, 0));
-      members.swap(other);
+      std::merge(at(keys, 0), at(keys, bounds[0]), at(keys, bounds[0]), at(keys, bounds[1]), at(other, 0));
+      keys.swap(other);
     }
   }
-  const int n = static_cast<int>(members.size());
-  pair_ids_.resize(n);
-  halo_flag_.assign(n, 0);
-  local_.slot.assign(local_.owned.size(), -1);
+  const int n = static_cast<int>(total);
+  resize_with_room(pair_ids_, n);
+  resize_with_room(halo_flag_, n);
+  resize_with_room(local_.slot, local_count);
   num_home_ = 0;
-  for (int e = 0; e < n; ++e) {
-    const Member& m = members[e];
-    pair_ids_[e] = m.global;
-    halo_flag_[e] = !m.home;
-    num_home_ += m.home;
-    (m.from == me ? local_.slot : in_[m.from].slot)[m.index] = e;
+  // Per source, the slots of its beads in its order (each source's beads come in that order), and
+  // where its next bead's carried words start (an arrival's follow one another in its message; a
+  // local bead's are its owned words).
+  std::vector<int*>& slot_of = source_slots_;
+  std::vector<int>& next = source_next_;
+  std::vector<const double*>& words = source_words_;
+  slot_of.resize(ranks), next.assign(ranks, 0), words.resize(ranks);
+  for (int r = 0; r < ranks; ++r) {
+    slot_of[r] = (r == me ? local_.slot : in_[r].slot).data();
+    words[r] = in[r].empty() ? nullptr : in[r].data() + 1 + terms + static_cast<std::size_t>(in[r][0]);
   }
-  // What the beads carried, per slot: a kept bead's from the owned data, an arrived one's from
-  // its message. Two passes: the partner counts per slot, then the partners in place.
+  // The pair set's carried data, sized for the pass below.
+  PairBeadData& d = pair_data_;
+  std::vector<int>& fill = partners_filled_;
+  fill.assign(terms, 0);
   if (carry_) {
-    PairBeadData& d = pair_data_;
-    const std::size_t terms = owned_data_.special.size();
     d.charged = owned_data_.charged;
-    d.type.resize(n);
-    d.charge.resize(d.charged ? n : 0);
+    resize_with_room(d.type, n);
+    resize_with_room(d.charge, d.charged ? n : 0);
     d.special.resize(terms);
-    for (SpecialPartners& s : d.special) s.start.resize(n + 1), s.start[0] = 0;
-    for (int e = 0; e < n; ++e) {
-      const Member& m = members[e];
-      if (m.from == me) {
-        const int k = local_.owned[m.index];
-        for (std::size_t t = 0; t < terms; ++t) {
-          const std::vector<int>& o = owned_data_.special[t].start;
-          std::vector<int>& start = d.special[t].start;
-          start[e + 1] = start[e] + o[k + 1] - o[k];
-        }
-      } else {
-        const double* w = in[m.from].data() + at[m.from][m.index] + (d.charged ? 3 : 2);
-        for (std::size_t t = 0; t < terms; ++t) {
-          const int count = static_cast<int>(*w);
-          std::vector<int>& start = d.special[t].start;
-          start[e + 1] = start[e] + count;
-          w += 1 + 3 * count;
-        }
-      }
+    for (std::size_t t = 0; t < terms; ++t) {
+      // Room for the partners of every owned bead and every arrival (the local beads are most of
+      // the owned ones); cut to those written after the pass below.
+      const std::size_t room = partners_total[t] + owned_data_.special[t].partner.size();
+      SpecialPartners& s = d.special[t];
+      resize_with_room(s.start, n + 1), s.start[0] = 0;
+      resize_with_room(s.partner, room), resize_with_room(s.weight, room), resize_with_room(s.weight_coul, room);
     }
-    for (SpecialPartners& s : d.special) {
-      const int total = s.start[n];
-      s.partner.resize(total), s.weight.resize(total), s.weight_coul.resize(total);
-    }
+  }
+  // The slots: each member's global index and flag, its source's next slot, and the halo's runs
+  // of slots (from = to).
+  halo_runs_.clear();
+  {
+    int* const pair_ids = pair_ids_.data();
+    char* const halo = halo_flag_.data();
+    int homes = 0;
+    ColumnRun run{0, 0, 0};
     for (int e = 0; e < n; ++e) {
-      const Member& m = members[e];
-      if (m.from == me) {
-        const int k = local_.owned[m.index];
-        d.type[e] = owned_data_.type[k];
-        if (d.charged) d.charge[e] = owned_data_.charge[k];
-        for (std::size_t t = 0; t < terms; ++t) {
-          const SpecialPartners& o = owned_data_.special[t];
-          SpecialPartners& s = d.special[t];
-          for (int p = o.start[k], q = s.start[e]; p < o.start[k + 1]; ++p, ++q)
-            s.partner[q] = o.partner[p], s.weight[q] = o.weight[p], s.weight_coul[q] = o.weight_coul[p];
-        }
-      } else {
-        const double* w = in[m.from].data() + at[m.from][m.index] + 1;
-        d.type[e] = static_cast<int>(*w++);
-        if (d.charged) d.charge[e] = *w++;
-        for (std::size_t t = 0; t < terms; ++t) {
-          SpecialPartners& s = d.special[t];
-          ++w;  // the count, as in the first pass
-          for (int q = s.start[e]; q < s.start[e + 1]; ++q, w += 3)
-            s.partner[q] = static_cast<int>(w[0]), s.weight[q] = w[1], s.weight_coul[q] = w[2];
-        }
+      const std::uint64_t k = keys[e];
+      const int source = static_cast<int>(static_cast<std::uint32_t>(k) >> 1);
+      const bool home = (k & 1u) != 0;
+      pair_ids[e] = static_cast<int>(k >> 32);
+      halo[e] = !home;
+      homes += home;
+      slot_of[source][next[source]++] = e;
+      if (home) continue;
+      if (run.count > 0 && run.to + run.count == e) {
+        ++run.count;
+        continue;
       }
+      if (run.count > 0) halo_runs_.push_back(run);
+      run = {e, e, 1};
+    }
+    if (run.count > 0) halo_runs_.push_back(run);
+    num_home_ = homes;
+  }
+  // What the beads carried, per slot: each slot's words read in turn from its source (an
+  // arrival's follow one another in its message; a local bead's are its owned words).
+  if (carry_) {
+    std::vector<SpecialRow>& rows = special_rows_;
+    rows.resize(terms);
+    for (std::size_t t = 0; t < terms; ++t) {
+      SpecialPartners& s = d.special[t];
+      rows[t] = {s.start.data(), s.partner.data(), s.weight.data(), s.weight_coul.data()};
+    }
+    int* const type = d.type.data();
+    double* const charge = d.charge.data();
+    const bool charged = d.charged;
+    const int* const local_owned = local_.owned.data();
+    int local_next = 0;
+    for (int e = 0; e < n; ++e) {
+      const int source = static_cast<int>(static_cast<std::uint32_t>(keys[e]) >> 1);
+      const double* w = source == me ? owned_words_.data() + owned_word_at_[local_owned[local_next++]] : words[source];
+      type[e] = static_cast<int>(*w++);
+      if (charged) charge[e] = *w++;
+      for (std::size_t t = 0; t < terms; ++t) {
+        SpecialRow& row = rows[t];
+        const int count = static_cast<int>(*w++);
+        for (int q = fill[t], end = fill[t] + count; q < end; ++q, w += 3)
+          row.partner[q] = static_cast<int>(w[0]), row.weight[q] = w[1], row.weight_coul[q] = w[2];
+        fill[t] += count;
+        row.start[e + 1] = fill[t];
+      }
+      if (source != me) words[source] = w;
+    }
+    for (std::size_t t = 0; t < terms; ++t) {
+      SpecialPartners& s = d.special[t];
+      s.partner.resize(fill[t]), s.weight.resize(fill[t]), s.weight_coul.resize(fill[t]);
     }
   }
   // The copies' runs.
-  make_runs(local_.owned, local_.slot, {}, local_.owned.size(), local_.all);
-  make_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.home_runs);
-  for (int r = 0; r < ranks; ++r) {
-    make_runs(out_[r].owned, {}, {}, out_[r].owned.size(), out_[r].all);
-    make_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].home_runs);
-    make_runs({}, in_[r].slot, {}, in_[r].slot.size(), in_[r].all);
-    make_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].home_runs);
-  }
-  halo_runs_.clear();
-  for (int e = 0; e < n; ++e)
-    if (halo_flag_[e]) {
-      if (!halo_runs_.empty() && halo_runs_.back().to + halo_runs_.back().count == e)
-        ++halo_runs_.back().count;
-      else
-        halo_runs_.push_back({e, e, 1});
-    }
+  make_all_and_home_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.all, local_.home_runs);
+  for (int r = 0; r < ranks; ++r)
+    make_all_and_home_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].all, in_[r].home_runs);
   // What one evaluation with forces sends: positions out (and the forces so far of the home
   // beads), the home beads' forces back.
   halo_doubles_ = 0;
@@ -1024,10 +1059,10 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
     const Plan& p = out_[r];
     std::vector<double>& b = send[r];
     const std::size_t positions = 3 * p.owned.size();
-    b.resize(positions + (forces ? 3 * p.homes : 0));  // no allocation once sized
+    resize_with_room(b, positions + (forces ? 3 * p.homes : 0));
     copy_runs(p.all, wrapped_.data(), b.data());
     if (forces) copy_runs(p.home_runs, owned_f->data(), b.data() + positions);
-    recv[r].resize(3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
+    resize_with_room(recv[r], 3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
   comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) {
@@ -1048,9 +1083,9 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
     std::vector<double>& b = send[r];
-    b.resize(3 * static_cast<size_t>(p.homes));
+    resize_with_room(b, 3 * static_cast<size_t>(p.homes));
     copy_runs(p.home_runs, pair_f.data(), b.data(), true);
-    recv[r].resize(3 * static_cast<size_t>(out_[r].homes));
+    resize_with_room(recv[r], 3 * static_cast<size_t>(out_[r].homes));
   }
   comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) copy_runs(out_[r].home_runs, recv[r].data(), owned_f.data(), true);

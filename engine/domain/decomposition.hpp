@@ -309,11 +309,32 @@ class Decomposition {
   Plan local_;  // owned index and slot together
   std::vector<int> pair_ids_;
   PairBeadData owned_data_, pair_data_;  // per owned column; per pair-set slot
-  // The selection's messages (per rank: sent, received) and where each received bead's words
-  // start, kept from one selection to the next (a resize fills only what grew).
+  // The selection's messages (per rank: sent, received), kept from one selection to the next (a
+  // resize fills only what grew).
   std::vector<std::vector<double>> selection_out_, selection_in_;
-  std::vector<std::vector<std::size_t>> arrival_at_;
-  bool carry_ = false;             // set_owned_pair_data was called
+  bool carry_ = false;  // set_owned_pair_data was called
+  // What each owned bead carries, packed once per set_owned_pair_data (pack_owned_words): bead k's
+  // words (the selection's message format) are owned_words_[owned_word_at_[k] … owned_word_at_[k + 1]),
+  // so consecutive owned beads' words are one stretch, copied into a message by the plan's runs.
+  bool owned_packed_ = false;
+  std::vector<double> owned_words_;
+  std::vector<std::size_t> owned_word_at_;
+  void pack_owned_words();
+  // The selection's working buffers, kept from one selection to the next: the members' keys and
+  // the merge's second buffer and run bounds; per source rank its slots, its next bead and where
+  // its next bead's words are; per pair term the partners counted and written.
+  std::vector<std::uint64_t> merge_keys_, merge_other_;
+  std::vector<std::size_t> merge_bounds_, merge_next_bounds_;
+  std::vector<int*> source_slots_;
+  std::vector<int> source_next_;
+  std::vector<const double*> source_words_;
+  std::vector<std::size_t> partners_total_;
+  std::vector<int> partners_filled_;
+  struct SpecialRow {  // a pair term's SpecialPartners of the pair set, as the selection writes them
+    int *start, *partner;
+    double *weight, *weight_coul;
+  };
+  std::vector<SpecialRow> special_rows_;
   Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
   std::vector<Run> halo_runs_;        // the halo's slots (from = to)
