@@ -794,7 +794,7 @@ void expect_carried_data_exact(const Melt& melt, const Layout& layout) {
     const int me = comm.rank();
     auto d = make(melt, comm, layout);
     Eigen::Matrix3Xd x, v;
-    d->distribute(melt.state, x, v);
+    d->distribute(melt.topology, melt.state, x, v);
     for (int pass = 0; pass < 3; ++pass) {
       const MadeUpPairData made{pass == 2 ? 5 : 0, n};
       if (pass != 1) d->set_owned_pair_data(made.owned(d->owned_ids()));
