@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "core/format.hpp"
+#include "forcefields/kspace/subset_charges.hpp"
 
 namespace stiffmd {
 
@@ -173,19 +174,7 @@ void EwaldSum::add_forces_and_virial_diagonal(const Eigen::Matrix3Xd& x, const B
 }
 
 std::unique_ptr<ForceTerm> EwaldSum::on_subset(const ParticleSubset& subset, const Box& box) const {
-  std::vector<double> q;
-  q.reserve(subset.global.size());
-  // The charges the subset carries (a decomposed run's part: its molecules'), never this term's
-  // of the whole system; without them (a subset made of indices alone), this term's by index.
-  if (subset.charges.size() == subset.global.size())
-    q.assign(subset.charges.begin(), subset.charges.end());
-  else
-    for (const int g : subset.global) {
-      if (g < 0 || g >= static_cast<int>(charges_.size()))
-        throw std::invalid_argument("force term '" + name() + "' (ewald): the subset's particle " + std::to_string(g) +
-                                    " is not among its " + std::to_string(charges_.size()) + " charges");
-      q.push_back(charges_[static_cast<std::size_t>(g)]);
-    }
+  std::vector<double> q = subset_charges(subset, charges_, "force term '" + name() + "' (ewald)");
   return std::make_unique<EwaldSum>(name(), level(), std::move(q), parameters_, qqrd2e_, box, comm_);
 }
 

@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "core/format.hpp"
+#include "forcefields/kspace/subset_charges.hpp"
 
 namespace stiffmd {
 
@@ -825,19 +826,7 @@ void ParticleParticleParticleMesh::add_forces_and_virial_diagonal(const Eigen::M
 }
 
 std::unique_ptr<ForceTerm> ParticleParticleParticleMesh::on_subset(const ParticleSubset& subset, const Box& box) const {
-  std::vector<double> q;
-  q.reserve(subset.global.size());
-  // The charges the subset carries (a decomposed run's part: its molecules'), never this term's
-  // of the whole system; without them (a subset made of indices alone), this term's by index.
-  if (subset.charges.size() == subset.global.size())
-    q.assign(subset.charges.begin(), subset.charges.end());
-  else
-    for (const int g : subset.global) {
-      if (g < 0 || g >= static_cast<int>(charges_.size()))
-        throw std::invalid_argument("force term '" + name() + "' (pppm): the subset's particle " + std::to_string(g) +
-                                    " is not among its " + std::to_string(charges_.size()) + " charges");
-      q.push_back(charges_[static_cast<std::size_t>(g)]);
-    }
+  std::vector<double> q = subset_charges(subset, charges_, "force term '" + name() + "' (pppm)");
   // No mesh yet: the part is given its processes next (set_processes), which builds its share.
   return std::unique_ptr<ParticleParticleParticleMesh>(
       new ParticleParticleParticleMesh(Deferred{}, name(), level(), std::move(q), parameters_, qqrd2e_, box, comm_));
