@@ -228,6 +228,19 @@ void Decomposition::own() {
   for (size_t k = 0; k < ids_.size(); ++k) owned_columns_[next[slot[k]]++] = static_cast<int>(k);
 }
 
+std::pair<DomainGrid, double> Decomposition::recut(const Eigen::Matrix3Xd& x) const {
+  // The owned beads' histograms summed over the ranks, and the new cuts' loads likewise (counts:
+  // exact in any order, so the cuts and their measure are the same on every rank).
+  const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
+  std::vector<double> histograms = axis_histograms(grid_, x, bins);
+  comm_.sum(histograms.data(), static_cast<int>(histograms.size()));
+  DomainGrid cut = balanced_grid(grid_, histograms, bins);
+  std::vector<double> loads = domain_loads(cut, x);
+  comm_.sum(loads.data(), static_cast<int>(loads.size()));
+  const double imbalance = load_imbalance(loads);
+  return {std::move(cut), imbalance};
+}
+
 void Decomposition::start(PartMolecules& molecules, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v) {
   const int n = molecules.size(), me = comm_.rank();
   if (x.cols() != n || v.cols() != n)
@@ -270,13 +283,8 @@ void Decomposition::start(PartMolecules& molecules, Eigen::Matrix3Xd& x, Eigen::
   comm_.sum(loads.data(), static_cast<int>(loads.size()));
   imbalance_before_ = load_imbalance(loads);
   if (balance_.when != BalanceSettings::When::off && imbalance_before_ > balance_.threshold) {
-    const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
-    std::vector<double> histograms = axis_histograms(grid_, x, bins);
-    comm_.sum(histograms.data(), static_cast<int>(histograms.size()));
-    DomainGrid cut = balanced_grid(grid_, histograms, bins);
-    std::vector<double> cut_loads = domain_loads(cut, x);
-    comm_.sum(cut_loads.data(), static_cast<int>(cut_loads.size()));
-    if (load_imbalance(cut_loads) < imbalance_before_) grid_ = std::move(cut), ++recuts_;
+    auto [cut, cut_imbalance] = recut(x);
+    if (cut_imbalance < imbalance_before_) grid_ = std::move(cut), ++recuts_;
   }
   // Each molecule to the rank of its anchor's domain, by the migration's messages.
   std::vector<int> to(n, -1);
@@ -1017,18 +1025,11 @@ bool Decomposition::rebalance(const Eigen::Matrix3Xd& x) {
   const double most = comm_.max(static_cast<double>(num_home_));
   const double before = mean > 0.0 ? most / mean : 1.0;
   if (before <= balance_.threshold) return false;
-  // The recut from the owned beads' histograms summed over the ranks (counts: exact in any order,
-  // so the cuts are the same on every rank).
-  const int bins = kBinsPerSlab * grid_.dims.maxCoeff();
-  std::vector<double> histograms = axis_histograms(grid_, x, bins);
-  comm_.sum(histograms.data(), static_cast<int>(histograms.size()));
-  DomainGrid cut = balanced_grid(grid_, histograms, bins);
-  std::vector<double> loads = domain_loads(cut, x);
-  comm_.sum(loads.data(), static_cast<int>(loads.size()));
+  auto [cut, after] = recut(x);
   // A recut costs a selection of the pair sets (every rank's lists built again) and the parts of
   // the ranks whose molecules move: kept when it halves the excess over 1 at least, so that a small
   // system's fluctuations about the threshold are not chased at every selection.
-  if (load_imbalance(loads) - 1.0 > 0.5 * (before - 1.0)) return false;
+  if (after - 1.0 > 0.5 * (before - 1.0)) return false;
   grid_ = std::move(cut);
   ++recuts_;
   return true;

@@ -22,6 +22,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "core/box.hpp"
@@ -260,6 +261,9 @@ class Decomposition {
   Eigen::Vector3d owned_anchor(const Eigen::Matrix3Xd& x, int i) const;
   // owned_ and each owned molecule's columns from ids_ and owned_molecule_.
   void own();
+  // The grid recut to the owned beads x of every rank, and the measure (home beads max/mean) on
+  // it. Collective.
+  std::pair<DomainGrid, double> recut(const Eigen::Matrix3Xd& x) const;
   // The owned columns k with to[k] ≥ 0 move to rank to[k] (whole molecules) with x, v, carried
   // and their share of `molecules`; what arrives is merged in by global index. Returns whether
   // the owned particles changed. Collective.
