@@ -15,13 +15,14 @@
 // What a rank holds while it reads, beyond its part: one int per atom of the file (the union–find
 // of the molecules, then each atom's molecule), the file's atom ids when they are not 1 … N in
 // order (one long each), the file's molecule ids (one int per run of equal ids in the Atoms
-// section, then per distinct id), and four doubles and a flag per molecule (the anchors' sums) — none of them the state, the topology or the force terms
-// of the whole system, and all freed on return.
-// The file is read three times (the structure and the bonded terms; the anchors; the part; by
-// block twice, without the anchors), by lines, never held whole. The checks are the whole reader's where they concern a kept line (its
-// columns, numbers, atoms in the Atoms section), every line's atom or item type, molecule id and
-// atoms (the same answer on every rank), and the header's counts for every section; a duplicate
-// bond elsewhere in the file is the whole reader's to find (`stiffmd check` reads it whole).
+// section, then per distinct id), and four doubles and a flag per molecule (the anchors' sums) —
+// none of them the state, the topology or the force terms of the whole system, and all freed on
+// return. The file is read three times (the structure and the bonded terms; the anchors; the
+// part; by block twice, without the anchors), by lines, never held whole. The checks are the
+// whole reader's where they concern a kept line (its columns, numbers, atoms in the Atoms
+// section), every line's atom or item type, molecule id and atoms (the same answer on every
+// rank), and the header's counts for every section; a duplicate bond elsewhere in the file is the
+// whole reader's to find (`stiffmd check` reads it whole).
 #pragma once
 
 #include <Eigen/Core>
