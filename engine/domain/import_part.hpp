@@ -16,9 +16,13 @@
 //
 // Every rank reads the same file and the same deck, so the O(types) description (the box, the type
 // names, the LAMMPS type numbers and "… Coeffs" sections a scene keeps) is the same everywhere, and
-// a refused file or mapping is refused on every rank alike (InputError, with the whole import's
-// message) — except what concerns one molecule's positions (a bond longer than half the box, a
-// zero-length bond), which only the rank that holds it sees.
+// a mapping the deck cannot give (a type without a name, an unknown type, a mass that disagrees)
+// is refused on every rank alike, with the whole import's message at the same deck key. The
+// file's own faults are the part reader's, in its words (engine/io/lammps_data_parts.hpp): the
+// structure and every line's types and atoms on every rank, but a malformed number in a line only
+// one rank reads whole (a coordinate, a velocity) and what concerns one molecule's positions (a
+// bond longer than half the box, a zero-length bond) only the rank that keeps it finds — a caller
+// on several ranks agrees on the failure before going on.
 #pragma once
 
 #include <Eigen/Core>
@@ -92,9 +96,16 @@ struct ImportedMolecules {
   int num_molecules = 0;  // the file's bonded molecules (bonded_molecules' count)
 };
 
-// The rank's part of the import. Throws InputError as the whole import would (the file, a type
+// The rank's part of the import. Throws InputError where the whole import would (the file, a type
 // without a name, an unknown type, a mass that disagrees with the deck's, a molecule that cannot
 // be made whole), naming the same deck keys.
+//
+// A run's part path would call, on every rank r of P:
+//   LammpsImportDeck d = read_lammps_import(*root.table("import"), deck_dir);
+//   ImportedMolecules p = import_part(d, {scene.types, scene.units.velocity_in(1.0), friction_by_type},
+//                                     {nullptr, KeepBlock{r, P}});
+//   (the Scene's box, topology type names, lammps_types, lammps_data_coeffs from p's)
+//   domain_integrator.distribute(std::move(p.molecules), std::move(p.x), std::move(p.v), s);
 ImportedMolecules import_part(const LammpsImportDeck& deck, const ImportTypes& types, const ImportSelection& selection);
 
 }  // namespace stiffmd
