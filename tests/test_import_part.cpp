@@ -91,8 +91,15 @@ std::string wrapped_deck() {
 
 std::string deck_path(const std::string& deck) {
   if (deck == "wrapped") {
-    static const std::string path = wrapped_deck();
-    return path;
+    // Written once per process, removed at its end.
+    static const struct Written {
+      std::string path = wrapped_deck();
+      ~Written() {
+        std::error_code ec;
+        std::filesystem::remove_all(std::filesystem::path(path).parent_path(), ec);
+      }
+    } written;
+    return written.path;
   }
   return test::source_path(deck);
 }
