@@ -8,7 +8,9 @@
 // part, with the whole import's position, velocity, type, molecule id and charge bit for bit, and
 // every bond and angle in the part of its atoms, as the whole import has it — and each rank's part
 // is the set of particles Decomposition::distribute gives it on the whole scene (the same anchor
-// to the last bit), for any rank count; a file whose ids are neither 1 … N nor in order tiles too.
+// to the last bit), for any rank count; a file whose ids are neither 1 … N nor in order tiles too;
+// each kept item carries its place in the whole import's list, each atom its molecule id's rank
+// among the file's; and the parts by block are whole_block's blocks of the import.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -25,6 +27,7 @@
 #include "core/errors.hpp"
 #include "decomposition_fixtures.hpp"
 #include "engine/domain/decomposition.hpp"
+#include "engine/domain/part_molecules.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/lammps_data_parts.hpp"
 #include "fake_processes.hpp"
@@ -133,6 +136,31 @@ void expect_tiling(const Whole& w, const std::vector<ImportedPart>& parts) {
     }
     for (const auto& b : s.bonds) bonds.insert({b.type, p.global[b.i], p.global[b.j]});
     for (const auto& a : s.angles) angles.insert({p.global[a.i], p.global[a.j], p.global[a.k]});
+    // Each item's place: its index in the whole import's list, in increasing order.
+    ASSERT_EQ(p.bond_place.size(), s.bonds.size());
+    ASSERT_EQ(p.angle_place.size(), s.angles.size());
+    EXPECT_TRUE(std::is_sorted(p.bond_place.begin(), p.bond_place.end()));
+    for (size_t e = 0; e < s.bonds.size(); ++e) {
+      const auto& want = w.in.bonds[static_cast<size_t>(p.bond_place[e])];
+      EXPECT_EQ(want.type, s.bonds[e].type);
+      EXPECT_EQ(want.i, p.global[s.bonds[e].i]);
+      EXPECT_EQ(want.j, p.global[s.bonds[e].j]);
+    }
+    for (size_t e = 0; e < s.angles.size(); ++e) {
+      const auto& want = w.in.angles[static_cast<size_t>(p.angle_place[e])];
+      EXPECT_EQ(want.i, p.global[s.angles[e].i]);
+      EXPECT_EQ(want.j, p.global[s.angles[e].j]);
+      EXPECT_EQ(want.k, p.global[s.angles[e].k]);
+    }
+    // The molecule ids' ranks among the file's distinct ids.
+    ASSERT_EQ(p.molecule_rank.size(), p.global.size());
+    std::vector<int> ids(w.in.molecule.begin(), w.in.molecule.end());
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    for (size_t k = 0; k < p.global.size(); ++k)
+      EXPECT_EQ(ids[static_cast<size_t>(p.molecule_rank[k])], w.in.molecule[static_cast<size_t>(p.global[k])]);
+    EXPECT_EQ(p.types_used.atom, (std::vector<int>{1, 2}));
+    EXPECT_EQ(p.types_used.bond, (std::vector<int>{1}));
     EXPECT_EQ(s.type_mass, w.in.type_mass);
     EXPECT_EQ(s.lo, w.in.lo);
     EXPECT_EQ(s.hi, w.in.hi);
@@ -187,6 +215,23 @@ TEST_P(LammpsParts, AFileWithScatteredIdsInAnyOrderTilesTheImport) {
                                           [&](const Eigen::Vector3d& anchor) { return grid.domain_of(anchor) == r; }));
   fs::remove(path);
   expect_tiling(w, parts);
+}
+
+TEST_P(LammpsParts, EachBlockOfMoleculesIsWholeBlocksAndTheBlocksTileTheImport) {
+  const fake::Melt melt = fake::straddling_melt();
+  const int ranks = GetParam();
+  for (const bool scrambled : {false, true}) {
+    const fs::path path = temp_file(scrambled ? "blocks_scrambled.data" : "blocks.data");
+    write_lammps_data(path.string(), melt_system(melt, scrambled), "molecular");
+    const Whole w = whole_import(path.string());
+    std::vector<ImportedPart> parts;
+    for (int r = 0; r < ranks; ++r) {
+      parts.push_back(read_lammps_data_part(path.string(), "auto", KeepBlock{r, ranks}));
+      EXPECT_EQ(parts.back().global, whole_block(w.topology, static_cast<int>(w.in.x.cols()), ranks, r));
+    }
+    fs::remove(path);
+    expect_tiling(w, parts);
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(Ranks, LammpsParts, ::testing::Values(1, 2, 3, 4),

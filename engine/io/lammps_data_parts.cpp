@@ -7,6 +7,7 @@
 #include <limits>
 #include <memory>
 #include <numeric>
+#include <stdexcept>
 #include <unordered_set>
 
 #include "core/disjoint_sets.hpp"
@@ -84,6 +85,12 @@ class PartReader {
  public:
   PartReader(const std::string& path, const std::string& style, const KeepAnchor& keep, bool header_only = false)
       : path_(path), requested_(style), keep_(keep), lines_(path), header_only_(header_only) {}
+  PartReader(const std::string& path, const std::string& style, const KeepBlock& block)
+      : path_(path), requested_(style), keep_(no_anchor_), lines_(path), block_(block), by_block_(true) {
+    if (block.parts < 1 || block.part < 0 || block.part >= block.parts)
+      throw std::invalid_argument("read_lammps_data_part: block " + std::to_string(block.part) + " of " +
+                                  std::to_string(block.parts));
+  }
 
   ImportedBox box() {
     header();
@@ -234,7 +241,9 @@ class PartReader {
     if (!have_masses) fail("no Masses section; expected the atom types' masses");
     // Without image flags a molecule's positions are wrapped and its anchor is not its centre of
     // mass: the whole import makes molecules whole along their bonds, which needs the molecule.
-    if (!images_ && (count_[kBonds] || count_[kAngles] || count_[kDihedrals] || count_[kImpropers]))
+    // A block of molecules needs no anchor: its molecules are made whole after the read, as the
+    // whole import makes them.
+    if (!by_block_ && !images_ && (count_[kBonds] || count_[kAngles] || count_[kDihedrals] || count_[kImpropers]))
       fail(
           "Atoms: no image flags (ix iy iz); a file with bonded terms is read by parts only with them, as "
           "write_lammps_data and LAMMPS's write_data write it");
@@ -288,6 +297,16 @@ class PartReader {
         lines_.fail("Atoms: expected " + std::to_string(ncols_) + " columns as on the section's first line, found " +
                     std::to_string(tok_.size()));
       const long long id = integer(tok_[0], "atom id", 1, std::numeric_limits<long long>::max());
+      // Every atom's molecule id and type: the dense molecule ids and the types an import names
+      // need the whole file's, and each rank then refuses the same file.
+      size_t c = 1;
+      if (style_->molecule) {
+        const int mol = static_cast<int>(integer(tok_[c++], "molecule id", 0, std::numeric_limits<int>::max()));
+        if (molecule_ids_.empty() || molecule_ids_.back() != mol) molecule_ids_.push_back(mol);
+      }
+      const auto type = static_cast<size_t>(integer(tok_[c], "atom type", 1, count_[kAtomTypes]));
+      if (atom_type_used_.size() <= type) atom_type_used_.resize(type + 1, 0);
+      atom_type_used_[type] = 1;
       if (dense_ && id != k + 1) {
         dense_ = false;
         ids_.resize(static_cast<size_t>(k));
@@ -301,14 +320,21 @@ class PartReader {
       if (const auto d = std::adjacent_find(ids_.begin(), ids_.end()); d != ids_.end())
         fail("Atoms: atom id " + std::to_string(*d) + " given twice; expected unique ids");
     }
+    if (!style_->molecule) molecule_ids_.push_back(0);
+    std::sort(molecule_ids_.begin(), molecule_ids_.end());
+    molecule_ids_.erase(std::unique(molecule_ids_.begin(), molecule_ids_.end()), molecule_ids_.end());
     sets_ = std::make_unique<DisjointSets>(num_atoms_);
   }
 
   void join(const Bonded& b) {
     const long long n = count_[b.count];
+    const auto kind = static_cast<size_t>(&b - kBonded);
+    std::vector<char> used(static_cast<size_t>(count_[b.types]) + 1, 0);
     for (long long k = 0; k < n; ++k) {
       entry(k, n);
       expect_columns(2 + static_cast<size_t>(b.atoms));
+      const auto type = static_cast<size_t>(integer(tok_[1], "type", 1, count_[b.types]));
+      if (!used[type]) used[type] = 1, types_in_order_[kind].push_back(static_cast<int>(type));
       int first = -1;
       for (int a = 0; a < b.atoms; ++a) {
         const int at = resolve(tok_[2 + a], a);
@@ -389,6 +415,14 @@ class PartReader {
     }
     sets_.reset();
     num_molecules_ = molecules;
+    if (by_block_) {
+      // whole_block's numbers: molecules [M·part/parts, M·(part + 1)/parts).
+      const std::int64_t first = std::int64_t{molecules} * block_.part / block_.parts,
+                         end = std::int64_t{molecules} * (block_.part + 1) / block_.parts;
+      keep_molecule_.assign(molecules, 0);
+      for (std::int64_t m = first; m < end; ++m) keep_molecule_[static_cast<size_t>(m)] = 1;
+      return;
+    }
     std::vector<Eigen::Vector3d> sum(molecules, Eigen::Vector3d::Zero());
     std::vector<double> total(molecules, 0.0);
     lines_.go(atoms_at_);
@@ -438,6 +472,7 @@ class PartReader {
     s.molecule.resize(kept.size());
     if (style_->charge) s.charge.resize(kept.size());
     out.global.resize(kept.size());
+    out.molecule_rank.resize(kept.size());
     for (size_t k = 0; k < kept.size(); ++k) {
       const Atom& a = kept[order[k]];
       s.x.col(static_cast<Eigen::Index>(k)) = a.x;
@@ -446,6 +481,8 @@ class PartReader {
       s.molecule[k] = a.mol;
       if (style_->charge) s.charge[k] = a.q;
       out.global[k] = global[order[k]];
+      out.molecule_rank[k] =
+          static_cast<int>(std::lower_bound(molecule_ids_.begin(), molecule_ids_.end(), a.mol) - molecule_ids_.begin());
     }
     const auto local = [&](int g) {
       const auto it = std::lower_bound(out.global.begin(), out.global.end(), g);
@@ -470,6 +507,8 @@ class PartReader {
       }
     }
     std::unordered_set<std::uint64_t> bond_seen;
+    std::vector<std::int64_t>* const places[] = {&out.bond_place, &out.angle_place, &out.dihedral_place,
+                                                 &out.improper_place};
     for (int b = 0; b < 4; ++b) {
       if (!have_bonded_[b]) continue;
       const Bonded& spec = kBonded[b];
@@ -482,6 +521,7 @@ class PartReader {
         const int type = static_cast<int>(integer(tok_[1], "type", 1, count_[spec.types]));
         std::array<int, 4> at{};
         for (int a = 0; a < spec.atoms; ++a) at[a] = local(resolve(tok_[2 + a], a));
+        places[b]->push_back(k);
         if (b == 0) {
           const auto key = (static_cast<std::uint64_t>(std::min(at[0], at[1])) << 32) |
                            static_cast<std::uint32_t>(std::max(at[0], at[1]));
@@ -504,12 +544,19 @@ class PartReader {
     s.num_angle_types = static_cast<int>(count_[kAngleTypes]);
     s.num_dihedral_types = static_cast<int>(count_[kDihedralTypes]);
     s.num_improper_types = static_cast<int>(count_[kImproperTypes]);
+    for (size_t t = 0; t < atom_type_used_.size(); ++t)
+      if (atom_type_used_[t]) out.types_used.atom.push_back(static_cast<int>(t));
+    out.types_used.bond = std::move(types_in_order_[0]);
+    out.types_used.angle = std::move(types_in_order_[1]);
+    out.types_used.dihedral = std::move(types_in_order_[2]);
+    out.types_used.improper = std::move(types_in_order_[3]);
     out.system = std::move(s);
     out.num_atoms = num_atoms_;
     out.num_molecules = num_molecules_;
     return out;
   }
 
+  const KeepAnchor no_anchor_;
   std::string path_, requested_;
   const KeepAnchor& keep_;
   Lines lines_;
@@ -530,10 +577,15 @@ class PartReader {
   bool have_velocities_ = false;
   int num_atoms_ = 0, num_molecules_ = 0;
   bool header_only_ = false;
+  KeepBlock block_;
+  bool by_block_ = false;
   bool dense_ = true, file_order_sorted_ = true;
-  std::vector<long long> ids_;          // sorted, when not dense_
-  std::unique_ptr<DisjointSets> sets_;  // pass 1
-  std::vector<int> molecule_;           // per atom index, from pass 2 on
+  std::vector<int> molecule_ids_;                   // the file's distinct molecule ids, increasing (pass 1)
+  std::vector<char> atom_type_used_;                // per atom type number: some atom has it
+  std::array<std::vector<int>, 4> types_in_order_;  // per bonded section: its types by first entry
+  std::vector<long long> ids_;                      // sorted, when not dense_
+  std::unique_ptr<DisjointSets> sets_;              // pass 1
+  std::vector<int> molecule_;                       // per atom index, from pass 2 on
   std::vector<char> keep_molecule_;
 };
 
@@ -546,6 +598,10 @@ ImportedBox read_lammps_data_box(const std::string& path) {
 
 ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepAnchor& keep) {
   return PartReader(path, atom_style, keep).read();
+}
+
+ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepBlock& block) {
+  return PartReader(path, atom_style, block).read();
 }
 
 }  // namespace stiffmd

@@ -14,16 +14,19 @@
 //
 // What a rank holds while it reads, beyond its part: one int per atom of the file (the union–find
 // of the molecules, then each atom's molecule), the file's atom ids when they are not 1 … N in
-// order (one long each), and four doubles and a flag per molecule (the anchors' sums) — none of
-// them the state, the topology or the force terms of the whole system, and all freed on return.
-// The file is read three times (the structure and the bonded terms; the anchors; the part), by
-// lines, never held whole. The checks are the whole reader's where they concern a kept line (its
-// columns, numbers, types, atoms in the Atoms section) and the header's counts for every section;
-// a duplicate atom id or bond elsewhere in the file is the whole reader's to find (`stiffmd check`
-// reads it whole).
+// order (one long each), the file's molecule ids (one int per run of equal ids in the Atoms
+// section, then per distinct id), and four doubles and a flag per molecule (the anchors' sums) —
+// none of them the state, the topology or the force terms of the whole system, and all freed on
+// return. The file is read three times (the structure and the bonded terms; the anchors; the
+// part; by block twice, without the anchors), by lines, never held whole. The checks are the
+// whole reader's where they concern a kept line (its columns, numbers, atoms in the Atoms
+// section), every line's atom or item type, molecule id and atoms (the same answer on every
+// rank), and the header's counts for every section; a duplicate bond elsewhere in the file is the
+// whole reader's to find (`stiffmd check` reads it whole).
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <functional>
 #include <string>
 #include <vector>
@@ -36,14 +39,35 @@ namespace stiffmd {
 // for a given anchor: the domain grid's).
 using KeepAnchor = std::function<bool(const Eigen::Vector3d& anchor)>;
 
+// The molecules of block `part` of `parts`: molecules [M·part/parts, M·(part + 1)/parts) of the
+// file's M, numbered as bonded_molecules numbers them (by their least atom index, the atoms by
+// increasing id) — whole_block's blocks (engine/domain/part_molecules.hpp) of the import. No
+// anchor is computed, so a file with bonded terms needs no image flags here.
+struct KeepBlock {
+  int part = 0, parts = 1;
+};
+
 struct ImportedPart {
   // The kept atoms by increasing id, as read_lammps_data returns the whole file's (x unwrapped, v,
   // types, molecule ids, charges), and the bonded terms whose atoms are kept, by part index, in
   // file order; the masses, the box, the type counts and the "… Coeffs" sections whole.
   ImportedSystem system;
   std::vector<int> global;  // per kept atom: its index in read_lammps_data's import (0 … N − 1)
-  int num_atoms = 0;        // in the whole file
-  int num_molecules = 0;    // in the whole file (connected components of its bonded terms)
+  // Per kept bond, angle, dihedral and improper (system's lists): its index in read_lammps_data's
+  // list of its kind, which is its entry's index in the file's section.
+  std::vector<std::int64_t> bond_place, angle_place, dihedral_place, improper_place;
+  // Per kept atom: the rank of its molecule id among the whole file's distinct molecule ids
+  // (0, 1, … in increasing id; every atom 0 in a style without molecule ids), the dense ids a
+  // scene gives an import's molecules.
+  std::vector<int> molecule_rank;
+  // The type numbers the whole file's atoms and bonded terms use: the atoms' in increasing order;
+  // each bonded section's in the order of their first entry (which is the order in which an import
+  // names the types it maps them to).
+  struct TypesUsed {
+    std::vector<int> atom, bond, angle, dihedral, improper;
+  } types_used;
+  int num_atoms = 0;      // in the whole file
+  int num_molecules = 0;  // in the whole file (connected components of its bonded terms)
 };
 
 // The box of the file's header (LAMMPS's default −0.5 … 0.5 on an axis it does not give): what a
@@ -57,5 +81,8 @@ ImportedBox read_lammps_data_box(const std::string& path);
 // file the whole reader refuses in the lines it reads; and when a Velocities, Bonds, Angles,
 // Dihedrals or Impropers section comes before the Atoms section (LAMMPS refuses it too).
 ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepAnchor& keep);
+// The same for a block of molecules in the file's order (KeepBlock): two passes over the file (no
+// anchors), and image flags not required.
+ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepBlock& block);
 
 }  // namespace stiffmd

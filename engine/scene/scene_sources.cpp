@@ -277,9 +277,8 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   t->finish();  // a mistyped key is reported as such, not as the mapping it failed to give
   // Particle types: a LAMMPS type maps to a deck type; masses must agree.
   auto lookup = [&](const std::vector<std::pair<std::string, std::string>>& map, int lammps_type, const char* key) {
-    if (std::string_view(key) != "atom_types" && !t->has(key)) return std::to_string(lammps_type);  // the file's number
-    for (const auto& [k, v] : map)
-      if (k == std::to_string(lammps_type)) return v;
+    if (auto name = lammps_type_name(map, std::string_view(key) == "atom_types" || t->has(key), lammps_type))
+      return *name;
     const std::string what = "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" +
                              std::to_string(lammps_type) + "\" = \"NAME\" to " + key + ")";
     if (t->has(key)) t->fail(key, what);
@@ -357,6 +356,14 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   for (const auto& d : in.impropers)
     all_numbers(data.improper, top.improper_types.size(),
                 top.improper_type_index(lookup(improper_map, d.type, "improper_types")), d.type);
+}
+
+std::optional<std::string> lammps_type_name(const std::vector<std::pair<std::string, std::string>>& map, bool given,
+                                            int number) {
+  if (!given) return std::to_string(number);  // the file's number
+  for (const auto& [k, v] : map)
+    if (k == std::to_string(number)) return v;
+  return std::nullopt;
 }
 
 // [velocities] temperature, seed: Maxwell–Boltzmann velocities for every mobile particle,

@@ -4,7 +4,10 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "engine/deck/deck.hpp"
 #include "engine/scene/scene.hpp"
@@ -19,10 +22,16 @@ int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, con
 
 void read_builders(DeckTable& root, Scene& sc);
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
+// The scene's name of LAMMPS type `number` under an [import] type map (atom_types = { "1" = "bead" }):
+// the map's name for it; the number itself ("1") for a bonded kind whose map the deck does not
+// give (`given` false); nullopt when a given map has no name for it. Shared with a part's import
+// (engine/domain/import_part.hpp).
+std::optional<std::string> lammps_type_name(const std::vector<std::pair<std::string, std::string>>& map, bool given,
+                                            int number);
 // After the [[bonds]]: every molecule whole, positions unwrapped (the guarantee of core/state.hpp).
 void make_scene_molecules_whole(DeckTable& root, Scene& sc);
 void read_velocities(DeckTable& root, Scene& sc);
-void read_prepare(DeckTable& root, Scene& sc);  // reads the settings; prepare_scene (scene.hpp) acts
+void read_prepare(DeckTable& root, Scene& sc);   // reads the settings; prepare_scene (scene.hpp) acts
 void read_minimize(DeckTable& root, Scene& sc);  // [minimize], read after [integrator]; prepare_scene acts
 
 }  // namespace stiffmd
