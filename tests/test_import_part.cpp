@@ -77,8 +77,10 @@ std::string wrapped_deck() {
   data << "\nBonds\n\n";
   int k = 0;
   for (int c = 0; c < chains; ++c)
-    for (int b = 0; b + 1 < beads; ++b)
-      data << ++k << " " << 2 - (k % 2 == 0) << " " << id(c * beads + b) << " " << id(c * beads + b + 1) << "\n";
+    for (int b = 0; b + 1 < beads; ++b) {
+      ++k;
+      data << k << " " << 2 - (k % 2 == 0) << " " << id(c * beads + b) << " " << id(c * beads + b + 1) << "\n";
+    }
   std::ofstream(dir / "wrapped.data") << data.str();
   std::ofstream(dir / "wrapped.toml")
       << "[types.A]\nmass = 1.0\n\n[types.B]\nmass = 2.0\n\n[import]\n"
