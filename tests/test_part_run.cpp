@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "domain_run_support.hpp"
+#include "engine/domain/part_load.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/run.hpp"
 #include "fake_processes.hpp"
@@ -32,6 +33,12 @@ namespace {
 namespace fs = std::filesystem;
 using fake::FakeCommunicator;
 using fake::run_ranks;
+
+// A file of this source tree (not test::source_path: an inline function whose definition the
+// linker may take from another test's object, built with another tree's path).
+std::string tree_path(const std::string& rel) {
+  return std::string(STIFFMD_SOURCE_DIR) + "/" + rel;
+}
 
 // Butane with a Langevin thermostat and a drift (molecules migrate within the run, as in
 // tests/test_part_molecules.cpp), thermo rows and two periodic checkpoints; no histograms (made
@@ -69,10 +76,17 @@ struct Case {
 };
 
 Scene scene_of(const Case& c) {
-  Scene sc = test::load(c.deck, c.overrides);
+  const Deck deck(tree_path(c.deck), c.overrides);
+  Scene sc = load_scene(deck);
+  std::ostringstream log;
+  prepare_scene(sc, log);
   sc.state.v.array() += c.drift;
   return sc;
 }
+
+// Chains built by molecule, velocities by particle (engine/domain/part_load.hpp): a decomposed run
+// may start from each rank's molecules made by the source.
+const Case kChains{"tests/decks/chains_by_parts.toml", {}, 0.0};
 
 std::string bytes(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
@@ -113,7 +127,9 @@ void poison(Scene& sc, bool empty) {
 
 // A decomposed run of the case into `dir`, each rank's whole scene given to `started` once its
 // parts are built (null: left as it is).
-void run_on_ranks(const Case& c, int ranks, const fs::path& dir, const std::function<void(Scene&)>& started) {
+// `by_parts`: the run starts from each rank's molecules made by their source (RunOptions::part).
+void run_on_ranks(const Case& c, int ranks, const fs::path& dir, const std::function<void(Scene&)>& started,
+                  bool by_parts = false) {
   fs::remove_all(dir);
   std::vector<char> called(static_cast<size_t>(ranks), 0);
   run_ranks(
@@ -121,7 +137,9 @@ void run_on_ranks(const Case& c, int ranks, const fs::path& dir, const std::func
       [&](const FakeCommunicator& comm) {
         const test::OneThread rank_thread;
         Scene sc = scene_of(c);
+        const Deck deck(tree_path(c.deck), c.overrides);
         RunOptions opt;
+        if (by_parts) opt.part = [&] { return chains_part(deck, sc, comm); };
         opt.out_dir = dir.string();
         opt.handle_signals = false;
         opt.processes = &comm;
@@ -182,6 +200,36 @@ TEST_P(PartRun, WithTheWholeScenePoisonedAfterTheStartTheFilesAreTheSameBytes) {
   }
   fs::remove_all(root);
 }
+
+// A run started from the source's parts (RunOptions::part) writes the bytes of the run started
+// from the whole scene's cut, with the whole scene poisoned or emptied after the start too, and
+// says so in summary.json (domains.setup).
+class PartStartRun : public ::testing::TestWithParam<int> {};
+
+TEST_P(PartStartRun, FromTheSourcesPartsTheFilesAreTheWholeCutsBytes) {
+  const int ranks = GetParam();
+  const test::OneThread one_thread;
+  const fs::path root = fs::temp_directory_path() /
+                        ("stiffmd_part_start_run_" + std::to_string(::getpid()) + "_" + std::to_string(ranks));
+  fs::remove_all(root);
+  const fs::path whole_dir = root / "whole", parts_dir = root / "parts";
+  run_on_ranks(kChains, ranks, whole_dir, nullptr);
+  EXPECT_NE(bytes(whole_dir / "summary.json").find("\"setup\": \"whole\""), std::string::npos);
+  for (const bool empty : {false, true}) {
+    run_on_ranks(
+        kChains, ranks, parts_dir, [empty](Scene& sc) { poison(sc, empty); }, true);
+    for (const char* file : {"thermo.csv", "checkpoint.bin"}) {
+      const std::string want = bytes(whole_dir / file);
+      ASSERT_FALSE(want.empty()) << file;
+      EXPECT_TRUE(want == bytes(parts_dir / file))
+          << file << " differs on " << ranks << " ranks (emptied: " << empty << ")";
+    }
+    EXPECT_NE(bytes(parts_dir / "summary.json").find("\"setup\": \"parts\""), std::string::npos);
+  }
+  fs::remove_all(root);
+}
+
+INSTANTIATE_TEST_SUITE_P(Ranks, PartStartRun, ::testing::Values(2, 3, 4));
 
 // One rank runs the whole scene (no parts): 2–4 ranks; the stiff melt's [prepare] on each fake
 // rank is its time, so two rank counts.

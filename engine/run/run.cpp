@@ -191,7 +191,13 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // A decomposed run's parts are built now, before the first sample: each rank then evaluates
   // the forces of its part only, and the whole system's force terms never build a neighbour list
   // or a pair buffer on a rank (docs/parallel.md, "What a rank holds").
-  if (domain_) domain_->distribute(s_);
+  if (domain_ && opt.part) {
+    ScenePart mine = opt.part();
+    domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
+  } else if (domain_) {
+    domain_->distribute(s_);
+  }
+  if (domain_) summary_.domain_setup = opt.part ? "parts" : "whole";
   // The particle count as the parts sum it (the whole scene's on one process): the Run, its
   // outputs and the checkpoint read no whole array once the parts exist.
   num_particles_ = domain_ ? domain_->whole_particles() : s_.size();

@@ -24,6 +24,7 @@
 #include "core/parallel.hpp"
 #include "core/timing.hpp"
 #include "engine/domain/domain_integrator.hpp"
+#include "engine/domain/part_load.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -66,6 +67,10 @@ struct RunOptions {
   // Called once a decomposed run's parts are built, before the first sample (tests: the whole
   // scene made useless there, to show that nothing reads it after the start).
   std::function<void()> started{};
+  // This rank's molecules made by their source (engine/domain/part_load.hpp), for a decomposed run
+  // to start from instead of cutting its block from the whole scene (collective: every rank calls
+  // it, or none). Empty: the whole scene's cut.
+  std::function<ScenePart()> part{};
 };
 
 class Run {
