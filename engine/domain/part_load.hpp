@@ -33,11 +33,11 @@ struct ScenePart {
 std::string chains_part_refusal(const Deck& deck, const Scene& scene);
 
 // This rank's block of molecules [r·M/P, (r+1)·M/P) (r = ranks.rank(), P = ranks.size()) of the
-// deck's chains, as the whole scene holds them bit for bit: positions as built, the types'
-// inverse masses, charges and Langevin frictions, molecule ids, the chains' bonds, angles and dihedrals with their
-// places in the whole lists, and the velocities by particle (collective: their sums over the
-// ranks). `scene` gives the types, units, box and the topology's type names; none of its
-// per-particle arrays or items are read. Only for a deck chains_part_refusal accepts.
+// deck's chains, as the whole scene holds them bit for bit: positions as built, the type's inverse
+// mass, charge and Langevin friction, molecule ids, the chains' bonds, angles and dihedrals with
+// their places in the whole lists, and the velocities by particle (collective: their sums over the
+// ranks). `scene` gives the types, units, box, thermostat style and the topology's type names;
+// none of its per-particle arrays or items are read. Only for a deck chains_part_refusal accepts.
 ScenePart chains_part(const Deck& deck, const Scene& scene, const Communicator& ranks);
 
 }  // namespace stiffmd
