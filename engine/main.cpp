@@ -334,6 +334,11 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator();
+    // A fresh decomposed run of a deck whose particles can be made by parts starts from each rank's
+    // own molecules, made by their source (engine/domain/part_load.hpp), not from the whole scene's
+    // cut; the others, and a restart (the checkpoint's state, read whole), start from the cut.
+    if (decomposed && restart.empty() && stiffmd::chains_part_refusal(*deck, *scene).empty())
+      options.part = [&] { return stiffmd::chains_part(*deck, *scene, processes.communicator()); };
     options.started_at = started_at;
     running = decomposed;
     const auto summary = stiffmd::run_simulation(*scene, options, log);

@@ -57,6 +57,7 @@ INDIRECT_KEYS = {
     ("scene_sources.cpp", "key"): "lookup's atom_types, bond_types, ... maps, read directly",
     ("thermostat_deck.cpp", "sc.types[k].name"): "[thermostat.scale] TYPE: a particle type name",
     ("thermostat_deck.cpp", "tb"): "[thermostat.scale] TYPE: a particle type name",
+    ("part_load.cpp", "type_name"): "[thermostat.scale] TYPE: a particle type name, as thermostat_deck.cpp reads it",
     ("stage_deck.cpp", "key"): "kSceneKeys and kStageTables: top-level tables, each documented in its section",
 }
 

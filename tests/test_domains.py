@@ -18,6 +18,9 @@ CASE is one of
     migrate                   the same, a field driving the chains across the domains: molecules migrate
     built_melt                tests/decks/melt_million.toml at 40 chains (4 000 beads, the engine's
                               builder, no [prepare]): no rank lists the pairs of the whole system
+    chains_by_parts           tests/decks/chains_by_parts.toml: chains built by molecule, velocities by
+                              particle; on several ranks each starts from its own molecules made by
+                              the builder (summary.json domains.setup = "parts", engine/domain/part_load.hpp)
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
@@ -310,6 +313,8 @@ def case_setup(case):
         return STRADDLE, 0.02, {}
     if case == "built_melt":  # the engine's builder and no [prepare]: no rank lists the whole system's pairs
         return MELT_MILLION, 0.002, {"build.0.chains": "40"}
+    if case == "chains_by_parts":  # each rank builds its own molecules: the start from the source's parts
+        return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {}
     if case == "half_melt":  # a melt beside vacuum: the domains recut
         return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
@@ -647,6 +652,12 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
         print(f"{moved} molecules migrated")
     if case == "half_melt" and n == 4:
         check_balance(out)
+    if case == "chains_by_parts" and n > 1:  # the run started from the builder's parts
+        with open(os.path.join(out, "summary.json")) as f:
+            setup = json.load(f)["domains"]["setup"]
+        if setup != "parts":
+            raise SystemExit(f"FAIL: domains.setup = {setup!r} on {n} ranks: expected 'parts'")
+        print("the parts made by the builder on every rank")
     compare_runs(ref, out, f"{case} on {n} ranks")
 
 

@@ -128,6 +128,7 @@ void DomainIntegrator::whole_numbers(const Scene& p) {
   std::int64_t count[4] = {n, 0, 0, stiff ? static_cast<std::int64_t>(stiff->bonds.size()) : 0};
   for (const double w : mine.inv_mass) count[1] += w > 0.0, count[2] += w == 0.0;
   comm_.sum(count, 4);
+  whole_n_ = static_cast<int>(count[0]);
   const bool conserved =
       terms_conserve_momentum_ && settings_.thermostat.style != ThermostatSettings::Style::langevin && count[2] == 0;
   whole_dof_ =
@@ -455,7 +456,7 @@ std::vector<double> DomainIntegrator::save_state() const {
   CarriedState c = part_->integrator->carried_state();
   if (!c.sums.empty()) comm_.sum(c.sums.data(), static_cast<int>(c.sums.size()));
   std::vector<Eigen::Matrix3Xd> whole_columns;
-  domains_->gather_columns(c.columns, whole_columns, whole_scene_.state.size());
+  domains_->gather_columns(c.columns, whole_columns, whole_n_);
   if (!comm_.root()) return {};
   c.columns = std::move(whole_columns);
   whole_->restore_carried_state(std::move(c));
@@ -503,7 +504,7 @@ std::vector<WordRun> word_runs(const std::vector<double>& words, std::size_t col
 
 StateBlock DomainIntegrator::state_block(const State& whole) const {
   StateBlock b;
-  const int n = whole_scene_.state.size();
+  const int n = part_ ? whole_n_ : whole.size();
   b.block = block_of(n, comm_.size(), comm_.rank());
   const auto first = static_cast<Eigen::Index>(b.block.first), count = static_cast<Eigen::Index>(b.block.count);
   if (!part_) {
@@ -537,7 +538,7 @@ StateBlock DomainIntegrator::state_block(const State& whole) const {
 
 void DomainIntegrator::gather(State& whole) const {
   if (!part_) return;
-  domains_->gather_columns({&part_->scene.state.x, &part_->scene.state.v}, {&whole.x, &whole.v}, whole.size());
+  domains_->gather_columns({&part_->scene.state.x, &part_->scene.state.v}, {&whole.x, &whole.v}, whole_n_);
 }
 
 std::vector<std::int64_t> DomainIntegrator::evaluations() const {
@@ -585,7 +586,7 @@ DomainReport DomainIntegrator::report() const {
   for (const auto& t : whole_scene_.forces->terms()) whole_listed += static_cast<double>(t->listed_pairs());
   double held[2] = {static_cast<double>(domains_->pair_ids().size()), whole_listed};
   comm_.max(held, 2);
-  r.particles = whole_scene_.state.size();
+  r.particles = whole_n_;
   r.pair_set_max = static_cast<long>(held[0]);
   r.whole_list_pairs_max = static_cast<std::int64_t>(held[1]);
   r.imbalance_before = domains_->imbalance_before();

@@ -121,6 +121,10 @@ class DomainIntegrator final : public Integrator {
     int molecule, first, modes;
   };
   int whole_degrees_of_freedom() const { return whole_dof_; }
+  // The whole system's particle count, summed from the parts at the start (before it: the whole
+  // scene's): what the Run, its outputs and the checkpoint count once the whole scene need not
+  // hold the particles.
+  int whole_particles() const { return part_ ? whole_n_ : whole_scene_.state.size(); }
   bool molecules_whole() const { return molecules_whole_; }
   const std::vector<Cluster>& clusters() const { return clusters_; }
 
@@ -145,6 +149,7 @@ class DomainIntegrator final : public Integrator {
   bool reselect_ = false;               // the pair sets were selected again: molecules may migrate before the next step
   bool box_moved_ = false;              // a barostat moved the cell: the pair sets follow before the next step
   int whole_dof_ = 0;                   // csvr: the whole system's degrees of freedom
+  int whole_n_ = 0;                     // the whole system's particles, summed from the parts
   bool molecules_whole_ = true;         // every topology molecule within one bonded molecule
   bool charged_ = false;                // some particle of the whole system has a charge (at the start)
   bool rigid_method_ = false;           // the method holds the stiff bonds rigid

@@ -160,8 +160,9 @@ void write_scene_lammps_data(const Scene& scene, const std::string& path, const 
                     title);
 }
 
-RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& thermo, const double* restart_cut,
-                       std::vector<std::string>& files, std::ostream& log, const Communicator* processes)
+RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir, const Thermo& thermo,
+                       const double* restart_cut, std::vector<std::string>& files, std::ostream& log,
+                       const Communicator* processes)
     : sc_(sc),
       dir_(out_dir),
       processes_(processes),
@@ -171,7 +172,7 @@ RunOutputs::RunOutputs(Scene& sc, const std::string& out_dir, const Thermo& ther
       thermo_due_(sc.output.thermo_interval),
       state_due_(sc.output.state_interval),
       h5md_due_(sc.output.h5md_interval),
-      table_(thermo, sc.state.size(), sc.output.thermo_norm, sc.units) {
+      table_(thermo, num_particles, sc.output.thermo_norm, sc.units) {
   const fs::path dir(out_dir);
   const State& s = sc.state;
   const bool restarting = restart_cut != nullptr;

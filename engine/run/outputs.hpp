@@ -57,7 +57,8 @@ class RunOutputs {
   // `processes` (a decomposed run; null: one process): every rank has its RunOutputs, on the same
   // grids; rank 0 writes every file, but the H5MD file when HDF5 is parallel
   // (H5mdWriter::shared_files): every rank writes its particles' rows of it (shares_frame()).
-  RunOutputs(Scene& scene, const std::string& dir, const Thermo& thermo, const double* restart_cut,
+  // `num_particles`: the whole system's (a decomposed run's, summed from its parts).
+  RunOutputs(Scene& scene, int num_particles, const std::string& dir, const Thermo& thermo, const double* restart_cut,
              std::vector<std::string>& files, std::ostream& log, const Communicator* processes = nullptr);
 
   // Advances the time grids to t and returns whether a thermo sample is due (for the thermo CSV

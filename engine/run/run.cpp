@@ -185,10 +185,23 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // run so far come from the checkpoint.
   for (const auto& term : sc.forces->terms()) rebuilds_at_start_ += term->neighbor_list_rebuilds();
   check_finite(s_);
+  // The scene's fingerprint (the checkpoint's), of the scene as the deck made it: from here on a
+  // decomposed run's whole scene need not hold its particles.
+  fingerprint_ = scene_fingerprint(sc);
   // A decomposed run's parts are built now, before the first sample: each rank then evaluates
   // the forces of its part only, and the whole system's force terms never build a neighbour list
   // or a pair buffer on a rank (docs/parallel.md, "What a rank holds").
-  if (domain_) domain_->distribute(s_);
+  if (domain_ && opt.part) {
+    ScenePart mine = opt.part();
+    domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
+  } else if (domain_) {
+    domain_->distribute(s_);
+  }
+  if (domain_) summary_.domain_setup = opt.part ? "parts" : "whole";
+  // The particle count as the parts sum it (the whole scene's on one process): the Run, its
+  // outputs and the checkpoint read no whole array once the parts exist.
+  num_particles_ = domain_ ? domain_->whole_particles() : s_.size();
+  if (domain_ && opt.started) opt.started();
   if (!restarting) {  // E(0) and the initial actions
     const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
     const double kinetic = integrator_->kinetic_energy_estimate(s_), heat = integrator_->thermostat_heat();
@@ -219,8 +232,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     if (!opt.out_dir.empty() && root()) prepare_output_directory(sc, opt.out_dir);
   });
   const double cut = new_h ? s_.t - resumed_.h : static_cast<double>(s_.step - 1) * h_;
-  outputs_ = std::make_unique<RunOutputs>(sc, opt.out_dir, thermo_, restarting ? &cut : nullptr, summary_.outputs, log,
-                                          domain_ ? opt.processes : nullptr);
+  outputs_ = std::make_unique<RunOutputs>(sc, num_particles_, opt.out_dir, thermo_, restarting ? &cut : nullptr,
+                                          summary_.outputs, log, domain_ ? opt.processes : nullptr);
   // The terminal: the thermo lines (from the rows the thermo file gets) and the progress bar.
   bool levels = false;
   for (const auto& term : sc.forces->terms()) levels |= term->level() == Level::fast;
@@ -238,7 +251,6 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     summary_.t_end = (t0_ + static_cast<double>(final_step_ - k0_) * h_) * sc.units.out(Dimension::time);
   first_step_ = s_.step + 1;
   progress_ = std::make_unique<Progress>(opt.progress, final_step_ - s_.step);
-  fingerprint_ = scene_fingerprint(sc);
   checkpoint_path_ = outputs_->checkpoint_path();  // rank 0's, on every rank: they write it together
   if (domain_) opt.processes->broadcast(checkpoint_path_, 0);
   writes_checkpoints_ = !checkpoint_path_.empty();
@@ -387,14 +399,14 @@ const RunSummary& Run::finish() {
   // The energy conserved with the thermostat's heat (E itself without one): its drift per particle
   // and time unit over the run, (E_c(end) − E_c(0)) / (N t), GROMACS's "conserved energy drift".
   summary_.thermostat = col_econserve_ >= 0;
-  summary_.particles = s_.size();
+  summary_.particles = num_particles_;
   summary_.initial_conserved_energy = thermo_.initial_conserved_energy();
   summary_.final_conserved_energy = col_econserve_ >= 0 ? row[col_econserve_] : row[col_total_];
   summary_.max_conserved_error = col_econserve_ >= 0 ? stats_.max_conserved_error : stats_.max_energy_error;
   const double span = s_.t - thermo_.initial_time();
-  if (span > 0.0 && s_.size() > 0)
+  if (span > 0.0 && num_particles_ > 0)
     summary_.conserved_energy_drift = (summary_.final_conserved_energy - summary_.initial_conserved_energy) /
-                                      (static_cast<double>(s_.size()) * span) * sc_.units.out(Dimension::energy) /
+                                      (static_cast<double>(num_particles_) * span) * sc_.units.out(Dimension::energy) /
                                       sc_.units.out(Dimension::time);
   summary_.final_max_violation = row[col_violation_];
   if (first_action_ >= 0)
@@ -597,7 +609,7 @@ void Run::write_checkpoint_now() {
     identity(now_);
   now_.state.step = s_.step;
   now_.state.t = s_.t;
-  CheckpointBlock mine{s_.size(), b.block, b.x.data(), b.v.data(), b.inv_mass.data(), {}, &b.words};
+  CheckpointBlock mine{num_particles_, b.block, b.x.data(), b.v.data(), b.inv_mass.data(), {}, &b.words};
   for (const Eigen::Matrix3Xd& column : b.columns) mine.columns.push_back(column.data());
   write_checkpoint(checkpoint_path_, *options_.processes, mine, now_);
   if (root()) summary_.checkpoint = checkpoint_path_;

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <ctime>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <ostream>
@@ -23,6 +24,7 @@
 #include "core/parallel.hpp"
 #include "core/timing.hpp"
 #include "engine/domain/domain_integrator.hpp"
+#include "engine/domain/part_load.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
@@ -62,6 +64,13 @@ struct RunOptions {
   // When the process began its work (seconds on the steady clock; negative: not known): the
   // run's set-up time is from then to its first step (summary.json `setup_seconds`).
   double started_at = -1.0;
+  // Called once a decomposed run's parts are built, before the first sample (tests: the whole
+  // scene made useless there, to show that nothing reads it after the start).
+  std::function<void()> started{};
+  // This rank's molecules made by their source (engine/domain/part_load.hpp), for a decomposed run
+  // to start from instead of cutting its block from the whole scene (collective: every rank calls
+  // it, or none). Empty: the whole scene's cut.
+  std::function<ScenePart()> part{};
 };
 
 class Run {
@@ -118,7 +127,7 @@ class Run {
   // A step long enough to time by parts (a mark costs two clock reads, ≈ 50 ns): from kParallelMin
   // particles, or at any size with a k-space term (a mesh or an Ewald sum: a step of milliseconds,
   // whose k-space share the breakdown reports).
-  bool timed_by_phase() const { return s_.size() >= kParallelMin || has_kspace_; }
+  bool timed_by_phase() const { return num_particles_ >= kParallelMin || has_kspace_; }
   bool root() const { return !domain_ || options_.processes->root(); }
   // Whether a decomposed run's thermo row is summed by its ranks' parts (else rank 0 samples the
   // gathered whole state).
@@ -146,6 +155,7 @@ class Run {
   std::optional<IntervalSchedule> checkpoint_due_;
   SignalAtStep signal_at_;
   std::uint64_t fingerprint_ = 0;
+  int num_particles_ = 0;  // the whole system's (a decomposed run: summed from its parts)
   double h_ = 0.0, t0_ = 0.0;
   std::int64_t k0_ = 0, first_step_ = 0, final_step_ = 0;
   long rebuilds_at_start_ = 0;  // this process's rebuild count when the run started

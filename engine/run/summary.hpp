@@ -73,6 +73,9 @@ struct RunSummary {
   double setup_seconds = -1.0;
   double rank_setup_seconds_mean = 0.0, rank_setup_seconds_max = 0.0;
   DomainReport domains;
+  // How a decomposed run's parts were made: "whole" (cut from the whole scene every rank built) or
+  // "parts" (each rank's molecules made by their source, engine/domain/part_load.hpp).
+  std::string domain_setup;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
   // [minimize] before the run (a fresh run's; a restart does not minimise): in summary.json as
