@@ -2,14 +2,107 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <optional>
 #include <sstream>
+#include <stdexcept>
 
 #include "core/errors.hpp"
+#include "core/timing.hpp"
 #include "integrators/constraints.hpp"
 
 namespace stiffmd {
 namespace {
+
+// A sum of terms |t| < 2³⁰ whose value does not depend on the order of the terms: each term is
+// cut into its integer part and 32 bits of its fraction, t ≈ q + r·2⁻³² (q = trunc t, r =
+// trunc((t − q)·2³²): both exact operations, the bits below 2⁻³² dropped), and the q and the r
+// are added as integers: exact in any order. Up to 2³¹ terms fit the words. The value, one
+// rounding of the total (carried into the normal form q + r·2⁻³², 0 ≤ r < 2³²), is a function of
+// the set of terms alone. It is SignedExactSum's idea (core/exact_sum.hpp) at a fraction of its
+// cost per term (no branch on the sign, no unsigned conversion): FIRE adds four sums over every
+// coordinate at every step, and inputs/melt_by_molecule.toml's set-up took 6.92 G instructions
+// with SignedExactSum, 5.88 G with this, 5.06 G with plain sums (docs/design.md §12).
+struct FixedSum {
+  std::int64_t whole = 0, fraction = 0;
+  void add(double t) {
+    const auto q = static_cast<std::int64_t>(t);
+    whole += q;
+    fraction += static_cast<std::int64_t>((t - static_cast<double>(q)) * 4294967296.0);
+  }
+  double value() const {
+    const std::int64_t w = whole + (fraction >> 32);  // floor division: 0 ≤ r < 2³²
+    const std::int64_t r = fraction & 0xffffffffLL;
+    return static_cast<double>(w) + std::ldexp(static_cast<double>(r), -32);
+  }
+};
+
+// Sums over the particles of a system that may be held by parts on several ranks, the same bits
+// for any order of the terms and any partition (SumRule::exact, docs/design.md §12): a sum's terms
+// are scaled by 2^s, s fixed by the largest |term| of the whole system (one max over the ranks)
+// so that it lies below 2³⁰, and added as FixedSum: a term is rounded to 2⁻⁶² of the largest,
+// below a double's own rounding of a sum of many terms. Scaling by a power of two is exact, so a
+// sum of one term is that term, bit for bit. With SumRule::plain each rank adds its terms in
+// floating point and the ranks add their sums (tests only).
+class GlobalSums {
+ public:
+  GlobalSums(const Communicator* ranks, SumRule rule)
+      : ranks_(ranks && ranks->size() > 1 ? ranks : nullptr), rule_(rule) {}
+
+  bool plain() const { return rule_ == SumRule::plain; }
+
+  // The largest of each value over the ranks, in place.
+  void max(double* values, int n) const {
+    if (ranks_) ranks_->max(values, n);
+  }
+  double max(double value) const {
+    max(&value, 1);
+    return value;
+  }
+
+  // The scale 2^s of each sum from the whole system's largest |term| (largest: made the whole
+  // system's here unless `reduced`).
+  void scales(int count, double* largest, double* scale, bool reduced = false) const {
+    if (!reduced) max(largest, count);
+    for (int k = 0; k < count; ++k) scale[k] = std::ldexp(1.0, scale_exponent(largest[k]));
+  }
+  // The sums of the ranks' FixedSums of scaled terms, scaled back: the same on every rank. A sum
+  // whose largest term is not finite is NaN.
+  void finish(int count, FixedSum* sums, const double* largest, const double* scale, double* out) const {
+    constexpr int kMaxSums = 4;
+    if (ranks_) {
+      std::int64_t words[2 * kMaxSums];
+      for (int k = 0; k < count; ++k) words[2 * k] = sums[k].whole, words[2 * k + 1] = sums[k].fraction;
+      ranks_->sum(words, 2 * count);
+      for (int k = 0; k < count; ++k) sums[k] = {words[2 * k], words[2 * k + 1]};
+    }
+    for (int k = 0; k < count; ++k) out[k] = std::isfinite(largest[k]) ? sums[k].value() / scale[k] : std::nan("");
+  }
+  // Plain sums (SumRule::plain): each rank's added over the ranks.
+  void finish_plain(int count, double* out) const {
+    if (ranks_) ranks_->sum(out, count);
+  }
+
+ private:
+  // s with largest·2^s < 2³⁰ (0 for 0 or a value that is not finite), at most 1000 so that 2^s
+  // is a double (terms below 2⁻⁹⁷⁰ count as the zeros they nearly are).
+  static int scale_exponent(double largest) {
+    if (!(largest > 0.0) || !std::isfinite(largest)) return 0;
+    int e = 0;
+    std::frexp(largest, &e);  // largest < 2^e
+    return std::min(30 - e, 1000);
+  }
+
+  const Communicator* ranks_;
+  SumRule rule_;
+};
+
+double local_max_abs(const Eigen::Matrix3Xd& a) {
+  double m = 0.0;
+  for (Eigen::Index k = 0; k < a.size(); ++k) m = std::max(m, std::abs(a.data()[k]));
+  return m;
+}
 
 // What every method shares: E(x) with the true force f and the force that moves fmove (f, or the
 // soft start's capped force), both projected onto the tangent space under rigid bonds and zero at
@@ -17,41 +110,61 @@ namespace {
 // SHAKE back onto g = 0 after a move; progress lines; the report's closing numbers.
 // `metric`: the inverse masses of the projection and SHAKE — the particles' own for FIRE's
 // dynamics, 1 (0 at fixed particles) for the line searches, which move x by αh (docs/design.md §12).
+// On parts (MinimizeParts: FIRE only, in the particles' own metric) the force field and state are
+// this rank's part's, the energy its share, and the sums are added over the ranks.
 class Descent {
  public:
   Descent(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
-          const Eigen::VectorXd& metric, std::ostream* progress)
-      : forces_(forces),
-        s_(s),
+          const Eigen::VectorXd& metric, std::ostream* progress, const Communicator* ranks = nullptr,
+          SumRule rule = SumRule::exact)
+      : sums(ranks, rule),
+        forces_(&forces),
+        s_(&s),
         p_(p),
         progress_(progress),
         levels_(forces.all_levels()),
-        own_metric_(metric == s.inv_mass) {
-    const Eigen::Index n = s.x.cols();
-    raw_.resize(3, n);
-    f.resize(3, n);
-    fmove.resize(3, n);
-    if (p.rigid && stiff && !stiff->bonds.empty()) {
-      bonds_ = &stiff->bonds;
-      toolbox_.emplace(stiff->bonds, metric);
-    }
-    deck_velocities_ = s.v;
+        own_metric_(metric == s.inv_mass),
+        shares_(ranks != nullptr) {
+    bind(forces, stiff, s, metric);
     report.style = p.style;
     report.rigid = toolbox_.has_value();
   }
 
-  bool rigid() const { return toolbox_.has_value(); }
-  Eigen::Index size() const { return s_.x.cols(); }
-  bool fixed(Eigen::Index i) const { return s_.inv_mass[i] == 0.0; }
+  // A new part (FIRE on parts, after molecules moved between ranks): its force field, stiff bonds
+  // and state; FIRE's own columns (f, fmove among them) came with the particles.
+  void bind(ForceField& forces, const StiffBonds* stiff, State& s, const Eigen::VectorXd& metric) {
+    forces_ = &forces;
+    s_ = &s;
+    const Eigen::Index n = s.x.cols();
+    raw_.resize(3, n);
+    scratch_.resize(3, n);
+    f.resize(3, n);
+    fmove.resize(3, n);
+    bonds_ = nullptr;
+    toolbox_.reset();
+    if (p_.rigid && stiff && !stiff->bonds.empty()) {
+      bonds_ = &stiff->bonds;
+      toolbox_.emplace(stiff->bonds, metric);
+    }
+  }
 
-  // E(x); sets f and fmove, and capped (whether the cap changed any particle's force).
+  bool rigid() const { return toolbox_.has_value(); }
+  Eigen::Index size() const { return s_->x.cols(); }
+  bool fixed(Eigen::Index i) const { return s_->inv_mass[i] == 0.0; }
+  State& state() { return *s_; }
+
+  // E(x); sets f and fmove, capped (whether the cap changed any particle's force, on any rank)
+  // and fsq = ‖f‖₂² (the whole system's, summed exactly).
   double evaluate() {
-    const Eigen::Matrix3Xd& x = s_.x;
-    const double e = toolbox_ ? forces_.compute_unconstrained(x, raw_) : forces_.compute(x, levels_, raw_);
+    const Eigen::Matrix3Xd& x = s_->x;
+    double e = 0.0;
+    if (shares_) {
+      e = share_of_energy(x);
+    } else {
+      e = toolbox_ ? forces_->compute_unconstrained(x, raw_) : forces_->compute(x, levels_, raw_);
+    }
     ++report.evaluations;
-    if (!std::isfinite(e))
-      throw NumericalError("minimize: the potential energy is not finite (" + std::to_string(e) +
-                           "): beads on top of each other?");
+    if (!shares_ && !std::isfinite(e)) throw not_finite(e);
     for (Eigen::Index i = 0; i < size(); ++i)
       if (fixed(i)) raw_.col(i).setZero();
     f = raw_;
@@ -72,24 +185,90 @@ class Descent {
     } else {
       fmove = f;
     }
-    return e;
+    // Over the system: whether any force was capped, the energy from the ranks' shares and ‖f‖₂².
+    constexpr double kInf = std::numeric_limits<double>::infinity();
+    const double* fd = f.data();
+    const Eigen::Index m = f.size();
+    // The largest |e| and a bound on the largest f_ic² (fl(max|f_ic|)², as in dot_sums).
+    double largest[3] = {std::isfinite(e) ? std::abs(e) : kInf, 0.0, capped ? 1.0 : 0.0};
+    if (!f.allFinite()) {
+      largest[1] = kInf;
+    } else if (m > 0) {
+      const double fabs = f.cwiseAbs().maxCoeff();
+      largest[1] = fabs * fabs;
+    }
+    sums.max(largest, 3);  // one reduction for the three
+    capped = largest[2] > 0.0;
+    double out[2];
+    if (sums.plain()) {
+      out[0] = e;
+      out[1] = f.squaredNorm();
+      sums.finish_plain(2, out);
+    } else {
+      double scale[2];
+      sums.scales(2, largest, scale, true);
+      FixedSum total[2];
+      if (std::isfinite(largest[0])) total[0].add(e * scale[0]);
+      if (std::isfinite(largest[1]))
+        for (Eigen::Index k = 0; k < m; ++k) total[1].add(fd[k] * fd[k] * scale[1]);
+      sums.finish(2, total, largest, scale, out);
+    }
+    fsq = out[1];
+    if (!std::isfinite(out[0])) throw not_finite(out[0]);
+    return out[0];
+  }
+
+  // Σ a∘b, Σ a∘a, Σ b∘b over the system, exactly (FIRE's P = F·v, |F|², |v|²).
+  void dot_sums(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b, double out[3]) const {
+    const double *u = a.data(), *w = b.data();
+    const Eigen::Index m = a.size();
+    if (sums.plain()) {
+      out[0] = (a.array() * b.array()).sum();
+      out[1] = a.squaredNorm();
+      out[2] = b.squaredNorm();
+      sums.finish_plain(3, out);
+      return;
+    }
+    // Bounds on the largest terms from the largest components over the system (exact maxima): a
+    // product's rounding is monotonic, so fl(|u_k w_k|) ≤ fl(max|u| max|w|). A pass Eigen
+    // vectorises, where the terms' own maxima took a second scalar pass as long as the sums'.
+    constexpr double kInf = std::numeric_limits<double>::infinity();
+    double top[2] = {0.0, 0.0};  // max |u|, max |w| (∞: a component is not finite)
+    if (m > 0) {
+      top[0] = a.allFinite() ? a.cwiseAbs().maxCoeff() : kInf;
+      top[1] = b.allFinite() ? b.cwiseAbs().maxCoeff() : kInf;
+    }
+    sums.max(top, 2);
+    double largest[3] = {top[0] * top[1], top[0] * top[0], top[1] * top[1]};
+    if (!std::isfinite(largest[0])) std::fill_n(largest, 3, kInf);  // ∞·0 is NaN
+    double scale[3];
+    sums.scales(3, largest, scale, true);
+    FixedSum total[3];
+    if (std::isfinite(largest[0]) && std::isfinite(largest[1]) && std::isfinite(largest[2])) {
+      for (Eigen::Index k = 0; k < m; ++k) {
+        total[0].add(u[k] * w[k] * scale[0]);
+        total[1].add(u[k] * u[k] * scale[1]);
+        total[2].add(w[k] * w[k] * scale[2]);
+      }
+    }
+    sums.finish(3, total, largest, scale, out);
   }
 
   // v ← P(x) v at the current positions (unchanged without rigid bonds), zero at fixed particles.
   void project(Eigen::Matrix3Xd& v) {
     if (!toolbox_) return;
-    toolbox_->project_force(s_.x, v);
+    toolbox_->project_force(s_->x, v);
     for (Eigen::Index i = 0; i < size(); ++i)
       if (fixed(i)) v.col(i).setZero();
   }
   // v ← v − M⁻¹Gᵀμ with G v = 0 (RATTLE's velocity projection): FIRE's velocities, whose metric
   // is the particles' own.
   void project_velocity(Eigen::Matrix3Xd& v) {
-    if (toolbox_) toolbox_->project_velocity(s_.x, v);
+    if (toolbox_) toolbox_->project_velocity(s_->x, v);
   }
   // x ← SHAKE(x) along the constraint directions at `from` (the positions before the move).
   void shake_from(const Eigen::Matrix3Xd& from) {
-    if (toolbox_) toolbox_->shake(from, s_.x, nullptr, p_.shake_tolerance, 200);
+    if (toolbox_) toolbox_->shake(from, s_->x, nullptr, p_.shake_tolerance, 200);
   }
 
   template <typename... What>
@@ -100,39 +279,78 @@ class Descent {
     progress_->precision(old);
   }
 
-  // The closing numbers, the deck's velocities back (tangent at the minimum, in the particles'
-  // own metric: RATTLE's projection).
+  // The closing numbers (over the system), the deck's velocities (never moved by the methods)
+  // projected onto the tangent space at the minimum, in the particles' own metric: RATTLE's
+  // projection.
   MinimizeReport finish(double e) {
     report.energy = e;
-    report.fmax = size() > 0 ? f.colwise().norm().maxCoeff() : 0.0;
-    report.fnorm = f.norm();
-    s_.v = deck_velocities_;
+    double largest[2] = {0.0, 0.0};
+    for (Eigen::Index i = 0; i < size(); ++i) largest[0] = std::max(largest[0], f.col(i).norm());
+    if (toolbox_) largest[1] = toolbox_->max_violation(s_->x);
+    sums.max(largest, 2);
+    report.fmax = largest[0];
+    report.fnorm = std::sqrt(fsq);
     if (toolbox_) {
-      report.max_violation = toolbox_->max_violation(s_.x);
+      report.max_violation = largest[1];
       if (own_metric_) {
-        toolbox_->project_velocity(s_.x, s_.v);
+        toolbox_->project_velocity(s_->x, s_->v);
       } else {
-        ConstraintToolbox velocities(*bonds_, s_.inv_mass);
-        velocities.project_velocity(s_.x, s_.v);
+        ConstraintToolbox velocities(*bonds_, s_->inv_mass);
+        velocities.project_velocity(s_->x, s_->v);
       }
     }
     return report;
   }
 
+  GlobalSums sums;
   Eigen::Matrix3Xd f, fmove;
   bool capped = false;
+  double fsq = 0.0;  // ‖f‖₂² over the system
   MinimizeReport report;
 
  private:
-  ForceField& forces_;
-  State& s_;
+  // A part's forces at x into raw_ and its share of the energy: the terms in the force field's
+  // order (the forces the bits of ForceField::compute), a pair term's share from
+  // energy_and_virial (a pair with a halo bead counts half: the ranks' shares add up to the
+  // whole energy), the other terms' energies their own particles' (ForceTerm::add_forces).
+  double share_of_energy(const Eigen::Matrix3Xd& x) {
+    const Box& box = forces_->box();
+    raw_.setZero(3, x.cols());
+    double e = 0.0;
+    for (const ForceTerm* term : forces_->evaluation_order()) {
+      if (toolbox_ && term->stiff_bonds()) continue;  // compute_unconstrained's terms
+      const ScopedPhase phase(term->phase());
+      if (term->uses_neighbor_list()) {
+        term->add_forces_only(x, box, raw_);
+        e += term->energy_and_virial(x, box, scratch_).energy;
+      } else {
+        e += term->add_forces(x, box, raw_);
+      }
+    }
+    if (toolbox_) {
+      const Level outer = forces_->outermost();
+      forces_->count_evaluations(std::span<const Level>(&outer, 1));
+    } else {
+      forces_->count_evaluations(levels_);
+    }
+    return e;
+  }
+
+  static NumericalError not_finite(double e) {
+    return NumericalError("minimize: the potential energy is not finite (" + std::to_string(e) +
+                          "): beads on top of each other?");
+  }
+
+  ForceField* forces_;
+  State* s_;
   const MinimizeSettings& p_;
   std::ostream* progress_;
   const std::vector<Level> levels_;
   const bool own_metric_;
+  const bool shares_;  // on parts: the energy is this rank's share
   const std::vector<StiffBond>* bonds_ = nullptr;
   std::optional<ConstraintToolbox> toolbox_;
-  Eigen::Matrix3Xd raw_, deck_velocities_;
+  Eigen::Matrix3Xd raw_, scratch_;
 };
 
 // LAMMPS's relative energy change (EPS_ENERGY = 1e-8): etol's rule.
@@ -167,19 +385,26 @@ const char* style_name(MinimizeStyle style) {
 // Under rigid bonds F is P(x) f = f − Gᵀλ (G M⁻¹ F = 0: M⁻¹F is a tangent velocity), v is
 // projected onto G v = 0 before each move and at the new positions, and every move of x
 // (the step and the half step back) is followed by SHAKE (y ← y + M⁻¹G(x_old)ᵀλ, g(y) = 0).
-MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
-                             std::ostream* progress, const MinimizeObserver& after_move) {
-  Descent d(forces, stiff, s, p, s.inv_mass, progress);
-  const Eigen::Index n = s.x.cols();
-  Eigen::Matrix3Xd& x = s.x;
+namespace {
+
+// FIRE on one process (parts null) or on a rank's part (the sums over the ranks; after each move
+// the particles may move between ranks, with FIRE's columns).
+MinimizeReport fire(ForceField& forces, const StiffBonds* stiff, State& state, const MinimizeSettings& p,
+                    std::ostream* progress, const MinimizeObserver& after_move, MinimizeParts* parts, SumRule rule) {
+  Descent d(forces, stiff, state, p, state.inv_mass, progress, parts ? &parts->ranks() : nullptr, rule);
+  State* s = &state;
   const Eigen::Matrix3Xd& fmove = d.fmove;
-  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n), x_old, last_move;
+  const Eigen::Index n0 = s->x.cols();
+  Eigen::Matrix3Xd v = Eigen::Matrix3Xd::Zero(3, n0), last_move = Eigen::Matrix3Xd::Zero(3, n0), x_old;
   MinimizeReport& r = d.report;
 
-  d.shake_from(x);  // start on g = 0
+  d.shake_from(s->x);  // start on g = 0
   double e = d.evaluate(), e_prev = e;
   r.initial_energy = e;
-  d.say("minimize: FIRE on ", n, " particles (potential energy ", e, ", force 2-norm ", d.f.norm(), ") ...");
+  std::int64_t particles = n0;
+  if (parts) parts->ranks().sum(&particles, 1);
+  d.say("minimize: FIRE on ", particles, " particles (potential energy ", e, ", force 2-norm ", std::sqrt(d.fsq),
+        ") ...");
 
   const double dtmax = p.tmax * p.dt, dtmin = p.tmin * p.dt;
   double dt = p.dt, dtv = p.dt, alpha = p.alpha0;  // dt_v: the last step's, for the dmax limit
@@ -188,12 +413,15 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
   bool v_reset = true;
   r.stopped_by = "maxiter";
   for (long k = 1; k <= p.maxiter; ++k) {
-    const double power = (v.array() * fmove.array()).sum();
+    Eigen::Matrix3Xd& x = s->x;
+    double dots[3];  // P = F·v, |F|², |v|² over the system
+    d.dot_sums(fmove, v, dots);
+    const double power = dots[0];
     double scale1 = 1.0, scale2 = 0.0;
     if (power > 0.0) {
-      const double ff = fmove.squaredNorm();
+      const double ff = dots[1];
       scale1 = 1.0 - alpha;
-      scale2 = ff <= 1e-20 ? 0.0 : alpha * std::sqrt(v.squaredNorm() / ff);
+      scale2 = ff <= 1e-20 ? 0.0 : alpha * std::sqrt(dots[2] / ff);
       if (k - last_negative > p.delaystep) {
         dt = std::min(dt * p.dtgrow, dtmax);
         alpha *= p.alphashrink;
@@ -219,19 +447,23 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
     }
 
     // The step dt_v: no coordinate moves more than dmax (from the velocity a reset one gets).
+    // max |dt a_ic| = dt max |a_ic| to the bit (rounding is monotonic), over the ranks.
     double vmax = 0.0;
-    if (v_reset)
-      vmax = dt * (fmove * s.inv_mass.asDiagonal()).cwiseAbs().maxCoeff();
-    else
-      vmax = v.cwiseAbs().maxCoeff();
+    if (v_reset) {
+      for (Eigen::Index i = 0; i < x.cols(); ++i)
+        for (int c = 0; c < 3; ++c) vmax = std::max(vmax, std::abs(fmove(c, i) * s->inv_mass[i]));
+      vmax = dt * d.sums.max(vmax);
+    } else {
+      vmax = d.sums.max(local_max_abs(v));
+    }
     dtv = dt * vmax > p.dmax ? p.dmax / vmax : dt;
 
-    v += dtv * (fmove * s.inv_mass.asDiagonal());
+    v += dtv * (fmove * s->inv_mass.asDiagonal());
     if (power > 0.0) v = scale1 * v + scale2 * fmove;
     d.project_velocity(v);
     // dmax is a hard cap on the move: LAMMPS sizes dt_v by the velocity before the kick, so a
     // large force (an overlap) could still carry a particle far past dmax, and SHAKE with it.
-    const double reach = dtv * v.cwiseAbs().maxCoeff();
+    const double reach = dtv * d.sums.max(local_max_abs(v));
     x_old = x;
     last_move = (reach > p.dmax ? p.dmax / reach : 1.0) * dtv * v;
     x += last_move;
@@ -242,13 +474,13 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
     v_reset = false;
     r.iterations = k;
     if (after_move) after_move(x, e);
-    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", d.f.norm());
+    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", std::sqrt(d.fsq));
 
     if (k - last_negative > p.delaystep && energy_converged(p.etol, e, e_prev)) {
       r.stopped_by = "etol";
       break;
     }
-    if (p.ftol > 0.0 && d.f.squaredNorm() < p.ftol * p.ftol) {
+    if (p.ftol > 0.0 && d.fsq < p.ftol * p.ftol) {
       r.stopped_by = "ftol";
       break;
     }
@@ -256,8 +488,43 @@ MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State&
       r.stopped_by = "maxeval";
       break;
     }
+    // On parts: molecules may move to other ranks with FIRE's columns (the forces at x among
+    // them, so no evaluation is repeated).
+    if (parts && parts->redistribute({&v, &last_move, &d.f, &d.fmove})) {
+      s = &parts->state();
+      d.bind(parts->forces(), parts->stiff(), *s, s->inv_mass);
+    }
   }
   return d.finish(e);
+}
+
+}  // namespace
+
+// FIRE 2.0 as LAMMPS's MinFire::iterate with its defaults (integrator eulerimplicit,
+// halfstepback yes, initialdelay yes, vdfmax 2000: more than 2000 steps with P ≤ 0 stop it,
+// reported as "vdfmax"), step k = 1, 2, …:
+//   P = F·v.  P > 0: mixing factors c1 = 1 − α, c2 = α |v|/|F|; after more than delaystep steps
+//     since the last P ≤ 0, dt ← min(dt·dtgrow, tmax·dt0) and α ← α·alphashrink.
+//   P ≤ 0: (not within the first delaystep steps) α ← α0 and dt ← dt·dtshrink if that stays
+//     ≥ tmin·dt0; x ← x − ½ dt_v v (the half step back); v ← 0.
+//   dt_v = dt, reduced so that dt_v · max_{i,c} |v_ic| ≤ dmax (from v = dt M⁻¹F when v was reset);
+//   v ← v + dt_v M⁻¹F; if P > 0: v ← c1 v + c2 F; x ← x + dt_v v (semi-implicit Euler), the
+//   move scaled down where a coordinate would move further than dmax (below).
+// Under rigid bonds F is P(x) f = f − Gᵀλ (G M⁻¹ F = 0: M⁻¹F is a tangent velocity), v is
+// projected onto G v = 0 before each move and at the new positions, and every move of x
+// (the step and the half step back) is followed by SHAKE (y ← y + M⁻¹G(x_old)ᵀλ, g(y) = 0).
+// P, |F|², |v|² and ‖f‖₂² are exact sums (GlobalSums), the energy an exact sum of the ranks'
+// shares: the same bits on one process and on parts (docs/design.md §12).
+MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                             std::ostream* progress, const MinimizeObserver& after_move) {
+  return fire(forces, stiff, s, p, progress, after_move, nullptr, SumRule::exact);
+}
+
+MinimizeReport minimize_fire(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress,
+                             const MinimizeObserver& after_move, SumRule rule) {
+  if (p.style != MinimizeStyle::fire)
+    throw std::invalid_argument("minimize_fire on parts: style " + std::string(style_name(p.style)));
+  return fire(parts.forces(), parts.stiff(), parts.state(), p, progress, after_move, &parts, rule);
 }
 
 // The quadratic line search of LAMMPS's MinLineSearch::linemin_quadratic (after Dennis and

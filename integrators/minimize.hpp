@@ -11,7 +11,9 @@
 #include <functional>
 #include <ostream>
 #include <string>
+#include <vector>
 
+#include "core/communicator.hpp"
 #include "core/state.hpp"
 #include "forcefields/force_field.hpp"
 #include "forcefields/stiff_bond.hpp"
@@ -78,6 +80,34 @@ struct MinimizeReport {
 // SHAKEn to the same tolerance, or NumericalError is thrown).
 using MinimizeObserver = std::function<void(const Eigen::Matrix3Xd& x, double energy)>;
 
+// How FIRE adds its sums over the particles (P = F·v, |F|², |v|², ‖f‖₂², the energy): `exact`,
+// each sum's terms scaled by one power of two fixed by the whole system's largest components and
+// added as integers (as SignedExactSum, core/exact_sum.hpp), the same bits for any order of the
+// terms and any partition of the particles over ranks (docs/design.md §12); `plain`, each rank's
+// floating-point sum added over the ranks: not the same bits on another number of ranks — for
+// tests that show the exact sums are needed, never a run's.
+enum class SumRule { exact, plain };
+
+// A system held by parts on several ranks, as FIRE sees it (a decomposed run's parts:
+// DomainIntegrator::minimize, engine/domain/part_minimize.cpp). Each rank moves its own
+// particles with the forces of its part, and the global numbers (the sums and maxima over the
+// particles, the energy from each rank's share) are added over the ranks.
+class MinimizeParts {
+ public:
+  virtual ~MinimizeParts() = default;
+  virtual const Communicator& ranks() const = 0;
+  // This rank's part: its force field (whose pair terms give this rank's share of the energy,
+  // ForceTerm::energy_and_virial), its stiff bonds (null: none) and its particles' state (x, v,
+  // inv_mass). Valid until redistribute returns true.
+  virtual ForceField& forces() = 0;
+  virtual const StiffBonds* stiff() = 0;
+  virtual State& state() = 0;
+  // After each move, on every rank (collective): particles may move to other ranks, taking their
+  // columns of `carried` (3 × owned particles, in the owned order) with them. True when this
+  // rank's part is a new one (forces(), stiff(), state() and the columns then its new part's).
+  virtual bool redistribute(const std::vector<Eigen::Matrix3Xd*>& carried) = 0;
+};
+
 // p.style's method: minimize_fire or minimize_linesearch.
 MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                         std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
@@ -86,8 +116,23 @@ MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, c
 // kept (projected onto the tangent space at the minimum under rigid bonds), as a LAMMPS
 // `minimize` leaves a run's velocities to the deck. `stiff` may be null when !p.rigid.
 // Throws NumericalError when SHAKE does not converge or the energy is not finite.
+// Its global sums are exact (SumRule::exact): the same bits as FIRE on the parts below.
 MinimizeReport minimize_fire(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                              std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
+
+// The same FIRE on a system held by parts (collective: every rank calls it with the same p). For
+// the same system, each particle's position at every move, the iterations, the force
+// evaluations, the stop and the forces' norms are the bits of minimize_fire on one process, on
+// any number of ranks and for any partition (with SumRule::exact): each particle's force is the
+// same bits when the part's forces are (a decomposed run's: docs/parallel.md), and every sum
+// FIRE takes over the particles is exact. The energy is each rank's share (in floating point, the
+// part's terms in their order) added exactly over the ranks: one process's energy to round-off,
+// and its bits on one rank; so is a stop by etol, which compares two energies. `after_move` sees
+// this rank's positions (state().x) and the system's energy; `progress` should be given on one
+// rank. Under p.rigid every move is projected and SHAKEn per constraint cluster, which lies in
+// one part. The returned report is the same on every rank.
+MinimizeReport minimize_fire(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress = nullptr,
+                             const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
 
 // Conjugate gradient (p.style cg: Polak–Ribière with β = max(0, ·), restarted every 3N − m
 // iterations and whenever the direction is not downhill) or steepest descent (sd), each iteration

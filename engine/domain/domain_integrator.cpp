@@ -362,12 +362,13 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
 // kick forces, a Langevin force among them: not recomputed, so the run goes on as if nothing had
 // moved). Only a part whose particles changed is built again; the pair sets follow any change on
 // any rank (each rank's plan names the owners' columns).
-void DomainIntegrator::reselect(bool box_moved) {
+void DomainIntegrator::reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra) {
   const ScopedPhase phase(Phase::domain);
   State& l = part_->scene.state;
   CarriedState carried = part_->integrator->carried_state();
   std::vector<Eigen::Matrix3Xd*> columns;
   for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
+  columns.insert(columns.end(), extra.begin(), extra.end());
   // The home beads counted at the selection: the dynamic balance may recut the domains first, and
   // the molecules then migrate to the new ones.
   const bool recut = domains_->rebalance(l.x);
@@ -606,6 +607,10 @@ const State& DomainIntegrator::owned_state() const {
 }
 
 const Scene& DomainIntegrator::part_scene() const {
+  return part_->scene;
+}
+
+Scene& DomainIntegrator::mutable_part_scene() {
   return part_->scene;
 }
 

@@ -29,6 +29,7 @@
 #include "engine/observe/observables.hpp"
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
+#include "integrators/minimize.hpp"
 
 namespace stiffmd {
 
@@ -91,6 +92,14 @@ class DomainIntegrator final : public Integrator {
     if (!part_) start_parts(std::move(molecules), std::move(x), std::move(v), s);
   }
   bool distributed() const { return part_ != nullptr; }
+  // [minimize] on the parts, once distributed (engine/domain/part_minimize.cpp; collective, every
+  // rank with the same p): FIRE moves each rank's particles with its part's forces, its sums
+  // added exactly over the ranks, molecules migrating as in a run. The positions are those
+  // minimize_fire gives on one process for the same state, bit for bit, on any number of ranks
+  // (integrators/minimize.hpp); the report is the same on every rank. `progress`: rank 0's
+  // stream (null elsewhere). Styles cg and sd are refused (InputError naming minimize.style).
+  MinimizeReport minimize(const MinimizeSettings& p, std::ostream* progress = nullptr,
+                          const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
   // Force evaluations per level and neighbour-list rebuilds of this rank's parts so far.
   std::vector<std::int64_t> evaluations() const;
   long neighbor_rebuilds() const;
@@ -132,7 +141,9 @@ class DomainIntegrator final : public Integrator {
   struct Part;
   void start(const State& s);
   void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
-  void reselect(bool box_moved);
+  // `extra`: per-particle columns that move with the molecules besides the integrator's.
+  void reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra = {});
+  Scene& mutable_part_scene();  // the part's scene (minimize moves its particles)
   // at_start: the first part, built by every rank (the whole system's numbers summed then).
   void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool at_start);
   void whole_numbers(const Scene& part);
