@@ -48,6 +48,7 @@
 namespace stiffmd {
 
 struct Scene;
+struct PartMolecules;
 
 inline constexpr std::uint32_t kCheckpointVersion = 6;
 // The oldest version read (as a run without stages, in the deck's box).
@@ -77,7 +78,23 @@ struct Checkpoint {
 // levels, units, and every force term's name, style, level and ForceTerm::define (each of its
 // coefficients and lists, bit for bit) — but not the integrator, run or output settings, which
 // a restart may change with --set, nor run-time counters such as neighbour-list rebuilds.
+//
+// Version 7 on, the fingerprint combines by blocks: the description (types, box, levels, units,
+// particle and item counts, every term's definition) hashed in sequence, and per particle (its
+// global index, inverse mass, type, charge, molecule id) and per topology item (its kind, place in
+// the whole list, particles and type) a 64-bit hash, summed mod 2⁶⁴ — so that the value is the
+// same from the whole scene and from any partition of it into parts (scene_fingerprint_parts).
 std::uint64_t scene_fingerprint(const Scene& scene);
+
+// The same value as scene_fingerprint of the whole scene, from this rank's `part` of its particles
+// and items (any partition of the whole scene's molecules into the ranks' parts) and the scene's
+// description (`description`: its types, box, levels, units and force terms; none of its
+// per-particle arrays or topology items are read). Collective over `ranks`.
+std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecules& part, const Communicator& ranks);
+
+// The fingerprint of format versions 5 and 6 (FNV-1a of the whole scene in sequence, ParameterRecord):
+// what a checkpoint written before version 7 holds, checked so when it is read.
+std::uint64_t scene_fingerprint_sequential(const Scene& scene);
 
 // Writes `state` and everything of `rest` but rest.state. Throws InputError naming the path on
 // any I/O failure.
