@@ -20,6 +20,8 @@
 
 #include "core/errors.hpp"
 #include "core/topology.hpp"
+#include "engine/deck/deck.hpp"
+#include "engine/domain/part_load.hpp"
 #include "engine/domain/part_molecules.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/scene/scene.hpp"
@@ -93,6 +95,23 @@ TEST(SceneFingerprintParts, EveryPartitionOnOneToFourRanksGivesTheWholeScenesVal
       EXPECT_EQ(by_parts(sc, ranks, Partition::blocks, 0), whole);
       for (unsigned seed = 1; seed <= 3; ++seed) EXPECT_EQ(by_parts(sc, ranks, Partition::random, seed), whole);
     }
+  }
+}
+
+// A source's own parts (chains built by molecule, each rank its block: engine/domain/part_load.hpp)
+// give the whole scene's value too.
+TEST(SceneFingerprintParts, ChainsBuiltByPartsGiveTheWholeScenesValue) {
+  const Deck deck(test::source_path("tests/decks/chains_by_parts.toml"), {});
+  const Scene whole = load_scene(deck);
+  ASSERT_EQ(chains_part_refusal(deck, whole), "");
+  const std::uint64_t expected = scene_fingerprint(whole);
+  for (int ranks = 1; ranks <= 4; ++ranks) {
+    std::vector<std::uint64_t> got(static_cast<size_t>(ranks), 0);
+    run_ranks(ranks, [&](const FakeCommunicator& comm) {
+      const ScenePart mine = chains_part(deck, whole, comm);
+      got[static_cast<size_t>(comm.rank())] = scene_fingerprint_parts(whole, mine.molecules, comm);
+    });
+    for (const std::uint64_t v : got) EXPECT_EQ(v, expected) << ranks << " ranks";
   }
 }
 
