@@ -19,6 +19,7 @@
 
 #include "core/errors.hpp"
 #include "engine/deck/deck.hpp"
+#include "engine/domain/part_load.hpp"
 #include "engine/io/h5md_writer.hpp"
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/ensemble.hpp"
@@ -227,6 +228,7 @@ int main(int argc, char** argv) {
   std::optional<stiffmd::Checkpoint> checkpoint;
   std::optional<stiffmd::Protocol> protocol;  // a deck with [[stage]] tables (engine/run/stages.hpp)
   std::string description;                    // check's of a protocol
+  stiffmd::PartMaker source = nullptr;        // a decomposed run's parts made by their source
   std::ostringstream quiet_log, check_log;
   std::ostream& log = speaker ? std::cerr : quiet_log;
   const bool decomposed = processes.size() > 1;
@@ -270,7 +272,11 @@ int main(int argc, char** argv) {
         // printed or written: a damaged or foreign one is one line and exit 2.
         if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
         for (const auto& note : scene->notes) log << note << "\n";
-        if (restart.empty())  // a restart's state is the checkpoint's
+        // A fresh decomposed run of a deck whose particles a source makes by parts starts from
+        // each rank's own molecules (engine/domain/part_load.hpp), not from the whole scene's cut;
+        // its [minimize] is the Run's, on the parts after the start (part_source refuses [prepare]).
+        if (decomposed && run->parsed() && restart.empty()) source = stiffmd::part_source(*deck, *scene).make;
+        if (restart.empty() && !source)  // a restart's state is the checkpoint's
           stiffmd::prepare_scene(*scene, log, progress);
         if (check->parsed()) stiffmd::check_run(*scene, check_log);  // the method's notes belong to a run's log
       }
@@ -334,11 +340,9 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator();
-    // A fresh decomposed run of a deck whose particles can be made by parts starts from each rank's
-    // own molecules, made by their source (engine/domain/part_load.hpp), not from the whole scene's
-    // cut; the others, and a restart (the checkpoint's state, read whole), start from the cut.
-    if (decomposed && restart.empty() && stiffmd::chains_part_refusal(*deck, *scene).empty())
-      options.part = [&] { return stiffmd::chains_part(*deck, *scene, processes.communicator()); };
+    // The others, and a restart (the checkpoint's state, read whole), start from the whole
+    // scene's cut.
+    if (source) options.part = [&] { return source(*deck, *scene, processes.communicator()); };
     options.started_at = started_at;
     running = decomposed;
     const auto summary = stiffmd::run_simulation(*scene, options, log);

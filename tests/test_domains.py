@@ -21,6 +21,9 @@ CASE is one of
     chains_by_parts           tests/decks/chains_by_parts.toml: chains built by molecule, velocities by
                               particle; on several ranks each starts from its own molecules made by
                               the builder (summary.json domains.setup = "parts", engine/domain/part_load.hpp)
+    minimize_by_parts         tests/decks/melt_minimize_by_parts.toml: overlapping chains built by molecule,
+                              [minimize] (FIRE, max_force) on the parts after the start, velocity Verlet
+                              and Langevin: the serial run's bits, domains.setup = "parts"
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
@@ -315,6 +318,8 @@ def case_setup(case):
         return MELT_MILLION, 0.002, {"build.0.chains": "40"}
     if case == "chains_by_parts":  # each rank builds its own molecules: the start from the source's parts
         return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {}
+    if case == "minimize_by_parts":  # each rank builds its own molecules, FIRE relaxes them on the parts
+        return os.path.join(ROOT, "tests", "decks", "melt_minimize_by_parts.toml"), 0.005, {}
     if case == "half_melt":  # a melt beside vacuum: the domains recut
         return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
@@ -612,6 +617,14 @@ def check_straddle_geometry(ref_dir):
 
 # ---------------------------------------------------------------- cases
 
+# The cases whose decks a source makes by parts (engine/domain/part_load.hpp, part_source): on
+# several ranks each rank starts from its own molecules (summary.json domains.setup = "parts").
+BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder, minimised by FIRE on the parts,",
+            "kremer_grest": "the data file read by blocks", "half_melt": "the data file read by blocks",
+            "trappe": "the data file read by blocks", "trappe:scaled": "the data file read by blocks",
+            "trappe:charged": "the data file read by blocks"}
+
+
 def check_checkpoint_blocks(out, ranks):
     """The checkpoint the ranks wrote together, each its block of particles, is byte for byte the
     one-process writer's of the gathered state (engine/run/checkpoint.hpp)."""
@@ -652,12 +665,12 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
         print(f"{moved} molecules migrated")
     if case == "half_melt" and n == 4:
         check_balance(out)
-    if case == "chains_by_parts" and n > 1:  # the run started from the builder's parts
+    if case in BY_PARTS and n > 1:  # the run started from the source's parts
         with open(os.path.join(out, "summary.json")) as f:
             setup = json.load(f)["domains"]["setup"]
         if setup != "parts":
             raise SystemExit(f"FAIL: domains.setup = {setup!r} on {n} ranks: expected 'parts'")
-        print("the parts made by the builder on every rank")
+        print(f"the parts made by {BY_PARTS[case]} on every rank")
     compare_runs(ref, out, f"{case} on {n} ranks")
 
 

@@ -1,15 +1,21 @@
 // A rank's molecules made by their source (engine/domain/part_load.hpp): the linear chains built by
-// molecule, with velocities by particle, give on each of 1–4 fake ranks (tests/fake_processes.hpp)
-// exactly the block the whole path cuts from the whole scene (whole_block and cut_part,
-// engine/domain/part_molecules.hpp) — global indices, inverse masses, types, charges, molecule
-// ids, Langevin frictions, every bond and angle with its place in the whole lists, positions and
-// velocities, bit for bit; and the decks the source cannot make by parts are refused, each with
-// its reason.
+// molecule and a LAMMPS data file read by blocks, with velocities by particle or the file's, give
+// on each of 1–4 fake ranks (tests/fake_processes.hpp) exactly the block the whole path cuts from
+// the whole scene (whole_block and cut_part, engine/domain/part_molecules.hpp) — global indices,
+// inverse masses, types, charges, molecule ids, Langevin frictions, every bonded item with its
+// place in the whole lists, positions and velocities, bit for bit; part_source picks the source
+// and refuses the decks no source makes by parts, each with its reason; and a malformed number in
+// the lines one rank reads stops every rank with that rank's message.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 #include <vector>
 
+#include "core/errors.hpp"
 #include "engine/domain/part_load.hpp"
 #include "engine/domain/part_molecules.hpp"
 #include "fake_processes.hpp"
@@ -46,18 +52,12 @@ void expect_same_items(const std::vector<PartMolecules::Placed<Item>>& got,
   }
 }
 
-class ChainsPart : public ::testing::TestWithParam<int> {};
-
-TEST_P(ChainsPart, IsTheWholeScenesBlockBitForBit) {
-  const int ranks = GetParam();
-  const Deck deck(tree_path(kDeck), {});
-  const Scene whole = load_scene(deck);
-  ASSERT_EQ(chains_part_refusal(deck, whole), "");
+// Each rank's part made by `source` on `ranks` fake ranks is the whole scene's block of that rank
+// (whole_block, cut_part) bit for bit, and the parts cover the scene.
+void expect_whole_blocks(const Deck& deck, const Scene& whole, PartMaker source, int ranks) {
   const int n = whole.state.size();
-  ASSERT_GT(whole.topology.angles.size(), 0u);
-  ASSERT_EQ(whole.integrator.thermostat.friction.size(), n);
   std::vector<ScenePart> parts(static_cast<size_t>(ranks));
-  run_ranks(ranks, [&](const Communicator& comm) { parts[comm.rank()] = chains_part(deck, whole, comm); });
+  run_ranks(ranks, [&](const Communicator& comm) { parts[comm.rank()] = source(deck, whole, comm); });
   const Eigen::VectorXd& friction = whole.integrator.thermostat.friction;
   const WholeParticles all{std::span<const double>(whole.state.inv_mass.data(), static_cast<size_t>(n)),
                            whole.particle_type,
@@ -81,7 +81,7 @@ TEST_P(ChainsPart, IsTheWholeScenesBlockBitForBit) {
     expect_same_items(got.molecules.bonds, want.bonds, "bond");
     expect_same_items(got.molecules.angles, want.angles, "angle");
     expect_same_items(got.molecules.dihedrals, want.dihedrals, "dihedral");
-    EXPECT_TRUE(got.molecules.impropers.empty());
+    expect_same_items(got.molecules.impropers, want.impropers, "improper");
     ASSERT_EQ(got.x.cols(), static_cast<Eigen::Index>(block.size()));
     ASSERT_EQ(got.v.cols(), static_cast<Eigen::Index>(block.size()));
     for (size_t k = 0; k < block.size(); ++k) {
@@ -93,20 +93,128 @@ TEST_P(ChainsPart, IsTheWholeScenesBlockBitForBit) {
   EXPECT_EQ(covered, n);
 }
 
+class ChainsPart : public ::testing::TestWithParam<int> {};
+
+TEST_P(ChainsPart, IsTheWholeScenesBlockBitForBit) {
+  const Deck deck(tree_path(kDeck), {});
+  const Scene whole = load_scene(deck);
+  const PartSource source = part_source(deck, whole);
+  ASSERT_EQ(source.refusal, "");
+  ASSERT_EQ(source.make, &chains_part);
+  ASSERT_GT(whole.topology.angles.size(), 0u);
+  ASSERT_EQ(whole.integrator.thermostat.friction.size(), whole.state.size());
+  expect_whole_blocks(deck, whole, source.make, GetParam());
+}
+
 INSTANTIATE_TEST_SUITE_P(Ranks, ChainsPart, ::testing::Values(1, 2, 3, 4));
 
-TEST(ChainsPartRefusal, NamesWhatTheSourceCannotMakeByParts) {
-  auto refusal = [](const std::string& rel, const std::vector<std::string>& overrides) {
-    const Deck deck(tree_path(rel), overrides);
-    return chains_part_refusal(deck, load_scene(deck));
+// A data file read by blocks: the Kremer–Grest-like melt beside vacuum (FENE bonds, Langevin, the
+// file's velocities; and velocities drawn by particle instead), and TraPPE polyethylene (angles,
+// dihedrals, two types, a friction scaled by type).
+struct DataDeck {
+  const char* deck;
+  std::vector<std::string> overrides;
+};
+
+class DataFilePart : public ::testing::TestWithParam<std::tuple<int, int>> {};
+
+TEST_P(DataFilePart, IsTheWholeScenesBlockBitForBit) {
+  const auto [which, ranks] = GetParam();
+  const DataDeck decks[] = {
+      {"inputs/half_melt.toml", {}},
+      {"inputs/half_melt.toml", {"velocities.temperature=1.5", "velocities.seed=3", "velocities.by_particle=true"}},
+      {"inputs/trappe_pe.toml", {"thermostat.scale={ CH3 = 2.0 }"}},
   };
-  EXPECT_EQ(refusal(kDeck, {}), "");
+  const DataDeck& d = decks[which];
+  const Deck deck(tree_path(d.deck), d.overrides);
+  const Scene whole = load_scene(deck);
+  const PartSource source = part_source(deck, whole);
+  ASSERT_EQ(source.refusal, "");
+  ASSERT_EQ(source.make, &data_file_part);
+  ASSERT_GT(whole.topology.bonds.size(), 0u);
+  ASSERT_GT(whole.integrator.thermostat.friction.size(), 0);
+  ASSERT_FALSE(whole.state.v.isZero());
+  expect_whole_blocks(deck, whole, source.make, ranks);
+}
+
+INSTANTIATE_TEST_SUITE_P(DecksRanks, DataFilePart,
+                         ::testing::Combine(::testing::Values(0, 1, 2), ::testing::Values(1, 2, 3, 4)));
+
+TEST(PartSource, PicksTheSourceOrNamesWhyNone) {
+  auto source = [](const std::string& rel, const std::vector<std::string>& overrides) {
+    const Deck deck(tree_path(rel), overrides);
+    return part_source(deck, load_scene(deck));
+  };
+  auto refusal = [&](const std::string& rel, const std::vector<std::string>& overrides) {
+    const PartSource s = source(rel, overrides);
+    EXPECT_EQ(s.make == nullptr, !s.refusal.empty()) << rel;
+    return s.refusal;
+  };
+  EXPECT_EQ(source(kDeck, {}).make, &chains_part);
   EXPECT_EQ(refusal(kDeck, {"thermostat.scale.bead=2.0"}), "");
   EXPECT_NE(refusal(kDeck, {"velocities.by_particle=false"}).find("[velocities]"), std::string::npos);
   EXPECT_NE(refusal(kDeck, {"build.0.growth=\"together\""}).find("together"), std::string::npos);
-  EXPECT_NE(refusal("inputs/melt_by_molecule.toml", {}).find("[minimize]"), std::string::npos);
   EXPECT_NE(refusal("inputs/stiff_melt_nvt.toml", {}).find("[prepare]"), std::string::npos);
   EXPECT_NE(refusal("inputs/butane_torsions.toml", {}), "");
+  // [minimize] by FIRE is the parts' (the Run's, after the start) under a method that prepares
+  // nothing; by cg or sd the whole path's.
+  EXPECT_EQ(source("tests/decks/melt_minimize_by_parts.toml", {}).make, &chains_part);
+  EXPECT_NE(refusal("tests/decks/melt_minimize_by_parts.toml", {"minimize.style=\"cg\""}), "");
+  const std::string sd = refusal("tests/decks/melt_minimize_by_parts.toml", {"minimize.style=\"sd\""});
+  EXPECT_NE(sd.find("[minimize] style \"sd\""), std::string::npos) << sd;
+  // A method with rigid constraints projects the whole state before the start.
+  const std::string rattle = refusal("inputs/melt_by_molecule.toml", {});
+  EXPECT_NE(rattle.find("rattle projects"), std::string::npos) << rattle;
+  EXPECT_NE(refusal("inputs/spce_water.toml", {}).find("rattle projects"), std::string::npos);
+  // A data file: its [import] read by blocks, with the file's velocities or drawn by particle.
+  EXPECT_EQ(source("inputs/half_melt.toml", {}).make, &data_file_part);
+  EXPECT_NE(refusal("inputs/half_melt.toml", {"velocities.temperature=1.0"}).find("[velocities]"), std::string::npos);
+  EXPECT_NE(refusal("inputs/polyelectrolyte.toml", {}).find("[prepare]"), std::string::npos);
+}
+
+// The lines a rank reads alone: a malformed coordinate in the last molecule, which only the last
+// rank's block holds, stops every rank with that rank's message (AgreedInputError, said by rank 0),
+// not the last rank alone while the others wait in the velocities' sums.
+TEST(DataFilePart, AMalformedNumberOneRankReadsStopsEveryRank) {
+  const Deck good(tree_path("inputs/half_melt.toml"), {});
+  const Scene whole = load_scene(good);
+  const std::filesystem::path bad =
+      std::filesystem::temp_directory_path() / ("stiffmd_part_load_bad_" + std::to_string(::getpid()) + ".data");
+  {
+    std::ifstream in(tree_path("inputs/half_melt.data"));
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(in, line);) lines.push_back(line);
+    size_t atoms = 0, last = 0;
+    while (atoms < lines.size() && lines[atoms].rfind("Atoms", 0) != 0) ++atoms;
+    ASSERT_LT(atoms, lines.size());
+    for (size_t k = atoms + 2; k < lines.size() && !lines[k].empty(); ++k) last = k;
+    std::istringstream words(lines[last]);
+    std::string id, mol, type, x, rest;
+    words >> id >> mol >> type >> x;
+    std::getline(words, rest);
+    lines[last] = id + " " + mol + " " + type + " 1.2.3" + rest;  // the last molecule's last atom
+    std::ofstream out(bad);
+    for (const std::string& line : lines) out << line << "\n";
+  }
+  const Deck deck(tree_path("inputs/half_melt.toml"), {"import.lammps_data=\"" + bad.string() + "\""});
+  const int ranks = 3;
+  std::vector<std::string> said(ranks);
+  std::vector<int> printed(ranks, -1);
+  run_ranks(ranks, [&](const Communicator& comm) {
+    try {
+      data_file_part(deck, whole, comm);
+    } catch (const AgreedInputError& e) {
+      said[comm.rank()] = e.what();
+      printed[comm.rank()] = e.printed_here() ? 1 : 0;
+    }
+  });
+  std::filesystem::remove(bad);
+  for (int r = 0; r < ranks; ++r) {
+    SCOPED_TRACE("rank " + std::to_string(r));
+    EXPECT_EQ(said[r].rfind("rank 2: ", 0), 0u) << said[r];
+    EXPECT_NE(said[r].find("1.2.3"), std::string::npos) << said[r];
+    EXPECT_EQ(printed[r], r == 0 ? 1 : 0);
+  }
 }
 
 // A [thermostat.scale] ratio gives the built type's friction γ/ratio, as the whole scene's.

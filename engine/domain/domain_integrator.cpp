@@ -85,15 +85,8 @@ void check_parallel_outputs(const Scene& sc, int ranks) {
 
 DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::unique_ptr<Integrator> whole_method)
     : whole_scene_(whole), comm_(comm), whole_(std::move(whole_method)) {
-  double cutoff = 0.0, skin = 0.0;
-  for (const auto& t : whole.forces->terms())
-    if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
-  const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
   check_parallel_grid(whole, comm.size());
-  // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
-  domains_ = std::make_unique<Decomposition>(whole.forces->box(), comm, cutoff,
-                                             cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
-  domains_->set_balance(whole.parallel.balance);
+  domains_ = make_domains();
   evaluations_.assign(whole.forces->num_levels(), 0);
   // What the whole system's numbers need of the deck besides the parts (whole_numbers): the
   // method, and whether its terms conserve momentum (each term's own property, not its particles').
@@ -104,6 +97,35 @@ DomainIntegrator::DomainIntegrator(Scene& whole, const Communicator& comm, std::
 }
 
 DomainIntegrator::~DomainIntegrator() = default;
+
+std::unique_ptr<Decomposition> DomainIntegrator::make_domains() const {
+  const Scene& whole = whole_scene_;
+  double cutoff = 0.0, skin = 0.0;
+  for (const auto& t : whole.forces->terms())
+    if (t->uses_neighbor_list()) cutoff = std::max(cutoff, t->pair_cutoff()), skin = std::max(skin, t->pair_skin());
+  const Eigen::Vector3i* dims = whole.parallel.grid.prod() > 0 ? &whole.parallel.grid : nullptr;
+  // The box now: a restart's under a barostat (read_checkpoint_for set it on the force field).
+  auto domains = std::make_unique<Decomposition>(whole.forces->box(), comm_, cutoff,
+                                                 cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
+  domains->set_balance(whole.parallel.balance);
+  return domains;
+}
+
+void DomainIntegrator::start_again() {
+  if (!part_) throw std::logic_error("DomainIntegrator::start_again: the parts are not distributed yet");
+  State& l = part_->scene.state;
+  State s;
+  s.t = l.t;
+  s.step = l.step;
+  Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
+  PartMolecules molecules = std::move(molecules_);
+  part_.reset();
+  domains_ = make_domains();
+  std::fill(evaluations_.begin(), evaluations_.end(), 0);
+  rebuilds_ = 0;
+  reselect_ = box_moved_ = false;
+  start_parts(std::move(molecules), std::move(x), std::move(v), s, false);
+}
 
 std::vector<double> DomainIntegrator::part_invariants() const {
   const std::vector<double> all = whole_->invariants();
@@ -315,7 +337,8 @@ void DomainIntegrator::start(const State& s) {
 // The decomposition's start sends each molecule to the rank of its anchor's domain; from then on
 // the molecules travel with their data (Decomposition::migrate), and no part reads the whole
 // system's arrays again.
-void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
+void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s,
+                                   bool carry) {
   const Scene& w = whole_scene_;
   molecules_ = std::move(molecules);
   // Over the ranks: whether the particles have a friction each, and whether some has a charge.
@@ -342,6 +365,7 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
   // The lists built now, before the step loop, as one process builds its list in the first
   // force evaluation.
   for (GhostedPairs* term : part_->pairs) term->update_list(part_->scene.state.x, part_->scene.box);
+  if (!carry) return;
   CarriedState c = whole_->carried_state();
   // From now on the whole-system integrator holds no column of the whole system: the parts carry
   // them, and a checkpoint hands it columns of one particle for its words (state_block), or the

@@ -100,6 +100,12 @@ class DomainIntegrator final : public Integrator {
   // stream (null elsewhere). Styles cg and sd are refused (InputError naming minimize.style).
   MinimizeReport minimize(const MinimizeSettings& p, std::ostream* progress = nullptr,
                           const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
+  // The parts started afresh from the molecules they hold now (collective, once distributed): a
+  // new decomposition — its grid from their anchors, each molecule sent to its anchor's domain,
+  // the pair sets selected and listed, the counters at zero — and new parts' integrators, with
+  // nothing carried (as after reset()). After minimize, the run then goes on from the state a
+  // start from the minimised system gives: the whole path's, whose [minimize] came before its start.
+  void start_again();
   // Force evaluations per level and neighbour-list rebuilds of this rank's parts so far.
   std::vector<std::int64_t> evaluations() const;
   long neighbor_rebuilds() const;
@@ -145,7 +151,9 @@ class DomainIntegrator final : public Integrator {
  private:
   struct Part;
   void start(const State& s);
-  void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s);
+  // carry: the parts take over what the whole-system integrator carries (a first start).
+  void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool carry = true);
+  std::unique_ptr<Decomposition> make_domains() const;
   // `extra`: per-particle columns that move with the molecules besides the integrator's.
   void reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra = {});
   Scene& mutable_part_scene();  // the part's scene (minimize moves its particles)

@@ -1,9 +1,12 @@
 #include "engine/domain/part_load.hpp"
 
 #include <cstdint>
+#include <filesystem>
 #include <stdexcept>
 
+#include "engine/domain/import_part.hpp"
 #include "engine/scene/chains_by_molecule.hpp"
+#include "integrators/methods.hpp"
 #include "integrators/part_velocities.hpp"
 
 namespace stiffmd {
@@ -62,22 +65,67 @@ double langevin_friction(const Deck& deck, const Scene& sc, int type) {
 
 }  // namespace
 
-std::string chains_part_refusal(const Deck& deck, const Scene& sc) {
+namespace {
+
+// The velocities [velocities] draws by particle (read_velocities, engine/scene/scene_sources.cpp)
+// for the part's particles, or `v` as it is without [velocities] (collective: the sums over the
+// ranks).
+void velocities_by_particle(const Deck& deck, const Scene& sc, const PartMolecules& mine, const Communicator& ranks,
+                            Eigen::Matrix3Xd& v) {
   DeckTable root = deck.root();
-  if (root.gives("particles")) return "[[particles]] are listed whole";
-  if (root.gives("bonds")) return "[[bonds]] are listed whole";
-  if (root.gives("import")) return "the [import] is read whole";
-  if (root.gives("prepare")) return "[prepare] acts on the whole state";
-  if (root.gives("minimize")) return "[minimize] acts on the whole state";
+  auto t = root.table("velocities");
+  if (!t) return;
+  const double temperature = t->number("temperature");
+  const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  const Eigen::VectorXd w = Eigen::Map<const Eigen::VectorXd>(mine.inv_mass.data(), mine.size());
+  v = maxwell_boltzmann_by_particle(w, mine.global, sc.units.kT(temperature), seed, &ranks);
+}
+
+// Why the particles cannot come from `root`'s one [[build]] by parts ("": they can).
+std::string chains_refusal(DeckTable& root) {
   const std::vector<DeckTable> builds = root.array_of_tables("build");
   if (builds.size() != 1) return "not one [[build]]";
   DeckTable b = builds.front();
   if (b.string("style") != "linear-chains" || b.string("growth", "together") != "by-molecule")
     return "the [[build]] grows its molecules together (growth = \"by-molecule\" builds them by parts)";
-  if (auto v = root.table("velocities"); v && !v->boolean("by_particle", false))
-    return "[velocities] are drawn from one stream over the particles (by_particle = true draws them by parts)";
-  if (sc.stage.staged()) return "a staged protocol hands the whole state from stage to stage";
   return "";
+}
+
+// Why the particles cannot come from `root`'s [import] by parts ("": they can).
+std::string data_file_refusal(DeckTable& root) {
+  if (root.gives("build")) return "a [[build]] beside the [import] numbers the particles after it";
+  auto t = root.table("import");
+  if (!t->has("lammps_data")) return "an XYZ [import] is read whole (a LAMMPS data file is read by parts)";
+  return "";
+}
+
+}  // namespace
+
+PartSource part_source(const Deck& deck, const Scene& sc) {
+  DeckTable root = deck.root();
+  auto refused = [](std::string why) { return PartSource{nullptr, std::move(why)}; };
+  if (root.gives("particles")) return refused("[[particles]] are listed whole");
+  if (root.gives("bonds")) return refused("[[bonds]] are listed whole");
+  if (root.gives("prepare")) return refused("[prepare] acts on the whole state");
+  // A method with rigid constraints prepares the whole state before the start (Integrator::prepare:
+  // x and v projected onto g = 0, the effective dynamics' actions taken there), which the parts
+  // would not hold.
+  if (find_method(sc.integrator.method)->rigid_constraints)
+    return refused(sc.integrator.method + " projects the whole state onto its constraints before the start");
+  // [minimize] by FIRE runs on the parts after the start (DomainIntegrator::minimize).
+  if (sc.minimize.requested && sc.minimize.style != MinimizeStyle::fire)
+    return refused(std::string("[minimize] style \"") + style_name(sc.minimize.style) +
+                   "\" acts on the whole state (\"fire\" minimises by parts)");
+  if (auto v = root.table("velocities"); v && !v->boolean("by_particle", false))
+    return refused(
+        "[velocities] are drawn from one stream over the particles (by_particle = true draws them by parts)");
+  if (sc.stage.staged()) return refused("a staged protocol hands the whole state from stage to stage");
+  if (root.gives("import")) {
+    if (std::string why = data_file_refusal(root); !why.empty()) return refused(why);
+    return {data_file_part, ""};
+  }
+  if (std::string why = chains_refusal(root); !why.empty()) return refused(why);
+  return {chains_part, ""};
 }
 
 ScenePart chains_part(const Deck& deck, const Scene& sc, const Communicator& ranks) {
@@ -131,15 +179,29 @@ ScenePart chains_part(const Deck& deck, const Scene& sc, const Communicator& ran
   part.x = std::move(built.x);
   part.x.colwise() += c.offset;
   // The velocities by particle (read_velocities, engine/scene/scene_sources.cpp), or none.
+  part.v = Eigen::Matrix3Xd::Zero(3, n);
+  velocities_by_particle(deck, sc, mine, ranks, part.v);
+  return part;
+}
+
+ScenePart data_file_part(const Deck& deck, const Scene& sc, const Communicator& ranks) {
   DeckTable root = deck.root();
-  if (auto t = root.table("velocities")) {
-    const double temperature = t->number("temperature");
-    const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
-    const Eigen::VectorXd w = Eigen::VectorXd::Constant(n, inv_mass);
-    part.v = maxwell_boltzmann_by_particle(w, mine.global, sc.units.kT(temperature), seed, &ranks);
-  } else {
-    part.v = Eigen::Matrix3Xd::Zero(3, n);
-  }
+  auto import = root.table("import");
+  if (!import) throw std::logic_error("data_file_part: the deck has no [import]");
+  const LammpsImportDeck d = read_lammps_import(*import, std::filesystem::path(deck.path()).parent_path().string());
+  // The friction each particle of a type gets under Langevin, as read_thermostat forms it.
+  std::vector<double> friction;
+  if (sc.integrator.thermostat.style == ThermostatSettings::Style::langevin)
+    for (size_t k = 0; k < sc.types.size(); ++k) friction.push_back(langevin_friction(deck, sc, static_cast<int>(k)));
+  // Each rank reads its block alone: a fault only its lines hold is agreed before any collective
+  // call (docs/parallel.md, "Errors").
+  ImportedMolecules in;
+  agree(&ranks, [&] {
+    in = import_part(d, {sc.types, sc.units.velocity_in(1.0), friction},
+                     {nullptr, KeepBlock{ranks.rank(), ranks.size()}});
+  });
+  ScenePart part{std::move(in.molecules), std::move(in.x), std::move(in.v)};
+  velocities_by_particle(deck, sc, part.molecules, ranks, part.v);
   return part;
 }
 

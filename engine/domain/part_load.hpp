@@ -5,9 +5,11 @@
 // make parts has one function that returns the rank's ScenePart; the run takes it in place of the
 // whole scene's cut (RunOptions::part, engine/run/run.hpp).
 //
-// Linear chains built by molecule (engine/scene/chains_by_molecule.hpp) are one such source: a
-// rank builds the contiguous block of molecules [r·M/P, (r+1)·M/P) and draws their velocities by
-// particle (integrators/part_velocities.hpp); both are the whole build's bits for any partition.
+// Two sources make parts: linear chains built by molecule (engine/scene/chains_by_molecule.hpp),
+// of which a rank builds the contiguous block of molecules [r·M/P, (r+1)·M/P), and a LAMMPS data
+// file read by parts (engine/domain/import_part.hpp), of which a rank reads the same block of the
+// file's molecules; velocities by particle (integrators/part_velocities.hpp). Each is the whole
+// scene's bits for any partition.
 #pragma once
 
 #include <Eigen/Core>
@@ -25,19 +27,41 @@ struct ScenePart {
   Eigen::Matrix3Xd x, v;
 };
 
-// Why the scene's particles cannot be made by parts from the deck ("": they can): every particle
-// from one [[build]] of linear chains with growth = "by-molecule" (no [[particles]], [[bonds]] or
-// [import]), velocities by particle ([velocities] by_particle = true) or none, and nothing that
-// moves them before the run from the whole state ([prepare], [minimize]) or hands it on (a staged
-// protocol's stages). `scene`: the deck's scene as load_scene made it.
-std::string chains_part_refusal(const Deck& deck, const Scene& scene);
+// A source that makes this rank's part of the scene's particles (collective: every rank calls it).
+using PartMaker = ScenePart (*)(const Deck& deck, const Scene& scene, const Communicator& ranks);
+
+// The source a fresh decomposed run starts from, or why it cuts its parts from the whole scene.
+struct PartSource {
+  PartMaker make = nullptr;  // null: no source makes the particles by parts
+  std::string refusal;       // why not, when make is null
+};
+
+// Which source makes the deck's particles by parts (docs/parallel.md, "The start from the
+// source's parts"): every particle from one [[build]] of linear chains with growth = "by-molecule"
+// (chains_part), or from the [import] of a LAMMPS data file (data_file_part) — no [[particles]] or
+// [[bonds]] beside it —; velocities from the source, by particle ([velocities] by_particle = true)
+// or none; nothing that acts on the whole state before the run ([prepare], [minimize] by cg or sd,
+// a method with rigid constraints, whose preparation projects it onto g = 0) or hands it on (a
+// staged protocol's stages). [minimize] with style "fire" is the Run's, on the parts
+// (DomainIntegrator::minimize), after the start. `scene`: the deck's scene as load_scene made it.
+PartSource part_source(const Deck& deck, const Scene& scene);
 
 // This rank's block of molecules [r·M/P, (r+1)·M/P) (r = ranks.rank(), P = ranks.size()) of the
 // deck's chains, as the whole scene holds them bit for bit: positions as built, the type's inverse
 // mass, charge and Langevin friction, molecule ids, the chains' bonds, angles and dihedrals with
 // their places in the whole lists, and the velocities by particle (collective: their sums over the
 // ranks). `scene` gives the types, units, box, thermostat style and the topology's type names;
-// none of its per-particle arrays or items are read. Only for a deck chains_part_refusal accepts.
+// none of its per-particle arrays or items are read. Only for a deck whose source it is.
 ScenePart chains_part(const Deck& deck, const Scene& scene, const Communicator& ranks);
+
+// This rank's block of the [import]ed data file's molecules [r·M/P, (r+1)·M/P) in the file's
+// molecule order (import_part by block, engine/domain/import_part.hpp), as the whole scene holds
+// them bit for bit: each particle's type, inverse mass, charge, molecule id and Langevin friction,
+// the bonded items with their places, x whole, and v the file's (velocities = true, in the deck's
+// units), zero, or drawn by particle. The file's faults that only this rank reads (a malformed
+// number in one of its lines) are agreed before anything else: every rank throws
+// AgreedInputError with the lowest failing rank's message (collective). `scene` gives the types,
+// units and thermostat; none of its per-particle arrays or items are read.
+ScenePart data_file_part(const Deck& deck, const Scene& scene, const Communicator& ranks);
 
 }  // namespace stiffmd

@@ -18,6 +18,7 @@
 #include <system_error>
 
 #include "core/errors.hpp"
+#include "engine/domain/part_molecules.hpp"
 #include "engine/scene/scene.hpp"
 #include "engine/scene/stage_deck.hpp"
 #include "forcefields/parameter_record.hpp"
@@ -267,7 +268,7 @@ T get_raw(const std::vector<char>& b, std::size_t at) {
 
 }  // namespace
 
-std::uint64_t scene_fingerprint(const Scene& sc) {
+std::uint64_t scene_fingerprint_sequential(const Scene& sc) {
   ParameterRecord r;
   r.add("particles", sc.state.size());
   r.add("inverse masses",
@@ -317,6 +318,159 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
     term->define(r);
   }
   return r.value();
+}
+
+namespace {
+
+// One particle's or item's hash: FNV-1a of its words (each as its 8 bytes, as ParameterRecord
+// writes numbers), then MurmurHash3's 64-bit finaliser (a bijection: it adds no collision), so
+// that a change in any bit of any word moves every bit of the hash about half the time. A sum of
+// such hashes, in any order, then changes with any one record changed (one particle's mass, one
+// bond's type) unless its FNV-1a value collides, and with several changed unless their changes
+// cancel mod 2⁶⁴: about 2⁻⁶⁴ either way for records that are not built to collide.
+class RecordHash {
+ public:
+  explicit RecordHash(std::int64_t kind) { word(kind); }
+  RecordHash& word(std::int64_t n) { return bytes(&n, sizeof n); }
+  RecordHash& real(double v) { return bytes(&v, sizeof v); }
+  std::uint64_t value() const {
+    std::uint64_t h = h_;
+    h ^= h >> 33;
+    h *= 0xff51afd7ed558ccdull;
+    h ^= h >> 33;
+    h *= 0xc4ceb9fe1a85ec53ull;
+    h ^= h >> 33;
+    return h;
+  }
+
+ private:
+  RecordHash& bytes(const void* p, std::size_t n) {
+    const auto* c = static_cast<const unsigned char*>(p);
+    for (std::size_t k = 0; k < n; ++k) h_ = (h_ ^ c[k]) * 0x100000001b3ull;
+    return *this;
+  }
+  std::uint64_t h_ = 0xcbf29ce484222325ull;
+};
+
+// The record kinds: a particle, and the topology's four kinds of item.
+enum RecordKind : std::int64_t { kParticle = 1, kBondItem, kAngleItem, kDihedralItem, kImproperItem };
+
+// What blocks of the system contribute, summed: the per-particle and per-item hashes (mod 2⁶⁴)
+// and the counts.
+struct BlockSums {
+  std::uint64_t particles = 0, items = 0;
+  std::int64_t count[5] = {0, 0, 0, 0, 0};  // particles, bonds, angles, dihedrals, impropers
+
+  void particle(std::int64_t g, double inv_mass, std::int64_t type, double charge, std::int64_t molecule) {
+    particles += RecordHash(kParticle).word(g).real(inv_mass).word(type).real(charge).word(molecule).value();
+    ++count[0];
+  }
+  void item(const Bond& b, std::int64_t place) {
+    items += RecordHash(kBondItem).word(place).word(b.i).word(b.j).word(b.type).value();
+    ++count[1];
+  }
+  void item(const Angle& a, std::int64_t place) {
+    items += RecordHash(kAngleItem).word(place).word(a.i).word(a.j).word(a.k).word(a.type).value();
+    ++count[2];
+  }
+  void item(const Dihedral& d, std::int64_t place) {
+    items += RecordHash(kDihedralItem).word(place).word(d.i).word(d.j).word(d.k).word(d.l).word(d.type).value();
+    ++count[3];
+  }
+  void item(const Improper& d, std::int64_t place) {
+    items += RecordHash(kImproperItem).word(place).word(d.i).word(d.j).word(d.k).word(d.l).word(d.type).value();
+    ++count[4];
+  }
+};
+
+// The whole fingerprint (version 7) from the system's sums and the scene's description: the
+// description in sequence (the ParameterRecord of scene_fingerprint_sequential but its
+// per-particle arrays and topology items, which the sums stand for), then the counts and sums.
+std::uint64_t fingerprint_of(const Scene& sc, const BlockSums& s) {
+  ParameterRecord r;
+  r.add("fingerprint by blocks", 7);
+  r.add("particles", s.count[0]);
+  r.add("bonds", s.count[1]);
+  r.add("angles", s.count[2]);
+  r.add("dihedrals", s.count[3]);
+  r.add("impropers", s.count[4]);
+  r.add("particle sum", static_cast<std::int64_t>(s.particles));
+  r.add("item sum", static_cast<std::int64_t>(s.items));
+  r.add("types", sc.types.size());
+  for (const ParticleType& t : sc.types) {
+    r.add("name", t.name);
+    r.add("mass", t.mass);
+  }
+  for (int a = 0; a < 3; ++a) {
+    r.add("periodic", sc.box.periodic[a]);
+    r.add("origin", sc.box.origin[a]);
+    r.add("length", sc.box.lengths[a]);
+  }
+  r.add("levels", sc.integrator.levels.size());
+  const MethodInfo* method = find_method(sc.integrator.method);
+  for (const LevelSettings& l : sc.integrator.levels) {
+    r.add("level", l.name);
+    if (l.kick && (!method || l.kick != method->kick)) r.add("kick", std::string(kick_name(*l.kick)));
+  }
+  r.add("units", sc.units.name);
+  r.add("terms", sc.forces->terms().size());
+  for (const auto& term : sc.forces->terms()) {
+    r.add("name", term->name());
+    r.add("style", term->style());
+    r.add("level", term->level().index);
+    term->define(r);
+  }
+  return r.value();
+}
+
+template <class Item>
+void add_items(BlockSums& s, const std::vector<Item>& items) {
+  for (std::size_t k = 0; k < items.size(); ++k) s.item(items[k], static_cast<std::int64_t>(k));
+}
+template <class Item>
+void add_items(BlockSums& s, const std::vector<PartMolecules::Placed<Item>>& items) {
+  for (const auto& p : items) s.item(p.item, p.place);
+}
+
+// A u64 sum mod 2⁶⁴ over the ranks, exactly: its two 32-bit halves summed apart as integers (each
+// below 2³² a rank, so below 2⁶³ for any number of ranks below 2³¹), then carried.
+std::uint64_t sum_mod_2_64(std::uint64_t mine, const Communicator& ranks) {
+  std::int64_t halves[2] = {static_cast<std::int64_t>(mine & 0xffffffffull), static_cast<std::int64_t>(mine >> 32)};
+  ranks.sum(halves, 2);
+  return static_cast<std::uint64_t>(halves[0]) + (static_cast<std::uint64_t>(halves[1]) << 32);
+}
+
+}  // namespace
+
+std::uint64_t scene_fingerprint(const Scene& sc) {
+  BlockSums s;
+  const auto n = static_cast<std::size_t>(sc.state.size());
+  const Topology& top = sc.topology;
+  for (std::size_t g = 0; g < n; ++g)
+    s.particle(static_cast<std::int64_t>(g), sc.state.inv_mass[static_cast<Eigen::Index>(g)], sc.particle_type[g],
+               g < sc.charge.size() ? sc.charge[g] : 0.0, top.molecule.empty() ? -1 : top.molecule[g]);
+  add_items(s, top.bonds);
+  add_items(s, top.angles);
+  add_items(s, top.dihedrals);
+  add_items(s, top.impropers);
+  return fingerprint_of(sc, s);
+}
+
+std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecules& part, const Communicator& ranks) {
+  BlockSums s;
+  for (int k = 0; k < part.size(); ++k) {
+    const auto u = static_cast<std::size_t>(k);
+    s.particle(part.global[u], part.inv_mass[u], part.type[u], u < part.charge.size() ? part.charge[u] : 0.0,
+               part.molecule_id.empty() ? -1 : part.molecule_id[u]);
+  }
+  add_items(s, part.bonds);
+  add_items(s, part.angles);
+  add_items(s, part.dihedrals);
+  add_items(s, part.impropers);
+  s.particles = sum_mod_2_64(s.particles, ranks);
+  s.items = sum_mod_2_64(s.items, ranks);
+  ranks.sum(s.count, 5);
+  return fingerprint_of(description, s);
 }
 
 namespace {
@@ -479,6 +633,7 @@ Checkpoint read_checkpoint(const std::string& path) {
     fail("malformed checkpoint header (byte order, double size or length)");
 
   Checkpoint c;
+  c.version = version;
   c.scene_fingerprint = get_raw<std::uint64_t>(b, 32);
   Reader r(b, kHeader, path);
   const auto n = r.get<std::int64_t>();
@@ -542,7 +697,10 @@ Checkpoint read_checkpoint_of(const Scene& sc, const std::string& path) {
                      std::to_string(sc.state.size()) + ": not a checkpoint of this scene");
   if (c.state.inv_mass != sc.state.inv_mass)
     throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
-  if (c.scene_fingerprint != scene_fingerprint(sc))
+  // A file before version 7 holds the sequential fingerprint of the whole scene.
+  const std::uint64_t expected =
+      c.version >= kFirstFingerprintByBlocks ? scene_fingerprint(sc) : scene_fingerprint_sequential(sc);
+  if (c.scene_fingerprint != expected)
     throw InputError(path +
                      ": checkpoint of another scene (particle types, topology, box, levels or their kicks, force "
                      "terms or their parameters differ from the deck's)");

@@ -4,7 +4,7 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 6), in the byte order and double format of the writing machine. Version 3:
+// Format (version 7), in the byte order and double format of the writing machine. Version 3:
 // RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
 // constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
 // the wrong meaning there, so it is refused. Version 4: the scene fingerprint is the exact
@@ -16,14 +16,17 @@
 // Version 6: the stage of a staged protocol that wrote it (engine/run/stages.hpp: number and name;
 // 0 and "" for a run without stages) and the box as of the checkpoint (origin, lengths: a barostat
 // moves it), after the run statistics; a version-5 file has neither and reads as a run without
-// stages in the deck's box.
+// stages in the deck's box. Version 7: the scene fingerprint combines by blocks (scene_fingerprint:
+// the same value from the whole scene and from any partition into parts); the layout is version
+// 6's, and a version-5 or 6 file is checked against the sequential fingerprint of those versions
+// (scene_fingerprint_sequential), so that it still restarts.
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
 //         16–19  byte-order mark 0x01020304 (u32)
 //         20–23  sizeof(double) = 8 (u32)
 //         24–31  length of the file in bytes (u64)
-//         32–39  scene fingerprint (u64, scene_fingerprint)
+//         32–39  scene fingerprint (u64: scene_fingerprint; scene_fingerprint_sequential before version 7)
 //         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), stage number
 //                (i64) and name (u64 length + bytes; version 6), then blocks
 //                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
@@ -48,8 +51,12 @@
 namespace stiffmd {
 
 struct Scene;
+struct PartMolecules;
 
-inline constexpr std::uint32_t kCheckpointVersion = 6;
+inline constexpr std::uint32_t kCheckpointVersion = 7;
+// The first version whose fingerprint combines by blocks (scene_fingerprint); an older file's is
+// scene_fingerprint_sequential's.
+inline constexpr std::uint32_t kFirstFingerprintByBlocks = 7;
 // The oldest version read (as a run without stages, in the deck's box).
 inline constexpr std::uint32_t kOldestCheckpointVersion = 5;
 
@@ -61,6 +68,7 @@ struct Checkpoint {
   // for a run without stages.
   int stage = 0;
   std::string stage_name;
+  std::uint32_t version = kCheckpointVersion;  // the format version it was read as (read_checkpoint)
   std::uint64_t scene_fingerprint = 0;
   std::vector<double> integrator_state;                // Integrator::save_state()
   std::vector<std::vector<double>> force_term_states;  // ForceTerm::save_state(), in the field's order
@@ -77,7 +85,23 @@ struct Checkpoint {
 // levels, units, and every force term's name, style, level and ForceTerm::define (each of its
 // coefficients and lists, bit for bit) — but not the integrator, run or output settings, which
 // a restart may change with --set, nor run-time counters such as neighbour-list rebuilds.
+//
+// Version 7 on, the fingerprint combines by blocks: the description (types, box, levels, units,
+// particle and item counts, every term's definition) hashed in sequence, and per particle (its
+// global index, inverse mass, type, charge, molecule id) and per topology item (its kind, place in
+// the whole list, particles and type) a 64-bit hash, summed mod 2⁶⁴ — so that the value is the
+// same from the whole scene and from any partition of it into parts (scene_fingerprint_parts).
 std::uint64_t scene_fingerprint(const Scene& scene);
+
+// The same value as scene_fingerprint of the whole scene, from this rank's `part` of its particles
+// and items (any partition of the whole scene's molecules into the ranks' parts) and the scene's
+// description (`description`: its types, box, levels, units and force terms; none of its
+// per-particle arrays or topology items are read). Collective over `ranks`.
+std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecules& part, const Communicator& ranks);
+
+// The fingerprint of format versions 5 and 6 (FNV-1a of the whole scene in sequence, ParameterRecord):
+// what a checkpoint written before version 7 holds, checked so when it is read.
+std::uint64_t scene_fingerprint_sequential(const Scene& scene);
 
 // Writes `state` and everything of `rest` but rest.state. Throws InputError naming the path on
 // any I/O failure.

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <optional>
 #include <sstream>
 
@@ -198,6 +199,19 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     domain_->distribute(s_);
   }
   if (domain_) summary_.domain_setup = opt.part ? "parts" : "whole";
+  // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
+  // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised
+  // molecules, as the whole path starts from its minimised scene (prepare_scene).
+  if (domain_ && opt.part && sc.minimize.requested && !sc.minimized) {
+    try {
+      sc.minimized = domain_->minimize(sc.minimize, root() && opt.progress ? &std::cerr : nullptr);
+    } catch (const NumericalError& e) {  // one rank's (a bond past its range) or every rank's: the job ends
+      throw InputError(sc.minimize.where + ": " + e.what());
+    }
+    domain_->start_again();
+    log << describe(*sc.minimized) << "\n";
+    summary_.minimize = sc.minimized;
+  }
   // The particle count as the parts sum it (the whole scene's on one process): the Run, its
   // outputs and the checkpoint read no whole array once the parts exist.
   num_particles_ = domain_ ? domain_->whole_particles() : s_.size();
