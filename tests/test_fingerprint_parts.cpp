@@ -103,7 +103,7 @@ TEST(SceneFingerprintParts, EveryPartitionOnOneToFourRanksGivesTheWholeScenesVal
 TEST(SceneFingerprintParts, ChainsBuiltByPartsGiveTheWholeScenesValue) {
   const Deck deck(test::source_path("tests/decks/chains_by_parts.toml"), {});
   const Scene whole = load_scene(deck);
-  ASSERT_EQ(chains_part_refusal(deck, whole), "");
+  ASSERT_EQ(part_source(deck, whole).refusal, "");
   const std::uint64_t expected = scene_fingerprint(whole);
   for (int ranks = 1; ranks <= 4; ++ranks) {
     std::vector<std::uint64_t> got(static_cast<size_t>(ranks), 0);
