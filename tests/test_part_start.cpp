@@ -293,6 +293,7 @@ struct WholeNumbers {
   int dof = 0;
   bool molecules_whole = true;
   std::vector<std::array<int, 3>> clusters;  // molecule (its first particle), first mode, modes
+  ThermoNumbers thermo;                      // the whole Thermo's degrees of freedom and rg, end_to_end columns
 };
 
 WholeNumbers from_whole_scene(const Scene& sc) {
@@ -315,6 +316,12 @@ WholeNumbers from_whole_scene(const Scene& sc) {
   const int rigid = m->rigid_constraints && stiff ? static_cast<int>(stiff->bonds.size()) : 0;
   const Eigen::VectorXd& im = sc.state.inv_mass;
   w.dof = degrees_of_freedom(im, momentum_conserved(*sc.forces, im, sc.integrator.thermostat), rigid);
+  // The thermo row's columns as the whole scene's masses and topology make them (the Run's
+  // observables: one degree of freedom less per rigid constraint).
+  ObservableSettings observables = sc.observables;
+  observables.rigid_constraints = m->rigid_constraints ? rigid : 0;
+  const Thermo thermo(*sc.forces, im, observables, &sc.topology);
+  w.thermo = {thermo.degrees_of_freedom(), thermo.column("rg") >= 0, thermo.column("end_to_end") >= 0};
   if (m->effective && stiff) {
     int mode = 0;
     for (const ConstraintCluster& c : find_clusters(stiff->bonds, im)) {
@@ -375,6 +382,7 @@ TEST_P(WholeNumbersFromParts, AreTheWholeScenesOnAnyRanksAndPartition) {
             }
             WholeNumbers& w = got[static_cast<size_t>(comm.rank())];
             w.dof = d->whole_degrees_of_freedom();
+            w.thermo = d->thermo_numbers();
             w.molecules_whole = d->molecules_whole();
             for (const DomainIntegrator::Cluster& k : d->clusters())
               w.clusters.push_back({k.molecule, k.first, k.modes});
@@ -385,8 +393,39 @@ TEST_P(WholeNumbersFromParts, AreTheWholeScenesOnAnyRanksAndPartition) {
         EXPECT_EQ(got[r].dof, want.dof);
         EXPECT_EQ(got[r].molecules_whole, want.molecules_whole);
         EXPECT_EQ(got[r].clusters, want.clusters);
+        // The thermo row's numbers, and the columns they make, are the whole scene's when every
+        // topology molecule lies within one bonded molecule (the rows are then summed by parts).
+        if (want.molecules_whole) {
+          EXPECT_EQ(got[r].thermo.degrees_of_freedom, want.thermo.degrees_of_freedom);
+          EXPECT_EQ(got[r].thermo.rg, want.thermo.rg);
+          EXPECT_EQ(got[r].thermo.end_to_end, want.thermo.end_to_end);
+          const ObservableSettings& observables = reference.observables;
+          const Thermo from_parts(*reference.forces, got[r].thermo, observables);
+          const Thermo whole(*reference.forces, reference.state.inv_mass, observables, &reference.topology);
+          EXPECT_EQ(from_parts.columns(), whole.columns());
+        }
       }
     }
+}
+
+TEST(ThermoFromNumbers, MakesTheWholeScenesColumnsAndRefusesWholeStateColumns) {
+  // A chain melt: rg and end_to_end columns from the numbers, none without them.
+  const Scene sc = test::load("inputs/stiff_melt_nvt.toml", {});
+  ObservableSettings o = sc.observables;
+  const Thermo whole(*sc.forces, sc.state.inv_mass, o, &sc.topology);
+  ASSERT_GE(whole.column("rg"), 0);
+  ASSERT_GE(whole.column("end_to_end"), 0);
+  const Thermo numbers(*sc.forces, ThermoNumbers{whole.degrees_of_freedom(), true, true}, o);
+  EXPECT_EQ(numbers.columns(), whole.columns());
+  EXPECT_EQ(numbers.degrees_of_freedom(), whole.degrees_of_freedom());
+  const Thermo no_polymers(*sc.forces, ThermoNumbers{whole.degrees_of_freedom(), false, false}, o);
+  EXPECT_LT(no_polymers.column("rg"), 0);
+  EXPECT_LT(no_polymers.column("end_to_end"), 0);
+  // Rows from sums only: sums(s) of the whole state is refused (it would have no polymer sums).
+  EXPECT_THROW((void)numbers.sums(sc.state), std::logic_error);
+  ObservableSettings actions = o;
+  actions.actions = true;
+  EXPECT_THROW(Thermo(*sc.forces, ThermoNumbers{}, actions), std::logic_error);
 }
 
 INSTANTIATE_TEST_SUITE_P(

@@ -356,6 +356,11 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
   settings_.thermostat.particle_id.clear();
   settings_.barostat.molecule.clear();
   build_part(std::move(x), std::move(v), s, true);
+  // The thermo row's numbers: each part's Thermo counts its topology molecules and the sized ones.
+  double polymers[2] = {static_cast<double>(part_->thermo->molecules()),
+                        static_cast<double>(part_->thermo->sized_molecules())};
+  comm_.sum(polymers, 2);
+  thermo_numbers_ = {whole_dof_, polymers[0] > 0.0, polymers[1] > 0.0};
   domains_->select_pair_set(part_->scene.state.x);
   // The lists built now, before the step loop, as one process builds its list in the first
   // force evaluation.

@@ -141,6 +141,11 @@ class DomainIntegrator final : public Integrator {
   // hold the particles.
   int whole_particles() const { return part_ ? whole_n_ : whole_scene_.state.size(); }
   bool molecules_whole() const { return molecules_whole_; }
+  // The thermo row's numbers of the whole system (Thermo's columns), summed from the parts at the
+  // start: the temperature's degrees of freedom (those above) and whether some topology molecule has
+  // an rg, some an end-to-end size (each part's Thermo counts its own molecules: the whole system's
+  // when every molecule lies within one bonded molecule, molecules_whole).
+  const ThermoNumbers& thermo_numbers() const { return thermo_numbers_; }
   const std::vector<Cluster>& clusters() const { return clusters_; }
 
  private:
@@ -175,6 +180,7 @@ class DomainIntegrator final : public Integrator {
   bool effective_modes_ = false;        // the effective dynamics, with stiff bonds: clusters_
   bool terms_conserve_momentum_ = true;  // every force term of the deck does
   std::vector<Cluster> clusters_;
+  ThermoNumbers thermo_numbers_;
   std::vector<std::int64_t> evaluations_;  // of the parts before the current one
   long rebuilds_ = 0;
 };

@@ -46,53 +46,30 @@ double max_constraint_violation(const Eigen::Matrix3Xd& x, const StiffBonds* sti
 
 Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
                const Topology* topology)
-    : forces_(forces),
+    : forces_(&forces),
       level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
                        forces.level_name(Level::slow) == "slow")),
       fixman_(settings.fixman),
-      thermostat_(settings.thermostat != ThermostatSettings::Style::none),
-      columns_{"time", "step", "kinetic", "potential_slow", "potential_stiff"} {
-  if (fixman_) columns_.push_back("potential_fixman");
-  columns_.insert(columns_.end(), {"total", "energy_drift", "max_violation", "temperature"});
-  // The heat exchanged with the thermostat and the energy conserved with it (LAMMPS's ecouple and
-  // econserve): econserve drifts only by the integrator's error (docs/design.md §5).
-  if (thermostat_) columns_.insert(columns_.end(), {"ecouple", "econserve"});
+      thermostat_(settings.thermostat != ThermostatSettings::Style::none) {
+  energy_columns();
   // The kinetic temperature's degrees of freedom (integrators/thermostat.hpp): total momentum
   // counts as conserved only without fixed particles, external fields and Langevin noise.
   ThermostatSettings thermostat;
   thermostat.style = settings.thermostat;
   dof_ = stiffmd::degrees_of_freedom(inv_mass, momentum_conserved(forces, inv_mass, thermostat),
                                      settings.rigid_constraints);
-  // Named r-RESPA levels (other than the default fast and slow): one column each.
-  if (level_columns_)
-    for (int k = 0; k < forces.num_levels(); ++k) columns_.push_back("potential_" + forces.level_name(Level{k}));
-  // A charged scene: the pair energy split as LAMMPS's evdwl (the van der Waals rest, tail and 1-4
-  // Lennard-Jones included) and ecoul (real-space and 1-4 Coulomb pairs), and the k-space terms'
-  // (elong), all also in potential_*.
-  coulomb_column_ = forces.has_charges();
-  kspace_column_ = forces.has_kspace();
-  if (coulomb_column_) columns_.insert(columns_.end(), {"evdwl", "ecoul"});
-  if (kspace_column_) columns_.push_back("elong");
-  const Box& box = forces.box();
-  if (box.periodic.all()) {
-    periodic_ = true;
-    columns_.push_back("pressure");
-  }
   if (settings.barostat && periodic_ && topology) {
     for (Eigen::Index i = 0; i < inv_mass.size(); ++i) mass_ += inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
     molecular_ =
         std::make_unique<MolecularPressure>(bonded_molecules(*topology, static_cast<int>(inv_mass.size())), inv_mass);
-    columns_.insert(columns_.end(), {"volume", "lx", "ly", "lz", "density", "molecular_pressure"});
   }
   if (topology) {
     Eigen::VectorXd mass = inv_mass;
     for (Eigen::Index i = 0; i < mass.size(); ++i) mass[i] = inv_mass[i] > 0 ? 1.0 / inv_mass[i] : 0.0;
     molecules_ = std::make_unique<Molecules>(*topology, inv_mass, mass);
-    if (molecules_->empty())
-      molecules_.reset();
-    else
-      columns_.push_back("rg");
-    if (molecules_ && molecules_->has_end_to_end()) columns_.push_back("end_to_end");  // no chain or ring: none
+    if (molecules_->empty()) molecules_.reset();
+    rg_column_ = molecules_ != nullptr;
+    end_to_end_column_ = molecules_ && molecules_->has_end_to_end();  // no chain or ring: none
   }
   const StiffBonds* stiff = forces.stiff_bonds();
   if (settings.actions && stiff) {
@@ -106,6 +83,58 @@ Thermo::Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const 
     actions_.resize(m);
     sqrt_eps_ = std::sqrt(stiff->epsilon);
     resonances_ = settings.resonances;
+  }
+  polymer_and_mode_columns();
+}
+
+Thermo::Thermo(const ForceField& forces, const ThermoNumbers& numbers, const ObservableSettings& settings)
+    : forces_(&forces),
+      level_columns_(!(forces.num_levels() == 2 && forces.level_name(Level::fast) == "fast" &&
+                       forces.level_name(Level::slow) == "slow")),
+      fixman_(settings.fixman),
+      thermostat_(settings.thermostat != ThermostatSettings::Style::none),
+      dof_(numbers.degrees_of_freedom),
+      rg_column_(numbers.rg),
+      end_to_end_column_(numbers.rg && numbers.end_to_end),
+      from_numbers_(true) {
+  if (settings.actions && forces.stiff_bonds())
+    throw std::logic_error("Thermo: the actions need the whole state, not the whole system's numbers");
+  energy_columns();
+  if (settings.barostat && periodic_)
+    throw std::logic_error("Thermo: a barostat's molecular pressure needs the whole state");
+  polymer_and_mode_columns();
+}
+
+void Thermo::energy_columns() {
+  const ForceField& forces = *forces_;
+  columns_ = {"time", "step", "kinetic", "potential_slow", "potential_stiff"};
+  if (fixman_) columns_.push_back("potential_fixman");
+  columns_.insert(columns_.end(), {"total", "energy_drift", "max_violation", "temperature"});
+  // The heat exchanged with the thermostat and the energy conserved with it (LAMMPS's ecouple and
+  // econserve): econserve drifts only by the integrator's error (docs/design.md §5).
+  if (thermostat_) columns_.insert(columns_.end(), {"ecouple", "econserve"});
+  // Named r-RESPA levels (other than the default fast and slow): one column each.
+  if (level_columns_)
+    for (int k = 0; k < forces.num_levels(); ++k) columns_.push_back("potential_" + forces.level_name(Level{k}));
+  // A charged scene: the pair energy split as LAMMPS's evdwl (the van der Waals rest, tail and 1-4
+  // Lennard-Jones included) and ecoul (real-space and 1-4 Coulomb pairs), and the k-space terms'
+  // (elong), all also in potential_*.
+  coulomb_column_ = forces.has_charges();
+  kspace_column_ = forces.has_kspace();
+  if (coulomb_column_) columns_.insert(columns_.end(), {"evdwl", "ecoul"});
+  if (kspace_column_) columns_.push_back("elong");
+  if (forces.box().periodic.all()) {
+    periodic_ = true;
+    columns_.push_back("pressure");
+  }
+}
+
+void Thermo::polymer_and_mode_columns() {
+  if (molecular_) columns_.insert(columns_.end(), {"volume", "lx", "ly", "lz", "density", "molecular_pressure"});
+  if (rg_column_) columns_.push_back("rg");
+  if (end_to_end_column_) columns_.push_back("end_to_end");
+  if (modes_) {
+    const int m = modes_->num_modes();
     for (int k = 1; k <= m; ++k) columns_.push_back("omega_" + std::to_string(k));
     for (int k = 1; k <= m; ++k) columns_.push_back("action_" + std::to_string(k));
     columns_.push_back("min_gap");
@@ -138,16 +167,17 @@ void ThermoSums::set_flat(const std::vector<double>& v) {
 }
 
 ThermoSums Thermo::sums(const State& s) const {
+  if (from_numbers_) throw std::logic_error("Thermo::sums: made from the whole system's numbers, it samples sums only");
   ThermoSums sums;
   sums.kinetic = s.kinetic_energy();
-  forces_.energies_and_virial(s.x, sums.level_energy, sums.virial);
-  sums.coulomb = forces_.last_coulomb_energy();
-  sums.vdwl = forces_.last_vdwl_energy();
-  sums.kspace = forces_.last_kspace_energy();
-  sums.max_violation = max_constraint_violation(s.x, forces_.stiff_bonds());
+  forces_->energies_and_virial(s.x, sums.level_energy, sums.virial);
+  sums.coulomb = forces_->last_coulomb_energy();
+  sums.vdwl = forces_->last_vdwl_energy();
+  sums.kspace = forces_->last_kspace_energy();
+  sums.max_violation = max_constraint_violation(s.x, forces_->stiff_bonds());
   if (molecular_) {
     molecular_->locate(s);
-    sums.molecular = molecular_->virial_and_kinetic(s, forces_, molecular_scratch_).sum();
+    sums.molecular = molecular_->virial_and_kinetic(s, *forces_, molecular_scratch_).sum();
   }
   if (molecules_) {
     molecules_->sum(s.x, sums.rg, sums.end_to_end);
@@ -201,16 +231,14 @@ const std::vector<double>& Thermo::row(const State& s, const ThermoSums& sums, d
   // The pressure (2K + Σ r·f)/(3V) (pressure(), engine/observe/polymer_observables.hpp) and the
   // polymer means, from the sums.
   if (periodic_) {
-    const double volume = forces_.box().lengths.prod();
+    const double volume = forces_->box().lengths.prod();
     values_.push_back((2.0 * thermal_kinetic + sums.virial) / (3.0 * volume) + constraint_virial / (3.0 * volume));
-    const Eigen::Vector3d& l = forces_.box().lengths;
+    const Eigen::Vector3d& l = forces_->box().lengths;
     if (molecular_)
       values_.insert(values_.end(), {volume, l[0], l[1], l[2], mass_ / volume, sums.molecular / (3.0 * volume)});
   }
-  if (molecules_) {
-    values_.push_back(sums.molecules > 0 ? sums.rg / sums.molecules : 0.0);
-    if (molecules_->has_end_to_end()) values_.push_back(sums.sized > 0 ? sums.end_to_end / sums.sized : 0.0);
-  }
+  if (rg_column_) values_.push_back(sums.molecules > 0 ? sums.rg / sums.molecules : 0.0);
+  if (end_to_end_column_) values_.push_back(sums.sized > 0 ? sums.end_to_end / sums.sized : 0.0);
   if (modes_) {
     modes_->frequencies(s.x, omega_);
     modes_->actions(s.x, s.v, actions_);

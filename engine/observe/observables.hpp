@@ -77,6 +77,15 @@ struct ThermoSums {
   void set_flat(const std::vector<double>& v);
 };
 
+// The whole system's numbers that fix a thermo row's columns besides the force field's: what a
+// decomposed run sums from its parts at the start (DomainIntegrator::thermo_numbers), so that its
+// Thermo reads no per-particle array or topology of the whole system.
+struct ThermoNumbers {
+  int degrees_of_freedom = 0;  // of the temperature column (degrees_of_freedom, integrators/thermostat.hpp)
+  bool rg = false;             // some topology molecule of two or more particles: the rg column
+  bool end_to_end = false;     // some of them a linear chain or a ring: the end_to_end column
+};
+
 // What a thermo column measures (time, energy, temperature, …), for the units it is written in.
 Dimension thermo_column_dimension(const std::string& column);
 
@@ -87,6 +96,12 @@ class Thermo {
   // topology may be null (no molecules, no polymer columns).
   Thermo(const ForceField& forces, const Eigen::VectorXd& inv_mass, const ObservableSettings& settings,
          const Topology* topology = nullptr);
+  // The same columns from the whole system's numbers (summed elsewhere: a decomposed run's parts),
+  // for rows sampled from sums only (sample(s, sums, …)): the columns that need the whole state — the
+  // actions and a barostat's molecular pressure — are refused (std::logic_error), and sums(s) gives
+  // no polymer sums. settings.rigid_constraints is not read: the numbers' degrees of freedom count
+  // them.
+  Thermo(const ForceField& forces, const ThermoNumbers& numbers, const ObservableSettings& settings);
   const std::vector<std::string>& columns() const { return columns_; }
   // Values for the current state; energy_drift is relative to the first call's total energy.
   // model_potential (W of the effective dynamics) is counted in potential_stiff, or under fixman
@@ -131,14 +146,17 @@ class Thermo {
   const StiffModes* modes() const { return modes_.get(); }
   // Under a barostat: the molecular pressure needs the whole state (no sums by parts).
   bool has_molecular_pressure() const { return molecular_ != nullptr; }
+  // The numbers this Thermo's columns were made with: a part's are its share (its molecules' counts).
+  int molecules() const { return molecules_ ? molecules_->count() : 0; }
+  int sized_molecules() const { return molecules_ ? molecules_->sized() : 0; }
   // Notes for the log: skipped clusters; validity warnings (frequency gap or resonance below
   // √ε, said once each, with step and time; ObservableSettings::resonances). Taken
   // (cleared) by the caller.
   std::vector<std::string> take_notes() { return std::move(notes_); }
 
  private:
-  const ForceField& forces_;
-  bool level_columns_;                                   // a potential_<level> column per named level
+  const ForceField* forces_;  // a pointer: a Thermo made again after a decomposed run's start is assigned
+  bool level_columns_;        // a potential_<level> column per named level
   bool coulomb_column_ = false, kspace_column_ = false;  // evdwl and ecoul, elong
   bool fixman_;      // ObservableSettings::fixman: the model potential in potential_fixman
   bool thermostat_;  // a [thermostat]: the ecouple and econserve columns
@@ -147,7 +165,9 @@ class Thermo {
   double mass_ = 0.0;      // Σ m, for the density
   mutable std::unique_ptr<MolecularPressure> molecular_;  // a [barostat]'s columns
   mutable Eigen::Matrix3Xd molecular_scratch_;
-  std::unique_ptr<Molecules> molecules_;
+  std::unique_ptr<Molecules> molecules_;  // the whole topology's (none when made from ThermoNumbers)
+  bool rg_column_ = false, end_to_end_column_ = false;
+  bool from_numbers_ = false;  // made from ThermoNumbers: rows from sums only
   std::unique_ptr<StiffModes> modes_;
   Eigen::VectorXd omega_, actions_;
   double sqrt_eps_ = 0.0;
@@ -156,6 +176,10 @@ class Thermo {
   std::vector<std::string> columns_;
   std::vector<double> values_;
   std::vector<std::string> notes_;
+  // The columns up to the energies by level (both constructors' first part), then those after the
+  // box's (the barostat's, rg, end_to_end, the actions', alerts).
+  void energy_columns();
+  void polymer_and_mode_columns();
   // The row of sums taken at s (which gives the time, the step and, for the actions, x and v).
   const std::vector<double>& row(const State& s, const ThermoSums& sums, double model_potential,
                                  double constraint_virial, double kinetic_estimate, double heat);

@@ -215,6 +215,20 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // The particle count as the parts sum it (the whole scene's on one process): the Run, its
   // outputs and the checkpoint read no whole array once the parts exist.
   num_particles_ = domain_ ? domain_->whole_particles() : s_.size();
+  // A row summed by parts takes its columns from the whole system's numbers as the parts summed
+  // them (the degrees of freedom, whether there are rg and end_to_end columns), not from the whole
+  // scene's masses and topology: the same columns, its state and the monitor's carried over.
+  if (sampled_by_parts()) {
+    Thermo by_parts(*sc.forces, domain_->thermo_numbers(), run_observables(sc));
+    if (by_parts.columns() != thermo_.columns() || by_parts.degrees_of_freedom() != thermo_.degrees_of_freedom())
+      throw std::logic_error("Run: the thermo row's columns from the parts are not the whole scene's");
+    by_parts.load_state(thermo_.save_state());
+    Monitor monitor(sc.monitor, by_parts, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
+                    find_method(sc.integrator.method)->effective);
+    monitor.load_state(monitor_.save_state());
+    thermo_ = std::move(by_parts);
+    monitor_ = std::move(monitor);
+  }
   if (domain_ && opt.started) opt.started();
   if (!restarting) {  // E(0) and the initial actions
     const double model = integrator_->model_potential(s_.x), virial = integrator_->constraint_virial(s_);
