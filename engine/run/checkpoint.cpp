@@ -268,30 +268,10 @@ T get_raw(const std::vector<char>& b, std::size_t at) {
 
 }  // namespace
 
-std::uint64_t scene_fingerprint_sequential(const Scene& sc) {
-  ParameterRecord r;
-  r.add("particles", sc.state.size());
-  r.add("inverse masses",
-        std::span<const double>(sc.state.inv_mass.data(), static_cast<std::size_t>(sc.state.inv_mass.size())));
-  r.add("particle type", std::span<const int>(sc.particle_type));
-  if (sc.charged()) r.add("charge", std::span<const double>(sc.charge));
-  r.add("types", sc.types.size());
-  for (const ParticleType& t : sc.types) {
-    r.add("name", t.name);
-    r.add("mass", t.mass);
-  }
-  const Topology& top = sc.topology;
-  r.add("bonds", top.bonds.size());
-  for (const Bond& b : top.bonds) r.add("bond", {b.i, b.j, b.type});
-  r.add("angles", top.angles.size());
-  for (const Angle& a : top.angles) r.add("angle", {a.i, a.j, a.k, a.type});
-  r.add("dihedrals", top.dihedrals.size());
-  for (const Dihedral& d : top.dihedrals) r.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
-  if (!top.impropers.empty()) {  // only then: the fingerprints of scenes without impropers are unchanged
-    r.add("impropers", top.impropers.size());
-    for (const Improper& d : top.impropers) r.add("improper", {d.i, d.j, d.k, d.l, d.type});
-  }
-  r.add("molecule", std::span<const int>(top.molecule));
+namespace {
+// The description's last part, the same in both fingerprints: the box, the levels with their
+// kicks, the units and each term's definition.
+void add_box_levels_units_terms(ParameterRecord& r, const Scene& sc) {
   for (int a = 0; a < 3; ++a) {
     r.add("periodic", sc.box.periodic[a]);
     r.add("origin", sc.box.origin[a]);
@@ -317,6 +297,34 @@ std::uint64_t scene_fingerprint_sequential(const Scene& sc) {
     r.add("level", term->level().index);
     term->define(r);
   }
+}
+}  // namespace
+
+std::uint64_t scene_fingerprint_sequential(const Scene& sc) {
+  ParameterRecord r;
+  r.add("particles", sc.state.size());
+  r.add("inverse masses",
+        std::span<const double>(sc.state.inv_mass.data(), static_cast<std::size_t>(sc.state.inv_mass.size())));
+  r.add("particle type", std::span<const int>(sc.particle_type));
+  if (sc.charged()) r.add("charge", std::span<const double>(sc.charge));
+  r.add("types", sc.types.size());
+  for (const ParticleType& t : sc.types) {
+    r.add("name", t.name);
+    r.add("mass", t.mass);
+  }
+  const Topology& top = sc.topology;
+  r.add("bonds", top.bonds.size());
+  for (const Bond& b : top.bonds) r.add("bond", {b.i, b.j, b.type});
+  r.add("angles", top.angles.size());
+  for (const Angle& a : top.angles) r.add("angle", {a.i, a.j, a.k, a.type});
+  r.add("dihedrals", top.dihedrals.size());
+  for (const Dihedral& d : top.dihedrals) r.add("dihedral", {d.i, d.j, d.k, d.l, d.type});
+  if (!top.impropers.empty()) {  // only then: the fingerprints of scenes without impropers are unchanged
+    r.add("impropers", top.impropers.size());
+    for (const Improper& d : top.impropers) r.add("improper", {d.i, d.j, d.k, d.l, d.type});
+  }
+  r.add("molecule", std::span<const int>(top.molecule));
+  add_box_levels_units_terms(r, sc);
   return r.value();
 }
 
@@ -401,25 +409,7 @@ std::uint64_t fingerprint_of(const Scene& sc, const BlockSums& s) {
     r.add("name", t.name);
     r.add("mass", t.mass);
   }
-  for (int a = 0; a < 3; ++a) {
-    r.add("periodic", sc.box.periodic[a]);
-    r.add("origin", sc.box.origin[a]);
-    r.add("length", sc.box.lengths[a]);
-  }
-  r.add("levels", sc.integrator.levels.size());
-  const MethodInfo* method = find_method(sc.integrator.method);
-  for (const LevelSettings& l : sc.integrator.levels) {
-    r.add("level", l.name);
-    if (l.kick && (!method || l.kick != method->kick)) r.add("kick", std::string(kick_name(*l.kick)));
-  }
-  r.add("units", sc.units.name);
-  r.add("terms", sc.forces->terms().size());
-  for (const auto& term : sc.forces->terms()) {
-    r.add("name", term->name());
-    r.add("style", term->style());
-    r.add("level", term->level().index);
-    term->define(r);
-  }
+  add_box_levels_units_terms(r, sc);
   return r.value();
 }
 
