@@ -4,14 +4,19 @@
 // (tests/test_part_molecules.cpp, tests/test_pair_set_data.cpp).
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <functional>
 #include <memory>
+#include <random>
+#include <span>
 #include <sstream>
 #include <vector>
 
 #include "core/parallel.hpp"
+#include "core/topology.hpp"
 #include "engine/domain/domain_integrator.hpp"
+#include "engine/domain/part_molecules.hpp"
 #include "engine/run/run.hpp"
 #include "fake_processes.hpp"
 #include "integrators/methods.hpp"
@@ -81,6 +86,36 @@ DomainRun run_on_fake_ranks(
   for (int r = 0; r < ranks; ++r)
     if (!ok[r]) throw std::runtime_error("run_on_fake_ranks: rank " + std::to_string(r) + " did not finish");
   return out[0];
+}
+
+// This rank's molecules of a random partition (molecule m to rank pick(m), the same on every
+// rank): its PartMolecules cut from the scene, with their x, v.
+struct Given {
+  PartMolecules molecules;
+  Eigen::Matrix3Xd x, v;
+};
+inline Given scattered(const Scene& sc, const State& s, int ranks, int rank, unsigned seed) {
+  const int n = s.size();
+  const std::vector<int> molecule = bonded_molecules(sc.topology, n);
+  const int molecules = n ? *std::max_element(molecule.begin(), molecule.end()) + 1 : 0;
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> pick(0, ranks - 1);
+  std::vector<int> part;
+  for (int m = 0; m < molecules; ++m) part.push_back(pick(rng));
+  std::vector<int> mine;
+  for (int g = 0; g < n; ++g)
+    if (part[molecule[g]] == rank) mine.push_back(g);
+  const Eigen::VectorXd& friction = sc.integrator.thermostat.friction;
+  Given out;
+  out.molecules =
+      cut_part({std::span<const double>(s.inv_mass.data(), static_cast<size_t>(n)), sc.particle_type, sc.charge,
+                sc.topology.molecule, std::span<const double>(friction.data(), static_cast<size_t>(friction.size())),
+                sc.topology},
+               mine);
+  out.x.resize(3, static_cast<Eigen::Index>(mine.size()));
+  out.v.resize(3, static_cast<Eigen::Index>(mine.size()));
+  for (size_t k = 0; k < mine.size(); ++k) out.x.col(k) = s.x.col(mine[k]), out.v.col(k) = s.v.col(mine[k]);
+  return out;
 }
 
 }  // namespace stiffmd::test

@@ -55,35 +55,6 @@ Scene melt(const std::vector<std::string>& overrides, bool drift) {
   return load_scene(deck);
 }
 
-// This rank's molecules of a random partition (molecule m to rank pick(m), the same on every rank).
-struct Given {
-  PartMolecules molecules;
-  Eigen::Matrix3Xd x, v;
-};
-Given scattered(const Scene& sc, const State& s, int ranks, int rank, unsigned seed) {
-  const int n = s.size();
-  const std::vector<int> molecule = bonded_molecules(sc.topology, n);
-  const int molecules = n ? *std::max_element(molecule.begin(), molecule.end()) + 1 : 0;
-  std::mt19937 rng(seed);
-  std::uniform_int_distribution<int> pick(0, ranks - 1);
-  std::vector<int> part;
-  for (int m = 0; m < molecules; ++m) part.push_back(pick(rng));
-  std::vector<int> mine;
-  for (int g = 0; g < n; ++g)
-    if (part[molecule[g]] == rank) mine.push_back(g);
-  const Eigen::VectorXd& friction = sc.integrator.thermostat.friction;
-  Given out;
-  out.molecules =
-      cut_part({std::span<const double>(s.inv_mass.data(), static_cast<size_t>(n)), sc.particle_type, sc.charge,
-                sc.topology.molecule, std::span<const double>(friction.data(), static_cast<size_t>(friction.size())),
-                sc.topology},
-               mine);
-  out.x.resize(3, static_cast<Eigen::Index>(mine.size()));
-  out.v.resize(3, static_cast<Eigen::Index>(mine.size()));
-  for (size_t k = 0; k < mine.size(); ++k) out.x.col(k) = s.x.col(mine[k]), out.v.col(k) = s.v.col(mine[k]);
-  return out;
-}
-
 struct Minimized {
   MinimizeReport report;
   Eigen::Matrix3Xd x, v;
@@ -115,7 +86,7 @@ Minimized on_parts(int ranks, unsigned seed, const std::vector<std::string>& ove
         State s = sc.state;
         auto d =
             std::make_unique<DomainIntegrator>(sc, comm, make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass));
-        Given given = scattered(sc, s, comm.size(), comm.rank(), seed);
+        test::Given given = test::scattered(sc, s, comm.size(), comm.rank(), seed);
         d->distribute(std::move(given.molecules), std::move(given.x), std::move(given.v), s);
         out.reports[comm.rank()] = d->minimize(sc.minimize, nullptr, {}, rule);
         const double migrated = static_cast<double>(d->report().migrated_molecules);
