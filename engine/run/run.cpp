@@ -205,8 +205,10 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   if (domain_ && opt.part && sc.minimize.requested && !sc.minimized) {
     try {
       sc.minimized = domain_->minimize(sc.minimize, root() && opt.progress ? &std::cerr : nullptr);
-    } catch (const NumericalError& e) {  // one rank's (a bond past its range) or every rank's: the job ends
-      throw InputError(sc.minimize.where + ": " + e.what());
+    } catch (const AgreedStop& e) {  // every rank's: each stops here, rank 0 says why (exit 3)
+      throw AgreedStop(sc.minimize.where + ": " + e.what(), e.printed_here());
+    } catch (const NumericalError& e) {  // this rank's alone (a bond past its range): it ends the job (exit 3)
+      throw NumericalError(sc.minimize.where + ": " + e.what());
     }
     domain_->start_again();
     log << describe(*sc.minimized) << "\n";
