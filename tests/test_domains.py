@@ -21,7 +21,7 @@ CASE is one of
     chains_by_parts           tests/decks/chains_by_parts.toml: chains built by molecule, velocities by
                               particle; on several ranks each starts from its own molecules made by
                               the builder (summary.json domains.setup = "parts", engine/domain/part_load.hpp)
-    minimize_by_parts         tests/decks/melt_minimize_by_parts.toml: overlapping chains built by molecule,
+    minimize_by_parts         inputs/melt_minimize_by_parts.toml: overlapping chains built by molecule,
                               [minimize] (FIRE, max_force) on the parts after the start, velocity Verlet
                               and Langevin: the serial run's bits, domains.setup = "parts"
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
@@ -319,7 +319,7 @@ def case_setup(case):
     if case == "chains_by_parts":  # each rank builds its own molecules: the start from the source's parts
         return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {}
     if case == "minimize_by_parts":  # each rank builds its own molecules, FIRE relaxes them on the parts
-        return os.path.join(ROOT, "tests", "decks", "melt_minimize_by_parts.toml"), 0.005, {}
+        return os.path.join(ROOT, "inputs", "melt_minimize_by_parts.toml"), 0.005, {}
     if case == "half_melt":  # a melt beside vacuum: the domains recut
         return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels

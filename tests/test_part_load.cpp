@@ -158,9 +158,9 @@ TEST(PartSource, PicksTheSourceOrNamesWhyNone) {
   EXPECT_NE(refusal("inputs/butane_torsions.toml", {}), "");
   // [minimize] by FIRE is the parts' (the Run's, after the start) under a method that prepares
   // nothing; by cg or sd the whole path's.
-  EXPECT_EQ(source("tests/decks/melt_minimize_by_parts.toml", {}).make, &chains_part);
-  EXPECT_NE(refusal("tests/decks/melt_minimize_by_parts.toml", {"minimize.style=\"cg\""}), "");
-  const std::string sd = refusal("tests/decks/melt_minimize_by_parts.toml", {"minimize.style=\"sd\""});
+  EXPECT_EQ(source("inputs/melt_minimize_by_parts.toml", {}).make, &chains_part);
+  EXPECT_NE(refusal("inputs/melt_minimize_by_parts.toml", {"minimize.style=\"cg\""}), "");
+  const std::string sd = refusal("inputs/melt_minimize_by_parts.toml", {"minimize.style=\"sd\""});
   EXPECT_NE(sd.find("[minimize] style \"sd\""), std::string::npos) << sd;
   // A method with rigid constraints projects the whole state before the start.
   const std::string rattle = refusal("inputs/melt_by_molecule.toml", {});
