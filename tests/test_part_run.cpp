@@ -25,6 +25,7 @@
 #include "engine/run/checkpoint.hpp"
 #include "engine/run/run.hpp"
 #include "fake_processes.hpp"
+#include "forcefields/particle_subset.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -128,8 +129,9 @@ void poison(Scene& sc, bool empty) {
 // A decomposed run of the case into `dir`, each rank's whole scene given to `started` once its
 // parts are built (null: left as it is).
 // `by_parts`: the run starts from each rank's molecules made by their source (RunOptions::part).
+// `before`: what each rank's scene becomes before the Run (null: left as loaded).
 void run_on_ranks(const Case& c, int ranks, const fs::path& dir, const std::function<void(Scene&)>& started,
-                  bool by_parts = false) {
+                  bool by_parts = false, const std::function<void(Scene&)>& before = nullptr) {
   fs::remove_all(dir);
   std::vector<char> called(static_cast<size_t>(ranks), 0);
   run_ranks(
@@ -138,6 +140,7 @@ void run_on_ranks(const Case& c, int ranks, const fs::path& dir, const std::func
         const test::OneThread rank_thread;
         Scene sc = scene_of(c);
         const Deck deck(tree_path(c.deck), c.overrides);
+        if (before) before(sc);
         RunOptions opt;
         if (by_parts) opt.part = [&] { return chains_part(deck, sc, comm); };
         opt.out_dir = dir.string();
@@ -226,6 +229,60 @@ TEST_P(PartStartRun, FromTheSourcesPartsTheFilesAreTheWholeCutsBytes) {
     }
     EXPECT_NE(bytes(parts_dir / "summary.json").find("\"setup\": \"parts\""), std::string::npos);
   }
+  fs::remove_all(root);
+}
+
+// The scene reduced to its description, as load_scene's SceneContent::description leaves it for a
+// deck whose particles the parts make: no particle, per-particle array or topology item (the
+// topology's type names kept), each force term its description alone (made on no particle).
+void describe_only(Scene& sc) {
+  State none;
+  none.t = sc.state.t;
+  none.step = sc.state.step;
+  sc.state = none;
+  sc.particle_type.clear();
+  sc.charge.clear();
+  sc.integrator.thermostat.friction.resize(0);
+  Topology& t = sc.topology;
+  t.bonds.clear();
+  t.angles.clear();
+  t.dihedrals.clear();
+  t.impropers.clear();
+  t.molecule.clear();
+  const ForceField& whole = *sc.forces;
+  std::vector<std::string> levels;
+  for (int k = 0; k < whole.num_levels(); ++k) levels.push_back(whole.level_name(Level{k}));
+  auto described = std::make_unique<ForceField>(whole.box(), 0, levels);
+  const ParticleSubset nobody{{}, {}, t};
+  for (const auto& term : whole.terms()) described->add(term->on_subset(nobody, whole.box()));
+  sc.forces = std::move(described);
+}
+
+// A run from a scene of descriptions (no particle on any rank: every number of the whole system
+// from the parts) writes the bytes of the run from the whole scene's cut: thermo.csv,
+// histograms.csv (summed by parts) and checkpoint.bin; summary.json counts the whole system.
+TEST_P(PartStartRun, FromTheScenesDescriptionTheFilesAreTheWholeCutsBytes) {
+  const int ranks = GetParam();
+  const test::OneThread one_thread;
+  const fs::path root =
+      fs::temp_directory_path() / ("stiffmd_described_run_" + std::to_string(::getpid()) + "_" + std::to_string(ranks));
+  fs::remove_all(root);
+  const Case c{kChains.deck, {"observables.histograms=true", "run.steps=60"}, 0.0};
+  const fs::path whole_dir = root / "whole", described_dir = root / "described";
+  run_on_ranks(c, ranks, whole_dir, nullptr);
+  run_on_ranks(c, ranks, described_dir, nullptr, true, describe_only);
+  for (const char* file : {"thermo.csv", "histograms.csv", "checkpoint.bin"}) {
+    std::string want = bytes(whole_dir / file), got = bytes(described_dir / file);
+    ASSERT_FALSE(want.empty()) << file;
+    if (std::string(file) == "checkpoint.bin") {  // after the header's crc, version and fingerprint
+      want.erase(0, 40);
+      got.erase(0, 40);
+    }
+    EXPECT_TRUE(want == got) << file << " differs on " << ranks << " ranks";
+  }
+  const std::string summary = bytes(described_dir / "summary.json");
+  EXPECT_NE(summary.find("\"setup\": \"parts\""), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"particles\": 720"), std::string::npos) << summary;
   fs::remove_all(root);
 }
 

@@ -373,9 +373,17 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
   whole_->restore_carried_state(
       {c.flags, c.sums, std::vector<Eigen::Matrix3Xd>(c.columns.size(), Eigen::Matrix3Xd::Zero(3, 1))});
   const std::vector<int>& ids = domains_->owned_ids();
+  // A whole scene of descriptions (no particle) was prepared on no particle: its columns are
+  // empty, and none of them is valid yet (the first step computes them, as on one process).
+  const bool described = w.state.size() == 0;
+  if (described && std::any_of(c.flags.begin(), c.flags.end(), [](double f) { return f != 0.0; }))
+    throw std::logic_error("DomainIntegrator: a scene of descriptions whose integrator carries valid columns");
   for (Eigen::Matrix3Xd& column : c.columns) {
     Eigen::Matrix3Xd mine(3, domains_->num_owned());
-    for (int k = 0; k < domains_->num_owned(); ++k) mine.col(k) = column.col(ids[k]);
+    if (described)
+      mine.setZero();
+    else
+      for (int k = 0; k < domains_->num_owned(); ++k) mine.col(k) = column.col(ids[k]);
     column = std::move(mine);
   }
   if (!comm_.root()) std::fill(c.sums.begin(), c.sums.end(), 0.0);

@@ -60,9 +60,4 @@ class Molecules {
   Eigen::VectorXd mass_;
 };
 
-// Writes DIR/histograms.csv: quantity,bin_low,bin_high,count for bond lengths (every bond) and
-// bond angles in degrees (the topology's angles, or every pair of bonds sharing a particle).
-void write_histograms(const std::string& path, const Eigen::Matrix3Xd& x, const Box& box, const Topology& topology,
-                      int bins = 100);
-
 }  // namespace stiffmd

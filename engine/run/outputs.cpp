@@ -10,6 +10,7 @@
 #include "core/communicator.hpp"
 #include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
+#include "engine/observe/histograms.hpp"
 #include "engine/observe/polymer_observables.hpp"
 
 namespace stiffmd {

@@ -16,6 +16,7 @@
 #include "core/finite.hpp"
 #include "core/parallel.hpp"
 #include "core/peak_memory.hpp"
+#include "engine/observe/histograms.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {
@@ -46,6 +47,19 @@ ObservableSettings run_observables(const Scene& sc) {
                                                       : ObservableSettings::Resonances::actions;
   observables.fixman = method.needs_temperature;  // its model potential is a free energy: Fixman's U_F
   return observables;
+}
+
+// A scene of descriptions holds no particle: a decomposed run's parts are made by their source
+// (RunOptions::part) and every number of the whole system is summed from them.
+bool described(const Scene& sc, const RunOptions& opt) {
+  return opt.part && sc.state.size() == 0;
+}
+
+// The thermo row's first Thermo: from the whole scene's masses and topology, or, for a scene of
+// descriptions, of no particle until the parts' numbers replace it (Run::Run, after the start).
+Thermo first_thermo(const Scene& sc, const RunOptions& opt) {
+  if (described(sc, opt)) return Thermo(*sc.forces, ThermoNumbers{}, run_observables(sc));
+  return Thermo(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology);
 }
 
 // A restart's checkpoint, read and checked against the scene (which loads the force terms'
@@ -136,11 +150,14 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
       resumed_(resumed_checkpoint(sc, opt)),
       integrator_(run_integrator(sc, opt)),
       domain_(dynamic_cast<DomainIntegrator*>(integrator_.get())),
-      thermo_(*sc.forces, sc.state.inv_mass, run_observables(sc), &sc.topology),
+      thermo_(first_thermo(sc, opt)),
       monitor_(sc.monitor, thermo_, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
                find_method(sc.integrator.method)->effective),
       stats_(sc.forces->num_levels()),
       h_(sc.integrator.h) {
+  described_ = described(sc, opt);
+  if (described_ && (!domain_ || !opt.restart.empty()))
+    throw std::logic_error("Run: a scene of descriptions is a fresh decomposed run's, started from its parts");
   summary_.method = sc.integrator.method;
   summary_.units = sc.units.name;
   summary_.stage = sc.stage;
@@ -188,12 +205,15 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   check_finite(s_);
   // The scene's fingerprint (the checkpoint's), of the scene as the deck made it: from here on a
   // decomposed run's whole scene need not hold its particles.
-  fingerprint_ = scene_fingerprint(sc);
+  if (!described_) fingerprint_ = scene_fingerprint(sc);
   // A decomposed run's parts are built now, before the first sample: each rank then evaluates
   // the forces of its part only, and the whole system's force terms never build a neighbour list
   // or a pair buffer on a rank (docs/parallel.md, "What a rank holds").
   if (domain_ && opt.part) {
     ScenePart mine = opt.part();
+    // A scene of descriptions has no particle to take the fingerprint of: the parts give it
+    // (the same value, summed by blocks: engine/run/checkpoint.hpp).
+    if (described_) fingerprint_ = scene_fingerprint_parts(sc, mine.molecules, *opt.processes);
     domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
   } else if (domain_) {
     domain_->distribute(s_);
@@ -220,14 +240,18 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // A row summed by parts takes its columns from the whole system's numbers as the parts summed
   // them (the degrees of freedom, whether there are rg and end_to_end columns), not from the whole
   // scene's masses and topology: the same columns, its state and the monitor's carried over.
+  // A scene of descriptions has only these (nothing was sampled yet: no state to carry over).
+  if (described_ && !sampled_by_parts())
+    throw std::logic_error("Run: a scene of descriptions whose thermo row cannot be summed by parts");
   if (sampled_by_parts()) {
     Thermo by_parts(*sc.forces, domain_->thermo_numbers(), run_observables(sc));
-    if (by_parts.columns() != thermo_.columns() || by_parts.degrees_of_freedom() != thermo_.degrees_of_freedom())
+    if (!described_ &&
+        (by_parts.columns() != thermo_.columns() || by_parts.degrees_of_freedom() != thermo_.degrees_of_freedom()))
       throw std::logic_error("Run: the thermo row's columns from the parts are not the whole scene's");
-    by_parts.load_state(thermo_.save_state());
+    if (!described_) by_parts.load_state(thermo_.save_state());
     Monitor monitor(sc.monitor, by_parts, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
                     find_method(sc.integrator.method)->effective);
-    monitor.load_state(monitor_.save_state());
+    if (!described_) monitor.load_state(monitor_.save_state());
     thermo_ = std::move(by_parts);
     monitor_ = std::move(monitor);
   }
@@ -419,11 +443,20 @@ const RunSummary& Run::finish() {
   pending_ = false;
   observe(true);
   const std::vector<double>& row = last_row_;
+  // A scene of descriptions has no whole state or topology for the histograms: the parts make
+  // them (collective), the same bytes.
+  bool histograms_by_parts = false;
+  if (described_ && sc_.observables.histograms && !options_.out_dir.empty()) {
+    const Scene& part = domain_->part_scene();
+    histograms_by_parts = write_histograms_parts((fs::path(options_.out_dir) / "histograms.csv").string(), part.state.x,
+                                                 part.topology, *options_.processes);
+  }
   if (!root()) {  // rank 0 writes the files and the summary
     outputs_->close();
     return summary_;
   }
   outputs_->write_final(summary_.outputs);
+  if (histograms_by_parts) summary_.outputs.push_back((fs::path(options_.out_dir) / "histograms.csv").string());
   outputs_->close();
   summary_.final_energy = row[col_total_];
   // The energy conserved with the thermostat's heat (E itself without one): its drift per particle
@@ -511,8 +544,10 @@ void Run::observe(bool final) {
     // sample that cannot be summed by parts, and the state the [monitor] keeps.
     // An XYZ frame of a distributed run is streamed from the ranks' rows (RunOutputs::write).
     const bool stream = outputs_->xyz_due() && domain_->distributed();
-    const bool whole =
-        outputs_->needs_whole_state(stream) || final || (sampled && (!sampled_by_parts() || monitor_.stops()));
+    // A scene of descriptions has no whole state to gather into, nor an output that needs one
+    // (whole_scene_needed): its final histograms are summed by parts (Run::finish).
+    const bool whole = outputs_->needs_whole_state(stream) || (final && !described_) ||
+                       (sampled && (!sampled_by_parts() || monitor_.stops()));
     const std::int64_t due = agreed((sampled ? 1 : 0) | (whole ? 2 : 0) | (stream ? 4 : 0));
     sampled = (due & 1) != 0;
     xyz_by_blocks = (due & 4) != 0;
@@ -654,6 +689,17 @@ RunSummary run_simulation(Scene& sc, const RunOptions& opt, std::ostream& log) {
     throw;
   }
   return run.finish();
+}
+
+std::string whole_scene_needed(const Scene& sc) {
+  if (sc.observables.actions) return "[observables] actions are sampled from the gathered whole state";
+  if (sc.observables.barostat) return "a barostat's molecular pressure is sampled from the gathered whole state";
+  if (sc.monitor.stop) return "[monitor] on_alert = \"stop\" keeps the gathered whole state";
+  if (!sc.output.xyz.empty() || !sc.output.h5md.empty())
+    return "a trajectory's topology.data, species and bonds are written from the whole scene";
+  if (!sc.output.lammps_data.empty()) return "output.lammps_data is written from the gathered whole state";
+  if (!sc.output.state.empty()) return "output.state is written from the whole state";
+  return "";
 }
 
 void check_run(Scene& sc, std::ostream& log) {

@@ -155,6 +155,9 @@ class Run {
   std::optional<IntervalSchedule> checkpoint_due_;
   SignalAtStep signal_at_;
   std::uint64_t fingerprint_ = 0;
+  // The scene is its description only (no particle: a decomposed run whose parts their source
+  // makes, engine/scene/scene.hpp SceneContent::description): the Run's numbers come from the parts.
+  bool described_ = false;
   int num_particles_ = 0;  // the whole system's (a decomposed run: summed from its parts)
   double h_ = 0.0, t0_ = 0.0;
   std::int64_t k0_ = 0, first_step_ = 0, final_step_ = 0;
@@ -180,6 +183,14 @@ class Run {
 
 // `stiffmd run`: a Run from the scene's state to run.t_end.
 RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream& log);
+
+// Why a decomposed run of the scene needs the whole scene on every rank (docs/parallel.md, "The
+// scene's description"), or "" when a scene of descriptions (no particle; its parts made by their
+// source, RunOptions::part) serves it: the outputs and samples that read the whole state or the
+// whole topology — the actions and a barostat's molecular pressure (a sample of the gathered
+// state), [monitor] on_alert = "stop" (it keeps the gathered state), a trajectory with its
+// topology.data, the final LAMMPS data file and the state CSV.
+std::string whole_scene_needed(const Scene& scene);
 
 // `stiffmd check`: a Run without outputs built on the scene and discarded, so that check fails
 // where run would fail before its first step. The scene's state is left as it was.
