@@ -43,7 +43,8 @@ struct PartSource {
 // or none; nothing that acts on the whole state before the run ([prepare], [minimize] by cg or sd,
 // a method with rigid constraints, whose preparation projects it onto g = 0) or hands it on (a
 // staged protocol's stages). [minimize] with style "fire" is the Run's, on the parts
-// (DomainIntegrator::minimize), after the start. `scene`: the deck's scene as load_scene made it.
+// (DomainIntegrator::minimize), after the start. `scene`: the deck's scene as load_scene made it,
+// whole or its description (the settings alone are read).
 PartSource part_source(const Deck& deck, const Scene& scene);
 
 // This rank's block of molecules [r·M/P, (r+1)·M/P) (r = ranks.rank(), P = ranks.size()) of the
@@ -51,7 +52,9 @@ PartSource part_source(const Deck& deck, const Scene& scene);
 // mass, charge and Langevin friction, molecule ids, the chains' bonds, angles and dihedrals with
 // their places in the whole lists, and the velocities by particle (collective: their sums over the
 // ranks). `scene` gives the types, units, box, thermostat style and the topology's type names;
-// none of its per-particle arrays or items are read. Only for a deck whose source it is.
+// none of its per-particle arrays or items are read, so the scene's description
+// (SceneContent::description, engine/scene/scene.hpp) gives the same part. Only for a deck whose
+// source it is.
 ScenePart chains_part(const Deck& deck, const Scene& scene, const Communicator& ranks);
 
 // This rank's block of the [import]ed data file's molecules [r·M/P, (r+1)·M/P) in the file's

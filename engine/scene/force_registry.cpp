@@ -1204,7 +1204,10 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
     throw;
   }
   if (tail) term->set_tail(true);
-  check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);  // the term accepted the coefficients
+  // The term accepted the coefficients. A description (SceneContent::description) holds no
+  // position of its counted chains: their overlaps are left to the run's soft start, [minimize]
+  // on the parts or the deck's soft pairs (docs/parallel.md, "The start from the source's parts").
+  if (!sc.described()) check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
     section.pairwise = true;

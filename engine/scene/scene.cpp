@@ -7,8 +7,10 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 #include <set>
 #include <sstream>
+#include <string_view>
 
 #include "core/errors.hpp"
 #include "core/format.hpp"
@@ -266,15 +268,31 @@ void check_charges(DeckTable& root, Scene& sc) {
   if (!sc.charged()) return;
   const auto& terms = sc.forces->terms();
   const bool used = std::any_of(terms.begin(), terms.end(), [](const auto& t) { return t->uses_charges(); });
+  // The first charged particle: a loaded one, else the first of a described source of a charged
+  // type (the loaded particles come first, scene.hpp).
   const auto first = std::find_if(sc.charge.begin(), sc.charge.end(), [](double q) { return q != 0.0; });
-  const int i = static_cast<int>(first - sc.charge.begin());
+  int i = static_cast<int>(first - sc.charge.begin());
+  double q_first = first != sc.charge.end() ? *first : 0.0;
+  if (first == sc.charge.end())
+    for (const DescribedSource& d : sc.described_sources)
+      if (const double q = sc.types[static_cast<size_t>(d.type)].charge; q != 0.0) {
+        i = d.first, q_first = q;
+        break;
+      }
   if (!used)
-    root.fail_here(particle_and_source(sc, i) + " has charge " + format_number(*first) +
+    root.fail_here(particle_and_source(sc, i) + " has charge " + format_number(q_first) +
                        ", but no force term acts on charges: they would be lost; add a Coulomb pair style "
                        "(coul/cut, coul/debye, lj/cut/coul/long with an ewald or pppm term, …) or set the charges to 0",
                    {"forces"});
   double total = 0.0, scale = 0.0;
   for (const double q : sc.charge) total += q, scale = std::max(scale, std::abs(q));
+  // A described source's particles, each added in turn as the whole scene's are (the same sum to
+  // the last bit; no array of them).
+  for (const DescribedSource& d : sc.described_sources) {
+    const double q = sc.types[static_cast<size_t>(d.type)].charge;
+    for (int k = 0; k < d.count; ++k) total += q;
+    if (d.count > 0) scale = std::max(scale, std::abs(q));
+  }
   if (std::abs(total) > 1e-5 * std::max(1.0, scale))
     sc.notes.push_back("warning: the system's net charge is " + format_number(total) +
                        " e: the Ewald and PPPM terms add a uniform neutralising background (as LAMMPS does)");
@@ -366,6 +384,13 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
     if (k >= first_explicit) bond_rows[k - first_explicit].fail("type", what);
     root.fail_here(what, type_sources);
   }
+  // A description's counted bonds come after the loaded ones (scene.hpp), in source order.
+  for (const DescribedSource& d : sc.described_sources)
+    if (d.bonds > 0 && owner[static_cast<size_t>(d.bond_type)].empty())
+      root.fail_here("bond type '" + sc.topology.bond_types[static_cast<size_t>(d.bond_type)] +
+                         "' is not defined by any force term (add [forces.NAME.bond_types." +
+                         sc.topology.bond_types[static_cast<size_t>(d.bond_type)] + "])",
+                     type_sources);
   for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
     if (angle_owner[t].empty() && !rigid_angle[t])
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
@@ -731,7 +756,10 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
   const OutputSettings& o = sc.output;
   std::vector<std::pair<std::string, std::string>> out;
   // Fixed names first, so that a deck key that takes one of them is the one named.
-  if (sc.observables.histograms && !sc.topology.bonds.empty()) out.emplace_back("", "histograms.csv");
+  const bool bonded =
+      !sc.topology.bonds.empty() || std::any_of(sc.described_sources.begin(), sc.described_sources.end(),
+                                                [](const DescribedSource& d) { return d.bonds > 0; });
+  if (sc.observables.histograms && bonded) out.emplace_back("", "histograms.csv");
   out.emplace_back("", "summary.json");
   if (!o.xyz.empty() || !o.h5md.empty()) out.emplace_back("", kTopologyFile);
   for (const auto& [key, name] : {std::pair<const char*, const std::string*>{"xyz", &o.xyz},
@@ -819,6 +847,37 @@ std::int64_t Scene::num_steps() const {
   return run.steps > 0 ? run.steps : whole_steps(run.t_end, integrator.h);
 }
 
+namespace {
+
+// The Langevin frictions' least and largest over the whole scene's particles, a description's
+// counted ones among them (their type's, DescribedSource::friction); nullopt without any.
+std::optional<std::pair<double, double>> friction_range(const Scene& sc) {
+  const Eigen::VectorXd& f = sc.integrator.thermostat.friction;
+  std::optional<std::pair<double, double>> range;
+  if (f.size() > 0) range = std::pair{f.minCoeff(), f.maxCoeff()};
+  if (sc.integrator.thermostat.style == ThermostatSettings::Style::langevin)
+    for (const DescribedSource& d : sc.described_sources) {
+      if (d.count == 0) continue;
+      if (!range)
+        range = std::pair{d.friction, d.friction};
+      else
+        range = std::pair{std::min(range->first, d.friction), std::max(range->second, d.friction)};
+    }
+  return range;
+}
+
+// degrees_of_freedom (integrators/thermostat.hpp) of the whole scene: a description's counted
+// particles are mobile (a type's mass is > 0) and feel every term as the loaded ones do.
+long whole_degrees_of_freedom(const Scene& sc, int rigid) {
+  const Eigen::VectorXd& w = sc.state.inv_mass;
+  const bool conserved = momentum_conserved(*sc.forces, w, sc.integrator.thermostat);
+  if (!sc.described()) return degrees_of_freedom(w, conserved, rigid);
+  const long mobile = static_cast<long>((w.array() > 0.0).count()) + sc.undescribed_particles;
+  return 3 * mobile - (conserved && mobile == sc.whole_particles() ? 3 : 0) - rigid;
+}
+
+}  // namespace
+
 // What the monitor's default checks need of the scene, and the likely cause of a run that leaves
 // its model: stiff bonds whose thermal vibration at the thermostat's kT, of rms amplitude
 // ε√kT/α_b (equipartition on ε⁻² ½α²g²), is a good part of their length — in reduced units
@@ -831,9 +890,10 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
   const ThermostatSettings& th = sc.integrator.thermostat;
   if (th.on()) {
     m.kT = th.temperature;
-    m.relaxation = th.style == ThermostatSettings::Style::csvr              ? th.tau
-                   : th.friction.size() > 0 && th.friction.minCoeff() > 0.0 ? 1.0 / th.friction.minCoeff()
-                                                                            : std::numeric_limits<double>::infinity();
+    const auto friction = friction_range(sc);
+    m.relaxation = th.style == ThermostatSettings::Style::csvr ? th.tau
+                   : friction && friction->first > 0.0         ? 1.0 / friction->first
+                                                               : std::numeric_limits<double>::infinity();
   }
   const StiffBonds* stiff = sc.forces->stiff_bonds();
   if (!stiff || stiff->bonds.empty()) return m;
@@ -863,7 +923,59 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
 
 }  // namespace
 
-Scene load_scene(const Deck& deck, const StageIdentity& stage) {
+namespace {
+
+// The force styles whose reader or whose term's description reads every particle, beyond what a
+// description counts: the k-space terms choose their splitting and resolution from N and Σq² of
+// every charge (choose_ewald, choose_pppm) and hold every charge; charmm-dihedral checks the
+// particle types at its dihedrals' ends; stiff-harmonic checks its bonds with the particles'
+// masses (find_stiff_bond_problem), selects them by mass, and gives the monitor its bonds; the
+// external terms select particles by index or type and refuse a selection of none (gravity
+// holds every mass).
+constexpr std::array<std::string_view, 7> kStylesReadingParticles = {
+    "ewald", "pppm", "charmm-dihedral", "stiff-harmonic", "gravity", "harmonic-tether", "lj93-wall"};
+
+bool grows_by_molecule(DeckTable& b) {
+  return b.gives("style") && b.string("style") == "linear-chains" && b.gives("growth") &&
+         b.string("growth") == "by-molecule";
+}
+
+// The index of the first [[build]] that SceneContent::description describes (every one from it on
+// grows linear chains by molecule, so that no loaded particle follows a described one), or none:
+// the deck is loaded whole. Read in a view of its own (the keys it reads stay unread for the load,
+// whose messages are the whole load's), and any doubt — a key of the wrong kind, say — loads it
+// whole, which reports it.
+std::optional<std::size_t> described_builds(const Deck& deck) {
+  try {
+    DeckTable root = deck.root();
+    // [import] numbers its particles after every [[build]]; [[bonds]] name particles by index;
+    // a barostat checks every molecule's extent against the box (refuse_large_molecules).
+    if (root.gives("import") || root.gives("bonds") || root.gives("barostat")) return std::nullopt;
+    std::vector<DeckTable> builds = root.array_of_tables("build");
+    std::size_t from = builds.size();
+    while (from > 0 && grows_by_molecule(builds[from - 1])) --from;
+    if (from == builds.size()) return std::nullopt;
+    if (auto forces = root.table("forces"))
+      for (auto& [name, t] : forces->named_tables()) {
+        if (!t.gives("style")) return std::nullopt;
+        const std::string style = t.string("style");
+        if (std::find(kStylesReadingParticles.begin(), kStylesReadingParticles.end(), style) !=
+            kStylesReadingParticles.end())
+          return std::nullopt;
+        // The tail correction sums N_a N_b over the particles' types (PairTerm::set_tail).
+        if (t.gives("tail")) return std::nullopt;
+      }
+    return from;
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
+}  // namespace
+
+Scene load_scene(const Deck& deck, const StageIdentity& stage, SceneContent content) {
+  const std::optional<std::size_t> describe_from =
+      content == SceneContent::description ? described_builds(deck) : std::nullopt;
   Scene sc;
   sc.deck_path = deck.path();
   sc.stage = stage;
@@ -877,9 +989,9 @@ Scene load_scene(const Deck& deck, const StageIdentity& stage) {
   read_box(root, sc);
   read_types(root, sc);
   read_particles(root, sc);
-  read_builders(root, sc);
+  read_builders(root, sc, describe_from.value_or(static_cast<std::size_t>(-1)));
   read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string());
-  if (sc.state.size() == 0)
+  if (sc.whole_particles() == 0)
     root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
   check_positions_near_box(root, sc);
   read_bonds(root, sc);
@@ -932,9 +1044,17 @@ std::string describe_scene(const Scene& sc) {
   if (!sc.units.reduced())
     s << "units:       " << sc.units.name << " (A, fs, kcal/mol, g/mol, K; internal time unit " << Units::kRealTimeFs
       << " fs)\n";
-  s << "particles:   " << st.size() << " (" << fixed << " fixed)\n";
+  // A description's counted particles and items (DescribedSource) are counted with the loaded ones.
+  const auto& described = sc.described_sources;
+  const auto counted = [&](auto&& of) {
+    std::int64_t n = 0;
+    for (const DescribedSource& d : described) n += of(d);
+    return n;
+  };
+  s << "particles:   " << sc.whole_particles() << " (" << fixed << " fixed)\n";
   for (size_t k = 0; k < sc.types.size(); ++k) {
-    const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k));
+    const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k)) +
+                       counted([&](const DescribedSource& d) { return d.type == static_cast<int>(k) ? d.count : 0; });
     s << "  type " << sc.types[k].name << ": " << count << " particles, mass " << sc.types[k].mass << ", element "
       << sc.types[k].element << "\n";
   }
@@ -943,25 +1063,37 @@ std::string describe_scene(const Scene& sc) {
     s << "open\n";
   else
     s << "periodic (" << sc.box.periodic.transpose() << "), lengths " << sc.box.lengths.transpose() << "\n";
-  s << "bonds:       " << sc.topology.bonds.size() << "\n";
+  const auto items_of = [&](std::int64_t DescribedSource::*count, int DescribedSource::*type, int k) {
+    return counted([&](const DescribedSource& d) { return d.*type == k ? d.*count : 0; });
+  };
+  s << "bonds:       "
+    << static_cast<std::int64_t>(sc.topology.bonds.size()) + counted([](const DescribedSource& d) { return d.bonds; })
+    << "\n";
   for (size_t k = 0; k < sc.topology.bond_types.size(); ++k) {
     const auto count = std::count_if(sc.topology.bonds.begin(), sc.topology.bonds.end(),
-                                     [&](const Bond& b) { return b.type == static_cast<int>(k); });
+                                     [&](const Bond& b) { return b.type == static_cast<int>(k); }) +
+                       items_of(&DescribedSource::bonds, &DescribedSource::bond_type, static_cast<int>(k));
     s << "  type " << sc.topology.bond_types[k] << ": " << count << "\n";
   }
-  if (!sc.topology.angles.empty()) {
-    s << "angles:      " << sc.topology.angles.size() << "\n";
+  const std::int64_t angles =
+      static_cast<std::int64_t>(sc.topology.angles.size()) + counted([](const DescribedSource& d) { return d.angles; });
+  if (angles > 0) {
+    s << "angles:      " << angles << "\n";
     for (size_t k = 0; k < sc.topology.angle_types.size(); ++k) {
       const auto count = std::count_if(sc.topology.angles.begin(), sc.topology.angles.end(),
-                                       [&](const Angle& a) { return a.type == static_cast<int>(k); });
+                                       [&](const Angle& a) { return a.type == static_cast<int>(k); }) +
+                         items_of(&DescribedSource::angles, &DescribedSource::angle_type, static_cast<int>(k));
       s << "  type " << sc.topology.angle_types[k] << ": " << count << "\n";
     }
   }
-  if (!sc.topology.dihedrals.empty()) {
-    s << "dihedrals:   " << sc.topology.dihedrals.size() << "\n";
+  const std::int64_t dihedrals = static_cast<std::int64_t>(sc.topology.dihedrals.size()) +
+                                 counted([](const DescribedSource& d) { return d.dihedrals; });
+  if (dihedrals > 0) {
+    s << "dihedrals:   " << dihedrals << "\n";
     for (size_t k = 0; k < sc.topology.dihedral_types.size(); ++k) {
       const auto count = std::count_if(sc.topology.dihedrals.begin(), sc.topology.dihedrals.end(),
-                                       [&](const Dihedral& d) { return d.type == static_cast<int>(k); });
+                                       [&](const Dihedral& d) { return d.type == static_cast<int>(k); }) +
+                         items_of(&DescribedSource::dihedrals, &DescribedSource::dihedral_type, static_cast<int>(k));
       s << "  type " << sc.topology.dihedral_types[k] << ": " << count << "\n";
     }
   }
@@ -973,9 +1105,10 @@ std::string describe_scene(const Scene& sc) {
       s << "  type " << sc.topology.improper_types[k] << ": " << count << "\n";
     }
   }
-  int molecules = 0;
-  for (int m : sc.topology.molecule) molecules = std::max(molecules, m + 1);
-  if (molecules < st.size()) s << "molecules:   " << molecules << "\n";
+  std::int64_t molecules = 0;
+  for (int m : sc.topology.molecule) molecules = std::max<std::int64_t>(molecules, m + 1);
+  molecules += counted([](const DescribedSource& d) { return d.molecules; });
+  if (molecules < sc.whole_particles()) s << "molecules:   " << molecules << "\n";
   s << "force terms: " << sc.forces->terms().size() << "\n";
   for (const auto& t : sc.forces->terms())
     s << "  " << t->name() << " [" << t->style() << ", " << sc.forces->level_name(t->level()) << "]: " << t->describe()
@@ -985,7 +1118,6 @@ std::string describe_scene(const Scene& sc) {
 
 std::string describe_settings(const Scene& sc) {
   std::ostringstream s;
-  const State& st = sc.state;
   const double time_out = sc.units.out(Dimension::time);  // times and temperatures in the deck's units
   s << "integrator:  " << sc.integrator.method << ", h = " << sc.integrator.h * time_out;
   if (sc.integrator.micro_steps > 1)
@@ -1023,16 +1155,15 @@ std::string describe_settings(const Scene& sc) {
     else
       s << ", T = " << th.temperature * sc.units.out(Dimension::temperature);
     if (th.style == ThermostatSettings::Style::csvr) s << ", tau = " << th.tau * time_out;
-    if (th.friction.size() > 0)
-      s << ", friction " << th.friction.minCoeff() / time_out << ".." << th.friction.maxCoeff() / time_out;
+    if (const auto friction = friction_range(sc))
+      s << ", friction " << friction->first / time_out << ".." << friction->second / time_out;
     if (th.style == ThermostatSettings::Style::langevin)
       s << (th.splitting == ThermostatSettings::Splitting::lammps  ? ", as a force in the kick (lammps)"
             : th.splitting == ThermostatSettings::Splitting::obabo ? ", as O steps of h/2 around the step (obabo)"
                                                                    : ", as an O step (baoab)");
     const MethodInfo& m = *find_method(sc.integrator.method);
     const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
-    s << ", seed " << th.seed << "; temperature over "
-      << degrees_of_freedom(st.inv_mass, momentum_conserved(*sc.forces, st.inv_mass, th), rigid)
+    s << ", seed " << th.seed << "; temperature over " << whole_degrees_of_freedom(sc, rigid)
       << " degrees of freedom\n";
   }
   if (const BarostatSettings& b = sc.integrator.barostat; b.on) {

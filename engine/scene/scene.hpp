@@ -139,6 +139,25 @@ struct LammpsDataCoeffs {
   std::vector<std::vector<int>> bond, angle, dihedral, improper;  // per scene type, its LAMMPS numbers
 };
 
+// What load_scene makes of the deck's particle sources.
+enum class SceneContent {
+  whole,        // every particle, item and per-particle array
+  description,  // [[build]]s of linear chains grown by molecule are counted, not built (below)
+};
+
+// A [[build]] of linear chains grown by molecule that a description counted instead of building
+// (SceneContent::description): what its particles and items would be, by count and type. Its
+// molecules are made by parts (chains_part, engine/domain/part_load.hpp).
+struct DescribedSource {
+  int first = 0, count = 0;  // its particles' indices in the whole scene: [first, first + count)
+  int molecules = 0;         // its chains, one molecule each
+  int type = 0;              // every particle's type (index into Scene::types)
+  // Its items' types (indices into the topology's names; -1: none) and counts.
+  int bond_type = -1, angle_type = -1, dihedral_type = -1;
+  std::int64_t bonds = 0, angles = 0, dihedrals = 0;
+  double friction = 0.0;  // the Langevin friction of its type (read_thermostat); 0 without Langevin
+};
+
 struct Scene {
   std::string deck_path;
   Units units;  // `units`: the deck's values and the outputs in them, the engine's internal (core/units.hpp)
@@ -151,9 +170,23 @@ struct Scene {
   // file's q column (atom_style full). All 0 in an uncharged scene; read by the terms that say
   // ForceTerm::uses_charges (the Coulomb styles), refused with any other (it would be lost).
   std::vector<double> charge;
+  // A described scene is charged when a described source's type is (its particles carry the
+  // type's charge), as the whole scene would be.
   bool charged() const {
-    return std::any_of(charge.begin(), charge.end(), [](double q) { return q != 0.0; });
+    return std::any_of(charge.begin(), charge.end(), [](double q) { return q != 0.0; }) ||
+           std::any_of(described_sources.begin(), described_sources.end(),
+                       [&](const DescribedSource& d) { return types[static_cast<size_t>(d.type)].charge != 0.0; });
   }
+  // Particles a description did not load (SceneContent::description): the by-molecule chains'
+  // beads, counted; 0 for a whole scene. When > 0 the state, particle_type, charge and topology
+  // items hold none of them (they are made by parts: engine/domain/part_load.hpp), and
+  // described_sources says what they are. The loaded particles come first: a described source
+  // is never followed by a loaded one, so a loaded particle's index is its whole-scene index.
+  std::int64_t undescribed_particles = 0;
+  std::vector<DescribedSource> described_sources;  // in particle order
+  bool described() const { return undescribed_particles > 0; }
+  // The whole scene's particle count: those loaded and those described.
+  std::int64_t whole_particles() const { return state.size() + undescribed_particles; }
   std::unique_ptr<ForceField> forces;
   IntegratorSettings integrator;
   RunSettings run;
@@ -187,7 +220,20 @@ std::string particle_and_source(const Scene& scene, int i);
 // change the deck's initial state: [prepare] is applied by prepare_scene. A deck with [[stage]]
 // tables is refused: its scenes are its stages' (engine/scene/stage_deck.hpp), each loaded with
 // its `stage` identity.
-Scene load_scene(const Deck& deck, const StageIdentity& stage = {});
+//
+// SceneContent::description loads the deck's description only, O(types + deck) in time and
+// memory: every [[build]] of linear chains with growth = "by-molecule" that no loaded source
+// follows registers its type names, its `sources` entry and its box as the whole load does, and
+// appends no particle or item (Scene::described_sources counts them). Everything else is the
+// whole load's: the other sources, the types, units, box, settings, levels, monitor, LAMMPS
+// coefficients and the force terms, whose descriptions (ForceTerm::on_subset on no particle) are
+// the whole terms'. The checks that need the described particles are not made (docs/parallel.md,
+// "The start from the source's parts": the overlap of the pair terms, the bonded terms' domain at
+// the initial state, a chain that cannot be grown). A deck the description cannot stand for —
+// [import], [[bonds]], [barostat], a pair term's tail correction, a term whose parameters or
+// checks read every particle (ewald, pppm, charmm-dihedral, stiff-harmonic, gravity, a tether or
+// a wall) — is loaded whole (described() false).
+Scene load_scene(const Deck& deck, const StageIdentity& stage = {}, SceneContent content = SceneContent::whole);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
 // relaxation, before the vibrations) to the scene's state and says what they did on `log`. Called for `check` and for a

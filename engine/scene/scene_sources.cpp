@@ -106,6 +106,44 @@ void make_imported_molecules_whole(DeckTable& t, const char* file_key, ImportedS
                        " " + problem->what);
 }
 
+// A [[build]] of linear chains by molecule described, not built (SceneContent::description): the
+// checks the builder makes before it grows anything (validate_chain_spec, as
+// build_linear_chains_by_molecule makes them), the offset, the `sources` entry of the particles it
+// would build, its item types interned in the order add_topology interns them (bonds, then angles
+// with three beads or more, then dihedrals with four or more), and the counts. Not made: the
+// growth itself, so a chain that cannot be grown within the bounded tries (min_distance too large
+// for the beads) is found by chains_part, on the rank that builds it.
+void describe_chains(DeckTable& b, Scene& sc, const ChainSpec& spec, int type, const std::string& bond_type,
+                     const std::string& angle_type, const std::string& dihedral_type) {
+  const long long total = static_cast<long long>(spec.chains) * spec.beads;
+  try {
+    validate_chain_spec("build_linear_chains_by_molecule", spec, 2, sc.box, total);
+  } catch (const std::exception& e) {
+    b.fail_here(e.what());
+  }
+  const Eigen::Vector3d offset = b.vector3("offset", Eigen::Vector3d::Zero());
+  b.require(offset.allFinite(), "offset", "expected a finite displacement [x, y, z]");
+  b.finish();
+  DescribedSource d;
+  d.first = static_cast<int>(sc.whole_particles());
+  d.count = static_cast<int>(total);
+  d.molecules = spec.chains;
+  d.type = type;
+  d.bonds = static_cast<std::int64_t>(spec.chains) * (spec.beads - 1);
+  d.bond_type = Topology::intern(sc.topology.bond_types, bond_type);
+  if (spec.beads >= 3 && !angle_type.empty()) {
+    d.angles = static_cast<std::int64_t>(spec.chains) * (spec.beads - 2);
+    d.angle_type = Topology::intern(sc.topology.angle_types, angle_type);
+  }
+  if (spec.beads >= 4 && !dihedral_type.empty()) {
+    d.dihedrals = static_cast<std::int64_t>(spec.chains) * (spec.beads - 3);
+    d.dihedral_type = Topology::intern(sc.topology.dihedral_types, dihedral_type);
+  }
+  sc.sources.push_back({d.first, d.count, b.where()});
+  sc.described_sources.push_back(d);
+  sc.undescribed_particles += d.count;
+}
+
 }  // namespace
 
 // Every molecule of the scene made whole (core/state.hpp): builders and imports already are,
@@ -129,8 +167,10 @@ void make_scene_molecules_whole(DeckTable& root, Scene& sc) {
 // [[build]] style = "linear-chains" | "rings" | "stars", type, chains, beads, (arms), bond_length,
 // bond_type, angle_type and dihedral_type (optional), density (optional: sets a periodic cubic box), min_distance,
 // seed, growth = "together" | "by-molecule" (linear chains).
-void read_builders(DeckTable& root, Scene& sc) {
-  for (DeckTable& b : root.array_of_tables("build")) {
+void read_builders(DeckTable& root, Scene& sc, std::size_t describe_from) {
+  std::vector<DeckTable> builds = root.array_of_tables("build");
+  for (std::size_t index = 0; index < builds.size(); ++index) {
+    DeckTable& b = builds[index];
     const std::string style = b.string("style");
     if (style != "linear-chains" && style != "rings" && style != "stars")
       b.fail("style", "unknown builder '" + style + "' (known: linear-chains, rings, stars)");
@@ -188,6 +228,10 @@ void read_builders(DeckTable& root, Scene& sc) {
       b.fail("growth",
              "growth = \"by-molecule\" builds linear chains only; expected style = \"linear-chains\" "
              "or growth = \"together\"");
+    if (index >= describe_from && growth == "by-molecule") {
+      describe_chains(b, sc, spec, type, bond_type, angle_type, dihedral_type);
+      continue;
+    }
     Polymer p;
     try {
       if (growth == "by-molecule")
@@ -379,12 +423,17 @@ void read_velocities(DeckTable& root, Scene& sc) {
   const bool by_particle = t->boolean("by_particle", false);
   // 3 N_mobile − 3 degrees of freedom once the total momentum is removed: none, and T > 0 cannot
   // be given (every particle fixed, or one free particle), so say so rather than start at rest.
-  const auto mobile = (sc.state.inv_mass.array() > 0.0).count();
+  // A described source's particles are mobile (a type's mass is > 0).
+  const auto loaded_mobile = (sc.state.inv_mass.array() > 0.0).count();
+  const auto mobile = loaded_mobile + sc.undescribed_particles;
   if (temperature > 0 && 3 * mobile - 3 <= 0)
     t->fail("temperature", "the scene has no degree of freedom to thermalise (" + std::to_string(mobile) +
                                " mobile particle(s), total momentum removed); expected temperature = 0 or more "
                                "mobile particles");
   t->finish();
+  // A description's loaded particles (none but in a deck that mixes sources) draw theirs among
+  // themselves: the per-particle arrays of a described scene are not the whole scene's.
+  if (sc.described() && 3 * loaded_mobile - 3 <= 0) return;
   if (by_particle) {
     std::vector<int> global(static_cast<size_t>(sc.state.inv_mass.size()));
     for (size_t i = 0; i < global.size(); ++i) global[i] = static_cast<int>(i);

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstddef>
 #include <optional>
 #include <string>
 #include <utility>
@@ -20,7 +21,9 @@ int append_particles(Scene& sc, const Eigen::Matrix3Xd& x, const Eigen::Matrix3X
                      const std::vector<int>& molecule);
 int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, const std::string& name);
 
-void read_builders(DeckTable& root, Scene& sc);
+// [[build]]s; those at index `describe_from` and after (all of them grown by molecule: load_scene
+// checks it) are described, not built (SceneContent::description, scene.hpp).
+void read_builders(DeckTable& root, Scene& sc, std::size_t describe_from = static_cast<std::size_t>(-1));
 void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
 // The scene's name of LAMMPS type `number` under an [import] type map (atom_types = { "1" = "bead" }):
 // the map's name for it; the number itself ("1") for a bonded kind whose map the deck does not

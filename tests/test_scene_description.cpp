@@ -1,0 +1,373 @@
+// The scene's description (load_scene with SceneContent::description, engine/scene/scene.hpp):
+// the [[build]]s of linear chains grown by molecule counted, not built. Against the whole load of
+// the same deck it holds no particle or item, counts the particles it left out, and agrees on
+// everything else — types, units, box, settings, notes, sources, topology type names, LAMMPS
+// coefficients, the monitor, `describe` but for the terms' own lines, and each force term's
+// description (on_subset on no particle, then define) — so that part_source and chains_part give
+// the same answers from it (chains_part's parts bit for bit on 1–3 fake ranks). A deck it cannot
+// stand for loads whole; bad input gives the whole load's message.
+#include <gtest/gtest.h>
+#include <sys/resource.h>
+
+#include <chrono>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "core/errors.hpp"
+#include "engine/domain/part_load.hpp"
+#include "fake_processes.hpp"
+#include "forcefields/parameter_record.hpp"
+#include "forcefields/particle_subset.hpp"
+
+namespace stiffmd {
+namespace {
+
+using fake::run_ranks;
+
+std::string tree_path(const std::string& rel) {
+  return std::string(STIFFMD_SOURCE_DIR) + "/" + rel;
+}
+
+struct DescribedDeck {
+  const char* deck;
+  std::vector<std::string> overrides;
+};
+
+const DescribedDeck kDecks[] = {
+    {"tests/decks/chains_by_parts.toml", {}},
+    {"inputs/melt_minimize_by_parts.toml", {}},
+    {"tests/decks/melt_million_parts.toml", {"build.0.chains=200"}},
+    {"tests/decks/charged_chains_by_parts.toml", {}},
+};
+
+// A term's description's definition: the term made again on a subset of no particle.
+std::uint64_t description_of(const ForceTerm& term, const Box& box) {
+  const std::vector<int> none;
+  const Topology empty;
+  const ParticleSubset nobody{none, none, empty};
+  ParameterRecord r;
+  term.on_subset(nobody, box)->define(r);
+  return r.value();
+}
+
+// describe_scene up to the force terms' lines (a term describes its own items, which a
+// description does not hold).
+std::string scene_header(const Scene& sc) {
+  const std::string s = describe_scene(sc);
+  return s.substr(0, s.find("force terms:"));
+}
+
+// The notes that do not come from the particles: the pair terms' overlap finding is the whole
+// load's alone.
+std::vector<std::string> notes_without_overlap(const Scene& sc) {
+  std::vector<std::string> out;
+  for (const std::string& n : sc.notes)
+    if (n.find("[minimize] relaxes them before the run") == std::string::npos) out.push_back(n);
+  return out;
+}
+
+void expect_same_section(const LammpsCoeffs::Section& a, const LammpsCoeffs::Section& b) {
+  EXPECT_EQ(a.style, b.style);
+  EXPECT_EQ(a.representable, b.representable);
+  EXPECT_EQ(a.pairwise, b.pairwise);
+  EXPECT_EQ(a.rows, b.rows);
+}
+
+// Everything but the particles and items: the whole load's.
+void expect_same_description(const Scene& whole, const Scene& desc) {
+  ASSERT_EQ(desc.types.size(), whole.types.size());
+  for (size_t k = 0; k < whole.types.size(); ++k) {
+    EXPECT_EQ(desc.types[k].name, whole.types[k].name);
+    EXPECT_EQ(desc.types[k].mass, whole.types[k].mass);
+    EXPECT_EQ(desc.types[k].element, whole.types[k].element);
+    EXPECT_EQ(desc.types[k].charge, whole.types[k].charge);
+  }
+  EXPECT_EQ(desc.units.name, whole.units.name);
+  EXPECT_EQ(desc.units.time, whole.units.time);
+  EXPECT_EQ(desc.units.coulomb, whole.units.coulomb);
+  EXPECT_TRUE(desc.box.origin == whole.box.origin);
+  EXPECT_TRUE(desc.box.lengths == whole.box.lengths);  // bit for bit
+  EXPECT_TRUE(desc.box.periodic == whole.box.periodic);
+  EXPECT_EQ(desc.box_from_source, whole.box_from_source);
+  const IntegratorSettings &a = desc.integrator, &b = whole.integrator;
+  EXPECT_EQ(a.method, b.method);
+  EXPECT_EQ(a.h, b.h);
+  EXPECT_EQ(a.micro_steps, b.micro_steps);
+  EXPECT_EQ(a.levels.size(), b.levels.size());
+  EXPECT_EQ(a.thermostat.style, b.thermostat.style);
+  EXPECT_EQ(a.thermostat.splitting, b.thermostat.splitting);
+  EXPECT_EQ(a.thermostat.temperature, b.thermostat.temperature);
+  EXPECT_EQ(a.thermostat.tau, b.thermostat.tau);
+  EXPECT_EQ(a.thermostat.seed, b.thermostat.seed);
+  EXPECT_EQ(a.barostat.on, b.barostat.on);
+  EXPECT_EQ(desc.num_steps(), whole.num_steps());
+  EXPECT_EQ(desc.run.t_end, whole.run.t_end);
+  EXPECT_EQ(desc.minimize.requested, whole.minimize.requested);
+  EXPECT_EQ(desc.minimize.max_force, whole.minimize.max_force);
+  EXPECT_EQ(describe_settings(desc), describe_settings(whole));
+  EXPECT_EQ(scene_header(desc), scene_header(whole));
+  EXPECT_EQ(desc.notes, notes_without_overlap(whole));
+  EXPECT_EQ(output_files(desc), output_files(whole));
+  EXPECT_EQ(desc.charged(), whole.charged());
+  // The monitor's defaults, from the thermostat's frictions and the stiff bonds.
+  EXPECT_EQ(desc.monitor.energy_error, whole.monitor.energy_error);
+  EXPECT_EQ(desc.monitor.temperature_deviation, whole.monitor.temperature_deviation);
+  EXPECT_EQ(desc.monitor.energy_runaway, whole.monitor.energy_runaway);
+  EXPECT_EQ(desc.monitor.scene.relaxation, whole.monitor.scene.relaxation);
+  EXPECT_EQ(desc.monitor.scene.kT, whole.monitor.scene.kT);
+  EXPECT_EQ(desc.monitor.scene.min_bond_length, whole.monitor.scene.min_bond_length);
+  ASSERT_EQ(desc.sources.size(), whole.sources.size());
+  for (size_t k = 0; k < whole.sources.size(); ++k) {
+    EXPECT_EQ(desc.sources[k].first, whole.sources[k].first);
+    EXPECT_EQ(desc.sources[k].count, whole.sources[k].count);
+    EXPECT_EQ(desc.sources[k].what, whole.sources[k].what);
+  }
+  EXPECT_EQ(desc.topology.bond_types, whole.topology.bond_types);
+  EXPECT_EQ(desc.topology.angle_types, whole.topology.angle_types);
+  EXPECT_EQ(desc.topology.dihedral_types, whole.topology.dihedral_types);
+  EXPECT_EQ(desc.topology.improper_types, whole.topology.improper_types);
+  expect_same_section(desc.lammps_coeffs.pair, whole.lammps_coeffs.pair);
+  expect_same_section(desc.lammps_coeffs.bond, whole.lammps_coeffs.bond);
+  expect_same_section(desc.lammps_coeffs.angle, whole.lammps_coeffs.angle);
+  expect_same_section(desc.lammps_coeffs.dihedral, whole.lammps_coeffs.dihedral);
+  const auto &dt = desc.forces->terms(), &wt = whole.forces->terms();
+  ASSERT_EQ(dt.size(), wt.size());
+  EXPECT_EQ(desc.forces->num_levels(), whole.forces->num_levels());
+  for (size_t k = 0; k < wt.size(); ++k) {
+    SCOPED_TRACE("term " + wt[k]->name());
+    EXPECT_EQ(dt[k]->name(), wt[k]->name());
+    EXPECT_EQ(std::string(dt[k]->style()), std::string(wt[k]->style()));
+    EXPECT_EQ(dt[k]->level(), wt[k]->level());
+    EXPECT_EQ(description_of(*dt[k], desc.box), description_of(*wt[k], whole.box));
+  }
+}
+
+template <class Item>
+void expect_same_items(const std::vector<PartMolecules::Placed<Item>>& got,
+                       const std::vector<PartMolecules::Placed<Item>>& want) {
+  ASSERT_EQ(got.size(), want.size());
+  for (size_t k = 0; k < got.size(); ++k) {
+    EXPECT_EQ(got[k].place, want[k].place);
+    EXPECT_EQ(got[k].item.i, want[k].item.i);
+    EXPECT_EQ(got[k].item.j, want[k].item.j);
+    EXPECT_EQ(got[k].item.type, want[k].item.type);
+  }
+}
+
+// chains_part from either scene on `ranks` fake ranks: the same parts bit for bit.
+void expect_same_chains_parts(const Deck& deck, const Scene& whole, const Scene& desc, int ranks) {
+  std::vector<ScenePart> from_whole(static_cast<size_t>(ranks)), from_desc(static_cast<size_t>(ranks));
+  run_ranks(ranks, [&](const Communicator& comm) {
+    from_whole[static_cast<size_t>(comm.rank())] = chains_part(deck, whole, comm);
+    from_desc[static_cast<size_t>(comm.rank())] = chains_part(deck, desc, comm);
+  });
+  int covered = 0;
+  for (int r = 0; r < ranks; ++r) {
+    SCOPED_TRACE("rank " + std::to_string(r) + " of " + std::to_string(ranks));
+    const ScenePart &g = from_desc[static_cast<size_t>(r)], &w = from_whole[static_cast<size_t>(r)];
+    covered += g.molecules.size();
+    EXPECT_EQ(g.molecules.global, w.molecules.global);
+    EXPECT_EQ(g.molecules.inv_mass, w.molecules.inv_mass);
+    EXPECT_EQ(g.molecules.charge, w.molecules.charge);
+    EXPECT_EQ(g.molecules.type, w.molecules.type);
+    EXPECT_EQ(g.molecules.molecule_id, w.molecules.molecule_id);
+    EXPECT_EQ(g.molecules.friction, w.molecules.friction);
+    expect_same_items(g.molecules.bonds, w.molecules.bonds);
+    expect_same_items(g.molecules.angles, w.molecules.angles);
+    expect_same_items(g.molecules.dihedrals, w.molecules.dihedrals);
+    ASSERT_EQ(g.x.cols(), w.x.cols());
+    ASSERT_EQ(g.v.cols(), w.v.cols());
+    EXPECT_TRUE((g.x.array() == w.x.array()).all());
+    EXPECT_TRUE((g.v.array() == w.v.array()).all());
+  }
+  EXPECT_EQ(covered, whole.state.size());
+}
+
+class SceneDescription : public ::testing::TestWithParam<int> {};
+
+TEST_P(SceneDescription, IsTheWholeSceneWithoutItsParticles) {
+  const DescribedDeck& d = kDecks[GetParam()];
+  SCOPED_TRACE(d.deck);
+  const Deck deck(tree_path(d.deck), d.overrides);
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_FALSE(whole.described());
+  ASSERT_TRUE(desc.described());
+  EXPECT_EQ(whole.undescribed_particles, 0);
+  EXPECT_EQ(desc.undescribed_particles, whole.state.size());
+  EXPECT_EQ(desc.whole_particles(), whole.whole_particles());
+  // Nothing of the particles' size.
+  EXPECT_EQ(desc.state.size(), 0);
+  EXPECT_EQ(desc.state.x.cols(), 0);
+  EXPECT_EQ(desc.state.v.cols(), 0);
+  EXPECT_TRUE(desc.particle_type.empty());
+  EXPECT_TRUE(desc.charge.empty());
+  EXPECT_TRUE(desc.topology.bonds.empty());
+  EXPECT_TRUE(desc.topology.angles.empty());
+  EXPECT_TRUE(desc.topology.dihedrals.empty());
+  EXPECT_TRUE(desc.topology.impropers.empty());
+  EXPECT_TRUE(desc.topology.molecule.empty());
+  EXPECT_EQ(desc.integrator.thermostat.friction.size(), 0);
+  expect_same_description(whole, desc);
+
+  const PartSource from_whole = part_source(deck, whole), from_desc = part_source(deck, desc);
+  EXPECT_EQ(from_desc.make, from_whole.make);
+  EXPECT_EQ(from_desc.refusal, from_whole.refusal);
+  ASSERT_EQ(from_whole.make, &chains_part);
+  for (int ranks = 1; ranks <= 3; ++ranks) expect_same_chains_parts(deck, whole, desc, ranks);
+}
+
+INSTANTIATE_TEST_SUITE_P(Decks, SceneDescription, ::testing::Range(0, static_cast<int>(std::size(kDecks))));
+
+// The charged deck's description is charged, from its type's charge, and its net charge is the
+// whole sum's to the bit (the warning's number).
+TEST(SceneDescription, ChargedFromTheTypes) {
+  const Deck deck(tree_path("tests/decks/charged_chains_by_parts.toml"), {});
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_TRUE(desc.described());
+  EXPECT_TRUE(desc.charge.empty());
+  EXPECT_TRUE(desc.charged());
+  ASSERT_EQ(desc.notes.size(), 1u);
+  EXPECT_NE(desc.notes[0].find("net charge is 75 e"), std::string::npos) << desc.notes[0];
+}
+
+// A deck of [[particles]] has nothing to describe: the description is the whole scene.
+TEST(SceneDescription, ParticlesLoadWhole) {
+  const Deck deck(tree_path("tests/decks/periodic_free.toml"), {});
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  EXPECT_FALSE(desc.described());
+  EXPECT_TRUE(desc.described_sources.empty());
+  EXPECT_EQ(desc.state.size(), whole.state.size());
+  EXPECT_TRUE(desc.state.x == whole.state.x);
+  EXPECT_TRUE(desc.state.v == whole.state.v);
+  EXPECT_EQ(desc.particle_type, whole.particle_type);
+  EXPECT_EQ(describe(desc), describe(whole));
+}
+
+// Decks the description cannot stand for load whole: a term that reads every particle (here
+// gravity, holding every mass), a barostat, and a builder grown together after the chains.
+TEST(SceneDescription, DecksItCannotStandForLoadWhole) {
+  const std::vector<std::vector<std::string>> overrides = {
+      {"forces.fall={ style = \"gravity\", g = [0.0, 0.0, -0.1] }"},
+      {"barostat={ style = \"c-rescale\", pressure = 1.0, tau = 1.0, compressibility = 1.0 }"},
+  };
+  for (const auto& o : overrides) {
+    SCOPED_TRACE(o.front());
+    const Deck deck(tree_path("tests/decks/chains_by_parts.toml"), o);
+    std::string whole_error, desc_error;
+    Scene whole, desc;
+    try {
+      whole = load_scene(deck);
+    } catch (const InputError& e) {
+      whole_error = e.what();
+    }
+    try {
+      desc = load_scene(deck, {}, SceneContent::description);
+    } catch (const InputError& e) {
+      desc_error = e.what();
+    }
+    EXPECT_EQ(desc_error, whole_error);
+    if (!whole_error.empty()) continue;
+    EXPECT_FALSE(desc.described());
+    EXPECT_EQ(desc.state.size(), whole.state.size());
+    EXPECT_EQ(describe(desc), describe(whole));
+  }
+}
+
+// The text of tests/decks/chains_by_parts.toml with `from` replaced by `to`.
+std::string chains_deck_with(const std::string& from, const std::string& to) {
+  std::ifstream in(tree_path("tests/decks/chains_by_parts.toml"));
+  std::stringstream s;
+  s << in.rdbuf();
+  std::string text = s.str();
+  const auto at = text.find(from);
+  if (at == std::string::npos) throw std::logic_error("no '" + from + "' in the deck");
+  return text.replace(at, from.size(), to);
+}
+
+std::string load_error(const Deck& deck, SceneContent content) {
+  try {
+    load_scene(deck, {}, content);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Bad input: the whole load's message in both modes.
+TEST(SceneDescription, BadInputGivesTheWholeLoadsMessage) {
+  const std::vector<std::pair<std::string, std::string>> edits = {
+      {"beads = 12", "beads = 1"},                              // too few beads
+      {"bond_length = 0.97", "bond_length = 0.97\nbeadz = 3"},  // an unknown key
+      {"min_distance = 0.8", "min_distance = -0.5"},            // the builder's own check
+      {"density = 0.3", "density = 0.3\noffset = [0.0, 1.0]"},  // an offset of two numbers
+      {"bond_types.backbone", "bond_types.other"},              // the chains' bond type undefined
+      {"mass = 1.0\n", "mass = 1.0\ncharge = 0.5\n"},           // a charge no term acts on
+      {"chains = 60", "chains = 1\n"},                          // still valid: one chain
+  };
+  for (const auto& [from, to] : edits) {
+    SCOPED_TRACE(to);
+    const Deck deck(Deck::Text{"chains.toml", chains_deck_with(from, to)}, {});
+    const std::string whole = load_error(deck, SceneContent::whole);
+    EXPECT_EQ(load_error(deck, SceneContent::description), whole);
+    EXPECT_EQ(whole.empty(), to == "chains = 1\n");
+  }
+}
+
+// [[particles]] before the chains: the chains are described, the particles loaded at their whole
+// indices (the loaded particles come first).
+TEST(SceneDescription, ParticlesBeforeTheChainsArePartlyDescribed) {
+  const std::string text =
+      chains_deck_with("\n[[build]]\n",
+                       "\n[[particles]]\ntype = \"bead\"\nposition = [0.5, 0.5, 0.5]\n\n"
+                       "[[particles]]\ntype = \"bead\"\nposition = [2.0, 0.5, 0.5]\n\n[[build]]\n");
+  const Deck deck(Deck::Text{"mixed.toml", text}, {});
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_TRUE(desc.described());
+  EXPECT_EQ(desc.state.size(), 2);
+  EXPECT_EQ(desc.undescribed_particles, whole.state.size() - 2);
+  EXPECT_TRUE(desc.state.x == whole.state.x.leftCols(2));
+  EXPECT_EQ(scene_header(desc), scene_header(whole));
+  EXPECT_EQ(describe_settings(desc), describe_settings(whole));
+  ASSERT_EQ(desc.sources.size(), 3u);
+  EXPECT_EQ(desc.sources[2].first, 2);
+  EXPECT_EQ(desc.sources[2].count, whole.sources[2].count);
+  EXPECT_NE(part_source(deck, desc).refusal, "");  // the part path refuses [[particles]]
+}
+
+long peak_rss_kib() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_maxrss;
+}
+
+// The 10⁶-bead deck: the description's time and peak memory, then the whole load's (run by hand:
+// --gtest_also_run_disabled_tests --gtest_filter='*MillionBeads*').
+TEST(SceneDescription, DISABLED_MillionBeads) {
+  const Deck deck(tree_path("tests/decks/melt_million_parts.toml"), {});
+  const long before = peak_rss_kib();
+  auto t0 = std::chrono::steady_clock::now();
+  {
+    const Scene desc = load_scene(deck, {}, SceneContent::description);
+    EXPECT_EQ(desc.undescribed_particles, 1'000'000);
+  }
+  auto t1 = std::chrono::steady_clock::now();
+  const long after_desc = peak_rss_kib();
+  {
+    const Scene whole = load_scene(deck);
+    EXPECT_EQ(whole.state.size(), 1'000'000);
+  }
+  auto t2 = std::chrono::steady_clock::now();
+  const long after_whole = peak_rss_kib();
+  std::cout << "description: " << std::chrono::duration<double>(t1 - t0).count() << " s, peak RSS +"
+            << (after_desc - before) / 1024.0 << " MiB\n"
+            << "whole:       " << std::chrono::duration<double>(t2 - t1).count() << " s, peak RSS +"
+            << (after_whole - after_desc) / 1024.0 << " MiB (over the description's)\n";
+}
+
+}  // namespace
+}  // namespace stiffmd
