@@ -1,10 +1,15 @@
-// The scene fingerprint combinable by blocks (engine/run/checkpoint.hpp, format version 7): the
-// value scene_fingerprint_parts gives from each rank's part of the molecules is the whole scene's
-// scene_fingerprint, for any partition of the molecules on 1–4 fake ranks (tests/
+// The scene fingerprint combinable by blocks (engine/run/checkpoint.hpp, format versions 7 and 8):
+// the value scene_fingerprint_parts gives from each rank's part of the molecules is the whole
+// scene's scene_fingerprint, for any partition of the molecules on 1–4 fake ranks (tests/
 // fake_processes.hpp) — all on one rank, scattered at random, the whole path's blocks; and a
 // change of one bond's type, one particle's mass or charge, one molecule id or one coefficient
-// changes it. A checkpoint of format version 6 (the sequential fingerprint) still restarts, and
-// one whose fingerprint is not the scene's is refused, in either version.
+// changes it. Version 8: the same value from a description whose force terms are their
+// descriptions alone (each made on no particle) and which holds no particle or item, on 1–3 fake
+// ranks; a change of a coefficient or of a rule that only the whole terms' lists showed (a stiff
+// bond's length, a rigid angle, a 1-4 table, an external term's selection) changes it. A
+// checkpoint of format version 6 (the sequential fingerprint) or 7 (by blocks, the terms' own
+// definitions) still restarts, and one whose fingerprint is not the scene's is refused, in every
+// version.
 #include <gtest/gtest.h>
 
 #include <zlib.h>
@@ -26,6 +31,7 @@
 #include "engine/run/checkpoint.hpp"
 #include "engine/scene/scene.hpp"
 #include "fake_processes.hpp"
+#include "forcefields/force_field.hpp"
 #include "test_support.hpp"
 
 namespace stiffmd {
@@ -64,25 +70,58 @@ std::vector<int> particles_of_rank(const Scene& sc, int ranks, int rank, Partiti
   return out;
 }
 
-// The value every rank computes from its part, checked equal across the ranks.
-std::uint64_t by_parts(const Scene& sc, int ranks, Partition how, unsigned seed) {
+// The value every rank computes from its part of `sc`, with `description` as the scene's
+// description, checked equal across the ranks.
+std::uint64_t by_parts(const Scene& sc, const Scene& description, int ranks, Partition how, unsigned seed) {
   std::vector<std::uint64_t> got(static_cast<size_t>(ranks), 0);
   run_ranks(ranks, [&](const FakeCommunicator& comm) {
     const std::vector<int> mine = particles_of_rank(sc, ranks, comm.rank(), how, seed);
     const PartMolecules part = cut_part(whole_of(sc), mine);
-    got[static_cast<size_t>(comm.rank())] = scene_fingerprint_parts(sc, part, comm);
+    got[static_cast<size_t>(comm.rank())] = scene_fingerprint_parts(description, part, comm);
   });
   for (int r = 1; r < ranks; ++r) EXPECT_EQ(got[static_cast<size_t>(r)], got[0]) << "rank " << r << " of " << ranks;
   return got[0];
 }
+std::uint64_t by_parts(const Scene& sc, int ranks, Partition how, unsigned seed) {
+  return by_parts(sc, sc, ranks, how, seed);
+}
 
-// Decks with bonds, angles, dihedrals, impropers, charges and molecule ids among them.
+// Decks with bonds, angles, dihedrals, impropers, charges and molecule ids among them, and a
+// term of every force style (stiff bonds with rigid angles, charmm 1-4 tables, tethers, walls,
+// gravity, every pair and k-space style).
 const char* const kDecks[] = {"inputs/kremer_grest.toml",
                               "inputs/peptide.toml",
                               "inputs/polyelectrolyte.toml",
                               "inputs/butane_torsions.toml",
+                              "tests/decks/every_force_style.toml",
                               "tests/decks/every_all_atom_style.toml",
-                              "tests/decks/every_charged_style.toml"};
+                              "tests/decks/every_charged_style.toml",
+                              "tests/decks/every_mesh_style.toml"};
+
+// The scene's description as a decomposed run may hold it (docs/parallel.md, "What is not
+// distributed yet"): its types, box, levels and units, and every force term made again from its
+// description alone (ForceTerm::on_subset on a subset of no particle: no item, no particle list,
+// no per-particle array) — pair and k-space terms too; no particle and no topology item.
+Scene described_scene(const std::string& deck, const std::vector<std::string>& overrides = {}) {
+  Scene sc = test::load(deck, overrides);
+  const std::vector<int> none;
+  const Topology empty;
+  sc.forces = sc.forces->on_subset(ParticleSubset{none, none, empty});
+  sc.state = State{};
+  sc.particle_type.clear();
+  sc.charge.clear();
+  sc.topology = Topology{};
+  return sc;
+}
+
+// The whole scene's terms with their descriptions in their place (the particles and items kept).
+Scene with_described_terms(const std::string& deck) {
+  Scene sc = test::load(deck);
+  const std::vector<int> none;
+  const Topology empty;
+  sc.forces = sc.forces->on_subset(ParticleSubset{none, none, empty});
+  return sc;
+}
 
 TEST(SceneFingerprintParts, EveryPartitionOnOneToFourRanksGivesTheWholeScenesValue) {
   for (const char* deck : kDecks) {
@@ -193,6 +232,58 @@ TEST(SceneFingerprintParts, OneCoefficientIsAnotherScene) {
   }
 }
 
+TEST(SceneFingerprintParts, TheTermsDescriptionsAloneGiveTheWholeScenesValue) {
+  for (const char* deck : kDecks) {
+    SCOPED_TRACE(deck);
+    const Scene sc = test::load(deck);
+    const Scene description = described_scene(deck);
+    ASSERT_EQ(description.forces->terms().size(), sc.forces->terms().size());
+    const std::uint64_t whole = scene_fingerprint(sc);
+    for (int ranks = 1; ranks <= 3; ++ranks) {
+      SCOPED_TRACE("ranks " + std::to_string(ranks));
+      EXPECT_EQ(by_parts(sc, description, ranks, Partition::one_rank, 0), whole);
+      EXPECT_EQ(by_parts(sc, description, ranks, Partition::blocks, 0), whole);
+      for (unsigned seed = 1; seed <= 2; ++seed)
+        EXPECT_EQ(by_parts(sc, description, ranks, Partition::random, seed), whole);
+    }
+    // The whole scene with its terms' descriptions in their place: the same value in version 8,
+    // another in version 7 (whose terms write their lists), for a deck with bonded items.
+    const Scene described_terms = with_described_terms(deck);
+    EXPECT_EQ(scene_fingerprint(described_terms), whole);
+    if (!sc.topology.bonds.empty()) {
+      EXPECT_NE(scene_fingerprint_v7(described_terms), scene_fingerprint_v7(sc));
+    }
+  }
+}
+
+// A change that only the whole terms' lists showed — or a coefficient — changes the value of the
+// descriptions alone as the whole scene's (both, with the deck changed, agree).
+TEST(SceneFingerprintParts, ARuleOrCoefficientChangedIsAnotherSceneOfTheDescriptions) {
+  struct Change {
+    const char* deck;
+    std::string set;
+  };
+  const std::vector<Change> changes = {
+      {"inputs/kremer_grest.toml", "forces.fene.bond_types.fene.K=30.000000000000004"},
+      {"inputs/kremer_grest.toml", "forces.lj.epsilon=1.0000000000000002"},
+      {"tests/decks/every_force_style.toml", "forces.bonds.bond_types.stiff.length=0.9700000000000001"},
+      {"tests/decks/every_force_style.toml", "forces.bonds.angle_types.bend_h.theta0=110.0000000001"},
+      {"tests/decks/every_force_style.toml", "forces.bonds.angle_types.bend_h.alpha=1.5000000000000002"},
+      {"tests/decks/every_force_style.toml", "forces.tether.particles.1=8"},
+      {"tests/decks/every_force_style.toml", "forces.wall.type=\"A\""},
+      {"tests/decks/every_force_style.toml", "forces.gravity.g.2=-0.5000000000000001"},
+      {"tests/decks/every_all_atom_style.toml", "forces.torsions.lj14.A.epsilon=0.010000000000000002"},
+  };
+  for (const Change& c : changes) {
+    SCOPED_TRACE(std::string(c.deck) + " --set " + c.set);
+    const Scene sc = test::load(c.deck), other = test::load(c.deck, {c.set});
+    const Scene description = described_scene(c.deck, {c.set});
+    const std::uint64_t before = scene_fingerprint(sc), after = scene_fingerprint(other);
+    EXPECT_NE(after, before);
+    EXPECT_EQ(by_parts(other, description, 2, Partition::random, 5), after);
+  }
+}
+
 // The checkpoint's header, rewritten: bytes 12–15 the version, 32–39 the fingerprint, 8–11 the
 // crc32 of bytes 12 … end (engine/run/checkpoint.hpp).
 void rewrite_header(const std::string& path, std::uint32_t version, std::uint64_t fingerprint) {
@@ -209,8 +300,8 @@ void rewrite_header(const std::string& path, std::uint32_t version, std::uint64_
   std::ofstream(path, std::ios::binary).write(b.data(), static_cast<std::streamsize>(b.size()));
 }
 
-TEST(SceneFingerprintParts, AVersion6CheckpointIsCheckedByTheSequentialFingerprint) {
-  const Scene sc = test::load("inputs/peptide.toml");
+TEST(SceneFingerprintParts, AVersion6Or7CheckpointIsCheckedByItsVersionsFingerprint) {
+  Scene sc = test::load("inputs/peptide.toml");
   const std::string path =
       (std::filesystem::temp_directory_path() / ("fingerprint_v6_" + std::to_string(::getpid()) + ".bin")).string();
   Checkpoint c;
@@ -223,15 +314,25 @@ TEST(SceneFingerprintParts, AVersion6CheckpointIsCheckedByTheSequentialFingerpri
   c.box = sc.box;
   write_checkpoint(path, c);
   EXPECT_EQ(read_checkpoint_of(sc, path).version, kCheckpointVersion);
-  ASSERT_NE(scene_fingerprint_sequential(sc), scene_fingerprint(sc));
+  ASSERT_EQ(kCheckpointVersion, 8u);
+  const std::uint64_t v8 = scene_fingerprint(sc), v7 = scene_fingerprint_v7(sc), v6 = scene_fingerprint_sequential(sc);
+  ASSERT_NE(v6, v8);
+  ASSERT_NE(v7, v8);
+  ASSERT_NE(v6, v7);
 
-  rewrite_header(path, 6, scene_fingerprint_sequential(sc));  // what the stiffmd before version 7 wrote
+  rewrite_header(path, 7, v7);  // what the stiffmd of version 7 wrote
+  EXPECT_EQ(read_checkpoint_of(sc, path).version, 7u);
+  EXPECT_EQ(read_checkpoint_for(sc, path).version, 7u);  // and it loads: the restart goes on
+  rewrite_header(path, 6, v6);                           // what the stiffmd before version 7 wrote
   EXPECT_EQ(read_checkpoint_of(sc, path).version, 6u);
 
-  rewrite_header(path, 6, scene_fingerprint(sc));  // a version-6 file holds the sequential value
-  EXPECT_THROW(read_checkpoint_of(sc, path), InputError);
-  rewrite_header(path, kCheckpointVersion, scene_fingerprint_sequential(sc));
-  EXPECT_THROW(read_checkpoint_of(sc, path), InputError);
+  // Each version holds its own fingerprint: another version's value is another scene.
+  for (const std::uint32_t version : {6u, 7u, 8u})
+    for (const std::uint64_t value : {v6, v7, v8}) {
+      if ((version == 6u && value == v6) || (version == 7u && value == v7) || (version == 8u && value == v8)) continue;
+      rewrite_header(path, version, value);
+      EXPECT_THROW(read_checkpoint_of(sc, path), InputError) << "version " << version << ", value " << value;
+    }
   std::filesystem::remove(path);
 }
 

@@ -373,13 +373,13 @@ TEST_F(BadCheckpoint, ANewerOrOlderFormatIsRefused) {
   expect_refused("STFMDCK1" + good_.substr(8), "format version 1 (an older stiffmd)");
   const std::uint32_t two = 2;  // before the Langevin RATTLE state's meaning changed
   std::memcpy(b.data() + 12, &two, 4);
-  expect_refused(with_crc(b), "format version 2 (an older stiffmd); this stiffmd reads versions 5 to 7");
+  expect_refused(with_crc(b), "format version 2 (an older stiffmd); this stiffmd reads versions 5 to 8");
   const std::uint32_t three = 3;  // before the exact scene fingerprint: it would read as another scene
   std::memcpy(b.data() + 12, &three, 4);
-  expect_refused(with_crc(b), "format version 3 (an older stiffmd); this stiffmd reads versions 5 to 7");
+  expect_refused(with_crc(b), "format version 3 (an older stiffmd); this stiffmd reads versions 5 to 8");
   const std::uint32_t four = 4;  // before the thermostat's heat: the integrator's words would be misread
   std::memcpy(b.data() + 12, &four, 4);
-  expect_refused(with_crc(b), "format version 4 (an older stiffmd); this stiffmd reads versions 5 to 7");
+  expect_refused(with_crc(b), "format version 4 (an older stiffmd); this stiffmd reads versions 5 to 8");
 }
 
 TEST_F(BadCheckpoint, ACheckpointOfAnotherSceneIsRefused) {

@@ -60,13 +60,13 @@ def run(launch, stiffmd, out, extra=(), signal_at=None, expect=0):
 
 
 def checkpoint_state(path):
-    """(stage number, stage name, step, t, x bytes, v bytes) of a version-6 or 7 checkpoint
-    (engine/run/checkpoint.hpp: one layout, 7 another fingerprint; the 40-byte header, then the particle count, step, t, h, method,
+    """(stage number, stage name, step, t, x bytes, v bytes) of a version-6, 7 or 8 checkpoint
+    (engine/run/checkpoint.hpp: one layout, 7 and 8 other fingerprints; the 40-byte header, then the particle count, step, t, h, method,
     stage number and name, x, v, ...)."""
     with open(path, "rb") as f:
         b = f.read()
-    if struct.unpack_from("<I", b, 12)[0] not in (6, 7):
-        raise SystemExit(f"FAIL: {path} is not of format version 6 or 7")
+    if struct.unpack_from("<I", b, 12)[0] not in (6, 7, 8):
+        raise SystemExit(f"FAIL: {path} is not of format version 6, 7 or 8")
     pos = 40
     _, step = struct.unpack_from("<qq", b, pos)
     t, _ = struct.unpack_from("<dd", b, pos + 16)

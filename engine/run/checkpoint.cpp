@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <span>
 #include <sstream>
 #include <system_error>
@@ -21,7 +22,12 @@
 #include "engine/domain/part_molecules.hpp"
 #include "engine/scene/scene.hpp"
 #include "engine/scene/stage_deck.hpp"
+#include "forcefields/charmm_terms.hpp"
 #include "forcefields/parameter_record.hpp"
+#include "forcefields/particle_selection.hpp"
+#include "forcefields/particle_subset.hpp"
+#include "forcefields/stiff_harmonic_bond.hpp"
+#include "forcefields/type_claim.hpp"
 #include "integrators/methods.hpp"
 
 namespace stiffmd {
@@ -269,9 +275,101 @@ T get_raw(const std::vector<char>& b, std::size_t at) {
 }  // namespace
 
 namespace {
-// The description's last part, the same in both fingerprints: the box, the levels with their
-// kicks, the units and each term's definition.
-void add_box_levels_units_terms(ParameterRecord& r, const Scene& sc) {
+// How a term enters the fingerprint: by its own definition, lists and all (ForceTerm::define:
+// the sequential fingerprint and format version 7), or by its description's (format version 8:
+// description_definition).
+enum class TermRecord { own, description };
+
+// The 1-4 table of a charmm-dihedral (ε₁₄, σ₁₄ per pair of particle types, mixed), whether its
+// pairs carry Coulomb and its qqrd2e: what the term's 1-4 pairs are made of besides the dihedrals,
+// the particle types and charges, and which its definition holds only through its pairs — none on
+// a subset of no particle. Probed: for each pair of particle types a ≤ b, the description made
+// on four particles per claimed dihedral type (types a, a, b, b; charges 1, 0, 0, 1) holding one
+// dihedral of that type, whose definition then holds A = 4 w ε σ¹², B = 4 w σ⁶ ε and Q = w qqrd2e
+// (0 without Coulomb) of the pair (a, b) for each type with w > 0; a table without the pair
+// where a type with w > 0 needs it refuses the probe, recorded as such. O(types² · (types² +
+// dihedral types)): each probe copies the table; never the system's size.
+void define_charmm_14(ParameterRecord& r, const CharmmDihedral& term, int particle_types, const Box& box) {
+  const std::vector<int>& claim = term.type_claim();
+  for (int a = 0; a < particle_types; ++a)
+    for (int b = a; b < particle_types; ++b) {
+      std::vector<int> global, types;
+      std::vector<double> charges;
+      Topology probe;
+      for (std::size_t t = 0; t < claim.size(); ++t) {
+        if (claim[t] < 0) continue;
+        const int at = static_cast<int>(global.size());
+        for (int k = 0; k < 4; ++k) global.push_back(at + k);
+        types.insert(types.end(), {a, a, b, b});
+        charges.insert(charges.end(), {1.0, 0.0, 0.0, 1.0});
+        probe.dihedrals.push_back({at, at + 1, at + 2, at + 3, static_cast<int>(t)});
+      }
+      r.add("lj14 pair", {a, b});
+      try {
+        term.on_subset(ParticleSubset{global, types, probe, charges}, box)->define(r);
+      } catch (const std::invalid_argument&) {
+        r.add("lj14 pair", "not set");
+      }
+    }
+}
+
+// A term's record in format version 8: what defines it without the lists that the scene's
+// particles and topology items (summed by blocks) make by its rules — the definition of its
+// description (the term made on a subset of no particle: ForceTerm::on_subset; its coefficients,
+// no list) and its rule, which that definition lacks: a bonded term's claim on the topology's
+// types (TypeClaim), the stiff bonds' rule (StiffBondRule), an external term's selection
+// (ParticleSelection), a charmm-dihedral's 1-4 table (define_charmm_14). The pair and k-space
+// terms and gravity have no rule: their lists (per-particle types, charges and masses, special
+// pairs of the bonds) are the particles' and items' own. A term without its rule (one made from
+// its lists alone) or that cannot be made on a subset is recorded by its own definition, lists
+// and all. A description made on no particle of a term is the same description (its
+// coefficients and rule, copied), so the record of a scene whose terms are descriptions is the
+// whole scene's.
+void description_definition(ParameterRecord& r, const ForceTerm& term, const Scene& sc) {
+  const auto* claim = dynamic_cast<const TypeClaim*>(&term);
+  const auto* stiff = dynamic_cast<const StiffHarmonicBond*>(&term);
+  const auto* selection = dynamic_cast<const SelectionRule*>(&term);
+  const bool ruleless = (claim && claim->type_claim().empty()) || (stiff && stiff->rule().empty()) ||
+                        (selection && !selection->has_selection());
+  std::unique_ptr<ForceTerm> description;
+  if (!ruleless) {
+    const std::vector<int> none;
+    const Topology empty;
+    try {
+      description = term.on_subset(ParticleSubset{none, none, empty}, sc.box);
+    } catch (const std::invalid_argument&) {
+    }
+  }
+  if (!description) {
+    r.add("definition", "own");
+    term.define(r);
+    return;
+  }
+  r.add("definition", "description");
+  description->define(r);
+  if (claim) r.add("type claim", std::span<const int>(claim->type_claim()));
+  if (stiff) {
+    const StiffBondRule& rule = stiff->rule();
+    r.add("bond claim", std::span<const int>(rule.bond_claim));
+    for (const StiffBond& c : rule.bond_coeffs) r.add("length alpha", {c.length, c.alpha});
+    for (const RigidAngleType& a : rule.rigid_angles) {
+      r.add("rigid angle type", a.type);
+      r.add("cos theta0 alpha", {a.cos_theta0, a.alpha});
+    }
+  }
+  if (selection) {
+    const ParticleSelection& s = selection->selection();
+    r.add("selection", static_cast<int>(s.kind));
+    r.add("listed", std::span<const int>(s.listed));
+    r.add("type", s.type);
+  }
+  if (const auto* charmm = dynamic_cast<const CharmmDihedral*>(&term))
+    define_charmm_14(r, *charmm, static_cast<int>(sc.types.size()), sc.box);
+}
+
+// The description's last part, the same in every fingerprint: the box, the levels with their
+// kicks, the units and each term's record (TermRecord).
+void add_box_levels_units_terms(ParameterRecord& r, const Scene& sc, TermRecord how) {
   for (int a = 0; a < 3; ++a) {
     r.add("periodic", sc.box.periodic[a]);
     r.add("origin", sc.box.origin[a]);
@@ -288,14 +386,17 @@ void add_box_levels_units_terms(ParameterRecord& r, const Scene& sc) {
   }
   // The units give the deck's times and temperatures their meaning.
   r.add("units", sc.units.name);
-  // Each term writes its own parameters and lists (ForceTerm::define): the coefficients the
-  // forces are computed from, bit for bit.
+  // Each term writes its own parameters (ForceTerm::define): the coefficients the forces are
+  // computed from, bit for bit; its lists too (TermRecord::own), or its rule instead.
   r.add("terms", sc.forces->terms().size());
   for (const auto& term : sc.forces->terms()) {
     r.add("name", term->name());
     r.add("style", term->style());
     r.add("level", term->level().index);
-    term->define(r);
+    if (how == TermRecord::own)
+      term->define(r);
+    else
+      description_definition(r, *term, sc);
   }
 }
 }  // namespace
@@ -324,7 +425,7 @@ std::uint64_t scene_fingerprint_sequential(const Scene& sc) {
     for (const Improper& d : top.impropers) r.add("improper", {d.i, d.j, d.k, d.l, d.type});
   }
   r.add("molecule", std::span<const int>(top.molecule));
-  add_box_levels_units_terms(r, sc);
+  add_box_levels_units_terms(r, sc, TermRecord::own);
   return r.value();
 }
 
@@ -391,12 +492,14 @@ struct BlockSums {
   }
 };
 
-// The whole fingerprint (version 7) from the system's sums and the scene's description: the
+// The whole fingerprint (version 7 or 8) from the system's sums and the scene's description: the
 // description in sequence (the ParameterRecord of scene_fingerprint_sequential but its
 // per-particle arrays and topology items, which the sums stand for), then the counts and sums.
-std::uint64_t fingerprint_of(const Scene& sc, const BlockSums& s) {
+// Version 7 records each term by its own definition, version 8 by its description's and rule
+// (description_definition).
+std::uint64_t fingerprint_of(const Scene& sc, const BlockSums& s, std::uint32_t version) {
   ParameterRecord r;
-  r.add("fingerprint by blocks", 7);
+  r.add("fingerprint by blocks", static_cast<int>(version));
   r.add("particles", s.count[0]);
   r.add("bonds", s.count[1]);
   r.add("angles", s.count[2]);
@@ -409,7 +512,8 @@ std::uint64_t fingerprint_of(const Scene& sc, const BlockSums& s) {
     r.add("name", t.name);
     r.add("mass", t.mass);
   }
-  add_box_levels_units_terms(r, sc);
+  add_box_levels_units_terms(r, sc,
+                             version >= kFirstFingerprintByDescriptions ? TermRecord::description : TermRecord::own);
   return r.value();
 }
 
@@ -432,7 +536,9 @@ std::uint64_t sum_mod_2_64(std::uint64_t mine, const Communicator& ranks) {
 
 }  // namespace
 
-std::uint64_t scene_fingerprint(const Scene& sc) {
+namespace {
+// The whole scene's sums, particle by particle and item by item.
+BlockSums whole_sums(const Scene& sc) {
   BlockSums s;
   const auto n = static_cast<std::size_t>(sc.state.size());
   const Topology& top = sc.topology;
@@ -443,7 +549,16 @@ std::uint64_t scene_fingerprint(const Scene& sc) {
   add_items(s, top.angles);
   add_items(s, top.dihedrals);
   add_items(s, top.impropers);
-  return fingerprint_of(sc, s);
+  return s;
+}
+}  // namespace
+
+std::uint64_t scene_fingerprint(const Scene& sc) {
+  return fingerprint_of(sc, whole_sums(sc), kCheckpointVersion);
+}
+
+std::uint64_t scene_fingerprint_v7(const Scene& sc) {
+  return fingerprint_of(sc, whole_sums(sc), 7);
 }
 
 std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecules& part, const Communicator& ranks) {
@@ -460,7 +575,7 @@ std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecu
   s.particles = sum_mod_2_64(s.particles, ranks);
   s.items = sum_mod_2_64(s.items, ranks);
   ranks.sum(s.count, 5);
-  return fingerprint_of(description, s);
+  return fingerprint_of(description, s, kCheckpointVersion);
 }
 
 namespace {
@@ -687,9 +802,11 @@ Checkpoint read_checkpoint_of(const Scene& sc, const std::string& path) {
                      std::to_string(sc.state.size()) + ": not a checkpoint of this scene");
   if (c.state.inv_mass != sc.state.inv_mass)
     throw InputError(path + ": checkpoint masses differ from the deck's: not a checkpoint of this scene");
-  // A file before version 7 holds the sequential fingerprint of the whole scene.
-  const std::uint64_t expected =
-      c.version >= kFirstFingerprintByBlocks ? scene_fingerprint(sc) : scene_fingerprint_sequential(sc);
+  // A file of version 7 holds the fingerprint by blocks of the terms' own definitions, one before
+  // version 7 the sequential fingerprint of the whole scene.
+  const std::uint64_t expected = c.version >= kFirstFingerprintByDescriptions ? scene_fingerprint(sc)
+                                 : c.version >= kFirstFingerprintByBlocks     ? scene_fingerprint_v7(sc)
+                                                                              : scene_fingerprint_sequential(sc);
   if (c.scene_fingerprint != expected)
     throw InputError(path +
                      ": checkpoint of another scene (particle types, topology, box, levels or their kicks, force "

@@ -4,7 +4,7 @@
 // state (a pair term's neighbour list: ForceTerm::save_state); the observers' state (E(0), which
 // warnings were given, the monitor's reference sample); and the run's statistics for the summary.
 //
-// Format (version 7), in the byte order and double format of the writing machine. Version 3:
+// Format (version 8), in the byte order and double format of the writing machine. Version 3:
 // RATTLE-based methods under Langevin keep, in the constraint force's slot, the velocities their
 // constraint force is formed from (integrators/rattle.cpp); a version-2 file would be read with
 // the wrong meaning there, so it is refused. Version 4: the scene fingerprint is the exact
@@ -19,14 +19,21 @@
 // stages in the deck's box. Version 7: the scene fingerprint combines by blocks (scene_fingerprint:
 // the same value from the whole scene and from any partition into parts); the layout is version
 // 6's, and a version-5 or 6 file is checked against the sequential fingerprint of those versions
-// (scene_fingerprint_sequential), so that it still restarts.
+// (scene_fingerprint_sequential), so that it still restarts. Version 8: each force term enters the
+// fingerprint by the definition of its description (the term made on no particle) and its rule
+// (type claim, stiff-bond rule, selection, 1-4 table), not by its lists, which the particles and
+// items already summed make by that rule: a decomposed run whose terms are descriptions alone
+// (docs/parallel.md, "What is not distributed yet") gives the whole scene's value. The layout is
+// version 7's, and a version-7 file is checked against the fingerprint of that version
+// (scene_fingerprint_v7).
 //   bytes  0–7   magic "STFMDCKP"
 //          8–11  crc32 (zlib) of bytes 12 … end       — checked before anything else is read
 //         12–15  format version (u32)
 //         16–19  byte-order mark 0x01020304 (u32)
 //         20–23  sizeof(double) = 8 (u32)
 //         24–31  length of the file in bytes (u64)
-//         32–39  scene fingerprint (u64: scene_fingerprint; scene_fingerprint_sequential before version 7)
+//         32–39  scene fingerprint (u64: scene_fingerprint; scene_fingerprint_v7 in version 7,
+//                scene_fingerprint_sequential before)
 //         40–    particle count, step (i64), t, h (f64), method (u64 length + bytes), stage number
 //                (i64) and name (u64 length + bytes; version 6), then blocks
 //                of doubles (u64 count + values): x, v, inverse masses, integrator, thermo,
@@ -53,10 +60,12 @@ namespace stiffmd {
 struct Scene;
 struct PartMolecules;
 
-inline constexpr std::uint32_t kCheckpointVersion = 7;
-// The first version whose fingerprint combines by blocks (scene_fingerprint); an older file's is
+inline constexpr std::uint32_t kCheckpointVersion = 8;
+// The first version whose fingerprint combines by blocks (scene_fingerprint_v7); an older file's is
 // scene_fingerprint_sequential's.
 inline constexpr std::uint32_t kFirstFingerprintByBlocks = 7;
+// The first version whose fingerprint records the terms by their descriptions (scene_fingerprint).
+inline constexpr std::uint32_t kFirstFingerprintByDescriptions = 8;
 // The oldest version read (as a run without stages, in the deck's box).
 inline constexpr std::uint32_t kOldestCheckpointVersion = 5;
 
@@ -82,22 +91,35 @@ struct Checkpoint {
 
 // What defines the scene, exactly (a ParameterRecord, forcefields/parameter_record.hpp): particle
 // count, inverse masses, particle types, topology (bonds, angles, dihedrals, molecules), box,
-// levels, units, and every force term's name, style, level and ForceTerm::define (each of its
-// coefficients and lists, bit for bit) — but not the integrator, run or output settings, which
-// a restart may change with --set, nor run-time counters such as neighbour-list rebuilds.
+// levels, units, and every force term's name, style, level and what defines it (each of its
+// coefficients bit for bit, and the rule that makes its lists) — but not the integrator, run or
+// output settings, which a restart may change with --set, nor run-time counters such as
+// neighbour-list rebuilds.
 //
 // Version 7 on, the fingerprint combines by blocks: the description (types, box, levels, units,
-// particle and item counts, every term's definition) hashed in sequence, and per particle (its
+// particle and item counts, every term's record) hashed in sequence, and per particle (its
 // global index, inverse mass, type, charge, molecule id) and per topology item (its kind, place in
 // the whole list, particles and type) a 64-bit hash, summed mod 2⁶⁴ — so that the value is the
 // same from the whole scene and from any partition of it into parts (scene_fingerprint_parts).
+// Version 8 on, a term's record is the ForceTerm::define of its description (ForceTerm::on_subset
+// on a subset of no particle: its coefficients, no list) and its rule (a bonded term's claim on
+// the topology's types, the stiff bonds' rule, an external term's selection, a charmm-dihedral's
+// 1-4 table); its lists are functions of that rule and of the particles and items the sums hold.
+// So the value is the same from a scene whose terms are descriptions alone. A term that has no
+// rule (made from its lists alone) or cannot be made on a subset is recorded by its own
+// ForceTerm::define, lists and all.
 std::uint64_t scene_fingerprint(const Scene& scene);
 
 // The same value as scene_fingerprint of the whole scene, from this rank's `part` of its particles
 // and items (any partition of the whole scene's molecules into the ranks' parts) and the scene's
-// description (`description`: its types, box, levels, units and force terms; none of its
-// per-particle arrays or topology items are read). Collective over `ranks`.
+// description (`description`: its types, box, levels, units and force terms, whole or their
+// descriptions alone; none of its per-particle arrays or topology items are read). Collective
+// over `ranks`.
 std::uint64_t scene_fingerprint_parts(const Scene& description, const PartMolecules& part, const Communicator& ranks);
+
+// The fingerprint of format version 7: by blocks, each term by its own ForceTerm::define, lists
+// and all. What a version-7 checkpoint holds, checked so when it is read.
+std::uint64_t scene_fingerprint_v7(const Scene& scene);
 
 // The fingerprint of format versions 5 and 6 (FNV-1a of the whole scene in sequence, ParameterRecord):
 // what a checkpoint written before version 7 holds, checked so when it is read.
