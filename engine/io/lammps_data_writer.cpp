@@ -1,4 +1,6 @@
 // The LAMMPS data-file writer (write_lammps_data, lammps_data.hpp).
+#include <algorithm>
+#include <array>
 #include <bit>
 #include <charconv>
 #include <cmath>

@@ -5,7 +5,7 @@
 #include <map>
 #include <numeric>
 #include <optional>
-#include <set>
+#include <stdexcept>
 #include <system_error>
 
 #include "core/communicator.hpp"
@@ -347,6 +347,10 @@ void RunOutputs::write_xyz_by_blocks(const State& s, const ProcessRows& mine) {
   const Communicator& comm = *processes_;
   const int n = s.size();
   const int record = 8;  // global index, type, x, v
+  if (!mine.type && sc_.particle_type.size() != static_cast<std::size_t>(n))
+    throw std::logic_error(
+        "RunOutputs::write: the XYZ rows need their types (ProcessRows::type) when the scene "
+        "does not hold the particles");
   if (root_) xyz_->begin_frame(n, s.t, s.step);
   std::vector<double> rows;
   std::vector<std::vector<double>> all;
