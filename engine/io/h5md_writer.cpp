@@ -225,14 +225,31 @@ std::string read_string_attribute(hid_t object, const std::string& name) {
 
 // `writes`: false on the processes of a shared file but rank 0 (the dataset is created by all of
 // them, its data written by one, independently).
+Handle create_dataset(hid_t parent, const std::string& name, hid_t file_type, const std::vector<hsize_t>& dims) {
+  return {H5Dcreate2(parent, name.c_str(), file_type, simple_space(dims), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
+          H5Dclose, "cannot create dataset " + name};
+}
+
 void write_dataset(hid_t parent, const std::string& name, hid_t file_type, hid_t memory_type,
                    const std::vector<hsize_t>& dims, const void* data, bool writes) {
-  Handle d(H5Dcreate2(parent, name.c_str(), file_type, simple_space(dims), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
-           H5Dclose, "cannot create dataset " + name);
+  Handle d = create_dataset(parent, name, file_type, dims);
   bool empty = false;
   for (hsize_t n : dims) empty = empty || n == 0;
   if (!empty && writes)
     ok(H5Dwrite(d, memory_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data), "cannot write dataset " + name);
+}
+
+// Rows [first, first + count) of a time-independent dataset of `width` values a row (1: [n], 2:
+// [n][2]), written by this process alone (independently, in a shared file too).
+void write_rows(hid_t dataset, hid_t memory_type, std::int64_t first, std::int64_t count, hsize_t width,
+                const void* data, const std::string& name) {
+  if (count <= 0) return;
+  Handle file_space(H5Dget_space(dataset), H5Sclose, "cannot select in " + name);
+  const int rank = H5Sget_simple_extent_ndims(file_space);
+  const hsize_t start[2] = {static_cast<hsize_t>(first), 0}, rows[2] = {static_cast<hsize_t>(count), width};
+  ok(H5Sselect_hyperslab(file_space, H5S_SELECT_SET, start, nullptr, rows, nullptr), "cannot select in " + name);
+  Handle memory = simple_space(std::vector<hsize_t>(rows, rows + rank));
+  ok(H5Dwrite(dataset, memory_type, memory, file_space, H5P_DEFAULT, data), "cannot write dataset " + name);
 }
 
 // ---- time-dependent series (§Time-dependent data) ----
@@ -412,7 +429,10 @@ void wrap_into_box(const Box& box, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& 
 void check_setup(const H5mdSetup& s) {
   const auto n = static_cast<std::size_t>(std::max(s.num_particles, 0));
   if (s.num_particles < 1) throw Failure("no particles to write");
-  if (s.species.size() != n || static_cast<std::size_t>(s.mass.size()) != n)
+  if (s.by_rows && (!s.species.empty() || s.mass.size() != 0 || !s.charge.empty() || !s.bonds.empty() ||
+                    s.elements.empty() || s.num_bonds < 0))
+    throw std::invalid_argument("H5mdSetup: by rows, the element table and no per-particle data");
+  if (!s.by_rows && (s.species.size() != n || static_cast<std::size_t>(s.mass.size()) != n))
     throw std::invalid_argument("H5mdSetup: species and mass need one entry per particle");
   if (!s.charge.empty() && s.charge.size() != n)
     throw std::invalid_argument("H5mdSetup: charge needs one entry per particle (or none)");
@@ -450,6 +470,10 @@ struct H5mdWriter::Impl {
   std::vector<double> shared_scalars, shared_obs;  // rank 0's time and observables, broadcast
   Eigen::Matrix<std::int32_t, 3, Eigen::Dynamic> images;
   Eigen::Matrix3d edge_vectors = Eigen::Matrix3d::Zero();  // diag(L): rows are the edge vectors
+  // By rows (H5mdSetup::by_rows): the time-independent datasets, open until they are written.
+  Handle species, mass, charge, id, bonds, bond_from, bond_to;
+  std::vector<std::int64_t> id_rows;
+  std::vector<int> from_rows, to_rows;
 
   Impl(std::string p, const H5mdSetup& s) : path(std::move(p)), setup(s) {
     edge_vectors.diagonal() = s.box.lengths;
@@ -466,12 +490,14 @@ struct H5mdWriter::Impl {
   ~Impl() {
     if (!shared) return;
     for (Series* s : all_series()) s->dataset.release();
+    for (Handle* h : static_datasets()) h->release();
     file.release();
   }
   Impl(const Impl&) = delete;
   Impl& operator=(const Impl&) = delete;
   void close() {
     for (Series* s : all_series()) s->dataset.reset();
+    for (Handle* h : static_datasets()) h->reset();
     const herr_t status = file >= 0 ? H5Fclose(file) : 0;
     file.release();
     ok(status, "cannot close the file");
@@ -497,6 +523,7 @@ struct H5mdWriter::Impl {
   void check_optional_element(hid_t particles, const char* name, bool wanted) const;
   void check_observables() const;
   std::vector<Series*> all_series();
+  std::vector<Handle*> static_datasets() { return {&species, &mass, &charge, &id, &bonds, &bond_from, &bond_to}; }
   void share_series();
   std::pair<hsize_t, hsize_t> block_rows(int rank) const;
   void to_block(const std::vector<int>& ids, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* v,
@@ -586,15 +613,24 @@ void H5mdWriter::Impl::create_particles() {
 
   // species: an index into the element table stored as the `elements` attribute (H5MD leaves the
   // meaning of species values to the application; symbols are what trajectory viewers need).
-  const auto [table, index] = element_table(setup.species);
-  write_dataset(particles, "species", H5T_STD_I32LE, H5T_NATIVE_INT, {n}, index.data(), writes_whole);
-  write_strings_attribute(Handle(H5Dopen2(particles, "species", H5P_DEFAULT), H5Dclose, "species"), "elements", table);
-  write_dataset(particles, "mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.mass.data(), writes_whole);
-  if (!setup.charge.empty())
-    write_dataset(particles, "charge", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.charge.data(), writes_whole);
-  std::vector<std::int64_t> id(n);
-  for (hsize_t i = 0; i < n; ++i) id[i] = static_cast<std::int64_t>(i);
-  write_dataset(particles, "id", H5T_STD_I64LE, H5T_NATIVE_INT64, {n}, id.data(), writes_whole);
+  if (setup.by_rows) {  // written by rows after creation (write_particle_rows)
+    species = create_dataset(particles, "species", H5T_STD_I32LE, {n});
+    write_strings_attribute(species, "elements", setup.elements);
+    mass = create_dataset(particles, "mass", H5T_IEEE_F64LE, {n});
+    if (setup.charged) charge = create_dataset(particles, "charge", H5T_IEEE_F64LE, {n});
+    id = create_dataset(particles, "id", H5T_STD_I64LE, {n});
+  } else {
+    const auto [table, index] = element_table(setup.species);
+    write_dataset(particles, "species", H5T_STD_I32LE, H5T_NATIVE_INT, {n}, index.data(), writes_whole);
+    write_strings_attribute(Handle(H5Dopen2(particles, "species", H5P_DEFAULT), H5Dclose, "species"), "elements",
+                            table);
+    write_dataset(particles, "mass", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.mass.data(), writes_whole);
+    if (!setup.charge.empty())
+      write_dataset(particles, "charge", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, {n}, setup.charge.data(), writes_whole);
+    std::vector<std::int64_t> ids(n);
+    for (hsize_t i = 0; i < n; ++i) ids[i] = static_cast<std::int64_t>(i);
+    write_dataset(particles, "id", H5T_STD_I64LE, H5T_NATIVE_INT64, {n}, ids.data(), writes_whole);
+  }
 
   create_box(particles, pos);
   create_observables(pos);
@@ -638,15 +674,19 @@ void H5mdWriter::Impl::create_observables(hid_t position_group) {
 // H5MD 1.1 connectivity (proposal 103 / 101): /connectivity/bonds [m][2] of particle indices
 // into the group named by `particles_group`, an object reference to /particles/all.
 void H5mdWriter::Impl::create_connectivity() {
-  std::vector<std::int32_t> pairs;
-  for (const auto& [i, j] : setup.bonds) pairs.insert(pairs.end(), {i, j});
   Handle group = create_group(file, "connectivity");
-  write_dataset(group, "bonds", H5T_STD_I32LE, H5T_NATIVE_INT32, {setup.bonds.size(), 2}, pairs.data(), writes_whole);
+  if (setup.by_rows) {
+    bonds = create_dataset(group, "bonds", H5T_STD_I32LE, {static_cast<hsize_t>(setup.num_bonds), 2});
+  } else {
+    std::vector<std::int32_t> pairs;
+    for (const auto& [i, j] : setup.bonds) pairs.insert(pairs.end(), {i, j});
+    write_dataset(group, "bonds", H5T_STD_I32LE, H5T_NATIVE_INT32, {setup.bonds.size(), 2}, pairs.data(), writes_whole);
+  }
   hobj_ref_t ref{};
   ok(H5Rcreate(&ref, file, (std::string("/particles/") + kParticleGroup).c_str(), H5R_OBJECT, -1),
      "cannot reference the particle group");
-  Handle bonds(H5Dopen2(group, "bonds", H5P_DEFAULT), H5Dclose, "cannot open connectivity/bonds");
-  write_attribute(bonds, "particles_group", H5T_STD_REF_OBJ, Handle(H5Screate(H5S_SCALAR), H5Sclose, "dataspace"),
+  Handle opened(H5Dopen2(group, "bonds", H5P_DEFAULT), H5Dclose, "cannot open connectivity/bonds");
+  write_attribute(opened, "particles_group", H5T_STD_REF_OBJ, Handle(H5Screate(H5S_SCALAR), H5Sclose, "dataspace"),
                   &ref);
 }
 
@@ -654,7 +694,7 @@ void H5mdWriter::Impl::create_connectivity() {
 // indexOfSpecies and per-species name/type as fixed-length strings (the plugin reads char[16]),
 // and 1-based bond_from/bond_to.
 void H5mdWriter::Impl::create_vmd_structure() {
-  const auto table = element_table(setup.species).first;
+  const auto table = setup.by_rows ? setup.elements : element_table(setup.species).first;
   std::vector<int> index(table.size());
   std::vector<char> names(table.size() * 16, '\0');
   for (std::size_t s = 0; s < table.size(); ++s) {
@@ -667,11 +707,16 @@ void H5mdWriter::Impl::create_vmd_structure() {
     to.push_back(j + 1);
   }
   Handle vmd = create_group(create_group(file, "parameters"), "vmd_structure");
-  const hsize_t s = table.size(), m = setup.bonds.size();
+  const hsize_t s = table.size(), m = setup.by_rows ? static_cast<hsize_t>(setup.num_bonds) : setup.bonds.size();
   write_dataset(vmd, "indexOfSpecies", H5T_STD_I32LE, H5T_NATIVE_INT, {s}, index.data(), writes_whole);
   Handle fixed = string_type(false, 16);
   write_dataset(vmd, "name", fixed, fixed, {s}, names.data(), writes_whole);
   write_dataset(vmd, "type", fixed, fixed, {s}, names.data(), writes_whole);
+  if (setup.by_rows) {  // written by rows after creation (write_bond_rows)
+    bond_from = create_dataset(vmd, "bond_from", H5T_STD_I32LE, {m});
+    bond_to = create_dataset(vmd, "bond_to", H5T_STD_I32LE, {m});
+    return;
+  }
   write_dataset(vmd, "bond_from", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, from.data(), writes_whole);
   write_dataset(vmd, "bond_to", H5T_STD_I32LE, H5T_NATIVE_INT, {m}, to.data(), writes_whole);
 }
@@ -990,6 +1035,42 @@ void H5mdWriter::set_box_lengths(const Eigen::Vector3d& lengths) {
 
 std::int64_t H5mdWriter::frames() const {
   return impl_->frames;
+}
+
+void H5mdWriter::write_particle_rows(std::int64_t first, std::int64_t count, const int* species, const double* mass,
+                                     const double* charge) {
+  Impl& w = *impl_;
+  if (!w.setup.by_rows || w.species < 0 || first < 0 || count < 0 || first + count > w.setup.num_particles ||
+      (w.setup.charged && !charge))
+    throw std::invalid_argument("H5mdWriter::write_particle_rows: not a file created by rows, or rows out of range");
+  try {
+    w.id_rows.resize(static_cast<std::size_t>(count));
+    for (std::int64_t k = 0; k < count; ++k) w.id_rows[static_cast<std::size_t>(k)] = first + k;
+    write_rows(w.species, H5T_NATIVE_INT, first, count, 1, species, "species");
+    write_rows(w.mass, H5T_NATIVE_DOUBLE, first, count, 1, mass, "mass");
+    if (w.setup.charged) write_rows(w.charge, H5T_NATIVE_DOUBLE, first, count, 1, charge, "charge");
+    write_rows(w.id, H5T_NATIVE_INT64, first, count, 1, w.id_rows.data(), "id");
+  } catch (const Failure& e) {
+    throw InputError(w.path + ": H5MD output: " + e.what());
+  }
+}
+
+void H5mdWriter::write_bond_rows(std::int64_t first, std::int64_t count, const int* pairs) {
+  Impl& w = *impl_;
+  if (!w.setup.by_rows || w.bonds < 0 || first < 0 || count < 0 || first + count > w.setup.num_bonds)
+    throw std::invalid_argument("H5mdWriter::write_bond_rows: not a file created by rows, or rows out of range");
+  try {
+    // VMD's bond_from/bond_to: 1-based.
+    w.from_rows.resize(static_cast<std::size_t>(count));
+    w.to_rows.resize(static_cast<std::size_t>(count));
+    for (std::size_t k = 0; k < w.from_rows.size(); ++k)
+      w.from_rows[k] = pairs[2 * k] + 1, w.to_rows[k] = pairs[2 * k + 1] + 1;
+    write_rows(w.bonds, H5T_NATIVE_INT32, first, count, 2, pairs, "connectivity/bonds");
+    write_rows(w.bond_from, H5T_NATIVE_INT, first, count, 1, w.from_rows.data(), "bond_from");
+    write_rows(w.bond_to, H5T_NATIVE_INT, first, count, 1, w.to_rows.data(), "bond_to");
+  } catch (const Failure& e) {
+    throw InputError(w.path + ": H5MD output: " + e.what());
+  }
 }
 
 bool H5mdWriter::shared_files() {

@@ -59,16 +59,25 @@ class Communicator;
 
 struct H5mdSetup {
   int num_particles = 0;
+  // The time-independent data, given whole here (species, mass, charge, bonds) and written when
+  // the file is created; or, with `by_rows`, written after it by rows (write_particle_rows,
+  // write_bond_rows: a decomposed run's rank 0 streams them from the ranks' parts,
+  // engine/io/h5md_static_parts.hpp), species, mass, charge and bonds then empty and `elements`,
+  // `charged` and `num_bonds` saying what the datasets hold.
   std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
   Eigen::VectorXd mass;                    // per particle (a fixed particle: its type's mass)
   std::vector<double> charge;              // per particle, in e; empty: uncharged (no `charge` dataset)
   Box box;                                 // open box when no axis is periodic
   std::vector<std::pair<int, int>> bonds;  // 0-based particle indices
-  std::string author;                      // empty: $USER, else the login name
-  std::string creator_version;             // stiffmd version string
-  bool velocity = false, force = false;    // optional time-dependent elements
-  int gzip = 0;                            // 0 = no compression, 1..9 deflate level (always chunked)
-  std::vector<std::string> observables;    // scalar observable names (no '/')
+  bool by_rows = false;
+  std::vector<std::string> elements;     // by rows: the element table, symbols in order of first appearance
+  bool charged = false;                  // by rows: a `charge` dataset
+  std::int64_t num_bonds = 0;            // by rows
+  std::string author;                    // empty: $USER, else the login name
+  std::string creator_version;           // stiffmd version string
+  bool velocity = false, force = false;  // optional time-dependent elements
+  int gzip = 0;                          // 0 = no compression, 1..9 deflate level (always chunked)
+  std::vector<std::string> observables;  // scalar observable names (no '/')
   // §Units: the `unit` attribute of position (and box edges), time, velocity, force and of each
   // observable ("" or an empty list: none, as in reduced units).
   std::string length_unit, time_unit, velocity_unit, force_unit;
@@ -106,6 +115,15 @@ class H5mdWriter {
                    const Eigen::Matrix3Xd* f, const std::vector<double>& observables,
                    const std::vector<int>* ids = nullptr);
   std::int64_t frames() const;
+  // A file created by rows (H5mdSetup::by_rows; not one appended to): rows [first, first + count)
+  // of the time-independent per-particle datasets — species (indices into setup.elements), mass,
+  // charge (when setup.charged; else null), and id — and of the bonds (pairs: 2 × count 0-based
+  // indices; connectivity/bonds and VMD's bond_from/bond_to). Called by the process that writes
+  // the time-independent data (one process, or rank 0 of a shared file: independently), each row
+  // once.
+  void write_particle_rows(std::int64_t first, std::int64_t count, const int* species, const double* mass,
+                           const double* charge);
+  void write_bond_rows(std::int64_t first, std::int64_t count, const int* pairs);
   // The box edges of the frames written from now on (a barostat moves them; the origin and the
   // periodic axes stay the setup's). Positions are wrapped into it.
   void set_box_lengths(const Eigen::Vector3d& lengths);

@@ -1,4 +1,6 @@
 // The LAMMPS data-file writer (write_lammps_data, lammps_data.hpp).
+#include <algorithm>
+#include <array>
 #include <bit>
 #include <charconv>
 #include <cmath>
@@ -14,6 +16,7 @@
 #include "core/format.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/io/lammps_data_format.hpp"
+#include "engine/io/lammps_data_rows.hpp"
 
 namespace stiffmd {
 namespace {
@@ -180,156 +183,49 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
 
   std::string out;
   out.reserve(96 * (n + 1) + 24 * (s.bonds.size() + s.angles.size()));
-  std::string t = title;
-  std::replace(t.begin(), t.end(), '\n', ' ');
-  std::replace(t.begin(), t.end(), '\r', ' ');
-  out += t + "\n\n";
-  put(out, static_cast<long long>(n));
-  out += " atoms\n";
-  if (has_bonds) {
-    put(out, static_cast<long long>(s.bonds.size()));
-    out += " bonds\n";
-  }
-  if (has_angles) {
-    put(out, static_cast<long long>(s.angles.size()));
-    out += " angles\n";
-  }
-  // Dihedral and improper lines only when there is something of the kind: files without them
-  // stay as they were.
-  const bool dihedral_lines = has_quads && ndt > 0, improper_lines = has_quads && nit > 0;
-  if (dihedral_lines) {
-    put(out, static_cast<long long>(s.dihedrals.size()));
-    out += " dihedrals\n";
-  }
-  if (improper_lines) {
-    put(out, static_cast<long long>(s.impropers.size()));
-    out += " impropers\n";
-  }
-  put(out, ntypes);
-  out += " atom types\n";
-  if (has_bonds) {
-    put(out, nbt);
-    out += " bond types\n";
-  }
-  if (has_angles) {
-    put(out, nat);
-    out += " angle types\n";
-  }
-  if (dihedral_lines) {
-    put(out, ndt);
-    out += " dihedral types\n";
-  }
-  if (improper_lines) {
-    put(out, nit);
-    out += " improper types\n";
-  }
-  out += "\n";
-  static constexpr const char* kAxes[] = {" xlo xhi\n", " ylo yhi\n", " zlo zhi\n"};
-  for (int d = 0; d < 3; ++d) {
-    put(out, s.lo[d]);
-    out += ' ';
-    put(out, s.hi[d]);
-    out += kAxes[d];
-  }
-  if (ntypes > 0) {
-    out += "\nMasses\n\n";
-    for (const auto& [type, mass] : s.type_mass) {
-      put(out, type);
-      out += ' ';
-      put(out, mass);
-      out += '\n';
-    }
-  }
-  for (const auto& c : s.coeffs) {
-    out += "\n" + c.name + (c.style.empty() ? std::string() : " # " + c.style) + "\n\n";
-    for (const auto& r : c.rows) out += r + "\n";
-  }
+  lammps_rows::Header header;
+  header.title = title;
+  header.style = st;
+  header.atoms = static_cast<long long>(n);
+  header.bonds = static_cast<long long>(s.bonds.size());
+  header.angles = static_cast<long long>(s.angles.size());
+  header.dihedrals = static_cast<long long>(s.dihedrals.size());
+  header.impropers = static_cast<long long>(s.impropers.size());
+  header.atom_types = ntypes, header.bond_types = nbt, header.angle_types = nat;
+  header.dihedral_types = ndt, header.improper_types = nit;
+  header.lo = s.lo, header.hi = s.hi;
+  header.type_mass = &s.type_mass;
+  header.coeffs = &s.coeffs;
+  lammps_rows::append_header(out, header);
   if (n > 0) {
-    out += "\nAtoms # ";
-    out += st->name;
-    out += "\n\n";
+    lammps_rows::append_section(out, "Atoms # " + std::string(st->name));
     for (size_t k = 0; k < n; ++k) {
-      const auto c = static_cast<Eigen::Index>(k);
-      put(out, id_of(k));
-      out += ' ';
-      if (st->molecule) {
-        put(out, s.molecule.empty() ? 0 : s.molecule[k]);
-        out += ' ';
-      }
-      put(out, s.type[k]);
-      if (st->charge) {
-        out += ' ';
-        put(out, s.charge.empty() ? 0.0 : s.charge[k]);
-      }
-      std::array<int, 3> img{};
-      for (int d = 0; d < 3; ++d) {
-        const auto [w, m] = wrap_exact(s.x(d, c), s.lo[d], s.hi[d]);
-        img[static_cast<size_t>(d)] = m;
-        out += ' ';
-        put(out, w);
-      }
-      for (int m : img) {
-        out += ' ';
-        put(out, m);
-      }
-      out += '\n';
+      const double x[3] = {s.x(0, static_cast<Eigen::Index>(k)), s.x(1, static_cast<Eigen::Index>(k)),
+                           s.x(2, static_cast<Eigen::Index>(k))};
+      lammps_rows::append_atom(out, *st, id_of(k), s.molecule.empty() ? 0 : s.molecule[k], s.type[k],
+                               s.charge.empty() ? 0.0 : s.charge[k], x, s.lo, s.hi);
     }
   }
   if (with_v && n > 0) {
-    out += "\nVelocities\n\n";
-    for (size_t k = 0; k < n; ++k) {
-      put(out, id_of(k));
-      for (int d = 0; d < 3; ++d) {
-        out += ' ';
-        put(out, s.v(d, static_cast<Eigen::Index>(k)));
-      }
-      out += '\n';
-    }
+    lammps_rows::append_section(out, "Velocities");
+    for (size_t k = 0; k < n; ++k) lammps_rows::append_velocity(out, id_of(k), &s.v(0, static_cast<Eigen::Index>(k)));
   }
+  const auto id = [&](int i) { return id_of(static_cast<size_t>(i)); };
   if (!s.bonds.empty()) {
-    out += "\nBonds\n\n";
+    lammps_rows::append_section(out, "Bonds");
     long long k = 0;
-    for (const auto& b : s.bonds) {
-      put(out, ++k);
-      out += ' ';
-      put(out, b.type);
-      out += ' ';
-      put(out, id_of(static_cast<size_t>(b.i)));
-      out += ' ';
-      put(out, id_of(static_cast<size_t>(b.j)));
-      out += '\n';
-    }
+    for (const auto& b : s.bonds) lammps_rows::append_item(out, ++k, b.type, {id(b.i), id(b.j)});
   }
   if (!s.angles.empty()) {
-    out += "\nAngles\n\n";
+    lammps_rows::append_section(out, "Angles");
     long long k = 0;
-    for (const auto& a : s.angles) {
-      put(out, ++k);
-      out += ' ';
-      put(out, a.type);
-      for (int i : {a.i, a.j, a.k}) {
-        out += ' ';
-        put(out, id_of(static_cast<size_t>(i)));
-      }
-      out += '\n';
-    }
+    for (const auto& a : s.angles) lammps_rows::append_item(out, ++k, a.type, {id(a.i), id(a.j), id(a.k)});
   }
-
-  for (auto [quads, section] :
-       {std::pair{&s.dihedrals, "\nDihedrals\n\n"}, std::pair{&s.impropers, "\nImpropers\n\n"}}) {
+  for (auto [quads, section] : {std::pair{&s.dihedrals, "Dihedrals"}, std::pair{&s.impropers, "Impropers"}}) {
     if (quads->empty()) continue;
-    out += section;
+    lammps_rows::append_section(out, section);
     long long k = 0;
-    for (const auto& q : *quads) {
-      put(out, ++k);
-      out += ' ';
-      put(out, q.type);
-      for (int i : {q.i, q.j, q.k, q.l}) {
-        out += ' ';
-        put(out, id_of(static_cast<size_t>(i)));
-      }
-      out += '\n';
-    }
+    for (const auto& q : *quads) lammps_rows::append_item(out, ++k, q.type, {id(q.i), id(q.j), id(q.k), id(q.l)});
   }
 
   std::ofstream f(path, std::ios::binary | std::ios::trunc);
@@ -339,4 +235,131 @@ void write_lammps_data(const std::string& path, const ImportedSystem& s, const s
   if (!f) fail("write failed (disk full?)");
 }
 
+namespace lammps_rows {
+
+void append_header(std::string& out, const Header& h) {
+  const lammps_format::Style* st = h.style;
+  const bool has_bonds = st->molecule, has_angles = st->molecule && st->name != "bond",
+             has_quads = has_angles && st->name != "angle";
+  std::string t = h.title;
+  std::replace(t.begin(), t.end(), '\n', ' ');
+  std::replace(t.begin(), t.end(), '\r', ' ');
+  out += t + "\n\n";
+  put(out, h.atoms);
+  out += " atoms\n";
+  if (has_bonds) {
+    put(out, h.bonds);
+    out += " bonds\n";
+  }
+  if (has_angles) {
+    put(out, h.angles);
+    out += " angles\n";
+  }
+  // Dihedral and improper lines only when there is something of the kind: files without them
+  // stay as they were.
+  const bool dihedral_lines = has_quads && h.dihedral_types > 0, improper_lines = has_quads && h.improper_types > 0;
+  if (dihedral_lines) {
+    put(out, h.dihedrals);
+    out += " dihedrals\n";
+  }
+  if (improper_lines) {
+    put(out, h.impropers);
+    out += " impropers\n";
+  }
+  put(out, h.atom_types);
+  out += " atom types\n";
+  if (has_bonds) {
+    put(out, h.bond_types);
+    out += " bond types\n";
+  }
+  if (has_angles) {
+    put(out, h.angle_types);
+    out += " angle types\n";
+  }
+  if (dihedral_lines) {
+    put(out, h.dihedral_types);
+    out += " dihedral types\n";
+  }
+  if (improper_lines) {
+    put(out, h.improper_types);
+    out += " improper types\n";
+  }
+  out += "\n";
+  static constexpr const char* kAxes[] = {" xlo xhi\n", " ylo yhi\n", " zlo zhi\n"};
+  for (int d = 0; d < 3; ++d) {
+    put(out, h.lo[d]);
+    out += ' ';
+    put(out, h.hi[d]);
+    out += kAxes[d];
+  }
+  if (h.atom_types > 0 && h.type_mass) {
+    out += "\nMasses\n\n";
+    for (const auto& [type, mass] : *h.type_mass) {
+      put(out, type);
+      out += ' ';
+      put(out, mass);
+      out += '\n';
+    }
+  }
+  if (h.coeffs)
+    for (const auto& c : *h.coeffs) {
+      out += "\n" + c.name + (c.style.empty() ? std::string() : " # " + c.style) + "\n\n";
+      for (const auto& r : c.rows) out += r + "\n";
+    }
+}
+
+void append_section(std::string& out, const std::string& name) {
+  out += "\n";
+  out += name;
+  out += "\n\n";
+}
+
+void append_atom(std::string& out, const Style& style, long long id, long long molecule, int type, double charge,
+                 const double* x, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  put(out, id);
+  out += ' ';
+  if (style.molecule) {
+    put(out, molecule);
+    out += ' ';
+  }
+  put(out, type);
+  if (style.charge) {
+    out += ' ';
+    put(out, charge);
+  }
+  std::array<int, 3> img{};
+  for (int d = 0; d < 3; ++d) {
+    const auto [w, m] = wrap_exact(x[d], lo[d], hi[d]);
+    img[static_cast<size_t>(d)] = m;
+    out += ' ';
+    put(out, w);
+  }
+  for (int m : img) {
+    out += ' ';
+    put(out, m);
+  }
+  out += '\n';
+}
+
+void append_velocity(std::string& out, long long id, const double* v) {
+  put(out, id);
+  for (int d = 0; d < 3; ++d) {
+    out += ' ';
+    put(out, v[d]);
+  }
+  out += '\n';
+}
+
+void append_item(std::string& out, long long k, int type, std::initializer_list<long long> ids) {
+  put(out, k);
+  out += ' ';
+  put(out, type);
+  for (long long i : ids) {
+    out += ' ';
+    put(out, i);
+  }
+  out += '\n';
+}
+
+}  // namespace lammps_rows
 }  // namespace stiffmd

@@ -145,9 +145,9 @@ void XyzWriter::set_box(const Box& box) {
   header_ = h.str();
 }
 
-void XyzWriter::write(const State& s) {
+void XyzWriter::write(const State& s, const int* type) {
   begin_frame(s.size(), s.t, s.step);
-  write_rows(0, s.size(), s.x.data(), s.v.data());
+  write_rows(s.size(), s.x.data(), s.v.data(), type);
 }
 
 void XyzWriter::begin_frame(int n, double t, std::int64_t step) {
@@ -160,13 +160,13 @@ void XyzWriter::begin_frame(int n, double t, std::int64_t step) {
   buffer_ += line;
 }
 
-void XyzWriter::write_rows(int first, int count, const double* x, const double* v) {
+void XyzWriter::write_rows(int count, const double* x, const double* v, const int* type) {
   char line[256];
   for (int k = 0; k < count; ++k) {
-    const std::size_t i = static_cast<std::size_t>(first + k);
+    const auto t = static_cast<std::size_t>(type[k]);
     const double* xk = x + 3 * k;
-    int c = std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[i].c_str(), xk[0], xk[1], xk[2]);
-    if (!masses_.empty()) c += std::snprintf(line + c, sizeof line - c, " %.12g", masses_[i]);
+    int c = std::snprintf(line, sizeof line, "%s %.12g %.12g %.12g", species_[t].c_str(), xk[0], xk[1], xk[2]);
+    if (!masses_.empty()) c += std::snprintf(line + c, sizeof line - c, " %.12g", masses_[t]);
     if (velocities_) {
       const double* vk = v + 3 * k;
       c += std::snprintf(line + c, sizeof line - c, " %.12g %.12g %.12g", vk[0] * velocity_scale_,

@@ -38,13 +38,16 @@ bool truncate_xyz_after(const std::string& path, double t, double tolerance);
 bool truncate_csv_after(const std::string& path, double t, double tolerance, const std::vector<std::string>& columns);
 
 // Extended XYZ (read by ASE, OVITO): per frame "N", a comment line with
-//   Properties=species:S:1:pos:R:3[:velo:R:3] time=<t> step=<n> pbc="F F F" [Lattice="..."]
-// then one line per particle. Species are element symbols.
+//   Properties=species:S:1:pos:R:3[:masses:R:1][:velo:R:3] time=<t> step=<n> pbc="F F F" [Lattice="..."]
+// then one line per particle. Species are element symbols, named per particle type: each row is
+// given its particle's type (a decomposed run's rank 0 gets it with the particle's row), so no
+// per-particle table of N names is kept.
 class XyzWriter {
  public:
-  // masses (one per particle, or empty): a masses:R:1 column, so that ASE takes the beads' masses
-  // from the file instead of the element's (N: 14.007). Named "masses", ASE's own name for the
-  // array, because ASE 3.22 maps a column called "mass" to nothing (it stays arrays["mass"]).
+  // species: the element symbol of each particle type. masses (one per type, or empty): a
+  // masses:R:1 column, so that ASE takes the beads' masses from the file instead of the element's
+  // (N: 14.007). Named "masses", ASE's own name for the array, because ASE 3.22 maps a column
+  // called "mass" to nothing (it stays arrays["mass"]).
   XyzWriter(const std::string& path, std::vector<std::string> species, const Box& box, bool velocities,
             bool append = false, std::vector<double> masses = {});
   // Times and velocities written in other units than the engine's: t·time_scale, v·velocity_scale
@@ -52,22 +55,24 @@ class XyzWriter {
   void set_units(double time_scale, double velocity_scale) {
     time_scale_ = time_scale, velocity_scale_ = velocity_scale;
   }
-  void write(const State& s);
+  // The frame of state s, whose particle i has type type[i].
+  void write(const State& s, const int* type);
   // A frame written in pieces, in order of global index (a decomposed run's rank 0 streams it in
-  // blocks: engine/run/outputs.cpp): the frame's first two lines, then the lines of particles
-  // [first, first + count) (x, and v when the frame has velocities: 3 × count, column-major), each
-  // piece written as it comes. write(s) is begin_frame, one write_rows, the same bytes.
+  // blocks: engine/run/outputs.cpp): the frame's first two lines, then the lines of the next
+  // `count` particles (x, and v when the frame has velocities: 3 × count, column-major; their
+  // types: count), each piece written as it comes. write(s, type) is begin_frame, one write_rows,
+  // the same bytes.
   void begin_frame(int n, double t, std::int64_t step);
-  void write_rows(int first, int count, const double* x, const double* v);
+  void write_rows(int count, const double* x, const double* v, const int* type);
   // The box of the frames written from now on (a barostat moves it): their Lattice and Origin.
   void set_box(const Box& box);
 
  private:
   TextFile file_;
   double time_scale_ = 1.0, velocity_scale_ = 1.0;
-  std::vector<std::string> species_;
-  std::vector<double> masses_;
-  std::string header_;  // the invariant part of the comment line
+  std::vector<std::string> species_;  // per type
+  std::vector<double> masses_;        // per type
+  std::string header_;                // the invariant part of the comment line
   bool velocities_;
   std::string buffer_;
 };

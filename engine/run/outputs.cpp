@@ -4,12 +4,16 @@
 #include <fstream>
 #include <map>
 #include <numeric>
-#include <set>
+#include <optional>
+#include <stdexcept>
 #include <system_error>
 
 #include "core/communicator.hpp"
 #include "core/errors.hpp"
+#include "engine/io/h5md_static_parts.hpp"
 #include "engine/io/lammps_data.hpp"
+#include "engine/io/lammps_type_numbers.hpp"
+#include "engine/io/topology_parts.hpp"
 #include "engine/observe/histograms.hpp"
 #include "engine/observe/polymer_observables.hpp"
 
@@ -24,22 +28,6 @@ std::vector<std::string> state_columns(int n) {
     for (int i = 0; i < n; ++i)
       for (const char* a : {"x", "y", "z"}) c.push_back(std::string(what) + a + "_" + std::to_string(i));
   return c;
-}
-
-// LAMMPS type numbers for `count` scene types: those an [import] gave (`imported`, 0: none) kept,
-// the others the smallest numbers still free, in scene order. Returns the number of each.
-std::vector<int> lammps_numbers(const std::vector<int>& imported, size_t count) {
-  std::vector<int> number(count, 0);
-  std::set<int> used;
-  for (size_t k = 0; k < count && k < imported.size(); ++k)
-    if (imported[k] > 0) number[k] = imported[k], used.insert(imported[k]);
-  int next = 1;
-  for (int& n : number) {
-    if (n > 0) continue;
-    while (used.count(next)) ++next;
-    n = next++;
-  }
-  return number;
 }
 
 // A force-field section in LAMMPS's numbering, when the scene's terms give every type of the kind
@@ -75,12 +63,12 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
   ImportedSystem out;
   const State& s = sc.state;
   const Topology& top = sc.topology;
-  const LammpsTypeNumbers& imported = sc.lammps_types;
-  const auto atom = lammps_numbers(imported.atom, sc.types.size());
-  const auto bond = lammps_numbers(imported.bond, top.bond_types.size());
-  const auto angle = lammps_numbers(imported.angle, top.angle_types.size());
-  const auto dihedral = lammps_numbers(imported.dihedral, top.dihedral_types.size());
-  const auto improper = lammps_numbers(imported.improper, top.improper_types.size());
+  const LammpsTypes numbers = lammps_types(sc);
+  const std::vector<int>& atom = numbers.atom;
+  const std::vector<int>& bond = numbers.bond;
+  const std::vector<int>& angle = numbers.angle;
+  const std::vector<int>& dihedral = numbers.dihedral;
+  const std::vector<int>& improper = numbers.improper;
   out.x = s.x;
   out.v = s.v * sc.units.out(Dimension::velocity);  // LAMMPS's velocity unit (real: Å/fs)
   for (int i = 0; i < s.size(); ++i) {
@@ -89,24 +77,18 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
     out.id.push_back(i + 1);
   }
   if (sc.charged()) out.charge = sc.charge;
-  const auto max_of = [](const std::vector<int>& v) { return v.empty() ? 0 : *std::max_element(v.begin(), v.end()); };
-  out.num_atom_types = max_of(atom);
-  // A number of the imported file that no scene type took keeps the file's mass (LAMMPS needs one
-  // per type).
-  for (int t = 1; t <= out.num_atom_types; ++t)
-    if (const auto it = imported.masses.find(t); it != imported.masses.end()) out.type_mass[t] = it->second;
-  for (size_t k = 0; k < sc.types.size(); ++k) out.type_mass[atom[k]] = sc.types[k].mass;
-  for (int t = 1; t <= out.num_atom_types; ++t) out.type_mass.emplace(t, 1.0);
+  out.num_atom_types = numbers.atom_types;
+  out.type_mass = numbers.type_mass;
   for (const Bond& b : top.bonds) out.bonds.push_back({bond[static_cast<size_t>(b.type)], b.i, b.j});
   for (const Angle& a : top.angles) out.angles.push_back({angle[static_cast<size_t>(a.type)], a.i, a.j, a.k});
   for (const Dihedral& d : top.dihedrals)
     out.dihedrals.push_back({dihedral[static_cast<size_t>(d.type)], d.i, d.j, d.k, d.l});
-  out.num_bond_types = max_of(bond);
-  out.num_angle_types = max_of(angle);
-  out.num_dihedral_types = max_of(dihedral);
+  out.num_bond_types = numbers.bond_types;
+  out.num_angle_types = numbers.angle_types;
+  out.num_dihedral_types = numbers.dihedral_types;
   for (const Improper& d : top.impropers)
     out.impropers.push_back({improper[static_cast<size_t>(d.type)], d.i, d.j, d.k, d.l});
-  out.num_improper_types = max_of(improper);
+  out.num_improper_types = numbers.improper_types;
   const LammpsCoeffs& ff = sc.lammps_coeffs;
   // One atom type: its one pair is the diagonal, "Pair Coeffs" (which more readers know).
   if (force_field) {
@@ -124,6 +106,23 @@ ImportedSystem to_lammps(const Scene& sc, bool force_field) {
     out.hi = s.x.rowwise().maxCoeff().array() + 1.0;
   }
   return out;
+}
+
+std::string topology_title(const Scene& sc) {
+  return "stiffmd topology of " + sc.deck_path + " (positions at t = 0)";
+}
+
+// The whole scene's particles as one part (engine/domain/part_molecules.hpp).
+PartMolecules whole_part(const Scene& sc) {
+  std::vector<int> all(static_cast<std::size_t>(sc.state.size()));
+  std::iota(all.begin(), all.end(), 0);
+  return cut_part({std::span<const double>(sc.state.inv_mass.data(), all.size()),
+                   sc.particle_type,
+                   sc.charge,
+                   sc.topology.molecule,
+                   {},
+                   sc.topology},
+                  all);
 }
 
 }  // namespace
@@ -163,7 +162,7 @@ void write_scene_lammps_data(const Scene& scene, const std::string& path, const 
 
 RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir, const Thermo& thermo,
                        const double* restart_cut, std::vector<std::string>& files, std::ostream& log,
-                       const Communicator* processes)
+                       const Communicator* processes, const StaticParts* parts)
     : sc_(sc),
       dir_(out_dir),
       processes_(processes),
@@ -190,13 +189,9 @@ RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir,
     if (fs::exists(p)) log << "note: overwriting " << p.string() << " from a previous run\n";
     return false;
   };
-  // Per particle (40 bytes each): only for the trajectory files that name them.
-  std::vector<std::string> species;
-  std::vector<double> masses;
-  auto name_particles = [&] {
-    if (species.empty())
-      for (int t : sc.particle_type) species.push_back(sc.types[t].element), masses.push_back(sc.types[t].mass);
-  };
+  // The collectives of the time-independent data written from the parts: every rank's, or one.
+  const OneProcess one;
+  const Communicator& all_ranks = processes ? *processes : static_cast<const Communicator&>(one);
   // The topology of the trajectories (bonds, masses, molecule ids) as a LAMMPS data file, the one
   // format MDAnalysis, VMD and OVITO all read with bonds (README, "Outputs"); a restart keeps it.
   // Empty: no files (check, Python without an output directory); a decomposed run's rank 0 writes
@@ -215,16 +210,20 @@ RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir,
     if (h5md_here && root_) h5md_exists = fs::exists(h5md_path);
     if (writing && (!sc.output.xyz.empty() || !sc.output.h5md.empty())) {
       const fs::path p = dir / kTopologyFile;
-      if (!restarting)
-        write_scene_lammps_data(sc, p.string(), "stiffmd topology of " + sc.deck_path + " (positions at t = 0)", false);
+      if (!restarting && !parts)  // from the parts: below, every rank
+        write_scene_lammps_data(sc, p.string(), topology_title(sc), false);
       files.push_back(p.string());
     }
     if (writing && !sc.output.xyz.empty()) {
-      name_particles();
+      // Each type's symbol and mass: a row names its particle's type.
+      std::vector<std::string> species;
+      std::vector<double> masses;
+      for (const ParticleType& t : sc.types) species.push_back(t.element), masses.push_back(t.mass);
+      if (num_particles == 0) masses.clear();
       const bool append =
           open_output(sc.output.xyz, [&](const std::string& p) { return truncate_xyz_after(p, file_cut, file_tol); });
-      xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), species, sc.box, sc.output.xyz_velocities,
-                                         append, masses);
+      xyz_ = std::make_unique<XyzWriter>((dir / sc.output.xyz).string(), std::move(species), sc.box,
+                                         sc.output.xyz_velocities, append, std::move(masses));
       xyz_->set_units(time_out, velocity_scale_);
     }
     if (writing && !sc.output.thermo.empty()) {
@@ -241,19 +240,32 @@ RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir,
       projected_ = std::make_unique<ProjectedMomenta>(*sc.forces->stiff_bonds(), s.inv_mass);
     }
   });
+  const bool trajectories = !out_dir.empty() && (!sc.output.xyz.empty() || !sc.output.h5md.empty());
+  if (parts && trajectories && !restarting)
+    write_topology_parts(sc, parts->mine, parts->x, parts->v, num_particles, all_ranks, (dir / kTopologyFile).string(),
+                         topology_title(sc));
   for (int c = 0; c < static_cast<int>(thermo.columns().size()); ++c)
     if (c != thermo.column("time") && c != thermo.column("step")) h5md_columns_.push_back(c);
   h5md_values_.resize(h5md_columns_.size());
+  // The whole scene as one part (its time-independent H5MD data are written by rows alike), on the
+  // processes that write them; from the parts, every rank takes part.
+  std::optional<PartMolecules> whole;
+  const bool h5md_parts = parts && !out_dir.empty() && !sc.output.h5md.empty();
+  H5mdSetup setup;
+  if (h5md_parts) {
+    describe_h5md_static(sc, parts->mine, all_ranks, setup);
+  } else if (h5md_here) {
+    whole = whole_part(sc);
+    describe_h5md_static(sc, *whole, one, setup);
+  }
+  if (h5md_parts && !shared_h5md_ && all_ranks.size() > 1) {  // whether rank 0 creates the file, on every rank
+    std::int64_t seen = h5md_exists ? 1 : 0;
+    all_ranks.broadcast(&seen, 1);
+    h5md_exists = seen != 0;
+  }
   if (h5md_here) {
-    H5mdSetup setup;
-    setup.num_particles = s.size();
-    name_particles();
-    setup.species = species;
-    setup.mass.resize(s.size());
-    for (int i = 0; i < s.size(); ++i) setup.mass[i] = sc.types[sc.particle_type[i]].mass;
-    if (sc.charged()) setup.charge = sc.charge;
+    setup.num_particles = parts ? num_particles : s.size();
     setup.box = sc.box;
-    for (const Bond& b : sc.topology.bonds) setup.bonds.emplace_back(b.i, b.j);
     setup.author = sc.output.author;
     setup.creator_version = STIFFMD_VERSION;
     setup.velocity = sc.output.h5md_velocity;
@@ -283,7 +295,10 @@ RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir,
     const bool append = restarting && h5md_exists;
     if (!restarting && h5md_exists) log << "note: overwriting " << path << " from a previous run\n";
     h5md_ = std::make_unique<H5mdWriter>(path, setup, append, s.step);
+    if (!append && whole && root_) write_h5md_static_parts(h5md_.get(), setup, sc, *whole, one);
   }
+  if (h5md_parts && !(restarting && h5md_exists))
+    write_h5md_static_parts(root_ ? h5md_.get() : nullptr, setup, sc, parts->mine, all_ranks);
   if (writing) {
     checkpoint_path_ = (dir / sc.output.checkpoint).string();
     files.push_back(checkpoint_path_);
@@ -320,7 +335,7 @@ void RunOutputs::write(const State& s, const std::vector<double>& row, const Pro
   if (xyz_by_blocks)
     write_xyz_by_blocks(s, *mine);
   else if (xyz_now_)
-    xyz_->write(s);
+    xyz_->write(s, sc_.particle_type.data());
   if (state_now_) write_state(s);
 }
 
@@ -332,31 +347,39 @@ void RunOutputs::write_xyz_by_blocks(const State& s, const ProcessRows& mine) {
   constexpr int kBlock = 1024;  // 57 kB of rows per gather
   const Communicator& comm = *processes_;
   const int n = s.size();
-  const int record = 7;  // global index, x, v
+  const int record = 8;  // global index, type, x, v
+  if (!mine.type && sc_.particle_type.size() != static_cast<std::size_t>(n))
+    throw std::logic_error(
+        "RunOutputs::write: the XYZ rows need their types (ProcessRows::type) when the scene "
+        "does not hold the particles");
   if (root_) xyz_->begin_frame(n, s.t, s.step);
   std::vector<double> rows;
   std::vector<std::vector<double>> all;
   Eigen::Matrix3Xd x, v;
+  std::vector<int> type;
   std::size_t k = 0;
   for (int first = 0; first < n; first += kBlock) {
     const int end = std::min(n, first + kBlock);
     rows.clear();
     for (; k < mine.ids.size() && mine.ids[k] < end; ++k) {
       const auto c = static_cast<Eigen::Index>(k);
-      rows.insert(rows.end(), {static_cast<double>(mine.ids[k]), mine.x(0, c), mine.x(1, c), mine.x(2, c), mine.v(0, c),
-                               mine.v(1, c), mine.v(2, c)});
+      const int t = mine.type ? (*mine.type)[k] : sc_.particle_type[static_cast<std::size_t>(mine.ids[k])];
+      rows.insert(rows.end(), {static_cast<double>(mine.ids[k]), static_cast<double>(t), mine.x(0, c), mine.x(1, c),
+                               mine.x(2, c), mine.v(0, c), mine.v(1, c), mine.v(2, c)});
     }
     comm.gather(rows, all);
     if (!root_) continue;
     x.resize(3, end - first);
     v.resize(3, end - first);
+    type.resize(static_cast<std::size_t>(end - first));
     for (const std::vector<double>& b : all)
       for (std::size_t at = 0; at + record <= b.size(); at += record) {
         const auto col = static_cast<Eigen::Index>(b[at]) - first;
-        x.col(col) = Eigen::Vector3d(b[at + 1], b[at + 2], b[at + 3]);
-        v.col(col) = Eigen::Vector3d(b[at + 4], b[at + 5], b[at + 6]);
+        type[static_cast<std::size_t>(col)] = static_cast<int>(b[at + 1]);
+        x.col(col) = Eigen::Vector3d(b[at + 2], b[at + 3], b[at + 4]);
+        v.col(col) = Eigen::Vector3d(b[at + 5], b[at + 6], b[at + 7]);
       }
-    xyz_->write_rows(first, end - first, x.data(), v.data());
+    xyz_->write_rows(end - first, x.data(), v.data(), type.data());
   }
 }
 

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/domain/part_molecules.hpp"
 #include "engine/io/h5md_writer.hpp"
 #include "engine/io/writers.hpp"
 #include "engine/observe/observables.hpp"
@@ -36,12 +37,24 @@ void write_scene_lammps_data(const Scene& scene, const std::string& path, const 
                              bool force_field = true);
 
 // This process's particles in a decomposed run (engine/domain/domain_integrator.hpp): their
-// global indices, increasing, their positions and velocities, and their forces when the H5MD file
-// has them.
+// global indices, increasing, their positions and velocities, their forces when the H5MD file
+// has them, and their types (the XYZ frame's species; null: the scene's, which then holds every
+// particle).
 struct ProcessRows {
   const std::vector<int>& ids;
   const Eigen::Matrix3Xd &x, &v;
   const Eigen::Matrix3Xd* f = nullptr;
+  const std::vector<int>* type = nullptr;
+};
+
+// A decomposed run's particles as the ranks hold them at the start (each rank its molecules, their
+// positions and velocities): what the trajectories' time-independent data — topology.data, the
+// H5MD file's species, masses, charges and bonds — are written from, collectively, when the scene
+// does not hold the particles (a scene's description: engine/io/topology_parts.hpp,
+// engine/io/h5md_static_parts.hpp).
+struct StaticParts {
+  const PartMolecules& mine;
+  const Eigen::Matrix3Xd &x, &v;
 };
 
 class RunOutputs {
@@ -58,8 +71,12 @@ class RunOutputs {
   // grids; rank 0 writes every file, but the H5MD file when HDF5 is parallel
   // (H5mdWriter::shared_files): every rank writes its particles' rows of it (shares_frame()).
   // `num_particles`: the whole system's (a decomposed run's, summed from its parts).
+  // `parts` (every rank alike; null: the scene holds every particle): the time-independent data of
+  // the trajectories are written from the ranks' parts, the scene's particles not read (its types,
+  // box and units are); collective over `processes`.
   RunOutputs(Scene& scene, int num_particles, const std::string& dir, const Thermo& thermo, const double* restart_cut,
-             std::vector<std::string>& files, std::ostream& log, const Communicator* processes = nullptr);
+             std::vector<std::string>& files, std::ostream& log, const Communicator* processes = nullptr,
+             const StaticParts* parts = nullptr);
 
   // Advances the time grids to t and returns whether a thermo sample is due (for the thermo CSV
   // or an H5MD frame); `final`: every output is due (the last state, whatever the grids). Every
