@@ -263,7 +263,16 @@ int main(int argc, char** argv) {
       } else {
         // On several processes one run is decomposed (docs/parallel.md): every rank loads and
         // prepares the whole scene alike, rank 0 alone speaks and writes.
-        scene.emplace(stiffmd::load_scene(*deck));
+        // A fresh decomposed run loads the deck's description first (engine/scene/scene.hpp:
+        // SceneContent::description, by-molecule chains counted, not built): when a source makes
+        // every particle by parts and the run needs nothing of the whole scene, no rank builds it
+        // (docs/parallel.md, "The scene's description"); else the whole scene, as everywhere.
+        const bool fresh_run = decomposed && run->parsed() && restart.empty();
+        scene.emplace(stiffmd::load_scene(
+            *deck, {}, fresh_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole));
+        if (scene->described() &&
+            (!stiffmd::part_source(*deck, *scene).make || !stiffmd::whole_scene_needed(*scene).empty()))
+          scene.emplace(stiffmd::load_scene(*deck));
         if (decomposed) {  // every rank alike, before the run
           stiffmd::check_parallel_grid(*scene, processes.size());
           stiffmd::check_parallel_outputs(*scene, processes.size());
