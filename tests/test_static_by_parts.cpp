@@ -1,5 +1,5 @@
 // The trajectories' time-independent data written from the ranks' parts of a decomposed run
-// (engine/io/topology_parts.hpp, engine/io/h5md_static_parts.hpp, engine/io/rows_to_root.hpp):
+// (engine/run/topology_parts.hpp, engine/run/h5md_static_parts.hpp, engine/io/rows_to_root.hpp):
 // for any partition of the molecules on 1–3 fake ranks (tests/fake_processes.hpp), topology.data
 // is the bytes write_scene_lammps_data writes from the whole scene, and the H5MD file's
 // time-independent datasets are those a setup given per particle writes — with the scene's
@@ -25,10 +25,10 @@
 #include "engine/deck/deck.hpp"
 #include "engine/domain/part_load.hpp"
 #include "engine/domain/part_molecules.hpp"
-#include "engine/io/h5md_static_parts.hpp"
+#include "engine/run/h5md_static_parts.hpp"
 #include "engine/io/h5md_writer.hpp"
 #include "engine/io/rows_to_root.hpp"
-#include "engine/io/topology_parts.hpp"
+#include "engine/run/topology_parts.hpp"
 #include "engine/observe/observables.hpp"
 #include "engine/run/outputs.hpp"
 #include "engine/scene/scene.hpp"

@@ -62,7 +62,7 @@ struct H5mdSetup {
   // The time-independent data, given whole here (species, mass, charge, bonds) and written when
   // the file is created; or, with `by_rows`, written after it by rows (write_particle_rows,
   // write_bond_rows: a decomposed run's rank 0 streams them from the ranks' parts,
-  // engine/io/h5md_static_parts.hpp), species, mass, charge and bonds then empty and `elements`,
+  // engine/run/h5md_static_parts.hpp), species, mass, charge and bonds then empty and `elements`,
   // `charged` and `num_bonds` saying what the datasets hold.
   std::vector<std::string> species;        // element symbol per particle (e.g. "C", "Fe")
   Eigen::VectorXd mass;                    // per particle (a fixed particle: its type's mass)

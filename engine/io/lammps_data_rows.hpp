@@ -1,7 +1,7 @@
 // A LAMMPS data file's text piece by piece: the header (counts, box, Masses, Coeffs sections),
 // then one line per atom, velocity or bonded item. write_lammps_data (lammps_data.hpp) writes a
 // whole system with them; a decomposed run's rank 0 writes the trajectories' topology.data block
-// by block with the same pieces (engine/io/topology_parts.hpp), so the two files are the same
+// by block with the same pieces (engine/run/topology_parts.hpp), so the two files are the same
 // bytes.
 #pragma once
 

@@ -50,8 +50,8 @@ struct ProcessRows {
 // A decomposed run's particles as the ranks hold them at the start (each rank its molecules, their
 // positions and velocities): what the trajectories' time-independent data — topology.data, the
 // H5MD file's species, masses, charges and bonds — are written from, collectively, when the scene
-// does not hold the particles (a scene's description: engine/io/topology_parts.hpp,
-// engine/io/h5md_static_parts.hpp).
+// does not hold the particles (a scene's description: engine/run/topology_parts.hpp,
+// engine/run/h5md_static_parts.hpp).
 struct StaticParts {
   const PartMolecules& mine;
   const Eigen::Matrix3Xd &x, &v;

@@ -1,4 +1,4 @@
-#include "engine/io/h5md_static_parts.hpp"
+#include "engine/run/h5md_static_parts.hpp"
 
 #include <algorithm>
 #include <limits>

@@ -2,7 +2,7 @@
 // (Scene::lammps_types), every other particle/bond/angle/dihedral/improper type numbered after
 // them in deck order, and a mass for every atom type number. What the whole scene's data files
 // (engine/run/outputs.cpp) and the trajectories' topology.data written from the ranks' parts
-// (engine/io/topology_parts.hpp) share: they read only the scene's types, none of its particles.
+// (engine/run/topology_parts.hpp) share: they read only the scene's types, none of its particles.
 #pragma once
 
 #include <map>

@@ -1,4 +1,4 @@
-#include "engine/io/lammps_type_numbers.hpp"
+#include "engine/run/lammps_type_numbers.hpp"
 
 #include <algorithm>
 #include <set>

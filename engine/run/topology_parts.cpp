@@ -1,4 +1,4 @@
-#include "engine/io/topology_parts.hpp"
+#include "engine/run/topology_parts.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 
 #include "core/errors.hpp"
 #include "engine/io/lammps_data_rows.hpp"
-#include "engine/io/lammps_type_numbers.hpp"
+#include "engine/run/lammps_type_numbers.hpp"
 #include "engine/io/rows_to_root.hpp"
 
 namespace stiffmd {
