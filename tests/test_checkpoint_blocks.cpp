@@ -4,7 +4,8 @@
 // exchange brings every owned row to its block whatever the owners; and the file the ranks write
 // together — the per-particle arrays at offsets from N, the integrator's carried columns between
 // its own words, the crc32 combined from the ranks' pieces — is byte for byte the one process's
-// checkpoint of the same state, on 1 to 5 ranks and with ranks that own nothing.
+// checkpoint of the same state, on 1 to 5 ranks and with ranks that own nothing, whether the ranks
+// hand it their blocks or their own particles (brought to the blocks by rounds of rows).
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -144,8 +145,29 @@ TEST_P(CheckpointBlocks, TheRanksWriteTheOneProcessCheckpointsBytes) {
     }
     const CheckpointBlock block{n, b, bx.data(), bv.data(), bim.data(), {b0.data(), b1.data()}, &runs};
     write_checkpoint(together, comm, block, rest);
+    // The same exchange by rounds of rows of every block: each round's rows, and the whole block.
+    for (const std::int64_t round : {1, 4, 37}) {
+      Eigen::Matrix3Xd rx(3, count), r0(3, count);
+      BlockExchange exchange;  // kept from one round to the next, as the writer keeps it
+      for (std::int64_t from = 0; from < (n + comm.size() - 1) / comm.size(); from += round) {
+        const std::int64_t to = from + round, first = std::min<std::int64_t>(from, count);
+        exchange.run(comm, n, ids, {{x.data(), rx.data() + 3 * first, 3}, {mine0.data(), r0.data() + 3 * first, 3}},
+                     from, to);
+      }
+      EXPECT_EQ(rx, bx) << "rounds of " << round;
+      EXPECT_EQ(r0, b0) << "rounds of " << round;
+    }
+    // The same file from the ranks' own particles, which the writer brings to the blocks by
+    // rounds of 1, 3, 4 and more than a block's rows.
+    for (const std::int64_t round : {1, 3, 4, 64}) {
+      CheckpointBlock own{n, b, x.data(), v.data(), im.data(), {mine0.data(), mine1.data()}, &runs, &ids, round};
+      write_checkpoint(together + ".own" + std::to_string(round), comm, own, rest);
+    }
   });
   EXPECT_EQ(bytes_of(together), bytes_of(one)) << ranks << " ranks";
+  for (const int round : {1, 3, 4, 64})
+    EXPECT_EQ(bytes_of(together + ".own" + std::to_string(round)), bytes_of(one))
+        << ranks << " ranks, rounds of " << round << " rows";
   EXPECT_FALSE(fs::exists(together + ".tmp"));
   const Checkpoint back = read_checkpoint(together);
   EXPECT_EQ(back.state.x, s.x);

@@ -647,6 +647,10 @@ void clear_runs(std::span<const ColumnRun> runs, double* target) {
 
 void Decomposition::set_owned_pair_data(PairBeadData owned) {
   owned_data_ = std::move(owned);
+  // The beads it is of (checked at the selection: the owned particles may change before it);
+  // −1: a charge column not of the beads'.
+  owned_data_beads_ = static_cast<long>(owned_data_.type.size());
+  if (owned_data_.charged && owned_data_.charge.size() != owned_data_.type.size()) owned_data_beads_ = -1;
   carry_ = true;
   owned_packed_ = false;
 }
@@ -689,12 +693,21 @@ void Decomposition::pack_owned_words() {
   owned_words_.resize(words);
   for (int k = 0; k < owned; ++k) pack_bead_data(owned_data_, k, owned_words_.data() + owned_word_at_[k]);
   owned_packed_ = true;
+  // The packed words are the beads' data from now on: the per-bead arrays go (a second copy of
+  // them, docs/parallel.md "What a rank holds"). Each term's partner offsets stay: a message counts
+  // its beads' partners from them.
+  std::vector<int>().swap(owned_data_.type);
+  std::vector<double>().swap(owned_data_.charge);
+  for (SpecialPartners& sp : owned_data_.special) {
+    std::vector<int>().swap(sp.partner);
+    std::vector<double>().swap(sp.weight);
+    std::vector<double>().swap(sp.weight_coul);
+  }
 }
 
 void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   const ScopedPhase phase(Phase::domain);
-  if (carry_ && (static_cast<int>(owned_data_.type.size()) != num_owned() ||
-                 (owned_data_.charged && static_cast<int>(owned_data_.charge.size()) != num_owned())))
+  if (carry_ && owned_data_beads_ != num_owned())
     throw std::logic_error("Decomposition::select_pair_set: the owned beads' pair data is not of the owned particles");
   ++selections_;
   at_selection_ = x;
@@ -908,7 +921,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     for (std::size_t t = 0; t < terms; ++t) {
       // Room for the partners of every owned bead and every arrival (the local beads are most of
       // the owned ones); cut to those written after the pass below.
-      const std::size_t room = partners_total[t] + owned_data_.special[t].partner.size();
+      const std::size_t room = partners_total[t] + static_cast<std::size_t>(owned_data_.special[t].start.back());
       SpecialPartners& s = d.special[t];
       resize_with_room(s.start, n + 1), s.start[0] = 0;
       resize_with_room(s.partner, room), resize_with_room(s.weight, room), resize_with_room(s.weight_coul, room);

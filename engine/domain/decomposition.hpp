@@ -316,10 +316,13 @@ class Decomposition {
   // The selection's messages (per rank: sent, received), kept from one selection to the next (a
   // resize fills only what grew).
   std::vector<std::vector<double>> selection_out_, selection_in_;
-  bool carry_ = false;  // set_owned_pair_data was called
+  bool carry_ = false;         // set_owned_pair_data was called
+  long owned_data_beads_ = 0;  // the beads set_owned_pair_data's data is of
   // What each owned bead carries, packed once per set_owned_pair_data (pack_owned_words): bead k's
   // words (the selection's message format) are owned_words_[owned_word_at_[k] … owned_word_at_[k + 1]),
   // so consecutive owned beads' words are one stretch, copied into a message by the plan's runs.
+  // Once packed, owned_data_ keeps its partner offsets (SpecialPartners::start) and `charged`
+  // alone: the words hold the rest.
   bool owned_packed_ = false;
   std::vector<double> owned_words_;
   std::vector<std::size_t> owned_word_at_;

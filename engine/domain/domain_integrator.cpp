@@ -544,31 +544,27 @@ StateBlock DomainIntegrator::state_block(const State& whole) const {
   StateBlock b;
   const int n = part_ ? whole_n_ : whole.size();
   b.block = block_of(n, comm_.size(), comm_.rank());
-  const auto first = static_cast<Eigen::Index>(b.block.first), count = static_cast<Eigen::Index>(b.block.count);
   if (!part_) {
-    b.x = whole.x.middleCols(first, count);
-    b.v = whole.v.middleCols(first, count);
-    b.inv_mass = whole.inv_mass.segment(first, count);
+    b.x = whole.x.data() + 3 * b.block.first;
+    b.v = whole.v.data() + 3 * b.block.first;
+    b.inv_mass = whole.inv_mass.data() + b.block.first;
     b.words.push_back({whole_->save_state(), -1});
     return b;
   }
   // As save_state: the parts' sums added (the same on every rank), their columns by global index.
+  // The part's own arrays go to the writer as they are (it brings them to the blocks by rounds).
   CarriedState c = part_->integrator->carried_state();
   if (!c.sums.empty()) comm_.sum(c.sums.data(), static_cast<int>(c.sums.size()));
   const State& mine = part_->scene.state;
-  b.x.resize(3, count);
-  b.v.resize(3, count);
-  b.inv_mass.resize(count);
-  b.columns.assign(c.columns.size(), Eigen::Matrix3Xd(3, count));
-  std::vector<BlockArray> arrays = {
-      {mine.x.data(), b.x.data(), 3}, {mine.v.data(), b.v.data(), 3}, {mine.inv_mass.data(), b.inv_mass.data(), 1}};
-  for (std::size_t k = 0; k < c.columns.size(); ++k) arrays.push_back({c.columns[k].data(), b.columns[k].data(), 3});
-  BlockExchange().run(comm_, n, domains_->owned_ids(), arrays);
+  b.x = mine.x.data();
+  b.v = mine.v.data();
+  b.inv_mass = mine.inv_mass.data();
+  b.owned = &domains_->owned_ids();
   const std::size_t columns = c.columns.size();
-  for (std::size_t k = 0; k < columns; ++k) {
-    c.columns[k].resize(3, 1);
+  b.columns = std::move(c.columns);
+  c.columns.assign(columns, Eigen::Matrix3Xd(3, 1));
+  for (std::size_t k = 0; k < columns; ++k)
     for (int row = 0; row < 3; ++row) c.columns[k](row, 0) = column_mark(k, row);
-  }
   whole_->restore_carried_state(std::move(c));
   b.words = word_runs(whole_->save_state(), columns);
   return b;

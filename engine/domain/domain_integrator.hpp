@@ -39,14 +39,20 @@ void check_parallel_grid(const Scene& scene, int ranks);
 // the state CSV (output.state), whose rows hold every particle (docs/parallel.md, "Outputs").
 void check_parallel_outputs(const Scene& scene, int ranks);
 
-// A rank's block of particles (engine/io/particle_blocks.hpp) of the whole system's state and of
-// the integrator's carried columns, and the whole integrator's words as runs: what a checkpoint
-// written by every rank takes (engine/run/checkpoint.hpp), without the state gathered anywhere.
+// What a checkpoint written by every rank takes of a rank (engine/run/checkpoint.hpp
+// CheckpointBlock), without the state gathered anywhere and without a copy of it: its block of
+// particles (engine/io/particle_blocks.hpp), and either the block's x, v, inverse masses (before
+// the parts: the whole state's columns, `owned` null) or its own particles' (the part's state and
+// the integrator's carried columns, in the order of the global indices `owned`, which the writer
+// brings to the blocks), and the whole integrator's words as runs. x, v, inv_mass point into the
+// state given to state_block or the part's, current until the next step.
 struct StateBlock {
   ParticleBlock block;
-  Eigen::Matrix3Xd x, v;
-  Eigen::VectorXd inv_mass;
-  std::vector<Eigen::Matrix3Xd> columns;  // CarriedState::columns, the block's rows
+  const double* x = nullptr;
+  const double* v = nullptr;
+  const double* inv_mass = nullptr;
+  const std::vector<int>* owned = nullptr;
+  std::vector<Eigen::Matrix3Xd> columns;  // CarriedState::columns, of the owned particles
   std::vector<WordRun> words;             // save_state() of the whole system, columns by index
 };
 
@@ -72,8 +78,8 @@ class DomainIntegrator final : public Integrator {
   // number of ranks, and on one as the same run.
   std::vector<double> save_state() const override;
   void load_state(const std::vector<double>& w) override { whole_->load_state(w); }
-  // This rank's block of the state `whole` (current on every rank before the first step) and of
-  // the carried columns, and the words save_state() would give as runs (collective).
+  // This rank's block of the state `whole` (current on every rank before the first step), or its
+  // part's state and carried columns, and the words save_state() would give as runs (collective).
   StateBlock state_block(const State& whole) const;
 
   // Rank 0's whole.x, whole.v become the system's current state (collective; nothing before the

@@ -39,9 +39,16 @@ class BlockExchange {
   // Throws std::invalid_argument when an index is out of range, on two processes or on none.
   void run(const Communicator& comm, std::int64_t n, const std::vector<int>& ids,
            const std::vector<BlockArray>& arrays);
+  // The same for the rows [from, to) of every block alone (row j of a block: its global index
+  // first + j; the same from, to on every process): each array's `block` receives the block's rows
+  // from … to − 1, row j at j − from. A file written by blocks in rounds of rows (the checkpoint)
+  // holds one round's rows at a time, not the block's. Collective.
+  void run(const Communicator& comm, std::int64_t n, const std::vector<int>& ids, const std::vector<BlockArray>& arrays,
+           std::int64_t from, std::int64_t to);
 
  private:
   std::vector<std::vector<double>> send_, received_;
+  std::vector<std::size_t> sending_;  // per process, the rows it is sent
   std::vector<char> filled_;
 };
 

@@ -163,7 +163,7 @@ std::vector<Piece> write_pieces(int fd, bool root, std::uint64_t n, std::int64_t
   const Layout l = layout_of(n, c, runs);
   std::vector<Piece> pieces;
   auto rows = [&](std::uint64_t at, const double* values, int per_particle) {
-    if (b.count == 0) return;
+    if (b.count == 0 || !values) return;  // none: written by rounds (write_rounds)
     Writer w(fd, at + 8 * static_cast<std::uint64_t>(per_particle * b.first));
     w.put_values(values, static_cast<size_t>(per_particle * b.count));
     pieces.push_back(w.done());
@@ -171,7 +171,7 @@ std::vector<Piece> write_pieces(int fd, bool root, std::uint64_t n, std::int64_t
   rows(l.x + 8, x, 3);
   rows(l.v + 8, v, 3);
   rows(l.inv_mass + 8, inv_mass, 1);
-  for (size_t k = 0; k < l.column.size(); ++k) rows(l.column[k], columns.at(k), 3);
+  for (size_t k = 0; k < l.column.size(); ++k) rows(l.column[k], columns.empty() ? nullptr : columns.at(k), 3);
   if (!root) return pieces;
 
   auto count_word = [&](std::uint64_t at, std::uint64_t words) {
@@ -614,6 +614,46 @@ void write_header(int fd, const std::string& path, std::vector<Piece> pieces, st
   }
 }
 
+// The per-particle arrays of a process's own particles (x, v, inv_mass, the carried columns, in
+// the order of the global indices `owned`) brought to the blocks and written there, in rounds of
+// `round` rows of every block (the same rounds on every process: ⌈⌈N / P⌉ / round⌉):
+// each round's rows, once they arrive, are one piece per array. A process holds one round's rows
+// and messages, not its block (docs/parallel.md, "What a rank holds"). Collective: a failed write
+// is kept (`failed`) and the rounds go on, so that every process reaches every exchange.
+void write_rounds(int fd, const Communicator& comm, std::uint64_t n, ParticleBlock b, const std::vector<int>& owned,
+                  const double* x, const double* v, const double* inv_mass, const std::vector<const double*>& columns,
+                  std::int64_t round, const Layout& l, std::vector<Piece>& pieces, int& failed) {
+  const auto total = static_cast<std::int64_t>(n);
+  const std::int64_t most = (total + comm.size() - 1) / comm.size();
+  std::vector<BlockArray> arrays = {{x, nullptr, 3}, {v, nullptr, 3}, {inv_mass, nullptr, 1}};
+  for (const double* c : columns) arrays.push_back({c, nullptr, 3});
+  std::vector<std::uint64_t> at = {l.x + 8, l.v + 8, l.inv_mass + 8};
+  at.insert(at.end(), l.column.begin(), l.column.end());
+  if (at.size() != arrays.size()) throw std::logic_error("write_checkpoint: a carried column without its place");
+  std::vector<std::vector<double>> chunk(arrays.size());
+  BlockExchange exchange;
+  if (round < 1) throw std::logic_error("write_checkpoint: a round of no particle");
+  for (std::int64_t from = 0; from < most; from += round) {
+    const std::int64_t to = std::min(from + round, most);
+    const std::int64_t first = std::min(from, b.count), count = std::min(to, b.count) - first;
+    for (size_t a = 0; a < arrays.size(); ++a) {
+      chunk[a].resize(static_cast<size_t>(arrays[a].rows * count));
+      arrays[a].block = chunk[a].data();
+    }
+    exchange.run(comm, total, owned, arrays, from, to);
+    if (count == 0 || failed) continue;
+    try {
+      for (size_t a = 0; a < arrays.size(); ++a) {
+        Writer w(fd, at[a] + 8 * static_cast<std::uint64_t>(arrays[a].rows * (b.first + first)));
+        w.put_values(chunk[a].data(), chunk[a].size());
+        pieces.push_back(w.done());
+      }
+    } catch (const std::system_error& e) {
+      failed = e.code().value();
+    }
+  }
+}
+
 // The file written by every process: rank 0 creates the temporary file; each process writes its
 // pieces into it and syncs them; rank 0 writes the header from every piece's crc32, syncs, renames
 // it over the old file and syncs the directory. Each step ends in an agreement (core/
@@ -621,7 +661,8 @@ void write_header(int fd, const std::string& path, std::vector<Piece> pieces, st
 // ends every one with its message). With one process, the same steps without agreements.
 void write_together(const std::string& path, const Communicator& comm, std::uint64_t n, std::int64_t step, double t,
                     ParticleBlock b, const double* x, const double* v, const double* inv_mass,
-                    const std::vector<const double*>& columns, std::span<const Run> runs, const Checkpoint& c) {
+                    const std::vector<const double*>& columns, std::span<const Run> runs, const Checkpoint& c,
+                    const std::vector<int>* owned = nullptr, std::int64_t round = kCheckpointRound) {
   const std::string tmp = path + ".tmp";
   const bool root = comm.root();
   int fd = -1;
@@ -635,11 +676,25 @@ void write_together(const std::string& path, const Communicator& comm, std::uint
     agree(&comm, [&] {
       if (!root && (fd = ::open(tmp.c_str(), O_WRONLY)) < 0) fail_io(path, "open");
       try {
-        pieces = write_pieces(fd, root, n, step, t, b, x, v, inv_mass, columns, runs, c);
+        if (owned)  // the per-particle arrays by rounds, below
+          pieces = write_pieces(fd, root, n, step, t, b, nullptr, nullptr, nullptr, {}, runs, c);
+        else
+          pieces = write_pieces(fd, root, n, step, t, b, x, v, inv_mass, columns, runs, c);
       } catch (const std::system_error& e) {
         errno = e.code().value();
         fail_io(path, "write");
       }
+    });
+    if (owned) {
+      int failed = 0;
+      write_rounds(fd, comm, n, b, *owned, x, v, inv_mass, columns, round, layout_of(n, c, runs), pieces, failed);
+      agree(&comm, [&] {
+        if (failed == 0) return;
+        errno = failed;
+        fail_io(path, "write");
+      });
+    }
+    agree(&comm, [&] {
       if (!root) {
         const bool synced = ::fsync(fd) == 0;
         const bool closed = ::close(fd) == 0;
@@ -696,7 +751,7 @@ void write_checkpoint(const std::string& path, const Communicator& processes, co
   std::vector<Run> runs;
   for (const WordRun& r : *mine.integrator) runs.push_back({std::span<const double>(r.words), r.column});
   write_together(path, processes, static_cast<std::uint64_t>(mine.num_particles), rest.state.step, rest.state.t,
-                 mine.block, mine.x, mine.v, mine.inv_mass, mine.columns, runs, rest);
+                 mine.block, mine.x, mine.v, mine.inv_mass, mine.columns, runs, rest, mine.owned, mine.round);
 }
 
 Checkpoint read_checkpoint(const std::string& path) {

@@ -135,7 +135,13 @@ inline void write_checkpoint(const std::string& path, const Checkpoint& c) {
 // A process's part of a checkpoint of a decomposed run: its block of the num_particles particles,
 // their x, v (3 × count each, column-major), inverse masses (count) and the integrator's carried
 // columns (3 × count each, CarriedState::columns' order), and the whole integrator's words as
-// runs (Integrator::save_state: the same on every process).
+// runs (Integrator::save_state: the same on every process). With `owned`, x, v, inv_mass and the
+// columns are instead this process's own particles (any set, each on exactly one process), in the
+// order of their global indices `owned`: the writer brings them to the blocks itself, by rounds of
+// `round` rows of every block (BlockExchange; the same on every process), and writes each round's
+// rows as they arrive, so that a process holds one round's rows of its block and their messages,
+// not the block. The file's bytes are the same whatever the round.
+inline constexpr std::int64_t kCheckpointRound = 1 << 12;
 struct CheckpointBlock {
   std::int64_t num_particles = 0;
   ParticleBlock block;
@@ -144,6 +150,8 @@ struct CheckpointBlock {
   const double* inv_mass = nullptr;
   std::vector<const double*> columns;
   const std::vector<WordRun>* integrator = nullptr;
+  const std::vector<int>* owned = nullptr;
+  std::int64_t round = kCheckpointRound;
 };
 
 // The same file written by every process, each its block: `rest`'s step, time, method, h and

@@ -685,7 +685,7 @@ void Run::write_checkpoint_now() {
     identity(now_);
   now_.state.step = s_.step;
   now_.state.t = s_.t;
-  CheckpointBlock mine{num_particles_, b.block, b.x.data(), b.v.data(), b.inv_mass.data(), {}, &b.words};
+  CheckpointBlock mine{num_particles_, b.block, b.x, b.v, b.inv_mass, {}, &b.words, b.owned};
   for (const Eigen::Matrix3Xd& column : b.columns) mine.columns.push_back(column.data());
   write_checkpoint(checkpoint_path_, *options_.processes, mine, now_);
   if (root()) summary_.checkpoint = checkpoint_path_;
