@@ -263,14 +263,32 @@ int main(int argc, char** argv) {
       } else {
         // On several processes one run is decomposed (docs/parallel.md): every rank loads and
         // prepares the whole scene alike, rank 0 alone speaks and writes.
-        scene.emplace(stiffmd::load_scene(*deck));
+        // A decomposed restart of a deck whose particles a source makes by parts, and which needs
+        // no whole scene (whole_scene_needed), reads its checkpoint by parts into the scene's
+        // description (docs/parallel.md, "A restart by parts"): each rank its molecules' rows of
+        // the state, never the whole file. A checkpoint before format 8 (whose fingerprint the
+        // parts cannot give) or a deck loaded whole restarts from the whole scene.
+        bool restart_by_parts = false;
+        if (decomposed && run->parsed() && !restart.empty() &&
+            stiffmd::checkpoint_format_version(restart) >= stiffmd::kFirstFingerprintByDescriptions) {
+          stiffmd::Scene described = stiffmd::load_scene(*deck, {}, stiffmd::SceneContent::description);
+          if (described.state.size() == 0 && described.undescribed_particles > 0 &&
+              stiffmd::whole_scene_needed(described).empty())
+            if (const stiffmd::PartSource s = stiffmd::part_source(*deck, described); s.make) {
+              scene.emplace(std::move(described));
+              source = s.make;
+              restart_by_parts = true;
+            }
+        }
+        if (!scene) scene.emplace(stiffmd::load_scene(*deck));
         if (decomposed) {  // every rank alike, before the run
           stiffmd::check_parallel_grid(*scene, processes.size());
           stiffmd::check_parallel_outputs(*scene, processes.size());
         }
         // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
         // printed or written: a damaged or foreign one is one line and exit 2.
-        if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
+        if (run->parsed() && !restart.empty() && !restart_by_parts)
+          checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
         for (const auto& note : scene->notes) log << note << "\n";
         // A fresh decomposed run of a deck whose particles a source makes by parts starts from
         // each rank's own molecules (engine/domain/part_load.hpp), not from the whole scene's cut;
@@ -340,8 +358,9 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator();
-    // The others, and a restart (the checkpoint's state, read whole), start from the whole
-    // scene's cut.
+    // A restart by parts takes its molecules' state from the checkpoint (Run::Run); the others,
+    // and a restart with the whole scene (the checkpoint's state, read whole), start from the
+    // whole scene's cut.
     if (source) options.part = [&] { return source(*deck, *scene, processes.communicator()); };
     options.started_at = started_at;
     running = decomposed;
