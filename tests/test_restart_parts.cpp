@@ -214,7 +214,7 @@ TEST(RestartParts, ARankReadsItsRowsAndTheBlocksThatAreNotPerParticle) {
         Scene sc = load_scene(deck, {}, SceneContent::description);
         DomainIntegrator domain(sc, comm, make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass));
         const std::vector<WordRun> layout = domain.word_layout();
-        const CheckpointParts reader(at_20.string(), comm, layout);
+        const CheckpointParts reader(at_20.string(), comm, layout, sc.integrator.method);
         const ParticleBlock b = block_of(n, ranks, comm.rank());
         std::vector<int> ids;
         for (std::int64_t k = 0; k < b.count; ++k) ids.push_back(static_cast<int>(b.first + k));

@@ -954,7 +954,8 @@ class FileFields {
 
 }  // namespace
 
-CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout)
+CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout,
+                                 const std::string& method)
     : path_(path), ranks_(ranks) {
   const Communicator* comm = &ranks;
   auto fail = [&](const std::string& what) { throw InputError(path + ": " + what); };
@@ -1067,21 +1068,27 @@ CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ra
       inv_mass_ = r.skip_block(n, "inverse masses");
       // The integrator's words: the layout's runs, each column 3 N words.
       const auto words = r.get<std::uint64_t>();
+      if (words > size / 8) r.bad("a block longer than the file");
       std::uint64_t expected = 0;
       for (const WordRun& run : layout) expected += run.column >= 0 ? 3 * n : run.words.size();
-      if (words != expected)
-        fail("checkpoint holds " + std::to_string(words) + " words of " + c.method + " state, the deck's " +
-             std::string(c.method) + " lays out " + std::to_string(expected) +
-             " (a checkpoint of another method or settings; restart it with the whole scene)");
-      for (const WordRun& run : layout) {
-        if (run.column >= 0) {
-          const auto k = static_cast<std::size_t>(run.column);
-          if (column_.size() <= k) column_.resize(k + 1, 0);
-          column_[k] = r.pos();
-          r.skip(24 * n);
-          continue;
+      // Another method's words (a restart that changes the method starts it afresh): not read.
+      if (c.method != method) {
+        r.skip(8 * words);
+      } else {
+        if (words != expected)
+          fail("checkpoint holds " + std::to_string(words) + " words of " + c.method +
+               " state, the deck's settings lay out " + std::to_string(expected) +
+               " (restart it with the whole scene)");
+        for (const WordRun& run : layout) {
+          if (run.column >= 0) {
+            const auto k = static_cast<std::size_t>(run.column);
+            if (column_.size() <= k) column_.resize(k + 1, 0);
+            column_[k] = r.pos();
+            r.skip(24 * n);
+            continue;
+          }
+          for (std::size_t w = 0; w < run.words.size(); ++w) c.integrator_state.push_back(r.get<double>());
         }
-        for (std::size_t w = 0; w < run.words.size(); ++w) c.integrator_state.push_back(r.get<double>());
       }
       c.thermo_state = r.doubles();
       c.monitor_state = r.doubles();

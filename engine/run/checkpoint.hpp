@@ -199,13 +199,16 @@ void load_checkpoint_rest(Scene& scene, const Checkpoint& c, const std::string& 
 // length, carried columns by index), as the integrator of the scene lays them out; the file's
 // integrator block must be those words with each column 3 N words long. The words but the columns
 // become rest().integrator_state, what an integrator of no particle loads (Integrator::load_state).
+// `method`: the deck's; a checkpoint of another method has its words skipped (rest().integrator_state
+// and columns() empty: the restart starts that method afresh, as the whole path does).
 //
 // Collective: every failure — missing, not a checkpoint, of format before 8, truncated, damaged
 // (crc32), malformed, a layout that does not fit — throws AgreedInputError on every rank with one
 // line naming the path (read_checkpoint's wording).
 class CheckpointParts {
  public:
-  CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout);
+  CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout,
+                  const std::string& method);
   ~CheckpointParts();
   CheckpointParts(const CheckpointParts&) = delete;
   CheckpointParts& operator=(const CheckpointParts&) = delete;

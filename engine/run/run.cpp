@@ -177,7 +177,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // every rank alike (agreed: a refusal is one line on every rank).
   std::unique_ptr<CheckpointParts> checkpoint_parts;
   if (restarting && described_) {
-    checkpoint_parts = std::make_unique<CheckpointParts>(opt.restart, *opt.processes, domain_->word_layout());
+    checkpoint_parts =
+        std::make_unique<CheckpointParts>(opt.restart, *opt.processes, domain_->word_layout(), sc.integrator.method);
     resumed_ = checkpoint_parts->rest();
     agree(opt.processes, [&] { load_checkpoint_rest(sc, resumed_, opt.restart); });
   }
