@@ -263,24 +263,24 @@ int main(int argc, char** argv) {
       } else {
         // On several processes one run is decomposed (docs/parallel.md): every rank loads and
         // prepares the whole scene alike, rank 0 alone speaks and writes.
-        // A decomposed restart of a deck whose particles a source makes by parts, and which needs
-        // no whole scene (whole_scene_needed), reads its checkpoint by parts into the scene's
-        // description (docs/parallel.md, "A restart by parts"): each rank its molecules' rows of
-        // the state, never the whole file. A checkpoint before format 8 (whose fingerprint the
-        // parts cannot give) or a deck loaded whole restarts from the whole scene.
-        bool restart_by_parts = false;
-        if (decomposed && run->parsed() && !restart.empty() &&
-            stiffmd::checkpoint_format_version(restart) >= stiffmd::kFirstFingerprintByDescriptions) {
-          stiffmd::Scene described = stiffmd::load_scene(*deck, {}, stiffmd::SceneContent::description);
-          if (described.state.size() == 0 && described.undescribed_particles > 0 &&
-              stiffmd::whole_scene_needed(described).empty())
-            if (const stiffmd::PartSource s = stiffmd::part_source(*deck, described); s.make) {
-              scene.emplace(std::move(described));
-              source = s.make;
-              restart_by_parts = true;
-            }
-        }
-        if (!scene) scene.emplace(stiffmd::load_scene(*deck));
+        // A fresh decomposed run loads the deck's description first (engine/scene/scene.hpp:
+        // SceneContent::description, by-molecule chains counted, not built): when a source makes
+        // every particle by parts and the run needs nothing of the whole scene, no rank builds it
+        // (docs/parallel.md, "The scene's description"); else the whole scene, as everywhere. So
+        // does a decomposed restart from a checkpoint of format 8 on (whose fingerprint the parts
+        // give): it reads the checkpoint by parts, each rank its molecules' rows, never the whole
+        // file (docs/parallel.md, "A restart by parts").
+        const bool fresh_run = decomposed && run->parsed() && restart.empty();
+        const bool restart_run =
+            decomposed && run->parsed() && !restart.empty() &&
+            stiffmd::checkpoint_format_version(restart) >= stiffmd::kFirstFingerprintByDescriptions;
+        scene.emplace(stiffmd::load_scene(
+            *deck, {}, fresh_run || restart_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole));
+        if (scene->described() &&
+            (!stiffmd::part_source(*deck, *scene).make || !stiffmd::whole_scene_needed(*scene).empty() ||
+             (restart_run && scene->state.size() != 0)))
+          scene.emplace(stiffmd::load_scene(*deck));
+        const bool restart_by_parts = restart_run && scene->described();
         if (decomposed) {  // every rank alike, before the run
           stiffmd::check_parallel_grid(*scene, processes.size());
           stiffmd::check_parallel_outputs(*scene, processes.size());
@@ -293,7 +293,8 @@ int main(int argc, char** argv) {
         // A fresh decomposed run of a deck whose particles a source makes by parts starts from
         // each rank's own molecules (engine/domain/part_load.hpp), not from the whole scene's cut;
         // its [minimize] is the Run's, on the parts after the start (part_source refuses [prepare]).
-        if (decomposed && run->parsed() && restart.empty()) source = stiffmd::part_source(*deck, *scene).make;
+        // A restart by parts takes its molecules from the source too, their state from the checkpoint.
+        if (fresh_run || restart_by_parts) source = stiffmd::part_source(*deck, *scene).make;
         if (restart.empty() && !source)  // a restart's state is the checkpoint's
           stiffmd::prepare_scene(*scene, log, progress);
         if (check->parsed()) stiffmd::check_run(*scene, check_log);  // the method's notes belong to a run's log

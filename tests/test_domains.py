@@ -322,7 +322,7 @@ def case_setup(case):
     if case == "built_melt":  # the engine's builder and no [prepare]: no rank lists the whole system's pairs
         return MELT_MILLION, 0.002, {"build.0.chains": "40"}
     if case == "chains_by_parts":  # each rank builds its own molecules: the start from the source's parts
-        return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {}
+        return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {"observables.histograms": "true"}
     if case == "minimize_by_parts":  # each rank builds its own molecules, FIRE relaxes them on the parts
         return os.path.join(ROOT, "inputs", "melt_minimize_by_parts.toml"), 0.005, {}
     if case == "half_melt":  # a melt beside vacuum: the domains recut
@@ -630,6 +630,11 @@ BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder,
             "trappe:charged": "the data file read by blocks"}
 
 
+# Of those, the decks whose scene every rank loads as its description only (summary.json
+# domains.scene = "description"): the builder's by-molecule chains.
+DESCRIBED = ("chains_by_parts", "minimize_by_parts")
+
+
 def check_checkpoint_blocks(out, ranks):
     """The checkpoint the ranks wrote together, each its block of particles, is byte for byte the
     one-process writer's of the gathered state (engine/run/checkpoint.hpp)."""
@@ -676,6 +681,18 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
         if setup != "parts":
             raise SystemExit(f"FAIL: domains.setup = {setup!r} on {n} ranks: expected 'parts'")
         print(f"the parts made by {BY_PARTS[case]} on every rank")
+        # The builder's decks load the scene's description only (no rank builds the whole
+        # scene: engine/scene/scene.hpp SceneContent::description); a data file's, the whole scene.
+        with open(os.path.join(out, "summary.json")) as f:
+            scene = json.load(f)["domains"]["scene"]
+        expected = "description" if case in DESCRIBED else "whole"
+        if scene != expected:
+            raise SystemExit(f"FAIL: domains.scene = {scene!r} on {n} ranks: expected {expected!r}")
+        print(f"every rank loaded the {'description' if scene == 'description' else 'whole scene'}")
+    if os.path.exists(os.path.join(ref, "histograms.csv")):  # summed by parts on a description
+        if not filecmp.cmp(os.path.join(ref, "histograms.csv"), os.path.join(out, "histograms.csv"), shallow=False):
+            raise SystemExit(f"FAIL: histograms.csv of {case} on {n} ranks differs from the serial run's")
+        print("histograms.csv: the serial run's bytes")
     compare_runs(ref, out, f"{case} on {n} ranks")
 
 

@@ -599,7 +599,17 @@ StateBlock DomainIntegrator::state_block(const State& whole) const {
 
 void DomainIntegrator::gather(State& whole) const {
   if (!part_) return;
-  domains_->gather_columns({&part_->scene.state.x, &part_->scene.state.v}, {&whole.x, &whole.v}, whole_n_);
+  // A state without the whole system's inverse masses (a scene of descriptions holds none, on
+  // every rank alike) gets them too, as the first row of a third column.
+  const State& l = part_->scene.state;
+  if (whole.inv_mass.size() == whole_n_) {
+    domains_->gather_columns({&l.x, &l.v}, {&whole.x, &whole.v}, whole_n_);
+    return;
+  }
+  Eigen::Matrix3Xd mine = Eigen::Matrix3Xd::Zero(3, l.size()), all;
+  mine.row(0) = l.inv_mass.transpose();
+  domains_->gather_columns({&l.x, &l.v, &mine}, {&whole.x, &whole.v, &all}, whole_n_);
+  if (comm_.root()) whole.inv_mass = all.row(0).transpose();
 }
 
 std::vector<std::int64_t> DomainIntegrator::evaluations() const {

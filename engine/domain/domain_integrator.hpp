@@ -135,6 +135,9 @@ class DomainIntegrator final : public Integrator {
   // This rank's part (its particles, their types and charges, its topology and force terms), once
   // distributed.
   const Scene& part_scene() const;
+  // The molecules this rank owns, with what they carry (the part is built from them), once
+  // distributed: in the order of owned_ids().
+  const PartMolecules& owned_molecules() const { return molecules_; }
   void owned_forces(Eigen::Matrix3Xd& f) const;
   // Whether the thermo row can be summed by parts (sample_sums): once distributed, when every
   // molecule of the topology (its molecule ids: Rg, end-to-end) lies within one bonded molecule,

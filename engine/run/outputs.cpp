@@ -166,6 +166,7 @@ RunOutputs::RunOutputs(Scene& sc, int num_particles, const std::string& out_dir,
     : sc_(sc),
       dir_(out_dir),
       processes_(processes),
+      num_particles_(num_particles),
       root_(!processes || processes->root()),
       shared_h5md_(processes && processes->size() > 1 && H5mdWriter::shared_files()),
       xyz_due_(sc.output.xyz_interval),
@@ -346,8 +347,8 @@ void RunOutputs::write(const State& s, const std::vector<double>& row, const Pro
 void RunOutputs::write_xyz_by_blocks(const State& s, const ProcessRows& mine) {
   constexpr int kBlock = 1024;  // 57 kB of rows per gather
   const Communicator& comm = *processes_;
-  const int n = s.size();
-  const int record = 8;  // global index, type, x, v
+  const int n = num_particles_;  // the whole system's: the state s may hold none (a scene's description)
+  const int record = 8;          // global index, type, x, v
   if (!mine.type && sc_.particle_type.size() != static_cast<std::size_t>(n))
     throw std::logic_error(
         "RunOutputs::write: the XYZ rows need their types (ProcessRows::type) when the scene "

@@ -137,6 +137,7 @@ class RunOutputs {
   Scene& sc_;
   std::string dir_;
   const Communicator* processes_ = nullptr;  // a decomposed run's
+  int num_particles_ = 0;                    // the whole system's (the scene's state may hold none: a description)
   bool root_ = true, shared_h5md_ = false;
   int h5md_writers_ = 0;
   std::unique_ptr<XyzWriter> xyz_;

@@ -268,6 +268,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     domain_->distribute(s_);
   }
   if (domain_) summary_.domain_setup = opt.part ? "parts" : "whole";
+  if (domain_) summary_.domain_scene = described_ ? "description" : "whole";
   // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
   // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised
   // molecules, as the whole path starts from its minimised scene (prepare_scene).
@@ -335,8 +336,13 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     if (!opt.out_dir.empty() && root()) prepare_output_directory(sc, opt.out_dir);
   });
   const double cut = new_h ? s_.t - resumed_.h : static_cast<double>(s_.step - 1) * h_;
-  outputs_ = std::make_unique<RunOutputs>(sc, num_particles_, opt.out_dir, thermo_, restarting ? &cut : nullptr,
-                                          summary_.outputs, log, domain_ ? opt.processes : nullptr);
+  // A scene of descriptions: the trajectories' time-independent data from the parts' molecules.
+  std::optional<StaticParts> parts;
+  if (described_)
+    parts.emplace(StaticParts{domain_->owned_molecules(), domain_->owned_state().x, domain_->owned_state().v});
+  outputs_ =
+      std::make_unique<RunOutputs>(sc, num_particles_, opt.out_dir, thermo_, restarting ? &cut : nullptr,
+                                   summary_.outputs, log, domain_ ? opt.processes : nullptr, parts ? &*parts : nullptr);
   // The terminal: the thermo lines (from the rows the thermo file gets) and the progress bar.
   bool levels = false;
   for (const auto& term : sc.forces->terms()) levels |= term->level() == Level::fast;
@@ -607,8 +613,9 @@ void Run::observe(bool final) {
     std::optional<ProcessRows> mine;
     if (domain_->distributed()) {
       if (outputs_->shares_frame() && sc_.output.h5md_force) domain_->owned_forces(owned_force_);
-      mine.emplace(
-          ProcessRows{domain_->owned_ids(), domain_->owned_state().x, domain_->owned_state().v, &owned_force_});
+      // The rows' types name their species in an XYZ frame (a scene of descriptions has none).
+      mine.emplace(ProcessRows{domain_->owned_ids(), domain_->owned_state().x, domain_->owned_state().v, &owned_force_,
+                               &domain_->part_scene().particle_type});
     }
     outputs_->write(s_, last_row_, mine ? &*mine : nullptr, xyz_by_blocks);
   } else if (root()) {
@@ -709,10 +716,14 @@ void Run::write_checkpoint_now() {
   // Tests (tests/test_domains.py): the same checkpoint beside it as one process writes it, from
   // the state and carried columns gathered on rank 0, to compare the bytes with.
   if (std::getenv("STIFFMD_GATHERED_CHECKPOINT")) {
-    domain_->gather(s_);
+    State none;  // a scene of descriptions: the state gathered apart, with its inverse masses
+    none.t = s_.t;
+    none.step = s_.step;
+    State& whole = described_ ? none : s_;
+    domain_->gather(whole);
     std::vector<double> words = integrator_->save_state();
     Checkpoint gathered;
-    if (root()) write_checkpoint(checkpoint_path_ + ".gathered", s_, snapshot(gathered, std::move(words)));
+    if (root()) write_checkpoint(checkpoint_path_ + ".gathered", whole, snapshot(gathered, std::move(words)));
   }
   // Every rank writes its block of the state and of the integrator's carried columns into the one
   // file (engine/run/checkpoint.hpp); rank 0 the rest. Nothing is gathered.
@@ -744,8 +755,8 @@ std::string whole_scene_needed(const Scene& sc) {
   if (sc.observables.actions) return "[observables] actions are sampled from the gathered whole state";
   if (sc.observables.barostat) return "a barostat's molecular pressure is sampled from the gathered whole state";
   if (sc.monitor.stop) return "[monitor] on_alert = \"stop\" keeps the gathered whole state";
-  if (!sc.output.xyz.empty() || !sc.output.h5md.empty())
-    return "a trajectory's topology.data, species and bonds are written from the whole scene";
+  if (!sc.output.h5md.empty() && !H5mdWriter::shared_files())
+    return "an H5MD frame is written from the gathered whole state without parallel HDF5";
   if (!sc.output.lammps_data.empty()) return "output.lammps_data is written from the gathered whole state";
   if (!sc.output.state.empty()) return "output.state is written from the whole state";
   return "";

@@ -188,8 +188,9 @@ RunSummary run_simulation(Scene& scene, const RunOptions& options, std::ostream&
 // scene's description"), or "" when a scene of descriptions (no particle; its parts made by their
 // source, RunOptions::part) serves it: the outputs and samples that read the whole state or the
 // whole topology — the actions and a barostat's molecular pressure (a sample of the gathered
-// state), [monitor] on_alert = "stop" (it keeps the gathered state), a trajectory with its
-// topology.data, the final LAMMPS data file and the state CSV.
+// state), [monitor] on_alert = "stop" (it keeps the gathered state), an H5MD file without
+// parallel HDF5 (rank 0 writes the gathered frames), the final LAMMPS data file and the state CSV.
+// The trajectories' time-independent data and the histograms are written from the parts.
 std::string whole_scene_needed(const Scene& scene);
 
 // `stiffmd check`: a Run without outputs built on the scene and discarded, so that check fails

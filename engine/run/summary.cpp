@@ -152,8 +152,8 @@ std::string summary_json(const RunSummary& s) {
   }
   if (s.domains.ranks > 1) {
     const DomainReport& d = s.domains;
-    o << ",\n  \"ranks\": " << d.ranks << ",\n  \"domains\": {\"setup\": \"" << s.domain_setup << "\", \"grid\": ["
-      << d.grid[0] << ", " << d.grid[1] << ", " << d.grid[2]
+    o << ",\n  \"ranks\": " << d.ranks << ",\n  \"domains\": {\"setup\": \"" << s.domain_setup << "\", \"scene\": \""
+      << s.domain_scene << "\", \"grid\": [" << d.grid[0] << ", " << d.grid[1] << ", " << d.grid[2]
       << "], \"rank_loop_seconds_mean\": " << s.rank_loop_seconds_mean
       << ", \"rank_loop_seconds_max\": " << s.rank_loop_seconds_max
       << ", \"exchange_seconds_mean\": " << s.rank_exchange_seconds_mean

@@ -76,6 +76,9 @@ struct RunSummary {
   // How a decomposed run's parts were made: "whole" (cut from the whole scene every rank built) or
   // "parts" (each rank's molecules made by their source, engine/domain/part_load.hpp).
   std::string domain_setup;
+  // What every rank loaded of the deck: "whole" (the whole scene) or "description" (its
+  // description only, no particle: engine/scene/scene.hpp SceneContent::description).
+  std::string domain_scene;
   int h5md_writers = 0;    // a decomposed run's processes that wrote the H5MD file (parallel HDF5: all)
   std::string checkpoint;  // the last checkpoint written
   // [minimize] before the run (a fresh run's; a restart does not minimise): in summary.json as
