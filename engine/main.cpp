@@ -266,25 +266,35 @@ int main(int argc, char** argv) {
         // A fresh decomposed run loads the deck's description first (engine/scene/scene.hpp:
         // SceneContent::description, by-molecule chains counted, not built): when a source makes
         // every particle by parts and the run needs nothing of the whole scene, no rank builds it
-        // (docs/parallel.md, "The scene's description"); else the whole scene, as everywhere.
+        // (docs/parallel.md, "The scene's description"); else the whole scene, as everywhere. So
+        // does a decomposed restart from a checkpoint of format 8 on (whose fingerprint the parts
+        // give): it reads the checkpoint by parts, each rank its molecules' rows, never the whole
+        // file (docs/parallel.md, "A restart by parts").
         const bool fresh_run = decomposed && run->parsed() && restart.empty();
+        const bool restart_run =
+            decomposed && run->parsed() && !restart.empty() &&
+            stiffmd::checkpoint_format_version(restart) >= stiffmd::kFirstFingerprintByDescriptions;
         scene.emplace(stiffmd::load_scene(
-            *deck, {}, fresh_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole));
+            *deck, {}, fresh_run || restart_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole));
         if (scene->described() &&
-            (!stiffmd::part_source(*deck, *scene).make || !stiffmd::whole_scene_needed(*scene).empty()))
+            (!stiffmd::part_source(*deck, *scene).make || !stiffmd::whole_scene_needed(*scene).empty() ||
+             (restart_run && scene->state.size() != 0)))
           scene.emplace(stiffmd::load_scene(*deck));
+        const bool restart_by_parts = restart_run && scene->described();
         if (decomposed) {  // every rank alike, before the run
           stiffmd::check_parallel_grid(*scene, processes.size());
           stiffmd::check_parallel_outputs(*scene, processes.size());
         }
         // A restart's checkpoint is checked (format, checksum, version, scene) before anything is
         // printed or written: a damaged or foreign one is one line and exit 2.
-        if (run->parsed() && !restart.empty()) checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
+        if (run->parsed() && !restart.empty() && !restart_by_parts)
+          checkpoint = stiffmd::read_checkpoint_for(*scene, restart);
         for (const auto& note : scene->notes) log << note << "\n";
         // A fresh decomposed run of a deck whose particles a source makes by parts starts from
         // each rank's own molecules (engine/domain/part_load.hpp), not from the whole scene's cut;
         // its [minimize] is the Run's, on the parts after the start (part_source refuses [prepare]).
-        if (decomposed && run->parsed() && restart.empty()) source = stiffmd::part_source(*deck, *scene).make;
+        // A restart by parts takes its molecules from the source too, their state from the checkpoint.
+        if (fresh_run || restart_by_parts) source = stiffmd::part_source(*deck, *scene).make;
         if (restart.empty() && !source)  // a restart's state is the checkpoint's
           stiffmd::prepare_scene(*scene, log, progress);
         if (check->parsed()) stiffmd::check_run(*scene, check_log);  // the method's notes belong to a run's log
@@ -349,8 +359,9 @@ int main(int argc, char** argv) {
     stiffmd::RunOptions options{out_dir, speaker && !no_progress && !quiet, restart,
                                 checkpoint ? &*checkpoint : nullptr, speaker && !quiet ? stdout : nullptr};
     if (decomposed) options.processes = &processes.communicator();
-    // The others, and a restart (the checkpoint's state, read whole), start from the whole
-    // scene's cut.
+    // A restart by parts takes its molecules' state from the checkpoint (Run::Run); the others,
+    // and a restart with the whole scene (the checkpoint's state, read whole), start from the
+    // whole scene's cut.
     if (source) options.part = [&] { return source(*deck, *scene, processes.communicator()); };
     options.started_at = started_at;
     running = decomposed;

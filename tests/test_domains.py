@@ -56,6 +56,11 @@ CASE is one of
     restart_half_melt:A:B     the same on inputs/half_melt.toml: the domains recut on A ranks and again
                               on B (the cuts are not in the checkpoint; the trajectory does not depend
                               on them)
+    restart_parts:A:B         tests/decks/chains_by_parts.toml (by-molecule chains, Langevin): 20 steps on
+                              A ranks, then --restart on B ranks by parts (each rank reads its rows of
+                              the checkpoint; summary.json domains.setup "parts") to step 40: thermo.csv
+                              the bytes of the uninterrupted run on A ranks; a checkpoint with one byte
+                              flipped is refused with one line, exit 2
 
 Each case runs the serial reference, `STIFFMD run DECK -o REF` (no launcher), and
 `MPIEXEC NUMPROC_FLAG N STIFFMD run DECK -o OUT`, both with OMP_NUM_THREADS=1 (another thread count
@@ -815,6 +820,44 @@ def restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, deck=STRADD
     compare_runs(ref, out, f"{os.path.basename(deck)} on {first} ranks, restarted on {second}")
 
 
+def restart_parts_case(stiffmd, mpiexec, numproc_flag, first, second, tmp):
+    """docs/parallel.md, "A restart by parts": the restart of a deck made by parts reads its
+    checkpoint by parts and continues the run bit for bit (thermo.csv's bytes)."""
+    deck = os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml")
+    sets = ["--set", "output.checkpoint_interval=0.05", "--set", "output.thermo_interval=0.01"]
+    ref, out = os.path.join(tmp, "uninterrupted"), os.path.join(tmp, f"ranks_{first}_then_{second}")
+    base = ["run", deck, "-q", "--no-progress"] + sets
+    run(launch(mpiexec, numproc_flag, first, stiffmd) + base + ["-o", ref, "--set", "run.steps=40"], first)
+    run(launch(mpiexec, numproc_flag, first, stiffmd) + base + ["-o", out, "--set", "run.steps=20"], first)
+    checkpoint = os.path.join(tmp, "at_20.bin")
+    shutil.copy(os.path.join(out, "checkpoint.bin"), checkpoint)
+    r = run(launch(mpiexec, numproc_flag, second, stiffmd) + base + ["-o", out, "--set", "run.steps=40",
+            "--restart", checkpoint], second)
+    if "at step 20 " not in r.stderr:
+        raise SystemExit(f"FAIL: the run on {second} ranks did not say it continued at step 20:\n{r.stderr}")
+    with open(os.path.join(out, "summary.json")) as f:
+        setup = json.load(f)["domains"]["setup"]
+    if second > 1 and setup != "parts":
+        raise SystemExit(f"FAIL: the restart on {second} ranks set up from '{setup}', not by parts")
+    with open(os.path.join(ref, "thermo.csv"), "rb") as a, open(os.path.join(out, "thermo.csv"), "rb") as b:
+        if a.read() != b.read():
+            raise SystemExit(f"FAIL: thermo.csv of the restart on {second} ranks differs from the uninterrupted run's")
+    damaged = os.path.join(tmp, "damaged.bin")
+    with open(checkpoint, "rb") as f:
+        data = bytearray(f.read())
+    data[len(data) // 3] ^= 0x10
+    with open(damaged, "wb") as f:
+        f.write(data)
+    cmd = launch(mpiexec, numproc_flag, second, stiffmd) + base + ["-o", os.path.join(tmp, "damaged"), "--set",
+                                                                   "run.steps=40", "--restart", damaged]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=environment())
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error")]
+    if r.returncode != 2 or len(errors) != 1 or f"{damaged}: damaged checkpoint (crc32" not in errors[0]:
+        raise SystemExit(f"FAIL: a damaged checkpoint on {second} ranks: exit {r.returncode}, stderr:\n{r.stderr}")
+    print(f"restarted by parts on {second} ranks from {first}: thermo.csv the uninterrupted run's bytes; "
+          f"a damaged checkpoint refused with one line")
+
+
 def main(argv):
     if len(argv) != 6:
         raise SystemExit(__doc__)
@@ -831,6 +874,9 @@ def main(argv):
         elif case.startswith("restart:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
+        elif case.startswith("restart_parts:"):
+            first, second = (int(r) for r in case.split(":")[1:])
+            restart_parts_case(stiffmd, mpiexec, numproc_flag, first, second, tmp)
         elif case.startswith("restart_npt:"):
             first, second = (int(r) for r in case.split(":")[1:])
             restart_case(stiffmd, mpiexec, numproc_flag, first, second, tmp, STIFF_MELT_NPT, 0.01)

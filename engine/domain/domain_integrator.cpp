@@ -338,7 +338,7 @@ void DomainIntegrator::start(const State& s) {
 // the molecules travel with their data (Decomposition::migrate), and no part reads the whole
 // system's arrays again.
 void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s,
-                                   bool carry) {
+                                   bool carry, const CarriedRows* carried) {
   const Scene& w = whole_scene_;
   molecules_ = std::move(molecules);
   // Over the ranks: whether the particles have a friction each, and whether some has a charge.
@@ -375,17 +375,26 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
   const std::vector<int>& ids = domains_->owned_ids();
   // A whole scene of descriptions (no particle) was prepared on no particle: its columns are
   // empty, and none of them is valid yet (the first step computes them, as on one process).
+  // A restart by parts reads the owned particles' rows of the columns from its checkpoint.
   const bool described = w.state.size() == 0;
-  if (described && std::any_of(c.flags.begin(), c.flags.end(), [](double f) { return f != 0.0; }))
+  if (carried) {
+    if (!described) throw std::logic_error("DomainIntegrator: the rows of the carried columns for a whole scene");
+    std::vector<Eigen::Matrix3Xd> rows = (*carried)(ids);
+    if (rows.size() != c.columns.size())
+      throw std::logic_error("DomainIntegrator: the checkpoint's carried columns are not the integrator's");
+    c.columns = std::move(rows);
+  } else if (described && std::any_of(c.flags.begin(), c.flags.end(), [](double f) { return f != 0.0; })) {
     throw std::logic_error("DomainIntegrator: a scene of descriptions whose integrator carries valid columns");
-  for (Eigen::Matrix3Xd& column : c.columns) {
-    Eigen::Matrix3Xd mine(3, domains_->num_owned());
-    if (described)
-      mine.setZero();
-    else
-      for (int k = 0; k < domains_->num_owned(); ++k) mine.col(k) = column.col(ids[k]);
-    column = std::move(mine);
   }
+  if (!carried)
+    for (Eigen::Matrix3Xd& column : c.columns) {
+      Eigen::Matrix3Xd mine(3, domains_->num_owned());
+      if (described)
+        mine.setZero();
+      else
+        for (int k = 0; k < domains_->num_owned(); ++k) mine.col(k) = column.col(ids[k]);
+      column = std::move(mine);
+    }
   if (!comm_.root()) std::fill(c.sums.begin(), c.sums.end(), 0.0);
   part_->integrator->restore_carried_state(std::move(c));
   // The parts evaluate the forces from now on: the whole system's terms drop what they can make
@@ -539,6 +548,20 @@ std::vector<WordRun> word_runs(const std::vector<double>& words, std::size_t col
 }
 
 }  // namespace
+
+std::vector<WordRun> DomainIntegrator::word_layout() const {
+  if (part_) throw std::logic_error("DomainIntegrator::word_layout: after the start");
+  CarriedState now = whole_->carried_state();
+  CarriedState marked = now;
+  for (std::size_t k = 0; k < marked.columns.size(); ++k) {
+    marked.columns[k].resize(3, 1);
+    for (int row = 0; row < 3; ++row) marked.columns[k](row, 0) = column_mark(k, row);
+  }
+  whole_->restore_carried_state(std::move(marked));
+  std::vector<WordRun> runs = word_runs(whole_->save_state(), now.columns.size());
+  whole_->restore_carried_state(std::move(now));
+  return runs;
+}
 
 StateBlock DomainIntegrator::state_block(const State& whole) const {
   StateBlock b;

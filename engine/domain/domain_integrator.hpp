@@ -18,6 +18,7 @@
 // the first sample), the whole-system integrator answers, the same on every rank.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -97,6 +98,22 @@ class DomainIntegrator final : public Integrator {
   void distribute(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s) {
     if (!part_) start_parts(std::move(molecules), std::move(x), std::move(v), s);
   }
+  // The rows of the integrator's carried columns (CarriedState::columns, each 3 × ids.size()) of
+  // the particles `ids` (global indices): a restart by parts reads them from its checkpoint
+  // (CheckpointParts::columns). Collective: called on every rank at the same point.
+  using CarriedRows = std::function<std::vector<Eigen::Matrix3Xd>(const std::vector<int>& ids)>;
+  // The same for a restart of a scene of descriptions (no particle) by parts: the whole-system
+  // integrator has loaded the checkpoint's words but its columns (it holds no particle), and each
+  // part takes its owned particles' rows of the columns from `carried`, once the molecules are at
+  // their owners — what the whole path's start hands each part from the whole columns.
+  void distribute(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s,
+                  const CarriedRows& carried) {
+    if (!part_) start_parts(std::move(molecules), std::move(x), std::move(v), s, true, &carried);
+  }
+  // The whole-system integrator's words as runs (save_state: word runs, and each carried column by
+  // index), as a checkpoint lays them out: what a reader by parts needs to find the columns
+  // (CheckpointParts). The words of the runs are the integrator's now. Before the start.
+  std::vector<WordRun> word_layout() const;
   bool distributed() const { return part_ != nullptr; }
   // [minimize] on the parts, once distributed (engine/domain/part_minimize.cpp; collective, every
   // rank with the same p): FIRE moves each rank's particles with its part's forces, its sums
@@ -161,7 +178,9 @@ class DomainIntegrator final : public Integrator {
   struct Part;
   void start(const State& s);
   // carry: the parts take over what the whole-system integrator carries (a first start).
-  void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool carry = true);
+  // carried: the rows of the columns read for the owned particles (a restart by parts).
+  void start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool carry = true,
+                   const CarriedRows* carried = nullptr);
   std::unique_ptr<Decomposition> make_domains() const;
   // `extra`: per-particle columns that move with the molecules besides the integrator's.
   void reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra = {});

@@ -1,6 +1,7 @@
 #include "engine/run/checkpoint.hpp"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
 
@@ -879,7 +880,16 @@ bool checkpoint_at_end(const Scene& sc, const Checkpoint& c) {
 
 Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
   Checkpoint c = read_checkpoint_of(sc, path);
+  load_checkpoint_rest(sc, c, path);
+  return c;
+}
+
+void load_checkpoint_rest(Scene& sc, const Checkpoint& c, const std::string& path) {
+  check_checkpoint_stage(sc, c, path);
   const auto& terms = sc.forces->terms();
+  if (c.force_term_states.size() != terms.size())
+    throw InputError(path + ": checkpoint holds the state of " + std::to_string(c.force_term_states.size()) +
+                     " force terms, the deck has " + std::to_string(terms.size()));
   if (sc.run.steps > 0 && c.state.step >= sc.run.steps)
     throw InputError(path + ": checkpoint is at step " + std::to_string(c.state.step) + ", not before run.steps = " +
                      std::to_string(sc.run.steps) + " (raise it with --set run.steps=...)");
@@ -904,7 +914,299 @@ Checkpoint read_checkpoint_for(Scene& sc, const std::string& path) {
       throw InputError(path + ": " + e.what());
     }
   }
-  return c;
+}
+
+std::uint32_t checkpoint_format_version(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  if (fd < 0) return 0;
+  std::array<char, 16> h{};
+  const ssize_t got = ::pread(fd, h.data(), h.size(), 0);
+  ::close(fd);
+  if (got != static_cast<ssize_t>(h.size()) || std::memcmp(h.data(), kMagic, 8) != 0) return 0;
+  std::uint32_t version = 0;
+  std::memcpy(&version, h.data() + 12, sizeof version);
+  return version;
+}
+
+namespace {
+
+// n bytes at `at`, or false (an error, or the end of the file first).
+bool read_at(int fd, void* out, std::uint64_t n, std::uint64_t at) {
+  auto* p = static_cast<char*>(out);
+  while (n > 0) {
+    const ssize_t k = ::pread(fd, p, static_cast<size_t>(std::min<std::uint64_t>(n, 1u << 30)), static_cast<off_t>(at));
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0) return false;
+    p += k;
+    at += static_cast<std::uint64_t>(k);
+    n -= static_cast<std::uint64_t>(k);
+  }
+  return true;
+}
+
+// The fields of the file read in sequence from `pos` by pread, as Reader reads them from memory:
+// a field past the end is a malformed checkpoint (the checksum was right: a writer bug or a forged
+// file). Counts the bytes it reads.
+class FileFields {
+ public:
+  FileFields(int fd, std::uint64_t size, std::uint64_t pos, const std::string& path, std::uint64_t& count)
+      : fd_(fd), size_(size), pos_(pos), path_(path), count_(count) {}
+  template <class T>
+  T get() {
+    T v;
+    bytes(&v, sizeof(T));
+    return v;
+  }
+  std::string string() {
+    const auto n = get<std::uint64_t>();
+    need(n);
+    std::string s(n, '\0');
+    bytes(s.data(), n);
+    return s;
+  }
+  std::vector<double> doubles() {
+    const auto n = get<std::uint64_t>();
+    if (n > size_) bad("a block longer than the file");
+    need(n * sizeof(double));
+    std::vector<double> v(n);
+    bytes(v.data(), n * sizeof(double));
+    return v;
+  }
+  // A block's count word, checked to be `expected`; its values skipped. Returns their offset.
+  std::uint64_t skip_block(std::uint64_t expected, const char* what) {
+    if (get<std::uint64_t>() != expected)
+      bad(std::string("array sizes disagree with the particle count (") + what + ")");
+    const std::uint64_t at = pos_;
+    skip(expected * sizeof(double));
+    return at;
+  }
+  void skip(std::uint64_t n) {
+    need(n);
+    pos_ += n;
+  }
+  std::uint64_t pos() const { return pos_; }
+  bool at_end() const { return pos_ == size_; }
+  [[noreturn]] void bad(const std::string& what) const {
+    throw InputError(path_ + ": malformed checkpoint (" + what + ")");
+  }
+
+ private:
+  void need(std::uint64_t n) const {
+    if (n > size_ - pos_) bad("a field runs past the end");
+  }
+  void bytes(void* out, std::uint64_t n) {
+    need(n);
+    if (n > 0 && !read_at(fd_, out, n, pos_))
+      throw InputError(path_ + ": cannot read checkpoint: " + std::strerror(errno));
+    pos_ += n;
+    count_ += n;
+  }
+  int fd_;
+  std::uint64_t size_, pos_;
+  const std::string& path_;
+  std::uint64_t& count_;
+};
+
+}  // namespace
+
+CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout,
+                                 const std::string& method)
+    : path_(path), ranks_(ranks) {
+  const Communicator* comm = &ranks;
+  auto fail = [&](const std::string& what) { throw InputError(path + ": " + what); };
+  std::uint64_t size = 0;
+  std::array<char, kHeader> h{};
+  // The header, as read_checkpoint checks it, every rank alike.
+  try {
+    agree(comm, [&] {
+      fd_ = ::open(path.c_str(), O_RDONLY);
+      if (fd_ < 0) fail(std::string("cannot open checkpoint: ") + std::strerror(errno));
+      struct stat st {};
+      if (::fstat(fd_, &st) != 0) fail(std::string("cannot open checkpoint: ") + std::strerror(errno));
+      size = static_cast<std::uint64_t>(st.st_size);
+      const std::uint64_t head = std::min<std::uint64_t>(size, kHeader);
+      if (!read_at(fd_, h.data(), head, 0)) fail(std::string("cannot read checkpoint: ") + std::strerror(errno));
+      bytes_read_ += head;
+      if (size >= 8 && std::memcmp(h.data(), kMagicVersion1, 8) == 0)
+        fail(
+            "checkpoint of format version 1 (an older stiffmd), which lacks the integrator and neighbour-list state "
+            "needed to continue a run exactly; start the run afresh");
+      if (size < kHeader || std::memcmp(h.data(), kMagic, 8) != 0)
+        fail(size >= 8 && std::memcmp(h.data(), kMagic, 8) == 0
+                 ? "truncated checkpoint (" + std::to_string(size) + " bytes, shorter than its header)"
+                 : "not a stiffmd checkpoint");
+      std::uint32_t bom = 0;
+      std::memcpy(&bom, h.data() + 16, sizeof bom);
+      if (bom == __builtin_bswap32(kByteOrderMark))
+        fail(
+            "checkpoint written on a machine of the other byte order; checkpoints are not portable across byte "
+            "orders");
+    });
+    // The crc32 of bytes 12 … end by blocks: each rank its range, rank 0 combines them in file order.
+    const ParticleBlock mine = block_of(static_cast<std::int64_t>(size - kCrcFrom), ranks.size(), ranks.rank());
+    std::uint32_t crc = 0;
+    bool read = true;
+    {
+      std::vector<char> buf(1 << 16);
+      for (std::int64_t done = 0; read && done < mine.count;) {
+        const auto k = std::min<std::int64_t>(mine.count - done, static_cast<std::int64_t>(buf.size()));
+        read = read_at(fd_, buf.data(), static_cast<std::uint64_t>(k),
+                       kCrcFrom + static_cast<std::uint64_t>(mine.first + done));
+        crc = crc32_of(crc, buf.data(), static_cast<std::size_t>(k));
+        done += k;
+      }
+      crc_bytes_read_ = static_cast<std::uint64_t>(mine.count);
+    }
+    agree(comm, [&] {
+      if (!read) fail(std::string("cannot read checkpoint: ") + std::strerror(errno));
+    });
+    std::vector<std::vector<double>> all;
+    ranks.gather({static_cast<double>(mine.count), static_cast<double>(crc)}, all);
+    agree(comm, [&] {
+      if (!ranks.root()) return;
+      std::uint64_t length = 0;
+      std::uint32_t stored = 0;
+      std::memcpy(&length, h.data() + 24, sizeof length);
+      std::memcpy(&stored, h.data() + 8, sizeof stored);
+      auto whole = static_cast<uLong>(0);
+      for (const std::vector<double>& piece : all)
+        whole = ::crc32_combine(whole, static_cast<uLong>(piece[1]), static_cast<z_off_t>(piece[0]));
+      if (static_cast<std::uint32_t>(whole) == stored) return;
+      std::uint32_t bom = 0;
+      std::memcpy(&bom, h.data() + 16, sizeof bom);
+      std::ostringstream m;
+      if (bom == kByteOrderMark && length > size)
+        m << "truncated checkpoint (" << size << " of " << length << " bytes)";
+      else
+        m << "damaged checkpoint (crc32 " << std::hex << static_cast<std::uint32_t>(whole) << ", recorded " << stored
+          << ")";
+      fail(m.str());
+    });
+    // The rest of the header, the prefix and the blocks but the per-particle rows, every rank alike.
+    agree(comm, [&] {
+      std::uint32_t version = 0, bom = 0, dsize = 0;
+      std::uint64_t length = 0;
+      std::memcpy(&version, h.data() + 12, sizeof version);
+      std::memcpy(&bom, h.data() + 16, sizeof bom);
+      std::memcpy(&dsize, h.data() + 20, sizeof dsize);
+      std::memcpy(&length, h.data() + 24, sizeof length);
+      if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
+        fail("checkpoint of format version " + std::to_string(version) +
+             (version > kCheckpointVersion ? " (a newer"
+              : version >= 2               ? " (an older"
+                                           : " (an unknown") +
+             " stiffmd); this stiffmd reads versions " + std::to_string(kOldestCheckpointVersion) + " to " +
+             std::to_string(kCheckpointVersion));
+      if (version < kFirstFingerprintByDescriptions)
+        fail("checkpoint of format version " + std::to_string(version) +
+             ", whose fingerprint a restart by parts cannot check; restart it with the whole scene");
+      if (bom != kByteOrderMark || dsize != sizeof(double) || length != size)
+        fail("malformed checkpoint header (byte order, double size or length)");
+      Checkpoint& c = rest_;
+      c.version = version;
+      std::memcpy(&c.scene_fingerprint, h.data() + 32, sizeof c.scene_fingerprint);
+      FileFields r(fd_, size, kHeader, path_, bytes_read_);
+      n_ = r.get<std::int64_t>();
+      c.state.step = r.get<std::int64_t>();
+      c.state.t = r.get<double>();
+      c.h = r.get<double>();
+      c.method = r.string();
+      const auto stage = r.get<std::int64_t>();
+      if (stage < 0 || stage > std::numeric_limits<int>::max()) r.bad("stage number");
+      c.stage = static_cast<int>(stage);
+      c.stage_name = r.string();
+      if ((c.stage == 0) != c.stage_name.empty()) r.bad("stage number and name");
+      if (n_ < 0 || static_cast<std::uint64_t>(n_) > size / 8) r.bad("array sizes disagree with the particle count");
+      const auto n = static_cast<std::uint64_t>(n_);
+      x_ = r.skip_block(3 * n, "x");
+      v_ = r.skip_block(3 * n, "v");
+      inv_mass_ = r.skip_block(n, "inverse masses");
+      // The integrator's words: the layout's runs, each column 3 N words.
+      const auto words = r.get<std::uint64_t>();
+      if (words > size / 8) r.bad("a block longer than the file");
+      std::uint64_t expected = 0;
+      for (const WordRun& run : layout) expected += run.column >= 0 ? 3 * n : run.words.size();
+      // Another method's words (a restart that changes the method starts it afresh): not read.
+      if (c.method != method) {
+        r.skip(8 * words);
+      } else {
+        if (words != expected)
+          fail("checkpoint holds " + std::to_string(words) + " words of " + c.method +
+               " state, the deck's settings lay out " + std::to_string(expected) +
+               " (restart it with the whole scene)");
+        for (const WordRun& run : layout) {
+          if (run.column >= 0) {
+            const auto k = static_cast<std::size_t>(run.column);
+            if (column_.size() <= k) column_.resize(k + 1, 0);
+            column_[k] = r.pos();
+            r.skip(24 * n);
+            continue;
+          }
+          for (std::size_t w = 0; w < run.words.size(); ++w) c.integrator_state.push_back(r.get<double>());
+        }
+      }
+      c.thermo_state = r.doubles();
+      c.monitor_state = r.doubles();
+      c.run_state = r.doubles();
+      const auto box = r.doubles();
+      if (box.size() != 6) r.bad("box");
+      c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
+      c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
+      c.has_box = true;
+      const auto terms = r.get<std::uint64_t>();
+      if (terms > size) r.bad("term count");
+      for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
+      if (!r.at_end()) r.bad("bytes after the last block");
+      if (c.run_state.size() < 4) r.bad("run statistics");
+      if (c.state.step < 0 || !(c.state.t >= 0.0) || !std::isfinite(c.state.t) || !(c.h > 0.0) || !std::isfinite(c.h))
+        r.bad("step " + std::to_string(c.state.step) + ", t or h out of range");
+    });
+  } catch (...) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+    throw;
+  }
+}
+
+CheckpointParts::~CheckpointParts() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void CheckpointParts::rows(std::uint64_t first_word, int per_particle, const std::vector<int>& ids, double* out) const {
+  const auto per = static_cast<std::uint64_t>(per_particle);
+  for (std::size_t k = 0; k < ids.size();) {
+    std::size_t e = k + 1;
+    while (e < ids.size() && ids[e] == ids[e - 1] + 1) ++e;
+    if (ids[k] < 0 || ids[e - 1] >= n_)
+      throw InputError(path_ + ": checkpoint holds " + std::to_string(n_) + " particles, the deck's particle " +
+                       std::to_string(ids[k] < 0 ? ids[k] : ids[e - 1]) + " is not among them");
+    const std::uint64_t bytes = 8 * per * (e - k);
+    if (!read_at(fd_, out + per * k, bytes, first_word + 8 * per * static_cast<std::uint64_t>(ids[k])))
+      throw InputError(path_ + ": cannot read checkpoint: " + std::strerror(errno));
+    bytes_read_ += bytes;
+    k = e;
+  }
+}
+
+void CheckpointParts::particles(const std::vector<int>& ids, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                                Eigen::VectorXd& inv_mass) const {
+  const auto m = static_cast<Eigen::Index>(ids.size());
+  x.resize(3, m);
+  v.resize(3, m);
+  inv_mass.resize(m);
+  agree(&ranks_, [&] {
+    rows(x_, 3, ids, x.data());
+    rows(v_, 3, ids, v.data());
+    rows(inv_mass_, 1, ids, inv_mass.data());
+  });
+}
+
+std::vector<Eigen::Matrix3Xd> CheckpointParts::columns(const std::vector<int>& ids) const {
+  std::vector<Eigen::Matrix3Xd> out(column_.size(), Eigen::Matrix3Xd(3, static_cast<Eigen::Index>(ids.size())));
+  agree(&ranks_, [&] {
+    for (std::size_t k = 0; k < column_.size(); ++k) rows(column_[k], 3, ids, out[k].data());
+  });
+  return out;
 }
 
 }  // namespace stiffmd

@@ -49,6 +49,8 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "core/box.hpp"
 #include "core/communicator.hpp"
 #include "core/state.hpp"
@@ -181,5 +183,73 @@ bool checkpoint_at_end(const Scene& scene, const Checkpoint& c);
 // loaded: the force terms' states into the scene (nothing else of the scene changes). Throws
 // InputError naming the path.
 Checkpoint read_checkpoint_for(Scene& scene, const std::string& path);
+
+// The format version of the checkpoint at `path` (bytes 12–15 after a stiffmd magic), 0 when it
+// cannot be read or is not a checkpoint: whether a restart can read it by parts (format 8 on:
+// the fingerprint by descriptions, which scene_fingerprint_parts gives). Reads 16 bytes.
+std::uint32_t checkpoint_format_version(const std::string& path);
+
+// read_checkpoint_for's checks and loads of what is not the state, for a checkpoint `c` already
+// read (whole or by parts): its stage, one state per force term, before the scene's end
+// (run.steps, run.t_end); then the box and the force terms' states into the scene. Throws
+// InputError naming the path.
+void load_checkpoint_rest(Scene& scene, const Checkpoint& c, const std::string& path);
+
+// A checkpoint read by parts (docs/parallel.md, "A restart by parts"): every rank reads the
+// header, the prefix (particle count, step, t, h, method, stage) and every block that is not per
+// particle — the integrator's words but its carried columns, the thermo, monitor and run
+// statistics, the box, the force terms' states — and, on demand, the rows of the particles it is
+// given of x, v, the inverse masses and the integrator's carried columns, each contiguous run of
+// global indices by one pread: never the whole file. The crc32 of bytes 12 … end is computed by
+// blocks, each rank its byte range (block_of), and combined on rank 0 (zlib crc32_combine).
+//
+// `layout`: the integrator's words as runs (DomainIntegrator::word_layout: word runs by their
+// length, carried columns by index), as the integrator of the scene lays them out; the file's
+// integrator block must be those words with each column 3 N words long. The words but the columns
+// become rest().integrator_state, what an integrator of no particle loads (Integrator::load_state).
+// `method`: the deck's; a checkpoint of another method has its words skipped (rest().integrator_state
+// and columns() empty: the restart starts that method afresh, as the whole path does).
+//
+// Collective: every failure — missing, not a checkpoint, of format before 8, truncated, damaged
+// (crc32), malformed, a layout that does not fit — throws AgreedInputError on every rank with one
+// line naming the path (read_checkpoint's wording).
+class CheckpointParts {
+ public:
+  CheckpointParts(const std::string& path, const Communicator& ranks, const std::vector<WordRun>& layout,
+                  const std::string& method);
+  ~CheckpointParts();
+  CheckpointParts(const CheckpointParts&) = delete;
+  CheckpointParts& operator=(const CheckpointParts&) = delete;
+
+  // Everything but the per-particle arrays: state.step and state.t (state's arrays empty), the
+  // method, h, the stage, the fingerprint, the integrator's words without its columns, the other
+  // blocks.
+  const Checkpoint& rest() const { return rest_; }
+  std::int64_t num_particles() const { return n_; }
+  // The rows of the particles `ids` (global indices, any order) of x, v and the inverse masses.
+  // Collective (a failed read is agreed).
+  void particles(const std::vector<int>& ids, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,
+                 Eigen::VectorXd& inv_mass) const;
+  // The rows of `ids` of each carried column (the layout's column indices), 3 × ids.size() each.
+  // Collective.
+  std::vector<Eigen::Matrix3Xd> columns(const std::vector<int>& ids) const;
+  // The bytes this rank has read of the file so far: its rows and the blocks but the checksum's
+  // (crc_bytes_read), a measure of what a rank holds.
+  std::uint64_t bytes_read() const { return bytes_read_; }
+  // The bytes this rank read to compute its share of the crc32: its byte range of the file.
+  std::uint64_t crc_bytes_read() const { return crc_bytes_read_; }
+
+ private:
+  void rows(std::uint64_t first_word, int per_particle, const std::vector<int>& ids, double* out) const;
+  std::string path_;
+  const Communicator& ranks_;
+  int fd_ = -1;
+  std::int64_t n_ = 0;
+  Checkpoint rest_;
+  std::uint64_t x_ = 0, v_ = 0, inv_mass_ = 0;  // offsets of the first value of each block
+  std::vector<std::uint64_t> column_;           // offset of each carried column's first value
+  mutable std::uint64_t bytes_read_ = 0;
+  std::uint64_t crc_bytes_read_ = 0;
+};
 
 }  // namespace stiffmd

@@ -64,8 +64,10 @@ Thermo first_thermo(const Scene& sc, const RunOptions& opt) {
 
 // A restart's checkpoint, read and checked against the scene (which loads the force terms'
 // states) before anything else: a damaged or foreign one is refused before any output is touched.
+// A restart of a scene of descriptions reads its checkpoint by parts once its integrator is made
+// (Run::Run: CheckpointParts needs the integrator's layout of words).
 Checkpoint resumed_checkpoint(Scene& sc, const RunOptions& opt) {
-  if (opt.restart.empty()) return {};
+  if (opt.restart.empty() || described(sc, opt)) return {};
   return opt.checkpoint ? *opt.checkpoint : read_checkpoint_for(sc, opt.restart);
 }
 
@@ -156,8 +158,8 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
       stats_(sc.forces->num_levels()),
       h_(sc.integrator.h) {
   described_ = described(sc, opt);
-  if (described_ && (!domain_ || !opt.restart.empty()))
-    throw std::logic_error("Run: a scene of descriptions is a fresh decomposed run's, started from its parts");
+  if (described_ && !domain_)
+    throw std::logic_error("Run: a scene of descriptions is a decomposed run's, started from its parts");
   summary_.method = sc.integrator.method;
   summary_.units = sc.units.name;
   summary_.stage = sc.stage;
@@ -169,16 +171,30 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
 
   const bool restarting = !opt.restart.empty();
   auto refuse = [&](const std::string& what) { throw InputError(opt.restart + ": " + what); };
+  // A restart by parts (docs/parallel.md, "A restart by parts"): every rank reads the checkpoint's
+  // blocks that are not per particle, and later the rows of its particles alone; what
+  // read_checkpoint_for checks and loads besides the state and the fingerprint is checked here,
+  // every rank alike (agreed: a refusal is one line on every rank).
+  std::unique_ptr<CheckpointParts> checkpoint_parts;
+  if (restarting && described_) {
+    checkpoint_parts =
+        std::make_unique<CheckpointParts>(opt.restart, *opt.processes, domain_->word_layout(), sc.integrator.method);
+    resumed_ = checkpoint_parts->rest();
+    agree(opt.processes, [&] { load_checkpoint_rest(sc, resumed_, opt.restart); });
+  }
   if (restarting) {
-    if (resumed_.method == sc.integrator.method) try {
-        integrator_->load_state(resumed_.integrator_state);
-      } catch (const std::invalid_argument& e) {
-        refuse(e.what());
-      }
-    if (!thermo_.load_state(resumed_.thermo_state)) refuse("thermo state does not fit this scene's observables");
+    // By parts: every rank alike, agreed.
+    agree(checkpoint_parts ? opt.processes : nullptr, [&] {
+      if (resumed_.method == sc.integrator.method) try {
+          integrator_->load_state(resumed_.integrator_state);
+        } catch (const std::invalid_argument& e) {
+          refuse(e.what());
+        }
+      if (!thermo_.load_state(resumed_.thermo_state)) refuse("thermo state does not fit this scene's observables");
+      if (const std::string e = stats_.load(resumed_.run_state); !e.empty()) refuse(e);
+    });
     if (!monitor_.load_state(resumed_.monitor_state))  // [observables] actions changed with --set
       log << "note: " << opt.restart << ": the monitor's reference is taken afresh (the actions observed changed)\n";
-    if (const std::string e = stats_.load(resumed_.run_state); !e.empty()) refuse(e);
     summary_.initial_actions = stats_.initial_actions;
     // The scene's state becomes the checkpoint's; the deck supplies everything else. With another
     // method the integrator starts afresh from that state.
@@ -214,7 +230,40 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     // A scene of descriptions has no particle to take the fingerprint of: the parts give it
     // (the same value, summed by blocks: engine/run/checkpoint.hpp).
     if (described_) fingerprint_ = scene_fingerprint_parts(sc, mine.molecules, *opt.processes);
-    domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
+    if (checkpoint_parts) {
+      // The restart's state of these molecules: their rows of x, v (the source's are the fresh
+      // run's), their inverse masses checked against theirs, and the scene's fingerprint against
+      // the checkpoint's, as read_checkpoint_of checks the whole scene's; the integrator's
+      // carried columns of the particles each rank owns once the molecules are at their owners.
+      std::int64_t count = mine.molecules.size();
+      opt.processes->sum(&count, 1);
+      if (count != checkpoint_parts->num_particles())
+        throw AgreedInputError(opt.restart + ": checkpoint holds " + std::to_string(checkpoint_parts->num_particles()) +
+                                   " particles, the deck " + std::to_string(count) + ": not a checkpoint of this scene",
+                               root());
+      Eigen::VectorXd inv_mass;
+      checkpoint_parts->particles(mine.molecules.global, mine.x, mine.v, inv_mass);
+      agree(opt.processes, [&] {
+        if (!std::equal(mine.molecules.inv_mass.begin(), mine.molecules.inv_mass.end(), inv_mass.data(),
+                        inv_mass.data() + inv_mass.size()))
+          refuse("checkpoint masses differ from the deck's: not a checkpoint of this scene");
+      });
+      if (fingerprint_ != resumed_.scene_fingerprint)
+        throw AgreedInputError(opt.restart +
+                                   ": checkpoint of another scene (particle types, topology, box, levels or their "
+                                   "kicks, force terms or their parameters differ from the deck's)",
+                               root());
+      const bool carries = resumed_.method == sc.integrator.method;
+      const DomainIntegrator::CarriedRows rows = [&](const std::vector<int>& ids) {
+        return checkpoint_parts->columns(ids);
+      };
+      if (carries)
+        domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_, rows);
+      else
+        domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
+    } else {
+      domain_->distribute(std::move(mine.molecules), std::move(mine.x), std::move(mine.v), s_);
+    }
   } else if (domain_) {
     domain_->distribute(s_);
   }
@@ -223,7 +272,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
   // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised
   // molecules, as the whole path starts from its minimised scene (prepare_scene).
-  if (domain_ && opt.part && sc.minimize.requested && !sc.minimized) {
+  if (domain_ && opt.part && !restarting && sc.minimize.requested && !sc.minimized) {
     try {
       sc.minimized = domain_->minimize(sc.minimize, root() && opt.progress ? &std::cerr : nullptr);
     } catch (const AgreedStop& e) {  // every rank's: each stops here, rank 0 says why (exit 3)
@@ -249,10 +298,10 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     if (!described_ &&
         (by_parts.columns() != thermo_.columns() || by_parts.degrees_of_freedom() != thermo_.degrees_of_freedom()))
       throw std::logic_error("Run: the thermo row's columns from the parts are not the whole scene's");
-    if (!described_) by_parts.load_state(thermo_.save_state());
+    if (!described_ || restarting) by_parts.load_state(thermo_.save_state());
     Monitor monitor(sc.monitor, by_parts, sc.forces->stiff_bonds() ? sc.forces->stiff_bonds()->epsilon : 0.0,
                     find_method(sc.integrator.method)->effective);
-    if (!described_) monitor.load_state(monitor_.save_state());
+    if (!described_ || restarting) monitor.load_state(monitor_.save_state());
     thermo_ = std::move(by_parts);
     monitor_ = std::move(monitor);
   }
