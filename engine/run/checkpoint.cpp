@@ -755,6 +755,18 @@ void write_checkpoint(const std::string& path, const Communicator& processes, co
                  mine.block, mine.x, mine.v, mine.inv_mass, mine.columns, runs, rest, mine.owned, mine.round);
 }
 
+namespace {
+// Why a checkpoint of another format version is not read (one line, after the path).
+std::string unread_version(std::uint32_t version) {
+  return "checkpoint of format version " + std::to_string(version) +
+         (version > kCheckpointVersion ? " (a newer"
+          : version >= 2               ? " (an older"
+                                       : " (an unknown") +
+         " stiffmd); this stiffmd reads versions " + std::to_string(kOldestCheckpointVersion) + " to " +
+         std::to_string(kCheckpointVersion);
+}
+}  // namespace
+
 Checkpoint read_checkpoint(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path + ": cannot open checkpoint: " + std::strerror(errno));
@@ -783,13 +795,7 @@ Checkpoint read_checkpoint(const std::string& path) {
     fail(m.str());
   }
   const auto version = get_raw<std::uint32_t>(b, 12);
-  if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
-    fail("checkpoint of format version " + std::to_string(version) +
-         (version > kCheckpointVersion ? " (a newer"
-          : version >= 2               ? " (an older"
-                                       : " (an unknown") +
-         " stiffmd); this stiffmd reads versions " + std::to_string(kOldestCheckpointVersion) + " to " +
-         std::to_string(kCheckpointVersion));
+  if (version < kOldestCheckpointVersion || version > kCheckpointVersion) fail(unread_version(version));
   if (bom != kByteOrderMark || get_raw<std::uint32_t>(b, 20) != sizeof(double) || length != b.size())
     fail("malformed checkpoint header (byte order, double size or length)");
 
@@ -1090,13 +1096,7 @@ CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ra
       std::memcpy(&bom, h.data() + 16, sizeof bom);
       std::memcpy(&dsize, h.data() + 20, sizeof dsize);
       std::memcpy(&length, h.data() + 24, sizeof length);
-      if (version < kOldestCheckpointVersion || version > kCheckpointVersion)
-        fail("checkpoint of format version " + std::to_string(version) +
-             (version > kCheckpointVersion ? " (a newer"
-              : version >= 2               ? " (an older"
-                                           : " (an unknown") +
-             " stiffmd); this stiffmd reads versions " + std::to_string(kOldestCheckpointVersion) + " to " +
-             std::to_string(kCheckpointVersion));
+      if (version < kOldestCheckpointVersion || version > kCheckpointVersion) fail(unread_version(version));
       if (version < kFirstFingerprintByDescriptions)
         fail("checkpoint of format version " + std::to_string(version) +
              ", whose fingerprint a restart by parts cannot check; restart it with the whole scene");
