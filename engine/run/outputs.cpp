@@ -10,12 +10,12 @@
 
 #include "core/communicator.hpp"
 #include "core/errors.hpp"
-#include "engine/run/h5md_static_parts.hpp"
 #include "engine/io/lammps_data.hpp"
-#include "engine/run/lammps_type_numbers.hpp"
-#include "engine/run/topology_parts.hpp"
 #include "engine/observe/histograms.hpp"
 #include "engine/observe/polymer_observables.hpp"
+#include "engine/run/h5md_static_parts.hpp"
+#include "engine/run/lammps_type_numbers.hpp"
+#include "engine/run/topology_parts.hpp"
 
 namespace stiffmd {
 namespace fs = std::filesystem;

@@ -9,8 +9,8 @@
 
 #include "core/errors.hpp"
 #include "engine/io/lammps_data_rows.hpp"
-#include "engine/run/lammps_type_numbers.hpp"
 #include "engine/io/rows_to_root.hpp"
+#include "engine/run/lammps_type_numbers.hpp"
 
 namespace stiffmd {
 namespace {
