@@ -756,6 +756,28 @@ void write_checkpoint(const std::string& path, const Communicator& processes, co
 }
 
 namespace {
+// The blocks after the integrator's words, to the file's end, read alike from memory (Reader) and
+// by pread (FileFields): thermo, monitor, run statistics, the box (version 6 on; a version-5
+// file's run kept the deck's), the force terms' states. `size`: the file's, a bound on the count.
+template <class Fields>
+void read_tail(Fields& r, Checkpoint& c, std::uint64_t size) {
+  c.thermo_state = r.doubles();
+  c.monitor_state = r.doubles();
+  c.run_state = r.doubles();
+  if (c.version >= 6) {
+    const auto box = r.doubles();
+    if (box.size() != 6) r.bad("box");
+    c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
+    c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
+    c.has_box = true;
+  }
+  const auto terms = r.template get<std::uint64_t>();
+  if (terms > size) r.bad("term count");
+  for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
+  if (!r.at_end()) r.bad("bytes after the last block");
+  if (c.run_state.size() < 4) r.bad("run statistics");
+}
+
 // Why a checkpoint of another format version is not read (one line, after the path).
 std::string unread_version(std::uint32_t version) {
   return "checkpoint of format version " + std::to_string(version) +
@@ -817,21 +839,7 @@ Checkpoint read_checkpoint(const std::string& path) {
   }
   const auto x = r.doubles(), v = r.doubles(), im = r.doubles();
   c.integrator_state = r.doubles();
-  c.thermo_state = r.doubles();
-  c.monitor_state = r.doubles();
-  c.run_state = r.doubles();
-  if (version >= 6) {  // the box; a version-5 file's run kept the deck's
-    const auto box = r.doubles();
-    if (box.size() != 6) r.bad("box");
-    c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
-    c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
-    c.has_box = true;
-  }
-  const auto terms = r.get<std::uint64_t>();
-  if (terms > b.size()) r.bad("term count");
-  for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
-  if (!r.at_end()) r.bad("bytes after the last block");
-  if (c.run_state.size() < 4) r.bad("run statistics");
+  read_tail(r, c, b.size());
   if (n < 0 || x.size() != 3 * static_cast<size_t>(n) || v.size() != x.size() || im.size() != static_cast<size_t>(n))
     r.bad("array sizes disagree with the particle count");
   if (c.state.step < 0 || !(c.state.t >= 0.0) || !std::isfinite(c.state.t) || !(c.h > 0.0) || !std::isfinite(c.h))
@@ -1145,19 +1153,7 @@ CheckpointParts::CheckpointParts(const std::string& path, const Communicator& ra
           for (std::size_t w = 0; w < run.words.size(); ++w) c.integrator_state.push_back(r.get<double>());
         }
       }
-      c.thermo_state = r.doubles();
-      c.monitor_state = r.doubles();
-      c.run_state = r.doubles();
-      const auto box = r.doubles();
-      if (box.size() != 6) r.bad("box");
-      c.box.origin = Eigen::Vector3d(box[0], box[1], box[2]);
-      c.box.lengths = Eigen::Vector3d(box[3], box[4], box[5]);
-      c.has_box = true;
-      const auto terms = r.get<std::uint64_t>();
-      if (terms > size) r.bad("term count");
-      for (std::uint64_t k = 0; k < terms; ++k) c.force_term_states.push_back(r.doubles());
-      if (!r.at_end()) r.bad("bytes after the last block");
-      if (c.run_state.size() < 4) r.bad("run statistics");
+      read_tail(r, c, size);
       if (c.state.step < 0 || !(c.state.t >= 0.0) || !std::isfinite(c.state.t) || !(c.h > 0.0) || !std::isfinite(c.h))
         r.bad("step " + std::to_string(c.state.step) + ", t or h out of range");
     });
