@@ -9,9 +9,9 @@
 #include <sstream>
 
 #include "core/errors.hpp"
-#include "engine/domain/part_overlaps.hpp"
 #include "core/timing.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
+#include "engine/domain/part_overlaps.hpp"
 #include "integrators/clusters.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/thermostat.hpp"

@@ -272,8 +272,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // A description holds no position of its counted chains: the whole load's check for
   // overlapping particles is made on the parts now, with the same message (exit 2), unless
   // [minimize] relaxes them (as load_scene lets it).
-  if (domain_ && opt.part && !restarting && !sc.overlap_rules.empty() && !sc.minimize.requested &&
-      sc.stage.number <= 1)
+  if (domain_ && opt.part && !restarting && !sc.overlap_rules.empty() && !sc.minimize.requested && sc.stage.number <= 1)
     if (const std::string found = domain_->overlaps(sc); !found.empty()) throw AgreedInputError(found, root());
   // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
   // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised

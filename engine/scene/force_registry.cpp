@@ -1150,8 +1150,8 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   OverlapRule rule = overlap_rule<Kernel>(t, name, coeffs);
   if (!sc.described())
     check_overlaps(t, rule, w, sc, ctx.overlap);
-  else
-    if (ctx.overlap_rules) ctx.overlap_rules->push_back(std::move(rule));
+  else if (ctx.overlap_rules)
+    ctx.overlap_rules->push_back(std::move(rule));
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
     section.pairwise = true;

@@ -35,7 +35,8 @@ struct TermContext {
 
 struct ForceStyle {
   const char* name;
-  const char* kind;  // "bond", "angle", "dihedral", "improper", "pair", "kspace" or "external": how `stiffmd list` groups it
+  const char*
+      kind;  // "bond", "angle", "dihedral", "improper", "pair", "kspace" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);
