@@ -728,6 +728,47 @@ def bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     print(errors[0])
 
 
+OVERLAP = os.path.join(ROOT, "tests", "decks", "overlapping_chains_by_parts.toml")
+# The deck's variants: chains whose random walks overlap; trimers whose only close pairs are
+# their bonds, of special weight 0 (accepted) or 1 (refused).
+OVERLAP_VARIANTS = {
+    "overlapping": [],
+    "bonds excluded": ["--set", "build.0.bond_length=0.45", "--set", "build.0.density=0.01", "--set", "build.0.beads=3",
+                       "--set", "forces.lj.special_bonds=[0.0, 0.0, 1.0]"],
+    "bonds counted": ["--set", "build.0.bond_length=0.45", "--set", "build.0.density=0.01", "--set", "build.0.beads=3",
+                      "--set", "forces.lj.special_bonds=[1.0, 0.0, 1.0]"],
+}
+
+
+def overlap_case(stiffmd, mpiexec, numproc_flag, n, tmp):
+    """Chains built by molecule that overlap at the start, with no [minimize]: one process refuses
+    them from the whole scene (load_scene), n ranks from the description's parts at the start
+    (engine/domain/part_overlaps.hpp) — the same exit code and the same one error line (the
+    closest pair, the count of overlapping pairs), and no output directory; pairs of special
+    weight 0 are not counted."""
+    for name, extra in OVERLAP_VARIANTS.items():
+        outcomes = []
+        for ranks in (1, n):
+            out = os.path.join(tmp, f"overlap_{ranks}_{len(outcomes)}_{name.replace(' ', '_')}")
+            cmd = ([stiffmd] if ranks == 1 else launch(mpiexec, numproc_flag, ranks, stiffmd)) + \
+                ["run", OVERLAP, "-o", out, "-q", "--no-progress"] + extra
+            r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=environment())
+            errors = [line for line in r.stderr.splitlines() if line.startswith("error")]
+            if ranks > 1 and r.returncode == 0:
+                with open(os.path.join(out, "summary.json")) as f:
+                    scene = json.load(f)["domains"]["scene"]
+                if scene != "description":
+                    raise SystemExit(f"FAIL: {name}: the run on {ranks} ranks loaded the {scene} scene, not its description")
+            if r.returncode == 2 and (len(errors) != 1 or os.path.exists(out)):
+                raise SystemExit(f"FAIL: {name} on {ranks} ranks: exit 2 with {len(errors)} error lines "
+                                 f"(expected one) or an output directory; stderr:\n{r.stderr}")
+            outcomes.append((r.returncode, errors))
+            print(f"{name}, {ranks} rank(s): exit {r.returncode} {errors[0][:160] if errors else ''}")
+        expected = 0 if name == "bonds excluded" else 2
+        if outcomes[0][0] != expected or outcomes[0] != outcomes[1]:
+            raise SystemExit(f"FAIL: {name}: expected exit {expected} alike on 1 and {n} ranks, got {outcomes}")
+
+
 def xyz_case(stiffmd, mpiexec, numproc_flag, n, tmp):
     """The stiff melt's XYZ trajectory with velocities, which rank 0 writes block by block of 1 024
     global indices as the ranks send their rows (3 000 beads: three blocks, each with rows of every
@@ -867,6 +908,8 @@ def main(argv):
     try:
         if case == "bad_grid":
             bad_grid_case(stiffmd, mpiexec, numproc_flag, n, tmp)
+        elif case == "overlap":
+            overlap_case(stiffmd, mpiexec, numproc_flag, n, tmp)
         elif case == "xyz":
             xyz_case(stiffmd, mpiexec, numproc_flag, n, tmp)
         elif case == "kill":

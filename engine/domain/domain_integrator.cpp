@@ -11,6 +11,7 @@
 #include "core/errors.hpp"
 #include "core/timing.hpp"
 #include "engine/domain/ghosted_pairs.hpp"
+#include "engine/domain/part_overlaps.hpp"
 #include "integrators/clusters.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/thermostat.hpp"
@@ -312,6 +313,13 @@ void DomainIntegrator::build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const 
   part->thermo = std::make_unique<Thermo>(*p.forces, p.state.inv_mass, ObservableSettings{}, &p.topology);
   if (std::vector<double> inv = part_invariants(); !inv.empty()) part->integrator->set_invariants(inv);
   part_ = std::move(part);
+}
+
+std::string DomainIntegrator::overlaps(const Scene& description) const {
+  std::vector<std::string> pair_terms;
+  for (const GhostedPairs* term : part_->pairs) pair_terms.push_back(term->name());
+  return part_overlaps(description.overlap_rules, pair_terms, *domains_, part_->scene.state.x, part_->scene.box,
+                       description, comm_);
 }
 
 // The parts take over what the whole-system integrator carries (a restart's cached kick forces,

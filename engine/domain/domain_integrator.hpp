@@ -123,6 +123,10 @@ class DomainIntegrator final : public Integrator {
   // stream (null elsewhere). Styles cg and sd are refused (InputError naming minimize.style).
   MinimizeReport minimize(const MinimizeSettings& p, std::ostream* progress = nullptr,
                           const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
+  // The description's overlap rules (Scene::overlap_rules) applied to the parts, once distributed
+  // (engine/domain/part_overlaps.hpp; collective): the first term's finding, "file:line:
+  // forces.NAME: …" as the whole load says it, or "" when no two particles overlap.
+  std::string overlaps(const Scene& description) const;
   // The parts started afresh from the molecules they hold now (collective, once distributed): a
   // new decomposition — its grid from their anchors, each molecule sent to its anchor's domain,
   // the pair sets selected and listed, the counters at zero — and new parts' integrators, with

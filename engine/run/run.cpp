@@ -269,6 +269,11 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   }
   if (domain_) summary_.domain_setup = opt.part ? "parts" : "whole";
   if (domain_) summary_.domain_scene = described_ ? "description" : "whole";
+  // A description holds no position of its counted chains: the whole load's check for
+  // overlapping particles is made on the parts now, with the same message (exit 2), unless
+  // [minimize] relaxes them (as load_scene lets it).
+  if (domain_ && opt.part && !restarting && !sc.overlap_rules.empty() && !sc.minimize.requested && sc.stage.number <= 1)
+    if (const std::string found = domain_->overlaps(sc); !found.empty()) throw AgreedInputError(found, root());
   // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
   // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised
   // molecules, as the whole path starts from its minimised scene (prepare_scene).

@@ -15,6 +15,7 @@
 #include "core/format.hpp"
 #include "engine/io/lammps_data.hpp"
 #include "engine/scene/kspace_deck.hpp"
+#include "engine/scene/overlap_rule.hpp"
 #include "forcefields/angle_terms.hpp"
 #include "forcefields/bond_term.hpp"
 #include "forcefields/charmm_terms.hpp"
@@ -903,79 +904,31 @@ double overlap_distance(const typename Kernel::Coeffs& c) {
   return d;
 }
 
-// Every pair (i < j) of particles closer than `range` (minimum image on periodic axes), found
-// through cells at least `range` wide: O(N) for a scene of roughly uniform density. The cells are
-// capped at a few per particle (a tiny range in a big box would ask for millions of empty ones).
-template <class Visit>
-void close_pairs(const Eigen::Matrix3Xd& x, const Box& box, double range, Visit visit) {
-  const int n = static_cast<int>(x.cols());
-  if (n < 2) return;
-  double lo[3], len[3];
-  long cells[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = box.periodic[a] ? box.origin[a] : x.row(a).minCoeff();
-    len[a] = box.periodic[a] ? box.lengths[a] : std::max(x.row(a).maxCoeff() - lo[a], range);
-    cells[a] = std::clamp(static_cast<long>(len[a] / range), 1L, 1L << 20);
-  }
-  while (cells[0] * cells[1] * cells[2] > 4L * n + 64) {
-    const int a = static_cast<int>(std::max_element(cells, cells + 3) - cells);
-    cells[a] = std::max(1L, cells[a] / 2);
-  }
-  std::vector<std::array<long, 3>> coord(static_cast<size_t>(n));
-  std::vector<long> cell_of(static_cast<size_t>(n));
-  std::vector<int> start(static_cast<size_t>(cells[0] * cells[1] * cells[2] + 1), 0), order(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i) {
-    for (int a = 0; a < 3; ++a) {
-      double f = (x(a, i) - lo[a]) / len[a];
-      if (box.periodic[a]) f -= std::floor(f);
-      coord[i][a] = std::clamp(static_cast<long>(f * cells[a]), 0L, cells[a] - 1);
+// The kernel's overlap rule for every pair of types (overlap_rule.hpp), the term's `where` and name.
+template <class Kernel>
+OverlapRule overlap_rule(DeckTable& t, const std::string& name, const TypePairMatrix<typename Kernel::Coeffs>& coeffs) {
+  OverlapRule rule{t.where(), name, coeffs.num_types(), {}, {}};
+  for (int a = 0; a < coeffs.num_types(); ++a)
+    for (int b = 0; b < coeffs.num_types(); ++b) {
+      const auto& c = coeffs(a, b);
+      const double limit = overlap_distance<Kernel>(c);
+      std::string why;
+      if constexpr (requires { c.sigma; })
+        why = limit > kOverlapFraction * Kernel::cutoff(c)
+                  ? "sigma/2 = " + format_number(limit) + " (the pair energy there is above 1.6e4 epsilon)"
+                  : "";
+      if (why.empty())
+        why = format_number(kOverlapFraction) + " x cutoff " + format_number(Kernel::cutoff(c)) +
+              " (the pair force there is singular)";
+      rule.below.push_back(limit);
+      rule.rule.push_back(std::move(why));
     }
-    cell_of[i] = (coord[i][0] * cells[1] + coord[i][1]) * cells[2] + coord[i][2];
-    ++start[static_cast<size_t>(cell_of[i]) + 1];
-  }
-  for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-  std::vector<int> fill(start.begin(), start.end() - 1);
-  for (int i = 0; i < n; ++i) order[static_cast<size_t>(fill[static_cast<size_t>(cell_of[i])]++)] = i;
-  const MinimumImage image(box);
-  for (int i = 0; i < n; ++i) {
-    long seen[27];
-    int nseen = 0;
-    for (int dx = -1; dx <= 1; ++dx)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dz = -1; dz <= 1; ++dz) {
-          long c[3] = {coord[i][0] + dx, coord[i][1] + dy, coord[i][2] + dz};
-          bool inside = true;
-          for (int a = 0; a < 3; ++a) {
-            if (c[a] >= 0 && c[a] < cells[a]) continue;
-            if (box.periodic[a])
-              c[a] = (c[a] + cells[a]) % cells[a];
-            else
-              inside = false;
-          }
-          if (!inside) continue;
-          const long cell = (c[0] * cells[1] + c[1]) * cells[2] + c[2];
-          if (std::find(seen, seen + nseen, cell) != seen + nseen) continue;  // a narrow periodic axis
-          seen[nseen++] = cell;
-          for (int k = start[static_cast<size_t>(cell)]; k < start[static_cast<size_t>(cell) + 1]; ++k) {
-            const int j = order[static_cast<size_t>(k)];
-            if (j <= i) continue;
-            Eigen::Vector3d d = x.col(i) - x.col(j);
-            image.apply(d[0], d[1], d[2]);
-            const double r = d.norm();
-            if (r < range) visit(i, j, r);
-          }
-        }
-  }
+  return rule;
 }
 
 // Overlapping particles at the start, with every pair the term acts on (special weight ≠ 0)
 // considered: an error naming the closest two and the sources they came from.
-template <class Kernel>
-void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>& coeffs, SpecialWeights w,
-                    const Scene& sc, std::string* found) {
-  double range = 0.0;
-  for (int a = 0; a < coeffs.num_types(); ++a)
-    for (int b = a; b < coeffs.num_types(); ++b) range = std::max(range, overlap_distance<Kernel>(coeffs(a, b)));
+void check_overlaps(DeckTable& t, const OverlapRule& rule, SpecialWeights w, const Scene& sc, std::string* found) {
   const int n = sc.state.size();
   std::vector<std::pair<int, int>> excluded;
   for (const SpecialPair& sp : special_pairs(n, sc.topology.bonds, w))
@@ -983,30 +936,16 @@ void check_overlaps(DeckTable& t, const TypePairMatrix<typename Kernel::Coeffs>&
   std::sort(excluded.begin(), excluded.end());
   long overlapping = 0;
   int ci = -1, cj = -1;
-  double closest = 0.0, limit = 0.0;
-  close_pairs(sc.state.x, sc.box, range, [&](int i, int j, double r) {
-    const double below = overlap_distance<Kernel>(coeffs(sc.particle_type[i], sc.particle_type[j]));
+  double closest = 0.0;
+  close_pairs(sc.state.x, sc.box, rule.range(), [&](int i, int j, double r) {
+    const double below = rule.distance(sc.particle_type[i], sc.particle_type[j]);
     if (!(r < below) || std::binary_search(excluded.begin(), excluded.end(), std::pair{i, j})) return;
     ++overlapping;
-    if (ci < 0 || r < closest || (r == closest && std::pair{i, j} < std::pair{ci, cj}))
-      ci = i, cj = j, closest = r, limit = below;
+    if (ci < 0 || r < closest || (r == closest && std::pair{i, j} < std::pair{ci, cj})) ci = i, cj = j, closest = r;
   });
   if (ci < 0) return;
-  const auto& c = coeffs(sc.particle_type[ci], sc.particle_type[cj]);
-  std::string rule;
-  if constexpr (requires { c.sigma; })
-    rule = limit > kOverlapFraction * Kernel::cutoff(c)
-               ? "sigma/2 = " + format_number(limit) + " (the pair energy there is above 1.6e4 epsilon)"
-               : "";
-  if (rule.empty())
-    rule = format_number(kOverlapFraction) + " x cutoff " + format_number(Kernel::cutoff(c)) +
-           " (the pair force there is singular)";
-  const std::string what =
-      particle_and_source(sc, ci) + " and " + particle_and_source(sc, cj) + " are " + format_number(closest) +
-      " apart at the start, closer than " + rule + "; " +
-      (overlapping > 1 ? std::to_string(overlapping) + " pairs overlap, this is the closest" : "the only such pair") +
-      ": place the sources apart (a [[build]]'s density or box, [[particles]] positions, the [import]'s file) or "
-      "relax them first ([minimize] with max_force)";
+  const std::string what = overlap_message(rule, particle_and_source(sc, ci), particle_and_source(sc, cj), closest,
+                                           sc.particle_type[ci], sc.particle_type[cj], overlapping);
   if (!found) t.fail_here(what);
   if (found->empty()) found->assign(t.where() + ": " + what);  // the first term's finding
 }
@@ -1207,7 +1146,12 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
   // The term accepted the coefficients. A description (SceneContent::description) holds no
   // position of its counted chains: their overlaps are left to the run's soft start, [minimize]
   // on the parts or the deck's soft pairs (docs/parallel.md, "The start from the source's parts").
-  if (!sc.described()) check_overlaps<Kernel>(t, coeffs, w, sc, ctx.overlap);
+  // The rule is kept for the run, which applies it to the parts at the start.
+  OverlapRule rule = overlap_rule<Kernel>(t, name, coeffs);
+  if (!sc.described())
+    check_overlaps(t, rule, w, sc, ctx.overlap);
+  else if (ctx.overlap_rules)
+    ctx.overlap_rules->push_back(std::move(rule));
   if (ctx.lammps) {  // PairIJ Coeffs: every type pair, mixed and overridden as the term uses them
     LammpsCoeffs::Section& section = ctx.lammps->pair;
     section.pairwise = true;

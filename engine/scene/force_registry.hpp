@@ -25,6 +25,9 @@ struct TermContext {
   // The pair terms' overlap finding (the closest two particles closer than the potential bears,
   // the whole error line): load_scene refuses it unless [minimize] relaxes the start.
   std::string* overlap = nullptr;
+  // A description's (Scene::described()) pair terms' overlap rules, which the run applies to the
+  // parts at the start (null: not kept).
+  std::vector<OverlapRule>* overlap_rules = nullptr;
   // Per angle type: 1 when the stiff-harmonic term makes its angles rigid (angle_types), which
   // defines them without an angle term (one may still claim the type). Null: not recorded.
   std::vector<char>* rigid_angle_type = nullptr;
@@ -32,7 +35,8 @@ struct TermContext {
 
 struct ForceStyle {
   const char* name;
-  const char* kind;  // "bond", "angle", "dihedral", "improper", "pair", "kspace" or "external": how `stiffmd list` groups it
+  const char*
+      kind;  // "bond", "angle", "dihedral", "improper", "pair", "kspace" or "external": how `stiffmd list` groups it
   Level default_level;
   const char* summary;
   std::unique_ptr<ForceTerm> (*read)(const std::string& name, Level level, DeckTable& table, TermContext& ctx);

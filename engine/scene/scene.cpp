@@ -306,7 +306,9 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
   std::vector<std::string> owner(sc.topology.bond_types.size()), angle_owner(sc.topology.angle_types.size()),
       dihedral_owner(sc.topology.dihedral_types.size()), improper_owner(sc.topology.improper_types.size());
   std::vector<char> rigid_angle(sc.topology.angle_types.size(), 0);
-  TermContext ctx{sc, owner, angle_owner, dihedral_owner, improper_owner, &sc.lammps_coeffs, overlap, &rigid_angle};
+  TermContext ctx{sc,      owner,   angle_owner, dihedral_owner, improper_owner, &sc.lammps_coeffs,
+                  overlap, nullptr, &rigid_angle};
+  ctx.overlap_rules = &sc.overlap_rules;
   auto forces = root.table("forces");
   if (forces) {
     std::string stiff_term;

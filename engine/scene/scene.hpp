@@ -20,6 +20,7 @@
 #include "engine/deck/deck.hpp"
 #include "engine/observe/monitor.hpp"
 #include "engine/observe/observables.hpp"
+#include "engine/scene/overlap_rule.hpp"
 #include "engine/scene/parallel_settings.hpp"
 #include "forcefields/force_field.hpp"
 #include "integrators/integrator.hpp"
@@ -185,6 +186,12 @@ struct Scene {
   std::int64_t undescribed_particles = 0;
   std::vector<DescribedSource> described_sources;  // in particle order
   bool described() const { return undescribed_particles > 0; }
+  // A description's pair terms' rules for overlapping particles at the start, in the deck's order
+  // of the terms: the whole load checks its particles (an InputError naming the closest two
+  // unless [minimize] relaxes them), a description has no positions of its counted chains, so a
+  // decomposed run applies them to the parts at the start (engine/domain/part_overlaps.hpp).
+  // Empty for a whole scene.
+  std::vector<OverlapRule> overlap_rules;
   // The whole scene's particle count: those loaded and those described.
   std::int64_t whole_particles() const { return state.size() + undescribed_particles; }
   std::unique_ptr<ForceField> forces;
