@@ -26,7 +26,7 @@ struct ChargeSums {
     ++particles;
     charged += q != 0.0;
     sum_q += q;
-    sum_q2 += q * q;
+    sum_q2 += rounded_square(q);
     max_abs = std::max(max_abs, std::abs(q));
     finite = finite && std::isfinite(q);
   }
@@ -42,7 +42,7 @@ struct ChargeSums {
     finite = finite && std::isfinite(q);
     if (q == 0.0) return;
     charged += count;
-    const double q2 = q * q;
+    const double q2 = rounded_square(q);
     double s = sum_q, s2 = sum_q2;
     for (std::int64_t k = 0; k < count; ++k) s += q, s2 += q2;
     sum_q = s, sum_q2 = s2;
@@ -50,6 +50,15 @@ struct ChargeSums {
 
   void add(std::span<const double> charges) {
     for (const double q : charges) add(q);
+  }
+
+  // q² rounded to a double before it is added: a compiler allowed to contract a multiply and an
+  // add into one fused operation (-ffp-contract=fast with FMA, -march=native) could fuse it in
+  // one of the two paths above and not in the other; the square passes through memory, so
+  // neither can.
+  static double rounded_square(double q) {
+    volatile double q2 = q * q;
+    return q2;
   }
 };
 
