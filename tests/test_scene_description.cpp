@@ -22,6 +22,8 @@
 #include "fake_processes.hpp"
 #include "forcefields/kspace/ewald_sum.hpp"
 #include "forcefields/kspace/pppm.hpp"
+#include "forcefields/pair_potentials.hpp"
+#include "forcefields/pair_term.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/particle_subset.hpp"
 
@@ -523,6 +525,61 @@ TEST(SceneDescription, CountedChargesAreSummedInTurn) {
   // And the span overloads sum the particles in their order: the whole load's parameters.
   EXPECT_SAME_BITS(choose_pppm(1e-4, rc, whole.charge, whole.box, 1.0).g_ewald,
                    choose_pppm(1e-4, rc, listed, whole.box, 1.0).g_ewald);
+}
+
+// ---------------------------------------------------------------- the pair terms' tail correction
+
+const PairTerm<LennardJones>& lj_term(const Scene& sc, const std::string& name) {
+  for (const auto& t : sc.forces->terms())
+    if (t->name() == name) return dynamic_cast<const PairTerm<LennardJones>&>(*t);
+  throw std::logic_error("no term " + name);
+}
+
+// The LJ tail correction Σ_ab N_a N_b etail_ab (and ptail) from the description's counted beads
+// by type, added to its loaded particles' types: the whole load's bits — a melt of one type at
+// several sizes, and loaded particles before two builds of two types (the unlike pair counted
+// twice, as LAMMPS's Pair::init).
+TEST(SceneDescription, TailCorrectionFromTheCountedTypes) {
+  const std::string lj =
+      "{ style = \"lj\", epsilon = 1.0, sigma = 1.0, cutoff = 2.5, tail = true, "
+      "special_bonds = [0.0, 1.0, 1.0] }";
+  for (const char* chains : {"12", "24", "300"}) {
+    SCOPED_TRACE(std::string("melt, chains = ") + chains);
+    const Deck deck(tree_path("inputs/melt_minimize_by_parts.toml"),
+                    {"forces.excluded_volume=" + lj, std::string("build.0.chains=") + chains});
+    const Scene whole = load_scene(deck);
+    const Scene desc = load_scene(deck, {}, SceneContent::description);
+    ASSERT_TRUE(desc.described());
+    const auto &w = lj_term(whole, "excluded_volume"), &d = lj_term(desc, "excluded_volume");
+    ASSERT_TRUE(w.tail());
+    EXPECT_TRUE(d.tail());
+    EXPECT_NE(w.tail_energy_volume(), 0.0);
+    EXPECT_SAME_BITS(d.tail_energy_volume(), w.tail_energy_volume());
+    EXPECT_SAME_BITS(d.tail_pressure_volume(), w.tail_pressure_volume());
+    expect_same_description(whole, desc);
+  }
+  const std::string anions =
+      "\n[[build]]\nstyle = \"linear-chains\"\ngrowth = \"by-molecule\"\ntype = \"anion\"\nchains = 37\n"
+      "beads = 9\nbond_length = 0.97\nbond_type = \"backbone\"\nangle_type = \"bend\"\nmin_distance = 0.8\n"
+      "seed = 45\n\n[velocities]";
+  const std::string particles =
+      "\n[[particles]]\ntype = \"anion\"\nposition = [0.5, 0.5, 0.5]\n\n[[particles]]\ntype = \"anion\"\n"
+      "position = [3.0, 0.5, 0.5]\n\n[[build]]";
+  std::string text = deck_text_with("tests/decks/charged_chains_pppm.toml", "\n[velocities]", anions);
+  text.replace(text.find("\n[[build]]"), 10, particles);
+  const Deck deck(Deck::Text{"tail.toml", text},
+                  {"forces.lj={ style = \"lj\", epsilon = 1.0, sigma = 1.0, cutoff = 2.5, tail = true, "
+                   "types.anion = { epsilon = 0.7, sigma = 1.2 }, types.cation = { epsilon = 1.1, sigma = 0.9 }, "
+                   "special_bonds = [0.0, 1.0, 1.0] }",
+                   "minimize={ style = \"fire\", max_force = 10.0 }"});
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_EQ(desc.described_sources.size(), 2u);
+  EXPECT_EQ(desc.state.size(), 2);
+  const auto &w = lj_term(whole, "lj"), &d = lj_term(desc, "lj");
+  EXPECT_SAME_BITS(d.tail_energy_volume(), w.tail_energy_volume());
+  EXPECT_SAME_BITS(d.tail_pressure_volume(), w.tail_pressure_volume());
+  EXPECT_EQ(scene_header(desc), scene_header(whole));
 }
 
 }  // namespace

@@ -957,8 +957,6 @@ std::optional<std::size_t> described_builds(const Deck& deck) {
         if (std::find(kStylesReadingParticles.begin(), kStylesReadingParticles.end(), style) !=
             kStylesReadingParticles.end())
           return std::nullopt;
-        // The tail correction sums N_a N_b over the particles' types (PairTerm::set_tail).
-        if (t.gives("tail")) return std::nullopt;
       }
     return from;
   } catch (const std::exception&) {
