@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <memory>
 #include <span>
@@ -252,9 +253,12 @@ class PairTerm final : public ForceTerm,
   // The long-range tail correction (LAMMPS pair_modify tail yes) of a kernel with `tail`: the
   // energy Σ_ab N_a N_b etail_ab / V and the virial 3 Σ_ab N_a N_b ptail_ab / V (ptail/V per diagonal
   // component), V the box's volume at each evaluation (so it follows a barostat), N_a the counts
-  // of the types of this term's particles now (the whole system's: copies keep them). Needs a
-  // fully periodic box (std::invalid_argument at the evaluation otherwise).
-  void set_tail(bool on);
+  // of the types of this term's particles now (the whole system's: copies keep them) and of
+  // `counted` (per type, particles of the system this term does not hold: a scene's description
+  // counts its chains' beads, engine/scene/scene.hpp; empty for none). The counts are integers
+  // summed in double, exact, so the sums are the same bits as a term holding every particle.
+  // Needs a fully periodic box (std::invalid_argument at the evaluation otherwise).
+  void set_tail(bool on, std::span<const std::int64_t> counted = {});
   bool tail() const { return tail_; }
   // Σ_ab N_a N_b etail_ab and Σ_ab N_a N_b ptail_ab (0 without the tail).
   double tail_energy_volume() const { return etail_; }
@@ -404,7 +408,7 @@ std::unique_ptr<ForceTerm> PairTerm<Kernel>::copy_on(std::vector<int> types, std
 }
 
 template <class Kernel>
-void PairTerm<Kernel>::set_tail(bool on) {
+void PairTerm<Kernel>::set_tail(bool on, std::span<const std::int64_t> counted) {
   tail_ = false;
   etail_ = ptail_ = 0.0;
   if (!on) return;
@@ -414,6 +418,11 @@ void PairTerm<Kernel>::set_tail(bool on) {
     const int nt = coeffs_.num_types();
     std::vector<double> count(static_cast<std::size_t>(nt), 0.0);
     for (const int t : types_) count[static_cast<std::size_t>(t)] += 1.0;
+    if (!counted.empty() && counted.size() != count.size())
+      pair_detail::fail(name(), Kernel::kStyle,
+                        "the tail correction's counted particles are given for " + std::to_string(counted.size()) +
+                            " types, not its " + std::to_string(nt));
+    for (std::size_t a = 0; a < counted.size(); ++a) count[a] += static_cast<double>(counted[a]);
     for (int a = 0; a < nt; ++a)  // as LAMMPS's Pair::init: i <= j, an unlike pair twice
       for (int b = a; b < nt; ++b) {
         double e = 0.0, p = 0.0;

@@ -35,6 +35,11 @@ CASE is one of
     polyelectrolyte           inputs/polyelectrolyte.toml: charged chains and counterions, lj/cut/coul/long
                               and PPPM on the macro step of the projected impulse, stiff bonds (to
                               round-off, as water), 200 macro steps
+    charged_pppm              tests/decks/charged_chains_pppm.toml: charged chains built by molecule,
+                              coul/long and PPPM; the parameters chosen from the scene's description
+                              (the counted beads' charge sums), no rank loads the whole scene
+                              (domains.scene = "description"), to round-off as water (the mesh sums)
+    charged_ewald             the same with the exact Ewald sum (the ranks' structure factors summed)
     one_chain                 inputs/hanging_chain.toml: one molecule (a pinned chain, a tether), ranks
                               without a particle
     pinned_cores              tests/decks/pinned_cores.toml, the effective dynamics: molecules whose pinned
@@ -325,6 +330,9 @@ def case_setup(case):
         return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {"observables.histograms": "true"}
     if case == "minimize_by_parts":  # each rank builds its own molecules, FIRE relaxes them on the parts
         return os.path.join(ROOT, "inputs", "melt_minimize_by_parts.toml"), 0.005, {}
+    if case in ("charged_pppm", "charged_ewald"):  # k-space terms chosen from the description's charge sums
+        return (os.path.join(ROOT, "tests", "decks", "charged_chains_pppm.toml"), 0.004,
+                {"forces.mesh.style": '"' + case.split("_")[1] + '"'})
     if case == "half_melt":  # a melt beside vacuum: the domains recut
         return HALF_MELT, 0.01, {}
     if case == "trappe":  # real units (fs, Å, kcal/mol), angles and dihedrals, r-RESPA levels
@@ -625,14 +633,15 @@ def check_straddle_geometry(ref_dir):
 # The cases whose decks a source makes by parts (engine/domain/part_load.hpp, part_source): on
 # several ranks each rank starts from its own molecules (summary.json domains.setup = "parts").
 BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder, minimised by FIRE on the parts,",
+            "charged_pppm": "the builder", "charged_ewald": "the builder",
             "kremer_grest": "the data file read by blocks", "half_melt": "the data file read by blocks",
             "trappe": "the data file read by blocks", "trappe:scaled": "the data file read by blocks",
             "trappe:charged": "the data file read by blocks"}
 
 
 # Of those, the decks whose scene every rank loads as its description only (summary.json
-# domains.scene = "description"): the builder's by-molecule chains.
-DESCRIBED = ("chains_by_parts", "minimize_by_parts")
+# domains.scene = "description"): the builder's by-molecule chains, with Ewald or PPPM too.
+DESCRIBED = ("chains_by_parts", "minimize_by_parts", "charged_pppm", "charged_ewald")
 
 
 def check_checkpoint_blocks(out, ranks):
@@ -649,7 +658,7 @@ def check_checkpoint_blocks(out, ranks):
 def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
     global THREADS, BITWISE
     THREADS = 2 if case.endswith(":threads") else 1
-    BITWISE = THREADS == 1 and case not in ("water", "polyelectrolyte")
+    BITWISE = THREADS == 1 and case not in ("water", "polyelectrolyte", "charged_pppm", "charged_ewald")
     deck, h, extra = case_setup(case)
     # At 2 threads the runs differ by round-off, which the melt's chaos grows (about 100× per 100
     # steps here, to 6e-11 of the scale by step 200): 100 steps keep it well inside TOL. Water's

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 
+#include <bit>
 #include <chrono>
 #include <fstream>
 #include <sstream>
@@ -17,7 +18,12 @@
 
 #include "core/errors.hpp"
 #include "engine/domain/part_load.hpp"
+#include "engine/scene/kspace_deck.hpp"
 #include "fake_processes.hpp"
+#include "forcefields/kspace/ewald_sum.hpp"
+#include "forcefields/kspace/pppm.hpp"
+#include "forcefields/pair_potentials.hpp"
+#include "forcefields/pair_term.hpp"
 #include "forcefields/parameter_record.hpp"
 #include "forcefields/particle_subset.hpp"
 
@@ -367,6 +373,213 @@ TEST(SceneDescription, DISABLED_MillionBeads) {
             << (after_desc - before) / 1024.0 << " MiB\n"
             << "whole:       " << std::chrono::duration<double>(t2 - t1).count() << " s, peak RSS +"
             << (after_whole - after_desc) / 1024.0 << " MiB (over the description's)\n";
+}
+
+// ---------------------------------------------------------------- the k-space terms' parameters
+
+// The text of the deck at `rel` with `from` replaced by `to` (nothing replaced when `from` is empty).
+std::string deck_text_with(const std::string& rel, const std::string& from, const std::string& to) {
+  std::ifstream in(tree_path(rel));
+  std::stringstream s;
+  s << in.rdbuf();
+  std::string text = s.str();
+  if (from.empty()) return text;
+  const auto at = text.find(from);
+  if (at == std::string::npos) throw std::logic_error("no '" + from + "' in " + rel);
+  return text.replace(at, from.size(), to);
+}
+
+const ForceTerm& kspace_term(const Scene& sc) {
+  for (const auto& t : sc.forces->terms())
+    if (t->phase() == Phase::kspace) return *t;
+  throw std::logic_error("no k-space term");
+}
+
+// Equal to the last bit (EXPECT_EQ on doubles would also take −0 for +0).
+#define EXPECT_SAME_BITS(a, b) EXPECT_EQ(std::bit_cast<std::uint64_t>(a), std::bit_cast<std::uint64_t>(b))
+
+// The description's k-space term has the whole load's parameters bit for bit — g_ewald, the
+// resolution (kmax or mesh and order), the requested accuracy and the estimated error — and holds
+// the loaded particles' charges only (none for the builder's chains: each part takes its own).
+void expect_same_kspace(const Scene& whole, const Scene& desc) {
+  const ForceTerm &w = kspace_term(whole), &d = kspace_term(desc);
+  ASSERT_EQ(std::string(d.style()), std::string(w.style()));
+  if (const auto* we = dynamic_cast<const EwaldSum*>(&w)) {
+    const auto& de = dynamic_cast<const EwaldSum&>(d);
+    const EwaldParameters &a = de.parameters(), &b = we->parameters();
+    EXPECT_SAME_BITS(a.g_ewald, b.g_ewald);
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(a.kmax[k], b.kmax[k]);
+    EXPECT_SAME_BITS(a.accuracy_absolute, b.accuracy_absolute);
+    EXPECT_SAME_BITS(a.estimated_error, b.estimated_error);
+    EXPECT_EQ(de.charges().size(), static_cast<std::size_t>(desc.state.size()));
+    EXPECT_EQ(we->charges().size(), static_cast<std::size_t>(whole.state.size()));
+  } else {
+    const auto& wp = dynamic_cast<const ParticleParticleParticleMesh&>(w);
+    const auto& dp = dynamic_cast<const ParticleParticleParticleMesh&>(d);
+    const MeshParameters &a = dp.parameters(), &b = wp.parameters();
+    EXPECT_SAME_BITS(a.g_ewald, b.g_ewald);
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(a.mesh[k], b.mesh[k]);
+    EXPECT_EQ(a.order, b.order);
+    EXPECT_SAME_BITS(a.accuracy_absolute, b.accuracy_absolute);
+    EXPECT_SAME_BITS(a.estimated_error, b.estimated_error);
+    EXPECT_EQ(dp.charges().size(), static_cast<std::size_t>(desc.state.size()));
+    EXPECT_EQ(wp.charges().size(), static_cast<std::size_t>(whole.state.size()));
+  }
+  // The sums themselves, and the real-space terms' g (set by the k-space reader).
+  const ChargeSums cw = charge_sums(whole), cd = charge_sums(desc);
+  EXPECT_EQ(cd.particles, cw.particles);
+  EXPECT_EQ(cd.charged, cw.charged);
+  EXPECT_SAME_BITS(cd.sum_q, cw.sum_q);
+  EXPECT_SAME_BITS(cd.sum_q2, cw.sum_q2);
+  EXPECT_SAME_BITS(cd.max_abs, cw.max_abs);
+}
+
+// Charged chains by molecule with coul/long and PPPM or Ewald (tests/decks/charged_chains_pppm.toml):
+// the description chooses the whole load's parameters from the counted beads' charge sums, at
+// several sizes (one chain to 2 500 beads), orders, and with the deck's own g_ewald or resolution
+// (whose error estimate counts the charged beads); and the description is the whole scene's
+// everywhere else, its parts the whole scene's cut (IsTheWholeSceneWithoutItsParticles' checks).
+TEST(SceneDescription, KspaceParametersAreTheWholeLoads) {
+  const std::vector<std::vector<std::string>> variants = {
+      {},
+      {"forces.mesh.style=\"ewald\""},
+      {"forces.mesh.order=3"},
+      {"forces.mesh.order=7", "forces.mesh.accuracy=1e-5"},
+      {"forces.mesh.g_ewald=0.9"},
+      {"forces.mesh.mesh=[8, 8, 10]"},
+      {"forces.mesh.style=\"ewald\"", "forces.mesh.kmax=[4, 4, 5]"},
+      {"forces.mesh.style=\"ewald\"", "forces.mesh.accuracy=1e-6"},
+  };
+  for (const char* chains : {"1", "3", "40", "250"})
+    for (const auto& v : variants) {
+      std::vector<std::string> o = v;
+      o.push_back(std::string("build.0.chains=") + chains);
+      SCOPED_TRACE(std::string("chains = ") + chains + (v.empty() ? "" : ", " + v.front()) +
+                   (v.size() > 1 ? ", " + v.back() : ""));
+      const Deck deck(tree_path("tests/decks/charged_chains_pppm.toml"), o);
+      const Scene whole = load_scene(deck);
+      const Scene desc = load_scene(deck, {}, SceneContent::description);
+      ASSERT_TRUE(desc.described());
+      EXPECT_TRUE(desc.charge.empty());
+      expect_same_kspace(whole, desc);
+      expect_same_description(whole, desc);
+      if (std::string(chains) == "40" && v.empty())
+        for (int ranks = 2; ranks <= 3; ++ranks) expect_same_chains_parts(deck, whole, desc, ranks);
+    }
+}
+
+// Sources in a row: [[particles]] loaded first (a partly described scene), then two builds of
+// chains of opposite charges (cations +0.3 e, anions −0.1 e), each counted: the sums run over
+// the loaded charges, then each build's beads in turn, the whole load's order.
+TEST(SceneDescription, KspaceParametersOverLoadedAndCountedSources) {
+  const std::string anions =
+      "\n[[build]]\nstyle = \"linear-chains\"\ngrowth = \"by-molecule\"\ntype = \"anion\"\nchains = 37\n"
+      "beads = 9\nbond_length = 0.97\nbond_type = \"backbone\"\nangle_type = \"bend\"\nmin_distance = 0.8\n"
+      "seed = 45\n\n[velocities]";
+  const std::string particles =
+      "\n[[particles]]\ntype = \"anion\"\nposition = [0.5, 0.5, 0.5]\n\n[[particles]]\ntype = \"cation\"\n"
+      "position = [3.0, 0.5, 0.5]\n\n[[build]]";
+  std::string text = deck_text_with("tests/decks/charged_chains_pppm.toml", "\n[velocities]", anions);
+  for (const bool loaded : {false, true})
+    for (const char* style : {"pppm", "ewald"}) {
+      SCOPED_TRACE(std::string(style) + (loaded ? ", two particles loaded first" : ""));
+      std::string t = text;
+      if (loaded) t.replace(t.find("\n[[build]]"), 10, particles);
+      const Deck deck(Deck::Text{"sources.toml", t}, {std::string("forces.mesh.style=\"") + style + "\""});
+      const Scene whole = load_scene(deck);
+      const Scene desc = load_scene(deck, {}, SceneContent::description);
+      ASSERT_TRUE(desc.described());
+      ASSERT_EQ(desc.described_sources.size(), 2u);
+      EXPECT_EQ(desc.state.size(), loaded ? 2 : 0);
+      expect_same_kspace(whole, desc);
+      EXPECT_EQ(scene_header(desc), scene_header(whole));
+      EXPECT_EQ(desc.notes, notes_without_overlap(whole));
+    }
+}
+
+// Why the beads are summed in turn: n equal charges summed one by one are not n q² (each partial
+// sum rounds), and a last bit of Σq² moves the chosen g_ewald. So a description that multiplied
+// would choose other parameters than the whole load, which the tests above would see: here, on
+// the charged deck's 400 beads of +0.3 e, the product's Σq² differs from the sum in turn and
+// both choices' g_ewald differ, while ChargeSums::add(q, n) is n calls of add(q) to the bit.
+TEST(SceneDescription, CountedChargesAreSummedInTurn) {
+  const Deck deck(tree_path("tests/decks/charged_chains_pppm.toml"), {});
+  const Scene whole = load_scene(deck);
+  const ChargeSums listed = charge_sums(whole);
+  const double q = whole.charge.front();  // every bead the cation's +0.3 e
+  const std::int64_t n = whole.state.size();
+  ChargeSums counted;
+  counted.add(q, n);
+  EXPECT_SAME_BITS(counted.sum_q, listed.sum_q);
+  EXPECT_SAME_BITS(counted.sum_q2, listed.sum_q2);
+  EXPECT_EQ(counted.particles, listed.particles);
+  EXPECT_EQ(counted.charged, listed.charged);
+  ChargeSums product = listed;
+  product.sum_q2 = static_cast<double>(n) * (q * q);
+  ASSERT_NE(std::bit_cast<std::uint64_t>(product.sum_q2), std::bit_cast<std::uint64_t>(listed.sum_q2));
+  const double rc = 3.0;
+  EXPECT_NE(std::bit_cast<std::uint64_t>(choose_pppm(1e-4, rc, product, whole.box, 1.0).g_ewald),
+            std::bit_cast<std::uint64_t>(choose_pppm(1e-4, rc, listed, whole.box, 1.0).g_ewald));
+  EXPECT_NE(std::bit_cast<std::uint64_t>(choose_ewald(1e-4, rc, product, whole.box, 1.0).g_ewald),
+            std::bit_cast<std::uint64_t>(choose_ewald(1e-4, rc, listed, whole.box, 1.0).g_ewald));
+  // And the span overloads sum the particles in their order: the whole load's parameters.
+  EXPECT_SAME_BITS(choose_pppm(1e-4, rc, whole.charge, whole.box, 1.0).g_ewald,
+                   choose_pppm(1e-4, rc, listed, whole.box, 1.0).g_ewald);
+}
+
+// ---------------------------------------------------------------- the pair terms' tail correction
+
+const PairTerm<LennardJones>& lj_term(const Scene& sc, const std::string& name) {
+  for (const auto& t : sc.forces->terms())
+    if (t->name() == name) return dynamic_cast<const PairTerm<LennardJones>&>(*t);
+  throw std::logic_error("no term " + name);
+}
+
+// The LJ tail correction Σ_ab N_a N_b etail_ab (and ptail) from the description's counted beads
+// by type, added to its loaded particles' types: the whole load's bits — a melt of one type at
+// several sizes, and loaded particles before two builds of two types (the unlike pair counted
+// twice, as LAMMPS's Pair::init).
+TEST(SceneDescription, TailCorrectionFromTheCountedTypes) {
+  const std::string lj =
+      "{ style = \"lj\", epsilon = 1.0, sigma = 1.0, cutoff = 2.5, tail = true, "
+      "special_bonds = [0.0, 1.0, 1.0] }";
+  for (const char* chains : {"12", "24", "300"}) {
+    SCOPED_TRACE(std::string("melt, chains = ") + chains);
+    const Deck deck(tree_path("inputs/melt_minimize_by_parts.toml"),
+                    {"forces.excluded_volume=" + lj, std::string("build.0.chains=") + chains});
+    const Scene whole = load_scene(deck);
+    const Scene desc = load_scene(deck, {}, SceneContent::description);
+    ASSERT_TRUE(desc.described());
+    const auto &w = lj_term(whole, "excluded_volume"), &d = lj_term(desc, "excluded_volume");
+    ASSERT_TRUE(w.tail());
+    EXPECT_TRUE(d.tail());
+    EXPECT_NE(w.tail_energy_volume(), 0.0);
+    EXPECT_SAME_BITS(d.tail_energy_volume(), w.tail_energy_volume());
+    EXPECT_SAME_BITS(d.tail_pressure_volume(), w.tail_pressure_volume());
+    expect_same_description(whole, desc);
+  }
+  const std::string anions =
+      "\n[[build]]\nstyle = \"linear-chains\"\ngrowth = \"by-molecule\"\ntype = \"anion\"\nchains = 37\n"
+      "beads = 9\nbond_length = 0.97\nbond_type = \"backbone\"\nangle_type = \"bend\"\nmin_distance = 0.8\n"
+      "seed = 45\n\n[velocities]";
+  const std::string particles =
+      "\n[[particles]]\ntype = \"anion\"\nposition = [0.5, 0.5, 0.5]\n\n[[particles]]\ntype = \"anion\"\n"
+      "position = [3.0, 0.5, 0.5]\n\n[[build]]";
+  std::string text = deck_text_with("tests/decks/charged_chains_pppm.toml", "\n[velocities]", anions);
+  text.replace(text.find("\n[[build]]"), 10, particles);
+  const Deck deck(Deck::Text{"tail.toml", text},
+                  {"forces.lj={ style = \"lj\", epsilon = 1.0, sigma = 1.0, cutoff = 2.5, tail = true, "
+                   "types.anion = { epsilon = 0.7, sigma = 1.2 }, types.cation = { epsilon = 1.1, sigma = 0.9 }, "
+                   "special_bonds = [0.0, 1.0, 1.0] }",
+                   "minimize={ style = \"fire\", max_force = 10.0 }"});
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_EQ(desc.described_sources.size(), 2u);
+  EXPECT_EQ(desc.state.size(), 2);
+  const auto &w = lj_term(whole, "lj"), &d = lj_term(desc, "lj");
+  EXPECT_SAME_BITS(d.tail_energy_volume(), w.tail_energy_volume());
+  EXPECT_SAME_BITS(d.tail_pressure_volume(), w.tail_pressure_volume());
+  EXPECT_EQ(scene_header(desc), scene_header(whole));
 }
 
 }  // namespace

@@ -1045,6 +1045,15 @@ std::pair<SpecialWeights, SpecialWeights> read_special_bonds(DeckTable& t, bool 
 // A style without mixing rules: the reader refuses per-type tables for it.
 struct NoMixing {};
 
+// Per type, the particles a description counts and does not load (Scene::described_sources; none
+// for a whole scene): the pair terms' tail correction adds them to the loaded particles' types.
+std::vector<std::int64_t> counted_particles_by_type(const Scene& sc) {
+  if (sc.described_sources.empty()) return {};
+  std::vector<std::int64_t> n(sc.types.size(), 0);
+  for (const DescribedSource& d : sc.described_sources) n[static_cast<std::size_t>(d.type)] += d.count;
+  return n;
+}
+
 // Pair styles: parameters for every type pair from the term's table — or, with per-type tables
 // types.NAME = {…} (a style with a `mix` function), from every type's coefficients by the mixing
 // rule `mix` = "geometric" | "arithmetic" — overridden per pair by [[forces.NAME.pair]] types =
@@ -1142,7 +1151,7 @@ std::unique_ptr<ForceTerm> read_pair(const std::string& name, Level level, DeckT
       if (std::string(e.what()).find("Coulomb cutoff") != std::string::npos) t.fail("coulomb_cutoff", e.what());
     throw;
   }
-  if (tail) term->set_tail(true);
+  if (tail) term->set_tail(true, counted_particles_by_type(sc));
   // The term accepted the coefficients. A description (SceneContent::description) holds no
   // position of its counted chains: their overlaps are left to the run's soft start, [minimize]
   // on the parts or the deck's soft pairs (docs/parallel.md, "The start from the source's parts").

@@ -68,11 +68,10 @@ void read_triple(DeckTable& t, const char* key, int lo, int hi, int* out) {
   }
 }
 
-// N and q2 = qqrd2e Σ q², the error estimates' inputs (ewald_parameters.hpp).
-std::pair<double, double> charge_moments(const Scene& sc) {
-  double n = 0.0, q2 = 0.0;
-  for (const double q : sc.charge) n += q != 0.0, q2 += q * q;
-  return {n, sc.units.coulomb * q2};
+// N (the charged particles, as LAMMPS's estimates after the choice count them) and q2 = qqrd2e Σ q²,
+// the error estimates' inputs (ewald_parameters.hpp) at the deck's own g_ewald or resolution.
+std::pair<double, double> charge_moments(const ChargeSums& c, const Scene& sc) {
+  return {static_cast<double>(c.charged), sc.units.coulomb * c.sum_q2};
 }
 
 // What both styles do once LAMMPS's choice is made: the deck's g_ewald and resolution (`key`,
@@ -80,33 +79,45 @@ std::pair<double, double> charge_moments(const Scene& sc) {
 // space terms' g; the term.
 template <class Term, class Params, class KspaceError>
 std::unique_ptr<ForceTerm> finish_kspace(const std::string& name, Level level, DeckTable& t, const Scene& sc,
-                                         const std::vector<EwaldRealSpace*>& real, Params p, const char* key, int lo,
-                                         int hi, int (Params::*resolution)[3], KspaceError kspace_error) {
+                                         const std::vector<EwaldRealSpace*>& real, const ChargeSums& charges, Params p,
+                                         const char* key, int lo, int hi, int (Params::*resolution)[3],
+                                         KspaceError kspace_error) {
   p.g_ewald = read_splitting(t, p.g_ewald);
   if (t.has(key)) read_triple(t, key, lo, hi, p.*resolution);
   if (t.has("g_ewald") || t.has(key)) {
-    const auto [n, q2] = charge_moments(sc);
+    const auto [n, q2] = charge_moments(charges, sc);
     p.estimated_error =
         std::hypot(real_space_error(p.g_ewald, real.front()->coulomb_cutoff(), n, q2, sc.box.lengths.prod()),
                    kspace_error(p, sc.box, n, q2));
   }
   for (EwaldRealSpace* r : real) r->set_ewald_splitting(p.g_ewald);
+  // A description's sc.charge holds its loaded particles' only (none for the builder's chains):
+  // the term is then a description, each part's made from it with the part's charges (on_subset).
   return std::make_unique<Term>(name, level, sc.charge, p, sc.units.coulomb, sc.box);
 }
 
 }  // namespace
 
+ChargeSums charge_sums(const Scene& sc) {
+  ChargeSums c;
+  c.add(sc.charge);  // the loaded particles come first (scene.hpp)
+  for (const DescribedSource& d : sc.described_sources)
+    c.add(sc.types[static_cast<std::size_t>(d.type)].charge, d.count);
+  return c;
+}
+
 std::unique_ptr<ForceTerm> read_ewald(const std::string& name, Level level, DeckTable& t, TermContext& ctx) {
   const Scene& sc = ctx.scene;
   const double accuracy = read_accuracy(t, sc, "ewald");
   const auto real = real_space_terms(t, sc, "ewald");
+  const ChargeSums charges = charge_sums(sc);
   EwaldParameters p;
   try {
-    p = choose_ewald(accuracy, real.front()->coulomb_cutoff(), sc.charge, sc.box, sc.units.coulomb);
+    p = choose_ewald(accuracy, real.front()->coulomb_cutoff(), charges, sc.box, sc.units.coulomb);
   } catch (const std::invalid_argument& e) {
     t.fail("accuracy", e.what());
   }
-  return finish_kspace<EwaldSum>(name, level, t, sc, real, p, "kmax", 1, 1000, &EwaldParameters::kmax,
+  return finish_kspace<EwaldSum>(name, level, t, sc, real, charges, p, "kmax", 1, 1000, &EwaldParameters::kmax,
                                  ewald_kspace_error);
 }
 
@@ -117,14 +128,15 @@ std::unique_ptr<ForceTerm> read_pppm(const std::string& name, Level level, DeckT
   t.require(order == std::floor(order) && order >= 1 && order <= 7, "order",
             "expected the charge-assignment order, an integer 1 .. 7 (LAMMPS kspace_modify order)");
   const auto real = real_space_terms(t, sc, "pppm");
+  const ChargeSums charges = charge_sums(sc);
   MeshParameters p;
   try {
-    p = choose_pppm(accuracy, real.front()->coulomb_cutoff(), sc.charge, sc.box, sc.units.coulomb,
+    p = choose_pppm(accuracy, real.front()->coulomb_cutoff(), charges, sc.box, sc.units.coulomb,
                     static_cast<int>(order));
   } catch (const std::invalid_argument& e) {
     t.fail("accuracy", e.what());
   }
-  return finish_kspace<ParticleParticleParticleMesh>(name, level, t, sc, real, p, "mesh", 2, 4096,
+  return finish_kspace<ParticleParticleParticleMesh>(name, level, t, sc, real, charges, p, "mesh", 2, 4096,
                                                      &MeshParameters::mesh, pppm_kspace_error);
 }
 

@@ -17,6 +17,7 @@
 #include "engine/scene/barostat_deck.hpp"
 #include "engine/scene/ensemble_deck.hpp"
 #include "engine/scene/force_registry.hpp"
+#include "engine/scene/kspace_deck.hpp"
 #include "engine/scene/scene_sources.hpp"
 #include "engine/scene/thermostat_deck.hpp"
 #include "forcefields/ewald_real_space.hpp"
@@ -284,17 +285,11 @@ void check_charges(DeckTable& root, Scene& sc) {
                        ", but no force term acts on charges: they would be lost; add a Coulomb pair style "
                        "(coul/cut, coul/debye, lj/cut/coul/long with an ewald or pppm term, …) or set the charges to 0",
                    {"forces"});
-  double total = 0.0, scale = 0.0;
-  for (const double q : sc.charge) total += q, scale = std::max(scale, std::abs(q));
-  // A described source's particles, each added in turn as the whole scene's are (the same sum to
-  // the last bit; no array of them).
-  for (const DescribedSource& d : sc.described_sources) {
-    const double q = sc.types[static_cast<size_t>(d.type)].charge;
-    for (int k = 0; k < d.count; ++k) total += q;
-    if (d.count > 0) scale = std::max(scale, std::abs(q));
-  }
-  if (std::abs(total) > 1e-5 * std::max(1.0, scale))
-    sc.notes.push_back("warning: the system's net charge is " + format_number(total) +
+  // Summed in particle order, a described source's particles each in turn (the whole scene's sum
+  // to the last bit; no array of them).
+  const ChargeSums sums = charge_sums(sc);
+  if (std::abs(sums.sum_q) > 1e-5 * std::max(1.0, sums.max_abs))
+    sc.notes.push_back("warning: the system's net charge is " + format_number(sums.sum_q) +
                        " e: the Ewald and PPPM terms add a uniform neutralising background (as LAMMPS does)");
 }
 
@@ -928,14 +923,14 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
 namespace {
 
 // The force styles whose reader or whose term's description reads every particle, beyond what a
-// description counts: the k-space terms choose their splitting and resolution from N and Σq² of
-// every charge (choose_ewald, choose_pppm) and hold every charge; charmm-dihedral checks the
-// particle types at its dihedrals' ends; stiff-harmonic checks its bonds with the particles'
+// description counts (the k-space terms read the charges' sums, which a description gives:
+// charge_sums, engine/scene/kspace_deck.hpp): charmm-dihedral checks the particle types at its
+// dihedrals' ends; stiff-harmonic checks its bonds with the particles'
 // masses (find_stiff_bond_problem), selects them by mass, and gives the monitor its bonds; the
 // external terms select particles by index or type and refuse a selection of none (gravity
 // holds every mass).
-constexpr std::array<std::string_view, 7> kStylesReadingParticles = {
-    "ewald", "pppm", "charmm-dihedral", "stiff-harmonic", "gravity", "harmonic-tether", "lj93-wall"};
+constexpr std::array<std::string_view, 5> kStylesReadingParticles = {"charmm-dihedral", "stiff-harmonic", "gravity",
+                                                                     "harmonic-tether", "lj93-wall"};
 
 bool grows_by_molecule(DeckTable& b) {
   return b.gives("style") && b.string("style") == "linear-chains" && b.gives("growth") &&
@@ -964,8 +959,6 @@ std::optional<std::size_t> described_builds(const Deck& deck) {
         if (std::find(kStylesReadingParticles.begin(), kStylesReadingParticles.end(), style) !=
             kStylesReadingParticles.end())
           return std::nullopt;
-        // The tail correction sums N_a N_b over the particles' types (PairTerm::set_tail).
-        if (t.gives("tail")) return std::nullopt;
       }
     return from;
   } catch (const std::exception&) {

@@ -34,8 +34,8 @@ struct Charges {
   double q2 = 0.0;  // qqrd2e Σ q²
 };
 
-Charges check_inputs(std::string_view who, double accuracy_relative, double real_cutoff,
-                     std::span<const double> charges, const Box& box, double qqrd2e) {
+Charges check_inputs(std::string_view who, double accuracy_relative, double real_cutoff, const ChargeSums& charges,
+                     const Box& box, double qqrd2e) {
   const std::string w(who);
   if (!(accuracy_relative > 0.0 && accuracy_relative < 1.0))
     throw std::invalid_argument(w + ": the relative accuracy " + format_number(accuracy_relative) +
@@ -45,15 +45,11 @@ Charges check_inputs(std::string_view who, double accuracy_relative, double real
   if (!(qqrd2e > 0.0 && std::isfinite(qqrd2e)))
     throw std::invalid_argument(w + ": qqrd2e " + format_number(qqrd2e) + " is not > 0");
   require_kspace_box(box, who);
-  double sum_q2 = 0.0;
-  for (const double q : charges) {
-    if (!std::isfinite(q)) throw std::invalid_argument(w + ": a charge is not finite");
-    sum_q2 += q * q;
-  }
-  if (charges.empty() || sum_q2 == 0.0)
-    throw std::invalid_argument(w + ": no charges (" + std::to_string(charges.size()) +
+  if (!charges.finite) throw std::invalid_argument(w + ": a charge is not finite");
+  if (charges.particles == 0 || charges.sum_q2 == 0.0)
+    throw std::invalid_argument(w + ": no charges (" + std::to_string(charges.particles) +
                                 " particles, Σq² = 0): the splitting cannot be chosen by an accuracy");
-  return {static_cast<double>(charges.size()), qqrd2e * sum_q2};
+  return {static_cast<double>(charges.particles), qqrd2e * charges.sum_q2};
 }
 
 double volume_of(const Box& box) {
@@ -121,6 +117,11 @@ double pppm_kspace_error(const MeshParameters& p, const Box& box, double n, doub
 
 EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, std::span<const double> charges,
                              const Box& box, double qqrd2e) {
+  return choose_ewald(accuracy_relative, real_cutoff, charge_sums_of(charges), box, qqrd2e);
+}
+
+EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, const ChargeSums& charges, const Box& box,
+                             double qqrd2e) {
   const Charges c = check_inputs("choose_ewald", accuracy_relative, real_cutoff, charges, box, qqrd2e);
   EwaldParameters p;
   p.accuracy_absolute = accuracy_relative * qqrd2e;  // × two_charge_force / qqrd2e = 1
@@ -141,6 +142,11 @@ EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, std::
 
 MeshParameters choose_pppm(double accuracy_relative, double real_cutoff, std::span<const double> charges,
                            const Box& box, double qqrd2e, int order) {
+  return choose_pppm(accuracy_relative, real_cutoff, charge_sums_of(charges), box, qqrd2e, order);
+}
+
+MeshParameters choose_pppm(double accuracy_relative, double real_cutoff, const ChargeSums& charges, const Box& box,
+                           double qqrd2e, int order) {
   if (order < 1 || order > 7)
     throw std::invalid_argument("choose_pppm: the charge-assignment order " + std::to_string(order) +
                                 " is not in 1 … 7");

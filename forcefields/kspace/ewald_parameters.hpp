@@ -26,6 +26,7 @@
 #include <string_view>
 
 #include "core/box.hpp"
+#include "forcefields/kspace/charge_sums.hpp"
 
 namespace stiffmd {
 
@@ -49,11 +50,18 @@ struct MeshParameters {
   double estimated_error = 0.0;
 };
 
+// The charges enter as their sums (charge_sums.hpp): N = charges.particles (every particle, as
+// LAMMPS's atom->natoms) and q2 = qqrd2e · charges.sum_q2; a span of per-particle charges is
+// summed in its order first. A scene's description gives the sums of the particles it counts
+// (engine/scene/kspace_deck.hpp, charge_sums), so the parameters are the whole scene's bit for bit.
+//
 // LAMMPS `kspace_style ewald accuracy_relative` with a real-space cutoff `real_cutoff`: g from the
 // real-space estimate alone (g = √(−ln ε)/r_c with ε = accuracy · √(N r_c V)/(2 q2), or
 // (1.35 − 0.15 ln accuracy)/r_c when ε ≥ 1), then each kmax[a] the smallest with ΔF_a ≤ accuracy.
 // Throws std::invalid_argument for an accuracy outside (0, 1), a cutoff ≤ 0, qqrd2e ≤ 0, no
 // charges or all zero, or a box that is not periodic on every axis.
+EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, const ChargeSums& charges, const Box& box,
+                             double qqrd2e);
 EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, std::span<const double> charges,
                              const Box& box, double qqrd2e);
 
@@ -62,6 +70,8 @@ EwaldParameters choose_ewald(double accuracy_relative, double real_cutoff, std::
 // which tests the spacing before each increment and so stops one point later), then to the next
 // size factorable by 2, 3 and 5; last g is solved by Newton's method (numerical derivative) for
 // ΔF_real(g) = ΔF_k(g) on that mesh. Throws as choose_ewald, and for an order outside 1 … 7.
+MeshParameters choose_pppm(double accuracy_relative, double real_cutoff, const ChargeSums& charges, const Box& box,
+                           double qqrd2e, int order = 5);
 MeshParameters choose_pppm(double accuracy_relative, double real_cutoff, std::span<const double> charges,
                            const Box& box, double qqrd2e, int order = 5);
 
