@@ -10,6 +10,7 @@
 
 #include "engine/domain/import_part.hpp"
 #include "engine/scene/chains_by_molecule.hpp"
+#include "forcefields/particle_subset.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/part_velocities.hpp"
 
@@ -98,6 +99,26 @@ void refuse_far_positions(DeckTable& root, const Box& box, const ImportedMolecul
       root.fail_here("particle " + std::to_string(in.molecules.global[static_cast<size_t>(k)]) + " is at " +
                      static_cast<char>('x' + a) + " = " + format_number(in.x(a, k)) + ", more than 2^20 box lengths (" +
                      format_number(box.lengths[a]) + ") from the periodic box; expected a position near it");
+    }
+  }
+}
+
+// The bonded terms on the part at its initial positions: a term defined on part of configuration
+// space (FENE's r < R0, an angle's arms of non-zero length) refuses a state outside it, as the
+// whole load refuses the whole state (check_initial_state, engine/scene/scene.cpp); each term made
+// on the part from its description (ForceTerm::on_subset). The pair terms are left out, as there;
+// only a description needs it (its styles hold no k-space term, whose sums span the ranks).
+void refuse_initial_state(const Scene& sc, const ImportedMolecules& in) {
+  const PartMolecules& p = in.molecules;
+  const Topology topology = p.topology(sc.topology);
+  const ParticleSubset subset{p.global, p.type, topology, p.charge, p.inv_mass};
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, in.x.cols());
+  for (const auto& term : sc.forces->terms()) {
+    if (term->uses_neighbor_list()) continue;
+    try {
+      term->on_subset(subset, sc.box)->add_forces(in.x, sc.box, f);
+    } catch (const NumericalError& e) {
+      throw InputError(std::string(e.what()) + " in the initial state");
     }
   }
 }
@@ -235,6 +256,7 @@ ScenePart data_file_part(const Deck& deck, const Scene& sc, const Communicator& 
     in = import_part(d, {sc.types, sc.units.velocity_in(1.0), friction},
                      {nullptr, KeepBlock{ranks.rank(), ranks.size()}});
     refuse_far_positions(root, sc.box, in);
+    if (sc.described()) refuse_initial_state(sc, in);  // a whole scene's load checked it
   } catch (const InputError& e) {
     problem = *e.what() ? e.what() : "input error";
   }

@@ -29,8 +29,9 @@ using detail::trim;
 // the file can be remembered and gone back to.
 class Lines {
  public:
-  explicit Lines(const std::string& path) : path_(path), in_(path, std::ios::binary) {
-    if (!in_) throw InputError(path + ": cannot open the file; expected a readable LAMMPS data file");
+  explicit Lines(const std::string& path)
+      : path_((detail::check_lammps_data_file(path), path)), in_(path, std::ios::binary) {
+    if (!in_) throw InputError(path + ": cannot open file (missing or unreadable)");
     std::string title;
     std::getline(in_, title);
     number_ = 1;
