@@ -23,6 +23,8 @@ prints (which reads the file whole), but for a "rank R: " before it:
     long_bond       the last atom's image flag moved by one box length: its bond spans the box
                     (the last rank's block, as the molecule is made whole)
     zero_bond       the last atom placed on its bonded neighbour (the last rank's block)
+    fene_stretch    the last atom moved 1.6 along x: its FENE bond beyond R0 in the initial state
+                    (the last rank's block, its bonded terms evaluated on it)
     unnamed_type    the last atom of a second atom type that atom_types does not name (the
                     structure, then the deck's map)
 """
@@ -98,6 +100,8 @@ def faulty(case, lines):
         return lines
     elif case == "long_bond":
         w[6] = str(int(w[6]) + 1)
+    elif case == "fene_stretch":
+        w[3] = repr(float(w[3]) + 1.6)
     elif case == "zero_bond":
         w[3:6] = lines[atoms[-2]].split()[3:6]
         w[6:9] = lines[atoms[-2]].split()[6:9]
