@@ -274,8 +274,20 @@ int main(int argc, char** argv) {
         const bool restart_run =
             decomposed && run->parsed() && !restart.empty() &&
             stiffmd::checkpoint_format_version(restart) >= stiffmd::kFirstFingerprintByDescriptions;
-        scene.emplace(stiffmd::load_scene(
-            *deck, {}, fresh_run || restart_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole));
+        const auto content =
+            fresh_run || restart_run ? stiffmd::SceneContent::description : stiffmd::SceneContent::whole;
+        try {
+          scene.emplace(stiffmd::load_scene(*deck, {}, content));
+        } catch (const stiffmd::InputError&) {
+          // A data file's description reads its structure in the reader by parts' words: rank 0,
+          // whose message the agreement prints, words the fault as the whole load does (the
+          // whole import's message; its own when the whole load accepts the deck).
+          if (content != stiffmd::SceneContent::description || processes.communicator().rank() != 0 ||
+              !deck->root().gives("import"))
+            throw;
+          stiffmd::load_scene(*deck);
+          throw;
+        }
         if (scene->described() &&
             (!stiffmd::part_source(*deck, *scene).make || !stiffmd::whole_scene_needed(*scene).empty() ||
              (restart_run && scene->state.size() != 0)))

@@ -640,8 +640,11 @@ BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder,
 
 
 # Of those, the decks whose scene every rank loads as its description only (summary.json
-# domains.scene = "description"): the builder's by-molecule chains, with Ewald or PPPM too.
-DESCRIBED = ("chains_by_parts", "minimize_by_parts", "charged_pppm", "charged_ewald")
+# domains.scene = "description"): the builder's by-molecule chains, with Ewald or PPPM too, and
+# the data files of kremer_grest and half_melt (counted by one streaming pass:
+# engine/scene/scene.hpp). TraPPE's stiff-harmonic term reads every particle's mass: its deck
+# loads whole.
+DESCRIBED = ("chains_by_parts", "minimize_by_parts", "charged_pppm", "charged_ewald", "kremer_grest", "half_melt")
 
 
 def check_checkpoint_blocks(out, ranks):
@@ -690,8 +693,9 @@ def plain_case(stiffmd, mpiexec, numproc_flag, n, case, tmp):
         if setup != "parts":
             raise SystemExit(f"FAIL: domains.setup = {setup!r} on {n} ranks: expected 'parts'")
         print(f"the parts made by {BY_PARTS[case]} on every rank")
-        # The builder's decks load the scene's description only (no rank builds the whole
-        # scene: engine/scene/scene.hpp SceneContent::description); a data file's, the whole scene.
+        # The builder's decks and the data files without a term that reads every particle load
+        # the scene's description only (no rank builds or reads the whole scene:
+        # engine/scene/scene.hpp SceneContent::description); the others, the whole scene.
         with open(os.path.join(out, "summary.json")) as f:
             scene = json.load(f)["domains"]["scene"]
         expected = "description" if case in DESCRIBED else "whole"

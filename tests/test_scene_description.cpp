@@ -11,6 +11,7 @@
 
 #include <bit>
 #include <chrono>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -18,6 +19,7 @@
 
 #include "core/errors.hpp"
 #include "engine/domain/part_load.hpp"
+#include "engine/run/checkpoint.hpp"
 #include "engine/scene/kspace_deck.hpp"
 #include "fake_processes.hpp"
 #include "forcefields/kspace/ewald_sum.hpp"
@@ -343,6 +345,228 @@ TEST(SceneDescription, ParticlesBeforeTheChainsArePartlyDescribed) {
   EXPECT_EQ(desc.sources[2].first, 2);
   EXPECT_EQ(desc.sources[2].count, whole.sources[2].count);
   EXPECT_NE(part_source(deck, desc).refusal, "");  // the part path refuses [[particles]]
+}
+
+// ---------------------------------------------------------------- a LAMMPS data file
+
+// The text of `rel` with each `from` replaced by its `to`, in order (each must be there).
+std::string deck_text_with(const std::string& rel, const std::vector<std::pair<std::string, std::string>>& edits) {
+  std::ifstream in(tree_path(rel));
+  std::stringstream s;
+  s << in.rdbuf();
+  std::string text = s.str();
+  for (const auto& [from, to] : edits) {
+    const auto at = text.find(from);
+    if (at == std::string::npos) throw std::logic_error("no '" + from + "' in " + rel);
+    text.replace(at, from.size(), to);
+  }
+  return text;
+}
+
+// The decks whose [import] of a data file the description counts: Kremer–Grest's and the half
+// melt's (FENE, Langevin), the half melt with a charge on its type (a net charge no q column
+// gives), SPC/E water's file (atom_style full: two types, charges from the q column, angles) with
+// flexible bonds and angles, cut-off Coulomb and a friction scaled by type, and the peptide's
+// (14 atom types, angles, dihedrals, impropers; the bond and angle maps left out, so named by
+// their numbers) with harmonic dihedrals in place of charmm's.
+Deck import_deck(int k) {
+  const std::string dir = tree_path("inputs") + "/";
+  switch (k) {
+    case 0:
+      return Deck(tree_path("inputs/kremer_grest.toml"), {});
+    case 1:
+      return Deck(tree_path("inputs/half_melt.toml"), {});
+    case 2:
+      return Deck(
+          Deck::Text{dir + "charged_half_melt.toml",
+                     deck_text_with("inputs/half_melt.toml", {{"mass = 1.0\n", "mass = 1.0\ncharge = 0.5\n"},
+                                                              {"[forces.lj]",
+                                                               "[forces.coulomb]\nstyle = \"coul/debye\"\nkappa = 1.0\n"
+                                                               "coulomb_cutoff = 2.5\nspecial_bonds = [0.0, 1.0]\n\n"
+                                                               "[forces.lj]"}})},
+          {});
+    case 3:
+      return Deck(Deck::Text{dir + "flexible_water.toml",
+                             "units = \"real\"\n[types.O]\nmass = 15.9994\ncharge = -0.8476\n"
+                             "[types.H]\nmass = 1.008\ncharge = 0.4238\n"
+                             "[import]\nlammps_data = \"spce_water.data\"\n"
+                             "atom_types = { \"1\" = \"O\", \"2\" = \"H\" }\nbond_types = { \"1\" = \"OH\" }\n"
+                             "angle_types = { \"1\" = \"HOH\" }\n"
+                             "[forces.bonds]\nstyle = \"harmonic-bond\"\nbond_types.OH = { k = 450.0, r0 = 1.0 }\n"
+                             "[forces.angles]\nstyle = \"harmonic-angle\"\n"
+                             "angle_types.HOH = { k = 55.0, theta0 = 109.47 }\n"
+                             "[forces.coulomb]\nstyle = \"coul/cut\"\ncoulomb_cutoff = 9.0\n"
+                             "special_bonds = [0.0, 0.0, 0.0]\n"
+                             "[integrator]\nmethod = \"velocity-verlet\"\nh = 0.5\n"
+                             "[thermostat]\nstyle = \"langevin\"\ntemperature = 300.0\ndamp = 100.0\nseed = 3\n"
+                             "scale = { H = 2.0 }\n[run]\nt_end = 5.0\n"},
+                  {});
+    default: {
+      std::string torsion = "[forces.dihedrals]\nstyle = \"harmonic-dihedral\"\n";
+      for (int t = 1; t <= 21; ++t)
+        torsion += "dihedral_types.\"" + std::to_string(t) + "\" = { K = " + std::to_string(0.1 * t) +
+                   ", d = " + (t % 2 ? "1" : "-1") + ", n = " + std::to_string(1 + t % 3) + " }\n";
+      std::string text = deck_text_with("inputs/peptide_bonded.toml", {{"[forces.dihedrals]", "[forces.charmm]"}});
+      // The charmm table (from its header to the next table) replaced by the harmonic one.
+      const auto from = text.find("[forces.charmm]"), to = text.find("[forces.impropers]");
+      text.replace(from, to - from, torsion + "\n");
+      return Deck(Deck::Text{dir + "harmonic_peptide.toml", text}, {});
+    }
+  }
+}
+constexpr int kImportDecks = 5;
+
+template <class Item>
+void expect_same_items(const std::vector<PartMolecules::Placed<Item>>& got,
+                       const std::vector<PartMolecules::Placed<Item>>& want, int atoms) {
+  ASSERT_EQ(got.size(), want.size());
+  for (size_t k = 0; k < got.size(); ++k) {
+    EXPECT_EQ(got[k].place, want[k].place);
+    EXPECT_EQ(got[k].item.type, want[k].item.type);
+    const int* g = &got[k].item.i;
+    const int* w = &want[k].item.i;
+    for (int a = 0; a < atoms; ++a) EXPECT_EQ(g[a], w[a]);
+  }
+}
+
+class ImportDescription : public ::testing::TestWithParam<int> {};
+
+// The description of a deck whose particles all come from a data file: no particle or item, the
+// whole load's counts, notes, names, coefficients and terms; data_file_part makes the same parts
+// from it as from the whole scene on 1–3 fake ranks; and the checkpoint's fingerprint taken by
+// parts on the description is the whole scene's.
+TEST_P(ImportDescription, IsTheWholeSceneWithoutItsParticles) {
+  if (GetParam() == 0 && !std::filesystem::exists("/usr/share/lammps/examples/COUPLE/multiple/data.chain"))
+    GTEST_SKIP() << "LAMMPS's data.chain is not installed";
+  const Deck deck = import_deck(GetParam());
+  SCOPED_TRACE(deck.path());
+  const Scene whole = load_scene(deck);
+  const Scene desc = load_scene(deck, {}, SceneContent::description);
+  ASSERT_FALSE(whole.described());
+  ASSERT_TRUE(desc.described());
+  EXPECT_EQ(desc.undescribed_particles, whole.state.size());
+  EXPECT_EQ(desc.whole_particles(), whole.whole_particles());
+  EXPECT_EQ(desc.state.size(), 0);
+  EXPECT_TRUE(desc.particle_type.empty());
+  EXPECT_TRUE(desc.charge.empty());
+  EXPECT_TRUE(desc.topology.bonds.empty());
+  EXPECT_TRUE(desc.topology.angles.empty());
+  EXPECT_TRUE(desc.topology.dihedrals.empty());
+  EXPECT_TRUE(desc.topology.impropers.empty());
+  EXPECT_TRUE(desc.topology.molecule.empty());
+  EXPECT_EQ(desc.integrator.thermostat.friction.size(), 0);
+  expect_same_description(whole, desc);
+  EXPECT_EQ(desc.lammps_types.atom, whole.lammps_types.atom);
+  EXPECT_EQ(desc.lammps_types.bond, whole.lammps_types.bond);
+  EXPECT_EQ(desc.lammps_types.angle, whole.lammps_types.angle);
+  EXPECT_EQ(desc.lammps_types.dihedral, whole.lammps_types.dihedral);
+  EXPECT_EQ(desc.lammps_types.improper, whole.lammps_types.improper);
+  EXPECT_EQ(desc.lammps_types.masses, whole.lammps_types.masses);
+  EXPECT_EQ(desc.lammps_data_coeffs.file, whole.lammps_data_coeffs.file);
+  ASSERT_EQ(desc.lammps_data_coeffs.sections.size(), whole.lammps_data_coeffs.sections.size());
+  for (size_t k = 0; k < whole.lammps_data_coeffs.sections.size(); ++k) {
+    EXPECT_EQ(desc.lammps_data_coeffs.sections[k].name, whole.lammps_data_coeffs.sections[k].name);
+    EXPECT_EQ(desc.lammps_data_coeffs.sections[k].style, whole.lammps_data_coeffs.sections[k].style);
+    EXPECT_EQ(desc.lammps_data_coeffs.sections[k].rows, whole.lammps_data_coeffs.sections[k].rows);
+  }
+  EXPECT_EQ(desc.lammps_data_coeffs.bond, whole.lammps_data_coeffs.bond);
+  EXPECT_EQ(desc.lammps_data_coeffs.angle, whole.lammps_data_coeffs.angle);
+  EXPECT_EQ(desc.lammps_data_coeffs.dihedral, whole.lammps_data_coeffs.dihedral);
+  EXPECT_EQ(desc.lammps_data_coeffs.improper, whole.lammps_data_coeffs.improper);
+
+  const PartSource from_whole = part_source(deck, whole), from_desc = part_source(deck, desc);
+  EXPECT_EQ(from_desc.make, from_whole.make);
+  EXPECT_EQ(from_desc.refusal, from_whole.refusal);
+  ASSERT_EQ(from_whole.make, &data_file_part);
+  for (int ranks = 1; ranks <= 3; ++ranks) {
+    std::vector<ScenePart> w(static_cast<size_t>(ranks)), g(static_cast<size_t>(ranks));
+    std::vector<std::uint64_t> fingerprint(static_cast<size_t>(ranks));
+    run_ranks(ranks, [&](const Communicator& comm) {
+      const auto r = static_cast<size_t>(comm.rank());
+      w[r] = data_file_part(deck, whole, comm);
+      g[r] = data_file_part(deck, desc, comm);
+      fingerprint[r] = scene_fingerprint_parts(desc, g[r].molecules, comm);
+    });
+    int covered = 0;
+    for (int r = 0; r < ranks; ++r) {
+      SCOPED_TRACE("rank " + std::to_string(r) + " of " + std::to_string(ranks));
+      const ScenePart &a = g[static_cast<size_t>(r)], &b = w[static_cast<size_t>(r)];
+      covered += a.molecules.size();
+      EXPECT_EQ(a.molecules.global, b.molecules.global);
+      EXPECT_EQ(a.molecules.inv_mass, b.molecules.inv_mass);
+      EXPECT_EQ(a.molecules.charge, b.molecules.charge);
+      EXPECT_EQ(a.molecules.type, b.molecules.type);
+      EXPECT_EQ(a.molecules.molecule_id, b.molecules.molecule_id);
+      EXPECT_EQ(a.molecules.friction, b.molecules.friction);
+      expect_same_items(a.molecules.bonds, b.molecules.bonds, 2);
+      expect_same_items(a.molecules.angles, b.molecules.angles, 3);
+      expect_same_items(a.molecules.dihedrals, b.molecules.dihedrals, 4);
+      expect_same_items(a.molecules.impropers, b.molecules.impropers, 4);
+      ASSERT_EQ(a.x.cols(), b.x.cols());
+      EXPECT_TRUE((a.x.array() == b.x.array()).all());
+      EXPECT_TRUE((a.v.array() == b.v.array()).all());
+      EXPECT_EQ(fingerprint[static_cast<size_t>(r)], scene_fingerprint(whole));
+    }
+    EXPECT_EQ(covered, whole.state.size());
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Decks, ImportDescription, ::testing::Range(0, kImportDecks));
+
+// The charged half melt: charged from its type (no q column), its net charge the whole sum's to
+// the bit; the water's file: charged by its q column, and neutral as the whole scene is.
+TEST(ImportDescription, ChargesFromTheTypesOrTheFile) {
+  const Scene melt = load_scene(import_deck(2), {}, SceneContent::description);
+  EXPECT_TRUE(melt.charged());
+  ASSERT_EQ(melt.notes.size(), 1u);
+  EXPECT_NE(melt.notes[0].find("net charge is 1000 e"), std::string::npos) << melt.notes[0];
+  const Scene water = load_scene(import_deck(3), {}, SceneContent::description);
+  EXPECT_TRUE(water.charged());
+  EXPECT_TRUE(water.notes.empty());
+  // No term acts on the file's charges: refused naming its first charged particle, as the whole load.
+  const Deck uncharged(
+      Deck::Text{tree_path("inputs") + "/no_coulomb.toml",
+                 deck_text_with("inputs/half_melt.toml", {{"mass = 1.0\n", "mass = 1.0\ncharge = 0.5\n"}})},
+      {});
+  const std::string whole = load_error(uncharged, SceneContent::whole);
+  EXPECT_NE(whole.find("particle 0 ("), std::string::npos) << whole;
+  EXPECT_EQ(load_error(uncharged, SceneContent::description), whole);
+}
+
+// Bad input the description reads (the type maps, masses, an undefined bond type, the file's
+// structure): the whole load's message.
+TEST(ImportDescription, BadInputGivesTheWholeLoadsMessage) {
+  const std::vector<std::pair<std::string, std::string>> edits = {
+      {"atom_types = { \"1\" = \"bead\" }", "atom_types = { \"2\" = \"bead\" }"},   // type 1 unnamed
+      {"atom_types = { \"1\" = \"bead\" }", "atom_types = { \"1\" = \"bed\" }"},    // an unknown type
+      {"mass = 1.0\n", "mass = 2.0\n"},                                             // the Masses disagree
+      {"bond_types = { \"1\" = \"fene\" }", "bond_types = { \"1\" = \"other\" }"},  // undefined bond type
+      {"bond_types = { \"1\" = \"fene\" }", "bond_types = { \"2\" = \"fene\" }"},   // bond type 1 unnamed
+      {"velocities", "velocitiez"},                                                 // an unknown key
+      {"lammps_data = \"half_melt.data\"", "lammps_data = \"no_such.data\""},       // no file
+      {"lammps_data = \"half_melt.data\"", "lammps_data = \".\""},                  // a directory
+  };
+  for (const auto& [from, to] : edits) {
+    SCOPED_TRACE(to);
+    std::string text = deck_text_with("inputs/half_melt.toml", {});
+    if (to == "velocitiez")
+      text = deck_text_with("inputs/half_melt.toml", {{"[import]\n", "[import]\nvelocitiez = true\n"}});
+    else
+      text = deck_text_with("inputs/half_melt.toml", {{from, to}});
+    const Deck deck(Deck::Text{tree_path("inputs") + "/bad.toml", text}, {});
+    const std::string whole = load_error(deck, SceneContent::whole);
+    EXPECT_FALSE(whole.empty());
+    EXPECT_EQ(load_error(deck, SceneContent::description), whole);
+  }
+}
+
+// An XYZ import, [[particles]] beside the file, or a term that reads every particle: loaded whole.
+TEST(ImportDescription, DecksItCannotStandForLoadWhole) {
+  for (const char* deck : {"inputs/trappe_pe.toml", "inputs/peptide_bonded.toml", "inputs/spce_water.toml",
+                           "tests/decks/every_charged_style.toml"}) {
+    SCOPED_TRACE(deck);
+    EXPECT_FALSE(load_scene(Deck(tree_path(deck), {}), {}, SceneContent::description).described());
+  }
 }
 
 long peak_rss_kib() {

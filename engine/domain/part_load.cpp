@@ -1,11 +1,16 @@
 #include "engine/domain/part_load.hpp"
 
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <stdexcept>
 
+#include "core/errors.hpp"
+#include "core/format.hpp"
+
 #include "engine/domain/import_part.hpp"
 #include "engine/scene/chains_by_molecule.hpp"
+#include "forcefields/particle_subset.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/part_velocities.hpp"
 
@@ -79,6 +84,56 @@ void velocities_by_particle(const Deck& deck, const Scene& sc, const PartMolecul
   const auto seed = static_cast<std::uint64_t>(t->integer("seed", 1));
   const Eigen::VectorXd w = Eigen::Map<const Eigen::VectorXd>(mine.inv_mass.data(), mine.size());
   v = maxwell_boltzmann_by_particle(w, mine.global, sc.units.kT(temperature), seed, &ranks);
+}
+
+// Positions are unwrapped; a particle more than 2^20 box lengths from the periodic box is refused,
+// as the whole load refuses it (check_positions_near_box, engine/scene/scene.cpp): the part's
+// particles, by their whole-scene index.
+void refuse_far_positions(DeckTable& root, const Box& box, const ImportedMolecules& in) {
+  constexpr double kMaxImages = 1 << 20;
+  for (int a = 0; a < 3; ++a) {
+    if (!box.periodic[a]) continue;
+    for (Eigen::Index k = 0; k < in.x.cols(); ++k) {
+      const double images = (in.x(a, k) - box.origin[a]) / box.lengths[a];
+      if (std::abs(images) <= kMaxImages) continue;
+      root.fail_here("particle " + std::to_string(in.molecules.global[static_cast<size_t>(k)]) + " is at " +
+                     static_cast<char>('x' + a) + " = " + format_number(in.x(a, k)) + ", more than 2^20 box lengths (" +
+                     format_number(box.lengths[a]) + ") from the periodic box; expected a position near it");
+    }
+  }
+}
+
+// The bonded terms on the part at its initial positions: a term defined on part of configuration
+// space (FENE's r < R0, an angle's arms of non-zero length) refuses a state outside it, as the
+// whole load refuses the whole state (check_initial_state, engine/scene/scene.cpp); each term made
+// on the part from its description (ForceTerm::on_subset). The pair terms are left out, as there;
+// only a description needs it (its styles hold no k-space term, whose sums span the ranks).
+void refuse_initial_state(const Scene& sc, const ImportedMolecules& in) {
+  const PartMolecules& p = in.molecules;
+  const Topology topology = p.topology(sc.topology);
+  const ParticleSubset subset{p.global, p.type, topology, p.charge, p.inv_mass};
+  Eigen::Matrix3Xd f = Eigen::Matrix3Xd::Zero(3, in.x.cols());
+  for (const auto& term : sc.forces->terms()) {
+    if (term->uses_neighbor_list()) continue;
+    try {
+      term->on_subset(subset, sc.box)->add_forces(in.x, sc.box, f);
+    } catch (const NumericalError& e) {
+      throw InputError(std::string(e.what()) + " in the initial state");
+    }
+  }
+}
+
+// The whole load's message for a deck whose data file one rank found a fault in (its block's
+// lines, which no other rank reads): the file loaded whole, on that rank alone, so that a run on
+// several ranks words the fault as one process does (its first fault in the file's order). ""
+// when the whole load accepts the deck (the part's own message stands).
+std::string whole_load_problem(const Deck& deck) {
+  try {
+    load_scene(deck);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
 }
 
 // Why the particles cannot come from `root`'s one [[build]] by parts ("": they can).
@@ -194,12 +249,24 @@ ScenePart data_file_part(const Deck& deck, const Scene& sc, const Communicator& 
   if (sc.integrator.thermostat.style == ThermostatSettings::Style::langevin)
     for (size_t k = 0; k < sc.types.size(); ++k) friction.push_back(langevin_friction(deck, sc, static_cast<int>(k)));
   // Each rank reads its block alone: a fault only its lines hold is agreed before any collective
-  // call (docs/parallel.md, "Errors").
+  // call (docs/parallel.md, "Errors"), in the whole load's words.
   ImportedMolecules in;
-  agree(&ranks, [&] {
+  std::string problem;
+  try {
     in = import_part(d, {sc.types, sc.units.velocity_in(1.0), friction},
                      {nullptr, KeepBlock{ranks.rank(), ranks.size()}});
-  });
+    refuse_far_positions(root, sc.box, in);
+    if (sc.described()) refuse_initial_state(sc, in);  // a whole scene's load checked it
+  } catch (const InputError& e) {
+    problem = *e.what() ? e.what() : "input error";
+  }
+  if (const Communicator::Problem first = ranks.first_problem(problem); first.rank >= 0) {
+    std::string text = first.text;
+    if (ranks.rank() == first.rank)
+      if (std::string whole = whole_load_problem(deck); !whole.empty()) text = std::move(whole);
+    ranks.broadcast(text, first.rank);
+    throw AgreedInputError(Communicator::Problem{first.rank, text}.said(), ranks.root());
+  }
   ScenePart part{std::move(in.molecules), std::move(in.x), std::move(in.v)};
   velocities_by_particle(deck, sc, part.molecules, ranks, part.v);
   return part;

@@ -62,9 +62,12 @@ ScenePart chains_part(const Deck& deck, const Scene& scene, const Communicator& 
 // them bit for bit: each particle's type, inverse mass, charge, molecule id and Langevin friction,
 // the bonded items with their places, x whole, and v the file's (velocities = true, in the deck's
 // units), zero, or drawn by particle. The file's faults that only this rank reads (a malformed
-// number in one of its lines) are agreed before anything else: every rank throws
-// AgreedInputError with the lowest failing rank's message (collective). `scene` gives the types,
-// units and thermostat; none of its per-particle arrays or items are read.
+// number in one of its lines, a bond longer than half the box, a particle far from the box) are
+// agreed before anything else: every rank throws AgreedInputError with the lowest failing rank's
+// message, which that rank words as the whole load does by loading the deck whole (on that fault
+// alone: the run goes no further), so that the message is one process's (collective). `scene`
+// gives the types, units and thermostat; none of its per-particle arrays or items are read, so
+// the scene's description gives the same part.
 ScenePart data_file_part(const Deck& deck, const Scene& scene, const Communicator& ranks);
 
 }  // namespace stiffmd

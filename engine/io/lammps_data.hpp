@@ -86,6 +86,10 @@ namespace detail {
 
 // The whole file; InputError naming `path` if it is missing, a directory, unreadable or gzip-compressed.
 std::string read_text_file(const std::string& path);
+// What read_text_file and read_lammps_data refuse before they read a line (a directory, a device,
+// a file that cannot be opened, gzip-compressed or empty), with their words: for a reader that
+// streams the file (engine/io/lammps_data_parts.hpp).
+void check_lammps_data_file(const std::string& path);
 // Whole-token parses: no leading/trailing junk, finite values only, integers within range.
 bool parse_double(std::string_view s, double& out);
 bool parse_long(std::string_view s, long long& out);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <fstream>
 #include <limits>
@@ -28,8 +29,9 @@ using detail::trim;
 // the file can be remembered and gone back to.
 class Lines {
  public:
-  explicit Lines(const std::string& path) : path_(path), in_(path, std::ios::binary) {
-    if (!in_) throw InputError(path + ": cannot open the file; expected a readable LAMMPS data file");
+  explicit Lines(const std::string& path)
+      : path_((detail::check_lammps_data_file(path), path)), in_(path, std::ios::binary) {
+    if (!in_) throw InputError(path + ": cannot open file (missing or unreadable)");
     std::string title;
     std::getline(in_, title);
     number_ = 1;
@@ -95,6 +97,42 @@ class PartReader {
   ImportedBox box() {
     header();
     return {lo_, hi_};
+  }
+
+  // The structure pass alone, counting (read_lammps_data_description).
+  ImportedDescription describe(const std::vector<double>* type_charge) {
+    if (requested_ != "auto" && !find_style(requested_))
+      throw InputError(path_ + ": atom_style " + quote(requested_) + " is not supported; expected auto, " +
+                       std::string(kSupportedStyles));
+    describing_ = true;
+    type_charge_ = type_charge;
+    structure();
+    ImportedDescription d;
+    d.lo = lo_, d.hi = hi_;
+    d.type_mass = std::move(sys_.type_mass);
+    d.coeffs = std::move(sys_.coeffs);
+    d.num_atoms = num_atoms_;
+    d.num_molecule_ids = static_cast<int>(molecule_ids_.size());
+    // Atom types by their first atom's index (ids increase with the index).
+    d.atoms_of_type = std::move(atoms_of_type_);
+    d.first_atom_of_type.assign(d.atoms_of_type.size(), -1);
+    for (size_t t = 0; t < d.atoms_of_type.size(); ++t)
+      if (d.atoms_of_type[t] > 0) {
+        d.first_atom_of_type[t] = index_of(first_id_of_type_[t]);
+        d.types_used.atom.push_back(static_cast<int>(t));
+      }
+    std::sort(d.types_used.atom.begin(), d.types_used.atom.end(), [&](int a, int b) {
+      return d.first_atom_of_type[static_cast<size_t>(a)] < d.first_atom_of_type[static_cast<size_t>(b)];
+    });
+    d.types_used.bond = std::move(types_in_order_[0]);
+    d.types_used.angle = std::move(types_in_order_[1]);
+    d.types_used.dihedral = std::move(types_in_order_[2]);
+    d.types_used.improper = std::move(types_in_order_[3]);
+    d.items_of_type = std::move(items_of_type_);
+    d.charge_column = style_->charge;
+    d.charge_sum = charge_sum_, d.charge_scale = charge_scale_, d.first_charge = first_charge_;
+    d.first_charged = first_charged_id_ > 0 ? index_of(first_charged_id_) : -1;
+    return d;
   }
 
   ImportedPart read() {
@@ -243,7 +281,8 @@ class PartReader {
     // mass: the whole import makes molecules whole along their bonds, which needs the molecule.
     // A block of molecules needs no anchor: its molecules are made whole after the read, as the
     // whole import makes them.
-    if (!by_block_ && !images_ && (count_[kBonds] || count_[kAngles] || count_[kDihedrals] || count_[kImpropers]))
+    if (!by_block_ && !describing_ && !images_ &&
+        (count_[kBonds] || count_[kAngles] || count_[kDihedrals] || count_[kImpropers]))
       fail(
           "Atoms: no image flags (ix iy iz); a file with bonded terms is read by parts only with them, as "
           "write_lammps_data and LAMMPS's write_data write it");
@@ -307,6 +346,7 @@ class PartReader {
       const auto type = static_cast<size_t>(integer(tok_[c], "atom type", 1, count_[kAtomTypes]));
       if (atom_type_used_.size() <= type) atom_type_used_.resize(type + 1, 0);
       atom_type_used_[type] = 1;
+      if (describing_) count_atom(id, type, c);
       if (dense_ && id != k + 1) {
         dense_ = false;
         ids_.resize(static_cast<size_t>(k));
@@ -323,7 +363,25 @@ class PartReader {
     if (!style_->molecule) molecule_ids_.push_back(0);
     std::sort(molecule_ids_.begin(), molecule_ids_.end());
     molecule_ids_.erase(std::unique(molecule_ids_.begin(), molecule_ids_.end()), molecule_ids_.end());
-    sets_ = std::make_unique<DisjointSets>(num_atoms_);
+    if (!describing_) sets_ = std::make_unique<DisjointSets>(num_atoms_);
+  }
+
+  // The description's numbers of one atom (its Atoms line in tok_, its type in column `c`): its
+  // type's count and first id, and its charge (the q column, or its type's).
+  void count_atom(long long id, size_t type, size_t c) {
+    if (atoms_of_type_.size() <= type) atoms_of_type_.resize(type + 1, 0), first_id_of_type_.resize(type + 1, 0);
+    if (atoms_of_type_[type]++ == 0 || id < first_id_of_type_[type]) first_id_of_type_[type] = id;
+    double q = 0.0;
+    if (style_->charge)
+      q = real(tok_[c + 1], "q");
+    else if (type_charge_ && type < type_charge_->size())
+      q = (*type_charge_)[type];
+    else
+      return;
+    charge_sum_ += q;
+    if (q == 0.0) return;
+    charge_scale_ = std::max(charge_scale_, std::abs(q));
+    if (first_charged_id_ == 0 || id < first_charged_id_) first_charged_id_ = id, first_charge_ = q;
   }
 
   void join(const Bonded& b) {
@@ -335,9 +393,15 @@ class PartReader {
       expect_columns(2 + static_cast<size_t>(b.atoms));
       const auto type = static_cast<size_t>(integer(tok_[1], "type", 1, count_[b.types]));
       if (!used[type]) used[type] = 1, types_in_order_[kind].push_back(static_cast<int>(type));
+      if (describing_) {
+        auto& counts = items_of_type_[kind];
+        if (counts.size() <= type) counts.resize(type + 1, 0);
+        ++counts[type];
+      }
       int first = -1;
       for (int a = 0; a < b.atoms; ++a) {
         const int at = resolve(tok_[2 + a], a);
+        if (!sets_) continue;
         first < 0 ? void(first = at) : sets_->join(first, at);
       }
     }
@@ -587,6 +651,15 @@ class PartReader {
   std::unique_ptr<DisjointSets> sets_;              // pass 1
   std::vector<int> molecule_;                       // per atom index, from pass 2 on
   std::vector<char> keep_molecule_;
+  // The description's numbers (describe): per atom type its atoms and least id, per bonded type
+  // its items, the charges' sum, largest magnitude and first charged atom (by id).
+  bool describing_ = false;
+  const std::vector<double>* type_charge_ = nullptr;
+  std::vector<std::int64_t> atoms_of_type_;
+  std::vector<long long> first_id_of_type_;
+  std::array<std::vector<std::int64_t>, 4> items_of_type_;
+  double charge_sum_ = 0.0, charge_scale_ = 0.0, first_charge_ = 0.0;
+  long long first_charged_id_ = 0;
 };
 
 }  // namespace
@@ -594,6 +667,12 @@ class PartReader {
 ImportedBox read_lammps_data_box(const std::string& path) {
   const KeepAnchor none;
   return PartReader(path, "auto", none, true).box();
+}
+
+ImportedDescription read_lammps_data_description(const std::string& path, const std::string& atom_style,
+                                                 const std::vector<double>* type_charge) {
+  const KeepAnchor none;
+  return PartReader(path, atom_style, none).describe(type_charge);
 }
 
 ImportedPart read_lammps_data_part(const std::string& path, const std::string& atom_style, const KeepAnchor& keep) {

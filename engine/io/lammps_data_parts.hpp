@@ -26,8 +26,10 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -76,6 +78,37 @@ struct ImportedBox {
   Eigen::Vector3d lo, hi;
 };
 ImportedBox read_lammps_data_box(const std::string& path);
+
+// What a scene's description (SceneContent::description, engine/scene/scene.hpp) needs of the
+// whole file, from one streaming pass over it (the structure pass of the reader by parts, without
+// the union–find): the header, the masses and the "… Coeffs" sections, the types the file uses, and
+// per type its atoms or items, counted — no per-atom array beyond the atom ids when they are not
+// 1 … N in order (and the file's distinct molecule ids) while it reads.
+struct ImportedDescription {
+  Eigen::Vector3d lo, hi;
+  std::map<int, double> type_mass;
+  std::vector<ImportedSystem::CoeffSection> coeffs;
+  int num_atoms = 0;
+  int num_molecule_ids = 0;  // the file's distinct molecule ids (1 in a style without them)
+  // The types used: atom types ordered by the index of their first atom (by increasing id), each
+  // bonded section's by their first entry (the order an import names the types it maps them to).
+  ImportedPart::TypesUsed types_used;
+  // Per atom type number: its atoms, and the index (by increasing id) of its first atom.
+  std::vector<std::int64_t> atoms_of_type;
+  std::vector<int> first_atom_of_type;
+  // Per bonded section (Bonds, Angles, Dihedrals, Impropers), per type number: its entries.
+  std::array<std::vector<std::int64_t>, 4> items_of_type;
+  // The q column (atom_style full): whether the file has one, and its values' sum over the atoms in
+  // the file's order (the order of increasing id, which the whole import sums in, for a file that
+  // lists its atoms so), their largest magnitude, and the first charged atom's index and charge.
+  // Without a q column, with `type_charge` given (per atom type number), the same of the types'
+  // charges.
+  bool charge_column = false;
+  double charge_sum = 0.0, charge_scale = 0.0, first_charge = 0.0;
+  int first_charged = -1;
+};
+ImportedDescription read_lammps_data_description(const std::string& path, const std::string& atom_style,
+                                                 const std::vector<double>* type_charge = nullptr);
 
 // atom_style as read_lammps_data's. Throws InputError, one line naming the file and line, for a
 // file the whole reader refuses in the lines it reads; and when a Velocities, Bonds, Angles,

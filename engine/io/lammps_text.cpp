@@ -36,6 +36,22 @@ std::string read_text_file(const std::string& path) {
   return text;
 }
 
+void check_lammps_data_file(const std::string& path) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (std::filesystem::is_directory(status)) throw InputError(path + ": is a directory, expected a file");
+  if (std::filesystem::exists(status) && !std::filesystem::is_regular_file(status))
+    throw InputError(path + ": is not a regular file (a device or pipe?), expected a file");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open file (missing or unreadable)");
+  char magic[2] = {0, 0};
+  in.read(magic, 2);
+  if (in.gcount() == 2 && static_cast<unsigned char>(magic[0]) == 0x1f && static_cast<unsigned char>(magic[1]) == 0x8b)
+    throw InputError(path + ": is gzip-compressed; decompress it first (gunzip)");
+  if (in.gcount() == 0)
+    throw InputError(path + ": file is empty; expected a LAMMPS data file (title line, header, sections)");
+}
+
 // from_chars rejects a leading '+', which Fortran- and printf("%+g")-style writers emit.
 static std::string_view drop_plus(std::string_view s) {
   if (s.size() >= 2 && s[0] == '+' && s[1] != '-' && s[1] != '+') s.remove_prefix(1);

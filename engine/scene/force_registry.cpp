@@ -1050,7 +1050,8 @@ struct NoMixing {};
 std::vector<std::int64_t> counted_particles_by_type(const Scene& sc) {
   if (sc.described_sources.empty()) return {};
   std::vector<std::int64_t> n(sc.types.size(), 0);
-  for (const DescribedSource& d : sc.described_sources) n[static_cast<std::size_t>(d.type)] += d.count;
+  for (const DescribedSource& d : sc.described_sources)
+    for (std::size_t t = 0; t < d.particles_of_type.size() && t < n.size(); ++t) n[t] += d.particles_of_type[t];
   return n;
 }
 

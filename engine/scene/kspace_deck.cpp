@@ -1,6 +1,8 @@
 #include "engine/scene/kspace_deck.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -101,8 +103,22 @@ std::unique_ptr<ForceTerm> finish_kspace(const std::string& name, Level level, D
 ChargeSums charge_sums(const Scene& sc) {
   ChargeSums c;
   c.add(sc.charge);  // the loaded particles come first (scene.hpp)
-  for (const DescribedSource& d : sc.described_sources)
-    c.add(sc.types[static_cast<std::size_t>(d.type)].charge, d.count);
+  for (const DescribedSource& d : sc.described_sources) {
+    if (d.summed) {
+      // A data file's charges, per particle, summed by its reader in the whole scene's order (the
+      // scene's only source): Σq and max |q| alone. Σq² and the charged count are not summed — a
+      // description of a data file with a k-space term is loaded whole (load_scene) — and are NaN
+      // and −1 here, so that no parameter can be chosen from them unnoticed.
+      c.particles += d.count;
+      c.sum_q += d.charge_sum;
+      c.max_abs = std::max(c.max_abs, d.charge_scale);
+      c.sum_q2 = std::numeric_limits<double>::quiet_NaN();
+      c.charged = -1;
+      continue;
+    }
+    // Carried by type: a by-molecule build's one type (the particles in order, type by type).
+    for (std::size_t t = 0; t < d.particles_of_type.size(); ++t) c.add(sc.types[t].charge, d.particles_of_type[t]);
+  }
   return c;
 }
 

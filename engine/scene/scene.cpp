@@ -274,12 +274,21 @@ void check_charges(DeckTable& root, Scene& sc) {
   const auto first = std::find_if(sc.charge.begin(), sc.charge.end(), [](double q) { return q != 0.0; });
   int i = static_cast<int>(first - sc.charge.begin());
   double q_first = first != sc.charge.end() ? *first : 0.0;
+  // A source's first charged particle: the one its reader found (a data file's, whose types are
+  // mixed), else its first particle of a charged type (a chain's beads are of one type).
   if (first == sc.charge.end())
-    for (const DescribedSource& d : sc.described_sources)
-      if (const double q = sc.types[static_cast<size_t>(d.type)].charge; q != 0.0) {
-        i = d.first, q_first = q;
+    for (const DescribedSource& d : sc.described_sources) {
+      if (d.summed) {
+        if (d.first_charged < 0) continue;
+        i = d.first_charged, q_first = d.first_charge;
         break;
       }
+      std::size_t k = 0;
+      while (k < d.particles_of_type.size() && !(d.particles_of_type[k] > 0 && sc.types[k].charge != 0.0)) ++k;
+      if (k == d.particles_of_type.size()) continue;
+      i = d.first, q_first = sc.types[k].charge;
+      break;
+    }
   if (!used)
     root.fail_here(particle_and_source(sc, i) + " has charge " + format_number(q_first) +
                        ", but no force term acts on charges: they would be lost; add a Coulomb pair style "
@@ -381,13 +390,16 @@ void read_forces(DeckTable& root, Scene& sc, std::string* overlap = nullptr) {
     if (k >= first_explicit) bond_rows[k - first_explicit].fail("type", what);
     root.fail_here(what, type_sources);
   }
-  // A description's counted bonds come after the loaded ones (scene.hpp), in source order.
+  // A description's counted bonds come after the loaded ones (scene.hpp), in source order; within
+  // a source the first bond of an undefined type is of the first such type in the names' order
+  // (each source's types are interned by their first bond).
   for (const DescribedSource& d : sc.described_sources)
-    if (d.bonds > 0 && owner[static_cast<size_t>(d.bond_type)].empty())
-      root.fail_here("bond type '" + sc.topology.bond_types[static_cast<size_t>(d.bond_type)] +
-                         "' is not defined by any force term (add [forces.NAME.bond_types." +
-                         sc.topology.bond_types[static_cast<size_t>(d.bond_type)] + "])",
-                     type_sources);
+    for (std::size_t t = 0; t < d.bonds_of_type.size(); ++t)
+      if (d.bonds_of_type[t] > 0 && owner[t].empty())
+        root.fail_here("bond type '" + sc.topology.bond_types[t] +
+                           "' is not defined by any force term (add [forces.NAME.bond_types." +
+                           sc.topology.bond_types[t] + "])",
+                       type_sources);
   for (size_t t = 0; t < sc.topology.angle_types.size(); ++t)
     if (angle_owner[t].empty() && !rigid_angle[t])
       root.fail_here("angle type '" + sc.topology.angle_types[t] +
@@ -755,7 +767,7 @@ std::vector<std::pair<std::string, std::string>> output_files(const Scene& sc) {
   // Fixed names first, so that a deck key that takes one of them is the one named.
   const bool bonded =
       !sc.topology.bonds.empty() || std::any_of(sc.described_sources.begin(), sc.described_sources.end(),
-                                                [](const DescribedSource& d) { return d.bonds > 0; });
+                                                [](const DescribedSource& d) { return d.bonds() > 0; });
   if (sc.observables.histograms && bonded) out.emplace_back("", "histograms.csv");
   out.emplace_back("", "summary.json");
   if (!o.xyz.empty() || !o.h5md.empty()) out.emplace_back("", kTopologyFile);
@@ -847,19 +859,18 @@ std::int64_t Scene::num_steps() const {
 namespace {
 
 // The Langevin frictions' least and largest over the whole scene's particles, a description's
-// counted ones among them (their type's, DescribedSource::friction); nullopt without any.
+// counted ones among them (their type's, DescribedSource::friction_of_type); nullopt without any.
 std::optional<std::pair<double, double>> friction_range(const Scene& sc) {
   const Eigen::VectorXd& f = sc.integrator.thermostat.friction;
   std::optional<std::pair<double, double>> range;
   if (f.size() > 0) range = std::pair{f.minCoeff(), f.maxCoeff()};
   if (sc.integrator.thermostat.style == ThermostatSettings::Style::langevin)
-    for (const DescribedSource& d : sc.described_sources) {
-      if (d.count == 0) continue;
-      if (!range)
-        range = std::pair{d.friction, d.friction};
-      else
-        range = std::pair{std::min(range->first, d.friction), std::max(range->second, d.friction)};
-    }
+    for (const DescribedSource& d : sc.described_sources)
+      for (std::size_t t = 0; t < d.friction_of_type.size(); ++t) {
+        if (DescribedSource::of(d.particles_of_type, t) == 0) continue;
+        const double f = d.friction_of_type[t];
+        range = range ? std::pair{std::min(range->first, f), std::max(range->second, f)} : std::pair{f, f};
+      }
   return range;
 }
 
@@ -937,21 +948,35 @@ bool grows_by_molecule(DeckTable& b) {
          b.string("growth") == "by-molecule";
 }
 
-// The index of the first [[build]] that SceneContent::description describes (every one from it on
-// grows linear chains by molecule, so that no loaded particle follows a described one), or none:
-// the deck is loaded whole. Read in a view of its own (the keys it reads stay unread for the load,
-// whose messages are the whole load's), and any doubt — a key of the wrong kind, say — loads it
-// whole, which reports it.
-std::optional<std::size_t> described_builds(const Deck& deck) {
+// What SceneContent::description describes: the [[build]]s from index `builds` on (every one from
+// it on grows linear chains by molecule, so that no loaded particle follows a described one), or
+// the [import] of a LAMMPS data file that makes every particle; none: the deck is loaded whole.
+// Read in a view of its own (the keys it reads stay unread for the load, whose messages are the
+// whole load's), and any doubt — a key of the wrong kind, say — loads it whole, which reports it.
+struct Described {
+  std::size_t builds = static_cast<std::size_t>(-1);
+  bool import = false;
+};
+std::optional<Described> described_sources(const Deck& deck) {
   try {
     DeckTable root = deck.root();
-    // [import] numbers its particles after every [[build]]; [[bonds]] name particles by index;
-    // a barostat checks every molecule's extent against the box (refuse_large_molecules).
-    if (root.gives("import") || root.gives("bonds") || root.gives("barostat")) return std::nullopt;
-    std::vector<DeckTable> builds = root.array_of_tables("build");
-    std::size_t from = builds.size();
-    while (from > 0 && grows_by_molecule(builds[from - 1])) --from;
-    if (from == builds.size()) return std::nullopt;
+    // [[bonds]] name particles by index; a barostat checks every molecule's extent against the
+    // box (refuse_large_molecules).
+    if (root.gives("bonds") || root.gives("barostat")) return std::nullopt;
+    Described d;
+    if (root.gives("import")) {
+      // The import numbers its particles after every [[build]] and [[particles]]: described when
+      // it is the only source, a LAMMPS data file (an XYZ file is read whole).
+      if (root.gives("build") || root.gives("particles") || !root.table("import")->gives("lammps_data"))
+        return std::nullopt;
+      d.import = true;
+    } else {
+      std::vector<DeckTable> builds = root.array_of_tables("build");
+      std::size_t from = builds.size();
+      while (from > 0 && grows_by_molecule(builds[from - 1])) --from;
+      if (from == builds.size()) return std::nullopt;
+      d.builds = from;
+    }
     if (auto forces = root.table("forces"))
       for (auto& [name, t] : forces->named_tables()) {
         if (!t.gives("style")) return std::nullopt;
@@ -959,8 +984,11 @@ std::optional<std::size_t> described_builds(const Deck& deck) {
         if (std::find(kStylesReadingParticles.begin(), kStylesReadingParticles.end(), style) !=
             kStylesReadingParticles.end())
           return std::nullopt;
+        // A data file's charges are per particle: its reader sums Σq in the file's order, not Σq²
+        // in the particles' order, from which the k-space terms choose their parameters.
+        if (d.import && (style == "ewald" || style == "pppm")) return std::nullopt;
       }
-    return from;
+    return d;
   } catch (const std::exception&) {
     return std::nullopt;
   }
@@ -969,8 +997,8 @@ std::optional<std::size_t> described_builds(const Deck& deck) {
 }  // namespace
 
 Scene load_scene(const Deck& deck, const StageIdentity& stage, SceneContent content) {
-  const std::optional<std::size_t> describe_from =
-      content == SceneContent::description ? described_builds(deck) : std::nullopt;
+  const std::optional<Described> described =
+      content == SceneContent::description ? described_sources(deck) : std::nullopt;
   Scene sc;
   sc.deck_path = deck.path();
   sc.stage = stage;
@@ -984,8 +1012,8 @@ Scene load_scene(const Deck& deck, const StageIdentity& stage, SceneContent cont
   read_box(root, sc);
   read_types(root, sc);
   read_particles(root, sc);
-  read_builders(root, sc, describe_from.value_or(static_cast<std::size_t>(-1)));
-  read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string());
+  read_builders(root, sc, described ? described->builds : static_cast<std::size_t>(-1));
+  read_import(root, sc, std::filesystem::path(deck.path()).parent_path().string(), described && described->import);
   if (sc.whole_particles() == 0)
     root.fail_here("the scene has no particles: give [[particles]], a [[build]] or an [import]");
   check_positions_near_box(root, sc);
@@ -1049,7 +1077,7 @@ std::string describe_scene(const Scene& sc) {
   s << "particles:   " << sc.whole_particles() << " (" << fixed << " fixed)\n";
   for (size_t k = 0; k < sc.types.size(); ++k) {
     const auto count = std::count(sc.particle_type.begin(), sc.particle_type.end(), static_cast<int>(k)) +
-                       counted([&](const DescribedSource& d) { return d.type == static_cast<int>(k) ? d.count : 0; });
+                       counted([&](const DescribedSource& d) { return DescribedSource::of(d.particles_of_type, k); });
     s << "  type " << sc.types[k].name << ": " << count << " particles, mass " << sc.types[k].mass << ", element "
       << sc.types[k].element << "\n";
   }
@@ -1058,45 +1086,51 @@ std::string describe_scene(const Scene& sc) {
     s << "open\n";
   else
     s << "periodic (" << sc.box.periodic.transpose() << "), lengths " << sc.box.lengths.transpose() << "\n";
-  const auto items_of = [&](std::int64_t DescribedSource::*count, int DescribedSource::*type, int k) {
-    return counted([&](const DescribedSource& d) { return d.*type == k ? d.*count : 0; });
+  using OfType = std::vector<std::int64_t> DescribedSource::*;
+  const auto items_of = [&](OfType of_type, size_t k) {
+    return counted([&](const DescribedSource& d) { return DescribedSource::of(d.*of_type, k); });
   };
-  s << "bonds:       "
-    << static_cast<std::int64_t>(sc.topology.bonds.size()) + counted([](const DescribedSource& d) { return d.bonds; })
+  const auto items = [&](OfType of_type) {
+    return counted([&](const DescribedSource& d) { return DescribedSource::total(d.*of_type); });
+  };
+  s << "bonds:       " << static_cast<std::int64_t>(sc.topology.bonds.size()) + items(&DescribedSource::bonds_of_type)
     << "\n";
   for (size_t k = 0; k < sc.topology.bond_types.size(); ++k) {
     const auto count = std::count_if(sc.topology.bonds.begin(), sc.topology.bonds.end(),
                                      [&](const Bond& b) { return b.type == static_cast<int>(k); }) +
-                       items_of(&DescribedSource::bonds, &DescribedSource::bond_type, static_cast<int>(k));
+                       items_of(&DescribedSource::bonds_of_type, k);
     s << "  type " << sc.topology.bond_types[k] << ": " << count << "\n";
   }
   const std::int64_t angles =
-      static_cast<std::int64_t>(sc.topology.angles.size()) + counted([](const DescribedSource& d) { return d.angles; });
+      static_cast<std::int64_t>(sc.topology.angles.size()) + items(&DescribedSource::angles_of_type);
   if (angles > 0) {
     s << "angles:      " << angles << "\n";
     for (size_t k = 0; k < sc.topology.angle_types.size(); ++k) {
       const auto count = std::count_if(sc.topology.angles.begin(), sc.topology.angles.end(),
                                        [&](const Angle& a) { return a.type == static_cast<int>(k); }) +
-                         items_of(&DescribedSource::angles, &DescribedSource::angle_type, static_cast<int>(k));
+                         items_of(&DescribedSource::angles_of_type, k);
       s << "  type " << sc.topology.angle_types[k] << ": " << count << "\n";
     }
   }
-  const std::int64_t dihedrals = static_cast<std::int64_t>(sc.topology.dihedrals.size()) +
-                                 counted([](const DescribedSource& d) { return d.dihedrals; });
+  const std::int64_t dihedrals =
+      static_cast<std::int64_t>(sc.topology.dihedrals.size()) + items(&DescribedSource::dihedrals_of_type);
   if (dihedrals > 0) {
     s << "dihedrals:   " << dihedrals << "\n";
     for (size_t k = 0; k < sc.topology.dihedral_types.size(); ++k) {
       const auto count = std::count_if(sc.topology.dihedrals.begin(), sc.topology.dihedrals.end(),
                                        [&](const Dihedral& d) { return d.type == static_cast<int>(k); }) +
-                         items_of(&DescribedSource::dihedrals, &DescribedSource::dihedral_type, static_cast<int>(k));
+                         items_of(&DescribedSource::dihedrals_of_type, k);
       s << "  type " << sc.topology.dihedral_types[k] << ": " << count << "\n";
     }
   }
-  if (!sc.topology.impropers.empty()) {
-    s << "impropers:   " << sc.topology.impropers.size() << "\n";
+  const std::int64_t impropers =
+      static_cast<std::int64_t>(sc.topology.impropers.size()) + items(&DescribedSource::impropers_of_type);
+  if (impropers > 0) {
+    s << "impropers:   " << impropers << "\n";
     for (size_t k = 0; k < sc.topology.improper_types.size(); ++k) {
       const auto count = std::count_if(sc.topology.impropers.begin(), sc.topology.impropers.end(),
-                                       [&](const Improper& d) { return d.type == static_cast<int>(k); });
+                                       [&](const Improper& d) { return d.type == static_cast<int>(k); }) +
+                         items_of(&DescribedSource::impropers_of_type, k);
       s << "  type " << sc.topology.improper_types[k] << ": " << count << "\n";
     }
   }

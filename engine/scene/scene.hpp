@@ -143,20 +143,41 @@ struct LammpsDataCoeffs {
 // What load_scene makes of the deck's particle sources.
 enum class SceneContent {
   whole,        // every particle, item and per-particle array
-  description,  // [[build]]s of linear chains grown by molecule are counted, not built (below)
+  description,  // [[build]]s of linear chains grown by molecule, and an [import] of a LAMMPS data
+                // file that makes every particle, counted, not built or read into arrays (below)
 };
 
-// A [[build]] of linear chains grown by molecule that a description counted instead of building
-// (SceneContent::description): what its particles and items would be, by count and type. Its
-// molecules are made by parts (chains_part, engine/domain/part_load.hpp).
+// A source that a description counted instead of building or reading (SceneContent::description):
+// what its particles and items would be, by count and type. Its molecules are made by parts
+// (chains_part and data_file_part, engine/domain/part_load.hpp): a [[build]] of linear chains
+// grown by molecule (one particle type, one type per item kind), or the [import] of a LAMMPS data
+// file (its types as the file uses them, its charges the file's q column or the types').
 struct DescribedSource {
   int first = 0, count = 0;  // its particles' indices in the whole scene: [first, first + count)
-  int molecules = 0;         // its chains, one molecule each
-  int type = 0;              // every particle's type (index into Scene::types)
-  // Its items' types (indices into the topology's names; -1: none) and counts.
-  int bond_type = -1, angle_type = -1, dihedral_type = -1;
-  std::int64_t bonds = 0, angles = 0, dihedrals = 0;
-  double friction = 0.0;  // the Langevin friction of its type (read_thermostat); 0 without Langevin
+  int molecules = 0;         // its molecules (a chain each; an import's distinct molecule ids)
+  // Per particle type (index into Scene::types; as many entries as types): its particles.
+  std::vector<std::int64_t> particles_of_type;
+  // Per type of each item kind (index into the topology's names): its items.
+  std::vector<std::int64_t> bonds_of_type, angles_of_type, dihedrals_of_type, impropers_of_type;
+  // Per particle type: the Langevin friction of its particles (read_thermostat); empty without Langevin.
+  std::vector<double> friction_of_type;
+  // The charges. Carried by type (`summed` false): each particle has its type's charge, summed
+  // particle by particle where needed. Or given per particle (a data file's q column) and summed
+  // by the reader in the whole scene's order: their sum, largest magnitude, and the first charged
+  // particle's whole-scene index (−1: none) and charge.
+  bool summed = false;
+  double charge_sum = 0.0, charge_scale = 0.0, first_charge = 0.0;
+  int first_charged = -1;
+
+  static std::int64_t total(const std::vector<std::int64_t>& of_type) {
+    std::int64_t n = 0;
+    for (const std::int64_t c : of_type) n += c;
+    return n;
+  }
+  static std::int64_t of(const std::vector<std::int64_t>& of_type, std::size_t k) {
+    return k < of_type.size() ? of_type[k] : 0;
+  }
+  std::int64_t bonds() const { return total(bonds_of_type); }
 };
 
 struct Scene {
@@ -171,18 +192,23 @@ struct Scene {
   // file's q column (atom_style full). All 0 in an uncharged scene; read by the terms that say
   // ForceTerm::uses_charges (the Coulomb styles), refused with any other (it would be lost).
   std::vector<double> charge;
-  // A described scene is charged when a described source's type is (its particles carry the
-  // type's charge), as the whole scene would be.
+  // A described scene is charged when a described source's particles are: a type of its
+  // particles has a charge, or the charges it gives (a data file's q column) are not all 0.
   bool charged() const {
+    const auto described_charged = [&](const DescribedSource& d) {
+      if (d.summed) return d.first_charged >= 0;
+      for (std::size_t k = 0; k < d.particles_of_type.size(); ++k)
+        if (d.particles_of_type[k] > 0 && types[k].charge != 0.0) return true;
+      return false;
+    };
     return std::any_of(charge.begin(), charge.end(), [](double q) { return q != 0.0; }) ||
-           std::any_of(described_sources.begin(), described_sources.end(),
-                       [&](const DescribedSource& d) { return types[static_cast<size_t>(d.type)].charge != 0.0; });
+           std::any_of(described_sources.begin(), described_sources.end(), described_charged);
   }
   // Particles a description did not load (SceneContent::description): the by-molecule chains'
-  // beads, counted; 0 for a whole scene. When > 0 the state, particle_type, charge and topology
-  // items hold none of them (they are made by parts: engine/domain/part_load.hpp), and
-  // described_sources says what they are. The loaded particles come first: a described source
-  // is never followed by a loaded one, so a loaded particle's index is its whole-scene index.
+  // beads or the data file's atoms, counted; 0 for a whole scene. When > 0 the state, particle_type, charge and
+  // topology items hold none of them (they are made by parts: engine/domain/part_load.hpp), and described_sources says
+  // what they are. The loaded particles come first: a described source is never followed by a loaded one, so a loaded
+  // particle's index is its whole-scene index.
   std::int64_t undescribed_particles = 0;
   std::vector<DescribedSource> described_sources;  // in particle order
   bool described() const { return undescribed_particles > 0; }
@@ -228,17 +254,22 @@ std::string particle_and_source(const Scene& scene, int i);
 // tables is refused: its scenes are its stages' (engine/scene/stage_deck.hpp), each loaded with
 // its `stage` identity.
 //
-// SceneContent::description loads the deck's description only, O(types + deck) in time and
-// memory: every [[build]] of linear chains with growth = "by-molecule" that no loaded source
-// follows registers its type names, its `sources` entry and its box as the whole load does, and
-// appends no particle or item (Scene::described_sources counts them). Everything else is the
-// whole load's: the other sources, the types, units, box, settings, levels, monitor, LAMMPS
-// coefficients and the force terms, whose descriptions (ForceTerm::on_subset on no particle) are
-// the whole terms'. The checks that need the described particles are not made (docs/parallel.md,
-// "The start from the source's parts": the overlap of the pair terms, the bonded terms' domain at
-// the initial state, a chain that cannot be grown). A deck the description cannot stand for —
-// [import], [[bonds]], [barostat], a pair term's tail correction, a term whose parameters or
-// checks read every particle (ewald, pppm, charmm-dihedral, stiff-harmonic, gravity, a tether or
+// SceneContent::description loads the deck's description only, O(types + deck) in memory: every
+// [[build]] of linear chains with growth = "by-molecule" that no loaded source follows registers
+// its type names, its `sources` entry and its box as the whole load does, and appends no particle
+// or item (Scene::described_sources counts them); so does an [import] of a LAMMPS data file that
+// makes every particle (no [[particles]], [[build]] or [[bonds]]), from one streaming pass over
+// the file that counts its atoms and items by type and sums its charges
+// (read_lammps_data_description, engine/io/lammps_data_parts.hpp), its box, masses, type maps and
+// "… Coeffs" sections read as the whole import reads them. Everything else is the whole load's:
+// the other sources, the types, units, box, settings, levels, monitor, LAMMPS coefficients and
+// the force terms, whose descriptions (ForceTerm::on_subset on no particle) are the whole terms'.
+// The checks that need the described particles are not made here (docs/parallel.md, "The scene's
+// description": the overlap of the pair terms, the bonded terms' domain at the initial state, a
+// chain that cannot be grown; a data file's lines that hold positions, velocities and charges,
+// which each rank checks in its block, data_file_part). A deck the description cannot stand for —
+// an XYZ [import], [[bonds]], [barostat], a pair term's tail correction, a term whose parameters
+// or checks read every particle (ewald, pppm, charmm-dihedral, stiff-harmonic, gravity, a tether or
 // a wall) — is loaded whole (described() false).
 Scene load_scene(const Deck& deck, const StageIdentity& stage = {}, SceneContent content = SceneContent::whole);
 

@@ -11,6 +11,7 @@
 #include "core/disjoint_sets.hpp"
 #include "core/errors.hpp"
 #include "engine/io/lammps_data.hpp"
+#include "engine/io/lammps_data_parts.hpp"
 #include "engine/io/xyz_bonds.hpp"
 #include "engine/scene/builders.hpp"
 #include "engine/scene/chains_by_molecule.hpp"
@@ -128,18 +129,147 @@ void describe_chains(DeckTable& b, Scene& sc, const ChainSpec& spec, int type, c
   d.first = static_cast<int>(sc.whole_particles());
   d.count = static_cast<int>(total);
   d.molecules = spec.chains;
-  d.type = type;
-  d.bonds = static_cast<std::int64_t>(spec.chains) * (spec.beads - 1);
-  d.bond_type = Topology::intern(sc.topology.bond_types, bond_type);
-  if (spec.beads >= 3 && !angle_type.empty()) {
-    d.angles = static_cast<std::int64_t>(spec.chains) * (spec.beads - 2);
-    d.angle_type = Topology::intern(sc.topology.angle_types, angle_type);
-  }
-  if (spec.beads >= 4 && !dihedral_type.empty()) {
-    d.dihedrals = static_cast<std::int64_t>(spec.chains) * (spec.beads - 3);
-    d.dihedral_type = Topology::intern(sc.topology.dihedral_types, dihedral_type);
-  }
+  d.particles_of_type.assign(sc.types.size(), 0);
+  d.particles_of_type[static_cast<size_t>(type)] = total;
+  const auto count = [](std::vector<std::int64_t>& of_type, int t, std::int64_t n) {
+    of_type.resize(std::max(of_type.size(), static_cast<size_t>(t) + 1), 0);
+    of_type[static_cast<size_t>(t)] += n;
+  };
+  count(d.bonds_of_type, Topology::intern(sc.topology.bond_types, bond_type),
+        static_cast<std::int64_t>(spec.chains) * (spec.beads - 1));
+  if (spec.beads >= 3 && !angle_type.empty())
+    count(d.angles_of_type, Topology::intern(sc.topology.angle_types, angle_type),
+          static_cast<std::int64_t>(spec.chains) * (spec.beads - 2));
+  if (spec.beads >= 4 && !dihedral_type.empty())
+    count(d.dihedrals_of_type, Topology::intern(sc.topology.dihedral_types, dihedral_type),
+          static_cast<std::int64_t>(spec.chains) * (spec.beads - 3));
   sc.sources.push_back({d.first, d.count, b.where()});
+  sc.described_sources.push_back(d);
+  sc.undescribed_particles += d.count;
+}
+
+// The [import] of a LAMMPS data file described, not read into arrays (SceneContent::description):
+// what read_import does with the whole file, in its order and with its messages at the same deck
+// keys, from read_lammps_data_description's counts — the reader's one-line error behind
+// lammps_data, the atom count's bound, the keys read and the table finished, each atom type the
+// file uses mapped by atom_types to a deck type of the same mass (in the order of their first
+// atoms, so the first failing atom's type is the one named), the box, the `sources` entry, each
+// bonded type mapped and interned in the order of its first entry, the LAMMPS type numbers and
+// masses, and what coefficients = "data" reads. Its atoms' and items' counts by scene type, their
+// molecule ids' count, and the charges (the q column, or the types' charges) summed in the file's
+// order go into the DescribedSource. Not made: what the lines of positions, velocities and
+// charges hold (read by each rank in its block, data_file_part in engine/domain/part_load.hpp).
+using LammpsTypeMap = std::vector<std::pair<std::string, std::string>>;
+
+void describe_lammps_import(DeckTable& t, Scene& sc, const std::string& path, const std::string& style) {
+  // The types' charges by file type number, as atom_types names them (read without a q column). A
+  // map the deck cannot give is refused below, after the file, as read_import refuses it.
+  std::vector<double> type_charge;
+  LammpsTypeMap ahead;
+  try {
+    ahead = t.string_map("atom_types");
+  } catch (const InputError&) {
+  }
+  for (const auto& [number, name] : ahead) {
+    long n = 0;
+    try {
+      n = std::stol(number);
+    } catch (const std::exception&) {
+      continue;
+    }
+    if (n < 1 || n > std::numeric_limits<int>::max() || std::to_string(n) != number) continue;
+    for (const ParticleType& pt : sc.types)
+      if (pt.name == name) {
+        type_charge.resize(std::max(type_charge.size(), static_cast<size_t>(n) + 1), 0.0);
+        type_charge[static_cast<size_t>(n)] = pt.charge;
+      }
+  }
+  ImportedDescription in;
+  try {
+    in = read_lammps_data_description(path, style, &type_charge);
+  } catch (const InputError& e) {
+    t.fail("lammps_data", e.what());
+  }
+  const LammpsTypeMap atom_map = t.string_map("atom_types");
+  const LammpsTypeMap bond_map = t.string_map("bond_types"), angle_map = t.string_map("angle_types"),
+                      dihedral_map = t.string_map("dihedral_types"), improper_map = t.string_map("improper_types");
+  if (in.num_atoms > kMaxImportedAtoms)
+    t.fail("lammps_data",
+           std::to_string(in.num_atoms) + " atoms; expected at most " + std::to_string(kMaxImportedAtoms));
+  t.boolean("velocities", true);
+  t.finish();
+  const auto lookup = [&](const LammpsTypeMap& map, int lammps_type, const char* key) {
+    if (auto name = lammps_type_name(map, std::string_view(key) == "atom_types" || t.has(key), lammps_type))
+      return *name;
+    const std::string what = "no name for LAMMPS type " + std::to_string(lammps_type) + " (add \"" +
+                             std::to_string(lammps_type) + "\" = \"NAME\" to " + key + ")";
+    if (t.has(key)) t.fail(key, what);
+    t.fail_here(std::string(key) + ": " + what);
+  };
+  DescribedSource d;
+  d.first = static_cast<int>(sc.whole_particles());
+  d.count = in.num_atoms;
+  d.molecules = in.num_molecule_ids;
+  d.particles_of_type.assign(sc.types.size(), 0);
+  LammpsTypeNumbers& numbers = sc.lammps_types;
+  const auto remember = [](std::vector<int>& of_type, int scene_type, int lammps_type) {
+    if (of_type.size() <= static_cast<size_t>(scene_type)) of_type.resize(static_cast<size_t>(scene_type) + 1, 0);
+    int& k = of_type[static_cast<size_t>(scene_type)];
+    if (k == 0 || lammps_type < k) k = lammps_type;
+  };
+  for (const int lt : in.types_used.atom) {
+    const std::string name = lookup(atom_map, lt, "atom_types");
+    const int type = particle_type_index(sc, t, "atom_types", name);
+    if (in.type_mass.count(lt) && in.type_mass.at(lt) != sc.types[static_cast<size_t>(type)].mass)
+      t.fail("atom_types", "types." + name + ".mass = " + std::to_string(sc.types[static_cast<size_t>(type)].mass) +
+                               " but the data file's Masses give " + std::to_string(in.type_mass.at(lt)) +
+                               " for LAMMPS type " + std::to_string(lt));
+    d.particles_of_type[static_cast<size_t>(type)] += in.atoms_of_type[static_cast<size_t>(lt)];
+    remember(numbers.atom, type, lt);
+  }
+  Box box;
+  box.origin = in.lo;
+  box.lengths = in.hi - in.lo;
+  box.periodic = Eigen::Vector3i::Ones();
+  set_box(t, "lammps_data", sc, box);
+  sc.sources.push_back({d.first, d.count, t.where() + " " + t.string("lammps_data")});
+  numbers.masses = in.type_mass;
+  // Each bonded kind: its types named and interned by first entry, counted, remembered.
+  LammpsDataCoeffs& data = sc.lammps_data_coeffs;
+  const auto kind = [&](int k, const LammpsTypeMap& map, const char* key, std::vector<std::string>& names,
+                        std::vector<std::int64_t>& of_type, std::vector<int>& first_numbers,
+                        std::vector<std::vector<int>>& all_numbers) {
+    const std::vector<int>& used = k == 0   ? in.types_used.bond
+                                   : k == 1 ? in.types_used.angle
+                                   : k == 2 ? in.types_used.dihedral
+                                            : in.types_used.improper;
+    std::vector<int> scene_type;
+    for (const int lt : used) {
+      const int st = Topology::intern(names, lookup(map, lt, key));
+      scene_type.push_back(st);
+      of_type.resize(std::max(of_type.size(), static_cast<size_t>(st) + 1), 0);
+      of_type[static_cast<size_t>(st)] += in.items_of_type[static_cast<size_t>(k)][static_cast<size_t>(lt)];
+      remember(first_numbers, st, lt);
+    }
+    if (used.empty()) return;
+    all_numbers.resize(names.size());
+    for (size_t u = 0; u < used.size(); ++u) {
+      auto& v = all_numbers[static_cast<size_t>(scene_type[u])];
+      if (std::find(v.begin(), v.end(), used[u]) == v.end())
+        v.insert(std::upper_bound(v.begin(), v.end(), used[u]), used[u]);
+    }
+  };
+  Topology& top = sc.topology;
+  kind(0, bond_map, "bond_types", top.bond_types, d.bonds_of_type, numbers.bond, data.bond);
+  kind(1, angle_map, "angle_types", top.angle_types, d.angles_of_type, numbers.angle, data.angle);
+  kind(2, dihedral_map, "dihedral_types", top.dihedral_types, d.dihedrals_of_type, numbers.dihedral, data.dihedral);
+  kind(3, improper_map, "improper_types", top.improper_types, d.impropers_of_type, numbers.improper, data.improper);
+  data.file = t.string("lammps_data");
+  for (const auto& section : in.coeffs) data.sections.push_back({section.name, section.style, section.rows});
+  // The charges: the file's q column replaces the types' (read_import), summed in the file's order.
+  d.summed = true;
+  d.charge_sum = in.charge_sum, d.charge_scale = in.charge_scale, d.first_charge = in.first_charge;
+  d.first_charged = in.first_charged < 0 ? -1 : d.first + in.first_charged;
   sc.described_sources.push_back(d);
   sc.undescribed_particles += d.count;
 }
@@ -262,7 +392,7 @@ void read_builders(DeckTable& root, Scene& sc, std::size_t describe_from) {
 // PATH, bonds = PATH, type, bond_type. A bond, angle, dihedral or improper map left out names each
 // type by its number in the file ("1", "2", …); atom_types is always needed (the deck's [types]
 // give the masses).
-void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
+void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir, bool describe) {
   auto t = root.table("import");
   if (!t) return;
   auto resolve = [&](const std::string& p) {
@@ -278,6 +408,7 @@ void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir) {
   if (lammps) {
     const std::string path = resolve(t->string("lammps_data"));
     const std::string style = t->string("atom_style", "auto");
+    if (describe) return describe_lammps_import(*t, sc, path, style);
     try {
       in = read_lammps_data(path, style);
     } catch (const InputError& e) {

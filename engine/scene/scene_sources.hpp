@@ -24,7 +24,9 @@ int particle_type_index(const Scene& sc, DeckTable& t, std::string_view key, con
 // [[build]]s; those at index `describe_from` and after (all of them grown by molecule: load_scene
 // checks it) are described, not built (SceneContent::description, scene.hpp).
 void read_builders(DeckTable& root, Scene& sc, std::size_t describe_from = static_cast<std::size_t>(-1));
-void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir);
+// The [import]; `describe`: a LAMMPS data file counted, not read into arrays
+// (SceneContent::description, scene.hpp), when it is the deck's only source of particles.
+void read_import(DeckTable& root, Scene& sc, const std::string& deck_dir, bool describe = false);
 // The scene's name of LAMMPS type `number` under an [import] type map (atom_types = { "1" = "bead" }):
 // the map's name for it; the number itself ("1") for a bonded kind whose map the deck does not
 // give (`given` false); nullopt when a given map has no name for it. Shared with a part's import

@@ -113,7 +113,10 @@ void read_thermostat(DeckTable& root, Scene& sc) {
     th.friction.resize(sc.state.size());
     for (int i = 0; i < sc.state.size(); ++i) th.friction[i] = gamma * type_scale[sc.particle_type[i]];
     // A description's counted particles: their type's friction (no per-particle array of them).
-    for (DescribedSource& d : sc.described_sources) d.friction = gamma * type_scale[static_cast<size_t>(d.type)];
+    for (DescribedSource& d : sc.described_sources) {
+      d.friction_of_type.resize(sc.types.size());
+      for (std::size_t k = 0; k < sc.types.size(); ++k) d.friction_of_type[k] = gamma * type_scale[k];
+    }
     if (method.rigid_constraints && scale) refuse_uneven_friction(*scale, sc);
   } else {
     const double tau = t->number("tau");
