@@ -225,7 +225,7 @@ struct HalfStencilPart {
 template <bool kAvx2, bool kHalo>
 inline void search_columns(HalfStencilPart& p) {
   static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
-  const int ny = p.ny, nz = p.nz;
+  const int ny = p.ny, nz = p.nz, z_face = p.z_face;
   const int* const cs = p.cs;
   double* const gxs = p.gxs;
   double* const gys = p.gys;
@@ -317,7 +317,7 @@ inline void search_columns(HalfStencilPart& p) {
       const int home_here = kHalo ? p.home[c] : own;
       if (home_here > 0) {
         total = 0;
-        if (cz + 1 < nz && cz + 1 != p.z_face) {  // the cell and the next along z, one range
+        if (cz + 1 < nz && cz + 1 != z_face) {  // the cell and the next along z, one range
           gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
         } else {
           gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
@@ -327,7 +327,7 @@ inline void search_columns(HalfStencilPart& p) {
           const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
           if (gx < 0 || gy < 0) continue;
           const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
-          if (cz >= 1 && cz + 1 < nz && cz != p.z_face && cz + 1 != p.z_face) {  // cz − 1 … cz + 1: one range
+          if (cz >= 1 && cz + 1 < nz && cz != z_face && cz + 1 != z_face) {  // cz − 1 … cz + 1: one range
             const int base = (gx * ny + gy) * nz;
             gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
           } else {
@@ -467,18 +467,22 @@ inline int box_cell_coordinate(const BinGrid& g, double x, int a, double& im) {
   return cell_coordinate(s * g.ncell[a], g.ncell[a]);
 }
 
-// image, wrapped null: every image is 0 (NeighborList::bin), none stored.
-inline void bin_particles(const BinGrid& g, const double* __restrict x, const char* __restrict ghost,
-                          std::int64_t first, std::int64_t last, double* __restrict image, double* __restrict wrapped,
-                          int* __restrict key_of, int* __restrict count) {
-  const bool store = image != nullptr;
+// kWindow: a window of the cells is stored (else every cell: first = 0, stored = ncell); kStore:
+// each image and wrapped position is stored (else every image is 0: NeighborList::bin).
+template <bool kWindow, bool kStore>
+inline void bin_particles_as(const BinGrid& g, const double* __restrict x, const char* __restrict ghost,
+                             std::int64_t first, std::int64_t last, double* __restrict image,
+                             double* __restrict wrapped, int* __restrict key_of, int* __restrict count) {
   for (std::int64_t i = first; i < last; ++i) {
     int c[3];
     for (int a = 0; a < 3; ++a) {
       double im;
-      c[a] = box_cell_coordinate(g, x[3 * i + a], a, im) - g.first[a];
-      c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
-      if (store) {
+      c[a] = box_cell_coordinate(g, x[3 * i + a], a, im);
+      if constexpr (kWindow) {
+        c[a] -= g.first[a];
+        c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
+      }
+      if constexpr (kStore) {
         image[3 * i + a] = im;
         wrapped[3 * i + a] = x[3 * i + a] - im;
       }
@@ -488,6 +492,16 @@ inline void bin_particles(const BinGrid& g, const double* __restrict x, const ch
     key_of[i] = key;
     ++count[key];
   }
+}
+
+// image, wrapped null: every image is 0, none stored.
+inline void bin_particles(const BinGrid& g, const double* x, const char* ghost, std::int64_t first, std::int64_t last,
+                          double* image, double* wrapped, int* key_of, int* count) {
+  const bool window = g.first[0] != 0 || g.first[1] != 0 || g.first[2] != 0;
+  if (image && !window) return bin_particles_as<false, true>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  if (image) return bin_particles_as<true, true>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  if (!window) return bin_particles_as<false, false>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  bin_particles_as<true, false>(g, x, ghost, first, last, image, wrapped, key_of, count);
 }
 
 // The cell coordinates of particles first … last − 1 marked per axis (occupied[a][c] = 1), by the
