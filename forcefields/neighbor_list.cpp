@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -172,6 +173,10 @@ struct HalfStencilPart {
   const int* adjacent[3];         // NeighborList::adjacent_, adjacent_shift_
   const double* adjacent_shift[3];
   int ny, nz;
+  // The stored cells' z coordinate that follows the box's face (NeighborList::bin's window: a
+  // window across the face stores cell nz_full − 1 next to cell 0, a shift of L apart; 0 when the
+  // window does not cross it): the ranges that merge consecutive cells along z stop there.
+  int z_face;
   double rlist2;
   int first_column, last_column;
   double *gxs, *gys, *gzs;  // the candidates of one cell (padded)
@@ -220,7 +225,7 @@ struct HalfStencilPart {
 template <bool kAvx2, bool kHalo>
 inline void search_columns(HalfStencilPart& p) {
   static constexpr int kColumns[4][2] = {{0, 1}, {1, -1}, {1, 0}, {1, 1}};
-  const int ny = p.ny, nz = p.nz;
+  const int ny = p.ny, nz = p.nz, z_face = p.z_face;
   const int* const cs = p.cs;
   double* const gxs = p.gxs;
   double* const gys = p.gys;
@@ -312,7 +317,7 @@ inline void search_columns(HalfStencilPart& p) {
       const int home_here = kHalo ? p.home[c] : own;
       if (home_here > 0) {
         total = 0;
-        if (cz + 1 < nz) {  // the cell and the next along z, one range
+        if (cz + 1 < nz && cz + 1 != z_face) {  // the cell and the next along z, one range
           gather(cs[c], cs[c + 2], 0.0, 0.0, 0.0);
         } else {
           gather(cs[c], cs[c + 1], 0.0, 0.0, 0.0);
@@ -322,7 +327,7 @@ inline void search_columns(HalfStencilPart& p) {
           const int gx = p.adjacent[0][3 * cx + col[0] + 1], gy = p.adjacent[1][3 * cy + col[1] + 1];
           if (gx < 0 || gy < 0) continue;
           const double sx = p.adjacent_shift[0][3 * cx + col[0] + 1], sy = p.adjacent_shift[1][3 * cy + col[1] + 1];
-          if (cz >= 1 && cz + 1 < nz) {  // cells cz − 1, cz, cz + 1 of the column: one range
+          if (cz >= 1 && cz + 1 < nz && cz != z_face && cz + 1 != z_face) {  // cz − 1 … cz + 1: one range
             const int base = (gx * ny + gy) * nz;
             gather(cs[base + cz - 1], cs[base + cz + 2], sx, sy, 0.0);
           } else {
@@ -438,34 +443,79 @@ void sort_rows_portable(int* neighbors, const std::int64_t* offsets, std::int64_
 // NeighborList::bin): each one's image L·floor((x − lo)/L) on periodic axes (0 on open ones), its
 // position less the image, and its key, counted per key: its flattened cell c, or with halo flags
 // (ghost not null) 2c + ghost[i], so that the sort puts a cell's home beads before its halo beads.
+// The box's cells (ncell per axis) and the window of them that is stored: per axis `stored`
+// consecutive cell coordinates from `first` on (modulo ncell on a periodic axis; first = 0 and
+// stored = ncell: every cell).
 struct BinGrid {
   double lo[3], inv_len[3], len[3];
   bool periodic[3];
   int ncell[3];
+  int first[3], stored[3];
 };
 
-inline void bin_particles(const BinGrid& g, const double* __restrict x, const char* __restrict ghost,
-                          std::int64_t first, std::int64_t last, double* __restrict image, double* __restrict wrapped,
-                          int* __restrict key_of, int* __restrict count) {
+// The cell coordinate in the box's grid of coordinate x along axis a, and its image im:
+// L·floor((x − lo)/L) on a periodic axis (positions are unwrapped: their image inside the box is
+// binned), 0 on an open one.
+inline int box_cell_coordinate(const BinGrid& g, double x, int a, double& im) {
+  double s = (x - g.lo[a]) * g.inv_len[a];
+  im = 0.0;
+  if (g.periodic[a]) {
+    const double whole = std::floor(s);
+    s -= whole;
+    im = whole * g.len[a];
+  }
+  return cell_coordinate(s * g.ncell[a], g.ncell[a]);
+}
+
+// kWindow: a window of the cells is stored (else every cell: first = 0, stored = ncell); kStore:
+// each image and wrapped position is stored (else every image is 0: NeighborList::bin).
+template <bool kWindow, bool kStore>
+inline void bin_particles_as(const BinGrid& g, const double* __restrict x, const char* __restrict ghost,
+                             std::int64_t first, std::int64_t last, double* __restrict image,
+                             double* __restrict wrapped, int* __restrict key_of, int* __restrict count) {
   for (std::int64_t i = first; i < last; ++i) {
     int c[3];
     for (int a = 0; a < 3; ++a) {
-      double s = (x[3 * i + a] - g.lo[a]) * g.inv_len[a];
-      double im = 0.0;
-      if (g.periodic[a]) {  // positions are unwrapped: bin their image inside the box
-        const double whole = std::floor(s);
-        s -= whole;
-        im = whole * g.len[a];
+      double im;
+      c[a] = box_cell_coordinate(g, x[3 * i + a], a, im);
+      if constexpr (kWindow) {
+        c[a] -= g.first[a];
+        c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
       }
-      image[3 * i + a] = im;
-      wrapped[3 * i + a] = x[3 * i + a] - im;
-      c[a] = cell_coordinate(s * g.ncell[a], g.ncell[a]);
+      if constexpr (kStore) {
+        image[3 * i + a] = im;
+        wrapped[3 * i + a] = x[3 * i + a] - im;
+      }
     }
-    const int cell = (c[0] * g.ncell[1] + c[1]) * g.ncell[2] + c[2];
+    const int cell = (c[0] * g.stored[1] + c[1]) * g.stored[2] + c[2];
     const int key = ghost ? 2 * cell + ghost[i] : cell;
     key_of[i] = key;
     ++count[key];
   }
+}
+
+// image, wrapped null: every image is 0, none stored.
+inline void bin_particles(const BinGrid& g, const double* x, const char* ghost, std::int64_t first, std::int64_t last,
+                          double* image, double* wrapped, int* key_of, int* count) {
+  const bool window = g.first[0] != 0 || g.first[1] != 0 || g.first[2] != 0;
+  if (image && !window) return bin_particles_as<false, true>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  if (image) return bin_particles_as<true, true>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  if (!window) return bin_particles_as<false, false>(g, x, ghost, first, last, image, wrapped, key_of, count);
+  bin_particles_as<true, false>(g, x, ghost, first, last, image, wrapped, key_of, count);
+}
+
+// The cell coordinates of particles first … last − 1 marked per axis (occupied[a][c] = 1), by the
+// same arithmetic as bin_particles; returns whether some image is not 0.
+inline bool mark_cell_coordinates(const BinGrid& g, const double* __restrict x, std::int64_t first, std::int64_t last,
+                                  char* const occupied[3]) {
+  bool image = false;
+  for (std::int64_t i = first; i < last; ++i)
+    for (int a = 0; a < 3; ++a) {
+      double im;
+      occupied[a][box_cell_coordinate(g, x[3 * i + a], a, im)] = 1;
+      image |= im != 0.0;
+    }
+  return image;
 }
 
 #if defined(__x86_64__)
@@ -476,7 +526,33 @@ inline void bin_particles(const BinGrid& g, const double* __restrict x, const ch
                                                                  double* wrapped, int* key_of, int* count) {
   bin_particles(g, x, ghost, first, last, image, wrapped, key_of, count);
 }
+[[gnu::target("sse4.1"), gnu::flatten]] bool mark_cell_coordinates_sse41(const BinGrid& g, const double* x,
+                                                                         std::int64_t first, std::int64_t last,
+                                                                         char* const occupied[3]) {
+  return mark_cell_coordinates(g, x, first, last, occupied);
+}
 #endif
+
+// The window of a periodic axis's n cell coordinates that holds every occupied one: the
+// complement of the longest circular run of unoccupied ones (first, stored); the whole axis
+// (0, n) when none is unoccupied or none occupied.
+std::pair<int, int> occupied_window(const char* occupied, int n) {
+  int p = 0;
+  while (p < n && !occupied[p]) ++p;
+  if (p == n) return {0, n};
+  int best_start = 0, best_length = 0, run_start = 0, run_length = 0;
+  for (int k = 1; k <= n; ++k) {  // from the coordinate after p round to p
+    const int c = (p + k) % n;
+    if (!occupied[c]) {
+      if (run_length++ == 0) run_start = c;
+      if (run_length > best_length) best_start = run_start, best_length = run_length;
+    } else {
+      run_length = 0;
+    }
+  }
+  if (best_length == 0) return {0, n};
+  return {(best_start + best_length) % n, n - best_length};
+}
 
 // needs_rebuild's pass over a block of particles: the largest squared displacement since the build
 // (x − x0, both 3×N column-major; its minimum image by `fold` where it exceeds half the skin, as
@@ -563,10 +639,11 @@ inline void scan_displacements(DisplacementScan& s, std::int64_t first, std::int
 // y z x y | z x y z. floor_of truncates and corrects; for |q| < 2⁶³ that is the exact floor, which
 // vroundpd gives, except that floor(−0) is −0 where the truncation gives +0: adding +0 turns −0
 // into +0 and leaves every other integer as it is. The same values for every finite position
-// within 2⁶³ box lengths of the origin (a non-finite one stays non-finite).
+// within 2⁶³ box lengths of the origin (a non-finite one stays non-finite). out may be x: each
+// vector is loaded before the same one is stored.
 [[gnu::target("avx2")]] void wrap_particles_avx2(const double* __restrict lo, const double* __restrict len,
-                                                 const double* __restrict inv, const double* __restrict x,
-                                                 double* __restrict out, std::int64_t first, std::int64_t last) {
+                                                 const double* __restrict inv, const double* x, double* out,
+                                                 std::int64_t first, std::int64_t last) {
   __m256d vlo[3], vlen[3], vinv[3];
   for (int v = 0; v < 3; ++v) {
     const int a0 = (4 * v) % 3, a1 = (4 * v + 1) % 3, a2 = (4 * v + 2) % 3, a3 = (4 * v + 3) % 3;
@@ -837,7 +914,17 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
                                                const std::vector<int>& fast) const {
   const MinimumImage mi(box);
   const double rc2 = cutoff_ * cutoff_;
-  const int ny = ncell_[1], nz = ncell_[2];
+  const int ny = stored_[1], nz = stored_[2];
+  // The stored cell next to the box grid's coordinate c along axis a (offset o − 1), or −1: past
+  // an open edge or out of the window (an empty cell at the build).
+  const auto neighbour = [&](int a, int c, int o) {
+    int cc = c + o - 1;
+    if (box.periodic[a])
+      cc = (cc + ncell_[a]) % ncell_[a];
+    else if (cc < 0 || cc >= ncell_[a])
+      return -1;
+    return stored_cell(a, cc);
+  };
   const bool have_exclusions = !excl_.empty();
   for (const int i : fast) {
     const bool i_ghost = !ghost_.empty() && ghost_[i];  // a ghost's partners: owned ones
@@ -846,26 +933,30 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
     int c[3];
     Eigen::Vector3d xi;
     for (int a = 0; a < 3; ++a) {
-      xi[a] = x(a, i) - image_(a, i);
+      xi[a] = images_stored_ ? x(a, i) - image_(a, i) : x(a, i);
       double s = bin_len_[a] > 0.0 ? (xi[a] - bin_lo_[a]) / bin_len_[a] : 0.0;
       if (box.periodic[a]) s -= std::floor(s);
       c[a] = cell_coordinate(s * ncell_[a], ncell_[a]);
     }
     for (int ox = 0; ox < 3; ++ox) {
-      const int gx = adjacent_[0][3 * c[0] + ox];
+      const int gx = neighbour(0, c[0], ox);
       if (gx < 0) continue;
       for (int oy = 0; oy < 3; ++oy) {
-        const int gy = adjacent_[1][3 * c[1] + oy];
+        const int gy = neighbour(1, c[1], oy);
         if (gy < 0) continue;
         for (int oz = 0; oz < 3; ++oz) {
-          const int gz = adjacent_[2][3 * c[2] + oz];
+          const int gz = neighbour(2, c[2], oz);
           if (gz < 0) continue;
           const int cell = (gx * ny + gy) * nz + gz;
           for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
             const int j = cell_particles_[k];
             if (j == i || (i_ghost && ghost_[j])) continue;
-            double dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
-                   dz = xi[2] - (x(2, j) - image_(2, j));
+            double dx, dy, dz;
+            if (images_stored_)
+              dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
+              dz = xi[2] - (x(2, j) - image_(2, j));
+            else
+              dx = xi[0] - x(0, j), dy = xi[1] - x(1, j), dz = xi[2] - x(2, j);
             mi.apply(dx, dy, dz);
             if (!(dx * dx + dy * dy + dz * dz < rc2)) continue;
             if (have_exclusions && excluded(i, j)) continue;
@@ -879,7 +970,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
 }
 
 const Eigen::Matrix3Xd& NeighborList::wrapped_positions(const Eigen::Matrix3Xd& x) {
-  if (x.cols() != image_.cols())
+  if (x.cols() != x_at_build_.cols())
     throw std::invalid_argument("neighbour list: wrapped_positions before a build for these particles");
   if (positions_wrapped_) return x;
   wrapped_now_.resize(3, x.cols());  // no allocation once sized
@@ -943,23 +1034,76 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
     bin_lo_[a] = lo[a];
     bin_len_[a] = len[a];
   }
-  const int ncells = ncell_[0] * ncell_[1] * ncell_[2];
-
   double inv_len[3];
   for (int a = 0; a < 3; ++a) inv_len[a] = len[a] > 0.0 ? 1.0 / len[a] : 0.0;
-  cell_of_.resize(n);
-  image_.resize(3, n);
-  wrapped_x_.resize(3, n);
-  cell_start_.resize(static_cast<std::size_t>(ncells) + 1);
-  // Padded (kCellPadding): the search's copies read a few entries past a cell's end.
-  const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
-  cell_particles_.resize(stride);
-  cell_x_.resize(3 * stride);
   // A periodic axis with fewer than 3 cells: the small-box search, which reads each cell's
   // particles in increasing index.
   small_box_ = false;
   for (int a = 0; a < 3; ++a)
     if (box.periodic[a] && ncell_[a] < 3) small_box_ = true;
+  const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
+  const int parts = threads_for(n);
+  BinGrid grid{{lo[0], lo[1], lo[2]},
+               {inv_len[0], inv_len[1], inv_len[2]},
+               {len[0], len[1], len[2]},
+               {periodic[0], periodic[1], periodic[2]},
+               {ncell_[0], ncell_[1], ncell_[2]},
+               {0, 0, 0},
+               {ncell_[0], ncell_[1], ncell_[2]}};
+  // With ghosts (a pair set: a domain and its halo, a part of the box on the box's own cells) the
+  // cells stored are a window of the box's: per periodic axis the cell coordinates between the
+  // longest run of unoccupied ones round the box, which a cell past either end of the window
+  // then lies in (empty: the search meets it as an open edge). Every pair of cells is met from
+  // the same cell with the same shift as on the whole grid (the adjacency below is the box
+  // grid's, renumbered), so the pairs and their separations are the same; the per-cell arrays
+  // (the sort's counts and starts, each cell's start and home count) are the window's size, not
+  // the box's — a rank's pair set on 8 ranks holds about a sixth of the box's cells.
+  //
+  // Positions given wrapped (set_positions_wrapped: a pair set's) have the image 0 but where the
+  // wrap's rounding put one on the box's upper face (or a hair below its lower one): the same pass
+  // tells, and when every image is 0 no image or wrapped copy is stored — the wrapped positions
+  // are x itself, bit for bit (x − 0 = x) — where they were two arrays of the positions' size.
+  const bool windows = !ghost_.empty() && !small_box_;
+  images_stored_ = true;
+  if ((windows || positions_wrapped_) && n > 0) {
+    const std::size_t marks = static_cast<std::size_t>(ncell_[0] + ncell_[1] + ncell_[2]);
+    occupied_.assign(static_cast<std::size_t>(parts) * marks, 0);
+    std::array<char, kMaxParts> image{};
+    parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
+      char* const at = occupied_.data() + u * marks;
+      char* const occupied[3] = {at, at + ncell_[0], at + ncell_[0] + ncell_[1]};
+#if defined(__x86_64__)
+      static const bool sse41 = __builtin_cpu_supports("sse4.1");
+      if (sse41) {
+        image[u] = mark_cell_coordinates_sse41(grid, x.data(), first, last, occupied);
+        return;
+      }
+#endif
+      image[u] = mark_cell_coordinates(grid, x.data(), first, last, occupied);
+    });
+    for (int u = 1; u < parts; ++u)
+      for (std::size_t k = 0; k < marks; ++k) occupied_[k] |= occupied_[u * marks + k];
+    if (windows)
+      for (int a = 0, at = 0; a < 3; at += ncell_[a], ++a)
+        if (periodic[a]) std::tie(grid.first[a], grid.stored[a]) = occupied_window(occupied_.data() + at, ncell_[a]);
+    images_stored_ = !positions_wrapped_ || std::any_of(image.begin(), image.begin() + parts, [](char c) { return c; });
+  }
+  for (int a = 0; a < 3; ++a) window_first_[a] = grid.first[a], stored_[a] = grid.stored[a];
+  const int ncells = stored_[0] * stored_[1] * stored_[2];
+
+  cell_of_.resize(n);
+  if (images_stored_) {
+    image_.resize(3, n);
+    wrapped_x_.resize(3, n);
+  }
+  binned_x_ = images_stored_ ? wrapped_x_.data() : x.data();
+  double* const image_out = images_stored_ ? image_.data() : nullptr;
+  double* const wrapped_out = images_stored_ ? wrapped_x_.data() : nullptr;
+  cell_start_.resize(static_cast<std::size_t>(ncells) + 1);
+  // Padded (kCellPadding): the search's copies read a few entries past a cell's end.
+  const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
+  cell_particles_.resize(stride);
+  cell_x_.resize(3 * stride);
   // Each particle's image and cell on the threads (independent per particle), counted per block;
   // then the cells' starts and the counting sort's scatter (counting_sort.hpp), which keeps each
   // cell's particles in increasing index for any number of blocks. With halo flags (and the
@@ -967,24 +1111,17 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   // then its halo beads, in increasing index, and the search takes the home ones as a prefix
   // (cell_home_) rather than reading a flag per candidate.
   const char* const halo = ghost_.empty() || small_box_ ? nullptr : ghost_.data();
-  const bool periodic[3] = {box.periodic[0] != 0, box.periodic[1] != 0, box.periodic[2] != 0};
-  const int parts = threads_for(n);
   cell_sort_.begin(parts, halo ? 2 * ncells : ncells);
-  const BinGrid grid{{lo[0], lo[1], lo[2]},
-                     {inv_len[0], inv_len[1], inv_len[2]},
-                     {len[0], len[1], len[2]},
-                     {periodic[0], periodic[1], periodic[2]},
-                     {ncell_[0], ncell_[1], ncell_[2]}};
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     int* count = cell_sort_.clear(u);
 #if defined(__x86_64__)
     static const bool sse41 = __builtin_cpu_supports("sse4.1");
     if (sse41) {
-      bin_particles_sse41(grid, x.data(), halo, first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
+      bin_particles_sse41(grid, x.data(), halo, first, last, image_out, wrapped_out, cell_of_.data(), count);
       return;
     }
 #endif
-    bin_particles(grid, x.data(), halo, first, last, image_.data(), wrapped_x_.data(), cell_of_.data(), count);
+    bin_particles(grid, x.data(), halo, first, last, image_out, wrapped_out, cell_of_.data(), count);
   });
   if (halo) {
     key_start_.resize(2 * static_cast<std::size_t>(ncells) + 1);
@@ -1004,27 +1141,29 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     auto cursor = cell_sort_.cursor(u);
     double* const cx = cell_x_.data();
+    const double* const w = binned_x_;
     for (std::int64_t i = first; i < last; ++i) {
       const int k = cursor.slot(cell_of_[i]);
       cell_particles_[k] = static_cast<int>(i);
-      cx[k] = wrapped_x_(0, i);
-      cx[stride + k] = wrapped_x_(1, i);
-      cx[2 * stride + k] = wrapped_x_(2, i);
+      cx[k] = w[3 * i];
+      cx[stride + k] = w[3 * i + 1];
+      cx[2 * stride + k] = w[3 * i + 2];
     }
   });
 
+  // The adjacency of the box's grid, on the stored cells' numbering.
   for (int a = 0; a < 3; ++a) {
-    const int m = ncell_[a];
-    adjacent_[a].resize(3 * static_cast<std::size_t>(m));
-    adjacent_shift_[a].resize(3 * static_cast<std::size_t>(m));
-    for (int c = 0; c < m; ++c)
+    const int m = ncell_[a], stored = stored_[a];
+    adjacent_[a].resize(3 * static_cast<std::size_t>(stored));
+    adjacent_shift_[a].resize(3 * static_cast<std::size_t>(stored));
+    for (int c = 0; c < stored; ++c)
       for (int o = -1; o <= 1; ++o) {
-        int cc = c + o;
+        int cc = (window_first_[a] + c) % m + o;  // in the box's grid
         double sh = 0.0;
         if (box.periodic[a]) {
           if (cc < 0) sh = -len[a];  // cell m − 1 seen from cell 0: its image below the box
           if (cc >= m) sh = len[a];
-          cc = (cc + m) % m;
+          cc = stored_cell(a, (cc + m) % m);
         } else if (cc < 0 || cc >= m) {
           cc = -1;  // past an open edge: no cell
         }
@@ -1032,6 +1171,12 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
         adjacent_shift_[a][3 * c + o + 1] = sh;
       }
   }
+}
+
+int NeighborList::stored_cell(int a, int c) const {
+  const int m = ncell_[a];
+  const int k = c - window_first_[a] + (c < window_first_[a] ? m : 0);
+  return k < stored_[a] ? k : -1;
 }
 
 // Each pair of cells once (a cell with itself, and with the 13 of its 26 neighbours that lie
@@ -1054,7 +1199,9 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const double* const czs = cys + stride;
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
-  const int nx = ncell_[0], ny = ncell_[1], nz = ncell_[2];
+  // The stored cells (bin's window of the box's cells).
+  const int nx = stored_[0], ny = stored_[1], nz = stored_[2];
+  const int z_face = (ncell_[2] - window_first_[2]) % ncell_[2];
   // With halo flags each cell's home beads are a prefix of its range, cell_home_ long (bin).
   const bool halo = !ghost_.empty();
   // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
@@ -1124,6 +1271,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
                          {adjacent_shift_[0].data(), adjacent_shift_[1].data(), adjacent_shift_[2].data()},
                          ny,
                          nz,
+                         z_face,
                          rlist2,
                          first_column[u],
                          first_column[u + 1],
@@ -1193,14 +1341,14 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
 // keep j > i, and round every separation to the minimum image.
 void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exclusions) {
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
-  const double* xw = wrapped_x_.data();
+  const double* xw = binned_x_;
   const std::size_t stride = static_cast<std::size_t>(n) + kCellPadding;
   const double* const cxs = cell_x_.data();  // the cell order's x, y, z (structure of arrays)
   const double* const cys = cxs + stride;
   const double* const czs = cys + stride;
   const int* cp = cell_particles_.data();
   const int* cs = cell_start_.data();
-  const int ny = ncell_[1], nz = ncell_[2];
+  const int ny = stored_[1], nz = stored_[2];  // every cell: no window on a small box
   offsets_.resize(static_cast<std::size_t>(n) + 1);
   offsets_[0] = 0;
   neighbors_.clear();  // keeps its capacity
@@ -1251,7 +1399,7 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
 // exclusions (bonded neighbours) and ghost pairs are then dropped from the few kept.
 void NeighborList::search_all_pairs(int n, const MinimumImage& mi, bool have_exclusions) {
   const double rlist2 = (cutoff_ + skin_) * (cutoff_ + skin_);
-  const double* xw = wrapped_x_.data();
+  const double* xw = binned_x_;
   if (hits_.empty()) hits_.resize(1);
   std::vector<int>& hits = hits_[0];
   if (hits.size() < static_cast<std::size_t>(n) + 1) hits.resize(static_cast<std::size_t>(n) + 1);
@@ -1315,7 +1463,7 @@ void NeighborList::release() {
   built_ = false;
   // Swapped with empty containers: clear() would keep the capacity.
   auto free = [](auto& c) { std::remove_reference_t<decltype(c)>().swap(c); };
-  free(cell_home_), free(key_start_), free(offsets_), free(neighbors_), free(fast_), free(cell_of_);
+  free(cell_home_), free(key_start_), free(occupied_), free(offsets_), free(neighbors_), free(fast_), free(cell_of_);
   free(cell_start_), free(cell_particles_), free(pair_i_), free(pair_j_), free(pair_count_), free(hits_);
   free(scratch_);
   for (int a = 0; a < 3; ++a) free(adjacent_[a]), free(adjacent_shift_[a]);

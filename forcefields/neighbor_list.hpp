@@ -131,6 +131,7 @@ class BoxWrap {
   double operator()(double x, int a) const { return x - len_[a] * floor_of((x - lo_[a]) * inv_[a]); }
   // Particles first … last − 1 of x (3×N, column-major) wrapped into out, each coordinate as
   // operator() gives it, bit for bit (four particles at a time with AVX2 where the CPU has it).
+  // out may be x (in place).
   void wrap_particles(const double* x, double* out, std::int64_t first, std::int64_t last) const;
 
  private:
@@ -256,6 +257,12 @@ class NeighborList {
   // the list keeps it, with the same pairs.
   std::uint64_t build_id() const { return build_id_; }
   const Eigen::Vector3i& cells_per_axis() const { return ncell_; }  // of the last build
+  // The cells the last build stored per axis: a window of cells_per_axis on a list with ghosts
+  // (bin: the cell coordinates its particles occupy), all of them without.
+  Eigen::Vector3i stored_cells_per_axis() const { return {stored_[0], stored_[1], stored_[2]}; }
+  // Whether the last build stored each particle's image and wrapped position (false: positions
+  // given wrapped whose images were all 0, x itself the wrapped positions).
+  bool images_stored() const { return images_stored_; }
 
   // For checkpoints: the list is a function of the positions and box of its last build (bin and
   // search read nothing else, and neither depends on the thread count), so those positions are
@@ -313,16 +320,27 @@ class NeighborList {
   // then the z (structure of arrays), each n + kCellPadding long, so that the search copies a
   // range four entries at a time (cell_particles_ likewise padded).
   static constexpr int kCellPadding = 4;
-  Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();
+  Eigen::Vector3i ncell_ = Eigen::Vector3i::Ones();  // the box's grid (cells_per_axis)
+  // The cells stored (bin): per axis stored_[a] consecutive coordinates of the box's grid from
+  // window_first_[a] on (modulo ncell_ on a periodic axis); every cell without ghosts.
+  int window_first_[3] = {0, 0, 0};
+  int stored_[3] = {1, 1, 1};
+  std::vector<char> occupied_;  // bin's scratch with ghosts: per part, per axis, the coordinates occupied
+  // The stored coordinate of the box grid's coordinate c along axis a (−1: outside the window).
+  int stored_cell(int a, int c) const;
   double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
   mutable std::vector<std::vector<int>> fast_;  // needs_rebuild's scratch: per part, the fast particles
   std::vector<int> cell_of_;                    // per particle, its cell (bin: with ghosts, 2 × cell + flag)
   std::vector<int> cell_start_;
   std::vector<int> cell_particles_;
-  Eigen::Matrix3Xd image_;        // per particle, index order: L·floor((x − origin)/L) at build
-  Eigen::Matrix3Xd wrapped_x_;    // per particle, index order: x − image_ at build
-  Eigen::Matrix3Xd wrapped_now_;  // x − image_ for the latest wrapped_positions(x)
-  std::vector<double> cell_x_;    // per particle, cell order: x … , y … , z … (see above)
+  Eigen::Matrix3Xd image_;      // per particle, index order: L·floor((x − origin)/L) at build
+  Eigen::Matrix3Xd wrapped_x_;  // per particle, index order: x − image_ at build
+  // Whether the last build stored image_ and wrapped_x_; false: every image was 0 (positions
+  // given wrapped, bin), and the wrapped positions were x itself.
+  bool images_stored_ = true;
+  const double* binned_x_ = nullptr;  // during a build: wrapped_x_'s data, or x's
+  Eigen::Matrix3Xd wrapped_now_;      // x − image_ for the latest wrapped_positions(x)
+  std::vector<double> cell_x_;        // per particle, cell order: x … , y … , z … (see above)
   // Per axis, for each cell coordinate c and offset o = −1, 0, 1 (slot 3c + o + 1): the
   // neighbouring cell coordinate (wrapped on periodic axes, −1 past an open edge) and the shift
   // (0 or ±L) that brings a wrapped position in that cell next to cell c.

@@ -48,6 +48,13 @@ class PairsOnParticles {
   // type or a pair out of range, or charges of another count.
   virtual void move_to(std::span<const int> types, std::span<const double> charges,
                        std::span<const SpecialPair> special, std::span<const char> ghost) = 0;
+  // The same with `special` handed over: the term keeps that vector as its list. With
+  // take_special_pairs, which hands the term's list's storage out emptied (its capacity kept),
+  // a caller that makes the next particle set's special pairs fills the term's own storage: the
+  // term's list is their only copy, and nothing is allocated once it has grown.
+  virtual void move_to(std::span<const int> types, std::span<const double> charges, std::vector<SpecialPair>&& special,
+                       std::span<const char> ghost) = 0;
+  virtual std::vector<SpecialPair> take_special_pairs() = 0;
   // The share of the long-range tail correction (PairTerm::set_tail) this particle set adds to
   // the energy and the virial: 1 (the default) on one process, on a decomposed run's ranks 1 on
   // the rank that is home to particle 0 and 0 on the others, so that the ranks' shares add up to
@@ -192,6 +199,14 @@ class PairTerm final : public ForceTerm,
   std::span<const double> charges() const override { return charges_; }
   void move_to(std::span<const int> types, std::span<const double> charges, std::span<const SpecialPair> special,
                std::span<const char> ghost) override;
+  void move_to(std::span<const int> types, std::span<const double> charges, std::vector<SpecialPair>&& special,
+               std::span<const char> ghost) override;
+  std::vector<SpecialPair> take_special_pairs() override {
+    std::vector<SpecialPair> storage = std::move(special_);
+    special_.clear();
+    storage.clear();
+    return storage;
+  }
   void set_tail_share(double share) override { tail_share_ = share; }
   void set_rebuild_agreement(NeighborList::RebuildAgreement agree) override {
     list_.set_rebuild_agreement(std::move(agree));
@@ -280,6 +295,10 @@ class PairTerm final : public ForceTerm,
   // g and its table (null: made here; a copy's: the original's, the same for the same g).
   void set_splitting(double g, std::shared_ptr<const EwaldRealSpaceTable> table);
   void set_special(std::span<const SpecialPair> special);
+  // special_ given: the list's exclusions and scaled_ from it.
+  void apply_special();
+  // move_to's types, charges and their checks.
+  void take_types(std::span<const int> types, std::span<const double> charges);
   void set_charges(std::vector<double> q);
   void find_uniform_type() {
     uniform_type_ = types_.empty() ? -1 : types_[0];
@@ -366,8 +385,13 @@ PairTerm<Kernel>::PairTerm(std::string name, Level level, std::vector<int> types
 // scaled_.
 template <class Kernel>
 void PairTerm<Kernel>::set_special(std::span<const SpecialPair> special) {
-  list_.set_exclusions(static_cast<int>(types_.size()), special);
   special_.assign(special.begin(), special.end());
+  apply_special();
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::apply_special() {
+  list_.set_exclusions(static_cast<int>(types_.size()), special_);
   scaled_.clear();
   excluded_ = 0;
   for (const SpecialPair& sp : special_) {
@@ -380,6 +404,22 @@ void PairTerm<Kernel>::set_special(std::span<const SpecialPair> special) {
 template <class Kernel>
 void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const double> charges,
                                std::span<const SpecialPair> special, std::span<const char> ghost) {
+  take_types(types, charges);
+  set_special(special);
+  list_.set_ghosts(ghost);
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const double> charges,
+                               std::vector<SpecialPair>&& special, std::span<const char> ghost) {
+  take_types(types, charges);
+  special_ = std::move(special);
+  apply_special();
+  list_.set_ghosts(ghost);
+}
+
+template <class Kernel>
+void PairTerm<Kernel>::take_types(std::span<const int> types, std::span<const double> charges) {
   pair_detail::check_types(name(), Kernel::kStyle, types, coeffs_.num_types());
   if (charges.size() != (kCharged ? types.size() : 0))
     pair_detail::fail(name(), Kernel::kStyle,
@@ -388,8 +428,6 @@ void PairTerm<Kernel>::move_to(std::span<const int> types, std::span<const doubl
   types_.assign(types.begin(), types.end());
   find_uniform_type();
   charges_.assign(charges.begin(), charges.end());
-  set_special(special);
-  list_.set_ghosts(ghost);
 }
 
 template <class Kernel>

@@ -416,7 +416,7 @@ TEST(CoulombTerms, OnSubsetCarriesChargesSplittingAndTail) {
   auto moved = whole->on_particles({}, {}, s.box);
   auto* pairs = dynamic_cast<PairsOnParticles*>(moved.get());
   ASSERT_NE(pairs, nullptr);
-  EXPECT_THROW(pairs->move_to(s.types, {}, {}, {}), std::invalid_argument);
+  EXPECT_THROW(pairs->move_to(s.types, {}, std::span<const SpecialPair>(), {}), std::invalid_argument);
   pairs->move_to(s.types, s.charges, whole->special_pairs(), {});
   EXPECT_EQ(test::forces_of(*moved, s.x, s.box), test::forces_of(*whole, s.x, s.box));
 }

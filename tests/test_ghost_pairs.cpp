@@ -290,6 +290,10 @@ TEST(GhostPairs, PairSetListOnTheBoxsCellsIsTheWholeListRestrictedToIt) {
         ghosts.build(s.x, s.box);
         ASSERT_LE(full.cells_per_axis().prod(), 8 * s.size());
         ASSERT_EQ(ghosts.cells_per_axis(), full.cells_per_axis());
+        // Of the box's cells the pair set's list stores the window its beads occupy: the domain
+        // and its halo, across the box's faces where the domain meets them.
+        EXPECT_LT(ghosts.stored_cells_per_axis().prod(), full.cells_per_axis().prod());
+        EXPECT_EQ(full.stored_cells_per_axis(), full.cells_per_axis());
         if (2 * s.size() < full.cells_per_axis().prod()) {  // without ghosts: coarser cells
           EXPECT_LT(plain.cells_per_axis().prod(), full.cells_per_axis().prod());
         }
@@ -308,6 +312,46 @@ TEST(GhostPairs, PairSetListOnTheBoxsCellsIsTheWholeListRestrictedToIt) {
       }
   }
   EXPECT_EQ(compared, 12);
+}
+
+// Positions given wrapped (a pair set's: Decomposition::forward wraps them): with every image 0
+// the list stores no image or wrapped copy of them, and it is the list of the same positions not
+// flagged so, row for row; a bead that the wrap's rounding left on the box's upper face (image L)
+// brings the copies back, and the same list again. The fast beads' test (needs_rebuild after
+// moves past half the skin) gives the same verdicts on both.
+TEST(GhostPairs, WrappedPositionsWithNoImageStoreNoCopiesAndListTheSamePairs) {
+  const double cutoff = std::pow(2.0, 1.0 / 6.0), skin = 0.4, margin = 1.5 * skin;
+  int compared = 0;
+  for (const PairSetCase& c : kPairSets) {
+    if (!c.periodic.all()) continue;
+    SCOPED_TRACE(c.name);
+    System s = pair_set(c, cutoff + margin, 3u);
+    BoxWrap(s.box).wrap_particles(s.x.data(), s.x.data(), 0, s.x.cols());
+    const std::vector<SpecialPair> special = special_pairs(s.size(), s.bonds, kWeights);
+    for (const bool on_face : {false, true}) {
+      if (on_face) s.x(0, 0) = s.box.origin[0] + s.box.lengths[0];
+      NeighborList plain(cutoff, skin), wrapped(cutoff, skin);
+      for (NeighborList* l : {&plain, &wrapped}) {
+        l->set_exclusions(s.size(), special);
+        l->set_ghosts(s.ghost);
+      }
+      wrapped.set_positions_wrapped(true);
+      plain.build(s.x, s.box);
+      wrapped.build(s.x, s.box);
+      EXPECT_TRUE(plain.images_stored());
+      EXPECT_EQ(wrapped.images_stored(), on_face);
+      ASSERT_EQ(wrapped.num_pairs(), plain.num_pairs());
+      for (int i = 0; i < s.size(); ++i) ASSERT_EQ(row(wrapped, i), row(plain, i)) << "row " << i;
+      // A few beads moved 0.75 skin (fast: past half the skin, within the skin), away from the
+      // box's faces: the fast beads' test decides, the same on both.
+      Eigen::Matrix3Xd moved = s.x;
+      for (int i = 1; i < s.size(); i += 301)  // under 1/256 of the beads: tested one by one
+        moved(1, i) += (moved(1, i) < 0.5 * s.box.lengths[1] ? 0.75 : -0.75) * skin;
+      EXPECT_EQ(wrapped.needs_rebuild(moved, s.box), plain.needs_rebuild(moved, s.box));
+      ++compared;
+    }
+  }
+  EXPECT_EQ(compared, 6);
 }
 
 // The search with halo flags takes each cell's home beads as a prefix of its range and searches a
@@ -801,7 +845,7 @@ TEST(GhostPairs, MoveRefusesATypeOutsideTheCoefficients) {
   const auto term = lj_term(s);
   std::vector<int> types(s.size(), 0);
   types[7] = 1;
-  EXPECT_THROW(term->move_to(types, {}, {}, {}), std::invalid_argument);
+  EXPECT_THROW(term->move_to(types, {}, std::span<const SpecialPair>(), {}), std::invalid_argument);
 }
 
 }  // namespace

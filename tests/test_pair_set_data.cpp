@@ -202,7 +202,8 @@ void poison(Scene& sc) {
   for (const auto& t : sc.forces->terms())
     if (auto* pairs = dynamic_cast<PairsOnParticles*>(t.get()))
       pairs->move_to(sc.particle_type,
-                     t->uses_charges() ? std::span<const double>(sc.charge) : std::span<const double>(), {}, {});
+                     t->uses_charges() ? std::span<const double>(sc.charge) : std::span<const double>(),
+                     std::span<const SpecialPair>(), {});
 }
 
 TEST_P(PairSetDataOnFakeRanks, TheRunIsOneProcesssWithTheWholeTypesChargesAndSpecialPairsPoisoned) {

@@ -1055,17 +1055,15 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
   const bool forces = owned_f && pair_f;
   const Eigen::Index n = static_cast<Eigen::Index>(pair_ids_.size());
   pair.resize(3, n);  // no allocation once sized
-  // The owned array wrapped into the box once, as one stretch (BoxWrap::wrap_particles: four
-  // beads at a time): every owned bead is in some pair set (its home's), a halo bead sent to
-  // several ranks is wrapped once, and the wrap is a function of the position alone, so the
-  // receivers get the bits they would make. From there every copy moves bits.
-  wrapped_.resize(3, a.cols());  // no allocation once sized
-  BoxWrap(box_).wrap_particles(a.data(), wrapped_.data(), 0, a.cols());
+  // The owned columns go as they are; the pair set's array is wrapped into the box in place once
+  // they have landed, as one stretch (BoxWrap::wrap_particles: four beads at a time). The wrap is
+  // a function of the position alone, so each bead's wrapped position is the bits its owner (or
+  // one process) would make, and no wrapped copy of the owned array is kept.
   if (forces) {
     pair_f->resize(3, n);
     clear_runs(halo_runs_, pair_f->data());
   }
-  copy_runs(local_.all, wrapped_.data(), pair.data());
+  copy_runs(local_.all, a.data(), pair.data());
   if (forces) copy_runs(local_.home_runs, owned_f->data(), pair_f->data());
   std::vector<std::vector<double>>& send = send_buffer_[forces ? kPositionsAndForces : kPositions];
   std::vector<std::vector<double>>& recv = recv_buffer_[forces ? kPositionsAndForces : kPositions];
@@ -1074,7 +1072,7 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
     std::vector<double>& b = send[r];
     const std::size_t positions = 3 * p.owned.size();
     resize_with_room(b, positions + (forces ? 3 * p.homes : 0));
-    copy_runs(p.all, wrapped_.data(), b.data());
+    copy_runs(p.all, a.data(), b.data());
     if (forces) copy_runs(p.home_runs, owned_f->data(), b.data() + positions);
     resize_with_room(recv[r], 3 * in_[r].slot.size() + (forces ? 3 * in_[r].homes : 0));
   }
@@ -1085,6 +1083,7 @@ void Decomposition::forward(const Eigen::Matrix3Xd& a, Eigen::Matrix3Xd& pair, c
     copy_runs(p.all, w, pair.data());
     if (forces) copy_runs(p.home_runs, w + 3 * p.slot.size(), pair_f->data());
   }
+  BoxWrap(box_).wrap_particles(pair.data(), pair.data(), 0, n);
 }
 
 void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const {

@@ -344,8 +344,7 @@ class Decomposition {
   std::vector<SpecialRow> special_rows_;
   Eigen::Matrix3Xd at_selection_;  // the owned array given to the last selection
   std::vector<char> halo_flag_;
-  std::vector<Run> halo_runs_;        // the halo's slots (from = to)
-  mutable Eigen::Matrix3Xd wrapped_;  // forward's owned array wrapped into the box
+  std::vector<Run> halo_runs_;  // the halo's slots (from = to)
   int num_home_ = 0;
   // Per message kind (Message), per rank: a buffer per kind keeps its size from one evaluation
   // to the next (one shared by all would grow and shrink, and std::vector zero-fills each growth).

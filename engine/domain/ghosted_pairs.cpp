@@ -41,7 +41,6 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
     old->extended_pairs_ = nullptr;
     rebuilds_before_ = extended_->neighbor_list_rebuilds();
     selection_ = old->selection_;
-    special_ = std::move(old->special_);
     return;
   }
   extended_ = template_.on_particles({}, {}, domains.box());
@@ -109,7 +108,8 @@ void GhostedPairs::retarget() const {
   // The special pairs with a home bead here and both beads in the pair set: a home bead's partners
   // within R are all here, and a pair of two halo beads is not evaluated. Made in (i, j) order: by
   // slot i, then its partners j > i (carried in increasing global index, so in increasing slots).
-  special_.clear();
+  // Made in the term's own storage and handed back to it: the term's list is their only copy.
+  std::vector<SpecialPair> special = extended_pairs_->take_special_pairs();
   const SpecialPartners& s = carried.special[special_index_];
   const std::vector<int>& ids = domains_.pair_ids();
   for (int e = 0; e < n; ++e) {
@@ -117,13 +117,13 @@ void GhostedPairs::retarget() const {
       // A partner of a lower global index has a lower slot, if any: its pair is made from there.
       if (s.partner[q] < ids[e]) continue;
       const int t = domains_.pair_slot_near(s.partner[q], e);
-      if (t > e && (!halo[e] || !halo[t])) special_.push_back({e, t, s.weight[q], s.weight_coul[q]});
+      if (t > e && (!halo[e] || !halo[t])) special.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
   }
   // A charged term's charges follow the beads as their types do.
   extended_pairs_->move_to(
       carried.type, template_.uses_charges() ? std::span<const double>(carried.charge) : std::span<const double>(),
-      special_, halo);
+      std::move(special), halo);
   // The whole tail correction on the rank home to particle 0, none on the others.
   const int slot0 = domains_.pair_slot(0);
   extended_pairs_->set_tail_share(slot0 >= 0 && !halo[slot0] ? 1.0 : 0.0);

@@ -85,9 +85,8 @@ class GhostedPairs final : public ForceTerm {
   Decomposition& domains_;
   int special_index_;         // this term's in Decomposition::pair_data().special
   long rebuilds_before_ = 0;  // of extended_ when this term took it over
-  // The pair set this term was last moved onto (Decomposition::selections) and its special pairs.
+  // The pair set this term was last moved onto (Decomposition::selections).
   mutable long selection_ = -1;
-  mutable std::vector<SpecialPair> special_;
   mutable Eigen::Matrix3Xd x_, f_;
 };
 
