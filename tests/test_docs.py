@@ -38,7 +38,7 @@ HELPERS = {
     "warn_if_longer": 0,  # scene.cpp, read_output
     "threshold": 0,       # monitor.cpp: threshold("violation", ...)
     "switchable": 0,      # monitor.cpp: switchable("energy_error", ...)
-    r"finish_kspace<\w+>": 6,  # kspace_deck.cpp: finish_kspace<Term>(name, level, t, sc, real, p, "kmax", ...)
+    r"finish_kspace<\w+>": 7,  # kspace_deck.cpp: finish_kspace<Term>(name, level, t, sc, real, charges, p, "kmax", ...)
 }
 
 # Accessor calls whose key is not a literal: (file name, the argument as written) -> where the
