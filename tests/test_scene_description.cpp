@@ -15,6 +15,7 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "core/errors.hpp"
@@ -152,16 +153,47 @@ void expect_same_description(const Scene& whole, const Scene& desc) {
   }
 }
 
+// Every field of a bonded item: its particles and its type.
+std::tuple<int, int, int> fields(const Bond& b) {
+  return {b.i, b.j, b.type};
+}
+std::tuple<int, int, int, int> fields(const Angle& a) {
+  return {a.i, a.j, a.k, a.type};
+}
+std::tuple<int, int, int, int, int> fields(const Dihedral& d) {
+  return {d.i, d.j, d.k, d.l, d.type};
+}
+std::tuple<int, int, int, int, int> fields(const Improper& d) {
+  return {d.i, d.j, d.k, d.l, d.type};
+}
+
 template <class Item>
 void expect_same_items(const std::vector<PartMolecules::Placed<Item>>& got,
                        const std::vector<PartMolecules::Placed<Item>>& want) {
   ASSERT_EQ(got.size(), want.size());
   for (size_t k = 0; k < got.size(); ++k) {
     EXPECT_EQ(got[k].place, want[k].place);
-    EXPECT_EQ(got[k].item.i, want[k].item.i);
-    EXPECT_EQ(got[k].item.j, want[k].item.j);
-    EXPECT_EQ(got[k].item.type, want[k].item.type);
+    EXPECT_EQ(fields(got[k].item), fields(want[k].item));
   }
+}
+
+// One rank's part made from the description and from the whole scene: every column, item,
+// position and velocity bit for bit.
+void expect_same_part(const ScenePart& got, const ScenePart& want) {
+  EXPECT_EQ(got.molecules.global, want.molecules.global);
+  EXPECT_EQ(got.molecules.inv_mass, want.molecules.inv_mass);
+  EXPECT_EQ(got.molecules.charge, want.molecules.charge);
+  EXPECT_EQ(got.molecules.type, want.molecules.type);
+  EXPECT_EQ(got.molecules.molecule_id, want.molecules.molecule_id);
+  EXPECT_EQ(got.molecules.friction, want.molecules.friction);
+  expect_same_items(got.molecules.bonds, want.molecules.bonds);
+  expect_same_items(got.molecules.angles, want.molecules.angles);
+  expect_same_items(got.molecules.dihedrals, want.molecules.dihedrals);
+  expect_same_items(got.molecules.impropers, want.molecules.impropers);
+  ASSERT_EQ(got.x.cols(), want.x.cols());
+  ASSERT_EQ(got.v.cols(), want.v.cols());
+  EXPECT_TRUE((got.x.array() == want.x.array()).all());
+  EXPECT_TRUE((got.v.array() == want.v.array()).all());
 }
 
 // chains_part from either scene on `ranks` fake ranks: the same parts bit for bit.
@@ -176,19 +208,7 @@ void expect_same_chains_parts(const Deck& deck, const Scene& whole, const Scene&
     SCOPED_TRACE("rank " + std::to_string(r) + " of " + std::to_string(ranks));
     const ScenePart &g = from_desc[static_cast<size_t>(r)], &w = from_whole[static_cast<size_t>(r)];
     covered += g.molecules.size();
-    EXPECT_EQ(g.molecules.global, w.molecules.global);
-    EXPECT_EQ(g.molecules.inv_mass, w.molecules.inv_mass);
-    EXPECT_EQ(g.molecules.charge, w.molecules.charge);
-    EXPECT_EQ(g.molecules.type, w.molecules.type);
-    EXPECT_EQ(g.molecules.molecule_id, w.molecules.molecule_id);
-    EXPECT_EQ(g.molecules.friction, w.molecules.friction);
-    expect_same_items(g.molecules.bonds, w.molecules.bonds);
-    expect_same_items(g.molecules.angles, w.molecules.angles);
-    expect_same_items(g.molecules.dihedrals, w.molecules.dihedrals);
-    ASSERT_EQ(g.x.cols(), w.x.cols());
-    ASSERT_EQ(g.v.cols(), w.v.cols());
-    EXPECT_TRUE((g.x.array() == w.x.array()).all());
-    EXPECT_TRUE((g.v.array() == w.v.array()).all());
+    expect_same_part(g, w);
   }
   EXPECT_EQ(covered, whole.state.size());
 }
@@ -416,19 +436,6 @@ Deck import_deck(int k) {
 }
 constexpr int kImportDecks = 5;
 
-template <class Item>
-void expect_same_items(const std::vector<PartMolecules::Placed<Item>>& got,
-                       const std::vector<PartMolecules::Placed<Item>>& want, int atoms) {
-  ASSERT_EQ(got.size(), want.size());
-  for (size_t k = 0; k < got.size(); ++k) {
-    EXPECT_EQ(got[k].place, want[k].place);
-    EXPECT_EQ(got[k].item.type, want[k].item.type);
-    const int* g = &got[k].item.i;
-    const int* w = &want[k].item.i;
-    for (int a = 0; a < atoms; ++a) EXPECT_EQ(g[a], w[a]);
-  }
-}
-
 class ImportDescription : public ::testing::TestWithParam<int> {};
 
 // The description of a deck whose particles all come from a data file: no particle or item, the
@@ -492,19 +499,7 @@ TEST_P(ImportDescription, IsTheWholeSceneWithoutItsParticles) {
       SCOPED_TRACE("rank " + std::to_string(r) + " of " + std::to_string(ranks));
       const ScenePart &a = g[static_cast<size_t>(r)], &b = w[static_cast<size_t>(r)];
       covered += a.molecules.size();
-      EXPECT_EQ(a.molecules.global, b.molecules.global);
-      EXPECT_EQ(a.molecules.inv_mass, b.molecules.inv_mass);
-      EXPECT_EQ(a.molecules.charge, b.molecules.charge);
-      EXPECT_EQ(a.molecules.type, b.molecules.type);
-      EXPECT_EQ(a.molecules.molecule_id, b.molecules.molecule_id);
-      EXPECT_EQ(a.molecules.friction, b.molecules.friction);
-      expect_same_items(a.molecules.bonds, b.molecules.bonds, 2);
-      expect_same_items(a.molecules.angles, b.molecules.angles, 3);
-      expect_same_items(a.molecules.dihedrals, b.molecules.dihedrals, 4);
-      expect_same_items(a.molecules.impropers, b.molecules.impropers, 4);
-      ASSERT_EQ(a.x.cols(), b.x.cols());
-      EXPECT_TRUE((a.x.array() == b.x.array()).all());
-      EXPECT_TRUE((a.v.array() == b.v.array()).all());
+      expect_same_part(a, b);
       EXPECT_EQ(fingerprint[static_cast<size_t>(r)], scene_fingerprint(whole));
     }
     EXPECT_EQ(covered, whole.state.size());
