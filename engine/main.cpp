@@ -304,7 +304,7 @@ int main(int argc, char** argv) {
         for (const auto& note : scene->notes) log << note << "\n";
         // A fresh decomposed run of a deck whose particles a source makes by parts starts from
         // each rank's own molecules (engine/domain/part_load.hpp), not from the whole scene's cut;
-        // its [minimize] is the Run's, on the parts after the start (part_source refuses [prepare]).
+        // its [prepare] and [minimize] are the Run's, on the parts after the start.
         // A restart by parts takes its molecules from the source too, their state from the checkpoint.
         if (fresh_run || restart_by_parts) source = stiffmd::part_source(*deck, *scene).make;
         if (restart.empty() && !source)  // a restart's state is the checkpoint's

@@ -136,6 +136,10 @@ std::vector<double> save_list_state(const NeighborList& list) {
 void load_list_state(const std::string& name, std::string_view style, NeighborList& list, std::span<const double> w,
                      std::size_t n) {
   if (w.empty()) return;  // saved before the first build: the next evaluation builds
+  // A term that holds no particle — a decomposed run's description, whose parts list their own
+  // pairs — restarting from a checkpoint of the whole system's list (one process's) keeps its
+  // rebuilds and box; the positions are of particles it does not hold.
+  if (n == 0 && w.size() >= 10 && (w.size() - 10) % 3 == 0) w = w.first(10);
   if (w.size() != 10 + 3 * n)
     fail(name, style,
          "neighbour-list state of " + std::to_string(w.size()) + " words, expected " + std::to_string(10 + 3 * n));

@@ -314,19 +314,7 @@ class Descent {
   // energy_and_virial (a pair with a halo bead counts half: the ranks' shares add up to the
   // whole energy), the other terms' energies their own particles' (ForceTerm::add_forces).
   double share_of_energy(const Eigen::Matrix3Xd& x) {
-    const Box& box = forces_->box();
-    raw_.setZero(3, x.cols());
-    double e = 0.0;
-    for (const ForceTerm* term : forces_->evaluation_order()) {
-      if (toolbox_ && term->stiff_bonds()) continue;  // compute_unconstrained's terms
-      const ScopedPhase phase(term->phase());
-      if (term->uses_neighbor_list()) {
-        term->add_forces_only(x, box, raw_);
-        e += term->energy_and_virial(x, box, scratch_).energy;
-      } else {
-        e += term->add_forces(x, box, raw_);
-      }
-    }
+    const double e = part_energy_share(*forces_, x, raw_, scratch_, toolbox_.has_value());
     if (toolbox_) {
       const Level outer = forces_->outermost();
       forces_->count_evaluations(std::span<const Level>(&outer, 1));
@@ -359,6 +347,24 @@ bool energy_converged(double etol, double e, double e_prev) {
 }
 
 }  // namespace
+
+double part_energy_share(ForceField& forces, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f, Eigen::Matrix3Xd& scratch,
+                         bool unconstrained) {
+  const Box& box = forces.box();
+  f.setZero(3, x.cols());
+  double e = 0.0;
+  for (const ForceTerm* term : forces.evaluation_order()) {
+    if (unconstrained && term->stiff_bonds()) continue;  // compute_unconstrained's terms
+    const ScopedPhase phase(term->phase());
+    if (term->uses_neighbor_list()) {
+      term->add_forces_only(x, box, f);
+      e += term->energy_and_virial(x, box, scratch).energy;
+    } else {
+      e += term->add_forces(x, box, f);
+    }
+  }
+  return e;
+}
 
 const char* style_name(MinimizeStyle style) {
   switch (style) {

@@ -108,6 +108,15 @@ class MinimizeParts {
   virtual bool redistribute(const std::vector<Eigen::Matrix3Xd*>& carried) = 0;
 };
 
+// The forces of every term at x into f (3 × particles; without the constraint-defining stiff bonds
+// when `unconstrained`: compute_unconstrained's terms), each term's forces the bits of
+// ForceField::compute's, and this part's share of the potential energy: the pair terms' by
+// ForceTerm::energy_and_virial (a part's share, so that the parts' shares add up to the whole
+// system's energy), the others' as they add their forces. On one process the whole energy, to
+// round-off. No evaluation is counted. `scratch`: 3 × particles, overwritten.
+double part_energy_share(ForceField& forces, const Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& f, Eigen::Matrix3Xd& scratch,
+                         bool unconstrained);
+
 // p.style's method: minimize_fire or minimize_linesearch.
 MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                         std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "core/timing.hpp"
+#include "integrators/prepare.hpp"
 #include "integrators/primitives.hpp"
 
 namespace stiffmd {
@@ -40,16 +41,9 @@ Rattle::Rattle(std::string method, ForceField& forces, ConstraintToolbox toolbox
 
 void Rattle::prepare(State& s, std::ostream& log) {
   if (model_) model_->prepare(s, log);
-  const Eigen::Matrix3Xd x0 = s.x, v0 = s.v;
-  const double g0 = toolbox_.max_violation(s.x);
-  toolbox_.shake(s.x, s.x);             // X0 = x0 + M⁻¹G(x0)ᵀλ, g(X0) = 0
-  toolbox_.project_velocity(s.x, s.v);  // Y0 = P(X0) y0
+  const InitialProjection projection = project_initial_data(toolbox_, s);
   valid_ = model_value_current_ = false;
-  std::ostringstream m;
-  m << method_ << ": initial data projected onto the constraint manifold (paper eq. ACIV): max |g| " << g0 << " -> "
-    << toolbox_.max_violation(s.x) << ", max |dx| = " << (s.x - x0).cwiseAbs().maxCoeff()
-    << ", max |dv| = " << (s.v - v0).cwiseAbs().maxCoeff();
-  log << m.str() << "\n";
+  log << describe(method_, projection) << "\n";
 }
 
 void Rattle::refresh(const Eigen::Matrix3Xd& x) {

@@ -162,10 +162,18 @@ TEST(PartSource, PicksTheSourceOrNamesWhyNone) {
   EXPECT_NE(refusal("inputs/melt_minimize_by_parts.toml", {"minimize.style=\"cg\""}), "");
   const std::string sd = refusal("inputs/melt_minimize_by_parts.toml", {"minimize.style=\"sd\""});
   EXPECT_NE(sd.find("[minimize] style \"sd\""), std::string::npos) << sd;
-  // A method with rigid constraints projects the whole state before the start.
-  const std::string rattle = refusal("inputs/melt_by_molecule.toml", {});
-  EXPECT_NE(rattle.find("rattle projects"), std::string::npos) << rattle;
-  EXPECT_NE(refusal("inputs/spce_water.toml", {}).find("rattle projects"), std::string::npos);
+  // A method with rigid constraints projects the parts after the start; the effective dynamics
+  // takes its actions from the whole state before it.
+  EXPECT_EQ(source("inputs/melt_by_molecule.toml", {}).make, &chains_part);
+  const std::string effective = refusal("inputs/melt_by_molecule.toml", {"integrator.method=\"effective\""});
+  EXPECT_NE(effective.find("effective takes its actions from the whole state"), std::string::npos) << effective;
+  // [prepare] is the parts' when its bond vibrations are drawn by particle, or there are none.
+  EXPECT_EQ(source("inputs/stiff_melt_by_parts.toml", {}).make, &chains_part);
+  const std::string stream = refusal("inputs/stiff_melt_by_parts.toml", {"prepare.by_particle=false"});
+  EXPECT_NE(stream.find("by_particle = true"), std::string::npos) << stream;
+  EXPECT_EQ(
+      source("inputs/stiff_melt_by_parts.toml", {"prepare.by_particle=false", "prepare.vibrational_temperature=0"}).make,
+      &chains_part);
   // A data file: its [import] read by blocks, with the file's velocities or drawn by particle.
   EXPECT_EQ(source("inputs/half_melt.toml", {}).make, &data_file_part);
   EXPECT_NE(refusal("inputs/half_melt.toml", {"velocities.temperature=1.0"}).find("[velocities]"), std::string::npos);

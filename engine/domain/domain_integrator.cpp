@@ -688,6 +688,11 @@ Scene& DomainIntegrator::mutable_part_scene() {
   return part_->scene;
 }
 
+std::string DomainIntegrator::in_whole_numbers(const std::string& what) const {
+  static const std::regex bond("stiff bond [0-9]+ \\(");
+  return with_global_particles(std::regex_replace(what, bond, "a stiff bond ("), part_->scene.global_id);
+}
+
 void DomainIntegrator::owned_forces(Eigen::Matrix3Xd& f) const {
   part_->scene.forces->total_force(part_->scene.state.x, f);
 }

@@ -31,6 +31,7 @@
 #include "engine/scene/scene.hpp"
 #include "integrators/integrator.hpp"
 #include "integrators/minimize.hpp"
+#include "integrators/prepare.hpp"
 
 namespace stiffmd {
 
@@ -123,6 +124,17 @@ class DomainIntegrator final : public Integrator {
   // stream (null elsewhere). Styles cg and sd are refused (InputError naming minimize.style).
   MinimizeReport minimize(const MinimizeSettings& p, std::ostream* progress = nullptr,
                           const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
+  // [prepare] on the parts, once distributed (engine/domain/part_prepare.cpp; collective, every
+  // rank with the same p, p.by_particle when it thermalises the bonds): prepare_state on each
+  // rank's molecules, one process's positions and velocities bit for bit on any number of ranks;
+  // the note (its energies summed over the ranks) is the same on every rank. `progress`: rank 0's
+  // stream (null elsewhere). Then, as after minimize, nothing is carried and start_again follows.
+  std::string prepare_parts(const PrepareSettings& p, std::ostream* progress = nullptr);
+  // A rigid method's initial projection (paper eq. ACIV, project_initial_data) on the parts, once
+  // distributed (collective): what the whole-system integrator's prepare does to the whole state,
+  // with its log line, the maxima taken over the ranks. Not for the effective dynamics, whose
+  // actions are the whole system's.
+  std::string project_parts();
   // The description's overlap rules (Scene::overlap_rules) applied to the parts, once distributed
   // (engine/domain/part_overlaps.hpp; collective): the first term's finding, "file:line:
   // forces.NAME: …" as the whole load says it, or "" when no two particles overlap.
@@ -189,6 +201,9 @@ class DomainIntegrator final : public Integrator {
   // `extra`: per-particle columns that move with the molecules besides the integrator's.
   void reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra = {});
   Scene& mutable_part_scene();  // the part's scene (minimize moves its particles)
+  // A message of this rank's part named in the whole system's numbers: its particles' (as one
+  // process names them), its stiff bonds' none (a part numbers its bonds in its own order).
+  std::string in_whole_numbers(const std::string& what) const;
   // at_start: the first part, built by every rank (the whole system's numbers summed then).
   void build_part(Eigen::Matrix3Xd x, Eigen::Matrix3Xd v, const State& s, bool at_start);
   void whole_numbers(const Scene& part);

@@ -161,12 +161,16 @@ PartSource part_source(const Deck& deck, const Scene& sc) {
   auto refused = [](std::string why) { return PartSource{nullptr, std::move(why)}; };
   if (root.gives("particles")) return refused("[[particles]] are listed whole");
   if (root.gives("bonds")) return refused("[[bonds]] are listed whole");
-  if (root.gives("prepare")) return refused("[prepare] acts on the whole state");
-  // A method with rigid constraints prepares the whole state before the start (Integrator::prepare:
-  // x and v projected onto g = 0, the effective dynamics' actions taken there), which the parts
-  // would not hold.
-  if (find_method(sc.integrator.method)->rigid_constraints)
-    return refused(sc.integrator.method + " projects the whole state onto its constraints before the start");
+  // [prepare] runs on the parts after the start (DomainIntegrator::prepare_parts), its bond
+  // vibrations drawn by bond and particle.
+  if (sc.prepare.requested && sc.prepare.vibrational_temperature > 0.0 && !sc.prepare.by_particle)
+    return refused(
+        "[prepare]'s bond vibrations are drawn from one stream over the bonds (by_particle = true draws them by "
+        "parts)");
+  // A rigid method projects the parts onto its constraints after the start (project_parts); the
+  // effective dynamics takes its actions from the whole state before the start.
+  if (find_method(sc.integrator.method)->effective)
+    return refused(sc.integrator.method + " takes its actions from the whole state before the start");
   // [minimize] by FIRE runs on the parts after the start (DomainIntegrator::minimize).
   if (sc.minimize.requested && sc.minimize.style != MinimizeStyle::fire)
     return refused(std::string("[minimize] style \"") + style_name(sc.minimize.style) +

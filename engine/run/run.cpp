@@ -41,7 +41,7 @@ ObservableSettings run_observables(const Scene& sc) {
   ObservableSettings observables = sc.observables;
   const MethodInfo& method = *find_method(sc.integrator.method);
   if (method.rigid_constraints)
-    observables.rigid_constraints = static_cast<int>(sc.forces->stiff_bonds()->bonds.size());
+    observables.rigid_constraints = static_cast<int>(whole_stiff_bonds(sc));
   observables.resonances = method.follows_effective   ? ObservableSettings::Resonances::effective
                            : method.rigid_constraints ? ObservableSettings::Resonances::none
                                                       : ObservableSettings::Resonances::actions;
@@ -182,6 +182,7 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
     resumed_ = checkpoint_parts->rest();
     agree(opt.processes, [&] { load_checkpoint_rest(sc, resumed_, opt.restart); });
   }
+  bool prepare_integrator = false;  // a fresh start, or a restart with another method
   if (restarting) {
     // By parts: every rank alike, agreed.
     agree(checkpoint_parts ? opt.processes : nullptr, [&] {
@@ -203,11 +204,17 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
       log << "note: " << opt.restart << " was written by " << resumed_.method << " with h = " << resumed_.h
           << "; continuing with " << sc.integrator.method << ", h = " << sc.integrator.h
           << " (not bit-identical to an uninterrupted run)\n";
-    if (resumed_.method != sc.integrator.method) integrator_->prepare(s_, log);  // else: its state is loaded
-    log << "restart from " << opt.restart << " at step " << s_.step << " (t = " << s_.t << ")\n";
+    if (resumed_.method != sc.integrator.method) prepare_integrator = true;  // else: its state is loaded
   } else {
-    integrator_->prepare(s_, log);
+    prepare_integrator = true;
   }
+  // A rigid method projects its initial data (Rattle::prepare); a start from the source's parts
+  // projects the parts once they exist (DomainIntegrator::project_parts), as no rank holds the
+  // whole state.
+  const bool rigid = find_method(sc.integrator.method)->rigid_constraints;
+  const bool project_parts = prepare_integrator && rigid && domain_ && opt.part;
+  if (prepare_integrator && !project_parts) integrator_->prepare(s_, log);
+  if (restarting) log << "restart from " << opt.restart << " at step " << s_.step << " (t = " << s_.t << ")\n";
 
   const bool new_h = restarting && s_.t != static_cast<double>(s_.step) * h_;
   t0_ = new_h ? s_.t : 0.0;
@@ -274,21 +281,49 @@ Run::Run(Scene& sc, const RunOptions& opt, std::ostream& log)
   // [minimize] relaxes them (as load_scene lets it).
   if (domain_ && opt.part && !restarting && !sc.overlap_rules.empty() && !sc.minimize.requested && sc.stage.number <= 1)
     if (const std::string found = domain_->overlaps(sc); !found.empty()) throw AgreedInputError(found, root());
-  // A start from the source's parts leaves [minimize] to the parts (FIRE, one process's positions
-  // bit for bit; engine/domain/part_minimize.cpp), which then start afresh from the minimised
-  // molecules, as the whole path starts from its minimised scene (prepare_scene).
-  if (domain_ && opt.part && !restarting && sc.minimize.requested && !sc.minimized) {
-    try {
-      sc.minimized = domain_->minimize(sc.minimize, root() && opt.progress ? &std::cerr : nullptr);
-    } catch (const AgreedStop& e) {  // every rank's: each stops here, rank 0 says why (exit 3)
-      throw AgreedStop(sc.minimize.where + ": " + e.what(), e.printed_here());
-    } catch (const NumericalError& e) {  // this rank's alone (a bond past its range): it ends the job (exit 3)
-      throw NumericalError(sc.minimize.where + ": " + e.what());
+  // A start from the source's parts leaves [prepare] and [minimize] to the parts (one process's
+  // positions and velocities bit for bit: engine/domain/part_prepare.cpp, part_minimize.cpp) in
+  // prepare_scene's order — project and relax, minimise, thermalise the bonds — then a rigid
+  // method's projection; the parts then start afresh from the prepared molecules, as the whole
+  // path starts from its prepared scene.
+  if (domain_ && opt.part && !restarting) {
+    const PrepareTable& p = sc.prepare;
+    const bool vibrate_after = p.requested && sc.minimize.requested && p.vibrational_temperature > 0.0;
+    std::ostream* progress = root() && opt.progress ? &std::cerr : nullptr;
+    auto prepare = [&](const PrepareSettings& settings) {
+      try {
+        const std::string note = domain_->prepare_parts(settings, progress);
+        if (!note.empty()) log << note << "\n";
+      } catch (const AgreedInputError& e) {
+        throw AgreedInputError(p.where + ": " + e.what(), e.printed_here());
+      }
+    };
+    if (p.requested) {
+      PrepareSettings first = p;
+      if (vibrate_after) first.vibrational_temperature = 0.0;
+      prepare(first);
     }
-    domain_->start_again();
-    log << describe(*sc.minimized) << "\n";
-    summary_.minimize = sc.minimized;
+    if (sc.minimize.requested && !sc.minimized) {
+      try {
+        sc.minimized = domain_->minimize(sc.minimize, progress);
+      } catch (const AgreedStop& e) {  // every rank's: each stops here, rank 0 says why (exit 3)
+        throw AgreedStop(sc.minimize.where + ": " + e.what(), e.printed_here());
+      } catch (const NumericalError& e) {  // this rank's alone (a bond past its range): it ends the job (exit 3)
+        throw NumericalError(sc.minimize.where + ": " + e.what());
+      }
+      log << describe(*sc.minimized) << "\n";
+      summary_.minimize = sc.minimized;
+    }
+    if (vibrate_after) {
+      PrepareSettings vibrate = p;
+      vibrate.project = false;
+      vibrate.relax_steps = 0;
+      prepare(vibrate);
+    }
   }
+  if (project_parts) log << domain_->project_parts() << "\n";
+  if (project_parts || (domain_ && opt.part && !restarting && (sc.prepare.requested || sc.minimize.requested)))
+    domain_->start_again();
   // The particle count as the parts sum it (the whole scene's on one process): the Run, its
   // outputs and the checkpoint read no whole array once the parts exist.
   num_particles_ = domain_ ? domain_->whole_particles() : s_.size();

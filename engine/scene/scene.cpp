@@ -21,6 +21,7 @@
 #include "engine/scene/scene_sources.hpp"
 #include "engine/scene/thermostat_deck.hpp"
 #include "forcefields/ewald_real_space.hpp"
+#include "forcefields/stiff_harmonic_bond.hpp"
 #include "integrators/methods.hpp"
 #include "integrators/modes.hpp"
 
@@ -886,6 +887,40 @@ long whole_degrees_of_freedom(const Scene& sc, int rigid) {
 
 }  // namespace
 
+namespace {
+
+// The stiff-harmonic term's rule (null: none, or a term made from its bonds alone).
+const StiffBondRule* stiff_rule(const Scene& sc) {
+  for (const auto& term : sc.forces->terms())
+    if (const auto* s = dynamic_cast<const StiffHarmonicBond*>(term.get()); s && !s->rule().empty()) return &s->rule();
+  return nullptr;
+}
+
+// The claimed bond types' indices into the rule's coefficients that a described source has bonds
+// of (none for a whole scene).
+std::vector<int> described_stiff_claims(const Scene& sc) {
+  std::vector<int> claims;
+  const StiffBondRule* rule = stiff_rule(sc);
+  if (!rule) return claims;
+  for (std::size_t t = 0; t < rule->bond_claim.size(); ++t)
+    if (rule->bond_claim[t] >= 0 &&
+        std::any_of(sc.described_sources.begin(), sc.described_sources.end(),
+                    [&](const DescribedSource& d) { return DescribedSource::of(d.bonds_of_type, t) > 0; }))
+      claims.push_back(rule->bond_claim[t]);
+  return claims;
+}
+
+// The lengths and stiffnesses of the whole scene's stiff bonds: the term's bonds, and one bond of
+// each claimed type a description counts (its bonds are the type's coefficients).
+std::vector<StiffBond> stiff_bond_kinds(const Scene& sc) {
+  std::vector<StiffBond> kinds = sc.forces->stiff_bonds()->bonds;
+  if (const StiffBondRule* rule = stiff_rule(sc))
+    for (const int c : described_stiff_claims(sc)) kinds.push_back(rule->bond_coeffs[static_cast<std::size_t>(c)]);
+  return kinds;
+}
+
+}  // namespace
+
 // What the monitor's default checks need of the scene, and the likely cause of a run that leaves
 // its model: stiff bonds whose thermal vibration at the thermostat's kT, of rms amplitude
 // ε√kT/α_b (equipartition on ε⁻² ½α²g²), is a good part of their length — in reduced units
@@ -904,10 +939,12 @@ MonitorScene monitor_scene(DeckTable& root, Scene& sc) {
                                                                : std::numeric_limits<double>::infinity();
   }
   const StiffBonds* stiff = sc.forces->stiff_bonds();
-  if (!stiff || stiff->bonds.empty()) return m;
+  if (!stiff) return m;
+  const std::vector<StiffBond> kinds = stiff_bond_kinds(sc);
+  if (kinds.empty()) return m;
   m.min_bond_length = std::numeric_limits<double>::infinity();
   double amplitude = 0.0, fraction = 0.0;  // the largest ε√kT/α_b and (ε√kT/α_b)/ℓ_b
-  for (const StiffBond& b : stiff->bonds) {
+  for (const StiffBond& b : kinds) {
     m.min_bond_length = std::min(m.min_bond_length, b.length);
     const double a = stiff->epsilon * std::sqrt(m.kT) / b.alpha;
     amplitude = std::max(amplitude, a);
@@ -936,12 +973,18 @@ namespace {
 // The force styles whose reader or whose term's description reads every particle, beyond what a
 // description counts (the k-space terms read the charges' sums, which a description gives:
 // charge_sums, engine/scene/kspace_deck.hpp): charmm-dihedral checks the particle types at its
-// dihedrals' ends; stiff-harmonic checks its bonds with the particles'
-// masses (find_stiff_bond_problem), selects them by mass, and gives the monitor its bonds; the
-// external terms select particles by index or type and refuse a selection of none (gravity
-// holds every mass).
-constexpr std::array<std::string_view, 5> kStylesReadingParticles = {"charmm-dihedral", "stiff-harmonic", "gravity",
-                                                                     "harmonic-tether", "lj93-wall"};
+// dihedrals' ends; the external terms select particles by index or type and refuse a selection
+// of none (gravity holds every mass). stiff-harmonic checks its bonds with the particles' masses
+// (find_stiff_bond_problem: two fixed particles, one bond per pair, realisable lengths around
+// every cycle) and may select them by mass or add rigid angles' bonds: described only for the
+// builder's chains by bond type (stiff_harmonic_described), whose bonds join mobile beads along a
+// path, one per pair, and pass every rule by construction.
+constexpr std::array<std::string_view, 4> kStylesReadingParticles = {"charmm-dihedral", "gravity", "harmonic-tether",
+                                                                     "lj93-wall"};
+
+bool stiff_harmonic_described(DeckTable& t, bool import) {
+  return !import && !t.gives("masses") && !t.gives("angle_types");
+}
 
 bool grows_by_molecule(DeckTable& b) {
   return b.gives("style") && b.string("style") == "linear-chains" && b.gives("growth") &&
@@ -984,6 +1027,7 @@ std::optional<Described> described_sources(const Deck& deck) {
         if (std::find(kStylesReadingParticles.begin(), kStylesReadingParticles.end(), style) !=
             kStylesReadingParticles.end())
           return std::nullopt;
+        if (style == "stiff-harmonic" && !stiff_harmonic_described(t, d.import)) return std::nullopt;
         // A data file's charges are per particle: its reader sums Σq in the file's order, not Σq²
         // in the particles' order, from which the k-space terms choose their parameters.
         if (d.import && (style == "ewald" || style == "pppm")) return std::nullopt;
@@ -1191,7 +1235,7 @@ std::string describe_settings(const Scene& sc) {
             : th.splitting == ThermostatSettings::Splitting::obabo ? ", as O steps of h/2 around the step (obabo)"
                                                                    : ", as an O step (baoab)");
     const MethodInfo& m = *find_method(sc.integrator.method);
-    const int rigid = m.rigid_constraints ? static_cast<int>(sc.forces->stiff_bonds()->bonds.size()) : 0;
+    const int rigid = m.rigid_constraints ? static_cast<int>(whole_stiff_bonds(sc)) : 0;
     s << ", seed " << th.seed << "; temperature over " << whole_degrees_of_freedom(sc, rigid)
       << " degrees of freedom\n";
   }
@@ -1211,6 +1255,18 @@ std::string describe_settings(const Scene& sc) {
   if (sc.output.screen_interval > 0) s << "  a thermo line every " << sc.output.screen_interval * time_out;
   s << "\n";
   return s.str();
+}
+
+std::int64_t whole_stiff_bonds(const Scene& sc) {
+  const StiffBonds* stiff = sc.forces->stiff_bonds();
+  if (!stiff) return 0;
+  auto n = static_cast<std::int64_t>(stiff->bonds.size());
+  const StiffBondRule* rule = stiff_rule(sc);
+  if (!rule) return n;
+  for (const DescribedSource& d : sc.described_sources)
+    for (std::size_t t = 0; t < rule->bond_claim.size(); ++t)
+      if (rule->bond_claim[t] >= 0) n += DescribedSource::of(d.bonds_of_type, t);
+  return n;
 }
 
 }  // namespace stiffmd

@@ -269,8 +269,9 @@ std::string particle_and_source(const Scene& scene, int i);
 // chain that cannot be grown; a data file's lines that hold positions, velocities and charges,
 // which each rank checks in its block, data_file_part). A deck the description cannot stand for —
 // an XYZ [import], [[bonds]], [barostat], a pair term's tail correction, a term whose parameters
-// or checks read every particle (ewald, pppm, charmm-dihedral, stiff-harmonic, gravity, a tether or
-// a wall) — is loaded whole (described() false).
+// or checks read every particle (ewald or pppm with a data file, charmm-dihedral, gravity, a
+// tether or a wall; stiff-harmonic unless its bonds are the builder's chains' by type, no rigid
+// angle among them) — is loaded whole (described() false).
 Scene load_scene(const Deck& deck, const StageIdentity& stage = {}, SceneContent content = SceneContent::whole);
 
 // Applies [prepare] (projection, relaxation, thermal bond vibrations) and [minimize] (after the
@@ -297,5 +298,9 @@ void check_output_paths(const Scene& scene, const std::string& dir);
 std::string describe(const Scene& scene);
 std::string describe_scene(const Scene& scene);
 std::string describe_settings(const Scene& scene);
+
+// The whole scene's constraint-defining stiff bonds: the loaded particles' (the term's list) and,
+// in a description, the described sources' bonds of the types the stiff-harmonic term claims.
+std::int64_t whole_stiff_bonds(const Scene& scene);
 
 }  // namespace stiffmd

@@ -587,6 +587,7 @@ void read_prepare(DeckTable& root, Scene& sc) {
   t->require(p.vibrational_temperature >= 0, "vibrational_temperature", "expected a temperature >= 0");
   p.vibrational_temperature = sc.units.kT(p.vibrational_temperature);
   p.seed = static_cast<std::uint64_t>(t->integer("seed", 1));
+  p.by_particle = t->boolean("by_particle", false);
   p.relax_steps = t->integer("relax_steps", 0);
   t->require(p.relax_steps >= 0 && p.relax_steps <= kMaxRelaxSteps, "relax_steps",
              "expected a number of steps 0 .. " + std::to_string(kMaxRelaxSteps));
@@ -656,9 +657,9 @@ void prepare_scene(Scene& sc, std::ostream& log, std::ostream* progress) {
     try {
       note = prepare_state(*sc.forces, *sc.forces->stiff_bonds(), sc.state, settings, progress);
     } catch (const NumericalError& e) {
-      throw InputError(p.where + ": prepare: could not project the initial state: " + e.what());
+      throw InputError(p.where + ": could not project the initial state: " + e.what());
     } catch (const InputError& e) {
-      throw InputError(p.where + ": prepare: " + e.what());
+      throw InputError(p.where + ": " + e.what());
     }
     if (!note.empty()) log << note << "\n";
   };
