@@ -49,6 +49,8 @@ const DescribedDeck kDecks[] = {
     {"inputs/melt_minimize_by_parts.toml", {}},
     {"tests/decks/melt_million_parts.toml", {"build.0.chains=200"}},
     {"tests/decks/charged_chains_by_parts.toml", {}},
+    {"inputs/stiff_melt_by_parts.toml", {}},
+    {"inputs/stiff_melt_by_parts.toml", {"integrator.method=\"fixman\"", "integrator.h=0.02"}},
 };
 
 // A term's description's definition: the term made again on a subset of no particle.
@@ -116,6 +118,11 @@ void expect_same_description(const Scene& whole, const Scene& desc) {
   EXPECT_EQ(desc.minimize.requested, whole.minimize.requested);
   EXPECT_EQ(desc.minimize.max_force, whole.minimize.max_force);
   EXPECT_EQ(describe_settings(desc), describe_settings(whole));
+  // The stiff bonds a description counts by type: their number and what the monitor reads of them.
+  EXPECT_EQ(whole_stiff_bonds(desc), whole_stiff_bonds(whole));
+  EXPECT_EQ(desc.monitor.scene.min_bond_length, whole.monitor.scene.min_bond_length);
+  EXPECT_EQ(desc.monitor.scene.likely_cause, whole.monitor.scene.likely_cause);
+  EXPECT_EQ(desc.monitor.bond_deviation, whole.monitor.bond_deviation);
   EXPECT_EQ(scene_header(desc), scene_header(whole));
   EXPECT_EQ(desc.notes, notes_without_overlap(whole));
   EXPECT_EQ(output_files(desc), output_files(whole));
