@@ -254,6 +254,13 @@ class Descent {
     sums.finish(3, total, largest, scale, out);
   }
 
+  // Σ a∘b over the system, exactly (dot_sums' first sum).
+  double dot(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) const {
+    double out[3];
+    dot_sums(a, b, out);
+    return out[0];
+  }
+
   // v ← P(x) v at the current positions (unchanged without rigid bonds), zero at fixed particles.
   void project(Eigen::Matrix3Xd& v) {
     if (!toolbox_) return;
@@ -555,9 +562,9 @@ enum class LineSearch { accepted, zero_alpha, zero_quadratic, zero_force };
 LineSearch quadratic_line_search(Descent& d, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& h, double dmax, double& e) {
   constexpr double kAlphaMax = 1.0, kAlphaReduce = 0.5, kBacktrackSlope = 0.4, kQuadraticTol = 0.1;
   constexpr double kEmach = 1e-8, kEpsQuad = 1e-28;
-  const double hmax = h.size() > 0 ? h.cwiseAbs().maxCoeff() : 0.0;
+  const double hmax = d.sums.max(local_max_abs(h));
   if (hmax == 0.0) return LineSearch::zero_force;
-  const double fh0 = (d.f.array() * h.array()).sum();
+  const double fh0 = d.dot(d.f, h);
   const double alpha_max = std::min(kAlphaMax, dmax / hmax);
   const Eigen::Matrix3Xd x0 = x;
   const double e0 = e;
@@ -572,7 +579,7 @@ LineSearch quadratic_line_search(Descent& d, Eigen::Matrix3Xd& x, const Eigen::M
   double alpha = alpha_max, alpha_prev = 0.0, fh_prev = fh0, e_prev = e0;
   for (;;) {
     e = step(alpha);
-    const double fh = (d.f.array() * h.array()).sum();
+    const double fh = d.dot(d.f, h);
     const double dfh = fh - fh_prev;
     if (std::abs(fh) < kEpsQuad || std::abs(dfh) < kEpsQuad) {
       e = step(0.0);
@@ -612,31 +619,47 @@ LineSearch quadratic_line_search(Descent& d, Eigen::Matrix3Xd& x, const Eigen::M
 //   β = max(0, (F·F − F·g) / g·g) (cg; 0 for sd, on a soft-start step, every 3N − m iterations),
 //   g ← F, h ← F + β P(x) h, and h ← F when F_true·h ≤ 0 (not downhill), h ← F_true when even F
 //   is not (a capped force can point against the true one after the projection).
-MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
-                                   std::ostream* progress, const MinimizeObserver& after_move) {
-  Eigen::VectorXd unit_metric = Eigen::VectorXd::Ones(s.inv_mass.size());
-  for (Eigen::Index i = 0; i < unit_metric.size(); ++i)
-    if (s.inv_mass[i] == 0.0) unit_metric[i] = 0.0;
-  Descent d(forces, stiff, s, p, unit_metric, progress);
+namespace {
+
+// The unit metric of the line searches: 1, 0 at fixed particles.
+Eigen::VectorXd unit_metric_of(const Eigen::VectorXd& inv_mass) {
+  Eigen::VectorXd unit = Eigen::VectorXd::Ones(inv_mass.size());
+  for (Eigen::Index i = 0; i < unit.size(); ++i)
+    if (inv_mass[i] == 0.0) unit[i] = 0.0;
+  return unit;
+}
+
+// CG or SD on one process (parts null) or on a rank's part: every sum over the system exact
+// (Descent's, added over the ranks), the largest |h| a max; between iterations the particles may
+// move between ranks with the method's columns (g, h and the forces).
+MinimizeReport linesearch(ForceField& forces, const StiffBonds* stiff, State& state, const MinimizeSettings& p,
+                          std::ostream* progress, const MinimizeObserver& after_move, MinimizeParts* parts,
+                          SumRule rule) {
+  const Communicator* ranks = parts ? &parts->ranks() : nullptr;
+  Eigen::VectorXd unit_metric = unit_metric_of(state.inv_mass);
+  Descent d(forces, stiff, state, p, unit_metric, progress, ranks, rule);
+  State* s = &state;
   MinimizeReport& r = d.report;
-  Eigen::Matrix3Xd& x = s.x;
   const char* name = p.style == MinimizeStyle::cg ? "CG" : "SD";
 
-  d.shake_from(x);  // start on g = 0
+  d.shake_from(s->x);  // start on g = 0
   double e = d.evaluate();
   r.initial_energy = e;
-  d.say("minimize: ", name, " on ", x.cols(), " particles (potential energy ", e, ", force 2-norm ", d.f.norm(),
-        ") ...");
   // Degrees of freedom: the conjugate directions run out after this many iterations.
-  long dof = 3 * static_cast<long>(unit_metric.sum());
-  if (d.rigid()) dof -= static_cast<long>(stiff->bonds.size());
+  std::int64_t counts[3] = {s->x.cols(), static_cast<std::int64_t>(unit_metric.sum()),
+                            d.rigid() ? static_cast<std::int64_t>(stiff->bonds.size()) : 0};
+  if (ranks && ranks->size() > 1) ranks->sum(counts, 3);
+  d.say("minimize: ", name, " on ", counts[0], " particles (potential energy ", e, ", force 2-norm ", std::sqrt(d.fsq),
+        ") ...");
+  const long dof = 3 * counts[1] - counts[2];
   const long restart_every = std::max(1L, dof);
 
   Eigen::Matrix3Xd g = d.fmove, h = d.fmove;
-  double gg = g.squaredNorm();
+  double gg = d.dot(g, g);
   bool was_capped = d.capped;
   r.stopped_by = "maxiter";
   for (long k = 1; k <= p.maxiter; ++k) {
+    Eigen::Matrix3Xd& x = s->x;
     const double e_prev = e;
     const LineSearch result = quadratic_line_search(d, x, h, p.dmax, e);
     r.iterations = k;
@@ -647,13 +670,13 @@ MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, 
       break;
     }
     if (after_move) after_move(x, e);
-    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", d.f.norm());
+    if (k % 1000 == 0) d.say("minimize: iteration ", k, ": potential energy ", e, ", force 2-norm ", std::sqrt(d.fsq));
 
     if (energy_converged(p.etol, e, e_prev)) {
       r.stopped_by = "etol";
       break;
     }
-    if (p.ftol > 0.0 && d.f.squaredNorm() < p.ftol * p.ftol) {
+    if (p.ftol > 0.0 && d.fsq < p.ftol * p.ftol) {
       r.stopped_by = "ftol";
       break;
     }
@@ -663,7 +686,9 @@ MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, 
     }
 
     const Eigen::Matrix3Xd& fm = d.fmove;
-    const double ff = fm.squaredNorm(), fg = (fm.array() * g.array()).sum();
+    double dots[3];  // F·g, F·F, g·g over the system
+    d.dot_sums(fm, g, dots);
+    const double ff = dots[1], fg = dots[0];
     const bool conjugate =
         p.style == MinimizeStyle::cg && !d.capped && !was_capped && (k + 1) % restart_every != 0 && gg > 0.0;
     const double beta = conjugate ? std::max(0.0, (ff - fg) / gg) : 0.0;
@@ -676,10 +701,36 @@ MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, 
     } else {
       h = g;
     }
-    if ((d.f.array() * h.array()).sum() <= 0.0) h = g;
-    if ((d.f.array() * h.array()).sum() <= 0.0) h = d.f;
+    if (d.dot(d.f, h) <= 0.0) h = g;
+    if (d.dot(d.f, h) <= 0.0) h = d.f;
+    // On parts: molecules may move to other ranks with the method's columns (the forces at x
+    // among them, so no evaluation is repeated).
+    if (parts && parts->redistribute({&g, &h, &d.f, &d.fmove})) {
+      s = &parts->state();
+      unit_metric = unit_metric_of(s->inv_mass);
+      d.bind(parts->forces(), parts->stiff(), *s, unit_metric);
+    }
   }
   return d.finish(e);
+}
+
+}  // namespace
+
+MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
+                                   std::ostream* progress, const MinimizeObserver& after_move) {
+  return linesearch(forces, stiff, s, p, progress, after_move, nullptr, SumRule::exact);
+}
+
+MinimizeReport minimize_linesearch(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress,
+                                   const MinimizeObserver& after_move, SumRule rule) {
+  if (p.style == MinimizeStyle::fire) throw std::invalid_argument("minimize_linesearch on parts: style fire");
+  return linesearch(parts.forces(), parts.stiff(), parts.state(), p, progress, after_move, &parts, rule);
+}
+
+MinimizeReport minimize(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress,
+                        const MinimizeObserver& after_move, SumRule rule) {
+  if (p.style == MinimizeStyle::fire) return minimize_fire(parts, p, progress, after_move, rule);
+  return minimize_linesearch(parts, p, progress, after_move, rule);
 }
 
 MinimizeReport minimize(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,

@@ -148,9 +148,23 @@ MinimizeReport minimize_fire(MinimizeParts& parts, const MinimizeSettings& p, st
 // one quadratic line search from x along h as LAMMPS's MinLineSearch::linemin_quadratic. Positions
 // move as x + αh, not by the masses: under rigid bonds the projection and SHAKE use the unit
 // metric (fixed particles still 0), and h is re-projected onto the tangent space at each new x
-// (docs/design.md §12). Velocities and errors as minimize_fire.
+// (docs/design.md §12). Velocities and errors as minimize_fire. Every sum over the system (the
+// slopes f·h, F·F, F·g, g·g, ‖f‖²) is exact (SumRule::exact), so that the same line searches on
+// parts below give these bits.
 MinimizeReport minimize_linesearch(ForceField& forces, const StiffBonds* stiff, State& s, const MinimizeSettings& p,
                                    std::ostream* progress = nullptr, const MinimizeObserver& after_move = {});
+
+// The same CG or SD on a system held by parts (collective), as minimize_fire on parts: the
+// positions at every trial point, the iterations, evaluations, stop and force norms are the bits
+// of minimize_linesearch on one process, on any number of ranks and for any partition; the
+// energies the ranks' shares added exactly (one process's to round-off). Between iterations the
+// molecules migrate with g, h and the forces.
+MinimizeReport minimize_linesearch(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress = nullptr,
+                                   const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
+
+// p.style's method on parts: minimize_fire or minimize_linesearch.
+MinimizeReport minimize(MinimizeParts& parts, const MinimizeSettings& p, std::ostream* progress = nullptr,
+                        const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
 
 // "minimize: FIRE stopped by ftol after N iterations (M force evaluations): E0 -> E, largest
 // force |f|max = …, force 2-norm …[, max |g| = …]" (CG or SD for the line-search styles; max |g|

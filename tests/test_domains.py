@@ -24,6 +24,7 @@ CASE is one of
     minimize_by_parts         inputs/melt_minimize_by_parts.toml: overlapping chains built by molecule,
                               [minimize] (FIRE, max_force) on the parts after the start, velocity Verlet
                               and Langevin: the serial run's bits, domains.setup = "parts"
+    minimize_by_parts:cg      the same minimised by conjugate gradient (its line searches on the parts)
     trappe                    inputs/trappe_pe.toml: real units, angles, dihedrals, r-RESPA levels
     trappe:scaled             the same with special_bonds [0, 0.5, 0.5]: the scaled 1-3 and 1-4 pairs
     trappe:charged            the same with charges (CH3 +0.22, CH2 −0.02) and lj/cut/coul/debye (κ = 0.1/Å,
@@ -333,6 +334,8 @@ def case_setup(case):
         return os.path.join(ROOT, "tests", "decks", "chains_by_parts.toml"), 0.005, {"observables.histograms": "true"}
     if case == "minimize_by_parts":  # each rank builds its own molecules, FIRE relaxes them on the parts
         return os.path.join(ROOT, "inputs", "melt_minimize_by_parts.toml"), 0.005, {}
+    if case == "minimize_by_parts:cg":  # the same by conjugate gradient
+        return os.path.join(ROOT, "inputs", "melt_minimize_by_parts.toml"), 0.005, {"minimize.style": '"cg"'}
     if case == "prepare_by_parts":  # each rank builds, prepares ([prepare], [minimize]) and runs its own molecules
         return STIFF_BY_PARTS, 0.005, {}
     if case == "prepare_by_parts:fixman":  # the same with a rigid method, which projects the parts at the start
@@ -640,6 +643,7 @@ def check_straddle_geometry(ref_dir):
 # The cases whose decks a source makes by parts (engine/domain/part_load.hpp, part_source): on
 # several ranks each rank starts from its own molecules (summary.json domains.setup = "parts").
 BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder, minimised by FIRE on the parts,",
+            "minimize_by_parts:cg": "the builder, minimised by CG on the parts,",
             "prepare_by_parts": "the builder, prepared and minimised on the parts,",
             "prepare_by_parts:fixman": "the builder, prepared, minimised and projected on the parts,",
             "charged_pppm": "the builder", "charged_ewald": "the builder",
@@ -654,7 +658,7 @@ BY_PARTS = {"chains_by_parts": "the builder", "minimize_by_parts": "the builder,
 # the data files of kremer_grest and half_melt (counted by one streaming pass:
 # engine/scene/scene.hpp). TraPPE's stiff-harmonic term reads every particle's mass: its deck
 # loads whole.
-DESCRIBED = ("chains_by_parts", "minimize_by_parts", "prepare_by_parts", "prepare_by_parts:fixman", "charged_pppm",
+DESCRIBED = ("chains_by_parts", "minimize_by_parts", "minimize_by_parts:cg", "prepare_by_parts", "prepare_by_parts:fixman", "charged_pppm",
              "charged_ewald", "kremer_grest", "half_melt")
 
 

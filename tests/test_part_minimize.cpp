@@ -1,6 +1,6 @@
 // [minimize] on a decomposed run's parts (DomainIntegrator::minimize, engine/domain/part_minimize.cpp;
-// integrators/minimize.hpp, minimize_fire on MinimizeParts): FIRE on each rank's part, its sums
-// over the particles exact, gives one process's FIRE bit for bit. What must hold, on 1–4 fake
+// integrators/minimize.hpp, minimize on MinimizeParts): FIRE, CG or SD on each rank's part, its
+// sums over the particles exact, gives one process's minimisation bit for bit. What must hold, on 1–4 fake
 // ranks (tests/fake_processes.hpp), each started from a random partition of the molecules:
 //   - a melt built by molecule (inputs/melt_by_molecule.toml made small: its chains overlap), with
 //     the soft start (max_force, dmax), its bonds rigid (rattle) or stiff springs: the positions
@@ -8,9 +8,10 @@
 //     the energies one process's to round-off (bits on one rank);
 //   - the same with a field that drives the molecules across the domains (they migrate within the
 //     minimisation, besides the start's moves);
+//   - the same by the line searches, cg and sd (rigid and not, with the drift): g, h and the
+//     forces travel with the migrating molecules;
 //   - a plain floating-point sum in place of the exact ones does not give one process's bits on
-//     several ranks (what the test would see if the sums were not exact);
-//   - styles cg and sd are refused, naming minimize.style.
+//     several ranks (what the test would see if the sums were not exact), by FIRE and by CG.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -39,10 +40,10 @@ using fake::FakeCommunicator;
 using fake::run_ranks;
 
 // inputs/melt_by_molecule.toml at 12 chains of 16 beads (box ≈ 6.1 σ), its [minimize] as the deck
-// has it with fewer iterations.
-std::vector<std::string> melt_overrides(const std::string& method, long maxiter) {
+// has it with fewer iterations, by `style`.
+std::vector<std::string> melt_overrides(const std::string& method, long maxiter, const std::string& style = "fire") {
   return {"build.0.chains=12", "build.0.beads=16", "integrator.method=" + method,
-          "minimize.maxiter=" + std::to_string(maxiter)};
+          "minimize.maxiter=" + std::to_string(maxiter), "minimize.style=\"" + style + "\""};
 }
 
 Scene melt(const std::vector<std::string>& overrides, bool drift) {
@@ -117,18 +118,21 @@ void expect_same_report(const MinimizeReport& a, const MinimizeReport& b, bool e
 struct Case {
   std::string method;
   bool drift;
+  std::string style = "fire";
+  bool capped = true;  // the deck's soft start; without it CG's directions are conjugate (β > 0)
 };
 void PrintTo(const Case& c, std::ostream* os) {
-  *os << c.method << (c.drift ? " with a drift" : "");
+  *os << c.style << ", " << c.method << (c.drift ? " with a drift" : "") << (c.capped ? "" : ", no force cap");
 }
 
 class PartMinimize : public ::testing::TestWithParam<std::tuple<int, Case>> {};
 
-TEST_P(PartMinimize, IsOneProcesssFireBitForBit) {
+TEST_P(PartMinimize, IsOneProcesssMinimisationBitForBit) {
   const auto [ranks, c] = GetParam();
-  const std::vector<std::string> overrides = melt_overrides(c.method, 400);
+  std::vector<std::string> overrides = melt_overrides(c.method, 400, c.style);
+  if (!c.capped) overrides.push_back("minimize.max_force=0");
   const Minimized serial = one_process(overrides, c.drift);
-  // The deck's soft start acts: forces capped, and FIRE moved the beads apart.
+  // The deck's soft start acts: forces capped, and the minimiser moved the beads apart.
   EXPECT_GT(serial.report.initial_energy, 1e6);
   EXPECT_LT(serial.report.energy, 1e-3 * serial.report.initial_energy);
   EXPECT_EQ(serial.report.rigid, c.method == "rattle");
@@ -151,45 +155,29 @@ TEST_P(PartMinimize, IsOneProcesssFireBitForBit) {
 INSTANTIATE_TEST_SUITE_P(Ranks, PartMinimize,
                          ::testing::Combine(::testing::Values(1, 2, 3, 4),
                                             ::testing::Values(Case{"rattle", false}, Case{"velocity-verlet", false},
-                                                              Case{"rattle", true})),
+                                                              Case{"rattle", true}, Case{"rattle", false, "cg"},
+                                                              Case{"rattle", false, "cg", false},
+                                                              Case{"velocity-verlet", false, "cg", false},
+                                                              Case{"rattle", true, "cg"},
+                                                              Case{"rattle", true, "cg", false},
+                                                              Case{"rattle", true, "sd"})),
                          [](const ::testing::TestParamInfo<std::tuple<int, Case>>& info) {
                            const Case& c = std::get<1>(info.param);
                            std::string m = c.method;
                            std::replace(m.begin(), m.end(), '-', '_');
-                           return std::to_string(std::get<0>(info.param)) + "_ranks_" + m + (c.drift ? "_drift" : "");
+                           return std::to_string(std::get<0>(info.param)) + "_ranks_" + c.style + "_" + m +
+                                  (c.drift ? "_drift" : "") + (c.capped ? "" : "_uncapped");
                          });
 
 // The break the test above must catch: each rank's floating-point sums added over the ranks.
 TEST(PartMinimize, PlainSumsOverTheRanksAreNotOneProcesssBits) {
-  const std::vector<std::string> overrides = melt_overrides("rattle", 400);
-  const Minimized serial = one_process(overrides, false);
-  for (const int ranks : {2, 3}) {
-    const Minimized plain = on_parts(ranks, 1u, overrides, false, SumRule::plain);
-    EXPECT_FALSE(plain.x == serial.x) << ranks << " ranks";
-  }
-}
-
-TEST(PartMinimize, RefusesTheLineSearchStylesNamingTheKey) {
-  for (const char* style : {"cg", "sd"}) {
-    std::vector<std::string> overrides = melt_overrides("rattle", 10);
-    overrides.push_back(std::string("minimize.style=") + style);
-    std::string message;
-    run_ranks(2, [&](const FakeCommunicator& comm) {
-      const test::OneThread rank_thread;
-      Scene sc = melt(overrides, false);
-      State s = sc.state;
-      auto d =
-          std::make_unique<DomainIntegrator>(sc, comm, make_integrator(sc.integrator, *sc.forces, sc.state.inv_mass));
-      d->distribute(s);
-      try {
-        d->minimize(sc.minimize);
-      } catch (const InputError& e) {
-        if (comm.root()) message = e.what();
-      }
-    });
-    EXPECT_NE(message.find("minimize.style"), std::string::npos) << message;
-    EXPECT_NE(message.find(style), std::string::npos) << message;
-    EXPECT_NE(message.find("fire"), std::string::npos) << message;
+  for (const char* style : {"fire", "cg"}) {
+    const std::vector<std::string> overrides = melt_overrides("rattle", 400, style);
+    const Minimized serial = one_process(overrides, false);
+    for (const int ranks : {2, 3}) {
+      const Minimized plain = on_parts(ranks, 1u, overrides, false, SumRule::plain);
+      EXPECT_FALSE(plain.x == serial.x) << style << " on " << ranks << " ranks";
+    }
   }
 }
 

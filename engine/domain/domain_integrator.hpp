@@ -117,11 +117,11 @@ class DomainIntegrator final : public Integrator {
   std::vector<WordRun> word_layout() const;
   bool distributed() const { return part_ != nullptr; }
   // [minimize] on the parts, once distributed (engine/domain/part_minimize.cpp; collective, every
-  // rank with the same p): FIRE moves each rank's particles with its part's forces, its sums
-  // added exactly over the ranks, molecules migrating as in a run. The positions are those
-  // minimize_fire gives on one process for the same state, bit for bit, on any number of ranks
+  // rank with the same p): FIRE, CG or SD moves each rank's particles with its part's forces, its
+  // sums added exactly over the ranks, molecules migrating as in a run. The positions are those
+  // minimize gives on one process for the same state, bit for bit, on any number of ranks
   // (integrators/minimize.hpp); the report is the same on every rank. `progress`: rank 0's
-  // stream (null elsewhere). Styles cg and sd are refused (InputError naming minimize.style).
+  // stream (null elsewhere).
   MinimizeReport minimize(const MinimizeSettings& p, std::ostream* progress = nullptr,
                           const MinimizeObserver& after_move = {}, SumRule rule = SumRule::exact);
   // [prepare] on the parts, once distributed (engine/domain/part_prepare.cpp; collective, every

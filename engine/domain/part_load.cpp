@@ -171,10 +171,7 @@ PartSource part_source(const Deck& deck, const Scene& sc) {
   // effective dynamics takes its actions from the whole state before the start.
   if (find_method(sc.integrator.method)->effective)
     return refused(sc.integrator.method + " takes its actions from the whole state before the start");
-  // [minimize] by FIRE runs on the parts after the start (DomainIntegrator::minimize).
-  if (sc.minimize.requested && sc.minimize.style != MinimizeStyle::fire)
-    return refused(std::string("[minimize] style \"") + style_name(sc.minimize.style) +
-                   "\" acts on the whole state (\"fire\" minimises by parts)");
+  // [minimize] (FIRE, CG or SD) runs on the parts after the start (DomainIntegrator::minimize).
   if (auto v = root.table("velocities"); v && !v->boolean("by_particle", false))
     return refused(
         "[velocities] are drawn from one stream over the particles (by_particle = true draws them by parts)");

@@ -41,11 +41,10 @@ struct PartSource {
 // (chains_part), or from the [import] of a LAMMPS data file (data_file_part) — no [[particles]] or
 // [[bonds]] beside it —; velocities from the source, by particle ([velocities] by_particle = true)
 // or none; nothing that acts on the whole state before the run ([prepare]'s bond vibrations from
-// one stream over the bonds, [minimize] by cg or sd, the effective dynamics, whose actions are
-// taken from the whole state) or hands it on (a staged protocol's stages). [prepare] (its
-// vibrations by_particle), [minimize] with style "fire" and a rigid method's projection onto
-// g = 0 are the Run's, on the parts after the start (DomainIntegrator::prepare_parts, minimize,
-// project_parts). `scene`: the deck's scene as load_scene made it,
+// one stream over the bonds, the effective dynamics, whose actions are taken from the whole
+// state) or hands it on (a staged protocol's stages). [prepare] (its vibrations by_particle),
+// [minimize] and a rigid method's projection onto g = 0 are the Run's, on the parts after the
+// start (DomainIntegrator::prepare_parts, minimize, project_parts). `scene`: the deck's scene as load_scene made it,
 // whole or its description (the settings alone are read).
 PartSource part_source(const Deck& deck, const Scene& scene);
 

@@ -1,11 +1,12 @@
 // [minimize] on a decomposed run's parts (docs/parallel.md, "The set-up by parts"): the soft start
 // that a system built by parts needs (its molecules overlap, engine/scene/chains_by_molecule.hpp)
-// without the whole system on any rank. FIRE (integrators/minimize.hpp, minimize_fire on
+// without the whole system on any rank. FIRE, CG or SD (integrators/minimize.hpp, minimize on
 // MinimizeParts) moves each rank's owned particles with its part's forces — the pair terms on
 // the pair sets with the halo, the bonded terms on the owned molecules — and adds its global
 // numbers over the ranks exactly, so that the positions are one process's bit for bit. Between
-// moves the molecules migrate as in a run's step (DomainIntegrator::reselect), FIRE's per-particle
-// columns (its velocities, the last move, the forces) travelling with them.
+// moves the molecules migrate as in a run's step (DomainIntegrator::reselect), the method's
+// per-particle columns (FIRE's velocities and last move, CG's g and h, the forces) travelling
+// with them.
 #include <algorithm>
 #include <memory>
 #include <stdexcept>
@@ -18,14 +19,8 @@ namespace stiffmd {
 MinimizeReport DomainIntegrator::minimize(const MinimizeSettings& p, std::ostream* progress,
                                           const MinimizeObserver& after_move, SumRule rule) {
   if (!part_) throw std::logic_error("DomainIntegrator::minimize: the parts are not distributed yet");
-  if (p.style != MinimizeStyle::fire) {
-    const std::string& where = whole_scene_.minimize.where;
-    throw InputError((where.empty() ? whole_scene_.deck_path : where) + ": minimize.style: \"" + style_name(p.style) +
-                     "\" acts on the whole system; a run on several ranks minimises by parts with \"fire\" "
-                     "only (or run the minimisation on one process)");
-  }
-  // The part as FIRE sees it: the current part (a migration builds a new one), and after each move
-  // the migration a step would make once the pair sets were selected again.
+  // The part as the minimiser sees it: the current part (a migration builds a new one), and after
+  // each move the migration a step would make once the pair sets were selected again.
   class Parts final : public MinimizeParts {
    public:
     explicit Parts(DomainIntegrator& d) : d_(d), selections_(d.domains_->selections()) {}
@@ -47,7 +42,7 @@ MinimizeReport DomainIntegrator::minimize(const MinimizeSettings& p, std::ostrea
     long selections_;
   };
   Parts parts(*this);
-  const MinimizeReport r = minimize_fire(parts, p, comm_.root() ? progress : nullptr, after_move, rule);
+  const MinimizeReport r = stiffmd::minimize(parts, p, comm_.root() ? progress : nullptr, after_move, rule);
   // The positions changed other than by a step: the integrators forget their cached forces
   // (Integrator::reset). The run's force evaluations count from its first step, as one process's
   // Run counts them after [minimize] (engine/run/run.cpp resets the counters).
