@@ -274,8 +274,8 @@ inline constexpr bool kSplitLogKernel = requires(double r_sq, const typename Ker
 // AVX2 clone once its translation unit grew (FENE on inputs/kremer_grest.toml: 214 M instructions
 // in 100 steps against 144 M inlined, callgrind).
 template <class Kernel, bool kUniform, bool kCounted, bool kCheck = true, bool kEnergy = true, class Params>
-[[gnu::always_inline]] inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p, const double* __restrict counted,
-                         int nb, double& e_t) {
+[[gnu::always_inline]] inline void block_forces(double (&d)[3][kBondBlock], const Params* __restrict p,
+                                                const double* __restrict counted, int nb, double& e_t) {
   static_assert(kEnergy || !kSquaredKernel<Kernel>, "an eval_sq kernel's energy is its domain test");
   // Locals, not e_t: a store the loop could alias would keep it scalar.
   const Params p0 = p[0];

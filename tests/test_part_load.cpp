@@ -171,7 +171,8 @@ TEST(PartSource, PicksTheSourceOrNamesWhyNone) {
   const std::string stream = refusal("inputs/stiff_melt_by_parts.toml", {"prepare.by_particle=false"});
   EXPECT_NE(stream.find("by_particle = true"), std::string::npos) << stream;
   EXPECT_EQ(
-      source("inputs/stiff_melt_by_parts.toml", {"prepare.by_particle=false", "prepare.vibrational_temperature=0"}).make,
+      source("inputs/stiff_melt_by_parts.toml", {"prepare.by_particle=false", "prepare.vibrational_temperature=0"})
+          .make,
       &chains_part);
   // A data file: its [import] read by blocks, with the file's velocities or drawn by particle.
   EXPECT_EQ(source("inputs/half_melt.toml", {}).make, &data_file_part);

@@ -152,22 +152,20 @@ TEST_P(PartMinimize, IsOneProcesssMinimisationBitForBit) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Ranks, PartMinimize,
-                         ::testing::Combine(::testing::Values(1, 2, 3, 4),
-                                            ::testing::Values(Case{"rattle", false}, Case{"velocity-verlet", false},
-                                                              Case{"rattle", true}, Case{"rattle", false, "cg"},
-                                                              Case{"rattle", false, "cg", false},
-                                                              Case{"velocity-verlet", false, "cg", false},
-                                                              Case{"rattle", true, "cg"},
-                                                              Case{"rattle", true, "cg", false},
-                                                              Case{"rattle", true, "sd"})),
-                         [](const ::testing::TestParamInfo<std::tuple<int, Case>>& info) {
-                           const Case& c = std::get<1>(info.param);
-                           std::string m = c.method;
-                           std::replace(m.begin(), m.end(), '-', '_');
-                           return std::to_string(std::get<0>(info.param)) + "_ranks_" + c.style + "_" + m +
-                                  (c.drift ? "_drift" : "") + (c.capped ? "" : "_uncapped");
-                         });
+INSTANTIATE_TEST_SUITE_P(
+    Ranks, PartMinimize,
+    ::testing::Combine(::testing::Values(1, 2, 3, 4),
+                       ::testing::Values(Case{"rattle", false}, Case{"velocity-verlet", false}, Case{"rattle", true},
+                                         Case{"rattle", false, "cg"}, Case{"rattle", false, "cg", false},
+                                         Case{"velocity-verlet", false, "cg", false}, Case{"rattle", true, "cg"},
+                                         Case{"rattle", true, "cg", false}, Case{"rattle", true, "sd"})),
+    [](const ::testing::TestParamInfo<std::tuple<int, Case>>& info) {
+      const Case& c = std::get<1>(info.param);
+      std::string m = c.method;
+      std::replace(m.begin(), m.end(), '-', '_');
+      return std::to_string(std::get<0>(info.param)) + "_ranks_" + c.style + "_" + m + (c.drift ? "_drift" : "") +
+             (c.capped ? "" : "_uncapped");
+    });
 
 // The break the test above must catch: each rank's floating-point sums added over the ranks.
 TEST(PartMinimize, PlainSumsOverTheRanksAreNotOneProcesssBits) {
