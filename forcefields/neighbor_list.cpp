@@ -813,6 +813,11 @@ void NeighborList::set_ghosts(std::span<const char> ghost) {
   ghost_.assign(ghost.begin(), ghost.end());
 }
 
+void NeighborList::set_ghost_pairs_once(bool once) {
+  if (once != ghost_once_) built_ = false;
+  ghost_once_ = once;
+}
+
 bool NeighborList::excluded(int i, int j) const {
   // Rows hold a handful of bonded neighbours: a linear scan beats a search.
   for (int k = excl_offsets_[i]; k < excl_offsets_[i + 1]; ++k)
@@ -927,7 +932,6 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
   };
   const bool have_exclusions = !excl_.empty();
   for (const int i : fast) {
-    const bool i_ghost = !ghost_.empty() && ghost_[i];  // a ghost's partners: owned ones
     // i's cell now, in the build's grid: its position in the build's image frame, wrapped back into
     // the box on periodic axes (it may have left it by up to the skin), clamped on open ones.
     int c[3];
@@ -950,7 +954,7 @@ bool NeighborList::fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const 
           const int cell = (gx * ny + gy) * nz + gz;
           for (int k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k) {
             const int j = cell_particles_[k];
-            if (j == i || (i_ghost && ghost_[j])) continue;
+            if (j == i || left_out(i, j)) continue;
             double dx, dy, dz;
             if (images_stored_)
               dx = xi[0] - (x(0, j) - image_(0, j)), dy = xi[1] - (x(1, j) - image_(1, j)),
@@ -1204,6 +1208,7 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
   const int z_face = (ncell_[2] - window_first_[2]) % ncell_[2];
   // With halo flags each cell's home beads are a prefix of its range, cell_home_ long (bin).
   const bool halo = !ghost_.empty();
+  const bool once = halo && ghost_once_;
   // Threads take contiguous runs of columns (cx, cy) in the search order, of about equal particle
   // counts: slabs of whole x-planes balanced poorly (23 planes on data.chain: 12 against 11).
   const int columns = nx * ny;
@@ -1307,6 +1312,10 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
         search_columns_portable(part);
     }
     pair_count_[u] = part.used;
+    // With the ghost pairs once, a pair whose lower index is a ghost is left out (see the top of
+    // neighbor_list.hpp): the ghosts' rows counted empty here, and their pairs skipped below.
+    if (once)
+      for (int i = 0; i < n; ++i) row_count[i] &= ghost_[i] ? 0 : ~0;
   });
 
   // The pairs into CSR rows by i: a counting sort of the parts' buffers in part order
@@ -1319,6 +1328,12 @@ void NeighborList::search_half_stencil(int n, bool have_exclusions) {
     const int* pi = pair_i_[u].data();
     const int* pj = pair_j_[u].data();
     int* to = neighbors_.data();
+    if (once) {
+      const char* ghost = ghost_.data();
+      for (std::size_t p = 0; p < pair_count_[u]; ++p)
+        if (!ghost[pi[p]]) to[cursor.slot(pi[p])] = pj[p];
+      return;
+    }
     for (std::size_t p = 0; p < pair_count_[u]; ++p) to[cursor.slot(pi[p])] = pj[p];
   });
   // Each row in increasing j: the pairs of a particle are then summed in an order that depends
@@ -1381,7 +1396,7 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
             double dx = xi - cxs[k], dy = yi - cys[k], dz = zi - czs[k];
             mi.apply(dx, dy, dz);
             if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])) &&
-                !(i_ghost && ghost_[cp[k]]))
+                !(i_ghost && (ghost_once_ || ghost_[cp[k]])))
               neighbors_.push_back(cp[k]);
           }
         }
@@ -1420,7 +1435,7 @@ void NeighborList::search_all_pairs(int n, const MinimumImage& mi, bool have_exc
       for (int h = 0; h < count; ++h) {
         const int j = hit[h];
         hit[kept] = j;
-        kept += !(may_exclude && excluded(i, j)) && !(i_ghost && ghost_[j]);
+        kept += !(may_exclude && excluded(i, j)) && !(i_ghost && (ghost_once_ || ghost_[j]));
       }
       count = kept;
     }

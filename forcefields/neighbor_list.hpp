@@ -21,7 +21,11 @@
 // particles first, then their ghosts; an owned particle's row is searched as without ghosts, a
 // ghost's only against the owned particles of the forward cells, each pair as the search without
 // ghosts tests it. Every other pair is listed, as without ghosts: the list is the one without
-// ghosts less its pairs of two ghosts, row by row.
+// ghosts less its pairs of two ghosts, row by row. With the ghost pairs once (set_ghost_pairs_once:
+// a decomposed run whose pairs of an owned particle and a ghost are computed on one rank only, the
+// ghost's forces sent back) a pair i < j with ghost i is left out too: the rows of the ghosts are
+// empty, so of a pair of two ranks' owned particles only the rank owning the lower index (the
+// particle sets are in increasing global index) lists it.
 //
 // Each row is sorted (increasing j), and the pair loop reads positions wrapped at the call: a
 // particle's pair forces are then the same sums, bit for bit, whenever and on whichever particle
@@ -29,6 +33,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <functional>
@@ -200,6 +205,11 @@ class NeighborList {
   // to rebuild. Throws std::invalid_argument for a flag other than 0 or 1.
   void set_ghosts(std::span<const char> ghost);
   const std::vector<char>& ghosts() const { return ghost_; }
+  // From the next build on, also no pair i < j with ghost i (see the top): each pair of an owned
+  // particle and a ghost is listed by one of the two ranks that hold both. A change forces the
+  // next update to rebuild.
+  void set_ghost_pairs_once(bool once);
+  bool ghost_pairs_once() const { return ghost_once_; }
 
   // Rebuilds the list if it may miss a pair within the cutoff (never built, another particle count
   // or box, or the test above); returns whether it rebuilt. The decision is a function of x and
@@ -282,8 +292,14 @@ class NeighborList {
   void bin(const Eigen::Matrix3Xd& x, const Box& box);
   bool excluded(int i, int j) const;
   bool listed(int i, int j) const;  // (i, j) in the list (i ≠ j, either order)
+  // Whether the ghosts leave the pair (i, j) out of every build: two ghosts, or with the ghost
+  // pairs once a ghost as the lower index.
+  bool left_out(int i, int j) const {
+    if (ghost_.empty()) return false;
+    return (ghost_[i] && ghost_[j]) || (ghost_once_ && ghost_[std::min(i, j)]);
+  }
   // The fast particles' check (see the top): whether some fast particle i of `fast` has a partner
-  // j, not excluded, not a ghost as i is, and not listed, with |x_i − x_j| < cutoff (minimum
+  // j, not excluded, not a pair the ghosts leave out (left_out), and not listed, with |x_i − x_j| < cutoff (minimum
   // image) at x.
   bool fast_particle_misses_a_pair(const Eigen::Matrix3Xd& x, const Box& box, const std::vector<int>& fast) const;
 
@@ -297,6 +313,7 @@ class NeighborList {
   int next_verdict_ = -1;            // set_next_verdict's, for the next update only (−1: none)
   double displacement_limit_ = 0.0;  // set_displacement_limit's (0: the skin)
   std::vector<char> ghost_;          // set_ghosts (empty: none)
+  bool ghost_once_ = false;          // set_ghost_pairs_once
   std::vector<int> cell_home_;       // with ghosts, per cell: its particles that are not (a prefix)
   std::vector<int> key_start_;       // with ghosts, bin's scratch: the starts by (cell, flag)
 

@@ -140,6 +140,14 @@ inline void add_pair_diagonal(ExactDiagonal& w, double fpair, double dx, double 
   w.axis[2].add(0.5 * fpair * dz * dz, halves);
 }
 
+// The ghost flags by which a pair with a ghost counts half in this process's sums (kShares), or
+// null where every listed pair counts whole: no ghosts, or the ghost pairs once
+// (NeighborList::set_ghost_pairs_once: such a pair is evaluated by one process only, which counts
+// it whole).
+inline const char* list_share_flags(const NeighborList& list) {
+  return list.ghosts().empty() || list.ghost_pairs_once() ? nullptr : list.ghosts().data();
+}
+
 // One pair's share (1, or ½ for a pair with a ghost: kShares) of the energy, the Coulomb part
 // (charged kernels), the virial and its diagonal, into sums. A share of 1 adds the values
 // themselves (× 1 is exact): one process's sums are the plain ones.
@@ -169,7 +177,7 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
   const double* xp = xw.data();
   const std::int64_t* offset = list.offsets().data();
   const int* nbr = list.neighbors().data();
-  const char* ghost = kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr;
+  const char* ghost = kShares ? list_share_flags(list) : nullptr;
   PairSums sums;
   for (int i = first; i < last; ++i) {
     const bool i_ghost = ghost && ghost[i];
@@ -1117,8 +1125,7 @@ PairSums accumulate_pairs(NeighborList& list, std::span<const SpecialPair> scale
   // the pair terms wrapped positions (NeighborList::set_positions_wrapped), and the same positions
   // give the same bits.
   const PairSums special = accumulate_scaled_pairs<Kernel, kForces, kVirial, kShares, kEnergy>(
-      scaled, params, type, xl, MinimumImage(box), f,
-      kShares && !list.ghosts().empty() ? list.ghosts().data() : nullptr, charges);
+      scaled, params, type, xl, MinimumImage(box), f, kShares ? list_share_flags(list) : nullptr, charges);
   PairSums total;
   total.energy = listed.energy + special.energy;
   total.coulomb = listed.coulomb + special.coulomb;

@@ -73,6 +73,9 @@ class PairsOnParticles {
   virtual void update_list(const Eigen::Matrix3Xd& x, const Box& box) = 0;
   // The positions it is given are wrapped into the box (NeighborList::set_positions_wrapped).
   virtual void set_positions_wrapped(bool wrapped) = 0;
+  // Each pair of a particle and a ghost evaluated by one process only, counted whole there
+  // (NeighborList::set_ghost_pairs_once); its special pairs are then given that way too.
+  virtual void set_ghost_pairs_once(bool once) = 0;
 };
 
 // What a charged pair term needs besides an uncharged one's inputs.
@@ -212,6 +215,7 @@ class PairTerm final : public ForceTerm,
     list_.set_rebuild_agreement(std::move(agree));
   }
   void set_positions_wrapped(bool wrapped) override { list_.set_positions_wrapped(wrapped); }
+  void set_ghost_pairs_once(bool once) override { list_.set_ghost_pairs_once(once); }
   bool list_stale(const Eigen::Matrix3Xd& x, const Box& box) const override { return list_.needs_rebuild(x, box); }
   void set_next_list_verdict(bool stale) override { list_.set_next_verdict(stale); }
   void set_displacement_limit(double limit) override { list_.set_displacement_limit(limit); }

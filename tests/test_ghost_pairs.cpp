@@ -167,6 +167,44 @@ TEST(GhostPairs, ListIsTheFullListLessThePairsOfTwoGhostsRowByRow) {
     }
 }
 
+// With the ghost pairs once (a decomposed run's [parallel] halo_pairs = "once": each pair of a
+// home bead and a halo bead computed by one of the two ranks that hold both) a pair i < j is
+// listed only where i is not a ghost: the ghosts' rows are empty, every other row is the full
+// list's. Both kinds of pair of a home bead and a ghost occur (the ghost's index below and above
+// the home bead's), so a list that kept or dropped them all fails. Switching it off rebuilds the
+// list with ghosts as before.
+TEST(GhostPairs, WithTheGhostPairsOnceTheGhostsRowsAreEmptyAndTheOthersFull) {
+  std::size_t home_below = 0, home_above = 0;  // over the cases: the ghosts interleaved give the second
+  for (const Case& c : kCases)
+    for (const int threads : {1, 2, 3}) {
+      SCOPED_TRACE(testing::Message() << c.name << ", " << threads << " thread(s)");
+      const ThreadCount scope(threads);
+      const System s = lattice(c.m, c.periodic, c.scatter, 3, c.interleave);
+      NeighborList full = make_list(s), once = make_list(s, true), ghosts = make_list(s, true);
+      once.set_ghost_pairs_once(true);
+      EXPECT_TRUE(once.ghost_pairs_once());
+      full.build(s.x, s.box);
+      once.build(s.x, s.box);
+      ghosts.build(s.x, s.box);
+      for (int i = 0; i < s.size(); ++i) {
+        std::vector<int> expected;
+        if (!s.is_ghost(i)) expected = row(full, i);
+        for (const int j : row(full, i))
+          if (s.is_ghost(i) != s.is_ghost(j)) ++(s.is_ghost(i) ? home_above : home_below);
+        ASSERT_EQ(row(once, i), expected) << "row " << i;
+      }
+      std::size_t listed_with_ghost_row = 0;
+      for (int i = 0; i < s.size(); ++i)
+        if (s.is_ghost(i)) listed_with_ghost_row += row(ghosts, i).size();
+      EXPECT_EQ(once.num_pairs() + listed_with_ghost_row, ghosts.num_pairs());
+      once.set_ghost_pairs_once(false);
+      EXPECT_TRUE(once.update(s.x, s.box)) << "a change of the rule rebuilds";
+      for (int i = 0; i < s.size(); ++i) ASSERT_EQ(row(once, i), row(ghosts, i)) << "row " << i;
+    }
+  EXPECT_GT(home_below, 0u) << "pairs of a home bead and a ghost of a higher index";
+  EXPECT_GT(home_above, 0u) << "pairs of a ghost and a home bead of a higher index";
+}
+
 // A rank's pair set (docs/parallel.md, "The design"): a melt of uniform random positions at
 // density 0.85 in a box of side 30, cut into the domains of `grid`; the pair set of `domain` is
 // every bead within R = r_c + margin of it (DomainGrid::within), in increasing global index, the

@@ -555,6 +555,41 @@ void make_all_and_home_runs(std::span<const int> from, std::span<const int> to, 
   make_all_and_home_runs_of<false, true>(nullptr, to.data(), home.data(), count, all, homes);
 }
 
+// The runs of the pairs (from[m], to[m]) for the m without home[m], positions among those: the
+// halo beads' part of a plan (the halo pairs once). An empty from or to: the position.
+void make_halo_runs(std::span<const int> from, std::span<const int> to, std::span<const char> home, std::size_t count,
+                    std::vector<ColumnRun>& halos) {
+  halos.clear();
+  ColumnRun h{0, 0, 0};
+  int position = 0;
+  for (std::size_t m = 0; m < count; ++m) {
+    if (home[m]) continue;
+    const int f = from.empty() ? position : from[m], t = to.empty() ? position : to[m];
+    ++position;
+    if (h.count > 0 && h.from + h.count == f && h.to + h.count == t) {
+      ++h.count;
+      continue;
+    }
+    if (h.count > 0) halos.push_back(h);
+    h = {f, t, 1};
+  }
+  if (h.count > 0) halos.push_back(h);
+}
+
+// Columns run.to … of `source` added onto run.from … of `target` (reverse's direction), run by
+// run in order: the halo pairs once's partial forces onto their owners' forces.
+void add_runs_backwards(std::span<const ColumnRun> runs, const double* __restrict source, double* __restrict target) {
+  for (const ColumnRun& run : runs) {
+    const double* from = source + 3 * static_cast<std::ptrdiff_t>(run.to);
+    double* to = target + 3 * static_cast<std::ptrdiff_t>(run.from);
+    if (run.count == 1) {  // most halo runs: a lone halo bead between home beads
+      to[0] += from[0], to[1] += from[1], to[2] += from[2];
+      continue;
+    }
+    for (int q = 0; q < 3 * run.count; ++q) to[q] += from[q];
+  }
+}
+
 // The copies by runs. A run of `count` columns is 3 × count consecutive doubles on both sides, so
 // it is copied as one stretch of doubles, four at a time (AVX2, where the CPU has it: one load and
 // one store per four doubles, the last four overlapping the ones before where the stretch is not a
@@ -790,8 +825,10 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   // The runs of owned columns each rank is sent (sender's side of the plan): the carried words
   // of consecutive owned beads are consecutive (owned_words_), so a message's data is copied by
   // these runs.
-  for (int r = 0; r < ranks; ++r)
+  for (int r = 0; r < ranks; ++r) {
     make_all_and_home_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].all, out_[r].home_runs);
+    if (halo_pairs_once_) make_halo_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].halo_runs);
+  }
   // The receivers learn which beads come, which are home, and what they carry. A message is
   // [n][per pair term, its partners' count over the n beads][n words: a global index g as g
   // (home) or −1 − g (halo)][the n beads' carried words (pack_bead_data), in the same order].
@@ -990,15 +1027,18 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   }
   // The copies' runs.
   make_all_and_home_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.all, local_.home_runs);
-  for (int r = 0; r < ranks; ++r)
+  if (halo_pairs_once_) make_halo_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.halo_runs);
+  for (int r = 0; r < ranks; ++r) {
     make_all_and_home_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].all, in_[r].home_runs);
+    if (halo_pairs_once_) make_halo_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].halo_runs);
+  }
   // What one evaluation with forces sends: positions out (and the forces so far of the home
-  // beads), the home beads' forces back.
+  // beads), the home beads' forces back (with the halo pairs once, every bead's).
   halo_doubles_ = 0;
   halo_messages_ = 0;
   for (int r = 0; r < ranks; ++r) {
     const std::int64_t out = 3 * static_cast<std::int64_t>(out_[r].owned.size() + out_[r].homes);
-    const std::int64_t back = 3 * static_cast<std::int64_t>(in_[r].homes);
+    const std::int64_t back = 3 * static_cast<std::int64_t>(halo_pairs_once_ ? in_[r].slot.size() : in_[r].homes);
     halo_doubles_ += out + back;
     halo_messages_ += (out > 0) + (back > 0);
   }
@@ -1093,15 +1133,24 @@ void Decomposition::reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& ow
   copy_runs(local_.home_runs, pair_f.data(), owned_f.data(), true);
   std::vector<std::vector<double>>& send = send_buffer_[kForces];
   std::vector<std::vector<double>>& recv = recv_buffer_[kForces];
+  // A message: the home beads' forces, then (halo pairs once) the halo beads' pair forces.
   for (int r = 0; r < ranks; ++r) {
     const Plan& p = in_[r];
     std::vector<double>& b = send[r];
-    resize_with_room(b, 3 * static_cast<size_t>(p.homes));
+    const std::size_t homes = 3 * static_cast<std::size_t>(p.homes);
+    resize_with_room(b, halo_pairs_once_ ? 3 * p.slot.size() : homes);
     copy_runs(p.home_runs, pair_f.data(), b.data(), true);
-    resize_with_room(recv[r], 3 * static_cast<size_t>(out_[r].homes));
+    if (halo_pairs_once_) copy_runs(p.halo_runs, pair_f.data(), b.data() + homes, true);
+    resize_with_room(recv[r], 3 * (halo_pairs_once_ ? out_[r].owned.size() : static_cast<size_t>(out_[r].homes)));
   }
   comm_.exchange_known(send, recv);
   for (int r = 0; r < ranks; ++r) copy_runs(out_[r].home_runs, recv[r].data(), owned_f.data(), true);
+  if (!halo_pairs_once_) return;
+  // Each bead's force is now its home's; its pair forces as a halo bead added in a fixed order:
+  // this rank's pair set's, then rank by rank.
+  add_runs_backwards(local_.halo_runs, pair_f.data(), owned_f.data());
+  for (int r = 0; r < ranks; ++r)
+    add_runs_backwards(out_[r].halo_runs, recv[r].data() + 3 * static_cast<size_t>(out_[r].homes), owned_f.data());
 }
 
 void Decomposition::gather_columns(const std::vector<const Eigen::Matrix3Xd*>& local,

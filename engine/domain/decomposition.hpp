@@ -90,6 +90,7 @@ DomainGrid balanced_grid(const DomainGrid& g, const std::vector<double>& histogr
 struct DomainReport {
   int ranks = 1;
   Eigen::Vector3i grid = Eigen::Vector3i::Ones();
+  bool halo_pairs_once = false;         // [parallel] halo_pairs = "once"
   double ghosts_per_owned = 0.0;        // halo beads per home bead (all ranks), at the last selection
   std::int64_t neighbor_pairs = 0;      // the pairs in the ranks' lists as last built, summed
   double halo_bytes_per_step = 0.0;     // all ranks, one halo
@@ -153,6 +154,13 @@ class Decomposition {
 
   // When the domains are recut (off unless set; before the start).
   void set_balance(const BalanceSettings& b) { balance_ = b; }
+  // Halo pairs once ([parallel] halo_pairs = "once"; before the first selection): a pair of a home
+  // bead and a halo bead is computed on one of the two homes (NeighborList::set_ghost_pairs_once),
+  // and reverse sends the halo beads' pair forces back too, each added onto its owner's force after
+  // the home's, in a fixed order (the local pair set's, then rank by rank). Off: each home computes
+  // its beads' pairs whole, one process's sums (the default).
+  void set_halo_pairs_once(bool once) { halo_pairs_once_ = once; }
+  bool halo_pairs_once() const { return halo_pairs_once_; }
   // The start, from any partition of whole molecules: this rank's `molecules` (particles by
   // increasing global index, with their inverse masses and bonded items) at x, v. Each owned
   // molecule (a component of its items, named by its first global index) is anchored at its
@@ -203,7 +211,8 @@ class Decomposition {
   void forward(const Eigen::Matrix3Xd& owned, Eigen::Matrix3Xd& pair, const Eigen::Matrix3Xd* owned_f = nullptr,
                Eigen::Matrix3Xd* pair_f = nullptr) const;
   // Each owned bead's force from its home's pair-set array `pair_f` into owned_f (replacing it:
-  // the home added the pair forces onto the owner's). Collective.
+  // the home added the pair forces onto the owner's); with the halo pairs once, then each pair
+  // set's force on it as a halo bead added. Collective.
   void reverse(const Eigen::Matrix3Xd& pair_f, Eigen::Matrix3Xd& owned_f) const;
   // Rank 0 gets every rank's owned columns of each array into a 3 × N array by global index (the
   // others get nothing). Collective: one gather per `block` consecutive global indices, so that
@@ -278,6 +287,7 @@ class Decomposition {
   bool have_dims_ = false;
   double radius_, margin_;
   BalanceSettings balance_;
+  bool halo_pairs_once_ = false;
   double imbalance_before_ = 1.0;
   long recuts_ = 0;
 
@@ -305,9 +315,10 @@ class Decomposition {
     std::vector<int> owned, slot;  // sender: owned index; receiver: pair slot
     std::vector<char> home;
     int homes = 0;
-    // Sender: owned column → message position (all; the home ones among the home ones).
-    // Receiver: message position → slot. local_: owned column → slot.
-    std::vector<Run> all, home_runs;
+    // Sender: owned column → message position (all; the home ones among the home ones; the halo
+    // ones among the halo ones, made with the halo pairs once). Receiver: message position → slot.
+    // local_: owned column → slot.
+    std::vector<Run> all, home_runs, halo_runs;
   };
   std::vector<Plan> out_, in_;
   Plan local_;  // owned index and slot together

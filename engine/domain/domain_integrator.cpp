@@ -109,6 +109,7 @@ std::unique_ptr<Decomposition> DomainIntegrator::make_domains() const {
   auto domains = std::make_unique<Decomposition>(whole.forces->box(), comm_, cutoff,
                                                  cutoff > 0.0 ? halo_margin(whole, skin, cutoff) : 0.0, dims);
   domains->set_balance(whole.parallel.balance);
+  domains->set_halo_pairs_once(whole.parallel.halo_pairs_once);
   return domains;
 }
 
@@ -646,6 +647,7 @@ DomainReport DomainIntegrator::report() const {
                  static_cast<double>(domains_->migrated_molecules()),
                  static_cast<double>(listed)};
   comm_.sum(v, 6);
+  r.halo_pairs_once = domains_->halo_pairs_once();
   r.ghosts_per_owned = v[1] > 0.0 ? v[0] / v[1] : 0.0;
   r.halo_bytes_per_step = v[2];
   r.halo_messages_per_step = v[3];

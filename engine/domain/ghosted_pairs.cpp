@@ -50,6 +50,7 @@ GhostedPairs::GhostedPairs(const ForceTerm& whole_term, Decomposition& domains, 
   // Decomposition::forward writes the pair set's positions wrapped into the box, as the pair loop
   // reads them: the list makes no wrapped copy of its own.
   extended_pairs_->set_positions_wrapped(true);
+  extended_pairs_->set_ghost_pairs_once(domains.halo_pairs_once());
   // Until its first build (forward): past (R − r_c)/2 since the selection the pair set may miss a
   // pair within r_c.
   extended_pairs_->set_displacement_limit(0.5 * (domains.radius() - template_.pair_cutoff()));
@@ -109,6 +110,9 @@ void GhostedPairs::retarget() const {
   // within R are all here, and a pair of two halo beads is not evaluated. Made in (i, j) order: by
   // slot i, then its partners j > i (carried in increasing global index, so in increasing slots).
   // Made in the term's own storage and handed back to it: the term's list is their only copy.
+  // With the halo pairs once, a pair of a home bead and a halo bead only where the home bead has
+  // the lower slot (global index), as the list takes them (NeighborList::set_ghost_pairs_once).
+  const bool once = domains_.halo_pairs_once();
   std::vector<SpecialPair> special = extended_pairs_->take_special_pairs();
   const SpecialPartners& s = carried.special[special_index_];
   const std::vector<int>& ids = domains_.pair_ids();
@@ -117,7 +121,10 @@ void GhostedPairs::retarget() const {
       // A partner of a lower global index has a lower slot, if any: its pair is made from there.
       if (s.partner[q] < ids[e]) continue;
       const int t = domains_.pair_slot_near(s.partner[q], e);
-      if (t > e && (!halo[e] || !halo[t])) special.push_back({e, t, s.weight[q], s.weight_coul[q]});
+      if (t > e && !halo[e])
+        special.push_back({e, t, s.weight[q], s.weight_coul[q]});
+      else if (t > e && !once && !halo[t])
+        special.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
   }
   // A charged term's charges follow the beads as their types do.

@@ -32,6 +32,9 @@ void refuse_parallel_keys(const Scene& sc, const EnsembleJob& job) {
   if (!sc.parallel.halo_margin_where.empty())
     throw InputError(sc.parallel.halo_margin_where + ": the halo of one run divided among ranks" + why +
                      "halo_margin (without [ensemble] one run is divided)");
+  if (!sc.parallel.halo_pairs_where.empty())
+    throw InputError(sc.parallel.halo_pairs_where + ": the halo of one run divided among ranks" + why +
+                     "halo_pairs (without [ensemble] one run is divided)");
   if (!sc.parallel.balance_where.empty())
     throw InputError(sc.parallel.balance_where + ": the domains of one run divided among ranks" + why +
                      "balance (without [ensemble] one run is divided)");

@@ -70,10 +70,10 @@ std::string format_summary(const RunSummary& s) {
     const DomainReport& d = s.domains;
     o << "ranks:         " << d.ranks << " (domains " << d.grid[0] << " x " << d.grid[1] << " x " << d.grid[2]
       << "), step loop max " << s.rank_loop_seconds_max << " s, mean " << s.rank_loop_seconds_mean << " s; "
-      << d.ghosts_per_owned << " halo beads per home bead, halo " << d.halo_bytes_per_step << " bytes in "
-      << d.halo_messages_per_step << " messages; " << d.redistributions << " redistributions moved "
-      << d.migrated_molecules << " molecules; home beads max/mean " << d.imbalance_before
-      << " on equal slabs at the start, " << d.imbalance_after << " at the end (" << d.recuts
+      << d.ghosts_per_owned << " halo beads per home bead" << (d.halo_pairs_once ? " (their pairs once)" : "")
+      << ", halo " << d.halo_bytes_per_step << " bytes in " << d.halo_messages_per_step << " messages; "
+      << d.redistributions << " redistributions moved " << d.migrated_molecules << " molecules; home beads max/mean "
+      << d.imbalance_before << " on equal slabs at the start, " << d.imbalance_after << " at the end (" << d.recuts
       << (d.recuts == 1 ? " recut)" : " recuts)");
     if (s.h5md_writers > 0) o << "; H5MD written by " << s.h5md_writers << (s.h5md_writers > 1 ? " ranks" : " rank");
     o << "\n";
@@ -159,7 +159,8 @@ std::string summary_json(const RunSummary& s) {
       << ", \"exchange_seconds_mean\": " << s.rank_exchange_seconds_mean
       << ", \"exchange_seconds_max\": " << s.rank_exchange_seconds_max
       << ", \"reduction_seconds_mean\": " << s.rank_reduction_seconds_mean
-      << ", \"reduction_seconds_max\": " << s.rank_reduction_seconds_max
+      << ", \"reduction_seconds_max\": " << s.rank_reduction_seconds_max << ", \"halo_pairs\": \""
+      << (d.halo_pairs_once ? "once" : "both") << "\""
       << ", \"ghosts_per_owned\": " << d.ghosts_per_owned << ", \"halo_bytes_per_step\": " << d.halo_bytes_per_step
       << ", \"halo_messages_per_step\": " << d.halo_messages_per_step << ", \"redistributions\": " << d.redistributions
       << ", \"migrated_molecules\": " << d.migrated_molecules

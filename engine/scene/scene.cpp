@@ -518,7 +518,7 @@ void warn_projected_vibrations(DeckTable& root, Scene& sc) {
 // to that n). Anything else would end past t_end — one step to t = 0.5 when t_end = 0.1 — so it is
 // refused, naming the nearest valid end times.
 // [parallel] grid = [px, py, pz] (each ≥ 1; their product must be the number of ranks, checked
-// when the run starts on them), halo_margin > 0 (a length), balance and balance_threshold.
+// when the run starts on them), halo_margin > 0 (a length), halo_pairs, balance and balance_threshold.
 void read_parallel(DeckTable& root, Scene& sc) {
   auto t = root.table("parallel");
   if (!t) return;
@@ -533,6 +533,15 @@ void read_parallel(DeckTable& root, Scene& sc) {
     sc.parallel.halo_margin_where = t->where("halo_margin");
     t->require(std::isfinite(*m) && *m > 0.0, "halo_margin", "expected a length > 0");
     sc.parallel.halo_margin = *m;  // lengths are the same in every unit system (σ or Å)
+  }
+  // halo_pairs = "both" | "once": where a pair of a home bead and a halo bead is computed.
+  if (t->has("halo_pairs")) {
+    sc.parallel.halo_pairs_where = t->where("halo_pairs");
+    const std::string pairs = t->string("halo_pairs");
+    t->require(pairs == "both" || pairs == "once", "halo_pairs",
+               "expected \"both\" (each bead's home computes its pairs: one process's bits) or \"once\" (each "
+               "pair on one rank, the halo's forces sent back)");
+    sc.parallel.halo_pairs_once = pairs == "once";
   }
   // balance = "off" | "start" | "dynamic", balance_threshold >= 1 (the measure's max/mean).
   if (t->has("balance")) {
