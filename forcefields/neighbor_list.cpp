@@ -1396,7 +1396,7 @@ void NeighborList::search_small_box(int n, const MinimumImage& mi, bool have_exc
             double dx = xi - cxs[k], dy = yi - cys[k], dz = zi - czs[k];
             mi.apply(dx, dy, dz);
             if (dx * dx + dy * dy + dz * dz < rlist2 && !(may_exclude && excluded(i, cp[k])) &&
-                !(i_ghost && (ghost_once_ || ghost_[cp[k]])))
+                !(i_ghost && left_out(i, cp[k])))
               neighbors_.push_back(cp[k]);
           }
         }
@@ -1435,7 +1435,7 @@ void NeighborList::search_all_pairs(int n, const MinimumImage& mi, bool have_exc
       for (int h = 0; h < count; ++h) {
         const int j = hit[h];
         hit[kept] = j;
-        kept += !(may_exclude && excluded(i, j)) && !(i_ghost && (ghost_once_ || ghost_[j]));
+        kept += !(may_exclude && excluded(i, j)) && !(i_ghost && left_out(i, j));
       }
       count = kept;
     }

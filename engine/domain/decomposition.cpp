@@ -522,13 +522,17 @@ void resize_with_room(std::vector<T>& v, std::size_t n) {
 // The runs of the pairs (from[m], to[m]) for every m (`all`) and for the m with home[m] (`homes`),
 // in one pass: the longest stretches where both go up by one from one m to the next. An absent
 // `from` or `to` stands for the position of m among all (for `all`) or among the home ones (for
-// `homes`). The runs being made are kept in registers and stored when the next one starts.
+// `homes`). With `halos` (the halo pairs once) also the runs of the m without home[m], an absent
+// side their position among those. The runs being made are kept in registers and stored when the
+// next one starts.
 template <bool kFrom, bool kTo>
 void make_all_and_home_runs_of(const int* from, const int* to, const char* home, std::size_t count,
-                               std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes) {
+                               std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes,
+                               std::vector<ColumnRun>* halos) {
   all.clear(), homes.clear();
-  ColumnRun a{0, 0, 0}, h{0, 0, 0};
-  int position = 0;
+  if (halos) halos->clear();
+  ColumnRun a{0, 0, 0}, h{0, 0, 0}, g{0, 0, 0};
+  int position = 0, halo_position = 0;
   const auto extend = [](ColumnRun& run, int f, int t, std::vector<ColumnRun>& runs) {
     if (run.count > 0 && run.from + run.count == f && run.to + run.count == t) return void(++run.count);
     if (run.count > 0) runs.push_back(run);
@@ -540,40 +544,24 @@ void make_all_and_home_runs_of(const int* from, const int* to, const char* home,
     if (home[m]) {
       extend(h, kFrom ? f : position, kTo ? t : position, homes);
       ++position;
+    } else if (halos) {
+      extend(g, kFrom ? f : halo_position, kTo ? t : halo_position, *halos);
+      ++halo_position;
     }
   }
   if (a.count > 0) all.push_back(a);
   if (h.count > 0) homes.push_back(h);
+  if (halos && g.count > 0) halos->push_back(g);
 }
 
 void make_all_and_home_runs(std::span<const int> from, std::span<const int> to, std::span<const char> home,
-                            std::size_t count, std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes) {
+                            std::size_t count, std::vector<ColumnRun>& all, std::vector<ColumnRun>& homes,
+                            std::vector<ColumnRun>* halos) {
   if (!from.empty() && !to.empty())
-    return make_all_and_home_runs_of<true, true>(from.data(), to.data(), home.data(), count, all, homes);
+    return make_all_and_home_runs_of<true, true>(from.data(), to.data(), home.data(), count, all, homes, halos);
   if (!from.empty())
-    return make_all_and_home_runs_of<true, false>(from.data(), nullptr, home.data(), count, all, homes);
-  make_all_and_home_runs_of<false, true>(nullptr, to.data(), home.data(), count, all, homes);
-}
-
-// The runs of the pairs (from[m], to[m]) for the m without home[m], positions among those: the
-// halo beads' part of a plan (the halo pairs once). An empty from or to: the position.
-void make_halo_runs(std::span<const int> from, std::span<const int> to, std::span<const char> home, std::size_t count,
-                    std::vector<ColumnRun>& halos) {
-  halos.clear();
-  ColumnRun h{0, 0, 0};
-  int position = 0;
-  for (std::size_t m = 0; m < count; ++m) {
-    if (home[m]) continue;
-    const int f = from.empty() ? position : from[m], t = to.empty() ? position : to[m];
-    ++position;
-    if (h.count > 0 && h.from + h.count == f && h.to + h.count == t) {
-      ++h.count;
-      continue;
-    }
-    if (h.count > 0) halos.push_back(h);
-    h = {f, t, 1};
-  }
-  if (h.count > 0) halos.push_back(h);
+    return make_all_and_home_runs_of<true, false>(from.data(), nullptr, home.data(), count, all, homes, halos);
+  make_all_and_home_runs_of<false, true>(nullptr, to.data(), home.data(), count, all, homes, halos);
 }
 
 // Columns run.to … of `source` added onto run.from … of `target` (reverse's direction), run by
@@ -825,10 +813,7 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
   // The runs of owned columns each rank is sent (sender's side of the plan): the carried words
   // of consecutive owned beads are consecutive (owned_words_), so a message's data is copied by
   // these runs.
-  for (int r = 0; r < ranks; ++r) {
-    make_all_and_home_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].all, out_[r].home_runs);
-    if (halo_pairs_once_) make_halo_runs(out_[r].owned, {}, out_[r].home, out_[r].owned.size(), out_[r].halo_runs);
-  }
+  for (Plan& p : out_) make_all_and_home_runs(p.owned, {}, p.home, p.owned.size(), p.all, p.home_runs, halo_runs_of(p));
   // The receivers learn which beads come, which are home, and what they carry. A message is
   // [n][per pair term, its partners' count over the n beads][n words: a global index g as g
   // (home) or −1 − g (halo)][the n beads' carried words (pack_bead_data), in the same order].
@@ -1026,12 +1011,9 @@ void Decomposition::select_pair_set(const Eigen::Matrix3Xd& x) {
     }
   }
   // The copies' runs.
-  make_all_and_home_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.all, local_.home_runs);
-  if (halo_pairs_once_) make_halo_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.halo_runs);
-  for (int r = 0; r < ranks; ++r) {
-    make_all_and_home_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].all, in_[r].home_runs);
-    if (halo_pairs_once_) make_halo_runs({}, in_[r].slot, in_[r].home, in_[r].slot.size(), in_[r].halo_runs);
-  }
+  make_all_and_home_runs(local_.owned, local_.slot, local_.home, local_.owned.size(), local_.all, local_.home_runs,
+                         halo_runs_of(local_));
+  for (Plan& p : in_) make_all_and_home_runs({}, p.slot, p.home, p.slot.size(), p.all, p.home_runs, halo_runs_of(p));
   // What one evaluation with forces sends: positions out (and the forces so far of the home
   // beads), the home beads' forces back (with the halo pairs once, every bead's).
   halo_doubles_ = 0;

@@ -322,6 +322,8 @@ class Decomposition {
   };
   std::vector<Plan> out_, in_;
   Plan local_;  // owned index and slot together
+  // A plan's halo runs where they are used (the halo pairs once), else null: none made.
+  std::vector<Run>* halo_runs_of(Plan& p) const { return halo_pairs_once_ ? &p.halo_runs : nullptr; }
   std::vector<int> pair_ids_;
   PairBeadData owned_data_, pair_data_;  // per owned column; per pair-set slot
   // The selection's messages (per rank: sent, received), kept from one selection to the next (a

@@ -121,10 +121,7 @@ void GhostedPairs::retarget() const {
       // A partner of a lower global index has a lower slot, if any: its pair is made from there.
       if (s.partner[q] < ids[e]) continue;
       const int t = domains_.pair_slot_near(s.partner[q], e);
-      if (t > e && !halo[e])
-        special.push_back({e, t, s.weight[q], s.weight_coul[q]});
-      else if (t > e && !once && !halo[t])
-        special.push_back({e, t, s.weight[q], s.weight_coul[q]});
+      if (t > e && (!halo[e] || (!once && !halo[t]))) special.push_back({e, t, s.weight[q], s.weight_coul[q]});
     }
   }
   // A charged term's charges follow the beads as their types do.
