@@ -180,6 +180,9 @@ PairSums accumulate_pair_rows(const NeighborList& list, int first, int last,
   const char* ghost = kShares ? list_share_flags(list) : nullptr;
   PairSums sums;
   for (int i = first; i < last; ++i) {
+    // A row with no listed pair adds nothing (f_i + 0 is f_i, but for a −0 component, which it
+    // would make +0): passed over, as accumulate_pair_forces_rows passes it.
+    if (offset[i] == offset[i + 1]) continue;
     const bool i_ghost = ghost && ghost[i];
     const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
     const Params* prow = params.row(type[i]);
@@ -367,15 +370,17 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
   // Per group, at its first slot: the kept count before it and its mask.
   int group_n[kChunk + 4], group_mask[kChunk + 4];
   // The rows: each one's x_i into its pairs' slots, its end as a slot of the chunk. At most kChunk
-  // rows (seg_row, seg_end): empty rows past the chunk's last pair join it (f_i += 0, as the scalar
-  // pass adds).
+  // rows are met (seg_row, seg_end: those with listed pairs; a row without is passed over, as the
+  // scalar pass passes it: a decomposed run's halo rows are often empty, all of them with the halo
+  // pairs once).
   const std::int64_t k0 = c.k, k1 = std::min<std::int64_t>(k0 + kChunk, offset[last]);
   const int i0 = c.i, row_limit = static_cast<int>(std::min<std::int64_t>(last, std::int64_t{i0} + kChunk));
-  int i = i0;
+  int i = i0, segments = 0;
   std::int64_t k = k0;
   bool split = false;
   for (; i < row_limit; ++i) {
     const std::int64_t end = offset[i + 1], stop = std::min(end, k1);
+    if (end == k) continue;  // no listed pair (left in this row)
     const int from = static_cast<int>(k - k0), to = static_cast<int>(stop - k0);
     const __m256d vx = _mm256_set1_pd(xp[3 * i]), vy = _mm256_set1_pd(xp[3 * i + 1]),
                   vz = _mm256_set1_pd(xp[3 * i + 2]);
@@ -402,15 +407,15 @@ template <bool kPeriodic, bool kRounded, bool kOneType, bool kCharged, class Par
       }
       q += 8;
     } while (q < to);
-    b.seg_row[i - i0] = i;
-    b.seg_end[i - i0] = to;  // a slot for now: made a buffer end below
+    b.seg_row[segments] = i;
+    b.seg_end[segments] = to;  // a slot for now: made a buffer end below
+    ++segments;
     k = stop;
     if (stop < end) {  // the chunk ends inside the row
       split = true;
       break;
     }
   }
-  const int segments = i - i0 + (split ? 1 : 0);
   const int listed = static_cast<int>(k - k0);
   const int slots = (listed + 3) & ~3;  // the groups' lanes
   // The lanes past the chunk's end: x_i = +∞ (every r² then +∞ or NaN: no test keeps them), a
@@ -700,6 +705,10 @@ void accumulate_pair_forces_rows(const NeighborList& list, int first, int last,
 #endif
     while (!avx2 && i < last && segments < kChunk) {
       const std::int64_t end = offset[i + 1];
+      if (end == k) {  // no listed pair (left in this row): passed over, as pass 1 with AVX2 does
+        ++i;
+        continue;
+      }
       const std::int64_t stop = std::min<std::int64_t>(end, k + (kChunk - n));
       const double xi = xp[3 * i], yi = xp[3 * i + 1], zi = xp[3 * i + 2];
       [[maybe_unused]] const Params* prow = kOneType ? nullptr : params.row(type[i]);

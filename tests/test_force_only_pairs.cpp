@@ -161,9 +161,10 @@ TYPED_TEST(ForceOnlyPairs, SameForcesBitForBitAsTheFullPass) {
 }
 
 // The force-only pass's AVX2 separations (pair_chunk_separations_avx2) against
-// its scalar pass: the same forces bit for bit, in the melt's periodic box (the fold, pairs across
-// every face), in a periodic box a few list radii wide (NearestImage's rounding), in open space,
-// and with rows longer than the chunk. Where the CPU has no AVX2 both calls take the scalar pass.
+// its scalar pass and both against the full pass (accumulate_pair_rows, forces alone): the same
+// forces bit for bit, in the melt's periodic box (the fold, pairs across every face), in a
+// periodic box a few list radii wide (NearestImage's rounding), in open space, and with rows
+// longer than the chunk. Where the CPU has no AVX2 both calls take the scalar pass.
 template <class K>
 void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box, const typename K::Coeffs& c,
                                        const std::string& what, double skin = 0.3, bool signed_zeros = false) {
@@ -179,9 +180,11 @@ void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box
   std::mt19937_64 rng(11);
   std::normal_distribution<double> g;
   for (Eigen::Index k = 0; k < f0.size(); ++k) f0.data()[k] = g(rng);
-  if (signed_zeros)  // f_k + 0 is f_k but for −0: each f_i += (its row's sum, 0 for no pair) as the scalar pass adds it
+  // f_k + 0 is f_k but for −0: each f_i += (its row's sum, 0 for no kept pair) as every pass adds
+  // it, and a row with no listed pair passed over by every pass (a −0 stays −0).
+  if (signed_zeros)
     for (Eigen::Index k = 0; k < f0.size(); k += 3) f0.data()[k] = k % 2 == 0 ? -0.0 : 0.0;
-  Eigen::Matrix3Xd scalar = f0, vector = f0;
+  Eigen::Matrix3Xd scalar = f0, vector = f0, full = f0;
   for (const bool v : {false, true}) {
     double* f = (v ? vector : scalar).data();
     if (box.any_periodic())
@@ -189,9 +192,15 @@ void expect_vector_pass_is_scalar_pass(const Eigen::Matrix3Xd& x, const Box& box
     else
       accumulate_pair_forces_rows<K, false, true>(list, 0, n, params, type.data(), 0, xw, near, f, {}, v);
   }
+  if (box.any_periodic())
+    accumulate_pair_rows<K, true, true, false>(list, 0, n, params, type.data(), xw, near, full.data());
+  else
+    accumulate_pair_rows<K, false, true, false>(list, 0, n, params, type.data(), xw, near, full.data());
   ASSERT_GT((scalar - f0).cwiseAbs().maxCoeff(), 1e-3) << what << ": the particles must interact";
   EXPECT_EQ(std::memcmp(scalar.data(), vector.data(), sizeof(double) * scalar.size()), 0)
       << what << ": max |difference| " << (scalar - vector).cwiseAbs().maxCoeff();
+  EXPECT_EQ(std::memcmp(scalar.data(), full.data(), sizeof(double) * scalar.size()), 0)
+      << what << ": against the full pass, max |difference| " << (scalar - full).cwiseAbs().maxCoeff();
 }
 
 TEST(ForceOnlyPairs, VectorSeparationsGiveTheScalarPassBits) {
