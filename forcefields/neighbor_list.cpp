@@ -505,17 +505,39 @@ inline void bin_particles(const BinGrid& g, const double* x, const char* ghost, 
 }
 
 // The cell coordinates of particles first … last − 1 marked per axis (occupied[a][c] = 1), by the
-// same arithmetic as bin_particles; returns whether some image is not 0.
+// same arithmetic as bin_particles, and kept (cells[3i + a], in the box's grid) for
+// bin_particles_from_cells; returns whether some image is not 0.
 inline bool mark_cell_coordinates(const BinGrid& g, const double* __restrict x, std::int64_t first, std::int64_t last,
-                                  char* const occupied[3]) {
+                                  char* const occupied[3], int* __restrict cells) {
   bool image = false;
   for (std::int64_t i = first; i < last; ++i)
     for (int a = 0; a < 3; ++a) {
       double im;
-      occupied[a][box_cell_coordinate(g, x[3 * i + a], a, im)] = 1;
+      const int c = box_cell_coordinate(g, x[3 * i + a], a, im);
+      cells[3 * i + a] = c;
+      occupied[a][c] = 1;
       image |= im != 0.0;
     }
   return image;
+}
+
+// bin_particles where every image is 0 (none stored) and mark_cell_coordinates has found each
+// particle's cell coordinates in the box's grid: the same keys and counts from those, placed in
+// the window, without computing them again.
+inline void bin_particles_from_cells(const BinGrid& g, const int* __restrict cells, const char* __restrict ghost,
+                                     std::int64_t first, std::int64_t last, int* __restrict key_of,
+                                     int* __restrict count) {
+  for (std::int64_t i = first; i < last; ++i) {
+    int c[3];
+    for (int a = 0; a < 3; ++a) {
+      c[a] = cells[3 * i + a] - g.first[a];
+      c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
+    }
+    const int cell = (c[0] * g.stored[1] + c[1]) * g.stored[2] + c[2];
+    const int key = ghost ? 2 * cell + ghost[i] : cell;
+    key_of[i] = key;
+    ++count[key];
+  }
 }
 
 #if defined(__x86_64__)
@@ -528,8 +550,8 @@ inline bool mark_cell_coordinates(const BinGrid& g, const double* __restrict x, 
 }
 [[gnu::target("sse4.1"), gnu::flatten]] bool mark_cell_coordinates_sse41(const BinGrid& g, const double* x,
                                                                          std::int64_t first, std::int64_t last,
-                                                                         char* const occupied[3]) {
-  return mark_cell_coordinates(g, x, first, last, occupied);
+                                                                         char* const occupied[3], int* cells) {
+  return mark_cell_coordinates(g, x, first, last, occupied, cells);
 }
 #endif
 
@@ -1069,9 +1091,12 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   // are x itself, bit for bit (x − 0 = x) — where they were two arrays of the positions' size.
   const bool windows = !ghost_.empty() && !small_box_;
   images_stored_ = true;
+  bool cells_found = false;  // box_cells_ holds each particle's cell coordinates (the pass below)
   if ((windows || positions_wrapped_) && n > 0) {
+    cells_found = true;
     const std::size_t marks = static_cast<std::size_t>(ncell_[0] + ncell_[1] + ncell_[2]);
     occupied_.assign(static_cast<std::size_t>(parts) * marks, 0);
+    box_cells_.resize(3 * static_cast<std::size_t>(n));
     std::array<char, kMaxParts> image{};
     parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
       char* const at = occupied_.data() + u * marks;
@@ -1079,11 +1104,11 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
 #if defined(__x86_64__)
       static const bool sse41 = __builtin_cpu_supports("sse4.1");
       if (sse41) {
-        image[u] = mark_cell_coordinates_sse41(grid, x.data(), first, last, occupied);
+        image[u] = mark_cell_coordinates_sse41(grid, x.data(), first, last, occupied, box_cells_.data());
         return;
       }
 #endif
-      image[u] = mark_cell_coordinates(grid, x.data(), first, last, occupied);
+      image[u] = mark_cell_coordinates(grid, x.data(), first, last, occupied, box_cells_.data());
     });
     for (int u = 1; u < parts; ++u)
       for (std::size_t k = 0; k < marks; ++k) occupied_[k] |= occupied_[u * marks + k];
@@ -1118,6 +1143,8 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   cell_sort_.begin(parts, halo ? 2 * ncells : ncells);
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     int* count = cell_sort_.clear(u);
+    if (cells_found && !images_stored_)
+      return bin_particles_from_cells(grid, box_cells_.data(), halo, first, last, cell_of_.data(), count);
 #if defined(__x86_64__)
     static const bool sse41 = __builtin_cpu_supports("sse4.1");
     if (sse41) {

@@ -343,6 +343,7 @@ class NeighborList {
   int window_first_[3] = {0, 0, 0};
   int stored_[3] = {1, 1, 1};
   std::vector<char> occupied_;  // bin's scratch with ghosts: per part, per axis, the coordinates occupied
+  std::vector<int> box_cells_;  // bin's scratch with that pass: per particle, its 3 cell coordinates in the box's grid
   // The stored coordinate of the box grid's coordinate c along axis a (−1: outside the window).
   int stored_cell(int a, int c) const;
   double bin_lo_[3] = {0.0, 0.0, 0.0}, bin_len_[3] = {0.0, 0.0, 0.0};  // the binned extent per axis
