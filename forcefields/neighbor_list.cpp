@@ -467,6 +467,22 @@ inline int box_cell_coordinate(const BinGrid& g, double x, int a, double& im) {
   return cell_coordinate(s * g.ncell[a], g.ncell[a]);
 }
 
+// The place in the window of the box grid's cell coordinate c along axis a.
+inline int window_coordinate(const BinGrid& g, int c, int a) {
+  c -= g.first[a];
+  return c + (c < 0 ? g.ncell[a] : 0);
+}
+
+// Particle i's key from its window coordinates c (its cell, or with halo flags 2 × cell + flag),
+// recorded and counted.
+inline void record_key(const BinGrid& g, const int c[3], const char* __restrict ghost, std::int64_t i,
+                       int* __restrict key_of, int* __restrict count) {
+  const int cell = (c[0] * g.stored[1] + c[1]) * g.stored[2] + c[2];
+  const int key = ghost ? 2 * cell + ghost[i] : cell;
+  key_of[i] = key;
+  ++count[key];
+}
+
 // kWindow: a window of the cells is stored (else every cell: first = 0, stored = ncell); kStore:
 // each image and wrapped position is stored (else every image is 0: NeighborList::bin).
 template <bool kWindow, bool kStore>
@@ -478,19 +494,13 @@ inline void bin_particles_as(const BinGrid& g, const double* __restrict x, const
     for (int a = 0; a < 3; ++a) {
       double im;
       c[a] = box_cell_coordinate(g, x[3 * i + a], a, im);
-      if constexpr (kWindow) {
-        c[a] -= g.first[a];
-        c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
-      }
+      if constexpr (kWindow) c[a] = window_coordinate(g, c[a], a);
       if constexpr (kStore) {
         image[3 * i + a] = im;
         wrapped[3 * i + a] = x[3 * i + a] - im;
       }
     }
-    const int cell = (c[0] * g.stored[1] + c[1]) * g.stored[2] + c[2];
-    const int key = ghost ? 2 * cell + ghost[i] : cell;
-    key_of[i] = key;
-    ++count[key];
+    record_key(g, c, ghost, i, key_of, count);
   }
 }
 
@@ -528,15 +538,9 @@ inline void bin_particles_from_cells(const BinGrid& g, const int* __restrict cel
                                      std::int64_t first, std::int64_t last, int* __restrict key_of,
                                      int* __restrict count) {
   for (std::int64_t i = first; i < last; ++i) {
-    int c[3];
-    for (int a = 0; a < 3; ++a) {
-      c[a] = cells[3 * i + a] - g.first[a];
-      c[a] += c[a] < 0 ? g.ncell[a] : 0;  // its place in the window
-    }
-    const int cell = (c[0] * g.stored[1] + c[1]) * g.stored[2] + c[2];
-    const int key = ghost ? 2 * cell + ghost[i] : cell;
-    key_of[i] = key;
-    ++count[key];
+    const int c[3] = {window_coordinate(g, cells[3 * i], 0), window_coordinate(g, cells[3 * i + 1], 1),
+                      window_coordinate(g, cells[3 * i + 2], 2)};
+    record_key(g, c, ghost, i, key_of, count);
   }
 }
 
@@ -1091,9 +1095,8 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   // are x itself, bit for bit (x − 0 = x) — where they were two arrays of the positions' size.
   const bool windows = !ghost_.empty() && !small_box_;
   images_stored_ = true;
-  bool cells_found = false;  // box_cells_ holds each particle's cell coordinates (the pass below)
-  if ((windows || positions_wrapped_) && n > 0) {
-    cells_found = true;
+  const bool marked = (windows || positions_wrapped_) && n > 0;  // box_cells_ then holds each particle's cells
+  if (marked) {
     const std::size_t marks = static_cast<std::size_t>(ncell_[0] + ncell_[1] + ncell_[2]);
     occupied_.assign(static_cast<std::size_t>(parts) * marks, 0);
     box_cells_.resize(3 * static_cast<std::size_t>(n));
@@ -1143,7 +1146,7 @@ void NeighborList::bin(const Eigen::Matrix3Xd& x, const Box& box) {
   cell_sort_.begin(parts, halo ? 2 * ncells : ncells);
   parallel_numbered_blocks(n, parts, [&](int u, std::int64_t first, std::int64_t last) {
     int* count = cell_sort_.clear(u);
-    if (cells_found && !images_stored_)
+    if (marked && !images_stored_)
       return bin_particles_from_cells(grid, box_cells_.data(), halo, first, last, cell_of_.data(), count);
 #if defined(__x86_64__)
     static const bool sse41 = __builtin_cpu_supports("sse4.1");
