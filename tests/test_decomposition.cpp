@@ -277,6 +277,7 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
     for (int a = 0; a < 3; ++a) c1(a, g) = 10.0 * g + a, c2(a, g) = -0.5 * g - 0.25 * a;
   std::vector<Snapshot> before(layout.ranks), after(layout.ranks);
   std::vector<char> changed(layout.ranks), changed_again(layout.ranks, 1);
+  std::vector<char> leave_at_start(layout.ranks, 1), leave(layout.ranks), leave_again(layout.ranks, 1);
   std::vector<Moves> moves(layout.ranks);
   run_ranks(layout.ranks, [&](const FakeCommunicator& comm) {
     const int me = comm.rank();
@@ -284,16 +285,20 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
     Eigen::Matrix3Xd x, v;
     d->distribute(melt.topology, melt.state, x, v);
     before[me] = snapshot(*d, melt, x, v);
-    moves[me] = plan_moves(melt, d->grid());  // the same on every rank
+    leave_at_start[me] = d->molecules_leave(x);  // each molecule on its anchor's rank
+    moves[me] = plan_moves(melt, d->grid());     // the same on every rank
     Eigen::Matrix3Xd mine1(3, d->num_owned()), mine2(3, d->num_owned());
     for (int k = 0; k < d->num_owned(); ++k) {
       const int g = d->owned_ids()[k];
       x.col(k) = moves[me].x.col(g);
       mine1.col(k) = c1.col(g), mine2.col(k) = c2.col(g);
     }
+    leave[me] = d->molecules_leave(x);  // the test alone: nothing moves
+    EXPECT_EQ(d->owned_ids(), before[me].ids);
     changed[me] = d->migrate(x, v, {&mine1, &mine2});
     after[me] = snapshot(*d, melt, x, v, {mine1, mine2});
-    // Nothing moved since: nothing changes.
+    // Nothing moved since: nothing leaves, nothing changes.
+    leave_again[me] = d->molecules_leave(x);
     changed_again[me] = d->migrate(x, v, {&mine1, &mine2});
     EXPECT_EQ(d->owned_ids(), after[me].ids);
     EXPECT_TRUE(same(x, after[me].x));
@@ -328,6 +333,11 @@ TEST_P(DecompositionOnFakeRanks, MigrateMovesFarMoleculesWholeWithTheirColumnsAn
       EXPECT_EQ(after[r].carried[1].col(k), c2.col(after[r].ids[k])) << "rank " << r;
     }
     EXPECT_EQ(changed[r] != 0, before[r].ids != after[r].ids) << "rank " << r;
+    // The same answer on every rank: whether any rank's molecules moved.
+    EXPECT_FALSE(leave_at_start[r]) << "rank " << r;
+    EXPECT_EQ(leave[r] != 0, std::any_of(changed.begin(), changed.end(), [](char c) { return c != 0; }))
+        << "rank " << r;
+    EXPECT_FALSE(leave_again[r]) << "rank " << r;
     EXPECT_FALSE(changed_again[r]) << "rank " << r;
   }
   int moved = 0;

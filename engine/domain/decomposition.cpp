@@ -311,12 +311,8 @@ void Decomposition::distribute(const Topology& topology, const State& whole, Eig
   start(molecules, x, v);
 }
 
-bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
-                            PartMolecules* molecules) {
-  const ScopedPhase phase(Phase::domain);
-  const int me = comm_.rank(), owned = num_owned();
-  if (molecules && molecules->global != ids_)
-    throw std::logic_error("Decomposition::migrate: the part's molecules are not the owned particles");
+int Decomposition::find_leaving(const Eigen::Matrix3Xd& x) const {
+  const int me = comm_.rank();
   // A molecule leaves when its anchor is past this rank's domain by more than a quarter of the
   // domain's narrowest width: an anchor near a face does not go back and forth (each move rebuilds
   // two ranks' parts). A molecule away from its domain costs only messages: its beads' pair forces
@@ -324,17 +320,33 @@ bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vecto
   const int mine[3] = {me / (grid_.dims[1] * grid_.dims[2]), (me / grid_.dims[2]) % grid_.dims[1], me % grid_.dims[2]};
   double slack = std::numeric_limits<double>::infinity();
   for (int a = 0; a < 3; ++a) slack = std::min(slack, 0.25 * (grid_.face(a, mine[a] + 1) - grid_.face(a, mine[a])));
-  std::vector<int> to(owned, -1);  // per owned column: the rank it leaves for (−1: it stays)
-  bool leaving = false;
+  leave_to_.assign(num_owned(), -1);
+  int leaving = 0;
   for (int i = 0; i < static_cast<int>(owned_.size()); ++i) {
     const Eigen::Vector3d c = owned_anchor(x, i);
     const int dest = grid_.domain_of(c);
     if (dest == me || grid_.within(me, c, slack)) continue;
-    ++migrated_;
-    leaving = true;
-    for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) to[owned_columns_[e]] = dest;
+    ++leaving;
+    for (int e = owned_start_[i]; e < owned_start_[i + 1]; ++e) leave_to_[owned_columns_[e]] = dest;
   }
-  return send_molecules(to, leaving, x, v, std::move(carried), molecules);
+  return leaving;
+}
+
+bool Decomposition::molecules_leave(const Eigen::Matrix3Xd& x) const {
+  const ScopedPhase phase(Phase::domain);
+  double leaving = find_leaving(x) > 0 ? 1.0 : 0.0;
+  comm_.max(&leaving, 1);
+  return leaving > 0.0;
+}
+
+bool Decomposition::migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
+                            PartMolecules* molecules) {
+  const ScopedPhase phase(Phase::domain);
+  if (molecules && molecules->global != ids_)
+    throw std::logic_error("Decomposition::migrate: the part's molecules are not the owned particles");
+  const int leaving = find_leaving(x);
+  migrated_ += leaving;
+  return send_molecules(leave_to_, leaving > 0, x, v, std::move(carried), molecules);
 }
 
 bool Decomposition::send_molecules(const std::vector<int>& to, bool leaving, Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v,

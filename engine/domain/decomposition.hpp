@@ -180,6 +180,10 @@ class Decomposition {
   // become the new owned ones. Returns whether this rank's owned particles changed. Collective.
   bool migrate(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, std::vector<Eigen::Matrix3Xd*> carried,
                PartMolecules* molecules = nullptr);
+  // Whether migrate(x, ...) would move a molecule on any rank (its test alone, one
+  // max-reduction): where it would not, a caller need not gather what travels with the
+  // molecules, nor call migrate. Collective.
+  bool molecules_leave(const Eigen::Matrix3Xd& x) const;
   // What each owned bead carries to the pair sets at the selections from now on (per owned
   // column, in the owned order; the same `charged` and number of pair terms on every rank): set
   // whenever the owned particles change (a part built). Not set: the beads carry their global
@@ -366,6 +370,11 @@ class Decomposition {
   std::int64_t halo_doubles_ = 0;
   int halo_messages_ = 0;
   long selections_ = 0, migrated_ = 0;
+  // Per owned column, the rank its molecule leaves for (−1: it stays): migrate's test, kept
+  // between calls so that it allocates nothing once sized.
+  mutable std::vector<int> leave_to_;
+  // Fills leave_to_ for the owned positions x; returns the number of molecules that leave.
+  int find_leaving(const Eigen::Matrix3Xd& x) const;
 };
 
 }  // namespace stiffmd

@@ -420,22 +420,24 @@ void DomainIntegrator::start_parts(PartMolecules molecules, Eigen::Matrix3Xd x, 
 void DomainIntegrator::reselect(bool box_moved, const std::vector<Eigen::Matrix3Xd*>& extra) {
   const ScopedPhase phase(Phase::domain);
   State& l = part_->scene.state;
-  CarriedState carried = part_->integrator->carried_state();
-  std::vector<Eigen::Matrix3Xd*> columns;
-  for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
-  columns.insert(columns.end(), extra.begin(), extra.end());
   // The home beads counted at the selection: the dynamic balance may recut the domains first, and
   // the molecules then migrate to the new ones.
   const bool recut = domains_->rebalance(l.x);
-  double changed = 0.0;
-  if (domains_->migrate(l.x, l.v, columns, &molecules_)) {
-    changed = 1.0;
-    Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
-    build_part(std::move(x), std::move(v), l, false);
-    part_->integrator->restore_carried_state(std::move(carried));
+  // The integrator's carried columns (its kick forces: a copy of the size of x each) are taken
+  // only when a molecule leaves some rank, to travel with it; most selections move none.
+  const bool leaving = domains_->molecules_leave(l.x);
+  if (leaving) {
+    CarriedState carried = part_->integrator->carried_state();
+    std::vector<Eigen::Matrix3Xd*> columns;
+    for (Eigen::Matrix3Xd& c : carried.columns) columns.push_back(&c);
+    columns.insert(columns.end(), extra.begin(), extra.end());
+    if (domains_->migrate(l.x, l.v, columns, &molecules_)) {
+      Eigen::Matrix3Xd x = std::move(l.x), v = std::move(l.v);
+      build_part(std::move(x), std::move(v), l, false);
+      part_->integrator->restore_carried_state(std::move(carried));
+    }
   }
-  comm_.max(&changed, 1);
-  if (changed > 0.0 || box_moved || recut) domains_->select_pair_set(part_->scene.state.x);
+  if (leaving || box_moved || recut) domains_->select_pair_set(part_->scene.state.x);
 }
 
 void DomainIntegrator::step(State& s, double h) {
